@@ -1,0 +1,165 @@
+"""FlightLog: one flight on one monotonic time base, in the internal convention.
+
+Frames and units (see :mod:`quad_modelling.core.frames`): N = NED, B = FRD,
+Euler ZYX, SI units. Every array has one row per sample time ``t``.
+
+=========  =======  ==========================================================
+field      shape    content
+=========  =======  ==========================================================
+t          (N,)     sample time [s], strictly increasing
+u          (N, 4)   raw engine commands as logged (PWM counts, pulse seconds...)
+acc_b      (N, 3)   onboard accelerometer specific force, B frame [m/s²]
+gyro_b     (N, 3)   onboard gyro rates p, q, r about B axes [rad/s]
+pos_n      (N, 3)   motion-capture position in N [m]
+vel_n      (N, 3)   motion-capture velocity in N [m/s]
+euler      (N, 3)   motion-capture attitude φ, θ, ψ [rad]
+vbat       (N,)     optional battery voltage [V]
+omega      (N, 4)   optional rotor speeds [rad/s]
+=========  =======  ==========================================================
+
+Construction validates shapes, strictly increasing time and finite values
+(a NaN is rejected with the channel and sample time named; readers that can
+fill gaps say so in ``meta.notes``), and the sensor full-scale limits below,
+which catch data in the wrong unit (e.g. accelerations in g, angles in deg).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from quad_modelling.errors import DataError
+
+GYRO_FULL_SCALE = np.deg2rad(2000.0)
+"""Largest rate a MEMS gyro reports [rad/s] (±2000 deg/s: BMI088, MPU-6050 ranges)."""
+
+ACCEL_FULL_SCALE = 24.0 * 9.80665
+"""Largest specific force a MEMS accelerometer reports [m/s²] (±24 g: BMI088)."""
+
+VECTOR_FIELDS = ("acc_b", "gyro_b", "pos_n", "vel_n", "euler")
+"""The (N, 3) fields, in the order used by writers."""
+
+
+@dataclass
+class FlightMeta:
+    """What a flight log is about.
+
+    vehicle: name of the vehicle config (``config/vehicles/<name>.yaml``).
+    source: the file it was read from (or ``simulated``).
+    notes: free-form facts kept with the log (effects, seed, fill rules...).
+    """
+
+    vehicle: str
+    source: str
+    notes: dict = field(default_factory=dict)
+
+
+@dataclass
+class FlightLog:
+    """One flight on one time base; validated on construction (see module doc)."""
+
+    t: np.ndarray
+    u: np.ndarray
+    acc_b: np.ndarray
+    gyro_b: np.ndarray
+    pos_n: np.ndarray
+    vel_n: np.ndarray
+    euler: np.ndarray
+    meta: FlightMeta
+    vbat: np.ndarray | None = None
+    omega: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        where = self.meta.source
+        self.t = np.ascontiguousarray(self.t, dtype=float)
+        if self.t.ndim != 1 or self.t.size < 2:
+            raise DataError(f"{where}: time must be a vector of at least 2 samples, got shape {self.t.shape}")
+        n = self.t.size
+        expected = {"u": (n, 4), **{name: (n, 3) for name in VECTOR_FIELDS}}
+        if self.vbat is not None:
+            expected["vbat"] = (n,)
+        if self.omega is not None:
+            expected["omega"] = (n, 4)
+        for name, shape in expected.items():
+            value = np.ascontiguousarray(getattr(self, name), dtype=float)
+            if value.shape != shape:
+                raise DataError(f"{where}: field {name} has shape {value.shape}, expected {shape}")
+            setattr(self, name, value)
+        self._check_finite(where)
+        steps = np.diff(self.t)
+        if np.any(steps <= 0):
+            row = int(np.argmax(steps <= 0)) + 1
+            raise DataError(
+                f"{where}: time is not strictly increasing at row {row} "
+                f"(t={self.t[row]:.6f} s after {self.t[row - 1]:.6f} s)"
+            )
+        self._check_range(where, "gyro_b", GYRO_FULL_SCALE, "rad/s (gyro full scale)")
+        self._check_range(where, "acc_b", ACCEL_FULL_SCALE, "m/s² (accelerometer full scale)")
+        self._check_range(where, "euler", np.pi + 1e-6, "rad for roll/pitch", columns=(0, 1))
+
+    def _check_finite(self, where: str) -> None:
+        for name in ("t", "u", *VECTOR_FIELDS, "vbat", "omega"):
+            value = getattr(self, name)
+            if value is None:
+                continue
+            bad = ~np.isfinite(value)
+            if bad.any():
+                row = int(np.argmax(bad.reshape(len(value), -1).any(axis=1)))
+                column = "" if value.ndim == 1 else f" column {int(np.argmax(bad[row]))}"
+                time = f" (t={self.t[row]:.3f} s)" if name != "t" else ""
+                raise DataError(f"{where}: field {name}{column} is not finite at row {row}{time}")
+
+    def _check_range(self, where: str, name: str, limit: float, what: str, columns=(0, 1, 2)) -> None:
+        values = np.abs(getattr(self, name)[:, list(columns)])
+        if values.max() > limit:
+            row, col = np.unravel_index(int(np.argmax(values)), values.shape)
+            raise DataError(
+                f"{where}: field {name} column {columns[col]} row {row} is {getattr(self, name)[row, columns[col]]:.4g}, "
+                f"beyond ±{limit:.4g} {what}: wrong unit or corrupt data"
+            )
+
+    def __len__(self) -> int:
+        return int(self.t.size)
+
+    @property
+    def duration(self) -> float:
+        """Time span t[-1] - t[0] [s]."""
+        return float(self.t[-1] - self.t[0])
+
+    @property
+    def sample_rate(self) -> float:
+        """Median sample rate [Hz]."""
+        return float(1.0 / np.median(np.diff(self.t)))
+
+    def slice(self, start: int, stop: int) -> FlightLog:
+        """Rows [start, stop) as a new FlightLog with the same metadata."""
+        changes = {
+            name: getattr(self, name)[start:stop]
+            for name in ("t", "u", *VECTOR_FIELDS, "vbat", "omega")
+            if getattr(self, name) is not None
+        }
+        return dataclasses.replace(self, **changes)
+
+    def check_input_range(self, low: float, high: float, unit: str) -> None:
+        """Raise DataError naming column, row and time of the first command outside [low, high]."""
+        outside = (self.u < low) | (self.u > high)
+        if outside.any():
+            row = int(np.argmax(outside.any(axis=1)))
+            col = int(np.argmax(outside[row]))
+            raise DataError(
+                f"{self.meta.source}: engine command u{col + 1} row {row} (t={self.t[row]:.3f} s) is "
+                f"{self.u[row, col]:.6g} {unit}, outside the configured range [{low:g}, {high:g}] "
+                f"of vehicle {self.meta.vehicle}"
+            )
+
+    def allclose(self, other: FlightLog, rtol: float = 1e-9, atol: float = 1e-9) -> bool:
+        """True when every array of both logs is equal within tolerance (metadata ignored)."""
+        for name in ("t", "u", *VECTOR_FIELDS, "vbat", "omega"):
+            a, b = getattr(self, name), getattr(other, name)
+            if (a is None) != (b is None):
+                return False
+            if a is not None and (a.shape != b.shape or not np.allclose(a, b, rtol=rtol, atol=atol)):
+                return False
+        return True

@@ -1,0 +1,139 @@
+"""The one place that converts frames and units.
+
+Internal (core) convention, as the thesis: navigation frame N = NED (x north,
+y east, z down), body frame B = FRD (x forward, y right, z down), Euler angles
+roll φ, pitch θ, yaw ψ in the ZYX (yaw-pitch-roll) sequence, SI units.
+
+ROS convention (REP-103/REP-147): world frame ENU (x east, y north, z up), body
+frame FLU (x forward, y left, z up).
+
+Vectors convert with constant permutation/sign matrices, each its own inverse:
+
+.. math::
+
+    v_{NED} = M_{NE} v_{ENU},\\quad M_{NE} = \\begin{bmatrix}0&1&0\\\\1&0&0\\\\0&0&-1\\end{bmatrix}
+
+    v_{FRD} = M_{FB} v_{FLU},\\quad M_{FB} = \\mathrm{diag}(1, -1, -1)
+
+and attitudes (body-to-world rotations) as :math:`R_{NED←FRD} = M_{NE} R_{ENU←FLU} M_{FB}`.
+
+Nothing outside this module flips a sign or scales a unit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+STANDARD_GRAVITY = 9.80665
+"""Standard gravity g0 [m/s²] (CGPM 1901; the unit 'g' of accelerometers)."""
+
+ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+"""M_NE: maps an ENU vector to NED (and back: it is its own inverse)."""
+
+FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
+"""M_FB: maps a FLU body vector to FRD (and back)."""
+
+DEG = np.pi / 180.0
+"""One degree in radians."""
+
+# Units accepted by readers and mapping files, as (SI unit, factor to SI).
+UNIT_FACTORS: dict[str, tuple[str, float]] = {
+    "s": ("s", 1.0),
+    "ms": ("s", 1e-3),
+    "us": ("s", 1e-6),
+    "ns": ("s", 1e-9),
+    "m": ("m", 1.0),
+    "mm": ("m", 1e-3),
+    "m/s": ("m/s", 1.0),
+    "m/s2": ("m/s2", 1.0),
+    "g": ("m/s2", STANDARD_GRAVITY),
+    "rad": ("rad", 1.0),
+    "deg": ("rad", DEG),
+    "rad/s": ("rad/s", 1.0),
+    "deg/s": ("rad/s", DEG),
+    "rad/s2": ("rad/s2", 1.0),
+    "deg/s2": ("rad/s2", DEG),
+    "V": ("V", 1.0),
+    "1": ("1", 1.0),
+    "PWM": ("PWM", 1.0),
+}
+
+
+def to_si(values: np.ndarray, unit: str) -> np.ndarray:
+    """Scale ``values`` given in ``unit`` to its SI unit (see ``UNIT_FACTORS``).
+
+    Raises KeyError naming the unit when it is unknown; callers wrap it with
+    the file and field at fault.
+    """
+    if unit not in UNIT_FACTORS:
+        raise KeyError(f"unknown unit {unit!r}; known: {', '.join(UNIT_FACTORS)}")
+    return np.asarray(values, dtype=float) * UNIT_FACTORS[unit][1]
+
+
+def from_si(values: np.ndarray, unit: str) -> np.ndarray:
+    """Inverse of :func:`to_si`: SI values expressed in ``unit``."""
+    if unit not in UNIT_FACTORS:
+        raise KeyError(f"unknown unit {unit!r}; known: {', '.join(UNIT_FACTORS)}")
+    return np.asarray(values, dtype=float) / UNIT_FACTORS[unit][1]
+
+
+def enu_to_ned(v: np.ndarray) -> np.ndarray:
+    """World vector(s) ENU -> NED; ``v`` is (3,) or (N, 3)."""
+    return np.asarray(v, dtype=float) @ ENU_TO_NED.T
+
+
+def ned_to_enu(v: np.ndarray) -> np.ndarray:
+    """World vector(s) NED -> ENU; ``v`` is (3,) or (N, 3)."""
+    return np.asarray(v, dtype=float) @ ENU_TO_NED.T
+
+
+def flu_to_frd(v: np.ndarray) -> np.ndarray:
+    """Body vector(s) FLU -> FRD (also angular rates); ``v`` is (3,) or (N, 3)."""
+    return np.asarray(v, dtype=float) @ FLU_TO_FRD.T
+
+
+def frd_to_flu(v: np.ndarray) -> np.ndarray:
+    """Body vector(s) FRD -> FLU (also angular rates); ``v`` is (3,) or (N, 3)."""
+    return np.asarray(v, dtype=float) @ FLU_TO_FRD.T
+
+
+def euler_ned_to_rotation(euler: np.ndarray) -> Rotation:
+    """Rotation R_NED←FRD from Euler angles (φ, θ, ψ) [rad], ZYX sequence."""
+    euler = np.asarray(euler, dtype=float)
+    return Rotation.from_euler("ZYX", euler[..., ::-1])
+
+
+def rotation_to_euler_ned(rotation: Rotation) -> np.ndarray:
+    """Euler angles (φ, θ, ψ) [rad] of R_NED←FRD, ZYX sequence; (N, 3) or (3,)."""
+    return rotation.as_euler("ZYX")[..., ::-1]
+
+
+def euler_ned_to_quat_enu(euler: np.ndarray) -> np.ndarray:
+    """Attitude (φ, θ, ψ) NED/FRD [rad] -> quaternion (x, y, z, w) of R_ENU←FLU."""
+    r_ned = euler_ned_to_rotation(euler).as_matrix()
+    r_enu = ENU_TO_NED @ r_ned @ FLU_TO_FRD
+    return Rotation.from_matrix(r_enu).as_quat()
+
+
+def quat_enu_to_euler_ned(quat_xyzw: np.ndarray) -> np.ndarray:
+    """Quaternion (x, y, z, w) of R_ENU←FLU -> Euler (φ, θ, ψ) NED/FRD [rad]."""
+    r_enu = Rotation.from_quat(np.asarray(quat_xyzw, dtype=float)).as_matrix()
+    r_ned = ENU_TO_NED @ r_enu @ FLU_TO_FRD
+    return rotation_to_euler_ned(Rotation.from_matrix(r_ned))
+
+
+def body_to_nav(vectors_b: np.ndarray, euler: np.ndarray) -> np.ndarray:
+    """Rotate body FRD vectors (N, 3) into N (NED) with attitudes (N, 3) [rad]."""
+    return euler_ned_to_rotation(euler).apply(vectors_b)
+
+
+def nav_to_body(vectors_n: np.ndarray, euler: np.ndarray) -> np.ndarray:
+    """Rotate NED vectors (N, 3) into the body frame FRD with attitudes (N, 3)."""
+    return euler_ned_to_rotation(euler).apply(vectors_n, inverse=True)
+
+
+def geodesic_angle(euler_a: np.ndarray, euler_b: np.ndarray) -> np.ndarray:
+    """Angle [rad] of the rotation between two attitudes, elementwise over rows."""
+    rel = euler_ned_to_rotation(euler_a).inv() * euler_ned_to_rotation(euler_b)
+    return rel.magnitude()

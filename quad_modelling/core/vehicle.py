@@ -1,0 +1,246 @@
+"""VehicleConfig: one airframe's constants, loaded from ``config/vehicles/*.yaml``.
+
+Every constant in the YAML is a mapping ``{value, unit, source, status}`` where
+``status`` is ``measured`` (from the airframe or literature) or ``identified``
+(a starting value that ``quad-modelling identify`` refines from flight data).
+There are no silent defaults: a missing key is a ConfigError naming the file
+and key.
+
+Motors are listed in command order (u1..u4); each has a position in the body
+frame FRD [m] and a spin direction seen from above. A rotor spinning
+counter-clockwise seen from above pushes the body clockwise, i.e. a positive
+yaw torque about the FRD z axis (down): ``yaw_sign = +1``; clockwise: ``-1``.
+
+Thrust and drag torque per rotor (thesis Eq 3-3, 3-13):
+
+.. math::
+
+    T_i = a \\Omega_i^2, \\qquad Q_i = d \\Omega_i^2, \\qquad
+    \\Omega_0 = \\sqrt{m g / (4 a)}
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from quad_modelling.errors import ConfigError
+
+GRAVITY = 9.81
+"""Local gravity used by the models [m/s²] (thesis value, Eq 3-10)."""
+
+
+def vehicle_dir() -> Path:
+    """Where the shipped vehicle configs are.
+
+    In a source checkout or editable install: ``<repo>/config/vehicles``. In a
+    colcon install: ``share/quad_modelling/config/vehicles`` (setup.py data_files).
+    """
+    source_tree = Path(__file__).resolve().parents[2] / "config" / "vehicles"
+    if source_tree.is_dir():
+        return source_tree
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        return Path(get_package_share_directory("quad_modelling")) / "config" / "vehicles"
+    except (ImportError, LookupError) as err:
+        raise ConfigError("cannot find the shipped vehicle configs (no source tree, no ament share)") from err
+
+CONSTANT_KEYS = (
+    "mass",
+    "arm_length",
+    "ixx",
+    "iyy",
+    "izz",
+    "prop_inertia",
+    "motor_a_m",
+    "motor_b_m",
+    "thrust_constant",
+    "drag_constant",
+)
+"""Constants every vehicle file must give (thesis Table 3-1 names in README)."""
+
+STATUSES = ("measured", "identified")
+
+
+@dataclass(frozen=True)
+class Constant:
+    """One physical constant with its unit, its source and how it was obtained."""
+
+    value: float
+    unit: str
+    source: str
+    status: str
+
+
+@dataclass(frozen=True)
+class Motor:
+    """One rotor: position (x, y) in body FRD [m] and yaw torque sign (+1 = spins CCW from above)."""
+
+    name: str
+    position: tuple[float, float]
+    yaw_sign: int
+
+
+@dataclass(frozen=True)
+class VehicleConfig:
+    """A validated vehicle description (see module docstring)."""
+
+    name: str
+    description: str
+    geometry: str
+    motors: tuple[Motor, ...]
+    constants: dict[str, Constant]
+    input_min: float
+    input_max: float
+    input_unit: str
+    path: str
+
+    def value(self, key: str) -> float:
+        """The numeric value of a constant, e.g. ``cfg.value('mass')``."""
+        try:
+            return self.constants[key].value
+        except KeyError as err:
+            raise ConfigError(f"{self.path}: vehicle {self.name} has no constant {key!r}") from err
+
+    @property
+    def mass(self) -> float:
+        return self.value("mass")
+
+    @property
+    def hover_thrust_per_rotor(self) -> float:
+        """T_H = m g / 4 [N]."""
+        return self.mass * GRAVITY / 4.0
+
+    @property
+    def hover_rotor_speed(self) -> float:
+        """Ω0 = sqrt(m g / (4 a)) [rad/s]."""
+        return float(np.sqrt(self.hover_thrust_per_rotor / self.value("thrust_constant")))
+
+    @property
+    def motor_positions(self) -> np.ndarray:
+        """(4, 2) rotor positions (x forward, y right) in FRD [m]."""
+        return np.array([m.position for m in self.motors], dtype=float)
+
+    @property
+    def yaw_signs(self) -> np.ndarray:
+        """(4,) yaw reaction torque signs (+1 = rotor spins CCW seen from above)."""
+        return np.array([m.yaw_sign for m in self.motors], dtype=float)
+
+    @property
+    def inertia(self) -> np.ndarray:
+        """Diagonal inertia (Ixx, Iyy, Izz) [kg m²]."""
+        return np.array([self.value("ixx"), self.value("iyy"), self.value("izz")])
+
+    def identified(self) -> list[str]:
+        """Names of the constants to identify from flight data."""
+        return [k for k, c in self.constants.items() if c.status == "identified"]
+
+    def with_values(self, values: dict[str, float], source: str) -> VehicleConfig:
+        """A copy with some constants replaced (e.g. identified ones), noting the source."""
+        constants = dict(self.constants)
+        for key, value in values.items():
+            old = self.constants.get(key)
+            if old is None:
+                raise ConfigError(f"{self.path}: cannot set unknown constant {key!r}")
+            constants[key] = Constant(float(value), old.unit, source, old.status)
+        return VehicleConfig(
+            self.name, self.description, self.geometry, self.motors, constants,
+            self.input_min, self.input_max, self.input_unit, self.path,
+        )
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> VehicleConfig:
+        """Load and validate a vehicle file; ConfigError names the file and key at fault."""
+        path = Path(path)
+        try:
+            doc = yaml.safe_load(path.read_text())
+        except OSError as err:
+            raise ConfigError(f"{path}: cannot read vehicle config: {err.strerror}") from err
+        except yaml.YAMLError as err:
+            raise ConfigError(f"{path}: not valid YAML: {err}") from err
+        if not isinstance(doc, dict):
+            raise ConfigError(f"{path}: expected a mapping at the top level")
+        return cls.from_dict(doc, str(path))
+
+    @classmethod
+    def from_dict(cls, doc: dict, where: str) -> VehicleConfig:
+        """Validate an already-parsed vehicle document (``where`` names it in errors)."""
+
+        def need(mapping: dict, key: str, context: str):
+            if not isinstance(mapping, dict) or key not in mapping:
+                raise ConfigError(f"{where}: missing required key {context}{key}")
+            return mapping[key]
+
+        name = str(need(doc, "name", ""))
+        geometry = need(doc, "geometry", "")
+        if geometry not in ("plus", "x"):
+            raise ConfigError(f"{where}: geometry must be 'plus' or 'x', got {geometry!r}")
+        constants_doc = need(doc, "constants", "")
+        constants: dict[str, Constant] = {}
+        for key in CONSTANT_KEYS:
+            entry = need(constants_doc, key, "constants.")
+            for sub in ("value", "unit", "source", "status"):
+                need(entry, sub, f"constants.{key}.")
+            if entry["status"] not in STATUSES:
+                raise ConfigError(f"{where}: constants.{key}.status must be one of {STATUSES}, got {entry['status']!r}")
+            try:
+                value = float(entry["value"])
+            except (TypeError, ValueError) as err:
+                raise ConfigError(f"{where}: constants.{key}.value is not a number: {entry['value']!r}") from err
+            constants[key] = Constant(value, str(entry["unit"]), str(entry["source"]), entry["status"])
+        for key in ("mass", "arm_length", "ixx", "iyy", "izz", "thrust_constant", "drag_constant", "motor_b_m"):
+            if constants[key].value <= 0:
+                raise ConfigError(f"{where}: constants.{key}.value must be positive, got {constants[key].value}")
+        if constants["motor_a_m"].value >= 0:
+            raise ConfigError(f"{where}: constants.motor_a_m.value must be negative (a stable motor pole), got {constants['motor_a_m'].value}")
+        motors_doc = need(doc, "motors", "")
+        if not isinstance(motors_doc, list) or len(motors_doc) != 4:
+            raise ConfigError(f"{where}: motors must list exactly 4 rotors in command order u1..u4")
+        motors = []
+        for i, m in enumerate(motors_doc):
+            position = need(m, "position", f"motors[{i}].")
+            spin = need(m, "spin", f"motors[{i}].")
+            if spin not in ("cw", "ccw"):
+                raise ConfigError(f"{where}: motors[{i}].spin must be 'cw' or 'ccw' (seen from above), got {spin!r}")
+            if not (isinstance(position, list) and len(position) == 2):
+                raise ConfigError(f"{where}: motors[{i}].position must be [x, y] in body FRD metres")
+            motors.append(Motor(str(need(m, "name", f"motors[{i}].")), (float(position[0]), float(position[1])), 1 if spin == "ccw" else -1))
+        radii = np.hypot(*np.array([m.position for m in motors]).T)
+        arm = constants["arm_length"].value
+        if not np.allclose(radii, arm, rtol=0.02):
+            raise ConfigError(f"{where}: motor positions lie at {np.round(radii, 4).tolist()} m from the centre, not arm_length {arm} m")
+        if sum(m.yaw_sign for m in motors) != 0:
+            raise ConfigError(f"{where}: two rotors must spin cw and two ccw")
+        inputs = need(doc, "inputs", "")
+        input_min = float(need(inputs, "min", "inputs."))
+        input_max = float(need(inputs, "max", "inputs."))
+        if not input_max > input_min:
+            raise ConfigError(f"{where}: inputs.max must exceed inputs.min")
+        return cls(
+            name=name,
+            description=str(doc.get("description", "")),
+            geometry=geometry,
+            motors=tuple(motors),
+            constants=constants,
+            input_min=input_min,
+            input_max=input_max,
+            input_unit=str(need(inputs, "unit", "inputs.")),
+            path=where,
+        )
+
+
+def load_vehicle(name_or_path: str | Path) -> VehicleConfig:
+    """A vehicle by shipped name (``linkquad``, ``crazyflie21``) or by YAML path."""
+    candidate = Path(name_or_path)
+    if candidate.suffix in (".yaml", ".yml"):
+        return VehicleConfig.from_yaml(candidate)
+    directory = vehicle_dir()
+    path = directory / f"{name_or_path}.yaml"
+    if not path.exists():
+        known = sorted(p.stem for p in directory.glob("*.yaml"))
+        raise ConfigError(f"unknown vehicle {name_or_path!r}; shipped: {', '.join(known)} (or give a .yaml path)")
+    return VehicleConfig.from_yaml(path)

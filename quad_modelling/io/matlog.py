@@ -1,0 +1,230 @@
+"""Thesis-style MATLAB flight logs (``.mat``, v5/v7, scipy.io).
+
+A thesis log holds one time vector and one variable per measured column. The
+default variable names (:data:`THESIS_VARIABLES`) are what :func:`write_matlog`
+writes and what :func:`read_matlog` expects without a mapping; all in the
+internal convention (NED/FRD, SI, rad). Logs from other labs are read through a
+YAML mapping file, one entry per FlightLog field::
+
+    time:  {variable: t, unit: s}
+    u:     {variable: PWM, columns: [0, 1, 2, 3], unit: us}
+    acc_b: {variables: [ax, ay, az], unit: g, frame: FLU}
+    euler: {variables: [roll, pitch, yaw], unit: deg, frame: NED}
+
+``columns`` are 0-based columns of a matrix variable; ``frame`` is required for
+vector fields: FRD/FLU for body fields (acc_b, gyro_b), NED/ENU for world
+fields (pos_n, vel_n) and for the attitude (ENU means roll/pitch/yaw of the
+FLU body in ENU). Units: any of :data:`quad_modelling.core.frames.UNIT_FACTORS`.
+
+Also stored: ``vehicle`` (config name) and ``meta_json`` (notes as JSON, e.g.
+the simulator's effects and seed).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import scipy.io
+import yaml
+
+from quad_modelling.core import frames
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.errors import ConfigError, DataError
+from quad_modelling.io.atomic import atomic_output
+
+THESIS_VARIABLES: dict[str, tuple[str, ...]] = {
+    "time": ("time",),
+    "u": ("u1", "u2", "u3", "u4"),
+    "acc_b": ("ddXB", "ddYB", "ddZB"),
+    "gyro_b": ("dPhi", "dTheta", "dPsi"),
+    "pos_n": ("XN", "YN", "ZN"),
+    "vel_n": ("dXN", "dYN", "dZN"),
+    "euler": ("Phi", "Theta", "Psi"),
+    "vbat": ("Vbat",),
+    "omega": ("Omega1", "Omega2", "Omega3", "Omega4"),
+}
+"""Default variable names per field (thesis symbols: ddXB = onboard X acceleration...)."""
+
+OPTIONAL_FIELDS = ("vbat", "omega")
+BODY_FIELDS = ("acc_b", "gyro_b")
+WORLD_FIELDS = ("pos_n", "vel_n", "euler")
+SI_UNITS = {"time": "s", "acc_b": "m/s2", "gyro_b": "rad/s", "pos_n": "m", "vel_n": "m/s", "euler": "rad", "vbat": "V", "omega": "rad/s"}
+
+
+@dataclass(frozen=True)
+class FieldMapping:
+    """Where one FlightLog field lives in a .mat file, and in which unit/frame."""
+
+    variables: tuple[str, ...]
+    columns: tuple[int, ...] | None
+    unit: str
+    frame: str | None
+
+
+def default_mapping() -> dict[str, FieldMapping]:
+    """The mapping of :data:`THESIS_VARIABLES` (internal frames, SI units, raw u)."""
+    mapping = {}
+    for name, variables in THESIS_VARIABLES.items():
+        frame = "FRD" if name in BODY_FIELDS else "NED" if name in WORLD_FIELDS else None
+        mapping[name] = FieldMapping(variables, None, SI_UNITS.get(name, "1"), frame)
+    return mapping
+
+
+def load_mapping(path: str | Path) -> dict[str, FieldMapping]:
+    """Read and validate a YAML mapping file (see module docstring)."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read mapping file: {err.strerror}") from err
+    except yaml.YAMLError as err:
+        raise ConfigError(f"{path}: mapping file is not valid YAML: {err}") from err
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{path}: mapping file must be a mapping of field -> {{variable, unit, ...}}")
+    unknown = set(doc) - set(THESIS_VARIABLES)
+    if unknown:
+        raise ConfigError(f"{path}: unknown fields {sorted(unknown)}; known: {list(THESIS_VARIABLES)}")
+    mapping = {}
+    for name in THESIS_VARIABLES:
+        entry = doc.get(name)
+        if entry is None:
+            if name in OPTIONAL_FIELDS:
+                continue
+            raise ConfigError(f"{path}: mapping has no entry for required field {name!r}")
+        if not isinstance(entry, dict) or "unit" not in entry:
+            raise ConfigError(f"{path}: field {name!r} needs a 'unit'")
+        if entry["unit"] not in frames.UNIT_FACTORS:
+            raise ConfigError(f"{path}: field {name!r} has unknown unit {entry['unit']!r}; known: {list(frames.UNIT_FACTORS)}")
+        if "variable" in entry:
+            variables = (str(entry["variable"]),)
+            columns = tuple(int(c) for c in entry["columns"]) if "columns" in entry else None
+        elif "variables" in entry:
+            variables, columns = tuple(str(v) for v in entry["variables"]), None
+        else:
+            raise ConfigError(f"{path}: field {name!r} needs 'variable' (with optional 'columns') or 'variables'")
+        frame = entry.get("frame")
+        allowed = ("FRD", "FLU") if name in BODY_FIELDS else ("NED", "ENU") if name in WORLD_FIELDS else (None,)
+        if frame not in allowed:
+            raise ConfigError(f"{path}: field {name!r} needs frame one of {allowed}, got {frame!r}")
+        mapping[name] = FieldMapping(variables, columns, str(entry["unit"]), frame)
+    return mapping
+
+
+def _user_variables(contents: dict) -> dict[str, np.ndarray]:
+    return {k: v for k, v in contents.items() if not k.startswith("__")}
+
+
+def _extract(name: str, field: FieldMapping, found: dict, n: int | None, where: str) -> np.ndarray | None:
+    missing = [v for v in field.variables if v not in found]
+    if missing:
+        if name in OPTIONAL_FIELDS:
+            return None
+        raise DataError(
+            f"{where}: field {name} needs variable(s) {missing}, not in the file; found: {sorted(found)} "
+            "(give a --mapping file for foreign logs)"
+        )
+    try:
+        arrays = [np.asarray(found[v], dtype=float) for v in field.variables]
+    except (TypeError, ValueError) as err:
+        raise DataError(f"{where}: variable(s) {list(field.variables)} of field {name} are not numeric") from err
+    if len(arrays) == 1:
+        data = arrays[0]
+        if data.ndim == 2 and data.shape[0] == 1 and n is not None and data.shape[1] == n:
+            data = data.T
+        if data.ndim == 2 and data.shape[1] == 1:
+            data = data[:, 0]
+        if field.columns is not None:
+            if data.ndim != 2 or max(field.columns) >= data.shape[1]:
+                raise DataError(f"{where}: variable {field.variables[0]} (shape {data.shape}) has no columns {list(field.columns)} for field {name}")
+            data = data[:, list(field.columns)]
+    else:
+        arrays = [a.reshape(-1) for a in arrays]
+        lengths = {len(a) for a in arrays}
+        if len(lengths) != 1:
+            raise DataError(f"{where}: variables {list(field.variables)} of field {name} have different lengths {sorted(lengths)}")
+        data = np.column_stack(arrays)
+    if n is not None and len(data) != n:
+        raise DataError(f"{where}: field {name} has {len(data)} rows, time has {n}")
+    try:
+        return frames.to_si(data, field.unit)
+    except KeyError as err:
+        raise DataError(f"{where}: field {name}: {err.args[0]}") from err
+
+
+def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str, FieldMapping] | None = None) -> FlightLog:
+    """Read a thesis-style .mat log into a FlightLog (internal frames, SI).
+
+    ``vehicle`` overrides the ``vehicle`` variable stored in the file.
+    """
+    path = Path(path)
+    where = str(path)
+    mapping = mapping or default_mapping()
+    try:
+        contents = scipy.io.loadmat(path, squeeze_me=True, chars_as_strings=True)
+    except NotImplementedError as err:
+        raise DataError(f"{where}: MATLAB v7.3 (HDF5) files are not supported; save with -v7") from err
+    except FileNotFoundError as err:
+        raise DataError(f"{where}: no such file") from err
+    except (ValueError, TypeError, OSError, EOFError) as err:
+        raise DataError(f"{where}: not a readable MATLAB file ({err})") from err
+    found = _user_variables(contents)
+    time = _extract("time", mapping["time"], found, None, where)
+    if time is None or time.ndim != 1:
+        raise DataError(f"{where}: time variable {mapping['time'].variables} must be a vector")
+    n = len(time)
+    fields = {name: _extract(name, mapping[name], found, n, where) for name in mapping if name != "time"}
+    for name in BODY_FIELDS:
+        if mapping[name].frame == "FLU":
+            fields[name] = frames.flu_to_frd(fields[name])
+    for name in ("pos_n", "vel_n"):
+        if mapping[name].frame == "ENU":
+            fields[name] = frames.enu_to_ned(fields[name])
+    if mapping["euler"].frame == "ENU":
+        from scipy.spatial.transform import Rotation
+
+        quat = Rotation.from_euler("ZYX", fields["euler"][:, ::-1]).as_quat()
+        fields["euler"] = frames.quat_enu_to_euler_ned(quat)
+        fields["euler"][:, 2] = np.unwrap(fields["euler"][:, 2])
+    notes = {}
+    if "meta_json" in found:
+        try:
+            notes = json.loads(str(found["meta_json"]))
+        except json.JSONDecodeError as err:
+            raise DataError(f"{where}: variable meta_json is not valid JSON ({err.msg})") from err
+    vehicle_name = vehicle or (str(found["vehicle"]) if "vehicle" in found else None)
+    if not vehicle_name:
+        raise DataError(f"{where}: no 'vehicle' variable in the file; pass --vehicle NAME")
+    return FlightLog(
+        t=time,
+        u=fields["u"],
+        acc_b=fields["acc_b"],
+        gyro_b=fields["gyro_b"],
+        pos_n=fields["pos_n"],
+        vel_n=fields["vel_n"],
+        euler=fields["euler"],
+        vbat=fields.get("vbat"),
+        omega=fields.get("omega"),
+        meta=FlightMeta(vehicle=vehicle_name, source=where, notes=notes),
+    )
+
+
+def write_matlog(log: FlightLog, path: str | Path, force: bool = False) -> Path:
+    """Write ``log`` with the default thesis variable names, atomically."""
+    path = Path(path)
+    contents: dict[str, object] = {"time": log.t, "vehicle": log.meta.vehicle, "meta_json": json.dumps(log.meta.notes)}
+    for name, variables in THESIS_VARIABLES.items():
+        if name == "time":
+            continue
+        data = getattr(log, name)
+        if data is None:
+            continue
+        data = data.reshape(len(log), -1)
+        for column, variable in enumerate(variables):
+            contents[variable] = data[:, column]
+    with atomic_output(path, force) as tmp:
+        with open(tmp, "wb") as stream:
+            scipy.io.savemat(stream, contents, do_compression=True, oned_as="column")
+    return path
