@@ -137,3 +137,23 @@ def geodesic_angle(euler_a: np.ndarray, euler_b: np.ndarray) -> np.ndarray:
     """Angle [rad] of the rotation between two attitudes, elementwise over rows."""
     rel = euler_ned_to_rotation(euler_a).inv() * euler_ned_to_rotation(euler_b)
     return rel.magnitude()
+
+
+def to_odometry(pos_n: np.ndarray, vel_n: np.ndarray, euler: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Internal state -> nav_msgs/Odometry fields (REP-103/147), row-wise.
+
+    Returns (position ENU [m], quaternion (x, y, z, w) of R_ENU←FLU, linear
+    twist in the child (body FLU) frame [m/s]): Odometry's pose is in the world
+    frame of its header, its twist in ``child_frame_id``.
+
+    .. math:: v_{FLU} = M_{FB} R_{NED←FRD}^T v_{NED}
+    """
+    vel_b = nav_to_body(np.atleast_2d(vel_n), np.atleast_2d(euler))
+    return ned_to_enu(pos_n), euler_ned_to_quat_enu(euler), frd_to_flu(vel_b).reshape(np.shape(vel_n))
+
+
+def from_odometry(position_enu: np.ndarray, quat_xyzw: np.ndarray, twist_flu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """nav_msgs/Odometry fields -> (pos_n, vel_n, euler), inverse of :func:`to_odometry`."""
+    euler = quat_enu_to_euler_ned(quat_xyzw)
+    vel_n = body_to_nav(np.atleast_2d(flu_to_frd(twist_flu)), np.atleast_2d(euler)).reshape(np.shape(twist_flu))
+    return enu_to_ned(position_enu), vel_n, euler

@@ -40,14 +40,19 @@ def _remove(path: Path) -> None:
 
 @contextlib.contextmanager
 def atomic_output(path: str | Path, force: bool = False) -> Iterator[Path]:
-    """Yield a temporary path next to ``path``; rename it onto ``path`` on success.
+    """Yield a temporary path with the same name, in a hidden staging directory next to
+    ``path``; rename it onto ``path`` on success.
 
     The temporary path does not exist when yielded: the caller creates a file or
-    a directory there. On any exception it is removed and the error re-raised.
+    a directory there (keeping the final name, so a bag's inner ``.mcap`` file is
+    named after the bag). On any exception the staging directory is removed and
+    the error re-raised.
     """
     path = Path(path)
     check_output(path, force)
-    tmp = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+    staging = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
+    staging.mkdir()
+    tmp = staging / path.name
     try:
         yield tmp
         if not tmp.exists():
@@ -59,6 +64,5 @@ def atomic_output(path: str | Path, force: bool = False) -> Iterator[Path]:
             _remove(backup)
         else:
             tmp.rename(path)
-    except BaseException:
-        _remove(tmp)
-        raise
+    finally:
+        _remove(staging)

@@ -1,0 +1,101 @@
+"""``quad-modelling convert``: thesis .mat logs / NanoBench CSV / bags -> MCAP bags (or .mat)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from tqdm import tqdm
+
+from quad_modelling.errors import QuadModellingError
+from quad_modelling.io.atomic import atomic_output, check_output
+from quad_modelling.io.loader import FORMATS, load_flight
+
+NAME = "convert"
+HELP = "convert flight logs (.mat, NanoBench .csv.gz, bags) into MCAP bags"
+DESCRIPTION = """\
+Convert flight logs into rosbag2 MCAP bags with the quad_modelling topic contract
+(/quad/motor_input, /quad/mocap/odom, /quad/imu, /quad/battery), or into a thesis .mat log.
+
+Inputs: thesis-style MATLAB logs (.mat; default variable names in the README, or a
+--mapping YAML for foreign logs), NanoBench CSV flights (.csv, .csv.gz), contract bags.
+Output: with one input, OUTPUT is the bag directory (or a .mat file); with several inputs,
+OUTPUT is a new directory holding one bag per input, named after it.
+Nothing is overwritten without --force; a failed run leaves no output behind.
+
+examples:
+  quad-modelling convert flight.mat --vehicle linkquad -o bags/flight
+  quad-modelling convert data/nanobench/*.csv.gz -o bags/nanobench --skip-bad
+  quad-modelling convert bags/flight -o flight_copy.mat
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("inputs", nargs="+", metavar="INPUT", help="flight logs to convert")
+    parser.add_argument("-o", "--output", required=True, metavar="OUTPUT", help="bag directory, .mat file, or (several inputs) output directory")
+    parser.add_argument("--format", default="auto", choices=("auto", *FORMATS), help="input format (default: from the file name)")
+    parser.add_argument("--mapping", metavar="FILE", help="YAML variable mapping for foreign .mat logs")
+    parser.add_argument("--vehicle", metavar="NAME", help="vehicle config name or YAML path (default: from the file; crazyflie21 for NanoBench)")
+    parser.add_argument("--namespace", default="/quad", help="topic namespace in the bag (default /quad)")
+    parser.add_argument("--skip-bad", action="store_true", help="with several inputs: report bad ones, convert the rest, exit 1")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing output")
+
+
+def bag_name(path: Path) -> str:
+    """Output name for an input: its file name without .mat/.csv/.csv.gz/.mcap."""
+    name = path.name
+    for suffix in (".csv.gz", ".csv", ".mat", ".mcap"):
+        if name.endswith(suffix):
+            return name[: -len(suffix)]
+    return name
+
+
+def _write(log, target: Path, namespace: str, force: bool) -> None:
+    if target.suffix == ".mat":
+        from quad_modelling.io.matlog import write_matlog
+
+        write_matlog(log, target, force=force)
+        return
+    from quad_modelling.io.bag_io import write_bag
+
+    with tqdm(total=len(log), unit="row", desc=target.name, leave=False, disable=not sys.stderr.isatty()) as bar:
+        write_bag(log, target, force=force, namespace=namespace, progress=bar.update)
+
+
+def run(args: argparse.Namespace) -> int:
+    inputs = [Path(p) for p in args.inputs]
+    output = Path(args.output)
+
+    def load(path: Path):
+        return load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping)
+
+    if len(inputs) == 1:
+        log = load(inputs[0])
+        _write(log, output, args.namespace, args.force)
+        print(f"{inputs[0]} -> {output} ({len(log)} samples, {log.duration:.1f} s, vehicle {log.meta.vehicle})")
+        return 0
+
+    check_output(output, args.force)
+    names = [bag_name(p) for p in inputs]
+    duplicates = {n for n in names if names.count(n) > 1}
+    if duplicates:
+        raise QuadModellingError(f"several inputs map to the same bag name(s) {sorted(duplicates)}")
+    refused: list[str] = []
+    converted = 0
+    with atomic_output(output, args.force) as staging:
+        staging.mkdir()
+        for path, name in tqdm(list(zip(inputs, names)), unit="file", desc="convert", disable=not sys.stderr.isatty()):
+            try:
+                log = load(path)
+            except QuadModellingError as err:
+                if not args.skip_bad:
+                    raise
+                refused.append(str(err))
+                print(f"refused: {err}", file=sys.stderr)
+                continue
+            _write(log, staging / name, args.namespace, force=False)
+            converted += 1
+            print(f"{path} -> {output / name} ({len(log)} samples, {log.duration:.1f} s)")
+    print(f"converted {converted} of {len(inputs)} inputs into {output}" + (f"; refused {len(refused)}" if refused else ""))
+    return 1 if refused else 0

@@ -1,0 +1,57 @@
+"""One entry point to read any supported flight file: :func:`load_flight`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.errors import DataError
+
+FORMATS = ("thesis-mat", "nanobench", "bag")
+
+
+def detect_format(path: str | Path) -> str:
+    """``thesis-mat`` for .mat, ``nanobench`` for .csv/.csv.gz, ``bag`` for a rosbag2 directory or .mcap."""
+    path = Path(path)
+    name = path.name.lower()
+    if path.is_dir() or name.endswith(".mcap"):
+        return "bag"
+    if name.endswith(".mat"):
+        return "thesis-mat"
+    if name.endswith(".csv") or name.endswith(".csv.gz"):
+        return "nanobench"
+    raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz or a bag directory)")
+
+
+def load_flight(path: str | Path, vehicle: str | None = None, fmt: str = "auto", mapping_file: str | Path | None = None) -> FlightLog:
+    """Read a thesis .mat log, a NanoBench CSV or a contract MCAP bag into a FlightLog.
+
+    ``vehicle``: config name or YAML path (required for .mat files that do not
+    name one; NanoBench defaults to crazyflie21). ``mapping_file``: YAML
+    variable mapping for foreign .mat logs (see :mod:`quad_modelling.io.matlog`).
+    """
+    path = Path(path)
+    fmt = detect_format(path) if fmt == "auto" else fmt
+    if fmt not in FORMATS:
+        raise DataError(f"{path}: unknown format {fmt!r}; known: {', '.join(FORMATS)}")
+    if not path.exists():
+        raise DataError(f"{path}: no such file or directory")
+    if fmt == "thesis-mat":
+        from quad_modelling.io.matlog import load_mapping, read_matlog
+
+        mapping = load_mapping(mapping_file) if mapping_file else None
+        log = read_matlog(path, vehicle=vehicle, mapping=mapping)
+    elif fmt == "nanobench":
+        from quad_modelling.io.nanobench import read_nanobench
+
+        log = read_nanobench(path, vehicle=vehicle or "crazyflie21")
+    else:
+        from quad_modelling.io.bag_io import read_bag
+
+        log = read_bag(path if path.is_dir() else path.parent, vehicle=vehicle)
+    if fmt != "nanobench":
+        from quad_modelling.core.vehicle import load_vehicle
+
+        config = load_vehicle(log.meta.vehicle)
+        log.check_input_range(config.input_min, config.input_max, config.input_unit)
+    return log

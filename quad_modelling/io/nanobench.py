@@ -1,0 +1,128 @@
+"""NanoBench Crazyflie 2.1 flights (``*.csv`` / ``*.csv.gz``, BSD-3, Ullah & Baca 2026).
+
+Columns used (DESIGN section 5), all on the CSV's single 100 Hz time base ``t``
+[s, Unix epoch]:
+
+=====================================  ===============================================
+columns                                meaning
+=====================================  ===============================================
+px, py, pz                             Vicon position, world ENU (z up) [m]
+qx, qy, qz, qw                         Vicon attitude, quaternion of R_world<-body(FLU)
+vx, vy, vz                             Vicon velocity, world ENU [m/s]
+imu_acc_x, imu_acc_y, imu_acc_z        specific force, body FLU [g]
+imu_gyro_x, imu_gyro_y, imu_gyro_z     body rates, FLU [rad/s]
+motor_motor_m1 .. motor_motor_m4       motor PWM ratio 0..65535 (u1..u4)
+pwr_pm_vbat                            battery voltage [V]
+roll, pitch, yaw                       Vicon Euler angles, FLU/ENU
+=====================================  ===============================================
+
+The attitude is taken from the quaternion (converted by the frames module);
+roll/pitch/yaw are only checked against it: the data holds them in radians,
+not degrees as the column reference says. Motor values beyond the vehicle's
+input range (the ``B9_trefoil_fast_rep2`` quirk) are refused with file, column
+and row named.
+"""
+
+from __future__ import annotations
+
+import gzip
+from pathlib import Path
+
+import numpy as np
+
+from quad_modelling.core import frames
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.errors import DataError
+
+POSITION = ("px", "py", "pz")
+QUATERNION = ("qx", "qy", "qz", "qw")
+VELOCITY = ("vx", "vy", "vz")
+ACCEL = ("imu_acc_x", "imu_acc_y", "imu_acc_z")
+GYRO = ("imu_gyro_x", "imu_gyro_y", "imu_gyro_z")
+MOTORS = ("motor_motor_m1", "motor_motor_m2", "motor_motor_m3", "motor_motor_m4")
+VBAT = "pwr_pm_vbat"
+EULER_COLUMNS = ("roll", "pitch", "yaw")
+REQUIRED = ("t", *POSITION, *QUATERNION, *VELOCITY, *ACCEL, *GYRO, *MOTORS, VBAT)
+
+EULER_COLUMN_TOLERANCE = 0.01
+"""Largest allowed difference [rad] between the roll/pitch columns and the quaternion."""
+
+
+def _open_text(path: Path):
+    if path.suffix == ".gz":
+        return gzip.open(path, "rt")
+    return open(path)
+
+
+def read_nanobench(path: str | Path, vehicle: str = "crazyflie21") -> FlightLog:
+    """Read one NanoBench CSV flight into a FlightLog (NED/FRD, SI).
+
+    Raises DataError naming the file and the column/row at fault: missing
+    columns, unparsable or non-finite values, non-monotonic time, motor values
+    outside the vehicle's input range.
+    """
+    path = Path(path)
+    where = str(path)
+    try:
+        with _open_text(path) as stream:
+            header = stream.readline().strip().split(",")
+            missing = [c for c in REQUIRED if c not in header]
+            if missing:
+                raise DataError(f"{where}: missing NanoBench column(s) {missing}")
+            index = {name: header.index(name) for name in (*REQUIRED, *EULER_COLUMNS) if name in header}
+            rows = np.loadtxt(stream, delimiter=",", usecols=list(index.values()), ndmin=2)
+    except FileNotFoundError as err:
+        raise DataError(f"{where}: no such file") from err
+    except (OSError, EOFError, gzip.BadGzipFile) as err:
+        raise DataError(f"{where}: cannot read ({err})") from err
+    except ValueError as err:
+        raise DataError(f"{where}: unparsable value ({err})") from err
+    column = {name: rows[:, i] for i, name in enumerate(index)}
+    for name, values in column.items():
+        bad = ~np.isfinite(values)
+        if bad.any():
+            row = int(np.argmax(bad))
+            raise DataError(f"{where}: column {name} is not finite at data row {row + 1} (t={column['t'][row]:.3f})")
+
+    def stack(names: tuple[str, ...]) -> np.ndarray:
+        return np.column_stack([column[n] for n in names])
+
+    quat = stack(QUATERNION)
+    norms = np.linalg.norm(quat, axis=1)
+    if np.any(np.abs(norms - 1.0) > 0.05):
+        row = int(np.argmax(np.abs(norms - 1.0)))
+        raise DataError(f"{where}: quaternion qx..qw at data row {row + 1} has norm {norms[row]:.3f}, not 1")
+    euler = frames.quat_enu_to_euler_ned(quat)
+    euler[:, 2] = np.unwrap(euler[:, 2])
+    notes = {"format": "nanobench", "euler_from": "quaternion qx..qw"}
+    if all(c in column for c in EULER_COLUMNS[:2]):
+        # FLU roll equals FRD roll; FLU pitch is the negative of FRD pitch.
+        difference = max(
+            np.max(np.abs(column["roll"] - euler[:, 0])),
+            np.max(np.abs(-column["pitch"] - euler[:, 1])),
+        )
+        notes["euler_columns_unit"] = "rad" if difference < EULER_COLUMN_TOLERANCE else "inconsistent"
+    config = load_vehicle(vehicle)
+    motors = stack(MOTORS)
+    outside = (motors < config.input_min) | (motors > config.input_max)
+    if outside.any():
+        row = int(np.argmax(outside.any(axis=1)))
+        col = int(np.argmax(outside[row]))
+        raise DataError(
+            f"{where}: column {MOTORS[col]} data row {row + 1} (t={column['t'][row] - column['t'][0]:.2f} s into the flight) "
+            f"is {motors[row, col]:.0f}, outside the {config.name} input range "
+            f"[{config.input_min:g}, {config.input_max:g}] {config.input_unit} ({int(outside.sum())} values outside)"
+        )
+    log = FlightLog(
+        t=column["t"],
+        u=motors,
+        acc_b=frames.flu_to_frd(frames.to_si(stack(ACCEL), "g")),
+        gyro_b=frames.flu_to_frd(stack(GYRO)),
+        pos_n=frames.enu_to_ned(stack(POSITION)),
+        vel_n=frames.enu_to_ned(stack(VELOCITY)),
+        euler=euler,
+        vbat=column[VBAT],
+        meta=FlightMeta(vehicle=config.name, source=where, notes=notes),
+    )
+    return log
