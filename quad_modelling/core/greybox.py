@@ -1,0 +1,321 @@
+"""The thesis's linear greybox model (chapter 3, DESIGN 6.1), restored equations.
+
+State (16), deviations from hover:
+
+.. math::
+
+    x = [X, Y, Z,\\ \\dot X, \\dot Y, \\dot Z,\\ \\phi, \\theta, \\psi,\\
+         \\dot\\phi, \\dot\\theta, \\dot\\psi,\\ T_1, T_2, T_3, T_4]
+
+in N (NED) and Euler ZYX; :math:`T_i` is rotor i's thrust minus the hover
+thrust :math:`T_H = m g / 4`; input :math:`u_i` is the trimmed engine command.
+
+Motor/thrust (Eq 3-3 ... 3-7), with :math:`\\Omega_0 = \\sqrt{m g / (4 a)}`:
+
+.. math::
+
+    \\dot T_i = A_m T_i + K u_i, \\qquad K = 2 B_m \\sqrt{a m g / 4} = 2 a \\Omega_0 B_m
+
+Translation, small angles (Eq 3-10):
+:math:`\\ddot X = -g\\theta,\\ \\ddot Y = g\\phi,\\ \\ddot Z = -\\sum_i T_i / m`.
+
+Torques from the motor positions :math:`(x_i, y_i)` in body FRD (a thrust
+:math:`T_i` along :math:`-z_B` at :math:`(x_i, y_i, 0)` gives
+:math:`r \\times F = (-y_i T_i,\\ x_i T_i,\\ 0)`); for the "+" frame this is
+Eq 3-11/3-12, :math:`\\tau_\\phi = l (T_4 - T_2)`, :math:`\\tau_\\theta = l (T_1 - T_3)`:
+
+.. math::
+
+    \\tau_\\phi = -\\sum_i y_i T_i, \\qquad \\tau_\\theta = \\sum_i x_i T_i
+
+Yaw (Eq 3-13 ... 3-16), :math:`s_i` = the config's ``yaw_sign`` (+1 = rotor
+spins counter-clockwise seen from above; the thesis's :math:`(-1)^i` for the
+LinkQuad, whose rotors 2 and 4 are ``ccw``):
+
+.. math::
+
+    \\tau_\\psi = \\frac{d}{a} \\sum_i s_i T_i + I_{prop} \\sum_i s_i \\dot\\Omega_i,
+    \\qquad \\dot\\Omega_i = \\frac{A_m T_i}{2 a \\Omega_0} + B_m u_i
+
+Angular (Eq 3-17): :math:`\\ddot\\phi = \\tau_\\phi / I_{xx}`,
+:math:`\\ddot\\theta = \\tau_\\theta / I_{yy}`, :math:`\\ddot\\psi = \\tau_\\psi / I_{zz}`.
+
+Outputs (Eq 3-21): :math:`Y = C x + D \\dot x = (C + D A) x + D B u`, the 18
+variables of :data:`quad_modelling.core.variables.VARIABLES` (positions,
+velocities, accelerations, angles, rates, angular accelerations).
+
+Discretisation: explicit Euler as the thesis (Eq 3-19/20),
+:math:`A_d = I + A\\,\\Delta t,\\ B_d = B\\,\\Delta t`, or exact zero-order hold
+(:func:`scipy.signal.cont2discrete`). Outputs at sample k use the continuous
+derivative at :math:`(x_k, u_k)`, so :math:`C_d = C + D A`, :math:`D_d = D B`.
+
+About Table 3-1 (LinkQuad): its constants are not mutually consistent (see
+``config/vehicles/linkquad.yaml``); the model uses them as given: only the
+products :math:`K`, :math:`d/a`, :math:`A_m/(2 a \\Omega_0)` and
+:math:`I_{prop} B_m` enter it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from scipy import signal
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.preprocess import (
+    TrimConfig,
+    measured_variables,
+    sample_period,
+    smooth,
+    trimmed_inputs,
+    trimmed_variables,
+    uniform_time_check,
+)
+from quad_modelling.core.variables import VARIABLES
+from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.errors import ConfigError, DataError
+
+STATES: tuple[str, ...] = (
+    "X", "Y", "Z", "dX", "dY", "dZ", "phi", "theta", "psi", "dphi", "dtheta", "dpsi", "T1", "T2", "T3", "T4",
+)
+"""State names in order (positions, velocities, angles, rates, thrust deviations)."""
+
+N_STATES = len(STATES)
+DISCRETISATIONS = ("zoh", "euler")
+
+MEASURED_STATE_COLUMNS = np.array([0, 1, 2, 3, 4, 5, 9, 10, 11, 12, 13, 14])
+"""VARIABLES columns that give states 0..11 (pos, vel, angles, rates)."""
+
+
+@dataclass(frozen=True)
+class GreyboxParameters:
+    """The constants the linear model uses, taken from a VehicleConfig (SI units)."""
+
+    mass: float
+    ixx: float
+    iyy: float
+    izz: float
+    prop_inertia: float
+    motor_a_m: float
+    motor_b_m: float
+    thrust_constant: float
+    drag_constant: float
+    motor_positions: tuple[tuple[float, float], ...]
+    yaw_signs: tuple[float, ...]
+
+    @classmethod
+    def from_vehicle(cls, vehicle: VehicleConfig) -> GreyboxParameters:
+        return cls(
+            mass=vehicle.mass,
+            ixx=vehicle.value("ixx"),
+            iyy=vehicle.value("iyy"),
+            izz=vehicle.value("izz"),
+            prop_inertia=vehicle.value("prop_inertia"),
+            motor_a_m=vehicle.value("motor_a_m"),
+            motor_b_m=vehicle.value("motor_b_m"),
+            thrust_constant=vehicle.value("thrust_constant"),
+            drag_constant=vehicle.value("drag_constant"),
+            motor_positions=tuple(map(tuple, vehicle.motor_positions.tolist())),
+            yaw_signs=tuple(vehicle.yaw_signs.tolist()),
+        )
+
+    @property
+    def hover_rotor_speed(self) -> float:
+        """Ω0 = sqrt(m g / (4 a)) [rad/s]."""
+        return float(np.sqrt(self.mass * GRAVITY / (4.0 * self.thrust_constant)))
+
+    @property
+    def input_gain(self) -> float:
+        """K = 2 B_m sqrt(a m g / 4): thrust-rate per unit trimmed command [N/s per unit]."""
+        return float(2.0 * self.motor_b_m * np.sqrt(self.thrust_constant * self.mass * GRAVITY / 4.0))
+
+    def torque_matrix(self) -> np.ndarray:
+        """(3, 4) map from rotor thrust deviations to (τφ, τθ, thrust part of τψ) [N m per N]."""
+        pos = np.array(self.motor_positions)
+        signs = np.array(self.yaw_signs)
+        return np.vstack([-pos[:, 1], pos[:, 0], (self.drag_constant / self.thrust_constant) * signs])
+
+
+def continuous_matrices(p: GreyboxParameters) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Continuous (A, B, C, D) with ẋ = A x + B u and Y = C x + D ẋ (module docstring)."""
+    a = np.zeros((N_STATES, N_STATES))
+    b = np.zeros((N_STATES, 4))
+    a[0:3, 3:6] = np.eye(3)
+    a[6:9, 9:12] = np.eye(3)
+    a[3, 7] = -GRAVITY
+    a[4, 6] = GRAVITY
+    a[5, 12:16] = -1.0 / p.mass
+    torque = p.torque_matrix()
+    signs = np.array(p.yaw_signs)
+    omega_per_thrust = p.motor_a_m / (2.0 * p.thrust_constant * p.hover_rotor_speed)
+    inertia = np.array([p.ixx, p.iyy, p.izz])
+    a[9:12, 12:16] = torque / inertia[:, None]
+    a[11, 12:16] += p.prop_inertia * signs * omega_per_thrust / p.izz
+    b[11, :] = p.prop_inertia * signs * p.motor_b_m / p.izz
+    a[12:16, 12:16] = p.motor_a_m * np.eye(4)
+    b[12:16, :] = p.input_gain * np.eye(4)
+    c = np.zeros((len(VARIABLES), N_STATES))
+    d = np.zeros((len(VARIABLES), N_STATES))
+    c[0:6, 0:6] = np.eye(6)  # positions, velocities
+    d[6:9, 3:6] = np.eye(3)  # accelerations = d/dt velocities
+    c[9:15, 6:12] = np.eye(6)  # angles, rates
+    d[15:18, 9:12] = np.eye(3)  # angular accelerations = d/dt rates
+    return a, b, c, d
+
+
+@dataclass(frozen=True)
+class DiscreteGreybox:
+    """x[k+1] = Ad x[k] + Bd u[k];  y[k] = Cd x[k] + Dd u[k]  (sample period ``dt``)."""
+
+    ad: np.ndarray
+    bd: np.ndarray
+    cd: np.ndarray
+    dd: np.ndarray
+    dt: float
+    method: str
+
+    def step(self, x: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Streaming form: (next state, the 18 outputs at this sample) for state ``x`` and trimmed input ``u``."""
+        return self.ad @ x + self.bd @ u, self.cd @ x + self.dd @ u
+
+    def simulate(self, x0: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """States (N, 16) and outputs (N, 18) for trimmed inputs ``u`` (N, 4) from ``x0``.
+
+        Row k is the state at sample k (row 0 = ``x0``), the same numbers as
+        calling :meth:`step` N times.
+        """
+        u = np.asarray(u, dtype=float)
+        forced = u @ self.bd.T
+        states = np.empty((len(u), N_STATES))
+        x = np.asarray(x0, dtype=float)
+        ad = self.ad
+        for k in range(len(u)):
+            states[k] = x
+            x = ad @ x + forced[k]
+        return states, states @ self.cd.T + u @ self.dd.T
+
+    def motor_thrusts(self, u: np.ndarray) -> np.ndarray:
+        """(N, 4) rotor thrust deviations driven by trimmed ``u`` alone, starting in steady state of u[0].
+
+        The motor subsystem is decoupled from the rest (Eq 3-7), so this is the
+        model's causal estimate of T_i at every sample.
+        """
+        u = np.asarray(u, dtype=float)
+        pole = self.ad[12, 12]
+        gain = self.bd[12, 0]
+        steady0 = gain / (1.0 - pole) * u[0]
+        thrusts = np.empty_like(u)
+        for i in range(4):
+            zi = signal.lfiltic([0.0, gain], [1.0, -pole], y=[steady0[i]], x=[u[0, i]])
+            thrusts[:, i] = signal.lfilter([0.0, gain], [1.0, -pole], u[:, i], zi=zi)[0]
+        return thrusts
+
+
+class GreyboxModel:
+    """The linear model of one vehicle; discretised matrices cached per sample period."""
+
+    def __init__(self, vehicle: VehicleConfig | GreyboxParameters):
+        self.parameters = vehicle if isinstance(vehicle, GreyboxParameters) else GreyboxParameters.from_vehicle(vehicle)
+        self.a, self.b, self.c, self.d = continuous_matrices(self.parameters)
+
+    def discretise(self, dt: float, method: str = "zoh") -> DiscreteGreybox:
+        """Discrete model at sample period ``dt`` [s]: ``zoh`` (exact) or ``euler`` (thesis Eq 3-19/20)."""
+        return _discretise(self.parameters, round(float(dt), 12), method)
+
+
+@lru_cache(maxsize=64)
+def _discretise(p: GreyboxParameters, dt: float, method: str) -> DiscreteGreybox:
+    if method not in DISCRETISATIONS:
+        raise ConfigError(f"greybox discretisation must be one of {', '.join(DISCRETISATIONS)}, got {method!r}")
+    if not dt > 0:
+        raise DataError(f"greybox: sample period must be positive, got {dt}")
+    a, b, c, d = continuous_matrices(p)
+    if method == "euler":
+        ad, bd = np.eye(N_STATES) + a * dt, b * dt
+    else:
+        ad, bd, *_ = signal.cont2discrete((a, b, np.eye(N_STATES), np.zeros((N_STATES, 4))), dt, method="zoh")
+    for m in (ad, bd):
+        m.setflags(write=False)
+    return DiscreteGreybox(ad, bd, c + d @ a, d @ b, dt, method)
+
+
+def anchor_state(measured_row: np.ndarray, thrusts: np.ndarray) -> np.ndarray:
+    """State (16) from one row of the 18 variables (pos, vel, angles, rates) and thrust deviations (4)."""
+    x = np.empty(N_STATES)
+    x[:12] = np.asarray(measured_row)[..., MEASURED_STATE_COLUMNS]
+    x[12:] = thrusts
+    return x
+
+
+class GreyboxPredictor:
+    """:class:`~quad_modelling.core.models.Predictor` for the linear greybox model.
+
+    predict_window: trims the window (:mod:`quad_modelling.core.preprocess`),
+    anchors the state on the last warm-start sample -- positions, velocities,
+    angles and rates from the trimmed measurement (low-passed over the warm
+    samples only), thrust deviations from the motor model driven by the warm
+    inputs -- and runs open loop to the window end. Rows before the anchor are
+    the (trimmed) measurement.
+    """
+
+    def __init__(self, vehicle: VehicleConfig, discretisation: str = "zoh", trim: TrimConfig | None = None):
+        if discretisation not in DISCRETISATIONS:
+            raise ConfigError(f"greybox discretisation must be one of {', '.join(DISCRETISATIONS)}, got {discretisation!r}")
+        self.vehicle = vehicle
+        self.model = GreyboxModel(vehicle)
+        self.discretisation = discretisation
+        self.trim = trim or TrimConfig()
+        self.name = "greybox" if discretisation == "zoh" else f"greybox:{discretisation}"
+
+    def discrete(self, log: FlightLog) -> DiscreteGreybox:
+        uniform_time_check(log)
+        return self.model.discretise(sample_period(log), self.discretisation)
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        if not 1 <= warm_samples <= len(window):
+            raise DataError(f"{window.meta.source}: warm start of {warm_samples} samples does not fit a window of {len(window)}")
+        model = self.discrete(window)
+        u = trimmed_inputs(window, self.trim)
+        measured = trimmed_variables(window, self.trim, self.vehicle)
+        anchor = warm_samples - 1
+        warm = smooth(measured[:warm_samples], window.sample_rate)
+        thrusts = model.motor_thrusts(u[: anchor + 1])[anchor]
+        _, outputs = model.simulate(anchor_state(warm[anchor], thrusts), u[anchor:])
+        prediction = np.empty_like(measured)
+        prediction[:anchor] = measured[:anchor]
+        prediction[anchor:] = outputs
+        return prediction
+
+    def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
+        """Open-loop predictions from each start (absolute, IDSIA multi-step protocol).
+
+        Trim for a whole segment: inputs minus their mean (linearly detrended
+        when the segment is longer than ``trim.detrend_above_s``); roll and
+        pitch are deviations from their segment mean (the hover attitude);
+        other states are absolute (the model is invariant to them). Thrust
+        deviations at each start come from the motor model run causally over
+        the segment.
+        """
+        model = self.discrete(segment)
+        starts = np.asarray(starts, dtype=int)
+        if starts.size and (starts.min() < 0 or starts.max() + horizon >= len(segment)):
+            raise DataError(f"{segment.meta.source}: multi-step starts + horizon {horizon} leave the segment")
+        if segment.duration > self.trim.detrend_above_s:
+            u = signal.detrend(segment.u, axis=0, type="linear")
+        else:
+            u = segment.u - segment.u.mean(axis=0)
+        measured = measured_variables(segment, self.vehicle)
+        offset = np.zeros(len(VARIABLES))
+        offset[9:11] = measured[:, 9:11].mean(axis=0)
+        thrusts = model.motor_thrusts(u)
+        x = np.concatenate([(measured - offset)[starts][:, MEASURED_STATE_COLUMNS], thrusts[starts]], axis=1)
+        out = np.empty((starts.size, horizon + 1, len(VARIABLES)))
+        ad_t, bd_t, cd_t, dd_t = model.ad.T, model.bd.T, model.cd.T, model.dd.T
+        for h in range(horizon + 1):
+            u_h = u[starts + h]
+            out[:, h] = x @ cd_t + u_h @ dd_t
+            x = x @ ad_t + u_h @ bd_t
+        out[:, :, 9:11] += offset[9:11]
+        return out

@@ -1,0 +1,184 @@
+"""The predictor contract every model implements, and the model registry.
+
+A predictor predicts one evaluation window (thesis 2.2, DESIGN 7): it is given
+the whole window as a :class:`~quad_modelling.core.flight_log.FlightLog` and
+may use
+
+* the engine commands ``window.u`` of the entire window (they are the model
+  input), and
+* the measurements of the first ``warm_samples`` rows only (the thesis gives
+  the models the first 0.2 s of measurements "so they had the correct start
+  values").
+
+It returns an (N, 18) array in :data:`quad_modelling.core.variables.VARIABLES`
+column order, in the *trimmed* convention of
+:func:`quad_modelling.core.preprocess.trimmed_variables`: every variable is the
+deviation from its trim value, the mean over the window's stable interval
+(the first ``TrimConfig.trim_s`` seconds). The evaluator compares it with the
+trimmed best measurement of the same window; rows ``< warm_samples`` are not
+scored.
+
+Predictors that can also run the IDSIA multi-step protocol implement
+:class:`MultiStepPredictor` as well (absolute values, not trimmed).
+
+Registry: :func:`make_model` parses a spec string. Built-in specs:
+
+=================  ==========================================================
+``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.greybox`
+``greybox:euler``  same with the thesis's explicit-Euler discretisation
+``dummy``          predicts zero for every variable (thesis Fig 5.2)
+``naive``          holds the last warm-start measurement constant
+=================  ==========================================================
+
+Other modules add entries with :func:`register_model` (e.g. ``narx:PATH``,
+``hybrid:PATH``); a factory receives the text after the first ``:`` (or
+``""``) and the vehicle config.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.preprocess import TrimConfig, trimmed_variables
+from quad_modelling.core.variables import VARIABLES
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.errors import ConfigError
+
+
+@runtime_checkable
+class Predictor(Protocol):
+    """Predicts one window of the 18 variables (see module docstring)."""
+
+    name: str
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        """(N, 18) trimmed prediction of ``window`` in VARIABLES order."""
+        ...
+
+
+@runtime_checkable
+class MultiStepPredictor(Protocol):
+    """Open-loop predictions from many start times (IDSIA multi-step protocol)."""
+
+    name: str
+
+    def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
+        """(S, horizon + 1, 18) absolute predictions (not trimmed).
+
+        Row ``[s, h]`` predicts sample ``starts[s] + h`` of ``segment`` from the
+        measured state at ``starts[s]`` and the commands from ``starts[s]`` on;
+        ``[s, 0]`` is the starting state. Every ``starts[s] + horizon`` is a
+        valid row of ``segment``.
+        """
+        ...
+
+
+class DummyPredictor:
+    """Predicts zero for every trimmed variable (thesis Fig 5.2: TIC = 1 always)."""
+
+    name = "dummy"
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        return np.zeros((len(window), len(VARIABLES)))
+
+
+class ConstantStatePredictor:
+    """Holds the last warm-start measurement: the naive baseline.
+
+    predict_window: the trimmed measurement at row ``warm_samples - 1`` for all
+    later rows; predict_horizons: the measured state at each start, constant.
+    """
+
+    name = "naive"
+
+    def __init__(self, vehicle: VehicleConfig, trim: TrimConfig | None = None):
+        self.vehicle = vehicle
+        self.trim = trim or TrimConfig()
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        measured = trimmed_variables(window, self.trim, self.vehicle)
+        prediction = np.repeat(measured[warm_samples - 1 : warm_samples], len(window), axis=0)
+        prediction[:warm_samples] = measured[:warm_samples]
+        return prediction
+
+    def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
+        from quad_modelling.core.preprocess import measured_variables
+
+        measured = measured_variables(segment, self.vehicle)
+        return np.repeat(measured[np.asarray(starts)][:, None, :], horizon + 1, axis=1)
+
+
+ModelFactory = Callable[[str, VehicleConfig], Predictor]
+
+_REGISTRY: dict[str, ModelFactory] = {}
+
+
+def register_model(kind: str, factory: ModelFactory) -> None:
+    """Add (or replace) the factory for specs ``kind`` and ``kind:ARG``."""
+    _REGISTRY[kind] = factory
+
+
+def _make_greybox(arg: str, vehicle: VehicleConfig) -> Predictor:
+    from quad_modelling.core.greybox import DISCRETISATIONS, GreyboxPredictor
+
+    method = arg or "zoh"
+    if method not in DISCRETISATIONS:
+        raise ConfigError(f"model spec greybox:{arg}: discretisation must be one of {', '.join(DISCRETISATIONS)}")
+    return GreyboxPredictor(vehicle, discretisation=method)
+
+
+def _make_dummy(arg: str, vehicle: VehicleConfig) -> Predictor:
+    if arg:
+        raise ConfigError(f"model spec dummy:{arg}: the dummy model takes no argument")
+    return DummyPredictor()
+
+
+def _make_naive(arg: str, vehicle: VehicleConfig) -> Predictor:
+    if arg:
+        raise ConfigError(f"model spec naive:{arg}: the naive model takes no argument")
+    return ConstantStatePredictor(vehicle)
+
+
+register_model("greybox", _make_greybox)
+register_model("dummy", _make_dummy)
+register_model("naive", _make_naive)
+
+
+def _register_optional() -> None:
+    """Let model modules written elsewhere (narx, hybrid) register themselves."""
+    import importlib
+
+    for module in ("quad_modelling.core.narx",):
+        try:
+            mod = importlib.import_module(module)
+        except ImportError:
+            continue
+        hook = getattr(mod, "register_models", None)
+        if callable(hook):
+            hook(register_model)
+
+
+def known_models() -> list[str]:
+    """Spec kinds the registry knows."""
+    _register_optional()
+    return sorted(_REGISTRY)
+
+
+def make_model(spec: str, vehicle: VehicleConfig) -> Predictor:
+    """Build a predictor from a spec such as ``greybox``, ``dummy``, ``narx:model.pt``.
+
+    Raises ConfigError naming the spec and the known kinds when unknown.
+    """
+    kind, _, arg = spec.partition(":")
+    if kind not in _REGISTRY:
+        _register_optional()
+    if kind not in _REGISTRY:
+        raise ConfigError(f"unknown model {spec!r}; known: {', '.join(sorted(_REGISTRY))}")
+    model = _REGISTRY[kind](arg, vehicle)
+    if not getattr(model, "name", None):
+        raise ConfigError(f"model spec {spec!r}: the predictor has no name")
+    return model

@@ -1,0 +1,176 @@
+"""Preprocessing of flight logs for modelling and evaluation (thesis 2.1-2.2).
+
+Best measurement per variable (thesis 2.2: "the Vicon measurements were used
+for all entities but position accelerations, angle rotation rates and angle
+rotation accelerations"):
+
+==============  ==============================================================
+variables       best measurement
+==============  ==============================================================
+pos, vel        motion capture ``pos_n``, ``vel_n`` (N = NED)
+acc             onboard accelerometer rotated to N, gravity added:
+                :math:`a_N = R_{NB}(\\phi,\\theta,\\psi)\\, f_B + g\\, e_z`
+angles          motion capture ``euler`` (yaw unwrapped)
+rates           onboard gyros ``gyro_b`` (p, q, r)
+angular acc     gyros differentiated with a Savitzky-Golay filter
+==============  ==============================================================
+
+The accelerometer measures specific force :math:`f_B = R^T (a_N - g e_z)` in
+body FRD (at rest, level: :math:`f_B = (0, 0, -g)`), hence the formula above.
+
+Trimming (thesis 2.2): every signal has its trim value, the mean over a stable
+interval, subtracted -- the first ``trim_s`` = 1 s of the window. Engine
+inputs of windows longer than ``detrend_above_s`` = 50 s have their linear
+trend (battery drain, thesis Fig 2.2/2.3) removed instead, with
+:func:`scipy.signal.detrend`.
+
+Smoothing before errors (thesis 5.1: "smoothened to remove the impact from
+white noise"): a zero-phase Butterworth low-pass (:func:`scipy.signal.butter`
+order :data:`SMOOTH_ORDER`, cutoff :data:`SMOOTH_CUTOFF_HZ`, applied with
+:func:`scipy.signal.filtfilt`), the same on measurement and prediction.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import signal
+
+from quad_modelling.core import frames
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.variables import VARIABLES
+from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.errors import DataError
+
+SMOOTH_CUTOFF_HZ = 5.0
+"""Cutoff of the error smoothing low-pass [Hz]: quadrotor rigid-body motion of
+interest lies below ~5 Hz; rotor/frame vibration and sensor noise above it."""
+
+SMOOTH_ORDER = 2
+"""Order of the Butterworth smoothing filter (applied forward and backward: 4th-order magnitude)."""
+
+DERIVATIVE_WINDOW_S = 0.11
+"""Savitzky-Golay window for differentiating gyros [s] (11 samples at 100 Hz)."""
+
+DERIVATIVE_POLYORDER = 2
+"""Savitzky-Golay polynomial order for differentiating gyros."""
+
+
+@dataclass(frozen=True)
+class TrimConfig:
+    """How windows are trimmed (thesis 2.2; DESIGN 7).
+
+    trim_s: length of the stable interval at the window start [s] whose mean is
+        the trim value of every signal (thesis: the first second).
+    detrend_above_s: windows longer than this [s] get their engine inputs
+        linearly detrended instead of mean-trimmed (thesis: > 50 s).
+    """
+
+    trim_s: float = 1.0
+    detrend_above_s: float = 50.0
+
+    def trim_samples(self, window: FlightLog) -> int:
+        """Number of rows of the stable interval (at least 1, at most the window)."""
+        return int(np.clip(round(self.trim_s * window.sample_rate), 1, len(window)))
+
+
+def sample_period(log: FlightLog) -> float:
+    """Median sample period [s]."""
+    return 1.0 / log.sample_rate
+
+
+def nav_acceleration(log: FlightLog, gravity: float = GRAVITY) -> np.ndarray:
+    """(N, 3) acceleration in N [m/s²] from the body specific force: a_N = R f_B + g e_z."""
+    acc = frames.body_to_nav(log.acc_b, log.euler)
+    acc[:, 2] += gravity
+    return acc
+
+
+def differentiate(values: np.ndarray, dt: float, window_s: float = DERIVATIVE_WINDOW_S) -> np.ndarray:
+    """Time derivative of (N, k) ``values`` sampled every ``dt`` [s] (Savitzky-Golay).
+
+    Uses a local quadratic fit over ``window_s`` (odd number of samples, shrunk
+    for short signals); fewer than 3 samples fall back to :func:`numpy.gradient`.
+    """
+    values = np.asarray(values, dtype=float)
+    n = values.shape[0]
+    length = int(round(window_s / dt)) | 1
+    length = min(length, n if n % 2 else n - 1)
+    if length <= DERIVATIVE_POLYORDER:
+        return np.gradient(values, dt, axis=0) if n > 1 else np.zeros_like(values)
+    return signal.savgol_filter(values, length, DERIVATIVE_POLYORDER, deriv=1, delta=dt, axis=0, mode="interp")
+
+
+def measured_variables(log: FlightLog, vehicle: VehicleConfig | None = None) -> np.ndarray:
+    """(N, 18) best measurement of each variable in VARIABLES order (untrimmed, SI, N frame).
+
+    ``vehicle`` is accepted for symmetry with the models; gravity is the
+    models' :data:`quad_modelling.core.vehicle.GRAVITY`.
+    """
+    out = np.empty((len(log), len(VARIABLES)))
+    out[:, 0:3] = log.pos_n
+    out[:, 3:6] = log.vel_n
+    out[:, 6:9] = nav_acceleration(log)
+    out[:, 9:12] = log.euler
+    out[:, 11] = np.unwrap(log.euler[:, 2])
+    out[:, 12:15] = log.gyro_b
+    out[:, 15:18] = differentiate(log.gyro_b, sample_period(log))
+    return out
+
+
+def trim_values(values: np.ndarray, trim_samples: int) -> np.ndarray:
+    """Trim value of each column: the mean over the first ``trim_samples`` rows."""
+    if trim_samples < 1:
+        raise DataError(f"trim interval must hold at least one sample, got {trim_samples}")
+    return np.asarray(values, dtype=float)[:trim_samples].mean(axis=0)
+
+
+def trimmed_variables(window: FlightLog, trim: TrimConfig | None = None, vehicle: VehicleConfig | None = None) -> np.ndarray:
+    """(N, 18) best measurement of ``window`` minus its trim values (the evaluation reference)."""
+    trim = trim or TrimConfig()
+    measured = measured_variables(window, vehicle)
+    return measured - trim_values(measured, trim.trim_samples(window))
+
+
+def trimmed_inputs(window: FlightLog, trim: TrimConfig | None = None) -> np.ndarray:
+    """(N, 4) engine commands minus their trim values (linearly detrended for long windows).
+
+    Windows up to ``trim.detrend_above_s`` long: u - mean(u over the stable
+    interval). Longer windows: u minus its least-squares line over the whole
+    window (:func:`scipy.signal.detrend`, thesis Fig 2.3).
+    """
+    trim = trim or TrimConfig()
+    if window.duration > trim.detrend_above_s:
+        return signal.detrend(window.u, axis=0, type="linear")
+    return window.u - trim_values(window.u, trim.trim_samples(window))
+
+
+def smooth(values: np.ndarray, sample_rate: float, cutoff_hz: float = SMOOTH_CUTOFF_HZ) -> np.ndarray:
+    """Zero-phase Butterworth low-pass of (N, ...) ``values`` along rows.
+
+    The cutoff is limited to 0.8 x Nyquist; signals too short for filtfilt's
+    padding are returned unchanged (nothing to smooth over).
+    """
+    values = np.asarray(values, dtype=float)
+    nyquist = sample_rate / 2.0
+    b, a = signal.butter(SMOOTH_ORDER, min(cutoff_hz, 0.8 * nyquist) / nyquist)
+    if values.shape[0] <= 3 * max(len(a), len(b)):
+        return values.copy()
+    return signal.filtfilt(b, a, values, axis=0)
+
+
+def uniform_time_check(log: FlightLog, tolerance: float = 0.25) -> None:
+    """Raise DataError if any sample step deviates from the median by more than ``tolerance`` (fraction).
+
+    The discrete models and filters assume uniform sampling.
+    """
+    steps = np.diff(log.t)
+    dt = np.median(steps)
+    bad = np.abs(steps - dt) > tolerance * dt
+    if bad.any():
+        row = int(np.argmax(bad)) + 1
+        raise DataError(
+            f"{log.meta.source}: sample step at row {row} (t={log.t[row]:.3f} s) is {steps[row - 1] * 1e3:.2f} ms, "
+            f"median is {dt * 1e3:.2f} ms; resample the log to a uniform rate first"
+        )
