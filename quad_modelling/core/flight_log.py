@@ -134,9 +134,9 @@ class FlightLog:
         return float(1.0 / np.median(np.diff(self.t)))
 
     def slice(self, start: int, stop: int) -> FlightLog:
-        """Rows [start, stop) as a new FlightLog with the same metadata."""
+        """Rows [start, stop) as a new FlightLog (copied arrays) with the same metadata."""
         changes = {
-            name: getattr(self, name)[start:stop]
+            name: getattr(self, name)[start:stop].copy()
             for name in ("t", "u", *VECTOR_FIELDS, "vbat", "omega")
             if getattr(self, name) is not None
         }

@@ -26,7 +26,7 @@ def check_output(path: Path, force: bool) -> None:
         raise OutputExistsError(f"{path}: exists; pass --force to overwrite")
     parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
-        raise OutputDirError(f"{parent}: output directory does not exist")
+        raise OutputDirError(f"{parent}: output directory does not exist or is not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise OutputDirError(f"{parent}: output directory is not writable")
 
@@ -51,7 +51,10 @@ def atomic_output(path: str | Path, force: bool = False) -> Iterator[Path]:
     path = Path(path)
     check_output(path, force)
     staging = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
-    staging.mkdir()
+    try:
+        staging.mkdir()
+    except OSError as err:
+        raise OutputDirError(f"{path.parent}: cannot write in the output directory ({err.strerror})") from err
     tmp = staging / path.name
     try:
         yield tmp

@@ -162,6 +162,8 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
     path = Path(path)
     where = str(path)
     mapping = mapping or default_mapping()
+    if not path.is_file():
+        raise DataError(f"{where}: no such file")
     try:
         contents = scipy.io.loadmat(path, squeeze_me=True, chars_as_strings=True)
     except NotImplementedError as err:

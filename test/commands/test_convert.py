@@ -1,0 +1,108 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from quad_modelling.cli import build_parser, main
+from quad_modelling.io.bag_io import read_bag
+from quad_modelling.io.matlog import read_matlog, write_matlog
+from test.conftest import FIXTURES, synthetic_log
+
+FLIGHT = FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz"
+QUIRK = FIXTURES / "nanobench" / "B9_trefoil_fast_rep2_rows1199-1399.csv.gz"
+
+
+def test_every_verb_help_explains_inputs_outputs_with_an_example(capsys):
+    parser = build_parser()
+    verbs = parser._subparsers._group_actions[0].choices
+    assert {"convert", "info"} <= set(verbs)
+    for name, sub in verbs.items():
+        text = sub.format_help()
+        assert "example" in text and f"quad-modelling {name}" in text, name
+
+
+def test_convert_one_nanobench_flight(tmp_path, capsys):
+    assert main(["convert", str(FLIGHT), "-o", str(tmp_path / "bag")]) == 0
+    assert "1000 samples" in capsys.readouterr().out
+    assert len(read_bag(tmp_path / "bag")) == 1000
+
+
+def test_convert_bag_back_to_mat(tmp_path):
+    write_matlog(synthetic_log(vehicle="linkquad"), tmp_path / "a.mat")
+    assert main(["convert", str(tmp_path / "a.mat"), "-o", str(tmp_path / "bag")]) == 0
+    assert main(["convert", str(tmp_path / "bag"), "-o", str(tmp_path / "b.mat")]) == 0
+    assert read_matlog(tmp_path / "b.mat").meta.vehicle == "linkquad"
+
+
+def test_several_inputs_go_to_a_directory_and_the_quirk_is_refused(tmp_path, capsys):
+    out = tmp_path / "bags"
+    code = main(["convert", str(FLIGHT), str(QUIRK), "-o", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and "motor_motor_m" in err and "outside the crazyflie21 input range" in err
+    assert len(err.strip().splitlines()) == 1  # one clear line
+    assert not out.exists() and list(tmp_path.iterdir()) == []  # nothing partial left behind
+    assert main(["convert", str(FLIGHT), str(QUIRK), "-o", str(out), "--skip-bad"]) == 1
+    assert sorted(p.name for p in out.iterdir()) == ["B7_oval_medium_rep2_first1000"]
+
+
+def test_existing_output_is_kept_without_force(tmp_path, capsys):
+    assert main(["convert", str(FLIGHT), "-o", str(tmp_path / "bag")]) == 0
+    before = sorted((p.name, p.stat().st_size) for p in (tmp_path / "bag").iterdir())
+    assert main(["convert", str(FLIGHT), "-o", str(tmp_path / "bag")]) == 2
+    assert "exists; pass --force" in capsys.readouterr().err
+    assert sorted((p.name, p.stat().st_size) for p in (tmp_path / "bag").iterdir()) == before
+    assert main(["convert", str(FLIGHT), "-o", str(tmp_path / "bag"), "--force"]) == 0
+
+
+def _make_unwritable(directory):
+    """chmod for ordinary users; root ignores modes, so also set the immutable flag."""
+    directory.chmod(0o555)
+    if os.geteuid() == 0:
+        subprocess.run(["chattr", "+i", str(directory)], check=True)
+
+
+def _undo(directory):
+    if os.geteuid() == 0:
+        subprocess.run(["chattr", "-i", str(directory)], check=True)
+    directory.chmod(0o755)
+
+
+def test_unwritable_output_directory_is_one_line_and_exit_2(tmp_path, capsys):
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    _make_unwritable(locked)
+    try:
+        assert main(["convert", str(FLIGHT), "-o", str(locked / "bag")]) == 2
+    finally:
+        _undo(locked)
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("quad-modelling convert: error:") and "locked" in err and "writ" in err
+    assert list(locked.iterdir()) == []
+
+
+def test_missing_parent_directory(tmp_path, capsys):
+    assert main(["convert", str(FLIGHT), "-o", str(tmp_path / "no" / "such" / "bag")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_mat_without_vehicle_needs_vehicle_flag(tmp_path, capsys):
+    import numpy as np
+    import scipy.io
+
+    log = synthetic_log(vehicle="linkquad")
+    write_matlog(log, tmp_path / "a.mat")
+    contents = {k: v for k, v in scipy.io.loadmat(tmp_path / "a.mat").items() if not k.startswith("__") and k != "vehicle"}
+    scipy.io.savemat(tmp_path / "novehicle.mat", contents)
+    assert main(["convert", str(tmp_path / "novehicle.mat"), "-o", str(tmp_path / "bag")]) == 2
+    assert "pass --vehicle" in capsys.readouterr().err
+    assert main(["convert", str(tmp_path / "novehicle.mat"), "--vehicle", "linkquad", "-o", str(tmp_path / "bag")]) == 0
+    assert np.allclose(read_bag(tmp_path / "bag").u, log.u)
+
+
+def test_command_line_entry_point_runs(tmp_path):
+    entry_point = Path(sys.executable).parent / "quad-modelling"  # installed by `make` (pip -e .)
+    result = subprocess.run([str(entry_point), "info", str(tmp_path / "absent")], capture_output=True, text=True)
+    assert result.returncode == 2
+    assert result.stderr.strip() == f"quad-modelling info: error: {tmp_path / 'absent'}: no such bag"

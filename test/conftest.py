@@ -1,0 +1,45 @@
+"""Shared test helpers: synthetic flight logs and paths to the small committed fixtures."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+
+FIXTURES = Path(__file__).parent / "fixtures"
+REPO = Path(__file__).resolve().parent.parent
+
+# DDS stays on loopback in every test process, whatever started pytest.
+os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+
+def synthetic_log(n: int = 400, vehicle: str = "crazyflie21", seed: int = 0, rate: float = 100.0, with_optional: bool = True) -> FlightLog:
+    """A smooth, plausible flight: hover-level commands, gentle attitude and yaw beyond ±π."""
+    rng = np.random.default_rng(seed)
+    t = 5.0 + np.arange(n) / rate
+    phase = 2 * np.pi * 0.3 * (t - t[0])
+    euler = np.column_stack([0.1 * np.sin(phase), -0.08 * np.cos(phase), np.linspace(-3.0, 4.0, n)])
+    u_max = 65535.0 if vehicle == "crazyflie21" else 0.0021
+    u_hover = 0.7 * u_max
+    return FlightLog(
+        t=t,
+        u=u_hover * (1 + 0.02 * rng.standard_normal((n, 4))),
+        acc_b=np.column_stack([0.3 * np.sin(phase), 0.2 * np.cos(phase), -9.81 + 0.1 * rng.standard_normal(n)]),
+        gyro_b=0.2 * rng.standard_normal((n, 3)),
+        pos_n=np.column_stack([np.cos(phase), np.sin(phase), -1.0 + 0.1 * np.sin(phase)]),
+        vel_n=np.column_stack([-np.sin(phase), np.cos(phase), 0.1 * np.cos(phase)]),
+        euler=euler,
+        vbat=np.linspace(4.1, 3.7, n) if with_optional else None,
+        omega=1500 + 10 * rng.standard_normal((n, 4)) if with_optional else None,
+        meta=FlightMeta(vehicle=vehicle, source="synthetic", notes={"seed": seed}),
+    )
+
+
+@pytest.fixture
+def flight() -> FlightLog:
+    return synthetic_log()

@@ -1,0 +1,65 @@
+import dataclasses
+
+import numpy as np
+import pytest
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.errors import DataError
+from test.conftest import synthetic_log
+
+
+def _fields(log: FlightLog) -> dict:
+    return {f.name: getattr(log, f.name) for f in dataclasses.fields(log)}
+
+
+def test_valid_log_reports_rate_and_duration(flight):
+    assert len(flight) == 400
+    assert flight.sample_rate == pytest.approx(100.0)
+    assert flight.duration == pytest.approx(3.99)
+    part = flight.slice(100, 200)
+    assert len(part) == 100 and part.t[0] == flight.t[100]
+    assert part.vbat.shape == (100,)
+
+
+def test_nan_is_rejected_with_field_row_and_time(flight):
+    fields = _fields(flight)
+    fields["vel_n"] = fields["vel_n"].copy()
+    fields["vel_n"][123, 2] = np.nan
+    with pytest.raises(DataError, match=r"synthetic: field vel_n column 2 is not finite at row 123 \(t=6\.230 s\)"):
+        FlightLog(**fields)
+
+
+def test_non_monotonic_time_names_the_row(flight):
+    fields = _fields(flight)
+    fields["t"] = fields["t"].copy()
+    fields["t"][50] = fields["t"][49]
+    with pytest.raises(DataError, match="time is not strictly increasing at row 50"):
+        FlightLog(**fields)
+
+
+def test_wrong_shape_names_the_field(flight):
+    fields = _fields(flight)
+    fields["u"] = fields["u"][:, :3]
+    with pytest.raises(DataError, match=r"field u has shape \(400, 3\), expected \(400, 4\)"):
+        FlightLog(**fields)
+
+
+def test_angles_in_degrees_are_caught(flight):
+    fields = _fields(flight)
+    fields["euler"] = np.rad2deg(fields["euler"]) * 10  # roll up to 57 'rad': degrees mistaken for radians
+    with pytest.raises(DataError, match="field euler column 0 .* wrong unit"):
+        FlightLog(**fields)
+
+
+def test_input_range_check_names_command_row_and_time():
+    log = synthetic_log()
+    log.u[77, 2] = 70000.0
+    with pytest.raises(DataError, match=r"engine command u3 row 77 \(t=5\.770 s\) is 70000.*\[0, 65535\]"):
+        log.check_input_range(0, 65535, "PWM")
+
+
+def test_allclose_detects_a_difference(flight):
+    other = flight.slice(0, len(flight))
+    assert flight.allclose(other)
+    other.pos_n[3, 1] += 1e-3
+    assert not flight.allclose(other)

@@ -1,0 +1,62 @@
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from quad_modelling.core import frames
+
+
+def test_world_and_body_conversions_are_involutions():
+    v = np.array([[1.0, 2.0, 3.0], [-4.0, 5.0, -6.0]])
+    np.testing.assert_array_equal(frames.enu_to_ned(v), [[2.0, 1.0, -3.0], [5.0, -4.0, 6.0]])
+    np.testing.assert_array_equal(frames.ned_to_enu(frames.enu_to_ned(v)), v)
+    np.testing.assert_array_equal(frames.flu_to_frd(v), [[1.0, -2.0, -3.0], [-4.0, -5.0, 6.0]])
+    np.testing.assert_array_equal(frames.frd_to_flu(frames.flu_to_frd(v)), v)
+
+
+def test_units_scale_to_si():
+    assert frames.to_si(1.0, "g") == pytest.approx(9.80665)
+    assert frames.to_si(180.0, "deg") == pytest.approx(np.pi)
+    assert frames.to_si(1500.0, "us") == pytest.approx(1.5e-3)
+    assert frames.from_si(frames.to_si(3.0, "deg/s"), "deg/s") == pytest.approx(3.0)
+    with pytest.raises(KeyError, match="furlong"):
+        frames.to_si(1.0, "furlong")
+
+
+def test_yaw_east_in_ned_points_body_x_east_in_enu():
+    # Yaw +90 deg in NED: the nose points east. In ENU the body x axis is then +x (east).
+    quat = frames.euler_ned_to_quat_enu(np.array([0.0, 0.0, np.pi / 2]))
+    nose_enu = Rotation.from_quat(quat).apply([1.0, 0.0, 0.0])
+    np.testing.assert_allclose(nose_enu, [1.0, 0.0, 0.0], atol=1e-12)
+
+
+def test_roll_right_wing_down_in_both_conventions():
+    # Positive FRD roll puts the right wing down: body +y (FRD right) gets a +z_NED (down) component.
+    quat = frames.euler_ned_to_quat_enu(np.array([0.3, 0.0, 0.0]))
+    left_wing_enu = Rotation.from_quat(quat).apply([0.0, 1.0, 0.0])  # FLU +y = left wing
+    assert left_wing_enu[2] == pytest.approx(np.sin(0.3))  # left wing up in ENU
+
+
+def test_euler_quaternion_round_trip():
+    rng = np.random.default_rng(1)
+    euler = np.column_stack([rng.uniform(-1.2, 1.2, 200), rng.uniform(-1.2, 1.2, 200), rng.uniform(-3.1, 3.1, 200)])
+    back = frames.quat_enu_to_euler_ned(frames.euler_ned_to_quat_enu(euler))
+    np.testing.assert_allclose(back, euler, atol=1e-12)
+
+
+def test_odometry_round_trip_and_body_twist():
+    pos = np.array([[1.0, 2.0, -3.0]])
+    vel = np.array([[1.0, 0.0, 0.0]])  # flying north
+    euler = np.array([[0.0, 0.0, np.pi / 2]])  # nose east: the body sees the velocity to its left
+    position_enu, quat, twist_flu = frames.to_odometry(pos, vel, euler)
+    np.testing.assert_allclose(position_enu, [[2.0, 1.0, 3.0]])
+    np.testing.assert_allclose(twist_flu, [[0.0, 1.0, 0.0]], atol=1e-12)  # FLU +y = left
+    p, v, e = frames.from_odometry(position_enu, quat, twist_flu)
+    np.testing.assert_allclose(p, pos)
+    np.testing.assert_allclose(v, vel, atol=1e-12)
+    np.testing.assert_allclose(e, euler, atol=1e-12)
+
+
+def test_geodesic_angle_of_a_pure_roll():
+    a = np.zeros((1, 3))
+    b = np.array([[0.25, 0.0, 0.0]])
+    assert frames.geodesic_angle(a, b)[0] == pytest.approx(0.25)

@@ -1,0 +1,172 @@
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from rosbags.rosbag2 import Reader, Writer
+from rosbags.rosbag2.enums import StoragePlugin
+
+from quad_modelling.errors import BagError, DataError, OutputExistsError
+from quad_modelling.io import bag_io
+from quad_modelling.io.bag_io import read_bag, summarize_bag, write_bag
+from quad_modelling.io.matlog import read_matlog, write_matlog
+from quad_modelling.io.nanobench import read_nanobench
+from test.conftest import FIXTURES, synthetic_log
+
+CONTRACT = {
+    "/quad/motor_input": "sensor_msgs/msg/JointState",
+    "/quad/mocap/odom": "nav_msgs/msg/Odometry",
+    "/quad/imu": "sensor_msgs/msg/Imu",
+    "/quad/battery": "sensor_msgs/msg/BatteryState",
+}
+
+
+def test_nanobench_csv_to_bag_to_flight_log_is_lossless(tmp_path):
+    log = read_nanobench(FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz")
+    back = read_bag(write_bag(log, tmp_path / "bag"))
+    # t is Unix time: nanosecond stamps hold it to the float64 resolution (2.4e-7 s at 1.7e9 s).
+    np.testing.assert_allclose(back.t, log.t, rtol=0, atol=5e-7)
+    for name in ("u", "acc_b", "gyro_b", "pos_n", "vel_n", "euler"):
+        np.testing.assert_allclose(getattr(back, name), getattr(log, name), rtol=1e-12, atol=1e-12, err_msg=name)
+    # sensor_msgs/BatteryState.voltage is a float32: the voltage keeps 7 significant digits.
+    np.testing.assert_allclose(back.vbat, log.vbat, rtol=1e-7)
+    assert back.omega is None
+    assert back.meta.vehicle == "crazyflie21" and back.meta.notes["format"] == "nanobench"
+
+
+def test_mat_to_bag_to_mat_is_equal(tmp_path):
+    log = synthetic_log(vehicle="linkquad")  # yaw runs from -3 to 4 rad: crosses ±pi, unwrapped on read
+    write_matlog(log, tmp_path / "a.mat")
+    write_bag(read_matlog(tmp_path / "a.mat"), tmp_path / "bag")
+    write_matlog(read_bag(tmp_path / "bag"), tmp_path / "b.mat")
+    again = read_matlog(tmp_path / "b.mat")
+    np.testing.assert_allclose(again.vbat, log.vbat, rtol=1e-7)  # float32 in BatteryState
+    again.vbat = log.vbat
+    assert again.allclose(log, rtol=1e-12, atol=1e-12)
+    assert again.meta.notes == log.meta.notes
+
+
+def test_plain_rosbags_and_mcap_read_the_contract_topics(tmp_path):
+    write_bag(synthetic_log(), tmp_path / "bag")
+    with Reader(tmp_path / "bag") as reader:
+        assert {c.topic: c.msgtype for c in reader.connections} == CONTRACT
+        assert reader.message_count == 4 * 400
+        odom_conn = next(c for c in reader.connections if c.topic == "/quad/mocap/odom")
+        _, _, raw = next(iter(reader.messages(connections=[odom_conn])))
+        odom = bag_io.TYPESTORE.deserialize_cdr(raw, odom_conn.msgtype)
+        assert (odom.header.frame_id, odom.child_frame_id) == ("world", "base_link")
+    mcap_file = next((tmp_path / "bag").glob("*.mcap"))
+    assert mcap_file.name == "bag.mcap"
+    with open(mcap_file, "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    assert {ch.topic for ch in summary.channels.values()} == set(CONTRACT)
+    assert {s.encoding for s in summary.schemas.values()} == {"ros2msg"}
+
+
+def test_summary_counts_rates_and_vehicle(tmp_path):
+    write_bag(synthetic_log(n=250, rate=250.0), tmp_path / "bag")
+    summary = summarize_bag(tmp_path / "bag")
+    assert summary.message_count == 1000 and summary.storage == "mcap"
+    assert summary.duration_s == pytest.approx(249 / 250)
+    assert all(t.count == 250 and t.rate_hz == pytest.approx(250.0) for t in summary.topics)
+    assert summary.custom_data["quad_modelling.vehicle"] == "crazyflie21"
+
+
+def test_existing_bag_needs_force_and_nothing_is_left_on_failure(tmp_path):
+    write_bag(synthetic_log(), tmp_path / "bag")
+    with pytest.raises(OutputExistsError):
+        write_bag(synthetic_log(seed=1), tmp_path / "bag")
+    write_bag(synthetic_log(seed=1), tmp_path / "bag", force=True)
+    assert read_bag(tmp_path / "bag").meta.notes == {"seed": 1}
+
+    def explode(_):
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError):
+        write_bag(synthetic_log(n=2000), tmp_path / "other", progress=explode)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]
+
+
+def test_truncated_mcap_is_a_bag_error(tmp_path):
+    write_bag(synthetic_log(), tmp_path / "bag")
+    mcap_file = tmp_path / "bag" / "bag.mcap"
+    data = mcap_file.read_bytes()
+    mcap_file.write_bytes(data[: len(data) // 2])
+    with pytest.raises(BagError, match="bag"):
+        read_bag(tmp_path / "bag")
+
+
+def test_garbage_mcap_is_a_bag_error(tmp_path):
+    write_bag(synthetic_log(), tmp_path / "bag")
+    (tmp_path / "bag" / "bag.mcap").write_bytes(b"\x89MCAP0\r\n" + bytes(range(256)) * 8)
+    with pytest.raises(BagError, match="bag"):
+        read_bag(tmp_path / "bag")
+
+
+def test_not_a_bag(tmp_path):
+    with pytest.raises(BagError, match="no such bag"):
+        read_bag(tmp_path / "nothing")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BagError, match="not a readable rosbag2 bag"):
+        read_bag(tmp_path / "empty")
+
+
+def _write_raw_bag(path, messages_by_topic):
+    """A bag with hand-made messages: {topic_key: [(stamp_ns, msg), ...]}."""
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
+        writer.set_custom_data("quad_modelling.vehicle", "crazyflie21")
+        for key, messages in messages_by_topic.items():
+            msgtype = bag_io.TOPIC_TYPES[key]
+            conn = writer.add_connection(bag_io.topic_name("/quad", key), msgtype, typestore=bag_io.TYPESTORE)
+            for ns, msg in messages:
+                writer.write(conn, ns, bag_io.TYPESTORE.serialize_cdr(msg, msgtype))
+
+
+def _motor(ns, effort=(1.0, 2.0, 3.0, 4.0)):
+    return bag_io.JointState(header=bag_io._header(ns, "base_link"), name=list(bag_io.MOTOR_NAMES),
+                             position=np.zeros(0), velocity=np.zeros(0), effort=np.array(effort, dtype=float))
+
+
+def _imu(ns, gyro=(0.0, 0.0, 0.0)):
+    return bag_io.Imu(header=bag_io._header(ns, "base_link"), orientation=bag_io.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+                      orientation_covariance=bag_io.NO_ORIENTATION, angular_velocity=bag_io._vec(gyro),
+                      angular_velocity_covariance=np.zeros(9), linear_acceleration=bag_io._vec((0.0, 0.0, 9.81)),
+                      linear_acceleration_covariance=np.zeros(9))
+
+
+def _odom(ns):
+    return bag_io.Odometry(
+        header=bag_io._header(ns, "world"), child_frame_id="base_link",
+        pose=bag_io.PoseWithCovariance(pose=bag_io.Pose(position=bag_io.Point(x=0.0, y=0.0, z=1.0),
+                                                        orientation=bag_io.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)), covariance=np.zeros(36)),
+        twist=bag_io.TwistWithCovariance(twist=bag_io.Twist(linear=bag_io._vec((0, 0, 0)), angular=bag_io._vec((0, 0, 0))), covariance=np.zeros(36)))
+
+
+STAMPS = [1_000_000_000 + 10_000_000 * k for k in range(10)]
+
+
+def test_missing_required_topic_is_named(tmp_path):
+    _write_raw_bag(tmp_path / "bag", {"motor_input": [(s, _motor(s)) for s in STAMPS], "imu": [(s, _imu(s)) for s in STAMPS]})
+    with pytest.raises(BagError, match=r"missing required topic\(s\) \['/quad/mocap/odom'\]"):
+        read_bag(tmp_path / "bag")
+
+
+def test_nan_in_a_message_names_topic_and_index(tmp_path):
+    imu = [(s, _imu(s, gyro=(np.nan, 0.0, 0.0) if k == 4 else (0.0, 0.0, 0.0))) for k, s in enumerate(STAMPS)]
+    _write_raw_bag(tmp_path / "bag", {"motor_input": [(s, _motor(s)) for s in STAMPS], "mocap/odom": [(s, _odom(s)) for s in STAMPS], "imu": imu})
+    with pytest.raises(DataError, match="topic /quad/imu message 4 holds a non-finite value"):
+        read_bag(tmp_path / "bag")
+
+
+def test_stamps_going_backwards_are_named(tmp_path):
+    bad = STAMPS[:5] + [STAMPS[3]] + STAMPS[6:]
+    _write_raw_bag(tmp_path / "bag", {"motor_input": [(s, _motor(s)) for s in bad], "mocap/odom": [(s, _odom(s)) for s in STAMPS], "imu": [(s, _imu(s)) for s in STAMPS]})
+    with pytest.raises(DataError, match="topic /quad/motor_input header stamps do not increase at message 4"):
+        read_bag(tmp_path / "bag")
+
+
+def test_topics_at_other_stamps_are_interpolated_onto_motor_time(tmp_path):
+    odom_stamps = [s - 5_000_000 for s in STAMPS] + [STAMPS[-1] + 5_000_000]
+    _write_raw_bag(tmp_path / "bag", {"motor_input": [(s, _motor(s)) for s in STAMPS], "mocap/odom": [(s, _odom(s)) for s in odom_stamps],
+                                      "imu": [(s, _imu(s, gyro=(0.001 * k, 0, 0))) for k, s in enumerate(STAMPS)]})
+    log = read_bag(tmp_path / "bag")
+    assert len(log) == 10 and log.pos_n[0, 2] == pytest.approx(-1.0)
+    np.testing.assert_allclose(log.gyro_b[:, 0], 0.001 * np.arange(10))

@@ -1,0 +1,89 @@
+import numpy as np
+import pytest
+import scipy.io
+import yaml
+
+from quad_modelling.core import frames
+from quad_modelling.errors import ConfigError, DataError, OutputExistsError
+from quad_modelling.io.matlog import THESIS_VARIABLES, load_mapping, read_matlog, write_matlog
+from test.conftest import synthetic_log
+
+
+def test_round_trip_keeps_every_field_and_the_notes(tmp_path):
+    log = synthetic_log(vehicle="linkquad")
+    log.meta.notes["effects"] = ["battery", "rotor_drag"]
+    path = write_matlog(log, tmp_path / "flight.mat")
+    back = read_matlog(path)
+    assert back.allclose(log, rtol=0, atol=0)
+    assert back.meta.vehicle == "linkquad"
+    assert back.meta.notes == {"seed": 0, "effects": ["battery", "rotor_drag"]}
+    stored = scipy.io.loadmat(path)
+    assert set(THESIS_VARIABLES["u"]) <= set(stored)  # default names are what the README documents
+
+
+def test_existing_output_needs_force(tmp_path):
+    log = synthetic_log(vehicle="linkquad")
+    write_matlog(log, tmp_path / "f.mat")
+    with pytest.raises(OutputExistsError, match="exists; pass --force"):
+        write_matlog(log, tmp_path / "f.mat")
+    write_matlog(log, tmp_path / "f.mat", force=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.mat"]  # no temporary left behind
+
+
+def test_foreign_log_through_a_mapping_file(tmp_path):
+    """A lab log in ENU/FLU, g, deg, deg/s, microseconds and one matrix for the motors."""
+    n = 50
+    t = np.arange(n) * 0.004
+    acc_flu_g = np.column_stack([np.full(n, 0.1), np.full(n, -0.2), np.full(n, 1.0)])
+    gyro_flu_dps = np.column_stack([np.full(n, 10.0), np.full(n, 20.0), np.full(n, -30.0)])
+    scipy.io.savemat(tmp_path / "lab.mat", {
+        "T": t, "PWM": np.full((n, 6), 1500.0), "ax": acc_flu_g[:, 0], "ay": acc_flu_g[:, 1], "az": acc_flu_g[:, 2],
+        "gyro": gyro_flu_dps, "pos": np.tile([1.0, 2.0, 3.0], (n, 1)), "vel": np.tile([0.5, 0.0, -0.1], (n, 1)),
+        "att": np.tile([5.0, 10.0, 90.0], (n, 1)),
+    })
+    mapping = {
+        "time": {"variable": "T", "unit": "s"},
+        "u": {"variable": "PWM", "columns": [1, 2, 3, 4], "unit": "us"},
+        "acc_b": {"variables": ["ax", "ay", "az"], "unit": "g", "frame": "FLU"},
+        "gyro_b": {"variable": "gyro", "unit": "deg/s", "frame": "FLU"},
+        "pos_n": {"variable": "pos", "unit": "m", "frame": "ENU"},
+        "vel_n": {"variable": "vel", "unit": "m/s", "frame": "ENU"},
+        "euler": {"variable": "att", "unit": "deg", "frame": "NED"},
+    }
+    (tmp_path / "map.yaml").write_text(yaml.safe_dump(mapping))
+    log = read_matlog(tmp_path / "lab.mat", vehicle="linkquad", mapping=load_mapping(tmp_path / "map.yaml"))
+    np.testing.assert_allclose(log.u[0], [1.5e-3] * 4)
+    np.testing.assert_allclose(log.acc_b[0], [0.1 * frames.STANDARD_GRAVITY, 0.2 * frames.STANDARD_GRAVITY, -frames.STANDARD_GRAVITY])
+    np.testing.assert_allclose(log.gyro_b[0], np.deg2rad([10.0, -20.0, 30.0]))
+    np.testing.assert_allclose(log.pos_n[0], [2.0, 1.0, -3.0])
+    np.testing.assert_allclose(log.euler[0], np.deg2rad([5.0, 10.0, 90.0]))
+
+
+def test_file_without_the_mapped_variables_lists_what_it_found(tmp_path):
+    scipy.io.savemat(tmp_path / "other.mat", {"time": np.arange(10.0), "motors": np.ones((10, 4))})
+    with pytest.raises(DataError, match=r"other.mat: field u needs variable\(s\) \['u1', 'u2', 'u3', 'u4'\].*found: \['motors', 'time'\]"):
+        read_matlog(tmp_path / "other.mat", vehicle="linkquad")
+
+
+def test_mapping_without_a_unit_is_a_config_error(tmp_path):
+    (tmp_path / "m.yaml").write_text(yaml.safe_dump({"time": {"variable": "t"}}))
+    with pytest.raises(ConfigError, match="field 'time' needs a 'unit'"):
+        load_mapping(tmp_path / "m.yaml")
+
+
+def test_corrupt_and_missing_files_are_data_errors(tmp_path):
+    (tmp_path / "bad.mat").write_bytes(b"MATLAB 5.0 MAT-file garbage" + bytes(200))
+    with pytest.raises(DataError, match="bad.mat: not a readable MATLAB file"):
+        read_matlog(tmp_path / "bad.mat")
+    with pytest.raises(DataError, match="no such file"):
+        read_matlog(tmp_path / "absent.mat")
+
+
+def test_nan_row_in_a_mat_log_is_named(tmp_path):
+    log = synthetic_log(vehicle="linkquad")
+    path = write_matlog(log, tmp_path / "f.mat")
+    contents = scipy.io.loadmat(path)
+    contents["dTheta"][42] = np.nan
+    scipy.io.savemat(tmp_path / "nan.mat", {k: v for k, v in contents.items() if not k.startswith("__")})
+    with pytest.raises(DataError, match=r"field gyro_b column 1 is not finite at row 42"):
+        read_matlog(tmp_path / "nan.mat")
