@@ -1,0 +1,636 @@
+"""NARX blackbox model (thesis chapter 4, DESIGN 6.3): six small recurrent nets.
+
+One net per velocity/rate ``y_k`` (k = X, Y, Z velocity in N [m/s]; roll,
+pitch, yaw rate [rad/s]). Each net sees the four engine commands ``u`` at the
+input delays ``d ∈ D_u`` and its own last ``n_y`` outputs, all normalised
+(``ũ = (u − μ_u)/σ_u``, ``ỹ_k = (y_k − μ_k)/σ_k``):
+
+.. math::
+
+    x_k(t) = [ũ(t − d)]_{d ∈ D_u} ⊕ [ỹ_k(t − n_y), …, ỹ_k(t − 1)]
+
+    h_k(t) = σ(W_{1,k} x_k(t) + b_{1,k}),   σ(z) = 1 / (1 + e^{−z})
+
+    ỹ_k(t) = w_{2,k} · h_k(t) + b_{2,k},     y_k(t) = μ_k + σ_k ỹ_k(t)
+
+with ``H`` hidden units per net (thesis: H = 10, n_y = 20, i.e. 0.2 s of memory
+at 100 Hz). ``W_{1,k}`` is stored split into its input part ``W_u`` and its
+output-feedback part ``W_y`` (columns in ascending time, oldest first).
+
+Training is series-parallel (thesis Fig 4.4): the feedback inputs are the
+*measured* past outputs, the loss is the mean squared error of ``ỹ_k(t)``.
+Before normalisation, white Gaussian noise is added to the low-noise series
+as the thesis did (section 6.2: 10 dB SNR on the angle rates, velocities left
+as they are): noise variance = var(y_k) / 10^(SNR/10). All six nets are
+trained at once as one batched module (they share no parameter; the loss is
+the sum of their MSEs, so each net's gradient is its own) with full-batch
+L-BFGS (strong-Wolfe line search): the nets are tiny (≈1000 weights), so a
+second-order-like full-batch method converges in a few hundred iterations
+where MATLAB's thesis default was Levenberg-Marquardt; one *epoch* is one
+L-BFGS step of ``iterations_per_epoch`` iterations.
+
+Prediction is parallel / closed-loop (thesis Fig 4.3): the first ``n_y``
+samples are measured, afterwards the nets feed back their own predictions. It
+runs in numpy with the extracted weights (the input part ``W_u ũ`` is
+computed for the whole window at once, only the feedback part is sequential).
+Positions/angles are integrated (trapezoid, anchored at the measured value at
+the window start) and accelerations differentiated (central differences)
+from the predicted velocities/rates, so a model gives all 18
+:data:`~quad_modelling.core.variables.VARIABLES` (thesis section 4.2; angles
+integrate the body rates p, q, r as the thesis did, a small-angle
+approximation).
+
+Model files are ``.npz`` (``allow_pickle=False``) with a JSON header array
+``header`` (format, version, vehicle, variables, delays, sample period,
+training spans...) next to the weight and normalisation arrays.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import zipfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.variables import VARIABLES, columns
+from quad_modelling.errors import DataError, ModelError
+
+OUTPUTS: tuple[str, ...] = ("vel_x", "vel_y", "vel_z", "roll_rate", "pitch_rate", "yaw_rate")
+"""The six net outputs (thesis section 4.2), in this order."""
+
+INTEGRATED: tuple[str, ...] = ("pos_x", "pos_y", "pos_z", "roll", "pitch", "yaw")
+"""Variables integrated from :data:`OUTPUTS` (same order)."""
+
+DIFFERENTIATED: tuple[str, ...] = ("acc_x", "acc_y", "acc_z", "roll_acc", "pitch_acc", "yaw_acc")
+"""Variables differentiated from :data:`OUTPUTS` (same order)."""
+
+THESIS_NOISE_SNR_DB: tuple[float | None, ...] = (None, None, None, 10.0, 10.0, 10.0)
+"""Thesis section 6.2: 10 dB noise on the angle rates, velocities kept as they were."""
+
+FORMAT = "quad_modelling.narx"
+FORMAT_VERSION = 1
+ARRAY_NAMES = ("w_u", "w_y", "b_1", "w_2", "b_2", "u_mean", "u_std", "y_mean", "y_std")
+MIN_STD = 1e-9
+"""Smallest standard deviation used for normalisation (a constant channel maps to 0)."""
+
+
+@dataclass(frozen=True)
+class NarxConfig:
+    """Architecture and training settings (defaults: thesis section 4.2).
+
+    hidden: sigmoid units per net (thesis 10).
+    output_delays: n_y, number of past outputs fed back (thesis 20 = 0.2 s at 100 Hz).
+    input_delays: delays D_u [samples] of the engine commands (0 = current command).
+    epochs: L-BFGS steps (thesis 25 training epochs).
+    iterations_per_epoch: L-BFGS iterations per step.
+    noise_snr_db: per output (OUTPUTS order), SNR [dB] of the white noise added to
+        that series before training, None for none (thesis: rates 10 dB).
+    """
+
+    hidden: int = 10
+    output_delays: int = 20
+    input_delays: tuple[int, ...] = tuple(range(20))
+    epochs: int = 25
+    iterations_per_epoch: int = 20
+    noise_snr_db: tuple[float | None, ...] = THESIS_NOISE_SNR_DB
+
+    def __post_init__(self) -> None:
+        if self.hidden < 1 or self.output_delays < 1 or self.epochs < 0 or self.iterations_per_epoch < 1:
+            raise ModelError(f"NARX config: hidden, output_delays, iterations must be >= 1 and epochs >= 0, got {self}")
+        if not self.input_delays or min(self.input_delays) < 0 or len(set(self.input_delays)) != len(self.input_delays):
+            raise ModelError(f"NARX config: input_delays must be distinct delays >= 0, got {self.input_delays}")
+        if len(self.noise_snr_db) != len(OUTPUTS):
+            raise ModelError(f"NARX config: noise_snr_db needs {len(OUTPUTS)} entries, got {len(self.noise_snr_db)}")
+
+    @property
+    def warm_samples(self) -> int:
+        """Measured samples needed before closed-loop prediction starts."""
+        return max(self.output_delays, max(self.input_delays))
+
+
+@dataclass
+class Segment:
+    """One contiguous training series: engine commands ``u`` (N, n_u) and outputs ``y`` (N, 6)."""
+
+    u: np.ndarray
+    y: np.ndarray
+    source: str = ""
+    span: tuple[float, float] = (0.0, 0.0)
+
+
+def sigmoid(z: np.ndarray) -> np.ndarray:
+    """Logistic function σ(z) = 1/(1+e^{−z}), computed without overflow."""
+    return 0.5 * (1.0 + np.tanh(0.5 * z))
+
+
+def lagged_inputs(u_norm: np.ndarray, input_delays: tuple[int, ...]) -> np.ndarray:
+    """(N, len(D_u)·n_u) matrix of [ũ(t−d)]_{d∈D_u}; rows before a delay's reach repeat ũ(0)."""
+    n = len(u_norm)
+    blocks = []
+    for delay in input_delays:
+        rows = np.clip(np.arange(n) - delay, 0, None)
+        blocks.append(u_norm[rows])
+    return np.concatenate(blocks, axis=1)
+
+
+@dataclass
+class NarxModel:
+    """Six trained NARX nets, their normalisation and provenance (see module doc).
+
+    Arrays (float64): ``w_u`` (6, H, len(D_u)·n_u), ``w_y`` (6, H, n_y),
+    ``b_1`` (6, H), ``w_2`` (6, H), ``b_2`` (6,); ``u_mean``/``u_std`` (n_u,),
+    ``y_mean``/``y_std`` (6,). ``header`` holds config, vehicle, sample period
+    ``dt`` [s], training spans and anything a subclass adds.
+    """
+
+    config: NarxConfig
+    dt: float
+    vehicle: str
+    w_u: np.ndarray
+    w_y: np.ndarray
+    b_1: np.ndarray
+    w_2: np.ndarray
+    b_2: np.ndarray
+    u_mean: np.ndarray
+    u_std: np.ndarray
+    y_mean: np.ndarray
+    y_std: np.ndarray
+    kind: str = "narx"
+    training: dict = field(default_factory=dict)
+
+    # ---- normalisation -------------------------------------------------
+    def normalise_inputs(self, u: np.ndarray) -> np.ndarray:
+        """ũ = (u − μ_u)/σ_u."""
+        return (np.asarray(u, dtype=float) - self.u_mean) / self.u_std
+
+    def normalise_outputs(self, y: np.ndarray) -> np.ndarray:
+        """ỹ = (y − μ_y)/σ_y."""
+        return (np.asarray(y, dtype=float) - self.y_mean) / self.y_std
+
+    def denormalise_outputs(self, y_norm: np.ndarray) -> np.ndarray:
+        """y = μ_y + σ_y ỹ."""
+        return self.y_mean + self.y_std * np.asarray(y_norm, dtype=float)
+
+    # ---- prediction ----------------------------------------------------
+    def one_step(self, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Series-parallel (one-step-ahead) prediction from measured past outputs.
+
+        u (N, n_u), y (N, 6) measured; returns (N, 6) where row t uses measured
+        y(t−n_y..t−1); the first n_y rows are the measurements themselves.
+        """
+        y = np.asarray(y, dtype=float)
+        u_norm, y_norm = self.normalise_inputs(u), self.normalise_outputs(y)
+        n_y = self.config.output_delays
+        z = np.einsum("nd,khd->nkh", lagged_inputs(u_norm, self.config.input_delays), self.w_u) + self.b_1
+        windows = np.lib.stride_tricks.sliding_window_view(y_norm, n_y, axis=0)[:-1]  # (N−n_y, 6, n_y)
+        z[n_y:] += np.einsum("nkd,khd->nkh", windows, self.w_y)
+        out = np.einsum("nkh,kh->nk", sigmoid(z), self.w_2) + self.b_2
+        out = self.denormalise_outputs(out)
+        out[:n_y] = y[:n_y]
+        return out
+
+    def simulate(self, u: np.ndarray, y_warm: np.ndarray) -> np.ndarray:
+        """Closed-loop (parallel) prediction of the six velocities/rates.
+
+        u (N, n_u): engine commands over the window; y_warm (n, 6) with
+        n ≥ n_y: measured outputs of the first n samples, returned unchanged.
+        Rows n..N−1 are predicted from the nets' own past predictions.
+        """
+        u = np.asarray(u, dtype=float)
+        y_warm = np.asarray(y_warm, dtype=float)
+        n_y = self.config.output_delays
+        if y_warm.ndim != 2 or y_warm.shape[1] != len(OUTPUTS) or len(y_warm) < n_y:
+            raise ModelError(f"NARX closed loop needs at least {n_y} measured samples of {len(OUTPUTS)} outputs, got {y_warm.shape}")
+        if len(y_warm) > len(u):
+            raise ModelError(f"NARX closed loop: {len(y_warm)} warm samples for a window of {len(u)}")
+        n = len(u)
+        z_u = np.einsum("nd,khd->nkh", lagged_inputs(self.normalise_inputs(u), self.config.input_delays), self.w_u)
+        z_u += self.b_1
+        series = np.empty((len(OUTPUTS), n))  # normalised outputs, one row per net
+        series[:, : len(y_warm)] = self.normalise_outputs(y_warm).T
+        w_y, w_2, b_2 = self.w_y, self.w_2, self.b_2
+        for t in range(len(y_warm), n):
+            z = z_u[t] + np.matmul(w_y, series[:, t - n_y : t, None])[..., 0]
+            series[:, t] = (w_2 * (0.5 + 0.5 * np.tanh(0.5 * z))).sum(axis=1) + b_2
+        y = self.denormalise_outputs(series.T)
+        y[: len(y_warm)] = y_warm  # exactly the measurements, not their normalisation round trip
+        return y
+
+    def stream(self, u_history: np.ndarray, y_history: np.ndarray) -> NarxStream:
+        """Streaming closed-loop predictor seeded with measured history (see :class:`NarxStream`)."""
+        return NarxStream(self, u_history, y_history)
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        """(N, 18) prediction of ``window`` in VARIABLES order (closed loop after warm-up).
+
+        The nets need ``n_y`` measured samples: the first max(warm_samples, n_y)
+        samples of the window's measured velocities/rates seed them. The window's
+        sample rate must match the model's (within 1 %).
+        """
+        check_sample_rate(self, window)
+        warm = max(int(warm_samples), self.config.output_delays)
+        if warm >= len(window):
+            raise DataError(f"{window.meta.source}: window of {len(window)} samples is shorter than the {warm} warm-up samples")
+        y_measured = measured_outputs(window)
+        y = self.simulate(window.u, y_measured[:warm])
+        return expand_outputs(window, y)
+
+    # ---- files -----------------------------------------------------------
+    def header(self) -> dict:
+        """JSON-serialisable description stored in the model file."""
+        return {
+            "format": FORMAT,
+            "format_version": FORMAT_VERSION,
+            "kind": self.kind,
+            "vehicle": self.vehicle,
+            "variables": list(VARIABLES),
+            "outputs": list(OUTPUTS),
+            "dt": self.dt,
+            "config": {**dataclasses.asdict(self.config), "input_delays": list(self.config.input_delays)},
+            "training": self.training,
+        }
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {name: getattr(self, name) for name in ARRAY_NAMES}
+
+    def save(self, path: str | Path, force: bool = False) -> Path:
+        """Write an .npz model file atomically (never overwrites without ``force``)."""
+        from quad_modelling.io.atomic import atomic_output
+
+        path = Path(path)
+        with atomic_output(path, force) as tmp:
+            with open(tmp, "wb") as stream:
+                np.savez(stream, header=np.array(json.dumps(self.header())), **self.arrays())
+        return path
+
+
+class NarxStream:
+    """Per-sample closed-loop NARX for live use: ``push(u(t)) -> y(t)``.
+
+    Seeded with at least max(D_u) past commands and n_y measured outputs (the
+    samples before t). Uses the same numpy weights as :meth:`NarxModel.simulate`,
+    and gives the same numbers sample for sample.
+    """
+
+    def __init__(self, model: NarxModel, u_history: np.ndarray, y_history: np.ndarray) -> None:
+        self.model = model
+        n_y = model.config.output_delays
+        self._u_span = max(model.config.input_delays) + 1
+        u_history = np.atleast_2d(np.asarray(u_history, dtype=float))
+        y_history = np.atleast_2d(np.asarray(y_history, dtype=float))
+        if len(y_history) < n_y or y_history.shape[1] != len(OUTPUTS):
+            raise ModelError(f"NARX stream needs at least {n_y} past outputs of {len(OUTPUTS)} variables, got {y_history.shape}")
+        if len(u_history) == 0 or u_history.shape[1] != len(model.u_mean):
+            raise ModelError(f"NARX stream needs past engine commands of {len(model.u_mean)} channels, got {u_history.shape}")
+        u_norm = model.normalise_inputs(u_history)
+        if len(u_norm) < self._u_span:  # repeat the oldest command, as lagged_inputs does
+            u_norm = np.concatenate([np.repeat(u_norm[:1], self._u_span - len(u_norm), axis=0), u_norm])
+        self._u = u_norm[-self._u_span :].copy()  # oldest first; the last row is replaced by u(t) on push
+        self._y = model.normalise_outputs(y_history[-n_y:]).T.copy()  # (6, n_y), oldest first
+        self._taps = np.array([self._u_span - 1 - d for d in model.config.input_delays])
+
+    def push(self, u: np.ndarray) -> np.ndarray:
+        """Feed command u(t) (n_u,), return the predicted outputs y(t) (6,) in SI units."""
+        m = self.model
+        self._u[:-1] = self._u[1:]
+        self._u[-1] = m.normalise_inputs(u)
+        x_u = self._u[self._taps].reshape(-1)
+        z = m.w_u @ x_u + np.matmul(m.w_y, self._y[..., None])[..., 0] + m.b_1
+        y_norm = (m.w_2 * sigmoid(z)).sum(axis=1) + m.b_2
+        self._y[:, :-1] = self._y[:, 1:]
+        self._y[:, -1] = y_norm
+        return m.denormalise_outputs(y_norm)
+
+
+# ---- measurements and the 18 variables --------------------------------------
+def measured_outputs(log: FlightLog) -> np.ndarray:
+    """(N, 6) best measurements of OUTPUTS (DESIGN 7): motion-capture velocity in N, gyro rates."""
+    return np.concatenate([log.vel_n, log.gyro_b], axis=1)
+
+
+def expand_outputs(window: FlightLog, y: np.ndarray) -> np.ndarray:
+    """All 18 VARIABLES from predicted velocities/rates y (N, 6) (thesis section 4.2).
+
+    pos(t) = pos_m(t_0) + ∫ v dt, angle(t) = angle_m(t_0) + ∫ rate dt (trapezoid,
+    anchored on the measurement at the window start t_0); acc = dv/dt (central
+    differences, one-sided at the ends).
+    """
+    from scipy.integrate import cumulative_trapezoid
+
+    t = window.t
+    out = np.empty((len(t), len(VARIABLES)))
+    out[:, columns(OUTPUTS)] = y
+    anchors = np.concatenate([window.pos_n[0], window.euler[0]])
+    out[:, columns(INTEGRATED)] = anchors + cumulative_trapezoid(y, t, axis=0, initial=0.0)
+    out[:, columns(DIFFERENTIATED)] = np.gradient(y, t, axis=0)
+    return out
+
+
+def check_sample_rate(model: NarxModel, window: FlightLog) -> None:
+    """Refuse a window whose sample period differs from the model's by more than 1 %."""
+    dt = 1.0 / window.sample_rate
+    if abs(dt - model.dt) > 0.01 * model.dt:
+        raise DataError(
+            f"{window.meta.source}: sampled every {dt * 1e3:.3f} ms but the {model.kind} model was trained "
+            f"at {model.dt * 1e3:.3f} ms; resample the log first"
+        )
+
+
+# ---- training -----------------------------------------------------------------
+def _noisy_outputs(segments: list[Segment], snr_db: tuple[float | None, ...], rng: np.random.Generator) -> list[np.ndarray]:
+    """Copies of each segment's y with white noise of variance var(y_k)/10^(SNR_k/10) added."""
+    all_y = np.concatenate([s.y for s in segments])
+    power = all_y.var(axis=0)
+    std = np.array([0.0 if snr is None else math.sqrt(p / 10.0 ** (snr / 10.0)) for p, snr in zip(power, snr_db)])
+    return [s.y + rng.standard_normal(s.y.shape) * std for s in segments]
+
+
+def _regressors(u_norm: np.ndarray, y_norm: np.ndarray, config: NarxConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Series-parallel training rows of one segment: (X_u, X_y, target) for t ≥ warm_samples."""
+    start = config.warm_samples
+    n_y = config.output_delays
+    x_u = lagged_inputs(u_norm, config.input_delays)[start:]
+    windows = np.lib.stride_tricks.sliding_window_view(y_norm, n_y, axis=0)  # row j = y[j:j+n_y]
+    x_y = windows[start - n_y : len(y_norm) - n_y]
+    return x_u, np.ascontiguousarray(x_y), y_norm[start:]
+
+
+def train_narx(
+    segments: list[Segment],
+    dt: float,
+    vehicle: str,
+    config: NarxConfig = NarxConfig(),
+    seed: int = 0,
+    progress: bool = False,
+    kind: str = "narx",
+    training: dict | None = None,
+) -> NarxModel:
+    """Train the six nets series-parallel on ``segments`` (see module doc); deterministic for a seed.
+
+    Each segment is a contiguous series at sample period ``dt`` [s]; lags never
+    cross segment boundaries. Returns a model whose weights are float64 numpy
+    arrays. ``training`` is stored in the model header (spans, sources...).
+    """
+    import torch
+
+    if not segments:
+        raise DataError("NARX training: no training data")
+    n_u = segments[0].u.shape[1]
+    for s in segments:
+        if s.u.ndim != 2 or s.u.shape[1] != n_u or s.y.shape != (len(s.u), len(OUTPUTS)):
+            raise DataError(f"{s.source}: training segment shapes u {s.u.shape}, y {s.y.shape} do not fit {n_u} inputs, {len(OUTPUTS)} outputs")
+    usable = [s for s in segments if len(s.u) > config.warm_samples]
+    if not usable:
+        raise DataError(f"NARX training: every segment is shorter than the {config.warm_samples + 1} samples one training row needs")
+    rng = np.random.default_rng(seed)
+    all_u = np.concatenate([s.u for s in usable])
+    all_y = np.concatenate([s.y for s in usable])
+    u_mean, u_std = all_u.mean(axis=0), np.maximum(all_u.std(axis=0), MIN_STD)
+    y_mean, y_std = all_y.mean(axis=0), np.maximum(all_y.std(axis=0), MIN_STD)
+    noisy = _noisy_outputs(usable, config.noise_snr_db, rng)
+    parts = [_regressors((s.u - u_mean) / u_std, (y - y_mean) / y_std, config) for s, y in zip(usable, noisy)]
+    x_u, x_y, target = (np.concatenate(p) for p in zip(*parts))
+
+    threads = torch.get_num_threads()
+    deterministic = torch.are_deterministic_algorithms_enabled()
+    torch.set_num_threads(1)
+    torch.use_deterministic_algorithms(True)
+    try:
+        torch.manual_seed(seed)
+        nets = _make_nets(len(OUTPUTS), config.hidden, x_u.shape[1], config.output_delays)
+        weights = _fit(nets, *(torch.from_numpy(a.astype(np.float32)) for a in (x_u, x_y, target)), config, progress)
+    finally:
+        torch.set_num_threads(threads)
+        torch.use_deterministic_algorithms(deterministic)
+    return NarxModel(
+        config=config, dt=float(dt), vehicle=vehicle, **weights,
+        u_mean=u_mean, u_std=u_std, y_mean=y_mean, y_std=y_std, kind=kind,
+        training={
+            "seed": seed,
+            "samples": int(len(target)),
+            "segments": [{"source": s.source, "span": list(s.span)} for s in usable],
+            **(training or {}),
+        },
+    )
+
+
+def _make_nets(nets: int, hidden: int, inputs: int, feedback: int):
+    """A torch module of ``nets`` independent one-hidden-layer sigmoid nets (torch imported lazily)."""
+    import torch
+
+    class BatchedNets(torch.nn.Module):
+        """K independent one-hidden-layer nets evaluated together (einsum over the net axis k)."""
+
+        def __init__(self, nets: int, hidden: int, inputs: int, feedback: int) -> None:
+            super().__init__()
+            bound = 1.0 / math.sqrt(inputs + feedback)  # torch.nn.Linear's default scale
+            self.w_u = torch.nn.Parameter(torch.empty(nets, hidden, inputs).uniform_(-bound, bound))
+            self.w_y = torch.nn.Parameter(torch.empty(nets, hidden, feedback).uniform_(-bound, bound))
+            self.b_1 = torch.nn.Parameter(torch.empty(nets, hidden).uniform_(-bound, bound))
+            bound_out = 1.0 / math.sqrt(hidden)
+            self.w_2 = torch.nn.Parameter(torch.empty(nets, hidden).uniform_(-bound_out, bound_out))
+            self.b_2 = torch.nn.Parameter(torch.zeros(nets))
+
+        def forward(self, x_u, x_y):
+            z = torch.einsum("nd,khd->nkh", x_u, self.w_u) + torch.einsum("nkd,khd->nkh", x_y, self.w_y) + self.b_1
+            return torch.einsum("nkh,kh->nk", torch.sigmoid(z), self.w_2) + self.b_2
+
+    return BatchedNets(nets, hidden, inputs, feedback)
+
+
+def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> dict[str, np.ndarray]:
+    """Full-batch L-BFGS on the summed per-net MSE; returns float64 weights."""
+    import torch
+    from tqdm import tqdm
+
+    optimiser = torch.optim.LBFGS(
+        nets.parameters(), lr=1.0, max_iter=config.iterations_per_epoch, history_size=20,
+        line_search_fn="strong_wolfe", tolerance_grad=1e-9, tolerance_change=1e-12,
+    )
+
+    def loss_fn():
+        optimiser.zero_grad()
+        loss = ((nets(x_u, x_y) - target) ** 2).mean(dim=0).sum()
+        loss.backward()
+        return loss
+
+    bar = tqdm(range(config.epochs), desc="NARX training", unit="epoch", disable=not progress, leave=False)
+    for _ in bar:
+        loss = optimiser.step(loss_fn)
+        bar.set_postfix(mse=f"{float(loss.detach()) / len(OUTPUTS):.4g}")
+    return {name: param.detach().double().numpy().copy() for name, param in nets.named_parameters()}
+
+
+# ---- files ----------------------------------------------------------------------
+def read_model_file(path: str | Path, kind: str, vehicle: str | None = None) -> tuple[dict, dict[str, np.ndarray]]:
+    """Header and arrays of a model file, checked against ``kind``, ``vehicle`` and VARIABLES.
+
+    Raises ModelError naming the file and the mismatch (missing, corrupt, other
+    format/version/kind/vehicle/variable set).
+    """
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            contents = {name: archive[name] for name in archive.files}
+    except FileNotFoundError as err:
+        raise ModelError(f"{path}: no such model file") from err
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+        raise ModelError(f"{path}: not a readable model file ({err})") from err
+    if "header" not in contents:
+        raise ModelError(f"{path}: no header: not a quad_modelling model file")
+    try:
+        header = json.loads(str(contents.pop("header")))
+    except ValueError as err:
+        raise ModelError(f"{path}: corrupt model header ({err})") from err
+    if not isinstance(header, dict) or header.get("format") != FORMAT:
+        raise ModelError(f"{path}: not a {FORMAT} model file (format {header.get('format') if isinstance(header, dict) else None!r})")
+    if header.get("format_version") != FORMAT_VERSION:
+        raise ModelError(f"{path}: model format version {header.get('format_version')!r}, this program reads version {FORMAT_VERSION}")
+    if header.get("kind") != kind:
+        raise ModelError(f"{path}: is a {header.get('kind')!r} model, expected {kind!r}")
+    if vehicle is not None and header.get("vehicle") != vehicle:
+        raise ModelError(f"{path}: model was trained for vehicle {header.get('vehicle')!r}, not {vehicle!r}")
+    if header.get("variables") != list(VARIABLES) or header.get("outputs") != list(OUTPUTS):
+        raise ModelError(
+            f"{path}: model variable set {header.get('variables')} / outputs {header.get('outputs')} "
+            f"differs from this program's {list(VARIABLES)} / {list(OUTPUTS)}"
+        )
+    return header, contents
+
+
+def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) -> NarxModel:
+    """Build a NarxModel from a checked header and arrays, validating every shape."""
+    try:
+        cfg = header["config"]
+        config = NarxConfig(
+            hidden=int(cfg["hidden"]), output_delays=int(cfg["output_delays"]),
+            input_delays=tuple(int(d) for d in cfg["input_delays"]), epochs=int(cfg["epochs"]),
+            iterations_per_epoch=int(cfg["iterations_per_epoch"]),
+            noise_snr_db=tuple(None if s is None else float(s) for s in cfg["noise_snr_db"]),
+        )
+        arrays = {name: np.asarray(contents[name], dtype=float) for name in ARRAY_NAMES}
+        dt = float(header["dt"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise ModelError(f"{path}: incomplete model file (missing or invalid {err})") from err
+    k, h, n_u = len(OUTPUTS), config.hidden, len(arrays["u_mean"])
+    expected = {
+        "w_u": (k, h, n_u * len(config.input_delays)), "w_y": (k, h, config.output_delays),
+        "b_1": (k, h), "w_2": (k, h), "b_2": (k,), "u_std": (n_u,), "y_mean": (k,), "y_std": (k,),
+    }
+    for name, shape in expected.items():
+        if arrays[name].shape != shape:
+            raise ModelError(f"{path}: array {name} has shape {arrays[name].shape}, expected {shape}")
+    for name, value in arrays.items():
+        if not np.all(np.isfinite(value)):
+            raise ModelError(f"{path}: array {name} holds non-finite values")
+    return NarxModel(
+        config=config, dt=dt, vehicle=str(header["vehicle"]), kind=str(header["kind"]),
+        training=dict(header.get("training", {})), **arrays,
+    )
+
+
+def load_narx(path: str | Path, vehicle: str | None = None) -> NarxModel:
+    """Load a NARX model file; ``vehicle`` (if given) must be the one it was trained for."""
+    path = Path(path)
+    header, contents = read_model_file(path, "narx", vehicle)
+    return model_from_parts(path, header, contents)
+
+
+# ---- flights -> training data -----------------------------------------------------
+def span_indices(log: FlightLog, span: tuple[float, float]) -> tuple[int, int]:
+    """Row range [i0, i1) of ``log`` with t − t[0] in [a, b) seconds."""
+    rel = log.t - log.t[0]
+    a, b = span
+    i0, i1 = int(np.searchsorted(rel, a, "left")), int(np.searchsorted(rel, b, "left"))
+    if i1 - i0 < 2:
+        raise DataError(f"{log.meta.source}: span {a:g}:{b:g} s holds no data (flight lasts {log.duration:.1f} s)")
+    return i0, i1
+
+
+def flight_segments(logs: list[FlightLog], spans: list[tuple[float, float] | None]) -> list[Segment]:
+    """One NARX training segment per (log, span); span None = the whole flight."""
+    segments = []
+    for log, span in zip(logs, spans):
+        i0, i1 = (0, len(log)) if span is None else span_indices(log, span)
+        part = log.slice(i0, i1)
+        segments.append(Segment(part.u, measured_outputs(part), log.meta.source,
+                                (float(part.t[0] - log.t[0]), float(part.t[-1] - log.t[0]))))
+    return segments
+
+
+def common_sample_period(logs: list[FlightLog]) -> float:
+    """The logs' shared sample period [s]; DataError when they differ by more than 1 %."""
+    periods = [1.0 / log.sample_rate for log in logs]
+    if max(periods) > 1.01 * min(periods):
+        listing = ", ".join(f"{log.meta.source}: {p * 1e3:.2f} ms" for log, p in zip(logs, periods))
+        raise DataError(f"training flights have different sample periods ({listing}); resample them first")
+    return float(np.mean(periods))
+
+
+def train_narx_on_flights(
+    logs: list[FlightLog],
+    spans: list[tuple[float, float] | None],
+    config: NarxConfig = NarxConfig(),
+    seed: int = 0,
+    progress: bool = False,
+) -> NarxModel:
+    """Train a NARX model on spans [s from each flight's start] of flight logs of one vehicle."""
+    vehicles = sorted({log.meta.vehicle for log in logs})
+    if len(vehicles) != 1:
+        raise DataError(f"training flights are for different vehicles {vehicles}")
+    return train_narx(flight_segments(logs, spans), common_sample_period(logs), vehicles[0], config, seed, progress)
+
+
+# ---- the evaluation protocol (quad_modelling.core.models) ---------------------------
+def trim_prediction(window: FlightLog, prediction: np.ndarray, trim=None) -> np.ndarray:
+    """The protocol's trimmed convention: each predicted variable minus its own mean over the stable interval.
+
+    The stable interval is the first ``trim.trim_s`` seconds of the window
+    (:class:`quad_modelling.core.preprocess.TrimConfig`), as the measurement is trimmed.
+    """
+    from quad_modelling.core.preprocess import TrimConfig, trim_values
+
+    trim = trim or TrimConfig()
+    return prediction - trim_values(prediction, trim.trim_samples(window))
+
+
+class NarxPredictor:
+    """:class:`~quad_modelling.core.models.Predictor` over a loaded NARX model file."""
+
+    def __init__(self, model: NarxModel, name: str = "narx", trim=None) -> None:
+        self.model = model
+        self.name = name
+        self.trim = trim
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        """(N, 18) trimmed closed-loop prediction (VARIABLES order)."""
+        return trim_prediction(window, self.model.predict_window(window, warm_samples), self.trim)
+
+
+def _vehicle_name(vehicle) -> str | None:
+    return None if vehicle is None else getattr(vehicle, "name", vehicle)
+
+
+def _make_narx(arg: str, vehicle) -> NarxPredictor:
+    from quad_modelling.errors import ConfigError
+
+    if not arg:
+        raise ConfigError("model spec narx needs a model file: narx:PATH")
+    return NarxPredictor(load_narx(arg, _vehicle_name(vehicle)))
+
+
+def _make_hybrid(arg: str, vehicle):
+    from quad_modelling.core.hybrid import make_hybrid_predictor
+
+    return make_hybrid_predictor(arg, vehicle)
+
+
+def register_models(register) -> None:
+    """Registry hook called by :mod:`quad_modelling.core.models`: adds ``narx:PATH`` and ``hybrid:PATH``."""
+    register("narx", _make_narx)
+    register("hybrid", _make_hybrid)
