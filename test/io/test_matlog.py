@@ -6,7 +6,7 @@ import yaml
 from quad_modelling.core import frames
 from quad_modelling.errors import ConfigError, DataError, OutputExistsError
 from quad_modelling.io.matlog import THESIS_VARIABLES, load_mapping, read_matlog, write_matlog
-from test.conftest import synthetic_log
+from test.conftest import REPO, synthetic_log
 
 
 def test_round_trip_keeps_every_field_and_the_notes(tmp_path):
@@ -31,7 +31,8 @@ def test_existing_output_needs_force(tmp_path):
 
 
 def test_foreign_log_through_a_mapping_file(tmp_path):
-    """A lab log in ENU/FLU, g, deg, deg/s, microseconds and one matrix for the motors."""
+    """A lab log in ENU/FLU, g, deg, deg/s, microseconds and one matrix for the motors,
+    read with the shipped example mapping (config/mappings/example_lab.yaml)."""
     n = 50
     t = np.arange(n) * 0.004
     acc_flu_g = np.column_stack([np.full(n, 0.1), np.full(n, -0.2), np.full(n, 1.0)])
@@ -39,24 +40,15 @@ def test_foreign_log_through_a_mapping_file(tmp_path):
     scipy.io.savemat(tmp_path / "lab.mat", {
         "T": t, "PWM": np.full((n, 6), 1500.0), "ax": acc_flu_g[:, 0], "ay": acc_flu_g[:, 1], "az": acc_flu_g[:, 2],
         "gyro": gyro_flu_dps, "pos": np.tile([1.0, 2.0, 3.0], (n, 1)), "vel": np.tile([0.5, 0.0, -0.1], (n, 1)),
-        "att": np.tile([5.0, 10.0, 90.0], (n, 1)),
+        "att": np.tile([5.0, 10.0, 90.0], (n, 1)), "battery_voltage": np.full(n, 12.1),
     })
-    mapping = {
-        "time": {"variable": "T", "unit": "s"},
-        "u": {"variable": "PWM", "columns": [1, 2, 3, 4], "unit": "us"},
-        "acc_b": {"variables": ["ax", "ay", "az"], "unit": "g", "frame": "FLU"},
-        "gyro_b": {"variable": "gyro", "unit": "deg/s", "frame": "FLU"},
-        "pos_n": {"variable": "pos", "unit": "m", "frame": "ENU"},
-        "vel_n": {"variable": "vel", "unit": "m/s", "frame": "ENU"},
-        "euler": {"variable": "att", "unit": "deg", "frame": "NED"},
-    }
-    (tmp_path / "map.yaml").write_text(yaml.safe_dump(mapping))
-    log = read_matlog(tmp_path / "lab.mat", vehicle="linkquad", mapping=load_mapping(tmp_path / "map.yaml"))
+    log = read_matlog(tmp_path / "lab.mat", vehicle="linkquad", mapping=load_mapping(REPO / "config" / "mappings" / "example_lab.yaml"))
     np.testing.assert_allclose(log.u[0], [1.5e-3] * 4)
     np.testing.assert_allclose(log.acc_b[0], [0.1 * frames.STANDARD_GRAVITY, 0.2 * frames.STANDARD_GRAVITY, -frames.STANDARD_GRAVITY])
     np.testing.assert_allclose(log.gyro_b[0], np.deg2rad([10.0, -20.0, 30.0]))
     np.testing.assert_allclose(log.pos_n[0], [2.0, 1.0, -3.0])
     np.testing.assert_allclose(log.euler[0], np.deg2rad([5.0, 10.0, 90.0]))
+    np.testing.assert_allclose(log.vbat, 12.1)
 
 
 def test_file_without_the_mapped_variables_lists_what_it_found(tmp_path):
