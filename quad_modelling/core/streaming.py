@@ -1,0 +1,102 @@
+"""Sample-by-sample prediction inside a window: what a live predictor node runs.
+
+Live and offline must give the same numbers (DESIGN 2). A streaming predictor
+therefore predicts a window in two causal steps, which both the ROS predictor
+node and the offline evaluation call:
+
+1. :meth:`StreamingPredictor.start_window` receives the window's warm-start
+   rows (commands and measurements of the first ``warm_samples`` samples, the
+   thesis's 0.2 s) and returns the predictions for those rows plus a
+   :class:`WindowStream`;
+2. :meth:`WindowStream.push` receives the command of each following sample and
+   returns that sample's prediction at once.
+
+Predictions are **absolute** values of the 18 variables in
+:data:`quad_modelling.core.variables.VARIABLES` order (internal frames, SI), so
+a published ``<model>/odom`` is a real pose; the evaluator trims measurement and
+prediction alike at window close. :func:`predict_window_by_stream` is the
+offline form: the same calls, in a loop.
+
+:class:`RecordedPrediction` wraps predictions received over ROS as a
+:class:`~quad_modelling.core.models.Predictor`, so the live evaluator scores a
+window with the same :func:`~quad_modelling.core.evaluation.evaluate_window`
+as ``quad-modelling evaluate``.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.variables import VARIABLES
+from quad_modelling.errors import DataError
+
+
+class WindowStream(Protocol):
+    """Predicts the samples after the warm start, one command at a time."""
+
+    def push(self, command: np.ndarray) -> np.ndarray:
+        """Command (4,) of the next sample -> its prediction (18,), absolute."""
+        ...
+
+
+@runtime_checkable
+class StreamingPredictor(Protocol):
+    """A model that can run live (see module docstring)."""
+
+    name: str
+
+    def start_window(self, warm: FlightLog) -> tuple[np.ndarray, WindowStream]:
+        """Warm-start rows of a window -> (their predictions (W, 18), stream for the rest)."""
+        ...
+
+
+def predict_window_by_stream(predictor: StreamingPredictor, window: FlightLog, warm_samples: int) -> np.ndarray:
+    """(N, 18) absolute predictions of a window, computed exactly as a live node does."""
+    if not 1 <= warm_samples < len(window):
+        raise DataError(f"{window.meta.source}: warm start of {warm_samples} samples does not fit a window of {len(window)}")
+    warm_predictions, stream = predictor.start_window(window.slice(0, warm_samples))
+    predictions = np.empty((len(window), len(VARIABLES)))
+    predictions[:warm_samples] = warm_predictions
+    for row in range(warm_samples, len(window)):
+        predictions[row] = stream.push(window.u[row])
+    return predictions
+
+
+class _HoldStream:
+    def __init__(self, state: np.ndarray):
+        self.state = state
+
+    def push(self, command: np.ndarray) -> np.ndarray:
+        return self.state
+
+
+class HoldLastMeasurement:
+    """Streaming naive baseline: every later sample repeats the last warm measurement.
+
+    ``measure``: a function FlightLog -> (N, 18) best measurement (preprocess.measured_variables).
+    """
+
+    name = "naive"
+
+    def __init__(self, measure):
+        self.measure = measure
+
+    def start_window(self, warm: FlightLog) -> tuple[np.ndarray, WindowStream]:
+        measured = self.measure(warm)
+        return measured, _HoldStream(measured[-1].copy())
+
+
+class RecordedPrediction:
+    """A Predictor that returns predictions already computed (e.g. received over ROS)."""
+
+    def __init__(self, name: str, predictions: np.ndarray):
+        self.name = name
+        self.predictions = np.asarray(predictions, dtype=float)
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        if self.predictions.shape != (len(window), len(VARIABLES)):
+            raise DataError(f"model {self.name}: {self.predictions.shape[0]} recorded predictions for a window of {len(window)} samples")
+        return self.predictions
