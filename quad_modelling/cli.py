@@ -17,6 +17,9 @@ from quad_modelling.errors import QuadModellingError
 VERB_MODULES = (
     "convert",
     "info",
+    "train",
+    "identify",
+    "evaluate",
 )
 """Modules under quad_modelling.commands, in --help order."""
 

@@ -174,3 +174,50 @@ def uniform_time_check(log: FlightLog, tolerance: float = 0.25) -> None:
             f"{log.meta.source}: sample step at row {row} (t={log.t[row]:.3f} s) is {steps[row - 1] * 1e3:.2f} ms, "
             f"median is {dt * 1e3:.2f} ms; resample the log to a uniform rate first"
         )
+
+
+MAX_FILL_GAP_S = 0.05
+"""Longest time gap [s] :func:`resample_uniform` fills by interpolation (5 samples at 100 Hz)."""
+
+
+def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> FlightLog:
+    """The log on a uniform grid t0 + k dt (dt = median step), linearly interpolated.
+
+    Real logs drop the odd sample (NanoBench: one to five 20-30 ms steps per
+    flight). The discrete models and filters need uniform sampling, so missing
+    samples are filled by linear interpolation (yaw unwrapped first); a gap
+    longer than ``max_gap_s`` is a DataError naming the time. A log that is
+    already uniform is returned unchanged. The number of filled samples is
+    recorded in ``meta.notes['resampled_filled_samples']``.
+    """
+    steps = np.diff(log.t)
+    dt = float(np.median(steps))
+    if np.all(np.abs(steps - dt) <= 0.25 * dt):
+        return log
+    worst = int(np.argmax(steps))
+    if steps[worst] > max_gap_s:
+        raise DataError(
+            f"{log.meta.source}: gap of {steps[worst] * 1e3:.0f} ms at t={log.t[worst] - log.t[0]:.3f} s into the flight "
+            f"exceeds the {max_gap_s * 1e3:.0f} ms that may be filled by interpolation"
+        )
+    n = int(np.floor((log.t[-1] - log.t[0]) / dt + 0.5)) + 1
+    grid = log.t[0] + dt * np.arange(n)
+    grid = grid[grid <= log.t[-1] + 1e-9]
+
+    def interp(values: np.ndarray) -> np.ndarray:
+        if values.ndim == 1:
+            return np.interp(grid, log.t, values)
+        return np.column_stack([np.interp(grid, log.t, values[:, i]) for i in range(values.shape[1])])
+
+    euler = log.euler.copy()
+    euler[:, 2] = np.unwrap(euler[:, 2])
+    euler = interp(euler)
+    euler[:, 2] = (euler[:, 2] + np.pi) % (2 * np.pi) - np.pi
+    notes = dict(log.meta.notes)
+    notes["resampled_filled_samples"] = int(n - len(log.t)) if n >= len(log.t) else 0
+    meta = type(log.meta)(log.meta.vehicle, log.meta.source, notes)
+    return FlightLog(
+        t=grid, u=interp(log.u), acc_b=interp(log.acc_b), gyro_b=interp(log.gyro_b), pos_n=interp(log.pos_n),
+        vel_n=interp(log.vel_n), euler=euler, meta=meta,
+        vbat=None if log.vbat is None else interp(log.vbat), omega=None if log.omega is None else interp(log.omega),
+    )

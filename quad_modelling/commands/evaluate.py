@@ -1,0 +1,125 @@
+"""``quad-modelling evaluate``: the thesis's evaluation protocol on flight files (DESIGN 7)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from quad_modelling.core.evaluation import PRESETS, EvaluationConfig, evaluate
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.models import make_model
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
+from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.io.atomic import atomic_output, check_output
+from quad_modelling.io.loader import load_flight
+
+NAME = "evaluate"
+HELP = "evaluate models with the thesis's windowed RMS/TIC protocol and the multi-step benchmark"
+DESCRIPTION = """\
+Evaluate models on flights (MCAP bags, thesis .mat logs, NanoBench .csv/.csv.gz) with the
+thesis's protocol: drop take-off and landing, split into training and evaluation spans, cut
+10 s windows that never cross a flight boundary, predict each from the first 0.2 s of
+measurements, trim and smooth, and average RMS and TIC per variable over windows. The dummy
+model (predicts zero) is always reported. Also the IDSIA multi-step table (MAE at 1, 10, 50
+steps and SimErr, with the naive constant-state prediction and the ratio model/naive).
+
+Spans (--train, --eval) are A:B in seconds from the flight start (thesis: 30:150 and
+150:190, after dropping 30 s / 22 s), or A%:B% of the flying part. Short flights (NanoBench,
+~40 s) need --preset short (drop 5 s / 5 s, train 0%:60%, eval 60%:100%) or explicit spans;
+when no window fits, the error says so.
+
+OUTDIR receives results.json (SI units), tables.md (thesis Tables 5-1/5-2, display units)
+and fig_z/roll/pitch/yaw.png (input, acceleration, velocity/rate over one evaluation window).
+
+examples:
+  quad-modelling evaluate bags/flight --vehicle linkquad -o results/flight
+  quad-modelling evaluate data/nanobench/*.csv.gz --vehicle cf_identified.yaml --preset short --skip-bad -o results/nb
+  quad-modelling evaluate a.mat b.mat --model greybox --model greybox:euler --train 30:120 --eval 120:190 -o out
+"""
+
+
+def add_span_arguments(parser: argparse.ArgumentParser) -> None:
+    """Inputs, vehicle and span options shared by evaluate and identify."""
+    parser.add_argument("inputs", nargs="+", metavar="FLIGHT", help="MCAP bag directories, .mat logs or NanoBench .csv/.csv.gz files")
+    parser.add_argument("--vehicle", metavar="NAME|FILE", help="vehicle config name or YAML (default: the one the first flight names)")
+    parser.add_argument("--preset", default="thesis", choices=tuple(PRESETS), help="span defaults: thesis (220 s flights) or short (~40 s flights)")
+    parser.add_argument("--drop", metavar="START:END", help="seconds dropped for take-off:landing (thesis 30:22)")
+    parser.add_argument("--train", metavar="A:B", help="training span, seconds (30:150) or percent of the flying part (0%%:60%%)")
+    parser.add_argument("--eval", metavar="C:D", help="evaluation span, like --train (thesis 150:190)")
+    parser.add_argument("--window", type=float, default=10.0, metavar="SECONDS", help="window length (default 10)")
+    parser.add_argument("--warm", type=float, default=0.2, metavar="SECONDS", help="warm start given to the models (default 0.2)")
+    parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
+
+
+def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
+    drop = (None, None)
+    if args.drop:
+        try:
+            drop = tuple(float(x) for x in args.drop.split(":"))
+            if len(drop) != 2:
+                raise ValueError
+        except ValueError as err:
+            raise ConfigError(f"--drop {args.drop!r}: expected START:END seconds, e.g. 30:22") from err
+    config = EvaluationConfig.preset(
+        args.preset, drop_start=drop[0], drop_end=drop[1], train=args.train, eval=args.eval,
+        window_s=args.window, warm_s=args.warm, **extra,
+    )
+    config.validate()
+    return config
+
+
+def load_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
+    """Read every input (one loader for all formats); returns flights, vehicle config and skipped-file messages."""
+    flights, skipped = [], []
+    for path in args.inputs:
+        try:
+            flights.append(load_flight(path, vehicle=args.vehicle))
+        except QuadModellingError as err:
+            if not args.skip_bad:
+                raise
+            skipped.append(str(err))
+            print(f"skipped: {err}", file=sys.stderr)
+    if not flights:
+        raise ConfigError("no readable flight among the inputs")
+    vehicle = load_vehicle(args.vehicle or flights[0].meta.vehicle)
+    return flights, vehicle, skipped
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_span_arguments(parser)
+    parser.add_argument("--model", action="append", metavar="SPEC",
+                        help="model to evaluate, repeatable: greybox, greybox:euler, dummy, naive, narx:PATH ... (default greybox)")
+    parser.add_argument("--horizons", default="1,10,50", metavar="H,H,...", help="multi-step horizons in samples (default 1,10,50; SimErr sums 1..50)")
+    parser.add_argument("--no-multistep", action="store_true", help="skip the multi-step table")
+    parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="new output directory")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing OUTDIR")
+
+
+def run(args: argparse.Namespace) -> int:
+    output = Path(args.output)
+    check_output(output, args.force)
+    try:
+        horizons = tuple(int(h) for h in args.horizons.split(","))
+    except ValueError as err:
+        raise ConfigError(f"--horizons {args.horizons!r}: expected comma-separated step counts") from err
+    config = config_from_args(args, horizons=horizons)
+    flights, vehicle, skipped = load_flights(args)
+    specs = list(dict.fromkeys((args.model or ["greybox"]) + ["dummy"]))
+    models = [make_model(spec, vehicle) for spec in specs]
+    result = evaluate(flights, models, vehicle, config, multistep=not args.no_multistep,
+                      progress=lambda msg: print(msg, file=sys.stderr) if sys.stderr.isatty() else None)
+    result.flights.extend({"source": s, "skipped": True} for s in skipped)
+    from quad_modelling.io.report import write_report
+
+    with atomic_output(output, args.force) as tmp:
+        files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicle.name}")
+    data = result.to_json()
+    print(f"{len(flights)} flight(s), windows " + ", ".join(f"{s} {n}" for s, n in data["windows"]["dummy"].items())
+          + f" -> {output}/ ({', '.join(files)})")
+    for model in specs:
+        name = make_model(model, vehicle).name
+        eval_span = data["models"][name].get("eval") or next(iter(data["models"][name].values()), {})
+        if eval_span:
+            print(f"  {name}: TIC acc_z {eval_span['acc_z']['tic']:.2f}, roll_rate {eval_span['roll_rate']['tic']:.2f}, vel_z {eval_span['vel_z']['tic']:.2f}")
+    return 0

@@ -1,0 +1,51 @@
+"""``quad-modelling identify``: least-squares identification of a vehicle's motor constants."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from quad_modelling.commands.evaluate import add_span_arguments, config_from_args, load_flights
+from quad_modelling.core.identification import identified_vehicle_document, identify, write_vehicle_yaml
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.io.atomic import atomic_output, check_output
+
+NAME = "identify"
+HELP = "identify the motor constants marked 'identified' from flight data (training spans only)"
+DESCRIPTION = """\
+Identify the greybox model's motor constants from flights by least squares, on the training
+span only (the evaluation span stays unseen): the motor pole A_m and the thrust gain
+K = 2 B_m sqrt(a m g / 4) from the Z acceleration, the drag ratio d/a from the yaw
+acceleration (a is held: only B_m sqrt(a) is identifiable), the thrust gain's battery-voltage
+dependence, and a check of the motor order and spin directions against the config.
+
+Writes a vehicle YAML (loadable with --vehicle FILE) whose identified constants carry their
+1-sigma uncertainty and a source naming the files and spans used; the 'identification'
+section holds the details. Spans as for `evaluate` (thesis defaults; --preset short for
+~40 s flights).
+
+examples:
+  quad-modelling identify data/nanobench/*.csv.gz --vehicle crazyflie21 --preset short --skip-bad -o cf_identified.yaml
+  quad-modelling identify flight.mat --vehicle linkquad --train 30:150 -o linkquad_identified.yaml
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_span_arguments(parser)
+    parser.add_argument("-o", "--output", required=True, metavar="VEHICLE.yaml", help="vehicle YAML to write")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing output")
+
+
+def run(args: argparse.Namespace) -> int:
+    output = Path(args.output)
+    check_output(output, args.force)
+    config = config_from_args(args)
+    flights, vehicle, _ = load_flights(args)
+    result = identify(flights, vehicle, config)
+    document = identified_vehicle_document(vehicle, result, config.train)
+    VehicleConfig.from_dict(document, str(output))  # what we write must load
+    with atomic_output(output, args.force) as tmp:
+        write_vehicle_yaml(document, tmp)
+    print(result.summary())
+    print(f"-> {output}")
+    return 0
