@@ -325,7 +325,9 @@ def expand_outputs(window: FlightLog, y: np.ndarray) -> np.ndarray:
     t = window.t
     out = np.empty((len(t), len(VARIABLES)))
     out[:, columns(OUTPUTS)] = y
-    anchors = np.concatenate([window.pos_n[0], window.euler[0]])
+    from quad_modelling.core.preprocess import measured_variables
+
+    anchors = measured_variables(window)[0, columns(INTEGRATED)]  # yaw unwrapped as the evaluation measures it
     out[:, columns(INTEGRATED)] = anchors + cumulative_trapezoid(y, t, axis=0, initial=0.0)
     out[:, columns(DIFFERENTIATED)] = np.gradient(y, t, axis=0)
     return out
@@ -588,15 +590,17 @@ def train_narx_on_flights(
 
 # ---- the evaluation protocol (quad_modelling.core.models) ---------------------------
 def trim_prediction(window: FlightLog, prediction: np.ndarray, trim=None) -> np.ndarray:
-    """The protocol's trimmed convention: each predicted variable minus its own mean over the stable interval.
+    """The protocol's trimmed convention (as the greybox predictor): prediction minus the *measured* trim values.
 
-    The stable interval is the first ``trim.trim_s`` seconds of the window
-    (:class:`quad_modelling.core.preprocess.TrimConfig`), as the measurement is trimmed.
+    The trim value of each variable is the mean of its best measurement over
+    the window's stable interval (:func:`quad_modelling.core.preprocess.trimmed_variables`),
+    so the trimmed prediction and the trimmed measurement differ exactly by the
+    absolute prediction error.
     """
-    from quad_modelling.core.preprocess import TrimConfig, trim_values
+    from quad_modelling.core.preprocess import TrimConfig, measured_variables, trim_values
 
     trim = trim or TrimConfig()
-    return prediction - trim_values(prediction, trim.trim_samples(window))
+    return prediction - trim_values(measured_variables(window), trim.trim_samples(window))
 
 
 class NarxPredictor:

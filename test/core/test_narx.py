@@ -12,6 +12,7 @@ from scipy.signal import lfilter
 from quad_modelling.core import narx
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.narx import NarxConfig, Segment, load_narx, train_narx
+from quad_modelling.core.preprocess import measured_variables, trimmed_variables
 from quad_modelling.core.variables import columns
 from quad_modelling.errors import DataError, ModelError, OutputExistsError
 
@@ -185,9 +186,13 @@ def test_predict_window_gives_consistent_18_variables(trained):
 
 def test_predictor_returns_trimmed_prediction(trained):
     u, y = linear_system(1000, seed=12)
-    predictor = narx.NarxPredictor(trained)
-    trimmed = predictor.predict_window(flight_from(u, y), warm_samples=20)
-    assert np.allclose(trimmed[:100].mean(axis=0), 0.0, atol=1e-12)  # first 1 s at 100 Hz
+    window = flight_from(u, y)
+    trimmed = narx.NarxPredictor(trained).predict_window(window, warm_samples=20)
+    absolute = trained.predict_window(window, warm_samples=20)
+    measured = trimmed_variables(window)
+    # same offset as the measurement's trim (mean over the first 1 s = 100 samples): errors are unchanged
+    assert np.allclose(absolute - trimmed, measured_variables(window)[:100].mean(axis=0))
+    assert np.array_equal(trimmed[:20, columns(narx.OUTPUTS)], measured[:20, columns(narx.OUTPUTS)])
 
 
 def test_other_sample_rate_and_short_windows_refused(trained):

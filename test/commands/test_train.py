@@ -1,0 +1,48 @@
+"""``quad-modelling train``: writes loadable NARX/hybrid model files, refuses bad requests."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from quad_modelling.cli import main
+from quad_modelling.core.hybrid import load_hybrid
+from quad_modelling.core.narx import load_narx
+from quad_modelling.core.vehicle import load_vehicle
+
+BAG = str(Path(__file__).resolve().parents[2] / "bags" / "nanobench_B7_oval_medium_rep2")
+SMALL = ["--preset", "short", "--epochs", "2", "--hidden", "3", "--delays", "4", "--input-delays", "3", "--quiet"]
+
+
+def test_train_writes_a_narx_model_with_its_settings_and_span(tmp_path, capsys):
+    out = tmp_path / "narx.npz"
+    assert main(["train", BAG, "-o", str(out), "--seed", "3", *SMALL]) == 0
+    model = load_narx(out, vehicle="crazyflie21")
+    assert (model.config.hidden, model.config.output_delays, model.config.input_delays, model.config.epochs) == (3, 4, (0, 1, 2), 2)
+    assert model.training["seed"] == 3
+    (segment,) = model.training["segments"]
+    # preset short: drop 5 s at both ends of the 42.3 s flight, train on the first 60 % of the rest
+    assert abs(segment["span"][0] - 5.0) < 0.011
+    assert abs(segment["span"][1] - (5.0 + 0.6 * 32.3)) < 0.1
+    assert abs(model.dt - 0.01) < 1e-4
+    assert "narx:" in capsys.readouterr().out
+
+
+def test_train_refuses_to_overwrite_and_empty_spans(tmp_path, capsys):
+    out = tmp_path / "narx.npz"
+    out.write_bytes(b"keep")
+    assert main(["train", BAG, "-o", str(out), *SMALL]) == 2
+    assert "exists; pass --force" in capsys.readouterr().err
+    assert out.read_bytes() == b"keep"
+    assert main(["train", BAG, "-o", str(tmp_path / "other.npz"), "--epochs", "1", "--quiet"]) == 2
+    assert "training span 30:150 is empty" in capsys.readouterr().err
+    assert not (tmp_path / "other.npz").exists()
+
+
+def test_train_hybrid_writes_a_hybrid_model(tmp_path):
+    out = tmp_path / "hybrid.npz"
+    assert main(["train", BAG, "-o", str(out), "--hybrid", *SMALL]) == 0
+    model = load_hybrid(out, load_vehicle("crazyflie21"))
+    assert model.residual.u_mean.shape == (10,)  # 4 engine commands + 6 greybox velocities/rates
+    assert model.residual.training["greybox"]["discretisation"] == "zoh"
