@@ -226,19 +226,23 @@ class NarxModel:
         return NarxStream(self, u_history, y_history)
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        """(N, 18) prediction of ``window`` in VARIABLES order (closed loop after warm-up).
+        """(N, 18) absolute prediction of ``window`` in VARIABLES order (closed loop after warm-up).
 
-        The nets need ``n_y`` measured samples: the first max(warm_samples, n_y)
-        samples of the window's measured velocities/rates seed them. The window's
-        sample rate must match the model's (within 1 %).
+        The first max(warm_samples, n_y) rows are the measurement (they seed the
+        nets); later rows are predicted (see :func:`expand_outputs`). The
+        window's sample rate must match the model's (within 1 %). Gives the same
+        numbers as the streaming form :meth:`NarxPredictor.start_window`.
         """
+        from quad_modelling.core.preprocess import measured_variables
+
         check_sample_rate(self, window)
         warm = max(int(warm_samples), self.config.output_delays)
         if warm >= len(window):
             raise DataError(f"{window.meta.source}: window of {len(window)} samples is shorter than the {warm} warm-up samples")
-        y_measured = measured_outputs(window)
-        y = self.simulate(window.u, y_measured[:warm])
-        return expand_outputs(window, y)
+        measured = np.zeros((len(window), len(VARIABLES)))
+        measured[:warm] = measured_variables(window.slice(0, warm))  # only the warm rows are seen, as live
+        y = self.simulate(window.u, measured[:warm, columns(OUTPUTS)])
+        return expand_outputs(measured, y, warm, self.dt)
 
     # ---- files -----------------------------------------------------------
     def header(self) -> dict:
@@ -313,23 +317,23 @@ def measured_outputs(log: FlightLog) -> np.ndarray:
     return np.concatenate([log.vel_n, log.gyro_b], axis=1)
 
 
-def expand_outputs(window: FlightLog, y: np.ndarray) -> np.ndarray:
-    """All 18 VARIABLES from predicted velocities/rates y (N, 6) (thesis section 4.2).
+def expand_outputs(measured: np.ndarray, y: np.ndarray, warm: int, dt: float) -> np.ndarray:
+    """All 18 VARIABLES from predicted velocities/rates y (N, 6) (thesis section 4.2), causally.
 
-    pos(t) = pos_m(t_0) + ∫ v dt, angle(t) = angle_m(t_0) + ∫ rate dt (trapezoid,
-    anchored on the measurement at the window start t_0); acc = dv/dt (central
-    differences, one-sided at the ends).
+    Rows < warm are the measurement (N, 18). From row warm on, with v = y and
+    the measured v at row warm − 1 as start:
+    s(t) = s(t−1) + ½ (v(t) + v(t−1)) dt (positions/angles, trapezoid from the
+    measured s at row warm − 1) and a(t) = (v(t) − v(t−1)) / dt (accelerations,
+    backward difference), with the model's sample period ``dt`` [s]; so the
+    streaming form can give exactly the same numbers sample by sample.
     """
-    from scipy.integrate import cumulative_trapezoid
-
-    t = window.t
-    out = np.empty((len(t), len(VARIABLES)))
-    out[:, columns(OUTPUTS)] = y
-    from quad_modelling.core.preprocess import measured_variables
-
-    anchors = measured_variables(window)[0, columns(INTEGRATED)]  # yaw unwrapped as the evaluation measures it
-    out[:, columns(INTEGRATED)] = anchors + cumulative_trapezoid(y, t, axis=0, initial=0.0)
-    out[:, columns(DIFFERENTIATED)] = np.gradient(y, t, axis=0)
+    out = np.array(measured, dtype=float, copy=True)
+    v = np.concatenate([measured[warm - 1 : warm, columns(OUTPUTS)], y[warm:]])
+    out[warm:, columns(OUTPUTS)] = y[warm:]
+    steps = np.diff(v, axis=0)
+    out[warm:, columns(DIFFERENTIATED)] = steps / dt
+    start = measured[warm - 1, columns(INTEGRATED)]
+    out[warm:, columns(INTEGRATED)] = start + np.cumsum(0.5 * (v[1:] + v[:-1]) * dt, axis=0)
     return out
 
 
@@ -603,8 +607,32 @@ def trim_prediction(window: FlightLog, prediction: np.ndarray, trim=None) -> np.
     return prediction - trim_values(measured_variables(window), trim.trim_samples(window))
 
 
+class _ExpandingStream:
+    """WindowStream of the 18 variables: NarxStream outputs, integrated and differentiated causally."""
+
+    def __init__(self, nets: NarxStream, last: np.ndarray, dt: float) -> None:
+        self.nets = nets
+        self.last = np.array(last, dtype=float)
+        self.dt = dt
+
+    def push(self, command: np.ndarray) -> np.ndarray:
+        """Command (4,) of the next sample -> its absolute prediction (18,), as :func:`expand_outputs`."""
+        v = self.nets.push(command)
+        previous = self.last[columns(OUTPUTS)]
+        out = self.last.copy()
+        out[columns(OUTPUTS)] = v
+        out[columns(DIFFERENTIATED)] = (v - previous) / self.dt
+        out[columns(INTEGRATED)] = self.last[columns(INTEGRATED)] + 0.5 * (v + previous) * self.dt
+        self.last = out
+        return out.copy()
+
+
 class NarxPredictor:
-    """:class:`~quad_modelling.core.models.Predictor` over a loaded NARX model file."""
+    """:class:`~quad_modelling.core.models.Predictor` and streaming predictor over a NARX model.
+
+    predict_window: trimmed (protocol convention); start_window/push: absolute
+    (:mod:`quad_modelling.core.streaming`), the same numbers before trimming.
+    """
 
     def __init__(self, model: NarxModel, name: str = "narx", trim=None) -> None:
         self.model = model
@@ -614,6 +642,18 @@ class NarxPredictor:
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) trimmed closed-loop prediction (VARIABLES order)."""
         return trim_prediction(window, self.model.predict_window(window, warm_samples), self.trim)
+
+    def start_window(self, warm: FlightLog):
+        """Warm rows (at least n_y) -> (their measurement (W, 18), stream predicting each later sample)."""
+        from quad_modelling.core.preprocess import measured_variables
+
+        if len(warm) > 1:
+            check_sample_rate(self.model, warm)
+        if len(warm) < self.model.config.output_delays:
+            raise DataError(f"{warm.meta.source}: NARX needs {self.model.config.output_delays} warm-start samples, got {len(warm)}")
+        measured = measured_variables(warm)
+        nets = self.model.stream(warm.u, measured[:, columns(OUTPUTS)])
+        return measured, _ExpandingStream(nets, measured[-1], self.model.dt)
 
 
 def _vehicle_name(vehicle) -> str | None:
