@@ -156,7 +156,7 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
         a_m, gain = -np.exp(theta[0]), np.exp(theta[1])
         res = []
         for w in windows:
-            pred = -lagged_thrusts(w.u, a_m, gain, w.dt).sum(axis=1) / p.mass
+            pred = smooth(-lagged_thrusts(w.u, a_m, gain, w.dt).sum(axis=1) / p.mass, 1.0 / w.dt, config.smooth_cutoff_hz)
             res.append((w.acc[:, 0] - pred)[w.skip:])
         return np.concatenate(res)
 
@@ -178,7 +178,7 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
     root = 2.0 * np.sqrt(p.thrust_constant * p.mass * GRAVITY / 4.0)
     b_m, sigma_b_m = gain / root, sigma_gain / root
 
-    thrusts_by_window = [lagged_thrusts(w.u, a_m, gain, w.dt) for w in windows]
+    thrusts_by_window = [smooth(lagged_thrusts(w.u, a_m, gain, w.dt), 1.0 / w.dt, config.smooth_cutoff_hz) for w in windows]
     motor_check = check_motor_layout(windows, thrusts_by_window, vehicle)
     if motor_check["yaw_reversed"]:
         vehicle = vehicle_with_spins(vehicle, -vehicle.yaw_signs)
@@ -194,7 +194,8 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
     omega0 = p.hover_rotor_speed
     columns, targets = [], []
     for w, thrusts in zip(windows, thrusts_by_window):
-        known = p.prop_inertia * ((thrusts @ signs) * a_m / (2 * p.thrust_constant * omega0) + b_m * (w.u @ signs))
+        u_smooth = smooth(w.u, 1.0 / w.dt, config.smooth_cutoff_hz)
+        known = p.prop_inertia * ((thrusts @ signs) * a_m / (2 * p.thrust_constant * omega0) + b_m * (u_smooth @ signs))
         columns.append((thrusts @ signs)[w.skip:])
         targets.append((w.acc[:, 3] * p.izz - known)[w.skip:])
     x_yaw, y_yaw = np.concatenate(columns), np.concatenate(targets)

@@ -1,0 +1,89 @@
+import numpy as np
+import pytest
+
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.preprocess import (
+    TrimConfig,
+    differentiate,
+    measured_variables,
+    nav_acceleration,
+    resample_uniform,
+    smooth,
+    trimmed_inputs,
+    trimmed_variables,
+)
+from quad_modelling.core.variables import INDEX
+from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.errors import DataError
+
+
+def make_log(n=1000, rate=100.0, euler=None, acc_b=None, gyro=None, u=None, t=None):
+    t = np.arange(n) / rate if t is None else t
+    n = len(t)
+    zeros = np.zeros((n, 3))
+    return FlightLog(
+        t=t, u=np.full((n, 4), 1.5e-3) if u is None else u,
+        acc_b=np.tile([0.0, 0.0, -GRAVITY], (n, 1)) if acc_b is None else acc_b,
+        gyro_b=zeros if gyro is None else gyro, pos_n=zeros, vel_n=zeros,
+        euler=zeros if euler is None else euler, meta=FlightMeta("linkquad", "test"),
+    )
+
+
+def test_accelerometer_at_rest_gives_zero_nav_acceleration_level_and_tilted():
+    log = make_log(10)
+    np.testing.assert_allclose(nav_acceleration(log), 0.0, atol=1e-12)
+    # tilted 30 deg in roll at rest: specific force is -g along the N z axis seen in the body
+    phi = np.deg2rad(30.0)
+    f_b = np.array([0.0, -GRAVITY * np.sin(phi), -GRAVITY * np.cos(phi)])
+    tilted = make_log(10, euler=np.tile([phi, 0.0, 0.3], (10, 1)), acc_b=np.tile(f_b, (10, 1)))
+    np.testing.assert_allclose(nav_acceleration(tilted), 0.0, atol=1e-12)
+
+
+def test_thrust_up_while_level_is_negative_z_acceleration():
+    # 2 m/s^2 upwards: specific force (0, 0, -(g + 2))
+    log = make_log(10, acc_b=np.tile([0.0, 0.0, -(GRAVITY + 2.0)], (10, 1)))
+    np.testing.assert_allclose(nav_acceleration(log)[:, 2], -2.0)
+
+
+def test_differentiated_gyro_is_angular_acceleration():
+    t = np.arange(500) / 100.0
+    gyro = np.column_stack([np.sin(2 * t), 0.5 * t, np.zeros_like(t)])
+    log = make_log(t=t, gyro=gyro)
+    acc = measured_variables(log)[:, INDEX["roll_acc"] : INDEX["yaw_acc"] + 1]
+    np.testing.assert_allclose(acc[10:-10, 0], 2 * np.cos(2 * t[10:-10]), atol=5e-3)  # 0.25 % of the amplitude
+    np.testing.assert_allclose(acc[:, 1], 0.5, atol=1e-9)
+    assert np.allclose(differentiate(np.arange(2.0)[:, None], 0.1), 10.0)
+
+
+def test_trim_uses_the_first_second_and_detrends_long_windows():
+    n = 1000
+    u = np.tile(np.arange(n)[:, None] * 1e-7 + 1.5e-3, (1, 4))
+    log = make_log(n, u=u)
+    trimmed = trimmed_inputs(log, TrimConfig(trim_s=1.0))
+    np.testing.assert_allclose(trimmed[:100].mean(axis=0), 0.0, atol=1e-15)
+    long = make_log(6000, u=np.tile(np.arange(6000)[:, None] * 1e-7 + 1.5e-3, (1, 4)))
+    np.testing.assert_allclose(trimmed_inputs(long), 0.0, atol=1e-12)  # a pure trend is removed entirely
+    variables = trimmed_variables(make_log(300, gyro=np.tile([0.1, 0.2, 0.3], (300, 1))))
+    np.testing.assert_allclose(variables[:, INDEX["roll_rate"]], 0.0, atol=1e-12)
+
+
+def test_smoothing_removes_noise_but_keeps_slow_motion():
+    rng = np.random.default_rng(0)
+    t = np.arange(1000) / 100.0
+    slow = np.sin(2 * np.pi * 0.5 * t)
+    noisy = slow + 0.3 * rng.standard_normal(t.size)
+    smoothed = smooth(noisy, 100.0)
+    assert np.std(smoothed - slow) < np.std(noisy - slow) / 3  # 5 Hz of 50 Hz Nyquist: ~sqrt(0.1) of the noise left
+    np.testing.assert_allclose(smooth(slow, 100.0)[50:-50], slow[50:-50], atol=0.01)  # 0.5 Hz passes unchanged
+
+
+def test_resample_fills_a_dropped_sample_and_refuses_long_gaps():
+    t = np.delete(np.arange(300) / 100.0, 150)
+    log = make_log(t=t, gyro=np.column_stack([t, 2 * t, 0 * t]))
+    filled = resample_uniform(log)
+    assert len(filled) == 300
+    np.testing.assert_allclose(filled.gyro_b[150], [1.5, 3.0, 0.0])
+    assert filled.meta.notes["resampled_filled_samples"] == 1
+    gap = make_log(t=np.concatenate([np.arange(100) / 100.0, 2.0 + np.arange(100) / 100.0]))
+    with pytest.raises(DataError, match="gap of 1010 ms"):
+        resample_uniform(gap)
