@@ -1,0 +1,48 @@
+import json
+
+import numpy as np
+import pytest
+
+from quad_modelling.cli import main
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.io.matlog import write_matlog
+
+from ..core.flightgen import linear_flight
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("flights")
+    v = load_vehicle("linkquad")
+    paths = []
+    for seed in range(2):
+        path = directory / f"flight{seed}.mat"
+        write_matlog(linear_flight(v, duration=42.0, seed=seed), path)
+        paths.append(str(path))
+    return paths
+
+
+def test_evaluate_writes_results_tables_and_figures(flights, tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(["evaluate", *flights, "--vehicle", "linkquad", "--preset", "short", "-o", str(out)])
+    assert code == 0
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["models"]) == {"greybox", "dummy"}
+    assert results["models"]["dummy"]["eval"]["acc_z"]["tic"] == pytest.approx(1.0)
+    assert results["models"]["greybox"]["eval"]["acc_z"]["tic"] < 0.1
+    assert set(results["models"]["greybox"]["eval"]) == {
+        "vel_x", "vel_y", "vel_z", "acc_x", "acc_y", "acc_z", "roll_rate", "pitch_rate", "yaw_rate", "roll_acc", "pitch_acc", "yaw_acc"}
+    assert results["config"]["train"] == "0%:60%" and results["windows"]["dummy"] == {"train": 2, "eval": 2}
+    tables = (out / "tables.md").read_text()
+    assert "| Z acceleration | m/s2 |" in tables and "deg/s2" in tables and "SimErr" in tables
+    for fig in ("fig_z.png", "fig_roll.png", "fig_pitch.png", "fig_yaw.png"):
+        assert (out / fig).read_bytes()[:4] == b"\x89PNG"
+    # never overwrites without --force
+    assert main(["evaluate", *flights, "--vehicle", "linkquad", "--preset", "short", "-o", str(out)]) == 2
+    assert "--force" in capsys.readouterr().err
+
+
+def test_short_flights_with_thesis_spans_fail_with_advice(flights, tmp_path, capsys):
+    assert main(["evaluate", *flights, "--vehicle", "linkquad", "-o", str(tmp_path / "x")]) == 2
+    assert "--preset short" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

@@ -1,0 +1,36 @@
+import numpy as np
+import pytest
+import yaml
+
+from quad_modelling.cli import main
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.io.matlog import write_matlog
+
+from ..core.flightgen import linear_flight
+
+
+@pytest.fixture(scope="module")
+def flights(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("flights")
+    v = load_vehicle("linkquad")
+    paths = []
+    for seed in range(2):
+        path = directory / f"flight{seed}.mat"
+        write_matlog(linear_flight(v, duration=42.0, seed=seed), path)
+        paths.append(str(path))
+    return paths
+
+
+def test_identify_writes_loadable_vehicle(flights, tmp_path, capsys):
+    out = tmp_path / "lq.yaml"
+    assert main(["identify", *flights, "--vehicle", "linkquad", "--preset", "short", "-o", str(out)]) == 0
+    from quad_modelling.core.vehicle import load_vehicle as load
+
+    identified = load(out)
+    truth = load_vehicle("linkquad")
+    assert identified.value("motor_a_m") == pytest.approx(truth.value("motor_a_m"), rel=0.05)
+    assert identified.value("motor_b_m") == pytest.approx(truth.value("motor_b_m"), rel=0.05)
+    assert "identified from flight0.mat, flight1.mat spans 0%:60%" in identified.constants["motor_a_m"].source
+    doc = yaml.safe_load(out.read_text())
+    assert len(doc["identification"]["spans"]) == 2 and np.isfinite(doc["constants"]["motor_a_m"]["sigma"])
+    assert "motor order/spin check" in capsys.readouterr().out
