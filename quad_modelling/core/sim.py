@@ -1,0 +1,306 @@
+"""Truth simulator: LinkQuad-like flights with switchable physical effects (DESIGN 9).
+
+A closed loop like the thesis's flights (Fig 1.10): a seeded pilot script
+(:mod:`~quad_modelling.core.sim_pilot`) gives roll/pitch/yaw/height references;
+a per-channel PID stabiliser (:mod:`~quad_modelling.core.sim_control`) mixes
+them into four engine commands u_i in the vehicle's input unit; the commands
+reach the ESCs (after ``input_delay`` when on), which drive each rotor towards
+
+.. math::
+
+    \\Omega_{c,i} = g_i\\, k_u \\max(u_i - u_0, 0)\\, V / V_{ref}
+
+(g_i: ``motor_imbalance`` gains, else 1; V: battery voltage with ``battery``,
+else V_ref); the nonlinear rigid body (:mod:`~quad_modelling.core.sim_dynamics`)
+is integrated with RK4 at ``physics_rate`` (1 kHz); sensors
+(:mod:`~quad_modelling.core.sim_sensors`) give the log at ``log_rate`` (100 Hz).
+
+Battery (``battery`` on), updated every control tick (explicit Euler; the pack
+changes over minutes):
+
+.. math::
+
+    I = \\frac{\\sum_i d\\,\\Omega_i^3}{\\eta V} + I_{av}, \\quad
+    \\dot{SoC} = -\\frac{I}{3600\\,C}, \\quad V = n_{cells} OCV(SoC) - I R
+
+so the stabiliser must raise u over the flight to keep hovering (the input
+trend of thesis Fig 2.2). Wind (``wind`` on): steady mean plus first-order
+Gauss-Markov gusts, updated every control tick.
+
+Randomness: one ``numpy.random.SeedSequence(seed)`` spawns independent streams
+for the pilot script, the stabiliser's gyro noise, the wind and the sensors, so
+the same seed flies the same manoeuvres whatever the effects, and the same
+seed + effects + duration give identical logs.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+from tqdm import tqdm
+
+from quad_modelling.core import frames, sim_sensors
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.sim_control import Stabiliser
+from quad_modelling.core.sim_dynamics import N_STATE, QuadDynamics
+from quad_modelling.core.sim_params import (
+    DEFAULT_EFFECTS,
+    OCV_CELL,
+    OCV_SOC,
+    SIM_EFFECTS,
+    SimParams,
+    normalise_effects,
+    sim_params_for,
+)
+from quad_modelling.core.sim_pilot import PHASE_FLYING, PHASE_IDLE, PilotScript, make_pilot_script, stick_noise
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.errors import ConfigError
+
+SIM_VERSION = 1
+"""Bumped when the simulator's physics or script generator change the logs it writes."""
+
+__all__ = ["SIM_EFFECTS", "DEFAULT_EFFECTS", "SimResult", "simulate", "run_simulation", "open_circuit_voltage"]
+
+
+def open_circuit_voltage(soc: float, cells: int) -> float:
+    """Pack open-circuit voltage [V] at state of charge ``soc`` (piecewise linear OCV table)."""
+    soc = min(1.0, max(0.0, soc))
+    for i in range(1, len(OCV_SOC)):
+        if soc <= OCV_SOC[i]:
+            w = (soc - OCV_SOC[i - 1]) / (OCV_SOC[i] - OCV_SOC[i - 1])
+            return cells * (OCV_CELL[i - 1] + w * (OCV_CELL[i] - OCV_CELL[i - 1]))
+    return cells * OCV_CELL[-1]
+
+
+@dataclass
+class SimResult:
+    """A simulated flight: the sensor log and the truth behind it.
+
+    ``truth`` holds arrays at the log times: ``pos_n``, ``vel_n``, ``euler``,
+    ``rates_b`` [rad/s], ``specific_force_b`` [m/s²] (period averages),
+    ``omega`` [rad/s], ``thrust`` (N, 4) [N] (with ground effect), ``vbat`` [V],
+    ``wind_n`` [m/s], ``height`` (CG above ground) [m], ``phase`` (0 off, 1 idle, 2 flying).
+    """
+
+    log: FlightLog
+    truth: dict
+    script: PilotScript
+    params: SimParams
+    effects: tuple[str, ...]
+    seed: int
+
+
+def simulate(
+    vehicle: str | VehicleConfig = "linkquad",
+    effects=DEFAULT_EFFECTS,
+    seed: int = 0,
+    duration: float = 220.0,
+    progress: bool = False,
+    params: SimParams | None = None,
+) -> FlightLog:
+    """Fly one seeded flight and return its sensor log (see :func:`run_simulation`)."""
+    return run_simulation(vehicle, effects, seed, duration, progress, params).log
+
+
+def run_simulation(
+    vehicle: str | VehicleConfig = "linkquad",
+    effects=DEFAULT_EFFECTS,
+    seed: int = 0,
+    duration: float = 220.0,
+    progress: bool = False,
+    params: SimParams | None = None,
+) -> SimResult:
+    """Fly one flight of ``duration`` s with the given effects switched on.
+
+    ``params`` overrides the vehicle's simulator parameters (from
+    :func:`~quad_modelling.core.sim_params.sim_params_for`). ``progress`` shows
+    a tqdm bar on stderr.
+    """
+    params = params or sim_params_for(vehicle)
+    effects = normalise_effects(effects)
+    seed = int(seed)
+    if seed < 0:
+        raise ConfigError(f"simulation seed must be a non-negative integer, got {seed}")
+    duration = float(duration)
+    control = params.control
+    steps_per_tick = params.physics_rate / control.rate
+    steps_per_log = params.physics_rate / params.log_rate
+    if abs(steps_per_tick - round(steps_per_tick)) > 1e-9 or abs(steps_per_log - round(steps_per_log)) > 1e-9:
+        raise ConfigError(f"physics rate {params.physics_rate} Hz must be a multiple of the control ({control.rate} Hz) and log ({params.log_rate} Hz) rates")
+    steps_per_tick, steps_per_log = int(round(steps_per_tick)), int(round(steps_per_log))
+    steps_per_mocap = params.physics_rate / params.sensors.mocap_rate
+    if abs(steps_per_mocap - round(steps_per_mocap)) > 1e-9:
+        raise ConfigError(f"physics rate {params.physics_rate} Hz must be a multiple of the mocap rate {params.sensors.mocap_rate} Hz")
+    steps_per_mocap = int(round(steps_per_mocap))
+
+    pilot_seed, control_seed, wind_seed, sensor_seed = np.random.SeedSequence(seed).spawn(4)
+    pilot_rng = np.random.default_rng(pilot_seed)
+    script = make_pilot_script(params, duration, pilot_rng)
+    n_ticks = int(round(duration * control.rate))
+    # whole log periods only: the last log sample needs its averaging window
+    n_log = int(round(duration * params.log_rate))
+    n_steps = n_ticks * steps_per_tick
+    dt = 1.0 / params.physics_rate
+    dt_tick = 1.0 / control.rate
+    t_ticks = np.arange(n_ticks) * dt_tick
+    phases = script.phases(t_ticks)
+    refs = script.references(t_ticks) + stick_noise(n_ticks, control.rate, params.pilot.stick_noise, pilot_rng) * (phases == PHASE_FLYING)[:, None]
+    refs_list = refs.tolist()
+    gyro_noise = (np.random.default_rng(control_seed).standard_normal((n_ticks, 3)) * params.sensors.gyro_noise).tolist()
+    wind = _wind(params, effects, n_ticks, dt_tick, np.random.default_rng(wind_seed))
+    wind_list = wind.tolist()
+
+    dynamics = QuadDynamics(params, effects)
+    stabiliser = Stabiliser(params)
+    stabiliser.set_trim(dynamics.hover_commands(params.battery.reference_voltage))
+    lag = "motor_lag" in effects
+    battery_on = "battery" in effects
+    battery = params.battery
+    delay_steps = int(round(params.input_delay * params.physics_rate)) if "input_delay" in effects else 0
+    i_prop_over_izz = dynamics.prop_inertia / float(dynamics.inertia[2])
+    yaw_signs = [float(v) for v in dynamics.yaw_signs]
+    drag_constant = dynamics.drag_constant
+    airborne_height = params.rest_height + 0.03
+    touchdown_window = script.land_start + 0.5 * script.descent_time
+
+    state = dynamics.state_at_rest()
+    record = np.empty((n_steps, N_STATE + 3))
+    commands = np.empty((n_ticks, 4))
+    voltages = np.empty(n_ticks)
+    soc = battery.initial_soc
+    voltage = open_circuit_voltage(soc, battery.cells) - battery.avionics_current * battery.internal_resistance if battery_on else battery.reference_voltage
+    u_esc = [params.vehicle.input_min] * 4
+    pending: deque = deque()
+    omega_cmd = [0.0] * 4
+    step_fn = dynamics.step
+    record_every = max(1, n_ticks // 200)
+    bar = tqdm(total=n_ticks, unit="tick", desc="simulate", disable=not progress, file=sys.stderr, mininterval=0.5)
+
+    def apply_commands(s, u):
+        """New ESC targets; without motor lag the rotors jump there and the body takes
+        the reaction impulse I_p sum s_i dOmega_i / Izz about z."""
+        target = dynamics.omega_command(u, voltage)
+        if not lag:
+            jump = sum(sign * (new - old) for sign, new, old in zip(yaw_signs, target, s[13:17]))
+            s[12] += i_prop_over_izz * jump
+            s[13:17] = target
+        return target
+
+    try:
+        for k in range(n_ticks):
+            s = state
+            if phases[k] == PHASE_FLYING and t_ticks[k] >= touchdown_window and -s[2] < airborne_height:
+                phases[k:] = np.minimum(phases[k:], PHASE_IDLE)  # the pilot cuts the throttle on touchdown
+            phase = phases[k]
+            if phase == PHASE_FLYING:
+                noise = gyro_noise[k]
+                gyro = (s[10] + noise[0], s[11] + noise[1], s[12] + noise[2])
+                u = stabiliser.flying(s, refs_list[k], gyro, -s[2] > airborne_height)
+            else:
+                stabiliser.reset()
+                u = [stabiliser.u_idle] * 4 if phase == PHASE_IDLE else [stabiliser.u_off] * 4
+            commands[k] = u
+            if battery_on:
+                current = drag_constant * sum(o * o * o for o in s[13:17]) / (battery.efficiency * voltage) + battery.avionics_current
+                soc -= current * dt_tick / (3600.0 * battery.capacity_ah)
+                voltage = open_circuit_voltage(soc, battery.cells) - current * battery.internal_resistance
+            voltages[k] = voltage
+            first = k * steps_per_tick
+            if delay_steps:
+                pending.append((first + delay_steps, u))
+            else:
+                u_esc = u
+            omega_cmd = apply_commands(s, u_esc)
+            air = wind_list[k]
+            for step in range(first, first + steps_per_tick):
+                if pending and pending[0][0] <= step:
+                    u_esc = pending.popleft()[1]
+                    omega_cmd = apply_commands(s, u_esc)
+                s2, k1 = step_fn(s, omega_cmd, air, dt)
+                record[step, :N_STATE] = s
+                record[step, N_STATE:] = k1[3:6]
+                s = s2
+            state = s
+            if k % record_every == record_every - 1:
+                bar.update(record_every)
+                if not all(math.isfinite(v) for v in s):
+                    raise ConfigError(f"simulation diverged at t={t_ticks[k]:.3f} s (non-finite state); check the simulator parameters")
+    finally:
+        bar.close()
+
+    return _assemble(params, effects, seed, script, record, commands, voltages, wind, phases, n_log, steps_per_tick, steps_per_log, steps_per_mocap, dynamics)
+
+
+def _wind(params: SimParams, effects, n_ticks: int, dt_tick: float, rng: np.random.Generator) -> np.ndarray:
+    """(n, 3) air velocity in N [m/s]: mean + Gauss-Markov gusts (zeros without ``wind``)."""
+    if "wind" not in effects:
+        return np.zeros((n_ticks, 3))
+    from scipy import signal
+
+    w = params.wind
+    alpha = math.exp(-dt_tick / w.gust_time_constant)
+    white = rng.standard_normal((n_ticks, 3)) * math.sqrt(1.0 - alpha**2) * np.asarray(w.gust_sigma)
+    start = rng.standard_normal(3) * np.asarray(w.gust_sigma)
+    gusts, _ = signal.lfilter([1.0], [1.0, -alpha], white, axis=0, zi=(alpha * start)[None, :])
+    return np.asarray(w.mean_ned) + gusts
+
+
+def _assemble(params, effects, seed, script, record, commands, voltages, wind, phases, n_log, steps_per_tick, steps_per_log, steps_per_mocap, dynamics) -> SimResult:
+    sensors = params.sensors
+    rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(4)[3])
+    log_dt = 1.0 / params.log_rate
+    t_log = np.arange(n_log) * log_dt
+    log_steps = np.arange(n_log) * steps_per_log
+    quat = record[:, 6:10]
+    acc_b, gyro_b, true_acc, true_gyro = sim_sensors.imu(quat, record[:, N_STATE:], record[:, 10:13], steps_per_log, log_dt, sensors, rng)
+    mocap_steps = np.arange(0, len(record), steps_per_mocap)
+    t_mocap = mocap_steps / params.physics_rate
+    pos_n, vel_n, euler = sim_sensors.motion_capture(t_mocap, record[mocap_steps, 0:3], quat[mocap_steps], t_log, sensors, rng)
+    tick_of_log = np.minimum((t_log * params.control.rate + 1e-6).astype(int), len(commands) - 1)
+    u = np.clip(commands[tick_of_log], params.vehicle.input_min, params.vehicle.input_max)
+    vbat = voltages[tick_of_log] + rng.standard_normal(n_log) * params.battery.voltage_noise
+    omega = record[log_steps, 13:17]
+    true_states = record[log_steps]
+    truth = {
+        "t": t_log,
+        "pos_n": true_states[:, 0:3],
+        "vel_n": true_states[:, 3:6],
+        "euler": np.unwrap(frames.rotation_to_euler_ned(sim_sensors.quaternion_rotations(true_states[:, 6:10])), axis=0),
+        "rates_b": true_gyro,
+        "specific_force_b": true_acc,
+        "omega": omega,
+        "thrust": np.array([dynamics.rotor_thrusts(row) for row in true_states]),
+        "vbat": voltages[tick_of_log],
+        "wind_n": wind[tick_of_log],
+        "height": -true_states[:, 2],
+        "phase": phases[tick_of_log],
+    }
+    notes = _notes(params, effects, seed, script)
+    log = FlightLog(
+        t=t_log, u=u, acc_b=acc_b, gyro_b=gyro_b, pos_n=pos_n, vel_n=vel_n, euler=euler,
+        vbat=vbat, omega=omega, meta=FlightMeta(vehicle=params.vehicle.name, source="simulated", notes=notes),
+    )
+    return SimResult(log=log, truth=truth, script=script, params=params, effects=effects, seed=seed)
+
+
+def _notes(params: SimParams, effects, seed, script: PilotScript) -> dict:
+    """What a tool needs to check its answer: effects, their parameters, the seed, the truth constants."""
+    vehicle = params.vehicle
+    return {
+        "generator": "quad_modelling.core.sim",
+        "sim_version": SIM_VERSION,
+        "seed": seed,
+        "effects": list(effects),
+        "effects_off": [e for e in SIM_EFFECTS if e not in effects],
+        "effect_parameters": params.effect_parameters(effects),
+        "truth_constants": {key: c.value for key, c in vehicle.constants.items()},
+        "adjustments": params.adjustments,
+        "esc": {"zero_speed_input": params.esc.zero_speed_input, "speed_gain": params.esc.speed_gain, "input_unit": vehicle.input_unit, "reference_voltage": params.battery.reference_voltage},
+        "rates_hz": {"physics": params.physics_rate, "control": params.control.rate, "mocap": params.sensors.mocap_rate, "log": params.log_rate},
+        "sensors": {k: float(v) if not isinstance(v, int) else v for k, v in vars(params.sensors).items()},
+        "pilot": script.to_notes(),
+    }

@@ -1,0 +1,342 @@
+"""Nonlinear 6-DoF quadrotor dynamics of the truth simulator, and its RK4 step.
+
+State (17 floats, a plain list for speed), internal convention (N = NED, B = FRD):
+
+    s = [x, y, z, vx, vy, vz, q0, q1, q2, q3, p, q, r, Ω1, Ω2, Ω3, Ω4]
+
+position and velocity of the CG in N [m, m/s]; unit quaternion
+:math:`q = (q_0, q_1, q_2, q_3)` of :math:`R_{N \\leftarrow B}` (scalar first);
+body rates :math:`\\omega = (p, q, r)` [rad/s]; rotor speeds Ω_i [rad/s].
+
+Rotor i sits at :math:`r_i = (x_i - c_x, y_i - c_y, z_r)` from the CG (config
+position, CG offset c when ``motor_imbalance`` is on, hub height z_r) and spins
+with sign s_i (+1 = counter-clockwise seen from above). Wrench in B:
+
+.. math::
+
+    T_i = a \\Omega_i^2 \\, k_{GE}(h_i), \\qquad Q_i = d \\Omega_i^2
+
+    F_B = (0, 0, -\\textstyle\\sum_i T_i) + F_{drag}, \\qquad
+    \\tau_B = \\sum_i r_i \\times (0, 0, -T_i) + (0, 0, \\sum_i s_i Q_i + I_p \\sum_i s_i \\dot\\Omega_i)
+              + \\tau_{drag} - \\omega \\times (I \\omega + h_r)
+
+with the rotor angular momentum :math:`h_r = (0, 0, -I_p \\sum_i s_i \\Omega_i)`
+(a counter-clockwise rotor's momentum points up, -z in FRD). Motion:
+
+.. math::
+
+    \\dot p_N = v_N, \\quad m \\dot v_N = R F_B + m g e_z + F_{wind} + F_{ground}, \\quad
+    \\dot q = \\tfrac12 q \\otimes (0, \\omega), \\quad I \\dot\\omega = \\tau_B + \\tau_{ground}
+
+Effects (names of :data:`quad_modelling.core.sim_params.SIM_EFFECTS`):
+
+* ``motor_lag``: :math:`\\dot\\Omega_i = (\\Omega_{c,i} - \\Omega_i)/\\tau_m`, :math:`\\tau_m = -1/A_m`;
+  off: Ω_i = Ω_c,i at once (the simulator then applies the rotor reaction
+  impulse :math:`\\Delta r = I_p \\sum_i s_i \\Delta\\Omega_i / I_{zz}`).
+* ``rotor_drag``: :math:`F_i = -\\Omega_i K v_{air,B}`, K = diag(k_h, k_h, k_v), acting at the
+  hub, so :math:`F_{drag} = \\sum_i F_i`, :math:`\\tau_{drag} = \\sum_i r_i \\times F_i`;
+  :math:`v_{air,B} = R^T (v_N - w_N)`.
+* ``ground_effect``: Cheeseman & Bennett (1955),
+  :math:`k_{GE}(h) = 1 / (1 - (R_p / (4 h))^2)`, h = hub height above the ground
+  (z = 0), clamped to h >= c R_p; off: k_GE = 1.
+* ``gyroscopic``: the term :math:`-\\omega \\times (I\\omega + h_r)` (body and propeller
+  gyroscopic torques); off: dropped.
+* ``wind``: air moves with :math:`w_N`; airframe drag
+  :math:`F_{wind} = -\\tfrac12 \\rho C_D A \\, |v_N - w_N| (v_N - w_N)`; rotor drag then sees
+  the relative air. Off: w = 0 and no airframe drag.
+* ``motor_imbalance``: CG offset c (here) and per-ESC gain spread (in :meth:`QuadDynamics.omega_command`).
+* ``battery``, ``input_delay``: act on the command path (:mod:`quad_modelling.core.sim`).
+
+Ground contact (always on): each landing-gear foot below z = 0 gets a
+spring-damper normal force and regularised Coulomb friction
+:math:`F_t = -\\mu N v_t / \\sqrt{|v_t|^2 + \\epsilon^2}`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from quad_modelling.core.sim_params import SimParams, normalise_effects
+from quad_modelling.core.vehicle import GRAVITY
+
+STATE_NAMES = (
+    "x", "y", "z", "vx", "vy", "vz", "q0", "q1", "q2", "q3", "p", "q", "r",
+    "omega1", "omega2", "omega3", "omega4",
+)
+N_STATE = len(STATE_NAMES)
+
+
+class QuadDynamics:
+    """State derivative and RK4 step of one vehicle with a set of effects on.
+
+    ``derivative(s, omega_cmd, wind)`` is the callable contract: ``s`` the 17-float
+    state list, ``omega_cmd`` the four commanded rotor speeds [rad/s] (used only
+    with ``motor_lag``), ``wind`` the air velocity (wx, wy, wz) in N [m/s].
+    """
+
+    def __init__(self, params: SimParams, effects=()):
+        self.params = params
+        self.effects = normalise_effects(effects)
+        vehicle = params.vehicle
+        self.mass = vehicle.mass
+        self.inertia = vehicle.inertia
+        self.thrust_constant = vehicle.value("thrust_constant")
+        self.drag_constant = vehicle.value("drag_constant")
+        self.prop_inertia = vehicle.value("prop_inertia")
+        self.yaw_signs = vehicle.yaw_signs
+        cg = params.imbalance.cg_offset if "motor_imbalance" in self.effects else (0.0, 0.0)
+        self.rotor_positions = np.column_stack(
+            [vehicle.motor_positions - np.asarray(cg), np.full(4, params.geometry.rotor_plane_z)]
+        )
+        self.feet = np.asarray(params.geometry.feet, dtype=float) - np.array([cg[0], cg[1], 0.0])
+        motor_gains = params.imbalance.motor_gains if "motor_imbalance" in self.effects else (1.0, 1.0, 1.0, 1.0)
+        self.motor_gains = tuple(float(g) for g in motor_gains)
+        self.derivative = self._build_derivative()
+
+    # ------------------------------------------------------------------ command path
+
+    def omega_command(self, u, voltage: float) -> list[float]:
+        """Steady rotor speeds the ESCs drive to [rad/s]:
+        :math:`\\Omega_{c,i} = g_i k_u \\max(u_i - u_0, 0) V / V_{ref}`."""
+        esc = self.params.esc
+        scale = esc.speed_gain * voltage / self.params.battery.reference_voltage
+        u0 = esc.zero_speed_input
+        return [g * scale * (ui - u0) if ui > u0 else 0.0 for g, ui in zip(self.motor_gains, u)]
+
+    def hover_commands(self, voltage: float) -> list[float]:
+        """Engine commands that hold this vehicle (with its CG offset and motor gains)
+        in a steady hover out of ground effect at battery voltage ``voltage``: rotor
+        thrusts :math:`T = M^{-1} (m g, 0, 0, 0)^T` with the true allocation M, then
+        :math:`u_i = u_0 + \sqrt{T_i/a} / (g_i k_u V/V_{ref})`."""
+        ratio = self.drag_constant / self.thrust_constant
+        allocation = np.vstack([np.ones(4), -self.rotor_positions[:, 1], self.rotor_positions[:, 0], self.yaw_signs * ratio])
+        thrusts = np.linalg.solve(allocation, [self.mass * GRAVITY, 0.0, 0.0, 0.0])
+        esc = self.params.esc
+        scale = esc.speed_gain * voltage / self.params.battery.reference_voltage
+        return [esc.zero_speed_input + math.sqrt(t / self.thrust_constant) / (g * scale) for t, g in zip(thrusts, self.motor_gains)]
+
+    # ------------------------------------------------------------------ states
+
+    def state_at_rest(self) -> list[float]:
+        """Standing level on its feet, rotors stopped (feet just touching z = 0)."""
+        s = [0.0] * N_STATE
+        s[2] = -float(np.max(self.feet[:, 2]))
+        s[6] = 1.0
+        return s
+
+    def hover_state(self, height: float, yaw: float = 0.0) -> list[float]:
+        """Level at CG height ``height`` [m] with each rotor at the speed giving T_i = m g / 4."""
+        s = [0.0] * N_STATE
+        s[2] = -height
+        s[6], s[9] = math.cos(yaw / 2), math.sin(yaw / 2)
+        hover = math.sqrt(self.mass * GRAVITY / 4 / self.thrust_constant)
+        s[13:17] = [hover] * 4
+        return s
+
+    # ------------------------------------------------------------------ integration
+
+    def step(self, s: list[float], omega_cmd, wind, dt: float) -> tuple[list[float], list[float]]:
+        """One classical RK4 step; returns (new state, derivative at the start k1).
+        The quaternion is renormalised after the step."""
+        f = self.derivative
+        h2 = 0.5 * dt
+        k1 = f(s, omega_cmd, wind)
+        k2 = f([a + h2 * b for a, b in zip(s, k1)], omega_cmd, wind)
+        k3 = f([a + h2 * b for a, b in zip(s, k2)], omega_cmd, wind)
+        k4 = f([a + dt * b for a, b in zip(s, k3)], omega_cmd, wind)
+        h6 = dt / 6.0
+        new = [a + h6 * (b1 + 2.0 * (b2 + b3) + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)]
+        n = 1.0 / math.sqrt(new[6] * new[6] + new[7] * new[7] + new[8] * new[8] + new[9] * new[9])
+        new[6] *= n
+        new[7] *= n
+        new[8] *= n
+        new[9] *= n
+        return new, k1
+
+    @staticmethod
+    def rotation(s) -> np.ndarray:
+        """R_N<-B (3x3) of a state."""
+        q0, q1, q2, q3 = s[6:10]
+        return np.array(
+            [
+                [1 - 2 * (q2 * q2 + q3 * q3), 2 * (q1 * q2 - q0 * q3), 2 * (q1 * q3 + q0 * q2)],
+                [2 * (q1 * q2 + q0 * q3), 1 - 2 * (q1 * q1 + q3 * q3), 2 * (q2 * q3 - q0 * q1)],
+                [2 * (q1 * q3 - q0 * q2), 2 * (q2 * q3 + q0 * q1), 1 - 2 * (q1 * q1 + q2 * q2)],
+            ]
+        )
+
+    def specific_force(self, s, ds) -> np.ndarray:
+        """Accelerometer specific force in B [m/s²]: :math:`R^T (\\dot v_N - g e_z)`."""
+        accel = np.array([ds[3], ds[4], ds[5] - GRAVITY])
+        return self.rotation(s).T @ accel
+
+    def rotor_thrusts(self, s) -> np.ndarray:
+        """T_i = a Ω_i² k_GE(h_i) [N] of a state (ground effect when on)."""
+        omega = np.asarray(s[13:17], dtype=float)
+        return self.thrust_constant * omega**2 * self.ground_effect_factors(s)
+
+    def ground_effect_factors(self, s) -> np.ndarray:
+        """k_GE(h_i) per rotor (ones when ``ground_effect`` is off)."""
+        if "ground_effect" not in self.effects:
+            return np.ones(4)
+        radius = self.params.geometry.rotor_radius
+        hub_z = s[2] + self.rotation(s)[2] @ self.rotor_positions.T
+        height = np.maximum(-hub_z, self.params.ground_effect_min_height * radius)
+        return 1.0 / (1.0 - (radius / (4.0 * height)) ** 2)
+
+    # ------------------------------------------------------------------ the derivative
+
+    def _build_derivative(self):
+        p = self.params
+        effects = set(self.effects)
+        lag = "motor_lag" in effects
+        drag_on = "rotor_drag" in effects
+        ge_on = "ground_effect" in effects
+        gyro_on = "gyroscopic" in effects
+        wind_on = "wind" in effects
+        g = GRAVITY
+        m = self.mass
+        inv_m = 1.0 / m
+        ixx, iyy, izz = (float(v) for v in self.inertia)
+        a_t = self.thrust_constant
+        d_q = self.drag_constant
+        i_p = self.prop_inertia
+        s1, s2, s3, s4 = (float(v) for v in self.yaw_signs)
+        (x1, y1, _), (x2, y2, _), (x3, y3, _), (x4, y4, zr) = (tuple(float(c) for c in row) for row in self.rotor_positions)
+        inv_tau = 1.0 / p.motor_time_constant
+        k_h, k_v = p.rotor_drag.horizontal, p.rotor_drag.vertical
+        radius_quarter = p.geometry.rotor_radius / 4.0
+        ge_min_h = p.ground_effect_min_height * p.geometry.rotor_radius
+        half_rho_cda = 0.5 * p.wind.air_density * p.wind.body_drag_area
+        feet = [tuple(float(c) for c in f) for f in self.feet]
+        reach = max(math.sqrt(fx * fx + fy * fy + fz * fz) for fx, fy, fz in feet)
+        contact_gate = -reach - 0.01
+        k_total = m * (2.0 * math.pi * p.ground.natural_frequency) ** 2
+        k_foot = k_total / len(feet)
+        c_foot = 2.0 * p.ground.damping_ratio * math.sqrt(k_total * m) / len(feet)
+        mu = p.ground.friction
+        eps2 = p.ground.slip_speed**2
+        sqrt = math.sqrt
+
+        def derivative(s, wc, wind):
+            px, py, pz, vx, vy, vz, q0, q1, q2, q3, wp, wq, wr, o1, o2, o3, o4 = s
+            r00 = 1.0 - 2.0 * (q2 * q2 + q3 * q3)
+            r01 = 2.0 * (q1 * q2 - q0 * q3)
+            r02 = 2.0 * (q1 * q3 + q0 * q2)
+            r10 = 2.0 * (q1 * q2 + q0 * q3)
+            r11 = 1.0 - 2.0 * (q1 * q1 + q3 * q3)
+            r12 = 2.0 * (q2 * q3 - q0 * q1)
+            r20 = 2.0 * (q1 * q3 - q0 * q2)
+            r21 = 2.0 * (q2 * q3 + q0 * q1)
+            r22 = 1.0 - 2.0 * (q1 * q1 + q2 * q2)
+            if lag:
+                d1 = (wc[0] - o1) * inv_tau
+                d2 = (wc[1] - o2) * inv_tau
+                d3 = (wc[2] - o3) * inv_tau
+                d4 = (wc[3] - o4) * inv_tau
+            else:
+                d1 = d2 = d3 = d4 = 0.0
+            t1 = a_t * o1 * o1
+            t2 = a_t * o2 * o2
+            t3 = a_t * o3 * o3
+            t4 = a_t * o4 * o4
+            if ge_on:
+                hub = pz + r22 * zr
+                h = -(hub + r20 * x1 + r21 * y1)
+                h = h if h > ge_min_h else ge_min_h
+                t1 /= 1.0 - (radius_quarter / h) ** 2
+                h = -(hub + r20 * x2 + r21 * y2)
+                h = h if h > ge_min_h else ge_min_h
+                t2 /= 1.0 - (radius_quarter / h) ** 2
+                h = -(hub + r20 * x3 + r21 * y3)
+                h = h if h > ge_min_h else ge_min_h
+                t3 /= 1.0 - (radius_quarter / h) ** 2
+                h = -(hub + r20 * x4 + r21 * y4)
+                h = h if h > ge_min_h else ge_min_h
+                t4 /= 1.0 - (radius_quarter / h) ** 2
+            fx = 0.0
+            fy = 0.0
+            fz = -(t1 + t2 + t3 + t4)
+            tx = -(y1 * t1 + y2 * t2 + y3 * t3 + y4 * t4)
+            ty = x1 * t1 + x2 * t2 + x3 * t3 + x4 * t4
+            tz = d_q * (s1 * o1 * o1 + s2 * o2 * o2 + s3 * o3 * o3 + s4 * o4 * o4) + i_p * (s1 * d1 + s2 * d2 + s3 * d3 + s4 * d4)
+            if wind_on:
+                ax_rel = vx - wind[0]
+                ay_rel = vy - wind[1]
+                az_rel = vz - wind[2]
+            else:
+                ax_rel, ay_rel, az_rel = vx, vy, vz
+            if drag_on:
+                vbx = r00 * ax_rel + r10 * ay_rel + r20 * az_rel
+                vby = r01 * ax_rel + r11 * ay_rel + r21 * az_rel
+                vbz = r02 * ax_rel + r12 * ay_rel + r22 * az_rel
+                osum = o1 + o2 + o3 + o4
+                ux = -k_h * vbx
+                uy = -k_h * vby
+                uz = -k_v * vbz
+                fx += osum * ux
+                fy += osum * uy
+                fz += osum * uz
+                cx = o1 * x1 + o2 * x2 + o3 * x3 + o4 * x4
+                cy = o1 * y1 + o2 * y2 + o3 * y3 + o4 * y4
+                cz = osum * zr
+                tx += cy * uz - cz * uy
+                ty += cz * ux - cx * uz
+                tz += cx * uy - cy * ux
+            if gyro_on:
+                lx = ixx * wp
+                ly = iyy * wq
+                lz = izz * wr - i_p * (s1 * o1 + s2 * o2 + s3 * o3 + s4 * o4)
+                tx -= wq * lz - wr * ly
+                ty -= wr * lx - wp * lz
+                tz -= wp * ly - wq * lx
+            ax = (r00 * fx + r01 * fy + r02 * fz) * inv_m
+            ay = (r10 * fx + r11 * fy + r12 * fz) * inv_m
+            az = (r20 * fx + r21 * fy + r22 * fz) * inv_m + g
+            if wind_on:
+                k = half_rho_cda * inv_m * sqrt(ax_rel * ax_rel + ay_rel * ay_rel + az_rel * az_rel)
+                ax -= k * ax_rel
+                ay -= k * ay_rel
+                az -= k * az_rel
+            if pz > contact_gate:
+                for bx, by, bz in feet:
+                    foot_z = pz + r20 * bx + r21 * by + r22 * bz
+                    if foot_z <= 0.0:
+                        continue
+                    # foot velocity v + R (omega x r_f)
+                    ox = wq * bz - wr * by
+                    oy = wr * bx - wp * bz
+                    oz = wp * by - wq * bx
+                    fvx = vx + r00 * ox + r01 * oy + r02 * oz
+                    fvy = vy + r10 * ox + r11 * oy + r12 * oz
+                    fvz = vz + r20 * ox + r21 * oy + r22 * oz
+                    normal = k_foot * foot_z + c_foot * fvz
+                    if normal <= 0.0:
+                        continue
+                    slip = mu * normal / sqrt(fvx * fvx + fvy * fvy + eps2)
+                    gx = -slip * fvx
+                    gy = -slip * fvy
+                    gz = -normal
+                    ax += gx * inv_m
+                    ay += gy * inv_m
+                    az += gz * inv_m
+                    # torque r_f x (R^T F)
+                    bfx = r00 * gx + r10 * gy + r20 * gz
+                    bfy = r01 * gx + r11 * gy + r21 * gz
+                    bfz = r02 * gx + r12 * gy + r22 * gz
+                    tx += by * bfz - bz * bfy
+                    ty += bz * bfx - bx * bfz
+                    tz += bx * bfy - by * bfx
+            return [
+                vx, vy, vz, ax, ay, az,
+                -0.5 * (q1 * wp + q2 * wq + q3 * wr),
+                0.5 * (q0 * wp + q2 * wr - q3 * wq),
+                0.5 * (q0 * wq + q3 * wp - q1 * wr),
+                0.5 * (q0 * wr + q1 * wq - q2 * wp),
+                tx / ixx, ty / iyy, tz / izz,
+                d1, d2, d3, d4,
+            ]
+
+        return derivative

@@ -1,0 +1,473 @@
+"""Truth-simulator parameters: the effect catalogue and every simulator-only constant.
+
+The simulator (:mod:`quad_modelling.core.sim`) flies a vehicle whose rigid-body,
+rotor and aerodynamic constants come from its vehicle config
+(``config/vehicles/<name>.yaml``) except where a config constant is physically
+inconsistent; those are replaced here, each with the original value and the
+reason (:attr:`SimParams.adjustments`). Everything the vehicle configs do not
+describe (ESC mapping, battery, landing gear, sensors, effect strengths,
+stabiliser gains, pilot script ranges) lives in this module, one value per
+field, with its unit and source in the comment next to it.
+
+LinkQuad adjustments of thesis Table 3-1 (see docs/simulator.md):
+
+* ``thrust_constant`` a: 1.59e-7 -> 1.0e-5 N s². Table 3-1's a gives a hover
+  speed :math:`\\Omega_0 = \\sqrt{m g/(4a)} = 4302` rad/s (41,000 rpm); a 1.2 kg
+  quad with ~10 in propellers hovers near 5,200 rpm. a = 1.0e-5 gives
+  :math:`\\Omega_0 = 542` rad/s; a 10x4.7 in propeller gives ~2.7 N at 5,000 rpm
+  (APC performance data), i.e. a ≈ 1.0e-5.
+* ``drag_constant`` d: 2.93e-9 -> 1.843e-7 N m s², keeping Table 3-1's ratio
+  d/a = 0.01843 m (the only place d enters the thesis model, Eq 3-13). Check:
+  :math:`d\\Omega_0^2 = 0.054` N m per rotor, shaft power :math:`d\\Omega_0^3 =
+  29` W per rotor, figure of merit 0.49 against momentum theory: plausible.
+* ``motor_b_m`` B_m: 8.49e7 -> 1.0705e7 rad/s² per s of pulse, keeping the
+  thesis model's thrust gain :math:`K = 2 B_m \\sqrt{a m g/4}` (Eq 3-7, the only
+  place B_m enters the thrust) unchanged. The resulting ESC speed gain
+  :math:`k_u = -B_m/A_m = 1.12` rad/s per µs maps the 1.0–2.0 ms pulse range to
+  0–1120 rad/s, what an RC ESC does; Table 3-1's B_m would map it to 0–8,900 rad/s.
+* A_m, m, l, inertias and I_prop are used as given.
+
+The Crazyflie 2.1 config is used as shipped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
+from quad_modelling.errors import ConfigError
+
+SIM_EFFECTS: tuple[str, ...] = (
+    "rotor_drag",
+    "battery",
+    "motor_lag",
+    "input_delay",
+    "ground_effect",
+    "gyroscopic",
+    "motor_imbalance",
+    "wind",
+)
+"""Switchable physical effects of the truth simulator (DESIGN 6.2 catalogue names)."""
+
+DEFAULT_EFFECTS: tuple[str, ...] = tuple(e for e in SIM_EFFECTS if e != "wind")
+"""A realistic indoor (motion-capture lab) flight: every effect but wind."""
+
+SIMULATED_VEHICLES = ("linkquad", "crazyflie21")
+
+
+def parse_effects(text: str | None) -> tuple[str, ...]:
+    """``'none'`` -> (), ``'all'`` -> SIM_EFFECTS, ``'default'``/None -> DEFAULT_EFFECTS,
+    else a comma list of catalogue names (ConfigError naming any unknown one).
+    The result keeps catalogue order."""
+    if text is None or text.strip() == "default":
+        return DEFAULT_EFFECTS
+    text = text.strip()
+    if text == "none" or text == "":
+        return ()
+    if text == "all":
+        return SIM_EFFECTS
+    return normalise_effects([part.strip() for part in text.split(",") if part.strip()])
+
+
+def normalise_effects(effects) -> tuple[str, ...]:
+    """Validate an iterable of effect names; return them in catalogue order, once each."""
+    chosen = set()
+    for name in effects:
+        if name not in SIM_EFFECTS:
+            raise ConfigError(f"unknown simulator effect {name!r}; known: {', '.join(SIM_EFFECTS)} (or none, all, default)")
+        chosen.add(name)
+    return tuple(e for e in SIM_EFFECTS if e in chosen)
+
+
+@dataclass(frozen=True)
+class EscParams:
+    """Speed controller: steady rotor speed :math:`\\Omega_{ss} = k_u (u - u_0) V/V_{ref}`."""
+
+    zero_speed_input: float  # u_0 [input unit]: command below which the rotor stops
+    speed_gain: float  # k_u = -B_m / A_m [rad/s per input unit]
+    idle_speed_fraction: float  # armed idle rotor speed / hover speed [1]
+
+
+@dataclass(frozen=True)
+class GeometryParams:
+    """Rotor and landing-gear geometry in body FRD [m]."""
+
+    rotor_radius: float  # R [m]
+    rotor_plane_z: float  # z of the rotor hubs relative to the CG, FRD (negative = above) [m]
+    feet: tuple[tuple[float, float, float], ...]  # landing-gear contact points (x, y, z) FRD [m]
+
+
+@dataclass(frozen=True)
+class GroundParams:
+    """Penalty contact at the feet: spring-damper normal force, regularised Coulomb friction."""
+
+    natural_frequency: float  # vertical natural frequency on the ground [Hz]
+    damping_ratio: float  # [1]
+    friction: float  # Coulomb coefficient mu [1]
+    slip_speed: float  # regularisation speed of the friction law [m/s]
+
+
+@dataclass(frozen=True)
+class BatteryParams:
+    """LiPo pack: OCV(SoC) per cell, internal resistance, shaft power / efficiency drain."""
+
+    cells: int  # cells in series [1]
+    capacity_ah: float  # [A h]
+    internal_resistance: float  # pack [ohm]
+    efficiency: float  # motor + ESC, electrical to shaft power [1]
+    avionics_current: float  # [A]
+    initial_soc: float  # state of charge at take-off [1]
+    reference_voltage: float  # V_ref: pack voltage at which the ESC gain k_u applies [V]; battery off -> V = V_ref
+    voltage_noise: float  # ADC noise of the logged voltage, 1 sigma [V]
+
+
+OCV_SOC = (0.0, 0.05, 0.10, 0.20, 0.30, 0.40, 0.50, 0.60, 0.70, 0.80, 0.90, 1.00)
+OCV_CELL = (3.27, 3.61, 3.69, 3.71, 3.73, 3.75, 3.79, 3.83, 3.87, 3.92, 4.03, 4.20)
+"""Open-circuit voltage of one LiPo cell [V] vs state of charge (typical LiPo discharge
+curve at low rate, e.g. Chen & Rincón-Mora, IEEE TEC 2006, Fig 6; hobby LiPo charts)."""
+
+
+@dataclass(frozen=True)
+class RotorDragParams:
+    """Rotor (induced/flapping) drag per rotor: :math:`F_i = -\\Omega_i K v_{air,B}`, K = diag(k_h, k_h, k_v)."""
+
+    horizontal: float  # k_h [N s/(m rad)]
+    vertical: float  # k_v [N s/(m rad)]
+
+
+@dataclass(frozen=True)
+class WindParams:
+    """Steady wind plus first-order Gauss-Markov gusts per axis; airframe drag in moving air."""
+
+    mean_ned: tuple[float, float, float]  # [m/s]
+    gust_sigma: tuple[float, float, float]  # [m/s]
+    gust_time_constant: float  # [s]
+    air_density: float  # rho [kg/m³]
+    body_drag_area: float  # C_D A [m²]
+
+
+@dataclass(frozen=True)
+class ImbalanceParams:
+    """Per-motor speed-gain spread and centre-of-gravity offset."""
+
+    motor_gains: tuple[float, float, float, float]  # multiply each ESC's k_u [1]
+    cg_offset: tuple[float, float]  # CG (x, y) relative to the geometric centre, FRD [m]
+
+
+@dataclass(frozen=True)
+class SensorParams:
+    """Motion capture and IMU noise models (1 sigma)."""
+
+    mocap_rate: float  # [Hz]
+    mocap_position_noise: float  # [m]
+    mocap_attitude_noise: float  # [rad]
+    mocap_velocity_window: int  # Savitzky-Golay derivative window [samples at mocap_rate]
+    acc_noise: float  # white, per log sample [m/s²]
+    acc_bias: float  # turn-on bias [m/s²]
+    acc_drift: float  # bias random walk [m/s² / sqrt(s)]
+    gyro_noise: float  # white, per log sample [rad/s]
+    gyro_bias: float  # turn-on bias [rad/s]
+    gyro_drift: float  # bias random walk [rad/s / sqrt(s)]
+
+
+@dataclass(frozen=True)
+class ControlParams:
+    """Per-channel PID stabiliser (thesis Fig 1.10) and the pilot's position hold."""
+
+    rate: float  # stabiliser rate [Hz]
+    attitude_bandwidth: float  # roll/pitch closed-loop natural frequency [rad/s]
+    yaw_bandwidth: float  # [rad/s]
+    altitude_bandwidth: float  # [rad/s]
+    damping: float  # damping ratio of every loop [1]
+    integral_fraction: float  # integral gain = fraction * bandwidth * proportional gain [1]
+    position_bandwidth: float  # pilot's horizontal position hold [rad/s]
+    max_tilt: float  # reference roll/pitch limit [rad]
+
+
+@dataclass(frozen=True)
+class PilotParams:
+    """Ranges of the seeded manoeuvre script."""
+
+    hover_height: float  # CG height above ground while hovering [m]
+    climb_time: float  # [s]
+    descent_time: float  # [s]
+    tilt_step: tuple[float, float]  # roll/pitch step/doublet amplitude range [rad]
+    tilt_sweep: tuple[float, float]  # roll/pitch sweep amplitude range [rad]
+    yaw_step: tuple[float, float]  # [rad]
+    yaw_sweep: tuple[float, float]  # [rad]
+    height_step: tuple[float, float]  # altitude step amplitude range [m]
+    low_hover: tuple[float, float]  # CG height range of low passes (ground effect) [m]
+    stick_noise: tuple[float, float, float]  # roll/pitch [rad], yaw [rad], height [m] pilot jitter, 1 sigma
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """Everything the truth simulator needs for one vehicle (see module docstring)."""
+
+    vehicle: VehicleConfig  # truth constants (config values with the adjustments applied)
+    adjustments: dict  # constant -> {"config": value, "used": value, "reason": text}
+    esc: EscParams
+    geometry: GeometryParams
+    ground: GroundParams
+    battery: BatteryParams
+    rotor_drag: RotorDragParams
+    wind: WindParams
+    input_delay: float  # transport delay stabiliser -> rotor [s]
+    ground_effect_min_height: float  # Cheeseman-Bennett clamp h >= c R [in rotor radii]
+    imbalance: ImbalanceParams
+    sensors: SensorParams
+    control: ControlParams
+    pilot: PilotParams
+    physics_rate: float = 1000.0  # RK4 rate [Hz]
+    log_rate: float = 100.0  # [Hz]
+
+    @property
+    def motor_time_constant(self) -> float:
+        """tau_m = -1 / A_m [s] (thesis Eq A-0-1 pole)."""
+        return -1.0 / self.vehicle.value("motor_a_m")
+
+    @property
+    def rest_height(self) -> float:
+        """CG height above ground when standing on the feet [m]."""
+        return max(f[2] for f in self.geometry.feet)
+
+    def replace(self, **changes) -> SimParams:
+        """A copy with some fields replaced (e.g. ``params.replace(input_delay=0.03)``)."""
+        return dataclasses.replace(self, **changes)
+
+    def effect_parameters(self, effects: tuple[str, ...]) -> dict:
+        """JSON-ready parameters of the given effects (what a diagnosis should find)."""
+        out: dict = {}
+        for name in effects:
+            if name == "rotor_drag":
+                out[name] = {"k_h_N_s_per_m_rad": self.rotor_drag.horizontal, "k_v_N_s_per_m_rad": self.rotor_drag.vertical}
+            elif name == "battery":
+                out[name] = {k: _plain(v) for k, v in dataclasses.asdict(self.battery).items()}
+                out[name]["ocv_soc"] = list(OCV_SOC)
+                out[name]["ocv_cell_V"] = list(OCV_CELL)
+            elif name == "motor_lag":
+                out[name] = {"time_constant_s": self.motor_time_constant}
+            elif name == "input_delay":
+                out[name] = {"delay_s": self.input_delay}
+            elif name == "ground_effect":
+                out[name] = {
+                    "model": "Cheeseman-Bennett T/T_inf = 1/(1-(R/(4h))^2)",
+                    "rotor_radius_m": self.geometry.rotor_radius,
+                    "rotor_plane_z_m": self.geometry.rotor_plane_z,
+                    "min_height_rotor_radii": self.ground_effect_min_height,
+                }
+            elif name == "gyroscopic":
+                out[name] = {"prop_inertia_kg_m2": self.vehicle.value("prop_inertia"), "inertia_kg_m2": self.vehicle.inertia.tolist()}
+            elif name == "motor_imbalance":
+                out[name] = {"motor_gains": list(self.imbalance.motor_gains), "cg_offset_m": list(self.imbalance.cg_offset)}
+            elif name == "wind":
+                out[name] = {k: _plain(v) for k, v in dataclasses.asdict(self.wind).items()}
+        return out
+
+
+def _plain(value):
+    if isinstance(value, tuple | list):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+# --------------------------------------------------------------------------- LinkQuad
+
+LINKQUAD_ADJUSTMENTS = {
+    "thrust_constant": (
+        1.0e-5,
+        "Table 3-1's a=1.59e-7 gives a 4302 rad/s hover speed; a=1.0e-5 gives 542 rad/s (5180 rpm), "
+        "what a 1.2 kg quad on ~10 in propellers turns (APC 10x4.7: ~2.7 N at 5000 rpm)",
+    ),
+    "drag_constant": (
+        1.843e-7,
+        "keeps Table 3-1's ratio d/a = 0.01843 m (Eq 3-13); gives 0.054 N m and 29 W shaft power per rotor at hover",
+    ),
+    "motor_b_m": (
+        1.0705e7,
+        "keeps the thesis thrust gain K = 2 B_m sqrt(a m g/4) (Eq 3-7) with the new a; "
+        "k_u = -B_m/A_m = 1.12 rad/s per us maps a 1.0-2.0 ms ESC pulse to 0-1120 rad/s",
+    ),
+}
+
+
+def _linkquad(vehicle: VehicleConfig) -> SimParams:
+    adjusted = vehicle.with_values({k: v for k, (v, _) in LINKQUAD_ADJUSTMENTS.items()}, "simulator adjustment (sim_params.py)")
+    adjustments = {
+        k: {"config": vehicle.value(k), "used": v, "reason": why} for k, (v, why) in LINKQUAD_ADJUSTMENTS.items()
+    }
+    hover = adjusted.hover_rotor_speed
+    return SimParams(
+        vehicle=adjusted,
+        adjustments=adjustments,
+        esc=EscParams(
+            zero_speed_input=1.0e-3,  # s: RC ESC zero-throttle pulse (1.0 ms; ESC convention)
+            speed_gain=-adjusted.value("motor_b_m") / adjusted.value("motor_a_m"),  # k_u = -B_m/A_m [rad/s per s]
+            idle_speed_fraction=0.25,  # guess: armed idle
+        ),
+        geometry=GeometryParams(
+            rotor_radius=0.127,  # m: 10 in propeller (fits 0.304 m between adjacent hubs)
+            rotor_plane_z=-0.04,  # m: hubs 4 cm above the CG (guess from thesis Fig 1.11)
+            feet=((0.15, 0.15, 0.12), (-0.15, 0.15, 0.12), (-0.15, -0.15, 0.12), (0.15, -0.15, 0.12)),  # m: 20 cm high frame (thesis 1.4.2)
+        ),
+        ground=GroundParams(natural_frequency=15.0, damping_ratio=0.8, friction=0.6, slip_speed=0.02),  # guess: stiff gear, rubber feet
+        battery=BatteryParams(
+            cells=3,  # thesis 1.4.2: "12.5 V" pack (3 cells in series; "6-cell" read as 3S2P)
+            capacity_ah=5.2,  # thesis 1.4.2: 5200 mAh
+            internal_resistance=0.025,  # ohm: typical 5 Ah 3S LiPo pack
+            efficiency=0.7,  # motor + ESC, typical for hobby brushless drives
+            avionics_current=0.8,  # A: LinkBoard III with two Gumstix (guess)
+            initial_soc=0.95,
+            reference_voltage=12.0,  # V: nominal loaded pack voltage at which k_u is stated
+            voltage_noise=0.01,
+        ),
+        rotor_drag=RotorDragParams(
+            horizontal=0.3 * adjusted.mass / (4 * hover),  # drag/mass 0.3 1/s at hover (Foerster 2015 Crazyflie ratio scaled)
+            vertical=1.12 * 0.3 * adjusted.mass / (4 * hover),  # k_v/k_h = 1.12 (Foerster 2015)
+        ),
+        wind=WindParams(
+            mean_ned=(0.8, -0.5, 0.0),  # m/s: a draught from a door / ventilation (guess)
+            gust_sigma=(0.4, 0.4, 0.15),  # m/s
+            gust_time_constant=2.0,  # s
+            air_density=1.225,  # kg/m³ ISA sea level
+            body_drag_area=0.05,  # m²: C_D ~1 times ~0.05 m² casing (guess)
+        ),
+        input_delay=0.02,  # s: stabiliser -> ESC PWM update (guess, typical 50 Hz-class ESC loop)
+        ground_effect_min_height=0.5,  # R: the model's singularity is at h = R/4
+        imbalance=ImbalanceParams(motor_gains=(1.03, 0.98, 1.015, 0.975), cg_offset=(0.006, -0.004)),
+        sensors=_sensors(),
+        control=ControlParams(
+            rate=250.0,  # Hz: thesis onboard loop (1.4.3.1)
+            attitude_bandwidth=3.5,  # rad/s: with the 9.56 rad/s motor pole and 20 ms delay, closed-loop damping ~0.45
+            yaw_bandwidth=2.0,
+            altitude_bandwidth=1.5,
+            damping=0.9,
+            integral_fraction=0.15,
+            position_bandwidth=0.5,
+            max_tilt=np.deg2rad(15.0),
+        ),
+        pilot=PilotParams(
+            hover_height=1.0,
+            climb_time=4.0,
+            descent_time=7.0,
+            tilt_step=(np.deg2rad(2.0), np.deg2rad(10.0)),
+            tilt_sweep=(np.deg2rad(2.0), np.deg2rad(5.0)),
+            yaw_step=(np.deg2rad(15.0), np.deg2rad(60.0)),
+            yaw_sweep=(np.deg2rad(5.0), np.deg2rad(15.0)),
+            height_step=(0.15, 0.5),
+            low_hover=(0.2, 0.45),
+            stick_noise=(np.deg2rad(0.4), np.deg2rad(1.0), 0.01),
+        ),
+    )
+
+
+def _sensors(position_noise: float = 0.5e-3) -> SensorParams:
+    return SensorParams(
+        mocap_rate=250.0,  # Hz: Vicon MX (thesis 1.4.3.2)
+        mocap_position_noise=position_noise,  # m: "millimetre accuracy"
+        mocap_attitude_noise=np.deg2rad(0.05),
+        mocap_velocity_window=11,  # 44 ms Savitzky-Golay derivative
+        acc_noise=0.05,  # m/s² per 100 Hz sample (MEMS + airframe vibration, guess)
+        acc_bias=0.05,
+        acc_drift=0.002,
+        gyro_noise=0.003,  # rad/s per 100 Hz sample
+        gyro_bias=0.005,
+        gyro_drift=0.0003,
+    )
+
+
+# --------------------------------------------------------------------------- Crazyflie 2.1
+
+
+def _crazyflie21(vehicle: VehicleConfig) -> SimParams:
+    hover = vehicle.hover_rotor_speed
+    arm = vehicle.value("arm_length")
+    foot = arm / np.sqrt(2.0)
+    return SimParams(
+        vehicle=vehicle,
+        adjustments={},
+        esc=EscParams(
+            zero_speed_input=0.0,  # PWM: rotor speed proportional to PWM ratio (brushed DC, firmware motors.h)
+            speed_gain=-vehicle.value("motor_b_m") / vehicle.value("motor_a_m"),  # k_u = -B_m/A_m [rad/s per count]
+            idle_speed_fraction=0.25,
+        ),
+        geometry=GeometryParams(
+            rotor_radius=0.0235,  # m: 47 mm propeller (Bitcraze datasheet)
+            rotor_plane_z=-0.008,  # m: propellers on top of the motor pods
+            feet=tuple((sx * foot, sy * foot, 0.015) for sx, sy in ((1, 1), (-1, 1), (-1, -1), (1, -1))),  # m: sits on motor pods
+        ),
+        ground=GroundParams(natural_frequency=15.0, damping_ratio=0.8, friction=0.6, slip_speed=0.02),
+        battery=BatteryParams(
+            cells=1,
+            capacity_ah=0.25,  # Bitcraze: 250 mAh 1S LiPo
+            internal_resistance=0.08,  # ohm: small 1S pack
+            efficiency=0.8,  # Landry's d gives ~10 W shaft power at hover, more than the real ~8 W draw; see docs
+            avionics_current=0.1,
+            initial_soc=1.0,
+            reference_voltage=3.8,
+            voltage_noise=0.005,
+        ),
+        rotor_drag=RotorDragParams(horizontal=9.1785e-7, vertical=10.311e-7),  # Foerster 2015, K_aero (kg/rad)
+        wind=WindParams(
+            mean_ned=(0.4, -0.25, 0.0),
+            gust_sigma=(0.2, 0.2, 0.08),
+            gust_time_constant=2.0,
+            air_density=1.225,
+            body_drag_area=1.0e-3,  # m²: ~10 cm² frame + battery (guess)
+        ),
+        input_delay=0.008,  # s: guess (500 Hz firmware loop, PWM update)
+        ground_effect_min_height=0.5,
+        imbalance=ImbalanceParams(motor_gains=(1.03, 0.98, 1.015, 0.975), cg_offset=(0.0015, -0.001)),
+        sensors=_sensors(),
+        control=ControlParams(
+            rate=250.0,
+            attitude_bandwidth=6.0,  # rad/s: with the 20 rad/s motor pole and 8 ms delay, closed-loop damping ~0.57
+            yaw_bandwidth=3.0,
+            altitude_bandwidth=2.0,
+            damping=0.9,
+            integral_fraction=0.15,
+            position_bandwidth=0.6,
+            max_tilt=np.deg2rad(15.0),
+        ),
+        pilot=PilotParams(
+            hover_height=0.5,
+            climb_time=3.0,
+            descent_time=6.0,
+            tilt_step=(np.deg2rad(2.0), np.deg2rad(10.0)),
+            tilt_sweep=(np.deg2rad(2.0), np.deg2rad(5.0)),
+            yaw_step=(np.deg2rad(15.0), np.deg2rad(60.0)),
+            yaw_sweep=(np.deg2rad(5.0), np.deg2rad(15.0)),
+            height_step=(0.08, 0.2),
+            low_hover=(0.04, 0.12),
+            stick_noise=(np.deg2rad(0.4), np.deg2rad(1.0), 0.005),
+        ),
+    )
+
+
+_BUILDERS = {"linkquad": _linkquad, "crazyflie21": _crazyflie21}
+
+
+def sim_params_for(vehicle: str | VehicleConfig) -> SimParams:
+    """Simulator parameters of a shipped vehicle (``linkquad`` or ``crazyflie21``)."""
+    config = vehicle if isinstance(vehicle, VehicleConfig) else load_vehicle(vehicle)
+    builder = _BUILDERS.get(config.name)
+    if builder is None:
+        raise ConfigError(
+            f"{config.path}: no simulator parameters for vehicle {config.name!r}; simulated vehicles: {', '.join(SIMULATED_VEHICLES)}"
+        )
+    return builder(config)
+
+
+__all__ = [
+    "SIM_EFFECTS",
+    "DEFAULT_EFFECTS",
+    "SimParams",
+    "parse_effects",
+    "normalise_effects",
+    "sim_params_for",
+]

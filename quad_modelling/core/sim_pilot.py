@@ -1,0 +1,191 @@
+"""The seeded pilot script of the truth simulator: take-off, manoeuvres, landing.
+
+Phases (times in s, T = flight duration), shaped like the thesis's flights
+(take-off within the first 30 s, landing within the last 22 s, manoeuvres
+between, thesis 5.1):
+
+=============  ==========================================================
+motors off     0 <= t < t_arm
+idle           t_arm <= t < t_lift (armed, rotors at idle speed)
+flying         t_lift <= t < t_cut: PID stabiliser on; the height reference
+               climbs from the rest height to the hover height over
+               ``climb_time``, manoeuvres run in [manoeuvre_start,
+               manoeuvre_end], the descent starts at ``land_start``
+idle, off      t_cut <= t < t_off, t >= t_off (on the ground)
+=============  ==========================================================
+
+Manoeuvres (:class:`Manoeuvre`) are drawn from a seeded generator: channel
+(roll, pitch, yaw, throttle, low_hover), shape (step, doublet, sweep), size,
+duration and frequency, separated by 1.5-5 s of hover. Each adds to its
+channel's reference: roll/pitch angles [rad], yaw angle [rad], height [m].
+Stick ramps take :data:`STICK_RAMP` s; sweeps are linear chirps with 0.5 s
+cosine tapers.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+from scipy import signal
+
+from quad_modelling.core.sim_params import SimParams
+from quad_modelling.errors import ConfigError
+
+CHANNELS = ("roll", "pitch", "yaw", "throttle", "low_hover")
+CHANNEL_WEIGHTS = (0.25, 0.25, 0.2, 0.2, 0.1)
+SHAPES = ("step", "doublet", "sweep")
+SHAPE_WEIGHTS = (0.4, 0.4, 0.2)
+STICK_RAMP = 0.1
+"""Time a pilot takes to move a stick to a new position [s]."""
+STICK_NOISE_TIME = 0.5
+"""Correlation time of the pilot's small corrections [s]."""
+MIN_DURATION = 5.0
+
+PHASE_OFF, PHASE_IDLE, PHASE_FLYING = 0, 1, 2
+
+
+def _ramp(t: np.ndarray, start: float, length: float) -> np.ndarray:
+    return np.clip((t - start) / length, 0.0, 1.0)
+
+
+def _smooth_ramp(t: np.ndarray, start: float, length: float) -> np.ndarray:
+    return 0.5 - 0.5 * np.cos(np.pi * _ramp(t, start, length))
+
+
+@dataclass(frozen=True)
+class Manoeuvre:
+    """One pilot input: ``amplitude`` [rad or m] on ``channel`` from ``start`` for ``duration`` [s]."""
+
+    channel: str
+    shape: str
+    start: float
+    duration: float
+    amplitude: float
+    f0: float = 0.0  # sweep start frequency [Hz]
+    f1: float = 0.0  # sweep end frequency [Hz]
+
+    def value(self, t: np.ndarray) -> np.ndarray:
+        """The reference offset at times ``t``."""
+        t0, dur, amp = self.start, self.duration, self.amplitude
+        ramp = 1.0 if self.channel == "low_hover" else STICK_RAMP
+        if self.shape == "step":
+            return amp * (_ramp(t, t0, ramp) - _ramp(t, t0 + dur - ramp, ramp))
+        if self.shape == "doublet":
+            half = dur / 2
+            return amp * (_ramp(t, t0, STICK_RAMP) - 2 * _ramp(t, t0 + half - STICK_RAMP / 2, STICK_RAMP) + _ramp(t, t0 + dur - STICK_RAMP, STICK_RAMP))
+        tau = np.clip(t - t0, 0.0, dur)
+        phase = self.f0 * tau + (self.f1 - self.f0) * tau**2 / (2 * dur)
+        taper = _smooth_ramp(t, t0, 0.5) * (1.0 - _smooth_ramp(t, t0 + dur - 0.5, 0.5))
+        return amp * np.sin(2 * np.pi * phase) * taper
+
+
+@dataclass(frozen=True)
+class PilotScript:
+    """Phase times [s] and the manoeuvre list of one flight (see module docstring)."""
+
+    duration: float
+    t_arm: float
+    t_lift: float
+    manoeuvre_start: float
+    manoeuvre_end: float
+    land_start: float
+    t_cut: float
+    t_off: float
+    rest_height: float
+    hover_height: float
+    climb_time: float
+    descent_time: float
+    manoeuvres: tuple[Manoeuvre, ...]
+
+    def phases(self, t: np.ndarray) -> np.ndarray:
+        """PHASE_OFF / PHASE_IDLE / PHASE_FLYING per time."""
+        phase = np.full(t.shape, PHASE_OFF, dtype=np.int8)
+        phase[(t >= self.t_arm) & (t < self.t_lift)] = PHASE_IDLE
+        phase[(t >= self.t_lift) & (t < self.t_cut)] = PHASE_FLYING
+        phase[(t >= self.t_cut) & (t < self.t_off)] = PHASE_IDLE
+        return phase
+
+    def references(self, t: np.ndarray) -> np.ndarray:
+        """(N, 4) references: roll [rad], pitch [rad], yaw [rad], CG height above ground [m]."""
+        refs = np.zeros((len(t), 4))
+        touchdown = self.rest_height - 0.1  # aim below the ground so the gear carries the weight
+        climb = _smooth_ramp(t, self.t_lift, self.climb_time)
+        descent = _smooth_ramp(t, self.land_start, self.descent_time)
+        refs[:, 3] = self.rest_height + (self.hover_height - self.rest_height) * climb + (touchdown - self.hover_height) * descent
+        column = {"roll": 0, "pitch": 1, "yaw": 2, "throttle": 3, "low_hover": 3}
+        for manoeuvre in self.manoeuvres:
+            refs[:, column[manoeuvre.channel]] += manoeuvre.value(t)
+        return refs
+
+    def to_notes(self) -> dict:
+        """JSON-ready description (phase times and manoeuvres)."""
+        out = {k: v for k, v in asdict(self).items() if k != "manoeuvres"}
+        out["manoeuvres"] = [asdict(m) for m in self.manoeuvres]
+        return out
+
+
+def make_pilot_script(params: SimParams, duration: float, rng: np.random.Generator) -> PilotScript:
+    """Draw one flight's script; same generator state -> same script."""
+    if not duration >= MIN_DURATION:
+        raise ConfigError(f"simulation duration must be at least {MIN_DURATION} s, got {duration}")
+    pilot = params.pilot
+    t_arm, t_lift = 1.0, 2.0
+    hovering = t_lift + pilot.climb_time + 3.0
+    manoeuvre_start = min(30.0, max(hovering, 0.136 * duration))
+    land_start = duration - min(20.0, max(8.0, 0.1 * duration))
+    manoeuvre_end = land_start - 2.0
+    t_cut = land_start + pilot.descent_time + 2.0
+    t_off = min(t_cut + 3.0, duration - 0.5)
+    manoeuvres = []
+    t = manoeuvre_start + rng.uniform(0.5, 2.0)
+    while True:
+        manoeuvre = _draw(params, rng, t)
+        if manoeuvre.start + manoeuvre.duration > manoeuvre_end:
+            break
+        manoeuvres.append(manoeuvre)
+        t = manoeuvre.start + manoeuvre.duration + rng.uniform(1.5, 5.0)
+    return PilotScript(
+        duration=float(duration), t_arm=t_arm, t_lift=t_lift, manoeuvre_start=manoeuvre_start,
+        manoeuvre_end=manoeuvre_end, land_start=land_start, t_cut=t_cut, t_off=t_off,
+        rest_height=params.rest_height, hover_height=pilot.hover_height, climb_time=pilot.climb_time,
+        descent_time=pilot.descent_time, manoeuvres=tuple(manoeuvres),
+    )
+
+
+def _draw(params: SimParams, rng: np.random.Generator, start: float) -> Manoeuvre:
+    pilot = params.pilot
+    channel = str(rng.choice(CHANNELS, p=CHANNEL_WEIGHTS))
+    shape = "step" if channel == "low_hover" else str(rng.choice(SHAPES, p=SHAPE_WEIGHTS))
+    sign = 1.0 if rng.random() < 0.5 else -1.0
+    f0 = f1 = 0.0
+    if channel in ("roll", "pitch"):
+        if shape == "sweep":
+            amplitude, duration, f0, f1 = rng.uniform(*pilot.tilt_sweep), rng.uniform(5.0, 10.0), 0.2, rng.uniform(1.0, 2.5)
+        else:
+            amplitude = sign * rng.uniform(*pilot.tilt_step)
+            duration = rng.uniform(0.3, 1.2) if shape == "step" else rng.uniform(0.5, 2.0)
+    elif channel == "yaw":
+        if shape == "sweep":
+            amplitude, duration, f0, f1 = rng.uniform(*pilot.yaw_sweep), rng.uniform(6.0, 12.0), 0.1, rng.uniform(0.4, 1.0)
+        else:
+            amplitude = sign * rng.uniform(*pilot.yaw_step) * (1.0 if shape == "step" else 0.5)
+            duration = rng.uniform(2.0, 6.0) if shape == "step" else rng.uniform(1.5, 4.0)
+    elif channel == "throttle":
+        if shape == "sweep":
+            amplitude, duration, f0, f1 = 0.5 * rng.uniform(*pilot.height_step), rng.uniform(6.0, 12.0), 0.1, rng.uniform(0.5, 1.5)
+        else:
+            amplitude, duration = sign * rng.uniform(*pilot.height_step), rng.uniform(2.0, 5.0)
+    else:  # low_hover: a pass close to the ground
+        amplitude, duration = rng.uniform(*pilot.low_hover) - pilot.hover_height, rng.uniform(5.0, 9.0)
+    return Manoeuvre(channel, shape, round(float(start), 3), float(duration), float(amplitude), float(f0), float(f1))
+
+
+def stick_noise(n: int, rate: float, sigmas: tuple[float, float, float], rng: np.random.Generator) -> np.ndarray:
+    """(n, 4) small pilot corrections (roll, pitch, yaw, height): first-order Gauss-Markov
+    processes with correlation time STICK_NOISE_TIME and standard deviations ``sigmas``
+    (roll and pitch share the first)."""
+    alpha = float(np.exp(-1.0 / (rate * STICK_NOISE_TIME)))
+    white = rng.standard_normal((n, 4)) * np.sqrt(1.0 - alpha**2)
+    noise = signal.lfilter([1.0], [1.0, -alpha], white, axis=0)
+    return noise * np.array([sigmas[0], sigmas[0], sigmas[1], sigmas[2]])
