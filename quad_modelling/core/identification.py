@@ -58,6 +58,11 @@ from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import DataError
 
+MOTOR_POLE_RANGE = (0.5, 100.0)
+"""Search range of -A_m [1/s]: motor time constants 10 ms ... 2 s. A motor faster than ~10 ms
+cannot be told apart from an instantaneous one after the 5 Hz smoothing; the fit then ends on
+the bound (reported in ``fit['motor_pole_at_bound']``)."""
+
 ACC_COLUMNS = [INDEX["acc_z"], INDEX["roll_acc"], INDEX["pitch_acc"], INDEX["yaw_acc"]]
 
 
@@ -162,8 +167,10 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
 
     theta0 = np.array([np.log(-p.motor_a_m), np.log(p.input_gain)])
     best = None
+    bounds = ([np.log(MOTOR_POLE_RANGE[0]), -np.inf], [np.log(MOTOR_POLE_RANGE[1]), np.inf])
+    theta0[0] = np.clip(theta0[0], bounds[0][0] + 1e-6, bounds[1][0] - 1e-6)
     for start_gain in (0.0, np.log(3.0), -np.log(3.0)):  # a few starts: K can be off by a lot
-        fit = optimize.least_squares(residuals, theta0 + np.array([0.0, start_gain]), method="trf", x_scale=1.0)
+        fit = optimize.least_squares(residuals, theta0 + np.array([0.0, start_gain]), method="trf", x_scale=1.0, bounds=bounds)
         if best is None or fit.cost < best.cost:
             best = fit
     theta = best.x
@@ -235,7 +242,9 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
     return IdentificationResult(
         values, sigma, float(gain), float(sigma_gain), window_gains, voltage, motor_check, spans, files,
         fit={"cost": float(best.cost), "residuals": int(n_res), "gain_window_spread_sigma": spread,
-             "thrust_constant_held": p.thrust_constant, "fitted_on": "acc_z (A_m, K); yaw_acc (d/a)",
+             "thrust_constant_held": p.thrust_constant,
+             "motor_pole_at_bound": bool(np.isclose(-a_m, MOTOR_POLE_RANGE, rtol=1e-3).any()),
+             "fitted_on": "acc_z (A_m, K); yaw_acc (d/a)",
              "roll_pitch_gain_ratio": attitude_gain,
              "roll_pitch_gain_ratio_meaning": "least-squares scale of the model's roll/pitch acceleration that best fits the data "
                                               "(1 = consistent with the Z-identified gain, inertia and arm length)"},
