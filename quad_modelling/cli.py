@@ -20,6 +20,7 @@ VERB_MODULES = (
     "train",
     "identify",
     "evaluate",
+    "simulate",
 )
 """Modules under quad_modelling.commands, in --help order."""
 

@@ -97,7 +97,7 @@ class Stabiliser:
         self.integrals = list(self.trim_integrals)
 
     def set_trim(self, commands) -> None:
-        """Trim like a pilot who flew this airframe before: start the integrators where
+        r"""Trim like a pilot who flew this airframe before: start the integrators where
         they settle in a steady hover flown with ``commands``. The nominal mixer reads
         those commands as the wrench :math:`W = M T_{nom}(u)`; the integrators then hold
         :math:`k_i I_h = W_0/m - g` and :math:`k_i I_\phi = W_1/I_{xx}` etc."""

@@ -106,7 +106,7 @@ class QuadDynamics:
         return [g * scale * (ui - u0) if ui > u0 else 0.0 for g, ui in zip(self.motor_gains, u)]
 
     def hover_commands(self, voltage: float) -> list[float]:
-        """Engine commands that hold this vehicle (with its CG offset and motor gains)
+        r"""Engine commands that hold this vehicle (with its CG offset and motor gains)
         in a steady hover out of ground effect at battery voltage ``voltage``: rotor
         thrusts :math:`T = M^{-1} (m g, 0, 0, 0)^T` with the true allocation M, then
         :math:`u_i = u_0 + \sqrt{T_i/a} / (g_i k_u V/V_{ref})`."""

@@ -132,7 +132,7 @@ def make_pilot_script(params: SimParams, duration: float, rng: np.random.Generat
     pilot = params.pilot
     t_arm, t_lift = 1.0, 2.0
     hovering = t_lift + pilot.climb_time + 3.0
-    manoeuvre_start = min(30.0, max(hovering, 0.136 * duration))
+    manoeuvre_start = min(30.0, max(hovering, duration * 30.0 / 220.0))
     land_start = duration - min(20.0, max(8.0, 0.1 * duration))
     manoeuvre_end = land_start - 2.0
     t_cut = land_start + pilot.descent_time + 2.0
