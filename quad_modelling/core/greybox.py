@@ -69,6 +69,7 @@ from quad_modelling.core.preprocess import (
     measured_variables,
     sample_period,
     smooth,
+    trim_prediction,
     trimmed_inputs,
     trimmed_variables,
     uniform_time_check,
@@ -249,15 +250,45 @@ def anchor_state(measured_row: np.ndarray, thrusts: np.ndarray) -> np.ndarray:
     return x
 
 
-class GreyboxPredictor:
-    """:class:`~quad_modelling.core.models.Predictor` for the linear greybox model.
+class GreyboxStream:
+    """Live form of one greybox window after its warm start (:mod:`quad_modelling.core.streaming`).
 
-    predict_window: trims the window (:mod:`quad_modelling.core.preprocess`),
-    anchors the state on the last warm-start sample -- positions, velocities,
-    angles and rates from the trimmed measurement (low-passed over the warm
-    samples only), thrust deviations from the motor model driven by the warm
-    inputs -- and runs open loop to the window end. Rows before the anchor are
-    the (trimmed) measurement.
+    Holds the state x[k] and the trims; ``push(u_k)`` returns the absolute
+    prediction ``y_trim + Cd x[k] + Dd (u_k - u_trim)`` and advances
+    ``x[k+1] = Ad x[k] + Bd (u_k - u_trim)``.
+    """
+
+    def __init__(self, model: DiscreteGreybox, state: np.ndarray, input_trim: np.ndarray, output_trim: np.ndarray):
+        self.model = model
+        self.state = state
+        self.input_trim = input_trim
+        self.output_trim = output_trim
+
+    def push(self, command: np.ndarray) -> np.ndarray:
+        self.state, outputs = self.model.step(self.state, np.asarray(command, dtype=float) - self.input_trim)
+        return self.output_trim + outputs
+
+
+class GreyboxPredictor:
+    """:class:`~quad_modelling.core.models.Predictor` and live streaming predictor for the linear greybox model.
+
+    Causal, so that a live node and the offline evaluation give the same numbers
+    (DESIGN 2): everything the model is given comes from the window's warm-start
+    rows (the thesis's first 0.2 s) and the commands up to each sample.
+
+    * Trims: input trim u_trim = mean of the warm commands; output trim
+      y_trim = mean of the warm best measurements. (The thesis trimmed the inputs
+      over the window's first second, which a live predictor cannot see yet;
+      the evaluator still trims the outputs over the first second.)
+    * Anchor: on the last warm sample, positions, velocities, angles and rates
+      from the warm measurement minus y_trim, low-passed over the warm rows only;
+      thrust deviations from the motor model driven by the warm commands.
+    * Then open loop: ``x[k+1] = Ad x[k] + Bd (u_k - u_trim)``,
+      ``y_k = y_trim + Cd x[k] + Dd (u_k - u_trim)``.
+
+    :meth:`start_window`/``push`` are the live form; :meth:`predict_window`
+    computes the same numbers vectorised and returns them trimmed
+    (:func:`~quad_modelling.core.preprocess.trim_prediction`).
     """
 
     def __init__(self, vehicle: VehicleConfig, discretisation: str = "zoh", trim: TrimConfig | None = None):
@@ -273,20 +304,38 @@ class GreyboxPredictor:
         uniform_time_check(log)
         return self.model.discretise(sample_period(log), self.discretisation)
 
-    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        if not 1 <= warm_samples <= len(window):
+    def _anchor(self, warm: FlightLog) -> tuple[DiscreteGreybox, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(model, warm predictions (W, 18), state after the anchor sample, input trim, output trim)."""
+        if len(warm) < 2:
+            raise DataError(f"{warm.meta.source}: the greybox needs at least 2 warm-start samples, got {len(warm)}")
+        model = self.discrete(warm)
+        measured = measured_variables(warm, self.vehicle)
+        input_trim = warm.u.mean(axis=0)
+        output_trim = measured.mean(axis=0)
+        u = warm.u - input_trim
+        deviation = smooth(measured - output_trim, warm.sample_rate)
+        thrusts = model.motor_thrusts(u)[-1]
+        state, anchor_outputs = model.step(anchor_state(deviation[-1], thrusts), u[-1])
+        predictions = measured.copy()
+        predictions[-1] = output_trim + anchor_outputs
+        return model, predictions, state, input_trim, output_trim
+
+    def start_window(self, warm: FlightLog) -> tuple[np.ndarray, GreyboxStream]:
+        """Warm rows -> (their absolute predictions (W, 18), stream for the following samples)."""
+        model, predictions, state, input_trim, output_trim = self._anchor(warm)
+        return predictions, GreyboxStream(model, state, input_trim, output_trim)
+
+    def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        """(N, 18) absolute prediction; equal to the streaming form (vectorised)."""
+        if not 2 <= warm_samples < len(window):
             raise DataError(f"{window.meta.source}: warm start of {warm_samples} samples does not fit a window of {len(window)}")
-        model = self.discrete(window)
-        u = trimmed_inputs(window, self.trim)
-        measured = trimmed_variables(window, self.trim, self.vehicle)
-        anchor = warm_samples - 1
-        warm = smooth(measured[:warm_samples], window.sample_rate)
-        thrusts = model.motor_thrusts(u[: anchor + 1])[anchor]
-        _, outputs = model.simulate(anchor_state(warm[anchor], thrusts), u[anchor:])
-        prediction = np.empty_like(measured)
-        prediction[:anchor] = measured[:anchor]
-        prediction[anchor:] = outputs
-        return prediction
+        model, warm_predictions, state, input_trim, output_trim = self._anchor(window.slice(0, warm_samples))
+        _, outputs = model.simulate(state, window.u[warm_samples:] - input_trim)
+        return np.concatenate([warm_predictions, output_trim + outputs])
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        """(N, 18) prediction in the evaluation's trimmed convention."""
+        return trim_prediction(window, self.predict_absolute(window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
         """Open-loop predictions from each start (absolute, IDSIA multi-step protocol).

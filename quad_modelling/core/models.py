@@ -89,8 +89,10 @@ class DummyPredictor:
 class ConstantStatePredictor:
     """Holds the last warm-start measurement: the naive baseline.
 
-    predict_window: the trimmed measurement at row ``warm_samples - 1`` for all
-    later rows; predict_horizons: the measured state at each start, constant.
+    predict_window: the measurement of the warm rows, then the one at row
+    ``warm_samples - 1`` for all later rows (trimmed; the live form
+    :meth:`start_window` gives the same numbers); predict_horizons: the measured
+    state at each start, constant.
     """
 
     name = "naive"
@@ -99,11 +101,18 @@ class ConstantStatePredictor:
         self.vehicle = vehicle
         self.trim = trim or TrimConfig()
 
+    def start_window(self, warm: FlightLog):
+        """Live form: the warm measurement, then its last row held (absolute)."""
+        from quad_modelling.core.preprocess import measured_variables
+        from quad_modelling.core.streaming import HoldLastMeasurement
+
+        return HoldLastMeasurement(lambda log: measured_variables(log, self.vehicle)).start_window(warm)
+
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        measured = trimmed_variables(window, self.trim, self.vehicle)
-        prediction = np.repeat(measured[warm_samples - 1 : warm_samples], len(window), axis=0)
-        prediction[:warm_samples] = measured[:warm_samples]
-        return prediction
+        from quad_modelling.core.preprocess import trim_prediction
+        from quad_modelling.core.streaming import predict_window_by_stream
+
+        return trim_prediction(window, predict_window_by_stream(self, window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
         from quad_modelling.core.preprocess import measured_variables

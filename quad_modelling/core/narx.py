@@ -593,19 +593,7 @@ def train_narx_on_flights(
 
 
 # ---- the evaluation protocol (quad_modelling.core.models) ---------------------------
-def trim_prediction(window: FlightLog, prediction: np.ndarray, trim=None) -> np.ndarray:
-    """The protocol's trimmed convention (as the greybox predictor): prediction minus the *measured* trim values.
-
-    The trim value of each variable is the mean of its best measurement over
-    the window's stable interval (:func:`quad_modelling.core.preprocess.trimmed_variables`),
-    so the trimmed prediction and the trimmed measurement differ exactly by the
-    absolute prediction error.
-    """
-    from quad_modelling.core.preprocess import TrimConfig, measured_variables, trim_values
-
-    trim = trim or TrimConfig()
-    return prediction - trim_values(measured_variables(window), trim.trim_samples(window))
-
+from quad_modelling.core.preprocess import trim_prediction  # noqa: E402  (shared with greybox and the evaluator)
 
 class _ExpandingStream:
     """WindowStream of the 18 variables: NarxStream outputs, integrated and differentiated causally."""

@@ -133,6 +133,18 @@ def trimmed_variables(window: FlightLog, trim: TrimConfig | None = None, vehicle
     return measured - trim_values(measured, trim.trim_samples(window))
 
 
+def trim_prediction(window: FlightLog, prediction: np.ndarray, trim: TrimConfig | None = None) -> np.ndarray:
+    """Absolute (N, 18) prediction -> the evaluation's trimmed convention.
+
+    Subtracts the *measured* trim values of the window (the same as
+    :func:`trimmed_variables`), so trimmed prediction and trimmed measurement
+    differ exactly by the absolute prediction error. Live predictors publish
+    absolute values; the evaluator and the offline predictors both trim here.
+    """
+    trim = trim or TrimConfig()
+    return np.asarray(prediction, dtype=float) - trim_values(measured_variables(window), trim.trim_samples(window))
+
+
 def trimmed_inputs(window: FlightLog, trim: TrimConfig | None = None) -> np.ndarray:
     """(N, 4) engine commands minus their trim values (linearly detrended for long windows).
 

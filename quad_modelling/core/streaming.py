@@ -90,13 +90,38 @@ class HoldLastMeasurement:
 
 
 class RecordedPrediction:
-    """A Predictor that returns predictions already computed (e.g. received over ROS)."""
+    """A Predictor over absolute predictions already computed (e.g. received over ROS).
 
-    def __init__(self, name: str, predictions: np.ndarray):
+    ``predict_window`` returns them in the evaluation's trimmed convention
+    (:func:`~quad_modelling.core.preprocess.trim_prediction`), as the offline
+    predictors do.
+    """
+
+    def __init__(self, name: str, predictions: np.ndarray, trim=None):
         self.name = name
         self.predictions = np.asarray(predictions, dtype=float)
+        self.trim = trim
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        from quad_modelling.core.preprocess import trim_prediction
+
         if self.predictions.shape != (len(window), len(VARIABLES)):
             raise DataError(f"model {self.name}: {self.predictions.shape[0]} recorded predictions for a window of {len(window)} samples")
-        return self.predictions
+        return trim_prediction(window, self.predictions, self.trim)
+
+
+def streaming_predictor(spec: str, vehicle) -> StreamingPredictor:
+    """The live form of a model spec (``greybox``, ``narx:PATH``, ``naive``...).
+
+    Built by the same registry as the offline models
+    (:func:`quad_modelling.core.models.make_model`), so a node and
+    ``quad-modelling evaluate`` run the same object. ConfigError when the model
+    has no live form.
+    """
+    from quad_modelling.core.models import make_model
+    from quad_modelling.errors import ConfigError
+
+    model = make_model(spec, vehicle)
+    if not isinstance(model, StreamingPredictor):
+        raise ConfigError(f"model {spec!r} has no live (streaming) form")
+    return model

@@ -69,7 +69,9 @@ def test_greybox_on_its_own_flight_beats_dummy_and_naive(linkquad):
     models = [make_model(m, linkquad) for m in ("greybox", "dummy")]
     result = evaluate(flights, models, linkquad, config).to_json()
     grey, dummy = result["models"]["greybox"]["eval"], result["models"]["dummy"]["eval"]
-    assert grey["acc_z"]["tic"] < 0.1 and dummy["acc_z"]["tic"] == pytest.approx(1.0)
+    # The greybox trims its inputs over the 0.2 s warm start (causal, so live equals offline);
+    # on these excited flights that trim is noisier than the thesis's first second: TIC 0.15, not 0.07.
+    assert grey["acc_z"]["tic"] < 0.2 and dummy["acc_z"]["tic"] == pytest.approx(1.0)
     assert result["windows"]["greybox"] == {"train": 8, "eval": 4}  # flying part ends at 79.99 - 5 s
     h = result["horizons"]
     assert h["starts"] == 2 * (2999 - 50)

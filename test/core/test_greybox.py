@@ -122,3 +122,17 @@ def test_predictor_anchors_on_measurement_and_registry():
     assert make_model("greybox:euler", v).name == "greybox:euler"
     with pytest.raises(ConfigError, match="unknown model"):
         make_model("nonsense", v)
+
+
+def test_streaming_form_gives_the_offline_numbers():
+    """The live node's start_window/push and the vectorised offline prediction agree."""
+    from quad_modelling.core.streaming import predict_window_by_stream
+    from quad_modelling.core.vehicle import load_vehicle
+    from test.core.flightgen import linear_flight
+
+    vehicle = load_vehicle("linkquad")
+    window = linear_flight(vehicle, duration=10.0, seed=3)
+    predictor = GreyboxPredictor(vehicle)
+    streamed = predict_window_by_stream(predictor, window, 20)
+    np.testing.assert_allclose(streamed, predictor.predict_absolute(window, 20), rtol=1e-9, atol=1e-9)
+    assert np.isfinite(streamed).all() and not np.allclose(streamed[20:], streamed[19])
