@@ -136,3 +136,50 @@ def test_streaming_form_gives_the_offline_numbers():
     streamed = predict_window_by_stream(predictor, window, 20)
     np.testing.assert_allclose(streamed, predictor.predict_absolute(window, 20), rtol=1e-9, atol=1e-9)
     assert np.isfinite(streamed).all() and not np.allclose(streamed[20:], streamed[19])
+
+
+def _fly_open_loop(dynamics, params, du: np.ndarray, lag: bool) -> np.ndarray:
+    """Truth simulator from hover, open loop, commands hover + du (N, 4) held for 10 ms each; (N, 3) [vel_z, roll_rate, roll]."""
+    voltage = params.battery.reference_voltage
+    u_hover = np.array(dynamics.hover_commands(voltage))
+    s = dynamics.hover_state(3.0)
+    out = []
+    for row in du:
+        command = dynamics.omega_command(u_hover + row, voltage)
+        if not lag:
+            s[13:17] = command  # without motor_lag the rotors jump to the ESC target (sim.apply_commands)
+        out.append((s[5], s[10], 0.0))
+        for _ in range(10):
+            s, _ = dynamics.step(s, command, (0.0, 0.0, 0.0), 0.001)
+    return np.array(out)
+
+
+@pytest.mark.parametrize("motor_lag", [False, True])
+def test_linear_model_matches_the_nonlinear_simulator_on_a_small_manoeuvre(motor_lag):
+    """Effects off (and motor_lag on, the thesis's own motor model): a 10 us collective doublet
+    and a 2 us roll doublet from hover; the linear model's Z velocity and roll rate follow the
+    6-DoF simulator (TIC < 0.1)."""
+    from quad_modelling.core.metrics import tic
+    from quad_modelling.core.sim_dynamics import QuadDynamics
+    from quad_modelling.core.sim_params import sim_params_for
+
+    params = sim_params_for("linkquad")
+    dynamics = QuadDynamics(params, effects=("motor_lag",) if motor_lag else ())
+    truth = params.vehicle
+    if not motor_lag:  # rotors follow the ESC at once: a fast motor pole with the same steady gain -B_m/A_m
+        a_m, b_m = truth.value("motor_a_m"), truth.value("motor_b_m")
+        truth = truth.with_values({"motor_a_m": -1000.0, "motor_b_m": b_m * 1000.0 / -a_m}, "test")
+    t = np.arange(300) * 0.01
+    doublet = np.where(t < 0.5, 0.0, np.where(t < 1.0, 1.0, np.where(t < 1.5, -1.0, 0.0)))
+    collective = np.repeat(10e-6 * doublet[:, None], 4, axis=1)
+    measured = _fly_open_loop(dynamics, params, collective, motor_lag)
+    _, y = GreyboxModel(truth).discretise(0.01).simulate(np.zeros(16), collective)
+    assert tic(measured[:, 0], y[:, INDEX["vel_z"]]) < 0.1
+    assert np.max(np.abs(measured[:, 0])) > 0.05  # the manoeuvre really moves the vehicle
+
+    roll = np.zeros((150, 4))
+    roll[:, 3], roll[:, 1] = 2e-6 * doublet[:150], -2e-6 * doublet[:150]  # left rotor up, right down: roll right
+    measured = _fly_open_loop(dynamics, params, roll, motor_lag)
+    _, y = GreyboxModel(truth).discretise(0.01).simulate(np.zeros(16), roll)
+    assert tic(measured[:, 1], y[:, INDEX["roll_rate"]]) < 0.1
+    assert measured[60, 1] > 0  # positive roll rate during the first half of the doublet
