@@ -83,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     effects = parse_effects(args.effects)
     result = run_simulation(args.vehicle, effects, args.seed, args.duration, progress=True)
-    title = f"simulated {args.vehicle} flight, seed {args.seed}, effects: {', '.join(effects) or 'none'} (dashed: 30/150/190 s spans)"
+    title = f"simulated {args.vehicle} flight, seed {args.seed} (dashed: thesis spans 30/150/190 s)\neffects: {', '.join(effects) or 'none'}"
     path = plot_flight(result.log, args.output, result.params.vehicle.input_unit, args.force, title)
     print(f"wrote {path}")
     return 0

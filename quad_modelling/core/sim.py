@@ -27,6 +27,10 @@ so the stabiliser must raise u over the flight to keep hovering (the input
 trend of thesis Fig 2.2). Wind (``wind`` on): steady mean plus first-order
 Gauss-Markov gusts, updated every control tick.
 
+The stabiliser starts trimmed for the airframe (its integrators hold what a
+steady hover at V_ref needs, as a pilot who flew it before would trim it); the
+pilot cuts the throttle once the vehicle touches down during the descent.
+
 Randomness: one ``numpy.random.SeedSequence(seed)`` spawns independent streams
 for the pilot script, the stabiliser's gyro noise, the wind and the sensors, so
 the same seed flies the same manoeuvres whatever the effects, and the same
