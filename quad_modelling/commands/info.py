@@ -7,25 +7,59 @@ import json
 from dataclasses import asdict
 
 from quad_modelling.io.bag_io import summarize_bag
+from quad_modelling.io.loader import detect_format, load_flight
 
 NAME = "info"
-HELP = "show a bag's topics, types, message counts, rates and time span"
+HELP = "show what a bag (topics, counts, rates) or flight log (.mat, .csv.gz) holds"
 DESCRIPTION = """\
 Print what an MCAP (or SQLite) rosbag2 bag holds: for each topic its message type, count,
 rate and time span, plus the bag's duration and the vehicle/source it was converted from.
+For a thesis .mat log or a NanoBench CSV: samples, duration, rate, fields and the notes it
+carries (a simulated flight's effects and seed).
 
-example:
+examples:
   quad-modelling info bags/nanobench_B7_oval_medium_rep2
   quad-modelling info bags/flight --json
+  quad-modelling info flight.mat
 """
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("bag", metavar="BAG", help="bag directory")
+    parser.add_argument("bag", metavar="BAG", help="bag directory, .mat log or NanoBench .csv/.csv.gz")
+    parser.add_argument("--vehicle", metavar="NAME", help="vehicle for a .mat log that names none")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
+def _flight_info(args: argparse.Namespace) -> int:
+    log = load_flight(args.bag, vehicle=args.vehicle)
+    doc = {
+        "path": str(args.bag),
+        "vehicle": log.meta.vehicle,
+        "samples": len(log),
+        "duration_s": log.duration,
+        "rate_hz": log.sample_rate,
+        "start_s": float(log.t[0]),
+        "end_s": float(log.t[-1]),
+        "fields": [name for name in ("u", "acc_b", "gyro_b", "pos_n", "vel_n", "euler", "vbat", "omega") if getattr(log, name) is not None],
+        "notes": log.meta.notes,
+    }
+    if args.json:
+        print(json.dumps(doc, indent=2, default=str))
+        return 0
+    print(f"flight:    {doc['path']} ({detect_format(args.bag)})")
+    print(f"vehicle:   {doc['vehicle']}")
+    print(f"samples:   {doc['samples']} at {doc['rate_hz']:.2f} Hz, duration {doc['duration_s']:.3f} s")
+    print(f"start/end: {doc['start_s']:.3f} .. {doc['end_s']:.3f} s")
+    print(f"fields:    {', '.join(doc['fields'])}")
+    for key in ("effects", "seed"):
+        if key in log.meta.notes:
+            print(f"{key + ':':<10} {log.meta.notes[key]}")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if detect_format(args.bag) != "bag":
+        return _flight_info(args)
     summary = summarize_bag(args.bag)
     if args.json:
         doc = asdict(summary)

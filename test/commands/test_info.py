@@ -28,3 +28,17 @@ def test_bundled_bag_is_a_nanobench_flight(capsys):
     out = capsys.readouterr().out
     assert "4227" in out and "source:    B7_oval_medium_rep2.csv.gz" in out
     assert (REPO / "bags" / "LICENSE.nanobench").read_text().startswith("BSD 3-Clause License")
+
+
+def test_info_on_a_mat_log_shows_samples_and_simulation_notes(tmp_path, capsys):
+    from quad_modelling.io.matlog import write_matlog
+
+    log = synthetic_log(n=300, vehicle="linkquad")
+    log.meta.notes.update({"effects": ["battery"], "seed": 7})
+    write_matlog(log, tmp_path / "f.mat")
+    assert main(["info", str(tmp_path / "f.mat")]) == 0
+    out = capsys.readouterr().out
+    assert "samples:   300 at 100.00 Hz, duration 2.990 s" in out
+    assert "effects:   ['battery']" in out and "seed:      7" in out
+    assert main(["info", str(tmp_path / "f.mat"), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["fields"] == ["u", "acc_b", "gyro_b", "pos_n", "vel_n", "euler", "vbat", "omega"]
