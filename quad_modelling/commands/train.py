@@ -20,7 +20,7 @@ evaluate it with --model hybrid:MODEL.
 
 Spans follow the evaluation: take-off/landing are dropped (--drop, thesis 30:22 s) and --train
 A:B is seconds from each flight's start (thesis 30:150) or percent of the flying part
-(0%%:60%%, --preset short for ~40 s NanoBench flights).
+(0%:60%, --preset short for ~40 s NanoBench flights).
 
 example:
   quad-modelling train bags/nanobench_B7_oval_medium_rep2 --preset short -o narx.npz
