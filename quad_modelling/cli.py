@@ -21,6 +21,7 @@ VERB_MODULES = (
     "identify",
     "evaluate",
     "simulate",
+    "run_bag",
 )
 """Modules under quad_modelling.commands, in --help order."""
 

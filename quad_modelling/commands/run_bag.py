@@ -1,0 +1,271 @@
+"""``quad-modelling run-bag``: the live graph (replay, predictors, evaluator) on one bag, over real DDS."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.io.atomic import atomic_output, check_output
+
+NAME = "run-bag"
+HELP = "replay a bag through the live predictor and evaluator nodes (separate processes, real DDS)"
+DESCRIPTION = """\
+Start the ROS 2 graph of the node suite on one MCAP bag: the evaluator, one predictor per
+model and the replay, each its own process talking over DDS (loopback only:
+ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; a ROS_DOMAIN_ID of its own unless the environment sets
+one). Waits until the replay has played the bag and the evaluator acknowledged the last sample,
+stops the nodes (SIGINT, then terminate), and prints the RMS/TIC tables.
+
+Models: comma-separated specs (naive, greybox, greybox:euler, narx:MODEL.npz, ...); NAME=SPEC
+gives a spec another topic name (two NARX files: a=narx:a.npz,b=narx:b.npz). Spans: --train
+and --eval in seconds from the first sample (multiples of --window are best: only windows
+entirely inside a span are scored); without them one span live:0:inf.
+
+OUTDIR receives results.json (as quad-modelling evaluate, plus every live window, scored or
+marked), tables.md, figures, params.yaml (the nodes' parameters) and logs/<node>.log.
+
+examples:
+  quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models naive -o out/live
+  quad-modelling run-bag bags/flight --models greybox,narx:narx.npz --train 30:150 --eval 150:190 --rate 0 -o out/flight
+"""
+
+STOP_TIMEOUT_S = 30.0
+"""How long a node may take to exit after SIGINT (the evaluator writes its report then) [s]."""
+
+
+class NodeFailedError(QuadModellingError, RuntimeError):
+    """A node of the graph died or the run did not finish in time."""
+
+
+@dataclass
+class ModelEntry:
+    name: str
+    spec: str
+
+
+def parse_models(text: str) -> list[ModelEntry]:
+    """``naive,greybox,b=narx:b.npz`` -> entries; ConfigError for empty or duplicate names."""
+    entries = []
+    for item in (s.strip() for s in text.split(",")):
+        if not item:
+            continue
+        name, sep, spec = item.partition("=")
+        if not sep:
+            name, spec = item.partition(":")[0], item
+        name, spec = name.strip(), spec.strip()
+        if not name or not spec or "/" in name:
+            raise ConfigError(f"--models {text!r}: bad entry {item!r}; expected SPEC or NAME=SPEC")
+        entries.append(ModelEntry(name, spec))
+    if not entries:
+        raise ConfigError("--models: give at least one model spec")
+    names = [e.name for e in entries]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"--models {text!r}: model names {names} repeat; name them NAME=SPEC")
+    return entries
+
+
+def span_list(args: argparse.Namespace) -> list[str]:
+    from quad_modelling.nodes.common import BadParameter, parse_span
+
+    spans = [f"train:{args.train}"] if args.train else []
+    spans += [f"eval:{args.eval}"] if args.eval else []
+    spans = spans or ["live:0:inf"]
+    for s in spans:
+        try:
+            parse_span(s)
+        except BadParameter as err:
+            raise ConfigError(f"--train/--eval: {err}") from err
+    return spans
+
+
+def ros_environment() -> dict:
+    """The environment of the nodes: loopback discovery always; a run-unique domain unless set."""
+    env = dict(os.environ)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env.setdefault("ROS_DOMAIN_ID", str(120 + os.getpid() % 100))
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    env.setdefault("MPLBACKEND", "Agg")
+    return env
+
+
+class Graph:
+    """The node processes, their log files and how to stop them."""
+
+    def __init__(self, workdir: Path, params_file: Path, env: dict):
+        self.workdir = workdir
+        self.params_file = params_file
+        self.env = env
+        self.procs: dict[str, subprocess.Popen] = {}
+        self.logs: dict[str, Path] = {}
+
+    def start(self, name: str, module: str, remap_name: str | None = None) -> None:
+        log = self.workdir / "logs" / f"{name}.log"
+        self.logs[name] = log
+        argv = [sys.executable, "-m", f"quad_modelling.nodes.{module}", "--ros-args", "--params-file", str(self.params_file)]
+        if remap_name:
+            argv += ["-r", f"__node:={remap_name}"]
+        with log.open("w") as handle:
+            self.procs[name] = subprocess.Popen(argv, stdout=handle, stderr=subprocess.STDOUT, env=self.env,
+                                                stdin=subprocess.DEVNULL, start_new_session=True)
+
+    def tail(self, name: str, lines: int = 12) -> str:
+        try:
+            text = self.logs[name].read_text(errors="replace").splitlines()
+        except OSError:
+            return "(no log)"
+        return "\n".join("    " + line for line in text[-lines:])
+
+    def dead(self, exclude: tuple[str, ...] = ()) -> list[str]:
+        return [n for n, p in self.procs.items() if n not in exclude and p.poll() is not None]
+
+    def stop(self, names: list[str] | None = None, timeout: float = STOP_TIMEOUT_S) -> None:
+        names = [n for n in (names or list(self.procs)) if self.procs[n].poll() is None]
+        for n in names:
+            self.procs[n].send_signal(signal.SIGINT)
+        deadline = time.monotonic() + timeout
+        for n in names:
+            try:
+                self.procs[n].wait(max(deadline - time.monotonic(), 0.1))
+            except subprocess.TimeoutExpired:
+                self.procs[n].terminate()
+                try:
+                    self.procs[n].wait(5)
+                except subprocess.TimeoutExpired:
+                    self.procs[n].kill()
+                    self.procs[n].wait()
+
+
+def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[str], report_dir: Path) -> dict:
+    common = {"vehicle": vehicle, "window_s": float(args.window), "warm_s": float(args.warm)}
+    params = {
+        "/quad/evaluator": {"ros__parameters": {**common, "models": [m.name for m in models], "spans": spans,
+                                                "output_dir": str(report_dir), "force": True, "figures": not args.no_figures}},
+        "/quad/replay": {"ros__parameters": {"bag": str(Path(args.bag).resolve()), "vehicle": vehicle, "rate": float(args.rate),
+                                             "wait_for_subscribers": len(models) + 1}},
+    }
+    for m in models:
+        params[f"/quad/{m.name}_predictor"] = {"ros__parameters": {**common, "model": m.spec, "model_name": m.name}}
+    return params
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("bag", metavar="BAG", help="MCAP bag directory with the topic contract")
+    parser.add_argument("--models", default="naive", metavar="SPEC,...", help="models to run live (default naive)")
+    parser.add_argument("--vehicle", metavar="NAME|FILE", help="vehicle config (default: the one the bag names)")
+    parser.add_argument("--rate", type=float, default=0.0, metavar="R",
+                        help="real-time factor of the replay; 0 = as fast as the graph keeps up without loss (default)")
+    parser.add_argument("--window", type=float, default=10.0, metavar="SECONDS", help="window length (default 10)")
+    parser.add_argument("--warm", type=float, default=0.2, metavar="SECONDS", help="warm start (default 0.2)")
+    parser.add_argument("--train", metavar="A:B", help="training span, seconds from the first sample")
+    parser.add_argument("--eval", metavar="C:D", help="evaluation span, seconds from the first sample")
+    parser.add_argument("--timeout", type=float, default=900.0, metavar="SECONDS", help="give up after this long (default 900)")
+    parser.add_argument("--no-figures", action="store_true", help="skip the figures")
+    parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="new output directory")
+    parser.add_argument("--force", action="store_true", help="overwrite an existing OUTDIR")
+
+
+def run(args: argparse.Namespace) -> int:
+    from quad_modelling.core.vehicle import load_vehicle
+    from quad_modelling.io.bag_io import summarize_bag
+    from quad_modelling.nodes.model_factory import make_streaming_predictor
+
+    output = Path(args.output)
+    check_output(output, args.force)
+    if args.rate < 0:
+        raise ConfigError(f"--rate {args.rate}: must be >= 0")
+    if not 0 < args.warm < args.window:
+        raise ConfigError(f"--window {args.window} / --warm {args.warm}: need 0 < warm < window")
+    models = parse_models(args.models)
+    spans = span_list(args)
+    summary = summarize_bag(args.bag)
+    vehicle_name = args.vehicle or summary.custom_data.get("quad_modelling.vehicle")
+    if not vehicle_name:
+        raise ConfigError(f"{args.bag}: the bag names no vehicle; pass --vehicle NAME")
+    vehicle = load_vehicle(vehicle_name)
+    for m in models:  # fail fast, in this process, on an unknown model or a bad model file
+        make_streaming_predictor(m.spec, vehicle)
+    env = ros_environment()
+    started = time.monotonic()
+    with atomic_output(output, args.force) as tmp:
+        tmp.mkdir()
+        (tmp / "logs").mkdir()
+        report_dir = tmp / "report"
+        params_file = tmp / "params.yaml"
+        params_file.write_text(yaml.safe_dump(node_parameters(args, models, vehicle_name, spans, report_dir), sort_keys=False))
+        graph = Graph(tmp, params_file, env)
+        try:
+            graph.start("evaluator", "evaluator_node")
+            for m in models:
+                graph.start(f"{m.name}_predictor", "predictor_node", remap_name=f"{m.name}_predictor")
+            graph.start("replay", "replay_node")
+            _wait_for_replay(graph, args.timeout, started)
+            graph.stop([n for n in graph.procs if n != "evaluator"])
+            graph.stop(["evaluator"])
+        finally:
+            graph.stop()
+        failed = {n: p.returncode for n, p in graph.procs.items() if p.returncode not in (0, -signal.SIGINT)}
+        if failed:
+            name = next(iter(failed))
+            raise NodeFailedError(f"node {name} exited with code {failed[name]}; last lines of {output}/logs/{name}.log:\n{graph.tail(name)}")
+        if not (report_dir / "results.json").is_file():
+            raise NodeFailedError(f"the evaluator wrote no results; last lines of its log:\n{graph.tail('evaluator')}")
+        for item in report_dir.iterdir():
+            shutil.move(str(item), tmp / item.name)
+        report_dir.rmdir()
+    elapsed = time.monotonic() - started
+    results = json.loads((output / "results.json").read_text())
+    print(_summary_table(results, models))
+    print(f"\n{summary.duration_s:.1f} s of flight replayed in {elapsed:.1f} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}); "
+          f"results in {output}/ (results.json, tables.md, logs/)")
+    return 0
+
+
+def _wait_for_replay(graph: Graph, timeout: float, started: float) -> None:
+    replay = graph.procs["replay"]
+    while replay.poll() is None:
+        dead = graph.dead(exclude=("replay",))
+        if dead:
+            name = dead[0]
+            raise NodeFailedError(f"node {name} died early (exit code {graph.procs[name].returncode}); last lines of its log:\n{graph.tail(name)}")
+        if time.monotonic() - started > timeout:
+            raise NodeFailedError(f"run did not finish within --timeout {timeout:g} s; replay log:\n{graph.tail('replay')}")
+        time.sleep(0.1)
+    if replay.returncode != 0:
+        raise NodeFailedError(f"replay exited with code {replay.returncode}; last lines of its log:\n{graph.tail('replay')}")
+
+
+def _summary_table(results: dict, models: list[ModelEntry]) -> str:
+    from quad_modelling.core.variables import DISPLAY, EVAL_VARIABLES
+
+    live = results.get("live", {})
+    marked = live.get("marked", [])
+    columns = [(m.name, span) for m in models for span in results["models"].get(m.name, {})]
+    lines = []
+    if not columns:
+        lines.append("no window was scored" + (f"; marked: {marked[0]['reason']}" if marked else ""))
+        return "\n".join(lines)
+    titles = [f"{m} ({s})" for m, s in columns]
+    header = f"{'variable':<12} {'unit':<8}" + "".join(f" {t:>22}" for t in titles)
+    lines += ["TIC / RMS per variable (mean over windows; RMS in display units)", header, "-" * len(header)]
+    for var in EVAL_VARIABLES:
+        unit, factor = DISPLAY[var]
+        cells = []
+        for m, s in columns:
+            e = results["models"][m][s][var]
+            cell = f"{e['tic']:.2f} / {e['rms'] * factor:.3g}"
+            cells.append(f" {cell:>22}")
+        lines.append(f"{var:<12} {unit:<8}" + "".join(cells))
+    windows = ", ".join(f"{m} {s}: {results['windows'][m][s]}" for m, s in columns)
+    lines.append(f"windows scored: {windows}; marked: {len(marked)}")
+    return "\n".join(lines)

@@ -1,0 +1,472 @@
+"""``evaluator``: live windowed RMS/TIC of every predictor against the measurements (DESIGN 5a, 7).
+
+Subscribes (relative names, namespace ``/quad`` unless remapped): ``motor_input``,
+``mocap/odom``, ``imu`` and, for each name in ``models``, ``<model>/odom`` and
+``<model>/accel``; ``window_origin`` (transient-local). Publishes
+``evaluation`` (diagnostic_msgs/DiagnosticArray, one status per model and span
+for each closed window: level OK with ``<variable>.rms``/``<variable>.tic``
+values in SI units, or WARN with the reason the window was not scored) and
+``evaluation/progress`` (rosgraph_msgs/Clock: the last stamp every stream has
+delivered; the replay paces itself on it). Service ``write_results``
+(std_srvs/Trigger) writes ``results.json``/``tables.md`` (and figures) into
+``output_dir`` now; they are also written at shutdown.
+
+Scoring uses the core code of ``quad-modelling evaluate``: the window's received
+measurements become a FlightLog (:func:`~quad_modelling.nodes.messages.measurement_log`),
+received absolute predictions are wrapped with
+:class:`~quad_modelling.core.streaming.RecordedPrediction` (which trims them as the
+offline predictors do) and scored with
+:func:`~quad_modelling.core.evaluation.evaluate_window` (core defaults for trim and
+smoothing, warm rows from :func:`~quad_modelling.core.evaluation.warm_samples_for`).
+Only windows entirely inside a span (``spans``: ``NAME:A:B`` seconds from t0) are scored.
+
+A window closes when the measurements have moved past it and every model has
+too (or has been silent for ``stale_model_s``, or ``close_grace_s`` passed).
+A window with missing measurement rows (gap, late start, duplicates) or a model
+with missing predictions (restart) is *marked* with the reason, never scored
+partially. Buffers hold at most the open windows (bounded).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import AccelStamped
+from nav_msgs.msg import Odometry
+from rclpy.clock import Clock as RosClock
+from rclpy.clock import ClockType
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState
+from std_srvs.srv import Trigger
+
+from quad_modelling.core.evaluation import EvaluationConfig, evaluate_window, warm_samples_for
+from quad_modelling.core.preprocess import SMOOTH_CUTOFF_HZ, TrimConfig, smooth, trimmed_variables
+from quad_modelling.core.streaming import RecordedPrediction
+from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.errors import QuadModellingError
+from quad_modelling.nodes import messages
+from quad_modelling.nodes.common import (
+    DEFAULT_NAMESPACE,
+    ORIGIN_TOPIC,
+    PROGRESS_TOPIC,
+    BadParameter,
+    FaultLog,
+    Param,
+    WindowClock,
+    data_qos,
+    declare_parameters,
+    latched_qos,
+    non_empty,
+    non_negative,
+    parse_span,
+    positive,
+    run_node,
+    spans_check,
+)
+from quad_modelling.nodes.scoring import LiveScores, WindowRecord
+
+MAX_OPEN_WINDOWS = 3
+"""Windows buffered at once; an older one is closed (and marked if incomplete) when a newer one opens."""
+
+
+def _models_check(value) -> str | None:
+    names = [str(v).strip() for v in value]
+    if any(not n or "/" in n or ":" in n for n in names):
+        return f"model names must be plain topic prefixes (no '/' or ':'), got {names}"
+    if len(set(names)) != len(names):
+        return f"model names must be unique, got {names}"
+    return None
+
+
+EVALUATOR_PARAMETERS = [
+    Param("models", ["naive"], "names of the predictors to score (their topics <name>/odom, <name>/accel)", _models_check),
+    Param("vehicle", "crazyflie21", "vehicle config name (config/vehicles) or YAML path", non_empty),
+    Param("window_s", 10.0, "window length W [s], as the predictors", positive),
+    Param("warm_s", 0.2, "warm start [s], as the predictors", positive),
+    Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
+    Param("spans", ["live:0:inf"], "spans NAME:A:B in seconds from t0; only windows entirely inside one are scored", spans_check),
+    Param("output_dir", "", "directory for results.json/tables.md/figures (replaced on each write); empty = do not write"),
+    Param("force", False, "replace an output_dir that existed before this node started"),
+    Param("figures", True, "also write the thesis-style figures of the first window of each span"),
+    Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
+    Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
+    Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
+    Param("stale_model_s", 2.0, "a model silent this long [wall s] no longer holds back progress or window closing", positive),
+    Param("close_grace_s", 3.0, "close a window this long [wall s] after the measurements passed it, even if a model lags", positive),
+    Param("ready_timeout_s", 20.0, "wait this long [wall s] for every model's publishers before acknowledging progress", non_negative),
+    Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions", positive),
+]
+
+
+class _Window:
+    """Received rows of one window: measurement fields and each model's prediction fields, by stamp."""
+
+    __slots__ = ("index", "motor", "omega", "odom", "imu", "pred_odom", "pred_accel", "passed_at")
+
+    def __init__(self, index: int, models: list[str]):
+        self.index = index
+        self.motor: dict[int, list] = {}
+        self.omega: dict[int, list | None] = {}
+        self.odom: dict[int, list] = {}
+        self.imu: dict[int, list] = {}
+        self.pred_odom = {m: {} for m in models}
+        self.pred_accel = {m: {} for m in models}
+        self.passed_at: float | None = None  # wall time the measurements moved past this window
+
+
+class EvaluatorNode(Node):
+    """Scores every closed window of every model with core evaluate_window (see module doc)."""
+
+    def __init__(self, **kwargs):
+        kwargs.setdefault("namespace", DEFAULT_NAMESPACE)
+        super().__init__("evaluator", **kwargs)
+        p = declare_parameters(self, EVALUATOR_PARAMETERS)
+        if p["warm_s"] >= p["window_s"]:
+            raise BadParameter(f"evaluator: parameter warm_s={p['warm_s']} must be shorter than window_s={p['window_s']}")
+        try:
+            self.vehicle = load_vehicle(p["vehicle"])
+        except QuadModellingError as err:
+            raise BadParameter(f"evaluator: parameter vehicle={p['vehicle']!r}: {err}") from err
+        self.models = [str(m).strip() for m in p["models"]]
+        self.spans = [parse_span(s) for s in p["spans"]]
+        self.window_s, self.warm_s = p["window_s"], p["warm_s"]
+        self.output_dir = Path(p["output_dir"]) if p["output_dir"] else None
+        if self.output_dir is not None and self.output_dir.exists() and not p["force"]:
+            raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
+        self.figures = p["figures"]
+        self.trim = TrimConfig()
+        self.cutoff = SMOOTH_CUTOFF_HZ
+        self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
+        named = {name: (a, b) for name, a, b in self.spans}
+        config = EvaluationConfig(drop_start=0.0, drop_end=0.0, window_s=self.window_s, warm_s=self.warm_s, trim=self.trim,
+                                  train=_span_text(named.get("train")), eval=_span_text(named.get("eval")), horizons=(1,))
+        self.scores = LiveScores(config, self.spans, self.models)
+        self.faults = FaultLog(self.get_logger())
+        self.clock_ = WindowClock(self.window_s, self.warm_s, p["sample_period_s"])
+        self.open: dict[int, _Window] = {}
+        self.closed_below = None  # windows with index < this are closed
+        self.last_ns = {key: None for key in ("motor", "odom", "imu")}
+        self.model_last_ns = {m: None for m in self.models}
+        self.model_last_wall = {m: None for m in self.models}
+        self.ready = False
+        self.started_wall = time.monotonic()
+        self.first_motor_wall: float | None = None
+        self.progress_sent = None
+        self.windows_closed = 0
+        qos = data_qos(p["qos_depth"])
+        self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
+        self.create_subscription(Odometry, p["odom_topic"], self.on_odom, qos)
+        self.create_subscription(Imu, p["imu_topic"], self.on_imu, qos)
+        self.create_subscription(Clock, ORIGIN_TOPIC, self.on_origin, latched_qos())
+        for model in self.models:
+            self.create_subscription(Odometry, f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg), qos)
+            self.create_subscription(AccelStamped, f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg), qos)
+        self.origin_pub = self.create_publisher(Clock, ORIGIN_TOPIC, latched_qos())
+        self.diag_pub = self.create_publisher(DiagnosticArray, "evaluation", data_qos(100))
+        self.progress_pub = self.create_publisher(Clock, PROGRESS_TOPIC, data_qos(10))
+        self.create_service(Trigger, "write_results", self.on_write)
+        steady = RosClock(clock_type=ClockType.STEADY_TIME)
+        self.create_timer(0.01, self.on_progress_timer, clock=steady)
+        self.create_timer(0.25, self.on_close_timer, clock=steady)
+        self.get_logger().info(f"scoring models {self.models} in spans {p['spans']} ({self.window_s:g} s windows)")
+
+    # --- inputs -------------------------------------------------------------------------------
+
+    def on_origin(self, msg: Clock) -> None:
+        ns = messages.stamp_ns(msg.clock)
+        if self.clock_.origin_ns is None or ns < self.clock_.origin_ns:
+            if self.clock_.origin_ns is not None:
+                self.faults.report("origin_changed", f"window origin moved to an earlier t0 ({ns} ns): open windows discarded")
+                self.open.clear()
+                self.closed_below = None
+            self.clock_.origin_ns = ns
+
+    def _window_for(self, ns: int, stream: str) -> _Window | None:
+        if self.clock_.origin_ns is None:
+            if stream != "motor":
+                return None  # no origin yet: wait for the first engine input
+            self.clock_.origin_ns = ns
+            self.origin_pub.publish(messages.clock_message(ns))
+        if ns < self.clock_.origin_ns:
+            return None
+        k, _ = self.clock_.locate(ns)
+        if self.closed_below is not None and k < self.closed_below:
+            self.faults.report(f"late_{stream}", f"{stream} message for the already closed window {k}: dropped")
+            return None
+        window = self.open.get(k)
+        if window is None:
+            window = self.open[k] = _Window(k, self.models)
+            while len(self.open) > MAX_OPEN_WINDOWS:
+                self._close(min(self.open), reason_if_incomplete="closed early to bound memory")
+        return window
+
+    def _accept(self, stream: str, ns: int, values) -> bool:
+        if not messages.all_finite(values):
+            self.faults.report(f"nan_{stream}", f"non-finite {stream} message dropped")
+            return False
+        return True
+
+    def on_motor(self, msg: JointState) -> None:
+        ns = messages.stamp_ns(msg.header.stamp)
+        fields = messages.motor_fields(msg)
+        if fields is None or not self._accept("motor_input", ns, fields[0]):
+            return
+        last = self.last_ns["motor"]
+        if last is not None and ns <= last:
+            kind = "duplicate_motor" if ns == last else "out_of_order_motor"
+            self.faults.report(kind, f"motor_input stamp {ns} ns is not after the previous one: dropped")
+            return
+        self.clock_.observe(ns)
+        window = self._window_for(ns, "motor")
+        if window is None:
+            return
+        window.motor[ns] = fields[0].tolist()
+        window.omega[ns] = None if fields[1] is None else fields[1].tolist()
+        self.last_ns["motor"] = ns
+        now = time.monotonic()
+        if self.first_motor_wall is None:
+            self.first_motor_wall = now
+        for k, w in self.open.items():
+            if k < window.index and w.passed_at is None:
+                w.passed_at = now
+        if len(self.open) > 1:
+            self._try_close()
+
+    def _measurement(self, stream: str, ns: int, fields: list, store: str) -> None:
+        if not self._accept(stream, ns, fields):
+            return
+        window = self._window_for(ns, stream)
+        if window is None:
+            return
+        buffer = getattr(window, store)
+        if ns in buffer:
+            self.faults.report(f"duplicate_{stream}", f"duplicated {stream} stamp {ns} ns: later copy dropped")
+            return
+        buffer[ns] = fields
+        last = self.last_ns[store]
+        self.last_ns[store] = ns if last is None else max(last, ns)
+
+    def on_odom(self, msg: Odometry) -> None:
+        self._measurement("mocap_odom", messages.stamp_ns(msg.header.stamp), messages.odometry_fields(msg), "odom")
+
+    def on_imu(self, msg: Imu) -> None:
+        self._measurement("imu", messages.stamp_ns(msg.header.stamp), messages.imu_fields(msg), "imu")
+
+    def _prediction(self, model: str, ns: int, fields: list, store: str) -> None:
+        if not self._accept(f"{model}_prediction", ns, fields):
+            return
+        window = self._window_for(ns, f"{model}_prediction")
+        if window is None:
+            return
+        buffer = getattr(window, store)[model]
+        if ns in buffer:
+            # A restarted predictor may re-publish a stamp: keep the first copy.
+            self.faults.report(f"duplicate_{model}", f"model {model}: duplicated prediction stamp {ns} ns: later copy dropped")
+            return
+        buffer[ns] = fields
+        if store == "pred_accel":
+            last = self.model_last_ns[model]
+            self.model_last_ns[model] = ns if last is None else max(last, ns)
+            self.model_last_wall[model] = time.monotonic()
+            if last is not None and self.clock_.locate(ns)[0] != self.clock_.locate(last)[0]:
+                self._try_close()
+
+    def on_pred_odom(self, model: str, msg: Odometry) -> None:
+        self._prediction(model, messages.stamp_ns(msg.header.stamp), messages.predicted_odometry_fields(msg), "pred_odom")
+
+    def on_pred_accel(self, model: str, msg: AccelStamped) -> None:
+        self._prediction(model, messages.stamp_ns(msg.header.stamp), messages.accel_fields(msg), "pred_accel")
+
+    # --- progress and closing -----------------------------------------------------------------
+
+    def _stale(self, model: str, now: float) -> bool:
+        last = self.model_last_wall[model]
+        if last is None:
+            last = self.first_motor_wall if self.first_motor_wall is not None else now
+        return now - last > self.stale_s
+
+    def progress_ns(self) -> int | None:
+        """Last stamp every measurement stream and every live model has delivered."""
+        if any(v is None for v in self.last_ns.values()):
+            return None
+        now = time.monotonic()
+        stamps = list(self.last_ns.values())
+        for model in self.models:
+            last = self.model_last_ns[model]
+            if not self._stale(model, now):
+                if last is None:
+                    return None
+                stamps.append(last)
+        return min(stamps)
+
+    def on_progress_timer(self) -> None:
+        if not self.ready:
+            have_all = all(self.count_publishers(f"{m}/accel") > 0 and self.count_publishers(f"{m}/odom") > 0 for m in self.models)
+            waited = time.monotonic() - self.started_wall
+            if not have_all and waited < self.ready_timeout_s:
+                return
+            if not have_all:
+                self.faults.report("model_missing", f"not every model in {self.models} publishes after {waited:.0f} s; going on without")
+            self.ready = True
+            self.progress_pub.publish(messages.clock_message(0))  # "ready": nothing processed yet
+            return
+        ns = self.progress_ns()
+        if ns is not None and ns != self.progress_sent:
+            self.progress_sent = ns
+            self.progress_pub.publish(messages.clock_message(ns))
+
+    def on_close_timer(self) -> None:
+        self._try_close()
+
+    def _try_close(self) -> None:
+        now = time.monotonic()
+        for k in sorted(self.open):
+            window = self.open[k]
+            if window.passed_at is None:
+                return
+            lagging = [m for m in self.models
+                       if (self.model_last_ns[m] is None or self.clock_.locate(self.model_last_ns[m])[0] <= k)
+                       and not self._stale(m, now)]
+            if lagging and now - window.passed_at < self.grace_s:
+                return
+            self._close(k)
+
+    def _close(self, k: int, reason_if_incomplete: str = "") -> None:
+        window = self.open.pop(k)
+        self.closed_below = max(self.closed_below or 0, k + 1)
+        self.windows_closed += 1
+        start_s, end_s = self.clock_.window_start_s(k), self.clock_.window_start_s(k + 1)
+        spans = [name for name, a, b in self.spans if start_s >= a - 1e-9 and end_s <= b + 1e-9]
+        if not spans:
+            return
+        records = self._score(window, start_s, end_s, spans, reason_if_incomplete)
+        self.scores.records.extend(records)
+        if self.context.ok():  # at shutdown the results still go to results.json
+            self._publish_diagnostics(window, records)
+
+    def _score(self, window: _Window, start_s: float, end_s: float, spans: list[str], extra: str) -> list[WindowRecord]:
+        def marked(reason: str, models=None) -> list[WindowRecord]:
+            return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason) for m in (models or self.models) for s in spans]
+
+        stamps = sorted(window.motor)
+        complete = [ns for ns in stamps if ns in window.odom and ns in window.imu]
+        period = self.clock_.period_s
+        expected = int(round(self.window_s / period)) if period else None
+        if expected is None or len(complete) != expected or len(complete) != len(stamps):
+            reason = (f"measurement rows: {len(complete)} complete of {expected} expected "
+                      f"({len(stamps)} engine inputs, {len(window.odom)} mocap, {len(window.imu)} imu; gap or late start)")
+            return marked(f"{reason}{'; ' + extra if extra else ''}")
+        omegas = [window.omega[ns] for ns in complete]
+        try:
+            log = messages.measurement_log(
+                np.array(complete, dtype=np.int64), [window.motor[ns] for ns in complete], [window.odom[ns] for ns in complete],
+                [window.imu[ns] for ns in complete], self.vehicle.name, f"live window {window.index}",
+                omega=np.array(omegas) if all(o is not None for o in omegas) else None,
+            )
+            measured = smooth(trimmed_variables(log, self.trim, self.vehicle), log.sample_rate, self.cutoff)
+        except QuadModellingError as err:
+            return marked(f"measurements unusable: {err}")
+        warm = warm_samples_for(log, self.warm_s)
+        records, predicted = [], {}
+        for model in self.models:
+            odom, accel = window.pred_odom[model], window.pred_accel[model]
+            missing = [ns for ns in complete if ns not in odom or ns not in accel]
+            if missing:
+                records += marked(f"missing predictions for {len(missing)} of {len(complete)} rows (predictor late, restarted or failed)", [model])
+                continue
+            absolute = messages.predictions_from_fields([odom[ns] for ns in complete], [accel[ns] for ns in complete])
+            try:
+                result = evaluate_window(RecordedPrediction(model, absolute, self.trim), log, warm,
+                                         self.trim, self.vehicle, self.cutoff, measured)
+            except QuadModellingError as err:
+                records += marked(f"cannot score: {err}", [model])
+                continue
+            predicted[model] = result.predicted
+            records += [WindowRecord(model, s, window.index, start_s, end_s, rms=result.rms, tic=result.tic) for s in spans]
+        if predicted and self.figures:
+            for s in spans:
+                self.scores.add_example(s, log, self.trim, measured, predicted, warm)
+        return records
+
+    def _publish_diagnostics(self, window: _Window, records: list[WindowRecord]) -> None:
+        msg = DiagnosticArray()
+        msg.header.stamp = messages.ns_stamp(self.clock_.origin_ns + (window.index + 1) * self.clock_.window_ns)
+        idx = {v: i for i, v in enumerate(VARIABLES)}
+        for r in records:
+            status = DiagnosticStatus(name=f"evaluation/{r.model}/{r.span}/window_{r.index}", hardware_id=r.model)
+            values = [KeyValue(key="start_s", value=f"{r.start_s:g}"), KeyValue(key="end_s", value=f"{r.end_s:g}")]
+            if r.scored:
+                status.level = DiagnosticStatus.OK
+                status.message = "scored"
+                for v in EVAL_VARIABLES:
+                    values.append(KeyValue(key=f"{v}.rms", value=repr(float(r.rms[idx[v]]))))
+                    values.append(KeyValue(key=f"{v}.tic", value=repr(float(r.tic[idx[v]]))))
+            else:
+                status.level = DiagnosticStatus.WARN
+                status.message = f"not scored: {r.reason}"
+            status.values = values
+            msg.status.append(status)
+        self.diag_pub.publish(msg)
+
+    # --- results ------------------------------------------------------------------------------
+
+    def write_results(self) -> str:
+        """Write results.json, tables.md (and figures) into output_dir; returns a one-line summary."""
+        if self.output_dir is None:
+            return "output_dir is empty: nothing written"
+        from quad_modelling.io.atomic import atomic_output
+        from quad_modelling.io.report import write_report
+
+        source = "live"
+        result = self.scores.result(source)
+        if not self.figures:
+            result.examples = []
+        with atomic_output(self.output_dir, force=True) as tmp:
+            write_report(result, tmp, title=f"Live evaluation of {', '.join(self.models)} on vehicle {self.vehicle.name}")
+            (tmp / "results.json").write_text(json.dumps(self.scores.to_json(source), indent=2))
+        scored = sum(r.scored for r in self.scores.records)
+        return f"wrote {self.output_dir} ({scored} scored, {len(self.scores.records) - scored} marked window results)"
+
+    def on_write(self, request, response):
+        try:
+            response.message = self.write_results()
+            response.success = True
+        except (QuadModellingError, OSError) as err:
+            response.success, response.message = False, str(err)
+        return response
+
+    def run(self) -> None:
+        import rclpy
+
+        rclpy.spin(self)
+
+    def finish(self) -> None:
+        for k in sorted(self.open):
+            self._close(k, reason_if_incomplete="input ended before the window was complete")
+        if self.output_dir is not None:
+            try:
+                self.get_logger().info(self.write_results())
+            except (QuadModellingError, OSError) as err:
+                self.get_logger().error(f"cannot write results: {err}")
+        self.get_logger().info(f"closed {self.windows_closed} windows; faults: {self.faults.summary()}")
+
+
+def _span_text(bounds) -> str:
+    if bounds is None:
+        return ""
+    a, b = bounds
+    return f"{a:g}:{b:g}"
+
+
+def main(args=None) -> int:
+    return run_node(EvaluatorNode, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,288 @@
+"""``predictor``: a streaming model run live on engine inputs (DESIGN 5a).
+
+Subscribes (relative names, namespace ``/quad`` unless remapped):
+``motor_input`` (sensor_msgs/JointState), ``mocap/odom`` (nav_msgs/Odometry),
+``imu`` (sensor_msgs/Imu), optionally ``battery`` (sensor_msgs/BatteryState),
+``window_origin`` (rosgraph_msgs/Clock, transient-local).
+Publishes ``<model>/odom`` (nav_msgs/Odometry: pose in ``world`` ENU, twist in
+``<model>/base_link`` FLU) and ``<model>/accel`` (geometry_msgs/AccelStamped in
+``<model>/base_link`` FLU), one of each per engine input, stamped with the input's stamp.
+
+Windows (:class:`~quad_modelling.nodes.common.WindowClock`): window k starts at
+t0 + kW, t0 = the first motor-input stamp (or the ``window_origin`` another node
+published). The first ``warm_s`` of each window are the warm start: those rows
+(command + measurements with the same stamp) become a FlightLog, ``start_window``
+gives their predictions (published at once), and every later command is
+``push``-ed and its prediction published immediately. A node that joins mid-window
+(late start, restart, gap) waits for the next window start.
+
+Faults (one warning per kind): non-finite or malformed messages are dropped;
+out-of-order/duplicated stamps are dropped; warm rows without a measurement
+(motion-capture gap) are left out, and a window without any is not predicted;
+a model error or a non-finite prediction stops that window; nothing non-finite
+is ever published.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+
+import numpy as np
+from geometry_msgs.msg import AccelStamped
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import BatteryState, Imu, JointState
+
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.errors import QuadModellingError
+from quad_modelling.nodes import messages
+from quad_modelling.nodes.common import (
+    DEFAULT_NAMESPACE,
+    ORIGIN_TOPIC,
+    BadParameter,
+    FaultLog,
+    Param,
+    WindowClock,
+    data_qos,
+    declare_parameters,
+    latched_qos,
+    non_empty,
+    non_negative,
+    positive,
+    run_node,
+)
+from quad_modelling.nodes.model_factory import make_streaming_predictor, model_name
+
+MAX_DEFERRED_COMMANDS = 10
+"""Commands after the warm start held back while the last warm rows' measurements are still
+in flight (topics arrive independently); beyond this the window starts with the complete rows."""
+
+
+def predictor_parameters(default_model: str) -> list[Param]:
+    return [
+        Param("model", default_model, "model spec: naive, greybox, greybox:euler, narx:PATH, hybrid:PATH", non_empty),
+        Param("model_file", "", "model file appended to the spec as MODEL:FILE (e.g. the NARX .npz); empty = none"),
+        Param("model_name", "", "topic prefix and name of the predictions (<model_name>/odom); empty = the spec's kind"),
+        Param("vehicle", "crazyflie21", "vehicle config name (config/vehicles) or YAML path", non_empty),
+        Param("window_s", 10.0, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input", positive),
+        Param("warm_s", 0.2, "warm start at each window start [s] (thesis 0.2 s)", positive),
+        Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
+        Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
+        Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
+        Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
+        Param("battery_topic", "", "battery voltage (sensor_msgs/BatteryState) for models that use it; empty = not subscribed"),
+        Param("world_frame", messages.WORLD_FRAME, "frame_id of the predicted pose", non_empty),
+        Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions and publishers", positive),
+    ]
+
+
+class PredictorNode(Node):
+    """Generic live predictor; the model comes from the ``model`` parameter."""
+
+    def __init__(self, node_name: str = "predictor", default_model: str = "naive", **kwargs):
+        kwargs.setdefault("namespace", DEFAULT_NAMESPACE)
+        super().__init__(node_name, **kwargs)
+        p = declare_parameters(self, predictor_parameters(default_model))
+        if p["warm_s"] >= p["window_s"]:
+            raise BadParameter(f"{node_name}: parameter warm_s={p['warm_s']} must be shorter than window_s={p['window_s']}")
+        spec = f"{p['model']}:{p['model_file']}" if p["model_file"] else p["model"]
+        self.name_ = p["model_name"] or model_name(spec)
+        try:
+            self.vehicle = load_vehicle(p["vehicle"])
+            self.model = make_streaming_predictor(spec, self.vehicle)
+        except QuadModellingError as err:
+            raise BadParameter(f"{node_name}: parameter model={spec!r} vehicle={p['vehicle']!r}: {err}") from err
+        self.spec = spec
+        self.faults = FaultLog(self.get_logger())
+        self.clock_ = WindowClock(p["window_s"], p["warm_s"], p["sample_period_s"])
+        self.child_frame = f"{self.name_}/base_link"
+        self.world_frame = p["world_frame"]
+        qos = data_qos(p["qos_depth"])
+        self.odom_pub = self.create_publisher(Odometry, f"{self.name_}/odom", qos)
+        self.accel_pub = self.create_publisher(AccelStamped, f"{self.name_}/accel", qos)
+        self.origin_pub = self.create_publisher(Clock, ORIGIN_TOPIC, latched_qos())
+        self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
+        self.create_subscription(Odometry, p["odom_topic"], self.on_odom, qos)
+        self.create_subscription(Imu, p["imu_topic"], self.on_imu, qos)
+        self.create_subscription(Clock, ORIGIN_TOPIC, self.on_origin, latched_qos())
+        self.use_battery = bool(p["battery_topic"])
+        if self.use_battery:
+            self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
+        # Bounded buffers: measurements by stamp for the warm rows, the warm rows themselves.
+        self.measurement_capacity = 4096
+        self.odom: OrderedDict[int, list] = OrderedDict()
+        self.imu: OrderedDict[int, list] = OrderedDict()
+        self.battery: OrderedDict[int, float] = OrderedDict()
+        self.window = None  # current window index
+        self.state = "idle"  # idle | warm | stream | skip
+        self.warm_rows: list[tuple[int, np.ndarray, np.ndarray | None]] = []
+        self.deferred: list[tuple[int, np.ndarray]] = []
+        self.stream = None
+        self.last_motor_ns = None
+        self.published = 0
+        self.windows_started = 0
+        self.get_logger().info(f"predicting with {self.spec!r} as '{self.name_}' on vehicle {self.vehicle.name}; "
+                               f"windows {p['window_s']:g} s, warm start {p['warm_s']:g} s")
+
+    # --- inputs -------------------------------------------------------------------------------
+
+    def on_origin(self, msg: Clock) -> None:
+        ns = messages.stamp_ns(msg.clock)
+        if self.clock_.origin_ns is None or ns < self.clock_.origin_ns:
+            if self.clock_.origin_ns is not None:
+                self.faults.report("origin_changed", f"window origin moved to an earlier t0 ({ns} ns): re-aligning windows")
+                self.state, self.window = "idle", None
+            self.clock_.origin_ns = ns
+
+    def _store(self, buffer: OrderedDict, ns: int, value, kind: str) -> None:
+        if ns in buffer:
+            self.faults.report(f"duplicate_{kind}", f"duplicated {kind} stamp {ns} ns: later copy dropped")
+            return
+        buffer[ns] = value
+        if len(buffer) > self.measurement_capacity:
+            buffer.popitem(last=False)
+
+    def on_odom(self, msg: Odometry) -> None:
+        fields = messages.odometry_fields(msg)
+        if not messages.all_finite(fields):
+            self.faults.report("nan_odom", "non-finite motion-capture message dropped")
+            return
+        self._store(self.odom, messages.stamp_ns(msg.header.stamp), fields, "odom")
+        if self.state == "warm" and self.deferred:
+            self._maybe_start()
+
+    def on_imu(self, msg: Imu) -> None:
+        fields = messages.imu_fields(msg)
+        if not messages.all_finite(fields):
+            self.faults.report("nan_imu", "non-finite IMU message dropped")
+            return
+        self._store(self.imu, messages.stamp_ns(msg.header.stamp), fields, "imu")
+        if self.state == "warm" and self.deferred:
+            self._maybe_start()
+
+    def on_battery(self, msg: BatteryState) -> None:
+        if not np.isfinite(msg.voltage):
+            self.faults.report("nan_battery", "non-finite battery voltage dropped")
+            return
+        self._store(self.battery, messages.stamp_ns(msg.header.stamp), float(msg.voltage), "battery")
+
+    def on_motor(self, msg: JointState) -> None:
+        ns = messages.stamp_ns(msg.header.stamp)
+        fields = messages.motor_fields(msg)
+        if fields is None or not np.isfinite(fields[0]).all():
+            self.faults.report("bad_motor", "motor_input without 4 finite efforts dropped")
+            return
+        if self.last_motor_ns is not None and ns <= self.last_motor_ns:
+            kind = "duplicate_motor" if ns == self.last_motor_ns else "out_of_order_motor"
+            self.faults.report(kind, f"motor_input stamp {ns} ns is not after the previous one ({self.last_motor_ns} ns): dropped")
+            return
+        self.last_motor_ns = ns
+        if self.clock_.origin_ns is None:
+            self.clock_.origin_ns = ns
+            self.origin_pub.publish(messages.clock_message(ns))
+        self.clock_.observe(ns)
+        if ns < self.clock_.origin_ns:
+            self.faults.report("before_origin", "motor_input stamped before the window origin: dropped")
+            return
+        k, position = self.clock_.locate(ns)
+        u, omega = fields
+        if k != self.window:
+            self._finish_window()
+            self.window = k
+            if self.clock_.is_warm(position):
+                self.state, self.warm_rows, self.deferred = "warm", [], []
+            else:
+                self.state = "skip"
+                self.faults.report("joined_mid_window", f"joined window {k} after its warm start: waiting for the next window")
+        if self.state == "warm":
+            if self.clock_.is_warm(position):
+                self.warm_rows.append((ns, u, omega))
+            else:
+                self.deferred.append((ns, u))
+                self._maybe_start()
+        elif self.state == "stream":
+            self._push(ns, u)
+
+    # --- windows ------------------------------------------------------------------------------
+
+    def _finish_window(self) -> None:
+        if self.state == "warm" and self.warm_rows:
+            self._maybe_start(force=True)
+        self.stream = None
+
+    def _maybe_start(self, force: bool = False) -> None:
+        """Start the window once every warm row has its measurements (or too long a wait)."""
+        complete = [row for row in self.warm_rows if row[0] in self.odom and row[0] in self.imu
+                    and (not self.use_battery or row[0] in self.battery)]
+        if len(complete) < len(self.warm_rows) and len(self.deferred) <= MAX_DEFERRED_COMMANDS and not force:
+            return
+        if len(complete) < len(self.warm_rows):
+            self.faults.report("warm_gap", f"window {self.window}: {len(self.warm_rows) - len(complete)} warm-start rows have no "
+                                           "measurement (motion-capture/IMU gap); starting from the complete ones")
+        deferred, self.deferred = self.deferred, []
+        self.state = "skip"
+        if len(complete) < 2:
+            self.faults.report("warm_empty", f"window {self.window}: fewer than 2 measured warm-start rows; window not predicted")
+            return
+        stamps = np.array([row[0] for row in complete], dtype=np.int64)
+        omegas = [row[2] for row in complete]
+        try:
+            warm = messages.measurement_log(
+                stamps, np.array([row[1] for row in complete]), np.array([self.odom[s] for s in stamps.tolist()]),
+                np.array([self.imu[s] for s in stamps.tolist()]), self.vehicle.name, f"live window {self.window}",
+                omega=np.array(omegas) if all(o is not None for o in omegas) else None,
+                vbat=np.array([self.battery[s] for s in stamps.tolist()]) if self.use_battery else None,
+            )
+            predictions, self.stream = self.model.start_window(warm)
+        except (QuadModellingError, ValueError) as err:
+            self.faults.report("model_error", f"window {self.window}: model {self.name_} cannot start: {err}")
+            return
+        if not self._publish(stamps.tolist(), predictions):
+            return
+        self.state = "stream"
+        self.windows_started += 1
+        for ns, u in deferred:
+            self._push(ns, u)
+
+    def _push(self, ns: int, u: np.ndarray) -> None:
+        try:
+            prediction = self.stream.push(u)
+        except (QuadModellingError, ValueError) as err:
+            self.faults.report("model_error", f"window {self.window}: model {self.name_} failed: {err}")
+            self.state = "skip"
+            return
+        if not self._publish([ns], prediction):
+            self.state = "skip"
+
+    def _publish(self, stamps: list[int], predictions: np.ndarray) -> bool:
+        predictions = np.atleast_2d(predictions)
+        if not np.isfinite(predictions).all():
+            self.faults.report("nan_prediction", f"window {self.window}: model {self.name_} predicted a non-finite value; "
+                                                 "window abandoned (nothing non-finite is published)")
+            return False
+        odom, accel = messages.prediction_fields(predictions)
+        for i, ns in enumerate(stamps):
+            o, a = messages.prediction_messages(ns, odom[i], accel[i], self.child_frame, self.world_frame)
+            self.odom_pub.publish(o)
+            self.accel_pub.publish(a)
+        self.published += len(stamps)
+        return True
+
+    # --- lifecycle ----------------------------------------------------------------------------
+
+    def run(self) -> None:
+        import rclpy
+
+        rclpy.spin(self)
+
+    def finish(self) -> None:
+        self.get_logger().info(f"published {self.published} predictions over {self.windows_started} windows; faults: {self.faults.summary()}")
+
+
+def main(args=None) -> int:
+    return run_node(lambda: PredictorNode("predictor", "naive"), args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,103 @@
+"""Adapters between live (streamed) predictions and the core evaluation.
+
+* :class:`StreamedPredictor`: a streaming predictor as an offline
+  :class:`~quad_modelling.core.models.Predictor` whose ``predict_window`` is
+  ``predict_window_by_stream`` + :func:`~quad_modelling.core.preprocess.trim_prediction`:
+  exactly what the live graph computes (the evaluator node hands the received
+  absolute predictions to :class:`~quad_modelling.core.streaming.RecordedPrediction`,
+  which trims them the same way).
+* :class:`LiveScores`: per-window results of the evaluator node gathered into a core
+  :class:`~quad_modelling.core.evaluation.EvaluationResult` (mean over scored windows
+  per model and span), written with ``quad_modelling.io.report.write_report``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from quad_modelling.core.evaluation import EvaluationConfig, EvaluationResult, ExampleWindow, SpanScores
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.preprocess import TrimConfig, trim_prediction, trimmed_inputs
+from quad_modelling.core.streaming import StreamingPredictor, predict_window_by_stream
+from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
+
+
+class StreamedPredictor:
+    """Offline Predictor that predicts a window exactly as the live predictor node does."""
+
+    def __init__(self, streaming: StreamingPredictor, trim: TrimConfig | None = None, name: str | None = None):
+        self.streaming = streaming
+        self.trim = trim or TrimConfig()
+        self.name = name or streaming.name
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        return trim_prediction(window, predict_window_by_stream(self.streaming, window, warm_samples), self.trim)
+
+
+@dataclass
+class WindowRecord:
+    """One closed window of one model: scored (rms/tic per VARIABLES column) or marked with a reason."""
+
+    model: str
+    span: str
+    index: int
+    start_s: float
+    end_s: float
+    rms: np.ndarray | None = None
+    tic: np.ndarray | None = None
+    reason: str = ""
+
+    @property
+    def scored(self) -> bool:
+        return self.rms is not None
+
+    def to_json(self) -> dict:
+        out = {"model": self.model, "span": self.span, "window": self.index, "start_s": self.start_s, "end_s": self.end_s,
+               "scored": self.scored}
+        if self.scored:
+            idx = {v: i for i, v in enumerate(VARIABLES)}
+            out["scores"] = {v: {"rms": float(self.rms[idx[v]]), "tic": float(self.tic[idx[v]])} for v in EVAL_VARIABLES}
+        else:
+            out["reason"] = self.reason
+        return out
+
+
+@dataclass
+class LiveScores:
+    """Everything the evaluator node has scored or marked, in arrival order."""
+
+    config: EvaluationConfig
+    spans: list[tuple[str, float, float]]
+    models: list[str]
+    records: list[WindowRecord] = field(default_factory=list)
+    examples: dict[str, ExampleWindow] = field(default_factory=dict)
+
+    def add_example(self, span: str, window: FlightLog, trim: TrimConfig, measured: np.ndarray, predicted: dict, warm: int) -> None:
+        """Keep the first scored window of each span for the report's figures."""
+        if span not in self.examples:
+            self.examples[span] = ExampleWindow(window.meta.source, span, window.t - window.t[0], trimmed_inputs(window, trim),
+                                                measured, dict(predicted), warm)
+
+    def result(self, source: str) -> EvaluationResult:
+        """Mean RMS/TIC over scored windows per model and span, as a core EvaluationResult."""
+        scores: dict[str, dict[str, SpanScores]] = {m: {} for m in self.models}
+        for model in self.models:
+            for span, _, _ in self.spans:
+                done = [r for r in self.records if r.model == model and r.span == span and r.scored]
+                if done:
+                    scores[model][span] = SpanScores(np.mean([r.rms for r in done], axis=0), np.mean([r.tic for r in done], axis=0), len(done))
+        flights = [{"source": source, "live": True}]
+        examples = list(self.examples.values())
+        return EvaluationResult(scores, {}, self.config, flights, examples)
+
+    def to_json(self, source: str) -> dict:
+        """results.json: the core EvaluationResult JSON plus the live spans and every window (scored or marked)."""
+        data = self.result(source).to_json()
+        data["live"] = {
+            "spans": [{"name": n, "start_s": a, "end_s": b if np.isfinite(b) else None} for n, a, b in self.spans],
+            "windows": [r.to_json() for r in self.records],
+            "marked": [r.to_json() for r in self.records if not r.scored],
+        }
+        return data
