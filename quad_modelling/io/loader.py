@@ -20,6 +20,8 @@ def detect_format(path: str | Path) -> str:
         return "thesis-mat"
     if name.endswith(".csv") or name.endswith(".csv.gz"):
         return "nanobench"
+    if not path.exists():
+        raise DataError(f"{path}: no such file or directory")
     raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz or a bag directory)")
 
 

@@ -105,4 +105,4 @@ def test_command_line_entry_point_runs(tmp_path):
     entry_point = Path(sys.executable).parent / "quad-modelling"  # installed by `make` (pip -e .)
     result = subprocess.run([str(entry_point), "info", str(tmp_path / "absent")], capture_output=True, text=True)
     assert result.returncode == 2
-    assert result.stderr.strip() == f"quad-modelling info: error: {tmp_path / 'absent'}: no such bag"
+    assert result.stderr.strip() == f"quad-modelling info: error: {tmp_path / 'absent'}: no such file or directory"
