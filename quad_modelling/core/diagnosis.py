@@ -1,0 +1,613 @@
+"""Sim-to-real gap diagnosis (DESIGN 8): where the linear model diverges, which effect causes it, how far it shrinks.
+
+Inputs: training flights and held-out (test) flights of one vehicle, the
+effect catalogue (:mod:`quad_modelling.core.effects`). Every flight's flying
+part is cut into windows (:func:`~quad_modelling.core.effects.prepare_windows`),
+each predicted open loop from the measured state at the end of its warm start,
+scored with the evaluation protocol's smoothed RMS/TIC (DESIGN 7).
+
+1. **Base model.** The linear greybox; by default its identifiable constants
+   are fitted on the training windows first (:func:`identify_base`), so an
+   effect is credited only with what a better-tuned linear model could not do.
+2. **Where.** The base model's held-out gap per variable and window; the
+   residual binned by flight regime (speed, height above ground, battery
+   voltage, tilt, throttle, yaw rate, time since the anchor) and split into
+   frequency bands (Welch PSD); the worst windows named (flight, time).
+3. **Which effect.** Each effect is added alone, its parameters identified on
+   the training windows only (:func:`~quad_modelling.core.effects.fit_effects`),
+   and the held-out gap measured. The *shrink* of an effect is taken on its
+   affected variables V_e, normalised per variable by the base model's gap:
+
+   .. math::
+
+       S_e = 1 - \\frac{\\sum_{v \\in V_e} \\overline{RMS}^{after}_v / s_v}
+                       {\\sum_{v \\in V_e} \\overline{RMS}^{base}_v / s_v}
+
+   with :math:`s_v` the base model's training residual RMS and the bars the
+   mean over held-out windows (the same ratio per window gives the per-window
+   shrink :math:`S_{e,w}`).
+4. **Verdict rule** (constants below):
+
+   * ``found``: held-out shrink :math:`S_e \\ge` :data:`FOUND_MIN_SHRINK`, the
+     5 % lower bound of its bootstrap over held-out windows (:data:`BOOTSTRAP`
+     resamples, seeded) above zero, and at least :data:`FOUND_MIN_WINDOW_FRACTION`
+     of the held-out windows improved;
+   * ``rejected``: the training shrink is at least :data:`FOUND_MIN_SHRINK` but
+     the held-out test above fails (it fits the training data, not new data);
+   * ``insignificant``: otherwise.
+
+   Effects are ranked by held-out shrink. Two effects are *confounded* when the
+   corrections they make to the held-out prediction correlate with
+   :math:`|\\rho| \\ge` :data:`CONFOUND_CORRELATION` on their shared variables
+   and the weaker one's shrink is at least :data:`CONFOUND_SHRINK_RATIO` of the
+   stronger's: on this data they cannot be told apart.
+5. **Ladder.** base -> +best found -> +next found ..., each rung identified
+   jointly on the training windows, with the held-out gap at each rung.
+6. **Learnable floor.** Optionally a NARX model trained on the training
+   flights, scored on the same held-out windows.
+
+Evidence per effect: the correlation of the base residual with the effect's
+correction (its *signature*) on held-out data, the per-window shrink spread,
+the sign test over windows, training vs held-out shrink.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy import optimize, signal, stats
+
+from quad_modelling.core.effects import (
+    CATALOGUE,
+    BaseModel,
+    Effect,
+    WindowBatch,
+    fit_effects,
+    predict_batch,
+    prepare_windows,
+    variable_scales,
+    window_rms,
+    window_tic,
+)
+from quad_modelling.core.evaluation import EvaluationConfig
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.greybox import GreyboxParameters
+from quad_modelling.core.variables import EVAL_VARIABLES, INDEX, VARIABLES
+from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.errors import ConfigError, DataError
+
+FOUND_MIN_SHRINK = 0.05
+"""Smallest held-out shrink of an effect's affected-variable gap to call it found (5 %)."""
+
+FOUND_MIN_WINDOW_FRACTION = 0.6
+"""Fraction of held-out windows an effect must improve to be found."""
+
+BOOTSTRAP = 1000
+"""Bootstrap resamples of the held-out windows (seed :data:`BOOTSTRAP_SEED`)."""
+
+BOOTSTRAP_SEED = 7
+
+CONFOUND_CORRELATION = 0.8
+"""|correlation| of two effects' held-out corrections above which they may be confounded."""
+
+CONFOUND_SHRINK_RATIO = 0.5
+"""... and the weaker effect must reach this fraction of the stronger one's shrink."""
+
+LADDER_MAX_RUNGS = 4
+
+DIAGNOSIS_CONFIG = EvaluationConfig(drop_start=3.5, drop_end=4.5, window_s=5.0, train="0%:100%", eval="0%:100%")
+"""Default windows: 5 s (the open-loop linear model drifts over 10 s), take-off and touchdown dropped
+(3.5 s / 4.5 s: the climb-out and final approach stay in, where ground effect acts)."""
+
+REGIME_BINS = 4
+"""Quantile bins per regime variable."""
+
+FREQUENCY_BANDS_HZ = ((0.0, 0.2), (0.2, 1.0), (1.0, 3.0), (3.0, 10.0))
+"""Bands of the residual power split [Hz]."""
+
+
+# ----------------------------------------------------------------------------- base model
+
+
+@dataclass
+class BaseFit:
+    """The base model used by the diagnosis and how it was obtained."""
+
+    model: BaseModel
+    values: dict[str, float]
+    identified: bool
+    note: str
+
+
+def base_from_vehicle(vehicle: VehicleConfig, reference_voltage: float | None = None) -> BaseModel:
+    """The linear greybox of the vehicle's configured constants."""
+    return BaseModel(GreyboxParameters.from_vehicle(vehicle), reference_voltage)
+
+
+def _base_parameters(p: GreyboxParameters, tau_m: float, gain: float, yaw_ratio: float, arm_scale: float) -> GreyboxParameters:
+    root = 2.0 * math.sqrt(p.thrust_constant * p.mass * GRAVITY / 4.0)
+    return replace(
+        p,
+        motor_a_m=-1.0 / tau_m,
+        motor_b_m=gain / root,
+        drag_constant=yaw_ratio * p.thrust_constant,
+        motor_positions=tuple((arm_scale * x, arm_scale * y) for x, y in p.motor_positions),
+    )
+
+
+def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
+    """Fit the linear model's identifiable constants on training windows.
+
+    Parameters (output error on the smoothed acc_z, roll_acc, pitch_acc and
+    yaw_acc, each normalised by its measured RMS -- the variables the thrusts
+    drive without integration, so open-loop drift does not enter):
+    motor time constant :math:`\\tau_m = -1/A_m \\in [0.01, 2]` s, thrust gain
+    :math:`K`, yaw drag ratio :math:`d/a`, and a common scale of the motor arm
+    lengths (torque per thrust / inertia for roll and pitch). :math:`a` is held
+    (only :math:`B_m\\sqrt a` is identifiable), :math:`B_m = K / (2\\sqrt{a m g/4})`.
+    """
+    p0 = GreyboxParameters.from_vehicle(vehicle)
+    v_ref = float(batch.vbat.mean()) if batch.vbat is not None else None
+    cols = np.array([INDEX[v] for v in ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")])
+    rows = slice(batch.warm, None, 4)
+    target = batch.measured[:, rows][:, :, cols]
+    scale = np.maximum(np.sqrt(np.mean(target**2, axis=(0, 1))), 1e-9)
+    tau0 = min(max(-1.0 / p0.motor_a_m, 0.011), 1.9)
+    x0 = np.array([math.log(tau0), 0.0, p0.drag_constant / p0.thrust_constant, 1.0])
+    lower = np.array([math.log(0.01), math.log(0.05), -1.0, 0.3])
+    upper = np.array([math.log(2.0), math.log(20.0), 1.0, 3.0])
+    x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
+
+    def parameters(z: np.ndarray) -> GreyboxParameters:
+        return _base_parameters(p0, math.exp(z[0]), p0.input_gain * math.exp(z[1]), z[2], z[3])
+
+    def residuals(z: np.ndarray) -> np.ndarray:
+        pred = predict_batch(BaseModel(parameters(z)), batch, columns=cols)
+        return ((target - pred[:, rows][:, :, cols]) / scale).ravel()
+
+    best = None
+    for start_gain in (0.0, math.log(3.0), -math.log(3.0)):
+        z = x0.copy()
+        z[1] = start_gain
+        fit = optimize.least_squares(residuals, z, bounds=(lower, upper), method="trf", x_scale=np.array([1.0, 1.0, 0.05, 0.3]), max_nfev=80)
+        if best is None or fit.cost < best.cost:
+            best = fit
+    p = parameters(best.x)
+    values = {"motor_a_m": p.motor_a_m, "motor_b_m": p.motor_b_m, "drag_constant": p.drag_constant,
+              "thrust_gain_K": p.input_gain, "arm_scale": float(best.x[3]), "reference_voltage": v_ref}
+    return BaseFit(BaseModel(p, v_ref), values, True, "identified on the training windows (acc_z, roll/pitch/yaw acceleration)")
+
+
+# ----------------------------------------------------------------------------- scores
+
+
+def normalised_window_gap(batch: WindowBatch, predicted: np.ndarray, cols: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """(W,) sum over ``cols`` of RMS_v / s_v per window."""
+    return (window_rms(batch, predicted, cols) / scales[cols]).sum(axis=1)
+
+
+def shrink_of(before: np.ndarray, after: np.ndarray) -> float:
+    """1 - sum(after) / sum(before) of per-window normalised gaps (0 when the base gap is zero)."""
+    total = float(np.sum(before))
+    return 1.0 - float(np.sum(after)) / total if total > 0 else 0.0
+
+
+def bootstrap_shrink(before: np.ndarray, after: np.ndarray, resamples: int = BOOTSTRAP, seed: int = BOOTSTRAP_SEED) -> tuple[float, float]:
+    """(5 %, 95 %) bootstrap quantiles of the shrink over windows (resampled with replacement)."""
+    if len(before) < 2:
+        return (float("nan"), float("nan"))
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(before), size=(resamples, len(before)))
+    b, a = before[idx].sum(axis=1), after[idx].sum(axis=1)
+    s = 1.0 - a / np.where(b > 0, b, 1.0)
+    return float(np.quantile(s, 0.05)), float(np.quantile(s, 0.95))
+
+
+def sign_test(improved: int, total: int) -> float:
+    """One-sided binomial p-value of at least ``improved`` of ``total`` windows improving by chance (p = 1/2)."""
+    if total == 0:
+        return 1.0
+    return float(stats.binomtest(improved, total, 0.5, alternative="greater").pvalue)
+
+
+def variable_scores(batch: WindowBatch, predicted: np.ndarray, names: Sequence[str] = EVAL_VARIABLES) -> dict[str, dict[str, float]]:
+    cols = np.array([INDEX[v] for v in names])
+    r = window_rms(batch, predicted, cols).mean(axis=0)
+    t = window_tic(batch, predicted, cols).mean(axis=0)
+    return {v: {"rms": float(r[i]), "tic": float(t[i])} for i, v in enumerate(names)}
+
+
+def correction_correlation(batch: WindowBatch, delta_a: np.ndarray, delta_b: np.ndarray, cols: np.ndarray, scales: np.ndarray) -> float:
+    """Pearson correlation of two (W, N, 18) arrays over the scored rows of ``cols`` (each column scaled)."""
+    a = (delta_a[:, batch.warm :, cols] / scales[cols]).ravel()
+    b = (delta_b[:, batch.warm :, cols] / scales[cols]).ravel()
+    sa, sb = a.std(), b.std()
+    if sa == 0 or sb == 0:
+        return 0.0
+    return float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb))
+
+
+# ----------------------------------------------------------------------------- where
+
+
+REGIME_UNITS = {"speed": "m/s", "height": "m", "battery_voltage": "V", "tilt": "deg", "throttle": "fraction of input range",
+                "yaw_rate": "deg/s", "time_in_window": "s"}
+
+
+def regime_signals(batch: WindowBatch) -> dict[str, np.ndarray]:
+    """(W, N) regime variables per sample: speed, height above ground, voltage, tilt, throttle, |yaw rate|, time since anchor."""
+    phi, theta = batch.euler[:, :, 0], batch.euler[:, :, 1]
+    tilt = np.degrees(np.arccos(np.clip(np.cos(phi) * np.cos(theta), -1.0, 1.0)))
+    throttle = ((batch.u + batch.u_trim[:, None, :]).mean(axis=2) - batch.input_min) / batch.u_span
+    out = {
+        "speed": np.linalg.norm(batch.velocity_abs, axis=2),
+        "height": batch.height,
+        "tilt": tilt,
+        "throttle": throttle,
+        "yaw_rate": np.degrees(np.abs(batch.rates[:, :, 2])),
+        "time_in_window": np.broadcast_to((np.arange(batch.samples) - (batch.warm - 1)) * batch.dt, batch.height.shape),
+    }
+    if batch.vbat is not None:
+        out["battery_voltage"] = batch.vbat
+    return out
+
+
+def localise(batch: WindowBatch, predicted: np.ndarray, scales: np.ndarray, names: Sequence[str] = EVAL_VARIABLES) -> dict:
+    """Where the residual concentrates: by regime (quantile bins), by frequency band, and the worst windows."""
+    cols = np.array([INDEX[v] for v in names])
+    resid = (batch.measured - predicted)[:, batch.warm :, :][:, :, cols]  # (W, M, k)
+    norm = resid / scales[cols]
+    regimes = {}
+    for name, values in regime_signals(batch).items():
+        x = np.asarray(values)[:, batch.warm :].ravel()
+        edges = np.quantile(x, np.linspace(0.0, 1.0, REGIME_BINS + 1))
+        if not np.all(np.isfinite(edges)) or edges[-1] - edges[0] <= 1e-12:
+            regimes[name] = {"unit": REGIME_UNITS[name], "note": "constant over the held-out windows"}
+            continue
+        which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, REGIME_BINS - 1)
+        flat = norm.reshape(-1, len(cols))
+        per_var = {}
+        normalised = []
+        for b in range(REGIME_BINS):
+            mask = which == b
+            rms_b = np.sqrt(np.mean(resid.reshape(-1, len(cols))[mask] ** 2, axis=0)) if mask.any() else np.full(len(cols), np.nan)
+            for i, v in enumerate(names):
+                per_var.setdefault(v, []).append(float(rms_b[i]))
+            normalised.append(float(np.sqrt(np.mean(flat[mask] ** 2))) if mask.any() else float("nan"))
+        top, bottom = normalised[-1], normalised[0]
+        regimes[name] = {
+            "unit": REGIME_UNITS[name],
+            "edges": [float(e) for e in edges],
+            "rms": per_var,
+            "normalised_rms": normalised,
+            "ratio_top_to_bottom": float(top / bottom) if bottom > 0 else None,
+        }
+    bands = frequency_split(resid, 1.0 / batch.dt, names)
+    gaps = (window_rms(batch, predicted, cols) / scales[cols]).mean(axis=1)
+    order = np.argsort(gaps)[::-1]
+    worst = [{"flight": batch.sources[i], "t_start_s": float(batch.t0[i]), "t_end_s": float(batch.t0[i] + batch.samples * batch.dt),
+              "normalised_gap": float(gaps[i])} for i in order[:5]]
+    return {"regimes": regimes, "frequency": bands, "worst_windows": worst, "window_gap": [float(g) for g in gaps]}
+
+
+def frequency_split(resid: np.ndarray, rate: float, names: Sequence[str]) -> dict:
+    """Fraction of each variable's residual power per band of :data:`FREQUENCY_BANDS_HZ` (Welch PSD per window, averaged)."""
+    nperseg = min(256, resid.shape[1])
+    f, pxx = signal.welch(resid, fs=rate, nperseg=nperseg, axis=1)
+    pxx = pxx.mean(axis=0)  # (F, k)
+    total = np.trapezoid(pxx, f, axis=0) if hasattr(np, "trapezoid") else np.trapz(pxx, f, axis=0)
+    out = {}
+    for i, v in enumerate(names):
+        fractions = {}
+        for lo, hi in FREQUENCY_BANDS_HZ:
+            mask = (f >= lo) & (f < hi)
+            power = float(np.sum(pxx[mask, i]) * (f[1] - f[0]))
+            fractions[f"{lo:g}-{hi:g} Hz"] = power / float(total[i]) if total[i] > 0 else 0.0
+        out[v] = fractions
+    return out
+
+
+# ----------------------------------------------------------------------------- which effect
+
+
+@dataclass
+class EffectOutcome:
+    effect: Effect
+    theta: np.ndarray | None
+    shrink: float
+    train_shrink: float
+    before: dict[str, float]
+    after: dict[str, float]
+    after_tic: dict[str, float]
+    evidence: dict
+    verdict: str
+    confounded_with: list[str]
+    correction: np.ndarray | None  # (W, N, 18) held-out prediction change
+    note: str = ""
+
+    def to_json(self) -> dict:
+        e = self.effect
+        return {
+            "name": e.name,
+            "summary": e.summary,
+            "variables": list(e.variables),
+            "shrink": self.shrink,
+            "train_shrink": self.train_shrink,
+            "before": self.before,
+            "after": self.after,
+            "after_tic": self.after_tic,
+            "params": {} if self.theta is None else {k: float(v) for k, v in zip(e.parameters, self.theta)},
+            "param_units": dict(zip(e.parameters, e.units)),
+            "evidence": self.evidence,
+            "confounded_with": self.confounded_with,
+            "verdict": self.verdict,
+            **({"note": self.note} if self.note else {}),
+        }
+
+
+def verdict_of(shrink: float, train_shrink: float, ci_low: float, improved_fraction: float) -> str:
+    """The verdict rule of the module docstring."""
+    held_out_ok = shrink >= FOUND_MIN_SHRINK and ci_low > 0.0 and improved_fraction >= FOUND_MIN_WINDOW_FRACTION
+    if held_out_ok:
+        return "found"
+    if train_shrink >= FOUND_MIN_SHRINK:
+        return "rejected"
+    return "insignificant"
+
+
+def assess_effect(
+    effect: Effect, base: BaseModel, train: WindowBatch, test: WindowBatch, scales: np.ndarray,
+    base_train: np.ndarray, base_test: np.ndarray,
+) -> EffectOutcome:
+    """Identify one effect on ``train``, score it on ``test`` (see module docstring)."""
+    cols = np.array([INDEX[v] for v in effect.variables])
+    reason = effect.applicable(train) or effect.applicable(test)
+    eval_cols = np.array([INDEX[v] for v in EVAL_VARIABLES])
+    before_rms = window_rms(test, base_test, eval_cols).mean(axis=0)
+    before = {v: float(before_rms[i]) for i, v in enumerate(EVAL_VARIABLES)}
+    if reason:
+        return EffectOutcome(effect, None, 0.0, 0.0, before, before, {}, {}, "insignificant", [], None, note=f"not evaluated: {reason}")
+    fit = fit_effects(base, train, [effect], scales)
+    theta = fit.thetas[0]
+    after_train = predict_batch(base, train, [effect], [theta], columns=cols)
+    after_test = predict_batch(base, test, [effect], [theta])
+    train_shrink = shrink_of(normalised_window_gap(train, base_train, cols, scales), normalised_window_gap(train, after_train, cols, scales))
+    gap_before = normalised_window_gap(test, base_test, cols, scales)
+    gap_after = normalised_window_gap(test, after_test, cols, scales)
+    shrink = shrink_of(gap_before, gap_after)
+    ci = bootstrap_shrink(gap_before, gap_after)
+    improved = int(np.sum(gap_after < gap_before))
+    correction = after_test - base_test
+    residual = test.measured - base_test
+    signature = correction_correlation(test, residual, correction, cols, scales)
+    per_window = 1.0 - gap_after / np.where(gap_before > 0, gap_before, 1.0)
+    after_rms = window_rms(test, after_test, eval_cols).mean(axis=0)
+    after_tic = window_tic(test, after_test, eval_cols).mean(axis=0)
+    evidence = {
+        "signature_correlation": signature,
+        "train_shrink": train_shrink,
+        "shrink_ci90": list(ci),
+        "windows_improved": improved,
+        "windows": len(test),
+        "sign_test_p": sign_test(improved, len(test)),
+        "per_window_shrink_median": float(np.median(per_window)),
+        "per_window_shrink_iqr": [float(np.quantile(per_window, 0.25)), float(np.quantile(per_window, 0.75))],
+        "fit_evaluations": fit.evaluations,
+    }
+    return EffectOutcome(
+        effect, theta, shrink, train_shrink, before, {v: float(after_rms[i]) for i, v in enumerate(EVAL_VARIABLES)},
+        {v: float(after_tic[i]) for i, v in enumerate(EVAL_VARIABLES)}, evidence,
+        verdict_of(shrink, train_shrink, ci[0], improved / max(len(test), 1)), [], correction,
+    )
+
+
+def mark_confounded(outcomes: list[EffectOutcome], test: WindowBatch, scales: np.ndarray) -> None:
+    """Fill ``confounded_with`` (module docstring rule) and record the correlations in the evidence."""
+    for a in outcomes:
+        a.evidence.setdefault("correction_correlation", {})
+    for i, a in enumerate(outcomes):
+        for b in outcomes[i + 1 :]:
+            if a.correction is None or b.correction is None:
+                continue
+            shared = sorted(set(a.effect.variables) & set(b.effect.variables), key=VARIABLES.index)
+            if not shared:
+                continue
+            cols = np.array([INDEX[v] for v in shared])
+            rho = correction_correlation(test, a.correction, b.correction, cols, scales)
+            a.evidence["correction_correlation"][b.effect.name] = rho
+            b.evidence["correction_correlation"][a.effect.name] = rho
+            strong, weak = max(a.shrink, b.shrink), min(a.shrink, b.shrink)
+            if abs(rho) >= CONFOUND_CORRELATION and strong >= FOUND_MIN_SHRINK and weak >= CONFOUND_SHRINK_RATIO * strong:
+                a.confounded_with.append(b.effect.name)
+                b.confounded_with.append(a.effect.name)
+
+
+# ----------------------------------------------------------------------------- diagnosis
+
+
+@dataclass
+class Diagnosis:
+    base: BaseFit
+    gap: dict
+    train_gap: dict
+    regimes: dict
+    outcomes: list[EffectOutcome]
+    ladder: list[dict]
+    learnable: dict
+    windows: dict
+    config: EvaluationConfig
+    train_sources: list[str]
+    test_sources: list[str]
+    base_test: np.ndarray
+    test_batch: WindowBatch
+    timings: dict
+
+    @property
+    def found(self) -> list[str]:
+        return [o.effect.name for o in self.outcomes if o.verdict == "found"]
+
+    def ranking(self) -> list[str]:
+        return [o.effect.name for o in self.outcomes]
+
+    def to_json(self) -> dict:
+        return {
+            "gap": self.gap,
+            "train_gap": self.train_gap,
+            "regimes": self.regimes,
+            "effects": [o.to_json() for o in self.outcomes],
+            "found": self.found,
+            "ladder": self.ladder,
+            "learnable": self.learnable,
+            "base": {"identified": self.base.identified, "note": self.base.note, "values": self.base.values},
+            "windows": self.windows,
+            "rule": {
+                "found": f"held-out shrink >= {FOUND_MIN_SHRINK} on the effect's variables, bootstrap 5% bound > 0 "
+                         f"({BOOTSTRAP} resamples of held-out windows), >= {FOUND_MIN_WINDOW_FRACTION:.0%} of held-out windows improved",
+                "rejected": f"training shrink >= {FOUND_MIN_SHRINK} but the held-out test fails",
+                "insignificant": "otherwise",
+                "confounded": f"|correlation of held-out corrections| >= {CONFOUND_CORRELATION} and the weaker shrink >= "
+                              f"{CONFOUND_SHRINK_RATIO} x the stronger",
+            },
+            "config": {**self.config.to_dict(), "train_flights": self.train_sources, "test_flights": self.test_sources},
+            "units": "SI (m/s, m/s2, rad/s, rad/s2)",
+            "timings_s": self.timings,
+        }
+
+
+def diagnose(
+    train_flights: Sequence[FlightLog],
+    test_flights: Sequence[FlightLog],
+    vehicle: VehicleConfig,
+    effects: Sequence[Effect] | None = None,
+    config: EvaluationConfig = DIAGNOSIS_CONFIG,
+    identify: bool = True,
+    base: BaseFit | None = None,
+    learnable: Callable[[], dict] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> Diagnosis:
+    """Run the diagnosis of the module docstring.
+
+    ``base``: a base model to use as given (e.g. identified on other data);
+    otherwise the vehicle's constants, identified on the training windows
+    when ``identify``. ``learnable``: a callable returning the NARX floor
+    (see :func:`narx_floor`), called last.
+    """
+    import time
+
+    timings = {}
+    clock = time.perf_counter()
+    effects = list(CATALOGUE.values()) if effects is None else list(effects)
+    if not effects:
+        raise ConfigError("diagnose: no effect to test")
+    say = progress or (lambda _msg: None)
+    train = prepare_windows(train_flights, vehicle, config)
+    test = prepare_windows(test_flights, vehicle, config)
+    if train.samples != test.samples:
+        raise DataError(f"training and test windows differ in length ({train.samples} vs {test.samples} samples): use flights of one sample rate")
+    timings["prepare"] = time.perf_counter() - clock
+    if base is None:
+        if identify:
+            say(f"identifying the base model on {len(train)} training windows")
+            base = identify_base(train, vehicle)
+        else:
+            v_ref = float(train.vbat.mean()) if train.vbat is not None else None
+            base = BaseFit(base_from_vehicle(vehicle, v_ref), {}, False, "the vehicle's configured constants")
+    timings["base"] = time.perf_counter() - clock - timings["prepare"]
+    model = base.model
+    base_train = predict_batch(model, train)
+    base_test = predict_batch(model, test)
+    scales = variable_scales(train, base_train)
+    gap = variable_scores(test, base_test)
+    train_gap = variable_scores(train, base_train)
+    where = localise(test, base_test, scales)
+    eval_cols = np.array([INDEX[v] for v in EVAL_VARIABLES])
+    per_window = window_rms(test, base_test, eval_cols)
+    windows = {
+        "test": [{"flight": s, "t_start_s": float(t), "rms": {v: float(per_window[i, j]) for j, v in enumerate(EVAL_VARIABLES)}}
+                 for i, (s, t) in enumerate(zip(test.sources, test.t0))],
+        "train_count": len(train),
+        "test_count": len(test),
+        "window_s": test.samples * test.dt,
+    }
+    outcomes = []
+    for effect in effects:
+        start = time.perf_counter()
+        say(f"effect {effect.name}")
+        outcomes.append(assess_effect(effect, model, train, test, scales, base_train, base_test))
+        timings[f"effect:{effect.name}"] = time.perf_counter() - start
+    mark_confounded(outcomes, test, scales)
+    outcomes.sort(key=lambda o: o.shrink, reverse=True)
+    start = time.perf_counter()
+    ladder = build_ladder(outcomes, model, train, test, scales, base_test)
+    timings["ladder"] = time.perf_counter() - start
+    floor = {}
+    if learnable is not None:
+        start = time.perf_counter()
+        say("training the NARX model (learnable floor)")
+        floor = learnable()
+        timings["learnable"] = time.perf_counter() - start
+    timings["total"] = time.perf_counter() - clock
+    return Diagnosis(base, gap, train_gap, where, outcomes, ladder, floor, windows, config,
+                     sorted(set(train.sources)), sorted(set(test.sources)), base_test, test, timings)
+
+
+def total_gap(batch: WindowBatch, predicted: np.ndarray, reference: dict[str, dict[str, float]]) -> float:
+    """Mean over EVAL_VARIABLES of RMS_v / RMS_v(base): 1.0 for the base model."""
+    scores = variable_scores(batch, predicted)
+    ratios = [scores[v]["rms"] / reference[v]["rms"] for v in EVAL_VARIABLES if reference[v]["rms"] > 0]
+    return float(np.mean(ratios)) if ratios else float("nan")
+
+
+def build_ladder(outcomes: list[EffectOutcome], base: BaseModel, train: WindowBatch, test: WindowBatch, scales: np.ndarray,
+                 base_test: np.ndarray) -> list[dict]:
+    """base -> +best -> +next found effect, each rung identified jointly on the training windows."""
+    reference = variable_scores(test, base_test)
+    ladder = [{"effects": [], "gap": reference, "normalised_gap": 1.0, "params": {}}]
+    chosen: list[Effect] = []
+    for outcome in [o for o in outcomes if o.verdict == "found"][:LADDER_MAX_RUNGS]:
+        seeded = replace(outcome.effect, initial=tuple(float(v) for v in outcome.theta))
+        previous = ladder[-1]["params"]
+        chosen = [replace(e, initial=tuple(previous[e.name][k] for k in e.parameters)) for e in chosen] + [seeded]
+        fit = fit_effects(base, train, chosen, scales)
+        predicted = predict_batch(base, test, fit.effects, fit.thetas)
+        ladder.append({
+            "effects": [e.name for e in chosen],
+            "gap": variable_scores(test, predicted),
+            "normalised_gap": total_gap(test, predicted, reference),
+            "params": fit.params(),
+        })
+    return ladder
+
+
+def narx_floor(train_flights: Sequence[FlightLog], test_flights: Sequence[FlightLog], vehicle: VehicleConfig,
+               config: EvaluationConfig = DIAGNOSIS_CONFIG, epochs: int = 10, seed: int = 0) -> dict:
+    """NARX model trained on the training flights' flying parts, scored on the diagnosis's held-out windows."""
+    from quad_modelling.core.evaluation import evaluate_window, span_windows, warm_samples_for
+    from quad_modelling.core.narx import NarxConfig, train_narx_on_flights
+    from quad_modelling.core.effects import flying_span
+    from quad_modelling.core.preprocess import resample_uniform
+
+    narx_config = NarxConfig(epochs=epochs)
+    train_flights = [resample_uniform(f) for f in train_flights]
+    spans = [(config.drop_start, max(f.duration - config.drop_end, config.drop_start + 1.0)) for f in train_flights]
+    model = train_narx_on_flights(list(train_flights), spans, narx_config, seed=seed)
+    sums = np.zeros(len(VARIABLES))
+    tics = np.zeros(len(VARIABLES))
+    count = 0
+    for log in test_flights:
+        log = resample_uniform(log)
+        for w in span_windows(log, flying_span(), config):
+            window = log.slice(w.start, w.stop)
+            warm = max(warm_samples_for(window, config.warm_s), narx_config.warm_samples + 1)
+            result = evaluate_window(model, window, warm, config.trim, vehicle, config.smooth_cutoff_hz)
+            sums += result.rms
+            tics += result.tic
+            count += 1
+    if count == 0:
+        return {}
+    return {"model": "narx", "epochs": epochs, "windows": count,
+            "gap": {v: {"rms": float(sums[INDEX[v]] / count), "tic": float(tics[INDEX[v]] / count)} for v in EVAL_VARIABLES},
+            "note": "NARX (thesis ch. 4) trained on the training flights, warm start 0.2 s or its 20 feedback samples"}

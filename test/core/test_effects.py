@@ -1,0 +1,110 @@
+"""Effect catalogue: the batched model equals the greybox predictor; neutral parameters change nothing;
+parameters of a known effect are recovered from data made with it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quad_modelling.core import effects as E
+from quad_modelling.core.evaluation import span_windows
+from quad_modelling.core.greybox import GreyboxParameters, GreyboxPredictor
+from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG
+from quad_modelling.core.sim import simulate
+from quad_modelling.core.variables import INDEX
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.errors import ConfigError
+
+NEUTRAL = {
+    "rotor_drag": [0.0, 0.0, 0.0], "battery": [0.0, 0.0], "motor_lag": [1e-4], "input_delay": [0.0],
+    "ground_effect": [0.0, 0.2], "gyroscopic": [0.0, 0.0], "thrust_nonlinearity": [0.0],
+    "motor_imbalance": [0.0] * 5, "trim_drift": [0.0] * 4,
+}
+
+
+@pytest.fixture(scope="session")
+def linkquad():
+    return load_vehicle("linkquad")
+
+
+@pytest.fixture(scope="session")
+def flight():
+    return simulate("linkquad", effects=(), seed=5, duration=30.0)
+
+
+@pytest.fixture(scope="session")
+def batch(flight, linkquad):
+    return E.prepare_windows([flight], linkquad, DIAGNOSIS_CONFIG)
+
+
+@pytest.fixture(scope="session")
+def base(linkquad):
+    return E.BaseModel(GreyboxParameters.from_vehicle(linkquad), reference_voltage=12.0)
+
+
+def test_batched_base_equals_greybox_predictor(flight, linkquad, batch, base):
+    predicted = E.predict_batch(base, batch, smoothed=False)
+    windows = span_windows(flight, E.flying_span(), DIAGNOSIS_CONFIG)
+    assert len(windows) == len(batch) >= 4
+    for k in (0, len(windows) - 1):
+        window = flight.slice(windows[k].start, windows[k].stop)
+        expected = GreyboxPredictor(linkquad).predict_window(window, batch.warm)
+        np.testing.assert_allclose(predicted[k], expected, rtol=1e-9, atol=1e-9)
+
+
+def test_every_catalogue_effect_is_neutral_at_its_null_parameters(batch, base):
+    reference = E.predict_batch(base, batch)
+    assert set(NEUTRAL) == set(E.CATALOGUE)
+    for name, theta in NEUTRAL.items():
+        predicted = E.predict_batch(base, batch, [E.CATALOGUE[name]], [np.array(theta)])
+        np.testing.assert_allclose(predicted, reference, atol=1e-9, err_msg=name)
+
+
+def test_input_delay_shifts_commands_by_whole_and_fractional_samples(batch, base):
+    u = batch.u
+    shifted = E.CATALOGUE["input_delay"].input_map(np.array([3 * batch.dt]), batch, base, u)
+    np.testing.assert_allclose(shifted[:, 3:], u[:, :-3])
+    half = E.CATALOGUE["input_delay"].input_map(np.array([0.5 * batch.dt]), batch, base, u)
+    np.testing.assert_allclose(half[:, 1:], 0.5 * (u[:, 1:] + u[:, :-1]))
+
+
+def test_motor_lag_is_a_unit_gain_first_order_lag(batch, base):
+    step = np.zeros_like(batch.u[:1])
+    step[:, 10:] = 1.0
+    tau = 0.1
+    one = E.replace(batch.subset([0]), u=step)
+    lagged = E.CATALOGUE["motor_lag"].input_map(np.array([tau]), one, base, step)
+    n = int(round(tau / batch.dt))  # one time constant after the step
+    pole = np.exp(-batch.dt / tau)
+    assert lagged[0, 10 + n, 0] == pytest.approx(1.0 - pole ** (n + 1), abs=1e-9)  # y_k = p y_(k-1) + (1-p) u_k
+    assert lagged[0, 10 + n, 0] == pytest.approx(1.0 - np.exp(-1.0), abs=0.04)
+    assert lagged[0, -1, 0] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_drag_force_opposes_the_measured_velocity(batch, base):
+    e = E.CATALOGUE["rotor_drag"].forcing(np.array([0.5, 0.0, 0.0]), batch, base, batch.u)
+    v = batch.velocity - batch.velocity[:, : batch.warm].mean(axis=1, keepdims=True)
+    np.testing.assert_allclose(e[:, :, 0], -0.5 * v[:, :, 0], atol=1e-12)
+
+
+@pytest.mark.parametrize("name, truth", [("motor_lag", [0.08]), ("input_delay", [0.035]), ("rotor_drag", [0.4, 0.3, -1.5])])
+def test_fit_recovers_the_parameters_of_a_known_effect(batch, base, name, truth):
+    effect = E.CATALOGUE[name]
+    made = E.predict_batch(base, batch, [effect], [np.array(truth)])
+    synthetic = E.replace(batch, measured=made)
+    scales = E.variable_scales(synthetic, E.predict_batch(base, synthetic))
+    fit = E.fit_effects(base, synthetic, [effect], scales)
+    np.testing.assert_allclose(fit.thetas[0], truth, rtol=0.05, atol=2e-3)
+
+
+def test_unknown_effect_names_are_a_config_error():
+    assert [e.name for e in E.parse_effect_list("battery, motor_lag")] == ["battery", "motor_lag"]
+    assert len(E.parse_effect_list("all")) == len(E.CATALOGUE)
+    with pytest.raises(ConfigError, match="wind"):
+        E.parse_effect_list("wind")
+
+
+def test_battery_effect_needs_a_voltage(batch):
+    assert E.CATALOGUE["battery"].applicable(batch) is None
+    assert "voltage" in E.CATALOGUE["battery"].applicable(E.replace(batch, vbat=None))
+    assert INDEX["acc_z"] in [INDEX[v] for v in E.CATALOGUE["battery"].variables]
