@@ -22,6 +22,7 @@ VERB_MODULES = (
     "evaluate",
     "simulate",
     "run_bag",
+    "diagnose",
 )
 """Modules under quad_modelling.commands, in --help order."""
 

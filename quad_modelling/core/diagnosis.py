@@ -105,7 +105,7 @@ DIAGNOSIS_CONFIG = EvaluationConfig(drop_start=3.5, drop_end=4.5, window_s=5.0, 
 REGIME_BINS = 4
 """Quantile bins per regime variable."""
 
-FREQUENCY_BANDS_HZ = ((0.0, 0.2), (0.2, 1.0), (1.0, 3.0), (3.0, 10.0))
+FREQUENCY_BANDS_HZ = ((0.0, 0.2), (0.2, 1.0), (1.0, 3.0), (3.0, math.inf))
 """Bands of the residual power split [Hz]."""
 
 
@@ -298,14 +298,14 @@ def frequency_split(resid: np.ndarray, rate: float, names: Sequence[str]) -> dic
     nperseg = min(256, resid.shape[1])
     f, pxx = signal.welch(resid, fs=rate, nperseg=nperseg, axis=1)
     pxx = pxx.mean(axis=0)  # (F, k)
-    total = np.trapezoid(pxx, f, axis=0) if hasattr(np, "trapezoid") else np.trapz(pxx, f, axis=0)
+    total = pxx.sum(axis=0)
     out = {}
     for i, v in enumerate(names):
         fractions = {}
         for lo, hi in FREQUENCY_BANDS_HZ:
             mask = (f >= lo) & (f < hi)
-            power = float(np.sum(pxx[mask, i]) * (f[1] - f[0]))
-            fractions[f"{lo:g}-{hi:g} Hz"] = power / float(total[i]) if total[i] > 0 else 0.0
+            label = f"{lo:g}-{hi:g} Hz" if math.isfinite(hi) else f">{lo:g} Hz"
+            fractions[label] = float(np.sum(pxx[mask, i]) / total[i]) if total[i] > 0 else 0.0
         out[v] = fractions
     return out
 

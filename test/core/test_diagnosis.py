@@ -1,0 +1,114 @@
+"""Gap diagnosis on simulated known answers: the withheld effect is ranked first and found, an effect
+that only fits training data is rejected, and a flight without unmodelled effects yields no discovery."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from quad_modelling.core import diagnosis as D
+from quad_modelling.core.effects import CATALOGUE, Effect, prepare_windows
+from quad_modelling.core.sim import simulate
+from quad_modelling.core.vehicle import load_vehicle
+
+DURATION = 50.0
+
+
+@pytest.fixture(scope="session")
+def linkquad():
+    return load_vehicle("linkquad")
+
+
+@pytest.fixture(scope="session")
+def flights():
+    """Training seed 11 and test seed 12 (other manoeuvres), with and without motor imbalance."""
+    out = {}
+    for effects in ((), ("motor_imbalance",)):
+        out[effects] = [simulate("linkquad", effects=effects, seed=s, duration=DURATION) for s in (11, 12)]
+    return out
+
+
+@pytest.fixture(scope="session")
+def base(flights, linkquad):
+    """Greybox identified on the effects-off training flight."""
+    return D.identify_base(prepare_windows(flights[()][:1], linkquad, D.DIAGNOSIS_CONFIG), linkquad)
+
+
+def _per_window_ramp(theta, batch, base, u):
+    """Overfitting on purpose: one vertical acceleration ramp per window *position in its batch*.
+    Fitted to the training windows it follows their drift; on other windows it is noise."""
+    e = np.zeros(batch.u.shape[:2] + (6,))
+    t = np.arange(batch.samples) * batch.dt
+    for w in range(len(batch)):
+        e[w, :, 2] = theta[w % len(theta)] * t
+        e[w, :, 3] = theta[(w + 3) % len(theta)] * t
+    return e
+
+
+def test_withheld_effect_is_ranked_first_and_found(flights, linkquad, base):
+    train, test = flights[("motor_imbalance",)]
+    effects = [CATALOGUE[n] for n in ("motor_imbalance", "battery", "motor_lag")]
+    result = D.diagnose([train], [test], linkquad, effects, base=base)
+    top = result.outcomes[0]
+    assert top.effect.name == "motor_imbalance"
+    assert top.verdict == "found"
+    assert top.shrink > 0.1
+    assert top.evidence["signature_correlation"] > 0.2
+    # the identified CG offset has the simulator's signs (sim: +6 mm x, -4 mm y)
+    params = dict(zip(top.effect.parameters, top.theta))
+    assert params["cg_x"] > 0 and params["cg_y"] < 0
+    assert [o.shrink for o in result.outcomes] == sorted((o.shrink for o in result.outcomes), reverse=True)
+    assert result.ladder[0]["normalised_gap"] == 1.0 and result.ladder[1]["effects"] == ["motor_imbalance"]
+    assert result.ladder[1]["normalised_gap"] < 1.0
+
+
+def test_null_flight_yields_no_discovery(flights, linkquad, base):
+    train, test = flights[()]
+    effects = [CATALOGUE[n] for n in ("motor_imbalance", "motor_lag", "rotor_drag")]
+    result = D.diagnose([train], [test], linkquad, effects, base=base)
+    assert result.found == []
+    assert all(o.shrink < D.FOUND_MIN_SHRINK for o in result.outcomes)
+
+
+def test_overfitting_effect_is_rejected(flights, linkquad, base):
+    train, test = flights[()]
+    windows = len(prepare_windows([train], linkquad, D.DIAGNOSIS_CONFIG))
+    overfit = Effect("per_window_ramps", "one free ramp per training window", tuple(f"r{i}" for i in range(windows)),
+                     ("m/s3",) * windows, (0.0,) * windows, (-2.0,) * windows, (2.0,) * windows, ("acc_z", "roll_acc"),
+                     forcing=_per_window_ramp)
+    result = D.diagnose([train], [test], linkquad, [overfit, CATALOGUE["motor_lag"]], base=base)
+    outcome = next(o for o in result.outcomes if o.effect.name == "per_window_ramps")
+    assert outcome.train_shrink >= D.FOUND_MIN_SHRINK
+    assert outcome.verdict == "rejected"
+
+
+def test_verdict_rule():
+    assert D.verdict_of(0.2, 0.3, 0.1, 0.9) == "found"
+    assert D.verdict_of(0.2, 0.3, -0.01, 0.9) == "rejected"  # not consistent over windows
+    assert D.verdict_of(0.01, 0.3, 0.005, 0.9) == "rejected"  # helps training only
+    assert D.verdict_of(0.01, 0.02, 0.005, 0.9) == "insignificant"
+
+
+def test_bootstrap_and_sign_test():
+    before = np.ones(10)
+    lo, hi = D.bootstrap_shrink(before, 0.5 * before)
+    assert lo == pytest.approx(0.5) and hi == pytest.approx(0.5)
+    assert D.sign_test(10, 10) == pytest.approx(0.5**10)
+    assert D.shrink_of(np.array([2.0, 2.0]), np.array([1.0, 1.0])) == pytest.approx(0.5)
+
+
+def test_localisation_names_regimes_bands_and_worst_windows(flights, linkquad, base):
+    batch = prepare_windows(flights[()][1:], linkquad, D.DIAGNOSIS_CONFIG)
+    from quad_modelling.core.effects import predict_batch, variable_scales
+
+    predicted = predict_batch(base.model, batch)
+    where = D.localise(batch, predicted, variable_scales(batch, predicted))
+    assert {"speed", "height", "battery_voltage", "tilt", "throttle", "yaw_rate", "time_in_window"} <= set(where["regimes"])
+    # open-loop drift: the residual grows with the time since the anchor
+    assert where["regimes"]["time_in_window"]["ratio_top_to_bottom"] > 1.5
+    for bands in where["frequency"].values():
+        assert sum(bands.values()) == pytest.approx(1.0, abs=0.05)
+    gaps = [w["normalised_gap"] for w in where["worst_windows"]]
+    assert gaps == sorted(gaps, reverse=True) and where["worst_windows"][0]["flight"] == "simulated"
