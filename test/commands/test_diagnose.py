@@ -1,0 +1,66 @@
+"""The diagnose verb: thesis .mat inputs through load_flight, outputs written atomically, verdict first."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from quad_modelling.cli import main
+from quad_modelling.commands.diagnose import verdict_text
+from quad_modelling.core.sim import simulate
+from quad_modelling.io.matlog import write_matlog
+
+
+@pytest.fixture(scope="session")
+def mat_flights(tmp_path_factory):
+    """Two short simulated LinkQuad flights with motor lag (train seed 21, test seed 22) as thesis .mat logs."""
+    folder = tmp_path_factory.mktemp("diagnose_flights")
+    paths = []
+    for seed in (21, 22):
+        log = simulate("linkquad", effects=("motor_lag",), seed=seed, duration=40.0)
+        paths.append(str(write_matlog(log, folder / f"lag_{seed}.mat")))
+    return paths
+
+
+def test_diagnose_writes_json_report_and_figures(mat_flights, tmp_path, capsys):
+    out = tmp_path / "diag"
+    code = main(["diagnose", "--train", mat_flights[0], "--test", mat_flights[1], "--vehicle", "linkquad",
+                 "--effects", "motor_lag,rotor_drag,ground_effect", "-o", str(out)])
+    assert code == 0
+    data = json.loads((out / "diagnosis.json").read_text())
+    assert set(data["gap"]["acc_z"]) == {"rms", "tic"}
+    names = [e["name"] for e in data["effects"]]
+    assert sorted(names) == ["ground_effect", "motor_lag", "rotor_drag"]
+    shrinks = [e["shrink"] for e in data["effects"]]
+    assert shrinks == sorted(shrinks, reverse=True)
+    for e in data["effects"]:
+        assert e["verdict"] in ("found", "rejected", "insignificant")
+        assert set(e["before"]) == set(e["after"]) == set(data["gap"])
+    assert data["ladder"][0]["effects"] == []
+    report = (out / "report.md").read_text()
+    assert report.splitlines()[2] == "## Verdict" and "Where:" in report and "Which:" in report
+    assert (out / "gap_by_regime.png").stat().st_size > 0 and (out / "effect_shrink.png").stat().st_size > 0
+    assert "->" in capsys.readouterr().out
+    # never overwrite without --force
+    assert main(["diagnose", "--train", mat_flights[0], "--test", mat_flights[1], "--vehicle", "linkquad",
+                 "--effects", "motor_lag", "-o", str(out)]) == 2
+
+
+def test_diagnose_rejects_unknown_effects_and_missing_inputs(mat_flights, tmp_path, capsys):
+    assert main(["diagnose", "--train", mat_flights[0], "--test", mat_flights[1], "--effects", "warp_drive", "-o", str(tmp_path / "x")]) == 2
+    assert "warp_drive" in capsys.readouterr().err
+    assert main(["diagnose", "--train", mat_flights[0], "-o", str(tmp_path / "y")]) == 2
+    assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
+
+
+def test_verdict_text_names_the_effect_and_the_shrink():
+    gap = {v: {"rms": 1.0, "tic": 0.5} for v in ("vel_x", "vel_y", "vel_z", "acc_x", "acc_y", "acc_z", "roll_rate", "pitch_rate",
+                                                  "yaw_rate", "roll_acc", "pitch_acc", "yaw_acc")}
+    effect = {"name": "rotor_drag", "summary": "drag", "variables": ["acc_x"], "shrink": 0.4, "train_shrink": 0.45,
+              "after": {**{v: 1.0 for v in gap}, "acc_x": 0.6}, "verdict": "found", "confounded_with": ["battery"],
+              "evidence": {"shrink_ci90": [0.3, 0.5], "windows_improved": 9, "windows": 10}}
+    text = verdict_text({"gap": gap, "regimes": {"regimes": {}}, "effects": [effect], "ladder": [{}], "learnable": {}})
+    assert "rotor_drag" in text and "40%" in text and "9/10" in text and "battery" in text
+    none = verdict_text({"gap": gap, "regimes": {"regimes": {}}, "effects": [{**effect, "verdict": "insignificant"}], "ladder": [{}]})
+    assert "none found" in none
