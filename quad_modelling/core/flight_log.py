@@ -42,6 +42,15 @@ VECTOR_FIELDS = ("acc_b", "gyro_b", "pos_n", "vel_n", "euler")
 """The (N, 3) fields, in the order used by writers."""
 
 
+def first_outside(values: np.ndarray, low: float, high: float) -> tuple[int, int, int] | None:
+    """(row, column, count) of the first value of an (N, k) array outside [low, high], or None."""
+    outside = (values < low) | (values > high)
+    if not outside.any():
+        return None
+    row = int(np.argmax(outside.any(axis=1)))
+    return row, int(np.argmax(outside[row])), int(outside.sum())
+
+
 @dataclass
 class FlightMeta:
     """What a flight log is about.
@@ -144,10 +153,9 @@ class FlightLog:
 
     def check_input_range(self, low: float, high: float, unit: str) -> None:
         """Raise DataError naming column, row and time of the first command outside [low, high]."""
-        outside = (self.u < low) | (self.u > high)
-        if outside.any():
-            row = int(np.argmax(outside.any(axis=1)))
-            col = int(np.argmax(outside[row]))
+        found = first_outside(self.u, low, high)
+        if found:
+            row, col, _ = found
             raise DataError(
                 f"{self.meta.source}: engine command u{col + 1} row {row} (t={self.t[row]:.3f} s) is "
                 f"{self.u[row, col]:.6g} {unit}, outside the configured range [{low:g}, {high:g}] "

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.flight_log import FlightLog, FlightMeta, first_outside
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import DataError
 
@@ -105,14 +105,13 @@ def read_nanobench(path: str | Path, vehicle: str = "crazyflie21") -> FlightLog:
         notes["euler_columns_unit"] = "rad" if difference < EULER_COLUMN_TOLERANCE else "inconsistent"
     config = load_vehicle(vehicle)
     motors = stack(MOTORS)
-    outside = (motors < config.input_min) | (motors > config.input_max)
-    if outside.any():
-        row = int(np.argmax(outside.any(axis=1)))
-        col = int(np.argmax(outside[row]))
+    found = first_outside(motors, config.input_min, config.input_max)
+    if found:
+        row, col, count = found
         raise DataError(
             f"{where}: column {MOTORS[col]} data row {row + 1} (t={column['t'][row] - column['t'][0]:.2f} s into the flight) "
             f"is {motors[row, col]:.0f}, outside the {config.name} input range "
-            f"[{config.input_min:g}, {config.input_max:g}] {config.input_unit} ({int(outside.sum())} values outside)"
+            f"[{config.input_min:g}, {config.input_max:g}] {config.input_unit} ({count} values outside)"
         )
     log = FlightLog(
         t=column["t"],
