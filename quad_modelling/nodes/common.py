@@ -196,6 +196,14 @@ def spans_check(value) -> str | None:
     return None
 
 
+def say(node, text: str, error: bool = False) -> None:
+    """Log through the node while ROS runs; after shutdown (final summaries) print to stderr."""
+    if node.context.ok():
+        (node.get_logger().error if error else node.get_logger().info)(text)
+    else:
+        print(f"[{'ERROR' if error else 'INFO'}] [{node.get_namespace().strip('/')}.{node.get_name()}]: {text}", file=sys.stderr, flush=True)
+
+
 def run_node(factory, args=None) -> int:
     """Create the node with ``factory()``, spin it, shut down cleanly; exit code.
 

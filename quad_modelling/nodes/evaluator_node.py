@@ -67,9 +67,13 @@ from quad_modelling.nodes.common import (
     parse_span,
     positive,
     run_node,
+    say,
     spans_check,
 )
 from quad_modelling.nodes.scoring import LiveScores, WindowRecord
+
+PROGRESS_REPEAT_S = 0.2
+"""The progress acknowledgement is repeated this often [s] even when unchanged (late replays)."""
 
 MAX_OPEN_WINDOWS = 3
 """Windows buffered at once; an older one is closed (and marked if incomplete) when a newer one opens."""
@@ -158,6 +162,7 @@ class EvaluatorNode(Node):
         self.started_wall = time.monotonic()
         self.first_motor_wall: float | None = None
         self.progress_sent = None
+        self.progress_wall = 0.0
         self.windows_closed = 0
         qos = data_qos(p["qos_depth"])
         self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
@@ -306,19 +311,20 @@ class EvaluatorNode(Node):
         return min(stamps)
 
     def on_progress_timer(self) -> None:
+        """Acknowledge progress: on change, and every :data:`PROGRESS_REPEAT_S` for late subscribers."""
+        now = time.monotonic()
         if not self.ready:
             have_all = all(self.count_publishers(f"{m}/accel") > 0 and self.count_publishers(f"{m}/odom") > 0 for m in self.models)
-            waited = time.monotonic() - self.started_wall
+            waited = now - self.started_wall
             if not have_all and waited < self.ready_timeout_s:
                 return
             if not have_all:
                 self.faults.report("model_missing", f"not every model in {self.models} publishes after {waited:.0f} s; going on without")
             self.ready = True
-            self.progress_pub.publish(messages.clock_message(0))  # "ready": nothing processed yet
-            return
         ns = self.progress_ns()
-        if ns is not None and ns != self.progress_sent:
-            self.progress_sent = ns
+        ns = 0 if ns is None else ns  # 0 = ready, nothing processed yet
+        if ns != self.progress_sent or now - self.progress_wall > PROGRESS_REPEAT_S:
+            self.progress_sent, self.progress_wall = ns, now
             self.progress_pub.publish(messages.clock_message(ns))
 
     def on_close_timer(self) -> None:
@@ -451,10 +457,10 @@ class EvaluatorNode(Node):
             self._close(k, reason_if_incomplete="input ended before the window was complete")
         if self.output_dir is not None:
             try:
-                self.get_logger().info(self.write_results())
+                say(self, self.write_results())
             except (QuadModellingError, OSError) as err:
-                self.get_logger().error(f"cannot write results: {err}")
-        self.get_logger().info(f"closed {self.windows_closed} windows; faults: {self.faults.summary()}")
+                say(self, f"cannot write results: {err}", error=True)
+        say(self, f"closed {self.windows_closed} windows; faults: {self.faults.summary()}")
 
 
 def _span_text(bounds) -> str:

@@ -51,6 +51,7 @@ from quad_modelling.nodes.common import (
     non_negative,
     positive,
     run_node,
+    say,
 )
 from quad_modelling.nodes.model_factory import make_streaming_predictor, model_name
 
@@ -277,7 +278,7 @@ class PredictorNode(Node):
         rclpy.spin(self)
 
     def finish(self) -> None:
-        self.get_logger().info(f"published {self.published} predictions over {self.windows_started} windows; faults: {self.faults.summary()}")
+        say(self, f"published {self.published} predictions over {self.windows_started} windows; faults: {self.faults.summary()}")
 
 
 def main(args=None) -> int:

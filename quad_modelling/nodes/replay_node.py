@@ -49,6 +49,7 @@ from quad_modelling.nodes.common import (
     non_negative,
     positive,
     run_node,
+    say,
 )
 
 SETTLE_S = 0.5
@@ -214,7 +215,7 @@ class ReplayNode(Node):
             rclpy.spin_once(self, timeout_sec=0.05)
 
     def finish(self) -> None:
-        self.get_logger().info(f"published {self.published} samples in {self.passes} pass(es); faults: {self.faults.summary()}")
+        say(self, f"published {self.published} samples in {self.passes} pass(es); faults: {self.faults.summary()}")
 
 
 def main(args=None) -> int:

@@ -1,0 +1,98 @@
+"""The evaluator node: known prediction error -> known RMS/TIC; spans; marked windows; results files."""
+
+import json
+
+import numpy as np
+from rclpy.parameter import Parameter
+
+from quad_modelling.core.preprocess import measured_variables
+from quad_modelling.core.variables import INDEX
+from quad_modelling.nodes import messages
+from quad_modelling.nodes.evaluator_node import EvaluatorNode
+from test.ros.conftest import Capture, feed, hover_log
+
+
+def make_node(**params):
+    values = {"window_s": 5.0, "models": ["m"], "figures": False, **params}
+    node = EvaluatorNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+    node.diag_pub = Capture()
+    return node
+
+
+def offset_prediction(log, column: str, offset: float):
+    """The measurement itself, plus a constant error on one variable."""
+    y = measured_variables(log)
+    y[:, INDEX[column]] += offset
+    return messages.prediction_fields(y)
+
+
+def test_constant_velocity_error_gives_that_rms_and_the_matching_tic(ros):
+    log = hover_log(1600)
+    node = make_node(spans=["a:0:10", "b:10:15"])
+    feed(node, log, range(len(log)), predictions={"m": offset_prediction(log, "vel_x", 0.25)})
+    node.finish()
+    scored = [r for r in node.scores.records if r.scored]
+    assert [(r.span, r.index) for r in scored] == [("a", 0), ("a", 1), ("b", 2)]
+    for r in scored:
+        assert abs(r.rms[INDEX["vel_x"]] - 0.25) < 1e-9  # trimming and smoothing keep a constant error
+        assert r.rms[INDEX["vel_y"]] < 1e-9 and r.tic[INDEX["acc_z"]] < 1e-9
+        assert 0.0 < r.tic[INDEX["vel_x"]] < 1.0
+    # the 16 s flight's last window [15, 20) is partial: marked, with the reason
+    marked = [r for r in node.scores.records if not r.scored]
+    assert marked == [] or all("measurement rows" in r.reason for r in marked)
+    diag = node.diag_pub.messages[0].status[0]
+    values = {kv.key: float(kv.value) for kv in diag.values}
+    assert diag.name == "evaluation/m/a/window_0" and abs(values["vel_x.rms"] - 0.25) < 1e-9
+    node.destroy_node()
+
+
+def test_tic_of_a_zero_prediction_is_one(ros):
+    log = hover_log(1100)
+    node = make_node(spans=["live:0:inf"])
+    # predictions are absolute and trimmed by the measured trim values (mean of the first 1 s = 100 rows):
+    # predicting those trim values is the thesis's dummy zero prediction, TIC = 1
+    y = measured_variables(log)
+    for k in (0, 1):
+        rows = slice(500 * k, 500 * (k + 1))
+        y[rows] = y[rows][:100].mean(axis=0)
+    feed(node, log, range(len(log)), predictions={"m": messages.prediction_fields(y)})
+    node.finish()
+    r = node.scores.records[0]
+    assert r.scored and np.allclose(r.tic[[INDEX["vel_x"], INDEX["acc_z"], INDEX["roll_rate"]]], 1.0)
+    node.destroy_node()
+
+
+def test_gap_restart_and_late_start_mark_windows_instead_of_failing(ros, tmp_path):
+    log = hover_log(2100)
+    prediction = offset_prediction(log, "vel_z", 0.1)
+    node = make_node(spans=["live:0:inf"], output_dir=str(tmp_path / "out"))
+    arrays = messages.MeasurementArrays(log)
+    feed(node, log, range(0, 700), arrays, predictions={"m": prediction})
+    feed(node, log, range(700, 1000), arrays, skip_odom=set(range(800, 830)), predictions={"m": prediction})  # mocap gap
+    feed(node, log, range(1000, 1200), arrays)  # predictor down
+    feed(node, log, range(1200, 2100), arrays, predictions={"m": prediction})  # restarted
+    bad = arrays.imu(1500, 0)
+    bad.linear_acceleration.x = float("nan")
+    node.on_imu(bad)
+    node.finish()
+    by_window = {r.index: r for r in node.scores.records}
+    assert by_window[0].scored and by_window[3].scored
+    assert not by_window[1].scored and "measurement rows: 470 complete of 500 expected" in by_window[1].reason
+    assert not by_window[2].scored and "missing predictions for 200" in by_window[2].reason
+    assert node.faults.counts["nan_imu"] == 1
+    data = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert data["windows"]["m"]["live"] == 2 and len(data["live"]["marked"]) == 3  # windows 1, 2 and the partial 4
+    assert abs(data["models"]["m"]["live"]["vel_z"]["rms"] - 0.1) < 1e-9
+    assert (tmp_path / "out" / "tables.md").is_file()
+    node.destroy_node()
+
+    late = make_node(spans=["live:0:inf"])
+    from rosgraph_msgs.msg import Clock
+    from quad_modelling.io.bag_io import stamps_ns
+
+    late.on_origin(Clock(clock=messages.ns_stamp(int(stamps_ns(log.t)[0]))))
+    feed(late, log, range(700, 2100), predictions={"m": prediction})
+    late.finish()
+    first = late.scores.records[0]
+    assert first.index == 1 and not first.scored and late.scores.records[1].scored and late.scores.records[1].index == 2
+    late.destroy_node()

@@ -1,0 +1,109 @@
+"""The predictor node: known sequence -> known prediction, windows, faults, bad parameters."""
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+from rclpy.parameter import Parameter
+
+from quad_modelling.core.streaming import predict_window_by_stream
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.io.bag_io import stamps_ns
+from quad_modelling.nodes import messages
+from quad_modelling.nodes.model_factory import make_streaming_predictor
+from quad_modelling.nodes.predictor_node import PredictorNode
+from test.ros.conftest import Capture, feed, hover_log
+
+
+def make_node(**params):
+    overrides = [Parameter(k, value=v) for k, v in {"window_s": 5.0, **params}.items()]
+    node = PredictorNode(parameter_overrides=overrides)
+    node.odom_pub, node.accel_pub = Capture(), Capture()
+    return node
+
+
+def published(node, stamps):
+    odom, accel = node.odom_pub.by_stamp(), node.accel_pub.by_stamp()
+    got = [s for s in stamps.tolist() if s in odom]
+    o = [messages.predicted_odometry_fields(odom[s]) for s in got]
+    a = [messages.accel_fields(accel[s]) for s in got]
+    return got, messages.predictions_from_fields(o, a) if got else np.zeros((0, 18))
+
+
+def test_node_publishes_exactly_the_offline_stream_of_each_window(ros):
+    log = hover_log(1200)
+    node = make_node()
+    stamps = feed(node, log, range(len(log)))
+    vehicle = load_vehicle("crazyflie21")
+    for k in (0, 1):  # 5 s windows of 500 rows; warm start 0.2 s = 20 rows
+        window = log.slice(500 * k, 500 * (k + 1))
+        expected = predict_window_by_stream(make_streaming_predictor("naive", vehicle), window, 20)
+        got, predicted = published(node, stamps[500 * k:500 * (k + 1)])
+        assert len(got) == 500
+        assert np.allclose(predicted[:, [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 13, 14, 15, 16, 17]],
+                           expected[:, [0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 13, 14, 15, 16, 17]], atol=1e-9)
+        # held after the warm start: the measurement of warm row 19
+        assert np.allclose(predicted[20:, 3:6], window.vel_n[19], atol=1e-9)
+    odom = node.odom_pub.messages[0]
+    assert odom.child_frame_id == "naive/base_link" and odom.header.frame_id == "world"
+    assert node.faults.counts == {}
+    node.destroy_node()
+
+
+def test_faults_are_dropped_with_one_warning_each_and_nothing_non_finite_is_published(ros):
+    log = hover_log(1100)
+    node = make_node()
+    arrays = messages.MeasurementArrays(log)
+    stamps = stamps_ns(log.t)
+    feed(node, log, range(0, 300), arrays)
+    node.on_motor(arrays.motor(100, int(stamps[100])))  # out of order
+    node.on_motor(arrays.motor(299, int(stamps[299])))  # duplicate
+    bad = arrays.motor(300, int(stamps[300]))
+    bad.effort = [float("nan")] * 4
+    node.on_motor(bad)  # NaN command
+    nan_odom = arrays.odometry(301, int(stamps[301]))
+    nan_odom.pose.pose.position.x = float("nan")
+    node.on_odom(nan_odom)
+    for _ in range(3):
+        node.on_motor(arrays.motor(100, int(stamps[100])))
+    # a motion-capture gap across the warm start of window 1 (rows 500..509)
+    feed(node, log, range(301, 1100), arrays, skip_odom=set(range(500, 510)))
+    assert node.faults.counts["out_of_order_motor"] == 4 and node.faults.counts["duplicate_motor"] == 1
+    assert node.faults.counts["bad_motor"] == 1 and node.faults.counts["nan_odom"] == 1
+    assert node.faults.counts["warm_gap"] == 1
+    got, predicted = published(node, stamps)
+    assert np.isfinite(predicted).all()
+    assert stamps[300] not in got  # the NaN command got no prediction
+    assert all(s in got for s in stamps[510:1000].tolist())  # window 1 started from its 10 measured warm rows
+    node.destroy_node()
+
+
+def test_restarted_node_waits_for_the_next_window_aligned_to_the_shared_origin(ros):
+    from rosgraph_msgs.msg import Clock
+
+    log = hover_log(1200)
+    stamps = stamps_ns(log.t)
+    node = make_node()
+    node.on_origin(Clock(clock=messages.ns_stamp(int(stamps[0]))))  # what window_origin delivers to a late joiner
+    feed(node, log, range(250, 1200))
+    got, _ = published(node, stamps)
+    assert got[0] == stamps[500]  # nothing for the half window it joined; window 1 from its start
+    assert node.faults.counts["joined_mid_window"] == 1
+    node.destroy_node()
+
+
+def run_node(args, timeout=60):
+    env = {**os.environ}
+    return subprocess.run([sys.executable, "-m", "quad_modelling.nodes.predictor_node", "--ros-args", *args],
+                          capture_output=True, text=True, timeout=timeout, env=env)
+
+
+def test_bad_parameters_exit_with_code_2_and_the_reason():
+    bad_window = run_node(["-p", "window_s:=-1.0"])
+    assert bad_window.returncode == 2
+    assert "window_s" in bad_window.stderr and "must be > 0" in bad_window.stderr
+    unknown = run_node(["-p", "model:=nosuchmodel"])
+    assert unknown.returncode == 2 and "unknown model" in unknown.stderr and "nosuchmodel" in unknown.stderr
+    narx = subprocess.run([sys.executable, "-m", "quad_modelling.nodes.narx_predictor_node"], capture_output=True, text=True, timeout=60)
+    assert narx.returncode == 2 and "narx" in narx.stderr

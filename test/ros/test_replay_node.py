@@ -1,0 +1,58 @@
+"""The replay node over real DDS: every sample, recorded stamps, frames, /clock, clean exit."""
+
+import subprocess
+import sys
+import time
+
+import numpy as np
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import Imu, JointState
+
+from quad_modelling.io.bag_io import stamps_ns, write_bag
+from quad_modelling.nodes import messages
+from quad_modelling.nodes.common import data_qos, latched_qos
+from test.conftest import synthetic_log
+
+
+def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path):
+    log = synthetic_log(n=300)
+    bag = write_bag(log, tmp_path / "bag")
+    node = Node("listener", namespace="/quad")
+    got = {"motor": [], "odom": [], "imu": [], "clock": [], "origin": []}
+    node.create_subscription(JointState, "motor_input", lambda m: got["motor"].append(m), data_qos())
+    node.create_subscription(Odometry, "mocap/odom", lambda m: got["odom"].append(m), data_qos())
+    node.create_subscription(Imu, "imu", lambda m: got["imu"].append(m), data_qos())
+    node.create_subscription(Clock, "/clock", lambda m: got["clock"].append(m), data_qos())
+    node.create_subscription(Clock, "window_origin", lambda m: got["origin"].append(m), latched_qos())
+    replay = subprocess.Popen(
+        [sys.executable, "-m", "quad_modelling.nodes.replay_node", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=20.0",
+         "-p", "start_s:=0.5", "-p", "wait_for_subscribers:=1"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 60
+    while replay.poll() is None and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    for _ in range(20):
+        rclpy.spin_once(node, timeout_sec=0.02)
+    out = replay.communicate(timeout=10)[0]
+    assert replay.returncode == 0, out
+    expected = stamps_ns(log.t)[50:]  # start_s 0.5 s at 100 Hz
+    for key in ("motor", "odom", "imu", "clock"):
+        stamps = [messages.stamp_ns(m.clock if key == "clock" else m.header.stamp) for m in got[key]]
+        assert stamps == expected.tolist(), key
+    assert messages.stamp_ns(got["origin"][0].clock) == expected[0]
+    odom = got["odom"][10]
+    assert (odom.header.frame_id, odom.child_frame_id) == ("world", "base_link")
+    # ENU position of row 60 = (east, north, up) of the NED log
+    assert np.allclose([odom.pose.pose.position.x, odom.pose.pose.position.y, odom.pose.pose.position.z],
+                       log.pos_n[60, [1, 0, 2]] * [1, 1, -1])
+    assert np.allclose(got["motor"][10].effort, log.u[60])
+    node.destroy_node()
+
+
+def test_missing_bag_exits_with_code_2_naming_it(tmp_path):
+    run = subprocess.run([sys.executable, "-m", "quad_modelling.nodes.replay_node", "--ros-args", "-p", f"bag:={tmp_path}/nope"],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "nope" in run.stderr and "no such bag" in run.stderr

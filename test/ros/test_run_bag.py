@@ -1,0 +1,42 @@
+"""run-bag over real DDS gives the same RMS/TIC as the offline evaluation of the same bag (DESIGN 2)."""
+
+import json
+
+import pytest
+
+from quad_modelling.cli import main
+from quad_modelling.core.evaluation import EvaluationConfig, evaluate
+from quad_modelling.core.models import make_model
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.io.bag_io import read_bag
+from test.conftest import REPO
+
+BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
+MODELS = ("naive", "greybox")
+
+
+def test_live_results_equal_offline_evaluation(tmp_path, capsys):
+    out = tmp_path / "live"
+    code = main(["run-bag", str(BAG), "--models", ",".join(MODELS), "--train", "0:20", "--eval", "20:40", "--no-figures", "-o", str(out)])
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    assert "naive (eval)" in printed and str(out) in printed
+    live = json.loads((out / "results.json").read_text())
+    log = read_bag(BAG)
+    vehicle = load_vehicle(log.meta.vehicle)
+    config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train="0:20", eval="20:40", window_s=10.0, warm_s=0.2)
+    offline = evaluate([log], [make_model(m, vehicle) for m in MODELS], vehicle, config, multistep=False).to_json()
+    assert live["windows"] == offline["windows"] == {m: {"train": 2, "eval": 2} for m in MODELS}
+    for model in MODELS:
+        for span in ("train", "eval"):
+            for var, entry in offline["models"][model][span].items():
+                for metric in ("rms", "tic"):
+                    assert live["models"][model][span][var][metric] == pytest.approx(entry[metric], rel=1e-6), (model, span, var, metric)
+    assert live["live"]["marked"] == []  # windows outside both spans are not scored, not marked
+    assert (out / "tables.md").is_file() and (out / "logs" / "replay.log").is_file()
+
+
+def test_unknown_model_is_a_clear_error_before_any_node_starts(tmp_path, capsys):
+    assert main(["run-bag", str(BAG), "--models", "naive,warp_drive", "-o", str(tmp_path / "x")]) == 2
+    assert "unknown model" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
