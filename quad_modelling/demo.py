@@ -33,6 +33,9 @@ def run() -> int:
     rel = BUNDLED_BAG.relative_to(REPO)
     step("What the bundled bag holds (a real Crazyflie 2.1 NanoBench flight)", ["info", str(rel)])
     step("Convert it to a thesis-style MATLAB log", ["convert", str(rel), "-o", str((OUTPUT / "flight.mat").relative_to(REPO))])
+    step("Replay it through the live ROS 2 graph (replay, predictor, evaluator over DDS)",
+         ["run-bag", str(rel), "--models", "naive", "--train", "0:20", "--eval", "20:40",
+          "-o", str((OUTPUT / "live").relative_to(REPO))])
     print(f"\ndemo outputs in {OUTPUT.relative_to(REPO)}/")
     return 0
 

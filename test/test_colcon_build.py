@@ -19,8 +19,14 @@ def test_colcon_build_installs_runnable_executables(tmp_path):
     )
     assert build.returncode == 0, build.stdout + build.stderr
     lib = tmp_path / "install" / "quad_modelling" / "lib" / "quad_modelling"
-    assert (lib / "quad-modelling").is_file() and os.access(lib / "quad-modelling", os.X_OK)
     share = tmp_path / "install" / "quad_modelling" / "share" / "quad_modelling"
+    assert (lib / "quad-modelling").is_file() and os.access(lib / "quad-modelling", os.X_OK)
+    node_executables = ("replay", "predictor", "greybox_predictor", "narx_predictor", "evaluator")
+    for name in node_executables:
+        assert (lib / name).is_file() and os.access(lib / name, os.X_OK), name
+    assert sorted(p.name for p in (share / "config").glob("*.yaml")) == [
+        "evaluator.yaml", "greybox_predictor.yaml", "narx_predictor.yaml", "replay.yaml"]
+    assert (share / "launch" / "replay_evaluation.launch.py").is_file()
     assert (share / "package.xml").is_file()
     assert sorted(p.name for p in (share / "config" / "vehicles").iterdir()) == ["crazyflie21.yaml", "linkquad.yaml"]
 
@@ -38,3 +44,8 @@ def test_colcon_build_installs_runnable_executables(tmp_path):
     assert module_file.startswith(str(tmp_path / "install"))  # the installed copy, not the source tree
     assert vehicles == str(share / "config" / "vehicles")
     assert float(mass) == 1.2
+
+    # the node executables start as `ros2 run` starts them (a bad parameter: exit 2 with the reason)
+    node = subprocess.run(["bash", "-c", f"source {tmp_path}/install/setup.bash && {lib}/replay --ros-args -p bag:={tmp_path}/nope"],
+                          cwd=tmp_path, env={**env, "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}, capture_output=True, text=True, timeout=120)
+    assert node.returncode == 2 and "no such bag" in node.stderr, node.stdout + node.stderr

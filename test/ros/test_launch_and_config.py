@@ -1,0 +1,48 @@
+"""The launch file and config/*.yaml name executables and parameters that exist."""
+
+import ast
+import re
+
+import yaml
+
+from quad_modelling.nodes.evaluator_node import EVALUATOR_PARAMETERS
+from quad_modelling.nodes.predictor_node import predictor_parameters
+from quad_modelling.nodes.replay_node import REPLAY_PARAMETERS
+from test.conftest import REPO
+
+DECLARED = {
+    "replay": {p.name for p in REPLAY_PARAMETERS},
+    "evaluator": {p.name for p in EVALUATOR_PARAMETERS},
+    "greybox_predictor": {p.name for p in predictor_parameters("greybox")},
+    "narx_predictor": {p.name for p in predictor_parameters("narx")},
+}
+
+
+def entry_points() -> set[str]:
+    text = (REPO / "setup.py").read_text()
+    return set(re.findall(r'"([\w-]+) = quad_modelling\.', text))
+
+
+def test_config_files_set_exactly_the_declared_parameters():
+    for node, names in DECLARED.items():
+        doc = yaml.safe_load((REPO / "config" / f"{node}.yaml").read_text())
+        assert list(doc) == [f"/quad/{node}"]
+        assert set(doc[f"/quad/{node}"]["ros__parameters"]) == names, node
+
+
+def test_launch_file_compiles_and_names_existing_executables_and_parameters():
+    source = (REPO / "launch" / "replay_evaluation.launch.py").read_text()
+    tree = ast.parse(source)
+    compile(source, "replay_evaluation.launch.py", "exec")
+    nodes = [call for call in ast.walk(tree) if isinstance(call, ast.Call) and getattr(call.func, "id", None) == "Node"]
+    assert len(nodes) == 4
+    executables = entry_points()
+    for call in nodes:
+        kw = {k.arg: k.value for k in call.keywords}
+        executable = kw["executable"].value
+        assert executable in executables and executable in DECLARED
+        keys = {k.value for d in ast.walk(kw["parameters"]) if isinstance(d, ast.Dict) for k in d.keys}
+        common = {"window_s", "vehicle"} if executable != "replay" else set()
+        assert keys - common <= DECLARED[executable], (executable, keys - DECLARED[executable])
+        yaml_files = [c.value for c in ast.walk(kw["parameters"]) if isinstance(c, ast.Constant) and str(c.value).endswith(".yaml")]
+        assert yaml_files == [f"{executable}.yaml"]
