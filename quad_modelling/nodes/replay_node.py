@@ -114,6 +114,7 @@ class ReplayNode(Node):
         self.published = 0
         self.last_published_ns: int | None = None
         self.passes = 0
+        self.play_started: float | None = None
         self.get_logger().info(f"replaying {p['bag']}: {len(self.log)} samples, {self.log.duration:.2f} s, "
                                f"rate {'as fast as acknowledged' if self.rate == 0 else f'{self.rate:g}x'}{', looping' if self.loop else ''}")
 
@@ -154,6 +155,7 @@ class ReplayNode(Node):
 
     def run(self) -> None:
         self._wait_startup()
+        self.play_started = time.monotonic()
         period_ns = int(np.median(np.diff(self.stamps)))
         shift = 0
         self.origin_pub.publish(messages.clock_message(int(self.stamps[0])))
@@ -215,7 +217,9 @@ class ReplayNode(Node):
             rclpy.spin_once(self, timeout_sec=0.05)
 
     def finish(self) -> None:
-        say(self, f"published {self.published} samples in {self.passes} pass(es); faults: {self.faults.summary()}")
+        took = time.monotonic() - self.play_started if self.play_started else 0.0
+        say(self, f"published {self.published} samples in {self.passes} pass(es) in {took:.2f} s "
+                  f"({self.published / took if took > 0 else 0:.0f} samples/s); faults: {self.faults.summary()}")
 
 
 def main(args=None) -> int:

@@ -1,0 +1,222 @@
+"""Node suite benchmarks -> bench/results/nodes.json + nodes.md.
+
+1. Predictor latency (input stamp published -> its prediction received), p50/p99 and drops,
+   at 100 Hz and 400 Hz, with the evaluator running (a publisher in this process plays a
+   synthetic flight; predictor and evaluator are their own processes).
+2. Whole-graph throughput at rate 0: run-bag on the bundled bag with two predictors
+   (naive, greybox) and the evaluator; samples/s of the replay, real-time factor, and
+   loss (every prediction published and every window scored).
+3. Memory: replay (rate 0, loop) of a synthetic 400 Hz flight through predictor + evaluator
+   for a fixed wall time; RSS of each node sampled over time.
+
+Usage: .venv/bin/python bench/bench_nodes.py [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from bench.common import write_results  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+os.environ.setdefault("ROS_DOMAIN_ID", str(os.getpid() % 50 + 180))
+os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+
+def synthetic_flight(rate: float, seconds: float):
+    from quad_modelling.core.flight_log import FlightLog, FlightMeta
+
+    n = int(rate * seconds)
+    rng = np.random.default_rng(0)
+    t = np.arange(n) / rate
+    phase = 2 * np.pi * 0.3 * t
+    return FlightLog(
+        t=t, u=40000 * (1 + 0.02 * rng.standard_normal((n, 4))),
+        acc_b=np.column_stack([0.3 * np.sin(phase), 0.2 * np.cos(phase), -9.81 + 0.1 * rng.standard_normal(n)]),
+        gyro_b=0.2 * rng.standard_normal((n, 3)),
+        pos_n=np.column_stack([np.cos(phase), np.sin(phase), -1.0 + 0.1 * np.sin(phase)]),
+        vel_n=np.column_stack([-np.sin(phase), np.cos(phase), 0.1 * np.cos(phase)]),
+        euler=np.column_stack([0.1 * np.sin(phase), -0.08 * np.cos(phase), 0.5 * np.sin(0.2 * phase)]),
+        meta=FlightMeta(vehicle="crazyflie21", source=f"synthetic {rate:g} Hz"),
+    )
+
+
+def start(module: str, *params: str, log: Path) -> subprocess.Popen:
+    argv = [sys.executable, "-m", f"quad_modelling.nodes.{module}", "--ros-args"]
+    for p in params:
+        argv += ["-p", p]
+    return subprocess.Popen(argv, stdout=log.open("w"), stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def stop(procs) -> None:
+    import signal
+
+    for p in procs:
+        if p.poll() is None:
+            p.send_signal(signal.SIGINT)
+    for p in procs:
+        try:
+            p.wait(20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+
+
+def latency(rate: float, seconds: float, workdir: Path) -> dict:
+    import rclpy
+    from nav_msgs.msg import Odometry
+    from rclpy.node import Node
+    from sensor_msgs.msg import Imu, JointState
+
+    from quad_modelling.io.bag_io import stamps_ns
+    from quad_modelling.nodes import messages
+    from quad_modelling.nodes.common import data_qos
+
+    window = "5.0"
+    procs = [start("predictor_node", f"window_s:={window}", log=workdir / f"pred_{rate:g}.log"),
+             start("evaluator_node", f"window_s:={window}", "models:=[naive]", log=workdir / f"eval_{rate:g}.log")]
+    log = synthetic_flight(rate, seconds)
+    arrays = messages.MeasurementArrays(log)
+    stamps = (stamps_ns(log.t) + time.time_ns()).tolist()
+    rclpy.init()
+    node = Node("latency_bench", namespace="/quad")
+    qos = data_qos()
+    pubs = (node.create_publisher(JointState, "motor_input", qos), node.create_publisher(Odometry, "mocap/odom", qos),
+            node.create_publisher(Imu, "imu", qos))
+    sent: dict[int, float] = {}
+    received: dict[int, float] = {}
+    node.create_subscription(Odometry, "naive/odom", lambda m: received.setdefault(messages.stamp_ns(m.header.stamp), time.perf_counter()), qos)
+    deadline = time.monotonic() + 30
+    while (pubs[0].get_subscription_count() < 2 or node.count_publishers("naive/odom") < 1) and time.monotonic() < deadline:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    end = time.monotonic() + 1.0
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    period = 1.0 / rate
+    t0 = time.perf_counter()
+    for row, ns in enumerate(stamps):
+        target = t0 + row * period
+        while (left := target - time.perf_counter()) > 0:
+            rclpy.spin_once(node, timeout_sec=left)
+        # measurements first, the command last: the prediction is due when the command arrives
+        pubs[1].publish(arrays.odometry(row, ns))
+        pubs[2].publish(arrays.imu(row, ns))
+        sent[ns] = time.perf_counter()
+        pubs[0].publish(arrays.motor(row, ns))
+        rclpy.spin_once(node, timeout_sec=0.0)
+    end = time.monotonic() + 2.0
+    while time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    node.destroy_node()
+    rclpy.shutdown()
+    stop(procs)
+    warm_rows = int(round(0.2 * rate))
+    window_rows = int(round(5.0 * rate))
+    # warm-start rows are published together at the first command after the warm start: not a per-input latency
+    streamed = [ns for i, ns in enumerate(stamps) if i % window_rows >= warm_rows + 1]
+    lat = np.array([received[ns] - sent[ns] for ns in streamed if ns in received]) * 1e3
+    drops = sum(ns not in received for ns in stamps)
+    return {"rate_hz": rate, "seconds": seconds, "inputs": len(stamps), "p50_ms": float(np.percentile(lat, 50)),
+            "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max()), "drops": int(drops)}
+
+
+def throughput(workdir: Path) -> dict:
+    out = workdir / "graph"
+    bag = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
+    started = time.monotonic()
+    run = subprocess.run([sys.executable, "-m", "quad_modelling.cli", "run-bag", str(bag), "--models", "naive,greybox",
+                          "--no-figures", "-o", str(out)], capture_output=True, text=True, timeout=600)
+    total = time.monotonic() - started
+    if run.returncode != 0:
+        raise SystemExit(run.stderr)
+    replay_log = (out / "logs" / "replay.log").read_text()
+    m = re.search(r"published (\d+) samples in \d+ pass\(es\) in ([\d.]+) s", replay_log)
+    samples, seconds = int(m.group(1)), float(m.group(2))
+    predictions = [int(x) for x in re.findall(r"published (\d+) predictions", "".join(p.read_text() for p in (out / "logs").glob("*_predictor.log")))]
+    results = json.loads((out / "results.json").read_text())
+    faults = re.findall(r"faults: (.*)", "".join(p.read_text() for p in (out / "logs").glob("*.log")))
+    flight_s = samples / 100.0
+    return {"bag": bag.name, "models": ["naive", "greybox"], "samples": samples, "messages_published": samples * 5,
+            "play_s": seconds, "samples_per_s": samples / seconds, "messages_per_s": samples * 5 / seconds,
+            "real_time_factor": flight_s / seconds, "run_bag_total_s": total,
+            "predictions_per_model": predictions, "lost": int(sum(samples - p for p in predictions)),
+            "windows": results["windows"], "marked": len(results["live"]["marked"]), "faults": faults}
+
+
+def rss_kib(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    return 0
+
+
+def memory(wall_s: float, workdir: Path) -> dict:
+    from quad_modelling.io.bag_io import write_bag
+
+    bag = write_bag(synthetic_flight(400.0, 60.0), workdir / "synthetic400")
+    names = ("predictor", "evaluator", "replay")
+    procs = [start("predictor_node", log=workdir / "mem_pred.log"),
+             start("evaluator_node", "models:=[naive]", "figures:=false", log=workdir / "mem_eval.log"),
+             start("replay_node", f"bag:={bag}", "rate:=0.0", "loop:=true", "wait_for_subscribers:=2", "publish_clock:=false",
+                   log=workdir / "mem_replay.log")]
+    samples = []
+    started = time.monotonic()
+    while time.monotonic() - started < wall_s:
+        time.sleep(2.0)
+        samples.append([round(time.monotonic() - started, 1)] + [rss_kib(p.pid) / 1024 for p in procs])
+    stop(procs[2:])
+    stop(procs[:2])
+    text = (workdir / "mem_pred.log").read_text()
+    m = re.search(r"published (\d+) predictions", text)
+    predicted = int(m.group(1)) if m else 0
+    rows = samples[len(samples) // 4:]  # after start-up
+    growth = {n: float(rows[-1][i + 1] - rows[0][i + 1]) for i, n in enumerate(names)}
+    return {"rate_hz": 400, "wall_s": wall_s, "flight_s_replayed": predicted / 400.0, "rss_mib_samples": samples,
+            "names": list(names), "rss_growth_mib_after_startup": growth,
+            "rss_mib_end": {n: float(samples[-1][i + 1]) for i, n in enumerate(names)}}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--quick", action="store_true", help="shorter runs")
+    args = parser.parse_args()
+    seconds = 8.0 if args.quick else 20.0
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        lat = [latency(100.0, seconds, work), latency(400.0, seconds, work)]
+        graph = throughput(work)
+        mem = memory(40.0 if args.quick else 120.0, work)
+    data = {"latency": lat, "graph_rate0": graph, "memory": mem}
+    md = ["# Node suite benchmarks", "",
+          "## Predictor latency (input published -> prediction received), evaluator running", "",
+          "| rate | inputs | p50 [ms] | p99 [ms] | max [ms] | drops |", "|---|---|---|---|---|---|"]
+    md += [f"| {r['rate_hz']:g} Hz | {r['inputs']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['max_ms']:.2f} | {r['drops']} |" for r in lat]
+    md += ["", "Streamed rows only (the warm-start rows of each window are published together once the warm start is complete).", "",
+           "## Whole graph at rate 0 (replay + naive + greybox predictors + evaluator, bundled 42 s bag)", "",
+           f"{graph['samples']} samples ({graph['messages_published']} messages) in {graph['play_s']:.2f} s: "
+           f"{graph['samples_per_s']:.0f} samples/s, {graph['messages_per_s']:.0f} replayed messages/s, "
+           f"**{graph['real_time_factor']:.1f}x real time**; predictions per model {graph['predictions_per_model']}, "
+           f"lost {graph['lost']}; windows {graph['windows']}, marked {graph['marked']}; run-bag total {graph['run_bag_total_s']:.1f} s "
+           "(process start-up, discovery and the report included).", "",
+           "## Memory, 400 Hz synthetic flight looped at rate 0 (predictor + evaluator + replay)", "",
+           f"{mem['wall_s']:g} s wall, {mem['flight_s_replayed']:.0f} s of 400 Hz flight replayed. RSS [MiB] over time:", "",
+           "| t [s] | " + " | ".join(mem["names"]) + " |", "|---|" + "---|" * len(mem["names"])]
+    md += ["| " + " | ".join(f"{v:.1f}" for v in row) + " |" for row in mem["rss_mib_samples"]]
+    md += ["", "Growth after start-up [MiB]: " + ", ".join(f"{k} {v:+.1f}" for k, v in mem["rss_growth_mib_after_startup"].items())]
+    write_results("nodes", data, "\n".join(md))
+    print("\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
