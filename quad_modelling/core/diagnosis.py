@@ -127,7 +127,8 @@ def base_from_vehicle(vehicle: VehicleConfig, reference_voltage: float | None = 
     return BaseModel(GreyboxParameters.from_vehicle(vehicle), reference_voltage)
 
 
-def _base_parameters(p: GreyboxParameters, tau_m: float, gain: float, yaw_ratio: float, arm_scale: float) -> GreyboxParameters:
+def _base_parameters(p: GreyboxParameters, tau_m: float, gain: float, yaw_ratio: float, arm_scale: float,
+                     rotor_reaction_scale: float = 1.0) -> GreyboxParameters:
     root = 2.0 * math.sqrt(p.thrust_constant * p.mass * GRAVITY / 4.0)
     return replace(
         p,
@@ -135,6 +136,7 @@ def _base_parameters(p: GreyboxParameters, tau_m: float, gain: float, yaw_ratio:
         motor_b_m=gain / root,
         drag_constant=yaw_ratio * p.thrust_constant,
         motor_positions=tuple((arm_scale * x, arm_scale * y) for x, y in p.motor_positions),
+        prop_inertia=rotor_reaction_scale * p.prop_inertia,
     )
 
 
@@ -144,10 +146,24 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
     Parameters (output error on the smoothed acc_z, roll_acc, pitch_acc and
     yaw_acc, each normalised by its measured RMS -- the variables the thrusts
     drive without integration, so open-loop drift does not enter):
-    motor time constant :math:`\\tau_m = -1/A_m \\in [0.01, 2]` s, thrust gain
-    :math:`K`, yaw drag ratio :math:`d/a`, and a common scale of the motor arm
-    lengths (torque per thrust / inertia for roll and pitch). :math:`a` is held
-    (only :math:`B_m\\sqrt a` is identifiable), :math:`B_m = K / (2\\sqrt{a m g/4})`.
+
+    * motor time constant :math:`\\tau_m = -1/A_m \\in [0.01, 2]` s;
+    * steady thrust gain :math:`G = K \\tau_m` [N per unit command] (the static
+      gain; :math:`K` itself would trade off against :math:`\\tau_m`);
+    * yaw drag ratio :math:`d/a`;
+    * a common scale of the motor arm lengths (torque per thrust / inertia for
+      roll and pitch);
+    * a scale :math:`k_R` of the rotor-reaction yaw term
+      :math:`I_{prop} \\sum_i s_i \\dot\\Omega_i / I_{zz}` (Eq 3-13...3-16), i.e. of
+      :math:`I_{prop} / (2 a \\Omega_0)` and :math:`I_{prop} B_m`. These products
+      hold :math:`a` through :math:`\\Omega_0` and :math:`B_m = K / (2\\sqrt{a m g/4})`,
+      and Table 3-1's :math:`a` is not consistent with its other constants
+      (docs/simulator.md): held at the configured values the term is ~8x too
+      strong for the LinkQuad, and the fit then inflated :math:`\\tau_m`
+      (to 34 ms on flights with instant rotors) to shrink :math:`K` and with it
+      the yaw feedthrough :math:`I_{prop} B_m u`.
+
+    :math:`a` is held (only :math:`B_m\\sqrt a` is identifiable).
     """
     p0 = GreyboxParameters.from_vehicle(vehicle)
     v_ref = float(batch.vbat.mean()) if batch.vbat is not None else None
@@ -155,14 +171,17 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
     rows = slice(batch.warm, None, 4)
     target = batch.measured[:, rows][:, :, cols]
     scale = np.maximum(np.sqrt(np.mean(target**2, axis=(0, 1))), 1e-9)
-    tau0 = min(max(-1.0 / p0.motor_a_m, 0.011), 1.9)
-    x0 = np.array([math.log(tau0), 0.0, p0.drag_constant / p0.thrust_constant, 1.0])
-    lower = np.array([math.log(0.01), math.log(0.05), -1.0, 0.3])
-    upper = np.array([math.log(2.0), math.log(20.0), 1.0, 3.0])
+    tau_config = -1.0 / p0.motor_a_m
+    steady_config = p0.input_gain * tau_config
+    tau0 = min(max(tau_config, 0.011), 1.9)
+    x0 = np.array([math.log(tau0), 0.0, p0.drag_constant / p0.thrust_constant, 1.0, 0.0])
+    lower = np.array([math.log(0.01), math.log(0.05), -1.0, 0.3, math.log(1e-3)])
+    upper = np.array([math.log(2.0), math.log(20.0), 1.0, 3.0, math.log(1e3)])
     x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
 
     def parameters(z: np.ndarray) -> GreyboxParameters:
-        return _base_parameters(p0, math.exp(z[0]), p0.input_gain * math.exp(z[1]), z[2], z[3])
+        tau = math.exp(z[0])
+        return _base_parameters(p0, tau, steady_config * math.exp(z[1]) / tau, z[2], z[3], math.exp(z[4]))
 
     def residuals(z: np.ndarray) -> np.ndarray:
         pred = predict_batch(BaseModel(parameters(z)), batch, columns=cols)
@@ -172,13 +191,16 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
     for start_gain in (0.0, math.log(3.0), -math.log(3.0)):
         z = x0.copy()
         z[1] = start_gain
-        fit = optimize.least_squares(residuals, z, bounds=(lower, upper), method="trf", x_scale=np.array([1.0, 1.0, 0.05, 0.3]), max_nfev=80)
+        fit = optimize.least_squares(residuals, z, bounds=(lower, upper), method="trf", x_scale=np.array([1.0, 1.0, 0.05, 0.3, 1.0]),
+                                     max_nfev=80)
         if best is None or fit.cost < best.cost:
             best = fit
     p = parameters(best.x)
     values = {"motor_a_m": p.motor_a_m, "motor_b_m": p.motor_b_m, "drag_constant": p.drag_constant,
-              "thrust_gain_K": p.input_gain, "arm_scale": float(best.x[3]), "reference_voltage": v_ref}
-    return BaseFit(BaseModel(p, v_ref), values, True, "identified on the training windows (acc_z, roll/pitch/yaw acceleration)")
+              "thrust_gain_K": p.input_gain, "arm_scale": float(best.x[3]), "rotor_reaction_scale": float(math.exp(best.x[4])),
+              "prop_inertia": p.prop_inertia, "reference_voltage": v_ref}
+    return BaseFit(BaseModel(p, v_ref), values, True,
+                   "identified on the training windows (acc_z, roll/pitch/yaw acceleration): tau_m, steady gain, d/a, arm scale, rotor-reaction scale")
 
 
 # ----------------------------------------------------------------------------- scores

@@ -37,13 +37,15 @@ def base(flights, linkquad):
 
 
 def _per_window_ramp(theta, batch, base, u):
-    """Overfitting on purpose: one vertical acceleration ramp per window *position in its batch*.
-    Fitted to the training windows it follows their drift; on other windows it is noise."""
+    """Overfitting on purpose: a vertical and a roll acceleration ramp and step per window *position in its
+    batch*. Fitted to the training windows they follow their drift; on other windows they are noise."""
     e = np.zeros(batch.u.shape[:2] + (6,))
     t = np.arange(batch.samples) * batch.dt
+    n = len(theta) // 4
     for w in range(len(batch)):
-        e[w, :, 2] = theta[w % len(theta)] * t
-        e[w, :, 3] = theta[(w + 3) % len(theta)] * t
+        k = 4 * (w % n)
+        e[w, :, 2] = theta[k] * t + theta[k + 1]
+        e[w, :, 3] = theta[k + 2] * t + theta[k + 3]
     return e
 
 
@@ -75,8 +77,9 @@ def test_null_flight_yields_no_discovery(flights, linkquad, base):
 def test_overfitting_effect_is_rejected(flights, linkquad, base):
     train, test = flights[()]
     windows = len(prepare_windows([train], linkquad, D.DIAGNOSIS_CONFIG))
-    overfit = Effect("per_window_ramps", "one free ramp per training window", tuple(f"r{i}" for i in range(windows)),
-                     ("m/s3",) * windows, (0.0,) * windows, (-2.0,) * windows, (2.0,) * windows, ("acc_z", "roll_acc"),
+    size = 4 * windows
+    overfit = Effect("per_window_ramps", "free ramps and steps per training window", tuple(f"r{i}" for i in range(size)),
+                     ("m/s3",) * size, (0.0,) * size, (-2.0,) * size, (2.0,) * size, ("acc_z", "roll_acc"),
                      forcing=_per_window_ramp)
     result = D.diagnose([train], [test], linkquad, [overfit, CATALOGUE["motor_lag"]], base=base)
     outcome = next(o for o in result.outcomes if o.effect.name == "per_window_ramps")
@@ -112,3 +115,13 @@ def test_localisation_names_regimes_bands_and_worst_windows(flights, linkquad, b
         assert sum(bands.values()) == pytest.approx(1.0, abs=0.05)
     gaps = [w["normalised_gap"] for w in where["worst_windows"]]
     assert gaps == sorted(gaps, reverse=True) and where["worst_windows"][0]["flight"] == "simulated"
+
+
+def test_base_identification_finds_instant_rotors_and_the_rotor_reaction_scale(base):
+    """Effects-off flights have rotors that jump to the ESC target: the identified motor time constant
+    sits near its 10 ms floor (not the 34 ms the fit gave while the rotor-reaction yaw term was held at
+    Table 3-1's inconsistent a), and the rotor-reaction scale recovers sqrt(a_table / a_sim)."""
+    tau = -1.0 / base.values["motor_a_m"]
+    assert tau < 0.015
+    expected = np.sqrt(1.59e-7 / 1.0e-5)  # I_p / (2 a Omega_0) scales with 1/sqrt(a)
+    assert base.values["rotor_reaction_scale"] == pytest.approx(expected, rel=0.35)
