@@ -90,6 +90,15 @@ BOOTSTRAP = 1000
 
 BOOTSTRAP_SEED = 7
 
+EXCITED_MIN_CORRECTION = 0.05
+"""A held-out window *excites* an effect when the effect's correction of the prediction there,
+sum over V_e of RMS(correction_v) / s_v, is at least this fraction of the window's base gap g_w:
+an effect that leaves a window's prediction unchanged can neither help nor fail there (ground
+effect away from the ground, drag in hover), so such windows are left out of its score."""
+
+EXCITED_MIN_WINDOWS = 3
+"""Fewest excited held-out windows an effect needs to be scored at all."""
+
 CONFOUND_CORRELATION = 0.8
 """|correlation| of two effects' held-out corrections above which they may be confounded."""
 
@@ -370,6 +379,14 @@ class EffectOutcome:
         }
 
 
+def excited_windows(batch: WindowBatch, correction: np.ndarray, cols: np.ndarray, scales: np.ndarray, gap_before: np.ndarray) -> np.ndarray:
+    """(W,) bool: windows whose prediction the effect changes by at least :data:`EXCITED_MIN_CORRECTION`
+    of their base gap (normalised as the gap); all False when fewer than :data:`EXCITED_MIN_WINDOWS`."""
+    moved = (np.sqrt(np.mean(correction[:, batch.warm :][:, :, cols] ** 2, axis=1)) / scales[cols]).sum(axis=1)
+    excited = moved >= EXCITED_MIN_CORRECTION * gap_before
+    return excited if excited.sum() >= EXCITED_MIN_WINDOWS else np.zeros_like(excited)
+
+
 def verdict_of(shrink: float, train_shrink: float, ci_low: float, improved_fraction: float) -> str:
     """The verdict rule of the module docstring."""
     held_out_ok = shrink >= FOUND_MIN_SHRINK and ci_low > 0.0 and improved_fraction >= FOUND_MIN_WINDOW_FRACTION
@@ -396,16 +413,23 @@ def assess_effect(
     theta = fit.thetas[0]
     after_train = predict_batch(base, train, [effect], [theta], columns=cols)
     after_test = predict_batch(base, test, [effect], [theta])
-    train_shrink = shrink_of(normalised_window_gap(train, base_train, cols, scales), normalised_window_gap(train, after_train, cols, scales))
+    train_before = normalised_window_gap(train, base_train, cols, scales)
+    train_excited = excited_windows(train, after_train - base_train, cols, scales, train_before)
+    train_shrink = shrink_of(train_before[train_excited], normalised_window_gap(train, after_train, cols, scales)[train_excited])
     gap_before = normalised_window_gap(test, base_test, cols, scales)
     gap_after = normalised_window_gap(test, after_test, cols, scales)
-    shrink = shrink_of(gap_before, gap_after)
-    ci = bootstrap_shrink(gap_before, gap_after)
-    improved = int(np.sum(gap_after < gap_before))
     correction = after_test - base_test
+    excited = excited_windows(test, correction, cols, scales, gap_before)
+    shrink_all = shrink_of(gap_before, gap_after)
+    scored_before, scored_after = gap_before[excited], gap_after[excited]
+    shrink = shrink_of(scored_before, scored_after)
+    ci = bootstrap_shrink(scored_before, scored_after) if len(scored_before) else (float("nan"), float("nan"))
+    improved = int(np.sum(scored_after < scored_before))
     residual = test.measured - base_test
     signature = correction_correlation(test, residual, correction, cols, scales)
-    per_window = 1.0 - gap_after / np.where(gap_before > 0, gap_before, 1.0)
+    per_window = 1.0 - scored_after / np.where(scored_before > 0, scored_before, 1.0)
+    if not len(per_window):
+        per_window = np.zeros(1)
     after_rms = window_rms(test, after_test, eval_cols).mean(axis=0)
     after_tic = window_tic(test, after_test, eval_cols).mean(axis=0)
     evidence = {
@@ -413,8 +437,10 @@ def assess_effect(
         "train_shrink": train_shrink,
         "shrink_ci90": list(ci),
         "windows_improved": improved,
-        "windows": len(test),
-        "sign_test_p": sign_test(improved, len(test)),
+        "windows": int(len(scored_before)),
+        "windows_held_out": len(test),
+        "shrink_all_windows": shrink_all,
+        "sign_test_p": sign_test(improved, len(scored_before)),
         "per_window_shrink_median": float(np.median(per_window)),
         "per_window_shrink_iqr": [float(np.quantile(per_window, 0.25)), float(np.quantile(per_window, 0.75))],
         "fit_evaluations": fit.evaluations,
@@ -422,7 +448,7 @@ def assess_effect(
     return EffectOutcome(
         effect, theta, shrink, train_shrink, before, {v: float(after_rms[i]) for i, v in enumerate(EVAL_VARIABLES)},
         {v: float(after_tic[i]) for i, v in enumerate(EVAL_VARIABLES)}, evidence,
-        verdict_of(shrink, train_shrink, ci[0], improved / max(len(test), 1)), [], correction,
+        verdict_of(shrink, train_shrink, ci[0], improved / max(len(scored_before), 1)), [], correction,
     )
 
 

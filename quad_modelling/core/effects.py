@@ -79,6 +79,7 @@ from quad_modelling.core.evaluation import EvaluationConfig, SpanSpec, span_wind
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.greybox import MEASURED_STATE_COLUMNS, N_STATES, GreyboxParameters, continuous_matrices
 from quad_modelling.core.preprocess import (
+    differentiate,
     measured_variables,
     resample_uniform,
     smooth,
@@ -148,6 +149,7 @@ class WindowBatch:
     offsets: np.ndarray = None  # (W, 18) linearisation point (warm-start mean) minus the window trim
     warm_rows: np.ndarray = None  # (W, warm, 18) unsmoothed measurement of the warm start minus the window trim
     trim_samples: int = 100  # rows of the trim interval
+    smooth_cutoff_hz: float = 5.0  # the evaluation low-pass ``measured`` went through [Hz]
 
     def subset(self, index: np.ndarray) -> WindowBatch:
         """The windows at ``index`` (same preprocessing)."""
@@ -228,6 +230,7 @@ def prepare_windows(
         measured=np.array(measured), anchor_states=np.array(anchors), offsets=np.array(offsets), velocity=np.array(vel), velocity_abs=np.array(vel_abs),
         euler=np.array(euler), rates=np.array(rates_b), height=np.array(height), vbat=np.array(vbat) if has_vbat else None,
         input_min=float(vehicle.input_min), warm_rows=np.array(warm_rows), trim_samples=trim_rows,
+        smooth_cutoff_hz=float(config.smooth_cutoff_hz),
     )
 
 
@@ -343,9 +346,15 @@ def predict_batch(
     """(W, N, 18) trimmed predictions of the (augmented) model for every window of ``batch``.
 
     Rows before the anchor (last warm sample) are the measurement, as the
-    greybox predictor does; ``smoothed`` applies the evaluation's low-pass so
-    the result compares directly with ``batch.measured``. ``columns`` limits
-    the output to those VARIABLES columns (others are zero) to save time.
+    greybox predictor does; ``smoothed`` passes the prediction through what the
+    measurement went through, so the result compares directly with
+    ``batch.measured``: the angular accelerations, measured as Savitzky-Golay
+    derivatives of the gyro rates (:func:`~quad_modelling.core.preprocess.differentiate`,
+    a 0.11 s window that low-passes them), are integrated (trapezoid) and
+    differentiated by the same filter (:func:`measurement_filter`), then every
+    column gets the evaluation's low-pass (cutoff ``smooth_cutoff_hz``, default
+    the batch's). ``columns`` limits the output to those VARIABLES columns
+    (others are zero) to save time.
     """
     aug = apply_effects(effects, thetas, batch, base) if effects else Augmentation(batch.u, np.zeros(batch.u.shape[:2] + (6,)), None)
     a = base.a if aug.a_delta is None else base.a + aug.a_delta
@@ -371,9 +380,30 @@ def predict_batch(
     if anchor > 0:  # rows before the anchor are the measurement (not scored), as the greybox predictor
         out[:, :anchor, cols] = batch.warm_rows[:, :anchor][:, :, cols]
     if smoothed:
-        cutoff = smooth_cutoff_hz if smooth_cutoff_hz is not None else 5.0
+        cutoff = smooth_cutoff_hz if smooth_cutoff_hz is not None else batch.smooth_cutoff_hz
+        measurement_filter(out, batch.dt, cols)
         out[:, :, cols] = smooth(out[:, :, cols].transpose(1, 0, 2), 1.0 / batch.dt, cutoff).transpose(1, 0, 2)
     return out
+
+
+ANGULAR_ACCELERATION_COLUMNS = np.array([INDEX[v] for v in ("roll_acc", "pitch_acc", "yaw_acc")])
+
+
+def measurement_filter(predicted: np.ndarray, dt: float, columns: np.ndarray) -> None:
+    """In place: predicted angular accelerations (W, N, 18) as the measurement sees them.
+
+    The measured angular acceleration is the Savitzky-Golay derivative of the
+    gyro rates; the model's is the exact derivative of its rates. The same
+    operator is applied to the model: its angular acceleration is integrated
+    (cumulative trapezoid; the constant drops out of the derivative) and
+    differentiated by :func:`~quad_modelling.core.preprocess.differentiate`.
+    """
+    picked = [c for c in ANGULAR_ACCELERATION_COLUMNS if c in set(np.asarray(columns).tolist())]
+    if not picked:
+        return
+    acc = predicted[:, :, picked]
+    rate = np.concatenate([np.zeros_like(acc[:, :1]), np.cumsum(0.5 * (acc[:, 1:] + acc[:, :-1]) * dt, axis=1)], axis=1)
+    predicted[:, :, picked] = differentiate(rate.transpose(1, 0, 2), dt).transpose(1, 0, 2)
 
 
 def window_rms(batch: WindowBatch, predicted: np.ndarray, columns: Sequence[int] | None = None) -> np.ndarray:
@@ -567,7 +597,7 @@ def variable_scales(batch: WindowBatch, predicted: np.ndarray) -> np.ndarray:
 
 def fit_effects(
     base: BaseModel, batch: WindowBatch, effects: Sequence[Effect], scales: np.ndarray, variables: Sequence[str] | None = None,
-    fixed: Sequence[tuple[Effect, np.ndarray]] = (), smooth_cutoff_hz: float = 5.0, starts: int = 1,
+    fixed: Sequence[tuple[Effect, np.ndarray]] = (), smooth_cutoff_hz: float | None = None, starts: int = 1,
 ) -> FitResult:
     """Identify the parameters of ``effects`` on ``batch`` (with ``fixed`` effects held at their values).
 

@@ -125,3 +125,16 @@ def test_base_identification_finds_instant_rotors_and_the_rotor_reaction_scale(b
     assert tau < 0.015
     expected = np.sqrt(1.59e-7 / 1.0e-5)  # I_p / (2 a Omega_0) scales with 1/sqrt(a)
     assert base.values["rotor_reaction_scale"] == pytest.approx(expected, rel=0.35)
+
+
+def test_windows_an_effect_leaves_unchanged_are_not_scored(flights, linkquad):
+    batch = prepare_windows(flights[()][1:], linkquad, D.DIAGNOSIS_CONFIG)
+    cols = np.array([8])
+    scales = np.ones(18)
+    gap = np.ones(len(batch))
+    correction = np.zeros(batch.measured.shape)
+    correction[: len(batch) // 2, :, 8] = 0.2  # the first half of the windows move by 20 % of their gap
+    excited = D.excited_windows(batch, correction, cols, scales, gap)
+    assert excited[: len(batch) // 2].all() and not excited[len(batch) // 2 :].any()
+    correction[1:] = 0.0  # one excited window is too few to score
+    assert not D.excited_windows(batch, correction, cols, scales, gap).any()

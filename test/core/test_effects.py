@@ -108,3 +108,22 @@ def test_battery_effect_needs_a_voltage(batch):
     assert E.CATALOGUE["battery"].applicable(batch) is None
     assert "voltage" in E.CATALOGUE["battery"].applicable(E.replace(batch, vbat=None))
     assert INDEX["acc_z"] in [INDEX[v] for v in E.CATALOGUE["battery"].variables]
+
+
+def test_measurement_filter_gives_the_model_the_gyro_derivative_filter(batch):
+    """Predicted angular accelerations pass the Savitzky-Golay derivative the measured ones went through:
+    a 1 Hz tone is kept, a 12 Hz tone is attenuated as the measurement attenuates it."""
+    from quad_modelling.core.preprocess import differentiate
+
+    t = np.arange(batch.samples) * batch.dt
+    out = np.zeros((2, batch.samples, 18))
+    for w, f in enumerate((1.0, 12.0)):
+        out[w, :, INDEX["roll_acc"]] = np.sin(2 * np.pi * f * t)
+    E.measurement_filter(out, batch.dt, np.arange(18))
+    inner = slice(20, -20)
+    low, high = out[0, inner, INDEX["roll_acc"]], out[1, inner, INDEX["roll_acc"]]
+    assert np.sqrt(np.mean(low**2)) == pytest.approx(np.sqrt(0.5), rel=0.03)
+    rate = -np.cos(2 * np.pi * 12.0 * t) / (2 * np.pi * 12.0)
+    expected = differentiate(rate[:, None], batch.dt)[inner, 0]
+    np.testing.assert_allclose(high, expected, atol=0.03)
+    assert np.sqrt(np.mean(high**2)) < 0.5 * np.sqrt(0.5)
