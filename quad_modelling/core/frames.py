@@ -124,19 +124,55 @@ def quat_enu_to_euler_ned(quat_xyzw: np.ndarray) -> np.ndarray:
 
 
 def body_to_nav(vectors_b: np.ndarray, euler: np.ndarray) -> np.ndarray:
-    """Rotate body FRD vectors (N, 3) into N (NED) with attitudes (N, 3) [rad]."""
-    return euler_ned_to_rotation(euler).apply(vectors_b)
+    """Rotate body FRD vectors (N, 3) into N (NED) with attitudes (N, 3) [rad]: v_N = R v_B."""
+    v = np.atleast_2d(np.asarray(vectors_b, dtype=float))
+    return np.einsum("nij,nj->ni", euler_ned_to_matrix(euler), v).reshape(np.shape(vectors_b))
 
 
 def nav_to_body(vectors_n: np.ndarray, euler: np.ndarray) -> np.ndarray:
-    """Rotate NED vectors (N, 3) into the body frame FRD with attitudes (N, 3)."""
-    return euler_ned_to_rotation(euler).apply(vectors_n, inverse=True)
+    """Rotate NED vectors (N, 3) into the body frame FRD with attitudes (N, 3): v_B = R^T v_N."""
+    v = np.atleast_2d(np.asarray(vectors_n, dtype=float))
+    return np.einsum("nji,nj->ni", euler_ned_to_matrix(euler), v).reshape(np.shape(vectors_n))
 
 
 def geodesic_angle(euler_a: np.ndarray, euler_b: np.ndarray) -> np.ndarray:
     """Angle [rad] of the rotation between two attitudes, elementwise over rows."""
     rel = euler_ned_to_rotation(euler_a).inv() * euler_ned_to_rotation(euler_b)
     return rel.magnitude()
+
+
+def euler_ned_to_matrix(euler: np.ndarray) -> np.ndarray:
+    """R_NED←FRD as (N, 3, 3) matrices from (N, 3) Euler angles (φ, θ, ψ), ZYX, in closed form.
+
+    .. math:: R = R_z(ψ) R_y(θ) R_x(φ)
+
+    The same rotation as :func:`euler_ned_to_rotation`; written out because the
+    live predictor converts one sample at a time, where scipy's Rotation costs
+    ~100 µs per call and this ~10 µs (tests hold the two equal).
+    """
+    e = np.atleast_2d(np.asarray(euler, dtype=float))
+    cr, sr = np.cos(e[:, 0]), np.sin(e[:, 0])
+    cp, sp = np.cos(e[:, 1]), np.sin(e[:, 1])
+    cy, sy = np.cos(e[:, 2]), np.sin(e[:, 2])
+    return np.stack([
+        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
+        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
+        np.stack([-sp, cp * sr, cp * cr], axis=-1),
+    ], axis=1)
+
+
+def _quat_xyzw_of_euler_ned(euler: np.ndarray) -> np.ndarray:
+    """Quaternion (x, y, z, w) of R_NED←FRD from (N, 3) ZYX Euler angles, closed form (half angles)."""
+    e = np.atleast_2d(np.asarray(euler, dtype=float)) / 2.0
+    cr, sr = np.cos(e[:, 0]), np.sin(e[:, 0])
+    cp, sp = np.cos(e[:, 1]), np.sin(e[:, 1])
+    cy, sy = np.cos(e[:, 2]), np.sin(e[:, 2])
+    return np.column_stack([
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    ])
 
 
 def to_odometry(pos_n: np.ndarray, vel_n: np.ndarray, euler: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -146,14 +182,25 @@ def to_odometry(pos_n: np.ndarray, vel_n: np.ndarray, euler: np.ndarray) -> tupl
     twist in the child (body FLU) frame [m/s]): Odometry's pose is in the world
     frame of its header, its twist in ``child_frame_id``.
 
-    .. math:: v_{FLU} = M_{FB} R_{NED←FRD}^T v_{NED}
+    .. math::
+
+        v_{FLU} = M_{FB} R_{NED←FRD}^T v_{NED}, \qquad
+        q_{ENU←FLU} = q(M_{NE}) \otimes q_{NED←FRD} \otimes q(M_{FB})
+
+    with q(M_NE) = (1/√2, 1/√2, 0, 0), a half turn about (x + y)/√2, and
+    q(M_FB) = (1, 0, 0, 0), a half turn about x (both in x, y, z, w order).
+    Closed form throughout: the live predictor calls this once per sample.
     """
-    vel_b = nav_to_body(np.atleast_2d(vel_n), np.atleast_2d(euler))
-    return ned_to_enu(pos_n), euler_ned_to_quat_enu(euler), frd_to_flu(vel_b).reshape(np.shape(vel_n))
+    vel_b = nav_to_body(vel_n, euler)
+    x, y, z, w = _quat_xyzw_of_euler_ned(euler).T
+    # q(M_NE) ⊗ q ⊗ q(M_FB) expanded (Hamilton product), overall sign chosen so w = (w + z)/√2
+    h = np.sqrt(0.5)
+    quat = np.column_stack([h * (x + y), h * (x - y), h * (w - z), h * (w + z)])
+    return ned_to_enu(pos_n), quat.reshape(np.shape(euler)[:-1] + (4,)), frd_to_flu(vel_b)
 
 
 def from_odometry(position_enu: np.ndarray, quat_xyzw: np.ndarray, twist_flu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """nav_msgs/Odometry fields -> (pos_n, vel_n, euler), inverse of :func:`to_odometry`."""
     euler = quat_enu_to_euler_ned(quat_xyzw)
-    vel_n = body_to_nav(np.atleast_2d(flu_to_frd(twist_flu)), np.atleast_2d(euler)).reshape(np.shape(twist_flu))
+    vel_n = body_to_nav(flu_to_frd(twist_flu), euler)
     return enu_to_ned(position_enu), vel_n, euler

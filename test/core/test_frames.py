@@ -60,3 +60,16 @@ def test_geodesic_angle_of_a_pure_roll():
     a = np.zeros((1, 3))
     b = np.array([[0.25, 0.0, 0.0]])
     assert frames.geodesic_angle(a, b)[0] == pytest.approx(0.25)
+
+
+def test_closed_form_rotations_equal_scipy():
+    rng = np.random.default_rng(2)
+    euler = np.column_stack([rng.uniform(-1.5, 1.5, 300), rng.uniform(-1.5, 1.5, 300), rng.uniform(-3.1, 3.1, 300)])
+    np.testing.assert_allclose(frames.euler_ned_to_matrix(euler), frames.euler_ned_to_rotation(euler).as_matrix(), atol=1e-14)
+    vectors = rng.standard_normal((300, 3))
+    np.testing.assert_allclose(frames.body_to_nav(vectors, euler), frames.euler_ned_to_rotation(euler).apply(vectors), atol=1e-12)
+    np.testing.assert_allclose(frames.nav_to_body(frames.body_to_nav(vectors, euler), euler), vectors, atol=1e-12)
+    _, quat, _ = frames.to_odometry(np.zeros((300, 3)), vectors, euler)
+    reference = Rotation.from_quat(frames.euler_ned_to_quat_enu(euler))
+    np.testing.assert_allclose(Rotation.from_quat(quat).as_matrix(), reference.as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(frames.body_to_nav(vectors[0], euler[0]), frames.euler_ned_to_rotation(euler[0]).apply(vectors[0]), atol=1e-12)
