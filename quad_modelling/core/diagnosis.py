@@ -25,13 +25,16 @@ scored with the evaluation protocol's smoothed RMS/TIC (DESIGN 7).
 
    with :math:`s_v` the base model's training residual RMS and the bars the
    mean over held-out windows (the same ratio per window gives the per-window
-   shrink :math:`S_{e,w}`).
+   shrink :math:`S_{e,w}`). Only the windows the effect *excites* are scored
+   (:func:`excited_windows`: its correction of the prediction is at least
+   :data:`EXCITED_MIN_CORRECTION` of the window's gap, decided by the fitted
+   model, never the truth), on training and held-out data alike.
 4. **Verdict rule** (constants below):
 
    * ``found``: held-out shrink :math:`S_e \\ge` :data:`FOUND_MIN_SHRINK`, the
-     5 % lower bound of its bootstrap over held-out windows (:data:`BOOTSTRAP`
-     resamples, seeded) above zero, and at least :data:`FOUND_MIN_WINDOW_FRACTION`
-     of the held-out windows improved;
+     5 % lower bound of its bootstrap over the excited held-out windows
+     (:data:`BOOTSTRAP` resamples, seeded) above zero, and at least
+     :data:`FOUND_MIN_WINDOW_FRACTION` of them improved;
    * ``rejected``: the training shrink is at least :data:`FOUND_MIN_SHRINK` but
      the held-out test above fails (it fits the training data, not new data);
    * ``insignificant``: otherwise.
@@ -513,7 +516,9 @@ class Diagnosis:
             "windows": self.windows,
             "rule": {
                 "found": f"held-out shrink >= {FOUND_MIN_SHRINK} on the effect's variables, bootstrap 5% bound > 0 "
-                         f"({BOOTSTRAP} resamples of held-out windows), >= {FOUND_MIN_WINDOW_FRACTION:.0%} of held-out windows improved",
+                         f"({BOOTSTRAP} resamples of held-out windows), >= {FOUND_MIN_WINDOW_FRACTION:.0%} of held-out windows improved; "
+                         f"scored on the windows the effect excites (its correction >= {EXCITED_MIN_CORRECTION:.0%} of the window's gap, "
+                         f"at least {EXCITED_MIN_WINDOWS} windows)",
                 "rejected": f"training shrink >= {FOUND_MIN_SHRINK} but the held-out test fails",
                 "insignificant": "otherwise",
                 "confounded": f"|correlation of held-out corrections| >= {CONFOUND_CORRELATION} and the weaker shrink >= "
