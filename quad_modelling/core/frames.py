@@ -176,7 +176,7 @@ def _quat_xyzw_of_euler_ned(euler: np.ndarray) -> np.ndarray:
 
 
 def to_odometry(pos_n: np.ndarray, vel_n: np.ndarray, euler: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Internal state -> nav_msgs/Odometry fields (REP-103/147), row-wise.
+    r"""Internal state -> nav_msgs/Odometry fields (REP-103/147), row-wise.
 
     Returns (position ENU [m], quaternion (x, y, z, w) of R_ENU←FLU, linear
     twist in the child (body FLU) frame [m/s]): Odometry's pose is in the world

@@ -29,7 +29,8 @@ def load_flight(path: str | Path, vehicle: str | None = None, fmt: str = "auto",
     """Read a thesis .mat log, a NanoBench CSV or a contract MCAP bag into a FlightLog.
 
     ``vehicle``: config name or YAML path (required for .mat files that do not
-    name one; NanoBench defaults to crazyflie21). ``mapping_file``: YAML
+    name one; NanoBench defaults to crazyflie21). The returned log's
+    ``meta.vehicle`` is the config's name. ``mapping_file``: YAML
     variable mapping for foreign .mat logs (see :mod:`quad_modelling.io.matlog`).
     """
     path = Path(path)
@@ -51,9 +52,12 @@ def load_flight(path: str | Path, vehicle: str | None = None, fmt: str = "auto",
         from quad_modelling.io.bag_io import read_bag
 
         log = read_bag(path if path.is_dir() else path.parent, vehicle=vehicle)
-    if fmt != "nanobench":
-        from quad_modelling.core.vehicle import load_vehicle
+    from quad_modelling.core.vehicle import load_vehicle
 
-        config = load_vehicle(log.meta.vehicle)
+    config = load_vehicle(log.meta.vehicle)
+    if fmt != "nanobench":
         log.check_input_range(config.input_min, config.input_max, config.input_unit)
+    # The log names its airframe (config name), not the file its constants came from:
+    # --vehicle FILE picks constants for a command, the flight stays the same vehicle.
+    log.meta.vehicle = config.name
     return log

@@ -46,6 +46,7 @@ from std_srvs.srv import Trigger
 
 from quad_modelling.core.evaluation import EvaluationConfig, evaluate_window, warm_samples_for
 from quad_modelling.core.preprocess import SMOOTH_CUTOFF_HZ, TrimConfig, smooth, trimmed_variables
+from quad_modelling.core.models import DummyPredictor
 from quad_modelling.core.streaming import RecordedPrediction
 from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
 from quad_modelling.core.vehicle import load_vehicle
@@ -150,7 +151,9 @@ class EvaluatorNode(Node):
         named = {name: (a, b) for name, a, b in self.spans}
         config = EvaluationConfig(drop_start=0.0, drop_end=0.0, window_s=self.window_s, warm_s=self.warm_s, trim=self.trim,
                                   train=_span_text(named.get("train")), eval=_span_text(named.get("eval")), horizons=(1,))
-        self.scores = LiveScores(config, self.spans, self.models)
+        # The zero-predicting dummy (thesis Fig 5.2) is always reported, as offline; it needs no node.
+        self.baselines = [] if "dummy" in self.models else ["dummy"]
+        self.scores = LiveScores(config, self.spans, self.models + self.baselines)
         self.faults = FaultLog(self.get_logger())
         self.clock_ = WindowClock(self.window_s, self.warm_s, p["sample_period_s"])
         self.open: dict[int, _Window] = {}
@@ -358,7 +361,8 @@ class EvaluatorNode(Node):
 
     def _score(self, window: _Window, start_s: float, end_s: float, spans: list[str], extra: str) -> list[WindowRecord]:
         def marked(reason: str, models=None) -> list[WindowRecord]:
-            return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason) for m in (models or self.models) for s in spans]
+            return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason)
+                    for m in (models or self.models + self.baselines) for s in spans]
 
         stamps = sorted(window.motor)
         complete = [ns for ns in stamps if ns in window.odom and ns in window.imu]
@@ -395,6 +399,9 @@ class EvaluatorNode(Node):
                 continue
             predicted[model] = result.predicted
             records += [WindowRecord(model, s, window.index, start_s, end_s, rms=result.rms, tic=result.tic) for s in spans]
+        for baseline in self.baselines:
+            result = evaluate_window(DummyPredictor(), log, warm, self.trim, self.vehicle, self.cutoff, measured)
+            records += [WindowRecord(baseline, s, window.index, start_s, end_s, rms=result.rms, tic=result.tic) for s in spans]
         if predicted and self.figures:
             for s in spans:
                 self.scores.add_example(s, log, self.trim, measured, predicted, warm)

@@ -12,12 +12,15 @@ from quad_modelling.io.bag_io import read_bag
 from test.conftest import REPO
 
 BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
-MODELS = ("naive", "greybox")
 
 
 def test_live_results_equal_offline_evaluation(tmp_path, capsys):
+    """naive, greybox and a NARX trained on the training span, live and offline; the dummy rides along."""
+    assert main(["train", str(BAG), "--drop", "0:0", "--train", "0:20", "--epochs", "5", "--quiet", "-o", str(tmp_path / "narx.npz")]) == 0
+    specs = ("naive", "greybox", f"narx:{tmp_path / 'narx.npz'}")
+    names = ("naive", "greybox", "narx", "dummy")
     out = tmp_path / "live"
-    code = main(["run-bag", str(BAG), "--models", ",".join(MODELS), "--train", "0:20", "--eval", "20:40", "--no-figures", "-o", str(out)])
+    code = main(["run-bag", str(BAG), "--models", ",".join(specs), "--train", "0:20", "--eval", "20:40", "--no-figures", "-o", str(out)])
     printed = capsys.readouterr().out
     assert code == 0, printed
     assert "naive (eval)" in printed and str(out) in printed
@@ -25,9 +28,9 @@ def test_live_results_equal_offline_evaluation(tmp_path, capsys):
     log = read_bag(BAG)
     vehicle = load_vehicle(log.meta.vehicle)
     config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train="0:20", eval="20:40", window_s=10.0, warm_s=0.2)
-    offline = evaluate([log], [make_model(m, vehicle) for m in MODELS], vehicle, config, multistep=False).to_json()
-    assert live["windows"] == offline["windows"] == {m: {"train": 2, "eval": 2} for m in MODELS}
-    for model in MODELS:
+    offline = evaluate([log], [make_model(m, vehicle) for m in (*specs, "dummy")], vehicle, config, multistep=False).to_json()
+    assert live["windows"] == offline["windows"] == {m: {"train": 2, "eval": 2} for m in names}
+    for model in names:
         for span in ("train", "eval"):
             for var, entry in offline["models"][model][span].items():
                 for metric in ("rms", "tic"):
