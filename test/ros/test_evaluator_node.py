@@ -31,8 +31,10 @@ def test_constant_velocity_error_gives_that_rms_and_the_matching_tic(ros):
     node = make_node(spans=["a:0:10", "b:10:15"])
     feed(node, log, range(len(log)), predictions={"m": offset_prediction(log, "vel_x", 0.25)})
     node.finish()
-    scored = [r for r in node.scores.records if r.scored]
+    scored = [r for r in node.scores.records if r.scored and r.model == "m"]
     assert [(r.span, r.index) for r in scored] == [("a", 0), ("a", 1), ("b", 2)]
+    dummy = [r for r in node.scores.records if r.scored and r.model == "dummy"]
+    assert len(dummy) == 3 and all(np.allclose(r.tic, 1.0) for r in dummy)  # the dummy is always scored too
     for r in scored:
         assert abs(r.rms[INDEX["vel_x"]] - 0.25) < 1e-9  # trimming and smoothing keep a constant error
         assert r.rms[INDEX["vel_y"]] < 1e-9 and r.tic[INDEX["acc_z"]] < 1e-9
@@ -75,13 +77,15 @@ def test_gap_restart_and_late_start_mark_windows_instead_of_failing(ros, tmp_pat
     bad.linear_acceleration.x = float("nan")
     node.on_imu(bad)
     node.finish()
-    by_window = {r.index: r for r in node.scores.records}
+    by_window = {r.index: r for r in node.scores.records if r.model == "m"}
     assert by_window[0].scored and by_window[3].scored
     assert not by_window[1].scored and "measurement rows: 470 complete of 500 expected" in by_window[1].reason
     assert not by_window[2].scored and "missing predictions for 200" in by_window[2].reason
     assert node.faults.counts["nan_imu"] == 1
     data = json.loads((tmp_path / "out" / "results.json").read_text())
-    assert data["windows"]["m"]["live"] == 2 and len(data["live"]["marked"]) == 3  # windows 1, 2 and the partial 4
+    marked_m = [m for m in data["live"]["marked"] if m["model"] == "m"]
+    assert data["windows"]["m"]["live"] == 2 and len(marked_m) == 3  # windows 1, 2 and the partial 4
+    assert data["windows"]["dummy"]["live"] == 3  # the dummy needs no predictor: only the gap and the partial window are marked
     assert abs(data["models"]["m"]["live"]["vel_z"]["rms"] - 0.1) < 1e-9
     assert (tmp_path / "out" / "tables.md").is_file()
     node.destroy_node()
@@ -93,6 +97,6 @@ def test_gap_restart_and_late_start_mark_windows_instead_of_failing(ros, tmp_pat
     late.on_origin(Clock(clock=messages.ns_stamp(int(stamps_ns(log.t)[0]))))
     feed(late, log, range(700, 2100), predictions={"m": prediction})
     late.finish()
-    first = late.scores.records[0]
-    assert first.index == 1 and not first.scored and late.scores.records[1].scored and late.scores.records[1].index == 2
+    records = [r for r in late.scores.records if r.model == "m"]
+    assert records[0].index == 1 and not records[0].scored and records[1].scored and records[1].index == 2
     late.destroy_node()
