@@ -1,7 +1,11 @@
 """``make demo``: the main job on the bundled bag, end to end.
 
-Steps run through the same CLI a user types; outputs go to ``demo_output/``
-(replaced on every run: it is the demo's own directory).
+Identify the vehicle's constants and train the NARX model on the first 20 s of the
+bundled NanoBench flight, then replay the bag through the live ROS 2 graph (replay,
+greybox and NARX predictors, evaluator: separate processes over DDS on loopback)
+and print the live RMS/TIC table for the training (0-20 s) and held-out (20-40 s)
+windows. Steps run through the same CLI a user types; outputs go to
+``demo_output/`` (replaced on every run: it is the demo's own directory).
 """
 
 from __future__ import annotations
@@ -30,12 +34,17 @@ def run() -> int:
     if OUTPUT.exists():
         shutil.rmtree(OUTPUT)
     OUTPUT.mkdir()
-    rel = BUNDLED_BAG.relative_to(REPO)
-    step("What the bundled bag holds (a real Crazyflie 2.1 NanoBench flight)", ["info", str(rel)])
-    step("Convert it to a thesis-style MATLAB log", ["convert", str(rel), "-o", str((OUTPUT / "flight.mat").relative_to(REPO))])
-    step("Replay it through the live ROS 2 graph (replay, predictor, evaluator over DDS)",
-         ["run-bag", str(rel), "--models", "naive", "--train", "0:20", "--eval", "20:40",
-          "-o", str((OUTPUT / "live").relative_to(REPO))])
+    bag = str(BUNDLED_BAG.relative_to(REPO))
+    out = OUTPUT.relative_to(REPO)
+    spans = ["--drop", "0:0", "--train", "0:20"]
+    step("What the bundled bag holds (a real Crazyflie 2.1 NanoBench flight)", ["info", bag])
+    step("Identify the Crazyflie's motor constants on the training span (0-20 s)",
+         ["identify", bag, "--vehicle", "crazyflie21", *spans, "--eval", "20:40", "-o", str(out / "crazyflie21_identified.yaml")])
+    step("Train the thesis's NARX model on the same training span",
+         ["train", bag, "--vehicle", str(out / "crazyflie21_identified.yaml"), *spans, "--quiet", "-o", str(out / "narx.npz")])
+    step("Replay the bag through the live ROS 2 graph over DDS (replay, greybox and NARX predictors, evaluator)",
+         ["run-bag", bag, "--models", f"greybox,narx:{out / 'narx.npz'}", "--vehicle", str(out / "crazyflie21_identified.yaml"),
+          "--train", "0:20", "--eval", "20:40", "-o", str(out / "live")])
     print(f"\ndemo outputs in {OUTPUT.relative_to(REPO)}/")
     return 0
 

@@ -251,6 +251,10 @@ def _summary_table(results: dict, models: list[ModelEntry]) -> str:
     live = results.get("live", {})
     marked = live.get("marked", [])
     columns = [(m.name, span) for m in models for span in results["models"].get(m.name, {})]
+    dummy_spans = list(results["models"].get("dummy", {}))
+    if dummy_spans and "dummy" not in {m.name for m in models}:
+        # the always-reported baseline (predicts zero, TIC = 1): its RMS on the held-out span is the scale
+        columns.append(("dummy", "eval" if "eval" in dummy_spans else dummy_spans[-1]))
     lines = []
     if not columns:
         lines.append("no window was scored" + (f"; marked: {marked[0]['reason']}" if marked else ""))
