@@ -1,10 +1,10 @@
 """``make demo``: the main job on the bundled bag, end to end.
 
-Identify the vehicle's constants and train the NARX model on the first 20 s of the
-bundled NanoBench flight, then replay the bag through the live ROS 2 graph (replay,
-greybox and NARX predictors, evaluator: separate processes over DDS on loopback)
-and print the live RMS/TIC table for the training (0-20 s) and held-out (20-40 s)
-windows. Steps run through the same CLI a user types; outputs go to
+Identify the vehicle's constants and train the NARX model on 10-25 s of the bundled
+NanoBench flight (after take-off), then replay the bag through the live ROS 2 graph
+(replay, greybox and NARX predictors, evaluator: separate processes over DDS on
+loopback) and print the live RMS/TIC table for the training (10-25 s) and held-out
+(25-35 s) 5 s windows. Steps run through the same CLI a user types; outputs go to
 ``demo_output/`` (replaced on every run: it is the demo's own directory).
 """
 
@@ -36,15 +36,18 @@ def run() -> int:
     OUTPUT.mkdir()
     bag = str(BUNDLED_BAG.relative_to(REPO))
     out = OUTPUT.relative_to(REPO)
-    spans = ["--drop", "0:0", "--train", "0:20"]
+    # Live windows start at the first motor input (t0) and are 5 s long; take-off ends about
+    # 6 s and landing starts about 36 s after t0: train on 10-25 s, hold out 25-35 s.
+    spans = ["--drop", "0:0", "--train", "10:25", "--window", "5"]
     step("What the bundled bag holds (a real Crazyflie 2.1 NanoBench flight)", ["info", bag])
-    step("Identify the Crazyflie's motor constants on the training span (0-20 s)",
-         ["identify", bag, "--vehicle", "crazyflie21", *spans, "--eval", "20:40", "-o", str(out / "crazyflie21_identified.yaml")])
+    step("Identify the Crazyflie's motor constants on the training span (10-25 s)",
+         ["identify", bag, "--vehicle", "crazyflie21", *spans, "--eval", "25:35", "-o", str(out / "crazyflie21_identified.yaml")])
     step("Train the thesis's NARX model on the same training span",
-         ["train", bag, "--vehicle", str(out / "crazyflie21_identified.yaml"), *spans, "--quiet", "-o", str(out / "narx.npz")])
+         ["train", bag, "--vehicle", str(out / "crazyflie21_identified.yaml"), "--drop", "0:0", "--train", "10:25",
+          "--quiet", "-o", str(out / "narx.npz")])
     step("Replay the bag through the live ROS 2 graph over DDS (replay, greybox and NARX predictors, evaluator)",
          ["run-bag", bag, "--models", f"greybox,narx:{out / 'narx.npz'}", "--vehicle", str(out / "crazyflie21_identified.yaml"),
-          "--train", "0:20", "--eval", "20:40", "-o", str(out / "live")])
+          "--window", "5", "--train", "10:25", "--eval", "25:35", "-o", str(out / "live")])
     print(f"\ndemo outputs in {OUTPUT.relative_to(REPO)}/")
     return 0
 
