@@ -146,11 +146,18 @@ class Graph:
                     self.procs[n].wait()
 
 
+REPLAY_PATIENCE_S = 60.0
+"""How long [wall s] the evaluator waits for a lagging predictor before marking its window, in run-bag."""
+
+
 def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[str], report_dir: Path) -> dict:
     common = {"vehicle": vehicle, "window_s": float(args.window), "warm_s": float(args.warm)}
     params = {
+        # A replayed bag waits for slow predictors (a busy machine) instead of marking their windows:
+        # run-bag itself reports a predictor that dies.
         "/quad/evaluator": {"ros__parameters": {**common, "models": [m.name for m in models], "spans": spans,
-                                                "output_dir": str(report_dir), "force": True, "figures": not args.no_figures}},
+                                                "output_dir": str(report_dir), "force": True, "figures": not args.no_figures,
+                                                "stale_model_s": REPLAY_PATIENCE_S, "close_grace_s": REPLAY_PATIENCE_S}},
         "/quad/replay": {"ros__parameters": {"bag": str(Path(args.bag).resolve()), "vehicle": vehicle, "rate": float(args.rate),
                                              "wait_for_subscribers": len(models) + 1}},
     }
