@@ -189,7 +189,19 @@ def memory(wall_s: float, workdir: Path) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="shorter runs")
+    parser.add_argument("--memory-wall", type=float, default=None,
+                        help="run only the memory test for this many wall seconds (results in nodes_memory.{json,md})")
     args = parser.parse_args()
+    if args.memory_wall:
+        with tempfile.TemporaryDirectory() as tmp:
+            mem = memory(args.memory_wall, Path(tmp))
+        md = ["# Node memory over a long 400 Hz run (predictor + evaluator + replay, rate 0, looped bag)", "",
+              f"{mem['wall_s']:g} s wall, {mem['flight_s_replayed']:.0f} s of 400 Hz flight replayed. RSS [MiB] over time:", "",
+              "| t [s] | " + " | ".join(mem["names"]) + " |", "|---|" + "---|" * len(mem["names"])]
+        md += ["| " + " | ".join(f"{v:.1f}" for v in row) + " |" for row in mem["rss_mib_samples"][::5]]
+        md += ["", "Growth after start-up [MiB]: " + ", ".join(f"{k} {v:+.1f}" for k, v in mem["rss_growth_mib_after_startup"].items())]
+        write_results("nodes_memory", {"memory": mem}, "\n".join(md))
+        return 0
     seconds = 8.0 if args.quick else 20.0
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
