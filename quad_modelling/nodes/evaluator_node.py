@@ -29,6 +29,8 @@ partially. Buffers hold at most the open windows (bounded).
 
 from __future__ import annotations
 
+import os
+
 import json
 import time
 from pathlib import Path
@@ -106,6 +108,8 @@ EVALUATOR_PARAMETERS = [
     Param("close_grace_s", 3.0, "close a window this long [wall s] after the measurements passed it, even if a model lags", positive),
     Param("ready_timeout_s", 20.0, "wait this long [wall s] for every model's publishers before acknowledging progress", non_negative),
     Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions", positive),
+    Param("nice", 10, "raise this process's scheduling niceness by this much (0-19): scoring a closed window is not "
+                      "time-critical, the predictors' per-input answers are", non_negative),
 ]
 
 
@@ -148,6 +152,8 @@ class EvaluatorNode(Node):
         self.trim = TrimConfig()
         self.cutoff = SMOOTH_CUTOFF_HZ
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
+        if p["nice"]:
+            os.nice(min(int(p["nice"]), 19))
         named = {name: (a, b) for name, a, b in self.spans}
         config = EvaluationConfig(drop_start=0.0, drop_end=0.0, window_s=self.window_s, warm_s=self.warm_s, trim=self.trim,
                                   train=_span_text(named.get("train")), eval=_span_text(named.get("eval")), horizons=(1,))
