@@ -30,7 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import write_results  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
-os.environ.setdefault("ROS_DOMAIN_ID", str(os.getpid() % 50 + 180))
+os.environ.setdefault("ROS_DOMAIN_ID", str(os.getpid() % 90 + 10))
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 

@@ -20,7 +20,7 @@ def generate_launch_description():
     common = {"window_s": LaunchConfiguration("window_s"), "vehicle": LaunchConfiguration("vehicle")}
     return LaunchDescription([
         DeclareLaunchArgument("bag", description="MCAP bag directory to replay"),
-        DeclareLaunchArgument("narx_model", default_value="", description="NARX model file (.npz)"),
+        DeclareLaunchArgument("narx_model", description="NARX model file (.npz, from quad-modelling train); required"),
         DeclareLaunchArgument("rate", default_value="0.0", description="real-time factor; 0 = as fast as acknowledged"),
         DeclareLaunchArgument("window_s", default_value="10.0", description="window length [s]"),
         DeclareLaunchArgument("vehicle", default_value="crazyflie21", description="vehicle config"),

@@ -93,7 +93,7 @@ def ros_environment() -> dict:
     """The environment of the nodes: loopback discovery always; a run-unique domain unless set."""
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.setdefault("ROS_DOMAIN_ID", str(120 + os.getpid() % 100))
+    env.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))  # 10..99: inside the 0-101 range safe on Linux
     env.setdefault("PYTHONUNBUFFERED", "1")
     env.setdefault("MPLBACKEND", "Agg")
     return env

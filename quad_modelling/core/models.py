@@ -157,24 +157,15 @@ register_model("dummy", _make_dummy)
 register_model("naive", _make_naive)
 
 
-def _register_optional() -> None:
-    """Let model modules written elsewhere (narx, hybrid) register themselves."""
-    import importlib
-
-    for module in ("quad_modelling.core.narx",):
-        try:
-            mod = importlib.import_module(module)
-        except ImportError:
-            continue
-        hook = getattr(mod, "register_models", None)
-        if callable(hook):
-            hook(register_model)
-
-
-def known_models() -> list[str]:
-    """Spec kinds the registry knows."""
-    _register_optional()
-    return sorted(_REGISTRY)
+def _register_learned_models() -> None:
+    """Register ``narx:PATH`` and ``hybrid:PATH`` from :mod:`quad_modelling.core.narx` (imported
+    on first use: it imports torch lazily too). A failing import is a ConfigError naming it,
+    not an 'unknown model'."""
+    try:
+        from quad_modelling.core.narx import register_models
+    except ImportError as err:
+        raise ConfigError(f"the NARX/hybrid models cannot be loaded: {err}") from err
+    register_models(register_model)
 
 
 def make_model(spec: str, vehicle: VehicleConfig) -> Predictor:
@@ -184,7 +175,7 @@ def make_model(spec: str, vehicle: VehicleConfig) -> Predictor:
     """
     kind, _, arg = spec.partition(":")
     if kind not in _REGISTRY:
-        _register_optional()
+        _register_learned_models()
     if kind not in _REGISTRY:
         raise ConfigError(f"unknown model {spec!r}; known: {', '.join(sorted(_REGISTRY))}")
     model = _REGISTRY[kind](arg, vehicle)

@@ -208,7 +208,11 @@ class VehicleConfig:
                 raise ConfigError(f"{where}: motors[{i}].spin must be 'cw' or 'ccw' (seen from above), got {spin!r}")
             if not (isinstance(position, list) and len(position) == 2):
                 raise ConfigError(f"{where}: motors[{i}].position must be [x, y] in body FRD metres")
-            motors.append(Motor(str(need(m, "name", f"motors[{i}].")), (float(position[0]), float(position[1])), 1 if spin == "ccw" else -1))
+            try:
+                xy = (float(position[0]), float(position[1]))
+            except (TypeError, ValueError) as err:
+                raise ConfigError(f"{where}: motors[{i}].position is not two numbers: {position!r}") from err
+            motors.append(Motor(str(need(m, "name", f"motors[{i}].")), xy, 1 if spin == "ccw" else -1))
         radii = np.hypot(*np.array([m.position for m in motors]).T)
         arm = constants["arm_length"].value
         if not np.allclose(radii, arm, rtol=0.02):
@@ -216,8 +220,11 @@ class VehicleConfig:
         if sum(m.yaw_sign for m in motors) != 0:
             raise ConfigError(f"{where}: two rotors must spin cw and two ccw")
         inputs = need(doc, "inputs", "")
-        input_min = float(need(inputs, "min", "inputs."))
-        input_max = float(need(inputs, "max", "inputs."))
+        try:
+            input_min = float(need(inputs, "min", "inputs."))
+            input_max = float(need(inputs, "max", "inputs."))
+        except (TypeError, ValueError) as err:
+            raise ConfigError(f"{where}: inputs.min and inputs.max must be numbers") from err
         if not input_max > input_min:
             raise ConfigError(f"{where}: inputs.max must exceed inputs.min")
         return cls(

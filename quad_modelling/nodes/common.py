@@ -16,6 +16,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
@@ -67,6 +68,10 @@ def non_negative(value) -> str | None:
     return None if value >= 0 else "must be >= 0"
 
 
+def niceness(value) -> str | None:
+    return None if 0 <= value <= 19 else "must be a niceness increment from 0 to 19"
+
+
 def non_empty(value) -> str | None:
     return None if str(value).strip() else "must not be empty"
 
@@ -98,7 +103,7 @@ def declare_parameters(node, params: list[Param]) -> dict:
             descriptor.type = ParameterType.PARAMETER_STRING_ARRAY
         try:
             value = node.declare_parameter(p.name, p.default, descriptor).value
-        except Exception as err:  # rclpy raises InvalidParameterValueException / InvalidParameterTypeException
+        except (ParameterException, InvalidParameterTypeException) as err:  # value rejected by validate(), wrong type
             raise BadParameter(f"{node.get_name()}: {err}") from err
         values[p.name] = value
     return values

@@ -55,6 +55,7 @@ from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
+    niceness,
     DEFAULT_NAMESPACE,
     ORIGIN_TOPIC,
     PROGRESS_TOPIC,
@@ -109,7 +110,7 @@ EVALUATOR_PARAMETERS = [
     Param("ready_timeout_s", 20.0, "wait this long [wall s] for every model's publishers before acknowledging progress", non_negative),
     Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions", positive),
     Param("nice", 10, "raise this process's scheduling niceness by this much (0-19): scoring a closed window is not "
-                      "time-critical, the predictors' per-input answers are", non_negative),
+                      "time-critical, the predictors' per-input answers are", niceness),
 ]
 
 
@@ -153,7 +154,7 @@ class EvaluatorNode(Node):
         self.cutoff = SMOOTH_CUTOFF_HZ
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
         if p["nice"]:
-            os.nice(min(int(p["nice"]), 19))
+            os.nice(int(p["nice"]))
         named = {name: (a, b) for name, a, b in self.spans}
         config = EvaluationConfig(drop_start=0.0, drop_end=0.0, window_s=self.window_s, warm_s=self.warm_s, trim=self.trim,
                                   train=_span_text(named.get("train")), eval=_span_text(named.get("eval")), horizons=(1,))

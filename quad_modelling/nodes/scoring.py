@@ -1,11 +1,9 @@
 """Adapters between live (streamed) predictions and the core evaluation.
 
-* :class:`StreamedPredictor`: a streaming predictor as an offline
-  :class:`~quad_modelling.core.models.Predictor` whose ``predict_window`` is
-  ``predict_window_by_stream`` + :func:`~quad_modelling.core.preprocess.trim_prediction`:
-  exactly what the live graph computes (the evaluator node hands the received
-  absolute predictions to :class:`~quad_modelling.core.streaming.RecordedPrediction`,
-  which trims them the same way).
+The evaluator node hands the received absolute predictions to
+:class:`~quad_modelling.core.streaming.RecordedPrediction`, which trims them as the
+offline predictors do.
+
 * :class:`LiveScores`: per-window results of the evaluator node gathered into a core
   :class:`~quad_modelling.core.evaluation.EvaluationResult` (mean over scored windows
   per model and span), written with ``quad_modelling.io.report.write_report``.
@@ -19,21 +17,8 @@ import numpy as np
 
 from quad_modelling.core.evaluation import EvaluationConfig, EvaluationResult, ExampleWindow, SpanScores
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.preprocess import TrimConfig, trim_prediction, trimmed_inputs
-from quad_modelling.core.streaming import StreamingPredictor, predict_window_by_stream
+from quad_modelling.core.preprocess import TrimConfig, trimmed_inputs
 from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
-
-
-class StreamedPredictor:
-    """Offline Predictor that predicts a window exactly as the live predictor node does."""
-
-    def __init__(self, streaming: StreamingPredictor, trim: TrimConfig | None = None, name: str | None = None):
-        self.streaming = streaming
-        self.trim = trim or TrimConfig()
-        self.name = name or streaming.name
-
-    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        return trim_prediction(window, predict_window_by_stream(self.streaming, window, warm_samples), self.trim)
 
 
 @dataclass

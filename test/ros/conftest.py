@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 # Each test process talks in its own domain, on loopback only (DESIGN 3).
-os.environ["ROS_DOMAIN_ID"] = str(os.getpid() % 100 + 100)
+os.environ["ROS_DOMAIN_ID"] = str(os.getpid() % 90 + 10)  # 10..99: DDS ports stay below the ephemeral range
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 
