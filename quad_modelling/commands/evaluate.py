@@ -82,7 +82,12 @@ def load_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConf
             print(f"skipped: {err}", file=sys.stderr)
     if not flights:
         raise ConfigError("no readable flight among the inputs")
+    names = sorted({f.meta.vehicle for f in flights})
+    if len(names) > 1:
+        raise ConfigError(f"the flights are of different vehicles {names}; evaluate one vehicle at a time")
     vehicle = load_vehicle(args.vehicle or flights[0].meta.vehicle)
+    if vehicle.name != names[0]:
+        raise ConfigError(f"--vehicle {args.vehicle} describes {vehicle.name!r}, the flights are of {names[0]!r}")
     return flights, vehicle, skipped
 
 

@@ -224,9 +224,9 @@ def run(args: argparse.Namespace) -> int:
         failed = {n: p.returncode for n, p in graph.procs.items() if p.returncode not in (0, -signal.SIGINT)}
         if failed:
             name = next(iter(failed))
-            raise NodeFailedError(f"node {name} exited with code {failed[name]}; last lines of {output}/logs/{name}.log:\n{graph.tail(name)}")
+            raise _failure(graph, name, f"node {name} exited with code {failed[name]}")
         if not (report_dir / "results.json").is_file():
-            raise NodeFailedError(f"the evaluator wrote no results; last lines of its log:\n{graph.tail('evaluator')}")
+            raise _failure(graph, "evaluator", "the evaluator wrote no results")
         for item in report_dir.iterdir():
             shutil.move(str(item), tmp / item.name)
         report_dir.rmdir()
@@ -238,18 +238,27 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _failure(graph: Graph, name: str, what: str) -> NodeFailedError:
+    """Print the node's log tail on stderr (the output directory is not kept on failure) and
+    return the one-line error: what happened and the node's last log line."""
+    tail = graph.tail(name)
+    print(f"--- last lines of the {name} log ---\n{tail}\n---", file=sys.stderr)
+    last = next((line.strip() for line in reversed(tail.splitlines()) if line.strip()), "(empty log)")
+    return NodeFailedError(f"{what}; its last log line: {last}")
+
+
 def _wait_for_replay(graph: Graph, timeout: float, started: float) -> None:
     replay = graph.procs["replay"]
     while replay.poll() is None:
         dead = graph.dead(exclude=("replay",))
         if dead:
             name = dead[0]
-            raise NodeFailedError(f"node {name} died early (exit code {graph.procs[name].returncode}); last lines of its log:\n{graph.tail(name)}")
+            raise _failure(graph, name, f"node {name} died early (exit code {graph.procs[name].returncode})")
         if time.monotonic() - started > timeout:
-            raise NodeFailedError(f"run did not finish within --timeout {timeout:g} s; replay log:\n{graph.tail('replay')}")
+            raise _failure(graph, "replay", f"run did not finish within --timeout {timeout:g} s")
         time.sleep(0.1)
     if replay.returncode != 0:
-        raise NodeFailedError(f"replay exited with code {replay.returncode}; last lines of its log:\n{graph.tail('replay')}")
+        raise _failure(graph, "replay", f"replay exited with code {replay.returncode}")
 
 
 def _summary_table(results: dict, models: list[ModelEntry]) -> str:

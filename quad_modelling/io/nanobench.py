@@ -46,7 +46,9 @@ EULER_COLUMNS = ("roll", "pitch", "yaw")
 REQUIRED = ("t", *POSITION, *QUATERNION, *VELOCITY, *ACCEL, *GYRO, *MOTORS, VBAT)
 
 EULER_COLUMN_TOLERANCE = 0.01
-"""Largest allowed difference [rad] between the roll/pitch columns and the quaternion."""
+"""Largest rotation [rad] between the roll/pitch/yaw columns and the quaternion for the columns to
+count as radians agreeing with it (recorded in ``meta.notes``; the attitude always comes from the
+quaternion)."""
 
 
 def _open_text(path: Path):
@@ -96,13 +98,19 @@ def read_nanobench(path: str | Path, vehicle: str = "crazyflie21") -> FlightLog:
     euler = frames.quat_enu_to_euler_ned(quat)
     euler[:, 2] = np.unwrap(euler[:, 2])
     notes = {"format": "nanobench", "euler_from": "quaternion qx..qw"}
-    if all(c in column for c in EULER_COLUMNS[:2]):
-        # FLU roll equals FRD roll; FLU pitch is the negative of FRD pitch.
-        difference = max(
-            np.max(np.abs(column["roll"] - euler[:, 0])),
-            np.max(np.abs(-column["pitch"] - euler[:, 1])),
+    if all(c in column for c in EULER_COLUMNS):
+        # The columns are the same attitude as roll/pitch/yaw about the fixed ENU axes x, y, z
+        # (scipy's extrinsic "xyz"): compare the two rotations, no frame conversion involved.
+        from scipy.spatial.transform import Rotation
+
+        from_columns = Rotation.from_euler("xyz", stack(EULER_COLUMNS))
+        deviation = (from_columns.inv() * Rotation.from_quat(quat)).magnitude()
+        row = int(np.argmax(deviation))
+        notes["euler_columns_max_deviation_rad"] = float(deviation[row])
+        notes["euler_columns_unit"] = (
+            "rad" if deviation[row] < EULER_COLUMN_TOLERANCE
+            else f"inconsistent with the quaternion (largest deviation {deviation[row]:.3g} rad at data row {row + 1})"
         )
-        notes["euler_columns_unit"] = "rad" if difference < EULER_COLUMN_TOLERANCE else "inconsistent"
     config = load_vehicle(vehicle)
     motors = stack(MOTORS)
     found = first_outside(motors, config.input_min, config.input_max)

@@ -46,3 +46,15 @@ def test_short_flights_with_thesis_spans_fail_with_advice(flights, tmp_path, cap
     assert main(["evaluate", *flights, "--vehicle", "linkquad", "-o", str(tmp_path / "x")]) == 2
     assert "--preset short" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_flights_of_different_vehicles_are_refused(tmp_path, capsys):
+    from quad_modelling.cli import main
+    from quad_modelling.io.matlog import write_matlog
+    from test.conftest import synthetic_log
+
+    write_matlog(synthetic_log(vehicle="linkquad"), tmp_path / "lq.mat")
+    write_matlog(synthetic_log(vehicle="crazyflie21"), tmp_path / "cf.mat")
+    assert main(["evaluate", str(tmp_path / "lq.mat"), str(tmp_path / "cf.mat"), "-o", str(tmp_path / "out")]) == 2
+    assert "different vehicles ['crazyflie21', 'linkquad']" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
