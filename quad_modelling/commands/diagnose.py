@@ -219,7 +219,7 @@ def markdown_report(data: dict, vehicle: str, figures: list[str]) -> str:
             ""]
     if data.get("skipped"):
         out += ["Skipped flights:", ""] + [f"- {s}" for s in data["skipped"]] + [""]
-    out += ["## Effects (ranked by held-out shrink)", "",
+    out += ["## Effects (found first, then by held-out shrink)", "",
             "| effect | verdict | held-out shrink | 90% interval | training shrink | windows better | signature corr. | confounded with | parameters |",
             "|---|---|---|---|---|---|---|---|---|"]
     for e in data["effects"]:

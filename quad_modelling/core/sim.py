@@ -64,7 +64,7 @@ from quad_modelling.core.sim_pilot import PHASE_FLYING, PHASE_IDLE, PilotScript,
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError
 
-SIM_VERSION = 1
+SIM_VERSION = 2
 """Bumped when the simulator's physics or script generator change the logs it writes."""
 
 __all__ = ["SIM_EFFECTS", "DEFAULT_EFFECTS", "SimResult", "simulate", "run_simulation", "open_circuit_voltage"]

@@ -200,6 +200,7 @@ class PilotParams:
     yaw_sweep: tuple[float, float]  # [rad]
     height_step: tuple[float, float]  # altitude step amplitude range [m]
     low_hover: tuple[float, float]  # CG height range of low passes (ground effect) [m]
+    turn_rate: tuple[float, float]  # yaw rate range of turns (yaw with roll/pitch doublets) [rad/s]
     stick_noise: tuple[float, float, float]  # roll/pitch [rad], yaw [rad], height [m] pilot jitter, 1 sigma
 
 
@@ -361,6 +362,7 @@ def _linkquad(vehicle: VehicleConfig) -> SimParams:
             yaw_sweep=(np.deg2rad(5.0), np.deg2rad(15.0)),
             height_step=(0.15, 0.5),
             low_hover=(0.2, 0.45),
+            turn_rate=(0.6, 1.2),  # rad/s: brisk turns the slow motors (105 ms) still stabilise with every effect on
             stick_noise=(np.deg2rad(0.4), np.deg2rad(1.0), 0.01),
         ),
     )
@@ -444,6 +446,7 @@ def _crazyflie21(vehicle: VehicleConfig) -> SimParams:
             yaw_sweep=(np.deg2rad(5.0), np.deg2rad(15.0)),
             height_step=(0.08, 0.2),
             low_hover=(0.04, 0.12),
+            turn_rate=(1.0, 2.0),  # rad/s
             stick_noise=(np.deg2rad(0.4), np.deg2rad(1.0), 0.005),
         ),
     )

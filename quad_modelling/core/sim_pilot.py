@@ -14,12 +14,24 @@ flying         t_lift <= t < t_cut: PID stabiliser on; the height reference
 idle, off      t_cut <= t < t_off, t >= t_off (on the ground)
 =============  ==========================================================
 
-Manoeuvres (:class:`Manoeuvre`) are drawn from a seeded generator: channel
-(roll, pitch, yaw, throttle, low_hover), shape (step, doublet, sweep), size,
-duration and frequency, separated by 1.5-5 s of hover. Each adds to its
+Manoeuvres (:class:`Manoeuvre`) are drawn from a seeded generator as a flight
+test card: rounds (:data:`CARD`) in which every class of :data:`CHANNELS` (roll,
+pitch, yaw, throttle, low_hover) comes once and turns twice, in random order, so
+every flight long enough for one round has each class (a low pass near the
+ground, turns...).
+Shape (step, doublet, sweep), size, duration and frequency are drawn per
+manoeuvre; manoeuvres are separated by 1.5-5 s of hover. Each adds to its
 channel's reference: roll/pitch angles [rad], yaw angle [rad], height [m].
 Stick ramps take :data:`STICK_RAMP` s; sweeps are linear chirps with 0.5 s
 cosine tapers.
+
+A *turn* is a combined manoeuvre, as pilots fly them: the yaw stick held at a
+rate r (``PilotParams.turn_rate``, 1-2 rad/s on the LinkQuad) for 5-10 s,
+entered and left over :data:`TURN_RAMP` s (a yaw reference of shape ``turn``,
+the integral of that rate profile, so the heading ends turned by r (T - ramp)),
+with roll and pitch doublets flown while it yaws. Only such simultaneous yaw
+and roll/pitch rates excite the body gyroscopic torques
+((I_yy - I_zz) q r / I_xx ...), which one-axis manoeuvres leave at noise level.
 """
 
 from __future__ import annotations
@@ -32,12 +44,19 @@ from scipy import signal
 from quad_modelling.core.sim_params import SimParams
 from quad_modelling.errors import ConfigError
 
-CHANNELS = ("roll", "pitch", "yaw", "throttle", "low_hover")
-CHANNEL_WEIGHTS = (0.25, 0.25, 0.2, 0.2, 0.1)
+CHANNELS = ("roll", "pitch", "yaw", "throttle", "low_hover", "turn")
+"""Manoeuvre classes. ``turn`` writes yaw, roll and pitch."""
+CARD = ("roll", "pitch", "yaw", "throttle", "low_hover", "turn", "turn")
+"""One round of the test card: every class once, turns twice (they are the only manoeuvres that
+excite the coupled rotational dynamics)."""
 SHAPES = ("step", "doublet", "sweep")
 SHAPE_WEIGHTS = (0.4, 0.4, 0.2)
 STICK_RAMP = 0.1
 """Time a pilot takes to move a stick to a new position [s]."""
+TURN_RAMP = 0.5
+"""Time to enter (and leave) a turn's yaw rate, cosine-shaped [s]."""
+TURN_DURATION = (5.0, 10.0)
+"""Range of a turn's length, ramps included [s]."""
 STICK_NOISE_TIME = 0.5
 """Correlation time of the pilot's small corrections [s]."""
 MIN_DURATION = 5.0
@@ -53,12 +72,20 @@ def _smooth_ramp(t: np.ndarray, start: float, length: float) -> np.ndarray:
     return 0.5 - 0.5 * np.cos(np.pi * _ramp(t, start, length))
 
 
+def _smooth_ramp_integral(t: np.ndarray, start: float, length: float) -> np.ndarray:
+    """Integral from ``start`` to t of :func:`_smooth_ramp` [s]: 0 before, x/2 - L sin(pi x/L)/(2 pi)
+    on the ramp (x = t - start), x - L/2 after it."""
+    x = np.clip(t - start, 0.0, None)
+    on_ramp = 0.5 * np.minimum(x, length) - length / (2.0 * np.pi) * np.sin(np.pi * np.minimum(x, length) / length)
+    return on_ramp + np.clip(x - length, 0.0, None)
+
+
 @dataclass(frozen=True)
 class Manoeuvre:
     """One pilot input: ``amplitude`` [rad or m] on ``channel`` from ``start`` for ``duration`` [s]."""
 
     channel: str
-    shape: str
+    shape: str  # step, doublet, sweep; ``turn`` (yaw only): ``amplitude`` is a yaw rate [rad/s]
     start: float
     duration: float
     amplitude: float
@@ -71,6 +98,8 @@ class Manoeuvre:
         ramp = 1.0 if self.channel == "low_hover" else STICK_RAMP
         if self.shape == "step":
             return amp * (_ramp(t, t0, ramp) - _ramp(t, t0 + dur - ramp, ramp))
+        if self.shape == "turn":  # yaw reference = integral of a rate held between two cosine ramps
+            return amp * (_smooth_ramp_integral(t, t0, TURN_RAMP) - _smooth_ramp_integral(t, t0 + dur - TURN_RAMP, TURN_RAMP))
         if self.shape == "doublet":
             half = dur / 2
             return amp * (_ramp(t, t0, STICK_RAMP) - 2 * _ramp(t, t0 + half - STICK_RAMP / 2, STICK_RAMP) + _ramp(t, t0 + dur - STICK_RAMP, STICK_RAMP))
@@ -137,14 +166,18 @@ def make_pilot_script(params: SimParams, duration: float, rng: np.random.Generat
     manoeuvre_end = land_start - 2.0
     t_cut = land_start + pilot.descent_time + 2.0
     t_off = min(t_cut + 3.0, duration - 0.5)
-    manoeuvres = []
+    manoeuvres: list[Manoeuvre] = []
     t = manoeuvre_start + rng.uniform(0.5, 2.0)
+    card: list[str] = []
     while True:
-        manoeuvre = _draw(params, rng, t)
-        if manoeuvre.start + manoeuvre.duration > manoeuvre_end:
+        if not card:  # a new round of the test card: every class once, in random order
+            card = [str(c) for c in rng.permutation(CARD)]
+        drawn = _draw(params, rng, t, card.pop())
+        end = max(m.start + m.duration for m in drawn)
+        if end > manoeuvre_end:
             break
-        manoeuvres.append(manoeuvre)
-        t = manoeuvre.start + manoeuvre.duration + rng.uniform(1.5, 5.0)
+        manoeuvres.extend(drawn)
+        t = end + rng.uniform(1.5, 5.0)
     return PilotScript(
         duration=float(duration), t_arm=t_arm, t_lift=t_lift, manoeuvre_start=manoeuvre_start,
         manoeuvre_end=manoeuvre_end, land_start=land_start, t_cut=t_cut, t_off=t_off,
@@ -153,9 +186,11 @@ def make_pilot_script(params: SimParams, duration: float, rng: np.random.Generat
     )
 
 
-def _draw(params: SimParams, rng: np.random.Generator, start: float) -> Manoeuvre:
+def _draw(params: SimParams, rng: np.random.Generator, start: float, channel: str) -> list[Manoeuvre]:
+    """One manoeuvre of class ``channel`` from ``start`` (a turn: its yaw part and its doublets)."""
     pilot = params.pilot
-    channel = str(rng.choice(CHANNELS, p=CHANNEL_WEIGHTS))
+    if channel == "turn":
+        return _draw_turn(params, rng, start)
     shape = "step" if channel == "low_hover" else str(rng.choice(SHAPES, p=SHAPE_WEIGHTS))
     sign = 1.0 if rng.random() < 0.5 else -1.0
     f0 = f1 = 0.0
@@ -178,7 +213,27 @@ def _draw(params: SimParams, rng: np.random.Generator, start: float) -> Manoeuvr
             amplitude, duration = sign * rng.uniform(*pilot.height_step), rng.uniform(2.0, 5.0)
     else:  # low_hover: a pass close to the ground
         amplitude, duration = rng.uniform(*pilot.low_hover) - pilot.hover_height, rng.uniform(5.0, 9.0)
-    return Manoeuvre(channel, shape, round(float(start), 3), float(duration), float(amplitude), float(f0), float(f1))
+    return [Manoeuvre(channel, shape, round(float(start), 3), float(duration), float(amplitude), float(f0), float(f1))]
+
+
+def _draw_turn(params: SimParams, rng: np.random.Generator, start: float) -> list[Manoeuvre]:
+    """A turn (module docstring): yaw rate ``turn_rate`` [rad/s] of either sign for TURN_DURATION s, and
+    roll/pitch doublets (``tilt_step`` amplitudes, 0.5-2 s, 0.2-1 s apart) while the rate is held."""
+    pilot = params.pilot
+    start = round(float(start), 3)
+    duration = float(rng.uniform(*TURN_DURATION))
+    rate = (1.0 if rng.random() < 0.5 else -1.0) * float(rng.uniform(*pilot.turn_rate))
+    out = [Manoeuvre("yaw", "turn", start, duration, rate)]
+    t = start + TURN_RAMP + float(rng.uniform(0.0, 0.5))
+    while True:
+        axis = "roll" if rng.random() < 0.5 else "pitch"
+        amplitude = (1.0 if rng.random() < 0.5 else -1.0) * float(rng.uniform(*pilot.tilt_step))
+        length = float(rng.uniform(0.5, 2.0))
+        if t + length > start + duration - TURN_RAMP:
+            break
+        out.append(Manoeuvre(axis, "doublet", round(t, 3), length, amplitude))
+        t += length + float(rng.uniform(0.2, 1.0))
+    return out
 
 
 def stick_noise(n: int, rate: float, sigmas: tuple[float, float, float], rng: np.random.Generator) -> np.ndarray:

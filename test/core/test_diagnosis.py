@@ -61,7 +61,9 @@ def test_withheld_effect_is_ranked_first_and_found(flights, linkquad, base):
     # the identified CG offset has the simulator's signs (sim: +6 mm x, -4 mm y)
     params = dict(zip(top.effect.parameters, top.theta))
     assert params["cg_x"] > 0 and params["cg_y"] < 0
-    assert [o.shrink for o in result.outcomes] == sorted((o.shrink for o in result.outcomes), reverse=True)
+    # found effects first, each group by held-out shrink
+    keys = [(o.verdict != "found", -o.shrink) for o in result.outcomes]
+    assert keys == sorted(keys)
     assert result.ladder[0]["normalised_gap"] == 1.0 and result.ladder[1]["effects"] == ["motor_imbalance"]
     assert result.ladder[1]["normalised_gap"] < 1.0
 
@@ -92,6 +94,7 @@ def test_verdict_rule():
     assert D.verdict_of(0.2, 0.3, -0.01, 0.9) == "rejected"  # not consistent over windows
     assert D.verdict_of(0.01, 0.3, 0.005, 0.9) == "rejected"  # helps training only
     assert D.verdict_of(0.01, 0.02, 0.005, 0.9) == "insignificant"
+    assert D.verdict_of(0.2, -0.001, 0.1, 0.9) == "insignificant"  # held-out gain without a training gain: chance
 
 
 def test_bootstrap_and_sign_test():
@@ -119,12 +122,18 @@ def test_localisation_names_regimes_bands_and_worst_windows(flights, linkquad, b
 
 def test_base_identification_finds_instant_rotors_and_the_rotor_reaction_scale(base):
     """Effects-off flights have rotors that jump to the ESC target: the identified motor time constant
-    sits near its 10 ms floor (not the 34 ms the fit gave while the rotor-reaction yaw term was held at
-    Table 3-1's inconsistent a), and the rotor-reaction scale recovers sqrt(a_table / a_sim)."""
+    is below a 10 ms sample (not the 34 ms the fit gave while the rotor-reaction yaw term was held at
+    Table 3-1's inconsistent a), and the rotor-reaction yaw impulse recovers sqrt(a_table / a_sim).
+
+    The model's yaw term k_R I_p sum s_i dOmega_i/dt is read at the samples: with tau_m well below the
+    sample time dt, a command step of dOmega gives k_R I_p dOmega / tau_m for one sample (the next ones
+    are smaller by exp(-dt/tau_m)), an impulse of k_R I_p dOmega dt / tau_m, so k_R dt / tau_m is the
+    identifiable scale of the rotor reaction (the simulator's jump I_p dOmega)."""
     tau = -1.0 / base.values["motor_a_m"]
-    assert tau < 0.015
+    assert tau <= 0.005
     expected = np.sqrt(1.59e-7 / 1.0e-5)  # I_p / (2 a Omega_0) scales with 1/sqrt(a)
-    assert base.values["rotor_reaction_scale"] == pytest.approx(expected, rel=0.35)
+    impulse_scale = base.values["rotor_reaction_scale"] * 0.01 / tau
+    assert impulse_scale == pytest.approx(expected, rel=0.5)
 
 
 def test_windows_an_effect_leaves_unchanged_are_not_scored(flights, linkquad):

@@ -29,7 +29,7 @@ def linkquad():
 
 @pytest.fixture(scope="session")
 def flight():
-    return simulate("linkquad", effects=(), seed=5, duration=30.0)
+    return simulate("linkquad", effects=(), seed=5, duration=35.0)
 
 
 @pytest.fixture(scope="session")

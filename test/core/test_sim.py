@@ -13,7 +13,7 @@ from quad_modelling.core.sim_params import (
     parse_effects,
     sim_params_for,
 )
-from quad_modelling.core.sim_pilot import PHASE_FLYING, make_pilot_script
+from quad_modelling.core.sim_pilot import PHASE_FLYING, TURN_RAMP, make_pilot_script
 from quad_modelling.core.vehicle import GRAVITY
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.matlog import read_matlog, write_matlog
@@ -318,6 +318,30 @@ def test_script_fits_the_thesis_spans_and_differs_between_seeds():
     assert scripts[0].manoeuvres != scripts[1].manoeuvres
     with pytest.raises(ConfigError, match="at least"):
         make_pilot_script(params, 2.0, np.random.default_rng(0))
+
+
+def test_turns_hold_a_yaw_rate_while_the_pilot_flies_tilt_doublets():
+    """A turn's yaw reference is the integral of a held rate (cosine entry and exit); roll/pitch doublets
+    are flown inside it, so yaw and tilt rates are simultaneous (what excites gyroscopic torques). Every
+    round of the test card has each manoeuvre class."""
+    params = sim_params_for("linkquad")
+    script = make_pilot_script(params, 220.0, np.random.default_rng(3))
+    assert {"roll", "pitch", "yaw", "throttle", "low_hover"} <= {m.channel for m in script.manoeuvres}
+    turns = [m for m in script.manoeuvres if m.shape == "turn"]
+    assert len(turns) >= 2 and all(m.channel == "yaw" for m in turns)
+    low, high = params.pilot.turn_rate
+    for turn in turns:
+        end = turn.start + turn.duration
+        t = np.linspace(turn.start - 1.0, end + 1.0, 40001)
+        yaw = turn.value(t)
+        rate = np.gradient(yaw, t)
+        held = (t > turn.start + TURN_RAMP) & (t < end - TURN_RAMP)
+        assert low <= abs(turn.amplitude) <= high
+        np.testing.assert_allclose(rate[held], turn.amplitude, rtol=1e-3)
+        assert yaw[t < turn.start].max() == 0.0 and np.abs(rate[t > end]).max() < 1e-6
+        assert yaw[-1] == pytest.approx(turn.amplitude * (turn.duration - TURN_RAMP), rel=1e-6)
+        inside = [m for m in script.manoeuvres if m.channel in ("roll", "pitch") and turn.start < m.start < end]
+        assert inside and all(m.shape == "doublet" and m.start + m.duration <= end - TURN_RAMP for m in inside)
 
 
 def test_same_seed_same_log_other_seed_other_log():
