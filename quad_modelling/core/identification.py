@@ -20,8 +20,10 @@ and the measured accelerations are linear in the :math:`T_i`:
 So :math:`A_m` and :math:`K` are identified together (nonlinear least squares,
 :func:`scipy.optimize.least_squares`, on the smoothed trimmed Z, roll and
 pitch accelerations of every training window, each normalised by its standard
-deviation), then the yaw drag ratio :math:`d/a` by linear least squares on the
-yaw acceleration. :math:`a` itself cannot be separated from :math:`B_m` (only
+deviation), then the yaw drag ratio :math:`d/a` and a scale :math:`k_R` of the rotor-reaction
+(:math:`I_{prop}`) term by linear least squares on the yaw acceleration (an
+inconsistent configured :math:`I_{prop}` or :math:`a` would otherwise bias
+:math:`d/a`). :math:`a` itself cannot be separated from :math:`B_m` (only
 :math:`B_m \\sqrt a` appears): it is held at its configured value and
 :math:`B_m = K / (2\\sqrt{a m g/4})`, :math:`d = a \\cdot (d/a)`.
 
@@ -200,15 +202,24 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
     signs = np.array(p.yaw_signs)
     omega0 = p.hover_rotor_speed
     columns, targets = [], []
+    reaction_columns = []
     for w, thrusts in zip(windows, thrusts_by_window):
         u_smooth = smooth(w.u, 1.0 / w.dt, config.smooth_cutoff_hz)
-        known = p.prop_inertia * ((thrusts @ signs) * a_m / (2 * p.thrust_constant * omega0) + b_m * (u_smooth @ signs))
+        reaction = p.prop_inertia * ((thrusts @ signs) * a_m / (2 * p.thrust_constant * omega0) + b_m * (u_smooth @ signs))
         columns.append((thrusts @ signs)[w.skip:])
-        targets.append((w.acc[:, 3] * p.izz - known)[w.skip:])
-    x_yaw, y_yaw = np.concatenate(columns), np.concatenate(targets)
-    ratio = float(x_yaw @ y_yaw / (x_yaw @ x_yaw)) if x_yaw @ x_yaw > 0 else float("nan")
-    res_yaw = y_yaw - ratio * x_yaw
-    sigma_ratio = float(np.sqrt(res_yaw @ res_yaw / max(len(y_yaw) - 1, 1) / (x_yaw @ x_yaw)))
+        reaction_columns.append(reaction[w.skip:])
+        targets.append((w.acc[:, 3] * p.izz)[w.skip:])
+    # tau_psi = (d/a) sum s_i T_i + k_R * (rotor reaction term with the configured I_prop, a, B_m): k_R is
+    # fitted too, since an inconsistent I_prop or a (thesis Table 3-1) would otherwise bias d/a.
+    design = np.column_stack([np.concatenate(columns), np.concatenate(reaction_columns)])
+    y_yaw = np.concatenate(targets)
+    if np.linalg.matrix_rank(design) < 2:
+        ratio = sigma_ratio = reaction_scale = float("nan")
+    else:
+        (ratio, reaction_scale), *_ = np.linalg.lstsq(design, y_yaw, rcond=None)
+        res_yaw = y_yaw - design @ np.array([ratio, reaction_scale])
+        cov_yaw = np.linalg.inv(design.T @ design) * (res_yaw @ res_yaw) / max(len(y_yaw) - 2, 1)
+        ratio, reaction_scale, sigma_ratio = float(ratio), float(reaction_scale), float(np.sqrt(cov_yaw[0, 0]))
     drag, sigma_drag = ratio * p.thrust_constant, sigma_ratio * p.thrust_constant
 
     # per-window gain (A_m fixed) and its voltage dependence
@@ -244,7 +255,8 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
         fit={"cost": float(best.cost), "residuals": int(n_res), "gain_window_spread_sigma": spread,
              "thrust_constant_held": p.thrust_constant,
              "motor_pole_at_bound": bool(np.isclose(-a_m, MOTOR_POLE_RANGE, rtol=1e-3).any()),
-             "fitted_on": "acc_z (A_m, K); yaw_acc (d/a)",
+             "fitted_on": "acc_z (A_m, K); yaw_acc (d/a and the rotor-reaction scale k_R)",
+             "rotor_reaction_scale": reaction_scale,
              "roll_pitch_gain_ratio": attitude_gain,
              "roll_pitch_gain_ratio_meaning": "least-squares scale of the model's roll/pitch acceleration that best fits the data "
                                               "(1 = consistent with the Z-identified gain, inertia and arm length)"},
