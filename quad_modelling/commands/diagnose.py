@@ -201,7 +201,9 @@ def verdict_text(data: dict) -> str:
     if rejected:
         lines.append("Rejected (help on training flights, not on held-out ones): "
                      + ", ".join(f"{e['name']} (train {e['train_shrink']:.0%}, held-out {e['shrink']:.0%})" for e in rejected) + ".")
-    if data.get("learnable"):
+    if data.get("learnable") and not data["learnable"].get("gap"):
+        lines.append(f"Learnable: {data['learnable']['note']}.")
+    elif data.get("learnable"):
         floor = data["learnable"]["gap"]
         better = [v for v in EVAL_VARIABLES if floor[v]["rms"] < base_rms[v]]
         lines.append(f"Learnable: the NARX model beats the base model on {len(better)} of 12 variables"
@@ -233,13 +235,13 @@ def markdown_report(data: dict, vehicle: str, figures: list[str]) -> str:
                    f"{', '.join(e['confounded_with']) or '-'} | {params} |")
     out += ["", "Verdict rule: " + "; ".join(f"**{k}**: {v}" for k, v in data["rule"].items()), ""]
     out += ["## Held-out gap per variable (display units)", "",
-            "| variable | base RMS | base TIC | " + " | ".join(f"+{e['name']}" for e in data["effects"][:3]) + (" | NARX |" if data.get("learnable") else " |"),
-            "|---|---|---|" + "---|" * min(3, len(data["effects"])) + ("---|" if data.get("learnable") else "")]
+            "| variable | base RMS | base TIC | " + " | ".join(f"+{e['name']}" for e in data["effects"][:3]) + (" | NARX |" if (data.get("learnable") or {}).get("gap") else " |"),
+            "|---|---|---|" + "---|" * min(3, len(data["effects"])) + ("---|" if (data.get("learnable") or {}).get("gap") else "")]
     for v in EVAL_VARIABLES:
         unit, factor = DISPLAY[v]
         row = f"| {v} [{unit}] | {data['gap'][v]['rms'] * factor:.3g} | {data['gap'][v]['tic']:.2f} | "
         row += " | ".join(f"{e['after'][v] * factor:.3g}" for e in data["effects"][:3])
-        if data.get("learnable"):
+        if (data.get("learnable") or {}).get("gap"):
             row += f" | {data['learnable']['gap'][v]['rms'] * factor:.3g}"
         out.append(row + " |")
     out += ["", "## Ladder", "", "| rung | mean RMS / base RMS (12 variables) |", "|---|---|"]

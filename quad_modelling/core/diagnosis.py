@@ -680,7 +680,8 @@ def narx_floor(train_flights: Sequence[FlightLog], test_flights: Sequence[Flight
             tics += result.tic
             count += 1
     if count == 0:
-        return {}
+        return {"model": "narx", "windows": 0, "gap": {},
+                "note": f"not computed: no held-out window of {config.window_s:g} s fits the NARX warm start"}
     return {"model": "narx", "epochs": epochs, "windows": count,
             "gap": {v: {"rms": float(sums[INDEX[v]] / count), "tic": float(tics[INDEX[v]] / count)} for v in EVAL_VARIABLES},
             "note": "NARX (thesis ch. 4) trained on the training flights, warm start 0.2 s or its 20 feedback samples"}
