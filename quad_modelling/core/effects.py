@@ -84,7 +84,6 @@ from quad_modelling.core.preprocess import (
     resample_uniform,
     smooth,
     trim_values,
-    trimmed_inputs,
     uniform_time_check,
 )
 from quad_modelling.core.variables import INDEX, VARIABLES

@@ -70,8 +70,6 @@ from quad_modelling.core.preprocess import (
     sample_period,
     smooth,
     trim_prediction,
-    trimmed_inputs,
-    trimmed_variables,
     uniform_time_check,
 )
 from quad_modelling.core.variables import VARIABLES

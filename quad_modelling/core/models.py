@@ -43,7 +43,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.preprocess import TrimConfig, trimmed_variables
+from quad_modelling.core.preprocess import TrimConfig
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError

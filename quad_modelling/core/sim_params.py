@@ -387,7 +387,6 @@ def _sensors(position_noise: float = 0.5e-3) -> SensorParams:
 
 
 def _crazyflie21(vehicle: VehicleConfig) -> SimParams:
-    hover = vehicle.hover_rotor_speed
     arm = vehicle.value("arm_length")
     foot = arm / np.sqrt(2.0)
     return SimParams(

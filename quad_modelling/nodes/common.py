@@ -230,7 +230,7 @@ def run_node(factory, args=None) -> int:
         print(f"error: {err}", file=sys.stderr, flush=True)
         code = EXIT_BAD_PARAMETER
     except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        code = 0  # Ctrl-C or a shutdown request: the normal end of a node
     finally:
         if node is not None:
             node.finish()

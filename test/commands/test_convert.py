@@ -3,7 +3,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 
 from quad_modelling.cli import build_parser, main
 from quad_modelling.io.bag_io import read_bag

@@ -1,25 +1,10 @@
 import json
 
-import numpy as np
 import pytest
 
 from quad_modelling.cli import main
-from quad_modelling.core.vehicle import load_vehicle
-from quad_modelling.io.matlog import write_matlog
-
-from ..core.flightgen import linear_flight
 
 
-@pytest.fixture(scope="module")
-def flights(tmp_path_factory):
-    directory = tmp_path_factory.mktemp("flights")
-    v = load_vehicle("linkquad")
-    paths = []
-    for seed in range(2):
-        path = directory / f"flight{seed}.mat"
-        write_matlog(linear_flight(v, duration=42.0, seed=seed), path)
-        paths.append(str(path))
-    return paths
 
 
 def test_evaluate_writes_results_tables_and_figures(flights, tmp_path, capsys):

@@ -1,7 +1,6 @@
 """``quad-modelling simulate``: writes a readable thesis log (or bag) that records its own answer."""
 
 import numpy as np
-import pytest
 
 from quad_modelling.cli import main
 from quad_modelling.core.sim_params import SIM_EFFECTS

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 from quad_modelling.cli import main
 from quad_modelling.core.hybrid import load_hybrid

@@ -3,8 +3,6 @@ that only fits training data is rejected, and a flight without unmodelled effect
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
