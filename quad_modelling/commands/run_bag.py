@@ -17,6 +17,7 @@ import yaml
 
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.atomic import atomic_output, check_output
+from quad_modelling.nodes.executors import EXECUTORS
 
 NAME = "run-bag"
 HELP = "replay a bag through the live predictor and evaluator nodes (separate processes, real DDS)"
@@ -151,7 +152,7 @@ REPLAY_PATIENCE_S = 60.0
 
 
 def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[str], report_dir: Path) -> dict:
-    common = {"vehicle": vehicle, "window_s": float(args.window), "warm_s": float(args.warm)}
+    common = {"vehicle": vehicle, "window_s": float(args.window), "warm_s": float(args.warm), "executor": args.executor}
     params = {
         # A replayed bag waits for slow predictors (a busy machine) instead of marking their windows:
         # run-bag itself reports a predictor that dies.
@@ -159,6 +160,7 @@ def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[st
                                                 "output_dir": str(report_dir), "force": True, "figures": not args.no_figures,
                                                 "stale_model_s": REPLAY_PATIENCE_S, "close_grace_s": REPLAY_PATIENCE_S}},
         "/quad/replay": {"ros__parameters": {"bag": str(Path(args.bag).resolve()), "vehicle": vehicle, "rate": float(args.rate),
+                                             "executor": args.executor,
                                              "wait_for_subscribers": len(models) + 1}},
     }
     for m in models:
@@ -178,6 +180,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eval", metavar="C:D", help="evaluation span, seconds from the first sample")
     parser.add_argument("--timeout", type=float, default=900.0, metavar="SECONDS", help="give up after this long (default 900)")
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
+    parser.add_argument("--executor", choices=EXECUTORS, default="events",
+                        help="rclpy executor of every node: events (EventsExecutor, default) or single (SingleThreadedExecutor)")
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="new output directory")
     parser.add_argument("--force", action="store_true", help="overwrite an existing OUTDIR")
 

@@ -20,6 +20,8 @@ from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from quad_modelling.nodes.executors import executor_kind, make_executor, spin  # noqa: F401  (re-exported for the nodes)
+
 DEFAULT_QOS_DEPTH = 1000
 """Depth of data topics [messages]: 10 s at 100 Hz, 2.5 s at 400 Hz."""
 
@@ -70,6 +72,11 @@ def non_negative(value) -> str | None:
 
 def niceness(value) -> str | None:
     return None if 0 <= value <= 19 else "must be a niceness increment from 0 to 19"
+
+
+def executor_param() -> Param:
+    return Param("executor", "events", "rclpy executor: events (EventsExecutor, less overhead per message) or single "
+                                       "(SingleThreadedExecutor)", executor_kind)
 
 
 def non_empty(value) -> str | None:

@@ -65,6 +65,9 @@ from quad_modelling.nodes.common import (
     WindowClock,
     data_qos,
     declare_parameters,
+    executor_param,
+    make_executor,
+    spin,
     latched_qos,
     non_empty,
     non_negative,
@@ -111,6 +114,7 @@ EVALUATOR_PARAMETERS = [
     Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions", positive),
     Param("nice", 10, "raise this process's scheduling niceness by this much (0-19): scoring a closed window is not "
                       "time-critical, the predictors' per-input answers are", niceness),
+    executor_param(),
 ]
 
 
@@ -150,6 +154,7 @@ class EvaluatorNode(Node):
         if self.output_dir is not None and self.output_dir.exists() and not p["force"]:
             raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
         self.figures = p["figures"]
+        self.executor_kind = p["executor"]
         self.trim = TrimConfig()
         self.cutoff = SMOOTH_CUTOFF_HZ
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
@@ -462,9 +467,7 @@ class EvaluatorNode(Node):
         return response
 
     def run(self) -> None:
-        import rclpy
-
-        rclpy.spin(self)
+        spin(self, make_executor(self.executor_kind, self))
 
     def finish(self) -> None:
         for k in sorted(self.open):

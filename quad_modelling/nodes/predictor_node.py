@@ -46,6 +46,9 @@ from quad_modelling.nodes.common import (
     WindowClock,
     data_qos,
     declare_parameters,
+    executor_param,
+    make_executor,
+    spin,
     latched_qos,
     non_empty,
     non_negative,
@@ -75,6 +78,7 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("battery_topic", "", "battery voltage (sensor_msgs/BatteryState) for models that use it; empty = not subscribed"),
         Param("world_frame", messages.WORLD_FRAME, "frame_id of the predicted pose", non_empty),
         Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions and publishers", positive),
+        executor_param(),
     ]
 
 
@@ -95,6 +99,7 @@ class PredictorNode(Node):
         except QuadModellingError as err:
             raise BadParameter(f"{node_name}: parameter model={spec!r} vehicle={p['vehicle']!r}: {err}") from err
         self.spec = spec
+        self.executor_kind = p["executor"]
         self.faults = FaultLog(self.get_logger())
         self.clock_ = WindowClock(p["window_s"], p["warm_s"], p["sample_period_s"])
         self.child_frame = f"{self.name_}/base_link"
@@ -273,9 +278,7 @@ class PredictorNode(Node):
     # --- lifecycle ----------------------------------------------------------------------------
 
     def run(self) -> None:
-        import rclpy
-
-        rclpy.spin(self)
+        spin(self, make_executor(self.executor_kind, self))
 
     def finish(self) -> None:
         say(self, f"published {self.published} predictions over {self.windows_started} windows; faults: {self.faults.summary()}")

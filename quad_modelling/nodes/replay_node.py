@@ -44,6 +44,8 @@ from quad_modelling.nodes.common import (
     Param,
     data_qos,
     declare_parameters,
+    executor_param,
+    make_executor,
     latched_qos,
     non_empty,
     non_negative,
@@ -69,6 +71,7 @@ REPLAY_PARAMETERS = [
     Param("pace_timeout_s", 10.0, "rate 0: acknowledgements silent this long [wall s] -> play in real time", positive),
     Param("startup_timeout_s", 30.0, "wait this long [wall s] for subscribers and the first acknowledgement", positive),
     Param("qos_depth", 1000, "depth of the reliable keep-last publishers", positive),
+    executor_param(),
 ]
 
 
@@ -99,6 +102,8 @@ class ReplayNode(Node):
         self.max_in_flight = p["max_in_flight"]
         self.pace_timeout_s = p["pace_timeout_s"]
         self.startup_timeout_s = p["startup_timeout_s"]
+        self.executor_kind = p["executor"]
+        self.executor_ = None  # made in run()
         self.faults = FaultLog(self.get_logger())
         qos = data_qos(p["qos_depth"])
         self.motor_pub = self.create_publisher(JointState, "motor_input", qos)
@@ -126,24 +131,27 @@ class ReplayNode(Node):
             while self.in_flight and self.in_flight[0] <= ns:
                 self.in_flight.popleft()
 
+    def _spin_once(self, timeout_s: float) -> None:
+        self.executor_.spin_once(timeout_sec=timeout_s)
+
     def _spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds
         while rclpy.ok(context=self.context):
             left = end - time.monotonic()
             if left <= 0:
                 return
-            rclpy.spin_once(self, timeout_sec=left)
+            self._spin_once(left)
 
     def _wait_startup(self) -> None:
         deadline = time.monotonic() + self.startup_timeout_s
         while self.motor_pub.get_subscription_count() < self.wait_for and time.monotonic() < deadline:
-            rclpy.spin_once(self, timeout_sec=0.05)
+            self._spin_once(0.05)
         if self.motor_pub.get_subscription_count() < self.wait_for:
             self.faults.report("subscribers", f"only {self.motor_pub.get_subscription_count()} of {self.wait_for} motor_input "
                                               f"subscribers after {self.startup_timeout_s:g} s; playing anyway")
         if self.rate == 0:
             while self.acked_ns is None and time.monotonic() < deadline:
-                rclpy.spin_once(self, timeout_sec=0.05)
+                self._spin_once(0.05)
             if self.acked_ns is None:
                 self._unpace(f"no acknowledgement on {PROGRESS_TOPIC} within {self.startup_timeout_s:g} s (is an evaluator running?)")
         self._spin_for(SETTLE_S)
@@ -154,6 +162,7 @@ class ReplayNode(Node):
         self.in_flight.clear()
 
     def run(self) -> None:
+        self.executor_ = make_executor(self.executor_kind, self)
         self._wait_startup()
         self.play_started = time.monotonic()
         period_ns = int(np.median(np.diff(self.stamps)))
@@ -176,7 +185,7 @@ class ReplayNode(Node):
             ns += shift
             if self.rate == 0:
                 while len(self.in_flight) >= self.max_in_flight:
-                    rclpy.spin_once(self, timeout_sec=0.05)
+                    self._spin_once(0.05)
                     if not rclpy.ok(context=self.context):
                         return
                     if self.progress_sub.get_publisher_count() == 0 or time.monotonic() - self.ack_wall > self.pace_timeout_s:
@@ -203,7 +212,7 @@ class ReplayNode(Node):
             self.published += 1
             self.last_published_ns = ns
             if self.rate == 0 and row % 8 == 0:
-                rclpy.spin_once(self, timeout_sec=0.0)
+                self._spin_once(0.0)
 
     def _drain(self) -> None:
         """Wait for the acknowledgement of the last sample (when something acknowledges)."""
@@ -214,7 +223,7 @@ class ReplayNode(Node):
             if time.monotonic() - self.ack_wall > self.pace_timeout_s:
                 self.faults.report("tail_unacknowledged", "the last samples were not acknowledged in time")
                 break
-            rclpy.spin_once(self, timeout_sec=0.05)
+            self._spin_once(0.05)
 
     def finish(self) -> None:
         took = time.monotonic() - self.play_started if self.play_started else 0.0

@@ -1,8 +1,10 @@
 """The predictor node: known sequence -> known prediction, windows, faults, bad parameters."""
 
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import numpy as np
 import pytest
@@ -110,7 +112,28 @@ def test_bad_parameters_exit_with_code_2_and_the_reason():
     bad_window = run_node(["-p", "window_s:=-1.0"])
     assert bad_window.returncode == 2
     assert "window_s" in bad_window.stderr and "must be > 0" in bad_window.stderr
+    bad_executor = run_node(["-p", "executor:=multi"])
+    assert bad_executor.returncode == 2 and "executor" in bad_executor.stderr and "events, single" in bad_executor.stderr
     unknown = run_node(["-p", "model:=nosuchmodel"])
     assert unknown.returncode == 2 and "unknown model" in unknown.stderr and "nosuchmodel" in unknown.stderr
     narx = subprocess.run([sys.executable, "-m", "quad_modelling.nodes.narx_predictor_node"], capture_output=True, text=True, timeout=60)
     assert narx.returncode == 2 and "narx" in narx.stderr
+
+
+@pytest.mark.parametrize("executor", ["events", "single"])
+def test_ctrl_c_ends_a_spinning_node_cleanly_with_its_summary(executor):
+    """SIGINT while spinning: exit code 0 and the closing summary (EventsExecutor.spin() would busy-loop here)."""
+    node = subprocess.Popen([sys.executable, "-m", "quad_modelling.nodes.predictor_node", "--ros-args", "-p", f"executor:={executor}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        line = node.stdout.readline()
+        lines.append(line)
+        if "predicting with" in line or not line:
+            break
+    time.sleep(0.5)  # spinning by now
+    node.send_signal(signal.SIGINT)
+    out = node.communicate(timeout=10)[0]
+    assert node.returncode == 0, "".join(lines) + out
+    assert "published 0 predictions over 0 windows" in out

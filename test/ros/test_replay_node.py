@@ -5,6 +5,7 @@ import sys
 import time
 
 import numpy as np
+import pytest
 import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.node import Node
@@ -17,7 +18,8 @@ from quad_modelling.nodes.common import data_qos, latched_qos
 from test.conftest import synthetic_log
 
 
-def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path):
+@pytest.mark.parametrize("executor", ["events", "single"])
+def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path, executor):
     log = synthetic_log(n=300)
     bag = write_bag(log, tmp_path / "bag")
     node = Node("listener", namespace="/quad")
@@ -29,7 +31,7 @@ def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path):
     node.create_subscription(Clock, "window_origin", lambda m: got["origin"].append(m), latched_qos())
     replay = subprocess.Popen(
         [sys.executable, "-m", "quad_modelling.nodes.replay_node", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=20.0",
-         "-p", "start_s:=0.5", "-p", "wait_for_subscribers:=1"],
+         "-p", "start_s:=0.5", "-p", "wait_for_subscribers:=1", "-p", f"executor:={executor}"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     deadline = time.monotonic() + 60
     while replay.poll() is None and time.monotonic() < deadline:
