@@ -154,11 +154,11 @@ def euler_ned_to_matrix(euler: np.ndarray) -> np.ndarray:
     cr, sr = np.cos(e[:, 0]), np.sin(e[:, 0])
     cp, sp = np.cos(e[:, 1]), np.sin(e[:, 1])
     cy, sy = np.cos(e[:, 2]), np.sin(e[:, 2])
-    return np.stack([
-        np.stack([cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr], axis=-1),
-        np.stack([sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr], axis=-1),
-        np.stack([-sp, cp * sr, cp * cr], axis=-1),
-    ], axis=1)
+    r = np.empty((len(e), 3, 3))
+    r[:, 0, 0], r[:, 0, 1], r[:, 0, 2] = cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr
+    r[:, 1, 0], r[:, 1, 1], r[:, 1, 2] = sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr
+    r[:, 2, 0], r[:, 2, 1], r[:, 2, 2] = -sp, cp * sr, cp * cr
+    return r
 
 
 def _quat_xyzw_of_euler_ned(euler: np.ndarray) -> np.ndarray:

@@ -104,6 +104,7 @@ class PredictorNode(Node):
         self.clock_ = WindowClock(p["window_s"], p["warm_s"], p["sample_period_s"])
         self.child_frame = f"{self.name_}/base_link"
         self.world_frame = p["world_frame"]
+        self.out = messages.PredictionMessages(self.child_frame, self.world_frame)
         qos = data_qos(p["qos_depth"])
         self.odom_pub = self.create_publisher(Odometry, f"{self.name_}/odom", qos)
         self.accel_pub = self.create_publisher(AccelStamped, f"{self.name_}/accel", qos)
@@ -269,7 +270,7 @@ class PredictorNode(Node):
             return False
         odom, accel = messages.prediction_fields(predictions)
         for i, ns in enumerate(stamps):
-            o, a = messages.prediction_messages(ns, odom[i], accel[i], self.child_frame, self.world_frame)
+            o, a = self.out.fill(ns, odom[i], accel[i])
             self.odom_pub.publish(o)
             self.accel_pub.publish(a)
         self.published += len(stamps)

@@ -23,13 +23,19 @@ def ros():
 
 
 class Capture:
-    """Stands in for a publisher: keeps what a node publishes, by stamp."""
+    """Stands in for a publisher: keeps what a node publishes, by stamp.
+
+    Keeps a serialised round trip of each message, as a real publisher sends the
+    message's contents at ``publish`` (nodes may refill one message object).
+    """
 
     def __init__(self):
         self.messages = []
 
     def publish(self, msg) -> None:
-        self.messages.append(msg)
+        from rclpy.serialization import deserialize_message, serialize_message
+
+        self.messages.append(deserialize_message(serialize_message(msg), type(msg)))
 
     def by_stamp(self) -> dict:
         from quad_modelling.nodes.messages import stamp_ns
