@@ -12,8 +12,12 @@ Windows (:class:`~quad_modelling.nodes.common.WindowClock`): window k starts at
 t0 + kW, t0 = the first motor-input stamp (or the ``window_origin`` another node
 published). The first ``warm_s`` of each window are the warm start: those rows
 (command + measurements with the same stamp) become a FlightLog, ``start_window``
-gives their predictions (published at once), and every later command is
-``push``-ed and its prediction published immediately. A node that joins mid-window
+gives their predictions, and every later command is ``push``-ed and its
+prediction published immediately. The warm rows' predictions (0.2 s of rows,
+available only once the warm start is complete) go to a backlog that is
+published behind the live ones: :data:`WARM_BACKLOG_PER_INPUT` after each live
+prediction, :data:`WARM_BACKLOG_PER_TICK` per timer tick in a pause. Published
+at once, 80 rows at 400 Hz held the next live inputs back by ~20-35 ms. A node that joins mid-window
 (late start, restart, gap) waits for the next window start.
 
 Faults (one warning per kind): non-finite or malformed messages are dropped;
@@ -25,11 +29,13 @@ is ever published.
 
 from __future__ import annotations
 
-from collections import OrderedDict
+from collections import OrderedDict, deque
 
 import numpy as np
 from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
+from rclpy.clock import Clock as RosClock
+from rclpy.clock import ClockType
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
@@ -57,6 +63,14 @@ from quad_modelling.nodes.common import (
     say,
 )
 from quad_modelling.nodes.model_factory import make_streaming_predictor, model_name
+
+WARM_BACKLOG_PER_INPUT = 2
+"""Warm-start predictions published after each live prediction while a backlog remains."""
+
+WARM_BACKLOG_PER_TICK = 4
+"""... and per tick of the backlog timer (every :data:`WARM_BACKLOG_PERIOD_S`) when no input arrives."""
+
+WARM_BACKLOG_PERIOD_S = 0.01
 
 MAX_DEFERRED_COMMANDS = 10
 """Commands after the warm start held back while the last warm rows' measurements are still
@@ -126,6 +140,9 @@ class PredictorNode(Node):
         self.warm_rows: list[tuple[int, np.ndarray, np.ndarray | None]] = []
         self.deferred: list[tuple[int, np.ndarray]] = []
         self.stream = None
+        self.backlog: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
+        self.create_timer(WARM_BACKLOG_PERIOD_S, lambda: self._publish_backlog(WARM_BACKLOG_PER_TICK),
+                          clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self.last_motor_ns = None
         self.published = 0
         self.windows_started = 0
@@ -245,7 +262,7 @@ class PredictorNode(Node):
         except (QuadModellingError, ValueError) as err:
             self.faults.report("model_error", f"window {self.window}: model {self.name_} cannot start: {err}")
             return
-        if not self._publish(stamps.tolist(), predictions):
+        if not self._publish(stamps.tolist(), predictions, backlog=True):
             return
         self.state = "stream"
         self.windows_started += 1
@@ -261,20 +278,32 @@ class PredictorNode(Node):
             return
         if not self._publish([ns], prediction):
             self.state = "skip"
+        self._publish_backlog(WARM_BACKLOG_PER_INPUT)
 
-    def _publish(self, stamps: list[int], predictions: np.ndarray) -> bool:
+    def _publish(self, stamps: list[int], predictions: np.ndarray, backlog: bool = False) -> bool:
+        """Publish predictions (N, 18) for ``stamps`` now, or queue them behind the live ones (``backlog``)."""
         predictions = np.atleast_2d(predictions)
         if not np.isfinite(predictions).all():
             self.faults.report("nan_prediction", f"window {self.window}: model {self.name_} predicted a non-finite value; "
                                                  "window abandoned (nothing non-finite is published)")
             return False
         odom, accel = messages.prediction_fields(predictions)
+        if backlog:
+            self.backlog.extend(zip(stamps, odom, accel))
+            return True
         for i, ns in enumerate(stamps):
-            o, a = self.out.fill(ns, odom[i], accel[i])
-            self.odom_pub.publish(o)
-            self.accel_pub.publish(a)
-        self.published += len(stamps)
+            self._send(ns, odom[i], accel[i])
         return True
+
+    def _publish_backlog(self, count: int) -> None:
+        for _ in range(min(count, len(self.backlog))):
+            self._send(*self.backlog.popleft())
+
+    def _send(self, ns: int, odom: np.ndarray, accel: np.ndarray) -> None:
+        o, a = self.out.fill(ns, odom, accel)
+        self.odom_pub.publish(o)
+        self.accel_pub.publish(a)
+        self.published += 1
 
     # --- lifecycle ----------------------------------------------------------------------------
 
@@ -282,6 +311,8 @@ class PredictorNode(Node):
         spin(self, make_executor(self.executor_kind, self))
 
     def finish(self) -> None:
+        if self.context.ok():
+            self._publish_backlog(len(self.backlog))
         say(self, f"published {self.published} predictions over {self.windows_started} windows; faults: {self.faults.summary()}")
 
 

@@ -137,3 +137,17 @@ def test_ctrl_c_ends_a_spinning_node_cleanly_with_its_summary(executor):
     out = node.communicate(timeout=10)[0]
     assert node.returncode == 0, "".join(lines) + out
     assert "published 0 predictions over 0 windows" in out
+
+
+def test_live_predictions_go_out_before_the_warm_start_backlog(ros):
+    """The warm rows' predictions (available only at the end of the warm start) queue behind live ones."""
+    from quad_modelling.nodes.predictor_node import WARM_BACKLOG_PER_INPUT
+
+    log = hover_log(600)
+    node = make_node(model="greybox")
+    stamps = feed(node, log, range(60))  # 5 s windows at 100 Hz: warm rows 0..19, then live rows
+    order = [messages.stamp_ns(m.header.stamp) for m in node.odom_pub.messages]
+    assert order[0] == stamps[20]  # the first live command is answered first
+    assert order[1:1 + WARM_BACKLOG_PER_INPUT] == stamps[0:WARM_BACKLOG_PER_INPUT].tolist()
+    assert sorted(order) == stamps[:60].tolist()  # 20 warm + 40 live: every input answered once by now
+    node.destroy_node()
