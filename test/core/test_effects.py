@@ -83,8 +83,27 @@ def test_motor_lag_is_a_unit_gain_first_order_lag(batch, base):
 
 def test_drag_force_opposes_the_measured_velocity(batch, base):
     e = E.CATALOGUE["rotor_drag"].forcing(np.array([0.5, 0.0, 0.0]), batch, base, batch.u)
-    v = batch.velocity - batch.velocity[:, : batch.warm].mean(axis=1, keepdims=True)
+    v = batch.velocity_smooth - batch.velocity_smooth[:, : batch.warm].mean(axis=1, keepdims=True)
     np.testing.assert_allclose(e[:, :, 0], -0.5 * v[:, :, 0], atol=1e-12)
+
+
+def test_drag_moment_follows_the_body_axes_velocity_in_a_turn(batch, base):
+    """Flying north at a steady 2 m/s while the heading turns by 90 degrees: the velocity in N does not change,
+    the body-axes velocity turns from (2, 0) to (0, -2), so the drag moment changes (c_m v_By, -c_m v_Bx).
+    Rotating the trimmed velocity v - v_0 = 0 (the form before) gave no moment at all."""
+    one = batch.subset(np.array([0]))
+    n = one.samples
+    yaw = np.clip((np.arange(n) - one.warm) / (n - 1 - one.warm), 0.0, 1.0) * np.pi / 2
+    v = np.zeros((1, n, 3))
+    v[0, :, 0] = 2.0
+    euler = np.zeros((1, n, 3))
+    euler[0, :, 2] = yaw
+    turn = E.replace(one, velocity_smooth=v, euler=euler)
+    e = E.CATALOGUE["rotor_drag"].forcing(np.array([0.3, 0.3, -1.5]), turn, base, turn.u)
+    np.testing.assert_allclose(e[0, :, 0:3], 0.0, atol=1e-12)  # no change of the velocity in N: no change of the force
+    # end of the turn: v_B = (0, -2); warm start: v_B = (2, 0)
+    assert e[0, -1, 3] == pytest.approx(-1.5 * (-2.0 - 0.0))
+    assert e[0, -1, 4] == pytest.approx(1.5 * (0.0 - 2.0))
 
 
 @pytest.mark.parametrize("name, truth", [("motor_lag", [0.08]), ("input_delay", [0.035]), ("rotor_drag", [0.4, 0.3, -1.5])])
