@@ -72,13 +72,40 @@ def test_motor_lag_is_a_unit_gain_first_order_lag(batch, base):
     step = np.zeros_like(batch.u[:1])
     step[:, 10:] = 1.0
     tau = 0.1
-    one = E.replace(batch.subset([0]), u=step)
+    one = E.replace(batch.subset([0]), u=step, u_history=np.zeros_like(batch.u_history[:1]))
     lagged = E.CATALOGUE["motor_lag"].input_map(np.array([tau]), one, base, step)
     n = int(round(tau / batch.dt))  # one time constant after the step
     pole = np.exp(-batch.dt / tau)
     assert lagged[0, 10 + n, 0] == pytest.approx(1.0 - pole ** (n + 1), abs=1e-9)  # y_k = p y_(k-1) + (1-p) u_k
     assert lagged[0, 10 + n, 0] == pytest.approx(1.0 - np.exp(-1.0), abs=0.04)
     assert lagged[0, -1, 0] == pytest.approx(1.0, abs=1e-6)
+
+
+def test_lag_and_delay_start_from_the_commands_before_the_window(batch, base):
+    """A command step 0.1 s before the window: the lag starts the window mid-transient (not in steady state
+    at the window's first command), the delay shows the pre-step commands in its first samples."""
+    one = batch.subset([0])
+    h = one.u_history.shape[1]
+    assert h == int(round(E.COMMAND_HISTORY_S / batch.dt))
+    history = np.zeros_like(one.u_history)
+    history[:, h - 10 :] = 1.0  # the step, 10 samples before the window
+    step = E.replace(one, u=np.ones_like(one.u), u_history=history)
+    tau = 0.1
+    lagged = E.CATALOGUE["motor_lag"].input_map(np.array([tau]), step, base, step.u)
+    pole = np.exp(-batch.dt / tau)
+    assert lagged[0, 0, 0] == pytest.approx(1.0 - pole**11, abs=1e-9)  # 11 samples after the step
+    delayed = E.CATALOGUE["input_delay"].input_map(np.array([15 * batch.dt]), step, base, step.u)
+    np.testing.assert_allclose(delayed[0, :5, 0], 0.0)  # u(t - 0.15 s): before the step
+    np.testing.assert_allclose(delayed[0, 5:, 0], 1.0)
+
+
+def test_mapped_commands_are_trimmed_at_the_warm_start(batch, base):
+    """The linearisation point is the warm start: the mapped commands have zero warm-start mean, as the
+    raw trimmed ones do."""
+    for name, theta in (("motor_lag", [0.1]), ("input_delay", [0.05]), ("thrust_nonlinearity", [2.0])):
+        aug = E.apply_effects([E.CATALOGUE[name]], [np.array(theta)], batch, base)
+        np.testing.assert_allclose(aug.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12, err_msg=name)
+    np.testing.assert_allclose(batch.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12)
 
 
 def test_drag_force_opposes_the_measured_velocity(batch, base):
