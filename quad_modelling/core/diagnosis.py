@@ -42,12 +42,15 @@ scored with the evaluation protocol's smoothed RMS/TIC (DESIGN 7).
      the held-out test above fails (it fits the training data, not new data);
    * ``insignificant``: otherwise.
 
-   Effects are ranked found first, then by held-out shrink (:func:`ranking_key`). Two effects are *confounded* when the
+   Effects are ranked by conditional contribution (:func:`greedy_ranking`): the found effect of
+   largest held-out shrink first, then every other effect assessed again on top of the ranked ones
+   (held at their identified parameters), the found one of largest shrink next, and so on; a
+   twin of a ranked effect then adds nothing. Two effects are *confounded* when the
    corrections they make to the held-out prediction correlate with
    :math:`|\\rho| \\ge` :data:`CONFOUND_CORRELATION` on their shared variables
    and the weaker one's shrink is at least :data:`CONFOUND_SHRINK_RATIO` of the
    stronger's: on this data they cannot be told apart.
-5. **Ladder.** base -> +best found -> +next found ..., each rung identified
+5. **Ladder.** base -> +rank 1 -> +rank 2 ..., each rung identified
    jointly on the training windows, with the held-out gap at each rung.
 6. **Learnable floor.** Optionally a NARX model trained on the training
    flights, scored on the same held-out windows.
@@ -604,6 +607,9 @@ class Diagnosis:
                          f"at least {EXCITED_MIN_WINDOWS} windows)",
                 "rejected": f"training shrink >= {FOUND_MIN_SHRINK} but the held-out test fails",
                 "insignificant": "otherwise",
+                "ranking": "greedy by conditional contribution: rank k+1 is the found effect of largest held-out shrink when "
+                           "assessed on top of ranks 1..k held at their identified parameters ('given'); 'alone' is the effect "
+                           "assessed on its own",
                 "confounded": f"|correlation of held-out corrections| >= {CONFOUND_CORRELATION} and the weaker shrink >= "
                               f"{CONFOUND_SHRINK_RATIO} x the stronger",
             },
