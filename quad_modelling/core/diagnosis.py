@@ -672,6 +672,7 @@ def diagnose(
                  for i, (s, t) in enumerate(zip(test.sources, test.t0))],
         "train_count": len(train),
         "test_count": len(test),
+        "ground_contact_dropped": {"train": train.ground_contact_dropped, "test": test.ground_contact_dropped},
         "window_s": test.samples * test.dt,
     }
     outcomes = []

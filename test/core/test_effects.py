@@ -173,3 +173,14 @@ def test_measurement_filter_gives_the_model_the_gyro_derivative_filter(batch):
     expected = differentiate(rate[:, None], batch.dt)[inner, 0]
     np.testing.assert_allclose(high, expected, atol=0.03)
     assert np.sqrt(np.mean(high**2)) < 0.5 * np.sqrt(0.5)
+
+
+def test_windows_that_touch_the_ground_are_left_out(linkquad):
+    """Simulated seed 2001 (effects off) touches down during its low pass at 41-51 s: those two windows are
+    dropped and counted, the rest stay (every kept window is at least 1 cm above where the vehicle stood)."""
+    log = simulate("linkquad", effects=(), seed=2001, duration=90.0)
+    kept = E.prepare_windows([log], linkquad, DIAGNOSIS_CONFIG)
+    assert kept.ground_contact_dropped == 2
+    assert not {41.0, 46.0} & {round(float(t), 1) for t in kept.t0}
+    assert kept.height.min() >= E.GROUND_CONTACT_M
+    assert len(kept) == len(span_windows(log, E.flying_span(), DIAGNOSIS_CONFIG)) - 2
