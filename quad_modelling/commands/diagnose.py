@@ -222,6 +222,8 @@ def markdown_report(data: dict, vehicle: str, figures: list[str]) -> str:
     out += ["## Data", "", f"- training flights ({data['windows']['train_count']} windows): " + ", ".join(Path(s).name for s in cfg["train_flights"]),
             f"- held-out flights ({data['windows']['test_count']} windows): " + ", ".join(Path(s).name for s in cfg["test_flights"]),
             f"- windows {data['windows']['window_s']:.1f} s, drop {cfg['drop_start']:g} s / {cfg['drop_end']:g} s, warm start {cfg['warm_s']:g} s",
+            "- windows left out because the vehicle touched the ground (within 1 cm of the flight's lowest point): "
+            + ", ".join(f"{k} {v}" for k, v in data["windows"].get("ground_contact_dropped", {}).items()),
             f"- base model: {data['base']['note']}: " + ", ".join(f"{k} = {v:.4g}" for k, v in data["base"]["values"].items() if isinstance(v, float)),
             ""]
     if data.get("skipped"):
