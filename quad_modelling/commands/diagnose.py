@@ -189,7 +189,12 @@ def verdict_text(data: dict) -> str:
             f"{_fmt(best_var, base_rms[best_var])} -> {_fmt(best_var, top['after'][best_var])}."
         )
         if len(found) > 1:
-            lines.append("Also found: " + ", ".join(f"{e['name']} ({e['shrink']:.0%})" for e in found[1:]) + ".")
+            lines.append("Also found, each on top of the effects ranked above it: "
+                         + ", ".join(f"{e['name']} ({e['shrink']:.0%}; alone {e['alone']['shrink']:.0%})" for e in found[1:]) + ".")
+        twins = [e for e in effects if e.get("given") and e["alone"]["verdict"] == "found" and e["verdict"] != "found"]
+        if twins:
+            lines.append("Found alone but adding nothing on top of the effects ranked above: "
+                         + ", ".join(f"{e['name']} (alone {e['alone']['shrink']:.0%}, on top {e['shrink']:.0%})" for e in twins) + ".")
         if top["confounded_with"]:
             lines.append(f"Warning: on this data {top['name']} cannot be told apart from {', '.join(top['confounded_with'])}.")
         if len(data["ladder"]) > 1:
@@ -217,22 +222,28 @@ def markdown_report(data: dict, vehicle: str, figures: list[str]) -> str:
     out += ["## Data", "", f"- training flights ({data['windows']['train_count']} windows): " + ", ".join(Path(s).name for s in cfg["train_flights"]),
             f"- held-out flights ({data['windows']['test_count']} windows): " + ", ".join(Path(s).name for s in cfg["test_flights"]),
             f"- windows {data['windows']['window_s']:.1f} s, drop {cfg['drop_start']:g} s / {cfg['drop_end']:g} s, warm start {cfg['warm_s']:g} s",
+            "- windows left out because the vehicle touched the ground (within 1 cm of the flight's lowest point): "
+            + ", ".join(f"{k} {v}" for k, v in data["windows"].get("ground_contact_dropped", {}).items()),
             f"- base model: {data['base']['note']}: " + ", ".join(f"{k} = {v:.4g}" for k, v in data["base"]["values"].items() if isinstance(v, float)),
             ""]
     if data.get("skipped"):
         out += ["Skipped flights:", ""] + [f"- {s}" for s in data["skipped"]] + [""]
-    out += ["## Effects (found first, then by held-out shrink)", "",
-            "| effect | verdict | held-out shrink | 90% interval | training shrink | windows better | signature corr. | confounded with | parameters |",
-            "|---|---|---|---|---|---|---|---|---|"]
+    out += ["## Effects (ranked by conditional contribution)", "",
+            "Rank 1 is the found effect of largest held-out shrink; every later rank is assessed with the effects above it held "
+            "at their identified parameters (column 'on top of'), so its shrink is what it adds to them. 'alone' is the effect "
+            "assessed on its own against the base model.", "",
+            "| effect | verdict | held-out shrink | 90% interval | training shrink | windows better | signature corr. | confounded with | on top of | alone | parameters |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
     for e in data["effects"]:
         ev = e["evidence"]
         params = ", ".join(f"{k}={v:.3g}" for k, v in e["params"].items())
         if not ev:
-            out.append(f"| {e['name']} | {e['verdict']} | - | - | - | - | - | - | {e.get('note', '')} |")
+            out.append(f"| {e['name']} | {e['verdict']} | - | - | - | - | - | - | - | - | {e.get('note', '')} |")
             continue
+        alone = "-" if not e.get("given") else f"{e['alone']['verdict']} {e['alone']['shrink']:.1%}"
         out.append(f"| {e['name']} | **{e['verdict']}** | {e['shrink']:.1%} | {ev['shrink_ci90'][0]:.1%}..{ev['shrink_ci90'][1]:.1%} | "
                    f"{e['train_shrink']:.1%} | {ev['windows_improved']}/{ev['windows']} | {ev['signature_correlation']:.2f} | "
-                   f"{', '.join(e['confounded_with']) or '-'} | {params} |")
+                   f"{', '.join(e['confounded_with']) or '-'} | {', '.join(e.get('given') or []) or '-'} | {alone} | {params} |")
     out += ["", "Verdict rule: " + "; ".join(f"**{k}**: {v}" for k, v in data["rule"].items()), ""]
     out += ["## Held-out gap per variable (display units)", "",
             "| variable | base RMS | base TIC | " + " | ".join(f"+{e['name']}" for e in data["effects"][:3]) + (" | NARX |" if (data.get("learnable") or {}).get("gap") else " |"),
@@ -293,13 +304,14 @@ def write_figures(result: Diagnosis, data: dict, directory: Path) -> list[str]:
         plt.close(fig)
         written.append("gap_by_regime.png")
     effects = data["effects"]
-    fig, ax = plt.subplots(figsize=(7, 3.5))
+    fig, ax = plt.subplots(figsize=(7, 3.8))
     names = [e["name"] for e in effects]
     colours = {"found": "tab:green", "rejected": "tab:orange", "insignificant": "0.6"}
     ax.barh(names[::-1], [e["shrink"] * 100 for e in effects][::-1], color=[colours[e["verdict"]] for e in effects][::-1], label="held-out")
     ax.scatter([e["train_shrink"] * 100 for e in effects][::-1], names[::-1], color="k", marker="|", s=120, label="training", zorder=3)
     ax.axvline(5, color="k", lw=0.6, ls=":")
-    ax.set_xlabel("gap shrink on the effect's variables [%] (green found, orange rejected, grey insignificant)")
+    ax.set_xlabel("gap shrink on the effect's variables [%]\n(on top of the effects ranked above; green found, orange rejected, grey insignificant)",
+                  fontsize=9)
     ax.legend(fontsize=8, loc="lower right")
     ax.grid(alpha=0.3)
     fig.tight_layout()
@@ -347,20 +359,38 @@ def write_diagnosis(result: Diagnosis, data: dict, directory: Path, vehicle: str
 
 
 def validation_markdown(result: dict) -> str:
+    def pct(x):
+        return "-" if x is None else f"{x:.1%}"
+
     out = [f"# Diagnosis validation on simulated {result['vehicle']} flights", "",
            f"Accuracy (right effect ranked first and found): **{result['accuracy']:.0%}** over {len(result['runs'])} (effect, seed) runs; "
            f"null case found: {', '.join(result['null']['found']) or 'nothing'}; pairs both found in top 3: "
            f"{'-' if result['pairs_accuracy'] is None else format(result['pairs_accuracy'], '.0%')}.", "",
-           "| effect | seed | top | correct | held-out shrink | verdict | ranking |", "|---|---|---|---|---|---|---|"]
+           "Shrink columns: **held-out shrink** = the literal target (the diagnosis's shrink of the effect's affected-variable gap, "
+           "base model without the effect -> with it); **attributable** = 1 - G_off/G_on, the share of the base model's held-out "
+           "gap (all windows) that the same test seed flown with every effect off does not have, i.e. the ceiling of the literal "
+           "shrink; **removed** = (G_on - G_after)/(G_on - G_off), the share of that effect-attributable gap the fitted effect removes "
+           "(can exceed 100 %: the effect-off twin flies the manoeuvres slightly differently).", ""]
+    if result.get("shrink_by_effect"):
+        out += ["| effect | held-out shrink min / median / max | attributable min / median | removed min / median |", "|---|---|---|---|"]
+        for name, v in result["shrink_by_effect"].items():
+            a = result.get("attributable_share_by_effect", {}).get(name, {})
+            r = result.get("attributable_removed_by_effect", {}).get(name, {})
+            out.append(f"| {name} | {pct(v['min'])} / {pct(v['median'])} / {pct(v['max'])} | {pct(a.get('min'))} / {pct(a.get('median'))} | "
+                       f"{pct(r.get('min'))} / {pct(r.get('median'))} |")
+        out.append("")
+    out += ["| effect | seed | top | correct | held-out shrink | attributable | removed | verdict | ranking |", "|---|---|---|---|---|---|---|---|---|"]
     for r in result["runs"]:
-        out.append(f"| {r['effect']} | {r['seed']} | {r['top']} | {'yes' if r['correct'] else 'no'} | {r['shrink']:.1%} | {r['verdict']} | "
+        out.append(f"| {r['effect']} | {r['seed']} | {r['top']} | {'yes' if r['correct'] else 'no'} | {pct(r['shrink'])} | "
+                   f"{pct(r.get('attributable_share'))} | {pct(r.get('attributable_removed'))} | {r['verdict']} | "
                    + ", ".join(f"{k} {v:.1%}" for k, v in r["top_shrinks"].items()) + " |")
     out += ["", "| null seed | found | top shrinks |", "|---|---|---|"]
     for n in result["null"]["runs"]:
         out.append(f"| {n['seed']} | {', '.join(n['found']) or '-'} | " + ", ".join(f"{k} {v:.1%}" for k, v in n["top_shrinks"].items()) + " |")
     if result["pairs"]:
-        out += ["", "| pair | seed | top 3 | found | both in top 3 |", "|---|---|---|---|---|"]
+        out += ["", "Pairs are ranked by conditional contribution: the second effect's shrink is what it adds on top of the first.", "",
+                "| pair | seed | top 3 | found | both in top 3 | shrinks |", "|---|---|---|---|---|---|"]
         for p in result["pairs"]:
             out.append(f"| {' + '.join(p['effects'])} | {p['seed']} | {', '.join(p['top3'])} | {', '.join(p['found']) or '-'} | "
-                       f"{'yes' if p['both_found_in_top3'] else 'no'} |")
+                       f"{'yes' if p['both_found_in_top3'] else 'no'} | " + ", ".join(f"{k} {v:.1%}" for k, v in p["shrinks"].items()) + " |")
     return "\n".join(out) + "\n"

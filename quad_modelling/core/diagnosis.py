@@ -42,12 +42,15 @@ scored with the evaluation protocol's smoothed RMS/TIC (DESIGN 7).
      the held-out test above fails (it fits the training data, not new data);
    * ``insignificant``: otherwise.
 
-   Effects are ranked found first, then by held-out shrink (:func:`ranking_key`). Two effects are *confounded* when the
+   Effects are ranked by conditional contribution (:func:`greedy_ranking`): the found effect of
+   largest held-out shrink first, then every other effect assessed again on top of the ranked ones
+   (held at their identified parameters), the found one of largest shrink next, and so on; a
+   twin of a ranked effect then adds nothing. Two effects are *confounded* when the
    corrections they make to the held-out prediction correlate with
    :math:`|\\rho| \\ge` :data:`CONFOUND_CORRELATION` on their shared variables
    and the weaker one's shrink is at least :data:`CONFOUND_SHRINK_RATIO` of the
    stronger's: on this data they cannot be told apart.
-5. **Ladder.** base -> +best found -> +next found ..., each rung identified
+5. **Ladder.** base -> +rank 1 -> +rank 2 ..., each rung identified
    jointly on the training windows, with the held-out gap at each rung.
 6. **Learnable floor.** Optionally a NARX model trained on the training
    flights, scored on the same held-out windows.
@@ -61,7 +64,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import optimize, signal, stats
@@ -375,6 +378,8 @@ class EffectOutcome:
     confounded_with: list[str]
     correction: np.ndarray | None  # (W, N, 18) held-out prediction change
     note: str = ""
+    given: list[str] = field(default_factory=list)  # effects held fixed (ranked above) when this outcome was assessed
+    alone: EffectOutcome | None = None  # the effect's assessment on its own, when ``given`` is not empty
 
     def to_json(self) -> dict:
         e = self.effect
@@ -392,8 +397,16 @@ class EffectOutcome:
             "evidence": self.evidence,
             "confounded_with": self.confounded_with,
             "verdict": self.verdict,
+            "given": list(self.given),
+            "alone": self._alone_json(),
             **({"note": self.note} if self.note else {}),
         }
+
+    def _alone_json(self) -> dict:
+        """The effect assessed on its own against the base model (the shrink that defines the per-effect score)."""
+        a = self.alone or self
+        return {"shrink": a.shrink, "train_shrink": a.train_shrink, "verdict": a.verdict,
+                "params": {} if a.theta is None else {k: float(v) for k, v in zip(a.effect.parameters, a.theta)}}
 
 
 def excited_windows(batch: WindowBatch, correction: np.ndarray, cols: np.ndarray, scales: np.ndarray, gap_before: np.ndarray) -> np.ndarray:
@@ -422,20 +435,28 @@ def ranking_key(outcome: EffectOutcome) -> tuple[bool, float]:
 
 def assess_effect(
     effect: Effect, base: BaseModel, train: WindowBatch, test: WindowBatch, scales: np.ndarray,
-    base_train: np.ndarray, base_test: np.ndarray,
+    base_train: np.ndarray, base_test: np.ndarray, fixed: Sequence[tuple[Effect, np.ndarray]] = (),
 ) -> EffectOutcome:
-    """Identify one effect on ``train``, score it on ``test`` (see module docstring)."""
+    """Identify one effect on ``train``, score it on ``test`` (see module docstring).
+
+    ``fixed``: effects held at their identified parameters (the ones ranked above, :func:`greedy_ranking`);
+    ``base_train``/``base_test`` are then the predictions of base + ``fixed`` and the shrink is the
+    effect's contribution on top of them.
+    """
+    fixed = list(fixed)
+    fixed_effects, fixed_thetas = [f[0] for f in fixed], [f[1] for f in fixed]
     cols = np.array([INDEX[v] for v in effect.variables])
     reason = effect.applicable(train) or effect.applicable(test)
     eval_cols = np.array([INDEX[v] for v in EVAL_VARIABLES])
     before_rms = window_rms(test, base_test, eval_cols).mean(axis=0)
     before = {v: float(before_rms[i]) for i, v in enumerate(EVAL_VARIABLES)}
     if reason:
-        return EffectOutcome(effect, None, 0.0, 0.0, before, before, {}, {}, "insignificant", [], None, note=f"not evaluated: {reason}")
-    fit = fit_effects(base, train, [effect], scales)
+        return EffectOutcome(effect, None, 0.0, 0.0, before, before, {}, {}, "insignificant", [], None, note=f"not evaluated: {reason}",
+                             given=[e.name for e in fixed_effects])
+    fit = fit_effects(base, train, [effect], scales, fixed=fixed)
     theta = fit.thetas[0]
-    after_train = predict_batch(base, train, [effect], [theta], columns=cols)
-    after_test = predict_batch(base, test, [effect], [theta])
+    after_train = predict_batch(base, train, fixed_effects + [effect], fixed_thetas + [theta], columns=cols)
+    after_test = predict_batch(base, test, fixed_effects + [effect], fixed_thetas + [theta])
     train_before = normalised_window_gap(train, base_train, cols, scales)
     train_excited = excited_windows(train, after_train - base_train, cols, scales, train_before)
     train_shrink = shrink_of(train_before[train_excited], normalised_window_gap(train, after_train, cols, scales)[train_excited])
@@ -472,7 +493,51 @@ def assess_effect(
         effect, theta, shrink, train_shrink, before, {v: float(after_rms[i]) for i, v in enumerate(EVAL_VARIABLES)},
         {v: float(after_tic[i]) for i, v in enumerate(EVAL_VARIABLES)}, evidence,
         verdict_of(shrink, train_shrink, ci[0], improved / max(len(scored_before), 1)), [], correction,
+        given=[e.name for e in fixed_effects],
     )
+
+
+def greedy_ranking(
+    outcomes: list[EffectOutcome], base: BaseModel, train: WindowBatch, test: WindowBatch, scales: np.ndarray,
+    base_train: np.ndarray, base_test: np.ndarray, max_rungs: int = LADDER_MAX_RUNGS,
+) -> list[EffectOutcome]:
+    """Rank by conditional contribution: the found effect of largest held-out shrink first; then every
+    other effect is assessed again with the ones ranked above held at their identified parameters, and the
+    found one of largest shrink *on top of them* comes next; until none is found (or ``max_rungs``).
+
+    A twin of a ranked effect (input delay after motor lag) then explains nothing more and stops taking a
+    place from a genuinely second effect. ``outcomes`` are the effects assessed alone (rank 1 is the same
+    as ranking them alone). Returns the ranked outcomes, then the rest by :func:`ranking_key` of their last
+    assessment; an outcome assessed on top of others keeps its lone assessment in ``alone``.
+    """
+    current = {o.effect.name: o for o in outcomes}
+    alone = dict(current)
+    ranked: list[EffectOutcome] = []
+    fixed: list[tuple[Effect, np.ndarray]] = []
+    ref_train, ref_test = base_train, base_test
+    while len(ranked) < max_rungs:
+        found = [o for o in current.values() if o.verdict == "found"]
+        if not found:
+            break
+        best = max(found, key=lambda o: o.shrink)
+        ranked.append(best)
+        del current[best.effect.name]
+        fixed.append((best.effect, best.theta))
+        if not current or len(ranked) == max_rungs:
+            break
+        effects, thetas = [f[0] for f in fixed], [f[1] for f in fixed]
+        ref_train = predict_batch(base, train, effects, thetas)
+        ref_test = predict_batch(base, test, effects, thetas)
+        current = {name: assess_effect(o.effect, base, train, test, scales, ref_train, ref_test, fixed) if o.theta is not None else o
+                   for name, o in current.items()}
+    rest = sorted(current.values(), key=ranking_key)
+    for o in ranked + rest:
+        if o.given:
+            lone = alone[o.effect.name]
+            o.alone = lone
+            o.confounded_with = lone.confounded_with
+            o.evidence.setdefault("correction_correlation", lone.evidence.get("correction_correlation", {}))
+    return ranked + rest
 
 
 def mark_confounded(outcomes: list[EffectOutcome], test: WindowBatch, scales: np.ndarray) -> None:
@@ -515,6 +580,7 @@ class Diagnosis:
     base_test: np.ndarray
     test_batch: WindowBatch
     timings: dict
+    scales: np.ndarray | None = None  # (18,) s_v: the base model's training residual RMS per variable
 
     @property
     def found(self) -> list[str]:
@@ -541,6 +607,9 @@ class Diagnosis:
                          f"at least {EXCITED_MIN_WINDOWS} windows)",
                 "rejected": f"training shrink >= {FOUND_MIN_SHRINK} but the held-out test fails",
                 "insignificant": "otherwise",
+                "ranking": "greedy by conditional contribution: rank k+1 is the found effect of largest held-out shrink when "
+                           "assessed on top of ranks 1..k held at their identified parameters ('given'); 'alone' is the effect "
+                           "assessed on its own",
                 "confounded": f"|correlation of held-out corrections| >= {CONFOUND_CORRELATION} and the weaker shrink >= "
                               f"{CONFOUND_SHRINK_RATIO} x the stronger",
             },
@@ -603,6 +672,7 @@ def diagnose(
                  for i, (s, t) in enumerate(zip(test.sources, test.t0))],
         "train_count": len(train),
         "test_count": len(test),
+        "ground_contact_dropped": {"train": train.ground_contact_dropped, "test": test.ground_contact_dropped},
         "window_s": test.samples * test.dt,
     }
     outcomes = []
@@ -614,6 +684,10 @@ def diagnose(
     mark_confounded(outcomes, test, scales)
     outcomes.sort(key=ranking_key)
     start = time.perf_counter()
+    say("ranking by conditional contribution")
+    outcomes = greedy_ranking(outcomes, model, train, test, scales, base_train, base_test)
+    timings["greedy"] = time.perf_counter() - start
+    start = time.perf_counter()
     ladder = build_ladder(outcomes, model, train, test, scales, base_test)
     timings["ladder"] = time.perf_counter() - start
     floor = {}
@@ -624,7 +698,7 @@ def diagnose(
         timings["learnable"] = time.perf_counter() - start
     timings["total"] = time.perf_counter() - clock
     return Diagnosis(base, gap, train_gap, where, outcomes, ladder, floor, windows, config,
-                     sorted(set(train.sources)), sorted(set(test.sources)), base_test, test, timings)
+                     sorted(set(train.sources)), sorted(set(test.sources)), base_test, test, timings, scales)
 
 
 def total_gap(batch: WindowBatch, predicted: np.ndarray, reference: dict[str, dict[str, float]]) -> float:

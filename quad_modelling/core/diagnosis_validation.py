@@ -14,6 +14,19 @@ For each catalogue effect the truth simulator can switch on
 
 The null case flies every flight with no effect: no effect may be found.
 Pairs switch two effects on: both must be in the top 3 and found.
+
+Two shrink numbers per run (:func:`attributable_gap`):
+
+* ``shrink`` -- the literal target: the diagnosis's held-out shrink of the effect's affected-variable
+  gap (:mod:`~quad_modelling.core.diagnosis`, point 3). Its ceiling is below 1: the linear base model
+  keeps a gap on flights with *no* effect (small-angle linearisation, open-loop attitude drift over a
+  window, thrust nonlinearity, measurement noise in the differentiated gyro);
+* ``attributable_removed`` -- the share of the *effect-attributable* gap removed,
+  :math:`(G_{on} - G_{after}) / (G_{on} - G_{off})` with G the base model's normalised gap on the
+  effect's variables summed over all held-out windows, :math:`G_{off}` on the same test seed flown with
+  every effect off (same manoeuvres; the closed loop flies them slightly differently, so this share can
+  exceed 1). ``attributable_share`` = :math:`1 - G_{off}/G_{on}` is the literal shrink's ceiling on all
+  windows. Only the validation can compute these: it needs the effects-off twin flight.
 """
 
 from __future__ import annotations
@@ -22,10 +35,13 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG, BaseFit, diagnose, identify_base
-from quad_modelling.core.effects import CATALOGUE, Effect, prepare_windows
+import numpy as np
+
+from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG, BaseFit, diagnose, identify_base, normalised_window_gap
+from quad_modelling.core.effects import CATALOGUE, Effect, predict_batch, prepare_windows
 from quad_modelling.core.evaluation import EvaluationConfig
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
 
 VALIDATED_EFFECTS: tuple[str, ...] = (
@@ -68,6 +84,26 @@ def test_seeds(seed: int) -> list[int]:
     return [2000 + 10 * seed]
 
 
+def attributable_gap(result, outcome, off_flights: Sequence[FlightLog], vehicle, config: EvaluationConfig) -> dict:
+    """The effect-attributable gap of one single-effect run (module docstring): G_on, G_off, G_after on the
+    effect's variables over all held-out windows, ``attributable_share`` and ``attributable_removed``."""
+    cols = np.array([INDEX[v] for v in outcome.effect.variables])
+    test = result.test_batch
+    g_on = float(normalised_window_gap(test, result.base_test, cols, result.scales).sum())
+    after = result.base_test + outcome.correction if outcome.correction is not None else result.base_test
+    g_after = float(normalised_window_gap(test, after, cols, result.scales).sum())
+    off = prepare_windows(off_flights, vehicle, config)
+    g_off_mean = float(normalised_window_gap(off, predict_batch(result.base.model, off), cols, result.scales).mean())
+    g_off = g_off_mean * len(test)  # per-window mean scaled to the effect-on window count
+    attributable = g_on - g_off
+    return {
+        "gap_on": g_on / len(test), "gap_off": g_off_mean, "gap_after": g_after / len(test),
+        "shrink_all_windows": 1.0 - g_after / g_on if g_on > 0 else 0.0,
+        "attributable_share": attributable / g_on if g_on > 0 else 0.0,
+        "attributable_removed": (g_on - g_after) / attributable if attributable > 0 else None,
+    }
+
+
 def validate(
     vehicle: str = "linkquad",
     effects: Sequence[str] = VALIDATED_EFFECTS,
@@ -100,7 +136,9 @@ def validate(
             by_name = {o.effect.name: o for o in result.outcomes}
             if len(case) == 1:
                 truth = by_name.get(case[0])
+                off_test = [cache.get((), s) for s in test_seeds(seed)]
                 runs.append({
+                    **(attributable_gap(result, truth, off_test, config_vehicle, config) if truth is not None else {}),
                     "effect": case[0], "seed": seed, "top": ranking[0], "correct": ranking[0] == case[0] and case[0] in found,
                     "shrink": truth.shrink if truth else None, "verdict": truth.verdict if truth else "not in catalogue",
                     "found": found, "ranking": ranking[:4], "params": truth.to_json()["params"] if truth else {},
@@ -131,5 +169,25 @@ def validate(
         "accuracy": correct / len(runs) if runs else None,
         "pairs_accuracy": (sum(p["both_found_in_top3"] for p in pair_runs) / len(pair_runs)) if pair_runs else None,
         "min_shrink_of_correct": min((r["shrink"] for r in runs if r["correct"]), default=None),
+        "shrink_by_effect": _by_effect(runs, "shrink"),
+        "attributable_removed_by_effect": _by_effect(runs, "attributable_removed"),
+        "attributable_share_by_effect": _by_effect(runs, "attributable_share"),
+        "metrics": {
+            "shrink": "literal target: held-out shrink of the effect's affected-variable gap (diagnosis definition, windows the "
+                      "effect excites), base model without the effect -> base model with it",
+            "attributable_share": "1 - G_off/G_on: the share of the base model's held-out gap (all windows) that the effect-off "
+                                  "twin flight does not have; the ceiling of the literal shrink",
+            "attributable_removed": "(G_on - G_after) / (G_on - G_off): share of that effect-attributable gap the fitted effect removes",
+        },
         "seconds": time.perf_counter() - clock,
     }
+
+
+def _by_effect(runs: list[dict], key: str) -> dict:
+    """{effect: {"min", "median", "max"}} of ``key`` over the runs (None values skipped)."""
+    out = {}
+    for name in dict.fromkeys(r["effect"] for r in runs):
+        values = [r[key] for r in runs if r["effect"] == name and r.get(key) is not None]
+        if values:
+            out[name] = {"min": float(np.min(values)), "median": float(np.median(values)), "max": float(np.max(values))}
+    return out

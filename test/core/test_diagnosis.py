@@ -3,6 +3,8 @@ that only fits training data is rejected, and a flight without unmodelled effect
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -59,11 +61,32 @@ def test_withheld_effect_is_ranked_first_and_found(flights, linkquad, base):
     # the identified CG offset has the simulator's signs (sim: +6 mm x, -4 mm y)
     params = dict(zip(top.effect.parameters, top.theta))
     assert params["cg_x"] > 0 and params["cg_y"] < 0
-    # found effects first, each group by held-out shrink
-    keys = [(o.verdict != "found", -o.shrink) for o in result.outcomes]
+    # found effects first (each assessed on top of the ones above it), the rest by their last assessment
+    found = [o for o in result.outcomes if o.verdict == "found"]
+    assert result.outcomes[: len(found)] == found
+    assert all(o.given == [f.effect.name for f in found] for o in result.outcomes[len(found):])
+    keys = [(o.verdict != "found", -o.shrink) for o in result.outcomes[len(found):]]
     assert keys == sorted(keys)
     assert result.ladder[0]["normalised_gap"] == 1.0 and result.ladder[1]["effects"] == ["motor_imbalance"]
     assert result.ladder[1]["normalised_gap"] < 1.0
+
+
+def test_a_twin_of_the_top_effect_adds_nothing_on_top_of_it(flights, linkquad, base):
+    """Greedy conditional ranking: an exact copy of the withheld effect is found alone (same shrink), but
+    assessed with the top effect held fixed it explains nothing more, so it takes no 'found' place."""
+    train, test = flights[("motor_imbalance",)]
+    twin = replace(CATALOGUE["motor_imbalance"], name="imbalance_twin")
+    result = D.diagnose([train], [test], linkquad, [CATALOGUE["motor_imbalance"], twin, CATALOGUE["motor_lag"]], base=base)
+    first = result.outcomes[0]
+    other = next(o for o in result.outcomes if o.effect.name in ("motor_imbalance", "imbalance_twin") and o is not first)
+    assert first.verdict == "found" and first.given == [] and first.shrink > 0.1
+    assert other.given == [first.effect.name]
+    assert other.alone.verdict == "found" and other.alone.shrink == pytest.approx(first.shrink, abs=0.02)
+    assert other.verdict != "found" and abs(other.shrink) < D.FOUND_MIN_SHRINK
+    assert result.found == [first.effect.name]
+    assert other.effect.name in first.confounded_with
+    data = other.to_json()
+    assert data["given"] == [first.effect.name] and data["alone"]["verdict"] == "found"
 
 
 def test_null_flight_yields_no_discovery(flights, linkquad, base):

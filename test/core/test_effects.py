@@ -72,7 +72,7 @@ def test_motor_lag_is_a_unit_gain_first_order_lag(batch, base):
     step = np.zeros_like(batch.u[:1])
     step[:, 10:] = 1.0
     tau = 0.1
-    one = E.replace(batch.subset([0]), u=step)
+    one = E.replace(batch.subset([0]), u=step, u_history=np.zeros_like(batch.u_history[:1]))
     lagged = E.CATALOGUE["motor_lag"].input_map(np.array([tau]), one, base, step)
     n = int(round(tau / batch.dt))  # one time constant after the step
     pole = np.exp(-batch.dt / tau)
@@ -81,10 +81,56 @@ def test_motor_lag_is_a_unit_gain_first_order_lag(batch, base):
     assert lagged[0, -1, 0] == pytest.approx(1.0, abs=1e-6)
 
 
+def test_lag_and_delay_start_from_the_commands_before_the_window(batch, base):
+    """A command step 0.1 s before the window: the lag starts the window mid-transient (not in steady state
+    at the window's first command), the delay shows the pre-step commands in its first samples."""
+    one = batch.subset([0])
+    h = one.u_history.shape[1]
+    assert h == int(round(E.COMMAND_HISTORY_S / batch.dt))
+    history = np.zeros_like(one.u_history)
+    history[:, h - 10 :] = 1.0  # the step, 10 samples before the window
+    step = E.replace(one, u=np.ones_like(one.u), u_history=history)
+    tau = 0.1
+    lagged = E.CATALOGUE["motor_lag"].input_map(np.array([tau]), step, base, step.u)
+    pole = np.exp(-batch.dt / tau)
+    assert lagged[0, 0, 0] == pytest.approx(1.0 - pole**11, abs=1e-9)  # 11 samples after the step
+    delayed = E.CATALOGUE["input_delay"].input_map(np.array([15 * batch.dt]), step, base, step.u)
+    np.testing.assert_allclose(delayed[0, :5, 0], 0.0)  # u(t - 0.15 s): before the step
+    np.testing.assert_allclose(delayed[0, 5:, 0], 1.0)
+
+
+def test_mapped_commands_are_trimmed_at_the_warm_start(batch, base):
+    """The linearisation point is the warm start: the mapped commands have zero warm-start mean, as the
+    raw trimmed ones do."""
+    for name, theta in (("motor_lag", [0.1]), ("input_delay", [0.05]), ("thrust_nonlinearity", [2.0])):
+        aug = E.apply_effects([E.CATALOGUE[name]], [np.array(theta)], batch, base)
+        np.testing.assert_allclose(aug.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12, err_msg=name)
+    np.testing.assert_allclose(batch.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12)
+
+
 def test_drag_force_opposes_the_measured_velocity(batch, base):
     e = E.CATALOGUE["rotor_drag"].forcing(np.array([0.5, 0.0, 0.0]), batch, base, batch.u)
-    v = batch.velocity - batch.velocity[:, : batch.warm].mean(axis=1, keepdims=True)
+    v = batch.velocity_smooth - batch.velocity_smooth[:, : batch.warm].mean(axis=1, keepdims=True)
     np.testing.assert_allclose(e[:, :, 0], -0.5 * v[:, :, 0], atol=1e-12)
+
+
+def test_drag_moment_follows_the_body_axes_velocity_in_a_turn(batch, base):
+    """Flying north at a steady 2 m/s while the heading turns by 90 degrees: the velocity in N does not change,
+    the body-axes velocity turns from (2, 0) to (0, -2), so the drag moment changes (c_m v_By, -c_m v_Bx).
+    Rotating the trimmed velocity v - v_0 = 0 (the form before) gave no moment at all."""
+    one = batch.subset(np.array([0]))
+    n = one.samples
+    yaw = np.clip((np.arange(n) - one.warm) / (n - 1 - one.warm), 0.0, 1.0) * np.pi / 2
+    v = np.zeros((1, n, 3))
+    v[0, :, 0] = 2.0
+    euler = np.zeros((1, n, 3))
+    euler[0, :, 2] = yaw
+    turn = E.replace(one, velocity_smooth=v, euler=euler)
+    e = E.CATALOGUE["rotor_drag"].forcing(np.array([0.3, 0.3, -1.5]), turn, base, turn.u)
+    np.testing.assert_allclose(e[0, :, 0:3], 0.0, atol=1e-12)  # no change of the velocity in N: no change of the force
+    # end of the turn: v_B = (0, -2); warm start: v_B = (2, 0)
+    assert e[0, -1, 3] == pytest.approx(-1.5 * (-2.0 - 0.0))
+    assert e[0, -1, 4] == pytest.approx(1.5 * (0.0 - 2.0))
 
 
 @pytest.mark.parametrize("name, truth", [("motor_lag", [0.08]), ("input_delay", [0.035]), ("rotor_drag", [0.4, 0.3, -1.5])])
@@ -127,3 +173,14 @@ def test_measurement_filter_gives_the_model_the_gyro_derivative_filter(batch):
     expected = differentiate(rate[:, None], batch.dt)[inner, 0]
     np.testing.assert_allclose(high, expected, atol=0.03)
     assert np.sqrt(np.mean(high**2)) < 0.5 * np.sqrt(0.5)
+
+
+def test_windows_that_touch_the_ground_are_left_out(linkquad):
+    """Simulated seed 2001 (effects off) touches down during its low pass at 41-51 s: those two windows are
+    dropped and counted, the rest stay (every kept window is at least 1 cm above where the vehicle stood)."""
+    log = simulate("linkquad", effects=(), seed=2001, duration=90.0)
+    kept = E.prepare_windows([log], linkquad, DIAGNOSIS_CONFIG)
+    assert kept.ground_contact_dropped == 2
+    assert not {41.0, 46.0} & {round(float(t), 1) for t in kept.t0}
+    assert kept.height.min() >= E.GROUND_CONTACT_M
+    assert len(kept) == len(span_windows(log, E.flying_span(), DIAGNOSIS_CONFIG)) - 2
