@@ -91,7 +91,7 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox") 
 
     from quad_modelling.io.bag_io import stamps_ns
     from quad_modelling.nodes import messages
-    from quad_modelling.nodes.common import data_qos
+    from quad_modelling.nodes.common import data_qos, use_dds_profile
 
     window = "5.0"
     name = model.partition(":")[0]
@@ -100,6 +100,7 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox") 
     log = synthetic_flight(rate, seconds)
     arrays = messages.MeasurementArrays(log)
     stamps = (stamps_ns(log.t) + time.time_ns()).tolist()
+    use_dds_profile()  # as the nodes do
     rclpy.init()
     node = Node("latency_bench", namespace="/quad")
     qos = data_qos()

@@ -26,6 +26,7 @@ def test_colcon_build_installs_runnable_executables(tmp_path):
         assert (lib / name).is_file() and os.access(lib / name, os.X_OK), name
     assert sorted(p.name for p in (share / "config").glob("*.yaml")) == [
         "evaluator.yaml", "greybox_predictor.yaml", "narx_predictor.yaml", "replay.yaml"]
+    assert (share / "config" / "fastdds.xml").is_file()  # the nodes' DDS profile (nodes.common.use_dds_profile)
     assert (share / "launch" / "replay_evaluation.launch.py").is_file()
     assert (share / "package.xml").is_file()
     assert sorted(p.name for p in (share / "config" / "vehicles").iterdir()) == ["crazyflie21.yaml", "linkquad.yaml"]

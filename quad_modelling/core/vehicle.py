@@ -33,21 +33,27 @@ GRAVITY = 9.81
 """Local gravity used by the models [m/s²] (thesis value, Eq 3-10)."""
 
 
-def vehicle_dir() -> Path:
-    """Where the shipped vehicle configs are.
+def config_dir() -> Path:
+    """Where the shipped configuration files are.
 
-    In a source checkout or editable install: ``<repo>/config/vehicles``. In a
-    colcon install: ``share/quad_modelling/config/vehicles`` (setup.py data_files).
+    In a source checkout or editable install: ``<repo>/config``. In a colcon
+    install: ``share/quad_modelling/config`` (setup.py data_files).
     """
-    source_tree = Path(__file__).resolve().parents[2] / "config" / "vehicles"
-    if source_tree.is_dir():
+    source_tree = Path(__file__).resolve().parents[2] / "config"
+    if (source_tree / "vehicles").is_dir():
         return source_tree
     try:
         from ament_index_python.packages import get_package_share_directory
 
-        return Path(get_package_share_directory("quad_modelling")) / "config" / "vehicles"
+        return Path(get_package_share_directory("quad_modelling")) / "config"
     except (ImportError, LookupError) as err:
-        raise ConfigError("cannot find the shipped vehicle configs (no source tree, no ament share)") from err
+        raise ConfigError("cannot find the shipped configs (no source tree, no ament share)") from err
+
+
+def vehicle_dir() -> Path:
+    """Where the shipped vehicle configs are: ``config/vehicles`` of :func:`config_dir`."""
+    return config_dir() / "vehicles"
+
 
 CONSTANT_KEYS = (
     "mass",

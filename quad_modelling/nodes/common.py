@@ -216,6 +216,22 @@ def say(node, text: str, error: bool = False) -> None:
         print(f"[{'ERROR' if error else 'INFO'}] [{node.get_namespace().strip('/')}.{node.get_name()}]: {text}", file=sys.stderr, flush=True)
 
 
+DDS_PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
+"""Environment variable Fast DDS 2.x reads its XML profiles from (at participant creation)."""
+
+
+def use_dds_profile() -> str:
+    """Point Fast DDS at ``config/fastdds.xml`` (50 ms writer heartbeat) unless the environment names a profile.
+
+    Call before ``rclpy.init``. Returns the profile file in use.
+    """
+    import os
+
+    from quad_modelling.core.vehicle import config_dir
+
+    return os.environ.setdefault(DDS_PROFILE_ENV, str(config_dir() / "fastdds.xml"))
+
+
 def run_node(factory, args=None) -> int:
     """Create the node with ``factory()``, spin it, shut down cleanly; exit code.
 
@@ -227,6 +243,7 @@ def run_node(factory, args=None) -> int:
 
     from quad_modelling.errors import QuadModellingError
 
+    use_dds_profile()
     rclpy.init(args=args)
     node = None
     code = 0

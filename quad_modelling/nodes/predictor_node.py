@@ -141,8 +141,10 @@ class PredictorNode(Node):
         self.deferred: list[tuple[int, np.ndarray]] = []
         self.stream = None
         self.backlog: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
-        self.create_timer(WARM_BACKLOG_PERIOD_S, lambda: self._publish_backlog(WARM_BACKLOG_PER_TICK),
-                          clock=RosClock(clock_type=ClockType.STEADY_TIME))
+        # runs only while a backlog waits (a periodic timer would also be what Ctrl-C interrupts)
+        self.backlog_timer = self.create_timer(WARM_BACKLOG_PERIOD_S, self._on_backlog_timer,
+                                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
+        self.backlog_timer.cancel()
         self.last_motor_ns = None
         self.published = 0
         self.windows_started = 0
@@ -290,10 +292,16 @@ class PredictorNode(Node):
         odom, accel = messages.prediction_fields(predictions)
         if backlog:
             self.backlog.extend(zip(stamps, odom, accel))
+            self.backlog_timer.reset()
             return True
         for i, ns in enumerate(stamps):
             self._send(ns, odom[i], accel[i])
         return True
+
+    def _on_backlog_timer(self) -> None:
+        self._publish_backlog(WARM_BACKLOG_PER_TICK)
+        if not self.backlog:
+            self.backlog_timer.cancel()
 
     def _publish_backlog(self, count: int) -> None:
         for _ in range(min(count, len(self.backlog))):

@@ -1,6 +1,7 @@
 """The launch file and config/*.yaml name executables and parameters that exist."""
 
 import ast
+import os
 import re
 
 import yaml
@@ -46,3 +47,21 @@ def test_launch_file_compiles_and_names_existing_executables_and_parameters():
         assert keys - common <= DECLARED[executable], (executable, keys - DECLARED[executable])
         yaml_files = [c.value for c in ast.walk(kw["parameters"]) if isinstance(c, ast.Constant) and str(c.value).endswith(".yaml")]
         assert yaml_files == [f"{executable}.yaml"]
+
+
+def test_nodes_use_the_shipped_dds_profile_unless_the_environment_names_one(monkeypatch, tmp_path):
+    import xml.etree.ElementTree as ET
+
+    from quad_modelling.nodes.common import DDS_PROFILE_ENV, use_dds_profile
+
+    monkeypatch.delenv(DDS_PROFILE_ENV, raising=False)
+    shipped = use_dds_profile()
+    assert shipped == str(REPO / "config" / "fastdds.xml") and os.environ[DDS_PROFILE_ENV] == shipped
+    ns = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
+    writer = ET.parse(shipped).getroot().find("f:profiles/f:data_writer", ns)
+    assert writer.get("is_default_profile") == "true"
+    period = writer.find("f:times/f:heartbeatPeriod", ns)
+    assert int(period.find("f:sec", ns).text) == 0 and int(period.find("f:nanosec", ns).text) == 50_000_000  # 50 ms, not 3 s
+    mine = tmp_path / "mine.xml"
+    monkeypatch.setenv(DDS_PROFILE_ENV, str(mine))
+    assert use_dds_profile() == str(mine)  # a user's profile is kept
