@@ -16,7 +16,7 @@ gives their predictions, and every later command is ``push``-ed and its
 prediction published immediately. The warm rows' predictions (0.2 s of rows,
 available only once the warm start is complete) go to a backlog that is
 published behind the live ones: :data:`WARM_BACKLOG_PER_INPUT` after each live
-prediction, :data:`WARM_BACKLOG_PER_TICK` per timer tick in a pause. Published
+prediction, :data:`WARM_BACKLOG_PER_TICK` per timer tick in a pause of the inputs. Published
 at once, 80 rows at 400 Hz held the next live inputs back by ~20-35 ms. A node that joins mid-window
 (late start, restart, gap) waits for the next window start.
 
@@ -29,6 +29,7 @@ is ever published.
 
 from __future__ import annotations
 
+import time
 from collections import OrderedDict, deque
 
 import numpy as np
@@ -64,11 +65,12 @@ from quad_modelling.nodes.common import (
 )
 from quad_modelling.nodes.model_factory import make_streaming_predictor, model_name
 
-WARM_BACKLOG_PER_INPUT = 2
-"""Warm-start predictions published after each live prediction while a backlog remains."""
+WARM_BACKLOG_PER_INPUT = 1
+"""Warm-start predictions published after each live prediction while a backlog remains (at 400 Hz, 2 per
+input saturated the 2-core machine for the ~40 inputs of the drain: live latency rose to 11-18 ms)."""
 
 WARM_BACKLOG_PER_TICK = 4
-"""... and per tick of the backlog timer (every :data:`WARM_BACKLOG_PERIOD_S`) when no input arrives."""
+"""... and per tick of the backlog timer (every :data:`WARM_BACKLOG_PERIOD_S`) in a pause of the inputs."""
 
 WARM_BACKLOG_PERIOD_S = 0.01
 
@@ -146,6 +148,7 @@ class PredictorNode(Node):
                                                clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self.backlog_timer.cancel()
         self.last_motor_ns = None
+        self.last_input_wall = 0.0
         self.published = 0
         self.windows_started = 0
         self.get_logger().info(f"predicting with {self.spec!r} as '{self.name_}' on vehicle {self.vehicle.name}; "
@@ -204,6 +207,7 @@ class PredictorNode(Node):
             self.faults.report(kind, f"motor_input stamp {ns} ns is not after the previous one ({self.last_motor_ns} ns): dropped")
             return
         self.last_motor_ns = ns
+        self.last_input_wall = time.monotonic()
         if self.clock_.origin_ns is None:
             self.clock_.origin_ns = ns
             self.origin_pub.publish(messages.clock_message(ns))
@@ -299,6 +303,8 @@ class PredictorNode(Node):
         return True
 
     def _on_backlog_timer(self) -> None:
+        if time.monotonic() - self.last_input_wall < WARM_BACKLOG_PERIOD_S:
+            return  # inputs are flowing: each drains its share
         self._publish_backlog(WARM_BACKLOG_PER_TICK)
         if not self.backlog:
             self.backlog_timer.cancel()
