@@ -91,7 +91,7 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox") 
 
     from quad_modelling.io.bag_io import stamps_ns
     from quad_modelling.nodes import messages
-    from quad_modelling.nodes.common import data_qos, use_dds_profile
+    from quad_modelling.nodes.common import data_qos, make_executor, use_dds_profile
 
     window = "5.0"
     name = model.partition(":")[0]
@@ -103,6 +103,7 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox") 
     use_dds_profile()  # as the nodes do
     rclpy.init()
     node = Node("latency_bench", namespace="/quad")
+    executor = make_executor("events", node)  # as the nodes: the harness's own receive path stays light
     qos = data_qos()
     pubs = (node.create_publisher(JointState, "motor_input", qos), node.create_publisher(Odometry, "mocap/odom", qos),
             node.create_publisher(Imu, "imu", qos))
@@ -111,25 +112,25 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox") 
     node.create_subscription(Odometry, f"{name}/odom", lambda m: received.setdefault(messages.stamp_ns(m.header.stamp), time.perf_counter()), qos)
     deadline = time.monotonic() + 60
     while (pubs[0].get_subscription_count() < 2 or node.count_publishers(f"{name}/odom") < 1) and time.monotonic() < deadline:
-        rclpy.spin_once(node, timeout_sec=0.05)
+        executor.spin_once(timeout_sec=0.05)
     end = time.monotonic() + 1.0
     while time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.05)
+        executor.spin_once(timeout_sec=0.05)
     period = 1.0 / rate
     t0 = time.perf_counter()
     for row, ns in enumerate(stamps):
         target = t0 + row * period
         while (left := target - time.perf_counter()) > 0:
-            rclpy.spin_once(node, timeout_sec=left)
+            executor.spin_once(timeout_sec=left)
         # measurements first, the command last: the prediction is due when the command arrives
         pubs[1].publish(arrays.odometry(row, ns))
         pubs[2].publish(arrays.imu(row, ns))
         sent[ns] = time.perf_counter()
         pubs[0].publish(arrays.motor(row, ns))
-        rclpy.spin_once(node, timeout_sec=0.0)
+        executor.spin_once(timeout_sec=0.0)
     end = time.monotonic() + 2.0
     while time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.05)
+        executor.spin_once(timeout_sec=0.05)
     node.destroy_node()
     rclpy.shutdown()
     stop(procs)
@@ -143,8 +144,8 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox") 
             "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max()), "drops": int(drops)}
 
 
-def throughput(workdir: Path, executor: str = "events") -> dict:
-    out = workdir / f"graph_{executor}"
+def throughput(workdir: Path, executor: str = "events", run: int = 0) -> dict:
+    out = workdir / f"graph_{executor}_{run}"
     bag = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
     started = time.monotonic()
     run = subprocess.run([sys.executable, "-m", "quad_modelling.cli", "run-bag", str(bag), "--models", "naive,greybox",
@@ -222,7 +223,7 @@ def main() -> int:
         for kind in ("greybox", "narx"):
             for rate in (100.0, 400.0):
                 lat.append(latency(rate, seconds, work, "greybox" if kind == "greybox" else f"narx:{small_narx(rate, work)}"))
-        graphs = [throughput(work, executor) for _ in range(3) for executor in ("events", "single")]
+        graphs = [throughput(work, executor, run) for run in range(3) for executor in ("events", "single")]
         events = sorted((g for g in graphs if g["executor"] == "events"), key=lambda g: g["samples_per_s"])
         graph = events[len(events) // 2]  # the median run
         mem = memory(40.0 if args.quick else 120.0, work)
