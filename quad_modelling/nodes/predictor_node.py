@@ -74,9 +74,15 @@ WARM_BACKLOG_PER_TICK = 4
 
 WARM_BACKLOG_PERIOD_S = 0.01
 
-MAX_DEFERRED_COMMANDS = 10
-"""Commands after the warm start held back while the last warm rows' measurements are still
-in flight (topics arrive independently); beyond this the window starts with the complete rows."""
+MEASUREMENT_WAIT_S = 0.5
+"""Commands after the warm start are held back while warm rows' measurements are still in flight
+(each topic is delivered on its own) for at most this long [wall s] after the first held command;
+then the window starts from the complete rows (a motion-capture/IMU gap). A count bound of 10
+commands was not enough: a replay at rate 0 with 200 samples in flight delivered motor inputs 20
+rows ahead of the IMU, and a window went unpredicted."""
+
+MAX_DEFERRED_COMMANDS = 4096
+"""... and for at most this many commands (bounded memory)."""
 
 
 def predictor_parameters(default_model: str) -> list[Param]:
@@ -143,10 +149,11 @@ class PredictorNode(Node):
         self.deferred: list[tuple[int, np.ndarray]] = []
         self.stream = None
         self.backlog: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
-        # runs only while a backlog waits (a periodic timer would also be what Ctrl-C interrupts)
-        self.backlog_timer = self.create_timer(WARM_BACKLOG_PERIOD_S, self._on_backlog_timer,
-                                               clock=RosClock(clock_type=ClockType.STEADY_TIME))
-        self.backlog_timer.cancel()
+        # runs only while a backlog or a held-back window start waits (a periodic timer would also be
+        # what Ctrl-C interrupts)
+        self.timer = self.create_timer(WARM_BACKLOG_PERIOD_S, self._on_timer, clock=RosClock(clock_type=ClockType.STEADY_TIME))
+        self.timer.cancel()
+        self.deferred_since = 0.0
         self.last_motor_ns = None
         self.last_input_wall = 0.0
         self.published = 0
@@ -229,6 +236,9 @@ class PredictorNode(Node):
             if self.clock_.is_warm(position):
                 self.warm_rows.append((ns, u, omega))
             else:
+                if not self.deferred:
+                    self.deferred_since = time.monotonic()
+                    self.timer.reset()  # re-checks the wait even if no message arrives
                 self.deferred.append((ns, u))
                 self._maybe_start()
         elif self.state == "stream":
@@ -245,7 +255,9 @@ class PredictorNode(Node):
         """Start the window once every warm row has its measurements (or too long a wait)."""
         complete = [row for row in self.warm_rows if row[0] in self.odom and row[0] in self.imu
                     and (not self.use_battery or row[0] in self.battery)]
-        if len(complete) < len(self.warm_rows) and len(self.deferred) <= MAX_DEFERRED_COMMANDS and not force:
+        waited = time.monotonic() - self.deferred_since if self.deferred else 0.0
+        if len(complete) < len(self.warm_rows) and waited < MEASUREMENT_WAIT_S and len(self.deferred) <= MAX_DEFERRED_COMMANDS \
+                and not force:
             return
         if len(complete) < len(self.warm_rows):
             self.faults.report("warm_gap", f"window {self.window}: {len(self.warm_rows) - len(complete)} warm-start rows have no "
@@ -296,18 +308,20 @@ class PredictorNode(Node):
         odom, accel = messages.prediction_fields(predictions)
         if backlog:
             self.backlog.extend(zip(stamps, odom, accel))
-            self.backlog_timer.reset()
+            self.timer.reset()
             return True
         for i, ns in enumerate(stamps):
             self._send(ns, odom[i], accel[i])
         return True
 
-    def _on_backlog_timer(self) -> None:
-        if time.monotonic() - self.last_input_wall < WARM_BACKLOG_PERIOD_S:
-            return  # inputs are flowing: each drains its share
-        self._publish_backlog(WARM_BACKLOG_PER_TICK)
-        if not self.backlog:
-            self.backlog_timer.cancel()
+    def _on_timer(self) -> None:
+        """While a window waits for warm-row measurements or a warm backlog remains (else cancelled)."""
+        if self.state == "warm" and self.deferred:
+            self._maybe_start()
+        if time.monotonic() - self.last_input_wall >= WARM_BACKLOG_PERIOD_S:  # else inputs are flowing: each drains its share
+            self._publish_backlog(WARM_BACKLOG_PER_TICK)
+        if not self.backlog and not (self.state == "warm" and self.deferred):
+            self.timer.cancel()
 
     def _publish_backlog(self, count: int) -> None:
         for _ in range(min(count, len(self.backlog))):

@@ -151,3 +151,32 @@ def test_live_predictions_go_out_before_the_warm_start_backlog(ros):
     assert order[1:1 + WARM_BACKLOG_PER_INPUT] == stamps[0:WARM_BACKLOG_PER_INPUT].tolist()
     assert sorted(order) == stamps[:60].tolist()  # 20 warm + 40 live: every input answered once by now
     node.destroy_node()
+
+
+def test_window_waits_for_late_measurements_of_its_warm_rows(ros, monkeypatch):
+    """At rate 0 the IMU may trail the commands by many rows: the window waits (wall-time bound), then uses every
+    warm row; past MEASUREMENT_WAIT_S it starts from the complete rows (a real gap)."""
+    import quad_modelling.nodes.predictor_node as predictor_node
+
+    log = hover_log(600)
+    arrays = messages.MeasurementArrays(log)
+    node = make_node(model="greybox")
+    stamps = stamps_ns(log.t)
+    for row in range(60):  # warm rows 0..19; the IMU of rows 10..59 is 40+ rows late
+        ns = int(stamps[row])
+        node.on_motor(arrays.motor(row, ns))
+        node.on_odom(arrays.odometry(row, ns))
+        if row < 10:
+            node.on_imu(arrays.imu(row, ns))
+    assert node.published == 0 and len(node.deferred) == 40  # held back, not started from 10 of 20 warm rows
+    for row in range(10, 60):
+        node.on_imu(arrays.imu(row, int(stamps[row])))
+    assert node.state == "stream" and "warm_gap" not in node.faults.counts
+    assert node.published == 60  # the 40 held commands, each followed by one of the 20 warm rows
+    node.destroy_node()
+
+    monkeypatch.setattr(predictor_node, "MEASUREMENT_WAIT_S", 0.0)
+    node = make_node(model="greybox")
+    feed(node, log, range(30), skip_odom=set(range(15, 20)))
+    assert node.faults.counts["warm_gap"] == 1 and node.state == "stream"
+    node.destroy_node()
