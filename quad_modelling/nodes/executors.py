@@ -13,9 +13,9 @@ EXECUTORS = ("events", "single")
 
 * ``events``: ``rclpy.experimental.EventsExecutor`` (rclpy 7.1, Jazzy). Its queue of ready
   events is kept in C++, so a message costs no Python wait-set rebuild: on this 2-core
-  machine it took the whole graph's throughput from 5.0-5.5x to 6.4-7.7x real time
-  (bench/bench_nodes.py). Its ``spin()`` busy-loops after Ctrl-C here, so nodes spin it
-  with ``spin_once`` in a loop (:func:`spin`), which ends cleanly.
+  machine the whole graph plays the bundled bag at 9.9-10.7x real time with it and
+  5.9-6.0x with ``single`` (bench/bench_nodes.py). Its ``spin()`` busy-loops after Ctrl-C
+  here, so nodes spin it with ``spin_once`` in a loop (:func:`spin`), which ends cleanly.
 * ``single``: rclpy's ``SingleThreadedExecutor``, the reference implementation.
 """
 
