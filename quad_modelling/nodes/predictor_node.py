@@ -13,7 +13,13 @@ t0 + kW, t0 = the first motor-input stamp (or the ``window_origin`` another node
 published). The first ``warm_s`` of each window are the warm start: those rows
 (command + measurements with the same stamp) become a FlightLog, ``start_window``
 gives their predictions, and every later command is ``push``-ed and its
-prediction published immediately. The warm rows' predictions (0.2 s of rows,
+prediction published immediately. The window starts as soon as the warm start
+is over: at its last row by the clock (the next row, one sample period later,
+falls past ``warm_s``), once that row's measurements are in -- so the start's
+cost (1-3 ms) is paid between two inputs instead of delaying the first streamed
+answer -- or at the first row past ``warm_s`` when the period is unknown or the
+clock's guess was early (a warm row arriving after the start is reported and
+predicted as a streamed one). The warm rows' predictions (0.2 s of rows,
 available only once the warm start is complete) go to a backlog that is
 published behind the live ones: :data:`WARM_BACKLOG_PER_INPUT` after each live
 prediction, :data:`WARM_BACKLOG_PER_TICK` per timer tick in a pause of the inputs. Published
@@ -41,6 +47,7 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
 
+from quad_modelling.core.streaming import prime
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.nodes import messages
@@ -60,8 +67,10 @@ from quad_modelling.nodes.common import (
     non_empty,
     non_negative,
     positive,
+    realtime_param,
     run_node,
     say,
+    set_realtime_priority,
 )
 from quad_modelling.nodes.model_factory import make_streaming_predictor, model_name
 
@@ -101,7 +110,13 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("world_frame", messages.WORLD_FRAME, "frame_id of the predicted pose", non_empty),
         Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions and publishers", positive),
         executor_param(),
+        realtime_param(),
     ]
+
+
+PRIME_SAMPLE_PERIOD_S = 0.01
+"""Sample period [s] of the priming window when ``sample_period_s`` is 0 (unknown until data flows);
+the one-time costs it pays do not depend on the rate."""
 
 
 class PredictorNode(Node):
@@ -121,7 +136,11 @@ class PredictorNode(Node):
         except QuadModellingError as err:
             raise BadParameter(f"{node_name}: parameter model={spec!r} vehicle={p['vehicle']!r}: {err}") from err
         self.spec = spec
+        # pay the model's one-time costs now, not in the first window (streaming.prime)
+        prime(self.model, self.vehicle, p["sample_period_s"] or PRIME_SAMPLE_PERIOD_S,
+              int(round(p["warm_s"] / (p["sample_period_s"] or PRIME_SAMPLE_PERIOD_S))))
         self.executor_kind = p["executor"]
+        self.realtime_priority = p["realtime_priority"]
         self.faults = FaultLog(self.get_logger())
         self.clock_ = WindowClock(p["window_s"], p["warm_s"], p["sample_period_s"])
         self.child_frame = f"{self.name_}/base_link"
@@ -147,6 +166,7 @@ class PredictorNode(Node):
         self.state = "idle"  # idle | warm | stream | skip
         self.warm_rows: list[tuple[int, np.ndarray, np.ndarray | None]] = []
         self.deferred: list[tuple[int, np.ndarray]] = []
+        self.warm_closed = False  # the warm start of the current window is over (its last row is known)
         self.stream = None
         self.backlog: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
         # runs only while a backlog or a held-back window start waits (a periodic timer would also be
@@ -185,7 +205,7 @@ class PredictorNode(Node):
             self.faults.report("nan_odom", "non-finite motion-capture message dropped")
             return
         self._store(self.odom, messages.stamp_ns(msg.header.stamp), fields, "odom")
-        if self.state == "warm" and self.deferred:
+        if self.state == "warm" and self.warm_closed:
             self._maybe_start()
 
     def on_imu(self, msg: Imu) -> None:
@@ -194,7 +214,7 @@ class PredictorNode(Node):
             self.faults.report("nan_imu", "non-finite IMU message dropped")
             return
         self._store(self.imu, messages.stamp_ns(msg.header.stamp), fields, "imu")
-        if self.state == "warm" and self.deferred:
+        if self.state == "warm" and self.warm_closed:
             self._maybe_start()
 
     def on_battery(self, msg: BatteryState) -> None:
@@ -228,23 +248,33 @@ class PredictorNode(Node):
             self._finish_window()
             self.window = k
             if self.clock_.is_warm(position):
-                self.state, self.warm_rows, self.deferred = "warm", [], []
+                self.state, self.warm_rows, self.deferred, self.warm_closed = "warm", [], [], False
             else:
                 self.state = "skip"
                 self.faults.report("joined_mid_window", f"joined window {k} after its warm start: waiting for the next window")
         if self.state == "warm":
             if self.clock_.is_warm(position):
                 self.warm_rows.append((ns, u, omega))
+                if self.clock_.is_last_warm(position):
+                    self._close_warm()
             else:
-                if not self.deferred:
-                    self.deferred_since = time.monotonic()
-                    self.timer.reset()  # re-checks the wait even if no message arrives
                 self.deferred.append((ns, u))
-                self._maybe_start()
+                self._close_warm()
         elif self.state == "stream":
+            if self.clock_.is_warm(position):
+                self.faults.report("late_warm_row", f"window {self.window}: a warm-start row (t0 + {position / 1e9:.4f} s) came "
+                                                    "after the window started (irregular sampling?): predicted as a streamed row")
             self._push(ns, u)
 
     # --- windows ------------------------------------------------------------------------------
+
+    def _close_warm(self) -> None:
+        """The warm start is over: start the window now, or once its rows' measurements are in."""
+        if not self.warm_closed:
+            self.warm_closed = True
+            self.deferred_since = time.monotonic()
+            self.timer.reset()  # re-checks the wait even if no message arrives
+        self._maybe_start()
 
     def _finish_window(self) -> None:
         if self.state == "warm" and self.warm_rows:
@@ -255,7 +285,7 @@ class PredictorNode(Node):
         """Start the window once every warm row has its measurements (or too long a wait)."""
         complete = [row for row in self.warm_rows if row[0] in self.odom and row[0] in self.imu
                     and (not self.use_battery or row[0] in self.battery)]
-        waited = time.monotonic() - self.deferred_since if self.deferred else 0.0
+        waited = time.monotonic() - self.deferred_since if self.warm_closed else 0.0
         if len(complete) < len(self.warm_rows) and waited < MEASUREMENT_WAIT_S and len(self.deferred) <= MAX_DEFERRED_COMMANDS \
                 and not force:
             return
@@ -316,11 +346,11 @@ class PredictorNode(Node):
 
     def _on_timer(self) -> None:
         """While a window waits for warm-row measurements or a warm backlog remains (else cancelled)."""
-        if self.state == "warm" and self.deferred:
+        if self.state == "warm" and self.warm_closed:
             self._maybe_start()
         if time.monotonic() - self.last_input_wall >= WARM_BACKLOG_PERIOD_S:  # else inputs are flowing: each drains its share
             self._publish_backlog(WARM_BACKLOG_PER_TICK)
-        if not self.backlog and not (self.state == "warm" and self.deferred):
+        if not self.backlog and not (self.state == "warm" and self.warm_closed):
             self.timer.cancel()
 
     def _publish_backlog(self, count: int) -> None:
@@ -336,7 +366,14 @@ class PredictorNode(Node):
     # --- lifecycle ----------------------------------------------------------------------------
 
     def run(self) -> None:
-        spin(self, make_executor(self.executor_kind, self))
+        executor = make_executor(self.executor_kind, self)
+        if self.realtime_priority:
+            refused = set_realtime_priority(self.realtime_priority)
+            if refused:
+                self.get_logger().warning(f"parameter realtime_priority={self.realtime_priority}: {refused}")
+            else:
+                self.get_logger().info(f"running under SCHED_FIFO priority {self.realtime_priority}")
+        spin(self, executor)
 
     def finish(self) -> None:
         if self.context.ok():

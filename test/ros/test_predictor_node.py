@@ -114,6 +114,8 @@ def test_bad_parameters_exit_with_code_2_and_the_reason():
     assert "window_s" in bad_window.stderr and "must be > 0" in bad_window.stderr
     bad_executor = run_node(["-p", "executor:=multi"])
     assert bad_executor.returncode == 2 and "executor" in bad_executor.stderr and "events, single" in bad_executor.stderr
+    bad_priority = run_node(["-p", "realtime_priority:=150"])
+    assert bad_priority.returncode == 2 and "realtime_priority" in bad_priority.stderr and "1 to 99" in bad_priority.stderr
     unknown = run_node(["-p", "model:=nosuchmodel"])
     assert unknown.returncode == 2 and "unknown model" in unknown.stderr and "nosuchmodel" in unknown.stderr
     narx = subprocess.run([sys.executable, "-m", "quad_modelling.nodes.narx_predictor_node"], capture_output=True, text=True, timeout=60)
@@ -180,3 +182,82 @@ def test_window_waits_for_late_measurements_of_its_warm_rows(ros, monkeypatch):
     feed(node, log, range(30), skip_odom=set(range(15, 20)))
     assert node.faults.counts["warm_gap"] == 1 and node.state == "stream"
     node.destroy_node()
+
+
+def feed_measurements_first(node, arrays, rows, stamps):
+    """As a flight stack or the latency bench publishes: a row's measurements, then its command."""
+    for row in rows:
+        ns = int(stamps[row])
+        node.on_odom(arrays.odometry(row, ns))
+        node.on_imu(arrays.imu(row, ns))
+        node.on_motor(arrays.motor(row, ns))
+
+
+def test_window_starts_at_its_last_warm_row_once_its_measurements_are_in(ros):
+    """The start's cost falls between two inputs: at 100 Hz the last warm row (19) starts the window, so the
+    first live command (20) is answered from a running stream -- with exactly the offline numbers."""
+    log = hover_log(600)
+    arrays, stamps = messages.MeasurementArrays(log), stamps_ns(log.t)
+    node = make_node(model="greybox")
+    feed_measurements_first(node, arrays, range(19), stamps)
+    assert node.state == "warm" and not node.warm_closed  # row 18: row 19 is still warm
+    feed_measurements_first(node, arrays, [19], stamps)
+    assert node.state == "stream" and len(node.backlog) == 20 and node.published == 0
+    feed_measurements_first(node, arrays, range(20, 500), stamps)
+    expected = predict_window_by_stream(make_streaming_predictor("greybox", load_vehicle("crazyflie21")), log.slice(0, 500), 20)
+    got, predicted = published(node, stamps[:500])
+    assert len(got) == 500
+    assert np.allclose(predicted[:, :9], expected[:, :9], atol=1e-9) and np.allclose(predicted[:, 12:], expected[:, 12:], atol=1e-9)
+    assert node.faults.counts == {}
+    node.destroy_node()
+
+
+def test_a_warm_row_after_an_early_start_is_reported_and_predicted_as_streamed(ros):
+    """Irregular stamps: an extra row 8 ms after row 18 looks like the last warm row (its successor at +10 ms would
+    be past 0.2 s); the real row 19 then arrives after the start: one warning, and it is still answered."""
+    log = hover_log(600)
+    arrays, stamps = messages.MeasurementArrays(log), stamps_ns(log.t)
+    node = make_node(model="greybox")
+    feed_measurements_first(node, arrays, range(19), stamps)
+    extra = int(stamps[18]) + 8_000_000
+    node.on_odom(arrays.odometry(18, extra))
+    node.on_imu(arrays.imu(18, extra))
+    node.on_motor(arrays.motor(18, extra))
+    assert node.state == "stream" and len(node.backlog) == 20  # rows 0..18 and the extra one
+    feed_measurements_first(node, arrays, range(19, 30), stamps)
+    assert node.faults.counts == {"late_warm_row": 1}
+    assert set(stamps[19:30].tolist()) <= set(node.odom_pub.by_stamp())  # every command answered
+    node.destroy_node()
+
+
+def test_realtime_priority_runs_every_thread_of_the_node_under_sched_fifo():
+    """realtime_priority:=3 -> SCHED_FIFO 3 on all threads (the DDS ones too); without the privilege, a warning."""
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+        os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+        permitted = True
+    except PermissionError:
+        permitted = False
+    node = subprocess.Popen([sys.executable, "-m", "quad_modelling.nodes.predictor_node", "--ros-args", "-p", "realtime_priority:=3"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        lines = []
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and not any("SCHED_FIFO" in line for line in lines):
+            line = node.stdout.readline()
+            if not line:
+                break
+            lines.append(line)
+        text = "".join(lines)
+        if permitted:
+            assert "running under SCHED_FIFO priority 3" in text, text
+            threads = [int(t) for t in os.listdir(f"/proc/{node.pid}/task")]
+            assert len(threads) > 1  # the executor and Fast DDS's own threads
+            assert {os.sched_getscheduler(t) for t in threads} == {os.SCHED_FIFO}
+            assert {os.sched_getparam(t).sched_priority for t in threads} == {3}
+        else:
+            assert "realtime_priority=3" in text and "not permitted" in text, text
+    finally:
+        node.send_signal(signal.SIGINT)
+        node.communicate(timeout=20)
+    assert node.returncode == 0

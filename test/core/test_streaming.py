@@ -1,0 +1,53 @@
+"""Streaming helpers: the priming window is a hover at rest, and priming leaves a model's answers unchanged."""
+
+import numpy as np
+
+from quad_modelling.core.greybox import GreyboxPredictor
+from quad_modelling.core.preprocess import measured_variables
+from quad_modelling.core.streaming import hover_at_rest, predict_window_by_stream, prime
+from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.errors import DataError
+from test.conftest import synthetic_log
+
+
+def test_hover_at_rest_measures_a_still_vehicle_at_one_metre():
+    vehicle = load_vehicle("crazyflie21")
+    log = hover_at_rest(vehicle, 0.0025, 80)
+    assert len(log) == 80 and np.isclose(log.sample_rate, 400.0)
+    measured = measured_variables(log)
+    assert np.allclose(measured[:, 2], -1.0)  # Z down (NED): 1 m up
+    assert np.allclose(measured[:, 3:9], 0.0, atol=1e-12)  # no velocity, and -g specific force cancels gravity
+    assert np.allclose(measured[:, 12:18], 0.0)
+    assert np.allclose(log.acc_b[:, 2], -GRAVITY)
+    assert np.allclose(log.u, 0.5 * (vehicle.input_min + vehicle.input_max))
+
+
+def test_greybox_primed_on_a_hover_predicts_the_hover_and_then_the_same_numbers():
+    """Priming runs the model once on the hover at rest (trimmed: zero deviation -> it stays put) and changes
+    nothing for the windows that follow."""
+    vehicle = load_vehicle("crazyflie21")
+    rest = hover_at_rest(vehicle, 0.01, 20)
+    warm_predictions, stream = GreyboxPredictor(vehicle).start_window(rest)
+    pushed = np.array([stream.push(rest.u[-1]) for _ in range(50)])
+    assert np.allclose(pushed[:, 0:3], [0.0, 0.0, -1.0], atol=1e-9)  # trimmed inputs are zero: no motion
+    assert np.allclose(pushed[:, 3:9], 0.0, atol=1e-9)
+
+    window = synthetic_log(300)
+    fresh = predict_window_by_stream(GreyboxPredictor(vehicle), window, 20)
+    primed_model = GreyboxPredictor(vehicle)
+    prime(primed_model, vehicle, 0.01, 20)
+    assert np.array_equal(predict_window_by_stream(primed_model, window, 20), fresh)
+
+
+def test_a_model_that_rejects_the_priming_window_is_left_unprimed_without_an_error():
+    class NeedsMoreRows:
+        name = "needs-more-rows"
+        calls = 0
+
+        def start_window(self, warm):
+            self.calls += 1
+            raise DataError(f"{warm.meta.source}: needs 100 warm rows, got {len(warm)}")
+
+    model = NeedsMoreRows()
+    prime(model, load_vehicle("crazyflie21"), 0.01, 20)
+    assert model.calls == 1

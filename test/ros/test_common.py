@@ -1,0 +1,37 @@
+"""Node plumbing: the window clock's last warm row, and run_node's GC freeze."""
+
+import gc
+
+from quad_modelling.nodes.common import WindowClock, run_node
+
+
+def test_last_warm_row_is_the_one_whose_successor_falls_past_the_warm_start():
+    clock = WindowClock(window_s=5.0, warm_s=0.2, sample_period_s=0.0025)  # 400 Hz: warm rows 0..79
+    clock.origin_ns = 1_000_000_000
+    positions = [clock.locate(clock.origin_ns + row * 2_500_000 + jitter)[1] for row, jitter in
+                 [(78, 0), (79, 0), (79, 40_000), (79, -40_000), (80, 0)]]
+    assert [clock.is_warm(p) for p in positions] == [True, True, True, True, False]
+    assert [clock.is_last_warm(p) for p in positions] == [False, True, True, True, False]  # 40 µs jitter: same answer
+    unknown = WindowClock(window_s=5.0, warm_s=0.2)
+    unknown.origin_ns = 0
+    assert not unknown.is_last_warm(unknown.locate(79 * 2_500_000)[1])  # no period yet: only a row past warm_s tells
+
+
+def test_run_node_freezes_what_the_node_built_before_it_spins():
+    seen = {}
+
+    class Node:
+        def run(self):
+            seen["frozen"] = gc.get_freeze_count()
+
+        def finish(self):
+            pass
+
+        def destroy_node(self):
+            pass
+
+    try:
+        assert run_node(Node, []) == 0
+    finally:
+        gc.unfreeze()
+    assert seen["frozen"] > 1000  # the node, rclpy and the modules imported so far
