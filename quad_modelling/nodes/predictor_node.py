@@ -44,6 +44,7 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
 
@@ -119,6 +120,11 @@ PRIME_SAMPLE_PERIOD_S = 0.01
 the one-time costs it pays do not depend on the rate."""
 
 
+MAX_PENDING_MEASUREMENTS = 64
+"""Serialised measurements held before decoding without waiting for a command (bounds memory when no
+commands flow)."""
+
+
 class PredictorNode(Node):
     """Generic live predictor; the model comes from the ``model`` parameter."""
 
@@ -151,13 +157,15 @@ class PredictorNode(Node):
         self.accel_pub = self.create_publisher(AccelStamped, f"{self.name_}/accel", qos)
         self.origin_pub = self.create_publisher(Clock, ORIGIN_TOPIC, latched_qos())
         self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
-        self.create_subscription(Odometry, p["odom_topic"], self.on_odom, qos)
-        self.create_subscription(Imu, p["imu_topic"], self.on_imu, qos)
+        # measurements arrive serialised and are decoded after the answer to the next command (_decode_pending)
+        self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, data), qos, raw=True)
+        self.create_subscription(Imu, p["imu_topic"], lambda data: self._receive(self.on_imu, Imu, data), qos, raw=True)
         self.create_subscription(Clock, ORIGIN_TOPIC, self.on_origin, latched_qos())
         self.use_battery = bool(p["battery_topic"])
         if self.use_battery:
             self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
         # Bounded buffers: measurements by stamp for the warm rows, the warm rows themselves.
+        self.pending: deque[tuple] = deque()  # serialised measurements not decoded yet (handler, type, bytes)
         self.measurement_capacity = 4096
         self.odom: OrderedDict[int, list] = OrderedDict()
         self.imu: OrderedDict[int, list] = OrderedDict()
@@ -199,13 +207,34 @@ class PredictorNode(Node):
         if len(buffer) > self.measurement_capacity:
             buffer.popitem(last=False)
 
+    def _receive(self, handler, kind, data: bytes) -> None:
+        self.pending.append((handler, kind, data))
+        if len(self.pending) > MAX_PENDING_MEASUREMENTS or (self.state == "warm" and self.warm_closed):
+            self._decode_pending()  # no commands to answer (or a start waits on them): decode now
+
+    def _decode_pending(self) -> None:
+        """Decode and store the measurements received since the last call (each checked as ``on_odom``/``on_imu``).
+
+        Motion capture and IMU are needed only for the warm rows of the next window, so their
+        deserialisation (Odometry ~55 µs, Imu ~27 µs here) waits until the current command is
+        answered; it runs before any window start, after every command, and on the timer.
+        """
+        while self.pending:
+            handler, kind, data = self.pending.popleft()
+            try:
+                msg = deserialize_message(data, kind)
+            except Exception as err:  # noqa: BLE001 -- rclpy raises a bare RuntimeError/TypeError on bad CDR
+                self.faults.report(f"bad_{kind.__name__.lower()}", f"undecodable {kind.__name__} message dropped: {err}")
+                continue
+            handler(msg)
+
     def on_odom(self, msg: Odometry) -> None:
         fields = messages.odometry_fields(msg)
         if not messages.all_finite(fields):
             self.faults.report("nan_odom", "non-finite motion-capture message dropped")
             return
         self._store(self.odom, messages.stamp_ns(msg.header.stamp), fields, "odom")
-        if self.state == "warm" and self.warm_closed:
+        if self.state == "warm" and self.warm_closed and not self.pending:
             self._maybe_start()
 
     def on_imu(self, msg: Imu) -> None:
@@ -214,7 +243,7 @@ class PredictorNode(Node):
             self.faults.report("nan_imu", "non-finite IMU message dropped")
             return
         self._store(self.imu, messages.stamp_ns(msg.header.stamp), fields, "imu")
-        if self.state == "warm" and self.warm_closed:
+        if self.state == "warm" and self.warm_closed and not self.pending:
             self._maybe_start()
 
     def on_battery(self, msg: BatteryState) -> None:
@@ -265,6 +294,7 @@ class PredictorNode(Node):
                 self.faults.report("late_warm_row", f"window {self.window}: a warm-start row (t0 + {position / 1e9:.4f} s) came "
                                                     "after the window started (irregular sampling?): predicted as a streamed row")
             self._push(ns, u)
+        self._decode_pending()
 
     # --- windows ------------------------------------------------------------------------------
 
@@ -283,6 +313,9 @@ class PredictorNode(Node):
 
     def _maybe_start(self, force: bool = False) -> None:
         """Start the window once every warm row has its measurements (or too long a wait)."""
+        self._decode_pending()
+        if self.state != "warm":  # a decoded measurement started it meanwhile
+            return
         complete = [row for row in self.warm_rows if row[0] in self.odom and row[0] in self.imu
                     and (not self.use_battery or row[0] in self.battery)]
         waited = time.monotonic() - self.deferred_since if self.warm_closed else 0.0
@@ -346,6 +379,7 @@ class PredictorNode(Node):
 
     def _on_timer(self) -> None:
         """While a window waits for warm-row measurements or a warm backlog remains (else cancelled)."""
+        self._decode_pending()
         if self.state == "warm" and self.warm_closed:
             self._maybe_start()
         if time.monotonic() - self.last_input_wall >= WARM_BACKLOG_PERIOD_S:  # else inputs are flowing: each drains its share

@@ -261,3 +261,30 @@ def test_realtime_priority_runs_every_thread_of_the_node_under_sched_fifo():
         node.send_signal(signal.SIGINT)
         node.communicate(timeout=20)
     assert node.returncode == 0
+
+
+def test_serialised_measurements_are_decoded_after_the_answer_and_still_checked(ros):
+    """Motion capture and IMU arrive serialised (raw subscriptions); they are decoded once the command that follows is
+    answered. A NaN in them, or bytes that are no message, is still reported, once per kind, and dropped."""
+    from nav_msgs.msg import Odometry
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import Imu
+
+    log = hover_log(600)
+    arrays, stamps = messages.MeasurementArrays(log), stamps_ns(log.t)
+    node = make_node(model="greybox")
+    for row in range(25):
+        ns = int(stamps[row])
+        odom = arrays.odometry(row, ns)
+        if row == 21:
+            odom.pose.pose.position.x = float("nan")
+        node._receive(node.on_odom, Odometry, serialize_message(odom))
+        node._receive(node.on_imu, Imu, b"\x00\x01" if row == 23 else serialize_message(arrays.imu(row, ns)))
+        if row == 22:
+            assert len(node.pending) == 2  # held while command 22 is not yet answered
+        node.on_motor(arrays.motor(row, ns))
+        assert not node.pending
+    assert node.faults.counts == {"nan_odom": 1, "bad_imu": 1}
+    assert int(stamps[21]) not in node.odom and int(stamps[23]) not in node.imu and int(stamps[22]) in node.odom
+    assert node.state == "stream" and node.published == 5 + 5  # commands 20..24, each followed by one warm row
+    node.destroy_node()
