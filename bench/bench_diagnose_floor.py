@@ -15,6 +15,11 @@ training flights of the same validation seed):
 * ``structural_true_anchor`` -- the true signals vs the prediction from a window whose IMU and
   motion-capture channels are the truth (model structure alone).
 
+For the diagnosis's accelerations the prediction carries the measured warm-start body force, bias
+included: against the true signal (``structural``) that bias turning with the attitude shows
+(~0.025 m/s² in acc_x/acc_y), in the measured ``gap`` it cancels, which is why ``gap`` can be below
+``sensor_floor`` there.
+
 Rows: the greybox's own outputs (small-angle accelerations, warm-start means as offsets; before) and
 the diagnosis's outputs (:func:`quad_modelling.core.effects.predict_batch`), each at the smoothing
 cutoffs given. Truth is used here only to *measure*; the diagnosis never sees it.

@@ -4,7 +4,10 @@ Inputs: training flights and held-out (test) flights of one vehicle, the
 effect catalogue (:mod:`quad_modelling.core.effects`). Every flight's flying
 part is cut into windows (:func:`~quad_modelling.core.effects.prepare_windows`),
 each predicted open loop from the measured state at the end of its warm start,
-scored with the evaluation protocol's smoothed RMS/TIC (DESIGN 7).
+scored with the evaluation protocol's smoothed RMS/TIC (DESIGN 7; low-pass
+:data:`DIAGNOSIS_CONFIG`). The scored accelerations are the modelled force
+rotated by the measured attitude and the angular-acceleration offsets the gyro
+slope over the warm start (:func:`~quad_modelling.core.effects.predict_batch`).
 
 1. **Base model.** The linear greybox; by default its identifiable constants
    are fitted on the training windows first (:func:`identify_base`), so an
@@ -131,7 +134,7 @@ the true angular acceleration keeps 97 % of its RMS at 3 Hz, while the sensor fl
 angular accelerations (measured vs the simulator's true rates, same preprocessing;
 bench/results/diagnose_floor.md) falls from 0.015 to 0.011 rad/s² -- at 5 Hz it was about as large as the
 base model's structural error. Validation (3 seeds) at 5 / 3 / 2 Hz: right-and-found 100 % each, pairs
-8/9, 8/9, 7/9; median literal shrinks rose by 1-8 points from 5 to 3 Hz (input delay unchanged, 28 %).
+8/9, 8/9, 7/9; median literal shrinks rose by 2-8 points from 5 to 3 Hz (input delay unchanged, 28 %).
 2 Hz gained 2-5 more but lost a pair, so 3 Hz."""
 
 MIN_MOTOR_TIME_CONSTANT = 0.002

@@ -23,6 +23,10 @@ The augmented model of one window (trimmed convention, state x of
   an equilibrium); F puts them on the velocity and rate states;
 * :math:`\\Delta A`: effects linear in the state (centre-of-gravity offset).
 
+Two outputs differ from :math:`Y = C x + D \\dot x` (:func:`predict_batch`): acc_x/y/z are the
+modelled body force rotated by the *measured* attitude (plus g and :math:`e_{XYZ}`), and the offsets
+of the angular accelerations are the gyro slope over the warm start.
+
 Regime signals are measured, not predicted: an open-loop prediction drifts over
 a window, and a drag force computed from a drifting predicted velocity would
 "help" by damping that drift whether or not drag exists. Driving an effect by
@@ -503,7 +507,7 @@ def _angular_acceleration_offsets(batch: WindowBatch) -> np.ndarray:
     ~0.02 rad/s², a constant error for the whole window as large as the base model's whole effects-off gap.
     The slope over the 20 samples has ~0.012 rad/s² (0.003 / sqrt(sum (t - t_mean)^2)). On effects-off
     validation flights (3 seeds) the base model's roll/pitch/yaw acceleration gap fell from
-    0.027/0.032/0.025 to 0.024/0.028/0.020 rad/s². Tried and not kept: the slope net of the model's own
+    0.025/0.032/0.026 to 0.024/0.028/0.020 rad/s² (bench/results/diagnose_floor.md, 5 Hz). Tried and not kept: the slope net of the model's own
     rate response over the warm start (0.022/0.025/0.019 rad/s²), because fitted with the base model's
     response it absorbed part of an input delay (fitted 16-17 ms of the simulator's 20 ms), and motor lag
     then outranked input delay on one validation seed.
