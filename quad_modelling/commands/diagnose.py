@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -51,7 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--narx", action="store_true", help="also train a NARX model on --train as the learnable floor (slower)")
     parser.add_argument("--window", type=float, default=DIAGNOSIS_CONFIG.window_s, metavar="SECONDS", help="window length (default 5)")
     parser.add_argument("--drop", default=f"{DIAGNOSIS_CONFIG.drop_start:g}:{DIAGNOSIS_CONFIG.drop_end:g}", metavar="START:END",
-                        help="seconds dropped at take-off:landing of every flight (default 3.5:4.5)")
+                        help=f"seconds dropped at take-off:landing of every flight (default {DIAGNOSIS_CONFIG.drop_start:g}:{DIAGNOSIS_CONFIG.drop_end:g})")
+    parser.add_argument("--smooth", type=float, default=DIAGNOSIS_CONFIG.smooth_cutoff_hz, metavar="HZ",
+                        help=f"low-pass cutoff applied to measurement and prediction alike before scoring (default {DIAGNOSIS_CONFIG.smooth_cutoff_hz:g} Hz)")
     parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
     parser.add_argument("--validate", action="store_true", help="known-answer validation on simulated flights instead")
     parser.add_argument("--seeds", default="0,1,2", metavar="LIST", help="validation seeds (default 0,1,2)")
@@ -65,7 +68,9 @@ def _config(args: argparse.Namespace) -> EvaluationConfig:
         start, end = (float(x) for x in args.drop.split(":"))
     except ValueError as err:
         raise ConfigError(f"--drop {args.drop!r}: expected START:END seconds, e.g. 3.5:4.5") from err
-    config = EvaluationConfig(drop_start=start, drop_end=end, window_s=args.window, train="0%:100%", eval="0%:100%")
+    if not args.smooth > 0:
+        raise ConfigError(f"--smooth {args.smooth:g}: the low-pass cutoff must be a positive frequency in Hz")
+    config = replace(DIAGNOSIS_CONFIG, drop_start=start, drop_end=end, window_s=args.window, smooth_cutoff_hz=args.smooth)
     config.validate()
     return config
 
@@ -221,7 +226,8 @@ def markdown_report(data: dict, vehicle: str, figures: list[str]) -> str:
     out = [f"# Sim-to-real gap diagnosis ({vehicle})", "", "## Verdict", "", verdict_text(data), ""]
     out += ["## Data", "", f"- training flights ({data['windows']['train_count']} windows): " + ", ".join(Path(s).name for s in cfg["train_flights"]),
             f"- held-out flights ({data['windows']['test_count']} windows): " + ", ".join(Path(s).name for s in cfg["test_flights"]),
-            f"- windows {data['windows']['window_s']:.1f} s, drop {cfg['drop_start']:g} s / {cfg['drop_end']:g} s, warm start {cfg['warm_s']:g} s",
+            f"- windows {data['windows']['window_s']:.1f} s, drop {cfg['drop_start']:g} s / {cfg['drop_end']:g} s, warm start {cfg['warm_s']:g} s, "
+            f"measurement and prediction low-passed at {cfg['smooth_cutoff_hz']:g} Hz",
             "- windows left out because the vehicle touched the ground (within 1 cm of the flight's lowest point): "
             + ", ".join(f"{k} {v}" for k, v in data["windows"].get("ground_contact_dropped", {}).items()),
             f"- base model: {data['base']['note']}: " + ", ".join(f"{k} = {v:.4g}" for k, v in data["base"]["values"].items() if isinstance(v, float)),

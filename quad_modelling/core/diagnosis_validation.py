@@ -18,9 +18,10 @@ Pairs switch two effects on: both must be in the top 3 and found.
 Two shrink numbers per run (:func:`attributable_gap`):
 
 * ``shrink`` -- the literal target: the diagnosis's held-out shrink of the effect's affected-variable
-  gap (:mod:`~quad_modelling.core.diagnosis`, point 3). Its ceiling is below 1: the linear base model
-  keeps a gap on flights with *no* effect (small-angle linearisation, open-loop attitude drift over a
-  window, thrust nonlinearity, measurement noise in the differentiated gyro);
+  gap (:mod:`~quad_modelling.core.diagnosis`, point 3). Its ceiling is below 1: the base model keeps a
+  gap on flights with *no* effect (IMU noise through the derivative and the low-pass, commands logged
+  slower than the stabiliser sends them, the noise of the warm-start linearisation point;
+  bench/bench_diagnose_floor.py splits it);
 * ``attributable_removed`` -- the share of the *effect-attributable* gap removed,
   :math:`(G_{on} - G_{after}) / (G_{on} - G_{off})` with G the base model's normalised gap on the
   effect's variables summed over all held-out windows, :math:`G_{off}` on the same test seed flown with

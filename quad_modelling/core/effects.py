@@ -23,6 +23,10 @@ The augmented model of one window (trimmed convention, state x of
   an equilibrium); F puts them on the velocity and rate states;
 * :math:`\\Delta A`: effects linear in the state (centre-of-gravity offset).
 
+Two outputs differ from :math:`Y = C x + D \\dot x` (:func:`predict_batch`): acc_x/y/z are the
+modelled body force rotated by the *measured* attitude (plus g and :math:`e_{XYZ}`), and the offsets
+of the angular accelerations are the gyro slope over the warm start.
+
 Regime signals are measured, not predicted: an open-loop prediction drifts over
 a window, and a drag force computed from a drifting predicted velocity would
 "help" by damping that drift whether or not drag exists. Driving an effect by
@@ -75,6 +79,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import linalg, optimize, signal
 
+from quad_modelling.core import frames
 from quad_modelling.core.evaluation import EvaluationConfig, SpanSpec, span_windows, warm_samples_for
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.greybox import MEASURED_STATE_COLUMNS, N_STATES, GreyboxParameters, continuous_matrices
@@ -178,12 +183,16 @@ class WindowBatch:
     trim_samples: int = 100  # rows of the trim interval
     ground_contact_dropped: int = 0  # windows left out because the vehicle touched the ground (GROUND_CONTACT_M)
     smooth_cutoff_hz: float = 5.0  # the evaluation low-pass ``measured`` went through [Hz]
+    specific_force0: np.ndarray = None  # (W, 3) measured body specific force, mean over the warm start [m/s², B]
+    acc_trim: np.ndarray = None  # (W, 3) window trim of acc_x/y/z (absolute, N) [m/s²]
+    angacc_trim: np.ndarray = None  # (W, 3) window trim of roll/pitch/yaw acceleration [rad/s²]
 
     def subset(self, index: np.ndarray) -> WindowBatch:
         """The windows at ``index`` (same preprocessing)."""
         index = np.asarray(index, dtype=int)
         picked = {}
-        for name in ("t0", "u", "u_history", "u_trim", "measured", "anchor_states", "velocity", "velocity_abs", "velocity_smooth", "euler", "rates", "height", "warm_rows", "offsets"):
+        for name in ("t0", "u", "u_history", "u_trim", "measured", "anchor_states", "velocity", "velocity_abs", "velocity_smooth", "euler", "rates", "height", "warm_rows", "offsets",
+                     "specific_force0", "acc_trim", "angacc_trim"):
             picked[name] = getattr(self, name)[index]
         picked["vbat"] = None if self.vbat is None else self.vbat[index]
         return replace(self, sources=[self.sources[i] for i in index], **picked)
@@ -236,7 +245,7 @@ def prepare_windows(
     trim_rows = config.trim.trim_samples(windows[0].slice(0, n))
     has_vbat = all(w.vbat is not None for w in windows)
     u, u_trim, measured, anchors, offsets, vel, vel_abs, vel_smooth, euler, rates_b, height, vbat, warm_rows = ([] for _ in range(13))
-    u_history = []
+    u_history, force0, acc_trims, angacc_trims = [], [], [], []
     history_rows = min(len(h) for h in histories)
     for w, ground, history in zip(windows, grounds, histories):
         w = w.slice(0, n)
@@ -250,6 +259,9 @@ def prepare_windows(
         input_trim = warm_log.u.mean(axis=0)
         anchors.append(smooth(warm_measured - output_trim, rate)[-1, MEASURED_STATE_COLUMNS])
         offsets.append(output_trim - window_trim)
+        force0.append(warm_log.acc_b.mean(axis=0))
+        acc_trims.append(window_trim[6:9])
+        angacc_trims.append(window_trim[15:18])
         warm_rows.append(warm_measured - window_trim)
         u.append(w.u - input_trim)
         u_history.append(history[len(history) - history_rows :] - input_trim)
@@ -270,6 +282,7 @@ def prepare_windows(
         euler=np.array(euler), rates=np.array(rates_b), height=np.array(height), vbat=np.array(vbat) if has_vbat else None,
         input_min=float(vehicle.input_min), warm_rows=np.array(warm_rows), trim_samples=trim_rows,
         smooth_cutoff_hz=float(config.smooth_cutoff_hz),
+        specific_force0=np.array(force0), acc_trim=np.array(acc_trims), angacc_trim=np.array(angacc_trims),
     )
     airborne = batch.height.min(axis=1) >= GROUND_CONTACT_M
     if not airborne.any():
@@ -413,9 +426,9 @@ def _motor_thrusts(u: np.ndarray, pole: float, gain: float) -> np.ndarray:
 
 def predict_batch(
     base: BaseModel, batch: WindowBatch, effects: Sequence[Effect] = (), thetas: Sequence[np.ndarray] = (), smoothed: bool = True,
-    smooth_cutoff_hz: float | None = None, columns: Sequence[int] | None = None,
+    smooth_cutoff_hz: float | None = None, columns: Sequence[int] | None = None, greybox_outputs: bool = False,
 ) -> np.ndarray:
-    """(W, N, 18) trimmed predictions of the (augmented) model for every window of ``batch``.
+    r"""(W, N, 18) trimmed predictions of the (augmented) model for every window of ``batch``.
 
     Rows before the anchor (last warm sample) are the measurement, as the
     greybox predictor does; ``smoothed`` passes the prediction through what the
@@ -427,6 +440,25 @@ def predict_batch(
     column gets the evaluation's low-pass (cutoff ``smooth_cutoff_hz``, default
     the batch's). ``columns`` limits the output to those VARIABLES columns
     (others are zero) to save time.
+
+    Two outputs differ from the linear greybox's (``greybox_outputs=True`` keeps
+    the greybox's, as :class:`~quad_modelling.core.greybox.GreyboxPredictor`):
+
+    * **accelerations acc_x/y/z** (:func:`_projected_accelerations`): the
+      modelled body specific force -- the measured warm-start level plus the
+      thrust-state deviation :math:`-\sum_i T_i/m` on body z -- rotated into N by the
+      *measured* attitude of each sample, plus g and the effects' forcings in N.
+      The greybox's :math:`\ddot X = -g\theta` integrates its angular
+      accelerations twice, and over a 5 s open-loop window that drift made the
+      acc_x/acc_y error ~8 m/s² RMS on effects-off flights (0.02 m/s² of it noise);
+      its :math:`\ddot Z = -\sum T_i/m` drops the tilt (small-angle
+      linearisation). With the attitude measured, as the effects' regime signals
+      are, accelerations are driven by the forces without integration;
+    * **offsets of roll/pitch/yaw acceleration** (the linearisation point,
+      :func:`_angular_acceleration_offsets`): the least-squares slope of the raw
+      gyro over the warm start instead of the mean of the differentiated gyro over 0.2 s, whose noise
+      (the difference of two noisy rates over 0.2 s, ~0.02 rad/s²) stayed in the
+      prediction as a constant error for the whole window.
     """
     aug = apply_effects(effects, thetas, batch, base) if effects else Augmentation(batch.u, np.zeros(batch.u.shape[:2] + (6,)), None)
     a = base.a if aug.a_delta is None else base.a + aug.a_delta
@@ -439,6 +471,10 @@ def predict_batch(
     inputs = np.concatenate([aug.u, aug.forcing], axis=2)  # (W, N, 10)
     pole, gain = ad[12, 12], bd_ext[12, 0]
     thrust0 = _motor_thrusts(aug.u[:, : anchor + 1], pole, gain)[:, anchor]
+    offsets = batch.offsets
+    if not greybox_outputs and anchor >= 2:
+        offsets = offsets.copy()
+        offsets[:, ANGULAR_ACCELERATION_COLUMNS] = _angular_acceleration_offsets(batch)
     x = np.concatenate([batch.anchor_states, thrust0], axis=1)
     forced = inputs @ bd_ext.T  # (W, N, 16)
     states = np.zeros((w, n, N_STATES))
@@ -448,7 +484,11 @@ def predict_batch(
         x = x @ ad_t + forced[:, k]
     cols = np.arange(len(VARIABLES)) if columns is None else np.asarray(columns, dtype=int)
     out = np.zeros((w, n, len(VARIABLES)))
-    out[:, anchor:, cols] = states[:, anchor:] @ cd[cols].T + inputs[:, anchor:] @ dd_ext[cols].T + batch.offsets[:, None, cols]
+    out[:, anchor:, cols] = states[:, anchor:] @ cd[cols].T + inputs[:, anchor:] @ dd_ext[cols].T + offsets[:, None, cols]
+    acc_cols = [c for c in ACCELERATION_COLUMNS if c in set(cols.tolist())]
+    if not greybox_outputs and acc_cols:
+        acc_n = _projected_accelerations(batch, base, states[:, anchor:, 12:16], aug.forcing[:, anchor:, 0:3], anchor)
+        out[:, anchor:, acc_cols] = acc_n[:, :, [c - ACCELERATION_COLUMNS[0] for c in acc_cols]]
     if anchor > 0:  # rows before the anchor are the measurement (not scored), as the greybox predictor
         out[:, :anchor, cols] = batch.warm_rows[:, :anchor][:, :, cols]
     if smoothed:
@@ -458,7 +498,49 @@ def predict_batch(
     return out
 
 
+def _angular_acceleration_offsets(batch: WindowBatch) -> np.ndarray:
+    r"""(W, 3) linearisation point of roll/pitch/yaw acceleration, window-trimmed [rad/s²]: the least-squares
+    slope of the raw gyro rates over the warm start.
+
+    The greybox takes the mean of the differentiated gyro over the 0.2 s warm start, which is nearly the
+    difference of the first and last rates over 0.2 s: with the simulator's 0.003 rad/s gyro noise
+    ~0.02 rad/s², a constant error for the whole window as large as the base model's whole effects-off gap.
+    The slope over the 20 samples has ~0.012 rad/s² (0.003 / sqrt(sum (t - t_mean)^2)). On effects-off
+    validation flights (3 seeds) the base model's roll/pitch/yaw acceleration gap fell from
+    0.025/0.032/0.026 to 0.024/0.028/0.020 rad/s² (bench/results/diagnose_floor.md, 5 Hz). Tried and not kept: the slope net of the model's own
+    rate response over the warm start (0.022/0.025/0.019 rad/s²), because fitted with the base model's
+    response it absorbed part of an input delay (fitted 16-17 ms of the simulator's 20 ms), and motor lag
+    then outranked input delay on one validation seed.
+    """
+    y = batch.warm_rows[:, :, RATE_COLUMNS]
+    t = (np.arange(batch.warm) - (batch.warm - 1) / 2.0) * batch.dt
+    return np.einsum("k,wkj->wj", t, y - y.mean(axis=1, keepdims=True)) / (t @ t) - batch.angacc_trim
+
+
+def _projected_accelerations(batch: WindowBatch, base: BaseModel, thrusts: np.ndarray, forcing_n: np.ndarray, anchor: int) -> np.ndarray:
+    r"""(W, M, 3) trimmed acc_x/y/z [m/s², N] from the anchor on: :math:`R(\eta_m)\, f_B + g e_z + e_{XYZ} - \text{trim}`.
+
+    :math:`f_B = f_{B,0} + (0, 0, -\sum_i T_i / m)`: :math:`f_{B,0}` the measured
+    body specific force averaged over the warm start (accelerometer bias
+    included, so it cancels), :math:`T_i` the thrust states (``thrusts``, (W, M, 4));
+    :math:`R(\eta_m)` the measured attitude of each sample (the one the
+    accelerometer is rotated with, :func:`~quad_modelling.core.preprocess.nav_acceleration`),
+    so the residual is the body-frame force residual rotated into N;
+    :math:`e_{XYZ}` the effects' extra accelerations in N (``forcing_n``).
+    """
+    w, m = thrusts.shape[:2]
+    mass = base.parameters.mass
+    f_b = np.repeat(batch.specific_force0[:, None, :], m, axis=1)
+    f_b[:, :, 2] -= thrusts.sum(axis=2) / mass
+    rot = frames.euler_ned_to_matrix(batch.euler[:, anchor:].reshape(-1, 3)).reshape(w, m, 3, 3)
+    acc = np.einsum("wkij,wkj->wki", rot, f_b)
+    acc[:, :, 2] += GRAVITY
+    return acc + forcing_n - batch.acc_trim[:, None, :]
+
+
 ANGULAR_ACCELERATION_COLUMNS = np.array([INDEX[v] for v in ("roll_acc", "pitch_acc", "yaw_acc")])
+ACCELERATION_COLUMNS = np.array([INDEX[v] for v in ("acc_x", "acc_y", "acc_z")])
+RATE_COLUMNS = np.array([INDEX[v] for v in ("roll_rate", "pitch_rate", "yaw_rate")])
 
 
 def measurement_filter(predicted: np.ndarray, dt: float, columns: np.ndarray) -> None:

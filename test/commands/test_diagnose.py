@@ -8,6 +8,7 @@ import pytest
 
 from quad_modelling.cli import main
 from quad_modelling.commands.diagnose import verdict_text
+from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG
 from quad_modelling.core.sim import simulate
 from quad_modelling.io.matlog import write_matlog
 
@@ -45,6 +46,8 @@ def test_diagnose_writes_json_report_and_figures(mat_flights, tmp_path, capsys):
     assert data["ladder"][0]["effects"] == []
     report = (out / "report.md").read_text()
     assert report.splitlines()[2] == "## Verdict" and "Where:" in report and "Which:" in report
+    assert f"low-passed at {DIAGNOSIS_CONFIG.smooth_cutoff_hz:g} Hz" in report
+    assert data["config"]["smooth_cutoff_hz"] == DIAGNOSIS_CONFIG.smooth_cutoff_hz
     assert (out / "gap_by_regime.png").stat().st_size > 0 and (out / "effect_shrink.png").stat().st_size > 0
     assert "->" in capsys.readouterr().out
     # never overwrite without --force
@@ -56,6 +59,8 @@ def test_diagnose_rejects_unknown_effects_and_missing_inputs(mat_flights, tmp_pa
     assert main(["diagnose", "--train", mat_flights[0], "--test", mat_flights[1], "--effects", "warp_drive", "-o", str(tmp_path / "x")]) == 2
     assert "warp_drive" in capsys.readouterr().err
     assert main(["diagnose", "--train", mat_flights[0], "-o", str(tmp_path / "y")]) == 2
+    assert main(["diagnose", "--train", mat_flights[0], "--test", mat_flights[1], "--smooth", "0", "-o", str(tmp_path / "z")]) == 2
+    assert "--smooth" in capsys.readouterr().err
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
 
 

@@ -43,7 +43,7 @@ def base(linkquad):
 
 
 def test_batched_base_equals_greybox_predictor(flight, linkquad, batch, base):
-    predicted = E.predict_batch(base, batch, smoothed=False)
+    predicted = E.predict_batch(base, batch, smoothed=False, greybox_outputs=True)
     windows = span_windows(flight, E.flying_span(), DIAGNOSIS_CONFIG)
     assert len(windows) == len(batch) >= 4
     for k in (0, len(windows) - 1):
@@ -184,3 +184,64 @@ def test_windows_that_touch_the_ground_are_left_out(linkquad):
     assert not {41.0, 46.0} & {round(float(t), 1) for t in kept.t0}
     assert kept.height.min() >= E.GROUND_CONTACT_M
     assert len(kept) == len(span_windows(log, E.flying_span(), DIAGNOSIS_CONFIG)) - 2
+
+
+@pytest.fixture(scope="session")
+def truth_run():
+    """Effects-off flight (seed 5, 35 s) with the simulator's truth next to its log."""
+    from quad_modelling.core.sim import run_simulation
+
+    return run_simulation("linkquad", effects=(), seed=5, duration=35.0)
+
+
+@pytest.fixture(scope="session")
+def identified(truth_run, linkquad):
+    from quad_modelling.core.diagnosis import identify_base
+
+    return identify_base(E.prepare_windows([truth_run.log], linkquad, DIAGNOSIS_CONFIG), linkquad).model
+
+
+def test_accelerations_follow_the_measured_attitude_on_an_effects_off_flight(truth_run, linkquad, identified):
+    """With the simulator's true IMU signals (no sensor noise), the modelled force rotated by the measured
+    attitude reproduces acc_x/acc_y to 1 mm/s² RMS, where the greybox's -g theta (open-loop attitude drift
+    over 5 s) is metres per second squared off; acc_z (no small-angle drop of the tilt) halves its gap."""
+    truth = E.replace(truth_run.log, acc_b=truth_run.truth["specific_force_b"], gyro_b=truth_run.truth["rates_b"])
+    batch = E.prepare_windows([truth], linkquad, DIAGNOSIS_CONFIG)
+    new = E.window_rms(batch, E.predict_batch(identified, batch)).mean(axis=0)
+    old = E.window_rms(batch, E.predict_batch(identified, batch, greybox_outputs=True)).mean(axis=0)
+    assert new[INDEX["acc_x"]] < 1e-3 and new[INDEX["acc_y"]] < 1e-3
+    assert old[INDEX["acc_x"]] > 1.0 and old[INDEX["acc_y"]] > 1.0
+    assert new[INDEX["acc_z"]] < 0.5 * old[INDEX["acc_z"]]
+    assert new[INDEX["acc_z"]] < 0.01
+
+
+def test_angular_acceleration_offsets_halve_the_noise_of_the_warm_start_mean(batch, base):
+    """Gyro rates ramping at 0.3 rad/s² plus white noise of 0.003 rad/s (the simulator's gyro) over the 20 warm
+    samples, 400 windows: the slope offset is unbiased with the spread 0.003 / sqrt(sum (t - t_mean)^2) =
+    0.0116 rad/s²; the greybox's mean of the differentiated gyro has about twice that (0.022 rad/s²)."""
+    from quad_modelling.core.preprocess import differentiate
+
+    many = batch.subset(np.zeros(400, dtype=int))
+    t = np.arange(many.warm) * many.dt
+    rng = np.random.default_rng(3)
+    rates = 0.3 * t[None, :] + rng.normal(0.0, 0.003, size=(400, many.warm))
+    warm_rows = many.warm_rows.copy()
+    warm_rows[:, :, E.RATE_COLUMNS[0]] = rates
+    offsets = E._angular_acceleration_offsets(E.replace(many, warm_rows=warm_rows, angacc_trim=np.zeros((400, 3))))[:, 0]
+    greybox = np.array([differentiate(r[:, None], many.dt).mean() for r in rates])
+    assert offsets.mean() == pytest.approx(0.3, abs=0.002)
+    assert offsets.std() == pytest.approx(0.003 / np.sqrt(np.sum((t - t.mean()) ** 2)), rel=0.1)
+    assert greybox.std() > 1.8 * offsets.std()
+
+
+def test_angular_acceleration_offset_recovers_a_constant_acceleration(batch, base):
+    """Gyro rates over the warm start that ramp at a constant 0.3 rad/s² on top of the model's own response
+    give an offset of exactly 0.3 rad/s² (window-trimmed)."""
+    one = batch.subset(np.array([0]))
+    still = E.replace(one, u=np.zeros_like(one.u), u_history=np.zeros_like(one.u_history))
+    warm_rows = still.warm_rows.copy()
+    t = np.arange(still.samples) * still.dt
+    warm_rows[0][:, E.RATE_COLUMNS] = (0.1 + 0.3 * t[: still.warm])[:, None]
+    ramp = E.replace(still, warm_rows=warm_rows, angacc_trim=np.array([[0.05, 0.0, -0.05]]))
+    predicted = E.predict_batch(base, ramp, smoothed=False)
+    np.testing.assert_allclose(predicted[0][ramp.warm :, E.ANGULAR_ACCELERATION_COLUMNS], [[0.25, 0.3, 0.35]] * (ramp.samples - ramp.warm), atol=1e-9)
