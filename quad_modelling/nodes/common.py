@@ -81,7 +81,8 @@ def realtime_priority_range(value) -> str | None:
 
 
 def set_realtime_priority(priority: int) -> str | None:
-    """Put every thread of this process under SCHED_FIFO at ``priority`` (1-99); None, or why not.
+    """Put every thread of this process under SCHED_FIFO at ``priority`` (1-99), or back under normal
+    scheduling (SCHED_OTHER) for 0; None, or why not.
 
     Every thread, not just the caller: Fast DDS delivers samples on its own
     threads, which wake the executor; one of them preempted by an ordinary
@@ -90,10 +91,10 @@ def set_realtime_priority(priority: int) -> str | None:
     the policy). Needs CAP_SYS_NICE or an RLIMIT_RTPRIO of at least
     ``priority`` (``ulimit -r``; ``rtprio`` in /etc/security/limits.conf).
     """
-    param = os.sched_param(priority)
+    policy, param = (os.SCHED_FIFO if priority else os.SCHED_OTHER), os.sched_param(priority)
     try:
         for tid in sorted(int(t) for t in os.listdir("/proc/self/task")):
-            os.sched_setscheduler(tid, os.SCHED_FIFO, param)
+            os.sched_setscheduler(tid, policy, param)
     except PermissionError:
         return (f"SCHED_FIFO priority {priority} not permitted (needs CAP_SYS_NICE or rtprio >= {priority} in "
                 "/etc/security/limits.conf); running with normal scheduling")

@@ -35,3 +35,28 @@ def test_run_node_freezes_what_the_node_built_before_it_spins():
     finally:
         gc.unfreeze()
     assert seen["frozen"] > 1000  # the node, rclpy and the modules imported so far
+
+
+def test_realtime_priority_zero_puts_every_thread_back_under_normal_scheduling():
+    """The benchmark harness relies on it: a process left under SCHED_FIFO hands it to every process it starts."""
+    import os
+    import threading
+
+    from quad_modelling.nodes.common import set_realtime_priority
+
+    stop = threading.Event()
+    worker = threading.Thread(target=stop.wait)
+    worker.start()
+    try:
+        refused = set_realtime_priority(2)
+        threads = [int(t) for t in os.listdir("/proc/self/task")]
+        if refused is None:
+            assert {os.sched_getscheduler(t) for t in threads} == {os.SCHED_FIFO}
+        else:
+            assert "not permitted" in refused
+        assert set_realtime_priority(0) is None
+        assert {os.sched_getscheduler(t) for t in threads} == {os.SCHED_OTHER}
+    finally:
+        set_realtime_priority(0)
+        stop.set()
+        worker.join()
