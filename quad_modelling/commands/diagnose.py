@@ -331,7 +331,7 @@ def write_figures(result: Diagnosis, data: dict, directory: Path) -> list[str]:
         worst = int(np.argmax(data["regimes"]["window_gap"]))
         t = np.arange(batch.samples) * batch.dt
         for o in outcomes:
-            variables = list(o.effect.variables)[:3]
+            variables = list(o.variables)[:3]
             fig, axes = plt.subplots(len(variables), 1, figsize=(8, 2.3 * len(variables)), sharex=True)
             axes = np.atleast_1d(axes)
             for ax, v in zip(axes, variables):
@@ -385,9 +385,11 @@ def validation_markdown(result: dict) -> str:
             out.append(f"| {name} | {pct(v['min'])} / {pct(v['median'])} / {pct(v['max'])} | {pct(a.get('min'))} / {pct(a.get('median'))} | "
                        f"{pct(r.get('min'))} / {pct(r.get('median'))} |")
         out.append("")
-    out += ["| effect | seed | top | correct | held-out shrink | attributable | removed | verdict | ranking |", "|---|---|---|---|---|---|---|---|---|"]
+    out += ["| effect | seed | top | correct | held-out shrink | scored on | attributable | removed | verdict | ranking |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
     for r in result["runs"]:
         out.append(f"| {r['effect']} | {r['seed']} | {r['top']} | {'yes' if r['correct'] else 'no'} | {pct(r['shrink'])} | "
+                   f"{', '.join(r.get('variables', [])) or '-'} | "
                    f"{pct(r.get('attributable_share'))} | {pct(r.get('attributable_removed'))} | {r['verdict']} | "
                    + ", ".join(f"{k} {v:.1%}" for k, v in r["top_shrinks"].items()) + " |")
     out += ["", "| null seed | found | top shrinks |", "|---|---|---|"]

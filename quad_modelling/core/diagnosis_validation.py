@@ -88,7 +88,7 @@ def test_seeds(seed: int) -> list[int]:
 def attributable_gap(result, outcome, off_flights: Sequence[FlightLog], vehicle, config: EvaluationConfig) -> dict:
     """The effect-attributable gap of one single-effect run (module docstring): G_on, G_off, G_after on the
     effect's variables over all held-out windows, ``attributable_share`` and ``attributable_removed``."""
-    cols = np.array([INDEX[v] for v in outcome.effect.variables])
+    cols = np.array([INDEX[v] for v in outcome.variables])
     test = result.test_batch
     g_on = float(normalised_window_gap(test, result.base_test, cols, result.scales).sum())
     after = result.base_test + outcome.correction if outcome.correction is not None else result.base_test
@@ -142,6 +142,8 @@ def validate(
                     **(attributable_gap(result, truth, off_test, config_vehicle, config) if truth is not None else {}),
                     "effect": case[0], "seed": seed, "top": ranking[0], "correct": ranking[0] == case[0] and case[0] in found,
                     "shrink": truth.shrink if truth else None, "verdict": truth.verdict if truth else "not in catalogue",
+                    "variables": list(truth.variables) if truth else [],
+                    "variable_correction": {k: round(v, 3) for k, v in truth.variable_correction.items()} if truth else {},
                     "found": found, "ranking": ranking[:4], "params": truth.to_json()["params"] if truth else {},
                     "top_shrinks": {o.effect.name: round(o.shrink, 4) for o in result.outcomes[:4]},
                     "confounded_with": truth.confounded_with if truth else [],

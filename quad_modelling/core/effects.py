@@ -313,7 +313,9 @@ class Effect:
     ``stage``: 0 delay, 1 static gains/drift, 2 nonlinearity, 3 lag);
     ``forcing(theta, batch, base, u) -> (W, N, 6)`` adds accelerations (``u`` =
     the mapped commands); ``a_delta(theta, base) -> (16, 16)`` changes A.
-    ``needs``: regime signals required (``"vbat"``).
+    ``needs``: regime signals required (``"vbat"``). ``variables``: the candidate variables the form can
+    change; the effect is fitted on all of them and scored on those its fitted correction moves
+    (:func:`quad_modelling.core.diagnosis.affected_variables`).
     """
 
     name: str

@@ -168,3 +168,49 @@ def test_windows_an_effect_leaves_unchanged_are_not_scored(flights, linkquad):
     assert excited[: len(batch) // 2].all() and not excited[len(batch) // 2 :].any()
     correction[1:] = 0.0  # one excited window is too few to score
     assert not D.excited_windows(batch, correction, cols, scales, gap).any()
+
+
+def test_affected_variables_are_the_candidates_the_fitted_correction_moves(flights, linkquad):
+    """Per candidate, RMS(correction) over the excited training windows / s_v against AFFECTED_MIN_CORRECTION
+    (0.312: a correction smaller than that could not shrink the variable's own gap by 5 %)."""
+    assert D.AFFECTED_MIN_CORRECTION == pytest.approx(0.3122, abs=1e-4)
+    batch = prepare_windows(flights[()][1:], linkquad, D.DIAGNOSIS_CONFIG)
+    scales = np.ones(18)
+    names = ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")
+    cols = [D.INDEX[v] for v in names]
+    correction = np.zeros(batch.measured.shape)
+    correction[:, :, cols[1]] = 0.5  # roll: half its residual RMS
+    correction[:, :, cols[2]] = 0.35  # pitch: just above the bound
+    correction[:, :, cols[3]] = 0.25  # yaw: below it
+    gap = np.full(len(batch), 4.0)
+    variables, moved = D.affected_variables(batch, correction, names, scales, gap)
+    assert variables == ("roll_acc", "pitch_acc")
+    assert moved == pytest.approx({"acc_z": 0.0, "roll_acc": 0.5, "pitch_acc": 0.35, "yaw_acc": 0.25})
+    # only windows the effect excites count: moving yaw by 0.5 in half of the windows is 0.5 there
+    assert len(batch) >= 2 * D.EXCITED_MIN_WINDOWS
+    correction[:, :, cols[3]] = 0.0
+    correction[: len(batch) // 2, :, cols[3]] = 0.5
+    correction[:, :, cols[1:3]] = 0.0
+    assert D.affected_variables(batch, correction, names, scales, gap)[0] == ("yaw_acc",)
+    # a correction below the bound everywhere is not concentrated on its largest variable: all candidates
+    small = np.zeros(batch.measured.shape)
+    small[:, :, cols[0]] = 0.1
+    small[:, :, cols[2]] = 0.2
+    assert D.affected_variables(batch, small, names, scales, gap)[0] == names
+
+
+def test_an_effect_is_scored_only_on_the_candidates_its_fit_moves(linkquad, base):
+    """Known answer: the gyroscopic torques never touch acc_z and their yaw term (I_xx - I_yy)/I_zz p q is ~30x
+    smaller than the roll/pitch ones on the LinkQuad (I_xx, I_yy 3 % apart). Offered acc_z as a candidate as
+    well, the effect is scored on roll and pitch acceleration only, exactly as the catalogue entry."""
+    train, test = (simulate("linkquad", effects=("gyroscopic",), seed=s, duration=DURATION) for s in (11, 12))
+    wide = replace(CATALOGUE["gyroscopic"], name="gyroscopic_wide", variables=("acc_z", "roll_acc", "pitch_acc", "yaw_acc"))
+    result = D.diagnose([train], [test], linkquad, [CATALOGUE["gyroscopic"], wide], base=base)
+    by_name = {o.effect.name: (o.alone or o) for o in result.outcomes}
+    narrow, broad = by_name["gyroscopic"], by_name["gyroscopic_wide"]
+    assert broad.variables == narrow.variables == ("roll_acc", "pitch_acc")
+    assert broad.variable_correction["acc_z"] < 1e-9 and broad.variable_correction["yaw_acc"] < 0.05
+    assert min(broad.variable_correction["roll_acc"], broad.variable_correction["pitch_acc"]) >= D.AFFECTED_MIN_CORRECTION
+    assert broad.verdict == "found" and broad.shrink == pytest.approx(narrow.shrink, abs=0.01) and broad.shrink > 0.2
+    data = broad.to_json()
+    assert data["variables"] == ["roll_acc", "pitch_acc"] and data["candidate_variables"] == list(wide.variables)
