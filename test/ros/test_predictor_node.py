@@ -258,6 +258,7 @@ def test_realtime_priority_runs_every_thread_of_the_node_under_sched_fifo():
         else:
             assert "realtime_priority=3" in text and "not permitted" in text, text
     finally:
+        time.sleep(0.5)  # spinning by now: Ctrl-C during start-up may end the process by the signal itself
         node.send_signal(signal.SIGINT)
         node.communicate(timeout=20)
     assert node.returncode == 0
