@@ -36,7 +36,7 @@ import numpy as np
 
 from bench.common import write_results
 from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG, identify_base
-from quad_modelling.core.diagnosis_validation import VALIDATION_DURATION_S, test_seeds, train_seeds
+from quad_modelling.core.diagnosis_validation import VALIDATION_DURATION_S, imu_truth_log, test_seeds, train_seeds
 from quad_modelling.core.effects import predict_batch, prepare_windows
 from quad_modelling.core.sim import run_simulation
 from quad_modelling.core.variables import INDEX
@@ -50,10 +50,10 @@ PARTS = ("gap", "sensor_floor", "structural", "structural_true_anchor")
 
 def _truth_log(run, motion_capture: bool = False):
     """The flight's log with the IMU (and optionally the motion capture) replaced by the simulator's truth."""
-    fields = {"acc_b": run.truth["specific_force_b"], "gyro_b": run.truth["rates_b"]}
+    log = imu_truth_log(run)
     if motion_capture:
-        fields.update(euler=run.truth["euler"], pos_n=run.truth["pos_n"], vel_n=run.truth["vel_n"])
-    return replace(run.log, **fields)
+        log = replace(log, euler=run.truth["euler"], pos_n=run.truth["pos_n"], vel_n=run.truth["vel_n"])
+    return log
 
 
 def main() -> int:

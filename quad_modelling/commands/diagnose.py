@@ -376,20 +376,26 @@ def validation_markdown(result: dict) -> str:
            "base model without the effect -> with it); **attributable** = 1 - G_off/G_on, the share of the base model's held-out "
            "gap (all windows) that the same test seed flown with every effect off does not have, i.e. the ceiling of the literal "
            "shrink; **removed** = (G_on - G_after)/(G_on - G_off), the share of that effect-attributable gap the fitted effect removes "
-           "(can exceed 100 %: the effect-off twin flies the manoeuvres slightly differently).", ""]
+           "(can exceed 100 %: the effect-off twin flies the manoeuvres slightly differently); **sensor ceiling** = "
+           "1 - G_sensor/G_on on the scored windows and variables, G_sensor the gap between the measurement and the simulator's "
+           "true IMU signals (same preprocessing): what a model predicting the true signals exactly would reach, so the literal "
+           "shrink cannot exceed it (in expectation) and a run whose ceiling is below the target cannot meet it.", ""]
     if result.get("shrink_by_effect"):
-        out += ["| effect | held-out shrink min / median / max | attributable min / median | removed min / median |", "|---|---|---|---|"]
+        out += ["| effect | held-out shrink min / median / max | sensor ceiling min / median / max | attributable min / median | removed min / median |",
+                "|---|---|---|---|---|"]
         for name, v in result["shrink_by_effect"].items():
+            c = result.get("sensor_ceiling_by_effect", {}).get(name, {})
             a = result.get("attributable_share_by_effect", {}).get(name, {})
             r = result.get("attributable_removed_by_effect", {}).get(name, {})
-            out.append(f"| {name} | {pct(v['min'])} / {pct(v['median'])} / {pct(v['max'])} | {pct(a.get('min'))} / {pct(a.get('median'))} | "
+            out.append(f"| {name} | {pct(v['min'])} / {pct(v['median'])} / {pct(v['max'])} | "
+                       f"{pct(c.get('min'))} / {pct(c.get('median'))} / {pct(c.get('max'))} | {pct(a.get('min'))} / {pct(a.get('median'))} | "
                        f"{pct(r.get('min'))} / {pct(r.get('median'))} |")
         out.append("")
-    out += ["| effect | seed | top | correct | held-out shrink | scored on | attributable | removed | verdict | ranking |",
-            "|---|---|---|---|---|---|---|---|---|---|"]
+    out += ["| effect | seed | top | correct | held-out shrink | sensor ceiling | scored on | attributable | removed | verdict | ranking |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in result["runs"]:
         out.append(f"| {r['effect']} | {r['seed']} | {r['top']} | {'yes' if r['correct'] else 'no'} | {pct(r['shrink'])} | "
-                   f"{', '.join(r.get('variables', [])) or '-'} | "
+                   f"{pct(r.get('sensor_ceiling'))} | {', '.join(r.get('variables', [])) or '-'} | "
                    f"{pct(r.get('attributable_share'))} | {pct(r.get('attributable_removed'))} | {r['verdict']} | "
                    + ", ".join(f"{k} {v:.1%}" for k, v in r["top_shrinks"].items()) + " |")
     out += ["", "| null seed | found | top shrinks |", "|---|---|---|"]

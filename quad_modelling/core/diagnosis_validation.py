@@ -28,22 +28,34 @@ Two shrink numbers per run (:func:`attributable_gap`):
   every effect off (same manoeuvres; the closed loop flies them slightly differently, so this share can
   exceed 1). ``attributable_share`` = :math:`1 - G_{off}/G_{on}` is the literal shrink's ceiling on all
   windows. Only the validation can compute these: it needs the effects-off twin flight.
+
+And the ceiling no model can pass (:func:`sensor_ceiling`):
+
+* ``sensor_ceiling`` -- :math:`1 - G_{sensor}/G_{on}` on the windows and variables the shrink is scored on,
+  :math:`G_{sensor}` the normalised gap between the measurement and the simulator's *true* IMU signals put
+  through the same preprocessing (the IMU's noise and drift after the derivative and the low-pass). A
+  prediction cannot follow noise it never sees, so even a model that predicted the true signals exactly
+  would keep :math:`G_{sensor}`: the literal shrink of a run cannot (in expectation) exceed its sensor
+  ceiling, and a run whose ceiling is below the 50 % target cannot meet it with any model. The truth is
+  used to *measure* only; the diagnosis never sees it.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
-from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG, BaseFit, diagnose, identify_base, normalised_window_gap
+from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG, BaseFit, diagnose, excited_windows, identify_base, normalised_window_gap
 from quad_modelling.core.effects import CATALOGUE, Effect, predict_batch, prepare_windows
 from quad_modelling.core.evaluation import EvaluationConfig
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.sim_params import SimParams
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.errors import DataError
 
 VALIDATED_EFFECTS: tuple[str, ...] = (
     "rotor_drag", "battery", "motor_lag", "input_delay", "ground_effect", "gyroscopic", "motor_imbalance",
@@ -61,20 +73,35 @@ TRAIN_FLIGHTS = 2
 
 @dataclass
 class FlightCache:
-    """Simulated flights by (effects, seed), so every run reuses them."""
+    """Simulated flights by (effects, seed), so every run reuses them (``params``: simulator parameters,
+    None for the vehicle's)."""
 
     vehicle: str
     duration: float
     flights: dict
+    params: SimParams | None = None
 
-    def get(self, effects: tuple[str, ...], seed: int) -> FlightLog:
-        from quad_modelling.core.sim import simulate
+    def _logs(self, effects: tuple[str, ...], seed: int) -> tuple[FlightLog, FlightLog]:
+        """(sensor log, the same log with the true IMU signals) of one flight, simulated once."""
+        from quad_modelling.core.sim import run_simulation
 
         key = (tuple(sorted(effects)), int(seed))
         if key not in self.flights:
-            log = simulate(self.vehicle, effects=effects, seed=seed, duration=self.duration)
-            self.flights[key] = log
+            run = run_simulation(self.vehicle, effects=effects, seed=seed, duration=self.duration, params=self.params)
+            self.flights[key] = (run.log, imu_truth_log(run))
         return self.flights[key]
+
+    def get(self, effects: tuple[str, ...], seed: int) -> FlightLog:
+        return self._logs(effects, seed)[0]
+
+    def imu_truth(self, effects: tuple[str, ...], seed: int) -> FlightLog:
+        return self._logs(effects, seed)[1]
+
+
+def imu_truth_log(run) -> FlightLog:
+    """A simulated flight's log with the IMU channels replaced by the simulator's true signals (specific
+    force and body rates at the IMU's sampling, no noise, bias or drift)."""
+    return replace(run.log, acc_b=run.truth["specific_force_b"], gyro_b=run.truth["rates_b"])
 
 
 def train_seeds(seed: int) -> list[int]:
@@ -105,6 +132,28 @@ def attributable_gap(result, outcome, off_flights: Sequence[FlightLog], vehicle,
     }
 
 
+def sensor_ceiling(result, outcome, truth_flights: Sequence[FlightLog], vehicle, config: EvaluationConfig) -> dict:
+    """The sensor ceiling of one single-effect run (module docstring): ``gap_sensor`` (per scored window) and
+    ``sensor_ceiling`` = 1 - G_sensor/G_on over the windows the run's shrink is scored on (the windows the fitted
+    effect excites, :func:`~quad_modelling.core.diagnosis.excited_windows`; all held-out windows when it excites
+    too few), on the effect's affected variables. ``truth_flights``: the test flights with the true IMU signals
+    (:func:`imu_truth_log`)."""
+    cols = np.array([INDEX[v] for v in outcome.variables])
+    test = result.test_batch
+    truth = prepare_windows(truth_flights, vehicle, config)
+    if truth.measured.shape != test.measured.shape or not np.array_equal(truth.t0, test.t0):
+        raise DataError(f"the true-IMU flights cut into other windows ({len(truth)}) than the test flights ({len(test)})")
+    g_on = normalised_window_gap(test, result.base_test, cols, result.scales)
+    g_sensor = normalised_window_gap(test, truth.measured, cols, result.scales)
+    scored = np.ones(len(test), dtype=bool)
+    if outcome.correction is not None:
+        excited = excited_windows(test, outcome.correction, cols, result.scales, g_on)
+        scored = excited if excited.any() else scored
+    total = float(g_on[scored].sum())
+    return {"gap_sensor": float(g_sensor[scored].mean()),
+            "sensor_ceiling": 1.0 - float(g_sensor[scored].sum()) / total if total > 0 else 0.0}
+
+
 def validate(
     vehicle: str = "linkquad",
     effects: Sequence[str] = VALIDATED_EFFECTS,
@@ -114,12 +163,14 @@ def validate(
     duration: float = VALIDATION_DURATION_S,
     config: EvaluationConfig = DIAGNOSIS_CONFIG,
     progress: Callable[[str], None] | None = None,
+    sim_params: SimParams | None = None,
 ) -> dict:
-    """The validation.json document (module docstring)."""
+    """The validation.json document (module docstring). ``sim_params``: simulator parameters (e.g. another
+    sensor model), None for the vehicle's."""
     say = progress or (lambda _m: None)
     config_vehicle = load_vehicle(vehicle)
     catalogue = list(CATALOGUE.values()) if catalogue is None else list(catalogue)
-    cache = FlightCache(vehicle, duration, {})
+    cache = FlightCache(vehicle, duration, {}, sim_params)
     runs, nulls, pair_runs = [], [], []
     clock = time.perf_counter()
     for seed in seeds:
@@ -136,17 +187,19 @@ def validate(
             found = result.found
             by_name = {o.effect.name: o for o in result.outcomes}
             if len(case) == 1:
-                truth = by_name.get(case[0])
+                outcome = by_name.get(case[0])
                 off_test = [cache.get((), s) for s in test_seeds(seed)]
+                truth_test = [cache.imu_truth(case, s) for s in test_seeds(seed)]
                 runs.append({
-                    **(attributable_gap(result, truth, off_test, config_vehicle, config) if truth is not None else {}),
+                    **(attributable_gap(result, outcome, off_test, config_vehicle, config) if outcome is not None else {}),
+                    **(sensor_ceiling(result, outcome, truth_test, config_vehicle, config) if outcome is not None else {}),
                     "effect": case[0], "seed": seed, "top": ranking[0], "correct": ranking[0] == case[0] and case[0] in found,
-                    "shrink": truth.shrink if truth else None, "verdict": truth.verdict if truth else "not in catalogue",
-                    "variables": list(truth.variables) if truth else [],
-                    "variable_correction": {k: round(v, 3) for k, v in truth.variable_correction.items()} if truth else {},
-                    "found": found, "ranking": ranking[:4], "params": truth.to_json()["params"] if truth else {},
+                    "shrink": outcome.shrink if outcome else None, "verdict": outcome.verdict if outcome else "not in catalogue",
+                    "variables": list(outcome.variables) if outcome else [],
+                    "variable_correction": {k: round(v, 3) for k, v in outcome.variable_correction.items()} if outcome else {},
+                    "found": found, "ranking": ranking[:4], "params": outcome.to_json()["params"] if outcome else {},
                     "top_shrinks": {o.effect.name: round(o.shrink, 4) for o in result.outcomes[:4]},
-                    "confounded_with": truth.confounded_with if truth else [],
+                    "confounded_with": outcome.confounded_with if outcome else [],
                 })
             elif not case:
                 nulls.append({"seed": seed, "found": found, "ranking": ranking[:4],
@@ -175,12 +228,15 @@ def validate(
         "shrink_by_effect": _by_effect(runs, "shrink"),
         "attributable_removed_by_effect": _by_effect(runs, "attributable_removed"),
         "attributable_share_by_effect": _by_effect(runs, "attributable_share"),
+        "sensor_ceiling_by_effect": _by_effect(runs, "sensor_ceiling"),
         "metrics": {
             "shrink": "literal target: held-out shrink of the effect's affected-variable gap (diagnosis definition, windows the "
                       "effect excites), base model without the effect -> base model with it",
             "attributable_share": "1 - G_off/G_on: the share of the base model's held-out gap (all windows) that the effect-off "
                                   "twin flight does not have; the ceiling of the literal shrink",
             "attributable_removed": "(G_on - G_after) / (G_on - G_off): share of that effect-attributable gap the fitted effect removes",
+            "sensor_ceiling": "1 - G_sensor/G_on on the scored windows and variables: G_sensor the gap between the measurement and the "
+                              "true IMU signals (same preprocessing), which no model can remove; the literal shrink cannot exceed it",
         },
         "seconds": time.perf_counter() - clock,
     }
