@@ -245,3 +245,24 @@ def test_angular_acceleration_offset_recovers_a_constant_acceleration(batch, bas
     ramp = E.replace(still, warm_rows=warm_rows, angacc_trim=np.array([[0.05, 0.0, -0.05]]))
     predicted = E.predict_batch(base, ramp, smoothed=False)
     np.testing.assert_allclose(predicted[0][ramp.warm :, E.ANGULAR_ACCELERATION_COLUMNS], [[0.25, 0.3, 0.35]] * (ramp.samples - ramp.warm), atol=1e-9)
+
+
+def test_the_touchdown_window_is_left_out(flight, linkquad):
+    """Seed 5 (35 s) touches down at 32.89 s and its throttle is cut to idle at 32.84 s. With windows at 7.5 + 5k s
+    and 0.5 s dropped at the end, the window 27.5-32.5 s ends 0.3 s before the cut, >= 0.1 m above the ground: it is left
+    out because the contact test also looks CONTACT_GUARD_S beyond each window, on the unsmoothed height."""
+    from dataclasses import replace
+
+    config = replace(DIAGNOSIS_CONFIG, drop_start=7.5, drop_end=0.5)
+    all_windows = span_windows(flight, E.flying_span(), config)
+    starts = [round(float(flight.t[w.start]), 2) for w in all_windows]
+    assert starts[-1] == 27.5
+    kept = E.prepare_windows([flight], linkquad, config)
+    assert kept.ground_contact_dropped == 1
+    assert [round(float(t), 2) for t in kept.t0] == starts[:-1]
+    ground = flight.pos_n[:, 2].max()
+    last = (flight.t >= 27.5) & (flight.t < 32.5)
+    assert np.min(ground - flight.pos_n[last, 2]) > 0.1  # the dropped window itself was airborne throughout
+    for t0 in kept.t0:
+        around = (flight.t >= t0 - E.CONTACT_GUARD_S) & (flight.t < t0 + config.window_s + E.CONTACT_GUARD_S)
+        assert np.min(ground - flight.pos_n[around, 2]) >= E.GROUND_CONTACT_M
