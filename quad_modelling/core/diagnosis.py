@@ -791,41 +791,6 @@ def build_ladder(outcomes: list[EffectOutcome], base: BaseModel, train: WindowBa
     return ladder
 
 
-class MeasuredAttitudeAccelerations:
-    r"""A predictor scored like the diagnosis's base model (:class:`~quad_modelling.core.models.Predictor`,
-    trimmed protocol convention).
-
-    ``model.predict_window`` gives an absolute (N, 18) prediction (e.g. :class:`~quad_modelling.core.narx.NarxModel`).
-    Its accelerations are replaced by its own body specific force rotated by the *measured* attitude, as the base
-    model's scored accelerations are (:func:`~quad_modelling.core.effects.predict_batch`):
-
-    .. math::
-
-        f_B = R(\hat\eta)^T (\hat a_N - g e_z), \qquad a_N = R(\eta_m) f_B + g e_z
-
-    with :math:`\hat\eta`, :math:`\hat a_N` the model's predicted attitude and acceleration (N) and
-    :math:`\eta_m` the measured attitude. Without this a model that drifts in attitude open loop is charged
-    :math:`g\,\delta\theta` on acc_x/acc_y that the base model, rotated by the measurement, is not.
-    """
-
-    def __init__(self, model, trim, name: str = "narx") -> None:
-        self.model = model
-        self.trim = trim
-        self.name = name
-
-    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        from quad_modelling.core import frames
-        from quad_modelling.core.preprocess import trim_prediction
-
-        absolute = np.array(self.model.predict_window(window, warm_samples), dtype=float)
-        acc = [INDEX[v] for v in ("acc_x", "acc_y", "acc_z")]
-        euler = [INDEX[v] for v in ("roll", "pitch", "yaw")]
-        gravity_n = np.array([0.0, 0.0, GRAVITY])
-        force_b = frames.nav_to_body(absolute[:, acc] - gravity_n, absolute[:, euler])
-        absolute[:, acc] = frames.body_to_nav(force_b, window.euler) + gravity_n
-        return trim_prediction(window, absolute, self.trim)
-
-
 def learnable_floor(predictor, test_flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig = DIAGNOSIS_CONFIG,
                     min_warm_samples: int = 0) -> dict:
     """Mean RMS/TIC per variable of ``predictor`` (trimmed convention) over the diagnosis's held-out windows,
@@ -852,21 +817,20 @@ def learnable_floor(predictor, test_flights: Sequence[FlightLog], vehicle: Vehic
 
 def narx_floor(train_flights: Sequence[FlightLog], test_flights: Sequence[FlightLog], vehicle: VehicleConfig,
                config: EvaluationConfig = DIAGNOSIS_CONFIG, epochs: int = 10, seed: int = 0) -> dict:
-    """NARX model trained on the training flights' flying parts, scored on the diagnosis's held-out windows as the
-    base model is: trimmed, accelerations from its body force rotated by the measured attitude
-    (:class:`MeasuredAttitudeAccelerations`)."""
-    from quad_modelling.core.narx import NarxConfig, train_narx_on_flights
+    """NARX model trained on the training flights' flying parts, scored on the diagnosis's held-out windows in the
+    protocol's trimmed convention (:class:`~quad_modelling.core.narx.NarxPredictor`)."""
+    from quad_modelling.core.narx import NarxConfig, NarxPredictor, train_narx_on_flights
     from quad_modelling.core.preprocess import resample_uniform
 
     narx_config = NarxConfig(epochs=epochs)
     train_flights = [resample_uniform(f) for f in train_flights]
     spans = [(config.drop_start, max(f.duration - config.drop_end, config.drop_start + 1.0)) for f in train_flights]
     model = train_narx_on_flights(list(train_flights), spans, narx_config, seed=seed)
-    floor = learnable_floor(MeasuredAttitudeAccelerations(model, config.trim), test_flights, vehicle, config,
+    floor = learnable_floor(NarxPredictor(model, trim=config.trim), test_flights, vehicle, config,
                             min_warm_samples=narx_config.warm_samples + 1)
     if floor["windows"] == 0:
         return {"model": "narx", "windows": 0, "gap": {},
                 "note": f"not computed: no held-out window of {config.window_s:g} s fits the NARX warm start"}
     return {"model": "narx", "epochs": epochs, **floor,
-            "note": "NARX (thesis ch. 4) trained on the training flights, warm start 0.2 s or its 20 feedback samples; "
-                    "accelerations: its body force rotated by the measured attitude, as the base model's"}
+            "note": "NARX (thesis ch. 4) trained on the training flights, warm start 0.2 s or its 20 feedback samples; on "
+                    "acc_x/acc_y the base model uses the measured attitude, which the NARX does not get"}
