@@ -228,10 +228,14 @@ def markdown_report(data: dict, vehicle: str, figures: list[str]) -> str:
             f"- held-out flights ({data['windows']['test_count']} windows): " + ", ".join(Path(s).name for s in cfg["test_flights"]),
             f"- windows {data['windows']['window_s']:.1f} s, drop {cfg['drop_start']:g} s / {cfg['drop_end']:g} s, warm start {cfg['warm_s']:g} s, "
             f"measurement and prediction low-passed at {cfg['smooth_cutoff_hz']:g} Hz",
-            "- windows left out because the vehicle touched the ground (within 1 cm of the flight's lowest point): "
-            + ", ".join(f"{k} {v}" for k, v in data["windows"].get("ground_contact_dropped", {}).items()),
+            "- windows left out because the vehicle touched the ground (within 1 cm of the flight's lowest point, in the window "
+            "or 0.5 s either side): " + ", ".join(f"{k} {v}" for k, v in data["windows"].get("ground_contact_dropped", {}).items()),
             f"- base model: {data['base']['note']}: " + ", ".join(f"{k} = {v:.4g}" for k, v in data["base"]["values"].items() if isinstance(v, float)),
             ""]
+    empty = data["windows"].get("flights_without_windows", {})
+    if any(empty.values()):
+        out[-1:-1] = ["- flights with no window (too short after the drops, or every window near the ground): "
+                      + "; ".join(f"{k}: " + ", ".join(Path(s).name for s in v) for k, v in empty.items() if v)]
     if data.get("skipped"):
         out += ["Skipped flights:", ""] + [f"- {s}" for s in data["skipped"]] + [""]
     out += ["## Effects (ranked by conditional contribution)", "",

@@ -735,6 +735,8 @@ def diagnose(
         "train_count": len(train),
         "test_count": len(test),
         "ground_contact_dropped": {"train": train.ground_contact_dropped, "test": test.ground_contact_dropped},
+        "flights_without_windows": {"train": _flights_without_windows(train_flights, train),
+                                    "test": _flights_without_windows(test_flights, test)},
         "window_s": test.samples * test.dt,
     }
     outcomes = []
@@ -761,6 +763,13 @@ def diagnose(
     timings["total"] = time.perf_counter() - clock
     return Diagnosis(base, gap, train_gap, where, outcomes, ladder, floor, windows, config,
                      sorted(set(train.sources)), sorted(set(test.sources)), base_test, test, timings, scales)
+
+
+def _flights_without_windows(flights: Sequence[FlightLog], batch: WindowBatch) -> list[str]:
+    """Sources of the given flights that contribute no window (too short for one after the drops, or every
+    window near the ground), in the order given."""
+    kept = set(batch.sources)
+    return [f.meta.source for f in flights if f.meta.source not in kept]
 
 
 def total_gap(batch: WindowBatch, predicted: np.ndarray, reference: dict[str, dict[str, float]]) -> float:

@@ -236,3 +236,17 @@ def test_learnable_floor_scores_in_the_protocol_convention(flights, linkquad):
     assert max(v["rms"] for v in floor["gap"].values()) < 1e-9
     absolute = D.learnable_floor(SimpleNamespace(name="absolute", predict_window=lambda w, k: measured_variables(w)), moving, linkquad)
     assert absolute["gap"]["vel_x"]["rms"] > 0.9  # 1 m/s plus the flight's own warm-start velocities (1.07)
+
+
+def test_a_flight_without_a_window_is_named(flights, linkquad, base):
+    """A 10 s flight leaves no 5 s window after dropping 6 s and 4.5 s: it is named, not silently left out."""
+    short = flights[()][0].slice(0, 1000)
+    short = replace(short, meta=replace(short.meta, source="short_flight"))
+    result = D.diagnose([flights[()][0], short], flights[()][1:], linkquad, [CATALOGUE["motor_lag"]], base=base)
+    windows = result.to_json()["windows"]
+    assert windows["flights_without_windows"] == {"train": ["short_flight"], "test": []}
+    assert "short_flight" not in result.to_json()["config"]["train_flights"]
+    from quad_modelling.commands.diagnose import markdown_report
+
+    assert "- flights with no window (too short after the drops, or every window near the ground): train: short_flight" in \
+        markdown_report(result.to_json(), "linkquad", [])
