@@ -12,7 +12,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export MPLBACKEND := Agg
 
-.PHONY: all venv demo test bench clean
+.PHONY: all venv demo test bench diagnosis-reports clean
 
 all: venv
 
@@ -32,6 +32,24 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py
+
+# The NanoBench diagnosis reports under docs/ (needs ../shared/data/nanobench). Each OUTDIR is replaced
+# whole by --force (no stale figures), so the two reports live in sibling directories.
+NANOBENCH ?= ../shared/data/nanobench
+NB = $(addprefix $(NANOBENCH)/,$(addsuffix .csv.gz,$(1)))
+SPEED_TRAIN := B2_circle_slow_rep2 B2_circle_medium_rep2 B3_figure8_slow_rep2 B3_figure8_medium_rep2 B5_helix_slow_rep1 \
+	B5_helix_medium_rep1 B7_oval_slow_rep2 B7_oval_medium_rep2 B9_trefoil_slow_rep1 B9_trefoil_medium_rep1
+SPEED_TEST := B2_circle_fast_rep2 B3_figure8_fast_rep2 B5_helix_fast_rep1 B7_oval_fast_rep2 B9_trefoil_fast_rep1 B9_trefoil_fast_rep2
+SHAPE_TRAIN := B2_circle_fast_rep2 B2_circle_medium_rep2 B2_circle_slow_rep2 B3_figure8_fast_rep2 B3_figure8_medium_rep2 \
+	B3_figure8_slow_rep2 B6_linear_ramp_rep1 B6_linear_ramp_rep2 B7_oval_fast_rep2 B7_oval_medium_rep2 B7_oval_slow_rep2
+SHAPE_TEST := B5_helix_fast_rep1 B5_helix_medium_rep1 B5_helix_slow_rep1 B9_trefoil_fast_rep1 B9_trefoil_medium_rep1 \
+	B9_trefoil_slow_rep1 B9_trefoil_fast_rep2
+
+diagnosis-reports: $(STAMP)
+	$(VENV)/bin/quad-modelling diagnose --train $(call NB,$(SPEED_TRAIN)) --test $(call NB,$(SPEED_TEST)) \
+		--skip-bad --narx --force -o docs/diagnosis_nanobench
+	$(VENV)/bin/quad-modelling diagnose --train $(call NB,$(SHAPE_TRAIN)) --test $(call NB,$(SHAPE_TEST)) \
+		--skip-bad --narx --force -o docs/diagnosis_nanobench_by_shape
 
 clean:
 	rm -rf build install log .pytest_cache
