@@ -1,7 +1,7 @@
 """Is the 50 % held-out shrink out of reach because of the diagnosis, or because of the sensors?
 
 The known-answer validation (bench/bench_diagnose.py) reports per run the *sensor ceiling*
-(:func:`quad_modelling.core.diagnosis_validation.sensor_ceiling`): the shrink a model predicting the
+(:func:`quad_modelling.core.diagnosis.validation.sensor_ceiling`): the shrink a model predicting the
 simulator's true IMU signals exactly would reach, because the IMU's noise and drift stay in the measured
 gap whatever the model. This benchmark flies the same validation (same seeds, scripts and effect
 strengths) twice for the effects whose literal shrink stays below 50 %:
@@ -24,8 +24,8 @@ import time
 from dataclasses import replace
 
 from bench.common import write_results
-from quad_modelling.core.diagnosis_validation import validate
-from quad_modelling.core.sim_params import sim_params_for
+from quad_modelling.core.diagnosis.validation import validate
+from quad_modelling.core.sim.params import sim_params_for
 
 EFFECTS = ("battery", "input_delay", "ground_effect")
 SEEDS = (0, 1, 2)
@@ -54,7 +54,7 @@ def main() -> int:
                                             "attributable_removed", "variables", "params")} for r in result["runs"]],
         }
     md = ["# Literal shrink against the sensor ceiling, as designed and with a perfect IMU", "",
-          "Known-answer validation (`quad_modelling.core.diagnosis_validation.validate`, linkquad, 90 s flights, seeds "
+          "Known-answer validation (`quad_modelling.core.diagnosis.validation.validate`, linkquad, 90 s flights, seeds "
           f"{', '.join(map(str, SEEDS))}) for the effects whose literal held-out shrink stays below {TARGET:.0%}. "
           "**sensor ceiling**: the shrink a model predicting the true IMU signals exactly would reach (1 - G_sensor/G_on). "
           "**perfect IMU**: the same flights with the IMU's noise, bias and drift set to zero. `bench/bench_diagnose_ceiling.py`.", ""]

@@ -21,7 +21,7 @@ included: against the true signal (``structural``) that bias turning with the at
 ``sensor_floor`` there.
 
 Rows: the greybox's own outputs (small-angle accelerations, warm-start means as offsets; before) and
-the diagnosis's outputs (:func:`quad_modelling.core.effects.predict_batch`), each at the smoothing
+the diagnosis's outputs (:func:`quad_modelling.core.diagnosis.base_model.predict_batch`), each at the smoothing
 cutoffs given. Truth is used here only to *measure*; the diagnosis never sees it.
 
 Writes bench/results/diagnose_floor.json and .md. Run: .venv/bin/python -m bench.bench_diagnose_floor
@@ -35,10 +35,17 @@ from dataclasses import replace
 import numpy as np
 
 from bench.common import write_results
-from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG, identify_base
-from quad_modelling.core.diagnosis_validation import VALIDATION_DURATION_S, imu_truth_log, test_seeds, train_seeds
-from quad_modelling.core.effects import predict_batch, prepare_windows
-from quad_modelling.core.sim import run_simulation
+from quad_modelling.core.diagnosis.base_fit import identify_base
+from quad_modelling.core.diagnosis.base_model import predict_batch
+from quad_modelling.core.diagnosis.batch import prepare_windows
+from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
+from quad_modelling.core.diagnosis.validation import (
+    VALIDATION_DURATION_S,
+    imu_truth_log,
+    test_seeds,
+    train_seeds,
+)
+from quad_modelling.core.sim.simulate import run_simulation
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
 

@@ -15,14 +15,15 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import SHARED_DATA, median_seconds, write_results  # noqa: E402
-from quad_modelling.core.evaluation import EvaluationConfig, evaluate  # noqa: E402
-from quad_modelling.core.greybox import GreyboxPredictor  # noqa: E402
-from quad_modelling.core.identification import identify  # noqa: E402
-from quad_modelling.core.models import make_model  # noqa: E402
+from quad_modelling.core.evaluation.windowed import evaluate  # noqa: E402
+from quad_modelling.core.identification.identify import identify  # noqa: E402
+from quad_modelling.core.models.greybox import GreyboxPredictor  # noqa: E402
+from quad_modelling.core.models.registry import make_model  # noqa: E402
 from quad_modelling.core.vehicle import load_vehicle  # noqa: E402
+from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import QuadModellingError  # noqa: E402
 from quad_modelling.io.loader import load_flight  # noqa: E402
-from quad_modelling.io.report import markdown_tables  # noqa: E402
+from quad_modelling.io.reports.evaluation import markdown_tables  # noqa: E402
 
 HEADLINE = ("acc_z", "roll_rate", "vel_z", "yaw_rate")
 
@@ -36,7 +37,7 @@ def data_set(name, flights, vehicle, config) -> tuple[dict, str]:
     identified = identify(flights, vehicle, config)
     tuned = vehicle.with_values(identified.values, "identified (bench)")
     if identified.spins and list(identified.spins) != list(tuned.yaw_signs):
-        from quad_modelling.core.identification import vehicle_with_spins
+        from quad_modelling.core.identification.identify import vehicle_with_spins
 
         tuned = vehicle_with_spins(tuned, identified.spins)
     models = [make_model("greybox", tuned), make_model("dummy", tuned)]
@@ -53,7 +54,7 @@ def data_set(name, flights, vehicle, config) -> tuple[dict, str]:
 
 
 def main_bench() -> None:
-    from quad_modelling.core.sim import simulate
+    from quad_modelling.core.sim.simulate import simulate
 
     linkquad = load_vehicle("linkquad")
     sim_log = simulate("linkquad", effects=(), seed=1, duration=220.0)

@@ -27,14 +27,26 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from quad_modelling.core import narx  # noqa: E402
-from quad_modelling.core.evaluation import EvaluationConfig, SpanSpec, evaluate  # noqa: E402
+from quad_modelling.core.evaluation.windowed import evaluate  # noqa: E402
 from quad_modelling.core.flight_log import FlightLog, FlightMeta  # noqa: E402
-from quad_modelling.core.greybox import GreyboxPredictor  # noqa: E402
-from quad_modelling.core.hybrid import train_hybrid_on_flights  # noqa: E402
-from quad_modelling.core.models import make_model  # noqa: E402
+from quad_modelling.core.models.greybox import GreyboxPredictor  # noqa: E402
+from quad_modelling.core.models.hybrid import train_hybrid_on_flights  # noqa: E402
+from quad_modelling.core.models.narx import (  # noqa: E402
+    NarxConfig,
+    NarxModel,
+    lagged_inputs,
+    load_narx,
+    measured_outputs,
+)
+from quad_modelling.core.models.narx_training import (  # noqa: E402
+    Segment,
+    train_narx,
+    train_narx_on_flights,
+)
+from quad_modelling.core.models.registry import make_model  # noqa: E402
 from quad_modelling.core.variables import INDEX  # noqa: E402
 from quad_modelling.core.vehicle import load_vehicle  # noqa: E402
+from quad_modelling.core.windows import EvaluationConfig, SpanSpec
 
 NANOBENCH = ROOT.parent / "shared" / "data" / "nanobench"
 RESULTS = ROOT / "bench" / "results"
@@ -61,15 +73,15 @@ def timing(logs) -> dict:
     for log in logs:
         take = min(len(log), 13000 - total)
         part = log.slice(0, take)
-        segments.append(narx.Segment(part.u, narx.measured_outputs(part), log.meta.source))
+        segments.append(Segment(part.u, measured_outputs(part), log.meta.source))
         total += take
         if total >= 13000:
             break
     started = time.perf_counter()
-    model = narx.train_narx(segments, 0.01, "crazyflie21", narx.NarxConfig(), seed=0)
+    model = train_narx(segments, 0.01, "crazyflie21", NarxConfig(), seed=0)
     train_s = time.perf_counter() - started
     window = logs[-1].slice(500, 1500)
-    y = narx.measured_outputs(window)
+    y = measured_outputs(window)
     numpy_s = min(_timed(lambda: model.simulate(window.u, y[:20])) for _ in range(20))
     torch_s = min(_timed(lambda: _torch_closed_loop(model, window.u, y[:20])) for _ in range(3))
     assert np.allclose(_torch_closed_loop(model, window.u, y[:20]), model.simulate(window.u, y[:20]), atol=1e-9)
@@ -89,12 +101,12 @@ def _timed(fn) -> float:
     return time.perf_counter() - started
 
 
-def _torch_closed_loop(model: narx.NarxModel, u: np.ndarray, y_warm: np.ndarray) -> np.ndarray:
+def _torch_closed_loop(model: NarxModel, u: np.ndarray, y_warm: np.ndarray) -> np.ndarray:
     """The same closed loop as NarxModel.simulate, with torch float64 tensors per step (for the timing comparison)."""
     import torch
 
     n_y = model.config.output_delays
-    z_u = torch.from_numpy(np.einsum("nd,khd->nkh", narx.lagged_inputs(model.normalise_inputs(u), model.config.input_delays), model.w_u) + model.b_1)
+    z_u = torch.from_numpy(np.einsum("nd,khd->nkh", lagged_inputs(model.normalise_inputs(u), model.config.input_delays), model.w_u) + model.b_1)
     w_y, w_2, b_2 = (torch.from_numpy(a) for a in (model.w_y, model.w_2, model.b_2))
     series = torch.zeros((6, len(u)), dtype=torch.float64)
     series[:, : len(y_warm)] = torch.from_numpy(model.normalise_outputs(y_warm).T)
@@ -113,10 +125,10 @@ def compare(name: str, train_logs, eval_logs, vehicle, config: EvaluationConfig)
     spans = [span.interval(log, config.drop_start, config.drop_end) for log in train_logs]
     WORK.mkdir(parents=True, exist_ok=True)
     started = time.perf_counter()
-    narx.train_narx_on_flights(train_logs, spans, narx.NarxConfig(), seed=0).save(WORK / f"{name}_narx.npz", force=True)
+    train_narx_on_flights(train_logs, spans, NarxConfig(), seed=0).save(WORK / f"{name}_narx.npz", force=True)
     narx_s = time.perf_counter() - started
     started = time.perf_counter()
-    train_hybrid_on_flights(train_logs, spans, vehicle, narx.NarxConfig(), seed=0).save(WORK / f"{name}_hybrid.npz", force=True)
+    train_hybrid_on_flights(train_logs, spans, vehicle, NarxConfig(), seed=0).save(WORK / f"{name}_hybrid.npz", force=True)
     hybrid_s = time.perf_counter() - started
     models = [make_model(spec, vehicle) for spec in
               ("dummy", "greybox", f"narx:{WORK / f'{name}_narx.npz'}", f"hybrid:{WORK / f'{name}_hybrid.npz'}")]
@@ -136,7 +148,7 @@ def caveats_figure(model_path: Path, vehicle, path: Path) -> dict:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    model = narx.load_narx(model_path, vehicle.name)
+    model = load_narx(model_path, vehicle.name)
     greybox = GreyboxPredictor(vehicle)
     n, dt = 1000, model.dt
     t = np.arange(n) * dt
@@ -213,7 +225,7 @@ def main() -> int:
                table(results["nanobench"]["training_flights_train_span"], "training flights, training span"),
                table(results["nanobench"]["eval_flights_eval_span"], "held-out flights, evaluation span")]
     try:
-        from quad_modelling.core.sim import simulate
+        from quad_modelling.core.sim.simulate import simulate
     except ImportError as err:
         results["sim"] = {"skipped": str(err)}
     else:

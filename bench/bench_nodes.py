@@ -77,7 +77,8 @@ def stop(procs) -> None:
 def small_narx(rate: float, workdir: Path) -> Path:
     """A NARX model file for the synthetic flight at ``rate`` (2 training epochs: its cost per step is the
     trained model's, its accuracy does not matter here)."""
-    from quad_modelling.core.narx import NarxConfig, train_narx_on_flights
+    from quad_modelling.core.models.narx import NarxConfig
+    from quad_modelling.core.models.narx_training import train_narx_on_flights
 
     path = workdir / f"narx_{rate:g}hz.npz"
     if not path.exists():
@@ -101,7 +102,12 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
 
     from quad_modelling.io.bag_io import stamps_ns
     from quad_modelling.nodes import messages
-    from quad_modelling.nodes.common import data_qos, make_executor, set_realtime_priority, use_dds_profile
+    from quad_modelling.nodes.common import (
+        data_qos,
+        make_executor,
+        set_realtime_priority,
+        use_dds_profile,
+    )
 
     window = "5.0"
     name = model.partition(":")[0]

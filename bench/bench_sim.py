@@ -18,8 +18,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import median_seconds, write_results  # noqa: E402
-from quad_modelling.core.sim import run_simulation  # noqa: E402
-from quad_modelling.core.sim_params import DEFAULT_EFFECTS, SIM_EFFECTS  # noqa: E402
+from quad_modelling.core.sim.params import DEFAULT_EFFECTS, SIM_EFFECTS  # noqa: E402
+from quad_modelling.core.sim.simulate import run_simulation  # noqa: E402
 
 DURATION = 220.0
 TARGET_S = 30.0

@@ -23,7 +23,13 @@ def main() -> int:
     from rclpy.node import Node
     from sensor_msgs.msg import Imu, JointState
 
-    from quad_modelling.nodes.common import data_qos, make_executor, set_realtime_priority, spin, use_dds_profile
+    from quad_modelling.nodes.common import (
+        data_qos,
+        make_executor,
+        set_realtime_priority,
+        spin,
+        use_dds_profile,
+    )
 
     topic, priority = sys.argv[1], int(sys.argv[2]) if len(sys.argv) > 2 else 0
     use_dds_profile()

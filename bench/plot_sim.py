@@ -21,10 +21,10 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from quad_modelling.atomic import atomic_output  # noqa: E402
 from quad_modelling.core.flight_log import FlightLog  # noqa: E402
-from quad_modelling.core.sim import run_simulation  # noqa: E402
-from quad_modelling.core.sim_params import parse_effects  # noqa: E402
-from quad_modelling.io.atomic import atomic_output  # noqa: E402
+from quad_modelling.core.sim.params import parse_effects  # noqa: E402
+from quad_modelling.core.sim.simulate import run_simulation  # noqa: E402
 
 
 def plot_flight(log: FlightLog, path: str | Path, input_unit: str, force: bool = False, title: str = "") -> Path:

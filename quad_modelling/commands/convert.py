@@ -8,8 +8,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.errors import QuadModellingError
-from quad_modelling.io.atomic import atomic_output, check_output
 from quad_modelling.io.loader import FORMATS, load_flight
 
 NAME = "convert"

@@ -10,13 +10,18 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG, Diagnosis, diagnose, narx_floor
-from quad_modelling.core.effects import parse_effect_list
-from quad_modelling.core.evaluation import EvaluationConfig
+from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.core.diagnosis.catalogue import parse_effect_list
+from quad_modelling.core.diagnosis.diagnose import (
+    DIAGNOSIS_CONFIG,
+    Diagnosis,
+    diagnose,
+    narx_floor,
+)
 from quad_modelling.core.variables import DISPLAY, EVAL_VARIABLES, INDEX
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError, QuadModellingError
-from quad_modelling.io.atomic import atomic_output, check_output
 from quad_modelling.io.loader import load_flight
 
 NAME = "diagnose"
@@ -131,7 +136,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_validation(args, config, effects, output: Path) -> int:
-    from quad_modelling.core.diagnosis_validation import VALIDATED_EFFECTS, validate
+    from quad_modelling.core.diagnosis.validation import VALIDATED_EFFECTS, validate
 
     try:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]

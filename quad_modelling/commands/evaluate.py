@@ -6,12 +6,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from quad_modelling.core.evaluation import PRESETS, EvaluationConfig, evaluate
+from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.core.evaluation.windowed import evaluate
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.models import make_model
+from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
+from quad_modelling.core.windows import PRESETS, EvaluationConfig
 from quad_modelling.errors import ConfigError, QuadModellingError
-from quad_modelling.io.atomic import atomic_output, check_output
 from quad_modelling.io.loader import load_flight
 
 NAME = "evaluate"
@@ -115,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate(flights, models, vehicle, config, multistep=not args.no_multistep,
                       progress=lambda msg: print(msg, file=sys.stderr) if sys.stderr.isatty() else None)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
-    from quad_modelling.io.report import write_report
+    from quad_modelling.io.reports.evaluation import write_report
 
     with atomic_output(output, args.force) as tmp:
         files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicle.name}")

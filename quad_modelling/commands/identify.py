@@ -5,10 +5,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from quad_modelling.commands.evaluate import add_span_arguments, config_from_args, load_flights
-from quad_modelling.core.identification import identified_vehicle_document, identify, write_vehicle_yaml
+from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.commands.evaluate import (
+    add_span_arguments,
+    config_from_args,
+    load_flights,
+)
+from quad_modelling.core.identification.identify import (
+    identified_vehicle_document,
+    identify,
+    write_vehicle_yaml,
+)
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.io.atomic import atomic_output, check_output
 
 NAME = "identify"
 HELP = "identify the motor constants marked 'identified' from flight data (training spans only)"

@@ -15,8 +15,8 @@ from pathlib import Path
 
 import yaml
 
+from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.errors import ConfigError, QuadModellingError
-from quad_modelling.io.atomic import atomic_output, check_output
 from quad_modelling.nodes.executors import EXECUTORS
 
 NAME = "run-bag"

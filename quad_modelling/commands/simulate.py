@@ -6,10 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from quad_modelling.core.sim import run_simulation
-from quad_modelling.core.sim_params import SIM_EFFECTS, SIMULATED_VEHICLES, parse_effects
+from quad_modelling.atomic import check_output
+from quad_modelling.core.sim.params import (
+    SIM_EFFECTS,
+    SIMULATED_VEHICLES,
+    parse_effects,
+)
+from quad_modelling.core.sim.simulate import run_simulation
 from quad_modelling.errors import ConfigError
-from quad_modelling.io.atomic import check_output
 
 NAME = "simulate"
 HELP = "simulate a LinkQuad-like flight with switchable physical effects"

@@ -58,7 +58,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def training_spans(logs, args) -> list[tuple[float, float]]:
     """Training span [s from each flight's start] per flight, as the evaluation computes it."""
-    from quad_modelling.core.evaluation import EvaluationConfig, SpanSpec
+    from quad_modelling.core.windows import EvaluationConfig, SpanSpec
 
     overrides = {"train": args.train}
     if args.drop is not None:
@@ -80,9 +80,10 @@ def training_spans(logs, args) -> list[tuple[float, float]]:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from quad_modelling.core.narx import NarxConfig, train_narx_on_flights
+    from quad_modelling.atomic import check_output
+    from quad_modelling.core.models.narx import NarxConfig
+    from quad_modelling.core.models.narx_training import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle
-    from quad_modelling.io.atomic import check_output
     from quad_modelling.io.loader import load_flight
 
     output = Path(args.output)
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     progress = not args.quiet and sys.stderr.isatty()
     if args.hybrid:
-        from quad_modelling.core.hybrid import train_hybrid_on_flights
+        from quad_modelling.core.models.hybrid import train_hybrid_on_flights
 
         model = train_hybrid_on_flights(logs, spans, load_vehicle(args.vehicle or logs[0].meta.vehicle), config, args.seed, progress)
         samples = model.residual.training["samples"]

@@ -29,14 +29,14 @@ from pathlib import Path
 
 import numpy as np
 from rosbags.rosbag2 import Reader, Writer
-from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.rosbag2.enums import StoragePlugin
+from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.typesys import Stores, get_typestore
 
+from quad_modelling.atomic import atomic_output
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.errors import BagError, DataError
-from quad_modelling.io.atomic import atomic_output
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 DEFAULT_NAMESPACE = "/quad"

@@ -30,10 +30,10 @@ import numpy as np
 import scipy.io
 import yaml
 
+from quad_modelling.atomic import atomic_output
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.errors import ConfigError, DataError
-from quad_modelling.io.atomic import atomic_output
 
 THESIS_VARIABLES: dict[str, tuple[str, ...]] = {
     "time": ("time",),

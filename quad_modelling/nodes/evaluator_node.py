@@ -14,10 +14,10 @@ delivered; the replay paces itself on it). Service ``write_results``
 Scoring uses the core code of ``quad-modelling evaluate``: the window's received
 measurements become a FlightLog (:func:`~quad_modelling.nodes.messages.measurement_log`),
 received absolute predictions are wrapped with
-:class:`~quad_modelling.core.streaming.RecordedPrediction` (which trims them as the
+:class:`~quad_modelling.core.models.streaming.RecordedPrediction` (which trims them as the
 offline predictors do) and scored with
-:func:`~quad_modelling.core.evaluation.evaluate_window` (core defaults for trim and
-smoothing, warm rows from :func:`~quad_modelling.core.evaluation.warm_samples_for`).
+:func:`~quad_modelling.core.evaluation.windowed.evaluate_window` (core defaults for trim and
+smoothing, warm rows from :func:`~quad_modelling.core.windows.warm_samples_for`).
 Only windows entirely inside a span (``spans``: ``NAME:A:B`` seconds from t0) are scored.
 
 A window closes when the measurements have moved past it and every model has
@@ -29,9 +29,8 @@ partially. Buffers hold at most the open windows (bounded).
 
 from __future__ import annotations
 
-import os
-
 import json
+import os
 import time
 from pathlib import Path
 
@@ -46,16 +45,21 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from std_srvs.srv import Trigger
 
-from quad_modelling.core.evaluation import EvaluationConfig, evaluate_window, warm_samples_for
-from quad_modelling.core.preprocess import SMOOTH_CUTOFF_HZ, TrimConfig, smooth, trimmed_variables
-from quad_modelling.core.models import DummyPredictor
-from quad_modelling.core.streaming import RecordedPrediction
+from quad_modelling.core.evaluation.windowed import evaluate_window
+from quad_modelling.core.models.base import DummyPredictor
+from quad_modelling.core.models.streaming import RecordedPrediction
+from quad_modelling.core.preprocess import (
+    SMOOTH_CUTOFF_HZ,
+    TrimConfig,
+    smooth,
+    trimmed_variables,
+)
 from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.windows import EvaluationConfig, warm_samples_for
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
-    niceness,
     DEFAULT_NAMESPACE,
     ORIGIN_TOPIC,
     PROGRESS_TOPIC,
@@ -66,9 +70,9 @@ from quad_modelling.nodes.common import (
     data_qos,
     declare_parameters,
     executor_param,
-    make_executor,
-    spin,
     latched_qos,
+    make_executor,
+    niceness,
     non_empty,
     non_negative,
     parse_span,
@@ -76,6 +80,7 @@ from quad_modelling.nodes.common import (
     run_node,
     say,
     spans_check,
+    spin,
 )
 from quad_modelling.nodes.scoring import LiveScores, WindowRecord
 
@@ -445,8 +450,8 @@ class EvaluatorNode(Node):
         """Write results.json, tables.md (and figures) into output_dir; returns a one-line summary."""
         if self.output_dir is None:
             return "output_dir is empty: nothing written"
-        from quad_modelling.io.atomic import atomic_output
-        from quad_modelling.io.report import write_report
+        from quad_modelling.atomic import atomic_output
+        from quad_modelling.io.reports.evaluation import write_report
 
         source = "live"
         result = self.scores.result(source)

@@ -1,13 +1,14 @@
 """Model specs -> streaming predictors for the predictor node and run-bag.
 
 Every spec (``naive``, ``greybox``, ``greybox:euler``, ``narx:PATH``, ...) is built
-by the core registry through :func:`quad_modelling.core.streaming.streaming_predictor`,
+by the core registry through :func:`quad_modelling.core.models.streaming.streaming_predictor`,
 the same objects ``quad-modelling evaluate`` uses.
 """
 
 from __future__ import annotations
 
-from quad_modelling.core.streaming import StreamingPredictor, streaming_predictor
+from quad_modelling.core.models.registry import streaming_predictor
+from quad_modelling.core.models.streaming import StreamingPredictor
 from quad_modelling.core.vehicle import VehicleConfig
 
 

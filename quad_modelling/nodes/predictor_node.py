@@ -48,7 +48,7 @@ from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
 
-from quad_modelling.core.streaming import prime
+from quad_modelling.core.models.streaming import prime
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.nodes import messages
@@ -62,9 +62,8 @@ from quad_modelling.nodes.common import (
     data_qos,
     declare_parameters,
     executor_param,
-    make_executor,
-    spin,
     latched_qos,
+    make_executor,
     non_empty,
     non_negative,
     positive,
@@ -72,6 +71,7 @@ from quad_modelling.nodes.common import (
     run_node,
     say,
     set_realtime_priority,
+    spin,
 )
 from quad_modelling.nodes.model_factory import make_streaming_predictor, model_name
 

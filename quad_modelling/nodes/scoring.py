@@ -1,12 +1,12 @@
 """Adapters between live (streamed) predictions and the core evaluation.
 
 The evaluator node hands the received absolute predictions to
-:class:`~quad_modelling.core.streaming.RecordedPrediction`, which trims them as the
+:class:`~quad_modelling.core.models.streaming.RecordedPrediction`, which trims them as the
 offline predictors do.
 
 * :class:`LiveScores`: per-window results of the evaluator node gathered into a core
-  :class:`~quad_modelling.core.evaluation.EvaluationResult` (mean over scored windows
-  per model and span), written with ``quad_modelling.io.report.write_report``.
+  :class:`~quad_modelling.core.evaluation.windowed.EvaluationResult` (mean over scored windows
+  per model and span), written with ``quad_modelling.io.reports.evaluation.write_report``.
 """
 
 from __future__ import annotations
@@ -15,10 +15,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from quad_modelling.core.evaluation import EvaluationConfig, EvaluationResult, ExampleWindow, SpanScores
+from quad_modelling.core.evaluation.windowed import (
+    EvaluationResult,
+    ExampleWindow,
+    SpanScores,
+)
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.preprocess import TrimConfig, trimmed_inputs
 from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
+from quad_modelling.core.windows import EvaluationConfig
 
 
 @dataclass

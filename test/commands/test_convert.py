@@ -3,7 +3,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-
 from quad_modelling.cli import build_parser, main
 from quad_modelling.io.bag_io import read_bag
 from quad_modelling.io.matlog import read_matlog, write_matlog

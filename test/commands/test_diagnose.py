@@ -8,8 +8,8 @@ import pytest
 
 from quad_modelling.cli import main
 from quad_modelling.commands.diagnose import verdict_text
-from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG
-from quad_modelling.core.sim import simulate
+from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
+from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.io.matlog import write_matlog
 
 

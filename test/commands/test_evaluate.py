@@ -5,8 +5,6 @@ import pytest
 from quad_modelling.cli import main
 
 
-
-
 def test_evaluate_writes_results_tables_and_figures(flights, tmp_path, capsys):
     out = tmp_path / "out"
     code = main(["evaluate", *flights, "--vehicle", "linkquad", "--preset", "short", "-o", str(out)])

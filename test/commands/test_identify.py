@@ -6,8 +6,6 @@ from quad_modelling.cli import main
 from quad_modelling.core.vehicle import load_vehicle
 
 
-
-
 def test_identify_writes_loadable_vehicle(flights, tmp_path, capsys):
     out = tmp_path / "lq.yaml"
     assert main(["identify", *flights, "--vehicle", "linkquad", "--preset", "short", "-o", str(out)]) == 0

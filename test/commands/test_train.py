@@ -4,10 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
 from quad_modelling.cli import main
-from quad_modelling.core.hybrid import load_hybrid
-from quad_modelling.core.narx import load_narx
+from quad_modelling.core.models.hybrid import load_hybrid
+from quad_modelling.core.models.narx import load_narx
 from quad_modelling.core.vehicle import load_vehicle
 
 BAG = str(Path(__file__).resolve().parents[2] / "bags" / "nanobench_B7_oval_medium_rep2")

@@ -5,7 +5,7 @@ from scipy import signal
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.greybox import GreyboxModel
+from quad_modelling.core.models.greybox import GreyboxModel
 from quad_modelling.core.vehicle import GRAVITY
 
 

@@ -8,9 +8,30 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from quad_modelling.core import diagnosis as D
-from quad_modelling.core.effects import CATALOGUE, Effect, prepare_windows
-from quad_modelling.core.sim import simulate
+from quad_modelling.core.diagnosis.attribution import (
+    AFFECTED_MIN_CORRECTION,
+    EXCITED_MIN_WINDOWS,
+    FOUND_MIN_SHRINK,
+    affected_variables,
+    excited_windows,
+    verdict_of,
+)
+from quad_modelling.core.diagnosis.base_fit import identify_base
+from quad_modelling.core.diagnosis.batch import prepare_windows
+from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
+from quad_modelling.core.diagnosis.diagnose import (
+    DIAGNOSIS_CONFIG,
+    diagnose,
+    learnable_floor,
+)
+from quad_modelling.core.diagnosis.localisation import localise
+from quad_modelling.core.diagnosis.statistics import (
+    bootstrap_shrink,
+    shrink_of,
+    sign_test,
+)
+from quad_modelling.core.sim.simulate import simulate
+from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
 
 DURATION = 50.0
@@ -33,7 +54,7 @@ def flights():
 @pytest.fixture(scope="session")
 def base(flights, linkquad):
     """Greybox identified on the effects-off training flight."""
-    return D.identify_base(prepare_windows(flights[()][:1], linkquad, D.DIAGNOSIS_CONFIG), linkquad)
+    return identify_base(prepare_windows(flights[()][:1], linkquad, DIAGNOSIS_CONFIG), linkquad)
 
 
 def _per_window_ramp(theta, batch, base, u):
@@ -52,7 +73,7 @@ def _per_window_ramp(theta, batch, base, u):
 def test_withheld_effect_is_ranked_first_and_found(flights, linkquad, base):
     train, test = flights[("motor_imbalance",)]
     effects = [CATALOGUE[n] for n in ("motor_imbalance", "battery", "motor_lag")]
-    result = D.diagnose([train], [test], linkquad, effects, base=base)
+    result = diagnose([train], [test], linkquad, effects, base=base)
     top = result.outcomes[0]
     assert top.effect.name == "motor_imbalance"
     assert top.verdict == "found"
@@ -76,13 +97,13 @@ def test_a_twin_of_the_top_effect_adds_nothing_on_top_of_it(flights, linkquad, b
     assessed with the top effect held fixed it explains nothing more, so it takes no 'found' place."""
     train, test = flights[("motor_imbalance",)]
     twin = replace(CATALOGUE["motor_imbalance"], name="imbalance_twin")
-    result = D.diagnose([train], [test], linkquad, [CATALOGUE["motor_imbalance"], twin, CATALOGUE["motor_lag"]], base=base)
+    result = diagnose([train], [test], linkquad, [CATALOGUE["motor_imbalance"], twin, CATALOGUE["motor_lag"]], base=base)
     first = result.outcomes[0]
     other = next(o for o in result.outcomes if o.effect.name in ("motor_imbalance", "imbalance_twin") and o is not first)
     assert first.verdict == "found" and first.given == [] and first.shrink > 0.1
     assert other.given == [first.effect.name]
     assert other.alone.verdict == "found" and other.alone.shrink == pytest.approx(first.shrink, abs=0.02)
-    assert other.verdict != "found" and abs(other.shrink) < D.FOUND_MIN_SHRINK
+    assert other.verdict != "found" and abs(other.shrink) < FOUND_MIN_SHRINK
     assert result.found == [first.effect.name]
     assert other.effect.name in first.confounded_with
     data = other.to_json()
@@ -92,46 +113,47 @@ def test_a_twin_of_the_top_effect_adds_nothing_on_top_of_it(flights, linkquad, b
 def test_null_flight_yields_no_discovery(flights, linkquad, base):
     train, test = flights[()]
     effects = [CATALOGUE[n] for n in ("motor_imbalance", "motor_lag", "rotor_drag")]
-    result = D.diagnose([train], [test], linkquad, effects, base=base)
+    result = diagnose([train], [test], linkquad, effects, base=base)
     assert result.found == []
-    assert all(o.shrink < D.FOUND_MIN_SHRINK for o in result.outcomes)
+    assert all(o.shrink < FOUND_MIN_SHRINK for o in result.outcomes)
 
 
 def test_overfitting_effect_is_rejected(flights, linkquad, base):
     train, test = flights[()]
-    windows = len(prepare_windows([train], linkquad, D.DIAGNOSIS_CONFIG))
+    windows = len(prepare_windows([train], linkquad, DIAGNOSIS_CONFIG))
     size = 4 * windows
     overfit = Effect("per_window_ramps", "free ramps and steps per training window", tuple(f"r{i}" for i in range(size)),
                      ("m/s3",) * size, (0.0,) * size, (-2.0,) * size, (2.0,) * size, ("acc_z", "roll_acc"),
                      forcing=_per_window_ramp)
-    result = D.diagnose([train], [test], linkquad, [overfit, CATALOGUE["motor_lag"]], base=base)
+    result = diagnose([train], [test], linkquad, [overfit, CATALOGUE["motor_lag"]], base=base)
     outcome = next(o for o in result.outcomes if o.effect.name == "per_window_ramps")
-    assert outcome.train_shrink >= D.FOUND_MIN_SHRINK
+    assert outcome.train_shrink >= FOUND_MIN_SHRINK
     assert outcome.verdict == "rejected"
 
 
 def test_verdict_rule():
-    assert D.verdict_of(0.2, 0.3, 0.1, 0.9) == "found"
-    assert D.verdict_of(0.2, 0.3, -0.01, 0.9) == "rejected"  # not consistent over windows
-    assert D.verdict_of(0.01, 0.3, 0.005, 0.9) == "rejected"  # helps training only
-    assert D.verdict_of(0.01, 0.02, 0.005, 0.9) == "insignificant"
-    assert D.verdict_of(0.2, -0.001, 0.1, 0.9) == "insignificant"  # held-out gain without a training gain: chance
+    assert verdict_of(0.2, 0.3, 0.1, 0.9) == "found"
+    assert verdict_of(0.2, 0.3, -0.01, 0.9) == "rejected"  # not consistent over windows
+    assert verdict_of(0.01, 0.3, 0.005, 0.9) == "rejected"  # helps training only
+    assert verdict_of(0.01, 0.02, 0.005, 0.9) == "insignificant"
+    assert verdict_of(0.2, -0.001, 0.1, 0.9) == "insignificant"  # held-out gain without a training gain: chance
 
 
 def test_bootstrap_and_sign_test():
     before = np.ones(10)
-    lo, hi = D.bootstrap_shrink(before, 0.5 * before)
+    lo, hi = bootstrap_shrink(before, 0.5 * before)
     assert lo == pytest.approx(0.5) and hi == pytest.approx(0.5)
-    assert D.sign_test(10, 10) == pytest.approx(0.5**10)
-    assert D.shrink_of(np.array([2.0, 2.0]), np.array([1.0, 1.0])) == pytest.approx(0.5)
+    assert sign_test(10, 10) == pytest.approx(0.5**10)
+    assert shrink_of(np.array([2.0, 2.0]), np.array([1.0, 1.0])) == pytest.approx(0.5)
 
 
 def test_localisation_names_regimes_bands_and_worst_windows(flights, linkquad, base):
-    batch = prepare_windows(flights[()][1:], linkquad, D.DIAGNOSIS_CONFIG)
-    from quad_modelling.core.effects import predict_batch, variable_scales
+    batch = prepare_windows(flights[()][1:], linkquad, DIAGNOSIS_CONFIG)
+    from quad_modelling.core.diagnosis.base_model import predict_batch
+    from quad_modelling.core.diagnosis.fitting import variable_scales
 
     predicted = predict_batch(base.model, batch)
-    where = D.localise(batch, predicted, variable_scales(batch, predicted))
+    where = localise(batch, predicted, variable_scales(batch, predicted))
     assert {"speed", "height", "battery_voltage", "tilt", "throttle", "yaw_rate", "time_in_window"} <= set(where["regimes"])
     # open-loop drift: the residual grows with the time since the anchor
     assert where["regimes"]["time_in_window"]["ratio_top_to_bottom"] > 1.5
@@ -158,45 +180,45 @@ def test_base_identification_finds_instant_rotors_and_the_rotor_reaction_scale(b
 
 
 def test_windows_an_effect_leaves_unchanged_are_not_scored(flights, linkquad):
-    batch = prepare_windows(flights[()][1:], linkquad, D.DIAGNOSIS_CONFIG)
+    batch = prepare_windows(flights[()][1:], linkquad, DIAGNOSIS_CONFIG)
     cols = np.array([8])
     scales = np.ones(18)
     gap = np.ones(len(batch))
     correction = np.zeros(batch.measured.shape)
     correction[: len(batch) // 2, :, 8] = 0.2  # the first half of the windows move by 20 % of their gap
-    excited = D.excited_windows(batch, correction, cols, scales, gap)
+    excited = excited_windows(batch, correction, cols, scales, gap)
     assert excited[: len(batch) // 2].all() and not excited[len(batch) // 2 :].any()
     correction[1:] = 0.0  # one excited window is too few to score
-    assert not D.excited_windows(batch, correction, cols, scales, gap).any()
+    assert not excited_windows(batch, correction, cols, scales, gap).any()
 
 
 def test_affected_variables_are_the_candidates_the_fitted_correction_moves(flights, linkquad):
     """Per candidate, RMS(correction) over the excited training windows / s_v against AFFECTED_MIN_CORRECTION
     (0.312: a correction smaller than that could not shrink the variable's own gap by 5 %)."""
-    assert D.AFFECTED_MIN_CORRECTION == pytest.approx(0.3122, abs=1e-4)
-    batch = prepare_windows(flights[()][1:], linkquad, D.DIAGNOSIS_CONFIG)
+    assert AFFECTED_MIN_CORRECTION == pytest.approx(0.3122, abs=1e-4)
+    batch = prepare_windows(flights[()][1:], linkquad, DIAGNOSIS_CONFIG)
     scales = np.ones(18)
     names = ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")
-    cols = [D.INDEX[v] for v in names]
+    cols = [INDEX[v] for v in names]
     correction = np.zeros(batch.measured.shape)
     correction[:, :, cols[1]] = 0.5  # roll: half its residual RMS
     correction[:, :, cols[2]] = 0.35  # pitch: just above the bound
     correction[:, :, cols[3]] = 0.25  # yaw: below it
     gap = np.full(len(batch), 4.0)
-    variables, moved = D.affected_variables(batch, correction, names, scales, gap)
+    variables, moved = affected_variables(batch, correction, names, scales, gap)
     assert variables == ("roll_acc", "pitch_acc")
     assert moved == pytest.approx({"acc_z": 0.0, "roll_acc": 0.5, "pitch_acc": 0.35, "yaw_acc": 0.25})
     # only windows the effect excites count: moving yaw by 0.5 in half of the windows is 0.5 there
-    assert len(batch) >= 2 * D.EXCITED_MIN_WINDOWS
+    assert len(batch) >= 2 * EXCITED_MIN_WINDOWS
     correction[:, :, cols[3]] = 0.0
     correction[: len(batch) // 2, :, cols[3]] = 0.5
     correction[:, :, cols[1:3]] = 0.0
-    assert D.affected_variables(batch, correction, names, scales, gap)[0] == ("yaw_acc",)
+    assert affected_variables(batch, correction, names, scales, gap)[0] == ("yaw_acc",)
     # a correction below the bound everywhere is not concentrated on its largest variable: all candidates
     small = np.zeros(batch.measured.shape)
     small[:, :, cols[0]] = 0.1
     small[:, :, cols[2]] = 0.2
-    assert D.affected_variables(batch, small, names, scales, gap)[0] == names
+    assert affected_variables(batch, small, names, scales, gap)[0] == names
 
 
 def test_an_effect_is_scored_only_on_the_candidates_its_fit_moves(linkquad, base):
@@ -205,12 +227,12 @@ def test_an_effect_is_scored_only_on_the_candidates_its_fit_moves(linkquad, base
     well, the effect is scored on roll and pitch acceleration only, exactly as the catalogue entry."""
     train, test = (simulate("linkquad", effects=("gyroscopic",), seed=s, duration=DURATION) for s in (11, 12))
     wide = replace(CATALOGUE["gyroscopic"], name="gyroscopic_wide", variables=("acc_z", "roll_acc", "pitch_acc", "yaw_acc"))
-    result = D.diagnose([train], [test], linkquad, [CATALOGUE["gyroscopic"], wide], base=base)
+    result = diagnose([train], [test], linkquad, [CATALOGUE["gyroscopic"], wide], base=base)
     by_name = {o.effect.name: (o.alone or o) for o in result.outcomes}
     narrow, broad = by_name["gyroscopic"], by_name["gyroscopic_wide"]
     assert broad.variables == narrow.variables == ("roll_acc", "pitch_acc")
     assert broad.variable_correction["acc_z"] < 1e-9 and broad.variable_correction["yaw_acc"] < 0.05
-    assert min(broad.variable_correction["roll_acc"], broad.variable_correction["pitch_acc"]) >= D.AFFECTED_MIN_CORRECTION
+    assert min(broad.variable_correction["roll_acc"], broad.variable_correction["pitch_acc"]) >= AFFECTED_MIN_CORRECTION
     assert broad.verdict == "found" and broad.shrink == pytest.approx(narrow.shrink, abs=0.01) and broad.shrink > 0.2
     data = broad.to_json()
     assert data["variables"] == ["roll_acc", "pitch_acc"] and data["candidate_variables"] == list(wide.variables)
@@ -219,7 +241,7 @@ def test_an_effect_is_scored_only_on_the_candidates_its_fit_moves(linkquad, base
 def _oracle(window, warm_samples):
     from quad_modelling.core.preprocess import measured_variables, trim_prediction
 
-    return trim_prediction(window, measured_variables(window), D.DIAGNOSIS_CONFIG.trim)
+    return trim_prediction(window, measured_variables(window), DIAGNOSIS_CONFIG.trim)
 
 
 def test_learnable_floor_scores_in_the_protocol_convention(flights, linkquad):
@@ -231,10 +253,10 @@ def test_learnable_floor_scores_in_the_protocol_convention(flights, linkquad):
     from quad_modelling.core.preprocess import measured_variables
 
     moving = [replace(log, vel_n=log.vel_n + np.array([1.0, 0.0, 0.0])) for log in flights[()][1:]]
-    floor = D.learnable_floor(SimpleNamespace(name="oracle", predict_window=_oracle), moving, linkquad)
+    floor = learnable_floor(SimpleNamespace(name="oracle", predict_window=_oracle), moving, linkquad)
     assert floor["windows"] >= 5
     assert max(v["rms"] for v in floor["gap"].values()) < 1e-9
-    absolute = D.learnable_floor(SimpleNamespace(name="absolute", predict_window=lambda w, k: measured_variables(w)), moving, linkquad)
+    absolute = learnable_floor(SimpleNamespace(name="absolute", predict_window=lambda w, k: measured_variables(w)), moving, linkquad)
     assert absolute["gap"]["vel_x"]["rms"] > 0.9  # 1 m/s plus the flight's own warm-start velocities (1.07)
 
 
@@ -242,7 +264,7 @@ def test_a_flight_without_a_window_is_named(flights, linkquad, base):
     """A 10 s flight leaves no 5 s window after dropping 6 s and 4.5 s: it is named, not silently left out."""
     short = flights[()][0].slice(0, 1000)
     short = replace(short, meta=replace(short.meta, source="short_flight"))
-    result = D.diagnose([flights[()][0], short], flights[()][1:], linkquad, [CATALOGUE["motor_lag"]], base=base)
+    result = diagnose([flights[()][0], short], flights[()][1:], linkquad, [CATALOGUE["motor_lag"]], base=base)
     windows = result.to_json()["windows"]
     assert windows["flights_without_windows"] == {"train": ["short_flight"], "test": []}
     assert "short_flight" not in result.to_json()["config"]["train_flights"]

@@ -6,8 +6,8 @@ from dataclasses import replace
 
 import pytest
 
-from quad_modelling.core.diagnosis_validation import validate
-from quad_modelling.core.sim_params import sim_params_for
+from quad_modelling.core.diagnosis.validation import validate
+from quad_modelling.core.sim.params import sim_params_for
 
 
 @pytest.fixture(scope="module")

@@ -3,16 +3,36 @@ parameters of a known effect are recovered from data made with it."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from quad_modelling.core import effects as E
-from quad_modelling.core.evaluation import span_windows
-from quad_modelling.core.greybox import GreyboxParameters, GreyboxPredictor
-from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG
-from quad_modelling.core.sim import simulate
+from quad_modelling.core.diagnosis.base_model import (
+    ANGULAR_ACCELERATION_COLUMNS,
+    RATE_COLUMNS,
+    BaseModel,
+    _angular_acceleration_offsets,
+    apply_effects,
+    measurement_filter,
+    predict_batch,
+    window_rms,
+)
+from quad_modelling.core.diagnosis.batch import (
+    COMMAND_HISTORY_S,
+    CONTACT_GUARD_S,
+    GROUND_CONTACT_M,
+    flying_span,
+    prepare_windows,
+)
+from quad_modelling.core.diagnosis.catalogue import CATALOGUE, parse_effect_list
+from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
+from quad_modelling.core.diagnosis.fitting import fit_effects, variable_scales
+from quad_modelling.core.models.greybox import GreyboxParameters, GreyboxPredictor
+from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.windows import span_windows
 from quad_modelling.errors import ConfigError
 
 NEUTRAL = {
@@ -34,17 +54,17 @@ def flight():
 
 @pytest.fixture(scope="session")
 def batch(flight, linkquad):
-    return E.prepare_windows([flight], linkquad, DIAGNOSIS_CONFIG)
+    return prepare_windows([flight], linkquad, DIAGNOSIS_CONFIG)
 
 
 @pytest.fixture(scope="session")
 def base(linkquad):
-    return E.BaseModel(GreyboxParameters.from_vehicle(linkquad), reference_voltage=12.0)
+    return BaseModel(GreyboxParameters.from_vehicle(linkquad), reference_voltage=12.0)
 
 
 def test_batched_base_equals_greybox_predictor(flight, linkquad, batch, base):
-    predicted = E.predict_batch(base, batch, smoothed=False, greybox_outputs=True)
-    windows = span_windows(flight, E.flying_span(), DIAGNOSIS_CONFIG)
+    predicted = predict_batch(base, batch, smoothed=False, greybox_outputs=True)
+    windows = span_windows(flight, flying_span(), DIAGNOSIS_CONFIG)
     assert len(windows) == len(batch) >= 4
     for k in (0, len(windows) - 1):
         window = flight.slice(windows[k].start, windows[k].stop)
@@ -53,18 +73,18 @@ def test_batched_base_equals_greybox_predictor(flight, linkquad, batch, base):
 
 
 def test_every_catalogue_effect_is_neutral_at_its_null_parameters(batch, base):
-    reference = E.predict_batch(base, batch)
-    assert set(NEUTRAL) == set(E.CATALOGUE)
+    reference = predict_batch(base, batch)
+    assert set(NEUTRAL) == set(CATALOGUE)
     for name, theta in NEUTRAL.items():
-        predicted = E.predict_batch(base, batch, [E.CATALOGUE[name]], [np.array(theta)])
+        predicted = predict_batch(base, batch, [CATALOGUE[name]], [np.array(theta)])
         np.testing.assert_allclose(predicted, reference, atol=1e-9, err_msg=name)
 
 
 def test_input_delay_shifts_commands_by_whole_and_fractional_samples(batch, base):
     u = batch.u
-    shifted = E.CATALOGUE["input_delay"].input_map(np.array([3 * batch.dt]), batch, base, u)
+    shifted = CATALOGUE["input_delay"].input_map(np.array([3 * batch.dt]), batch, base, u)
     np.testing.assert_allclose(shifted[:, 3:], u[:, :-3])
-    half = E.CATALOGUE["input_delay"].input_map(np.array([0.5 * batch.dt]), batch, base, u)
+    half = CATALOGUE["input_delay"].input_map(np.array([0.5 * batch.dt]), batch, base, u)
     np.testing.assert_allclose(half[:, 1:], 0.5 * (u[:, 1:] + u[:, :-1]))
 
 
@@ -72,8 +92,8 @@ def test_motor_lag_is_a_unit_gain_first_order_lag(batch, base):
     step = np.zeros_like(batch.u[:1])
     step[:, 10:] = 1.0
     tau = 0.1
-    one = E.replace(batch.subset([0]), u=step, u_history=np.zeros_like(batch.u_history[:1]))
-    lagged = E.CATALOGUE["motor_lag"].input_map(np.array([tau]), one, base, step)
+    one = replace(batch.subset([0]), u=step, u_history=np.zeros_like(batch.u_history[:1]))
+    lagged = CATALOGUE["motor_lag"].input_map(np.array([tau]), one, base, step)
     n = int(round(tau / batch.dt))  # one time constant after the step
     pole = np.exp(-batch.dt / tau)
     assert lagged[0, 10 + n, 0] == pytest.approx(1.0 - pole ** (n + 1), abs=1e-9)  # y_k = p y_(k-1) + (1-p) u_k
@@ -86,15 +106,15 @@ def test_lag_and_delay_start_from_the_commands_before_the_window(batch, base):
     at the window's first command), the delay shows the pre-step commands in its first samples."""
     one = batch.subset([0])
     h = one.u_history.shape[1]
-    assert h == int(round(E.COMMAND_HISTORY_S / batch.dt))
+    assert h == int(round(COMMAND_HISTORY_S / batch.dt))
     history = np.zeros_like(one.u_history)
     history[:, h - 10 :] = 1.0  # the step, 10 samples before the window
-    step = E.replace(one, u=np.ones_like(one.u), u_history=history)
+    step = replace(one, u=np.ones_like(one.u), u_history=history)
     tau = 0.1
-    lagged = E.CATALOGUE["motor_lag"].input_map(np.array([tau]), step, base, step.u)
+    lagged = CATALOGUE["motor_lag"].input_map(np.array([tau]), step, base, step.u)
     pole = np.exp(-batch.dt / tau)
     assert lagged[0, 0, 0] == pytest.approx(1.0 - pole**11, abs=1e-9)  # 11 samples after the step
-    delayed = E.CATALOGUE["input_delay"].input_map(np.array([15 * batch.dt]), step, base, step.u)
+    delayed = CATALOGUE["input_delay"].input_map(np.array([15 * batch.dt]), step, base, step.u)
     np.testing.assert_allclose(delayed[0, :5, 0], 0.0)  # u(t - 0.15 s): before the step
     np.testing.assert_allclose(delayed[0, 5:, 0], 1.0)
 
@@ -103,13 +123,13 @@ def test_mapped_commands_are_trimmed_at_the_warm_start(batch, base):
     """The linearisation point is the warm start: the mapped commands have zero warm-start mean, as the
     raw trimmed ones do."""
     for name, theta in (("motor_lag", [0.1]), ("input_delay", [0.05]), ("thrust_nonlinearity", [2.0])):
-        aug = E.apply_effects([E.CATALOGUE[name]], [np.array(theta)], batch, base)
+        aug = apply_effects([CATALOGUE[name]], [np.array(theta)], batch, base)
         np.testing.assert_allclose(aug.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12, err_msg=name)
     np.testing.assert_allclose(batch.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12)
 
 
 def test_drag_force_opposes_the_measured_velocity(batch, base):
-    e = E.CATALOGUE["rotor_drag"].forcing(np.array([0.5, 0.0, 0.0]), batch, base, batch.u)
+    e = CATALOGUE["rotor_drag"].forcing(np.array([0.5, 0.0, 0.0]), batch, base, batch.u)
     v = batch.velocity_smooth - batch.velocity_smooth[:, : batch.warm].mean(axis=1, keepdims=True)
     np.testing.assert_allclose(e[:, :, 0], -0.5 * v[:, :, 0], atol=1e-12)
 
@@ -125,8 +145,8 @@ def test_drag_moment_follows_the_body_axes_velocity_in_a_turn(batch, base):
     v[0, :, 0] = 2.0
     euler = np.zeros((1, n, 3))
     euler[0, :, 2] = yaw
-    turn = E.replace(one, velocity_smooth=v, euler=euler)
-    e = E.CATALOGUE["rotor_drag"].forcing(np.array([0.3, 0.3, -1.5]), turn, base, turn.u)
+    turn = replace(one, velocity_smooth=v, euler=euler)
+    e = CATALOGUE["rotor_drag"].forcing(np.array([0.3, 0.3, -1.5]), turn, base, turn.u)
     np.testing.assert_allclose(e[0, :, 0:3], 0.0, atol=1e-12)  # no change of the velocity in N: no change of the force
     # end of the turn: v_B = (0, -2); warm start: v_B = (2, 0)
     assert e[0, -1, 3] == pytest.approx(-1.5 * (-2.0 - 0.0))
@@ -135,25 +155,25 @@ def test_drag_moment_follows_the_body_axes_velocity_in_a_turn(batch, base):
 
 @pytest.mark.parametrize("name, truth", [("motor_lag", [0.08]), ("input_delay", [0.035]), ("rotor_drag", [0.4, 0.3, -1.5])])
 def test_fit_recovers_the_parameters_of_a_known_effect(batch, base, name, truth):
-    effect = E.CATALOGUE[name]
-    made = E.predict_batch(base, batch, [effect], [np.array(truth)])
-    synthetic = E.replace(batch, measured=made)
-    scales = E.variable_scales(synthetic, E.predict_batch(base, synthetic))
-    fit = E.fit_effects(base, synthetic, [effect], scales)
+    effect = CATALOGUE[name]
+    made = predict_batch(base, batch, [effect], [np.array(truth)])
+    synthetic = replace(batch, measured=made)
+    scales = variable_scales(synthetic, predict_batch(base, synthetic))
+    fit = fit_effects(base, synthetic, [effect], scales)
     np.testing.assert_allclose(fit.thetas[0], truth, rtol=0.05, atol=2e-3)
 
 
 def test_unknown_effect_names_are_a_config_error():
-    assert [e.name for e in E.parse_effect_list("battery, motor_lag")] == ["battery", "motor_lag"]
-    assert len(E.parse_effect_list("all")) == len(E.CATALOGUE)
+    assert [e.name for e in parse_effect_list("battery, motor_lag")] == ["battery", "motor_lag"]
+    assert len(parse_effect_list("all")) == len(CATALOGUE)
     with pytest.raises(ConfigError, match="wind"):
-        E.parse_effect_list("wind")
+        parse_effect_list("wind")
 
 
 def test_battery_effect_needs_a_voltage(batch):
-    assert E.CATALOGUE["battery"].applicable(batch) is None
-    assert "voltage" in E.CATALOGUE["battery"].applicable(E.replace(batch, vbat=None))
-    assert INDEX["acc_z"] in [INDEX[v] for v in E.CATALOGUE["battery"].variables]
+    assert CATALOGUE["battery"].applicable(batch) is None
+    assert "voltage" in CATALOGUE["battery"].applicable(replace(batch, vbat=None))
+    assert INDEX["acc_z"] in [INDEX[v] for v in CATALOGUE["battery"].variables]
 
 
 def test_measurement_filter_gives_the_model_the_gyro_derivative_filter(batch):
@@ -165,7 +185,7 @@ def test_measurement_filter_gives_the_model_the_gyro_derivative_filter(batch):
     out = np.zeros((2, batch.samples, 18))
     for w, f in enumerate((1.0, 12.0)):
         out[w, :, INDEX["roll_acc"]] = np.sin(2 * np.pi * f * t)
-    E.measurement_filter(out, batch.dt, np.arange(18))
+    measurement_filter(out, batch.dt, np.arange(18))
     inner = slice(20, -20)
     low, high = out[0, inner, INDEX["roll_acc"]], out[1, inner, INDEX["roll_acc"]]
     assert np.sqrt(np.mean(low**2)) == pytest.approx(np.sqrt(0.5), rel=0.03)
@@ -179,36 +199,36 @@ def test_windows_that_touch_the_ground_are_left_out(linkquad):
     """Simulated seed 2001 (effects off) touches down during its low pass at 41-51 s: those two windows are
     dropped and counted, the rest stay (every kept window is at least 1 cm above where the vehicle stood)."""
     log = simulate("linkquad", effects=(), seed=2001, duration=90.0)
-    kept = E.prepare_windows([log], linkquad, DIAGNOSIS_CONFIG)
+    kept = prepare_windows([log], linkquad, DIAGNOSIS_CONFIG)
     assert kept.ground_contact_dropped == 2
     assert not {41.0, 46.0} & {round(float(t), 1) for t in kept.t0}
-    assert kept.height.min() >= E.GROUND_CONTACT_M
-    assert len(kept) == len(span_windows(log, E.flying_span(), DIAGNOSIS_CONFIG)) - 2
+    assert kept.height.min() >= GROUND_CONTACT_M
+    assert len(kept) == len(span_windows(log, flying_span(), DIAGNOSIS_CONFIG)) - 2
 
 
 @pytest.fixture(scope="session")
 def truth_run():
     """Effects-off flight (seed 5, 35 s) with the simulator's truth next to its log."""
-    from quad_modelling.core.sim import run_simulation
+    from quad_modelling.core.sim.simulate import run_simulation
 
     return run_simulation("linkquad", effects=(), seed=5, duration=35.0)
 
 
 @pytest.fixture(scope="session")
 def identified(truth_run, linkquad):
-    from quad_modelling.core.diagnosis import identify_base
+    from quad_modelling.core.diagnosis.base_fit import identify_base
 
-    return identify_base(E.prepare_windows([truth_run.log], linkquad, DIAGNOSIS_CONFIG), linkquad).model
+    return identify_base(prepare_windows([truth_run.log], linkquad, DIAGNOSIS_CONFIG), linkquad).model
 
 
 def test_accelerations_follow_the_measured_attitude_on_an_effects_off_flight(truth_run, linkquad, identified):
     """With the simulator's true IMU signals (no sensor noise), the modelled force rotated by the measured
     attitude reproduces acc_x/acc_y to 1 mm/s² RMS, where the greybox's -g theta (open-loop attitude drift
     over 5 s) is metres per second squared off; acc_z (no small-angle drop of the tilt) halves its gap."""
-    truth = E.replace(truth_run.log, acc_b=truth_run.truth["specific_force_b"], gyro_b=truth_run.truth["rates_b"])
-    batch = E.prepare_windows([truth], linkquad, DIAGNOSIS_CONFIG)
-    new = E.window_rms(batch, E.predict_batch(identified, batch)).mean(axis=0)
-    old = E.window_rms(batch, E.predict_batch(identified, batch, greybox_outputs=True)).mean(axis=0)
+    truth = replace(truth_run.log, acc_b=truth_run.truth["specific_force_b"], gyro_b=truth_run.truth["rates_b"])
+    batch = prepare_windows([truth], linkquad, DIAGNOSIS_CONFIG)
+    new = window_rms(batch, predict_batch(identified, batch)).mean(axis=0)
+    old = window_rms(batch, predict_batch(identified, batch, greybox_outputs=True)).mean(axis=0)
     assert new[INDEX["acc_x"]] < 1e-3 and new[INDEX["acc_y"]] < 1e-3
     assert old[INDEX["acc_x"]] > 1.0 and old[INDEX["acc_y"]] > 1.0
     assert new[INDEX["acc_z"]] < 0.5 * old[INDEX["acc_z"]]
@@ -226,8 +246,8 @@ def test_angular_acceleration_offsets_halve_the_noise_of_the_warm_start_mean(bat
     rng = np.random.default_rng(3)
     rates = 0.3 * t[None, :] + rng.normal(0.0, 0.003, size=(400, many.warm))
     warm_rows = many.warm_rows.copy()
-    warm_rows[:, :, E.RATE_COLUMNS[0]] = rates
-    offsets = E._angular_acceleration_offsets(E.replace(many, warm_rows=warm_rows, angacc_trim=np.zeros((400, 3))))[:, 0]
+    warm_rows[:, :, RATE_COLUMNS[0]] = rates
+    offsets = _angular_acceleration_offsets(replace(many, warm_rows=warm_rows, angacc_trim=np.zeros((400, 3))))[:, 0]
     greybox = np.array([differentiate(r[:, None], many.dt).mean() for r in rates])
     assert offsets.mean() == pytest.approx(0.3, abs=0.002)
     assert offsets.std() == pytest.approx(0.003 / np.sqrt(np.sum((t - t.mean()) ** 2)), rel=0.1)
@@ -238,13 +258,13 @@ def test_angular_acceleration_offset_recovers_a_constant_acceleration(batch, bas
     """Gyro rates over the warm start that ramp at a constant 0.3 rad/s² on top of the model's own response
     give an offset of exactly 0.3 rad/s² (window-trimmed)."""
     one = batch.subset(np.array([0]))
-    still = E.replace(one, u=np.zeros_like(one.u), u_history=np.zeros_like(one.u_history))
+    still = replace(one, u=np.zeros_like(one.u), u_history=np.zeros_like(one.u_history))
     warm_rows = still.warm_rows.copy()
     t = np.arange(still.samples) * still.dt
-    warm_rows[0][:, E.RATE_COLUMNS] = (0.1 + 0.3 * t[: still.warm])[:, None]
-    ramp = E.replace(still, warm_rows=warm_rows, angacc_trim=np.array([[0.05, 0.0, -0.05]]))
-    predicted = E.predict_batch(base, ramp, smoothed=False)
-    np.testing.assert_allclose(predicted[0][ramp.warm :, E.ANGULAR_ACCELERATION_COLUMNS], [[0.25, 0.3, 0.35]] * (ramp.samples - ramp.warm), atol=1e-9)
+    warm_rows[0][:, RATE_COLUMNS] = (0.1 + 0.3 * t[: still.warm])[:, None]
+    ramp = replace(still, warm_rows=warm_rows, angacc_trim=np.array([[0.05, 0.0, -0.05]]))
+    predicted = predict_batch(base, ramp, smoothed=False)
+    np.testing.assert_allclose(predicted[0][ramp.warm :, ANGULAR_ACCELERATION_COLUMNS], [[0.25, 0.3, 0.35]] * (ramp.samples - ramp.warm), atol=1e-9)
 
 
 def test_the_touchdown_window_is_left_out(flight, linkquad):
@@ -254,15 +274,15 @@ def test_the_touchdown_window_is_left_out(flight, linkquad):
     from dataclasses import replace
 
     config = replace(DIAGNOSIS_CONFIG, drop_start=7.5, drop_end=0.5)
-    all_windows = span_windows(flight, E.flying_span(), config)
+    all_windows = span_windows(flight, flying_span(), config)
     starts = [round(float(flight.t[w.start]), 2) for w in all_windows]
     assert starts[-1] == 27.5
-    kept = E.prepare_windows([flight], linkquad, config)
+    kept = prepare_windows([flight], linkquad, config)
     assert kept.ground_contact_dropped == 1
     assert [round(float(t), 2) for t in kept.t0] == starts[:-1]
     ground = flight.pos_n[:, 2].max()
     last = (flight.t >= 27.5) & (flight.t < 32.5)
     assert np.min(ground - flight.pos_n[last, 2]) > 0.1  # the dropped window itself was airborne throughout
     for t0 in kept.t0:
-        around = (flight.t >= t0 - E.CONTACT_GUARD_S) & (flight.t < t0 + config.window_s + E.CONTACT_GUARD_S)
-        assert np.min(ground - flight.pos_n[around, 2]) >= E.GROUND_CONTACT_M
+        around = (flight.t >= t0 - CONTACT_GUARD_S) & (flight.t < t0 + config.window_s + CONTACT_GUARD_S)
+        assert np.min(ground - flight.pos_n[around, 2]) >= GROUND_CONTACT_M

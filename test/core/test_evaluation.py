@@ -1,11 +1,18 @@
 import numpy as np
 import pytest
 
-from quad_modelling.core.evaluation import EvaluationConfig, SpanSpec, evaluate, evaluate_window, plan_windows, span_windows
-from quad_modelling.core.models import DummyPredictor, make_model
+from quad_modelling.core.evaluation.windowed import evaluate, evaluate_window
+from quad_modelling.core.models.base import DummyPredictor
+from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.preprocess import smooth, trimmed_variables
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.windows import (
+    EvaluationConfig,
+    SpanSpec,
+    plan_windows,
+    span_windows,
+)
 from quad_modelling.errors import ConfigError, DataError
 
 from .flightgen import linear_flight

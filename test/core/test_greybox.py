@@ -2,8 +2,13 @@ import numpy as np
 import pytest
 
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.greybox import GreyboxModel, GreyboxParameters, GreyboxPredictor, continuous_matrices
-from quad_modelling.core.models import make_model
+from quad_modelling.core.models.greybox import (
+    GreyboxModel,
+    GreyboxParameters,
+    GreyboxPredictor,
+    continuous_matrices,
+)
+from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import GRAVITY, load_vehicle
 from quad_modelling.errors import ConfigError
@@ -126,7 +131,7 @@ def test_predictor_anchors_on_measurement_and_registry():
 
 def test_streaming_form_gives_the_offline_numbers():
     """The live node's start_window/push and the vectorised offline prediction agree."""
-    from quad_modelling.core.streaming import predict_window_by_stream
+    from quad_modelling.core.models.streaming import predict_window_by_stream
     from quad_modelling.core.vehicle import load_vehicle
     from test.core.flightgen import linear_flight
 
@@ -159,9 +164,9 @@ def test_linear_model_matches_the_nonlinear_simulator_on_a_small_manoeuvre(motor
     """Effects off (and motor_lag on, the thesis's own motor model): a 10 us collective doublet
     and a 2 us roll doublet from hover; the linear model's Z velocity and roll rate follow the
     6-DoF simulator (TIC < 0.1)."""
-    from quad_modelling.core.metrics import tic
-    from quad_modelling.core.sim_dynamics import QuadDynamics
-    from quad_modelling.core.sim_params import sim_params_for
+    from quad_modelling.core.evaluation.metrics import tic
+    from quad_modelling.core.sim.dynamics import QuadDynamics
+    from quad_modelling.core.sim.params import sim_params_for
 
     params = sim_params_for("linkquad")
     dynamics = QuadDynamics(params, effects=("motor_lag",) if motor_lag else ())

@@ -8,14 +8,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from quad_modelling.core import hybrid, narx
-from quad_modelling.core.evaluation import SpanSpec, warm_samples_for
-from quad_modelling.core.greybox import GreyboxPredictor
-from quad_modelling.core.models import make_model
-from quad_modelling.core.narx import NarxConfig
+from quad_modelling.core.models import hybrid
+from quad_modelling.core.models.greybox import GreyboxPredictor
+from quad_modelling.core.models.narx import (
+    DIFFERENTIATED,
+    INTEGRATED,
+    OUTPUTS,
+    NarxConfig,
+    load_narx,
+)
+from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.preprocess import trimmed_variables
 from quad_modelling.core.variables import columns
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.windows import SpanSpec, warm_samples_for
 from quad_modelling.errors import ModelError
 from quad_modelling.io.loader import load_flight
 
@@ -47,7 +53,7 @@ def test_zero_residual_nets_give_the_greybox_exactly(trained, flight, vehicle):
     greybox = GreyboxPredictor(vehicle).predict_window(window, 20)
     residual_only = hybrid.HybridModel(silent, vehicle).predict_window(window, 20)
     # the warm-up residual is the measured one; afterwards the silent nets add nothing
-    outputs, accelerations = columns(narx.OUTPUTS), columns(narx.DIFFERENTIATED)
+    outputs, accelerations = columns(OUTPUTS), columns(DIFFERENTIATED)
     assert np.array_equal(residual_only[20:, outputs], greybox[20:, outputs])
     assert np.allclose(residual_only[21:, accelerations], greybox[21:, accelerations], rtol=0, atol=1e-12)
     assert not np.allclose(residual_only[:20, outputs], greybox[:20, outputs])
@@ -59,9 +65,9 @@ def test_correction_is_added_integrated_and_differentiated(flight):
     residual = np.tile([0.0, 0.0, 0.0, 0.1, -0.2, 0.3], (300, 1)) * (window.t - window.t[0])[:, None]
     out = hybrid.corrected(window, greybox, residual)
     elapsed = window.t - window.t[0]
-    assert np.allclose(out[:, columns(narx.OUTPUTS)], residual)
-    assert np.allclose(out[:, columns(narx.INTEGRATED)][:, 3:], 0.5 * np.outer(elapsed**2, [0.1, -0.2, 0.3]), atol=1e-12)
-    assert np.allclose(out[:, columns(narx.DIFFERENTIATED)][:, 3:], [0.1, -0.2, 0.3])
+    assert np.allclose(out[:, columns(OUTPUTS)], residual)
+    assert np.allclose(out[:, columns(INTEGRATED)][:, 3:], 0.5 * np.outer(elapsed**2, [0.1, -0.2, 0.3]), atol=1e-12)
+    assert np.allclose(out[:, columns(DIFFERENTIATED)][:, 3:], [0.1, -0.2, 0.3])
 
 
 def test_learns_the_greybox_residual_on_its_training_windows(trained, flight, vehicle):
@@ -97,6 +103,6 @@ def test_refuses_changed_vehicle_constants_and_wrong_kind(trained, vehicle, tmp_
     with pytest.raises(ModelError, match=f"constants of vehicle 'crazyflie21' changed since training \\({key}"):
         hybrid.load_hybrid(path, changed)
     with pytest.raises(ModelError, match="is a 'hybrid' model, expected 'narx'"):
-        narx.load_narx(path)
+        load_narx(path)
     with pytest.raises(ModelError, match="trained for vehicle 'crazyflie21', not 'linkquad'"):
         hybrid.load_hybrid(path, load_vehicle("linkquad"))

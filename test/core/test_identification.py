@@ -1,8 +1,11 @@
 import numpy as np
 
-from quad_modelling.core.evaluation import EvaluationConfig
-from quad_modelling.core.identification import identified_vehicle_document, identify
+from quad_modelling.core.identification.identify import (
+    identified_vehicle_document,
+    identify,
+)
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
+from quad_modelling.core.windows import EvaluationConfig
 
 from .flightgen import linear_flight
 
@@ -31,7 +34,7 @@ def _differential_flight(vehicle, seed, duration=40.0, rate=100.0):
 
     from quad_modelling.core import frames
     from quad_modelling.core.flight_log import FlightLog, FlightMeta
-    from quad_modelling.core.greybox import GreyboxModel
+    from quad_modelling.core.models.greybox import GreyboxModel
     from quad_modelling.core.vehicle import GRAVITY
 
     rng = np.random.default_rng(seed)

@@ -1,6 +1,6 @@
 import numpy as np
 
-from quad_modelling.core.metrics import rms, sim_err, tic, vector_error_norm
+from quad_modelling.core.evaluation.metrics import rms, sim_err, tic, vector_error_norm
 
 
 def test_rms_of_known_error():

@@ -10,9 +10,19 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from quad_modelling.core import narx
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.narx import NarxConfig, Segment, load_narx, train_narx
+from quad_modelling.core.models.model_files import FORMAT_VERSION
+from quad_modelling.core.models.narx import (
+    ARRAY_NAMES,
+    DIFFERENTIATED,
+    INTEGRATED,
+    OUTPUTS,
+    NarxConfig,
+    NarxModel,
+    NarxPredictor,
+    load_narx,
+)
+from quad_modelling.core.models.narx_training import Segment, _noisy_outputs, train_narx
 from quad_modelling.core.preprocess import measured_variables, trimmed_variables
 from quad_modelling.core.variables import columns
 from quad_modelling.errors import DataError, ModelError, OutputExistsError
@@ -49,7 +59,7 @@ def flight_from(u: np.ndarray, y: np.ndarray, vehicle: str = "linkquad") -> Flig
 
 
 @pytest.fixture(scope="module")
-def trained() -> narx.NarxModel:
+def trained() -> NarxModel:
     u, y = linear_system(3000, seed=0)
     return train_narx([Segment(u, y, "synthetic", (0.0, 30.0))], DT, "linkquad", SMALL, seed=1)
 
@@ -94,7 +104,7 @@ def test_model_file_holds_no_pickle(trained, tmp_path):
     with np.load(path, allow_pickle=False) as archive:
         assert all(archive[name].dtype != object for name in archive.files)
         header = json.loads(str(archive["header"]))
-    assert header["format_version"] == narx.FORMAT_VERSION and header["vehicle"] == "linkquad"
+    assert header["format_version"] == FORMAT_VERSION and header["vehicle"] == "linkquad"
 
 
 def _rewrite_header(path: Path, out: Path, **changes) -> Path:
@@ -146,7 +156,7 @@ def test_same_seed_same_weights_other_seed_differs():
     first = train_narx([Segment(u, y)], DT, "linkquad", config, seed=4)
     again = train_narx([Segment(u, y)], DT, "linkquad", config, seed=4)
     other = train_narx([Segment(u, y)], DT, "linkquad", config, seed=5)
-    for name in narx.ARRAY_NAMES:
+    for name in ARRAY_NAMES:
         assert np.array_equal(getattr(first, name), getattr(again, name)), name
     assert not np.allclose(first.w_u, other.w_u)
 
@@ -162,7 +172,7 @@ def test_stream_matches_closed_loop_sample_for_sample(trained):
 def test_noise_injection_has_the_requested_snr():
     rng = np.random.default_rng(0)
     y = rng.standard_normal((20000, 6)) * np.array([1, 2, 3, 4, 5, 6])
-    noisy = narx._noisy_outputs([Segment(np.zeros((20000, 4)), y)], (None, None, None, 10.0, 10.0, 20.0), rng)[0]
+    noisy = _noisy_outputs([Segment(np.zeros((20000, 4)), y)], (None, None, None, 10.0, 10.0, 20.0), rng)[0]
     noise_power = (noisy - y).var(axis=0)
     assert np.all(noise_power[:3] == 0.0)
     # 10 dB: noise power = signal power / 10; 20 dB: / 100
@@ -175,38 +185,38 @@ def test_predict_window_gives_consistent_18_variables(trained):
     prediction = trained.predict_window(window, warm_samples=20)
     assert prediction.shape == (1000, 18)
     assert np.array_equal(prediction[:20], measured_variables(window.slice(0, 20)))  # the warm-up is measured
-    velocity = prediction[:, columns(narx.OUTPUTS)]
-    position = prediction[:, columns(narx.INTEGRATED)]
+    velocity = prediction[:, columns(OUTPUTS)]
+    position = prediction[:, columns(INTEGRATED)]
     # causal trapezoid integration and backward differences from the last warm row
     assert np.allclose(np.diff(position[19:], axis=0), 0.5 * (velocity[20:] + velocity[19:-1]) * DT)
-    acceleration = prediction[:, columns(narx.DIFFERENTIATED)]
+    acceleration = prediction[:, columns(DIFFERENTIATED)]
     assert np.allclose(acceleration[20:], (velocity[20:] - velocity[19:-1]) / DT)
     # closed loop over 10 s: a small learnt bias integrates on the slow poles (a = 0.97), hence 15 %
     assert np.all(relative_rms(velocity, y) < 0.15)
 
 
 def test_streaming_predictor_equals_offline_window_prediction(trained):
-    from quad_modelling.core.streaming import predict_window_by_stream
+    from quad_modelling.core.models.streaming import predict_window_by_stream
 
     u, y = linear_system(600, seed=14)
     window = flight_from(u, y)
-    predictor = narx.NarxPredictor(trained)
+    predictor = NarxPredictor(trained)
     streamed = predict_window_by_stream(predictor, window, 20)
     assert np.allclose(streamed, trained.predict_window(window, 20), rtol=0, atol=1e-10)
     longer_memory = dataclasses.replace(trained, config=dataclasses.replace(trained.config, output_delays=3))
     with pytest.raises(DataError, match="needs 3 warm-start samples, got 2"):
-        narx.NarxPredictor(longer_memory).start_window(window.slice(0, 2))
+        NarxPredictor(longer_memory).start_window(window.slice(0, 2))
 
 
 def test_predictor_returns_trimmed_prediction(trained):
     u, y = linear_system(1000, seed=12)
     window = flight_from(u, y)
-    trimmed = narx.NarxPredictor(trained).predict_window(window, warm_samples=20)
+    trimmed = NarxPredictor(trained).predict_window(window, warm_samples=20)
     absolute = trained.predict_window(window, warm_samples=20)
     measured = trimmed_variables(window)
     # same offset as the measurement's trim (mean over the first 1 s = 100 samples): errors are unchanged
     assert np.allclose(absolute - trimmed, measured_variables(window)[:100].mean(axis=0))
-    assert np.array_equal(trimmed[:20, columns(narx.OUTPUTS)], measured[:20, columns(narx.OUTPUTS)])
+    assert np.array_equal(trimmed[:20, columns(OUTPUTS)], measured[:20, columns(OUTPUTS)])
 
 
 def test_other_sample_rate_and_short_windows_refused(trained):

@@ -5,15 +5,19 @@ import math
 import numpy as np
 import pytest
 
-from quad_modelling.core.sim import open_circuit_voltage, run_simulation, simulate
-from quad_modelling.core.sim_dynamics import QuadDynamics
-from quad_modelling.core.sim_params import (
+from quad_modelling.core.sim.dynamics import QuadDynamics
+from quad_modelling.core.sim.params import (
     DEFAULT_EFFECTS,
     SIM_EFFECTS,
     parse_effects,
     sim_params_for,
 )
-from quad_modelling.core.sim_pilot import PHASE_FLYING, TURN_RAMP, make_pilot_script
+from quad_modelling.core.sim.pilot import PHASE_FLYING, TURN_RAMP, make_pilot_script
+from quad_modelling.core.sim.simulate import (
+    open_circuit_voltage,
+    run_simulation,
+    simulate,
+)
 from quad_modelling.core.vehicle import GRAVITY
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.matlog import read_matlog, write_matlog

@@ -2,9 +2,13 @@
 
 import numpy as np
 
-from quad_modelling.core.greybox import GreyboxPredictor
+from quad_modelling.core.models.greybox import GreyboxPredictor
+from quad_modelling.core.models.streaming import (
+    hover_at_rest,
+    predict_window_by_stream,
+    prime,
+)
 from quad_modelling.core.preprocess import measured_variables
-from quad_modelling.core.streaming import hover_at_rest, predict_window_by_stream, prime
 from quad_modelling.core.vehicle import GRAVITY, load_vehicle
 from quad_modelling.errors import DataError
 from test.conftest import synthetic_log

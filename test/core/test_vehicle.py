@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 import yaml
 
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig, load_vehicle, vehicle_dir
+from quad_modelling.core.vehicle import (
+    GRAVITY,
+    VehicleConfig,
+    load_vehicle,
+    vehicle_dir,
+)
 from quad_modelling.errors import ConfigError
 
 

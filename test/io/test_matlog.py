@@ -5,7 +5,12 @@ import yaml
 
 from quad_modelling.core import frames
 from quad_modelling.errors import ConfigError, DataError, OutputExistsError
-from quad_modelling.io.matlog import THESIS_VARIABLES, load_mapping, read_matlog, write_matlog
+from quad_modelling.io.matlog import (
+    THESIS_VARIABLES,
+    load_mapping,
+    read_matlog,
+    write_matlog,
+)
 from test.conftest import REPO, synthetic_log
 
 

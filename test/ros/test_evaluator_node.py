@@ -92,6 +92,7 @@ def test_gap_restart_and_late_start_mark_windows_instead_of_failing(ros, tmp_pat
 
     late = make_node(spans=["live:0:inf"])
     from rosgraph_msgs.msg import Clock
+
     from quad_modelling.io.bag_io import stamps_ns
 
     late.on_origin(Clock(clock=messages.ns_stamp(int(stamps_ns(log.t)[0]))))

@@ -11,8 +11,7 @@ import pytest
 from rclpy.parameter import Parameter
 
 from quad_modelling.core.frames import geodesic_angle
-
-from quad_modelling.core.streaming import predict_window_by_stream
+from quad_modelling.core.models.streaming import predict_window_by_stream
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.io.bag_io import stamps_ns
 from quad_modelling.nodes import messages

@@ -5,9 +5,10 @@ import json
 import pytest
 
 from quad_modelling.cli import main
-from quad_modelling.core.evaluation import EvaluationConfig, evaluate
-from quad_modelling.core.models import make_model
+from quad_modelling.core.evaluation.windowed import evaluate
+from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.io.bag_io import read_bag
 from test.conftest import REPO
 

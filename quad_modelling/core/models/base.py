@@ -37,7 +37,6 @@ Other modules add entries with :func:`register_model` (e.g. ``narx:PATH``,
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -46,7 +45,6 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.preprocess import TrimConfig
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.errors import ConfigError
 
 
 @runtime_checkable
@@ -103,14 +101,14 @@ class ConstantStatePredictor:
 
     def start_window(self, warm: FlightLog):
         """Live form: the warm measurement, then its last row held (absolute)."""
+        from quad_modelling.core.models.streaming import HoldLastMeasurement
         from quad_modelling.core.preprocess import measured_variables
-        from quad_modelling.core.streaming import HoldLastMeasurement
 
         return HoldLastMeasurement(lambda log: measured_variables(log, self.vehicle)).start_window(warm)
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        from quad_modelling.core.models.streaming import predict_window_by_stream
         from quad_modelling.core.preprocess import trim_prediction
-        from quad_modelling.core.streaming import predict_window_by_stream
 
         return trim_prediction(window, predict_window_by_stream(self, window, warm_samples), self.trim)
 
@@ -121,64 +119,4 @@ class ConstantStatePredictor:
         return np.repeat(measured[np.asarray(starts)][:, None, :], horizon + 1, axis=1)
 
 
-ModelFactory = Callable[[str, VehicleConfig], Predictor]
 
-_REGISTRY: dict[str, ModelFactory] = {}
-
-
-def register_model(kind: str, factory: ModelFactory) -> None:
-    """Add (or replace) the factory for specs ``kind`` and ``kind:ARG``."""
-    _REGISTRY[kind] = factory
-
-
-def _make_greybox(arg: str, vehicle: VehicleConfig) -> Predictor:
-    from quad_modelling.core.greybox import DISCRETISATIONS, GreyboxPredictor
-
-    method = arg or "zoh"
-    if method not in DISCRETISATIONS:
-        raise ConfigError(f"model spec greybox:{arg}: discretisation must be one of {', '.join(DISCRETISATIONS)}")
-    return GreyboxPredictor(vehicle, discretisation=method)
-
-
-def _make_dummy(arg: str, vehicle: VehicleConfig) -> Predictor:
-    if arg:
-        raise ConfigError(f"model spec dummy:{arg}: the dummy model takes no argument")
-    return DummyPredictor()
-
-
-def _make_naive(arg: str, vehicle: VehicleConfig) -> Predictor:
-    if arg:
-        raise ConfigError(f"model spec naive:{arg}: the naive model takes no argument")
-    return ConstantStatePredictor(vehicle)
-
-
-register_model("greybox", _make_greybox)
-register_model("dummy", _make_dummy)
-register_model("naive", _make_naive)
-
-
-def _register_learned_models() -> None:
-    """Register ``narx:PATH`` and ``hybrid:PATH`` from :mod:`quad_modelling.core.narx` (imported
-    on first use: it imports torch lazily too). A failing import is a ConfigError naming it,
-    not an 'unknown model'."""
-    try:
-        from quad_modelling.core.narx import register_models
-    except ImportError as err:
-        raise ConfigError(f"the NARX/hybrid models cannot be loaded: {err}") from err
-    register_models(register_model)
-
-
-def make_model(spec: str, vehicle: VehicleConfig) -> Predictor:
-    """Build a predictor from a spec such as ``greybox``, ``dummy``, ``narx:model.pt``.
-
-    Raises ConfigError naming the spec and the known kinds when unknown.
-    """
-    kind, _, arg = spec.partition(":")
-    if kind not in _REGISTRY:
-        _register_learned_models()
-    if kind not in _REGISTRY:
-        raise ConfigError(f"unknown model {spec!r}; known: {', '.join(sorted(_REGISTRY))}")
-    model = _REGISTRY[kind](arg, vehicle)
-    if not getattr(model, "name", None):
-        raise ConfigError(f"model spec {spec!r}: the predictor has no name")
-    return model

@@ -3,7 +3,7 @@
 For each catalogue effect the truth simulator can switch on
 (:data:`VALIDATED_EFFECTS`) and each seed:
 
-* the *base* model is the greybox identified (:func:`~quad_modelling.core.diagnosis.identify_base`)
+* the *base* model is the greybox identified (:func:`~quad_modelling.core.diagnosis.base_fit.identify_base`)
   on the training flights flown with every effect off (same seeds, same
   manoeuvres: the effects-off-consistent training data), so the only
   systematic gap left is the withheld effect;
@@ -18,7 +18,7 @@ Pairs switch two effects on: both must be in the top 3 and found.
 Two shrink numbers per run (:func:`attributable_gap`):
 
 * ``shrink`` -- the literal target: the diagnosis's held-out shrink of the effect's affected-variable
-  gap (:mod:`~quad_modelling.core.diagnosis`, point 3). Its ceiling is below 1: the base model keeps a
+  gap (:mod:`~quad_modelling.core.diagnosis.diagnose`, point 3). Its ceiling is below 1: the base model keeps a
   gap on flights with *no* effect (IMU noise through the derivative and the low-pass, commands logged
   slower than the stabiliser sends them, the noise of the warm-start linearisation point;
   bench/bench_diagnose_floor.py splits it);
@@ -48,13 +48,18 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from quad_modelling.core.diagnosis import DIAGNOSIS_CONFIG, BaseFit, diagnose, excited_windows, identify_base, normalised_window_gap
-from quad_modelling.core.effects import CATALOGUE, Effect, predict_batch, prepare_windows
-from quad_modelling.core.evaluation import EvaluationConfig
+from quad_modelling.core.diagnosis.attribution import excited_windows
+from quad_modelling.core.diagnosis.base_fit import BaseFit, identify_base
+from quad_modelling.core.diagnosis.base_model import predict_batch
+from quad_modelling.core.diagnosis.batch import prepare_windows
+from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
+from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG, diagnose
+from quad_modelling.core.diagnosis.statistics import normalised_window_gap
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.sim_params import SimParams
+from quad_modelling.core.sim.params import SimParams
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import DataError
 
 VALIDATED_EFFECTS: tuple[str, ...] = (
@@ -83,7 +88,7 @@ class FlightCache:
 
     def _logs(self, effects: tuple[str, ...], seed: int) -> tuple[FlightLog, FlightLog]:
         """(sensor log, the same log with the true IMU signals) of one flight, simulated once."""
-        from quad_modelling.core.sim import run_simulation
+        from quad_modelling.core.sim.simulate import run_simulation
 
         key = (tuple(sorted(effects)), int(seed))
         if key not in self.flights:
@@ -135,7 +140,7 @@ def attributable_gap(result, outcome, off_flights: Sequence[FlightLog], vehicle,
 def sensor_ceiling(result, outcome, truth_flights: Sequence[FlightLog], vehicle, config: EvaluationConfig) -> dict:
     """The sensor ceiling of one single-effect run (module docstring): ``gap_sensor`` (per scored window) and
     ``sensor_ceiling`` = 1 - G_sensor/G_on over the windows the run's shrink is scored on (the windows the fitted
-    effect excites, :func:`~quad_modelling.core.diagnosis.excited_windows`; all held-out windows when it excites
+    effect excites, :func:`~quad_modelling.core.diagnosis.attribution.excited_windows`; all held-out windows when it excites
     too few), on the effect's affected variables. ``truth_flights``: the test flights with the true IMU signals
     (:func:`imu_truth_log`)."""
     cols = np.array([INDEX[v] for v in outcome.variables])

@@ -41,7 +41,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from scipy import signal
 
-from quad_modelling.core.sim_params import SimParams
+from quad_modelling.core.sim.params import SimParams
 from quad_modelling.errors import ConfigError
 
 CHANNELS = ("roll", "pitch", "yaw", "throttle", "low_hover", "turn")

@@ -249,7 +249,7 @@ def anchor_state(measured_row: np.ndarray, thrusts: np.ndarray) -> np.ndarray:
 
 
 class GreyboxStream:
-    """Live form of one greybox window after its warm start (:mod:`quad_modelling.core.streaming`).
+    """Live form of one greybox window after its warm start (:mod:`quad_modelling.core.models.streaming`).
 
     Holds the state x[k] and the trims; ``push(u_k)`` returns the absolute
     prediction ``y_trim + Cd x[k] + Dd (u_k - u_trim)`` and advances
@@ -268,7 +268,7 @@ class GreyboxStream:
 
 
 class GreyboxPredictor:
-    """:class:`~quad_modelling.core.models.Predictor` and live streaming predictor for the linear greybox model.
+    """:class:`~quad_modelling.core.models.base.Predictor` and live streaming predictor for the linear greybox model.
 
     Causal, so that a live node and the offline evaluation give the same numbers
     (DESIGN 2): everything the model is given comes from the window's warm-start

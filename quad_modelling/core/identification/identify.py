@@ -1,6 +1,6 @@
 """Identification of the greybox model's motor constants from flight data (training spans only).
 
-What the linear model can see (:mod:`quad_modelling.core.greybox`): each
+What the linear model can see (:mod:`quad_modelling.core.models.greybox`): each
 rotor's thrust deviation follows the trimmed command through one pole,
 
 .. math::
@@ -52,12 +52,18 @@ import numpy as np
 import yaml
 from scipy import optimize
 
-from quad_modelling.core.evaluation import EvaluationConfig, Window, plan_windows
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.greybox import GreyboxParameters
-from quad_modelling.core.preprocess import resample_uniform, smooth, trimmed_inputs, trimmed_variables, uniform_time_check
+from quad_modelling.core.models.greybox import GreyboxParameters
+from quad_modelling.core.preprocess import (
+    resample_uniform,
+    smooth,
+    trimmed_inputs,
+    trimmed_variables,
+    uniform_time_check,
+)
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.windows import EvaluationConfig, Window, plan_windows
 from quad_modelling.errors import DataError
 
 MOTOR_POLE_RANGE = (0.5, 100.0)

@@ -30,8 +30,8 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.core.variables import VARIABLES
+from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import DataError
 
 
@@ -110,22 +110,6 @@ class RecordedPrediction:
             raise DataError(f"model {self.name}: {self.predictions.shape[0]} recorded predictions for a window of {len(window)} samples")
         return trim_prediction(window, self.predictions, self.trim)
 
-
-def streaming_predictor(spec: str, vehicle) -> StreamingPredictor:
-    """The live form of a model spec (``greybox``, ``narx:PATH``, ``naive``...).
-
-    Built by the same registry as the offline models
-    (:func:`quad_modelling.core.models.make_model`), so a node and
-    ``quad-modelling evaluate`` run the same object. ConfigError when the model
-    has no live form.
-    """
-    from quad_modelling.core.models import make_model
-    from quad_modelling.errors import ConfigError
-
-    model = make_model(spec, vehicle)
-    if not isinstance(model, StreamingPredictor):
-        raise ConfigError(f"model {spec!r} has no live (streaming) form")
-    return model
 
 
 PRIME_PUSHES = 8

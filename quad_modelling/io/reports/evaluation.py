@@ -11,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_modelling.core.evaluation import GROUPS, EvaluationResult, ExampleWindow
+from quad_modelling.core.evaluation.multistep import GROUPS
+from quad_modelling.core.evaluation.windowed import EvaluationResult, ExampleWindow
 from quad_modelling.core.variables import DISPLAY, EVAL_VARIABLES, INDEX
 
 ROW_LABELS = {

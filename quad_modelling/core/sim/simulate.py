@@ -1,8 +1,8 @@
 """Truth simulator: LinkQuad-like flights with switchable physical effects (DESIGN 9).
 
 A closed loop like the thesis's flights (Fig 1.10): a seeded pilot script
-(:mod:`~quad_modelling.core.sim_pilot`) gives roll/pitch/yaw/height references;
-a per-channel PID stabiliser (:mod:`~quad_modelling.core.sim_control`) mixes
+(:mod:`~quad_modelling.core.sim.pilot`) gives roll/pitch/yaw/height references;
+a per-channel PID stabiliser (:mod:`~quad_modelling.core.sim.control`) mixes
 them into four engine commands u_i in the vehicle's input unit; the commands
 reach the ESCs (after ``input_delay`` when on), which drive each rotor towards
 
@@ -11,9 +11,9 @@ reach the ESCs (after ``input_delay`` when on), which drive each rotor towards
     \\Omega_{c,i} = g_i\\, k_u \\max(u_i - u_0, 0)\\, V / V_{ref}
 
 (g_i: ``motor_imbalance`` gains, else 1; V: battery voltage with ``battery``,
-else V_ref); the nonlinear rigid body (:mod:`~quad_modelling.core.sim_dynamics`)
+else V_ref); the nonlinear rigid body (:mod:`~quad_modelling.core.sim.dynamics`)
 is integrated with RK4 at ``physics_rate`` (1 kHz); sensors
-(:mod:`~quad_modelling.core.sim_sensors`) give the log at ``log_rate`` (100 Hz).
+(:mod:`~quad_modelling.core.sim.sensors`) give the log at ``log_rate`` (100 Hz).
 
 Battery (``battery`` on), updated every control tick (explicit Euler; the pack
 changes over minutes):
@@ -47,11 +47,12 @@ from dataclasses import dataclass
 import numpy as np
 from tqdm import tqdm
 
-from quad_modelling.core import frames, sim_sensors
+from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.sim_control import Stabiliser
-from quad_modelling.core.sim_dynamics import N_STATE, QuadDynamics
-from quad_modelling.core.sim_params import (
+from quad_modelling.core.sim import sensors as sim_sensors
+from quad_modelling.core.sim.control import Stabiliser
+from quad_modelling.core.sim.dynamics import N_STATE, QuadDynamics
+from quad_modelling.core.sim.params import (
     DEFAULT_EFFECTS,
     OCV_CELL,
     OCV_SOC,
@@ -60,7 +61,13 @@ from quad_modelling.core.sim_params import (
     normalise_effects,
     sim_params_for,
 )
-from quad_modelling.core.sim_pilot import PHASE_FLYING, PHASE_IDLE, PilotScript, make_pilot_script, stick_noise
+from quad_modelling.core.sim.pilot import (
+    PHASE_FLYING,
+    PHASE_IDLE,
+    PilotScript,
+    make_pilot_script,
+    stick_noise,
+)
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError
 
@@ -121,7 +128,7 @@ def run_simulation(
     """Fly one flight of ``duration`` s with the given effects switched on.
 
     ``params`` overrides the vehicle's simulator parameters (from
-    :func:`~quad_modelling.core.sim_params.sim_params_for`). ``progress`` shows
+    :func:`~quad_modelling.core.sim.params.sim_params_for`). ``progress`` shows
     a tqdm bar on stderr.
     """
     params = params or sim_params_for(vehicle)
@@ -295,7 +302,7 @@ def _notes(params: SimParams, effects, seed, script: PilotScript) -> dict:
     """What a tool needs to check its answer: effects, their parameters, the seed, the truth constants."""
     vehicle = params.vehicle
     return {
-        "generator": "quad_modelling.core.sim",
+        "generator": "quad_modelling.core.sim.simulate",
         "sim_version": SIM_VERSION,
         "seed": seed,
         "effects": list(effects),

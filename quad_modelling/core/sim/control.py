@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from quad_modelling.core.sim_params import SimParams
+from quad_modelling.core.sim.params import SimParams
 from quad_modelling.core.vehicle import GRAVITY
 
 INTEGRAL_AUTHORITY = (30.0, 30.0, 30.0, 0.4 * GRAVITY)

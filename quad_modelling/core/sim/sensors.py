@@ -25,7 +25,7 @@ from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
 from quad_modelling.core import frames
-from quad_modelling.core.sim_params import SensorParams
+from quad_modelling.core.sim.params import SensorParams
 from quad_modelling.core.vehicle import GRAVITY
 
 

@@ -49,32 +49,41 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.models.model_files import (
+    FORMAT,
+    FORMAT_VERSION,
+    read_model_file,
+)
 from quad_modelling.core.variables import VARIABLES, columns
 from quad_modelling.errors import DataError, ModelError
 
 OUTPUTS: tuple[str, ...] = ("vel_x", "vel_y", "vel_z", "roll_rate", "pitch_rate", "yaw_rate")
 """The six net outputs (thesis section 4.2), in this order."""
 
+
 INTEGRATED: tuple[str, ...] = ("pos_x", "pos_y", "pos_z", "roll", "pitch", "yaw")
 """Variables integrated from :data:`OUTPUTS` (same order)."""
+
 
 DIFFERENTIATED: tuple[str, ...] = ("acc_x", "acc_y", "acc_z", "roll_acc", "pitch_acc", "yaw_acc")
 """Variables differentiated from :data:`OUTPUTS` (same order)."""
 
+
 THESIS_NOISE_SNR_DB: tuple[float | None, ...] = (None, None, None, 10.0, 10.0, 10.0)
 """Thesis section 6.2: 10 dB noise on the angle rates, velocities kept as they were."""
 
-FORMAT = "quad_modelling.narx"
-FORMAT_VERSION = 1
+
+
+
 ARRAY_NAMES = ("w_u", "w_y", "b_1", "w_2", "b_2", "u_mean", "u_std", "y_mean", "y_std")
+
+
 MIN_STD = 1e-9
 """Smallest standard deviation used for normalisation (a constant channel maps to 0)."""
 
@@ -111,16 +120,6 @@ class NarxConfig:
     def warm_samples(self) -> int:
         """Measured samples needed before closed-loop prediction starts."""
         return max(self.output_delays, max(self.input_delays))
-
-
-@dataclass
-class Segment:
-    """One contiguous training series: engine commands ``u`` (N, n_u) and outputs ``y`` (N, 6)."""
-
-    u: np.ndarray
-    y: np.ndarray
-    source: str = ""
-    span: tuple[float, float] = (0.0, 0.0)
 
 
 def sigmoid(z: np.ndarray) -> np.ndarray:
@@ -264,7 +263,7 @@ class NarxModel:
 
     def save(self, path: str | Path, force: bool = False) -> Path:
         """Write an .npz model file atomically (never overwrites without ``force``)."""
-        from quad_modelling.io.atomic import atomic_output
+        from quad_modelling.atomic import atomic_output
 
         path = Path(path)
         with atomic_output(path, force) as tmp:
@@ -347,168 +346,6 @@ def check_sample_rate(model: NarxModel, window: FlightLog) -> None:
         )
 
 
-# ---- training -----------------------------------------------------------------
-def _noisy_outputs(segments: list[Segment], snr_db: tuple[float | None, ...], rng: np.random.Generator) -> list[np.ndarray]:
-    """Copies of each segment's y with white noise of variance var(y_k)/10^(SNR_k/10) added."""
-    all_y = np.concatenate([s.y for s in segments])
-    power = all_y.var(axis=0)
-    std = np.array([0.0 if snr is None else math.sqrt(p / 10.0 ** (snr / 10.0)) for p, snr in zip(power, snr_db)])
-    return [s.y + rng.standard_normal(s.y.shape) * std for s in segments]
-
-
-def _regressors(u_norm: np.ndarray, y_norm: np.ndarray, config: NarxConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Series-parallel training rows of one segment: (X_u, X_y, target) for t ≥ warm_samples."""
-    start = config.warm_samples
-    n_y = config.output_delays
-    x_u = lagged_inputs(u_norm, config.input_delays)[start:]
-    windows = np.lib.stride_tricks.sliding_window_view(y_norm, n_y, axis=0)  # row j = y[j:j+n_y]
-    x_y = windows[start - n_y : len(y_norm) - n_y]
-    return x_u, np.ascontiguousarray(x_y), y_norm[start:]
-
-
-def train_narx(
-    segments: list[Segment],
-    dt: float,
-    vehicle: str,
-    config: NarxConfig = NarxConfig(),
-    seed: int = 0,
-    progress: bool = False,
-    kind: str = "narx",
-    training: dict | None = None,
-) -> NarxModel:
-    """Train the six nets series-parallel on ``segments`` (see module doc); deterministic for a seed.
-
-    Each segment is a contiguous series at sample period ``dt`` [s]; lags never
-    cross segment boundaries. Returns a model whose weights are float64 numpy
-    arrays. ``training`` is stored in the model header (spans, sources...).
-    """
-    import torch
-
-    if not segments:
-        raise DataError("NARX training: no training data")
-    n_u = segments[0].u.shape[1]
-    for s in segments:
-        if s.u.ndim != 2 or s.u.shape[1] != n_u or s.y.shape != (len(s.u), len(OUTPUTS)):
-            raise DataError(f"{s.source}: training segment shapes u {s.u.shape}, y {s.y.shape} do not fit {n_u} inputs, {len(OUTPUTS)} outputs")
-    usable = [s for s in segments if len(s.u) > config.warm_samples]
-    if not usable:
-        raise DataError(f"NARX training: every segment is shorter than the {config.warm_samples + 1} samples one training row needs")
-    rng = np.random.default_rng(seed)
-    all_u = np.concatenate([s.u for s in usable])
-    all_y = np.concatenate([s.y for s in usable])
-    u_mean, u_std = all_u.mean(axis=0), np.maximum(all_u.std(axis=0), MIN_STD)
-    y_mean, y_std = all_y.mean(axis=0), np.maximum(all_y.std(axis=0), MIN_STD)
-    noisy = _noisy_outputs(usable, config.noise_snr_db, rng)
-    parts = [_regressors((s.u - u_mean) / u_std, (y - y_mean) / y_std, config) for s, y in zip(usable, noisy)]
-    x_u, x_y, target = (np.concatenate(p) for p in zip(*parts))
-
-    threads = torch.get_num_threads()
-    deterministic = torch.are_deterministic_algorithms_enabled()
-    torch.set_num_threads(1)
-    torch.use_deterministic_algorithms(True)
-    try:
-        torch.manual_seed(seed)
-        nets = _make_nets(len(OUTPUTS), config.hidden, x_u.shape[1], config.output_delays)
-        weights = _fit(nets, *(torch.from_numpy(a.astype(np.float32)) for a in (x_u, x_y, target)), config, progress)
-    finally:
-        torch.set_num_threads(threads)
-        torch.use_deterministic_algorithms(deterministic)
-    return NarxModel(
-        config=config, dt=float(dt), vehicle=vehicle, **weights,
-        u_mean=u_mean, u_std=u_std, y_mean=y_mean, y_std=y_std, kind=kind,
-        training={
-            "seed": seed,
-            "samples": int(len(target)),
-            "segments": [{"source": s.source, "span": list(s.span)} for s in usable],
-            **(training or {}),
-        },
-    )
-
-
-def _make_nets(nets: int, hidden: int, inputs: int, feedback: int):
-    """A torch module of ``nets`` independent one-hidden-layer sigmoid nets (torch imported lazily)."""
-    import torch
-
-    class BatchedNets(torch.nn.Module):
-        """K independent one-hidden-layer nets evaluated together (einsum over the net axis k)."""
-
-        def __init__(self, nets: int, hidden: int, inputs: int, feedback: int) -> None:
-            super().__init__()
-            bound = 1.0 / math.sqrt(inputs + feedback)  # torch.nn.Linear's default scale
-            self.w_u = torch.nn.Parameter(torch.empty(nets, hidden, inputs).uniform_(-bound, bound))
-            self.w_y = torch.nn.Parameter(torch.empty(nets, hidden, feedback).uniform_(-bound, bound))
-            self.b_1 = torch.nn.Parameter(torch.empty(nets, hidden).uniform_(-bound, bound))
-            bound_out = 1.0 / math.sqrt(hidden)
-            self.w_2 = torch.nn.Parameter(torch.empty(nets, hidden).uniform_(-bound_out, bound_out))
-            self.b_2 = torch.nn.Parameter(torch.zeros(nets))
-
-        def forward(self, x_u, x_y):
-            z = torch.einsum("nd,khd->nkh", x_u, self.w_u) + torch.einsum("nkd,khd->nkh", x_y, self.w_y) + self.b_1
-            return torch.einsum("nkh,kh->nk", torch.sigmoid(z), self.w_2) + self.b_2
-
-    return BatchedNets(nets, hidden, inputs, feedback)
-
-
-def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> dict[str, np.ndarray]:
-    """Full-batch L-BFGS on the summed per-net MSE; returns float64 weights."""
-    import torch
-    from tqdm import tqdm
-
-    optimiser = torch.optim.LBFGS(
-        nets.parameters(), lr=1.0, max_iter=config.iterations_per_epoch, history_size=20,
-        line_search_fn="strong_wolfe", tolerance_grad=1e-9, tolerance_change=1e-12,
-    )
-
-    def loss_fn():
-        optimiser.zero_grad()
-        loss = ((nets(x_u, x_y) - target) ** 2).mean(dim=0).sum()
-        loss.backward()
-        return loss
-
-    bar = tqdm(range(config.epochs), desc="NARX training", unit="epoch", disable=not progress, leave=False)
-    for _ in bar:
-        loss = optimiser.step(loss_fn)
-        bar.set_postfix(mse=f"{float(loss.detach()) / len(OUTPUTS):.4g}")
-    return {name: param.detach().double().numpy().copy() for name, param in nets.named_parameters()}
-
-
-# ---- files ----------------------------------------------------------------------
-def read_model_file(path: str | Path, kind: str, vehicle: str | None = None) -> tuple[dict, dict[str, np.ndarray]]:
-    """Header and arrays of a model file, checked against ``kind``, ``vehicle`` and VARIABLES.
-
-    Raises ModelError naming the file and the mismatch (missing, corrupt, other
-    format/version/kind/vehicle/variable set).
-    """
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as archive:
-            contents = {name: archive[name] for name in archive.files}
-    except FileNotFoundError as err:
-        raise ModelError(f"{path}: no such model file") from err
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise ModelError(f"{path}: not a readable model file ({err})") from err
-    if "header" not in contents:
-        raise ModelError(f"{path}: no header: not a quad_modelling model file")
-    try:
-        header = json.loads(str(contents.pop("header")))
-    except ValueError as err:
-        raise ModelError(f"{path}: corrupt model header ({err})") from err
-    if not isinstance(header, dict) or header.get("format") != FORMAT:
-        raise ModelError(f"{path}: not a {FORMAT} model file (format {header.get('format') if isinstance(header, dict) else None!r})")
-    if header.get("format_version") != FORMAT_VERSION:
-        raise ModelError(f"{path}: model format version {header.get('format_version')!r}, this program reads version {FORMAT_VERSION}")
-    if header.get("kind") != kind:
-        raise ModelError(f"{path}: is a {header.get('kind')!r} model, expected {kind!r}")
-    if vehicle is not None and header.get("vehicle") != vehicle:
-        raise ModelError(f"{path}: model was trained for vehicle {header.get('vehicle')!r}, not {vehicle!r}")
-    if header.get("variables") != list(VARIABLES) or header.get("outputs") != list(OUTPUTS):
-        raise ModelError(
-            f"{path}: model variable set {header.get('variables')} / outputs {header.get('outputs')} "
-            f"differs from this program's {list(VARIABLES)} / {list(OUTPUTS)}"
-        )
-    return header, contents
-
-
 def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) -> NarxModel:
     """Build a NarxModel from a checked header and arrays, validating every shape."""
     try:
@@ -543,57 +380,13 @@ def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) 
 def load_narx(path: str | Path, vehicle: str | None = None) -> NarxModel:
     """Load a NARX model file; ``vehicle`` (if given) must be the one it was trained for."""
     path = Path(path)
-    header, contents = read_model_file(path, "narx", vehicle)
+    header, contents = read_model_file(path, "narx", OUTPUTS, vehicle)
     return model_from_parts(path, header, contents)
 
 
-# ---- flights -> training data -----------------------------------------------------
-def span_indices(log: FlightLog, span: tuple[float, float]) -> tuple[int, int]:
-    """Row range [i0, i1) of ``log`` with t − t[0] in [a, b) seconds."""
-    rel = log.t - log.t[0]
-    a, b = span
-    i0, i1 = int(np.searchsorted(rel, a, "left")), int(np.searchsorted(rel, b, "left"))
-    if i1 - i0 < 2:
-        raise DataError(f"{log.meta.source}: span {a:g}:{b:g} s holds no data (flight lasts {log.duration:.1f} s)")
-    return i0, i1
-
-
-def flight_segments(logs: list[FlightLog], spans: list[tuple[float, float] | None]) -> list[Segment]:
-    """One NARX training segment per (log, span); span None = the whole flight."""
-    segments = []
-    for log, span in zip(logs, spans):
-        i0, i1 = (0, len(log)) if span is None else span_indices(log, span)
-        part = log.slice(i0, i1)
-        segments.append(Segment(part.u, measured_outputs(part), log.meta.source,
-                                (float(part.t[0] - log.t[0]), float(part.t[-1] - log.t[0]))))
-    return segments
-
-
-def common_sample_period(logs: list[FlightLog]) -> float:
-    """The logs' shared sample period [s]; DataError when they differ by more than 1 %."""
-    periods = [1.0 / log.sample_rate for log in logs]
-    if max(periods) > 1.01 * min(periods):
-        listing = ", ".join(f"{log.meta.source}: {p * 1e3:.2f} ms" for log, p in zip(logs, periods))
-        raise DataError(f"training flights have different sample periods ({listing}); resample them first")
-    return float(np.mean(periods))
-
-
-def train_narx_on_flights(
-    logs: list[FlightLog],
-    spans: list[tuple[float, float] | None],
-    config: NarxConfig = NarxConfig(),
-    seed: int = 0,
-    progress: bool = False,
-) -> NarxModel:
-    """Train a NARX model on spans [s from each flight's start] of flight logs of one vehicle."""
-    vehicles = sorted({log.meta.vehicle for log in logs})
-    if len(vehicles) != 1:
-        raise DataError(f"training flights are for different vehicles {vehicles}")
-    return train_narx(flight_segments(logs, spans), common_sample_period(logs), vehicles[0], config, seed, progress)
-
-
-# ---- the evaluation protocol (quad_modelling.core.models) ---------------------------
+# ---- the evaluation protocol (quad_modelling.core.models.base) ---------------------------
 from quad_modelling.core.preprocess import trim_prediction  # noqa: E402  (shared with greybox and the evaluator)
+
 
 class _ExpandingStream:
     """WindowStream of the 18 variables: NarxStream outputs, integrated and differentiated causally."""
@@ -616,10 +409,10 @@ class _ExpandingStream:
 
 
 class NarxPredictor:
-    """:class:`~quad_modelling.core.models.Predictor` and streaming predictor over a NARX model.
+    """:class:`~quad_modelling.core.models.base.Predictor` and streaming predictor over a NARX model.
 
     predict_window: trimmed (protocol convention); start_window/push: absolute
-    (:mod:`quad_modelling.core.streaming`), the same numbers before trimming.
+    (:mod:`quad_modelling.core.models.streaming`), the same numbers before trimming.
     """
 
     def __init__(self, model: NarxModel, name: str = "narx", trim=None) -> None:
@@ -642,27 +435,3 @@ class NarxPredictor:
         measured = measured_variables(warm)
         nets = self.model.stream(warm.u, measured[:, columns(OUTPUTS)])
         return measured, _ExpandingStream(nets, measured[-1], self.model.dt)
-
-
-def _vehicle_name(vehicle) -> str | None:
-    return None if vehicle is None else getattr(vehicle, "name", vehicle)
-
-
-def _make_narx(arg: str, vehicle) -> NarxPredictor:
-    from quad_modelling.errors import ConfigError
-
-    if not arg:
-        raise ConfigError("model spec narx needs a model file: narx:PATH")
-    return NarxPredictor(load_narx(arg, _vehicle_name(vehicle)))
-
-
-def _make_hybrid(arg: str, vehicle):
-    from quad_modelling.core.hybrid import make_hybrid_predictor
-
-    return make_hybrid_predictor(arg, vehicle)
-
-
-def register_models(register) -> None:
-    """Registry hook called by :mod:`quad_modelling.core.models`: adds ``narx:PATH`` and ``hybrid:PATH``."""
-    register("narx", _make_narx)
-    register("hybrid", _make_hybrid)

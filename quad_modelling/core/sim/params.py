@@ -1,6 +1,6 @@
 """Truth-simulator parameters: the effect catalogue and every simulator-only constant.
 
-The simulator (:mod:`quad_modelling.core.sim`) flies a vehicle whose rigid-body,
+The simulator (:mod:`quad_modelling.core.sim.simulate`) flies a vehicle whose rigid-body,
 rotor and aerodynamic constants come from its vehicle config
 (``config/vehicles/<name>.yaml``) except where a config constant is physically
 inconsistent; those are replaced here, each with the original value and the

@@ -28,7 +28,7 @@ with the rotor angular momentum :math:`h_r = (0, 0, -I_p \\sum_i s_i \\Omega_i)`
     \\dot p_N = v_N, \\quad m \\dot v_N = R F_B + m g e_z + F_{wind} + F_{ground}, \\quad
     \\dot q = \\tfrac12 q \\otimes (0, \\omega), \\quad I \\dot\\omega = \\tau_B + \\tau_{ground}
 
-Effects (names of :data:`quad_modelling.core.sim_params.SIM_EFFECTS`):
+Effects (names of :data:`quad_modelling.core.sim.params.SIM_EFFECTS`):
 
 * ``motor_lag``: :math:`\\dot\\Omega_i = (\\Omega_{c,i} - \\Omega_i)/\\tau_m`, :math:`\\tau_m = -1/A_m`;
   off: Ω_i = Ω_c,i at once (the simulator then applies the rotor reaction
@@ -45,7 +45,7 @@ Effects (names of :data:`quad_modelling.core.sim_params.SIM_EFFECTS`):
   :math:`F_{wind} = -\\tfrac12 \\rho C_D A \\, |v_N - w_N| (v_N - w_N)`; rotor drag then sees
   the relative air. Off: w = 0 and no airframe drag.
 * ``motor_imbalance``: CG offset c (here) and per-ESC gain spread (in :meth:`QuadDynamics.omega_command`).
-* ``battery``, ``input_delay``: act on the command path (:mod:`quad_modelling.core.sim`).
+* ``battery``, ``input_delay``: act on the command path (:mod:`quad_modelling.core.sim.simulate`).
 
 Ground contact (always on): each landing-gear foot below z = 0 gets a
 spring-damper normal force and regularised Coulomb friction
@@ -58,7 +58,7 @@ import math
 
 import numpy as np
 
-from quad_modelling.core.sim_params import SimParams, normalise_effects
+from quad_modelling.core.sim.params import SimParams, normalise_effects
 from quad_modelling.core.vehicle import GRAVITY
 
 STATE_NAMES = (

@@ -1,8 +1,8 @@
 """Hybrid model (beyond the thesis): linear greybox + a NARX net on its residual.
 
-The greybox (:class:`~quad_modelling.core.greybox.GreyboxPredictor`) predicts
+The greybox (:class:`~quad_modelling.core.models.greybox.GreyboxPredictor`) predicts
 the trimmed 18 variables ``g`` of a window. Six NARX nets (the architecture of
-:mod:`quad_modelling.core.narx`) predict the greybox's residual on the six
+:mod:`quad_modelling.core.models.narx`) predict the greybox's residual on the six
 velocities/rates,
 
 .. math::
@@ -37,17 +37,19 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.narx import (
+from quad_modelling.core.models.model_files import read_model_file
+from quad_modelling.core.models.narx import (
     DIFFERENTIATED,
     INTEGRATED,
     OUTPUTS,
     NarxConfig,
     NarxModel,
-    Segment,
     check_sample_rate,
-    common_sample_period,
     model_from_parts,
-    read_model_file,
+)
+from quad_modelling.core.models.narx_training import (
+    Segment,
+    common_sample_period,
     span_indices,
     train_narx,
 )
@@ -71,7 +73,7 @@ class HybridModel:
     """A greybox plus residual NARX nets (see module doc)."""
 
     def __init__(self, residual: NarxModel, vehicle: VehicleConfig, discretisation: str = "zoh") -> None:
-        from quad_modelling.core.greybox import GreyboxPredictor
+        from quad_modelling.core.models.greybox import GreyboxPredictor
 
         if residual.kind != "hybrid":
             raise ModelError(f"hybrid model needs residual nets of kind 'hybrid', got {residual.kind!r}")
@@ -126,7 +128,7 @@ def residual_segments(
     warm_s: float = WARM_S,
 ) -> list[Segment]:
     """Training segments of the residual nets: one per full window of each span (inputs u ⊕ g, output r)."""
-    from quad_modelling.core.greybox import GreyboxPredictor
+    from quad_modelling.core.models.greybox import GreyboxPredictor
 
     greybox = GreyboxPredictor(vehicle, discretisation=discretisation)
     segments = []
@@ -174,7 +176,7 @@ def train_hybrid_on_flights(
 def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
     """Load a hybrid model file for ``vehicle``; ModelError when it was made for another vehicle or constants."""
     path = Path(path)
-    header, contents = read_model_file(path, "hybrid", vehicle.name)
+    header, contents = read_model_file(path, "hybrid", OUTPUTS, vehicle.name)
     residual = model_from_parts(path, header, contents)
     try:
         greybox = header["training"]["greybox"]
@@ -194,7 +196,7 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
 
 
 class HybridPredictor:
-    """:class:`~quad_modelling.core.models.Predictor` over a hybrid model file."""
+    """:class:`~quad_modelling.core.models.base.Predictor` over a hybrid model file."""
 
     def __init__(self, model: HybridModel, name: str = "hybrid") -> None:
         self.model = model

@@ -1,0 +1,318 @@
+"""The diagnosis base model: the linear greybox with effect hooks, predicted over a window batch."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import linalg, signal
+
+from quad_modelling.core import frames
+from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.models.greybox import (
+    N_STATES,
+    GreyboxParameters,
+    continuous_matrices,
+)
+from quad_modelling.core.preprocess import (
+    differentiate,
+    smooth,
+)
+from quad_modelling.core.variables import INDEX, VARIABLES
+from quad_modelling.core.vehicle import GRAVITY
+
+FORCING_STATES = np.array([3, 4, 5, 9, 10, 11])
+"""States (velocities, rates) the extra accelerations e act on."""
+
+
+# ----------------------------------------------------------------------------- augmented model
+
+
+@dataclass
+class Augmentation:
+    """What a set of effects does to the linear model on a batch (module docstring)."""
+
+    u: np.ndarray  # (W, N, 4) commands after the input maps
+    forcing: np.ndarray  # (W, N, 6) extra accelerations e
+    a_delta: np.ndarray  # (16, 16) added to the continuous A
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One catalogue entry.
+
+    ``input_map(theta, batch, base, u) -> u`` changes the commands (stage
+    ``stage``: 0 delay, 1 static gains/drift, 2 nonlinearity, 3 lag);
+    ``forcing(theta, batch, base, u) -> (W, N, 6)`` adds accelerations (``u`` =
+    the mapped commands); ``a_delta(theta, base) -> (16, 16)`` changes A.
+    ``needs``: regime signals required (``"vbat"``). ``variables``: the candidate variables the form can
+    change; the effect is fitted on all of them and scored on those its fitted correction moves
+    (:func:`quad_modelling.core.diagnosis.attribution.affected_variables`).
+    """
+
+    name: str
+    summary: str
+    parameters: tuple[str, ...]
+    units: tuple[str, ...]
+    initial: tuple[float, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    variables: tuple[str, ...]
+    stage: int = 1
+    input_map: Callable | None = None
+    forcing: Callable | None = None
+    a_delta: Callable | None = None
+    needs: tuple[str, ...] = ()
+
+    def applicable(self, batch: WindowBatch) -> str | None:
+        """None when the effect can be evaluated on ``batch``, else the reason why not."""
+        if "vbat" in self.needs and batch.vbat is None:
+            return "no battery voltage in the flights"
+        return None
+
+
+@dataclass
+class BaseModel:
+    """Continuous linear model pieces of :mod:`~quad_modelling.core.models.greybox` for one parameter set."""
+
+    parameters: GreyboxParameters
+    reference_voltage: float | None = None  # V_ref: mean battery voltage of the data the base was identified on [V]
+    a: np.ndarray = field(init=False)
+    b: np.ndarray = field(init=False)
+    c: np.ndarray = field(init=False)
+    d: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.a, self.b, self.c, self.d = continuous_matrices(self.parameters)
+
+    @property
+    def thrust_to_speed(self) -> float:
+        """dΩ/dT at hover = 1 / (2 a Ω0) [rad/s per N]."""
+        p = self.parameters
+        return 1.0 / (2.0 * p.thrust_constant * p.hover_rotor_speed)
+
+
+def _forcing_matrix() -> np.ndarray:
+    f = np.zeros((N_STATES, 6))
+    f[FORCING_STATES, np.arange(6)] = 1.0
+    return f
+
+
+_DISCRETE_CACHE: dict = {}
+
+
+_DISCRETE_CACHE_SIZE = 64
+
+
+def _discretise(a: np.ndarray, b_ext: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Exact zero-order hold of (A, [B F]) via one matrix exponential (memoised: a fit calls it with the
+    same matrices for every effect that leaves A alone)."""
+    key = (a.tobytes(), b_ext.tobytes(), float(dt))
+    hit = _DISCRETE_CACHE.get(key)
+    if hit is not None:
+        return hit
+    if len(_DISCRETE_CACHE) >= _DISCRETE_CACHE_SIZE:
+        _DISCRETE_CACHE.pop(next(iter(_DISCRETE_CACHE)))
+    _DISCRETE_CACHE[key] = result = _expm_hold(a, b_ext, dt)
+    return result
+
+
+def _expm_hold(a: np.ndarray, b_ext: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
+    n, m = a.shape[0], b_ext.shape[1]
+    block = np.zeros((n + m, n + m))
+    block[:n, :n] = a * dt
+    block[:n, n:] = b_ext * dt
+    e = linalg.expm(block)
+    return e[:n, :n], e[:n, n:]
+
+
+def apply_effects(effects: Sequence[Effect], thetas: Sequence[np.ndarray], batch: WindowBatch, base: BaseModel) -> Augmentation:
+    """Compose the effects' input maps (by stage), forcings and A changes on ``batch``.
+
+    The mapped commands are trimmed again by their warm-start mean, as the forcings are: the linearisation
+    point is the warm start, where the measured outputs (the output trim) answer the thrust the *mapped*
+    commands gave, not the raw commands' mean. Without this, a lag (or delay) applied to commands that
+    move during the warm start biases the whole window by the difference of the two means.
+    """
+    u = batch.u
+    mapped = False
+    for stage in range(4):
+        for effect, theta in zip(effects, thetas):
+            if effect.input_map is not None and effect.stage == stage:
+                u = effect.input_map(theta, batch, base, u)
+                mapped = True
+    if mapped:
+        u = u - u[:, : batch.warm].mean(axis=1, keepdims=True)
+    forcing = np.zeros(batch.u.shape[:2] + (6,))
+    a_delta = np.zeros((N_STATES, N_STATES))
+    for effect, theta in zip(effects, thetas):
+        if effect.forcing is not None:
+            forcing = forcing + effect.forcing(theta, batch, base, u)
+        if effect.a_delta is not None:
+            a_delta = a_delta + effect.a_delta(theta, base)
+    return Augmentation(u, forcing, a_delta)
+
+
+def _motor_thrusts(u: np.ndarray, pole: float, gain: float) -> np.ndarray:
+    steady = gain / (1.0 - pole) * u[:, 0, :]
+    zi = steady[:, None, :]
+    y, _ = signal.lfilter([0.0, gain], [1.0, -pole], u, axis=1, zi=zi)
+    return y
+
+
+def predict_batch(
+    base: BaseModel, batch: WindowBatch, effects: Sequence[Effect] = (), thetas: Sequence[np.ndarray] = (), smoothed: bool = True,
+    smooth_cutoff_hz: float | None = None, columns: Sequence[int] | None = None, greybox_outputs: bool = False,
+) -> np.ndarray:
+    r"""(W, N, 18) trimmed predictions of the (augmented) model for every window of ``batch``.
+
+    Rows before the anchor (last warm sample) are the measurement, as the
+    greybox predictor does; ``smoothed`` passes the prediction through what the
+    measurement went through, so the result compares directly with
+    ``batch.measured``: the angular accelerations, measured as Savitzky-Golay
+    derivatives of the gyro rates (:func:`~quad_modelling.core.preprocess.differentiate`,
+    a 0.11 s window that low-passes them), are integrated (trapezoid) and
+    differentiated by the same filter (:func:`measurement_filter`), then every
+    column gets the evaluation's low-pass (cutoff ``smooth_cutoff_hz``, default
+    the batch's). ``columns`` limits the output to those VARIABLES columns
+    (others are zero) to save time.
+
+    Two outputs differ from the linear greybox's (``greybox_outputs=True`` keeps
+    the greybox's, as :class:`~quad_modelling.core.models.greybox.GreyboxPredictor`):
+
+    * **accelerations acc_x/y/z** (:func:`_projected_accelerations`): the
+      modelled body specific force -- the measured warm-start level plus the
+      thrust-state deviation :math:`-\sum_i T_i/m` on body z -- rotated into N by the
+      *measured* attitude of each sample, plus g and the effects' forcings in N.
+      The greybox's :math:`\ddot X = -g\theta` integrates its angular
+      accelerations twice, and over a 5 s open-loop window that drift made the
+      acc_x/acc_y error ~8 m/s² RMS on effects-off flights (0.02 m/s² of it noise);
+      its :math:`\ddot Z = -\sum T_i/m` drops the tilt (small-angle
+      linearisation). With the attitude measured, as the effects' regime signals
+      are, accelerations are driven by the forces without integration;
+    * **offsets of roll/pitch/yaw acceleration** (the linearisation point,
+      :func:`_angular_acceleration_offsets`): the least-squares slope of the raw
+      gyro over the warm start instead of the mean of the differentiated gyro over 0.2 s, whose noise
+      (the difference of two noisy rates over 0.2 s, ~0.02 rad/s²) stayed in the
+      prediction as a constant error for the whole window.
+    """
+    aug = apply_effects(effects, thetas, batch, base) if effects else Augmentation(batch.u, np.zeros(batch.u.shape[:2] + (6,)), None)
+    a = base.a if aug.a_delta is None else base.a + aug.a_delta
+    b_ext = np.hstack([base.b, _forcing_matrix()])
+    ad, bd_ext = _discretise(a, b_ext, batch.dt)
+    cd = base.c + base.d @ a
+    dd_ext = base.d @ b_ext
+    w, n = batch.u.shape[:2]
+    anchor = batch.warm - 1
+    inputs = np.concatenate([aug.u, aug.forcing], axis=2)  # (W, N, 10)
+    pole, gain = ad[12, 12], bd_ext[12, 0]
+    thrust0 = _motor_thrusts(aug.u[:, : anchor + 1], pole, gain)[:, anchor]
+    offsets = batch.offsets
+    if not greybox_outputs and anchor >= 2:
+        offsets = offsets.copy()
+        offsets[:, ANGULAR_ACCELERATION_COLUMNS] = _angular_acceleration_offsets(batch)
+    x = np.concatenate([batch.anchor_states, thrust0], axis=1)
+    forced = inputs @ bd_ext.T  # (W, N, 16)
+    states = np.zeros((w, n, N_STATES))
+    ad_t = ad.T.copy()
+    for k in range(anchor, n):
+        states[:, k] = x
+        x = x @ ad_t + forced[:, k]
+    cols = np.arange(len(VARIABLES)) if columns is None else np.asarray(columns, dtype=int)
+    out = np.zeros((w, n, len(VARIABLES)))
+    out[:, anchor:, cols] = states[:, anchor:] @ cd[cols].T + inputs[:, anchor:] @ dd_ext[cols].T + offsets[:, None, cols]
+    acc_cols = [c for c in ACCELERATION_COLUMNS if c in set(cols.tolist())]
+    if not greybox_outputs and acc_cols:
+        acc_n = _projected_accelerations(batch, base, states[:, anchor:, 12:16], aug.forcing[:, anchor:, 0:3], anchor)
+        out[:, anchor:, acc_cols] = acc_n[:, :, [c - ACCELERATION_COLUMNS[0] for c in acc_cols]]
+    if anchor > 0:  # rows before the anchor are the measurement (not scored), as the greybox predictor
+        out[:, :anchor, cols] = batch.warm_rows[:, :anchor][:, :, cols]
+    if smoothed:
+        cutoff = smooth_cutoff_hz if smooth_cutoff_hz is not None else batch.smooth_cutoff_hz
+        measurement_filter(out, batch.dt, cols)
+        out[:, :, cols] = smooth(out[:, :, cols].transpose(1, 0, 2), 1.0 / batch.dt, cutoff).transpose(1, 0, 2)
+    return out
+
+
+def _angular_acceleration_offsets(batch: WindowBatch) -> np.ndarray:
+    r"""(W, 3) linearisation point of roll/pitch/yaw acceleration, window-trimmed [rad/s²]: the least-squares
+    slope of the raw gyro rates over the warm start.
+
+    The greybox takes the mean of the differentiated gyro over the 0.2 s warm start, which is nearly the
+    difference of the first and last rates over 0.2 s: with the simulator's 0.003 rad/s gyro noise
+    ~0.02 rad/s², a constant error for the whole window as large as the base model's whole effects-off gap.
+    The slope over the 20 samples has ~0.012 rad/s² (0.003 / sqrt(sum (t - t_mean)^2)). On effects-off
+    validation flights (3 seeds) the base model's roll/pitch/yaw acceleration gap fell from
+    0.025/0.032/0.026 to 0.024/0.028/0.020 rad/s² (bench/results/diagnose_floor.md, 5 Hz). Tried and not kept: the slope net of the model's own
+    rate response over the warm start (0.022/0.025/0.019 rad/s²), because fitted with the base model's
+    response it absorbed part of an input delay (fitted 16-17 ms of the simulator's 20 ms), and motor lag
+    then outranked input delay on one validation seed.
+    """
+    y = batch.warm_rows[:, :, RATE_COLUMNS]
+    t = (np.arange(batch.warm) - (batch.warm - 1) / 2.0) * batch.dt
+    return np.einsum("k,wkj->wj", t, y - y.mean(axis=1, keepdims=True)) / (t @ t) - batch.angacc_trim
+
+
+def _projected_accelerations(batch: WindowBatch, base: BaseModel, thrusts: np.ndarray, forcing_n: np.ndarray, anchor: int) -> np.ndarray:
+    r"""(W, M, 3) trimmed acc_x/y/z [m/s², N] from the anchor on: :math:`R(\eta_m)\, f_B + g e_z + e_{XYZ} - \text{trim}`.
+
+    :math:`f_B = f_{B,0} + (0, 0, -\sum_i T_i / m)`: :math:`f_{B,0}` the measured
+    body specific force averaged over the warm start (accelerometer bias
+    included, so it cancels), :math:`T_i` the thrust states (``thrusts``, (W, M, 4));
+    :math:`R(\eta_m)` the measured attitude of each sample (the one the
+    accelerometer is rotated with, :func:`~quad_modelling.core.preprocess.nav_acceleration`),
+    so the residual is the body-frame force residual rotated into N;
+    :math:`e_{XYZ}` the effects' extra accelerations in N (``forcing_n``).
+    """
+    w, m = thrusts.shape[:2]
+    mass = base.parameters.mass
+    f_b = np.repeat(batch.specific_force0[:, None, :], m, axis=1)
+    f_b[:, :, 2] -= thrusts.sum(axis=2) / mass
+    rot = frames.euler_ned_to_matrix(batch.euler[:, anchor:].reshape(-1, 3)).reshape(w, m, 3, 3)
+    acc = np.einsum("wkij,wkj->wki", rot, f_b)
+    acc[:, :, 2] += GRAVITY
+    return acc + forcing_n - batch.acc_trim[:, None, :]
+
+
+ANGULAR_ACCELERATION_COLUMNS = np.array([INDEX[v] for v in ("roll_acc", "pitch_acc", "yaw_acc")])
+
+
+ACCELERATION_COLUMNS = np.array([INDEX[v] for v in ("acc_x", "acc_y", "acc_z")])
+
+
+RATE_COLUMNS = np.array([INDEX[v] for v in ("roll_rate", "pitch_rate", "yaw_rate")])
+
+
+def measurement_filter(predicted: np.ndarray, dt: float, columns: np.ndarray) -> None:
+    """In place: predicted angular accelerations (W, N, 18) as the measurement sees them.
+
+    The measured angular acceleration is the Savitzky-Golay derivative of the
+    gyro rates; the model's is the exact derivative of its rates. The same
+    operator is applied to the model: its angular acceleration is integrated
+    (cumulative trapezoid; the constant drops out of the derivative) and
+    differentiated by :func:`~quad_modelling.core.preprocess.differentiate`.
+    """
+    picked = [c for c in ANGULAR_ACCELERATION_COLUMNS if c in set(np.asarray(columns).tolist())]
+    if not picked:
+        return
+    acc = predicted[:, :, picked]
+    rate = np.concatenate([np.zeros_like(acc[:, :1]), np.cumsum(0.5 * (acc[:, 1:] + acc[:, :-1]) * dt, axis=1)], axis=1)
+    predicted[:, :, picked] = differentiate(rate.transpose(1, 0, 2), dt).transpose(1, 0, 2)
+
+
+def window_rms(batch: WindowBatch, predicted: np.ndarray, columns: Sequence[int] | None = None) -> np.ndarray:
+    """(W, k) RMS error per window over the scored rows (after the warm start)."""
+    cols = np.arange(len(VARIABLES)) if columns is None else np.asarray(columns, dtype=int)
+    err = batch.measured[:, batch.warm :, cols] - predicted[:, batch.warm :, cols]
+    return np.sqrt(np.mean(err**2, axis=1))
+
+
+def window_tic(batch: WindowBatch, predicted: np.ndarray, columns: Sequence[int] | None = None) -> np.ndarray:
+    """(W, k) Theil inequality coefficient per window over the scored rows."""
+    cols = np.arange(len(VARIABLES)) if columns is None else np.asarray(columns, dtype=int)
+    m = batch.measured[:, batch.warm :, cols]
+    p = predicted[:, batch.warm :, cols]
+    num = np.sqrt(np.mean((m - p) ** 2, axis=1))
+    den = np.sqrt(np.mean(m**2, axis=1)) + np.sqrt(np.mean(p**2, axis=1))
+    return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)

@@ -1,0 +1,97 @@
+"""Fitting effect parameters on training windows (least squares within bounds)."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize
+
+from quad_modelling.core.diagnosis.base_model import BaseModel, predict_batch
+from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.diagnosis.catalogue import Effect
+from quad_modelling.core.variables import INDEX, VARIABLES
+from quad_modelling.errors import ConfigError
+
+FIT_STRIDE = 4
+"""Residual rows used when fitting: every 4th sample (25 Hz at 100 Hz, above the 5 Hz smoothing cutoff)."""
+
+
+# ----------------------------------------------------------------------------- fitting
+
+
+@dataclass
+class FitResult:
+    """Identified parameters of a set of effects (training windows only)."""
+
+    effects: list[Effect]
+    thetas: list[np.ndarray]
+    cost: float
+    evaluations: int
+    success: bool
+    message: str
+
+    def params(self) -> dict[str, dict[str, float]]:
+        return {e.name: {k: float(v) for k, v in zip(e.parameters, th)} for e, th in zip(self.effects, self.thetas)}
+
+
+def variable_scales(batch: WindowBatch, predicted: np.ndarray) -> np.ndarray:
+    """(18,) scale of each variable's residual: its RMS over the batch's scored rows (>0)."""
+    err = batch.measured[:, batch.warm :] - predicted[:, batch.warm :]
+    scale = np.sqrt(np.mean(err**2, axis=(0, 1)))
+    floor = 1e-9 + 1e-6 * np.sqrt(np.mean(batch.measured[:, batch.warm :] ** 2, axis=(0, 1)))
+    return np.maximum(scale, floor)
+
+
+def fit_effects(
+    base: BaseModel, batch: WindowBatch, effects: Sequence[Effect], scales: np.ndarray, variables: Sequence[str] | None = None,
+    fixed: Sequence[tuple[Effect, np.ndarray]] = (), smooth_cutoff_hz: float | None = None, starts: int = 1,
+) -> FitResult:
+    """Identify the parameters of ``effects`` on ``batch`` (with ``fixed`` effects held at their values).
+
+    Minimises :math:`\\sum_{w,k,v} ((y_m - y_p)_{w,k,v} / s_v)^2` over the
+    scored rows (every :data:`FIT_STRIDE`-th) of the effects' affected
+    variables (or ``variables``), :math:`s_v` = ``scales`` (the base model's
+    training residual RMS, so each variable weighs by its share of the gap),
+    with :func:`scipy.optimize.least_squares` (trust-region reflective, bounds
+    from the catalogue, parameters scaled by their bound widths).
+    """
+    effects = list(effects)
+    if not effects:
+        raise ConfigError("fit_effects: no effect to fit")
+    names = variables or sorted({v for e in effects for v in e.variables}, key=VARIABLES.index)
+    cols = np.array([INDEX[v] for v in names])
+    sizes = [len(e.parameters) for e in effects]
+    lower = np.concatenate([e.lower for e in effects]).astype(float)
+    upper = np.concatenate([e.upper for e in effects]).astype(float)
+    x0 = np.clip(np.concatenate([e.initial for e in effects]).astype(float), lower, upper)
+    width = upper - lower
+    all_effects = [f[0] for f in fixed] + effects
+    rows = slice(batch.warm, None, FIT_STRIDE)
+    target = batch.measured[:, rows][:, :, cols]
+
+    def split(z: np.ndarray) -> list[np.ndarray]:
+        theta = lower + z * width
+        return np.split(theta, np.cumsum(sizes)[:-1])
+
+    def residuals(z: np.ndarray) -> np.ndarray:
+        thetas = [f[1] for f in fixed] + split(z)
+        pred = predict_batch(base, batch, all_effects, thetas, columns=cols, smooth_cutoff_hz=smooth_cutoff_hz)
+        r = (target - pred[:, rows][:, :, cols]) / scales[cols]
+        r = np.nan_to_num(r, nan=1e6, posinf=1e6, neginf=-1e6)
+        return r.ravel()
+
+    z0 = (x0 - lower) / width
+    candidates = [z0]
+    rng = np.random.default_rng(0)
+    for _ in range(max(starts, 1) - 1):
+        candidates.append(np.clip(z0 + rng.normal(0.0, 0.15, size=z0.shape), 0.0, 1.0))
+    best = None
+    evaluations = 0
+    for z in candidates:
+        fit = optimize.least_squares(residuals, z, bounds=(0.0, 1.0), method="trf", diff_step=1e-3, xtol=1e-6, ftol=1e-6, max_nfev=60)
+        evaluations += fit.nfev
+        if best is None or fit.cost < best.cost:
+            best = fit
+    return FitResult(effects, split(best.x), float(best.cost), evaluations, bool(best.success), str(best.message))

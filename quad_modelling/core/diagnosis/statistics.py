@@ -1,0 +1,67 @@
+"""Scores of the diagnosis: normalised window gaps, shrink, bootstrap, sign test, correlations."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from scipy import stats
+
+from quad_modelling.core.diagnosis.base_model import window_rms, window_tic
+from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
+
+BOOTSTRAP = 1000
+"""Bootstrap resamples of the held-out windows (seed :data:`BOOTSTRAP_SEED`)."""
+
+
+BOOTSTRAP_SEED = 7
+
+
+# ----------------------------------------------------------------------------- scores
+
+
+def normalised_window_gap(batch: WindowBatch, predicted: np.ndarray, cols: np.ndarray, scales: np.ndarray) -> np.ndarray:
+    """(W,) sum over ``cols`` of RMS_v / s_v per window."""
+    return (window_rms(batch, predicted, cols) / scales[cols]).sum(axis=1)
+
+
+def shrink_of(before: np.ndarray, after: np.ndarray) -> float:
+    """1 - sum(after) / sum(before) of per-window normalised gaps (0 when the base gap is zero)."""
+    total = float(np.sum(before))
+    return 1.0 - float(np.sum(after)) / total if total > 0 else 0.0
+
+
+def bootstrap_shrink(before: np.ndarray, after: np.ndarray, resamples: int = BOOTSTRAP, seed: int = BOOTSTRAP_SEED) -> tuple[float, float]:
+    """(5 %, 95 %) bootstrap quantiles of the shrink over windows (resampled with replacement)."""
+    if len(before) < 2:
+        return (float("nan"), float("nan"))
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(before), size=(resamples, len(before)))
+    b, a = before[idx].sum(axis=1), after[idx].sum(axis=1)
+    s = 1.0 - a / np.where(b > 0, b, 1.0)
+    return float(np.quantile(s, 0.05)), float(np.quantile(s, 0.95))
+
+
+def sign_test(improved: int, total: int) -> float:
+    """One-sided binomial p-value of at least ``improved`` of ``total`` windows improving by chance (p = 1/2)."""
+    if total == 0:
+        return 1.0
+    return float(stats.binomtest(improved, total, 0.5, alternative="greater").pvalue)
+
+
+def variable_scores(batch: WindowBatch, predicted: np.ndarray, names: Sequence[str] = EVAL_VARIABLES) -> dict[str, dict[str, float]]:
+    cols = np.array([INDEX[v] for v in names])
+    r = window_rms(batch, predicted, cols).mean(axis=0)
+    t = window_tic(batch, predicted, cols).mean(axis=0)
+    return {v: {"rms": float(r[i]), "tic": float(t[i])} for i, v in enumerate(names)}
+
+
+def correction_correlation(batch: WindowBatch, delta_a: np.ndarray, delta_b: np.ndarray, cols: np.ndarray, scales: np.ndarray) -> float:
+    """Pearson correlation of two (W, N, 18) arrays over the scored rows of ``cols`` (each column scaled)."""
+    a = (delta_a[:, batch.warm :, cols] / scales[cols]).ravel()
+    b = (delta_b[:, batch.warm :, cols] / scales[cols]).ravel()
+    sa, sb = a.std(), b.std()
+    if sa == 0 or sb == 0:
+        return 0.0
+    return float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb))

@@ -1,0 +1,180 @@
+"""The thesis's evaluation protocol (chapter 5, DESIGN 7) and the IDSIA multi-step mode.
+
+Spans. Each flight loses its take-off and landing (``drop_start``, ``drop_end``
+seconds; thesis: 30 s and 22 s); what remains is the *flying part*. Spans are
+given as ``A:B``:
+
+* plain numbers are seconds from the flight's first sample (thesis: training
+  ``30:150``, evaluation ``150:190``), clipped to the flying part;
+* numbers with ``%`` are fractions of the flying part (``0%:60%``), for short
+  flights such as NanoBench's ~42 s ones (preset ``short``: drop 5 s / 5 s,
+  training ``0%:60%``, evaluation ``60%:100%``).
+
+Windows. Each span of each flight is cut into consecutive ``window_s`` windows
+(thesis 10 s) that never cross a flight boundary; a remainder shorter than a
+window is not used. Each window is predicted separately by each model
+(:class:`~quad_modelling.core.models.Predictor`), given the first ``warm_s``
+= 0.2 s of measurements; both measurement and prediction are trimmed
+(:func:`~quad_modelling.core.preprocess.trimmed_variables`), smoothed
+(:func:`~quad_modelling.core.preprocess.smooth`), and RMS/TIC are computed over
+the rows after the warm start (:func:`evaluate_window`, also what a live
+evaluator calls per closed window). Span scores are the mean over windows.
+
+Multi-step mode (IDSIA nano-drone benchmark). From every start sample s of
+a span segment with s + H inside it, each model predicts open loop
+(:class:`~quad_modelling.core.models.MultiStepPredictor`); for the groups
+position, velocity, orientation (geodesic angle) and angular velocity,
+``MAE_h`` = mean over s of the error norm at s + h and ``SimErr`` = sum of
+``MAE_h`` for h = 1..H, reported with the naive constant-state prediction and
+the ratio model/naive.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_modelling.core.evaluation.metrics import rms, tic
+from quad_modelling.core.evaluation.multistep import multistep_evaluation
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.models.base import Predictor
+from quad_modelling.core.preprocess import (
+    SMOOTH_CUTOFF_HZ,
+    TrimConfig,
+    resample_uniform,
+    smooth,
+    trimmed_inputs,
+    trimmed_variables,
+)
+from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.windows import EvaluationConfig, plan_windows, warm_samples_for
+from quad_modelling.errors import ConfigError, DataError
+
+
+@dataclass
+class WindowResult:
+    """One model on one window: smoothed trimmed measurement and prediction, RMS and TIC per variable (SI)."""
+
+    measured: np.ndarray
+    predicted: np.ndarray
+    rms: np.ndarray
+    tic: np.ndarray
+    warm_samples: int
+
+
+def evaluate_window(
+    predictor: Predictor,
+    window: FlightLog,
+    warm_samples: int,
+    trim: TrimConfig | None = None,
+    vehicle: VehicleConfig | None = None,
+    smooth_cutoff_hz: float = SMOOTH_CUTOFF_HZ,
+    measured: np.ndarray | None = None,
+) -> WindowResult:
+    """Score one model on one window (the unit the live evaluator also uses).
+
+    ``measured``: the smoothed trimmed measurement if already computed (it is
+    the same for every model).
+    """
+    trim = trim or TrimConfig()
+    if measured is None:
+        measured = smooth(trimmed_variables(window, trim, vehicle), window.sample_rate, smooth_cutoff_hz)
+    predicted = np.asarray(predictor.predict_window(window, warm_samples), dtype=float)
+    if predicted.shape != (len(window), len(VARIABLES)):
+        raise DataError(f"model {predictor.name}: predicted shape {predicted.shape}, expected {(len(window), len(VARIABLES))}")
+    if not np.all(np.isfinite(predicted)):
+        raise DataError(f"model {predictor.name}: non-finite prediction on window starting t={window.t[0]:.2f} s of {window.meta.source}")
+    predicted = smooth(predicted, window.sample_rate, smooth_cutoff_hz)
+    scored = slice(warm_samples, None)
+    return WindowResult(measured, predicted, rms(measured[scored], predicted[scored]), tic(measured[scored], predicted[scored]), warm_samples)
+
+
+@dataclass
+class SpanScores:
+    """Mean over windows of RMS and TIC per variable (SI), with the window count."""
+
+    rms: np.ndarray
+    tic: np.ndarray
+    windows: int
+
+    def to_json(self, variables: Sequence[str] = EVAL_VARIABLES) -> dict:
+        idx = {v: i for i, v in enumerate(VARIABLES)}
+        return {v: {"rms": float(self.rms[idx[v]]), "tic": float(self.tic[idx[v]])} for v in variables}
+
+
+@dataclass
+class ExampleWindow:
+    """Data for the thesis-style figures: one window, measured vs each model (trimmed, smoothed)."""
+
+    source: str
+    span: str
+    t: np.ndarray
+    inputs: np.ndarray
+    measured: np.ndarray
+    predicted: dict[str, np.ndarray]
+    warm_samples: int
+
+
+@dataclass
+class EvaluationResult:
+    scores: dict[str, dict[str, SpanScores]]
+    horizons: dict
+    config: EvaluationConfig
+    flights: list[dict]
+    examples: list[ExampleWindow]
+
+    def to_json(self) -> dict:
+        return {
+            "models": {m: {s: sc.to_json() for s, sc in spans.items()} for m, spans in self.scores.items()},
+            "windows": {m: {s: sc.windows for s, sc in spans.items()} for m, spans in self.scores.items()},
+            "horizons": self.horizons,
+            "config": {**self.config.to_dict(), "flights": self.flights, "units": "SI (m/s, m/s2, rad/s, rad/s2)"},
+        }
+
+
+def evaluate(
+    flights: Sequence[FlightLog],
+    models: Sequence[Predictor],
+    vehicle: VehicleConfig,
+    config: EvaluationConfig | None = None,
+    multistep: bool = True,
+    progress: Callable[[str], None] | None = None,
+) -> EvaluationResult:
+    """Run the protocol of the module docstring on several flights and models."""
+    config = config or EvaluationConfig()
+    flights = [resample_uniform(log) for log in flights]
+    plan = plan_windows(flights, config)
+    names = [m.name for m in models]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"model names must be unique, got {names}")
+    sums = {m.name: {s: [np.zeros(len(VARIABLES)), np.zeros(len(VARIABLES)), 0] for s in plan} for m in models}
+    examples: list[ExampleWindow] = []
+    for span_name, windows in plan.items():
+        for k, w in enumerate(windows):
+            window = flights[w.flight].slice(w.start, w.stop)
+            warm = warm_samples_for(window, config.warm_s)
+            measured = smooth(trimmed_variables(window, config.trim, vehicle), window.sample_rate, config.smooth_cutoff_hz)
+            predicted = {}
+            for model in models:
+                result = evaluate_window(model, window, warm, config.trim, vehicle, config.smooth_cutoff_hz, measured)
+                acc = sums[model.name][span_name]
+                acc[0] += result.rms
+                acc[1] += result.tic
+                acc[2] += 1
+                predicted[model.name] = result.predicted
+            if k == 0:
+                examples.append(
+                    ExampleWindow(window.meta.source, span_name, window.t - window.t[0], trimmed_inputs(window, config.trim), measured, predicted, warm)
+                )
+        if progress:
+            progress(f"{span_name}: {len(windows)} windows x {len(models)} models")
+    scores = {
+        name: {s: SpanScores(a[0] / max(a[2], 1), a[1] / max(a[2], 1), a[2]) for s, a in spans.items() if a[2] > 0}
+        for name, spans in sums.items()
+    }
+    horizons = multistep_evaluation(flights, models, vehicle, config) if multistep else {}
+    flight_info = [{"source": log.meta.source, "duration_s": log.duration, "sample_rate_hz": log.sample_rate} for log in flights]
+    return EvaluationResult(scores, horizons, config, flight_info, examples)

@@ -1,0 +1,199 @@
+"""Training the NARX nets (thesis chapter 4): series-parallel regressors, torch fit, flight segments."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.models.narx import (
+    MIN_STD,
+    OUTPUTS,
+    NarxConfig,
+    NarxModel,
+    lagged_inputs,
+    measured_outputs,
+)
+from quad_modelling.errors import DataError
+
+
+@dataclass
+class Segment:
+    """One contiguous training series: engine commands ``u`` (N, n_u) and outputs ``y`` (N, 6)."""
+
+    u: np.ndarray
+    y: np.ndarray
+    source: str = ""
+    span: tuple[float, float] = (0.0, 0.0)
+
+
+# ---- training -----------------------------------------------------------------
+def _noisy_outputs(segments: list[Segment], snr_db: tuple[float | None, ...], rng: np.random.Generator) -> list[np.ndarray]:
+    """Copies of each segment's y with white noise of variance var(y_k)/10^(SNR_k/10) added."""
+    all_y = np.concatenate([s.y for s in segments])
+    power = all_y.var(axis=0)
+    std = np.array([0.0 if snr is None else math.sqrt(p / 10.0 ** (snr / 10.0)) for p, snr in zip(power, snr_db)])
+    return [s.y + rng.standard_normal(s.y.shape) * std for s in segments]
+
+
+def _regressors(u_norm: np.ndarray, y_norm: np.ndarray, config: NarxConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Series-parallel training rows of one segment: (X_u, X_y, target) for t ≥ warm_samples."""
+    start = config.warm_samples
+    n_y = config.output_delays
+    x_u = lagged_inputs(u_norm, config.input_delays)[start:]
+    windows = np.lib.stride_tricks.sliding_window_view(y_norm, n_y, axis=0)  # row j = y[j:j+n_y]
+    x_y = windows[start - n_y : len(y_norm) - n_y]
+    return x_u, np.ascontiguousarray(x_y), y_norm[start:]
+
+
+def train_narx(
+    segments: list[Segment],
+    dt: float,
+    vehicle: str,
+    config: NarxConfig = NarxConfig(),
+    seed: int = 0,
+    progress: bool = False,
+    kind: str = "narx",
+    training: dict | None = None,
+) -> NarxModel:
+    """Train the six nets series-parallel on ``segments`` (see module doc); deterministic for a seed.
+
+    Each segment is a contiguous series at sample period ``dt`` [s]; lags never
+    cross segment boundaries. Returns a model whose weights are float64 numpy
+    arrays. ``training`` is stored in the model header (spans, sources...).
+    """
+    import torch
+
+    if not segments:
+        raise DataError("NARX training: no training data")
+    n_u = segments[0].u.shape[1]
+    for s in segments:
+        if s.u.ndim != 2 or s.u.shape[1] != n_u or s.y.shape != (len(s.u), len(OUTPUTS)):
+            raise DataError(f"{s.source}: training segment shapes u {s.u.shape}, y {s.y.shape} do not fit {n_u} inputs, {len(OUTPUTS)} outputs")
+    usable = [s for s in segments if len(s.u) > config.warm_samples]
+    if not usable:
+        raise DataError(f"NARX training: every segment is shorter than the {config.warm_samples + 1} samples one training row needs")
+    rng = np.random.default_rng(seed)
+    all_u = np.concatenate([s.u for s in usable])
+    all_y = np.concatenate([s.y for s in usable])
+    u_mean, u_std = all_u.mean(axis=0), np.maximum(all_u.std(axis=0), MIN_STD)
+    y_mean, y_std = all_y.mean(axis=0), np.maximum(all_y.std(axis=0), MIN_STD)
+    noisy = _noisy_outputs(usable, config.noise_snr_db, rng)
+    parts = [_regressors((s.u - u_mean) / u_std, (y - y_mean) / y_std, config) for s, y in zip(usable, noisy)]
+    x_u, x_y, target = (np.concatenate(p) for p in zip(*parts))
+
+    threads = torch.get_num_threads()
+    deterministic = torch.are_deterministic_algorithms_enabled()
+    torch.set_num_threads(1)
+    torch.use_deterministic_algorithms(True)
+    try:
+        torch.manual_seed(seed)
+        nets = _make_nets(len(OUTPUTS), config.hidden, x_u.shape[1], config.output_delays)
+        weights = _fit(nets, *(torch.from_numpy(a.astype(np.float32)) for a in (x_u, x_y, target)), config, progress)
+    finally:
+        torch.set_num_threads(threads)
+        torch.use_deterministic_algorithms(deterministic)
+    return NarxModel(
+        config=config, dt=float(dt), vehicle=vehicle, **weights,
+        u_mean=u_mean, u_std=u_std, y_mean=y_mean, y_std=y_std, kind=kind,
+        training={
+            "seed": seed,
+            "samples": int(len(target)),
+            "segments": [{"source": s.source, "span": list(s.span)} for s in usable],
+            **(training or {}),
+        },
+    )
+
+
+def _make_nets(nets: int, hidden: int, inputs: int, feedback: int):
+    """A torch module of ``nets`` independent one-hidden-layer sigmoid nets (torch imported lazily)."""
+    import torch
+
+    class BatchedNets(torch.nn.Module):
+        """K independent one-hidden-layer nets evaluated together (einsum over the net axis k)."""
+
+        def __init__(self, nets: int, hidden: int, inputs: int, feedback: int) -> None:
+            super().__init__()
+            bound = 1.0 / math.sqrt(inputs + feedback)  # torch.nn.Linear's default scale
+            self.w_u = torch.nn.Parameter(torch.empty(nets, hidden, inputs).uniform_(-bound, bound))
+            self.w_y = torch.nn.Parameter(torch.empty(nets, hidden, feedback).uniform_(-bound, bound))
+            self.b_1 = torch.nn.Parameter(torch.empty(nets, hidden).uniform_(-bound, bound))
+            bound_out = 1.0 / math.sqrt(hidden)
+            self.w_2 = torch.nn.Parameter(torch.empty(nets, hidden).uniform_(-bound_out, bound_out))
+            self.b_2 = torch.nn.Parameter(torch.zeros(nets))
+
+        def forward(self, x_u, x_y):
+            z = torch.einsum("nd,khd->nkh", x_u, self.w_u) + torch.einsum("nkd,khd->nkh", x_y, self.w_y) + self.b_1
+            return torch.einsum("nkh,kh->nk", torch.sigmoid(z), self.w_2) + self.b_2
+
+    return BatchedNets(nets, hidden, inputs, feedback)
+
+
+def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> dict[str, np.ndarray]:
+    """Full-batch L-BFGS on the summed per-net MSE; returns float64 weights."""
+    import torch
+    from tqdm import tqdm
+
+    optimiser = torch.optim.LBFGS(
+        nets.parameters(), lr=1.0, max_iter=config.iterations_per_epoch, history_size=20,
+        line_search_fn="strong_wolfe", tolerance_grad=1e-9, tolerance_change=1e-12,
+    )
+
+    def loss_fn():
+        optimiser.zero_grad()
+        loss = ((nets(x_u, x_y) - target) ** 2).mean(dim=0).sum()
+        loss.backward()
+        return loss
+
+    bar = tqdm(range(config.epochs), desc="NARX training", unit="epoch", disable=not progress, leave=False)
+    for _ in bar:
+        loss = optimiser.step(loss_fn)
+        bar.set_postfix(mse=f"{float(loss.detach()) / len(OUTPUTS):.4g}")
+    return {name: param.detach().double().numpy().copy() for name, param in nets.named_parameters()}
+
+
+# ---- flights -> training data -----------------------------------------------------
+def span_indices(log: FlightLog, span: tuple[float, float]) -> tuple[int, int]:
+    """Row range [i0, i1) of ``log`` with t − t[0] in [a, b) seconds."""
+    rel = log.t - log.t[0]
+    a, b = span
+    i0, i1 = int(np.searchsorted(rel, a, "left")), int(np.searchsorted(rel, b, "left"))
+    if i1 - i0 < 2:
+        raise DataError(f"{log.meta.source}: span {a:g}:{b:g} s holds no data (flight lasts {log.duration:.1f} s)")
+    return i0, i1
+
+
+def flight_segments(logs: list[FlightLog], spans: list[tuple[float, float] | None]) -> list[Segment]:
+    """One NARX training segment per (log, span); span None = the whole flight."""
+    segments = []
+    for log, span in zip(logs, spans):
+        i0, i1 = (0, len(log)) if span is None else span_indices(log, span)
+        part = log.slice(i0, i1)
+        segments.append(Segment(part.u, measured_outputs(part), log.meta.source,
+                                (float(part.t[0] - log.t[0]), float(part.t[-1] - log.t[0]))))
+    return segments
+
+
+def common_sample_period(logs: list[FlightLog]) -> float:
+    """The logs' shared sample period [s]; DataError when they differ by more than 1 %."""
+    periods = [1.0 / log.sample_rate for log in logs]
+    if max(periods) > 1.01 * min(periods):
+        listing = ", ".join(f"{log.meta.source}: {p * 1e3:.2f} ms" for log, p in zip(logs, periods))
+        raise DataError(f"training flights have different sample periods ({listing}); resample them first")
+    return float(np.mean(periods))
+
+
+def train_narx_on_flights(
+    logs: list[FlightLog],
+    spans: list[tuple[float, float] | None],
+    config: NarxConfig = NarxConfig(),
+    seed: int = 0,
+    progress: bool = False,
+) -> NarxModel:
+    """Train a NARX model on spans [s from each flight's start] of flight logs of one vehicle."""
+    vehicles = sorted({log.meta.vehicle for log in logs})
+    if len(vehicles) != 1:
+        raise DataError(f"training flights are for different vehicles {vehicles}")
+    return train_narx(flight_segments(logs, spans), common_sample_period(logs), vehicles[0], config, seed, progress)

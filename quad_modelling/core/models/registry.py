@@ -1,0 +1,132 @@
+"""The predictor contract every model implements, and the model registry.
+
+A predictor predicts one evaluation window (thesis 2.2, DESIGN 7): it is given
+the whole window as a :class:`~quad_modelling.core.flight_log.FlightLog` and
+may use
+
+* the engine commands ``window.u`` of the entire window (they are the model
+  input), and
+* the measurements of the first ``warm_samples`` rows only (the thesis gives
+  the models the first 0.2 s of measurements "so they had the correct start
+  values").
+
+It returns an (N, 18) array in :data:`quad_modelling.core.variables.VARIABLES`
+column order, in the *trimmed* convention of
+:func:`quad_modelling.core.preprocess.trimmed_variables`: every variable is the
+deviation from its trim value, the mean over the window's stable interval
+(the first ``TrimConfig.trim_s`` seconds). The evaluator compares it with the
+trimmed best measurement of the same window; rows ``< warm_samples`` are not
+scored.
+
+Predictors that can also run the IDSIA multi-step protocol implement
+:class:`MultiStepPredictor` as well (absolute values, not trimmed).
+
+Registry: :func:`make_model` parses a spec string. Built-in specs:
+
+=================  ==========================================================
+``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.greybox`
+``greybox:euler``  same with the thesis's explicit-Euler discretisation
+``dummy``          predicts zero for every variable (thesis Fig 5.2)
+``naive``          holds the last warm-start measurement constant
+=================  ==========================================================
+
+Other modules add entries with :func:`register_model` (e.g. ``narx:PATH``,
+``hybrid:PATH``); a factory receives the text after the first ``:`` (or
+``""``) and the vehicle config.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from quad_modelling.core.models.base import (
+    ConstantStatePredictor,
+    DummyPredictor,
+    Predictor,
+)
+from quad_modelling.core.models.streaming import StreamingPredictor
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.errors import ConfigError
+
+ModelFactory = Callable[[str, VehicleConfig], Predictor]
+
+
+_REGISTRY: dict[str, ModelFactory] = {}
+
+
+def register_model(kind: str, factory: ModelFactory) -> None:
+    """Add (or replace) the factory for specs ``kind`` and ``kind:ARG``."""
+    _REGISTRY[kind] = factory
+
+
+def _make_greybox(arg: str, vehicle: VehicleConfig) -> Predictor:
+    from quad_modelling.core.models.greybox import DISCRETISATIONS, GreyboxPredictor
+
+    method = arg or "zoh"
+    if method not in DISCRETISATIONS:
+        raise ConfigError(f"model spec greybox:{arg}: discretisation must be one of {', '.join(DISCRETISATIONS)}")
+    return GreyboxPredictor(vehicle, discretisation=method)
+
+
+def _make_dummy(arg: str, vehicle: VehicleConfig) -> Predictor:
+    if arg:
+        raise ConfigError(f"model spec dummy:{arg}: the dummy model takes no argument")
+    return DummyPredictor()
+
+
+def _make_naive(arg: str, vehicle: VehicleConfig) -> Predictor:
+    if arg:
+        raise ConfigError(f"model spec naive:{arg}: the naive model takes no argument")
+    return ConstantStatePredictor(vehicle)
+
+
+
+def make_model(spec: str, vehicle: VehicleConfig) -> Predictor:
+    """Build a predictor from a spec such as ``greybox``, ``dummy``, ``narx:model.pt``.
+
+    Raises ConfigError naming the spec and the known kinds when unknown.
+    """
+    kind, _, arg = spec.partition(":")
+    if kind not in _REGISTRY:
+        raise ConfigError(f"unknown model {spec!r}; known: {', '.join(sorted(_REGISTRY))}")
+    model = _REGISTRY[kind](arg, vehicle)
+    if not getattr(model, "name", None):
+        raise ConfigError(f"model spec {spec!r}: the predictor has no name")
+    return model
+
+
+def _make_narx(arg: str, vehicle: VehicleConfig) -> Predictor:
+    """``narx:PATH``: the thesis NARX model from a model file (torch is not needed to predict)."""
+    from quad_modelling.core.models.narx import NarxPredictor, load_narx
+
+    if not arg:
+        raise ConfigError("model spec narx needs a model file: narx:PATH")
+    return NarxPredictor(load_narx(arg, None if vehicle is None else getattr(vehicle, "name", vehicle)))
+
+
+def _make_hybrid(arg: str, vehicle: VehicleConfig) -> Predictor:
+    """``hybrid:PATH``: greybox plus NARX residual nets from a model file."""
+    from quad_modelling.core.models.hybrid import make_hybrid_predictor
+
+    return make_hybrid_predictor(arg, vehicle)
+
+
+register_model("greybox", _make_greybox)
+register_model("dummy", _make_dummy)
+register_model("naive", _make_naive)
+register_model("narx", _make_narx)
+register_model("hybrid", _make_hybrid)
+
+def streaming_predictor(spec: str, vehicle) -> StreamingPredictor:
+    """The live form of a model spec (``greybox``, ``narx:PATH``, ``naive``...).
+
+    Built by the same registry as the offline models
+    (:func:`quad_modelling.core.models.registry.make_model`), so a node and
+    ``quad-modelling evaluate`` run the same object. ConfigError when the model
+    has no live form.
+    """
+
+    model = make_model(spec, vehicle)
+    if not isinstance(model, StreamingPredictor):
+        raise ConfigError(f"model {spec!r} has no live (streaming) form")
+    return model
