@@ -21,18 +21,7 @@ scored.
 Predictors that can also run the IDSIA multi-step protocol implement
 :class:`MultiStepPredictor` as well (absolute values, not trimmed).
 
-Registry: :func:`make_model` parses a spec string. Built-in specs:
-
-=================  ==========================================================
-``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.greybox`
-``greybox:euler``  same with the thesis's explicit-Euler discretisation
-``dummy``          predicts zero for every variable (thesis Fig 5.2)
-``naive``          holds the last warm-start measurement constant
-=================  ==========================================================
-
-Other modules add entries with :func:`register_model` (e.g. ``narx:PATH``,
-``hybrid:PATH``); a factory receives the text after the first ``:`` (or
-``""``) and the vehicle config.
+Specs such as ``greybox`` or ``narx:PATH`` are built by :mod:`quad_modelling.core.models.registry`.
 """
 
 from __future__ import annotations

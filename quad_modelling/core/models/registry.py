@@ -1,38 +1,18 @@
-"""The predictor contract every model implements, and the model registry.
+"""The model registry: a spec string -> a predictor, offline (:func:`make_model`) and live (:func:`streaming_predictor`).
 
-A predictor predicts one evaluation window (thesis 2.2, DESIGN 7): it is given
-the whole window as a :class:`~quad_modelling.core.flight_log.FlightLog` and
-may use
-
-* the engine commands ``window.u`` of the entire window (they are the model
-  input), and
-* the measurements of the first ``warm_samples`` rows only (the thesis gives
-  the models the first 0.2 s of measurements "so they had the correct start
-  values").
-
-It returns an (N, 18) array in :data:`quad_modelling.core.variables.VARIABLES`
-column order, in the *trimmed* convention of
-:func:`quad_modelling.core.preprocess.trimmed_variables`: every variable is the
-deviation from its trim value, the mean over the window's stable interval
-(the first ``TrimConfig.trim_s`` seconds). The evaluator compares it with the
-trimmed best measurement of the same window; rows ``< warm_samples`` are not
-scored.
-
-Predictors that can also run the IDSIA multi-step protocol implement
-:class:`MultiStepPredictor` as well (absolute values, not trimmed).
-
-Registry: :func:`make_model` parses a spec string. Built-in specs:
+Built-in specs (a factory receives the text after the first ``:``, or ``""``, and the vehicle config):
 
 =================  ==========================================================
-``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.greybox`
+``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.models.greybox`
 ``greybox:euler``  same with the thesis's explicit-Euler discretisation
 ``dummy``          predicts zero for every variable (thesis Fig 5.2)
 ``naive``          holds the last warm-start measurement constant
+``narx:PATH``      thesis NARX nets from a model file, :mod:`quad_modelling.core.models.narx`
+``hybrid:PATH``    greybox + NARX residual nets, :mod:`quad_modelling.core.models.hybrid`
 =================  ==========================================================
 
-Other modules add entries with :func:`register_model` (e.g. ``narx:PATH``,
-``hybrid:PATH``); a factory receives the text after the first ``:`` (or
-``""``) and the vehicle config.
+The learned models are imported on first use (torch is imported only to train).
+:func:`register_model` adds a kind (a plug-in model, a test double).
 """
 
 from __future__ import annotations
