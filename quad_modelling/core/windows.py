@@ -36,7 +36,9 @@ all of them lie in its span.
 
 Offline (:func:`span_windows`) the clock's origin is the span start (windows
 are consecutive from it, a remainder shorter than W is not used) and dt is the
-flight's median sample period. Live, the origin is the first engine-input stamp
+flight's mean sample period (its duration over its steps: unlike the median of
+jittered steps, it puts round(W / dt) rows in a window; on a uniform grid both
+are the same). Live, the origin is the first engine-input stamp
 (published on ``window_origin``) and dt the median of the first engine-input
 steps; a window is scored in a span when it lies inside it
 (:meth:`SpanSpec.covers`). Spans starting on multiples of W give the same
@@ -312,8 +314,9 @@ class WindowClock:
 
 
 def flight_clock(log: FlightLog, origin_s: float, window_s: float, warm_s: float = 0.0) -> WindowClock:
-    """The clock of one flight: origin ``origin_s`` seconds after its first sample, dt its median sample period."""
-    return WindowClock(window_s, warm_s, 1.0 / log.sample_rate, origin_ns=seconds_to_ns(origin_s))
+    """The clock of one flight: origin ``origin_s`` seconds after its first sample, dt its mean sample period."""
+    period = (log.t[-1] - log.t[0]) / (len(log) - 1)
+    return WindowClock(window_s, warm_s, period, origin_ns=seconds_to_ns(origin_s))
 
 
 def flight_stamps(log: FlightLog) -> np.ndarray:
