@@ -69,13 +69,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _config(args: argparse.Namespace) -> EvaluationConfig:
-    try:
-        start, end = (float(x) for x in args.drop.split(":"))
-    except ValueError as err:
-        raise ConfigError(f"--drop {args.drop!r}: expected START:END seconds, e.g. 3.5:4.5") from err
     if not args.smooth > 0:
         raise ConfigError(f"--smooth {args.smooth:g}: the low-pass cutoff must be a positive frequency in Hz")
-    config = replace(DIAGNOSIS_CONFIG, drop_start=start, drop_end=end, window_s=args.window, smooth_cutoff_hz=args.smooth)
+    config = replace(DIAGNOSIS_CONFIG.with_drop(args.drop), window_s=args.window, smooth_cutoff_hz=args.smooth)
     config.validate()
     return config
 

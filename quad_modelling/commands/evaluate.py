@@ -54,20 +54,9 @@ def add_span_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
-    drop = (None, None)
-    if args.drop:
-        try:
-            drop = tuple(float(x) for x in args.drop.split(":"))
-            if len(drop) != 2:
-                raise ValueError
-        except ValueError as err:
-            raise ConfigError(f"--drop {args.drop!r}: expected START:END seconds, e.g. 30:22") from err
-    config = EvaluationConfig.preset(
-        args.preset, drop_start=drop[0], drop_end=drop[1], train=args.train, eval=args.eval,
-        window_s=args.window, warm_s=args.warm, **extra,
-    )
-    config.validate()
-    return config
+    """The evaluation configuration of the span options (core span grammar, :meth:`EvaluationConfig.from_options`)."""
+    return EvaluationConfig.from_options(args.preset, args.drop, train=args.train, eval=args.eval,
+                                         window_s=args.window, warm_s=args.warm, **extra)
 
 
 def load_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:

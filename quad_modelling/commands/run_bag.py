@@ -77,17 +77,13 @@ def parse_models(text: str) -> list[ModelEntry]:
 
 
 def span_list(args: argparse.Namespace) -> list[str]:
-    from quad_modelling.nodes.common import BadParameter, parse_span
+    """The evaluator's ``spans`` (``NAME:A:B``) of --train/--eval, or ``live:0:inf``; ConfigError when malformed."""
+    from quad_modelling.core.windows import seconds_spans
 
     spans = [f"train:{args.train}"] if args.train else []
     spans += [f"eval:{args.eval}"] if args.eval else []
     spans = spans or ["live:0:inf"]
-    for s in spans:
-        try:
-            parse_span(s)
-        except BadParameter as err:
-            raise ConfigError(f"--train/--eval: {err}") from err
-    return spans
+    return [span.name + ":" + span.text() for span in seconds_spans(spans)]
 
 
 def ros_environment() -> dict:

@@ -29,15 +29,6 @@ example:
 """
 
 
-def _span_pair(text: str) -> tuple[float, float]:
-    parts = text.split(":")
-    try:
-        a, b = (float(p) for p in parts)
-    except ValueError as err:
-        raise argparse.ArgumentTypeError(f"expected A:B seconds, got {text!r}") from err
-    return a, b
-
-
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("flights", metavar="BAG", nargs="+", help="flights: MCAP bag directories, thesis .mat logs or NanoBench .csv.gz")
     parser.add_argument("-o", "--output", required=True, metavar="MODEL", help="model file to write (.npz)")
@@ -45,7 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--preset", choices=("thesis", "short"), default="thesis",
                         help="span preset: thesis (drop 30:22 s, train 30:150) or short (drop 5:5 s, train 0%%:60%%)")
     parser.add_argument("--train", metavar="A:B", help="training span (seconds, or percent of the flying part)")
-    parser.add_argument("--drop", metavar="A:B", type=_span_pair, help="seconds dropped at take-off:landing")
+    parser.add_argument("--drop", metavar="A:B", help="seconds dropped at take-off:landing")
     parser.add_argument("--epochs", type=int, default=25, help="training epochs (L-BFGS steps; thesis 25)")
     parser.add_argument("--hidden", type=int, default=10, help="sigmoid units per net (thesis 10)")
     parser.add_argument("--delays", type=int, default=20, help="delayed outputs fed back (thesis 20 = 0.2 s at 100 Hz)")
@@ -58,13 +49,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def training_spans(logs, args) -> list[tuple[float, float]]:
     """Training span [s from each flight's start] per flight, as the evaluation computes it."""
-    from quad_modelling.core.windows import EvaluationConfig, SpanSpec
+    from quad_modelling.core.windows import EvaluationConfig
 
-    overrides = {"train": args.train}
-    if args.drop is not None:
-        overrides.update(drop_start=args.drop[0], drop_end=args.drop[1])
-    config = EvaluationConfig.preset(args.preset, **overrides)
-    span = SpanSpec.parse("train", config.train)
+    config = EvaluationConfig.from_options(args.preset, args.drop, train=args.train)
+    span = config.spans()[0]
     spans = []
     for log in logs:
         a, b = span.interval(log, config.drop_start, config.drop_end)

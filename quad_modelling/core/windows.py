@@ -1,10 +1,57 @@
-"""Spans and windows: the one span grammar and the window cutter shared by every evaluation."""
+"""Spans and windows: the one span grammar and the one window clock, offline and live.
+
+Span grammar (:class:`SpanSpec`). A span is ``A:B``:
+
+* plain numbers are seconds (offline: from the flight's first sample, clipped to
+  the flying part; live: from the window origin t0);
+* numbers with ``%`` are percent of the flying part (``0%:60%``), offline only
+  (a live node does not know the flight's length);
+* ``inf`` is an open end (``20:inf``), in seconds only.
+
+``NAME:A:B`` is a named span (the evaluator node's ``spans`` parameter, e.g.
+``eval:150:190`` or ``live:0:inf``), parsed by the same :meth:`SpanSpec.parse`.
+``--drop START:END`` takes two finite non-negative seconds (:func:`parse_drop`).
+Every malformed text is a :class:`~quad_modelling.errors.ConfigError` naming the
+text and what is wrong with it.
+
+Window clock (:class:`WindowClock`). Window k is the time interval
+``[t0 + kW, t0 + (k+1)W)`` for an origin t0 and a length W, on integer
+nanosecond stamps. Stamps jitter (real logs: microseconds) and a row stands for
+the sample period dt around its stamp, so a stamp t is assigned to its window
+after a shift of half a period:
+
+.. math::
+
+    k = \\lfloor (t - t_0 + dt/2) / W \\rfloor, \\qquad
+    p = t - t_0 + dt/2 - k W
+
+(``p``: the position in the window; the row is a warm-start row when
+``p < warm_s``). Jitter below dt/2 never moves a stamp across a boundary: the
+boundaries ``t0 + kW - dt/2`` lie half-way between nominal samples. Row
+boundaries map to time the same way: a row range of a span ``[a, b)`` holds the
+rows with ``a <= t - t_first + dt/2 < b``; a window holds the rows assigned to
+it and is used only when it holds exactly ``round(W / dt)`` rows (a gap or a
+duplicated stamp leaves it out: offline it is skipped, live it is marked) and
+all of them lie in its span.
+
+Offline (:func:`span_windows`) the clock's origin is the span start (windows
+are consecutive from it, a remainder shorter than W is not used) and dt is the
+flight's mean sample period (its duration over its steps: unlike the median of
+jittered steps, it puts round(W / dt) rows in a window; on a uniform grid both
+are the same). Live, the origin is the first engine-input stamp
+(published on ``window_origin``) and dt the median of the first engine-input
+steps; a window is scored in a span when it lies inside it
+(:meth:`SpanSpec.covers`). Spans starting on multiples of W give the same
+windows offline and live.
+"""
 
 from __future__ import annotations
 
+import itertools
+import math
 import re
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 
 import numpy as np
 
@@ -15,12 +62,25 @@ from quad_modelling.core.preprocess import (
 )
 from quad_modelling.errors import ConfigError, DataError
 
-_BOUND = re.compile(r"^\s*(-?\d+(?:\.\d*)?|-?\.\d+)\s*(%?)\s*$")
+_BOUND = re.compile(r"^\s*(?:(?P<inf>inf)|(?P<value>\d+(?:\.\d*)?|\.\d+)\s*(?P<percent>%?))\s*$", re.IGNORECASE)
+"""One bound: non-negative seconds, a percentage, or ``inf``."""
+
+SPAN_EXAMPLES = "e.g. 30:150, 0%:60% or 20:inf"
+
+
+def _bound(text: str, what: str) -> tuple[float, bool]:
+    """(value, is_percent) of one bound; ConfigError naming ``what`` when it is not a number, percentage or inf."""
+    match = _BOUND.match(text)
+    if not match:
+        raise ConfigError(f"{what}: bound {text.strip()!r} is not a non-negative number of seconds, a percentage or inf")
+    if match.group("inf"):
+        return math.inf, False
+    return float(match.group("value")), bool(match.group("percent"))
 
 
 @dataclass(frozen=True)
 class SpanSpec:
-    """One span ``A:B``: seconds from the flight start, or percent (``%``) of the flying part."""
+    """One span ``A:B``: seconds (END may be ``inf``), or percent (``%``) of the flying part; see the module doc."""
 
     name: str
     start: float
@@ -29,25 +89,34 @@ class SpanSpec:
 
     @classmethod
     def parse(cls, name: str, text: str) -> SpanSpec:
-        parts = text.split(":")
+        """``A:B`` -> the span ``name``; ConfigError naming the text and what is wrong."""
+        what = f"span {name} {text!r}"
+        parts = str(text).split(":")
         if len(parts) != 2:
-            raise ConfigError(f"span {name} {text!r}: expected START:END, e.g. 30:150 or 0%:60%")
-        bounds = [_BOUND.match(p) for p in parts]
-        if not all(bounds):
-            raise ConfigError(f"span {name} {text!r}: bounds must be numbers of seconds or percentages")
-        percent = [b.group(2) == "%" for b in bounds]
-        if percent[0] != percent[1]:
-            raise ConfigError(f"span {name} {text!r}: give both bounds in seconds or both in percent")
-        start, end = (float(b.group(1)) for b in bounds)
-        if percent[0]:
-            start, end = start / 100.0, end / 100.0
-            if not 0.0 <= start < end <= 1.0:
-                raise ConfigError(f"span {name} {text!r}: percentages must satisfy 0 <= START < END <= 100")
-        elif not 0.0 <= start < end:
-            raise ConfigError(f"span {name} {text!r}: need 0 <= START < END seconds")
-        return cls(name, start, end, percent[0])
+            raise ConfigError(f"{what}: expected START:END, {SPAN_EXAMPLES}")
+        (start, start_pct), (end, end_pct) = (_bound(p, what) for p in parts)
+        if start_pct != end_pct:
+            raise ConfigError(f"{what}: give both bounds in seconds or both in percent")
+        if math.isinf(start):
+            raise ConfigError(f"{what}: START must be finite (only END may be inf)")
+        if start_pct:
+            if not 0.0 <= start < end <= 100.0:
+                raise ConfigError(f"{what}: percentages must satisfy 0 <= START < END <= 100")
+            return cls(name, start / 100.0, end / 100.0, True)
+        if not start < end:
+            raise ConfigError(f"{what}: need 0 <= START < END seconds")
+        return cls(name, start, end, False)
+
+    @classmethod
+    def parse_named(cls, text: str) -> SpanSpec:
+        """``NAME:A:B`` (e.g. ``eval:150:190``, ``live:0:inf``) -> the span NAME, bounds as :meth:`parse`."""
+        name, sep, bounds = str(text).partition(":")
+        if not sep or not name.strip() or bounds.count(":") != 1:
+            raise ConfigError(f"span {text!r}: expected NAME:START:END, e.g. eval:150:190 or live:0:inf")
+        return cls.parse(name.strip(), bounds)
 
     def text(self) -> str:
+        """The span as ``A:B`` (parses back to itself)."""
         if self.relative:
             return f"{self.start * 100:g}%:{self.end * 100:g}%"
         return f"{self.start:g}:{self.end:g}"
@@ -60,6 +129,38 @@ class SpanSpec:
             return fly_start + self.start * length, fly_start + self.end * length
         return max(self.start, fly_start), min(self.end, fly_end)
 
+    def covers(self, start_s: float, end_s: float) -> bool:
+        """Whether the window [start_s, end_s) [s from t0] lies inside this seconds span (1 ns tolerance)."""
+        if self.relative:
+            raise ConfigError(f"span {self.name} {self.text()}: a percent span has no seconds bounds until a flight's length is known")
+        return start_s >= self.start - 1e-9 and end_s <= self.end + 1e-9
+
+
+def parse_drop(text: str) -> tuple[float, float]:
+    """``--drop START:END``: seconds dropped at take-off and landing (finite, >= 0); ConfigError otherwise."""
+    what = f"--drop {text!r}"
+    parts = str(text).split(":")
+    if len(parts) != 2:
+        raise ConfigError(f"{what}: expected START:END seconds, e.g. 30:22")
+    bounds = [_bound(p, what) for p in parts]
+    if any(pct or math.isinf(value) for value, pct in bounds):
+        raise ConfigError(f"{what}: both bounds must be finite seconds (no % or inf)")
+    return bounds[0][0], bounds[1][0]
+
+
+def seconds_spans(texts: Sequence[str]) -> list[SpanSpec]:
+    """Named seconds spans (``NAME:A:B`` each, unique names, at least one): the live evaluator's ``spans``."""
+    spans = [SpanSpec.parse_named(t) for t in texts]
+    if not spans:
+        raise ConfigError("give at least one span NAME:START:END")
+    for span in spans:
+        if span.relative:
+            raise ConfigError(f"span {span.name} {span.text()}: live spans are seconds from t0 (a percentage needs the flight's length)")
+    names = [s.name for s in spans]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"span names must be unique, got {names}")
+    return spans
+
 
 PRESETS: dict[str, dict] = {
     "thesis": {"drop": (30.0, 22.0), "train": "30:150", "eval": "150:190"},
@@ -70,7 +171,12 @@ PRESETS: dict[str, dict] = {
 
 @dataclass(frozen=True)
 class EvaluationConfig:
-    """Everything that defines an evaluation; defaults are the thesis's values."""
+    """Everything that defines an evaluation; defaults are the thesis's values.
+
+    ``trim`` and ``smooth_cutoff_hz`` are the one trim/smoothing configuration of
+    a scoring (offline evaluation, the evaluator node, the diagnosis): measurement
+    and predictions are trimmed with ``trim`` and low-passed at ``smooth_cutoff_hz``.
+    """
 
     drop_start: float = 30.0
     drop_end: float = 22.0
@@ -85,12 +191,26 @@ class EvaluationConfig:
 
     @classmethod
     def preset(cls, name: str, **overrides) -> EvaluationConfig:
+        """The preset ``name`` with every override that is not None applied."""
         if name not in PRESETS:
             raise ConfigError(f"unknown span preset {name!r}; known: {', '.join(PRESETS)}")
         p = PRESETS[name]
         values = {"drop_start": p["drop"][0], "drop_end": p["drop"][1], "train": p["train"], "eval": p["eval"]}
         values.update({k: v for k, v in overrides.items() if v is not None})
         return cls(**values)
+
+    @classmethod
+    def from_options(cls, preset: str, drop: str | None = None, **overrides) -> EvaluationConfig:
+        """The command-line form: a preset, ``--drop START:END`` text and overrides (None = the preset's); validated."""
+        start, end = parse_drop(drop) if drop else (None, None)
+        config = cls.preset(preset, drop_start=start, drop_end=end, **overrides)
+        config.validate()
+        return config
+
+    def with_drop(self, drop: str) -> EvaluationConfig:
+        """This configuration with the take-off/landing drops of ``--drop START:END`` text."""
+        start, end = parse_drop(drop)
+        return replace(self, drop_start=start, drop_end=end)
 
     def spans(self) -> list[SpanSpec]:
         return [SpanSpec.parse("train", self.train), SpanSpec.parse("eval", self.eval)]
@@ -102,12 +222,122 @@ class EvaluationConfig:
             raise ConfigError("take-off/landing drops must be >= 0 s")
         if not self.horizons or min(self.horizons) < 1:
             raise ConfigError(f"horizons must be positive step counts, got {self.horizons}")
+        if not self.smooth_cutoff_hz > 0:
+            raise ConfigError(f"the smoothing cutoff must be a positive frequency in Hz, got {self.smooth_cutoff_hz:g}")
         self.spans()
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["horizons"] = list(self.horizons)
         return d
+
+
+# ----------------------------------------------------------------------------- the window clock
+
+
+def seconds_to_ns(seconds) -> np.ndarray | int:
+    """Seconds -> integer nanoseconds (rounded; arrays stay arrays)."""
+    if np.ndim(seconds) == 0:
+        return int(round(float(seconds) * 1e9))
+    return np.round(np.asarray(seconds, dtype=float) * 1e9).astype(np.int64)
+
+
+class WindowClock:
+    """Window k = [t0 + kW, t0 + (k+1)W) on integer nanosecond stamps; the stamp rule of the module doc.
+
+    ``dt`` is ``sample_period_s`` when given, otherwise the median of the first
+    :data:`PERIOD_SAMPLES` steps fed to :meth:`observe`, then frozen.
+    """
+
+    PERIOD_SAMPLES = 5
+
+    def __init__(self, window_s: float, warm_s: float, sample_period_s: float = 0.0, origin_ns: int | None = None):
+        self.window_ns = seconds_to_ns(window_s)
+        self.warm_ns = seconds_to_ns(warm_s)
+        self.origin_ns = origin_ns
+        self.half_period_ns = seconds_to_ns(sample_period_s * 0.5) if sample_period_s > 0 else None
+        self._steps: list[int] = []
+        self._last: int | None = None
+
+    @property
+    def period_s(self) -> float | None:
+        return None if self.half_period_ns is None else 2 * self.half_period_ns / 1e9
+
+    def observe(self, ns: int) -> None:
+        """Feed each accepted stamp in order (estimates dt while unknown)."""
+        if self.half_period_ns is None and self._last is not None and ns > self._last:
+            self._steps.append(ns - self._last)
+            if len(self._steps) >= self.PERIOD_SAMPLES:
+                self._steps.sort()
+                self.half_period_ns = self._steps[len(self._steps) // 2] // 2
+        self._last = ns
+
+    def shifted(self, ns):
+        """t - t0 + dt/2 [ns] of a stamp or an array of stamps; the origin must be set."""
+        return ns - self.origin_ns + (self.half_period_ns or 0)
+
+    def locate(self, ns: int) -> tuple[int, int]:
+        """(window index k, position in window [ns]) of a stamp."""
+        shifted = self.shifted(ns)
+        k = shifted // self.window_ns
+        return int(k), int(shifted - k * self.window_ns)
+
+    def is_warm(self, position_ns: int) -> bool:
+        return position_ns < self.warm_ns
+
+    def is_last_warm(self, position_ns: int) -> bool:
+        """A warm row whose successor, one period dt later, is not: ``p < warm_s <= p + dt`` (False while dt is
+        unknown). Positions carry the dt/2 shift, so stamp jitter below dt/2 does not change the answer."""
+        return self.half_period_ns is not None and position_ns < self.warm_ns <= position_ns + 2 * self.half_period_ns
+
+    def window_start_s(self, k: int) -> float:
+        """Start of window k in seconds from t0."""
+        return k * self.window_ns / 1e9
+
+    @property
+    def window_rows(self) -> int:
+        """Rows a complete window holds: round(W / dt) (dt must be known)."""
+        return int(round(self.window_ns / (2 * self.half_period_ns)))
+
+    def cut(self, stamps_ns: np.ndarray, end_ns: float = math.inf) -> list[tuple[int, int]]:
+        """Rows [start, stop) of each complete window k >= 0 of sorted ``stamps_ns`` whose rows all have
+        ``t - t0 + dt/2 < end_ns`` (relative to t0): the offline form of :meth:`locate`."""
+        shifted = self.shifted(np.asarray(stamps_ns, dtype=np.int64))
+        first = int(np.searchsorted(shifted, 0))
+        last = len(shifted) if math.isinf(end_ns) else int(np.searchsorted(shifted, end_ns))
+        if last <= first:
+            return []
+        windows = int((shifted[last - 1] // self.window_ns) + 1)
+        bounds = np.searchsorted(shifted, np.arange(windows + 1, dtype=np.int64) * self.window_ns)
+        rows = self.window_rows
+        return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b - a == rows and b <= last]
+
+
+def flight_clock(log: FlightLog, origin_s: float, window_s: float, warm_s: float = 0.0) -> WindowClock:
+    """The clock of one flight: origin ``origin_s`` seconds after its first sample, dt its mean sample period."""
+    period = (log.t[-1] - log.t[0]) / (len(log) - 1)
+    return WindowClock(window_s, warm_s, period, origin_ns=seconds_to_ns(origin_s))
+
+
+def flight_stamps(log: FlightLog) -> np.ndarray:
+    """Stamps [ns] from the flight's first sample."""
+    return seconds_to_ns(log.t - log.t[0])
+
+
+def rows_between(log: FlightLog, start_s: float, end_s: float) -> tuple[int, int]:
+    """Rows [i0, i1) of ``log`` with ``start_s <= t - t_first + dt/2 < end_s`` (the module doc's row rule; may be empty)."""
+    clock = flight_clock(log, start_s, 1.0)
+    shifted = clock.shifted(flight_stamps(log))
+    stop = len(log) if math.isinf(end_s) else int(np.searchsorted(shifted, seconds_to_ns(end_s - start_s)))
+    return int(np.searchsorted(shifted, 0)), stop
+
+
+def windows_between(log: FlightLog, start_s: float, end_s: float, window_s: float) -> list[tuple[int, int]]:
+    """Rows [start, stop) of the complete windows of the clock with origin ``start_s`` inside [start_s, end_s)."""
+    if end_s <= start_s:
+        return []
+    clock = flight_clock(log, start_s, window_s)
+    return clock.cut(flight_stamps(log), math.inf if math.isinf(end_s) else seconds_to_ns(end_s - start_s))
 
 
 @dataclass(frozen=True)
@@ -121,22 +351,14 @@ class Window:
 
 
 def span_windows(log: FlightLog, span: SpanSpec, config: EvaluationConfig, flight: int = 0) -> list[Window]:
-    """Consecutive full windows of ``config.window_s`` inside ``span`` of one flight."""
+    """Consecutive full windows of ``config.window_s`` inside ``span`` of one flight (the clock from the span start)."""
     a, b = span.interval(log, config.drop_start, config.drop_end)
-    rate = log.sample_rate
-    length = int(round(config.window_s * rate))
-    t = log.t - log.t[0]
-    first = int(np.searchsorted(t, a - 0.5 / rate))
-    last = int(np.searchsorted(t, b - 0.5 / rate))  # exclusive
-    return [Window(flight, span.name, s, s + length) for s in range(first, last - length + 1, length)]
+    return [Window(flight, span.name, s, e) for s, e in windows_between(log, a, b, config.window_s)]
 
 
 def span_segment(log: FlightLog, span: SpanSpec, config: EvaluationConfig) -> tuple[int, int]:
     """Rows [start, stop) of a span in one flight (contiguous; empty when start >= stop)."""
-    a, b = span.interval(log, config.drop_start, config.drop_end)
-    rate = log.sample_rate
-    t = log.t - log.t[0]
-    return int(np.searchsorted(t, a - 0.5 / rate)), int(np.searchsorted(t, b - 0.5 / rate))
+    return rows_between(log, *span.interval(log, config.drop_start, config.drop_end))
 
 
 def warm_samples_for(window: FlightLog, warm_s: float) -> int:

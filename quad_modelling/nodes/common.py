@@ -1,6 +1,6 @@
-"""What every node of the suite shares: QoS, parameter declaration, fault reporting, windows.
+"""What every node of the suite shares: QoS, parameter declaration, fault reporting.
 
-No math here: windows are bookkeeping on integer nanosecond stamps.
+The window clock and the span grammar are core's (:mod:`quad_modelling.core.windows`).
 
 QoS (DESIGN 5a): data topics are reliable, volatile, keep-last with a bounded
 depth (parameter ``qos_depth``, default :data:`DEFAULT_QOS_DEPTH`): the replay
@@ -12,7 +12,6 @@ a node started late (or restarted) learns the window origin t0.
 from __future__ import annotations
 
 import gc
-import math
 import os
 import sys
 from collections.abc import Callable
@@ -22,6 +21,8 @@ from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParameters
 from rclpy.exceptions import InvalidParameterTypeException, ParameterException
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
+from quad_modelling.core.windows import seconds_spans
+from quad_modelling.errors import ConfigError
 from quad_modelling.nodes.executors import executor_kind, make_executor, spin  # noqa: F401  (re-exported for the nodes)
 
 DEFAULT_QOS_DEPTH = 1000
@@ -169,83 +170,12 @@ class FaultLog:
         return ", ".join(f"{k} x{n}" for k, n in sorted(self.counts.items())) or "none"
 
 
-class WindowClock:
-    """Window k = [t0 + kW, t0 + (k+1)W) on integer nanosecond stamps (DESIGN 5a).
-
-    Stamps jitter (real logs: microseconds), so a sample belongs to the window
-    of its stamp shifted by half a sample period dt/2, as offline windows are
-    cut on row boundaries (``evaluation.span_windows`` searches at ``a - 0.5/rate``):
-    ``k = floor((t - t0 + dt/2) / W)``, position ``p = t - t0 + dt/2 - kW``;
-    the sample is a warm-start row when ``p < warm_s``. dt is the median of the
-    first :data:`PERIOD_SAMPLES` motor-input steps (or the parameter
-    ``sample_period_s``), then frozen.
-    """
-
-    PERIOD_SAMPLES = 5
-
-    def __init__(self, window_s: float, warm_s: float, sample_period_s: float = 0.0):
-        self.window_ns = int(round(window_s * 1e9))
-        self.warm_ns = int(round(warm_s * 1e9))
-        self.origin_ns: int | None = None
-        self.half_period_ns = int(round(sample_period_s * 0.5e9)) if sample_period_s > 0 else None
-        self._steps: list[int] = []
-        self._last: int | None = None
-
-    @property
-    def period_s(self) -> float | None:
-        return None if self.half_period_ns is None else 2 * self.half_period_ns / 1e9
-
-    def observe(self, ns: int) -> None:
-        """Feed each accepted motor-input stamp (estimates dt while unknown)."""
-        if self.half_period_ns is None and self._last is not None and ns > self._last:
-            self._steps.append(ns - self._last)
-            if len(self._steps) >= self.PERIOD_SAMPLES:
-                self._steps.sort()
-                self.half_period_ns = self._steps[len(self._steps) // 2] // 2
-        self._last = ns
-
-    def locate(self, ns: int) -> tuple[int, int]:
-        """(window index k, position in window [ns]) of a stamp; the origin must be set."""
-        shifted = ns - self.origin_ns + (self.half_period_ns or 0)
-        k = shifted // self.window_ns
-        return int(k), int(shifted - k * self.window_ns)
-
-    def is_warm(self, position_ns: int) -> bool:
-        return position_ns < self.warm_ns
-
-    def is_last_warm(self, position_ns: int) -> bool:
-        """A warm row whose successor, one period dt later, is not: ``p < warm_s <= p + dt`` (False while dt is
-        unknown). Positions carry the dt/2 shift, so stamp jitter below dt/2 does not change the answer."""
-        return self.half_period_ns is not None and position_ns < self.warm_ns <= position_ns + 2 * self.half_period_ns
-
-    def window_start_s(self, k: int) -> float:
-        """Start of window k in seconds from t0."""
-        return k * self.window_ns / 1e9
-
-
-def parse_span(text: str) -> tuple[str, float, float]:
-    """``name:A:B`` (seconds from t0; B may be ``inf``) -> (name, A, B); BadParameter when invalid."""
-    parts = str(text).split(":")
-    if len(parts) != 3 or not parts[0].strip():
-        raise BadParameter(f"span {text!r}: expected NAME:START:END in seconds from t0, e.g. eval:20:40 or live:0:inf")
-    try:
-        start, end = float(parts[1]), float(parts[2])
-    except ValueError as err:
-        raise BadParameter(f"span {text!r}: START and END must be numbers of seconds (END may be inf)") from err
-    if not (math.isfinite(start) and 0.0 <= start < end):
-        raise BadParameter(f"span {text!r}: need 0 <= START < END")
-    return parts[0].strip(), start, end
-
-
 def spans_check(value) -> str | None:
+    """Parameter validator of named seconds spans (:func:`quad_modelling.core.windows.seconds_spans`)."""
     try:
-        names = [parse_span(s)[0] for s in value]
-    except BadParameter as err:
+        seconds_spans([str(v) for v in value])
+    except ConfigError as err:
         return str(err)
-    if not names:
-        return "give at least one span NAME:START:END"
-    if len(set(names)) != len(names):
-        return f"span names must be unique, got {names}"
     return None
 
 

@@ -17,8 +17,10 @@ received absolute predictions are wrapped with
 :class:`~quad_modelling.core.models.streaming.RecordedPrediction` (which trims them as the
 offline predictors do) and scored with
 :func:`~quad_modelling.core.evaluation.windowed.evaluate_window` (core defaults for trim and
-smoothing, warm rows from :func:`~quad_modelling.core.windows.warm_samples_for`).
-Only windows entirely inside a span (``spans``: ``NAME:A:B`` seconds from t0) are scored.
+smoothing from one :class:`~quad_modelling.core.windows.EvaluationConfig`, warm rows from
+:func:`~quad_modelling.core.windows.warm_samples_for`). Windows are those of the core
+:class:`~quad_modelling.core.windows.WindowClock`; only windows entirely inside a span
+(``spans``: ``NAME:A:B`` seconds from t0, the core span grammar) are scored.
 
 A window closes when the measurements have moved past it and every model has
 too (or has been silent for ``stale_model_s``, or ``close_grace_s`` passed).
@@ -48,15 +50,15 @@ from std_srvs.srv import Trigger
 from quad_modelling.core.evaluation.windowed import evaluate_window
 from quad_modelling.core.models.base import DummyPredictor
 from quad_modelling.core.models.streaming import RecordedPrediction
-from quad_modelling.core.preprocess import (
-    SMOOTH_CUTOFF_HZ,
-    TrimConfig,
-    smooth,
-    trimmed_variables,
-)
+from quad_modelling.core.preprocess import smooth, trimmed_variables
 from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
 from quad_modelling.core.vehicle import load_vehicle
-from quad_modelling.core.windows import EvaluationConfig, warm_samples_for
+from quad_modelling.core.windows import (
+    EvaluationConfig,
+    WindowClock,
+    seconds_spans,
+    warm_samples_for,
+)
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
@@ -66,7 +68,6 @@ from quad_modelling.nodes.common import (
     BadParameter,
     FaultLog,
     Param,
-    WindowClock,
     data_qos,
     declare_parameters,
     executor_param,
@@ -75,7 +76,6 @@ from quad_modelling.nodes.common import (
     niceness,
     non_empty,
     non_negative,
-    parse_span,
     positive,
     run_node,
     say,
@@ -153,24 +153,23 @@ class EvaluatorNode(Node):
         except QuadModellingError as err:
             raise BadParameter(f"evaluator: parameter vehicle={p['vehicle']!r}: {err}") from err
         self.models = [str(m).strip() for m in p["models"]]
-        self.spans = [parse_span(s) for s in p["spans"]]
+        self.spans = seconds_spans(p["spans"])
         self.window_s, self.warm_s = p["window_s"], p["warm_s"]
         self.output_dir = Path(p["output_dir"]) if p["output_dir"] else None
         if self.output_dir is not None and self.output_dir.exists() and not p["force"]:
             raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
         self.figures = p["figures"]
         self.executor_kind = p["executor"]
-        self.trim = TrimConfig()
-        self.cutoff = SMOOTH_CUTOFF_HZ
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
         if p["nice"]:
             os.nice(int(p["nice"]))
-        named = {name: (a, b) for name, a, b in self.spans}
-        config = EvaluationConfig(drop_start=0.0, drop_end=0.0, window_s=self.window_s, warm_s=self.warm_s, trim=self.trim,
-                                  train=_span_text(named.get("train")), eval=_span_text(named.get("eval")), horizons=(1,))
+        named = {span.name: span.text() for span in self.spans}
+        # The one trim/smoothing configuration of every window this node scores (core defaults, as offline).
+        self.config = EvaluationConfig(drop_start=0.0, drop_end=0.0, window_s=self.window_s, warm_s=self.warm_s,
+                                       train=named.get("train", ""), eval=named.get("eval", ""), horizons=(1,))
         # The zero-predicting dummy (thesis Fig 5.2) is always reported, as offline; it needs no node.
         self.baselines = [] if "dummy" in self.models else ["dummy"]
-        self.scores = LiveScores(config, self.spans, self.models + self.baselines)
+        self.scores = LiveScores(self.config, self.spans, self.models + self.baselines)
         self.faults = FaultLog(self.get_logger())
         self.clock_ = WindowClock(self.window_s, self.warm_s, p["sample_period_s"])
         self.open: dict[int, _Window] = {}
@@ -368,7 +367,7 @@ class EvaluatorNode(Node):
         self.closed_below = max(self.closed_below or 0, k + 1)
         self.windows_closed += 1
         start_s, end_s = self.clock_.window_start_s(k), self.clock_.window_start_s(k + 1)
-        spans = [name for name, a, b in self.spans if start_s >= a - 1e-9 and end_s <= b + 1e-9]
+        spans = [span.name for span in self.spans if span.covers(start_s, end_s)]
         if not spans:
             return
         records = self._score(window, start_s, end_s, spans, reason_if_incomplete)
@@ -396,7 +395,7 @@ class EvaluatorNode(Node):
                 [window.imu[ns] for ns in complete], self.vehicle.name, f"live window {window.index}",
                 omega=np.array(omegas) if all(o is not None for o in omegas) else None,
             )
-            measured = smooth(trimmed_variables(log, self.trim, self.vehicle), log.sample_rate, self.cutoff)
+            measured = smooth(trimmed_variables(log, self.config.trim, self.vehicle), log.sample_rate, self.config.smooth_cutoff_hz)
         except QuadModellingError as err:
             return marked(f"measurements unusable: {err}")
         warm = warm_samples_for(log, self.warm_s)
@@ -409,19 +408,19 @@ class EvaluatorNode(Node):
                 continue
             absolute = messages.predictions_from_fields([odom[ns] for ns in complete], [accel[ns] for ns in complete])
             try:
-                result = evaluate_window(RecordedPrediction(model, absolute, self.trim), log, warm,
-                                         self.trim, self.vehicle, self.cutoff, measured)
+                result = evaluate_window(RecordedPrediction(model, absolute, self.config.trim), log, warm,
+                                         self.config.trim, self.vehicle, self.config.smooth_cutoff_hz, measured)
             except QuadModellingError as err:
                 records += marked(f"cannot score: {err}", [model])
                 continue
             predicted[model] = result.predicted
             records += [WindowRecord(model, s, window.index, start_s, end_s, rms=result.rms, tic=result.tic) for s in spans]
         for baseline in self.baselines:
-            result = evaluate_window(DummyPredictor(), log, warm, self.trim, self.vehicle, self.cutoff, measured)
+            result = evaluate_window(DummyPredictor(), log, warm, self.config.trim, self.vehicle, self.config.smooth_cutoff_hz, measured)
             records += [WindowRecord(baseline, s, window.index, start_s, end_s, rms=result.rms, tic=result.tic) for s in spans]
         if predicted and self.figures:
             for s in spans:
-                self.scores.add_example(s, log, self.trim, measured, predicted, warm)
+                self.scores.add_example(s, log, measured, predicted, warm)
         return records
 
     def _publish_diagnostics(self, window: _Window, records: list[WindowRecord]) -> None:
@@ -483,13 +482,6 @@ class EvaluatorNode(Node):
             except (QuadModellingError, OSError) as err:
                 say(self, f"cannot write results: {err}", error=True)
         say(self, f"closed {self.windows_closed} windows; faults: {self.faults.summary()}")
-
-
-def _span_text(bounds) -> str:
-    if bounds is None:
-        return ""
-    a, b = bounds
-    return f"{a:g}:{b:g}"
 
 
 def main(args=None) -> int:

@@ -8,7 +8,7 @@ Publishes ``<model>/odom`` (nav_msgs/Odometry: pose in ``world`` ENU, twist in
 ``<model>/base_link`` FLU) and ``<model>/accel`` (geometry_msgs/AccelStamped in
 ``<model>/base_link`` FLU), one of each per engine input, stamped with the input's stamp.
 
-Windows (:class:`~quad_modelling.nodes.common.WindowClock`): window k starts at
+Windows (:class:`~quad_modelling.core.windows.WindowClock`, the offline evaluation's clock): window k starts at
 t0 + kW, t0 = the first motor-input stamp (or the ``window_origin`` another node
 published). The first ``warm_s`` of each window are the warm start: those rows
 (command + measurements with the same stamp) become a FlightLog, ``start_window``
@@ -50,6 +50,7 @@ from sensor_msgs.msg import BatteryState, Imu, JointState
 
 from quad_modelling.core.models.streaming import prime
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.windows import WindowClock
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
@@ -58,7 +59,6 @@ from quad_modelling.nodes.common import (
     BadParameter,
     FaultLog,
     Param,
-    WindowClock,
     data_qos,
     declare_parameters,
     executor_param,

@@ -21,9 +21,9 @@ from quad_modelling.core.evaluation.windowed import (
     SpanScores,
 )
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.preprocess import TrimConfig, trimmed_inputs
+from quad_modelling.core.preprocess import trimmed_inputs
 from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
-from quad_modelling.core.windows import EvaluationConfig
+from quad_modelling.core.windows import EvaluationConfig, SpanSpec
 
 
 @dataclass
@@ -59,25 +59,25 @@ class LiveScores:
     """Everything the evaluator node has scored or marked, in arrival order."""
 
     config: EvaluationConfig
-    spans: list[tuple[str, float, float]]
+    spans: list[SpanSpec]
     models: list[str]
     records: list[WindowRecord] = field(default_factory=list)
     examples: dict[str, ExampleWindow] = field(default_factory=dict)
 
-    def add_example(self, span: str, window: FlightLog, trim: TrimConfig, measured: np.ndarray, predicted: dict, warm: int) -> None:
-        """Keep the first scored window of each span for the report's figures."""
+    def add_example(self, span: str, window: FlightLog, measured: np.ndarray, predicted: dict, warm: int) -> None:
+        """Keep the first scored window of each span for the report's figures (inputs trimmed with ``config.trim``)."""
         if span not in self.examples:
-            self.examples[span] = ExampleWindow(window.meta.source, span, window.t - window.t[0], trimmed_inputs(window, trim),
+            self.examples[span] = ExampleWindow(window.meta.source, span, window.t - window.t[0], trimmed_inputs(window, self.config.trim),
                                                 measured, dict(predicted), warm)
 
     def result(self, source: str) -> EvaluationResult:
         """Mean RMS/TIC over scored windows per model and span, as a core EvaluationResult."""
         scores: dict[str, dict[str, SpanScores]] = {m: {} for m in self.models}
         for model in self.models:
-            for span, _, _ in self.spans:
+            for span in (s.name for s in self.spans):
                 done = [r for r in self.records if r.model == model and r.span == span and r.scored]
                 if done:
-                    scores[model][span] = SpanScores(np.mean([r.rms for r in done], axis=0), np.mean([r.tic for r in done], axis=0), len(done))
+                    scores[model][span] = SpanScores.over_windows([r.rms for r in done], [r.tic for r in done])
         flights = [{"source": source, "live": True}]
         examples = list(self.examples.values())
         return EvaluationResult(scores, {}, self.config, flights, examples)
@@ -86,7 +86,7 @@ class LiveScores:
         """results.json: the core EvaluationResult JSON plus the live spans and every window (scored or marked)."""
         data = self.result(source).to_json()
         data["live"] = {
-            "spans": [{"name": n, "start_s": a, "end_s": b if np.isfinite(b) else None} for n, a, b in self.spans],
+            "spans": [{"name": s.name, "start_s": s.start, "end_s": s.end if np.isfinite(s.end) else None} for s in self.spans],
             "windows": [r.to_json() for r in self.records],
             "marked": [r.to_json() for r in self.records if not r.scored],
         }

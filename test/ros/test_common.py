@@ -2,7 +2,8 @@
 
 import gc
 
-from quad_modelling.nodes.common import WindowClock, run_node
+from quad_modelling.core.windows import WindowClock
+from quad_modelling.nodes.common import run_node
 
 
 def test_last_warm_row_is_the_one_whose_successor_falls_past_the_warm_start():

@@ -25,6 +25,7 @@ from quad_modelling.core.diagnosis.statistics import (
     sign_test,
     variable_scores,
 )
+from quad_modelling.core.evaluation.windowed import window_mean
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX, VARIABLES
 
 FOUND_MIN_SHRINK = 0.05
@@ -185,7 +186,7 @@ def assess_effect(
     candidates = np.array([INDEX[v] for v in effect.variables])
     reason = effect.applicable(train) or effect.applicable(test)
     eval_cols = np.array([INDEX[v] for v in EVAL_VARIABLES])
-    before_rms = window_rms(test, base_test, eval_cols).mean(axis=0)
+    before_rms = window_mean(window_rms(test, base_test, eval_cols))
     before = {v: float(before_rms[i]) for i, v in enumerate(EVAL_VARIABLES)}
     if reason:
         return EffectOutcome(effect, None, 0.0, 0.0, before, before, {}, {}, "insignificant", [], None, note=f"not evaluated: {reason}",
@@ -214,8 +215,8 @@ def assess_effect(
     per_window = 1.0 - scored_after / np.where(scored_before > 0, scored_before, 1.0)
     if not len(per_window):
         per_window = np.zeros(1)
-    after_rms = window_rms(test, after_test, eval_cols).mean(axis=0)
-    after_tic = window_tic(test, after_test, eval_cols).mean(axis=0)
+    after_rms = window_mean(window_rms(test, after_test, eval_cols))
+    after_tic = window_mean(window_tic(test, after_test, eval_cols))
     evidence = {
         "signature_correlation": signature,
         "train_shrink": train_shrink,

@@ -13,6 +13,7 @@ from quad_modelling.core.models.greybox import (
     MEASURED_STATE_COLUMNS,
 )
 from quad_modelling.core.preprocess import (
+    SMOOTH_CUTOFF_HZ,
     measured_variables,
     resample_uniform,
     smooth,
@@ -108,7 +109,7 @@ class WindowBatch:
     warm_rows: np.ndarray = None  # (W, warm, 18) unsmoothed measurement of the warm start minus the window trim
     trim_samples: int = 100  # rows of the trim interval
     ground_contact_dropped: int = 0  # windows left out because the vehicle touched the ground (GROUND_CONTACT_M)
-    smooth_cutoff_hz: float = 5.0  # the evaluation low-pass ``measured`` went through [Hz]
+    smooth_cutoff_hz: float = SMOOTH_CUTOFF_HZ  # the evaluation low-pass ``measured`` went through [Hz]
     specific_force0: np.ndarray = None  # (W, 3) measured body specific force, mean over the warm start [m/s², B]
     acc_trim: np.ndarray = None  # (W, 3) window trim of acc_x/y/z (absolute, N) [m/s²]
     angacc_trim: np.ndarray = None  # (W, 3) window trim of roll/pitch/yaw acceleration [rad/s²]

@@ -100,7 +100,7 @@ from quad_modelling.core.diagnosis.fitting import variable_scales
 from quad_modelling.core.diagnosis.localisation import localise
 from quad_modelling.core.diagnosis.statistics import BOOTSTRAP, variable_scores
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.variables import EVAL_VARIABLES, INDEX, VARIABLES
+from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError, DataError
@@ -281,24 +281,20 @@ def learnable_floor(predictor, test_flights: Sequence[FlightLog], vehicle: Vehic
     """Mean RMS/TIC per variable of ``predictor`` (trimmed convention) over the diagnosis's held-out windows,
     each window warm-started over max(config.warm_s, ``min_warm_samples``): {"windows", "gap": {VARIABLE: {"rms", "tic"}}}."""
     from quad_modelling.core.diagnosis.batch import flying_span
-    from quad_modelling.core.evaluation.windowed import evaluate_window
+    from quad_modelling.core.evaluation.windowed import SpanScores, evaluate_window
     from quad_modelling.core.preprocess import resample_uniform
     from quad_modelling.core.windows import span_windows, warm_samples_for
 
-    sums = np.zeros(len(VARIABLES))
-    tics = np.zeros(len(VARIABLES))
-    count = 0
+    rms, tic = [], []
     for log in test_flights:
         log = resample_uniform(log)
         for w in span_windows(log, flying_span(), config):
             window = log.slice(w.start, w.stop)
             warm = max(warm_samples_for(window, config.warm_s), min_warm_samples)
             result = evaluate_window(predictor, window, warm, config.trim, vehicle, config.smooth_cutoff_hz)
-            sums += result.rms
-            tics += result.tic
-            count += 1
-    gap = {v: {"rms": float(sums[INDEX[v]] / count), "tic": float(tics[INDEX[v]] / count)} for v in EVAL_VARIABLES} if count else {}
-    return {"windows": count, "gap": gap}
+            rms.append(result.rms)
+            tic.append(result.tic)
+    return {"windows": len(rms), "gap": SpanScores.over_windows(rms, tic).to_json() if rms else {}}
 
 
 def narx_floor(train_flights: Sequence[FlightLog], test_flights: Sequence[FlightLog], vehicle: VehicleConfig,

@@ -9,6 +9,7 @@ from scipy import stats
 
 from quad_modelling.core.diagnosis.base_model import window_rms, window_tic
 from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.evaluation.windowed import window_mean
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
 
 BOOTSTRAP = 1000
@@ -52,8 +53,8 @@ def sign_test(improved: int, total: int) -> float:
 
 def variable_scores(batch: WindowBatch, predicted: np.ndarray, names: Sequence[str] = EVAL_VARIABLES) -> dict[str, dict[str, float]]:
     cols = np.array([INDEX[v] for v in names])
-    r = window_rms(batch, predicted, cols).mean(axis=0)
-    t = window_tic(batch, predicted, cols).mean(axis=0)
+    r = window_mean(window_rms(batch, predicted, cols))
+    t = window_mean(window_tic(batch, predicted, cols))
     return {v: {"rms": float(r[i]), "tic": float(t[i])} for i, v in enumerate(names)}
 
 

@@ -18,7 +18,8 @@ window is not used. Each window is predicted separately by each model
 (:func:`~quad_modelling.core.preprocess.trimmed_variables`), smoothed
 (:func:`~quad_modelling.core.preprocess.smooth`), and RMS/TIC are computed over
 the rows after the warm start (:func:`evaluate_window`, also what a live
-evaluator calls per closed window). Span scores are the mean over windows.
+evaluator calls per closed window). Span scores are the mean over windows
+(:func:`window_mean`, also the live evaluator's and the diagnosis's).
 
 Multi-step mode (IDSIA nano-drone benchmark). From every start sample s of
 a span segment with s + H inside it, each model predicts open loop
@@ -77,9 +78,13 @@ def evaluate_window(
     """Score one model on one window (the unit the live evaluator also uses).
 
     ``measured``: the smoothed trimmed measurement if already computed (it is
-    the same for every model).
+    the same for every model). A predictor that trims its own prediction must
+    trim as the evaluation does (``trim``): ConfigError otherwise.
     """
     trim = trim or TrimConfig()
+    if hasattr(predictor, "trim") and (predictor.trim or TrimConfig()) != trim:  # a trim of None is the default TrimConfig()
+        raise ConfigError(f"model {predictor.name} trims its prediction with {predictor.trim or TrimConfig()}, the evaluation its "
+                          f"measurement with {trim}; build the model with the evaluation's trim")
     if measured is None:
         measured = smooth(trimmed_variables(window, trim, vehicle), window.sample_rate, smooth_cutoff_hz)
     predicted = np.asarray(predictor.predict_window(window, warm_samples), dtype=float)
@@ -92,6 +97,12 @@ def evaluate_window(
     return WindowResult(measured, predicted, rms(measured[scored], predicted[scored]), tic(measured[scored], predicted[scored]), warm_samples)
 
 
+def window_mean(per_window) -> np.ndarray:
+    """Span score from per-window scores, (W, ...) -> (...): the mean over the W windows,
+    :math:`\\bar s = \\frac{1}{W} \\sum_{w=1}^{W} s_w` (thesis 5.1: errors averaged over windows)."""
+    return np.mean(np.asarray(per_window, dtype=float), axis=0)
+
+
 @dataclass
 class SpanScores:
     """Mean over windows of RMS and TIC per variable (SI), with the window count."""
@@ -99,6 +110,11 @@ class SpanScores:
     rms: np.ndarray
     tic: np.ndarray
     windows: int
+
+    @classmethod
+    def over_windows(cls, rms: Sequence[np.ndarray], tic: Sequence[np.ndarray]) -> SpanScores:
+        """The span score of per-window RMS and TIC rows (:func:`window_mean`)."""
+        return cls(window_mean(rms), window_mean(tic), len(rms))
 
     def to_json(self, variables: Sequence[str] = EVAL_VARIABLES) -> dict:
         idx = {v: i for i, v in enumerate(VARIABLES)}
@@ -150,7 +166,7 @@ def evaluate(
     names = [m.name for m in models]
     if len(set(names)) != len(names):
         raise ConfigError(f"model names must be unique, got {names}")
-    sums = {m.name: {s: [np.zeros(len(VARIABLES)), np.zeros(len(VARIABLES)), 0] for s in plan} for m in models}
+    per_window = {m.name: {s: ([], []) for s in plan} for m in models}  # (RMS rows, TIC rows)
     examples: list[ExampleWindow] = []
     for span_name, windows in plan.items():
         for k, w in enumerate(windows):
@@ -160,10 +176,8 @@ def evaluate(
             predicted = {}
             for model in models:
                 result = evaluate_window(model, window, warm, config.trim, vehicle, config.smooth_cutoff_hz, measured)
-                acc = sums[model.name][span_name]
-                acc[0] += result.rms
-                acc[1] += result.tic
-                acc[2] += 1
+                per_window[model.name][span_name][0].append(result.rms)
+                per_window[model.name][span_name][1].append(result.tic)
                 predicted[model.name] = result.predicted
             if k == 0:
                 examples.append(
@@ -171,10 +185,7 @@ def evaluate(
                 )
         if progress:
             progress(f"{span_name}: {len(windows)} windows x {len(models)} models")
-    scores = {
-        name: {s: SpanScores(a[0] / max(a[2], 1), a[1] / max(a[2], 1), a[2]) for s, a in spans.items() if a[2] > 0}
-        for name, spans in sums.items()
-    }
+    scores = {name: {s: SpanScores.over_windows(*rows) for s, rows in spans.items() if rows[0]} for name, spans in per_window.items()}
     horizons = multistep_evaluation(flights, models, vehicle, config) if multistep else {}
     flight_info = [{"source": log.meta.source, "duration_s": log.duration, "sample_rate_hz": log.sample_rate} for log in flights]
     return EvaluationResult(scores, horizons, config, flight_info, examples)

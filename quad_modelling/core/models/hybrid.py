@@ -32,6 +32,7 @@ greybox used, and loading refuses a vehicle whose constants changed.
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +57,7 @@ from quad_modelling.core.models.narx_training import (
 from quad_modelling.core.preprocess import trimmed_variables
 from quad_modelling.core.variables import columns
 from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.windows import windows_between
 from quad_modelling.errors import ConfigError, DataError, ModelError
 
 WINDOW_S = 10.0
@@ -85,6 +87,11 @@ class HybridModel:
     @property
     def warm_samples(self) -> int:
         return self.residual.config.output_delays
+
+    @property
+    def trim(self):
+        """The trim of the prediction: the greybox's."""
+        return self.greybox.trim
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) trimmed prediction: greybox plus closed-loop residual correction."""
@@ -133,11 +140,12 @@ def residual_segments(
     greybox = GreyboxPredictor(vehicle, discretisation=discretisation)
     segments = []
     for log, span in zip(logs, spans):
-        i0, i1 = (0, len(log)) if span is None else span_indices(log, span)
-        length = int(round(window_s * log.sample_rate))
+        if span is not None:
+            span_indices(log, span)  # DataError when the span holds no data
+        a, b = (0.0, math.inf) if span is None else span
         warm = max(1, int(round(warm_s * log.sample_rate)))
-        for start in range(i0, i1 - length + 1, length):
-            window = log.slice(start, start + length)
+        for start, stop in windows_between(log, a, b, window_s):
+            window = log.slice(start, stop)
             g = greybox.predict_window(window, warm)
             measured = trimmed_variables(window, greybox.trim, vehicle)
             r = measured[:, columns(OUTPUTS)] - g[:, columns(OUTPUTS)]

@@ -16,6 +16,7 @@ from quad_modelling.core.models.narx import (
     lagged_inputs,
     measured_outputs,
 )
+from quad_modelling.core.windows import rows_between
 from quad_modelling.errors import DataError
 
 
@@ -156,10 +157,10 @@ def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> dict[str
 
 # ---- flights -> training data -----------------------------------------------------
 def span_indices(log: FlightLog, span: tuple[float, float]) -> tuple[int, int]:
-    """Row range [i0, i1) of ``log`` with t − t[0] in [a, b) seconds."""
-    rel = log.t - log.t[0]
+    """Row range [i0, i1) of the span [a, b) seconds from the flight start, by the evaluation's row rule
+    (:func:`~quad_modelling.core.windows.rows_between`); DataError when it holds fewer than 2 rows."""
     a, b = span
-    i0, i1 = int(np.searchsorted(rel, a, "left")), int(np.searchsorted(rel, b, "left"))
+    i0, i1 = rows_between(log, a, b)
     if i1 - i0 < 2:
         raise DataError(f"{log.meta.source}: span {a:g}:{b:g} s holds no data (flight lasts {log.duration:.1f} s)")
     return i0, i1

@@ -1,0 +1,166 @@
+"""The one span grammar and the one window clock (core/windows.py): every span form, its errors, and
+offline cuts equal to the live stamp assignment on jittered stamps."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from quad_modelling.core.evaluation.windowed import SpanScores, evaluate_window, window_mean
+from quad_modelling.core.models.base import ConstantStatePredictor
+from quad_modelling.core.models.narx_training import span_indices
+from quad_modelling.core.preprocess import TrimConfig
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.windows import (
+    EvaluationConfig,
+    SpanSpec,
+    WindowClock,
+    parse_drop,
+    rows_between,
+    seconds_spans,
+    span_windows,
+    windows_between,
+)
+from quad_modelling.errors import ConfigError
+
+from .flightgen import linear_flight
+
+
+@pytest.fixture(scope="module")
+def linkquad():
+    return load_vehicle("linkquad")
+
+
+@pytest.mark.parametrize(("text", "expected"), [
+    ("30:150", (30.0, 150.0, False)),
+    ("0.5:.75", (0.5, 0.75, False)),
+    (" 20 : inf ", (20.0, math.inf, False)),
+    ("0:INF", (0.0, math.inf, False)),
+    ("0%:60%", (0.0, 0.6, True)),
+    ("60 %:100%", (0.6, 1.0, True)),
+])
+def test_every_span_form_parses_to_its_bounds_and_back(text, expected):
+    span = SpanSpec.parse("train", text)
+    assert (span.start, span.end, span.relative) == expected
+    assert SpanSpec.parse("train", span.text()) == span
+
+
+@pytest.mark.parametrize(("text", "reason"), [
+    ("30", "expected START:END"),
+    ("1:2:3", "expected START:END"),
+    ("a:b", "bound 'a' is not a non-negative number"),
+    ("-5:10", "bound '-5' is not a non-negative number"),
+    ("10%:20", "both bounds in seconds or both in percent"),
+    ("0%:inf", "both bounds in seconds or both in percent"),
+    ("inf:inf", "START must be finite"),
+    ("50:40", "need 0 <= START < END seconds"),
+    ("0%:120%", "0 <= START < END <= 100"),
+    ("inf%:1%", "not a non-negative number"),
+])
+def test_bad_spans_name_the_text_and_what_is_wrong(text, reason):
+    with pytest.raises(ConfigError, match="span train") as err:
+        SpanSpec.parse("train", text)
+    assert repr(text) in str(err.value) and reason in str(err.value)
+
+
+def test_named_spans_use_the_same_parser_and_live_spans_are_unique_seconds():
+    assert SpanSpec.parse_named("eval:150:190") == SpanSpec("eval", 150.0, 190.0, False)
+    assert SpanSpec.parse_named("live:0:inf") == SpanSpec("live", 0.0, math.inf, False)
+    assert SpanSpec.parse_named("a:0%:50%") == SpanSpec("a", 0.0, 0.5, True)
+    for bad in ("eval", ":0:10", "eval:0", "eval:0:1:2"):
+        with pytest.raises(ConfigError, match="expected NAME:START:END"):
+            SpanSpec.parse_named(bad)
+    with pytest.raises(ConfigError, match="span eval '10:5': need 0 <= START < END"):
+        SpanSpec.parse_named("eval:10:5")
+    assert [s.name for s in seconds_spans(["a:0:10", "b:10:15"])] == ["a", "b"]
+    with pytest.raises(ConfigError, match="unique"):
+        seconds_spans(["a:0:10", "a:10:15"])
+    with pytest.raises(ConfigError, match="live spans are seconds"):
+        seconds_spans(["a:0%:50%"])
+    with pytest.raises(ConfigError, match="at least one span"):
+        seconds_spans([])
+    live = SpanSpec.parse_named("b:10:15")
+    assert live.covers(10.0, 15.0) and not live.covers(5.0, 10.0) and not live.covers(10.0, 20.0)
+
+
+def test_drops_are_two_finite_seconds():
+    assert parse_drop("30:22") == (30.0, 22.0)
+    assert parse_drop("3.5:.5") == (3.5, 0.5)
+    for bad, reason in (("30", "expected START:END"), ("5%:5%", "finite seconds"), ("0:inf", "finite seconds"),
+                        ("x:1", "not a non-negative number")):
+        with pytest.raises(ConfigError, match="--drop") as err:
+            parse_drop(bad)
+        assert reason in str(err.value)
+    config = EvaluationConfig.from_options("short", "2:3", train="10:20")
+    assert (config.drop_start, config.drop_end, config.train, config.eval) == (2.0, 3.0, "10:20", "60%:100%")
+
+
+def _live_windows(stamps: np.ndarray, window_s: float, rows: int) -> dict[int, list[int]]:
+    """Rows per window as the live nodes assign them: origin = first stamp, dt from the first steps."""
+    clock = WindowClock(window_s, 0.2)
+    clock.origin_ns = int(stamps[0])
+    for ns in stamps[: WindowClock.PERIOD_SAMPLES + 1]:
+        clock.observe(int(ns))
+    assigned: dict[int, list[int]] = {}
+    for row, ns in enumerate(stamps):
+        assigned.setdefault(clock.locate(int(ns))[0], []).append(row)
+    return {k: r for k, r in assigned.items() if len(r) == rows}
+
+
+def test_offline_cut_equals_the_live_assignment_on_jittered_stamps():
+    rng = np.random.default_rng(3)
+    dt_ns, rows = 10_000_000, 100  # 100 Hz, 1 s windows
+    nominal = 5_000_000_000 + dt_ns * np.arange(2050, dtype=np.int64)
+    stamps = nominal + rng.integers(-4_000_000, 4_000_001, size=nominal.size)  # jitter up to 4 ms < dt/2
+    stamps[0] = nominal[0]
+    offline = WindowClock(1.0, 0.2, dt_ns / 1e9, origin_ns=int(stamps[0])).cut(stamps)
+    live = _live_windows(stamps, 1.0, rows)
+    assert len(offline) == 20  # 20.5 s of stamps: the remainder is not a window
+    assert [(r[0], r[-1] + 1) for _, r in sorted(live.items())] == offline
+    assert offline[0] == (0, 100) and offline[-1] == (1900, 2000)
+    # a dropped stamp leaves its window out offline, as live marks it
+    gap = np.delete(stamps, 555)
+    cut = WindowClock(1.0, 0.2, dt_ns / 1e9, origin_ns=int(gap[0])).cut(gap)
+    assert len(cut) == 19 and (500, 600) not in cut and (599, 699) in cut
+    assert [(r[0], r[-1] + 1) for _, r in sorted(_live_windows(gap, 1.0, rows).items())] == cut
+
+
+def test_flight_windows_on_jittered_stamps_follow_the_clock(linkquad):
+    log = linear_flight(linkquad, duration=30.0)
+    jitter = np.random.default_rng(5).uniform(-0.004, 0.004, len(log))
+    jitter[0] = 0.0
+    log = dataclasses.replace(log, t=log.t + jitter)
+    assert windows_between(log, 0.0, math.inf, 10.0) == [(0, 1000), (1000, 2000), (2000, 3000)]
+    assert windows_between(log, 2.5, 25.0, 10.0) == [(250, 1250), (1250, 2250)]
+    assert windows_between(log, 2.5, 22.49, 10.0) == [(250, 1250)]  # the second ends past the span
+    assert rows_between(log, 2.5, 25.0) == (250, 2500)
+    config = EvaluationConfig.preset("short", window_s=5.0)
+    # flying part 5..25 s: 0%:60% = 5..17 s -> two 5 s windows from 5 s
+    assert [(w.start, w.stop) for w in span_windows(log, SpanSpec.parse("train", config.train), config)] == [(500, 1000), (1000, 1500)]
+
+
+def test_narx_training_rows_follow_the_evaluation_row_rule(linkquad):
+    log = linear_flight(linkquad, duration=30.0)
+    # 24.384 s lies between samples 2438 and 2439: the half-period rule takes the nearest sample as the
+    # boundary, as the evaluation's segments do (before: the first sample at or after the bound)
+    assert span_indices(log, (5.0, 24.384)) == rows_between(log, 5.0, 24.384) == (500, 2438)
+    assert span_indices(log, (5.0, 24.386)) == (500, 2439)
+
+
+def test_window_mean_is_the_mean_over_windows():
+    rms = [np.array([1.0, 2.0]), np.array([3.0, 6.0]), np.array([2.0, 1.0])]
+    np.testing.assert_allclose(window_mean(rms), [2.0, 3.0])
+    scores = SpanScores.over_windows(rms, [np.array([0.5, 0.0])] * 3)
+    assert scores.windows == 3 and scores.tic.tolist() == [0.5, 0.0] and scores.rms.tolist() == [2.0, 3.0]
+
+
+def test_a_predictor_trimmed_otherwise_than_the_evaluation_is_refused(linkquad):
+    window = linear_flight(linkquad, duration=12.0).slice(0, 1000)
+    naive = ConstantStatePredictor(linkquad)
+    with pytest.raises(ConfigError, match="model naive trims its prediction with"):
+        evaluate_window(naive, window, 20, TrimConfig(trim_s=0.5), linkquad)
+    same = evaluate_window(ConstantStatePredictor(linkquad, TrimConfig(trim_s=0.5)), window, 20, TrimConfig(trim_s=0.5), linkquad)
+    default = evaluate_window(naive, window, 20, TrimConfig(), linkquad)
+    # the measured trim differs, the error does not: the naive prediction is the same absolute signal
+    np.testing.assert_allclose(same.rms, default.rms, atol=1e-12)
