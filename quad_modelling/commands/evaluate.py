@@ -14,6 +14,7 @@ from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.core.windows import PRESETS, EvaluationConfig
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.loader import load_flight
+from quad_modelling.io.reports.evaluation import headline_scores, windows_text, write_report
 
 NAME = "evaluate"
 HELP = "evaluate models with the thesis's windowed RMS/TIC protocol and the multi-step benchmark"
@@ -116,16 +117,10 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate(flights, models, vehicle, config, multistep=not args.no_multistep,
                       progress=lambda msg: print(msg, file=sys.stderr) if sys.stderr.isatty() else None)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
-    from quad_modelling.io.reports.evaluation import write_report
-
     with atomic_output(output, args.force) as tmp:
         files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicle.name}")
     data = result.to_json()
-    print(f"{len(flights)} flight(s), windows " + ", ".join(f"{s} {n}" for s, n in data["windows"]["dummy"].items())
-          + f" -> {output}/ ({', '.join(files)})")
-    for model in specs:
-        name = make_model(model, vehicle).name
-        eval_span = data["models"][name].get("eval") or next(iter(data["models"][name].values()), {})
-        if eval_span:
-            print(f"  {name}: TIC acc_z {eval_span['acc_z']['tic']:.2f}, roll_rate {eval_span['roll_rate']['tic']:.2f}, vel_z {eval_span['vel_z']['tic']:.2f}")
+    print(f"{len(flights)} flight(s), {windows_text(data)} -> {output}/ ({', '.join(files)})")
+    for line in headline_scores(data, [model.name for model in models]):
+        print(line)
     return 0
