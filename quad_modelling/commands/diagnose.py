@@ -16,8 +16,8 @@ from quad_modelling.core.diagnosis.diagnose import (
 )
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
-from quad_modelling.errors import ConfigError, QuadModellingError
-from quad_modelling.io.loader import load_flight
+from quad_modelling.errors import ConfigError
+from quad_modelling.io.loader import load_flights
 from quad_modelling.io.reports.diagnosis import verdict_text, write_diagnosis
 from quad_modelling.io.reports.validation import validation_summary, write_validation
 
@@ -77,19 +77,6 @@ def _config(args: argparse.Namespace) -> EvaluationConfig:
     return config
 
 
-def _load(paths, vehicle, skip_bad, skipped):
-    flights = []
-    for path in paths:
-        try:
-            flights.append(load_flight(path, vehicle=vehicle))
-        except QuadModellingError as err:
-            if not skip_bad:
-                raise
-            skipped.append(str(err))
-            print(f"skipped: {err}", file=sys.stderr)
-    return flights
-
-
 def _progress():
     from tqdm import tqdm
 
@@ -111,9 +98,11 @@ def run(args: argparse.Namespace) -> int:
         return _run_validation(args, config, effects, output)
     if not args.train or not args.test:
         raise ConfigError("diagnose needs --train FLIGHT... and --test FLIGHT... (or --validate)")
-    skipped: list[str] = []
-    train = _load(args.train, args.vehicle, args.skip_bad, skipped)
-    test = _load(args.test, args.vehicle, args.skip_bad, skipped)
+    train, skipped_train = load_flights(args.train, args.vehicle, args.skip_bad)
+    test, skipped_test = load_flights(args.test, args.vehicle, args.skip_bad)
+    skipped = skipped_train + skipped_test
+    for message in skipped:
+        print(f"skipped: {message}", file=sys.stderr)
     if not train or not test:
         raise ConfigError("no readable flight left in --train or --test")
     vehicle = load_vehicle(args.vehicle or train[0].meta.vehicle)

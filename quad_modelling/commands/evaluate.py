@@ -12,8 +12,8 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.core.windows import PRESETS, EvaluationConfig
-from quad_modelling.errors import ConfigError, QuadModellingError
-from quad_modelling.io.loader import load_flight
+from quad_modelling.errors import ConfigError
+from quad_modelling.io.loader import load_flights
 from quad_modelling.io.reports.evaluation import headline_scores, windows_text, write_report
 
 NAME = "evaluate"
@@ -71,17 +71,11 @@ def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
     return config
 
 
-def load_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
+def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
     """Read every input (one loader for all formats); returns flights, vehicle config and skipped-file messages."""
-    flights, skipped = [], []
-    for path in args.inputs:
-        try:
-            flights.append(load_flight(path, vehicle=args.vehicle))
-        except QuadModellingError as err:
-            if not args.skip_bad:
-                raise
-            skipped.append(str(err))
-            print(f"skipped: {err}", file=sys.stderr)
+    flights, skipped = load_flights(args.inputs, args.vehicle, args.skip_bad)
+    for message in skipped:
+        print(f"skipped: {message}", file=sys.stderr)
     if not flights:
         raise ConfigError("no readable flight among the inputs")
     names = sorted({f.meta.vehicle for f in flights})
@@ -111,7 +105,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         raise ConfigError(f"--horizons {args.horizons!r}: expected comma-separated step counts") from err
     config = config_from_args(args, horizons=horizons)
-    flights, vehicle, skipped = load_flights(args)
+    flights, vehicle, skipped = load_evaluation_flights(args)
     specs = list(dict.fromkeys((args.model or ["greybox"]) + ["dummy"]))
     models = [make_model(spec, vehicle) for spec in specs]
     result = evaluate(flights, models, vehicle, config, multistep=not args.no_multistep,
