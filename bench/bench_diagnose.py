@@ -10,7 +10,7 @@ import sys
 import time
 
 from bench.common import SHARED_DATA, write_results
-from quad_modelling.commands.diagnose import validation_markdown
+from quad_modelling.io.reports.validation import validation_markdown
 from quad_modelling.core.diagnosis.diagnose import diagnose
 from quad_modelling.core.diagnosis.validation import validate
 from quad_modelling.core.vehicle import load_vehicle

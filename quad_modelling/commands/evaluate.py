@@ -12,8 +12,9 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.core.windows import PRESETS, EvaluationConfig
-from quad_modelling.errors import ConfigError, QuadModellingError
-from quad_modelling.io.loader import load_flight
+from quad_modelling.errors import ConfigError
+from quad_modelling.io.loader import load_flights
+from quad_modelling.io.reports.evaluation import headline_scores, windows_text, write_report
 
 NAME = "evaluate"
 HELP = "evaluate models with the thesis's windowed RMS/TIC protocol and the multi-step benchmark"
@@ -59,17 +60,11 @@ def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
                                          window_s=args.window, warm_s=args.warm, **extra)
 
 
-def load_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
+def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
     """Read every input (one loader for all formats); returns flights, vehicle config and skipped-file messages."""
-    flights, skipped = [], []
-    for path in args.inputs:
-        try:
-            flights.append(load_flight(path, vehicle=args.vehicle))
-        except QuadModellingError as err:
-            if not args.skip_bad:
-                raise
-            skipped.append(str(err))
-            print(f"skipped: {err}", file=sys.stderr)
+    flights, skipped = load_flights(args.inputs, args.vehicle, args.skip_bad)
+    for message in skipped:
+        print(f"skipped: {message}", file=sys.stderr)
     if not flights:
         raise ConfigError("no readable flight among the inputs")
     names = sorted({f.meta.vehicle for f in flights})
@@ -99,22 +94,16 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as err:
         raise ConfigError(f"--horizons {args.horizons!r}: expected comma-separated step counts") from err
     config = config_from_args(args, horizons=horizons)
-    flights, vehicle, skipped = load_flights(args)
+    flights, vehicle, skipped = load_evaluation_flights(args)
     specs = list(dict.fromkeys((args.model or ["greybox"]) + ["dummy"]))
     models = [make_model(spec, vehicle) for spec in specs]
     result = evaluate(flights, models, vehicle, config, multistep=not args.no_multistep,
                       progress=lambda msg: print(msg, file=sys.stderr) if sys.stderr.isatty() else None)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
-    from quad_modelling.io.reports.evaluation import write_report
-
     with atomic_output(output, args.force) as tmp:
         files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicle.name}")
     data = result.to_json()
-    print(f"{len(flights)} flight(s), windows " + ", ".join(f"{s} {n}" for s, n in data["windows"]["dummy"].items())
-          + f" -> {output}/ ({', '.join(files)})")
-    for model in specs:
-        name = make_model(model, vehicle).name
-        eval_span = data["models"][name].get("eval") or next(iter(data["models"][name].values()), {})
-        if eval_span:
-            print(f"  {name}: TIC acc_z {eval_span['acc_z']['tic']:.2f}, roll_rate {eval_span['roll_rate']['tic']:.2f}, vel_z {eval_span['vel_z']['tic']:.2f}")
+    print(f"{len(flights)} flight(s), {windows_text(data)} -> {output}/ ({', '.join(files)})")
+    for line in headline_scores(data, [model.name for model in models]):
+        print(line)
     return 0

@@ -9,7 +9,7 @@ from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.commands.evaluate import (
     add_span_arguments,
     config_from_args,
-    load_flights,
+    load_evaluation_flights,
 )
 from quad_modelling.core.identification.identify import (
     identified_vehicle_document,
@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force)
     config = config_from_args(args)
-    flights, vehicle, _ = load_flights(args)
+    flights, vehicle, _ = load_evaluation_flights(args)
     result = identify(flights, vehicle, config)
     document = identified_vehicle_document(vehicle, result, config.train)
     VehicleConfig.from_dict(document, str(output))  # what we write must load

@@ -185,6 +185,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from quad_modelling.core.vehicle import load_vehicle
     from quad_modelling.io.bag_io import summarize_bag
+    from quad_modelling.io.reports.evaluation import live_summary_table
     from quad_modelling.nodes.model_factory import make_streaming_predictor
 
     output = Path(args.output)
@@ -232,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
         report_dir.rmdir()
     elapsed = time.monotonic() - started
     results = json.loads((output / "results.json").read_text())
-    print(_summary_table(results, models))
+    print(live_summary_table(results, [m.name for m in models]))
     print(f"\n{summary.duration_s:.1f} s of flight replayed in {elapsed:.1f} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}); "
           f"results in {output}/ (results.json, tables.md, logs/)")
     return 0
@@ -259,33 +260,3 @@ def _wait_for_replay(graph: Graph, timeout: float, started: float) -> None:
         time.sleep(0.1)
     if replay.returncode != 0:
         raise _failure(graph, "replay", f"replay exited with code {replay.returncode}")
-
-
-def _summary_table(results: dict, models: list[ModelEntry]) -> str:
-    from quad_modelling.core.variables import DISPLAY, EVAL_VARIABLES
-
-    live = results.get("live", {})
-    marked = live.get("marked", [])
-    columns = [(m.name, span) for m in models for span in results["models"].get(m.name, {})]
-    dummy_spans = list(results["models"].get("dummy", {}))
-    if dummy_spans and "dummy" not in {m.name for m in models}:
-        # the always-reported baseline (predicts zero, TIC = 1): its RMS on the held-out span is the scale
-        columns.append(("dummy", "eval" if "eval" in dummy_spans else dummy_spans[-1]))
-    lines = []
-    if not columns:
-        lines.append("no window was scored" + (f"; marked: {marked[0]['reason']}" if marked else ""))
-        return "\n".join(lines)
-    titles = [f"{m} ({s})" for m, s in columns]
-    header = f"{'variable':<12} {'unit':<8}" + "".join(f" {t:>22}" for t in titles)
-    lines += ["TIC / RMS per variable (mean over windows; RMS in display units)", header, "-" * len(header)]
-    for var in EVAL_VARIABLES:
-        unit, factor = DISPLAY[var]
-        cells = []
-        for m, s in columns:
-            e = results["models"][m][s][var]
-            cell = f"{e['tic']:.2f} / {e['rms'] * factor:.3g}"
-            cells.append(f" {cell:>22}")
-        lines.append(f"{var:<12} {unit:<8}" + "".join(cells))
-    windows = ", ".join(f"{m} {s}: {results['windows'][m][s]}" for m, s in columns)
-    lines.append(f"windows scored: {windows}; marked: {len(marked)}")
-    return "\n".join(lines)

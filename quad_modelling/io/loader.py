@@ -1,11 +1,11 @@
-"""One entry point to read any supported flight file: :func:`load_flight`."""
+"""One entry point to read any supported flight file: :func:`load_flight`; several at once: :func:`load_flights`."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.errors import DataError
+from quad_modelling.errors import DataError, QuadModellingError
 
 FORMATS = ("thesis-mat", "nanobench", "bag")
 
@@ -61,3 +61,19 @@ def load_flight(path: str | Path, vehicle: str | None = None, fmt: str = "auto",
     # --vehicle FILE picks constants for a command, the flight stays the same vehicle.
     log.meta.vehicle = config.name
     return log
+
+
+def load_flights(paths, vehicle: str | None = None, skip_bad: bool = False) -> tuple[list[FlightLog], list[str]]:
+    """Read every path with :func:`load_flight`; returns the flights and the messages of the files left out.
+
+    A file that cannot be read raises its :class:`~quad_modelling.errors.QuadModellingError`, or, with
+    ``skip_bad``, is left out and its message returned (the ``--skip-bad`` of the commands)."""
+    flights, skipped = [], []
+    for path in paths:
+        try:
+            flights.append(load_flight(path, vehicle=vehicle))
+        except QuadModellingError as err:
+            if not skip_bad:
+                raise
+            skipped.append(str(err))
+    return flights, skipped

@@ -31,7 +31,6 @@ partially. Buffers hold at most the open windows (bounded).
 
 from __future__ import annotations
 
-import json
 import os
 import time
 from pathlib import Path
@@ -457,8 +456,8 @@ class EvaluatorNode(Node):
         if not self.figures:
             result.examples = []
         with atomic_output(self.output_dir, force=True) as tmp:
-            write_report(result, tmp, title=f"Live evaluation of {', '.join(self.models)} on vehicle {self.vehicle.name}")
-            (tmp / "results.json").write_text(json.dumps(self.scores.to_json(source), indent=2))
+            write_report(result, tmp, title=f"Live evaluation of {', '.join(self.models)} on vehicle {self.vehicle.name}",
+                         document=self.scores.to_json(source))
         scored = sum(r.scored for r in self.scores.records)
         return f"wrote {self.output_dir} ({scored} scored, {len(self.scores.records) - scored} marked window results)"
 

@@ -7,7 +7,6 @@ import json
 import pytest
 
 from quad_modelling.cli import main
-from quad_modelling.commands.diagnose import verdict_text
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
 from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.io.matlog import write_matlog
@@ -62,15 +61,3 @@ def test_diagnose_rejects_unknown_effects_and_missing_inputs(mat_flights, tmp_pa
     assert main(["diagnose", "--train", mat_flights[0], "--test", mat_flights[1], "--smooth", "0", "-o", str(tmp_path / "z")]) == 2
     assert "--smooth" in capsys.readouterr().err
     assert not (tmp_path / "x").exists() and not (tmp_path / "y").exists()
-
-
-def test_verdict_text_names_the_effect_and_the_shrink():
-    gap = {v: {"rms": 1.0, "tic": 0.5} for v in ("vel_x", "vel_y", "vel_z", "acc_x", "acc_y", "acc_z", "roll_rate", "pitch_rate",
-                                                  "yaw_rate", "roll_acc", "pitch_acc", "yaw_acc")}
-    effect = {"name": "rotor_drag", "summary": "drag", "variables": ["acc_x"], "shrink": 0.4, "train_shrink": 0.45,
-              "after": {**{v: 1.0 for v in gap}, "acc_x": 0.6}, "verdict": "found", "confounded_with": ["battery"],
-              "evidence": {"shrink_ci90": [0.3, 0.5], "windows_improved": 9, "windows": 10}}
-    text = verdict_text({"gap": gap, "regimes": {"regimes": {}}, "effects": [effect], "ladder": [{}], "learnable": {}})
-    assert "rotor_drag" in text and "40%" in text and "9/10" in text and "battery" in text
-    none = verdict_text({"gap": gap, "regimes": {"regimes": {}}, "effects": [{**effect, "verdict": "insignificant"}], "ladder": [{}]})
-    assert "none found" in none

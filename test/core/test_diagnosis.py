@@ -268,7 +268,7 @@ def test_a_flight_without_a_window_is_named(flights, linkquad, base):
     windows = result.to_json()["windows"]
     assert windows["flights_without_windows"] == {"train": ["short_flight"], "test": []}
     assert "short_flight" not in result.to_json()["config"]["train_flights"]
-    from quad_modelling.commands.diagnose import markdown_report
+    from quad_modelling.io.reports.diagnosis import markdown_report
 
     assert "- flights with no window (too short after the drops, or every window near the ground): train: short_flight" in \
         markdown_report(result.to_json(), "linkquad", [])

@@ -6,7 +6,6 @@ results.json keeps SI units. Figures use matplotlib's Agg backend (no display ne
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +13,13 @@ import numpy as np
 from quad_modelling.core.evaluation.multistep import GROUPS
 from quad_modelling.core.evaluation.windowed import EvaluationResult, ExampleWindow
 from quad_modelling.core.variables import DISPLAY, EVAL_VARIABLES, INDEX
+from quad_modelling.io.reports.formatting import (
+    display_number,
+    display_unit,
+    json_text,
+    markdown_table,
+    tic_text,
+)
 
 ROW_LABELS = {
     "vel_x": "X velocity", "vel_y": "Y velocity", "vel_z": "Z velocity",
@@ -44,24 +50,20 @@ def markdown_tables(result: EvaluationResult, title: str = "Evaluation") -> str:
                  f"{result.config.warm_s:g} s warm start. Windows per span: "
                  + ", ".join(f"{s} {data['windows'][models[0]].get(s, 0)}" for s in spans) + ".")
     lines.append("")
+    columns = [(m, s) for s in spans for m in models]
     for metric, caption in (("tic", "TIC (0 = perfect, 1 = no match)"), ("rms", "RMS error (display units)")):
-        lines.append(f"## {caption}")
-        lines.append("")
-        header = ["Variable", "Unit"] + [f"{m} ({s})" for s in spans for m in models]
-        lines.append("| " + " | ".join(header) + " |")
-        lines.append("|" + "---|" * len(header))
+        lines += [f"## {caption}", ""]
+        rows = []
         for var in EVAL_VARIABLES:
-            unit, factor = DISPLAY[var]
-            cells = [ROW_LABELS[var], unit if metric == "rms" else "-"]
-            for s in spans:
-                for m in models:
-                    entry = data["models"][m].get(s, {}).get(var)
-                    if entry is None:
-                        cells.append("n/a")
-                    else:
-                        value = entry[metric] * (factor if metric == "rms" else 1.0)
-                        cells.append(f"{value:.2f}" if metric == "tic" else f"{value:.3g}")
-            lines.append("| " + " | ".join(cells) + " |")
+            cells = [ROW_LABELS[var], display_unit(var) if metric == "rms" else "-"]
+            for m, s in columns:
+                entry = data["models"][m].get(s, {}).get(var)
+                if entry is None:
+                    cells.append("n/a")
+                else:
+                    cells.append(tic_text(entry["tic"]) if metric == "tic" else display_number(var, entry["rms"]))
+            rows.append(cells)
+        lines += markdown_table(["Variable", "Unit", *(column_title(m, s) for m, s in columns)], rows)
         lines.append("")
     horizons = data.get("horizons") or {}
     if horizons.get("models"):
@@ -71,19 +73,59 @@ def markdown_tables(result: EvaluationResult, title: str = "Evaluation") -> str:
                      "Units: m, m/s, rad (geodesic angle), rad/s.")
         lines.append("")
         hs = horizons["horizons"]
-        header = ["Model", "Group"] + [f"MAE h={h}" for h in hs] + ["SimErr", "SimErr ratio"]
-        lines.append("| " + " | ".join(header) + " |")
-        lines.append("|" + "---|" * len(header))
+        rows = []
         for m, groups in horizons["models"].items():
             for g in GROUPS:
                 e = groups[g]
                 ratio = e["ratio_sim_err"]
-                lines.append("| " + " | ".join([m, g] + [f"{e['mae'][str(h)]:.4g}" for h in hs]
-                                               + [f"{e['sim_err']:.4g}", "-" if ratio is None else f"{ratio:.3g}"]) + " |")
+                rows.append([m, g, *(f"{e['mae'][str(h)]:.4g}" for h in hs), f"{e['sim_err']:.4g}", "-" if ratio is None else f"{ratio:.3g}"])
+        lines += markdown_table(["Model", "Group", *(f"MAE h={h}" for h in hs), "SimErr", "SimErr ratio"], rows)
         if horizons.get("not_multistep"):
             lines.append("")
             lines.append(f"Not in the multi-step table (no open-loop form): {', '.join(horizons['not_multistep'])}.")
         lines.append("")
+    return "\n".join(lines)
+
+
+def column_title(model: str, span: str) -> str:
+    """A score column of the evaluation tables: ``greybox (eval)``."""
+    return f"{model} ({span})"
+
+
+def windows_text(data: dict) -> str:
+    """``windows eval 2, train 4``: windows scored per span (the dummy model is scored on every one), from results.json."""
+    return "windows " + ", ".join(f"{s} {n}" for s, n in data["windows"]["dummy"].items())
+
+
+def headline_scores(data: dict, model_names: list[str]) -> list[str]:
+    """One line per model of results.json: TIC of acc_z, roll_rate and vel_z on the eval span (else the first span)."""
+    lines = []
+    for name in model_names:
+        scores = data["models"][name].get("eval") or next(iter(data["models"][name].values()), {})
+        if scores:
+            lines.append(f"  {name}: TIC acc_z {tic_text(scores['acc_z']['tic'])}, roll_rate {tic_text(scores['roll_rate']['tic'])}, "
+                         f"vel_z {tic_text(scores['vel_z']['tic'])}")
+    return lines
+
+
+def live_summary_table(results: dict, model_names: list[str]) -> str:
+    """The run-bag summary of a live results.json: TIC / RMS (display units) per variable, one column per model and span.
+
+    The dummy baseline (predicts zero, TIC = 1) rides along on the held-out span when it is not one of ``model_names``:
+    its RMS is the scale of the variable. Aligned Markdown, so it reads in a terminal and pastes into a report."""
+    marked = results.get("live", {}).get("marked", [])
+    columns = [(m, span) for m in model_names for span in results["models"].get(m, {})]
+    dummy_spans = list(results["models"].get("dummy", {}))
+    if dummy_spans and "dummy" not in model_names:
+        columns.append(("dummy", "eval" if "eval" in dummy_spans else dummy_spans[-1]))
+    if not columns:
+        return "no window was scored" + (f"; marked: {marked[0]['reason']}" if marked else "")
+    rows = [[var, display_unit(var), *(f"{tic_text(results['models'][m][s][var]['tic'])} / {display_number(var, results['models'][m][s][var]['rms'])}"
+                                       for m, s in columns)] for var in EVAL_VARIABLES]
+    lines = ["TIC / RMS per variable (mean over windows; RMS in display units)", ""]
+    lines += markdown_table(["variable", "unit", *(column_title(m, s) for m, s in columns)], rows, align=True, label_columns=2)
+    windows = ", ".join(f"{m} {s}: {results['windows'][m][s]}" for m, s in columns)
+    lines += ["", f"windows scored: {windows}; marked: {len(marked)}"]
     return "\n".join(lines)
 
 
@@ -121,10 +163,13 @@ def window_figure(example: ExampleWindow, title: str, acc_var: str, rate_var: st
     plt.close(fig)
 
 
-def write_report(result: EvaluationResult, directory: Path, title: str = "Evaluation") -> list[str]:
-    """Write results.json, tables.md and the figures into ``directory`` (created); returns the file names."""
+def write_report(result: EvaluationResult, directory: Path, title: str = "Evaluation", document: dict | None = None) -> list[str]:
+    """Write results.json, tables.md and the figures into ``directory`` (created); returns the file names.
+
+    results.json holds ``document`` when given (the evaluator node's: the result plus every live window), else
+    ``result.to_json()``."""
     directory.mkdir(parents=True)
-    (directory / "results.json").write_text(json.dumps(result.to_json(), indent=2))
+    (directory / "results.json").write_text(json_text(result.to_json() if document is None else document))
     (directory / "tables.md").write_text(markdown_tables(result, title))
     written = ["results.json", "tables.md"]
     example = next((e for e in result.examples if e.span == "eval"), result.examples[0] if result.examples else None)

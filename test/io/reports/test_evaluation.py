@@ -1,0 +1,39 @@
+"""Evaluation report text: the run-bag summary table and the evaluate console lines from a known results.json."""
+
+from quad_modelling.core.variables import EVAL_VARIABLES
+from quad_modelling.io.reports.evaluation import headline_scores, live_summary_table, windows_text
+
+
+def _results():
+    """greybox scored on train and eval (TIC 0.25, RMS 0.1 SI), the dummy on both (TIC 1, RMS 0.2 SI)."""
+    def span(tic, rms):
+        return {v: {"tic": tic, "rms": rms} for v in EVAL_VARIABLES}
+
+    return {"models": {"greybox": {"train": span(0.25, 0.1), "eval": span(0.25, 0.1)}, "dummy": {"train": span(1.0, 0.2), "eval": span(1.0, 0.2)}},
+            "windows": {"greybox": {"train": 4, "eval": 2}, "dummy": {"train": 4, "eval": 2}},
+            "live": {"marked": [{"reason": "predictor stale"}]}}
+
+
+def test_live_summary_table_is_aligned_markdown_in_display_units():
+    lines = live_summary_table(_results(), ["greybox"]).splitlines()
+    assert lines[:4] == [
+        "TIC / RMS per variable (mean over windows; RMS in display units)",
+        "",
+        "| variable   | unit   | greybox (train) | greybox (eval) | dummy (eval) |",
+        "|------------|--------|----------------:|---------------:|-------------:|",
+    ]
+    assert lines[4] == "| vel_x      | m/s    |      0.25 / 0.1 |     0.25 / 0.1 |   1.00 / 0.2 |"
+    # 0.1 rad/s = 5.73 deg/s, 0.2 rad/s = 11.5 deg/s
+    assert lines[10] == "| roll_rate  | deg/s  |     0.25 / 5.73 |    0.25 / 5.73 |  1.00 / 11.5 |"
+    assert lines[-1] == "windows scored: greybox train: 4, greybox eval: 2, dummy eval: 2; marked: 1"
+
+
+def test_live_summary_without_a_scored_window_names_the_first_reason():
+    assert live_summary_table({"models": {}, "windows": {}, "live": {"marked": [{"reason": "input ended"}]}}, ["naive"]) == \
+        "no window was scored; marked: input ended"
+
+
+def test_console_lines_of_evaluate():
+    assert windows_text(_results()) == "windows train 4, eval 2"
+    assert headline_scores(_results(), ["greybox", "dummy"]) == ["  greybox: TIC acc_z 0.25, roll_rate 0.25, vel_z 0.25",
+                                                                 "  dummy: TIC acc_z 1.00, roll_rate 1.00, vel_z 1.00"]
