@@ -1,7 +1,7 @@
 """The reference names exactly the CLI flags and node parameters the code declares.
 
-docs/cli.md has one ``## `verb` `` section per verb; every ``--flag`` in an inline code span of a
-section belongs to that verb, and every command line (``quad-modelling VERB ...`` or a span
+docs/cli.md has one ``## `verb` `` section per verb with one flag table row per option
+(``| `-o`, `--output` | ...``); every ``--flag`` in an inline code span of a section belongs to that verb, and every command line (``quad-modelling VERB ...`` or a span
 starting with a verb name) names flags of its verb, in any file. docs/nodes.md has one
 ``### node`` section per parameter list, with one ``| `parameter` |`` table row per parameter;
 ``ros2 run quad_modelling NODE ... -p name:=value`` lines name parameters of NODE.
@@ -89,10 +89,28 @@ def named_flags(text: str, verbs) -> tuple[dict[str, set[str]], set[str]]:
     return per_verb, loose
 
 
+def flag_rows(text: str) -> dict[str, set[str]]:
+    """Flags in the first cell of the flag table rows (``| `-o`, `--output` | ...``) of each verb section."""
+    rows: dict[str, set[str]] = {}
+    section = ""
+    for line in text.splitlines():
+        heading = VERB_HEADING.match(line)
+        if heading:
+            section = heading.group(1)
+            rows[section] = set()
+        elif line.startswith("#"):
+            section = ""
+        elif section and line.startswith("| `-"):
+            rows[section] |= set(FLAG.findall(line.split("|")[1]))
+    return rows
+
+
 def flag_mismatches(text: str, parsers: dict[str, argparse.ArgumentParser]) -> dict[str, dict[str, set[str]]]:
-    """Per verb: flags the text names that the parser lacks ("unknown"), and parser flags it omits ("undocumented")."""
+    """Per verb: flags the text names that the parser lacks ("unknown"), and parser flags without a
+    row in the verb's flag table ("undocumented")."""
     per_verb, _ = named_flags(text, parsers)
-    return {verb: {"unknown": per_verb[verb] - parser_flags(p), "undocumented": parser_flags(p) - per_verb[verb]}
+    rows = flag_rows(text)
+    return {verb: {"unknown": per_verb[verb] - parser_flags(p), "undocumented": parser_flags(p) - rows.get(verb, set())}
             for verb, p in parsers.items()}
 
 
@@ -173,8 +191,44 @@ def test_a_removed_or_undocumented_flag_is_reported():
     assert all(not m["unknown"] and not m["undocumented"] for verb, m in mismatches.items() if verb not in ("evaluate", "train"))
 
 
+def test_a_flag_without_its_table_row_is_undocumented():
+    text = CLI_DOC.read_text()
+    without_row = "\n".join(line for line in text.splitlines() if not line.startswith("| `--quiet` |"))
+    assert "--quiet" in without_row  # still named in the synopsis
+    assert flag_mismatches(without_row, verb_parsers())["train"] == {"unknown": set(), "undocumented": {"--quiet"}}
+
+
 def test_a_parameter_row_is_tied_to_its_section():
     text = "### replay\n\n| parameter | default |\n|---|---|\n| `bag` | required |\n| `rate` | 1.0 |\n\n## Next\n| `loose` | x |\n"
     assert documented_parameters(text) == {"replay": {"bag", "rate"}}
     assert ros_run_parameters("ros2 run quad_modelling evaluator --ros-args -p output_dir:=/tmp -p nice:=0") == [
         ("evaluator", "output_dir"), ("evaluator", "nice")]
+
+
+LINK = re.compile(r"\]\(([^)\s]+)\)")
+
+
+def heading_anchors(text: str) -> set[str]:
+    """GitHub's anchors of a Markdown file's headings: lower case, punctuation dropped, spaces -> '-'."""
+    anchors = set()
+    for line in text.splitlines():
+        if line.startswith("#"):
+            title = line.lstrip("#").strip().lower()
+            anchors.add(re.sub(r"[^\w\- ]", "", title).replace(" ", "-"))
+    return anchors
+
+
+def test_relative_links_reach_files_and_headings():
+    docs = [README, REPO / "bench" / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+    broken = []
+    for doc in docs:
+        for target in LINK.findall(doc.read_text()):
+            if "://" in target:
+                continue
+            path, _, anchor = target.partition("#")
+            resolved = (doc.parent / path) if path else doc
+            if not resolved.exists() or (anchor and anchor not in heading_anchors(resolved.read_text())):
+                broken.append(f"{doc.relative_to(REPO)} -> {target}")
+    assert broken == []
+    assert heading_anchors("## Executors, DDS profile, garbage collector\n### `run-bag`") == {
+        "executors-dds-profile-garbage-collector", "run-bag"}
