@@ -89,20 +89,25 @@ def named_flags(text: str, verbs) -> tuple[dict[str, set[str]], set[str]]:
     return per_verb, loose
 
 
+def section_lines(text: str, heading: re.Pattern) -> dict[str, list[str]]:
+    """The lines of each section whose heading matches ``heading`` (group 1 = its name), up to the next heading."""
+    sections: dict[str, list[str]] = {}
+    current = None
+    for line in text.splitlines():
+        match = heading.match(line)
+        if match:
+            current = sections.setdefault(match.group(1), [])
+        elif line.startswith("#"):
+            current = None
+        elif current is not None:
+            current.append(line)
+    return sections
+
+
 def flag_rows(text: str) -> dict[str, set[str]]:
     """Flags in the first cell of the flag table rows (``| `-o`, `--output` | ...``) of each verb section."""
-    rows: dict[str, set[str]] = {}
-    section = ""
-    for line in text.splitlines():
-        heading = VERB_HEADING.match(line)
-        if heading:
-            section = heading.group(1)
-            rows[section] = set()
-        elif line.startswith("#"):
-            section = ""
-        elif section and line.startswith("| `-"):
-            rows[section] |= set(FLAG.findall(line.split("|")[1]))
-    return rows
+    return {verb: {flag for line in lines if line.startswith("| `-") for flag in FLAG.findall(line.split("|")[1])}
+            for verb, lines in section_lines(text, VERB_HEADING).items()}
 
 
 def flag_mismatches(text: str, parsers: dict[str, argparse.ArgumentParser]) -> dict[str, dict[str, set[str]]]:
@@ -116,18 +121,8 @@ def flag_mismatches(text: str, parsers: dict[str, argparse.ArgumentParser]) -> d
 
 def documented_parameters(text: str) -> dict[str, set[str]]:
     """Parameter table rows per ``### node`` section."""
-    sections: dict[str, set[str]] = {}
-    section = ""
-    for line in text.splitlines():
-        heading = NODE_HEADING.match(line)
-        if heading:
-            section = heading.group(1)
-            sections[section] = set()
-        elif line.startswith("#"):
-            section = ""
-        elif section and (row := PARAMETER_ROW.match(line)):
-            sections[section].add(row.group(1))
-    return sections
+    return {node: {row.group(1) for line in lines if (row := PARAMETER_ROW.match(line))}
+            for node, lines in section_lines(text, NODE_HEADING).items()}
 
 
 def ros_run_parameters(text: str) -> list[tuple[str, str]]:
