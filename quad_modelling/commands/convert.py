@@ -18,7 +18,7 @@ DESCRIPTION = """\
 Convert flight logs into rosbag2 MCAP bags with the quad_modelling topic contract
 (/quad/motor_input, /quad/mocap/odom, /quad/imu, /quad/battery), or into a thesis .mat log.
 
-Inputs: thesis-style MATLAB logs (.mat; default variable names in the README, or a
+Inputs: thesis-style MATLAB logs (.mat; default variable names in docs/formats.md, or a
 --mapping YAML for foreign logs), NanoBench CSV flights (.csv, .csv.gz), contract bags.
 Output: with one input, OUTPUT is the bag directory (or a .mat file); with several inputs,
 OUTPUT is a new directory holding one bag per input, named after it.

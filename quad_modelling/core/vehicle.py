@@ -67,7 +67,7 @@ CONSTANT_KEYS = (
     "thrust_constant",
     "drag_constant",
 )
-"""Constants every vehicle file must give (thesis Table 3-1 names in README)."""
+"""Constants every vehicle file must give (thesis Table 3-1 names; docs/formats.md, vehicle configs)."""
 
 STATUSES = ("measured", "identified")
 

@@ -23,7 +23,7 @@ def test_round_trip_keeps_every_field_and_the_notes(tmp_path):
     assert back.meta.vehicle == "linkquad"
     assert back.meta.notes == {"seed": 0, "effects": ["battery", "rotor_drag"]}
     stored = scipy.io.loadmat(path)
-    assert set(THESIS_VARIABLES["u"]) <= set(stored)  # default names are what the README documents
+    assert set(THESIS_VARIABLES["u"]) <= set(stored)  # default names are what docs/formats.md documents
 
 
 def test_existing_output_needs_force(tmp_path):
