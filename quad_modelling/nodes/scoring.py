@@ -77,7 +77,7 @@ class LiveScores:
             for span, _, _ in self.spans:
                 done = [r for r in self.records if r.model == model and r.span == span and r.scored]
                 if done:
-                    scores[model][span] = SpanScores(np.mean([r.rms for r in done], axis=0), np.mean([r.tic for r in done], axis=0), len(done))
+                    scores[model][span] = SpanScores.of_windows([r.rms for r in done], [r.tic for r in done])
         flights = [{"source": source, "live": True}]
         examples = list(self.examples.values())
         return EvaluationResult(scores, {}, self.config, flights, examples)

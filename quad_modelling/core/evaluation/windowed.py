@@ -100,6 +100,12 @@ class SpanScores:
     tic: np.ndarray
     windows: int
 
+    @classmethod
+    def of_windows(cls, window_rms: Sequence[np.ndarray], window_tic: Sequence[np.ndarray]) -> SpanScores:
+        """Span scores from the per-window RMS and TIC rows (18,) of its scored windows: their mean
+        (the one averaging of ``quad-modelling evaluate`` and the live evaluator)."""
+        return cls(np.mean(window_rms, axis=0), np.mean(window_tic, axis=0), len(window_rms))
+
     def to_json(self, variables: Sequence[str] = EVAL_VARIABLES) -> dict:
         idx = {v: i for i, v in enumerate(VARIABLES)}
         return {v: {"rms": float(self.rms[idx[v]]), "tic": float(self.tic[idx[v]])} for v in variables}
@@ -150,7 +156,7 @@ def evaluate(
     names = [m.name for m in models]
     if len(set(names)) != len(names):
         raise ConfigError(f"model names must be unique, got {names}")
-    sums = {m.name: {s: [np.zeros(len(VARIABLES)), np.zeros(len(VARIABLES)), 0] for s in plan} for m in models}
+    scored = {m.name: {s: ([], []) for s in plan} for m in models}  # per model and span: (RMS rows, TIC rows)
     examples: list[ExampleWindow] = []
     for span_name, windows in plan.items():
         for k, w in enumerate(windows):
@@ -160,10 +166,9 @@ def evaluate(
             predicted = {}
             for model in models:
                 result = evaluate_window(model, window, warm, config.trim, vehicle, config.smooth_cutoff_hz, measured)
-                acc = sums[model.name][span_name]
-                acc[0] += result.rms
-                acc[1] += result.tic
-                acc[2] += 1
+                window_rms, window_tic = scored[model.name][span_name]
+                window_rms.append(result.rms)
+                window_tic.append(result.tic)
                 predicted[model.name] = result.predicted
             if k == 0:
                 examples.append(
@@ -171,10 +176,7 @@ def evaluate(
                 )
         if progress:
             progress(f"{span_name}: {len(windows)} windows x {len(models)} models")
-    scores = {
-        name: {s: SpanScores(a[0] / max(a[2], 1), a[1] / max(a[2], 1), a[2]) for s, a in spans.items() if a[2] > 0}
-        for name, spans in sums.items()
-    }
+    scores = {name: {s: SpanScores.of_windows(*rows) for s, rows in spans.items() if rows[0]} for name, spans in scored.items()}
     horizons = multistep_evaluation(flights, models, vehicle, config) if multistep else {}
     flight_info = [{"source": log.meta.source, "duration_s": log.duration, "sample_rate_hz": log.sample_rate} for log in flights]
     return EvaluationResult(scores, horizons, config, flight_info, examples)

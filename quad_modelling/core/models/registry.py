@@ -1,33 +1,12 @@
-"""The predictor contract every model implements, and the model registry.
-
-A predictor predicts one evaluation window (thesis 2.2, DESIGN 7): it is given
-the whole window as a :class:`~quad_modelling.core.flight_log.FlightLog` and
-may use
-
-* the engine commands ``window.u`` of the entire window (they are the model
-  input), and
-* the measurements of the first ``warm_samples`` rows only (the thesis gives
-  the models the first 0.2 s of measurements "so they had the correct start
-  values").
-
-It returns an (N, 18) array in :data:`quad_modelling.core.variables.VARIABLES`
-column order, in the *trimmed* convention of
-:func:`quad_modelling.core.preprocess.trimmed_variables`: every variable is the
-deviation from its trim value, the mean over the window's stable interval
-(the first ``TrimConfig.trim_s`` seconds). The evaluator compares it with the
-trimmed best measurement of the same window; rows ``< warm_samples`` are not
-scored.
-
-Predictors that can also run the IDSIA multi-step protocol implement
-:class:`MultiStepPredictor` as well (absolute values, not trimmed).
+"""The model registry: model spec strings -> predictors (contracts in :mod:`quad_modelling.core.models.base`).
 
 Registry: :func:`make_model` parses a spec string. Built-in specs:
 
 =================  ==========================================================
-``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.greybox`
+``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.models.greybox`
 ``greybox:euler``  same with the thesis's explicit-Euler discretisation
-``dummy``          predicts zero for every variable (thesis Fig 5.2)
-``naive``          holds the last warm-start measurement constant
+``dummy``          :class:`~quad_modelling.core.models.base.DummyPredictor`, zero (thesis Fig 5.2)
+``naive``          :class:`~quad_modelling.core.models.base.ConstantStatePredictor`
 =================  ==========================================================
 
 Other modules add entries with :func:`register_model` (e.g. ``narx:PATH``,
