@@ -94,7 +94,7 @@ class HeldState:
 
 
 class ConstantStatePredictor:
-    """The naive baseline: holds the last measured state, :math:`\hat y(s + h) = y_m(s)`.
+    """The naive baseline: holds the last measured state, :math:`\\hat y(s + h) = y_m(s)`.
 
     The one naive model of every mode:
 
