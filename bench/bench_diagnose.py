@@ -10,11 +10,11 @@ import sys
 import time
 
 from bench.common import SHARED_DATA, write_results
-from quad_modelling.io.reports.validation import validation_markdown
 from quad_modelling.core.diagnosis.diagnose import diagnose
 from quad_modelling.core.diagnosis.validation import validate
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.io.loader import load_flight
+from quad_modelling.io.reports.validation import validation_markdown
 
 TRAIN = ["B2_circle_slow_rep2", "B2_circle_medium_rep2", "B3_figure8_slow_rep2", "B3_figure8_medium_rep2",
          "B5_helix_slow_rep1", "B5_helix_medium_rep1", "B7_oval_slow_rep2"]

@@ -45,6 +45,7 @@ from quad_modelling.core.diagnosis.validation import (
     test_seeds,
     train_seeds,
 )
+from quad_modelling.core.evaluation.metrics import rms
 from quad_modelling.core.sim.simulate import run_simulation
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
@@ -86,12 +87,11 @@ def main() -> int:
                 predicted = predict_batch(base, test, greybox_outputs=greybox)
                 predicted_true = predict_batch(base, true_all, greybox_outputs=greybox)
 
-                def rms(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-                    e = a[:, test.warm :][:, :, cols] - b[:, test.warm :][:, :, cols]
-                    return np.sqrt(np.mean(e**2, axis=1)).mean(axis=0)
+                def mean_window_rms(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+                    return rms(a[:, test.warm :][:, :, cols], b[:, test.warm :][:, :, cols], axis=1).mean(axis=0)
 
-                parts = (rms(test.measured, predicted), rms(test.measured, true_imu.measured),
-                         rms(true_imu.measured, predicted), rms(true_all.measured, predicted_true))
+                parts = (mean_window_rms(test.measured, predicted), mean_window_rms(test.measured, true_imu.measured),
+                         mean_window_rms(true_imu.measured, predicted), mean_window_rms(true_all.measured, predicted_true))
                 for key, value in zip(PARTS, parts):
                     per_seed[key].append(value)
             rows.append({"outputs": "greybox" if greybox else "diagnosis", "cutoff_hz": cutoff,

@@ -18,7 +18,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import median_seconds, write_results  # noqa: E402
-from quad_modelling.core.sim.params import DEFAULT_EFFECTS, SIM_EFFECTS  # noqa: E402
+from quad_modelling.core.effect_names import SIM_DEFAULT_EFFECTS, SIM_EFFECTS  # noqa: E402
 from quad_modelling.core.sim.simulate import run_simulation  # noqa: E402
 
 DURATION = 220.0
@@ -40,7 +40,7 @@ def main_bench() -> None:
         shutil.rmtree(work, ignore_errors=True)
 
     per_effects = {}
-    for label, effects in (("none", ()), ("default", DEFAULT_EFFECTS), ("all", SIM_EFFECTS)):
+    for label, effects in (("none", ()), ("default", SIM_DEFAULT_EFFECTS), ("all", SIM_EFFECTS)):
         for vehicle in ("linkquad", "crazyflie21"):
             start = time.perf_counter()
             run_simulation(vehicle, effects, seed=0, duration=DURATION)

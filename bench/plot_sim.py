@@ -22,8 +22,8 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from quad_modelling.atomic import atomic_output  # noqa: E402
+from quad_modelling.core.effect_names import SIMULATOR, parse_effect_names  # noqa: E402
 from quad_modelling.core.flight_log import FlightLog  # noqa: E402
-from quad_modelling.core.sim.params import parse_effects  # noqa: E402
 from quad_modelling.core.sim.simulate import run_simulation  # noqa: E402
 
 
@@ -81,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=220.0)
     parser.add_argument("--force", action="store_true")
     args = parser.parse_args(argv)
-    effects = parse_effects(args.effects)
+    effects = parse_effect_names(args.effects, SIMULATOR)
     result = run_simulation(args.vehicle, effects, args.seed, args.duration, progress=True)
     title = f"simulated {args.vehicle} flight, seed {args.seed} (dashed: thesis spans 30/150/190 s)\neffects: {', '.join(effects) or 'none'}"
     path = plot_flight(result.log, args.output, result.params.vehicle.input_unit, args.force, title)

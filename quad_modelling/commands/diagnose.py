@@ -14,6 +14,11 @@ from quad_modelling.core.diagnosis.diagnose import (
     diagnose,
     narx_floor,
 )
+from quad_modelling.core.effect_names import (
+    CATALOGUE_EFFECTS,
+    DISTURBANCES,
+    SWITCHED_EFFECTS,
+)
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError
@@ -23,11 +28,10 @@ from quad_modelling.io.reports.validation import validation_summary, write_valid
 
 NAME = "diagnose"
 HELP = "diagnose the sim-to-real gap: where the model diverges, which effect causes it, how far it shrinks"
-DESCRIPTION = """\
+DESCRIPTION = f"""\
 Compare the linear greybox model with flights and find which unmodelled effect explains the
 gap. The base model's constants are identified on the --train flights; every catalogue effect
-(rotor_drag, battery, motor_lag, input_delay, ground_effect, gyroscopic, thrust_nonlinearity,
-motor_imbalance, trim_drift) is added alone, its parameters identified on the --train flights
+({", ".join(CATALOGUE_EFFECTS)}) is added alone, its parameters identified on the --train flights
 only, and the gap measured on the --test flights. An effect is "found" when it shrinks the
 held-out gap on its variables by >= 5 % consistently over held-out windows, "rejected" when it
 helps on training data only. Also: the gap by flight regime and frequency band, the worst
@@ -37,6 +41,8 @@ learnable floor.
 OUTDIR receives diagnosis.json (SI units), report.md (plain-language verdict first) and PNG
 figures. --validate instead flies simulated known-answer flights (each effect switched on in
 turn, the model without it; a null case; pairs) and writes validation.json + validation.md.
+The simulator switches {", ".join(SWITCHED_EFFECTS)}; {", ".join(DISTURBANCES)} is a simulator
+disturbance, no catalogue effect.
 
 examples:
   quad-modelling diagnose --train slow1.csv.gz slow2.csv.gz --test fast1.csv.gz -o diag
@@ -49,7 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--train", nargs="+", metavar="FLIGHT", help="training flights (bags, .mat, NanoBench .csv.gz)")
     parser.add_argument("--test", nargs="+", metavar="FLIGHT", help="held-out flights")
     parser.add_argument("--vehicle", metavar="NAME|FILE", help="vehicle config name or YAML (default: the one the first flight names)")
-    parser.add_argument("--effects", default="all", metavar="all|LIST", help="comma list of catalogue effects (default all)")
+    parser.add_argument("--effects", default="all", metavar="all|LIST", help="none, all, default (= all), or a comma list of catalogue effects")
     parser.add_argument("--no-identify", action="store_true", help="use the vehicle's constants as the base model instead of identifying them on --train")
     parser.add_argument("--narx", action="store_true", help="also train a NARX model on --train as the learnable floor (slower)")
     parser.add_argument("--window", type=float, default=DIAGNOSIS_CONFIG.window_s, metavar="SECONDS", help="window length (default 5)")
@@ -118,14 +124,14 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run_validation(args, config, effects, output: Path) -> int:
-    from quad_modelling.core.diagnosis.validation import VALIDATED_EFFECTS, validate
+    from quad_modelling.core.diagnosis.validation import validate
 
     try:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     except ValueError as err:
         raise ConfigError(f"--seeds {args.seeds!r}: expected comma-separated integers") from err
     names = [e.name for e in effects]
-    switched = [e for e in VALIDATED_EFFECTS if e in names] if args.effects != "all" else list(VALIDATED_EFFECTS)
+    switched = [e for e in SWITCHED_EFFECTS if e in names]  # the simulator can fly these with the effect on
     say, bar = _progress()
     try:
         result = validate(args.vehicle or "linkquad", switched, seeds, catalogue=effects, duration=args.duration, config=config, progress=say)

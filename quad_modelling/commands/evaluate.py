@@ -14,7 +14,11 @@ from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.core.windows import PRESETS, EvaluationConfig
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.loader import load_flights
-from quad_modelling.io.reports.evaluation import headline_scores, windows_text, write_report
+from quad_modelling.io.reports.evaluation import (
+    headline_scores,
+    windows_text,
+    write_report,
+)
 
 NAME = "evaluate"
 HELP = "evaluate models with the thesis's windowed RMS/TIC protocol and the multi-step benchmark"

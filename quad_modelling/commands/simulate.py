@@ -7,11 +7,13 @@ import sys
 from pathlib import Path
 
 from quad_modelling.atomic import check_output
-from quad_modelling.core.sim.params import (
+from quad_modelling.core.effect_names import (
+    DISTURBANCES,
     SIM_EFFECTS,
-    SIMULATED_VEHICLES,
-    parse_effects,
+    SIMULATOR,
+    parse_effect_names,
 )
+from quad_modelling.core.sim.params import SIMULATED_VEHICLES
 from quad_modelling.core.sim.simulate import run_simulation
 from quad_modelling.errors import ConfigError
 
@@ -24,7 +26,7 @@ and write its sensor log as a thesis MATLAB log (.mat) or, with --bag, an MCAP b
 The effects, their parameters and the seed are stored in the log's notes (meta_json).
 
 effects: {", ".join(SIM_EFFECTS)}
-  --effects none | all | default (all but wind) | a comma list
+  --effects none | all | default (all but {", ".join(DISTURBANCES)}) | a comma list
 
 examples:
   quad-modelling simulate -o flight.mat
@@ -36,7 +38,7 @@ examples:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, metavar="FLIGHT", help="output .mat file (or bag directory with --bag)")
     parser.add_argument("--vehicle", default="linkquad", choices=SIMULATED_VEHICLES, help="vehicle to fly (default linkquad)")
-    parser.add_argument("--effects", default="default", help="none, all, default, or a comma list of effects (default: all but wind)")
+    parser.add_argument("--effects", default="default", help=f"none, all, default, or a comma list of effects (default: all but {', '.join(DISTURBANCES)})")
     parser.add_argument("--seed", type=int, default=0, help="random seed of the pilot script, wind and sensors (default 0)")
     parser.add_argument("--duration", type=float, default=220.0, help="flight duration [s] (default 220, as the thesis flights)")
     parser.add_argument("--bag", action="store_true", help="write an MCAP bag directory instead of a .mat log")
@@ -45,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    effects = parse_effects(args.effects)
+    effects = parse_effect_names(args.effects, SIMULATOR)
     if args.seed < 0:
         raise ConfigError(f"--seed must be a non-negative integer, got {args.seed}")
     if not args.bag and output.suffix != ".mat":

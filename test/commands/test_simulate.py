@@ -3,7 +3,7 @@
 import numpy as np
 
 from quad_modelling.cli import main
-from quad_modelling.core.sim.params import SIM_EFFECTS
+from quad_modelling.core.effect_names import SIM_EFFECTS
 from quad_modelling.io.matlog import read_matlog
 
 

@@ -16,7 +16,6 @@ from quad_modelling.core.diagnosis.base_model import (
     apply_effects,
     measurement_filter,
     predict_batch,
-    window_rms,
 )
 from quad_modelling.core.diagnosis.batch import (
     COMMAND_HISTORY_S,
@@ -28,6 +27,7 @@ from quad_modelling.core.diagnosis.batch import (
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, parse_effect_list
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
 from quad_modelling.core.diagnosis.fitting import fit_effects, variable_scales
+from quad_modelling.core.diagnosis.statistics import window_rms
 from quad_modelling.core.models.greybox import GreyboxParameters, GreyboxPredictor
 from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.core.variables import INDEX

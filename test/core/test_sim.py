@@ -5,13 +5,10 @@ import math
 import numpy as np
 import pytest
 
+from quad_modelling.core.effect_names import SIM_DEFAULT_EFFECTS as DEFAULT_EFFECTS
+from quad_modelling.core.effect_names import SIM_EFFECTS, SIMULATOR, parse_effect_names
 from quad_modelling.core.sim.dynamics import QuadDynamics
-from quad_modelling.core.sim.params import (
-    DEFAULT_EFFECTS,
-    SIM_EFFECTS,
-    parse_effects,
-    sim_params_for,
-)
+from quad_modelling.core.sim.params import sim_params_for
 from quad_modelling.core.sim.pilot import PHASE_FLYING, TURN_RAMP, make_pilot_script
 from quad_modelling.core.sim.simulate import (
     open_circuit_voltage,
@@ -73,12 +70,12 @@ def test_crazyflie_hovers_near_60_percent_pwm():
 
 
 def test_effect_names_parse():
-    assert parse_effects("none") == ()
-    assert parse_effects("all") == SIM_EFFECTS
-    assert parse_effects(None) == DEFAULT_EFFECTS and "wind" not in DEFAULT_EFFECTS
-    assert parse_effects("wind,battery") == ("battery", "wind")
+    assert parse_effect_names("none", SIMULATOR) == ()
+    assert parse_effect_names("all", SIMULATOR) == SIM_EFFECTS
+    assert parse_effect_names(None, SIMULATOR) == DEFAULT_EFFECTS and "wind" not in DEFAULT_EFFECTS
+    assert parse_effect_names("wind,battery", SIMULATOR) == ("battery", "wind")
     with pytest.raises(ConfigError, match="unknown simulator effect 'drag'"):
-        parse_effects("drag")
+        parse_effect_names("drag", SIMULATOR)
 
 
 # --------------------------------------------------------------------------- rigid body

@@ -2,13 +2,14 @@
 
 import numpy as np
 
+from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.greybox import GreyboxPredictor
 from quad_modelling.core.models.streaming import (
     hover_at_rest,
     predict_window_by_stream,
     prime,
 )
-from quad_modelling.core.preprocess import measured_variables
+from quad_modelling.core.preprocess import measured_variables, trim_prediction
 from quad_modelling.core.vehicle import GRAVITY, load_vehicle
 from quad_modelling.errors import DataError
 from test.conftest import synthetic_log
@@ -55,3 +56,19 @@ def test_a_model_that_rejects_the_priming_window_is_left_unprimed_without_an_err
     model = NeedsMoreRows()
     prime(model, load_vehicle("crazyflie21"), 0.01, 20)
     assert model.calls == 1
+
+
+def test_the_naive_model_holds_the_same_measured_state_live_offline_and_multistep():
+    """Live (stream), offline window and multi-step forms of the one naive model: the measurement at the
+    anchor (row warm - 1), held."""
+    vehicle = load_vehicle("crazyflie21")
+    window, warm = synthetic_log(300), 20
+    naive = ConstantStatePredictor(vehicle)
+    anchor_state = measured_variables(window.slice(0, warm), vehicle)[-1]
+    live = predict_window_by_stream(naive, window, warm)
+    np.testing.assert_array_equal(live[warm:], np.tile(anchor_state, (300 - warm, 1)))
+    np.testing.assert_allclose(naive.predict_window(window, warm), trim_prediction(window, live))
+    horizons = naive.predict_horizons(window, np.array([warm - 1]), 50)
+    assert horizons.shape == (1, 51, 18)
+    scored = np.r_[0:6, 9:15]  # the multi-step groups: position, velocity, orientation, angular velocity
+    np.testing.assert_allclose(horizons[0][:, scored], np.tile(anchor_state[scored], (51, 1)), atol=1e-12)

@@ -7,7 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from quad_modelling.core.evaluation.windowed import SpanScores, evaluate_window, window_mean
+from quad_modelling.core.evaluation.windowed import (
+    SpanScores,
+    evaluate_window,
+    window_mean,
+)
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.narx_training import span_indices
 from quad_modelling.core.preprocess import TrimConfig

@@ -11,8 +11,6 @@ import numpy as np
 from quad_modelling.core.diagnosis.base_model import (
     BaseModel,
     predict_batch,
-    window_rms,
-    window_tic,
 )
 from quad_modelling.core.diagnosis.batch import WindowBatch
 from quad_modelling.core.diagnosis.catalogue import Effect
@@ -24,7 +22,10 @@ from quad_modelling.core.diagnosis.statistics import (
     shrink_of,
     sign_test,
     variable_scores,
+    window_rms,
+    window_tic,
 )
+from quad_modelling.core.evaluation.metrics import root_mean_square
 from quad_modelling.core.evaluation.windowed import window_mean
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX, VARIABLES
 
@@ -141,7 +142,7 @@ def affected_variables(batch: WindowBatch, correction: np.ndarray, candidates: S
     cols = np.array([INDEX[v] for v in candidates])
     excited = excited_windows(batch, correction, cols, scales, gap_before)
     rows = excited if excited.any() else np.ones(len(batch), dtype=bool)
-    moved = np.sqrt(np.mean(correction[rows][:, batch.warm :][:, :, cols] ** 2, axis=(0, 1))) / scales[cols]
+    moved = root_mean_square(correction[rows][:, batch.warm :][:, :, cols], axis=(0, 1)) / scales[cols]
     ratios = {v: float(moved[i]) for i, v in enumerate(candidates)}
     keep = [v for v in candidates if ratios[v] >= AFFECTED_MIN_CORRECTION]
     return tuple(keep or candidates), ratios
@@ -150,7 +151,7 @@ def affected_variables(batch: WindowBatch, correction: np.ndarray, candidates: S
 def excited_windows(batch: WindowBatch, correction: np.ndarray, cols: np.ndarray, scales: np.ndarray, gap_before: np.ndarray) -> np.ndarray:
     """(W,) bool: windows whose prediction the effect changes by at least :data:`EXCITED_MIN_CORRECTION`
     of their base gap (normalised as the gap); all False when fewer than :data:`EXCITED_MIN_WINDOWS`."""
-    moved = (np.sqrt(np.mean(correction[:, batch.warm :][:, :, cols] ** 2, axis=1)) / scales[cols]).sum(axis=1)
+    moved = (root_mean_square(correction[:, batch.warm :][:, :, cols], axis=1) / scales[cols]).sum(axis=1)
     excited = moved >= EXCITED_MIN_CORRECTION * gap_before
     return excited if excited.sum() >= EXCITED_MIN_WINDOWS else np.zeros_like(excited)
 

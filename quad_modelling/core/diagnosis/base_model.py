@@ -300,19 +300,3 @@ def measurement_filter(predicted: np.ndarray, dt: float, columns: np.ndarray) ->
     rate = np.concatenate([np.zeros_like(acc[:, :1]), np.cumsum(0.5 * (acc[:, 1:] + acc[:, :-1]) * dt, axis=1)], axis=1)
     predicted[:, :, picked] = differentiate(rate.transpose(1, 0, 2), dt).transpose(1, 0, 2)
 
-
-def window_rms(batch: WindowBatch, predicted: np.ndarray, columns: Sequence[int] | None = None) -> np.ndarray:
-    """(W, k) RMS error per window over the scored rows (after the warm start)."""
-    cols = np.arange(len(VARIABLES)) if columns is None else np.asarray(columns, dtype=int)
-    err = batch.measured[:, batch.warm :, cols] - predicted[:, batch.warm :, cols]
-    return np.sqrt(np.mean(err**2, axis=1))
-
-
-def window_tic(batch: WindowBatch, predicted: np.ndarray, columns: Sequence[int] | None = None) -> np.ndarray:
-    """(W, k) Theil inequality coefficient per window over the scored rows."""
-    cols = np.arange(len(VARIABLES)) if columns is None else np.asarray(columns, dtype=int)
-    m = batch.measured[:, batch.warm :, cols]
-    p = predicted[:, batch.warm :, cols]
-    num = np.sqrt(np.mean((m - p) ** 2, axis=1))
-    den = np.sqrt(np.mean(m**2, axis=1)) + np.sqrt(np.mean(p**2, axis=1))
-    return np.where(den > 0, num / np.where(den > 0, den, 1.0), 0.0)

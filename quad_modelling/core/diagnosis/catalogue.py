@@ -1,13 +1,13 @@
 """Effect catalogue: identifiable nonlinear extensions of the linear greybox model (DESIGN 6.2).
 
 Every effect is a small, documented change of the linear model of
-:mod:`quad_modelling.core.greybox` with a few parameters identified from
+:mod:`quad_modelling.core.models.greybox` with a few parameters identified from
 training windows only. The forms are deliberately simpler than the truth
-simulator's physics (:mod:`quad_modelling.core.sim_dynamics`): the diagnosis
+simulator's physics (:mod:`quad_modelling.core.sim.dynamics`): the diagnosis
 asks "which missing term would close the gap", not "what is the exact physics".
 
 The augmented model of one window (trimmed convention, state x of
-:mod:`~quad_modelling.core.greybox`) is
+:mod:`~quad_modelling.core.models.greybox`) is
 
 .. math::
 
@@ -78,11 +78,11 @@ from scipy import signal
 
 from quad_modelling.core.diagnosis.base_model import BaseModel, Effect, _motor_thrusts
 from quad_modelling.core.diagnosis.batch import WindowBatch, _trim_mean
+from quad_modelling.core.effect_names import DIAGNOSIS, parse_effect_names
 from quad_modelling.core.models.greybox import (
     N_STATES,
 )
 from quad_modelling.core.vehicle import GRAVITY
-from quad_modelling.errors import ConfigError
 
 THRUST_DRIVEN = ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")
 """The variables the rotor thrusts drive without integration: every effect on the command path acts on
@@ -239,18 +239,11 @@ CATALOGUE: dict[str, Effect] = {
                stage=1, input_map=_drift_map),
     )
 }
-"""The effect catalogue, by name (module docstring table)."""
-
-
-EFFECT_NAMES: tuple[str, ...] = tuple(CATALOGUE)
+"""The effect catalogue, by name, in the order of :data:`quad_modelling.core.effect_names.CATALOGUE_EFFECTS`
+(module docstring table; test/core/test_effects.py holds the two together)."""
 
 
 def parse_effect_list(text: str | None) -> list[Effect]:
-    """``all``/None -> the whole catalogue, else a comma list of names (ConfigError naming unknown ones)."""
-    if text is None or text.strip() in ("", "all"):
-        return list(CATALOGUE.values())
-    names = [part.strip() for part in text.split(",") if part.strip()]
-    unknown = [n for n in names if n not in CATALOGUE]
-    if unknown:
-        raise ConfigError(f"unknown effect(s) {', '.join(unknown)}; known: {', '.join(EFFECT_NAMES)} (or all)")
-    return [CATALOGUE[n] for n in dict.fromkeys(names)]
+    """The catalogue entries an ``--effects`` text names (:func:`~quad_modelling.core.effect_names.parse_effect_names`
+    with :data:`~quad_modelling.core.effect_names.DIAGNOSIS`: default and ``all`` the whole catalogue), in catalogue order."""
+    return [CATALOGUE[name] for name in parse_effect_names(text, DIAGNOSIS)]

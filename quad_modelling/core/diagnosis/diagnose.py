@@ -93,12 +93,16 @@ from quad_modelling.core.diagnosis.base_fit import (
     base_from_vehicle,
     identify_base,
 )
-from quad_modelling.core.diagnosis.base_model import predict_batch, window_rms
+from quad_modelling.core.diagnosis.base_model import predict_batch
 from quad_modelling.core.diagnosis.batch import WindowBatch, prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.fitting import variable_scales
 from quad_modelling.core.diagnosis.localisation import localise
-from quad_modelling.core.diagnosis.statistics import BOOTSTRAP, variable_scores
+from quad_modelling.core.diagnosis.statistics import (
+    BOOTSTRAP,
+    variable_scores,
+    window_rms,
+)
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
 from quad_modelling.core.vehicle import VehicleConfig

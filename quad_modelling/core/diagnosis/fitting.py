@@ -11,6 +11,7 @@ from scipy import optimize
 from quad_modelling.core.diagnosis.base_model import BaseModel, predict_batch
 from quad_modelling.core.diagnosis.batch import WindowBatch
 from quad_modelling.core.diagnosis.catalogue import Effect
+from quad_modelling.core.evaluation.metrics import rms, root_mean_square
 from quad_modelling.core.variables import INDEX, VARIABLES
 from quad_modelling.errors import ConfigError
 
@@ -38,9 +39,8 @@ class FitResult:
 
 def variable_scales(batch: WindowBatch, predicted: np.ndarray) -> np.ndarray:
     """(18,) scale of each variable's residual: its RMS over the batch's scored rows (>0)."""
-    err = batch.measured[:, batch.warm :] - predicted[:, batch.warm :]
-    scale = np.sqrt(np.mean(err**2, axis=(0, 1)))
-    floor = 1e-9 + 1e-6 * np.sqrt(np.mean(batch.measured[:, batch.warm :] ** 2, axis=(0, 1)))
+    scale = rms(batch.measured[:, batch.warm :], predicted[:, batch.warm :], axis=(0, 1))
+    floor = 1e-9 + 1e-6 * root_mean_square(batch.measured[:, batch.warm :], axis=(0, 1))
     return np.maximum(scale, floor)
 
 

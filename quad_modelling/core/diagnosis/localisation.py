@@ -8,8 +8,9 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import signal
 
-from quad_modelling.core.diagnosis.base_model import window_rms
 from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.diagnosis.statistics import window_rms
+from quad_modelling.core.evaluation.metrics import root_mean_square
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
 
 REGIME_BINS = 4
@@ -63,10 +64,10 @@ def localise(batch: WindowBatch, predicted: np.ndarray, scales: np.ndarray, name
         normalised = []
         for b in range(REGIME_BINS):
             mask = which == b
-            rms_b = np.sqrt(np.mean(resid.reshape(-1, len(cols))[mask] ** 2, axis=0)) if mask.any() else np.full(len(cols), np.nan)
+            rms_b = root_mean_square(resid.reshape(-1, len(cols))[mask], axis=0) if mask.any() else np.full(len(cols), np.nan)
             for i, v in enumerate(names):
                 per_var.setdefault(v, []).append(float(rms_b[i]))
-            normalised.append(float(np.sqrt(np.mean(flat[mask] ** 2))) if mask.any() else float("nan"))
+            normalised.append(float(root_mean_square(flat[mask], axis=(0, 1))) if mask.any() else float("nan"))
         top, bottom = normalised[-1], normalised[0]
         regimes[name] = {
             "unit": REGIME_UNITS[name],

@@ -7,8 +7,8 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import stats
 
-from quad_modelling.core.diagnosis.base_model import window_rms, window_tic
 from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.evaluation.metrics import rms, tic
 from quad_modelling.core.evaluation.windowed import window_mean
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
 
@@ -20,6 +20,24 @@ BOOTSTRAP_SEED = 7
 
 
 # ----------------------------------------------------------------------------- scores
+
+
+def _scored(batch: WindowBatch, values: np.ndarray, columns: Sequence[int] | None) -> np.ndarray:
+    """(W, N - warm, k): the rows of ``values`` (W, N, 18) after the warm start, columns ``columns`` (all when None)."""
+    cols = np.arange(values.shape[2]) if columns is None else np.asarray(columns, dtype=int)
+    return values[:, batch.warm :][:, :, cols]
+
+
+def window_rms(batch: WindowBatch, predicted: np.ndarray, columns: Sequence[int] | None = None) -> np.ndarray:
+    """(W, k) RMS error per window and variable over the scored rows (after the warm start):
+    :func:`~quad_modelling.core.evaluation.metrics.rms` over the samples axis."""
+    return rms(_scored(batch, batch.measured, columns), _scored(batch, predicted, columns), axis=1)
+
+
+def window_tic(batch: WindowBatch, predicted: np.ndarray, columns: Sequence[int] | None = None) -> np.ndarray:
+    """(W, k) Theil inequality coefficient per window and variable over the scored rows:
+    :func:`~quad_modelling.core.evaluation.metrics.tic` over the samples axis."""
+    return tic(_scored(batch, batch.measured, columns), _scored(batch, predicted, columns), axis=1)
 
 
 def normalised_window_gap(batch: WindowBatch, predicted: np.ndarray, cols: np.ndarray, scales: np.ndarray) -> np.ndarray:

@@ -1,7 +1,7 @@
 """Known-answer validation of the gap diagnosis on simulated flights (DESIGN 8, point 4a).
 
 For each catalogue effect the truth simulator can switch on
-(:data:`VALIDATED_EFFECTS`) and each seed:
+(:data:`~quad_modelling.core.effect_names.SWITCHED_EFFECTS`) and each seed:
 
 * the *base* model is the greybox identified (:func:`~quad_modelling.core.diagnosis.base_fit.identify_base`)
   on the training flights flown with every effect off (same seeds, same
@@ -55,18 +55,13 @@ from quad_modelling.core.diagnosis.batch import prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG, diagnose
 from quad_modelling.core.diagnosis.statistics import normalised_window_gap
+from quad_modelling.core.effect_names import SWITCHED_EFFECTS
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.sim.params import SimParams
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import DataError
-
-VALIDATED_EFFECTS: tuple[str, ...] = (
-    "rotor_drag", "battery", "motor_lag", "input_delay", "ground_effect", "gyroscopic", "motor_imbalance",
-)
-"""Catalogue effects the simulator switches (wind is no catalogue effect; thrust nonlinearity and
-trim drift are not switches: T = aΩ² is always on, drift comes with the battery)."""
 
 DEFAULT_PAIRS: tuple[tuple[str, str], ...] = (("rotor_drag", "motor_imbalance"), ("battery", "ground_effect"), ("motor_lag", "rotor_drag"))
 
@@ -161,7 +156,7 @@ def sensor_ceiling(result, outcome, truth_flights: Sequence[FlightLog], vehicle,
 
 def validate(
     vehicle: str = "linkquad",
-    effects: Sequence[str] = VALIDATED_EFFECTS,
+    effects: Sequence[str] = SWITCHED_EFFECTS,
     seeds: Sequence[int] = (0, 1, 2),
     pairs: Sequence[tuple[str, str]] = DEFAULT_PAIRS,
     catalogue: Sequence[Effect] | None = None,

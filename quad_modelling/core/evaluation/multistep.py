@@ -7,7 +7,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.evaluation.metrics import sim_err, vector_error_norm
+from quad_modelling.core.evaluation.metrics import (
+    SIM_ERR_HORIZON,
+    mae_by_horizon,
+    sim_err,
+    vector_error_norm,
+)
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.base import (
     ConstantStatePredictor,
@@ -32,13 +37,18 @@ GROUPS: dict[str, slice] = {
 GROUP_UNITS = {"position": "m", "velocity": "m/s", "orientation": "rad", "angular_velocity": "rad/s"}
 
 
-def multistep_errors(predictor: MultiStepPredictor, segment: FlightLog, max_horizon: int, vehicle: VehicleConfig | None = None, chunk: int = 2048) -> tuple[np.ndarray, int]:
-    """Sum over starts of each group's error norm at h = 1..H: ((4, H) sums, number of starts)."""
+def multistep_mae(predictor: MultiStepPredictor, segment: FlightLog, max_horizon: int, vehicle: VehicleConfig | None = None,
+                  chunk: int = 2048) -> tuple[np.ndarray, int]:
+    """MAE_h of each group over every start of ``segment``: ((4, H) MAE in GROUPS order, number of starts S).
+
+    Every sample s with s + H inside the segment is a start; predictions are made ``chunk`` starts
+    at a time. With no start the MAE is zero and S = 0.
+    """
     measured = measured_variables(segment, vehicle)
     n_starts = len(segment) - max_horizon
-    sums = np.zeros((len(GROUPS), max_horizon))
     if n_starts <= 0:
-        return sums, 0
+        return np.zeros((len(GROUPS), max_horizon)), 0
+    norms = np.empty((n_starts, len(GROUPS), max_horizon))
     steps = np.arange(1, max_horizon + 1)
     for first in range(0, n_starts, chunk):
         starts = np.arange(first, min(first + chunk, n_starts))
@@ -47,17 +57,16 @@ def multistep_errors(predictor: MultiStepPredictor, segment: FlightLog, max_hori
         for g, (group, cols) in enumerate(GROUPS.items()):
             if group == "orientation":
                 err = frames.geodesic_angle(truth[..., cols].reshape(-1, 3), predicted[..., cols].reshape(-1, 3))
-                err = err.reshape(len(starts), max_horizon)
+                norms[starts, g] = err.reshape(len(starts), max_horizon)
             else:
-                err = vector_error_norm(truth[..., cols], predicted[..., cols])
-            sums[g] += err.sum(axis=0)
-    return sums, n_starts
+                norms[starts, g] = vector_error_norm(truth[..., cols], predicted[..., cols])
+    return mae_by_horizon(norms), n_starts
 
 
 def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predictor], vehicle: VehicleConfig, config: EvaluationConfig) -> dict:
     """The IDSIA multi-step table: MAE at ``config.horizons``, SimErr, naive baseline and ratios (SI units)."""
     span = next(s for s in config.spans() if s.name == config.multistep_span)
-    max_h = max(max(config.horizons), 50)
+    max_h = max(max(config.horizons), SIM_ERR_HORIZON)
     naive = ConstantStatePredictor(vehicle, config.trim)
     candidates = [naive] + [m for m in models if isinstance(m, MultiStepPredictor) and m.name != naive.name]
     totals = {m.name: np.zeros((len(GROUPS), max_h)) for m in candidates}
@@ -68,8 +77,8 @@ def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predicto
             continue
         segment = log.slice(start, stop)
         for m in candidates:
-            sums, n = multistep_errors(m, segment, max_h, vehicle)
-            totals[m.name] += sums
+            mae, n = multistep_mae(m, segment, max_h, vehicle)
+            totals[m.name] += mae * n  # pooled over flights: MAE of all starts = sum_f S_f MAE_f / sum_f S_f
         count += n
     if count == 0:
         return {"span": span.name, "starts": 0, "note": f"no {span.name} segment longer than {max_h} samples"}
@@ -79,8 +88,8 @@ def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predicto
     for name, values in mae.items():
         entry = {}
         for g, group in enumerate(GROUPS):
-            model_se = sim_err(values[g, :50])
-            naive_se = sim_err(mae[naive.name][g, :50])
+            model_se = sim_err(values[g])
+            naive_se = sim_err(mae[naive.name][g])
             entry[group] = {
                 "mae": {str(h): float(values[g, h - 1]) for h in config.horizons},
                 "sim_err": model_se,

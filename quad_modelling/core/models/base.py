@@ -1,4 +1,4 @@
-"""The predictor contract every model implements, and the model registry.
+"""The predictor contracts every model implements, and the two baselines (dummy, naive).
 
 A predictor predicts one evaluation window (thesis 2.2, DESIGN 7): it is given
 the whole window as a :class:`~quad_modelling.core.flight_log.FlightLog` and
@@ -19,9 +19,13 @@ trimmed best measurement of the same window; rows ``< warm_samples`` are not
 scored.
 
 Predictors that can also run the IDSIA multi-step protocol implement
-:class:`MultiStepPredictor` as well (absolute values, not trimmed).
+:class:`MultiStepPredictor` as well (absolute values, not trimmed); those that
+can run live implement
+:class:`~quad_modelling.core.models.streaming.StreamingPredictor`.
 
-Specs such as ``greybox`` or ``narx:PATH`` are built by :mod:`quad_modelling.core.models.registry`.
+Baselines, reported next to every model (DESIGN 7): :class:`DummyPredictor`
+(zero, thesis Fig 5.2) and :class:`ConstantStatePredictor` (naive: the last
+measured state held). Specs are built by :mod:`quad_modelling.core.models.registry`.
 """
 
 from __future__ import annotations
@@ -31,7 +35,12 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.preprocess import TrimConfig
+from quad_modelling.core.models.streaming import predict_window_by_stream
+from quad_modelling.core.preprocess import (
+    TrimConfig,
+    measured_variables,
+    trim_prediction,
+)
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
 
@@ -65,7 +74,12 @@ class MultiStepPredictor(Protocol):
 
 
 class DummyPredictor:
-    """Predicts zero for every trimmed variable (thesis Fig 5.2: TIC = 1 always)."""
+    """Predicts zero for every trimmed variable: the baseline always reported (thesis Fig 5.2: TIC = 1 always).
+
+    The one dummy of offline evaluation and of the live evaluator node, which scores it at window
+    close without a predictor node. It has no streaming form: its absolute prediction is the
+    window's trim value, known only once the trim interval has passed.
+    """
 
     name = "dummy"
 
@@ -73,13 +87,30 @@ class DummyPredictor:
         return np.zeros((len(window), len(VARIABLES)))
 
 
-class ConstantStatePredictor:
-    """Holds the last warm-start measurement: the naive baseline.
+class HeldState:
+    """The naive baseline's :class:`~quad_modelling.core.models.streaming.WindowStream`: every sample repeats ``state``."""
 
-    predict_window: the measurement of the warm rows, then the one at row
-    ``warm_samples - 1`` for all later rows (trimmed; the live form
-    :meth:`start_window` gives the same numbers); predict_horizons: the measured
-    state at each start, constant.
+    def __init__(self, state: np.ndarray):
+        self.state = state
+
+    def push(self, command: np.ndarray) -> np.ndarray:
+        return self.state
+
+
+class ConstantStatePredictor:
+    """The naive baseline: holds the last measured state, :math:`\\hat y(s + h) = y_m(s)`.
+
+    The one naive model of every mode:
+
+    * live (:meth:`start_window`, the predictor node's ``naive``): the measurement of the warm
+      rows (absolute), then the last warm row held for every later sample;
+    * offline window (:meth:`predict_window`): the same calls through
+      :func:`~quad_modelling.core.models.streaming.predict_window_by_stream`, trimmed, so offline
+      and live give the same numbers;
+    * multi-step (:meth:`predict_horizons`, the reference of the IDSIA ratios): the measured state
+      at each start, held for every horizon.
+
+    The measurement is :func:`~quad_modelling.core.preprocess.measured_variables` with the vehicle's config.
     """
 
     name = "naive"
@@ -88,24 +119,14 @@ class ConstantStatePredictor:
         self.vehicle = vehicle
         self.trim = trim or TrimConfig()
 
-    def start_window(self, warm: FlightLog):
-        """Live form: the warm measurement, then its last row held (absolute)."""
-        from quad_modelling.core.models.streaming import HoldLastMeasurement
-        from quad_modelling.core.preprocess import measured_variables
-
-        return HoldLastMeasurement(lambda log: measured_variables(log, self.vehicle)).start_window(warm)
+    def start_window(self, warm: FlightLog) -> tuple[np.ndarray, HeldState]:
+        """Live form: (the warm rows' measurement (W, 18), a stream holding its last row), absolute."""
+        measured = measured_variables(warm, self.vehicle)
+        return measured, HeldState(measured[-1].copy())
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        from quad_modelling.core.models.streaming import predict_window_by_stream
-        from quad_modelling.core.preprocess import trim_prediction
-
         return trim_prediction(window, predict_window_by_stream(self, window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
-        from quad_modelling.core.preprocess import measured_variables
-
         measured = measured_variables(segment, self.vehicle)
         return np.repeat(measured[np.asarray(starts)][:, None, :], horizon + 1, axis=1)
-
-
-

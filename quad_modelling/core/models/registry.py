@@ -5,10 +5,10 @@ Built-in specs (a factory receives the text after the first ``:``, or ``""``, an
 =================  ==========================================================
 ``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.models.greybox`
 ``greybox:euler``  same with the thesis's explicit-Euler discretisation
-``dummy``          predicts zero for every variable (thesis Fig 5.2)
-``naive``          holds the last warm-start measurement constant
 ``narx:PATH``      thesis NARX nets from a model file, :mod:`quad_modelling.core.models.narx`
 ``hybrid:PATH``    greybox + NARX residual nets, :mod:`quad_modelling.core.models.hybrid`
+``dummy``          :class:`~quad_modelling.core.models.base.DummyPredictor`, zero (thesis Fig 5.2)
+``naive``          :class:`~quad_modelling.core.models.base.ConstantStatePredictor`, the last warm-start state held
 =================  ==========================================================
 
 The learned models are imported on first use (torch is imported only to train).

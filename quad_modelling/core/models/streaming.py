@@ -66,30 +66,6 @@ def predict_window_by_stream(predictor: StreamingPredictor, window: FlightLog, w
     return predictions
 
 
-class _HoldStream:
-    def __init__(self, state: np.ndarray):
-        self.state = state
-
-    def push(self, command: np.ndarray) -> np.ndarray:
-        return self.state
-
-
-class HoldLastMeasurement:
-    """Streaming naive baseline: every later sample repeats the last warm measurement.
-
-    ``measure``: a function FlightLog -> (N, 18) best measurement (preprocess.measured_variables).
-    """
-
-    name = "naive"
-
-    def __init__(self, measure):
-        self.measure = measure
-
-    def start_window(self, warm: FlightLog) -> tuple[np.ndarray, WindowStream]:
-        measured = self.measure(warm)
-        return measured, _HoldStream(measured[-1].copy())
-
-
 class RecordedPrediction:
     """A Predictor over absolute predictions already computed (e.g. received over ROS).
 

@@ -28,7 +28,7 @@ with the rotor angular momentum :math:`h_r = (0, 0, -I_p \\sum_i s_i \\Omega_i)`
     \\dot p_N = v_N, \\quad m \\dot v_N = R F_B + m g e_z + F_{wind} + F_{ground}, \\quad
     \\dot q = \\tfrac12 q \\otimes (0, \\omega), \\quad I \\dot\\omega = \\tau_B + \\tau_{ground}
 
-Effects (names of :data:`quad_modelling.core.sim.params.SIM_EFFECTS`):
+Effects (names of :data:`quad_modelling.core.effect_names.SIM_EFFECTS`):
 
 * ``motor_lag``: :math:`\\dot\\Omega_i = (\\Omega_{c,i} - \\Omega_i)/\\tau_m`, :math:`\\tau_m = -1/A_m`;
   off: Ω_i = Ω_c,i at once (the simulator then applies the rotor reaction
@@ -58,7 +58,8 @@ import math
 
 import numpy as np
 
-from quad_modelling.core.sim.params import SimParams, normalise_effects
+from quad_modelling.core.effect_names import SIMULATOR, normalise_effect_names
+from quad_modelling.core.sim.params import SimParams
 from quad_modelling.core.vehicle import GRAVITY
 
 STATE_NAMES = (
@@ -78,7 +79,7 @@ class QuadDynamics:
 
     def __init__(self, params: SimParams, effects=()):
         self.params = params
-        self.effects = normalise_effects(effects)
+        self.effects = normalise_effect_names(effects, SIMULATOR)
         vehicle = params.vehicle
         self.mass = vehicle.mass
         self.inertia = vehicle.inertia

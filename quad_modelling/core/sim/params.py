@@ -1,4 +1,4 @@
-"""Truth-simulator parameters: the effect catalogue and every simulator-only constant.
+"""Truth-simulator parameters: every simulator-only constant (the effect names: :mod:`quad_modelling.core.effect_names`).
 
 The simulator (:mod:`quad_modelling.core.sim.simulate`) flies a vehicle whose rigid-body,
 rotor and aerodynamic constants come from its vehicle config
@@ -40,46 +40,7 @@ import numpy as np
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import ConfigError
 
-SIM_EFFECTS: tuple[str, ...] = (
-    "rotor_drag",
-    "battery",
-    "motor_lag",
-    "input_delay",
-    "ground_effect",
-    "gyroscopic",
-    "motor_imbalance",
-    "wind",
-)
-"""Switchable physical effects of the truth simulator (DESIGN 6.2 catalogue names)."""
-
-DEFAULT_EFFECTS: tuple[str, ...] = tuple(e for e in SIM_EFFECTS if e != "wind")
-"""A realistic indoor (motion-capture lab) flight: every effect but wind."""
-
 SIMULATED_VEHICLES = ("linkquad", "crazyflie21")
-
-
-def parse_effects(text: str | None) -> tuple[str, ...]:
-    """``'none'`` -> (), ``'all'`` -> SIM_EFFECTS, ``'default'``/None -> DEFAULT_EFFECTS,
-    else a comma list of catalogue names (ConfigError naming any unknown one).
-    The result keeps catalogue order."""
-    if text is None or text.strip() == "default":
-        return DEFAULT_EFFECTS
-    text = text.strip()
-    if text == "none" or text == "":
-        return ()
-    if text == "all":
-        return SIM_EFFECTS
-    return normalise_effects([part.strip() for part in text.split(",") if part.strip()])
-
-
-def normalise_effects(effects) -> tuple[str, ...]:
-    """Validate an iterable of effect names; return them in catalogue order, once each."""
-    chosen = set()
-    for name in effects:
-        if name not in SIM_EFFECTS:
-            raise ConfigError(f"unknown simulator effect {name!r}; known: {', '.join(SIM_EFFECTS)} (or none, all, default)")
-        chosen.add(name)
-    return tuple(e for e in SIM_EFFECTS if e in chosen)
 
 
 @dataclass(frozen=True)
@@ -465,11 +426,4 @@ def sim_params_for(vehicle: str | VehicleConfig) -> SimParams:
     return builder(config)
 
 
-__all__ = [
-    "SIM_EFFECTS",
-    "DEFAULT_EFFECTS",
-    "SimParams",
-    "parse_effects",
-    "normalise_effects",
-    "sim_params_for",
-]
+__all__ = ["SimParams", "sim_params_for"]

@@ -48,17 +48,20 @@ import numpy as np
 from tqdm import tqdm
 
 from quad_modelling.core import frames
+from quad_modelling.core.effect_names import (
+    SIM_DEFAULT_EFFECTS,
+    SIM_EFFECTS,
+    SIMULATOR,
+    normalise_effect_names,
+)
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.sim import sensors as sim_sensors
 from quad_modelling.core.sim.control import Stabiliser
 from quad_modelling.core.sim.dynamics import N_STATE, QuadDynamics
 from quad_modelling.core.sim.params import (
-    DEFAULT_EFFECTS,
     OCV_CELL,
     OCV_SOC,
-    SIM_EFFECTS,
     SimParams,
-    normalise_effects,
     sim_params_for,
 )
 from quad_modelling.core.sim.pilot import (
@@ -74,7 +77,7 @@ from quad_modelling.errors import ConfigError
 SIM_VERSION = 2
 """Bumped when the simulator's physics or script generator change the logs it writes."""
 
-__all__ = ["SIM_EFFECTS", "DEFAULT_EFFECTS", "SimResult", "simulate", "run_simulation", "open_circuit_voltage"]
+__all__ = ["SimResult", "simulate", "run_simulation", "open_circuit_voltage"]
 
 
 def open_circuit_voltage(soc: float, cells: int) -> float:
@@ -107,7 +110,7 @@ class SimResult:
 
 def simulate(
     vehicle: str | VehicleConfig = "linkquad",
-    effects=DEFAULT_EFFECTS,
+    effects=SIM_DEFAULT_EFFECTS,
     seed: int = 0,
     duration: float = 220.0,
     progress: bool = False,
@@ -119,7 +122,7 @@ def simulate(
 
 def run_simulation(
     vehicle: str | VehicleConfig = "linkquad",
-    effects=DEFAULT_EFFECTS,
+    effects=SIM_DEFAULT_EFFECTS,
     seed: int = 0,
     duration: float = 220.0,
     progress: bool = False,
@@ -132,7 +135,7 @@ def run_simulation(
     a tqdm bar on stderr.
     """
     params = params or sim_params_for(vehicle)
-    effects = normalise_effects(effects)
+    effects = normalise_effect_names(effects, SIMULATOR)
     seed = int(seed)
     if seed < 0:
         raise ConfigError(f"simulation seed must be a non-negative integer, got {seed}")

@@ -1,7 +1,11 @@
 """Evaluation report text: the run-bag summary table and the evaluate console lines from a known results.json."""
 
 from quad_modelling.core.variables import EVAL_VARIABLES
-from quad_modelling.io.reports.evaluation import headline_scores, live_summary_table, windows_text
+from quad_modelling.io.reports.evaluation import (
+    headline_scores,
+    live_summary_table,
+    windows_text,
+)
 
 
 def _results():

@@ -1,0 +1,97 @@
+"""The one list of effect names (DESIGN 6.2), shared by the truth simulator and the gap diagnosis.
+
+The diagnosis catalogue (:data:`quad_modelling.core.diagnosis.catalogue.CATALOGUE`) holds one
+identifiable model form per name of :data:`CATALOGUE_EFFECTS`; the truth simulator
+(:mod:`quad_modelling.core.sim.dynamics`) holds one switch per name of :data:`SIM_EFFECTS`.
+The two sets differ explicitly, never by a second list:
+
+* :data:`IDENTIFIABLE_ONLY` -- catalogue entries with no simulator switch: the simulator's thrust is
+  always :math:`T = a\\Omega^2` (thrust nonlinearity), and its trim drift comes with the battery drain;
+* :data:`DISTURBANCES` -- simulator switches outside the catalogue: ``wind``, which a diagnosis must
+  report as unexplained, not as a catalogue effect (DESIGN 8).
+
+:data:`SWITCHED_EFFECTS` (the catalogue effects the simulator can switch on) is what the known-answer
+validation withholds. :func:`parse_effect_names` is the one grammar of an ``--effects`` option
+(``quad-modelling simulate`` with :data:`SIMULATOR`, ``quad-modelling diagnose`` with :data:`DIAGNOSIS`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from quad_modelling.errors import ConfigError
+
+CATALOGUE_EFFECTS: tuple[str, ...] = (
+    "rotor_drag",
+    "battery",
+    "motor_lag",
+    "input_delay",
+    "ground_effect",
+    "gyroscopic",
+    "thrust_nonlinearity",
+    "motor_imbalance",
+    "trim_drift",
+)
+"""The effect catalogue's names, in catalogue order (the order every parsed list comes back in)."""
+
+IDENTIFIABLE_ONLY: tuple[str, ...] = ("thrust_nonlinearity", "trim_drift")
+"""Catalogue effects the simulator has no switch for (module docstring)."""
+
+DISTURBANCES: tuple[str, ...] = ("wind",)
+"""Simulator switches that are no catalogue effect (module docstring)."""
+
+SWITCHED_EFFECTS: tuple[str, ...] = tuple(name for name in CATALOGUE_EFFECTS if name not in IDENTIFIABLE_ONLY)
+"""Catalogue effects the simulator switches on: the known answers of the diagnosis validation."""
+
+SIM_EFFECTS: tuple[str, ...] = SWITCHED_EFFECTS + DISTURBANCES
+"""Every switch of the truth simulator, in order: the switched catalogue effects, then the disturbances."""
+
+SIM_DEFAULT_EFFECTS: tuple[str, ...] = SWITCHED_EFFECTS
+"""The simulator's default: a realistic indoor (motion-capture lab) flight, every effect but the disturbances."""
+
+
+@dataclass(frozen=True)
+class EffectChoice:
+    """What an ``--effects`` option may name: ``known`` names (in order), the ``default`` set, and the
+    ``kind`` of name an error message speaks of."""
+
+    kind: str
+    known: tuple[str, ...]
+    default: tuple[str, ...]
+    hint: str = ""
+
+
+SIMULATOR = EffectChoice("simulator effect", SIM_EFFECTS, SIM_DEFAULT_EFFECTS)
+"""Effects ``quad-modelling simulate`` (and the simulator) accept; default every effect but wind."""
+
+DIAGNOSIS = EffectChoice("catalogue effect", CATALOGUE_EFFECTS, CATALOGUE_EFFECTS,
+                         hint=f"{', '.join(DISTURBANCES)}: a simulator disturbance, not a catalogue effect")
+"""Effects ``quad-modelling diagnose`` can assess; default the whole catalogue."""
+
+
+def normalise_effect_names(names: Iterable[str], choice: EffectChoice) -> tuple[str, ...]:
+    """Validate effect names against ``choice``; return them once each, in ``choice.known`` order.
+
+    ConfigError naming every unknown name and the known ones.
+    """
+    names = [str(name).strip() for name in names]
+    unknown = [name for name in dict.fromkeys(names) if name not in choice.known]
+    if unknown:
+        hint = f"; {choice.hint}" if choice.hint and set(unknown) & set(DISTURBANCES) else ""
+        raise ConfigError(f"unknown {choice.kind} {', '.join(map(repr, unknown))}; known: {', '.join(choice.known)} "
+                          f"(or none, all, default){hint}")
+    return tuple(name for name in choice.known if name in names)
+
+
+def parse_effect_names(text: str | None, choice: EffectChoice) -> tuple[str, ...]:
+    """The ``--effects`` grammar: ``none`` -> (); ``all`` -> ``choice.known``; ``default``, an empty
+    text or None -> ``choice.default``; else a comma list of names (:func:`normalise_effect_names`)."""
+    text = "default" if text is None else text.strip()
+    if text in ("", "default"):
+        return choice.default
+    if text == "none":
+        return ()
+    if text == "all":
+        return choice.known
+    return normalise_effect_names([part for part in text.split(",") if part.strip()], choice)
