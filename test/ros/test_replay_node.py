@@ -12,7 +12,9 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 
-from quad_modelling.io.bag_io import stamps_ns, write_bag
+from quad_modelling.io.bag_io import write_bag
+from quad_modelling.io.topics import stamps_ns
+from quad_modelling.io import topics
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import data_qos, latched_qos
 from test.conftest import synthetic_log
@@ -42,9 +44,9 @@ def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path, e
     assert replay.returncode == 0, out
     expected = stamps_ns(log.t)[50:]  # start_s 0.5 s at 100 Hz
     for key in ("motor", "odom", "imu", "clock"):
-        stamps = [messages.stamp_ns(m.clock if key == "clock" else m.header.stamp) for m in got[key]]
+        stamps = [topics.stamp_ns(m.clock if key == "clock" else m.header.stamp) for m in got[key]]
         assert stamps == expected.tolist(), key
-    assert messages.stamp_ns(got["origin"][0].clock) == expected[0]
+    assert topics.stamp_ns(got["origin"][0].clock) == expected[0]
     odom = got["odom"][10]
     assert (odom.header.frame_id, odom.child_frame_id) == ("world", "base_link")
     # ENU position of row 60 = (east, north, up) of the NED log
