@@ -100,8 +100,8 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
     from rclpy.node import Node
     from sensor_msgs.msg import Imu, JointState
 
-    from quad_modelling.io.topics import stamps_ns
     from quad_modelling.io import topics
+    from quad_modelling.io.topics import stamps_ns
     from quad_modelling.nodes import messages
     from quad_modelling.nodes.common import (
         data_qos,

@@ -15,7 +15,13 @@ from builtin_interfaces.msg import Time
 from rosgraph_msgs.msg import Clock
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.io.topics import NANOSECONDS, WORLD_FRAME, MeasurementMessages, MessageTypes, PredictionMessages
+from quad_modelling.io.topics import (
+    NANOSECONDS,
+    WORLD_FRAME,
+    MeasurementMessages,
+    MessageTypes,
+    PredictionMessages,
+)
 
 
 def rclpy_message_class(name: str) -> type:

@@ -33,14 +33,12 @@ import time
 
 import numpy as np
 import rclpy
-from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import BatteryState, Imu, JointState
 
 from quad_modelling.errors import QuadModellingError
-from quad_modelling.io.bag_io import topics.DEFAULT_NAMESPACE as BAG_NAMESPACE
-from quad_modelling.io.bag_io import read_bag, stamps_ns
+from quad_modelling.io import topics
+from quad_modelling.io.bag_io import read_recorded
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
     BadParameter,

@@ -13,8 +13,8 @@ from rclpy.parameter import Parameter
 from quad_modelling.core.frames import geodesic_angle
 from quad_modelling.core.models.streaming import predict_window_by_stream
 from quad_modelling.core.vehicle import load_vehicle
-from quad_modelling.io.topics import stamps_ns
 from quad_modelling.io import topics
+from quad_modelling.io.topics import stamps_ns
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.model_factory import make_streaming_predictor
 from quad_modelling.nodes.predictor_node import PredictorNode

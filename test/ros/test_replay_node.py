@@ -12,10 +12,9 @@ from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 
+from quad_modelling.io import topics
 from quad_modelling.io.bag_io import write_bag
 from quad_modelling.io.topics import stamps_ns
-from quad_modelling.io import topics
-from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import data_qos, latched_qos
 from test.conftest import synthetic_log
 
