@@ -115,11 +115,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.train or not args.test:
         raise ConfigError("diagnose needs --train FLIGHT... and --test FLIGHT... (or --validate)")
     skipped: list[str] = []
-    train = _load(args.train, args.vehicle, args.skip_bad, skipped)
-    test = _load(args.test, args.vehicle, args.skip_bad, skipped)
+    given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
+    train = _load(args.train, given, args.skip_bad, skipped)
+    test = _load(args.test, given, args.skip_bad, skipped)
     if not train or not test:
         raise ConfigError("no readable flight left in --train or --test")
-    vehicle = load_vehicle(args.vehicle or train[0].meta.vehicle)
+    vehicle = given or load_vehicle(train[0].meta.vehicle)
     say, bar = _progress()
     learnable = (lambda: narx_floor(train, test, vehicle, config)) if args.narx else None
     try:

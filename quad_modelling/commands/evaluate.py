@@ -73,9 +73,10 @@ def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
 def load_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
     """Read every input (one loader for all formats); returns flights, vehicle config and skipped-file messages."""
     flights, skipped = [], []
+    given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     for path in args.inputs:
         try:
-            flights.append(load_flight(path, vehicle=args.vehicle))
+            flights.append(load_flight(path, vehicle=given))
         except QuadModellingError as err:
             if not args.skip_bad:
                 raise
@@ -86,7 +87,7 @@ def load_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConf
     names = sorted({f.meta.vehicle for f in flights})
     if len(names) > 1:
         raise ConfigError(f"the flights are of different vehicles {names}; evaluate one vehicle at a time")
-    vehicle = load_vehicle(args.vehicle or flights[0].meta.vehicle)
+    vehicle = given or load_vehicle(flights[0].meta.vehicle)
     if vehicle.name != names[0]:
         raise ConfigError(f"--vehicle {args.vehicle} describes {vehicle.name!r}, the flights are of {names[0]!r}")
     return flights, vehicle, skipped

@@ -59,3 +59,33 @@ def test_missing_bag_exits_with_code_2_naming_it(tmp_path):
     run = subprocess.run([sys.executable, "-m", "quad_modelling.nodes.replay_node", "--ros-args", "-p", f"bag:={tmp_path}/nope"],
                          capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "nope" in run.stderr and "no such bag" in run.stderr
+
+
+def test_loop_passes_restamp_the_recorded_messages_by_one_bag_length(ros, tmp_path):
+    log = synthetic_log(n=30)
+    bag = write_bag(log, tmp_path / "bag")
+    node = Node("loop_listener", namespace="/quad")
+    got = {"motor": [], "odom": [], "clock": []}
+    node.create_subscription(JointState, "motor_input", lambda m: got["motor"].append(m), data_qos())
+    node.create_subscription(Odometry, "mocap/odom", lambda m: got["odom"].append(m), data_qos())
+    node.create_subscription(Clock, "/clock", lambda m: got["clock"].append(m), data_qos())
+    replay = subprocess.Popen(
+        [sys.executable, "-m", "quad_modelling.nodes.replay_node", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=5.0",
+         "-p", "loop:=true", "-p", "wait_for_subscribers:=1"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while min(map(len, got.values())) < 75 and replay.poll() is None and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+    finally:
+        replay.terminate()
+        replay.communicate(timeout=10)
+    recorded = stamps_ns(log.t)
+    pass_ns = int(recorded[-1] - recorded[0]) + 10_000_000  # one bag length + one 100 Hz period
+    expected = [int(recorded[i % 30]) + (i // 30) * pass_ns for i in range(75)]
+    assert [topics.stamp_ns(m.header.stamp) for m in got["motor"][:75]] == expected
+    assert [topics.stamp_ns(m.header.stamp) for m in got["odom"][:75]] == expected
+    assert [topics.stamp_ns(m.clock) for m in got["clock"][:75]] == expected
+    for i in (0, 31, 64):  # later passes carry the recorded contents unchanged
+        assert topics.odometry_fields(got["odom"][i]) == topics.odometry_fields(got["odom"][i % 30])
+        assert list(got["motor"][i].effort) == log.u[i % 30].tolist()
+    node.destroy_node()
