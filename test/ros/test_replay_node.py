@@ -19,6 +19,20 @@ from quad_modelling.nodes.common import data_qos, latched_qos
 from test.conftest import synthetic_log
 
 
+def drain_received(node, got, quiet_s: float = 1.0) -> None:
+    """Take every message already delivered to ``node``: spin until none arrived for ``quiet_s``.
+
+    spin_once runs one callback; the replay plays the bag in a fraction of a second at
+    rate 20, so on a loaded machine hundreds of messages still wait in the readers when it exits.
+    """
+    quiet_until = time.monotonic() + quiet_s
+    while time.monotonic() < quiet_until:
+        before = sum(map(len, got.values()))
+        rclpy.spin_once(node, timeout_sec=0.05)
+        if sum(map(len, got.values())) > before:
+            quiet_until = time.monotonic() + quiet_s
+
+
 @pytest.mark.parametrize("executor", ["events", "single"])
 def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path, executor):
     log = synthetic_log(n=300)
@@ -37,8 +51,7 @@ def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path, e
     deadline = time.monotonic() + 60
     while replay.poll() is None and time.monotonic() < deadline:
         rclpy.spin_once(node, timeout_sec=0.05)
-    for _ in range(20):
-        rclpy.spin_once(node, timeout_sec=0.02)
+    drain_received(node, got)
     out = replay.communicate(timeout=10)[0]
     assert replay.returncode == 0, out
     expected = stamps_ns(log.t)[50:]  # start_s 0.5 s at 100 Hz
