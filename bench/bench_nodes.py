@@ -100,7 +100,8 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
     from rclpy.node import Node
     from sensor_msgs.msg import Imu, JointState
 
-    from quad_modelling.io.bag_io import stamps_ns
+    from quad_modelling.io import topics
+    from quad_modelling.io.topics import stamps_ns
     from quad_modelling.nodes import messages
     from quad_modelling.nodes.common import (
         data_qos,
@@ -120,7 +121,7 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
                        f"realtime_priority:={realtime}", log=workdir / f"pred_{tag}.log"),
                  start("evaluator_node", f"window_s:={window}", f"models:=[{name}]", log=workdir / f"eval_{tag}.log")]
     log = synthetic_flight(rate, seconds)
-    arrays = messages.MeasurementArrays(log)
+    arrays = messages.measurement_messages(log)
     stamps = (stamps_ns(log.t) + time.time_ns()).tolist()
     use_dds_profile()  # as the nodes do
     rclpy.init()
@@ -133,7 +134,7 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
             node.create_publisher(Imu, "imu", qos))
     sent: dict[int, float] = {}
     received: dict[int, float] = {}
-    node.create_subscription(Odometry, f"{name}/odom", lambda m: received.setdefault(messages.stamp_ns(m.header.stamp), time.perf_counter()), qos)
+    node.create_subscription(Odometry, f"{name}/odom", lambda m: received.setdefault(topics.stamp_ns(m.header.stamp), time.perf_counter()), qos)
     deadline = time.monotonic() + 60
     while (pubs[0].get_subscription_count() < len(procs) or node.count_publishers(f"{name}/odom") < 1) and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)

@@ -100,14 +100,15 @@ def run(args: argparse.Namespace) -> int:
         return _run_validation(args, config, effects, output)
     if not args.train or not args.test:
         raise ConfigError("diagnose needs --train FLIGHT... and --test FLIGHT... (or --validate)")
-    train, skipped_train = load_flights(args.train, args.vehicle, args.skip_bad)
-    test, skipped_test = load_flights(args.test, args.vehicle, args.skip_bad)
+    given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
+    train, skipped_train = load_flights(args.train, given, args.skip_bad)
+    test, skipped_test = load_flights(args.test, given, args.skip_bad)
     skipped = skipped_train + skipped_test
     for message in skipped:
         print(f"skipped: {message}", file=sys.stderr)
     if not train or not test:
         raise ConfigError("no readable flight left in --train or --test")
-    vehicle = load_vehicle(args.vehicle or train[0].meta.vehicle)
+    vehicle = given or load_vehicle(train[0].meta.vehicle)
     say, bar = _progress()
     learnable = (lambda: narx_floor(train, test, vehicle, config)) if args.narx else None
     try:

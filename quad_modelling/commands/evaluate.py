@@ -66,7 +66,8 @@ def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
 
 def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
     """Read every input (one loader for all formats); returns flights, vehicle config and skipped-file messages."""
-    flights, skipped = load_flights(args.inputs, args.vehicle, args.skip_bad)
+    given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
+    flights, skipped = load_flights(args.inputs, given, args.skip_bad)
     for message in skipped:
         print(f"skipped: {message}", file=sys.stderr)
     if not flights:
@@ -74,7 +75,7 @@ def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], 
     names = sorted({f.meta.vehicle for f in flights})
     if len(names) > 1:
         raise ConfigError(f"the flights are of different vehicles {names}; evaluate one vehicle at a time")
-    vehicle = load_vehicle(args.vehicle or flights[0].meta.vehicle)
+    vehicle = given or load_vehicle(flights[0].meta.vehicle)
     if vehicle.name != names[0]:
         raise ConfigError(f"--vehicle {args.vehicle} describes {vehicle.name!r}, the flights are of {names[0]!r}")
     return flights, vehicle, skipped

@@ -155,7 +155,7 @@ def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[st
         "/quad/evaluator": {"ros__parameters": {**common, "models": [m.name for m in models], "spans": spans,
                                                 "output_dir": str(report_dir), "force": True, "figures": not args.no_figures,
                                                 "stale_model_s": REPLAY_PATIENCE_S, "close_grace_s": REPLAY_PATIENCE_S}},
-        "/quad/replay": {"ros__parameters": {"bag": str(Path(args.bag).resolve()), "vehicle": vehicle, "rate": float(args.rate),
+        "/quad/replay": {"ros__parameters": {"bag": str(Path(args.bag).resolve()), "rate": float(args.rate),
                                              "executor": args.executor,
                                              "wait_for_subscribers": len(models) + 1}},
     }
@@ -184,7 +184,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from quad_modelling.core.vehicle import load_vehicle
-    from quad_modelling.io.bag_io import summarize_bag
+    from quad_modelling.io.bag_io import read_bag_metadata
     from quad_modelling.io.reports.evaluation import live_summary_table
     from quad_modelling.nodes.model_factory import make_streaming_predictor
 
@@ -196,8 +196,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--window {args.window} / --warm {args.warm}: need 0 < warm < window")
     models = parse_models(args.models)
     spans = span_list(args)
-    summary = summarize_bag(args.bag)
-    vehicle_name = args.vehicle or summary.custom_data.get("quad_modelling.vehicle")
+    bag = read_bag_metadata(args.bag)  # metadata.yaml only: the replay node reads the messages
+    vehicle_name = args.vehicle or bag.vehicle
     if not vehicle_name:
         raise ConfigError(f"{args.bag}: the bag names no vehicle; pass --vehicle NAME")
     vehicle = load_vehicle(vehicle_name)
@@ -234,7 +234,7 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.monotonic() - started
     results = json.loads((output / "results.json").read_text())
     print(live_summary_table(results, [m.name for m in models]))
-    print(f"\n{summary.duration_s:.1f} s of flight replayed in {elapsed:.1f} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}); "
+    print(f"\n{bag.duration_s:.1f} s of flight replayed in {elapsed:.1f} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}); "
           f"results in {output}/ (results.json, tables.md, logs/)")
     return 0
 

@@ -79,14 +79,15 @@ def run(args: argparse.Namespace) -> int:
     if args.epochs < 0 or args.hidden < 1 or args.delays < 1 or args.input_delays < 1:
         raise ConfigError("--epochs must be >= 0 and --hidden, --delays, --input-delays >= 1")
     config = NarxConfig(hidden=args.hidden, output_delays=args.delays, input_delays=tuple(range(args.input_delays)), epochs=args.epochs)
-    logs = [load_flight(path, args.vehicle) for path in args.flights]
+    given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
+    logs = [load_flight(path, given) for path in args.flights]
     spans = training_spans(logs, args)
     started = time.perf_counter()
     progress = not args.quiet and sys.stderr.isatty()
     if args.hybrid:
         from quad_modelling.core.models.hybrid import train_hybrid_on_flights
 
-        model = train_hybrid_on_flights(logs, spans, load_vehicle(args.vehicle or logs[0].meta.vehicle), config, args.seed, progress)
+        model = train_hybrid_on_flights(logs, spans, given or load_vehicle(logs[0].meta.vehicle), config, args.seed, progress)
         samples = model.residual.training["samples"]
     else:
         model = train_narx_on_flights(logs, spans, config, args.seed, progress)

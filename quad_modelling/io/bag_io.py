@@ -1,24 +1,16 @@
 """MCAP bags (rosbag2 layout) with the topic contract of DESIGN 5a — the only rosbags user.
 
 Written with rosbags' MCAP storage and the ROS 2 Jazzy type store, readable by
-``ros2 bag info``, Foxglove and PlotJuggler. Topics under a namespace
-(default ``/quad``):
+``ros2 bag info``, Foxglove and PlotJuggler. The topics, types, frames and the
+FlightLog <-> message conversion are :mod:`quad_modelling.io.topics` (shared with the
+nodes); this module holds the rosbags calls: the type store's classes
+(:data:`BAG_TYPES`), CDR (de)serialisation, the bag files.
 
-=================  ========================  ===============================================
-topic              type                      content (frames per REP-103/147)
-=================  ========================  ===============================================
-motor_input        sensor_msgs/JointState    names motor_1..4, effort = raw command,
-                                             velocity = rotor speed [rad/s] when known
-mocap/odom         nav_msgs/Odometry         pose in ``world`` (ENU), twist in ``base_link`` (FLU)
-imu                sensor_msgs/Imu           gyro [rad/s] and specific force [m/s²], FLU;
-                                             no orientation (covariance[0] = -1)
-battery            sensor_msgs/BatteryState  voltage [V] (only when the log has it)
-=================  ========================  ===============================================
-
-The flight's metadata (vehicle, source, notes) is kept in the bag's
-``custom_data`` under ``quad_modelling.*`` keys. Reading puts every topic on the
-``motor_input`` time base (linear interpolation when stamps differ; exact when
-they coincide, as in bags written here).
+The flight's metadata (vehicle, source, notes) is kept in the bag's ``custom_data``
+under ``quad_modelling.*`` keys (:func:`read_bag_metadata` reads it without a
+message). :func:`read_bag` puts every topic on the ``motor_input`` time base (linear
+interpolation when stamps differ; exact when they coincide, as in bags written here);
+:func:`read_recorded` gives the serialised messages as recorded (the replay's input).
 """
 
 from __future__ import annotations
@@ -34,69 +26,45 @@ from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.atomic import atomic_output
-from quad_modelling.core import frames
-from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.errors import BagError, DataError
+from quad_modelling.io.topics import (
+    DEFAULT_NAMESPACE,
+    MEASUREMENT_TOPICS,
+    REQUIRED_TOPICS,
+    MeasurementMessages,
+    MessageTypes,
+    cdr_stamp_ns,
+    imu_fields,
+    measurement_log,
+    motor_fields,
+    odometry_fields,
+    stamp_ns,
+    stamps_ns,
+    topic_name,
+)
+
+VEHICLE_KEY = "quad_modelling.vehicle"
+SOURCE_KEY = "quad_modelling.source"
+NOTES_KEY = "quad_modelling.notes"
+"""custom_data keys of the flight's metadata (vehicle config name, source file name, JSON notes)."""
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
-DEFAULT_NAMESPACE = "/quad"
-WORLD_FRAME = "world"
-BODY_FRAME = "base_link"
-MOTOR_NAMES = ("motor_1", "motor_2", "motor_3", "motor_4")
-
-TOPIC_TYPES = {
-    "motor_input": "sensor_msgs/msg/JointState",
-    "mocap/odom": "nav_msgs/msg/Odometry",
-    "imu": "sensor_msgs/msg/Imu",
-    "battery": "sensor_msgs/msg/BatteryState",
-}
-REQUIRED_TOPICS = ("motor_input", "mocap/odom", "imu")
-
-_T = TYPESTORE.types
-Header, Time = _T["std_msgs/msg/Header"], _T["builtin_interfaces/msg/Time"]
-JointState, Odometry, Imu, BatteryState = (_T[TOPIC_TYPES[k]] for k in ("motor_input", "mocap/odom", "imu", "battery"))
-Point, Quaternion, Vector3 = _T["geometry_msgs/msg/Point"], _T["geometry_msgs/msg/Quaternion"], _T["geometry_msgs/msg/Vector3"]
-Pose, PoseWithCovariance = _T["geometry_msgs/msg/Pose"], _T["geometry_msgs/msg/PoseWithCovariance"]
-Twist, TwistWithCovariance = _T["geometry_msgs/msg/Twist"], _T["geometry_msgs/msg/TwistWithCovariance"]
-
-UNKNOWN_ANGULAR_TWIST = np.zeros(36)
-UNKNOWN_ANGULAR_TWIST[[21, 28, 35]] = -1.0
-"""Odometry twist covariance marking the angular twist as not measured (mocap gives none)."""
-
-NO_ORIENTATION = np.array([-1.0, 0, 0, 0, 0, 0, 0, 0, 0])
-"""Imu orientation_covariance meaning 'no orientation estimate' (sensor_msgs/Imu doc)."""
-
-
-def topic_name(namespace: str, relative: str) -> str:
-    """``/quad`` + ``imu`` -> ``/quad/imu``."""
-    return f"{namespace.rstrip('/')}/{relative}"
-
-
-def stamps_ns(t: np.ndarray) -> np.ndarray:
-    """Sample times [s] -> integer nanoseconds (rounded)."""
-    return np.round(np.asarray(t, dtype=np.float64) * 1e9).astype(np.int64)
-
-
-def _header(ns: int, frame: str):
-    return Header(stamp=Time(sec=int(ns // 1_000_000_000), nanosec=int(ns % 1_000_000_000)), frame_id=frame)
-
-
-def _vec(v) -> object:
-    return Vector3(x=float(v[0]), y=float(v[1]), z=float(v[2]))
+BAG_TYPES = MessageTypes.from_lookup(TYPESTORE.types.__getitem__)
+"""The contract's message classes in rosbags' Jazzy type store (keyword construction, attribute access)."""
 
 
 def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: str = DEFAULT_NAMESPACE, progress=None) -> Path:
     """Write ``log`` as an MCAP bag directory at ``path``, atomically.
 
+    Every topic's message of sample i is stamped (header and bag time) ``stamps_ns(log.t)[i]``.
     ``progress``: optional callable(n_samples_done) for a progress bar.
     """
     path = Path(path)
     stamps = stamps_ns(log.t)
     if np.any(np.diff(stamps) <= 0):
         raise DataError(f"{log.meta.source}: sample times collapse at nanosecond resolution")
-    position_enu, quat, twist_flu = frames.to_odometry(log.pos_n, log.vel_n, log.euler)
-    acc_flu = frames.frd_to_flu(log.acc_b)
-    gyro_flu = frames.frd_to_flu(log.gyro_b)
+    measurements = MeasurementMessages(log, BAG_TYPES)
     serialize = TYPESTORE.serialize_cdr
     with atomic_output(path, force) as tmp:
         writer = Writer(tmp, version=9, storage_plugin=StoragePlugin.MCAP)
@@ -104,69 +72,21 @@ def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: 
             writer.open()
             connections = {
                 key: writer.add_connection(topic_name(namespace, key), msgtype, typestore=TYPESTORE)
-                for key, msgtype in TOPIC_TYPES.items()
+                for key, msgtype in MEASUREMENT_TOPICS.items()
                 if key != "battery" or log.vbat is not None
             }
-            writer.set_custom_data("quad_modelling.vehicle", log.meta.vehicle)
-            writer.set_custom_data("quad_modelling.source", Path(log.meta.source).name)
-            writer.set_custom_data("quad_modelling.notes", json.dumps(log.meta.notes))
-            empty = np.zeros(0)
+            writer.set_custom_data(VEHICLE_KEY, log.meta.vehicle)
+            writer.set_custom_data(SOURCE_KEY, Path(log.meta.source).name)
+            writer.set_custom_data(NOTES_KEY, json.dumps(log.meta.notes))
             for i, ns in enumerate(stamps.tolist()):
-                motor = JointState(
-                    header=_header(ns, BODY_FRAME),
-                    name=list(MOTOR_NAMES),
-                    position=empty,
-                    velocity=log.omega[i] if log.omega is not None else empty,
-                    effort=log.u[i],
-                )
-                writer.write(connections["motor_input"], ns, serialize(motor, JointState.__msgtype__))
-                odom = Odometry(
-                    header=_header(ns, WORLD_FRAME),
-                    child_frame_id=BODY_FRAME,
-                    pose=PoseWithCovariance(
-                        pose=Pose(
-                            position=Point(x=float(position_enu[i, 0]), y=float(position_enu[i, 1]), z=float(position_enu[i, 2])),
-                            orientation=Quaternion(x=float(quat[i, 0]), y=float(quat[i, 1]), z=float(quat[i, 2]), w=float(quat[i, 3])),
-                        ),
-                        covariance=np.zeros(36),
-                    ),
-                    twist=TwistWithCovariance(
-                        twist=Twist(linear=_vec(twist_flu[i]), angular=Vector3(x=0.0, y=0.0, z=0.0)),
-                        covariance=UNKNOWN_ANGULAR_TWIST,
-                    ),
-                )
-                writer.write(connections["mocap/odom"], ns, serialize(odom, Odometry.__msgtype__))
-                imu = Imu(
-                    header=_header(ns, BODY_FRAME),
-                    orientation=Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
-                    orientation_covariance=NO_ORIENTATION,
-                    angular_velocity=_vec(gyro_flu[i]),
-                    angular_velocity_covariance=np.zeros(9),
-                    linear_acceleration=_vec(acc_flu[i]),
-                    linear_acceleration_covariance=np.zeros(9),
-                )
-                writer.write(connections["imu"], ns, serialize(imu, Imu.__msgtype__))
-                if log.vbat is not None:
-                    writer.write(connections["battery"], ns, serialize(_battery(ns, float(log.vbat[i])), BatteryState.__msgtype__))
+                for key, msg in measurements.row(i, ns).items():
+                    writer.write(connections[key], ns, serialize(msg, MEASUREMENT_TOPICS[key]))
                 if progress is not None and i % 1000 == 999:
                     progress(1000)
             writer.close()
         except WriterError as err:
             raise BagError(f"{path}: cannot write bag: {err}") from err
     return path
-
-
-def _battery(ns: int, voltage: float):
-    nan = float("nan")  # sensor_msgs/BatteryState: unmeasured fields are NaN
-    return BatteryState(
-        header=_header(ns, BODY_FRAME), voltage=voltage, temperature=nan, current=nan, charge=nan,
-        capacity=nan, design_capacity=nan, percentage=nan,
-        power_supply_status=BatteryState.POWER_SUPPLY_STATUS_DISCHARGING,
-        power_supply_health=BatteryState.POWER_SUPPLY_HEALTH_UNKNOWN,
-        power_supply_technology=BatteryState.POWER_SUPPLY_TECHNOLOGY_UNKNOWN,
-        present=True, cell_voltage=np.zeros(0, dtype=np.float32), cell_temperature=np.zeros(0, dtype=np.float32),
-        location="", serial_number="",
-    )
 
 
 @dataclass(frozen=True)
@@ -246,6 +166,88 @@ def _custom_data(path: Path) -> dict:
         return {}
 
 
+@dataclass(frozen=True)
+class BagMetadata:
+    """What a bag's ``metadata.yaml`` says, read without touching a message."""
+
+    path: str
+    vehicle: str | None
+    """The vehicle config name recorded at conversion (custom_data ``quad_modelling.vehicle``)."""
+    source: str | None
+    duration_s: float
+    """Time from the first to the last message (bag receive times) [s]."""
+    message_count: int
+
+
+def read_bag_metadata(path: str | Path) -> BagMetadata:
+    """The bag's recorded vehicle and source, duration and message count from ``metadata.yaml`` only.
+
+    Raises BagError for a path that is not a readable rosbag2 bag.
+    """
+    path = Path(path)
+    reader = _open_reader(path)
+    try:
+        span_ns = max(reader.end_time - 1 - reader.start_time, 0) if reader.message_count else 0  # end_time is after the last message
+        count = reader.message_count
+    finally:
+        reader.close()
+    custom = _custom_data(path)
+    return BagMetadata(str(path), custom.get(VEHICLE_KEY) or None, custom.get(SOURCE_KEY) or None, span_ns / 1e9, count)
+
+
+def _contract_connections(reader: Reader, path: Path, namespace: str) -> dict:
+    """The bag's contract connections by relative topic; BagError for a missing required topic or a wrong type."""
+    wanted = {topic_name(namespace, key): key for key in MEASUREMENT_TOPICS}
+    present = {c.topic for c in reader.connections}
+    missing = [topic_name(namespace, k) for k in REQUIRED_TOPICS if topic_name(namespace, k) not in present]
+    if missing:
+        raise BagError(f"{path}: missing required topic(s) {missing}; found: {sorted(present)}")
+    connections = {}
+    for c in reader.connections:
+        key = wanted.get(c.topic)
+        if key and c.msgtype != MEASUREMENT_TOPICS[key]:
+            raise BagError(f"{path}: topic {c.topic} has type {c.msgtype}, expected {MEASUREMENT_TOPICS[key]}")
+        if key:
+            connections.setdefault(key, []).append(c)
+    return connections
+
+
+@dataclass(frozen=True)
+class RecordedMessage:
+    """One contract message as recorded: relative topic, header stamp [ns], CDR bytes."""
+
+    topic: str
+    stamp_ns: int
+    raw: bytes
+
+
+def read_recorded(path: str | Path, namespace: str = DEFAULT_NAMESPACE) -> list[RecordedMessage]:
+    """Every contract-topic message of a bag, serialised as recorded, in header-stamp order.
+
+    Messages of one stamp keep the order of :data:`~quad_modelling.io.topics.MEASUREMENT_TOPICS`
+    (motor_input, mocap/odom, imu, battery), the order ``replay`` publishes a sample in.
+    Nothing is deserialised: the stamp is read from the CDR header
+    (:func:`~quad_modelling.io.topics.cdr_stamp_ns`). Raises BagError for an
+    unreadable bag, a missing required topic, a wrong type or a message without a header.
+    """
+    path = Path(path)
+    reader = _open_reader(path)
+    try:
+        by_topic = _contract_connections(reader, path, namespace)
+        key_of = {c.id: key for key, connections in by_topic.items() for c in connections}
+        rank = {key: i for i, key in enumerate(MEASUREMENT_TOPICS)}
+        recorded = []
+        for connection, _, raw in reader.messages(connections=[c for cs in by_topic.values() for c in cs]):
+            key = key_of[connection.id]
+            recorded.append(RecordedMessage(key, cdr_stamp_ns(raw), bytes(raw)))
+    except (ReaderError, OSError, ValueError, KeyError, EOFError) as err:
+        raise BagError(f"{path}: corrupt or truncated bag ({type(err).__name__}: {err})") from err
+    finally:
+        reader.close()
+    recorded.sort(key=lambda m: (m.stamp_ns, rank[m.topic]))
+    return recorded
+
+
 def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFAULT_NAMESPACE) -> FlightLog:
     """Read a contract bag into a FlightLog on the ``motor_input`` time base.
 
@@ -256,34 +258,24 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
     path = Path(path)
     reader = _open_reader(path)
     try:
-        wanted = {topic_name(namespace, key): key for key in TOPIC_TYPES}
-        present = {c.topic for c in reader.connections}
-        missing = [topic_name(namespace, k) for k in REQUIRED_TOPICS if topic_name(namespace, k) not in present]
-        if missing:
-            raise BagError(f"{path}: missing required topic(s) {missing}; found: {sorted(present)}")
-        for c in reader.connections:
-            key = wanted.get(c.topic)
-            if key and c.msgtype != TOPIC_TYPES[key]:
-                raise BagError(f"{path}: topic {c.topic} has type {c.msgtype}, expected {TOPIC_TYPES[key]}")
-        columns: dict[str, list] = {key: [] for key in TOPIC_TYPES}
-        stamps: dict[str, list] = {key: [] for key in TOPIC_TYPES}
-        connections = [c for c in reader.connections if c.topic in wanted]
+        by_topic = _contract_connections(reader, path, namespace)
+        key_of = {c.id: key for key, connections in by_topic.items() for c in connections}
+        columns: dict[str, list] = {key: [] for key in MEASUREMENT_TOPICS}
+        stamps: dict[str, list] = {key: [] for key in MEASUREMENT_TOPICS}
         deserialize = TYPESTORE.deserialize_cdr
-        for connection, _, raw in reader.messages(connections=connections):
-            key = wanted[connection.topic]
+        for connection, _, raw in reader.messages(connections=[c for cs in by_topic.values() for c in cs]):
+            key = key_of[connection.id]
             msg = deserialize(raw, connection.msgtype)
-            stamps[key].append(msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec)
+            stamps[key].append(stamp_ns(msg.header.stamp))
             if key == "motor_input":
-                if len(msg.effort) != 4:
+                motor = motor_fields(msg)
+                if motor is None:
                     raise DataError(f"{path}: topic {connection.topic} message {len(stamps[key]) - 1} has {len(msg.effort)} efforts, expected 4")
-                velocity = msg.velocity if len(msg.velocity) == 4 else np.full(4, np.nan)
-                columns[key].append(np.concatenate([msg.effort, velocity]))
+                columns[key].append(np.concatenate([motor[0], motor[1] if motor[1] is not None else np.full(4, np.nan)]))
             elif key == "mocap/odom":
-                p, q, v = msg.pose.pose.position, msg.pose.pose.orientation, msg.twist.twist.linear
-                columns[key].append((p.x, p.y, p.z, q.x, q.y, q.z, q.w, v.x, v.y, v.z))
+                columns[key].append(odometry_fields(msg))
             elif key == "imu":
-                a, w = msg.linear_acceleration, msg.angular_velocity
-                columns[key].append((a.x, a.y, a.z, w.x, w.y, w.z))
+                columns[key].append(imu_fields(msg))
             else:
                 columns[key].append((msg.voltage,))
     except (ReaderError, OSError, ValueError, KeyError, EOFError, AssertionError, IndexError) as err:
@@ -296,7 +288,7 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
 def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehicle: str | None) -> FlightLog:
     arrays = {}
     times = {}
-    for key in TOPIC_TYPES:
+    for key in MEASUREMENT_TOPICS:
         if not columns[key]:
             if key in REQUIRED_TOPICS:
                 raise BagError(f"{path}: topic {topic_name(namespace, key)} has no messages")
@@ -313,7 +305,6 @@ def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehi
             k = int(np.argmax(bad.any(axis=1)))
             raise DataError(f"{path}: topic {topic_name(namespace, key)} message {k} holds a non-finite value")
     t_ns = times["motor_input"]
-    t = t_ns / 1e9
 
     def on_motor_time(key: str) -> np.ndarray:
         data, when = arrays[key], times[key]
@@ -321,25 +312,14 @@ def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehi
             return data
         return np.column_stack([np.interp(t_ns, when, column) for column in data.T])
 
-    mocap = on_motor_time("mocap/odom")
-    imu = on_motor_time("imu")
-    pos_n, vel_n, euler = frames.from_odometry(mocap[:, 0:3], mocap[:, 3:7], mocap[:, 7:10])
-    euler[:, 2] = np.unwrap(euler[:, 2])
     omega = arrays["motor_input"][:, 4:8]
     custom = _custom_data(path)
-    notes = json.loads(custom.get("quad_modelling.notes", "{}") or "{}")
-    vehicle_name = vehicle or custom.get("quad_modelling.vehicle")
+    vehicle_name = vehicle or custom.get(VEHICLE_KEY)
     if not vehicle_name:
-        raise DataError(f"{path}: the bag names no vehicle (custom_data quad_modelling.vehicle); pass --vehicle NAME")
-    return FlightLog(
-        t=t,
-        u=arrays["motor_input"][:, :4],
-        acc_b=frames.flu_to_frd(imu[:, 0:3]),
-        gyro_b=frames.flu_to_frd(imu[:, 3:6]),
-        pos_n=pos_n,
-        vel_n=vel_n,
-        euler=euler,
-        vbat=on_motor_time("battery")[:, 0] if "battery" in arrays else None,
+        raise DataError(f"{path}: the bag names no vehicle (custom_data {VEHICLE_KEY}); pass --vehicle NAME")
+    return measurement_log(
+        t_ns, arrays["motor_input"][:, :4], on_motor_time("mocap/odom"), on_motor_time("imu"), vehicle_name, str(path),
         omega=omega if np.isfinite(omega).all() else None,
-        meta=FlightMeta(vehicle=vehicle_name, source=str(path), notes=notes),
+        vbat=on_motor_time("battery")[:, 0] if "battery" in arrays else None,
+        notes=json.loads(custom.get(NOTES_KEY, "{}") or "{}"),
     )

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import DataError, QuadModellingError
 
 FORMATS = ("thesis-mat", "nanobench", "bag")
@@ -25,11 +26,14 @@ def detect_format(path: str | Path) -> str:
     raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz or a bag directory)")
 
 
-def load_flight(path: str | Path, vehicle: str | None = None, fmt: str = "auto", mapping_file: str | Path | None = None) -> FlightLog:
+def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fmt: str = "auto",
+                mapping_file: str | Path | None = None) -> FlightLog:
     """Read a thesis .mat log, a NanoBench CSV or a contract MCAP bag into a FlightLog.
 
-    ``vehicle``: config name or YAML path (required for .mat files that do not
-    name one; NanoBench defaults to crazyflie21). The returned log's
+    ``vehicle``: config name, YAML path or a loaded config (required for .mat files
+    that do not name one; NanoBench defaults to crazyflie21). The vehicle config is
+    loaded once per call, not at all when ``vehicle`` is a loaded config (a command
+    reading many flights of one ``--vehicle`` loads it once). The returned log's
     ``meta.vehicle`` is the config's name. ``mapping_file``: YAML
     variable mapping for foreign .mat logs (see :mod:`quad_modelling.io.matlog`).
     """
@@ -39,22 +43,23 @@ def load_flight(path: str | Path, vehicle: str | None = None, fmt: str = "auto",
         raise DataError(f"{path}: unknown format {fmt!r}; known: {', '.join(FORMATS)}")
     if not path.exists():
         raise DataError(f"{path}: no such file or directory")
+    config = vehicle if isinstance(vehicle, VehicleConfig) else None
+    name = config.name if config is not None else vehicle
     if fmt == "thesis-mat":
         from quad_modelling.io.matlog import load_mapping, read_matlog
 
         mapping = load_mapping(mapping_file) if mapping_file else None
-        log = read_matlog(path, vehicle=vehicle, mapping=mapping)
+        log = read_matlog(path, vehicle=name, mapping=mapping)
     elif fmt == "nanobench":
         from quad_modelling.io.nanobench import read_nanobench
 
-        log = read_nanobench(path, vehicle=vehicle or "crazyflie21")
+        config = config or load_vehicle(name or "crazyflie21")
+        log = read_nanobench(path, vehicle=config)
     else:
         from quad_modelling.io.bag_io import read_bag
 
-        log = read_bag(path if path.is_dir() else path.parent, vehicle=vehicle)
-    from quad_modelling.core.vehicle import load_vehicle
-
-    config = load_vehicle(log.meta.vehicle)
+        log = read_bag(path if path.is_dir() else path.parent, vehicle=name)
+    config = config or load_vehicle(log.meta.vehicle)
     if fmt != "nanobench":
         log.check_input_range(config.input_min, config.input_max, config.input_unit)
     # The log names its airframe (config name), not the file its constants came from:
@@ -63,15 +68,18 @@ def load_flight(path: str | Path, vehicle: str | None = None, fmt: str = "auto",
     return log
 
 
-def load_flights(paths, vehicle: str | None = None, skip_bad: bool = False) -> tuple[list[FlightLog], list[str]]:
+def load_flights(paths, vehicle: str | VehicleConfig | None = None, skip_bad: bool = False) -> tuple[list[FlightLog], list[str]]:
     """Read every path with :func:`load_flight`; returns the flights and the messages of the files left out.
+
+    A ``vehicle`` given by name or file is loaded once for all the flights.
 
     A file that cannot be read raises its :class:`~quad_modelling.errors.QuadModellingError`, or, with
     ``skip_bad``, is left out and its message returned (the ``--skip-bad`` of the commands)."""
+    given = load_vehicle(vehicle) if vehicle is not None and not isinstance(vehicle, VehicleConfig) else vehicle
     flights, skipped = [], []
     for path in paths:
         try:
-            flights.append(load_flight(path, vehicle=vehicle))
+            flights.append(load_flight(path, vehicle=given))
         except QuadModellingError as err:
             if not skip_bad:
                 raise

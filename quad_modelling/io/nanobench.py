@@ -32,7 +32,7 @@ import numpy as np
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta, first_outside
-from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import DataError
 
 POSITION = ("px", "py", "pz")
@@ -57,8 +57,10 @@ def _open_text(path: Path):
     return open(path)
 
 
-def read_nanobench(path: str | Path, vehicle: str = "crazyflie21") -> FlightLog:
+def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21") -> FlightLog:
     """Read one NanoBench CSV flight into a FlightLog (NED/FRD, SI).
+
+    ``vehicle``: config name, YAML path or an already loaded config (not loaded again).
 
     Raises DataError naming the file and the column/row at fault: missing
     columns, unparsable or non-finite values, non-monotonic time, motor values
@@ -111,7 +113,7 @@ def read_nanobench(path: str | Path, vehicle: str = "crazyflie21") -> FlightLog:
             "rad" if deviation[row] < EULER_COLUMN_TOLERANCE
             else f"inconsistent with the quaternion (largest deviation {deviation[row]:.3g} rad at data row {row + 1})"
         )
-    config = load_vehicle(vehicle)
+    config = vehicle if isinstance(vehicle, VehicleConfig) else load_vehicle(vehicle)
     motors = stack(MOTORS)
     found = first_outside(motors, config.input_min, config.input_max)
     if found:

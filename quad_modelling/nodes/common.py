@@ -31,13 +31,6 @@ DEFAULT_QOS_DEPTH = 1000
 EXIT_BAD_PARAMETER = 2
 """Exit code of a node started with an invalid parameter (as the CLI's bad-input code)."""
 
-DEFAULT_NAMESPACE = "/quad"
-"""Namespace of every node unless remapped with ``--ros-args -r __ns:=/other``."""
-
-ORIGIN_TOPIC = "window_origin"
-PROGRESS_TOPIC = "evaluation/progress"
-
-
 def data_qos(depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
     """Reliable, volatile, keep-last ``depth``: measurements, commands, predictions."""
     return QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,

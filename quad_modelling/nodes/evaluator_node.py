@@ -12,7 +12,7 @@ delivered; the replay paces itself on it). Service ``write_results``
 ``output_dir`` now; they are also written at shutdown.
 
 Scoring uses the core code of ``quad-modelling evaluate``: the window's received
-measurements become a FlightLog (:func:`~quad_modelling.nodes.messages.measurement_log`),
+measurements become a FlightLog (:func:`~quad_modelling.io.topics.measurement_log`),
 received absolute predictions are wrapped with
 :class:`~quad_modelling.core.models.streaming.RecordedPrediction` (which trims them as the
 offline predictors do) and scored with
@@ -59,11 +59,9 @@ from quad_modelling.core.windows import (
     warm_samples_for,
 )
 from quad_modelling.errors import QuadModellingError
+from quad_modelling.io import topics
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
-    DEFAULT_NAMESPACE,
-    ORIGIN_TOPIC,
-    PROGRESS_TOPIC,
     BadParameter,
     FaultLog,
     Param,
@@ -142,7 +140,7 @@ class EvaluatorNode(Node):
     """Scores every closed window of every model with core evaluate_window (see module doc)."""
 
     def __init__(self, **kwargs):
-        kwargs.setdefault("namespace", DEFAULT_NAMESPACE)
+        kwargs.setdefault("namespace", topics.DEFAULT_NAMESPACE)
         super().__init__("evaluator", **kwargs)
         p = declare_parameters(self, EVALUATOR_PARAMETERS)
         if p["warm_s"] >= p["window_s"]:
@@ -186,13 +184,13 @@ class EvaluatorNode(Node):
         self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
         self.create_subscription(Odometry, p["odom_topic"], self.on_odom, qos)
         self.create_subscription(Imu, p["imu_topic"], self.on_imu, qos)
-        self.create_subscription(Clock, ORIGIN_TOPIC, self.on_origin, latched_qos())
+        self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
         for model in self.models:
             self.create_subscription(Odometry, f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg), qos)
             self.create_subscription(AccelStamped, f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg), qos)
-        self.origin_pub = self.create_publisher(Clock, ORIGIN_TOPIC, latched_qos())
+        self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
         self.diag_pub = self.create_publisher(DiagnosticArray, "evaluation", data_qos(100))
-        self.progress_pub = self.create_publisher(Clock, PROGRESS_TOPIC, data_qos(10))
+        self.progress_pub = self.create_publisher(Clock, topics.PROGRESS_TOPIC, data_qos(10))
         self.create_service(Trigger, "write_results", self.on_write)
         steady = RosClock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(0.01, self.on_progress_timer, clock=steady)
@@ -202,7 +200,7 @@ class EvaluatorNode(Node):
     # --- inputs -------------------------------------------------------------------------------
 
     def on_origin(self, msg: Clock) -> None:
-        ns = messages.stamp_ns(msg.clock)
+        ns = topics.stamp_ns(msg.clock)
         if self.clock_.origin_ns is None or ns < self.clock_.origin_ns:
             if self.clock_.origin_ns is not None:
                 self.faults.report("origin_changed", f"window origin moved to an earlier t0 ({ns} ns): open windows discarded")
@@ -230,14 +228,14 @@ class EvaluatorNode(Node):
         return window
 
     def _accept(self, stream: str, ns: int, values) -> bool:
-        if not messages.all_finite(values):
+        if not topics.all_finite(values):
             self.faults.report(f"nan_{stream}", f"non-finite {stream} message dropped")
             return False
         return True
 
     def on_motor(self, msg: JointState) -> None:
-        ns = messages.stamp_ns(msg.header.stamp)
-        fields = messages.motor_fields(msg)
+        ns = topics.stamp_ns(msg.header.stamp)
+        fields = topics.motor_fields(msg)
         if fields is None or not self._accept("motor_input", ns, fields[0]):
             return
         last = self.last_ns["motor"]
@@ -276,10 +274,10 @@ class EvaluatorNode(Node):
         self.last_ns[store] = ns if last is None else max(last, ns)
 
     def on_odom(self, msg: Odometry) -> None:
-        self._measurement("mocap_odom", messages.stamp_ns(msg.header.stamp), messages.odometry_fields(msg), "odom")
+        self._measurement("mocap_odom", topics.stamp_ns(msg.header.stamp), topics.odometry_fields(msg), "odom")
 
     def on_imu(self, msg: Imu) -> None:
-        self._measurement("imu", messages.stamp_ns(msg.header.stamp), messages.imu_fields(msg), "imu")
+        self._measurement("imu", topics.stamp_ns(msg.header.stamp), topics.imu_fields(msg), "imu")
 
     def _prediction(self, model: str, ns: int, fields: list, store: str) -> None:
         if not self._accept(f"{model}_prediction", ns, fields):
@@ -301,10 +299,10 @@ class EvaluatorNode(Node):
                 self._try_close()
 
     def on_pred_odom(self, model: str, msg: Odometry) -> None:
-        self._prediction(model, messages.stamp_ns(msg.header.stamp), messages.predicted_odometry_fields(msg), "pred_odom")
+        self._prediction(model, topics.stamp_ns(msg.header.stamp), topics.predicted_odometry_fields(msg), "pred_odom")
 
     def on_pred_accel(self, model: str, msg: AccelStamped) -> None:
-        self._prediction(model, messages.stamp_ns(msg.header.stamp), messages.accel_fields(msg), "pred_accel")
+        self._prediction(model, topics.stamp_ns(msg.header.stamp), topics.accel_fields(msg), "pred_accel")
 
     # --- progress and closing -----------------------------------------------------------------
 
@@ -389,7 +387,7 @@ class EvaluatorNode(Node):
             return marked(f"{reason}{'; ' + extra if extra else ''}")
         omegas = [window.omega[ns] for ns in complete]
         try:
-            log = messages.measurement_log(
+            log = topics.measurement_log(
                 np.array(complete, dtype=np.int64), [window.motor[ns] for ns in complete], [window.odom[ns] for ns in complete],
                 [window.imu[ns] for ns in complete], self.vehicle.name, f"live window {window.index}",
                 omega=np.array(omegas) if all(o is not None for o in omegas) else None,
@@ -405,7 +403,7 @@ class EvaluatorNode(Node):
             if missing:
                 records += marked(f"missing predictions for {len(missing)} of {len(complete)} rows (predictor late, restarted or failed)", [model])
                 continue
-            absolute = messages.predictions_from_fields([odom[ns] for ns in complete], [accel[ns] for ns in complete])
+            absolute = topics.predictions_from_fields([odom[ns] for ns in complete], [accel[ns] for ns in complete])
             try:
                 result = evaluate_window(RecordedPrediction(model, absolute, self.config.trim), log, warm,
                                          self.config.trim, self.vehicle, self.config.smooth_cutoff_hz, measured)

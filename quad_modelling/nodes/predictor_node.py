@@ -52,10 +52,9 @@ from quad_modelling.core.models.streaming import prime
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import WindowClock
 from quad_modelling.errors import QuadModellingError
+from quad_modelling.io import topics
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
-    DEFAULT_NAMESPACE,
-    ORIGIN_TOPIC,
     BadParameter,
     FaultLog,
     Param,
@@ -108,7 +107,7 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
         Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
         Param("battery_topic", "", "battery voltage (sensor_msgs/BatteryState) for models that use it; empty = not subscribed"),
-        Param("world_frame", messages.WORLD_FRAME, "frame_id of the predicted pose", non_empty),
+        Param("world_frame", topics.WORLD_FRAME, "frame_id of the predicted pose", non_empty),
         Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions and publishers", positive),
         executor_param(),
         realtime_param(),
@@ -129,7 +128,7 @@ class PredictorNode(Node):
     """Generic live predictor; the model comes from the ``model`` parameter."""
 
     def __init__(self, node_name: str = "predictor", default_model: str = "naive", **kwargs):
-        kwargs.setdefault("namespace", DEFAULT_NAMESPACE)
+        kwargs.setdefault("namespace", topics.DEFAULT_NAMESPACE)
         super().__init__(node_name, **kwargs)
         p = declare_parameters(self, predictor_parameters(default_model))
         if p["warm_s"] >= p["window_s"]:
@@ -151,16 +150,16 @@ class PredictorNode(Node):
         self.clock_ = WindowClock(p["window_s"], p["warm_s"], p["sample_period_s"])
         self.child_frame = f"{self.name_}/base_link"
         self.world_frame = p["world_frame"]
-        self.out = messages.PredictionMessages(self.child_frame, self.world_frame)
+        self.out = messages.prediction_publisher_messages(self.child_frame, self.world_frame)
         qos = data_qos(p["qos_depth"])
         self.odom_pub = self.create_publisher(Odometry, f"{self.name_}/odom", qos)
         self.accel_pub = self.create_publisher(AccelStamped, f"{self.name_}/accel", qos)
-        self.origin_pub = self.create_publisher(Clock, ORIGIN_TOPIC, latched_qos())
+        self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
         self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
         # measurements arrive serialised and are decoded after the answer to the next command (_decode_pending)
         self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, data), qos, raw=True)
         self.create_subscription(Imu, p["imu_topic"], lambda data: self._receive(self.on_imu, Imu, data), qos, raw=True)
-        self.create_subscription(Clock, ORIGIN_TOPIC, self.on_origin, latched_qos())
+        self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
         self.use_battery = bool(p["battery_topic"])
         if self.use_battery:
             self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
@@ -192,7 +191,7 @@ class PredictorNode(Node):
     # --- inputs -------------------------------------------------------------------------------
 
     def on_origin(self, msg: Clock) -> None:
-        ns = messages.stamp_ns(msg.clock)
+        ns = topics.stamp_ns(msg.clock)
         if self.clock_.origin_ns is None or ns < self.clock_.origin_ns:
             if self.clock_.origin_ns is not None:
                 self.faults.report("origin_changed", f"window origin moved to an earlier t0 ({ns} ns): re-aligning windows")
@@ -229,20 +228,20 @@ class PredictorNode(Node):
             handler(msg)
 
     def on_odom(self, msg: Odometry) -> None:
-        fields = messages.odometry_fields(msg)
-        if not messages.all_finite(fields):
+        fields = topics.odometry_fields(msg)
+        if not topics.all_finite(fields):
             self.faults.report("nan_odom", "non-finite motion-capture message dropped")
             return
-        self._store(self.odom, messages.stamp_ns(msg.header.stamp), fields, "odom")
+        self._store(self.odom, topics.stamp_ns(msg.header.stamp), fields, "odom")
         if self.state == "warm" and self.warm_closed and not self.pending:
             self._maybe_start()
 
     def on_imu(self, msg: Imu) -> None:
-        fields = messages.imu_fields(msg)
-        if not messages.all_finite(fields):
+        fields = topics.imu_fields(msg)
+        if not topics.all_finite(fields):
             self.faults.report("nan_imu", "non-finite IMU message dropped")
             return
-        self._store(self.imu, messages.stamp_ns(msg.header.stamp), fields, "imu")
+        self._store(self.imu, topics.stamp_ns(msg.header.stamp), fields, "imu")
         if self.state == "warm" and self.warm_closed and not self.pending:
             self._maybe_start()
 
@@ -250,11 +249,11 @@ class PredictorNode(Node):
         if not np.isfinite(msg.voltage):
             self.faults.report("nan_battery", "non-finite battery voltage dropped")
             return
-        self._store(self.battery, messages.stamp_ns(msg.header.stamp), float(msg.voltage), "battery")
+        self._store(self.battery, topics.stamp_ns(msg.header.stamp), float(msg.voltage), "battery")
 
     def on_motor(self, msg: JointState) -> None:
-        ns = messages.stamp_ns(msg.header.stamp)
-        fields = messages.motor_fields(msg)
+        ns = topics.stamp_ns(msg.header.stamp)
+        fields = topics.motor_fields(msg)
         if fields is None or not np.isfinite(fields[0]).all():
             self.faults.report("bad_motor", "motor_input without 4 finite efforts dropped")
             return
@@ -333,7 +332,7 @@ class PredictorNode(Node):
         stamps = np.array([row[0] for row in complete], dtype=np.int64)
         omegas = [row[2] for row in complete]
         try:
-            warm = messages.measurement_log(
+            warm = topics.measurement_log(
                 stamps, np.array([row[1] for row in complete]), np.array([self.odom[s] for s in stamps.tolist()]),
                 np.array([self.imu[s] for s in stamps.tolist()]), self.vehicle.name, f"live window {self.window}",
                 omega=np.array(omegas) if all(o is not None for o in omegas) else None,
@@ -368,7 +367,7 @@ class PredictorNode(Node):
             self.faults.report("nan_prediction", f"window {self.window}: model {self.name_} predicted a non-finite value; "
                                                  "window abandoned (nothing non-finite is published)")
             return False
-        odom, accel = messages.prediction_fields(predictions)
+        odom, accel = topics.prediction_fields(predictions)
         if backlog:
             self.backlog.extend(zip(stamps, odom, accel))
             self.timer.reset()

@@ -1,22 +1,29 @@
-"""``replay``: plays an MCAP bag's contract topics with their recorded stamps (DESIGN 5a).
+"""``replay``: plays an MCAP bag's contract topics as recorded (DESIGN 5a).
 
-The bag is read with :func:`quad_modelling.io.bag_io.read_bag` (one FlightLog on the
-``motor_input`` time base; bags written by ``quad-modelling convert`` stamp every
-topic with the same sample times) and published through
-:mod:`quad_modelling.nodes.messages`: per sample ``/clock`` (rosgraph_msgs/Clock),
-``motor_input``, ``mocap/odom``, ``imu`` and ``battery`` when the bag has it, all
-reliable keep-last. Before the first sample it publishes ``window_origin``
-(transient-local) = the first published stamp, so every node cuts the same windows.
+The bag's serialised messages (:func:`quad_modelling.io.bag_io.read_recorded`:
+``motor_input``, ``mocap/odom``, ``imu`` and ``battery`` when the bag has it) are
+published unchanged, as CDR bytes (rclpy ``Publisher.publish(bytes)``), in header-stamp
+order, all reliable keep-last: what a consumer receives is the recorded message, never a
+conversion of it. A ``/clock`` (rosgraph_msgs/Clock) carrying the stamp precedes the
+messages of every new stamp. Before the first message it publishes ``window_origin``
+(transient-local) = the first played ``motor_input`` stamp, so every node cuts the
+same windows (the offline reader's time base is the ``motor_input`` stamps too).
 
 Pacing: ``rate`` > 0 is a real-time factor (1 = as recorded). ``rate`` = 0 plays as
 fast as the graph keeps up without loss: the evaluator acknowledges on
 ``evaluation/progress`` the last stamp every stream has delivered, and the replay
-keeps at most ``max_in_flight`` samples unacknowledged (far below the QoS depth, so
+keeps at most ``max_in_flight`` stamps unacknowledged (far below the QoS depth, so
 no reliable queue overflows). Without an acknowledging node (none within
 ``startup_timeout_s``, or silent for ``pace_timeout_s``) it warns once and plays in
-real time instead. ``loop`` replays forever, shifting stamps by one bag length (+ one
-sample period) per pass so time keeps increasing. The node exits when done, after
-the acknowledgements reached the last sample (or ``pace_timeout_s``).
+real time instead. ``start_s``/``end_s`` select the messages whose stamps lie in
+[t0 + start_s, t0 + end_s), t0 = the bag's first ``motor_input`` stamp.
+
+``loop`` replays forever, shifting stamps by one bag length (+ one ``motor_input``
+period) per pass so time keeps increasing. A shifted pass publishes the recorded bytes
+with only the header stamp rewritten (:func:`quad_modelling.io.topics.cdr_restamped`:
+the 8 stamp bytes after the CDR encapsulation header); the first pass is byte for byte
+the bag. The node exits when done, after the acknowledgements reached the last stamp
+(or ``pace_timeout_s``).
 """
 
 from __future__ import annotations
@@ -26,19 +33,14 @@ import time
 
 import numpy as np
 import rclpy
-from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import BatteryState, Imu, JointState
 
 from quad_modelling.errors import QuadModellingError
-from quad_modelling.io.bag_io import DEFAULT_NAMESPACE as BAG_NAMESPACE
-from quad_modelling.io.bag_io import read_bag, stamps_ns
+from quad_modelling.io import topics
+from quad_modelling.io.bag_io import read_recorded
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
-    DEFAULT_NAMESPACE,
-    ORIGIN_TOPIC,
-    PROGRESS_TOPIC,
     BadParameter,
     FaultLog,
     Param,
@@ -59,8 +61,7 @@ SETTLE_S = 0.5
 
 REPLAY_PARAMETERS = [
     Param("bag", "", "MCAP bag directory to play", non_empty),
-    Param("bag_namespace", BAG_NAMESPACE, "namespace of the contract topics inside the bag", non_empty),
-    Param("vehicle", "", "vehicle config name when the bag names none (empty = the bag's)"),
+    Param("bag_namespace", topics.DEFAULT_NAMESPACE, "namespace of the contract topics inside the bag", non_empty),
     Param("rate", 1.0, "real-time factor; 0 = as fast as the acknowledging evaluator keeps up, without loss", non_negative),
     Param("start_s", 0.0, "start offset into the bag [s]", non_negative),
     Param("end_s", -1.0, "end offset into the bag [s] (exclusive); < 0 = to the end"),
@@ -79,22 +80,30 @@ class ReplayNode(Node):
     """Publishes one bag (see module doc); :meth:`run` plays it and returns when done."""
 
     def __init__(self, **kwargs):
-        kwargs.setdefault("namespace", DEFAULT_NAMESPACE)
+        kwargs.setdefault("namespace", topics.DEFAULT_NAMESPACE)
         super().__init__("replay", **kwargs)
         p = declare_parameters(self, REPLAY_PARAMETERS)
         if p["end_s"] >= 0 and p["end_s"] <= p["start_s"]:
             raise BadParameter(f"replay: parameter end_s={p['end_s']} must be after start_s={p['start_s']} (or < 0 for the end)")
         try:
-            log = read_bag(p["bag"], vehicle=p["vehicle"] or None, namespace=p["bag_namespace"])
+            recorded = read_recorded(p["bag"], namespace=p["bag_namespace"])
         except QuadModellingError as err:
             raise BadParameter(f"replay: parameter bag={p['bag']!r}: {err}") from err
-        offset = log.t - log.t[0]
-        rows = np.flatnonzero((offset >= p["start_s"]) & ((offset < p["end_s"]) if p["end_s"] >= 0 else True))
-        if rows.size < 2:
-            raise BadParameter(f"replay: start_s={p['start_s']} / end_s={p['end_s']} leave {rows.size} samples of a {log.duration:.2f} s bag")
-        self.log = log.slice(int(rows[0]), int(rows[-1]) + 1)
-        self.arrays = messages.MeasurementArrays(self.log)
-        self.stamps = stamps_ns(self.log.t)
+        motor_stamps = np.array([m.stamp_ns for m in recorded if m.topic == "motor_input"], dtype=np.int64)
+        if motor_stamps.size == 0:
+            raise BadParameter(f"replay: parameter bag={p['bag']!r}: topic motor_input has no messages")
+        t0 = int(motor_stamps[0])
+        start_ns = t0 + topics.stamps_ns(p["start_s"]).item()
+        end_ns = t0 + topics.stamps_ns(p["end_s"]).item() if p["end_s"] >= 0 else None
+        played = motor_stamps[(motor_stamps >= start_ns) & ((motor_stamps < end_ns) if end_ns is not None else True)]
+        duration_s = (motor_stamps[-1] - t0) / 1e9
+        if played.size < 2:
+            raise BadParameter(f"replay: start_s={p['start_s']} / end_s={p['end_s']} leave {played.size} samples of a {duration_s:.2f} s bag")
+        self.recorded = [m for m in recorded if m.stamp_ns >= start_ns and (end_ns is None or m.stamp_ns < end_ns)]
+        self.first_ns, self.last_ns = int(played[0]), max(m.stamp_ns for m in self.recorded)
+        self.period_ns = int(np.median(np.diff(played)))
+        self.stamp_count = len({m.stamp_ns for m in self.recorded})
+        present = {m.topic for m in self.recorded}
         self.rate = p["rate"]
         self.loop = p["loop"]
         self.publish_clock = p["publish_clock"]
@@ -106,25 +115,25 @@ class ReplayNode(Node):
         self.executor_ = None  # made in run()
         self.faults = FaultLog(self.get_logger())
         qos = data_qos(p["qos_depth"])
-        self.motor_pub = self.create_publisher(JointState, "motor_input", qos)
-        self.odom_pub = self.create_publisher(Odometry, "mocap/odom", qos)
-        self.imu_pub = self.create_publisher(Imu, "imu", qos)
-        self.battery_pub = self.create_publisher(BatteryState, "battery", qos) if self.log.vbat is not None else None
+        types = {key: messages.rclpy_message_class(msgtype) for key, msgtype in topics.MEASUREMENT_TOPICS.items()}
+        self.publishers_ = {key: self.create_publisher(types[key], key, qos) for key in topics.MEASUREMENT_TOPICS if key in present}
+        self.motor_pub = self.publishers_["motor_input"]
         self.clock_pub = self.create_publisher(Clock, "/clock", qos) if self.publish_clock else None
-        self.origin_pub = self.create_publisher(Clock, ORIGIN_TOPIC, latched_qos())
+        self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
         self.acked_ns: int | None = None
         self.ack_wall = time.monotonic()
-        self.progress_sub = self.create_subscription(Clock, PROGRESS_TOPIC, self.on_progress, data_qos(10))
+        self.progress_sub = self.create_subscription(Clock, topics.PROGRESS_TOPIC, self.on_progress, data_qos(10))
         self.in_flight: collections.deque[int] = collections.deque()
         self.published = 0
         self.last_published_ns: int | None = None
         self.passes = 0
         self.play_started: float | None = None
-        self.get_logger().info(f"replaying {p['bag']}: {len(self.log)} samples, {self.log.duration:.2f} s, "
+        self.get_logger().info(f"replaying {p['bag']}: {len(self.recorded)} messages at {self.stamp_count} stamps, "
+                               f"{(self.last_ns - self.first_ns) / 1e9:.2f} s, "
                                f"rate {'as fast as acknowledged' if self.rate == 0 else f'{self.rate:g}x'}{', looping' if self.loop else ''}")
 
     def on_progress(self, msg: Clock) -> None:
-        ns = messages.stamp_ns(msg.clock)
+        ns = topics.stamp_ns(msg.clock)
         if self.acked_ns is None or ns > self.acked_ns:
             self.acked_ns = ns
             self.ack_wall = time.monotonic()
@@ -153,7 +162,7 @@ class ReplayNode(Node):
             while self.acked_ns is None and time.monotonic() < deadline:
                 self._spin_once(0.05)
             if self.acked_ns is None:
-                self._unpace(f"no acknowledgement on {PROGRESS_TOPIC} within {self.startup_timeout_s:g} s (is an evaluator running?)")
+                self._unpace(f"no acknowledgement on {topics.PROGRESS_TOPIC} within {self.startup_timeout_s:g} s (is an evaluator running?)")
         self._spin_for(SETTLE_S)
 
     def _unpace(self, why: str) -> None:
@@ -165,54 +174,49 @@ class ReplayNode(Node):
         self.executor_ = make_executor(self.executor_kind, self)
         self._wait_startup()
         self.play_started = time.monotonic()
-        period_ns = int(np.median(np.diff(self.stamps)))
         shift = 0
-        self.origin_pub.publish(messages.clock_message(int(self.stamps[0])))
+        self.origin_pub.publish(messages.clock_message(self.first_ns))
         while rclpy.ok(context=self.context):
             self._play_pass(shift)
             self.passes += 1
             if not self.loop:
                 break
-            shift += int(self.stamps[-1] - self.stamps[0]) + period_ns
+            shift += self.last_ns - self.first_ns + self.period_ns
         self._drain()
 
     def _play_pass(self, shift: int) -> None:
-        arrays, stamps = self.arrays, self.stamps
+        """Publish every recorded message once, stamps shifted by ``shift`` [ns] (restamped bytes when > 0)."""
         wall0 = time.monotonic()
-        rate = self.rate
-        t0 = int(stamps[0])
-        for row, ns in enumerate(stamps.tolist()):
-            ns += shift
-            if self.rate == 0:
-                while len(self.in_flight) >= self.max_in_flight:
-                    self._spin_once(0.05)
-                    if not rclpy.ok(context=self.context):
-                        return
-                    if self.progress_sub.get_publisher_count() == 0 or time.monotonic() - self.ack_wall > self.pace_timeout_s:
-                        self._unpace(f"acknowledgements on {PROGRESS_TOPIC} stopped")
-                        wall0 = time.monotonic() - (ns - shift - t0) / 1e9
-                        break
-                self.in_flight.append(ns)
-            else:
-                if rate != self.rate:
-                    rate = self.rate
-                target = wall0 + (ns - shift - t0) / 1e9 / rate
-                left = target - time.monotonic()
-                if left > 0:
-                    self._spin_for(left)
-            if not rclpy.ok(context=self.context):
-                return
-            if self.clock_pub is not None:
-                self.clock_pub.publish(messages.clock_message(ns))
-            self.motor_pub.publish(arrays.motor(row, ns))
-            self.odom_pub.publish(arrays.odometry(row, ns))
-            self.imu_pub.publish(arrays.imu(row, ns))
-            if self.battery_pub is not None:
-                self.battery_pub.publish(arrays.battery(row, ns))
-            self.published += 1
-            self.last_published_ns = ns
-            if self.rate == 0 and row % 8 == 0:
-                self._spin_once(0.0)
+        t0 = self.first_ns
+        previous = None
+        for message in self.recorded:
+            recorded_ns = message.stamp_ns
+            if recorded_ns != previous:  # a new stamp: pace, then /clock
+                previous = recorded_ns
+                ns = recorded_ns + shift
+                if self.rate == 0:
+                    while len(self.in_flight) >= self.max_in_flight:
+                        self._spin_once(0.05)
+                        if not rclpy.ok(context=self.context):
+                            return
+                        if self.progress_sub.get_publisher_count() == 0 or time.monotonic() - self.ack_wall > self.pace_timeout_s:
+                            self._unpace(f"acknowledgements on {topics.PROGRESS_TOPIC} stopped")
+                            wall0 = time.monotonic() - (recorded_ns - t0) / 1e9
+                            break
+                    self.in_flight.append(ns)
+                else:
+                    left = wall0 + (recorded_ns - t0) / 1e9 / self.rate - time.monotonic()
+                    if left > 0:
+                        self._spin_for(left)
+                if not rclpy.ok(context=self.context):
+                    return
+                if self.clock_pub is not None:
+                    self.clock_pub.publish(messages.clock_message(ns))
+                self.published += 1
+                self.last_published_ns = ns
+                if self.rate == 0 and self.published % 8 == 0:
+                    self._spin_once(0.0)
+            self.publishers_[message.topic].publish(message.raw if shift == 0 else topics.cdr_restamped(message.raw, ns))
 
     def _drain(self) -> None:
         """Wait for the acknowledgement of the last sample (when something acknowledges)."""
@@ -227,7 +231,7 @@ class ReplayNode(Node):
 
     def finish(self) -> None:
         took = time.monotonic() - self.play_started if self.play_started else 0.0
-        say(self, f"published {self.published} samples in {self.passes} pass(es) in {took:.2f} s "
+        say(self, f"published {self.published} stamps in {self.passes} pass(es) in {took:.2f} s "
                   f"({self.published / took if took > 0 else 0:.0f} samples/s); faults: {self.faults.summary()}")
 
 

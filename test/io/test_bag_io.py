@@ -5,7 +5,7 @@ from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 
 from quad_modelling.errors import BagError, DataError, OutputExistsError
-from quad_modelling.io import bag_io
+from quad_modelling.io import bag_io, topics
 from quad_modelling.io.bag_io import read_bag, summarize_bag, write_bag
 from quad_modelling.io.matlog import read_matlog, write_matlog
 from quad_modelling.io.nanobench import read_nanobench
@@ -114,30 +114,30 @@ def _write_raw_bag(path, messages_by_topic):
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as writer:
         writer.set_custom_data("quad_modelling.vehicle", "crazyflie21")
         for key, messages in messages_by_topic.items():
-            msgtype = bag_io.TOPIC_TYPES[key]
-            conn = writer.add_connection(bag_io.topic_name("/quad", key), msgtype, typestore=bag_io.TYPESTORE)
+            msgtype = topics.MEASUREMENT_TOPICS[key]
+            conn = writer.add_connection(topics.topic_name("/quad", key), msgtype, typestore=bag_io.TYPESTORE)
             for ns, msg in messages:
                 writer.write(conn, ns, bag_io.TYPESTORE.serialize_cdr(msg, msgtype))
 
 
 def _motor(ns, effort=(1.0, 2.0, 3.0, 4.0)):
-    return bag_io.JointState(header=bag_io._header(ns, "base_link"), name=list(bag_io.MOTOR_NAMES),
+    return bag_io.BAG_TYPES.JointState(header=bag_io.BAG_TYPES.header("base_link", ns), name=list(topics.MOTOR_NAMES),
                              position=np.zeros(0), velocity=np.zeros(0), effort=np.array(effort, dtype=float))
 
 
 def _imu(ns, gyro=(0.0, 0.0, 0.0)):
-    return bag_io.Imu(header=bag_io._header(ns, "base_link"), orientation=bag_io.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
-                      orientation_covariance=bag_io.NO_ORIENTATION, angular_velocity=bag_io._vec(gyro),
-                      angular_velocity_covariance=np.zeros(9), linear_acceleration=bag_io._vec((0.0, 0.0, 9.81)),
+    return bag_io.BAG_TYPES.Imu(header=bag_io.BAG_TYPES.header("base_link", ns), orientation=bag_io.BAG_TYPES.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0),
+                      orientation_covariance=topics.NO_ORIENTATION, angular_velocity=bag_io.BAG_TYPES.vector3(gyro),
+                      angular_velocity_covariance=np.zeros(9), linear_acceleration=bag_io.BAG_TYPES.vector3((0.0, 0.0, 9.81)),
                       linear_acceleration_covariance=np.zeros(9))
 
 
 def _odom(ns):
-    return bag_io.Odometry(
-        header=bag_io._header(ns, "world"), child_frame_id="base_link",
-        pose=bag_io.PoseWithCovariance(pose=bag_io.Pose(position=bag_io.Point(x=0.0, y=0.0, z=1.0),
-                                                        orientation=bag_io.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)), covariance=np.zeros(36)),
-        twist=bag_io.TwistWithCovariance(twist=bag_io.Twist(linear=bag_io._vec((0, 0, 0)), angular=bag_io._vec((0, 0, 0))), covariance=np.zeros(36)))
+    return bag_io.BAG_TYPES.Odometry(
+        header=bag_io.BAG_TYPES.header("world", ns), child_frame_id="base_link",
+        pose=bag_io.BAG_TYPES.PoseWithCovariance(pose=bag_io.BAG_TYPES.Pose(position=bag_io.BAG_TYPES.Point(x=0.0, y=0.0, z=1.0),
+                                                        orientation=bag_io.BAG_TYPES.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)), covariance=np.zeros(36)),
+        twist=bag_io.BAG_TYPES.TwistWithCovariance(twist=bag_io.BAG_TYPES.Twist(linear=bag_io.BAG_TYPES.vector3((0, 0, 0)), angular=bag_io.BAG_TYPES.vector3((0, 0, 0))), covariance=np.zeros(36)))
 
 
 STAMPS = [1_000_000_000 + 10_000_000 * k for k in range(10)]

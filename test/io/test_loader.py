@@ -1,4 +1,5 @@
-"""Reading several flights at once: an unreadable one raises, or with skip_bad is left out and named."""
+"""Reading flights: an unreadable one raises, or with skip_bad is left out and named; the vehicle config is read
+once per flight, and not at all when given a loaded one."""
 
 import pytest
 
@@ -16,3 +17,46 @@ def test_load_flights_skips_and_names_a_bad_file_only_when_asked(tmp_path):
     flights, skipped = load_flights([good, bad], skip_bad=True)
     assert [len(f) for f in flights] == [300] and flights[0].meta.vehicle == "linkquad"
     assert len(skipped) == 1 and "bad.mat" in skipped[0]
+
+
+import argparse
+
+from quad_modelling.commands.evaluate import load_evaluation_flights
+from quad_modelling.core import vehicle as vehicle_module
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.io.loader import load_flight
+from test.conftest import FIXTURES
+
+NANOBENCH = FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz"
+
+
+@pytest.fixture
+def yaml_loads(monkeypatch):
+    """Counts vehicle YAML files read (VehicleConfig.from_yaml calls)."""
+    calls = []
+    original = vehicle_module.VehicleConfig.from_yaml.__func__
+
+    def counting(cls, path):
+        calls.append(str(path))
+        return original(cls, path)
+
+    monkeypatch.setattr(vehicle_module.VehicleConfig, "from_yaml", classmethod(counting))
+    return calls
+
+
+def test_a_nanobench_flight_reads_its_vehicle_once(yaml_loads):
+    log = load_flight(NANOBENCH)
+    assert log.meta.vehicle == "crazyflie21" and len(yaml_loads) == 1  # read_nanobench and load_flight each read it before
+
+
+def test_a_loaded_vehicle_is_not_read_again(yaml_loads):
+    config = load_vehicle("crazyflie21")
+    log = load_flight(NANOBENCH, vehicle=config)
+    assert log.meta.vehicle == "crazyflie21" and len(yaml_loads) == 1
+
+
+def test_evaluate_reads_the_given_vehicle_once_for_all_flights(yaml_loads):
+    args = argparse.Namespace(inputs=[str(NANOBENCH)] * 3, vehicle="crazyflie21", skip_bad=False)
+    flights, config, skipped = load_evaluation_flights(args)
+    assert len(flights) == 3 and config.name == "crazyflie21" and skipped == []
+    assert len(yaml_loads) == 1  # before: 2 per flight + 1 = 7

@@ -38,17 +38,17 @@ class Capture:
         self.messages.append(deserialize_message(serialize_message(msg), type(msg)))
 
     def by_stamp(self) -> dict:
-        from quad_modelling.nodes.messages import stamp_ns
+        from quad_modelling.io.topics import stamp_ns
 
         return {stamp_ns(m.header.stamp): m for m in self.messages}
 
 
 def feed(node, log, rows, arrays=None, skip_odom=(), predictions=None):
     """Call the node's callbacks with the messages of ``log`` rows, as the replay publishes them."""
-    from quad_modelling.io.bag_io import stamps_ns
+    from quad_modelling.io.topics import stamps_ns
     from quad_modelling.nodes import messages
 
-    arrays = arrays or messages.MeasurementArrays(log)
+    arrays = arrays or messages.measurement_messages(log)
     stamps = stamps_ns(log.t)
     for row in rows:
         ns = int(stamps[row])

@@ -7,6 +7,7 @@ from rclpy.parameter import Parameter
 
 from quad_modelling.core.preprocess import measured_variables
 from quad_modelling.core.variables import INDEX
+from quad_modelling.io import topics
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.evaluator_node import EvaluatorNode
 from test.ros.conftest import Capture, feed, hover_log
@@ -23,7 +24,7 @@ def offset_prediction(log, column: str, offset: float):
     """The measurement itself, plus a constant error on one variable."""
     y = measured_variables(log)
     y[:, INDEX[column]] += offset
-    return messages.prediction_fields(y)
+    return topics.prediction_fields(y)
 
 
 def test_constant_velocity_error_gives_that_rms_and_the_matching_tic(ros):
@@ -57,7 +58,7 @@ def test_tic_of_a_zero_prediction_is_one(ros):
     for k in (0, 1):
         rows = slice(500 * k, 500 * (k + 1))
         y[rows] = y[rows][:100].mean(axis=0)
-    feed(node, log, range(len(log)), predictions={"m": messages.prediction_fields(y)})
+    feed(node, log, range(len(log)), predictions={"m": topics.prediction_fields(y)})
     node.finish()
     r = node.scores.records[0]
     assert r.scored and np.allclose(r.tic[[INDEX["vel_x"], INDEX["acc_z"], INDEX["roll_rate"]]], 1.0)
@@ -68,7 +69,7 @@ def test_gap_restart_and_late_start_mark_windows_instead_of_failing(ros, tmp_pat
     log = hover_log(2100)
     prediction = offset_prediction(log, "vel_z", 0.1)
     node = make_node(spans=["live:0:inf"], output_dir=str(tmp_path / "out"))
-    arrays = messages.MeasurementArrays(log)
+    arrays = messages.measurement_messages(log)
     feed(node, log, range(0, 700), arrays, predictions={"m": prediction})
     feed(node, log, range(700, 1000), arrays, skip_odom=set(range(800, 830)), predictions={"m": prediction})  # mocap gap
     feed(node, log, range(1000, 1200), arrays)  # predictor down
@@ -93,7 +94,7 @@ def test_gap_restart_and_late_start_mark_windows_instead_of_failing(ros, tmp_pat
     late = make_node(spans=["live:0:inf"])
     from rosgraph_msgs.msg import Clock
 
-    from quad_modelling.io.bag_io import stamps_ns
+    from quad_modelling.io.topics import stamps_ns
 
     late.on_origin(Clock(clock=messages.ns_stamp(int(stamps_ns(log.t)[0]))))
     feed(late, log, range(700, 2100), predictions={"m": prediction})

@@ -13,7 +13,8 @@ from rclpy.parameter import Parameter
 from quad_modelling.core.frames import geodesic_angle
 from quad_modelling.core.models.streaming import predict_window_by_stream
 from quad_modelling.core.vehicle import load_vehicle
-from quad_modelling.io.bag_io import stamps_ns
+from quad_modelling.io import topics
+from quad_modelling.io.topics import stamps_ns
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.model_factory import make_streaming_predictor
 from quad_modelling.nodes.predictor_node import PredictorNode
@@ -30,9 +31,9 @@ def make_node(**params):
 def published(node, stamps):
     odom, accel = node.odom_pub.by_stamp(), node.accel_pub.by_stamp()
     got = [s for s in stamps.tolist() if s in odom]
-    o = [messages.predicted_odometry_fields(odom[s]) for s in got]
-    a = [messages.accel_fields(accel[s]) for s in got]
-    return got, messages.predictions_from_fields(o, a) if got else np.zeros((0, 18))
+    o = [topics.predicted_odometry_fields(odom[s]) for s in got]
+    a = [topics.accel_fields(accel[s]) for s in got]
+    return got, topics.predictions_from_fields(o, a) if got else np.zeros((0, 18))
 
 
 @pytest.mark.parametrize("model", ["naive", "greybox"])
@@ -62,7 +63,7 @@ def test_node_publishes_exactly_the_offline_stream_of_each_window(ros, model):
 def test_faults_are_dropped_with_one_warning_each_and_nothing_non_finite_is_published(ros):
     log = hover_log(1100)
     node = make_node()
-    arrays = messages.MeasurementArrays(log)
+    arrays = messages.measurement_messages(log)
     stamps = stamps_ns(log.t)
     feed(node, log, range(0, 300), arrays)
     node.on_motor(arrays.motor(100, int(stamps[100])))  # out of order
@@ -147,7 +148,7 @@ def test_live_predictions_go_out_before_the_warm_start_backlog(ros):
     log = hover_log(600)
     node = make_node(model="greybox")
     stamps = feed(node, log, range(60))  # 5 s windows at 100 Hz: warm rows 0..19, then live rows
-    order = [messages.stamp_ns(m.header.stamp) for m in node.odom_pub.messages]
+    order = [topics.stamp_ns(m.header.stamp) for m in node.odom_pub.messages]
     assert order[0] == stamps[20]  # the first live command is answered first
     assert order[1:1 + WARM_BACKLOG_PER_INPUT] == stamps[0:WARM_BACKLOG_PER_INPUT].tolist()
     assert sorted(order) == stamps[:60].tolist()  # 20 warm + 40 live: every input answered once by now
@@ -160,7 +161,7 @@ def test_window_waits_for_late_measurements_of_its_warm_rows(ros, monkeypatch):
     import quad_modelling.nodes.predictor_node as predictor_node
 
     log = hover_log(600)
-    arrays = messages.MeasurementArrays(log)
+    arrays = messages.measurement_messages(log)
     node = make_node(model="greybox")
     stamps = stamps_ns(log.t)
     for row in range(60):  # warm rows 0..19; the IMU of rows 10..59 is 40+ rows late
@@ -196,7 +197,7 @@ def test_window_starts_at_its_last_warm_row_once_its_measurements_are_in(ros):
     """The start's cost falls between two inputs: at 100 Hz the last warm row (19) starts the window, so the
     first live command (20) is answered from a running stream -- with exactly the offline numbers."""
     log = hover_log(600)
-    arrays, stamps = messages.MeasurementArrays(log), stamps_ns(log.t)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
     node = make_node(model="greybox")
     feed_measurements_first(node, arrays, range(19), stamps)
     assert node.state == "warm" and not node.warm_closed  # row 18: row 19 is still warm
@@ -215,7 +216,7 @@ def test_a_warm_row_after_an_early_start_is_reported_and_predicted_as_streamed(r
     """Irregular stamps: an extra row 8 ms after row 18 looks like the last warm row (its successor at +10 ms would
     be past 0.2 s); the real row 19 then arrives after the start: one warning, and it is still answered."""
     log = hover_log(600)
-    arrays, stamps = messages.MeasurementArrays(log), stamps_ns(log.t)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
     node = make_node(model="greybox")
     feed_measurements_first(node, arrays, range(19), stamps)
     extra = int(stamps[18]) + 8_000_000
@@ -271,7 +272,7 @@ def test_serialised_measurements_are_decoded_after_the_answer_and_still_checked(
     from sensor_msgs.msg import Imu
 
     log = hover_log(600)
-    arrays, stamps = messages.MeasurementArrays(log), stamps_ns(log.t)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
     node = make_node(model="greybox")
     for row in range(25):
         ns = int(stamps[row])
