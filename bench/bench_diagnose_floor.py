@@ -35,7 +35,7 @@ from dataclasses import replace
 import numpy as np
 
 from bench.common import write_results
-from quad_modelling.core.diagnosis.base_fit import identify_base
+from quad_modelling.core.identification.greybox_fit import identify_base
 from quad_modelling.core.diagnosis.base_model import predict_batch
 from quad_modelling.core.diagnosis.batch import prepare_windows
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG

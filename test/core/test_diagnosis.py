@@ -16,7 +16,7 @@ from quad_modelling.core.diagnosis.attribution import (
     excited_windows,
     verdict_of,
 )
-from quad_modelling.core.diagnosis.base_fit import identify_base
+from quad_modelling.core.identification.greybox_fit import identify_base
 from quad_modelling.core.diagnosis.batch import prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.diagnose import (
