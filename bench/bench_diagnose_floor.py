@@ -35,7 +35,6 @@ from dataclasses import replace
 import numpy as np
 
 from bench.common import write_results
-from quad_modelling.core.diagnosis.base_fit import identify_base
 from quad_modelling.core.diagnosis.base_model import predict_batch
 from quad_modelling.core.diagnosis.batch import prepare_windows
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
@@ -46,6 +45,7 @@ from quad_modelling.core.diagnosis.validation import (
     train_seeds,
 )
 from quad_modelling.core.evaluation.metrics import rms
+from quad_modelling.core.identification.greybox_fit import identify_base
 from quad_modelling.core.sim.simulate import run_simulation
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle

@@ -16,7 +16,6 @@ from quad_modelling.core.diagnosis.attribution import (
     excited_windows,
     verdict_of,
 )
-from quad_modelling.core.diagnosis.base_fit import identify_base
 from quad_modelling.core.diagnosis.batch import prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.diagnose import (
@@ -30,6 +29,7 @@ from quad_modelling.core.diagnosis.statistics import (
     shrink_of,
     sign_test,
 )
+from quad_modelling.core.identification.greybox_fit import identify_base
 from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle

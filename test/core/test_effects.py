@@ -216,7 +216,7 @@ def truth_run():
 
 @pytest.fixture(scope="session")
 def identified(truth_run, linkquad):
-    from quad_modelling.core.diagnosis.base_fit import identify_base
+    from quad_modelling.core.identification.greybox_fit import identify_base
 
     return identify_base(prepare_windows([truth_run.log], linkquad, DIAGNOSIS_CONFIG), linkquad).model
 

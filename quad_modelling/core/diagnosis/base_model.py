@@ -6,21 +6,22 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import linalg, signal
 
 from quad_modelling.core import frames
 from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.discretise import zero_order_hold
 from quad_modelling.core.models.greybox import (
     N_STATES,
     GreyboxParameters,
     continuous_matrices,
 )
+from quad_modelling.core.models.motors import motor_thrusts
 from quad_modelling.core.preprocess import (
     differentiate,
     smooth,
 )
 from quad_modelling.core.variables import INDEX, VARIABLES
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 
 FORCING_STATES = np.array([3, 4, 5, 9, 10, 11])
 """States (velocities, rates) the extra accelerations e act on."""
@@ -93,38 +94,15 @@ class BaseModel:
         return 1.0 / (2.0 * p.thrust_constant * p.hover_rotor_speed)
 
 
+def base_from_vehicle(vehicle: VehicleConfig, reference_voltage: float | None = None) -> BaseModel:
+    """The linear greybox of the vehicle's configured constants."""
+    return BaseModel(GreyboxParameters.from_vehicle(vehicle), reference_voltage)
+
+
 def _forcing_matrix() -> np.ndarray:
     f = np.zeros((N_STATES, 6))
     f[FORCING_STATES, np.arange(6)] = 1.0
     return f
-
-
-_DISCRETE_CACHE: dict = {}
-
-
-_DISCRETE_CACHE_SIZE = 64
-
-
-def _discretise(a: np.ndarray, b_ext: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order hold of (A, [B F]) via one matrix exponential (memoised: a fit calls it with the
-    same matrices for every effect that leaves A alone)."""
-    key = (a.tobytes(), b_ext.tobytes(), float(dt))
-    hit = _DISCRETE_CACHE.get(key)
-    if hit is not None:
-        return hit
-    if len(_DISCRETE_CACHE) >= _DISCRETE_CACHE_SIZE:
-        _DISCRETE_CACHE.pop(next(iter(_DISCRETE_CACHE)))
-    _DISCRETE_CACHE[key] = result = _expm_hold(a, b_ext, dt)
-    return result
-
-
-def _expm_hold(a: np.ndarray, b_ext: np.ndarray, dt: float) -> tuple[np.ndarray, np.ndarray]:
-    n, m = a.shape[0], b_ext.shape[1]
-    block = np.zeros((n + m, n + m))
-    block[:n, :n] = a * dt
-    block[:n, n:] = b_ext * dt
-    e = linalg.expm(block)
-    return e[:n, :n], e[:n, n:]
 
 
 def apply_effects(effects: Sequence[Effect], thetas: Sequence[np.ndarray], batch: WindowBatch, base: BaseModel) -> Augmentation:
@@ -152,13 +130,6 @@ def apply_effects(effects: Sequence[Effect], thetas: Sequence[np.ndarray], batch
         if effect.a_delta is not None:
             a_delta = a_delta + effect.a_delta(theta, base)
     return Augmentation(u, forcing, a_delta)
-
-
-def _motor_thrusts(u: np.ndarray, pole: float, gain: float) -> np.ndarray:
-    steady = gain / (1.0 - pole) * u[:, 0, :]
-    zi = steady[:, None, :]
-    y, _ = signal.lfilter([0.0, gain], [1.0, -pole], u, axis=1, zi=zi)
-    return y
 
 
 def predict_batch(
@@ -200,14 +171,14 @@ def predict_batch(
     aug = apply_effects(effects, thetas, batch, base) if effects else Augmentation(batch.u, np.zeros(batch.u.shape[:2] + (6,)), None)
     a = base.a if aug.a_delta is None else base.a + aug.a_delta
     b_ext = np.hstack([base.b, _forcing_matrix()])
-    ad, bd_ext = _discretise(a, b_ext, batch.dt)
+    ad, bd_ext = zero_order_hold(a, b_ext, batch.dt)
     cd = base.c + base.d @ a
     dd_ext = base.d @ b_ext
     w, n = batch.u.shape[:2]
     anchor = batch.warm - 1
     inputs = np.concatenate([aug.u, aug.forcing], axis=2)  # (W, N, 10)
     pole, gain = ad[12, 12], bd_ext[12, 0]
-    thrust0 = _motor_thrusts(aug.u[:, : anchor + 1], pole, gain)[:, anchor]
+    thrust0 = motor_thrusts(aug.u[:, : anchor + 1], pole, gain, axis=1)[:, anchor]
     offsets = batch.offsets
     if not greybox_outputs and anchor >= 2:
         offsets = offsets.copy()

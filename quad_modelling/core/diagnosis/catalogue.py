@@ -76,12 +76,13 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
-from quad_modelling.core.diagnosis.base_model import BaseModel, Effect, _motor_thrusts
+from quad_modelling.core.diagnosis.base_model import BaseModel, Effect
 from quad_modelling.core.diagnosis.batch import WindowBatch, _trim_mean
 from quad_modelling.core.effect_names import DIAGNOSIS, parse_effect_names
 from quad_modelling.core.models.greybox import (
     N_STATES,
 )
+from quad_modelling.core.models.motors import discrete_motor, motor_thrusts
 from quad_modelling.core.vehicle import GRAVITY
 
 THRUST_DRIVEN = ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")
@@ -176,9 +177,7 @@ def _gyro_forcing(theta, batch: WindowBatch, base: BaseModel, u):
     p_ = base.parameters
     ixx, iyy, izz = p_.ixx, p_.iyy, p_.izz
     rp, rq, rr = batch.rates[:, :, 0], batch.rates[:, :, 1], batch.rates[:, :, 2]
-    ad_pole = np.exp(p_.motor_a_m * batch.dt)
-    gain = p_.input_gain * (ad_pole - 1.0) / p_.motor_a_m
-    thrusts = _motor_thrusts(u, ad_pole, gain)
+    thrusts = motor_thrusts(u, *discrete_motor(p_.motor_a_m, p_.input_gain, batch.dt), axis=1)
     momentum = (thrusts @ np.asarray(p_.yaw_signs)) * base.thrust_to_speed  # H / I_p = sum s_i dOmega_i
     e = np.zeros(rp.shape + (6,))
     e[:, :, 3] = k_body * (iyy - izz) / ixx * rq * rr + k_prop * p_.prop_inertia / ixx * momentum * rq

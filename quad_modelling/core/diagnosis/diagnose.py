@@ -10,7 +10,7 @@ rotated by the measured attitude and the angular-acceleration offsets the gyro
 slope over the warm start (:func:`~quad_modelling.core.effects.predict_batch`).
 
 1. **Base model.** The linear greybox; by default its identifiable constants
-   are fitted on the training windows first (:func:`identify_base`), so an
+   are fitted on the training windows first (:func:`~quad_modelling.core.identification.greybox_fit.identify_base`, the fit ``quad-modelling identify`` uses), so an
    effect is credited only with what a better-tuned linear model could not do.
 2. **Where.** The base model's held-out gap per variable and window; the
    residual binned by flight regime (speed, height above ground, battery
@@ -88,12 +88,7 @@ from quad_modelling.core.diagnosis.attribution import (
     mark_confounded,
     ranking_key,
 )
-from quad_modelling.core.diagnosis.base_fit import (
-    BaseFit,
-    base_from_vehicle,
-    identify_base,
-)
-from quad_modelling.core.diagnosis.base_model import predict_batch
+from quad_modelling.core.diagnosis.base_model import base_from_vehicle, predict_batch
 from quad_modelling.core.diagnosis.batch import WindowBatch, prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.fitting import variable_scales
@@ -104,6 +99,7 @@ from quad_modelling.core.diagnosis.statistics import (
     window_rms,
 )
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.identification.greybox_fit import BaseFit, identify_base
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig

@@ -3,7 +3,7 @@
 For each catalogue effect the truth simulator can switch on
 (:data:`~quad_modelling.core.effect_names.SWITCHED_EFFECTS`) and each seed:
 
-* the *base* model is the greybox identified (:func:`~quad_modelling.core.diagnosis.base_fit.identify_base`)
+* the *base* model is the greybox identified (:func:`~quad_modelling.core.identification.greybox_fit.identify_base`)
   on the training flights flown with every effect off (same seeds, same
   manoeuvres: the effects-off-consistent training data), so the only
   systematic gap left is the withheld effect;
@@ -49,7 +49,6 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from quad_modelling.core.diagnosis.attribution import excited_windows
-from quad_modelling.core.diagnosis.base_fit import BaseFit, identify_base
 from quad_modelling.core.diagnosis.base_model import predict_batch
 from quad_modelling.core.diagnosis.batch import prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
@@ -57,6 +56,7 @@ from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG, diagnose
 from quad_modelling.core.diagnosis.statistics import normalised_window_gap
 from quad_modelling.core.effect_names import SWITCHED_EFFECTS
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.identification.greybox_fit import BaseFit, identify_base
 from quad_modelling.core.sim.params import SimParams
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle

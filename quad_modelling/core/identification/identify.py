@@ -53,7 +53,9 @@ import yaml
 from scipy import optimize
 
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.identification.greybox_fit import MOTOR_TIME_CONSTANT_RANGE
 from quad_modelling.core.models.greybox import GreyboxParameters
+from quad_modelling.core.models.motors import discrete_motor, motor_thrusts
 from quad_modelling.core.preprocess import (
     resample_uniform,
     smooth,
@@ -66,10 +68,10 @@ from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, Window, plan_windows
 from quad_modelling.errors import DataError
 
-MOTOR_POLE_RANGE = (0.5, 100.0)
-"""Search range of -A_m [1/s]: motor time constants 10 ms ... 2 s. A motor faster than ~10 ms
-cannot be told apart from an instantaneous one after the 5 Hz smoothing; the fit then ends on
-the bound (reported in ``fit['motor_pole_at_bound']``)."""
+MOTOR_POLE_RANGE = (1.0 / MOTOR_TIME_CONSTANT_RANGE[1], 1.0 / MOTOR_TIME_CONSTANT_RANGE[0])
+"""Search range of -A_m [1/s]: the motor time constants of the diagnosis base fit,
+:data:`~quad_modelling.core.identification.greybox_fit.MOTOR_TIME_CONSTANT_RANGE` (2 ms ... 2 s; its
+docstring says why 2 ms); a fit that ends on a bound says so (``fit['motor_pole_at_bound']``)."""
 
 ACC_COLUMNS = [INDEX["acc_z"], INDEX["roll_acc"], INDEX["pitch_acc"], INDEX["yaw_acc"]]
 
@@ -139,16 +141,8 @@ def training_windows(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
 
 
 def lagged_thrusts(u: np.ndarray, pole_a_m: float, gain: float, dt: float) -> np.ndarray:
-    """(N, 4) thrust deviations of the first-order motor (exact ZOH), starting in steady state of u[0]."""
-    from scipy import signal
-
-    pole = np.exp(pole_a_m * dt)
-    b = gain * (pole - 1.0) / pole_a_m
-    out = np.empty_like(u)
-    for i in range(u.shape[1]):
-        zi = signal.lfiltic([0.0, b], [1.0, -pole], y=[b / (1.0 - pole) * u[0, i]], x=[u[0, i]])
-        out[:, i] = signal.lfilter([0.0, b], [1.0, -pole], u[:, i], zi=zi)[0]
-    return out
+    """(N, 4) thrust deviations of the motor A_m = ``pole_a_m``, K = ``gain`` (:mod:`quad_modelling.core.models.motors`)."""
+    return motor_thrusts(u, *discrete_motor(pole_a_m, gain, dt))
 
 
 def _predicted_acc(p: GreyboxParameters, thrusts: np.ndarray) -> np.ndarray:

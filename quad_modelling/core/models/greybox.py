@@ -46,7 +46,7 @@ velocities, accelerations, angles, rates, angular accelerations).
 
 Discretisation: explicit Euler as the thesis (Eq 3-19/20),
 :math:`A_d = I + A\\,\\Delta t,\\ B_d = B\\,\\Delta t`, or exact zero-order hold
-(:func:`scipy.signal.cont2discrete`). Outputs at sample k use the continuous
+(:func:`quad_modelling.core.discretise.zero_order_hold`). Outputs at sample k use the continuous
 derivative at :math:`(x_k, u_k)`, so :math:`C_d = C + D A`, :math:`D_d = D B`.
 
 About Table 3-1 (LinkQuad): its constants are not mutually consistent (see
@@ -63,7 +63,9 @@ from functools import lru_cache
 import numpy as np
 from scipy import signal
 
+from quad_modelling.core.discretise import zero_order_hold
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.models.motors import motor_thrusts
 from quad_modelling.core.preprocess import (
     TrimConfig,
     measured_variables,
@@ -201,15 +203,7 @@ class DiscreteGreybox:
         The motor subsystem is decoupled from the rest (Eq 3-7), so this is the
         model's causal estimate of T_i at every sample.
         """
-        u = np.asarray(u, dtype=float)
-        pole = self.ad[12, 12]
-        gain = self.bd[12, 0]
-        steady0 = gain / (1.0 - pole) * u[0]
-        thrusts = np.empty_like(u)
-        for i in range(4):
-            zi = signal.lfiltic([0.0, gain], [1.0, -pole], y=[steady0[i]], x=[u[0, i]])
-            thrusts[:, i] = signal.lfilter([0.0, gain], [1.0, -pole], u[:, i], zi=zi)[0]
-        return thrusts
+        return motor_thrusts(u, self.ad[12, 12], self.bd[12, 0])
 
 
 class GreyboxModel:
@@ -234,7 +228,7 @@ def _discretise(p: GreyboxParameters, dt: float, method: str) -> DiscreteGreybox
     if method == "euler":
         ad, bd = np.eye(N_STATES) + a * dt, b * dt
     else:
-        ad, bd, *_ = signal.cont2discrete((a, b, np.eye(N_STATES), np.zeros((N_STATES, 4))), dt, method="zoh")
+        ad, bd = zero_order_hold(a, b, dt)
     for m in (ad, bd):
         m.setflags(write=False)
     return DiscreteGreybox(ad, bd, c + d @ a, d @ b, dt, method)

@@ -1,0 +1,198 @@
+"""The identification of the linear greybox model's constants on training windows (the one fit).
+
+Used by ``quad-modelling identify`` (:func:`quad_modelling.core.identification.identify.identify`,
+which adds the voltage dependence, the motor order/spin check and the vehicle file) and by the
+diagnosis as its base model (:func:`quad_modelling.core.diagnosis.diagnose.diagnose`): the same
+windows give the same constants, with the same bounds and units.
+
+Model: the linear greybox (:mod:`quad_modelling.core.models.greybox`) run open loop over each window
+of a :class:`~quad_modelling.core.diagnosis.batch.WindowBatch` by
+:func:`~quad_modelling.core.diagnosis.base_model.predict_batch`, motor
+
+.. math::
+
+    \\dot T_i = A_m T_i + K u_i, \\qquad \\tau_m = -1/A_m, \\qquad K = 2 B_m \\sqrt{a m g / 4}.
+
+Fitted (output error on the smoothed acc_z, roll_acc, pitch_acc and yaw_acc, each normalised by
+its measured RMS -- the variables the thrusts drive without integration, so open-loop drift does
+not enter), as the vector :math:`z`:
+
+* :math:`z_0 = \\ln \\tau_m` [s], :math:`\\tau_m \\in` :data:`MOTOR_TIME_CONSTANT_RANGE`;
+* :math:`z_1 = \\ln(G / G_{config})`, :math:`G = K \\tau_m` the steady thrust per command
+  [N per command unit] (the static gain; :math:`K` itself would trade off against :math:`\\tau_m`),
+  :math:`G / G_{config} \\in` :data:`STEADY_GAIN_RATIO_RANGE`;
+* :math:`z_2 = d/a` [m], the yaw drag ratio, in :data:`YAW_DRAG_RATIO_RANGE`;
+* :math:`z_3` a common scale of the motor arm lengths (torque per thrust / inertia for roll and
+  pitch), in :data:`ARM_SCALE_RANGE`;
+* :math:`z_4 = \\ln k_R`, a scale of the rotor-reaction yaw term
+  :math:`I_{prop} \\sum_i s_i \\dot\\Omega_i / I_{zz}` (Eq 3-13...3-16), i.e. of
+  :math:`I_{prop} / (2 a \\Omega_0)` and :math:`I_{prop} B_m`, in :data:`ROTOR_REACTION_SCALE_RANGE`.
+  These products hold :math:`a` through :math:`\\Omega_0` and :math:`B_m = K / (2\\sqrt{a m g/4})`,
+  and Table 3-1's :math:`a` is not consistent with its other constants (docs/simulator.md): held at
+  the configured values the term is ~8x too strong for the LinkQuad, and the fit then inflated
+  :math:`\\tau_m` (to 34 ms on flights with instant rotors) to shrink :math:`K` and with it the yaw
+  feedthrough :math:`I_{prop} B_m u`.
+
+:math:`a` is held (only :math:`B_m\\sqrt a` is identifiable): :math:`A_m = -1/\\tau_m`,
+:math:`B_m = K / (2\\sqrt{a m g/4})`, :math:`d = a \\cdot (d/a)`.
+
+Uncertainties (1 sigma) from the Jacobian at the optimum, :math:`\\mathrm{cov}(z) = s^2 (J^T J)^{-1}`
+with :math:`s^2` the residual variance, propagated to the constants
+(:math:`\\sigma_{A_m} = |A_m| \\sigma_{z_0}`, :math:`\\sigma_{\\ln K}^2 = \\mathrm{var}(z_1 - z_0)`,
+:math:`\\sigma_d = a\\, \\sigma_{z_2}`). The residuals are autocorrelated (smoothed, 100 Hz, every
+4th sample used), so these are optimistic.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy import optimize
+
+from quad_modelling.core.diagnosis.base_model import BaseModel, predict_batch
+from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.models.greybox import GreyboxParameters
+from quad_modelling.core.variables import INDEX
+from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+
+MIN_MOTOR_TIME_CONSTANT = 0.002
+"""Lower bound of the motor time constant [s] (a fifth of a 100 Hz sample). The discrete model's thrust
+state already answers a command one sample late; rotors that follow their command within a sample (the
+effects-off simulator: instant rotors, IMU averaged over the sample before the log time) drove a 10 ms
+bound to its limit, and the base then carried ~10 ms of lag that an input delay would have to explain."""
+
+MAX_MOTOR_TIME_CONSTANT = 2.0
+"""Upper bound of the motor time constant [s] (A_m >= -0.5 1/s): a motor slower than 2 s is not a
+small-quadrotor motor (the LinkQuad's Table 3-1 pole gives 105 ms, the Crazyflie's configured 50 ms),
+and within a 5-10 s window it could not be told apart from a drift of the trim."""
+
+MOTOR_TIME_CONSTANT_RANGE = (MIN_MOTOR_TIME_CONSTANT, MAX_MOTOR_TIME_CONSTANT)
+"""Search range of tau_m = -1/A_m [s]; a fit that ends on a bound says so (``fit['motor_time_constant_at_bound']``)."""
+
+STEADY_GAIN_RATIO_RANGE = (0.05, 20.0)
+"""Search range of the steady thrust per command G = K tau_m relative to the configured one [1]: the
+configured constants are a starting guess that can be off by an order of magnitude (Table 3-1's units of
+u are unstated), not by more."""
+
+YAW_DRAG_RATIO_RANGE = (-1.0, 1.0)
+"""Search range of d/a [m] (drag torque per thrust): physical values are a few mm to cm (LinkQuad
+2.93e-9 / 1.59e-7 = 18 mm); 1 m is far beyond any propeller."""
+
+ARM_SCALE_RANGE = (0.3, 3.0)
+"""Search range of the common scale of the motor arm lengths [1]: the configured geometry is measured, so
+a factor of 3 either way only absorbs inertia and torque-map errors."""
+
+ROTOR_REACTION_SCALE_RANGE = (1e-3, 1e3)
+"""Search range of k_R [1], the scale of the rotor-reaction yaw term: Table 3-1's inconsistent a makes the
+configured term ~8x off (module docstring), so three decades either way."""
+
+FITTED_VARIABLES = ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")
+"""The variables the fit compares (driven by the thrusts without integration)."""
+
+RESIDUAL_STRIDE = 4
+"""Every 4th sample of the smoothed residual is used (neighbours carry little new information at 100 Hz
+after a 3-5 Hz low-pass; a quarter of the cost)."""
+
+MAX_EVALUATIONS = 80
+"""Model evaluations per start of the least-squares search (each one predicts every window)."""
+
+GAIN_STARTS = (0.0, math.log(3.0), -math.log(3.0))
+"""Starts of z_1 (ln of the steady gain ratio): the configured gain can be off by a lot."""
+
+
+@dataclass
+class BaseFit:
+    """The identified linear model (the diagnosis base) and how it was obtained.
+
+    ``values``: motor_a_m [1/s], motor_b_m, drag_constant [N m s²], thrust_gain_K [N/s per command unit],
+    arm_scale [1], rotor_reaction_scale [1], prop_inertia [kg m²], reference_voltage [V] (None without
+    voltage); ``sigma``: 1-sigma of motor_a_m, motor_b_m, drag_constant, thrust_gain_K (empty when not
+    identified); ``fit``: cost, residual count, whether tau_m ended on a bound.
+    """
+
+    model: BaseModel
+    values: dict[str, float]
+    identified: bool
+    note: str
+    sigma: dict[str, float] = field(default_factory=dict)
+    fit: dict = field(default_factory=dict)
+
+
+def fitted_parameters(p: GreyboxParameters, tau_m: float, gain: float, yaw_ratio: float, arm_scale: float,
+                      rotor_reaction_scale: float = 1.0) -> GreyboxParameters:
+    """``p`` with A_m = -1/tau_m, B_m from K = ``gain``, d = a (d/a), arms scaled, I_prop scaled by k_R."""
+    root = 2.0 * math.sqrt(p.thrust_constant * p.mass * GRAVITY / 4.0)
+    return replace(
+        p,
+        motor_a_m=-1.0 / tau_m,
+        motor_b_m=gain / root,
+        drag_constant=yaw_ratio * p.thrust_constant,
+        motor_positions=tuple((arm_scale * x, arm_scale * y) for x, y in p.motor_positions),
+        prop_inertia=rotor_reaction_scale * p.prop_inertia,
+    )
+
+
+def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
+    """Fit the linear model's identifiable constants on the windows of ``batch`` (module docstring)."""
+    p0 = GreyboxParameters.from_vehicle(vehicle)
+    v_ref = float(batch.vbat.mean()) if batch.vbat is not None else None
+    cols = np.array([INDEX[v] for v in FITTED_VARIABLES])
+    rows = slice(batch.warm, None, RESIDUAL_STRIDE)
+    target = batch.measured[:, rows][:, :, cols]
+    scale = np.maximum(np.sqrt(np.mean(target**2, axis=(0, 1))), 1e-9)
+    tau_config = -1.0 / p0.motor_a_m
+    steady_config = p0.input_gain * tau_config
+    tau0 = min(max(tau_config, 1.1 * MIN_MOTOR_TIME_CONSTANT), 0.95 * MAX_MOTOR_TIME_CONSTANT)
+    x0 = np.array([math.log(tau0), 0.0, p0.drag_constant / p0.thrust_constant, 1.0, 0.0])
+    ranges = (MOTOR_TIME_CONSTANT_RANGE, STEADY_GAIN_RATIO_RANGE, YAW_DRAG_RATIO_RANGE, ARM_SCALE_RANGE, ROTOR_REACTION_SCALE_RANGE)
+    logarithmic = np.array([True, True, False, False, True])
+    lower = np.array([math.log(r[0]) if log else r[0] for r, log in zip(ranges, logarithmic)])
+    upper = np.array([math.log(r[1]) if log else r[1] for r, log in zip(ranges, logarithmic)])
+    x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
+
+    def parameters(z: np.ndarray) -> GreyboxParameters:
+        tau = math.exp(z[0])
+        return fitted_parameters(p0, tau, steady_config * math.exp(z[1]) / tau, z[2], z[3], math.exp(z[4]))
+
+    def residuals(z: np.ndarray) -> np.ndarray:
+        pred = predict_batch(BaseModel(parameters(z)), batch, columns=cols)
+        return ((target - pred[:, rows][:, :, cols]) / scale).ravel()
+
+    best = None
+    for start_gain in GAIN_STARTS:
+        z = x0.copy()
+        z[1] = start_gain
+        fit = optimize.least_squares(residuals, z, bounds=(lower, upper), method="trf", x_scale=np.array([1.0, 1.0, 0.05, 0.3, 1.0]),
+                                     max_nfev=MAX_EVALUATIONS)
+        if best is None or fit.cost < best.cost:
+            best = fit
+    p = parameters(best.x)
+    values = {"motor_a_m": p.motor_a_m, "motor_b_m": p.motor_b_m, "drag_constant": p.drag_constant,
+              "thrust_gain_K": p.input_gain, "arm_scale": float(best.x[3]), "rotor_reaction_scale": float(math.exp(best.x[4])),
+              "prop_inertia": p.prop_inertia, "reference_voltage": v_ref}
+    tau = math.exp(best.x[0])
+    return BaseFit(BaseModel(p, v_ref), values, True,
+                   "identified on the training windows (acc_z, roll/pitch/yaw acceleration): tau_m, steady gain, d/a, arm scale, rotor-reaction scale",
+                   sigma=_sigma(best, p), fit={
+                       "cost": float(best.cost), "residuals": int(best.fun.size), "motor_time_constant_s": tau,
+                       "motor_time_constant_at_bound": bool(np.isclose(tau, MOTOR_TIME_CONSTANT_RANGE, rtol=1e-3).any()),
+                       "motor_time_constant_range_s": list(MOTOR_TIME_CONSTANT_RANGE),
+                       "fitted_on": ", ".join(FITTED_VARIABLES) + " jointly (output error, open loop over each window)",
+                   })
+
+
+def _sigma(fit: optimize.OptimizeResult, p: GreyboxParameters) -> dict[str, float]:
+    """1-sigma of the identified constants from the Jacobian at the optimum (module docstring)."""
+    s2 = 2.0 * fit.cost / max(fit.fun.size - fit.x.size, 1)
+    try:
+        cov = np.linalg.inv(fit.jac.T @ fit.jac) * s2
+    except np.linalg.LinAlgError:
+        cov = np.full((fit.x.size, fit.x.size), np.nan)
+    log_gain_var = cov[1, 1] + cov[0, 0] - 2.0 * cov[0, 1]  # ln K = ln G_config + z_1 - z_0
+    sigma_log_gain = math.sqrt(log_gain_var) if log_gain_var >= 0 else float("nan")
+    return {"motor_a_m": float(abs(p.motor_a_m) * math.sqrt(max(cov[0, 0], 0.0))),
+            "motor_b_m": float(p.motor_b_m * sigma_log_gain),
+            "thrust_gain_K": float(p.input_gain * sigma_log_gain),
+            "drag_constant": float(p.thrust_constant * math.sqrt(max(cov[2, 2], 0.0)))}
