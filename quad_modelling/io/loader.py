@@ -7,11 +7,11 @@ from pathlib import Path
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.errors import DataError
 
-FORMATS = ("thesis-mat", "nanobench", "bag")
+FORMATS = ("thesis-mat", "nanobench", "px4-ulog", "bag")
 
 
 def detect_format(path: str | Path) -> str:
-    """``thesis-mat`` for .mat, ``nanobench`` for .csv/.csv.gz, ``bag`` for a rosbag2 directory or .mcap."""
+    """``thesis-mat`` for .mat, ``nanobench`` for .csv/.csv.gz, ``px4-ulog`` for .ulg, ``bag`` for a rosbag2 directory or .mcap."""
     path = Path(path)
     name = path.name.lower()
     if path.is_dir() or name.endswith(".mcap"):
@@ -20,16 +20,19 @@ def detect_format(path: str | Path) -> str:
         return "thesis-mat"
     if name.endswith(".csv") or name.endswith(".csv.gz"):
         return "nanobench"
+    if name.endswith(".ulg"):
+        return "px4-ulog"
     if not path.exists():
         raise DataError(f"{path}: no such file or directory")
-    raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz or a bag directory)")
+    raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz, .ulg or a bag directory)")
 
 
 def load_flight(path: str | Path, vehicle: str | None = None, fmt: str = "auto", mapping_file: str | Path | None = None) -> FlightLog:
-    """Read a thesis .mat log, a NanoBench CSV or a contract MCAP bag into a FlightLog.
+    """Read a thesis .mat log, a NanoBench CSV, a PX4 ULog or a contract MCAP bag into a FlightLog.
 
     ``vehicle``: config name or YAML path (required for .mat files that do not
-    name one; NanoBench defaults to crazyflie21). The returned log's
+    name one; NanoBench defaults to crazyflie21, PX4 ULog to px4_iris or
+    px4_iris_pwm by its motor-command topic, see :mod:`quad_modelling.io.ulog`). The returned log's
     ``meta.vehicle`` is the config's name. ``mapping_file``: YAML
     variable mapping for foreign .mat logs (see :mod:`quad_modelling.io.matlog`).
     """
@@ -48,6 +51,10 @@ def load_flight(path: str | Path, vehicle: str | None = None, fmt: str = "auto",
         from quad_modelling.io.nanobench import read_nanobench
 
         log = read_nanobench(path, vehicle=vehicle or "crazyflie21")
+    elif fmt == "px4-ulog":
+        from quad_modelling.io.ulog import read_ulog
+
+        log = read_ulog(path, vehicle=vehicle)
     else:
         from quad_modelling.io.bag_io import read_bag
 
