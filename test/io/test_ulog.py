@@ -148,3 +148,16 @@ def test_a_position_gap_is_not_interpolated_through():
 def test_pwm_log_with_a_normalised_vehicle_is_refused():
     with pytest.raises(DataError, match="motor commands come from actuator_outputs .us. but vehicle px4_iris takes normalised"):
         load_flight(GROUND, vehicle="px4_iris")
+
+
+def test_cli_convert_then_info_on_the_ulog_and_the_bag(tmp_path, capsys):
+    from quad_modelling.cli import main
+
+    assert main(["convert", str(EVENTS), "-o", str(tmp_path / "events")]) == 0
+    assert main(["info", str(tmp_path / "events"), "--json"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(EVENTS)]) == 0
+    out = capsys.readouterr().out
+    assert "samples:   152 at 10.00 Hz, duration 15.100 s" in out
+    assert "  euler:          vehicle_attitude q, 20.0 Hz, slerp" in out
+    assert "disarmed:  dropped 14.90 s before arming and 0.90 s after disarming (vehicle_status)" in out
