@@ -29,7 +29,7 @@ def test_colcon_build_installs_runnable_executables(tmp_path):
     assert (share / "config" / "fastdds.xml").is_file()  # the nodes' DDS profile (nodes.common.use_dds_profile)
     assert (share / "launch" / "replay_evaluation.launch.py").is_file()
     assert (share / "package.xml").is_file()
-    assert sorted(p.name for p in (share / "config" / "vehicles").iterdir()) == ["crazyflie21.yaml", "linkquad.yaml"]
+    assert sorted(p.name for p in (share / "config" / "vehicles").iterdir()) == ["crazyflie21.yaml", "linkquad.yaml", "px4_iris.yaml", "px4_iris_pwm.yaml"]
 
     bag = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
     script = (

@@ -1,4 +1,4 @@
-"""``quad-modelling convert``: thesis .mat logs / NanoBench CSV / bags -> MCAP bags (or .mat)."""
+"""``quad-modelling convert``: thesis .mat logs / NanoBench CSV / PX4 ULog / bags -> MCAP bags (or .mat)."""
 
 from __future__ import annotations
 
@@ -13,13 +13,14 @@ from quad_modelling.errors import QuadModellingError
 from quad_modelling.io.loader import FORMATS, load_flight
 
 NAME = "convert"
-HELP = "convert flight logs (.mat, NanoBench .csv.gz, bags) into MCAP bags"
+HELP = "convert flight logs (.mat, NanoBench .csv.gz, PX4 .ulg, bags) into MCAP bags"
 DESCRIPTION = """\
 Convert flight logs into rosbag2 MCAP bags with the quad_modelling topic contract
 (/quad/motor_input, /quad/mocap/odom, /quad/imu, /quad/battery), or into a thesis .mat log.
 
 Inputs: thesis-style MATLAB logs (.mat; default variable names in docs/formats.md, or a
---mapping YAML for foreign logs), NanoBench CSV flights (.csv, .csv.gz), contract bags.
+--mapping YAML for foreign logs), NanoBench CSV flights (.csv, .csv.gz), PX4 ULog flights
+(.ulg: topics aligned on the motor-command stamps, disarmed time dropped; docs/px4.md), contract bags.
 Output: with one input, OUTPUT is the bag directory (or a .mat file); with several inputs,
 OUTPUT is a new directory holding one bag per input, named after it.
 Nothing is overwritten without --force; a failed run leaves no output behind.
@@ -28,6 +29,7 @@ examples:
   quad-modelling convert flight.mat --vehicle linkquad -o bags/flight
   quad-modelling convert data/nanobench/*.csv.gz -o bags/nanobench --skip-bad
   quad-modelling convert bags/flight -o flight_copy.mat
+  quad-modelling convert test/data/px4/sample_px4_events.ulg -o bags/px4_events
 """
 
 
@@ -36,16 +38,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", required=True, metavar="OUTPUT", help="bag directory, .mat file, or (several inputs) output directory")
     parser.add_argument("--format", default="auto", choices=("auto", *FORMATS), help="input format (default: from the file name)")
     parser.add_argument("--mapping", metavar="FILE", help="YAML variable mapping for foreign .mat logs")
-    parser.add_argument("--vehicle", metavar="NAME", help="vehicle config name or YAML path (default: from the file; crazyflie21 for NanoBench)")
+    parser.add_argument("--vehicle", metavar="NAME", help="vehicle config name or YAML path (default: from the file; crazyflie21 for NanoBench; px4_iris or px4_iris_pwm for .ulg)")
     parser.add_argument("--namespace", default="/quad", help="topic namespace in the bag (default /quad)")
     parser.add_argument("--skip-bad", action="store_true", help="with several inputs: report bad ones, convert the rest, exit 1")
     parser.add_argument("--force", action="store_true", help="overwrite an existing output")
 
 
 def bag_name(path: Path) -> str:
-    """Output name for an input: its file name without .mat/.csv/.csv.gz/.mcap."""
+    """Output name for an input: its file name without .mat/.csv/.csv.gz/.ulg/.mcap."""
     name = path.name
-    for suffix in (".csv.gz", ".csv", ".mat", ".mcap"):
+    for suffix in (".csv.gz", ".csv", ".mat", ".ulg", ".mcap"):
         if name.endswith(suffix):
             return name[: -len(suffix)]
     return name

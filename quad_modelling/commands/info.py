@@ -15,22 +15,24 @@ from quad_modelling.io.reports.info import (
 )
 
 NAME = "info"
-HELP = "show what a bag (topics, counts, rates) or flight log (.mat, .csv.gz) holds"
+HELP = "show what a bag (topics, counts, rates) or flight log (.mat, .csv.gz, .ulg) holds"
 DESCRIPTION = """\
 Print what an MCAP (or SQLite) rosbag2 bag holds: for each topic its message type, count,
 rate and time span, plus the bag's duration and the vehicle/source it was converted from.
-For a thesis .mat log or a NanoBench CSV: samples, duration, rate, fields and the notes it
-carries (a simulated flight's effects and seed).
+For a thesis .mat log, a NanoBench CSV or a PX4 ULog: samples, duration, rate, fields and the
+notes it carries (a simulated flight's effects and seed; a ULog's sources, their logged rates,
+what was interpolated and the disarmed time dropped).
 
 examples:
   quad-modelling info bags/nanobench_B7_oval_medium_rep2
   quad-modelling info bags/flight --json
   quad-modelling info flight.mat
+  quad-modelling info test/data/px4/sample_px4_events.ulg
 """
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("bag", metavar="BAG", help="bag directory, .mat log or NanoBench .csv/.csv.gz")
+    parser.add_argument("bag", metavar="BAG", help="bag directory, .mat log, NanoBench .csv/.csv.gz or PX4 .ulg")
     parser.add_argument("--vehicle", metavar="NAME", help="vehicle for a .mat log that names none")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
 

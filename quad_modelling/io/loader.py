@@ -8,11 +8,11 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import DataError, QuadModellingError
 
-FORMATS = ("thesis-mat", "nanobench", "bag")
+FORMATS = ("thesis-mat", "nanobench", "px4-ulog", "bag")
 
 
 def detect_format(path: str | Path) -> str:
-    """``thesis-mat`` for .mat, ``nanobench`` for .csv/.csv.gz, ``bag`` for a rosbag2 directory or .mcap."""
+    """``thesis-mat`` for .mat, ``nanobench`` for .csv/.csv.gz, ``px4-ulog`` for .ulg, ``bag`` for a rosbag2 directory or .mcap."""
     path = Path(path)
     name = path.name.lower()
     if path.is_dir() or name.endswith(".mcap"):
@@ -21,17 +21,20 @@ def detect_format(path: str | Path) -> str:
         return "thesis-mat"
     if name.endswith(".csv") or name.endswith(".csv.gz"):
         return "nanobench"
+    if name.endswith(".ulg"):
+        return "px4-ulog"
     if not path.exists():
         raise DataError(f"{path}: no such file or directory")
-    raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz or a bag directory)")
+    raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz, .ulg or a bag directory)")
 
 
 def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fmt: str = "auto",
                 mapping_file: str | Path | None = None) -> FlightLog:
-    """Read a thesis .mat log, a NanoBench CSV or a contract MCAP bag into a FlightLog.
+    """Read a thesis .mat log, a NanoBench CSV, a PX4 ULog or a contract MCAP bag into a FlightLog.
 
     ``vehicle``: config name, YAML path or a loaded config (required for .mat files
-    that do not name one; NanoBench defaults to crazyflie21). The vehicle config is
+    that do not name one; NanoBench defaults to crazyflie21, PX4 ULog to px4_iris or
+    px4_iris_pwm by its motor-command topic, see :mod:`quad_modelling.io.ulog`). The vehicle config is
     loaded once per call, not at all when ``vehicle`` is a loaded config (a command
     reading many flights of one ``--vehicle`` loads it once). The returned log's
     ``meta.vehicle`` is the config's name. ``mapping_file``: YAML
@@ -55,6 +58,10 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
 
         config = config or load_vehicle(name or "crazyflie21")
         log = read_nanobench(path, vehicle=config)
+    elif fmt == "px4-ulog":
+        from quad_modelling.io.ulog import read_ulog
+
+        log = read_ulog(path, vehicle=name)
     else:
         from quad_modelling.io.bag_io import read_bag
 

@@ -14,10 +14,6 @@ from quad_modelling.io.bag_io import BagSummary
 FLIGHT_FIELDS = ("u", "acc_b", "gyro_b", "pos_n", "vel_n", "euler", "vbat", "omega")
 """FlightLog arrays a flight may hold, in the order the listing names them."""
 
-SIMULATION_NOTES = ("effects", "seed")
-"""Notes of a simulated flight shown in the text listing."""
-
-
 def flight_document(log: FlightLog, path: str) -> dict:
     """A flight log's summary: vehicle, samples, duration, rate, time span, the arrays it holds, its notes."""
     return {
@@ -45,7 +41,12 @@ def flight_text(document: dict, file_format: str) -> str:
              f"samples:   {document['samples']} at {document['rate_hz']:.2f} Hz, duration {document['duration_s']:.3f} s",
              f"start/end: {document['start_s']:.3f} .. {document['end_s']:.3f} s",
              f"fields:    {', '.join(document['fields'])}"]
-    lines += [f"{key + ':':<10} {document['notes'][key]}" for key in SIMULATION_NOTES if key in document["notes"]]
+    for key, value in document["notes"].items():  # a simulated flight's effects and seed; a PX4 log's sources and rates
+        if isinstance(value, dict):
+            lines.append(f"{key}:")
+            lines += [f"  {name + ':':<15} {entry}" for name, entry in value.items()]
+        else:
+            lines.append(f"{key + ':':<10} {value}")
     return "\n".join(lines)
 
 

@@ -1,0 +1,371 @@
+"""PX4 ULog flights (``*.ulg``, read with pyulog) into a FlightLog.
+
+PX4 logs in the internal convention already: local frame NED, body FRD,
+quaternions ``q[0..3]`` = (w, x, y, z) of R_NED←FRD, SI units. Topics used
+(instance 0 of each; see *Multi-instance topics*):
+
+=========  ==========================================  ===================  ===================
+field      topic.fields                                time stamp           when absent
+=========  ==========================================  ===================  ===================
+u          actuator_motors.control[0..3] (0..1)        timestamp            actuator_outputs
+u          actuator_outputs.output[motor channels]     timestamp            refused
+           (PWM pulse width [us])
+pos_n      vehicle_local_position.x, y, z [m]          timestamp_sample     vehicle_odometry
+vel_n      vehicle_local_position.vx, vy, vz [m/s]     timestamp_sample     vehicle_odometry
+pos/vel    vehicle_odometry.position, velocity         timestamp_sample     refused
+           (pose_frame and velocity_frame 1 = NED)
+euler      vehicle_attitude.q[0..3] (w, x, y, z)       timestamp_sample     refused
+acc_b      sensor_combined.accelerometer_m_s2 [m/s²]   timestamp + accelerometer_timestamp_relative
+gyro_b     sensor_combined.gyro_rad [rad/s]            timestamp            refused
+vbat       battery_status.voltage_v [V]                timestamp            left out
+armed      vehicle_status.arming_state == 2            timestamp            actuator_armed.armed
+=========  ==========================================  ===================  ===================
+
+``vehicle_angular_velocity`` (filtered, bias-corrected rates) is not used:
+``sensor_combined`` carries the raw gyro, the measurement the thesis compares with.
+
+Time base: the motor-command topic's own stamps, so no command is invented;
+every other stream is interpolated onto it, linearly per component (attitude:
+spherical linear interpolation of the quaternion, then ZYX Euler angles with
+the yaw unwrapped). Rows outside the span every used stream covers are cut (no
+extrapolation); a kinematic stream (position, attitude, IMU) with a gap longer
+than :data:`MAX_INTERPOLATION_GAP_S` around a kept row is refused, naming the
+topic and time. Streams faster than the base are point-sampled, not averaged.
+
+Disarmed stretches: rows before the first and after the last armed sample are
+dropped (seconds said in ``meta.notes["disarmed"]``); a log that is never armed
+(on the ground, motors at their disarmed value) is kept whole and marked so.
+
+Motor commands: PX4 ``actuator_motors`` marks a stopped motor with NaN; a NaN
+in the four used channels is read as 0 (stopped) and counted in the notes.
+``actuator_outputs`` channels are the ones whose ``PWM_MAIN_FUNCn`` is Motor 1..4
+(101..104); without those parameters (older PX4) the first four outputs. The
+PWM range comes from ``PWM_MAIN_MINn/MAXn``, ``PWM_MAIN_MIN/MAX`` or
+``HIL_ACT_MINn/MAXn``, whichever the log has, and is recorded in the notes.
+Only four-rotor vehicles are read: the rotor count comes from
+``CA_ROTOR_COUNT``, else ``MAV_TYPE``, else the non-NaN ``actuator_motors``
+channels; any other count (hexa, octo, VTOL with a pusher) is refused in one
+line naming the count and where it came from.
+
+Multi-instance topics: instance 0 is used and ``meta.notes["instances"]``
+says how many were logged. Appended data and logging dropouts are noted.
+
+Default vehicle (``vehicle=None``): ``px4_iris`` for ``actuator_motors`` logs,
+``px4_iris_pwm`` for PWM logs (``config/vehicles/``). A vehicle whose input
+unit does not match the command source is refused.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
+
+from quad_modelling.core import frames
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.errors import DataError
+
+ROTORS = 4
+"""Rotor count the FlightLog and the vehicle configs hold."""
+
+MAX_INTERPOLATION_GAP_S = 0.5
+"""Longest gap [s] of a kinematic stream interpolated through: five periods of PX4's slowest
+default logging rate for these topics (vehicle_local_position at 10 Hz, logger default profile)."""
+
+ARMING_STATE_ARMED = 2
+"""vehicle_status.arming_state value of an armed vehicle (PX4 msg/VehicleStatus.msg)."""
+
+RELATIVE_TIMESTAMP_INVALID = 0x7FFFFFFF
+"""sensor_combined.accelerometer_timestamp_relative when no accelerometer sample came with the gyro
+(PX4 msg/SensorCombined.msg)."""
+
+MOTOR_FUNCTION_FIRST = 101
+"""PWM_MAIN_FUNCn value of "Motor 1" (PX4 output functions; Motor k = 100 + k)."""
+
+ROTORS_OF_MAV_TYPE = {1: 0, 2: 4, 3: 2, 4: 1, 13: 6, 14: 8, 15: 3, 19: 4, 20: 4, 21: 4, 22: 4, 23: 4, 24: 4, 25: 4}
+"""Rotor count per MAVLink MAV_TYPE (common.xml): 2 quadrotor, 13 hexa, 14 octo, 15 tri, 3 coaxial,
+4 helicopter, 1 fixed wing; 19-25 are VTOL types, refused below whatever their lift rotor count."""
+
+VTOL_MAV_TYPES = range(19, 26)
+
+MOTOR_UNITS = {"actuator_motors": "normalised", "actuator_outputs": "us"}
+"""Input unit (vehicle ``inputs.unit``) of each motor-command source."""
+
+DEFAULT_VEHICLES = {"actuator_motors": "px4_iris", "actuator_outputs": "px4_iris_pwm"}
+
+TOPICS = (
+    "actuator_motors", "actuator_outputs", "vehicle_local_position", "vehicle_odometry", "vehicle_attitude",
+    "sensor_combined", "vehicle_angular_velocity", "battery_status", "vehicle_status", "actuator_armed",
+)
+"""Every topic the reader looks at."""
+
+Topics = dict[str, dict[str, np.ndarray]]
+"""Topic name -> field name -> values (one instance per topic), as pyulog's ``data`` dicts."""
+
+
+def read_ulog(path: str | Path, vehicle: str | None = None) -> FlightLog:
+    """Read a PX4 .ulg file into a FlightLog (see module doc); DataError names file and topic."""
+    from pyulog import ULog
+
+    path = Path(path)
+    where = str(path)
+    try:
+        ulog = ULog(str(path), message_name_filter_list=list(TOPICS))
+    except FileNotFoundError as err:
+        raise DataError(f"{where}: no such file") from err
+    except Exception as err:  # pyulog raises bare Exception/struct.error/IndexError on bad files
+        raise DataError(f"{where}: not a readable ULog file ({err})") from err
+    topics, notes = topics_of(ulog.data_list)
+    if ulog.has_data_appended:
+        notes["appended_data"] = "yes (read by pyulog after the regular data)"
+    if ulog.dropouts:
+        notes["dropouts"] = f"{len(ulog.dropouts)} logging dropouts, {sum(d.duration for d in ulog.dropouts)} ms in total"
+    return flight_from_topics(topics, ulog.initial_parameters, where, vehicle=vehicle, notes=notes)
+
+
+def topics_of(data_list) -> tuple[Topics, dict]:
+    """Instance 0 of each topic of pyulog ``data_list``, and a note naming multi-instance topics."""
+    instances: dict[str, int] = {}
+    topics: Topics = {}
+    for dataset in data_list:
+        instances[dataset.name] = instances.get(dataset.name, 0) + 1
+        if dataset.multi_id == 0:
+            topics[dataset.name] = dataset.data
+    multi = {name: count for name, count in instances.items() if count > 1 and name in topics}
+    notes = {"instances": {name: f"{count} instances logged, instance 0 used" for name, count in sorted(multi.items())}} if multi else {}
+    return topics, notes
+
+
+def _need(topics: Topics, topic: str, fields: list[str], where: str) -> list[np.ndarray]:
+    data = topics[topic]
+    missing = [f for f in fields if f not in data]
+    if missing:
+        raise DataError(f"{where}: topic {topic} lacks field(s) {', '.join(missing)}")
+    return [np.asarray(data[f], dtype=float) for f in fields]
+
+
+def _time(topics: Topics, topic: str, where: str, field: str = "timestamp_sample") -> np.ndarray:
+    """The topic's stamps [s] (``field`` when logged, else ``timestamp``), checked non-decreasing."""
+    data = topics[topic]
+    stamp = np.asarray(data[field] if field in data else data["timestamp"], dtype=np.int64)
+    if np.any(np.diff(stamp) < 0):
+        k = int(np.argmax(np.diff(stamp) < 0)) + 1
+        raise DataError(f"{where}: topic {topic} time stamps go backwards at sample {k}")
+    return stamp * 1e-6
+
+
+def rate_hz(t: np.ndarray) -> float:
+    """Mean logging rate [Hz] of stamps ``t`` [s]: (samples - 1) / span."""
+    span = float(t[-1] - t[0]) if len(t) > 1 else 0.0
+    return (len(t) - 1) / span if span > 0 else 0.0
+
+
+def rotor_count(topics: Topics, params: dict, where: str) -> tuple[int, str]:
+    """(rotor count, where it came from); DataError when it cannot be told."""
+    if "CA_ROTOR_COUNT" in params:
+        return int(params["CA_ROTOR_COUNT"]), "CA_ROTOR_COUNT"
+    mav_type = params.get("MAV_TYPE")
+    if mav_type in VTOL_MAV_TYPES:
+        raise DataError(f"{where}: MAV_TYPE {mav_type} is a VTOL airframe; only plain quadrotors are read")
+    if mav_type in ROTORS_OF_MAV_TYPE:
+        return ROTORS_OF_MAV_TYPE[mav_type], f"MAV_TYPE {mav_type}"
+    if "actuator_motors" in topics:
+        channels = [k for k in topics["actuator_motors"] if k.startswith("control[")]
+        used = [k for k in channels if not np.isnan(np.asarray(topics["actuator_motors"][k], dtype=float)).all()]
+        return len(used), "actuator_motors channels not all NaN"
+    raise DataError(f"{where}: cannot tell the rotor count (no CA_ROTOR_COUNT, MAV_TYPE or actuator_motors)")
+
+
+def pwm_range(params: dict, channels: list[int]) -> tuple[float, float, str] | None:
+    """(min, max, parameter names) of the PWM outputs ``channels`` (0-based), or None when not logged."""
+    for prefix in ("PWM_MAIN", "HIL_ACT"):
+        low = [params.get(f"{prefix}_MIN{c + 1}") for c in channels]
+        high = [params.get(f"{prefix}_MAX{c + 1}") for c in channels]
+        if None not in low and None not in high:
+            return float(min(low)), float(max(high)), f"{prefix}_MINn/MAXn"
+    if "PWM_MAIN_MIN" in params and "PWM_MAIN_MAX" in params:
+        return float(params["PWM_MAIN_MIN"]), float(params["PWM_MAIN_MAX"]), "PWM_MAIN_MIN/MAX"
+    return None
+
+
+def motor_commands(topics: Topics, params: dict, where: str) -> tuple[str, np.ndarray, np.ndarray, dict]:
+    """(source topic, stamps [s], (N, 4) commands as logged, notes) of the four motors."""
+    count, counted_by = rotor_count(topics, params, where)
+    if count != ROTORS:
+        raise DataError(f"{where}: {count} rotors ({counted_by}); only {ROTORS}-rotor vehicles are read")
+    notes: dict = {"rotor_count": f"{count} ({counted_by})"}
+    if "actuator_motors" in topics:
+        topic = "actuator_motors"
+        u = np.column_stack(_need(topics, topic, [f"control[{i}]" for i in range(ROTORS)], where))
+        stopped = np.isnan(u)
+        if stopped.any():
+            notes["motor_nan"] = f"{int(stopped.sum())} NaN commands (PX4: motor stopped) read as 0"
+            u = np.where(stopped, 0.0, u)
+    elif "actuator_outputs" in topics:
+        topic = "actuator_outputs"
+        functions = {c: params.get(f"PWM_MAIN_FUNC{c + 1}") for c in range(16)}
+        by_motor = {int(f) - MOTOR_FUNCTION_FIRST: c for c, f in functions.items() if f is not None and 0 <= int(f) - MOTOR_FUNCTION_FIRST < ROTORS}
+        if len(by_motor) == ROTORS:
+            channels = [by_motor[k] for k in range(ROTORS)]
+            notes["motor_channels"] = f"outputs {channels} (PWM_MAIN_FUNCn = Motor 1..4)"
+        else:
+            channels = list(range(ROTORS))
+            notes["motor_channels"] = "outputs [0, 1, 2, 3] (no PWM_MAIN_FUNCn naming the motors: first four)"
+        u = np.column_stack(_need(topics, topic, [f"output[{c}]" for c in channels], where))
+        found = pwm_range(params, channels)
+        notes["pwm_range"] = f"{found[0]:g}..{found[1]:g} us ({found[2]})" if found else "not in the log's parameters"
+    else:
+        raise DataError(f"{where}: no motor commands: neither actuator_motors nor actuator_outputs was logged")
+    return topic, _time(topics, topic, where, field="timestamp"), u, notes
+
+
+def position_velocity(topics: Topics, where: str) -> tuple[str, np.ndarray, np.ndarray]:
+    """(source topic, stamps [s], (n, 6) NED position [m] and velocity [m/s])."""
+    if "vehicle_local_position" in topics:
+        topic = "vehicle_local_position"
+        values = np.column_stack(_need(topics, topic, ["x", "y", "z", "vx", "vy", "vz"], where))
+    elif "vehicle_odometry" in topics:
+        topic = "vehicle_odometry"
+        pose_frame, velocity_frame = _need(topics, topic, ["pose_frame", "velocity_frame"], where)
+        if np.any(pose_frame != 1) or np.any(velocity_frame != 1):
+            raise DataError(f"{where}: topic vehicle_odometry pose/velocity frame is not NED (1); FRD-referenced odometry is not read")
+        values = np.column_stack(_need(topics, topic, [f"position[{i}]" for i in range(3)] + [f"velocity[{i}]" for i in range(3)], where))
+    else:
+        raise DataError(f"{where}: no position: neither vehicle_local_position nor vehicle_odometry was logged")
+    return topic, _time(topics, topic, where), values
+
+
+def imu(topics: Topics, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(accel stamps [s], specific force FRD [m/s²], gyro stamps [s], rates FRD [rad/s]) from sensor_combined."""
+    if "sensor_combined" not in topics:
+        raise DataError(f"{where}: no accelerometer: sensor_combined was not logged")
+    topic = "sensor_combined"
+    gyro_t = _time(topics, topic, where, field="timestamp")
+    acc = np.column_stack(_need(topics, topic, [f"accelerometer_m_s2[{i}]" for i in range(3)], where))
+    gyro = np.column_stack(_need(topics, topic, [f"gyro_rad[{i}]" for i in range(3)], where))
+    relative = np.asarray(topics[topic].get("accelerometer_timestamp_relative", np.zeros(len(gyro_t))), dtype=np.int64)
+    acc_t = gyro_t + np.where(relative == RELATIVE_TIMESTAMP_INVALID, 0, relative) * 1e-6
+    if np.any(np.diff(acc_t) < 0):
+        acc_t = gyro_t  # relative stamps out of order: the gyro's stamp is the sample's (PX4 SensorCombined.msg)
+    return acc_t, acc, gyro_t, gyro
+
+
+def armed_at(topics: Topics, t: np.ndarray) -> tuple[np.ndarray | None, str]:
+    """Armed flag per base time (last state logged at or before it; disarmed before the first)."""
+    if "vehicle_status" in topics and "arming_state" in topics["vehicle_status"]:
+        topic, armed = "vehicle_status", np.asarray(topics["vehicle_status"]["arming_state"]) == ARMING_STATE_ARMED
+    elif "actuator_armed" in topics and "armed" in topics["actuator_armed"]:
+        topic, armed = "actuator_armed", np.asarray(topics["actuator_armed"]["armed"]).astype(bool)
+    else:
+        return None, "no vehicle_status or actuator_armed: nothing dropped"
+    stamps = np.asarray(topics[topic]["timestamp"], dtype=np.int64) * 1e-6
+    index = np.searchsorted(stamps, t, side="right") - 1
+    return np.where(index >= 0, armed[np.clip(index, 0, None)], False), topic
+
+
+def check_gaps(topic: str, source_t: np.ndarray, t: np.ndarray, where: str) -> None:
+    """DataError when a base time falls in a gap of ``source_t`` longer than MAX_INTERPOLATION_GAP_S."""
+    right = np.clip(np.searchsorted(source_t, t), 1, len(source_t) - 1)
+    gap = source_t[right] - source_t[right - 1]
+    if np.any(gap > MAX_INTERPOLATION_GAP_S):
+        row = int(np.argmax(gap > MAX_INTERPOLATION_GAP_S))
+        raise DataError(
+            f"{where}: topic {topic} has a {gap[row]:.2f} s gap at t={t[row]:.3f} s, longer than "
+            f"{MAX_INTERPOLATION_GAP_S} s: not interpolated through"
+        )
+
+
+def linear(source_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Each column of ``values`` (stamps ``source_t``) linearly interpolated at ``t``; repeated stamps keep the last."""
+    keep = np.append(np.diff(source_t) > 0, True)
+    source_t, values = source_t[keep], values[keep]
+    return np.column_stack([np.interp(t, source_t, column) for column in np.atleast_2d(values.T)])
+
+
+def attitude(source_t: np.ndarray, quat_wxyz: np.ndarray, t: np.ndarray, where: str) -> np.ndarray:
+    """Euler (φ, θ, ψ) [rad] at ``t`` from PX4 quaternions (w, x, y, z) of R_NED←FRD by slerp; yaw unwrapped."""
+    norms = np.linalg.norm(quat_wxyz, axis=1)
+    if np.any(np.abs(norms - 1.0) > 0.05):
+        row = int(np.argmax(np.abs(norms - 1.0)))
+        raise DataError(f"{where}: topic vehicle_attitude q at sample {row} has norm {norms[row]:.3f}, not 1")
+    keep = np.append(np.diff(source_t) > 0, True)
+    rotations = Rotation.from_quat(quat_wxyz[keep], scalar_first=True)
+    euler = frames.rotation_to_euler_ned(Slerp(source_t[keep], rotations)(t))
+    euler[:, 2] = np.unwrap(euler[:, 2])
+    return euler
+
+
+def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | None = None, notes: dict | None = None) -> FlightLog:
+    """Map PX4 topics (instance 0, pyulog field names) and parameters onto one FlightLog (module doc)."""
+    notes = {"format": "px4-ulog", **(notes or {})}
+    required = {"motor commands": ("actuator_motors", "actuator_outputs"), "position": ("vehicle_local_position", "vehicle_odometry"),
+                "attitude": ("vehicle_attitude",), "accelerometer": ("sensor_combined",)}
+    missing = [" or ".join(names) for names in required.values() if not any(n in topics for n in names)]
+    if missing:
+        found = sorted(n for n in topics if n in TOPICS)
+        raise DataError(f"{where}: missing PX4 topic(s) {'; '.join(missing)} (found: {', '.join(found) or 'none'})")
+    motor_topic, t, u, motor_notes = motor_commands(topics, params, where)
+    notes.update(motor_notes)
+    config = load_vehicle(vehicle or DEFAULT_VEHICLES[motor_topic])
+    if config.input_unit != MOTOR_UNITS[motor_topic]:
+        raise DataError(
+            f"{where}: motor commands come from {motor_topic} ({MOTOR_UNITS[motor_topic]}) but vehicle "
+            f"{config.name} takes {config.input_unit}; use vehicle {DEFAULT_VEHICLES[motor_topic]} or one in {MOTOR_UNITS[motor_topic]}"
+        )
+    keep = np.append(np.diff(t) > 0, True)
+    t, u = t[keep], u[keep]
+    pos_topic, pos_t, pos_vel = position_velocity(topics, where)
+    att_t = _time(topics, "vehicle_attitude", where)
+    quat = np.column_stack(_need(topics, "vehicle_attitude", [f"q[{i}]" for i in range(4)], where))
+    acc_t, acc, gyro_t, gyro = imu(topics, where)
+    streams = {pos_topic: pos_t, "vehicle_attitude": att_t, "sensor_combined": acc_t}
+    battery = None
+    if "battery_status" in topics and "voltage_v" in topics["battery_status"]:
+        battery = (_time(topics, "battery_status", where, field="timestamp"), np.asarray(topics["battery_status"]["voltage_v"], dtype=float))
+        streams["battery_status"] = battery[0]
+    start = max(t[0], *(s[0] for s in streams.values()), gyro_t[0])
+    end = min(t[-1], *(s[-1] for s in streams.values()), gyro_t[-1])
+    inside = (t >= start) & (t <= end)
+    if inside.sum() < 2:
+        raise DataError(f"{where}: the topics {', '.join([motor_topic, *streams])} share no common time span")
+    cut = float(t[-1] - t[0]) - float(t[inside][-1] - t[inside][0])
+    t, u = t[inside], u[inside]
+    armed, armed_from = armed_at(topics, t)
+    if armed is None:
+        notes["disarmed"] = armed_from
+    elif not armed.any():
+        notes["disarmed"] = f"never armed ({armed_from}): the whole log is kept, motors at their disarmed value"
+    else:
+        first, last = int(np.argmax(armed)), len(armed) - 1 - int(np.argmax(armed[::-1]))
+        inner = float(np.sum(np.diff(t[first:last + 1])[~armed[first:last]]))
+        notes["disarmed"] = (
+            f"dropped {t[first] - t[0]:.2f} s before arming and {t[-1] - t[last]:.2f} s after disarming ({armed_from})"
+            + (f"; {inner:.2f} s disarmed inside the armed span kept" if inner > 0 else "")
+        )
+        t, u = t[first:last + 1], u[first:last + 1]
+    for topic, stamps in (*streams.items(), ("sensor_combined", gyro_t)):
+        if topic != "battery_status":
+            check_gaps(topic, stamps, t, where)
+    rates = {motor_topic: rate_hz(t), **{name: rate_hz(stamps) for name, stamps in streams.items()}}
+    notes["time_base"] = f"{motor_topic} stamps, {rates[motor_topic]:.1f} Hz; {cut:.2f} s outside the span all streams cover cut"
+    notes["sources"] = {
+        "u": f"{motor_topic} ({MOTOR_UNITS[motor_topic]}), {rates[motor_topic]:.1f} Hz, not interpolated",
+        "pos_n, vel_n": f"{pos_topic}, {rates[pos_topic]:.1f} Hz, linear",
+        "euler": f"vehicle_attitude q, {rates['vehicle_attitude']:.1f} Hz, slerp",
+        "acc_b, gyro_b": f"sensor_combined, {rates['sensor_combined']:.1f} Hz, linear",
+        **({"vbat": f"battery_status voltage_v, {rates['battery_status']:.1f} Hz, linear"} if battery else {}),
+    }
+    notes["interpolated"] = sorted(name for name, rate in rates.items() if name != motor_topic)
+    return FlightLog(
+        t=t,
+        u=u,
+        acc_b=linear(acc_t, acc, t),
+        gyro_b=linear(gyro_t, gyro, t),
+        pos_n=linear(pos_t, pos_vel[:, :3], t),
+        vel_n=linear(pos_t, pos_vel[:, 3:], t),
+        euler=attitude(att_t, quat, t, where),
+        vbat=linear(*battery, t)[:, 0] if battery else None,
+        meta=FlightMeta(vehicle=config.name, source=where, notes=notes),
+    )

@@ -1,0 +1,163 @@
+"""PX4 ULog reader: the two SITL samples (test/data/px4, BSD-3) and the mapping rules on synthetic topics."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy.integrate import cumulative_trapezoid
+
+from quad_modelling.core import frames
+from quad_modelling.errors import DataError
+from quad_modelling.io.bag_io import read_bag, summarize_bag, write_bag
+from quad_modelling.io.loader import detect_format, load_flight
+from quad_modelling.io.ulog import flight_from_topics, topics_of
+
+PX4 = Path(__file__).resolve().parents[1] / "data" / "px4"
+EVENTS = PX4 / "sample_px4_events.ulg"
+GROUND = PX4 / "sample_logging_tagged_and_default_params.ulg"
+
+
+@pytest.fixture(scope="module")
+def events():
+    return load_flight(EVENTS)
+
+
+def test_samples_are_shipped_with_their_licence():
+    assert (PX4 / "LICENSE.md").read_text().startswith("Copyright (c) 2016, PX4 Pro Drone Autopilot")
+    assert detect_format(EVENTS) == "px4-ulog"
+
+
+@pytest.mark.parametrize("path, vehicle, samples", [(EVENTS, "px4_iris", 152), (GROUND, "px4_iris_pwm", 97)])
+def test_both_samples_convert_to_bags_with_the_contract_topics(tmp_path, path, vehicle, samples):
+    log = load_flight(path)
+    assert (log.meta.vehicle, len(log)) == (vehicle, samples)
+    write_bag(log, tmp_path / "bag")
+    counts = {t.name: t.count for t in summarize_bag(tmp_path / "bag").topics}
+    assert {"/quad/motor_input", "/quad/mocap/odom", "/quad/imu"} <= set(counts)
+    assert counts["/quad/motor_input"] == counts["/quad/imu"] == counts["/quad/mocap/odom"] == samples
+    assert read_bag(tmp_path / "bag").allclose(log, rtol=1e-6, atol=1e-6)
+
+
+def test_time_base_is_the_motor_topic_and_disarmed_time_is_dropped(events):
+    notes = events.meta.notes
+    assert events.sample_rate == pytest.approx(10.0, rel=1e-3)  # actuator_motors is logged at 10 Hz
+    assert events.duration == pytest.approx(15.1, abs=1e-6)
+    assert notes["disarmed"] == "dropped 14.90 s before arming and 0.90 s after disarming (vehicle_status)"
+    assert notes["interpolated"] == ["battery_status", "sensor_combined", "vehicle_attitude", "vehicle_local_position"]
+    assert notes["sources"]["pos_n, vel_n"] == "vehicle_local_position, 10.0 Hz, linear"
+    assert notes["sources"]["euler"] == "vehicle_attitude q, 20.0 Hz, slerp"
+
+
+def test_events_flight_physics(events):
+    """Climb to 2.2 m and back: specific force in NED averages -g; commands sit mid-range."""
+    acc_n = frames.body_to_nav(events.acc_b, events.euler)
+    # Mean vertical specific force = -g + (vz_end - vz_start)/T, and the flight starts and ends at rest.
+    assert acc_n[:, 2].mean() == pytest.approx(-frames.STANDARD_GRAVITY, abs=0.06)  # measured -9.760
+    assert np.abs(acc_n[:, :2].mean(axis=0)).max() < 0.02  # measured 0.010
+    assert np.abs(events.euler[:, :2]).max() < 0.02  # gentle SITL flight, quaternion order (w first) right
+    assert events.pos_n[:, 2].min() == pytest.approx(-2.159, abs=1e-3)
+    assert np.median(events.u, axis=0) == pytest.approx([0.435, 0.437, 0.435, 0.439], abs=2e-3)
+    assert events.u.max() < 0.56 and events.u.min() >= 0.0
+
+
+def test_events_position_matches_integrated_velocity_until_touchdown(events):
+    """NED position = ∫ vel_n dt within 0.1 m over the first 8 s (take-off, climb, hover).
+
+    After touchdown (about 11 s in) PX4's estimate itself disagrees: z stops at +0.4 m while vz
+    stays near 0.6 m/s, 1.35 m apart at the end; that is in the log, not in the reader.
+    """
+    early = events.t - events.t[0] < 8.0
+    integrated = cumulative_trapezoid(events.vel_n[early], events.t[early], initial=0, axis=0)
+    error = np.abs(events.pos_n[early] - events.pos_n[0] - integrated).max(axis=0)
+    assert error.max() < 0.1  # measured 0.08 m (z)
+
+
+def test_never_armed_log_is_kept_whole_and_marked():
+    log = load_flight(GROUND)
+    assert np.all(log.u == 900.0)  # PWM disarmed value
+    assert log.meta.notes["disarmed"].startswith("never armed (vehicle_status)")
+    assert log.meta.notes["pwm_range"] == "1075..1950 us (PWM_MAIN_MIN/MAX)"
+    assert log.acc_b[:, 2].mean() == pytest.approx(-9.87, abs=0.03)  # at rest on the ground, FRD z down
+
+
+def synthetic_topics(n: int = 200, rate: float = 100.0) -> dict:
+    """Hovering vehicle, every topic at the same rate: 0.5 commands, level attitude, 1 m up."""
+    stamp = (10.0 + np.arange(n) / rate) * 1e6
+    ones = np.ones(n)
+    return {
+        "actuator_motors": {"timestamp": stamp, **{f"control[{i}]": 0.5 * ones for i in range(4)},
+                            **{f"control[{i}]": np.full(n, np.nan) for i in range(4, 12)}},
+        "vehicle_local_position": {"timestamp": stamp, "x": 0 * ones, "y": 0 * ones, "z": -ones, "vx": 0 * ones, "vy": 0 * ones, "vz": 0 * ones},
+        "vehicle_attitude": {"timestamp": stamp, "q[0]": ones, "q[1]": 0 * ones, "q[2]": 0 * ones, "q[3]": 0 * ones},
+        "sensor_combined": {"timestamp": stamp, **{f"gyro_rad[{i}]": 0 * ones for i in range(3)},
+                            "accelerometer_m_s2[0]": 0 * ones, "accelerometer_m_s2[1]": 0 * ones, "accelerometer_m_s2[2]": -9.81 * ones},
+        "vehicle_status": {"timestamp": stamp[:1], "arming_state": np.array([2])},
+    }
+
+
+def test_mapping_on_synthetic_topics_gives_the_hover():
+    log = flight_from_topics(synthetic_topics(), {"CA_ROTOR_COUNT": 4}, "synthetic.ulg")
+    assert len(log) == 200 and log.sample_rate == pytest.approx(100.0)
+    assert np.all(log.u == 0.5) and np.allclose(log.pos_n, [0, 0, -1]) and np.allclose(log.acc_b, [0, 0, -9.81])
+    assert log.vbat is None and log.meta.notes["disarmed"] == "dropped 0.00 s before arming and 0.00 s after disarming (vehicle_status)"
+
+
+def test_a_missing_required_topic_is_one_line_naming_it():
+    topics = synthetic_topics()
+    del topics["vehicle_attitude"]
+    with pytest.raises(DataError) as err:
+        flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "flight.ulg")
+    assert str(err.value) == (
+        "flight.ulg: missing PX4 topic(s) vehicle_attitude (found: actuator_motors, sensor_combined, "
+        "vehicle_local_position, vehicle_status)"
+    )
+
+
+@pytest.mark.parametrize("params, message", [
+    ({"CA_ROTOR_COUNT": 6}, "flight.ulg: 6 rotors (CA_ROTOR_COUNT); only 4-rotor vehicles are read"),
+    ({"MAV_TYPE": 22}, "flight.ulg: MAV_TYPE 22 is a VTOL airframe; only plain quadrotors are read"),
+])
+def test_other_airframes_are_refused_naming_the_rotor_count(params, message):
+    with pytest.raises(DataError) as err:
+        flight_from_topics(synthetic_topics(), params, "flight.ulg")
+    assert str(err.value) == message
+
+
+def test_multi_instance_topics_use_instance_0_and_say_so():
+    topics = synthetic_topics()
+    second = {**topics["sensor_combined"], "accelerometer_m_s2[2]": np.full(200, -5.0)}
+    data_list = [SimpleNamespace(name=name, multi_id=0, data=data) for name, data in topics.items()]
+    data_list.append(SimpleNamespace(name="sensor_combined", multi_id=1, data=second))
+    chosen, notes = topics_of(data_list)
+    assert notes == {"instances": {"sensor_combined": "2 instances logged, instance 0 used"}}
+    log = flight_from_topics(chosen, {"CA_ROTOR_COUNT": 4}, "flight.ulg", notes=notes)
+    assert np.allclose(log.acc_b[:, 2], -9.81)
+
+
+def test_a_position_gap_is_not_interpolated_through():
+    topics = synthetic_topics()
+    keep = np.r_[0:50, 150:200]  # 1 s without position
+    topics["vehicle_local_position"] = {k: v[keep] for k, v in topics["vehicle_local_position"].items()}
+    with pytest.raises(DataError, match=r"flight.ulg: topic vehicle_local_position has a 1.01 s gap at t=10.500 s"):
+        flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "flight.ulg")
+
+
+def test_pwm_log_with_a_normalised_vehicle_is_refused():
+    with pytest.raises(DataError, match="motor commands come from actuator_outputs .us. but vehicle px4_iris takes normalised"):
+        load_flight(GROUND, vehicle="px4_iris")
+
+
+def test_cli_convert_then_info_on_the_ulog_and_the_bag(tmp_path, capsys):
+    from quad_modelling.cli import main
+
+    assert main(["convert", str(EVENTS), "-o", str(tmp_path / "events")]) == 0
+    assert main(["info", str(tmp_path / "events"), "--json"]) == 0
+    capsys.readouterr()
+    assert main(["info", str(EVENTS)]) == 0
+    out = capsys.readouterr().out
+    assert "samples:   152 at 10.00 Hz, duration 15.100 s" in out
+    assert "  euler:          vehicle_attitude q, 20.0 Hz, slerp" in out
+    assert "disarmed:  dropped 14.90 s before arming and 0.90 s after disarming (vehicle_status)" in out
