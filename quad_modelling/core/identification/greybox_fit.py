@@ -72,6 +72,9 @@ and within a 5-10 s window it could not be told apart from a drift of the trim."
 MOTOR_TIME_CONSTANT_RANGE = (MIN_MOTOR_TIME_CONSTANT, MAX_MOTOR_TIME_CONSTANT)
 """Search range of tau_m = -1/A_m [s]; a fit that ends on a bound says so (``fit['motor_time_constant_at_bound']``)."""
 
+MOTOR_POLE_RANGE = (1.0 / MAX_MOTOR_TIME_CONSTANT, 1.0 / MIN_MOTOR_TIME_CONSTANT)
+"""The same search range as -A_m = 1/tau_m [1/s], as the vehicle files state A_m (reported in ``fit['motor_pole_range_per_s']``)."""
+
 STEADY_GAIN_RATIO_RANGE = (0.05, 20.0)
 """Search range of the steady thrust per command G = K tau_m relative to the configured one [1]: the
 configured constants are a starting guess that can be off by an order of magnitude (Table 3-1's units of
@@ -208,6 +211,7 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
                        "cost": float(best.cost), "residuals": int(best.fun.size), "motor_time_constant_s": tau,
                        "motor_time_constant_at_bound": bool(np.isclose(tau, MOTOR_TIME_CONSTANT_RANGE, rtol=1e-3).any()),
                        "motor_time_constant_range_s": list(MOTOR_TIME_CONSTANT_RANGE),
+                       "motor_pole_range_per_s": list(MOTOR_POLE_RANGE),
                        "fitted_on": ", ".join(excited) + " jointly (output error, open loop over each window)",
                        "not_excited": {v: float(r) for v, r in zip(FITTED_VARIABLES, rms) if v not in excited},
                        "held": [name for name, f in zip(FITTED_NAMES, free) if not f],
