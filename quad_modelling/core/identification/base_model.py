@@ -152,8 +152,13 @@ def predict_batch(
     the batch's). ``columns`` limits the output to those VARIABLES columns
     (others are zero) to save time.
 
-    Two outputs differ from the linear greybox's (``greybox_outputs=True`` keeps
+    Three things differ from the linear greybox's (``greybox_outputs=True`` keeps
     the greybox's, as :class:`~quad_modelling.core.models.greybox.GreyboxPredictor`):
+
+    * **the motor's linearisation point** (:func:`_motor_linearisation_point`): the thrust state is the
+      deviation from the warm-start mean thrust of the motor filter run over the command history, the
+      point the measured offsets belong to; the greybox anchors on the filter over the warm rows only,
+      from the steady state of the first command, with the commands minus their warm mean;
 
     * **accelerations acc_x/y/z** (:func:`_projected_accelerations`): the
       modelled body specific force -- the measured warm-start level plus the
@@ -180,7 +185,10 @@ def predict_batch(
     w, n = batch.u.shape[:2]
     anchor = batch.warm - 1
     pole, gain = ad[12, 12], bd_ext[12, 0]
-    thrust0, command_trim = _motor_linearisation_point(aug.u, batch.u_history - aug.command_shift, pole, gain, batch.warm)
+    if greybox_outputs:  # the greybox predictor's anchor: the filter over the warm rows, commands minus their warm mean
+        thrust0, command_trim = motor_thrusts(aug.u[:, : anchor + 1], pole, gain, axis=1)[:, anchor], np.zeros((w, 4))
+    else:
+        thrust0, command_trim = _motor_linearisation_point(aug.u, batch.u_history - aug.command_shift, pole, gain, batch.warm)
     inputs = np.concatenate([aug.u - command_trim[:, None, :], aug.forcing], axis=2)  # (W, N, 10)
     offsets = batch.offsets
     if not greybox_outputs and anchor >= 2:
