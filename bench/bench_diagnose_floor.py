@@ -21,7 +21,7 @@ included: against the true signal (``structural``) that bias turning with the at
 ``sensor_floor`` there.
 
 Rows: the greybox's own outputs (small-angle accelerations, warm-start means as offsets; before) and
-the diagnosis's outputs (:func:`quad_modelling.core.diagnosis.base_model.predict_batch`), each at the smoothing
+the diagnosis's outputs (:func:`quad_modelling.core.identification.base_model.predict_batch`), each at the smoothing
 cutoffs given. Truth is used here only to *measure*; the diagnosis never sees it.
 
 Writes bench/results/diagnose_floor.json and .md. Run: .venv/bin/python -m bench.bench_diagnose_floor
@@ -35,8 +35,8 @@ from dataclasses import replace
 import numpy as np
 
 from bench.common import write_results
-from quad_modelling.core.diagnosis.base_model import predict_batch
-from quad_modelling.core.diagnosis.batch import prepare_windows
+from quad_modelling.core.identification.base_model import predict_batch
+from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
 from quad_modelling.core.diagnosis.validation import (
     VALIDATION_DURATION_S,

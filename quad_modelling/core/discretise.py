@@ -18,7 +18,7 @@ obtained together from one matrix exponential of the block matrix
 
 (Van Loan 1978; what :func:`scipy.signal.cont2discrete` does for ``method="zoh"``).
 Used by the greybox model (:mod:`quad_modelling.core.models.greybox`) and the
-diagnosis base model (:mod:`quad_modelling.core.diagnosis.base_model`).
+diagnosis base model (:mod:`quad_modelling.core.identification.base_model`).
 """
 
 from __future__ import annotations

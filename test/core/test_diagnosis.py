@@ -16,7 +16,7 @@ from quad_modelling.core.diagnosis.attribution import (
     excited_windows,
     verdict_of,
 )
-from quad_modelling.core.diagnosis.batch import prepare_windows
+from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.diagnose import (
     DIAGNOSIS_CONFIG,
@@ -149,7 +149,7 @@ def test_bootstrap_and_sign_test():
 
 def test_localisation_names_regimes_bands_and_worst_windows(flights, linkquad, base):
     batch = prepare_windows(flights[()][1:], linkquad, DIAGNOSIS_CONFIG)
-    from quad_modelling.core.diagnosis.base_model import predict_batch
+    from quad_modelling.core.identification.base_model import predict_batch
     from quad_modelling.core.diagnosis.fitting import variable_scales
 
     predicted = predict_batch(base.model, batch)

@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from quad_modelling.core.diagnosis.base_model import (
+from quad_modelling.core.identification.base_model import (
     ANGULAR_ACCELERATION_COLUMNS,
     RATE_COLUMNS,
     BaseModel,
@@ -17,7 +17,7 @@ from quad_modelling.core.diagnosis.base_model import (
     measurement_filter,
     predict_batch,
 )
-from quad_modelling.core.diagnosis.batch import (
+from quad_modelling.core.identification.window_batch import (
     COMMAND_HISTORY_S,
     CONTACT_GUARD_S,
     GROUND_CONTACT_M,

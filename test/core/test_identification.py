@@ -67,8 +67,26 @@ def test_identification_recovers_the_drag_constant_and_flags_reversed_spins():
 
 
 def test_identify_searches_the_motor_time_constants_of_the_diagnosis_base_fit():
-    from quad_modelling.core.identification.greybox_fit import MOTOR_TIME_CONSTANT_RANGE
-    from quad_modelling.core.identification.identify import MOTOR_POLE_RANGE
+    from quad_modelling.core.identification.greybox_fit import MOTOR_POLE_RANGE, MOTOR_TIME_CONSTANT_RANGE
 
     assert MOTOR_TIME_CONSTANT_RANGE == (0.002, 2.0)
     assert MOTOR_POLE_RANGE == (0.5, 500.0)  # -A_m [1/s] = 1 / tau_m
+
+
+def test_identify_and_the_diagnosis_base_give_the_same_constants_on_the_same_windows():
+    """One identification: ``identify`` on a training span and the diagnosis base on the same windows."""
+    from quad_modelling.core.diagnosis.catalogue import CATALOGUE
+    from quad_modelling.core.diagnosis.diagnose import diagnose
+
+    truth = load_vehicle("crazyflie21").with_values({"drag_constant": 1.2e-9}, "test truth")
+    flights = [_differential_flight(truth, seed=s, duration=25.0) for s in range(2)]
+    config = EvaluationConfig(drop_start=5, drop_end=5, train="0%:100%", eval="0%:100%")
+    start = load_vehicle("crazyflie21")
+    identified = identify(flights, start, config)
+    base = diagnose(flights, flights, start, [CATALOGUE["rotor_drag"]], config).base
+    assert len(identified.spans) == 2
+    for key in ("motor_a_m", "motor_b_m", "drag_constant"):
+        assert identified.values[key] == base.values[key]
+    assert identified.input_gain == base.values["thrust_gain_K"]
+    assert identified.fit["arm_scale"] == base.values["arm_scale"]
+    assert identified.fit["rotor_reaction_scale"] == base.values["rotor_reaction_scale"]

@@ -8,11 +8,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from quad_modelling.core.diagnosis.base_model import (
+from quad_modelling.core.identification.base_model import (
     BaseModel,
     predict_batch,
 )
-from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.diagnosis.catalogue import Effect
 from quad_modelling.core.diagnosis.fitting import fit_effects
 from quad_modelling.core.diagnosis.statistics import (

@@ -49,8 +49,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from quad_modelling.core.diagnosis.attribution import excited_windows
-from quad_modelling.core.diagnosis.base_model import predict_batch
-from quad_modelling.core.diagnosis.batch import prepare_windows
+from quad_modelling.core.identification.base_model import predict_batch
+from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG, diagnose
 from quad_modelling.core.diagnosis.statistics import normalised_window_gap

@@ -6,8 +6,8 @@ diagnosis as its base model (:func:`quad_modelling.core.diagnosis.diagnose.diagn
 windows give the same constants, with the same bounds and units.
 
 Model: the linear greybox (:mod:`quad_modelling.core.models.greybox`) run open loop over each window
-of a :class:`~quad_modelling.core.diagnosis.batch.WindowBatch` by
-:func:`~quad_modelling.core.diagnosis.base_model.predict_batch`, motor
+of a :class:`~quad_modelling.core.identification.window_batch.WindowBatch` by
+:func:`~quad_modelling.core.identification.base_model.predict_batch`, motor
 
 .. math::
 
@@ -51,11 +51,12 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy import optimize
 
-from quad_modelling.core.diagnosis.base_model import BaseModel, predict_batch
-from quad_modelling.core.diagnosis.batch import WindowBatch
+from quad_modelling.core.identification.base_model import BaseModel, predict_batch
+from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.models.greybox import GreyboxParameters
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.errors import DataError
 
 MIN_MOTOR_TIME_CONSTANT = 0.002
 """Lower bound of the motor time constant [s] (a fifth of a 100 Hz sample). The discrete model's thrust
@@ -70,6 +71,9 @@ and within a 5-10 s window it could not be told apart from a drift of the trim."
 
 MOTOR_TIME_CONSTANT_RANGE = (MIN_MOTOR_TIME_CONSTANT, MAX_MOTOR_TIME_CONSTANT)
 """Search range of tau_m = -1/A_m [s]; a fit that ends on a bound says so (``fit['motor_time_constant_at_bound']``)."""
+
+MOTOR_POLE_RANGE = (1.0 / MAX_MOTOR_TIME_CONSTANT, 1.0 / MIN_MOTOR_TIME_CONSTANT)
+"""The same search range as -A_m = 1/tau_m [1/s], as the vehicle files state A_m (reported in ``fit['motor_pole_range_per_s']``)."""
 
 STEADY_GAIN_RATIO_RANGE = (0.05, 20.0)
 """Search range of the steady thrust per command G = K tau_m relative to the configured one [1]: the
@@ -90,6 +94,21 @@ configured term ~8x off (module docstring), so three decades either way."""
 
 FITTED_VARIABLES = ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")
 """The variables the fit compares (driven by the thrusts without integration)."""
+
+EXCITATION_FLOOR = 1e-6
+"""RMS [m/s², rad/s²] of a smoothed trimmed measured variable below which the windows do not excite it and
+it is left out of the fit, with the constants only it shows (:data:`PARAMETER_VARIABLES`) held at their
+starting values. Any real sensor's noise is orders above (an accelerometer's ~1e-3 m/s², the gyro
+derivative's ~1e-2 rad/s²); below it is floating-point residue, as roll/pitch/yaw acceleration (~1e-16) on
+collective-only flights of the linear model, which normalised by their RMS became unit noise and stalled
+the fit at A_m = -20.4 1/s (truth -25)."""
+
+FITTED_NAMES = ("ln_motor_time_constant", "ln_steady_gain_ratio", "yaw_drag_ratio", "arm_scale", "ln_rotor_reaction_scale")
+"""Names of z_0...z_4 (module docstring)."""
+
+PARAMETER_VARIABLES = ((), (), ("yaw_acc",), ("roll_acc", "pitch_acc"), ("yaw_acc",))
+"""Which fitted variables show z_2...z_4 (z_0, z_1, the motor, show in all): a parameter none of the excited
+variables shows is held."""
 
 RESIDUAL_STRIDE = 4
 """Every 4th sample of the smoothed residual is used (neighbours carry little new information at 100 Hz
@@ -138,10 +157,17 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
     """Fit the linear model's identifiable constants on the windows of ``batch`` (module docstring)."""
     p0 = GreyboxParameters.from_vehicle(vehicle)
     v_ref = float(batch.vbat.mean()) if batch.vbat is not None else None
-    cols = np.array([INDEX[v] for v in FITTED_VARIABLES])
     rows = slice(batch.warm, None, RESIDUAL_STRIDE)
+    every = np.array([INDEX[v] for v in FITTED_VARIABLES])
+    rms = np.sqrt(np.mean(batch.measured[:, rows][:, :, every] ** 2, axis=(0, 1)))
+    excited = [v for v, r in zip(FITTED_VARIABLES, rms) if r >= EXCITATION_FLOOR]
+    if "acc_z" not in excited:
+        raise DataError(f"the training windows do not excite acc_z (RMS {rms[0]:.2g} m/s² < {EXCITATION_FLOOR:g}): "
+                        f"no thrust change to identify the motor from")
+    cols = np.array([INDEX[v] for v in excited])
     target = batch.measured[:, rows][:, :, cols]
-    scale = np.maximum(np.sqrt(np.mean(target**2, axis=(0, 1))), 1e-9)
+    scale = rms[[FITTED_VARIABLES.index(v) for v in excited]]
+    free = np.array([not shown or any(v in excited for v in shown) for shown in PARAMETER_VARIABLES])
     tau_config = -1.0 / p0.motor_a_m
     steady_config = p0.input_gain * tau_config
     tau0 = min(max(tau_config, 1.1 * MIN_MOTOR_TIME_CONSTANT), 0.95 * MAX_MOTOR_TIME_CONSTANT)
@@ -152,47 +178,59 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
     upper = np.array([math.log(r[1]) if log else r[1] for r, log in zip(ranges, logarithmic)])
     x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
 
+    def full(z_free: np.ndarray) -> np.ndarray:
+        z = x0.copy()
+        z[free] = z_free
+        return z
+
     def parameters(z: np.ndarray) -> GreyboxParameters:
         tau = math.exp(z[0])
         return fitted_parameters(p0, tau, steady_config * math.exp(z[1]) / tau, z[2], z[3], math.exp(z[4]))
 
-    def residuals(z: np.ndarray) -> np.ndarray:
-        pred = predict_batch(BaseModel(parameters(z)), batch, columns=cols)
+    def residuals(z_free: np.ndarray) -> np.ndarray:
+        pred = predict_batch(BaseModel(parameters(full(z_free))), batch, columns=cols)
         return ((target - pred[:, rows][:, :, cols]) / scale).ravel()
 
     best = None
     for start_gain in GAIN_STARTS:
         z = x0.copy()
         z[1] = start_gain
-        fit = optimize.least_squares(residuals, z, bounds=(lower, upper), method="trf", x_scale=np.array([1.0, 1.0, 0.05, 0.3, 1.0]),
-                                     max_nfev=MAX_EVALUATIONS)
+        fit = optimize.least_squares(residuals, z[free], bounds=(lower[free], upper[free]), method="trf",
+                                     x_scale=np.array([1.0, 1.0, 0.05, 0.3, 1.0])[free], max_nfev=MAX_EVALUATIONS)
         if best is None or fit.cost < best.cost:
             best = fit
+    best.x = full(best.x)
     p = parameters(best.x)
-    values = {"motor_a_m": p.motor_a_m, "motor_b_m": p.motor_b_m, "drag_constant": p.drag_constant,
-              "thrust_gain_K": p.input_gain, "arm_scale": float(best.x[3]), "rotor_reaction_scale": float(math.exp(best.x[4])),
-              "prop_inertia": p.prop_inertia, "reference_voltage": v_ref}
+    values = {"motor_a_m": float(p.motor_a_m), "motor_b_m": float(p.motor_b_m), "drag_constant": float(p.drag_constant),
+              "thrust_gain_K": float(p.input_gain), "arm_scale": float(best.x[3]), "rotor_reaction_scale": float(math.exp(best.x[4])),
+              "prop_inertia": float(p.prop_inertia), "reference_voltage": v_ref}
     tau = math.exp(best.x[0])
     return BaseFit(BaseModel(p, v_ref), values, True,
                    "identified on the training windows (acc_z, roll/pitch/yaw acceleration): tau_m, steady gain, d/a, arm scale, rotor-reaction scale",
-                   sigma=_sigma(best, p), fit={
+                   sigma=_sigma(best, free, p), fit={
                        "cost": float(best.cost), "residuals": int(best.fun.size), "motor_time_constant_s": tau,
                        "motor_time_constant_at_bound": bool(np.isclose(tau, MOTOR_TIME_CONSTANT_RANGE, rtol=1e-3).any()),
                        "motor_time_constant_range_s": list(MOTOR_TIME_CONSTANT_RANGE),
-                       "fitted_on": ", ".join(FITTED_VARIABLES) + " jointly (output error, open loop over each window)",
+                       "motor_pole_range_per_s": list(MOTOR_POLE_RANGE),
+                       "fitted_on": ", ".join(excited) + " jointly (output error, open loop over each window)",
+                       "not_excited": {v: float(r) for v, r in zip(FITTED_VARIABLES, rms) if v not in excited},
+                       "held": [name for name, f in zip(FITTED_NAMES, free) if not f],
                    })
 
 
-def _sigma(fit: optimize.OptimizeResult, p: GreyboxParameters) -> dict[str, float]:
-    """1-sigma of the identified constants from the Jacobian at the optimum (module docstring)."""
-    s2 = 2.0 * fit.cost / max(fit.fun.size - fit.x.size, 1)
+def _sigma(fit: optimize.OptimizeResult, free: np.ndarray, p: GreyboxParameters) -> dict[str, float]:
+    """1-sigma of the identified constants from the Jacobian (of the ``free`` parameters) at the optimum
+    (module docstring); a held constant's is NaN."""
+    n_free = int(free.sum())
+    s2 = 2.0 * fit.cost / max(fit.fun.size - n_free, 1)
+    cov = np.full((free.size, free.size), np.nan)
     try:
-        cov = np.linalg.inv(fit.jac.T @ fit.jac) * s2
+        cov[np.ix_(free, free)] = np.linalg.inv(fit.jac.T @ fit.jac) * s2
     except np.linalg.LinAlgError:
-        cov = np.full((fit.x.size, fit.x.size), np.nan)
+        pass
     log_gain_var = cov[1, 1] + cov[0, 0] - 2.0 * cov[0, 1]  # ln K = ln G_config + z_1 - z_0
     sigma_log_gain = math.sqrt(log_gain_var) if log_gain_var >= 0 else float("nan")
     return {"motor_a_m": float(abs(p.motor_a_m) * math.sqrt(max(cov[0, 0], 0.0))),
             "motor_b_m": float(p.motor_b_m * sigma_log_gain),
             "thrust_gain_K": float(p.input_gain * sigma_log_gain),
-            "drag_constant": float(p.thrust_constant * math.sqrt(max(cov[2, 2], 0.0)))}
+            "drag_constant": float(p.thrust_constant * math.sqrt(cov[2, 2])) if cov[2, 2] >= 0 else float("nan")}
