@@ -15,7 +15,7 @@ from quad_modelling.core.windows import (
 )
 from quad_modelling.errors import ConfigError, DataError
 
-from .flightgen import linear_flight
+from test.core.flightgen import linear_flight
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,7 @@ from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec
 
-from .flightgen import linear_flight
+from test.core.flightgen import linear_flight
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ from quad_modelling.core.identification.identify import (
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
 
-from .flightgen import linear_flight
+from test.core.flightgen import linear_flight
 
 
 def test_identification_recovers_motor_constants_used_to_simulate():

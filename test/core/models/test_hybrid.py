@@ -25,7 +25,7 @@ from quad_modelling.core.windows import SpanSpec, warm_samples_for
 from quad_modelling.errors import ModelError
 from quad_modelling.io.loader import load_flight
 
-BAG = Path(__file__).resolve().parents[2] / "bags" / "nanobench_B7_oval_medium_rep2"
+BAG = Path(__file__).resolve().parents[3] / "bags" / "nanobench_B7_oval_medium_rep2"
 SMALL = NarxConfig(hidden=4, output_delays=5, input_delays=tuple(range(5)), epochs=6, iterations_per_epoch=20)
 RATES = columns(("roll_rate", "pitch_rate", "yaw_rate"))
 
