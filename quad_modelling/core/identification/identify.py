@@ -123,6 +123,8 @@ class IdentificationResult:
 
 def training_windows(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig) -> list[TrainingWindow]:
     """Preprocessed windows of the training span (never the evaluation span)."""
+    for log in flights:
+        log.require(("acc_b", "gyro_b"), "identify (it fits the measured Z and angular accelerations)")
     flights = [resample_uniform(log) for log in flights]
     plan = plan_windows(flights, config)
     windows: list[Window] = plan.get("train", [])
