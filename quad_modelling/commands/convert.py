@@ -24,6 +24,10 @@ Inputs: thesis-style MATLAB logs (.mat; default variable names in docs/formats.m
 Output: with one input, OUTPUT is the bag directory (or a .mat file); with several inputs,
 OUTPUT is a new directory holding one bag per input, named after it.
 Nothing is overwritten without --force; a failed run leaves no output behind.
+Engine commands a little beyond the vehicle's input range are clipped to it (the actuator
+saturates) with one warning line per column and the count kept in the bag's notes; negative
+or far-out commands are refused. A log without accelerometer/gyro (pose-only motion capture)
+converts to a bag without the imu topic.
 
 examples:
   quad-modelling convert flight.mat --vehicle linkquad -o bags/flight
@@ -70,7 +74,10 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
 
     def load(path: Path):
-        return load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping)
+        log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping)
+        for message in log.meta.notes.get("warnings", []):  # clipped commands, a cut tail: also kept in the bag's notes
+            print(f"warning: {message}", file=sys.stderr)
+        return log
 
     if len(inputs) == 1:
         log = load(inputs[0])

@@ -197,6 +197,7 @@ def run(args: argparse.Namespace) -> int:
     models = parse_models(args.models)
     spans = span_list(args)
     bag = read_bag_metadata(args.bag)  # metadata.yaml only: the replay node reads the messages
+    bag.require_live_topics()
     vehicle_name = args.vehicle or bag.vehicle
     if not vehicle_name:
         raise ConfigError(f"{args.bag}: the bag names no vehicle; pass --vehicle NAME")

@@ -8,8 +8,8 @@ field      shape    content
 =========  =======  ==========================================================
 t          (N,)     sample time [s], strictly increasing
 u          (N, 4)   raw engine commands as logged (PWM counts, pulse seconds...)
-acc_b      (N, 3)   onboard accelerometer specific force, B frame [m/s²]
-gyro_b     (N, 3)   onboard gyro rates p, q, r about B axes [rad/s]
+acc_b      (N, 3)   optional onboard accelerometer specific force, B frame [m/s²]
+gyro_b     (N, 3)   optional onboard gyro rates p, q, r about B axes [rad/s]
 pos_n      (N, 3)   motion-capture position in N [m]
 vel_n      (N, 3)   motion-capture velocity in N [m/s]
 euler      (N, 3)   motion-capture attitude φ, θ, ψ [rad]
@@ -17,10 +17,21 @@ vbat       (N,)     optional battery voltage [V]
 omega      (N, 4)   optional rotor speeds [rad/s]
 =========  =======  ==========================================================
 
+Optional fields are None when the flight has no such sensor (a motion-capture
+log without an onboard IMU, a log without battery or rotor speed): a variable
+or model that needs a missing sensor says so by name (:data:`SENSORS`,
+:meth:`FlightLog.require`) instead of refusing the flight.
+
 Construction validates shapes, strictly increasing time and finite values
 (a NaN is rejected with the channel and sample time named; readers that can
 fill gaps say so in ``meta.notes``), and the sensor full-scale limits below,
 which catch data in the wrong unit (e.g. accelerations in g, angles in deg).
+
+Engine commands beyond the vehicle's input range (:func:`saturate_commands`):
+the actuator saturates, so a command up to :data:`SATURATION_MARGIN` of the
+range beyond it is clipped to the range with a warning (kept in
+``meta.notes['warnings']`` and counted in ``meta.notes['saturated_commands']``);
+a negative command (range starting at 0 or above) or one further out is refused.
 """
 
 from __future__ import annotations
@@ -40,6 +51,17 @@ ACCEL_FULL_SCALE = 24.0 * 9.80665
 
 VECTOR_FIELDS = ("acc_b", "gyro_b", "pos_n", "vel_n", "euler")
 """The (N, 3) fields, in the order used by writers."""
+
+SENSORS = {"acc_b": "accelerometer", "gyro_b": "gyro", "vbat": "battery voltage", "omega": "rotor speed"}
+"""The optional fields and the sensor each comes from (None in a flight without that sensor)."""
+
+SATURATION_MARGIN = 0.05
+"""Largest excess beyond the input range, as a fraction of the range width, that is clipped as
+actuator saturation (:func:`saturate_commands`); further out is refused as impossible. A judgement,
+not a measurement: ESC/servo PWM endpoints are calibrated to a few per cent of their 1000 µs span,
+so a command a few per cent past an endpoint is a request the actuator saturates. The NanoBench
+values beyond 65535 (B9_trefoil_fast_rep2, up to 4.78e6) are no evidence either way: they lie in a
+linearly extrapolated tail (:mod:`quad_modelling.io.nanobench`), no recorded sample exceeds 65535."""
 
 
 def first_outside(values: np.ndarray, low: float, high: float) -> tuple[int, int, int] | None:
@@ -71,8 +93,8 @@ class FlightLog:
 
     t: np.ndarray
     u: np.ndarray
-    acc_b: np.ndarray
-    gyro_b: np.ndarray
+    acc_b: np.ndarray | None
+    gyro_b: np.ndarray | None
     pos_n: np.ndarray
     vel_n: np.ndarray
     euler: np.ndarray
@@ -86,11 +108,8 @@ class FlightLog:
         if self.t.ndim != 1 or self.t.size < 2:
             raise DataError(f"{where}: time must be a vector of at least 2 samples, got shape {self.t.shape}")
         n = self.t.size
-        expected = {"u": (n, 4), **{name: (n, 3) for name in VECTOR_FIELDS}}
-        if self.vbat is not None:
-            expected["vbat"] = (n,)
-        if self.omega is not None:
-            expected["omega"] = (n, 4)
+        expected = {"u": (n, 4), **{name: (n, 3) for name in VECTOR_FIELDS}, "vbat": (n,), "omega": (n, 4)}
+        expected = {name: shape for name, shape in expected.items() if name not in SENSORS or getattr(self, name) is not None}
         for name, shape in expected.items():
             value = np.ascontiguousarray(getattr(self, name), dtype=float)
             if value.shape != shape:
@@ -121,6 +140,8 @@ class FlightLog:
                 raise DataError(f"{where}: field {name}{column} is not finite at row {row}{time}")
 
     def _check_range(self, where: str, name: str, limit: float, what: str, columns=(0, 1, 2)) -> None:
+        if getattr(self, name) is None:
+            return
         values = np.abs(getattr(self, name)[:, list(columns)])
         if values.max() > limit:
             row, col = np.unravel_index(int(np.argmax(values)), values.shape)
@@ -151,6 +172,21 @@ class FlightLog:
         }
         return dataclasses.replace(self, **changes)
 
+    def missing_sensors(self, fields=tuple(SENSORS)) -> list[str]:
+        """The optional ``fields`` this flight lacks (None)."""
+        return [name for name in fields if getattr(self, name) is None]
+
+    def require(self, fields, purpose: str) -> None:
+        """Raise DataError naming the first of ``fields`` this flight lacks: ``FILE: identify needs the gyro (gyro_b), ...``."""
+        missing = self.missing_sensors(fields)
+        if missing:
+            names = " and ".join(f"the {SENSORS[name]} ({name})" for name in missing)
+            raise DataError(f"{self.meta.source}: {purpose} needs {names}, which this flight does not have")
+
+    def warn(self, message: str) -> None:
+        """Record a warning about this flight in ``meta.notes['warnings']`` (printed by ``convert``, kept in the bag)."""
+        self.meta.notes.setdefault("warnings", []).append(message)
+
     def check_input_range(self, low: float, high: float, unit: str) -> None:
         """Raise DataError naming column, row and time of the first command outside [low, high]."""
         found = first_outside(self.u, low, high)
@@ -162,6 +198,14 @@ class FlightLog:
                 f"of vehicle {self.meta.vehicle}"
             )
 
+    def saturate_inputs(self, low: float, high: float, unit: str, names=("u1", "u2", "u3", "u4")) -> None:
+        """Clip the commands to [low, high] in place (:func:`saturate_commands`): warnings and counts go to the notes."""
+        self.u, warnings, counts = saturate_commands(self.u, self.t, low, high, self.meta.source, self.meta.vehicle, unit, names)
+        for message in warnings:
+            self.warn(message)
+        if counts:
+            self.meta.notes["saturated_commands"] = {**self.meta.notes.get("saturated_commands", {}), **counts}
+
     def allclose(self, other: FlightLog, rtol: float = 1e-9, atol: float = 1e-9) -> bool:
         """True when every array of both logs is equal within tolerance (metadata ignored)."""
         for name in ("t", "u", *VECTOR_FIELDS, "vbat", "omega"):
@@ -171,3 +215,36 @@ class FlightLog:
             if a is not None and (a.shape != b.shape or not np.allclose(a, b, rtol=rtol, atol=atol)):
                 return False
         return True
+
+
+def saturate_commands(u: np.ndarray, t: np.ndarray, low: float, high: float, where: str, vehicle: str, unit: str,
+                      names=("u1", "u2", "u3", "u4"), margin: float = SATURATION_MARGIN) -> tuple[np.ndarray, list[str], dict]:
+    """Clip engine commands to [low, high] as the actuator does; refuse the physically impossible.
+
+    Returns (clipped commands, one warning per column clipped, counts per column name). A value
+    more than ``margin`` x (high - low) beyond the range, or negative when ``low`` >= 0, raises
+    DataError naming file, column, row and time (``t`` relative to its first sample). Warnings read
+    ``FILE: column C: N values above the V input range [lo, hi] UNIT clipped (max M at row R, t=T s)``.
+    """
+    u = np.asarray(u, dtype=float)
+    slack = margin * (high - low)
+    floor = max(low - slack, 0.0) if low >= 0 else low - slack
+    found = first_outside(u, floor, high + slack)
+    if found:
+        row, col, count = found
+        raise DataError(
+            f"{where}: column {names[col]} data row {row + 1} (t={t[row] - t[0]:.2f} s into the flight) is {u[row, col]:.6g}, "
+            f"outside the {vehicle} input range [{low:g}, {high:g}] {unit} ({count} values outside; up to "
+            f"{margin:.0%} of the range beyond it is clipped as saturation)"
+        )
+    warnings, counts = [], {}
+    for col, name in enumerate(names):
+        for side, outside, extreme in (("above", u[:, col] > high, np.argmax), ("below", u[:, col] < low, np.argmin)):
+            if outside.any():
+                row = int(extreme(np.where(outside, u[:, col], high if side == "above" else low)))
+                counts[name] = counts.get(name, 0) + int(outside.sum())
+                warnings.append(
+                    f"{where}: column {name}: {int(outside.sum())} values {side} the {vehicle} input range [{low:g}, {high:g}] {unit} "
+                    f"clipped ({'max' if side == 'above' else 'min'} {u[row, col]:.6g} at row {row + 1}, t={t[row] - t[0]:.2f} s)"
+                )
+    return np.clip(u, low, high), warnings, counts

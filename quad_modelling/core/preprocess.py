@@ -15,6 +15,13 @@ rates           onboard gyros ``gyro_b`` (p, q, r)
 angular acc     gyros differentiated with a Savitzky-Golay filter
 ==============  ==============================================================
 
+A flight without an accelerometer or gyro (``acc_b``/``gyro_b`` None, e.g. a
+motion-capture-only log) has no best measurement of the variables that need it:
+:func:`measured_variables` gives NaN there and :func:`unmeasured_variables` names
+the sensor (:data:`NEEDS`); the evaluation marks those variables instead of
+scoring them. A model's warm start needs a state, not a score:
+:func:`state_measurement` fills missing rates from the motion-capture attitude.
+
 The accelerometer measures specific force :math:`f_B = R^T (a_N - g e_z)` in
 body FRD (at rest, level: :math:`f_B = (0, 0, -g)`), hence the formula above.
 
@@ -38,7 +45,7 @@ import numpy as np
 from scipy import signal
 
 from quad_modelling.core import frames
-from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.flight_log import SENSORS, FlightLog
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import DataError
@@ -75,6 +82,18 @@ class TrimConfig:
         return int(np.clip(round(self.trim_s * window.sample_rate), 1, len(window)))
 
 
+NEEDS: dict[str, str] = {
+    **{name: "acc_b" for name in ("acc_x", "acc_y", "acc_z")},
+    **{name: "gyro_b" for name in ("roll_rate", "pitch_rate", "yaw_rate", "roll_acc", "pitch_acc", "yaw_acc")},
+}
+"""Variables whose best measurement comes from an optional field: variable -> FlightLog field."""
+
+
+def unmeasured_variables(log: FlightLog) -> dict[str, str]:
+    """Variables ``log`` cannot measure -> the sensor they need (``{"roll_rate": "gyro", ...}``), VARIABLES order."""
+    return {name: SENSORS[field] for name, field in NEEDS.items() if getattr(log, field) is None}
+
+
 def sample_period(log: FlightLog) -> float:
     """Median sample period [s]."""
     return 1.0 / log.sample_rate
@@ -82,6 +101,7 @@ def sample_period(log: FlightLog) -> float:
 
 def nav_acceleration(log: FlightLog, gravity: float = GRAVITY) -> np.ndarray:
     """(N, 3) acceleration in N [m/s²] from the body specific force: a_N = R f_B + g e_z."""
+    log.require(("acc_b",), "the acceleration")
     acc = frames.body_to_nav(log.acc_b, log.euler)
     acc[:, 2] += gravity
     return acc
@@ -108,14 +128,49 @@ def measured_variables(log: FlightLog, vehicle: VehicleConfig | None = None) -> 
     ``vehicle`` is accepted for symmetry with the models; gravity is the
     models' :data:`quad_modelling.core.vehicle.GRAVITY`.
     """
-    out = np.empty((len(log), len(VARIABLES)))
+    out = np.full((len(log), len(VARIABLES)), np.nan)  # NaN: not measured (unmeasured_variables)
     out[:, 0:3] = log.pos_n
     out[:, 3:6] = log.vel_n
-    out[:, 6:9] = nav_acceleration(log)
+    if log.acc_b is not None:
+        out[:, 6:9] = nav_acceleration(log)
     out[:, 9:12] = log.euler
     out[:, 11] = np.unwrap(log.euler[:, 2])
-    out[:, 12:15] = log.gyro_b
-    out[:, 15:18] = differentiate(log.gyro_b, sample_period(log))
+    if log.gyro_b is not None:
+        out[:, 12:15] = log.gyro_b
+        out[:, 15:18] = differentiate(log.gyro_b, sample_period(log))
+    return out
+
+
+def attitude_rates(log: FlightLog) -> np.ndarray:
+    """(N, 3) body rates p, q, r [rad/s] from the motion-capture attitude (no gyro needed).
+
+    The Euler angle derivatives (:func:`differentiate`, yaw unwrapped) through the ZYX kinematics
+    :math:`p = \\dot\\phi - \\dot\\psi \\sin\\theta`,
+    :math:`q = \\dot\\theta \\cos\\phi + \\dot\\psi \\sin\\phi \\cos\\theta`,
+    :math:`r = -\\dot\\theta \\sin\\phi + \\dot\\psi \\cos\\phi \\cos\\theta`.
+    """
+    euler = log.euler.copy()
+    euler[:, 2] = np.unwrap(euler[:, 2])
+    d_phi, d_theta, d_psi = differentiate(euler, sample_period(log)).T
+    phi, theta = euler[:, 0], euler[:, 1]
+    return np.column_stack([
+        d_phi - d_psi * np.sin(theta),
+        d_theta * np.cos(phi) + d_psi * np.sin(phi) * np.cos(theta),
+        -d_theta * np.sin(phi) + d_psi * np.cos(phi) * np.cos(theta),
+    ])
+
+
+def state_measurement(log: FlightLog, vehicle: VehicleConfig | None = None) -> np.ndarray:
+    """:func:`measured_variables`, with the rates and angular accelerations of a flight without a gyro
+    taken from the motion-capture attitude (:func:`attitude_rates`): the state a model starts from.
+
+    Accelerations stay NaN without an accelerometer (no model state is an acceleration).
+    """
+    out = measured_variables(log, vehicle)
+    if log.gyro_b is None:
+        rates = attitude_rates(log)
+        out[:, 12:15] = rates
+        out[:, 15:18] = differentiate(rates, sample_period(log))
     return out
 
 
@@ -229,7 +284,8 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
     notes["resampled_filled_samples"] = int(n - len(log.t)) if n >= len(log.t) else 0
     meta = type(log.meta)(log.meta.vehicle, log.meta.source, notes)
     return FlightLog(
-        t=grid, u=interp(log.u), acc_b=interp(log.acc_b), gyro_b=interp(log.gyro_b), pos_n=interp(log.pos_n),
+        t=grid, u=interp(log.u), acc_b=None if log.acc_b is None else interp(log.acc_b),
+        gyro_b=None if log.gyro_b is None else interp(log.gyro_b), pos_n=interp(log.pos_n),
         vel_n=interp(log.vel_n), euler=euler, meta=meta,
         vbat=None if log.vbat is None else interp(log.vbat), omega=None if log.omega is None else interp(log.omega),
     )

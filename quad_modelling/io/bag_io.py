@@ -30,6 +30,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.errors import BagError, DataError
 from quad_modelling.io.topics import (
     DEFAULT_NAMESPACE,
+    LIVE_TOPICS,
     MEASUREMENT_TOPICS,
     REQUIRED_TOPICS,
     MeasurementMessages,
@@ -73,7 +74,7 @@ def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: 
             connections = {
                 key: writer.add_connection(topic_name(namespace, key), msgtype, typestore=TYPESTORE)
                 for key, msgtype in MEASUREMENT_TOPICS.items()
-                if key != "battery" or log.vbat is not None
+                if key in measurements.topics
             }
             writer.set_custom_data(VEHICLE_KEY, log.meta.vehicle)
             writer.set_custom_data(SOURCE_KEY, Path(log.meta.source).name)
@@ -177,6 +178,15 @@ class BagMetadata:
     duration_s: float
     """Time from the first to the last message (bag receive times) [s]."""
     message_count: int
+    topics: tuple[str, ...] = ()
+    """Every topic the bag records (absolute names)."""
+
+    def require_live_topics(self, namespace: str = DEFAULT_NAMESPACE) -> None:
+        """BagError naming the topics the live nodes need (:data:`~quad_modelling.io.topics.LIVE_TOPICS`) that the bag lacks."""
+        missing = [topic_name(namespace, key) for key in LIVE_TOPICS if topic_name(namespace, key) not in self.topics]
+        if missing:
+            raise BagError(f"{self.path}: run-bag needs topic(s) {missing}, which the bag does not have (the live predictor and "
+                           "evaluator nodes start from imu messages); evaluate it offline with quad-modelling evaluate")
 
 
 def read_bag_metadata(path: str | Path) -> BagMetadata:
@@ -189,10 +199,11 @@ def read_bag_metadata(path: str | Path) -> BagMetadata:
     try:
         span_ns = max(reader.end_time - 1 - reader.start_time, 0) if reader.message_count else 0  # end_time is after the last message
         count = reader.message_count
+        topics = tuple(sorted(reader.topics))
     finally:
         reader.close()
     custom = _custom_data(path)
-    return BagMetadata(str(path), custom.get(VEHICLE_KEY) or None, custom.get(SOURCE_KEY) or None, span_ns / 1e9, count)
+    return BagMetadata(str(path), custom.get(VEHICLE_KEY) or None, custom.get(SOURCE_KEY) or None, span_ns / 1e9, count, topics)
 
 
 def _contract_connections(reader: Reader, path: Path, namespace: str) -> dict:
@@ -300,6 +311,8 @@ def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehi
             k = int(np.argmax(steps <= 0)) + 1
             raise DataError(f"{path}: topic {topic_name(namespace, key)} header stamps do not increase at message {k}")
         data = arrays[key] if key != "motor_input" else arrays[key][:, :4]
+        if key == "imu":  # a vector the imu does not measure is NaN in every message (covariance -1)
+            data = data[:, ~np.isnan(data).all(axis=0)]
         bad = ~np.isfinite(data)
         if bad.any():
             k = int(np.argmax(bad.any(axis=1)))
@@ -318,7 +331,8 @@ def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehi
     if not vehicle_name:
         raise DataError(f"{path}: the bag names no vehicle (custom_data {VEHICLE_KEY}); pass --vehicle NAME")
     return measurement_log(
-        t_ns, arrays["motor_input"][:, :4], on_motor_time("mocap/odom"), on_motor_time("imu"), vehicle_name, str(path),
+        t_ns, arrays["motor_input"][:, :4], on_motor_time("mocap/odom"), on_motor_time("imu") if "imu" in arrays else None,
+        vehicle_name, str(path),
         omega=omega if np.isfinite(omega).all() else None,
         vbat=on_motor_time("battery")[:, 0] if "battery" in arrays else None,
         notes=json.loads(custom.get(NOTES_KEY, "{}") or "{}"),

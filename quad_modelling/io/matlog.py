@@ -15,6 +15,8 @@ YAML mapping file, one entry per FlightLog field::
 vector fields: FRD/FLU for body fields (acc_b, gyro_b), NED/ENU for world
 fields (pos_n, vel_n) and for the attitude (ENU means roll/pitch/yaw of the
 FLU body in ENU). Units: any of :data:`quad_modelling.core.frames.UNIT_FACTORS`.
+``acc_b``, ``gyro_b``, ``vbat`` and ``omega`` are optional (:data:`OPTIONAL_FIELDS`): a
+pose-only motion-capture log maps time, u, pos_n, vel_n and euler only.
 
 Also stored: ``vehicle`` (config name) and ``meta_json`` (notes as JSON, e.g.
 the simulator's effects and seed).
@@ -48,7 +50,9 @@ THESIS_VARIABLES: dict[str, tuple[str, ...]] = {
 }
 """Default variable names per field (thesis symbols: ddXB = onboard X acceleration...)."""
 
-OPTIONAL_FIELDS = ("vbat", "omega")
+OPTIONAL_FIELDS = ("acc_b", "gyro_b", "vbat", "omega")
+"""Fields a log may lack (a pose-only motion-capture log has no acc_b/gyro_b): left out of a mapping,
+or their variables absent from the file, they are None in the FlightLog."""
 BODY_FIELDS = ("acc_b", "gyro_b")
 WORLD_FIELDS = ("pos_n", "vel_n", "euler")
 SI_UNITS = {"time": "s", "acc_b": "m/s2", "gyro_b": "rad/s", "pos_n": "m", "vel_n": "m/s", "euler": "rad", "vbat": "V", "omega": "rad/s"}
@@ -179,7 +183,7 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
     n = len(time)
     fields = {name: _extract(name, mapping[name], found, n, where) for name in mapping if name != "time"}
     for name in BODY_FIELDS:
-        if mapping[name].frame == "FLU":
+        if fields.get(name) is not None and mapping[name].frame == "FLU":
             fields[name] = frames.flu_to_frd(fields[name])
     for name in ("pos_n", "vel_n"):
         if mapping[name].frame == "ENU":
@@ -202,8 +206,8 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
     return FlightLog(
         t=time,
         u=fields["u"],
-        acc_b=fields["acc_b"],
-        gyro_b=fields["gyro_b"],
+        acc_b=fields.get("acc_b"),
+        gyro_b=fields.get("gyro_b"),
         pos_n=fields["pos_n"],
         vel_n=fields["vel_n"],
         euler=fields["euler"],

@@ -18,8 +18,21 @@ roll, pitch, yaw                       Vicon Euler angles, FLU/ENU
 
 The attitude is taken from the quaternion (converted by the frames module);
 roll/pitch/yaw are only checked against it: the data holds them in radians,
-not degrees as the column reference says. Motor values beyond the vehicle's
-input range (the ``B9_trefoil_fast_rep2`` quirk) are refused with file, column
+not degrees as the column reference says. The IMU and battery columns are
+optional (a flight without them has no acc_b/gyro_b/vbat).
+
+Extrapolated tail: the CSV puts every onboard stream on the Vicon clock; when
+the onboard log stops before the Vicon recording, the motor columns continue
+as one straight line to the end (``B9_trefoil_fast_rep2``: from t = 12.5 s on,
+rising to 4.78e6 by t = 42.3 s; its IMU and battery columns go flat or linear
+with them). Recorded motor values are never collinear with all four motors
+moving for more than 11 rows in the 18 NanoBench flights, so a final run of at
+least :data:`EXTRAPOLATED_MIN_S` is cut off with a warning and recorded in
+``meta.notes['extrapolated_tail']``.
+
+Motor values beyond the vehicle's input range are clipped to it with a warning
+and a count (:func:`quad_modelling.core.flight_log.saturate_commands`); negative
+or far beyond (more than the saturation margin) are refused with file, column
 and row named.
 """
 
@@ -31,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.flight_log import FlightLog, FlightMeta, first_outside
+from quad_modelling.core.flight_log import FlightLog, FlightMeta, saturate_commands
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import DataError
 
@@ -43,7 +56,16 @@ GYRO = ("imu_gyro_x", "imu_gyro_y", "imu_gyro_z")
 MOTORS = ("motor_motor_m1", "motor_motor_m2", "motor_motor_m3", "motor_motor_m4")
 VBAT = "pwr_pm_vbat"
 EULER_COLUMNS = ("roll", "pitch", "yaw")
-REQUIRED = ("t", *POSITION, *QUATERNION, *VELOCITY, *ACCEL, *GYRO, *MOTORS, VBAT)
+REQUIRED = ("t", *POSITION, *QUATERNION, *VELOCITY, *MOTORS)
+OPTIONAL = {"acc_b": ACCEL, "gyro_b": GYRO, "vbat": (VBAT,)}
+"""Column groups a flight may lack as a whole (FlightLog field -> columns)."""
+
+EXTRAPOLATED_MIN_S = 1.0
+"""Shortest final run [s] of exactly collinear, moving motor values cut off as extrapolated (module docstring)."""
+
+COLLINEAR_TOLERANCE = 1.0
+"""Largest second difference [command counts] of a motor column counted as exactly linear (the
+extrapolated tail: < 0.3; recorded flight: median 240)."""
 
 EULER_COLUMN_TOLERANCE = 0.01
 """Largest rotation [rad] between the roll/pitch/yaw columns and the quaternion for the columns to
@@ -72,9 +94,11 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         with _open_text(path) as stream:
             header = stream.readline().strip().split(",")
             missing = [c for c in REQUIRED if c not in header]
+            missing += [c for group in OPTIONAL.values() if any(c in header for c in group) for c in group if c not in header]
             if missing:
                 raise DataError(f"{where}: missing NanoBench column(s) {missing}")
-            index = {name: header.index(name) for name in (*REQUIRED, *EULER_COLUMNS) if name in header}
+            optional = [c for group in OPTIONAL.values() for c in group]
+            index = {name: header.index(name) for name in (*REQUIRED, *optional, *EULER_COLUMNS) if name in header}
             rows = np.loadtxt(stream, delimiter=",", usecols=list(index.values()), ndmin=2)
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
@@ -114,24 +138,55 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
             else f"inconsistent with the quaternion (largest deviation {deviation[row]:.3g} rad at data row {row + 1})"
         )
     config = vehicle if isinstance(vehicle, VehicleConfig) else load_vehicle(vehicle)
-    motors = stack(MOTORS)
-    found = first_outside(motors, config.input_min, config.input_max)
-    if found:
-        row, col, count = found
-        raise DataError(
-            f"{where}: column {MOTORS[col]} data row {row + 1} (t={column['t'][row] - column['t'][0]:.2f} s into the flight) "
-            f"is {motors[row, col]:.0f}, outside the {config.name} input range "
-            f"[{config.input_min:g}, {config.input_max:g}] {config.input_unit} ({count} values outside)"
+    warnings = []
+    keep = _recorded_rows(stack(MOTORS), column["t"])
+    if keep < len(column["t"]):
+        t, motors = column["t"], stack(MOTORS)
+        notes["extrapolated_tail"] = {"from_row": keep + 1, "t_s": float(t[keep] - t[0]), "rows": len(t) - keep}
+        warnings.append(
+            f"{where}: motor columns continue as one straight line from data row {keep + 1} (t={t[keep] - t[0]:.2f} s) to the end "
+            f"({len(t) - keep} rows, up to {motors[keep:].max():.6g}): the onboard log stopped and the CSV extrapolated it; "
+            f"the flight is cut at t={t[keep] - t[0]:.2f} s"
         )
+        column = {name: values[:keep] for name, values in column.items()}
+        quat, euler = quat[:keep], euler[:keep]
+    motors, clipped, counts = saturate_commands(stack(MOTORS), column["t"], config.input_min, config.input_max, where, config.name,
+                                                config.input_unit, MOTORS)
+    warnings += clipped
+    if counts:
+        notes["saturated_commands"] = counts
+    has = {field: all(c in column for c in columns) for field, columns in OPTIONAL.items()}
     log = FlightLog(
         t=column["t"],
         u=motors,
-        acc_b=frames.flu_to_frd(frames.to_si(stack(ACCEL), "g")),
-        gyro_b=frames.flu_to_frd(stack(GYRO)),
+        acc_b=frames.flu_to_frd(frames.to_si(stack(ACCEL), "g")) if has["acc_b"] else None,
+        gyro_b=frames.flu_to_frd(stack(GYRO)) if has["gyro_b"] else None,
         pos_n=frames.enu_to_ned(stack(POSITION)),
         vel_n=frames.enu_to_ned(stack(VELOCITY)),
         euler=euler,
-        vbat=column[VBAT],
+        vbat=column[VBAT] if has["vbat"] else None,
         meta=FlightMeta(vehicle=config.name, source=where, notes=notes),
     )
+    for message in warnings:
+        log.warn(message)
     return log
+
+
+def _recorded_rows(motors: np.ndarray, t: np.ndarray) -> int:
+    """Rows before an extrapolated tail (module docstring): len(motors) when there is none.
+
+    The tail is the final run of rows whose motor values are collinear (every second difference
+    within :data:`COLLINEAR_TOLERANCE`) while moving; the two rows that define the line are kept.
+    """
+    if len(motors) < 3:
+        return len(motors)
+    linear = (np.abs(np.diff(motors, 2, axis=0)) <= COLLINEAR_TOLERANCE).all(axis=1)
+    moving = (np.diff(motors, axis=0)[1:] != 0).any(axis=1)
+    run = linear & moving
+    start = len(run)
+    while start > 0 and run[start - 1]:
+        start -= 1
+    rate = (len(t) - 1) / (t[-1] - t[0]) if t[-1] > t[0] else 0.0
+    if len(run) - start < max(EXTRAPOLATED_MIN_S * rate, 3):
+        return len(motors)
+    return start + 2

@@ -17,7 +17,9 @@ topic                  type                        content (frames per REP-103/1
 ``mocap/odom``         nav_msgs/Odometry           pose in ``world`` (ENU), twist.linear in
                                                    ``base_link`` (FLU) [m/s]; angular twist not measured
 ``imu``                sensor_msgs/Imu             ``linear_acceleration`` specific force [m/s²] and
-                                                   ``angular_velocity`` [rad/s], body FLU; no orientation
+                                                   ``angular_velocity`` [rad/s], body FLU; no orientation;
+                                                   only when the log has an accelerometer or gyro (one
+                                                   missing: its covariance element 0 is -1, REP-145)
 ``battery``            sensor_msgs/BatteryState    ``voltage`` [V] (only when the log has it)
 ``<model>/odom``       nav_msgs/Odometry           predicted pose (``world``, ENU), twist.linear and
                                                    twist.angular in ``<model>/base_link`` (FLU)
@@ -71,8 +73,11 @@ MEASUREMENT_TOPICS = {
 }
 """Relative measurement topic -> message type, in the order a sample's messages are published."""
 
-REQUIRED_TOPICS = ("motor_input", "mocap/odom", "imu")
-"""Measurement topics a flight must have (``battery`` is optional)."""
+REQUIRED_TOPICS = ("motor_input", "mocap/odom")
+"""Measurement topics a flight must have (``imu`` and ``battery`` are optional: a pose-only flight has no imu)."""
+
+LIVE_TOPICS = ("motor_input", "mocap/odom", "imu")
+"""Measurement topics the live nodes need (the predictor and evaluator nodes wait for imu messages)."""
 
 ODOM_FIELDS = 10
 PREDICTED_ODOM_FIELDS = 13
@@ -242,12 +247,17 @@ class MeasurementMessages:
 
     def __init__(self, log: FlightLog, types: MessageTypes):
         self.position_enu, self.quat_xyzw, self.twist_flu = frames.to_odometry(log.pos_n, log.vel_n, log.euler)
-        self.acc_flu = frames.frd_to_flu(log.acc_b)
-        self.gyro_flu = frames.frd_to_flu(log.gyro_b)
+        self.has_imu = log.acc_b is not None or log.gyro_b is not None
+        self.acc_flu = np.zeros((len(log), 3)) if log.acc_b is None else frames.frd_to_flu(log.acc_b)
+        self.gyro_flu = np.zeros((len(log), 3)) if log.gyro_b is None else frames.frd_to_flu(log.gyro_b)
         self.u, self.omega, self.vbat = log.u, log.omega, log.vbat
         self._motor = types.joint_state()
         self._odometry = types.odometry(WORLD_FRAME, BODY_FRAME)
         self._imu = types.imu()
+        if log.acc_b is None:  # sensor_msgs/Imu: covariance element 0 = -1 means "no such data"
+            self._imu.linear_acceleration_covariance = NO_ORIENTATION.copy()
+        if log.gyro_b is None:
+            self._imu.angular_velocity_covariance = NO_ORIENTATION.copy()
         self._battery = types.battery() if log.vbat is not None else None
 
     def motor(self, row: int, ns: int):
@@ -285,9 +295,17 @@ class MeasurementMessages:
         msg.voltage = float(self.vbat[row])
         return msg
 
+    @property
+    def topics(self) -> tuple[str, ...]:
+        """The relative topics this flight has messages on (imu and battery only when measured)."""
+        return tuple(key for key, present in (("motor_input", True), ("mocap/odom", True), ("imu", self.has_imu),
+                                              ("battery", self._battery is not None)) if present)
+
     def row(self, row: int, ns: int) -> dict:
         """Every measurement message of one sample, by relative topic, in :data:`MEASUREMENT_TOPICS` order."""
-        out = {"motor_input": self.motor(row, ns), "mocap/odom": self.odometry(row, ns), "imu": self.imu(row, ns)}
+        out = {"motor_input": self.motor(row, ns), "mocap/odom": self.odometry(row, ns)}
+        if self.has_imu:
+            out["imu"] = self.imu(row, ns)
         if self._battery is not None:
             out["battery"] = self.battery(row, ns)
         return out
@@ -319,9 +337,12 @@ def predicted_odometry_fields(msg) -> list[float]:
 
 
 def imu_fields(msg) -> list[float]:
-    """Imu -> specific force FLU, gyro FLU (6 numbers)."""
+    """Imu -> specific force FLU, gyro FLU (6 numbers); NaN for a vector whose covariance element 0 is -1 (not measured)."""
     a, w = msg.linear_acceleration, msg.angular_velocity
-    return [a.x, a.y, a.z, w.x, w.y, w.z]
+    nan = float("nan")
+    acc = [nan] * 3 if msg.linear_acceleration_covariance[0] == -1 else [a.x, a.y, a.z]
+    gyro = [nan] * 3 if msg.angular_velocity_covariance[0] == -1 else [w.x, w.y, w.z]
+    return acc + gyro
 
 
 def accel_fields(msg) -> list[float]:
@@ -339,7 +360,7 @@ def measurement_log(
     stamps: np.ndarray,
     u: np.ndarray,
     odometry: np.ndarray,
-    imu: np.ndarray,
+    imu: np.ndarray | None,
     vehicle: str,
     source: str,
     omega: np.ndarray | None = None,
@@ -349,18 +370,20 @@ def measurement_log(
     """Rows of measurement fields on one time base -> FlightLog (internal NED/FRD frames).
 
     ``stamps`` (N,) [ns]; ``odometry`` (N, 10) and ``imu`` (N, 6) hold message fields
-    (module docstring). Yaw is unwrapped over the rows. Raises DataError (from
-    FlightLog validation) for unusable rows.
+    (module docstring); ``imu`` None (no imu topic) or a vector NaN in every row (not
+    measured) gives a log without that sensor. Yaw is unwrapped over the rows. Raises
+    DataError (from FlightLog validation) for unusable rows.
     """
     odometry = np.asarray(odometry, dtype=float).reshape(-1, ODOM_FIELDS)
-    imu = np.asarray(imu, dtype=float).reshape(-1, IMU_FIELDS)
+    imu = np.full((len(odometry), IMU_FIELDS), np.nan) if imu is None else np.asarray(imu, dtype=float).reshape(-1, IMU_FIELDS)
+    acc, gyro = imu[:, 0:3], imu[:, 3:6]
     pos_n, vel_n, euler = frames.from_odometry(odometry[:, 0:3], odometry[:, 3:7], odometry[:, 7:10])
     euler[:, 2] = np.unwrap(euler[:, 2])
     return FlightLog(
         t=stamps_to_seconds(stamps),
         u=np.asarray(u, dtype=float).reshape(-1, 4),
-        acc_b=frames.flu_to_frd(imu[:, 0:3]),
-        gyro_b=frames.flu_to_frd(imu[:, 3:6]),
+        acc_b=None if np.isnan(acc).all() else frames.flu_to_frd(acc),
+        gyro_b=None if np.isnan(gyro).all() else frames.flu_to_frd(gyro),
         pos_n=pos_n,
         vel_n=vel_n,
         euler=euler,

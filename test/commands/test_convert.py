@@ -34,15 +34,40 @@ def test_convert_bag_back_to_mat(tmp_path):
     assert read_matlog(tmp_path / "b.mat").meta.vehicle == "linkquad"
 
 
-def test_several_inputs_go_to_a_directory_and_the_quirk_is_refused(tmp_path, capsys):
+def _far_beyond(directory: Path) -> Path:
+    """FLIGHT with motor_motor_m2 of data row 500 at 80000: 22 % beyond 65535, refused (not saturation)."""
+    import gzip
+
+    lines = gzip.open(FLIGHT, "rt").read().splitlines()
+    cells = lines[500].split(",")
+    cells[lines[0].split(",").index("motor_motor_m2")] = "80000"
+    lines[500] = ",".join(cells)
+    directory.mkdir()
+    path = directory / "far_beyond.csv"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_several_inputs_go_to_a_directory_and_a_bad_one_is_refused(tmp_path, capsys):
     out = tmp_path / "bags"
-    code = main(["convert", str(FLIGHT), str(QUIRK), "-o", str(out)])
+    bad = _far_beyond(tmp_path / "in")
+    code = main(["convert", str(FLIGHT), str(bad), "-o", str(out)])
     err = capsys.readouterr().err
-    assert code == 2 and "motor_motor_m" in err and "outside the crazyflie21 input range" in err
+    assert code == 2 and "column motor_motor_m2 data row 500" in err and "outside the crazyflie21 input range" in err
     assert len(err.strip().splitlines()) == 1  # one clear line
-    assert not out.exists() and list(tmp_path.iterdir()) == []  # nothing partial left behind
-    assert main(["convert", str(FLIGHT), str(QUIRK), "-o", str(out), "--skip-bad"]) == 1
+    assert not out.exists() and list(tmp_path.iterdir()) == [tmp_path / "in"]  # nothing partial left behind
+    assert main(["convert", str(FLIGHT), str(bad), "-o", str(out), "--skip-bad"]) == 1
     assert sorted(p.name for p in out.iterdir()) == ["B7_oval_medium_rep2_first1000"]
+
+
+def test_the_extrapolated_quirk_converts_with_one_warning_kept_in_the_bag(tmp_path, capsys):
+    # Issue 18: B9_trefoil_fast_rep2's motor values beyond 65535 lie in an extrapolated tail; it converts, cut, with a warning.
+    assert main(["convert", str(QUIRK), "-o", str(tmp_path / "bag")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"warning: {QUIRK}: motor columns continue as one straight line from data row 54 (t=0.53 s) to the end "
+                   "(148 rows, up to 294574): the onboard log stopped and the CSV extrapolated it; the flight is cut at t=0.53 s"]
+    log = read_bag(tmp_path / "bag")
+    assert len(log) == 53 and log.meta.notes["extrapolated_tail"]["rows"] == 148 and len(log.meta.notes["warnings"]) == 1
 
 
 def test_existing_output_is_kept_without_force(tmp_path, capsys):

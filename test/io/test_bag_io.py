@@ -170,3 +170,31 @@ def test_topics_at_other_stamps_are_interpolated_onto_motor_time(tmp_path):
     log = read_bag(tmp_path / "bag")
     assert len(log) == 10 and log.pos_n[0, 2] == pytest.approx(-1.0)
     np.testing.assert_allclose(log.gyro_b[:, 0], 0.001 * np.arange(10))
+
+
+def test_a_flight_without_imu_writes_and_reads_a_bag_without_the_imu_topic(tmp_path):
+    log = synthetic_log()
+    pose = type(log)(**{**{f: getattr(log, f) for f in ("t", "u", "pos_n", "vel_n", "euler", "vbat", "omega", "meta")},
+                        "acc_b": None, "gyro_b": None})
+    write_bag(pose, tmp_path / "bag")
+    assert [t.name for t in summarize_bag(tmp_path / "bag").topics] == ["/quad/battery", "/quad/mocap/odom", "/quad/motor_input"]
+    back = read_bag(tmp_path / "bag")
+    np.testing.assert_allclose(back.vbat, pose.vbat, rtol=1e-7)  # float32 in BatteryState
+    back.vbat = pose.vbat
+    assert back.acc_b is None and back.gyro_b is None and back.allclose(pose, rtol=1e-12, atol=1e-12)
+    with pytest.raises(BagError, match=r"run-bag needs topic\(s\) \['/quad/imu'\], which the bag does not have"):
+        bag_io.read_bag_metadata(tmp_path / "bag").require_live_topics()
+
+
+def test_an_imu_without_accelerometer_marks_it_unmeasured_by_covariance(tmp_path):
+    log = synthetic_log()
+    gyro_only = type(log)(**{**{f: getattr(log, f) for f in ("t", "u", "gyro_b", "pos_n", "vel_n", "euler", "vbat", "omega", "meta")},
+                             "acc_b": None})
+    write_bag(gyro_only, tmp_path / "bag")
+    with Reader(tmp_path / "bag") as reader:
+        connection = next(c for c in reader.connections if c.topic == "/quad/imu")
+        _, _, raw = next(reader.messages(connections=[connection]))
+        msg = bag_io.TYPESTORE.deserialize_cdr(raw, connection.msgtype)
+    assert msg.linear_acceleration_covariance[0] == -1 and msg.angular_velocity_covariance[0] == 0
+    back = read_bag(tmp_path / "bag")
+    assert back.acc_b is None and np.allclose(back.gyro_b, log.gyro_b, atol=1e-12)

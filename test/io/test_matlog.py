@@ -84,3 +84,17 @@ def test_nan_row_in_a_mat_log_is_named(tmp_path):
     scipy.io.savemat(tmp_path / "nan.mat", {k: v for k, v in contents.items() if not k.startswith("__")})
     with pytest.raises(DataError, match=r"field gyro_b column 1 is not finite at row 42"):
         read_matlog(tmp_path / "nan.mat")
+
+
+def test_a_pose_only_vicon_log_reads_through_a_mapping_without_imu(tmp_path):
+    log = synthetic_log()
+    scipy.io.savemat(tmp_path / "vicon.mat", {"T": log.t, "motors": log.u, "pos": frames.ned_to_enu(log.pos_n) * 1e3,
+                                              "vel": frames.ned_to_enu(log.vel_n), "att": np.rad2deg(log.euler)})
+    (tmp_path / "map.yaml").write_text(yaml.safe_dump({
+        "time": {"variable": "T", "unit": "s"}, "u": {"variable": "motors", "unit": "PWM"},
+        "pos_n": {"variable": "pos", "unit": "mm", "frame": "ENU"}, "vel_n": {"variable": "vel", "unit": "m/s", "frame": "ENU"},
+        "euler": {"variable": "att", "unit": "deg", "frame": "NED"}}))
+    back = read_matlog(tmp_path / "vicon.mat", vehicle="crazyflie21", mapping=load_mapping(tmp_path / "map.yaml"))
+    assert back.acc_b is None and back.gyro_b is None and back.vbat is None
+    np.testing.assert_allclose(back.pos_n, log.pos_n, atol=1e-12)
+    np.testing.assert_allclose(back.euler[:, :2], log.euler[:, :2], atol=1e-12)

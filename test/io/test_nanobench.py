@@ -36,9 +36,56 @@ def test_real_flight_in_internal_frames():
     assert np.all(np.diff(log.t) > 0) and log.vbat.min() > 3.0
 
 
-def test_motor_values_beyond_pwm_range_are_refused_with_column_and_row():
-    with pytest.raises(DataError, match=r"B9_trefoil_fast_rep2_rows1199-1399.csv.gz: column motor_motor_m\d data row \d+ .* outside the crazyflie21 input range \[0, 65535\] PWM"):
-        read_nanobench(QUIRK)
+def test_extrapolated_motor_tail_is_cut_with_a_warning():
+    # B9_trefoil_fast_rep2: the onboard log stops, the CSV extrapolates the motors linearly past 65535 (issue 18:
+    # once refused outright). The 148 collinear rows are cut; what remains is recorded and in range.
+    log = read_nanobench(QUIRK)
+    assert len(log) == 53 and log.u.max() == 65535.0
+    assert log.meta.notes["extrapolated_tail"] == {"from_row": 54, "t_s": pytest.approx(0.53, abs=1e-3), "rows": 148}
+    assert "saturated_commands" not in log.meta.notes
+    [warning] = log.meta.notes["warnings"]
+    assert warning == (f"{QUIRK}: motor columns continue as one straight line from data row 54 (t=0.53 s) to the end "
+                       "(148 rows, up to 294574): the onboard log stopped and the CSV extrapolated it; the flight is cut at t=0.53 s")
+
+
+def test_motor_values_just_beyond_the_range_are_clipped_and_counted(tmp_path):
+    path = _edit(tmp_path, 300, "motor_motor_m2", "66254")
+    lines = path.read_text().splitlines()
+    cells = lines[301].split(",")
+    cells[lines[0].split(",").index("motor_motor_m2")] = "65600"
+    lines[301] = ",".join(cells)
+    path.write_text("\n".join(lines) + "\n")
+    log = read_nanobench(path)
+    assert log.u[299, 1] == 65535.0 and log.u[300, 1] == 65535.0 and log.u.max() == 65535.0
+    assert log.meta.notes["saturated_commands"] == {"motor_motor_m2": 2}
+    t = log.t[299] - log.t[0]
+    assert log.meta.notes["warnings"] == [
+        f"{path}: column motor_motor_m2: 2 values above the crazyflie21 input range [0, 65535] PWM clipped "
+        f"(max 66254 at row 300, t={t:.2f} s)"
+    ]
+
+
+@pytest.mark.parametrize("value", ["-1", "68900"])
+def test_negative_or_far_beyond_motor_values_are_refused_with_column_and_row(tmp_path, value):
+    path = _edit(tmp_path, 300, "motor_motor_m3", value)
+    t = read_nanobench(FLIGHT).t
+    with pytest.raises(DataError) as info:
+        read_nanobench(path)
+    assert str(info.value) == (
+        f"{path}: column motor_motor_m3 data row 300 (t={t[299] - t[0]:.2f} s into the flight) is {value}, outside the crazyflie21 "
+        "input range [0, 65535] PWM (1 values outside; up to 5% of the range beyond it is clipped as saturation)"
+    )
+
+
+def test_flight_without_imu_and_battery_columns_has_no_such_sensors(tmp_path):
+    lines = gzip.open(FLIGHT, "rt").read().splitlines()
+    header = lines[0].split(",")
+    drop = [header.index(c) for c in header if c.startswith("imu_") or c == "pwr_pm_vbat"]
+    path = tmp_path / "pose_only.csv"
+    path.write_text("\n".join(",".join(c for i, c in enumerate(line.split(",")) if i not in drop) for line in lines) + "\n")
+    log = read_nanobench(path)
+    assert log.acc_b is None and log.gyro_b is None and log.vbat is None and len(log) == 1000
+    np.testing.assert_allclose(log.pos_n, read_nanobench(FLIGHT).pos_n)
 
 
 def test_nan_row_is_named(tmp_path):

@@ -211,6 +211,8 @@ def diagnose(
     if not effects:
         raise ConfigError("diagnose: no effect to test")
     say = progress or (lambda _msg: None)
+    for log in (*train_flights, *test_flights):
+        log.require(("acc_b", "gyro_b"), "diagnose (its effects act on the measured accelerations and rates)")
     train = prepare_windows(train_flights, vehicle, config)
     test = prepare_windows(test_flights, vehicle, config)
     if train.samples != test.samples:

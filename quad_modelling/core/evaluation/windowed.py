@@ -39,9 +39,10 @@ import numpy as np
 
 from quad_modelling.core.evaluation.metrics import rms, tic
 from quad_modelling.core.evaluation.multistep import multistep_evaluation
-from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.flight_log import SENSORS, FlightLog
 from quad_modelling.core.models.base import Predictor
 from quad_modelling.core.preprocess import (
+    NEEDS,
     SMOOTH_CUTOFF_HZ,
     TrimConfig,
     resample_uniform,
@@ -49,7 +50,7 @@ from quad_modelling.core.preprocess import (
     trimmed_inputs,
     trimmed_variables,
 )
-from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
+from quad_modelling.core.variables import EVAL_VARIABLES, INDEX, VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, plan_windows, warm_samples_for
 from quad_modelling.errors import ConfigError, DataError
@@ -90,11 +91,14 @@ def evaluate_window(
     predicted = np.asarray(predictor.predict_window(window, warm_samples), dtype=float)
     if predicted.shape != (len(window), len(VARIABLES)):
         raise DataError(f"model {predictor.name}: predicted shape {predicted.shape}, expected {(len(window), len(VARIABLES))}")
-    if not np.all(np.isfinite(predicted)):
+    measurable = np.isfinite(measured).all(axis=0)  # the variables the flight's sensors measure (preprocess.NEEDS)
+    if not np.all(np.isfinite(predicted[:, measurable])):
         raise DataError(f"model {predictor.name}: non-finite prediction on window starting t={window.t[0]:.2f} s of {window.meta.source}")
-    predicted = smooth(predicted, window.sample_rate, smooth_cutoff_hz)
+    predicted = smooth(np.where(measurable, predicted, np.nan), window.sample_rate, smooth_cutoff_hz)
     scored = slice(warm_samples, None)
-    return WindowResult(measured, predicted, rms(measured[scored], predicted[scored]), tic(measured[scored], predicted[scored]), warm_samples)
+    rms_values = np.where(measurable, rms(measured[scored], predicted[scored]), np.nan)
+    tic_values = np.where(measurable, tic(measured[scored], predicted[scored]), np.nan)
+    return WindowResult(measured, predicted, rms_values, tic_values, warm_samples)
 
 
 def window_mean(per_window) -> np.ndarray:
@@ -117,8 +121,13 @@ class SpanScores:
         return cls(window_mean(rms), window_mean(tic), len(rms))
 
     def to_json(self, variables: Sequence[str] = EVAL_VARIABLES) -> dict:
-        idx = {v: i for i, v in enumerate(VARIABLES)}
-        return {v: {"rms": float(self.rms[idx[v]]), "tic": float(self.tic[idx[v]])} for v in variables}
+        """``{variable: {"rms", "tic"}}``; a variable the flights' sensors do not measure (NaN score) is
+        ``{"rms": null, "tic": null, "needs": "gyro"}`` (:data:`~quad_modelling.core.preprocess.NEEDS`)."""
+        out = {}
+        for v in variables:
+            r, t = float(self.rms[INDEX[v]]), float(self.tic[INDEX[v]])
+            out[v] = {"rms": r, "tic": t} if np.isfinite(r) else {"rms": None, "tic": None, "needs": SENSORS[NEEDS[v]]}
+        return out
 
 
 @dataclass

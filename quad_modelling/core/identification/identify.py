@@ -87,6 +87,8 @@ def training_batch(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     """The windows of ``config``'s training span (never the evaluation span), preprocessed as the diagnosis's
     (:func:`~quad_modelling.core.identification.window_batch.prepare_windows`, ground-contact windows left out)."""
     config.validate()
+    for log in flights:
+        log.require(("acc_b", "gyro_b"), "identify (it fits the measured Z and angular accelerations)")
     try:
         return prepare_windows(flights, vehicle, config, SpanSpec.parse("train", config.train))
     except DataError as err:

@@ -68,9 +68,9 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.motors import motor_thrusts
 from quad_modelling.core.preprocess import (
     TrimConfig,
-    measured_variables,
     sample_period,
     smooth,
+    state_measurement,
     trim_prediction,
     uniform_time_check,
 )
@@ -301,7 +301,7 @@ class GreyboxPredictor:
         if len(warm) < 2:
             raise DataError(f"{warm.meta.source}: the greybox needs at least 2 warm-start samples, got {len(warm)}")
         model = self.discrete(warm)
-        measured = measured_variables(warm, self.vehicle)
+        measured = state_measurement(warm, self.vehicle)
         input_trim = warm.u.mean(axis=0)
         output_trim = measured.mean(axis=0)
         u = warm.u - input_trim
@@ -347,7 +347,7 @@ class GreyboxPredictor:
             u = signal.detrend(segment.u, axis=0, type="linear")
         else:
             u = segment.u - segment.u.mean(axis=0)
-        measured = measured_variables(segment, self.vehicle)
+        measured = state_measurement(segment, self.vehicle)
         offset = np.zeros(len(VARIABLES))
         offset[9:11] = measured[:, 9:11].mean(axis=0)
         thrusts = model.motor_thrusts(u)

@@ -95,6 +95,7 @@ class HybridModel:
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) trimmed prediction: greybox plus closed-loop residual correction."""
+        window.require(("gyro_b",), "model hybrid (its residual nets are seeded with measured gyro rates)")
         check_sample_rate(self.residual, window)
         warm = max(int(warm_samples), self.warm_samples)
         if warm >= len(window):
@@ -140,6 +141,7 @@ def residual_segments(
     greybox = GreyboxPredictor(vehicle, discretisation=discretisation)
     segments = []
     for log, span in zip(logs, spans):
+        log.require(("gyro_b",), "hybrid training (the residual nets learn gyro rates)")
         if span is not None:
             span_indices(log, span)  # DataError when the span holds no data
         a, b = (0.0, math.inf) if span is None else span

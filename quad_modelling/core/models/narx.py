@@ -234,6 +234,7 @@ class NarxModel:
         """
         from quad_modelling.core.preprocess import measured_variables
 
+        window.require(("gyro_b",), "model narx (its outputs are velocities and gyro rates)")
         check_sample_rate(self, window)
         warm = max(int(warm_samples), self.config.output_delays)
         if warm >= len(window):
@@ -313,6 +314,7 @@ class NarxStream:
 # ---- measurements and the 18 variables --------------------------------------
 def measured_outputs(log: FlightLog) -> np.ndarray:
     """(N, 6) best measurements of OUTPUTS (DESIGN 7): motion-capture velocity in N, gyro rates."""
+    log.require(("gyro_b",), "NARX training (its outputs are velocities and gyro rates)")
     return np.concatenate([log.vel_n, log.gyro_b], axis=1)
 
 
@@ -428,6 +430,7 @@ class NarxPredictor:
         """Warm rows (at least n_y) -> (their measurement (W, 18), stream predicting each later sample)."""
         from quad_modelling.core.preprocess import measured_variables
 
+        warm.require(("gyro_b",), "model narx (its outputs are velocities and gyro rates)")
         if len(warm) > 1:
             check_sample_rate(self.model, warm)
         if len(warm) < self.model.config.output_delays:

@@ -60,6 +60,8 @@ def markdown_tables(result: EvaluationResult, title: str = "Evaluation") -> str:
                 entry = data["models"][m].get(s, {}).get(var)
                 if entry is None:
                     cells.append("n/a")
+                elif "needs" in entry:
+                    cells.append(needs_text(entry))
                 else:
                     cells.append(tic_text(entry["tic"]) if metric == "tic" else display_number(var, entry["rms"]))
             rows.append(cells)
@@ -77,6 +79,9 @@ def markdown_tables(result: EvaluationResult, title: str = "Evaluation") -> str:
         for m, groups in horizons["models"].items():
             for g in GROUPS:
                 e = groups[g]
+                if "needs" in e:
+                    rows.append([m, g, *(needs_text(e) for _ in hs), needs_text(e), "-"])
+                    continue
                 ratio = e["ratio_sim_err"]
                 rows.append([m, g, *(f"{e['mae'][str(h)]:.4g}" for h in hs), f"{e['sim_err']:.4g}", "-" if ratio is None else f"{ratio:.3g}"])
         lines += markdown_table(["Model", "Group", *(f"MAE h={h}" for h in hs), "SimErr", "SimErr ratio"], rows)
@@ -85,6 +90,16 @@ def markdown_tables(result: EvaluationResult, title: str = "Evaluation") -> str:
             lines.append(f"Not in the multi-step table (no open-loop form): {', '.join(horizons['not_multistep'])}.")
         lines.append("")
     return "\n".join(lines)
+
+
+def needs_text(entry: dict) -> str:
+    """The cell of a variable the flights cannot measure: ``needs gyro`` (results.json ``"needs"``)."""
+    return f"needs {entry['needs']}"
+
+
+def score_text(entry: dict, key: str) -> str:
+    """TIC of a results.json entry as text, or ``needs <sensor>`` for an unmeasured variable."""
+    return needs_text(entry) if "needs" in entry else tic_text(entry[key])
 
 
 def column_title(model: str, span: str) -> str:
@@ -103,8 +118,8 @@ def headline_scores(data: dict, model_names: list[str]) -> list[str]:
     for name in model_names:
         scores = data["models"][name].get("eval") or next(iter(data["models"][name].values()), {})
         if scores:
-            lines.append(f"  {name}: TIC acc_z {tic_text(scores['acc_z']['tic'])}, roll_rate {tic_text(scores['roll_rate']['tic'])}, "
-                         f"vel_z {tic_text(scores['vel_z']['tic'])}")
+            lines.append(f"  {name}: TIC acc_z {score_text(scores['acc_z'], 'tic')}, roll_rate {score_text(scores['roll_rate'], 'tic')}, "
+                         f"vel_z {score_text(scores['vel_z'], 'tic')}")
     return lines
 
 
@@ -120,8 +135,10 @@ def live_summary_table(results: dict, model_names: list[str]) -> str:
         columns.append(("dummy", "eval" if "eval" in dummy_spans else dummy_spans[-1]))
     if not columns:
         return "no window was scored" + (f"; marked: {marked[0]['reason']}" if marked else "")
-    rows = [[var, display_unit(var), *(f"{tic_text(results['models'][m][s][var]['tic'])} / {display_number(var, results['models'][m][s][var]['rms'])}"
-                                       for m, s in columns)] for var in EVAL_VARIABLES]
+    def cell(entry: dict, var: str) -> str:
+        return needs_text(entry) if "needs" in entry else f"{tic_text(entry['tic'])} / {display_number(var, entry['rms'])}"
+
+    rows = [[var, display_unit(var), *(cell(results['models'][m][s][var], var) for m, s in columns)] for var in EVAL_VARIABLES]
     lines = ["TIC / RMS per variable (mean over windows; RMS in display units)", ""]
     lines += markdown_table(["variable", "unit", *(column_title(m, s) for m, s in columns)], rows, align=True, label_columns=2)
     windows = ", ".join(f"{m} {s}: {results['windows'][m][s]}" for m, s in columns)
@@ -151,6 +168,9 @@ def window_figure(example: ExampleWindow, title: str, acc_var: str, rate_var: st
             ax.plot(t, predicted[:, col] * factor, styles[k % len(styles)], lw=1.1, label=name)
         ax.axvline(t[example.warm_samples - 1], color="0.6", lw=0.8)
         ax.set_ylabel(f"{ROW_LABELS[var]} [{unit}]")
+        if not np.isfinite(example.measured[:, col]).any():  # the flight lacks the sensor (results.json "needs")
+            ax.set_title(f"{ROW_LABELS[var]}: not measured by this flight's sensors", fontsize=9)
+            continue
         scale = np.nanmax(np.abs(example.measured[:, col] * factor))
         if np.isfinite(scale) and scale > 0:
             ax.set_ylim(-3 * scale, 3 * scale)  # keep the measurement readable when a model diverges
