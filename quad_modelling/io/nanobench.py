@@ -76,6 +76,8 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
                 raise DataError(f"{where}: missing NanoBench column(s) {missing}")
             index = {name: header.index(name) for name in (*REQUIRED, *EULER_COLUMNS) if name in header}
             rows = np.loadtxt(stream, delimiter=",", usecols=list(index.values()), ndmin=2)
+    except DataError:
+        raise  # a ValueError too, already naming the file
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
     except (OSError, EOFError, gzip.BadGzipFile) as err:
