@@ -1,34 +1,86 @@
 """Atomic outputs: write to a temporary sibling, rename when complete.
 
-An existing output is never replaced unless ``force`` is true; a failed write
-leaves nothing behind (the temporary path is removed).
+An existing output is never replaced unless ``force`` is true, and never when it
+is, lies inside or contains one of the command's inputs (not even with
+``force``); a failed or interrupted write leaves nothing behind (the staging
+path is removed, and the final rename cannot be cut in half by SIGINT/SIGTERM).
+A full disk, a read-only file system or a name too long for the file system is
+one :class:`OutputDirError` naming the output.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
+import signal
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 from quad_modelling.errors import OutputExistsError, QuadModellingError
 
+STAGING_SUFFIX_LEN = len(".tmp-") + 8 + 1
+"""Characters the staging and backup names add to an output's name (``.NAME.tmp-XXXXXXXX``)."""
+
+WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EFBIG, errno.EROFS, errno.ENAMETOOLONG}
+"""OSErrors of writing an output that are the output's fault, not a bug: reported as one line."""
+
 
 class OutputDirError(QuadModellingError, PermissionError):
-    """The output's directory is missing or not writable."""
+    """The output's directory is missing or not writable, or the output cannot be written there."""
 
 
-def check_output(path: Path, force: bool) -> None:
-    """Refuse an existing output without force, or a directory we cannot write to."""
+class OutputOverlapsInputError(QuadModellingError, ValueError):
+    """The output path is an input, lies inside one or contains one: refused even with --force."""
+
+
+def _name_max(directory: Path) -> int:
+    try:
+        return os.pathconf(directory, "PC_NAME_MAX")
+    except (OSError, ValueError):
+        return 255
+
+
+def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = ()) -> None:
+    """Refuse an output that names no file (``''``, ``.``, ``..``), is too long a name, is or holds an
+    input (``inputs``: every file the command reads), exists without force, or whose directory we
+    cannot write to."""
+    path = Path(path)
+    if path.name in ("", ".", ".."):
+        raise OutputDirError(f"-o {str(path)!r}: the output must name a new file or directory, not {str(path)!r}")
+    parent = path.parent if str(path.parent) else Path(".")
+    limit = _name_max(parent if parent.is_dir() else Path(".")) - STAGING_SUFFIX_LEN
+    if len(os.fsencode(path.name)) > limit:
+        raise OutputDirError(f"{path.name[:40]}...: output name is {len(os.fsencode(path.name))} bytes long; "
+                             f"the file system allows {limit} here")
+    check_not_input(path, inputs)
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists; pass --force to overwrite")
-    parent = path.parent if str(path.parent) else Path(".")
     if not parent.is_dir():
         raise OutputDirError(f"{parent}: output directory does not exist or is not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise OutputDirError(f"{parent}: output directory is not writable")
+
+
+def check_not_input(path: Path, inputs: Iterable[str | Path]) -> None:
+    """OutputOverlapsInputError when ``path`` is one of ``inputs``, lies inside one or contains one
+    (symbolic links resolved): overwriting or deleting an input is never what the user meant."""
+    out = Path(path).resolve()
+    for given in inputs:
+        if given is None or str(given) == "":
+            continue
+        source = Path(given).resolve()
+        if out == source:
+            relation = "is the input"
+        elif source in out.parents:
+            relation = "lies inside the input"
+        elif out in source.parents:
+            relation = "contains the input"
+        else:
+            continue
+        raise OutputOverlapsInputError(f"-o {path}: the output {relation} {given}; choose another output (refused even with --force)")
 
 
 def _remove(path: Path) -> None:
@@ -39,14 +91,26 @@ def _remove(path: Path) -> None:
 
 
 @contextlib.contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT/SIGTERM wait until the block is done (the final renames are never cut in half)."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+@contextlib.contextmanager
 def atomic_output(path: str | Path, force: bool = False) -> Iterator[Path]:
     """Yield a temporary path with the same name, in a hidden staging directory next to
     ``path``; rename it onto ``path`` on success.
 
     The temporary path does not exist when yielded: the caller creates a file or
     a directory there (keeping the final name, so a bag's inner ``.mcap`` file is
-    named after the bag). On any exception the staging directory is removed and
-    the error re-raised.
+    named after the bag). On any exception (KeyboardInterrupt and SystemExit
+    included) the staging directory is removed and the error re-raised; a full
+    disk or read-only file system becomes one OutputDirError.
     """
     path = Path(path)
     check_output(path, force)
@@ -57,15 +121,21 @@ def atomic_output(path: str | Path, force: bool = False) -> Iterator[Path]:
         raise OutputDirError(f"{path.parent}: cannot write in the output directory ({err.strerror})") from err
     tmp = staging / path.name
     try:
-        yield tmp
+        try:
+            yield tmp
+        except OSError as err:
+            if isinstance(err, QuadModellingError) or err.errno not in WRITE_ERRNOS:
+                raise
+            raise OutputDirError(f"{path}: cannot write the output ({err.strerror}); nothing was written") from err
         if not tmp.exists():
             raise FileNotFoundError(f"{tmp}: nothing was written")
-        if path.exists():
-            backup = path.with_name(f".{path.name}.old-{uuid.uuid4().hex[:8]}")
-            path.rename(backup)
-            tmp.rename(path)
-            _remove(backup)
-        else:
-            tmp.rename(path)
+        with _signals_held():
+            if path.exists():
+                backup = path.with_name(f".{path.name}.old-{uuid.uuid4().hex[:8]}")
+                path.rename(backup)
+                tmp.rename(path)
+                _remove(backup)
+            else:
+                tmp.rename(path)
     finally:
         _remove(staging)

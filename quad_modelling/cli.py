@@ -3,13 +3,16 @@
 Each verb lives in ``quad_modelling/commands/<verb>.py`` with ``NAME``, ``HELP``,
 ``DESCRIPTION`` (shown by ``--help``, with an example), ``add_arguments(parser)``
 and ``run(args) -> int``. This module only dispatches, and turns the package's
-errors into one line on stderr and a non-zero exit.
+errors (and argparse's) into one line on stderr and exit 2. SIGTERM is turned into
+a KeyboardInterrupt, as SIGINT is, so every ``finally`` and context manager on the
+way out runs: staging directories are removed, run-bag's nodes are stopped.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import signal
 import sys
 
 from quad_modelling.errors import QuadModellingError
@@ -30,8 +33,31 @@ EXIT_ERROR = 2
 """Exit code for bad input/config (a clear one-line message was printed)."""
 
 
+EXIT_INTERRUPTED = {signal.SIGINT: 130, signal.SIGTERM: 143}
+"""Exit codes after SIGINT / SIGTERM (128 + signal number, as a shell reports them)."""
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An ArgumentParser whose errors are one line (no usage block) and exit 2."""
+
+    def error(self, message: str):
+        self.exit(EXIT_ERROR, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+class Interrupted(KeyboardInterrupt):
+    """Raised by the SIGTERM handler, so clean-up runs as for Ctrl-C."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _raise_interrupted(signum, frame):
+    raise Interrupted(signum)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="quad-modelling",
         description="Model quadrotor flight dynamics from flight data: convert logs to MCAP bags, "
         "simulate, identify, evaluate, train and diagnose.",
@@ -53,13 +79,22 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
+        previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+    except ValueError:  # not the main thread: signals stay as they are
+        previous = None
+    try:
         return int(args.run(args) or 0)
     except QuadModellingError as err:
-        print(f"quad-modelling {args.verb}: error: {err}", file=sys.stderr)
+        message = " ".join(str(err).split())  # one line, whatever a wrapped library said
+        print(f"quad-modelling {args.verb}: error: {message}", file=sys.stderr)
         return EXIT_ERROR
-    except KeyboardInterrupt:
-        print(f"quad-modelling {args.verb}: interrupted", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as err:
+        signum = getattr(err, "signum", signal.SIGINT)
+        print(f"quad-modelling {args.verb}: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
+        return EXIT_INTERRUPTED[signum]
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

@@ -9,8 +9,10 @@ from pathlib import Path
 from tqdm import tqdm
 
 from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.core.vehicle import vehicle_file
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io.loader import FORMATS, load_flight
+from quad_modelling.io.topics import check_namespace
 
 NAME = "convert"
 HELP = "convert flight logs (.mat, NanoBench .csv.gz, PX4 .ulg, bags) into MCAP bags"
@@ -72,6 +74,8 @@ def _write(log, target: Path, namespace: str, force: bool) -> None:
 def run(args: argparse.Namespace) -> int:
     inputs = [Path(p) for p in args.inputs]
     output = Path(args.output)
+    check_namespace(args.namespace)
+    check_output(output, args.force, inputs=[*inputs, args.mapping, vehicle_file(args.vehicle) if args.vehicle else None])
 
     def load(path: Path):
         log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping)
@@ -85,7 +89,6 @@ def run(args: argparse.Namespace) -> int:
         print(f"{inputs[0]} -> {output} ({len(log)} samples, {log.duration:.1f} s, vehicle {log.meta.vehicle})")
         return 0
 
-    check_output(output, args.force)
     names = [bag_name(p) for p in inputs]
     duplicates = {n for n in names if names.count(n) > 1}
     if duplicates:

@@ -19,7 +19,8 @@ from quad_modelling.core.effect_names import (
     DISTURBANCES,
     SWITCHED_EFFECTS,
 )
-from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.preprocess import check_cutoff
+from quad_modelling.core.vehicle import load_vehicle, vehicle_file
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.loader import load_flights
@@ -93,7 +94,7 @@ def _progress():
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_output(output, args.force)
+    check_output(output, args.force, inputs=[*(args.train or []), *(args.test or []), vehicle_file(args.vehicle)])
     config = _config(args)
     effects = parse_effect_list(args.effects)
     if args.validate:
@@ -108,6 +109,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"skipped: {message}", file=sys.stderr)
     if not train or not test:
         raise ConfigError("no readable flight left in --train or --test")
+    for log in train + test:
+        check_cutoff(args.smooth, log)
     vehicle = given or load_vehicle(train[0].meta.vehicle)
     say, bar = _progress()
     learnable = (lambda: narx_floor(train, test, vehicle, config)) if args.narx else None
@@ -131,6 +134,8 @@ def _run_validation(args, config, effects, output: Path) -> int:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     except ValueError as err:
         raise ConfigError(f"--seeds {args.seeds!r}: expected comma-separated integers") from err
+    if not seeds or min(seeds) < 0:
+        raise ConfigError(f"--seeds {args.seeds!r}: expected comma-separated non-negative integers")
     names = [e.name for e in effects]
     switched = [e for e in SWITCHED_EFFECTS if e in names]  # the simulator can fly these with the effect on
     say, bar = _progress()

@@ -10,7 +10,7 @@ from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.core.evaluation.windowed import evaluate
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import make_model
-from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import PRESETS, EvaluationConfig
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.loader import load_flights
@@ -58,6 +58,13 @@ def add_span_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
 
 
+def input_files(args: argparse.Namespace) -> list:
+    """Every file the command reads: the flights, the vehicle file, model files (``narx:PATH``, ``hybrid:PATH``)."""
+    specs = getattr(args, "model", None) or []
+    models = [spec.partition(":")[2] for spec in specs if spec.partition(":")[0] in ("narx", "hybrid")]
+    return [*args.inputs, vehicle_file(args.vehicle), *models]
+
+
 def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
     """The evaluation configuration of the span options (core span grammar, :meth:`EvaluationConfig.from_options`)."""
     return EvaluationConfig.from_options(args.preset, args.drop, train=args.train, eval=args.eval,
@@ -93,7 +100,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_output(output, args.force)
+    check_output(output, args.force, inputs=input_files(args))
     try:
         horizons = tuple(int(h) for h in args.horizons.split(","))
     except ValueError as err:

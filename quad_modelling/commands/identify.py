@@ -9,6 +9,7 @@ from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.commands.evaluate import (
     add_span_arguments,
     config_from_args,
+    input_files,
     load_evaluation_flights,
 )
 from quad_modelling.core.identification.identify import (
@@ -46,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_output(output, args.force)
+    check_output(output, args.force, inputs=input_files(args))
     config = config_from_args(args)
     flights, vehicle, _ = load_evaluation_flights(args)
     result = identify(flights, vehicle, config)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from quad_modelling.errors import ConfigError
 from quad_modelling.io.bag_io import summarize_bag
 from quad_modelling.io.loader import detect_format, load_flight
 from quad_modelling.io.reports.info import (
@@ -27,6 +28,7 @@ examples:
   quad-modelling info bags/nanobench_B7_oval_medium_rep2
   quad-modelling info bags/flight --json
   quad-modelling info flight.mat
+  quad-modelling info lab.mat --mapping config/mappings/example_lab.yaml --vehicle linkquad
   quad-modelling info test/data/px4/sample_px4_events.ulg
 """
 
@@ -34,13 +36,16 @@ examples:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("bag", metavar="BAG", help="bag directory, .mat log, NanoBench .csv/.csv.gz or PX4 .ulg")
     parser.add_argument("--vehicle", metavar="NAME", help="vehicle for a .mat log that names none")
+    parser.add_argument("--mapping", metavar="FILE", help="YAML variable mapping for a foreign .mat log (as convert --mapping)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
 
 
 def run(args: argparse.Namespace) -> int:
     file_format = detect_format(args.bag)
+    if args.mapping and file_format != "thesis-mat":
+        raise ConfigError(f"--mapping {args.mapping}: a mapping applies to .mat logs only, {args.bag} is a {file_format} input")
     if file_format != "bag":
-        document = flight_document(load_flight(args.bag, vehicle=args.vehicle), str(args.bag))
+        document = flight_document(load_flight(args.bag, vehicle=args.vehicle, mapping_file=args.mapping), str(args.bag))
         print(flight_json(document) if args.json else flight_text(document, file_format))
         return 0
     summary = summarize_bag(args.bag)

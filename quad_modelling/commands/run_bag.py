@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import shutil
 import signal
@@ -129,18 +130,28 @@ class Graph:
     def stop(self, names: list[str] | None = None, timeout: float = STOP_TIMEOUT_S) -> None:
         names = [n for n in (names or list(self.procs)) if self.procs[n].poll() is None]
         for n in names:
-            self.procs[n].send_signal(signal.SIGINT)
+            self._signal(n, signal.SIGINT)
         deadline = time.monotonic() + timeout
         for n in names:
             try:
                 self.procs[n].wait(max(deadline - time.monotonic(), 0.1))
             except subprocess.TimeoutExpired:
-                self.procs[n].terminate()
+                self._signal(n, signal.SIGTERM)
                 try:
                     self.procs[n].wait(5)
                 except subprocess.TimeoutExpired:
-                    self.procs[n].kill()
+                    self._signal(n, signal.SIGKILL)
                     self.procs[n].wait()
+
+    def _signal(self, name: str, signum: int) -> None:
+        """``signum`` to the node's process group (each node is a session of its own: its children too)."""
+        proc = self.procs[name]
+        try:
+            os.killpg(proc.pid, signum)
+        except ProcessLookupError:
+            pass
+        except PermissionError:
+            proc.send_signal(signum)
 
 
 REPLAY_PATIENCE_S = 60.0
@@ -183,18 +194,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from quad_modelling.core.vehicle import load_vehicle
+    from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.io.bag_io import read_bag_metadata
+    from quad_modelling.io.loader import load_flight
     from quad_modelling.io.reports.evaluation import live_summary_table
     from quad_modelling.nodes.model_factory import make_streaming_predictor
 
     output = Path(args.output)
-    check_output(output, args.force)
+    models = parse_models(args.models)
+    model_files = [m.spec.partition(":")[2] for m in models if m.spec.partition(":")[0] in ("narx", "hybrid")]
+    check_output(output, args.force, inputs=[args.bag, vehicle_file(args.vehicle), *model_files])
+    for flag, value in (("--rate", args.rate), ("--window", args.window), ("--warm", args.warm), ("--timeout", args.timeout)):
+        if not math.isfinite(value):
+            raise ConfigError(f"{flag} {value}: must be a finite number")
     if args.rate < 0:
         raise ConfigError(f"--rate {args.rate}: must be >= 0")
     if not 0 < args.warm < args.window:
         raise ConfigError(f"--window {args.window} / --warm {args.warm}: need 0 < warm < window")
-    models = parse_models(args.models)
+    if not args.timeout > 0:
+        raise ConfigError(f"--timeout {args.timeout}: must be a positive number of seconds")
     spans = span_list(args)
     bag = read_bag_metadata(args.bag)  # metadata.yaml only: the replay node reads the messages
     bag.require_live_topics()
@@ -202,6 +220,9 @@ def run(args: argparse.Namespace) -> int:
     if not vehicle_name:
         raise ConfigError(f"{args.bag}: the bag names no vehicle; pass --vehicle NAME")
     vehicle = load_vehicle(vehicle_name)
+    # Check the whole bag here, as the offline commands read it, before any node starts:
+    # a damaged bag is one line from this process, not a node's traceback.
+    load_flight(args.bag, vehicle=vehicle, fmt="bag")
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
         make_streaming_predictor(m.spec, vehicle)
     env = ros_environment()

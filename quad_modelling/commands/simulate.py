@@ -14,6 +14,7 @@ from quad_modelling.core.effect_names import (
     parse_effect_names,
 )
 from quad_modelling.core.sim.params import SIMULATED_VEHICLES
+from quad_modelling.core.sim.pilot import MAX_DURATION, MIN_DURATION
 from quad_modelling.core.sim.simulate import run_simulation
 from quad_modelling.errors import ConfigError
 
@@ -53,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.bag and output.suffix != ".mat":
         raise ConfigError(f"{output}: a thesis log needs a .mat name (or pass --bag for an MCAP bag directory)")
     check_output(output, args.force)  # fail before a long simulation, not after
+    if not MIN_DURATION <= args.duration <= MAX_DURATION:
+        raise ConfigError(f"--duration {args.duration:g}: must be at least {MIN_DURATION:g} s and at most {MAX_DURATION:g} s")
     result = run_simulation(args.vehicle, effects, args.seed, args.duration, progress=sys.stderr.isatty())
     log = result.log
     if args.bag:

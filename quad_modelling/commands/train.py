@@ -8,6 +8,15 @@ import time
 
 from quad_modelling.errors import ConfigError
 
+MAX_EPOCHS = 10_000
+"""Most training epochs (L-BFGS steps; the thesis used 25)."""
+
+MAX_HIDDEN = 1000
+"""Most sigmoid units per net (the thesis used 10)."""
+
+MAX_DELAYS = 1000
+"""Most delayed outputs or input taps (10 s at 100 Hz; the thesis used 20)."""
+
 NAME = "train"
 HELP = "train the NARX blackbox model (or the hybrid greybox+NARX model) and write a model file"
 DESCRIPTION = """\
@@ -71,13 +80,17 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.atomic import check_output
     from quad_modelling.core.models.narx import NarxConfig
     from quad_modelling.core.models.narx_training import train_narx_on_flights
-    from quad_modelling.core.vehicle import load_vehicle
+    from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.io.loader import load_flight
 
     output = Path(args.output)
-    check_output(output, args.force)  # fail before minutes of training
-    if args.epochs < 0 or args.hidden < 1 or args.delays < 1 or args.input_delays < 1:
-        raise ConfigError("--epochs must be >= 0 and --hidden, --delays, --input-delays >= 1")
+    check_output(output, args.force, inputs=[*args.flights, vehicle_file(args.vehicle)])  # fail before minutes of training
+    if args.seed < 0:
+        raise ConfigError(f"--seed {args.seed}: must be a non-negative integer")
+    if not (0 <= args.epochs <= MAX_EPOCHS and 1 <= args.hidden <= MAX_HIDDEN and 1 <= args.delays <= MAX_DELAYS
+            and 1 <= args.input_delays <= MAX_DELAYS):
+        raise ConfigError(f"--epochs must lie in [0, {MAX_EPOCHS}], --hidden in [1, {MAX_HIDDEN}], "
+                          f"--delays and --input-delays in [1, {MAX_DELAYS}]")
     config = NarxConfig(hidden=args.hidden, output_delays=args.delays, input_delays=tuple(range(args.input_delays)), epochs=args.epochs)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     logs = [load_flight(path, given) for path in args.flights]

@@ -48,7 +48,7 @@ from quad_modelling.core import frames
 from quad_modelling.core.flight_log import SENSORS, FlightLog
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
-from quad_modelling.errors import DataError
+from quad_modelling.errors import ConfigError, DataError
 
 SMOOTH_CUTOFF_HZ = 5.0
 """Cutoff of the error smoothing low-pass [Hz]: quadrotor rigid-body motion of
@@ -92,6 +92,50 @@ NEEDS: dict[str, str] = {
 def unmeasured_variables(log: FlightLog) -> dict[str, str]:
     """Variables ``log`` cannot measure -> the sensor they need (``{"roll_rate": "gyro", ...}``), VARIABLES order."""
     return {name: SENSORS[field] for name, field in NEEDS.items() if getattr(log, field) is None}
+
+
+MAX_INTERPOLATION_GAP_S = 0.5
+"""Longest gap [s] of a measurement stream that a reader interpolates through onto the command time base
+(PX4: five periods of the slowest kinematic topic at 10 Hz; a motion-capture dropout longer than this is
+refused, never bridged by a straight line)."""
+
+
+def check_interpolation_gaps(topic: str, source_t: np.ndarray, t: np.ndarray, where: str,
+                             max_gap_s: float = MAX_INTERPOLATION_GAP_S) -> None:
+    """DataError when a time of ``t`` [s] falls in a gap of the stream stamps ``source_t`` [s] longer than ``max_gap_s``."""
+    if len(source_t) < 2:
+        return
+    right = np.clip(np.searchsorted(source_t, t), 1, len(source_t) - 1)
+    gap = source_t[right] - source_t[right - 1]
+    if np.any(gap > max_gap_s):
+        row = int(np.argmax(gap > max_gap_s))
+        raise DataError(
+            f"{where}: topic {topic} has a {gap[row]:.2f} s gap at t={t[row]:.3f} s, longer than "
+            f"{max_gap_s} s: not interpolated through"
+        )
+
+
+def check_same_clock(topic: str, source_t: np.ndarray, base: str, t: np.ndarray, where: str,
+                     max_gap_s: float = MAX_INTERPOLATION_GAP_S) -> None:
+    """DataError when the stream stamps ``source_t`` [s] start later or end earlier than the base time ``t`` [s]
+    by more than ``max_gap_s``: a stream on another clock would be held constant, not interpolated."""
+    late, early = source_t[0] - t[0], t[-1] - source_t[-1]
+    if late > max_gap_s or early > max_gap_s:
+        offset = late if late > max_gap_s else -early
+        raise DataError(
+            f"{where}: topic {topic} stamps are offset by {offset:+.3f} s from {base} "
+            f"(spans {source_t[0] - t[0]:.3f}..{source_t[-1] - t[0]:.3f} s of a {t[-1] - t[0]:.3f} s flight): another clock?"
+        )
+
+
+def check_cutoff(cutoff_hz: float, log: FlightLog, flag: str = "--smooth") -> None:
+    """ConfigError unless the low-pass ``cutoff_hz`` lies below the Nyquist frequency of ``log``."""
+    nyquist = log.sample_rate / 2.0
+    if not cutoff_hz < nyquist:
+        raise ConfigError(
+            f"{flag} {cutoff_hz:g} Hz: must be below the Nyquist frequency {nyquist:g} Hz of {log.meta.source} "
+            f"({log.sample_rate:g} Hz samples)"
+        )
 
 
 def sample_period(log: FlightLog) -> float:

@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from quad_modelling.core.input_files import read_yaml
 from quad_modelling.errors import ConfigError
 
 GRAVITY = 9.81
@@ -70,6 +70,23 @@ CONSTANT_KEYS = (
 """Constants every vehicle file must give (thesis Table 3-1 names; docs/formats.md, vehicle configs)."""
 
 STATUSES = ("measured", "identified")
+
+CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
+    "mass": (0.0, 1000.0, "kg"),
+    "arm_length": (0.0, 10.0, "m"),
+    "ixx": (0.0, 1000.0, "kg m2"),
+    "iyy": (0.0, 1000.0, "kg m2"),
+    "izz": (0.0, 1000.0, "kg m2"),
+    "prop_inertia": (0.0, 10.0, "kg m2"),
+    "motor_a_m": (-1.0e5, 0.0, "1/s"),
+    "motor_b_m": (0.0, np.inf, "per input unit"),
+    "thrust_constant": (0.0, 1.0, "N s2/rad2"),
+    "drag_constant": (0.0, 1.0, "N m s2/rad2"),
+}
+"""Open interval (low, high) each constant must lie in, and its unit: positive masses, lengths, inertias and
+rotor constants, a stable motor pole (negative, faster than 10 us), nothing beyond what a multirotor of up
+to a tonne and 10 m arms could have. ``prop_inertia`` may be 0 (rotor inertia neglected). Values must be
+finite."""
 
 
 @dataclass(frozen=True)
@@ -152,6 +169,7 @@ class VehicleConfig:
             old = self.constants.get(key)
             if old is None:
                 raise ConfigError(f"{self.path}: cannot set unknown constant {key!r}")
+            check_constant(key, float(value), f"{self.path} ({source})")
             constants[key] = Constant(float(value), old.unit, source, old.status)
         return VehicleConfig(
             self.name, self.description, self.geometry, self.motors, constants,
@@ -162,12 +180,7 @@ class VehicleConfig:
     def from_yaml(cls, path: str | Path) -> VehicleConfig:
         """Load and validate a vehicle file; ConfigError names the file and key at fault."""
         path = Path(path)
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except OSError as err:
-            raise ConfigError(f"{path}: cannot read vehicle config: {err.strerror}") from err
-        except yaml.YAMLError as err:
-            raise ConfigError(f"{path}: not valid YAML: {err}") from err
+        doc = read_yaml(path, "vehicle config")
         if not isinstance(doc, dict):
             raise ConfigError(f"{path}: expected a mapping at the top level")
         return cls.from_dict(doc, str(path))
@@ -196,13 +209,9 @@ class VehicleConfig:
             try:
                 value = float(entry["value"])
             except (TypeError, ValueError) as err:
-                raise ConfigError(f"{where}: constants.{key}.value is not a number: {entry['value']!r}") from err
+                raise ConfigError(f"{where}: constants.{key}.value is not a number: {str(entry['value'])[:40]!r}") from err
+            check_constant(key, value, where)
             constants[key] = Constant(value, str(entry["unit"]), str(entry["source"]), entry["status"])
-        for key in ("mass", "arm_length", "ixx", "iyy", "izz", "thrust_constant", "drag_constant", "motor_b_m"):
-            if constants[key].value <= 0:
-                raise ConfigError(f"{where}: constants.{key}.value must be positive, got {constants[key].value}")
-        if constants["motor_a_m"].value >= 0:
-            raise ConfigError(f"{where}: constants.motor_a_m.value must be negative (a stable motor pole), got {constants['motor_a_m'].value}")
         motors_doc = need(doc, "motors", "")
         if not isinstance(motors_doc, list) or len(motors_doc) != 4:
             raise ConfigError(f"{where}: motors must list exactly 4 rotors in command order u1..u4")
@@ -217,7 +226,9 @@ class VehicleConfig:
             try:
                 xy = (float(position[0]), float(position[1]))
             except (TypeError, ValueError) as err:
-                raise ConfigError(f"{where}: motors[{i}].position is not two numbers: {position!r}") from err
+                raise ConfigError(f"{where}: motors[{i}].position is not two numbers: {str(position)[:60]}") from err
+            if not np.all(np.isfinite(xy)):
+                raise ConfigError(f"{where}: motors[{i}].position must be finite, got {list(xy)}")
             motors.append(Motor(str(need(m, "name", f"motors[{i}].")), xy, 1 if spin == "ccw" else -1))
         radii = np.hypot(*np.array([m.position for m in motors]).T)
         arm = constants["arm_length"].value
@@ -231,6 +242,8 @@ class VehicleConfig:
             input_max = float(need(inputs, "max", "inputs."))
         except (TypeError, ValueError) as err:
             raise ConfigError(f"{where}: inputs.min and inputs.max must be numbers") from err
+        if not (np.isfinite(input_min) and np.isfinite(input_max)):
+            raise ConfigError(f"{where}: inputs.min and inputs.max must be finite, got [{input_min}, {input_max}]")
         if not input_max > input_min:
             raise ConfigError(f"{where}: inputs.max must exceed inputs.min")
         return cls(
@@ -244,6 +257,38 @@ class VehicleConfig:
             input_unit=str(need(inputs, "unit", "inputs.")),
             path=where,
         )
+
+
+def check_constant(key: str, value: float, where: str) -> None:
+    """ConfigError naming ``where`` and ``constants.<key>.value`` unless the value is finite and inside
+    :data:`CONSTANT_RANGES`."""
+    if not np.isfinite(value):
+        raise ConfigError(f"{where}: constants.{key}.value must be a finite number, got {value}")
+    if key not in CONSTANT_RANGES:
+        return
+    low, high, unit = CONSTANT_RANGES[key]
+    if key == "prop_inertia":
+        inside = low <= value < high
+    else:
+        inside = low < value < high
+    if not inside:
+        if key == "motor_a_m":
+            rule = f"must be negative (a stable motor pole) and above {low:g} {unit}"
+        elif high == np.inf:
+            rule = "must be positive"
+        else:
+            rule = f"must lie in {'[' if key == 'prop_inertia' else '('}{low:g}, {high:g}) {unit}"
+        raise ConfigError(f"{where}: constants.{key}.value {rule}, got {value:g}")
+
+
+def vehicle_file(name_or_path: str | Path | None) -> Path | None:
+    """The YAML file a ``--vehicle`` value reads (a path, or a shipped name's file); None for None."""
+    if name_or_path is None:
+        return None
+    candidate = Path(name_or_path)
+    if candidate.suffix in (".yaml", ".yml"):
+        return candidate
+    return vehicle_dir() / f"{name_or_path}.yaml"
 
 
 def load_vehicle(name_or_path: str | Path) -> VehicleConfig:

@@ -216,6 +216,10 @@ class EvaluationConfig:
         return [SpanSpec.parse("train", self.train), SpanSpec.parse("eval", self.eval)]
 
     def validate(self) -> None:
+        for flag, value in (("--window", self.window_s), ("--warm", self.warm_s), ("--drop start", self.drop_start),
+                            ("--drop end", self.drop_end), ("--smooth", self.smooth_cutoff_hz)):
+            if not math.isfinite(value):
+                raise ConfigError(f"{flag} {value}: must be a finite number")
         if self.window_s <= 0 or self.warm_s < 0 or self.warm_s >= self.window_s:
             raise ConfigError(f"need window_s > warm_s >= 0, got window {self.window_s} s, warm {self.warm_s} s")
         if self.drop_start < 0 or self.drop_end < 0:

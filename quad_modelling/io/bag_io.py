@@ -27,6 +27,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.atomic import atomic_output
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.preprocess import check_interpolation_gaps, check_same_clock
 from quad_modelling.errors import BagError, DataError
 from quad_modelling.io.topics import (
     DEFAULT_NAMESPACE,
@@ -36,6 +37,7 @@ from quad_modelling.io.topics import (
     MeasurementMessages,
     MessageTypes,
     cdr_stamp_ns,
+    check_namespace,
     imu_fields,
     measurement_log,
     motor_fields,
@@ -62,6 +64,7 @@ def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: 
     ``progress``: optional callable(n_samples_done) for a progress bar.
     """
     path = Path(path)
+    check_namespace(namespace)
     stamps = stamps_ns(log.t)
     if np.any(np.diff(stamps) <= 0):
         raise DataError(f"{log.meta.source}: sample times collapse at nanosecond resolution")
@@ -323,6 +326,11 @@ def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehi
         data, when = arrays[key], times[key]
         if when.shape == t_ns.shape and np.array_equal(when, t_ns):
             return data
+        if key != "battery":  # kinematic streams: never bridge a dropout or a clock offset with a line
+            t_s, when_s = (t_ns - t_ns[0]) * 1e-9, (when - t_ns[0]) * 1e-9
+            topic = topic_name(namespace, key)
+            check_same_clock(topic, when_s, topic_name(namespace, "motor_input"), t_s, str(path))
+            check_interpolation_gaps(topic, when_s, t_s, str(path))
         return np.column_stack([np.interp(t_ns, when, column) for column in data.T])
 
     omega = arrays["motor_input"][:, 4:8]

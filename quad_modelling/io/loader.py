@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.input_files import check_regular_file
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import DataError, QuadModellingError
 
@@ -46,6 +47,8 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
         raise DataError(f"{path}: unknown format {fmt!r}; known: {', '.join(FORMATS)}")
     if not path.exists():
         raise DataError(f"{path}: no such file or directory")
+    if not path.is_dir():  # a FIFO or device would block or never end: refused before it is opened
+        check_regular_file(path, "flight file", DataError)
     config = vehicle if isinstance(vehicle, VehicleConfig) else None
     name = config.name if config is not None else vehicle
     if fmt == "thesis-mat":

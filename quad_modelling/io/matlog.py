@@ -30,11 +30,11 @@ from pathlib import Path
 
 import numpy as np
 import scipy.io
-import yaml
 
 from quad_modelling.atomic import atomic_output
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.input_files import read_yaml
 from quad_modelling.errors import ConfigError, DataError
 
 THESIS_VARIABLES: dict[str, tuple[str, ...]] = {
@@ -77,20 +77,60 @@ def default_mapping() -> dict[str, FieldMapping]:
     return mapping
 
 
+FIELD_WIDTHS = {"time": 1, "u": 4, "acc_b": 3, "gyro_b": 3, "pos_n": 3, "vel_n": 3, "euler": 3, "vbat": 1, "omega": 4}
+"""Columns of each FlightLog field."""
+
+COMMAND_DIMENSIONS = ("s", "1", "PWM")
+"""Dimensions a raw engine command may have: a pulse length, a ratio or PWM counts (the vehicle's input unit)."""
+
+
+def _field_mapping(path: Path, name: str, entry) -> FieldMapping:
+    """One validated mapping entry: its unit has the field's dimension, its variables/columns fit the field."""
+    if not isinstance(entry, dict) or "unit" not in entry:
+        raise ConfigError(f"{path}: field {name!r} needs a 'unit'")
+    unit = entry["unit"]
+    if not isinstance(unit, str) or unit not in frames.UNIT_FACTORS:
+        raise ConfigError(f"{path}: field {name!r} has unknown unit {str(unit)[:40]!r}; known: {list(frames.UNIT_FACTORS)}")
+    dimension = frames.UNIT_FACTORS[unit][0]
+    allowed = COMMAND_DIMENSIONS if name == "u" else (SI_UNITS[name],)
+    if dimension not in allowed:
+        fitting = [u for u, (d, _) in frames.UNIT_FACTORS.items() if d in allowed]
+        raise ConfigError(f"{path}: field {name!r} unit {unit!r} is a {dimension} unit; {name} needs one of {fitting}")
+    width = FIELD_WIDTHS[name]
+    if "variable" in entry:
+        if not isinstance(entry["variable"], str):
+            raise ConfigError(f"{path}: field {name!r}: 'variable' must be one variable name, got {str(entry['variable'])[:40]!r}")
+        variables = (entry["variable"],)
+        columns = entry.get("columns")
+        if columns is not None:
+            if (not isinstance(columns, list) or len(columns) != width
+                    or not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in columns)):
+                raise ConfigError(f"{path}: field {name!r}: 'columns' must list {width} non-negative 0-based column "
+                                  f"numbers, got {str(columns)[:60]}")
+            columns = tuple(columns)
+    elif "variables" in entry:
+        names = entry["variables"]
+        if not isinstance(names, list) or len(names) != width or not all(isinstance(v, str) for v in names):
+            raise ConfigError(f"{path}: field {name!r}: 'variables' must list {width} variable names, got {str(names)[:60]}")
+        variables, columns = tuple(names), None
+    else:
+        raise ConfigError(f"{path}: field {name!r} needs 'variable' (with optional 'columns') or 'variables'")
+    frame = entry.get("frame")
+    allowed_frames = ("FRD", "FLU") if name in BODY_FIELDS else ("NED", "ENU") if name in WORLD_FIELDS else (None,)
+    if frame not in allowed_frames:
+        raise ConfigError(f"{path}: field {name!r} needs frame one of {allowed_frames}, got {str(frame)[:20]!r}")
+    return FieldMapping(variables, columns, unit, frame)
+
+
 def load_mapping(path: str | Path) -> dict[str, FieldMapping]:
     """Read and validate a YAML mapping file (see module docstring)."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read mapping file: {err.strerror}") from err
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: mapping file is not valid YAML: {err}") from err
+    doc = read_yaml(path, "mapping file")
     if not isinstance(doc, dict):
         raise ConfigError(f"{path}: mapping file must be a mapping of field -> {{variable, unit, ...}}")
-    unknown = set(doc) - set(THESIS_VARIABLES)
+    unknown = set(map(str, doc)) - set(THESIS_VARIABLES)
     if unknown:
-        raise ConfigError(f"{path}: unknown fields {sorted(unknown)}; known: {list(THESIS_VARIABLES)}")
+        raise ConfigError(f"{path}: unknown fields {sorted(unknown)[:5]}; known: {list(THESIS_VARIABLES)}")
     mapping = {}
     for name in THESIS_VARIABLES:
         entry = doc.get(name)
@@ -98,22 +138,7 @@ def load_mapping(path: str | Path) -> dict[str, FieldMapping]:
             if name in OPTIONAL_FIELDS:
                 continue
             raise ConfigError(f"{path}: mapping has no entry for required field {name!r}")
-        if not isinstance(entry, dict) or "unit" not in entry:
-            raise ConfigError(f"{path}: field {name!r} needs a 'unit'")
-        if entry["unit"] not in frames.UNIT_FACTORS:
-            raise ConfigError(f"{path}: field {name!r} has unknown unit {entry['unit']!r}; known: {list(frames.UNIT_FACTORS)}")
-        if "variable" in entry:
-            variables = (str(entry["variable"]),)
-            columns = tuple(int(c) for c in entry["columns"]) if "columns" in entry else None
-        elif "variables" in entry:
-            variables, columns = tuple(str(v) for v in entry["variables"]), None
-        else:
-            raise ConfigError(f"{path}: field {name!r} needs 'variable' (with optional 'columns') or 'variables'")
-        frame = entry.get("frame")
-        allowed = ("FRD", "FLU") if name in BODY_FIELDS else ("NED", "ENU") if name in WORLD_FIELDS else (None,)
-        if frame not in allowed:
-            raise ConfigError(f"{path}: field {name!r} needs frame one of {allowed}, got {frame!r}")
-        mapping[name] = FieldMapping(variables, columns, str(entry["unit"]), frame)
+        mapping[name] = _field_mapping(path, name, entry)
     return mapping
 
 

@@ -100,6 +100,8 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
             optional = [c for group in OPTIONAL.values() for c in group]
             index = {name: header.index(name) for name in (*REQUIRED, *optional, *EULER_COLUMNS) if name in header}
             rows = np.loadtxt(stream, delimiter=",", usecols=list(index.values()), ndmin=2)
+    except DataError:
+        raise  # a ValueError too, already naming the file
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
     except (OSError, EOFError, gzip.BadGzipFile) as err:

@@ -41,6 +41,7 @@ FLU (3), angular FLU (3). Whole windows convert at once (:func:`measurement_log`
 from __future__ import annotations
 
 import math
+import re
 import struct
 from dataclasses import dataclass
 from typing import Callable
@@ -50,6 +51,7 @@ import numpy as np
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.variables import VARIABLES
+from quad_modelling.errors import ConfigError
 
 DEFAULT_NAMESPACE = "/quad"
 """Namespace of the contract topics in a bag and of every node unless remapped (``--ros-args -r __ns:=/other``)."""
@@ -90,6 +92,33 @@ UNKNOWN_ANGULAR_TWIST[[21, 28, 35]] = -1.0
 
 NO_ORIENTATION = np.array([-1.0, 0, 0, 0, 0, 0, 0, 0, 0])
 """Imu orientation_covariance meaning 'no orientation estimate' (sensor_msgs/Imu doc)."""
+
+
+_NAME_TOKEN = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+def check_namespace(namespace: str) -> str:
+    """``namespace`` if ROS 2 accepts it as a topic namespace: absolute (``/``), tokens of letters, digits and
+    ``_`` not starting with a digit, no empty token, no ``__``, no trailing ``/`` (``/`` alone is the root);
+    ConfigError naming the first fault otherwise (ROS 2 design article "Topic and Service name mapping")."""
+    text = str(namespace)
+    if text == "/":
+        return text
+    problem = None
+    if not text.startswith("/"):
+        problem = "must start with '/'"
+    elif text.endswith("/"):
+        problem = "must not end with '/'"
+    elif "__" in text:
+        problem = "must not contain '__'"
+    else:
+        bad = next((token for token in text[1:].split("/") if not _NAME_TOKEN.match(token)), None)
+        if bad is not None:
+            problem = (f"token {bad!r} must be letters, digits and '_', not starting with a digit" if bad
+                       else "must not contain an empty token ('//')")
+    if problem:
+        raise ConfigError(f"--namespace {text!r}: not a valid ROS 2 namespace: {problem} (e.g. /quad or /drone_1)")
+    return text
 
 
 def topic_name(namespace: str, relative: str) -> str:

@@ -64,6 +64,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.preprocess import check_interpolation_gaps
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import DataError
 
@@ -267,14 +268,7 @@ def armed_at(topics: Topics, t: np.ndarray) -> tuple[np.ndarray | None, str]:
 
 def check_gaps(topic: str, source_t: np.ndarray, t: np.ndarray, where: str) -> None:
     """DataError when a base time falls in a gap of ``source_t`` longer than MAX_INTERPOLATION_GAP_S."""
-    right = np.clip(np.searchsorted(source_t, t), 1, len(source_t) - 1)
-    gap = source_t[right] - source_t[right - 1]
-    if np.any(gap > MAX_INTERPOLATION_GAP_S):
-        row = int(np.argmax(gap > MAX_INTERPOLATION_GAP_S))
-        raise DataError(
-            f"{where}: topic {topic} has a {gap[row]:.2f} s gap at t={t[row]:.3f} s, longer than "
-            f"{MAX_INTERPOLATION_GAP_S} s: not interpolated through"
-        )
+    check_interpolation_gaps(topic, source_t, t, where, MAX_INTERPOLATION_GAP_S)
 
 
 def linear(source_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:

@@ -198,3 +198,20 @@ def test_an_imu_without_accelerometer_marks_it_unmeasured_by_covariance(tmp_path
     assert msg.linear_acceleration_covariance[0] == -1 and msg.angular_velocity_covariance[0] == 0
     back = read_bag(tmp_path / "bag")
     assert back.acc_b is None and np.allclose(back.gyro_b, log.gyro_b, atol=1e-12)
+
+
+def test_a_motion_capture_gap_is_refused_not_interpolated_through(tmp_path):
+    stamps = [1_000_000_000 + 10_000_000 * k for k in range(1000)]  # 10 s at 100 Hz
+    odom = [s for s in stamps if not 2_000_000_000 < s < 8_680_000_000]  # a 6.68 s dropout
+    _write_raw_bag(tmp_path / "bag", {"motor_input": [(s, _motor(s)) for s in stamps], "mocap/odom": [(s, _odom(s)) for s in odom],
+                                      "imu": [(s, _imu(s)) for s in stamps]})
+    with pytest.raises(DataError, match=r"bag: topic /quad/mocap/odom has a 6\.68 s gap at t=1\.010 s, longer than 0\.5 s: not interpolated through"):
+        read_bag(tmp_path / "bag")
+
+
+def test_imu_on_another_clock_is_refused_with_its_offset(tmp_path):
+    _write_raw_bag(tmp_path / "bag", {"motor_input": [(s, _motor(s)) for s in STAMPS], "mocap/odom": [(s, _odom(s)) for s in STAMPS],
+                                      "imu": [(s + 100_000_000_000, _imu(s + 100_000_000_000)) for s in STAMPS]})
+    with pytest.raises(DataError, match=r"topic /quad/imu stamps are offset by \+100\.000 s from /quad/motor_input "
+                                        r"\(spans 100\.000\.\.100\.090 s of a 0\.090 s flight\): another clock\?"):
+        read_bag(tmp_path / "bag")

@@ -44,3 +44,49 @@ def test_unknown_model_is_a_clear_error_before_any_node_starts(tmp_path, capsys)
     assert main(["run-bag", str(BAG), "--models", "naive,warp_drive", "-o", str(tmp_path / "x")]) == 2
     assert "unknown model" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def _processes_mentioning(text: str) -> list[int]:
+    """Pids whose command line holds ``text`` (the nodes' --params-file lies in the run's staging path)."""
+    from pathlib import Path
+
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                if text.encode() in (entry / "cmdline").read_bytes():
+                    found.append(int(entry.name))
+            except OSError:
+                continue
+    return found
+
+
+def test_sigterm_stops_every_node_and_removes_the_staging(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "live"
+    proc = subprocess.Popen([sys.executable, "-m", "quad_modelling.cli", "run-bag", str(BAG), "--models", "naive", "--rate", "1",
+                             "--no-figures", "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(REPO)})
+    try:
+        deadline = time.monotonic() + 60
+        while not list(tmp_path.glob(".live.tmp-*/live/logs/replay.log")) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        staging = list(tmp_path.glob(".live.tmp-*"))
+        assert staging and proc.poll() is None, "the nodes never started"
+        time.sleep(2.0)  # the nodes are up and replaying (at real time, 40 s of flight)
+        assert _processes_mentioning(str(staging[0]))  # the node processes, found by their params file
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1] == "quad-modelling run-bag: interrupted (SIGTERM)"
+    assert list(tmp_path.iterdir()) == []  # no output, no staging
+    assert _processes_mentioning(str(staging[0])) == []  # no orphaned node

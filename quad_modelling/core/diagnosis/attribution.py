@@ -8,11 +8,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from quad_modelling.core.identification.base_model import (
-    BaseModel,
-    predict_batch,
-)
-from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.diagnosis.catalogue import Effect
 from quad_modelling.core.diagnosis.fitting import fit_effects
 from quad_modelling.core.diagnosis.statistics import (
@@ -27,6 +22,11 @@ from quad_modelling.core.diagnosis.statistics import (
 )
 from quad_modelling.core.evaluation.metrics import root_mean_square
 from quad_modelling.core.evaluation.windowed import window_mean
+from quad_modelling.core.identification.base_model import (
+    BaseModel,
+    predict_batch,
+)
+from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX, VARIABLES
 
 FOUND_MIN_SHRINK = 0.05

@@ -76,9 +76,9 @@ from __future__ import annotations
 import numpy as np
 from scipy import signal
 
+from quad_modelling.core.effect_names import DIAGNOSIS, parse_effect_names
 from quad_modelling.core.identification.base_model import BaseModel, Effect
 from quad_modelling.core.identification.window_batch import WindowBatch, _trim_mean
-from quad_modelling.core.effect_names import DIAGNOSIS, parse_effect_names
 from quad_modelling.core.models.greybox import (
     N_STATES,
 )

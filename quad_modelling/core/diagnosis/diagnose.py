@@ -88,8 +88,6 @@ from quad_modelling.core.diagnosis.attribution import (
     mark_confounded,
     ranking_key,
 )
-from quad_modelling.core.identification.base_model import base_from_vehicle, predict_batch
-from quad_modelling.core.identification.window_batch import WindowBatch, prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.fitting import variable_scales
 from quad_modelling.core.diagnosis.localisation import localise
@@ -99,7 +97,12 @@ from quad_modelling.core.diagnosis.statistics import (
     window_rms,
 )
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.identification.base_model import (
+    base_from_vehicle,
+    predict_batch,
+)
 from quad_modelling.core.identification.greybox_fit import BaseFit, identify_base
+from quad_modelling.core.identification.window_batch import WindowBatch, prepare_windows
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig
@@ -282,8 +285,8 @@ def learnable_floor(predictor, test_flights: Sequence[FlightLog], vehicle: Vehic
                     min_warm_samples: int = 0) -> dict:
     """Mean RMS/TIC per variable of ``predictor`` (trimmed convention) over the diagnosis's held-out windows,
     each window warm-started over max(config.warm_s, ``min_warm_samples``): {"windows", "gap": {VARIABLE: {"rms", "tic"}}}."""
-    from quad_modelling.core.identification.window_batch import flying_span
     from quad_modelling.core.evaluation.windowed import SpanScores, evaluate_window
+    from quad_modelling.core.identification.window_batch import flying_span
     from quad_modelling.core.preprocess import resample_uniform
     from quad_modelling.core.windows import span_windows, warm_samples_for
 

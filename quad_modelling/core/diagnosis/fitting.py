@@ -8,10 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import optimize
 
-from quad_modelling.core.identification.base_model import BaseModel, predict_batch
-from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.diagnosis.catalogue import Effect
 from quad_modelling.core.evaluation.metrics import rms, root_mean_square
+from quad_modelling.core.identification.base_model import BaseModel, predict_batch
+from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.variables import INDEX, VARIABLES
 from quad_modelling.errors import ConfigError
 

@@ -8,9 +8,9 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import signal
 
-from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.diagnosis.statistics import window_rms
 from quad_modelling.core.evaluation.metrics import root_mean_square
+from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
 
 REGIME_BINS = 4

@@ -7,9 +7,9 @@ from collections.abc import Sequence
 import numpy as np
 from scipy import stats
 
-from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.evaluation.metrics import rms, tic
 from quad_modelling.core.evaluation.windowed import window_mean
+from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX
 
 BOOTSTRAP = 1000

@@ -49,14 +49,14 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from quad_modelling.core.diagnosis.attribution import excited_windows
-from quad_modelling.core.identification.base_model import predict_batch
-from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG, diagnose
 from quad_modelling.core.diagnosis.statistics import normalised_window_gap
 from quad_modelling.core.effect_names import SWITCHED_EFFECTS
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.identification.base_model import predict_batch
 from quad_modelling.core.identification.greybox_fit import BaseFit, identify_base
+from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.sim.params import SimParams
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle

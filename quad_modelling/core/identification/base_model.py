@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.discretise import zero_order_hold
+from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.models.greybox import (
     N_STATES,
     GreyboxParameters,

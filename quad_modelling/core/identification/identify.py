@@ -199,7 +199,9 @@ def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationRe
     constants = {}
     for key, c in vehicle.constants.items():
         entry = {"value": c.value, "unit": c.unit, "source": c.source, "status": c.status}
-        if key in result.values:
+        if key in result.values and not np.isfinite(result.values[key]):  # the flights do not excite it
+            entry["source"] = f"{c.source}; kept: not identifiable from {names} spans {span_text} (no excitation)"
+        elif key in result.values:
             entry.update(value=result.values[key], source=source, sigma=result.sigma[key])
         elif key == "thrust_constant" and c.status == "identified":
             entry["source"] = f"{c.source}; held fixed by identify (only B_m sqrt(a) is identifiable from motion)"

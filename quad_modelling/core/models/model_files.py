@@ -1,4 +1,11 @@
-"""Model files: ``.npz`` (``allow_pickle=False``) with a JSON header; read and validated in one place."""
+"""Model files: ``.npz`` (``allow_pickle=False``) with a JSON header; read and validated in one place.
+
+Read with bounds, before anything is allocated: the file must be a regular file and a
+zip archive; each member an ``.npy`` array whose declared shape and dtype need at most
+:data:`MAX_ARRAY_BYTES` and no more bytes than the member holds (a header declaring
+petabytes is refused, not allocated), and no member may inflate beyond
+:data:`MAX_ARRAY_BYTES`. The header's fields have the types the loaders expect.
+"""
 
 from __future__ import annotations
 
@@ -9,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from quad_modelling.core.input_files import check_regular_file
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.errors import ModelError
 
@@ -16,6 +24,59 @@ FORMAT = "quad_modelling.narx"
 """Format name in every model file header (NARX and hybrid files share it)."""
 
 FORMAT_VERSION = 1
+
+MAX_ARRAY_BYTES = 64 << 20
+"""Largest array [bytes] a model file may hold (the thesis NARX needs about 50 kB)."""
+
+MAX_MEMBERS = 64
+"""Most arrays a model file may hold."""
+
+HEADER_TYPES: dict[str, tuple[type, ...]] = {
+    "format": (str,), "format_version": (int,), "kind": (str,), "vehicle": (str,), "variables": (list,),
+    "outputs": (list,), "config": (dict,), "dt": (int, float), "training": (dict,),
+}
+"""Type of each header field the loaders read (``training`` may be absent)."""
+
+
+def _check_archive(path: Path) -> None:
+    """ModelError unless ``path`` is a zip of at most MAX_MEMBERS .npy arrays, each declaring at most
+    MAX_ARRAY_BYTES of a plain dtype and no more than the member holds."""
+    check_regular_file(path, "model file", ModelError)
+    if not zipfile.is_zipfile(path):
+        raise ModelError(f"{path}: not a readable model file: not an .npz (zip) archive; expected a file written by quad-modelling train")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = archive.infolist()
+            if len(members) > MAX_MEMBERS:
+                raise ModelError(f"{path}: holds {len(members)} arrays, a model file has at most {MAX_MEMBERS}")
+            for member in members:
+                if member.file_size > MAX_ARRAY_BYTES:
+                    raise ModelError(f"{path}: member {member.filename} inflates to {member.file_size} bytes, "
+                                     f"more than the {MAX_ARRAY_BYTES} a model array may have")
+                with archive.open(member) as stream:
+                    version = np.lib.format.read_magic(stream)
+                    read_header = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
+                    if read_header is None:
+                        raise ValueError(f"member {member.filename}: .npy format version {version} is not read")
+                    shape, _, dtype = read_header(stream, max_header_size=10000)
+                declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
+                if dtype.hasobject or declared > min(member.file_size, MAX_ARRAY_BYTES):
+                    raise ModelError(f"{path}: member {member.filename} declares a {shape} {dtype} array "
+                                     f"({declared} bytes) that it does not hold; corrupt model file")
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError) as err:
+        raise ModelError(f"{path}: not a readable model file ({type(err).__name__}: {' '.join(str(err).split())})") from err
+
+
+def _check_header(path: Path, header: dict) -> None:
+    for key, types in HEADER_TYPES.items():
+        if key == "training" and key not in header:
+            continue
+        value = header.get(key)
+        if not isinstance(value, types) or isinstance(value, bool):
+            raise ModelError(f"{path}: header field {key!r} is {type(value).__name__} {str(value)[:40]!r}, "
+                             f"expected {' or '.join(t.__name__ for t in types)}")
+    if not (np.isfinite(header["dt"]) and header["dt"] > 0):
+        raise ModelError(f"{path}: header field 'dt' must be a positive sample period [s], got {header['dt']}")
 
 
 # ---- files ----------------------------------------------------------------------
@@ -26,6 +87,7 @@ def read_model_file(path: str | Path, kind: str, outputs: Sequence[str], vehicle
     format/version/kind/vehicle/variable set).
     """
     path = Path(path)
+    _check_archive(path)
     try:
         with np.load(path, allow_pickle=False) as archive:
             contents = {name: archive[name] for name in archive.files}
@@ -41,6 +103,7 @@ def read_model_file(path: str | Path, kind: str, outputs: Sequence[str], vehicle
         raise ModelError(f"{path}: corrupt model header ({err})") from err
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ModelError(f"{path}: not a {FORMAT} model file (format {header.get('format') if isinstance(header, dict) else None!r})")
+    _check_header(path, header)
     if header.get("format_version") != FORMAT_VERSION:
         raise ModelError(f"{path}: model format version {header.get('format_version')!r}, this program reads version {FORMAT_VERSION}")
     if header.get("kind") != kind:

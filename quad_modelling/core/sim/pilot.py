@@ -60,6 +60,11 @@ TURN_DURATION = (5.0, 10.0)
 STICK_NOISE_TIME = 0.5
 """Correlation time of the pilot's small corrections [s]."""
 MIN_DURATION = 5.0
+"""Shortest simulated flight [s]: arm, lift, climb and land."""
+
+MAX_DURATION = 3600.0
+"""Longest simulated flight [s]: an hour (a battery's worth many times over) takes minutes to fly and
+about 100 MB of log; a longer or infinite duration is refused, never started."""
 
 PHASE_OFF, PHASE_IDLE, PHASE_FLYING = 0, 1, 2
 
@@ -156,8 +161,8 @@ class PilotScript:
 
 def make_pilot_script(params: SimParams, duration: float, rng: np.random.Generator) -> PilotScript:
     """Draw one flight's script; same generator state -> same script."""
-    if not duration >= MIN_DURATION:
-        raise ConfigError(f"simulation duration must be at least {MIN_DURATION} s, got {duration}")
+    if not MIN_DURATION <= duration <= MAX_DURATION:
+        raise ConfigError(f"simulation duration must be at least {MIN_DURATION:g} s and at most {MAX_DURATION:g} s, got {duration:g}")
     pilot = params.pilot
     t_arm, t_lift = 1.0, 2.0
     hovering = t_lift + pilot.climb_time + 3.0

@@ -16,7 +16,6 @@ from quad_modelling.core.diagnosis.attribution import (
     excited_windows,
     verdict_of,
 )
-from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.diagnose import (
     DIAGNOSIS_CONFIG,
@@ -30,6 +29,7 @@ from quad_modelling.core.diagnosis.statistics import (
     sign_test,
 )
 from quad_modelling.core.identification.greybox_fit import identify_base
+from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
@@ -149,8 +149,8 @@ def test_bootstrap_and_sign_test():
 
 def test_localisation_names_regimes_bands_and_worst_windows(flights, linkquad, base):
     batch = prepare_windows(flights[()][1:], linkquad, DIAGNOSIS_CONFIG)
-    from quad_modelling.core.identification.base_model import predict_batch
     from quad_modelling.core.diagnosis.fitting import variable_scales
+    from quad_modelling.core.identification.base_model import predict_batch
 
     predicted = predict_batch(base.model, batch)
     where = localise(batch, predicted, variable_scales(batch, predicted))

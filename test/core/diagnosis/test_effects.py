@@ -8,6 +8,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from quad_modelling.core.diagnosis.catalogue import CATALOGUE, parse_effect_list
+from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
+from quad_modelling.core.diagnosis.fitting import fit_effects, variable_scales
+from quad_modelling.core.diagnosis.statistics import window_rms
 from quad_modelling.core.identification.base_model import (
     ANGULAR_ACCELERATION_COLUMNS,
     RATE_COLUMNS,
@@ -24,10 +28,6 @@ from quad_modelling.core.identification.window_batch import (
     flying_span,
     prepare_windows,
 )
-from quad_modelling.core.diagnosis.catalogue import CATALOGUE, parse_effect_list
-from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
-from quad_modelling.core.diagnosis.fitting import fit_effects, variable_scales
-from quad_modelling.core.diagnosis.statistics import window_rms
 from quad_modelling.core.models.greybox import GreyboxParameters, GreyboxPredictor
 from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.core.variables import INDEX

@@ -14,7 +14,6 @@ from quad_modelling.core.windows import (
     span_windows,
 )
 from quad_modelling.errors import ConfigError, DataError
-
 from test.core.flightgen import linear_flight
 
 

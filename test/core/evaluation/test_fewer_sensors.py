@@ -11,7 +11,12 @@ from quad_modelling.core.identification.identify import identify
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.greybox import GreyboxPredictor
 from quad_modelling.core.models.narx import measured_outputs
-from quad_modelling.core.preprocess import attitude_rates, measured_variables, state_measurement, unmeasured_variables
+from quad_modelling.core.preprocess import (
+    attitude_rates,
+    measured_variables,
+    state_measurement,
+    unmeasured_variables,
+)
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import DataError

@@ -4,13 +4,15 @@ the measurement, and the one fit recovers them."""
 import numpy as np
 import pytest
 
-from quad_modelling.core.identification.base_model import base_from_vehicle, predict_batch
+from quad_modelling.core.identification.base_model import (
+    base_from_vehicle,
+    predict_batch,
+)
 from quad_modelling.core.identification.greybox_fit import identify_base
 from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec
-
 from test.core.flightgen import linear_flight
 
 

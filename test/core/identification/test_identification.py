@@ -6,7 +6,6 @@ from quad_modelling.core.identification.identify import (
 )
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
-
 from test.core.flightgen import linear_flight
 
 
@@ -67,7 +66,10 @@ def test_identification_recovers_the_drag_constant_and_flags_reversed_spins():
 
 
 def test_identify_searches_the_motor_time_constants_of_the_diagnosis_base_fit():
-    from quad_modelling.core.identification.greybox_fit import MOTOR_POLE_RANGE, MOTOR_TIME_CONSTANT_RANGE
+    from quad_modelling.core.identification.greybox_fit import (
+        MOTOR_POLE_RANGE,
+        MOTOR_TIME_CONSTANT_RANGE,
+    )
 
     assert MOTOR_TIME_CONSTANT_RANGE == (0.002, 2.0)
     assert MOTOR_POLE_RANGE == (0.5, 500.0)  # -A_m [1/s] = 1 / tau_m

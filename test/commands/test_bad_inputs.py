@@ -1,0 +1,328 @@
+"""The bad-input corpus: what a user can get wrong, each through the real CLI entry point.
+
+Every case must end with exit code 2 and exactly one line on stderr naming the file, field, flag
+or row at fault, no traceback, every file under the work directory byte-identical afterwards (the
+inputs untouched, no partial output, no staging directory left). Each case runs under an alarm:
+a hang fails the case instead of hanging CI. The inputs are built in a temporary directory from
+the test fixtures (never from ../shared).
+"""
+
+from __future__ import annotations
+
+import gzip
+import hashlib
+import json
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quad_modelling.cli import main
+from quad_modelling.core.vehicle import vehicle_dir
+from quad_modelling.io.bag_io import write_bag
+from quad_modelling.io.matlog import write_matlog
+from test.conftest import FIXTURES, REPO, synthetic_log
+from test.io.test_bag_io import STAMPS, _imu, _motor, _odom, _write_raw_bag
+
+CASE_TIMEOUT_S = 60
+"""Longest a case may take; a hang becomes a failure (SIGALRM)."""
+
+NANOBENCH = FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz"
+
+
+class CaseTimeout(Exception):
+    pass
+
+
+@pytest.fixture(autouse=True)
+def alarm():
+    def expire(signum, frame):
+        raise CaseTimeout(f"case took longer than {CASE_TIMEOUT_S} s: a hang")
+
+    previous = signal.signal(signal.SIGALRM, expire)
+    signal.alarm(CASE_TIMEOUT_S)
+    yield
+    signal.alarm(0)
+    signal.signal(signal.SIGALRM, previous)
+
+
+# ---- the inputs ------------------------------------------------------------------------------------------------
+
+
+def _vehicle_text(**values) -> str:
+    """The shipped LinkQuad config with some constants' values replaced (text substitution: the file as a user edits it)."""
+    text = (vehicle_dir() / "linkquad.yaml").read_text()
+    for key, value in values.items():
+        text, count = re.subn(rf"(\n\s*{key}:\s*\{{value:)\s*[^,]+", rf"\g<1> {value}", text)
+        assert count == 1, key
+    return text
+
+
+def _npy_header_only(shape, dtype="<f8") -> bytes:
+    """An .npy member whose header declares ``shape`` but which holds no data."""
+    header = repr({"descr": dtype, "fortran_order": False, "shape": shape}).encode()
+    header += b" " * (63 - (10 + len(header)) % 64) + b"\n"
+    return b"\x93NUMPY\x01\x00" + len(header).to_bytes(2, "little") + header
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory) -> Path:
+    """One directory with every bad (and a few good) inputs; cases never modify it (that is asserted)."""
+    d = tmp_path_factory.mktemp("corpus")
+    (d / "work" / "sub").mkdir(parents=True)
+    write_matlog(synthetic_log(vehicle="linkquad", n=2000), d / "flight.mat")
+    write_bag(synthetic_log(vehicle="linkquad", n=2000), d / "bag")
+    shutil.copy(NANOBENCH, d / "nanobench.csv.gz")
+    lines = gzip.open(NANOBENCH, "rt").read().splitlines()
+    header = lines[0].split(",")
+    rows = [line.split(",") for line in lines[1:50]]
+    (d / "missing_px.csv").write_text("\n".join(",".join(c for i, c in enumerate(r) if i != header.index("px"))
+                                                 for r in [header, *rows]) + "\n")
+    rows[20][header.index("t")] = "1e300"
+    (d / "t1e300.csv").write_text("\n".join(",".join(r) for r in [header, *rows]) + "\n")
+    os.mkfifo(d / "fifo.csv")
+    os.mkfifo(d / "fifo.yaml")
+    os.mkfifo(d / "fifo.npz")
+    (d / "zero.csv").symlink_to("/dev/zero")
+    (d / "in_link.mat").symlink_to(d / "flight.mat")
+    # vehicles
+    (d / "latin1.yaml").write_bytes(_vehicle_text().replace("Table", "T\xe4ble").encode("latin-1"))
+    bomb = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join([f'*{chr(97 + i)}'] * 9)}]\n" for i in range(9))
+    (d / "bomb.yaml").write_text(bomb)
+    (d / "nan_mass.yaml").write_text(_vehicle_text(mass=".nan"))
+    (d / "inf_thrust.yaml").write_text(_vehicle_text(thrust_constant=".inf"))
+    (d / "heavy.yaml").write_text(_vehicle_text(mass="1.0e6"))
+    (d / "huge.yaml").write_text(_vehicle_text() + "#" * (2 << 20) + "\n")
+    (d / "linkquad_copy.yaml").write_text(_vehicle_text())
+    # mappings
+    mapping = (REPO / "config" / "mappings" / "example_lab.yaml").read_text()
+    (d / "map_columns.yaml").write_text(mapping.replace("columns: [1, 2, 3, 4]", "columns: [a, b, c, d]"))
+    (d / "map_unit.yaml").write_text(mapping.replace("{variable: pos, unit: m,", "{variable: pos, unit: deg,"))
+    (d / "map_bomb.yaml").write_text(bomb)
+    # model files
+    (d / "text.npz").write_text("weights: 1 2 3\n")
+    with zipfile.ZipFile(d / "petabytes.npz", "w") as z:
+        z.writestr("header.npy", _npy_header_only((2**50,)))
+    with zipfile.ZipFile(d / "zipbomb.npz", "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("w_u.npy", b"\0" * (65 << 20))
+    header = {"format": "quad_modelling.narx", "format_version": 1, "kind": "narx", "vehicle": "linkquad",
+              "variables": [], "outputs": [], "config": {}, "dt": "fast", "training": {}}
+    np.savez(d / "header_types.npz", header=np.array(json.dumps(header)))
+    # bags with a damaged time base
+    _write_raw_bag(d / "imu_clock", {"motor_input": [(s, _motor(s)) for s in STAMPS], "mocap/odom": [(s, _odom(s)) for s in STAMPS],
+                                     "imu": [(s + 100_000_000_000, _imu(s + 100_000_000_000)) for s in STAMPS]})
+    stamps = [1_000_000_000 + 10_000_000 * k for k in range(1000)]
+    _write_raw_bag(d / "mocap_gap", {"motor_input": [(s, _motor(s)) for s in stamps],
+                                     "mocap/odom": [(s, _odom(s)) for s in stamps if not 2_000_000_000 < s < 8_680_000_000],
+                                     "imu": [(s, _imu(s)) for s in stamps]})
+    damaged = d / "damaged"
+    shutil.copytree(d / "bag", damaged)
+    mcap = next(damaged.glob("*.mcap"))
+    mcap.write_bytes(mcap.read_bytes()[: mcap.stat().st_size // 2])
+    return d
+
+
+def _snapshot(root: Path) -> dict[str, str]:
+    """Every entry under ``root`` (hidden staging included) with the hash of a regular file's bytes."""
+    found = {}
+    for path in sorted(root.rglob("*")):
+        key = str(path.relative_to(root))
+        if path.is_symlink() or not path.is_file():
+            found[key] = "link" if path.is_symlink() else "dir" if path.is_dir() else "special"
+        else:
+            found[key] = hashlib.sha256(path.read_bytes()).hexdigest()
+    return found
+
+
+# ---- the corpus: (id, argv with {d} for the inputs directory, what the one line must say) --------------------
+
+CORPUS = [
+    # outputs: never an input, never '', . or .., never a name the file system cannot hold
+    ("o-empty", ["convert", "{d}/flight.mat", "-o", ""], "the output must name a new file or directory, not '.'"),
+    ("o-dot", ["convert", "{d}/flight.mat", "-o", ".", "--force"], "the output must name a new file or directory, not '.'"),
+    ("o-dotdot", ["convert", "{d}/flight.mat", "-o", "..", "--force"], "the output must name a new file or directory, not '..'"),
+    ("o-long-name", ["convert", "{d}/flight.mat", "-o", "{d}/work/" + "x" * 300], "output name is 300 bytes long; the file system allows 241 here"),
+    ("convert-onto-input", ["convert", "{d}/flight.mat", "-o", "{d}/flight.mat", "--force"], "the output is the input {d}/flight.mat; choose another output (refused even with --force)"),
+    ("convert-into-input", ["convert", "{d}/bag", "-o", "{d}/bag/inner.mat", "--force"], "the output lies inside the input {d}/bag"),
+    ("convert-via-symlink", ["convert", "{d}/in_link.mat", "-o", "{d}/flight.mat", "--force"], "the output is the input {d}/in_link.mat"),
+    ("evaluate-onto-bag", ["evaluate", "{d}/bag", "--preset", "short", "-o", "{d}/bag", "--force"], "-o {d}/bag: the output is the input {d}/bag"),
+    ("evaluate-contains-input", ["evaluate", "{d}/bag", "--preset", "short", "-o", "{d}", "--force"], "the output contains the input {d}/bag"),
+    ("evaluate-onto-model", ["evaluate", "{d}/bag", "--model", "narx:{d}/text.npz", "-o", "{d}/text.npz", "--force"], "the output is the input {d}/text.npz"),
+    ("train-onto-bag", ["train", "{d}/bag", "--preset", "short", "-o", "{d}/bag", "--force"], "the output is the input {d}/bag"),
+    ("identify-onto-flight", ["identify", "{d}/flight.mat", "-o", "{d}/flight.mat", "--force"], "the output is the input {d}/flight.mat"),
+    ("identify-onto-vehicle", ["identify", "{d}/flight.mat", "--vehicle", "{d}/linkquad_copy.yaml", "-o", "{d}/linkquad_copy.yaml", "--force"],
+     "the output is the input {d}/linkquad_copy.yaml"),
+    ("diagnose-onto-test", ["diagnose", "--train", "{d}/flight.mat", "--test", "{d}/bag", "-o", "{d}/bag", "--force"], "the output is the input {d}/bag"),
+    ("run-bag-onto-bag", ["run-bag", "{d}/bag", "-o", "{d}/bag", "--force"], "the output is the input {d}/bag"),
+    # numbers
+    ("window-nan", ["evaluate", "{d}/flight.mat", "--window", "nan", "-o", "{d}/work/out"], "--window nan: must be a finite number"),
+    ("window-inf", ["evaluate", "{d}/flight.mat", "--window", "inf", "-o", "{d}/work/out"], "--window inf: must be a finite number"),
+    ("warm-inf", ["identify", "{d}/flight.mat", "--warm", "inf", "-o", "{d}/work/v.yaml"], "--warm inf: must be a finite number"),
+    ("train-seed-negative", ["train", "{d}/flight.mat", "--seed", "-1", "-o", "{d}/work/m.npz"], "--seed -1: must be a non-negative integer"),
+    ("train-epochs-huge", ["train", "{d}/flight.mat", "--epochs", "1000000000", "-o", "{d}/work/m.npz"], "--epochs must lie in [0, 10000]"),
+    ("simulate-duration-inf", ["simulate", "--duration", "inf", "-o", "{d}/work/s.mat"], "--duration inf: must be at least 5 s and at most 3600 s"),
+    ("simulate-duration-1e9", ["simulate", "--duration", "1e9", "-o", "{d}/work/s.mat"], "--duration 1e+09: must be at least 5 s and at most 3600 s"),
+    ("simulate-duration-nan", ["simulate", "--duration", "nan", "-o", "{d}/work/s.mat"], "--duration nan: must be at least 5 s and at most 3600 s"),
+    ("diagnose-validate-duration", ["diagnose", "--validate", "--duration", "1e9", "-o", "{d}/work/v"], "simulation duration must be at least 5 s and at most 3600 s, got 1e+09"),
+    ("diagnose-smooth-nyquist", ["diagnose", "--train", "{d}/flight.mat", "--test", "{d}/flight.mat", "--smooth", "80", "-o", "{d}/work/d"],
+     "--smooth 80 Hz: must be below the Nyquist frequency 50 Hz of {d}/flight.mat (100 Hz samples)"),
+    ("diagnose-seeds-negative", ["diagnose", "--validate", "--seeds", "0,-1", "-o", "{d}/work/v"], "--seeds '0,-1': expected comma-separated non-negative integers"),
+    ("run-bag-timeout-nan", ["run-bag", "{d}/bag", "--timeout", "nan", "-o", "{d}/work/live"], "--timeout nan: must be a finite number"),
+    ("run-bag-rate-inf", ["run-bag", "{d}/bag", "--rate", "inf", "-o", "{d}/work/live"], "--rate inf: must be a finite number"),
+    ("namespace-space", ["convert", "{d}/flight.mat", "--namespace", "/quad drone/1", "-o", "{d}/work/b"],
+     "--namespace '/quad drone/1': not a valid ROS 2 namespace: token 'quad drone' must be letters, digits and '_', not starting with a digit"),
+    ("namespace-relative", ["convert", "{d}/flight.mat", "--namespace", "quad", "-o", "{d}/work/b"], "not a valid ROS 2 namespace: must start with '/'"),
+    ("mistyped-flag", ["evaluate", "{d}/flight.mat", "--windw", "3", "-o", "{d}/work/out"], "unrecognized arguments: --windw 3"),
+    ("float-for-int", ["train", "{d}/flight.mat", "--seed", "1.5", "-o", "{d}/work/m.npz"], "argument --seed: invalid int value: '1.5'"),
+    # vehicle configs
+    ("vehicle-not-utf8", ["convert", "{d}/flight.mat", "--vehicle", "{d}/latin1.yaml", "-o", "{d}/work/b"], "{d}/latin1.yaml: vehicle config is not UTF-8 text (byte 0x"),
+    ("vehicle-alias-bomb", ["convert", "{d}/flight.mat", "--vehicle", "{d}/bomb.yaml", "-o", "{d}/work/b"], "{d}/bomb.yaml: vehicle config has more than 64 aliases (line 9); write the values out"),
+    ("vehicle-nan-mass", ["identify", "{d}/flight.mat", "--vehicle", "{d}/nan_mass.yaml", "-o", "{d}/work/v.yaml"], "{d}/nan_mass.yaml: constants.mass.value must be a finite number, got nan"),
+    ("vehicle-inf-thrust", ["identify", "{d}/flight.mat", "--vehicle", "{d}/inf_thrust.yaml", "-o", "{d}/work/v.yaml"], "constants.thrust_constant.value must be a finite number, got inf"),
+    ("vehicle-out-of-range", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/heavy.yaml", "-o", "{d}/work/out"], "constants.mass.value must lie in (0, 1000) kg, got 1e+06"),
+    ("vehicle-too-large", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/huge.yaml", "-o", "{d}/work/out"], "bytes, more than the 1048576 a vehicle config may be"),
+    ("vehicle-fifo", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/fifo.yaml", "-o", "{d}/work/out"], "{d}/fifo.yaml: is a FIFO, not a regular file; give the vehicle config as a file"),
+    # mapping files
+    ("mapping-columns", ["convert", "{d}/flight.mat", "--mapping", "{d}/map_columns.yaml", "-o", "{d}/work/b"],
+     "field 'u': 'columns' must list 4 non-negative 0-based column numbers, got ['a', 'b', 'c', 'd']"),
+    ("mapping-unit-dimension", ["convert", "{d}/flight.mat", "--mapping", "{d}/map_unit.yaml", "-o", "{d}/work/b"],
+     "field 'pos_n' unit 'deg' is a rad unit; pos_n needs one of ['m', 'mm']"),
+    ("mapping-alias-bomb", ["info", "{d}/flight.mat", "--mapping", "{d}/map_bomb.yaml"], "{d}/map_bomb.yaml: mapping file has more than 64 aliases"),
+    ("info-mapping-on-bag", ["info", "{d}/bag", "--mapping", "{d}/map_unit.yaml"], "a mapping applies to .mat logs only"),
+    # model files
+    ("model-text-file", ["evaluate", "{d}/flight.mat", "--model", "narx:{d}/text.npz", "-o", "{d}/work/out"],
+     "{d}/text.npz: not a readable model file: not an .npz (zip) archive; expected a file written by quad-modelling train"),
+    ("model-petabyte-header", ["evaluate", "{d}/flight.mat", "--model", "narx:{d}/petabytes.npz", "-o", "{d}/work/out"],
+     "member header.npy declares a (1125899906842624,) float64 array (9007199254740992 bytes) that it does not hold"),
+    ("model-zip-bomb", ["evaluate", "{d}/flight.mat", "--model", "narx:{d}/zipbomb.npz", "-o", "{d}/work/out"],
+     "member w_u.npy inflates to 68157440 bytes, more than the 67108864 a model array may have"),
+    ("model-header-types", ["evaluate", "{d}/flight.mat", "--model", "narx:{d}/header_types.npz", "-o", "{d}/work/out"],
+     "header field 'dt' is str 'fast', expected int or float"),
+    ("model-fifo", ["evaluate", "{d}/flight.mat", "--model", "narx:{d}/fifo.npz", "-o", "{d}/work/out"], "{d}/fifo.npz: is a FIFO, not a regular file"),
+    # flights
+    ("flight-fifo", ["convert", "{d}/fifo.csv", "-o", "{d}/work/b"], "{d}/fifo.csv: is a FIFO, not a regular file; give the flight file as a file"),
+    ("flight-device", ["info", "{d}/zero.csv"], "{d}/zero.csv: is a device, not a regular file"),
+    ("csv-missing-column", ["convert", "{d}/missing_px.csv", "-o", "{d}/work/b"], "{d}/missing_px.csv: missing NanoBench column(s) ['px']"),
+    ("csv-t-1e300", ["convert", "{d}/t1e300.csv", "-o", "{d}/work/b"], "{d}/t1e300.csv: time at row 20 is 1e+300 s, beyond the 9.2e+09 s a time stamp may have"),
+    ("bag-imu-other-clock", ["convert", "{d}/imu_clock", "-o", "{d}/work/b.mat"], "topic /quad/imu stamps are offset by +100.000 s from /quad/motor_input"),
+    ("bag-mocap-gap", ["evaluate", "{d}/mocap_gap", "-o", "{d}/work/out"], "topic /quad/mocap/odom has a 6.68 s gap at t=1.010 s, longer than 0.5 s: not interpolated through"),
+    ("run-bag-damaged", ["run-bag", "{d}/damaged", "-o", "{d}/work/live"], "{d}/damaged: not a readable rosbag2 bag"),
+    ("run-bag-imu-other-clock", ["run-bag", "{d}/imu_clock", "-o", "{d}/work/live"], "topic /quad/imu stamps are offset by +100.000 s"),
+]
+
+
+@pytest.mark.parametrize(("argv", "expected"), [case[1:] for case in CORPUS], ids=[case[0] for case in CORPUS])
+def test_bad_input_is_one_line_exit_2_and_changes_nothing(inputs, monkeypatch, capsys, argv, expected):
+    monkeypatch.chdir(inputs / "work" / "sub")
+    before = _snapshot(inputs)
+    try:
+        code = main([a.replace("{d}", str(inputs)) for a in argv])
+    except SystemExit as exit_:  # argparse's errors exit, as the console script does
+        code = exit_.code
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1, err
+    assert "Traceback" not in err and re.match(r"^quad-modelling( [a-z-]+)?: error: ", lines[0]), err
+    assert expected.replace("{d}", str(inputs)) in lines[0]
+    assert lines[0].count(str(inputs / "missing_px.csv")) <= 1  # the file is named once
+    assert _snapshot(inputs) == before  # inputs byte-identical; no partial output, no staging left
+
+
+def test_the_corpus_covers_at_least_40_bad_inputs():
+    assert len(CORPUS) >= 40 and len({case[0] for case in CORPUS}) == len(CORPUS)
+
+
+def test_a_foreign_mat_log_can_be_inspected_with_its_mapping(tmp_path, capsys):
+    import scipy.io
+
+    log = synthetic_log(vehicle="linkquad")
+    scipy.io.savemat(tmp_path / "lab.mat", {
+        "T": log.t, "PWM": np.column_stack([np.zeros(len(log)), log.u * 1e6]), "ax": log.acc_b[:, 0] / 9.80665,
+        "ay": -log.acc_b[:, 1] / 9.80665, "az": -log.acc_b[:, 2] / 9.80665, "gyro": np.rad2deg(log.gyro_b * [1, -1, -1]),
+        "pos": log.pos_n[:, [1, 0, 2]] * [1, 1, -1], "vel": log.vel_n[:, [1, 0, 2]] * [1, 1, -1], "att": np.rad2deg(log.euler),
+        "battery_voltage": log.vbat,
+    })
+    mapping = REPO / "config" / "mappings" / "example_lab.yaml"
+    assert main(["info", str(tmp_path / "lab.mat"), "--mapping", str(mapping), "--vehicle", "linkquad", "--json"]) == 0
+    document = json.loads(capsys.readouterr().out)
+    assert document["samples"] == 400 and document["vehicle"] == "linkquad"
+
+
+# ---- disk full: one line, no partial output ----------------------------------------------------------------------
+
+
+def test_disk_full_while_writing_a_mat_log_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, capsys):
+    import errno
+
+    import scipy.io
+
+    write_matlog(synthetic_log(vehicle="linkquad"), tmp_path / "flight.mat")
+    before = _snapshot(tmp_path)
+
+    def full(stream, *args, **kwargs):
+        stream.write(b"MATLAB 5.0 partial")
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(scipy.io, "savemat", full)
+    assert main(["convert", str(tmp_path / "flight.mat"), "-o", str(tmp_path / "copy.mat")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"quad-modelling convert: error: {tmp_path}/copy.mat: cannot write the output (No space left on device); nothing was written\n"
+    assert _snapshot(tmp_path) == before
+
+
+def test_disk_full_while_writing_a_bag_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, capsys):
+    import errno
+
+    from quad_modelling.io import bag_io
+
+    shutil.copy(NANOBENCH, tmp_path / "flight.csv.gz")
+    before = _snapshot(tmp_path)
+    calls = []
+
+    def full(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) > 100:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return original(self, *args, **kwargs)
+
+    original = bag_io.Writer.write
+    monkeypatch.setattr(bag_io.Writer, "write", full)
+    assert main(["convert", str(tmp_path / "flight.csv.gz"), "-o", str(tmp_path / "bag")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"quad-modelling convert: error: {tmp_path}/bag: cannot write the output (No space left on device); nothing was written\n"
+    assert _snapshot(tmp_path) == before
+
+
+# ---- signals: SIGTERM removes the staging ------------------------------------------------------------------------
+
+
+def test_sigterm_during_convert_leaves_no_staging_and_no_output(tmp_path):
+    for k in range(12):
+        shutil.copy(NANOBENCH, tmp_path / f"flight{k}.csv.gz")
+    before = _snapshot(tmp_path)
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-m", "quad_modelling.cli", "convert", *sorted(str(p) for p in tmp_path.glob("*.csv.gz")),
+                             "-o", str(tmp_path / "bags")], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        deadline = time.monotonic() + 50
+        while not any(tmp_path.glob(".bags.tmp-*/bags/flight0")) and time.monotonic() < deadline:  # staging holds a bag
+            time.sleep(0.02)
+        assert proc.poll() is None, "convert finished before it could be interrupted"
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 143
+    assert err.strip().splitlines()[-1] == "quad-modelling convert: interrupted (SIGTERM)" and "Traceback" not in err
+    assert _snapshot(tmp_path) == before  # no bags/, no .bags.tmp-*
