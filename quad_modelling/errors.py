@@ -27,3 +27,16 @@ class ModelError(QuadModellingError, ValueError):
 
 class OutputExistsError(QuadModellingError, FileExistsError):
     """An output path exists and --force was not given."""
+
+
+REASON_LIMIT = 200
+"""Longest third-party error text quoted in a project message [characters]."""
+
+
+def reason(err: BaseException) -> str:
+    """A third-party exception as one short line for a project message: its type and its text,
+    whitespace (newlines of YAML or numpy messages) collapsed, cut at :data:`REASON_LIMIT` characters."""
+    text = " ".join(str(err).split()) or "no details"
+    if len(text) > REASON_LIMIT:
+        text = text[: REASON_LIMIT - 3] + "..."
+    return f"{type(err).__name__}: {text}"

@@ -38,6 +38,9 @@ GYRO_FULL_SCALE = np.deg2rad(2000.0)
 ACCEL_FULL_SCALE = 24.0 * 9.80665
 """Largest specific force a MEMS accelerometer reports [m/s²] (±24 g: BMI088)."""
 
+MAX_TIME_S = (2**63 - 1) / 1e9
+"""Largest |t| [s] a flight may hold: what a ROS stamp of int64 nanoseconds reaches (year 2262 in Unix time)."""
+
 VECTOR_FIELDS = ("acc_b", "gyro_b", "pos_n", "vel_n", "euler")
 """The (N, 3) fields, in the order used by writers."""
 
@@ -97,6 +100,10 @@ class FlightLog:
                 raise DataError(f"{where}: field {name} has shape {value.shape}, expected {shape}")
             setattr(self, name, value)
         self._check_finite(where)
+        beyond = np.abs(self.t) > MAX_TIME_S
+        if beyond.any():
+            row = int(np.argmax(beyond))
+            raise DataError(f"{where}: time at row {row} is {self.t[row]:.4g} s, beyond ±{MAX_TIME_S:.4g} s (int64 nanosecond stamps): corrupt time base")
         steps = np.diff(self.t)
         if np.any(steps <= 0):
             row = int(np.argmax(steps <= 0)) + 1

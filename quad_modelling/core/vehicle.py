@@ -25,8 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from quad_modelling.core.yaml_files import read_yaml
 from quad_modelling.errors import ConfigError
 
 GRAVITY = 9.81
@@ -162,12 +162,7 @@ class VehicleConfig:
     def from_yaml(cls, path: str | Path) -> VehicleConfig:
         """Load and validate a vehicle file; ConfigError names the file and key at fault."""
         path = Path(path)
-        try:
-            doc = yaml.safe_load(path.read_text())
-        except OSError as err:
-            raise ConfigError(f"{path}: cannot read vehicle config: {err.strerror}") from err
-        except yaml.YAMLError as err:
-            raise ConfigError(f"{path}: not valid YAML: {err}") from err
+        doc = read_yaml(path, "vehicle config")
         if not isinstance(doc, dict):
             raise ConfigError(f"{path}: expected a mapping at the top level")
         return cls.from_dict(doc, str(path))

@@ -26,14 +26,16 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import zlib
+
 import numpy as np
 import scipy.io
-import yaml
 
 from quad_modelling.atomic import atomic_output
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.errors import ConfigError, DataError
+from quad_modelling.core.yaml_files import read_yaml
+from quad_modelling.errors import ConfigError, DataError, reason
 
 THESIS_VARIABLES: dict[str, tuple[str, ...]] = {
     "time": ("time",),
@@ -76,15 +78,10 @@ def default_mapping() -> dict[str, FieldMapping]:
 def load_mapping(path: str | Path) -> dict[str, FieldMapping]:
     """Read and validate a YAML mapping file (see module docstring)."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read mapping file: {err.strerror}") from err
-    except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: mapping file is not valid YAML: {err}") from err
+    doc = read_yaml(path, "mapping file")
     if not isinstance(doc, dict):
         raise ConfigError(f"{path}: mapping file must be a mapping of field -> {{variable, unit, ...}}")
-    unknown = set(doc) - set(THESIS_VARIABLES)
+    unknown = [str(key) for key in doc if key not in THESIS_VARIABLES]
     if unknown:
         raise ConfigError(f"{path}: unknown fields {sorted(unknown)}; known: {list(THESIS_VARIABLES)}")
     mapping = {}
@@ -96,21 +93,46 @@ def load_mapping(path: str | Path) -> dict[str, FieldMapping]:
             raise ConfigError(f"{path}: mapping has no entry for required field {name!r}")
         if not isinstance(entry, dict) or "unit" not in entry:
             raise ConfigError(f"{path}: field {name!r} needs a 'unit'")
-        if entry["unit"] not in frames.UNIT_FACTORS:
-            raise ConfigError(f"{path}: field {name!r} has unknown unit {entry['unit']!r}; known: {list(frames.UNIT_FACTORS)}")
+        if not isinstance(entry["unit"], str) or entry["unit"] not in frames.UNIT_FACTORS:
+            raise ConfigError(f"{path}: field {name!r} has unknown unit {_short(entry['unit'])}; known: {list(frames.UNIT_FACTORS)}")
         if "variable" in entry:
-            variables = (str(entry["variable"]),)
-            columns = tuple(int(c) for c in entry["columns"]) if "columns" in entry else None
+            variables = (_name(entry["variable"], path, f"{name}.variable"),)
+            columns = _columns(entry["columns"], path, name) if "columns" in entry else None
         elif "variables" in entry:
-            variables, columns = tuple(str(v) for v in entry["variables"]), None
+            names = entry["variables"]
+            if not isinstance(names, list) or not names:
+                raise ConfigError(f"{path}: field {name!r}: 'variables' must be a list of variable names, got {_short(names)}")
+            variables, columns = tuple(_name(v, path, f"{name}.variables") for v in names), None
         else:
             raise ConfigError(f"{path}: field {name!r} needs 'variable' (with optional 'columns') or 'variables'")
         frame = entry.get("frame")
+        if not isinstance(frame, (str, type(None))):
+            frame = _short(frame)
         allowed = ("FRD", "FLU") if name in BODY_FIELDS else ("NED", "ENU") if name in WORLD_FIELDS else (None,)
         if frame not in allowed:
             raise ConfigError(f"{path}: field {name!r} needs frame one of {allowed}, got {frame!r}")
         mapping[name] = FieldMapping(variables, columns, str(entry["unit"]), frame)
     return mapping
+
+
+def _short(value) -> str:
+    """``repr`` of a mapping value, cut to one short line for a message."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _name(value, path: Path, key: str) -> str:
+    """A MATLAB variable name of the mapping (``key`` names where it stood)."""
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{path}: {key} must be a MATLAB variable name, got {_short(value)}")
+    return value
+
+
+def _columns(value, path: Path, name: str) -> tuple[int, ...]:
+    """The 0-based column list of a matrix variable."""
+    if not isinstance(value, list) or not value or not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in value):
+        raise ConfigError(f"{path}: field {name!r}: 'columns' must be a list of 0-based column numbers, got {_short(value)}")
+    return tuple(value)
 
 
 def _user_variables(contents: dict) -> dict[str, np.ndarray]:
@@ -126,6 +148,9 @@ def _extract(name: str, field: FieldMapping, found: dict, n: int | None, where: 
             f"{where}: field {name} needs variable(s) {missing}, not in the file; found: {sorted(found)} "
             "(give a --mapping file for foreign logs)"
         )
+    complex_ = [v for v in field.variables if np.iscomplexobj(found[v])]
+    if complex_:
+        raise DataError(f"{where}: variable(s) {complex_} of field {name} are complex-valued, expected real numbers")
     try:
         arrays = [np.asarray(found[v], dtype=float) for v in field.variables]
     except (TypeError, ValueError) as err:
@@ -170,8 +195,8 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
         raise DataError(f"{where}: MATLAB v7.3 (HDF5) files are not supported; save with -v7") from err
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
-    except (ValueError, TypeError, OSError, EOFError) as err:
-        raise DataError(f"{where}: not a readable MATLAB file ({err})") from err
+    except (ValueError, TypeError, OSError, EOFError, zlib.error, scipy.io.matlab.MatReadError) as err:
+        raise DataError(f"{where}: not a readable MATLAB file ({reason(err)})") from err
     found = _user_variables(contents)
     time = _extract("time", mapping["time"], found, None, where)
     if time is None or time.ndim != 1:
@@ -196,6 +221,10 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
             notes = json.loads(str(found["meta_json"]))
         except json.JSONDecodeError as err:
             raise DataError(f"{where}: variable meta_json is not valid JSON ({err.msg})") from err
+        if not isinstance(notes, dict):
+            raise DataError(f"{where}: variable meta_json must hold a JSON object, got {type(notes).__name__}")
+    if "vehicle" in found and not vehicle and not isinstance(found["vehicle"], str):
+        raise DataError(f"{where}: variable vehicle must be a vehicle config name (text), got a {type(found['vehicle']).__name__}")
     vehicle_name = vehicle or (str(found["vehicle"]) if "vehicle" in found else None)
     if not vehicle_name:
         raise DataError(f"{where}: no 'vehicle' variable in the file; pass --vehicle NAME")

@@ -26,6 +26,8 @@ and row named.
 from __future__ import annotations
 
 import gzip
+import warnings
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +35,7 @@ import numpy as np
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta, first_outside
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
-from quad_modelling.errors import DataError
+from quad_modelling.errors import DataError, reason
 
 POSITION = ("px", "py", "pz")
 QUATERNION = ("qx", "qy", "qz", "qw")
@@ -70,18 +72,29 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
     where = str(path)
     try:
         with _open_text(path) as stream:
-            header = stream.readline().strip().split(",")
+            header = [name.strip() for name in stream.readline().strip().split(",")]
             missing = [c for c in REQUIRED if c not in header]
             if missing:
                 raise DataError(f"{where}: missing NanoBench column(s) {missing}")
+            twice = sorted({c for c in (*REQUIRED, *EULER_COLUMNS) if header.count(c) > 1})
+            if twice:
+                raise DataError(f"{where}: NanoBench column(s) {twice} appear more than once in the header")
             index = {name: header.index(name) for name in (*REQUIRED, *EULER_COLUMNS) if name in header}
-            rows = np.loadtxt(stream, delimiter=",", usecols=list(index.values()), ndmin=2)
+            with warnings.catch_warnings():  # a header-only file is refused below, not warned about
+                warnings.simplefilter("ignore", UserWarning)
+                rows = np.loadtxt(stream, delimiter=",", usecols=list(index.values()), ndmin=2)
+    except DataError:
+        raise
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
-    except (OSError, EOFError, gzip.BadGzipFile) as err:
-        raise DataError(f"{where}: cannot read ({err})") from err
+    except (OSError, EOFError, gzip.BadGzipFile, zlib.error) as err:
+        raise DataError(f"{where}: cannot read ({reason(err)})") from err
+    except UnicodeDecodeError as err:
+        raise DataError(f"{where}: not UTF-8 text (byte {err.start} of a line: {err.object[err.start:err.start + 1]!r})") from err
     except ValueError as err:
-        raise DataError(f"{where}: unparsable value ({err})") from err
+        raise DataError(f"{where}: unparsable value ({reason(err)})") from err
+    if len(rows) == 0:
+        raise DataError(f"{where}: no data rows after the header")
     column = {name: rows[:, i] for i, name in enumerate(index)}
     for name, values in column.items():
         bad = ~np.isfinite(values)

@@ -1,0 +1,82 @@
+"""The one bounded reader of the YAML files a user hands in (vehicle configs, mapping files, bag metadata).
+
+``yaml.safe_load`` builds no objects of its own, but input still decides its cost: a
+file of any size, a FIFO that never ends, and alias bombs (a few lines whose anchors
+expand to billions of nodes once anything walks the document, e.g. to quote a value in
+an error message). :func:`read_yaml` refuses each of those in one line naming the file
+before the document reaches any other code.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+
+from quad_modelling.errors import ConfigError, reason
+
+MAX_YAML_BYTES = 1 << 20
+"""Largest YAML file read [bytes]: a vehicle config or mapping is a few kB, a bag's metadata.yaml tens of kB."""
+
+MAX_YAML_NODES = 100_000
+"""Most nodes a document may hold with every alias expanded (a 1 MiB file of plain values holds fewer)."""
+
+
+def expanded_size(node: yaml.Node, sizes: dict[int, int] | None = None) -> int:
+    """Node count of ``node`` with every alias expanded; each shared node is counted once per use, computed once."""
+    sizes = {} if sizes is None else sizes
+    key = id(node)
+    if key in sizes:
+        return sizes[key]
+    sizes[key] = MAX_YAML_NODES + 1  # a node that contains itself (recursive alias) expands without end
+    if isinstance(node, yaml.SequenceNode):
+        total = 1 + sum(expanded_size(child, sizes) for child in node.value)
+    elif isinstance(node, yaml.MappingNode):
+        total = 1 + sum(expanded_size(k, sizes) + expanded_size(v, sizes) for k, v in node.value)
+    else:
+        total = 1
+    sizes[key] = min(total, MAX_YAML_NODES + 1)
+    return sizes[key]
+
+
+def read_yaml(path: str | Path, what: str):
+    """The parsed document of the YAML file ``path`` (``what`` names it in errors, e.g. "vehicle config").
+
+    Raises ConfigError in one line naming the file: missing, not a regular file, larger
+    than :data:`MAX_YAML_BYTES`, not UTF-8, not valid YAML, or expanding (through
+    aliases) to more than :data:`MAX_YAML_NODES` nodes.
+    """
+    path = Path(path)
+    try:
+        if not path.is_file():
+            state = "no such file" if not path.exists() else "not a regular file"
+            raise ConfigError(f"{path}: cannot read {what}: {state}")
+        size = path.stat().st_size
+        if size > MAX_YAML_BYTES:
+            raise ConfigError(f"{path}: {what} is {size} bytes, larger than the {MAX_YAML_BYTES} read")
+        text = path.read_bytes().decode("utf-8")
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read {what}: {err.strerror or reason(err)}") from err
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: {what} is not UTF-8 text (byte {err.start}: {err.object[err.start:err.start + 1]!r})") from err
+    loader = yaml.SafeLoader(text)
+    try:
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        if expanded_size(node) > MAX_YAML_NODES:
+            raise ConfigError(f"{path}: {what} expands (through YAML aliases) to more than {MAX_YAML_NODES} nodes")
+        return loader.construct_document(node)
+    except ConfigError:
+        raise
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        line = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or reason(err)
+        raise ConfigError(f"{path}: {what} is not valid YAML{line}: {' '.join(str(problem).split())}") from err
+    except (ValueError, TypeError) as err:  # e.g. a timestamp 2024-13-01 that the resolver took for a date
+        raise ConfigError(f"{path}: {what} holds a value YAML cannot construct ({reason(err)})") from err
+    except RecursionError as err:
+        raise ConfigError(f"{path}: {what} nests deeper than YAML can be read") from err
+    finally:
+        loader.dispose()
