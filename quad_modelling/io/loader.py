@@ -46,6 +46,17 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
         raise DataError(f"{path}: unknown format {fmt!r}; known: {', '.join(FORMATS)}")
     if not path.exists():
         raise DataError(f"{path}: no such file or directory")
+    if not (path.is_file() or path.is_dir()):
+        raise DataError(f"{path}: not a regular file (a FIFO, socket or device is not read: it may never end)")
+    try:
+        return _load(path, vehicle, fmt, mapping_file)
+    except QuadModellingError as err:
+        if str(path) in str(err):
+            raise
+        raise type(err)(f"{path}: {err}") from err  # e.g. an unknown vehicle the file names
+
+
+def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_file: str | Path | None) -> FlightLog:
     config = vehicle if isinstance(vehicle, VehicleConfig) else None
     name = config.name if config is not None else vehicle
     if fmt == "thesis-mat":

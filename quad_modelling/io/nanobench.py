@@ -106,10 +106,10 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         return np.column_stack([column[n] for n in names])
 
     quat = stack(QUATERNION)
-    norms = np.linalg.norm(quat, axis=1)
-    if np.any(np.abs(norms - 1.0) > 0.05):
-        row = int(np.argmax(np.abs(norms - 1.0)))
-        raise DataError(f"{where}: quaternion qx..qw at data row {row + 1} has norm {norms[row]:.3f}, not 1")
+    bad_quaternion = frames.non_unit_quaternion(quat)
+    if bad_quaternion:
+        row, norm = bad_quaternion
+        raise DataError(f"{where}: quaternion qx..qw at data row {row + 1} has norm {norm:.3f}, not 1")
     euler = frames.quat_enu_to_euler_ned(quat)
     euler[:, 2] = np.unwrap(euler[:, 2])
     notes = {"format": "nanobench", "euler_from": "quaternion qx..qw"}
