@@ -6,7 +6,16 @@ row at fault, so the CLI can print it as is and exit non-zero.
 
 
 class QuadModellingError(Exception):
-    """Base class of every error this package raises on purpose."""
+    """Base class of every error this package raises on purpose.
+
+    The message is kept on one line whatever went into it (a key, a file name or a
+    third-party text with line breaks): each line break becomes a space.
+    """
+
+    def __init__(self, message: object = "", *args: object) -> None:
+        if isinstance(message, str):
+            message = " ".join(message.splitlines())
+        super().__init__(message, *args)
 
 
 class DataError(QuadModellingError, ValueError):

@@ -59,8 +59,9 @@ def read_yaml(path: str | Path, what: str):
         raise ConfigError(f"{path}: cannot read {what}: {err.strerror or reason(err)}") from err
     except UnicodeDecodeError as err:
         raise ConfigError(f"{path}: {what} is not UTF-8 text (byte {err.start}: {err.object[err.start:err.start + 1]!r})") from err
-    loader = yaml.SafeLoader(text)
+    loader = None
     try:
+        loader = yaml.SafeLoader(text)
         node = loader.get_single_node()
         if node is None:
             return None
@@ -79,4 +80,5 @@ def read_yaml(path: str | Path, what: str):
     except RecursionError as err:
         raise ConfigError(f"{path}: {what} nests deeper than YAML can be read") from err
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()

@@ -23,10 +23,10 @@ the simulator's effects and seed).
 from __future__ import annotations
 
 import json
+import math
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
-
-import zlib
 
 import numpy as np
 import scipy.io
@@ -49,6 +49,10 @@ THESIS_VARIABLES: dict[str, tuple[str, ...]] = {
     "omega": ("Omega1", "Omega2", "Omega3", "Omega4"),
 }
 """Default variable names per field (thesis symbols: ddXB = onboard X acceleration...)."""
+
+MAX_MAT_ELEMENTS = 200_000_000
+"""Most array elements a .mat file may declare (1.6 GB of float64; a day at 100 Hz of every field is 2.6e8 / 10):
+a corrupt or hostile size field is refused before scipy allocates it."""
 
 OPTIONAL_FIELDS = ("vbat", "omega")
 BODY_FIELDS = ("acc_b", "gyro_b")
@@ -190,12 +194,18 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
     if not path.is_file():
         raise DataError(f"{where}: no such file")
     try:
+        declared = sum(math.prod(shape) for _, shape, _ in scipy.io.whosmat(path))  # headers only
+        if declared > MAX_MAT_ELEMENTS:
+            raise DataError(f"{where}: the variables declare {declared} elements, more than the {MAX_MAT_ELEMENTS} read")
         contents = scipy.io.loadmat(path, squeeze_me=True, chars_as_strings=True)
+    except DataError:
+        raise
     except NotImplementedError as err:
         raise DataError(f"{where}: MATLAB v7.3 (HDF5) files are not supported; save with -v7") from err
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
-    except (ValueError, TypeError, OSError, EOFError, zlib.error, scipy.io.matlab.MatReadError) as err:
+    except (ValueError, TypeError, OSError, EOFError, IndexError, KeyError, AttributeError, OverflowError, MemoryError,
+            zlib.error, scipy.io.matlab.MatReadError) as err:  # scipy's parser meets a corrupt file with any of these
         raise DataError(f"{where}: not a readable MATLAB file ({reason(err)})") from err
     found = _user_variables(contents)
     time = _extract("time", mapping["time"], found, None, where)
