@@ -16,6 +16,7 @@ interpolation when stamps differ; exact when they coincide, as in bags written h
 from __future__ import annotations
 
 import json
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -133,7 +134,7 @@ def _open_reader(path: Path) -> Reader:
     try:
         reader = Reader(path)
         reader.open()
-    except (ReaderError, OSError, ValueError, KeyError, TypeError, SerdeError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, TypeError, SerdeError, MemoryError, OverflowError, struct.error) as err:  # a corrupt record size: MemoryError
         raise BagError(f"{path}: not a readable rosbag2 bag ({reason(err)})") from err
     return reader
 
@@ -160,7 +161,7 @@ def summarize_bag(path: str | Path) -> BagSummary:
         start = min(first.values(), default=0) / 1e9
         end = max(last.values(), default=0) / 1e9
         return BagSummary(str(path), storage, end - start, start, end, sum(counts.values()), topics, custom)
-    except (ReaderError, OSError, ValueError, KeyError, EOFError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError) as err:
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
@@ -250,7 +251,7 @@ def read_recorded(path: str | Path, namespace: str = DEFAULT_NAMESPACE) -> list[
         for connection, _, raw in reader.messages(connections=[c for cs in by_topic.values() for c in cs]):
             key = key_of[connection.id]
             recorded.append(RecordedMessage(key, cdr_stamp_ns(raw), bytes(raw)))
-    except (ReaderError, OSError, ValueError, KeyError, EOFError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError) as err:
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
@@ -288,7 +289,7 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
                 columns[key].append(imu_fields(msg))
             else:
                 columns[key].append((msg.voltage,))
-    except (ReaderError, OSError, ValueError, KeyError, EOFError, AssertionError, IndexError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError, AssertionError, IndexError) as err:
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     except SerdeError as err:
         raise BagError(f"{path}: topic {connection.topic} message {len(stamps[key])}: cannot deserialise ({reason(err)})") from err

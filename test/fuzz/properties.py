@@ -33,18 +33,24 @@ def outcome(call, path: str | Path):
 
 
 @st.composite
-def mutated_bytes(draw, original: bytes, max_flips: int = 8) -> bytes:
-    """``original`` with a few bits flipped, a few bytes overwritten, or cut short."""
-    data = bytearray(original)
+def byte_edits(draw, size: int, max_flips: int = 8) -> tuple:
+    """Edits of a file of ``size`` bytes: ("truncate", length), or ("flip" | "overwrite", [(offset, value)...]).
+
+    Drawn as a short description, not as the bytes, so a failing example prints in one line."""
     kind = draw(st.sampled_from(["flip", "overwrite", "truncate"]))
     if kind == "truncate":
-        return bytes(data[: draw(st.integers(0, max(len(data) - 1, 0)))])
-    for _ in range(draw(st.integers(1, max_flips))):
-        at = draw(st.integers(0, len(data) - 1))
-        if kind == "flip":
-            data[at] ^= 1 << draw(st.integers(0, 7))
-        else:
-            data[at] = draw(st.integers(0, 255))
+        return kind, draw(st.integers(0, max(size - 1, 0)))
+    return kind, draw(st.lists(st.tuples(st.integers(0, size - 1), st.integers(0, 255 if kind == "overwrite" else 7)), min_size=1, max_size=max_flips))
+
+
+def mutated(original: bytes, edits: tuple) -> bytes:
+    """``original`` with :func:`byte_edits` applied: bits flipped, bytes overwritten, or cut short."""
+    kind, what = edits
+    if kind == "truncate":
+        return original[:what]
+    data = bytearray(original)
+    for offset, value in what:
+        data[offset] = data[offset] ^ (1 << value) if kind == "flip" else value
     return bytes(data)
 
 

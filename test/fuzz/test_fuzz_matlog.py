@@ -17,7 +17,7 @@ from quad_modelling.errors import QuadModellingError
 from quad_modelling.io.loader import load_flight
 from quad_modelling.io.matlog import THESIS_VARIABLES, load_mapping, write_matlog
 from test.conftest import synthetic_log
-from test.fuzz.properties import mutated_bytes, outcome, yaml_values
+from test.fuzz.properties import byte_edits, mutated, outcome, yaml_values
 
 N = 40
 
@@ -78,9 +78,10 @@ def test_edited_variables_give_a_flight_or_one_line(edits, compress):
 
 
 @settings(max_examples=60)
-@given(st.data(), st.booleans())
-def test_corrupt_mat_bytes_give_one_line(data, compress):
-    check_mat(data.draw(mutated_bytes(savemat_bytes(BASE, compress))))
+@given(st.booleans(), st.data())
+def test_corrupt_mat_bytes_give_one_line(compress, data):
+    original = savemat_bytes(BASE, compress)
+    check_mat(mutated(original, data.draw(byte_edits(len(original)), label="edits")))
 
 
 @settings(max_examples=30)
