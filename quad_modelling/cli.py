@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import signal
 import sys
 
@@ -35,6 +36,10 @@ EXIT_ERROR = 2
 
 EXIT_INTERRUPTED = {signal.SIGINT: 130, signal.SIGTERM: 143}
 """Exit codes after SIGINT / SIGTERM (128 + signal number, as a shell reports them)."""
+
+EXIT_BROKEN_PIPE = 141
+"""Exit code when the reader of stdout went away (``quad-modelling info BAG | head``): 128 + SIGPIPE, as a
+shell reports a command killed by it; nothing more is printed."""
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -88,6 +93,10 @@ def main(argv: list[str] | None = None) -> int:
         message = " ".join(str(err).split())  # one line, whatever a wrapped library said
         print(f"quad-modelling {args.verb}: error: {message}", file=sys.stderr)
         return EXIT_ERROR
+    except BrokenPipeError:
+        # stdout's reader is gone: say nothing more (Python would print a traceback at exit flushing it)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
     except KeyboardInterrupt as err:
         signum = getattr(err, "signum", signal.SIGINT)
         print(f"quad-modelling {args.verb}: interrupted ({signal.Signals(signum).name})", file=sys.stderr)

@@ -42,3 +42,15 @@ def test_info_on_a_mat_log_shows_samples_and_simulation_notes(tmp_path, capsys):
     assert "effects:   ['battery']" in out and "seed:      7" in out
     assert main(["info", str(tmp_path / "f.mat"), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["fields"] == ["u", "acc_b", "gyro_b", "pos_n", "vel_n", "euler", "vbat", "omega"]
+
+
+def test_info_into_a_closed_pipe_exits_quietly(tmp_path):
+    """``quad-modelling info BAG | head -1``: the reader leaves early; no traceback, exit 141 (SIGPIPE)."""
+    import subprocess
+    import sys
+
+    reader = subprocess.Popen([sys.executable, "-m", "quad_modelling.cli", "info", str(REPO / "bags" / "nanobench_B7_oval_medium_rep2")],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    reader.stdout.close()  # the pipe's reader is gone before the first line is written
+    _, err = reader.communicate(timeout=60)
+    assert reader.returncode == 141 and b"Traceback" not in err and err == b""
