@@ -6,7 +6,16 @@ row at fault, so the CLI can print it as is and exit non-zero.
 
 
 class QuadModellingError(Exception):
-    """Base class of every error this package raises on purpose."""
+    """Base class of every error this package raises on purpose.
+
+    The message is kept on one line whatever went into it (a key, a file name or a
+    third-party text with line breaks): each line break becomes a space.
+    """
+
+    def __init__(self, message: object = "", *args: object) -> None:
+        if isinstance(message, str):
+            message = " ".join(message.splitlines())
+        super().__init__(message, *args)
 
 
 class DataError(QuadModellingError, ValueError):
@@ -27,3 +36,16 @@ class ModelError(QuadModellingError, ValueError):
 
 class OutputExistsError(QuadModellingError, FileExistsError):
     """An output path exists and --force was not given."""
+
+
+REASON_LIMIT = 200
+"""Longest third-party error text quoted in a project message [characters]."""
+
+
+def reason(err: BaseException) -> str:
+    """A third-party exception as one short line for a project message: its type and its text,
+    whitespace (newlines of YAML or numpy messages) collapsed, cut at :data:`REASON_LIMIT` characters."""
+    text = " ".join(str(err).split()) or "no details"
+    if len(text) > REASON_LIMIT:
+        text = text[: REASON_LIMIT - 3] + "..."
+    return f"{type(err).__name__}: {text}"

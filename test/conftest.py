@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, settings
 
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 
@@ -16,6 +17,16 @@ REPO = Path(__file__).resolve().parent.parent
 # DDS stays on loopback in every test process, whatever started pytest.
 os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
 os.environ.setdefault("MPLBACKEND", "Agg")
+
+# The fuzz suite (test/fuzz/) is reproducible: derandomized (examples follow from each test's source), no
+# example database, a deadline per example that turns a hang into a failure. "ci" is the default; a longer
+# search: HYPOTHESIS_PROFILE=deep.
+settings.register_profile(
+    "ci", derandomize=True, database=None, deadline=5000, print_blob=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large],
+)
+settings.register_profile("deep", parent=settings.get_profile("ci"), derandomize=False, max_examples=1000)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
 def synthetic_log(n: int = 400, vehicle: str = "crazyflie21", seed: int = 0, rate: float = 100.0, with_optional: bool = True) -> FlightLog:

@@ -49,8 +49,8 @@ GYRO_FULL_SCALE = np.deg2rad(2000.0)
 ACCEL_FULL_SCALE = 24.0 * 9.80665
 """Largest specific force a MEMS accelerometer reports [m/s²] (±24 g: BMI088)."""
 
-MAX_TIME_S = 9.2e9
-"""Largest |t| [s] a sample time may have: what a bag's int64 nanosecond stamps hold (year 2261 as Unix time)."""
+MAX_TIME_S = (2**63 - 1) / 1e9
+"""Largest |t| [s] a flight may hold: what a ROS stamp of int64 nanoseconds reaches (year 2262 in Unix time)."""
 
 VECTOR_FIELDS = ("acc_b", "gyro_b", "pos_n", "vel_n", "euler")
 """The (N, 3) fields, in the order used by writers."""
@@ -122,7 +122,7 @@ class FlightLog:
         beyond = np.abs(self.t) > MAX_TIME_S
         if beyond.any():
             row = int(np.argmax(beyond))
-            raise DataError(f"{where}: time at row {row} is {self.t[row]:.6g} s, beyond the {MAX_TIME_S:.3g} s a time stamp may have")
+            raise DataError(f"{where}: time at row {row} is {self.t[row]:.4g} s, beyond ±{MAX_TIME_S:.4g} s (int64 nanosecond stamps): corrupt time base")
         steps = np.diff(self.t)
         if np.any(steps <= 0):
             row = int(np.argmax(steps <= 0)) + 1

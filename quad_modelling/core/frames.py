@@ -78,6 +78,20 @@ def from_si(values: np.ndarray, unit: str) -> np.ndarray:
     return np.asarray(values, dtype=float) / UNIT_FACTORS[unit][1]
 
 
+QUATERNION_NORM_TOLERANCE = 0.05
+"""Largest deviation from 1 of a logged attitude quaternion's norm; beyond it the row is corrupt, not rounded."""
+
+
+def non_unit_quaternion(quat: np.ndarray) -> tuple[int, float] | None:
+    """(row, norm) of the row of an (N, 4) quaternion array whose norm is furthest from 1, when beyond
+    :data:`QUATERNION_NORM_TOLERANCE` (a zero quaternion has no rotation), else None."""
+    deviation = np.abs(np.linalg.norm(quat, axis=1) - 1.0)
+    if not np.any(deviation > QUATERNION_NORM_TOLERANCE):
+        return None
+    row = int(np.argmax(deviation))
+    return row, float(np.linalg.norm(quat[row]))
+
+
 def enu_to_ned(v: np.ndarray) -> np.ndarray:
     """World vector(s) ENU -> NED; ``v`` is (3,) or (N, 3)."""
     return np.asarray(v, dtype=float) @ ENU_TO_NED.T

@@ -1,10 +1,11 @@
-"""The user's input files, read with bounds: regular files only, YAML of bounded size and aliases.
+"""The user's input files, read with bounds: regular files only; YAML of bounded size and expansion.
 
-A FIFO, a device or a socket given as an input would block or never end; it is
-refused before it is opened (:func:`check_regular_file`). A YAML file (vehicle
-config, mapping) is read as UTF-8 (a bad byte is named by its offset), at most
-:data:`MAX_YAML_BYTES` long and with at most :data:`MAX_YAML_ALIASES` aliases,
-so an alias bomb ("billion laughs") is refused instead of expanded.
+A FIFO, a device or a socket given as an input would block or never end; it is refused before it is
+opened (:func:`check_regular_file`). ``yaml.safe_load`` builds no objects of its own, but input still
+decides its cost: a file of any size, and alias bombs (a few lines whose anchors expand to billions of
+nodes once anything walks the document, e.g. to quote a value in an error message). :func:`read_yaml`
+(vehicle configs, mapping files, a bag's metadata.yaml) refuses each of those in one line naming the file
+before the document reaches any other code.
 """
 
 from __future__ import annotations
@@ -14,13 +15,14 @@ from pathlib import Path
 
 import yaml
 
-from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.errors import ConfigError, QuadModellingError, reason
 
 MAX_YAML_BYTES = 1 << 20
-"""Largest YAML input [bytes]: a vehicle config or mapping is a few kB."""
+"""Largest YAML file read [bytes]: a vehicle config or mapping is a few kB, a bag's metadata.yaml tens of kB."""
 
-MAX_YAML_ALIASES = 64
-"""Most YAML aliases (``*name``) one file may use; the shipped files use none."""
+MAX_YAML_NODES = 100_000
+"""Most nodes a document may hold with every alias expanded (a 1 MiB file of plain values holds fewer)."""
+
 
 
 def check_regular_file(path: str | Path, what: str, error: type[QuadModellingError] = ConfigError) -> Path:
@@ -40,44 +42,60 @@ def check_regular_file(path: str | Path, what: str, error: type[QuadModellingErr
     return path
 
 
-class _AliasBomb(yaml.YAMLError):
-    pass
+def expanded_size(node: yaml.Node, sizes: dict[int, int] | None = None) -> int:
+    """Node count of ``node`` with every alias expanded; each shared node is counted once per use, computed once."""
+    sizes = {} if sizes is None else sizes
+    key = id(node)
+    if key in sizes:
+        return sizes[key]
+    sizes[key] = MAX_YAML_NODES + 1  # a node that contains itself (recursive alias) expands without end
+    if isinstance(node, yaml.SequenceNode):
+        total = 1 + sum(expanded_size(child, sizes) for child in node.value)
+    elif isinstance(node, yaml.MappingNode):
+        total = 1 + sum(expanded_size(k, sizes) + expanded_size(v, sizes) for k, v in node.value)
+    else:
+        total = 1
+    sizes[key] = min(total, MAX_YAML_NODES + 1)
+    return sizes[key]
 
 
-class _BoundedLoader(yaml.SafeLoader):
-    """SafeLoader that stops at the :data:`MAX_YAML_ALIASES` + 1st alias."""
+def read_yaml(path: str | Path, what: str):
+    """The parsed document of the YAML file ``path`` (``what`` names it in errors, e.g. "vehicle config").
 
-    def __init__(self, stream):
-        super().__init__(stream)
-        self.aliases = 0
-
-    def compose_node(self, parent, index):
-        if self.check_event(yaml.AliasEvent):
-            self.aliases += 1
-            if self.aliases > MAX_YAML_ALIASES:
-                mark = self.peek_event().start_mark
-                raise _AliasBomb(f"more than {MAX_YAML_ALIASES} aliases (line {mark.line + 1}); write the values out")
-        return super().compose_node(parent, index)
-
-
-def read_yaml(path: str | Path, what: str) -> object:
-    """The document of a YAML ``what`` file (``vehicle config``, ``mapping file``); ConfigError naming the
-    file and the fault: not a regular file, too large, not UTF-8, not YAML, too many aliases."""
+    Raises ConfigError in one line naming the file: missing, not a regular file, larger
+    than :data:`MAX_YAML_BYTES`, not UTF-8, not valid YAML, or expanding (through
+    aliases) to more than :data:`MAX_YAML_NODES` nodes.
+    """
     path = check_regular_file(path, what)
     try:
         size = path.stat().st_size
         if size > MAX_YAML_BYTES:
-            raise ConfigError(f"{path}: {what} is {size} bytes, more than the {MAX_YAML_BYTES} a {what} may be")
-        raw = path.read_bytes()
+            raise ConfigError(f"{path}: {what} is {size} bytes, larger than the {MAX_YAML_BYTES} read")
+        text = path.read_bytes().decode("utf-8")
     except OSError as err:
-        raise ConfigError(f"{path}: cannot read {what}: {err.strerror}") from err
-    try:
-        text = raw.decode("utf-8")
+        raise ConfigError(f"{path}: cannot read {what}: {err.strerror or reason(err)}") from err
     except UnicodeDecodeError as err:
-        raise ConfigError(f"{path}: {what} is not UTF-8 text (byte 0x{raw[err.start]:02x} at offset {err.start})") from err
+        raise ConfigError(f"{path}: {what} is not UTF-8 text (byte {err.start}: {err.object[err.start:err.start + 1]!r})") from err
+    loader = None
     try:
-        return yaml.load(text, Loader=_BoundedLoader)  # noqa: S506 - a SafeLoader subclass
-    except _AliasBomb as err:
-        raise ConfigError(f"{path}: {what} has {err}") from err
+        loader = yaml.SafeLoader(text)
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        if expanded_size(node) > MAX_YAML_NODES:
+            raise ConfigError(f"{path}: {what} expands (through YAML aliases) to more than {MAX_YAML_NODES} nodes")
+        return loader.construct_document(node)
+    except ConfigError:
+        raise
     except yaml.YAMLError as err:
-        raise ConfigError(f"{path}: {what} is not valid YAML: {' '.join(str(err).split())}") from err
+        mark = getattr(err, "problem_mark", None)
+        line = f" at line {mark.line + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or reason(err)
+        raise ConfigError(f"{path}: {what} is not valid YAML{line}: {' '.join(str(problem).split())}") from err
+    except (ValueError, TypeError) as err:  # e.g. a timestamp 2024-13-01 that the resolver took for a date
+        raise ConfigError(f"{path}: {what} holds a value YAML cannot construct ({reason(err)})") from err
+    except RecursionError as err:
+        raise ConfigError(f"{path}: {what} nests deeper than YAML can be read") from err
+    finally:
+        if loader is not None:
+            loader.dispose()

@@ -147,7 +147,7 @@ def mark_measurement_gaps(log: FlightLog, gaps: list[MeasurementGap], max_gap_s:
     notes = log.meta.notes
     if not gaps and "measurement_gaps" not in notes and not gap_warnings(log):
         return
-    kept = [w for w in notes.get("warnings", []) if GAP_MARK not in w]
+    kept = [w for w in notes.get("warnings", []) if not (isinstance(w, str) and GAP_MARK in w)]
     notes.pop("measurement_gaps", None)
     notes.pop("warnings", None)
     if kept:
@@ -177,8 +177,12 @@ def marked_gaps(log: FlightLog) -> list[MeasurementGap]:
 
 
 def gap_warnings(log: FlightLog) -> list[str]:
-    """The warnings of ``log`` about its marked measurement gaps (what evaluate, identify, train and diagnose print)."""
-    return [w for w in log.meta.notes.get("warnings", []) if GAP_MARK in w]
+    """The warnings of ``log`` about its marked measurement gaps (what evaluate, identify, train and diagnose print);
+    DataError when the notes' ``warnings`` is not a list."""
+    warnings = log.meta.notes.get("warnings", [])
+    if not isinstance(warnings, list):
+        raise DataError(f"{log.meta.source}: notes warnings is {type(warnings).__name__}, expected a list")
+    return [w for w in warnings if isinstance(w, str) and GAP_MARK in w]
 
 
 def check_same_clock(topic: str, source_t: np.ndarray, base: str, t: np.ndarray, where: str,

@@ -16,6 +16,7 @@ interpolation when stamps differ; exact when they coincide, as in bags written h
 from __future__ import annotations
 
 import json
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -23,10 +24,13 @@ import numpy as np
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 from rosbags.rosbag2.errors import ReaderError, WriterError
+from rosbags.serde import SerdeError
 from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.atomic import atomic_output
+from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.input_files import read_yaml
 from quad_modelling.core.preprocess import (
     MeasurementGap,
     check_same_clock,
@@ -34,7 +38,7 @@ from quad_modelling.core.preprocess import (
     mark_measurement_gaps,
     marked_gaps,
 )
-from quad_modelling.errors import BagError, DataError
+from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.topics import (
     DEFAULT_NAMESPACE,
     LIVE_TOPICS,
@@ -152,11 +156,18 @@ class BagSummary:
 def _open_reader(path: Path) -> Reader:
     if not path.exists():
         raise BagError(f"{path}: no such bag")
+    if not path.is_dir():
+        raise BagError(f"{path}: not a bag directory (a rosbag2 bag is a directory with metadata.yaml)")
+    try:
+        if (path / "metadata.yaml").exists():
+            read_yaml(path / "metadata.yaml", "bag metadata")  # bounded first: rosbags' own YAML read has no limits
+    except ConfigError as err:
+        raise BagError(f"{path}: not a readable rosbag2 bag: {err}") from err
     try:
         reader = Reader(path)
         reader.open()
-    except (ReaderError, OSError, ValueError, KeyError) as err:
-        raise BagError(f"{path}: not a readable rosbag2 bag ({err})") from err
+    except (ReaderError, OSError, ValueError, KeyError, TypeError, SerdeError, MemoryError, OverflowError, struct.error) as err:  # a corrupt record size: MemoryError
+        raise BagError(f"{path}: not a readable rosbag2 bag ({reason(err)})") from err
     return reader
 
 
@@ -182,19 +193,19 @@ def summarize_bag(path: str | Path) -> BagSummary:
         start = min(first.values(), default=0) / 1e9
         end = max(last.values(), default=0) / 1e9
         return BagSummary(str(path), storage, end - start, start, end, sum(counts.values()), topics, custom)
-    except (ReaderError, OSError, ValueError, KeyError, EOFError) as err:
-        raise BagError(f"{path}: corrupt or truncated bag ({type(err).__name__}: {err})") from err
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError) as err:
+        raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
 
 
 def _custom_data(path: Path) -> dict:
-    import yaml
-
+    """The text entries of the bag's ``custom_data`` ({} when it has none)."""
     try:
-        doc = yaml.safe_load((path / "metadata.yaml").read_text())
-        return dict(doc["rosbag2_bagfile_information"].get("custom_data") or {})
-    except (OSError, KeyError, TypeError, yaml.YAMLError):
+        doc = read_yaml(path / "metadata.yaml", "bag metadata")
+        custom = doc["rosbag2_bagfile_information"].get("custom_data") or {}
+        return {str(key): value for key, value in dict(custom).items() if isinstance(value, str)}
+    except (ConfigError, KeyError, TypeError, ValueError, AttributeError):
         return {}
 
 
@@ -282,8 +293,8 @@ def read_recorded(path: str | Path, namespace: str = DEFAULT_NAMESPACE) -> list[
         for connection, _, raw in reader.messages(connections=[c for cs in by_topic.values() for c in cs]):
             key = key_of[connection.id]
             recorded.append(RecordedMessage(key, cdr_stamp_ns(raw), bytes(raw)))
-    except (ReaderError, OSError, ValueError, KeyError, EOFError) as err:
-        raise BagError(f"{path}: corrupt or truncated bag ({type(err).__name__}: {err})") from err
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError) as err:
+        raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
     recorded.sort(key=lambda m: (m.stamp_ns, rank[m.topic]))
@@ -320,8 +331,10 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
                 columns[key].append(imu_fields(msg))
             else:
                 columns[key].append((msg.voltage,))
-    except (ReaderError, OSError, ValueError, KeyError, EOFError, AssertionError, IndexError) as err:
-        raise BagError(f"{path}: corrupt or truncated bag ({type(err).__name__}: {err})") from err
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError, AssertionError, IndexError) as err:
+        raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
+    except SerdeError as err:
+        raise BagError(f"{path}: topic {connection.topic} message {len(stamps[key])}: cannot deserialise ({reason(err)})") from err
     finally:
         reader.close()
     return _to_flight_log(path, namespace, columns, stamps, vehicle)
@@ -349,6 +362,10 @@ def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehi
             k = int(np.argmax(bad.any(axis=1)))
             raise DataError(f"{path}: topic {topic_name(namespace, key)} message {k} holds a non-finite value")
     t_ns = times["motor_input"]
+    bad_quaternion = frames.non_unit_quaternion(arrays["mocap/odom"][:, 3:7])
+    if bad_quaternion:
+        k, norm = bad_quaternion
+        raise DataError(f"{path}: topic {topic_name(namespace, 'mocap/odom')} message {k} has an orientation quaternion of norm {norm:.3g}, not 1")
     gaps: list[MeasurementGap] = []
 
     def on_motor_time(key: str) -> np.ndarray:
@@ -367,12 +384,18 @@ def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehi
     vehicle_name = vehicle or custom.get(VEHICLE_KEY)
     if not vehicle_name:
         raise DataError(f"{path}: the bag names no vehicle (custom_data {VEHICLE_KEY}); pass --vehicle NAME")
+    try:
+        notes = json.loads(custom.get(NOTES_KEY) or "{}")
+    except json.JSONDecodeError as err:
+        raise BagError(f"{path}: custom_data {NOTES_KEY} is not valid JSON ({err.msg} at character {err.pos})") from err
+    if not isinstance(notes, dict):
+        raise BagError(f"{path}: custom_data {NOTES_KEY} must hold a JSON object, got {type(notes).__name__}")
     log = measurement_log(
         t_ns, arrays["motor_input"][:, :4], on_motor_time("mocap/odom"), on_motor_time("imu") if "imu" in arrays else None,
         vehicle_name, str(path),
         omega=omega if np.isfinite(omega).all() else None,
         vbat=on_motor_time("battery")[:, 0] if "battery" in arrays else None,
-        notes=json.loads(custom.get(NOTES_KEY, "{}") or "{}"),
+        notes=notes,
     )
     mark_measurement_gaps(log, gaps)
     return log

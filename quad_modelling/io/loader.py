@@ -49,6 +49,15 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
         raise DataError(f"{path}: no such file or directory")
     if not path.is_dir():  # a FIFO or device would block or never end: refused before it is opened
         check_regular_file(path, "flight file", DataError)
+    try:
+        return _load(path, vehicle, fmt, mapping_file)
+    except QuadModellingError as err:
+        if str(path) in str(err):
+            raise
+        raise type(err)(f"{path}: {err}") from err  # e.g. an unknown vehicle the file names
+
+
+def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_file: str | Path | None) -> FlightLog:
     config = vehicle if isinstance(vehicle, VehicleConfig) else None
     name = config.name if config is not None else vehicle
     if fmt == "thesis-mat":

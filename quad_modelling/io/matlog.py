@@ -25,6 +25,8 @@ the simulator's effects and seed).
 from __future__ import annotations
 
 import json
+import math
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +38,7 @@ from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.input_files import read_yaml
 from quad_modelling.core.preprocess import marked_gaps
-from quad_modelling.errors import ConfigError, DataError
+from quad_modelling.errors import ConfigError, DataError, reason
 
 THESIS_VARIABLES: dict[str, tuple[str, ...]] = {
     "time": ("time",),
@@ -50,6 +52,10 @@ THESIS_VARIABLES: dict[str, tuple[str, ...]] = {
     "omega": ("Omega1", "Omega2", "Omega3", "Omega4"),
 }
 """Default variable names per field (thesis symbols: ddXB = onboard X acceleration...)."""
+
+MAX_MAT_ELEMENTS = 200_000_000
+"""Most array elements a .mat file may declare (1.6 GB of float64; a day at 100 Hz of every field is 2.6e8 / 10):
+a corrupt or hostile size field is refused before scipy allocates it."""
 
 OPTIONAL_FIELDS = ("acc_b", "gyro_b", "vbat", "omega")
 """Fields a log may lack (a pose-only motion-capture log has no acc_b/gyro_b): left out of a mapping,
@@ -129,7 +135,7 @@ def load_mapping(path: str | Path) -> dict[str, FieldMapping]:
     doc = read_yaml(path, "mapping file")
     if not isinstance(doc, dict):
         raise ConfigError(f"{path}: mapping file must be a mapping of field -> {{variable, unit, ...}}")
-    unknown = set(map(str, doc)) - set(THESIS_VARIABLES)
+    unknown = [str(key) for key in doc if key not in THESIS_VARIABLES]
     if unknown:
         raise ConfigError(f"{path}: unknown fields {sorted(unknown)[:5]}; known: {list(THESIS_VARIABLES)}")
     mapping = {}
@@ -141,6 +147,26 @@ def load_mapping(path: str | Path) -> dict[str, FieldMapping]:
             raise ConfigError(f"{path}: mapping has no entry for required field {name!r}")
         mapping[name] = _field_mapping(path, name, entry)
     return mapping
+
+
+def _short(value) -> str:
+    """``repr`` of a mapping value, cut to one short line for a message."""
+    text = " ".join(repr(value).split())
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def _name(value, path: Path, key: str) -> str:
+    """A MATLAB variable name of the mapping (``key`` names where it stood)."""
+    if not isinstance(value, str) or not value:
+        raise ConfigError(f"{path}: {key} must be a MATLAB variable name, got {_short(value)}")
+    return value
+
+
+def _columns(value, path: Path, name: str) -> tuple[int, ...]:
+    """The 0-based column list of a matrix variable."""
+    if not isinstance(value, list) or not value or not all(isinstance(c, int) and not isinstance(c, bool) and c >= 0 for c in value):
+        raise ConfigError(f"{path}: field {name!r}: 'columns' must be a list of 0-based column numbers, got {_short(value)}")
+    return tuple(value)
 
 
 def _user_variables(contents: dict) -> dict[str, np.ndarray]:
@@ -156,6 +182,9 @@ def _extract(name: str, field: FieldMapping, found: dict, n: int | None, where: 
             f"{where}: field {name} needs variable(s) {missing}, not in the file; found: {sorted(found)} "
             "(give a --mapping file for foreign logs)"
         )
+    complex_ = [v for v in field.variables if np.iscomplexobj(found[v])]
+    if complex_:
+        raise DataError(f"{where}: variable(s) {complex_} of field {name} are complex-valued, expected real numbers")
     try:
         arrays = [np.asarray(found[v], dtype=float) for v in field.variables]
     except (TypeError, ValueError) as err:
@@ -195,13 +224,19 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
     if not path.is_file():
         raise DataError(f"{where}: no such file")
     try:
+        declared = sum(math.prod(shape) for _, shape, _ in scipy.io.whosmat(path))  # headers only
+        if declared > MAX_MAT_ELEMENTS:
+            raise DataError(f"{where}: the variables declare {declared} elements, more than the {MAX_MAT_ELEMENTS} read")
         contents = scipy.io.loadmat(path, squeeze_me=True, chars_as_strings=True)
+    except DataError:
+        raise
     except NotImplementedError as err:
         raise DataError(f"{where}: MATLAB v7.3 (HDF5) files are not supported; save with -v7") from err
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
-    except (ValueError, TypeError, OSError, EOFError) as err:
-        raise DataError(f"{where}: not a readable MATLAB file ({err})") from err
+    except (ValueError, TypeError, OSError, EOFError, IndexError, KeyError, AttributeError, OverflowError, MemoryError,
+            zlib.error, scipy.io.matlab.MatReadError) as err:  # scipy's parser meets a corrupt file with any of these
+        raise DataError(f"{where}: not a readable MATLAB file ({reason(err)})") from err
     found = _user_variables(contents)
     time = _extract("time", mapping["time"], found, None, where)
     if time is None or time.ndim != 1:
@@ -226,6 +261,10 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
             notes = json.loads(str(found["meta_json"]))
         except json.JSONDecodeError as err:
             raise DataError(f"{where}: variable meta_json is not valid JSON ({err.msg})") from err
+        if not isinstance(notes, dict):
+            raise DataError(f"{where}: variable meta_json must hold a JSON object, got {type(notes).__name__}")
+    if "vehicle" in found and not vehicle and not isinstance(found["vehicle"], str):
+        raise DataError(f"{where}: variable vehicle must be a vehicle config name (text), got a {type(found['vehicle']).__name__}")
     vehicle_name = vehicle or (str(found["vehicle"]) if "vehicle" in found else None)
     if not vehicle_name:
         raise DataError(f"{where}: no 'vehicle' variable in the file; pass --vehicle NAME")

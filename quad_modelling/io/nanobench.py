@@ -39,6 +39,8 @@ and row named.
 from __future__ import annotations
 
 import gzip
+import warnings
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -46,7 +48,7 @@ import numpy as np
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta, saturate_commands
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
-from quad_modelling.errors import DataError
+from quad_modelling.errors import DataError, reason
 
 POSITION = ("px", "py", "pz")
 QUATERNION = ("qx", "qy", "qz", "qw")
@@ -92,22 +94,31 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
     where = str(path)
     try:
         with _open_text(path) as stream:
-            header = stream.readline().strip().split(",")
+            header = [name.strip() for name in stream.readline().strip().split(",")]
             missing = [c for c in REQUIRED if c not in header]
             missing += [c for group in OPTIONAL.values() if any(c in header for c in group) for c in group if c not in header]
             if missing:
                 raise DataError(f"{where}: missing NanoBench column(s) {missing}")
+            twice = sorted({c for c in (*REQUIRED, *EULER_COLUMNS) if header.count(c) > 1})
+            if twice:
+                raise DataError(f"{where}: NanoBench column(s) {twice} appear more than once in the header")
             optional = [c for group in OPTIONAL.values() for c in group]
             index = {name: header.index(name) for name in (*REQUIRED, *optional, *EULER_COLUMNS) if name in header}
-            rows = np.loadtxt(stream, delimiter=",", usecols=list(index.values()), ndmin=2)
+            with warnings.catch_warnings():  # a header-only file is refused below, not warned about
+                warnings.simplefilter("ignore", UserWarning)
+                rows = np.loadtxt(stream, delimiter=",", usecols=list(index.values()), ndmin=2)
     except DataError:
         raise  # a ValueError too, already naming the file
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
-    except (OSError, EOFError, gzip.BadGzipFile) as err:
-        raise DataError(f"{where}: cannot read ({err})") from err
+    except (OSError, EOFError, gzip.BadGzipFile, zlib.error) as err:
+        raise DataError(f"{where}: cannot read ({reason(err)})") from err
+    except UnicodeDecodeError as err:
+        raise DataError(f"{where}: not UTF-8 text (byte {err.start} of a line: {err.object[err.start:err.start + 1]!r})") from err
     except ValueError as err:
-        raise DataError(f"{where}: unparsable value ({err})") from err
+        raise DataError(f"{where}: unparsable value ({reason(err)})") from err
+    if len(rows) == 0:
+        raise DataError(f"{where}: no data rows after the header")
     column = {name: rows[:, i] for i, name in enumerate(index)}
     for name, values in column.items():
         bad = ~np.isfinite(values)
@@ -119,10 +130,10 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         return np.column_stack([column[n] for n in names])
 
     quat = stack(QUATERNION)
-    norms = np.linalg.norm(quat, axis=1)
-    if np.any(np.abs(norms - 1.0) > 0.05):
-        row = int(np.argmax(np.abs(norms - 1.0)))
-        raise DataError(f"{where}: quaternion qx..qw at data row {row + 1} has norm {norms[row]:.3f}, not 1")
+    bad_quaternion = frames.non_unit_quaternion(quat)
+    if bad_quaternion:
+        row, norm = bad_quaternion
+        raise DataError(f"{where}: quaternion qx..qw at data row {row + 1} has norm {norm:.3f}, not 1")
     euler = frames.quat_enu_to_euler_ned(quat)
     euler[:, 2] = np.unwrap(euler[:, 2])
     notes = {"format": "nanobench", "euler_from": "quaternion qx..qw"}
@@ -140,12 +151,12 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
             else f"inconsistent with the quaternion (largest deviation {deviation[row]:.3g} rad at data row {row + 1})"
         )
     config = vehicle if isinstance(vehicle, VehicleConfig) else load_vehicle(vehicle)
-    warnings = []
+    notes_warnings = []
     keep = _recorded_rows(stack(MOTORS), column["t"])
     if keep < len(column["t"]):
         t, motors = column["t"], stack(MOTORS)
         notes["extrapolated_tail"] = {"from_row": keep + 1, "t_s": float(t[keep] - t[0]), "rows": len(t) - keep}
-        warnings.append(
+        notes_warnings.append(
             f"{where}: motor columns continue as one straight line from data row {keep + 1} (t={t[keep] - t[0]:.2f} s) to the end "
             f"({len(t) - keep} rows, up to {motors[keep:].max():.6g}): the onboard log stopped and the CSV extrapolated it; "
             f"the flight is cut at t={t[keep] - t[0]:.2f} s"
@@ -154,7 +165,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         quat, euler = quat[:keep], euler[:keep]
     motors, clipped, counts = saturate_commands(stack(MOTORS), column["t"], config.input_min, config.input_max, where, config.name,
                                                 config.input_unit, MOTORS)
-    warnings += clipped
+    notes_warnings += clipped
     if counts:
         notes["saturated_commands"] = counts
     has = {field: all(c in column for c in columns) for field, columns in OPTIONAL.items()}
@@ -169,7 +180,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         vbat=column[VBAT] if has["vbat"] else None,
         meta=FlightMeta(vehicle=config.name, source=where, notes=notes),
     )
-    for message in warnings:
+    for message in notes_warnings:
         log.warn(message)
     return log
 

@@ -60,6 +60,8 @@ unit does not match the command source is refused.
 
 from __future__ import annotations
 
+import contextlib
+import io
 from pathlib import Path
 
 import numpy as np
@@ -69,7 +71,7 @@ from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.preprocess import MeasurementGap, interpolation_gaps, mark_measurement_gaps
 from quad_modelling.core.vehicle import load_vehicle
-from quad_modelling.errors import DataError
+from quad_modelling.errors import DataError, reason
 
 ROTORS = 4
 """Rotor count the FlightLog and the vehicle configs hold."""
@@ -115,13 +117,17 @@ def read_ulog(path: str | Path, vehicle: str | None = None) -> FlightLog:
 
     path = Path(path)
     where = str(path)
+    said = io.StringIO()  # pyulog prints its corruption notices: kept in the notes, off the user's terminal
     try:
-        ulog = ULog(str(path), message_name_filter_list=list(TOPICS))
+        with contextlib.redirect_stdout(said):
+            ulog = ULog(str(path), message_name_filter_list=list(TOPICS))
     except FileNotFoundError as err:
         raise DataError(f"{where}: no such file") from err
     except Exception as err:  # pyulog raises bare Exception/struct.error/IndexError on bad files
-        raise DataError(f"{where}: not a readable ULog file ({err})") from err
+        raise DataError(f"{where}: not a readable ULog file ({reason(err)})") from err
     topics, notes = topics_of(ulog.data_list)
+    if said.getvalue().strip():
+        notes["pyulog"] = " ".join(sorted(set(said.getvalue().split("\n")) - {""}))
     if ulog.has_data_appended:
         notes["appended_data"] = "yes (read by pyulog after the regular data)"
     if ulog.dropouts:
@@ -278,10 +284,10 @@ def linear(source_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarra
 
 def attitude(source_t: np.ndarray, quat_wxyz: np.ndarray, t: np.ndarray, where: str) -> np.ndarray:
     """Euler (φ, θ, ψ) [rad] at ``t`` from PX4 quaternions (w, x, y, z) of R_NED←FRD by slerp; yaw unwrapped."""
-    norms = np.linalg.norm(quat_wxyz, axis=1)
-    if np.any(np.abs(norms - 1.0) > 0.05):
-        row = int(np.argmax(np.abs(norms - 1.0)))
-        raise DataError(f"{where}: topic vehicle_attitude q at sample {row} has norm {norms[row]:.3f}, not 1")
+    bad_quaternion = frames.non_unit_quaternion(quat_wxyz)
+    if bad_quaternion:
+        row, norm = bad_quaternion
+        raise DataError(f"{where}: topic vehicle_attitude q at sample {row} has norm {norm:.3f}, not 1")
     keep = np.append(np.diff(source_t) > 0, True)
     rotations = Rotation.from_quat(quat_wxyz[keep], scalar_first=True)
     euler = frames.rotation_to_euler_ned(Slerp(source_t[keep], rotations)(t))

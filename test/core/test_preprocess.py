@@ -118,3 +118,6 @@ def test_marking_gaps_replaces_earlier_gap_notes_and_keeps_other_warnings():
     log.meta.notes["measurement_gaps"] = [{"topic": "/quad/imu", "start_s": 3.0, "end_s": 1.0}]
     with pytest.raises(DataError, match=r"notes measurement_gaps entry 0 spans 3\.\.1 s: not a time interval"):
         marked_gaps(log)
+    log.meta.notes = {"warnings": "clipped"}  # notes come from a user's file: not a list is one line
+    with pytest.raises(DataError, match="test: notes warnings is str, expected a list"):
+        mark_measurement_gaps(log, [])

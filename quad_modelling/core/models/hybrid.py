@@ -58,7 +58,7 @@ from quad_modelling.core.preprocess import trimmed_variables
 from quad_modelling.core.variables import columns
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import windows_between
-from quad_modelling.errors import ConfigError, DataError, ModelError
+from quad_modelling.errors import ConfigError, DataError, ModelError, reason
 
 WINDOW_S = 10.0
 """Training window length [s] (the evaluation's, thesis 5.2)."""
@@ -192,8 +192,8 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
         greybox = header["training"]["greybox"]
         discretisation = str(greybox["discretisation"])
         stored = {k: float(v) for k, v in greybox["constants"].items()}
-    except (KeyError, TypeError, ValueError) as err:
-        raise ModelError(f"{path}: hybrid model file lacks its greybox settings ({err})") from err
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as err:
+        raise ModelError(f"{path}: hybrid model file lacks its greybox settings ({reason(err)})") from err
     current = vehicle_constants(vehicle)
     changed = sorted(k for k in set(stored) | set(current) if stored.get(k) != current.get(k))
     if changed:

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -18,7 +19,7 @@ import numpy as np
 
 from quad_modelling.core.input_files import check_regular_file
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.errors import ModelError
+from quad_modelling.errors import ModelError, reason
 
 FORMAT = "quad_modelling.narx"
 """Format name in every model file header (NARX and hybrid files share it)."""
@@ -39,8 +40,8 @@ HEADER_TYPES: dict[str, tuple[type, ...]] = {
 
 
 def _check_archive(path: Path) -> None:
-    """ModelError unless ``path`` is a zip of at most MAX_MEMBERS .npy arrays, each declaring at most
-    MAX_ARRAY_BYTES of a plain dtype and no more than the member holds."""
+    """ModelError, before numpy allocates anything, unless ``path`` is a zip of at most MAX_MEMBERS .npy
+    arrays, each of a plain dtype, at most MAX_ARRAY_BYTES uncompressed and declaring no more data than it holds."""
     check_regular_file(path, "model file", ModelError)
     if not zipfile.is_zipfile(path):
         raise ModelError(f"{path}: not a readable model file: not an .npz (zip) archive; expected a file written by quad-modelling train")
@@ -50,21 +51,28 @@ def _check_archive(path: Path) -> None:
             if len(members) > MAX_MEMBERS:
                 raise ModelError(f"{path}: holds {len(members)} arrays, a model file has at most {MAX_MEMBERS}")
             for member in members:
+                where = f"{path}: member {member.filename}"
                 if member.file_size > MAX_ARRAY_BYTES:
-                    raise ModelError(f"{path}: member {member.filename} inflates to {member.file_size} bytes, "
-                                     f"more than the {MAX_ARRAY_BYTES} a model array may have")
+                    raise ModelError(f"{where} inflates to {member.file_size} bytes, more than the {MAX_ARRAY_BYTES} a model array may have")
+                if not member.filename.endswith(".npy"):
+                    raise ModelError(f"{where} is not a .npy array")
                 with archive.open(member) as stream:
                     version = np.lib.format.read_magic(stream)
                     read_header = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}.get(version)
                     if read_header is None:
                         raise ValueError(f"member {member.filename}: .npy format version {version} is not read")
                     shape, _, dtype = read_header(stream, max_header_size=10000)
+                    header_bytes = stream.tell()
+                if dtype.hasobject:
+                    raise ModelError(f"{where} holds Python objects (dtype {dtype}), not numbers or text")
                 declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
-                if dtype.hasobject or declared > min(member.file_size, MAX_ARRAY_BYTES):
-                    raise ModelError(f"{path}: member {member.filename} declares a {shape} {dtype} array "
-                                     f"({declared} bytes) that it does not hold; corrupt model file")
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError) as err:
-        raise ModelError(f"{path}: not a readable model file ({type(err).__name__}: {' '.join(str(err).split())})") from err
+                if declared > member.file_size - header_bytes:
+                    raise ModelError(f"{where} declares a {tuple(shape)} {dtype} array ({declared} bytes) but holds "
+                                     f"{member.file_size - header_bytes}; corrupt model file")
+    except ModelError:
+        raise
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError, zlib.error) as err:
+        raise ModelError(f"{path}: not a readable model file ({reason(err)})") from err
 
 
 def _check_header(path: Path, header: dict) -> None:
@@ -91,16 +99,16 @@ def read_model_file(path: str | Path, kind: str, outputs: Sequence[str], vehicle
     try:
         with np.load(path, allow_pickle=False) as archive:
             contents = {name: archive[name] for name in archive.files}
-    except FileNotFoundError as err:
-        raise ModelError(f"{path}: no such model file") from err
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise ModelError(f"{path}: not a readable model file ({err})") from err
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error, NotImplementedError, RuntimeError) as err:
+        if isinstance(err, ModelError):
+            raise
+        raise ModelError(f"{path}: not a readable model file ({reason(err)})") from err
     if "header" not in contents:
         raise ModelError(f"{path}: no header: not a quad_modelling model file")
     try:
         header = json.loads(str(contents.pop("header")))
-    except ValueError as err:
-        raise ModelError(f"{path}: corrupt model header ({err})") from err
+    except (ValueError, RecursionError) as err:
+        raise ModelError(f"{path}: corrupt model header ({reason(err)})") from err
     if not isinstance(header, dict) or header.get("format") != FORMAT:
         raise ModelError(f"{path}: not a {FORMAT} model file (format {header.get('format') if isinstance(header, dict) else None!r})")
     _check_header(path, header)

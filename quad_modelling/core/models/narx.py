@@ -61,7 +61,7 @@ from quad_modelling.core.models.model_files import (
     read_model_file,
 )
 from quad_modelling.core.variables import VARIABLES, columns
-from quad_modelling.errors import DataError, ModelError
+from quad_modelling.errors import DataError, ModelError, reason
 
 OUTPUTS: tuple[str, ...] = ("vel_x", "vel_y", "vel_z", "roll_rate", "pitch_rate", "yaw_rate")
 """The six net outputs (thesis section 4.2), in this order."""
@@ -360,8 +360,11 @@ def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) 
         )
         arrays = {name: np.asarray(contents[name], dtype=float) for name in ARRAY_NAMES}
         dt = float(header["dt"])
-    except (KeyError, TypeError, ValueError) as err:
-        raise ModelError(f"{path}: incomplete model file (missing or invalid {err})") from err
+        training = dict(header.get("training", {}))
+    except (KeyError, TypeError, ValueError, OverflowError) as err:
+        raise ModelError(f"{path}: incomplete model file (missing or invalid {reason(err)})") from err
+    if not 0 < dt < float("inf"):
+        raise ModelError(f"{path}: model sample period dt = {dt!r} s, expected a positive finite number")
     k, h, n_u = len(OUTPUTS), config.hidden, len(arrays["u_mean"])
     expected = {
         "w_u": (k, h, n_u * len(config.input_delays)), "w_y": (k, h, config.output_delays),
@@ -375,7 +378,7 @@ def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) 
             raise ModelError(f"{path}: array {name} holds non-finite values")
     return NarxModel(
         config=config, dt=dt, vehicle=str(header["vehicle"]), kind=str(header["kind"]),
-        training=dict(header.get("training", {})), **arrays,
+        training=training, **arrays,
     )
 
 
