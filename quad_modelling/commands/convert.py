@@ -29,7 +29,9 @@ Nothing is overwritten without --force; a failed run leaves no output behind.
 Engine commands a little beyond the vehicle's input range are clipped to it (the actuator
 saturates) with one warning line per column and the count kept in the bag's notes; negative
 or far-out commands are refused. A log without accelerometer/gyro (pose-only motion capture)
-converts to a bag without the imu topic.
+converts to a bag without the imu topic. A motion-capture or IMU dropout longer than 0.5 s is
+marked, never interpolated through: a warning, the gap kept in the bag (no message inside it) and
+its notes; a .mat output of such a flight is refused (one time base).
 
 examples:
   quad-modelling convert flight.mat --vehicle linkquad -o bags/flight
@@ -79,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
 
     def load(path: Path):
         log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping)
+        if output.suffix == ".mat" and len(inputs) == 1:  # refused before its warnings are printed: one line
+            from quad_modelling.io.matlog import check_one_time_base
+
+            check_one_time_base(log)
         for message in log.meta.notes.get("warnings", []):  # clipped commands, a cut tail: also kept in the bag's notes
             print(f"warning: {message}", file=sys.stderr)
         return log

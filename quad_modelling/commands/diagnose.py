@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.commands.evaluate import print_gap_warnings
 from quad_modelling.core.diagnosis.catalogue import parse_effect_list
 from quad_modelling.core.diagnosis.diagnose import (
     DIAGNOSIS_CONFIG,
@@ -109,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"skipped: {message}", file=sys.stderr)
     if not train or not test:
         raise ConfigError("no readable flight left in --train or --test")
+    print_gap_warnings(train + test)
     for log in train + test:
         check_cutoff(args.smooth, log)
     vehicle = given or load_vehicle(train[0].meta.vehicle)

@@ -10,6 +10,7 @@ from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.core.evaluation.windowed import evaluate
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import make_model
+from quad_modelling.core.preprocess import gap_warnings
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import PRESETS, EvaluationConfig
 from quad_modelling.errors import ConfigError
@@ -71,6 +72,13 @@ def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
                                          window_s=args.window, warm_s=args.warm, **extra)
 
 
+def print_gap_warnings(flights: list[FlightLog]) -> None:
+    """One ``warning:`` line on stderr per marked measurement gap of the flights (their windows are left out)."""
+    for log in flights:
+        for message in gap_warnings(log):
+            print(f"warning: {message}", file=sys.stderr)
+
+
 def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
     """Read every input (one loader for all formats); returns flights, vehicle config and skipped-file messages."""
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
@@ -79,6 +87,7 @@ def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], 
         print(f"skipped: {message}", file=sys.stderr)
     if not flights:
         raise ConfigError("no readable flight among the inputs")
+    print_gap_warnings(flights)
     names = sorted({f.meta.vehicle for f in flights})
     if len(names) > 1:
         raise ConfigError(f"the flights are of different vehicles {names}; evaluate one vehicle at a time")

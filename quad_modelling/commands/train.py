@@ -78,6 +78,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from quad_modelling.atomic import check_output
+    from quad_modelling.commands.evaluate import print_gap_warnings
     from quad_modelling.core.models.narx import NarxConfig
     from quad_modelling.core.models.narx_training import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
@@ -94,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
     config = NarxConfig(hidden=args.hidden, output_delays=args.delays, input_delays=tuple(range(args.input_delays)), epochs=args.epochs)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     logs = [load_flight(path, given) for path in args.flights]
+    print_gap_warnings(logs)
     spans = training_spans(logs, args)
     started = time.perf_counter()
     progress = not args.quiet and sys.stderr.isatty()

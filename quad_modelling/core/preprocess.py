@@ -96,23 +96,93 @@ def unmeasured_variables(log: FlightLog) -> dict[str, str]:
 
 MAX_INTERPOLATION_GAP_S = 0.5
 """Longest gap [s] of a measurement stream that a reader interpolates through onto the command time base
-(PX4: five periods of the slowest kinematic topic at 10 Hz; a motion-capture dropout longer than this is
-refused, never bridged by a straight line)."""
+(PX4: five periods of the slowest kinematic topic at 10 Hz). A longer motion-capture or IMU dropout is
+marked (:func:`mark_measurement_gaps`), never bridged by a straight line that something then uses."""
+
+GAP_MARK = "marked as a measurement gap"
+"""The phrase of every gap warning in ``meta.notes['warnings']`` (a re-read replaces them: gaps are found in the data)."""
 
 
-def check_interpolation_gaps(topic: str, source_t: np.ndarray, t: np.ndarray, where: str,
-                             max_gap_s: float = MAX_INTERPOLATION_GAP_S) -> None:
-    """DataError when a time of ``t`` [s] falls in a gap of the stream stamps ``source_t`` [s] longer than ``max_gap_s``."""
-    if len(source_t) < 2:
+@dataclass(frozen=True)
+class MeasurementGap:
+    """A dropout of one measurement stream: no message of ``topic`` strictly between ``start_s`` and ``end_s``
+    (the stamps of the real samples around it, in the FlightLog's own time ``t`` [s]); ``fields`` are the
+    FlightLog fields that stream feeds (interpolated inside the gap only so the log stays finite)."""
+
+    topic: str
+    start_s: float
+    end_s: float
+    fields: tuple[str, ...]
+
+    def to_note(self) -> dict:
+        return {"topic": self.topic, "start_s": self.start_s, "end_s": self.end_s, "fields": list(self.fields)}
+
+
+def interpolation_gaps(source_t: np.ndarray, t: np.ndarray, max_gap_s: float = MAX_INTERPOLATION_GAP_S) -> list[tuple[float, float]]:
+    """(start, end) [s, the time of ``source_t``] of each step between consecutive stream stamps ``source_t`` longer
+    than ``max_gap_s`` with a time of ``t`` strictly inside it (a row that would be interpolated through it)."""
+    source_t, t = np.asarray(source_t, dtype=float), np.asarray(t, dtype=float)
+    if len(source_t) < 2 or len(t) == 0:
+        return []
+    long = np.flatnonzero(np.diff(source_t) > max_gap_s)
+    starts, ends = source_t[long], source_t[long + 1]
+    inside = np.searchsorted(t, ends, side="left") > np.searchsorted(t, starts, side="right")
+    return [(float(a), float(b)) for a, b in zip(starts[inside], ends[inside])]
+
+
+def gap_warning(where: str, gap: MeasurementGap, t0: float, max_gap_s: float = MAX_INTERPOLATION_GAP_S) -> str:
+    """The one-line warning of a marked gap: file, topic, length and time (seconds into the flight, from ``t0``)."""
+    return (f"{where}: topic {gap.topic} has no message for {gap.end_s - gap.start_s:.2f} s "
+            f"(t={gap.start_s - t0:.3f}..{gap.end_s - t0:.3f} s into the flight), longer than {max_gap_s:g} s: "
+            f"{GAP_MARK}, not interpolated through; windows and training segments overlapping it are left out")
+
+
+def mark_measurement_gaps(log: FlightLog, gaps: list[MeasurementGap], max_gap_s: float = MAX_INTERPOLATION_GAP_S) -> None:
+    """Record ``gaps`` in ``log.meta.notes['measurement_gaps']`` with one warning each (replacing the gaps and gap
+    warnings the notes carried: a reader finds them again in the data, e.g. a bag written from a marked log).
+
+    The window clock (:mod:`quad_modelling.core.windows`) leaves out every window and training segment
+    with a row strictly inside a marked gap.
+    """
+    notes = log.meta.notes
+    if not gaps and "measurement_gaps" not in notes and not gap_warnings(log):
         return
-    right = np.clip(np.searchsorted(source_t, t), 1, len(source_t) - 1)
-    gap = source_t[right] - source_t[right - 1]
-    if np.any(gap > max_gap_s):
-        row = int(np.argmax(gap > max_gap_s))
-        raise DataError(
-            f"{where}: topic {topic} has a {gap[row]:.2f} s gap at t={t[row]:.3f} s, longer than "
-            f"{max_gap_s} s: not interpolated through"
-        )
+    kept = [w for w in notes.get("warnings", []) if not (isinstance(w, str) and GAP_MARK in w)]
+    notes.pop("measurement_gaps", None)
+    notes.pop("warnings", None)
+    if kept:
+        notes["warnings"] = kept
+    gaps = sorted(gaps, key=lambda g: (g.start_s, g.topic))
+    if gaps:
+        notes["measurement_gaps"] = [gap.to_note() for gap in gaps]
+        for gap in gaps:
+            log.warn(gap_warning(log.meta.source, gap, float(log.t[0]), max_gap_s))
+
+
+def marked_gaps(log: FlightLog) -> list[MeasurementGap]:
+    """The measurement gaps marked in ``log.meta.notes`` (:func:`mark_measurement_gaps`); DataError for a malformed entry."""
+    entries = log.meta.notes.get("measurement_gaps", [])
+    if not isinstance(entries, list):
+        raise DataError(f"{log.meta.source}: notes measurement_gaps is {type(entries).__name__}, expected a list")
+    gaps = []
+    for i, g in enumerate(entries):
+        try:
+            gap = MeasurementGap(str(g["topic"]), float(g["start_s"]), float(g["end_s"]), tuple(map(str, g.get("fields", ()))))
+        except (KeyError, TypeError, ValueError, AttributeError) as err:
+            raise DataError(f"{log.meta.source}: notes measurement_gaps entry {i} is not a {{topic, start_s, end_s}} mapping: {g!r:.80}") from err
+        if not (np.isfinite(gap.start_s) and np.isfinite(gap.end_s) and gap.start_s < gap.end_s):
+            raise DataError(f"{log.meta.source}: notes measurement_gaps entry {i} spans {gap.start_s:g}..{gap.end_s:g} s: not a time interval")
+        gaps.append(gap)
+    return gaps
+
+
+def gap_warnings(log: FlightLog) -> list[str]:
+    """The warnings of ``log`` about its marked measurement gaps (what evaluate, identify, train and diagnose print);
+    DataError when the notes' ``warnings`` is not a list."""
+    warnings = log.meta.notes.get("warnings", [])
+    if not isinstance(warnings, list):
+        raise DataError(f"{log.meta.source}: notes warnings is {type(warnings).__name__}, expected a list")
+    return [w for w in warnings if isinstance(w, str) and GAP_MARK in w]
 
 
 def check_same_clock(topic: str, source_t: np.ndarray, base: str, t: np.ndarray, where: str,

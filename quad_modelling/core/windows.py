@@ -32,7 +32,11 @@ boundaries map to time the same way: a row range of a span ``[a, b)`` holds the
 rows with ``a <= t - t_first + dt/2 < b``; a window holds the rows assigned to
 it and is used only when it holds exactly ``round(W / dt)`` rows (a gap or a
 duplicated stamp leaves it out: offline it is skipped, live it is marked) and
-all of them lie in its span.
+all of them lie in its span. A window with a row inside a measurement gap marked
+in the flight's notes (a motion-capture or IMU dropout a reader did not bridge)
+is left out offline (:func:`gap_rows`; live, the missing messages mark it), and
+contiguous segments (multi-step evaluation, NARX training) are split there
+(:func:`gap_free_runs`).
 
 Offline (:func:`span_windows`) the clock's origin is the span start (windows
 are consecutive from it, a remainder shorter than W is not used) and dt is the
@@ -59,6 +63,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.preprocess import (
     SMOOTH_CUTOFF_HZ,
     TrimConfig,
+    marked_gaps,
 )
 from quad_modelling.errors import ConfigError, DataError
 
@@ -336,12 +341,34 @@ def rows_between(log: FlightLog, start_s: float, end_s: float) -> tuple[int, int
     return int(np.searchsorted(shifted, 0)), stop
 
 
+def gap_rows(log: FlightLog) -> np.ndarray:
+    """(N,) mask of the rows strictly inside a measurement gap marked in the log's notes
+    (:func:`~quad_modelling.core.preprocess.mark_measurement_gaps`): interpolated only to keep the log finite,
+    never used: no window or training segment holds one."""
+    inside = np.zeros(len(log), dtype=bool)
+    for gap in marked_gaps(log):
+        inside |= (log.t > gap.start_s) & (log.t < gap.end_s)
+    return inside
+
+
+def gap_free_runs(log: FlightLog, start: int, stop: int) -> list[tuple[int, int]]:
+    """Rows [start, stop) split at the marked measurement gaps: the maximal runs [a, b) holding no gap row."""
+    inside = gap_rows(log)[start:stop]
+    if not inside.any():
+        return [(start, stop)] if stop > start else []
+    edges = np.flatnonzero(np.diff(np.concatenate([[True], inside, [True]]).astype(np.int8)))
+    return [(start + int(a), start + int(b)) for a, b in zip(edges[::2], edges[1::2]) if b > a]
+
+
 def windows_between(log: FlightLog, start_s: float, end_s: float, window_s: float) -> list[tuple[int, int]]:
-    """Rows [start, stop) of the complete windows of the clock with origin ``start_s`` inside [start_s, end_s)."""
+    """Rows [start, stop) of the complete windows of the clock with origin ``start_s`` inside [start_s, end_s),
+    leaving out every window with a row inside a marked measurement gap (:func:`gap_rows`)."""
     if end_s <= start_s:
         return []
     clock = flight_clock(log, start_s, window_s)
-    return clock.cut(flight_stamps(log), math.inf if math.isinf(end_s) else seconds_to_ns(end_s - start_s))
+    windows = clock.cut(flight_stamps(log), math.inf if math.isinf(end_s) else seconds_to_ns(end_s - start_s))
+    inside = gap_rows(log)
+    return [(a, b) for a, b in windows if not inside[a:b].any()]
 
 
 @dataclass(frozen=True)
@@ -363,6 +390,12 @@ def span_windows(log: FlightLog, span: SpanSpec, config: EvaluationConfig, fligh
 def span_segment(log: FlightLog, span: SpanSpec, config: EvaluationConfig) -> tuple[int, int]:
     """Rows [start, stop) of a span in one flight (contiguous; empty when start >= stop)."""
     return rows_between(log, *span.interval(log, config.drop_start, config.drop_end))
+
+
+def span_segments(log: FlightLog, span: SpanSpec, config: EvaluationConfig) -> list[tuple[int, int]]:
+    """Rows [start, stop) of the contiguous parts of a span in one flight: :func:`span_segment` split at the
+    marked measurement gaps (:func:`gap_free_runs`)."""
+    return gap_free_runs(log, *span_segment(log, span, config))
 
 
 def warm_samples_for(window: FlightLog, warm_s: float) -> int:

@@ -31,7 +31,13 @@ from quad_modelling.atomic import atomic_output
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.input_files import read_yaml
-from quad_modelling.core.preprocess import check_interpolation_gaps, check_same_clock
+from quad_modelling.core.preprocess import (
+    MeasurementGap,
+    check_same_clock,
+    interpolation_gaps,
+    mark_measurement_gaps,
+    marked_gaps,
+)
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.topics import (
     DEFAULT_NAMESPACE,
@@ -48,6 +54,7 @@ from quad_modelling.io.topics import (
     odometry_fields,
     stamp_ns,
     stamps_ns,
+    stamps_to_seconds,
     topic_name,
 )
 
@@ -55,6 +62,9 @@ VEHICLE_KEY = "quad_modelling.vehicle"
 SOURCE_KEY = "quad_modelling.source"
 NOTES_KEY = "quad_modelling.notes"
 """custom_data keys of the flight's metadata (vehicle config name, source file name, JSON notes)."""
+
+GAP_FIELDS = {"mocap/odom": ("pos_n", "vel_n", "euler"), "imu": ("acc_b", "gyro_b")}
+"""The FlightLog fields each kinematic topic carries: a marked gap of the topic covers them (reader and writer)."""
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 BAG_TYPES = MessageTypes.from_lookup(TYPESTORE.types.__getitem__)
@@ -64,7 +74,9 @@ BAG_TYPES = MessageTypes.from_lookup(TYPESTORE.types.__getitem__)
 def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: str = DEFAULT_NAMESPACE, progress=None) -> Path:
     """Write ``log`` as an MCAP bag directory at ``path``, atomically.
 
-    Every topic's message of sample i is stamped (header and bag time) ``stamps_ns(log.t)[i]``.
+    Every topic's message of sample i is stamped (header and bag time) ``stamps_ns(log.t)[i]``, except the
+    mocap/odom and imu messages of rows strictly inside a marked measurement gap of their fields
+    (:func:`gap_rows_by_topic`): the gap stays a gap, the notes say where it is.
     ``progress``: optional callable(n_samples_done) for a progress bar.
     """
     path = Path(path)
@@ -86,15 +98,31 @@ def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: 
             writer.set_custom_data(VEHICLE_KEY, log.meta.vehicle)
             writer.set_custom_data(SOURCE_KEY, Path(log.meta.source).name)
             writer.set_custom_data(NOTES_KEY, json.dumps(log.meta.notes))
+            skip = gap_rows_by_topic(log)
             for i, ns in enumerate(stamps.tolist()):
                 for key, msg in measurements.row(i, ns).items():
-                    writer.write(connections[key], ns, serialize(msg, MEASUREMENT_TOPICS[key]))
+                    if key not in skip or not skip[key][i]:
+                        writer.write(connections[key], ns, serialize(msg, MEASUREMENT_TOPICS[key]))
                 if progress is not None and i % 1000 == 999:
                     progress(1000)
             writer.close()
         except WriterError as err:
             raise BagError(f"{path}: cannot write bag: {err}") from err
     return path
+
+
+def gap_rows_by_topic(log: FlightLog) -> dict[str, np.ndarray]:
+    """Per kinematic topic with a marked gap (``meta.notes['measurement_gaps']``) of its fields (:data:`GAP_FIELDS`;
+    a gap naming no fields covers both): the (N,) mask of rows strictly inside such a gap, whose messages are not written."""
+    masks = {}
+    for key, fields in GAP_FIELDS.items():
+        inside = np.zeros(len(log), dtype=bool)
+        for gap in marked_gaps(log):
+            if not gap.fields or set(gap.fields) & set(fields):
+                inside |= (log.t > gap.start_s) & (log.t < gap.end_s)
+        if inside.any():
+            masks[key] = inside
+    return masks
 
 
 @dataclass(frozen=True)
@@ -338,16 +366,17 @@ def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehi
     if bad_quaternion:
         k, norm = bad_quaternion
         raise DataError(f"{path}: topic {topic_name(namespace, 'mocap/odom')} message {k} has an orientation quaternion of norm {norm:.3g}, not 1")
+    gaps: list[MeasurementGap] = []
 
     def on_motor_time(key: str) -> np.ndarray:
         data, when = arrays[key], times[key]
         if when.shape == t_ns.shape and np.array_equal(when, t_ns):
             return data
-        if key != "battery":  # kinematic streams: never bridge a dropout or a clock offset with a line
-            t_s, when_s = (t_ns - t_ns[0]) * 1e-9, (when - t_ns[0]) * 1e-9
+        if key != "battery":  # kinematic streams: a clock offset is refused, a dropout marked (never used)
             topic = topic_name(namespace, key)
-            check_same_clock(topic, when_s, topic_name(namespace, "motor_input"), t_s, str(path))
-            check_interpolation_gaps(topic, when_s, t_s, str(path))
+            check_same_clock(topic, (when - t_ns[0]) * 1e-9, topic_name(namespace, "motor_input"), (t_ns - t_ns[0]) * 1e-9, str(path))
+            gaps.extend(MeasurementGap(topic, a, b, GAP_FIELDS[key])
+                        for a, b in interpolation_gaps(stamps_to_seconds(when), stamps_to_seconds(t_ns)))
         return np.column_stack([np.interp(t_ns, when, column) for column in data.T])
 
     omega = arrays["motor_input"][:, 4:8]
@@ -361,10 +390,12 @@ def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehi
         raise BagError(f"{path}: custom_data {NOTES_KEY} is not valid JSON ({err.msg} at character {err.pos})") from err
     if not isinstance(notes, dict):
         raise BagError(f"{path}: custom_data {NOTES_KEY} must hold a JSON object, got {type(notes).__name__}")
-    return measurement_log(
+    log = measurement_log(
         t_ns, arrays["motor_input"][:, :4], on_motor_time("mocap/odom"), on_motor_time("imu") if "imu" in arrays else None,
         vehicle_name, str(path),
         omega=omega if np.isfinite(omega).all() else None,
         vbat=on_motor_time("battery")[:, 0] if "battery" in arrays else None,
         notes=notes,
     )
+    mark_measurement_gaps(log, gaps)
+    return log

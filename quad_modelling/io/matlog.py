@@ -37,6 +37,7 @@ from quad_modelling.atomic import atomic_output
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.input_files import read_yaml
+from quad_modelling.core.preprocess import marked_gaps
 from quad_modelling.errors import ConfigError, DataError, reason
 
 THESIS_VARIABLES: dict[str, tuple[str, ...]] = {
@@ -281,9 +282,23 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
     )
 
 
+def check_one_time_base(log: FlightLog) -> None:
+    """DataError when ``log`` has marked measurement gaps, which a .mat log (one time base) cannot keep."""
+    gaps = marked_gaps(log)
+    if gaps:
+        listing = ", ".join(f"{g.topic} {g.start_s - log.t[0]:.2f}..{g.end_s - log.t[0]:.2f}" for g in gaps)
+        raise DataError(f"{log.meta.source} has measurement gaps ({listing} s): a .mat log has one time base; "
+                        f"convert to a bag")
+
+
 def write_matlog(log: FlightLog, path: str | Path, force: bool = False) -> Path:
-    """Write ``log`` with the default thesis variable names, atomically."""
+    """Write ``log`` with the default thesis variable names, atomically.
+
+    A log with marked measurement gaps is refused: every variable of a .mat log shares its one time base, so
+    the gap could only be written as the interpolated rows it must never be used as (a bag keeps it).
+    """
     path = Path(path)
+    check_one_time_base(log)
     contents: dict[str, object] = {"time": log.t, "vehicle": log.meta.vehicle, "meta_json": json.dumps(log.meta.notes)}
     for name, variables in THESIS_VARIABLES.items():
         if name == "time":

@@ -28,9 +28,12 @@ Time base: the motor-command topic's own stamps, so no command is invented;
 every other stream is interpolated onto it, linearly per component (attitude:
 spherical linear interpolation of the quaternion, then ZYX Euler angles with
 the yaw unwrapped). Rows outside the span every used stream covers are cut (no
-extrapolation); a kinematic stream (position, attitude, IMU) with a gap longer
-than :data:`MAX_INTERPOLATION_GAP_S` around a kept row is refused, naming the
-topic and time. Streams faster than the base are point-sampled, not averaged.
+extrapolation); a gap longer than :data:`MAX_INTERPOLATION_GAP_S` of a
+kinematic stream (position, attitude, IMU) around a kept row is marked, not
+bridged: ``meta.notes["measurement_gaps"]`` and a warning name the topic and
+times, and no window or training segment uses a row inside it
+(:func:`quad_modelling.core.preprocess.mark_measurement_gaps`). Streams faster
+than the base are point-sampled, not averaged.
 
 Disarmed stretches: rows before the first and after the last armed sample are
 dropped (seconds said in ``meta.notes["disarmed"]``); a log that is never armed
@@ -66,7 +69,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.preprocess import check_interpolation_gaps
+from quad_modelling.core.preprocess import MeasurementGap, interpolation_gaps, mark_measurement_gaps
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import DataError, reason
 
@@ -272,11 +275,6 @@ def armed_at(topics: Topics, t: np.ndarray) -> tuple[np.ndarray | None, str]:
     return np.where(index >= 0, armed[np.clip(index, 0, None)], False), topic
 
 
-def check_gaps(topic: str, source_t: np.ndarray, t: np.ndarray, where: str) -> None:
-    """DataError when a base time falls in a gap of ``source_t`` longer than MAX_INTERPOLATION_GAP_S."""
-    check_interpolation_gaps(topic, source_t, t, where, MAX_INTERPOLATION_GAP_S)
-
-
 def linear(source_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
     """Each column of ``values`` (stamps ``source_t``) linearly interpolated at ``t``; repeated stamps keep the last."""
     keep = np.append(np.diff(source_t) > 0, True)
@@ -345,9 +343,10 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
             + (f"; {inner:.2f} s disarmed inside the armed span kept" if inner > 0 else "")
         )
         t, u = t[first:last + 1], u[first:last + 1]
-    for topic, stamps in (*streams.items(), ("sensor_combined", gyro_t)):
-        if topic != "battery_status":
-            check_gaps(topic, stamps, t, where)
+    gap_fields = {pos_topic: ("pos_n", "vel_n"), "vehicle_attitude": ("euler",), "sensor_combined": ("acc_b", "gyro_b")}
+    gaps = {MeasurementGap(topic, a, b, gap_fields[topic])
+            for topic, stamps in (*streams.items(), ("sensor_combined", gyro_t)) if topic != "battery_status"
+            for a, b in interpolation_gaps(stamps, t, MAX_INTERPOLATION_GAP_S)}
     rates = {motor_topic: rate_hz(t), **{name: rate_hz(stamps) for name, stamps in streams.items()}}
     notes["time_base"] = f"{motor_topic} stamps, {rates[motor_topic]:.1f} Hz; {cut:.2f} s outside the span all streams cover cut"
     notes["sources"] = {
@@ -358,7 +357,7 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
         **({"vbat": f"battery_status voltage_v, {rates['battery_status']:.1f} Hz, linear"} if battery else {}),
     }
     notes["interpolated"] = sorted(name for name, rate in rates.items() if name != motor_topic)
-    return FlightLog(
+    log = FlightLog(
         t=t,
         u=u,
         acc_b=linear(acc_t, acc, t),
@@ -369,3 +368,5 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
         vbat=linear(*battery, t)[:, 0] if battery else None,
         meta=FlightMeta(vehicle=config.name, source=where, notes=notes),
     )
+    mark_measurement_gaps(log, list(gaps), MAX_INTERPOLATION_GAP_S)
+    return log

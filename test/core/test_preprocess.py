@@ -87,3 +87,37 @@ def test_resample_fills_a_dropped_sample_and_refuses_long_gaps():
     gap = make_log(t=np.concatenate([np.arange(100) / 100.0, 2.0 + np.arange(100) / 100.0]))
     with pytest.raises(DataError, match="gap of 1010 ms"):
         resample_uniform(gap)
+
+
+def test_measurement_gaps_are_found_between_stream_stamps_with_rows_inside():
+    from quad_modelling.core.preprocess import interpolation_gaps
+
+    t = np.arange(0.0, 10.0, 0.1)
+    stream = np.concatenate([np.arange(0.0, 2.05, 0.1), np.arange(5.0, 10.0, 0.1)])
+    assert interpolation_gaps(stream, t) == [(pytest.approx(2.0), 5.0)]
+    assert interpolation_gaps(stream, t, max_gap_s=3.5) == []
+    assert interpolation_gaps(stream, t[:20]) == []  # no row falls inside the gap: nothing is interpolated through it
+
+
+def test_marking_gaps_replaces_earlier_gap_notes_and_keeps_other_warnings():
+    from quad_modelling.core.preprocess import MeasurementGap, gap_warnings, mark_measurement_gaps, marked_gaps
+
+    log = make_log()
+    log.warn("flight: column u1: 3 values above the range clipped")
+    gap = MeasurementGap("/quad/imu", float(log.t[10]), float(log.t[80]), ("acc_b", "gyro_b"))
+    mark_measurement_gaps(log, [gap])
+    mark_measurement_gaps(log, [gap])  # a re-read finds it again: one warning, not two
+    assert marked_gaps(log) == [gap]
+    assert len(gap_warnings(log)) == 1 and len(log.meta.notes["warnings"]) == 2
+    assert gap_warnings(log)[0].startswith(f"{log.meta.source}: topic /quad/imu has no message for 0.70 s (t=0.100..0.800 s into the flight)")
+    mark_measurement_gaps(log, [])
+    assert "measurement_gaps" not in log.meta.notes and log.meta.notes["warnings"] == ["flight: column u1: 3 values above the range clipped"]
+    log.meta.notes["measurement_gaps"] = [{"topic": "/quad/imu", "start_s": "soon"}]
+    with pytest.raises(DataError, match=r"notes measurement_gaps entry 0 is not a \{topic, start_s, end_s\} mapping"):
+        marked_gaps(log)
+    log.meta.notes["measurement_gaps"] = [{"topic": "/quad/imu", "start_s": 3.0, "end_s": 1.0}]
+    with pytest.raises(DataError, match=r"notes measurement_gaps entry 0 spans 3\.\.1 s: not a time interval"):
+        marked_gaps(log)
+    log.meta.notes = {"warnings": "clipped"}  # notes come from a user's file: not a list is one line
+    with pytest.raises(DataError, match="test: notes warnings is str, expected a list"):
+        mark_measurement_gaps(log, [])

@@ -14,19 +14,24 @@ from quad_modelling.core.evaluation.windowed import (
 )
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.narx_training import span_indices
-from quad_modelling.core.preprocess import TrimConfig
+from quad_modelling.core.preprocess import MeasurementGap, TrimConfig, mark_measurement_gaps, resample_uniform
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import (
     EvaluationConfig,
     SpanSpec,
     WindowClock,
+    gap_free_runs,
+    gap_rows,
     parse_drop,
+    plan_windows,
     rows_between,
     seconds_spans,
+    span_segments,
     span_windows,
     windows_between,
 )
 from quad_modelling.errors import ConfigError
+from test.conftest import synthetic_log
 
 from .flightgen import linear_flight
 
@@ -168,3 +173,32 @@ def test_a_predictor_trimmed_otherwise_than_the_evaluation_is_refused(linkquad):
     default = evaluate_window(naive, window, 20, TrimConfig(), linkquad)
     # the measured trim differs, the error does not: the naive prediction is the same absolute signal
     np.testing.assert_allclose(same.rms, default.rms, atol=1e-12)
+
+
+def gapped_flight(n: int = 3000):
+    """A 30 s synthetic flight (100 Hz) whose motion capture is marked missing strictly between rows 400 and 1068."""
+    log = synthetic_log(n=n)
+    mark_measurement_gaps(log, [MeasurementGap("/quad/mocap/odom", float(log.t[400]), float(log.t[1068]), ("pos_n", "vel_n", "euler"))])
+    return log
+
+
+def test_no_window_overlaps_a_marked_measurement_gap():
+    log = gapped_flight()
+    assert np.flatnonzero(gap_rows(log)).tolist() == list(range(401, 1068))
+    # 2 s windows from t0: [4, 6) s .. [10, 12) s hold rows inside the gap (4.00..10.68 s): left out
+    expected = [(0, 200), (200, 400)] + [(a, a + 200) for a in range(1200, 3000, 200)]
+    assert windows_between(log, 0.0, math.inf, 2.0) == expected
+    assert len(windows_between(synthetic_log(n=3000), 0.0, math.inf, 2.0)) == 15
+    config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train="0:30", eval="0:30", window_s=2.0)
+    plan = plan_windows([resample_uniform(log)], config)  # evaluate's path: resampled, cut on the one clock
+    assert [(w.start, w.stop) for w in plan["eval"]] == expected[:-1]  # the flight ends at 29.99 s: [28, 30) s is not whole
+
+
+def test_segments_split_at_a_marked_gap():
+    log = gapped_flight()
+    assert gap_free_runs(log, 0, 3000) == [(0, 401), (1068, 3000)]
+    assert gap_free_runs(log, 500, 1000) == []  # wholly inside
+    assert gap_free_runs(log, 1000, 2000) == [(1068, 2000)]
+    assert gap_free_runs(synthetic_log(n=300), 10, 200) == [(10, 200)]
+    config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train="0:30", eval="2:20", window_s=2.0)
+    assert span_segments(log, config.spans()[1], config) == [(200, 401), (1068, 2000)]  # the multi-step segments

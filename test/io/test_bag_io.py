@@ -200,13 +200,68 @@ def test_an_imu_without_accelerometer_marks_it_unmeasured_by_covariance(tmp_path
     assert back.acc_b is None and np.allclose(back.gyro_b, log.gyro_b, atol=1e-12)
 
 
-def test_a_motion_capture_gap_is_refused_not_interpolated_through(tmp_path):
-    stamps = [1_000_000_000 + 10_000_000 * k for k in range(1000)]  # 10 s at 100 Hz
-    odom = [s for s in stamps if not 2_000_000_000 < s < 8_680_000_000]  # a 6.68 s dropout
-    _write_raw_bag(tmp_path / "bag", {"motor_input": [(s, _motor(s)) for s in stamps], "mocap/odom": [(s, _odom(s)) for s in odom],
-                                      "imu": [(s, _imu(s)) for s in stamps]})
-    with pytest.raises(DataError, match=r"bag: topic /quad/mocap/odom has a 6\.68 s gap at t=1\.010 s, longer than 0\.5 s: not interpolated through"):
-        read_bag(tmp_path / "bag")
+GAP_STAMPS = [1_000_000_000 + 10_000_000 * k for k in range(3000)]  # 30 s at 100 Hz from t = 1 s
+"""A 30 s flight whose motion capture drops out for 6.68 s: no odometry strictly between t = 5 s and 11.68 s."""
+
+
+def _write_gap_bag(path):
+    odom = [s for s in GAP_STAMPS if not 5_000_000_000 < s < 11_680_000_000]
+    _write_raw_bag(path, {"motor_input": [(s, _motor(s)) for s in GAP_STAMPS], "mocap/odom": [(s, _odom(s)) for s in odom],
+                          "imu": [(s, _imu(s)) for s in GAP_STAMPS]})
+    return path
+
+
+GAP_WARNING = ("topic /quad/mocap/odom has no message for 6.68 s (t=4.000..10.680 s into the flight), longer than 0.5 s: "
+               "marked as a measurement gap, not interpolated through; windows and training segments overlapping it are left out")
+
+
+def test_a_motion_capture_gap_is_marked_in_the_notes_not_refused(tmp_path):
+    log = read_bag(_write_gap_bag(tmp_path / "bag"))
+    assert len(log) == 3000
+    assert log.meta.notes["measurement_gaps"] == [
+        {"topic": "/quad/mocap/odom", "start_s": 5.0, "end_s": 11.68, "fields": ["pos_n", "vel_n", "euler"]}]
+    assert log.meta.notes["warnings"] == [f"{tmp_path / 'bag'}: {GAP_WARNING}"]
+    assert np.isfinite(log.pos_n).all()  # the rows inside are interpolated to keep the log finite, and never used
+
+
+def test_a_bag_round_trip_keeps_the_gap_as_a_gap(tmp_path):
+    log = read_bag(_write_gap_bag(tmp_path / "bag"))
+    write_bag(log, tmp_path / "copy")
+    with Reader(tmp_path / "copy") as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        odom = next(c for c in reader.connections if c.topic == "/quad/mocap/odom")
+        odom_stamps = [ns for _, ns, _ in reader.messages(connections=[odom])]
+    assert counts == {"/quad/motor_input": 3000, "/quad/mocap/odom": 3000 - 667, "/quad/imu": 3000}
+    assert not [ns for ns in odom_stamps if 5_000_000_000 < ns < 11_680_000_000]  # no fabricated sample inside
+    assert 5_000_000_000 in odom_stamps and 11_680_000_000 in odom_stamps
+    back = read_bag(tmp_path / "copy")
+    assert back.meta.notes["measurement_gaps"] == log.meta.notes["measurement_gaps"]
+    assert back.meta.notes["warnings"] == [f"{tmp_path / 'copy'}: {GAP_WARNING}"]  # found again, not repeated
+    assert back.allclose(log, rtol=0, atol=1e-12)
+
+
+def test_a_flight_with_a_gap_is_not_written_as_a_mat_log(tmp_path):
+    log = read_bag(_write_gap_bag(tmp_path / "bag"))
+    with pytest.raises(DataError, match=r"bag has measurement gaps \(/quad/mocap/odom 4\.00\.\.10\.68 s\): a \.mat log has one "
+                                        r"time base; convert to a bag"):
+        write_matlog(log, tmp_path / "flight.mat")
+    assert not (tmp_path / "flight.mat").exists()
+
+
+def test_an_imu_gap_is_marked_and_left_out_of_the_imu_topic_only(tmp_path):
+    long_imu = [s for s in GAP_STAMPS if not 2_000_000_000 < s < 3_000_000_000]
+    _write_raw_bag(tmp_path / "bag", {"motor_input": [(s, _motor(s)) for s in GAP_STAMPS], "mocap/odom": [(s, _odom(s)) for s in GAP_STAMPS],
+                                      "imu": [(s, _imu(s)) for s in long_imu]})
+    log = read_bag(tmp_path / "bag")
+    assert log.meta.notes["measurement_gaps"] == [{"topic": "/quad/imu", "start_s": 2.0, "end_s": 3.0, "fields": ["acc_b", "gyro_b"]}]
+    write_bag(log, tmp_path / "copy")
+    with Reader(tmp_path / "copy") as reader:
+        assert {c.topic: c.msgcount for c in reader.connections} == {
+            "/quad/motor_input": 3000, "/quad/mocap/odom": 3000, "/quad/imu": 3000 - 99}
+    short_imu = STAMPS[:2] + STAMPS[8:]  # a 70 ms hole, shorter than 0.5 s: interpolated, not marked
+    _write_raw_bag(tmp_path / "short", {"motor_input": [(s, _motor(s)) for s in STAMPS], "mocap/odom": [(s, _odom(s)) for s in STAMPS],
+                                        "imu": [(s, _imu(s)) for s in short_imu]})
+    assert "measurement_gaps" not in read_bag(tmp_path / "short").meta.notes
 
 
 def test_imu_on_another_clock_is_refused_with_its_offset(tmp_path):

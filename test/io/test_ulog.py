@@ -137,12 +137,25 @@ def test_multi_instance_topics_use_instance_0_and_say_so():
     assert np.allclose(log.acc_b[:, 2], -9.81)
 
 
-def test_a_position_gap_is_not_interpolated_through():
+def test_a_position_gap_is_marked_not_interpolated_through(tmp_path):
+    from rosbags.rosbag2 import Reader
+
     topics = synthetic_topics()
     keep = np.r_[0:50, 150:200]  # 1 s without position
     topics["vehicle_local_position"] = {k: v[keep] for k, v in topics["vehicle_local_position"].items()}
-    with pytest.raises(DataError, match=r"flight.ulg: topic vehicle_local_position has a 1.01 s gap at t=10.500 s"):
-        flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "flight.ulg")
+    log = flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "flight.ulg")
+    assert len(log) == 200
+    [gap] = log.meta.notes["measurement_gaps"]
+    assert gap["topic"] == "vehicle_local_position" and gap["fields"] == ["pos_n", "vel_n"]
+    assert (gap["start_s"], gap["end_s"]) == (pytest.approx(10.49), pytest.approx(11.5))
+    assert log.meta.notes["warnings"] == [
+        "flight.ulg: topic vehicle_local_position has no message for 1.01 s (t=0.490..1.500 s into the flight), longer than "
+        "0.5 s: marked as a measurement gap, not interpolated through; windows and training segments overlapping it are left out"]
+    write_bag(log, tmp_path / "bag")  # the bag keeps it as a gap of the odometry
+    with Reader(tmp_path / "bag") as reader:
+        assert {c.topic: c.msgcount for c in reader.connections} == {"/quad/motor_input": 200, "/quad/mocap/odom": 100, "/quad/imu": 200}
+    assert read_bag(tmp_path / "bag").meta.notes["measurement_gaps"] == [
+        {"topic": "/quad/mocap/odom", "start_s": pytest.approx(10.49), "end_s": pytest.approx(11.5), "fields": ["pos_n", "vel_n", "euler"]}]
 
 
 def test_pwm_log_with_a_normalised_vehicle_is_refused():

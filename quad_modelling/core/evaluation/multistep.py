@@ -28,7 +28,7 @@ from quad_modelling.core.preprocess import (
 )
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.core.windows import EvaluationConfig, span_segment
+from quad_modelling.core.windows import EvaluationConfig, span_segments
 
 GROUPS: dict[str, slice] = {
     "position": slice(0, 3),
@@ -77,14 +77,14 @@ def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predicto
     totals = {m.name: np.zeros((len(GROUPS), max_h)) for m in candidates}
     count = 0
     for log in flights:
-        start, stop = span_segment(log, span, config)
-        if stop - start <= max_h:
-            continue
-        segment = log.slice(start, stop)
-        for m in candidates:
-            mae, n = multistep_mae(m, segment, max_h, vehicle)
-            totals[m.name] += mae * n  # pooled over flights: MAE of all starts = sum_f S_f MAE_f / sum_f S_f
-        count += n
+        for start, stop in span_segments(log, span, config):  # split at marked measurement gaps
+            if stop - start <= max_h:
+                continue
+            segment = log.slice(start, stop)
+            for m in candidates:
+                mae, n = multistep_mae(m, segment, max_h, vehicle)
+                totals[m.name] += mae * n  # pooled over segments: MAE of all starts = sum_f S_f MAE_f / sum_f S_f
+            count += n
     if count == 0:
         return {"span": span.name, "starts": 0, "note": f"no {span.name} segment longer than {max_h} samples"}
     out: dict = {"span": span.name, "starts": count, "horizons": list(config.horizons), "sim_err_horizon": max_h,

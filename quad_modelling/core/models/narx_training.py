@@ -16,7 +16,7 @@ from quad_modelling.core.models.narx import (
     lagged_inputs,
     measured_outputs,
 )
-from quad_modelling.core.windows import rows_between
+from quad_modelling.core.windows import gap_free_runs, rows_between
 from quad_modelling.errors import DataError
 
 
@@ -167,13 +167,17 @@ def span_indices(log: FlightLog, span: tuple[float, float]) -> tuple[int, int]:
 
 
 def flight_segments(logs: list[FlightLog], spans: list[tuple[float, float] | None]) -> list[Segment]:
-    """One NARX training segment per (log, span); span None = the whole flight."""
+    """The NARX training segments of each (log, span), span None = the whole flight: one per part of the span
+    between marked measurement gaps (:func:`~quad_modelling.core.windows.gap_free_runs`; lags never cross a gap)."""
     segments = []
     for log, span in zip(logs, spans):
         i0, i1 = (0, len(log)) if span is None else span_indices(log, span)
-        part = log.slice(i0, i1)
-        segments.append(Segment(part.u, measured_outputs(part), log.meta.source,
-                                (float(part.t[0] - log.t[0]), float(part.t[-1] - log.t[0]))))
+        for a, b in gap_free_runs(log, i0, i1):
+            if b - a < 2:
+                continue
+            part = log.slice(a, b)
+            segments.append(Segment(part.u, measured_outputs(part), log.meta.source,
+                                    (float(part.t[0] - log.t[0]), float(part.t[-1] - log.t[0]))))
     return segments
 
 

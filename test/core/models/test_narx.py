@@ -22,8 +22,8 @@ from quad_modelling.core.models.narx import (
     NarxPredictor,
     load_narx,
 )
-from quad_modelling.core.models.narx_training import Segment, _noisy_outputs, train_narx
-from quad_modelling.core.preprocess import measured_variables, trimmed_variables
+from quad_modelling.core.models.narx_training import Segment, _noisy_outputs, flight_segments, train_narx
+from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps, measured_variables, trimmed_variables
 from quad_modelling.core.variables import columns
 from quad_modelling.errors import DataError, ModelError, OutputExistsError
 
@@ -239,3 +239,18 @@ def test_training_refuses_bad_data():
         train_narx([Segment(u, y[:, :5], "flight.mat")], DT, "linkquad", SMALL)
     with pytest.raises(ModelError, match="input_delays"):
         NarxConfig(input_delays=(1, 1))
+
+
+def test_training_segments_split_at_a_marked_measurement_gap():
+    from test.conftest import synthetic_log
+
+    log = synthetic_log(n=3000)  # 30 s at 100 Hz from t = 5 s
+    whole = flight_segments([log], [None])
+    assert len(whole) == 1 and len(whole[0].u) == 3000
+    mark_measurement_gaps(log, [MeasurementGap("/quad/mocap/odom", float(log.t[400]), float(log.t[1068]), ("pos_n", "vel_n", "euler"))])
+    parts = flight_segments([log], [None])
+    assert [len(p.u) for p in parts] == [401, 1932]  # rows 0..400 and 1068..2999: no row inside the gap, no lag across it
+    assert [p.span for p in parts] == [(0.0, pytest.approx(4.0)), (pytest.approx(10.68), pytest.approx(29.99))]
+    np.testing.assert_array_equal(parts[1].u, log.u[1068:])
+    spanned = flight_segments([log], [(2.0, 20.0)])  # a span: split the same way
+    assert [len(p.u) for p in spanned] == [201, 932]

@@ -1,0 +1,70 @@
+"""A real flight with one motion-capture dropout is usable: the gap is marked, warned about once, kept as a gap
+through conversion, and nothing (window, multi-step segment, training segment) uses a row inside it."""
+
+from __future__ import annotations
+
+import json
+
+from rosbags.rosbag2 import Reader
+
+from quad_modelling.cli import main
+from quad_modelling.core.preprocess import resample_uniform
+from quad_modelling.core.windows import EvaluationConfig, gap_rows, plan_windows
+from quad_modelling.io.bag_io import read_bag
+from test.io.test_bag_io import GAP_WARNING, _write_gap_bag
+
+SPANS = ["--drop", "0:0", "--train", "0:30", "--eval", "0:30", "--window", "2"]
+
+
+def test_evaluate_scores_only_the_windows_clear_of_the_gap_and_warns_once(tmp_path, capsys):
+    bag = _write_gap_bag(tmp_path / "bag")
+    assert main(["evaluate", str(bag), *SPANS, "-o", str(tmp_path / "out")]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.count(GAP_WARNING) == 1 and captured.err.splitlines() == [f"warning: {bag}: {GAP_WARNING}"]
+    assert "windows train 10, eval 10" in captured.out
+    results = json.loads((tmp_path / "out" / "results.json").read_text())
+    # 2 s windows of the 29.99 s flight: 14; the four of 4..12 s hold rows inside the gap (4.00..10.68 s)
+    assert results["windows"]["greybox"] == {"train": 10, "eval": 10}
+    # multi-step: the eval rows 0..2998 split at the gap into 401 and 1931 rows, each start 50 steps before its end
+    assert results["horizons"]["starts"] == (401 - 50) + (1931 - 50)
+    log = resample_uniform(read_bag(bag))
+    config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train="0:30", eval="0:30", window_s=2.0)
+    windows = plan_windows([log], config)["eval"]
+    inside = gap_rows(log)
+    assert len(windows) == 10 and inside.sum() == 667
+    assert not any(inside[w.start:w.stop].any() for w in windows)
+    starts = [round(float(log.t[w.start] - log.t[0]), 2) for w in windows]
+    assert starts == [0.0, 2.0, 12.0, 14.0, 16.0, 18.0, 20.0, 22.0, 24.0, 26.0]
+
+
+def test_convert_keeps_the_gap_in_the_new_bag_and_refuses_a_mat_log(tmp_path, capsys):
+    bag = _write_gap_bag(tmp_path / "bag")
+    assert main(["convert", str(bag), "-o", str(tmp_path / "copy")]) == 0
+    assert capsys.readouterr().err.splitlines() == [f"warning: {bag}: {GAP_WARNING}"]
+    with Reader(tmp_path / "copy") as reader:
+        odom = next(c for c in reader.connections if c.topic == "/quad/mocap/odom")
+        stamps = [ns for _, ns, _ in reader.messages(connections=[odom])]
+    assert len(stamps) == 3000 - 667 and not [ns for ns in stamps if 5_000_000_000 < ns < 11_680_000_000]
+    copy = read_bag(tmp_path / "copy")
+    assert copy.meta.notes["measurement_gaps"] == [
+        {"topic": "/quad/mocap/odom", "start_s": 5.0, "end_s": 11.68, "fields": ["pos_n", "vel_n", "euler"]}]
+    assert copy.meta.notes["warnings"] == [f"{tmp_path / 'copy'}: {GAP_WARNING}"]
+
+    assert main(["convert", str(bag), "-o", str(tmp_path / "flight.mat")]) == 2
+    err = capsys.readouterr().err
+    assert err.splitlines() == [f"quad-modelling convert: error: {bag} has measurement gaps (/quad/mocap/odom 4.00..10.68 s): "
+                                "a .mat log has one time base; convert to a bag"]
+    assert not (tmp_path / "flight.mat").exists()
+
+
+def test_train_splits_its_segments_at_the_gap(tmp_path, capsys):
+    bag = _write_gap_bag(tmp_path / "bag")
+    assert main(["train", str(bag), "--drop", "0:0", "--train", "0:30", "--epochs", "1", "--hidden", "2", "--quiet",
+                 "-o", str(tmp_path / "narx.npz")]) == 0
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [f"warning: {bag}: {GAP_WARNING}"]
+    # rows 0..400 and 1068..2998, each less its NARX warm-up samples: no training row inside or across the gap
+    from quad_modelling.core.models.narx import NarxConfig
+
+    warm = NarxConfig(hidden=2, epochs=1).warm_samples
+    assert f"trained narx model on {(401 - warm) + (1931 - warm)} samples" in captured.out
