@@ -205,7 +205,10 @@ def rate_hz(t: np.ndarray) -> float:
 def rotor_count(topics: Topics, params: dict, where: str) -> tuple[int, str]:
     """(rotor count, where it came from); DataError when it cannot be told."""
     if "CA_ROTOR_COUNT" in params:
-        return int(params["CA_ROTOR_COUNT"]), "CA_ROTOR_COUNT"
+        count = params["CA_ROTOR_COUNT"]
+        if not np.isfinite(count) or count != int(count):
+            raise DataError(f"{where}: parameter CA_ROTOR_COUNT is {count:g}, not a rotor count")
+        return int(count), "CA_ROTOR_COUNT"
     mav_type = params.get("MAV_TYPE")
     if mav_type in VTOL_MAV_TYPES:
         raise DataError(f"{where}: MAV_TYPE {mav_type} is a VTOL airframe; only plain quadrotors are read")
@@ -241,6 +244,7 @@ def four_rotors(topics: Topics, params: dict, where: str) -> str:
 def motor_channels(params: dict) -> tuple[list[int], str]:
     """(0-based actuator_outputs channels of Motor 1..4, note): those whose PWM_MAIN_FUNCn is Motor k, else 0..3."""
     functions = {c: params.get(f"PWM_MAIN_FUNC{c + 1}") for c in range(16)}
+    functions = {c: f for c, f in functions.items() if f is not None and np.isfinite(f)}  # a damaged value names no motor
     by_motor = {int(f) - MOTOR_FUNCTION_FIRST: c for c, f in functions.items() if f is not None and 0 <= int(f) - MOTOR_FUNCTION_FIRST < ROTORS}
     if len(by_motor) == ROTORS:
         channels = [by_motor[k] for k in range(ROTORS)]
@@ -508,10 +512,13 @@ def vehicle_from_ulog(path: str | Path, name: str) -> LogVehicle:
 
     Refused in one DataError line naming the file: a log that cannot be read, not a quadrotor, without
     motor commands, a PWM log without its range, rotors neither an x nor a plus frame."""
-    where = str(path)
     ulog, _ = open_ulog(path, MOTOR_UNITS)
-    topics, _ = topics_of(ulog.data_list)
-    params = ulog.initial_parameters
+    return vehicle_document(topics_of(ulog.data_list)[0], ulog.initial_parameters, str(path), name)
+
+
+def vehicle_document(topics: Topics, params: dict, where: str, name: str) -> LogVehicle:
+    """:func:`vehicle_from_ulog` on a log already read: its topics (the motor topics suffice) and parameters."""
+    path = Path(where)
     counted = four_rotors(topics, params, where)
     topic = next((t for t in MOTOR_UNITS if t in topics), None)
     if topic is None:
