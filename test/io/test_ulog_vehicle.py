@@ -12,7 +12,7 @@ from pyulog import ULog
 
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import DataError
-from quad_modelling.io.ulog import _inputs, rotor_frame, symmetric_frame, vehicle_from_ulog, vehicle_yaml
+from quad_modelling.io.ulog import _inputs, rotor_frame, symmetric_frame, vehicle_document, vehicle_from_ulog, vehicle_yaml
 
 PX4 = Path(__file__).resolve().parents[1] / "data" / "px4"
 EVENTS = PX4 / "sample_px4_events.ulg"
@@ -99,6 +99,9 @@ def _params(**changes) -> dict:
 
 def test_rotor_parameters_that_cannot_make_a_vehicle_are_refused():
     assert rotor_frame({"CA_ROTOR0_PX": 0.1}, "f.ulg") is None  # incomplete: the caller guesses and warns
+    with pytest.raises(DataError) as caught:
+        vehicle_document({}, _params(CA_ROTOR_COUNT=float("nan")), "f.ulg", "v")
+    assert str(caught.value) == "f.ulg: parameter CA_ROTOR_COUNT is nan, not a rotor count"
     with pytest.raises(DataError) as caught:
         rotor_frame(_params(CA_ROTOR2_KM=0.0), "f.ulg")
     assert str(caught.value) == "f.ulg: parameter CA_ROTOR2_KM is 0: its sign gives the rotor's spin (positive = counter-clockwise seen from above)"
