@@ -9,9 +9,9 @@ from pathlib import Path
 from tqdm import tqdm
 
 from quad_modelling.atomic import atomic_output, check_output
-from quad_modelling.core.vehicle import vehicle_file
-from quad_modelling.errors import QuadModellingError
-from quad_modelling.io.loader import FORMATS, load_flight
+from quad_modelling.core.vehicle import VehicleConfig, vehicle_file
+from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.io.loader import FORMATS, detect_format, load_flight
 from quad_modelling.io.topics import check_namespace
 
 NAME = "convert"
@@ -32,12 +32,17 @@ or far-out commands are refused. A log without accelerometer/gyro (pose-only mot
 converts to a bag without the imu topic. A motion-capture or IMU dropout longer than 0.5 s is
 marked, never interpolated through: a warning, the gap kept in the bag (no message inside it) and
 its notes; a .mat output of such a flight is refused (one time base).
+--vehicle-from-log VEHICLE.yaml (one PX4 .ulg input): also write a vehicle config started from
+the log's parameters (rotor positions CA_ROTORn_PX/PY symmetrised, spins from CA_ROTORn_KM,
+input range from the motor topic and the PWM parameters; mass, inertia and motor constants
+guessed from px4_iris) and convert the log with it (docs/px4.md).
 
 examples:
   quad-modelling convert flight.mat --vehicle linkquad -o bags/flight
   quad-modelling convert data/nanobench/*.csv.gz -o bags/nanobench --skip-bad
   quad-modelling convert bags/flight -o flight_copy.mat
   quad-modelling convert test/data/px4/sample_px4_events.ulg -o bags/px4_events
+  quad-modelling convert test/data/px4/sample_px4_events.ulg --vehicle-from-log iris.yaml -o bags/px4_events
 """
 
 
@@ -47,6 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--format", default="auto", choices=("auto", *FORMATS), help="input format (default: from the file name)")
     parser.add_argument("--mapping", metavar="FILE", help="YAML variable mapping for foreign .mat logs")
     parser.add_argument("--vehicle", metavar="NAME", help="vehicle config name or YAML path (default: from the file; crazyflie21 for NanoBench; px4_iris or px4_iris_pwm for .ulg)")
+    parser.add_argument("--vehicle-from-log", metavar="VEHICLE.yaml",
+                        help="one PX4 .ulg input: write a vehicle config started from the log's parameters and convert with it")
     parser.add_argument("--namespace", default="/quad", help="topic namespace in the bag (default /quad)")
     parser.add_argument("--skip-bad", action="store_true", help="with several inputs: report bad ones, convert the rest, exit 1")
     parser.add_argument("--force", action="store_true", help="overwrite an existing output")
@@ -73,11 +80,46 @@ def _write(log, target: Path, namespace: str, force: bool) -> None:
         write_bag(log, target, force=force, namespace=namespace, progress=bar.update)
 
 
+def _vehicle_from_log(args: argparse.Namespace, inputs: list[Path], output: Path) -> int:
+    """``--vehicle-from-log``: write the vehicle the log's parameters start, convert the log with it; both or neither."""
+    from quad_modelling.io.ulog_vehicle import vehicle_from_ulog, vehicle_yaml
+
+    target = Path(args.vehicle_from_log)
+    fmt = detect_format(inputs[0]) if len(inputs) == 1 and args.format == "auto" else args.format
+    if len(inputs) != 1 or fmt != "px4-ulog" or args.vehicle:
+        raise ConfigError("--vehicle-from-log takes one PX4 .ulg input and no --vehicle "
+                          f"(got {len(inputs)} input(s): {', '.join(p.name for p in inputs[:3])}{', --vehicle' if args.vehicle else ''})")
+    if target.suffix not in (".yaml", ".yml"):
+        raise ConfigError(f"--vehicle-from-log {args.vehicle_from_log!r}: the vehicle file must end in .yaml or .yml")
+    ours, bag = target.resolve(), output.resolve()
+    if ours == bag or bag in ours.parents or ours in bag.parents:
+        raise ConfigError(f"--vehicle-from-log {target} and -o {output} overlap; give the vehicle file and the output different places")
+    check_output(target, args.force, inputs=[inputs[0]])
+    if not inputs[0].is_file():
+        load_flight(inputs[0])  # the loader's one-line refusal of a missing or special file
+    vehicle = vehicle_from_ulog(inputs[0], name=target.stem)
+    config = VehicleConfig.from_dict(vehicle.document, str(target))
+    for message in vehicle.warnings:
+        print(f"warning: {message}", file=sys.stderr)
+    log = load_flight(inputs[0], vehicle=config)
+    for message in log.meta.notes.get("warnings", []):
+        print(f"warning: {message}", file=sys.stderr)
+    with atomic_output(target, args.force) as staging:
+        staging.write_text(vehicle_yaml(vehicle), encoding="utf-8")
+        _write(log, output, args.namespace, args.force)
+    print(f"{inputs[0]} -> {target} (vehicle {config.name}: {config.geometry} frame, arm {config.value('arm_length'):.4g} m, "
+          f"inputs {config.input_min:g}..{config.input_max:g} {config.input_unit})")
+    print(f"{inputs[0]} -> {output} ({len(log)} samples, {log.duration:.1f} s, vehicle {log.meta.vehicle})")
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     inputs = [Path(p) for p in args.inputs]
     output = Path(args.output)
     check_namespace(args.namespace)
     check_output(output, args.force, inputs=[*inputs, args.mapping, vehicle_file(args.vehicle) if args.vehicle else None])
+    if args.vehicle_from_log is not None:
+        return _vehicle_from_log(args, inputs, output)
 
     def load(path: Path):
         log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping)

@@ -73,12 +73,12 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
     elif fmt == "px4-ulog":
         from quad_modelling.io.ulog import read_ulog
 
-        log = read_ulog(path, vehicle=name)
+        log = read_ulog(path, vehicle=config or name)
     else:
         from quad_modelling.io.bag_io import read_bag
 
         log = read_bag(path if path.is_dir() else path.parent, vehicle=name)
-    config = config or load_vehicle(log.meta.vehicle)
+    config = config or load_vehicle(vehicle if vehicle is not None else log.meta.vehicle)  # a --vehicle FILE of any name
     # The log names its airframe (config name), not the file its constants came from:
     # --vehicle FILE picks constants for a command, the flight stays the same vehicle.
     log.meta.vehicle = config.name

@@ -55,7 +55,21 @@ says how many were logged. Appended data and logging dropouts are noted.
 
 Default vehicle (``vehicle=None``): ``px4_iris`` for ``actuator_motors`` logs,
 ``px4_iris_pwm`` for PWM logs (``config/vehicles/``). A vehicle whose input
-unit does not match the command source is refused.
+unit does not match the command source is refused (``vehicle`` may be a loaded
+VehicleConfig).
+
+Vehicle from the log (:func:`vehicle_from_ulog`, ``convert --vehicle-from-log``):
+a vehicle document started from the log's parameters. Motor k = ``CA_ROTOR(k-1)``
+(the order of ``actuator_motors.control`` and of the outputs whose function is
+Motor k); positions ``CA_ROTORn_PX/PY`` (body FRD [m]) symmetrised to one arm
+length (:func:`symmetric_frame`); spins from the sign of ``CA_ROTORn_KM`` (PX4:
+positive = counter-clockwise seen from above); input range 0..1 ``normalised``
+for ``actuator_motors``, for ``actuator_outputs`` the disarmed pulse
+(``PWM_MAIN_DISn``, ``PWM_MAIN_DISARM``, else PX4's default 900 us) to the PWM
+maximum, in ``us``. Mass, inertia and motor constants are not in a log: copied
+from the default vehicle of the command source and marked as guesses. A log
+without ``CA_ROTORn`` parameters (PX4 before the control allocator) takes the
+default vehicle's frame, marked and warned as a guess.
 """
 
 from __future__ import annotations
@@ -69,8 +83,12 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.preprocess import MeasurementGap, interpolation_gaps, mark_measurement_gaps
-from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.core.preprocess import (
+    MeasurementGap,
+    interpolation_gaps,
+    mark_measurement_gaps,
+)
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import DataError, reason
 
 ROTORS = 4
@@ -101,6 +119,7 @@ MOTOR_UNITS = {"actuator_motors": "normalised", "actuator_outputs": "us"}
 
 DEFAULT_VEHICLES = {"actuator_motors": "px4_iris", "actuator_outputs": "px4_iris_pwm"}
 
+
 TOPICS = (
     "actuator_motors", "actuator_outputs", "vehicle_local_position", "vehicle_odometry", "vehicle_attitude",
     "sensor_combined", "vehicle_angular_velocity", "battery_status", "vehicle_status", "actuator_armed",
@@ -111,20 +130,10 @@ Topics = dict[str, dict[str, np.ndarray]]
 """Topic name -> field name -> values (one instance per topic), as pyulog's ``data`` dicts."""
 
 
-def read_ulog(path: str | Path, vehicle: str | None = None) -> FlightLog:
+def read_ulog(path: str | Path, vehicle: str | VehicleConfig | None = None) -> FlightLog:
     """Read a PX4 .ulg file into a FlightLog (see module doc); DataError names file and topic."""
-    from pyulog import ULog
-
-    path = Path(path)
     where = str(path)
-    said = io.StringIO()  # pyulog prints its corruption notices: kept in the notes, off the user's terminal
-    try:
-        with contextlib.redirect_stdout(said):
-            ulog = ULog(str(path), message_name_filter_list=list(TOPICS))
-    except FileNotFoundError as err:
-        raise DataError(f"{where}: no such file") from err
-    except Exception as err:  # pyulog raises bare Exception/struct.error/IndexError on bad files
-        raise DataError(f"{where}: not a readable ULog file ({reason(err)})") from err
+    ulog, said = open_ulog(path, TOPICS)
     topics, notes = topics_of(ulog.data_list)
     if said.getvalue().strip():
         notes["pyulog"] = " ".join(sorted(set(said.getvalue().split("\n")) - {""}))
@@ -133,6 +142,20 @@ def read_ulog(path: str | Path, vehicle: str | None = None) -> FlightLog:
     if ulog.dropouts:
         notes["dropouts"] = f"{len(ulog.dropouts)} logging dropouts, {sum(d.duration for d in ulog.dropouts)} ms in total"
     return flight_from_topics(topics, ulog.initial_parameters, where, vehicle=vehicle, notes=notes)
+
+
+def open_ulog(path: str | Path, topics) -> tuple:
+    """(pyulog ULog holding ``topics``, what pyulog printed); DataError naming the file when unreadable."""
+    from pyulog import ULog
+
+    said = io.StringIO()  # pyulog prints its corruption notices: kept in the notes, off the user's terminal
+    try:
+        with contextlib.redirect_stdout(said):
+            return ULog(str(path), message_name_filter_list=list(topics)), said
+    except FileNotFoundError as err:
+        raise DataError(f"{path}: no such file") from err
+    except Exception as err:  # pyulog raises bare Exception/struct.error/IndexError on bad files
+        raise DataError(f"{path}: not a readable ULog file ({reason(err)})") from err
 
 
 def topics_of(data_list) -> tuple[Topics, dict]:
@@ -175,7 +198,10 @@ def rate_hz(t: np.ndarray) -> float:
 def rotor_count(topics: Topics, params: dict, where: str) -> tuple[int, str]:
     """(rotor count, where it came from); DataError when it cannot be told."""
     if "CA_ROTOR_COUNT" in params:
-        return int(params["CA_ROTOR_COUNT"]), "CA_ROTOR_COUNT"
+        count = params["CA_ROTOR_COUNT"]
+        if not np.isfinite(count) or count != int(count):
+            raise DataError(f"{where}: parameter CA_ROTOR_COUNT is {count:g}, not a rotor count")
+        return int(count), "CA_ROTOR_COUNT"
     mav_type = params.get("MAV_TYPE")
     if mav_type in VTOL_MAV_TYPES:
         raise DataError(f"{where}: MAV_TYPE {mav_type} is a VTOL airframe; only plain quadrotors are read")
@@ -200,12 +226,28 @@ def pwm_range(params: dict, channels: list[int]) -> tuple[float, float, str] | N
     return None
 
 
-def motor_commands(topics: Topics, params: dict, where: str) -> tuple[str, np.ndarray, np.ndarray, dict]:
-    """(source topic, stamps [s], (N, 4) commands as logged, notes) of the four motors."""
+def four_rotors(topics: Topics, params: dict, where: str) -> str:
+    """The rotor-count note ("4 (CA_ROTOR_COUNT)"); DataError naming the count and its source unless 4."""
     count, counted_by = rotor_count(topics, params, where)
     if count != ROTORS:
         raise DataError(f"{where}: {count} rotors ({counted_by}); only {ROTORS}-rotor vehicles are read")
-    notes: dict = {"rotor_count": f"{count} ({counted_by})"}
+    return f"{count} ({counted_by})"
+
+
+def motor_channels(params: dict) -> tuple[list[int], str]:
+    """(0-based actuator_outputs channels of Motor 1..4, note): those whose PWM_MAIN_FUNCn is Motor k, else 0..3."""
+    functions = {c: params.get(f"PWM_MAIN_FUNC{c + 1}") for c in range(16)}
+    functions = {c: f for c, f in functions.items() if f is not None and np.isfinite(f)}  # a damaged value names no motor
+    by_motor = {int(f) - MOTOR_FUNCTION_FIRST: c for c, f in functions.items() if f is not None and 0 <= int(f) - MOTOR_FUNCTION_FIRST < ROTORS}
+    if len(by_motor) == ROTORS:
+        channels = [by_motor[k] for k in range(ROTORS)]
+        return channels, f"outputs {channels} (PWM_MAIN_FUNCn = Motor 1..4)"
+    return list(range(ROTORS)), "outputs [0, 1, 2, 3] (no PWM_MAIN_FUNCn naming the motors: first four)"
+
+
+def motor_commands(topics: Topics, params: dict, where: str) -> tuple[str, np.ndarray, np.ndarray, dict]:
+    """(source topic, stamps [s], (N, 4) commands as logged, notes) of the four motors."""
+    notes: dict = {"rotor_count": four_rotors(topics, params, where)}
     if "actuator_motors" in topics:
         topic = "actuator_motors"
         u = np.column_stack(_need(topics, topic, [f"control[{i}]" for i in range(ROTORS)], where))
@@ -215,14 +257,7 @@ def motor_commands(topics: Topics, params: dict, where: str) -> tuple[str, np.nd
             u = np.where(stopped, 0.0, u)
     elif "actuator_outputs" in topics:
         topic = "actuator_outputs"
-        functions = {c: params.get(f"PWM_MAIN_FUNC{c + 1}") for c in range(16)}
-        by_motor = {int(f) - MOTOR_FUNCTION_FIRST: c for c, f in functions.items() if f is not None and 0 <= int(f) - MOTOR_FUNCTION_FIRST < ROTORS}
-        if len(by_motor) == ROTORS:
-            channels = [by_motor[k] for k in range(ROTORS)]
-            notes["motor_channels"] = f"outputs {channels} (PWM_MAIN_FUNCn = Motor 1..4)"
-        else:
-            channels = list(range(ROTORS))
-            notes["motor_channels"] = "outputs [0, 1, 2, 3] (no PWM_MAIN_FUNCn naming the motors: first four)"
+        channels, notes["motor_channels"] = motor_channels(params)
         u = np.column_stack(_need(topics, topic, [f"output[{c}]" for c in channels], where))
         found = pwm_range(params, channels)
         notes["pwm_range"] = f"{found[0]:g}..{found[1]:g} us ({found[2]})" if found else "not in the log's parameters"
@@ -295,7 +330,8 @@ def attitude(source_t: np.ndarray, quat_wxyz: np.ndarray, t: np.ndarray, where: 
     return euler
 
 
-def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | None = None, notes: dict | None = None) -> FlightLog:
+def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | VehicleConfig | None = None,
+                       notes: dict | None = None) -> FlightLog:
     """Map PX4 topics (instance 0, pyulog field names) and parameters onto one FlightLog (module doc)."""
     notes = {"format": "px4-ulog", **(notes or {})}
     required = {"motor commands": ("actuator_motors", "actuator_outputs"), "position": ("vehicle_local_position", "vehicle_odometry"),
@@ -306,7 +342,7 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
         raise DataError(f"{where}: missing PX4 topic(s) {'; '.join(missing)} (found: {', '.join(found) or 'none'})")
     motor_topic, t, u, motor_notes = motor_commands(topics, params, where)
     notes.update(motor_notes)
-    config = load_vehicle(vehicle or DEFAULT_VEHICLES[motor_topic])
+    config = vehicle if isinstance(vehicle, VehicleConfig) else load_vehicle(vehicle or DEFAULT_VEHICLES[motor_topic])
     if config.input_unit != MOTOR_UNITS[motor_topic]:
         raise DataError(
             f"{where}: motor commands come from {motor_topic} ({MOTOR_UNITS[motor_topic]}) but vehicle "
@@ -370,3 +406,5 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
     )
     mark_measurement_gaps(log, list(gaps), MAX_INTERPOLATION_GAP_S)
     return log
+
+

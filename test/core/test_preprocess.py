@@ -100,7 +100,12 @@ def test_measurement_gaps_are_found_between_stream_stamps_with_rows_inside():
 
 
 def test_marking_gaps_replaces_earlier_gap_notes_and_keeps_other_warnings():
-    from quad_modelling.core.preprocess import MeasurementGap, gap_warnings, mark_measurement_gaps, marked_gaps
+    from quad_modelling.core.preprocess import (
+        MeasurementGap,
+        gap_warnings,
+        mark_measurement_gaps,
+        marked_gaps,
+    )
 
     log = make_log()
     log.warn("flight: column u1: 3 values above the range clipped")

@@ -14,7 +14,12 @@ from quad_modelling.core.evaluation.windowed import (
 )
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.narx_training import span_indices
-from quad_modelling.core.preprocess import MeasurementGap, TrimConfig, mark_measurement_gaps, resample_uniform
+from quad_modelling.core.preprocess import (
+    MeasurementGap,
+    TrimConfig,
+    mark_measurement_gaps,
+    resample_uniform,
+)
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import (
     EvaluationConfig,

@@ -1,4 +1,5 @@
-"""Fuzz: MCAP bags (bit flips, metadata.yaml, custom_data notes), PX4 ULog files and model files."""
+"""Fuzz: MCAP bags (bit flips, metadata.yaml, custom_data notes), PX4 ULog files (flights and the vehicle from the
+log's parameters) and model files."""
 
 from __future__ import annotations
 
@@ -20,9 +21,17 @@ from quad_modelling.core.models.narx import (
     NarxModel,
     load_narx,
 )
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io.bag_io import NOTES_KEY, read_recorded, summarize_bag, write_bag
 from quad_modelling.io.loader import load_flight
+from quad_modelling.io.ulog import topics_of
+from quad_modelling.io.ulog_vehicle import (
+    LogVehicle,
+    vehicle_document,
+    vehicle_from_ulog,
+    vehicle_yaml,
+)
 from test.conftest import REPO, synthetic_log
 from test.fuzz.properties import byte_edits, mutated, outcome, yaml_values
 
@@ -72,11 +81,13 @@ ULOGS = sorted((REPO / "test" / "data" / "px4").glob("*.ulg"))
 @settings(max_examples=20)
 @given(st.sampled_from(ULOGS), st.data())
 def test_corrupt_ulog_gives_a_flight_or_one_line(source, data):
+    """... and the vehicle from its parameters (``convert --vehicle-from-log``): a vehicle or one line."""
     with tempfile.TemporaryDirectory() as directory:
         path = Path(directory) / "flight.ulg"
         original = source.read_bytes()
         path.write_bytes(mutated(original, data.draw(byte_edits(len(original), max_flips=20), label="edits")))
         assert isinstance(outcome(lambda: load_flight(path), path), (FlightLog, QuadModellingError))
+        assert isinstance(outcome(lambda: vehicle_from_ulog(path, "v"), path), (LogVehicle, QuadModellingError))
 
 
 def small_model() -> NarxModel:
@@ -142,3 +153,35 @@ def test_corrupt_model_bytes_give_one_line(edits):
 def test_unedited_bag_and_model_are_valid():
     assert len(check_bag()) == 30
     assert isinstance(check_model(model_bytes(MODEL.header(), MODEL.arrays())), NarxModel)
+
+
+VEHICLE_KEYS = ["CA_ROTOR_COUNT", "MAV_TYPE", "PWM_MAIN_MIN", "PWM_MAIN_MAX", "PWM_MAIN_DISARM", "HIL_ACT_MIN1", "HIL_ACT_MAX1",
+                *(f"CA_ROTOR{n}_{c}" for n in range(4) for c in ("PX", "PY", "KM", "AX", "AY", "AZ")),
+                *(f"PWM_MAIN_{kind}{c}" for kind in ("FUNC", "MIN", "MAX", "DIS") for c in range(1, 5))]
+"""The parameters :func:`vehicle_from_ulog` reads."""
+
+
+def _motor_log(source: Path):
+    from pyulog import ULog
+
+    ulog = ULog(str(source), message_name_filter_list=["actuator_motors", "actuator_outputs"])
+    return topics_of(ulog.data_list)[0], ulog.initial_parameters
+
+
+MOTOR_LOGS = [_motor_log(source) for source in ULOGS]
+PARAMETER_VALUES = st.one_of(st.none(), st.integers(-(2**31), 2**31 - 1), st.floats(width=32, allow_nan=True, allow_infinity=True),
+                             st.floats(-1.0, 1.0, width=32))
+
+
+@settings(max_examples=80)
+@given(st.sampled_from(range(len(MOTOR_LOGS))), st.dictionaries(st.sampled_from(VEHICLE_KEYS), PARAMETER_VALUES, max_size=8))
+def test_any_rotor_and_pwm_parameters_give_a_vehicle_or_one_line(log, changes):
+    """Parameters as a damaged or odd log holds them (None: not logged): a vehicle that loads, or one line."""
+    topics, params = MOTOR_LOGS[log]
+    params = {**params, **changes}
+    params = {k: v for k, v in params.items() if v is not None}
+    result = outcome(lambda: vehicle_document(topics, params, "flight.ulg", "v"), "flight.ulg")
+    if isinstance(result, LogVehicle):
+        assert VehicleConfig.from_dict(yaml.safe_load(vehicle_yaml(result)), "v.yaml").name == "v"
+    else:
+        assert isinstance(result, QuadModellingError)

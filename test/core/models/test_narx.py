@@ -22,8 +22,18 @@ from quad_modelling.core.models.narx import (
     NarxPredictor,
     load_narx,
 )
-from quad_modelling.core.models.narx_training import Segment, _noisy_outputs, flight_segments, train_narx
-from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps, measured_variables, trimmed_variables
+from quad_modelling.core.models.narx_training import (
+    Segment,
+    _noisy_outputs,
+    flight_segments,
+    train_narx,
+)
+from quad_modelling.core.preprocess import (
+    MeasurementGap,
+    mark_measurement_gaps,
+    measured_variables,
+    trimmed_variables,
+)
 from quad_modelling.core.variables import columns
 from quad_modelling.errors import DataError, ModelError, OutputExistsError
 
