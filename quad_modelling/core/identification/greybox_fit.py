@@ -227,7 +227,7 @@ def _sigma(fit: optimize.OptimizeResult, free: np.ndarray, p: GreyboxParameters)
     try:
         cov[np.ix_(free, free)] = np.linalg.inv(fit.jac.T @ fit.jac) * s2
     except np.linalg.LinAlgError:
-        pass
+        pass  # a singular J^T J: the constants are not separable here, their sigmas stay NaN
     log_gain_var = cov[1, 1] + cov[0, 0] - 2.0 * cov[0, 1]  # ln K = ln G_config + z_1 - z_0
     sigma_log_gain = math.sqrt(log_gain_var) if log_gain_var >= 0 else float("nan")
     return {"motor_a_m": float(abs(p.motor_a_m) * math.sqrt(max(cov[0, 0], 0.0))),
