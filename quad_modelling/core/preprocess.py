@@ -221,13 +221,17 @@ def nav_acceleration(log: FlightLog, gravity: float = GRAVITY) -> np.ndarray:
     return acc
 
 
-def differentiate(values: np.ndarray, dt: float, window_s: float = DERIVATIVE_WINDOW_S) -> np.ndarray:
+def differentiate(values: np.ndarray, dt: float, window_s: float = DERIVATIVE_WINDOW_S, causal: bool = False) -> np.ndarray:
     """Time derivative of (N, k) ``values`` sampled every ``dt`` [s] (Savitzky-Golay).
 
     Uses a local quadratic fit over ``window_s`` (odd number of samples, shrunk
     for short signals); fewer than 3 samples fall back to :func:`numpy.gradient`.
+    The fit is centred on each row (zero phase, it reads rows after it), or with
+    ``causal`` one-sided: :func:`causal_derivative`.
     """
     values = np.asarray(values, dtype=float)
+    if causal:
+        return causal_derivative(values, dt, window_s)
     n = values.shape[0]
     length = int(round(window_s / dt)) | 1
     length = min(length, n if n % 2 else n - 1)
@@ -236,11 +240,39 @@ def differentiate(values: np.ndarray, dt: float, window_s: float = DERIVATIVE_WI
     return signal.savgol_filter(values, length, DERIVATIVE_POLYORDER, deriv=1, delta=dt, axis=0, mode="interp")
 
 
-def measured_variables(log: FlightLog, vehicle: VehicleConfig | None = None) -> np.ndarray:
+def causal_derivative(values: np.ndarray, dt: float, window_s: float = DERIVATIVE_WINDOW_S) -> np.ndarray:
+    """Time derivative of (N, k) ``values`` at each row from that row and the rows before it only.
+
+    Row j: the slope at row j of the least-squares polynomial of order
+    min(:data:`DERIVATIVE_POLYORDER`, m - 1) through the m = min(j + 1, L) rows
+    j - m + 1 .. j, L = ``window_s`` / ``dt`` rounded up to odd (the same L as the
+    centred fit; :func:`scipy.signal.savgol_coeffs` with ``pos`` = m - 1); row 0
+    is 0. On a log of at least L rows, the last row of the centred fit (``interp`` mode) is the
+    same fit, so a warm start's last row (a window's anchor) gets the same derivative either way.
+    """
+    values = np.asarray(values, dtype=float)
+    n = values.shape[0]
+    length = int(round(window_s / dt)) | 1
+    out = np.zeros_like(values)
+    for m in range(2, min(length, n + 1)):  # the first L - 1 rows: all the m rows up to row m - 1
+        coeffs = signal.savgol_coeffs(m, min(DERIVATIVE_POLYORDER, m - 1), deriv=1, delta=dt, pos=m - 1, use="dot")
+        out[m - 1] = np.tensordot(coeffs, values[:m], axes=(0, 0))
+    if n >= length:
+        coeffs = signal.savgol_coeffs(length, DERIVATIVE_POLYORDER, deriv=1, delta=dt, pos=length - 1, use="dot")
+        windows = np.lib.stride_tricks.sliding_window_view(values, length, axis=0)  # (N - L + 1, ..., L)
+        out[length - 1:] = windows @ coeffs
+    return out
+
+
+def measured_variables(log: FlightLog, vehicle: VehicleConfig | None = None, causal: bool = False) -> np.ndarray:
     """(N, 18) best measurement of each variable in VARIABLES order (untrimmed, SI, N frame).
 
     ``vehicle`` is accepted for symmetry with the models; gravity is the
-    models' :data:`quad_modelling.core.vehicle.GRAVITY`.
+    models' :data:`quad_modelling.core.vehicle.GRAVITY`. Every column is the raw
+    row but the angular accelerations, differentiated gyros; ``causal`` differentiates
+    them from past rows only (:func:`causal_derivative`): what a model is given at
+    an anchor (the causality rule, :func:`state_measurement`), while the truth it is
+    scored against may be centred.
     """
     out = np.full((len(log), len(VARIABLES)), np.nan)  # NaN: not measured (unmeasured_variables)
     out[:, 0:3] = log.pos_n
@@ -251,21 +283,22 @@ def measured_variables(log: FlightLog, vehicle: VehicleConfig | None = None) -> 
     out[:, 11] = np.unwrap(log.euler[:, 2])
     if log.gyro_b is not None:
         out[:, 12:15] = log.gyro_b
-        out[:, 15:18] = differentiate(log.gyro_b, sample_period(log))
+        out[:, 15:18] = differentiate(log.gyro_b, sample_period(log), causal=causal)
     return out
 
 
-def attitude_rates(log: FlightLog) -> np.ndarray:
+def attitude_rates(log: FlightLog, causal: bool = False) -> np.ndarray:
     """(N, 3) body rates p, q, r [rad/s] from the motion-capture attitude (no gyro needed).
 
     The Euler angle derivatives (:func:`differentiate`, yaw unwrapped) through the ZYX kinematics
     :math:`p = \\dot\\phi - \\dot\\psi \\sin\\theta`,
     :math:`q = \\dot\\theta \\cos\\phi + \\dot\\psi \\sin\\phi \\cos\\theta`,
-    :math:`r = -\\dot\\theta \\sin\\phi + \\dot\\psi \\cos\\phi \\cos\\theta`.
+    :math:`r = -\\dot\\theta \\sin\\phi + \\dot\\psi \\cos\\phi \\cos\\theta`;
+    ``causal``: the derivatives from past rows only (:func:`causal_derivative`).
     """
     euler = log.euler.copy()
     euler[:, 2] = np.unwrap(euler[:, 2])
-    d_phi, d_theta, d_psi = differentiate(euler, sample_period(log)).T
+    d_phi, d_theta, d_psi = differentiate(euler, sample_period(log), causal=causal).T
     phi, theta = euler[:, 0], euler[:, 1]
     return np.column_stack([
         d_phi - d_psi * np.sin(theta),
@@ -274,17 +307,20 @@ def attitude_rates(log: FlightLog) -> np.ndarray:
     ])
 
 
-def state_measurement(log: FlightLog, vehicle: VehicleConfig | None = None) -> np.ndarray:
+def state_measurement(log: FlightLog, vehicle: VehicleConfig | None = None, causal: bool = False) -> np.ndarray:
     """:func:`measured_variables`, with the rates and angular accelerations of a flight without a gyro
     taken from the motion-capture attitude (:func:`attitude_rates`): the state a model starts from.
 
     Accelerations stay NaN without an accelerometer (no model state is an acceleration).
+    ``causal``: every row from that row and the rows before it only (the causality rule:
+    a model anchored at row s is given nothing after s); rows 0..11 (positions, velocities,
+    accelerations, angles) and gyro rates are raw rows either way.
     """
-    out = measured_variables(log, vehicle)
+    out = measured_variables(log, vehicle, causal=causal)
     if log.gyro_b is None:
-        rates = attitude_rates(log)
+        rates = attitude_rates(log, causal=causal)
         out[:, 12:15] = rates
-        out[:, 15:18] = differentiate(rates, sample_period(log))
+        out[:, 15:18] = differentiate(rates, sample_period(log), causal=causal)
     return out
 
 
@@ -293,6 +329,24 @@ def trim_values(values: np.ndarray, trim_samples: int) -> np.ndarray:
     if trim_samples < 1:
         raise DataError(f"trim interval must hold at least one sample, got {trim_samples}")
     return np.asarray(values, dtype=float)[:trim_samples].mean(axis=0)
+
+
+def trailing_means(values: np.ndarray, ends: np.ndarray, rows: int) -> np.ndarray:
+    """Causal trim values: (S, k) mean of (N, k) ``values`` over rows max(0, e - rows + 1) .. e for each
+    row e of ``ends`` (S,), i.e. over the last ``rows`` rows up to and including e (fewer near row 0).
+
+    Vectorised with a running sum of ``values - values[0]`` (the offset keeps the sum small for
+    large signals such as PWM commands); row e's mean reads rows <= e only.
+    """
+    values = np.asarray(values, dtype=float)
+    ends = np.asarray(ends, dtype=int)
+    if rows < 1:
+        raise DataError(f"trim interval must hold at least one sample, got {rows}")
+    ref = values[0]
+    total = np.concatenate([np.zeros((1,) + values.shape[1:]), np.cumsum(values - ref, axis=0)])
+    first = np.maximum(ends - rows + 1, 0)
+    count = (ends + 1 - first).reshape((-1,) + (1,) * (values.ndim - 1))
+    return ref + (total[ends + 1] - total[first]) / count
 
 
 def trimmed_variables(window: FlightLog, trim: TrimConfig | None = None, vehicle: VehicleConfig | None = None) -> np.ndarray:

@@ -48,7 +48,8 @@ def test_pose_only_vicon_mat_converts_and_evaluates_pose_and_velocity(tmp_path, 
     assert greybox["acc_x"] == {"rms": None, "tic": None, "needs": "accelerometer"}
     assert greybox["roll_rate"] == {"rms": None, "tic": None, "needs": "gyro"}
     horizons = results["horizons"]["models"]["greybox"]
-    assert horizons["position"]["ratio_sim_err"] < 0.01 and horizons["velocity"]["ratio_sim_err"] < 0.5
+    # causal multi-step trim (the second before each start): 0.015 position, 0.70 velocity (test_evaluation says why)
+    assert horizons["position"]["ratio_sim_err"] < 0.02 and horizons["velocity"]["ratio_sim_err"] < 0.75
     assert horizons["angular_velocity"] == {"needs": "gyro"}
     tables = (out / "tables.md").read_text()
     assert "| Z acceleration | - | needs accelerometer | needs accelerometer |" in tables

@@ -4,11 +4,13 @@ import pytest
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.preprocess import (
     TrimConfig,
+    causal_derivative,
     differentiate,
     measured_variables,
     nav_acceleration,
     resample_uniform,
     smooth,
+    trailing_means,
     trimmed_inputs,
     trimmed_variables,
 )
@@ -126,3 +128,31 @@ def test_marking_gaps_replaces_earlier_gap_notes_and_keeps_other_warnings():
     log.meta.notes = {"warnings": "clipped"}  # notes come from a user's file: not a list is one line
     with pytest.raises(DataError, match="test: notes warnings is str, expected a list"):
         mark_measurement_gaps(log, [])
+
+
+def test_causal_derivative_is_exact_on_a_quadratic_and_reads_no_later_row():
+    dt = 0.01
+    t = np.arange(200) * dt
+    values = np.column_stack([3.0 * t**2 - t, np.full_like(t, 2.0)])
+    slope = causal_derivative(values, dt)
+    # rows >= 2 fit a quadratic through >= 3 past rows: exact; row 1 is the backward difference; row 0 is 0
+    np.testing.assert_allclose(slope[2:], np.column_stack([6.0 * t[2:] - 1.0, np.zeros(198)]), atol=1e-9)
+    np.testing.assert_allclose(slope[1], [(values[1, 0] - values[0, 0]) / dt, 0.0], atol=1e-9)
+    np.testing.assert_array_equal(slope[0], [0.0, 0.0])
+    noisy = values + np.random.default_rng(0).standard_normal(values.shape)
+    changed = noisy.copy()
+    changed[120:] += 5.0
+    np.testing.assert_array_equal(causal_derivative(changed, dt)[:120], causal_derivative(noisy, dt)[:120])
+    # the last row of the centred fit is the same one-sided fit: a warm start's anchor gets one derivative
+    np.testing.assert_allclose(causal_derivative(noisy[:40], dt)[-1], differentiate(noisy[:40], dt)[-1], atol=1e-9)
+    np.testing.assert_array_equal(differentiate(noisy, dt, causal=True), causal_derivative(noisy, dt))
+
+
+def test_trailing_means_average_the_rows_up_to_each_end():
+    values = 40000.0 + 1000.0 * np.random.default_rng(1).standard_normal((50, 4))
+    ends = np.array([0, 3, 9, 10, 49])
+    expected = np.array([values[max(0, e - 9): e + 1].mean(axis=0) for e in ends])  # 10 rows, fewer near row 0
+    np.testing.assert_allclose(trailing_means(values, ends, 10), expected, rtol=1e-12)
+    np.testing.assert_allclose(trailing_means(values[:, 0], ends, 1), values[ends, 0], rtol=1e-12)
+    with pytest.raises(DataError, match="at least one sample"):
+        trailing_means(values, ends, 0)

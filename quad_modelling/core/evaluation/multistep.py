@@ -1,5 +1,10 @@
 """Multi-step (IDSIA) evaluation: MAE@h per group from many start times, SimErr, ratio to naive.
 
+One ``predict_horizons`` call serves many starts, so a predictor receives the whole segment; it must
+read nothing after each start but the commands (the causality rule,
+:class:`~quad_modelling.core.models.base.MultiStepPredictor`). The truth is the best measurement of
+each row (:func:`~quad_modelling.core.preprocess.measured_variables`).
+
 A group whose sensor the flights lack (angular velocity without a gyro) is marked
 ``{"needs": "gyro"}`` instead of scored."""
 

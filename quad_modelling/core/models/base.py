@@ -18,6 +18,18 @@ deviation from its trim value, the mean over the window's stable interval
 trimmed best measurement of the same window; rows ``< warm_samples`` are not
 scored.
 
+**Causality rule** (every mode, every model): a prediction anchored at row s (the last warm
+row of a window, a multi-step start) is computed from the measurements of rows <= s and the
+commands up to the predicted row, nothing later -- trims, detrending, filters and derivatives
+included (a zero-phase filter or a centred derivative reads rows after s: only their causal,
+past-only forms may feed an anchor). The *evaluation* may use the whole window: the truth is
+smoothed with a zero-phase filter, and both measurement and prediction are trimmed with the
+measured mean over the window's first ``trim_s`` seconds (a shift of both, so the error is the
+absolute prediction's error). ``test/core/models/test_causality.py`` checks every model.
+
+Predictors may carry ``label`` (a short tag for tables, e.g. the greybox's "thesis reproduction")
+and ``description`` (one sentence for a report's model notes).
+
 Predictors that can also run the IDSIA multi-step protocol implement
 :class:`MultiStepPredictor` as well (absolute values, not trimmed); those that
 can run live implement
@@ -69,6 +81,10 @@ class MultiStepPredictor(Protocol):
         measured state at ``starts[s]`` and the commands from ``starts[s]`` on;
         ``[s, 0]`` is the starting state. Every ``starts[s] + horizon`` is a
         valid row of ``segment``.
+
+        Causal (the causality rule of the module docstring): ``[s, h]`` may read the
+        measurements of rows ``<= starts[s]`` and the commands of rows ``<= starts[s] + h``,
+        nothing later, although the whole segment is passed (one call serves many starts).
         """
         ...
 
@@ -82,6 +98,8 @@ class DummyPredictor:
     """
 
     name = "dummy"
+    label = "baseline"
+    description = "dummy = predicts zero for every trimmed variable (thesis Fig 5.2: TIC = 1)"
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         return np.zeros((len(window), len(VARIABLES)))
@@ -110,10 +128,15 @@ class ConstantStatePredictor:
     * multi-step (:meth:`predict_horizons`, the reference of the IDSIA ratios): the measured state
       at each start, held for every horizon.
 
-    The measurement is :func:`~quad_modelling.core.preprocess.measured_variables` with the vehicle's config.
+    The measurement is :func:`~quad_modelling.core.preprocess.measured_variables` with the vehicle's config,
+    causal at the anchor: live and window forms see the warm rows only (the anchor's angular acceleration
+    is the end of a fit over them); multi-step differentiates from past rows (``causal=True``), the same
+    fit, so every mode holds the same state at the same anchor.
     """
 
     name = "naive"
+    label = "baseline"
+    description = "naive = the measured state at the anchor, held (the reference of the multi-step ratios)"
 
     def __init__(self, vehicle: VehicleConfig, trim: TrimConfig | None = None):
         self.vehicle = vehicle
@@ -128,5 +151,5 @@ class ConstantStatePredictor:
         return trim_prediction(window, predict_window_by_stream(self, window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
-        measured = measured_variables(segment, self.vehicle)
+        measured = measured_variables(segment, self.vehicle, causal=True)
         return np.repeat(measured[np.asarray(starts)][:, None, :], horizon + 1, axis=1)

@@ -61,7 +61,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-from scipy import signal
 
 from quad_modelling.core.discretise import zero_order_hold
 from quad_modelling.core.flight_log import FlightLog
@@ -71,6 +70,7 @@ from quad_modelling.core.preprocess import (
     sample_period,
     smooth,
     state_measurement,
+    trailing_means,
     trim_prediction,
     uniform_time_check,
 )
@@ -242,6 +242,17 @@ def anchor_state(measured_row: np.ndarray, thrusts: np.ndarray) -> np.ndarray:
     return x
 
 
+THESIS_LABEL = "thesis reproduction"
+"""What tables and docs call the greybox: the thesis's linear model (chapter 3) reproduced."""
+
+THESIS_DESCRIPTION = (
+    "greybox = thesis reproduction: the linear model of Sonntag 2011 chapter 3 (hover linearisation, "
+    "first-order motors); windowed rows follow the thesis protocol (0.2 s warm start, trims per window); "
+    "multi-step rows trim on the 1 s before each start (causal)"
+)
+"""One sentence for a report's model notes."""
+
+
 class GreyboxStream:
     """Live form of one greybox window after its warm start (:mod:`quad_modelling.core.models.streaming`).
 
@@ -280,8 +291,16 @@ class GreyboxPredictor:
 
     :meth:`start_window`/``push`` are the live form; :meth:`predict_window`
     computes the same numbers vectorised and returns them trimmed
-    (:func:`~quad_modelling.core.preprocess.trim_prediction`).
+    (:func:`~quad_modelling.core.preprocess.trim_prediction`). This window mode is
+    the **thesis reproduction** (:data:`THESIS_LABEL`): the thesis's model and
+    windowed protocol, kept as they are. The multi-step form
+    (:meth:`predict_horizons`) anchors each start on its own past rows.
     """
+
+    label = THESIS_LABEL
+    """Short tag a report shows next to the name: this model is the thesis's, reproduced."""
+
+    description = THESIS_DESCRIPTION
 
     def __init__(self, vehicle: VehicleConfig, discretisation: str = "zoh", trim: TrimConfig | None = None):
         if discretisation not in DISCRETISATIONS:
@@ -330,33 +349,47 @@ class GreyboxPredictor:
         return trim_prediction(window, self.predict_absolute(window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
-        """Open-loop predictions from each start (absolute, IDSIA multi-step protocol).
+        """Open-loop predictions from each start s (absolute, IDSIA multi-step protocol), causal.
 
-        Trim for a whole segment: inputs minus their mean (linearly detrended
-        when the segment is longer than ``trim.detrend_above_s``); roll and
-        pitch are deviations from their segment mean (the hover attitude);
-        other states are absolute (the model is invariant to them). Thrust
-        deviations at each start come from the motor model run causally over
-        the segment.
+        Everything the model is given at start s comes from rows <= s (the
+        causality rule, docs/architecture.md), vectorised over starts. With
+        :math:`P_s` = the last ``trim.trim_s`` seconds of rows up to and
+        including s (the thesis's 1 s trim interval, ending at the anchor
+        instead of starting at the window start; fewer rows near row 0):
+
+        * input trim :math:`\\bar u_s` = mean of the commands over :math:`P_s`;
+          roll/pitch offset :math:`(\\bar\\phi_s, \\bar\\theta_s)` = mean of the
+          measured roll/pitch over :math:`P_s` (the hover attitude); no detrend;
+        * start state: measured positions, velocities, yaw, rates of row s as
+          they are (:func:`~quad_modelling.core.preprocess.state_measurement`,
+          causal), roll/pitch minus their offset; thrust deviations
+          :math:`T_s = M(u)_s - G \\bar u_s`, the motor filter :math:`M`
+          (:func:`~quad_modelling.core.models.motors.motor_thrusts`) run over the
+          raw commands up to s, :math:`G = g / (1 - p)` its steady-state gain
+          (linear, so this is the filter of :math:`u - \\bar u_s`);
+        * then :math:`x_{h+1} = A_d x_h + B_d (u_{s+h} - \\bar u_s)`,
+          :math:`y_{s+h} = C_d x_h + D_d (u_{s+h} - \\bar u_s)` plus the roll/pitch offset.
+
+        The windowed mode (:meth:`predict_window`) is the thesis reproduction and is not changed by this.
         """
         model = self.discrete(segment)
         starts = np.asarray(starts, dtype=int)
         if starts.size and (starts.min() < 0 or starts.max() + horizon >= len(segment)):
             raise DataError(f"{segment.meta.source}: multi-step starts + horizon {horizon} leave the segment")
-        if segment.duration > self.trim.detrend_above_s:
-            u = signal.detrend(segment.u, axis=0, type="linear")
-        else:
-            u = segment.u - segment.u.mean(axis=0)
-        measured = state_measurement(segment, self.vehicle)
-        offset = np.zeros(len(VARIABLES))
-        offset[9:11] = measured[:, 9:11].mean(axis=0)
-        thrusts = model.motor_thrusts(u)
-        x = np.concatenate([(measured - offset)[starts][:, MEASURED_STATE_COLUMNS], thrusts[starts]], axis=1)
+        rows = self.trim.trim_samples(segment)
+        measured = state_measurement(segment, self.vehicle, causal=True)
+        input_trim = trailing_means(segment.u, starts, rows)  # (S, 4)
+        attitude_trim = trailing_means(measured[:, 9:11], starts, rows)  # (S, 2): roll, pitch
+        pole, gain = model.ad[12, 12], model.bd[12, 0]
+        reference = segment.u[0]  # any constant: M(u - c) = M(u) - G c
+        thrusts = model.motor_thrusts(segment.u - reference)[starts] - (input_trim - reference) * (gain / (1.0 - pole))
+        x = np.concatenate([measured[starts][:, MEASURED_STATE_COLUMNS], thrusts], axis=1)
+        x[:, 6:8] -= attitude_trim
         out = np.empty((starts.size, horizon + 1, len(VARIABLES)))
         ad_t, bd_t, cd_t, dd_t = model.ad.T, model.bd.T, model.cd.T, model.dd.T
         for h in range(horizon + 1):
-            u_h = u[starts + h]
+            u_h = segment.u[starts + h] - input_trim
             out[:, h] = x @ cd_t + u_h @ dd_t
             x = x @ ad_t + u_h @ bd_t
-        out[:, :, 9:11] += offset[9:11]
+        out[:, :, 9:11] += attitude_trim[:, None, :]
         return out

@@ -82,6 +82,9 @@ def test_greybox_on_its_own_flight_beats_dummy_and_naive(linkquad):
     h = result["horizons"]
     assert h["starts"] == 2 * (2999 - 50)
     assert h["models"]["naive"]["velocity"]["ratio_sim_err"] == pytest.approx(1.0)
-    assert h["models"]["greybox"]["velocity"]["ratio_sim_err"] < 0.5
+    # Multi-step trims are causal: the commands' mean over the second before each start. The collective here is
+    # 2 Hz low-passed noise around the hover command, so that mean is off hover by the noise's local mean
+    # (a trim over the whole segment knew the hover command from the future): 0.68, not 0.3.
+    assert h["models"]["greybox"]["velocity"]["ratio_sim_err"] < 0.75
     assert h["models"]["greybox"]["position"]["mae"]["1"] < h["models"]["naive"]["position"]["mae"]["1"]
     assert h["not_multistep"] == ["dummy"]

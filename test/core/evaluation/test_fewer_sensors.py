@@ -77,7 +77,9 @@ def test_pose_only_flight_scores_velocity_like_the_full_flight_and_marks_the_res
     greybox = without["horizons"]["models"]["greybox"]
     assert greybox["angular_velocity"] == {"needs": "gyro"}
     assert greybox["velocity"]["sim_err"] == pytest.approx(with_imu["horizons"]["models"]["greybox"]["velocity"]["sim_err"], rel=1e-9)
-    assert greybox["position"]["ratio_sim_err"] < 0.01  # the greybox flew this flight: far better than holding the state
+    # the greybox flew this flight: far better than holding the state (0.015 with the causal trim of the second
+    # before each start)
+    assert greybox["position"]["ratio_sim_err"] < 0.02
 
 
 def test_what_needs_a_missing_sensor_refuses_in_one_line():
