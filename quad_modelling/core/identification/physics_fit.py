@@ -63,7 +63,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
 from quad_modelling.core.models.physics import Observer, delayed_commands, rotor_speeds
 from quad_modelling.core.models.physics_params import PHYSICS_UNITS, PhysicsParameters
-from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
 from quad_modelling.errors import DataError
 
@@ -383,3 +383,42 @@ def _tau_sigma(p: PhysicsParameters, segments: list[_Segment], tau: float, delay
 
     curvature = (chi2(tau + h) - 2.0 * chi2(tau) + chi2(tau - h)) / h**2
     return float(np.sqrt(2.0 / curvature)) if curvature > 0 else float("nan")
+
+
+def identify_physics_if_configured(flights: Sequence[FlightLog], vehicle: VehicleConfig,
+                                   config: EvaluationConfig) -> tuple[PhysicsFit | None, str]:
+    """What ``quad-modelling identify`` runs: (the physics fit, "") or (None, why not) when the vehicle file has no
+    physics constants or the training span has no usable anchor (the greybox identification still runs)."""
+    missing = vehicle.missing(PHYSICS_KEYS)
+    if missing:
+        return None, f"not identified: the vehicle file has no physics constants ({', '.join(missing)})"
+    try:
+        return identify_physics(flights, vehicle, config), ""
+    except DataError as err:
+        return None, f"not identified: {err}"
+
+
+def add_physics_constants(document: dict, fit: PhysicsFit | None, note: str, source: str) -> None:
+    """Write the identified physics constants (value, 1-sigma, source, at-bound flag) into a vehicle ``document``'s
+    ``constants`` and the fit's details into ``identification.physics``; without a fit only the note."""
+    identification = document.setdefault("identification", {})
+    if fit is None:
+        identification["physics"] = {"note": note}
+        return
+    for key in FITTED:
+        entry = document["constants"][key]
+        entry.update(value=fit.values[key], source=source, sigma=fit.sigma[key])
+        if fit.at_bound[key]:
+            entry["source"] = f"{source}; AT BOUND {list(fit.bounds[key])} {PHYSICS_UNITS[key]}"
+    identification["physics"] = _plain(fit.to_dict())
+
+
+def _plain(value):
+    """``value`` with numpy scalars and tuples made YAML-plain (floats, lists)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
