@@ -92,7 +92,8 @@ import numpy as np
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import GYRO_FULL_SCALE, FlightLog
 from quad_modelling.core.models.physics_params import PhysicsParameters
-from quad_modelling.core.preprocess import state_measurement
+from quad_modelling.core.models.streaming import predict_window_by_stream
+from quad_modelling.core.preprocess import TrimConfig, state_measurement, trim_prediction
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import DataError
@@ -419,9 +420,8 @@ class PhysicsPredictor:
     to the warm rows.
     """
 
-    def __init__(self, vehicle: VehicleConfig, observer: Observer = Observer(), trim=None, name: str = "physics"):
-        from quad_modelling.core.preprocess import TrimConfig
-
+    def __init__(self, vehicle: VehicleConfig, observer: Observer = Observer(), trim: TrimConfig | None = None,
+                 name: str = "physics"):
         self.vehicle = vehicle
         self.params = PhysicsParameters.from_vehicle(vehicle)
         self.observer = observer
@@ -440,13 +440,10 @@ class PhysicsPredictor:
 
     def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) absolute prediction: the live calls with each sample's real stamp."""
-        from quad_modelling.core.models.streaming import predict_window_by_stream
-
         return predict_window_by_stream(self, window, warm_samples)
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        from quad_modelling.core.preprocess import trim_prediction
-
+        """(N, 18) prediction in the evaluation's trimmed convention."""
         return trim_prediction(window, self.predict_absolute(window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:

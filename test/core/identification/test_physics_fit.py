@@ -102,3 +102,21 @@ def test_identify_without_physics_constants_says_so_and_still_identifies_the_gre
     result = identify([bag], doc_vehicle, SHORT)
     assert result.physics is None and "rotor_speed_gain" in result.physics_note
     assert "not identified" in result.summary()
+
+
+def test_constants_the_flights_do_not_excite_are_kept_and_flagged():
+    """Collective-only flights of the linear model (no roll, pitch or yaw commands): the roll/pitch inertias, the
+    drag arm and the torque constant are not identifiable -- kept at the file's values with a NaN sigma and
+    ``identifiable`` False -- while the thrust constant is fitted (the flights are flown by the thesis's linear
+    model, so only near the LinkQuad's value: within 10 %)."""
+    from test.core.flightgen import linear_flight
+
+    linkquad = load_vehicle("linkquad")
+    logs = [linear_flight(linkquad, duration=42.0, seed=seed) for seed in range(2)]
+    fit = identify_physics(logs, linkquad, SHORT)
+    for key in ("physics_ixx", "physics_iyy", "rotor_drag_arm", "rotor_torque_constant"):
+        assert not fit.identifiable[key] and fit.values[key] == linkquad.value(key) and np.isnan(fit.sigma[key])
+        assert not fit.at_bound[key]
+    assert fit.identifiable["rotor_thrust_constant"]
+    assert fit.values["rotor_thrust_constant"] == pytest.approx(linkquad.value("rotor_thrust_constant"), rel=0.1)
+    assert "kept, not identifiable" in "\n".join(fit.summary())
