@@ -7,6 +7,8 @@ Built-in specs (a factory receives the text after the first ``:``, or ``""``, an
 ``greybox:euler``  same with the thesis's explicit-Euler discretisation
 ``narx:PATH``      thesis NARX nets from a model file, :mod:`quad_modelling.core.models.narx`
 ``hybrid:PATH``    greybox + NARX residual nets, :mod:`quad_modelling.core.models.hybrid`
+``physics``        nonlinear rigid body + rotor map/lag/drag, :mod:`quad_modelling.core.models.physics`
+``physics:L,A``    same with the disturbance observer's linear/angular histories [s] (0 = off)
 ``dummy``          :class:`~quad_modelling.core.models.base.DummyPredictor`, zero (thesis Fig 5.2)
 ``naive``          :class:`~quad_modelling.core.models.base.ConstantStatePredictor`, the last warm-start state held
 =================  ==========================================================
@@ -91,7 +93,26 @@ def _make_hybrid(arg: str, vehicle: VehicleConfig) -> Predictor:
     return make_hybrid_predictor(arg, vehicle)
 
 
+def _make_physics(arg: str, vehicle: VehicleConfig) -> Predictor:
+    """``physics`` / ``physics:L`` / ``physics:L,A``: the nonlinear physics model from the vehicle's physics constants,
+    with the disturbance observer's linear (and angular) history in seconds (0 = off)."""
+    from quad_modelling.core.models.physics import Observer, PhysicsPredictor
+
+    if not arg:
+        return PhysicsPredictor(vehicle)
+    try:
+        histories = [float(x) for x in arg.split(",")]
+        if len(histories) > 2:
+            raise ValueError(arg)
+        observer = Observer(*histories) if len(histories) == 2 else Observer(histories[0])
+    except ValueError as err:
+        raise ConfigError(f"model spec physics:{arg}: the argument is the disturbance observer's history in seconds, "
+                          f"linear[,angular], each 0 (off) or positive, e.g. physics:0.5,2") from err
+    return PhysicsPredictor(vehicle, observer, name=f"physics:{arg}")
+
+
 register_model("greybox", _make_greybox)
+register_model("physics", _make_physics)
 register_model("dummy", _make_dummy)
 register_model("naive", _make_naive)
 register_model("narx", _make_narx)
