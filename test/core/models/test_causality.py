@@ -66,6 +66,7 @@ MODELS = [
     pytest.param("greybox:euler", True, False, id="greybox-euler"),
     pytest.param("naive", False, False, id="naive"),
     pytest.param("narx:{narx}", True, True, id="narx"),
+    pytest.param("physics", True, True, id="physics"),
 ]
 
 
