@@ -220,6 +220,37 @@ class NarxModel:
         y[: len(y_warm)] = y_warm  # exactly the measurements, not their normalisation round trip
         return y
 
+    def simulate_from_starts(self, u: np.ndarray, y: np.ndarray, starts: np.ndarray, horizon: int) -> np.ndarray:
+        """Closed-loop predictions of the six outputs from many starts at once: (S, horizon + 1, 6).
+
+        u (N, n_u) commands and y (N, 6) measured outputs of one contiguous series.
+        Row ``[i, 0]`` is y(s) (s = ``starts[i]``); row ``[i, h]`` predicts y(s + h) from
+        the measured y(s − n_y + 1 … s) (rows before 0 repeat y(0), as the commands'
+        lags repeat u(0) in :func:`lagged_inputs`) and the commands up to s + h, feeding
+        back its own predictions; nothing after row s of y is read (causal). Vectorised
+        over the starts; gives the numbers of :class:`NarxStream` seeded with rows ≤ s.
+        """
+        u = np.asarray(u, dtype=float)
+        y = np.asarray(y, dtype=float)
+        starts = np.asarray(starts, dtype=int)
+        n_y = self.config.output_delays
+        if len(starts) and (starts.min() < 0 or starts.max() + horizon >= len(u) or len(y) != len(u)):
+            raise ModelError(f"NARX horizons: starts {starts.min()}..{starts.max()} + {horizon} steps do not fit {len(u)} rows")
+        z_u = np.einsum("nd,khd->nkh", lagged_inputs(self.normalise_inputs(u), self.config.input_delays), self.w_u) + self.b_1
+        y_norm = self.normalise_outputs(y)
+        padded = np.concatenate([np.repeat(y_norm[:1], n_y - 1, axis=0), y_norm])  # row s + n_y − 1 = y(s)
+        feedback = np.lib.stride_tricks.sliding_window_view(padded, n_y, axis=0)[starts].copy()  # (S, 6, n_y): y(s−n_y+1..s)
+        out = np.empty((len(starts), horizon + 1, len(OUTPUTS)))
+        out[:, 0] = y[starts]
+        w_y, w_2, b_2 = self.w_y, self.w_2, self.b_2
+        for h in range(1, horizon + 1):
+            z = z_u[starts + h] + np.einsum("skd,khd->skh", feedback, w_y)
+            y_h = (w_2 * (0.5 + 0.5 * np.tanh(0.5 * z))).sum(axis=2) + b_2
+            feedback[:, :, :-1] = feedback[:, :, 1:]
+            feedback[:, :, -1] = y_h
+            out[:, h] = self.denormalise_outputs(y_h)
+        return out
+
     def stream(self, u_history: np.ndarray, y_history: np.ndarray) -> NarxStream:
         """Streaming closed-loop predictor seeded with measured history (see :class:`NarxStream`)."""
         return NarxStream(self, u_history, y_history)
@@ -428,6 +459,37 @@ class NarxPredictor:
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) trimmed closed-loop prediction (VARIABLES order)."""
         return trim_prediction(window, self.model.predict_window(window, warm_samples), self.trim)
+
+    def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
+        """(S, horizon + 1, 18) absolute closed-loop predictions from each start (multi-step protocol), causally.
+
+        ``[i, 0]`` is the state measured at s = ``starts[i]``: velocities, rates, positions and
+        angles as measured (yaw unwrapped), accelerations as the backward difference of the
+        measured velocities/rates, (v(s) − v(s−1))/dt (0 at s = 0). Rows h ≥ 1: the six
+        outputs from :meth:`NarxModel.simulate_from_starts`, positions/angles integrated
+        (trapezoid) from the measured ones at s, accelerations as backward differences, as
+        :func:`expand_outputs` and the streaming form do. Nothing after row s of the
+        measurements is read.
+        """
+        from quad_modelling.core.preprocess import measured_variables
+
+        segment.require(("gyro_b",), "model narx (its outputs are velocities and gyro rates)")
+        check_sample_rate(self.model, segment)
+        starts = np.asarray(starts, dtype=int)
+        dt = self.model.dt
+        measured = np.asarray(measured_variables(segment), dtype=float)
+        y = measured[:, columns(OUTPUTS)]
+        v = self.model.simulate_from_starts(segment.u, y, starts, horizon)  # (S, H+1, 6)
+        out = np.empty((len(starts), horizon + 1, len(VARIABLES)))
+        out[:, 0] = measured[starts]
+        previous = y[np.maximum(starts - 1, 0)]
+        out[:, 0, columns(DIFFERENTIATED)] = (y[starts] - previous) / dt
+        out[:, :, columns(OUTPUTS)] = v
+        out[:, 1:, columns(DIFFERENTIATED)] = np.diff(v, axis=1) / dt
+        start = measured[starts][:, columns(INTEGRATED)]
+        out[:, 0, columns(INTEGRATED)] = start
+        out[:, 1:, columns(INTEGRATED)] = start[:, None, :] + np.cumsum(0.5 * (v[:, 1:] + v[:, :-1]) * dt, axis=1)
+        return out
 
     def start_window(self, warm: FlightLog):
         """Warm rows (at least n_y) -> (their measurement (W, 18), stream predicting each later sample)."""
