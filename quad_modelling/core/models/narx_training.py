@@ -23,6 +23,7 @@ from quad_modelling.core.models.rollout_training import (
     RolloutWindows,
     hold_back_flights,
     seeded_torch,
+    train_rollout,
 )
 from quad_modelling.core.windows import gap_free_runs, rows_between
 from quad_modelling.errors import DataError
@@ -98,15 +99,22 @@ def train_narx(
     all_y = np.concatenate([s.y for s in usable])
     u_mean, u_std = all_u.mean(axis=0), np.maximum(all_u.std(axis=0), MIN_STD)
     y_mean, y_std = all_y.mean(axis=0), np.maximum(all_y.std(axis=0), MIN_STD)
+    if config.incremental:  # s_k = std of the normalised change per sample (narx module doc)
+        steps = np.concatenate([np.diff((s.y - y_mean) / y_std, axis=0) for s in usable])
+        y_step = np.maximum(steps.std(axis=0), MIN_STD)
+    else:
+        y_step = np.ones(len(OUTPUTS))
     noisy = _noisy_outputs(usable, config.noise_snr_db, rng)
     parts = [_regressors((s.u - u_mean) / u_std, (y - y_mean) / y_std, config) for s, y in zip(usable, noisy)]
     x_u, x_y, target = (np.concatenate(p) for p in zip(*parts))
+    if config.incremental:  # the nets' own target: (ỹ(t) − ρ ỹ(t−1)) / s_k
+        target = (target - x_y[:, :, -1]) / y_step
 
     import torch
 
     info: dict = {}
     with seeded_torch(seed):
-        nets = _make_nets(len(OUTPUTS), config.hidden, x_u.shape[1], config.output_delays)
+        nets = _make_nets(len(OUTPUTS), config.hidden, x_u.shape[1], config.output_delays, y_step, config.incremental)
         _fit(nets, *(torch.from_numpy(a.astype(np.float32)) for a in (x_u, x_y, target)), config, progress)
     if rollout is not None:
         def windows(parts: list[Segment]) -> RolloutWindows | None:
@@ -126,7 +134,7 @@ def train_narx(
     weights = {name: param.detach().double().numpy().copy() for name, param in nets.named_parameters()}
     return NarxModel(
         config=config, dt=float(dt), vehicle=vehicle, **weights,
-        u_mean=u_mean, u_std=u_std, y_mean=y_mean, y_std=y_std, kind=kind,
+        u_mean=u_mean, u_std=u_std, y_mean=y_mean, y_std=y_std, y_step=y_step, kind=kind,
         training={
             "seed": seed,
             "samples": int(len(target)),
@@ -143,8 +151,12 @@ def rollout_loss(nets, batch: dict, config: NarxConfig, horizon: int):
     return ((predicted - batch["y"][:, config.warm_samples:]) ** 2).mean()
 
 
-def _make_nets(nets: int, hidden: int, inputs: int, feedback: int):
-    """A torch module of ``nets`` independent one-hidden-layer sigmoid nets (torch imported lazily)."""
+def _make_nets(nets: int, hidden: int, inputs: int, feedback: int, y_step: np.ndarray, incremental: bool):
+    """A torch module of ``nets`` independent one-hidden-layer sigmoid nets (torch imported lazily).
+
+    ``forward`` gives the nets' raw output w_2·h + b_2 (series-parallel); ``rollout`` the closed loop
+    ỹ(t) = ρ ỹ(t−1) + s (w_2·h + b_2) with s = ``y_step``, ρ = 1 if ``incremental`` else 0.
+    """
     import torch
 
     class BatchedNets(torch.nn.Module):
@@ -152,6 +164,8 @@ def _make_nets(nets: int, hidden: int, inputs: int, feedback: int):
 
         def __init__(self, nets: int, hidden: int, inputs: int, feedback: int) -> None:
             super().__init__()
+            self.register_buffer("y_step", torch.as_tensor(np.asarray(y_step), dtype=torch.float32)[:, None, None])
+            self.rho = 1.0 if incremental else 0.0
             bound = 1.0 / math.sqrt(inputs + feedback)  # torch.nn.Linear's default scale
             self.w_u = torch.nn.Parameter(torch.empty(nets, hidden, inputs).uniform_(-bound, bound))
             self.w_y = torch.nn.Parameter(torch.empty(nets, hidden, feedback).uniform_(-bound, bound))
@@ -172,15 +186,17 @@ def _make_nets(nets: int, hidden: int, inputs: int, feedback: int):
             """
             n_y = self.w_y.shape[2]
             taps = torch.stack([u_norm[:, history - d: history - d + horizon] for d in input_delays], dim=2)
-            z_u = torch.einsum("bjd,khd->bjkh", taps.flatten(2), self.w_u) + self.b_1  # taps in lagged_inputs order
-            feedback = y_norm[:, history - n_y: history].transpose(1, 2)  # (B, K, n_y), oldest first
+            z_u = torch.einsum("bjd,khd->jkbh", taps.flatten(2), self.w_u) + self.b_1[None, :, None, :]  # lagged_inputs order
+            feedback = y_norm[:, history - n_y: history].permute(2, 0, 1)  # (K, B, n_y), oldest first
+            w_y, w_2, b_2 = self.w_y.transpose(1, 2), self.w_2[:, :, None], self.b_2[:, None, None]
             outputs = []
-            for j in range(horizon):
-                z = z_u[:, j] + torch.einsum("bkd,khd->bkh", feedback, self.w_y)
-                y = (torch.sigmoid(z) * self.w_2).sum(dim=2) + self.b_2
+            for z_j in z_u.unbind(0):  # one backward for all steps (indexing z_u[j] would zero-fill its gradient per step)
+                y = torch.baddbmm(b_2, torch.sigmoid(torch.baddbmm(z_j, feedback, w_y)), w_2) * self.y_step  # (K, B, 1)
+                if self.rho:
+                    y = y + feedback[:, :, -1:]
                 outputs.append(y)
-                feedback = torch.cat([feedback[:, :, 1:], y[:, :, None]], dim=2)
-            return torch.stack(outputs, dim=1)
+                feedback = torch.cat([feedback[:, :, 1:], y], dim=2)
+            return torch.cat(outputs, dim=2).permute(1, 2, 0)
 
     return BatchedNets(nets, hidden, inputs, feedback)
 
