@@ -117,12 +117,12 @@ def train_narx(
         nets = _make_nets(len(OUTPUTS), config.hidden, x_u.shape[1], config.output_delays, y_step, config.incremental)
         _fit(nets, *(torch.from_numpy(a.astype(np.float32)) for a in (x_u, x_y, target)), config, progress)
     if rollout is not None:
-        def windows(parts: list[Segment]) -> RolloutWindows | None:
+        def windows(parts: list[Segment], stride: int) -> RolloutWindows | None:
             arrays = [{"u": (s.u - u_mean) / u_std, "y": (s.y - y_mean) / y_std} for s in parts
                       if len(s.u) >= config.warm_samples + rollout.horizon]
-            return RolloutWindows(arrays, config.warm_samples, rollout.horizon, rollout.stride) if arrays else None
+            return RolloutWindows(arrays, config.warm_samples, rollout.horizon, stride) if arrays else None
 
-        train_windows, val_windows = windows(usable), windows(val_segments or [])
+        train_windows, val_windows = windows(usable, rollout.stride), windows(val_segments or [], rollout.val_stride)
         if train_windows is None:
             raise DataError(f"NARX rollout training: no training segment holds {config.warm_samples + rollout.horizon} samples "
                             f"(warm start {config.warm_samples} + horizon {rollout.horizon})")
@@ -221,6 +221,24 @@ def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> None:
     for _ in bar:
         loss = optimiser.step(loss_fn)
         bar.set_postfix(mse=f"{float(loss.detach()) / len(OUTPUTS):.4g}")
+
+
+# ---- the improved (default) training ----------------------------------------------
+PRETRAIN_EPOCHS = 3
+"""Series-parallel L-BFGS epochs before the rollout fine-tuning (a start; the rollout does the rest)."""
+
+DEFAULT_ROLLOUT = RolloutConfig(horizon=50, batch_size=256, max_epochs=20, patience=4, learning_rate=3e-3,
+                                windows_per_epoch=4096)
+"""Rollout fine-tuning of ``quad-modelling train`` (K = 50 steps = 0.5 s at 100 Hz, the SimErr horizon)."""
+
+
+def rollout_preset(hidden: int = 10, output_delays: int = 20, input_delays: tuple[int, ...] = tuple(range(20)),
+                   epochs: int = PRETRAIN_EPOCHS, **rollout) -> tuple[NarxConfig, RolloutConfig]:
+    """The default training: incremental thesis-sized nets, no target noise, ``epochs`` series-parallel
+    epochs, then :data:`DEFAULT_ROLLOUT` with ``rollout`` overrides (horizon, max_epochs...)."""
+    config = NarxConfig(hidden=hidden, output_delays=output_delays, input_delays=tuple(input_delays), epochs=epochs,
+                        noise_snr_db=(None,) * len(OUTPUTS), incremental=True)
+    return config, dataclasses.replace(DEFAULT_ROLLOUT, **rollout)
 
 
 # ---- flights -> training data -----------------------------------------------------
