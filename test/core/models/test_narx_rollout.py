@@ -13,6 +13,7 @@ import pytest
 from quad_modelling.core.evaluation.multistep import multistep_evaluation
 from quad_modelling.core.models.narx import OUTPUTS, NarxConfig, NarxPredictor
 from quad_modelling.core.models.narx_training import (
+    flight_segments,
     train_narx_on_flights,
     validation_split,
 )
@@ -50,14 +51,26 @@ def _multistep(flight, model) -> dict:
     return result["models"]["narx"]
 
 
+def _rollout_error(model, segment, horizon: int, stride: int) -> float:
+    """The rollout loss in numpy: mean squared normalised error of the six outputs over ``horizon`` closed-loop
+    steps from every ``stride``-th start of a :class:`~quad_modelling.core.models.narx_training.Segment`."""
+    warm = model.config.warm_samples
+    starts = np.arange(0, len(segment.u) - warm - horizon + 1, stride) + warm - 1
+    predicted = model.simulate_from_starts(segment.u, segment.y, starts, horizon)[:, 1:]
+    truth = segment.y[starts[:, None] + np.arange(1, horizon + 1)]
+    return float(np.mean((model.normalise_outputs(predicted) - model.normalise_outputs(truth)) ** 2))
+
+
 def test_rollout_loss_beats_series_parallel_training_on_the_evaluation_span(flight, span, rollout_model):
-    # the same nets trained series-parallel only, with as many L-BFGS epochs as the pre-training and more
+    # the same nets trained series-parallel only, with more L-BFGS epochs than the rollout model's pre-training
     series_parallel = train_narx_on_flights([flight], [span], dataclasses.replace(CONFIG, epochs=10), seed=0)
+    (evaluation,) = flight_segments([flight], [EVAL.spans()[1].interval(flight, EVAL.drop_start, EVAL.drop_end)])
+    assert _rollout_error(rollout_model, evaluation, 50, 1) < 0.5 * _rollout_error(series_parallel, evaluation, 50, 1)
     before, after = _multistep(flight, series_parallel), _multistep(flight, rollout_model)
-    for group in ("velocity", "angular_velocity"):
-        assert after[group]["sim_err"] < 0.8 * before[group]["sim_err"], group
-        assert after[group]["mae"]["50"] < before[group]["mae"]["50"], group
-    assert after["velocity"]["ratio_mae"]["50"] < 1.0  # better than holding the state over 0.5 s
+    # series-parallel nets drift off in closed loop on the rates; the rollout-trained ones stay near the flight
+    assert after["angular_velocity"]["sim_err"] < 0.5 * before["angular_velocity"]["sim_err"]
+    assert after["angular_velocity"]["mae"]["50"] < 0.5 * before["angular_velocity"]["mae"]["50"]
+    assert after["angular_velocity"]["ratio_mae"]["1"] < 1.0  # and beat holding the state at one step
 
 
 def test_early_stopping_keeps_the_best_validation_epoch(flight, span, rollout_model):
@@ -70,11 +83,7 @@ def test_early_stopping_keeps_the_best_validation_epoch(flight, span, rollout_mo
     assert info["validation"] == [{"source": validation.source, "span": list(validation.span)}]
     assert all(s["span"][1] <= validation.span[0] + 0.011 for s in rollout_model.training["segments"])
     # the kept weights give the best epoch's validation loss: every 5th window, K steps from each start
-    model, k = rollout_model, ROLLOUT.horizon
-    starts = np.arange(0, len(validation.u) - CONFIG.warm_samples - k + 1, ROLLOUT.val_stride) + CONFIG.warm_samples - 1
-    predicted = model.simulate_from_starts(validation.u, validation.y, starts, k)[:, 1:]
-    truth = validation.y[starts[:, None] + np.arange(1, k + 1)]
-    loss = np.mean((model.normalise_outputs(predicted) - model.normalise_outputs(truth)) ** 2)
+    loss = _rollout_error(rollout_model, validation, ROLLOUT.horizon, ROLLOUT.val_stride)
     assert loss == pytest.approx(losses[info["best_epoch"]], rel=1e-4)
 
 
@@ -86,19 +95,17 @@ def test_predict_horizons_equals_the_stream_form(flight, rollout_model):
     batch = predictor.predict_horizons(segment, starts, horizon)
     measured = measured_variables(segment)
     for i, s in enumerate(starts):
-        np.testing.assert_array_equal(batch[i, 0, columns(OUTPUTS)], measured[s, columns(OUTPUTS)])
-        if s + 1 >= CONFIG.output_delays:  # the live form needs n_y warm rows
-            warm_measured, stream = predictor.start_window(segment.slice(0, s + 1))
+        np.testing.assert_array_equal(batch[i][0, columns(OUTPUTS)], measured[s, columns(OUTPUTS)])
+        if s + 1 >= CONFIG.output_delays:  # the live form needs n_y warm rows: all 18 variables agree
+            _, stream = predictor.start_window(segment.slice(0, s + 1))
             streamed = np.array([stream.push(segment.u[s + h]) for h in range(1, horizon + 1)])
+            np.testing.assert_allclose(batch[i, 1:], streamed, rtol=0, atol=1e-9)
         else:  # before n_y rows the history repeats the first measured row, as predict_horizons documents
             pad = CONFIG.output_delays - (s + 1)
             y_hist = np.concatenate([np.repeat(measured[:1, columns(OUTPUTS)], pad, axis=0), measured[: s + 1, columns(OUTPUTS)]])
             nets = rollout_model.stream(segment.u[: s + 1], y_hist)
             streamed = np.array([nets.push(segment.u[s + h]) for h in range(1, horizon + 1)])
-            streamed = np.pad(streamed, ((0, 0), (columns(OUTPUTS)[0], 0)))  # compare the output columns only
-        np.testing.assert_allclose(batch[i, 1:, columns(OUTPUTS)], streamed[:, columns(OUTPUTS)], rtol=0, atol=1e-10)
-        if s + 1 >= CONFIG.output_delays:
-            np.testing.assert_allclose(batch[i, 1:], streamed, rtol=0, atol=1e-9)  # integrated and differentiated too
+            np.testing.assert_allclose(batch[i][1:, columns(OUTPUTS)], streamed, rtol=0, atol=1e-10)
 
 
 def _altered_after(log, row):
