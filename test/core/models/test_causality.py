@@ -194,9 +194,7 @@ def _flights(flight: FlightLog, needs_gyro: bool) -> list[FlightLog]:
 @pytest.mark.parametrize(("spec", "reads_commands", "needs_gyro"), MODELS)
 def test_multistep_predictions_read_nothing_after_their_start(build, flight, spec, reads_commands, needs_gyro):
     model = build(spec)
-    if not isinstance(model, MultiStepPredictor):
-        assert spec.startswith("narx"), f"{spec} lost its multi-step form"  # NARX: no multi-step form yet
-        return
+    assert isinstance(model, MultiStepPredictor), f"{spec} has no vectorised multi-step form"
     for log in _flights(flight, needs_gyro):
         for anchor in ANCHORS:
             assert_multistep_causal(model, log, anchor, HORIZON, reads_commands)
