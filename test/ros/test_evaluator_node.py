@@ -14,7 +14,7 @@ from test.ros.conftest import Capture, feed, hover_log
 
 
 def make_node(**params):
-    values = {"window_s": 5.0, "models": ["m"], "figures": False, **params}
+    values = {"window_s": 5.0, "models": ["m"], "figures": False, "vehicle": "crazyflie21", **params}
     node = EvaluatorNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
     node.diag_pub = Capture()
     return node

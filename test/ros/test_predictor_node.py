@@ -22,7 +22,7 @@ from test.ros.conftest import Capture, feed, hover_log
 
 
 def make_node(**params):
-    overrides = [Parameter(k, value=v) for k, v in {"window_s": 5.0, **params}.items()]
+    overrides = [Parameter(k, value=v) for k, v in {"window_s": 5.0, "vehicle": "crazyflie21", **params}.items()]
     node = PredictorNode(parameter_overrides=overrides)
     node.odom_pub, node.accel_pub = Capture(), Capture()
     return node
