@@ -378,14 +378,17 @@ def run_node(factory, args=None) -> int:
         # Everything built so far lives as long as the node: move it out of the cyclic GC's reach, so a
         # full collection scans only objects made while running (one took 75 ms at 400 Hz; gc.freeze docs).
         gc.freeze()
-        node.run()
+        try:
+            node.run()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass  # Ctrl-C, SIGTERM (rclpy's handler shuts the context down) or refuse(): the end of a node
         if getattr(node, "fatal", None) is not None:  # a callback refused to go on (refuse())
             raise node.fatal
     except (BadParameter, QuadModellingError) as err:
         print(f"error: {err}", file=sys.stderr, flush=True)
         code = EXIT_BAD_PARAMETER
     except (KeyboardInterrupt, ExternalShutdownException):
-        code = 0  # Ctrl-C or a shutdown request: the normal end of a node
+        code = 0  # Ctrl-C while the node was being built
     finally:
         if node is not None:
             node.finish()

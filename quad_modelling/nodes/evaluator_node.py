@@ -156,7 +156,7 @@ class EvaluatorNode(Node):
         p = declare_parameters(self, EVALUATOR_PARAMETERS)
         if p["warm_s"] >= p["window_s"]:
             raise BadParameter(f"evaluator: parameter warm_s={p['warm_s']} must be shorter than window_s={p['window_s']}")
-        self.vehicles = VehicleSource("evaluator", p["vehicle"])
+        self.vehicles = VehicleSource(self.get_name(), p["vehicle"])
         self.models = [str(m).strip() for m in p["models"]]
         self.spans = seconds_spans(p["spans"])
         self.window_s, self.warm_s = p["window_s"], p["warm_s"]

@@ -149,7 +149,7 @@ class PredictorNode(Node):
         self.spec = spec
         self.sample_period_s, self.warm_s = p["sample_period_s"], p["warm_s"]
         self.model = None
-        self.vehicles = VehicleSource(node_name, p["vehicle"])
+        self.vehicles = VehicleSource(self.get_name(), p["vehicle"])
         if self.vehicles.vehicle is not None:
             self._build_model()
         else:
