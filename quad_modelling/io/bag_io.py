@@ -87,6 +87,46 @@ def _mcap_writer(path: Path, compress: bool = True) -> Writer:
     return writer
 
 
+_NUMPY_TYPES = {"byte": "uint8", "char": "uint8", "octet": "uint8", "bool": "bool"}
+"""numpy dtypes of the ROS base types whose names are not numpy's (float64, int32, ... are)."""
+
+
+def _bag_message(msg, msgtype: str):
+    """Any message object with the fields of ``msgtype`` (e.g. an rclpy message) as the type store's message.
+
+    Field by field through the type store's definitions: nested messages recursively, numeric
+    sequences/arrays as numpy arrays of the field's dtype, ``byte`` fields as their integer.
+    """
+    from rosbags.typesys.store import Nodetype
+
+    fields = {}
+    for name, (kind, detail) in TYPESTORE.fielddefs[msgtype][1]:
+        value = getattr(msg, name)
+        if kind == Nodetype.NAME:
+            value = _bag_message(value, detail)
+        elif kind in (Nodetype.SEQUENCE, Nodetype.ARRAY):
+            (element, element_detail), _ = detail
+            if element == Nodetype.NAME:
+                value = [_bag_message(v, element_detail) for v in value]
+            elif element_detail[0] == "string":
+                value = list(value)
+            else:
+                value = np.asarray(value, dtype=_NUMPY_TYPES.get(element_detail[0], element_detail[0]))
+        elif detail[0] in ("byte", "char") and isinstance(value, bytes):
+            value = value[0]
+        fields[name] = value
+    return TYPESTORE.types[msgtype](**fields)
+
+
+def serialize_as(msg, msgtype: str) -> bytes:
+    """CDR bytes of ``msg`` (any object with the fields of ``msgtype``), as a bag stores them.
+
+    rclpy's ``serialize_message`` (rclpy 7.1, rmw_fastrtps) returned 8 bytes past the message and
+    uninitialised alignment padding here: rosbags refused such bytes ("CDR message size mismatch").
+    """
+    return bytes(TYPESTORE.serialize_cdr(_bag_message(msg, msgtype), msgtype))
+
+
 class BagRecorder:
     """A bag recorded from serialised messages as they arrive (the evaluator's ``record``).
 

@@ -44,6 +44,7 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String
@@ -215,17 +216,18 @@ class EvaluatorNode(Node):
         return self.vehicles.vehicle
 
     def _subscribe(self, kind, topic: str, callback, qos) -> None:
-        """A data subscription; with ``record``, every message received is also recorded on its topic."""
+        """A data subscription; with ``record``, every message is received serialised, recorded as it came on its
+        topic, then deserialised for ``callback``."""
         if self.recorder is None:
             self.create_subscription(kind, topic, callback, qos)
             return
-        name = self.resolve_topic_name(topic)
+        name, msgtype = self.resolve_topic_name(topic), self.recorder.type_name(kind)
 
-        def recorded(msg):
-            self.recorder.add(name, msg)
-            callback(msg)
+        def recorded(data: bytes):
+            self.recorder.add_raw(name, msgtype, data)
+            callback(deserialize_message(data, kind))
 
-        self.create_subscription(kind, topic, recorded, qos)
+        self.create_subscription(kind, topic, recorded, qos, raw=True)
 
     # --- inputs -------------------------------------------------------------------------------
 

@@ -1,9 +1,10 @@
 """Recording what a node receives and publishes into one MCAP bag (evaluator parameter ``record``).
 
 The bag is written by :class:`quad_modelling.io.bag_io.BagRecorder` (zstd chunks, staged and
-renamed when the node finishes). Every message goes in as the CDR bytes rclpy sends
-(``rclpy.serialization.serialize_message``: the bytes a bag stores), on its fully
-qualified topic name (``/quad/motor_input``, ``/quad/greybox/odom``, ``/quad/evaluation``),
+renamed when the node finishes). A received message goes in as the CDR bytes that arrived
+(``raw=True`` subscriptions: what the publisher sent, as ``ros2 bag record`` stores it), a
+message the node publishes itself as the type store serialises it
+(:func:`~quad_modelling.io.bag_io.serialize_as`), on its fully qualified topic name (``/quad/motor_input``, ``/quad/greybox/odom``, ``/quad/evaluation``),
 at the bag time of its header stamp, so measured and predicted samples of one instant line up
 in Foxglove (``config/foxglove_layout.json``) and PlotJuggler. The bag names the vehicle in its
 custom data, as converted bags do, so ``quad-modelling evaluate``/``info`` read it too.
@@ -13,18 +14,15 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from rclpy.serialization import serialize_message
-
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
-from quad_modelling.io.bag_io import SOURCE_KEY, VEHICLE_KEY, BagRecorder
+from quad_modelling.io.bag_io import SOURCE_KEY, VEHICLE_KEY, BagRecorder, serialize_as
 from quad_modelling.nodes.common import BadParameter
 
 
-def message_type_name(msg) -> str:
-    """``sensor_msgs.msg.Imu`` instance -> ``sensor_msgs/msg/Imu`` (the bag's type name)."""
-    package = type(msg).__module__.split(".")[0]
-    return f"{package}/msg/{type(msg).__name__}"
+def message_type_name(kind: type) -> str:
+    """rclpy's ``sensor_msgs.msg.Imu`` -> ``sensor_msgs/msg/Imu`` (the bag's type name)."""
+    return f"{kind.__module__.split('.')[0]}/msg/{kind.__name__}"
 
 
 class TopicRecorder:
@@ -39,13 +37,20 @@ class TopicRecorder:
         self.bag.set_custom_data(VEHICLE_KEY, name)
 
     def add(self, topic: str, msg, ns: int | None = None) -> None:
-        """Record ``msg`` on the absolute ``topic`` at ``ns`` (default: its header stamp)."""
-        kind = type(msg)
+        """Record ``msg`` (one the node publishes) on the absolute ``topic`` at ``ns`` (default: its header stamp)."""
+        name = self.type_name(type(msg))
+        stamp = topics.stamp_ns(msg.header.stamp) if ns is None else ns
+        self.bag.write(topic, name, stamp, serialize_as(msg, name))
+
+    def add_raw(self, topic: str, msgtype: str, raw: bytes) -> None:
+        """Record a message as received (CDR bytes, from a ``raw=True`` subscription) at its header stamp."""
+        self.bag.write(topic, msgtype, topics.cdr_stamp_ns(raw), raw)
+
+    def type_name(self, kind: type) -> str:
         name = self._types.get(kind)
         if name is None:
-            name = self._types[kind] = message_type_name(msg)
-        stamp = topics.stamp_ns(msg.header.stamp) if ns is None else ns
-        self.bag.write(topic, name, stamp, serialize_message(msg))
+            name = self._types[kind] = message_type_name(kind)
+        return name
 
     @property
     def count(self) -> int:
