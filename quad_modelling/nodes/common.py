@@ -318,6 +318,22 @@ class VehicleSource:
         return None
 
 
+def vehicle_param() -> Param:
+    return Param("vehicle", "", "vehicle config name (config/vehicles) or YAML path; empty = the one the replay announces "
+                                "on topic vehicle (a set one must match it)")
+
+
+def adopt_vehicle(node, vehicles: VehicleSource, announced: str, learned: Callable[[], None] = lambda: None) -> None:
+    """A node's handler of :data:`VEHICLE_TOPIC`: ``learned()`` once a vehicle is newly learned; a mismatch
+    stops the node (:func:`refuse`, exit 2)."""
+    try:
+        if vehicles.announce(announced) is not None:
+            learned()
+            node.get_logger().info(f"vehicle {vehicles.vehicle.name} learned from topic {VEHICLE_TOPIC}")
+    except BadParameter as err:
+        refuse(node, err)
+
+
 def refuse(node, error: BadParameter) -> None:
     """Stop ``node`` from a callback because of ``error``: :func:`run_node` prints it and exits 2."""
     node.fatal = error

@@ -69,6 +69,7 @@ from quad_modelling.nodes.common import (
     FaultLog,
     Param,
     VehicleSource,
+    adopt_vehicle,
     data_qos,
     declare_parameters,
     executor_param,
@@ -79,12 +80,12 @@ from quad_modelling.nodes.common import (
     non_negative,
     positive,
     qos_param,
-    refuse,
     run_node,
     say,
     spans_check,
     spin,
     subscription_qos,
+    vehicle_param,
 )
 from quad_modelling.nodes.recording import open_recorder
 from quad_modelling.nodes.scoring import LiveScores, WindowRecord, diagnostics_message
@@ -107,8 +108,7 @@ def _models_check(value) -> str | None:
 
 EVALUATOR_PARAMETERS = [
     Param("models", ["naive"], "names of the predictors to score (their topics <name>/odom, <name>/accel)", _models_check),
-    Param("vehicle", "", "vehicle config name (config/vehicles) or YAML path; empty = the one the replay announces "
-                         "on topic vehicle (a set one must match it)"),
+    vehicle_param(),
     Param("window_s", 10.0, "window length W [s], as the predictors", positive),
     Param("warm_s", 0.2, "warm start [s], as the predictors", positive),
     Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
@@ -232,14 +232,7 @@ class EvaluatorNode(Node):
     # --- inputs -------------------------------------------------------------------------------
 
     def on_vehicle(self, msg: String) -> None:
-        """The replay's vehicle: learned when the parameter is empty, else checked (a mismatch stops the node, exit 2)."""
-        try:
-            if self.vehicles.announce(msg.data) is not None:
-                self.get_logger().info(f"vehicle {self.vehicle.name} learned from topic {VEHICLE_TOPIC}")
-                if self.recorder is not None:
-                    self.recorder.set_vehicle(self.vehicle.name)
-        except BadParameter as err:
-            refuse(self, err)
+        adopt_vehicle(self, self.vehicles, msg.data, lambda: self.recorder and self.recorder.set_vehicle(self.vehicle.name))
 
     def on_origin(self, msg: Clock) -> None:
         ns = topics.stamp_ns(msg.clock)

@@ -60,6 +60,7 @@ from quad_modelling.nodes.common import (
     FaultLog,
     Param,
     VehicleSource,
+    adopt_vehicle,
     data_qos,
     declare_parameters,
     executor_param,
@@ -70,12 +71,12 @@ from quad_modelling.nodes.common import (
     positive,
     qos_param,
     realtime_param,
-    refuse,
     run_node,
     say,
     set_realtime_priority,
     spin,
     subscription_qos,
+    vehicle_param,
 )
 from quad_modelling.nodes.model_factory import (
     check_spec_without_vehicle,
@@ -108,8 +109,7 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("model", default_model, "model spec: naive, greybox, greybox:euler, narx:PATH, hybrid:PATH", non_empty),
         Param("model_file", "", "model file appended to the spec as MODEL:FILE (e.g. the NARX .npz); empty = none"),
         Param("model_name", "", "topic prefix and name of the predictions (<model_name>/odom); empty = the spec's kind"),
-        Param("vehicle", "", "vehicle config name (config/vehicles) or YAML path; empty = the one the replay announces "
-                             "on topic vehicle (a set one must match it)"),
+        vehicle_param(),
         Param("window_s", 10.0, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input", positive),
         Param("warm_s", 0.2, "warm start at each window start [s] (thesis 0.2 s)", positive),
         Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
@@ -219,13 +219,7 @@ class PredictorNode(Node):
     # --- inputs -------------------------------------------------------------------------------
 
     def on_vehicle(self, msg: String) -> None:
-        """The replay's vehicle: learned when the parameter is empty, else checked (a mismatch stops the node, exit 2)."""
-        try:
-            if self.vehicles.announce(msg.data) is not None:
-                self._build_model()
-                self.get_logger().info(f"vehicle {self.vehicle.name} learned from topic {VEHICLE_TOPIC}")
-        except BadParameter as err:
-            refuse(self, err)
+        adopt_vehicle(self, self.vehicles, msg.data, self._build_model)
 
     def on_origin(self, msg: Clock) -> None:
         ns = topics.stamp_ns(msg.clock)
