@@ -11,7 +11,8 @@ delivered; the replay paces itself on it). Service ``write_results``
 (std_srvs/Trigger) writes ``results.json``/``tables.md`` (and figures) into
 ``output_dir`` now; they are also written at shutdown. ``record``: everything received and
 published goes into one MCAP bag (:mod:`~quad_modelling.nodes.recording`), finished at shutdown.
-Data subscriptions use the ``qos`` parameter (:func:`~quad_modelling.nodes.common.subscription_qos`).
+Data subscriptions use the ``qos`` parameter (:func:`~quad_modelling.nodes.common.subscription_qos`);
+the vehicle is learned from the replay's ``vehicle`` topic as the predictor's is.
 
 Scoring uses the core code of ``quad-modelling evaluate``: the window's received
 measurements become a FlightLog (:func:`~quad_modelling.io.topics.measurement_log`),

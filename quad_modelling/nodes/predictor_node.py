@@ -7,6 +7,11 @@ Subscribes (relative names, namespace ``/quad`` unless remapped):
 Publishes ``<model>/odom`` (nav_msgs/Odometry: pose in ``world`` ENU, twist in
 ``<model>/base_link`` FLU) and ``<model>/accel`` (geometry_msgs/AccelStamped in
 ``<model>/base_link`` FLU), one of each per engine input, stamped with the input's stamp.
+Data subscriptions follow the ``qos`` parameter (best effort by default: reliable and
+best-effort publishers both deliver). The vehicle is the ``vehicle`` parameter or, when
+it is empty, the one a replay announces on ``vehicle`` (transient-local); the model is
+built once it is known, and inputs before are dropped with one warning; a set vehicle
+that differs from the announced one stops the node (exit 2).
 
 Windows (:class:`~quad_modelling.core.windows.WindowClock`, the offline evaluation's clock): window k starts at
 t0 + kW, t0 = the first motor-input stamp (or the ``window_origin`` another node
