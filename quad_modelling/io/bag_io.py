@@ -26,6 +26,11 @@ from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.serde import SerdeError
+
+try:  # the zstd module rosbags decompresses MCAP chunks with (Python 3.14 stdlib, else its backport)
+    from compression.zstd import ZstdError
+except ImportError:  # pragma: no cover - Python < 3.14
+    from backports.zstd import ZstdError
 from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.atomic import atomic_output
@@ -279,7 +284,8 @@ def _open_reader(path: Path) -> Reader:
     try:
         reader = Reader(path)
         reader.open()
-    except (ReaderError, OSError, ValueError, KeyError, TypeError, SerdeError, MemoryError, OverflowError, struct.error) as err:  # a corrupt record size: MemoryError
+    except (ReaderError, OSError, ValueError, KeyError, TypeError, SerdeError, MemoryError, OverflowError, struct.error,
+            ZstdError) as err:  # a corrupt record size: MemoryError
         raise BagError(f"{path}: not a readable rosbag2 bag ({reason(err)})") from err
     return reader
 
@@ -306,7 +312,8 @@ def summarize_bag(path: str | Path) -> BagSummary:
         start = min(first.values(), default=0) / 1e9
         end = max(last.values(), default=0) / 1e9
         return BagSummary(str(path), storage, end - start, start, end, sum(counts.values()), topics, custom)
-    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
+            ZstdError) as err:  # a corrupt zstd chunk: ZstdError
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
@@ -406,7 +413,8 @@ def read_recorded(path: str | Path, namespace: str = DEFAULT_NAMESPACE) -> list[
         for connection, _, raw in reader.messages(connections=[c for cs in by_topic.values() for c in cs]):
             key = key_of[connection.id]
             recorded.append(RecordedMessage(key, cdr_stamp_ns(raw), bytes(raw)))
-    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
+            ZstdError) as err:  # a corrupt zstd chunk: ZstdError
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
@@ -444,7 +452,8 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
                 columns[key].append(imu_fields(msg))
             else:
                 columns[key].append((msg.voltage,))
-    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError, AssertionError, IndexError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError, AssertionError,
+            IndexError, ZstdError) as err:
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     except SerdeError as err:
         raise BagError(f"{path}: topic {connection.topic} message {len(stamps[key])}: cannot deserialise ({reason(err)})") from err

@@ -44,3 +44,24 @@ def test_recorder_stages_the_bag_and_abort_leaves_nothing(tmp_path):
     dropped.write("/quad/imu", "sensor_msgs/msg/Imu", raw[2].stamp_ns, raw[2].raw)
     dropped.abort()
     assert [p.name for p in tmp_path.iterdir()] == ["rec"]  # no staging directory, no bag
+
+
+def test_a_corrupt_zstd_chunk_is_one_bag_error(tmp_path):
+    import pytest
+
+    from quad_modelling.errors import BagError
+    from test.conftest import synthetic_log
+
+    bag = write_bag(synthetic_log(n=50), tmp_path / "bag")
+    mcap = bag / "bag.mcap"
+    with open(mcap, "rb") as handle:
+        start = make_reader(handle).get_summary().chunk_indexes[0].chunk_start_offset
+    data = bytearray(mcap.read_bytes())
+    # chunk record: opcode, length, start/end time, uncompressed size, crc, "zstd" (4 + 4 bytes), records length
+    payload = start + 1 + 8 + 8 + 8 + 8 + 4 + 8 + 8
+    assert data[payload:payload + 4] == b"\x28\xb5\x2f\xfd"  # the zstd frame magic
+    data[payload:payload + 4] = b"\0\0\0\0"
+    mcap.write_bytes(bytes(data))
+    for read in (read_bag, read_recorded):
+        with pytest.raises(BagError, match="corrupt or truncated bag"):
+            read(bag)
