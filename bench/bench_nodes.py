@@ -117,9 +117,11 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
         procs = [subprocess.Popen([sys.executable, str(REPO / "bench" / "echo_node.py"), f"{name}/odom", str(realtime)],
                                   stdout=(workdir / f"echo_{tag}.log").open("w"), stderr=subprocess.STDOUT, start_new_session=True)]
     else:
-        procs = [start("predictor_node", f"window_s:={window}", f"model:={model}", f"model_name:={name}",
+        # no replay announces the vehicle here: the nodes are told, as next to a real flight
+        procs = [start("predictor_node", f"window_s:={window}", f"model:={model}", f"model_name:={name}", "vehicle:=crazyflie21",
                        f"realtime_priority:={realtime}", log=workdir / f"pred_{tag}.log"),
-                 start("evaluator_node", f"window_s:={window}", f"models:=[{name}]", log=workdir / f"eval_{tag}.log")]
+                 start("evaluator_node", f"window_s:={window}", f"models:=[{name}]", "vehicle:=crazyflie21",
+                       log=workdir / f"eval_{tag}.log")]
     log = synthetic_flight(rate, seconds)
     arrays = messages.measurement_messages(log)
     stamps = (stamps_ns(log.t) + time.time_ns()).tolist()

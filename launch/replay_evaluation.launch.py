@@ -17,13 +17,14 @@ PACKAGE = "quad_modelling"
 
 def generate_launch_description():
     config = PathJoinSubstitution([FindPackageShare(PACKAGE), "config"])
-    common = {"window_s": LaunchConfiguration("window_s"), "vehicle": LaunchConfiguration("vehicle")}
+    # Reliable subscriptions: the replay is paced on the evaluator's acknowledgements and loses nothing.
+    # The vehicle is the bag's: the replay announces it on topic vehicle, the other nodes learn it.
+    common = {"window_s": LaunchConfiguration("window_s"), "qos": "reliable"}
     return LaunchDescription([
         DeclareLaunchArgument("bag", description="MCAP bag directory to replay"),
         DeclareLaunchArgument("narx_model", description="NARX model file (.npz, from quad-modelling train); required"),
         DeclareLaunchArgument("rate", default_value="0.0", description="real-time factor; 0 = as fast as acknowledged"),
         DeclareLaunchArgument("window_s", default_value="10.0", description="window length [s]"),
-        DeclareLaunchArgument("vehicle", default_value="crazyflie21", description="vehicle config"),
         DeclareLaunchArgument("output_dir", default_value="", description="where the evaluator writes results.json"),
         Node(package=PACKAGE, executable="evaluator", name="evaluator", namespace="quad", output="screen",
              parameters=[PathJoinSubstitution([config, "evaluator.yaml"]), common,

@@ -35,10 +35,16 @@ and --eval in seconds from the first sample (multiples of --window are best: onl
 entirely inside a span are scored); without them one span live:0:inf.
 
 OUTDIR receives results.json (as quad-modelling evaluate, plus every live window, scored or
-marked), tables.md, figures, params.yaml (the nodes' parameters) and logs/<node>.log.
+marked), tables.md, figures, params.yaml (the nodes' parameters) and logs/<node>.log; with
+--record also record/, one MCAP bag of everything the evaluator received and published.
+
+Every node subscribes reliable (parameter qos): the replay is paced on the evaluator's
+acknowledgements and loses nothing. SIGINT/SIGTERM stop every node (each one's process
+group) and remove the staging directory.
 
 examples:
   quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models naive -o out/live
+  quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models greybox --record -o out/recorded
   quad-modelling run-bag bags/flight --models greybox,narx:narx.npz --train 30:150 --eval 150:190 --rate 0 -o out/flight
 """
 
@@ -88,10 +94,14 @@ def span_list(args: argparse.Namespace) -> list[str]:
 
 
 def ros_environment() -> dict:
-    """The environment of the nodes: loopback discovery always; a run-unique domain unless set."""
+    """The environment of the nodes: loopback discovery always; a domain no other run holds unless set
+    (:func:`quad_modelling.nodes.domains.claim_domain`, held until this process ends)."""
+    from quad_modelling.nodes.domains import claim_domain
+
     env = dict(os.environ)
     env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    env.setdefault("ROS_DOMAIN_ID", str(10 + os.getpid() % 90))  # 10..99: inside the 0-101 range safe on Linux
+    if not env.get("ROS_DOMAIN_ID"):
+        env["ROS_DOMAIN_ID"] = str(claim_domain())
     env.setdefault("PYTHONUNBUFFERED", "1")
     env.setdefault("MPLBACKEND", "Agg")
     return env
@@ -154,20 +164,27 @@ class Graph:
             proc.send_signal(signum)
 
 
+RECORD_NAME = "record"
+"""The recording's bag directory inside OUTDIR (``--record``)."""
+
 REPLAY_PATIENCE_S = 60.0
 """How long [wall s] the evaluator waits for a lagging predictor before marking its window, in run-bag."""
 
 
-def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[str], report_dir: Path) -> dict:
-    common = {"vehicle": vehicle, "window_s": float(args.window), "warm_s": float(args.warm), "executor": args.executor}
+def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[str], report_dir: Path,
+                    record: Path | None = None) -> dict:
+    """Every node's parameters (one params file). Subscriptions are reliable: the paced replay is lossless."""
+    common = {"vehicle": vehicle, "window_s": float(args.window), "warm_s": float(args.warm), "executor": args.executor,
+              "qos": "reliable"}
     params = {
         # A replayed bag waits for slow predictors (a busy machine) instead of marking their windows:
         # run-bag itself reports a predictor that dies.
         "/quad/evaluator": {"ros__parameters": {**common, "models": [m.name for m in models], "spans": spans,
                                                 "output_dir": str(report_dir), "force": True, "figures": not args.no_figures,
-                                                "stale_model_s": REPLAY_PATIENCE_S, "close_grace_s": REPLAY_PATIENCE_S}},
+                                                "stale_model_s": REPLAY_PATIENCE_S, "close_grace_s": REPLAY_PATIENCE_S,
+                                                "record": str(record) if record else ""}},
         "/quad/replay": {"ros__parameters": {"bag": str(Path(args.bag).resolve()), "rate": float(args.rate),
-                                             "executor": args.executor,
+                                             "executor": args.executor, "vehicle": vehicle,
                                              "wait_for_subscribers": len(models) + 1}},
     }
     for m in models:
@@ -189,6 +206,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
     parser.add_argument("--executor", choices=EXECUTORS, default="events",
                         help="rclpy executor of every node: events (EventsExecutor, default) or single (SingleThreadedExecutor)")
+    parser.add_argument("--record", action="store_true",
+                        help="also record measurements, predictions and evaluation into OUTDIR/record (one MCAP bag, zstd "
+                             "chunks; open it in Foxglove with config/foxglove_layout.json)")
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="new output directory")
     parser.add_argument("--force", action="store_true", help="overwrite an existing OUTDIR")
 
@@ -232,7 +252,8 @@ def run(args: argparse.Namespace) -> int:
         (tmp / "logs").mkdir()
         report_dir = tmp / "report"
         params_file = tmp / "params.yaml"
-        params_file.write_text(yaml.safe_dump(node_parameters(args, models, vehicle_name, spans, report_dir), sort_keys=False))
+        record = tmp / RECORD_NAME if args.record else None
+        params_file.write_text(yaml.safe_dump(node_parameters(args, models, vehicle_name, spans, report_dir, record), sort_keys=False))
         graph = Graph(tmp, params_file, env)
         try:
             graph.start("evaluator", "evaluator_node")
@@ -250,6 +271,8 @@ def run(args: argparse.Namespace) -> int:
             raise _failure(graph, name, f"node {name} exited with code {failed[name]}")
         if not (report_dir / "results.json").is_file():
             raise _failure(graph, "evaluator", "the evaluator wrote no results")
+        if record is not None and not (record / "metadata.yaml").is_file():
+            raise _failure(graph, "evaluator", "the evaluator wrote no recording")
         for item in report_dir.iterdir():
             shutil.move(str(item), tmp / item.name)
         report_dir.rmdir()

@@ -15,6 +15,7 @@ interpolation when stamps differ; exact when they coincide, as in bags written h
 
 from __future__ import annotations
 
+import contextlib
 import json
 import struct
 from dataclasses import dataclass
@@ -22,9 +23,14 @@ from pathlib import Path
 
 import numpy as np
 from rosbags.rosbag2 import Reader, Writer
-from rosbags.rosbag2.enums import StoragePlugin
+from rosbags.rosbag2.enums import CompressionFormat, CompressionMode, StoragePlugin
 from rosbags.rosbag2.errors import ReaderError, WriterError
 from rosbags.serde import SerdeError
+
+try:  # the zstd module rosbags decompresses MCAP chunks with (Python 3.14 stdlib, else its backport)
+    from compression.zstd import ZstdError
+except ImportError:  # pragma: no cover - Python < 3.14
+    from backports.zstd import ZstdError
 from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.atomic import atomic_output
@@ -71,13 +77,125 @@ BAG_TYPES = MessageTypes.from_lookup(TYPESTORE.types.__getitem__)
 """The contract's message classes in rosbags' Jazzy type store (keyword construction, attribute access)."""
 
 
-def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: str = DEFAULT_NAMESPACE, progress=None) -> Path:
-    """Write ``log`` as an MCAP bag directory at ``path``, atomically.
+def _mcap_writer(path: Path, compress: bool = True) -> Writer:
+    """A rosbag2 MCAP writer (version 9, as Jazzy's) whose chunks are zstd-compressed.
+
+    rosbags' MCAP storage compresses each chunk (~1 MiB of messages) with zstd when asked for
+    storage-level compression (``CompressionMode.STORAGE``): the bag stays one ``.mcap`` file that
+    ``ros2 bag``, the mcap library, Foxglove and PlotJuggler read as is (chunk compression is part of
+    MCAP), and metadata.yaml records no file/message compression. The bundled 40 s flight: 6.1 MB
+    uncompressed, 1.1 MB with zstd chunks (docs/formats.md).
+    """
+    writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
+    if compress:
+        writer.set_compression(CompressionMode.STORAGE, CompressionFormat.ZSTD)
+    return writer
+
+
+_NUMPY_TYPES = {"byte": "uint8", "char": "uint8", "octet": "uint8", "bool": "bool"}
+"""numpy dtypes of the ROS base types whose names are not numpy's (float64, int32, ... are)."""
+
+
+def _bag_message(msg, msgtype: str):
+    """Any message object with the fields of ``msgtype`` (e.g. an rclpy message) as the type store's message.
+
+    Field by field through the type store's definitions: nested messages recursively, numeric
+    sequences/arrays as numpy arrays of the field's dtype, ``byte`` fields as their integer.
+    """
+    from rosbags.typesys.store import Nodetype
+
+    fields = {}
+    for name, (kind, detail) in TYPESTORE.fielddefs[msgtype][1]:
+        value = getattr(msg, name)
+        if kind == Nodetype.NAME:
+            value = _bag_message(value, detail)
+        elif kind in (Nodetype.SEQUENCE, Nodetype.ARRAY):
+            (element, element_detail), _ = detail
+            if element == Nodetype.NAME:
+                value = [_bag_message(v, element_detail) for v in value]
+            elif element_detail[0] == "string":
+                value = list(value)
+            else:
+                value = np.asarray(value, dtype=_NUMPY_TYPES.get(element_detail[0], element_detail[0]))
+        elif detail[0] in ("byte", "char") and isinstance(value, bytes):
+            value = value[0]
+        fields[name] = value
+    return TYPESTORE.types[msgtype](**fields)
+
+
+def serialize_as(msg, msgtype: str) -> bytes:
+    """CDR bytes of ``msg`` (any object with the fields of ``msgtype``), as a bag stores them.
+
+    rclpy's ``serialize_message`` (rclpy 7.1, rmw_fastrtps) returned 8 bytes past the message and
+    uninitialised alignment padding here: rosbags refused such bytes ("CDR message size mismatch").
+    """
+    return bytes(TYPESTORE.serialize_cdr(_bag_message(msg, msgtype), msgtype))
+
+
+class BagRecorder:
+    """A bag recorded from serialised messages as they arrive (the evaluator's ``record``).
+
+    MCAP with zstd chunks (:func:`_mcap_writer`), written at a staging path next to ``path``
+    (:func:`~quad_modelling.atomic.atomic_output`) and renamed onto it by :meth:`close`; :meth:`abort`
+    leaves nothing. Each message's bag time is the ``ns`` given (the nodes give the header stamp, so
+    measured and predicted samples of one instant line up in Foxglove/PlotJuggler); messages may
+    come out of time order (MCAP readers order them by the chunk indexes).
+    """
+
+    def __init__(self, path: str | Path, force: bool = False, custom_data: dict[str, str] | None = None):
+        self.path = Path(path)
+        self._stack = contextlib.ExitStack()
+        tmp = self._stack.enter_context(atomic_output(self.path, force))
+        self._writer = _mcap_writer(tmp)
+        self._connections: dict[str, object] = {}
+        self.count = 0
+        try:
+            self._writer.open()
+            for key, value in (custom_data or {}).items():
+                self._writer.set_custom_data(key, value)
+        except (WriterError, OSError) as err:
+            self.abort()
+            raise BagError(f"{self.path}: cannot record: {err}") from err
+
+    def set_custom_data(self, key: str, value: str) -> None:
+        """A ``custom_data`` entry of metadata.yaml (written at :meth:`close`)."""
+        self._writer.set_custom_data(key, value)
+
+    def write(self, topic: str, msgtype: str, ns: int, raw: bytes) -> None:
+        """Add one CDR message of ``msgtype`` (``pkg/msg/Name``) on ``topic`` (absolute name) at bag time ``ns``."""
+        connection = self._connections.get(topic)
+        if connection is None:
+            connection = self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=TYPESTORE)
+        self._writer.write(connection, int(ns), raw)
+        self.count += 1
+
+    def close(self) -> Path:
+        """Finish the bag and move it to ``path``."""
+        try:
+            self._writer.close()
+        except (WriterError, OSError) as err:
+            self.abort()
+            raise BagError(f"{self.path}: cannot finish the recording: {err}") from err
+        self._stack.close()
+        return self.path
+
+    def abort(self) -> None:
+        """Drop the recording (the staging path is removed)."""
+        with contextlib.suppress(Exception):
+            self._writer.close()
+        with contextlib.suppress(BagError):
+            self._stack.__exit__(BagError, BagError(f"{self.path}: recording aborted"), None)
+
+
+def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: str = DEFAULT_NAMESPACE, progress=None,
+              compress: bool = True) -> Path:
+    """Write ``log`` as an MCAP bag directory at ``path`` (zstd chunks, :func:`_mcap_writer`), atomically.
 
     Every topic's message of sample i is stamped (header and bag time) ``stamps_ns(log.t)[i]``, except the
     mocap/odom and imu messages of rows strictly inside a marked measurement gap of their fields
     (:func:`gap_rows_by_topic`): the gap stays a gap, the notes say where it is.
-    ``progress``: optional callable(n_samples_done) for a progress bar.
+    ``progress``: optional callable(n_samples_done) for a progress bar. ``compress=False``: chunks stored
+    uncompressed (as before zstd; the same messages byte for byte).
     """
     path = Path(path)
     check_namespace(namespace)
@@ -87,7 +205,7 @@ def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: 
     measurements = MeasurementMessages(log, BAG_TYPES)
     serialize = TYPESTORE.serialize_cdr
     with atomic_output(path, force) as tmp:
-        writer = Writer(tmp, version=9, storage_plugin=StoragePlugin.MCAP)
+        writer = _mcap_writer(tmp, compress)
         try:
             writer.open()
             connections = {
@@ -166,7 +284,8 @@ def _open_reader(path: Path) -> Reader:
     try:
         reader = Reader(path)
         reader.open()
-    except (ReaderError, OSError, ValueError, KeyError, TypeError, SerdeError, MemoryError, OverflowError, struct.error) as err:  # a corrupt record size: MemoryError
+    except (ReaderError, OSError, ValueError, KeyError, TypeError, SerdeError, MemoryError, OverflowError, struct.error,
+            ZstdError) as err:  # a corrupt record size: MemoryError
         raise BagError(f"{path}: not a readable rosbag2 bag ({reason(err)})") from err
     return reader
 
@@ -193,7 +312,8 @@ def summarize_bag(path: str | Path) -> BagSummary:
         start = min(first.values(), default=0) / 1e9
         end = max(last.values(), default=0) / 1e9
         return BagSummary(str(path), storage, end - start, start, end, sum(counts.values()), topics, custom)
-    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
+            ZstdError) as err:  # a corrupt zstd chunk: ZstdError
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
@@ -293,7 +413,8 @@ def read_recorded(path: str | Path, namespace: str = DEFAULT_NAMESPACE) -> list[
         for connection, _, raw in reader.messages(connections=[c for cs in by_topic.values() for c in cs]):
             key = key_of[connection.id]
             recorded.append(RecordedMessage(key, cdr_stamp_ns(raw), bytes(raw)))
-    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
+            ZstdError) as err:  # a corrupt zstd chunk: ZstdError
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
@@ -331,7 +452,8 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
                 columns[key].append(imu_fields(msg))
             else:
                 columns[key].append((msg.voltage,))
-    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError, AssertionError, IndexError) as err:
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError, AssertionError,
+            IndexError, ZstdError) as err:
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     except SerdeError as err:
         raise BagError(f"{path}: topic {connection.topic} message {len(stamps[key])}: cannot deserialise ({reason(err)})") from err

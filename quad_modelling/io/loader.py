@@ -79,6 +79,10 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
 
         log = read_bag(path if path.is_dir() else path.parent, vehicle=name)
     config = config or load_vehicle(vehicle if vehicle is not None else log.meta.vehicle)  # a --vehicle FILE of any name
+    if fmt == "thesis-mat" and mapping_file:  # a mapping names the commands' unit: it must be the vehicle's kind
+        from quad_modelling.io.matlog import commands_in_vehicle_unit
+
+        log.u = commands_in_vehicle_unit(log.u, mapping["u"].unit, config, f"{path} (mapping {mapping_file})")
     # The log names its airframe (config name), not the file its constants came from:
     # --vehicle FILE picks constants for a command, the flight stays the same vehicle.
     log.meta.vehicle = config.name

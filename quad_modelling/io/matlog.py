@@ -129,6 +129,29 @@ def _field_mapping(path: Path, name: str, entry) -> FieldMapping:
     return FieldMapping(variables, columns, unit, frame)
 
 
+VEHICLE_INPUT_DIMENSIONS = {"normalised": "1"}
+"""Vehicle input units that are not in :data:`~quad_modelling.core.frames.UNIT_FACTORS`, with their dimension
+(a normalised command 0..1 is a ratio)."""
+
+
+def commands_in_vehicle_unit(u: np.ndarray, mapping_unit: str, vehicle, where: str) -> np.ndarray:
+    """The engine commands ``u`` (read in SI by :func:`read_matlog`, from a mapping's ``mapping_unit``)
+    expressed in the vehicle's input unit, or one ConfigError naming both units when the dimensions differ.
+
+    :math:`u_{vehicle} = u_{SI} / f_{vehicle}` with :math:`f` the unit's factor to SI
+    (:data:`~quad_modelling.core.frames.UNIT_FACTORS`): a mapping in ``us`` for a vehicle taking
+    ``us`` (``px4_iris_pwm``) gives the logged pulse widths, for one taking ``s`` (``linkquad``) seconds.
+    """
+    vehicle_unit = vehicle.input_unit
+    mapped = frames.UNIT_FACTORS[mapping_unit][0]
+    wanted = VEHICLE_INPUT_DIMENSIONS.get(vehicle_unit) or frames.UNIT_FACTORS.get(vehicle_unit, (None,))[0]
+    if mapped != wanted:
+        raise ConfigError(f"{where}: mapping field 'u' unit {mapping_unit!r} does not fit vehicle {vehicle.name}'s input unit "
+                          f"{vehicle_unit!r}; map u in {vehicle_unit!r} (or a unit of the same kind) or choose the vehicle "
+                          "the commands were logged for")
+    return u if vehicle_unit in VEHICLE_INPUT_DIMENSIONS else frames.from_si(u, vehicle_unit)
+
+
 def load_mapping(path: str | Path) -> dict[str, FieldMapping]:
     """Read and validate a YAML mapping file (see module docstring)."""
     path = Path(path)

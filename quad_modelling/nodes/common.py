@@ -2,27 +2,48 @@
 
 The window clock and the span grammar are core's (:mod:`quad_modelling.core.windows`).
 
-QoS (DESIGN 5a): data topics are reliable, volatile, keep-last with a bounded
-depth (parameter ``qos_depth``, default :data:`DEFAULT_QOS_DEPTH`): the replay
-keeps at most ``max_in_flight`` samples unacknowledged, far below the depth, so
-nothing is dropped. ``window_origin`` is reliable + transient-local depth 1, so
-a node started late (or restarted) learns the window origin t0.
+QoS (DESIGN 5a): every node *publishes* its data reliable, volatile, keep-last with
+a bounded depth (parameter ``qos_depth``, default :data:`DEFAULT_QOS_DEPTH`); a
+reliable writer serves reliable and best-effort readers alike. Every data
+*subscription* takes the profile of the parameter ``qos`` (:func:`subscription_qos`):
+``best_effort`` (default) matches both reliable publishers (our replay) and
+best-effort ones (MAVROS, the PX4 uXRCE-DDS bridge, crazyswarm2 publish with the
+sensor-data profile), ``reliable`` matches only reliable publishers but never loses
+a sample (``run-bag`` uses it: its replay keeps at most ``max_in_flight`` samples
+unacknowledged, far below the depth, so nothing is dropped), ``sensor_data`` is
+rclpy's ``qos_profile_sensor_data`` (best effort, depth 5). ``window_origin`` and
+``vehicle`` are reliable + transient-local depth 1, so a node started late (or
+restarted) learns the window origin t0 and the vehicle.
+
+Parameters (:func:`declare_parameters`): an integer given for a float parameter
+(``rate:=2``) is taken as that float; a parameter given (file or command line) that
+the node does not declare is one warning naming it and the closest declared name
+(:func:`unknown_parameters`).
 """
 
 from __future__ import annotations
 
+import difflib
 import gc
 import os
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from pathlib import Path
 
 from rcl_interfaces.msg import ParameterDescriptor, ParameterType, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, ParameterException
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.parameter import Parameter
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
 
 from quad_modelling.core.windows import seconds_spans
-from quad_modelling.errors import ConfigError
+from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.nodes.executors import executor_kind, make_executor, spin  # noqa: F401  (re-exported for the nodes)
 
 DEFAULT_QOS_DEPTH = 1000
@@ -35,6 +56,40 @@ def data_qos(depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
     """Reliable, volatile, keep-last ``depth``: measurements, commands, predictions."""
     return QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.VOLATILE,
                       history=HistoryPolicy.KEEP_LAST, depth=depth)
+
+
+QOS_KINDS = ("best_effort", "reliable", "sensor_data")
+"""Values of the ``qos`` parameter of every subscribing node (:func:`subscription_qos`)."""
+
+
+def qos_kind(value) -> str | None:
+    return None if value in QOS_KINDS else f"must be one of {', '.join(QOS_KINDS)}"
+
+
+def qos_param() -> Param:
+    return Param("qos", "best_effort", "QoS of the data subscriptions: best_effort (default; matches reliable and "
+                                       "best-effort publishers), reliable (reliable publishers only, lossless), sensor_data "
+                                       "(rclpy's qos_profile_sensor_data: best effort, depth 5)", qos_kind)
+
+
+def subscription_qos(kind: str, depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
+    """The data subscriptions' profile for the ``qos`` parameter value ``kind`` (:data:`QOS_KINDS`).
+
+    ``best_effort``: best effort, volatile, keep-last ``depth``. A best-effort reader
+    matches reliable and best-effort writers (DDS request/offer rule: the offer must be at
+    least as strong as the request), so it is the default. ``reliable``: :func:`data_qos`;
+    it matches reliable writers only (a best-effort publisher and a reliable reader are
+    incompatible: nothing is delivered). ``sensor_data``: rclpy's ``qos_profile_sensor_data``
+    as is (best effort, volatile, keep-last 5).
+    """
+    if kind == "reliable":
+        return data_qos(depth)
+    if kind == "best_effort":
+        return QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE,
+                          history=HistoryPolicy.KEEP_LAST, depth=depth)
+    if kind == "sensor_data":
+        return qos_profile_sensor_data
+    raise BadParameter(f"parameter qos={kind!r}: {qos_kind(kind)}")
 
 
 def latched_qos() -> QoSProfile:
@@ -113,17 +168,67 @@ def non_empty(value) -> str | None:
     return None if str(value).strip() else "must not be empty"
 
 
+AUTOMATIC_PARAMETERS = ("use_sim_time", "start_type_description_service")
+"""Parameters rclpy declares on every node itself (Jazzy): never reported as unknown."""
+
+QOS_OVERRIDE_PREFIX = "qos_overrides."
+"""rclpy's publisher/subscription QoS override parameters: not the node's own, never reported as unknown."""
+
+
+def unknown_parameters(given: Iterable[str], declared: Iterable[str]) -> list[str]:
+    """One warning per name in ``given`` that is not in ``declared``, naming the closest declared name.
+
+    ``given``: the parameters set from files or the command line; rclpy's own
+    (:data:`AUTOMATIC_PARAMETERS`, ``qos_overrides.*``) are never unknown. The closest name is
+    :func:`difflib.get_close_matches` (ratio >= 0.6), else the declared names are listed.
+    """
+    declared = list(declared)
+    warnings = []
+    for name in sorted(given):
+        if name in declared or name in AUTOMATIC_PARAMETERS or name.startswith(QOS_OVERRIDE_PREFIX):
+            continue
+        close = difflib.get_close_matches(name, declared, n=1)
+        hint = f"did you mean {close[0]!r}?" if close else f"declared: {', '.join(sorted(declared))}"
+        warnings.append(f"unknown parameter {name!r} ignored; {hint}")
+    return warnings
+
+
+def integers_as_floats(overrides: dict, params: list[Param]) -> list[str]:
+    """Turn every integer override of a float parameter into that float, in place (``rate:=2`` = ``rate:=2.0``).
+
+    ``overrides``: rclpy's {name: Parameter} the node was given (``Node._parameter_overrides``,
+    resolved from the command line and the params files for this node). Returns the names converted.
+    """
+    converted = []
+    for p in params:
+        given = overrides.get(p.name)
+        if (isinstance(p.default, float) and given is not None and given.type_ == Parameter.Type.INTEGER):
+            overrides[p.name] = Parameter(p.name, Parameter.Type.DOUBLE, float(given.value))
+            converted.append(p.name)
+    return converted
+
+
 def declare_parameters(node, params: list[Param]) -> dict:
     """Declare ``params`` with descriptors, validating every value (also later set requests).
 
     Returns {name: value}. Raises :class:`BadParameter` with the reason when a
     value given at start (``--ros-args -p`` or a params file) is invalid; at run
-    time, invalid or read-only changes are rejected with the reason.
+    time, invalid or read-only changes are rejected with the reason. Integers
+    given for float parameters are taken as floats (:func:`integers_as_floats`);
+    parameters given but not declared are warned about (:func:`unknown_parameters`).
     """
     checks = {p.name: p.check for p in params}
+    floats = {p.name for p in params if isinstance(p.default, float)}
+    overrides = node._parameter_overrides  # rclpy keeps them there; there is no public accessor (rclpy 7.1)
+    integers_as_floats(overrides, params)
+    for warning in unknown_parameters(overrides, [p.name for p in params]):
+        node.get_logger().warning(f"{node.get_name()}: {warning}")
 
     def validate(parameters) -> SetParametersResult:
         for parameter in parameters:
+            if parameter.name in floats and parameter.type_ == Parameter.Type.INTEGER:
+                return SetParametersResult(successful=False, reason=f"parameter {parameter.name}={parameter.value!r}: "
+                                                                    f"give a float ({float(parameter.value)!r})")
             check = checks.get(parameter.name)
             if check is None:
                 continue
@@ -161,6 +266,81 @@ class FaultLog:
 
     def summary(self) -> str:
         return ", ".join(f"{k} x{n}" for k, n in sorted(self.counts.items())) or "none"
+
+
+VEHICLE_TOPIC = "vehicle"
+"""std_msgs/String, reliable + transient-local: the vehicle (config name or YAML path) of the flight the replay plays."""
+
+
+class VehicleSource:
+    """A node's vehicle: its ``vehicle`` parameter, or (parameter empty) what the replay announces on
+    :data:`VEHICLE_TOPIC`. A parameter naming another vehicle than the announced one is refused.
+
+    ``requested``: the parameter value ('' = learn it). :meth:`announce` takes an announced
+    vehicle and returns the vehicle newly learned (None when nothing changed), or raises
+    :class:`BadParameter` in one line on a mismatch or an announced vehicle this host cannot load.
+    """
+
+    def __init__(self, node_name: str, requested: str):
+        from quad_modelling.core.vehicle import load_vehicle
+
+        self.node_name = node_name
+        self.requested = requested.strip()
+        self.announced: str | None = None
+        self.vehicle = None
+        if self.requested:
+            try:
+                self.vehicle = load_vehicle(self.requested)
+            except QuadModellingError as err:
+                raise BadParameter(f"{node_name}: parameter vehicle={self.requested!r}: {err}") from err
+
+    def announce(self, announced: str):
+        from quad_modelling.core.vehicle import load_vehicle
+
+        announced = announced.strip()
+        if not announced or announced == self.announced:
+            return None
+        self.announced = announced
+        try:
+            vehicle = load_vehicle(announced)
+        except QuadModellingError as err:
+            if self.vehicle is not None and Path(announced).stem == self.vehicle.name:
+                return None  # the same vehicle by name, its file elsewhere (another host)
+            raise BadParameter(f"{self.node_name}: the replay announces vehicle {announced!r} on topic {VEHICLE_TOPIC}, "
+                               f"which this host cannot load: {err}; set parameter vehicle") from err
+        if self.vehicle is None:
+            self.vehicle = vehicle
+            return vehicle
+        if vehicle.name != self.vehicle.name:
+            raise BadParameter(f"{self.node_name}: parameter vehicle={self.requested!r} ({self.vehicle.name}) but the replay "
+                               f"plays a flight of vehicle {vehicle.name!r} (topic {VEHICLE_TOPIC}); set vehicle:={announced} "
+                               "or leave it empty to learn it")
+        return None
+
+
+def vehicle_param() -> Param:
+    return Param("vehicle", "", "vehicle config name (config/vehicles) or YAML path; empty = the one the replay announces "
+                                "on topic vehicle (a set one must match it)")
+
+
+def adopt_vehicle(node, vehicles: VehicleSource, announced: str, learned: Callable[[], None] = lambda: None) -> None:
+    """A node's handler of :data:`VEHICLE_TOPIC`: ``learned()`` once a vehicle is newly learned; a mismatch
+    stops the node (:func:`refuse`, exit 2)."""
+    try:
+        if vehicles.announce(announced) is not None:
+            learned()
+            node.get_logger().info(f"vehicle {vehicles.vehicle.name} learned from topic {VEHICLE_TOPIC}")
+    except BadParameter as err:
+        refuse(node, err)
+
+
+def refuse(node, error: BadParameter) -> None:
+    """Stop ``node`` from a callback because of ``error``: :func:`run_node` prints it and exits 2."""
+    node.fatal = error
+    node.get_logger().error(str(error))
+    import rclpy
+
+    rclpy.try_shutdown(context=node.context)
 
 
 def spans_check(value) -> str | None:
@@ -205,8 +385,6 @@ def run_node(factory, args=None) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    from quad_modelling.errors import QuadModellingError
-
     use_dds_profile()
     rclpy.init(args=args)
     node = None
@@ -216,12 +394,17 @@ def run_node(factory, args=None) -> int:
         # Everything built so far lives as long as the node: move it out of the cyclic GC's reach, so a
         # full collection scans only objects made while running (one took 75 ms at 400 Hz; gc.freeze docs).
         gc.freeze()
-        node.run()
+        try:
+            node.run()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass  # Ctrl-C, SIGTERM (rclpy's handler shuts the context down) or refuse(): the end of a node
+        if getattr(node, "fatal", None) is not None:  # a callback refused to go on (refuse())
+            raise node.fatal
     except (BadParameter, QuadModellingError) as err:
         print(f"error: {err}", file=sys.stderr, flush=True)
         code = EXIT_BAD_PARAMETER
     except (KeyboardInterrupt, ExternalShutdownException):
-        code = 0  # Ctrl-C or a shutdown request: the normal end of a node
+        code = 0  # Ctrl-C while the node was being built
     finally:
         if node is not None:
             node.finish()

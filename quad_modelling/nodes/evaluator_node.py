@@ -9,7 +9,10 @@ values in SI units, or WARN with the reason the window was not scored) and
 ``evaluation/progress`` (rosgraph_msgs/Clock: the last stamp every stream has
 delivered; the replay paces itself on it). Service ``write_results``
 (std_srvs/Trigger) writes ``results.json``/``tables.md`` (and figures) into
-``output_dir`` now; they are also written at shutdown.
+``output_dir`` now; they are also written at shutdown. ``record``: everything received and
+published goes into one MCAP bag (:mod:`~quad_modelling.nodes.recording`), finished at shutdown.
+Data subscriptions use the ``qos`` parameter (:func:`~quad_modelling.nodes.common.subscription_qos`);
+the vehicle is learned from the replay's ``vehicle`` topic as the predictor's is.
 
 Scoring uses the core code of ``quad-modelling evaluate``: the window's received
 measurements become a FlightLog (:func:`~quad_modelling.io.topics.measurement_log`),
@@ -36,22 +39,22 @@ import time
 from pathlib import Path
 
 import numpy as np
-from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from diagnostic_msgs.msg import DiagnosticArray
 from geometry_msgs.msg import AccelStamped
 from nav_msgs.msg import Odometry
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
 from rclpy.node import Node
+from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
 from quad_modelling.core.evaluation.windowed import evaluate_window
 from quad_modelling.core.models.base import DummyPredictor
 from quad_modelling.core.models.streaming import RecordedPrediction
 from quad_modelling.core.preprocess import smooth, trimmed_variables
-from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
-from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import (
     EvaluationConfig,
     WindowClock,
@@ -62,9 +65,12 @@ from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
+    VEHICLE_TOPIC,
     BadParameter,
     FaultLog,
     Param,
+    VehicleSource,
+    adopt_vehicle,
     data_qos,
     declare_parameters,
     executor_param,
@@ -74,12 +80,16 @@ from quad_modelling.nodes.common import (
     non_empty,
     non_negative,
     positive,
+    qos_param,
     run_node,
     say,
     spans_check,
     spin,
+    subscription_qos,
+    vehicle_param,
 )
-from quad_modelling.nodes.scoring import LiveScores, WindowRecord
+from quad_modelling.nodes.recording import open_recorder
+from quad_modelling.nodes.scoring import LiveScores, WindowRecord, diagnostics_message
 
 PROGRESS_REPEAT_S = 0.2
 """The progress acknowledgement is repeated this often [s] even when unchanged (late replays)."""
@@ -99,13 +109,15 @@ def _models_check(value) -> str | None:
 
 EVALUATOR_PARAMETERS = [
     Param("models", ["naive"], "names of the predictors to score (their topics <name>/odom, <name>/accel)", _models_check),
-    Param("vehicle", "crazyflie21", "vehicle config name (config/vehicles) or YAML path", non_empty),
+    vehicle_param(),
     Param("window_s", 10.0, "window length W [s], as the predictors", positive),
     Param("warm_s", 0.2, "warm start [s], as the predictors", positive),
     Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
     Param("spans", ["live:0:inf"], "spans NAME:A:B in seconds from t0; only windows entirely inside one are scored", spans_check),
     Param("output_dir", "", "directory for results.json/tables.md/figures (replaced on each write); empty = do not write"),
-    Param("force", False, "replace an output_dir that existed before this node started"),
+    Param("record", "", "record measurements, predictions and evaluation into this new MCAP bag directory (zstd "
+                        "chunks; written when the node ends); empty = do not record"),
+    Param("force", False, "replace an output_dir (or record bag) that existed before this node started"),
     Param("figures", True, "also write the thesis-style figures of the first window of each span"),
     Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
     Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
@@ -113,7 +125,8 @@ EVALUATOR_PARAMETERS = [
     Param("stale_model_s", 2.0, "a model silent this long [wall s] no longer holds back progress or window closing", positive),
     Param("close_grace_s", 3.0, "close a window this long [wall s] after the measurements passed it, even if a model lags", positive),
     Param("ready_timeout_s", 20.0, "wait this long [wall s] for every model's publishers before acknowledging progress", non_negative),
-    Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions", positive),
+    qos_param(),
+    Param("qos_depth", 1000, "depth of the keep-last subscriptions", positive),
     Param("nice", 10, "raise this process's scheduling niceness by this much (0-19): scoring a closed window is not "
                       "time-critical, the predictors' per-input answers are", niceness),
     executor_param(),
@@ -145,10 +158,7 @@ class EvaluatorNode(Node):
         p = declare_parameters(self, EVALUATOR_PARAMETERS)
         if p["warm_s"] >= p["window_s"]:
             raise BadParameter(f"evaluator: parameter warm_s={p['warm_s']} must be shorter than window_s={p['window_s']}")
-        try:
-            self.vehicle = load_vehicle(p["vehicle"])
-        except QuadModellingError as err:
-            raise BadParameter(f"evaluator: parameter vehicle={p['vehicle']!r}: {err}") from err
+        self.vehicles = VehicleSource(self.get_name(), p["vehicle"])
         self.models = [str(m).strip() for m in p["models"]]
         self.spans = seconds_spans(p["spans"])
         self.window_s, self.warm_s = p["window_s"], p["warm_s"]
@@ -180,24 +190,50 @@ class EvaluatorNode(Node):
         self.progress_sent = None
         self.progress_wall = 0.0
         self.windows_closed = 0
-        qos = data_qos(p["qos_depth"])
-        self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
-        self.create_subscription(Odometry, p["odom_topic"], self.on_odom, qos)
-        self.create_subscription(Imu, p["imu_topic"], self.on_imu, qos)
+        qos = subscription_qos(p["qos"], p["qos_depth"])
+        self.recorder = open_recorder("evaluator", p["record"], self.output_dir, p["force"], self.vehicle)
+        subscribe = self._subscribe
+        subscribe(JointState, p["motor_input_topic"], self.on_motor, qos)
+        subscribe(Odometry, p["odom_topic"], self.on_odom, qos)
+        subscribe(Imu, p["imu_topic"], self.on_imu, qos)
         self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
+        self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
         for model in self.models:
-            self.create_subscription(Odometry, f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg), qos)
-            self.create_subscription(AccelStamped, f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg), qos)
+            subscribe(Odometry, f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg), qos)
+            subscribe(AccelStamped, f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg), qos)
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
         self.diag_pub = self.create_publisher(DiagnosticArray, "evaluation", data_qos(100))
+        self.diag_topic = self.resolve_topic_name("evaluation")
         self.progress_pub = self.create_publisher(Clock, topics.PROGRESS_TOPIC, data_qos(10))
         self.create_service(Trigger, "write_results", self.on_write)
         steady = RosClock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(0.01, self.on_progress_timer, clock=steady)
         self.create_timer(0.25, self.on_close_timer, clock=steady)
-        self.get_logger().info(f"scoring models {self.models} in spans {p['spans']} ({self.window_s:g} s windows)")
+        self.get_logger().info(f"scoring models {self.models} in spans {p['spans']} ({self.window_s:g} s windows, "
+                               f"{p['qos']} subscriptions{', recording to ' + p['record'] if p['record'] else ''})")
+
+    @property
+    def vehicle(self):
+        return self.vehicles.vehicle
+
+    def _subscribe(self, kind, topic: str, callback, qos) -> None:
+        """A data subscription; with ``record``, every message is received serialised, recorded as it came on its
+        topic, then deserialised for ``callback``."""
+        if self.recorder is None:
+            self.create_subscription(kind, topic, callback, qos)
+            return
+        name, msgtype = self.resolve_topic_name(topic), self.recorder.type_name(kind)
+
+        def recorded(data: bytes):
+            self.recorder.add_raw(name, msgtype, data)
+            callback(deserialize_message(data, kind))
+
+        self.create_subscription(kind, topic, recorded, qos, raw=True)
 
     # --- inputs -------------------------------------------------------------------------------
+
+    def on_vehicle(self, msg: String) -> None:
+        adopt_vehicle(self, self.vehicles, msg.data, lambda: self.recorder and self.recorder.set_vehicle(self.vehicle.name))
 
     def on_origin(self, msg: Clock) -> None:
         ns = topics.stamp_ns(msg.clock)
@@ -369,14 +405,19 @@ class EvaluatorNode(Node):
             return
         records = self._score(window, start_s, end_s, spans, reason_if_incomplete)
         self.scores.records.extend(records)
-        if self.context.ok():  # at shutdown the results still go to results.json
-            self._publish_diagnostics(window, records)
+        msg = diagnostics_message(records, self.clock_.origin_ns + (window.index + 1) * self.clock_.window_ns)
+        if self.context.ok():  # at shutdown the results still go to results.json (and the recording)
+            self.diag_pub.publish(msg)
+        if self.recorder is not None:
+            self.recorder.add(self.diag_topic, msg)
 
     def _score(self, window: _Window, start_s: float, end_s: float, spans: list[str], extra: str) -> list[WindowRecord]:
         def marked(reason: str, models=None) -> list[WindowRecord]:
             return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason)
                     for m in (models or self.models + self.baselines) for s in spans]
 
+        if self.vehicle is None:
+            return marked(f"no vehicle: parameter vehicle is empty and no replay announced one on topic {VEHICLE_TOPIC}")
         stamps = sorted(window.motor)
         complete = [ns for ns in stamps if ns in window.odom and ns in window.imu]
         period = self.clock_.period_s
@@ -420,44 +461,14 @@ class EvaluatorNode(Node):
                 self.scores.add_example(s, log, measured, predicted, warm)
         return records
 
-    def _publish_diagnostics(self, window: _Window, records: list[WindowRecord]) -> None:
-        msg = DiagnosticArray()
-        msg.header.stamp = messages.ns_stamp(self.clock_.origin_ns + (window.index + 1) * self.clock_.window_ns)
-        idx = {v: i for i, v in enumerate(VARIABLES)}
-        for r in records:
-            status = DiagnosticStatus(name=f"evaluation/{r.model}/{r.span}/window_{r.index}", hardware_id=r.model)
-            values = [KeyValue(key="start_s", value=f"{r.start_s:g}"), KeyValue(key="end_s", value=f"{r.end_s:g}")]
-            if r.scored:
-                status.level = DiagnosticStatus.OK
-                status.message = "scored"
-                for v in EVAL_VARIABLES:
-                    values.append(KeyValue(key=f"{v}.rms", value=repr(float(r.rms[idx[v]]))))
-                    values.append(KeyValue(key=f"{v}.tic", value=repr(float(r.tic[idx[v]]))))
-            else:
-                status.level = DiagnosticStatus.WARN
-                status.message = f"not scored: {r.reason}"
-            status.values = values
-            msg.status.append(status)
-        self.diag_pub.publish(msg)
-
     # --- results ------------------------------------------------------------------------------
 
     def write_results(self) -> str:
         """Write results.json, tables.md (and figures) into output_dir; returns a one-line summary."""
         if self.output_dir is None:
             return "output_dir is empty: nothing written"
-        from quad_modelling.atomic import atomic_output
-        from quad_modelling.io.reports.evaluation import write_report
-
-        source = "live"
-        result = self.scores.result(source)
-        if not self.figures:
-            result.examples = []
-        with atomic_output(self.output_dir, force=True) as tmp:
-            write_report(result, tmp, title=f"Live evaluation of {', '.join(self.models)} on vehicle {self.vehicle.name}",
-                         document=self.scores.to_json(source))
-        scored = sum(r.scored for r in self.scores.records)
-        return f"wrote {self.output_dir} ({scored} scored, {len(self.scores.records) - scored} marked window results)"
+        return self.scores.write(self.output_dir, "live", self.figures, f"Live evaluation of {', '.join(self.models)} on vehicle "
+                                                                          f"{self.vehicle.name if self.vehicle else '(unknown)'}")
 
     def on_write(self, request, response):
         try:
@@ -478,6 +489,11 @@ class EvaluatorNode(Node):
                 say(self, self.write_results())
             except (QuadModellingError, OSError) as err:
                 say(self, f"cannot write results: {err}", error=True)
+        if self.recorder is not None:
+            try:
+                say(self, f"recorded {self.recorder.count} messages in {self.recorder.close()}")
+            except (QuadModellingError, OSError) as err:
+                say(self, f"cannot write the recording: {err}", error=True)
         say(self, f"closed {self.windows_closed} windows; faults: {self.faults.summary()}")
 
 

@@ -7,6 +7,11 @@ Subscribes (relative names, namespace ``/quad`` unless remapped):
 Publishes ``<model>/odom`` (nav_msgs/Odometry: pose in ``world`` ENU, twist in
 ``<model>/base_link`` FLU) and ``<model>/accel`` (geometry_msgs/AccelStamped in
 ``<model>/base_link`` FLU), one of each per engine input, stamped with the input's stamp.
+Data subscriptions follow the ``qos`` parameter (best effort by default: reliable and
+best-effort publishers both deliver). The vehicle is the ``vehicle`` parameter or, when
+it is empty, the one a replay announces on ``vehicle`` (transient-local); the model is
+built once it is known, and inputs before are dropped with one warning; a set vehicle
+that differs from the announced one stops the node (exit 2).
 
 Windows (:class:`~quad_modelling.core.windows.WindowClock`, the offline evaluation's clock): window k starts at
 t0 + kW, t0 = the first motor-input stamp (or the ``window_origin`` another node
@@ -47,17 +52,20 @@ from rclpy.node import Node
 from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
+from std_msgs.msg import String
 
 from quad_modelling.core.models.streaming import prime, push_sample
-from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import WindowClock
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
+    VEHICLE_TOPIC,
     BadParameter,
     FaultLog,
     Param,
+    VehicleSource,
+    adopt_vehicle,
     data_qos,
     declare_parameters,
     executor_param,
@@ -66,13 +74,20 @@ from quad_modelling.nodes.common import (
     non_empty,
     non_negative,
     positive,
+    qos_param,
     realtime_param,
     run_node,
     say,
     set_realtime_priority,
     spin,
+    subscription_qos,
+    vehicle_param,
 )
-from quad_modelling.nodes.model_factory import make_streaming_predictor, model_name
+from quad_modelling.nodes.model_factory import (
+    check_spec_without_vehicle,
+    make_streaming_predictor,
+    model_name,
+)
 
 WARM_BACKLOG_PER_INPUT = 1
 """Warm-start predictions published after each live prediction while a backlog remains (at 400 Hz, 2 per
@@ -99,7 +114,7 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("model", default_model, "model spec: naive, greybox, greybox:euler, narx:PATH, hybrid:PATH", non_empty),
         Param("model_file", "", "model file appended to the spec as MODEL:FILE (e.g. the NARX .npz); empty = none"),
         Param("model_name", "", "topic prefix and name of the predictions (<model_name>/odom); empty = the spec's kind"),
-        Param("vehicle", "crazyflie21", "vehicle config name (config/vehicles) or YAML path", non_empty),
+        vehicle_param(),
         Param("window_s", 10.0, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input", positive),
         Param("warm_s", 0.2, "warm start at each window start [s] (thesis 0.2 s)", positive),
         Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
@@ -108,7 +123,8 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
         Param("battery_topic", "", "battery voltage (sensor_msgs/BatteryState) for models that use it; empty = not subscribed"),
         Param("world_frame", topics.WORLD_FRAME, "frame_id of the predicted pose", non_empty),
-        Param("qos_depth", 1000, "depth of the reliable keep-last subscriptions and publishers", positive),
+        qos_param(),
+        Param("qos_depth", 1000, "depth of the keep-last subscriptions and publishers", positive),
         executor_param(),
         realtime_param(),
     ]
@@ -135,15 +151,17 @@ class PredictorNode(Node):
             raise BadParameter(f"{node_name}: parameter warm_s={p['warm_s']} must be shorter than window_s={p['window_s']}")
         spec = f"{p['model']}:{p['model_file']}" if p["model_file"] else p["model"]
         self.name_ = p["model_name"] or model_name(spec)
-        try:
-            self.vehicle = load_vehicle(p["vehicle"])
-            self.model = make_streaming_predictor(spec, self.vehicle)
-        except QuadModellingError as err:
-            raise BadParameter(f"{node_name}: parameter model={spec!r} vehicle={p['vehicle']!r}: {err}") from err
         self.spec = spec
-        # pay the model's one-time costs now, not in the first window (streaming.prime)
-        prime(self.model, self.vehicle, p["sample_period_s"] or PRIME_SAMPLE_PERIOD_S,
-              int(round(p["warm_s"] / (p["sample_period_s"] or PRIME_SAMPLE_PERIOD_S))))
+        self.sample_period_s, self.warm_s = p["sample_period_s"], p["warm_s"]
+        self.model = None
+        self.vehicles = VehicleSource(self.get_name(), p["vehicle"])
+        if self.vehicles.vehicle is not None:
+            self._build_model()
+        else:
+            try:
+                check_spec_without_vehicle(spec)
+            except QuadModellingError as err:
+                raise BadParameter(f"{node_name}: parameter model={spec!r}: {err}") from err
         self.executor_kind = p["executor"]
         self.realtime_priority = p["realtime_priority"]
         self.faults = FaultLog(self.get_logger())
@@ -151,10 +169,11 @@ class PredictorNode(Node):
         self.child_frame = f"{self.name_}/base_link"
         self.world_frame = p["world_frame"]
         self.out = messages.prediction_publisher_messages(self.child_frame, self.world_frame)
-        qos = data_qos(p["qos_depth"])
-        self.odom_pub = self.create_publisher(Odometry, f"{self.name_}/odom", qos)
-        self.accel_pub = self.create_publisher(AccelStamped, f"{self.name_}/accel", qos)
+        out_qos, qos = data_qos(p["qos_depth"]), subscription_qos(p["qos"], p["qos_depth"])
+        self.odom_pub = self.create_publisher(Odometry, f"{self.name_}/odom", out_qos)
+        self.accel_pub = self.create_publisher(AccelStamped, f"{self.name_}/accel", out_qos)
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
+        self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
         self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
         # measurements arrive serialised and are decoded after the answer to the next command (_decode_pending)
         self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, data), qos, raw=True)
@@ -185,10 +204,27 @@ class PredictorNode(Node):
         self.last_input_wall = 0.0
         self.published = 0
         self.windows_started = 0
-        self.get_logger().info(f"predicting with {self.spec!r} as '{self.name_}' on vehicle {self.vehicle.name}; "
-                               f"windows {p['window_s']:g} s, warm start {p['warm_s']:g} s")
+        self.get_logger().info(f"predicting with {self.spec!r} as '{self.name_}' on vehicle "
+                               f"{self.vehicle.name if self.vehicle else '(from the replay, topic ' + VEHICLE_TOPIC + ')'}; "
+                               f"windows {p['window_s']:g} s, warm start {p['warm_s']:g} s, {p['qos']} subscriptions")
+
+    @property
+    def vehicle(self):
+        return self.vehicles.vehicle
+
+    def _build_model(self) -> None:
+        """The streaming model of the spec on the vehicle, primed (one-time costs paid now, not in the first window)."""
+        try:
+            self.model = make_streaming_predictor(self.spec, self.vehicle)
+        except QuadModellingError as err:
+            raise BadParameter(f"{self.get_name()}: parameter model={self.spec!r} vehicle={self.vehicle.name!r}: {err}") from err
+        period = self.sample_period_s or PRIME_SAMPLE_PERIOD_S
+        prime(self.model, self.vehicle, period, int(round(self.warm_s / period)))
 
     # --- inputs -------------------------------------------------------------------------------
+
+    def on_vehicle(self, msg: String) -> None:
+        adopt_vehicle(self, self.vehicles, msg.data, self._build_model)
 
     def on_origin(self, msg: Clock) -> None:
         ns = topics.stamp_ns(msg.clock)
@@ -252,6 +288,10 @@ class PredictorNode(Node):
         self._store(self.battery, topics.stamp_ns(msg.header.stamp), float(msg.voltage), "battery")
 
     def on_motor(self, msg: JointState) -> None:
+        if self.model is None:
+            self.faults.report("no_vehicle", f"no vehicle yet: motor_input dropped until a replay announces one on topic "
+                                             f"{VEHICLE_TOPIC} (or set parameter vehicle)")
+            return
         ns = topics.stamp_ns(msg.header.stamp)
         fields = topics.motor_fields(msg)
         if fields is None or not np.isfinite(fields[0]).all():

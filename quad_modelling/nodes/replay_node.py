@@ -7,7 +7,9 @@ order, all reliable keep-last: what a consumer receives is the recorded message,
 conversion of it. A ``/clock`` (rosgraph_msgs/Clock) carrying the stamp precedes the
 messages of every new stamp. Before the first message it publishes ``window_origin``
 (transient-local) = the first played ``motor_input`` stamp, so every node cuts the
-same windows (the offline reader's time base is the ``motor_input`` stamps too).
+same windows (the offline reader's time base is the ``motor_input`` stamps too), and
+``vehicle`` (std_msgs/String, transient-local) = the bag's vehicle (or the ``vehicle``
+parameter), which nodes with an empty ``vehicle`` parameter adopt and others check.
 
 Pacing: ``rate`` > 0 is a real-time factor (1 = as recorded). ``rate`` = 0 plays as
 fast as the graph keeps up without loss: the evaluator acknowledges on
@@ -35,12 +37,14 @@ import numpy as np
 import rclpy
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
+from std_msgs.msg import String
 
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
-from quad_modelling.io.bag_io import read_recorded
+from quad_modelling.io.bag_io import read_bag_metadata, read_recorded
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
+    VEHICLE_TOPIC,
     BadParameter,
     FaultLog,
     Param,
@@ -62,6 +66,7 @@ SETTLE_S = 0.5
 REPLAY_PARAMETERS = [
     Param("bag", "", "MCAP bag directory to play", non_empty),
     Param("bag_namespace", topics.DEFAULT_NAMESPACE, "namespace of the contract topics inside the bag", non_empty),
+    Param("vehicle", "", "vehicle announced on topic vehicle (config name or YAML path); empty = the one the bag names"),
     Param("rate", 1.0, "real-time factor; 0 = as fast as the acknowledging evaluator keeps up, without loss", non_negative),
     Param("start_s", 0.0, "start offset into the bag [s]", non_negative),
     Param("end_s", -1.0, "end offset into the bag [s] (exclusive); < 0 = to the end"),
@@ -87,6 +92,7 @@ class ReplayNode(Node):
             raise BadParameter(f"replay: parameter end_s={p['end_s']} must be after start_s={p['start_s']} (or < 0 for the end)")
         try:
             recorded = read_recorded(p["bag"], namespace=p["bag_namespace"])
+            self.vehicle = p["vehicle"].strip() or read_bag_metadata(p["bag"]).vehicle
         except QuadModellingError as err:
             raise BadParameter(f"replay: parameter bag={p['bag']!r}: {err}") from err
         motor_stamps = np.array([m.stamp_ns for m in recorded if m.topic == "motor_input"], dtype=np.int64)
@@ -120,6 +126,12 @@ class ReplayNode(Node):
         self.motor_pub = self.publishers_["motor_input"]
         self.clock_pub = self.create_publisher(Clock, "/clock", qos) if self.publish_clock else None
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
+        self.vehicle_pub = self.create_publisher(String, VEHICLE_TOPIC, latched_qos())
+        if self.vehicle:
+            self.vehicle_pub.publish(String(data=self.vehicle))  # latched: nodes started later learn it too
+        else:
+            self.faults.report("no_vehicle", f"the bag names no vehicle and parameter vehicle is empty: nothing announced on "
+                                             f"topic {VEHICLE_TOPIC}; set the nodes' vehicle parameter")
         self.acked_ns: int | None = None
         self.ack_wall = time.monotonic()
         self.progress_sub = self.create_subscription(Clock, topics.PROGRESS_TOPIC, self.on_progress, data_qos(10))

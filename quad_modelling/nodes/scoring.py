@@ -82,6 +82,20 @@ class LiveScores:
         examples = list(self.examples.values())
         return EvaluationResult(scores, {}, self.config, flights, examples)
 
+    def write(self, output_dir, source: str, figures: bool, title: str) -> str:
+        """Write results.json, tables.md (and, with ``figures``, the figures) into ``output_dir`` (replaced
+        atomically); a one-line summary."""
+        from quad_modelling.atomic import atomic_output
+        from quad_modelling.io.reports.evaluation import write_report
+
+        result = self.result(source)
+        if not figures:
+            result.examples = []
+        with atomic_output(output_dir, force=True) as tmp:
+            write_report(result, tmp, title=title, document=self.to_json(source))
+        scored = sum(r.scored for r in self.records)
+        return f"wrote {output_dir} ({scored} scored, {len(self.records) - scored} marked window results)"
+
     def to_json(self, source: str) -> dict:
         """results.json: the core EvaluationResult JSON plus the live spans and every window (scored or marked)."""
         data = self.result(source).to_json()
@@ -91,3 +105,31 @@ class LiveScores:
             "marked": [r.to_json() for r in self.records if not r.scored],
         }
         return data
+
+
+def diagnostics_message(records: list[WindowRecord], stamp_ns: int):
+    """The ``evaluation`` message of one closed window: a diagnostic_msgs/DiagnosticArray stamped ``stamp_ns``
+    (the window's end) with one status per record: OK + ``<var>.rms``/``<var>.tic`` (SI, :data:`EVAL_VARIABLES`)
+    for a scored window, WARN + ``not scored: <reason>`` for a marked one."""
+    from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+
+    from quad_modelling.nodes.messages import ns_stamp
+
+    msg = DiagnosticArray()
+    msg.header.stamp = ns_stamp(stamp_ns)
+    idx = {v: i for i, v in enumerate(VARIABLES)}
+    for r in records:
+        status = DiagnosticStatus(name=f"evaluation/{r.model}/{r.span}/window_{r.index}", hardware_id=r.model)
+        values = [KeyValue(key="start_s", value=f"{r.start_s:g}"), KeyValue(key="end_s", value=f"{r.end_s:g}")]
+        if r.scored:
+            status.level = DiagnosticStatus.OK
+            status.message = "scored"
+            for v in EVAL_VARIABLES:
+                values.append(KeyValue(key=f"{v}.rms", value=repr(float(r.rms[idx[v]]))))
+                values.append(KeyValue(key=f"{v}.tic", value=repr(float(r.tic[idx[v]]))))
+        else:
+            status.level = DiagnosticStatus.WARN
+            status.message = f"not scored: {r.reason}"
+        status.values = values
+        msg.status.append(status)
+    return msg

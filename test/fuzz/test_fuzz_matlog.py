@@ -91,8 +91,9 @@ def test_random_bytes_give_one_line(data):
 
 
 def thesis_mapping() -> dict:
+    """The thesis variables as a mapping file; u in seconds, the input unit of the base flight's vehicle (linkquad)."""
     frame = {"acc_b": "FRD", "gyro_b": "FRD", "pos_n": "NED", "vel_n": "NED", "euler": "NED"}
-    units = {"time": "s", "u": "1", "acc_b": "m/s2", "gyro_b": "rad/s", "pos_n": "m", "vel_n": "m/s", "euler": "rad", "vbat": "V", "omega": "rad/s"}
+    units = {"time": "s", "u": "s", "acc_b": "m/s2", "gyro_b": "rad/s", "pos_n": "m", "vel_n": "m/s", "euler": "rad", "vbat": "V", "omega": "rad/s"}
     doc = {}
     for name, variables in THESIS_VARIABLES.items():
         entry = {"variable": variables[0]} if len(variables) == 1 else {"variables": list(variables)}

@@ -98,3 +98,27 @@ def test_a_pose_only_vicon_log_reads_through_a_mapping_without_imu(tmp_path):
     assert back.acc_b is None and back.gyro_b is None and back.vbat is None
     np.testing.assert_allclose(back.pos_n, log.pos_n, atol=1e-12)
     np.testing.assert_allclose(back.euler[:, :2], log.euler[:, :2], atol=1e-12)
+
+
+def test_mapped_command_unit_is_checked_against_the_vehicle_input_unit(tmp_path, capsys):
+    from quad_modelling.cli import main
+    from quad_modelling.io.loader import load_flight
+
+    log = synthetic_log(vehicle="linkquad")
+    pulse_us = np.full_like(log.u, 1500.0)
+    scipy.io.savemat(tmp_path / "lab.mat", {"T": log.t, "pwm": pulse_us, "pos": log.pos_n, "vel": log.vel_n, "att": log.euler,
+                                            "acc": log.acc_b, "gyro": log.gyro_b})
+    (tmp_path / "map.yaml").write_text(yaml.safe_dump({
+        "time": {"variable": "T", "unit": "s"}, "u": {"variable": "pwm", "unit": "us"},
+        "acc_b": {"variable": "acc", "unit": "m/s2", "frame": "FRD"}, "gyro_b": {"variable": "gyro", "unit": "rad/s", "frame": "FRD"},
+        "pos_n": {"variable": "pos", "unit": "m", "frame": "NED"}, "vel_n": {"variable": "vel", "unit": "m/s", "frame": "NED"},
+        "euler": {"variable": "att", "unit": "rad", "frame": "NED"}}))
+    mat, mapping = tmp_path / "lab.mat", tmp_path / "map.yaml"
+    assert np.allclose(load_flight(mat, "linkquad", mapping_file=mapping).u, 1.5e-3)  # linkquad takes seconds: 1500 us = 1.5 ms
+    assert np.allclose(load_flight(mat, "px4_iris_pwm", mapping_file=mapping).u, 1500.0)  # px4_iris_pwm takes us: as logged
+    with pytest.raises(ConfigError) as err:
+        load_flight(mat, "crazyflie21", mapping_file=mapping)  # PWM counts, not a pulse length
+    assert "mapping field 'u' unit 'us' does not fit vehicle crazyflie21's input unit 'PWM'" in str(err.value)
+    assert main(["convert", str(mat), "--mapping", str(mapping), "--vehicle", "px4_iris", "-o", str(tmp_path / "bag")]) == 2
+    message = capsys.readouterr().err.strip()
+    assert "\n" not in message and "input unit 'normalised'" in message and not (tmp_path / "bag").exists()

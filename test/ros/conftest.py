@@ -7,8 +7,11 @@ import os
 import numpy as np
 import pytest
 
-# Each test process talks in its own domain, on loopback only (DESIGN 3).
-os.environ["ROS_DOMAIN_ID"] = str(os.getpid() % 90 + 10)  # 10..99: DDS ports stay below the ephemeral range
+from quad_modelling.nodes.domains import claim_domain
+
+# Each test process talks in a domain no other process on this machine holds (a lock file per domain),
+# on loopback only (DESIGN 3). Subprocesses started by the tests inherit it.
+os.environ["ROS_DOMAIN_ID"] = str(claim_domain())
 os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 

@@ -14,7 +14,7 @@ from test.ros.conftest import Capture, feed, hover_log
 
 
 def make_node(**params):
-    values = {"window_s": 5.0, "models": ["m"], "figures": False, **params}
+    values = {"window_s": 5.0, "models": ["m"], "figures": False, "vehicle": "crazyflie21", **params}
     node = EvaluatorNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
     node.diag_pub = Capture()
     return node
@@ -102,3 +102,28 @@ def test_gap_restart_and_late_start_mark_windows_instead_of_failing(ros, tmp_pat
     records = [r for r in late.scores.records if r.model == "m"]
     assert records[0].index == 1 and not records[0].scored and records[1].scored and records[1].index == 2
     late.destroy_node()
+
+
+def test_record_bag_is_refused_when_it_exists_or_lies_in_output_dir(ros, tmp_path):
+    import pytest
+
+    from quad_modelling.nodes.common import BadParameter
+
+    (tmp_path / "old").mkdir()
+    with pytest.raises(BadParameter, match="parameter record=.*old' exists; set force:=true"):
+        make_node(record=str(tmp_path / "old"))
+    with pytest.raises(BadParameter, match="lies in output_dir"):
+        make_node(record=str(tmp_path / "out" / "rec"), output_dir=str(tmp_path / "out"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old"]  # nothing staged
+
+
+def test_without_a_vehicle_windows_are_marked_not_scored(ros):
+    log = hover_log(1200)
+    node = make_node(vehicle="")
+    y = measured_variables(log)
+    feed(node, log, range(len(log)), predictions={"m": topics.prediction_fields(y)})
+    node.finish()
+    assert len(node.scores.records) == 6  # windows 0, 1 and the partial 2, of m and the dummy
+    assert {r.reason for r in node.scores.records} == {"no vehicle: parameter vehicle is empty and no replay announced one "
+                                                       "on topic vehicle"}
+    node.destroy_node()

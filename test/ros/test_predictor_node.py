@@ -22,7 +22,7 @@ from test.ros.conftest import Capture, feed, hover_log
 
 
 def make_node(**params):
-    overrides = [Parameter(k, value=v) for k, v in {"window_s": 5.0, **params}.items()]
+    overrides = [Parameter(k, value=v) for k, v in {"window_s": 5.0, "vehicle": "crazyflie21", **params}.items()]
     node = PredictorNode(parameter_overrides=overrides)
     node.odom_pub, node.accel_pub = Capture(), Capture()
     return node
@@ -288,4 +288,22 @@ def test_serialised_measurements_are_decoded_after_the_answer_and_still_checked(
     assert node.faults.counts == {"nan_odom": 1, "bad_imu": 1}
     assert int(stamps[21]) not in node.odom and int(stamps[23]) not in node.imu and int(stamps[22]) in node.odom
     assert node.state == "stream" and node.published == 5 + 5  # commands 20..24, each followed by one warm row
+    node.destroy_node()
+
+
+def test_without_a_vehicle_inputs_wait_for_the_replays_announcement(ros):
+    from std_msgs.msg import String
+
+    log = hover_log(1200)
+    node = make_node(model="naive", vehicle="")
+    assert node.model is None
+    feed(node, log, range(0, 10))
+    assert node.faults.counts == {"no_vehicle": 10} and node.odom_pub.messages == []
+    node.on_vehicle(String(data="crazyflie21"))  # what the replay publishes (transient-local)
+    assert node.vehicle.name == "crazyflie21" and node.model is not None
+    stamps = feed(node, log, range(500, 1000))  # window 1 (5 s windows from the first input's t0)
+    window = log.slice(500, 1000)
+    expected = predict_window_by_stream(make_streaming_predictor("naive", load_vehicle("crazyflie21")), window, 20)
+    got, predicted = published(node, stamps[500:1000])
+    assert len(got) == 500 and np.allclose(predicted[:, 3:6], expected[:, 3:6], atol=1e-9)
     node.destroy_node()

@@ -11,6 +11,7 @@ from nav_msgs.msg import Odometry
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import String
 
 from quad_modelling.io import topics
 from quad_modelling.io.bag_io import write_bag
@@ -38,12 +39,13 @@ def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path, e
     log = synthetic_log(n=300)
     bag = write_bag(log, tmp_path / "bag")
     node = Node("listener", namespace="/quad")
-    got = {"motor": [], "odom": [], "imu": [], "clock": [], "origin": []}
+    got = {"motor": [], "odom": [], "imu": [], "clock": [], "origin": [], "vehicle": []}
     node.create_subscription(JointState, "motor_input", lambda m: got["motor"].append(m), data_qos())
     node.create_subscription(Odometry, "mocap/odom", lambda m: got["odom"].append(m), data_qos())
     node.create_subscription(Imu, "imu", lambda m: got["imu"].append(m), data_qos())
     node.create_subscription(Clock, "/clock", lambda m: got["clock"].append(m), data_qos())
     node.create_subscription(Clock, "window_origin", lambda m: got["origin"].append(m), latched_qos())
+    node.create_subscription(String, "vehicle", lambda m: got["vehicle"].append(m), latched_qos())
     replay = subprocess.Popen(
         [sys.executable, "-m", "quad_modelling.nodes.replay_node", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=20.0",
          "-p", "start_s:=0.5", "-p", "wait_for_subscribers:=1", "-p", f"executor:={executor}"],
@@ -59,6 +61,7 @@ def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path, e
         stamps = [topics.stamp_ns(m.clock if key == "clock" else m.header.stamp) for m in got[key]]
         assert stamps == expected.tolist(), key
     assert topics.stamp_ns(got["origin"][0].clock) == expected[0]
+    assert [m.data for m in got["vehicle"]] == [log.meta.vehicle]  # the bag's vehicle, announced once (transient-local)
     odom = got["odom"][10]
     assert (odom.header.frame_id, odom.child_frame_id) == ("world", "base_link")
     # ENU position of row 60 = (east, north, up) of the NED log

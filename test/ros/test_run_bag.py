@@ -61,7 +61,8 @@ def _processes_mentioning(text: str) -> list[int]:
     return found
 
 
-def test_sigterm_stops_every_node_and_removes_the_staging(tmp_path):
+@pytest.mark.parametrize("signum", ["SIGTERM", "SIGINT"])
+def test_sigterm_stops_every_node_and_removes_the_staging(tmp_path, signum):
     import os
     import signal
     import subprocess
@@ -80,13 +81,13 @@ def test_sigterm_stops_every_node_and_removes_the_staging(tmp_path):
         assert staging and proc.poll() is None, "the nodes never started"
         time.sleep(2.0)  # the nodes are up and replaying (at real time, 40 s of flight)
         assert _processes_mentioning(str(staging[0]))  # the node processes, found by their params file
-        proc.send_signal(signal.SIGTERM)
+        proc.send_signal(getattr(signal, signum))
         _, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 143, err
-    assert err.strip().splitlines()[-1] == "quad-modelling run-bag: interrupted (SIGTERM)"
+    assert proc.returncode == {"SIGTERM": 143, "SIGINT": 130}[signum], err
+    assert err.strip().splitlines()[-1] == f"quad-modelling run-bag: interrupted ({signum})"
     assert list(tmp_path.iterdir()) == []  # no output, no staging
     assert _processes_mentioning(str(staging[0])) == []  # no orphaned node

@@ -1,0 +1,87 @@
+"""Parameters and QoS as ROS users expect them, tested without spinning a node (nodes/common.py, nodes/domains.py)."""
+
+import pytest
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, ReliabilityPolicy
+
+from quad_modelling.errors import ConfigError
+from quad_modelling.nodes import domains
+from quad_modelling.nodes.common import (
+    BadParameter,
+    Param,
+    VehicleSource,
+    integers_as_floats,
+    subscription_qos,
+    unknown_parameters,
+)
+from quad_modelling.nodes.evaluator_node import EVALUATOR_PARAMETERS
+from quad_modelling.nodes.predictor_node import predictor_parameters
+from quad_modelling.nodes.replay_node import REPLAY_PARAMETERS
+from test.conftest import REPO
+
+
+def test_a_misspelt_parameter_names_the_closest_declared_one():
+    declared = [p.name for p in predictor_parameters("greybox")]
+    warnings = unknown_parameters(["windw_s", "window_s", "use_sim_time", "qos_overrides./quad/imu.subscription.depth",
+                                   "colour"], declared)
+    assert warnings[0] == "unknown parameter 'colour' ignored; declared: " + ", ".join(sorted(declared))
+    assert warnings[1] == "unknown parameter 'windw_s' ignored; did you mean 'window_s'?"
+    assert len(warnings) == 2  # rclpy's own parameters and the declared one are not reported
+    assert unknown_parameters(["modles"], [p.name for p in EVALUATOR_PARAMETERS]) == \
+        ["unknown parameter 'modles' ignored; did you mean 'models'?"]
+
+
+def test_an_integer_for_a_float_parameter_becomes_that_float_and_other_types_stay():
+    params = [p for p in REPLAY_PARAMETERS if p.name in ("rate", "max_in_flight", "bag")]
+    overrides = {"rate": Parameter("rate", value=2), "max_in_flight": Parameter("max_in_flight", value=7),
+                 "bag": Parameter("bag", value="b")}
+    assert integers_as_floats(overrides, params) == ["rate"]
+    assert overrides["rate"].type_ == Parameter.Type.DOUBLE and overrides["rate"].value == 2.0
+    assert overrides["max_in_flight"].type_ == Parameter.Type.INTEGER and overrides["max_in_flight"].value == 7
+    assert overrides["bag"].value == "b"
+    assert integers_as_floats({"x": Parameter("x", value=3)}, [Param("x", 1, "an integer parameter")]) == []
+
+
+def test_subscription_qos_kinds():
+    best = subscription_qos("best_effort", 1000)
+    assert (best.reliability, best.durability, best.depth) == (ReliabilityPolicy.BEST_EFFORT, DurabilityPolicy.VOLATILE, 1000)
+    reliable = subscription_qos("reliable", 50)
+    assert (reliable.reliability, reliable.depth) == (ReliabilityPolicy.RELIABLE, 50)
+    sensor = subscription_qos("sensor_data", 1000)
+    assert (sensor.reliability, sensor.depth) == (ReliabilityPolicy.BEST_EFFORT, 5)  # rclpy's qos_profile_sensor_data
+    with pytest.raises(BadParameter, match="qos='fast': must be one of best_effort, reliable, sensor_data"):
+        subscription_qos("fast")
+    for params in (predictor_parameters("naive"), EVALUATOR_PARAMETERS):  # every subscribing node has the parameter
+        qos = next(p for p in params if p.name == "qos")
+        assert qos.default == "best_effort" and qos.check("sensor_data") is None and qos.check("x")
+
+
+def test_vehicle_is_learned_from_the_replay_or_a_mismatch_refused_in_one_line():
+    learner = VehicleSource("predictor", "")
+    assert learner.vehicle is None
+    assert learner.announce("linkquad").name == "linkquad"
+    assert learner.announce("linkquad") is None  # the same announcement again (late joiner, repeat): nothing new
+    assert learner.vehicle.mass == pytest.approx(1.2)  # the thesis's LinkQuad (Table 3-1)
+    set_one = VehicleSource("evaluator", "crazyflie21")
+    assert set_one.announce("crazyflie21") is None and set_one.vehicle.name == "crazyflie21"
+    assert set_one.announce(str(REPO / "config" / "vehicles" / "crazyflie21.yaml")) is None  # the same vehicle by path
+    with pytest.raises(BadParameter) as err:
+        set_one.announce("linkquad")
+    message = str(err.value)
+    assert "\n" not in message and "vehicle='crazyflie21'" in message and "vehicle 'linkquad'" in message
+    with pytest.raises(BadParameter, match="cannot load"):
+        VehicleSource("predictor", "").announce("/nowhere/custom_quad.yaml")
+    assert VehicleSource("p", "crazyflie21").announce("/elsewhere/crazyflie21.yaml") is None  # same name, file on another host
+    with pytest.raises(BadParameter, match="parameter vehicle='warp': unknown vehicle"):
+        VehicleSource("predictor", "warp")
+
+
+def test_each_claim_gets_a_domain_no_other_holder_has(tmp_path, monkeypatch):
+    monkeypatch.setattr(domains, "DOMAIN_IDS", range(40, 43))
+    monkeypatch.setattr(domains, "_held", [])
+    got = [domains.claim_domain(tmp_path) for _ in range(3)]
+    assert sorted(got) == [40, 41, 42]  # flock is per open file: a second claim in one process gets another domain
+    with pytest.raises(ConfigError, match="every ROS domain 40-42 is held"):
+        domains.claim_domain(tmp_path)
+    domains._held.pop(got.index(41)).close()  # a holder that ends releases its domain
+    assert domains.claim_domain(tmp_path) == 41
