@@ -36,11 +36,15 @@ not enter), as the vector :math:`z`:
 :math:`a` is held (only :math:`B_m\\sqrt a` is identifiable): :math:`A_m = -1/\\tau_m`,
 :math:`B_m = K / (2\\sqrt{a m g/4})`, :math:`d = a \\cdot (d/a)`.
 
-Uncertainties (1 sigma) from the Jacobian at the optimum, :math:`\\mathrm{cov}(z) = s^2 (J^T J)^{-1}`
-with :math:`s^2` the residual variance, propagated to the constants
+Uncertainties (1 sigma) from the Jacobian at the optimum: the HAC (Newey-West) sandwich
+:math:`\\mathrm{cov}(z) = (J^T J)^{-1} S (J^T J)^{-1}` with windows as blocks
+(:mod:`~quad_modelling.core.identification.uncertainty`), because the residuals are autocorrelated
+(smoothed, 100 Hz, every 4th sample used): the textbook :math:`s^2 (J^T J)^{-1}` treated each kept
+sample as independent and was optimistic. Propagated to the constants
 (:math:`\\sigma_{A_m} = |A_m| \\sigma_{z_0}`, :math:`\\sigma_{\\ln K}^2 = \\mathrm{var}(z_1 - z_0)`,
-:math:`\\sigma_d = a\\, \\sigma_{z_2}`). The residuals are autocorrelated (smoothed, 100 Hz, every
-4th sample used), so these are optimistic.
+:math:`\\sigma_d = a\\, \\sigma_{z_2}`, :math:`\\sigma_{k_R} = k_R \\sigma_{z_4}`). Every fitted
+parameter that ends on its search bound is flagged (``fit['at_bound']``); its sigma is then the
+unconstrained curvature's and the value is the bound's, not the data's.
 """
 
 from __future__ import annotations
@@ -52,6 +56,8 @@ import numpy as np
 from scipy import optimize
 
 from quad_modelling.core.identification.base_model import BaseModel, predict_batch
+from quad_modelling.core.identification.constants_report import ConstantEstimate
+from quad_modelling.core.identification.uncertainty import bandwidth_samples, hac_covariance
 from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.models.greybox import GreyboxParameters
 from quad_modelling.core.variables import INDEX
@@ -127,8 +133,8 @@ class BaseFit:
 
     ``values``: motor_a_m [1/s], motor_b_m, drag_constant [N m s²], thrust_gain_K [N/s per command unit],
     arm_scale [1], rotor_reaction_scale [1], prop_inertia [kg m²], reference_voltage [V] (None without
-    voltage); ``sigma``: 1-sigma of motor_a_m, motor_b_m, drag_constant, thrust_gain_K (empty when not
-    identified); ``fit``: cost, residual count, whether tau_m ended on a bound.
+    voltage); ``sigma``: 1-sigma of motor_a_m, motor_b_m, drag_constant, thrust_gain_K, arm_scale,
+    rotor_reaction_scale (empty when not identified); ``fit``: cost, residual count, whether tau_m ended on a bound.
     """
 
     model: BaseModel
@@ -207,7 +213,7 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
     tau = math.exp(best.x[0])
     return BaseFit(BaseModel(p, v_ref), values, True,
                    "identified on the training windows (acc_z, roll/pitch/yaw acceleration): tau_m, steady gain, d/a, arm scale, rotor-reaction scale",
-                   sigma=_sigma(best, free, p), fit={
+                   sigma=_sigma(best, free, p, target.shape, batch.dt), fit={
                        "cost": float(best.cost), "residuals": int(best.fun.size), "motor_time_constant_s": tau,
                        "motor_time_constant_at_bound": bool(np.isclose(tau, MOTOR_TIME_CONSTANT_RANGE, rtol=1e-3).any()),
                        "motor_time_constant_range_s": list(MOTOR_TIME_CONSTANT_RANGE),
@@ -215,22 +221,62 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
                        "fitted_on": ", ".join(excited) + " jointly (output error, open loop over each window)",
                        "not_excited": {v: float(r) for v, r in zip(FITTED_VARIABLES, rms) if v not in excited},
                        "held": [name for name, f in zip(FITTED_NAMES, free) if not f],
+                       "at_bound": {name: bool(f and (np.isclose(z, lo, rtol=1e-3, atol=1e-6) or np.isclose(z, hi, rtol=1e-3, atol=1e-6)))
+                                    for name, f, z, lo, hi in zip(FITTED_NAMES, free, best.x, lower, upper)},
                    })
 
 
-def _sigma(fit: optimize.OptimizeResult, free: np.ndarray, p: GreyboxParameters) -> dict[str, float]:
-    """1-sigma of the identified constants from the Jacobian (of the ``free`` parameters) at the optimum
-    (module docstring); a held constant's is NaN."""
+def _sigma(fit: optimize.OptimizeResult, free: np.ndarray, p: GreyboxParameters, shape: tuple[int, int, int], dt: float) -> dict[str, float]:
+    """1-sigma of the identified constants at the optimum (module docstring): the HAC covariance of the
+    ``free`` parameters (:func:`~quad_modelling.core.identification.uncertainty.hac_covariance`, windows as
+    blocks; ``shape`` = (windows, rows, variables) of the residuals, rows ``RESIDUAL_STRIDE`` samples of
+    ``dt`` apart), propagated to the constants; a held constant's is NaN."""
     n_free = int(free.sum())
-    s2 = 2.0 * fit.cost / max(fit.fun.size - n_free, 1)
     cov = np.full((free.size, free.size), np.nan)
     try:
-        cov[np.ix_(free, free)] = np.linalg.inv(fit.jac.T @ fit.jac) * s2
+        lags = bandwidth_samples(dt, RESIDUAL_STRIDE)
+        cov[np.ix_(free, free)] = hac_covariance(fit.jac.reshape(*shape, n_free), fit.fun.reshape(shape), lags)
     except np.linalg.LinAlgError:
         pass  # a singular J^T J: the constants are not separable here, their sigmas stay NaN
     log_gain_var = cov[1, 1] + cov[0, 0] - 2.0 * cov[0, 1]  # ln K = ln G_config + z_1 - z_0
     sigma_log_gain = math.sqrt(log_gain_var) if log_gain_var >= 0 else float("nan")
-    return {"motor_a_m": float(abs(p.motor_a_m) * math.sqrt(max(cov[0, 0], 0.0))),
+
+    def root(v: float) -> float:
+        return math.sqrt(v) if v >= 0 else float("nan")
+
+    return {"motor_a_m": float(abs(p.motor_a_m) * root(cov[0, 0])),
             "motor_b_m": float(p.motor_b_m * sigma_log_gain),
             "thrust_gain_K": float(p.input_gain * sigma_log_gain),
-            "drag_constant": float(p.thrust_constant * math.sqrt(cov[2, 2])) if cov[2, 2] >= 0 else float("nan")}
+            "drag_constant": float(p.thrust_constant * root(cov[2, 2])),
+            "arm_scale": float(root(cov[3, 3])),
+            "rotor_reaction_scale": float(math.exp(fit.x[4]) * root(cov[4, 4]))}
+
+
+def constant_estimates(fit: BaseFit, vehicle: VehicleConfig) -> list[ConstantEstimate]:
+    """The fit's constants with units, sigma, search bounds (in each constant's unit), at-bound flags and the
+    vehicle file's values (:mod:`~quad_modelling.core.identification.constants_report`)."""
+    p0 = GreyboxParameters.from_vehicle(vehicle)
+    v, s, flags = fit.values, fit.sigma, fit.fit.get("at_bound", {})
+    root = 2.0 * math.sqrt(p0.thrust_constant * p0.mass * GRAVITY / 4.0)
+    steady = p0.input_gain * (-1.0 / p0.motor_a_m)  # G_config = K tau_m [N per command unit]
+    k_range = (steady * STEADY_GAIN_RATIO_RANGE[0] / MAX_MOTOR_TIME_CONSTANT, steady * STEADY_GAIN_RATIO_RANGE[1] / MIN_MOTOR_TIME_CONSTANT)
+    motor_at_bound = bool(flags.get("ln_motor_time_constant") or flags.get("ln_steady_gain_ratio"))
+    unit = {key: vehicle.constants[key].unit for key in ("motor_a_m", "motor_b_m", "drag_constant")}
+    excite = "more collective (throttle) steps"
+    return [
+        ConstantEstimate("motor_a_m", v["motor_a_m"], unit["motor_a_m"], s.get("motor_a_m", math.nan),
+                         (-MOTOR_POLE_RANGE[1], -MOTOR_POLE_RANGE[0]), vehicle.value("motor_a_m"),
+                         bool(flags.get("ln_motor_time_constant")), excite + " faster than the motor lag"),
+        ConstantEstimate("motor_b_m", v["motor_b_m"], unit["motor_b_m"], s.get("motor_b_m", math.nan),
+                         (k_range[0] / root, k_range[1] / root), vehicle.value("motor_b_m"), motor_at_bound, excite),
+        ConstantEstimate("thrust_gain_K", v["thrust_gain_K"], "N/s per command unit", s.get("thrust_gain_K", math.nan),
+                         k_range, p0.input_gain, motor_at_bound, excite),
+        ConstantEstimate("drag_constant", v["drag_constant"], unit["drag_constant"], s.get("drag_constant", math.nan),
+                         tuple(p0.thrust_constant * b for b in YAW_DRAG_RATIO_RANGE), vehicle.value("drag_constant"),
+                         bool(flags.get("yaw_drag_ratio")), "yaw manoeuvres"),
+        ConstantEstimate("arm_scale", v["arm_scale"], "1", s.get("arm_scale", math.nan), ARM_SCALE_RANGE, 1.0,
+                         bool(flags.get("arm_scale")), "roll/pitch manoeuvres (closed loop hides the slow ones)"),
+        ConstantEstimate("rotor_reaction_scale", v["rotor_reaction_scale"], "1", s.get("rotor_reaction_scale", math.nan),
+                         ROTOR_REACTION_SCALE_RANGE, 1.0, bool(flags.get("ln_rotor_reaction_scale")),
+                         "fast yaw command steps (a negligible term for light propellers)"),
+    ]

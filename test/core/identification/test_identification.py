@@ -22,7 +22,7 @@ def test_identification_recovers_motor_constants_used_to_simulate():
     doc = identified_vehicle_document(start, result, config.train)
     loaded = VehicleConfig.from_dict(doc, "identified.yaml")
     assert np.isclose(loaded.value("motor_a_m"), result.values["motor_a_m"])
-    assert "identified from f0.csv, f1.csv spans 5:45" in loaded.constants["motor_b_m"].source
+    assert "identified on f0.csv, f1.csv spans 5:45" in loaded.constants["motor_b_m"].source
     assert doc["constants"]["motor_b_m"]["sigma"] > 0
 
 
