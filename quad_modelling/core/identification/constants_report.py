@@ -34,6 +34,7 @@ class ConstantEstimate:
     vehicle: float | None = None
     at_bound: bool = False
     helps: str = "more excitation of the variables it drives"
+    held: str = ""  # why the fit held it at its starting value ('' = fitted)
 
     @property
     def change_percent(self) -> float | None:
@@ -44,11 +45,13 @@ class ConstantEstimate:
 
     @property
     def poorly_determined(self) -> bool:
-        return (self.at_bound or not math.isfinite(self.sigma) or not math.isfinite(self.value)
+        return (bool(self.held) or self.at_bound or not math.isfinite(self.sigma) or not math.isfinite(self.value)
                 or self.sigma > POOR_RELATIVE_SIGMA * abs(self.value))
 
     def reason(self) -> str:
         """Why it is poorly determined ('' when it is not)."""
+        if self.held:
+            return f"held at {self.value:.3g} ({self.held})"
         if not math.isfinite(self.value):
             return "not identifiable from these flights"
         if self.at_bound:
@@ -61,7 +64,7 @@ class ConstantEstimate:
 
     def lines(self, indent: str = "  ") -> list[str]:
         """'name value unit (sigma s), vehicle v: +c %' then bounds and flag, wrapped at 100 characters."""
-        head = f"{indent}{self.name} {self.value:.3g} {self.unit} (sigma {self.sigma:.2g})"
+        head = f"{indent}{self.name} {self.value:.3g} {self.unit} " + (f"(held: {self.held})" if self.held else f"(sigma {self.sigma:.2g})")
         change = self.change_percent
         if self.vehicle is not None:
             head += f", vehicle {self.vehicle:.3g}" + (f": {change:+.0f} %" if change is not None else "")
@@ -84,7 +87,7 @@ class ConstantEstimate:
                 "bounds": None if self.bounds is None else [float(b) for b in self.bounds],
                 "at_bound": bool(self.at_bound), "vehicle_value": None if self.vehicle is None else float(self.vehicle),
                 "change_percent": None if change is None else round(float(change), 1),
-                "poorly_determined": self.reason() or None}
+                "poorly_determined": self.reason() or None, "held": self.held or None}
 
 
 def at_bound(value: float, bounds: tuple[float, float]) -> bool:
@@ -101,6 +104,8 @@ def constant_lines(estimates: list[ConstantEstimate], title: str) -> list[str]:
         lines += e.lines()
     for e in estimates:
         if e.poorly_determined:
+            if e.held:
+                continue  # its line already says why
             text = f"  poorly determined: {e.name}: {e.reason()}; would help: {e.helps}"
             lines += [text] if len(text) <= LINE_WIDTH else [f"  poorly determined: {e.name}: {e.reason()};",
                                                              f"    would help: {e.helps}"]
