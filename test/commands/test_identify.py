@@ -40,6 +40,8 @@ def test_identify_on_the_bundled_bag_reports_constants_and_no_false_alarm(tmp_pa
     assert b_m["source"].startswith("identified on nanobench_B7_oval_medium_rep2 spans 10:25") and "sigma" in b_m["source"]
     fitted = doc["identification"]["constants"]
     assert fitted["arm_scale"]["at_bound"] == (fitted["arm_scale"]["value"] <= 0.3 * 1.001)
-    for name, entry in fitted.items():  # every poorly determined constant has its one line
-        assert (f"poorly determined: {name}:" in printed) == (entry["poorly_determined"] is not None)
+    for name, entry in fitted.items():  # every poorly determined constant has its one line (a held one says so in its entry)
+        flagged = f"poorly determined: {name}:" in printed or f"  {name} {entry['value']:.3g} 1 (held: " in printed
+        assert flagged == (entry["poorly_determined"] is not None)
+    assert fitted["rotor_reaction_scale"]["held"] and fitted["rotor_reaction_scale"]["value"] == 1.0
     assert doc["identification"]["motor_check"]["verdict"] == "consistent"
