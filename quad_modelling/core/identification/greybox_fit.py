@@ -36,11 +36,15 @@ not enter), as the vector :math:`z`:
 :math:`a` is held (only :math:`B_m\\sqrt a` is identifiable): :math:`A_m = -1/\\tau_m`,
 :math:`B_m = K / (2\\sqrt{a m g/4})`, :math:`d = a \\cdot (d/a)`.
 
-Uncertainties (1 sigma) from the Jacobian at the optimum, :math:`\\mathrm{cov}(z) = s^2 (J^T J)^{-1}`
-with :math:`s^2` the residual variance, propagated to the constants
+Uncertainties (1 sigma) from the Jacobian at the optimum: the HAC (Newey-West) sandwich
+:math:`\\mathrm{cov}(z) = (J^T J)^{-1} S (J^T J)^{-1}` with windows as blocks
+(:mod:`~quad_modelling.core.identification.uncertainty`), because the residuals are autocorrelated
+(smoothed, 100 Hz, every 4th sample used): the textbook :math:`s^2 (J^T J)^{-1}` treated each kept
+sample as independent and was optimistic. Propagated to the constants
 (:math:`\\sigma_{A_m} = |A_m| \\sigma_{z_0}`, :math:`\\sigma_{\\ln K}^2 = \\mathrm{var}(z_1 - z_0)`,
-:math:`\\sigma_d = a\\, \\sigma_{z_2}`). The residuals are autocorrelated (smoothed, 100 Hz, every
-4th sample used), so these are optimistic.
+:math:`\\sigma_d = a\\, \\sigma_{z_2}`, :math:`\\sigma_{k_R} = k_R \\sigma_{z_4}`). Every fitted
+parameter that ends on its search bound is flagged (``fit['at_bound']``); its sigma is then the
+unconstrained curvature's and the value is the bound's, not the data's.
 """
 
 from __future__ import annotations
@@ -52,6 +56,8 @@ import numpy as np
 from scipy import optimize
 
 from quad_modelling.core.identification.base_model import BaseModel, predict_batch
+from quad_modelling.core.identification.constants_report import ConstantEstimate
+from quad_modelling.core.identification.uncertainty import bandwidth_samples, hac_covariance
 from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.models.greybox import GreyboxParameters
 from quad_modelling.core.variables import INDEX
@@ -92,6 +98,14 @@ ROTOR_REACTION_SCALE_RANGE = (1e-3, 1e3)
 """Search range of k_R [1], the scale of the rotor-reaction yaw term: Table 3-1's inconsistent a makes the
 configured term ~8x off (module docstring), so three decades either way."""
 
+ROTOR_REACTION_FLOOR = 0.01
+"""Fraction of the measured yaw acceleration RMS below which the configured rotor-reaction term
+:math:`I_{prop} \\sum_i s_i \\dot\\Omega_i / I_{zz}` (k_R = 1) is negligible and k_R is held at 1
+(``fit['held']``). On the bundled Crazyflie bag (I_prop 3.4e-11 kg m², a guess) the term is 0.07 % of the
+yaw acceleration (1.7e-4 of 0.26 rad/s² RMS, training span 10-25 s): the cost was flat in k_R, and the fit
+ended on the lower bound 1e-3 with sigma 1.7e3, a bound's value, not the data's. The LinkQuad's term
+(Table 3-1, ~8x too strong, module docstring) stays free."""
+
 FITTED_VARIABLES = ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")
 """The variables the fit compares (driven by the thrusts without integration)."""
 
@@ -127,8 +141,8 @@ class BaseFit:
 
     ``values``: motor_a_m [1/s], motor_b_m, drag_constant [N m s²], thrust_gain_K [N/s per command unit],
     arm_scale [1], rotor_reaction_scale [1], prop_inertia [kg m²], reference_voltage [V] (None without
-    voltage); ``sigma``: 1-sigma of motor_a_m, motor_b_m, drag_constant, thrust_gain_K (empty when not
-    identified); ``fit``: cost, residual count, whether tau_m ended on a bound.
+    voltage); ``sigma``: 1-sigma of motor_a_m, motor_b_m, drag_constant, thrust_gain_K, arm_scale,
+    rotor_reaction_scale (empty when not identified); ``fit``: cost, residual count, whether tau_m ended on a bound.
     """
 
     model: BaseModel
@@ -168,6 +182,8 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
     target = batch.measured[:, rows][:, :, cols]
     scale = rms[[FITTED_VARIABLES.index(v) for v in excited]]
     free = np.array([not shown or any(v in excited for v in shown) for shown in PARAMETER_VARIABLES])
+    if free[4] and _rotor_reaction_negligible(p0, batch, rms[FITTED_VARIABLES.index("yaw_acc")]):
+        free[4] = False  # k_R held at 1: the data cannot tell the configured term from none (ROTOR_REACTION_FLOOR)
     tau_config = -1.0 / p0.motor_a_m
     steady_config = p0.input_gain * tau_config
     tau0 = min(max(tau_config, 1.1 * MIN_MOTOR_TIME_CONSTANT), 0.95 * MAX_MOTOR_TIME_CONSTANT)
@@ -207,7 +223,7 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
     tau = math.exp(best.x[0])
     return BaseFit(BaseModel(p, v_ref), values, True,
                    "identified on the training windows (acc_z, roll/pitch/yaw acceleration): tau_m, steady gain, d/a, arm scale, rotor-reaction scale",
-                   sigma=_sigma(best, free, p), fit={
+                   sigma=_sigma(best, free, p, target.shape, batch.dt), fit={
                        "cost": float(best.cost), "residuals": int(best.fun.size), "motor_time_constant_s": tau,
                        "motor_time_constant_at_bound": bool(np.isclose(tau, MOTOR_TIME_CONSTANT_RANGE, rtol=1e-3).any()),
                        "motor_time_constant_range_s": list(MOTOR_TIME_CONSTANT_RANGE),
@@ -215,22 +231,76 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
                        "fitted_on": ", ".join(excited) + " jointly (output error, open loop over each window)",
                        "not_excited": {v: float(r) for v, r in zip(FITTED_VARIABLES, rms) if v not in excited},
                        "held": [name for name, f in zip(FITTED_NAMES, free) if not f],
+                       "at_bound": {name: bool(f and (np.isclose(z, lo, rtol=1e-3, atol=1e-6) or np.isclose(z, hi, rtol=1e-3, atol=1e-6)))
+                                    for name, f, z, lo, hi in zip(FITTED_NAMES, free, best.x, lower, upper)},
                    })
 
 
-def _sigma(fit: optimize.OptimizeResult, free: np.ndarray, p: GreyboxParameters) -> dict[str, float]:
-    """1-sigma of the identified constants from the Jacobian (of the ``free`` parameters) at the optimum
-    (module docstring); a held constant's is NaN."""
+def _rotor_reaction_negligible(p0: GreyboxParameters, batch: WindowBatch, yaw_rms: float) -> bool:
+    """Whether the configured rotor-reaction term (k_R = 1) moves the predicted yaw acceleration by less than
+    :data:`ROTOR_REACTION_FLOOR` of the measured one (RMS over the windows)."""
+    column = INDEX["yaw_acc"]
+    yaw_ratio = p0.drag_constant / p0.thrust_constant
+    tau = min(max(-1.0 / p0.motor_a_m, MIN_MOTOR_TIME_CONSTANT), MAX_MOTOR_TIME_CONSTANT)
+    with_term, without = (predict_batch(BaseModel(fitted_parameters(p0, tau, p0.input_gain, yaw_ratio, 1.0, k)), batch,
+                                        columns=[column])[:, batch.warm :, column] for k in (1.0, 0.0))
+    return float(np.sqrt(np.mean((with_term - without) ** 2))) < ROTOR_REACTION_FLOOR * yaw_rms
+
+
+def _sigma(fit: optimize.OptimizeResult, free: np.ndarray, p: GreyboxParameters, shape: tuple[int, int, int], dt: float) -> dict[str, float]:
+    """1-sigma of the identified constants at the optimum (module docstring): the HAC covariance of the
+    ``free`` parameters (:func:`~quad_modelling.core.identification.uncertainty.hac_covariance`, windows as
+    blocks; ``shape`` = (windows, rows, variables) of the residuals, rows ``RESIDUAL_STRIDE`` samples of
+    ``dt`` apart), propagated to the constants; a held constant's is NaN."""
     n_free = int(free.sum())
-    s2 = 2.0 * fit.cost / max(fit.fun.size - n_free, 1)
     cov = np.full((free.size, free.size), np.nan)
     try:
-        cov[np.ix_(free, free)] = np.linalg.inv(fit.jac.T @ fit.jac) * s2
+        lags = bandwidth_samples(dt, RESIDUAL_STRIDE)
+        cov[np.ix_(free, free)] = hac_covariance(fit.jac.reshape(*shape, n_free), fit.fun.reshape(shape), lags)
     except np.linalg.LinAlgError:
         pass  # a singular J^T J: the constants are not separable here, their sigmas stay NaN
     log_gain_var = cov[1, 1] + cov[0, 0] - 2.0 * cov[0, 1]  # ln K = ln G_config + z_1 - z_0
     sigma_log_gain = math.sqrt(log_gain_var) if log_gain_var >= 0 else float("nan")
-    return {"motor_a_m": float(abs(p.motor_a_m) * math.sqrt(max(cov[0, 0], 0.0))),
+
+    def root(v: float) -> float:
+        return math.sqrt(v) if v >= 0 else float("nan")
+
+    return {"motor_a_m": float(abs(p.motor_a_m) * root(cov[0, 0])),
             "motor_b_m": float(p.motor_b_m * sigma_log_gain),
             "thrust_gain_K": float(p.input_gain * sigma_log_gain),
-            "drag_constant": float(p.thrust_constant * math.sqrt(cov[2, 2])) if cov[2, 2] >= 0 else float("nan")}
+            "drag_constant": float(p.thrust_constant * root(cov[2, 2])),
+            "arm_scale": float(root(cov[3, 3])),
+            "rotor_reaction_scale": float(math.exp(fit.x[4]) * root(cov[4, 4]))}
+
+
+def constant_estimates(fit: BaseFit, vehicle: VehicleConfig) -> list[ConstantEstimate]:
+    """The fit's constants with units, sigma, search bounds (in each constant's unit), at-bound flags and the
+    vehicle file's values (:mod:`~quad_modelling.core.identification.constants_report`)."""
+    p0 = GreyboxParameters.from_vehicle(vehicle)
+    v, s, flags = fit.values, fit.sigma, fit.fit.get("at_bound", {})
+    root = 2.0 * math.sqrt(p0.thrust_constant * p0.mass * GRAVITY / 4.0)
+    steady = p0.input_gain * (-1.0 / p0.motor_a_m)  # G_config = K tau_m [N per command unit]
+    k_range = (steady * STEADY_GAIN_RATIO_RANGE[0] / MAX_MOTOR_TIME_CONSTANT, steady * STEADY_GAIN_RATIO_RANGE[1] / MIN_MOTOR_TIME_CONSTANT)
+    motor_at_bound = bool(flags.get("ln_motor_time_constant") or flags.get("ln_steady_gain_ratio"))
+    unit = {key: vehicle.constants[key].unit for key in ("motor_a_m", "motor_b_m", "drag_constant")}
+    excite = "more collective (throttle) steps"
+    why = {"ln_rotor_reaction_scale": f"its term is below {ROTOR_REACTION_FLOOR:.0%} of the yaw acceleration"}
+    held = {name: why.get(name, "the flights do not excite it") for name in fit.fit.get("held", [])}
+    return [
+        ConstantEstimate("motor_a_m", v["motor_a_m"], unit["motor_a_m"], s.get("motor_a_m", math.nan),
+                         (-MOTOR_POLE_RANGE[1], -MOTOR_POLE_RANGE[0]), vehicle.value("motor_a_m"),
+                         bool(flags.get("ln_motor_time_constant")), excite + " faster than the motor lag"),
+        ConstantEstimate("motor_b_m", v["motor_b_m"], unit["motor_b_m"], s.get("motor_b_m", math.nan),
+                         (k_range[0] / root, k_range[1] / root), vehicle.value("motor_b_m"), motor_at_bound, excite),
+        ConstantEstimate("thrust_gain_K", v["thrust_gain_K"], "N/s per command unit", s.get("thrust_gain_K", math.nan),
+                         k_range, p0.input_gain, motor_at_bound, excite),
+        ConstantEstimate("drag_constant", v["drag_constant"], unit["drag_constant"], s.get("drag_constant", math.nan),
+                         tuple(p0.thrust_constant * b for b in YAW_DRAG_RATIO_RANGE), vehicle.value("drag_constant"),
+                         bool(flags.get("yaw_drag_ratio")), "yaw manoeuvres", held.get("yaw_drag_ratio", "")),
+        ConstantEstimate("arm_scale", v["arm_scale"], "1", s.get("arm_scale", math.nan), ARM_SCALE_RANGE, 1.0,
+                         bool(flags.get("arm_scale")), "roll/pitch manoeuvres (closed loop hides the slow ones)",
+                         held.get("arm_scale", "")),
+        ConstantEstimate("rotor_reaction_scale", v["rotor_reaction_scale"], "1", s.get("rotor_reaction_scale", math.nan),
+                         ROTOR_REACTION_SCALE_RANGE, 1.0, bool(flags.get("ln_rotor_reaction_scale")),
+                         "fast yaw command steps", held.get("ln_rotor_reaction_scale", "")),
+    ]

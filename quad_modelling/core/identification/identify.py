@@ -17,11 +17,15 @@ Battery voltage: the thrust gain per command :math:`K` is fitted per window
 :math:`\\ddot Z = -\\sum_i T_i / m`, and regressed on the window's mean voltage, giving
 :math:`K(V) = K_0 (1 + \\kappa (V - V_0))`.
 
-Motor order and spin check: the angular accelerations are regressed on the
-four modelled thrusts separately; each motor's coefficient signs must match
-its configured position (roll: :math:`-y_i`, pitch: :math:`x_i`) and spin
-(yaw: :math:`s_i`). When every yaw sign is reversed while roll and pitch agree, the constants are
-identified again with the spins the data shows, and the vehicle file carries those spins.
+Motor order and spin check (:mod:`~quad_modelling.core.identification.motor_check`): the angular
+accelerations are regressed on the four modelled thrusts; each sign is judged with its HAC standard
+error (consistent / inconsistent naming the likely fix / undetermined). When the order agrees and only
+spins differ, the constants are identified again with the spins the data shows, and the vehicle file
+carries those spins.
+
+Reporting (:mod:`~quad_modelling.core.identification.constants_report`): every identified constant
+with unit, 1-sigma, bounds, at-bound flag and change from the vehicle file, in the summary and the
+identified vehicle YAML; poorly determined ones flagged with what would help.
 """
 
 from __future__ import annotations
@@ -34,7 +38,9 @@ import numpy as np
 import yaml
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.identification.greybox_fit import BaseFit, identify_base
+from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
+from quad_modelling.core.identification.greybox_fit import BaseFit, constant_estimates, identify_base
+from quad_modelling.core.identification.motor_check import check_lines, check_motor_layout
 from quad_modelling.core.identification.physics_fit import (
     PhysicsFit,
     add_physics_constants,
@@ -47,8 +53,6 @@ from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec
 from quad_modelling.errors import DataError
-
-ANGULAR_ACCELERATIONS = [INDEX["roll_acc"], INDEX["pitch_acc"], INDEX["yaw_acc"]]
 
 IDENTIFIED_CONSTANTS = ("motor_a_m", "motor_b_m", "drag_constant")
 """The vehicle constants ``identify`` writes (the others of the fit are reported in ``identification.fit``)."""
@@ -69,24 +73,19 @@ class IdentificationResult:
     spins: list[int] = field(default_factory=list)
     physics: PhysicsFit | None = None
     physics_note: str = ""
+    constants: list[ConstantEstimate] = field(default_factory=list)
+    """Every identified constant (:class:`~quad_modelling.core.identification.constants_report.ConstantEstimate`)
+    of every fit, in print order; a fit adds its own (e.g. the physics model's) the same way."""
 
     def summary(self) -> str:
-        lines = [f"identified from {len(self.spans)} training windows of {len(self.files)} flight(s):"]
-        for key, value in self.values.items():
-            lines.append(f"  {key} = {value:.6g} ± {self.sigma.get(key, float('nan')):.2g}")
-        lines.append(f"  thrust gain K = {self.input_gain:.6g} ± {self.input_gain_sigma:.2g} N/s per command unit")
-        if self.fit.get("motor_time_constant_at_bound"):
-            lines.append(f"  the motor time constant ended on its bound {self.fit['motor_time_constant_range_s']} s")
+        """The printed report (lines <= 100 characters)."""
+        names = ", ".join(Path(f).name for f in self.files)
+        lines = constant_lines(self.constants, f"identified on {names} ({len(self.spans)} training windows); "
+                                               f"1-sigma from HAC standard errors:")
         if self.voltage:
-            lines.append(f"  voltage dependence: K(V) = K0 (1 + {self.voltage['kappa_per_volt']:.3g} (V - {self.voltage['v0']:.2f} V)) "
-                         f"± {self.voltage['kappa_sigma']:.2g} /V")
-        lines.append(f"  motor order/spin check: {'consistent' if self.motor_check['consistent'] else 'INCONSISTENT'} with the config")
-        if self.motor_check.get("yaw_reversed"):
-            lines.append("    every rotor's yaw sign is opposite to the config while roll/pitch agree: the spins are reversed; "
-                         "the identified file uses the spins the data shows")
-        for motor in self.motor_check["motors"]:
-            lines.append(f"    {motor['name']}: roll {motor['roll']:+.3g} (expect {motor['expect'][0]:+d}), pitch {motor['pitch']:+.3g} "
-                         f"(expect {motor['expect'][1]:+d}), yaw {motor['yaw']:+.3g} (expect {motor['expect'][2]:+d})")
+            lines.append(f"  voltage dependence: K(V) = K0 (1 + {self.voltage['kappa_per_volt']:.3g} (V - {self.voltage['v0']:.2f} V))"
+                         f", sigma {self.voltage['kappa_sigma']:.2g} 1/V")
+        lines += check_lines(self.motor_check)
         lines.extend(self.physics.summary() if self.physics is not None else [f"physics model constants {self.physics_note}"])
         return "\n".join(lines)
 
@@ -117,8 +116,9 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
     batch = training_batch(flights, vehicle, config)
     fit = identify_base(batch, vehicle)
     motor_check = check_motor_layout(batch, modelled_thrusts(batch, fit), vehicle)
-    if motor_check["yaw_reversed"]:
-        vehicle = vehicle_with_spins(vehicle, -vehicle.yaw_signs)
+    start = vehicle
+    if motor_check["data_spins"] is not None:
+        vehicle = vehicle_with_spins(vehicle, np.array(motor_check["data_spins"]))
         fit = identify_base(batch, vehicle)
     p = fit.model.parameters
     gain = p.input_gain
@@ -140,6 +140,7 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
                                   "(1 = consistent with the configured geometry and inertia)",
              "ground_contact_windows_dropped": int(batch.ground_contact_dropped)},
         spins=[int(s) for s in vehicle.yaw_signs], physics=physics, physics_note=physics_note,
+        constants=constant_estimates(fit, start),
     )
 
 
@@ -173,26 +174,6 @@ def _voltage_dependence(batch: WindowBatch, window_gains: list[float]) -> dict |
     }
 
 
-def check_motor_layout(batch: WindowBatch, thrusts: np.ndarray, vehicle: VehicleConfig) -> dict:
-    """Regress roll/pitch/yaw acceleration on each motor's modelled thrust (W, N, 4); compare signs with the config."""
-    x = thrusts[:, batch.warm :].reshape(-1, 4)
-    y = batch.measured[:, batch.warm :][:, :, ANGULAR_ACCELERATIONS].reshape(-1, 3)
-    coef, *_ = np.linalg.lstsq(x, y, rcond=None)  # (4 motors, 3 axes)
-    pos = vehicle.motor_positions
-    motors, consistent = [], True
-    for i, motor in enumerate(vehicle.motors):
-        expect = (int(np.sign(-pos[i, 1])), int(np.sign(pos[i, 0])), int(motor.yaw_sign))
-        got = coef[i]
-        agrees = [e == 0 or np.sign(g) == e for e, g in zip(expect, got)]
-        consistent &= all(agrees)
-        motors.append({"name": motor.name, "roll": float(got[0]), "pitch": float(got[1]), "yaw": float(got[2]),
-                       "expect": list(expect), "agrees": [bool(a) for a in agrees]})
-    roll_pitch_ok = all(all(m["agrees"][:2]) for m in motors)
-    yaw_reversed = roll_pitch_ok and not any(m["agrees"][2] for m in motors)
-    return {"consistent": bool(consistent), "yaw_reversed": bool(yaw_reversed), "motors": motors,
-            "method": "least squares of measured roll/pitch/yaw acceleration on the four modelled rotor thrusts"}
-
-
 def vehicle_with_spins(vehicle: VehicleConfig, yaw_signs: np.ndarray) -> VehicleConfig:
     """A copy of ``vehicle`` whose rotors have the given yaw signs (+1 = ccw seen from above)."""
     from dataclasses import replace
@@ -204,12 +185,16 @@ def vehicle_with_spins(vehicle: VehicleConfig, yaw_signs: np.ndarray) -> Vehicle
 def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationResult, span_text: str) -> dict:
     """A vehicle YAML document (loadable by load_vehicle) with the identified constants and their provenance."""
     names = ", ".join(Path(f).name for f in result.files)
-    source = f"identified from {names} spans {span_text} ({len(result.spans)} training windows) by quad-modelling identify"
+    source = f"identified on {names} spans {span_text} ({len(result.spans)} training windows) by quad-modelling identify"
+    estimates = {e.name: e for e in result.constants}
     constants = {}
     for key, c in vehicle.constants.items():
         entry = {"value": c.value, "unit": c.unit, "source": c.source, "status": c.status}
         if key in result.values and not np.isfinite(result.values[key]):  # the flights do not excite it
             entry["source"] = f"{c.source}; kept: not identifiable from {names} spans {span_text} (no excitation)"
+        elif key in estimates:
+            entry.update(source=_estimate_source(estimates[key], source), **estimates[key].as_dict())
+            entry["unit"] = c.unit
         elif key in result.values:
             entry.update(value=result.values[key], source=source, sigma=result.sigma[key])
         elif key == "thrust_constant" and c.status == "identified":
@@ -228,12 +213,23 @@ def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationRe
             "spans": result.spans,
             "thrust_gain_K": {"value": result.input_gain, "sigma": result.input_gain_sigma, "unit": "N/s per command unit"},
             "voltage_dependence": result.voltage,
+            "constants": {e.name: e.as_dict() for e in result.constants},
             "motor_check": result.motor_check,
             "fit": result.fit,
         },
     }
     add_physics_constants(document, result.physics, result.physics_note, source)
     return document
+
+
+def _estimate_source(estimate: ConstantEstimate, source: str) -> str:
+    """The source text of an identified constant: where, its 1-sigma, its change from the vehicle file."""
+    text = f"{source}, sigma {estimate.sigma:.2g} {estimate.unit}"
+    if estimate.change_percent is not None:
+        text += f"; vehicle file {estimate.vehicle:.3g} ({estimate.change_percent:+.0f} %)"
+    if estimate.poorly_determined:
+        text += f"; poorly determined: {estimate.reason()}"
+    return text
 
 
 def write_vehicle_yaml(document: dict, path: Path) -> None:

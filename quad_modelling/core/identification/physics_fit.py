@@ -62,6 +62,7 @@ from scipy import optimize
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
 from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
 from quad_modelling.core.models.physics import Observer, delayed_commands, rotor_speeds
 from quad_modelling.core.models.physics_params import PHYSICS_UNITS, PhysicsParameters
@@ -138,20 +139,20 @@ class PhysicsFit:
                       "identifiable": self.identifiable.get(key, True)}
                 for key in FITTED} | {"diagnostics": self.diagnostics}
 
+    def estimates(self) -> list[ConstantEstimate]:
+        """The fitted constants as the one constant record every fit reports
+        (:class:`~quad_modelling.core.identification.constants_report.ConstantEstimate`)."""
+        return [ConstantEstimate(key, self.values[key], PHYSICS_UNITS[key], self.sigma[key], tuple(self.bounds[key]),
+                                 self.start[key], bool(self.at_bound[key]),
+                                 held="" if self.identifiable.get(key, True) else "not identifiable from these flights")
+                for key in FITTED]
+
     def summary(self) -> list[str]:
         d = self.diagnostics
-        lines = [f"physics model constants ({d.get('anchors', 0)} anchors, {d.get('seconds', 0):.1f} s; "
+        title = (f"physics model constants ({d.get('anchors', 0)} anchors, {d.get('seconds', 0):.1f} s; "
                  f"multi-step error vs the observer alone: "
-                 + ", ".join(f"{c} {r:.2f}" for c, r in d.get("error_ratio", {}).items()) + "):"]
-        for key in FITTED:
-            if not self.identifiable.get(key, True):
-                lines.append(f"  {key} = {self.values[key]:.5g} {PHYSICS_UNITS[key]}: kept, not identifiable from these flights")
-                continue
-            flag = "  AT BOUND" if self.at_bound[key] else ""
-            change = self.values[key] / self.start[key] if self.start[key] else float("nan")
-            lines.append(f"  {key} = {self.values[key]:.5g} ± {self.sigma[key]:.2g} {PHYSICS_UNITS[key]} "
-                         f"(x{change:.3g} of the file's {self.start[key]:.4g}){flag}")
-        return lines
+                 + ", ".join(f"{c} {r:.2f}" for c, r in d.get("error_ratio", {}).items()) + "):")
+        return constant_lines(self.estimates(), title)
 
 
 @dataclass
@@ -441,14 +442,15 @@ def add_physics_constants(document: dict, fit: PhysicsFit | None, note: str, sou
     if fit is None:
         identification["physics"] = {"note": note}
         return
-    for key in FITTED:
-        entry = document["constants"][key]
-        if not fit.identifiable.get(key, True):
-            entry["source"] = f"{entry['source']}; kept: not identifiable from the training flights"
+    for estimate in fit.estimates():
+        entry = document["constants"][estimate.name]
+        if estimate.held:
+            entry["source"] = f"{entry['source']}; kept: {estimate.held}"
             continue
-        entry.update(value=fit.values[key], source=source, sigma=fit.sigma[key])
-        if fit.at_bound[key]:
-            entry["source"] = f"{source}; AT BOUND {list(fit.bounds[key])} {PHYSICS_UNITS[key]}"
+        entry.update(value=estimate.value, source=source, sigma=estimate.sigma)
+        if estimate.at_bound:
+            entry["source"] = f"{source}; AT BOUND {list(estimate.bounds)} {estimate.unit}"
+    identification.setdefault("constants", {}).update({e.name: e.as_dict() for e in fit.estimates()})
     identification["physics"] = _plain(fit.to_dict())
 
 

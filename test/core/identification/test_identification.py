@@ -22,7 +22,7 @@ def test_identification_recovers_motor_constants_used_to_simulate():
     doc = identified_vehicle_document(start, result, config.train)
     loaded = VehicleConfig.from_dict(doc, "identified.yaml")
     assert np.isclose(loaded.value("motor_a_m"), result.values["motor_a_m"])
-    assert "identified from f0.csv, f1.csv spans 5:45" in loaded.constants["motor_b_m"].source
+    assert "identified on f0.csv, f1.csv spans 5:45" in loaded.constants["motor_b_m"].source
     assert doc["constants"]["motor_b_m"]["sigma"] > 0
 
 
@@ -92,3 +92,21 @@ def test_identify_and_the_diagnosis_base_give_the_same_constants_on_the_same_win
     assert identified.input_gain == base.values["thrust_gain_K"]
     assert identified.fit["arm_scale"] == base.values["arm_scale"]
     assert identified.fit["rotor_reaction_scale"] == base.values["rotor_reaction_scale"]
+
+
+def test_a_negligible_rotor_reaction_term_is_held_not_run_to_its_bound():
+    """The Crazyflie's configured I_prop (3.4e-11 kg m²) moves yaw acceleration by far less than 1 %: k_R is held at 1
+    and says so; with a 1e4 times heavier propeller the term matters and k_R is fitted (truth 1)."""
+    from quad_modelling.core.identification.greybox_fit import ROTOR_REACTION_FLOOR
+
+    config = EvaluationConfig(drop_start=5, drop_end=5, train="5:30", eval="30:35")
+    light = load_vehicle("crazyflie21")
+    result = identify([_differential_flight(light, seed=3)], light, config)
+    assert "ln_rotor_reaction_scale" in result.fit["held"] and result.fit["rotor_reaction_scale"] == 1.0
+    k_r = next(e for e in result.constants if e.name == "rotor_reaction_scale")
+    assert k_r.held == f"its term is below {ROTOR_REACTION_FLOOR:.0%} of the yaw acceleration" and k_r.poorly_determined
+
+    heavy = light.with_values({"prop_inertia": 3.4e-7}, "test: heavy propellers")
+    result = identify([_differential_flight(heavy, seed=3)], heavy, config)
+    assert "ln_rotor_reaction_scale" not in result.fit["held"]
+    assert 0.5 < result.fit["rotor_reaction_scale"] < 2.0 and not result.fit["at_bound"]["ln_rotor_reaction_scale"]

@@ -1,0 +1,39 @@
+"""Identified constants as printed and written: unit, sigma, bounds, at-bound flag, change from the vehicle."""
+
+import math
+
+from quad_modelling.core.identification.constants_report import ConstantEstimate, at_bound, constant_lines
+
+
+def test_entry_line_states_value_unit_sigma_and_change():
+    e = ConstantEstimate("motor_b_m", 0.253, "1/s", 0.01, (0.001, 380.0), 0.76)
+    assert e.change_percent == (0.253 - 0.76) / 0.76 * 100.0
+    assert e.lines() == ["  motor_b_m 0.253 1/s (sigma 0.01), vehicle 0.76: -67 %, bounds [0.001, 380]"]
+    assert not e.poorly_determined and e.reason() == ""
+    assert e.as_dict()["change_percent"] == -66.7 and e.as_dict()["at_bound"] is False
+
+
+def test_poorly_determined_when_sigma_above_half_the_value_or_at_a_bound():
+    assert not ConstantEstimate("motor_a_m", -31.0, "1/s", 15.0, (-500.0, -0.5), -20.0).poorly_determined  # 48 %
+    wide = ConstantEstimate("motor_a_m", -31.0, "1/s", 25.0, (-500.0, -0.5), -20.0)  # the demo's A_m
+    assert wide.poorly_determined and wide.reason() == "sigma 81 % of the value"
+    bound = ConstantEstimate("arm_scale", 0.3, "1", 0.01, (0.3, 3.0), 1.0, at_bound=at_bound(0.3, (0.3, 3.0)))
+    assert bound.poorly_determined and "search bound [0.3, 3]" in bound.reason()
+    assert bound.lines()[0].endswith("AT BOUND")
+    assert ConstantEstimate("x", 1.0, "1", math.nan).poorly_determined
+    lines = constant_lines([bound, ConstantEstimate("k", 2.0, "N", 0.1, None, None)], "title")
+    assert lines[0] == "title" and lines[2] == "  k 2 N (sigma 0.1)"
+    assert lines[-2:] == ["  poorly determined: arm_scale: ended on its search bound [0.3, 3];",
+                          "    would help: more excitation of the variables it drives"]  # wrapped: one entry each
+    assert all(len(line) <= 100 for line in lines)
+
+
+def test_at_bound_tolerance():
+    assert at_bound(-0.5004, (-500.0, -0.5)) and not at_bound(-0.6, (-500.0, -0.5))
+    assert at_bound(0.0, (0.0, 1.0)) and not at_bound(0.01, (0.0, 1.0))
+
+
+def test_long_entries_wrap_at_100_characters():
+    e = ConstantEstimate("rotor_reaction_scale", 0.001, "rad/s2 per PWM count", 1700.0, (0.001, 1000.0), 1.0, at_bound=True)
+    lines = e.lines()
+    assert len(lines) == 2 and all(len(line) <= 100 for line in lines) and lines[1].strip() == "bounds [0.001, 1e+03] AT BOUND"
