@@ -59,6 +59,8 @@ class ConstantEstimate:
         if not math.isfinite(self.sigma):
             return "no uncertainty (the fit cannot separate it)"
         if self.sigma > POOR_RELATIVE_SIGMA * abs(self.value):
+            if self.value == 0:
+                return f"sigma {self.sigma:.2g} {self.unit} about a value of 0"
             return f"sigma {100.0 * self.sigma / abs(self.value):.0f} % of the value"
         return ""
 

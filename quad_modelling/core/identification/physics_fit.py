@@ -148,11 +148,12 @@ class PhysicsFit:
                 for key in FITTED]
 
     def summary(self) -> list[str]:
+        """The printed block (lines <= 100 characters)."""
         d = self.diagnostics
-        title = (f"physics model constants ({d.get('anchors', 0)} anchors, {d.get('seconds', 0):.1f} s; "
-                 f"multi-step error vs the observer alone: "
-                 + ", ".join(f"{c} {r:.2f}" for c, r in d.get("error_ratio", {}).items()) + "):")
-        return constant_lines(self.estimates(), title)
+        lines = constant_lines(self.estimates(), f"physics model constants ({d.get('anchors', 0)} anchors, "
+                                                 f"{d.get('seconds', 0):.1f} s):")
+        ratios = ", ".join(f"{c} {r:.2f}" for c, r in d.get("error_ratio", {}).items())
+        return [lines[0], f"  multi-step error / the observer alone's: {ratios}", *lines[1:]]
 
 
 @dataclass

@@ -37,3 +37,10 @@ def test_long_entries_wrap_at_100_characters():
     e = ConstantEstimate("rotor_reaction_scale", 0.001, "rad/s2 per PWM count", 1700.0, (0.001, 1000.0), 1.0, at_bound=True)
     lines = e.lines()
     assert len(lines) == 2 and all(len(line) <= 100 for line in lines) and lines[1].strip() == "bounds [0.001, 1e+03] AT BOUND"
+
+
+def test_a_zero_estimate_with_a_sigma_is_poorly_determined_without_dividing_by_zero():
+    estimate = ConstantEstimate("rotor_drag_arm", 0.0, "m", 0.01, (-0.1, 0.1), 0.0)
+    assert estimate.poorly_determined
+    assert estimate.reason() == "sigma 0.01 m about a value of 0"
+    assert estimate.change_percent is None
