@@ -70,21 +70,22 @@ def multistep_form(model: Predictor, warm_samples: int) -> MultiStepPredictor | 
 
 
 def multistep_mae(predictor: MultiStepPredictor, segment: FlightLog, max_horizon: int, vehicle: VehicleConfig | None = None,
-                  chunk: int = 2048, first_start: int = 0) -> tuple[np.ndarray, int]:
+                  chunk: int = 2048, first_start: int = 0, stride: int = 1) -> tuple[np.ndarray, int]:
     """MAE_h of each group over every start of ``segment``: ((4, H) MAE in GROUPS order, number of starts S).
 
-    Every sample s >= ``first_start`` with s + H inside the segment is a start; predictions are
-    made ``chunk`` starts at a time. With no start the MAE is zero and S = 0.
+    Every ``stride``-th sample s = first_start + k stride with s + H inside the segment is a start
+    (``stride`` 1: every sample, the protocol; more: a sample of the starts, for benchmarks);
+    predictions are made ``chunk`` starts at a time. With no start the MAE is zero and S = 0.
     """
     measured = measured_variables(segment, vehicle)
-    n_starts = len(segment) - max_horizon - first_start
+    n_starts = -(-(len(segment) - max_horizon - first_start) // stride)  # ceil: starts first_start, +stride, ... < N - H
     if n_starts <= 0:
         return np.zeros((len(GROUPS), max_horizon)), 0
     norms = np.empty((n_starts, len(GROUPS), max_horizon))
     steps = np.arange(1, max_horizon + 1)
     for first in range(0, n_starts, chunk):
         rows = np.arange(first, min(first + chunk, n_starts))
-        starts = rows + first_start
+        starts = first_start + rows * stride
         predicted = np.asarray(predictor.predict_horizons(segment, starts, max_horizon))[:, 1:, :]
         truth = measured[starts[:, None] + steps[None, :]]
         for g, (group, cols) in enumerate(GROUPS.items()):
@@ -96,9 +97,11 @@ def multistep_mae(predictor: MultiStepPredictor, segment: FlightLog, max_horizon
     return mae_by_horizon(norms), n_starts
 
 
-def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predictor], vehicle: VehicleConfig, config: EvaluationConfig) -> dict:
+def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predictor], vehicle: VehicleConfig, config: EvaluationConfig,
+                         start_stride: int = 1) -> dict:
     """The IDSIA multi-step table of every model (module docstring): MAE at ``config.horizons``, SimErr, naive
-    baseline and ratios (SI units); ``forms`` says how each model predicted (``predict_horizons`` or ``streaming``)."""
+    baseline and ratios (SI units); ``forms`` says how each model predicted (``predict_horizons`` or ``streaming``).
+    ``start_stride`` > 1 scores every start_stride-th start only (recorded in the result; benchmarks)."""
     span = next(s for s in config.spans() if s.name == config.multistep_span)
     max_h = max(max(config.horizons), SIM_ERR_HORIZON)
     naive = ConstantStatePredictor(vehicle, config.trim)
@@ -119,13 +122,15 @@ def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predicto
                     not_multistep[m.name] = NOT_MULTISTEP_REASON
                     continue
                 forms[m.name] = "predict_horizons" if form is m else "streaming"
-                mae, n = multistep_mae(form, segment, max_h, vehicle, first_start=warm - 1)
+                mae, n = multistep_mae(form, segment, max_h, vehicle, first_start=warm - 1, stride=start_stride)
                 totals[m.name] += mae * n  # pooled over segments: MAE of all starts = sum_f S_f MAE_f / sum_f S_f
             count += n
     if count == 0:
         return {"span": span.name, "starts": 0, "note": f"no {span.name} segment longer than {max_h} samples plus the warm start"}
     out: dict = {"span": span.name, "starts": count, "horizons": list(config.horizons), "sim_err_horizon": max_h,
                  "units": GROUP_UNITS, "forms": forms, "models": {}}
+    if start_stride != 1:
+        out["start_stride"] = start_stride
     mae = {name: t / count for name, t in totals.items() if name in forms}
     for name, values in mae.items():
         entry = {}

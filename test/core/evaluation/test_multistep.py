@@ -142,3 +142,12 @@ def test_starts_without_room_for_the_warm_rows_are_refused():
         predict_horizons_by_stream(ConstantVelocity(), log, np.array([10]), 50, 20)
     with pytest.raises(DataError, match="leave the segment"):
         predict_horizons_by_stream(ConstantVelocity(), log, np.array([160]), 50, 20)
+
+
+def test_a_start_stride_scores_every_kth_start_with_the_same_known_errors():
+    vehicle = load_vehicle("crazyflie21")
+    config = EvaluationConfig(drop_start=0, drop_end=0, train="0:1", eval="1:12", horizons=(1, 10, 50))
+    out = multistep_evaluation([straight_line_flight()], [ConstantVelocity()], vehicle, config, start_stride=4)
+    assert out["start_stride"] == 4 and out["starts"] == 258  # starts 19, 23, ..., 1047 of the 1099-row segment
+    assert out["models"]["naive"]["position"]["mae"]["10"] == pytest.approx(0.1, rel=1e-9)
+    assert out["models"]["constant_velocity"]["position"]["sim_err"] == pytest.approx(0.0, abs=1e-9)
