@@ -1,11 +1,12 @@
 """``make demo``: the main job on the bundled bag, end to end.
 
-Identify the vehicle's constants and train the NARX model on 10-25 s of the bundled
-NanoBench flight (after take-off), then replay the bag through the live ROS 2 graph
-(replay, greybox and NARX predictors, evaluator: separate processes over DDS on
-loopback) and print the live RMS/TIC table for the training (10-25 s) and held-out
-(25-35 s) 5 s windows. Steps run through the same CLI a user types; outputs go to
-``demo_output/`` (replaced on every run: it is the demo's own directory).
+Identify the vehicle's constants, and train the NARX model and the hybrid (physics base plus
+residual nets) on 10-25 s of the bundled NanoBench flight (after take-off); then replay the bag
+through the live ROS 2 graph (replay; greybox, physics, NARX and hybrid predictors; evaluator:
+separate processes over DDS on loopback) and print the live RMS/TIC table for the training
+(10-25 s) and held-out (25-35 s) 5 s windows and the multi-step table of every model. The
+``physics`` model is built from the identified vehicle file. Steps run through the same CLI a
+user types; outputs go to ``demo_output/`` (replaced on every run: it is the demo's own directory).
 """
 
 from __future__ import annotations
@@ -45,8 +46,12 @@ def run() -> int:
     step("Train the NARX model (rollout training, early-stopped on the span's last 20 %) on the same training span",
          ["train", bag, "--vehicle", str(out / "crazyflie21_identified.yaml"), "--drop", "0:0", "--train", "10:25",
           "--quiet", "-o", str(out / "narx.npz")])
-    step("Replay the bag through the live ROS 2 graph over DDS (replay, greybox and NARX predictors, evaluator)",
-         ["run-bag", bag, "--models", f"greybox,narx:{out / 'narx.npz'}", "--vehicle", str(out / "crazyflie21_identified.yaml"),
+    step("Train the hybrid (physics base plus residual nets) on the same training span",
+         ["train", bag, "--vehicle", str(out / "crazyflie21_identified.yaml"), "--drop", "0:0", "--train", "10:25",
+          "--hybrid", "--quiet", "-o", str(out / "hybrid.npz")])
+    models = f"greybox,physics,narx:{out / 'narx.npz'},hybrid:{out / 'hybrid.npz'}"
+    step("Replay the bag through the live ROS 2 graph over DDS (replay; greybox, physics, NARX and hybrid predictors; evaluator)",
+         ["run-bag", bag, "--models", models, "--vehicle", str(out / "crazyflie21_identified.yaml"),
           "--window", "5", "--train", "10:25", "--eval", "25:35", "-o", str(out / "live")])
     print(f"\ndemo outputs in {OUTPUT.relative_to(REPO)}/")
     return 0

@@ -27,7 +27,10 @@ Start the ROS 2 graph of the node suite on one MCAP bag: the evaluator, one pred
 model and the replay, each its own process talking over DDS (loopback only:
 ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; a ROS_DOMAIN_ID of its own unless the environment sets
 one). Waits until the replay has played the bag and the evaluator acknowledged the last sample,
-stops the nodes (SIGINT, then terminate), and prints the RMS/TIC tables.
+stops the nodes (SIGINT, then terminate), and prints the RMS/TIC tables. Then the multi-step
+table (IDSIA: MAE at 1/10/50 steps, SimErr, ratio to naive) of the same models on the bag, each
+predicting with its live form from every start (the code the predictor nodes run, called
+in-process); --no-multistep skips it.
 
 Models: comma-separated specs (naive, greybox, greybox:euler, narx:MODEL.npz, ...); NAME=SPEC
 gives a spec another topic name (two NARX files: a=narx:a.npz,b=narx:b.npz). Spans: --train
@@ -204,6 +207,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--eval", metavar="C:D", help="evaluation span, seconds from the first sample")
     parser.add_argument("--timeout", type=float, default=900.0, metavar="SECONDS", help="give up after this long (default 900)")
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
+    parser.add_argument("--no-multistep", action="store_true", help="skip the multi-step table")
     parser.add_argument("--executor", choices=EXECUTORS, default="events",
                         help="rclpy executor of every node: events (EventsExecutor, default) or single (SingleThreadedExecutor)")
     parser.add_argument("--record", action="store_true",
@@ -217,7 +221,7 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.io.bag_io import read_bag_metadata
     from quad_modelling.io.loader import load_flight
-    from quad_modelling.io.reports.evaluation import live_summary_table
+    from quad_modelling.io.reports.evaluation import live_summary_table, multistep_lines
     from quad_modelling.nodes.model_factory import make_streaming_predictor
 
     output = Path(args.output)
@@ -242,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
     vehicle = load_vehicle(vehicle_name)
     # Check the whole bag here, as the offline commands read it, before any node starts:
     # a damaged bag is one line from this process, not a node's traceback.
-    load_flight(args.bag, vehicle=vehicle, fmt="bag")
+    flight = load_flight(args.bag, vehicle=vehicle, fmt="bag")
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
         make_streaming_predictor(m.spec, vehicle)
     env = ros_environment()
@@ -273,12 +277,16 @@ def run(args: argparse.Namespace) -> int:
             raise _failure(graph, "evaluator", "the evaluator wrote no results")
         if record is not None and not (record / "metadata.yaml").is_file():
             raise _failure(graph, "evaluator", "the evaluator wrote no recording")
+        if not args.no_multistep:
+            add_multistep_table(report_dir, flight, models, vehicle, args)
         for item in report_dir.iterdir():
             shutil.move(str(item), tmp / item.name)
         report_dir.rmdir()
     elapsed = time.monotonic() - started
     results = json.loads((output / "results.json").read_text())
     print(live_summary_table(results, [m.name for m in models]))
+    for line in ["", *multistep_lines(results.get("horizons") or {}, align=True)]:
+        print(line)
     print(f"\n{bag.duration_s:.1f} s of flight replayed in {elapsed:.1f} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}); "
           f"results in {output}/ (results.json, tables.md, logs/)")
     return 0
@@ -305,3 +313,36 @@ def _wait_for_replay(graph: Graph, timeout: float, started: float) -> None:
         time.sleep(0.1)
     if replay.returncode != 0:
         raise _failure(graph, "replay", f"replay exited with code {replay.returncode}")
+
+
+def add_multistep_table(report_dir: Path, flight, models: list[ModelEntry], vehicle, args: argparse.Namespace) -> None:
+    """Add the multi-step table of every model to the evaluator's results.json (``horizons``) and tables.md.
+
+    Each model is the one its predictor node runs (same spec, same registry), predicting from every start of
+    the --eval span (the whole bag without one) with its live form
+    (:func:`~quad_modelling.core.evaluation.multistep.multistep_evaluation`)."""
+    from quad_modelling.core.evaluation.multistep import multistep_evaluation
+    from quad_modelling.core.models.base import DummyPredictor
+    from quad_modelling.core.preprocess import resample_uniform
+    from quad_modelling.core.windows import EvaluationConfig
+    from quad_modelling.io.reports.evaluation import tables_text
+    from quad_modelling.io.reports.formatting import json_text
+    from quad_modelling.nodes.model_factory import make_streaming_predictor
+
+    predictors = []
+    for m in models:
+        predictor = make_streaming_predictor(m.spec, vehicle)
+        predictor.name = m.name  # the topic name the tables use
+        predictors.append(predictor)
+    config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train=args.train or "0:inf", eval=args.eval or "0:inf",
+                              window_s=float(args.window), warm_s=float(args.warm))
+    baseline = [] if "dummy" in [m.name for m in models] else [DummyPredictor()]  # listed as not multi-step, as offline
+    horizons = multistep_evaluation([resample_uniform(flight)], predictors + baseline, vehicle, config)
+    if not args.eval:
+        horizons["span"] = "live (whole bag)"
+    results_file = report_dir / "results.json"
+    results = json.loads(results_file.read_text())
+    results["horizons"] = horizons
+    results_file.write_text(json_text(results))
+    title = f"Live evaluation of {', '.join(m.name for m in models)} on vehicle {vehicle.name}"
+    (report_dir / "tables.md").write_text(tables_text(results, title))

@@ -26,7 +26,7 @@ def test_evaluate_scores_only_the_windows_clear_of_the_gap_and_warns_once(tmp_pa
     # 2 s windows of the 29.99 s flight: 14; the four of 4..12 s hold rows inside the gap (4.00..10.68 s)
     assert results["windows"]["greybox"] == {"train": 10, "eval": 10}
     # multi-step: the eval rows 0..2998 split at the gap into 401 and 1931 rows, each start 50 steps before its end
-    assert results["horizons"]["starts"] == (401 - 50) + (1931 - 50)
+    assert results["horizons"]["starts"] == (401 - 50 - 19) + (1931 - 50 - 19)  # each segment: starts from its 20th row (warm start)
     log = resample_uniform(read_bag(bag))
     config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train="0:30", eval="0:30", window_s=2.0)
     windows = plan_windows([log], config)["eval"]

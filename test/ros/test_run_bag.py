@@ -1,11 +1,14 @@
-"""run-bag over real DDS gives the same RMS/TIC as the offline evaluation of the same bag (DESIGN 2)."""
+"""run-bag over real DDS gives the same RMS/TIC as the offline evaluation of the same bag (DESIGN 2), and the
+multi-step table of every model it ran."""
 
 import json
 
 import pytest
 
 from quad_modelling.cli import main
+from quad_modelling.core.evaluation.multistep import multistep_evaluation
 from quad_modelling.core.evaluation.windowed import evaluate
+from quad_modelling.core.preprocess import resample_uniform
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
@@ -38,6 +41,19 @@ def test_live_results_equal_offline_evaluation(tmp_path, capsys):
                     assert live["models"][model][span][var][metric] == pytest.approx(entry[metric], rel=1e-6), (model, span, var, metric)
     assert live["live"]["marked"] == []  # windows outside both spans are not scored, not marked
     assert (out / "tables.md").is_file() and (out / "logs" / "replay.log").is_file()
+    # The multi-step table lists every model run live (NARX by its live form), with the offline numbers.
+    horizons = live["horizons"]
+    assert list(horizons["models"]) == ["naive", "greybox", "narx"] and list(horizons["not_multistep"]) == ["dummy"]
+    assert horizons["forms"]["narx"] == "streaming" and horizons["span"] == "eval"
+    multistep = multistep_evaluation([resample_uniform(log)], [make_model(m, vehicle) for m in (*specs, "dummy")], vehicle, config)
+    assert horizons["starts"] == multistep["starts"] == 2000 - 50 - 19  # eval 20:40 s at 100 Hz, 20 warm rows
+    for model in ("naive", "greybox", "narx"):
+        for group, entry in multistep["models"][model].items():
+            assert horizons["models"][model][group]["sim_err"] == pytest.approx(entry["sim_err"], rel=1e-9), (model, group)
+    tables = (out / "tables.md").read_text()
+    assert "## Multi-step prediction" in tables and "| narx | angular_velocity |" in tables
+    assert "greybox = linear greybox, the thesis reproduction" in tables
+    assert "| narx    | angular_velocity |" in printed  # the aligned console table
 
 
 def test_unknown_model_is_a_clear_error_before_any_node_starts(tmp_path, capsys):

@@ -1,5 +1,16 @@
 """Multi-step (IDSIA) evaluation: MAE@h per group from many start times, SimErr, ratio to naive.
 
+Every model evaluated is in the table (:func:`multistep_form`): a model with a vectorised
+``predict_horizons`` (:class:`~quad_modelling.core.models.base.MultiStepPredictor`) uses it; any
+other model that runs live (:class:`~quad_modelling.core.models.streaming.StreamingPredictor`)
+uses its live form from each start
+(:func:`~quad_modelling.core.models.streaming.predict_horizons_by_stream`: ``start_window`` on
+the warm rows ending at the start, then ``push`` of each later command), causal by construction.
+Only a model with neither (the dummy, whose prediction is the window's trim value) is listed
+under ``not_multistep`` with the reason. Every model is scored from the same starts: s from
+``warm - 1`` (the first start with ``warm`` rows up to it, ``warm`` = the evaluation's warm start
+in rows) to ``N - 1 - H``.
+
 One ``predict_horizons`` call serves many starts, so a predictor receives the whole segment; it must
 read nothing after each start but the commands (the causality rule,
 :class:`~quad_modelling.core.models.base.MultiStepPredictor`). The truth is the best measurement of
@@ -27,13 +38,14 @@ from quad_modelling.core.models.base import (
     MultiStepPredictor,
     Predictor,
 )
+from quad_modelling.core.models.streaming import StreamingHorizons, StreamingPredictor
 from quad_modelling.core.preprocess import (
     NEEDS,
     measured_variables,
 )
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.core.windows import EvaluationConfig, span_segments
+from quad_modelling.core.windows import EvaluationConfig, span_segments, warm_samples_for
 
 GROUPS: dict[str, slice] = {
     "position": slice(0, 3),
@@ -47,54 +59,84 @@ GROUPS: dict[str, slice] = {
 GROUP_UNITS = {"position": "m", "velocity": "m/s", "orientation": "rad", "angular_velocity": "rad/s"}
 
 
+NOT_MULTISTEP_REASON = "no multi-step form: neither predict_horizons nor a live (streaming) form"
+"""Why a model is left out of the multi-step table (the dummy: its prediction is the window's trim value)."""
+
+
+def multistep_form(model: Predictor, warm_samples: int) -> MultiStepPredictor | None:
+    """The form a model is scored with in the multi-step table (module docstring): its own
+    ``predict_horizons``, else its live form from each start with ``warm_samples`` warm rows,
+    else None."""
+    if isinstance(model, MultiStepPredictor):
+        return model
+    if isinstance(model, StreamingPredictor):
+        return StreamingHorizons(model, warm_samples)
+    return None
+
+
 def multistep_mae(predictor: MultiStepPredictor, segment: FlightLog, max_horizon: int, vehicle: VehicleConfig | None = None,
-                  chunk: int = 2048) -> tuple[np.ndarray, int]:
+                  chunk: int = 2048, first_start: int = 0, stride: int = 1) -> tuple[np.ndarray, int]:
     """MAE_h of each group over every start of ``segment``: ((4, H) MAE in GROUPS order, number of starts S).
 
-    Every sample s with s + H inside the segment is a start; predictions are made ``chunk`` starts
-    at a time. With no start the MAE is zero and S = 0.
+    Every ``stride``-th sample s = first_start + k stride with s + H inside the segment is a start
+    (``stride`` 1: every sample, the protocol; more: a sample of the starts, for benchmarks);
+    predictions are made ``chunk`` starts at a time. With no start the MAE is zero and S = 0.
     """
     measured = measured_variables(segment, vehicle)
-    n_starts = len(segment) - max_horizon
+    n_starts = -(-(len(segment) - max_horizon - first_start) // stride)  # ceil: starts first_start, +stride, ... < N - H
     if n_starts <= 0:
         return np.zeros((len(GROUPS), max_horizon)), 0
     norms = np.empty((n_starts, len(GROUPS), max_horizon))
     steps = np.arange(1, max_horizon + 1)
     for first in range(0, n_starts, chunk):
-        starts = np.arange(first, min(first + chunk, n_starts))
+        rows = np.arange(first, min(first + chunk, n_starts))
+        starts = first_start + rows * stride
         predicted = np.asarray(predictor.predict_horizons(segment, starts, max_horizon))[:, 1:, :]
         truth = measured[starts[:, None] + steps[None, :]]
         for g, (group, cols) in enumerate(GROUPS.items()):
             if group == "orientation":
                 err = frames.geodesic_angle(truth[..., cols].reshape(-1, 3), predicted[..., cols].reshape(-1, 3))
-                norms[starts, g] = err.reshape(len(starts), max_horizon)
+                norms[rows, g] = err.reshape(len(starts), max_horizon)
             else:
-                norms[starts, g] = vector_error_norm(truth[..., cols], predicted[..., cols])
+                norms[rows, g] = vector_error_norm(truth[..., cols], predicted[..., cols])
     return mae_by_horizon(norms), n_starts
 
 
-def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predictor], vehicle: VehicleConfig, config: EvaluationConfig) -> dict:
-    """The IDSIA multi-step table: MAE at ``config.horizons``, SimErr, naive baseline and ratios (SI units)."""
+def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predictor], vehicle: VehicleConfig, config: EvaluationConfig,
+                         start_stride: int = 1) -> dict:
+    """The IDSIA multi-step table of every model (module docstring): MAE at ``config.horizons``, SimErr, naive
+    baseline and ratios (SI units); ``forms`` says how each model predicted (``predict_horizons`` or ``streaming``).
+    ``start_stride`` > 1 scores every start_stride-th start only (recorded in the result; benchmarks)."""
     span = next(s for s in config.spans() if s.name == config.multistep_span)
     max_h = max(max(config.horizons), SIM_ERR_HORIZON)
     naive = ConstantStatePredictor(vehicle, config.trim)
-    candidates = [naive] + [m for m in models if isinstance(m, MultiStepPredictor) and m.name != naive.name]
-    totals = {m.name: np.zeros((len(GROUPS), max_h)) for m in candidates}
+    evaluated = [naive] + [m for m in models if m.name != naive.name]
+    totals = {m.name: np.zeros((len(GROUPS), max_h)) for m in evaluated}
+    forms: dict[str, str] = {}
+    not_multistep: dict[str, str] = {}
     count = 0
     for log in flights:
         for start, stop in span_segments(log, span, config):  # split at marked measurement gaps
-            if stop - start <= max_h:
-                continue
             segment = log.slice(start, stop)
-            for m in candidates:
-                mae, n = multistep_mae(m, segment, max_h, vehicle)
+            warm = warm_samples_for(segment, config.warm_s)
+            if stop - start <= max_h + warm - 1:
+                continue
+            for m in evaluated:
+                form = multistep_form(m, warm)
+                if form is None:
+                    not_multistep[m.name] = NOT_MULTISTEP_REASON
+                    continue
+                forms[m.name] = "predict_horizons" if form is m else "streaming"
+                mae, n = multistep_mae(form, segment, max_h, vehicle, first_start=warm - 1, stride=start_stride)
                 totals[m.name] += mae * n  # pooled over segments: MAE of all starts = sum_f S_f MAE_f / sum_f S_f
             count += n
     if count == 0:
-        return {"span": span.name, "starts": 0, "note": f"no {span.name} segment longer than {max_h} samples"}
+        return {"span": span.name, "starts": 0, "note": f"no {span.name} segment longer than {max_h} samples plus the warm start"}
     out: dict = {"span": span.name, "starts": count, "horizons": list(config.horizons), "sim_err_horizon": max_h,
-                 "units": GROUP_UNITS, "models": {}}
-    mae = {name: t / count for name, t in totals.items()}
+                 "units": GROUP_UNITS, "forms": forms, "models": {}}
+    if start_stride != 1:
+        out["start_stride"] = start_stride
+    mae = {name: t / count for name, t in totals.items() if name in forms}
     for name, values in mae.items():
         entry = {}
         for g, (group, cols) in enumerate(GROUPS.items()):
@@ -112,7 +154,6 @@ def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predicto
                 "ratio_mae": {str(h): (float(values[g, h - 1] / mae[naive.name][g, h - 1]) if mae[naive.name][g, h - 1] > 0 else None) for h in config.horizons},
             }
         out["models"][name] = entry
-    skipped = [m.name for m in models if m not in candidates and m.name != naive.name]
-    if skipped:
-        out["not_multistep"] = skipped
+    if not_multistep:
+        out["not_multistep"] = not_multistep
     return out

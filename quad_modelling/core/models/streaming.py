@@ -19,6 +19,14 @@ a published ``<model>/odom`` is a real pose; the evaluator trims measurement and
 prediction alike at window close. :func:`predict_window_by_stream` is the
 offline form: the same calls, in a loop.
 
+:func:`predict_horizons_by_stream` is the generic multi-step (IDSIA) form of
+every streaming predictor: from each start s, ``start_window`` on the
+``warm_samples`` rows ending at s, then ``push`` the commands of s+1 .. s+H. It
+is the live form itself, so it is causal by construction (nothing after s but
+the commands is seen) and live and offline agree. :class:`StreamingHorizons`
+wraps a streaming predictor as a
+:class:`~quad_modelling.core.models.base.MultiStepPredictor` with it.
+
 :class:`RecordedPrediction` wraps predictions received over ROS as a
 :class:`~quad_modelling.core.models.Predictor`, so the live evaluator scores a
 window with the same :func:`~quad_modelling.core.evaluation.evaluate_window`
@@ -73,6 +81,43 @@ def predict_window_by_stream(predictor: StreamingPredictor, window: FlightLog, w
     for row in range(warm_samples, len(window)):
         predictions[row] = push_sample(stream, window.u[row], float(window.t[row]))
     return predictions
+
+
+def predict_horizons_by_stream(predictor: StreamingPredictor, segment: FlightLog, starts: np.ndarray, horizon: int,
+                               warm_samples: int) -> np.ndarray:
+    """(S, horizon + 1, 18) absolute predictions from each start, by the live form (module docstring).
+
+    Row ``[i, 0]`` is the predictor's own output at the anchor ``s = starts[i]`` (the last row
+    ``start_window`` returns for the warm rows ``s - warm_samples + 1 .. s``); row ``[i, h]`` is
+    what ``push(u[s + h])`` returns, h = 1..horizon. DataError when a start leaves no room for the
+    warm rows before it or the horizon after it.
+    """
+    starts = np.asarray(starts, dtype=int)
+    if warm_samples < 1:
+        raise DataError(f"{segment.meta.source}: multi-step needs at least 1 warm-start row, got {warm_samples}")
+    if starts.size and (starts.min() < warm_samples - 1 or starts.max() + horizon >= len(segment)):
+        raise DataError(f"{segment.meta.source}: multi-step starts {starts.min()}..{starts.max()} with {warm_samples} warm rows "
+                        f"and horizon {horizon} leave the segment of {len(segment)} rows")
+    out = np.empty((starts.size, horizon + 1, len(VARIABLES)))
+    for i, s in enumerate(starts):
+        warm_predictions, stream = predictor.start_window(segment.slice(s - warm_samples + 1, s + 1))
+        out[i, 0] = warm_predictions[-1]
+        for h in range(1, horizon + 1):
+            out[i, h] = stream.push(segment.u[s + h])
+    return out
+
+
+class StreamingHorizons:
+    """A streaming predictor as a :class:`~quad_modelling.core.models.base.MultiStepPredictor`
+    (:func:`predict_horizons_by_stream` with ``warm_samples`` warm rows); the name is the predictor's."""
+
+    def __init__(self, predictor: StreamingPredictor, warm_samples: int):
+        self.predictor = predictor
+        self.name = predictor.name
+        self.warm_samples = warm_samples
+
+    def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
+        return predict_horizons_by_stream(self.predictor, segment, starts, horizon, self.warm_samples)
 
 
 class RecordedPrediction:

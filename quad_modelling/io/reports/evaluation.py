@@ -37,19 +37,48 @@ FIGURES = {
 """One figure per axis like thesis Figs 5.4-5.7: input, acceleration, velocity/rate over one window."""
 
 
+MODEL_NOTES = {
+    "greybox": "linear greybox, the thesis reproduction (Sonntag 2011 ch. 3: its model and windowed protocol)",
+    "naive": "the last measured state held (IDSIA baseline: the ratios' reference)",
+    "dummy": "predicts zero deviation from the trim (thesis Fig 5.2 baseline, TIC 1)",
+    "narx": "NARX nets (thesis ch. 4), closed loop from the measured warm start",
+    "physics": "nonlinear rigid-body physics model (motor map, motor lag, rotor drag)",
+    "hybrid": "physics base plus residual nets",
+}
+"""What a table row is, by model kind (the text before ``:`` in a spec, e.g. ``greybox:euler`` -> greybox)."""
+
+
+def model_note(name: str) -> str | None:
+    """The note of a model name (``greybox:euler`` is a greybox; a name run-bag was given as NAME=SPEC has none)."""
+    return MODEL_NOTES.get(name.partition(":")[0])
+
+
+def model_notes(names) -> list[str]:
+    """``Models: greybox = linear greybox, the thesis reproduction (...); naive = ...`` (one line), or nothing."""
+    notes = [f"{name} = {model_note(name)}" for name in names if model_note(name)]
+    return ["Models: " + "; ".join(notes) + ".", ""] if notes else []
+
+
 def markdown_tables(result: EvaluationResult, title: str = "Evaluation") -> str:
-    """Tables 5-1/5-2 style: one table per metric; rows = variables, columns = model x span."""
-    data = result.to_json()
+    """Tables 5-1/5-2 style (:func:`tables_text`) of an evaluation result."""
+    return tables_text(result.to_json(), title)
+
+
+def tables_text(data: dict, title: str = "Evaluation") -> str:
+    """tables.md from a results.json document: one table per metric (rows = variables, columns = model x span),
+    then the multi-step table (:func:`multistep_lines`) when the document has one."""
     models = list(data["models"])
+    config = data["config"]
     spans = sorted({s for m in models for s in data["models"][m]}, key=lambda s: (s != "eval", s))
     lines = [f"# {title}", ""]
-    flights = data["config"]["flights"]
+    flights = config["flights"]
     used = [f for f in flights if not f.get("skipped")]
-    lines.append(f"{len(used)} flight(s) ({len(flights) - len(used)} skipped); spans train {result.config.train}, eval {result.config.eval} "
-                 f"(drop {result.config.drop_start:g} s / {result.config.drop_end:g} s); {result.config.window_s:g} s windows, "
-                 f"{result.config.warm_s:g} s warm start. Windows per span: "
+    lines.append(f"{len(used)} flight(s) ({len(flights) - len(used)} skipped); spans train {config['train']}, eval {config['eval']} "
+                 f"(drop {config['drop_start']:g} s / {config['drop_end']:g} s); {config['window_s']:g} s windows, "
+                 f"{config['warm_s']:g} s warm start. Windows per span: "
                  + ", ".join(f"{s} {data['windows'][models[0]].get(s, 0)}" for s in spans) + ".")
     lines.append("")
+    lines += model_notes(models)
     columns = [(m, s) for s in spans for m in models]
     for metric, caption in (("tic", "TIC (0 = perfect, 1 = no match)"), ("rms", "RMS error (display units)")):
         lines += [f"## {caption}", ""]
@@ -67,29 +96,42 @@ def markdown_tables(result: EvaluationResult, title: str = "Evaluation") -> str:
             rows.append(cells)
         lines += markdown_table(["Variable", "Unit", *(column_title(m, s) for m, s in columns)], rows)
         lines.append("")
-    horizons = data.get("horizons") or {}
-    if horizons.get("models"):
-        lines.append(f"## Multi-step prediction (IDSIA protocol, span {horizons['span']}, {horizons['starts']} start times)")
-        lines.append("")
-        lines.append("MAE at horizon h steps and SimErr = sum of MAE_h for h = 1..50; ratio = model / naive constant-state prediction. "
-                     "Units: m, m/s, rad (geodesic angle), rad/s.")
-        lines.append("")
-        hs = horizons["horizons"]
-        rows = []
-        for m, groups in horizons["models"].items():
-            for g in GROUPS:
-                e = groups[g]
-                if "needs" in e:
-                    rows.append([m, g, *(needs_text(e) for _ in hs), needs_text(e), "-"])
-                    continue
-                ratio = e["ratio_sim_err"]
-                rows.append([m, g, *(f"{e['mae'][str(h)]:.4g}" for h in hs), f"{e['sim_err']:.4g}", "-" if ratio is None else f"{ratio:.3g}"])
-        lines += markdown_table(["Model", "Group", *(f"MAE h={h}" for h in hs), "SimErr", "SimErr ratio"], rows)
-        if horizons.get("not_multistep"):
-            lines.append("")
-            lines.append(f"Not in the multi-step table (no open-loop form): {', '.join(horizons['not_multistep'])}.")
-        lines.append("")
+    lines += multistep_lines(data.get("horizons") or {})
     return "\n".join(lines)
+
+
+def multistep_lines(horizons: dict, align: bool = False) -> list[str]:
+    """The multi-step section of a results.json ``horizons`` document (empty when it has no model): every model's
+    MAE at each horizon, SimErr and its ratio to naive per group, how each model predicted, and the models left
+    out with the reason."""
+    if not horizons.get("models"):
+        return [f"Multi-step table: {horizons['note']}.", ""] if horizons.get("note") else []
+    lines = [f"## Multi-step prediction (IDSIA protocol, span {horizons['span']}, {horizons['starts']} start times)", "",
+             "MAE at horizon h steps and SimErr = sum of MAE_h for h = 1..50; ratio = model / naive constant-state prediction. "
+             "Units: m, m/s, rad (geodesic angle), rad/s.", ""]
+    hs = horizons["horizons"]
+    rows = []
+    for m, groups in horizons["models"].items():
+        for g in GROUPS:
+            e = groups[g]
+            if "needs" in e:
+                rows.append([m, g, *(needs_text(e) for _ in hs), needs_text(e), "-"])
+                continue
+            ratio = e["ratio_sim_err"]
+            rows.append([m, g, *(f"{e['mae'][str(h)]:.4g}" for h in hs), f"{e['sim_err']:.4g}", "-" if ratio is None else f"{ratio:.3g}"])
+    lines += markdown_table(["Model", "Group", *(f"MAE h={h}" for h in hs), "SimErr", "SimErr ratio"], rows, align=align, label_columns=2)
+    forms = horizons.get("forms", {})
+    streamed = [m for m, form in forms.items() if form == "streaming"]
+    if streamed:
+        lines += ["", f"Predicted by their live form from each start s (start_window on the warm rows ending at s, then one push "
+                      f"per command; causal by construction): {', '.join(streamed)}."]
+    left_out = horizons.get("not_multistep") or {}
+    if isinstance(left_out, list):  # results.json written before the reasons were recorded
+        left_out = {m: "no open-loop form" for m in left_out}
+    for m, why in left_out.items():
+        lines += ["", f"Not in the multi-step table: {m} ({why})."]
+    lines.append("")
+    return lines
 
 
 def needs_text(entry: dict) -> str:
@@ -143,7 +185,8 @@ def live_summary_table(results: dict, model_names: list[str]) -> str:
     lines += markdown_table(["variable", "unit", *(column_title(m, s) for m, s in columns)], rows, align=True, label_columns=2)
     windows = ", ".join(f"{m} {s}: {results['windows'][m][s]}" for m, s in columns)
     lines += ["", f"windows scored: {windows}; marked: {len(marked)}"]
-    return "\n".join(lines)
+    notes = model_notes(dict.fromkeys(m for m, _ in columns))
+    return "\n".join(lines + ([""] + notes[:1] if notes else []))
 
 
 def window_figure(example: ExampleWindow, title: str, acc_var: str, rate_var: str, path: Path) -> None:

@@ -29,7 +29,9 @@ def test_live_summary_table_is_aligned_markdown_in_display_units():
     assert lines[4] == "| vel_x      | m/s    |      0.25 / 0.1 |     0.25 / 0.1 |   1.00 / 0.2 |"
     # 0.1 rad/s = 5.73 deg/s, 0.2 rad/s = 11.5 deg/s
     assert lines[10] == "| roll_rate  | deg/s  |     0.25 / 5.73 |    0.25 / 5.73 |  1.00 / 11.5 |"
-    assert lines[-1] == "windows scored: greybox train: 4, greybox eval: 2, dummy eval: 2; marked: 1"
+    assert lines[-3] == "windows scored: greybox train: 4, greybox eval: 2, dummy eval: 2; marked: 1"
+    assert lines[-1].startswith("Models: greybox = linear greybox, the thesis reproduction (Sonntag 2011 ch. 3")
+    assert lines[-1].endswith("; dummy = predicts zero deviation from the trim (thesis Fig 5.2 baseline, TIC 1).")
 
 
 def test_live_summary_without_a_scored_window_names_the_first_reason():
