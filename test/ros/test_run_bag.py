@@ -44,7 +44,7 @@ def test_live_results_equal_offline_evaluation(tmp_path, capsys):
     # The multi-step table lists every model run live (NARX by its live form), with the offline numbers.
     horizons = live["horizons"]
     assert list(horizons["models"]) == ["naive", "greybox", "narx"] and list(horizons["not_multistep"]) == ["dummy"]
-    assert horizons["forms"]["narx"] == "streaming" and horizons["span"] == "eval"
+    assert horizons["forms"]["narx"] == "predict_horizons" and horizons["span"] == "eval"
     multistep = multistep_evaluation([resample_uniform(log)], [make_model(m, vehicle) for m in (*specs, "dummy")], vehicle, config)
     assert horizons["starts"] == multistep["starts"] == 2000 - 50 - 19  # eval 20:40 s at 100 Hz, 20 warm rows
     for model in ("naive", "greybox", "narx"):
