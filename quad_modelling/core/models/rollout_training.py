@@ -1,0 +1,274 @@
+"""Closed-loop (rollout) training of recurrent models on flight windows: dataset, loader, early stopping.
+
+Generic part of every multi-step trained model (NARX, the hybrid's residual nets). A
+*segment* is a dict of row-aligned arrays cut from one gap-free part of one flight
+(e.g. ``{"u": (N, 4) normalised commands, "y": (N, 6) normalised outputs}``; any keys,
+any trailing shapes). A *rollout window* starting at row ``s`` of a segment is rows
+
+.. math::
+
+    s − n_h, …, s − 1, s, …, s + K − 1       (n_h = ``history``, K = ``horizon``)
+
+of every array: the model may use the measured rows before ``s`` (its warm start) and
+the exogenous channels over the whole window, and predicts rows ``s … s + K − 1``
+closed loop (its own predictions fed back). The caller's ``loss_fn(module, batch)``
+does that rollout and returns the loss, e.g. the mean over the K steps and the batch of
+the squared normalised error, :math:`L = \\frac{1}{B K} \\sum_b \\sum_{k<K} \\lVert ŷ_b(s+k) − y_b(s+k)\\rVert^2`.
+
+API
+---
+* :class:`RolloutWindows` -- a ``torch.utils.data.Dataset`` of every window of the
+  segments (start stride ``stride``); indexing with a list of window numbers returns one
+  batch (dict of float32 tensors shaped (B, n_h + K, ...)), gathered at once (no per-item
+  Python loop); windows never cross a segment boundary.
+* :func:`rollout_loader` -- a ``DataLoader`` over it yielding such batches, shuffled by a
+  seeded generator (same seed, same batches), optionally ``windows_per_epoch`` of them.
+* :func:`hold_back_flights` -- whole flights held back for validation
+  (:data:`VAL_FRACTION` of them by default, or the ones named).
+* :func:`train_rollout` -- Adam on ``loss_fn`` with gradient-norm clipping, the validation
+  loss after every epoch, early stopping after ``patience`` epochs without improvement,
+  and the weights of the best validation epoch restored; returns a :class:`RolloutHistory`
+  (per-epoch losses, best epoch, stopping epoch).
+* :func:`seeded_torch` -- the deterministic torch context every trainer runs in (seed,
+  deterministic algorithms, a fixed number of threads).
+
+torch is imported lazily (predicting never needs it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import math
+import time
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import TypeVar
+
+import numpy as np
+
+from quad_modelling.errors import ConfigError, DataError
+
+VAL_FRACTION = 0.2
+"""Default fraction of the training flights held back (whole flights) for early stopping."""
+
+T = TypeVar("T")
+
+
+@dataclass(frozen=True)
+class RolloutConfig:
+    """Settings of :func:`train_rollout`.
+
+    horizon: K, closed-loop steps per window (50 = 0.5 s at 100 Hz, the IDSIA SimErr horizon).
+    stride: rows between consecutive window starts.
+    batch_size: windows per mini-batch.
+    max_epochs: most passes; patience: epochs without a better validation loss before stopping.
+    learning_rate: Adam step size; weight_decay: Adam's L2 term; grad_clip: largest gradient norm.
+    windows_per_epoch: windows drawn (without replacement) per epoch, None = all.
+    threads: torch threads (1 = bit-identical runs on any machine).
+    """
+
+    horizon: int = 50
+    stride: int = 1
+    batch_size: int = 256
+    max_epochs: int = 30
+    patience: int = 5
+    learning_rate: float = 3e-3
+    weight_decay: float = 0.0
+    grad_clip: float = 1.0
+    windows_per_epoch: int | None = None
+    threads: int = 1
+
+    def __post_init__(self) -> None:
+        if min(self.horizon, self.stride, self.batch_size, self.threads) < 1 or self.max_epochs < 0 or self.patience < 1:
+            raise ConfigError(f"rollout training: horizon, stride, batch_size, threads, patience must be >= 1 and max_epochs >= 0, got {self}")
+        if not (self.learning_rate > 0 and self.grad_clip > 0 and self.weight_decay >= 0):
+            raise ConfigError(f"rollout training: learning_rate and grad_clip must be > 0, weight_decay >= 0, got {self}")
+        if self.windows_per_epoch is not None and self.windows_per_epoch < 1:
+            raise ConfigError(f"rollout training: windows_per_epoch must be >= 1 or None, got {self.windows_per_epoch}")
+
+
+@dataclass
+class RolloutHistory:
+    """What :func:`train_rollout` did: losses per epoch (index 0 = before training), the best epoch restored."""
+
+    train_loss: list[float] = field(default_factory=list)
+    val_loss: list[float] = field(default_factory=list)
+    best_epoch: int = 0
+    epochs_run: int = 0
+    stopped_early: bool = False
+    seconds: float = 0.0
+
+    def to_dict(self) -> dict:
+        return {"train_loss": self.train_loss, "val_loss": self.val_loss, "best_epoch": self.best_epoch,
+                "epochs_run": self.epochs_run, "stopped_early": self.stopped_early, "seconds": round(self.seconds, 3)}
+
+
+class RolloutWindows:
+    """Every rollout window of ``segments`` (see module doc); a map-style dataset for ``torch.utils.data.DataLoader``.
+
+    ``dataset[i]`` is window i as a dict of (n_h + K, ...) tensors; ``dataset[[i, j, ...]]``
+    a batch of (B, n_h + K, ...) tensors. Segments shorter than n_h + K give no window.
+    """
+
+    def __init__(self, segments: Sequence[Mapping[str, np.ndarray]], history: int, horizon: int, stride: int = 1) -> None:
+        import torch
+
+        if history < 0 or horizon < 1 or stride < 1:
+            raise ConfigError(f"rollout windows: need history >= 0, horizon >= 1, stride >= 1, got {history}, {horizon}, {stride}")
+        if not segments:
+            raise DataError("rollout windows: no segments")
+        keys = sorted(segments[0])
+        self.history, self.horizon, self.length = history, horizon, history + horizon
+        starts, offset = [], 0
+        for n, segment in enumerate(segments):
+            if sorted(segment) != keys:
+                raise DataError(f"rollout windows: segment {n} has arrays {sorted(segment)}, expected {keys}")
+            rows = {len(a) for a in segment.values()}
+            if len(rows) != 1:
+                raise DataError(f"rollout windows: segment {n} arrays have different lengths {sorted(rows)}")
+            rows = rows.pop()
+            starts.append(offset + np.arange(0, rows - self.length + 1, stride))
+            offset += rows
+        self.starts = torch.from_numpy(np.concatenate(starts).astype(np.int64))  # first row of each window, in the joined arrays
+        self.arrays = {k: torch.from_numpy(np.concatenate([np.asarray(s[k], dtype=np.float32) for s in segments])) for k in keys}
+        self._steps = torch.arange(self.length)
+
+    def __len__(self) -> int:
+        return len(self.starts)
+
+    def __getitem__(self, index) -> dict:
+        import torch
+
+        single = isinstance(index, (int, np.integer))
+        idx = torch.as_tensor([index] if single else list(index), dtype=torch.int64)
+        rows = self.starts[idx][:, None] + self._steps[None, :]  # (B, L)
+        batch = {k: a[rows] for k, a in self.arrays.items()}
+        return {k: v[0] for k, v in batch.items()} if single else batch
+
+
+def rollout_loader(dataset: RolloutWindows, batch_size: int, shuffle: bool = True, seed: int = 0,
+                   windows_per_epoch: int | None = None):
+    """A ``torch.utils.data.DataLoader`` yielding batches (dicts of (B, n_h + K, ...) tensors) of ``dataset``.
+
+    Shuffled with a generator seeded by ``seed`` (the same seed gives the same batches);
+    ``windows_per_epoch`` draws that many windows without replacement per pass.
+    """
+    import torch
+    from torch.utils.data import BatchSampler, DataLoader, RandomSampler, SequentialSampler
+
+    generator = torch.Generator().manual_seed(int(seed))
+    if shuffle:
+        count = None if windows_per_epoch is None else min(int(windows_per_epoch), len(dataset))
+        sampler = RandomSampler(range(len(dataset)), num_samples=count, generator=generator)
+    else:
+        sampler = SequentialSampler(range(len(dataset)))
+    return DataLoader(dataset, sampler=BatchSampler(sampler, batch_size=batch_size, drop_last=False), batch_size=None)
+
+
+def hold_back_flights(flights: Sequence[T], fraction: float = VAL_FRACTION, chosen: Sequence[int] | None = None,
+                      seed: int = 0) -> tuple[list[T], list[T]]:
+    """(training, validation) flights: whole flights held back for early stopping.
+
+    ``chosen`` names the validation flights by index; otherwise round(fraction · n) of them
+    (at least one when n ≥ 2 and fraction > 0, never all) picked by a permutation seeded
+    with ``seed``. One flight cannot be split into flights: it is returned with no validation.
+    """
+    n = len(flights)
+    if chosen is not None:
+        bad = [i for i in chosen if not 0 <= i < n]
+        if bad or len(set(chosen)) != len(chosen) or len(chosen) >= n:
+            raise ConfigError(f"validation flights {list(chosen)}: need distinct indices in 0..{n - 1}, leaving a training flight")
+        val = sorted(chosen)
+    else:
+        if not 0 <= fraction < 1:
+            raise ConfigError(f"validation fraction {fraction}: must lie in [0, 1)")
+        count = 0 if n < 2 or fraction == 0 else min(n - 1, max(1, round(fraction * n)))
+        val = sorted(np.random.default_rng(seed).permutation(n)[:count].tolist())
+    return [f for i, f in enumerate(flights) if i not in val], [flights[i] for i in val]
+
+
+@contextlib.contextmanager
+def seeded_torch(seed: int, threads: int = 1) -> Iterator[None]:
+    """Run the block with torch seeded, deterministic algorithms on and ``threads`` threads; restored after."""
+    import torch
+
+    old_threads, old_det = torch.get_num_threads(), torch.are_deterministic_algorithms_enabled()
+    torch.set_num_threads(threads)
+    torch.use_deterministic_algorithms(True)
+    torch.manual_seed(seed)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old_threads)
+        torch.use_deterministic_algorithms(old_det)
+
+
+def mean_loss(module, loss_fn: Callable, dataset: RolloutWindows, batch_size: int) -> float:
+    """The loss over every window of ``dataset`` (batch losses weighted by batch size), without gradients."""
+    import torch
+
+    total, count = 0.0, 0
+    with torch.no_grad():
+        for batch in rollout_loader(dataset, batch_size, shuffle=False):
+            b = len(next(iter(batch.values())))
+            total += float(loss_fn(module, batch)) * b
+            count += b
+    return total / max(count, 1)
+
+
+def train_rollout(module, loss_fn: Callable, train: RolloutWindows, val: RolloutWindows | None,
+                  config: RolloutConfig = RolloutConfig(), seed: int = 0, progress: bool = False,
+                  desc: str = "rollout training") -> RolloutHistory:
+    """Fit ``module`` (a torch Module) by Adam on ``loss_fn(module, batch)`` over ``train``'s windows.
+
+    After every epoch the loss over ``val`` (or, with no validation windows, over ``train``)
+    is measured; training stops after ``config.patience`` epochs without a lower one and the
+    parameters of the best epoch (epoch 0 = the starting weights) are restored in place.
+    Deterministic for a seed (:func:`seeded_torch`).
+    """
+    import torch
+    from tqdm import tqdm
+
+    if len(train) == 0:
+        raise DataError(f"{desc}: no training window of {train.length} rows (history {train.history} + horizon {train.horizon})")
+    check = val if val is not None and len(val) > 0 else train
+    history = RolloutHistory()
+    started = time.perf_counter()
+    with seeded_torch(seed, config.threads):
+        optimiser = torch.optim.Adam(module.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+        best = mean_loss(module, loss_fn, check, config.batch_size)
+        history.val_loss.append(best)
+        history.train_loss.append(float("nan"))
+        best_state = copy.deepcopy(module.state_dict())
+        since_best = 0
+        bar = tqdm(range(1, config.max_epochs + 1), desc=desc, unit="epoch", disable=not progress, leave=False)
+        for epoch in bar:
+            total, count = 0.0, 0
+            for batch in rollout_loader(train, config.batch_size, True, seed * 100_003 + epoch, config.windows_per_epoch):
+                optimiser.zero_grad()
+                loss = loss_fn(module, batch)
+                if not torch.isfinite(loss):
+                    raise DataError(f"{desc}: the rollout loss became {float(loss)} in epoch {epoch}; lower the learning rate")
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(module.parameters(), config.grad_clip)
+                optimiser.step()
+                b = len(next(iter(batch.values())))
+                total += float(loss.detach()) * b
+                count += b
+            history.train_loss.append(total / count)
+            current = mean_loss(module, loss_fn, check, config.batch_size)
+            history.val_loss.append(current)
+            history.epochs_run = epoch
+            if current < best and math.isfinite(current):
+                best, history.best_epoch, since_best = current, epoch, 0
+                best_state = copy.deepcopy(module.state_dict())
+            else:
+                since_best += 1
+            bar.set_postfix(val=f"{current:.4g}", best=history.best_epoch)
+            if since_best >= config.patience:
+                history.stopped_early = True
+                break
+        module.load_state_dict(best_state)
+    history.seconds = time.perf_counter() - started
+    return history
