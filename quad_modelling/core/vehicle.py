@@ -69,6 +69,23 @@ CONSTANT_KEYS = (
 )
 """Constants every vehicle file must give (thesis Table 3-1 names; docs/formats.md, vehicle configs)."""
 
+PHYSICS_KEYS = (
+    "rotor_speed_gain",
+    "rotor_speed_offset",
+    "rotor_time_constant",
+    "rotor_thrust_constant",
+    "rotor_torque_constant",
+    "rotor_drag_xy",
+    "rotor_drag_z",
+    "physics_ixx",
+    "physics_iyy",
+)
+"""Constants of the nonlinear physics model (:mod:`quad_modelling.core.models.physics_params`), optional in a
+vehicle file (validated when present; the ``physics`` model names the missing ones): the motor map
+Ω_ss = k_u u + Ω_off, the rotor time constant τ_m, thrust/torque k_f, k_m (T = k_f Ω², Q = k_m Ω²), the linear
+rotor drag d_xy, d_z and the roll/pitch inertias the physics model uses (identified separately from the
+thesis's ``ixx``/``iyy``, which the linear greybox keeps)."""
+
 STATUSES = ("measured", "identified")
 
 CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
@@ -82,11 +99,23 @@ CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
     "motor_b_m": (0.0, np.inf, "per input unit"),
     "thrust_constant": (0.0, 1.0, "N s2/rad2"),
     "drag_constant": (0.0, 1.0, "N m s2/rad2"),
+    "rotor_speed_gain": (0.0, np.inf, "rad/s per input unit"),
+    "rotor_speed_offset": (-1.0e5, 1.0e5, "rad/s"),
+    "rotor_time_constant": (0.0, 10.0, "s"),
+    "rotor_thrust_constant": (0.0, 1.0, "N s2/rad2"),
+    "rotor_torque_constant": (0.0, 1.0, "N m s2/rad2"),
+    "rotor_drag_xy": (0.0, 1.0, "N s/(m rad)"),
+    "rotor_drag_z": (0.0, 1.0, "N s/(m rad)"),
+    "physics_ixx": (0.0, 1000.0, "kg m2"),
+    "physics_iyy": (0.0, 1000.0, "kg m2"),
 }
 """Open interval (low, high) each constant must lie in, and its unit: positive masses, lengths, inertias and
 rotor constants, a stable motor pole (negative, faster than 10 us), nothing beyond what a multirotor of up
 to a tonne and 10 m arms could have. ``prop_inertia`` may be 0 (rotor inertia neglected). Values must be
-finite."""
+finite. Rotor time constant and drag may be 0 (no lag, no drag)."""
+
+ZERO_ALLOWED = ("prop_inertia", "rotor_time_constant", "rotor_drag_xy", "rotor_drag_z")
+"""Constants whose range includes its lower end 0 (the effect neglected)."""
 
 
 @dataclass(frozen=True)
@@ -158,6 +187,10 @@ class VehicleConfig:
         """Diagonal inertia (Ixx, Iyy, Izz) [kg m²]."""
         return np.array([self.value("ixx"), self.value("iyy"), self.value("izz")])
 
+    def missing(self, keys) -> list[str]:
+        """Those of ``keys`` this vehicle file does not give (e.g. :data:`PHYSICS_KEYS`)."""
+        return [k for k in keys if k not in self.constants]
+
     def identified(self) -> list[str]:
         """Names of the constants to identify from flight data."""
         return [k for k, c in self.constants.items() if c.status == "identified"]
@@ -200,7 +233,8 @@ class VehicleConfig:
             raise ConfigError(f"{where}: geometry must be 'plus' or 'x', got {geometry!r}")
         constants_doc = need(doc, "constants", "")
         constants: dict[str, Constant] = {}
-        for key in CONSTANT_KEYS:
+        optional = [k for k in PHYSICS_KEYS if isinstance(constants_doc, dict) and k in constants_doc]
+        for key in (*CONSTANT_KEYS, *optional):
             entry = need(constants_doc, key, "constants.")
             for sub in ("value", "unit", "source", "status"):
                 need(entry, sub, f"constants.{key}.")
@@ -267,7 +301,7 @@ def check_constant(key: str, value: float, where: str) -> None:
     if key not in CONSTANT_RANGES:
         return
     low, high, unit = CONSTANT_RANGES[key]
-    if key == "prop_inertia":
+    if key in ZERO_ALLOWED:
         inside = low <= value < high
     else:
         inside = low < value < high
@@ -277,7 +311,7 @@ def check_constant(key: str, value: float, where: str) -> None:
         elif high == np.inf:
             rule = "must be positive"
         else:
-            rule = f"must lie in {'[' if key == 'prop_inertia' else '('}{low:g}, {high:g}) {unit}"
+            rule = f"must lie in {'[' if key in ZERO_ALLOWED else '('}{low:g}, {high:g}) {unit}"
         raise ConfigError(f"{where}: constants.{key}.value {rule}, got {value:g}")
 
 

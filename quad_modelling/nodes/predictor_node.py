@@ -48,7 +48,7 @@ from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
 
-from quad_modelling.core.models.streaming import prime
+from quad_modelling.core.models.streaming import prime, push_sample
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import WindowClock
 from quad_modelling.errors import QuadModellingError
@@ -351,7 +351,7 @@ class PredictorNode(Node):
 
     def _push(self, ns: int, u: np.ndarray) -> None:
         try:
-            prediction = self.stream.push(u)
+            prediction = push_sample(self.stream, u, float(topics.stamps_to_seconds(np.array([ns], dtype=np.int64))[0]))
         except (QuadModellingError, ValueError) as err:
             self.faults.report("model_error", f"window {self.window}: model {self.name_} failed: {err}")
             self.state = "skip"

@@ -7,6 +7,8 @@ Built-in specs (a factory receives the text after the first ``:``, or ``""``, an
 ``greybox:euler``  same with the thesis's explicit-Euler discretisation
 ``narx:PATH``      thesis NARX nets from a model file, :mod:`quad_modelling.core.models.narx`
 ``hybrid:PATH``    greybox + NARX residual nets, :mod:`quad_modelling.core.models.hybrid`
+``physics``        nonlinear rigid body + rotor map/lag/drag, :mod:`quad_modelling.core.models.physics`
+``physics:H``      same with a disturbance-observer history of H seconds (0 = observer off)
 ``dummy``          :class:`~quad_modelling.core.models.base.DummyPredictor`, zero (thesis Fig 5.2)
 ``naive``          :class:`~quad_modelling.core.models.base.ConstantStatePredictor`, the last warm-start state held
 =================  ==========================================================
@@ -91,7 +93,23 @@ def _make_hybrid(arg: str, vehicle: VehicleConfig) -> Predictor:
     return make_hybrid_predictor(arg, vehicle)
 
 
+def _make_physics(arg: str, vehicle: VehicleConfig) -> Predictor:
+    """``physics`` / ``physics:H``: the nonlinear physics model from the vehicle's physics constants."""
+    from quad_modelling.core.models.physics import HISTORY_S, PhysicsPredictor
+
+    if not arg:
+        return PhysicsPredictor(vehicle, HISTORY_S)
+    try:
+        history = float(arg)
+    except ValueError as err:
+        raise ConfigError(f"model spec physics:{arg}: the argument is the disturbance history in seconds, e.g. physics:0.5") from err
+    if not (history >= 0 and history < 1e3):
+        raise ConfigError(f"model spec physics:{arg}: the disturbance history must be 0 (off) or a positive number of seconds")
+    return PhysicsPredictor(vehicle, history, name=f"physics:{arg}")
+
+
 register_model("greybox", _make_greybox)
+register_model("physics", _make_physics)
 register_model("dummy", _make_dummy)
 register_model("naive", _make_naive)
 register_model("narx", _make_narx)

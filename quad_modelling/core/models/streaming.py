@@ -9,7 +9,9 @@ node and the offline evaluation call:
    thesis's 0.2 s) and returns the predictions for those rows plus a
    :class:`WindowStream`;
 2. :meth:`WindowStream.push` receives the command of each following sample and
-   returns that sample's prediction at once.
+   returns that sample's prediction at once. A stream that integrates over the real sample
+   intervals also has ``push_at(command, t_s)`` with the sample's time [s] (the warm log's
+   time base); :func:`push_sample` calls it when present, ``push`` otherwise.
 
 Predictions are **absolute** values of the 18 variables in
 :data:`quad_modelling.core.variables.VARIABLES` order (internal frames, SI), so
@@ -54,6 +56,13 @@ class StreamingPredictor(Protocol):
         ...
 
 
+def push_sample(stream: WindowStream, command: np.ndarray, t_s: float) -> np.ndarray:
+    """Push one sample's command: ``stream.push_at(command, t_s)`` for streams that take the sample time
+    (they integrate over the real interval since the previous sample), else ``stream.push(command)``."""
+    push_at = getattr(stream, "push_at", None)
+    return push_at(command, t_s) if push_at is not None else stream.push(command)
+
+
 def predict_window_by_stream(predictor: StreamingPredictor, window: FlightLog, warm_samples: int) -> np.ndarray:
     """(N, 18) absolute predictions of a window, computed exactly as a live node does."""
     if not 1 <= warm_samples < len(window):
@@ -62,7 +71,7 @@ def predict_window_by_stream(predictor: StreamingPredictor, window: FlightLog, w
     predictions = np.empty((len(window), len(VARIABLES)))
     predictions[:warm_samples] = warm_predictions
     for row in range(warm_samples, len(window)):
-        predictions[row] = stream.push(window.u[row])
+        predictions[row] = push_sample(stream, window.u[row], float(window.t[row]))
     return predictions
 
 

@@ -1,0 +1,115 @@
+"""Constants of the nonlinear physics model (:mod:`quad_modelling.core.models.physics`), read from a vehicle file.
+
+The physics constants are the vehicle file's :data:`~quad_modelling.core.vehicle.PHYSICS_KEYS` (optional in a
+vehicle file; the ``physics`` model needs them all and names the missing ones) plus its mass, yaw inertia
+``izz``, rotor inertia ``prop_inertia``, motor positions and spins:
+
+================================  ==========================  ===========================================
+symbol (code)                     key                         unit
+================================  ==========================  ===========================================
+k_u (``speed_gain``)              ``rotor_speed_gain``        rad/s per input unit
+Ω_off (``speed_offset``)          ``rotor_speed_offset``      rad/s
+τ_m (``time_constant``)           ``rotor_time_constant``     s
+k_f (``thrust_constant``)         ``rotor_thrust_constant``   N s²/rad²
+k_m (``torque_constant``)         ``rotor_torque_constant``   N m s²/rad²
+d_xy, d_z (``drag``)              ``rotor_drag_xy``/``_z``    N s/(m rad)
+I_xx, I_yy (``inertia[:2]``)      ``physics_ixx``/``_iyy``    kg m²
+================================  ==========================  ===========================================
+
+The roll/pitch inertias have their own keys: the physics fit identifies them, while the thesis's linear
+greybox keeps the file's ``ixx``/``iyy`` (changing those would change the reproduction). Only the
+products k_f k_u² and k_m k_u² are identifiable from motion without rotor-speed measurements, so
+``identify`` holds k_u and Ω_off (literature, a thrust-stand measurement) and fits the rest.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
+from quad_modelling.errors import ConfigError
+
+PHYSICS_UNITS: dict[str, str] = {
+    "rotor_speed_gain": "rad/s per input unit",
+    "rotor_speed_offset": "rad/s",
+    "rotor_time_constant": "s",
+    "rotor_thrust_constant": "N s2/rad2",
+    "rotor_torque_constant": "N m s2/rad2",
+    "rotor_drag_xy": "N s/(m rad)",
+    "rotor_drag_z": "N s/(m rad)",
+    "physics_ixx": "kg m2",
+    "physics_iyy": "kg m2",
+}
+"""Unit of each physics constant (as written in vehicle files)."""
+
+
+@dataclass(frozen=True)
+class PhysicsParameters:
+    """Everything the physics model needs, SI units, body FRD (see module docstring for the keys).
+
+    mass [kg]; inertia (I_xx, I_yy, I_zz) [kg m²]; prop_inertia I_p [kg m²]; positions (4, 2) rotor (x, y)
+    in FRD [m]; spins (4,) s_i = +1 for a rotor spinning counter-clockwise seen from above (positive
+    reaction torque about FRD z); speed_gain k_u, speed_offset Ω_off, time_constant τ_m, thrust_constant
+    k_f, torque_constant k_m, drag (d_xy, d_xy, d_z); input_min/max: the command range.
+    """
+
+    mass: float
+    inertia: tuple[float, float, float]
+    prop_inertia: float
+    positions: np.ndarray
+    spins: np.ndarray
+    speed_gain: float
+    speed_offset: float
+    time_constant: float
+    thrust_constant: float
+    torque_constant: float
+    drag: tuple[float, float, float]
+    input_min: float
+    input_max: float
+
+    @classmethod
+    def from_vehicle(cls, vehicle: VehicleConfig) -> PhysicsParameters:
+        """The physics constants of ``vehicle``; ConfigError naming the file and every missing key."""
+        missing = vehicle.missing(PHYSICS_KEYS)
+        if missing:
+            raise ConfigError(f"{vehicle.path}: the physics model needs the vehicle constants {', '.join(missing)} "
+                              f"(docs/formats.md, physics constants; `quad-modelling identify` writes them)")
+        v = vehicle.value
+        return cls(
+            mass=vehicle.mass,
+            inertia=(v("physics_ixx"), v("physics_iyy"), v("izz")),
+            prop_inertia=v("prop_inertia"),
+            positions=vehicle.motor_positions,
+            spins=vehicle.yaw_signs,
+            speed_gain=v("rotor_speed_gain"),
+            speed_offset=v("rotor_speed_offset"),
+            time_constant=v("rotor_time_constant"),
+            thrust_constant=v("rotor_thrust_constant"),
+            torque_constant=v("rotor_torque_constant"),
+            drag=(v("rotor_drag_xy"), v("rotor_drag_xy"), v("rotor_drag_z")),
+            input_min=vehicle.input_min,
+            input_max=vehicle.input_max,
+        )
+
+    def with_values(self, **changes) -> PhysicsParameters:
+        """A copy with some fields replaced."""
+        return replace(self, **changes)
+
+    def vehicle_values(self) -> dict[str, float]:
+        """These parameters as vehicle-file constants (:data:`~quad_modelling.core.vehicle.PHYSICS_KEYS`)."""
+        return {
+            "rotor_speed_gain": self.speed_gain, "rotor_speed_offset": self.speed_offset,
+            "rotor_time_constant": self.time_constant, "rotor_thrust_constant": self.thrust_constant,
+            "rotor_torque_constant": self.torque_constant, "rotor_drag_xy": self.drag[0], "rotor_drag_z": self.drag[2],
+            "physics_ixx": self.inertia[0], "physics_iyy": self.inertia[1],
+        }
+
+    def hover_rotor_speed(self, gravity: float) -> float:
+        """Ω_H = sqrt(m g / (4 k_f)) [rad/s]: each rotor's speed in a level hover."""
+        return float(np.sqrt(self.mass * gravity / (4.0 * self.thrust_constant)))
+
+    def hover_command(self, gravity: float) -> float:
+        """u_H = (Ω_H - Ω_off) / k_u [input unit]: the command of a level hover (all rotors equal)."""
+        return (self.hover_rotor_speed(gravity) - self.speed_offset) / self.speed_gain
