@@ -1,0 +1,289 @@
+r"""Training the hybrid's residual net with a multi-step (rollout) loss through a torch twin of the physics step.
+
+Data. Every gap-free part of each training span (:func:`~quad_modelling.core.windows.gap_free_runs`) is one
+segment, prepared as the evaluation's multi-step form sees a segment: measured states
+(:func:`~quad_modelling.core.preprocess.state_measurement`, raw rows), rotor speeds from the lag filter over the
+segment's commands, the physics observer's disturbance at every row as an anchor, and the observer's rows
+(:func:`~quad_modelling.core.models.hybrid.observer_rows`). :class:`~quad_modelling.core.models.rollout_training.RolloutWindows`
+cuts windows of ``n_h`` history rows + the anchor + K steps from them (never across a segment), a seeded
+``DataLoader`` batches them.
+
+Loss. From each anchor a the hybrid is rolled out K steps through the torch twin
+(:mod:`~quad_modelling.core.models.physics_torch`) -- observer correction from the net at the history rows,
+then the net inside every step -- and compared with the measured velocity and body rates:
+
+.. math::
+
+    L = \frac{1}{2 B K} \sum_b \sum_{h=1}^{K} \Big( \frac{\lVert \hat v_b(a+h) - v_b(a+h) \rVert^2}{\sigma_v^2}
+        + \frac{\lVert \hat\omega_b(a+h) - \omega_b(a+h) \rVert^2}{\sigma_\omega^2} \Big)
+
+with :math:`\sigma_v^2, \sigma_\omega^2` the naive (held-state) model's mean squared error over the same
+horizons on the training windows, :math:`\sigma^2 = \mathrm{mean}_{a,h} \lVert y(a+h) - y(a) \rVert^2`, so
+L = 1 is the naive model's loss and the two groups weigh alike. Adam, mini-batches, early stopping on whole
+training flights held back for validation (:func:`~quad_modelling.core.models.rollout_training.hold_back_flights`),
+the best validation epoch restored; epoch 0 is the bare physics model (zero last layer), so a net that does
+not beat the physics model on validation is not kept. Seeded and deterministic (one torch thread).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.models import physics
+from quad_modelling.core.models.hybrid import FEATURES, HISTORY_S, HybridModel, observer_rows
+from quad_modelling.core.models.physics import PhysicsParameters
+from quad_modelling.core.models.residual_net import ResidualNet
+from quad_modelling.core.models.rollout_training import (
+    VAL_FRACTION,
+    RolloutConfig,
+    RolloutWindows,
+    hold_back_flights,
+    seeded_torch,
+    train_rollout,
+)
+from quad_modelling.core.preprocess import measured_variables, state_measurement
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.windows import gap_free_runs, rows_between
+from quad_modelling.errors import ConfigError, DataError
+
+
+@dataclass(frozen=True)
+class HybridTrainingConfig:
+    """Settings of :func:`train_hybrid` (defaults: what the leave-one-shape-out bench uses).
+
+    hidden: widths of the net's tanh hidden layers. history_s: observer history [s] (the physics model's).
+    rollout: K, stride, batch, epochs, patience, learning rate (:class:`RolloutConfig`).
+    val_fraction: fraction of the training flights held back (whole flights) for early stopping.
+    val_stride: rows between validation windows (validation loss over fewer, spread windows).
+    """
+
+    hidden: tuple[int, ...] = (32, 32)
+    history_s: float = HISTORY_S
+    rollout: RolloutConfig = field(default_factory=lambda: RolloutConfig(
+        horizon=50, stride=1, batch_size=256, max_epochs=12, patience=3, learning_rate=2e-3,
+        grad_clip=1.0, windows_per_epoch=8192))
+    val_fraction: float = VAL_FRACTION
+    val_stride: int = 5
+
+    def __post_init__(self) -> None:
+        if not self.hidden or min(self.hidden) < 1:
+            raise ConfigError(f"hybrid training: hidden layer widths must be >= 1, got {self.hidden}")
+        if not (np.isfinite(self.history_s) and self.history_s > 0):
+            raise ConfigError(f"hybrid training: the observer history must be > 0 s, got {self.history_s}")
+        if self.val_stride < 1:
+            raise ConfigError(f"hybrid training: val_stride must be >= 1, got {self.val_stride}")
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["hidden"] = list(self.hidden)
+        return d
+
+
+# ---- data --------------------------------------------------------------------------------------------
+def segment_arrays(p: PhysicsParameters, segment: FlightLog, history_s: float) -> dict[str, np.ndarray]:
+    """Row-aligned arrays of one gap-free segment for :class:`RolloutWindows` (module docstring)."""
+    measured = state_measurement(segment)
+    rows = np.arange(len(segment))
+    rotor = physics.rotor_speeds(p, segment.u, segment.t)
+    disturbance = physics.disturbance_estimate(p, segment.t, segment.u, measured, rotor, rows, history_s)
+    first, span = observer_rows(segment.t, rows, history_s)
+    dt = np.diff(segment.t)
+    return {
+        "vel": measured[:, 3:6], "rot": physics.measured_states(p, measured, rotor, rows).rot.reshape(-1, 9),
+        "rates": measured[:, 12:15], "rotor": rotor, "u": segment.u,
+        "dt": np.append(dt, np.median(dt))[:, None],
+        "d": np.concatenate([disturbance.linear_n, disturbance.angular_b], axis=1),
+        "obs_n": (rows - first)[:, None].astype(float), "obs_span": span[:, None],
+    }
+
+
+def flight_segments(p: PhysicsParameters, logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None],
+                    history_s: float) -> list[dict[str, np.ndarray]]:
+    """The arrays of every gap-free part (of two rows or more) of each flight's span (None: the whole flight)."""
+    segments = []
+    for log, span in zip(logs, spans):
+        log.require(("gyro_b",), "hybrid training (its loss compares gyro rates)")
+        start, stop = (0, len(log)) if span is None else rows_between(log, *span)
+        for a, b in gap_free_runs(log, start, stop):
+            if b - a >= 2:
+                segments.append(segment_arrays(p, log.slice(a, b), history_s))
+    return segments
+
+
+def feature_rows(segments: list[dict[str, np.ndarray]]) -> np.ndarray:
+    """(N, 17) net inputs at every measured row of ``segments`` (normalisation statistics)."""
+    from quad_modelling.core.models.hybrid import net_features
+
+    out = []
+    for s in segments:
+        state = physics.PhysicsState(np.zeros_like(s["vel"]), s["vel"], s["rot"].reshape(-1, 3, 3), s["rates"], s["rotor"],
+                                     np.zeros(len(s["vel"])))
+        out.append(net_features(state, s["u"]))
+    return np.concatenate(out)
+
+
+def naive_scales(segments: list[dict[str, np.ndarray]], horizon: int) -> tuple[float, float]:
+    """(σ_v², σ_ω²): the held-state model's mean squared velocity / rate error over horizons 1..K (module docstring)."""
+    sums, count = np.zeros(2), 0
+    for s in segments:
+        n = len(s["vel"])
+        for h in range(1, min(horizon, n - 1) + 1):
+            sums += [((s["vel"][h:] - s["vel"][:-h]) ** 2).sum(), ((s["rates"][h:] - s["rates"][:-h]) ** 2).sum()]
+            count += n - h
+    if count == 0:
+        raise DataError("hybrid training: no segment longer than one step")
+    return tuple(np.maximum(sums / count, 1e-12))
+
+
+def acceleration_scale(p: PhysicsParameters, logs: Sequence[FlightLog]) -> np.ndarray:
+    """(6,) output scale of the net: RMS of (measured − modelled) linear acceleration in B [m/s²] and angular
+    acceleration [rad/s²] at the measured rows of ``logs`` (the size of what is left to correct)."""
+    parts = []
+    for log in logs:
+        measured = measured_variables(log)
+        rows = np.arange(len(log))
+        rotor = physics.rotor_speeds(p, log.u, log.t)
+        state = physics.measured_states(p, measured, rotor, rows)
+        acc_n, ang_acc = physics.accelerations(p, state.vel_n, state.rot, state.rates, rotor, physics.rotor_acceleration(p, rotor, log.u))
+        lin_b = np.einsum("bji,bj->bi", state.rot, measured[:, 6:9] - acc_n)
+        parts.append(np.concatenate([lin_b, measured[:, 15:18] - ang_acc], axis=1))
+    residual = np.concatenate(parts)
+    residual = residual[np.all(np.isfinite(residual), axis=1)]
+    return np.maximum(np.sqrt((residual ** 2).mean(axis=0)), 1e-3) if len(residual) else np.ones(6)
+
+
+# ---- the torch module and the loss -------------------------------------------------------------------
+def _make_module(in_mean, in_std, out_scale, hidden):
+    import torch
+
+    class Net(torch.nn.Module):
+        """The residual MLP (residual_net.ResidualNet's equations); last layer zero."""
+
+        def __init__(self) -> None:
+            super().__init__()
+            widths = [len(in_mean), *hidden]
+            self.hidden = torch.nn.ModuleList(torch.nn.Linear(a, b) for a, b in zip(widths[:-1], widths[1:]))
+            self.last = torch.nn.Linear(widths[-1], len(out_scale))
+            torch.nn.init.zeros_(self.last.weight)
+            torch.nn.init.zeros_(self.last.bias)
+            self.register_buffer("in_mean", torch.as_tensor(in_mean, dtype=torch.float32))
+            self.register_buffer("in_std", torch.as_tensor(in_std, dtype=torch.float32))
+            self.register_buffer("out_scale", torch.as_tensor(out_scale, dtype=torch.float32))
+
+        def forward(self, f):
+            h = (f - self.in_mean) / self.in_std
+            for layer in self.hidden:
+                h = torch.tanh(layer(h))
+            return self.last(h) * self.out_scale
+
+        def to_numpy(self) -> ResidualNet:
+            layers = [*self.hidden, self.last]
+            return ResidualNet([l.weight.detach().double().numpy().copy() for l in layers],
+                               [l.bias.detach().double().numpy().copy() for l in layers],
+                               self.in_mean.double().numpy().copy(), self.in_std.double().numpy().copy(),
+                               self.out_scale.double().numpy().copy())
+
+    return Net()
+
+
+def _features(vel_n, rot, rates, u, rotor):
+    import torch
+
+    vel_b = torch.einsum("...ji,...j->...i", rot, vel_n)
+    return torch.cat([vel_b, rot[..., 2, :], rates, u, rotor], dim=-1)
+
+
+def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
+    """``loss_fn(module, batch)`` of :func:`train_rollout` (module docstring): observer, then K twin steps."""
+    import torch
+
+    from quad_modelling.core.models import physics_torch as pt
+
+    var_v, var_w = (float(s) for s in scales)
+
+    def loss_fn(net, batch):
+        a = history
+        rot = batch["rot"].reshape(*batch["rot"].shape[:2], 3, 3)
+        # observer: mean of the net's correction over the history rows first..a-1, weighted by Δt_j / span
+        f_hist = _features(batch["vel"][:, :a], rot[:, :a], batch["rates"][:, :a], batch["u"][:, :a], batch["rotor"][:, :a])
+        delta = net(f_hist)
+        c_hist = torch.cat([torch.einsum("bkij,bkj->bki", rot[:, :a], delta[..., :3]), delta[..., 3:]], dim=-1)
+        back = torch.arange(a, 0, -1, dtype=batch["obs_n"].dtype)  # rows before the anchor: a - j
+        weight = batch["dt"][:, :a, 0] * (back[None, :] <= batch["obs_n"][:, a]) / batch["obs_span"][:, a]
+        d = batch["d"][:, a] - (c_hist * weight[..., None]).sum(dim=1)
+        b = len(d)
+        zeros = torch.zeros(b, 3, dtype=d.dtype)
+        state = pt.TorchState(zeros, batch["vel"][:, a], rot[:, a], batch["rates"][:, a], batch["rotor"][:, a], zeros[:, 0])
+        loss = torch.zeros((), dtype=d.dtype)
+        for k in range(horizon):
+            r = a + k
+            u = batch["u"][:, r]
+            delta = net(_features(state.vel_n, state.rot, state.rates, u, state.rotor))
+            lin = d[:, :3] + torch.einsum("bij,bj->bi", state.rot, delta[:, :3])
+            state = pt.step(tp, state, u, batch["dt"][:, r, 0], lin, d[:, 3:] + delta[:, 3:])
+            loss = loss + ((state.vel_n - batch["vel"][:, r + 1]) ** 2).sum() / var_v \
+                + ((state.rates - batch["rates"][:, r + 1]) ** 2).sum() / var_w
+        return loss / (2.0 * b * horizon)
+
+    return loss_fn
+
+
+# ---- training ----------------------------------------------------------------------------------------
+def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None],
+                 config: HybridTrainingConfig = HybridTrainingConfig(), seed: int = 0, progress: bool = False,
+                 val_flights: Sequence[int] | None = None) -> HybridModel:
+    """Train a hybrid model on the ``spans`` of ``logs`` (module docstring); deterministic for a seed.
+
+    Whole flights are held back for validation (``val_flights`` by index, else ``config.val_fraction`` of them;
+    a single flight validates on its own windows). Returns the model with the net of the best validation epoch
+    and the training record (losses per epoch, best/stopping epoch, flights) in ``model.training``.
+    """
+    import torch
+
+    from quad_modelling.core.models import physics_torch as pt
+
+    if not logs or len(logs) != len(spans):
+        raise DataError(f"hybrid training: {len(logs)} flights for {len(spans)} spans")
+    names = sorted({log.meta.vehicle for log in logs})
+    if names != [vehicle]:
+        raise DataError(f"hybrid training: flights are for vehicle(s) {names}, the physics model for {vehicle!r}")
+    rc = config.rollout
+    indices = list(range(len(logs)))
+    train_idx, val_idx = hold_back_flights(indices, config.val_fraction, val_flights, seed)
+    dts = np.concatenate([np.diff(log.t) for log in logs])
+    train_segments = flight_segments(p, [logs[i] for i in train_idx], [spans[i] for i in train_idx], config.history_s)
+    val_segments = flight_segments(p, [logs[i] for i in val_idx], [spans[i] for i in val_idx], config.history_s)
+    # history rows of a window: the most observer rows any anchor has (50 at 100 Hz and 0.5 s)
+    history = max([int(s["obs_n"].max()) for s in train_segments + val_segments] + [1])
+    if not any(len(s["u"]) > history + rc.horizon for s in train_segments):
+        raise DataError(f"hybrid training: no gap-free part of the training spans holds the {history + rc.horizon + 1} rows one "
+                        f"{rc.horizon}-step window with {config.history_s:g} s of observer history needs")
+    features = feature_rows(train_segments)
+    scales = naive_scales(train_segments, rc.horizon)
+    out_scale = acceleration_scale(p, [logs[i] for i in train_idx])
+    train_set = RolloutWindows(train_segments, history, rc.horizon + 1, rc.stride)
+    val_set = RolloutWindows(val_segments, history, rc.horizon + 1, config.val_stride) if val_segments else None
+    with seeded_torch(seed, rc.threads):
+        net = _make_module(features.mean(axis=0), np.maximum(features.std(axis=0), 1e-6), out_scale, config.hidden)
+        loss_fn = rollout_loss(pt.TorchParameters.from_params(p, torch.float32), history, rc.horizon, scales)
+        record = train_rollout(net, loss_fn, train_set, val_set, rc, seed, progress, desc="hybrid rollout training")
+        residual = net.to_numpy()
+    training = {
+        "seed": seed, "dt": float(np.median(dts)), "config": config.to_dict(), "history_rows": history,
+        "naive_mse": {"velocity": scales[0], "angular_velocity": scales[1]},
+        "flights": [logs[i].meta.source for i in train_idx], "validation_flights": [logs[i].meta.source for i in val_idx],
+        "spans": [None if s is None else list(s) for s in spans], "windows": len(train_set),
+        "validation_windows": 0 if val_set is None else len(val_set), "rollout": record.to_dict(),
+    }
+    return HybridModel(p, residual, vehicle, config.history_s, training)
+
+
+def train_hybrid_on_flights(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], vehicle: VehicleConfig,
+                            config: HybridTrainingConfig = HybridTrainingConfig(), seed: int = 0, progress: bool = False,
+                            val_flights: Sequence[int] | None = None) -> HybridModel:
+    """:func:`train_hybrid` with the physics constants of ``vehicle`` (ConfigError naming any missing one)."""
+    return train_hybrid(PhysicsParameters.from_vehicle(vehicle), vehicle.name, logs, spans, config, seed, progress, val_flights)
