@@ -193,7 +193,7 @@ def _make_module(in_mean, in_std, out_scale, hidden):
 def _features(vel_n, rot, rates, u, rotor):
     import torch
 
-    vel_b = torch.einsum("...ji,...j->...i", rot, vel_n)
+    vel_b = (rot * vel_n[..., :, None]).sum(dim=-2)
     return torch.cat([vel_b, rot[..., 2, :], rates, u, rotor], dim=-1)
 
 
@@ -211,7 +211,7 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
         # observer: mean of the net's correction over the history rows first..a-1, weighted by Δt_j / span
         f_hist = _features(batch["vel"][:, :a], rot[:, :a], batch["rates"][:, :a], batch["u"][:, :a], batch["rotor"][:, :a])
         delta = net(f_hist)
-        c_hist = torch.cat([torch.einsum("bkij,bkj->bki", rot[:, :a], delta[..., :3]), delta[..., 3:]], dim=-1)
+        c_hist = torch.cat([(rot[:, :a] * delta[..., None, :3]).sum(dim=-1), delta[..., 3:]], dim=-1)
         back = torch.arange(a, 0, -1, dtype=batch["obs_n"].dtype)  # rows before the anchor: a - j
         weight = batch["dt"][:, :a, 0] * (back[None, :] <= batch["obs_n"][:, a]) / batch["obs_span"][:, a]
         d = batch["d"][:, a] - (c_hist * weight[..., None]).sum(dim=1)
@@ -223,7 +223,7 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
             r = a + k
             u = batch["u"][:, r]
             delta = net(_features(state.vel_n, state.rot, state.rates, u, state.rotor))
-            lin = d[:, :3] + torch.einsum("bij,bj->bi", state.rot, delta[:, :3])
+            lin = d[:, :3] + pt.rotate(state.rot, delta[:, :3])
             state = pt.step(tp, state, u, batch["dt"][:, r, 0], lin, d[:, 3:] + delta[:, 3:])
             loss = loss + ((state.vel_n - batch["vel"][:, r + 1]) ** 2).sum() / var_v \
                 + ((state.rates - batch["rates"][:, r + 1]) ** 2).sum() / var_w

@@ -67,6 +67,21 @@ class TorchParameters(NamedTuple):
                    float(p.speed_offset), float(p.time_constant), float(p.thrust_constant), float(p.torque_constant), t(p.drag))
 
 
+def rotate(rot: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """R v (B, 3) of matrices (B, 3, 3) and vectors (B, 3), as a broadcast sum (torch's batched 3x3 matmul is slow)."""
+    return (rot * v[:, None, :]).sum(dim=2)
+
+
+def rotate_back(rot: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """R^T v (B, 3)."""
+    return (rot * v[:, :, None]).sum(dim=1)
+
+
+def matmul3(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """a b of (B, 3, 3) matrices, as a broadcast sum."""
+    return (a[:, :, :, None] * b[:, None, :, :]).sum(dim=2)
+
+
 def steady_rotor_speed(p: TorchParameters, u: torch.Tensor) -> torch.Tensor:
     """Ω_ss = max(k_u u + Ω_off, 0) [rad/s]."""
     return torch.clamp_min(p.speed_gain * u + p.speed_offset, 0.0)
@@ -91,10 +106,10 @@ def accelerations(p: TorchParameters, vel_n, rot, rates, rotor, rotor_dot) -> tu
     """(dv_N/dt (B, 3) [m/s², N], dω/dt (B, 3) [rad/s², B]) without disturbance, as physics.accelerations."""
     w2 = rotor * rotor
     thrust = p.thrust_constant * w2
-    vel_b = torch.einsum("bji,bj->bi", rot, vel_n)
+    vel_b = rotate_back(rot, vel_n)
     force_b = -(rotor.sum(dim=1)[:, None] * p.drag) * vel_b
     force_b = force_b - torch.nn.functional.pad(thrust.sum(dim=1)[:, None], (2, 0))
-    acc_n = torch.einsum("bij,bj->bi", rot, force_b) / p.mass
+    acc_n = rotate(rot, force_b) / p.mass
     acc_n = acc_n + torch.tensor([0.0, 0.0, GRAVITY], dtype=acc_n.dtype)
     torque = torch.stack([
         -thrust @ p.positions[:, 1],
@@ -122,7 +137,7 @@ def rotation_increment(rot: torch.Tensor, rates_b: torch.Tensor, dt: torch.Tenso
     b = torch.where(small, 0.5 - angle**2 / 24.0, (1.0 - torch.cos(safe)) / safe**2)
     k = skew(phi)
     eye = torch.eye(3, dtype=rot.dtype).expand_as(k)
-    return rot @ (eye + a[:, None, None] * k + b[:, None, None] * (k @ k))
+    return matmul3(rot, eye + a[:, None, None] * k + b[:, None, None] * matmul3(k, k))
 
 
 def continue_yaw(previous: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
