@@ -6,7 +6,11 @@ import argparse
 import sys
 import time
 
+from quad_modelling.core.models.narx_training import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
+from quad_modelling.core.models.rollout_training import VAL_FRACTION
 from quad_modelling.errors import ConfigError
+
+TRAINING_METHODS = ("rollout", "thesis")
 
 MAX_EPOCHS = 10_000
 """Most training epochs (L-BFGS steps; the thesis used 25)."""
@@ -20,12 +24,17 @@ MAX_DELAYS = 1000
 NAME = "train"
 HELP = "train the NARX blackbox model (or the hybrid greybox+NARX model) and write a model file"
 DESCRIPTION = """\
-Train the thesis's NARX model (chapter 4: six nets for the X/Y/Z velocities and roll/pitch/yaw
-rates, 10 sigmoid hidden units, 20 delayed outputs, 25 epochs, 10 dB noise on the rates) on the
-training span of one or more flights, and write it as an .npz model file (no pickle) that
-`quad-modelling evaluate --model narx:MODEL` and the NARX predictor node load. With --hybrid,
-train the residual nets of the hybrid model (linear greybox + NARX on its residual) instead;
-evaluate it with --model hybrid:MODEL.
+Train the NARX model (thesis chapter 4: six nets for the X/Y/Z velocities and roll/pitch/yaw
+rates, 10 sigmoid hidden units, 20 delayed outputs) on the training span of one or more flights,
+and write it as an .npz model file (no pickle) that `quad-modelling evaluate --model narx:MODEL`
+and the NARX predictor node load.
+
+--training rollout (default): incremental nets, a short series-parallel pre-training, then
+closed-loop fine-tuning over --horizon steps from every start (mini-batches, Adam), early-stopped
+on whole training flights held back for validation (--val-fraction, or --val-flights) with the
+best epoch kept. --training thesis: the thesis's training exactly (series-parallel, 25 L-BFGS
+epochs, 10 dB noise on the rates). With --hybrid, train the residual nets of the hybrid model
+(linear greybox + NARX on its residual, thesis training) instead; evaluate it with --model hybrid:MODEL.
 
 Spans follow the evaluation: take-off/landing are dropped (--drop, thesis 30:22 s) and --train
 A:B is seconds from each flight's start (thesis 30:150) or percent of the flying part
@@ -46,7 +55,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="span preset: thesis (drop 30:22 s, train 30:150) or short (drop 5:5 s, train 0%%:60%%)")
     parser.add_argument("--train", metavar="A:B", help="training span (seconds, or percent of the flying part)")
     parser.add_argument("--drop", metavar="A:B", help="seconds dropped at take-off:landing")
-    parser.add_argument("--epochs", type=int, default=25, help="training epochs (L-BFGS steps; thesis 25)")
+    parser.add_argument("--training", choices=TRAINING_METHODS, default="rollout",
+                        help="rollout (default: closed-loop fine-tuning, early stopping) or thesis (series-parallel only)")
+    parser.add_argument("--epochs", type=int, help="series-parallel epochs (L-BFGS steps; thesis 25, rollout pre-training 3)")
+    parser.add_argument("--horizon", type=int, default=50, help="rollout: closed-loop steps per training window (default 50)")
+    parser.add_argument("--rollout-epochs", type=int, default=DEFAULT_ROLLOUT.max_epochs, help="rollout: most fine-tuning epochs")
+    parser.add_argument("--patience", type=int, default=DEFAULT_ROLLOUT.patience, help="rollout: epochs without a better validation loss before stopping")
+    parser.add_argument("--val-fraction", type=float, default=VAL_FRACTION,
+                        help="rollout: fraction of the training flights held back whole for early stopping (default 0.2)")
+    parser.add_argument("--val-flights", nargs="+", metavar="BAG", help="rollout: validation flights (early stopping only) instead of --val-fraction")
     parser.add_argument("--hidden", type=int, default=10, help="sigmoid units per net (thesis 10)")
     parser.add_argument("--delays", type=int, default=20, help="delayed outputs fed back (thesis 20 = 0.2 s at 100 Hz)")
     parser.add_argument("--input-delays", type=int, default=20, help="engine-command taps u(t)..u(t-N+1) (default 20)")
@@ -74,29 +91,45 @@ def training_spans(logs, args) -> list[tuple[float, float]]:
     return spans
 
 
+def training_configs(args: argparse.Namespace):
+    """(NarxConfig, RolloutConfig or None) of the options, validated (ConfigError naming the flag)."""
+    from quad_modelling.core.models.narx import NarxConfig
+    from quad_modelling.core.models.narx_training import rollout_preset
+
+    epochs = args.epochs if args.epochs is not None else (25 if args.training == "thesis" else PRETRAIN_EPOCHS)
+    if args.seed < 0:
+        raise ConfigError(f"--seed {args.seed}: must be a non-negative integer")
+    if not (0 <= epochs <= MAX_EPOCHS and 1 <= args.hidden <= MAX_HIDDEN and 1 <= args.delays <= MAX_DELAYS
+            and 1 <= args.input_delays <= MAX_DELAYS):
+        raise ConfigError(f"--epochs must lie in [0, {MAX_EPOCHS}], --hidden in [1, {MAX_HIDDEN}], "
+                          f"--delays and --input-delays in [1, {MAX_DELAYS}]")
+    shape = {"hidden": args.hidden, "output_delays": args.delays, "input_delays": tuple(range(args.input_delays)), "epochs": epochs}
+    if args.training == "thesis" or args.hybrid:
+        return NarxConfig(**shape), None
+    if not (1 <= args.horizon <= MAX_DELAYS and 0 <= args.rollout_epochs <= MAX_EPOCHS and args.patience >= 1):
+        raise ConfigError(f"--horizon must lie in [1, {MAX_DELAYS}], --rollout-epochs in [0, {MAX_EPOCHS}], --patience >= 1")
+    if not 0 <= args.val_fraction < 1:
+        raise ConfigError(f"--val-fraction {args.val_fraction}: must lie in [0, 1)")
+    return rollout_preset(**shape, horizon=args.horizon, max_epochs=args.rollout_epochs, patience=args.patience)
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from quad_modelling.atomic import check_output
     from quad_modelling.commands.evaluate import print_gap_warnings
-    from quad_modelling.core.models.narx import NarxConfig
     from quad_modelling.core.models.narx_training import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.io.loader import load_flight
 
     output = Path(args.output)
-    check_output(output, args.force, inputs=[*args.flights, vehicle_file(args.vehicle)])  # fail before minutes of training
-    if args.seed < 0:
-        raise ConfigError(f"--seed {args.seed}: must be a non-negative integer")
-    if not (0 <= args.epochs <= MAX_EPOCHS and 1 <= args.hidden <= MAX_HIDDEN and 1 <= args.delays <= MAX_DELAYS
-            and 1 <= args.input_delays <= MAX_DELAYS):
-        raise ConfigError(f"--epochs must lie in [0, {MAX_EPOCHS}], --hidden in [1, {MAX_HIDDEN}], "
-                          f"--delays and --input-delays in [1, {MAX_DELAYS}]")
-    config = NarxConfig(hidden=args.hidden, output_delays=args.delays, input_delays=tuple(range(args.input_delays)), epochs=args.epochs)
+    check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle)])  # fail before minutes of training
+    config, rollout = training_configs(args)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
-    logs = [load_flight(path, given) for path in args.flights]
+    logs = [load_flight(path, given) for path in [*args.flights, *(args.val_flights or [])]]
     print_gap_warnings(logs)
     spans = training_spans(logs, args)
+    val_flights = list(range(len(args.flights), len(logs))) if args.val_flights else None
     started = time.perf_counter()
     progress = not args.quiet and sys.stderr.isatty()
     if args.hybrid:
@@ -105,11 +138,16 @@ def run(args: argparse.Namespace) -> int:
         model = train_hybrid_on_flights(logs, spans, given or load_vehicle(logs[0].meta.vehicle), config, args.seed, progress)
         samples = model.residual.training["samples"]
     else:
-        model = train_narx_on_flights(logs, spans, config, args.seed, progress)
+        model = train_narx_on_flights(logs, spans, config, args.seed, progress, rollout, args.val_fraction, val_flights)
         samples = model.training["samples"]
     elapsed = time.perf_counter() - started
     model.save(output, args.force)
     kind = "hybrid" if args.hybrid else "narx"
     print(f"trained {kind} model on {samples} samples of {len(logs)} flight(s) in {elapsed:.1f} s -> {output}")
+    if "rollout" in getattr(model, "training", {}):
+        r = model.training["rollout"]
+        print(f"rollout fine-tuning: best validation epoch {r['best_epoch']} of {r['epochs_run']} "
+              f"({'stopped early' if r['stopped_early'] else 'epoch limit'}), validation loss {r['val_loss'][0]:.4g} -> "
+              f"{r['val_loss'][r['best_epoch']]:.4g} on {r['val_windows']} windows")
     print(f"evaluate it with: quad-modelling evaluate ... --model {kind}:{output}")
     return 0

@@ -94,7 +94,7 @@ def small_model() -> NarxModel:
     config = NarxConfig(hidden=2, output_delays=2, input_delays=(0, 1), epochs=0, iterations_per_epoch=1)
     k, h, n_u = len(OUTPUTS), 2, 4
     shapes = {"w_u": (k, h, n_u * 2), "w_y": (k, h, 2), "b_1": (k, h), "w_2": (k, h), "b_2": (k,),
-              "u_mean": (n_u,), "u_std": (n_u,), "y_mean": (k,), "y_std": (k,)}
+              "u_mean": (n_u,), "u_std": (n_u,), "y_mean": (k,), "y_std": (k,), "y_step": (k,)}
     arrays = {name: np.full(shapes[name], 0.5) for name in ARRAY_NAMES}
     return NarxModel(config=config, dt=0.01, vehicle="linkquad", kind="narx", training={}, **arrays)
 

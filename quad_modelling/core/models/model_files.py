@@ -24,7 +24,8 @@ from quad_modelling.errors import ModelError, reason
 FORMAT = "quad_modelling.narx"
 """Format name in every model file header (NARX and hybrid files share it)."""
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
+"""2: NARX nets may be incremental (config ``incremental``, array ``y_step``); version-1 files are refused."""
 
 MAX_ARRAY_BYTES = 64 << 20
 """Largest array [bytes] a model file may hold (the thesis NARX needs about 50 kB)."""
@@ -113,7 +114,8 @@ def read_model_file(path: str | Path, kind: str, outputs: Sequence[str], vehicle
         raise ModelError(f"{path}: not a {FORMAT} model file (format {header.get('format') if isinstance(header, dict) else None!r})")
     _check_header(path, header)
     if header.get("format_version") != FORMAT_VERSION:
-        raise ModelError(f"{path}: model format version {header.get('format_version')!r}, this program reads version {FORMAT_VERSION}")
+        raise ModelError(f"{path}: model format version {header.get('format_version')!r}, this program reads version {FORMAT_VERSION}; "
+                         f"retrain the model with quad-modelling train")
     if header.get("kind") != kind:
         raise ModelError(f"{path}: is a {header.get('kind')!r} model, expected {kind!r}")
     if vehicle is not None and header.get("vehicle") != vehicle:

@@ -11,13 +11,17 @@ input delays ``d ∈ D_u`` and its own last ``n_y`` outputs, all normalised
 
     h_k(t) = σ(W_{1,k} x_k(t) + b_{1,k}),   σ(z) = 1 / (1 + e^{−z})
 
-    ỹ_k(t) = w_{2,k} · h_k(t) + b_{2,k},     y_k(t) = μ_k + σ_k ỹ_k(t)
+    ỹ_k(t) = ρ ỹ_k(t − 1) + s_k (w_{2,k} · h_k(t) + b_{2,k}),     y_k(t) = μ_k + σ_k ỹ_k(t)
 
 with ``H`` hidden units per net (thesis: H = 10, n_y = 20, i.e. 0.2 s of memory
-at 100 Hz). ``W_{1,k}`` is stored split into its input part ``W_u`` and its
+at 100 Hz). The thesis's nets predict the output itself (ρ = 0, s_k = 1); the
+*incremental* form (``NarxConfig.incremental``: ρ = 1, s_k = std(ỹ_k(t) − ỹ_k(t−1))
+over the training data, stored as ``y_step``) predicts the normalised change per
+sample, so holding the last output is the net's zero and one-step errors start
+at the scale of one sample's change. ``W_{1,k}`` is stored split into its input part ``W_u`` and its
 output-feedback part ``W_y`` (columns in ascending time, oldest first).
 
-Training is series-parallel (thesis Fig 4.4): the feedback inputs are the
+Training (:mod:`quad_modelling.core.models.narx_training`) is series-parallel (thesis Fig 4.4): the feedback inputs are the
 *measured* past outputs, the loss is the mean squared error of ``ỹ_k(t)``.
 Before normalisation, white Gaussian noise is added to the low-noise series
 as the thesis did (section 6.2: 10 dB SNR on the angle rates, velocities left
@@ -27,7 +31,9 @@ the sum of their MSEs, so each net's gradient is its own) with full-batch
 L-BFGS (strong-Wolfe line search): the nets are tiny (≈1000 weights), so a
 second-order-like full-batch method converges in a few hundred iterations
 where MATLAB's thesis default was Levenberg-Marquardt; one *epoch* is one
-L-BFGS step of ``iterations_per_epoch`` iterations.
+L-BFGS step of ``iterations_per_epoch`` iterations. The improved training
+fine-tunes the nets closed loop over K steps afterwards (rollout loss,
+:mod:`quad_modelling.core.models.rollout_training`).
 
 Prediction is parallel / closed-loop (thesis Fig 4.3): the first ``n_y``
 samples are measured, afterwards the nets feed back their own predictions. It
@@ -81,7 +87,7 @@ THESIS_NOISE_SNR_DB: tuple[float | None, ...] = (None, None, None, 10.0, 10.0, 1
 
 
 
-ARRAY_NAMES = ("w_u", "w_y", "b_1", "w_2", "b_2", "u_mean", "u_std", "y_mean", "y_std")
+ARRAY_NAMES = ("w_u", "w_y", "b_1", "w_2", "b_2", "u_mean", "u_std", "y_mean", "y_std", "y_step")
 
 
 MIN_STD = 1e-9
@@ -99,6 +105,8 @@ class NarxConfig:
     iterations_per_epoch: L-BFGS iterations per step.
     noise_snr_db: per output (OUTPUTS order), SNR [dB] of the white noise added to
         that series before training, None for none (thesis: rates 10 dB).
+    incremental: nets predict the normalised change per sample (ρ = 1, module doc);
+        False = the thesis's nets predicting the output itself.
     """
 
     hidden: int = 10
@@ -107,6 +115,7 @@ class NarxConfig:
     epochs: int = 25
     iterations_per_epoch: int = 20
     noise_snr_db: tuple[float | None, ...] = THESIS_NOISE_SNR_DB
+    incremental: bool = False
 
     def __post_init__(self) -> None:
         if self.hidden < 1 or self.output_delays < 1 or self.epochs < 0 or self.iterations_per_epoch < 1:
@@ -143,7 +152,7 @@ class NarxModel:
 
     Arrays (float64): ``w_u`` (6, H, len(D_u)·n_u), ``w_y`` (6, H, n_y),
     ``b_1`` (6, H), ``w_2`` (6, H), ``b_2`` (6,); ``u_mean``/``u_std`` (n_u,),
-    ``y_mean``/``y_std`` (6,). ``header`` holds config, vehicle, sample period
+    ``y_mean``/``y_std``/``y_step`` (6,) (``y_step`` = s_k, ones for the thesis form). ``header`` holds config, vehicle, sample period
     ``dt`` [s], training spans and anything a subclass adds.
     """
 
@@ -159,6 +168,7 @@ class NarxModel:
     u_std: np.ndarray
     y_mean: np.ndarray
     y_std: np.ndarray
+    y_step: np.ndarray
     kind: str = "narx"
     training: dict = field(default_factory=dict)
 
@@ -175,6 +185,15 @@ class NarxModel:
         """y = μ_y + σ_y ỹ."""
         return self.y_mean + self.y_std * np.asarray(y_norm, dtype=float)
 
+    @property
+    def rho(self) -> float:
+        """ρ of the module doc: 1 for incremental nets, 0 for the thesis's."""
+        return 1.0 if self.config.incremental else 0.0
+
+    def net_output(self, hidden: np.ndarray, previous: np.ndarray) -> np.ndarray:
+        """ỹ_k(t) = ρ ỹ_k(t−1) + s_k (w_{2,k}·h_k + b_{2,k}) from hidden activations (..., 6, H) and ỹ(t−1) (..., 6)."""
+        return self.rho * previous + self.y_step * ((self.w_2 * hidden).sum(axis=-1) + self.b_2)
+
     # ---- prediction ----------------------------------------------------
     def one_step(self, u: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Series-parallel (one-step-ahead) prediction from measured past outputs.
@@ -188,8 +207,8 @@ class NarxModel:
         z = np.einsum("nd,khd->nkh", lagged_inputs(u_norm, self.config.input_delays), self.w_u) + self.b_1
         windows = np.lib.stride_tricks.sliding_window_view(y_norm, n_y, axis=0)[:-1]  # (N−n_y, 6, n_y)
         z[n_y:] += np.einsum("nkd,khd->nkh", windows, self.w_y)
-        out = np.einsum("nkh,kh->nk", sigmoid(z), self.w_2) + self.b_2
-        out = self.denormalise_outputs(out)
+        previous = np.concatenate([y_norm[:1], y_norm[:-1]])
+        out = self.denormalise_outputs(self.net_output(sigmoid(z), previous))
         out[:n_y] = y[:n_y]
         return out
 
@@ -212,13 +231,43 @@ class NarxModel:
         z_u += self.b_1
         series = np.empty((len(OUTPUTS), n))  # normalised outputs, one row per net
         series[:, : len(y_warm)] = self.normalise_outputs(y_warm).T
-        w_y, w_2, b_2 = self.w_y, self.w_2, self.b_2
+        w_y = self.w_y
         for t in range(len(y_warm), n):
             z = z_u[t] + np.matmul(w_y, series[:, t - n_y : t, None])[..., 0]
-            series[:, t] = (w_2 * (0.5 + 0.5 * np.tanh(0.5 * z))).sum(axis=1) + b_2
+            series[:, t] = self.net_output(0.5 + 0.5 * np.tanh(0.5 * z), series[:, t - 1])
         y = self.denormalise_outputs(series.T)
         y[: len(y_warm)] = y_warm  # exactly the measurements, not their normalisation round trip
         return y
+
+    def simulate_from_starts(self, u: np.ndarray, y: np.ndarray, starts: np.ndarray, horizon: int) -> np.ndarray:
+        """Closed-loop predictions of the six outputs from many starts at once: (S, horizon + 1, 6).
+
+        u (N, n_u) commands and y (N, 6) measured outputs of one contiguous series.
+        Row ``[i, 0]`` is y(s) (s = ``starts[i]``); row ``[i, h]`` predicts y(s + h) from
+        the measured y(s − n_y + 1 … s) (rows before 0 repeat y(0), as the commands'
+        lags repeat u(0) in :func:`lagged_inputs`) and the commands up to s + h, feeding
+        back its own predictions; nothing after row s of y is read (causal). Vectorised
+        over the starts; gives the numbers of :class:`NarxStream` seeded with rows ≤ s.
+        """
+        u = np.asarray(u, dtype=float)
+        y = np.asarray(y, dtype=float)
+        starts = np.asarray(starts, dtype=int)
+        n_y = self.config.output_delays
+        if len(starts) and (starts.min() < 0 or starts.max() + horizon >= len(u) or len(y) != len(u)):
+            raise ModelError(f"NARX horizons: starts {starts.min()}..{starts.max()} + {horizon} steps do not fit {len(u)} rows")
+        z_u = np.einsum("nd,khd->nkh", lagged_inputs(self.normalise_inputs(u), self.config.input_delays), self.w_u) + self.b_1
+        y_norm = self.normalise_outputs(y)
+        padded = np.concatenate([np.repeat(y_norm[:1], n_y - 1, axis=0), y_norm])  # row s + n_y − 1 = y(s)
+        feedback = np.lib.stride_tricks.sliding_window_view(padded, n_y, axis=0)[starts].copy()  # (S, 6, n_y): y(s−n_y+1..s)
+        out = np.empty((len(starts), horizon + 1, len(OUTPUTS)))
+        out[:, 0] = y[starts]
+        for h in range(1, horizon + 1):
+            z = z_u[starts + h] + np.einsum("skd,khd->skh", feedback, self.w_y)
+            y_h = self.net_output(0.5 + 0.5 * np.tanh(0.5 * z), feedback[:, :, -1])
+            feedback[:, :, :-1] = feedback[:, :, 1:]
+            feedback[:, :, -1] = y_h
+            out[:, h] = self.denormalise_outputs(y_h)
+        return out
 
     def stream(self, u_history: np.ndarray, y_history: np.ndarray) -> NarxStream:
         """Streaming closed-loop predictor seeded with measured history (see :class:`NarxStream`)."""
@@ -305,7 +354,7 @@ class NarxStream:
         self._u[-1] = m.normalise_inputs(u)
         x_u = self._u[self._taps].reshape(-1)
         z = m.w_u @ x_u + np.matmul(m.w_y, self._y[..., None])[..., 0] + m.b_1
-        y_norm = (m.w_2 * sigmoid(z)).sum(axis=1) + m.b_2
+        y_norm = m.net_output(sigmoid(z), self._y[:, -1])
         self._y[:, :-1] = self._y[:, 1:]
         self._y[:, -1] = y_norm
         return m.denormalise_outputs(y_norm)
@@ -357,6 +406,7 @@ def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) 
             input_delays=tuple(int(d) for d in cfg["input_delays"]), epochs=int(cfg["epochs"]),
             iterations_per_epoch=int(cfg["iterations_per_epoch"]),
             noise_snr_db=tuple(None if s is None else float(s) for s in cfg["noise_snr_db"]),
+            incremental=bool(cfg["incremental"]),
         )
         arrays = {name: np.asarray(contents[name], dtype=float) for name in ARRAY_NAMES}
         dt = float(header["dt"])
@@ -368,7 +418,7 @@ def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) 
     k, h, n_u = len(OUTPUTS), config.hidden, len(arrays["u_mean"])
     expected = {
         "w_u": (k, h, n_u * len(config.input_delays)), "w_y": (k, h, config.output_delays),
-        "b_1": (k, h), "w_2": (k, h), "b_2": (k,), "u_std": (n_u,), "y_mean": (k,), "y_std": (k,),
+        "b_1": (k, h), "w_2": (k, h), "b_2": (k,), "u_std": (n_u,), "y_mean": (k,), "y_std": (k,), "y_step": (k,),
     }
     for name, shape in expected.items():
         if arrays[name].shape != shape:
@@ -428,6 +478,37 @@ class NarxPredictor:
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) trimmed closed-loop prediction (VARIABLES order)."""
         return trim_prediction(window, self.model.predict_window(window, warm_samples), self.trim)
+
+    def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
+        """(S, horizon + 1, 18) absolute closed-loop predictions from each start (multi-step protocol), causally.
+
+        ``[i, 0]`` is the state measured at s = ``starts[i]``: velocities, rates, positions and
+        angles as measured (yaw unwrapped), accelerations as the backward difference of the
+        measured velocities/rates, (v(s) − v(s−1))/dt (0 at s = 0). Rows h ≥ 1: the six
+        outputs from :meth:`NarxModel.simulate_from_starts`, positions/angles integrated
+        (trapezoid) from the measured ones at s, accelerations as backward differences, as
+        :func:`expand_outputs` and the streaming form do. Nothing after row s of the
+        measurements is read.
+        """
+        from quad_modelling.core.preprocess import measured_variables
+
+        segment.require(("gyro_b",), "model narx (its outputs are velocities and gyro rates)")
+        check_sample_rate(self.model, segment)
+        starts = np.asarray(starts, dtype=int)
+        dt = self.model.dt
+        measured = np.asarray(measured_variables(segment), dtype=float)
+        y = measured[:, columns(OUTPUTS)]
+        v = self.model.simulate_from_starts(segment.u, y, starts, horizon)  # (S, H+1, 6)
+        out = np.empty((len(starts), horizon + 1, len(VARIABLES)))
+        out[:, 0] = measured[starts]
+        previous = y[np.maximum(starts - 1, 0)]
+        out[:, 0, columns(DIFFERENTIATED)] = (y[starts] - previous) / dt
+        out[:, :, columns(OUTPUTS)] = v
+        out[:, 1:, columns(DIFFERENTIATED)] = np.diff(v, axis=1) / dt
+        start = measured[starts][:, columns(INTEGRATED)]
+        out[:, 0, columns(INTEGRATED)] = start
+        out[:, 1:, columns(INTEGRATED)] = start[:, None, :] + np.cumsum(0.5 * (v[:, 1:] + v[:, :-1]) * dt, axis=1)
+        return out
 
     def start_window(self, warm: FlightLog):
         """Warm rows (at least n_y) -> (their measurement (W, 18), stream predicting each later sample)."""

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -15,6 +16,14 @@ from quad_modelling.core.models.narx import (
     NarxModel,
     lagged_inputs,
     measured_outputs,
+)
+from quad_modelling.core.models.rollout_training import (
+    VAL_FRACTION,
+    RolloutConfig,
+    RolloutWindows,
+    hold_back_flights,
+    seeded_torch,
+    train_rollout,
 )
 from quad_modelling.core.windows import gap_free_runs, rows_between
 from quad_modelling.errors import DataError
@@ -58,19 +67,28 @@ def train_narx(
     progress: bool = False,
     kind: str = "narx",
     training: dict | None = None,
+    rollout: RolloutConfig | None = None,
+    val_segments: list[Segment] | None = None,
 ) -> NarxModel:
-    """Train the six nets series-parallel on ``segments`` (see module doc); deterministic for a seed.
+    """Train the six nets on ``segments`` (see module doc); deterministic for a seed.
+
+    1. Series-parallel: ``config.epochs`` L-BFGS steps on the one-step MSE (the thesis's training;
+       with ``rollout`` None this is all).
+    2. With ``rollout``: closed-loop fine-tuning over ``rollout.horizon`` steps from every start
+       (:func:`~quad_modelling.core.models.rollout_training.train_rollout`, loss = mean squared
+       normalised error over the horizon, :func:`rollout_loss`), early-stopped on the windows of
+       ``val_segments`` (whole validation flights; None or empty = on the training loss), the
+       best epoch's weights kept. The stopping epoch and losses go to ``training["rollout"]``.
 
     Each segment is a contiguous series at sample period ``dt`` [s]; lags never
-    cross segment boundaries. Returns a model whose weights are float64 numpy
-    arrays. ``training`` is stored in the model header (spans, sources...).
+    cross segment boundaries. Normalisation statistics come from the training
+    segments only. Returns a model whose weights are float64 numpy arrays.
+    ``training`` is stored in the model header (spans, sources...).
     """
-    import torch
-
     if not segments:
         raise DataError("NARX training: no training data")
     n_u = segments[0].u.shape[1]
-    for s in segments:
+    for s in [*segments, *(val_segments or [])]:
         if s.u.ndim != 2 or s.u.shape[1] != n_u or s.y.shape != (len(s.u), len(OUTPUTS)):
             raise DataError(f"{s.source}: training segment shapes u {s.u.shape}, y {s.y.shape} do not fit {n_u} inputs, {len(OUTPUTS)} outputs")
     usable = [s for s in segments if len(s.u) > config.warm_samples]
@@ -81,35 +99,64 @@ def train_narx(
     all_y = np.concatenate([s.y for s in usable])
     u_mean, u_std = all_u.mean(axis=0), np.maximum(all_u.std(axis=0), MIN_STD)
     y_mean, y_std = all_y.mean(axis=0), np.maximum(all_y.std(axis=0), MIN_STD)
+    if config.incremental:  # s_k = std of the normalised change per sample (narx module doc)
+        steps = np.concatenate([np.diff((s.y - y_mean) / y_std, axis=0) for s in usable])
+        y_step = np.maximum(steps.std(axis=0), MIN_STD)
+    else:
+        y_step = np.ones(len(OUTPUTS))
     noisy = _noisy_outputs(usable, config.noise_snr_db, rng)
     parts = [_regressors((s.u - u_mean) / u_std, (y - y_mean) / y_std, config) for s, y in zip(usable, noisy)]
     x_u, x_y, target = (np.concatenate(p) for p in zip(*parts))
+    if config.incremental:  # the nets' own target: (ỹ(t) − ρ ỹ(t−1)) / s_k
+        target = (target - x_y[:, :, -1]) / y_step
 
-    threads = torch.get_num_threads()
-    deterministic = torch.are_deterministic_algorithms_enabled()
-    torch.set_num_threads(1)
-    torch.use_deterministic_algorithms(True)
-    try:
-        torch.manual_seed(seed)
-        nets = _make_nets(len(OUTPUTS), config.hidden, x_u.shape[1], config.output_delays)
-        weights = _fit(nets, *(torch.from_numpy(a.astype(np.float32)) for a in (x_u, x_y, target)), config, progress)
-    finally:
-        torch.set_num_threads(threads)
-        torch.use_deterministic_algorithms(deterministic)
+    import torch
+
+    info: dict = {}
+    with seeded_torch(seed):
+        nets = _make_nets(len(OUTPUTS), config.hidden, x_u.shape[1], config.output_delays, y_step, config.incremental)
+        _fit(nets, *(torch.from_numpy(a.astype(np.float32)) for a in (x_u, x_y, target)), config, progress)
+    if rollout is not None:
+        def windows(parts: list[Segment], stride: int) -> RolloutWindows | None:
+            arrays = [{"u": (s.u - u_mean) / u_std, "y": (s.y - y_mean) / y_std} for s in parts
+                      if len(s.u) >= config.warm_samples + rollout.horizon]
+            return RolloutWindows(arrays, config.warm_samples, rollout.horizon, stride) if arrays else None
+
+        train_windows, val_windows = windows(usable, rollout.stride), windows(val_segments or [], rollout.val_stride)
+        if train_windows is None:
+            raise DataError(f"NARX rollout training: no training segment holds {config.warm_samples + rollout.horizon} samples "
+                            f"(warm start {config.warm_samples} + horizon {rollout.horizon})")
+        history = train_rollout(nets, lambda module, batch: rollout_loss(module, batch, config, rollout.horizon),
+                                train_windows, val_windows, rollout, seed, progress, "NARX rollout training")
+        info["rollout"] = {**dataclasses.asdict(rollout), **history.to_dict(),
+                           "train_windows": len(train_windows), "val_windows": 0 if val_windows is None else len(val_windows),
+                           "validation": [{"source": s.source, "span": list(s.span)} for s in (val_segments or [])]}
+    weights = {name: param.detach().double().numpy().copy() for name, param in nets.named_parameters()}
     return NarxModel(
         config=config, dt=float(dt), vehicle=vehicle, **weights,
-        u_mean=u_mean, u_std=u_std, y_mean=y_mean, y_std=y_std, kind=kind,
+        u_mean=u_mean, u_std=u_std, y_mean=y_mean, y_std=y_std, y_step=y_step, kind=kind,
         training={
             "seed": seed,
             "samples": int(len(target)),
             "segments": [{"source": s.source, "span": list(s.span)} for s in usable],
+            **info,
             **(training or {}),
         },
     )
 
 
-def _make_nets(nets: int, hidden: int, inputs: int, feedback: int):
-    """A torch module of ``nets`` independent one-hidden-layer sigmoid nets (torch imported lazily)."""
+def rollout_loss(nets, batch: dict, config: NarxConfig, horizon: int):
+    """Mean over the batch, the ``horizon`` closed-loop steps and the six outputs of (ŷ − y)² in normalised units."""
+    predicted = nets.rollout(batch["u"], batch["y"], config.input_delays, config.warm_samples, horizon)
+    return ((predicted - batch["y"][:, config.warm_samples:]) ** 2).mean()
+
+
+def _make_nets(nets: int, hidden: int, inputs: int, feedback: int, y_step: np.ndarray, incremental: bool):
+    """A torch module of ``nets`` independent one-hidden-layer sigmoid nets (torch imported lazily).
+
+    ``forward`` gives the nets' raw output w_2·h + b_2 (series-parallel); ``rollout`` the closed loop
+    ỹ(t) = ρ ỹ(t−1) + s (w_2·h + b_2) with s = ``y_step``, ρ = 1 if ``incremental`` else 0.
+    """
     import torch
 
     class BatchedNets(torch.nn.Module):
@@ -117,6 +164,8 @@ def _make_nets(nets: int, hidden: int, inputs: int, feedback: int):
 
         def __init__(self, nets: int, hidden: int, inputs: int, feedback: int) -> None:
             super().__init__()
+            self.register_buffer("y_step", torch.as_tensor(np.asarray(y_step), dtype=torch.float32)[:, None, None])
+            self.rho = 1.0 if incremental else 0.0
             bound = 1.0 / math.sqrt(inputs + feedback)  # torch.nn.Linear's default scale
             self.w_u = torch.nn.Parameter(torch.empty(nets, hidden, inputs).uniform_(-bound, bound))
             self.w_y = torch.nn.Parameter(torch.empty(nets, hidden, feedback).uniform_(-bound, bound))
@@ -129,11 +178,31 @@ def _make_nets(nets: int, hidden: int, inputs: int, feedback: int):
             z = torch.einsum("nd,khd->nkh", x_u, self.w_u) + torch.einsum("nkd,khd->nkh", x_y, self.w_y) + self.b_1
             return torch.einsum("nkh,kh->nk", torch.sigmoid(z), self.w_2) + self.b_2
 
+        def rollout(self, u_norm, y_norm, input_delays: tuple[int, ...], history: int, horizon: int):
+            """Closed loop over a batch of windows (B, history + horizon, ·) -> predicted ỹ (B, horizon, K).
+
+            Step j predicts row history + j from the commands' taps ũ(t − d) and the fed-back
+            ỹ(t − n_y … t − 1): measured for rows < history, its own predictions after.
+            """
+            n_y = self.w_y.shape[2]
+            taps = torch.stack([u_norm[:, history - d: history - d + horizon] for d in input_delays], dim=2)
+            z_u = torch.einsum("bjd,khd->jkbh", taps.flatten(2), self.w_u) + self.b_1[None, :, None, :]  # lagged_inputs order
+            feedback = y_norm[:, history - n_y: history].permute(2, 0, 1)  # (K, B, n_y), oldest first
+            w_y, w_2, b_2 = self.w_y.transpose(1, 2), self.w_2[:, :, None], self.b_2[:, None, None]
+            outputs = []
+            for z_j in z_u.unbind(0):  # one backward for all steps (indexing z_u[j] would zero-fill its gradient per step)
+                y = torch.baddbmm(b_2, torch.sigmoid(torch.baddbmm(z_j, feedback, w_y)), w_2) * self.y_step  # (K, B, 1)
+                if self.rho:
+                    y = y + feedback[:, :, -1:]
+                outputs.append(y)
+                feedback = torch.cat([feedback[:, :, 1:], y], dim=2)
+            return torch.cat(outputs, dim=2).permute(1, 2, 0)
+
     return BatchedNets(nets, hidden, inputs, feedback)
 
 
-def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> dict[str, np.ndarray]:
-    """Full-batch L-BFGS on the summed per-net MSE; returns float64 weights."""
+def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> None:
+    """Full-batch L-BFGS on the summed per-net MSE (series-parallel), in place."""
     import torch
     from tqdm import tqdm
 
@@ -152,7 +221,24 @@ def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> dict[str
     for _ in bar:
         loss = optimiser.step(loss_fn)
         bar.set_postfix(mse=f"{float(loss.detach()) / len(OUTPUTS):.4g}")
-    return {name: param.detach().double().numpy().copy() for name, param in nets.named_parameters()}
+
+
+# ---- the improved (default) training ----------------------------------------------
+PRETRAIN_EPOCHS = 3
+"""Series-parallel L-BFGS epochs before the rollout fine-tuning (a start; the rollout does the rest)."""
+
+DEFAULT_ROLLOUT = RolloutConfig(horizon=50, batch_size=256, max_epochs=20, patience=4, learning_rate=3e-3,
+                                windows_per_epoch=4096)
+"""Rollout fine-tuning of ``quad-modelling train`` (K = 50 steps = 0.5 s at 100 Hz, the SimErr horizon)."""
+
+
+def rollout_preset(hidden: int = 10, output_delays: int = 20, input_delays: tuple[int, ...] = tuple(range(20)),
+                   epochs: int = PRETRAIN_EPOCHS, **rollout) -> tuple[NarxConfig, RolloutConfig]:
+    """The default training: incremental thesis-sized nets, no target noise, ``epochs`` series-parallel
+    epochs, then :data:`DEFAULT_ROLLOUT` with ``rollout`` overrides (horizon, max_epochs...)."""
+    config = NarxConfig(hidden=hidden, output_delays=output_delays, input_delays=tuple(input_delays), epochs=epochs,
+                        noise_snr_db=(None,) * len(OUTPUTS), incremental=True)
+    return config, dataclasses.replace(DEFAULT_ROLLOUT, **rollout)
 
 
 # ---- flights -> training data -----------------------------------------------------
@@ -190,15 +276,44 @@ def common_sample_period(logs: list[FlightLog]) -> float:
     return float(np.mean(periods))
 
 
+def validation_split(logs: list[FlightLog], spans: list[tuple[float, float] | None], fraction: float = VAL_FRACTION,
+                     chosen: list[int] | None = None, seed: int = 0) -> tuple[list[Segment], list[Segment]]:
+    """(training, validation) segments: whole flights held back (:func:`hold_back_flights`).
+
+    A single flight cannot give a validation flight: then the last ``fraction`` of its span
+    is held back instead (a later stretch of the same flight).
+    """
+    pairs = list(zip(logs, spans))
+    train, val = hold_back_flights(pairs, fraction, chosen, seed)
+    if not val and len(pairs) == 1 and fraction > 0:
+        log, span = pairs[0]
+        a, b = (0.0, log.duration) if span is None else span
+        cut = b - fraction * (b - a)
+        return flight_segments([log], [(a, cut)]), flight_segments([log], [(cut, b)])
+    return flight_segments(*map(list, zip(*train))), flight_segments(*map(list, zip(*val))) if val else []
+
+
 def train_narx_on_flights(
     logs: list[FlightLog],
     spans: list[tuple[float, float] | None],
     config: NarxConfig = NarxConfig(),
     seed: int = 0,
     progress: bool = False,
+    rollout: RolloutConfig | None = None,
+    val_fraction: float = VAL_FRACTION,
+    val_flights: list[int] | None = None,
 ) -> NarxModel:
-    """Train a NARX model on spans [s from each flight's start] of flight logs of one vehicle."""
+    """Train a NARX model on spans [s from each flight's start] of flight logs of one vehicle.
+
+    ``rollout`` None: the thesis's series-parallel training on every flight. Otherwise the
+    flights ``val_flights`` (indices), or ``val_fraction`` of them, are held back whole for
+    early stopping (:func:`validation_split`) and the nets are fine-tuned closed loop.
+    """
     vehicles = sorted({log.meta.vehicle for log in logs})
     if len(vehicles) != 1:
         raise DataError(f"training flights are for different vehicles {vehicles}")
-    return train_narx(flight_segments(logs, spans), common_sample_period(logs), vehicles[0], config, seed, progress)
+    period = common_sample_period(logs)
+    if rollout is None:
+        return train_narx(flight_segments(logs, spans), period, vehicles[0], config, seed, progress)
+    train, val = validation_split(logs, spans, val_fraction, val_flights, seed)
+    return train_narx(train, period, vehicles[0], config, seed, progress, rollout=rollout, val_segments=val)

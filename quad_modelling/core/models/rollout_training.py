@@ -60,7 +60,8 @@ class RolloutConfig:
     """Settings of :func:`train_rollout`.
 
     horizon: K, closed-loop steps per window (50 = 0.5 s at 100 Hz, the IDSIA SimErr horizon).
-    stride: rows between consecutive window starts.
+    stride: rows between consecutive training window starts; val_stride: the same for validation
+        windows (the validation loss is a mean: every 5th start measures it at a fifth of the cost).
     batch_size: windows per mini-batch.
     max_epochs: most passes; patience: epochs without a better validation loss before stopping.
     learning_rate: Adam step size; weight_decay: Adam's L2 term; grad_clip: largest gradient norm.
@@ -70,6 +71,7 @@ class RolloutConfig:
 
     horizon: int = 50
     stride: int = 1
+    val_stride: int = 5
     batch_size: int = 256
     max_epochs: int = 30
     patience: int = 5
@@ -80,7 +82,7 @@ class RolloutConfig:
     threads: int = 1
 
     def __post_init__(self) -> None:
-        if min(self.horizon, self.stride, self.batch_size, self.threads) < 1 or self.max_epochs < 0 or self.patience < 1:
+        if min(self.horizon, self.stride, self.val_stride, self.batch_size, self.threads) < 1 or self.max_epochs < 0 or self.patience < 1:
             raise ConfigError(f"rollout training: horizon, stride, batch_size, threads, patience must be >= 1 and max_epochs >= 0, got {self}")
         if not (self.learning_rate > 0 and self.grad_clip > 0 and self.weight_decay >= 0):
             raise ConfigError(f"rollout training: learning_rate and grad_clip must be > 0, weight_decay >= 0, got {self}")
