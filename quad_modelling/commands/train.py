@@ -6,6 +6,7 @@ import argparse
 import sys
 import time
 
+from quad_modelling.core.models.hybrid_training import HYBRID_HIDDEN
 from quad_modelling.core.models.narx_training import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
 from quad_modelling.core.models.rollout_training import VAL_FRACTION
 from quad_modelling.errors import ConfigError
@@ -33,8 +34,10 @@ and the NARX predictor node load.
 closed-loop fine-tuning over --horizon steps from every start (mini-batches, Adam), early-stopped
 on whole training flights held back for validation (--val-fraction, or --val-flights) with the
 best epoch kept. --training thesis: the thesis's training exactly (series-parallel, 25 L-BFGS
-epochs, 10 dB noise on the rates). With --hybrid, train the residual nets of the hybrid model
-(linear greybox + NARX on its residual, thesis training) instead; evaluate it with --model hybrid:MODEL.
+epochs, 10 dB noise on the rates). With --hybrid, train the hybrid model instead: the vehicle's
+nonlinear physics model with a residual net (--hybrid-hidden) correcting its accelerations inside
+the integration, trained through the physics step with the same rollout loss, horizon, early
+stopping and validation flights; evaluate it with --model hybrid:MODEL.
 
 Spans follow the evaluation: take-off/landing are dropped (--drop, thesis 30:22 s) and --train
 A:B is seconds from each flight's start (thesis 30:150) or percent of the flying part
@@ -68,7 +71,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--delays", type=int, default=20, help="delayed outputs fed back (thesis 20 = 0.2 s at 100 Hz)")
     parser.add_argument("--input-delays", type=int, default=20, help="engine-command taps u(t)..u(t-N+1) (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (weights init, noise)")
-    parser.add_argument("--hybrid", action="store_true", help="train the hybrid model's residual nets on the greybox")
+    parser.add_argument("--hybrid", action="store_true", help="train the hybrid model: physics model + residual net (rollout loss)")
+    parser.add_argument("--hybrid-hidden", metavar="W[,W...]", default=",".join(map(str, HYBRID_HIDDEN)),
+                        help="hybrid: widths of the residual net's tanh hidden layers (default %(default)s)")
     parser.add_argument("--force", action="store_true", help="overwrite an existing model file")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -113,6 +118,30 @@ def training_configs(args: argparse.Namespace):
     return rollout_preset(**shape, horizon=args.horizon, max_epochs=args.rollout_epochs, patience=args.patience)
 
 
+def hybrid_config(args: argparse.Namespace):
+    """The HybridTrainingConfig of the options (--horizon, --rollout-epochs, --patience, --val-fraction,
+    --hybrid-hidden), validated (ConfigError naming the flag)."""
+    import dataclasses
+
+    from quad_modelling.core.models.hybrid_training import HybridTrainingConfig
+
+    if args.seed < 0:
+        raise ConfigError(f"--seed {args.seed}: must be a non-negative integer")
+    if not (1 <= args.horizon <= MAX_DELAYS and 0 <= args.rollout_epochs <= MAX_EPOCHS and args.patience >= 1):
+        raise ConfigError(f"--horizon must lie in [1, {MAX_DELAYS}], --rollout-epochs in [0, {MAX_EPOCHS}], --patience >= 1")
+    if not 0 <= args.val_fraction < 1:
+        raise ConfigError(f"--val-fraction {args.val_fraction}: must lie in [0, 1)")
+    try:
+        hidden = tuple(int(w) for w in args.hybrid_hidden.split(","))
+    except ValueError as err:
+        raise ConfigError(f"--hybrid-hidden {args.hybrid_hidden!r}: expected layer widths such as 32,32") from err
+    if not hidden or not all(1 <= w <= MAX_HIDDEN for w in hidden) or len(hidden) > 4:
+        raise ConfigError(f"--hybrid-hidden {args.hybrid_hidden!r}: one to four widths in [1, {MAX_HIDDEN}]")
+    default = HybridTrainingConfig()
+    rollout = dataclasses.replace(default.rollout, horizon=args.horizon, max_epochs=args.rollout_epochs, patience=args.patience)
+    return HybridTrainingConfig(hidden=hidden, rollout=rollout, val_fraction=args.val_fraction)
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -124,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
 
     output = Path(args.output)
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle)])  # fail before minutes of training
-    config, rollout = training_configs(args)
+    config, rollout = (hybrid_config(args), None) if args.hybrid else training_configs(args)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     logs = [load_flight(path, given) for path in [*args.flights, *(args.val_flights or [])]]
     print_gap_warnings(logs)
@@ -133,10 +162,10 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     progress = not args.quiet and sys.stderr.isatty()
     if args.hybrid:
-        from quad_modelling.core.models.hybrid import train_hybrid_on_flights
+        from quad_modelling.core.models.hybrid_training import train_hybrid_on_flights
 
-        model = train_hybrid_on_flights(logs, spans, given or load_vehicle(logs[0].meta.vehicle), config, args.seed, progress)
-        samples = model.residual.training["samples"]
+        model = train_hybrid_on_flights(logs, spans, given or load_vehicle(logs[0].meta.vehicle), config, args.seed, progress, val_flights)
+        samples = model.training["samples"]
     else:
         model = train_narx_on_flights(logs, spans, config, args.seed, progress, rollout, args.val_fraction, val_flights)
         samples = model.training["samples"]

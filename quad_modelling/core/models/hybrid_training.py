@@ -51,6 +51,10 @@ from quad_modelling.core.windows import gap_free_runs, rows_between
 from quad_modelling.errors import ConfigError, DataError
 
 
+HYBRID_HIDDEN = (32, 32)
+"""Default widths of the residual net's hidden layers (17 inputs, 6 outputs: about 1.8k weights)."""
+
+
 @dataclass(frozen=True)
 class HybridTrainingConfig:
     """Settings of :func:`train_hybrid` (defaults: what the leave-one-shape-out bench uses).
@@ -58,24 +62,20 @@ class HybridTrainingConfig:
     hidden: widths of the net's tanh hidden layers. history_s: observer history [s] (the physics model's).
     rollout: K, stride, batch, epochs, patience, learning rate (:class:`RolloutConfig`).
     val_fraction: fraction of the training flights held back (whole flights) for early stopping.
-    val_stride: rows between validation windows (validation loss over fewer, spread windows).
     """
 
-    hidden: tuple[int, ...] = (32, 32)
+    hidden: tuple[int, ...] = HYBRID_HIDDEN
     history_s: float = HISTORY_S
     rollout: RolloutConfig = field(default_factory=lambda: RolloutConfig(
-        horizon=50, stride=1, batch_size=256, max_epochs=12, patience=3, learning_rate=2e-3,
+        horizon=50, stride=1, val_stride=5, batch_size=256, max_epochs=12, patience=3, learning_rate=2e-3,
         grad_clip=1.0, windows_per_epoch=8192))
     val_fraction: float = VAL_FRACTION
-    val_stride: int = 5
 
     def __post_init__(self) -> None:
         if not self.hidden or min(self.hidden) < 1:
             raise ConfigError(f"hybrid training: hidden layer widths must be >= 1, got {self.hidden}")
         if not (np.isfinite(self.history_s) and self.history_s > 0):
             raise ConfigError(f"hybrid training: the observer history must be > 0 s, got {self.history_s}")
-        if self.val_stride < 1:
-            raise ConfigError(f"hybrid training: val_stride must be >= 1, got {self.val_stride}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -266,7 +266,7 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
     scales = naive_scales(train_segments, rc.horizon)
     out_scale = acceleration_scale(p, [logs[i] for i in train_idx])
     train_set = RolloutWindows(train_segments, history, rc.horizon + 1, rc.stride)
-    val_set = RolloutWindows(val_segments, history, rc.horizon + 1, config.val_stride) if val_segments else None
+    val_set = RolloutWindows(val_segments, history, rc.horizon + 1, rc.val_stride) if val_segments else None
     with seeded_torch(seed, rc.threads):
         net = _make_module(features.mean(axis=0), np.maximum(features.std(axis=0), 1e-6), out_scale, config.hidden)
         loss_fn = rollout_loss(pt.TorchParameters.from_params(p, torch.float32), history, rc.horizon, scales)
@@ -277,7 +277,9 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
         "naive_mse": {"velocity": scales[0], "angular_velocity": scales[1]},
         "flights": [logs[i].meta.source for i in train_idx], "validation_flights": [logs[i].meta.source for i in val_idx],
         "spans": [None if s is None else list(s) for s in spans], "windows": len(train_set),
-        "validation_windows": 0 if val_set is None else len(val_set), "rollout": record.to_dict(),
+        "validation_windows": 0 if val_set is None else len(val_set),
+        "samples": int(sum(len(s["u"]) for s in train_segments)),
+        "rollout": {**record.to_dict(), "val_windows": len(val_set) if val_set is not None else len(train_set)},
     }
     return HybridModel(p, residual, vehicle, config.history_s, training)
 
