@@ -10,16 +10,20 @@ cuts windows of ``n_h`` history rows + the anchor + K steps from them (never acr
 
 Loss. From each anchor a the hybrid is rolled out K steps through the torch twin
 (:mod:`~quad_modelling.core.models.physics_torch`) -- observer correction from the net at the history rows,
-then the net inside every step -- and compared with the measured velocity and body rates:
+then the net inside every step -- and compared with the measured velocity and body rates by the measure the
+multi-step table reports (the Euclidean error norm of each group, summed over the horizons, over the naive
+model's):
 
 .. math::
 
-    L = \frac{1}{2 B K} \sum_b \sum_{h=1}^{K} \Big( \frac{\lVert \hat v_b(a+h) - v_b(a+h) \rVert^2}{\sigma_v^2}
-        + \frac{\lVert \hat\omega_b(a+h) - \omega_b(a+h) \rVert^2}{\sigma_\omega^2} \Big)
+    L = \frac{1}{2 B K} \sum_b \sum_{h=1}^{K} \Big( \frac{\lVert \hat v_b(a+h) - v_b(a+h) \rVert_\epsilon}{S_v}
+        + \frac{\lVert \hat\omega_b(a+h) - \omega_b(a+h) \rVert_\epsilon}{S_\omega} \Big),
+    \qquad \lVert e \rVert_\epsilon = \sqrt{\lVert e \rVert^2 + \epsilon^2} - \epsilon
 
-with :math:`\sigma_v^2, \sigma_\omega^2` the naive (held-state) model's mean squared error over the same
-horizons on the training windows, :math:`\sigma^2 = \mathrm{mean}_{a,h} \lVert y(a+h) - y(a) \rVert^2`, so
-L = 1 is the naive model's loss and the two groups weigh alike. Adam, mini-batches, early stopping on whole
+with :math:`S_v, S_\omega` the naive (held-state) model's mean error norm over the same horizons on the
+training windows, :math:`S = \mathrm{mean}_{a,h} \lVert y(a+h) - y(a) \rVert`, so L is the mean of the two
+SimErr ratios to naive of the batch (L = 1: as good as naive) and the groups weigh alike; ε = 1e-3 S keeps the
+gradient finite at zero error. Adam, mini-batches, early stopping on whole
 training flights held back for validation (:func:`~quad_modelling.core.models.rollout_training.hold_back_flights`),
 the best validation epoch restored; epoch 0 is the bare physics model (zero last layer), so a net that does
 not beat the physics model on validation is not kept. Seeded and deterministic (one torch thread).
@@ -127,16 +131,17 @@ def feature_rows(segments: list[dict[str, np.ndarray]]) -> np.ndarray:
 
 
 def naive_scales(segments: list[dict[str, np.ndarray]], horizon: int) -> tuple[float, float]:
-    """(σ_v², σ_ω²): the held-state model's mean squared velocity / rate error over horizons 1..K (module docstring)."""
+    """(S_v [m/s], S_ω [rad/s]): the held-state model's mean velocity / rate error norm over horizons 1..K (module docstring)."""
     sums, count = np.zeros(2), 0
     for s in segments:
         n = len(s["vel"])
         for h in range(1, min(horizon, n - 1) + 1):
-            sums += [((s["vel"][h:] - s["vel"][:-h]) ** 2).sum(), ((s["rates"][h:] - s["rates"][:-h]) ** 2).sum()]
+            sums += [np.linalg.norm(s["vel"][h:] - s["vel"][:-h], axis=1).sum(),
+                     np.linalg.norm(s["rates"][h:] - s["rates"][:-h], axis=1).sum()]
             count += n - h
     if count == 0:
         raise DataError("hybrid training: no segment longer than one step")
-    return tuple(np.maximum(sums / count, 1e-12))
+    return tuple(np.maximum(sums / count, 1e-9))
 
 
 def acceleration_scale(p: PhysicsParameters, logs: Sequence[FlightLog]) -> np.ndarray:
@@ -203,7 +208,11 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
 
     from quad_modelling.core.models import physics_torch as pt
 
-    var_v, var_w = (float(s) for s in scales)
+    scale_v, scale_w = (float(s) for s in scales)
+    eps_v, eps_w = 1e-3 * scale_v, 1e-3 * scale_w
+
+    def norm(e, eps):
+        return torch.sqrt((e * e).sum(dim=1) + eps * eps) - eps
 
     def loss_fn(net, batch):
         a = history
@@ -225,8 +234,8 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
             delta = net(_features(state.vel_n, state.rot, state.rates, u, state.rotor))
             lin = d[:, :3] + pt.rotate(state.rot, delta[:, :3])
             state = pt.step(tp, state, u, batch["dt"][:, r, 0], lin, d[:, 3:] + delta[:, 3:])
-            loss = loss + ((state.vel_n - batch["vel"][:, r + 1]) ** 2).sum() / var_v \
-                + ((state.rates - batch["rates"][:, r + 1]) ** 2).sum() / var_w
+            loss = loss + norm(state.vel_n - batch["vel"][:, r + 1], eps_v).sum() / scale_v \
+                + norm(state.rates - batch["rates"][:, r + 1], eps_w).sum() / scale_w
         return loss / (2.0 * b * horizon)
 
     return loss_fn
@@ -274,7 +283,7 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
         residual = net.to_numpy()
     training = {
         "seed": seed, "dt": float(np.median(dts)), "config": config.to_dict(), "history_rows": history,
-        "naive_mse": {"velocity": scales[0], "angular_velocity": scales[1]},
+        "naive_error": {"velocity": scales[0], "angular_velocity": scales[1]},
         "flights": [logs[i].meta.source for i in train_idx], "validation_flights": [logs[i].meta.source for i in val_idx],
         "spans": [None if s is None else list(s) for s in spans], "windows": len(train_set),
         "validation_windows": 0 if val_set is None else len(val_set),
