@@ -1,4 +1,4 @@
-"""``quad-modelling train``: train the NARX (or hybrid greybox+NARX) model on flights."""
+"""``quad-modelling train``: train the NARX (or hybrid physics + residual net) model on flights."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ MAX_DELAYS = 1000
 """Most delayed outputs or input taps (10 s at 100 Hz; the thesis used 20)."""
 
 NAME = "train"
-HELP = "train the NARX blackbox model (or the hybrid greybox+NARX model) and write a model file"
+HELP = "train the NARX blackbox model (or the hybrid physics + residual net model) and write a model file"
 DESCRIPTION = """\
 Train the NARX model (thesis chapter 4: six nets for the X/Y/Z velocities and roll/pitch/yaw
 rates, 10 sigmoid hidden units, 20 delayed outputs) on the training span of one or more flights,
