@@ -73,17 +73,19 @@ PHYSICS_KEYS = (
     "rotor_speed_gain",
     "rotor_speed_offset",
     "rotor_time_constant",
+    "rotor_delay",
     "rotor_thrust_constant",
     "rotor_torque_constant",
     "rotor_drag_xy",
     "rotor_drag_z",
+    "rotor_drag_arm",
     "physics_ixx",
     "physics_iyy",
 )
 """Constants of the nonlinear physics model (:mod:`quad_modelling.core.models.physics_params`), optional in a
 vehicle file (validated when present; the ``physics`` model names the missing ones): the motor map
-Ω_ss = k_u u + Ω_off, the rotor time constant τ_m, thrust/torque k_f, k_m (T = k_f Ω², Q = k_m Ω²), the linear
-rotor drag d_xy, d_z and the roll/pitch inertias the physics model uses (identified separately from the
+Ω_ss = k_u u + Ω_off, the rotor time constant τ_m and command delay δ, thrust/torque k_f, k_m (T = k_f Ω², Q = k_m Ω²), the linear
+rotor drag d_xy, d_z and its arm h_d (FRD z of where it acts) and the roll/pitch inertias the physics model uses (identified separately from the
 thesis's ``ixx``/``iyy``, which the linear greybox keeps)."""
 
 STATUSES = ("measured", "identified")
@@ -102,19 +104,21 @@ CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
     "rotor_speed_gain": (0.0, np.inf, "rad/s per input unit"),
     "rotor_speed_offset": (-1.0e5, 1.0e5, "rad/s"),
     "rotor_time_constant": (0.0, 10.0, "s"),
+    "rotor_delay": (0.0, 1.0, "s"),
     "rotor_thrust_constant": (0.0, 1.0, "N s2/rad2"),
     "rotor_torque_constant": (0.0, 1.0, "N m s2/rad2"),
     "rotor_drag_xy": (0.0, 1.0, "N s/(m rad)"),
     "rotor_drag_z": (0.0, 1.0, "N s/(m rad)"),
+    "rotor_drag_arm": (-10.0, 10.0, "m"),
     "physics_ixx": (0.0, 1000.0, "kg m2"),
     "physics_iyy": (0.0, 1000.0, "kg m2"),
 }
 """Open interval (low, high) each constant must lie in, and its unit: positive masses, lengths, inertias and
 rotor constants, a stable motor pole (negative, faster than 10 us), nothing beyond what a multirotor of up
 to a tonne and 10 m arms could have. ``prop_inertia`` may be 0 (rotor inertia neglected). Values must be
-finite. Rotor time constant and drag may be 0 (no lag, no drag)."""
+finite. Rotor time constant, delay and drag may be 0 (no lag, no delay, no drag)."""
 
-ZERO_ALLOWED = ("prop_inertia", "rotor_time_constant", "rotor_drag_xy", "rotor_drag_z")
+ZERO_ALLOWED = ("prop_inertia", "rotor_time_constant", "rotor_delay", "rotor_drag_arm", "rotor_drag_xy", "rotor_drag_z")
 """Constants whose range includes its lower end 0 (the effect neglected)."""
 
 

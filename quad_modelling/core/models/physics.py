@@ -8,13 +8,18 @@ position [m] and velocity [m/s] in N, attitude :math:`R = R_{N \leftarrow B}`, b
 :math:`\omega = (p, q, r)` [rad/s], rotor speeds :math:`\Omega_i` [rad/s] (command order).
 Constants: :class:`~quad_modelling.core.models.physics_params.PhysicsParameters` (symbols as the code's fields).
 
-Motor map and first-order lag, command :math:`u_i` held over each sample interval :math:`\Delta t_k`
-(exact solution of :math:`\dot\Omega = (\Omega_{ss} - \Omega)/\tau_m`, :func:`rotor_step`):
+Motor map, command delay and first-order lag: the rotors answer the command logged :math:`\delta` earlier,
+:math:`\tilde u_k = u_j` with j the last row with :math:`t_j \le t_k - \delta` (:func:`delayed_commands`; the
+first command before the log starts), held over each sample interval :math:`\Delta t_k` (exact solution of
+:math:`\dot\Omega = (\Omega_{ss} - \Omega)/\tau_m`, :func:`rotor_step`):
 
 .. math::
 
-    \Omega_{ss,i} = \max(k_u u_i + \Omega_{off}, 0), \qquad
-    \Omega_{k+1} = \Omega_{ss}(u_k) + (\Omega_k - \Omega_{ss}(u_k))\, e^{-\Delta t_k / \tau_m}
+    \Omega_{ss,i} = \max(k_u \tilde u_i + \Omega_{off}, 0), \qquad
+    \Omega_{k+1} = \Omega_{ss}(\tilde u_k) + (\Omega_k - \Omega_{ss}(\tilde u_k))\, e^{-\Delta t_k / \tau_m}
+
+The delay is the main lever of a short horizon: the first :math:`\delta / \Delta t` steps of a prediction
+run on commands already logged at the anchor.
 
 Wrench in B (:func:`accelerations`), rotor i at :math:`(x_i, y_i)` with spin :math:`s_i` (+1 = counter-clockwise
 seen from above), :math:`T_i = k_f \Omega_i^2`, linear rotor drag with
@@ -24,8 +29,14 @@ seen from above), :math:`T_i = k_f \Omega_i^2`, linear rotor drag with
 
     F_B = (0, 0, -\textstyle\sum_i T_i) - (\sum_i \Omega_i)\, D\, R^T v_N
 
-    \tau_B = \big(-\textstyle\sum_i y_i T_i,\ \sum_i x_i T_i,\
+    \tau_B = \big(-\textstyle\sum_i y_i T_i - h_d F_{d,y},\ \sum_i x_i T_i + h_d F_{d,x},\
              k_m \sum_i s_i \Omega_i^2 + I_p \sum_i s_i \dot\Omega_i\big)
+
+where :math:`F_d = -(\sum_i \Omega_i) D R^T v_N` is the rotor drag, acting at the height :math:`h_d` (FRD z from the
+CG, negative above it): :math:`(0, 0, h_d) \times F_d`. Rotor drag and blade flapping tilt the rotor forces
+against the airspeed; on the NanoBench Crazyflie this moment is what the controller's slow differential commands
+balance in forward flight (R² 0.95 at 1 Hz, h_d ≈ -3 cm), without it the model reads those commands as
+torques of ~15 rad/s² that are not there.
 
 Motion, with the constant disturbances :math:`\hat d_v` (N) and :math:`\hat d_\omega` (B) of the anchor
 (:func:`disturbance_estimate`):
@@ -58,7 +69,7 @@ Causal anchoring (:func:`anchor_state`, :func:`disturbance_estimate`): a predict
 rows <= a only: the start state is the raw measured row a (motion-capture position, velocity,
 attitude; gyro rates), the rotor speeds come from the lag filter run over the commands before a
 (:func:`rotor_speeds`), and the disturbance is the mean (measured - modelled) linear and angular
-acceleration over the last ``history_s`` before a, held constant over the horizon. The measured mean
+acceleration over the last :class:`Observer` history before a (linear and angular each its own), held constant over the horizon. The measured mean
 is exact and needs no differentiation: :math:`(v_a - v_j)/(t_a - t_j)` and :math:`(\omega_a - \omega_j)/(t_a - t_j)`;
 the modelled mean integrates the model's accelerations at the measured rows j..a-1. This
 constant-disturbance observer absorbs what the model lacks and changes slowly (battery sag, CG offset,
@@ -80,8 +91,27 @@ from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import DataError
 
 HISTORY_S = 0.5
-"""Default disturbance-observer history [s]: long enough to average gyro/motion-capture noise (50 rows at
-100 Hz), short against battery sag and manoeuvre changes (the NanoBench manoeuvres last seconds)."""
+"""Default history of the linear disturbance observer [s]: long enough to average motion-capture noise (50 rows
+at 100 Hz), short against battery sag and manoeuvre changes (the NanoBench manoeuvres last seconds)."""
+
+ANGULAR_HISTORY_S = 0.5
+"""Default history of the angular disturbance observer [s] (see :class:`Observer`)."""
+
+
+@dataclass(frozen=True)
+class Observer:
+    """Histories [s] of the constant-disturbance observer: ``linear_s`` for the linear acceleration (N frame),
+    ``angular_s`` for the angular acceleration (B frame); 0 switches that part off."""
+
+    linear_s: float = HISTORY_S
+    angular_s: float = ANGULAR_HISTORY_S
+    angular_trim: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("linear_s", "angular_s"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and 0.0 <= value < 1e3):
+                raise ValueError(f"observer history {name} must be 0 (off) or a positive number of seconds, got {value}")
 
 
 @dataclass
@@ -116,6 +146,21 @@ class Disturbance:
         return cls(np.zeros((batch, 3)), np.zeros((batch, 3)))
 
 
+STAMP_TOLERANCE_S = 1e-7
+"""Stamps closer than this [s] count as equal when looking up the delayed command (float rounding of t - δ)."""
+
+
+def delayed_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, 4) commands the rotors answer at each row: ũ_k = u_j, j the last row with t_j <= t_k - δ (row 0 before
+    the first); ``u`` (N, 4) logged commands, ``t`` (N,) [s]. Causal: ũ_k uses rows <= k."""
+    u = np.asarray(u, dtype=float)
+    if p.delay <= 0.0:
+        return u
+    t = np.asarray(t, dtype=float)
+    rows = np.searchsorted(t, t - p.delay + STAMP_TOLERANCE_S, side="right") - 1
+    return u[np.maximum(rows, 0)]
+
+
 def steady_rotor_speed(p: PhysicsParameters, u: np.ndarray) -> np.ndarray:
     """Ω_ss = max(k_u u + Ω_off, 0) [rad/s] of commands ``u`` (..., 4)."""
     return np.maximum(p.speed_gain * np.asarray(u, dtype=float) + p.speed_offset, 0.0)
@@ -146,10 +191,26 @@ def rotor_speeds(p: PhysicsParameters, u: np.ndarray, t: np.ndarray, initial: np
         out[1:] = target[:-1]
         return out
     decay = np.exp(-np.diff(np.asarray(t, dtype=float), axis=0) / p.time_constant)
-    decay = decay.reshape(decay.shape + (1,) * (target.ndim - decay.ndim))
-    for k in range(len(u) - 1):
-        out[k + 1] = target[k] + (out[k] - target[k]) * decay[k]
+    decay = decay.reshape(decay.shape + (1,) * (target.ndim - decay.ndim)) * np.ones_like(target[:-1])
+    gain, offset = first_order_scan(decay, (1.0 - decay) * target[:-1])
+    out[1:] = gain * out[0] + offset
     return out
+
+
+def first_order_scan(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P, Q) with x_{k+1} = P_k x_0 + Q_k for the recurrence x_{k+1} = a_k x_k + b_k along axis 0.
+
+    A Hillis-Steele prefix scan of the affine maps f_k(x) = a_k x + b_k (composition
+    (P, Q)_k ∘ (P, Q)_{k-s} = (P_k P_{k-s}, P_k Q_{k-s} + Q_k)): log2(N) vectorised passes instead of N
+    Python steps, exact up to rounding, stable for |a_k| <= 1 (products only shrink).
+    """
+    p, q = np.array(a, dtype=float), np.array(b, dtype=float)
+    shift = 1
+    while shift < len(p):
+        q[shift:] = p[shift:] * q[:-shift] + q[shift:]
+        p[shift:] = p[shift:] * p[:-shift]
+        shift *= 2
+    return p, q
 
 
 def rotor_acceleration(p: PhysicsParameters, rotor: np.ndarray, u: np.ndarray) -> np.ndarray:
@@ -168,14 +229,15 @@ def accelerations(p: PhysicsParameters, vel_n: np.ndarray, rot: np.ndarray, rate
     w2 = rotor * rotor
     thrust = p.thrust_constant * w2
     vel_b = np.einsum("bji,bj->bi", rot, vel_n)
-    force_b = -(rotor.sum(axis=1)[:, None] * np.asarray(p.drag)) * vel_b
+    drag_b = -(rotor.sum(axis=1)[:, None] * np.asarray(p.drag)) * vel_b
+    force_b = drag_b.copy()
     force_b[:, 2] -= thrust.sum(axis=1)
     acc_n = np.einsum("bij,bj->bi", rot, force_b) / p.mass
     acc_n[:, 2] += GRAVITY
     inertia = np.asarray(p.inertia)
     torque = np.column_stack([
-        -thrust @ p.positions[:, 1],
-        thrust @ p.positions[:, 0],
+        -thrust @ p.positions[:, 1] - p.drag_arm * drag_b[:, 1],
+        thrust @ p.positions[:, 0] + p.drag_arm * drag_b[:, 0],
         p.torque_constant * (w2 @ p.spins) + p.prop_inertia * (rotor_dot @ p.spins),
     ])
     torque -= np.cross(rates, rates * inertia)
@@ -235,12 +297,13 @@ def measured_states(p: PhysicsParameters, measured: np.ndarray, rotor: np.ndarra
 
 
 def disturbance_estimate(p: PhysicsParameters, t: np.ndarray, u: np.ndarray, measured: np.ndarray, rotor: np.ndarray,
-                         anchors: np.ndarray, history_s: float = HISTORY_S) -> Disturbance:
+                         anchors: np.ndarray, observer: Observer = Observer()) -> Disturbance:
     """Constant-disturbance observer (module docstring) at each anchor row: mean over the rows j..a-1 with
-    t_a - t_j <= ``history_s`` of (measured - modelled) acceleration. Uses rows <= a only.
+    t_a - t_j <= the observer's history (linear and angular: their own) of (measured - modelled) acceleration.
+    Uses rows <= a only.
 
-    ``t`` (N,) [s], ``u`` (N, 4), ``measured`` (N, 18) raw rows (VARIABLES order), ``rotor`` (N, 4); an anchor with
-    no earlier row (or ``history_s`` 0) gets a zero disturbance.
+    ``t`` (N,) [s], ``u`` (N, 4) delayed commands (:func:`delayed_commands`), ``measured`` (N, 18) raw rows (VARIABLES order), ``rotor`` (N, 4); an anchor with
+    no earlier row (or a history of 0) gets a zero disturbance.
     """
     anchors = np.asarray(anchors, dtype=int)
     all_rows = np.arange(len(t))
@@ -249,18 +312,22 @@ def disturbance_estimate(p: PhysicsParameters, t: np.ndarray, u: np.ndarray, mea
     dt = np.diff(t)
     modelled = np.concatenate([acc_n[:-1], ang_acc[:-1]], axis=1) * dt[:, None]
     integral = np.concatenate([np.zeros((1, 6)), np.cumsum(modelled, axis=0)])  # ∫ modelled from t_0 to t_k
-    first = np.searchsorted(t, t[anchors] - history_s - 1e-9, side="left")
-    first = np.minimum(first, anchors)
-    span = t[anchors] - t[first]
-    ok = span > 0
-    safe = np.where(ok, span, 1.0)[:, None]
-    measured_mean = np.concatenate([measured[anchors, 3:6] - measured[first, 3:6], measured[anchors, 12:15] - measured[first, 12:15]], axis=1) / safe
-    modelled_mean = (integral[anchors] - integral[first]) / safe
-    d = np.where(ok[:, None], measured_mean - modelled_mean, 0.0)
-    return Disturbance(d[:, 0:3], d[:, 3:6])
+    parts = []
+    for history, cols in ((observer.linear_s, slice(0, 3)), (observer.angular_s, slice(3, 6))):
+        first = np.minimum(np.searchsorted(t, t[anchors] - history - 1e-9, side="left"), anchors)
+        span = t[anchors] - t[first]
+        ok = (span > 0) & (history > 0)
+        safe = np.where(ok, span, 1.0)[:, None]
+        state_cols = slice(3, 6) if cols.start == 0 else slice(12, 15)
+        measured_mean = (measured[anchors, state_cols] - measured[first, state_cols]) / safe
+        if cols.start == 3 and observer.angular_trim:
+            measured_mean = np.zeros_like(measured_mean)
+        modelled_mean = (integral[anchors, cols] - integral[first, cols]) / safe
+        parts.append(np.where(ok[:, None], measured_mean - modelled_mean, 0.0))
+    return Disturbance(parts[0], parts[1])
 
 
-def anchor_state(p: PhysicsParameters, log: FlightLog, anchors: np.ndarray, history_s: float = HISTORY_S,
+def anchor_state(p: PhysicsParameters, log: FlightLog, anchors: np.ndarray, observer: Observer = Observer(),
                  measured: np.ndarray | None = None) -> tuple[PhysicsState, Disturbance, np.ndarray]:
     """(start states, disturbances, rotor speeds (N, 4)) at ``anchors`` rows of ``log``, causally (module docstring).
 
@@ -269,9 +336,10 @@ def anchor_state(p: PhysicsParameters, log: FlightLog, anchors: np.ndarray, hist
     """
     if measured is None:
         measured = state_measurement(log)
-    rotor = rotor_speeds(p, log.u, log.t)
+    commands = delayed_commands(p, log.u, log.t)
+    rotor = rotor_speeds(p, commands, log.t)
     return (measured_states(p, measured, rotor, anchors),
-            disturbance_estimate(p, log.t, log.u, measured, rotor, anchors, history_s), rotor)
+            disturbance_estimate(p, log.t, commands, measured, rotor, anchors, observer), rotor)
 
 
 class PhysicsStream:
@@ -279,45 +347,64 @@ class PhysicsStream:
 
     ``push(command)`` steps by the warm rows' median sample interval; ``push_at(command, t_s)`` by the real
     interval since the previous sample (what :func:`~quad_modelling.core.models.streaming.push_sample` calls
-    when the stamp is known).
+    when the stamp is known). The logged commands of the last δ are kept for the delay.
     """
 
-    def __init__(self, params: PhysicsParameters, state: PhysicsState, disturbance: Disturbance, command: np.ndarray,
-                 t_s: float, period_s: float):
+    def __init__(self, params: PhysicsParameters, state: PhysicsState, disturbance: Disturbance, times: np.ndarray,
+                 commands: np.ndarray, period_s: float):
         self.params = params
         self.state = state
         self.disturbance = disturbance
-        self.command = np.asarray(command, dtype=float).reshape(1, 4)
-        self.t_s = t_s
+        self.times = [float(x) for x in times]
+        self.commands = [np.asarray(c, dtype=float).reshape(1, 4) for c in commands]
         self.period_s = period_s
 
+    def _command_at(self, t_s: float) -> np.ndarray:
+        """The command the rotors answer at ``t_s``: the last logged at or before t_s - δ (the first one before it)."""
+        limit = t_s - self.params.delay + STAMP_TOLERANCE_S
+        for i in range(len(self.times) - 1, -1, -1):
+            if self.times[i] <= limit:
+                return self.commands[i]
+        return self.commands[0]
+
+    def _forget(self) -> None:
+        """Drop commands no later sample can need (keep the last one at or before t - δ)."""
+        limit = self.times[-1] - self.params.delay + STAMP_TOLERANCE_S
+        drop = 0
+        while drop + 1 < len(self.times) and self.times[drop + 1] <= limit:
+            drop += 1
+        if drop:
+            del self.times[:drop], self.commands[:drop]
+
     def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
-        dt = t_s - self.t_s
+        previous = self.times[-1]
+        dt = t_s - previous
         if not dt > 0:
-            raise DataError(f"physics stream: sample time {t_s:.6f} s is not after the previous {self.t_s:.6f} s")
-        self.state = step(self.params, self.state, self.command, dt, self.disturbance)
-        self.command = np.asarray(command, dtype=float).reshape(1, 4)
-        self.t_s = t_s
-        return outputs(self.params, self.state, self.command, self.disturbance)[0]
+            raise DataError(f"physics stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
+        self.state = step(self.params, self.state, self._command_at(previous), dt, self.disturbance)
+        self.times.append(float(t_s))
+        self.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
+        self._forget()
+        return outputs(self.params, self.state, self._command_at(t_s), self.disturbance)[0]
 
     def push(self, command: np.ndarray) -> np.ndarray:
-        return self.push_at(command, self.t_s + self.period_s)
+        return self.push_at(command, self.times[-1] + self.period_s)
 
 
 class PhysicsPredictor:
     """The ``physics`` model: window (:meth:`predict_window`), multi-step (:meth:`predict_horizons`) and live
     (:meth:`start_window`) forms, all causal (module docstring).
 
-    ``history_s``: disturbance-observer history [s] (:data:`HISTORY_S`; 0 switches the observer off). In a window
-    the history is limited to the warm rows.
+    ``observer``: the disturbance observer's histories (:class:`Observer`). In a window the history is limited
+    to the warm rows.
     """
 
-    def __init__(self, vehicle: VehicleConfig, history_s: float = HISTORY_S, trim=None, name: str = "physics"):
+    def __init__(self, vehicle: VehicleConfig, observer: Observer = Observer(), trim=None, name: str = "physics"):
         from quad_modelling.core.preprocess import TrimConfig
 
         self.vehicle = vehicle
         self.params = PhysicsParameters.from_vehicle(vehicle)
-        self.history_s = float(history_s)
+        self.observer = observer
         self.trim = trim or TrimConfig()
         self.name = name
 
@@ -327,9 +414,9 @@ class PhysicsPredictor:
             raise DataError(f"{warm.meta.source}: the physics model needs at least 2 warm-start samples, got {len(warm)}")
         measured = state_measurement(warm, self.vehicle)
         last = np.array([len(warm) - 1])
-        state, disturbance, _ = anchor_state(self.params, warm, last, self.history_s, measured)
+        state, disturbance, _ = anchor_state(self.params, warm, last, self.observer, measured)
         period = float(np.median(np.diff(warm.t)))
-        return measured, PhysicsStream(self.params, state, disturbance, warm.u[-1], float(warm.t[-1]), period)
+        return measured, PhysicsStream(self.params, state, disturbance, warm.t, warm.u, period)
 
     def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) absolute prediction: the live calls with each sample's real stamp."""
@@ -349,7 +436,7 @@ class PhysicsPredictor:
             raise DataError(f"{segment.meta.source}: multi-step starts + horizon {horizon} leave the segment")
         if segment.gyro_b is None:
             raise DataError(f"{segment.meta.source}: the physics model's multi-step form needs the gyro (body rates at each anchor)")
-        state, disturbance, _ = anchor_state(self.params, segment, starts, self.history_s)
+        state, disturbance, _ = anchor_state(self.params, segment, starts, self.observer)
         rows = starts[:, None] + np.arange(horizon + 1)[None, :]
         dt = np.diff(segment.t)[rows[:, :-1]]
-        return rollout(self.params, state, disturbance, segment.u[rows], dt)
+        return rollout(self.params, state, disturbance, delayed_commands(self.params, segment.u, segment.t)[rows], dt)

@@ -10,9 +10,11 @@ symbol (code)                     key                         unit
 k_u (``speed_gain``)              ``rotor_speed_gain``        rad/s per input unit
 Ω_off (``speed_offset``)          ``rotor_speed_offset``      rad/s
 τ_m (``time_constant``)           ``rotor_time_constant``     s
+δ (``delay``)                     ``rotor_delay``             s
 k_f (``thrust_constant``)         ``rotor_thrust_constant``   N s²/rad²
 k_m (``torque_constant``)         ``rotor_torque_constant``   N m s²/rad²
 d_xy, d_z (``drag``)              ``rotor_drag_xy``/``_z``    N s/(m rad)
+h_d (``drag_arm``)                ``rotor_drag_arm``          m (FRD z from the CG; < 0: above it)
 I_xx, I_yy (``inertia[:2]``)      ``physics_ixx``/``_iyy``    kg m²
 ================================  ==========================  ===========================================
 
@@ -35,10 +37,12 @@ PHYSICS_UNITS: dict[str, str] = {
     "rotor_speed_gain": "rad/s per input unit",
     "rotor_speed_offset": "rad/s",
     "rotor_time_constant": "s",
+    "rotor_delay": "s",
     "rotor_thrust_constant": "N s2/rad2",
     "rotor_torque_constant": "N m s2/rad2",
     "rotor_drag_xy": "N s/(m rad)",
     "rotor_drag_z": "N s/(m rad)",
+    "rotor_drag_arm": "m",
     "physics_ixx": "kg m2",
     "physics_iyy": "kg m2",
 }
@@ -51,8 +55,8 @@ class PhysicsParameters:
 
     mass [kg]; inertia (I_xx, I_yy, I_zz) [kg m²]; prop_inertia I_p [kg m²]; positions (4, 2) rotor (x, y)
     in FRD [m]; spins (4,) s_i = +1 for a rotor spinning counter-clockwise seen from above (positive
-    reaction torque about FRD z); speed_gain k_u, speed_offset Ω_off, time_constant τ_m, thrust_constant
-    k_f, torque_constant k_m, drag (d_xy, d_xy, d_z); input_min/max: the command range.
+    reaction torque about FRD z); speed_gain k_u, speed_offset Ω_off, time_constant τ_m, delay δ [s], thrust_constant
+    k_f, torque_constant k_m, drag (d_xy, d_xy, d_z), drag_arm h_d [m]; input_min/max: the command range.
     """
 
     mass: float
@@ -63,9 +67,11 @@ class PhysicsParameters:
     speed_gain: float
     speed_offset: float
     time_constant: float
+    delay: float
     thrust_constant: float
     torque_constant: float
     drag: tuple[float, float, float]
+    drag_arm: float
     input_min: float
     input_max: float
 
@@ -86,9 +92,11 @@ class PhysicsParameters:
             speed_gain=v("rotor_speed_gain"),
             speed_offset=v("rotor_speed_offset"),
             time_constant=v("rotor_time_constant"),
+            delay=v("rotor_delay"),
             thrust_constant=v("rotor_thrust_constant"),
             torque_constant=v("rotor_torque_constant"),
             drag=(v("rotor_drag_xy"), v("rotor_drag_xy"), v("rotor_drag_z")),
+            drag_arm=v("rotor_drag_arm"),
             input_min=vehicle.input_min,
             input_max=vehicle.input_max,
         )
@@ -101,8 +109,8 @@ class PhysicsParameters:
         """These parameters as vehicle-file constants (:data:`~quad_modelling.core.vehicle.PHYSICS_KEYS`)."""
         return {
             "rotor_speed_gain": self.speed_gain, "rotor_speed_offset": self.speed_offset,
-            "rotor_time_constant": self.time_constant, "rotor_thrust_constant": self.thrust_constant,
-            "rotor_torque_constant": self.torque_constant, "rotor_drag_xy": self.drag[0], "rotor_drag_z": self.drag[2],
+            "rotor_time_constant": self.time_constant, "rotor_delay": self.delay, "rotor_thrust_constant": self.thrust_constant,
+            "rotor_torque_constant": self.torque_constant, "rotor_drag_xy": self.drag[0], "rotor_drag_z": self.drag[2], "rotor_drag_arm": self.drag_arm,
             "physics_ixx": self.inertia[0], "physics_iyy": self.inertia[1],
         }
 

@@ -8,7 +8,7 @@ Built-in specs (a factory receives the text after the first ``:``, or ``""``, an
 ``narx:PATH``      thesis NARX nets from a model file, :mod:`quad_modelling.core.models.narx`
 ``hybrid:PATH``    physics model + residual net, :mod:`quad_modelling.core.models.hybrid`
 ``physics``        nonlinear rigid body + rotor map/lag/drag, :mod:`quad_modelling.core.models.physics`
-``physics:H``      same with a disturbance-observer history of H seconds (0 = observer off)
+``physics:L,A``    same with the disturbance observer's linear/angular histories [s] (0 = off)
 ``dummy``          :class:`~quad_modelling.core.models.base.DummyPredictor`, zero (thesis Fig 5.2)
 ``naive``          :class:`~quad_modelling.core.models.base.ConstantStatePredictor`, the last warm-start state held
 =================  ==========================================================
@@ -94,18 +94,21 @@ def _make_hybrid(arg: str, vehicle: VehicleConfig) -> Predictor:
 
 
 def _make_physics(arg: str, vehicle: VehicleConfig) -> Predictor:
-    """``physics`` / ``physics:H``: the nonlinear physics model from the vehicle's physics constants."""
-    from quad_modelling.core.models.physics import HISTORY_S, PhysicsPredictor
+    """``physics`` / ``physics:L`` / ``physics:L,A``: the nonlinear physics model from the vehicle's physics constants,
+    with the disturbance observer's linear (and angular) history in seconds (0 = off)."""
+    from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 
     if not arg:
-        return PhysicsPredictor(vehicle, HISTORY_S)
+        return PhysicsPredictor(vehicle)
     try:
-        history = float(arg)
+        histories = [float(x) for x in arg.split(",")]
+        if len(histories) > 2:
+            raise ValueError(arg)
+        observer = Observer(*histories) if len(histories) == 2 else Observer(histories[0])
     except ValueError as err:
-        raise ConfigError(f"model spec physics:{arg}: the argument is the disturbance history in seconds, e.g. physics:0.5") from err
-    if not (history >= 0 and history < 1e3):
-        raise ConfigError(f"model spec physics:{arg}: the disturbance history must be 0 (off) or a positive number of seconds")
-    return PhysicsPredictor(vehicle, history, name=f"physics:{arg}")
+        raise ConfigError(f"model spec physics:{arg}: the argument is the disturbance observer's history in seconds, "
+                          f"linear[,angular], each 0 (off) or positive, e.g. physics:0.5,2") from err
+    return PhysicsPredictor(vehicle, observer, name=f"physics:{arg}")
 
 
 register_model("greybox", _make_greybox)

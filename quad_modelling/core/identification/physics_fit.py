@@ -1,0 +1,385 @@
+r"""Identification of the nonlinear physics model's constants (:mod:`quad_modelling.core.models.physics`) from flight data.
+
+Data: the training span of each flight (``config.train`` after the take-off/landing drops, split at marked
+measurement gaps), raw rows; anchors every :data:`ANCHOR_STRIDE_S` from :data:`SETTLE_S` into each segment
+(the rotor filter starts from the first command's steady speed) that stay above
+:data:`~quad_modelling.core.identification.window_batch.GROUND_CONTACT_M` over their history and horizon.
+
+What is fitted is the model's own multi-step error, with its constant-disturbance observer, along the measured
+trajectory. For a channel with state y (velocity in N, a body rate) whose model acceleration is linear in the
+constants θ, :math:`\dot y = X(t) \theta + k(t) + d`, the observer-corrected prediction from anchor a over h rows,
+with the history rows j..a (the :class:`~quad_modelling.core.models.physics.Observer`'s history of that channel;
+without one, the bracket is 0), is
+
+.. math::
+
+    \hat y_{a+h} = y_a + (C_{a+h} - C_a)\theta + K_{a+h} - K_a
+        + (t_{a+h} - t_a)\Big[\frac{y_a - y_j}{t_a - t_j} - \frac{(C_a - C_j)\theta + K_a - K_j}{t_a - t_j}\Big]
+
+with :math:`C_k = \sum_{i<k} X_i \Delta t_i` (the model's integration rule), K the same for the known part k. Its
+error is linear in θ, so each channel is a linear least squares over all anchors and the horizons
+:data:`FIT_HORIZONS_S`, no differentiated signal needed. The regressors use the measured attitude and
+velocity along the horizon (the equation error of the whole step, not of one row), rotor speeds
+:math:`\Omega_i` from the lag filter over the delayed commands
+(:func:`~quad_modelling.core.models.physics.rotor_speeds`), :math:`S = \sum_i \Omega_i`, :math:`v_B = R^T v_N`:
+
+* velocity (3 axes in N, jointly): :math:`\dot v_N = R\big(-\tfrac{k_f}{m}\sum_i\Omega_i^2 e_z
+  - \tfrac{d_{xy}}{m} S (v_{B,x}, v_{B,y}, 0) - \tfrac{d_z}{m} S (0, 0, v_{B,z})\big) + g e_z`, θ = (k_f, d_xy, d_z);
+* roll: :math:`\dot p = \alpha_x(-\sum_i y_i \Omega_i^2) + b_x S v_{B,y} - \tfrac{I_{zz} - I_{yy}}{I_{xx}} q r`,
+  θ = (α_x = k_f / I_xx, b_x = h_d d_xy / I_xx);
+* pitch: :math:`\dot q = \alpha_y \sum_i x_i \Omega_i^2 - b_y S v_{B,x} - \tfrac{I_{xx} - I_{zz}}{I_{yy}} p r`,
+  θ = (α_y = k_f / I_yy, b_y = h_d d_xy / I_yy), the drag arm :math:`h_d` the inverse-variance mean of
+  :math:`b_x I_{xx} / d_{xy}` and :math:`b_y I_{yy} / d_{xy}`;
+* yaw: :math:`\dot r = \beta \sum_i s_i \Omega_i^2 + \tfrac{I_p}{I_{zz}} \sum_i s_i \dot\Omega_i - \tfrac{I_{yy} - I_{xx}}{I_{zz}} p q`,
+  θ = β = k_m / I_zz
+
+(gyroscopic terms with the starting inertias; constants such as g cancel in the observer). Identifiable without
+rotor-speed measurements are :math:`k_f k_u^2`, so the speed map :math:`k_u, \Omega_{off}` is held (literature)
+and :math:`k_f, k_m, d_{xy}, d_z, h_d, I_{xx} = k_f/\alpha_x, I_{yy} = k_f/\alpha_y` are fitted, :math:`I_{zz}` held.
+:math:`\tau_m` and the command delay :math:`\delta` minimise :math:`J = \sum_c \mathrm{SSR}_c / \mathrm{SSR}_c^{0}`,
+each channel's SSR relative to its SSR with θ = 0 (the observer alone): a coordinate search over the delays of
+:func:`delay_grid` (whole sample periods; the best at the starting τ first, then neighbours while they improve),
+each with a bounded scalar search of τ in :data:`TIME_CONSTANT_RANGE_S`.
+
+Uncertainty (1 sigma, from the Jacobian): the linear parameters from :math:`s^2 (X^T X)^{-1}` with anchors
+thinned to one per longest horizon (overlapping horizons share their errors, so neighbouring anchors are
+not independent); ratios by first-order propagation; :math:`\tau_m` from the curvature of the profile
+:math:`\chi^2(\tau) = \sum_c \mathrm{SSR}_c / s_c^2` on the same thinning, :math:`\sigma_\tau^2 = 2 / \chi^{2\prime\prime}`;
+δ's is the grid's quantisation, one sample period / sqrt(12). A value outside its bounds (:data:`BOUNDS_FACTOR`
+around the starting value; drag from 0) is clipped there and flagged ``at_bound``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import optimize
+
+from quad_modelling.core import frames
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
+from quad_modelling.core.models.physics import Observer, delayed_commands, rotor_speeds
+from quad_modelling.core.models.physics_params import PHYSICS_UNITS, PhysicsParameters
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
+from quad_modelling.errors import DataError
+
+FIT_HORIZONS_S = (0.1, 0.25, 0.5)
+"""Horizons of the fitted multi-step error [s]: 10, 25 and 50 samples at 100 Hz, spread over the SimErr horizon."""
+
+ANCHOR_STRIDE_S = 0.1
+"""Spacing of the fit's anchors [s]; closer anchors share nearly all their horizon and add cost, not information."""
+
+SETTLE_S = 0.3
+"""First anchor after a segment start [s] beyond the observer history: the rotor filter starts from the first command's steady speed."""
+
+TIME_CONSTANT_RANGE_S = (0.002, 0.3)
+"""Bounds of the rotor time constant [s]: from a brushless ESC's few ms to a large slow rotor's 300 ms."""
+
+TAU_LOG_TOLERANCE = 0.05
+"""Tolerance of the τ search in log τ (5 %): finer than its uncertainty on real flights."""
+
+DELAY_MAX_S = 0.06
+"""Largest command delay searched [s]: 6 samples at 100 Hz; a radio-controlled ESC's 50 Hz frame and a
+brushed motor's spin-up stay well below it."""
+
+BOUNDS_FACTOR = 10.0
+"""k_f, k_m and the roll/pitch inertias are bounded to [start / 10, start * 10]: an order of magnitude either side
+of the literature value; beyond it the data, not the constant, is wrong (e.g. a motor-order error)."""
+
+DRAG_MAX_FACTOR = 100.0
+"""The rotor drag is bounded to [0, 100 x start]; its arm to ±10 x max(|start|, arm_length / 10)."""
+
+FITTED = ("rotor_time_constant", "rotor_delay", "rotor_thrust_constant", "rotor_torque_constant", "rotor_drag_xy",
+          "rotor_drag_z", "rotor_drag_arm", "physics_ixx", "physics_iyy")
+"""The physics constants ``identify`` fits (the speed map k_u, Ω_off and I_zz are held)."""
+
+CHANNELS = ("velocity", "roll", "pitch", "yaw")
+
+
+def delay_grid(sample_rate: float) -> np.ndarray:
+    """Delays searched [s]: whole sample periods from 0 to :data:`DELAY_MAX_S` (the command is sampled; a delay
+    between two samples is not resolvable from it)."""
+    return np.arange(0, int(round(DELAY_MAX_S * sample_rate)) + 1) / sample_rate
+
+
+@dataclass
+class PhysicsFit:
+    """Identified physics constants: value, 1-sigma, unit, bounds, at-bound flag per key; fit diagnostics."""
+
+    values: dict[str, float]
+    sigma: dict[str, float]
+    bounds: dict[str, tuple[float, float]]
+    at_bound: dict[str, bool]
+    start: dict[str, float]
+    diagnostics: dict = field(default_factory=dict)
+
+    def parameters(self, base: PhysicsParameters) -> PhysicsParameters:
+        """``base`` with the identified values."""
+        v = self.values
+        return base.with_values(
+            time_constant=v["rotor_time_constant"], delay=v["rotor_delay"], thrust_constant=v["rotor_thrust_constant"],
+            torque_constant=v["rotor_torque_constant"], drag=(v["rotor_drag_xy"], v["rotor_drag_xy"], v["rotor_drag_z"]),
+            drag_arm=v["rotor_drag_arm"], inertia=(v["physics_ixx"], v["physics_iyy"], base.inertia[2]))
+
+    def to_dict(self) -> dict:
+        return {key: {"value": self.values[key], "sigma": self.sigma[key], "unit": PHYSICS_UNITS[key],
+                      "bounds": [float(b) for b in self.bounds[key]], "at_bound": self.at_bound[key], "start": self.start[key]}
+                for key in FITTED} | {"diagnostics": self.diagnostics}
+
+    def summary(self) -> list[str]:
+        d = self.diagnostics
+        lines = [f"physics model constants ({d.get('anchors', 0)} anchors, {d.get('seconds', 0):.1f} s; "
+                 f"multi-step error vs the observer alone: "
+                 + ", ".join(f"{c} {r:.2f}" for c, r in d.get("error_ratio", {}).items()) + "):"]
+        for key in FITTED:
+            flag = "  AT BOUND" if self.at_bound[key] else ""
+            change = self.values[key] / self.start[key] if self.start[key] else float("nan")
+            lines.append(f"  {key} = {self.values[key]:.5g} ± {self.sigma[key]:.2g} {PHYSICS_UNITS[key]} "
+                         f"(x{change:.3g} of the file's {self.start[key]:.4g}){flag}")
+        return lines
+
+
+@dataclass
+class _Segment:
+    """One training segment's fixed data (everything but the rotor speeds, which depend on τ_m and δ)."""
+
+    t: np.ndarray
+    u: np.ndarray
+    rot: np.ndarray  # (N, 3, 3) measured R_N<-B
+    vel_n: np.ndarray  # (N, 3) [m/s]
+    v_b: np.ndarray  # (N, 3) body velocity [m/s]
+    rates: np.ndarray  # (N, 3) gyro [rad/s]
+    anchors: np.ndarray  # (A,) anchor rows
+    history: dict  # "linear"/"angular" -> (A,) first observer row of each anchor (= the anchor: no observer)
+    horizons: np.ndarray  # (H,) horizon lengths [rows]
+
+
+def _cumulative(values: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """C_k = sum_{i<k} values_i (t_{i+1} - t_i) along axis 0 (C_0 = 0): the model's rectangle rule."""
+    dt = np.diff(t).reshape((-1,) + (1,) * (values.ndim - 1))
+    return np.concatenate([np.zeros((1,) + values.shape[1:]), np.cumsum(values[:-1] * dt, axis=0)])
+
+
+def training_segments(flights: Sequence[FlightLog], config: EvaluationConfig, observer: Observer = Observer()) -> list[_Segment]:
+    """The fixed data of every training segment (module docstring); DataError when no anchor is usable."""
+    span = SpanSpec.parse("train", config.train)
+    history_s = max(observer.linear_s, observer.angular_s)
+    segments = []
+    for log in flights:
+        log.require(("gyro_b",), "the physics identification (it fits the body-rate predictions)")
+        floor = -np.max(log.pos_n[:, 2])  # lowest height above the start (NED z down)
+        for start, stop in span_segments(log, span, config):
+            seg = log.slice(start, stop)
+            rate = seg.sample_rate
+            horizons = np.array([max(1, int(round(h * rate))) for h in FIT_HORIZONS_S])
+            first = int(np.searchsorted(seg.t, seg.t[0] + SETTLE_S + history_s))
+            candidates = np.arange(first, len(seg) - horizons.max(), max(1, int(round(ANCHOR_STRIDE_S * rate))))
+            if not candidates.size:
+                continue
+            history = np.minimum(np.searchsorted(seg.t, seg.t[candidates] - history_s - 1e-9, side="left"), candidates - 1)
+            histories = {name: np.minimum(np.searchsorted(seg.t, seg.t[candidates] - h - 1e-9, side="left"), candidates)
+                         for name, h in (("linear", observer.linear_s), ("angular", observer.angular_s))}
+            grounded = np.concatenate([[0], np.cumsum((-seg.pos_n[:, 2] - floor) <= GROUND_CONTACT_M)])
+            ok = grounded[candidates + horizons.max() + 1] == grounded[history]  # airborne from history to horizon
+            if not ok.any():
+                continue
+            rot = frames.euler_ned_to_matrix(seg.euler)
+            segments.append(_Segment(seg.t, seg.u, rot, seg.vel_n, np.einsum("nji,nj->ni", rot, seg.vel_n), seg.gyro_b,
+                                     candidates[ok], {k: h[ok] for k, h in histories.items()}, horizons))
+    if not segments or sum(len(s.anchors) for s in segments) < 20:
+        raise DataError(f"no usable training anchors for the physics identification in span {config.train} "
+                        f"(after the drops {config.drop_start:g}/{config.drop_end:g} s, ground contact, {SETTLE_S} s settling "
+                        f"and the {history_s:g} s observer history)")
+    return segments
+
+
+def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: float) -> dict[str, tuple]:
+    """Per channel (state y (N, k_y), regressors X (N, k_y, k_θ), known part (N, k_y)) of one segment."""
+    q = p.with_values(time_constant=time_constant, delay=delay)
+    commands = delayed_commands(q, seg.u, seg.t)
+    rotor = rotor_speeds(q, commands, seg.t)
+    w2 = rotor * rotor
+    total = rotor.sum(axis=1)
+    m = p.mass
+    ixx, iyy, izz = p.inertia
+    pr, qr, rr = seg.rates.T
+    body = np.zeros((len(seg.t), 3, 3))  # body-frame force per unit constant, columns (k_f, d_xy, d_z)
+    body[:, 2, 0] = -w2.sum(axis=1) / m
+    body[:, 0, 1] = -total * seg.v_b[:, 0] / m
+    body[:, 1, 1] = -total * seg.v_b[:, 1] / m
+    body[:, 2, 2] = -total * seg.v_b[:, 2] / m
+    zeros = np.zeros((len(seg.t), 1))
+    # yaw's rotor-reaction term I_p/I_zz sum s_i dΩ_i/dt integrates to I_p/I_zz sum s_i (Ω(t) - Ω(t_0)): added to the known part
+    # after integration (below), exact for the model's rectangle rule up to the filter's own step.
+    return {
+        "velocity": (seg.vel_n, np.einsum("nij,njk->nik", seg.rot, body), np.zeros((len(seg.t), 3))),
+        "roll": (seg.rates[:, :1], np.stack([-w2 @ p.positions[:, 1], total * seg.v_b[:, 1]], axis=1)[:, None, :],
+                 (-(izz - iyy) / ixx * qr * rr)[:, None]),
+        "pitch": (seg.rates[:, 1:2], np.stack([w2 @ p.positions[:, 0], -total * seg.v_b[:, 0]], axis=1)[:, None, :],
+                  (-(ixx - izz) / iyy * pr * rr)[:, None]),
+        "yaw": (seg.rates[:, 2:], (w2 @ p.spins)[:, None, None], (-(iyy - ixx) / izz * pr * qr)[:, None] + zeros,
+                p.prop_inertia / izz * (rotor @ p.spins)[:, None]),
+    }
+
+
+def _design(p: PhysicsParameters, segments: list[_Segment], time_constant: float, delay: float,
+            observer: Observer = Observer()) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per channel the stacked (regressors (rows, k_θ), target (rows,)) of the observer-corrected multi-step error
+    (module docstring) over all segments, anchors, horizons and state components."""
+    parts: dict[str, list] = {c: [] for c in CHANNELS}
+    for seg in segments:
+        a = seg.anchors
+        for name, entry in _rows(p, seg, time_constant, delay).items():
+            j = seg.history["linear" if name == "velocity" else "angular"]
+            span = np.maximum(seg.t[a] - seg.t[j], 1e-12)[:, None]  # j = a: no observer, every slope difference is 0
+            y, x, known = entry[:3]
+            cx, ck = _cumulative(x, seg.t), _cumulative(known, seg.t)
+            if len(entry) == 4:  # an exact integral (yaw rotor reaction), already in integrated form
+                ck = ck + entry[3]
+            slope_y = (y[a] - y[j]) / span
+            if name != "velocity" and observer.angular_trim:
+                slope_y = np.zeros_like(slope_y)
+            slope_x = (cx[a] - cx[j]) / span[:, :, None]
+            slope_k = (ck[a] - ck[j]) / span
+            for h in seg.horizons:
+                lead = (seg.t[a + h] - seg.t[a])[:, None]
+                target = y[a + h] - y[a] - (ck[a + h] - ck[a]) - lead * (slope_y - slope_k)
+                regressor = cx[a + h] - cx[a] - lead[:, :, None] * slope_x
+                parts[name].append((regressor.reshape(-1, regressor.shape[-1]), target.reshape(-1)))
+    return {name: (np.vstack([b[0] for b in blocks]), np.concatenate([b[1] for b in blocks])) for name, blocks in parts.items()}
+
+
+def _solve(design: dict[str, tuple[np.ndarray, np.ndarray]], thin: int) -> dict[str, dict]:
+    """Least squares per channel: coefficients, covariance (rows thinned by ``thin``), SSR, residual variance, SSR at θ = 0."""
+    out = {}
+    for name, (x, y) in design.items():
+        # einsum, not BLAS: tall-skinny products are 100x slower with a multithreaded BLAS on a busy 2-core machine
+        gram = np.einsum("ij,ik->jk", x, x)
+        coef = np.linalg.solve(gram, np.einsum("ij,i->j", x, y))
+        resid = y - np.einsum("ij,j->i", x, coef)
+        ssr = float(np.einsum("i,i->", resid, resid))
+        xt = x[::thin]
+        s2 = float(np.einsum("i,i->", resid[::thin], resid[::thin])) / max(len(xt) - x.shape[1], 1)
+        try:
+            cov = np.linalg.inv(np.einsum("ij,ik->jk", xt, xt)) * s2
+        except np.linalg.LinAlgError:
+            cov = np.full((x.shape[1], x.shape[1]), np.nan)
+        out[name] = {"coef": coef, "cov": cov, "ssr": ssr, "s2": s2, "ssr0": float(np.einsum("i,i->", y, y)), "n": len(y)}
+    return out
+
+
+def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
+                     observer: Observer = Observer()) -> PhysicsFit:
+    """Fit the physics constants :data:`FITTED` on ``config``'s training span of ``flights`` (module docstring)."""
+    began = time.perf_counter()
+    p = PhysicsParameters.from_vehicle(vehicle)
+    segments = training_segments(flights, config, observer)
+    rate = float(np.median([1.0 / np.median(np.diff(s.t)) for s in segments]))
+
+    def objective(log_tau: float, delay: float) -> float:
+        fit = _solve(_design(p, segments, float(np.exp(log_tau)), delay, observer), 1)
+        return sum(fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS)
+
+    lo, hi = TIME_CONSTANT_RANGE_S
+    grid = delay_grid(rate)
+    start_tau = float(np.clip(p.time_constant, lo, hi))
+    searched: dict[int, tuple[float, float]] = {}
+
+    def best_tau(i: int) -> tuple[float, float]:
+        if i not in searched:
+            search = optimize.minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), args=(float(grid[i]),),
+                                              method="bounded", options={"xatol": TAU_LOG_TOLERANCE})
+            searched[i] = (float(search.fun), float(np.exp(search.x)))
+        return searched[i]
+
+    # coordinate search: the best delay at the starting τ, then τ there, then neighbouring delays while they improve
+    i = int(np.argmin([objective(np.log(start_tau), float(d)) for d in grid]))
+    while True:
+        best_tau(i)
+        for j in (i - 1, i + 1):
+            if 0 <= j < len(grid):
+                best_tau(j)
+        j = min(searched, key=lambda k: searched[k][0])
+        if j == i:
+            break
+        i = j
+    tau, delay = searched[i][1], float(grid[i])
+    profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
+    thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
+    fit = _solve(_design(p, segments, tau, delay, observer), thin)
+
+    kf, kf_sd = fit["velocity"]["coef"][0], np.sqrt(fit["velocity"]["cov"][0, 0])
+    values = {"rotor_time_constant": tau, "rotor_delay": delay, "rotor_thrust_constant": kf,
+              "rotor_drag_xy": fit["velocity"]["coef"][1], "rotor_drag_z": fit["velocity"]["coef"][2]}
+    sigma = {"rotor_thrust_constant": kf_sd, "rotor_drag_xy": np.sqrt(fit["velocity"]["cov"][1, 1]),
+             "rotor_drag_z": np.sqrt(fit["velocity"]["cov"][2, 2])}
+    d_xy, d_xy_sd = values["rotor_drag_xy"], sigma["rotor_drag_xy"]
+    arms = []
+    for key, channel in (("physics_ixx", "roll"), ("physics_iyy", "pitch")):
+        (alpha, b), cov = fit[channel]["coef"], fit[channel]["cov"]
+        alpha_sd, b_sd = np.sqrt(cov[0, 0]), np.sqrt(cov[1, 1])
+        values[key] = kf / alpha if alpha != 0 else float("nan")
+        sigma[key] = abs(values[key]) * np.hypot(kf_sd / kf, alpha_sd / alpha) if alpha != 0 and kf != 0 else float("nan")
+        arm = b * values[key] / d_xy if d_xy != 0 and np.isfinite(values[key]) else float("nan")
+        arm_sd = abs(arm) * np.sqrt((b_sd / b) ** 2 + (sigma[key] / values[key]) ** 2 + (d_xy_sd / d_xy) ** 2) if np.isfinite(arm) and b != 0 else float("nan")
+        arms.append((arm, arm_sd))
+    finite = [(a, sd) for a, sd in arms if np.isfinite(a) and np.isfinite(sd) and sd > 0]
+    if finite:
+        weights = np.array([1.0 / sd**2 for _, sd in finite])
+        values["rotor_drag_arm"] = float(np.sum(weights * np.array([a for a, _ in finite])) / weights.sum())
+        sigma["rotor_drag_arm"] = float(1.0 / np.sqrt(weights.sum()))
+    else:
+        values["rotor_drag_arm"], sigma["rotor_drag_arm"] = float("nan"), float("nan")
+    values["rotor_torque_constant"] = fit["yaw"]["coef"][0] * p.inertia[2]
+    sigma["rotor_torque_constant"] = np.sqrt(fit["yaw"]["cov"][0, 0]) * p.inertia[2]
+    sigma["rotor_time_constant"] = _tau_sigma(p, segments, tau, delay, observer, thin, {c: fit[c]["s2"] for c in CHANNELS})
+    sigma["rotor_delay"] = (1.0 / rate) / np.sqrt(12.0)
+
+    start = {key: float(vehicle.value(key)) for key in FITTED}
+    bounds = {key: (start[key] / BOUNDS_FACTOR, start[key] * BOUNDS_FACTOR) for key in FITTED}
+    bounds["rotor_time_constant"] = TIME_CONSTANT_RANGE_S
+    bounds["rotor_delay"] = (0.0, DELAY_MAX_S)
+    for key in ("rotor_drag_xy", "rotor_drag_z"):
+        bounds[key] = (0.0, DRAG_MAX_FACTOR * start[key] if start[key] > 0 else np.inf)
+    reach = BOUNDS_FACTOR * max(abs(start["rotor_drag_arm"]), 0.1 * vehicle.value("arm_length"))
+    bounds["rotor_drag_arm"] = (-reach, reach)
+    at_bound = {}
+    for key in FITTED:
+        low, high = bounds[key]
+        value = values[key]
+        if key == "rotor_time_constant":
+            at_bound[key] = bool(min(abs(np.log(value / low)), abs(np.log(value / high))) < 0.05)
+        elif key == "rotor_delay":
+            at_bound[key] = bool(value >= high - 0.5 / rate)
+        else:
+            at_bound[key] = bool(not np.isfinite(value) or value <= low or value >= high)
+            values[key] = float(np.clip(value, low, high)) if np.isfinite(value) else start[key]
+        values[key] = float(values[key])
+        sigma[key] = float(sigma[key])
+    diagnostics = {
+        "anchors": int(sum(len(s.anchors) for s in segments)), "segments": len(segments),
+        "error_ratio": {c: fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS},
+        "horizons_s": list(FIT_HORIZONS_S), "observer": {"linear_s": observer.linear_s, "angular_s": observer.angular_s, "angular_trim": observer.angular_trim}, "anchor_thinning": thin,
+        "delay_profile": [{"delay_s": d, "time_constant_s": t, "objective": f} for f, t, d in profile],
+        "held": {"rotor_speed_gain": p.speed_gain, "rotor_speed_offset": p.speed_offset, "izz": p.inertia[2]},
+        "seconds": time.perf_counter() - began,
+    }
+    return PhysicsFit(values, sigma, bounds, at_bound, start, diagnostics)
+
+
+def _tau_sigma(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: float, observer: Observer, thin: int,
+               s2: dict[str, float]) -> float:
+    """σ_τ = sqrt(2 / χ²''(τ)) from a central second difference of the profile χ²(τ) = Σ_c SSR_c / (thin s_c²)
+    (module docstring); NaN when the profile is not convex there (τ not identifiable from these flights)."""
+    h = 0.05 * tau
+
+    def chi2(value: float) -> float:
+        fit = _solve(_design(p, segments, value, delay, observer), 1)
+        return sum(fit[c]["ssr"] / (thin * s2[c]) for c in CHANNELS)
+
+    curvature = (chi2(tau + h) - 2.0 * chi2(tau) + chi2(tau - h)) / h**2
+    return float(np.sqrt(2.0 / curvature)) if curvature > 0 else float("nan")
