@@ -1,8 +1,8 @@
 r"""Hybrid model (``hybrid:PATH``): the nonlinear physics model plus a residual net inside its integration loop.
 
 Base: :mod:`quad_modelling.core.models.physics` (state :math:`x = (p_N, v_N, R, \omega, \Omega)`, its
-semi-implicit Euler :func:`~quad_modelling.core.models.physics.step` over the real sample intervals, its causal
-anchor). At every step k a small tanh MLP (:class:`~quad_modelling.core.models.residual_net.ResidualNet`)
+semi-implicit Euler :func:`~quad_modelling.core.models.physics.step` over the real sample intervals, its command
+delay, its causal anchor). At every step k a small tanh MLP (:class:`~quad_modelling.core.models.residual_net.ResidualNet`)
 corrects the linear and angular accelerations from the current model state and command:
 
 .. math::
@@ -14,7 +14,8 @@ corrects the linear and angular accelerations from the current model state and c
     \dot\omega = \alpha_{phys} + \hat d_\omega + \Delta\alpha_k
 
 (:math:`R_k^T v_N` body-frame velocity [m/s, FRD], :math:`R_k^T e_z` the gravity direction in B (roll and
-pitch, yaw-free), :math:`\omega` body rates [rad/s], :math:`u` raw commands, :math:`\Omega` rotor speeds
+pitch, yaw-free), :math:`\omega` body rates [rad/s], :math:`u` the commands the rotors answer (the physics
+model's delayed commands, :func:`~quad_modelling.core.models.physics.delayed_commands`), :math:`\Omega` rotor speeds
 [rad/s]; :math:`\Delta a_B` [m/s², FRD], :math:`\Delta\alpha` [rad/s², FRD]). The corrected accelerations are
 handed to the physics step as its per-step disturbance, so the hybrid integrates exactly as the physics model
 does and reduces to it when the net's last layer is zero (a fresh net).
@@ -22,9 +23,11 @@ does and reduces to it when the net's last layer is zero (a fresh net).
 Causality. Every net input is the model's own predicted state and the command of that sample, so a
 prediction from anchor a uses the measurements up to row a only (through the physics anchor). The constant
 disturbance :math:`\hat d = (\hat d_v, \hat d_\omega)` is the physics model's observer applied to the *hybrid*:
-the mean over the observer rows j = first..a-1 (the last ``history_s`` before the anchor, as
-:func:`~quad_modelling.core.models.physics.disturbance_estimate`) of measured minus modelled acceleration,
-where the model now includes the net evaluated at the measured rows,
+the mean over the observer rows j = first..a-1 (the last :class:`~quad_modelling.core.models.physics.Observer`
+history before the anchor, linear and angular each their own, as
+:func:`~quad_modelling.core.models.physics.disturbance_estimate`) of measured minus modelled acceleration
+(the angular part with the observer's trim convention), where the model now includes the net evaluated at
+the measured rows,
 
 .. math::
 
@@ -35,7 +38,7 @@ so the net learns a function of the state while the observer keeps the slowly va
 a thrust-scale error) -- the net's correction is not counted twice. Training: :mod:`hybrid_training`.
 
 Model files (``.npz`` through :mod:`~quad_modelling.core.models.model_files`, kind ``hybrid``): the net's
-arrays, the physics constants it was trained on and ``history_s``; loading refuses another vehicle or
+arrays, the physics constants it was trained on and the observer's histories; loading refuses another vehicle or
 changed physics constants in one line. Prediction is numpy only (no torch).
 """
 
@@ -49,7 +52,7 @@ import numpy as np
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
-from quad_modelling.core.models.physics import HISTORY_S, Disturbance, PhysicsParameters, PhysicsState
+from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsParameters, PhysicsState, PhysicsStream
 from quad_modelling.core.models.residual_net import ResidualNet
 from quad_modelling.core.preprocess import TrimConfig, state_measurement, trim_prediction
 from quad_modelling.core.variables import VARIABLES
@@ -88,27 +91,29 @@ def physics_constants(p: PhysicsParameters) -> dict[str, float | list]:
 
 
 def observer_rows(t: np.ndarray, anchors: np.ndarray, history_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """(first row (S,), span t_a - t_first (S,) [s]) of the disturbance observer at ``anchors``: the rows of
-    :func:`quad_modelling.core.models.physics.disturbance_estimate` (a test holds the two equal)."""
+    """(first row (S,), span t_a - t_first (S,) [s]) of one part of the disturbance observer at ``anchors``: the rows
+    of :func:`quad_modelling.core.models.physics.disturbance_estimate` (a test holds the two equal)."""
     anchors = np.asarray(anchors, dtype=int)
     first = np.minimum(np.searchsorted(t, t[anchors] - history_s - 1e-9, side="left"), anchors)
     return first, t[anchors] - t[first]
 
 
+def observer_dict(observer: Observer) -> dict:
+    return {"linear_s": observer.linear_s, "angular_s": observer.angular_s, "angular_trim": observer.angular_trim}
+
+
 class HybridModel:
     """Physics constants + residual net + observer history (module docstring); numpy inference."""
 
-    def __init__(self, params: PhysicsParameters, net: ResidualNet, vehicle: str, history_s: float = HISTORY_S,
+    def __init__(self, params: PhysicsParameters, net: ResidualNet, vehicle: str, observer: Observer = Observer(),
                  training: dict | None = None) -> None:
         if net.n_inputs != len(FEATURES) or net.n_outputs != len(CORRECTIONS):
             raise ModelError(f"hybrid residual net takes {net.n_inputs} inputs and gives {net.n_outputs} outputs, "
                              f"expected {len(FEATURES)} and {len(CORRECTIONS)}")
-        if not (np.isfinite(history_s) and history_s >= 0):
-            raise ConfigError(f"hybrid: observer history {history_s!r} s must be >= 0")
         self.params = params
         self.net = net
         self.vehicle = vehicle
-        self.history_s = float(history_s)
+        self.observer = observer
         self.training = dict(training or {})
 
     # ---- the corrected dynamics ------------------------------------------------
@@ -136,20 +141,21 @@ class HybridModel:
         if measured is None:
             measured = state_measurement(log)
         anchors = np.asarray(anchors, dtype=int)
-        state, base, rotor = physics.anchor_state(self.params, log, anchors, self.history_s, measured)
-        if self.net.is_zero() or self.history_s == 0 or len(anchors) == 0:
+        state, base, rotor = physics.anchor_state(self.params, log, anchors, self.observer, measured)
+        last = int(anchors.max()) if len(anchors) else 0
+        if self.net.is_zero() or last == 0:
             return state, base
-        last = int(anchors.max())
         rows = np.arange(last)
-        if last == 0:
-            return state, base
-        c = self.correction(physics.measured_states(self.params, measured, rotor, rows), log.u[rows])
+        commands = physics.delayed_commands(self.params, log.u, log.t)
+        c = self.correction(physics.measured_states(self.params, measured, rotor, rows), commands[rows])
         integral = np.concatenate([np.zeros((1, 6)), np.cumsum(c * np.diff(log.t[: last + 1])[:, None], axis=0)])
-        first, span = observer_rows(log.t, anchors, self.history_s)
-        ok = span > 0
-        mean = (integral[anchors] - integral[first]) / np.where(ok, span, 1.0)[:, None]
-        mean[~ok] = 0.0
-        return state, Disturbance(base.linear_n - mean[:, :3], base.angular_b - mean[:, 3:])
+        corrected = []
+        for history, cols, d in ((self.observer.linear_s, slice(0, 3), base.linear_n), (self.observer.angular_s, slice(3, 6), base.angular_b)):
+            first, span = observer_rows(log.t, anchors, history)
+            ok = (span > 0) & (history > 0)
+            mean = (integral[anchors, cols] - integral[first, cols]) / np.where(ok, span, 1.0)[:, None]
+            corrected.append(d - np.where(ok[:, None], mean, 0.0))
+        return state, Disturbance(*corrected)
 
     # ---- predictions ------------------------------------------------------------
     def rollout(self, state: PhysicsState, disturbance: Disturbance, u: np.ndarray, dt: np.ndarray) -> np.ndarray:
@@ -171,7 +177,8 @@ class HybridModel:
         segment.require(("gyro_b",), "the hybrid model's multi-step form (body rates at each anchor)")
         state, disturbance = self.anchor(segment, starts)
         rows = starts[:, None] + np.arange(horizon + 1)[None, :]
-        return self.rollout(state, disturbance, segment.u[rows], np.diff(segment.t)[rows[:, :-1]])
+        commands = physics.delayed_commands(self.params, segment.u, segment.t)
+        return self.rollout(state, disturbance, commands[rows], np.diff(segment.t)[rows[:, :-1]])
 
     # ---- files ------------------------------------------------------------------
     def header(self) -> dict:
@@ -179,7 +186,7 @@ class HybridModel:
             "format": FORMAT, "format_version": FORMAT_VERSION, "kind": KIND, "vehicle": self.vehicle,
             "variables": list(VARIABLES), "outputs": list(TRAINED_ON),
             "config": {"hidden": list(self.net.hidden), "features": list(FEATURES), "corrections": list(CORRECTIONS),
-                       "history_s": self.history_s},
+                       "observer": observer_dict(self.observer)},
             "dt": float(self.training.get("dt", 0.01)),
             "training": {**self.training, "physics": physics_constants(self.params)},
         }
@@ -203,12 +210,13 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
     net = ResidualNet.from_arrays(contents, str(path))
     try:
         config = header["config"]
-        history_s = float(config["history_s"])
+        observer = Observer(float(config["observer"]["linear_s"]), float(config["observer"]["angular_s"]),
+                            bool(config["observer"]["angular_trim"]))
         stored = header["training"]["physics"]
         features = list(config["features"])
         if not isinstance(stored, dict):
             raise TypeError("training.physics is not a mapping")
-    except (KeyError, TypeError, ValueError) as err:
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise ModelError(f"{path}: hybrid model file lacks its settings ({reason(err)})") from err
     if features != list(FEATURES):
         raise ModelError(f"{path}: hybrid net inputs {features} differ from this program's {list(FEATURES)}; retrain the model")
@@ -220,36 +228,32 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
         raise ModelError(f"{path}: the physics constants of vehicle {vehicle.name!r} changed since the hybrid was trained "
                          f"({', '.join(changed)}); retrain it with quad-modelling train --hybrid")
     try:
-        return HybridModel(params, net, vehicle.name, history_s, dict(header.get("training", {})))
+        return HybridModel(params, net, vehicle.name, observer, dict(header.get("training", {})))
     except (ModelError, ConfigError) as err:
         raise ModelError(f"{path}: {err}") from err
 
 
 # ---- the predictor protocols (offline window, multi-step, live) --------------------------------------
-class HybridStream:
-    """Live stream of one window: ``push_at(command, t_s)`` steps over the real interval since the previous sample,
-    ``push(command)`` by the warm rows' median interval (as :class:`~quad_modelling.core.models.physics.PhysicsStream`)."""
+class HybridStream(PhysicsStream):
+    """Live stream of one window, as :class:`~quad_modelling.core.models.physics.PhysicsStream` (the logged commands
+    of the last δ kept for the delay; ``push_at(command, t_s)`` steps over the real interval since the previous
+    sample, ``push(command)`` by the warm rows' median interval) with the hybrid's step and outputs."""
 
-    def __init__(self, model: HybridModel, state: PhysicsState, disturbance: Disturbance, command: np.ndarray,
-                 t_s: float, period_s: float) -> None:
+    def __init__(self, model: HybridModel, state: PhysicsState, disturbance: Disturbance, times: np.ndarray,
+                 commands: np.ndarray, period_s: float) -> None:
+        super().__init__(model.params, state, disturbance, times, commands, period_s)
         self.model = model
-        self.state = state
-        self.disturbance = disturbance
-        self.command = np.asarray(command, dtype=float).reshape(1, 4)
-        self.t_s = t_s
-        self.period_s = period_s
 
     def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
-        dt = t_s - self.t_s
+        previous = self.times[-1]
+        dt = t_s - previous
         if not dt > 0:
-            raise DataError(f"hybrid stream: sample time {t_s:.6f} s is not after the previous {self.t_s:.6f} s")
-        self.state = self.model.step(self.state, self.command, dt, self.disturbance)
-        self.command = np.asarray(command, dtype=float).reshape(1, 4)
-        self.t_s = t_s
-        return self.model.outputs(self.state, self.command, self.disturbance)[0]
-
-    def push(self, command: np.ndarray) -> np.ndarray:
-        return self.push_at(command, self.t_s + self.period_s)
+            raise DataError(f"hybrid stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
+        self.state = self.model.step(self.state, self._command_at(previous), dt, self.disturbance)
+        self.times.append(float(t_s))
+        self.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
+        self._forget()
+        return self.model.outputs(self.state, self._command_at(t_s), self.disturbance)[0]
 
 
 class HybridPredictor:
@@ -268,7 +272,7 @@ class HybridPredictor:
         measured = state_measurement(warm)
         state, disturbance = self.model.anchor(warm, np.array([len(warm) - 1]), measured)
         period = float(np.median(np.diff(warm.t)))
-        return measured, HybridStream(self.model, state, disturbance, warm.u[-1], float(warm.t[-1]), period)
+        return measured, HybridStream(self.model, state, disturbance, warm.t, warm.u, period)
 
     def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) absolute prediction of a window: the live calls with each sample's real stamp."""

@@ -38,8 +38,8 @@ import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
-from quad_modelling.core.models.hybrid import FEATURES, HISTORY_S, HybridModel, observer_rows
-from quad_modelling.core.models.physics import PhysicsParameters
+from quad_modelling.core.models.hybrid import HybridModel, observer_dict, observer_rows
+from quad_modelling.core.models.physics import Observer, PhysicsParameters
 from quad_modelling.core.models.residual_net import ResidualNet
 from quad_modelling.core.models.rollout_training import (
     VAL_FRACTION,
@@ -63,13 +63,13 @@ HYBRID_HIDDEN = (32, 32)
 class HybridTrainingConfig:
     """Settings of :func:`train_hybrid` (defaults: what the leave-one-shape-out bench uses).
 
-    hidden: widths of the net's tanh hidden layers. history_s: observer history [s] (the physics model's).
+    hidden: widths of the net's tanh hidden layers. observer: the disturbance observer (the physics model's default).
     rollout: K, stride, batch, epochs, patience, learning rate (:class:`RolloutConfig`).
     val_fraction: fraction of the training flights held back (whole flights) for early stopping.
     """
 
     hidden: tuple[int, ...] = HYBRID_HIDDEN
-    history_s: float = HISTORY_S
+    observer: Observer = field(default_factory=Observer)
     rollout: RolloutConfig = field(default_factory=lambda: RolloutConfig(
         horizon=50, stride=1, val_stride=5, batch_size=256, max_epochs=12, patience=3, learning_rate=2e-3,
         grad_clip=1.0, windows_per_epoch=8192))
@@ -78,35 +78,40 @@ class HybridTrainingConfig:
     def __post_init__(self) -> None:
         if not self.hidden or min(self.hidden) < 1:
             raise ConfigError(f"hybrid training: hidden layer widths must be >= 1, got {self.hidden}")
-        if not (np.isfinite(self.history_s) and self.history_s > 0):
-            raise ConfigError(f"hybrid training: the observer history must be > 0 s, got {self.history_s}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["hidden"] = list(self.hidden)
+        d["observer"] = observer_dict(self.observer)
         return d
 
 
 # ---- data --------------------------------------------------------------------------------------------
-def segment_arrays(p: PhysicsParameters, segment: FlightLog, history_s: float) -> dict[str, np.ndarray]:
-    """Row-aligned arrays of one gap-free segment for :class:`RolloutWindows` (module docstring)."""
+def segment_arrays(p: PhysicsParameters, segment: FlightLog, observer: Observer) -> dict[str, np.ndarray]:
+    """Row-aligned arrays of one gap-free segment for :class:`RolloutWindows` (module docstring); ``u`` holds the
+    delayed commands the rotors answer (:func:`physics.delayed_commands`)."""
     measured = state_measurement(segment)
     rows = np.arange(len(segment))
-    rotor = physics.rotor_speeds(p, segment.u, segment.t)
-    disturbance = physics.disturbance_estimate(p, segment.t, segment.u, measured, rotor, rows, history_s)
-    first, span = observer_rows(segment.t, rows, history_s)
+    commands = physics.delayed_commands(p, segment.u, segment.t)
+    rotor = physics.rotor_speeds(p, commands, segment.t)
+    disturbance = physics.disturbance_estimate(p, segment.t, commands, measured, rotor, rows, observer)
     dt = np.diff(segment.t)
-    return {
+    arrays = {
         "vel": measured[:, 3:6], "rot": physics.measured_states(p, measured, rotor, rows).rot.reshape(-1, 9),
-        "rates": measured[:, 12:15], "rotor": rotor, "u": segment.u,
-        "dt": np.append(dt, np.median(dt))[:, None],
+        "rates": measured[:, 12:15], "rotor": rotor, "u": commands, "dt": np.append(dt, np.median(dt))[:, None],
         "d": np.concatenate([disturbance.linear_n, disturbance.angular_b], axis=1),
-        "obs_n": (rows - first)[:, None].astype(float), "obs_span": span[:, None],
     }
+    for part, history in (("lin", observer.linear_s), ("ang", observer.angular_s)):
+        first, span = observer_rows(segment.t, rows, history)
+        if history <= 0:  # that part of the observer is off: no history row counts
+            first, span = rows, np.zeros(len(rows))
+        arrays[f"obs_n_{part}"] = (rows - first)[:, None].astype(float)
+        arrays[f"obs_span_{part}"] = np.where(span > 0, span, 1.0)[:, None]
+    return arrays
 
 
 def flight_segments(p: PhysicsParameters, logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None],
-                    history_s: float) -> list[dict[str, np.ndarray]]:
+                    observer: Observer) -> list[dict[str, np.ndarray]]:
     """The arrays of every gap-free part (of two rows or more) of each flight's span (None: the whole flight)."""
     segments = []
     for log, span in zip(logs, spans):
@@ -114,7 +119,7 @@ def flight_segments(p: PhysicsParameters, logs: Sequence[FlightLog], spans: Sequ
         start, stop = (0, len(log)) if span is None else rows_between(log, *span)
         for a, b in gap_free_runs(log, start, stop):
             if b - a >= 2:
-                segments.append(segment_arrays(p, log.slice(a, b), history_s))
+                segments.append(segment_arrays(p, log.slice(a, b), observer))
     return segments
 
 
@@ -144,21 +149,27 @@ def naive_scales(segments: list[dict[str, np.ndarray]], horizon: int) -> tuple[f
     return tuple(np.maximum(sums / count, 1e-9))
 
 
-def acceleration_scale(p: PhysicsParameters, logs: Sequence[FlightLog]) -> np.ndarray:
+def acceleration_scale(p: PhysicsParameters, logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None]) -> np.ndarray:
     """(6,) output scale of the net: RMS of (measured − modelled) linear acceleration in B [m/s²] and angular
-    acceleration [rad/s²] at the measured rows of ``logs`` (the size of what is left to correct)."""
+    acceleration [rad/s²] over the ``spans`` of ``logs``, less each flight's mean (the observer's part): the size of
+    what is left for the net to correct."""
     parts = []
-    for log in logs:
+    for log, span in zip(logs, spans):
+        if span is not None:
+            log = log.slice(*rows_between(log, *span))
+        if len(log) < 2:
+            continue
         measured = measured_variables(log)
-        rows = np.arange(len(log))
-        rotor = physics.rotor_speeds(p, log.u, log.t)
-        state = physics.measured_states(p, measured, rotor, rows)
-        acc_n, ang_acc = physics.accelerations(p, state.vel_n, state.rot, state.rates, rotor, physics.rotor_acceleration(p, rotor, log.u))
+        commands = physics.delayed_commands(p, log.u, log.t)
+        rotor = physics.rotor_speeds(p, commands, log.t)
+        state = physics.measured_states(p, measured, rotor, np.arange(len(log)))
+        acc_n, ang_acc = physics.accelerations(p, state.vel_n, state.rot, state.rates, rotor, physics.rotor_acceleration(p, rotor, commands))
         lin_b = np.einsum("bji,bj->bi", state.rot, measured[:, 6:9] - acc_n)
-        parts.append(np.concatenate([lin_b, measured[:, 15:18] - ang_acc], axis=1))
-    residual = np.concatenate(parts)
-    residual = residual[np.all(np.isfinite(residual), axis=1)]
-    return np.maximum(np.sqrt((residual ** 2).mean(axis=0)), 1e-3) if len(residual) else np.ones(6)
+        residual = np.concatenate([lin_b, measured[:, 15:18] - ang_acc], axis=1)
+        residual = residual[np.all(np.isfinite(residual), axis=1)]
+        parts.append(residual - residual.mean(axis=0))
+    residual = np.concatenate(parts) if parts else np.ones((1, 6))
+    return np.maximum(np.sqrt((residual ** 2).mean(axis=0)), 1e-3)
 
 
 # ---- the torch module and the loss -------------------------------------------------------------------
@@ -221,9 +232,12 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
         f_hist = _features(batch["vel"][:, :a], rot[:, :a], batch["rates"][:, :a], batch["u"][:, :a], batch["rotor"][:, :a])
         delta = net(f_hist)
         c_hist = torch.cat([(rot[:, :a] * delta[..., None, :3]).sum(dim=-1), delta[..., 3:]], dim=-1)
-        back = torch.arange(a, 0, -1, dtype=batch["obs_n"].dtype)  # rows before the anchor: a - j
-        weight = batch["dt"][:, :a, 0] * (back[None, :] <= batch["obs_n"][:, a]) / batch["obs_span"][:, a]
-        d = batch["d"][:, a] - (c_hist * weight[..., None]).sum(dim=1)
+        back = torch.arange(a, 0, -1, dtype=batch["dt"].dtype)[None, :]  # rows before the anchor: a - j
+        corrections = []
+        for part, cols in (("lin", slice(0, 3)), ("ang", slice(3, 6))):
+            weight = batch["dt"][:, :a, 0] * (back <= batch[f"obs_n_{part}"][:, a]) / batch[f"obs_span_{part}"][:, a]
+            corrections.append((c_hist[..., cols] * weight[..., None]).sum(dim=1))
+        d = batch["d"][:, a] - torch.cat(corrections, dim=1)
         b = len(d)
         zeros = torch.zeros(b, 3, dtype=d.dtype)
         state = pt.TorchState(zeros, batch["vel"][:, a], rot[:, a], batch["rates"][:, a], batch["rotor"][:, a], zeros[:, 0])
@@ -264,16 +278,16 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
     indices = list(range(len(logs)))
     train_idx, val_idx = hold_back_flights(indices, config.val_fraction, val_flights, seed)
     dts = np.concatenate([np.diff(log.t) for log in logs])
-    train_segments = flight_segments(p, [logs[i] for i in train_idx], [spans[i] for i in train_idx], config.history_s)
-    val_segments = flight_segments(p, [logs[i] for i in val_idx], [spans[i] for i in val_idx], config.history_s)
+    train_segments = flight_segments(p, [logs[i] for i in train_idx], [spans[i] for i in train_idx], config.observer)
+    val_segments = flight_segments(p, [logs[i] for i in val_idx], [spans[i] for i in val_idx], config.observer)
     # history rows of a window: the most observer rows any anchor has (50 at 100 Hz and 0.5 s)
-    history = max([int(s["obs_n"].max()) for s in train_segments + val_segments] + [1])
+    history = max([int(s[f"obs_n_{part}"].max()) for s in train_segments + val_segments for part in ("lin", "ang")] + [1])
     if not any(len(s["u"]) > history + rc.horizon for s in train_segments):
         raise DataError(f"hybrid training: no gap-free part of the training spans holds the {history + rc.horizon + 1} rows one "
-                        f"{rc.horizon}-step window with {config.history_s:g} s of observer history needs")
+                        f"{rc.horizon}-step window with its observer history needs")
     features = feature_rows(train_segments)
     scales = naive_scales(train_segments, rc.horizon)
-    out_scale = acceleration_scale(p, [logs[i] for i in train_idx])
+    out_scale = acceleration_scale(p, [logs[i] for i in train_idx], [spans[i] for i in train_idx])
     train_set = RolloutWindows(train_segments, history, rc.horizon + 1, rc.stride)
     val_set = RolloutWindows(val_segments, history, rc.horizon + 1, rc.val_stride) if val_segments else None
     with seeded_torch(seed, rc.threads):
@@ -290,7 +304,7 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
         "samples": int(sum(len(s["u"]) for s in train_segments)),
         "rollout": {**record.to_dict(), "val_windows": len(val_set) if val_set is not None else len(train_set)},
     }
-    return HybridModel(p, residual, vehicle, config.history_s, training)
+    return HybridModel(p, residual, vehicle, config.observer, training)
 
 
 def train_hybrid_on_flights(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], vehicle: VehicleConfig,

@@ -44,7 +44,8 @@ class TorchState(NamedTuple):
 
 
 class TorchParameters(NamedTuple):
-    """The :class:`PhysicsParameters` the step uses, as tensors of one dtype (positions (4, 2), spins (4,))."""
+    """The :class:`PhysicsParameters` the step uses, as tensors of one dtype (positions (4, 2), spins (4,)). The
+    command delay δ is not here: the caller feeds the delayed commands (:func:`physics.delayed_commands`)."""
 
     mass: float
     inertia: torch.Tensor
@@ -57,6 +58,7 @@ class TorchParameters(NamedTuple):
     thrust_constant: float
     torque_constant: float
     drag: torch.Tensor
+    drag_arm: float
 
     @classmethod
     def from_params(cls, p: PhysicsParameters, dtype=torch.float64) -> TorchParameters:
@@ -64,7 +66,8 @@ class TorchParameters(NamedTuple):
             return torch.as_tensor(np.asarray(x, dtype=float), dtype=dtype)
 
         return cls(float(p.mass), t(p.inertia), float(p.prop_inertia), t(p.positions), t(p.spins), float(p.speed_gain),
-                   float(p.speed_offset), float(p.time_constant), float(p.thrust_constant), float(p.torque_constant), t(p.drag))
+                   float(p.speed_offset), float(p.time_constant), float(p.thrust_constant), float(p.torque_constant), t(p.drag),
+                   float(p.drag_arm))
 
 
 def rotate(rot: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
@@ -107,13 +110,13 @@ def accelerations(p: TorchParameters, vel_n, rot, rates, rotor, rotor_dot) -> tu
     w2 = rotor * rotor
     thrust = p.thrust_constant * w2
     vel_b = rotate_back(rot, vel_n)
-    force_b = -(rotor.sum(dim=1)[:, None] * p.drag) * vel_b
-    force_b = force_b - torch.nn.functional.pad(thrust.sum(dim=1)[:, None], (2, 0))
+    drag_b = -(rotor.sum(dim=1)[:, None] * p.drag) * vel_b
+    force_b = drag_b - torch.nn.functional.pad(thrust.sum(dim=1)[:, None], (2, 0))
     acc_n = rotate(rot, force_b) / p.mass
     acc_n = acc_n + torch.tensor([0.0, 0.0, GRAVITY], dtype=acc_n.dtype)
     torque = torch.stack([
-        -thrust @ p.positions[:, 1],
-        thrust @ p.positions[:, 0],
+        -thrust @ p.positions[:, 1] - p.drag_arm * drag_b[:, 1],
+        thrust @ p.positions[:, 0] + p.drag_arm * drag_b[:, 0],
         p.torque_constant * (w2 @ p.spins) + p.prop_inertia * (rotor_dot @ p.spins),
     ], dim=1)
     torque = torque - torch.linalg.cross(rates, rates * p.inertia, dim=1)

@@ -134,7 +134,7 @@ def test_the_observer_does_not_count_the_nets_correction_twice(flight, params, v
     segment = flight.slice(1000, 1400)
     starts = np.arange(1, 300, 7)
     state, disturbance = model.anchor(segment, starts)
-    _, base, _ = physics.anchor_state(params, segment, starts)
+    _, base, _ = physics.anchor_state(params, segment, starts, model.observer)
     assert np.allclose(disturbance.angular_b, base.angular_b - c, rtol=0, atol=1e-9)
     assert np.allclose(disturbance.linear_n, base.linear_n, rtol=0, atol=1e-12)
     hybrid = model.predict_horizons(segment, starts, HORIZON)
