@@ -44,7 +44,7 @@ def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys)
             "--hybrid-hidden", "6,4", "--seed", "2", "--quiet"]
     assert main(args) == 0
     model = load_hybrid(out, load_vehicle("crazyflie21"))
-    assert model.net.hidden == (6, 4) and model.net.n_inputs == 17 and model.net.n_outputs == 6
+    assert model.net.hidden == (6, 4) and model.net.n_inputs == 21 and model.net.n_outputs == 6
     assert model.training["seed"] == 2 and model.training["config"]["rollout"]["horizon"] == 5
     assert model.training["rollout"]["epochs_run"] == 1
     (span,) = model.training["spans"]  # preset short: drop 5 s, train on the first 60 % of the rest

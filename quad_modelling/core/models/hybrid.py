@@ -7,16 +7,17 @@ corrects the linear and angular accelerations from the current model state and c
 
 .. math::
 
-    f_k = \big(R_k^T v_{N,k},\ R_k^T e_z,\ \omega_k,\ u_k,\ \Omega_k\big) \in \mathbb{R}^{17}, \qquad
+    f_k = \big(R_k^T v_{N,k},\ R_k^T e_z,\ \omega_k,\ \tilde u_k,\ \Omega_k,\ u_k\big) \in \mathbb{R}^{21}, \qquad
     (\Delta a_{B,k}, \Delta\alpha_k) = \mathrm{net}(f_k)
 
     \dot v_N = a_{phys} + \hat d_v + R_k \Delta a_{B,k}, \qquad
     \dot\omega = \alpha_{phys} + \hat d_\omega + \Delta\alpha_k
 
 (:math:`R_k^T v_N` body-frame velocity [m/s, FRD], :math:`R_k^T e_z` the gravity direction in B (roll and
-pitch, yaw-free), :math:`\omega` body rates [rad/s], :math:`u` the commands the rotors answer (the physics
+pitch, yaw-free), :math:`\omega` body rates [rad/s], :math:`\tilde u` the commands the rotors answer (the physics
 model's delayed commands, :func:`~quad_modelling.core.models.physics.delayed_commands`), :math:`\Omega` rotor speeds
-[rad/s]; :math:`\Delta a_B` [m/s², FRD], :math:`\Delta\alpha` [rad/s², FRD]). The corrected accelerations are
+[rad/s], :math:`u_k` the command logged at sample k (the controller's newest, which the rotors answer only after
+the delay; a model input, like every command); :math:`\Delta a_B` [m/s², FRD], :math:`\Delta\alpha` [rad/s², FRD]). The corrected accelerations are
 handed to the physics step as its per-step disturbance, so the hybrid integrates exactly as the physics model
 does and reduces to it when the net's last layer is zero (a fresh net).
 
@@ -63,10 +64,10 @@ KIND = "hybrid"
 
 FEATURES: tuple[str, ...] = (
     "vel_b_x", "vel_b_y", "vel_b_z", "down_b_x", "down_b_y", "down_b_z", "roll_rate", "pitch_rate", "yaw_rate",
-    "u1", "u2", "u3", "u4", "rotor1", "rotor2", "rotor3", "rotor4",
+    "u1", "u2", "u3", "u4", "rotor1", "rotor2", "rotor3", "rotor4", "u_logged1", "u_logged2", "u_logged3", "u_logged4",
 )
 """The net's inputs f_k (module docstring): body velocity [m/s], gravity direction R^T e_z in B, body rates
-[rad/s], raw commands [input unit], rotor speeds [rad/s]."""
+[rad/s], delayed commands [input unit], rotor speeds [rad/s], logged commands [input unit]."""
 
 CORRECTIONS: tuple[str, ...] = ("acc_b_x", "acc_b_y", "acc_b_z", "roll_acc", "pitch_acc", "yaw_acc")
 """The net's outputs: linear acceleration correction Δa_B [m/s², FRD], angular acceleration correction Δα [rad/s², FRD]."""
@@ -76,10 +77,18 @@ TRAINED_ON: tuple[str, ...] = ("vel_x", "vel_y", "vel_z", "roll_rate", "pitch_ra
 
 
 def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
-    """(B, 17) inputs f_k (:data:`FEATURES`) of states ``state`` under commands ``u`` (B, 4)."""
+    """(B, 21) inputs f_k (:data:`FEATURES`) of states ``state`` under commands ``u`` (B, 8): the delayed commands the
+    rotors answer, then the logged ones (:func:`hybrid_commands`)."""
     rot = state.rot
     vel_b = np.einsum("bji,bj->bi", rot, state.vel_n)
-    return np.concatenate([vel_b, rot[:, 2, :], state.rates, np.asarray(u, dtype=float), state.rotor], axis=1)
+    u = np.asarray(u, dtype=float)
+    return np.concatenate([vel_b, rot[:, 2, :], state.rates, u[:, :4], state.rotor, u[:, 4:]], axis=1)
+
+
+def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, 8) commands of the hybrid per row: the delayed commands the rotors answer
+    (:func:`physics.delayed_commands`) and the logged commands ``u`` (N, 4) stamped ``t`` (N,) [s]."""
+    return np.concatenate([physics.delayed_commands(p, u, t), np.asarray(u, dtype=float)], axis=1)
 
 
 def physics_constants(p: PhysicsParameters) -> dict[str, float | list]:
@@ -118,7 +127,8 @@ class HybridModel:
 
     # ---- the corrected dynamics ------------------------------------------------
     def correction(self, state: PhysicsState, u: np.ndarray) -> np.ndarray:
-        """(B, 6) net correction as disturbance accelerations: (R Δa_B [m/s², N], Δα [rad/s², B])."""
+        """(B, 6) net correction as disturbance accelerations: (R Δa_B [m/s², N], Δα [rad/s², B]); ``u`` (B, 8) as
+        :func:`hybrid_commands` (so are the ``u`` of :meth:`step`, :meth:`outputs` and :meth:`rollout`)."""
         delta = self.net.forward(net_features(state, u))
         return np.concatenate([np.einsum("bij,bj->bi", state.rot, delta[:, :3]), delta[:, 3:]], axis=1)
 
@@ -129,11 +139,11 @@ class HybridModel:
 
     def step(self, state: PhysicsState, u: np.ndarray, dt, disturbance: Disturbance) -> PhysicsState:
         """One hybrid step: :func:`physics.step` with the net's correction added to the disturbance."""
-        return physics.step(self.params, state, u, dt, self.corrected(state, u, disturbance))
+        return physics.step(self.params, state, u[:, :4], dt, self.corrected(state, u, disturbance))
 
     def outputs(self, state: PhysicsState, u: np.ndarray, disturbance: Disturbance) -> np.ndarray:
         """(B, 18) absolute VARIABLES of ``state`` under ``u``: :func:`physics.outputs` with the corrected accelerations."""
-        return physics.outputs(self.params, state, u, self.corrected(state, u, disturbance))
+        return physics.outputs(self.params, state, u[:, :4], self.corrected(state, u, disturbance))
 
     # ---- the anchor -------------------------------------------------------------
     def anchor(self, log: FlightLog, anchors: np.ndarray, measured: np.ndarray | None = None) -> tuple[PhysicsState, Disturbance]:
@@ -146,7 +156,7 @@ class HybridModel:
         if self.net.is_zero() or last == 0:
             return state, base
         rows = np.arange(last)
-        commands = physics.delayed_commands(self.params, log.u, log.t)
+        commands = hybrid_commands(self.params, log.u, log.t)
         c = self.correction(physics.measured_states(self.params, measured, rotor, rows), commands[rows])
         integral = np.concatenate([np.zeros((1, 6)), np.cumsum(c * np.diff(log.t[: last + 1])[:, None], axis=0)])
         corrected = []
@@ -164,9 +174,9 @@ class HybridModel:
         out = np.empty((len(state.pos_n), horizon + 1, len(VARIABLES)))
         for h in range(horizon + 1):
             step_disturbance = self.corrected(state, u[:, h], disturbance)
-            out[:, h] = physics.outputs(self.params, state, u[:, h], step_disturbance)
+            out[:, h] = physics.outputs(self.params, state, u[:, h, :4], step_disturbance)
             if h < horizon:
-                state = physics.step(self.params, state, u[:, h], dt[:, h], step_disturbance)
+                state = physics.step(self.params, state, u[:, h, :4], dt[:, h], step_disturbance)
         return out
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
@@ -177,7 +187,7 @@ class HybridModel:
         segment.require(("gyro_b",), "the hybrid model's multi-step form (body rates at each anchor)")
         state, disturbance = self.anchor(segment, starts)
         rows = starts[:, None] + np.arange(horizon + 1)[None, :]
-        commands = physics.delayed_commands(self.params, segment.u, segment.t)
+        commands = hybrid_commands(self.params, segment.u, segment.t)
         return self.rollout(state, disturbance, commands[rows], np.diff(segment.t)[rows[:, :-1]])
 
     # ---- files ------------------------------------------------------------------
@@ -249,11 +259,12 @@ class HybridStream(PhysicsStream):
         dt = t_s - previous
         if not dt > 0:
             raise DataError(f"hybrid stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
-        self.state = self.model.step(self.state, self._command_at(previous), dt, self.disturbance)
+        logged = self.commands[-1]  # the command logged at the previous sample
+        self.state = self.model.step(self.state, np.concatenate([self._command_at(previous), logged], axis=1), dt, self.disturbance)
         self.times.append(float(t_s))
         self.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
         self._forget()
-        return self.model.outputs(self.state, self._command_at(t_s), self.disturbance)[0]
+        return self.model.outputs(self.state, np.concatenate([self._command_at(t_s), self.commands[-1]], axis=1), self.disturbance)[0]
 
 
 class HybridPredictor:

@@ -38,7 +38,7 @@ import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
-from quad_modelling.core.models.hybrid import HybridModel, observer_dict, observer_rows
+from quad_modelling.core.models.hybrid import HybridModel, hybrid_commands, observer_dict, observer_rows
 from quad_modelling.core.models.physics import Observer, PhysicsParameters
 from quad_modelling.core.models.residual_net import ResidualNet
 from quad_modelling.core.models.rollout_training import (
@@ -56,7 +56,7 @@ from quad_modelling.errors import ConfigError, DataError
 
 
 HYBRID_HIDDEN = (32, 32)
-"""Default widths of the residual net's hidden layers (17 inputs, 6 outputs: about 1.8k weights)."""
+"""Default widths of the residual net's hidden layers (21 inputs, 6 outputs: about 1.9k weights)."""
 
 
 @dataclass(frozen=True)
@@ -88,13 +88,13 @@ class HybridTrainingConfig:
 
 # ---- data --------------------------------------------------------------------------------------------
 def segment_arrays(p: PhysicsParameters, segment: FlightLog, observer: Observer) -> dict[str, np.ndarray]:
-    """Row-aligned arrays of one gap-free segment for :class:`RolloutWindows` (module docstring); ``u`` holds the
-    delayed commands the rotors answer (:func:`physics.delayed_commands`)."""
+    """Row-aligned arrays of one gap-free segment for :class:`RolloutWindows` (module docstring); ``u`` (N, 8) holds the
+    delayed commands the rotors answer and the logged ones (:func:`~quad_modelling.core.models.hybrid.hybrid_commands`)."""
     measured = state_measurement(segment)
     rows = np.arange(len(segment))
-    commands = physics.delayed_commands(p, segment.u, segment.t)
-    rotor = physics.rotor_speeds(p, commands, segment.t)
-    disturbance = physics.disturbance_estimate(p, segment.t, commands, measured, rotor, rows, observer)
+    commands = hybrid_commands(p, segment.u, segment.t)
+    rotor = physics.rotor_speeds(p, commands[:, :4], segment.t)
+    disturbance = physics.disturbance_estimate(p, segment.t, commands[:, :4], measured, rotor, rows, observer)
     dt = np.diff(segment.t)
     arrays = {
         "vel": measured[:, 3:6], "rot": physics.measured_states(p, measured, rotor, rows).rot.reshape(-1, 9),
@@ -124,7 +124,7 @@ def flight_segments(p: PhysicsParameters, logs: Sequence[FlightLog], spans: Sequ
 
 
 def feature_rows(segments: list[dict[str, np.ndarray]]) -> np.ndarray:
-    """(N, 17) net inputs at every measured row of ``segments`` (normalisation statistics)."""
+    """(N, 21) net inputs at every measured row of ``segments`` (normalisation statistics)."""
     from quad_modelling.core.models.hybrid import net_features
 
     out = []
@@ -210,7 +210,7 @@ def _features(vel_n, rot, rates, u, rotor):
     import torch
 
     vel_b = (rot * vel_n[..., :, None]).sum(dim=-2)
-    return torch.cat([vel_b, rot[..., 2, :], rates, u, rotor], dim=-1)
+    return torch.cat([vel_b, rot[..., 2, :], rates, u[..., :4], rotor, u[..., 4:]], dim=-1)
 
 
 def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
@@ -247,7 +247,7 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
             u = batch["u"][:, r]
             delta = net(_features(state.vel_n, state.rot, state.rates, u, state.rotor))
             lin = d[:, :3] + pt.rotate(state.rot, delta[:, :3])
-            state = pt.step(tp, state, u, batch["dt"][:, r, 0], lin, d[:, 3:] + delta[:, 3:])
+            state = pt.step(tp, state, u[:, :4], batch["dt"][:, r, 0], lin, d[:, 3:] + delta[:, 3:])
             loss = loss + norm(state.vel_n - batch["vel"][:, r + 1], eps_v).sum() / scale_v \
                 + norm(state.rates - batch["rates"][:, r + 1], eps_w).sum() / scale_w
         return loss / (2.0 * b * horizon)
