@@ -42,7 +42,7 @@ def run() -> int:
     step("What the bundled bag holds (a real Crazyflie 2.1 NanoBench flight)", ["info", bag])
     step("Identify the Crazyflie's motor constants on the training span (10-25 s)",
          ["identify", bag, "--vehicle", "crazyflie21", *spans, "--eval", "25:35", "-o", str(out / "crazyflie21_identified.yaml")])
-    step("Train the thesis's NARX model on the same training span",
+    step("Train the NARX model (rollout training, early-stopped on the span's last 20 %) on the same training span",
          ["train", bag, "--vehicle", str(out / "crazyflie21_identified.yaml"), "--drop", "0:0", "--train", "10:25",
           "--quiet", "-o", str(out / "narx.npz")])
     step("Replay the bag through the live ROS 2 graph over DDS (replay, greybox and NARX predictors, evaluator)",

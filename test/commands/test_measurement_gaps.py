@@ -59,7 +59,7 @@ def test_convert_keeps_the_gap_in_the_new_bag_and_refuses_a_mat_log(tmp_path, ca
 
 def test_train_splits_its_segments_at_the_gap(tmp_path, capsys):
     bag = _write_gap_bag(tmp_path / "bag")
-    assert main(["train", str(bag), "--drop", "0:0", "--train", "0:30", "--epochs", "1", "--hidden", "2", "--quiet",
+    assert main(["train", str(bag), "--drop", "0:0", "--train", "0:30", "--epochs", "1", "--hidden", "2", "--training", "thesis", "--quiet",
                  "-o", str(tmp_path / "narx.npz")]) == 0
     captured = capsys.readouterr()
     assert captured.err.splitlines() == [f"warning: {bag}: {GAP_WARNING}"]

@@ -11,11 +11,12 @@ from quad_modelling.core.vehicle import load_vehicle
 
 BAG = str(Path(__file__).resolve().parents[2] / "bags" / "nanobench_B7_oval_medium_rep2")
 SMALL = ["--preset", "short", "--epochs", "2", "--hidden", "3", "--delays", "4", "--input-delays", "3", "--quiet"]
+QUICK_ROLLOUT = ["--horizon", "10", "--rollout-epochs", "2", "--patience", "1"]
 
 
-def test_train_writes_a_narx_model_with_its_settings_and_span(tmp_path, capsys):
+def test_train_thesis_writes_the_thesis_narx_model_with_its_settings_and_span(tmp_path, capsys):
     out = tmp_path / "narx.npz"
-    assert main(["train", BAG, "-o", str(out), "--seed", "3", *SMALL]) == 0
+    assert main(["train", BAG, "-o", str(out), "--seed", "3", "--training", "thesis", *SMALL]) == 0
     model = load_narx(out, vehicle="crazyflie21")
     assert (model.config.hidden, model.config.output_delays, model.config.input_delays, model.config.epochs) == (3, 4, (0, 1, 2), 2)
     assert model.training["seed"] == 3
@@ -24,7 +25,31 @@ def test_train_writes_a_narx_model_with_its_settings_and_span(tmp_path, capsys):
     assert abs(segment["span"][0] - 5.0) < 0.011
     assert abs(segment["span"][1] - (5.0 + 0.6 * 32.3)) < 0.1
     assert abs(model.dt - 0.01) < 1e-4
+    assert not model.config.incremental and model.config.noise_snr_db == (None, None, None, 10.0, 10.0, 10.0)
+    assert "rollout" not in model.training
     assert "narx:" in capsys.readouterr().out
+
+
+def test_train_default_is_rollout_training_early_stopped_on_held_back_data(tmp_path, capsys):
+    out = tmp_path / "narx.npz"
+    assert main(["train", BAG, "-o", str(out), *SMALL, *QUICK_ROLLOUT]) == 0
+    model = load_narx(out, vehicle="crazyflie21")
+    assert model.config.incremental and model.config.noise_snr_db == (None,) * 6
+    rollout = model.training["rollout"]
+    assert rollout["horizon"] == 10 and rollout["epochs_run"] <= 2 and rollout["val_windows"] > 0
+    (train,), (val,) = model.training["segments"], rollout["validation"]
+    # one flight: its span's last 20 % (of 5.0 .. 24.4 s) is held back for validation
+    assert abs(train["span"][1] - val["span"][0]) < 0.011 and abs(val["span"][0] - (5.0 + 0.8 * 19.38)) < 0.1
+    printed = capsys.readouterr().out
+    assert f"best validation epoch {rollout['best_epoch']} of {rollout['epochs_run']}" in printed
+
+
+def test_train_val_flights_are_used_for_early_stopping_only(tmp_path):
+    out = tmp_path / "narx.npz"
+    assert main(["train", BAG, "-o", str(out), "--val-flights", BAG, *SMALL, *QUICK_ROLLOUT]) == 0
+    model = load_narx(out, vehicle="crazyflie21")
+    (train,), (val,) = model.training["segments"], model.training["rollout"]["validation"]
+    assert train["span"] == val["span"]  # the whole training span of the validation flight, not a part of the training one
 
 
 def test_train_refuses_to_overwrite_and_empty_spans(tmp_path, capsys):
@@ -36,6 +61,10 @@ def test_train_refuses_to_overwrite_and_empty_spans(tmp_path, capsys):
     assert main(["train", BAG, "-o", str(tmp_path / "other.npz"), "--epochs", "1", "--quiet"]) == 2
     assert "training span 30:150 is empty" in capsys.readouterr().err
     assert not (tmp_path / "other.npz").exists()
+    assert main(["train", BAG, "-o", str(tmp_path / "other.npz"), "--val-fraction", "1", *SMALL]) == 2
+    assert "--val-fraction 1.0: must lie in [0, 1)" in capsys.readouterr().err
+    assert main(["train", BAG, "-o", str(tmp_path / "other.npz"), "--horizon", "0", *SMALL]) == 2
+    assert "--horizon must lie in" in capsys.readouterr().err
 
 
 def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys):

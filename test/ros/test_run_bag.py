@@ -17,7 +17,7 @@ BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
 
 def test_live_results_equal_offline_evaluation(tmp_path, capsys):
     """naive, greybox and a NARX trained on the training span, live and offline; the dummy rides along."""
-    assert main(["train", str(BAG), "--drop", "0:0", "--train", "0:20", "--epochs", "5", "--quiet", "-o", str(tmp_path / "narx.npz")]) == 0
+    assert main(["train", str(BAG), "--drop", "0:0", "--train", "0:20", "--epochs", "5", "--training", "thesis", "--quiet", "-o", str(tmp_path / "narx.npz")]) == 0
     specs = ("naive", "greybox", f"narx:{tmp_path / 'narx.npz'}")
     names = ("naive", "greybox", "narx", "dummy")
     out = tmp_path / "live"

@@ -227,7 +227,7 @@ def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> None:
 PRETRAIN_EPOCHS = 3
 """Series-parallel L-BFGS epochs before the rollout fine-tuning (a start; the rollout does the rest)."""
 
-DEFAULT_ROLLOUT = RolloutConfig(horizon=50, batch_size=256, max_epochs=20, patience=4, learning_rate=3e-3,
+DEFAULT_ROLLOUT = RolloutConfig(horizon=50, batch_size=128, max_epochs=20, patience=4, learning_rate=3e-3,
                                 windows_per_epoch=4096)
 """Rollout fine-tuning of ``quad-modelling train`` (K = 50 steps = 0.5 s at 100 Hz, the SimErr horizon)."""
 

@@ -5,8 +5,8 @@ Built-in specs (a factory receives the text after the first ``:``, or ``""``, an
 =================  ==========================================================
 ``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.models.greybox`
 ``greybox:euler``  same with the thesis's explicit-Euler discretisation
-``narx:PATH``      thesis NARX nets from a model file, :mod:`quad_modelling.core.models.narx`
-``hybrid:PATH``    physics model + residual net, :mod:`quad_modelling.core.models.hybrid`
+``narx:PATH``      NARX nets from a model file (window, live, multi-step), :mod:`quad_modelling.core.models.narx`
+``hybrid:PATH``    physics model + residual net (window, live, multi-step), :mod:`quad_modelling.core.models.hybrid`
 ``physics``        nonlinear rigid body + rotor map/lag/drag, :mod:`quad_modelling.core.models.physics`
 ``physics:L,A``    same with the disturbance observer's linear/angular histories [s] (0 = off)
 ``dummy``          :class:`~quad_modelling.core.models.base.DummyPredictor`, zero (thesis Fig 5.2)

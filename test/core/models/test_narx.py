@@ -131,6 +131,7 @@ def _rewrite_header(path: Path, out: Path, **changes) -> Path:
     [
         ({"vehicle": "crazyflie21"}, "trained for vehicle 'crazyflie21', not 'linkquad'"),
         ({"format_version": 99}, "format version 99"),
+        ({"format_version": 1}, "model format version 1, this program reads version 2; retrain the model with quad-modelling train"),
         ({"variables": ["vel_x"]}, "variable set"),
         ({"kind": "hybrid"}, "is a 'hybrid' model, expected 'narx'"),
         ({"format": "something.else"}, "not a quad_modelling.narx model file"),
