@@ -26,7 +26,10 @@ Identify the greybox model's motor constants from flights by least squares, on t
 span only (the evaluation span stays unseen): the motor pole A_m and the thrust gain
 K = 2 B_m sqrt(a m g / 4) from the Z acceleration, the drag ratio d/a from the yaw
 acceleration (a is held: only B_m sqrt(a) is identifiable), the thrust gain's battery-voltage
-dependence, and a check of the motor order and spin directions against the config.
+dependence, and a check of the motor order and spin directions against the config. When the
+vehicle file has the physics model's constants, also those (rotor lag and delay, thrust and
+torque constants, rotor drag and its arm, roll/pitch inertias; docs/models.md), fitted on the
+model's own multi-step error with its disturbance observer.
 
 Writes a vehicle YAML (loadable with --vehicle FILE) whose identified constants carry their
 1-sigma uncertainty and a source naming the files and spans used; the 'identification'

@@ -35,6 +35,11 @@ import yaml
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.greybox_fit import BaseFit, identify_base
+from quad_modelling.core.identification.physics_fit import (
+    PhysicsFit,
+    add_physics_constants,
+    identify_physics_if_configured,
+)
 from quad_modelling.core.identification.window_batch import WindowBatch, prepare_windows
 from quad_modelling.core.models.motors import discrete_motor, motor_thrusts
 from quad_modelling.core.preprocess import smooth
@@ -62,6 +67,8 @@ class IdentificationResult:
     files: list[str]
     fit: dict = field(default_factory=dict)
     spins: list[int] = field(default_factory=list)
+    physics: PhysicsFit | None = None
+    physics_note: str = ""
 
     def summary(self) -> str:
         lines = [f"identified from {len(self.spans)} training windows of {len(self.files)} flight(s):"]
@@ -80,6 +87,7 @@ class IdentificationResult:
         for motor in self.motor_check["motors"]:
             lines.append(f"    {motor['name']}: roll {motor['roll']:+.3g} (expect {motor['expect'][0]:+d}), pitch {motor['pitch']:+.3g} "
                          f"(expect {motor['expect'][1]:+d}), yaw {motor['yaw']:+.3g} (expect {motor['expect'][2]:+d})")
+        lines.extend(self.physics.summary() if self.physics is not None else [f"physics model constants {self.physics_note}"])
         return "\n".join(lines)
 
 
@@ -122,6 +130,7 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
     gains = np.array(window_gains)
     finite = np.isfinite(gains)
     spread = float(np.std(gains[finite]) / np.sqrt(finite.sum())) if finite.any() else float("nan")
+    physics, physics_note = identify_physics_if_configured(flights, vehicle, config)
     return IdentificationResult(
         {key: float(fit.values[key]) for key in IDENTIFIED_CONSTANTS}, {key: fit.sigma[key] for key in IDENTIFIED_CONSTANTS},
         float(gain), fit.sigma["thrust_gain_K"], window_gains, voltage, motor_check, spans, files,
@@ -130,7 +139,7 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
              "arm_scale_meaning": "common scale of the motor arm lengths that best fits roll/pitch acceleration "
                                   "(1 = consistent with the configured geometry and inertia)",
              "ground_contact_windows_dropped": int(batch.ground_contact_dropped)},
-        spins=[int(s) for s in vehicle.yaw_signs],
+        spins=[int(s) for s in vehicle.yaw_signs], physics=physics, physics_note=physics_note,
     )
 
 
@@ -206,7 +215,7 @@ def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationRe
         elif key == "thrust_constant" and c.status == "identified":
             entry["source"] = f"{c.source}; held fixed by identify (only B_m sqrt(a) is identifiable from motion)"
         constants[key] = entry
-    return {
+    document = {
         "name": vehicle.name,
         "description": f"{vehicle.description} -- constants identified from flight data",
         "geometry": vehicle.geometry,
@@ -223,6 +232,8 @@ def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationRe
             "fit": result.fit,
         },
     }
+    add_physics_constants(document, result.physics, result.physics_note, source)
+    return document
 
 
 def write_vehicle_yaml(document: dict, path: Path) -> None:

@@ -46,7 +46,9 @@ thinned to one per longest horizon (overlapping horizons share their errors, so 
 not independent); ratios by first-order propagation; :math:`\tau_m` from the curvature of the profile
 :math:`\chi^2(\tau) = \sum_c \mathrm{SSR}_c / s_c^2` on the same thinning, :math:`\sigma_\tau^2 = 2 / \chi^{2\prime\prime}`;
 δ's is the grid's quantisation, one sample period / sqrt(12). A value outside its bounds (:data:`BOUNDS_FACTOR`
-around the starting value; drag from 0) is clipped there and flagged ``at_bound``.
+around the starting value; drag from 0) is clipped there and flagged ``at_bound``. A channel whose normal matrix is
+singular (:data:`MAX_CONDITION`; the flights do not excite it) leaves its constants at the file's values, flagged
+``identifiable: false``.
 """
 
 from __future__ import annotations
@@ -63,7 +65,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
 from quad_modelling.core.models.physics import Observer, delayed_commands, rotor_speeds
 from quad_modelling.core.models.physics_params import PHYSICS_UNITS, PhysicsParameters
-from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
 from quad_modelling.errors import DataError
 
@@ -99,6 +101,10 @@ FITTED = ("rotor_time_constant", "rotor_delay", "rotor_thrust_constant", "rotor_
 
 CHANNELS = ("velocity", "roll", "pitch", "yaw")
 
+MAX_CONDITION = 1e10
+"""Largest condition number of a channel's column-scaled normal matrix: beyond it the flights do not excite the
+channel's constants apart (e.g. collective-only manoeuvres leave roll and pitch unexcited) and they are kept."""
+
 
 def delay_grid(sample_rate: float) -> np.ndarray:
     """Delays searched [s]: whole sample periods from 0 to :data:`DELAY_MAX_S` (the command is sampled; a delay
@@ -116,6 +122,7 @@ class PhysicsFit:
     at_bound: dict[str, bool]
     start: dict[str, float]
     diagnostics: dict = field(default_factory=dict)
+    identifiable: dict[str, bool] = field(default_factory=dict)
 
     def parameters(self, base: PhysicsParameters) -> PhysicsParameters:
         """``base`` with the identified values."""
@@ -127,7 +134,8 @@ class PhysicsFit:
 
     def to_dict(self) -> dict:
         return {key: {"value": self.values[key], "sigma": self.sigma[key], "unit": PHYSICS_UNITS[key],
-                      "bounds": [float(b) for b in self.bounds[key]], "at_bound": self.at_bound[key], "start": self.start[key]}
+                      "bounds": [float(b) for b in self.bounds[key]], "at_bound": self.at_bound[key], "start": self.start[key],
+                      "identifiable": self.identifiable.get(key, True)}
                 for key in FITTED} | {"diagnostics": self.diagnostics}
 
     def summary(self) -> list[str]:
@@ -136,6 +144,9 @@ class PhysicsFit:
                  f"multi-step error vs the observer alone: "
                  + ", ".join(f"{c} {r:.2f}" for c, r in d.get("error_ratio", {}).items()) + "):"]
         for key in FITTED:
+            if not self.identifiable.get(key, True):
+                lines.append(f"  {key} = {self.values[key]:.5g} {PHYSICS_UNITS[key]}: kept, not identifiable from these flights")
+                continue
             flag = "  AT BOUND" if self.at_bound[key] else ""
             change = self.values[key] / self.start[key] if self.start[key] else float("nan")
             lines.append(f"  {key} = {self.values[key]:.5g} ± {self.sigma[key]:.2g} {PHYSICS_UNITS[key]} "
@@ -258,18 +269,37 @@ def _solve(design: dict[str, tuple[np.ndarray, np.ndarray]], thin: int) -> dict[
     out = {}
     for name, (x, y) in design.items():
         # einsum, not BLAS: tall-skinny products are 100x slower with a multithreaded BLAS on a busy 2-core machine
-        gram = np.einsum("ij,ik->jk", x, x)
-        coef = np.linalg.solve(gram, np.einsum("ij,i->j", x, y))
-        resid = y - np.einsum("ij,j->i", x, coef)
+        ssr0 = float(np.einsum("i,i->", y, y))
+        used = _excited_columns(x, len(y))
+        coef = np.full(x.shape[1], np.nan)  # NaN: a constant the flights do not excite
+        cov = np.full((x.shape[1],) * 2, np.nan)
+        if not used:
+            out[name] = {"coef": coef, "cov": cov, "ssr": ssr0, "s2": np.nan, "ssr0": ssr0, "n": len(y)}
+            continue
+        x = x[:, used]
+        coef[used] = np.linalg.solve(np.einsum("ij,ik->jk", x, x), np.einsum("ij,i->j", x, y))
+        resid = y - np.einsum("ij,j->i", x, coef[used])
         ssr = float(np.einsum("i,i->", resid, resid))
         xt = x[::thin]
         s2 = float(np.einsum("i,i->", resid[::thin], resid[::thin])) / max(len(xt) - x.shape[1], 1)
         try:
-            cov = np.linalg.inv(np.einsum("ij,ik->jk", xt, xt)) * s2
+            cov[np.ix_(used, used)] = np.linalg.inv(np.einsum("ij,ik->jk", xt, xt)) * s2
         except np.linalg.LinAlgError:
-            cov = np.full((x.shape[1], x.shape[1]), np.nan)
-        out[name] = {"coef": coef, "cov": cov, "ssr": ssr, "s2": s2, "ssr0": float(np.einsum("i,i->", y, y)), "n": len(y)}
+            pass  # the thinned rows alone are singular: the sigmas stay NaN
+        out[name] = {"coef": coef, "cov": cov, "ssr": ssr, "s2": s2, "ssr0": ssr0, "n": len(y)}
     return out
+
+
+def _excited_columns(x: np.ndarray, rows: int) -> list[int]:
+    """The leading columns of a design whose column-scaled normal matrix has a condition number within
+    :data:`MAX_CONDITION` (columns are ordered by importance: the thrust or torque gain first, then drag terms)."""
+    for k in range(x.shape[1], 0, -1):
+        part = x[:, :k]
+        gram = np.einsum("ij,ik->jk", part, part)
+        scale = np.sqrt(np.diag(gram))
+        if rows > k and np.all(scale > 0) and np.linalg.cond(gram / np.outer(scale, scale)) <= MAX_CONDITION:
+            return list(range(k))
+    return []
 
 
 def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
@@ -282,7 +312,7 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
 
     def objective(log_tau: float, delay: float) -> float:
         fit = _solve(_design(p, segments, float(np.exp(log_tau)), delay, observer), 1)
-        return sum(fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS)
+        return sum(fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS if fit[c]["ssr0"] > 0)
 
     lo, hi = TIME_CONSTANT_RANGE_S
     grid = delay_grid(rate)
@@ -347,28 +377,34 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
         bounds[key] = (0.0, DRAG_MAX_FACTOR * start[key] if start[key] > 0 else np.inf)
     reach = BOUNDS_FACTOR * max(abs(start["rotor_drag_arm"]), 0.1 * vehicle.value("arm_length"))
     bounds["rotor_drag_arm"] = (-reach, reach)
-    at_bound = {}
+    if not any(np.isfinite(fit[c]["coef"]).any() for c in CHANNELS):  # nothing excited: the lag and delay neither
+        values["rotor_time_constant"] = values["rotor_delay"] = float("nan")
+    at_bound, identifiable = {}, {}
     for key in FITTED:
         low, high = bounds[key]
         value = values[key]
+        identifiable[key] = bool(np.isfinite(value))
+        if not identifiable[key]:
+            values[key], sigma[key], at_bound[key] = start[key], float("nan"), False
+            continue
         if key == "rotor_time_constant":
             at_bound[key] = bool(min(abs(np.log(value / low)), abs(np.log(value / high))) < 0.05)
         elif key == "rotor_delay":
             at_bound[key] = bool(value >= high - 0.5 / rate)
         else:
-            at_bound[key] = bool(not np.isfinite(value) or value <= low or value >= high)
-            values[key] = float(np.clip(value, low, high)) if np.isfinite(value) else start[key]
+            at_bound[key] = bool(value <= low or value >= high)
+            values[key] = float(np.clip(value, low, high))
         values[key] = float(values[key])
         sigma[key] = float(sigma[key])
     diagnostics = {
         "anchors": int(sum(len(s.anchors) for s in segments)), "segments": len(segments),
-        "error_ratio": {c: fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS},
+        "error_ratio": {c: fit[c]["ssr"] / fit[c]["ssr0"] if fit[c]["ssr0"] > 0 else float("nan") for c in CHANNELS},
         "horizons_s": list(FIT_HORIZONS_S), "observer": {"linear_s": observer.linear_s, "angular_s": observer.angular_s, "angular_trim": observer.angular_trim}, "anchor_thinning": thin,
         "delay_profile": [{"delay_s": d, "time_constant_s": t, "objective": f} for f, t, d in profile],
         "held": {"rotor_speed_gain": p.speed_gain, "rotor_speed_offset": p.speed_offset, "izz": p.inertia[2]},
         "seconds": time.perf_counter() - began,
     }
-    return PhysicsFit(values, sigma, bounds, at_bound, start, diagnostics)
+    return PhysicsFit(values, sigma, bounds, at_bound, start, diagnostics, identifiable)
 
 
 def _tau_sigma(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: float, observer: Observer, thin: int,
@@ -379,7 +415,49 @@ def _tau_sigma(p: PhysicsParameters, segments: list[_Segment], tau: float, delay
 
     def chi2(value: float) -> float:
         fit = _solve(_design(p, segments, value, delay, observer), 1)
-        return sum(fit[c]["ssr"] / (thin * s2[c]) for c in CHANNELS)
+        return sum(fit[c]["ssr"] / (thin * s2[c]) for c in CHANNELS if np.isfinite(s2[c]) and s2[c] > 0)
 
     curvature = (chi2(tau + h) - 2.0 * chi2(tau) + chi2(tau - h)) / h**2
     return float(np.sqrt(2.0 / curvature)) if curvature > 0 else float("nan")
+
+
+def identify_physics_if_configured(flights: Sequence[FlightLog], vehicle: VehicleConfig,
+                                   config: EvaluationConfig) -> tuple[PhysicsFit | None, str]:
+    """What ``quad-modelling identify`` runs: (the physics fit, "") or (None, why not) when the vehicle file has no
+    physics constants or the training span has no usable anchor (the greybox identification still runs)."""
+    missing = vehicle.missing(PHYSICS_KEYS)
+    if missing:
+        return None, f"not identified: the vehicle file has no physics constants ({', '.join(missing)})"
+    try:
+        return identify_physics(flights, vehicle, config), ""
+    except DataError as err:
+        return None, f"not identified: {err}"
+
+
+def add_physics_constants(document: dict, fit: PhysicsFit | None, note: str, source: str) -> None:
+    """Write the identified physics constants (value, 1-sigma, source, at-bound flag) into a vehicle ``document``'s
+    ``constants`` and the fit's details into ``identification.physics``; without a fit only the note."""
+    identification = document.setdefault("identification", {})
+    if fit is None:
+        identification["physics"] = {"note": note}
+        return
+    for key in FITTED:
+        entry = document["constants"][key]
+        if not fit.identifiable.get(key, True):
+            entry["source"] = f"{entry['source']}; kept: not identifiable from the training flights"
+            continue
+        entry.update(value=fit.values[key], source=source, sigma=fit.sigma[key])
+        if fit.at_bound[key]:
+            entry["source"] = f"{source}; AT BOUND {list(fit.bounds[key])} {PHYSICS_UNITS[key]}"
+    identification["physics"] = _plain(fit.to_dict())
+
+
+def _plain(value):
+    """``value`` with numpy scalars and tuples made YAML-plain (floats, lists)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value

@@ -1,0 +1,122 @@
+"""Identification of the physics model: known constants recovered from a simulator flight; on the bundled bag
+finite sigmas, at-bound flags, and the identified vehicle file round trip through ``identify``."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from quad_modelling.core.identification.identify import identified_vehicle_document, identify
+from quad_modelling.core.identification.physics_fit import FITTED, identify_physics
+from quad_modelling.core.models.physics import Observer, PhysicsPredictor
+from quad_modelling.core.sim.params import sim_params_for
+from quad_modelling.core.sim.simulate import simulate
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
+from quad_modelling.core.windows import EvaluationConfig
+from quad_modelling.io.loader import load_flight
+from test.conftest import REPO
+
+CF = load_vehicle("crazyflie21")
+BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
+SHORT = EvaluationConfig.preset("short")
+
+
+@pytest.fixture(scope="module")
+def sim_flight():
+    """A 40 s simulated Crazyflie flight with known constants: motor lag, rotor drag and gyroscopic torques on;
+    the stabiliser at the 100 Hz log rate (the logged command is the applied one) and noise-free sensors, so
+    the only differences from the physics model are the simulator's full nonlinear forms."""
+    params = sim_params_for(CF)
+    quiet = dataclasses.replace(params.sensors, gyro_noise=0.0, gyro_bias=0.0, gyro_drift=0.0, acc_noise=0.0, acc_bias=0.0,
+                                acc_drift=0.0, mocap_position_noise=0.0, mocap_attitude_noise=0.0)
+    params = params.replace(control=dataclasses.replace(params.control, rate=100.0), sensors=quiet)
+    log = simulate("crazyflie21", ("motor_lag", "rotor_drag", "gyroscopic"), seed=3, duration=40.0, params=params)
+    return log, params
+
+
+@pytest.fixture(scope="module")
+def bag():
+    return load_flight(BAG, CF)
+
+
+def test_identification_recovers_the_simulator_constants(sim_flight):
+    """Speed map held at the simulator's (k_u = -B_m/A_m, no offset), the rest started from the literature values
+    and fitted with the measuring observer (angular_trim off, the structure the simulator has). Tolerances: the
+    time constant and thrust/torque constants, inertias 3 % (the fit found < 1 %); the rotor drag and its arm
+    25 % (the simulator applies drag per rotor at its hub with each rotor's speed, the model the summed speed at
+    one arm: a different form)."""
+    log, params = sim_flight
+    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": 0.0}, "simulator speed map")
+    fit = identify_physics([log], start, EvaluationConfig.preset("short", train="0%:100%"), Observer(0.5, 0.5, angular_trim=False))
+    truth = {
+        "rotor_time_constant": params.motor_time_constant, "rotor_thrust_constant": CF.value("thrust_constant"),
+        "rotor_torque_constant": CF.value("drag_constant"), "physics_ixx": CF.value("ixx"), "physics_iyy": CF.value("iyy"),
+    }
+    for key, value in truth.items():
+        assert fit.values[key] == pytest.approx(value, rel=0.03), key
+    assert fit.values["rotor_delay"] == 0.0
+    assert fit.values["rotor_drag_xy"] == pytest.approx(params.rotor_drag.horizontal, rel=0.25)
+    assert fit.values["rotor_drag_z"] == pytest.approx(params.rotor_drag.vertical, rel=0.25)
+    assert fit.values["rotor_drag_arm"] == pytest.approx(params.geometry.rotor_plane_z, rel=0.25)
+    assert not any(fit.at_bound.values())
+    assert all(np.isfinite(fit.sigma[key]) and fit.sigma[key] > 0 for key in FITTED)
+
+
+def test_identification_on_the_bundled_bag_has_finite_sigmas_and_flags_values_at_their_bounds(bag):
+    fit = identify_physics([bag], CF, SHORT)
+    assert all(np.isfinite(fit.sigma[key]) and fit.sigma[key] > 0 for key in FITTED)
+    for key in FITTED:
+        low, high = fit.bounds[key]
+        assert low <= fit.values[key] <= high
+    # a starting torque constant 1000x too large puts the estimate below start / 10: clipped there and flagged
+    far = CF.with_values({"rotor_torque_constant": CF.value("rotor_torque_constant") * 1000}, "test: far start")
+    flagged = identify_physics([bag], far, SHORT)
+    assert flagged.at_bound["rotor_torque_constant"]
+    assert flagged.values["rotor_torque_constant"] == pytest.approx(far.value("rotor_torque_constant") / 10)
+    assert flagged.values["rotor_thrust_constant"] == pytest.approx(fit.values["rotor_thrust_constant"], rel=1e-9)
+
+
+def test_identify_writes_the_physics_constants_into_a_loadable_vehicle(bag, tmp_path):
+    result = identify([bag], CF, SHORT)
+    assert result.physics is not None
+    document = identified_vehicle_document(CF, result, SHORT.train)
+    for key in FITTED:
+        entry = document["constants"][key]
+        assert entry["value"] == result.physics.values[key] and entry["sigma"] == result.physics.sigma[key]
+        assert "identified from" in entry["source"]
+    assert document["identification"]["physics"]["rotor_delay"]["unit"] == "s"
+    path = tmp_path / "cf.yaml"
+    from quad_modelling.core.identification.identify import write_vehicle_yaml
+
+    write_vehicle_yaml(document, path)
+    vehicle = VehicleConfig.from_yaml(path)
+    model = PhysicsPredictor(vehicle)
+    assert model.params.thrust_constant == result.physics.values["rotor_thrust_constant"]
+    assert "physics model constants" in result.summary()
+
+
+def test_identify_without_physics_constants_says_so_and_still_identifies_the_greybox(bag):
+    doc_vehicle = VehicleConfig(**{**CF.__dict__, "constants": {k: c for k, c in CF.constants.items() if not k.startswith(("rotor_", "physics_"))}})
+    result = identify([bag], doc_vehicle, SHORT)
+    assert result.physics is None and "rotor_speed_gain" in result.physics_note
+    assert "not identified" in result.summary()
+
+
+def test_constants_the_flights_do_not_excite_are_kept_and_flagged():
+    """Collective-only flights of the linear model (no roll, pitch or yaw commands): the roll/pitch inertias, the
+    drag arm and the torque constant are not identifiable -- kept at the file's values with a NaN sigma and
+    ``identifiable`` False -- while the thrust constant is fitted (the flights are flown by the thesis's linear
+    model, so only near the LinkQuad's value: within 10 %)."""
+    from test.core.flightgen import linear_flight
+
+    linkquad = load_vehicle("linkquad")
+    logs = [linear_flight(linkquad, duration=42.0, seed=seed) for seed in range(2)]
+    fit = identify_physics(logs, linkquad, SHORT)
+    for key in ("physics_ixx", "physics_iyy", "rotor_drag_arm", "rotor_torque_constant"):
+        assert not fit.identifiable[key] and fit.values[key] == linkquad.value(key) and np.isnan(fit.sigma[key])
+        assert not fit.at_bound[key]
+    assert fit.identifiable["rotor_thrust_constant"]
+    assert fit.values["rotor_thrust_constant"] == pytest.approx(linkquad.value("rotor_thrust_constant"), rel=0.1)
+    assert "kept, not identifiable" in "\n".join(fit.summary())
