@@ -5,7 +5,8 @@ integration, which numpy cannot differentiate. These functions are the numpy one
 :mod:`~quad_modelling.core.models.physics` (same equations, same order of operations, same symbols),
 written on torch tensors of any float dtype: :func:`steady_rotor_speed`, :func:`rotor_step`,
 :func:`rotor_acceleration`, :func:`accelerations`, :func:`rotation_increment`
-(:func:`quad_modelling.core.frames.rotation_increment`) and :func:`step`. In float64 they give the
+(:func:`quad_modelling.core.frames.rotation_increment`), :func:`limit_norm` (the rate and speed limits) and
+:func:`step`. In float64 they give the
 numpy step to 1e-9 (test); the model's equations are documented once, in the physics module.
 
 A state is a :class:`TorchState` of tensors shaped as :class:`~quad_modelling.core.models.physics.PhysicsState`'s;
@@ -20,7 +21,8 @@ from typing import NamedTuple
 import numpy as np
 import torch
 
-from quad_modelling.core.models.physics import PhysicsParameters, PhysicsState
+from quad_modelling.core.flight_log import GYRO_FULL_SCALE
+from quad_modelling.core.models.physics import MAX_SPEED_MPS, PhysicsParameters, PhysicsState
 from quad_modelling.core.vehicle import GRAVITY
 
 
@@ -143,6 +145,12 @@ def rotation_increment(rot: torch.Tensor, rates_b: torch.Tensor, dt: torch.Tenso
     return matmul3(rot, eye + a[:, None, None] * k + b[:, None, None] * matmul3(k, k))
 
 
+def limit_norm(vectors: torch.Tensor, limit: float) -> torch.Tensor:
+    """Rows of ``vectors`` scaled down to norm ``limit`` where longer (physics._limit_norm)."""
+    norm = torch.linalg.vector_norm(vectors, dim=1, keepdim=True)
+    return torch.where(norm > limit, vectors * (limit / torch.clamp_min(norm, 1e-12)), vectors)
+
+
 def continue_yaw(previous: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
     """The yaw of ``rot`` unwrapped next to ``previous`` [rad]."""
     psi = torch.atan2(rot[:, 1, 0], rot[:, 0, 0])
@@ -153,8 +161,8 @@ def step(p: TorchParameters, state: TorchState, u: torch.Tensor, dt: torch.Tenso
          angular_b: torch.Tensor) -> TorchState:
     """One semi-implicit Euler step of :func:`quad_modelling.core.models.physics.step`, ``dt`` (B,) [s]."""
     acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, state.rotor, u))
-    rates = state.rates + dt[:, None] * (ang_acc + angular_b)
+    rates = limit_norm(state.rates + dt[:, None] * (ang_acc + angular_b), GYRO_FULL_SCALE)
     rot = rotation_increment(state.rot, rates, dt)
-    vel = state.vel_n + dt[:, None] * (acc_n + linear_n)
+    vel = limit_norm(state.vel_n + dt[:, None] * (acc_n + linear_n), MAX_SPEED_MPS)
     pos = state.pos_n + dt[:, None] * vel
     return TorchState(pos, vel, rot, rates, rotor_step(p, state.rotor, u, dt), continue_yaw(state.yaw, rot))
