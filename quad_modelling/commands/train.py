@@ -6,7 +6,7 @@ import argparse
 import sys
 import time
 
-from quad_modelling.core.models.hybrid_training import HYBRID_HIDDEN
+from quad_modelling.core.models.hybrid_training import HYBRID_HIDDEN, HYBRID_ROLLOUT
 from quad_modelling.core.models.narx_training import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
 from quad_modelling.core.models.rollout_training import VAL_FRACTION
 from quad_modelling.errors import ConfigError
@@ -62,8 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="rollout (default: closed-loop fine-tuning, early stopping) or thesis (series-parallel only)")
     parser.add_argument("--epochs", type=int, help="series-parallel epochs (L-BFGS steps; thesis 25, rollout pre-training 3)")
     parser.add_argument("--horizon", type=int, default=50, help="rollout: closed-loop steps per training window (default 50)")
-    parser.add_argument("--rollout-epochs", type=int, default=DEFAULT_ROLLOUT.max_epochs, help="rollout: most fine-tuning epochs")
-    parser.add_argument("--patience", type=int, default=DEFAULT_ROLLOUT.patience, help="rollout: epochs without a better validation loss before stopping")
+    parser.add_argument("--rollout-epochs", type=int, help=f"rollout: most fine-tuning epochs (NARX {DEFAULT_ROLLOUT.max_epochs}, hybrid {HYBRID_ROLLOUT.max_epochs})")
+    parser.add_argument("--patience", type=int, help=f"rollout: epochs without a better validation loss before stopping (NARX {DEFAULT_ROLLOUT.patience}, hybrid {HYBRID_ROLLOUT.patience})")
     parser.add_argument("--val-fraction", type=float, default=VAL_FRACTION,
                         help="rollout: fraction of the training flights held back whole for early stopping (default 0.2)")
     parser.add_argument("--val-flights", nargs="+", metavar="BAG", help="rollout: validation flights (early stopping only) instead of --val-fraction")
@@ -111,11 +111,21 @@ def training_configs(args: argparse.Namespace):
     shape = {"hidden": args.hidden, "output_delays": args.delays, "input_delays": tuple(range(args.input_delays)), "epochs": epochs}
     if args.training == "thesis" or args.hybrid:
         return NarxConfig(**shape), None
-    if not (1 <= args.horizon <= MAX_DELAYS and 0 <= args.rollout_epochs <= MAX_EPOCHS and args.patience >= 1):
-        raise ConfigError(f"--horizon must lie in [1, {MAX_DELAYS}], --rollout-epochs in [0, {MAX_EPOCHS}], --patience >= 1")
+    rollout_defaults(args, DEFAULT_ROLLOUT)
     if not 0 <= args.val_fraction < 1:
         raise ConfigError(f"--val-fraction {args.val_fraction}: must lie in [0, 1)")
     return rollout_preset(**shape, horizon=args.horizon, max_epochs=args.rollout_epochs, patience=args.patience)
+
+
+def rollout_defaults(args: argparse.Namespace, defaults) -> None:
+    """Fill --rollout-epochs and --patience from the model's defaults (``defaults``, a RolloutConfig) when not given,
+    then check --horizon, --rollout-epochs and --patience (ConfigError naming the flag)."""
+    if args.rollout_epochs is None:
+        args.rollout_epochs = defaults.max_epochs
+    if args.patience is None:
+        args.patience = defaults.patience
+    if not (1 <= args.horizon <= MAX_DELAYS and 0 <= args.rollout_epochs <= MAX_EPOCHS and args.patience >= 1):
+        raise ConfigError(f"--horizon must lie in [1, {MAX_DELAYS}], --rollout-epochs in [0, {MAX_EPOCHS}], --patience >= 1")
 
 
 def hybrid_config(args: argparse.Namespace):
@@ -127,8 +137,7 @@ def hybrid_config(args: argparse.Namespace):
 
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed}: must be a non-negative integer")
-    if not (1 <= args.horizon <= MAX_DELAYS and 0 <= args.rollout_epochs <= MAX_EPOCHS and args.patience >= 1):
-        raise ConfigError(f"--horizon must lie in [1, {MAX_DELAYS}], --rollout-epochs in [0, {MAX_EPOCHS}], --patience >= 1")
+    rollout_defaults(args, HYBRID_ROLLOUT)
     if not 0 <= args.val_fraction < 1:
         raise ConfigError(f"--val-fraction {args.val_fraction}: must lie in [0, 1)")
     try:

@@ -59,6 +59,11 @@ HYBRID_HIDDEN = (32, 32)
 """Default widths of the residual net's hidden layers (21 inputs, 6 outputs: about 1.9k weights)."""
 
 
+HYBRID_ROLLOUT = RolloutConfig(horizon=50, stride=1, val_stride=5, batch_size=256, max_epochs=12, patience=3,
+                               learning_rate=2e-3, grad_clip=1.0, windows_per_epoch=8192)
+"""Default rollout settings of the hybrid: 8192 windows (32 Adam steps) per epoch, at most 12 epochs, patience 3."""
+
+
 @dataclass(frozen=True)
 class HybridTrainingConfig:
     """Settings of :func:`train_hybrid` (defaults: what the leave-one-shape-out bench uses).
@@ -70,9 +75,7 @@ class HybridTrainingConfig:
 
     hidden: tuple[int, ...] = HYBRID_HIDDEN
     observer: Observer = field(default_factory=Observer)
-    rollout: RolloutConfig = field(default_factory=lambda: RolloutConfig(
-        horizon=50, stride=1, val_stride=5, batch_size=256, max_epochs=12, patience=3, learning_rate=2e-3,
-        grad_clip=1.0, windows_per_epoch=8192))
+    rollout: RolloutConfig = field(default_factory=lambda: HYBRID_ROLLOUT)
     val_fraction: float = VAL_FRACTION
 
     def __post_init__(self) -> None:
