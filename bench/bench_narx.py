@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 from quad_modelling.core.evaluation.windowed import evaluate  # noqa: E402
 from quad_modelling.core.flight_log import FlightLog, FlightMeta  # noqa: E402
 from quad_modelling.core.models.greybox import GreyboxPredictor  # noqa: E402
-from quad_modelling.core.models.hybrid import train_hybrid_on_flights  # noqa: E402
+from quad_modelling.core.models.hybrid_training import train_hybrid_on_flights  # noqa: E402
 from quad_modelling.core.models.narx import (  # noqa: E402
     NarxConfig,
     NarxModel,
@@ -128,7 +128,7 @@ def compare(name: str, train_logs, eval_logs, vehicle, config: EvaluationConfig)
     train_narx_on_flights(train_logs, spans, NarxConfig(), seed=0).save(WORK / f"{name}_narx.npz", force=True)
     narx_s = time.perf_counter() - started
     started = time.perf_counter()
-    train_hybrid_on_flights(train_logs, spans, vehicle, NarxConfig(), seed=0).save(WORK / f"{name}_hybrid.npz", force=True)
+    train_hybrid_on_flights(train_logs, spans, vehicle, seed=0).save(WORK / f"{name}_hybrid.npz", force=True)
     hybrid_s = time.perf_counter() - started
     models = [make_model(spec, vehicle) for spec in
               ("dummy", "greybox", f"narx:{WORK / f'{name}_narx.npz'}", f"hybrid:{WORK / f'{name}_hybrid.npz'}")]

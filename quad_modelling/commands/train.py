@@ -1,4 +1,4 @@
-"""``quad-modelling train``: train the NARX (or hybrid greybox+NARX) model on flights."""
+"""``quad-modelling train``: train the NARX (or hybrid physics + residual net) model on flights."""
 
 from __future__ import annotations
 
@@ -6,6 +6,7 @@ import argparse
 import sys
 import time
 
+from quad_modelling.core.models.hybrid_training import HYBRID_HIDDEN, HYBRID_ROLLOUT
 from quad_modelling.core.models.narx_training import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
 from quad_modelling.core.models.rollout_training import VAL_FRACTION
 from quad_modelling.errors import ConfigError
@@ -22,7 +23,7 @@ MAX_DELAYS = 1000
 """Most delayed outputs or input taps (10 s at 100 Hz; the thesis used 20)."""
 
 NAME = "train"
-HELP = "train the NARX blackbox model (or the hybrid greybox+NARX model) and write a model file"
+HELP = "train the NARX blackbox model (or the hybrid physics + residual net model) and write a model file"
 DESCRIPTION = """\
 Train the NARX model (thesis chapter 4: six nets for the X/Y/Z velocities and roll/pitch/yaw
 rates, 10 sigmoid hidden units, 20 delayed outputs) on the training span of one or more flights,
@@ -33,8 +34,10 @@ and the NARX predictor node load.
 closed-loop fine-tuning over --horizon steps from every start (mini-batches, Adam), early-stopped
 on whole training flights held back for validation (--val-fraction, or --val-flights) with the
 best epoch kept. --training thesis: the thesis's training exactly (series-parallel, 25 L-BFGS
-epochs, 10 dB noise on the rates). With --hybrid, train the residual nets of the hybrid model
-(linear greybox + NARX on its residual, thesis training) instead; evaluate it with --model hybrid:MODEL.
+epochs, 10 dB noise on the rates). With --hybrid, train the hybrid model instead: the vehicle's
+nonlinear physics model with a residual net (--hybrid-hidden) correcting its accelerations inside
+the integration, trained through the physics step with the same rollout loss, horizon, early
+stopping and validation flights; evaluate it with --model hybrid:MODEL.
 
 Spans follow the evaluation: take-off/landing are dropped (--drop, thesis 30:22 s) and --train
 A:B is seconds from each flight's start (thesis 30:150) or percent of the flying part
@@ -59,8 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="rollout (default: closed-loop fine-tuning, early stopping) or thesis (series-parallel only)")
     parser.add_argument("--epochs", type=int, help="series-parallel epochs (L-BFGS steps; thesis 25, rollout pre-training 3)")
     parser.add_argument("--horizon", type=int, default=50, help="rollout: closed-loop steps per training window (default 50)")
-    parser.add_argument("--rollout-epochs", type=int, default=DEFAULT_ROLLOUT.max_epochs, help="rollout: most fine-tuning epochs")
-    parser.add_argument("--patience", type=int, default=DEFAULT_ROLLOUT.patience, help="rollout: epochs without a better validation loss before stopping")
+    parser.add_argument("--rollout-epochs", type=int, help=f"rollout: most fine-tuning epochs (NARX {DEFAULT_ROLLOUT.max_epochs}, hybrid {HYBRID_ROLLOUT.max_epochs})")
+    parser.add_argument("--patience", type=int, help=f"rollout: epochs without a better validation loss before stopping (NARX {DEFAULT_ROLLOUT.patience}, hybrid {HYBRID_ROLLOUT.patience})")
     parser.add_argument("--val-fraction", type=float, default=VAL_FRACTION,
                         help="rollout: fraction of the training flights held back whole for early stopping (default 0.2)")
     parser.add_argument("--val-flights", nargs="+", metavar="BAG", help="rollout: validation flights (early stopping only) instead of --val-fraction")
@@ -68,7 +71,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--delays", type=int, default=20, help="delayed outputs fed back (thesis 20 = 0.2 s at 100 Hz)")
     parser.add_argument("--input-delays", type=int, default=20, help="engine-command taps u(t)..u(t-N+1) (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (weights init, noise)")
-    parser.add_argument("--hybrid", action="store_true", help="train the hybrid model's residual nets on the greybox")
+    parser.add_argument("--hybrid", action="store_true", help="train the hybrid model: physics model + residual net (rollout loss)")
+    parser.add_argument("--hybrid-hidden", metavar="W[,W...]", default=",".join(map(str, HYBRID_HIDDEN)),
+                        help="hybrid: widths of the residual net's tanh hidden layers (default %(default)s)")
     parser.add_argument("--force", action="store_true", help="overwrite an existing model file")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -106,11 +111,44 @@ def training_configs(args: argparse.Namespace):
     shape = {"hidden": args.hidden, "output_delays": args.delays, "input_delays": tuple(range(args.input_delays)), "epochs": epochs}
     if args.training == "thesis" or args.hybrid:
         return NarxConfig(**shape), None
-    if not (1 <= args.horizon <= MAX_DELAYS and 0 <= args.rollout_epochs <= MAX_EPOCHS and args.patience >= 1):
-        raise ConfigError(f"--horizon must lie in [1, {MAX_DELAYS}], --rollout-epochs in [0, {MAX_EPOCHS}], --patience >= 1")
+    rollout_defaults(args, DEFAULT_ROLLOUT)
     if not 0 <= args.val_fraction < 1:
         raise ConfigError(f"--val-fraction {args.val_fraction}: must lie in [0, 1)")
     return rollout_preset(**shape, horizon=args.horizon, max_epochs=args.rollout_epochs, patience=args.patience)
+
+
+def rollout_defaults(args: argparse.Namespace, defaults) -> None:
+    """Fill --rollout-epochs and --patience from the model's defaults (``defaults``, a RolloutConfig) when not given,
+    then check --horizon, --rollout-epochs and --patience (ConfigError naming the flag)."""
+    if args.rollout_epochs is None:
+        args.rollout_epochs = defaults.max_epochs
+    if args.patience is None:
+        args.patience = defaults.patience
+    if not (1 <= args.horizon <= MAX_DELAYS and 0 <= args.rollout_epochs <= MAX_EPOCHS and args.patience >= 1):
+        raise ConfigError(f"--horizon must lie in [1, {MAX_DELAYS}], --rollout-epochs in [0, {MAX_EPOCHS}], --patience >= 1")
+
+
+def hybrid_config(args: argparse.Namespace):
+    """The HybridTrainingConfig of the options (--horizon, --rollout-epochs, --patience, --val-fraction,
+    --hybrid-hidden), validated (ConfigError naming the flag)."""
+    import dataclasses
+
+    from quad_modelling.core.models.hybrid_training import HybridTrainingConfig
+
+    if args.seed < 0:
+        raise ConfigError(f"--seed {args.seed}: must be a non-negative integer")
+    rollout_defaults(args, HYBRID_ROLLOUT)
+    if not 0 <= args.val_fraction < 1:
+        raise ConfigError(f"--val-fraction {args.val_fraction}: must lie in [0, 1)")
+    try:
+        hidden = tuple(int(w) for w in args.hybrid_hidden.split(","))
+    except ValueError as err:
+        raise ConfigError(f"--hybrid-hidden {args.hybrid_hidden!r}: expected layer widths such as 32,32") from err
+    if not hidden or not all(1 <= w <= MAX_HIDDEN for w in hidden) or len(hidden) > 4:
+        raise ConfigError(f"--hybrid-hidden {args.hybrid_hidden!r}: one to four widths in [1, {MAX_HIDDEN}]")
+    default = HybridTrainingConfig()
+    rollout = dataclasses.replace(default.rollout, horizon=args.horizon, max_epochs=args.rollout_epochs, patience=args.patience)
+    return HybridTrainingConfig(hidden=hidden, rollout=rollout, val_fraction=args.val_fraction)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -124,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
 
     output = Path(args.output)
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle)])  # fail before minutes of training
-    config, rollout = training_configs(args)
+    config, rollout = (hybrid_config(args), None) if args.hybrid else training_configs(args)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     logs = [load_flight(path, given) for path in [*args.flights, *(args.val_flights or [])]]
     print_gap_warnings(logs)
@@ -133,10 +171,10 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     progress = not args.quiet and sys.stderr.isatty()
     if args.hybrid:
-        from quad_modelling.core.models.hybrid import train_hybrid_on_flights
+        from quad_modelling.core.models.hybrid_training import train_hybrid_on_flights
 
-        model = train_hybrid_on_flights(logs, spans, given or load_vehicle(logs[0].meta.vehicle), config, args.seed, progress)
-        samples = model.residual.training["samples"]
+        model = train_hybrid_on_flights(logs, spans, given or load_vehicle(logs[0].meta.vehicle), config, args.seed, progress, val_flights)
+        samples = model.training["samples"]
     else:
         model = train_narx_on_flights(logs, spans, config, args.seed, progress, rollout, args.val_fraction, val_flights)
         samples = model.training["samples"]

@@ -67,9 +67,17 @@ def test_train_refuses_to_overwrite_and_empty_spans(tmp_path, capsys):
     assert "--horizon must lie in" in capsys.readouterr().err
 
 
-def test_train_hybrid_writes_a_hybrid_model(tmp_path):
+def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys):
     out = tmp_path / "hybrid.npz"
-    assert main(["train", BAG, "-o", str(out), "--hybrid", *SMALL]) == 0
+    args = ["train", BAG, "-o", str(out), "--hybrid", "--preset", "short", "--horizon", "5", "--rollout-epochs", "1",
+            "--hybrid-hidden", "6,4", "--seed", "2", "--quiet"]
+    assert main(args) == 0
     model = load_hybrid(out, load_vehicle("crazyflie21"))
-    assert model.residual.u_mean.shape == (10,)  # 4 engine commands + 6 greybox velocities/rates
-    assert model.residual.training["greybox"]["discretisation"] == "zoh"
+    assert model.net.hidden == (6, 4) and model.net.n_inputs == 21 and model.net.n_outputs == 6
+    assert model.training["seed"] == 2 and model.training["config"]["rollout"]["horizon"] == 5
+    assert model.training["rollout"]["epochs_run"] == 1
+    (span,) = model.training["spans"]  # preset short: drop 5 s, train on the first 60 % of the rest
+    assert abs(span[0] - 5.0) < 0.011 and abs(span[1] - (5.0 + 0.6 * 32.3)) < 0.1
+    assert "hybrid:" in capsys.readouterr().out
+    assert main(["train", BAG, "-o", str(tmp_path / "bad.npz"), "--hybrid", "--preset", "short", "--hybrid-hidden", "0,x"]) == 2
+    assert "--hybrid-hidden '0,x'" in capsys.readouterr().err

@@ -1,219 +1,301 @@
-"""Hybrid model (beyond the thesis): linear greybox + a NARX net on its residual.
+r"""Hybrid model (``hybrid:PATH``): the nonlinear physics model plus a residual net inside its integration loop.
 
-The greybox (:class:`~quad_modelling.core.models.greybox.GreyboxPredictor`) predicts
-the trimmed 18 variables ``g`` of a window. Six NARX nets (the architecture of
-:mod:`quad_modelling.core.models.narx`) predict the greybox's residual on the six
-velocities/rates,
-
-.. math::
-
-    r_k(t) = y_{m,k}(t) − g_k(t),
-
-    r_k(t) = f_k\\big([u(t−d), g_{1..6}(t−d)]_{d ∈ D_u},\\ r_k(t−n_y), …, r_k(t−1)\\big),
-
-i.e. the exogenous inputs are the four engine commands *and* the greybox's six
-predicted velocities/rates. Training is series-parallel on windows cut from the
-training spans exactly as the evaluation cuts them (``window_s``, greybox
-re-anchored on the first ``warm_s`` of each window), so the residual the net
-learns is the one it will meet. Prediction: greybox, then the residual nets in
-closed loop from the first measured residuals, and
+Base: :mod:`quad_modelling.core.models.physics` (state :math:`x = (p_N, v_N, R, \omega, \Omega)`, its
+semi-implicit Euler :func:`~quad_modelling.core.models.physics.step` over the real sample intervals, its command
+delay, its causal anchor). At every step k a small tanh MLP (:class:`~quad_modelling.core.models.residual_net.ResidualNet`)
+corrects the linear and angular accelerations from the current model state and command:
 
 .. math::
 
-    ŷ_k = g_k + r̂_k,\\quad  ŝ = g_s + ∫ r̂ \\,dt,\\quad  â = g_a + dr̂/dt
+    f_k = \big(R_k^T v_{N,k},\ R_k^T e_z,\ \omega_k,\ \tilde u_k,\ \Omega_k,\ u_k\big) \in \mathbb{R}^{21}, \qquad
+    (\Delta a_{B,k}, \Delta\alpha_k) = \mathrm{net}(f_k)
 
-for velocities/rates, positions/angles and accelerations respectively (the
-greybox's own accelerations are kept and corrected, not re-derived).
+    \dot v_N = a_{phys} + \hat d_v + R_k \Delta a_{B,k}, \qquad
+    \dot\omega = \alpha_{phys} + \hat d_\omega + \Delta\alpha_k
 
-Model files are NARX model files of kind ``hybrid``; their header also stores
-the greybox discretisation, window settings and the vehicle constants the
-greybox used, and loading refuses a vehicle whose constants changed.
+(:math:`R_k^T v_N` body-frame velocity [m/s, FRD], :math:`R_k^T e_z` the gravity direction in B (roll and
+pitch, yaw-free), :math:`\omega` body rates [rad/s], :math:`\tilde u` the commands the rotors answer (the physics
+model's delayed commands, :func:`~quad_modelling.core.models.physics.delayed_commands`), :math:`\Omega` rotor speeds
+[rad/s], :math:`u_k` the command logged at sample k (the controller's newest, which the rotors answer only after
+the delay; a model input, like every command); :math:`\Delta a_B` [m/s², FRD], :math:`\Delta\alpha` [rad/s², FRD]). The corrected accelerations are
+handed to the physics step as its per-step disturbance, so the hybrid integrates exactly as the physics model
+does and reduces to it when the net's last layer is zero (a fresh net).
+
+Causality. Every net input is the model's own predicted state and the command of that sample, so a
+prediction from anchor a uses the measurements up to row a only (through the physics anchor). The constant
+disturbance :math:`\hat d = (\hat d_v, \hat d_\omega)` is the physics model's observer applied to the *hybrid*:
+the mean over the observer rows j = first..a-1 (the last :class:`~quad_modelling.core.models.physics.Observer`
+history before the anchor, linear and angular each their own, as
+:func:`~quad_modelling.core.models.physics.disturbance_estimate`) of measured minus modelled acceleration
+(the angular part with the observer's trim convention), where the model now includes the net evaluated at
+the measured rows,
+
+.. math::
+
+    \hat d(a) = \hat d_{phys}(a) - \frac{1}{t_a - t_{first}} \sum_{j=first}^{a-1}
+                \big(R_j \Delta a_{B,j},\ \Delta\alpha_j\big)\, \Delta t_j
+
+so the net learns a function of the state while the observer keeps the slowly varying bias (battery sag,
+a thrust-scale error) -- the net's correction is not counted twice. Training: :mod:`hybrid_training`.
+
+Model files (``.npz`` through :mod:`~quad_modelling.core.models.model_files`, kind ``hybrid``): the net's
+arrays, the physics constants it was trained on and the observer's histories; loading refuses another vehicle or
+changed physics constants in one line. Prediction is numpy only (no torch).
 """
 
 from __future__ import annotations
 
-import math
+import json
 from pathlib import Path
 
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.models.model_files import read_model_file
-from quad_modelling.core.models.narx import (
-    DIFFERENTIATED,
-    INTEGRATED,
-    OUTPUTS,
-    NarxConfig,
-    NarxModel,
-    check_sample_rate,
-    model_from_parts,
-)
-from quad_modelling.core.models.narx_training import (
-    Segment,
-    common_sample_period,
-    span_indices,
-    train_narx,
-)
-from quad_modelling.core.preprocess import trimmed_variables
-from quad_modelling.core.variables import columns
+from quad_modelling.core.models import physics
+from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
+from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsParameters, PhysicsState, PhysicsStream
+from quad_modelling.core.models.residual_net import ResidualNet
+from quad_modelling.core.preprocess import TrimConfig, state_measurement, trim_prediction
+from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.core.windows import windows_between
 from quad_modelling.errors import ConfigError, DataError, ModelError, reason
 
-WINDOW_S = 10.0
-"""Training window length [s] (the evaluation's, thesis 5.2)."""
-WARM_S = 0.2
-"""Warm start given to the greybox and the residual nets [s] (thesis: 0.2 s)."""
+KIND = "hybrid"
+
+FEATURES: tuple[str, ...] = (
+    "vel_b_x", "vel_b_y", "vel_b_z", "down_b_x", "down_b_y", "down_b_z", "roll_rate", "pitch_rate", "yaw_rate",
+    "u1", "u2", "u3", "u4", "rotor1", "rotor2", "rotor3", "rotor4", "u_logged1", "u_logged2", "u_logged3", "u_logged4",
+)
+"""The net's inputs f_k (module docstring): body velocity [m/s], gravity direction R^T e_z in B, body rates
+[rad/s], delayed commands [input unit], rotor speeds [rad/s], logged commands [input unit]."""
+
+CORRECTIONS: tuple[str, ...] = ("acc_b_x", "acc_b_y", "acc_b_z", "roll_acc", "pitch_acc", "yaw_acc")
+"""The net's outputs: linear acceleration correction Δa_B [m/s², FRD], angular acceleration correction Δα [rad/s², FRD]."""
+
+TRAINED_ON: tuple[str, ...] = ("vel_x", "vel_y", "vel_z", "roll_rate", "pitch_rate", "yaw_rate")
+"""The variables the rollout loss compares (the header's ``outputs``)."""
 
 
-def vehicle_constants(vehicle: VehicleConfig) -> dict[str, float]:
-    """The vehicle constants the greybox uses, as stored in a hybrid model file."""
-    return {key: float(c.value) for key, c in sorted(vehicle.constants.items())}
+def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
+    """(B, 21) inputs f_k (:data:`FEATURES`) of states ``state`` under commands ``u`` (B, 8): the delayed commands the
+    rotors answer, then the logged ones (:func:`hybrid_commands`)."""
+    rot = state.rot
+    vel_b = np.einsum("bji,bj->bi", rot, state.vel_n)
+    u = np.asarray(u, dtype=float)
+    return np.concatenate([vel_b, rot[:, 2, :], state.rates, u[:, :4], state.rotor, u[:, 4:]], axis=1)
+
+
+def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, 8) commands of the hybrid per row: the delayed commands the rotors answer
+    (:func:`physics.delayed_commands`) and the logged commands ``u`` (N, 4) stamped ``t`` (N,) [s]."""
+    return np.concatenate([physics.delayed_commands(p, u, t), np.asarray(u, dtype=float)], axis=1)
+
+
+def physics_constants(p: PhysicsParameters) -> dict[str, float | list]:
+    """The physics constants a hybrid model file records (and a load compares): the vehicle's physics constants,
+    mass, inertias, rotor inertia, rotor positions and spins."""
+    return {**{k: float(v) for k, v in p.vehicle_values().items()}, "mass": float(p.mass), "izz": float(p.inertia[2]),
+            "prop_inertia": float(p.prop_inertia), "positions": np.asarray(p.positions, float).tolist(),
+            "spins": np.asarray(p.spins, float).tolist()}
+
+
+def observer_rows(t: np.ndarray, anchors: np.ndarray, history_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(first row (S,), span t_a - t_first (S,) [s]) of one part of the disturbance observer at ``anchors``: the rows
+    of :func:`quad_modelling.core.models.physics.disturbance_estimate` (a test holds the two equal)."""
+    anchors = np.asarray(anchors, dtype=int)
+    first = np.minimum(np.searchsorted(t, t[anchors] - history_s - 1e-9, side="left"), anchors)
+    return first, t[anchors] - t[first]
+
+
+def observer_dict(observer: Observer) -> dict:
+    return {"linear_s": observer.linear_s, "angular_s": observer.angular_s, "angular_trim": observer.angular_trim}
 
 
 class HybridModel:
-    """A greybox plus residual NARX nets (see module doc)."""
+    """Physics constants + residual net + observer history (module docstring); numpy inference."""
 
-    def __init__(self, residual: NarxModel, vehicle: VehicleConfig, discretisation: str = "zoh") -> None:
-        from quad_modelling.core.models.greybox import GreyboxPredictor
-
-        if residual.kind != "hybrid":
-            raise ModelError(f"hybrid model needs residual nets of kind 'hybrid', got {residual.kind!r}")
-        self.residual = residual
+    def __init__(self, params: PhysicsParameters, net: ResidualNet, vehicle: str, observer: Observer = Observer(),
+                 training: dict | None = None) -> None:
+        if net.n_inputs != len(FEATURES) or net.n_outputs != len(CORRECTIONS):
+            raise ModelError(f"hybrid residual net takes {net.n_inputs} inputs and gives {net.n_outputs} outputs, "
+                             f"expected {len(FEATURES)} and {len(CORRECTIONS)}")
+        self.params = params
+        self.net = net
         self.vehicle = vehicle
-        self.greybox = GreyboxPredictor(vehicle, discretisation=discretisation)
-        self.discretisation = discretisation
+        self.observer = observer
+        self.training = dict(training or {})
 
-    @property
-    def warm_samples(self) -> int:
-        return self.residual.config.output_delays
+    # ---- the corrected dynamics ------------------------------------------------
+    def correction(self, state: PhysicsState, u: np.ndarray) -> np.ndarray:
+        """(B, 6) net correction as disturbance accelerations: (R Δa_B [m/s², N], Δα [rad/s², B]); ``u`` (B, 8) as
+        :func:`hybrid_commands` (so are the ``u`` of :meth:`step`, :meth:`outputs` and :meth:`rollout`)."""
+        delta = self.net.forward(net_features(state, u))
+        return np.concatenate([np.einsum("bij,bj->bi", state.rot, delta[:, :3]), delta[:, 3:]], axis=1)
 
-    @property
-    def trim(self):
-        """The trim of the prediction: the greybox's."""
-        return self.greybox.trim
+    def corrected(self, state: PhysicsState, u: np.ndarray, disturbance: Disturbance) -> Disturbance:
+        """The per-step disturbance handed to the physics step: observer estimate plus net correction."""
+        c = self.correction(state, u)
+        return Disturbance(disturbance.linear_n + c[:, :3], disturbance.angular_b + c[:, 3:])
 
-    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        """(N, 18) trimmed prediction: greybox plus closed-loop residual correction."""
-        window.require(("gyro_b",), "model hybrid (its residual nets are seeded with measured gyro rates)")
-        check_sample_rate(self.residual, window)
-        warm = max(int(warm_samples), self.warm_samples)
-        if warm >= len(window):
-            raise DataError(f"{window.meta.source}: window of {len(window)} samples is shorter than the {warm} warm-up samples")
-        greybox = self.greybox.predict_window(window, warm_samples)
-        measured = trimmed_variables(window, self.greybox.trim, self.vehicle)
-        out = columns(OUTPUTS)
-        residual_warm = measured[:warm, out] - greybox[:warm, out]
-        residual = self.residual.simulate(exogenous_inputs(window, greybox), residual_warm)
-        return corrected(window, greybox, residual)
+    def step(self, state: PhysicsState, u: np.ndarray, dt, disturbance: Disturbance) -> PhysicsState:
+        """One hybrid step: :func:`physics.step` with the net's correction added to the disturbance."""
+        return physics.step(self.params, state, u[:, :4], dt, self.corrected(state, u, disturbance))
+
+    def outputs(self, state: PhysicsState, u: np.ndarray, disturbance: Disturbance) -> np.ndarray:
+        """(B, 18) absolute VARIABLES of ``state`` under ``u``: :func:`physics.outputs` with the corrected accelerations."""
+        return physics.outputs(self.params, state, u[:, :4], self.corrected(state, u, disturbance))
+
+    # ---- the anchor -------------------------------------------------------------
+    def anchor(self, log: FlightLog, anchors: np.ndarray, measured: np.ndarray | None = None) -> tuple[PhysicsState, Disturbance]:
+        """(start states, hybrid observer disturbances) at rows ``anchors`` of ``log``, from rows <= anchor only."""
+        if measured is None:
+            measured = state_measurement(log)
+        anchors = np.asarray(anchors, dtype=int)
+        state, base, rotor = physics.anchor_state(self.params, log, anchors, self.observer, measured)
+        last = int(anchors.max()) if len(anchors) else 0
+        if self.net.is_zero() or last == 0:
+            return state, base
+        rows = np.arange(last)
+        commands = hybrid_commands(self.params, log.u, log.t)
+        c = self.correction(physics.measured_states(self.params, measured, rotor, rows), commands[rows])
+        integral = np.concatenate([np.zeros((1, 6)), np.cumsum(c * np.diff(log.t[: last + 1])[:, None], axis=0)])
+        corrected = []
+        for history, cols, d in ((self.observer.linear_s, slice(0, 3), base.linear_n), (self.observer.angular_s, slice(3, 6), base.angular_b)):
+            first, span = observer_rows(log.t, anchors, history)
+            ok = (span > 0) & (history > 0)
+            mean = (integral[anchors, cols] - integral[first, cols]) / np.where(ok, span, 1.0)[:, None]
+            corrected.append(d - np.where(ok[:, None], mean, 0.0))
+        return state, Disturbance(*corrected)
+
+    # ---- predictions ------------------------------------------------------------
+    def rollout(self, state: PhysicsState, disturbance: Disturbance, u: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """(B, H + 1, 18) open-loop outputs as :func:`physics.rollout`: row h after h steps, with command u[:, h]."""
+        horizon = dt.shape[1]
+        out = np.empty((len(state.pos_n), horizon + 1, len(VARIABLES)))
+        for h in range(horizon + 1):
+            step_disturbance = self.corrected(state, u[:, h], disturbance)
+            out[:, h] = physics.outputs(self.params, state, u[:, h, :4], step_disturbance)
+            if h < horizon:
+                state = physics.step(self.params, state, u[:, h, :4], dt[:, h], step_disturbance)
+        return out
+
+    def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
+        """(S, horizon + 1, 18) absolute open-loop predictions from each start row, causal (IDSIA multi-step)."""
+        starts = np.asarray(starts, dtype=int)
+        if starts.size and (starts.min() < 0 or starts.max() + horizon >= len(segment)):
+            raise DataError(f"{segment.meta.source}: multi-step starts + horizon {horizon} leave the segment")
+        segment.require(("gyro_b",), "the hybrid model's multi-step form (body rates at each anchor)")
+        state, disturbance = self.anchor(segment, starts)
+        rows = starts[:, None] + np.arange(horizon + 1)[None, :]
+        commands = hybrid_commands(self.params, segment.u, segment.t)
+        return self.rollout(state, disturbance, commands[rows], np.diff(segment.t)[rows[:, :-1]])
+
+    # ---- files ------------------------------------------------------------------
+    def header(self) -> dict:
+        return {
+            "format": FORMAT, "format_version": FORMAT_VERSION, "kind": KIND, "vehicle": self.vehicle,
+            "variables": list(VARIABLES), "outputs": list(TRAINED_ON),
+            "config": {"hidden": list(self.net.hidden), "features": list(FEATURES), "corrections": list(CORRECTIONS),
+                       "observer": observer_dict(self.observer)},
+            "dt": float(self.training.get("dt", 0.01)),
+            "training": {**self.training, "physics": physics_constants(self.params)},
+        }
 
     def save(self, path: str | Path, force: bool = False) -> Path:
-        return self.residual.save(path, force)
+        """Write the ``.npz`` model file atomically (never overwrites without ``force``)."""
+        from quad_modelling.atomic import atomic_output
 
-
-def exogenous_inputs(window: FlightLog, greybox: np.ndarray) -> np.ndarray:
-    """(N, 10) exogenous inputs of the residual nets: engine commands and greybox velocities/rates."""
-    return np.concatenate([window.u, greybox[:, columns(OUTPUTS)]], axis=1)
-
-
-def corrected(window: FlightLog, greybox: np.ndarray, residual: np.ndarray) -> np.ndarray:
-    """Greybox prediction plus residual r̂ (N, 6): added to rates, integrated into angles, differentiated into accelerations."""
-    from scipy.integrate import cumulative_trapezoid
-
-    out = greybox.copy()
-    out[:, columns(OUTPUTS)] += residual
-    out[:, columns(INTEGRATED)] += cumulative_trapezoid(residual, window.t, axis=0, initial=0.0)
-    out[:, columns(DIFFERENTIATED)] += np.gradient(residual, window.t, axis=0)
-    return out
-
-
-def residual_segments(
-    logs: list[FlightLog],
-    spans: list[tuple[float, float] | None],
-    vehicle: VehicleConfig,
-    discretisation: str = "zoh",
-    window_s: float = WINDOW_S,
-    warm_s: float = WARM_S,
-) -> list[Segment]:
-    """Training segments of the residual nets: one per full window of each span (inputs u ⊕ g, output r)."""
-    from quad_modelling.core.models.greybox import GreyboxPredictor
-
-    greybox = GreyboxPredictor(vehicle, discretisation=discretisation)
-    segments = []
-    for log, span in zip(logs, spans):
-        log.require(("gyro_b",), "hybrid training (the residual nets learn gyro rates)")
-        if span is not None:
-            span_indices(log, span)  # DataError when the span holds no data
-        a, b = (0.0, math.inf) if span is None else span
-        warm = max(1, int(round(warm_s * log.sample_rate)))
-        for start, stop in windows_between(log, a, b, window_s):
-            window = log.slice(start, stop)
-            g = greybox.predict_window(window, warm)
-            measured = trimmed_variables(window, greybox.trim, vehicle)
-            r = measured[:, columns(OUTPUTS)] - g[:, columns(OUTPUTS)]
-            t0 = float(window.t[0] - log.t[0])
-            segments.append(Segment(exogenous_inputs(window, g), r, log.meta.source, (t0, t0 + window_s)))
-    if not segments:
-        raise DataError(
-            f"hybrid training: no {window_s:g} s window fits the training spans of "
-            + ", ".join(f"{log.meta.source} ({log.duration:.1f} s)" for log in logs)
-        )
-    return segments
-
-
-def train_hybrid_on_flights(
-    logs: list[FlightLog],
-    spans: list[tuple[float, float] | None],
-    vehicle: VehicleConfig,
-    config: NarxConfig = NarxConfig(),
-    seed: int = 0,
-    progress: bool = False,
-    discretisation: str = "zoh",
-    window_s: float = WINDOW_S,
-    warm_s: float = WARM_S,
-) -> HybridModel:
-    """Train the residual nets of a hybrid model on windows of the training spans."""
-    names = sorted({log.meta.vehicle for log in logs})
-    if names != [vehicle.name]:
-        raise DataError(f"hybrid training: flights are for vehicle(s) {names}, the greybox for {vehicle.name!r}")
-    segments = residual_segments(logs, spans, vehicle, discretisation, window_s, warm_s)
-    info = {"greybox": {"discretisation": discretisation, "constants": vehicle_constants(vehicle)},
-            "window_s": window_s, "warm_s": warm_s}
-    residual = train_narx(segments, common_sample_period(logs), vehicle.name, config, seed, progress, kind="hybrid", training=info)
-    return HybridModel(residual, vehicle, discretisation)
+        path = Path(path)
+        with atomic_output(path, force) as tmp:
+            with open(tmp, "wb") as stream:
+                np.savez(stream, header=np.array(json.dumps(self.header())), **self.net.arrays())
+        return path
 
 
 def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
-    """Load a hybrid model file for ``vehicle``; ModelError when it was made for another vehicle or constants."""
+    """Load a hybrid model file for ``vehicle``; ModelError (one line) for another vehicle, changed physics
+    constants, or a corrupt file."""
     path = Path(path)
-    header, contents = read_model_file(path, "hybrid", OUTPUTS, vehicle.name)
-    residual = model_from_parts(path, header, contents)
+    header, contents = read_model_file(path, KIND, TRAINED_ON, vehicle.name)
+    net = ResidualNet.from_arrays(contents, str(path))
     try:
-        greybox = header["training"]["greybox"]
-        discretisation = str(greybox["discretisation"])
-        stored = {k: float(v) for k, v in greybox["constants"].items()}
-    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as err:
-        raise ModelError(f"{path}: hybrid model file lacks its greybox settings ({reason(err)})") from err
-    current = vehicle_constants(vehicle)
-    changed = sorted(k for k in set(stored) | set(current) if stored.get(k) != current.get(k))
+        config = header["config"]
+        observer = Observer(float(config["observer"]["linear_s"]), float(config["observer"]["angular_s"]),
+                            bool(config["observer"]["angular_trim"]))
+        stored = header["training"]["physics"]
+        features = list(config["features"])
+        if not isinstance(stored, dict):
+            raise TypeError("training.physics is not a mapping")
+    except (KeyError, TypeError, ValueError, AttributeError) as err:
+        raise ModelError(f"{path}: hybrid model file lacks its settings ({reason(err)})") from err
+    if features != list(FEATURES):
+        raise ModelError(f"{path}: hybrid net inputs {features} differ from this program's {list(FEATURES)}; retrain the model")
+    params = PhysicsParameters.from_vehicle(vehicle)
+    current = physics_constants(params)
+    changed = sorted(k for k in set(stored) | set(current)
+                     if not np.allclose(np.asarray(stored.get(k, np.nan), float), np.asarray(current.get(k, np.nan), float), rtol=1e-12, atol=0))
     if changed:
-        raise ModelError(
-            f"{path}: the greybox constants of vehicle {vehicle.name!r} changed since training ({', '.join(changed)}); retrain the hybrid model"
-        )
-    if residual.u_mean.shape != (4 + len(OUTPUTS),):
-        raise ModelError(f"{path}: hybrid residual nets take {residual.u_mean.shape[0]} exogenous inputs, expected {4 + len(OUTPUTS)}")
-    return HybridModel(residual, vehicle, discretisation)
+        raise ModelError(f"{path}: the physics constants of vehicle {vehicle.name!r} changed since the hybrid was trained "
+                         f"({', '.join(changed)}); retrain it with quad-modelling train --hybrid")
+    try:
+        return HybridModel(params, net, vehicle.name, observer, dict(header.get("training", {})))
+    except (ModelError, ConfigError) as err:
+        raise ModelError(f"{path}: {err}") from err
+
+
+# ---- the predictor protocols (offline window, multi-step, live) --------------------------------------
+class HybridStream(PhysicsStream):
+    """Live stream of one window, as :class:`~quad_modelling.core.models.physics.PhysicsStream` (the logged commands
+    of the last δ kept for the delay; ``push_at(command, t_s)`` steps over the real interval since the previous
+    sample, ``push(command)`` by the warm rows' median interval) with the hybrid's step and outputs."""
+
+    def __init__(self, model: HybridModel, state: PhysicsState, disturbance: Disturbance, times: np.ndarray,
+                 commands: np.ndarray, period_s: float) -> None:
+        super().__init__(model.params, state, disturbance, times, commands, period_s)
+        self.model = model
+
+    def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
+        previous = self.times[-1]
+        dt = t_s - previous
+        if not dt > 0:
+            raise DataError(f"hybrid stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
+        logged = self.commands[-1]  # the command logged at the previous sample
+        self.state = self.model.step(self.state, np.concatenate([self._command_at(previous), logged], axis=1), dt, self.disturbance)
+        self.times.append(float(t_s))
+        self.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
+        self._forget()
+        return self.model.outputs(self.state, np.concatenate([self._command_at(t_s), self.commands[-1]], axis=1), self.disturbance)[0]
 
 
 class HybridPredictor:
-    """:class:`~quad_modelling.core.models.base.Predictor` over a hybrid model file."""
+    """The ``hybrid:PATH`` model: window (trimmed), multi-step and live forms, all causal."""
 
-    def __init__(self, model: HybridModel, name: str = "hybrid") -> None:
+    def __init__(self, model: HybridModel, name: str = "hybrid", trim: TrimConfig | None = None) -> None:
         self.model = model
         self.name = name
+        self.trim = trim or TrimConfig()
+
+    def start_window(self, warm: FlightLog) -> tuple[np.ndarray, HybridStream]:
+        """Warm rows -> (their measurement (W, 18), stream anchored on the last warm row; the observer sees the warm rows)."""
+        if len(warm) < 2:
+            raise DataError(f"{warm.meta.source}: the hybrid model needs at least 2 warm-start samples, got {len(warm)}")
+        warm.require(("gyro_b",), "the hybrid model (body rates at the anchor)")
+        measured = state_measurement(warm)
+        state, disturbance = self.model.anchor(warm, np.array([len(warm) - 1]), measured)
+        period = float(np.median(np.diff(warm.t)))
+        return measured, HybridStream(self.model, state, disturbance, warm.t, warm.u, period)
+
+    def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        """(N, 18) absolute prediction of a window: the live calls with each sample's real stamp."""
+        from quad_modelling.core.models.streaming import predict_window_by_stream
+
+        return predict_window_by_stream(self, window, warm_samples)
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        return self.model.predict_window(window, warm_samples)
+        return trim_prediction(window, self.predict_absolute(window, warm_samples), self.trim)
+
+    def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
+        return self.model.predict_horizons(segment, starts, horizon)
 
 
 def make_hybrid_predictor(arg: str, vehicle: VehicleConfig) -> HybridPredictor:
@@ -221,4 +303,3 @@ def make_hybrid_predictor(arg: str, vehicle: VehicleConfig) -> HybridPredictor:
     if not arg:
         raise ConfigError("model spec hybrid needs a model file: hybrid:PATH")
     return HybridPredictor(load_hybrid(arg, vehicle))
-

@@ -6,7 +6,7 @@ Built-in specs (a factory receives the text after the first ``:``, or ``""``, an
 ``greybox``        linear thesis model (ZOH), :mod:`quad_modelling.core.models.greybox`
 ``greybox:euler``  same with the thesis's explicit-Euler discretisation
 ``narx:PATH``      NARX nets from a model file (window, live, multi-step), :mod:`quad_modelling.core.models.narx`
-``hybrid:PATH``    greybox + NARX residual nets, :mod:`quad_modelling.core.models.hybrid`
+``hybrid:PATH``    physics model + residual net (window, live, multi-step), :mod:`quad_modelling.core.models.hybrid`
 ``physics``        nonlinear rigid body + rotor map/lag/drag, :mod:`quad_modelling.core.models.physics`
 ``physics:L,A``    same with the disturbance observer's linear/angular histories [s] (0 = off)
 ``dummy``          :class:`~quad_modelling.core.models.base.DummyPredictor`, zero (thesis Fig 5.2)
@@ -87,7 +87,7 @@ def _make_narx(arg: str, vehicle: VehicleConfig) -> Predictor:
 
 
 def _make_hybrid(arg: str, vehicle: VehicleConfig) -> Predictor:
-    """``hybrid:PATH``: greybox plus NARX residual nets from a model file."""
+    """``hybrid:PATH``: the physics model plus its residual net from a model file."""
     from quad_modelling.core.models.hybrid import make_hybrid_predictor
 
     return make_hybrid_predictor(arg, vehicle)

@@ -1,38 +1,41 @@
-"""Hybrid greybox + residual NARX model: decomposition, learning the residual, files."""
+"""Hybrid physics + residual net: torch twin = numpy step, observer, training, stability, causality, live, files."""
 
 from __future__ import annotations
 
 import dataclasses
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from quad_modelling.core.models import hybrid
-from quad_modelling.core.models.greybox import GreyboxPredictor
-from quad_modelling.core.models.narx import (
-    DIFFERENTIATED,
-    INTEGRATED,
-    OUTPUTS,
-    NarxConfig,
-    load_narx,
+from quad_modelling.core import frames
+from quad_modelling.core.evaluation.multistep import GROUPS, multistep_mae
+from quad_modelling.core.models import physics
+from quad_modelling.core.models.hybrid import (
+    CORRECTIONS,
+    FEATURES,
+    HybridModel,
+    HybridPredictor,
+    load_hybrid,
+    observer_rows,
 )
+from quad_modelling.core.models.hybrid_training import HybridTrainingConfig, train_hybrid_on_flights
+from quad_modelling.core.models.physics import PhysicsParameters, PhysicsPredictor
 from quad_modelling.core.models.registry import make_model
-from quad_modelling.core.preprocess import trimmed_variables
-from quad_modelling.core.variables import columns
-from quad_modelling.core.vehicle import load_vehicle
-from quad_modelling.core.windows import SpanSpec, warm_samples_for
+from quad_modelling.core.models.residual_net import ResidualNet, zero_net
+from quad_modelling.core.models.rollout_training import RolloutConfig
+from quad_modelling.core.models.streaming import predict_window_by_stream
+from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.windows import SpanSpec
 from quad_modelling.errors import ModelError
 from quad_modelling.io.loader import load_flight
 
 BAG = Path(__file__).resolve().parents[3] / "bags" / "nanobench_B7_oval_medium_rep2"
-SMALL = NarxConfig(hidden=4, output_delays=5, input_delays=tuple(range(5)), epochs=6, iterations_per_epoch=20)
-RATES = columns(("roll_rate", "pitch_rate", "yaw_rate"))
-
-
-@pytest.fixture(scope="module")
-def flight():
-    return load_flight(BAG)
+HORIZON = 50
+SMALL = HybridTrainingConfig(hidden=(16,), rollout=RolloutConfig(horizon=10, batch_size=128, max_epochs=4, patience=2,
+                                                                 learning_rate=3e-3, windows_per_epoch=768))
 
 
 @pytest.fixture(scope="module")
@@ -41,68 +44,230 @@ def vehicle():
 
 
 @pytest.fixture(scope="module")
-def trained(flight, vehicle):
-    span = SpanSpec.parse("train", "0%:60%").interval(flight, 5.0, 5.0)
-    return hybrid.train_hybrid_on_flights([flight], [span], vehicle, SMALL, seed=0), span
+def params(vehicle):
+    return PhysicsParameters.from_vehicle(vehicle)
 
 
-def test_zero_residual_nets_give_the_greybox_exactly(trained, flight, vehicle):
-    model, _ = trained
-    silent = dataclasses.replace(model.residual, w_2=np.zeros_like(model.residual.w_2), b_2=np.zeros(6), y_mean=np.zeros(6))
-    window = flight.slice(500, 1500)
-    greybox = GreyboxPredictor(vehicle).predict_window(window, 20)
-    residual_only = hybrid.HybridModel(silent, vehicle).predict_window(window, 20)
-    # the warm-up residual is the measured one; afterwards the silent nets add nothing
-    outputs, accelerations = columns(OUTPUTS), columns(DIFFERENTIATED)
-    assert np.array_equal(residual_only[20:, outputs], greybox[20:, outputs])
-    assert np.allclose(residual_only[21:, accelerations], greybox[21:, accelerations], rtol=0, atol=1e-12)
-    assert not np.allclose(residual_only[:20, outputs], greybox[:20, outputs])
+@pytest.fixture(scope="module")
+def flight():
+    return load_flight(BAG)
 
 
-def test_correction_is_added_integrated_and_differentiated(flight):
-    window = flight.slice(0, 300)
-    greybox = np.zeros((300, 18))
-    residual = np.tile([0.0, 0.0, 0.0, 0.1, -0.2, 0.3], (300, 1)) * (window.t - window.t[0])[:, None]
-    out = hybrid.corrected(window, greybox, residual)
-    elapsed = window.t - window.t[0]
-    assert np.allclose(out[:, columns(OUTPUTS)], residual)
-    assert np.allclose(out[:, columns(INTEGRATED)][:, 3:], 0.5 * np.outer(elapsed**2, [0.1, -0.2, 0.3]), atol=1e-12)
-    assert np.allclose(out[:, columns(DIFFERENTIATED)][:, 3:], [0.1, -0.2, 0.3])
+@pytest.fixture(scope="module")
+def span(flight):
+    return SpanSpec.parse("train", "0%:60%").interval(flight, 5.0, 5.0)
 
 
-def test_learns_the_greybox_residual_on_its_training_windows(trained, flight, vehicle):
-    model, (a, b) = trained
-    start = int(np.searchsorted(flight.t - flight.t[0], a))
-    window = flight.slice(start, start + 1000)
-    warm = warm_samples_for(window, 0.2)
-    measured = trimmed_variables(window, vehicle=vehicle)
-    greybox = GreyboxPredictor(vehicle).predict_window(window, warm)
-    combined = model.predict_window(window, warm)
-    error_greybox = np.sqrt(((greybox[warm:, RATES] - measured[warm:, RATES]) ** 2).mean(axis=0))
-    error_hybrid = np.sqrt(((combined[warm:, RATES] - measured[warm:, RATES]) ** 2).mean(axis=0))
-    # the open-loop linear greybox drifts far from a stabilised flight; the residual nets remove most of it
-    assert np.all(error_hybrid < 0.5 * error_greybox), (error_hybrid, error_greybox)
+@pytest.fixture(scope="module")
+def trained(flight, vehicle, span):
+    return train_hybrid_on_flights([flight], [span], vehicle, SMALL, seed=0)
 
 
-def test_save_load_and_registry_give_identical_predictions(trained, flight, vehicle, tmp_path):
-    model, _ = trained
-    path = model.save(tmp_path / "hybrid.npz")
-    window = flight.slice(1000, 2000)
-    loaded = hybrid.load_hybrid(path, vehicle)
-    assert np.array_equal(loaded.predict_window(window, 20), model.predict_window(window, 20))
+@pytest.fixture(scope="module")
+def sim_flight():
+    from quad_modelling.core.sim.simulate import simulate
+
+    return simulate("crazyflie21", ("motor_lag", "rotor_drag"), seed=3, duration=12.0)
+
+
+def random_states(params, batch, rng):
+    """Flying states near hover: speeds ~1 m/s, attitudes within 0.5 rad, rates ~2 rad/s, rotors near hover speed."""
+    hover = params.hover_rotor_speed(GRAVITY)
+    return physics.PhysicsState(rng.normal(size=(batch, 3)), rng.normal(size=(batch, 3)),
+                                frames.euler_ned_to_matrix(rng.uniform(-0.5, 0.5, (batch, 3))), 2 * rng.normal(size=(batch, 3)),
+                                hover * rng.uniform(0.8, 1.2, (batch, 4)), rng.uniform(-3, 3, batch))
+
+
+def constant_net(angular: np.ndarray) -> ResidualNet:
+    """A net whose correction is the constant angular acceleration ``angular`` (3,) [rad/s²] and no linear one."""
+    net = zero_net(np.zeros(len(FEATURES)), np.ones(len(FEATURES)), np.ones(len(CORRECTIONS)), (4,), np.random.default_rng(0))
+    net.biases[-1][3:] = angular
+    return net
+
+
+# ---- the torch twin ------------------------------------------------------------------------------------
+def test_torch_twin_equals_the_numpy_physics_step_in_float64(params):
+    import torch
+
+    from quad_modelling.core.models import physics_torch as pt
+
+    rng = np.random.default_rng(1)
+    state = random_states(params, 64, rng)
+    twin = pt.TorchState.from_numpy(state)
+    tp = pt.TorchParameters.from_params(params, torch.float64)
+    hover_u = params.hover_command(GRAVITY)
+    for _ in range(30):  # jittered intervals 5..30 ms, per-member commands and disturbances
+        u = hover_u * rng.uniform(0.9, 1.1, (64, 4))
+        dt = rng.uniform(0.005, 0.03, 64)
+        d = physics.Disturbance(rng.normal(size=(64, 3)), rng.normal(size=(64, 3)))
+        state = physics.step(params, state, u, dt, d)
+        twin = pt.step(tp, twin, *(torch.as_tensor(a) for a in (u, dt, d.linear_n, d.angular_b)))
+    back = twin.to_numpy()
+    for name in ("pos_n", "vel_n", "rot", "rates", "rotor", "yaw"):
+        assert np.max(np.abs(getattr(back, name) - getattr(state, name))) < 1e-9, name
+    assert np.max(np.abs(state.rates)) > 1.0  # the states moved: not a trivial comparison
+
+
+# ---- observer and the zero net -------------------------------------------------------------------------
+def test_observer_rows_are_the_last_history_seconds_before_the_anchor():
+    t = np.cumsum(np.random.default_rng(2).choice([0.01, 0.02, 0.03], size=300))
+    anchors = np.arange(300)
+    first, span = observer_rows(t, anchors, 0.5)
+    for a in anchors:
+        expected = min(j for j in range(a + 1) if t[a] - t[j] <= 0.5 + 1e-9)
+        assert first[a] == expected and span[a] == t[a] - t[expected]
+
+
+def test_a_zero_net_is_the_physics_model_exactly(flight, params, vehicle):
+    model = HybridModel(params, constant_net(np.zeros(3)), vehicle.name)
+    segment = flight.slice(1000, 1400)
+    starts = np.arange(0, 300, 7)
+    hybrid = model.predict_horizons(segment, starts, HORIZON)
+    assert np.array_equal(hybrid, PhysicsPredictor(vehicle).predict_horizons(segment, starts, HORIZON))
+
+
+def test_the_observer_does_not_count_the_nets_correction_twice(flight, params, vehicle):
+    # a net adding a constant angular acceleration c: the hybrid observer removes its mean c over the history,
+    # so every anchor with history predicts exactly what the physics model predicts
+    c = np.array([3.0, -2.0, 0.5])
+    model = HybridModel(params, constant_net(c), vehicle.name)
+    segment = flight.slice(1000, 1400)
+    starts = np.arange(1, 300, 7)
+    state, disturbance = model.anchor(segment, starts)
+    _, base, _ = physics.anchor_state(params, segment, starts, model.observer)
+    assert np.allclose(disturbance.angular_b, base.angular_b - c, rtol=0, atol=1e-9)
+    assert np.allclose(disturbance.linear_n, base.linear_n, rtol=0, atol=1e-12)
+    hybrid = model.predict_horizons(segment, starts, HORIZON)
+    assert np.allclose(hybrid, PhysicsPredictor(vehicle).predict_horizons(segment, starts, HORIZON), rtol=0, atol=1e-9)
+
+
+# ---- training ------------------------------------------------------------------------------------------
+def held_out_sim_err(predictor, segment, vehicle):
+    mae, _ = multistep_mae(predictor, segment, HORIZON, vehicle)
+    return mae.sum(axis=1)
+
+
+def test_rollout_training_beats_the_physics_base_on_held_out_rows(trained, flight, vehicle, span):
+    record = trained.training["rollout"]
+    assert record["best_epoch"] >= 1 and min(record["val_loss"][1:]) < record["val_loss"][0]
+    # the rows after the training span (never trained on): SimErr of velocity and angular velocity
+    start = int(np.searchsorted(flight.t - flight.t[0], span[1])) + 1
+    segment = flight.slice(start, len(flight) - 500)
+    hybrid = held_out_sim_err(HybridPredictor(trained), segment, vehicle)
+    base = held_out_sim_err(PhysicsPredictor(vehicle), segment, vehicle)
+    groups = list(GROUPS)
+    for group in ("velocity", "angular_velocity"):
+        g = groups.index(group)
+        assert hybrid[g] < 0.8 * base[g], (group, hybrid[g], base[g])
+
+
+def test_training_is_deterministic(trained, flight, vehicle, span):
+    again = train_hybrid_on_flights([flight], [span], vehicle, SMALL, seed=0)
+    for a, b in zip(trained.net.arrays().values(), again.net.arrays().values()):
+        assert np.array_equal(a, b)
+    other = train_hybrid_on_flights([flight], [span], vehicle, SMALL, seed=1)
+    assert not np.array_equal(trained.net.weights[0], other.net.weights[0])
+
+
+# ---- stability, causality, live ------------------------------------------------------------------------
+def rollout_bounds(log, params, horizon_s):
+    """Largest speed [m/s] and rate [rad/s] a 50-step rollout may reach from the flight's states: the measured
+    maximum plus what the vehicle's largest force / torque could add over the horizon (all rotors at the speed of
+    the largest command, plus gravity; the roll/pitch torque of two rotors at that speed on their arm)."""
+    rotor_max = float(physics.steady_rotor_speed(params, np.array(params.input_max)))
+    thrust_max = params.thrust_constant * rotor_max**2
+    acc_max = 4 * thrust_max / params.mass + GRAVITY
+    arm = float(np.max(np.abs(params.positions)))
+    ang_acc_max = 2 * thrust_max * 2 * arm / min(params.inertia[:2])
+    speed = np.linalg.norm(log.vel_n, axis=1).max() + acc_max * horizon_s
+    rate = np.linalg.norm(log.gyro_b, axis=1).max() + ang_acc_max * horizon_s
+    return speed, rate
+
+
+@pytest.mark.parametrize("which", ["bag", "simulator"])
+def test_stable_over_50_steps_from_every_start(which, trained, flight, sim_flight, params):
+    log = flight if which == "bag" else sim_flight
+    starts = np.arange(0, len(log) - HORIZON)
+    predicted = trained.predict_horizons(log, starts, HORIZON)
+    assert np.all(np.isfinite(predicted))
+    speed, rate = rollout_bounds(log, params, HORIZON * float(np.max(np.diff(log.t))))
+    assert np.linalg.norm(predicted[..., 3:6], axis=-1).max() < speed
+    assert np.linalg.norm(predicted[..., 12:15], axis=-1).max() < rate
+
+
+def test_predictions_use_no_measurement_after_the_anchor(trained, flight):
+    segment = flight.slice(800, 1400)
+    anchor = 300
+    starts = np.arange(0, anchor + 1, 10)
+    before = trained.predict_horizons(segment, starts, HORIZON)
+    rng = np.random.default_rng(5)
+    changes = {}
+    for name in ("pos_n", "vel_n", "euler", "gyro_b", "acc_b"):
+        values = getattr(segment, name).copy()
+        values[anchor + 1:] += 0.3 * rng.normal(size=values[anchor + 1:].shape)
+        changes[name] = values
+    changes["u"] = segment.u.copy()
+    changes["u"][anchor + HORIZON + 1:] *= 0.5  # commands after the last predicted row
+    altered = dataclasses.replace(segment, **changes)
+    assert np.array_equal(trained.predict_horizons(altered, starts, HORIZON), before)
+    later = trained.predict_horizons(altered, np.array([anchor + 1]), HORIZON)
+    assert not np.allclose(later, trained.predict_horizons(segment, np.array([anchor + 1]), HORIZON))
+
+
+def test_live_stream_equals_the_offline_prediction(trained, flight):
+    window = flight.slice(1200, 1500)
+    warm = 20
+    live = predict_window_by_stream(HybridPredictor(trained), window, warm)
+    offline = trained.predict_horizons(window, np.array([warm - 1]), len(window) - warm)[0]
+    assert np.allclose(live[warm:], offline[1:], rtol=0, atol=1e-9)
+    assert np.max(np.abs(live[warm:, 12:15] - offline[1:, 12:15])) < 1e-9
+
+
+# ---- files ---------------------------------------------------------------------------------------------
+def test_save_load_registry_round_trip(trained, flight, vehicle, tmp_path):
+    path = trained.save(tmp_path / "hybrid.npz")
+    segment = flight.slice(1000, 1300)
+    starts = np.arange(0, 200, 13)
+    expected = trained.predict_horizons(segment, starts, HORIZON)
+    assert np.array_equal(load_hybrid(path, vehicle).predict_horizons(segment, starts, HORIZON), expected)
     predictor = make_model(f"hybrid:{path}", vehicle)
     assert predictor.name == "hybrid"
-    assert np.array_equal(predictor.predict_window(window, 20), model.predict_window(window, 20))
+    assert np.array_equal(predictor.predict_horizons(segment, starts, HORIZON), expected)
 
 
-def test_refuses_changed_vehicle_constants_and_wrong_kind(trained, vehicle, tmp_path):
-    model, _ = trained
-    path = model.save(tmp_path / "hybrid.npz")
-    key = sorted(vehicle.constants)[0]
-    changed = dataclasses.replace(vehicle, constants={**vehicle.constants, key: dataclasses.replace(vehicle.constants[key], value=vehicle.constants[key].value * 2)})
-    with pytest.raises(ModelError, match=f"constants of vehicle 'crazyflie21' changed since training \\({key}"):
-        hybrid.load_hybrid(path, changed)
+def test_loading_refuses_changed_physics_constants_and_other_vehicles(trained, vehicle, tmp_path):
+    path = trained.save(tmp_path / "hybrid.npz")
+    key = "rotor_thrust_constant"
+    changed = dataclasses.replace(vehicle, constants={**vehicle.constants, key: dataclasses.replace(vehicle.constants[key], value=vehicle.constants[key].value * 1.1)})
+    with pytest.raises(ModelError, match=f"physics constants of vehicle 'crazyflie21' changed since the hybrid was trained \\({key}\\)") as err:
+        load_hybrid(path, changed)
+    assert "\n" not in str(err.value)
+    with pytest.raises(ModelError, match="trained for vehicle 'crazyflie21', not 'linkquad'"):
+        load_hybrid(path, load_vehicle("linkquad"))
+    from quad_modelling.core.models.narx import load_narx
+
     with pytest.raises(ModelError, match="is a 'hybrid' model, expected 'narx'"):
         load_narx(path)
-    with pytest.raises(ModelError, match="trained for vehicle 'crazyflie21', not 'linkquad'"):
-        hybrid.load_hybrid(path, load_vehicle("linkquad"))
+
+
+def test_predicting_needs_no_torch(trained, tmp_path):
+    path = trained.save(tmp_path / "hybrid.npz")
+    code = (
+        "import sys, importlib.abc\n"
+        "class NoTorch(importlib.abc.MetaPathFinder):\n"  # any torch import now fails
+        "    def find_spec(self, name, path, target=None):\n"
+        "        if name.split('.')[0] == 'torch': raise ImportError('torch is blocked')\n"
+        "sys.meta_path.insert(0, NoTorch())\n"
+        "import numpy as np\n"
+        "from quad_modelling.core.models.hybrid import load_hybrid\n"
+        "from quad_modelling.core.vehicle import load_vehicle\n"
+        "from quad_modelling.io.loader import load_flight\n"
+        f"m = load_hybrid({str(path)!r}, load_vehicle('crazyflie21'))\n"
+        f"p = m.predict_horizons(load_flight({str(BAG)!r}).slice(0, 200), np.arange(0, 100), 50)\n"
+        "print(p.shape, bool(np.isfinite(p).all()), 'torch' in sys.modules)\n"
+    )
+    root = Path(__file__).resolve().parents[3]
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=root,
+                          env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"})
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "(100, 51, 18) True False"
