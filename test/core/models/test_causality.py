@@ -57,7 +57,16 @@ def _train_narx(directory: Path, vehicle) -> Path:
     return model.save(directory / "narx.npz")
 
 
-TRAINERS = {"narx": _train_narx}
+def _train_hybrid(directory: Path, vehicle) -> Path:
+    """A tiny hybrid (4 hidden units, one 5-step rollout epoch) trained in a second on the fixture flight."""
+    from quad_modelling.core.models.hybrid_training import HybridTrainingConfig, train_hybrid_on_flights
+    from quad_modelling.core.models.rollout_training import RolloutConfig
+
+    config = HybridTrainingConfig(hidden=(4,), rollout=RolloutConfig(horizon=5, batch_size=64, max_epochs=1, windows_per_epoch=128))
+    return train_hybrid_on_flights([load_flight(FLIGHT, vehicle)], [None], vehicle, config, seed=3).save(directory / "hybrid.npz")
+
+
+TRAINERS = {"narx": _train_narx, "hybrid": _train_hybrid}
 """Kind -> trainer(directory, vehicle) -> model file, for specs with ``{kind}`` in them."""
 
 MODELS = [
@@ -67,6 +76,7 @@ MODELS = [
     pytest.param("naive", False, False, id="naive"),
     pytest.param("narx:{narx}", True, True, id="narx"),
     pytest.param("physics", True, True, id="physics"),
+    pytest.param("hybrid:{hybrid}", True, True, id="hybrid"),
 ]
 
 
