@@ -30,7 +30,7 @@ sys.path.insert(0, str(ROOT))
 from quad_modelling.core.evaluation.windowed import evaluate  # noqa: E402
 from quad_modelling.core.flight_log import FlightLog, FlightMeta  # noqa: E402
 from quad_modelling.core.models.greybox import GreyboxPredictor  # noqa: E402
-from quad_modelling.core.models.hybrid_training import train_hybrid_on_flights  # noqa: E402
+from quad_modelling.core.training.hybrid import train_hybrid_on_flights  # noqa: E402
 from quad_modelling.core.models.narx import (  # noqa: E402
     NarxConfig,
     NarxModel,
@@ -38,7 +38,7 @@ from quad_modelling.core.models.narx import (  # noqa: E402
     load_narx,
     measured_outputs,
 )
-from quad_modelling.core.models.narx_training import (  # noqa: E402
+from quad_modelling.core.training.narx import (  # noqa: E402
     Segment,
     train_narx,
     train_narx_on_flights,

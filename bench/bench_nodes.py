@@ -78,7 +78,7 @@ def small_narx(rate: float, workdir: Path) -> Path:
     """A NARX model file for the synthetic flight at ``rate`` (2 training epochs: its cost per step is the
     trained model's, its accuracy does not matter here)."""
     from quad_modelling.core.models.narx import NarxConfig
-    from quad_modelling.core.models.narx_training import train_narx_on_flights
+    from quad_modelling.core.training.narx import train_narx_on_flights
 
     path = workdir / f"narx_{rate:g}hz.npz"
     if not path.exists():

@@ -6,9 +6,9 @@ import argparse
 import sys
 import time
 
-from quad_modelling.core.models.hybrid_training import HYBRID_HIDDEN, HYBRID_ROLLOUT
-from quad_modelling.core.models.narx_training import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
-from quad_modelling.core.models.rollout_training import VAL_FRACTION
+from quad_modelling.core.training.hybrid import HYBRID_HIDDEN, HYBRID_ROLLOUT
+from quad_modelling.core.training.narx import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
+from quad_modelling.core.training.rollout import VAL_FRACTION
 from quad_modelling.errors import ConfigError
 
 TRAINING_METHODS = ("rollout", "thesis")
@@ -99,7 +99,7 @@ def training_spans(logs, args) -> list[tuple[float, float]]:
 def training_configs(args: argparse.Namespace):
     """(NarxConfig, RolloutConfig or None) of the options, validated (ConfigError naming the flag)."""
     from quad_modelling.core.models.narx import NarxConfig
-    from quad_modelling.core.models.narx_training import rollout_preset
+    from quad_modelling.core.training.narx import rollout_preset
 
     epochs = args.epochs if args.epochs is not None else (25 if args.training == "thesis" else PRETRAIN_EPOCHS)
     if args.seed < 0:
@@ -133,7 +133,7 @@ def hybrid_config(args: argparse.Namespace):
     --hybrid-hidden), validated (ConfigError naming the flag)."""
     import dataclasses
 
-    from quad_modelling.core.models.hybrid_training import HybridTrainingConfig
+    from quad_modelling.core.training.hybrid import HybridTrainingConfig
 
     if args.seed < 0:
         raise ConfigError(f"--seed {args.seed}: must be a non-negative integer")
@@ -156,7 +156,7 @@ def run(args: argparse.Namespace) -> int:
 
     from quad_modelling.atomic import check_output
     from quad_modelling.commands.evaluate import print_gap_warnings
-    from quad_modelling.core.models.narx_training import train_narx_on_flights
+    from quad_modelling.core.training.narx import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.io.loader import load_flight
 
@@ -171,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     started = time.perf_counter()
     progress = not args.quiet and sys.stderr.isatty()
     if args.hybrid:
-        from quad_modelling.core.models.hybrid_training import train_hybrid_on_flights
+        from quad_modelling.core.training.hybrid import train_hybrid_on_flights
 
         model = train_hybrid_on_flights(logs, spans, given or load_vehicle(logs[0].meta.vehicle), config, args.seed, progress, val_flights)
         samples = model.training["samples"]

@@ -13,7 +13,7 @@ from quad_modelling.core.evaluation.windowed import (
     window_mean,
 )
 from quad_modelling.core.models.base import ConstantStatePredictor
-from quad_modelling.core.models.narx_training import span_indices
+from quad_modelling.core.training.narx import span_indices
 from quad_modelling.core.preprocess import (
     MeasurementGap,
     TrimConfig,

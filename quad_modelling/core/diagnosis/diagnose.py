@@ -307,7 +307,7 @@ def narx_floor(train_flights: Sequence[FlightLog], test_flights: Sequence[Flight
     """NARX model trained on the training flights' flying parts, scored on the diagnosis's held-out windows in the
     protocol's trimmed convention (:class:`~quad_modelling.core.models.narx.NarxPredictor`)."""
     from quad_modelling.core.models.narx import NarxConfig, NarxPredictor
-    from quad_modelling.core.models.narx_training import train_narx_on_flights
+    from quad_modelling.core.training.narx import train_narx_on_flights
     from quad_modelling.core.preprocess import resample_uniform
 
     narx_config = NarxConfig(epochs=epochs)

@@ -36,7 +36,7 @@ the measured rows,
                 \big(R_j \Delta a_{B,j},\ \Delta\alpha_j\big)\, \Delta t_j
 
 so the net learns a function of the state while the observer keeps the slowly varying bias (battery sag,
-a thrust-scale error) -- the net's correction is not counted twice. Training: :mod:`hybrid_training`.
+a thrust-scale error) -- the net's correction is not counted twice. Training: :mod:`quad_modelling.core.training.hybrid`.
 
 Model files (``.npz`` through :mod:`~quad_modelling.core.models.model_files`, kind ``hybrid``): the net's
 arrays, the physics constants it was trained on and the observer's histories; loading refuses another vehicle or

@@ -21,7 +21,7 @@ sample, so holding the last output is the net's zero and one-step errors start
 at the scale of one sample's change. ``W_{1,k}`` is stored split into its input part ``W_u`` and its
 output-feedback part ``W_y`` (columns in ascending time, oldest first).
 
-Training (:mod:`quad_modelling.core.models.narx_training`) is series-parallel (thesis Fig 4.4): the feedback inputs are the
+Training (:mod:`quad_modelling.core.training.narx`) is series-parallel (thesis Fig 4.4): the feedback inputs are the
 *measured* past outputs, the loss is the mean squared error of ``ỹ_k(t)``.
 Before normalisation, white Gaussian noise is added to the low-noise series
 as the thesis did (section 6.2: 10 dB SNR on the angle rates, velocities left
@@ -33,7 +33,7 @@ second-order-like full-batch method converges in a few hundred iterations
 where MATLAB's thesis default was Levenberg-Marquardt; one *epoch* is one
 L-BFGS step of ``iterations_per_epoch`` iterations. The improved training
 fine-tunes the nets closed loop over K steps afterwards (rollout loss,
-:mod:`quad_modelling.core.models.rollout_training`).
+:mod:`quad_modelling.core.training.rollout`).
 
 Prediction is parallel / closed-loop (thesis Fig 4.3): the first ``n_y``
 samples are measured, afterwards the nets feed back their own predictions. It

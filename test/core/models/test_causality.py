@@ -49,7 +49,7 @@ TOLERANCE = 1e-12
 def _train_narx(directory: Path, vehicle) -> Path:
     """A tiny NARX (2 hidden units, 2 output delays) trained in a second on the fixture flight."""
     from quad_modelling.core.models.narx import NarxConfig
-    from quad_modelling.core.models.narx_training import train_narx_on_flights
+    from quad_modelling.core.training.narx import train_narx_on_flights
 
     config = NarxConfig(hidden=2, output_delays=2, input_delays=(0, 1), epochs=2, iterations_per_epoch=5,
                         noise_snr_db=(None,) * 6)
@@ -59,8 +59,8 @@ def _train_narx(directory: Path, vehicle) -> Path:
 
 def _train_hybrid(directory: Path, vehicle) -> Path:
     """A tiny hybrid (4 hidden units, one 5-step rollout epoch) trained in a second on the fixture flight."""
-    from quad_modelling.core.models.hybrid_training import HybridTrainingConfig, train_hybrid_on_flights
-    from quad_modelling.core.models.rollout_training import RolloutConfig
+    from quad_modelling.core.training.hybrid import HybridTrainingConfig, train_hybrid_on_flights
+    from quad_modelling.core.training.rollout import RolloutConfig
 
     config = HybridTrainingConfig(hidden=(4,), rollout=RolloutConfig(horizon=5, batch_size=64, max_epochs=1, windows_per_epoch=128))
     return train_hybrid_on_flights([load_flight(FLIGHT, vehicle)], [None], vehicle, config, seed=3).save(directory / "hybrid.npz")

@@ -21,11 +21,11 @@ from quad_modelling.core.models.hybrid import (
     load_hybrid,
     observer_rows,
 )
-from quad_modelling.core.models.hybrid_training import HybridTrainingConfig, train_hybrid_on_flights
+from quad_modelling.core.training.hybrid import HybridTrainingConfig, train_hybrid_on_flights
 from quad_modelling.core.models.physics import PhysicsParameters, PhysicsPredictor
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.models.residual_net import ResidualNet, zero_net
-from quad_modelling.core.models.rollout_training import RolloutConfig
+from quad_modelling.core.training.rollout import RolloutConfig
 from quad_modelling.core.models.streaming import predict_window_by_stream
 from quad_modelling.core.vehicle import GRAVITY, load_vehicle
 from quad_modelling.core.windows import SpanSpec
@@ -89,7 +89,7 @@ def constant_net(angular: np.ndarray) -> ResidualNet:
 def test_torch_twin_equals_the_numpy_physics_step_in_float64(params):
     import torch
 
-    from quad_modelling.core.models import physics_torch as pt
+    from quad_modelling.core.training import physics_torch as pt
 
     rng = np.random.default_rng(1)
     state = random_states(params, 64, rng)

@@ -22,7 +22,7 @@ from quad_modelling.core.models.narx import (
     NarxPredictor,
     load_narx,
 )
-from quad_modelling.core.models.narx_training import (
+from quad_modelling.core.training.narx import (
     Segment,
     _noisy_outputs,
     flight_segments,

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from quad_modelling.core.models.rollout_training import (
+from quad_modelling.core.training.rollout import (
     RolloutConfig,
     RolloutWindows,
     hold_back_flights,

@@ -17,7 +17,7 @@ from quad_modelling.core.models.narx import (
     lagged_inputs,
     measured_outputs,
 )
-from quad_modelling.core.models.rollout_training import (
+from quad_modelling.core.training.rollout import (
     VAL_FRACTION,
     RolloutConfig,
     RolloutWindows,
@@ -75,7 +75,7 @@ def train_narx(
     1. Series-parallel: ``config.epochs`` L-BFGS steps on the one-step MSE (the thesis's training;
        with ``rollout`` None this is all).
     2. With ``rollout``: closed-loop fine-tuning over ``rollout.horizon`` steps from every start
-       (:func:`~quad_modelling.core.models.rollout_training.train_rollout`, loss = mean squared
+       (:func:`~quad_modelling.core.training.rollout.train_rollout`, loss = mean squared
        normalised error over the horizon, :func:`rollout_loss`), early-stopped on the windows of
        ``val_segments`` (whole validation flights; None or empty = on the training loss), the
        best epoch's weights kept. The stopping epoch and losses go to ``training["rollout"]``.

@@ -12,12 +12,12 @@ import pytest
 
 from quad_modelling.core.evaluation.multistep import multistep_evaluation
 from quad_modelling.core.models.narx import OUTPUTS, NarxConfig, NarxPredictor
-from quad_modelling.core.models.narx_training import (
+from quad_modelling.core.training.narx import (
     flight_segments,
     train_narx_on_flights,
     validation_split,
 )
-from quad_modelling.core.models.rollout_training import RolloutConfig
+from quad_modelling.core.training.rollout import RolloutConfig
 from quad_modelling.core.preprocess import measured_variables
 from quad_modelling.core.variables import columns
 from quad_modelling.core.vehicle import load_vehicle
@@ -53,7 +53,7 @@ def _multistep(flight, model) -> dict:
 
 def _rollout_error(model, segment, horizon: int, stride: int) -> float:
     """The rollout loss in numpy: mean squared normalised error of the six outputs over ``horizon`` closed-loop
-    steps from every ``stride``-th start of a :class:`~quad_modelling.core.models.narx_training.Segment`."""
+    steps from every ``stride``-th start of a :class:`~quad_modelling.core.training.narx.Segment`."""
     warm = model.config.warm_samples
     starts = np.arange(0, len(segment.u) - warm - horizon + 1, stride) + warm - 1
     predicted = model.simulate_from_starts(segment.u, segment.y, starts, horizon)[:, 1:]

@@ -4,12 +4,12 @@ Data. Every gap-free part of each training span (:func:`~quad_modelling.core.win
 segment, prepared as the evaluation's multi-step form sees a segment: measured states
 (:func:`~quad_modelling.core.preprocess.state_measurement`, raw rows), rotor speeds from the lag filter over the
 segment's commands, the physics observer's disturbance at every row as an anchor, and the observer's rows
-(:func:`~quad_modelling.core.models.hybrid.observer_rows`). :class:`~quad_modelling.core.models.rollout_training.RolloutWindows`
+(:func:`~quad_modelling.core.models.hybrid.observer_rows`). :class:`~quad_modelling.core.training.rollout.RolloutWindows`
 cuts windows of ``n_h`` history rows + the anchor + K steps from them (never across a segment), a seeded
 ``DataLoader`` batches them.
 
 Loss. From each anchor a the hybrid is rolled out K steps through the torch twin
-(:mod:`~quad_modelling.core.models.physics_torch`) -- observer correction from the net at the history rows,
+(:mod:`~quad_modelling.core.training.physics_torch`) -- observer correction from the net at the history rows,
 then the net inside every step -- and compared with the measured velocity and body rates by the measure the
 multi-step table reports (the Euclidean error norm of each group, summed over the horizons, over the naive
 model's):
@@ -24,7 +24,7 @@ with :math:`S_v, S_\omega` the naive (held-state) model's mean error norm over t
 training windows, :math:`S = \mathrm{mean}_{a,h} \lVert y(a+h) - y(a) \rVert`, so L is the mean of the two
 SimErr ratios to naive of the batch (L = 1: as good as naive) and the groups weigh alike; ε = 1e-3 S keeps the
 gradient finite at zero error. Adam, mini-batches, early stopping on whole
-training flights held back for validation (:func:`~quad_modelling.core.models.rollout_training.hold_back_flights`),
+training flights held back for validation (:func:`~quad_modelling.core.training.rollout.hold_back_flights`),
 the best validation epoch restored; epoch 0 is the bare physics model (zero last layer), so a net that does
 not beat the physics model on validation is not kept. Seeded and deterministic (one torch thread).
 """
@@ -41,7 +41,7 @@ from quad_modelling.core.models import physics
 from quad_modelling.core.models.hybrid import HybridModel, hybrid_commands, observer_dict, observer_rows
 from quad_modelling.core.models.physics import Observer, PhysicsParameters
 from quad_modelling.core.models.residual_net import ResidualNet
-from quad_modelling.core.models.rollout_training import (
+from quad_modelling.core.training.rollout import (
     VAL_FRACTION,
     RolloutConfig,
     RolloutWindows,
@@ -220,7 +220,7 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
     """``loss_fn(module, batch)`` of :func:`train_rollout` (module docstring): observer, then K twin steps."""
     import torch
 
-    from quad_modelling.core.models import physics_torch as pt
+    from quad_modelling.core.training import physics_torch as pt
 
     scale_v, scale_w = (float(s) for s in scales)
     eps_v, eps_w = 1e-3 * scale_v, 1e-3 * scale_w
@@ -270,7 +270,7 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
     """
     import torch
 
-    from quad_modelling.core.models import physics_torch as pt
+    from quad_modelling.core.training import physics_torch as pt
 
     if not logs or len(logs) != len(spans):
         raise DataError(f"hybrid training: {len(logs)} flights for {len(spans)} spans")
