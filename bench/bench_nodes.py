@@ -86,6 +86,24 @@ def small_narx(rate: float, workdir: Path) -> Path:
     return path
 
 
+def small_hybrid(rate: float, workdir: Path) -> Path:
+    """A hybrid model file (physics base of ``crazyflie21`` + default-size residual net, one short rollout epoch)
+    for the synthetic flight at ``rate``: its cost per step is the trained model's, its accuracy does not matter."""
+    from quad_modelling.core.training.hybrid import HybridTrainingConfig, train_hybrid_on_flights
+    from quad_modelling.core.training.rollout import RolloutConfig
+    from quad_modelling.core.vehicle import load_vehicle
+
+    path = workdir / f"hybrid_{rate:g}hz.npz"
+    if not path.exists():
+        config = HybridTrainingConfig(rollout=RolloutConfig(horizon=5, batch_size=64, max_epochs=1, windows_per_epoch=128))
+        train_hybrid_on_flights([synthetic_flight(rate, 30.0)], [None], load_vehicle("crazyflie21"), config, seed=0).save(path)
+    return path
+
+
+MODEL_FILES = {"greybox": None, "physics": None, "narx": small_narx, "hybrid": small_hybrid}
+"""Latency models: kind -> builder of its model file for a rate (None: the spec needs no file)."""
+
+
 def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", realtime: int = 0, echo: bool = False) -> dict:
     """Input-to-prediction latency of one predictor node with the evaluator running.
 
@@ -236,9 +254,31 @@ def memory(wall_s: float, workdir: Path) -> dict:
             "rss_mib_end": {n: float(samples[-1][i + 1]) for i, n in enumerate(names)}}
 
 
+def latency_markdown(lat: list[dict]) -> list[str]:
+    """The latency section of the results (one row per model, scheduling and rate)."""
+    md = [
+          "## Predictor latency (input published -> prediction received), evaluator running", "",
+          f"Scheduling `SCHED_FIFO {LATENCY_REALTIME_PRIORITY}`: the predictor with `realtime_priority:={LATENCY_REALTIME_PRIORITY}` "
+          "and this harness (standing in for the flight stack that reads the predictions) under SCHED_FIFO; the evaluator "
+          "keeps normal scheduling (nice 10). `normal`: every process under the default scheduler. The echo row is a no-op "
+          "rclpy node answering each input at once (`bench/echo_node.py`): the floor of rclpy + Fast DDS + this harness "
+          f"on this machine. 400 Hz rows: the run of median p99 out of {LATENCY_RUNS} (all p99s listed).", "",
+          "| model | scheduling | rate | inputs | p50 [ms] | p99 [ms] | max [ms] | drops | p99 of each run [ms] |",
+          "|---|---|---|---|---|---|---|---|---|"]
+    md += [f"| {r['model']} | {'SCHED_FIFO ' + str(r['realtime_priority']) if r['realtime_priority'] else 'normal'} | {r['rate_hz']:g} Hz | "
+           f"{r['inputs']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['max_ms']:.2f} | {r['drops']} | "
+           f"{', '.join(f'{x:.2f}' for x in r.get('runs_p99_ms', [r['p99_ms']]))} |" for r in lat]
+    return md + ["", "Streamed rows only: a warm-start row's prediction exists only once the warm start is complete (then it is "
+                 "queued behind the live ones), so it has no per-input latency.", ""]
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="shorter runs")
+    parser.add_argument("--models", default="greybox,narx,physics,hybrid",
+                        help=f"predictor models of the latency runs, comma-separated (of {', '.join(MODEL_FILES)})")
+    parser.add_argument("--latency-only", action="store_true",
+                        help="only the latency runs (results in nodes_latency.{json,md}); no graph or memory runs")
     parser.add_argument("--memory-wall", type=float, default=None,
                         help="run only the memory test for this many wall seconds (results in nodes_memory.{json,md})")
     args = parser.parse_args()
@@ -258,33 +298,24 @@ def main() -> int:
         lat = []
         for realtime in (LATENCY_REALTIME_PRIORITY, 0):
             lat.append(latency(400.0, seconds, work, "greybox", realtime=realtime, echo=True))
-            for kind in ("greybox", "narx"):
+            for kind in args.models.split(","):
                 for rate in (100.0, 400.0):
-                    spec = "greybox" if kind == "greybox" else f"narx:{small_narx(rate, work)}"
+                    spec = kind if MODEL_FILES[kind] is None else f"{kind}:{MODEL_FILES[kind](rate, work)}"
                     runs = [latency(rate, seconds, work, spec, realtime=realtime) for _ in range(LATENCY_RUNS if rate == 400.0 else 1)]
                     best_to_worst = sorted(runs, key=lambda r: r["p99_ms"])
                     median = dict(best_to_worst[len(runs) // 2])
                     median["runs_p99_ms"] = [r["p99_ms"] for r in runs]
                     lat.append(median)
+        if args.latency_only:
+            write_results("nodes_latency", {"latency": lat}, "\n".join(["# Predictor node latency", "", *latency_markdown(lat)]))
+            return 0
         graphs = [throughput(work, executor, run) for run in range(3) for executor in ("events", "single")]
         events = sorted((g for g in graphs if g["executor"] == "events"), key=lambda g: g["samples_per_s"])
         graph = events[len(events) // 2]  # the median run
         mem = memory(40.0 if args.quick else 120.0, work)
     data = {"latency": lat, "graph_rate0": graph, "graph_runs": graphs, "memory": mem}
     md = ["# Node suite benchmarks", "",
-          "## Predictor latency (input published -> prediction received), evaluator running", "",
-          f"Scheduling `SCHED_FIFO {LATENCY_REALTIME_PRIORITY}`: the predictor with `realtime_priority:={LATENCY_REALTIME_PRIORITY}` "
-          "and this harness (standing in for the flight stack that reads the predictions) under SCHED_FIFO; the evaluator "
-          "keeps normal scheduling (nice 10). `normal`: every process under the default scheduler. The echo row is a no-op "
-          "rclpy node answering each input at once (`bench/echo_node.py`): the floor of rclpy + Fast DDS + this harness "
-          f"on this machine. 400 Hz rows: the run of median p99 out of {LATENCY_RUNS} (all p99s listed).", "",
-          "| model | scheduling | rate | inputs | p50 [ms] | p99 [ms] | max [ms] | drops | p99 of each run [ms] |",
-          "|---|---|---|---|---|---|---|---|---|"]
-    md += [f"| {r['model']} | {'SCHED_FIFO ' + str(r['realtime_priority']) if r['realtime_priority'] else 'normal'} | {r['rate_hz']:g} Hz | "
-           f"{r['inputs']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['max_ms']:.2f} | {r['drops']} | "
-           f"{', '.join(f'{x:.2f}' for x in r.get('runs_p99_ms', [r['p99_ms']]))} |" for r in lat]
-    md += ["", "Streamed rows only: a warm-start row's prediction exists only once the warm start is complete (then it is "
-           "queued behind the live ones), so it has no per-input latency.", "",
+          *latency_markdown(lat),
            "## Whole graph at rate 0 (replay + naive + greybox predictors + evaluator, bundled 42 s bag)", "",
           "Three runs per executor, alternated (the machine is noisy): " + ", ".join(
               f"{g['executor']} {g['real_time_factor']:.1f}x" for g in graphs) + ". The median EventsExecutor run:", "",
