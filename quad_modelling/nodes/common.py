@@ -44,6 +44,7 @@ from rclpy.qos import (
 
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.io.dds_profile import DDS_PROFILE_ENV  # noqa: F401  (re-exported)
 from quad_modelling.nodes.executors import executor_kind, make_executor, spin  # noqa: F401  (re-exported for the nodes)
 
 DEFAULT_QOS_DEPTH = 1000
@@ -360,20 +361,21 @@ def say(node, text: str, error: bool = False) -> None:
         print(f"[{'ERROR' if error else 'INFO'}] [{node.get_namespace().strip('/')}.{node.get_name()}]: {text}", file=sys.stderr, flush=True)
 
 
-DDS_PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
-"""Environment variable Fast DDS 2.x reads its XML profiles from (at participant creation)."""
-
-
-def use_dds_profile() -> str:
-    """Point Fast DDS at ``config/fastdds.xml`` (50 ms writer heartbeat) unless the environment names a profile.
-
-    Call before ``rclpy.init``. Returns the profile file in use.
+def use_dds_profile(environ: dict | None = None) -> str:
+    """Point Fast DDS at ``config/fastdds.xml`` (50 ms writer heartbeat), or, when ``environ`` (default
+    ``os.environ``) already names a profile file in ``FASTRTPS_DEFAULT_PROFILES_FILE``, at that file with our
+    writer settings merged in where it does not set them (:mod:`quad_modelling.io.dds_profile`: the user's
+    settings win). Updates ``environ``; returns the file in use. Call before ``rclpy.init``.
+    ConfigError for a profile file that cannot be read or parsed.
     """
-    import os
-
     from quad_modelling.core.vehicle import config_dir
+    from quad_modelling.io.dds_profile import profile_with_defaults
 
-    return os.environ.setdefault(DDS_PROFILE_ENV, str(config_dir() / "fastdds.xml"))
+    environ = os.environ if environ is None else environ
+    ours = config_dir() / "fastdds.xml"
+    given = environ.get(DDS_PROFILE_ENV, "").strip()
+    environ[DDS_PROFILE_ENV] = str(ours if not given or Path(given) == ours else profile_with_defaults(given, ours))
+    return environ[DDS_PROFILE_ENV]
 
 
 def run_node(factory, args=None) -> int:
@@ -385,7 +387,11 @@ def run_node(factory, args=None) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    use_dds_profile()
+    try:
+        use_dds_profile()
+    except QuadModellingError as err:
+        print(f"error: {err}", file=sys.stderr, flush=True)
+        return EXIT_BAD_PARAMETER
     rclpy.init(args=args)
     node = None
     code = 0
