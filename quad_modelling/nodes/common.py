@@ -44,7 +44,7 @@ from rclpy.qos import (
 
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError
-from quad_modelling.io.dds_profile import DDS_PROFILE_ENV  # noqa: F401  (re-exported)
+from quad_modelling.nodes.domains import DDS_PROFILE_ENV, use_dds_profile  # noqa: F401  (re-exported)
 from quad_modelling.nodes.executors import executor_kind, make_executor, spin  # noqa: F401  (re-exported for the nodes)
 
 DEFAULT_QOS_DEPTH = 1000
@@ -359,23 +359,6 @@ def say(node, text: str, error: bool = False) -> None:
         (node.get_logger().error if error else node.get_logger().info)(text)
     else:
         print(f"[{'ERROR' if error else 'INFO'}] [{node.get_namespace().strip('/')}.{node.get_name()}]: {text}", file=sys.stderr, flush=True)
-
-
-def use_dds_profile(environ: dict | None = None) -> str:
-    """Point Fast DDS at ``config/fastdds.xml`` (50 ms writer heartbeat), or, when ``environ`` (default
-    ``os.environ``) already names a profile file in ``FASTRTPS_DEFAULT_PROFILES_FILE``, at that file with our
-    writer settings merged in where it does not set them (:mod:`quad_modelling.io.dds_profile`: the user's
-    settings win). Updates ``environ``; returns the file in use. Call before ``rclpy.init``.
-    ConfigError for a profile file that cannot be read or parsed.
-    """
-    from quad_modelling.core.vehicle import config_dir
-    from quad_modelling.io.dds_profile import profile_with_defaults
-
-    environ = os.environ if environ is None else environ
-    ours = config_dir() / "fastdds.xml"
-    given = environ.get(DDS_PROFILE_ENV, "").strip()
-    environ[DDS_PROFILE_ENV] = str(ours if not given or Path(given) == ours else profile_with_defaults(given, ours))
-    return environ[DDS_PROFILE_ENV]
 
 
 def run_node(factory, args=None) -> int:
