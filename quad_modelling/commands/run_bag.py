@@ -28,25 +28,25 @@ Start the ROS 2 graph of the node suite on one MCAP bag: the evaluator, one pred
 model and the replay, each its own process talking over DDS (--discovery localhost, the default:
 loopback only; a ROS_DOMAIN_ID of its own unless the environment sets one). Waits until the
 replay has played the bag and the evaluator acknowledged the last sample, stops the nodes
-(SIGINT, then terminate), and prints the RMS/TIC tables.
+(SIGINT, then terminate), and prints the RMS/TIC tables. Then the multi-step
+table (IDSIA: MAE at 1/10/50 steps, SimErr, ratio to naive) of the same models on the bag, each
+predicting with its live form from every start (the code the predictor nodes run, called
+in-process); --no-multistep skips it.
 
 Half a graph per host: --nodes names the nodes started here (replay, predictors, evaluator; default
 all); the others are expected on another host in the same ROS_DOMAIN_ID (set it, the same on every
 host) with --discovery subnet (multicast, plus ROS_STATIC_PEERS if set) or env (your
 ROS_AUTOMATIC_DISCOVERY_RANGE / ROS_STATIC_PEERS as they are). run-bag waits --remote-timeout
 for them, starts the replay last, and ends when the replay (here, or announcing replay/done from
-there) has finished; every host runs it on the same BAG. A Fast DDS profile of yours
-(FASTRTPS_DEFAULT_PROFILES_FILE) is kept, with the nodes' writer heartbeat added where it sets none. Then the multi-step
-table (IDSIA: MAE at 1/10/50 steps, SimErr, ratio to naive) of the same models on the bag, each
-predicting with its live form from every start (the code the predictor nodes run, called
-in-process); --no-multistep skips it.
+there) has finished; every host runs it on the same BAG and --models. A Fast DDS profile of yours
+(FASTRTPS_DEFAULT_PROFILES_FILE) is kept, with the nodes' writer heartbeat added where it sets none.
 
 Models: comma-separated specs (naive, greybox, greybox:euler, narx:MODEL.npz, ...); NAME=SPEC
 gives a spec another topic name (two NARX files: a=narx:a.npz,b=narx:b.npz). Spans: --train
 and --eval in seconds from the first sample (multiples of --window are best: only windows
 entirely inside a span are scored); without them one span live:0:inf.
 
-OUTDIR receives results.json (as quad-modelling evaluate, plus every live window, scored or
+OUTDIR receives (on the evaluator's host) results.json (as quad-modelling evaluate, plus every live window, scored or
 marked), tables.md, figures, params.yaml (the nodes' parameters) and logs/<node>.log; with
 --record also record/, one MCAP bag of everything the evaluator received and published.
 
@@ -336,6 +336,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--timeout {args.timeout}: must be a positive number of seconds")
     if not args.remote_timeout > 0:
         raise ConfigError(f"--remote-timeout {args.remote_timeout}: must be a positive number of seconds")
+    if args.record and "evaluator" not in here:
+        raise ConfigError(f"--record with --nodes {','.join(here)}: the evaluator records; pass --record on its host")
     spans = span_list(args)
     bag = read_bag_metadata(args.bag)  # metadata.yaml only: the replay node reads the messages
     bag.require_live_topics()

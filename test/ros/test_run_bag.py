@@ -130,4 +130,6 @@ def test_bad_nodes_and_discovery_flags_are_one_line_errors(tmp_path, capsys, mon
     monkeypatch.delenv("ROS_DOMAIN_ID")
     assert main(["run-bag", str(BAG), "--nodes", "replay,predictors", "-o", str(tmp_path / "x")]) == 2
     assert "--nodes: evaluator run on another host; set ROS_DOMAIN_ID" in capsys.readouterr().err
+    assert main(["run-bag", str(BAG), "--nodes", "replay", "--record", "-o", str(tmp_path / "x")]) == 2
+    assert "--record with --nodes replay: the evaluator records; pass --record on its host" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
