@@ -60,7 +60,9 @@ def test_drone_and_ground_over_a_lossy_delayed_link_score_what_one_host_scores(t
     assert single.returncode == 0, single.stderr
     profile = tmp_path / "udp_only.xml"
     profile.write_text(USER_PROFILE)
-    env.update(ROS_DOMAIN_ID="42", FASTRTPS_DEFAULT_PROFILES_FILE=str(profile))
+    # TMPDIR: the merged profile (<tmp>/quad_modelling_fastdds_<hash>.xml) goes with the test's files; the domain is set,
+    # so no domain lock file is looked for there.
+    env.update(ROS_DOMAIN_ID="42", FASTRTPS_DEFAULT_PROFILES_FILE=str(profile), TMPDIR=str(tmp_path))
     split = [*RUN_BAG, "--discovery", "subnet", "--remote-timeout", "30", "--timeout", "80"]
     started = time.monotonic()
     with ImpairedLink(("ground", "drone"), delay_s=0.05, loss=0.05, seed=1) as link:
@@ -81,6 +83,8 @@ def test_drone_and_ground_over_a_lossy_delayed_link_score_what_one_host_scores(t
     assert "expecting /quad/evaluator on another host (ROS_DOMAIN_ID 42, discovery SUBNET)" in outputs["drone"]
     assert "the evaluator on the other host writes the results" in outputs["drone"]
     assert not (tmp_path / "drone" / "results.json").exists() and (tmp_path / "drone" / "logs" / "replay.log").is_file()
+    merged = list(tmp_path.glob("quad_modelling_fastdds_*.xml"))  # the user's profile was merged, once for both hosts
+    assert len(merged) == 1 and "added data_writer/times/heartbeatPeriod" in merged[0].read_text()
     # The link carried the graph and was impaired: every frame crossed it with 50 ms delay, about 5 % dropped each way.
     for direction, stats in link.stats.items():
         assert stats["frames"] > 2000 and 0.03 < stats["dropped"] / stats["frames"] < 0.07, (direction, stats)
