@@ -11,7 +11,6 @@ import shutil
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
 
@@ -64,7 +63,6 @@ def test_drone_and_ground_over_a_lossy_delayed_link_score_what_one_host_scores(t
     # so no domain lock file is looked for there.
     env.update(ROS_DOMAIN_ID="42", FASTRTPS_DEFAULT_PROFILES_FILE=str(profile), TMPDIR=str(tmp_path))
     split = [*RUN_BAG, "--discovery", "subnet", "--remote-timeout", "30", "--timeout", "80"]
-    started = time.monotonic()
     with ImpairedLink(("ground", "drone"), delay_s=0.05, loss=0.05, seed=1) as link:
         for name in ("ground", "drone"):  # nothing else to send to: loopback and the link
             links = subprocess.run(["ip", "-n", link.namespace(name), "-o", "link"], capture_output=True, text=True).stdout
@@ -78,7 +76,6 @@ def test_drone_and_ground_over_a_lossy_delayed_link_score_what_one_host_scores(t
         finally:
             for proc in procs.values():
                 _stop(proc)
-    took = time.monotonic() - started
     assert [procs["drone"].returncode, procs["ground"].returncode] == [0, 0], outputs
     assert "expecting /quad/evaluator on another host (ROS_DOMAIN_ID 42, discovery SUBNET)" in outputs["drone"]
     assert "the evaluator on the other host writes the results" in outputs["drone"]
@@ -96,4 +93,3 @@ def test_drone_and_ground_over_a_lossy_delayed_link_score_what_one_host_scores(t
     assert ground["live"]["marked"] == one_host["live"]["marked"]
     assert ground["models"] == one_host["models"]  # every RMS and TIC of every variable, exactly
     assert ground["live"] == one_host["live"]  # every window, scored or marked, with its numbers
-    assert took < 80, took
