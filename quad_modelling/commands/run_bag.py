@@ -18,26 +18,35 @@ import yaml
 
 from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.nodes.domains import DISCOVERY_MODES
 from quad_modelling.nodes.executors import EXECUTORS
 
 NAME = "run-bag"
 HELP = "replay a bag through the live predictor and evaluator nodes (separate processes, real DDS)"
 DESCRIPTION = """\
 Start the ROS 2 graph of the node suite on one MCAP bag: the evaluator, one predictor per
-model and the replay, each its own process talking over DDS (loopback only:
-ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST; a ROS_DOMAIN_ID of its own unless the environment sets
-one). Waits until the replay has played the bag and the evaluator acknowledged the last sample,
-stops the nodes (SIGINT, then terminate), and prints the RMS/TIC tables. Then the multi-step
+model and the replay, each its own process talking over DDS (--discovery localhost, the default:
+loopback only; a ROS_DOMAIN_ID of its own unless the environment sets one). Waits until the
+replay has played the bag and the evaluator acknowledged the last sample, stops the nodes
+(SIGINT, then terminate), and prints the RMS/TIC tables. Then the multi-step
 table (IDSIA: MAE at 1/10/50 steps, SimErr, ratio to naive) of the same models on the bag, each
 predicting with its live form from every start (the code the predictor nodes run, called
 in-process); --no-multistep skips it.
+
+Half a graph per host: --nodes names the nodes started here (replay, predictors, evaluator; default
+all); the others are expected on another host in the same ROS_DOMAIN_ID (set it, the same on every
+host) with --discovery subnet (multicast, plus ROS_STATIC_PEERS if set) or env (your
+ROS_AUTOMATIC_DISCOVERY_RANGE / ROS_STATIC_PEERS as they are). run-bag waits --remote-timeout
+for them, starts the replay last, and ends when the replay (here, or announcing replay/done from
+there) has finished; every host runs it on the same BAG and --models. A Fast DDS profile of yours
+(FASTRTPS_DEFAULT_PROFILES_FILE) is kept, with the nodes' writer heartbeat added where it sets none.
 
 Models: comma-separated specs (naive, greybox, greybox:euler, narx:MODEL.npz, ...); NAME=SPEC
 gives a spec another topic name (two NARX files: a=narx:a.npz,b=narx:b.npz). Spans: --train
 and --eval in seconds from the first sample (multiples of --window are best: only windows
 entirely inside a span are scored); without them one span live:0:inf.
 
-OUTDIR receives results.json (as quad-modelling evaluate, plus every live window, scored or
+OUTDIR receives (on the evaluator's host) results.json (as quad-modelling evaluate, plus every live window, scored or
 marked), tables.md, figures, params.yaml (the nodes' parameters) and logs/<node>.log; with
 --record also record/, one MCAP bag of everything the evaluator received and published.
 
@@ -47,6 +56,8 @@ group) and remove the staging directory.
 
 examples:
   quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models naive -o out/live
+  quad-modelling run-bag BAG --models greybox --nodes replay,predictors --discovery subnet -o out/drone    (onboard)
+  quad-modelling run-bag BAG --models greybox --nodes evaluator --discovery subnet -o out/ground           (ground)
   quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models greybox --record -o out/recorded
   quad-modelling run-bag bags/flight --models greybox,narx:narx.npz --train 30:150 --eval 150:190 --rate 0 -o out/flight
 """
@@ -56,7 +67,22 @@ STOP_TIMEOUT_S = 30.0
 
 
 class NodeFailedError(QuadModellingError, RuntimeError):
-    """A node of the graph died or the run did not finish in time."""
+    """A node of the graph died, a node expected on another host never appeared, or the run did not finish in time."""
+
+
+NODE_GROUPS = ("replay", "predictors", "evaluator")
+"""``--nodes``: the parts of the graph one run-bag can start (``predictors`` = one per model)."""
+
+
+def parse_nodes(text: str) -> tuple[str, ...]:
+    """``replay,evaluator`` -> the groups of :data:`NODE_GROUPS` to start here, in that order; ConfigError naming the
+    valid names for an unknown or empty list."""
+    given = [item.strip() for item in text.split(",") if item.strip()]
+    unknown = [item for item in given if item not in NODE_GROUPS]
+    if unknown or not given:
+        what = f"unknown node {unknown[0]!r}" if unknown else "no node named"
+        raise ConfigError(f"--nodes {text!r}: {what}; valid: {', '.join(NODE_GROUPS)} (comma-separated)")
+    return tuple(group for group in NODE_GROUPS if group in given)
 
 
 @dataclass
@@ -96,18 +122,73 @@ def span_list(args: argparse.Namespace) -> list[str]:
     return [span.name + ":" + span.text() for span in seconds_spans(spans)]
 
 
-def ros_environment() -> dict:
-    """The environment of the nodes: loopback discovery always; a domain no other run holds unless set
-    (:func:`quad_modelling.nodes.domains.claim_domain`, held until this process ends)."""
-    from quad_modelling.nodes.domains import claim_domain
+def ros_environment(discovery: str = "localhost", remote: tuple[str, ...] = ()) -> dict:
+    """The environment of the nodes: discovery per ``discovery``
+    (:func:`~quad_modelling.nodes.domains.discovery_environment`); the Fast DDS profile (ours, or the user's
+    with our writer heartbeat merged in: :func:`~quad_modelling.nodes.domains.use_dds_profile`); a domain no
+    other run holds unless set (:func:`~quad_modelling.nodes.domains.claim_domain`, held until this process
+    ends). With nodes on another host (``remote``) ROS_DOMAIN_ID must be set: ConfigError otherwise."""
+    from quad_modelling.nodes.domains import claim_domain, discovery_environment, use_dds_profile
 
-    env = dict(os.environ)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    env = discovery_environment(dict(os.environ), discovery)
     if not env.get("ROS_DOMAIN_ID"):
+        if remote:
+            raise ConfigError(f"--nodes: {', '.join(remote)} run on another host; set ROS_DOMAIN_ID (the same number "
+                              "on every host) so the two halves of the graph meet")
         env["ROS_DOMAIN_ID"] = str(claim_domain())
+    use_dds_profile(env)
     env.setdefault("PYTHONUNBUFFERED", "1")
     env.setdefault("MPLBACKEND", "Agg")
     return env
+
+
+class RemoteNodes:
+    """What this run-bag sees of the nodes it expects on other hosts: their names in the ROS graph and the
+    replay's ``replay/done``. One rclpy context and node (``run_bag_<pid>``) of this process, created with the
+    nodes' environment ``env`` (domain, discovery, Fast DDS profile)."""
+
+    def __init__(self, env: dict):
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rosgraph_msgs.msg import Clock
+
+        from quad_modelling.io import topics
+        from quad_modelling.nodes.common import latched_qos
+
+        saved = dict(os.environ)
+        os.environ.update(env)  # read by rcl/Fast DDS while the context and participant are created
+        try:
+            self.context = Context()
+            rclpy.init(context=self.context, domain_id=int(env["ROS_DOMAIN_ID"]))
+            self.node = rclpy.create_node(f"run_bag_{os.getpid()}", namespace=topics.DEFAULT_NAMESPACE, context=self.context,
+                                          enable_rosout=False, start_parameter_services=False)
+        finally:
+            os.environ.clear()
+            os.environ.update(saved)
+        self.done_ns: int | None = None
+        self.node.create_subscription(Clock, topics.DONE_TOPIC, self._on_done, latched_qos())
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def _on_done(self, msg) -> None:
+        from quad_modelling.io.topics import stamp_ns
+
+        self.done_ns = stamp_ns(msg.clock)
+
+    def spin(self, seconds: float) -> None:
+        """Handle what arrived, waiting up to ``seconds`` [s]."""
+        self.executor.spin_once(timeout_sec=seconds)
+
+    def missing(self, names: list[str]) -> list[str]:
+        """Those of the fully qualified node ``names`` (``/quad/evaluator``) not in the graph now."""
+        present = {f"{ns.rstrip('/')}/{name}" for name, ns in self.node.get_node_names_and_namespaces()}
+        return [n for n in names if n not in present]
+
+    def close(self) -> None:
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
 
 
 class Graph:
@@ -121,6 +202,7 @@ class Graph:
         self.logs: dict[str, Path] = {}
 
     def start(self, name: str, module: str, remap_name: str | None = None) -> None:
+        """Start node ``name`` (``python -m quad_modelling.nodes.<module>``, node name ``remap_name``) with its log file."""
         log = self.workdir / "logs" / f"{name}.log"
         self.logs[name] = log
         argv = [sys.executable, "-m", f"quad_modelling.nodes.{module}", "--ros-args", "--params-file", str(self.params_file)]
@@ -176,7 +258,9 @@ REPLAY_PATIENCE_S = 60.0
 
 def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[str], report_dir: Path,
                     record: Path | None = None) -> dict:
-    """Every node's parameters (one params file). Subscriptions are reliable: the paced replay is lossless."""
+    """Every node's parameters (one params file; every host of a split graph writes the same but its report paths).
+    Subscriptions are reliable: the paced replay is lossless. The evaluator waits for the models' publishers and the
+    replay for its subscribers and first acknowledgement as long as run-bag waits for remote nodes."""
     common = {"vehicle": vehicle, "window_s": float(args.window), "warm_s": float(args.warm), "executor": args.executor,
               "qos": "reliable"}
     params = {
@@ -185,9 +269,11 @@ def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[st
         "/quad/evaluator": {"ros__parameters": {**common, "models": [m.name for m in models], "spans": spans,
                                                 "output_dir": str(report_dir), "force": True, "figures": not args.no_figures,
                                                 "stale_model_s": REPLAY_PATIENCE_S, "close_grace_s": REPLAY_PATIENCE_S,
+                                                "ready_timeout_s": float(args.remote_timeout),
                                                 "record": str(record) if record else ""}},
         "/quad/replay": {"ros__parameters": {"bag": str(Path(args.bag).resolve()), "rate": float(args.rate),
                                              "executor": args.executor, "vehicle": vehicle,
+                                             "startup_timeout_s": float(args.remote_timeout),
                                              "wait_for_subscribers": len(models) + 1}},
     }
     for m in models:
@@ -208,6 +294,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timeout", type=float, default=900.0, metavar="SECONDS", help="give up after this long (default 900)")
     parser.add_argument("--no-figures", action="store_true", help="skip the figures")
     parser.add_argument("--no-multistep", action="store_true", help="skip the multi-step table")
+    parser.add_argument("--nodes", default=",".join(NODE_GROUPS), metavar="NODE,...",
+                        help="nodes started here, of replay, predictors, evaluator (default all); the others are expected on "
+                             "another host in the same ROS_DOMAIN_ID")
+    parser.add_argument("--discovery", choices=DISCOVERY_MODES, default="localhost",
+                        help="localhost (default: loopback only), subnet (ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET; "
+                             "ROS_STATIC_PEERS kept) or env (your ROS_AUTOMATIC_DISCOVERY_RANGE / ROS_STATIC_PEERS as set)")
+    parser.add_argument("--remote-timeout", type=float, default=60.0, metavar="SECONDS",
+                        help="wait this long for the nodes expected on another host (default 60)")
     parser.add_argument("--executor", choices=EXECUTORS, default="events",
                         help="rclpy executor of every node: events (EventsExecutor, default) or single (SingleThreadedExecutor)")
     parser.add_argument("--record", action="store_true",
@@ -226,9 +320,12 @@ def run(args: argparse.Namespace) -> int:
 
     output = Path(args.output)
     models = parse_models(args.models)
+    here = parse_nodes(args.nodes)
+    remote = tuple(group for group in NODE_GROUPS if group not in here)
     model_files = [m.spec.partition(":")[2] for m in models if m.spec.partition(":")[0] in ("narx", "hybrid")]
     check_output(output, args.force, inputs=[args.bag, vehicle_file(args.vehicle), *model_files])
-    for flag, value in (("--rate", args.rate), ("--window", args.window), ("--warm", args.warm), ("--timeout", args.timeout)):
+    for flag, value in (("--rate", args.rate), ("--window", args.window), ("--warm", args.warm), ("--timeout", args.timeout),
+                        ("--remote-timeout", args.remote_timeout)):
         if not math.isfinite(value):
             raise ConfigError(f"{flag} {value}: must be a finite number")
     if args.rate < 0:
@@ -237,6 +334,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--window {args.window} / --warm {args.warm}: need 0 < warm < window")
     if not args.timeout > 0:
         raise ConfigError(f"--timeout {args.timeout}: must be a positive number of seconds")
+    if not args.remote_timeout > 0:
+        raise ConfigError(f"--remote-timeout {args.remote_timeout}: must be a positive number of seconds")
+    if args.record and "evaluator" not in here:
+        raise ConfigError(f"--record with --nodes {','.join(here)}: the evaluator records; pass --record on its host")
     spans = span_list(args)
     bag = read_bag_metadata(args.bag)  # metadata.yaml only: the replay node reads the messages
     bag.require_live_topics()
@@ -249,7 +350,13 @@ def run(args: argparse.Namespace) -> int:
     flight = load_flight(args.bag, vehicle=vehicle, fmt="bag")
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
         make_streaming_predictor(m.spec, vehicle)
-    env = ros_environment()
+    env = ros_environment(args.discovery, remote)
+    local_nodes = graph_nodes(here, models)
+    remote_nodes = [f"/quad/{n}" for n in graph_nodes(remote, models)]
+    if remote:
+        print(f"starting {', '.join(local_nodes)} here; expecting {', '.join(remote_nodes)} on another host "
+              f"(ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, discovery {env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', 'default')}"
+              f"{', static peers ' + env['ROS_STATIC_PEERS'] if env.get('ROS_STATIC_PEERS') else ''})", flush=True)
     started = time.monotonic()
     with atomic_output(output, args.force) as tmp:
         tmp.mkdir()
@@ -259,29 +366,44 @@ def run(args: argparse.Namespace) -> int:
         record = tmp / RECORD_NAME if args.record else None
         params_file.write_text(yaml.safe_dump(node_parameters(args, models, vehicle_name, spans, report_dir, record), sort_keys=False))
         graph = Graph(tmp, params_file, env)
+        watch = RemoteNodes(env) if remote else None
         try:
-            graph.start("evaluator", "evaluator_node")
-            for m in models:
-                graph.start(f"{m.name}_predictor", "predictor_node", remap_name=f"{m.name}_predictor")
-            graph.start("replay", "replay_node")
-            _wait_for_replay(graph, args.timeout, started)
+            if "evaluator" in here:
+                graph.start("evaluator", "evaluator_node")
+            if "predictors" in here:
+                for m in models:
+                    graph.start(f"{m.name}_predictor", "predictor_node", remap_name=f"{m.name}_predictor")
+            if watch is not None:
+                _wait_for_remote(graph, watch, remote_nodes, args.remote_timeout, env)
+            if "replay" in here:
+                graph.start("replay", "replay_node")
+                _wait_for_replay(graph, args.timeout, started)
+            else:
+                _wait_for_remote_replay(graph, watch, args.timeout, started)
             graph.stop([n for n in graph.procs if n != "evaluator"])
-            graph.stop(["evaluator"])
+            graph.stop(["evaluator"] if "evaluator" in graph.procs else [])
         finally:
             graph.stop()
+            if watch is not None:
+                watch.close()
         failed = {n: p.returncode for n, p in graph.procs.items() if p.returncode not in (0, -signal.SIGINT)}
         if failed:
             name = next(iter(failed))
             raise _failure(graph, name, f"node {name} exited with code {failed[name]}")
-        if not (report_dir / "results.json").is_file():
-            raise _failure(graph, "evaluator", "the evaluator wrote no results")
-        if record is not None and not (record / "metadata.yaml").is_file():
-            raise _failure(graph, "evaluator", "the evaluator wrote no recording")
-        if not args.no_multistep:
-            add_multistep_table(report_dir, flight, models, vehicle, args)
-        for item in report_dir.iterdir():
-            shutil.move(str(item), tmp / item.name)
-        report_dir.rmdir()
+        if "evaluator" in here:
+            if not (report_dir / "results.json").is_file():
+                raise _failure(graph, "evaluator", "the evaluator wrote no results")
+            if record is not None and not (record / "metadata.yaml").is_file():
+                raise _failure(graph, "evaluator", "the evaluator wrote no recording")
+            if not args.no_multistep:
+                add_multistep_table(report_dir, flight, models, vehicle, args)
+            for item in report_dir.iterdir():
+                shutil.move(str(item), tmp / item.name)
+            report_dir.rmdir()
+    if "evaluator" not in here:
+        print(f"{', '.join(local_nodes)} done in {time.monotonic() - started:.1f} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}); "
+              f"the evaluator on the other host writes the results; logs in {output}/logs/")
+        return 0
     elapsed = time.monotonic() - started
     results = json.loads((output / "results.json").read_text())
     print(live_summary_table(results, [m.name for m in models]))
@@ -299,6 +421,44 @@ def _failure(graph: Graph, name: str, what: str) -> NodeFailedError:
     print(f"--- last lines of the {name} log ---\n{tail}\n---", file=sys.stderr)
     last = next((line.strip() for line in reversed(tail.splitlines()) if line.strip()), "(empty log)")
     return NodeFailedError(f"{what}; its last log line: {last}")
+
+
+def graph_nodes(groups: tuple[str, ...], models: list[ModelEntry]) -> list[str]:
+    """The node names of ``groups`` (:data:`NODE_GROUPS`): ``evaluator``, ``<model>_predictor``..., ``replay``."""
+    names = ["evaluator"] if "evaluator" in groups else []
+    names += [f"{m.name}_predictor" for m in models] if "predictors" in groups else []
+    return names + (["replay"] if "replay" in groups else [])
+
+
+def _wait_for_remote(graph: Graph, watch: RemoteNodes, names: list[str], timeout: float, env: dict) -> None:
+    """Wait until every node of ``names`` (fully qualified) is in the graph; NodeFailedError naming those that never
+    appeared within ``timeout`` [s], or a local node that died meanwhile."""
+    deadline = time.monotonic() + timeout
+    missing = watch.missing(names)
+    while missing:
+        dead = graph.dead()
+        if dead:
+            raise _failure(graph, dead[0], f"node {dead[0]} died early (exit code {graph.procs[dead[0]].returncode})")
+        if time.monotonic() > deadline:
+            peers = env.get("ROS_STATIC_PEERS")
+            raise NodeFailedError(
+                f"{', '.join(missing)} never appeared within --remote-timeout {timeout:g} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, "
+                f"discovery {env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', 'default')}{', static peers ' + peers if peers else ''}); "
+                "start run-bag with the other --nodes on the other host, in the same domain, with a discovery that reaches it")
+        watch.spin(0.1)
+        missing = watch.missing(names)
+    print(f"{', '.join(names)} found on another host", flush=True)
+
+
+def _wait_for_remote_replay(graph: Graph, watch: RemoteNodes, timeout: float, started: float) -> None:
+    """Wait for the remote replay's ``replay/done``, while every local node lives and ``timeout`` [s] allows."""
+    while watch.done_ns is None:
+        dead = graph.dead()
+        if dead:
+            raise _failure(graph, dead[0], f"node {dead[0]} died early (exit code {graph.procs[dead[0]].returncode})")
+        if time.monotonic() - started > timeout:
+            raise NodeFailedError(f"the replay on the other host did not announce its end (replay/done) within --timeout {timeout:g} s")
+        watch.spin(0.1)
 
 
 def _wait_for_replay(graph: Graph, timeout: float, started: float) -> None:

@@ -62,6 +62,10 @@ ORIGIN_TOPIC = "window_origin"
 PROGRESS_TOPIC = "evaluation/progress"
 """rosgraph_msgs/Clock: the last stamp every measurement stream delivered to the evaluator (the replay's rate-0 pacing)."""
 
+DONE_TOPIC = "replay/done"
+"""rosgraph_msgs/Clock, transient-local: the last stamp the replay played, published once it has finished (after the
+acknowledgements reached it); ``run-bag`` on a host without the replay ends its nodes on it."""
+
 WORLD_FRAME = "world"
 BODY_FRAME = "base_link"
 MOTOR_NAMES = ("motor_1", "motor_2", "motor_3", "motor_4")

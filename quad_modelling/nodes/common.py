@@ -44,6 +44,7 @@ from rclpy.qos import (
 
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.nodes.domains import DDS_PROFILE_ENV, use_dds_profile  # noqa: F401  (re-exported)
 from quad_modelling.nodes.executors import executor_kind, make_executor, spin  # noqa: F401  (re-exported for the nodes)
 
 DEFAULT_QOS_DEPTH = 1000
@@ -360,22 +361,6 @@ def say(node, text: str, error: bool = False) -> None:
         print(f"[{'ERROR' if error else 'INFO'}] [{node.get_namespace().strip('/')}.{node.get_name()}]: {text}", file=sys.stderr, flush=True)
 
 
-DDS_PROFILE_ENV = "FASTRTPS_DEFAULT_PROFILES_FILE"
-"""Environment variable Fast DDS 2.x reads its XML profiles from (at participant creation)."""
-
-
-def use_dds_profile() -> str:
-    """Point Fast DDS at ``config/fastdds.xml`` (50 ms writer heartbeat) unless the environment names a profile.
-
-    Call before ``rclpy.init``. Returns the profile file in use.
-    """
-    import os
-
-    from quad_modelling.core.vehicle import config_dir
-
-    return os.environ.setdefault(DDS_PROFILE_ENV, str(config_dir() / "fastdds.xml"))
-
-
 def run_node(factory, args=None) -> int:
     """Create the node with ``factory()``, spin it, shut down cleanly; exit code.
 
@@ -385,7 +370,11 @@ def run_node(factory, args=None) -> int:
     import rclpy
     from rclpy.executors import ExternalShutdownException
 
-    use_dds_profile()
+    try:
+        use_dds_profile()
+    except QuadModellingError as err:
+        print(f"error: {err}", file=sys.stderr, flush=True)
+        return EXIT_BAD_PARAMETER
     rclpy.init(args=args)
     node = None
     code = 0

@@ -1,4 +1,6 @@
-"""A ROS domain of its own for a test process or a ``run-bag`` run (no rclpy imported).
+"""The DDS environment of a graph: a ROS domain of its own for a test process or a ``run-bag`` run, the
+discovery settings (:func:`discovery_environment`) and the Fast DDS profile (:func:`use_dds_profile`).
+No rclpy imported.
 
 DDS participants in one ``ROS_DOMAIN_ID`` discover each other; two test processes (or two
 ``run-bag`` runs) that pick the same domain see each other's topics and mix their
@@ -17,6 +19,7 @@ import tempfile
 from pathlib import Path
 
 from quad_modelling.errors import ConfigError
+from quad_modelling.io.dds_profile import DDS_PROFILE_ENV, profile_with_defaults
 
 DOMAIN_IDS = range(10, 100)
 """Domains handed out: 10-99 keep Fast DDS's ports (7400 + 250 x domain + ...) below Linux's ephemeral range
@@ -49,3 +52,49 @@ def claim_domain(directory: Path | None = None) -> int:
         return domain
     raise ConfigError(f"every ROS domain {DOMAIN_IDS.start}-{DOMAIN_IDS.stop - 1} is held by another process on this machine "
                       "(set ROS_DOMAIN_ID yourself)")
+
+
+DISCOVERY_MODES = ("localhost", "subnet", "env")
+"""``run-bag --discovery``: how far the nodes look for each other (:func:`discovery_environment`)."""
+
+DISCOVERY_VARIABLES = ("ROS_AUTOMATIC_DISCOVERY_RANGE", "ROS_STATIC_PEERS", "ROS_LOCALHOST_ONLY")
+"""The environment variables of ROS 2 (Jazzy) discovery that :func:`discovery_environment` sets or keeps."""
+
+
+def discovery_environment(env: dict, mode: str) -> dict:
+    """``env`` with the discovery variables of ``mode`` (:data:`DISCOVERY_MODES`), in place; returns ``env``.
+
+    * ``localhost``: ``ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST`` and no ``ROS_STATIC_PEERS`` (static
+      peers are contacted whatever the range): nothing leaves this host.
+    * ``subnet``: ``ROS_AUTOMATIC_DISCOVERY_RANGE=SUBNET`` (multicast discovery on the attached
+      networks, the Fast DDS default); ``ROS_STATIC_PEERS`` kept as the user set them (``;``-separated
+      addresses or host names, contacted by unicast: for networks without multicast).
+    * ``env``: ``ROS_AUTOMATIC_DISCOVERY_RANGE`` and ``ROS_STATIC_PEERS`` exactly as the user set them.
+
+    The deprecated ``ROS_LOCALHOST_ONLY`` is removed except in ``env`` (it would override the range).
+    """
+    if mode not in DISCOVERY_MODES:
+        raise ConfigError(f"--discovery {mode!r}: must be one of {', '.join(DISCOVERY_MODES)}")
+    if mode == "env":
+        return env
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST" if mode == "localhost" else "SUBNET"
+    if mode == "localhost":
+        env.pop("ROS_STATIC_PEERS", None)
+    return env
+
+
+def use_dds_profile(environ: dict | None = None) -> str:
+    """Point Fast DDS at ``config/fastdds.xml`` (50 ms writer heartbeat), or, when ``environ`` (default
+    ``os.environ``) already names a profile file in ``FASTRTPS_DEFAULT_PROFILES_FILE``, at that file with our
+    writer settings merged in where it does not set them (:mod:`quad_modelling.io.dds_profile`: the user's
+    settings win). Updates ``environ``; returns the file in use. Call before ``rclpy.init``.
+    ConfigError for a profile file that cannot be read or parsed.
+    """
+    from quad_modelling.core.vehicle import config_dir
+
+    environ = os.environ if environ is None else environ
+    ours = config_dir() / "fastdds.xml"
+    given = environ.get(DDS_PROFILE_ENV, "").strip()
+    environ[DDS_PROFILE_ENV] = str(ours if not given or Path(given) == ours else profile_with_defaults(given, ours))
+    return environ[DDS_PROFILE_ENV]

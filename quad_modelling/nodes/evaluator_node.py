@@ -25,8 +25,13 @@ smoothing from one :class:`~quad_modelling.core.windows.EvaluationConfig`, warm 
 :class:`~quad_modelling.core.windows.WindowClock`; only windows entirely inside a span
 (``spans``: ``NAME:A:B`` seconds from t0, the core span grammar) are scored.
 
-A window closes when the measurements have moved past it and every model has
-too (or has been silent for ``stale_model_s``, or ``close_grace_s`` passed).
+Closing rule: every stream the node scores (``motor_input``, ``mocap/odom``, ``imu`` and each
+model's ``<model>/odom`` and ``<model>/accel``) has its latest stamp tracked; window k =
+[t0 + kW, t0 + (k+1)W) closes when every stream has delivered a stamp of a later window (the
+streams are independent DDS writers: over a lossy link one may be repairing a sample while the
+others have moved on), or ``close_grace_s`` [wall s] after the first stream passed the window's
+end. A window closed by the grace with a stream still behind is marked naming that stream (a
+late model: that model's records). A model silent for ``stale_model_s`` is not waited for.
 A window with missing measurement rows (gap, late start, duplicates) or a model
 with missing predictions (restart) is *marked* with the reason, never scored
 partially. Buffers hold at most the open windows (bounded).
@@ -123,7 +128,8 @@ EVALUATOR_PARAMETERS = [
     Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
     Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
     Param("stale_model_s", 2.0, "a model silent this long [wall s] no longer holds back progress or window closing", positive),
-    Param("close_grace_s", 3.0, "close a window this long [wall s] after the measurements passed it, even if a model lags", positive),
+    Param("close_grace_s", 3.0, "close a window this long [wall s] after the first stream passed its end, even if another "
+                                "stream (measurement or model) has not; that stream's part is then marked, naming it", positive),
     Param("ready_timeout_s", 20.0, "wait this long [wall s] for every model's publishers before acknowledging progress", non_negative),
     qos_param(),
     Param("qos_depth", 1000, "depth of the keep-last subscriptions", positive),
@@ -131,6 +137,10 @@ EVALUATOR_PARAMETERS = [
                       "time-critical, the predictors' per-input answers are", niceness),
     executor_param(),
 ]
+
+
+MEASUREMENT_STREAMS = ("motor_input", "mocap_odom", "imu")
+"""Names of the measurement streams in the closing rule and in the reasons of marked windows."""
 
 
 class _Window:
@@ -146,7 +156,7 @@ class _Window:
         self.imu: dict[int, list] = {}
         self.pred_odom = {m: {} for m in models}
         self.pred_accel = {m: {} for m in models}
-        self.passed_at: float | None = None  # wall time the measurements moved past this window
+        self.passed_at: float | None = None  # wall time [s, monotonic] the first stream moved past this window
 
 
 class EvaluatorNode(Node):
@@ -181,8 +191,9 @@ class EvaluatorNode(Node):
         self.clock_ = WindowClock(self.window_s, self.warm_s, p["sample_period_s"])
         self.open: dict[int, _Window] = {}
         self.closed_below = None  # windows with index < this are closed
-        self.last_ns = {key: None for key in ("motor", "odom", "imu")}
-        self.model_last_ns = {m: None for m in self.models}
+        self.last_motor_ns: int | None = None  # the last accepted engine input (stamps must increase)
+        # Latest stamp [ns] of every stream the node scores (the closing rule); a model's streams also their wall time.
+        self.stream_last_ns: dict[str, int | None] = {s: None for s in (*MEASUREMENT_STREAMS, *self.model_streams())}
         self.model_last_wall = {m: None for m in self.models}
         self.ready = False
         self.started_wall = time.monotonic()
@@ -215,6 +226,10 @@ class EvaluatorNode(Node):
     @property
     def vehicle(self):
         return self.vehicles.vehicle
+
+    def model_streams(self, model: str | None = None) -> list[str]:
+        """Stream names of one model's (or every model's) predictions: ``<model>/odom``, ``<model>/accel``."""
+        return [f"{m}/{kind}" for m in ([model] if model else self.models) for kind in ("odom", "accel")]
 
     def _subscribe(self, kind, topic: str, callback, qos) -> None:
         """A data subscription; with ``record``, every message is received serialised, recorded as it came on its
@@ -274,7 +289,7 @@ class EvaluatorNode(Node):
         fields = topics.motor_fields(msg)
         if fields is None or not self._accept("motor_input", ns, fields[0]):
             return
-        last = self.last_ns["motor"]
+        last = self.last_motor_ns
         if last is not None and ns <= last:
             kind = "duplicate_motor" if ns == last else "out_of_order_motor"
             self.faults.report(kind, f"motor_input stamp {ns} ns is not after the previous one: dropped")
@@ -285,17 +300,28 @@ class EvaluatorNode(Node):
             return
         window.motor[ns] = fields[0].tolist()
         window.omega[ns] = None if fields[1] is None else fields[1].tolist()
-        self.last_ns["motor"] = ns
-        now = time.monotonic()
+        self.last_motor_ns = ns
         if self.first_motor_wall is None:
-            self.first_motor_wall = now
-        for k, w in self.open.items():
-            if k < window.index and w.passed_at is None:
+            self.first_motor_wall = time.monotonic()
+        self._advance("motor_input", ns, window.index)
+
+    def _advance(self, stream: str, ns: int, k: int) -> None:
+        """Stream ``stream`` delivered stamp ``ns`` [ns] of window ``k``: note its latest stamp; on entering a new window,
+        stamp the wall time on the windows it passed first and try to close them."""
+        last = self.stream_last_ns[stream]
+        if last is not None and ns <= last:
+            return
+        self.stream_last_ns[stream] = ns
+        if last is not None and self.clock_.locate(last)[0] >= k:
+            return
+        now = time.monotonic()
+        for index, w in self.open.items():
+            if index < k and w.passed_at is None:
                 w.passed_at = now
-        if len(self.open) > 1:
-            self._try_close()
+        self._try_close()
 
     def _measurement(self, stream: str, ns: int, fields: list, store: str) -> None:
+        """One ``mocap_odom`` or ``imu`` message (``store``: the window's buffer)."""
         if not self._accept(stream, ns, fields):
             return
         window = self._window_for(ns, stream)
@@ -306,8 +332,7 @@ class EvaluatorNode(Node):
             self.faults.report(f"duplicate_{stream}", f"duplicated {stream} stamp {ns} ns: later copy dropped")
             return
         buffer[ns] = fields
-        last = self.last_ns[store]
-        self.last_ns[store] = ns if last is None else max(last, ns)
+        self._advance(stream, ns, window.index)
 
     def on_odom(self, msg: Odometry) -> None:
         self._measurement("mocap_odom", topics.stamp_ns(msg.header.stamp), topics.odometry_fields(msg), "odom")
@@ -327,12 +352,8 @@ class EvaluatorNode(Node):
             self.faults.report(f"duplicate_{model}", f"model {model}: duplicated prediction stamp {ns} ns: later copy dropped")
             return
         buffer[ns] = fields
-        if store == "pred_accel":
-            last = self.model_last_ns[model]
-            self.model_last_ns[model] = ns if last is None else max(last, ns)
-            self.model_last_wall[model] = time.monotonic()
-            if last is not None and self.clock_.locate(ns)[0] != self.clock_.locate(last)[0]:
-                self._try_close()
+        self.model_last_wall[model] = time.monotonic()
+        self._advance(f"{model}/{'odom' if store == 'pred_odom' else 'accel'}", ns, window.index)
 
     def on_pred_odom(self, model: str, msg: Odometry) -> None:
         self._prediction(model, topics.stamp_ns(msg.header.stamp), topics.predicted_odometry_fields(msg), "pred_odom")
@@ -348,19 +369,14 @@ class EvaluatorNode(Node):
             last = self.first_motor_wall if self.first_motor_wall is not None else now
         return now - last > self.stale_s
 
+    def waited_streams(self, now: float) -> list[str]:
+        """The streams progress and window closing wait for: the measurements and every model not stale."""
+        return [*MEASUREMENT_STREAMS, *(s for m in self.models if not self._stale(m, now) for s in self.model_streams(m))]
+
     def progress_ns(self) -> int | None:
-        """Last stamp every measurement stream and every live model has delivered."""
-        if any(v is None for v in self.last_ns.values()):
-            return None
-        now = time.monotonic()
-        stamps = list(self.last_ns.values())
-        for model in self.models:
-            last = self.model_last_ns[model]
-            if not self._stale(model, now):
-                if last is None:
-                    return None
-                stamps.append(last)
-        return min(stamps)
+        """Last stamp [ns] every measurement stream and every live model has delivered (None: one has delivered nothing)."""
+        stamps = [self.stream_last_ns[s] for s in self.waited_streams(time.monotonic())]
+        return None if any(ns is None for ns in stamps) else min(stamps)
 
     def on_progress_timer(self) -> None:
         """Acknowledge progress: on change, and every :data:`PROGRESS_REPEAT_S` for late subscribers."""
@@ -382,20 +398,36 @@ class EvaluatorNode(Node):
     def on_close_timer(self) -> None:
         self._try_close()
 
+    def late_streams(self, k: int, now: float) -> list[str]:
+        """The waited streams (:meth:`waited_streams`) that have not yet delivered a stamp of a window after ``k``."""
+        return [s for s in self.waited_streams(now)
+                if self.stream_last_ns[s] is None or self.clock_.locate(self.stream_last_ns[s])[0] <= k]
+
     def _try_close(self) -> None:
+        """Close, oldest first, every window all waited streams have passed, or that the first stream passed
+        ``close_grace_s`` ago (then marked naming the streams still behind)."""
         now = time.monotonic()
         for k in sorted(self.open):
             window = self.open[k]
             if window.passed_at is None:
                 return
-            lagging = [m for m in self.models
-                       if (self.model_last_ns[m] is None or self.clock_.locate(self.model_last_ns[m])[0] <= k)
-                       and not self._stale(m, now)]
-            if lagging and now - window.passed_at < self.grace_s:
+            late = self.late_streams(k, now)
+            if late and now - window.passed_at < self.grace_s:
                 return
-            self._close(k)
+            self._close(k, late=late)
 
-    def _close(self, k: int, reason_if_incomplete: str = "") -> None:
+    def _late_reason(self, late: list[str]) -> str:
+        described = []
+        for stream in late:
+            ns = self.stream_last_ns[stream]
+            last = "nothing yet" if ns is None else f"last stamp {(ns - self.clock_.origin_ns) / 1e9:.3f} s after t0"
+            described.append(f"{stream} ({last})")
+        return (f"closed by close_grace_s={self.grace_s:g} s before every stream passed the window's end: "
+                f"late {', '.join(described)}")
+
+    def _close(self, k: int, reason_if_incomplete: str = "", late: list[str] = ()) -> None:
+        """Score (or mark) window ``k`` and publish its diagnostics. ``late``: streams that had not passed its end
+        (a late measurement stream marks the whole window, a late model stream that model's records)."""
         window = self.open.pop(k)
         self.closed_below = max(self.closed_below or 0, k + 1)
         self.windows_closed += 1
@@ -403,7 +435,7 @@ class EvaluatorNode(Node):
         spans = [span.name for span in self.spans if span.covers(start_s, end_s)]
         if not spans:
             return
-        records = self._score(window, start_s, end_s, spans, reason_if_incomplete)
+        records = self._score(window, start_s, end_s, spans, reason_if_incomplete, list(late))
         self.scores.records.extend(records)
         msg = diagnostics_message(records, self.clock_.origin_ns + (window.index + 1) * self.clock_.window_ns)
         if self.context.ok():  # at shutdown the results still go to results.json (and the recording)
@@ -411,11 +443,14 @@ class EvaluatorNode(Node):
         if self.recorder is not None:
             self.recorder.add(self.diag_topic, msg)
 
-    def _score(self, window: _Window, start_s: float, end_s: float, spans: list[str], extra: str) -> list[WindowRecord]:
+    def _score(self, window: _Window, start_s: float, end_s: float, spans: list[str], extra: str,
+               late: list[str]) -> list[WindowRecord]:
         def marked(reason: str, models=None) -> list[WindowRecord]:
             return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason)
                     for m in (models or self.models + self.baselines) for s in spans]
 
+        if any(s in MEASUREMENT_STREAMS for s in late):
+            return marked(self._late_reason([s for s in late if s in MEASUREMENT_STREAMS]))
         if self.vehicle is None:
             return marked(f"no vehicle: parameter vehicle is empty and no replay announced one on topic {VEHICLE_TOPIC}")
         stamps = sorted(window.motor)
@@ -439,6 +474,10 @@ class EvaluatorNode(Node):
         warm = warm_samples_for(log, self.warm_s)
         records, predicted = [], {}
         for model in self.models:
+            model_late = [s for s in self.model_streams(model) if s in late]
+            if model_late:
+                records += marked(self._late_reason(model_late), [model])
+                continue
             odom, accel = window.pred_odom[model], window.pred_accel[model]
             missing = [ns for ns in complete if ns not in odom or ns not in accel]
             if missing:

@@ -25,7 +25,9 @@ period) per pass so time keeps increasing. A shifted pass publishes the recorded
 with only the header stamp rewritten (:func:`quad_modelling.io.topics.cdr_restamped`:
 the 8 stamp bytes after the CDR encapsulation header); the first pass is byte for byte
 the bag. The node exits when done, after the acknowledgements reached the last stamp
-(or ``pace_timeout_s``).
+(or ``pace_timeout_s``), announcing the end on ``replay/done`` (transient-local: the last
+stamp played) and waiting up to :data:`DONE_ACK_S` for its readers' acknowledgements, so a
+``run-bag`` on another host learns it even over a lossy link.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ import time
 
 import numpy as np
 import rclpy
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import String
@@ -59,6 +62,9 @@ from quad_modelling.nodes.common import (
     run_node,
     say,
 )
+
+DONE_ACK_S = 5.0
+"""How long [wall s] the replay waits for its ``replay/done`` readers to acknowledge the end before exiting."""
 
 SETTLE_S = 0.5
 """Pause after the subscribers matched, before the first sample [s], so every reader is matched both ways."""
@@ -127,6 +133,7 @@ class ReplayNode(Node):
         self.clock_pub = self.create_publisher(Clock, "/clock", qos) if self.publish_clock else None
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
         self.vehicle_pub = self.create_publisher(String, VEHICLE_TOPIC, latched_qos())
+        self.done_pub = self.create_publisher(Clock, topics.DONE_TOPIC, latched_qos())
         if self.vehicle:
             self.vehicle_pub.publish(String(data=self.vehicle))  # latched: nodes started later learn it too
         else:
@@ -195,6 +202,10 @@ class ReplayNode(Node):
                 break
             shift += self.last_ns - self.first_ns + self.period_ns
         self._drain()
+        if rclpy.ok(context=self.context) and self.last_published_ns is not None:
+            self.done_pub.publish(messages.clock_message(self.last_published_ns))
+            if self.done_pub.get_subscription_count() and not self.done_pub.wait_for_all_acked(Duration(seconds=DONE_ACK_S)):
+                self.faults.report("done_unacknowledged", f"{topics.DONE_TOPIC} not acknowledged within {DONE_ACK_S:g} s")
 
     def _play_pass(self, shift: int) -> None:
         """Publish every recorded message once, stamps shifted by ``shift`` [ns] (restamped bytes when > 0)."""

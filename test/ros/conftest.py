@@ -46,8 +46,9 @@ class Capture:
         return {stamp_ns(m.header.stamp): m for m in self.messages}
 
 
-def feed(node, log, rows, arrays=None, skip_odom=(), predictions=None):
-    """Call the node's callbacks with the messages of ``log`` rows, as the replay publishes them."""
+def feed(node, log, rows, arrays=None, skip_odom=(), predictions=None, skip_imu=()):
+    """Call the node's callbacks with the messages of ``log`` rows, as the replay publishes them
+    (``skip_odom``/``skip_imu``: rows whose mocap/IMU message is left out)."""
     from quad_modelling.io.topics import stamps_ns
     from quad_modelling.nodes import messages
 
@@ -58,7 +59,8 @@ def feed(node, log, rows, arrays=None, skip_odom=(), predictions=None):
         node.on_motor(arrays.motor(row, ns))
         if row not in skip_odom:
             node.on_odom(arrays.odometry(row, ns))
-        node.on_imu(arrays.imu(row, ns))
+        if row not in skip_imu:
+            node.on_imu(arrays.imu(row, ns))
         if predictions is not None:
             for name, (odom, accel) in predictions.items():
                 o, a = messages.prediction_messages(ns, odom[row], accel[row], f"{name}/base_link")

@@ -1,6 +1,7 @@
 """The evaluator node: known prediction error -> known RMS/TIC; spans; marked windows; results files."""
 
 import json
+import time
 
 import numpy as np
 from rclpy.parameter import Parameter
@@ -126,4 +127,54 @@ def test_without_a_vehicle_windows_are_marked_not_scored(ros):
     assert len(node.scores.records) == 6  # windows 0, 1 and the partial 2, of m and the dummy
     assert {r.reason for r in node.scores.records} == {"no vehicle: parameter vehicle is empty and no replay announced one "
                                                        "on topic vehicle"}
+    node.destroy_node()
+
+
+def test_a_window_waits_for_a_delayed_stream_and_is_scored(ros):
+    """The IMU stream lags (rows 490-599 arrive after the engine inputs, mocap and predictions of rows up to 599,
+    as a lossy link delivers one writer's repaired samples late): window 0 stays open until the IMU passes its
+    end, then is scored with the known error; nothing is marked or dropped."""
+    log = hover_log(1100)
+    prediction = offset_prediction(log, "vel_x", 0.25)
+    node = make_node(spans=["live:0:inf"])
+    arrays = messages.measurement_messages(log)
+    stamps = feed(node, log, range(0, 490), arrays, predictions={"m": prediction})
+    feed(node, log, range(490, 600), arrays, skip_imu=set(range(490, 600)), predictions={"m": prediction})
+    node.on_close_timer()
+    assert sorted(node.open) == [0, 1] and node.open[0].passed_at is not None  # every other stream passed window 0
+    assert node.late_streams(0, time.monotonic()) == ["imu"]
+    for row in range(490, 600):
+        node.on_imu(arrays.imu(row, int(stamps[row])))
+    assert sorted(node.open) == [1]  # closed the moment the IMU passed its end
+    feed(node, log, range(600, 1100), arrays, predictions={"m": prediction})
+    node.finish()
+    records = {r.index: r for r in node.scores.records if r.model == "m"}
+    assert records[0].scored and records[1].scored and abs(records[0].rms[INDEX["vel_x"]] - 0.25) < 1e-9
+    assert [r for r in node.scores.records if not r.scored and r.index < 2] == []
+    assert not any(kind.startswith("late_") for kind in node.faults.counts)
+    node.destroy_node()
+
+
+def test_a_stream_late_past_close_grace_marks_the_window_naming_it(ros):
+    """The same IMU lag with close_grace_s 0.05 s: window 0 closes by the grace, marked naming imu and its last
+    stamp (4.89 s after t0); the IMU rows that come afterwards are dropped as late; window 1 is scored."""
+    log = hover_log(1100)
+    prediction = offset_prediction(log, "vel_x", 0.25)
+    node = make_node(spans=["live:0:inf"], close_grace_s=0.05)
+    arrays = messages.measurement_messages(log)
+    stamps = feed(node, log, range(0, 490), arrays, predictions={"m": prediction})
+    feed(node, log, range(490, 600), arrays, skip_imu=set(range(490, 600)), predictions={"m": prediction})
+    time.sleep(0.1)
+    node.on_close_timer()
+    assert sorted(node.open) == [1]
+    for row in range(490, 600):
+        node.on_imu(arrays.imu(row, int(stamps[row])))
+    feed(node, log, range(600, 1100), arrays, predictions={"m": prediction})
+    node.finish()
+    window0 = [r for r in node.scores.records if r.index == 0]
+    assert len(window0) == 2 and not any(r.scored for r in window0)  # m and the dummy
+    assert window0[0].reason == ("closed by close_grace_s=0.05 s before every stream passed the window's end: "
+                                 "late imu (last stamp 4.890 s after t0)")
+    assert node.faults.counts["late_imu"] == 10  # rows 490-499 of the closed window; 500-599 belong to window 1
+    assert [r.scored for r in node.scores.records if r.index == 1] == [True, True]
     node.destroy_node()

@@ -3,9 +3,12 @@
 import ast
 import os
 import re
+from pathlib import Path
 
+import pytest
 import yaml
 
+from quad_modelling.errors import ConfigError
 from quad_modelling.nodes.evaluator_node import EVALUATOR_PARAMETERS
 from quad_modelling.nodes.predictor_node import predictor_parameters
 from quad_modelling.nodes.replay_node import REPLAY_PARAMETERS
@@ -62,6 +65,42 @@ def test_nodes_use_the_shipped_dds_profile_unless_the_environment_names_one(monk
     assert writer.get("is_default_profile") == "true"
     period = writer.find("f:times/f:heartbeatPeriod", ns)
     assert int(period.find("f:sec", ns).text) == 0 and int(period.find("f:nanosec", ns).text) == 50_000_000  # 50 ms, not 3 s
-    mine = tmp_path / "mine.xml"
+    mine = tmp_path / "mine.xml"  # a user's profile that sets its own heartbeat: used as is
+    mine.write_text(Path(shipped).read_text().replace("50000000", "20000000"))
     monkeypatch.setenv(DDS_PROFILE_ENV, str(mine))
-    assert use_dds_profile() == str(mine)  # a user's profile is kept
+    assert use_dds_profile() == str(mine)
+    monkeypatch.setenv(DDS_PROFILE_ENV, str(tmp_path / "missing.xml"))
+    with pytest.raises(ConfigError, match="FASTRTPS_DEFAULT_PROFILES_FILE=.*missing.xml'?: cannot read the Fast DDS profile"):
+        use_dds_profile()
+
+
+FAST_DDS_LOADS = """
+import rclpy
+from std_msgs.msg import String
+rclpy.init()
+node = rclpy.create_node("profile_check")
+node.create_publisher(String, "profile_check", 10)
+node.destroy_node()
+rclpy.shutdown()
+"""
+
+
+def test_fast_dds_loads_a_merged_user_profile_without_parser_errors(tmp_path):
+    """The merge of a user's profile (participant + transports + their default writer) is a file Fast DDS parses:
+    it prints '[XMLPARSER Error]' lines for an element it rejects (as it does for the unmerged broken one)."""
+    import subprocess
+    import sys
+
+    from quad_modelling.io.dds_profile import profile_with_defaults
+    from test.io.test_dds_profile import USER_PROFILE
+
+    mine = tmp_path / "mine.xml"
+    mine.write_text(USER_PROFILE)
+    merged = profile_with_defaults(mine, REPO / "config" / "fastdds.xml", directory=tmp_path)
+    broken = tmp_path / "broken.xml"
+    broken.write_text(USER_PROFILE.replace("<qos><data_sharing>", "<data_sharing>").replace("</data_sharing></qos>", "</data_sharing>"))
+    for profile, errors in ((merged, False), (broken, True)):
+        run = subprocess.run([sys.executable, "-c", FAST_DDS_LOADS], env={**os.environ, "FASTRTPS_DEFAULT_PROFILES_FILE": str(profile)},
+                             capture_output=True, text=True, timeout=60)
+        assert run.returncode == 0, run.stderr
+        assert ("XMLPARSER" in run.stdout + run.stderr) is errors, (profile, run.stdout + run.stderr)

@@ -107,3 +107,29 @@ def test_sigterm_stops_every_node_and_removes_the_staging(tmp_path, signum):
     assert err.strip().splitlines()[-1] == f"quad-modelling run-bag: interrupted ({signum})"
     assert list(tmp_path.iterdir()) == []  # no output, no staging
     assert _processes_mentioning(str(staging[0])) == []  # no orphaned node
+
+
+def test_nodes_expected_elsewhere_that_never_appear_are_named_in_one_line(tmp_path, capsys):
+    """--nodes evaluator: the evaluator starts here, the replay and the predictor are expected on another host; none
+    comes within --remote-timeout, so run-bag stops its evaluator and names both, leaving nothing behind."""
+    out = tmp_path / "ground"
+    code = main(["run-bag", str(BAG), "--nodes", "evaluator", "--remote-timeout", "3", "--no-figures", "-o", str(out)])
+    captured = capsys.readouterr()
+    assert code == 2
+    assert "starting evaluator here; expecting /quad/naive_predictor, /quad/replay on another host" in captured.out
+    assert captured.err.strip().splitlines()[-1].startswith(
+        "quad-modelling run-bag: error: /quad/naive_predictor, /quad/replay never appeared within --remote-timeout 3 s "
+        "(ROS_DOMAIN_ID ")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_nodes_and_discovery_flags_are_one_line_errors(tmp_path, capsys, monkeypatch):
+    assert main(["run-bag", str(BAG), "--nodes", "replay,foo", "-o", str(tmp_path / "x")]) == 2
+    assert capsys.readouterr().err.strip() == ("quad-modelling run-bag: error: --nodes 'replay,foo': unknown node 'foo'; "
+                                               "valid: replay, predictors, evaluator (comma-separated)")
+    monkeypatch.delenv("ROS_DOMAIN_ID")
+    assert main(["run-bag", str(BAG), "--nodes", "replay,predictors", "-o", str(tmp_path / "x")]) == 2
+    assert "--nodes: evaluator run on another host; set ROS_DOMAIN_ID" in capsys.readouterr().err
+    assert main(["run-bag", str(BAG), "--nodes", "replay", "--record", "-o", str(tmp_path / "x")]) == 2
+    assert "--record with --nodes replay: the evaluator records; pass --record on its host" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
