@@ -410,10 +410,15 @@ def plan_windows(flights: Sequence[FlightLog], config: EvaluationConfig) -> dict
     for span in config.spans():
         plan[span.name] = [w for i, log in enumerate(flights) for w in span_windows(log, span, config, i)]
     if not any(plan.values()):
-        durations = ", ".join(f"{log.duration:.1f}" for log in flights)
-        raise DataError(
-            f"no {config.window_s:g} s window fits the spans train {config.train}, eval {config.eval} after dropping "
-            f"{config.drop_start:g} s/{config.drop_end:g} s (flight durations {durations} s); for short flights use "
-            f"--preset short or relative spans such as --drop 5:5 --train 0%:60% --eval 60%:100%"
-        )
+        raise no_window_error(config, [log.duration for log in flights])
     return plan
+
+
+def no_window_error(config: EvaluationConfig, durations: Sequence[float]) -> DataError:
+    """The DataError of an evaluation in which no span of any flight (``durations`` [s]) holds a single window."""
+    text = ", ".join(f"{d:.1f}" for d in durations)
+    return DataError(
+        f"no {config.window_s:g} s window fits the spans train {config.train}, eval {config.eval} after dropping "
+        f"{config.drop_start:g} s/{config.drop_end:g} s (flight durations {text} s); for short flights use "
+        f"--preset short or relative spans such as --drop 5:5 --train 0%:60% --eval 60%:100%"
+    )
