@@ -55,7 +55,7 @@ import itertools
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
@@ -239,6 +239,20 @@ class EvaluationConfig:
         d = asdict(self)
         d["horizons"] = list(self.horizons)
         return d
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str = "config") -> EvaluationConfig:
+        """The inverse of :meth:`to_dict` (a results.json ``config``; other keys ignored), validated; ConfigError
+        naming ``where`` for a missing or malformed field."""
+        try:
+            values = {f.name: data[f.name] for f in fields(cls)}
+            values["trim"] = TrimConfig(**values["trim"])
+            values["horizons"] = tuple(int(h) for h in values["horizons"])
+            config = cls(**values)
+        except (KeyError, TypeError, ValueError) as err:
+            raise ConfigError(f"{where}: not an evaluation configuration ({type(err).__name__}: {err})") from err
+        config.validate()
+        return config
 
 
 # ----------------------------------------------------------------------------- the window clock

@@ -134,26 +134,29 @@ class MultistepSums:
 class EvaluationStatistics:
     """Everything an evaluation's averages are computed from (module docstring), for one flight or many.
 
-    ``models``: the model names in table order; ``windowed[model][span]``: :class:`WindowSums`;
-    ``multistep``: :class:`MultistepSums` or None (``--no-multistep``); ``durations``: the flights'
-    lengths [s] (for the error when no window fits any flight)."""
+    ``vehicle``: the vehicle config's name; ``models``: the model names in table order;
+    ``windowed[model][span]``: :class:`WindowSums`; ``multistep``: :class:`MultistepSums` or None
+    (``--no-multistep``); ``durations``: the flights' lengths [s] (for the error when no window fits)."""
 
+    vehicle: str
     models: list[str]
     windowed: dict[str, dict[str, WindowSums]]
     multistep: MultistepSums | None
     durations: list[float] = field(default_factory=list)
 
     @classmethod
-    def empty(cls, models: list[str], spans: list[str], multistep: MultistepSums | None) -> EvaluationStatistics:
+    def empty(cls, vehicle: str, models: list[str], spans: list[str], multistep: MultistepSums | None) -> EvaluationStatistics:
         """No flight yet: every sum zero (the start of every merge)."""
-        return cls(list(models), {m: {s: WindowSums() for s in spans} for m in models}, multistep)
+        return cls(vehicle, list(models), {m: {s: WindowSums() for s in spans} for m in models}, multistep)
 
     def empty_like(self, spans: list[str]) -> EvaluationStatistics:
         """The statistics of no flight for the same models and multi-step table, with ``spans`` in order."""
-        return EvaluationStatistics.empty(self.models, spans, None if self.multistep is None else self.multistep.empty_like())
+        return EvaluationStatistics.empty(self.vehicle, self.models, spans, None if self.multistep is None else self.multistep.empty_like())
 
     def merge(self, other: EvaluationStatistics) -> None:
         """Add a later flight's (or a later evaluation's) statistics: the one merge (module docstring)."""
+        if other.vehicle != self.vehicle:
+            raise DataError(f"cannot merge an evaluation on vehicle {other.vehicle!r} into one on {self.vehicle!r}")
         if other.models != self.models:
             raise DataError(f"cannot merge the statistics of models {other.models} into those of {self.models}")
         for model, spans in other.windowed.items():
@@ -171,7 +174,7 @@ class EvaluationStatistics:
         return sum(s.windows for s in self.windowed[self.models[0]].values())
 
     def to_json(self) -> dict:
-        return {"version": STATISTICS_VERSION, "models": list(self.models),
+        return {"version": STATISTICS_VERSION, "vehicle": self.vehicle, "models": list(self.models),
                 "windowed": {m: {s: sums.to_json() for s, sums in spans.items()} for m, spans in self.windowed.items()},
                 "multistep": None if self.multistep is None else self.multistep.to_json(),
                 "durations_s": list(self.durations)}
@@ -186,7 +189,7 @@ class EvaluationStatistics:
             windowed = {m: {s: WindowSums.from_json(v, f"{where}.windowed.{m}.{s}") for s, v in spans.items()}
                         for m, spans in data["windowed"].items()}
             multistep = None if data["multistep"] is None else MultistepSums.from_json(data["multistep"], f"{where}.multistep")
-            stats = cls([str(m) for m in data["models"]], windowed, multistep, [float(d) for d in data["durations_s"]])
+            stats = cls(str(data["vehicle"]), [str(m) for m in data["models"]], windowed, multistep, [float(d) for d in data["durations_s"]])
         except (KeyError, TypeError, AttributeError, ValueError) as err:
             if isinstance(err, DataError):
                 raise

@@ -194,7 +194,7 @@ def evaluate_flight(
     log = resample_uniform(log)
     spans = config.spans()
     steps = flight_multistep_sums(log, models, vehicle, config) if multistep else None
-    stats = EvaluationStatistics.empty(names, [s.name for s in spans], steps)
+    stats = EvaluationStatistics.empty(vehicle.name, names, [s.name for s in spans], steps)
     stats.durations.append(log.duration)
     examples: list[ExampleWindow] = []
     for span in spans:
