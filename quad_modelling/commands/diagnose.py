@@ -47,6 +47,9 @@ turn, the model without it; a null case; pairs) and writes validation.json + val
 The simulator switches {", ".join(SWITCHED_EFFECTS)}; {", ".join(DISTURBANCES)} is a simulator
 disturbance, no catalogue effect.
 
+--jobs N / --scheduler ADDRESS read and check the --train/--test flights on Dask workers;
+the fits and the scoring run here (joint over flights; docs/scale.md).
+
 examples:
   quad-modelling diagnose --train slow1.csv.gz slow2.csv.gz --test fast1.csv.gz -o diag
   quad-modelling diagnose --train a.mat --test b.mat --vehicle linkquad --effects rotor_drag,battery -o diag

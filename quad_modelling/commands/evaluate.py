@@ -40,11 +40,17 @@ when no window fits, the error says so.
 
 OUTDIR receives results.json (SI units), tables.md (thesis Tables 5-1/5-2, display units)
 and fig_z/roll/pitch/yaw.png (input, acceleration, velocity/rate over one evaluation window).
+results.json also stores the statistics the averages come from (window counts, sums of the
+per-window RMS/TIC, multi-step sums), so `quad-modelling merge` combines evaluations exactly.
+
+--jobs N (a local Dask cluster of N processes) or --scheduler ADDRESS (a running one) read
+and score each flight on a worker; the numbers are the serial run's, bit for bit (docs/scale.md).
 
 examples:
   quad-modelling evaluate bags/flight --vehicle linkquad -o results/flight
   quad-modelling evaluate data/nanobench/*.csv.gz --vehicle cf_identified.yaml --preset short --skip-bad -o results/nb
   quad-modelling evaluate a.mat b.mat --model greybox --model greybox:euler --train 30:120 --eval 120:190 -o out
+  quad-modelling evaluate data/nanobench/*.csv.gz --preset short --skip-bad --jobs 2 -o results/nb
 """
 
 

@@ -44,6 +44,9 @@ Spans follow the evaluation: take-off/landing are dropped (--drop, thesis 30:22 
 A:B is seconds from each flight's start (thesis 30:150) or percent of the flying part
 (0%:60%, --preset short for ~40 s NanoBench flights).
 
+--jobs N / --scheduler ADDRESS read and check the flights on Dask workers; the training
+itself runs here (one network on all flights; docs/scale.md).
+
 example:
   quad-modelling train bags/nanobench_B7_oval_medium_rep2 --preset short -o narx.npz
   quad-modelling train flight1.mat flight2.mat --vehicle linkquad --train 30:150 -o narx.npz

@@ -81,6 +81,13 @@ def test_bad_jobs_or_unreachable_scheduler_is_one_line_exit_2(flights, tmp_path,
         assert not (tmp_path / "out").exists()
 
 
+def test_diagnose_validate_refuses_jobs(tmp_path, capsys):
+    """--validate simulates its flights: nothing to fan out, and a flag that would do nothing is refused."""
+    assert main(["diagnose", "--validate", "-o", str(tmp_path / "out"), "--jobs", "2"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--jobs/--scheduler fan out the reading of --train/--test flights; --validate reads none" in err[0]
+
+
 def test_identify_on_workers_identifies_the_serial_constants(flights, tmp_path):
     documents = []
     for name, extra in (("serial", []), ("jobs", ["--jobs", "2"])):
