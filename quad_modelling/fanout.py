@@ -26,7 +26,7 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-from quad_modelling.errors import ConfigError
+from quad_modelling.errors import ConfigError, reason
 
 CONNECT_TIMEOUT_S = 10.0
 """How long [s] ``--scheduler ADDRESS`` may take to answer before the command gives up with one line."""
@@ -83,9 +83,11 @@ def dask_client(jobs: int | None = None, scheduler: str | None = None) -> Iterat
         return
     try:
         client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
-    except (OSError, TimeoutError, ValueError, TypeError) as err:
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"--scheduler {scheduler}: not a scheduler address such as tcp://127.0.0.1:8786 ({reason(err)})") from err
+    except (OSError, TimeoutError) as err:
         raise ConfigError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler there within {CONNECT_TIMEOUT_S:g} s "
-                          f"({type(err).__name__}: {' '.join(str(err).split())[:160]})") from err
+                          f"({reason(err)})") from err
     try:
         try:
             client.wait_for_workers(1, timeout=WORKER_WAIT_S)

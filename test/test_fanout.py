@@ -45,8 +45,12 @@ def test_bad_fanout_options_are_one_config_error(jobs, scheduler, message):
         map_flights(square_or_refuse, [1], 0, jobs=jobs, scheduler=scheduler)
 
 
-@pytest.mark.parametrize("address", ["tcp://127.0.0.1:9", "no-such-protocol://x"])
-def test_an_unreachable_or_malformed_scheduler_is_one_config_error(address, monkeypatch):
+@pytest.mark.parametrize(("address", "message"), [
+    ("tcp://127.0.0.1:9", "cannot connect to a Dask scheduler there within 1 s"),
+    ("no-such-protocol://x", "not a scheduler address such as tcp://127.0.0.1:8786"),
+    ("garbage", "not a scheduler address such as tcp://127.0.0.1:8786"),
+])
+def test_an_unreachable_or_malformed_scheduler_is_one_config_error(address, message, monkeypatch):
     monkeypatch.setattr(fanout, "CONNECT_TIMEOUT_S", 1.0)
-    with pytest.raises(ConfigError, match=rf"^--scheduler {address}: cannot connect to a Dask scheduler there within 1 s"):
+    with pytest.raises(ConfigError, match=rf"^--scheduler {address}: {message}"):
         map_flights(square_or_refuse, [1], 0, scheduler=address)

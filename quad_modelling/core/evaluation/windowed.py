@@ -21,6 +21,12 @@ the rows after the warm start (:func:`evaluate_window`, also what a live
 evaluator calls per closed window). Span scores are the mean over windows
 (:func:`window_mean`, also the live evaluator's and the diagnosis's).
 
+Flights. An evaluation of several flights is :func:`evaluate_flight` per flight (its
+sufficient statistics: window counts and sums of the per-window scores, multi-step sums;
+:mod:`~quad_modelling.core.evaluation.statistics`) and :func:`merge_flights` over them in flight
+order: the serial run, a fan-out over Dask workers and ``quad-modelling merge`` of results.json
+files give the same numbers, bit for bit.
+
 Multi-step mode (IDSIA nano-drone benchmark). From every start sample s of
 a span segment with s + H inside it, each model predicts open loop
 (:class:`~quad_modelling.core.models.MultiStepPredictor`); for the groups
