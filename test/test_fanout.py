@@ -2,15 +2,21 @@
 
 from __future__ import annotations
 
+import io
+import time
+
 import pytest
 
 from quad_modelling import fanout
 from quad_modelling.errors import ConfigError, DataError
-from quad_modelling.fanout import check_fanout_options, map_flights
+from quad_modelling.fanout import check_fanout_options, map_flights, tty_progress
 
 
 def square_or_refuse(value: int, offset: int) -> int:
-    """A per-flight task: value**2 + offset; DataError for a negative value (a bad flight)."""
+    """A per-flight task: value**2 + offset; DataError for a negative value (a bad flight). Value 5 takes longer,
+    so on a cluster later values finish first."""
+    if value == 5:
+        time.sleep(0.3)
     if value < 0:
         raise DataError(f"flight{value}.csv: column px: not a number in row 3")
     return value * value + offset
@@ -54,3 +60,16 @@ def test_an_unreachable_or_malformed_scheduler_is_one_config_error(address, mess
     monkeypatch.setattr(fanout, "CONNECT_TIMEOUT_S", 1.0)
     with pytest.raises(ConfigError, match=rf"^--scheduler {address}: {message}"):
         map_flights(square_or_refuse, [1], 0, scheduler=address)
+
+
+class Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_progress_is_one_line_per_finished_flight_on_a_terminal_only():
+    terminal = Terminal()
+    say = tty_progress("evaluate", 3, terminal)
+    assert map_flights(square_or_refuse, [2, 3, 4], 0, progress=say) == [4, 9, 16]
+    assert terminal.getvalue().splitlines() == [f"evaluate: flight {k}/3 done: {v}" for k, v in ((1, 2), (2, 3), (3, 4))]
+    assert tty_progress("evaluate", 3, io.StringIO()) is None  # a pipe or file gets no progress lines
