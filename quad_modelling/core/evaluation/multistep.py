@@ -160,7 +160,7 @@ def multistep_table(sums: MultistepSums, config: EvaluationConfig, start_stride:
                  "units": GROUP_UNITS, "forms": {m: sums.forms[m] for m in sums.order if m in sums.forms}, "models": {}}
     if start_stride != 1:
         out["start_stride"] = start_stride
-    mae = {name: sums.error_sums.get(name, np.zeros((len(GROUPS), max_h))) / count for name in sums.order if name in sums.forms}
+    mae = {name: sums.mae(name) for name in sums.order if name in sums.forms}
     for name, values in mae.items():
         entry = {}
         for g, (group, cols) in enumerate(GROUPS.items()):

@@ -16,14 +16,18 @@ The averages keep the protocol's definitions (``windowed``, ``multistep``):
   :math:`\\sum_g S_g\\,\\mathrm{MAE}_h(g)` per group (position, velocity, orientation, angular
   velocity: m, m/s, rad, rad/s) and horizon h = 1..H.
 
-Sums are added flight after flight (``total = total + flight``, starting from zero); floating-point
-addition is not associative, so merging the same flights grouped differently (two merged halves
-instead of the flights one by one) may differ in the last bit, never more. Serialised floats are
-Python's shortest round-trip text, so results.json holds the sums exactly.
+Sums are exact (:class:`ExactSum`): every finite float64 is an integer multiple of
+:math:`2^{-1074}`, so a sum of them is an integer at that scale, and integer addition is associative.
+Merging the same flights in any grouping or order (per-flight files, shards, the flights one by one)
+gives the same sums to the last bit, and every mean is the exact sum divided by the count, correctly
+rounded once. results.json stores each exact sum as a hexadecimal mantissa and a power of two
+(``"0x1b3p-60"`` = 0x1b3 * 2^-60); NaN (a variable the sensors do not measure) as null.
 """
 
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -34,22 +38,98 @@ STATISTICS_VERSION = 1
 """Format version of results.json ``statistics``; a merge refuses any other."""
 
 
-def _floats(values: np.ndarray) -> list:
-    """An array as nested lists of floats, NaN as None (JSON has no NaN)."""
-    array = np.asarray(values, dtype=float)
-    if array.ndim == 0:
-        return None if not np.isfinite(array) else float(array)
-    return [_floats(v) for v in array]
+SCALE_BITS = 1074
+"""Every finite float64 is an integer multiple of 2^-1074 (the smallest subnormal), so x * 2^1074 is an integer."""
+
+_HEX_SUM = re.compile(r"^(-?)0x([0-9a-f]+)p([+-]\d+)$")
 
 
-def _array(values, where: str) -> np.ndarray:
-    """The inverse of :func:`_floats`: None -> NaN; DataError naming ``where`` for anything but numbers."""
-    try:
-        def walk(v):
-            return [walk(x) for x in v] if isinstance(v, list) else (np.nan if v is None else float(v))
-        return np.asarray(walk(values), dtype=float)
-    except (TypeError, ValueError) as err:
-        raise DataError(f"{where}: expected numbers, got {str(values)[:60]}") from err
+def _scaled(x: float) -> int | float:
+    """x * 2^1074 as an int, exactly, for a finite x; x itself (NaN, +-inf) otherwise."""
+    if not math.isfinite(x):
+        return x
+    numerator, denominator = x.as_integer_ratio()  # denominator: a power of two <= 2^1074
+    return numerator << (SCALE_BITS - denominator.bit_length() + 1)
+
+
+def _add(a: int | float, b: int | float) -> int | float:
+    """Exact sum of two scaled values; NaN and inf propagate as in IEEE arithmetic."""
+    if isinstance(a, int) and isinstance(b, int):
+        return a + b
+    special = [v for v in (a, b) if isinstance(v, float)]
+    return special[0] if len(special) == 1 else special[0] + special[1]  # inf + -inf = NaN, as IEEE
+
+
+class ExactSum:
+    """A running sum of float64 arrays of one shape, kept exactly (integers at scale 2^1074; module docstring).
+
+    ``add(values)`` adds an array; ``merge(other)`` adds another sum; ``mean(count)`` is the sum / count as
+    float64, correctly rounded once (Python's int true division is); ``to_json``/``from_json`` store it exactly."""
+
+    def __init__(self, shape: tuple | None = None):
+        self.shape = None if shape is None else tuple(shape)  # None: nothing added yet (takes the first array's shape)
+        self.terms: list = [] if shape is None else [0] * math.prod(self.shape)
+
+    def add(self, values) -> ExactSum:
+        array = np.asarray(values, dtype=float)
+        if self.shape is None:
+            self.shape, self.terms = array.shape, [0] * array.size
+        if array.shape != self.shape:
+            raise DataError(f"cannot add an array of shape {array.shape} to a sum of shape {self.shape}")
+        self.terms = [_add(t, _scaled(float(v))) for t, v in zip(self.terms, array.ravel())]
+        return self
+
+    def merge(self, other: ExactSum) -> ExactSum:
+        if other.shape is None:
+            return self
+        if self.shape is None:
+            self.shape, self.terms = other.shape, list(other.terms)
+            return self
+        if other.shape != self.shape:
+            raise DataError(f"cannot merge a sum of shape {other.shape} into one of shape {self.shape}")
+        self.terms = [_add(a, b) for a, b in zip(self.terms, other.terms)]
+        return self
+
+    def mean(self, count: int) -> np.ndarray:
+        """sum / count [units of the values], correctly rounded; NaN where the sum is NaN, all NaN for no count."""
+        if self.shape is None or count == 0:
+            return np.full(self.shape or (), np.nan)
+        divisor = count << SCALE_BITS
+        return np.array([t if isinstance(t, float) else t / divisor for t in self.terms], dtype=float).reshape(self.shape)
+
+    def to_json(self) -> dict:
+        def text(t):
+            if isinstance(t, float):
+                return None if math.isnan(t) else ("inf" if t > 0 else "-inf")
+            if t == 0:
+                return "0x0p+0"
+            shift = (t & -t).bit_length() - 1  # trailing zero bits: the shortest exact text
+            return f"{'-' if t < 0 else ''}0x{abs(t) >> shift:x}p{shift - SCALE_BITS:+d}"
+        return {"shape": None if self.shape is None else list(self.shape), "sums": [text(t) for t in self.terms]}
+
+    @classmethod
+    def from_json(cls, data, where: str) -> ExactSum:
+        try:
+            out = cls(None if data["shape"] is None else tuple(int(n) for n in data["shape"]))
+            terms = []
+            for item in data["sums"]:
+                if item is None or item in ("inf", "-inf"):
+                    terms.append(math.nan if item is None else float(item))
+                    continue
+                sign, mantissa, exponent = _HEX_SUM.match(item).groups()
+                shift = int(exponent) + SCALE_BITS
+                if shift < 0:
+                    raise ValueError(f"exponent {exponent} below 2^-1074")
+                terms.append((-1 if sign else 1) * (int(mantissa, 16) << shift))
+        except (KeyError, TypeError, ValueError, AttributeError) as err:
+            raise DataError(f"{where}: expected an exact sum {{shape, sums: ['0x..p..', ...]}}, got {str(data)[:60]}") from err
+        if len(terms) != (0 if out.shape is None else math.prod(out.shape)):
+            raise DataError(f"{where}: {len(terms)} sums for shape {out.shape}")
+        out.terms = terms
+        return out
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, ExactSum) and self.to_json() == other.to_json()
 
 
 @dataclass
@@ -57,31 +137,32 @@ class WindowSums:
     """Windowed statistics of one model on one span: window count W and per-variable sums of RMS and TIC (SI)."""
 
     windows: int = 0
-    rms_sum: np.ndarray | float = 0.0
-    tic_sum: np.ndarray | float = 0.0
+    rms_sum: ExactSum = field(default_factory=ExactSum)
+    tic_sum: ExactSum = field(default_factory=ExactSum)
 
     def add_window(self, rms: np.ndarray, tic: np.ndarray) -> None:
         """Add one window's RMS and TIC rows (18 variables)."""
-        self.rms_sum = self.rms_sum + np.asarray(rms, dtype=float)
-        self.tic_sum = self.tic_sum + np.asarray(tic, dtype=float)
+        self.rms_sum.add(rms)
+        self.tic_sum.add(tic)
         self.windows += 1
 
     def merge(self, other: WindowSums) -> None:
-        """Add ``other``'s windows (the statistics of later flights)."""
-        self.rms_sum = self.rms_sum + other.rms_sum
-        self.tic_sum = self.tic_sum + other.tic_sum
+        """Add ``other``'s windows (the statistics of other flights; exact, so any grouping gives the same sums)."""
+        self.rms_sum.merge(other.rms_sum)
+        self.tic_sum.merge(other.tic_sum)
         self.windows += other.windows
 
     def means(self) -> tuple[np.ndarray, np.ndarray]:
-        """(mean RMS, mean TIC) over the windows: ``sum / W``."""
-        return self.rms_sum / self.windows, self.tic_sum / self.windows
+        """(mean RMS, mean TIC) over the windows: exact ``sum / W``, rounded once."""
+        return self.rms_sum.mean(self.windows), self.tic_sum.mean(self.windows)
 
     def to_json(self) -> dict:
-        return {"windows": self.windows, "rms_sum": _floats(self.rms_sum), "tic_sum": _floats(self.tic_sum)}
+        return {"windows": self.windows, "rms_sum": self.rms_sum.to_json(), "tic_sum": self.tic_sum.to_json()}
 
     @classmethod
     def from_json(cls, data: dict, where: str) -> WindowSums:
-        return cls(int(data["windows"]), _array(data["rms_sum"], f"{where}.rms_sum"), _array(data["tic_sum"], f"{where}.tic_sum"))
+        return cls(int(data["windows"]), ExactSum.from_json(data["rms_sum"], f"{where}.rms_sum"),
+                   ExactSum.from_json(data["tic_sum"], f"{where}.tic_sum"))
 
 
 @dataclass
@@ -94,7 +175,7 @@ class MultistepSums:
     max_horizon: int
     order: list[str]  # models in table order (naive first)
     starts: int = 0
-    error_sums: dict[str, np.ndarray] = field(default_factory=dict)
+    error_sums: dict[str, ExactSum] = field(default_factory=dict)
     forms: dict[str, str] = field(default_factory=dict)
     not_multistep: dict[str, str] = field(default_factory=dict)
 
@@ -104,25 +185,31 @@ class MultistepSums:
 
     def add_segment(self, model: str, mae: np.ndarray, starts: int) -> None:
         """Add the MAE_h (4, H) of ``model`` over the ``starts`` starts of one segment (the pooled term S_g MAE_h(g))."""
-        self.error_sums[model] = self.error_sums.get(model, 0.0) + mae * starts
+        self.error_sums.setdefault(model, ExactSum()).add(np.asarray(mae, dtype=float) * starts)
+
+    def mae(self, model: str) -> np.ndarray:
+        """MAE_h (4, H) of ``model`` over every start: exact error sum / S (zeros for a model with no segment)."""
+        if model not in self.error_sums:
+            return np.zeros((4, self.max_horizon))
+        return self.error_sums[model].mean(self.starts)
 
     def merge(self, other: MultistepSums) -> None:
         """Add ``other``'s starts (a later flight's)."""
         self.starts += other.starts
         for name in other.order:  # table order
             if name in other.error_sums:
-                self.error_sums[name] = self.error_sums.get(name, 0.0) + other.error_sums[name]
+                self.error_sums.setdefault(name, ExactSum()).merge(other.error_sums[name])
         self.forms.update(other.forms)
         self.not_multistep.update(other.not_multistep)
 
     def to_json(self) -> dict:
         return {"span": self.span, "max_horizon": self.max_horizon, "order": list(self.order), "starts": self.starts,
-                "error_sums": {m: _floats(s) for m, s in self.error_sums.items()},
+                "error_sums": {m: s.to_json() for m, s in self.error_sums.items()},
                 "forms": dict(self.forms), "not_multistep": dict(self.not_multistep)}
 
     @classmethod
     def from_json(cls, data: dict, where: str) -> MultistepSums:
-        sums = {m: _array(s, f"{where}.error_sums.{m}") for m, s in data["error_sums"].items()}
+        sums = {m: ExactSum.from_json(s, f"{where}.error_sums.{m}") for m, s in data["error_sums"].items()}
         for m, s in sums.items():
             if s.shape != (4, int(data["max_horizon"])):
                 raise DataError(f"{where}.error_sums.{m}: shape {s.shape}, expected (4, {data['max_horizon']})")
