@@ -158,3 +158,24 @@ def test_validation_loss_is_streamed_in_batches():
         data = RolloutWindows([{"u": np.ones((120, 1))}] * count, history=5, horizon=10, stride=5)
         assert mean_loss(None, loss_fn, data, 16) == pytest.approx(1.0)
     assert max(seen) == 16 and sum(seen) == 10 * len(RolloutWindows([{"u": np.ones((120, 1))}], 5, 10, 5))
+
+
+def test_hybrid_input_statistics_merged_per_segment_equal_those_of_every_row():
+    """The residual net's normalisation from per-segment means and squared deviations (Chan's merge) equals
+    np.mean / np.std over the stacked inputs of every row of the bundled bag's segments (1e-12 relative)."""
+    from quad_modelling.core.models.hybrid import net_features
+    from quad_modelling.core.models.physics import Observer, PhysicsParameters, PhysicsState
+    from quad_modelling.core.training.hybrid import feature_statistics, flight_segments
+    from quad_modelling.core.vehicle import load_vehicle
+    from quad_modelling.io.loader import load_flight
+    from test.conftest import REPO
+
+    vehicle = load_vehicle("crazyflie21")
+    log = load_flight(REPO / "bags" / "nanobench_B7_oval_medium_rep2", vehicle)
+    spans = [(5.0, 15.0), (15.0, 22.0), (22.0, 30.0)]  # three segments of different lengths
+    segments = flight_segments(PhysicsParameters.from_vehicle(vehicle), [log] * 3, spans, Observer())
+    rows = np.concatenate([net_features(PhysicsState(np.zeros_like(s["vel"]), s["vel"], s["rot"].reshape(-1, 3, 3), s["rates"],
+                                                     s["rotor"], np.zeros(len(s["vel"]))), s["u"]) for s in segments])
+    mean, std = feature_statistics(segments)
+    np.testing.assert_allclose(mean, rows.mean(axis=0), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(std, rows.std(axis=0), rtol=1e-12, atol=1e-12)
