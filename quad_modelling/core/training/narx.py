@@ -80,7 +80,7 @@ def regressors(batch: dict, config: NarxConfig) -> tuple:
 
     n_h, n_y = config.warm_samples, config.output_delays
     x_u = torch.cat([batch["u"][:, n_h - d] for d in config.input_delays], dim=1)
-    return x_u, batch["y"][:, n_h - n_y: n_h].transpose(1, 2), batch["target"][:, n_h]
+    return x_u, batch["y"][:, n_h - n_y: n_h].transpose(1, 2).contiguous(), batch["target"][:, n_h]
 
 
 def train_narx(
@@ -230,15 +230,16 @@ def series_parallel_loss(nets, rows: RolloutWindows, config: NarxConfig, chunk: 
         L = \sum_k \frac{1}{N} \sum_{t} \big(f_k(X_u(t), X_y(t)) − \mathrm{target}_k(t)\big)^2
 
     (the summed per-net MSE over the N rows of ``rows``), evaluated and back-propagated ``chunk`` rows at a
-    time in a fixed order (a ``DataLoader`` over ``rows``, :func:`regressors`), the chunks' sums added in
-    float64: the loss and gradient of one full batch, to float32 rounding, in O(chunk) memory.
+    time in a fixed order (a ``DataLoader`` over ``rows``, :func:`regressors`): chunk c of :math:`n_c` rows adds
+    its per-net MSE times :math:`n_c / N`, the chunks' values added in float64. The loss and gradient of one
+    full batch, to float32 rounding, in O(chunk) memory; bit for bit when N ≤ ``chunk``.
     """
     from quad_modelling.core.training.rollout import rollout_loader
 
     count, total = len(rows), 0.0
     for batch in rollout_loader(rows, chunk, shuffle=False):
         x_u, x_y, target = regressors(batch, config)
-        loss = ((nets(x_u, x_y) - target) ** 2).sum() / count
+        loss = ((nets(x_u, x_y) - target) ** 2).mean(dim=0).sum() * (len(target) / count)  # one chunk: the one-batch loss bit for bit
         loss.backward()
         total += float(loss.detach())
     return total

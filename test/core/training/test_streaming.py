@@ -179,3 +179,45 @@ def test_hybrid_input_statistics_merged_per_segment_equal_those_of_every_row():
     mean, std = feature_statistics(segments)
     np.testing.assert_allclose(mean, rows.mean(axis=0), rtol=1e-12, atol=1e-12)
     np.testing.assert_allclose(std, rows.std(axis=0), rtol=1e-12, atol=1e-12)
+
+
+def _full_batch_lbfgs(segments, config, seed):
+    """The series-parallel training as it was before streaming: one batch of the stacked regressors, L-BFGS."""
+    from quad_modelling.core.models.narx import MIN_STD
+    from quad_modelling.core.training.rollout import seeded_torch
+
+    y_std = np.maximum(np.concatenate([s.y for s in segments]).std(axis=0), MIN_STD)
+    steps = np.concatenate([np.diff((s.y - np.concatenate([s.y for s in segments]).mean(axis=0)) / y_std, axis=0)
+                            for s in segments])
+    y_step = np.maximum(steps.std(axis=0), MIN_STD) if config.incremental else np.ones(6)
+    x_u, x_y, target = _stacked(segments, config, y_step)
+    with seeded_torch(seed):
+        nets = _make_nets(6, config.hidden, x_u.shape[1], config.output_delays, y_step, config.incremental)
+        optimiser = torch.optim.LBFGS(nets.parameters(), lr=1.0, max_iter=config.iterations_per_epoch, history_size=20,
+                                      line_search_fn="strong_wolfe", tolerance_grad=1e-9, tolerance_change=1e-12)
+
+        def closure():
+            optimiser.zero_grad()
+            loss = ((nets(x_u, x_y) - target) ** 2).mean(dim=0).sum()
+            loss.backward()
+            return loss
+
+        for _ in range(config.epochs):
+            optimiser.step(closure)
+    return {name: p.detach().double().numpy() for name, p in nets.named_parameters()}
+
+
+@pytest.mark.parametrize("incremental", [False, True])
+def test_series_parallel_training_on_one_chunk_is_the_full_batch_training_bit_for_bit(incremental):
+    """With no more rows than a chunk (here 2 flights, 560 rows), train_narx's weights equal those of the old
+    full-batch L-BFGS on the stacked regressors exactly (no target noise; the thesis's noise draws are unchanged)."""
+    import dataclasses
+
+    from quad_modelling.core.training.narx import train_narx
+
+    config = dataclasses.replace(CONFIG, epochs=2, iterations_per_epoch=5, incremental=incremental)
+    segments = _segments(2, rows=280, seed=4)
+    model = train_narx(segments, 0.01, "test", config, seed=3)
+    reference = _full_batch_lbfgs(segments, config, seed=3)
+    for name, weights in reference.items():
+        np.testing.assert_array_equal(getattr(model, name), weights, err_msg=name)
