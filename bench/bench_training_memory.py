@@ -85,7 +85,8 @@ def run_case(case: str, flights: list[Path], code: Path, work: Path) -> dict:
         raise RuntimeError(f"{case} on {len(flights)} flights failed ({child.returncode}):\n{text[-3000:]}")
     return {"flights": len(flights), "peak_rss_mib": round(usage.ru_maxrss / 1024, 1), "wall_s": round(wall, 1),
             "cpu_s": round(usage.ru_utime + usage.ru_stime, 1),
-            "output": [line for line in text.splitlines() if line.startswith(("trained", "rollout", "physics model constants"))]}
+            "output": [line.split(" -> ")[0] for line in text.splitlines()
+                       if line.startswith(("trained", "rollout", "physics model constants"))]}
 
 
 QUALITY_FOLD = "B7"
