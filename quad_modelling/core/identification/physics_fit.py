@@ -18,7 +18,10 @@ without one, the bracket is 0), is
 
 with :math:`C_k = \sum_{i<k} X_i \Delta t_i` (the model's integration rule), K the same for the known part k. Its
 error is linear in θ, so each channel is a linear least squares over all anchors and the horizons
-:data:`FIT_HORIZONS_S`, no differentiated signal needed. The regressors use the measured attitude and
+:data:`FIT_HORIZONS_S`, no differentiated signal needed. The rows are never stacked: each channel's normal equations
+:math:`X^T X, X^T y, y^T y` (and those of the thinned rows, for the uncertainty) are summed segment by segment
+(:class:`NormalEquations`), so the memory of the fit does not grow with the number of flights; SSR =
+:math:`y^T y − 2θ^T X^T y + θ^T X^T X θ`. The regressors use the measured attitude and
 velocity along the horizon (the equation error of the whole step, not of one row), rotor speeds
 :math:`\Omega_i` from the lag filter over the delayed commands
 (:func:`~quad_modelling.core.models.physics.rotor_speeds`), :math:`S = \sum_i \Omega_i`, :math:`v_B = R^T v_N`:
@@ -54,7 +57,7 @@ singular (:data:`MAX_CONDITION`; the flights do not excite it) leaves its consta
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -239,11 +242,12 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
     }
 
 
-def _design(p: PhysicsParameters, segments: list[_Segment], time_constant: float, delay: float,
-            observer: Observer = Observer()) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """Per channel the stacked (regressors (rows, k_θ), target (rows,)) of the observer-corrected multi-step error
-    (module docstring) over all segments, anchors, horizons and state components."""
-    parts: dict[str, list] = {c: [] for c in CHANNELS}
+def _design_blocks(p: PhysicsParameters, segments: list[_Segment], time_constant: float, delay: float,
+                   observer: Observer = Observer()) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+    """The rows of the observer-corrected multi-step error (module docstring), one block at a time: (channel,
+    regressors (rows, k_θ), target (rows,)) per segment, channel and horizon, in the order of the stacked design
+    (segments, then channels, then horizons; within a block anchors, then state components). Only one segment's
+    rows exist at a time."""
     for seg in segments:
         a = seg.anchors
         for name, entry in _rows(p, seg, time_constant, delay).items():
@@ -262,44 +266,95 @@ def _design(p: PhysicsParameters, segments: list[_Segment], time_constant: float
                 lead = (seg.t[a + h] - seg.t[a])[:, None]
                 target = y[a + h] - y[a] - (ck[a + h] - ck[a]) - lead * (slope_y - slope_k)
                 regressor = cx[a + h] - cx[a] - lead[:, :, None] * slope_x
-                parts[name].append((regressor.reshape(-1, regressor.shape[-1]), target.reshape(-1)))
-    return {name: (np.vstack([b[0] for b in blocks]), np.concatenate([b[1] for b in blocks])) for name, blocks in parts.items()}
+                yield name, regressor.reshape(-1, regressor.shape[-1]), target.reshape(-1)
 
 
-def _solve(design: dict[str, tuple[np.ndarray, np.ndarray]], thin: int) -> dict[str, dict]:
-    """Least squares per channel: coefficients, covariance (rows thinned by ``thin``), SSR, residual variance, SSR at θ = 0."""
-    out = {}
-    for name, (x, y) in design.items():
+@dataclass
+class NormalEquations:
+    r"""Sufficient statistics of one channel's least squares :math:`\min_θ \lVert y − Xθ\rVert^2`, summed block by block:
+    :math:`X^T X` (k, k), :math:`X^T y` (k,), :math:`y^T y`, the row count n; and the same of the rows thinned to every
+    ``thin``-th of the stacked design (rows 0, thin, 2 thin, … in stacking order) for the uncertainty. The memory is
+    O(k²), whatever the number of rows."""
+
+    xtx: np.ndarray
+    xty: np.ndarray
+    yty: float = 0.0
+    n: int = 0
+    thin: int = 1
+    xtx_thin: np.ndarray | None = None
+    xty_thin: np.ndarray | None = None
+    yty_thin: float = 0.0
+    n_thin: int = 0
+
+    @classmethod
+    def empty(cls, k: int, thin: int) -> NormalEquations:
+        return cls(np.zeros((k, k)), np.zeros(k), thin=thin, xtx_thin=np.zeros((k, k)), xty_thin=np.zeros(k))
+
+    def add(self, x: np.ndarray, y: np.ndarray) -> None:
+        """Add the rows (x (m, k), y (m,)) that follow the ones already added."""
         # einsum, not BLAS: tall-skinny products are 100x slower with a multithreaded BLAS on a busy 2-core machine
-        ssr0 = float(np.einsum("i,i->", y, y))
-        used = _excited_columns(x, len(y))
-        coef = np.full(x.shape[1], np.nan)  # NaN: a constant the flights do not excite
-        cov = np.full((x.shape[1],) * 2, np.nan)
+        self.xtx += np.einsum("ij,ik->jk", x, x)
+        self.xty += np.einsum("ij,i->j", x, y)
+        self.yty += float(np.einsum("i,i->", y, y))
+        kept = slice((-self.n) % self.thin, None, self.thin)  # the rows whose stacked index is a multiple of thin
+        xt, yt = x[kept], y[kept]
+        self.xtx_thin += np.einsum("ij,ik->jk", xt, xt)
+        self.xty_thin += np.einsum("ij,i->j", xt, yt)
+        self.yty_thin += float(np.einsum("i,i->", yt, yt))
+        self.n += len(y)
+        self.n_thin += len(yt)
+
+
+def _normal_equations(p: PhysicsParameters, segments: list[_Segment], time_constant: float, delay: float,
+                      observer: Observer = Observer(), thin: int = 1) -> dict[str, NormalEquations]:
+    """Per channel the :class:`NormalEquations` of all segments' rows (:func:`_design_blocks`), streamed."""
+    sums: dict[str, NormalEquations] = {}
+    for name, x, y in _design_blocks(p, segments, time_constant, delay, observer):
+        if name not in sums:
+            sums[name] = NormalEquations.empty(x.shape[1], thin)
+        sums[name].add(x, y)
+    return sums
+
+
+def _quadratic(xtx: np.ndarray, xty: np.ndarray, yty: float, coef: np.ndarray) -> float:
+    r""":math:`\lVert y − Xθ\rVert^2 = y^T y − 2 θ^T X^T y + θ^T X^T X θ` (≥ 0) from the normal-equation sums."""
+    return max(float(yty - 2.0 * coef @ xty + coef @ xtx @ coef), 0.0)
+
+
+def _solve(design: dict[str, NormalEquations]) -> dict[str, dict]:
+    """Least squares per channel from its normal equations: coefficients, covariance s² (X_t^T X_t)^{-1} of the thinned
+    rows, SSR, the thinned rows' residual variance s², SSR at θ = 0."""
+    out = {}
+    for name, ne in design.items():
+        ssr0 = float(ne.yty)
+        k = len(ne.xty)
+        used = _excited_columns(ne.xtx, ne.n)
+        coef = np.full(k, np.nan)  # NaN: a constant the flights do not excite
+        cov = np.full((k, k), np.nan)
         if not used:
-            out[name] = {"coef": coef, "cov": cov, "ssr": ssr0, "s2": np.nan, "ssr0": ssr0, "n": len(y)}
+            out[name] = {"coef": coef, "cov": cov, "ssr": ssr0, "s2": np.nan, "ssr0": ssr0, "n": ne.n}
             continue
-        x = x[:, used]
-        coef[used] = np.linalg.solve(np.einsum("ij,ik->jk", x, x), np.einsum("ij,i->j", x, y))
-        resid = y - np.einsum("ij,j->i", x, coef[used])
-        ssr = float(np.einsum("i,i->", resid, resid))
-        xt = x[::thin]
-        s2 = float(np.einsum("i,i->", resid[::thin], resid[::thin])) / max(len(xt) - x.shape[1], 1)
+        block = np.ix_(used, used)
+        theta = np.linalg.solve(ne.xtx[block], ne.xty[used])
+        coef[used] = theta
+        ssr = _quadratic(ne.xtx[block], ne.xty[used], ne.yty, theta)
+        s2 = _quadratic(ne.xtx_thin[block], ne.xty_thin[used], ne.yty_thin, theta) / max(ne.n_thin - len(used), 1)
         try:
-            cov[np.ix_(used, used)] = np.linalg.inv(np.einsum("ij,ik->jk", xt, xt)) * s2
+            cov[block] = np.linalg.inv(ne.xtx_thin[block]) * s2
         except np.linalg.LinAlgError:
             pass  # the thinned rows alone are singular: the sigmas stay NaN
-        out[name] = {"coef": coef, "cov": cov, "ssr": ssr, "s2": s2, "ssr0": ssr0, "n": len(y)}
+        out[name] = {"coef": coef, "cov": cov, "ssr": ssr, "s2": s2, "ssr0": ssr0, "n": ne.n}
     return out
 
 
-def _excited_columns(x: np.ndarray, rows: int) -> list[int]:
-    """The leading columns of a design whose column-scaled normal matrix has a condition number within
-    :data:`MAX_CONDITION` (columns are ordered by importance: the thrust or torque gain first, then drag terms)."""
-    for k in range(x.shape[1], 0, -1):
-        part = x[:, :k]
-        gram = np.einsum("ij,ik->jk", part, part)
-        scale = np.sqrt(np.diag(gram))
-        if rows > k and np.all(scale > 0) and np.linalg.cond(gram / np.outer(scale, scale)) <= MAX_CONDITION:
+def _excited_columns(gram: np.ndarray, rows: int) -> list[int]:
+    """The leading columns of a design (normal matrix ``gram`` = X^T X of ``rows`` rows) whose column-scaled normal
+    matrix has a condition number within :data:`MAX_CONDITION` (columns are ordered by importance: the thrust or
+    torque gain first, then drag terms)."""
+    for k in range(gram.shape[0], 0, -1):
+        part = gram[:k, :k]
+        scale = np.sqrt(np.diag(part))
+        if rows > k and np.all(scale > 0) and np.linalg.cond(part / np.outer(scale, scale)) <= MAX_CONDITION:
             return list(range(k))
     return []
 
@@ -313,7 +368,7 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     rate = float(np.median([1.0 / np.median(np.diff(s.t)) for s in segments]))
 
     def objective(log_tau: float, delay: float) -> float:
-        fit = _solve(_design(p, segments, float(np.exp(log_tau)), delay, observer), 1)
+        fit = _solve(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer))
         return sum(fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS if fit[c]["ssr0"] > 0)
 
     lo, hi = TIME_CONSTANT_RANGE_S
@@ -342,7 +397,7 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     tau, delay = searched[i][1], float(grid[i])
     profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
     thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
-    fit = _solve(_design(p, segments, tau, delay, observer), thin)
+    fit = _solve(_normal_equations(p, segments, tau, delay, observer, thin))
 
     kf, kf_sd = fit["velocity"]["coef"][0], np.sqrt(fit["velocity"]["cov"][0, 0])
     values = {"rotor_time_constant": tau, "rotor_delay": delay, "rotor_thrust_constant": kf,
@@ -416,7 +471,7 @@ def _tau_sigma(p: PhysicsParameters, segments: list[_Segment], tau: float, delay
     h = 0.05 * tau
 
     def chi2(value: float) -> float:
-        fit = _solve(_design(p, segments, value, delay, observer), 1)
+        fit = _solve(_normal_equations(p, segments, value, delay, observer))
         return sum(fit[c]["ssr"] / (thin * s2[c]) for c in CHANNELS if np.isfinite(s2[c]) and s2[c] > 0)
 
     curvature = (chi2(tau + h) - 2.0 * chi2(tau) + chi2(tau - h)) / h**2

@@ -181,45 +181,46 @@ def prepare_windows(
     warm = warm_samples_for(windows[0].slice(0, n), config.warm_s)
     trim_rows = config.trim.trim_samples(windows[0].slice(0, n))
     has_vbat = all(w.vbat is not None for w in windows)
-    u, u_trim, measured, anchors, offsets, vel, vel_abs, vel_smooth, euler, rates_b, height, vbat, warm_rows = ([] for _ in range(13))
-    u_history, force0, acc_trims, angacc_trims = [], [], [], []
     history_rows = min(len(h) for h in histories)
-    for w, ground, history in zip(windows, grounds, histories):
-        w = w.slice(0, n)
+    sources = [w.meta.source for w in windows]
+    fields: dict[str, np.ndarray] = {}  # (W, ...) arrays filled window by window: no per-window list copied at the end
+
+    def put(name: str, i: int, value: np.ndarray) -> None:
+        if name not in fields:
+            fields[name] = np.empty((len(windows), *np.shape(value)), dtype=np.result_type(value))
+        fields[name][i] = value
+
+    for i, (ground, history) in enumerate(zip(grounds, histories)):
+        w, windows[i] = windows[i].slice(0, n), None  # each window's copy goes once its rows are in the batch
         raw = measured_variables(w)
         window_trim = trim_values(raw, trim_rows)
-        measured.append(smooth(raw - window_trim, rate, config.smooth_cutoff_hz))
+        put("measured", i, smooth(raw - window_trim, rate, config.smooth_cutoff_hz))
         # linearisation point: the warm start (as GreyboxPredictor._anchor)
         warm_log = w.slice(0, warm)
         warm_measured = measured_variables(warm_log)
         output_trim = warm_measured.mean(axis=0)
         input_trim = warm_log.u.mean(axis=0)
-        anchors.append(smooth(warm_measured - output_trim, rate)[-1, MEASURED_STATE_COLUMNS])
-        offsets.append(output_trim - window_trim)
-        force0.append(warm_log.acc_b.mean(axis=0))
-        acc_trims.append(window_trim[6:9])
-        angacc_trims.append(window_trim[15:18])
-        warm_rows.append(warm_measured - window_trim)
-        u.append(w.u - input_trim)
-        u_history.append(history[len(history) - history_rows :] - input_trim)
-        u_trim.append(input_trim)
-        vel.append(smooth(raw[:, 3:6] - output_trim[3:6], rate, config.smooth_cutoff_hz))
-        vel_abs.append(raw[:, 3:6])
-        vel_smooth.append(smooth(raw[:, 3:6], rate, config.smooth_cutoff_hz))
-        euler.append(raw[:, 9:12])
-        rates_b.append(smooth(raw[:, 12:15], rate, config.smooth_cutoff_hz))
-        height.append(smooth(ground - w.pos_n[:, 2], rate, REGIME_CUTOFF_HZ))
+        put("anchor_states", i, smooth(warm_measured - output_trim, rate)[-1, MEASURED_STATE_COLUMNS])
+        put("offsets", i, output_trim - window_trim)
+        put("specific_force0", i, warm_log.acc_b.mean(axis=0))
+        put("acc_trim", i, window_trim[6:9])
+        put("angacc_trim", i, window_trim[15:18])
+        put("warm_rows", i, warm_measured - window_trim)
+        put("u", i, w.u - input_trim)
+        put("u_history", i, history[len(history) - history_rows :] - input_trim)
+        put("u_trim", i, input_trim)
+        put("velocity", i, smooth(raw[:, 3:6] - output_trim[3:6], rate, config.smooth_cutoff_hz))
+        put("velocity_abs", i, raw[:, 3:6])
+        put("velocity_smooth", i, smooth(raw[:, 3:6], rate, config.smooth_cutoff_hz))
+        put("euler", i, raw[:, 9:12])
+        put("rates", i, smooth(raw[:, 12:15], rate, config.smooth_cutoff_hz))
+        put("height", i, smooth(ground - w.pos_n[:, 2], rate, REGIME_CUTOFF_HZ))
         if has_vbat:
-            vbat.append(smooth(w.vbat, rate, config.smooth_cutoff_hz))  # sag follows the throttle: keep its bandwidth
+            put("vbat", i, smooth(w.vbat, rate, config.smooth_cutoff_hz))  # sag follows the throttle: keep its bandwidth
     batch = WindowBatch(
-        sources=[w.meta.source for w in windows], t0=np.array(starts), dt=dt, warm=warm,
-        u=np.array(u), u_history=np.array(u_history).reshape(len(u), history_rows, 4), u_trim=np.array(u_trim), u_span=float(vehicle.input_max - vehicle.input_min),
-        measured=np.array(measured), anchor_states=np.array(anchors), offsets=np.array(offsets), velocity=np.array(vel), velocity_abs=np.array(vel_abs),
-        velocity_smooth=np.array(vel_smooth),
-        euler=np.array(euler), rates=np.array(rates_b), height=np.array(height), vbat=np.array(vbat) if has_vbat else None,
-        input_min=float(vehicle.input_min), warm_rows=np.array(warm_rows), trim_samples=trim_rows,
-        smooth_cutoff_hz=float(config.smooth_cutoff_hz),
-        specific_force0=np.array(force0), acc_trim=np.array(acc_trims), angacc_trim=np.array(angacc_trims),
+        sources=sources, t0=np.array(starts), dt=dt, warm=warm,
+        u_span=float(vehicle.input_max - vehicle.input_min), vbat=fields.pop("vbat", None),
+        input_min=float(vehicle.input_min), trim_samples=trim_rows, smooth_cutoff_hz=float(config.smooth_cutoff_hz), **fields,
     )
     airborne = np.array(contact_height) >= GROUND_CONTACT_M
     if not airborne.any():

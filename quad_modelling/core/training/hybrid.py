@@ -6,7 +6,9 @@ segment, prepared as the evaluation's multi-step form sees a segment: measured s
 segment's commands, the physics observer's disturbance at every row as an anchor, and the observer's rows
 (:func:`~quad_modelling.core.models.hybrid.observer_rows`). :class:`~quad_modelling.core.training.rollout.RolloutWindows`
 cuts windows of ``n_h`` history rows + the anchor + K steps from them (never across a segment), a seeded
-``DataLoader`` batches them.
+``DataLoader`` batches them. Only the segments' rows are held (float32, in the datasets; the float64 arrays are
+dropped before training); the net's input statistics, the naive scales and the output scale are summed segment by
+segment (:func:`feature_statistics`, :func:`naive_scales`, :func:`acceleration_scale`), never over a stacked copy.
 
 Loss. From each anchor a the hybrid is rolled out K steps through the torch twin
 (:mod:`~quad_modelling.core.training.physics_torch`) -- observer correction from the net at the history rows,
@@ -126,16 +128,32 @@ def flight_segments(p: PhysicsParameters, logs: Sequence[FlightLog], spans: Sequ
     return segments
 
 
-def feature_rows(segments: list[dict[str, np.ndarray]]) -> np.ndarray:
-    """(N, 21) net inputs at every measured row of ``segments`` (normalisation statistics)."""
+def feature_statistics(segments: list[dict[str, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
+    r"""(mean, standard deviation) (21,) of the net inputs at every measured row of ``segments`` (the net's
+    normalisation), one segment at a time: each segment's count :math:`n_i`, mean :math:`\bar f_i` and
+    :math:`M_i = \sum (f - \bar f_i)^2` are merged by Chan's rule,
+    :math:`M = M_a + M_b + δ^2 n_a n_b / (n_a + n_b)` with :math:`δ = \bar f_b − \bar f_a`, so no array of
+    every row's inputs is built; std = :math:`\sqrt{M / n}` (population, as ``np.std``)."""
     from quad_modelling.core.models.hybrid import net_features
 
-    out = []
+    count, mean, m2 = 0, None, None
     for s in segments:
         state = physics.PhysicsState(np.zeros_like(s["vel"]), s["vel"], s["rot"].reshape(-1, 3, 3), s["rates"], s["rotor"],
                                      np.zeros(len(s["vel"])))
-        out.append(net_features(state, s["u"]))
-    return np.concatenate(out)
+        f = net_features(state, s["u"])
+        n, f_mean = len(f), f.mean(axis=0)
+        f_m2 = ((f - f_mean) ** 2).sum(axis=0)
+        if mean is None:
+            count, mean, m2 = n, f_mean, f_m2
+            continue
+        delta = f_mean - mean
+        total = count + n
+        mean = mean + delta * (n / total)
+        m2 = m2 + f_m2 + delta**2 * (count * n / total)
+        count = total
+    if mean is None:
+        raise DataError("hybrid training: no training segment")
+    return mean, np.sqrt(m2 / count)
 
 
 def naive_scales(segments: list[dict[str, np.ndarray]], horizon: int) -> tuple[float, float]:
@@ -156,7 +174,7 @@ def acceleration_scale(p: PhysicsParameters, logs: Sequence[FlightLog], spans: S
     """(6,) output scale of the net: RMS of (measured − modelled) linear acceleration in B [m/s²] and angular
     acceleration [rad/s²] over the ``spans`` of ``logs``, less each flight's mean (the observer's part): the size of
     what is left for the net to correct."""
-    parts = []
+    squares, rows = np.zeros(6), 0  # summed per flight: no array of every row is kept
     for log, span in zip(logs, spans):
         if span is not None:
             log = log.slice(*rows_between(log, *span))
@@ -170,9 +188,9 @@ def acceleration_scale(p: PhysicsParameters, logs: Sequence[FlightLog], spans: S
         lin_b = np.einsum("bji,bj->bi", state.rot, measured[:, 6:9] - acc_n)
         residual = np.concatenate([lin_b, measured[:, 15:18] - ang_acc], axis=1)
         residual = residual[np.all(np.isfinite(residual), axis=1)]
-        parts.append(residual - residual.mean(axis=0))
-    residual = np.concatenate(parts) if parts else np.ones((1, 6))
-    return np.maximum(np.sqrt((residual ** 2).mean(axis=0)), 1e-3)
+        squares += ((residual - residual.mean(axis=0)) ** 2).sum(axis=0)
+        rows += len(residual)
+    return np.maximum(np.sqrt(squares / rows), 1e-3) if rows else np.ones(6)
 
 
 # ---- the torch module and the loss -------------------------------------------------------------------
@@ -288,13 +306,15 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
     if not any(len(s["u"]) > history + rc.horizon for s in train_segments):
         raise DataError(f"hybrid training: no gap-free part of the training spans holds the {history + rc.horizon + 1} rows one "
                         f"{rc.horizon}-step window with its observer history needs")
-    features = feature_rows(train_segments)
+    in_mean, in_std = feature_statistics(train_segments)
     scales = naive_scales(train_segments, rc.horizon)
     out_scale = acceleration_scale(p, [logs[i] for i in train_idx], [spans[i] for i in train_idx])
+    samples = int(sum(len(s["u"]) for s in train_segments))
     train_set = RolloutWindows(train_segments, history, rc.horizon + 1, rc.stride)
     val_set = RolloutWindows(val_segments, history, rc.horizon + 1, rc.val_stride) if val_segments else None
+    del train_segments, val_segments  # the datasets hold the rows (float32): the float64 copies go before training
     with seeded_torch(seed, rc.threads):
-        net = _make_module(features.mean(axis=0), np.maximum(features.std(axis=0), 1e-6), out_scale, config.hidden)
+        net = _make_module(in_mean, np.maximum(in_std, 1e-6), out_scale, config.hidden)
         loss_fn = rollout_loss(pt.TorchParameters.from_params(p, torch.float32), history, rc.horizon, scales)
         record = train_rollout(net, loss_fn, train_set, val_set, rc, seed, progress, desc="hybrid rollout training")
         residual = net.to_numpy()
@@ -304,7 +324,7 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
         "flights": [logs[i].meta.source for i in train_idx], "validation_flights": [logs[i].meta.source for i in val_idx],
         "spans": [None if s is None else list(s) for s in spans], "windows": len(train_set),
         "validation_windows": 0 if val_set is None else len(val_set),
-        "samples": int(sum(len(s["u"]) for s in train_segments)),
+        "samples": samples,
         "rollout": {**record.to_dict(), "val_windows": len(val_set) if val_set is not None else len(train_set)},
     }
     return HybridModel(p, residual, vehicle, config.observer, training)

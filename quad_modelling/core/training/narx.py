@@ -1,4 +1,4 @@
-"""Training the NARX nets (thesis chapter 4): series-parallel regressors, torch fit, flight segments."""
+"""Training the NARX nets (thesis chapter 4): series-parallel rows streamed in chunks from the flights' arrays, torch fit, flight segments."""
 
 from __future__ import annotations
 
@@ -14,7 +14,6 @@ from quad_modelling.core.models.narx import (
     OUTPUTS,
     NarxConfig,
     NarxModel,
-    lagged_inputs,
     measured_outputs,
 )
 from quad_modelling.core.training.rollout import (
@@ -48,14 +47,40 @@ def _noisy_outputs(segments: list[Segment], snr_db: tuple[float | None, ...], rn
     return [s.y + rng.standard_normal(s.y.shape) * std for s in segments]
 
 
-def _regressors(u_norm: np.ndarray, y_norm: np.ndarray, config: NarxConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Series-parallel training rows of one segment: (X_u, X_y, target) for t ≥ warm_samples."""
-    start = config.warm_samples
-    n_y = config.output_delays
-    x_u = lagged_inputs(u_norm, config.input_delays)[start:]
-    windows = np.lib.stride_tricks.sliding_window_view(y_norm, n_y, axis=0)  # row j = y[j:j+n_y]
-    x_y = windows[start - n_y : len(y_norm) - n_y]
-    return x_u, np.ascontiguousarray(x_y), y_norm[start:]
+SERIES_PARALLEL_CHUNK = 4096
+"""Training rows per chunk of the series-parallel loss (:func:`_fit`): the full-batch loss and its gradient are
+summed chunk by chunk, so the memory of a training step is O(chunk), not O(rows)."""
+
+
+def series_parallel_rows(segments: list[Segment], noisy: list[np.ndarray], u_mean: np.ndarray, u_std: np.ndarray,
+                         y_mean: np.ndarray, y_std: np.ndarray, y_step: np.ndarray, config: NarxConfig) -> RolloutWindows:
+    r"""Every series-parallel training row of ``segments`` as a window of n_h + 1 rows (n_h = ``config.warm_samples``).
+
+    Row t ≥ n_h of a segment is the window of rows t − n_h … t of its arrays ``u`` = ũ (normalised commands),
+    ``y`` = ỹ (normalised outputs, with the ``noisy`` ones' target noise) and ``target`` =
+    :math:`(ỹ(t) − ρ\,ỹ(t−1)) / s` (ρ = 1, s = ``y_step`` for incremental nets, else ρ = 0, s = 1;
+    computed in float64 before the float32 cast); :func:`regressors` turns a batch of them into the
+    regressors. Same rows, same order as the stacked regressor matrix of all segments; nothing per row is stored.
+    """
+    arrays = []
+    for s, y in zip(segments, noisy):
+        y_norm = (y - y_mean) / y_std
+        previous = np.vstack([y_norm[:1], y_norm[:-1]]) if config.incremental else np.zeros_like(y_norm)
+        arrays.append({"u": (s.u - u_mean) / u_std, "y": y_norm, "target": (y_norm - previous) / y_step})
+    return RolloutWindows(arrays, config.warm_samples, 1, 1)
+
+
+def regressors(batch: dict, config: NarxConfig) -> tuple:
+    r"""(X_u (B, |D_u|·n_u), X_y (B, 6, n_y), target (B, 6)) of a batch of :func:`series_parallel_rows` windows.
+
+    With n_h = ``config.warm_samples`` the window's row n_h is t: X_u = [ũ(t − d)]_{d∈D_u} (the order of
+    :func:`~quad_modelling.core.models.narx.lagged_inputs`), X_y[k] = ỹ_k(t − n_y … t − 1), oldest first.
+    """
+    import torch
+
+    n_h, n_y = config.warm_samples, config.output_delays
+    x_u = torch.cat([batch["u"][:, n_h - d] for d in config.input_delays], dim=1)
+    return x_u, batch["y"][:, n_h - n_y: n_h].transpose(1, 2).contiguous(), batch["target"][:, n_h]
 
 
 def train_narx(
@@ -105,17 +130,13 @@ def train_narx(
     else:
         y_step = np.ones(len(OUTPUTS))
     noisy = _noisy_outputs(usable, config.noise_snr_db, rng)
-    parts = [_regressors((s.u - u_mean) / u_std, (y - y_mean) / y_std, config) for s, y in zip(usable, noisy)]
-    x_u, x_y, target = (np.concatenate(p) for p in zip(*parts))
-    if config.incremental:  # the nets' own target: (ỹ(t) − ρ ỹ(t−1)) / s_k
-        target = (target - x_y[:, :, -1]) / y_step
-
-    import torch
+    rows = series_parallel_rows(usable, noisy, u_mean, u_std, y_mean, y_std, y_step, config)
+    del noisy
 
     info: dict = {}
     with seeded_torch(seed):
-        nets = _make_nets(len(OUTPUTS), config.hidden, x_u.shape[1], config.output_delays, y_step, config.incremental)
-        _fit(nets, *(torch.from_numpy(a.astype(np.float32)) for a in (x_u, x_y, target)), config, progress)
+        nets = _make_nets(len(OUTPUTS), config.hidden, len(config.input_delays) * n_u, config.output_delays, y_step, config.incremental)
+        _fit(nets, rows, config, progress)
     if rollout is not None:
         def windows(parts: list[Segment], stride: int) -> RolloutWindows | None:
             arrays = [{"u": (s.u - u_mean) / u_std, "y": (s.y - y_mean) / y_std} for s in parts
@@ -137,7 +158,7 @@ def train_narx(
         u_mean=u_mean, u_std=u_std, y_mean=y_mean, y_std=y_std, y_step=y_step, kind=kind,
         training={
             "seed": seed,
-            "samples": int(len(target)),
+            "samples": len(rows),
             "segments": [{"source": s.source, "span": list(s.span)} for s in usable],
             **info,
             **(training or {}),
@@ -201,8 +222,31 @@ def _make_nets(nets: int, hidden: int, inputs: int, feedback: int, y_step: np.nd
     return BatchedNets(nets, hidden, inputs, feedback)
 
 
-def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> None:
-    """Full-batch L-BFGS on the summed per-net MSE (series-parallel), in place."""
+def series_parallel_loss(nets, rows: RolloutWindows, config: NarxConfig, chunk: int = SERIES_PARALLEL_CHUNK) -> float:
+    r"""The full-batch series-parallel loss, its gradient added to the parameters' ``.grad`` (the caller zeroes them).
+
+    .. math::
+
+        L = \sum_k \frac{1}{N} \sum_{t} \big(f_k(X_u(t), X_y(t)) − \mathrm{target}_k(t)\big)^2
+
+    (the summed per-net MSE over the N rows of ``rows``), evaluated and back-propagated ``chunk`` rows at a
+    time in a fixed order (a ``DataLoader`` over ``rows``, :func:`regressors`): chunk c of :math:`n_c` rows adds
+    its per-net MSE times :math:`n_c / N`, the chunks' values added in float64. The loss and gradient of one
+    full batch, to float32 rounding, in O(chunk) memory; bit for bit when N ≤ ``chunk``.
+    """
+    from quad_modelling.core.training.rollout import rollout_loader
+
+    count, total = len(rows), 0.0
+    for batch in rollout_loader(rows, chunk, shuffle=False):
+        x_u, x_y, target = regressors(batch, config)
+        loss = ((nets(x_u, x_y) - target) ** 2).mean(dim=0).sum() * (len(target) / count)  # one chunk: the one-batch loss bit for bit
+        loss.backward()
+        total += float(loss.detach())
+    return total
+
+
+def _fit(nets, rows: RolloutWindows, config: NarxConfig, progress: bool) -> None:
+    """Full-batch L-BFGS on :func:`series_parallel_loss` (the thesis's series-parallel training), in place."""
     import torch
     from tqdm import tqdm
 
@@ -213,14 +257,12 @@ def _fit(nets, x_u, x_y, target, config: NarxConfig, progress: bool) -> None:
 
     def loss_fn():
         optimiser.zero_grad()
-        loss = ((nets(x_u, x_y) - target) ** 2).mean(dim=0).sum()
-        loss.backward()
-        return loss
+        return torch.tensor(series_parallel_loss(nets, rows, config), dtype=torch.float64)
 
     bar = tqdm(range(config.epochs), desc="NARX training", unit="epoch", disable=not progress, leave=False)
     for _ in bar:
         loss = optimiser.step(loss_fn)
-        bar.set_postfix(mse=f"{float(loss.detach()) / len(OUTPUTS):.4g}")
+        bar.set_postfix(mse=f"{float(loss) / len(OUTPUTS):.4g}")
 
 
 # ---- the improved (default) training ----------------------------------------------

@@ -43,11 +43,14 @@ import math
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
 from quad_modelling.errors import ConfigError, DataError
+
+if TYPE_CHECKING:
+    import torch
 
 VAL_FRACTION = 0.2
 """Default fraction of the training flights held back (whole flights) for early stopping."""
@@ -110,7 +113,12 @@ class RolloutWindows:
     """Every rollout window of ``segments`` (see module doc); a map-style dataset for ``torch.utils.data.DataLoader``.
 
     ``dataset[i]`` is window i as a dict of (n_h + K, ...) tensors; ``dataset[[i, j, ...]]``
-    a batch of (B, n_h + K, ...) tensors. Segments shorter than n_h + K give no window.
+    a batch of (B, n_h + K, ...) tensors, gathered from the segments' rows when asked. Segments
+    shorter than n_h + K give no window.
+
+    Memory: the segments' arrays once, as float32 (:attr:`arrays`), and two numbers per segment;
+    nothing per window. Window i of segment k (the k-th with :attr:`first` [k] ≤ i < :attr:`first` [k+1])
+    starts at joined row :attr:`offsets` [k] + (i − first[k]) · stride.
     """
 
     def __init__(self, segments: Sequence[Mapping[str, np.ndarray]], history: int, horizon: int, stride: int = 1) -> None:
@@ -121,8 +129,8 @@ class RolloutWindows:
         if not segments:
             raise DataError("rollout windows: no segments")
         keys = sorted(segments[0])
-        self.history, self.horizon, self.length = history, horizon, history + horizon
-        starts, offset = [], 0
+        self.history, self.horizon, self.length, self.stride = history, horizon, history + horizon, stride
+        counts, offsets, offset = [], [], 0
         for n, segment in enumerate(segments):
             if sorted(segment) != keys:
                 raise DataError(f"rollout windows: segment {n} has arrays {sorted(segment)}, expected {keys}")
@@ -130,21 +138,32 @@ class RolloutWindows:
             if len(rows) != 1:
                 raise DataError(f"rollout windows: segment {n} arrays have different lengths {sorted(rows)}")
             rows = rows.pop()
-            starts.append(offset + np.arange(0, rows - self.length + 1, stride))
+            counts.append(max(0, (rows - self.length) // stride + 1))
+            offsets.append(offset)
             offset += rows
-        self.starts = torch.from_numpy(np.concatenate(starts).astype(np.int64))  # first row of each window, in the joined arrays
+        self.first = torch.from_numpy(np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))  # (S + 1,) window numbers
+        self.offsets = torch.as_tensor(offsets, dtype=torch.int64)  # (S,) first row of each segment in the joined arrays
         self.arrays = {k: torch.from_numpy(np.concatenate([np.asarray(s[k], dtype=np.float32) for s in segments])) for k in keys}
         self._steps = torch.arange(self.length)
 
     def __len__(self) -> int:
-        return len(self.starts)
+        return int(self.first[-1])
+
+    def starts(self, index) -> torch.Tensor:
+        """First joined row of each window in ``index`` (an int64 tensor of window numbers)."""
+        import torch
+
+        if len(index) and (int(index.min()) < 0 or int(index.max()) >= len(self)):
+            raise IndexError(f"rollout windows: window numbers must lie in 0..{len(self) - 1}")
+        segment = torch.searchsorted(self.first, index, right=True) - 1
+        return self.offsets[segment] + (index - self.first[segment]) * self.stride
 
     def __getitem__(self, index) -> dict:
         import torch
 
         single = isinstance(index, (int, np.integer))
-        idx = torch.as_tensor([index] if single else list(index), dtype=torch.int64)
-        rows = self.starts[idx][:, None] + self._steps[None, :]  # (B, L)
+        idx = torch.as_tensor([index] if single else index, dtype=torch.int64)
+        rows = self.starts(idx)[:, None] + self._steps[None, :]  # (B, L)
         batch = {k: a[rows] for k, a in self.arrays.items()}
         return {k: v[0] for k, v in batch.items()} if single else batch
 
