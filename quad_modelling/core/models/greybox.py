@@ -218,7 +218,7 @@ class GreyboxModel:
         return _discretise(self.parameters, round(float(dt), 12), method)
 
 
-@lru_cache(maxsize=64)
+@lru_cache(maxsize=4096)
 def _discretise(p: GreyboxParameters, dt: float, method: str) -> DiscreteGreybox:
     if method not in DISCRETISATIONS:
         raise ConfigError(f"greybox discretisation must be one of {', '.join(DISCRETISATIONS)}, got {method!r}")
@@ -253,23 +253,63 @@ THESIS_DESCRIPTION = (
 """One sentence for a report's model notes."""
 
 
+STEP_TOLERANCE = 0.05
+"""A live step within this fraction of the window's period dt is taken as dt (a uniform log's µs jitter: the
+offline numbers); a longer or shorter one is discretised at its real length (:meth:`GreyboxStream.push_at`)."""
+
+STEP_QUANTUM_S = 1e-5
+"""Real step lengths are rounded to this [s] before discretising (bounds the discretisation cache; the
+time error is at most 5 µs per step, not accumulated: each step starts at the previous sample's stamp)."""
+
+
 class GreyboxStream:
     """Live form of one greybox window after its warm start (:mod:`quad_modelling.core.models.streaming`).
 
     Holds the state x[k] and the trims; ``push(u_k)`` returns the absolute
     prediction ``y_trim + Cd x[k] + Dd (u_k - u_trim)`` and advances
-    ``x[k+1] = Ad x[k] + Bd (u_k - u_trim)``.
+    ``x[k+1] = Ad x[k] + Bd (u_k - u_trim)`` by the window's period dt.
+
+    ``push_at(u_k, t_k)`` steps from the previous sample (state :math:`x_{k-1}`, input
+    :math:`u_{k-1}` held over the step) to :math:`t_k`: with the window's matrices when
+    :math:`|\\Delta t - dt| \\le` :data:`STEP_TOLERANCE` dt (then it equals ``push``), else with the
+    model discretised at the real step :math:`\\Delta t = t_k - t_{k-1}` (rounded to
+    :data:`STEP_QUANTUM_S`): :math:`x_k = A_d(\\Delta t) x_{k-1} + B_d(\\Delta t) u_{k-1}`. A jittered
+    command timer (±2 ms at 100 Hz, a dropped command) is integrated over the time that really
+    passed instead of refused.
     """
 
-    def __init__(self, model: DiscreteGreybox, state: np.ndarray, input_trim: np.ndarray, output_trim: np.ndarray):
+    def __init__(self, model: DiscreteGreybox, state: np.ndarray, input_trim: np.ndarray, output_trim: np.ndarray,
+                 continuous: GreyboxModel | None = None, anchor: tuple[float, np.ndarray, np.ndarray] | None = None):
         self.model = model
         self.state = state
         self.input_trim = input_trim
         self.output_trim = output_trim
+        self.continuous = continuous
+        # (time [s], state, trimmed input) of the last sample: what a step of another length starts from
+        self.t_s, self.previous_state, self.previous_input = anchor if anchor is not None else (None, None, None)
 
     def push(self, command: np.ndarray) -> np.ndarray:
-        self.state, outputs = self.model.step(self.state, np.asarray(command, dtype=float) - self.input_trim)
+        u = np.asarray(command, dtype=float) - self.input_trim
+        x = self.state
+        self.state, outputs = self.model.step(x, u)
+        self.previous_state, self.previous_input = x, u
+        if self.t_s is not None:
+            self.t_s += self.model.dt
         return self.output_trim + outputs
+
+    def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
+        if self.t_s is None or self.continuous is None:
+            return self.push(command)
+        dt = t_s - self.t_s
+        if not dt > 0:
+            raise DataError(f"greybox stream: sample time {t_s:.6f} s is not after the previous {self.t_s:.6f} s")
+        model = self.model
+        if abs(dt - model.dt) > STEP_TOLERANCE * model.dt:
+            real = self.continuous.discretise(max(STEP_QUANTUM_S, round(dt / STEP_QUANTUM_S) * STEP_QUANTUM_S), model.method)
+            self.state = real.ad @ self.previous_state + real.bd @ self.previous_input
+        outputs = self.push(command)
+        self.t_s = t_s
+        return outputs
 
 
 class GreyboxPredictor:
@@ -315,32 +355,38 @@ class GreyboxPredictor:
         uniform_time_check(log)
         return self.model.discretise(sample_period(log), self.discretisation)
 
-    def _anchor(self, warm: FlightLog) -> tuple[DiscreteGreybox, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(model, warm predictions (W, 18), state after the anchor sample, input trim, output trim)."""
+    def _anchor(self, warm: FlightLog, check_uniform: bool = True) -> tuple:
+        """(model, warm predictions (W, 18), state after the anchor sample, input trim, output trim,
+        (state at the anchor sample, its trimmed input))."""
         if len(warm) < 2:
             raise DataError(f"{warm.meta.source}: the greybox needs at least 2 warm-start samples, got {len(warm)}")
-        model = self.discrete(warm)
+        model = self.discrete(warm) if check_uniform else self.model.discretise(sample_period(warm), self.discretisation)
         measured = state_measurement(warm, self.vehicle)
         input_trim = warm.u.mean(axis=0)
         output_trim = measured.mean(axis=0)
         u = warm.u - input_trim
         deviation = smooth(measured - output_trim, warm.sample_rate)
         thrusts = model.motor_thrusts(u)[-1]
-        state, anchor_outputs = model.step(anchor_state(deviation[-1], thrusts), u[-1])
+        x_anchor = anchor_state(deviation[-1], thrusts)
+        state, anchor_outputs = model.step(x_anchor, u[-1])
         predictions = measured.copy()
         predictions[-1] = output_trim + anchor_outputs
-        return model, predictions, state, input_trim, output_trim
+        return model, predictions, state, input_trim, output_trim, (x_anchor, u[-1])
 
     def start_window(self, warm: FlightLog) -> tuple[np.ndarray, GreyboxStream]:
-        """Warm rows -> (their absolute predictions (W, 18), stream for the following samples)."""
-        model, predictions, state, input_trim, output_trim = self._anchor(warm)
-        return predictions, GreyboxStream(model, state, input_trim, output_trim)
+        """Warm rows -> (their absolute predictions (W, 18), stream for the following samples).
+
+        The live form takes real timers: the warm rows' steps are not checked for uniformity
+        (dt = their median step) and the stream's ``push_at`` integrates each real step."""
+        model, predictions, state, input_trim, output_trim, (x_anchor, u_anchor) = self._anchor(warm, check_uniform=False)
+        return predictions, GreyboxStream(model, state, input_trim, output_trim, self.model,
+                                          (float(warm.t[-1]), x_anchor, u_anchor))
 
     def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) absolute prediction; equal to the streaming form (vectorised)."""
         if not 2 <= warm_samples < len(window):
             raise DataError(f"{window.meta.source}: warm start of {warm_samples} samples does not fit a window of {len(window)}")
-        model, warm_predictions, state, input_trim, output_trim = self._anchor(window.slice(0, warm_samples))
+        model, warm_predictions, state, input_trim, output_trim, _ = self._anchor(window.slice(0, warm_samples))
         _, outputs = model.simulate(state, window.u[warm_samples:] - input_trim)
         return np.concatenate([warm_predictions, output_trim + outputs])
 
