@@ -69,25 +69,35 @@ class PhysicalBounds:
         arm = float(np.max(np.linalg.norm(np.asarray(p.motor_positions, dtype=float), axis=1)))
         return cls(MARGIN * (4.0 * thrust / p.mass + GRAVITY), MARGIN * arm * 2.0 * thrust / min(p.ixx, p.iyy))
 
-    def violation(self, predictions: np.ndarray, elapsed_s: np.ndarray, anchor: np.ndarray) -> str | None:
-        """The first bound (N, 18) ``predictions`` break, ``elapsed_s`` (N,) from the anchor row ``anchor`` (18,),
-        as one sentence; None when every row is inside."""
+    def violation(self, predictions: np.ndarray, elapsed_s, anchor: np.ndarray) -> str | None:
+        """The first bound (N, 18) ``predictions`` break, ``elapsed_s`` (N,) [s] from the anchor row ``anchor`` (18,),
+        as one sentence; None when every row is inside (one vectorised test: it runs on every live input)."""
         y = np.atleast_2d(predictions)
-        tau = np.abs(np.atleast_1d(np.asarray(elapsed_s, dtype=float))) + SLACK_S
+        elapsed = np.broadcast_to(np.asarray(elapsed_s, dtype=float), (len(y),))
+        tau = np.abs(elapsed) + SLACK_S
         a_max, alpha_max = self.max_acceleration, self.max_angular_acceleration
+        vectors = np.empty((len(y), len(CHECKS), 3))
+        vectors[:, 0] = y[:, ACCELERATION]
+        vectors[:, 1] = y[:, ANGULAR_ACCELERATION]
+        vectors[:, 2] = y[:, VELOCITY] - anchor[VELOCITY]
+        vectors[:, 3] = y[:, POSITION] - anchor[POSITION]
+        vectors[:, 4] = y[:, RATES] - anchor[RATES]
+        values = np.sqrt(np.einsum("nij,nij->ni", vectors, vectors))
         speed_a = float(np.linalg.norm(anchor[VELOCITY]))
-        checks = (
-            ("acceleration", np.linalg.norm(y[:, ACCELERATION], axis=1), np.full(len(y), a_max), "m/s²"),
-            ("angular acceleration", np.linalg.norm(y[:, ANGULAR_ACCELERATION], axis=1), np.full(len(y), alpha_max), "rad/s²"),
-            ("velocity change", np.linalg.norm(y[:, VELOCITY] - anchor[VELOCITY], axis=1), a_max * tau, "m/s"),
-            ("position change", np.linalg.norm(y[:, POSITION] - anchor[POSITION], axis=1),
-             speed_a * tau + 0.5 * a_max * tau ** 2, "m"),
-            ("rate change", np.linalg.norm(y[:, RATES] - anchor[RATES], axis=1), alpha_max * tau, "rad/s"),
-        )
-        for name, value, limit, unit in checks:
-            bad = ~(value <= limit)
-            if bad.any():
-                row = int(np.argmax(bad))
-                return f"{name} {value[row]:.3g} {unit} beyond the vehicle's bound {limit[row]:.3g} {unit} " \
-                       f"{elapsed_s if np.ndim(elapsed_s) == 0 else np.atleast_1d(elapsed_s)[row]:.3f} s from the anchor"
-        return None
+        limits = np.empty_like(values)
+        limits[:, 0], limits[:, 1] = a_max, alpha_max
+        limits[:, 2] = a_max * tau
+        limits[:, 3] = speed_a * tau + 0.5 * a_max * tau ** 2
+        limits[:, 4] = alpha_max * tau
+        bad = ~(values <= limits)  # NaN counts as beyond
+        if not bad.any():
+            return None
+        row, check = np.argwhere(bad)[0]
+        name, unit = CHECKS[check]
+        return f"{name} {values[row, check]:.3g} {unit} beyond the vehicle's bound {limits[row, check]:.3g} {unit} " \
+               f"{elapsed[row]:.3f} s from the anchor"
+
+
+CHECKS = (("acceleration", "m/s²"), ("angular acceleration", "rad/s²"), ("velocity change", "m/s"),
+          ("position change", "m"), ("rate change", "rad/s"))
+"""The bounds in the order :meth:`PhysicalBounds.violation` tests them (module docstring)."""
