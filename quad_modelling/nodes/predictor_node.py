@@ -51,11 +51,9 @@ s+1..j, published on ``<model>/horizon/odom`` stamped t_j (the time it predicts,
 regular timer) as soon as command j is in and every track covers t_s. It equals the offline
 multi-step prediction for the same start (test: to 1e-9 on the bundled flight).
 
-Faults (one warning per kind, then counted): non-finite or malformed messages are dropped, so is
-a motion-capture message with a non-unit (zero) quaternion (neighbours are interpolated across
-it); duplicated stamps are dropped; warm rows without a measurement within tolerance are left
-out, and a window with fewer than 2 is not predicted; a model error, a non-finite prediction or
-one beyond the physical bounds stops that window.
+Faults (one warning per kind, then counted): non-finite or malformed messages and zero
+quaternions are dropped; warm rows without a measurement within tolerance are left out (fewer
+than 2: the window is not predicted); a model error or a non-finite prediction stops the window.
 """
 
 from __future__ import annotations
@@ -76,7 +74,7 @@ from std_msgs.msg import String
 
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.models.bounds import PhysicalBounds
-from quad_modelling.core.models.streaming import prime, push_sample
+from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.stream_alignment import MeasurementTrack, Stamp, StampGate
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
@@ -167,10 +165,6 @@ commands flow)."""
 TRACK_CAPACITY = 4096
 """Samples kept per measurement stream (4 s of a 1 kHz IMU)."""
 
-HORIZON_PERIOD_STEPS = 20
-"""Receding-horizon mode: command steps whose median gives dt (h = round(horizon_s / dt))."""
-
-
 class PredictorNode(Node):
     """Generic live predictor; the model comes from the ``model`` parameter."""
 
@@ -187,6 +181,8 @@ class PredictorNode(Node):
         self.horizon_s, self.horizon_history_s = p["horizon_s"], p["horizon_history_s"]
         self.model = None
         self.bounds = None
+        self.horizon = None  # receding-horizon mode, built with the model (it needs the model's multi-step form)
+        self.use_battery = bool(p["battery_topic"])
         self.vehicles = VehicleSource(self.get_name(), p["vehicle"])
         if self.vehicles.vehicle is not None:
             self._build_model()
@@ -215,7 +211,6 @@ class PredictorNode(Node):
         self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, data), qos, raw=True)
         self.create_subscription(Imu, p["imu_topic"], lambda data: self._receive(self.on_imu, Imu, data), qos, raw=True)
         self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
-        self.use_battery = bool(p["battery_topic"])
         if self.use_battery:
             self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
         # Measurement streams, each on its own clock: read at any command stamp (core.stream_alignment).
@@ -241,12 +236,6 @@ class PredictorNode(Node):
         self.last_published_ns = None
         self.published = 0
         self.windows_started = 0
-        # receding-horizon mode: recent commands (stamp, command, rotor speeds) and anchors waiting to be published
-        self.horizon_rows: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque()
-        self.horizon_steps = None
-        self.horizon_form = None
-        self.horizon_steps_seen: list[int] = []
-        self.horizon_wait_since = None
         mode = (f"receding horizon {self.horizon_s:g} s on {self.name_}/horizon/odom" if self.horizon_s > 0
                 else f"windows {p['window_s']:g} s, warm start {p['warm_s']:g} s")
         self.get_logger().info(f"predicting with {self.spec!r} as '{self.name_}' on vehicle "
@@ -266,6 +255,9 @@ class PredictorNode(Node):
             raise BadParameter(f"{self.get_name()}: parameter model={self.spec!r} vehicle={self.vehicle.name!r}: {err}") from err
         period = self.sample_period_s or PRIME_SAMPLE_PERIOD_S
         prime(self.model, self.vehicle, period, int(round(self.warm_s / period)))
+        if self.horizon_s > 0:
+            self.horizon = RecedingHorizon(lambda warm: multistep_form(self.model, warm), self._rows_log, self.horizon_s,
+                                           self.warm_s, self.horizon_history_s, self.sample_period_s, MEASUREMENT_WAIT_S)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -308,9 +300,8 @@ class PredictorNode(Node):
         self._finish_window(force=False)
         self.state, self.window, self.warm_rows, self.deferred = "idle", None, [], []
         self.last_published_ns = None
-        self.horizon_rows.clear()
-        if self.horizon_steps is not None:
-            self.horizon_next, self.horizon_first = self.horizon_warm - 1, 0
+        if self.horizon is not None:
+            self.horizon.reset()
         for track in self.tracks:
             track.clear()
         if self.clock_.origin_ns is not None and ns < self.clock_.origin_ns:
@@ -342,7 +333,7 @@ class PredictorNode(Node):
         """A measurement was stored: a waiting window start or horizon anchor may proceed."""
         if self.state == "warm" and self.warm_closed and not self.pending:
             self._maybe_start()
-        if self.horizon_s > 0 and not self.pending:
+        if self.horizon is not None and not self.pending:
             self._publish_horizons()
 
     def on_odom(self, msg: Odometry) -> None:
@@ -402,8 +393,11 @@ class PredictorNode(Node):
             self.faults.report("before_origin", "motor_input stamped before the window origin: dropped")
             return
         u, omega = fields
-        if self.horizon_s > 0:
-            self._on_horizon_input(ns, u, omega)
+        if self.horizon is not None:
+            fault = self.horizon.add(ns, u, omega)
+            if fault:
+                self.faults.report("no_multistep_form", f"model {self.name_} {fault}")
+            self._publish_horizons()
             self._decode_pending()
             return
         k, position = self.clock_.locate(ns)
@@ -453,6 +447,15 @@ class PredictorNode(Node):
             return None
         return odom, imu, None if battery is None else float(battery[0])
 
+    def _rows_log(self, stamps: np.ndarray, rows: list, measured: list, source: str = "live receding horizon"):
+        """Command rows (stamp, command, rotor speeds) and their measurements (:meth:`_row_measurements`) -> FlightLog."""
+        omegas = [row[2] for row in rows]
+        return topics.measurement_log(
+            stamps, np.array([row[1] for row in rows]), np.array([m[0] for m in measured]), np.array([m[1] for m in measured]),
+            self.vehicle.name, source, omega=np.array(omegas) if all(o is not None for o in omegas) else None,
+            vbat=np.array([m[2] for m in measured]) if self.use_battery else None,
+        )
+
     def _maybe_start(self, force: bool = False) -> None:
         """Start the window once every track covers its last warm row (or too long a wait)."""
         self._decode_pending()
@@ -474,14 +477,8 @@ class PredictorNode(Node):
             self.faults.report("warm_empty", f"window {self.window}: fewer than 2 measured warm-start rows; window not predicted")
             return
         stamps = np.array([row[0] for row, _ in complete], dtype=np.int64)
-        omegas = [row[2] for row, _ in complete]
         try:
-            warm = topics.measurement_log(
-                stamps, np.array([row[1] for row, _ in complete]), np.array([m[0] for _, m in complete]),
-                np.array([m[1] for _, m in complete]), self.vehicle.name, f"live window {self.window}",
-                omega=np.array(omegas) if all(o is not None for o in omegas) else None,
-                vbat=np.array([m[2] for _, m in complete]) if self.use_battery else None,
-            )
+            warm = self._rows_log(stamps, [row for row, _ in complete], [m for _, m in complete], f"live window {self.window}")
             predictions, self.stream = self.model.start_window(warm)
         except (QuadModellingError, ValueError) as err:
             self.faults.report("model_error", f"window {self.window}: model {self.name_} cannot start: {err}")
@@ -553,92 +550,29 @@ class PredictorNode(Node):
 
     # --- receding horizon -----------------------------------------------------------------------
 
-    def _on_horizon_input(self, ns: int, u: np.ndarray, omega) -> None:
-        """Receding-horizon mode: keep the command, learn h once dt is known, publish what is ready."""
-        rows = self.horizon_rows
-        if rows:
-            self.horizon_steps_seen.append(ns - rows[-1][0])
-        rows.append((ns, u, omega))
-        if self.horizon_steps is None:
-            period_s = self.sample_period_s
-            if not period_s and len(self.horizon_steps_seen) >= HORIZON_PERIOD_STEPS:
-                period_s = float(np.median(self.horizon_steps_seen)) / 1e9
-            if not period_s:
-                return
-            self.horizon_steps = max(1, int(round(self.horizon_s / period_s)))
-            self.horizon_warm = max(1, int(round(self.warm_s / period_s)))
-            self.horizon_keep = max(int(round(self.horizon_history_s / period_s)), self.horizon_warm)
-            self.horizon_form = multistep_form(self.model, self.horizon_warm)
-            self.horizon_next = self.horizon_warm - 1  # the first anchor index with warm rows up to it
-            self.horizon_first = 0  # index of rows[0] among the commands since the time base
-            if self.horizon_form is None:
-                self.faults.report("no_multistep_form", f"model {self.name_} has no multi-step form: no horizon predictions")
-        self._publish_horizons()
-
     def _publish_horizons(self) -> None:
-        """Publish every anchor s whose command s + h is in and whose measurements are covered (in order; an anchor
-        whose measurements are not covered after :data:`MEASUREMENT_WAIT_S` uses what the tracks give)."""
-        if self.horizon_steps is None or self.horizon_form is None:
-            return
-        rows, h = self.horizon_rows, self.horizon_steps
-        while self.horizon_next + h < self.horizon_first + len(rows):
-            s = self.horizon_next - self.horizon_first  # anchor's index in rows
-            if not all(track.covers(rows[s][0]) for track in self.tracks):
-                if self.horizon_wait_since is None:
-                    self.horizon_wait_since = time.monotonic()
-                if time.monotonic() - self.horizon_wait_since < MEASUREMENT_WAIT_S:
-                    return
-            self.horizon_wait_since = None
-            self._publish_horizon(s)
-            self.horizon_next += 1
-            for _ in range(max(0, s - self.horizon_keep + 2)):  # rows the next anchor's history no longer holds
-                rows.popleft()
-                self.horizon_first += 1
-        del self.horizon_steps_seen[:-HORIZON_PERIOD_STEPS]
-
-    def _publish_horizon(self, s: int) -> None:
-        """The multi-step prediction from anchor row ``s`` of the history, h steps ahead, published stamped t_{s+h}."""
-        rows, h = self.horizon_rows, self.horizon_steps
-        first = max(0, s - self.horizon_keep + 1)
-        history = [rows[i] for i in range(first, s + h + 1)]
-        measured = [self._row_measurements(row[0]) for row in history[:s - first + 1]]
-        ok = [i for i, m in enumerate(measured) if m is not None]
-        if not ok or ok[-1] != s - first:
-            self.faults.report("horizon_gap", "receding horizon: an anchor without a measurement within tolerance: skipped")
-            return
-        # rows without a measurement before the anchor take their successor's (gaps are rare and inside tolerance);
-        # rows after the anchor take the anchor's: the multi-step form reads nothing after the anchor but the commands
-        filled = list(measured) + [measured[-1]] * h
-        for i in range(len(filled) - 1, -1, -1):
-            if filled[i] is None:
-                filled[i] = filled[i + 1]
-        stamps = np.array([row[0] for row in history], dtype=np.int64)
-        omegas = [row[2] for row in history]
-        try:
-            log = topics.measurement_log(
-                stamps, np.array([row[1] for row in history]), np.array([m[0] for m in filled]),
-                np.array([m[1] for m in filled]), self.vehicle.name, "live receding horizon",
-                omega=np.array(omegas) if all(o is not None for o in omegas) else None,
-                vbat=np.array([m[2] for m in filled]) if self.use_battery else None,
-            )
-            prediction = self.horizon_form.predict_horizons(log, np.array([s - first]), h)[0]
-        except (QuadModellingError, ValueError) as err:
-            self.faults.report("model_error", f"receding horizon: model {self.name_} failed: {err}")
-            return
-        if not np.isfinite(prediction).all():
-            self.faults.report("nan_prediction", f"receding horizon: model {self.name_} predicted a non-finite value: not published")
-            return
-        violation = self.bounds.violation(prediction[h], (stamps[-1] - stamps[s - first]) / 1e9, prediction[0])
-        if violation is not None:
-            self.faults.report("out_of_bounds", f"receding horizon: model {self.name_} predicted {violation}: not published")
-            return
-        ns = int(stamps[-1])
-        if not self._monotonic(ns):
-            return
-        odom, accel = topics.prediction_fields(prediction[h])
-        o, _ = self.out.fill(ns, odom[0], accel[0])
-        self.horizon_pub.publish(o)
-        self.published += 1
+        """Publish every anchor that is ready (:class:`~quad_modelling.nodes.receding_horizon.RecedingHorizon`), checked as
+        the window mode's predictions: finite, inside the physical bounds, stamps strictly increasing."""
+        for event in self.horizon.ready(lambda ns: all(track.covers(ns) for track in self.tracks), self._row_measurements):
+            if event[0] == "fault":
+                self.faults.report(event[1], f"receding horizon: model {self.name_}: {event[2]}")
+                continue
+            _, ns, prediction, elapsed = event
+            h = self.horizon.steps
+            if not np.isfinite(prediction).all():
+                self.faults.report("nan_prediction", f"receding horizon: model {self.name_} predicted a non-finite value: "
+                                                     "not published")
+                continue
+            violation = self.bounds.violation(prediction[h], elapsed, prediction[0])
+            if violation is not None:
+                self.faults.report("out_of_bounds", f"receding horizon: model {self.name_} predicted {violation}: not published")
+                continue
+            if not self._monotonic(ns):
+                continue
+            odom, accel = topics.prediction_fields(prediction[h])
+            o, _ = self.out.fill(ns, odom[0], accel[0])
+            self.horizon_pub.publish(o)
+            self.published += 1
 
     # --- lifecycle ----------------------------------------------------------------------------
 

@@ -190,7 +190,7 @@ def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(
     finally:
         stack.close()
     h, warm = 10, 20
-    assert predictor.horizon_steps == h
+    assert predictor.horizon.steps == h
     got = np.array([topics.stamp_ns(m.header.stamp) for m in stack.received])
     starts = np.arange(warm - 1, len(log) - h)
     assert np.array_equal(got, stamps[starts + h])  # one per command from the first anchor on, stamped t_{s+h}
