@@ -408,3 +408,24 @@ def test_a_prediction_beyond_the_physical_bounds_abandons_the_window_with_one_wa
     expected = stamps[0:119].tolist() + stamps[500:619].tolist() + stamps[1000:1100].tolist()
     assert got == expected and np.abs(predicted[:, 0:3]).max() < 100.0
     node.destroy_node()
+
+
+def test_a_clock_jump_forward_resets_the_windows_and_prediction_resumes_in_the_window_the_stamps_land_in(ros):
+    """The stack's clock (wall or simulated) jumps 1000 s ahead mid-flight (200 windows of 5 s): three consistent
+    stamps make the new time base; the predictor never reads its own ROS clock, only stamps, and goes on."""
+    log = hover_log(1100)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
+    node = make_node(model="naive")
+    feed(node, log, range(0, 600), arrays)
+    jump = 1000 * 10 ** 9
+    for row in range(600, 1100):
+        ns = int(stamps[row]) + jump
+        node.on_motor(arrays.motor(row, ns))
+        node.on_odom(arrays.odometry(row, ns))
+        node.on_imu(arrays.imu(row, ns))
+    assert node.faults.counts["stamps_jumped_motor"] == 1 and node.clock_.origin_ns == int(stamps[0])
+    got = [topics.stamp_ns(m.header.stamp) for m in node.odom_pub.messages]
+    assert got[:600] == stamps[:600].tolist()
+    # rows 600, 601 were suspects; row 602 landed 102 ms into window 201, after its warm start: window 202 from its start
+    assert got[600:] == (stamps[1000:1100] + jump).tolist() and node.faults.counts["joined_mid_window"] == 1
+    node.destroy_node()
