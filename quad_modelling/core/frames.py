@@ -149,6 +149,21 @@ def nav_to_body(vectors_n: np.ndarray, euler: np.ndarray) -> np.ndarray:
     return np.einsum("nji,nj->ni", euler_ned_to_matrix(euler), v).reshape(np.shape(vectors_n))
 
 
+def specific_force(acc_n: np.ndarray, euler: np.ndarray, gravity: float) -> np.ndarray:
+    """Body FRD specific force (N, 3) [m/s²] of a kinematic acceleration in N (NED) (N, 3): what an
+    accelerometer measures, :math:`f_B = R^T (a_N - g e_z)` (at rest: :math:`f_B = (0, 0, -g)` level)."""
+    acc = np.array(acc_n, dtype=float, ndmin=2)
+    acc[:, 2] -= gravity
+    return nav_to_body(acc, euler).reshape(np.shape(acc_n))
+
+
+def kinematic_acceleration(force_b: np.ndarray, euler: np.ndarray, gravity: float) -> np.ndarray:
+    """Inverse of :func:`specific_force`: :math:`a_N = R f_B + g e_z` (N, 3) [m/s², NED]."""
+    acc = np.atleast_2d(body_to_nav(force_b, euler)).copy()
+    acc[:, 2] += gravity
+    return acc.reshape(np.shape(force_b))
+
+
 def geodesic_angle(euler_a: np.ndarray, euler_b: np.ndarray) -> np.ndarray:
     """Angle [rad] of the rotation between two attitudes, elementwise over rows."""
     rel = euler_ned_to_rotation(euler_a).inv() * euler_ned_to_rotation(euler_b)

@@ -23,8 +23,11 @@ topic                  type                        content (frames per REP-103/1
 ``battery``            sensor_msgs/BatteryState    ``voltage`` [V] (only when the log has it)
 ``<model>/odom``       nav_msgs/Odometry           predicted pose (``world``, ENU), twist.linear and
                                                    twist.angular in ``<model>/base_link`` (FLU)
-``<model>/accel``      geometry_msgs/AccelStamped  predicted linear [m/s²] and angular [rad/s²]
-                                                   acceleration in ``<model>/base_link`` (FLU)
+``<model>/accel``      geometry_msgs/AccelStamped  predicted specific force [m/s²] (the IMU's convention:
+                                                   gravity included, at rest level (0, 0, +g) FLU) and
+                                                   angular acceleration [rad/s²], ``<model>/base_link`` (FLU)
+``<model>/horizon/     nav_msgs/Odometry           receding-horizon mode: the state ``horizon_s`` ahead
+odom``                                             of an anchor, frames as ``<model>/odom``
 =====================  ==========================  =====================================================
 
 Every header stamp is the sample time: integer nanoseconds ``ns = round(t · 1e9)``,
@@ -51,6 +54,7 @@ import numpy as np
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.variables import VARIABLES
+from quad_modelling.core.vehicle import GRAVITY
 from quad_modelling.errors import ConfigError
 
 DEFAULT_NAMESPACE = "/quad"
@@ -86,6 +90,8 @@ LIVE_TOPICS = ("motor_input", "mocap/odom", "imu")
 """Measurement topics the live nodes need (the predictor and evaluator nodes wait for imu messages)."""
 
 ODOM_FIELDS = 10
+ODOM_QUATERNION = (3, 7)
+"""Columns [start, stop) of the quaternion x, y, z, w inside the odometry fields."""
 PREDICTED_ODOM_FIELDS = 13
 IMU_FIELDS = 6
 ACCEL_FIELDS = 6
@@ -384,6 +390,13 @@ def accel_fields(msg) -> list[float]:
     return [a.x, a.y, a.z, w.x, w.y, w.z]
 
 
+def invalid_odometry_quaternion(fields) -> bool:
+    """True when odometry fields carry a quaternion whose norm is off 1 beyond
+    :data:`~quad_modelling.core.frames.QUATERNION_NORM_TOLERANCE` (a zero quaternion has no attitude)."""
+    q = fields[ODOM_QUATERNION[0]:ODOM_QUATERNION[1]]
+    return abs(math.sqrt(sum(c * c for c in q)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE
+
+
 def all_finite(values) -> bool:
     """True when every number is finite (a NaN/inf message is dropped by the nodes)."""
     return all(map(math.isfinite, values))  # a few numbers per message: no numpy array needed
@@ -432,14 +445,17 @@ def prediction_fields(prediction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(N, 18) predictions (VARIABLES order, internal frames) -> (N, 13) odometry and (N, 6) accel fields.
 
     Odometry: pose ENU and quaternion of R_ENU←FLU, linear twist rotated into
-    the predicted body FLU, angular twist = rates FLU. Accel: the predicted N
-    acceleration rotated into the predicted body FLU, angular acceleration FLU.
+    the predicted body FLU, angular twist = rates FLU. Accel: the **specific force** of the
+    predicted N acceleration in the predicted body FLU, as an IMU measures it,
+    :math:`f_B = R^T (a_N - g e_z)` (:func:`~quad_modelling.core.frames.specific_force`, g =
+    :data:`~quad_modelling.core.vehicle.GRAVITY`; hovering level: (0, 0, +g) FLU), and the angular
+    acceleration FLU. A subscriber compares ``<model>/accel`` with ``imu`` directly.
     """
     y = np.atleast_2d(np.asarray(prediction, dtype=float))
     pos, vel, acc, euler, rates, angular_acc = (y[:, i:i + 3] for i in range(0, 18, 3))
     position_enu, quat, twist_flu = frames.to_odometry(pos, vel, euler)
     odom = np.hstack([position_enu, quat, twist_flu, frames.frd_to_flu(rates)])
-    accel = np.hstack([frames.frd_to_flu(frames.nav_to_body(acc, euler)), frames.frd_to_flu(angular_acc)])
+    accel = np.hstack([frames.frd_to_flu(frames.specific_force(acc, euler, GRAVITY)), frames.frd_to_flu(angular_acc)])
     return odom, accel
 
 
@@ -453,7 +469,7 @@ def predictions_from_fields(odom: np.ndarray, accel: np.ndarray) -> np.ndarray:
     accel = np.asarray(accel, dtype=float).reshape(-1, ACCEL_FIELDS)
     pos_n, vel_n, euler = frames.from_odometry(odom[:, 0:3], odom[:, 3:7], odom[:, 7:10])
     euler[:, 2] = np.unwrap(euler[:, 2])
-    acc_n = frames.body_to_nav(frames.flu_to_frd(accel[:, 0:3]), euler)
+    acc_n = frames.kinematic_acceleration(frames.flu_to_frd(accel[:, 0:3]), euler, GRAVITY)
     out = np.empty((len(odom), len(VARIABLES)))
     out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12] = pos_n, vel_n, acc_n, euler
     out[:, 12:15] = frames.flu_to_frd(odom[:, 10:13])

@@ -13,35 +13,53 @@ it is empty, the one a replay announces on ``vehicle`` (transient-local); the mo
 built once it is known, and inputs before are dropped with one warning; a set vehicle
 that differs from the announced one stops the node (exit 2).
 
+Streams on their own clocks (issue #15): motion capture, IMU and battery are kept in
+:class:`~quad_modelling.core.stream_alignment.MeasurementTrack` buffers and read at any command
+stamp (exact stamp as it is, else interpolated between the two samples around it, quaternions as
+a normalised lerp, never across a gap longer than ``measurement_gap_s``, else the nearest sample
+within ``measurement_tolerance_s``). Every stream's stamps pass a
+:class:`~quad_modelling.core.stream_alignment.StampGate`: a single stamp from the future or the
+past is dropped (warning ``stamp_outlier_<stream>``), three consistent ones are a new time base
+(restarted publisher, clock jump: warning ``stamps_jumped_<stream>``; a motor-input jump resets
+the windows, and one back before t0 moves the origin).
+
 Windows (:class:`~quad_modelling.core.windows.WindowClock`, the offline evaluation's clock): window k starts at
 t0 + kW, t0 = the first motor-input stamp (or the ``window_origin`` another node
-published). The first ``warm_s`` of each window are the warm start: those rows
-(command + measurements with the same stamp) become a FlightLog, ``start_window``
-gives their predictions, and every later command is ``push``-ed and its
-prediction published immediately. The window starts as soon as the warm start
-is over: at its last row by the clock (the next row, one sample period later,
-falls past ``warm_s``), once that row's measurements are in -- so the start's
-cost (1-3 ms) is paid between two inputs instead of delaying the first streamed
-answer -- or at the first row past ``warm_s`` when the period is unknown or the
-clock's guess was early (a warm row arriving after the start is reported and
-predicted as a streamed one). The warm rows' predictions (0.2 s of rows,
-available only once the warm start is complete) go to a backlog that is
-published behind the live ones: :data:`WARM_BACKLOG_PER_INPUT` after each live
-prediction, :data:`WARM_BACKLOG_PER_TICK` per timer tick in a pause of the inputs. Published
-at once, 80 rows at 400 Hz held the next live inputs back by ~20-35 ms. A node that joins mid-window
-(late start, restart, gap) waits for the next window start.
+published). The commands of the first ``warm_s`` of each window are the warm rows; their
+measurements are read from the tracks at the commands' stamps, ``start_window`` gives their
+predictions, and every later command is pushed (``push_at``: the model steps over the real
+interval) and its prediction published immediately. The window starts at its last warm row by
+the clock (or the first command past ``warm_s``) once every track holds a sample at or after that
+row's stamp (so the row is interpolated, not extrapolated), or after :data:`MEASUREMENT_WAIT_S`
+with what the tracks give. The warm rows' predictions are published at that moment, all of them,
+in stamp order, before any later prediction: stamps strictly increase on every output topic (a
+prediction whose stamp is not after the previous one is never published; a warm row arriving
+after the start is predicted as a streamed row). A node that joins mid-window (late start,
+restart, stamp jump) waits for the next window start.
 
-Faults (one warning per kind): non-finite or malformed messages are dropped;
-out-of-order/duplicated stamps are dropped; warm rows without a measurement
-(motion-capture gap) are left out, and a window without any is not predicted;
-a model error or a non-finite prediction stops that window; nothing non-finite
-is ever published.
+Every prediction is checked against the vehicle's physical bounds
+(:class:`~quad_modelling.core.models.bounds.PhysicalBounds`, relative to the window's anchor);
+one beyond them abandons the window (warning ``out_of_bounds``): nothing beyond them, and
+nothing non-finite, is published.
+
+Receding-horizon mode (``horizon_s`` > 0, instead of windows): h = round(horizon_s / dt) steps
+(dt = the median step of the first commands). For every command j the anchor s = j - h gets the
+prediction of the model's multi-step form
+(:func:`~quad_modelling.core.evaluation.multistep.multistep_form`, the offline multi-step
+evaluation's) from the last ``horizon_history_s`` of rows up to it, with the recorded commands
+s+1..j, published on ``<model>/horizon/odom`` stamped t_j (the time it predicts, t_s + h dt on a
+regular timer) as soon as command j is in and every track covers t_s. It equals the offline
+multi-step prediction for the same start (test: to 1e-9 on the bundled flight).
+
+Faults (one warning per kind, then counted): non-finite or malformed messages and zero
+quaternions are dropped; warm rows without a measurement within tolerance are left out (fewer
+than 2: the window is not predicted); a model error or a non-finite prediction stops the window.
 """
 
 from __future__ import annotations
 
 import time
-from collections import OrderedDict, deque
+from collections import deque
 
 import numpy as np
 from geometry_msgs.msg import AccelStamped
@@ -54,8 +72,11 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
 from std_msgs.msg import String
 
-from quad_modelling.core.models.streaming import prime, push_sample
-from quad_modelling.core.windows import WindowClock
+from quad_modelling.core.evaluation.multistep import multistep_form
+from quad_modelling.core.models.bounds import PhysicalBounds
+from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
+from quad_modelling.core.stream_alignment import MeasurementTrack, Stamp, StampGate
+from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.nodes import messages
@@ -89,24 +110,16 @@ from quad_modelling.nodes.model_factory import (
     model_name,
 )
 
-WARM_BACKLOG_PER_INPUT = 1
-"""Warm-start predictions published after each live prediction while a backlog remains (at 400 Hz, 2 per
-input saturated the 2-core machine for the ~40 inputs of the drain: live latency rose to 11-18 ms)."""
-
-WARM_BACKLOG_PER_TICK = 4
-"""... and per tick of the backlog timer (every :data:`WARM_BACKLOG_PERIOD_S`) in a pause of the inputs."""
-
-WARM_BACKLOG_PERIOD_S = 0.01
-
 MEASUREMENT_WAIT_S = 0.5
-"""Commands after the warm start are held back while warm rows' measurements are still in flight
-(each topic is delivered on its own) for at most this long [wall s] after the first held command;
-then the window starts from the complete rows (a motion-capture/IMU gap). A count bound of 10
-commands was not enough: a replay at rate 0 with 200 samples in flight delivered motor inputs 20
-rows ahead of the IMU, and a window went unpredicted."""
+"""A window start waits for every track to hold a sample at or after its last warm row (each topic is
+delivered on its own) for at most this long [wall s] after the warm start closed; then it starts from
+the rows the tracks give (nearest within tolerance, or left out: a motion-capture/IMU gap)."""
+
+WAIT_TIMER_PERIOD_S = 0.01
+"""Period [wall s] of the timer that re-checks a waiting window start when no message arrives."""
 
 MAX_DEFERRED_COMMANDS = 4096
-"""... and for at most this many commands (bounded memory)."""
+"""Commands held back while a window start waits (bounded memory)."""
 
 
 def predictor_parameters(default_model: str) -> list[Param]:
@@ -118,6 +131,16 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("window_s", 10.0, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input", positive),
         Param("warm_s", 0.2, "warm start at each window start [s] (thesis 0.2 s)", positive),
         Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
+        Param("measurement_tolerance_s", 0.02, "a command stamp with no measurement sample on both sides uses the nearest "
+                                              "one within this [s], else the row has no measurement", non_negative),
+        Param("measurement_gap_s", 0.1, "longest gap between two samples of a measurement stream interpolated through [s]",
+              positive),
+        Param("max_stamp_step_s", 1.0, "longest regular step of a stream's stamps [s]; a stamp beyond it (or back in time) "
+                                       "is dropped as an outlier, three consistent ones are a new time base", positive),
+        Param("horizon_s", 0.0, "receding-horizon mode: publish <model>/horizon/odom, the state horizon_s [s] ahead of "
+                                "each anchor; 0 = window mode (the thesis's)", non_negative),
+        Param("horizon_history_s", 2.5, "receding-horizon mode: rows [s] up to each anchor the multi-step form sees "
+                                        "(trims and filters settle within 2 s)", positive),
         Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
         Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
         Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
@@ -139,6 +162,8 @@ MAX_PENDING_MEASUREMENTS = 64
 """Serialised measurements held before decoding without waiting for a command (bounds memory when no
 commands flow)."""
 
+TRACK_CAPACITY = 4096
+"""Samples kept per measurement stream (4 s of a 1 kHz IMU)."""
 
 class PredictorNode(Node):
     """Generic live predictor; the model comes from the ``model`` parameter."""
@@ -153,7 +178,11 @@ class PredictorNode(Node):
         self.name_ = p["model_name"] or model_name(spec)
         self.spec = spec
         self.sample_period_s, self.warm_s = p["sample_period_s"], p["warm_s"]
+        self.horizon_s, self.horizon_history_s = p["horizon_s"], p["horizon_history_s"]
         self.model = None
+        self.bounds = None
+        self.horizon = None  # receding-horizon mode, built with the model (it needs the model's multi-step form)
+        self.use_battery = bool(p["battery_topic"])
         self.vehicles = VehicleSource(self.get_name(), p["vehicle"])
         if self.vehicles.vehicle is not None:
             self._build_model()
@@ -170,8 +199,11 @@ class PredictorNode(Node):
         self.world_frame = p["world_frame"]
         self.out = messages.prediction_publisher_messages(self.child_frame, self.world_frame)
         out_qos, qos = data_qos(p["qos_depth"]), subscription_qos(p["qos"], p["qos_depth"])
-        self.odom_pub = self.create_publisher(Odometry, f"{self.name_}/odom", out_qos)
-        self.accel_pub = self.create_publisher(AccelStamped, f"{self.name_}/accel", out_qos)
+        if self.horizon_s > 0:
+            self.horizon_pub = self.create_publisher(Odometry, f"{self.name_}/horizon/odom", out_qos)
+        else:
+            self.odom_pub = self.create_publisher(Odometry, f"{self.name_}/odom", out_qos)
+            self.accel_pub = self.create_publisher(AccelStamped, f"{self.name_}/accel", out_qos)
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
         self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
         self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
@@ -179,34 +211,36 @@ class PredictorNode(Node):
         self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, data), qos, raw=True)
         self.create_subscription(Imu, p["imu_topic"], lambda data: self._receive(self.on_imu, Imu, data), qos, raw=True)
         self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
-        self.use_battery = bool(p["battery_topic"])
         if self.use_battery:
             self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
-        # Bounded buffers: measurements by stamp for the warm rows, the warm rows themselves.
+        # Measurement streams, each on its own clock: read at any command stamp (core.stream_alignment).
+        self.tolerance_ns = seconds_to_ns(p["measurement_tolerance_s"])
+        gap_ns, step_ns = seconds_to_ns(p["measurement_gap_s"]), seconds_to_ns(p["max_stamp_step_s"])
         self.pending: deque[tuple] = deque()  # serialised measurements not decoded yet (handler, type, bytes)
-        self.measurement_capacity = 4096
-        self.odom: OrderedDict[int, list] = OrderedDict()
-        self.imu: OrderedDict[int, list] = OrderedDict()
-        self.battery: OrderedDict[int, float] = OrderedDict()
+        self.odom = MeasurementTrack(topics.ODOM_FIELDS, gap_ns, TRACK_CAPACITY, quaternion=topics.ODOM_QUATERNION)
+        self.imu = MeasurementTrack(topics.IMU_FIELDS, gap_ns, TRACK_CAPACITY)
+        self.battery = MeasurementTrack(1, gap_ns, TRACK_CAPACITY)
+        self.tracks = [self.odom, self.imu] + ([self.battery] if self.use_battery else [])
+        self.gates = {name: StampGate(step_ns) for name in ("motor", "odom", "imu", "battery")}
         self.window = None  # current window index
         self.state = "idle"  # idle | warm | stream | skip
         self.warm_rows: list[tuple[int, np.ndarray, np.ndarray | None]] = []
         self.deferred: list[tuple[int, np.ndarray]] = []
         self.warm_closed = False  # the warm start of the current window is over (its last row is known)
         self.stream = None
-        self.backlog: deque[tuple[int, np.ndarray, np.ndarray]] = deque()
-        # runs only while a backlog or a held-back window start waits (a periodic timer would also be
-        # what Ctrl-C interrupts)
-        self.timer = self.create_timer(WARM_BACKLOG_PERIOD_S, self._on_timer, clock=RosClock(clock_type=ClockType.STEADY_TIME))
+        self.anchor: tuple[int, np.ndarray] | None = None  # (stamp, prediction) of the window's anchor row
+        # runs only while a window start waits for measurements (a periodic timer would also be what Ctrl-C interrupts)
+        self.timer = self.create_timer(WAIT_TIMER_PERIOD_S, self._on_timer, clock=RosClock(clock_type=ClockType.STEADY_TIME))
         self.timer.cancel()
         self.deferred_since = 0.0
-        self.last_motor_ns = None
-        self.last_input_wall = 0.0
+        self.last_published_ns = None
         self.published = 0
         self.windows_started = 0
+        mode = (f"receding horizon {self.horizon_s:g} s on {self.name_}/horizon/odom" if self.horizon_s > 0
+                else f"windows {p['window_s']:g} s, warm start {p['warm_s']:g} s")
         self.get_logger().info(f"predicting with {self.spec!r} as '{self.name_}' on vehicle "
                                f"{self.vehicle.name if self.vehicle else '(from the replay, topic ' + VEHICLE_TOPIC + ')'}; "
-                               f"windows {p['window_s']:g} s, warm start {p['warm_s']:g} s, {p['qos']} subscriptions")
+                               f"{mode}, {p['qos']} subscriptions")
 
     @property
     def vehicle(self):
@@ -216,10 +250,14 @@ class PredictorNode(Node):
         """The streaming model of the spec on the vehicle, primed (one-time costs paid now, not in the first window)."""
         try:
             self.model = make_streaming_predictor(self.spec, self.vehicle)
+            self.bounds = PhysicalBounds.from_vehicle(self.vehicle)
         except QuadModellingError as err:
             raise BadParameter(f"{self.get_name()}: parameter model={self.spec!r} vehicle={self.vehicle.name!r}: {err}") from err
         period = self.sample_period_s or PRIME_SAMPLE_PERIOD_S
         prime(self.model, self.vehicle, period, int(round(self.warm_s / period)))
+        if self.horizon_s > 0:
+            self.horizon = RecedingHorizon(lambda warm: multistep_form(self.model, warm), self._rows_log, self.horizon_s,
+                                           self.warm_s, self.horizon_history_s, self.sample_period_s, MEASUREMENT_WAIT_S)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -234,13 +272,41 @@ class PredictorNode(Node):
                 self.state, self.window = "idle", None
             self.clock_.origin_ns = ns
 
-    def _store(self, buffer: OrderedDict, ns: int, value, kind: str) -> None:
-        if ns in buffer:
-            self.faults.report(f"duplicate_{kind}", f"duplicated {kind} stamp {ns} ns: later copy dropped")
-            return
-        buffer[ns] = value
-        if len(buffer) > self.measurement_capacity:
-            buffer.popitem(last=False)
+    def _gate(self, stream: str, ns: int, fields=None) -> bool:
+        """Pass a stamp through the stream's gate (core.stream_alignment); False when the sample is not to be used.
+        A measurement stream's jump keeps the run of samples that confirmed it (stored here, ``fields`` last)."""
+        gate = self.gates[stream]
+        verdict = gate.admit(ns, (ns, fields))
+        for dropped in gate.dropped:
+            self.faults.report(f"stamp_outlier_{stream}", f"{stream} stamp {dropped} ns off the stream's time (a duplicate, "
+                                                          "back in time, or beyond max_stamp_step_s ahead): dropped")
+        if verdict is Stamp.SUSPECT:
+            return False
+        if verdict is Stamp.JUMPED:
+            self.faults.report(f"stamps_jumped_{stream}", f"{stream} stamps jumped to a new time base at {ns} ns "
+                                                          "(restarted publisher, clock jump or a long gap): its buffer restarts")
+            if stream == "motor":
+                self._reset_time_base(ns)
+            else:
+                track = getattr(self, stream)
+                track.clear()
+                for stamp, values in gate.confirmed[:-1]:
+                    track.add(stamp, values)
+        return True
+
+    def _reset_time_base(self, ns: int) -> None:
+        """Motor-input stamps jumped: forget the windows, the buffers and the last published stamp; a jump back
+        before t0 makes the new stamp the origin (published on ``window_origin``)."""
+        self._finish_window(force=False)
+        self.state, self.window, self.warm_rows, self.deferred = "idle", None, [], []
+        self.last_published_ns = None
+        if self.horizon is not None:
+            self.horizon.reset()
+        for track in self.tracks:
+            track.clear()
+        if self.clock_.origin_ns is not None and ns < self.clock_.origin_ns:
+            self.clock_.origin_ns = ns
+            self.origin_pub.publish(messages.clock_message(ns))
 
     def _receive(self, handler, kind, data: bytes) -> None:
         self.pending.append((handler, kind, data))
@@ -263,29 +329,49 @@ class PredictorNode(Node):
                 continue
             handler(msg)
 
+    def _measured(self) -> None:
+        """A measurement was stored: a waiting window start or horizon anchor may proceed."""
+        if self.state == "warm" and self.warm_closed and not self.pending:
+            self._maybe_start()
+        if self.horizon is not None and not self.pending:
+            self._publish_horizons()
+
     def on_odom(self, msg: Odometry) -> None:
         fields = topics.odometry_fields(msg)
         if not topics.all_finite(fields):
             self.faults.report("nan_odom", "non-finite motion-capture message dropped")
             return
-        self._store(self.odom, topics.stamp_ns(msg.header.stamp), fields, "odom")
-        if self.state == "warm" and self.warm_closed and not self.pending:
-            self._maybe_start()
+        if topics.invalid_odometry_quaternion(fields):
+            self.faults.report("zero_quaternion", "motion-capture message with a zero (non-unit) quaternion dropped; "
+                                                  "its neighbours are interpolated across it")
+            return
+        ns = topics.stamp_ns(msg.header.stamp)
+        if self._gate("odom", ns, fields):
+            self._store(self.odom, ns, fields, "odom")
+            self._measured()
 
     def on_imu(self, msg: Imu) -> None:
         fields = topics.imu_fields(msg)
         if not topics.all_finite(fields):
             self.faults.report("nan_imu", "non-finite IMU message dropped")
             return
-        self._store(self.imu, topics.stamp_ns(msg.header.stamp), fields, "imu")
-        if self.state == "warm" and self.warm_closed and not self.pending:
-            self._maybe_start()
+        ns = topics.stamp_ns(msg.header.stamp)
+        if self._gate("imu", ns, fields):
+            self._store(self.imu, ns, fields, "imu")
+            self._measured()
 
     def on_battery(self, msg: BatteryState) -> None:
         if not np.isfinite(msg.voltage):
             self.faults.report("nan_battery", "non-finite battery voltage dropped")
             return
-        self._store(self.battery, topics.stamp_ns(msg.header.stamp), float(msg.voltage), "battery")
+        ns = topics.stamp_ns(msg.header.stamp)
+        if self._gate("battery", ns, [msg.voltage]):
+            self._store(self.battery, ns, [msg.voltage], "battery")
+            self._measured()
+
+    def _store(self, track: MeasurementTrack, ns: int, fields, kind: str) -> None:
+        if not track.add(ns, fields):
+            self.faults.report(f"duplicate_{kind}", f"duplicated {kind} stamp {ns} ns: later copy dropped")
 
     def on_motor(self, msg: JointState) -> None:
         if self.model is None:
@@ -297,12 +383,8 @@ class PredictorNode(Node):
         if fields is None or not np.isfinite(fields[0]).all():
             self.faults.report("bad_motor", "motor_input without 4 finite efforts dropped")
             return
-        if self.last_motor_ns is not None and ns <= self.last_motor_ns:
-            kind = "duplicate_motor" if ns == self.last_motor_ns else "out_of_order_motor"
-            self.faults.report(kind, f"motor_input stamp {ns} ns is not after the previous one ({self.last_motor_ns} ns): dropped")
+        if not self._gate("motor", ns):
             return
-        self.last_motor_ns = ns
-        self.last_input_wall = time.monotonic()
         if self.clock_.origin_ns is None:
             self.clock_.origin_ns = ns
             self.origin_pub.publish(messages.clock_message(ns))
@@ -310,8 +392,15 @@ class PredictorNode(Node):
         if ns < self.clock_.origin_ns:
             self.faults.report("before_origin", "motor_input stamped before the window origin: dropped")
             return
-        k, position = self.clock_.locate(ns)
         u, omega = fields
+        if self.horizon is not None:
+            fault = self.horizon.add(ns, u, omega)
+            if fault:
+                self.faults.report("no_multistep_form", f"model {self.name_} {fault}")
+            self._publish_horizons()
+            self._decode_pending()
+            return
+        k, position = self.clock_.locate(ns)
         if k != self.window:
             self._finish_window()
             self.window = k
@@ -345,49 +434,64 @@ class PredictorNode(Node):
             self.timer.reset()  # re-checks the wait even if no message arrives
         self._maybe_start()
 
-    def _finish_window(self) -> None:
-        if self.state == "warm" and self.warm_rows:
+    def _finish_window(self, force: bool = True) -> None:
+        if force and self.state == "warm" and self.warm_rows:
             self._maybe_start(force=True)
         self.stream = None
 
+    def _row_measurements(self, ns: int):
+        """(odometry fields, imu fields, battery voltage or None) at a command stamp, or None when a stream has none."""
+        odom, imu = self.odom.at(ns, self.tolerance_ns), self.imu.at(ns, self.tolerance_ns)
+        battery = self.battery.at(ns, self.tolerance_ns) if self.use_battery else None
+        if odom is None or imu is None or (self.use_battery and battery is None):
+            return None
+        return odom, imu, None if battery is None else float(battery[0])
+
+    def _rows_log(self, stamps: np.ndarray, rows: list, measured: list, source: str = "live receding horizon"):
+        """Command rows (stamp, command, rotor speeds) and their measurements (:meth:`_row_measurements`) -> FlightLog."""
+        omegas = [row[2] for row in rows]
+        return topics.measurement_log(
+            stamps, np.array([row[1] for row in rows]), np.array([m[0] for m in measured]), np.array([m[1] for m in measured]),
+            self.vehicle.name, source, omega=np.array(omegas) if all(o is not None for o in omegas) else None,
+            vbat=np.array([m[2] for m in measured]) if self.use_battery else None,
+        )
+
     def _maybe_start(self, force: bool = False) -> None:
-        """Start the window once every warm row has its measurements (or too long a wait)."""
+        """Start the window once every track covers its last warm row (or too long a wait)."""
         self._decode_pending()
         if self.state != "warm":  # a decoded measurement started it meanwhile
             return
-        complete = [row for row in self.warm_rows if row[0] in self.odom and row[0] in self.imu
-                    and (not self.use_battery or row[0] in self.battery)]
+        last = self.warm_rows[-1][0] if self.warm_rows else None
+        covered = last is None or all(track.covers(last) for track in self.tracks)
         waited = time.monotonic() - self.deferred_since if self.warm_closed else 0.0
-        if len(complete) < len(self.warm_rows) and waited < MEASUREMENT_WAIT_S and len(self.deferred) <= MAX_DEFERRED_COMMANDS \
-                and not force:
+        if not covered and waited < MEASUREMENT_WAIT_S and len(self.deferred) <= MAX_DEFERRED_COMMANDS and not force:
             return
-        if len(complete) < len(self.warm_rows):
-            self.faults.report("warm_gap", f"window {self.window}: {len(self.warm_rows) - len(complete)} warm-start rows have no "
-                                           "measurement (motion-capture/IMU gap); starting from the complete ones")
+        rows = [(row, self._row_measurements(row[0])) for row in self.warm_rows]
+        complete = [(row, m) for row, m in rows if m is not None]
+        if len(complete) < len(rows):
+            self.faults.report("warm_gap", f"window {self.window}: {len(rows) - len(complete)} warm-start rows have no "
+                                           "measurement within tolerance (motion-capture/IMU gap); starting from the others")
         deferred, self.deferred = self.deferred, []
         self.state = "skip"
         if len(complete) < 2:
             self.faults.report("warm_empty", f"window {self.window}: fewer than 2 measured warm-start rows; window not predicted")
             return
-        stamps = np.array([row[0] for row in complete], dtype=np.int64)
-        omegas = [row[2] for row in complete]
+        stamps = np.array([row[0] for row, _ in complete], dtype=np.int64)
         try:
-            warm = topics.measurement_log(
-                stamps, np.array([row[1] for row in complete]), np.array([self.odom[s] for s in stamps.tolist()]),
-                np.array([self.imu[s] for s in stamps.tolist()]), self.vehicle.name, f"live window {self.window}",
-                omega=np.array(omegas) if all(o is not None for o in omegas) else None,
-                vbat=np.array([self.battery[s] for s in stamps.tolist()]) if self.use_battery else None,
-            )
+            warm = self._rows_log(stamps, [row for row, _ in complete], [m for _, m in complete], f"live window {self.window}")
             predictions, self.stream = self.model.start_window(warm)
         except (QuadModellingError, ValueError) as err:
             self.faults.report("model_error", f"window {self.window}: model {self.name_} cannot start: {err}")
             return
-        if not self._publish(stamps.tolist(), predictions, backlog=True):
+        predictions = np.atleast_2d(predictions)
+        self.anchor = (int(stamps[-1]), predictions[-1].copy())
+        if not self._publish(stamps.tolist(), predictions):
             return
         self.state = "stream"
         self.windows_started += 1
         for ns, u in deferred:
-            self._push(ns, u)
+            if self.state == "stream":
+                self._push(ns, u)
 
     def _push(self, ns: int, u: np.ndarray) -> None:
         try:
@@ -398,43 +502,77 @@ class PredictorNode(Node):
             return
         if not self._publish([ns], prediction):
             self.state = "skip"
-        self._publish_backlog(WARM_BACKLOG_PER_INPUT)
 
-    def _publish(self, stamps: list[int], predictions: np.ndarray, backlog: bool = False) -> bool:
-        """Publish predictions (N, 18) for ``stamps`` now, or queue them behind the live ones (``backlog``)."""
+    def _publish(self, stamps: list[int], predictions: np.ndarray) -> bool:
+        """Publish predictions (N, 18) for ``stamps`` (increasing) now; False (window abandoned, nothing published)
+        when one is non-finite or beyond the vehicle's physical bounds."""
         predictions = np.atleast_2d(predictions)
         if not np.isfinite(predictions).all():
             self.faults.report("nan_prediction", f"window {self.window}: model {self.name_} predicted a non-finite value; "
                                                  "window abandoned (nothing non-finite is published)")
             return False
+        anchor_ns, anchor = self.anchor
+        elapsed = (np.asarray(stamps, dtype=np.int64) - anchor_ns) / 1e9
+        violation = self.bounds.violation(predictions, elapsed, anchor)
+        if violation is not None:
+            self.faults.report("out_of_bounds", f"window {self.window}: model {self.name_} predicted {violation}; window "
+                                                "abandoned (nothing beyond the physical bounds is published)")
+            return False
         odom, accel = topics.prediction_fields(predictions)
-        if backlog:
-            self.backlog.extend(zip(stamps, odom, accel))
-            self.timer.reset()
-            return True
         for i, ns in enumerate(stamps):
             self._send(ns, odom[i], accel[i])
         return True
 
     def _on_timer(self) -> None:
-        """While a window waits for warm-row measurements or a warm backlog remains (else cancelled)."""
+        """While a window start waits for warm-row measurements (else cancelled)."""
         self._decode_pending()
         if self.state == "warm" and self.warm_closed:
             self._maybe_start()
-        if time.monotonic() - self.last_input_wall >= WARM_BACKLOG_PERIOD_S:  # else inputs are flowing: each drains its share
-            self._publish_backlog(WARM_BACKLOG_PER_TICK)
-        if not self.backlog and not (self.state == "warm" and self.warm_closed):
+        if not (self.state == "warm" and self.warm_closed):
             self.timer.cancel()
 
-    def _publish_backlog(self, count: int) -> None:
-        for _ in range(min(count, len(self.backlog))):
-            self._send(*self.backlog.popleft())
+    def _monotonic(self, ns: int) -> bool:
+        """True (and remembered) when ``ns`` is after the last published stamp: output stamps strictly increase."""
+        if self.last_published_ns is not None and ns <= self.last_published_ns:
+            self.faults.report("stamp_not_increasing", f"prediction stamped {ns} ns is not after the last published one "
+                                                       f"({self.last_published_ns} ns): not published")
+            return False
+        self.last_published_ns = ns
+        return True
 
     def _send(self, ns: int, odom: np.ndarray, accel: np.ndarray) -> None:
+        if not self._monotonic(ns):
+            return
         o, a = self.out.fill(ns, odom, accel)
         self.odom_pub.publish(o)
         self.accel_pub.publish(a)
         self.published += 1
+
+    # --- receding horizon -----------------------------------------------------------------------
+
+    def _publish_horizons(self) -> None:
+        """Publish every anchor that is ready (:class:`~quad_modelling.nodes.receding_horizon.RecedingHorizon`), checked as
+        the window mode's predictions: finite, inside the physical bounds, stamps strictly increasing."""
+        for event in self.horizon.ready(lambda ns: all(track.covers(ns) for track in self.tracks), self._row_measurements):
+            if event[0] == "fault":
+                self.faults.report(event[1], f"receding horizon: model {self.name_}: {event[2]}")
+                continue
+            _, ns, prediction, elapsed = event
+            h = self.horizon.steps
+            if not np.isfinite(prediction).all():
+                self.faults.report("nan_prediction", f"receding horizon: model {self.name_} predicted a non-finite value: "
+                                                     "not published")
+                continue
+            violation = self.bounds.violation(prediction[h], elapsed, prediction[0])
+            if violation is not None:
+                self.faults.report("out_of_bounds", f"receding horizon: model {self.name_} predicted {violation}: not published")
+                continue
+            if not self._monotonic(ns):
+                continue
+            odom, accel = topics.prediction_fields(prediction[h])
+            o, _ = self.out.fill(ns, odom[0], accel[0])
+            self.horizon_pub.publish(o)
+            self.published += 1
 
     # --- lifecycle ----------------------------------------------------------------------------
 
@@ -449,9 +587,8 @@ class PredictorNode(Node):
         spin(self, executor)
 
     def finish(self) -> None:
-        if self.context.ok():
-            self._publish_backlog(len(self.backlog))
-        say(self, f"published {self.published} predictions over {self.windows_started} windows; faults: {self.faults.summary()}")
+        unit = "windows" if self.horizon_s == 0 else "(receding horizon)"
+        say(self, f"published {self.published} predictions over {self.windows_started} {unit}; faults: {self.faults.summary()}")
 
 
 def main(args=None) -> int:

@@ -4,6 +4,7 @@ import numpy as np
 
 from quad_modelling.core.preprocess import measured_variables
 from quad_modelling.core.variables import VARIABLES
+from quad_modelling.core.vehicle import GRAVITY
 from quad_modelling.io import topics
 from quad_modelling.io.topics import stamps_ns
 from quad_modelling.nodes import messages
@@ -46,11 +47,22 @@ def test_level_hover_prediction_has_upward_flu_acceleration_and_north_is_enu_y()
     odom, accel = topics.prediction_fields(y)
     assert np.allclose(odom[0, 0:3], [0.0, 2.0, 0.0])
     assert np.allclose(odom[0, 3:7], [0, 0, np.sin(np.pi / 4), np.cos(np.pi / 4)])  # yaw 0 NED = facing north: +90° about ENU z
-    assert np.allclose(accel[0, 0:3], [0.0, 0.0, 1.0])
+    assert np.allclose(accel[0, 0:3], [0.0, 0.0, 1.0 + GRAVITY])  # the specific force an IMU measures: 1 m/s² + g up
     assert np.allclose(odom[0, 10:13], [0.0, 0.0, -0.5])
     o, a = messages.prediction_messages(7_000_000_123, odom[0], accel[0], "greybox/base_link")
     assert (o.header.frame_id, o.child_frame_id, a.header.frame_id) == ("world", "greybox/base_link", "greybox/base_link")
     assert topics.stamp_ns(o.header.stamp) == 7_000_000_123
+
+
+def test_predicted_accel_is_the_imus_specific_force_so_a_subscriber_compares_them_directly():
+    """<model>/accel carries the IMU's convention (gravity included, body FLU): a prediction equal to the measured
+    acceleration (a_N = R f_B + g e_z) is published as exactly the measured imu linear_acceleration."""
+    log = synthetic_log(n=200)
+    y = measured_variables(log)
+    _, accel = topics.prediction_fields(y)
+    imu = np.array([topics.imu_fields(m) for m in (messages.measurement_messages(log).imu(i, i) for i in range(len(log)))])
+    assert np.allclose(accel[:, 0:3], imu[:, 0:3], atol=1e-9)
+    assert abs(np.median(np.linalg.norm(accel[:, 0:3], axis=1)) - GRAVITY) < 1.0  # near hover: |f| ~ g, not ~ 0
 
 
 def test_predictions_round_trip_through_odometry_and_accel():

@@ -78,13 +78,14 @@ def test_faults_are_dropped_with_one_warning_each_and_nothing_non_finite_is_publ
         node.on_motor(arrays.motor(100, int(stamps[100])))
     # a motion-capture gap across the warm start of window 1 (rows 500..509)
     feed(node, log, range(301, 1100), arrays, skip_odom=set(range(500, 510)))
-    assert node.faults.counts["out_of_order_motor"] == 4 and node.faults.counts["duplicate_motor"] == 1
+    # 4 stamps back in time and 1 duplicate: each a single outlier (a regular stamp follows), dropped one by one
+    assert node.faults.counts["stamp_outlier_motor"] == 5 and "stamps_jumped_motor" not in node.faults.counts
     assert node.faults.counts["bad_motor"] == 1 and node.faults.counts["nan_odom"] == 1
     assert node.faults.counts["warm_gap"] == 1
     got, predicted = published(node, stamps)
     assert np.isfinite(predicted).all()
     assert stamps[300] not in got  # the NaN command got no prediction
-    assert all(s in got for s in stamps[510:1000].tolist())  # window 1 started from its 10 measured warm rows
+    assert all(s in got for s in stamps[510:1000].tolist())  # window 1 started from its warm rows with a measurement (14: 500, 501 and 508, 509 take the nearest sample within 20 ms)
     node.destroy_node()
 
 
@@ -141,17 +142,15 @@ def test_ctrl_c_ends_a_spinning_node_cleanly_with_its_summary(executor):
     assert "published 0 predictions over 0 windows" in out
 
 
-def test_live_predictions_go_out_before_the_warm_start_backlog(ros):
-    """The warm rows' predictions (available only at the end of the warm start) queue behind live ones."""
-    from quad_modelling.nodes.predictor_node import WARM_BACKLOG_PER_INPUT
-
-    log = hover_log(600)
+def test_warm_rows_are_published_at_the_start_in_stamp_order_and_stamps_strictly_increase(ros):
+    """The warm rows' predictions (available only at the end of the warm start) go out all at once, in stamp order,
+    before the next live one: no stamp on <model>/odom or <model>/accel ever goes back, across windows too."""
+    log = hover_log(1100)
     node = make_node(model="greybox")
-    stamps = feed(node, log, range(60))  # 5 s windows at 100 Hz: warm rows 0..19, then live rows
-    order = [topics.stamp_ns(m.header.stamp) for m in node.odom_pub.messages]
-    assert order[0] == stamps[20]  # the first live command is answered first
-    assert order[1:1 + WARM_BACKLOG_PER_INPUT] == stamps[0:WARM_BACKLOG_PER_INPUT].tolist()
-    assert sorted(order) == stamps[:60].tolist()  # 20 warm + 40 live: every input answered once by now
+    stamps = feed(node, log, range(1100))  # 5 s windows at 100 Hz: warm rows 0..19 and 500..519
+    for publisher in (node.odom_pub, node.accel_pub):
+        order = [topics.stamp_ns(m.header.stamp) for m in publisher.messages]
+        assert order == stamps[:1100].tolist()  # every input answered once, in stamp order
     node.destroy_node()
 
 
@@ -174,7 +173,7 @@ def test_window_waits_for_late_measurements_of_its_warm_rows(ros, monkeypatch):
     for row in range(10, 60):
         node.on_imu(arrays.imu(row, int(stamps[row])))
     assert node.state == "stream" and "warm_gap" not in node.faults.counts
-    assert node.published == 60  # the 40 held commands, each followed by one of the 20 warm rows
+    assert node.published == 60  # the 20 warm rows, then the 40 held commands
     node.destroy_node()
 
     monkeypatch.setattr(predictor_node, "MEASUREMENT_WAIT_S", 0.0)
@@ -202,7 +201,7 @@ def test_window_starts_at_its_last_warm_row_once_its_measurements_are_in(ros):
     feed_measurements_first(node, arrays, range(19), stamps)
     assert node.state == "warm" and not node.warm_closed  # row 18: row 19 is still warm
     feed_measurements_first(node, arrays, [19], stamps)
-    assert node.state == "stream" and len(node.backlog) == 20 and node.published == 0
+    assert node.state == "stream" and node.published == 20  # the warm rows' predictions, at once, in stamp order
     feed_measurements_first(node, arrays, range(20, 500), stamps)
     expected = predict_window_by_stream(make_streaming_predictor("greybox", load_vehicle("crazyflie21")), log.slice(0, 500), 20)
     got, predicted = published(node, stamps[:500])
@@ -223,7 +222,7 @@ def test_a_warm_row_after_an_early_start_is_reported_and_predicted_as_streamed(r
     node.on_odom(arrays.odometry(18, extra))
     node.on_imu(arrays.imu(18, extra))
     node.on_motor(arrays.motor(18, extra))
-    assert node.state == "stream" and len(node.backlog) == 20  # rows 0..18 and the extra one
+    assert node.state == "stream" and node.published == 20  # rows 0..18 and the extra one
     feed_measurements_first(node, arrays, range(19, 30), stamps)
     assert node.faults.counts == {"late_warm_row": 1}
     assert set(stamps[19:30].tolist()) <= set(node.odom_pub.by_stamp())  # every command answered
@@ -286,8 +285,9 @@ def test_serialised_measurements_are_decoded_after_the_answer_and_still_checked(
         node.on_motor(arrays.motor(row, ns))
         assert not node.pending
     assert node.faults.counts == {"nan_odom": 1, "bad_imu": 1}
-    assert int(stamps[21]) not in node.odom and int(stamps[23]) not in node.imu and int(stamps[22]) in node.odom
-    assert node.state == "stream" and node.published == 5 + 5  # commands 20..24, each followed by one warm row
+    assert int(stamps[21]) not in node.odom.stamps and int(stamps[23]) not in node.imu.stamps
+    assert int(stamps[22]) in node.odom.stamps
+    assert node.state == "stream" and node.published == 20 + 5  # the 20 warm rows at the start, then commands 20..24
     node.destroy_node()
 
 
@@ -306,4 +306,126 @@ def test_without_a_vehicle_inputs_wait_for_the_replays_announcement(ros):
     expected = predict_window_by_stream(make_streaming_predictor("naive", load_vehicle("crazyflie21")), window, 20)
     got, predicted = published(node, stamps[500:1000])
     assert len(got) == 500 and np.allclose(predicted[:, 3:6], expected[:, 3:6], atol=1e-9)
+    node.destroy_node()
+
+
+def test_a_stamp_from_the_future_costs_one_sample_not_the_flight(ros):
+    log = hover_log(1100)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
+    node = make_node(model="greybox")
+    feed(node, log, range(0, 300), arrays)
+    node.on_motor(arrays.motor(300, int(stamps[300]) + 10 ** 15))  # 1e6 s ahead
+    node.on_imu(arrays.imu(300, int(stamps[300]) + 10 ** 15))
+    feed(node, log, range(301, 1100), arrays)
+    got, predicted = published(node, stamps)
+    assert node.faults.counts["stamp_outlier_motor"] == 1 and node.faults.counts["stamp_outlier_imu"] == 1
+    assert got == [s for s in stamps[:1100].tolist() if s != stamps[300]]  # everything else answered, windows 0 and 1
+    assert node.windows_started == 3
+    node.destroy_node()
+
+
+def test_a_restarted_publisher_resets_cleanly_and_the_predictor_resumes_at_the_next_window(ros):
+    """The flight stack restarts: stamps jump back to an earlier flight time (here the flight's start again). The
+    first two stamps are held as suspects, the third confirms the new time base: windows and buffers restart,
+    output stamps restart with them, and the window the stamps land in is predicted from its own warm rows."""
+    log = hover_log(1100)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
+    node = make_node(model="naive")
+    feed(node, log, range(0, 700), arrays)
+    first = len(node.odom_pub.messages)
+    feed(node, log, range(0, 1100), arrays)
+    assert node.faults.counts["stamps_jumped_motor"] == 1
+    assert node.faults.counts["stamps_jumped_odom"] == 1 and node.faults.counts["stamps_jumped_imu"] == 1
+    again = [topics.stamp_ns(m.header.stamp) for m in node.odom_pub.messages[first:]]
+    assert again == stamps[2:1100].tolist()  # rows 0 and 1 were the suspects; window 0 from row 2, window 1 whole
+    assert np.all(np.diff(again) > 0)
+    window = log.slice(500, 1000)
+    expected = predict_window_by_stream(make_streaming_predictor("naive", load_vehicle("crazyflie21")), window, 20)
+    odom = {topics.stamp_ns(m.header.stamp): m for m in node.odom_pub.messages[first:]}
+    accel = {topics.stamp_ns(m.header.stamp): m for m in node.accel_pub.messages[first:]}
+    second = topics.predictions_from_fields([topics.predicted_odometry_fields(odom[s]) for s in stamps[500:1000].tolist()],
+                                            [topics.accel_fields(accel[s]) for s in stamps[500:1000].tolist()])
+    assert np.allclose(second[:, 3:9], expected[:, 3:9], atol=1e-9)  # window 1 of the second pass: the offline numbers
+    node.destroy_node()
+
+
+def test_a_zero_quaternion_in_a_warm_row_is_dropped_and_the_window_goes_on(ros):
+    log = hover_log(1100)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
+    node = make_node(model="greybox")
+    feed(node, log, range(0, 505), arrays)
+    node.on_motor(arrays.motor(505, int(stamps[505])))
+    broken = arrays.odometry(505, int(stamps[505]))
+    q = broken.pose.pose.orientation
+    q.x = q.y = q.z = q.w = 0.0
+    node.on_odom(broken)
+    node.on_imu(arrays.imu(505, int(stamps[505])))
+    feed(node, log, range(506, 1100), arrays)
+    assert node.faults.counts == {"zero_quaternion": 1}  # no warm_gap: row 505 is interpolated between 504 and 506
+    got, predicted = published(node, stamps)
+    assert got == stamps[:1100].tolist()
+    midway = 0.5 * (log.euler[504] + log.euler[506])  # the warm row's measurement: half-way between its neighbours
+    assert geodesic_angle(predicted[505:506, 9:12], midway[None, :])[0] < 1e-4
+    node.destroy_node()
+
+
+class AbsurdAfter:
+    """A streaming model that predicts the window's anchor state until push ``n``, then 1e30 m (finite, absurd)."""
+
+    name = "absurd"
+
+    def __init__(self, n):
+        self.n = n
+
+    def start_window(self, warm):
+        from quad_modelling.core.preprocess import measured_variables
+
+        measured = measured_variables(warm)
+        outer = self
+
+        class Stream:
+            count = 0
+
+            def push(self, command):
+                self.count += 1
+                y = measured[-1].copy()
+                if self.count >= outer.n:
+                    y[0] = 1e30
+                return y
+
+        return measured, Stream()
+
+
+def test_a_prediction_beyond_the_physical_bounds_abandons_the_window_with_one_warning(ros):
+    log = hover_log(1100)
+    stamps = stamps_ns(log.t)
+    node = make_node(model="naive")
+    node.model = AbsurdAfter(100)
+    feed(node, log, range(1100))
+    got, predicted = published(node, stamps)
+    assert node.faults.counts == {"out_of_bounds": 2}  # once per window (windows 0 and 1); one warning line
+    # each window: its 20 warm rows and 99 pushes, nothing from the absurd one on; window 2 (rows 1000..) as well
+    expected = stamps[0:119].tolist() + stamps[500:619].tolist() + stamps[1000:1100].tolist()
+    assert got == expected and np.abs(predicted[:, 0:3]).max() < 100.0
+    node.destroy_node()
+
+
+def test_a_clock_jump_forward_resets_the_windows_and_prediction_resumes_in_the_window_the_stamps_land_in(ros):
+    """The stack's clock (wall or simulated) jumps 1000 s ahead mid-flight (200 windows of 5 s): three consistent
+    stamps make the new time base; the predictor never reads its own ROS clock, only stamps, and goes on."""
+    log = hover_log(1100)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
+    node = make_node(model="naive")
+    feed(node, log, range(0, 600), arrays)
+    jump = 1000 * 10 ** 9
+    for row in range(600, 1100):
+        ns = int(stamps[row]) + jump
+        node.on_motor(arrays.motor(row, ns))
+        node.on_odom(arrays.odometry(row, ns))
+        node.on_imu(arrays.imu(row, ns))
+    assert node.faults.counts["stamps_jumped_motor"] == 1 and node.clock_.origin_ns == int(stamps[0])
+    got = [topics.stamp_ns(m.header.stamp) for m in node.odom_pub.messages]
+    assert got[:600] == stamps[:600].tolist()
+    # rows 600, 601 were suspects; row 602 landed 102 ms into window 201, after its warm start: window 202 from its start
+    assert got[600:] == (stamps[1000:1100] + jump).tolist() and node.faults.counts["joined_mid_window"] == 1
     node.destroy_node()

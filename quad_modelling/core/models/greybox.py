@@ -206,8 +206,16 @@ class DiscreteGreybox:
         return motor_thrusts(u, self.ad[12, 12], self.bd[12, 0])
 
 
+PERIOD_DIGITS = 6
+"""A sample period is rounded to 1 µs before discretising: a log's period is the median of its µs-jittered
+steps, which differs in the last digits between a whole flight and the 2 s a live receding-horizon
+predictor holds (bundled flight: 9.99999 ms vs 10.00002 ms); both must be the same model. Over a 10 s
+window at 100 Hz the rounding moves the last sample's model time by at most 0.5 ms."""
+
+
 class GreyboxModel:
-    """The linear model of one vehicle; discretised matrices cached per sample period."""
+    """The linear model of one vehicle; discretised matrices cached per sample period (rounded to
+    :data:`PERIOD_DIGITS` decimals of a second)."""
 
     def __init__(self, vehicle: VehicleConfig | GreyboxParameters):
         self.parameters = vehicle if isinstance(vehicle, GreyboxParameters) else GreyboxParameters.from_vehicle(vehicle)
@@ -215,10 +223,10 @@ class GreyboxModel:
 
     def discretise(self, dt: float, method: str = "zoh") -> DiscreteGreybox:
         """Discrete model at sample period ``dt`` [s]: ``zoh`` (exact) or ``euler`` (thesis Eq 3-19/20)."""
-        return _discretise(self.parameters, round(float(dt), 12), method)
+        return _discretise(self.parameters, round(float(dt), PERIOD_DIGITS), method)
 
 
-@lru_cache(maxsize=64)
+@lru_cache(maxsize=4096)
 def _discretise(p: GreyboxParameters, dt: float, method: str) -> DiscreteGreybox:
     if method not in DISCRETISATIONS:
         raise ConfigError(f"greybox discretisation must be one of {', '.join(DISCRETISATIONS)}, got {method!r}")
@@ -242,6 +250,21 @@ def anchor_state(measured_row: np.ndarray, thrusts: np.ndarray) -> np.ndarray:
     return x
 
 
+def trim_motion(output_trim: np.ndarray) -> np.ndarray:
+    """(18,) rate of change of the trim point: the trimmed velocity moves the position, the trimmed body rates the
+    angles (:math:`\\dot p = \\bar v`, :math:`\\dot\\eta = \\bar\\omega`); zero for every other variable.
+
+    The greybox predicts deviations from the warm rows' mean; its absolute pose
+    :math:`y_{trim} + C x + \\tau\\,\\dot y_{trim}` (τ from the anchor) moves with the published velocity
+    instead of standing at the warm rows' mean position until the next window re-anchors it. Positions
+    and angles are not in the thesis tables (:data:`~quad_modelling.core.variables.EVAL_VARIABLES`).
+    """
+    motion = np.zeros(len(VARIABLES))
+    motion[0:3] = output_trim[3:6]
+    motion[9:12] = output_trim[12:15]
+    return motion
+
+
 THESIS_LABEL = "thesis reproduction"
 """What tables and docs call the greybox: the thesis's linear model (chapter 3) reproduced."""
 
@@ -253,23 +276,70 @@ THESIS_DESCRIPTION = (
 """One sentence for a report's model notes."""
 
 
+STEP_TOLERANCE = 0.002
+"""A live step within this fraction of the window's period dt is taken as dt: a uniform log's µs jitter (the
+bundled flight: 0.06 %), so the offline numbers hold; any other step is discretised at its real length
+(:meth:`GreyboxStream.push_at`). Taking a 5 % longer step as dt would leave the pose behind by 0.5 ms of
+motion per step.
+"""
+
+STEP_QUANTUM_S = 1e-5
+"""Real step lengths are rounded to this [s] before discretising (bounds the discretisation cache; the
+time error is at most 5 µs per step, not accumulated: each step starts at the previous sample's stamp)."""
+
+
 class GreyboxStream:
     """Live form of one greybox window after its warm start (:mod:`quad_modelling.core.models.streaming`).
 
     Holds the state x[k] and the trims; ``push(u_k)`` returns the absolute
     prediction ``y_trim + Cd x[k] + Dd (u_k - u_trim)`` and advances
-    ``x[k+1] = Ad x[k] + Bd (u_k - u_trim)``.
+    ``x[k+1] = Ad x[k] + Bd (u_k - u_trim)`` by the window's period dt.
+
+    ``push_at(u_k, t_k)`` steps from the previous sample (state :math:`x_{k-1}`, input
+    :math:`u_{k-1}` held over the step) to :math:`t_k`: with the window's matrices when
+    :math:`|\\Delta t - dt| \\le` :data:`STEP_TOLERANCE` dt (then it equals ``push``), else with the
+    model discretised at the real step :math:`\\Delta t = t_k - t_{k-1}` (rounded to
+    :data:`STEP_QUANTUM_S`): :math:`x_k = A_d(\\Delta t) x_{k-1} + B_d(\\Delta t) u_{k-1}`. A jittered
+    command timer (±2 ms at 100 Hz, a dropped command) is integrated over the time that really
+    passed instead of refused.
     """
 
-    def __init__(self, model: DiscreteGreybox, state: np.ndarray, input_trim: np.ndarray, output_trim: np.ndarray):
+    def __init__(self, model: DiscreteGreybox, state: np.ndarray, input_trim: np.ndarray, output_trim: np.ndarray,
+                 continuous: GreyboxModel | None = None, anchor: tuple[float, np.ndarray, np.ndarray] | None = None):
         self.model = model
         self.state = state
         self.input_trim = input_trim
         self.output_trim = output_trim
+        self.motion = trim_motion(output_trim)
+        self.elapsed = 0.0  # model time since the anchor [s]: the sum of the steps taken
+        self.continuous = continuous
+        # (time [s], state, trimmed input) of the last sample: what a step of another length starts from
+        self.t_s, self.previous_state, self.previous_input = anchor if anchor is not None else (None, None, None)
 
     def push(self, command: np.ndarray) -> np.ndarray:
-        self.state, outputs = self.model.step(self.state, np.asarray(command, dtype=float) - self.input_trim)
-        return self.output_trim + outputs
+        u = np.asarray(command, dtype=float) - self.input_trim
+        x = self.state
+        self.state, outputs = self.model.step(x, u)
+        self.previous_state, self.previous_input = x, u
+        self.elapsed += self.model.dt
+        if self.t_s is not None:
+            self.t_s += self.model.dt
+        return self.output_trim + outputs + self.elapsed * self.motion
+
+    def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
+        if self.t_s is None or self.continuous is None:
+            return self.push(command)
+        dt = t_s - self.t_s
+        if not dt > 0:
+            raise DataError(f"greybox stream: sample time {t_s:.6f} s is not after the previous {self.t_s:.6f} s")
+        model = self.model
+        if abs(dt - model.dt) > STEP_TOLERANCE * model.dt:
+            real = self.continuous.discretise(max(STEP_QUANTUM_S, round(dt / STEP_QUANTUM_S) * STEP_QUANTUM_S), model.method)
+            self.state = real.ad @ self.previous_state + real.bd @ self.previous_input
+            self.elapsed += real.dt - model.dt  # push adds the nominal step
+        outputs = self.push(command)
+        self.t_s = t_s
+        return outputs
 
 
 class GreyboxPredictor:
@@ -317,24 +387,34 @@ class GreyboxPredictor:
 
     def _anchor(self, warm: FlightLog) -> tuple[DiscreteGreybox, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(model, warm predictions (W, 18), state after the anchor sample, input trim, output trim)."""
+        return self._anchor_sample(warm)[:5]
+
+    def _anchor_sample(self, warm: FlightLog, check_uniform: bool = True) -> tuple:
+        """:meth:`_anchor` and (state at the anchor sample, its trimmed input); ``check_uniform`` False for the live
+        form (dt = the warm rows' median step, whatever their jitter)."""
         if len(warm) < 2:
             raise DataError(f"{warm.meta.source}: the greybox needs at least 2 warm-start samples, got {len(warm)}")
-        model = self.discrete(warm)
+        model = self.discrete(warm) if check_uniform else self.model.discretise(sample_period(warm), self.discretisation)
         measured = state_measurement(warm, self.vehicle)
         input_trim = warm.u.mean(axis=0)
         output_trim = measured.mean(axis=0)
         u = warm.u - input_trim
         deviation = smooth(measured - output_trim, warm.sample_rate)
         thrusts = model.motor_thrusts(u)[-1]
-        state, anchor_outputs = model.step(anchor_state(deviation[-1], thrusts), u[-1])
+        x_anchor = anchor_state(deviation[-1], thrusts)
+        state, anchor_outputs = model.step(x_anchor, u[-1])
         predictions = measured.copy()
         predictions[-1] = output_trim + anchor_outputs
-        return model, predictions, state, input_trim, output_trim
+        return model, predictions, state, input_trim, output_trim, (x_anchor, u[-1])
 
     def start_window(self, warm: FlightLog) -> tuple[np.ndarray, GreyboxStream]:
-        """Warm rows -> (their absolute predictions (W, 18), stream for the following samples)."""
-        model, predictions, state, input_trim, output_trim = self._anchor(warm)
-        return predictions, GreyboxStream(model, state, input_trim, output_trim)
+        """Warm rows -> (their absolute predictions (W, 18), stream for the following samples).
+
+        The live form takes real timers: the warm rows' steps are not checked for uniformity
+        (dt = their median step) and the stream's ``push_at`` integrates each real step."""
+        model, predictions, state, input_trim, output_trim, (x_anchor, u_anchor) = self._anchor_sample(warm, check_uniform=False)
+        return predictions, GreyboxStream(model, state, input_trim, output_trim, self.model,
+                                          (float(warm.t[-1]), x_anchor, u_anchor))
 
     def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) absolute prediction; equal to the streaming form (vectorised)."""
@@ -342,7 +422,10 @@ class GreyboxPredictor:
             raise DataError(f"{window.meta.source}: warm start of {warm_samples} samples does not fit a window of {len(window)}")
         model, warm_predictions, state, input_trim, output_trim = self._anchor(window.slice(0, warm_samples))
         _, outputs = model.simulate(state, window.u[warm_samples:] - input_trim)
-        return np.concatenate([warm_predictions, output_trim + outputs])
+        elapsed = np.zeros(len(outputs))
+        for k in range(len(outputs)):  # the stream's running sum of steps, bit for bit
+            elapsed[k] = (elapsed[k - 1] if k else 0.0) + model.dt
+        return np.concatenate([warm_predictions, output_trim + outputs + elapsed[:, None] * trim_motion(output_trim)])
 
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) prediction in the evaluation's trimmed convention."""

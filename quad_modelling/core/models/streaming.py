@@ -27,6 +27,18 @@ the commands is seen) and live and offline agree. :class:`StreamingHorizons`
 wraps a streaming predictor as a
 :class:`~quad_modelling.core.models.base.MultiStepPredictor` with it.
 
+:class:`RecedingHorizon` is the live receding-horizon form (the predictor's
+``horizon_s`` > 0). It holds the recent commands of the current time base and,
+for every command j, the anchor s = j - h, h = round(horizon_s / dt): once command j is in and every measurement stream covers
+t_s, the anchor's rows (the last ``history_s`` up to s, measurements read at the command stamps;
+the commands s+1..j) become a FlightLog (``make_log``, the node's message conversion) and the
+model's offline multi-step form (``form_for(warm rows)``, the node passes
+:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) predicts it h steps ahead: the
+same numbers as the offline multi-step evaluation for the same start, as long as the model's
+multi-step form settles within ``history_s`` (trims over 1 s, causal filters: 2 s gives 5e-12 on
+the bundled flight). A prediction h steps ahead needs the h commands after the anchor (the
+multi-step protocol runs open loop on the flown commands), so it is ready when the last arrives.
+
 :class:`RecordedPrediction` wraps predictions received over ROS as a
 :class:`~quad_modelling.core.models.Predictor`, so the live evaluator scores a
 window with the same :func:`~quad_modelling.core.evaluation.evaluate_window`
@@ -35,6 +47,9 @@ as ``quad-modelling evaluate``.
 
 from __future__ import annotations
 
+import time
+from collections import deque
+from collections.abc import Callable, Iterator
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -42,7 +57,7 @@ import numpy as np
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
-from quad_modelling.errors import DataError
+from quad_modelling.errors import DataError, QuadModellingError
 
 
 class WindowStream(Protocol):
@@ -177,3 +192,99 @@ def prime(predictor: StreamingPredictor, vehicle: VehicleConfig, sample_period_s
             stream.push(warm.u[-1])
     except (DataError, ValueError):
         return
+
+
+# --- receding horizon, live ----------------------------------------------------------------------
+
+HORIZON_PERIOD_STEPS = 20
+"""Command steps whose median gives dt (h = round(horizon_s / dt)) when ``sample_period_s`` is 0."""
+
+
+class RecedingHorizon:
+    """Anchors waiting for their h commands (module docstring).
+
+    ``form_for(warm)`` -> the multi-step form with ``warm`` warm rows (None: the model has none);
+    ``make_log(stamps [ns], rows (stamp, command, rotor speeds), measurements)`` -> FlightLog of those rows;
+    ``measurements(ns)`` (in :meth:`ready`) -> the measurements at a stamp or None;
+    ``covered(ns)`` -> True when every stream holds a sample at or after ``ns``; ``wait_s``: how long
+    [wall s] an anchor waits for that before it is computed from what the streams give.
+    """
+
+    def __init__(self, form_for: Callable, make_log: Callable, horizon_s: float, warm_s: float, history_s: float,
+                 sample_period_s: float, wait_s: float):
+        self.form_for, self.make_log = form_for, make_log
+        self.horizon_s, self.warm_s, self.history_s = horizon_s, warm_s, history_s
+        self.sample_period_s, self.wait_s = sample_period_s, wait_s
+        self.rows: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque()  # (stamp, command, rotor speeds)
+        self.steps_seen: list[int] = []
+        self.steps = None  # h, once dt is known
+        self.form = None
+        self.wait_since = None
+
+    def reset(self) -> None:
+        """A new time base (restart, clock jump): forget the commands; h and the form stay."""
+        self.rows.clear()
+        self.steps_seen = []
+        self.wait_since = None
+        if self.steps is not None:
+            self.next, self.first = self.warm - 1, 0
+
+    def add(self, ns: int, u: np.ndarray, omega) -> str | None:
+        """Keep a command; learn h once dt is known. Returns a fault sentence when the model has no multi-step form."""
+        if self.rows:
+            self.steps_seen.append(ns - self.rows[-1][0])
+            del self.steps_seen[:-HORIZON_PERIOD_STEPS]
+        self.rows.append((ns, u, omega))
+        if self.steps is not None:
+            return None
+        period_s = self.sample_period_s
+        if not period_s and len(self.steps_seen) >= HORIZON_PERIOD_STEPS:
+            period_s = float(np.median(self.steps_seen)) / 1e9
+        if not period_s:
+            return None
+        self.steps = max(1, int(round(self.horizon_s / period_s)))
+        self.warm = max(1, int(round(self.warm_s / period_s)))
+        self.keep = max(int(round(self.history_s / period_s)), self.warm)
+        self.form = self.form_for(self.warm)
+        self.next, self.first = self.warm - 1, 0  # the first anchor with warm rows up to it; index of rows[0]
+        return None if self.form is not None else "has no multi-step form: no horizon predictions"
+
+    def ready(self, covered: Callable[[int], bool], measurements: Callable) -> Iterator[tuple]:
+        """Every anchor whose command s + h is in and whose measurements are covered, in order: yields
+        ("prediction", t_{s+h} [ns], (h + 1, 18) prediction, t_{s+h} - t_s [s]) or ("fault", kind, sentence)."""
+        if self.steps is None or self.form is None:
+            return
+        rows, h = self.rows, self.steps
+        while self.next + h < self.first + len(rows):
+            s = self.next - self.first  # the anchor's index in rows
+            if not covered(rows[s][0]):
+                self.wait_since = self.wait_since or time.monotonic()
+                if time.monotonic() - self.wait_since < self.wait_s:
+                    return
+            self.wait_since = None
+            yield self._predict(s, measurements)
+            self.next += 1
+            for _ in range(max(0, s - self.keep + 2)):  # rows the next anchor's history no longer holds
+                rows.popleft()
+                self.first += 1
+
+    def _predict(self, s: int, measurements: Callable) -> tuple:
+        rows, h = self.rows, self.steps
+        first = max(0, s - self.keep + 1)
+        history = [rows[i] for i in range(first, s + h + 1)]
+        measured = [measurements(row[0]) for row in history[:s - first + 1]]
+        if measured[-1] is None:
+            return "fault", "horizon_gap", "an anchor without a measurement within tolerance: skipped"
+        # a row before the anchor without a measurement takes its successor's (inside tolerance gaps are rare); rows
+        # after the anchor take the anchor's: the multi-step form reads nothing after the anchor but the commands
+        filled = list(measured) + [measured[-1]] * h
+        for i in range(len(filled) - 1, -1, -1):
+            if filled[i] is None:
+                filled[i] = filled[i + 1]
+        stamps = np.array([row[0] for row in history], dtype=np.int64)
+        try:
+            log = self.make_log(stamps, history, filled)
+            prediction = self.form.predict_horizons(log, np.array([s - first]), h)[0]
+        except (QuadModellingError, ValueError) as err:
+            return "fault", "model_error", f"failed: {err}"
+        return "prediction", int(stamps[-1]), prediction, (stamps[-1] - stamps[s - first]) / 1e9

@@ -72,3 +72,37 @@ def test_the_naive_model_holds_the_same_measured_state_live_offline_and_multiste
     assert horizons.shape == (1, 51, 18)
     scored = np.r_[0:6, 9:15]  # the multi-step groups: position, velocity, orientation, angular velocity
     np.testing.assert_allclose(horizons[0][:, scored], np.tile(anchor_state[scored], (51, 1)), atol=1e-12)
+
+
+def test_receding_horizon_publishes_each_anchor_h_commands_later_with_the_offline_multistep_numbers():
+    """Pure logic, no node: commands in one by one; every anchor s comes out when command s + h is in (and its
+    measurements are covered), equal to the offline multi-step form from the same start; nothing before."""
+    from quad_modelling.core.evaluation.multistep import multistep_form
+    from quad_modelling.core.models.physics import PhysicsPredictor
+    from quad_modelling.core.models.streaming import RecedingHorizon
+
+    vehicle = load_vehicle("crazyflie21")
+    log = synthetic_log(300)
+    model = PhysicsPredictor(vehicle)
+    t_ns = np.round(log.t * 1e9).astype(np.int64)
+    row_of = {int(ns): i for i, ns in enumerate(t_ns)}
+
+    def make_log(stamps, rows, measured):
+        return log.slice(row_of[int(stamps[0])], row_of[int(stamps[-1])] + 1)
+
+    horizon = RecedingHorizon(lambda warm: multistep_form(model, warm), make_log, horizon_s=0.05, warm_s=0.2,
+                              history_s=2.0, sample_period_s=0.0, wait_s=0.5)
+    covered_until = {"ns": -1}
+    out = []
+    for i, ns in enumerate(t_ns.tolist()):
+        horizon.add(ns, log.u[i], None)
+        covered_until["ns"] = ns if i % 7 else covered_until["ns"]  # measurements lag now and then
+        out += list(horizon.ready(lambda s: s <= covered_until["ns"], lambda s: ("measured",)))
+    assert horizon.steps == 5 and horizon.warm == 20
+    assert all(kind == "prediction" for kind, *_ in out)
+    starts = np.arange(19, 300 - 5)
+    expected = multistep_form(model, 20).predict_horizons(log, starts, 5)
+    got = [e for e in out if e[1] in set(t_ns[starts + 5].tolist())]
+    assert [e[1] for e in out] == t_ns[starts + 5][:len(out)].tolist() and len(out) >= len(starts) - 1
+    assert np.allclose(np.array([e[2] for e in got]), expected[:len(got)], atol=1e-9)
+    assert np.allclose([e[3] for e in got], 0.05, atol=1e-6)  # t_{s+h} - t_s
