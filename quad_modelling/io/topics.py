@@ -89,6 +89,12 @@ ODOM_FIELDS = 10
 PREDICTED_ODOM_FIELDS = 13
 IMU_FIELDS = 6
 ACCEL_FIELDS = 6
+ODOM_QUATERNION = slice(3, 7)
+"""The orientation quaternion (x, y, z, w) among the odometry fields (measured and predicted)."""
+
+HORIZON_TOPIC = "horizon/odom"
+"""``<model>/horizon/odom`` (nav_msgs/Odometry, frames as ``<model>/odom``): receding-horizon mode, the state
+``horizon_s`` ahead of each input re-anchored on the latest measurement, stamped at the predicted time."""
 
 UNKNOWN_ANGULAR_TWIST = np.zeros(36)
 UNKNOWN_ANGULAR_TWIST[[21, 28, 35]] = -1.0

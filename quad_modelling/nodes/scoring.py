@@ -4,6 +4,9 @@ The evaluator node hands the received absolute predictions to
 :class:`~quad_modelling.core.models.streaming.RecordedPrediction`, which trims them as the
 offline predictors do.
 
+* :class:`HorizonRecord`: the receding-horizon errors of one model in one closed window (sums of the
+  per-prediction group errors of :func:`~quad_modelling.core.evaluation.multistep.group_error_norms`), pooled
+  into MAE@h by :meth:`LiveScores.horizon_mae` exactly as the offline multi-step MAE_h pools its starts.
 * :class:`LiveScores`: per-window results of the evaluator node gathered into a core
   :class:`~quad_modelling.core.evaluation.windowed.EvaluationResult` (mean over scored windows
   per model and span), written with ``quad_modelling.io.reports.evaluation.write_report``.
@@ -20,6 +23,7 @@ from quad_modelling.core.evaluation.windowed import (
     ExampleWindow,
     SpanScores,
 )
+from quad_modelling.core.evaluation.multistep import GROUP_UNITS, GROUPS
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.preprocess import trimmed_inputs
 from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
@@ -55,6 +59,22 @@ class WindowRecord:
 
 
 @dataclass
+class HorizonRecord:
+    """Receding-horizon predictions of one model stamped in one closed window: per group (GROUPS order) the sum of
+    the error norms [m, m/s, rad, rad/s], how many were scored, and how many the measurements did not reach."""
+
+    model: str
+    index: int
+    error_sums: np.ndarray
+    scored: int
+    unreached: int = 0
+
+    def mae(self) -> np.ndarray | None:
+        """MAE@h of this window per group, :math:`\\frac{1}{S}\\sum_s e_s` (None without a scored prediction)."""
+        return self.error_sums / self.scored if self.scored else None
+
+
+@dataclass
 class LiveScores:
     """Everything the evaluator node has scored or marked, in arrival order."""
 
@@ -63,6 +83,21 @@ class LiveScores:
     models: list[str]
     records: list[WindowRecord] = field(default_factory=list)
     examples: dict[str, ExampleWindow] = field(default_factory=dict)
+    horizon_s: float = 0.0
+    horizon: list[HorizonRecord] = field(default_factory=list)
+
+    def horizon_mae(self) -> dict:
+        """MAE@h per model and group over every scored receding-horizon prediction (pooled over windows:
+        :math:`\\mathrm{MAE}_h = \\sum_w \\sum_s e_{w,s} / \\sum_w S_w`, the offline multi-step MAE_h over the same
+        starts), with the counts; units in ``units``."""
+        out: dict = {"horizon_s": self.horizon_s, "units": GROUP_UNITS, "models": {}}
+        for model in dict.fromkeys(r.model for r in self.horizon):
+            mine = [r for r in self.horizon if r.model == model]
+            scored = sum(r.scored for r in mine)
+            sums = np.sum([r.error_sums for r in mine], axis=0)
+            entry = {group: (float(sums[g] / scored) if scored else None) for g, group in enumerate(GROUPS)}
+            out["models"][model] = {"mae": entry, "predictions": scored, "unreached": sum(r.unreached for r in mine)}
+        return out
 
     def add_example(self, span: str, window: FlightLog, measured: np.ndarray, predicted: dict, warm: int) -> None:
         """Keep the first scored window of each span for the report's figures (inputs trimmed with ``config.trim``)."""
@@ -104,13 +139,17 @@ class LiveScores:
             "windows": [r.to_json() for r in self.records],
             "marked": [r.to_json() for r in self.records if not r.scored],
         }
+        if self.horizon_s > 0:
+            data["live"]["horizon"] = self.horizon_mae()
         return data
 
 
-def diagnostics_message(records: list[WindowRecord], stamp_ns: int):
+def diagnostics_message(records: list[WindowRecord], stamp_ns: int, horizon: list[HorizonRecord] = ()):
     """The ``evaluation`` message of one closed window: a diagnostic_msgs/DiagnosticArray stamped ``stamp_ns``
     (the window's end) with one status per record: OK + ``<var>.rms``/``<var>.tic`` (SI, :data:`EVAL_VARIABLES`)
-    for a scored window, WARN + ``not scored: <reason>`` for a marked one."""
+    for a scored window, WARN + ``not scored: <reason>`` for a marked one; and per ``horizon`` record a status
+    ``evaluation/<model>/horizon/window_<k>``: OK + ``<group>.mae`` (SI) and ``predictions``, or WARN when no
+    receding-horizon prediction of the window could be scored."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
     from quad_modelling.nodes.messages import ns_stamp
@@ -130,6 +169,17 @@ def diagnostics_message(records: list[WindowRecord], stamp_ns: int):
         else:
             status.level = DiagnosticStatus.WARN
             status.message = f"not scored: {r.reason}"
+        status.values = values
+        msg.status.append(status)
+    for h in horizon:
+        status = DiagnosticStatus(name=f"evaluation/{h.model}/horizon/window_{h.index}", hardware_id=h.model)
+        mae = h.mae()
+        values = [KeyValue(key="predictions", value=str(h.scored)), KeyValue(key="unreached", value=str(h.unreached))]
+        if mae is None:
+            status.level, status.message = DiagnosticStatus.WARN, "not scored: no measurement reaches the predicted stamps"
+        else:
+            status.level, status.message = DiagnosticStatus.OK, "scored"
+            values += [KeyValue(key=f"{group}.mae", value=repr(float(mae[g]))) for g, group in enumerate(GROUPS)]
         status.values = values
         msg.status.append(status)
     return msg
