@@ -27,6 +27,7 @@ VERB_MODULES = (
     "simulate",
     "run_bag",
     "diagnose",
+    "merge",
 )
 """Modules under quad_modelling.commands, in --help order."""
 

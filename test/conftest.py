@@ -54,3 +54,13 @@ def synthetic_log(n: int = 400, vehicle: str = "crazyflie21", seed: int = 0, rat
 @pytest.fixture
 def flight() -> FlightLog:
     return synthetic_log()
+
+
+@pytest.fixture(scope="session")
+def dask_scheduler():
+    """The address of a running local Dask cluster (2 worker processes, 1 thread each, 127.0.0.1, no dashboard),
+    shared by the fan-out tests that use ``--scheduler ADDRESS`` (started once: a cluster takes seconds)."""
+    from quad_modelling.fanout import local_cluster
+
+    with local_cluster(2) as cluster:
+        yield cluster.scheduler_address

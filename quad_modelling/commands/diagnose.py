@@ -24,7 +24,8 @@ from quad_modelling.core.preprocess import check_cutoff
 from quad_modelling.core.vehicle import load_vehicle, vehicle_file
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError
-from quad_modelling.io.loader import load_flights
+from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, map_flights, tty_progress
+from quad_modelling.io.loader import load_flight_or_skip
 from quad_modelling.io.reports.diagnosis import verdict_text, write_diagnosis
 from quad_modelling.io.reports.validation import validation_summary, write_validation
 
@@ -46,6 +47,9 @@ turn, the model without it; a null case; pairs) and writes validation.json + val
 The simulator switches {", ".join(SWITCHED_EFFECTS)}; {", ".join(DISTURBANCES)} is a simulator
 disturbance, no catalogue effect.
 
+--jobs N / --scheduler ADDRESS read and check the --train/--test flights on Dask workers;
+the fits and the scoring run here (joint over flights; docs/scale.md).
+
 examples:
   quad-modelling diagnose --train slow1.csv.gz slow2.csv.gz --test fast1.csv.gz -o diag
   quad-modelling diagnose --train a.mat --test b.mat --vehicle linkquad --effects rotor_drag,battery -o diag
@@ -66,6 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--smooth", type=float, default=DIAGNOSIS_CONFIG.smooth_cutoff_hz, metavar="HZ",
                         help=f"low-pass cutoff applied to measurement and prediction alike before scoring (default {DIAGNOSIS_CONFIG.smooth_cutoff_hz:g} Hz)")
     parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
+    add_fanout_arguments(parser)
     parser.add_argument("--validate", action="store_true", help="known-answer validation on simulated flights instead")
     parser.add_argument("--seeds", default="0,1,2", metavar="LIST", help="validation seeds (default 0,1,2)")
     parser.add_argument("--duration", type=float, default=90.0, metavar="SECONDS", help="validation flight length (default 90)")
@@ -97,15 +102,21 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=[*(args.train or []), *(args.test or []), vehicle_file(args.vehicle)])
     config = _config(args)
+    check_fanout_options(args.jobs, args.scheduler)
     effects = parse_effect_list(args.effects)
     if args.validate:
+        if args.jobs is not None or args.scheduler is not None:
+            raise ConfigError("--jobs/--scheduler fan out the reading of --train/--test flights; --validate reads none")
         return _run_validation(args, config, effects, output)
     if not args.train or not args.test:
         raise ConfigError("diagnose needs --train FLIGHT... and --test FLIGHT... (or --validate)")
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
-    train, skipped_train = load_flights(args.train, given, args.skip_bad)
-    test, skipped_test = load_flights(args.test, given, args.skip_bad)
-    skipped = skipped_train + skipped_test
+    paths = [*args.train, *args.test]  # read in one fan-out (--jobs/--scheduler), split again below
+    loaded = map_flights(load_flight_or_skip, [str(p) for p in paths], given, args.skip_bad, jobs=args.jobs,
+                         scheduler=args.scheduler, progress=tty_progress("diagnose: read", len(paths)))
+    train = [one.log for one in loaded[: len(args.train)] if one.log is not None]
+    test = [one.log for one in loaded[len(args.train):] if one.log is not None]
+    skipped = [one.skipped for one in loaded if one.log is None]
     for message in skipped:
         print(f"skipped: {message}", file=sys.stderr)
     if not train or not test:

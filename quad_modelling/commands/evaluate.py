@@ -4,17 +4,19 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 from quad_modelling.atomic import atomic_output, check_output
-from quad_modelling.core.evaluation.windowed import evaluate
+from quad_modelling.core.evaluation.windowed import FlightEvaluation, evaluate_flight, merge_flights
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.preprocess import gap_warnings
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import PRESETS, EvaluationConfig
 from quad_modelling.errors import ConfigError
-from quad_modelling.io.loader import load_flights
+from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, iter_flights, tty_progress
+from quad_modelling.io.loader import load_flight_or_skip, load_flights
 from quad_modelling.io.reports.evaluation import (
     headline_scores,
     windows_text,
@@ -38,11 +40,17 @@ when no window fits, the error says so.
 
 OUTDIR receives results.json (SI units), tables.md (thesis Tables 5-1/5-2, display units)
 and fig_z/roll/pitch/yaw.png (input, acceleration, velocity/rate over one evaluation window).
+results.json also stores the statistics the averages come from (window counts, sums of the
+per-window RMS/TIC, multi-step sums), so `quad-modelling merge` combines evaluations exactly.
+
+--jobs N (a local Dask cluster of N processes) or --scheduler ADDRESS (a running one) read
+and score each flight on a worker; the numbers are the serial run's, bit for bit (docs/scale.md).
 
 examples:
   quad-modelling evaluate bags/flight --vehicle linkquad -o results/flight
   quad-modelling evaluate data/nanobench/*.csv.gz --vehicle cf_identified.yaml --preset short --skip-bad -o results/nb
   quad-modelling evaluate a.mat b.mat --model greybox --model greybox:euler --train 30:120 --eval 120:190 -o out
+  quad-modelling evaluate data/nanobench/*.csv.gz --preset short --skip-bad --jobs 2 -o results/nb
 """
 
 
@@ -57,6 +65,7 @@ def add_span_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--window", type=float, default=10.0, metavar="SECONDS", help="window length (default 10)")
     parser.add_argument("--warm", type=float, default=0.2, metavar="SECONDS", help="warm start given to the models (default 0.2)")
     parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
+    add_fanout_arguments(parser)
 
 
 def input_files(args: argparse.Namespace) -> list:
@@ -80,9 +89,11 @@ def print_gap_warnings(flights: list[FlightLog]) -> None:
 
 
 def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
-    """Read every input (one loader for all formats); returns flights, vehicle config and skipped-file messages."""
+    """Read every input (one loader for all formats; on Dask with --jobs/--scheduler); returns flights, vehicle
+    config and skipped-file messages."""
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
-    flights, skipped = load_flights(args.inputs, given, args.skip_bad)
+    flights, skipped = load_flights(args.inputs, given, args.skip_bad, jobs=args.jobs, scheduler=args.scheduler,
+                                    progress=tty_progress(f"{getattr(args, 'verb', 'read')}: read", len(args.inputs)))
     for message in skipped:
         print(f"skipped: {message}", file=sys.stderr)
     if not flights:
@@ -95,6 +106,49 @@ def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], 
     if vehicle.name != names[0]:
         raise ConfigError(f"--vehicle {args.vehicle} describes {vehicle.name!r}, the flights are of {names[0]!r}")
     return flights, vehicle, skipped
+
+
+@dataclass
+class FlightOutcome:
+    """What one flight's evaluation task returns to the driver (small: statistics, no flight data)."""
+
+    path: str
+    evaluation: FlightEvaluation | None  # None: skipped (--skip-bad)
+    skipped: str | None
+    vehicle: str | None
+    warnings: list[str]
+
+
+def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[str], config: EvaluationConfig,
+                         multistep: bool, skip_bad: bool) -> FlightOutcome:
+    """The per-flight task of ``evaluate`` (run here or on a Dask worker): read the flight, build the models for
+    its vehicle (``vehicle``, else the one the flight names) and return its statistics
+    (:func:`~quad_modelling.core.evaluation.windowed.evaluate_flight`)."""
+    loaded = load_flight_or_skip(path, vehicle, skip_bad)
+    if loaded.log is None:
+        return FlightOutcome(path, None, loaded.skipped, None, [])
+    flight_vehicle = vehicle or load_vehicle(loaded.log.meta.vehicle)
+    models = [make_model(spec, flight_vehicle) for spec in specs]
+    evaluation = evaluate_flight(loaded.log, models, flight_vehicle, config, multistep)
+    return FlightOutcome(path, evaluation, None, flight_vehicle.name, gap_warnings(loaded.log))
+
+
+def _evaluations(outcomes, skipped: list[str], vehicles: list[str]):
+    """The flights' evaluations of the outcomes, in order; skipped files and gap warnings printed on the way."""
+    for outcome in outcomes:
+        for message in outcome.warnings:
+            print(f"warning: {message}", file=sys.stderr)
+        if outcome.evaluation is None:
+            print(f"skipped: {outcome.skipped}", file=sys.stderr)
+            skipped.append(outcome.skipped)
+            continue
+        if vehicles and outcome.vehicle != vehicles[0]:
+            raise ConfigError(f"the flights are of different vehicles {sorted({vehicles[0], outcome.vehicle})} "
+                              f"({outcome.path} is of {outcome.vehicle!r}); evaluate one vehicle at a time")
+        vehicles.append(outcome.vehicle)
+        yield outcome.evaluation
+    if not vehicles:
+        raise ConfigError("no readable flight among the inputs")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -110,21 +164,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=input_files(args))
+    check_fanout_options(args.jobs, args.scheduler)
     try:
         horizons = tuple(int(h) for h in args.horizons.split(","))
     except ValueError as err:
         raise ConfigError(f"--horizons {args.horizons!r}: expected comma-separated step counts") from err
     config = config_from_args(args, horizons=horizons)
-    flights, vehicle, skipped = load_evaluation_flights(args)
+    given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     specs = list(dict.fromkeys((args.model or ["greybox"]) + ["dummy"]))
-    models = [make_model(spec, vehicle) for spec in specs]
-    result = evaluate(flights, models, vehicle, config, multistep=not args.no_multistep,
-                      progress=lambda msg: print(msg, file=sys.stderr) if sys.stderr.isatty() else None)
+    paths = [str(p) for p in args.inputs]
+    outcomes = iter_flights(evaluate_flight_file, paths, given, specs, config, not args.no_multistep, args.skip_bad,
+                            jobs=args.jobs, scheduler=args.scheduler, progress=tty_progress("evaluate", len(paths)))
+    skipped: list[str] = []
+    vehicles: list[str] = []
+    result = merge_flights(_evaluations(outcomes, skipped, vehicles), config)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
     with atomic_output(output, args.force) as tmp:
-        files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicle.name}")
+        files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicles[0]}")
     data = result.to_json()
-    print(f"{len(flights)} flight(s), {windows_text(data)} -> {output}/ ({', '.join(files)})")
-    for line in headline_scores(data, [model.name for model in models]):
+    print(f"{len(vehicles)} flight(s), {windows_text(data)} -> {output}/ ({', '.join(files)})")
+    for line in headline_scores(data, result.statistics.models):
         print(line)
     return 0

@@ -36,6 +36,9 @@ Writes a vehicle YAML (loadable with --vehicle FILE) whose identified constants 
 section holds the details. Spans as for `evaluate` (thesis defaults; --preset short for
 ~40 s flights).
 
+--jobs N / --scheduler ADDRESS read and check the flights on Dask workers; the fit itself
+runs here (it is joint over all flights; docs/scale.md).
+
 examples:
   quad-modelling identify data/nanobench/*.csv.gz --vehicle crazyflie21 --preset short --skip-bad -o cf_identified.yaml
   quad-modelling identify flight.mat --vehicle linkquad --train 30:150 -o linkquad_identified.yaml

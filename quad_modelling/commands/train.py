@@ -10,6 +10,7 @@ from quad_modelling.core.training.hybrid import HYBRID_HIDDEN, HYBRID_ROLLOUT
 from quad_modelling.core.training.narx import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
 from quad_modelling.core.training.rollout import VAL_FRACTION
 from quad_modelling.errors import ConfigError
+from quad_modelling.fanout import add_fanout_arguments
 
 TRAINING_METHODS = ("rollout", "thesis")
 
@@ -43,6 +44,9 @@ Spans follow the evaluation: take-off/landing are dropped (--drop, thesis 30:22 
 A:B is seconds from each flight's start (thesis 30:150) or percent of the flying part
 (0%:60%, --preset short for ~40 s NanoBench flights).
 
+--jobs N / --scheduler ADDRESS read and check the flights on Dask workers; the training
+itself runs here (one network on all flights; docs/scale.md).
+
 example:
   quad-modelling train bags/nanobench_B7_oval_medium_rep2 --preset short -o narx.npz
   quad-modelling train flight1.mat flight2.mat --vehicle linkquad --train 30:150 -o narx.npz
@@ -74,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--hybrid", action="store_true", help="train the hybrid model: physics model + residual net (rollout loss)")
     parser.add_argument("--hybrid-hidden", metavar="W[,W...]", default=",".join(map(str, HYBRID_HIDDEN)),
                         help="hybrid: widths of the residual net's tanh hidden layers (default %(default)s)")
+    add_fanout_arguments(parser)
     parser.add_argument("--force", action="store_true", help="overwrite an existing model file")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -158,13 +163,17 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.commands.evaluate import print_gap_warnings
     from quad_modelling.core.training.narx import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
-    from quad_modelling.io.loader import load_flight
+    from quad_modelling.fanout import check_fanout_options, tty_progress
+    from quad_modelling.io.loader import load_flights
 
     output = Path(args.output)
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle)])  # fail before minutes of training
     config, rollout = (hybrid_config(args), None) if args.hybrid else training_configs(args)
+    check_fanout_options(args.jobs, args.scheduler)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
-    logs = [load_flight(path, given) for path in [*args.flights, *(args.val_flights or [])]]
+    paths = [*args.flights, *(args.val_flights or [])]
+    logs, _ = load_flights(paths, given, jobs=args.jobs, scheduler=args.scheduler,
+                           progress=None if args.quiet else tty_progress("train: read", len(paths)))
     print_gap_warnings(logs)
     spans = training_spans(logs, args)
     val_flights = list(range(len(args.flights), len(logs))) if args.val_flights else None

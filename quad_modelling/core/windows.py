@@ -55,7 +55,7 @@ import itertools
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
@@ -240,6 +240,20 @@ class EvaluationConfig:
         d["horizons"] = list(self.horizons)
         return d
 
+    @classmethod
+    def from_dict(cls, data: dict, where: str = "config") -> EvaluationConfig:
+        """The inverse of :meth:`to_dict` (a results.json ``config``; other keys ignored), validated; ConfigError
+        naming ``where`` for a missing or malformed field."""
+        try:
+            values = {f.name: data[f.name] for f in fields(cls)}
+            values["trim"] = TrimConfig(**values["trim"])
+            values["horizons"] = tuple(int(h) for h in values["horizons"])
+            config = cls(**values)
+        except (KeyError, TypeError, ValueError) as err:
+            raise ConfigError(f"{where}: not an evaluation configuration ({type(err).__name__}: {err})") from err
+        config.validate()
+        return config
+
 
 # ----------------------------------------------------------------------------- the window clock
 
@@ -410,10 +424,15 @@ def plan_windows(flights: Sequence[FlightLog], config: EvaluationConfig) -> dict
     for span in config.spans():
         plan[span.name] = [w for i, log in enumerate(flights) for w in span_windows(log, span, config, i)]
     if not any(plan.values()):
-        durations = ", ".join(f"{log.duration:.1f}" for log in flights)
-        raise DataError(
-            f"no {config.window_s:g} s window fits the spans train {config.train}, eval {config.eval} after dropping "
-            f"{config.drop_start:g} s/{config.drop_end:g} s (flight durations {durations} s); for short flights use "
-            f"--preset short or relative spans such as --drop 5:5 --train 0%:60% --eval 60%:100%"
-        )
+        raise no_window_error(config, [log.duration for log in flights])
     return plan
+
+
+def no_window_error(config: EvaluationConfig, durations: Sequence[float]) -> DataError:
+    """The DataError of an evaluation in which no span of any flight (``durations`` [s]) holds a single window."""
+    text = ", ".join(f"{d:.1f}" for d in durations)
+    return DataError(
+        f"no {config.window_s:g} s window fits the spans train {config.train}, eval {config.eval} after dropping "
+        f"{config.drop_start:g} s/{config.drop_end:g} s (flight durations {text} s); for short flights use "
+        f"--preset short or relative spans such as --drop 5:5 --train 0%:60% --eval 60%:100%"
+    )

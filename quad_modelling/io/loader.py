@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import NamedTuple
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.input_files import check_regular_file
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import DataError, QuadModellingError
+from quad_modelling.fanout import map_flights
 
 FORMATS = ("thesis-mat", "nanobench", "px4-ulog", "bag")
 
@@ -91,20 +93,34 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
     return log
 
 
-def load_flights(paths, vehicle: str | VehicleConfig | None = None, skip_bad: bool = False) -> tuple[list[FlightLog], list[str]]:
-    """Read every path with :func:`load_flight`; returns the flights and the messages of the files left out.
+class LoadedFlight(NamedTuple):
+    """One path's outcome: the flight, or (``--skip-bad``) None and the message of the file left out."""
 
-    A ``vehicle`` given by name or file is loaded once for all the flights.
+    log: FlightLog | None
+    skipped: str | None
+
+
+def load_flight_or_skip(path: str | Path, vehicle: VehicleConfig | None = None, skip_bad: bool = False) -> LoadedFlight:
+    """:func:`load_flight`; with ``skip_bad`` a file that cannot be read is a :class:`LoadedFlight` with its message
+    instead of the error (the per-flight task of :func:`load_flights`, run where the flight is)."""
+    try:
+        return LoadedFlight(load_flight(path, vehicle=vehicle), None)
+    except QuadModellingError as err:
+        if not skip_bad:
+            raise
+        return LoadedFlight(None, str(err))
+
+
+def load_flights(paths, vehicle: str | VehicleConfig | None = None, skip_bad: bool = False, jobs: int | None = None,
+                 scheduler: str | None = None, progress=None) -> tuple[list[FlightLog], list[str]]:
+    """Read every path with :func:`load_flight`; returns the flights (in the order of ``paths``) and the messages
+    of the files left out.
+
+    A ``vehicle`` given by name or file is loaded once for all the flights. ``jobs``/``scheduler``: read the
+    files on Dask workers (:func:`quad_modelling.fanout.map_flights`; ``progress(index, path)`` per file read).
 
     A file that cannot be read raises its :class:`~quad_modelling.errors.QuadModellingError`, or, with
     ``skip_bad``, is left out and its message returned (the ``--skip-bad`` of the commands)."""
     given = load_vehicle(vehicle) if vehicle is not None and not isinstance(vehicle, VehicleConfig) else vehicle
-    flights, skipped = [], []
-    for path in paths:
-        try:
-            flights.append(load_flight(path, vehicle=given))
-        except QuadModellingError as err:
-            if not skip_bad:
-                raise
-            skipped.append(str(err))
-    return flights, skipped
+    loaded = map_flights(load_flight_or_skip, [str(p) for p in paths], given, skip_bad, jobs=jobs, scheduler=scheduler, progress=progress)
+    return [one.log for one in loaded if one.log is not None], [one.skipped for one in loaded if one.log is None]

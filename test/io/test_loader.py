@@ -56,7 +56,7 @@ def test_a_loaded_vehicle_is_not_read_again(yaml_loads):
 
 
 def test_evaluate_reads_the_given_vehicle_once_for_all_flights(yaml_loads):
-    args = argparse.Namespace(inputs=[str(NANOBENCH)] * 3, vehicle="crazyflie21", skip_bad=False)
+    args = argparse.Namespace(inputs=[str(NANOBENCH)] * 3, vehicle="crazyflie21", skip_bad=False, jobs=None, scheduler=None)
     flights, config, skipped = load_evaluation_flights(args)
     assert len(flights) == 3 and config.name == "crazyflie21" and skipped == []
     assert len(yaml_loads) == 1  # before: 2 per flight + 1 = 7

@@ -32,6 +32,7 @@ from quad_modelling.core.evaluation.metrics import (
     sim_err,
     vector_error_norm,
 )
+from quad_modelling.core.evaluation.statistics import MultistepSums
 from quad_modelling.core.flight_log import SENSORS, FlightLog
 from quad_modelling.core.models.base import (
     ConstantStatePredictor,
@@ -130,54 +131,77 @@ def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predicto
                          start_stride: int = 1) -> dict:
     """The IDSIA multi-step table of every model (module docstring): MAE at ``config.horizons``, SimErr, naive
     baseline and ratios (SI units); ``forms`` says how each model predicted (``predict_horizons`` or ``streaming``).
-    ``start_stride`` > 1 scores every start_stride-th start only (recorded in the result; benchmarks)."""
+    ``start_stride`` > 1 scores every start_stride-th start only (recorded in the result; benchmarks).
+    The merge of :func:`flight_multistep_sums` over the flights in order, then :func:`multistep_table`."""
+    total = None
+    for log in flights:
+        sums = flight_multistep_sums(log, models, vehicle, config, start_stride)
+        if total is None:
+            total = sums
+        else:
+            total.merge(sums)
+    if total is None:
+        total = flight_multistep_sums(None, models, vehicle, config, start_stride)
+    return multistep_table(total, config, start_stride)
+
+
+def flight_multistep_sums(log: FlightLog | None, models: Sequence[Predictor], vehicle: VehicleConfig, config: EvaluationConfig,
+                          start_stride: int = 1) -> MultistepSums:
+    """The multi-step statistics of one flight (:class:`~quad_modelling.core.evaluation.statistics.MultistepSums`):
+    every segment of its ``config.multistep_span`` (split at marked measurement gaps) longer than H plus the warm
+    start, every model scored from the same starts; ``log`` None gives the empty statistics."""
     span = next(s for s in config.spans() if s.name == config.multistep_span)
     max_h = max(max(config.horizons), SIM_ERR_HORIZON)
     naive = ConstantStatePredictor(vehicle, config.trim)
     evaluated = [naive] + [m for m in models if m.name != naive.name]
-    totals = {m.name: np.zeros((len(GROUPS), max_h)) for m in evaluated}
-    forms: dict[str, str] = {}
-    not_multistep: dict[str, str] = {}
-    count = 0
-    for log in flights:
-        for start, stop in span_segments(log, span, config):  # split at marked measurement gaps
-            segment = log.slice(start, stop)
-            warm = warm_samples_for(segment, config.warm_s)
-            if stop - start <= max_h + warm - 1:
+    sums = MultistepSums(span.name, max_h, [m.name for m in evaluated])
+    for start, stop in span_segments(log, span, config) if log is not None else ():
+        segment = log.slice(start, stop)
+        warm = warm_samples_for(segment, config.warm_s)
+        if stop - start <= max_h + warm - 1:
+            continue
+        for m in evaluated:
+            form = multistep_form(m, warm)
+            if form is None:
+                sums.not_multistep[m.name] = NOT_MULTISTEP_REASON
                 continue
-            for m in evaluated:
-                form = multistep_form(m, warm)
-                if form is None:
-                    not_multistep[m.name] = NOT_MULTISTEP_REASON
-                    continue
-                forms[m.name] = "predict_horizons" if form is m else "streaming"
-                mae, n = multistep_mae(form, segment, max_h, vehicle, first_start=warm - 1, stride=start_stride)
-                totals[m.name] += mae * n  # pooled over segments: MAE of all starts = sum_f S_f MAE_f / sum_f S_f
-            count += n
+            sums.forms[m.name] = "predict_horizons" if form is m else "streaming"
+            mae, n = multistep_mae(form, segment, max_h, vehicle, first_start=warm - 1, stride=start_stride)
+            sums.add_segment(m.name, mae, n)  # pooled over segments: MAE of all starts = sum_g S_g MAE_g / sum_g S_g
+        sums.starts += n
+    return sums
+
+
+def multistep_table(sums: MultistepSums, config: EvaluationConfig, start_stride: int = 1) -> dict:
+    """The results.json ``horizons`` document of merged multi-step statistics: MAE_h = error sum / S per model and
+    group, SimErr, the naive baseline and the ratios (SI units); a note when no segment had a start."""
+    max_h = sums.max_horizon
+    count = sums.starts
+    naive_name = sums.order[0]
     if count == 0:
-        return {"span": span.name, "starts": 0, "note": f"no {span.name} segment longer than {max_h} samples plus the warm start"}
-    out: dict = {"span": span.name, "starts": count, "horizons": list(config.horizons), "sim_err_horizon": max_h,
-                 "units": GROUP_UNITS, "forms": forms, "models": {}}
+        return {"span": sums.span, "starts": 0, "note": f"no {sums.span} segment longer than {max_h} samples plus the warm start"}
+    out: dict = {"span": sums.span, "starts": count, "horizons": list(config.horizons), "sim_err_horizon": max_h,
+                 "units": GROUP_UNITS, "forms": {m: sums.forms[m] for m in sums.order if m in sums.forms}, "models": {}}
     if start_stride != 1:
         out["start_stride"] = start_stride
-    mae = {name: t / count for name, t in totals.items() if name in forms}
+    mae = {name: sums.error_sums.get(name, np.zeros((len(GROUPS), max_h))) / count for name in sums.order if name in sums.forms}
     for name, values in mae.items():
         entry = {}
         for g, (group, cols) in enumerate(GROUPS.items()):
-            if not np.isfinite(mae[naive.name][g]).all():  # the flights lack the group's sensor: marked, not scored
+            if not np.isfinite(mae[naive_name][g]).all():  # the flights lack the group's sensor: marked, not scored
                 entry[group] = {"needs": SENSORS[NEEDS[VARIABLES[cols.start]]]}
                 continue
             model_se = sim_err(values[g])
-            naive_se = sim_err(mae[naive.name][g])
+            naive_se = sim_err(mae[naive_name][g])
             entry[group] = {
                 "mae": {str(h): float(values[g, h - 1]) for h in config.horizons},
                 "sim_err": model_se,
-                "naive_mae": {str(h): float(mae[naive.name][g, h - 1]) for h in config.horizons},
+                "naive_mae": {str(h): float(mae[naive_name][g, h - 1]) for h in config.horizons},
                 "naive_sim_err": naive_se,
                 "ratio_sim_err": model_se / naive_se if naive_se > 0 else None,
-                "ratio_mae": {str(h): (float(values[g, h - 1] / mae[naive.name][g, h - 1]) if mae[naive.name][g, h - 1] > 0 else None) for h in config.horizons},
+                "ratio_mae": {str(h): (float(values[g, h - 1] / mae[naive_name][g, h - 1]) if mae[naive_name][g, h - 1] > 0 else None) for h in config.horizons},
             }
         out["models"][name] = entry
-    if not_multistep:
-        out["not_multistep"] = not_multistep
+    if sums.not_multistep:
+        out["not_multistep"] = {m: sums.not_multistep[m] for m in sums.order if m in sums.not_multistep}
     return out

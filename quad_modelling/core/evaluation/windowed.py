@@ -21,6 +21,12 @@ the rows after the warm start (:func:`evaluate_window`, also what a live
 evaluator calls per closed window). Span scores are the mean over windows
 (:func:`window_mean`, also the live evaluator's and the diagnosis's).
 
+Flights. An evaluation of several flights is :func:`evaluate_flight` per flight (its
+sufficient statistics: window counts and sums of the per-window scores, multi-step sums;
+:mod:`~quad_modelling.core.evaluation.statistics`) and :func:`merge_flights` over them in flight
+order: the serial run, a fan-out over Dask workers and ``quad-modelling merge`` of results.json
+files give the same numbers, bit for bit.
+
 Multi-step mode (IDSIA nano-drone benchmark). From every start sample s of
 a span segment with s + H inside it, each model predicts open loop
 (:class:`~quad_modelling.core.models.MultiStepPredictor`); for the groups
@@ -32,13 +38,14 @@ the ratio model/naive.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from quad_modelling.core.evaluation.metrics import rms, tic
-from quad_modelling.core.evaluation.multistep import multistep_evaluation
+from quad_modelling.core.evaluation.multistep import flight_multistep_sums, multistep_table
+from quad_modelling.core.evaluation.statistics import EvaluationStatistics
 from quad_modelling.core.flight_log import SENSORS, FlightLog
 from quad_modelling.core.models.base import Predictor
 from quad_modelling.core.preprocess import (
@@ -52,7 +59,7 @@ from quad_modelling.core.preprocess import (
 )
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX, VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.core.windows import EvaluationConfig, plan_windows, warm_samples_for
+from quad_modelling.core.windows import EvaluationConfig, no_window_error, span_windows, warm_samples_for
 from quad_modelling.errors import ConfigError, DataError
 
 
@@ -145,19 +152,111 @@ class ExampleWindow:
 
 @dataclass
 class EvaluationResult:
+    """Span scores, the multi-step table, the configuration, the flights, example windows for the figures and,
+    for an offline evaluation, the statistics the scores are computed from (results.json ``statistics``)."""
+
     scores: dict[str, dict[str, SpanScores]]
     horizons: dict
     config: EvaluationConfig
     flights: list[dict]
     examples: list[ExampleWindow]
+    statistics: EvaluationStatistics | None = None
 
     def to_json(self) -> dict:
-        return {
+        data = {
             "models": {m: {s: sc.to_json() for s, sc in spans.items()} for m, spans in self.scores.items()},
             "windows": {m: {s: sc.windows for s, sc in spans.items()} for m, spans in self.scores.items()},
             "horizons": self.horizons,
             "config": {**self.config.to_dict(), "flights": self.flights, "units": "SI (m/s, m/s2, rad/s, rad/s2)"},
         }
+        if self.statistics is not None:
+            data["statistics"] = self.statistics.to_json()
+        return data
+
+
+@dataclass
+class FlightEvaluation:
+    """One flight's share of an evaluation: its statistics, its entry of results.json ``flights`` and the
+    first window of each span it has (for the figures). Small: no flight data but one window per span."""
+
+    statistics: EvaluationStatistics
+    flight: dict
+    examples: list[ExampleWindow]
+
+
+def evaluate_flight(
+    log: FlightLog,
+    models: Sequence[Predictor],
+    vehicle: VehicleConfig,
+    config: EvaluationConfig,
+    multistep: bool = True,
+) -> FlightEvaluation:
+    """The statistics of one flight (module docstring): every window of every span scored by every model,
+    and the multi-step sums; merged over flights by :func:`merge_flights`."""
+    names = [m.name for m in models]
+    if len(set(names)) != len(names):
+        raise ConfigError(f"model names must be unique, got {names}")
+    config.validate()
+    log = resample_uniform(log)
+    spans = config.spans()
+    steps = flight_multistep_sums(log, models, vehicle, config) if multistep else None
+    stats = EvaluationStatistics.empty(vehicle.name, names, [s.name for s in spans], steps)
+    stats.durations.append(log.duration)
+    examples: list[ExampleWindow] = []
+    for span in spans:
+        for k, w in enumerate(span_windows(log, span, config)):
+            window = log.slice(w.start, w.stop)
+            warm = warm_samples_for(window, config.warm_s)
+            measured = smooth(trimmed_variables(window, config.trim, vehicle), window.sample_rate, config.smooth_cutoff_hz)
+            predicted = {}
+            for model in models:
+                result = evaluate_window(model, window, warm, config.trim, vehicle, config.smooth_cutoff_hz, measured)
+                stats.windowed[model.name][span.name].add_window(result.rms, result.tic)
+                predicted[model.name] = result.predicted
+            if k == 0:
+                examples.append(
+                    ExampleWindow(window.meta.source, span.name, window.t - window.t[0], trimmed_inputs(window, config.trim), measured, predicted, warm)
+                )
+    flight = {"source": log.meta.source, "duration_s": log.duration, "sample_rate_hz": log.sample_rate}
+    return FlightEvaluation(stats, flight, examples)
+
+
+def merge_flights(parts: Iterable[FlightEvaluation], config: EvaluationConfig,
+                  progress: Callable[[str], None] | None = None) -> EvaluationResult:
+    """One evaluation of many flights: their statistics merged in the order given
+    (:meth:`EvaluationStatistics.merge`), the first example window of each span kept; DataError when no
+    span of any flight holds a window. ``parts`` may be a generator: one flight is held at a time."""
+    total: EvaluationStatistics | None = None
+    flights: list[dict] = []
+    examples: dict[str, ExampleWindow] = {}
+    for part in parts:
+        if total is None:
+            total = part.statistics.empty_like([s.name for s in config.spans()])
+        total.merge(part.statistics)
+        flights.append(part.flight)
+        for example in part.examples:
+            examples.setdefault(example.span, example)
+        if progress:
+            progress(f"{part.flight['source']}: {part.statistics.windows} windows")
+    if total is None:
+        raise DataError("no flight to evaluate")
+    return result_from_statistics(total, config, flights, [examples[s.name] for s in config.spans() if s.name in examples])
+
+
+def result_from_statistics(stats: EvaluationStatistics, config: EvaluationConfig, flights: list[dict],
+                           examples: list[ExampleWindow] | None = None) -> EvaluationResult:
+    """The evaluation result (span scores = sums / windows, the multi-step table) of merged statistics."""
+    if stats.windows == 0:
+        raise no_window_error(config, stats.durations)
+    scores = {}
+    for model in stats.models:
+        scores[model] = {}
+        for span in config.spans():
+            sums = stats.windowed[model].get(span.name)
+            if sums is not None and sums.windows:
+                scores[model][span.name] = SpanScores(*sums.means(), sums.windows)
+    horizons = multistep_table(stats.multistep, config) if stats.multistep is not None else {}
+    return EvaluationResult(scores, horizons, config, flights, examples or [], stats)
 
 
 def evaluate(
@@ -168,33 +267,7 @@ def evaluate(
     multistep: bool = True,
     progress: Callable[[str], None] | None = None,
 ) -> EvaluationResult:
-    """Run the protocol of the module docstring on several flights and models."""
+    """Run the protocol of the module docstring on several flights and models: :func:`evaluate_flight` per
+    flight, :func:`merge_flights` over them (what ``--jobs`` and ``quad-modelling merge`` do too)."""
     config = config or EvaluationConfig()
-    flights = [resample_uniform(log) for log in flights]
-    plan = plan_windows(flights, config)
-    names = [m.name for m in models]
-    if len(set(names)) != len(names):
-        raise ConfigError(f"model names must be unique, got {names}")
-    per_window = {m.name: {s: ([], []) for s in plan} for m in models}  # (RMS rows, TIC rows)
-    examples: list[ExampleWindow] = []
-    for span_name, windows in plan.items():
-        for k, w in enumerate(windows):
-            window = flights[w.flight].slice(w.start, w.stop)
-            warm = warm_samples_for(window, config.warm_s)
-            measured = smooth(trimmed_variables(window, config.trim, vehicle), window.sample_rate, config.smooth_cutoff_hz)
-            predicted = {}
-            for model in models:
-                result = evaluate_window(model, window, warm, config.trim, vehicle, config.smooth_cutoff_hz, measured)
-                per_window[model.name][span_name][0].append(result.rms)
-                per_window[model.name][span_name][1].append(result.tic)
-                predicted[model.name] = result.predicted
-            if k == 0:
-                examples.append(
-                    ExampleWindow(window.meta.source, span_name, window.t - window.t[0], trimmed_inputs(window, config.trim), measured, predicted, warm)
-                )
-        if progress:
-            progress(f"{span_name}: {len(windows)} windows x {len(models)} models")
-    scores = {name: {s: SpanScores.over_windows(*rows) for s, rows in spans.items() if rows[0]} for name, spans in per_window.items()}
-    horizons = multistep_evaluation(flights, models, vehicle, config) if multistep else {}
-    flight_info = [{"source": log.meta.source, "duration_s": log.duration, "sample_rate_hz": log.sample_rate} for log in flights]
-    return EvaluationResult(scores, horizons, config, flight_info, examples)
+    return merge_flights((evaluate_flight(log, models, vehicle, config, multistep) for log in flights), config, progress)

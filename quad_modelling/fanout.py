@@ -1,0 +1,161 @@
+"""Per-flight work fanned out over Dask: the one place that starts or joins a cluster.
+
+A command that works flight by flight calls :func:`map_flights` (or :func:`iter_flights`) with a
+module-level function ``func(path, *args)``: each call receives one flight's path (and a small
+configuration), loads the flight itself and returns something small (per-flight statistics), so the
+driver never holds every flight of a fleet.
+
+* Neither ``jobs`` nor ``scheduler`` (the default): the calls run here, one after the other, and Dask is
+  not even imported (no start-up cost).
+* ``jobs`` = N >= 1: a local Dask cluster of N worker processes with one thread each, bound to
+  127.0.0.1, dashboard off; closed when the work is done.
+* ``scheduler`` = ADDRESS (``tcp://127.0.0.1:8786``): the workers of a running ``dask scheduler`` /
+  ``dask worker``; they must be able to import ``quad_modelling`` and read the flight paths.
+
+Results come back in the order of ``paths`` whatever the order the flights finish in, so a merge
+over them (``core/evaluation/statistics``) gives the same numbers, bit for bit, as the serial run.
+A project error raised in a worker (:class:`~quad_modelling.errors.QuadModellingError`) is raised
+here as it is (the CLI prints its one line and exits 2). Docs: ``docs/scale.md``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import uuid
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+from quad_modelling.errors import ConfigError, reason
+
+CONNECT_TIMEOUT_S = 10.0
+"""How long [s] ``--scheduler ADDRESS`` may take to answer before the command gives up with one line."""
+
+WORKER_WAIT_S = 20.0
+"""How long [s] a running scheduler may take to have at least one worker before the command gives up."""
+
+LOCAL_HOST = "127.0.0.1"
+"""The only interface a local cluster (``--jobs``) listens on: nothing leaves the machine."""
+
+
+def check_fanout_options(jobs: int | None, scheduler: str | None) -> None:
+    """ConfigError for ``--jobs`` below 1 or given together with ``--scheduler``, or an empty ``--scheduler``."""
+    if jobs is not None and scheduler is not None:
+        raise ConfigError("--jobs and --scheduler exclude each other: --jobs starts a local cluster, --scheduler uses a running one")
+    if jobs is not None and jobs < 1:
+        raise ConfigError(f"--jobs {jobs}: the number of worker processes must be at least 1")
+    if scheduler is not None and not scheduler.strip():
+        raise ConfigError("--scheduler '': expected a scheduler address such as tcp://127.0.0.1:8786")
+
+
+def add_fanout_arguments(parser) -> None:
+    """``--jobs N`` and ``--scheduler ADDRESS`` of every command that fans out over flights."""
+    parser.add_argument("--jobs", type=int, metavar="N",
+                        help="per-flight work on a local Dask cluster of N worker processes (default: serial, in this process)")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="per-flight work on the workers of a running Dask scheduler, e.g. tcp://127.0.0.1:8786")
+
+
+@contextlib.contextmanager
+def local_cluster(jobs: int) -> Iterator[Any]:
+    """A ``distributed.LocalCluster`` of ``jobs`` worker processes with one thread each, listening on 127.0.0.1 only,
+    dashboard off (``dashboard_address=None``); the scheduler's remaining HTTP endpoint (health, metrics) on a free
+    loopback port rather than 8787, which another cluster may hold. Closed on exit."""
+    from distributed import LocalCluster
+
+    with LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, host=LOCAL_HOST, dashboard_address=None,
+                      scheduler_kwargs={"dashboard": False, "dashboard_address": f"{LOCAL_HOST}:0"},
+                      silence_logs=logging.CRITICAL) as cluster:  # a task's error is raised here, not logged there
+        yield cluster
+
+
+@contextlib.contextmanager
+def dask_client(jobs: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
+    """A ``distributed.Client`` of a new local cluster (``jobs`` processes x 1 thread on 127.0.0.1, no
+    dashboard) or of the running scheduler at ``scheduler``; ConfigError (one line) when the scheduler
+    cannot be reached within :data:`CONNECT_TIMEOUT_S` or has no worker within :data:`WORKER_WAIT_S`."""
+    check_fanout_options(jobs, scheduler)
+    from distributed import Client
+
+    if scheduler is None:
+        with local_cluster(jobs) as cluster, Client(cluster) as client:
+            yield client
+        return
+    try:
+        client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+    except (ValueError, TypeError) as err:
+        raise ConfigError(f"--scheduler {scheduler}: not a scheduler address such as tcp://127.0.0.1:8786 ({reason(err)})") from err
+    except (OSError, TimeoutError) as err:
+        raise ConfigError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler there within {CONNECT_TIMEOUT_S:g} s "
+                          f"({reason(err)})") from err
+    try:
+        try:
+            client.wait_for_workers(1, timeout=WORKER_WAIT_S)
+        except (TimeoutError, OSError) as err:
+            raise ConfigError(f"--scheduler {scheduler}: no Dask worker joined the scheduler within {WORKER_WAIT_S:g} s "
+                              f"(start one with: dask worker {scheduler})") from err
+        yield client
+    finally:
+        client.close()
+
+
+def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: int | None = None, scheduler: str | None = None,
+                 progress: Callable[[int, Any], None] | None = None) -> Iterator[Any]:
+    """``func(path, *args)`` for every path, yielded in the order of ``paths`` (module docstring).
+
+    ``progress(index, path)`` is called once per finished flight, in the order they finish. A worker's
+    result is released from the cluster as soon as it is yielded, so a consumer that keeps only a
+    running merge holds one flight's result at a time (plus those that finished ahead of their turn).
+    """
+    check_fanout_options(jobs, scheduler)
+    if jobs is None and scheduler is None:
+        for index, path in enumerate(paths):
+            result = func(path, *args)
+            if progress:
+                progress(index, path)
+            yield result
+        return
+    from distributed import as_completed
+
+    with dask_client(jobs, scheduler) as client:
+        run = uuid.uuid4().hex  # task keys unique on a scheduler other commands may share
+        futures = [client.submit(func, path, *args, pure=False, key=f"{getattr(func, '__name__', 'task')}-{run}-{index}")
+                   for index, path in enumerate(paths)]
+        order = {future.key: index for index, future in enumerate(futures)}
+        done: dict[int, Any] = {}
+        next_index = 0
+        try:
+            for future in as_completed(futures):
+                index = order[future.key]
+                done[index] = future.result()  # re-raises a worker's exception as it is
+                future.release()
+                if progress:
+                    progress(index, paths[index])
+                while next_index in done:
+                    yield done.pop(next_index)
+                    next_index += 1
+        finally:
+            for future in futures:
+                future.cancel()
+
+
+def map_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: int | None = None, scheduler: str | None = None,
+                progress: Callable[[int, Any], None] | None = None) -> list:
+    """The list of :func:`iter_flights`: ``[func(path, *args) for path in paths]``, serially or on Dask."""
+    return list(iter_flights(func, paths, *args, jobs=jobs, scheduler=scheduler, progress=progress))
+
+
+def tty_progress(verb: str, total: int, stream=None) -> Callable[[int, Any], None] | None:
+    """A ``progress(index, path)`` printing ``VERB: flight k/N done: PATH`` on stderr when it is a terminal, else None."""
+    import sys
+
+    stream = stream or sys.stderr
+    if not stream.isatty():
+        return None
+    finished = [0]
+
+    def say(index: int, path) -> None:
+        finished[0] += 1
+        print(f"{verb}: flight {finished[0]}/{total} done: {path}", file=stream, flush=True)
+
+    return say

@@ -1,0 +1,75 @@
+"""quad-modelling merge: refuses what cannot be merged in one line (exit 2), writes atomically (#19).
+
+(That a merge of per-flight evaluations equals one evaluation of all the flights, bit for bit, is
+test/commands/test_fanout.py.)"""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from quad_modelling.cli import main
+
+SHORT = ["--vehicle", "linkquad", "--preset", "short"]
+
+
+@pytest.fixture(scope="module")
+def results(flights, tmp_path_factory):
+    """Per-flight evaluations of the two test flights (greybox, dummy), a third with other spans, a fourth with
+    other models: {name: directory}."""
+    root = tmp_path_factory.mktemp("results")
+    runs = {"a": [flights[0]], "b": [flights[1]], "other_spans": [flights[1], "--eval", "50%:100%"],
+            "other_models": [flights[1], "--model", "naive"]}
+    for name, args in runs.items():
+        assert main(["evaluate", *args, *SHORT, "-o", str(root / name)]) == 0
+    return {name: root / name for name in runs}
+
+
+def merge_error(args, capsys) -> str:
+    assert main(["merge", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("quad-modelling merge: error: "), err
+    return err[0]
+
+
+def test_merge_writes_results_and_tables_and_refuses_to_overwrite(results, tmp_path, capsys):
+    out = tmp_path / "merged"
+    assert main(["merge", str(results["a"]), str(results["b"]), "-o", str(out)]) == 0
+    merged = json.loads((out / "results.json").read_text())
+    one = [json.loads((results[k] / "results.json").read_text()) for k in "ab"]
+    assert merged["windows"]["greybox"]["eval"] == one[0]["windows"]["greybox"]["eval"] + one[1]["windows"]["greybox"]["eval"]
+    assert [f["source"] for f in merged["config"]["flights"]] == [one[0]["config"]["flights"][0]["source"], one[1]["config"]["flights"][0]["source"]]
+    assert sorted(p.name for p in out.iterdir()) == ["results.json", "tables.md"]
+    assert "2 flight(s) from 2 results" in capsys.readouterr().out
+    assert "exists; pass --force" in merge_error([str(results["a"]), str(results["b"]), "-o", str(out)], capsys)
+    assert main(["merge", str(results["a"]), "-o", str(out), "--force"]) == 0
+    assert json.loads((out / "results.json").read_text())["models"] == one[0]["models"]  # one input: its own numbers
+
+
+def test_merge_refuses_missing_foreign_and_incompatible_results(results, tmp_path, capsys):
+    out = str(tmp_path / "out")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert f"{empty}: no results.json" in merge_error([str(results["a"]), str(empty), "-o", out], capsys)
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "results.json").write_text('{"rows": [1, 2]}')
+    assert "not the results.json of quad-modelling evaluate" in merge_error([str(results["a"]), str(foreign), "-o", out], capsys)
+    (foreign / "results.json").write_text("{not json")
+    assert "not a JSON document" in merge_error([str(foreign), "-o", out], capsys)
+    averages_only = json.loads((results["a"] / "results.json").read_text())
+    del averages_only["statistics"]
+    (foreign / "results.json").write_text(json.dumps(averages_only))
+    assert "no 'statistics' to merge" in merge_error([str(foreign), "-o", out], capsys)
+    assert "models ['naive', 'dummy'] differs from models ['greybox', 'dummy']" in merge_error(
+        [str(results["a"]), str(results["other_models"]), "-o", out], capsys)
+    message = merge_error([str(results["a"]), str(results["other_spans"]), "-o", out], capsys)
+    assert "other_spans/results.json: configuration" in message and "eval='50%:100%'" in message
+    assert "given twice" in merge_error([str(results["a"]), str(results["a"]), "-o", out], capsys)
+    assert not (tmp_path / "out").exists()
+
+
+def test_merge_refuses_an_input_as_output(results, capsys):
+    assert "the output is the input" in merge_error([str(results["a"]), str(results["b"]), "-o", str(results["b"]), "--force"], capsys)
+    assert (results["b"] / "results.json").exists()
