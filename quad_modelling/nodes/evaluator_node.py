@@ -32,9 +32,25 @@ streams are independent DDS writers: over a lossy link one may be repairing a sa
 others have moved on), or ``close_grace_s`` [wall s] after the first stream passed the window's
 end. A window closed by the grace with a stream still behind is marked naming that stream (a
 late model: that model's records). A model silent for ``stale_model_s`` is not waited for.
-A window with missing measurement rows (gap, late start, duplicates) or a model
-with missing predictions (restart) is *marked* with the reason, never scored
-partially. Buffers hold at most the open windows (bounded).
+Streams on their own clocks (:mod:`~quad_modelling.core.alignment`, shared with the offline
+evaluation): the scored rows are the window's engine-input stamps; motion capture, IMU and each
+model's predictions are interpolated to them (exact where a stamp matches, so the aligned replay
+scores the recorded rows). A window is scored when every stream meets the coverage rule (>= 95 %
+of its nominal samples, no gap over 50 ms); otherwise it is *marked*, the reason naming each failing
+stream with its coverage and longest gap (a failing model stream marks only that model), never
+scored partially. Buffers hold at most the open windows and the last closed one (bounded).
+
+Receding horizon (``horizon_s`` > 0): ``<model>/horizon/odom`` predictions, stamped at the predicted
+time, are scored against the measurements interpolated there with the multi-step group errors
+(:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`); each closed window reports their
+MAE@h and ``results.json`` the MAE@h pooled over the run (the offline MAE_h over the same starts).
+
+Faults: non-finite or malformed messages and messages a callback cannot read are dropped with one
+warning per kind (counted); a stamp farther than ``max_stamp_jump_s`` from its stream's latest is
+dropped as an outlier, unless :data:`JUMP_CONFIRM` in a row agree (a restarted publisher or clock):
+then the stream follows its new time base, and a jump of the engine inputs restarts the window clock
+(open windows closed, new origin published). Timers run on the steady clock (wall and sim-time
+jumps do not stop them).
 """
 
 from __future__ import annotations
