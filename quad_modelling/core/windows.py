@@ -318,6 +318,11 @@ class WindowClock:
         unknown). Positions carry the dt/2 shift, so stamp jitter below dt/2 does not change the answer."""
         return self.half_period_ns is not None and position_ns < self.warm_ns <= position_ns + 2 * self.half_period_ns
 
+    def stamp_bounds(self, k: int) -> tuple[int, int]:
+        """The stamps [ns] window k holds: [t0 + kW - dt/2, t0 + (k+1)W - dt/2) (the stamp rule of the module doc)."""
+        start = self.origin_ns + k * self.window_ns - (self.half_period_ns or 0)
+        return start, start + self.window_ns
+
     def window_start_s(self, k: int) -> float:
         """Start of window k in seconds from t0."""
         return k * self.window_ns / 1e9

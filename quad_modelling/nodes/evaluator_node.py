@@ -14,43 +14,31 @@ published goes into one MCAP bag (:mod:`~quad_modelling.nodes.recording`), finis
 Data subscriptions use the ``qos`` parameter (:func:`~quad_modelling.nodes.common.subscription_qos`);
 the vehicle is learned from the replay's ``vehicle`` topic as the predictor's is.
 
-Scoring uses the core code of ``quad-modelling evaluate``: the window's received
-measurements become a FlightLog (:func:`~quad_modelling.io.topics.measurement_log`),
-received absolute predictions are wrapped with
-:class:`~quad_modelling.core.models.streaming.RecordedPrediction` (which trims them as the
-offline predictors do) and scored with
-:func:`~quad_modelling.core.evaluation.windowed.evaluate_window` (core defaults for trim and
-smoothing from one :class:`~quad_modelling.core.windows.EvaluationConfig`, warm rows from
-:func:`~quad_modelling.core.windows.warm_samples_for`). Windows are those of the core
-:class:`~quad_modelling.core.windows.WindowClock`; only windows entirely inside a span
-(``spans``: ``NAME:A:B`` seconds from t0, the core span grammar) are scored.
+Scoring uses the core code of ``quad-modelling evaluate`` (:mod:`~quad_modelling.nodes.scoring` adapts):
+received measurements become a FlightLog, received absolute predictions a
+:class:`~quad_modelling.core.models.streaming.RecordedPrediction`, scored with
+:func:`~quad_modelling.core.evaluation.windowed.evaluate_window` (trim and smoothing from one
+:class:`~quad_modelling.core.windows.EvaluationConfig`) on the windows of the core
+:class:`~quad_modelling.core.windows.WindowClock` that lie inside a span (``spans``: ``NAME:A:B`` s from t0).
 
-Closing rule: every stream the node scores (``motor_input``, ``mocap/odom``, ``imu`` and each
-model's ``<model>/odom`` and ``<model>/accel``) has its latest stamp tracked; window k =
-[t0 + kW, t0 + (k+1)W) closes when every stream has delivered a stamp of a later window (the
-streams are independent DDS writers: over a lossy link one may be repairing a sample while the
-others have moved on), or ``close_grace_s`` [wall s] after the first stream passed the window's
-end. A window closed by the grace with a stream still behind is marked naming that stream (a
-late model: that model's records). A model silent for ``stale_model_s`` is not waited for.
-Streams on their own clocks (:mod:`~quad_modelling.core.alignment`, shared with the offline
-evaluation): the scored rows are the window's engine-input stamps; motion capture, IMU and each
-model's predictions are interpolated to them (exact where a stamp matches, so the aligned replay
-scores the recorded rows). A window is scored when every stream meets the coverage rule (>= 95 %
-of its nominal samples, no gap over 50 ms); otherwise it is *marked*, the reason naming each failing
-stream with its coverage and longest gap (a failing model stream marks only that model), never
-scored partially. Buffers hold at most the open windows and the last closed one (bounded).
+Closing rule: window k = [t0 + kW, t0 + (k+1)W) closes when every scored stream (``motor_input``,
+``mocap/odom``, ``imu``, each model's ``<model>/odom`` and ``<model>/accel``) has delivered a stamp of a
+later window, or ``close_grace_s`` [wall s] after the first passed its end (then marked naming the late
+stream; a late model: its records). A model silent for ``stale_model_s`` is not waited for.
 
-Receding horizon (``horizon_s`` > 0): ``<model>/horizon/odom`` predictions, stamped at the predicted
-time, are scored against the measurements interpolated there with the multi-step group errors
-(:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`); each closed window reports their
-MAE@h and ``results.json`` the MAE@h pooled over the run (the offline MAE_h over the same starts).
-
-Faults: non-finite or malformed messages and messages a callback cannot read are dropped with one
-warning per kind (counted); a stamp farther than ``max_stamp_jump_s`` from its stream's latest is
-dropped as an outlier, unless :data:`JUMP_CONFIRM` in a row agree (a restarted publisher or clock):
-then the stream follows its new time base, and a jump of the engine inputs restarts the window clock
-(open windows closed, new origin published). Timers run on the steady clock (wall and sim-time
-jumps do not stop them).
+Streams on their own clocks (:mod:`~quad_modelling.core.alignment`, shared with offline): the scored
+rows are the window's engine-input stamps; motion capture, IMU and predictions are interpolated to them
+(exact where a stamp matches: the aligned replay scores the recorded rows). A window is scored when every
+stream meets the coverage rule (>= 95 % of its nominal samples, no gap over 50 ms), else *marked* naming
+each failing stream, its coverage and longest gap (a failing model stream marks that model only). Buffers
+hold the open windows and the last closed one. Receding horizon (``horizon_s`` > 0):
+``<model>/horizon/odom``, stamped at the predicted time, is scored against the measurements interpolated
+there with the multi-step group errors: MAE@h per closed window and pooled (``results.json``), the offline
+MAE_h over the same starts. Faults: non-finite, malformed or unreadable messages are dropped with one
+warning per kind (counted); a stamp farther than ``max_stamp_jump_s`` from its stream's latest is dropped
+as an outlier unless :data:`JUMP_CONFIRM` in a row agree (a restarted publisher or clock): the stream
+follows, and a jump of the engine inputs restarts the window clock (new origin published). Timers run
+on the steady clock, so wall or sim-time jumps do not stop them.
 """
 
 from __future__ import annotations
@@ -72,12 +60,9 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from quad_modelling.core.alignment import StampGuard, coverage_reason, interpolate_at, stream_coverage
-from quad_modelling.core.evaluation.multistep import GROUPS, group_error_norms, measured_groups
+from quad_modelling.core.alignment import StampGuard
 from quad_modelling.core.evaluation.windowed import evaluate_window
 from quad_modelling.core.models.base import DummyPredictor
-from quad_modelling.core.models.streaming import RecordedPrediction
-from quad_modelling.core.preprocess import smooth, trimmed_variables
 from quad_modelling.core.windows import (
     EvaluationConfig,
     WindowClock,
@@ -113,7 +98,15 @@ from quad_modelling.nodes.common import (
     vehicle_param,
 )
 from quad_modelling.nodes.recording import open_recorder
-from quad_modelling.nodes.scoring import HorizonRecord, LiveScores, WindowRecord, diagnostics_message
+from quad_modelling.nodes.scoring import (
+    LiveScores,
+    WindowBuffer,
+    WindowRecord,
+    diagnostics_message,
+    score_horizon,
+    score_model,
+    window_measurements,
+)
 
 PROGRESS_REPEAT_S = 0.2
 """The progress acknowledgement is repeated this often [s] even when unchanged (late replays)."""
@@ -171,33 +164,6 @@ JUMP_CONFIRM = 5
 """Consecutive far-off stamps of one stream that make a clock jump rather than outliers (:class:`StampGuard`)."""
 
 
-class _Window:
-    """Received samples of one window, by stamp [ns]: measurement fields, each model's prediction fields and
-    receding-horizon predictions (stamped at the predicted time)."""
-
-    __slots__ = ("index", "motor", "omega", "odom", "imu", "pred_odom", "pred_accel", "horizon", "passed_at")
-
-    def __init__(self, index: int, models: list[str]):
-        self.index = index
-        self.motor: dict[int, list] = {}
-        self.omega: dict[int, list | None] = {}
-        self.odom: dict[int, list] = {}
-        self.imu: dict[int, list] = {}
-        self.pred_odom = {m: {} for m in models}
-        self.pred_accel = {m: {} for m in models}
-        self.horizon = {m: {} for m in models}
-        self.passed_at: float | None = None  # wall time [s, monotonic] the first stream moved past this window
-
-
-def _samples(windows: list[_Window], get) -> tuple[np.ndarray, np.ndarray]:
-    """(stamps [ns] sorted, values) of one stream over consecutive windows (``get``: the window's dict)."""
-    merged: dict[int, list] = {}
-    for w in windows:
-        merged.update(get(w))
-    stamps = np.array(sorted(merged), dtype=np.int64)
-    return stamps, np.array([merged[ns] for ns in stamps], dtype=float)
-
-
 class EvaluatorNode(Node):
     """Scores every closed window of every model with core evaluate_window (see module doc)."""
 
@@ -229,8 +195,8 @@ class EvaluatorNode(Node):
         self.scores = LiveScores(self.config, self.spans, self.models + self.baselines, horizon_s=self.horizon_s)
         self.faults = FaultLog(self.get_logger())
         self.clock_ = WindowClock(self.window_s, self.warm_s, p["sample_period_s"])
-        self.open: dict[int, _Window] = {}
-        self.previous: _Window | None = None  # the last closed window: its samples bracket the next one's first rows
+        self.open: dict[int, WindowBuffer] = {}
+        self.previous: WindowBuffer | None = None  # the last closed window: its samples bracket the next one's first rows
         self.closed_below = None  # windows with index < this are closed
         self.last_motor_ns: int | None = None  # the last accepted engine input (stamps must increase)
         # Latest stamp [ns] of every stream the node scores (the closing rule); a model's streams also their wall time.
@@ -293,8 +259,7 @@ class EvaluatorNode(Node):
         self.create_subscription(kind, topic, recorded, qos, raw=True)
 
     def _guarded(self, stream: str, callback):
-        """``callback`` that survives a message it cannot use: the error is reported (once per stream, counted),
-        the message dropped, the node goes on."""
+        """``callback`` that survives a message it cannot use: reported (once per stream, counted) and dropped."""
 
         def guarded(msg):
             try:
@@ -343,17 +308,12 @@ class EvaluatorNode(Node):
         the window clock again at the next engine input (a new origin, published)."""
         for k in sorted(self.open):
             self._close(k, reason_if_incomplete="the engine inputs' clock jumped before the window was complete")
-        self.previous = None
-        self.closed_below = None
-        self.last_motor_ns = None
-        self.clock_.origin_ns = None
-        for stream in self.stream_last_ns:
-            self.stream_last_ns[stream] = None
-        for name, guard in self.stamp_guards.items():
-            if name != "motor_input":
-                guard.reset()
+        self.previous = self.closed_below = self.last_motor_ns = self.clock_.origin_ns = None
+        self.stream_last_ns = dict.fromkeys(self.stream_last_ns)
+        for guard in (g for name, g in self.stamp_guards.items() if name != "motor_input"):
+            guard.reset()
 
-    def _window_for(self, ns: int, stream: str) -> _Window | None:
+    def _window_for(self, ns: int, stream: str) -> WindowBuffer | None:
         if self.clock_.origin_ns is None:
             if stream != "motor":
                 return None  # no origin yet: wait for the first engine input
@@ -368,11 +328,11 @@ class EvaluatorNode(Node):
         if k < 0:
             # Samples within a window before t0 bracket window 0's first rows; they belong to no scored window.
             if self.previous is None:
-                self.previous = _Window(-1, self.models)
+                self.previous = WindowBuffer(-1, self.models)
             return self.previous
         window = self.open.get(k)
         if window is None:
-            window = self.open[k] = _Window(k, self.models)
+            window = self.open[k] = WindowBuffer(k, self.models)
             while len(self.open) > MAX_OPEN_WINDOWS:
                 self._close(min(self.open), reason_if_incomplete="closed early to bound memory")
         return window
@@ -465,8 +425,7 @@ class EvaluatorNode(Node):
         self._prediction(model, topics.stamp_ns(msg.header.stamp), topics.accel_fields(msg), "pred_accel")
 
     def on_horizon(self, model: str, msg: Odometry) -> None:
-        """A receding-horizon prediction, stamped at the predicted time: kept in that time's window, scored when it
-        closes. Not a closing stream (it runs horizon_s ahead of the inputs)."""
+        """A receding-horizon prediction (stamped at the predicted time): kept in that time's window. Not a closing stream."""
         ns, fields = topics.stamp_ns(msg.header.stamp), topics.predicted_odometry_fields(msg)
         if not self._accept(f"{model}/horizon", ns, fields):
             return
@@ -552,7 +511,7 @@ class EvaluatorNode(Node):
             return
         records = self._score(window, neighbours, start_s, end_s, spans, reason_if_incomplete, list(late))
         self.scores.records.extend(records)
-        horizon = self._score_horizon(window, neighbours) if self.horizon_s > 0 else []
+        horizon = score_horizon(window, neighbours, self.models, self.vehicle) if self.horizon_s > 0 and self.vehicle else []
         self.scores.horizon.extend(horizon)
         msg = diagnostics_message(records, self.clock_.origin_ns + (window.index + 1) * self.clock_.window_ns, horizon)
         if self.context.ok():  # at shutdown the results still go to results.json (and the recording)
@@ -560,23 +519,7 @@ class EvaluatorNode(Node):
         if self.recorder is not None:
             self.recorder.add(self.diag_topic, msg)
 
-    def _bounds_ns(self, k: int) -> tuple[int, int]:
-        """Window k's stamps: [t0 + kW - dt/2, t0 + (k+1)W - dt/2) [ns] (the clock's stamp rule)."""
-        start = self.clock_.origin_ns + k * self.clock_.window_ns - (self.clock_.half_period_ns or 0)
-        return start, start + self.clock_.window_ns
-
-    def _measured_at(self, neighbours: list[_Window], rows: np.ndarray, source: str, motor: list | None = None,
-                     omega=None):
-        """The measurement FlightLog at stamps ``rows`` [ns]: motion capture and IMU interpolated to them
-        (:func:`~quad_modelling.core.alignment.interpolate_at`); None when a stream does not reach a row."""
-        odom = interpolate_at(*_samples(neighbours, lambda w: w.odom), rows, quaternion=topics.ODOM_QUATERNION)
-        imu = interpolate_at(*_samples(neighbours, lambda w: w.imu), rows)
-        if len(odom) == 0 or not (np.isfinite(odom).all() and np.isfinite(imu).all()):
-            return None
-        return topics.measurement_log(rows, np.zeros((len(rows), 4)) if motor is None else motor, odom, imu,
-                                      self.vehicle.name, source, omega=omega)
-
-    def _score(self, window: _Window, neighbours: list[_Window], start_s: float, end_s: float, spans: list[str], extra: str,
+    def _score(self, window: WindowBuffer, neighbours: list[WindowBuffer], start_s: float, end_s: float, spans: list[str], extra: str,
                late: list[str]) -> list[WindowRecord]:
         def marked(reason: str, models=None) -> list[WindowRecord]:
             return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason)
@@ -586,22 +529,10 @@ class EvaluatorNode(Node):
             return marked(self._late_reason([s for s in late if s in MEASUREMENT_STREAMS]))
         if self.vehicle is None:
             return marked(f"no vehicle: parameter vehicle is empty and no replay announced one on topic {VEHICLE_TOPIC}")
-        lo, hi = self._bounds_ns(window.index)
-        rows = np.array(sorted(window.motor), dtype=np.int64)
-        coverage = [stream_coverage("motor_input", rows, lo, hi), stream_coverage("mocap_odom", np.array(sorted(window.odom)), lo, hi),
-                    stream_coverage("imu", np.array(sorted(window.imu)), lo, hi)]
-        reason = coverage_reason(coverage)
-        if reason:
+        lo, hi = self.clock_.stamp_bounds(window.index)
+        log, measured, reason = window_measurements(window, neighbours, lo, hi, self.vehicle, self.config)
+        if log is None:
             return marked(f"{reason}{'; ' + extra if extra else ''}")
-        omegas = [window.omega[ns] for ns in rows]
-        try:
-            log = self._measured_at(neighbours, rows, f"live window {window.index}", [window.motor[ns] for ns in rows],
-                                    np.array(omegas) if all(o is not None for o in omegas) else None)
-            if log is None:
-                return marked("measurements do not reach every engine input of the window (mocap or imu ends early)")
-            measured = smooth(trimmed_variables(log, self.config.trim, self.vehicle), log.sample_rate, self.config.smooth_cutoff_hz)
-        except QuadModellingError as err:
-            return marked(f"measurements unusable: {err}")
         warm = warm_samples_for(log, self.warm_s)
         records, predicted = [], {}
         for model in self.models:
@@ -609,23 +540,9 @@ class EvaluatorNode(Node):
             if model_late:
                 records += marked(self._late_reason(model_late), [model])
                 continue
-            odom, accel = window.pred_odom[model], window.pred_accel[model]
-            reason = coverage_reason([stream_coverage(f"{model}/odom", np.array(sorted(odom)), lo, hi),
-                                      stream_coverage(f"{model}/accel", np.array(sorted(accel)), lo, hi)])
-            if reason:
-                records += marked(f"predictions: {reason} (predictor late, restarted or failed)", [model])
-                continue
-            pred_odom = interpolate_at(*_samples(neighbours, lambda w: w.pred_odom[model]), rows, quaternion=topics.ODOM_QUATERNION)
-            pred_accel = interpolate_at(*_samples(neighbours, lambda w: w.pred_accel[model]), rows)
-            if not (np.isfinite(pred_odom).all() and np.isfinite(pred_accel).all()):
-                records += marked("predictions do not reach every engine input of the window", [model])
-                continue
-            absolute = topics.predictions_from_fields(pred_odom, pred_accel)
-            try:
-                result = evaluate_window(RecordedPrediction(model, absolute, self.config.trim), log, warm,
-                                         self.config.trim, self.vehicle, self.config.smooth_cutoff_hz, measured)
-            except QuadModellingError as err:
-                records += marked(f"cannot score: {err}", [model])
+            result, reason = score_model(model, window, neighbours, lo, hi, log, measured, warm, self.config, self.vehicle)
+            if result is None:
+                records += marked(reason, [model])
                 continue
             predicted[model] = result.predicted
             records += [WindowRecord(model, s, window.index, start_s, end_s, rms=result.rms, tic=result.tic) for s in spans]
@@ -636,31 +553,6 @@ class EvaluatorNode(Node):
             for s in spans:
                 self.scores.add_example(s, log, measured, predicted, warm)
         return records
-
-    def _score_horizon(self, window: _Window, neighbours: list[_Window]) -> list[HorizonRecord]:
-        """Error of each group (:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`) of every
-        receding-horizon prediction stamped in this window against the measurements interpolated at its stamp;
-        predictions whose stamp the measurements do not bracket are counted as unscored."""
-        if self.vehicle is None:
-            return []
-        out = []
-        for model in self.models:
-            stamps = np.array(sorted(window.horizon[model]), dtype=np.int64)
-            if len(stamps) == 0:
-                continue
-            fields = np.array([window.horizon[model][ns] for ns in stamps])
-            odom = interpolate_at(*_samples(neighbours, lambda w: w.odom), stamps, quaternion=topics.ODOM_QUATERNION)
-            imu = interpolate_at(*_samples(neighbours, lambda w: w.imu), stamps)
-            have = np.isfinite(odom).all(axis=1) & np.isfinite(imu).all(axis=1)
-            errors = np.empty((0, len(GROUPS)))
-            if have.any():
-                truth = measured_groups(topics.measurement_log(stamps[have], np.zeros((int(have.sum()), 4)), odom[have], imu[have],
-                                                               self.vehicle.name, f"live window {window.index}"))
-                predicted = topics.predictions_from_fields(fields[have], np.zeros((int(have.sum()), topics.ACCEL_FIELDS)))
-                errors = group_error_norms(truth, predicted)
-            out.append(HorizonRecord(model, window.index, errors.sum(axis=0) if len(errors) else np.zeros(len(GROUPS)),
-                                     len(errors), int((~have).sum())))
-        return out
 
     # --- results ------------------------------------------------------------------------------
 

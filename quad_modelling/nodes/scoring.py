@@ -4,6 +4,8 @@ The evaluator node hands the received absolute predictions to
 :class:`~quad_modelling.core.models.streaming.RecordedPrediction`, which trims them as the
 offline predictors do.
 
+* :class:`WindowBuffer`: the evaluator node's received samples of one window; :func:`measured_at` (the
+  measurements interpolated to the scored rows) and :func:`score_horizon` (receding-horizon errors) read them.
 * :class:`HorizonRecord`: the receding-horizon errors of one model in one closed window (sums of the
   per-prediction group errors of :func:`~quad_modelling.core.evaluation.multistep.group_error_norms`), pooled
   into MAE@h by :meth:`LiveScores.horizon_mae` exactly as the offline multi-step MAE_h pools its starts.
@@ -18,16 +20,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from quad_modelling.core.alignment import coverage_reason, interpolate_at, stream_coverage
+from quad_modelling.core.evaluation.multistep import GROUP_UNITS, GROUPS, group_error_norms, measured_groups
 from quad_modelling.core.evaluation.windowed import (
     EvaluationResult,
     ExampleWindow,
     SpanScores,
+    WindowResult,
+    evaluate_window,
 )
-from quad_modelling.core.evaluation.multistep import GROUP_UNITS, GROUPS
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.preprocess import trimmed_inputs
+from quad_modelling.core.models.streaming import RecordedPrediction
+from quad_modelling.core.preprocess import smooth, trimmed_inputs, trimmed_variables
 from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec
+from quad_modelling.errors import QuadModellingError
+from quad_modelling.io import topics
 
 
 @dataclass
@@ -183,3 +191,112 @@ def diagnostics_message(records: list[WindowRecord], stamp_ns: int, horizon: lis
         status.values = values
         msg.status.append(status)
     return msg
+
+
+# --- the evaluator's window buffers and what it computes from them at a close --------------------
+
+class WindowBuffer:
+    """Received samples of one window, by stamp [ns]: measurement fields, each model's prediction fields and
+    receding-horizon predictions (stamped at the predicted time)."""
+
+    __slots__ = ("index", "motor", "omega", "odom", "imu", "pred_odom", "pred_accel", "horizon", "passed_at")
+
+    def __init__(self, index: int, models: list[str]):
+        self.index = index
+        self.motor: dict[int, list] = {}
+        self.omega: dict[int, list | None] = {}
+        self.odom: dict[int, list] = {}
+        self.imu: dict[int, list] = {}
+        self.pred_odom = {m: {} for m in models}
+        self.pred_accel = {m: {} for m in models}
+        self.horizon = {m: {} for m in models}
+        self.passed_at: float | None = None  # wall time [s, monotonic] the first stream moved past this window
+
+
+def samples(windows: list[WindowBuffer], get) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps [ns] sorted, values) of one stream over consecutive windows (``get``: the window's dict)."""
+    merged: dict[int, list] = {}
+    for w in windows:
+        merged.update(get(w))
+    stamps = np.array(sorted(merged), dtype=np.int64)
+    return stamps, np.array([merged[ns] for ns in stamps], dtype=float)
+
+
+def measured_at(neighbours: list[WindowBuffer], rows: np.ndarray, vehicle: str, source: str, motor: list | None = None,
+                omega=None) -> FlightLog | None:
+    """The measurement FlightLog at stamps ``rows`` [ns]: motion capture and IMU interpolated to them
+    (:func:`~quad_modelling.core.alignment.interpolate_at`); None when a stream does not reach a row."""
+    odom = interpolate_at(*samples(neighbours, lambda w: w.odom), rows, quaternion=topics.ODOM_QUATERNION)
+    imu = interpolate_at(*samples(neighbours, lambda w: w.imu), rows)
+    if len(odom) == 0 or not (np.isfinite(odom).all() and np.isfinite(imu).all()):
+        return None
+    return topics.measurement_log(rows, np.zeros((len(rows), 4)) if motor is None else motor, odom, imu,
+                                  vehicle, source, omega=omega)
+
+
+def score_horizon(window: WindowBuffer, neighbours: list[WindowBuffer], models: list[str], vehicle) -> list[HorizonRecord]:
+    """Error of each group (:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`) of every
+    receding-horizon prediction stamped in this window against the measurements interpolated at its stamp;
+    predictions whose stamp the measurements do not bracket are counted as unscored."""
+    out = []
+    for model in models:
+        stamps = np.array(sorted(window.horizon[model]), dtype=np.int64)
+        if len(stamps) == 0:
+            continue
+        fields = np.array([window.horizon[model][ns] for ns in stamps])
+        odom = interpolate_at(*samples(neighbours, lambda w: w.odom), stamps, quaternion=topics.ODOM_QUATERNION)
+        imu = interpolate_at(*samples(neighbours, lambda w: w.imu), stamps)
+        have = np.isfinite(odom).all(axis=1) & np.isfinite(imu).all(axis=1)
+        errors = np.empty((0, len(GROUPS)))
+        if have.any():
+            truth = measured_groups(topics.measurement_log(stamps[have], np.zeros((int(have.sum()), 4)), odom[have], imu[have],
+                                                           vehicle.name, f"live window {window.index}"))
+            predicted = topics.predictions_from_fields(fields[have], np.zeros((int(have.sum()), topics.ACCEL_FIELDS)))
+            errors = group_error_norms(truth, predicted)
+        out.append(HorizonRecord(model, window.index, errors.sum(axis=0) if len(errors) else np.zeros(len(GROUPS)),
+                                 len(errors), int((~have).sum())))
+    return out
+
+
+def window_measurements(window: WindowBuffer, neighbours: list[WindowBuffer], lo: int, hi: int, vehicle,
+                        config: EvaluationConfig) -> tuple[FlightLog | None, np.ndarray | None, str]:
+    """The window's measurements on its rows (the engine-input stamps in [lo, hi) [ns]) and their smoothed trimmed
+    variables, or (None, None, reason) when a measurement stream fails the coverage rule or cannot be used."""
+    rows = np.array(sorted(window.motor), dtype=np.int64)
+    reason = coverage_reason([stream_coverage("motor_input", rows, lo, hi),
+                              stream_coverage("mocap_odom", np.array(sorted(window.odom)), lo, hi),
+                              stream_coverage("imu", np.array(sorted(window.imu)), lo, hi)])
+    if reason:
+        return None, None, reason
+    omegas = [window.omega[ns] for ns in rows]
+    try:
+        log = measured_at(neighbours, rows, vehicle.name, f"live window {window.index}", [window.motor[ns] for ns in rows],
+                          np.array(omegas) if all(o is not None for o in omegas) else None)
+        if log is None:
+            return None, None, "measurements do not reach every engine input of the window (mocap or imu ends early)"
+        return log, smooth(trimmed_variables(log, config.trim, vehicle), log.sample_rate, config.smooth_cutoff_hz), ""
+    except QuadModellingError as err:
+        return None, None, f"measurements unusable: {err}"
+
+
+def score_model(model: str, window: WindowBuffer, neighbours: list[WindowBuffer], lo: int, hi: int, log: FlightLog,
+                measured: np.ndarray, warm: int, config: EvaluationConfig, vehicle) -> tuple[WindowResult | None, str]:
+    """One model on one window: its predictions checked by the coverage rule, interpolated to the window's rows (its
+    engine-input stamps, integer ns: exact where a prediction's stamp matches) and
+    scored with the core :func:`~quad_modelling.core.evaluation.windowed.evaluate_window`; (None, reason) when not."""
+    odom, accel = window.pred_odom[model], window.pred_accel[model]
+    reason = coverage_reason([stream_coverage(f"{model}/odom", np.array(sorted(odom)), lo, hi),
+                              stream_coverage(f"{model}/accel", np.array(sorted(accel)), lo, hi)])
+    if reason:
+        return None, f"predictions: {reason} (predictor late, restarted or failed)"
+    rows = np.array(sorted(window.motor), dtype=np.int64)
+    pred_odom = interpolate_at(*samples(neighbours, lambda w: w.pred_odom[model]), rows, quaternion=topics.ODOM_QUATERNION)
+    pred_accel = interpolate_at(*samples(neighbours, lambda w: w.pred_accel[model]), rows)
+    if not (np.isfinite(pred_odom).all() and np.isfinite(pred_accel).all()):
+        return None, "predictions do not reach every engine input of the window"
+    absolute = topics.predictions_from_fields(pred_odom, pred_accel)
+    try:
+        return evaluate_window(RecordedPrediction(model, absolute, config.trim), log, warm, config.trim, vehicle,
+                               config.smooth_cutoff_hz, measured), ""
+    except QuadModellingError as err:
+        return None, f"cannot score: {err}"
