@@ -105,13 +105,13 @@ def coverage_reason(coverages: list[StreamCoverage]) -> str:
 
 
 def interpolate_at(stamps_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray, quaternion: slice | None = None,
-                   max_gap_s: float = MAX_GAP_S) -> np.ndarray:
+                   max_gap_s: float = MAX_GAP_S, hold: bool = True) -> np.ndarray:
     """Samples (stamps_ns (n,) sorted unique [ns], values (n, m)) at the stamps ``at_ns`` (r,) -> (r, m) (module doc).
 
     Linear in time per column, :math:`y(t) = y_i + (y_{i+1} - y_i)(t - t_i)/(t_{i+1} - t_i)`, exact at sample
     stamps; ``quaternion``: the columns of a unit quaternion (normalised, sign-aligned to the earlier sample);
-    a row nearer than ``max_gap_s`` [s] outside the samples holds the nearest one; a row in a step longer than
-    ``max_gap_s`` or farther outside is NaN.
+    a row nearer than ``max_gap_s`` [s] outside the samples holds the nearest one (``hold``; else NaN: a truth
+    must be bracketed); a row in a step longer than ``max_gap_s`` or farther outside is NaN.
     """
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     values = np.asarray(values, dtype=float).reshape(len(stamps), -1)
@@ -125,8 +125,9 @@ def interpolate_at(stamps_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray,
     out[exact] = values[hi[exact]]
     before = ~exact & (hi == 0)
     after = ~exact & (hi == len(stamps))
-    out[before & (stamps[0] - at <= max_gap_ns)] = values[0]
-    out[after & (at - stamps[-1] <= max_gap_ns)] = values[-1]
+    if hold:
+        out[before & (stamps[0] - at <= max_gap_ns)] = values[0]
+        out[after & (at - stamps[-1] <= max_gap_ns)] = values[-1]
     inner = ~exact & ~before & ~after
     if inner.any():
         i1 = hi[inner]

@@ -429,6 +429,8 @@ class EvaluatorNode(Node):
         ns, fields = topics.stamp_ns(msg.header.stamp), topics.predicted_odometry_fields(msg)
         if not self._accept(f"{model}/horizon", ns, fields):
             return
+        if self.clock_.origin_ns is not None and self.clock_.locate(ns)[0] not in self.open and len(self.open) >= MAX_OPEN_WINDOWS:
+            return self.faults.report(f"horizon_ahead_{model}", f"{model}/{HORIZON_TOPIC} stamp {ns} ns beyond the open windows: dropped")
         window = self._window_for(ns, f"{model}_horizon")
         if window is not None:
             window.horizon[model].setdefault(ns, fields)

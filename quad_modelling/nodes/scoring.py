@@ -237,15 +237,16 @@ def measured_at(neighbours: list[WindowBuffer], rows: np.ndarray, vehicle: str, 
 def score_horizon(window: WindowBuffer, neighbours: list[WindowBuffer], models: list[str], vehicle) -> list[HorizonRecord]:
     """Error of each group (:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`) of every
     receding-horizon prediction stamped in this window against the measurements interpolated at its stamp;
-    predictions whose stamp the measurements do not bracket are counted as unscored."""
+    predictions whose stamp the measurements do not bracket (e.g. past the flight's end) are counted as
+    ``unreached``, not scored (offline, a start whose horizon passes the end is no start either)."""
     out = []
     for model in models:
         stamps = np.array(sorted(window.horizon[model]), dtype=np.int64)
         if len(stamps) == 0:
             continue
         fields = np.array([window.horizon[model][ns] for ns in stamps])
-        odom = interpolate_at(*samples(neighbours, lambda w: w.odom), stamps, quaternion=topics.ODOM_QUATERNION)
-        imu = interpolate_at(*samples(neighbours, lambda w: w.imu), stamps)
+        odom = interpolate_at(*samples(neighbours, lambda w: w.odom), stamps, quaternion=topics.ODOM_QUATERNION, hold=False)
+        imu = interpolate_at(*samples(neighbours, lambda w: w.imu), stamps, hold=False)
         have = np.isfinite(odom).all(axis=1) & np.isfinite(imu).all(axis=1)
         errors = np.empty((0, len(GROUPS)))
         if have.any():

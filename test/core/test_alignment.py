@@ -33,6 +33,7 @@ def test_interpolation_is_exact_at_sample_stamps_linear_between_and_never_crosse
     out = interpolate_at(stamps, values, at)[:, 0] / np.pi
     assert out[0] == 1.0 and out[1] == pytest.approx(1.5) and np.isnan(out[2]) and out[3] == pytest.approx(3.5)
     assert np.isnan(out[4]) and out[5] == 4.0 and out[6] == 0.0 and np.isnan(out[7])  # holds within 50 ms of the ends
+    assert np.isnan(interpolate_at(stamps, values, np.array([111 * MS, -1 * MS]), hold=False)).all()  # a truth must be bracketed
     exact = interpolate_at(stamps, values, stamps)
     assert np.array_equal(exact, values)  # bit for bit: the aligned replay scores the recorded rows
 
