@@ -104,12 +104,12 @@ def coverage_reason(coverages: list[StreamCoverage]) -> str:
             + "; ".join(failing))
 
 
-def interpolate_at(stamps_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray, quaternion: slice | None = None,
+def interpolate_at(stamps_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray, quaternion: tuple[int, int] | None = None,
                    max_gap_s: float = MAX_GAP_S, hold: bool = True) -> np.ndarray:
     """Samples (stamps_ns (n,) sorted unique [ns], values (n, m)) at the stamps ``at_ns`` (r,) -> (r, m) (module doc).
 
     Linear in time per column, :math:`y(t) = y_i + (y_{i+1} - y_i)(t - t_i)/(t_{i+1} - t_i)`, exact at sample
-    stamps; ``quaternion``: the columns of a unit quaternion (normalised, sign-aligned to the earlier sample);
+    stamps; ``quaternion``: columns [start, stop) of a unit quaternion (normalised, sign-aligned to the earlier sample);
     a row nearer than ``max_gap_s`` [s] outside the samples holds the nearest one (``hold``; else NaN: a truth
     must be bracketed); a row in a step longer than ``max_gap_s`` or farther outside is NaN.
     """
@@ -137,14 +137,15 @@ def interpolate_at(stamps_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray,
         f = ((at[inner] - t0) / step)[:, None]
         y0, y1 = values[i0].copy(), values[i1].copy()
         if quaternion is not None:
-            flip = np.sum(y0[:, quaternion] * y1[:, quaternion], axis=1) < 0
-            q1 = y1[:, quaternion]
+            qs = slice(*quaternion)
+            flip = np.sum(y0[:, qs] * y1[:, qs], axis=1) < 0
+            q1 = y1[:, qs]
             q1[flip] *= -1.0
-            y1[:, quaternion] = q1
+            y1[:, qs] = q1
         y = y0 + (y1 - y0) * f
         if quaternion is not None:
-            q = y[:, quaternion]
-            y[:, quaternion] = q / np.linalg.norm(q, axis=1, keepdims=True)
+            q = y[:, qs]
+            y[:, qs] = q / np.linalg.norm(q, axis=1, keepdims=True)
         y[step > max_gap_ns] = np.nan
         out[inner] = y
     return out

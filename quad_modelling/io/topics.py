@@ -66,6 +66,10 @@ DONE_TOPIC = "replay/done"
 """rosgraph_msgs/Clock, transient-local: the last stamp the replay played, published once it has finished (after the
 acknowledgements reached it); ``run-bag`` on a host without the replay ends its nodes on it."""
 
+HORIZON_TOPIC = "horizon/odom"
+"""``<model>/horizon/odom`` (nav_msgs/Odometry, frames as ``<model>/odom``): receding-horizon mode, the state
+``horizon_s`` ahead of each input re-anchored on the latest measurement, stamped at the predicted time."""
+
 WORLD_FRAME = "world"
 BODY_FRAME = "base_link"
 MOTOR_NAMES = ("motor_1", "motor_2", "motor_3", "motor_4")
@@ -86,15 +90,11 @@ LIVE_TOPICS = ("motor_input", "mocap/odom", "imu")
 """Measurement topics the live nodes need (the predictor and evaluator nodes wait for imu messages)."""
 
 ODOM_FIELDS = 10
+ODOM_QUATERNION = (3, 7)
+"""Columns [start, stop) of the quaternion x, y, z, w inside the odometry fields."""
 PREDICTED_ODOM_FIELDS = 13
 IMU_FIELDS = 6
 ACCEL_FIELDS = 6
-ODOM_QUATERNION = slice(3, 7)
-"""The orientation quaternion (x, y, z, w) among the odometry fields (measured and predicted)."""
-
-HORIZON_TOPIC = "horizon/odom"
-"""``<model>/horizon/odom`` (nav_msgs/Odometry, frames as ``<model>/odom``): receding-horizon mode, the state
-``horizon_s`` ahead of each input re-anchored on the latest measurement, stamped at the predicted time."""
 
 UNKNOWN_ANGULAR_TWIST = np.zeros(36)
 UNKNOWN_ANGULAR_TWIST[[21, 28, 35]] = -1.0

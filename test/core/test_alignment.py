@@ -41,7 +41,7 @@ def test_interpolation_is_exact_at_sample_stamps_linear_between_and_never_crosse
 def test_quaternions_are_interpolated_normalised_and_sign_aligned():
     half = np.pi / 8  # rotations of 0 and 45 deg about z; the second sample given with the opposite sign
     q = np.array([[0, 0, 0, 1.0], [0, 0, -np.sin(half), -np.cos(half)]])
-    mid = interpolate_at(np.array([0, 10 * MS]), q, np.array([5 * MS]), quaternion=slice(0, 4))[0]
+    mid = interpolate_at(np.array([0, 10 * MS]), q, np.array([5 * MS]), quaternion=(0, 4))[0]
     assert np.linalg.norm(mid) == pytest.approx(1.0)
     angle = 2 * np.arctan2(mid[2], mid[3])
     assert angle == pytest.approx(np.pi / 8, abs=1e-3)  # nlerp half-way: 22.5 deg
