@@ -33,8 +33,9 @@ BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
 NS = "/cf1"
 WINDOW_S = 3.0
 FLIGHT_ROWS = (800, 2001)  # 12 s of the flight (8-20 s: the oval at speed), four 3 s windows
-RMS_TOLERANCE = 0.10
-"""Live vs offline mean RMS per variable (velocities, rates) of the greybox model, relative, on the emulated flight."""
+RMS_TOLERANCE = 0.03
+"""Live vs offline mean RMS per variable (velocities, rates) of the greybox model, relative, on the emulated flight
+(measured with the predictor branch merged: at most 0.6 %, vel_x; 100 % of the inputs answered, 4 of 4 windows)."""
 DUMMY_TOLERANCE = 0.01
 """The same for the dummy (the measurement path alone: streams interpolated to the jittered input stamps)."""
 VARIABLES_COMPARED = ("vel_x", "vel_y", "vel_z", "roll_rate", "pitch_rate", "yaw_rate")
@@ -104,7 +105,7 @@ def test_predictor_and_evaluator_next_to_an_emulated_flight_stack(ros, tmp_path)
         executor.shutdown()
         listener.destroy_node()
     assert counts == {"motor": len(plan.motor), "mocap": len(plan.mocap), "imu": len(plan.imu)}
-    assert procs["evaluator"].returncode == 0 and procs["predictor"].returncode == 0, logs
+    assert procs["evaluator"].returncode == 0 and procs["predictor"].returncode == 0, logs["predictor"][-3000:]
 
     live = json.loads((out / "results.json").read_text())
     full = int(round((log.t[-1] - log.t[0]) / WINDOW_S))
