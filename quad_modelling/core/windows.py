@@ -30,9 +30,14 @@ after a shift of half a period:
 boundaries ``t0 + kW - dt/2`` lie half-way between nominal samples. Row
 boundaries map to time the same way: a row range of a span ``[a, b)`` holds the
 rows with ``a <= t - t_first + dt/2 < b``; a window holds the rows assigned to
-it and is used only when it holds exactly ``round(W / dt)`` rows (a gap or a
-duplicated stamp leaves it out: offline it is skipped, live it is marked) and
-all of them lie in its span. A window with a row inside a measurement gap marked
+it and is used only when they meet the coverage rule of
+:mod:`~quad_modelling.core.alignment` (>= 95 % of the nominal W / dt rows, no
+step over 50 ms, window edges included: a dropped sample of a real log keeps
+the window, a gap or a late start leaves it out: offline it is skipped, live it
+is marked), and only when it ends inside its span (its last nominal row before
+the span's end). The rows are the recorded ones, never resampled, so the live
+evaluator (which scores the engine-input stamps it received) and the offline
+evaluation score the same rows the same way. A window with a row inside a measurement gap marked
 in the flight's notes (a motion-capture or IMU dropout a reader did not bridge)
 is left out offline (:func:`gap_rows`; live, the missing messages mark it), and
 contiguous segments (multi-step evaluation, NARX training) are split there
@@ -40,9 +45,8 @@ contiguous segments (multi-step evaluation, NARX training) are split there
 
 Offline (:func:`span_windows`) the clock's origin is the span start (windows
 are consecutive from it, a remainder shorter than W is not used) and dt is the
-flight's mean sample period (its duration over its steps: unlike the median of
-jittered steps, it puts round(W / dt) rows in a window; on a uniform grid both
-are the same). Live, the origin is the first engine-input stamp
+flight's mean sample period (its duration over its steps; on a uniform grid
+the same as the median). Live, the origin is the first engine-input stamp
 (published on ``window_origin``) and dt the median of the first engine-input
 steps; a window is scored in a span when it lies inside it
 (:meth:`SpanSpec.covers`). Spans starting on multiples of W give the same
@@ -59,6 +63,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
+from quad_modelling.core.alignment import stream_coverage
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.preprocess import (
     SMOOTH_CUTOFF_HZ,
@@ -313,6 +318,11 @@ class WindowClock:
         unknown). Positions carry the dt/2 shift, so stamp jitter below dt/2 does not change the answer."""
         return self.half_period_ns is not None and position_ns < self.warm_ns <= position_ns + 2 * self.half_period_ns
 
+    def stamp_bounds(self, k: int) -> tuple[int, int]:
+        """The stamps [ns] window k holds: [t0 + kW - dt/2, t0 + (k+1)W - dt/2) (the stamp rule of the module doc)."""
+        start = self.origin_ns + k * self.window_ns - (self.half_period_ns or 0)
+        return start, start + self.window_ns
+
     def window_start_s(self, k: int) -> float:
         """Start of window k in seconds from t0."""
         return k * self.window_ns / 1e9
@@ -323,17 +333,21 @@ class WindowClock:
         return int(round(self.window_ns / (2 * self.half_period_ns)))
 
     def cut(self, stamps_ns: np.ndarray, end_ns: float = math.inf) -> list[tuple[int, int]]:
-        """Rows [start, stop) of each complete window k >= 0 of sorted ``stamps_ns`` whose rows all have
-        ``t - t0 + dt/2 < end_ns`` (relative to t0): the offline form of :meth:`locate`."""
+        """Rows [start, stop) of each window k >= 0 of sorted ``stamps_ns`` that meets the coverage rule
+        (:func:`~quad_modelling.core.alignment.stream_coverage` on the shifted stamps) and whose rows all have
+        ``t - t0 + dt/2 < end_ns`` (relative to t0), with ``(k+1) W < end_ns + dt/2``: the offline form of
+        :meth:`locate`."""
         shifted = self.shifted(np.asarray(stamps_ns, dtype=np.int64))
         first = int(np.searchsorted(shifted, 0))
         last = len(shifted) if math.isinf(end_ns) else int(np.searchsorted(shifted, end_ns))
         if last <= first:
             return []
         windows = int((shifted[last - 1] // self.window_ns) + 1)
+        if not math.isinf(end_ns):  # a window ends inside [.., end): its last nominal row lies before end
+            windows = min(windows, int((end_ns + (self.half_period_ns or 0) - 1) // self.window_ns))
         bounds = np.searchsorted(shifted, np.arange(windows + 1, dtype=np.int64) * self.window_ns)
-        rows = self.window_rows
-        return [(int(a), int(b)) for a, b in itertools.pairwise(bounds) if b - a == rows and b <= last]
+        return [(int(a), int(b)) for k, (a, b) in enumerate(itertools.pairwise(bounds))
+                if b <= last and stream_coverage("rows", shifted[a:b], k * self.window_ns, (k + 1) * self.window_ns).ok]
 
 
 def flight_clock(log: FlightLog, origin_s: float, window_s: float, warm_s: float = 0.0) -> WindowClock:

@@ -70,6 +70,10 @@ DONE_TOPIC = "replay/done"
 """rosgraph_msgs/Clock, transient-local: the last stamp the replay played, published once it has finished (after the
 acknowledgements reached it); ``run-bag`` on a host without the replay ends its nodes on it."""
 
+HORIZON_TOPIC = "horizon/odom"
+"""``<model>/horizon/odom`` (nav_msgs/Odometry, frames as ``<model>/odom``): receding-horizon mode, the state
+``horizon_s`` ahead of each input re-anchored on the latest measurement, stamped at the predicted time."""
+
 WORLD_FRAME = "world"
 BODY_FRAME = "base_link"
 MOTOR_NAMES = ("motor_1", "motor_2", "motor_3", "motor_4")

@@ -14,27 +14,31 @@ published goes into one MCAP bag (:mod:`~quad_modelling.nodes.recording`), finis
 Data subscriptions use the ``qos`` parameter (:func:`~quad_modelling.nodes.common.subscription_qos`);
 the vehicle is learned from the replay's ``vehicle`` topic as the predictor's is.
 
-Scoring uses the core code of ``quad-modelling evaluate``: the window's received
-measurements become a FlightLog (:func:`~quad_modelling.io.topics.measurement_log`),
-received absolute predictions are wrapped with
-:class:`~quad_modelling.core.models.streaming.RecordedPrediction` (which trims them as the
-offline predictors do) and scored with
-:func:`~quad_modelling.core.evaluation.windowed.evaluate_window` (core defaults for trim and
-smoothing from one :class:`~quad_modelling.core.windows.EvaluationConfig`, warm rows from
-:func:`~quad_modelling.core.windows.warm_samples_for`). Windows are those of the core
-:class:`~quad_modelling.core.windows.WindowClock`; only windows entirely inside a span
-(``spans``: ``NAME:A:B`` seconds from t0, the core span grammar) are scored.
+Scoring uses the core code of ``quad-modelling evaluate`` (:mod:`~quad_modelling.nodes.scoring` adapts):
+received measurements become a FlightLog, received absolute predictions a
+:class:`~quad_modelling.core.models.streaming.RecordedPrediction`, scored with
+:func:`~quad_modelling.core.evaluation.windowed.evaluate_window` (trim and smoothing from one
+:class:`~quad_modelling.core.windows.EvaluationConfig`) on the windows of the core
+:class:`~quad_modelling.core.windows.WindowClock` that lie inside a span (``spans``: ``NAME:A:B`` s from t0).
 
-Closing rule: every stream the node scores (``motor_input``, ``mocap/odom``, ``imu`` and each
-model's ``<model>/odom`` and ``<model>/accel``) has its latest stamp tracked; window k =
-[t0 + kW, t0 + (k+1)W) closes when every stream has delivered a stamp of a later window (the
-streams are independent DDS writers: over a lossy link one may be repairing a sample while the
-others have moved on), or ``close_grace_s`` [wall s] after the first stream passed the window's
-end. A window closed by the grace with a stream still behind is marked naming that stream (a
-late model: that model's records). A model silent for ``stale_model_s`` is not waited for.
-A window with missing measurement rows (gap, late start, duplicates) or a model
-with missing predictions (restart) is *marked* with the reason, never scored
-partially. Buffers hold at most the open windows (bounded).
+Closing rule: window k = [t0 + kW, t0 + (k+1)W) closes when every scored stream (``motor_input``,
+``mocap/odom``, ``imu``, each model's ``<model>/odom`` and ``<model>/accel``) has delivered a stamp of a
+later window, or ``close_grace_s`` [wall s] after the first passed its end (then marked naming the late
+stream; a late model: its records). A model silent for ``stale_model_s`` is not waited for.
+
+Streams on their own clocks (:mod:`~quad_modelling.core.alignment`, shared with offline): the scored
+rows are the window's engine-input stamps; motion capture, IMU and predictions are interpolated to them
+(exact where a stamp matches: the aligned replay scores the recorded rows). A window is scored when every
+stream meets the coverage rule (>= 95 % of its nominal samples, no gap over 50 ms), else *marked* naming
+each failing stream, its coverage and longest gap (a failing model stream marks that model only). Buffers
+hold the open windows and the last closed one. Receding horizon (``horizon_s`` > 0):
+``<model>/horizon/odom``, stamped at the predicted time, is scored against the measurements interpolated
+there with the multi-step group errors: MAE@h per closed window and pooled (``results.json``), the offline
+MAE_h over the same starts. Faults: non-finite, malformed or unreadable messages are dropped with one
+warning per kind (counted); a stamp farther than ``max_stamp_jump_s`` from its stream's latest is dropped
+as an outlier unless :data:`JUMP_CONFIRM` in a row agree (a restarted publisher or clock): the stream
+follows, and a jump of the engine inputs restarts the window clock (new origin published). Timers run
+on the steady clock, so wall or sim-time jumps do not stop them.
 """
 
 from __future__ import annotations
@@ -56,10 +60,9 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
+from quad_modelling.core.alignment import StampGuard
 from quad_modelling.core.evaluation.windowed import evaluate_window
 from quad_modelling.core.models.base import DummyPredictor
-from quad_modelling.core.models.streaming import RecordedPrediction
-from quad_modelling.core.preprocess import smooth, trimmed_variables
 from quad_modelling.core.windows import (
     EvaluationConfig,
     WindowClock,
@@ -68,6 +71,7 @@ from quad_modelling.core.windows import (
 )
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
+from quad_modelling.io.topics import HORIZON_TOPIC
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
     VEHICLE_TOPIC,
@@ -94,7 +98,15 @@ from quad_modelling.nodes.common import (
     vehicle_param,
 )
 from quad_modelling.nodes.recording import open_recorder
-from quad_modelling.nodes.scoring import LiveScores, WindowRecord, diagnostics_message
+from quad_modelling.nodes.scoring import (
+    LiveScores,
+    WindowBuffer,
+    WindowRecord,
+    diagnostics_message,
+    score_horizon,
+    score_model,
+    window_measurements,
+)
 
 PROGRESS_REPEAT_S = 0.2
 """The progress acknowledgement is repeated this often [s] even when unchanged (late replays)."""
@@ -117,7 +129,13 @@ EVALUATOR_PARAMETERS = [
     vehicle_param(),
     Param("window_s", 10.0, "window length W [s], as the predictors", positive),
     Param("warm_s", 0.2, "warm start [s], as the predictors", positive),
-    Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
+    Param("sample_period_s", 0.0, "nominal engine-input period [s] of the window clock's dt/2 shift; 0 = median of the first "
+                                  "motor-input steps", non_negative),
+    Param("horizon_s", 0.0, "receding-horizon scoring: MAE@h of <model>/horizon/odom (predicted horizon_s ahead, stamped at the "
+                            "predicted time) against the measurements; the predictors' horizon_s; 0 = off", non_negative),
+    Param("max_stamp_jump_s", 5.0, "a stamp this far [s] before or after its stream's latest one is an outlier and dropped, "
+                                   "unless 5 in a row agree: then the stream's clock jumped (restart) and the window clock "
+                                   "follows", positive),
     Param("spans", ["live:0:inf"], "spans NAME:A:B in seconds from t0; only windows entirely inside one are scored", spans_check),
     Param("output_dir", "", "directory for results.json/tables.md/figures (replaced on each write); empty = do not write"),
     Param("record", "", "record measurements, predictions and evaluation into this new MCAP bag directory (zstd "
@@ -142,21 +160,8 @@ EVALUATOR_PARAMETERS = [
 MEASUREMENT_STREAMS = ("motor_input", "mocap_odom", "imu")
 """Names of the measurement streams in the closing rule and in the reasons of marked windows."""
 
-
-class _Window:
-    """Received rows of one window: measurement fields and each model's prediction fields, by stamp."""
-
-    __slots__ = ("index", "motor", "omega", "odom", "imu", "pred_odom", "pred_accel", "passed_at")
-
-    def __init__(self, index: int, models: list[str]):
-        self.index = index
-        self.motor: dict[int, list] = {}
-        self.omega: dict[int, list | None] = {}
-        self.odom: dict[int, list] = {}
-        self.imu: dict[int, list] = {}
-        self.pred_odom = {m: {} for m in models}
-        self.pred_accel = {m: {} for m in models}
-        self.passed_at: float | None = None  # wall time [s, monotonic] the first stream moved past this window
+JUMP_CONFIRM = 5
+"""Consecutive far-off stamps of one stream that make a clock jump rather than outliers (:class:`StampGuard`)."""
 
 
 class EvaluatorNode(Node):
@@ -172,6 +177,7 @@ class EvaluatorNode(Node):
         self.models = [str(m).strip() for m in p["models"]]
         self.spans = seconds_spans(p["spans"])
         self.window_s, self.warm_s = p["window_s"], p["warm_s"]
+        self.horizon_s = p["horizon_s"]
         self.output_dir = Path(p["output_dir"]) if p["output_dir"] else None
         if self.output_dir is not None and self.output_dir.exists() and not p["force"]:
             raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
@@ -186,14 +192,17 @@ class EvaluatorNode(Node):
                                        train=named.get("train", ""), eval=named.get("eval", ""), horizons=(1,))
         # The zero-predicting dummy (thesis Fig 5.2) is always reported, as offline; it needs no node.
         self.baselines = [] if "dummy" in self.models else ["dummy"]
-        self.scores = LiveScores(self.config, self.spans, self.models + self.baselines)
+        self.scores = LiveScores(self.config, self.spans, self.models + self.baselines, horizon_s=self.horizon_s)
         self.faults = FaultLog(self.get_logger())
         self.clock_ = WindowClock(self.window_s, self.warm_s, p["sample_period_s"])
-        self.open: dict[int, _Window] = {}
+        self.open: dict[int, WindowBuffer] = {}
+        self.previous: WindowBuffer | None = None  # the last closed window: its samples bracket the next one's first rows
         self.closed_below = None  # windows with index < this are closed
         self.last_motor_ns: int | None = None  # the last accepted engine input (stamps must increase)
         # Latest stamp [ns] of every stream the node scores (the closing rule); a model's streams also their wall time.
         self.stream_last_ns: dict[str, int | None] = {s: None for s in (*MEASUREMENT_STREAMS, *self.model_streams())}
+        self.stamp_guards: dict[str, StampGuard] = {}
+        self.max_jump_s = p["max_stamp_jump_s"]
         self.model_last_wall = {m: None for m in self.models}
         self.ready = False
         self.started_wall = time.monotonic()
@@ -204,14 +213,17 @@ class EvaluatorNode(Node):
         qos = subscription_qos(p["qos"], p["qos_depth"])
         self.recorder = open_recorder("evaluator", p["record"], self.output_dir, p["force"], self.vehicle)
         subscribe = self._subscribe
-        subscribe(JointState, p["motor_input_topic"], self.on_motor, qos)
-        subscribe(Odometry, p["odom_topic"], self.on_odom, qos)
-        subscribe(Imu, p["imu_topic"], self.on_imu, qos)
+        subscribe(JointState, p["motor_input_topic"], self._guarded("motor_input", self.on_motor), qos)
+        subscribe(Odometry, p["odom_topic"], self._guarded("mocap_odom", self.on_odom), qos)
+        subscribe(Imu, p["imu_topic"], self._guarded("imu", self.on_imu), qos)
         self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
         self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
         for model in self.models:
-            subscribe(Odometry, f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg), qos)
-            subscribe(AccelStamped, f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg), qos)
+            subscribe(Odometry, f"{model}/odom", self._guarded(f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg)), qos)
+            subscribe(AccelStamped, f"{model}/accel", self._guarded(f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg)), qos)
+            if self.horizon_s > 0:
+                subscribe(Odometry, f"{model}/{HORIZON_TOPIC}", self._guarded(f"{model}/horizon",
+                                                                              lambda msg, m=model: self.on_horizon(m, msg)), qos)
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
         self.diag_pub = self.create_publisher(DiagnosticArray, "evaluation", data_qos(100))
         self.diag_topic = self.resolve_topic_name("evaluation")
@@ -220,7 +232,8 @@ class EvaluatorNode(Node):
         steady = RosClock(clock_type=ClockType.STEADY_TIME)
         self.create_timer(0.01, self.on_progress_timer, clock=steady)
         self.create_timer(0.25, self.on_close_timer, clock=steady)
-        self.get_logger().info(f"scoring models {self.models} in spans {p['spans']} ({self.window_s:g} s windows, "
+        horizon = f", MAE@{self.horizon_s:g} s of <model>/{HORIZON_TOPIC}" if self.horizon_s > 0 else ""
+        self.get_logger().info(f"scoring models {self.models} in spans {p['spans']} ({self.window_s:g} s windows{horizon}, "
                                f"{p['qos']} subscriptions{', recording to ' + p['record'] if p['record'] else ''})")
 
     @property
@@ -245,6 +258,17 @@ class EvaluatorNode(Node):
 
         self.create_subscription(kind, topic, recorded, qos, raw=True)
 
+    def _guarded(self, stream: str, callback):
+        """``callback`` that survives a message it cannot use: reported (once per stream, counted) and dropped."""
+
+        def guarded(msg):
+            try:
+                callback(msg)
+            except (ValueError, TypeError, IndexError, AttributeError, OverflowError, QuadModellingError) as err:
+                self.faults.report(f"bad_{stream}", f"unusable {stream} message dropped ({type(err).__name__}: {err})")
+
+        return guarded
+
     # --- inputs -------------------------------------------------------------------------------
 
     def on_vehicle(self, msg: String) -> None:
@@ -256,24 +280,59 @@ class EvaluatorNode(Node):
             if self.clock_.origin_ns is not None:
                 self.faults.report("origin_changed", f"window origin moved to an earlier t0 ({ns} ns): open windows discarded")
                 self.open.clear()
+                self.previous = None
                 self.closed_below = None
             self.clock_.origin_ns = ns
 
-    def _window_for(self, ns: int, stream: str) -> _Window | None:
+    def _stamp_ok(self, stream: str, ns: int) -> bool:
+        """The stamp rule of every stream (module doc, faults): accept, drop a single outlier, or follow a jump."""
+        guard = self.stamp_guards.setdefault(stream, StampGuard(self.max_jump_s, JUMP_CONFIRM))
+        verdict = guard.check(ns)
+        if verdict == StampGuard.ACCEPT:
+            return True
+        if verdict == StampGuard.OUTLIER:
+            last = guard.last
+            self.faults.report(f"outlier_stamp_{stream}", f"{stream} stamp {ns} ns lies {(ns - last) / 1e9:+.3f} s from the "
+                                                           f"stream's latest one (max_stamp_jump_s={self.max_jump_s:g}): dropped")
+            return False
+        self.faults.report(f"clock_jump_{stream}", f"{stream} jumped to stamp {ns} ns ({JUMP_CONFIRM} stamps in a row agree): "
+                                                    "publisher restarted or clock reset; following it")
+        if stream == "motor_input":
+            self._restart_clock()
+        else:
+            self.stream_last_ns[stream] = None
+        return True
+
+    def _restart_clock(self) -> None:
+        """The engine inputs jumped: close (score or mark) the open windows, forget every stream's position, and start
+        the window clock again at the next engine input (a new origin, published)."""
+        for k in sorted(self.open):
+            self._close(k, reason_if_incomplete="the engine inputs' clock jumped before the window was complete")
+        self.previous = self.closed_below = self.last_motor_ns = self.clock_.origin_ns = None
+        self.stream_last_ns = dict.fromkeys(self.stream_last_ns)
+        for guard in (g for name, g in self.stamp_guards.items() if name != "motor_input"):
+            guard.reset()
+
+    def _window_for(self, ns: int, stream: str) -> WindowBuffer | None:
         if self.clock_.origin_ns is None:
             if stream != "motor":
                 return None  # no origin yet: wait for the first engine input
             self.clock_.origin_ns = ns
             self.origin_pub.publish(messages.clock_message(ns))
-        if ns < self.clock_.origin_ns:
+        if ns < self.clock_.origin_ns - self.clock_.window_ns:
             return None
         k, _ = self.clock_.locate(ns)
         if self.closed_below is not None and k < self.closed_below:
             self.faults.report(f"late_{stream}", f"{stream} message for the already closed window {k}: dropped")
             return None
+        if k < 0:
+            # Samples within a window before t0 bracket window 0's first rows; they belong to no scored window.
+            if self.previous is None:
+                self.previous = WindowBuffer(-1, self.models)
+            return self.previous
         window = self.open.get(k)
         if window is None:
-            window = self.open[k] = _Window(k, self.models)
+            window = self.open[k] = WindowBuffer(k, self.models)
             while len(self.open) > MAX_OPEN_WINDOWS:
                 self._close(min(self.open), reason_if_incomplete="closed early to bound memory")
         return window
@@ -282,12 +341,15 @@ class EvaluatorNode(Node):
         if not topics.all_finite(values):
             self.faults.report(f"nan_{stream}", f"non-finite {stream} message dropped")
             return False
-        return True
+        return self._stamp_ok(stream, ns)
 
     def on_motor(self, msg: JointState) -> None:
         ns = topics.stamp_ns(msg.header.stamp)
         fields = topics.motor_fields(msg)
-        if fields is None or not self._accept("motor_input", ns, fields[0]):
+        if fields is None:
+            self.faults.report("bad_motor_input", f"motor_input message with {len(msg.effort)} efforts (4 expected) dropped")
+            return
+        if not self._accept("motor_input", ns, fields[0]):
             return
         last = self.last_motor_ns
         if last is not None and ns <= last:
@@ -312,7 +374,7 @@ class EvaluatorNode(Node):
         if last is not None and ns <= last:
             return
         self.stream_last_ns[stream] = ns
-        if last is not None and self.clock_.locate(last)[0] >= k:
+        if k < 0 or (last is not None and self.clock_.locate(last)[0] >= k):
             return
         now = time.monotonic()
         for index, w in self.open.items():
@@ -341,7 +403,8 @@ class EvaluatorNode(Node):
         self._measurement("imu", topics.stamp_ns(msg.header.stamp), topics.imu_fields(msg), "imu")
 
     def _prediction(self, model: str, ns: int, fields: list, store: str) -> None:
-        if not self._accept(f"{model}_prediction", ns, fields):
+        stream = f"{model}/{'odom' if store == 'pred_odom' else 'accel'}"
+        if not self._accept(stream, ns, fields):
             return
         window = self._window_for(ns, f"{model}_prediction")
         if window is None:
@@ -353,13 +416,24 @@ class EvaluatorNode(Node):
             return
         buffer[ns] = fields
         self.model_last_wall[model] = time.monotonic()
-        self._advance(f"{model}/{'odom' if store == 'pred_odom' else 'accel'}", ns, window.index)
+        self._advance(stream, ns, window.index)
 
     def on_pred_odom(self, model: str, msg: Odometry) -> None:
         self._prediction(model, topics.stamp_ns(msg.header.stamp), topics.predicted_odometry_fields(msg), "pred_odom")
 
     def on_pred_accel(self, model: str, msg: AccelStamped) -> None:
         self._prediction(model, topics.stamp_ns(msg.header.stamp), topics.accel_fields(msg), "pred_accel")
+
+    def on_horizon(self, model: str, msg: Odometry) -> None:
+        """A receding-horizon prediction (stamped at the predicted time): kept in that time's window. Not a closing stream."""
+        ns, fields = topics.stamp_ns(msg.header.stamp), topics.predicted_odometry_fields(msg)
+        if not self._accept(f"{model}/horizon", ns, fields):
+            return
+        if self.clock_.origin_ns is not None and self.clock_.locate(ns)[0] not in self.open and len(self.open) >= MAX_OPEN_WINDOWS:
+            return self.faults.report(f"horizon_ahead_{model}", f"{model}/{HORIZON_TOPIC} stamp {ns} ns beyond the open windows: dropped")
+        window = self._window_for(ns, f"{model}_horizon")
+        if window is not None:
+            window.horizon[model].setdefault(ns, fields)
 
     # --- progress and closing -----------------------------------------------------------------
 
@@ -429,21 +503,25 @@ class EvaluatorNode(Node):
         """Score (or mark) window ``k`` and publish its diagnostics. ``late``: streams that had not passed its end
         (a late measurement stream marks the whole window, a late model stream that model's records)."""
         window = self.open.pop(k)
+        neighbours = [w for w in (self.previous, window, self.open.get(k + 1)) if w is not None and abs(w.index - k) <= 1]
+        self.previous = window
         self.closed_below = max(self.closed_below or 0, k + 1)
         self.windows_closed += 1
         start_s, end_s = self.clock_.window_start_s(k), self.clock_.window_start_s(k + 1)
         spans = [span.name for span in self.spans if span.covers(start_s, end_s)]
         if not spans:
             return
-        records = self._score(window, start_s, end_s, spans, reason_if_incomplete, list(late))
+        records = self._score(window, neighbours, start_s, end_s, spans, reason_if_incomplete, list(late))
         self.scores.records.extend(records)
-        msg = diagnostics_message(records, self.clock_.origin_ns + (window.index + 1) * self.clock_.window_ns)
+        horizon = score_horizon(window, neighbours, self.models, self.vehicle) if self.horizon_s > 0 and self.vehicle else []
+        self.scores.horizon.extend(horizon)
+        msg = diagnostics_message(records, self.clock_.origin_ns + (window.index + 1) * self.clock_.window_ns, horizon)
         if self.context.ok():  # at shutdown the results still go to results.json (and the recording)
             self.diag_pub.publish(msg)
         if self.recorder is not None:
             self.recorder.add(self.diag_topic, msg)
 
-    def _score(self, window: _Window, start_s: float, end_s: float, spans: list[str], extra: str,
+    def _score(self, window: WindowBuffer, neighbours: list[WindowBuffer], start_s: float, end_s: float, spans: list[str], extra: str,
                late: list[str]) -> list[WindowRecord]:
         def marked(reason: str, models=None) -> list[WindowRecord]:
             return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason)
@@ -453,24 +531,10 @@ class EvaluatorNode(Node):
             return marked(self._late_reason([s for s in late if s in MEASUREMENT_STREAMS]))
         if self.vehicle is None:
             return marked(f"no vehicle: parameter vehicle is empty and no replay announced one on topic {VEHICLE_TOPIC}")
-        stamps = sorted(window.motor)
-        complete = [ns for ns in stamps if ns in window.odom and ns in window.imu]
-        period = self.clock_.period_s
-        expected = int(round(self.window_s / period)) if period else None
-        if expected is None or len(complete) != expected or len(complete) != len(stamps):
-            reason = (f"measurement rows: {len(complete)} complete of {expected} expected "
-                      f"({len(stamps)} engine inputs, {len(window.odom)} mocap, {len(window.imu)} imu; gap or late start)")
+        lo, hi = self.clock_.stamp_bounds(window.index)
+        log, measured, reason = window_measurements(window, neighbours, lo, hi, self.vehicle, self.config)
+        if log is None:
             return marked(f"{reason}{'; ' + extra if extra else ''}")
-        omegas = [window.omega[ns] for ns in complete]
-        try:
-            log = topics.measurement_log(
-                np.array(complete, dtype=np.int64), [window.motor[ns] for ns in complete], [window.odom[ns] for ns in complete],
-                [window.imu[ns] for ns in complete], self.vehicle.name, f"live window {window.index}",
-                omega=np.array(omegas) if all(o is not None for o in omegas) else None,
-            )
-            measured = smooth(trimmed_variables(log, self.config.trim, self.vehicle), log.sample_rate, self.config.smooth_cutoff_hz)
-        except QuadModellingError as err:
-            return marked(f"measurements unusable: {err}")
         warm = warm_samples_for(log, self.warm_s)
         records, predicted = [], {}
         for model in self.models:
@@ -478,17 +542,9 @@ class EvaluatorNode(Node):
             if model_late:
                 records += marked(self._late_reason(model_late), [model])
                 continue
-            odom, accel = window.pred_odom[model], window.pred_accel[model]
-            missing = [ns for ns in complete if ns not in odom or ns not in accel]
-            if missing:
-                records += marked(f"missing predictions for {len(missing)} of {len(complete)} rows (predictor late, restarted or failed)", [model])
-                continue
-            absolute = topics.predictions_from_fields([odom[ns] for ns in complete], [accel[ns] for ns in complete])
-            try:
-                result = evaluate_window(RecordedPrediction(model, absolute, self.config.trim), log, warm,
-                                         self.config.trim, self.vehicle, self.config.smooth_cutoff_hz, measured)
-            except QuadModellingError as err:
-                records += marked(f"cannot score: {err}", [model])
+            result, reason = score_model(model, window, neighbours, lo, hi, log, measured, warm, self.config, self.vehicle)
+            if result is None:
+                records += marked(reason, [model])
                 continue
             predicted[model] = result.predicted
             records += [WindowRecord(model, s, window.index, start_s, end_s, rms=result.rms, tic=result.tic) for s in spans]

@@ -4,6 +4,11 @@ The evaluator node hands the received absolute predictions to
 :class:`~quad_modelling.core.models.streaming.RecordedPrediction`, which trims them as the
 offline predictors do.
 
+* :class:`WindowBuffer`: the evaluator node's received samples of one window; :func:`measured_at` (the
+  measurements interpolated to the scored rows) and :func:`score_horizon` (receding-horizon errors) read them.
+* :class:`HorizonRecord`: the receding-horizon errors of one model in one closed window (sums of the
+  per-prediction group errors of :func:`~quad_modelling.core.evaluation.multistep.group_error_norms`), pooled
+  into MAE@h by :meth:`LiveScores.horizon_mae` exactly as the offline multi-step MAE_h pools its starts.
 * :class:`LiveScores`: per-window results of the evaluator node gathered into a core
   :class:`~quad_modelling.core.evaluation.windowed.EvaluationResult` (mean over scored windows
   per model and span), written with ``quad_modelling.io.reports.evaluation.write_report``.
@@ -15,15 +20,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from quad_modelling.core.alignment import coverage_reason, interpolate_at, stream_coverage
+from quad_modelling.core.evaluation.multistep import GROUP_UNITS, GROUPS, group_error_norms, measured_groups
 from quad_modelling.core.evaluation.windowed import (
     EvaluationResult,
     ExampleWindow,
     SpanScores,
+    WindowResult,
+    evaluate_window,
 )
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.preprocess import trimmed_inputs
+from quad_modelling.core.models.streaming import RecordedPrediction
+from quad_modelling.core.preprocess import smooth, trimmed_inputs, trimmed_variables
 from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec
+from quad_modelling.errors import QuadModellingError
+from quad_modelling.io import topics
 
 
 @dataclass
@@ -55,6 +67,22 @@ class WindowRecord:
 
 
 @dataclass
+class HorizonRecord:
+    """Receding-horizon predictions of one model stamped in one closed window: per group (GROUPS order) the sum of
+    the error norms [m, m/s, rad, rad/s], how many were scored, and how many the measurements did not reach."""
+
+    model: str
+    index: int
+    error_sums: np.ndarray
+    scored: int
+    unreached: int = 0
+
+    def mae(self) -> np.ndarray | None:
+        """MAE@h of this window per group, :math:`\\frac{1}{S}\\sum_s e_s` (None without a scored prediction)."""
+        return self.error_sums / self.scored if self.scored else None
+
+
+@dataclass
 class LiveScores:
     """Everything the evaluator node has scored or marked, in arrival order."""
 
@@ -63,6 +91,21 @@ class LiveScores:
     models: list[str]
     records: list[WindowRecord] = field(default_factory=list)
     examples: dict[str, ExampleWindow] = field(default_factory=dict)
+    horizon_s: float = 0.0
+    horizon: list[HorizonRecord] = field(default_factory=list)
+
+    def horizon_mae(self) -> dict:
+        """MAE@h per model and group over every scored receding-horizon prediction (pooled over windows:
+        :math:`\\mathrm{MAE}_h = \\sum_w \\sum_s e_{w,s} / \\sum_w S_w`, the offline multi-step MAE_h over the same
+        starts), with the counts; units in ``units``."""
+        out: dict = {"horizon_s": self.horizon_s, "units": GROUP_UNITS, "models": {}}
+        for model in dict.fromkeys(r.model for r in self.horizon):
+            mine = [r for r in self.horizon if r.model == model]
+            scored = sum(r.scored for r in mine)
+            sums = np.sum([r.error_sums for r in mine], axis=0)
+            entry = {group: (float(sums[g] / scored) if scored else None) for g, group in enumerate(GROUPS)}
+            out["models"][model] = {"mae": entry, "predictions": scored, "unreached": sum(r.unreached for r in mine)}
+        return out
 
     def add_example(self, span: str, window: FlightLog, measured: np.ndarray, predicted: dict, warm: int) -> None:
         """Keep the first scored window of each span for the report's figures (inputs trimmed with ``config.trim``)."""
@@ -104,13 +147,17 @@ class LiveScores:
             "windows": [r.to_json() for r in self.records],
             "marked": [r.to_json() for r in self.records if not r.scored],
         }
+        if self.horizon_s > 0:
+            data["live"]["horizon"] = self.horizon_mae()
         return data
 
 
-def diagnostics_message(records: list[WindowRecord], stamp_ns: int):
+def diagnostics_message(records: list[WindowRecord], stamp_ns: int, horizon: list[HorizonRecord] = ()):
     """The ``evaluation`` message of one closed window: a diagnostic_msgs/DiagnosticArray stamped ``stamp_ns``
     (the window's end) with one status per record: OK + ``<var>.rms``/``<var>.tic`` (SI, :data:`EVAL_VARIABLES`)
-    for a scored window, WARN + ``not scored: <reason>`` for a marked one."""
+    for a scored window, WARN + ``not scored: <reason>`` for a marked one; and per ``horizon`` record a status
+    ``evaluation/<model>/horizon/window_<k>``: OK + ``<group>.mae`` (SI) and ``predictions``, or WARN when no
+    receding-horizon prediction of the window could be scored."""
     from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 
     from quad_modelling.nodes.messages import ns_stamp
@@ -132,4 +179,125 @@ def diagnostics_message(records: list[WindowRecord], stamp_ns: int):
             status.message = f"not scored: {r.reason}"
         status.values = values
         msg.status.append(status)
+    for h in horizon:
+        status = DiagnosticStatus(name=f"evaluation/{h.model}/horizon/window_{h.index}", hardware_id=h.model)
+        mae = h.mae()
+        values = [KeyValue(key="predictions", value=str(h.scored)), KeyValue(key="unreached", value=str(h.unreached))]
+        if mae is None:
+            status.level, status.message = DiagnosticStatus.WARN, "not scored: no measurement reaches the predicted stamps"
+        else:
+            status.level, status.message = DiagnosticStatus.OK, "scored"
+            values += [KeyValue(key=f"{group}.mae", value=repr(float(mae[g]))) for g, group in enumerate(GROUPS)]
+        status.values = values
+        msg.status.append(status)
     return msg
+
+
+# --- the evaluator's window buffers and what it computes from them at a close --------------------
+
+class WindowBuffer:
+    """Received samples of one window, by stamp [ns]: measurement fields, each model's prediction fields and
+    receding-horizon predictions (stamped at the predicted time)."""
+
+    __slots__ = ("index", "motor", "omega", "odom", "imu", "pred_odom", "pred_accel", "horizon", "passed_at")
+
+    def __init__(self, index: int, models: list[str]):
+        self.index = index
+        self.motor: dict[int, list] = {}
+        self.omega: dict[int, list | None] = {}
+        self.odom: dict[int, list] = {}
+        self.imu: dict[int, list] = {}
+        self.pred_odom = {m: {} for m in models}
+        self.pred_accel = {m: {} for m in models}
+        self.horizon = {m: {} for m in models}
+        self.passed_at: float | None = None  # wall time [s, monotonic] the first stream moved past this window
+
+
+def samples(windows: list[WindowBuffer], get) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps [ns] sorted, values) of one stream over consecutive windows (``get``: the window's dict)."""
+    merged: dict[int, list] = {}
+    for w in windows:
+        merged.update(get(w))
+    stamps = np.array(sorted(merged), dtype=np.int64)
+    return stamps, np.array([merged[ns] for ns in stamps], dtype=float)
+
+
+def measured_at(neighbours: list[WindowBuffer], rows: np.ndarray, vehicle: str, source: str, motor: list | None = None,
+                omega=None) -> FlightLog | None:
+    """The measurement FlightLog at stamps ``rows`` [ns]: motion capture and IMU interpolated to them
+    (:func:`~quad_modelling.core.alignment.interpolate_at`); None when a stream does not reach a row."""
+    odom = interpolate_at(*samples(neighbours, lambda w: w.odom), rows, quaternion=topics.ODOM_QUATERNION)
+    imu = interpolate_at(*samples(neighbours, lambda w: w.imu), rows)
+    if len(odom) == 0 or not (np.isfinite(odom).all() and np.isfinite(imu).all()):
+        return None
+    return topics.measurement_log(rows, np.zeros((len(rows), 4)) if motor is None else motor, odom, imu,
+                                  vehicle, source, omega=omega)
+
+
+def score_horizon(window: WindowBuffer, neighbours: list[WindowBuffer], models: list[str], vehicle) -> list[HorizonRecord]:
+    """Error of each group (:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`) of every
+    receding-horizon prediction stamped in this window against the measurements interpolated at its stamp;
+    predictions whose stamp the measurements do not bracket (e.g. past the flight's end) are counted as
+    ``unreached``, not scored (offline, a start whose horizon passes the end is no start either)."""
+    out = []
+    for model in models:
+        stamps = np.array(sorted(window.horizon[model]), dtype=np.int64)
+        if len(stamps) == 0:
+            continue
+        fields = np.array([window.horizon[model][ns] for ns in stamps])
+        odom = interpolate_at(*samples(neighbours, lambda w: w.odom), stamps, quaternion=topics.ODOM_QUATERNION, hold=False)
+        imu = interpolate_at(*samples(neighbours, lambda w: w.imu), stamps, hold=False)
+        have = np.isfinite(odom).all(axis=1) & np.isfinite(imu).all(axis=1)
+        errors = np.empty((0, len(GROUPS)))
+        if have.any():
+            truth = measured_groups(topics.measurement_log(stamps[have], np.zeros((int(have.sum()), 4)), odom[have], imu[have],
+                                                           vehicle.name, f"live window {window.index}"))
+            predicted = topics.predictions_from_fields(fields[have], np.zeros((int(have.sum()), topics.ACCEL_FIELDS)))
+            errors = group_error_norms(truth, predicted)
+        out.append(HorizonRecord(model, window.index, errors.sum(axis=0) if len(errors) else np.zeros(len(GROUPS)),
+                                 len(errors), int((~have).sum())))
+    return out
+
+
+def window_measurements(window: WindowBuffer, neighbours: list[WindowBuffer], lo: int, hi: int, vehicle,
+                        config: EvaluationConfig) -> tuple[FlightLog | None, np.ndarray | None, str]:
+    """The window's measurements on its rows (the engine-input stamps in [lo, hi) [ns]) and their smoothed trimmed
+    variables, or (None, None, reason) when a measurement stream fails the coverage rule or cannot be used."""
+    rows = np.array(sorted(window.motor), dtype=np.int64)
+    reason = coverage_reason([stream_coverage("motor_input", rows, lo, hi),
+                              stream_coverage("mocap_odom", np.array(sorted(window.odom)), lo, hi),
+                              stream_coverage("imu", np.array(sorted(window.imu)), lo, hi)])
+    if reason:
+        return None, None, reason
+    omegas = [window.omega[ns] for ns in rows]
+    try:
+        log = measured_at(neighbours, rows, vehicle.name, f"live window {window.index}", [window.motor[ns] for ns in rows],
+                          np.array(omegas) if all(o is not None for o in omegas) else None)
+        if log is None:
+            return None, None, "measurements do not reach every engine input of the window (mocap or imu ends early)"
+        return log, smooth(trimmed_variables(log, config.trim, vehicle), log.sample_rate, config.smooth_cutoff_hz), ""
+    except QuadModellingError as err:
+        return None, None, f"measurements unusable: {err}"
+
+
+def score_model(model: str, window: WindowBuffer, neighbours: list[WindowBuffer], lo: int, hi: int, log: FlightLog,
+                measured: np.ndarray, warm: int, config: EvaluationConfig, vehicle) -> tuple[WindowResult | None, str]:
+    """One model on one window: its predictions checked by the coverage rule, interpolated to the window's rows (its
+    engine-input stamps, integer ns: exact where a prediction's stamp matches) and
+    scored with the core :func:`~quad_modelling.core.evaluation.windowed.evaluate_window`; (None, reason) when not."""
+    odom, accel = window.pred_odom[model], window.pred_accel[model]
+    reason = coverage_reason([stream_coverage(f"{model}/odom", np.array(sorted(odom)), lo, hi),
+                              stream_coverage(f"{model}/accel", np.array(sorted(accel)), lo, hi)])
+    if reason:
+        return None, f"predictions: {reason} (predictor late, restarted or failed)"
+    rows = np.array(sorted(window.motor), dtype=np.int64)
+    pred_odom = interpolate_at(*samples(neighbours, lambda w: w.pred_odom[model]), rows, quaternion=topics.ODOM_QUATERNION)
+    pred_accel = interpolate_at(*samples(neighbours, lambda w: w.pred_accel[model]), rows)
+    if not (np.isfinite(pred_odom).all() and np.isfinite(pred_accel).all()):
+        return None, "predictions do not reach every engine input of the window"
+    absolute = topics.predictions_from_fields(pred_odom, pred_accel)
+    try:
+        return evaluate_window(RecordedPrediction(model, absolute, config.trim), log, warm, config.trim, vehicle,
+                               config.smooth_cutoff_hz, measured), ""
+    except QuadModellingError as err:
+        return None, f"cannot score: {err}"

@@ -94,13 +94,37 @@ def multistep_mae(predictor: MultiStepPredictor, segment: FlightLog, max_horizon
         starts = first_start + rows * stride
         predicted = np.asarray(predictor.predict_horizons(segment, starts, max_horizon))[:, 1:, :]
         truth = measured[starts[:, None] + steps[None, :]]
-        for g, (group, cols) in enumerate(GROUPS.items()):
-            if group == "orientation":
-                err = frames.geodesic_angle(truth[..., cols].reshape(-1, 3), predicted[..., cols].reshape(-1, 3))
-                norms[rows, g] = err.reshape(len(starts), max_horizon)
-            else:
-                norms[rows, g] = vector_error_norm(truth[..., cols], predicted[..., cols])
+        errors = group_error_norms(truth.reshape(-1, len(VARIABLES)), predicted.reshape(-1, len(VARIABLES)))
+        norms[rows] = errors.reshape(len(starts), max_horizon, len(GROUPS)).transpose(0, 2, 1)
     return mae_by_horizon(norms), n_starts
+
+
+def group_error_norms(truth: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+    """(n, 18) measured and predicted variables (VARIABLES order, SI, N/FRD) -> (n, 4) error of each group in
+    GROUPS order: the Euclidean norm :math:`\\lVert y_m - y_p \\rVert` of the position [m], velocity [m/s] and
+    angular velocity [rad/s] 3-vectors, and for orientation the geodesic angle [rad] between the two attitudes.
+    The one per-sample error of MAE_h, offline (:func:`multistep_mae`) and live (the evaluator's ``horizon_s``)."""
+    truth, predicted = np.asarray(truth, dtype=float), np.asarray(predicted, dtype=float)
+    out = np.empty((len(truth), len(GROUPS)))
+    for g, (group, cols) in enumerate(GROUPS.items()):
+        if group == "orientation":
+            out[:, g] = frames.geodesic_angle(truth[:, cols], predicted[:, cols]) if len(truth) else []
+        else:
+            out[:, g] = vector_error_norm(truth[:, cols], predicted[:, cols])
+    return out
+
+
+def measured_groups(log: FlightLog) -> np.ndarray:
+    """(N, 18) truth of the MAE_h groups of each row (VARIABLES order; other columns NaN): the same values as
+    :func:`~quad_modelling.core.preprocess.measured_variables` for position, velocity, Euler angles and gyro
+    rates, without the differentiated columns (so any number of rows at any stamps will do)."""
+    out = np.full((len(log), len(VARIABLES)), np.nan)
+    out[:, GROUPS["position"]] = log.pos_n
+    out[:, GROUPS["velocity"]] = log.vel_n
+    out[:, GROUPS["orientation"]] = log.euler
+    if log.gyro_b is not None:
+        out[:, GROUPS["angular_velocity"]] = log.gyro_b
+    return out
 
 
 def multistep_evaluation(flights: Sequence[FlightLog], models: Sequence[Predictor], vehicle: VehicleConfig, config: EvaluationConfig,

@@ -197,9 +197,11 @@ def evaluate_flight(
     if len(set(names)) != len(names):
         raise ConfigError(f"model names must be unique, got {names}")
     config.validate()
-    log = resample_uniform(log)
+    # Windows score the recorded rows (the coverage rule of core.alignment, as the live evaluator); the multi-step
+    # horizons count steps, so they run on the uniform grid (and resample_uniform refuses a gap over 50 ms).
+    uniform = resample_uniform(log)
     spans = config.spans()
-    steps = flight_multistep_sums(log, models, vehicle, config) if multistep else None
+    steps = flight_multistep_sums(uniform, models, vehicle, config) if multistep else None
     stats = EvaluationStatistics.empty(vehicle.name, names, [s.name for s in spans], steps)
     stats.durations.append(log.duration)
     examples: list[ExampleWindow] = []

@@ -65,6 +65,7 @@ import numpy as np
 from quad_modelling.core.discretise import zero_order_hold
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.motors import motor_thrusts
+from quad_modelling.core.models.streaming import predict_window_by_stream
 from quad_modelling.core.preprocess import (
     TrimConfig,
     sample_period,
@@ -417,10 +418,17 @@ class GreyboxPredictor:
                                           (float(warm.t[-1]), x_anchor, u_anchor))
 
     def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        """(N, 18) absolute prediction; equal to the streaming form (vectorised)."""
+        """(N, 18) absolute prediction; equal to the streaming form (vectorised where every step is dt).
+
+        A window whose real steps differ from dt by more than :data:`STEP_TOLERANCE` dt (jitter, a
+        dropped row) is predicted by the streaming form itself, which discretises each step at its
+        real length, so the offline evaluation equals what a live node publishes on the same rows."""
         if not 2 <= warm_samples < len(window):
             raise DataError(f"{window.meta.source}: warm start of {warm_samples} samples does not fit a window of {len(window)}")
         model, warm_predictions, state, input_trim, output_trim = self._anchor(window.slice(0, warm_samples))
+        steps = np.diff(window.t[warm_samples - 1:])
+        if np.any(np.abs(steps - model.dt) > STEP_TOLERANCE * model.dt):
+            return predict_window_by_stream(self, window, warm_samples)
         _, outputs = model.simulate(state, window.u[warm_samples:] - input_trim)
         elapsed = np.zeros(len(outputs))
         for k in range(len(outputs)):  # the stream's running sum of steps, bit for bit
