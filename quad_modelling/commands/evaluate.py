@@ -120,21 +120,24 @@ class FlightOutcome:
 
 
 def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[str], config: EvaluationConfig,
-                         multistep: bool, skip_bad: bool) -> FlightOutcome:
+                         multistep: bool, skip_bad: bool, examples_from: str | None = None) -> FlightOutcome:
     """The per-flight task of ``evaluate`` (run here or on a Dask worker): read the flight, build the models for
     its vehicle (``vehicle``, else the one the flight names) and return its statistics
-    (:func:`~quad_modelling.core.evaluation.windowed.evaluate_flight`)."""
+    (:func:`~quad_modelling.core.evaluation.windowed.evaluate_flight`). Only the flight ``examples_from`` returns
+    its example windows for the figures (0.6 MB per span; the statistics are about 0.1 MB), so a fleet's results
+    cross the network small."""
     loaded = load_flight_or_skip(path, vehicle, skip_bad)
     if loaded.log is None:
         return FlightOutcome(path, None, loaded.skipped, None, [])
     flight_vehicle = vehicle or load_vehicle(loaded.log.meta.vehicle)
     models = [make_model(spec, flight_vehicle) for spec in specs]
-    evaluation = evaluate_flight(loaded.log, models, flight_vehicle, config, multistep)
+    evaluation = evaluate_flight(loaded.log, models, flight_vehicle, config, multistep, examples=path == examples_from)
     return FlightOutcome(path, evaluation, None, flight_vehicle.name, gap_warnings(loaded.log))
 
 
-def _evaluations(outcomes, skipped: list[str], vehicles: list[str]):
-    """The flights' evaluations of the outcomes, in order; skipped files and gap warnings printed on the way."""
+def _evaluations(outcomes, skipped: list[str], vehicles: list[str], first_in_span: dict[str, str]):
+    """The flights' evaluations of the outcomes, in order; skipped files and gap warnings printed on the way;
+    ``first_in_span``: span name -> the first flight with a window in it (filled on the way)."""
     for outcome in outcomes:
         for message in outcome.warnings:
             print(f"warning: {message}", file=sys.stderr)
@@ -146,9 +149,25 @@ def _evaluations(outcomes, skipped: list[str], vehicles: list[str]):
             raise ConfigError(f"the flights are of different vehicles {sorted({vehicles[0], outcome.vehicle})} "
                               f"({outcome.path} is of {outcome.vehicle!r}); evaluate one vehicle at a time")
         vehicles.append(outcome.vehicle)
+        windowed = outcome.evaluation.statistics.windowed
+        for span, sums in windowed[next(iter(windowed))].items():
+            if sums.windows:
+                first_in_span.setdefault(span, outcome.path)
         yield outcome.evaluation
     if not vehicles:
         raise ConfigError("no readable flight among the inputs")
+
+
+def example_windows(result, first_in_span: dict[str, str], task: tuple) -> list:
+    """The figures' windows: the first window of each span in flight order. The first flight sent its own; a span
+    it has no window in takes the first flight that has, evaluated again here (once per such span)."""
+    have = {example.span: example for example in result.examples}
+    for span in [s.name for s in result.config.spans()]:
+        if span not in have and span in first_in_span:
+            path = first_in_span[span]
+            for example in evaluate_flight_file(path, *task, path).evaluation.examples:
+                have.setdefault(example.span, example)
+    return [have[s.name] for s in result.config.spans() if s.name in have]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -173,11 +192,14 @@ def run(args: argparse.Namespace) -> int:
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     specs = list(dict.fromkeys((args.model or ["greybox"]) + ["dummy"]))
     paths = [str(p) for p in args.inputs]
-    outcomes = iter_flights(evaluate_flight_file, paths, given, specs, config, not args.no_multistep, args.skip_bad,
+    task = (given, specs, config, not args.no_multistep, args.skip_bad)
+    outcomes = iter_flights(evaluate_flight_file, paths, *task, paths[0],
                             jobs=args.jobs, scheduler=args.scheduler, progress=tty_progress("evaluate", len(paths)))
     skipped: list[str] = []
     vehicles: list[str] = []
-    result = merge_flights(_evaluations(outcomes, skipped, vehicles), config)
+    first_in_span: dict[str, str] = {}
+    result = merge_flights(_evaluations(outcomes, skipped, vehicles, first_in_span), config)
+    result.examples = example_windows(result, first_in_span, task)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
     with atomic_output(output, args.force) as tmp:
         files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicles[0]}")

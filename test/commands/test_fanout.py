@@ -129,3 +129,28 @@ def test_diagnose_and_train_on_workers_equal_serial(flights, dask_scheduler, tmp
     assert serial.keys() == other.keys() and len(serial) > 2
     for key in serial:  # the same data in the same order: the same weights and normalisation
         np.testing.assert_array_equal(other[key], serial[key])
+
+
+def test_only_the_first_flight_sends_its_figure_windows_and_a_span_it_lacks_comes_from_the_next(flights, tmp_path):
+    """A fleet's task results stay small: the example windows (0.6 MB a span) come from one flight, not every flight;
+    the figures still show the first window of each span in flight order."""
+    from quad_modelling.commands.evaluate import evaluate_flight_file, example_windows
+    from quad_modelling.core.evaluation.windowed import merge_flights
+    from quad_modelling.core.vehicle import load_vehicle
+    from quad_modelling.core.windows import EvaluationConfig
+    from quad_modelling.io.matlog import write_matlog
+    from test.core.flightgen import linear_flight
+
+    vehicle = load_vehicle("linkquad")
+    short = tmp_path / "short.mat"  # 20 s: windows in train 5:15 only, none in eval 25:35
+    write_matlog(linear_flight(vehicle, duration=20.0, seed=5), short)
+    config = EvaluationConfig.from_options("short", "0:0", train="5:15", eval="25:35", window_s=5.0, warm_s=0.2)
+    task = (vehicle, ["naive", "dummy"], config, False, False)
+    paths = [str(short), flights[0]]
+    outcomes = [evaluate_flight_file(p, *task, paths[0]) for p in paths]
+    assert [e.span for e in outcomes[0].evaluation.examples] == ["train"] and outcomes[1].evaluation.examples == []
+    result = merge_flights([o.evaluation for o in outcomes], config)
+    first_in_span = {"train": paths[0], "eval": paths[1]}
+    examples = example_windows(result, first_in_span, task)
+    assert [(e.span, e.source) for e in examples] == [("train", str(short)), ("eval", flights[0])]
+    assert examples[1].measured.shape == (500, 18)  # the whole 5 s window at 100 Hz
