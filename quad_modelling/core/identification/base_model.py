@@ -208,6 +208,9 @@ def predict_batch(
     if not greybox_outputs and acc_cols:
         acc_n = _projected_accelerations(batch, base, states[:, anchor:, 12:16], aug.forcing[:, anchor:, 0:3], anchor)
         out[:, anchor:, acc_cols] = acc_n[:, :, [c - ACCELERATION_COLUMNS[0] for c in acc_cols]]
+    if greybox_outputs:  # the greybox's pose moves with its trim point from the anchor on (greybox.trim_motion)
+        elapsed = np.arange(n - anchor) * batch.dt
+        out[:, anchor:, cols] += elapsed[None, :, None] * batch.trim_motion[:, None, cols]
     if anchor > 0:  # rows before the anchor are the measurement (not scored), as the greybox predictor
         out[:, :anchor, cols] = batch.warm_rows[:, :anchor][:, :, cols]
     if smoothed:

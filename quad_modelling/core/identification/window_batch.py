@@ -11,6 +11,7 @@ from scipy import signal
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.greybox import (
     MEASURED_STATE_COLUMNS,
+    trim_motion,
 )
 from quad_modelling.core.preprocess import (
     SMOOTH_CUTOFF_HZ,
@@ -111,6 +112,7 @@ class WindowBatch:
         return self.u.shape[1]
 
     offsets: np.ndarray = None  # (W, 18) linearisation point (warm-start mean) minus the window trim
+    trim_motion: np.ndarray = None  # (W, 18) rate of change of the linearisation point (greybox.trim_motion) [SI/s]
     warm_rows: np.ndarray = None  # (W, warm, 18) unsmoothed measurement of the warm start minus the window trim
     trim_samples: int = 100  # rows of the trim interval
     ground_contact_dropped: int = 0  # windows left out because the vehicle touched the ground (GROUND_CONTACT_M)
@@ -124,7 +126,7 @@ class WindowBatch:
         index = np.asarray(index, dtype=int)
         picked = {}
         for name in ("t0", "u", "u_history", "u_trim", "measured", "anchor_states", "velocity", "velocity_abs", "velocity_smooth", "euler", "rates", "height", "warm_rows", "offsets",
-                     "specific_force0", "acc_trim", "angacc_trim"):
+                     "trim_motion", "specific_force0", "acc_trim", "angacc_trim"):
             picked[name] = getattr(self, name)[index]
         picked["vbat"] = None if self.vbat is None else self.vbat[index]
         return replace(self, sources=[self.sources[i] for i in index], **picked)
@@ -202,6 +204,7 @@ def prepare_windows(
         input_trim = warm_log.u.mean(axis=0)
         put("anchor_states", i, smooth(warm_measured - output_trim, rate)[-1, MEASURED_STATE_COLUMNS])
         put("offsets", i, output_trim - window_trim)
+        put("trim_motion", i, trim_motion(output_trim))
         put("specific_force0", i, warm_log.acc_b.mean(axis=0))
         put("acc_trim", i, window_trim[6:9])
         put("angacc_trim", i, window_trim[15:18])
