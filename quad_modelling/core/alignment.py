@@ -7,7 +7,8 @@ future or the past, restarted publishers and clock jumps. Offline logs are on on
 drop the odd sample (NanoBench: single 20-30 ms steps). The live evaluator and the offline
 evaluation score a window with the coverage rule and :func:`interpolate_at`; the live predictor
 reads its measurements at each command from a :class:`MeasurementTrack` (the same interpolation
-formula, :func:`lerp`); the predictor passes every stream's stamps through a :class:`StampGate`. All pure logic (no rclpy), unit-tested without spinning a node.
+formula, :func:`lerp`); both nodes pass every stream's stamps through a :class:`StampGate` (one
+rule, one confirm count). All pure logic (no rclpy), unit-tested without spinning a node.
 
 Rows. The scored rows of a window are the engine-input stamps inside it (the predictors
 answer at each input, so the prediction stamps are these stamps); a window is cut by time
@@ -302,42 +303,3 @@ class StampGate:
 
     def reset(self) -> None:
         self.last, self.suspects, self.dropped, self.confirmed = None, [], [], []
-
-
-class StampGuard:
-    """Tells a stream's single outlier stamps from a real clock jump (a restarted publisher, a replay restarted,
-    a sim clock reset).
-
-    A stamp within ``max_jump_s`` [s] of the stream's latest accepted stamp is accepted (:data:`ACCEPT`). One
-    farther away, into the future or the past, is an outlier (:data:`OUTLIER`: drop it, say so) unless
-    ``confirm`` consecutive outliers lie within ``max_jump_s`` of each other: then the stream has jumped
-    (:data:`JUMP`: the stream's clock restarts at that stamp, the outliers before it are lost).
-    """
-
-    ACCEPT, OUTLIER, JUMP = "accept", "outlier", "jump"
-
-    def __init__(self, max_jump_s: float, confirm: int = 5):
-        self.max_jump_ns = int(round(max_jump_s * 1e9))
-        self.confirm = confirm
-        self.last: int | None = None
-        self.pending: list[int] = []
-
-    def check(self, ns: int) -> str:
-        """Classify stamp ``ns`` [ns] and update the guard."""
-        if self.last is None or abs(ns - self.last) <= self.max_jump_ns:
-            self.pending.clear()
-            self.last = ns if self.last is None else max(self.last, ns)
-            return self.ACCEPT
-        if self.pending and abs(ns - self.pending[-1]) <= self.max_jump_ns:
-            self.pending.append(ns)
-        else:
-            self.pending = [ns]
-        if len(self.pending) >= self.confirm:
-            self.last = ns
-            self.pending.clear()
-            return self.JUMP
-        return self.OUTLIER
-
-    def reset(self) -> None:
-        self.last = None
-        self.pending.clear()

@@ -19,7 +19,7 @@ stamp (exact stamp as it is, else interpolated between the two samples around it
 a normalised lerp, never across a gap longer than ``measurement_gap_s``, else the nearest sample
 within ``measurement_tolerance_s``). Every stream's stamps pass a
 :class:`~quad_modelling.core.alignment.StampGate`: a single stamp from the future or the
-past is dropped (warning ``stamp_outlier_<stream>``), three consistent ones are a new time base
+past is dropped (warning ``stamp_outlier_<stream>``), :data:`~quad_modelling.core.alignment.CONFIRM` (3) consistent ones are a new time base
 (restarted publisher, clock jump: warning ``stamps_jumped_<stream>``; a motor-input jump resets
 the windows, and one back before t0 moves the origin).
 
@@ -101,6 +101,7 @@ from quad_modelling.nodes.common import (
     say,
     set_realtime_priority,
     spin,
+    stamp_step_param,
     subscription_qos,
     vehicle_param,
 )
@@ -135,8 +136,7 @@ def predictor_parameters(default_model: str) -> list[Param]:
                                               "one within this [s], else the row has no measurement", non_negative),
         Param("measurement_gap_s", 0.1, "longest gap between two samples of a measurement stream interpolated through [s]",
               positive),
-        Param("max_stamp_step_s", 1.0, "longest regular step of a stream's stamps [s]; a stamp beyond it (or back in time) "
-                                       "is dropped as an outlier, three consistent ones are a new time base", positive),
+        stamp_step_param(),
         Param("horizon_s", 0.0, "receding-horizon mode: publish <model>/horizon/odom, the state horizon_s [s] ahead of "
                                 "each anchor; 0 = window mode (the thesis's)", non_negative),
         Param("horizon_history_s", 2.5, "receding-horizon mode: rows [s] up to each anchor the multi-step form sees "
