@@ -1,10 +1,14 @@
-"""Streams on their own clocks: the coverage rule of a window and interpolation to the scored rows.
+"""Streams on their own clocks: the coverage rule of a window, interpolation, measurement tracks, stamp gates.
 
 A real flight stack publishes engine inputs, motion capture and IMU on independent clocks
-(DESIGN 5a): different rates, jitter, no shared stamps, messages lost in bursts under load.
-Offline logs are on one time base but drop the odd sample (NanoBench: single 20-30 ms
-steps). Both the live evaluator and the offline evaluation score a window with the rules
-of this module, so both paths score the same rows the same way.
+(DESIGN 5a): commands at 50-500 Hz with +-2 ms jitter, motion capture at 100-360 Hz, IMU at
+250-1000 Hz, no shared stamps, messages lost in bursts under load, and the odd stamp from the
+future or the past, restarted publishers and clock jumps. Offline logs are on one time base but
+drop the odd sample (NanoBench: single 20-30 ms steps). The live evaluator and the offline
+evaluation score a window with the coverage rule and :func:`interpolate_at`; the live predictor
+reads its measurements at each command from a :class:`MeasurementTrack` (the same interpolation
+formula, :func:`lerp`); both nodes pass every stream's stamps through a :class:`StampGate` (one
+rule, one confirm count). All pure logic (no rclpy), unit-tested without spinning a node.
 
 Rows. The scored rows of a window are the engine-input stamps inside it (the predictors
 answer at each input, so the prediction stamps are these stamps); a window is cut by time
@@ -29,20 +33,44 @@ naming each failing stream with its coverage and its longest gap (:meth:`StreamC
 A uniform stream has c = 1 and g = dt (interior) or dt/2 (edges); one dropped sample gives
 g = 2 dt. With :math:`\\widehat{dt}` from fewer than two stamps c = 0.
 
-Interpolation (:func:`interpolate_at`). Each measurement (and prediction) stream is linearly
-interpolated to the rows' stamps, component by component; quaternion columns are normalised
-after interpolation with the sign of neighbours aligned (nlerp, exact for the small rotations
-between samples). A row stamp that equals a sample stamp takes that sample unchanged, so on
-an aligned replay (all streams share the stamps) the interpolated rows are the recorded rows
-bit for bit and live equals offline exactly. Outside the sampled range a row holds the nearest
-sample when it is at most :data:`MAX_GAP_S` away (the edge of a window whose neighbour was not
-received) and is NaN otherwise; interpolation never bridges a step longer than ``max_gap_s``
-(NaN there), which the coverage rule has already marked.
+Interpolation (:func:`lerp`, the one formula; :func:`interpolate_at` many rows at once,
+:meth:`MeasurementTrack.at` one time). Between the samples :math:`(t_a, y_a)`, :math:`(t_b, y_b)`
+bracketing t, linear in time, column by column:
+
+.. math::
+
+    y(t) = y_a + (y_b - y_a) \\frac{t - t_a}{t_b - t_a}
+
+with the quaternion columns (if any) a normalised lerp of the sign-aligned pair (:math:`q_b`
+flipped when :math:`q_a \\cdot q_b < 0`, the shorter rotation; exact for the small rotations
+between samples). A time that equals a sample stamp takes that sample unchanged, so on an aligned
+replay (all streams share the stamps) the interpolated rows are the recorded rows bit for bit and
+live equals offline exactly. A step longer than the stream's ``max_gap`` is never interpolated
+through (DESIGN 4). Outside the bracketed range :func:`interpolate_at` holds the nearest sample
+when it is at most :data:`MAX_GAP_S` away (the edge of a window whose neighbour was not received)
+and is NaN otherwise (which the coverage rule has already marked); :meth:`MeasurementTrack.at`
+returns the nearest sample within its ``tolerance`` (the anchor is newer than the last
+motion-capture sample and the wait for the next one ran out), else None.
+
+Stamp gate (:class:`StampGate`, :data:`CONFIRM`; both nodes' parameter ``max_stamp_step_s``).
+A stream's stamps must increase: a stamp is *regular* when :math:`t_{last} < t \\le t_{last} +`
+``max_step``. One publisher's header stamps increase and DDS keeps one writer's order (best
+effort drops, it does not reorder), so a stamp at or before the last one is a duplicate or a
+bad stamp, not a late sample. An irregular stamp (from the future, the past, or a duplicate)
+is held as a suspect: a regular stamp after it shows it was a single bad stamp (it is dropped,
+:attr:`StampGate.dropped`); :data:`CONFIRM` consecutive suspects that are regular among
+themselves are a new time base -- a restarted publisher (stamps back to an earlier flight
+time), a wall or simulated clock jump, the end of a silence longer than ``max_step`` -- and are
+accepted (:attr:`Stamp.JUMPED`, the run handed back in :attr:`StampGate.confirmed`: the caller
+resets its windows and buffers). A single stamp from the future therefore costs one sample,
+not the flight.
 """
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
@@ -104,14 +132,31 @@ def coverage_reason(coverages: list[StreamCoverage]) -> str:
             + "; ".join(failing))
 
 
+def lerp(y_a: np.ndarray, y_b: np.ndarray, fraction, quaternion: tuple[int, int] | None = None) -> np.ndarray:
+    """The interpolation formula (module doc): :math:`y_a + (y_b - y_a) f` for samples ``y_a``, ``y_b`` (m,) or (r, m)
+    at ``fraction`` f (a number, or (r, 1)); ``quaternion``: columns [start, stop) of a unit quaternion, taken from
+    the sign-aligned pair and normalised. A new array; the inputs are not changed."""
+    step = y_b - y_a
+    if quaternion is not None:
+        qs = slice(*quaternion)
+        q_a, q_b = y_a[..., qs], y_b[..., qs]
+        opposite = np.vecdot(q_a, q_b, keepdims=True) < 0.0
+        if np.count_nonzero(opposite):  # take -q_b there (negation is exact)
+            step[..., qs] = np.where(opposite, -q_b, q_b) - q_a
+    y = y_a + step * fraction
+    if quaternion is not None:
+        q = y[..., qs]
+        q /= np.sqrt(np.vecdot(q, q, keepdims=True))
+    return y
+
+
 def interpolate_at(stamps_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray, quaternion: tuple[int, int] | None = None,
                    max_gap_s: float = MAX_GAP_S, hold: bool = True) -> np.ndarray:
     """Samples (stamps_ns (n,) sorted unique [ns], values (n, m)) at the stamps ``at_ns`` (r,) -> (r, m) (module doc).
 
-    Linear in time per column, :math:`y(t) = y_i + (y_{i+1} - y_i)(t - t_i)/(t_{i+1} - t_i)`, exact at sample
-    stamps; ``quaternion``: columns [start, stop) of a unit quaternion (normalised, sign-aligned to the earlier sample);
-    a row nearer than ``max_gap_s`` [s] outside the samples holds the nearest one (``hold``; else NaN: a truth
-    must be bracketed); a row in a step longer than ``max_gap_s`` or farther outside is NaN.
+    :func:`lerp` between the two samples around a row, exact at sample stamps; ``quaternion``: columns [start, stop)
+    of a unit quaternion; a row nearer than ``max_gap_s`` [s] outside the samples holds the nearest one (``hold``;
+    else NaN: a truth must be bracketed); a row in a step longer than ``max_gap_s`` or farther outside is NaN.
     """
     stamps = np.asarray(stamps_ns, dtype=np.int64)
     values = np.asarray(values, dtype=float).reshape(len(stamps), -1)
@@ -134,57 +179,127 @@ def interpolate_at(stamps_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray,
         i0 = i1 - 1
         t0, t1 = stamps[i0], stamps[i1]
         step = t1 - t0
-        f = ((at[inner] - t0) / step)[:, None]
-        y0, y1 = values[i0].copy(), values[i1].copy()
-        if quaternion is not None:
-            qs = slice(*quaternion)
-            flip = np.sum(y0[:, qs] * y1[:, qs], axis=1) < 0
-            q1 = y1[:, qs]
-            q1[flip] *= -1.0
-            y1[:, qs] = q1
-        y = y0 + (y1 - y0) * f
-        if quaternion is not None:
-            q = y[:, qs]
-            y[:, qs] = q / np.linalg.norm(q, axis=1, keepdims=True)
+        y = lerp(values[i0], values[i1], ((at[inner] - t0) / step)[:, None], quaternion)
         y[step > max_gap_ns] = np.nan
         out[inner] = y
     return out
 
 
-class StampGuard:
-    """Tells a stream's single outlier stamps from a real clock jump (a restarted publisher, a replay restarted,
-    a sim clock reset).
+class MeasurementTrack:
+    """A bounded, time-ordered buffer of one measured stream's samples (module docstring).
 
-    A stamp within ``max_jump_s`` [s] of the stream's latest accepted stamp is accepted (:data:`ACCEPT`). One
-    farther away, into the future or the past, is an outlier (:data:`OUTLIER`: drop it, say so) unless
-    ``confirm`` consecutive outliers lie within ``max_jump_s`` of each other: then the stream has jumped
-    (:data:`JUMP`: the stream's clock restarts at that stamp, the outliers before it are lost).
+    ``width``: numbers per sample; ``quaternion``: the columns (start, stop) of an xyzw quaternion
+    inside a sample, or None; ``max_gap_ns``: the longest gap interpolated through; ``capacity``:
+    samples kept (the oldest go first).
     """
 
-    ACCEPT, OUTLIER, JUMP = "accept", "outlier", "jump"
+    def __init__(self, width: int, max_gap_ns: int, capacity: int = 4096, quaternion: tuple[int, int] | None = None):
+        self.width = width
+        self.max_gap_ns = int(max_gap_ns)
+        self.capacity = capacity
+        self.quaternion = quaternion
+        self.stamps: list[int] = []
+        self.values: list[np.ndarray] = []
 
-    def __init__(self, max_jump_s: float, confirm: int = 5):
-        self.max_jump_ns = int(round(max_jump_s * 1e9))
-        self.confirm = confirm
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    @property
+    def latest(self) -> int | None:
+        return self.stamps[-1] if self.stamps else None
+
+    def add(self, ns: int, values) -> bool:
+        """Store a sample; False (not stored) for a stamp already held. Older stamps are inserted in order."""
+        i = bisect.bisect_left(self.stamps, ns)
+        if i < len(self.stamps) and self.stamps[i] == ns:
+            return False
+        self.stamps.insert(i, ns)
+        self.values.insert(i, np.asarray(values, dtype=float).reshape(self.width))
+        if len(self.stamps) > self.capacity:
+            drop = len(self.stamps) - self.capacity
+            del self.stamps[:drop], self.values[:drop]
+        return True
+
+    def clear(self) -> None:
+        self.stamps, self.values = [], []
+
+    def covers(self, ns: int) -> bool:
+        """True when no later sample can change :meth:`at` (ns): a sample at or after ``ns`` is held."""
+        return bool(self.stamps) and self.stamps[-1] >= ns
+
+    def at(self, ns: int, tolerance_ns: int) -> np.ndarray | None:
+        """The stream's value at ``ns`` (module docstring: exact, interpolated, nearest within tolerance) or None."""
+        stamps = self.stamps
+        i = bisect.bisect_left(stamps, ns)
+        if i < len(stamps) and stamps[i] == ns:
+            return self.values[i]
+        before, after = i - 1, i
+        if before >= 0 and after < len(stamps) and stamps[after] - stamps[before] <= self.max_gap_ns:
+            return self._between(before, after, ns)
+        nearest = [j for j in (before, after) if 0 <= j < len(stamps) and abs(stamps[j] - ns) <= tolerance_ns]
+        if not nearest:
+            return None
+        return self.values[min(nearest, key=lambda j: abs(stamps[j] - ns))]
+
+    def _between(self, before: int, after: int, ns: int) -> np.ndarray:
+        ta, tb = self.stamps[before], self.stamps[after]
+        return lerp(self.values[before], self.values[after], (ns - ta) / (tb - ta), self.quaternion)
+
+
+CONFIRM = 3
+"""Consecutive mutually regular irregular stamps that make a new time base (restart, clock jump)."""
+
+
+class Stamp(Enum):
+    """What :meth:`StampGate.admit` decided about a stamp."""
+
+    ACCEPTED = "accepted"
+    """Regular: use the sample."""
+    SUSPECT = "suspect"
+    """Irregular (future, past or duplicate): held, not used (yet)."""
+    JUMPED = "jumped"
+    """Confirmed new time base: use the sample and reset what depends on the old one."""
+
+
+class StampGate:
+    """In-order stamps [ns] of one stream with outlier rejection (module docstring).
+
+    ``max_step_ns``: the longest regular step (a longer silence is a gap, its end a jump).
+    After each :meth:`admit`, :attr:`dropped` holds the suspects found to be single bad stamps
+    (for the caller's warning).
+    """
+
+    def __init__(self, max_step_ns: int):
+        if max_step_ns <= 0:
+            raise ValueError(f"stamp gate: max_step_ns must be positive, got {max_step_ns}")
+        self.max_step_ns = int(max_step_ns)
         self.last: int | None = None
-        self.pending: list[int] = []
+        self.suspects: list[tuple[int, object]] = []
+        self.dropped: list[int] = []
+        self.confirmed: list = []
 
-    def check(self, ns: int) -> str:
-        """Classify stamp ``ns`` [ns] and update the guard."""
-        if self.last is None or abs(ns - self.last) <= self.max_jump_ns:
-            self.pending.clear()
-            self.last = ns if self.last is None else max(self.last, ns)
-            return self.ACCEPT
-        if self.pending and abs(ns - self.pending[-1]) <= self.max_jump_ns:
-            self.pending.append(ns)
-        else:
-            self.pending = [ns]
-        if len(self.pending) >= self.confirm:
+    def _regular(self, previous: int, ns: int) -> bool:
+        return previous < ns <= previous + self.max_step_ns
+
+    def admit(self, ns: int, payload=None) -> Stamp:
+        """Decide about the next stamp (module docstring). ``payload``: the sample, handed back in
+        :attr:`confirmed` (oldest first, this one last) when its run of suspects makes a new time base."""
+        self.dropped, self.confirmed = [], []
+        if self.last is None:
             self.last = ns
-            self.pending.clear()
-            return self.JUMP
-        return self.OUTLIER
+            return Stamp.ACCEPTED
+        if self._regular(self.last, ns):
+            self.dropped, self.suspects = [s for s, _ in self.suspects], []
+            self.last = ns
+            return Stamp.ACCEPTED
+        if self.suspects and not self._regular(self.suspects[-1][0], ns):
+            self.dropped, self.suspects = [s for s, _ in self.suspects], []
+        self.suspects.append((ns, payload))
+        if len(self.suspects) >= CONFIRM:
+            self.confirmed = [p for _, p in self.suspects]
+            self.last, self.suspects = ns, []
+            return Stamp.JUMPED
+        return Stamp.SUSPECT
 
     def reset(self) -> None:
-        self.last = None
-        self.pending.clear()
+        self.last, self.suspects, self.dropped, self.confirmed = None, [], [], []

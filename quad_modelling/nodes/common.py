@@ -42,6 +42,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
+from quad_modelling.core.alignment import CONFIRM
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.nodes.domains import DDS_PROFILE_ENV, use_dds_profile  # noqa: F401  (re-exported)
@@ -322,6 +323,13 @@ class VehicleSource:
 def vehicle_param() -> Param:
     return Param("vehicle", "", "vehicle config name (config/vehicles) or YAML path; empty = the one the replay announces "
                                 "on topic vehicle (a set one must match it)")
+
+
+def stamp_step_param() -> Param:
+    """``max_stamp_step_s``: the one stamp rule of every node (:class:`~quad_modelling.core.alignment.StampGate`)."""
+    return Param("max_stamp_step_s", 1.0, "longest regular step of a stream's stamps [s]; a stamp beyond it, back in time or "
+                                          f"repeated is dropped as an outlier, {CONFIRM} consistent ones are a new time base "
+                                          "(restarted publisher, clock jump, end of a longer silence)", positive)
 
 
 def adopt_vehicle(node, vehicles: VehicleSource, announced: str, learned: Callable[[], None] = lambda: None) -> None:

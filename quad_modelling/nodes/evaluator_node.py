@@ -35,10 +35,11 @@ hold the open windows and the last closed one. Receding horizon (``horizon_s`` >
 ``<model>/horizon/odom``, stamped at the predicted time, is scored against the measurements interpolated
 there with the multi-step group errors: MAE@h per closed window and pooled (``results.json``), the offline
 MAE_h over the same starts. Faults: non-finite, malformed or unreadable messages are dropped with one
-warning per kind (counted); a stamp farther than ``max_stamp_jump_s`` from its stream's latest is dropped
-as an outlier unless :data:`JUMP_CONFIRM` in a row agree (a restarted publisher or clock): the stream
-follows, and a jump of the engine inputs restarts the window clock (new origin published). Timers run
-on the steady clock, so wall or sim-time jumps do not stop them.
+warning per kind (counted). Every stream's stamps pass the predictors' rule
+(:class:`~quad_modelling.core.alignment.StampGate`, ``max_stamp_step_s``): a single bad stamp is dropped
+(``outlier_stamp_<stream>``); a new time base (``clock_jump_<stream>``) is followed with its confirming run,
+and one of the engine inputs closes the open windows and restarts the window clock at the confirming stamp
+(new origin published). Timers run on the steady clock, so wall or sim-time jumps do not stop them.
 """
 
 from __future__ import annotations
@@ -60,13 +61,14 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String
 from std_srvs.srv import Trigger
 
-from quad_modelling.core.alignment import StampGuard
+from quad_modelling.core.alignment import CONFIRM, Stamp, StampGate
 from quad_modelling.core.evaluation.windowed import evaluate_window
 from quad_modelling.core.models.base import DummyPredictor
 from quad_modelling.core.windows import (
     EvaluationConfig,
     WindowClock,
     seconds_spans,
+    seconds_to_ns,
     warm_samples_for,
 )
 from quad_modelling.errors import QuadModellingError
@@ -94,6 +96,7 @@ from quad_modelling.nodes.common import (
     say,
     spans_check,
     spin,
+    stamp_step_param,
     subscription_qos,
     vehicle_param,
 )
@@ -133,9 +136,7 @@ EVALUATOR_PARAMETERS = [
                                   "motor-input steps", non_negative),
     Param("horizon_s", 0.0, "receding-horizon scoring: MAE@h of <model>/horizon/odom (predicted horizon_s ahead, stamped at the "
                             "predicted time) against the measurements; the predictors' horizon_s; 0 = off", non_negative),
-    Param("max_stamp_jump_s", 5.0, "a stamp this far [s] before or after its stream's latest one is an outlier and dropped, "
-                                   "unless 5 in a row agree: then the stream's clock jumped (restart) and the window clock "
-                                   "follows", positive),
+    stamp_step_param(),
     Param("spans", ["live:0:inf"], "spans NAME:A:B in seconds from t0; only windows entirely inside one are scored", spans_check),
     Param("output_dir", "", "directory for results.json/tables.md/figures (replaced on each write); empty = do not write"),
     Param("record", "", "record measurements, predictions and evaluation into this new MCAP bag directory (zstd "
@@ -159,10 +160,6 @@ EVALUATOR_PARAMETERS = [
 
 MEASUREMENT_STREAMS = ("motor_input", "mocap_odom", "imu")
 """Names of the measurement streams in the closing rule and in the reasons of marked windows."""
-
-JUMP_CONFIRM = 5
-"""Consecutive far-off stamps of one stream that make a clock jump rather than outliers (:class:`StampGuard`)."""
-
 
 class EvaluatorNode(Node):
     """Scores every closed window of every model with core evaluate_window (see module doc)."""
@@ -198,11 +195,10 @@ class EvaluatorNode(Node):
         self.open: dict[int, WindowBuffer] = {}
         self.previous: WindowBuffer | None = None  # the last closed window: its samples bracket the next one's first rows
         self.closed_below = None  # windows with index < this are closed
-        self.last_motor_ns: int | None = None  # the last accepted engine input (stamps must increase)
         # Latest stamp [ns] of every stream the node scores (the closing rule); a model's streams also their wall time.
         self.stream_last_ns: dict[str, int | None] = {s: None for s in (*MEASUREMENT_STREAMS, *self.model_streams())}
-        self.stamp_guards: dict[str, StampGuard] = {}
-        self.max_jump_s = p["max_stamp_jump_s"]
+        self.stamp_gates: dict[str, StampGate] = {}  # one per stream, the predictors' stamp rule (core.alignment)
+        self.max_step_ns = seconds_to_ns(p["max_stamp_step_s"])
         self.model_last_wall = {m: None for m in self.models}
         self.ready = False
         self.started_wall = time.monotonic()
@@ -284,34 +280,37 @@ class EvaluatorNode(Node):
                 self.closed_below = None
             self.clock_.origin_ns = ns
 
-    def _stamp_ok(self, stream: str, ns: int) -> bool:
-        """The stamp rule of every stream (module doc, faults): accept, drop a single outlier, or follow a jump."""
-        guard = self.stamp_guards.setdefault(stream, StampGuard(self.max_jump_s, JUMP_CONFIRM))
-        verdict = guard.check(ns)
-        if verdict == StampGuard.ACCEPT:
-            return True
-        if verdict == StampGuard.OUTLIER:
-            last = guard.last
-            self.faults.report(f"outlier_stamp_{stream}", f"{stream} stamp {ns} ns lies {(ns - last) / 1e9:+.3f} s from the "
-                                                           f"stream's latest one (max_stamp_jump_s={self.max_jump_s:g}): dropped")
-            return False
-        self.faults.report(f"clock_jump_{stream}", f"{stream} jumped to stamp {ns} ns ({JUMP_CONFIRM} stamps in a row agree): "
+    def _admit(self, stream: str, ns: int, payload) -> list:
+        """The stamp rule of every stream (module doc): the samples ``(ns, payload)`` to use now -- none (a suspect), this
+        one (regular; an engine input that confirms a jump), or the confirming run (oldest first) of a new time base."""
+        gate = self.stamp_gates.get(stream) or self.stamp_gates.setdefault(stream, StampGate(self.max_step_ns))
+        last = gate.last
+        verdict = gate.admit(ns, (ns, payload))
+        for dropped in gate.dropped:
+            self.faults.report(f"outlier_stamp_{stream}", f"{stream} stamp {dropped} ns lies {(dropped - last) / 1e9:+.3f} s "
+                                                           "from the stream's time (a duplicate, back in time, or beyond "
+                                                           f"max_stamp_step_s={self.max_step_ns / 1e9:g} ahead): dropped")
+        if verdict is Stamp.ACCEPTED:
+            return [(ns, payload)]
+        if verdict is Stamp.SUSPECT:
+            return []
+        self.faults.report(f"clock_jump_{stream}", f"{stream} jumped to stamp {ns} ns ({CONFIRM} consistent stamps): "
                                                     "publisher restarted or clock reset; following it")
         if stream == "motor_input":
             self._restart_clock()
-        else:
-            self.stream_last_ns[stream] = None
-        return True
+            return [(ns, payload)]  # the new window clock starts here (as the predictors' time base)
+        self.stream_last_ns[stream] = None
+        return gate.confirmed
 
     def _restart_clock(self) -> None:
         """The engine inputs jumped: close (score or mark) the open windows, forget every stream's position, and start
         the window clock again at the next engine input (a new origin, published)."""
         for k in sorted(self.open):
             self._close(k, reason_if_incomplete="the engine inputs' clock jumped before the window was complete")
-        self.previous = self.closed_below = self.last_motor_ns = self.clock_.origin_ns = None
+        self.previous = self.closed_below = self.clock_.origin_ns = None
         self.stream_last_ns = dict.fromkeys(self.stream_last_ns)
-        for guard in (g for name, g in self.stamp_guards.items() if name != "motor_input"):
-            guard.reset()
+        for gate in (g for name, g in self.stamp_gates.items() if name != "motor_input"):
+            gate.reset()
 
     def _window_for(self, ns: int, stream: str) -> WindowBuffer | None:
         if self.clock_.origin_ns is None:
@@ -337,11 +336,12 @@ class EvaluatorNode(Node):
                 self._close(min(self.open), reason_if_incomplete="closed early to bound memory")
         return window
 
-    def _accept(self, stream: str, ns: int, values) -> bool:
+    def _accept(self, stream: str, ns: int, values) -> list:
+        """The samples ``(ns, values)`` of a message to use now (:meth:`_admit`); none for a non-finite one."""
         if not topics.all_finite(values):
             self.faults.report(f"nan_{stream}", f"non-finite {stream} message dropped")
-            return False
-        return self._stamp_ok(stream, ns)
+            return []
+        return self._admit(stream, ns, values)
 
     def on_motor(self, msg: JointState) -> None:
         ns = topics.stamp_ns(msg.header.stamp)
@@ -349,20 +349,20 @@ class EvaluatorNode(Node):
         if fields is None:
             self.faults.report("bad_motor_input", f"motor_input message with {len(msg.effort)} efforts (4 expected) dropped")
             return
-        if not self._accept("motor_input", ns, fields[0]):
+        if not topics.all_finite(fields[0]):
+            self.faults.report("nan_motor_input", "non-finite motor_input message dropped")
             return
-        last = self.last_motor_ns
-        if last is not None and ns <= last:
-            kind = "duplicate_motor" if ns == last else "out_of_order_motor"
-            self.faults.report(kind, f"motor_input stamp {ns} ns is not after the previous one: dropped")
-            return
+        for ns, (u, omega) in self._admit("motor_input", ns, fields):
+            self._motor(ns, u, omega)
+
+    def _motor(self, ns: int, u, omega) -> None:
+        """One engine input with a stamp after the previous one (the stamp gate keeps them increasing)."""
         self.clock_.observe(ns)
         window = self._window_for(ns, "motor")
         if window is None:
             return
-        window.motor[ns] = fields[0].tolist()
-        window.omega[ns] = None if fields[1] is None else fields[1].tolist()
-        self.last_motor_ns = ns
+        window.motor[ns] = u.tolist()
+        window.omega[ns] = None if omega is None else omega.tolist()
         if self.first_motor_wall is None:
             self.first_motor_wall = time.monotonic()
         self._advance("motor_input", ns, window.index)
@@ -384,17 +384,16 @@ class EvaluatorNode(Node):
 
     def _measurement(self, stream: str, ns: int, fields: list, store: str) -> None:
         """One ``mocap_odom`` or ``imu`` message (``store``: the window's buffer)."""
-        if not self._accept(stream, ns, fields):
-            return
-        window = self._window_for(ns, stream)
-        if window is None:
-            return
-        buffer = getattr(window, store)
-        if ns in buffer:
-            self.faults.report(f"duplicate_{stream}", f"duplicated {stream} stamp {ns} ns: later copy dropped")
-            return
-        buffer[ns] = fields
-        self._advance(stream, ns, window.index)
+        for ns, fields in self._accept(stream, ns, fields):
+            window = self._window_for(ns, stream)
+            if window is None:
+                continue
+            buffer = getattr(window, store)
+            if ns in buffer:
+                self.faults.report(f"duplicate_{stream}", f"duplicated {stream} stamp {ns} ns: later copy dropped")
+                continue
+            buffer[ns] = fields
+            self._advance(stream, ns, window.index)
 
     def on_odom(self, msg: Odometry) -> None:
         self._measurement("mocap_odom", topics.stamp_ns(msg.header.stamp), topics.odometry_fields(msg), "odom")
@@ -404,19 +403,18 @@ class EvaluatorNode(Node):
 
     def _prediction(self, model: str, ns: int, fields: list, store: str) -> None:
         stream = f"{model}/{'odom' if store == 'pred_odom' else 'accel'}"
-        if not self._accept(stream, ns, fields):
-            return
-        window = self._window_for(ns, f"{model}_prediction")
-        if window is None:
-            return
-        buffer = getattr(window, store)[model]
-        if ns in buffer:
-            # A restarted predictor may re-publish a stamp: keep the first copy.
-            self.faults.report(f"duplicate_{model}", f"model {model}: duplicated prediction stamp {ns} ns: later copy dropped")
-            return
-        buffer[ns] = fields
-        self.model_last_wall[model] = time.monotonic()
-        self._advance(stream, ns, window.index)
+        for ns, fields in self._accept(stream, ns, fields):
+            window = self._window_for(ns, f"{model}_prediction")
+            if window is None:
+                continue
+            buffer = getattr(window, store)[model]
+            if ns in buffer:
+                # A restarted predictor may re-publish a stamp: keep the first copy.
+                self.faults.report(f"duplicate_{model}", f"model {model}: duplicated prediction stamp {ns} ns: later copy dropped")
+                continue
+            buffer[ns] = fields
+            self.model_last_wall[model] = time.monotonic()
+            self._advance(stream, ns, window.index)
 
     def on_pred_odom(self, model: str, msg: Odometry) -> None:
         self._prediction(model, topics.stamp_ns(msg.header.stamp), topics.predicted_odometry_fields(msg), "pred_odom")
@@ -427,13 +425,14 @@ class EvaluatorNode(Node):
     def on_horizon(self, model: str, msg: Odometry) -> None:
         """A receding-horizon prediction (stamped at the predicted time): kept in that time's window. Not a closing stream."""
         ns, fields = topics.stamp_ns(msg.header.stamp), topics.predicted_odometry_fields(msg)
-        if not self._accept(f"{model}/horizon", ns, fields):
-            return
-        if self.clock_.origin_ns is not None and self.clock_.locate(ns)[0] not in self.open and len(self.open) >= MAX_OPEN_WINDOWS:
-            return self.faults.report(f"horizon_ahead_{model}", f"{model}/{HORIZON_TOPIC} stamp {ns} ns beyond the open windows: dropped")
-        window = self._window_for(ns, f"{model}_horizon")
-        if window is not None:
-            window.horizon[model].setdefault(ns, fields)
+        for ns, fields in self._accept(f"{model}/horizon", ns, fields):
+            if (self.clock_.origin_ns is not None and self.clock_.locate(ns)[0] not in self.open
+                    and len(self.open) >= MAX_OPEN_WINDOWS):
+                self.faults.report(f"horizon_ahead_{model}", f"{model}/{HORIZON_TOPIC} stamp {ns} ns beyond the open windows: dropped")
+                continue
+            window = self._window_for(ns, f"{model}_horizon")
+            if window is not None:
+                window.horizon[model].setdefault(ns, fields)
 
     # --- progress and closing -----------------------------------------------------------------
 

@@ -14,12 +14,12 @@ built once it is known, and inputs before are dropped with one warning; a set ve
 that differs from the announced one stops the node (exit 2).
 
 Streams on their own clocks (issue #15): motion capture, IMU and battery are kept in
-:class:`~quad_modelling.core.stream_alignment.MeasurementTrack` buffers and read at any command
+:class:`~quad_modelling.core.alignment.MeasurementTrack` buffers and read at any command
 stamp (exact stamp as it is, else interpolated between the two samples around it, quaternions as
 a normalised lerp, never across a gap longer than ``measurement_gap_s``, else the nearest sample
 within ``measurement_tolerance_s``). Every stream's stamps pass a
-:class:`~quad_modelling.core.stream_alignment.StampGate`: a single stamp from the future or the
-past is dropped (warning ``stamp_outlier_<stream>``), three consistent ones are a new time base
+:class:`~quad_modelling.core.alignment.StampGate`: a single stamp from the future or the
+past is dropped (warning ``stamp_outlier_<stream>``), :data:`~quad_modelling.core.alignment.CONFIRM` (3) consistent ones are a new time base
 (restarted publisher, clock jump: warning ``stamps_jumped_<stream>``; a motor-input jump resets
 the windows, and one back before t0 moves the origin).
 
@@ -75,7 +75,7 @@ from std_msgs.msg import String
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.models.bounds import PhysicalBounds
 from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
-from quad_modelling.core.stream_alignment import MeasurementTrack, Stamp, StampGate
+from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
@@ -101,6 +101,7 @@ from quad_modelling.nodes.common import (
     say,
     set_realtime_priority,
     spin,
+    stamp_step_param,
     subscription_qos,
     vehicle_param,
 )
@@ -135,8 +136,7 @@ def predictor_parameters(default_model: str) -> list[Param]:
                                               "one within this [s], else the row has no measurement", non_negative),
         Param("measurement_gap_s", 0.1, "longest gap between two samples of a measurement stream interpolated through [s]",
               positive),
-        Param("max_stamp_step_s", 1.0, "longest regular step of a stream's stamps [s]; a stamp beyond it (or back in time) "
-                                       "is dropped as an outlier, three consistent ones are a new time base", positive),
+        stamp_step_param(),
         Param("horizon_s", 0.0, "receding-horizon mode: publish <model>/horizon/odom, the state horizon_s [s] ahead of "
                                 "each anchor; 0 = window mode (the thesis's)", non_negative),
         Param("horizon_history_s", 2.5, "receding-horizon mode: rows [s] up to each anchor the multi-step form sees "
@@ -213,7 +213,7 @@ class PredictorNode(Node):
         self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
         if self.use_battery:
             self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
-        # Measurement streams, each on its own clock: read at any command stamp (core.stream_alignment).
+        # Measurement streams, each on its own clock: read at any command stamp (core.alignment).
         self.tolerance_ns = seconds_to_ns(p["measurement_tolerance_s"])
         gap_ns, step_ns = seconds_to_ns(p["measurement_gap_s"]), seconds_to_ns(p["max_stamp_step_s"])
         self.pending: deque[tuple] = deque()  # serialised measurements not decoded yet (handler, type, bytes)
@@ -273,7 +273,7 @@ class PredictorNode(Node):
             self.clock_.origin_ns = ns
 
     def _gate(self, stream: str, ns: int, fields=None) -> bool:
-        """Pass a stamp through the stream's gate (core.stream_alignment); False when the sample is not to be used.
+        """Pass a stamp through the stream's gate (core.alignment); False when the sample is not to be used.
         A measurement stream's jump keeps the run of samples that confirmed it (stored here, ``fields`` last)."""
         gate = self.gates[stream]
         verdict = gate.admit(ns, (ns, fields))
