@@ -38,8 +38,8 @@ MAE_h over the same starts. Faults: non-finite, malformed or unreadable messages
 warning per kind (counted). Every stream's stamps pass the predictors' rule
 (:class:`~quad_modelling.core.alignment.StampGate`, ``max_stamp_step_s``): a single bad stamp is dropped
 (``outlier_stamp_<stream>``); a new time base (``clock_jump_<stream>``) is followed with its confirming run,
-and one of the engine inputs closes the open windows and restarts the window clock at the confirming stamp
-(new origin published). Timers run on the steady clock, so wall or sim-time jumps do not stop them.
+and one of the engine inputs closes the open windows; the origin stays (aligned with the predictors'), or moves to
+the confirming stamp when that lies before it (published). Timers run on the steady clock, so wall or sim-time jumps do not stop them.
 """
 
 from __future__ import annotations
@@ -297,17 +297,21 @@ class EvaluatorNode(Node):
         self.faults.report(f"clock_jump_{stream}", f"{stream} jumped to stamp {ns} ns ({CONFIRM} consistent stamps): "
                                                     "publisher restarted or clock reset; following it")
         if stream == "motor_input":
-            self._restart_clock()
-            return [(ns, payload)]  # the new window clock starts here (as the predictors' time base)
+            self._restart_clock(ns)
+            return [(ns, payload)]  # the windows go on from here, on the predictors' window clock
         self.stream_last_ns[stream] = None
         return gate.confirmed
 
-    def _restart_clock(self) -> None:
-        """The engine inputs jumped: close (score or mark) the open windows, forget every stream's position, and start
-        the window clock again at the next engine input (a new origin, published)."""
+    def _restart_clock(self, ns: int) -> None:
+        """The engine inputs jumped to ``ns`` [ns]: close (score or mark) the open windows and forget every stream's
+        position. The window origin stays (the predictors keep theirs: windows stay aligned with the predictions),
+        unless ``ns`` lies before it: then ``ns`` is the new origin, published, as a predictor does."""
         for k in sorted(self.open):
             self._close(k, reason_if_incomplete="the engine inputs' clock jumped before the window was complete")
-        self.previous = self.closed_below = self.clock_.origin_ns = None
+        self.previous = self.closed_below = None
+        if self.clock_.origin_ns is not None and ns < self.clock_.origin_ns:
+            self.clock_.origin_ns = ns
+            self.origin_pub.publish(messages.clock_message(ns))
         self.stream_last_ns = dict.fromkeys(self.stream_last_ns)
         for gate in (g for name, g in self.stamp_gates.items() if name != "motor_input"):
             gate.reset()
