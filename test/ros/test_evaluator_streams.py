@@ -155,3 +155,27 @@ def _offset(log, column, value):
     y = measured_variables(log)
     y[:, INDEX[column]] += value
     return y
+
+
+def test_a_forward_jump_keeps_the_window_origin_of_the_predictors(ros):
+    """The engine inputs jump 100.003 s ahead (a long silence, a wall clock stepped forward): the open windows close,
+    the origin stays (a predictor keeps its own, so the windows stay aligned with its predictions), and the windows
+    after the jump are located from the old origin: 100.003 s = 20 windows of 5 s + 3 ms."""
+    import copy
+
+    log = hover_log(1100)
+    prediction = topics.prediction_fields(_offset(log, "vel_x", 0.25))
+    node = make_node()
+    stamps = feed(node, log, range(0, 1100), messages.measurement_messages(log), predictions={"m": prediction})
+    later = copy.deepcopy(log)
+    later.t = log.t + 100.003
+    feed(node, later, range(0, 1100), messages.measurement_messages(later), predictions={"m": prediction})
+    node.finish()
+    assert node.faults.counts["clock_jump_motor_input"] == 1
+    assert node.clock_.origin_ns == int(stamps[0])
+    records = [r for r in node.scores.records if r.model == "m"]
+    scored = [(r.index, round(r.rms[INDEX["vel_x"]], 9)) for r in records if r.scored]
+    assert scored[:2] == [(0, 0.25), (1, 0.25)]  # before the jump
+    # window 20 starts 3 ms before the first row after the jump (within the coverage rule), 21 is whole, 22 partial
+    assert scored[2:] == [(20, 0.25), (21, 0.25)]
+    node.destroy_node()
