@@ -43,13 +43,14 @@ one beyond them abandons the window (warning ``out_of_bounds``): nothing beyond 
 nothing non-finite, is published.
 
 Receding-horizon mode (``horizon_s`` > 0, instead of windows): h = round(horizon_s / dt) steps
-(dt = the median step of the first commands). For every command j the anchor s = j - h gets the
-prediction of the model's multi-step form
-(:func:`~quad_modelling.core.evaluation.multistep.multistep_form`, the offline multi-step
-evaluation's) from the last ``horizon_history_s`` of rows up to it, with the recorded commands
-s+1..j, published on ``<model>/horizon/odom`` stamped t_j (the time it predicts, t_s + h dt on a
-regular timer) as soon as command j is in and every track covers t_s. It equals the offline
-multi-step prediction for the same start (test: to 1e-9 on the bundled flight).
+(dt = the median step of the first commands). An anchor s gets the prediction of the model's
+multi-step form (:func:`~quad_modelling.core.evaluation.multistep.multistep_form`, the offline
+multi-step evaluation's) from the last ``horizon_history_s`` of rows up to it, h steps ahead, on
+``<model>/horizon/odom`` stamped at the time it predicts (:class:`~quad_modelling.core.models.streaming.RecedingHorizon`).
+``horizon_inputs`` says which commands after s it flies: ``hold`` (default, the forecast) u_s held,
+published at input s once every track covers t_s, stamped t_s + h dt; ``flown`` the recorded
+commands s+1..s+h, published when command s+h is in, stamped t_{s+h}: it equals the offline
+multi-step prediction for the same start (test: to 1e-9 on the bundled flight), but too late to be a forecast.
 
 Faults (one warning per kind, then counted): non-finite or malformed messages and zero
 quaternions are dropped; warm rows without a measurement within tolerance are left out (fewer
@@ -74,8 +75,8 @@ from std_msgs.msg import String
 
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.models.bounds import PhysicalBounds
-from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate
+from quad_modelling.core.models.streaming import HORIZON_INPUTS, RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
@@ -123,6 +124,10 @@ MAX_DEFERRED_COMMANDS = 4096
 """Commands held back while a window start waits (bounded memory)."""
 
 
+def horizon_inputs_kind(value) -> str | None:
+    return None if value in HORIZON_INPUTS else f"must be one of {', '.join(HORIZON_INPUTS)}"
+
+
 def predictor_parameters(default_model: str) -> list[Param]:
     return [
         Param("model", default_model, "model spec: naive, greybox, greybox:euler, narx:PATH, hybrid:PATH", non_empty),
@@ -139,6 +144,9 @@ def predictor_parameters(default_model: str) -> list[Param]:
         stamp_step_param(),
         Param("horizon_s", 0.0, "receding-horizon mode: publish <model>/horizon/odom, the state horizon_s [s] ahead of "
                                 "each anchor; 0 = window mode (the thesis's)", non_negative),
+        Param("horizon_inputs", "hold", "receding-horizon mode: commands after each anchor: hold (the last one held, "
+                                        "published at once: the forecast) or flown (the recorded ones, published h "
+                                        "commands later: equals the offline multi-step MAE@h)", horizon_inputs_kind),
         Param("horizon_history_s", 2.5, "receding-horizon mode: rows [s] up to each anchor the multi-step form sees "
                                         "(trims and filters settle within 2 s)", positive),
         Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
@@ -179,6 +187,7 @@ class PredictorNode(Node):
         self.spec = spec
         self.sample_period_s, self.warm_s = p["sample_period_s"], p["warm_s"]
         self.horizon_s, self.horizon_history_s = p["horizon_s"], p["horizon_history_s"]
+        self.horizon_inputs = p["horizon_inputs"]
         self.model = None
         self.bounds = None
         self.horizon = None  # receding-horizon mode, built with the model (it needs the model's multi-step form)
@@ -236,7 +245,8 @@ class PredictorNode(Node):
         self.last_published_ns = None
         self.published = 0
         self.windows_started = 0
-        mode = (f"receding horizon {self.horizon_s:g} s on {self.name_}/horizon/odom" if self.horizon_s > 0
+        mode = (f"receding horizon {self.horizon_s:g} s ({self.horizon_inputs} inputs) on {self.name_}/horizon/odom"
+                if self.horizon_s > 0
                 else f"windows {p['window_s']:g} s, warm start {p['warm_s']:g} s")
         self.get_logger().info(f"predicting with {self.spec!r} as '{self.name_}' on vehicle "
                                f"{self.vehicle.name if self.vehicle else '(from the replay, topic ' + VEHICLE_TOPIC + ')'}; "
@@ -257,7 +267,8 @@ class PredictorNode(Node):
         prime(self.model, self.vehicle, period, int(round(self.warm_s / period)))
         if self.horizon_s > 0:
             self.horizon = RecedingHorizon(lambda warm: multistep_form(self.model, warm), self._rows_log, self.horizon_s,
-                                           self.warm_s, self.horizon_history_s, self.sample_period_s, MEASUREMENT_WAIT_S)
+                                           self.warm_s, self.horizon_history_s, self.sample_period_s, MEASUREMENT_WAIT_S,
+                                           self.horizon_inputs)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -310,8 +321,9 @@ class PredictorNode(Node):
 
     def _receive(self, handler, kind, data: bytes) -> None:
         self.pending.append((handler, kind, data))
-        if len(self.pending) > MAX_PENDING_MEASUREMENTS or (self.state == "warm" and self.warm_closed):
-            self._decode_pending()  # no commands to answer (or a start waits on them): decode now
+        if len(self.pending) > MAX_PENDING_MEASUREMENTS or (self.state == "warm" and self.warm_closed) or \
+                (self.horizon is not None and self.horizon.waiting()):
+            self._decode_pending()  # no commands to answer (or a start or horizon anchor waits on them): decode now
 
     def _decode_pending(self) -> None:
         """Decode and store the measurements received since the last call (each checked as ``on_odom``/``on_imu``).
@@ -397,6 +409,8 @@ class PredictorNode(Node):
             fault = self.horizon.add(ns, u, omega)
             if fault:
                 self.faults.report("no_multistep_form", f"model {self.name_} {fault}")
+            if self.horizon.inputs == "hold":
+                self._decode_pending()  # this input is the anchor: the measurements received before it are needed now
             self._publish_horizons()
             self._decode_pending()
             return
@@ -551,7 +565,7 @@ class PredictorNode(Node):
     # --- receding horizon -----------------------------------------------------------------------
 
     def _publish_horizons(self) -> None:
-        """Publish every anchor that is ready (:class:`~quad_modelling.nodes.receding_horizon.RecedingHorizon`), checked as
+        """Publish every anchor that is ready (:class:`~quad_modelling.core.models.streaming.RecedingHorizon`), checked as
         the window mode's predictions: finite, inside the physical bounds, stamps strictly increasing."""
         for event in self.horizon.ready(lambda ns: all(track.covers(ns) for track in self.tracks), self._row_measurements):
             if event[0] == "fault":

@@ -171,18 +171,25 @@ def test_predictions_for_99_percent_of_jittered_independent_streams_with_increas
         stack.close()
 
 
-@pytest.mark.parametrize("model", ["greybox", "physics"])
-def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(ros, model):
-    """horizon_s = 0.1 s at 100 Hz: h = 10. Each published <model>/horizon/odom equals, to 1e-9, the offline multi-step
-    form's prediction (core/evaluation/multistep.py) from the same start over the same rows, stamped t_{s+h}."""
+def replay_events():
+    """360 rows of the bundled flight as a replay sends them: each row's measurements, then its command (one stamp)."""
     log = read_bag(BAG).slice(200, 560)
     stamps = topics.stamps_ns(log.t)
     arrays = messages.measurement_messages(log)
     events = []
-    for row, s in enumerate(stamps.tolist()):  # a replay's aligned rows: measurements, then the command
+    for row, s in enumerate(stamps.tolist()):
         events += [(s, "odom", lambda r=row, s=s: arrays.odometry(r, s)), (s, "imu", lambda r=row, s=s: arrays.imu(r, s)),
                    (s, "motor", lambda r=row, s=s: arrays.motor(r, s))]
-    predictor = make_predictor(model=model, horizon_s=0.1, horizon_history_s=2.0)
+    return log, stamps, events
+
+
+@pytest.mark.parametrize("model", ["greybox", "physics"])
+def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(ros, model):
+    """horizon_inputs flown, horizon_s = 0.1 s at 100 Hz: h = 10. Each published <model>/horizon/odom equals, to 1e-9,
+    the offline multi-step form's prediction (core/evaluation/multistep.py) from the same start over the same rows,
+    stamped t_{s+h}."""
+    log, stamps, events = replay_events()
+    predictor = make_predictor(model=model, horizon_s=0.1, horizon_history_s=2.0, horizon_inputs="flown")
     stack = Stack(ros, predictor, f"{model}/horizon/odom")
     try:
         stack.wait_for_match()
@@ -200,3 +207,39 @@ def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(
     error = np.abs(fields - expected).max()
     print(f"{model}: {len(got)} horizon predictions, max |live - offline| = {error:.2e}")
     assert error < 1e-9
+
+
+@pytest.mark.parametrize("model", ["greybox", "physics"])
+def test_held_horizon_mode_forecasts_each_input_before_the_next_command_is_sent(ros, model):
+    """horizon_inputs hold (the default), horizon_s = 0.1 s at 100 Hz: h = 10. The stack sends one row at a time and
+    waits for the answer before the next command: every input s from the first anchor on gets its prediction (stamped
+    t_s + h dt, the time it predicts) while command s + 1 is not sent yet; the two anchors before dt is known (the
+    median of the first 20 steps) come with input 20. Counts and ordering only, no wall-clock bound."""
+    log, stamps, events = replay_events()
+    predictor = make_predictor(model=model, horizon_s=0.1, horizon_history_s=2.0)
+    stack = Stack(ros, predictor, f"{model}/horizon/odom")
+    h, warm = 10, 20
+    answered = []  # predictions received after each command, before the next is sent
+    try:
+        stack.wait_for_match()
+        for row in range(len(log)):
+            for _, stream, make in events[3 * row:3 * row + 3]:
+                stack.pubs[stream].publish(make())
+            expected = 0 if row < warm else row - warm + 2  # anchors warm - 1 .. row
+            for _ in range(3000):  # until the answer arrives (bounded turns, not a time limit)
+                if len(stack.received) >= expected:
+                    break
+                stack.executor.spin_once(timeout_sec=0.001)
+            answered.append(len(stack.received))
+        stack.settle(quiet=30)
+    finally:
+        stack.close()
+    assert predictor.horizon.inputs == "hold" and predictor.horizon.steps == h
+    dt_ns = predictor.horizon.period_ns
+    assert abs(dt_ns - 10_000_000) < 100_000
+    anchors = np.arange(warm - 1, len(log))
+    assert answered == [0] * warm + list(range(2, len(anchors) + 1))  # input s answered before command s + 1 was sent
+    got = np.array([topics.stamp_ns(m.header.stamp) for m in stack.received])
+    assert np.array_equal(got, stamps[anchors] + h * dt_ns)  # one per input from the first anchor on, at t_s + h dt
+    assert np.all(np.diff(got) > 0) and not predictor.faults.counts
+    print(f"{model}: {len(got)} held-input forecasts, each before the next command; dt {dt_ns} ns")

@@ -28,16 +28,25 @@ wraps a streaming predictor as a
 :class:`~quad_modelling.core.models.base.MultiStepPredictor` with it.
 
 :class:`RecedingHorizon` is the live receding-horizon form (the predictor's
-``horizon_s`` > 0). It holds the recent commands of the current time base and,
-for every command j, the anchor s = j - h, h = round(horizon_s / dt): once command j is in and every measurement stream covers
-t_s, the anchor's rows (the last ``history_s`` up to s, measurements read at the command stamps;
-the commands s+1..j) become a FlightLog (``make_log``, the node's message conversion) and the
-model's offline multi-step form (``form_for(warm rows)``, the node passes
-:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) predicts it h steps ahead: the
-same numbers as the offline multi-step evaluation for the same start, as long as the model's
-multi-step form settles within ``history_s`` (trims over 1 s, causal filters: 2 s gives 5e-12 on
-the bundled flight). A prediction h steps ahead needs the h commands after the anchor (the
-multi-step protocol runs open loop on the flown commands), so it is ready when the last arrives.
+``horizon_s`` > 0). It holds the recent commands of the current time base and predicts, from an
+anchor s, h = round(horizon_s / dt) steps ahead: the anchor's rows (the last ``history_s`` up to s,
+measurements read at the command stamps) and h rows of commands after it become a FlightLog
+(``make_log``, the node's message conversion), and the model's offline multi-step form
+(``form_for(warm rows)``, the node passes
+:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) predicts it h steps ahead. The
+two ``inputs`` modes differ only in the commands after s (one prediction path):
+
+* ``"hold"`` (the forecast MPC and monitoring consume): every command s is an anchor as soon as it
+  is in (and every measurement stream covers t_s); the commands after s are u_s held (zero-order
+  hold) at t_s + k dt, k = 1..h, so the prediction is ready at input s and stamped t_s + h dt, the
+  time it predicts. It equals the offline multi-step form on a copy of the data whose commands after s
+  are u_s (:func:`hold_inputs`; rows after s at t_s + k dt), not the offline multi-step table, which
+  flies the recorded commands.
+* ``"flown"``: the anchor s waits for the h flown commands s+1..s+h and is predicted when command
+  s+h is in, stamped t_{s+h}: the same numbers as the offline multi-step evaluation for the same
+  start, as long as the model's multi-step form settles within ``history_s`` (trims over 1 s,
+  causal filters: 2 s gives 5e-12 on the bundled flight), but published when the predicted instant
+  is already past (a replay of the protocol, not a forecast).
 
 :class:`RecordedPrediction` wraps predictions received over ROS as a
 :class:`~quad_modelling.core.models.Predictor`, so the live evaluator scores a
@@ -47,6 +56,7 @@ as ``quad-modelling evaluate``.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -200,24 +210,46 @@ HORIZON_PERIOD_STEPS = 20
 """Command steps whose median gives dt (h = round(horizon_s / dt)) when ``sample_period_s`` is 0."""
 
 
+HORIZON_INPUTS = ("hold", "flown")
+"""Commands after a receding-horizon anchor (:class:`RecedingHorizon`): the last one held, or the flown ones."""
+
+
+def hold_inputs(segment: FlightLog, s: int) -> FlightLog:
+    """A copy of ``segment`` whose commands (and rotor speeds, when logged) after row ``s`` are those of row ``s``:
+    the input log of a hold-mode prediction from anchor s (:class:`RecedingHorizon`), offline."""
+    u = segment.u.copy()
+    u[s + 1:] = u[s]
+    omega = None
+    if segment.omega is not None:
+        omega = segment.omega.copy()
+        omega[s + 1:] = omega[s]
+    return dataclasses.replace(segment, u=u, omega=omega)
+
+
 class RecedingHorizon:
-    """Anchors waiting for their h commands (module docstring).
+    """Receding-horizon anchors and their multi-step predictions (module docstring).
 
     ``form_for(warm)`` -> the multi-step form with ``warm`` warm rows (None: the model has none);
     ``make_log(stamps [ns], rows (stamp, command, rotor speeds), measurements)`` -> FlightLog of those rows;
     ``measurements(ns)`` (in :meth:`ready`) -> the measurements at a stamp or None;
     ``covered(ns)`` -> True when every stream holds a sample at or after ``ns``; ``wait_s``: how long
-    [wall s] an anchor waits for that before it is computed from what the streams give.
+    [wall s] an anchor waits for that before it is computed from what the streams give;
+    ``inputs``: the commands after an anchor, ``"hold"`` (u_s held: a forecast at input s) or ``"flown"``
+    (the recorded ones: predicted when command s + h is in), :data:`HORIZON_INPUTS`.
     """
 
     def __init__(self, form_for: Callable, make_log: Callable, horizon_s: float, warm_s: float, history_s: float,
-                 sample_period_s: float, wait_s: float):
+                 sample_period_s: float, wait_s: float, inputs: str = "hold"):
+        if inputs not in HORIZON_INPUTS:
+            raise ValueError(f"receding-horizon inputs {inputs!r}: expected one of {', '.join(HORIZON_INPUTS)}")
         self.form_for, self.make_log = form_for, make_log
         self.horizon_s, self.warm_s, self.history_s = horizon_s, warm_s, history_s
         self.sample_period_s, self.wait_s = sample_period_s, wait_s
+        self.inputs = inputs
         self.rows: deque[tuple[int, np.ndarray, np.ndarray | None]] = deque()  # (stamp, command, rotor speeds)
         self.steps_seen: list[int] = []
         self.steps = None  # h, once dt is known
+        self.period_ns = None  # dt [ns], once known: the step of the held commands' stamps
         self.form = None
         self.wait_since = None
 
@@ -243,19 +275,28 @@ class RecedingHorizon:
         if not period_s:
             return None
         self.steps = max(1, int(round(self.horizon_s / period_s)))
+        self.period_ns = int(round(period_s * 1e9))
         self.warm = max(1, int(round(self.warm_s / period_s)))
         self.keep = max(int(round(self.history_s / period_s)), self.warm)
         self.form = self.form_for(self.warm)
         self.next, self.first = self.warm - 1, 0  # the first anchor with warm rows up to it; index of rows[0]
         return None if self.form is not None else "has no multi-step form: no horizon predictions"
 
+    def waiting(self) -> bool:
+        """True when an anchor's commands are in and it waits for its measurements (the node then decodes them at once)."""
+        if self.steps is None or self.form is None:
+            return False
+        return self.next + (self.steps if self.inputs == "flown" else 0) < self.first + len(self.rows)
+
     def ready(self, covered: Callable[[int], bool], measurements: Callable) -> Iterator[tuple]:
-        """Every anchor whose command s + h is in and whose measurements are covered, in order: yields
-        ("prediction", t_{s+h} [ns], (h + 1, 18) prediction, t_{s+h} - t_s [s]) or ("fault", kind, sentence)."""
+        """Every anchor that is ready, in order: its command s (``hold``; s + h for ``flown``) is in and its
+        measurements are covered. Yields ("prediction", stamp [ns], (h + 1, 18) prediction, stamp - t_s [s]) with
+        the stamp of the predicted time (t_s + h dt held, t_{s+h} flown) or ("fault", kind, sentence)."""
         if self.steps is None or self.form is None:
             return
         rows, h = self.rows, self.steps
-        while self.next + h < self.first + len(rows):
+        ahead = h if self.inputs == "flown" else 0  # commands after the anchor it waits for
+        while self.next + ahead < self.first + len(rows):
             s = self.next - self.first  # the anchor's index in rows
             if not covered(rows[s][0]):
                 self.wait_since = self.wait_since or time.monotonic()
@@ -271,7 +312,12 @@ class RecedingHorizon:
     def _predict(self, s: int, measurements: Callable) -> tuple:
         rows, h = self.rows, self.steps
         first = max(0, s - self.keep + 1)
-        history = [rows[i] for i in range(first, s + h + 1)]
+        history = [rows[i] for i in range(first, s + 1)]
+        if self.inputs == "flown":
+            history += [rows[i] for i in range(s + 1, s + h + 1)]
+        else:  # zero-order hold of the anchor's command (and rotor speeds) at t_s + k dt
+            ns, u, omega = rows[s]
+            history += [(ns + k * self.period_ns, u, omega) for k in range(1, h + 1)]
         measured = [measurements(row[0]) for row in history[:s - first + 1]]
         if measured[-1] is None:
             return "fault", "horizon_gap", "an anchor without a measurement within tolerance: skipped"

@@ -1,6 +1,9 @@
 """Streaming helpers: the priming window is a hover at rest, and priming leaves a model's answers unchanged."""
 
+import dataclasses
+
 import numpy as np
+import pytest
 
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.greybox import GreyboxPredictor
@@ -74,7 +77,7 @@ def test_the_naive_model_holds_the_same_measured_state_live_offline_and_multiste
     np.testing.assert_allclose(horizons[0][:, scored], np.tile(anchor_state[scored], (51, 1)), atol=1e-12)
 
 
-def test_receding_horizon_publishes_each_anchor_h_commands_later_with_the_offline_multistep_numbers():
+def test_flown_receding_horizon_publishes_each_anchor_h_commands_later_with_the_offline_multistep_numbers():
     """Pure logic, no node: commands in one by one; every anchor s comes out when command s + h is in (and its
     measurements are covered), equal to the offline multi-step form from the same start; nothing before."""
     from quad_modelling.core.evaluation.multistep import multistep_form
@@ -91,7 +94,7 @@ def test_receding_horizon_publishes_each_anchor_h_commands_later_with_the_offlin
         return log.slice(row_of[int(stamps[0])], row_of[int(stamps[-1])] + 1)
 
     horizon = RecedingHorizon(lambda warm: multistep_form(model, warm), make_log, horizon_s=0.05, warm_s=0.2,
-                              history_s=2.0, sample_period_s=0.0, wait_s=0.5)
+                              history_s=2.0, sample_period_s=0.0, wait_s=0.5, inputs="flown")
     covered_until = {"ns": -1}
     out = []
     for i, ns in enumerate(t_ns.tolist()):
@@ -106,3 +109,53 @@ def test_receding_horizon_publishes_each_anchor_h_commands_later_with_the_offlin
     assert [e[1] for e in out] == t_ns[starts + 5][:len(out)].tolist() and len(out) >= len(starts) - 1
     assert np.allclose(np.array([e[2] for e in got]), expected[:len(got)], atol=1e-9)
     assert np.allclose([e[3] for e in got], 0.05, atol=1e-6)  # t_{s+h} - t_s
+
+
+@pytest.mark.parametrize("model_name", ["greybox", "physics"])
+def test_held_receding_horizon_forecasts_at_each_input_the_multistep_form_with_the_command_held(model_name):
+    """Hold mode, pure logic: every command s is answered as soon as it is in (not h commands later), stamped
+    t_s + h dt, with the offline multi-step form run on a copy of the segment whose commands after s are u_s
+    (``hold_inputs``), to 1e-9 -- the same prediction path as the flown mode, only the commands after s differ."""
+    from quad_modelling.core.evaluation.multistep import multistep_form
+    from quad_modelling.core.models.physics import PhysicsPredictor
+    from quad_modelling.core.models.streaming import RecedingHorizon, hold_inputs
+
+    vehicle = load_vehicle("crazyflie21")
+    base = synthetic_log(300)
+    t_ns = 5_000_000_000 + np.arange(300, dtype=np.int64) * 10_000_000  # exact 10 ms steps: the held stamps are the rows'
+    log = dataclasses.replace(base, t=t_ns / 1e9)
+    model = GreyboxPredictor(vehicle) if model_name == "greybox" else PhysicsPredictor(vehicle)
+    row_of = {int(ns): i for i, ns in enumerate(t_ns)}
+
+    def make_log(stamps, rows, measured):  # what the node's _rows_log does with messages: rows' commands, measured rows
+        at = np.array(measured)
+        return dataclasses.replace(log, t=np.asarray(stamps) / 1e9, u=np.array([r[1] for r in rows]),
+                                   omega=np.array([r[2] for r in rows]), acc_b=log.acc_b[at], gyro_b=log.gyro_b[at],
+                                   pos_n=log.pos_n[at], vel_n=log.vel_n[at], euler=log.euler[at], vbat=log.vbat[at])
+
+    h, warm = 5, 20
+    horizon = RecedingHorizon(lambda w: multistep_form(model, w), make_log, horizon_s=0.05, warm_s=0.2, history_s=2.0,
+                              sample_period_s=0.0, wait_s=0.5)
+    assert horizon.inputs == "hold"
+    out = {}
+    for i, ns in enumerate(t_ns.tolist()):
+        horizon.add(ns, log.u[i], log.omega[i])
+        events = list(horizon.ready(lambda s: s <= ns, lambda s: row_of[s]))
+        assert all(kind == "prediction" for kind, *_ in events)
+        if i < 20:  # the anchors 19, 20 wait for dt (the median of the first 20 steps): known at input 20
+            assert events == []
+            continue
+        anchors = [19, 20] if i == 20 else [i]  # from then on: input i answers anchor i at once, nothing else
+        assert [e[1] for e in events] == [int(t_ns[s]) + h * 10_000_000 for s in anchors]
+        out.update({s: e for s, e in zip(anchors, events)})
+    assert horizon.steps == h and horizon.period_ns == 10_000_000
+    assert np.allclose([e[3] for e in out.values()], h * 0.01, atol=1e-12)  # stamped t_s + h dt
+    form = multistep_form(model, warm)
+    starts = [s for s in out if s + h < len(log)]
+    expected = np.array([form.predict_horizons(hold_inputs(log, s), np.array([s]), h)[0] for s in starts])
+    got = np.array([out[s][2] for s in starts])
+    flown = form.predict_horizons(log, np.array(starts), h)
+    print(f"{model_name}: max |hold - offline on held inputs| = {np.abs(got - expected).max():.2e}, "
+          f"max |hold - flown| at h = {np.abs(got[:, h] - flown[:, h]).max():.2e}")
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+    assert np.abs(got[:, h] - flown[:, h]).max() > 1e-6  # the held commands matter: not the flown prediction
