@@ -26,20 +26,14 @@ Closing rule: window k = [t0 + kW, t0 + (k+1)W) closes when every scored stream 
 later window, or ``close_grace_s`` [wall s] after the first passed its end (then marked naming the late
 stream; a late model: its records). A model silent for ``stale_model_s`` is not waited for.
 
-Streams on their own clocks (:mod:`~quad_modelling.core.alignment`, shared with offline): the scored
-rows are the window's engine-input stamps; motion capture, IMU and predictions are interpolated to them
-(exact where a stamp matches: the aligned replay scores the recorded rows). A window is scored when every
-stream meets the coverage rule (>= 95 % of its nominal samples, no gap over 50 ms), else *marked* naming
-each failing stream, its coverage and longest gap (a failing model stream marks that model only). Buffers
-hold the open windows and the last closed one. Receding horizon (``horizon_s`` > 0):
-``<model>/horizon/odom``, stamped at the predicted time, is scored against the measurements interpolated
-there with the multi-step group errors: MAE@h per closed window and pooled (``results.json``), the offline
-MAE_h over the same starts. Faults: non-finite, malformed or unreadable messages are dropped with one
-warning per kind (counted). Every stream's stamps pass the predictors' rule
-(:class:`~quad_modelling.core.alignment.StampGate`, ``max_stamp_step_s``): a single bad stamp is dropped
-(``outlier_stamp_<stream>``); a new time base (``clock_jump_<stream>``) is followed with its confirming run,
-and one of the engine inputs closes the open windows; the origin stays (aligned with the predictors'), or moves to
-the confirming stamp when that lies before it (published). Timers run on the steady clock, so wall or sim-time jumps do not stop them.
+Streams on their own clocks (:mod:`~quad_modelling.core.alignment`, shared with offline; the rules in
+docs/nodes.md): the scored rows are the window's engine-input stamps, motion capture, IMU and predictions
+interpolated to them (exact where a stamp matches); a window is scored when every stream meets the coverage
+rule, else marked naming each failing stream. Receding horizon (``horizon_s`` > 0): ``<model>/horizon/odom``
+is scored against the measurements at its stamp with the multi-step group errors (MAE@h). Faults: bad
+messages are dropped with one warning per kind; every stream's stamps pass the predictors'
+:class:`~quad_modelling.core.alignment.StampGate`; a jump of the engine inputs closes the open windows and
+keeps the origin (aligned with the predictors'), unless it lies before it. Timers run on the steady clock.
 """
 
 from __future__ import annotations

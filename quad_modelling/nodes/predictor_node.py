@@ -13,44 +13,28 @@ it is empty, the one a replay announces on ``vehicle`` (transient-local); the mo
 built once it is known, and inputs before are dropped with one warning; a set vehicle
 that differs from the announced one stops the node (exit 2).
 
-Streams on their own clocks (issue #15): motion capture, IMU and battery are kept in
-:class:`~quad_modelling.core.alignment.MeasurementTrack` buffers and read at any command
-stamp (exact stamp as it is, else interpolated between the two samples around it, quaternions as
-a normalised lerp, never across a gap longer than ``measurement_gap_s``, else the nearest sample
-within ``measurement_tolerance_s``). Every stream's stamps pass a
-:class:`~quad_modelling.core.alignment.StampGate`: a single stamp from the future or the
-past is dropped (warning ``stamp_outlier_<stream>``), :data:`~quad_modelling.core.alignment.CONFIRM` (3) consistent ones are a new time base
-(restarted publisher, clock jump: warning ``stamps_jumped_<stream>``; a motor-input jump resets
-the windows, and one back before t0 moves the origin).
+Streams on their own clocks (issue #15; parameters and warnings: docs/nodes.md): motion capture, IMU and
+battery are kept in :class:`~quad_modelling.core.alignment.MeasurementTrack` buffers and read at any command
+stamp (exact, else interpolated, else the nearest within ``measurement_tolerance_s``); every stream's stamps
+pass a :class:`~quad_modelling.core.alignment.StampGate` (single outliers dropped, a confirmed new time base
+resets the stream; for motor inputs the windows, and one back before t0 moves the origin).
 
 Windows (:class:`~quad_modelling.core.windows.WindowClock`, the offline evaluation's clock): window k starts at
-t0 + kW, t0 = the first motor-input stamp (or the ``window_origin`` another node
-published). The commands of the first ``warm_s`` of each window are the warm rows; their
-measurements are read from the tracks at the commands' stamps, ``start_window`` gives their
-predictions, and every later command is pushed (``push_at``: the model steps over the real
-interval) and its prediction published immediately. The window starts at its last warm row by
-the clock (or the first command past ``warm_s``) once every track holds a sample at or after that
-row's stamp (so the row is interpolated, not extrapolated), or after :data:`MEASUREMENT_WAIT_S`
-with what the tracks give. The warm rows' predictions are published at that moment, all of them,
-in stamp order, before any later prediction: stamps strictly increase on every output topic (a
-prediction whose stamp is not after the previous one is never published; a warm row arriving
-after the start is predicted as a streamed row). A node that joins mid-window (late start,
-restart, stamp jump) waits for the next window start.
+t0 + kW, t0 = the first motor-input stamp (or the ``window_origin`` another node published). The commands of
+the first ``warm_s`` are the warm rows, their measurements read from the tracks at the commands' stamps; every
+later command is pushed (``push_at``: the model steps over the real interval) and its prediction published at
+once. A window starts once every track holds a sample at or after its last warm row (else after
+:data:`MEASUREMENT_WAIT_S`); the warm rows' predictions are then published in stamp order, so stamps strictly
+increase on every output topic. A node that joins mid-window waits for the next window start. A prediction
+beyond the vehicle's :class:`~quad_modelling.core.models.bounds.PhysicalBounds` abandons the window
+(``out_of_bounds``): nothing beyond them, and nothing non-finite, is published.
 
-Every prediction is checked against the vehicle's physical bounds
-(:class:`~quad_modelling.core.models.bounds.PhysicalBounds`, relative to the window's anchor);
-one beyond them abandons the window (warning ``out_of_bounds``): nothing beyond them, and
-nothing non-finite, is published.
-
-Receding-horizon mode (``horizon_s`` > 0, instead of windows): h = round(horizon_s / dt) steps
-(dt = the median step of the first commands). An anchor s gets the prediction of the model's
-multi-step form (:func:`~quad_modelling.core.evaluation.multistep.multistep_form`, the offline
-multi-step evaluation's) from the last ``horizon_history_s`` of rows up to it, h steps ahead, on
-``<model>/horizon/odom`` stamped at the time it predicts (:class:`~quad_modelling.core.models.streaming.RecedingHorizon`).
-``horizon_inputs`` says which commands after s it flies: ``hold`` (default, the forecast) u_s held,
-published at input s once every track covers t_s, stamped t_s + h dt; ``flown`` the recorded
-commands s+1..s+h, published when command s+h is in, stamped t_{s+h}: it equals the offline
-multi-step prediction for the same start (test: to 1e-9 on the bundled flight), but too late to be a forecast.
+Receding-horizon mode (``horizon_s`` > 0, instead of windows): h = round(horizon_s / dt) steps; anchor s gets
+the model's multi-step form (:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) over the last
+``horizon_history_s`` of rows, h steps ahead, on ``<model>/horizon/odom``
+(:class:`~quad_modelling.core.models.streaming.RecedingHorizon`). ``horizon_inputs``: ``hold`` (default, the
+forecast) flies u_s held, published at input s, stamped t_s + h dt; ``flown`` flies the recorded commands,
+published at input s+h, stamped t_{s+h}: equal to the offline multi-step prediction, too late to be a forecast.
 
 Faults (one warning per kind, then counted): non-finite or malformed messages and zero
 quaternions are dropped; warm rows without a measurement within tolerance are left out (fewer
