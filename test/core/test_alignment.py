@@ -49,18 +49,6 @@ def test_interpolation_is_exact_at_sample_stamps_linear_between_and_never_crosse
     assert np.array_equal(exact, values)  # bit for bit: the aligned replay scores the recorded rows
 
 
-def test_interpolation_is_exact_at_sample_stamps_linear_between_and_never_crosses_a_gap():
-    stamps = np.array([0, 10, 20, 100, 110], dtype=np.int64) * MS
-    values = np.array([[0.0], [1.0], [2.0], [3.0], [4.0]]) * np.pi
-    at = np.array([10, 15, 60, 105, 170, 111, -40, -60], dtype=np.int64) * MS
-    out = interpolate_at(stamps, values, at)[:, 0] / np.pi
-    assert out[0] == 1.0 and out[1] == pytest.approx(1.5) and np.isnan(out[2]) and out[3] == pytest.approx(3.5)
-    assert np.isnan(out[4]) and out[5] == 4.0 and out[6] == 0.0 and np.isnan(out[7])  # holds within 50 ms of the ends
-    assert np.isnan(interpolate_at(stamps, values, np.array([111 * MS, -1 * MS]), hold=False)).all()  # a truth must be bracketed
-    exact = interpolate_at(stamps, values, stamps)
-    assert np.array_equal(exact, values)  # bit for bit: the aligned replay scores the recorded rows
-
-
 def test_quaternions_interpolate_along_the_shorter_rotation_and_stay_unit():
     a = Rotation.from_euler("z", 10, degrees=True).as_quat()
     b = -Rotation.from_euler("z", 30, degrees=True).as_quat()  # the same attitude, the other sign
