@@ -243,3 +243,40 @@ def test_held_horizon_mode_forecasts_each_input_before_the_next_command_is_sent(
     assert np.array_equal(got, stamps[anchors] + h * dt_ns)  # one per input from the first anchor on, at t_s + h dt
     assert np.all(np.diff(got) > 0) and not predictor.faults.counts
     print(f"{model}: {len(got)} held-input forecasts, each before the next command; dt {dt_ns} ns")
+
+
+def test_live_mae_at_h_from_the_predictor_over_dds_equals_the_offline_multistep_mae(ros):
+    """End to end: the greybox predictor (horizon_inputs flown, h = 10) publishes its horizon states over DDS; the
+    evaluator (horizon_s 0.1) scores what arrived against the replayed measurements; its live MAE@h per group equals
+    the offline multi-step MAE_h (core/evaluation/multistep.py, IDSIA protocol) of the same starts to 1e-9 relative."""
+    from quad_modelling.core.evaluation.multistep import multistep_mae
+    from test.ros.test_evaluator_streams import make_node as make_evaluator
+
+    log, stamps, events = replay_events()
+    predictor = make_predictor(model="greybox", horizon_s=0.1, horizon_history_s=2.0, horizon_inputs="flown")
+    stack = Stack(ros, predictor, "greybox/horizon/odom")
+    try:
+        stack.wait_for_match()
+        stack.play(events)
+    finally:
+        stack.close()
+    h, warm = 10, 20
+    vehicle = load_vehicle("crazyflie21")
+    offline, starts = multistep_mae(multistep_form(make_streaming_predictor("greybox", vehicle), warm), log, h, vehicle,
+                                    first_start=warm - 1)
+    assert starts == len(stack.received) == len(log) - h - (warm - 1)
+    evaluator = make_evaluator(models=["greybox"], horizon_s=0.1)
+    arrays = messages.measurement_messages(log)
+    arrived = {topics.stamp_ns(m.header.stamp): m for m in stack.received}
+    for row, ns in enumerate(stamps.tolist()):
+        evaluator.on_motor(arrays.motor(row, ns))
+        evaluator.on_odom(arrays.odometry(row, ns))
+        evaluator.on_imu(arrays.imu(row, ns))
+        if ns in arrived:  # what came over DDS, fed to the evaluator when its stamp's measurements are in
+            evaluator.on_horizon("greybox", arrived[ns])
+    evaluator.finish()
+    live = evaluator.scores.horizon_mae()["models"]["greybox"]
+    evaluator.destroy_node()
+    assert live["predictions"] == starts and live["unreached"] == 0
+    for g, group in enumerate(("position", "velocity", "orientation", "angular_velocity")):
+        assert abs(live["mae"][group] - offline[g, h - 1]) <= 1e-9 * offline[g, h - 1], group
