@@ -88,7 +88,7 @@ class TreeMemory:
                 try:
                     rss.append(proc.memory_info().rss)
                 except psutil.Error:
-                    pass
+                    pass  # the process ended between listing and sampling: nothing left to count
             if rss:
                 self.peak_total = max(self.peak_total, sum(rss))
                 self.peak_single = max(self.peak_single, max(rss))
@@ -171,7 +171,7 @@ class RunningScheduler:
             try:
                 os.killpg(proc.pid, signal.SIGTERM)
             except ProcessLookupError:
-                pass
+                pass  # already exited
         for proc in self.procs:
             try:
                 proc.wait(timeout=20)

@@ -183,11 +183,9 @@ def replay_events():
     return log, stamps, events
 
 
-@pytest.mark.parametrize("model", ["greybox", "physics"])
-def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(ros, model):
-    """horizon_inputs flown, horizon_s = 0.1 s at 100 Hz: h = 10. Each published <model>/horizon/odom equals, to 1e-9,
-    the offline multi-step form's prediction (core/evaluation/multistep.py) from the same start over the same rows,
-    stamped t_{s+h}."""
+def flown_horizon_run(ros, model):
+    """The replayed rows through a ``model`` predictor in receding-horizon mode (flown inputs, horizon_s 0.1 s):
+    (log, stamps [ns], predictor, stack holding the received <model>/horizon/odom messages)."""
     log, stamps, events = replay_events()
     predictor = make_predictor(model=model, horizon_s=0.1, horizon_history_s=2.0, horizon_inputs="flown")
     stack = Stack(ros, predictor, f"{model}/horizon/odom")
@@ -196,6 +194,15 @@ def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(
         stack.play(events)
     finally:
         stack.close()
+    return log, stamps, predictor, stack
+
+
+@pytest.mark.parametrize("model", ["greybox", "physics"])
+def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(ros, model):
+    """horizon_inputs flown, horizon_s = 0.1 s at 100 Hz: h = 10. Each published <model>/horizon/odom equals, to 1e-9,
+    the offline multi-step form's prediction (core/evaluation/multistep.py) from the same start over the same rows,
+    stamped t_{s+h}."""
+    log, stamps, predictor, stack = flown_horizon_run(ros, model)
     h, warm = 10, 20
     assert predictor.horizon.steps == h
     got = np.array([topics.stamp_ns(m.header.stamp) for m in stack.received])
@@ -252,14 +259,7 @@ def test_live_mae_at_h_from_the_predictor_over_dds_equals_the_offline_multistep_
     from quad_modelling.core.evaluation.multistep import multistep_mae
     from test.ros.test_evaluator_streams import make_node as make_evaluator
 
-    log, stamps, events = replay_events()
-    predictor = make_predictor(model="greybox", horizon_s=0.1, horizon_history_s=2.0, horizon_inputs="flown")
-    stack = Stack(ros, predictor, "greybox/horizon/odom")
-    try:
-        stack.wait_for_match()
-        stack.play(events)
-    finally:
-        stack.close()
+    log, stamps, predictor, stack = flown_horizon_run(ros, "greybox")
     h, warm = 10, 20
     vehicle = load_vehicle("crazyflie21")
     offline, starts = multistep_mae(multistep_form(make_streaming_predictor("greybox", vehicle), warm), log, h, vehicle,
