@@ -40,7 +40,6 @@ from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
 from quad_modelling.core.diagnosis.validation import (
     VALIDATION_DURATION_S,
-    imu_truth_log,
     test_seeds,
     train_seeds,
 )
@@ -58,7 +57,7 @@ PARTS = ("gap", "sensor_floor", "structural", "structural_true_anchor")
 
 def _truth_log(run, motion_capture: bool = False):
     """The flight's log with the IMU (and optionally the motion capture) replaced by the simulator's truth."""
-    log = imu_truth_log(run)
+    log = replace(run.log, acc_b=run.truth["specific_force_b"], gyro_b=run.truth["rates_b"])
     if motion_capture:
         log = replace(log, euler=run.truth["euler"], pos_n=run.truth["pos_n"], vel_n=run.truth["vel_n"])
     return log

@@ -15,6 +15,7 @@ from quad_modelling.core.diagnosis.diagnose import (
     diagnose,
     narx_floor,
 )
+from quad_modelling.core.diagnosis.validation import BASE_FROM, DEFAULT_PAIRS
 from quad_modelling.core.effect_names import (
     CATALOGUE_EFFECTS,
     DISTURBANCES,
@@ -33,19 +34,24 @@ NAME = "diagnose"
 HELP = "diagnose the sim-to-real gap: where the model diverges, which effect causes it, how far it shrinks"
 DESCRIPTION = f"""\
 Compare the linear greybox model with flights and find which unmodelled effect explains the
-gap. The base model's constants are identified on the --train flights; every catalogue effect
+gap. The base model's constants are identified on the --train flights (with no motor lag of
+its own: lag and delay are the effects' to claim); every catalogue effect
 ({", ".join(CATALOGUE_EFFECTS)}) is added alone, its parameters identified on the --train flights
-only, and the gap measured on the --test flights. An effect is "found" when it shrinks the
-held-out gap on its variables by >= 5 % consistently over held-out windows, "rejected" when it
-helps on training data only. Also: the gap by flight regime and frequency band, the worst
-windows, a cumulative ladder of the found effects, and (--narx) the NARX model's error as the
-learnable floor.
+only, and the gap measured on the --test flights. Verdicts, each with its reason: "found" when
+it shrinks the held-out gap on its variables by >= 5 % consistently over held-out windows, the
+total held-out error falls, and its parameters are inside their bounds, physically plausible
+and stable across folds of the training flights; "weak" when the gap falls but a parameter
+fails; "not supported" otherwise. Also: where the gap lies (variables, regimes, frequency
+bands) before and after the best model, a cumulative ladder, whether lag and delay can be told
+apart, and (--narx) the NARX model's error as the learnable floor.
 
 OUTDIR receives diagnosis.json (SI units), report.md (plain-language verdict first) and PNG
-figures. --validate instead flies simulated known-answer flights (each effect switched on in
-turn, the model without it; a null case; pairs) and writes validation.json + validation.md.
-The simulator switches {", ".join(SWITCHED_EFFECTS)}; {", ".join(DISTURBANCES)} is a simulator
-disturbance, no catalogue effect.
+figures. --validate instead flies simulated known-answer flights and runs the diagnosis on
+them as a user would (base identified on the same effect-on flights; --base-from effects-off
+for the easier mode): each effect alone, a null case, pairs (--pairs), all effects at once,
+and out-of-catalogue disturbances (--disturbance: {", ".join(DISTURBANCES)}), whose right
+answer is "unexplained"; each single run is scored against its sensor ceiling. It writes
+validation.json + validation.md; --jobs N runs the cases on N local Dask workers.
 
 --jobs N / --scheduler ADDRESS read and check the --train/--test flights on Dask workers;
 the fits and the scoring run here (joint over flights; docs/scale.md).
@@ -53,7 +59,7 @@ the fits and the scoring run here (joint over flights; docs/scale.md).
 examples:
   quad-modelling diagnose --train slow1.csv.gz slow2.csv.gz --test fast1.csv.gz -o diag
   quad-modelling diagnose --train a.mat --test b.mat --vehicle linkquad --effects rotor_drag,battery -o diag
-  quad-modelling diagnose --validate --vehicle linkquad --seeds 0,1,2 -o validation
+  quad-modelling diagnose --validate --vehicle linkquad --seeds 0,1,2 --jobs 2 -o validation
 """
 
 
@@ -74,6 +80,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--validate", action="store_true", help="known-answer validation on simulated flights instead")
     parser.add_argument("--seeds", default="0,1,2", metavar="LIST", help="validation seeds (default 0,1,2)")
     parser.add_argument("--duration", type=float, default=90.0, metavar="SECONDS", help="validation flight length (default 90)")
+    parser.add_argument("--base-from", choices=BASE_FROM, default="effects-on",
+                        help="validation: identify the base on the effect-on training flights (default, as a user must) "
+                             "or on the same seeds flown with every effect off")
+    parser.add_argument("--pairs", default="default", metavar="LIST|none",
+                        help="validation pairs, e.g. rotor_drag+motor_imbalance,battery+ground_effect (default: "
+                             + ", ".join("+".join(p) for p in DEFAULT_PAIRS) + ", those searched)")
+    parser.add_argument("--disturbance", default="all", metavar="LIST|none",
+                        help=f"validation out-of-catalogue disturbances, right answer 'unexplained' (default all: {', '.join(DISTURBANCES)})")
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="new output directory")
     parser.add_argument("--force", action="store_true", help="overwrite an existing OUTDIR")
 
@@ -105,8 +119,8 @@ def run(args: argparse.Namespace) -> int:
     check_fanout_options(args.jobs, args.scheduler)
     effects = parse_effect_list(args.effects)
     if args.validate:
-        if args.jobs is not None or args.scheduler is not None:
-            raise ConfigError("--jobs/--scheduler fan out the reading of --train/--test flights; --validate reads none")
+        if args.scheduler is not None:
+            raise ConfigError("--scheduler: --validate runs its cases on a local cluster (--jobs N) or here")
         return _run_validation(args, config, effects, output)
     if not args.train or not args.test:
         raise ConfigError("diagnose needs --train FLIGHT... and --test FLIGHT... (or --validate)")
@@ -153,10 +167,36 @@ def _run_validation(args, config, effects, output: Path) -> int:
     switched = [e for e in SWITCHED_EFFECTS if e in names]  # the simulator can fly these with the effect on
     say, bar = _progress()
     try:
-        result = validate(args.vehicle or "linkquad", switched, seeds, catalogue=effects, duration=args.duration, config=config, progress=say)
+        result = validate(args.vehicle or "linkquad", switched, seeds, pairs=_pairs(args.pairs), catalogue=names,
+                          duration=args.duration, config=config, progress=say, base_from=args.base_from,
+                          disturbances=_disturbances(args.disturbance), jobs=args.jobs)
     finally:
         bar.close()
     with atomic_output(output, args.force) as tmp:
         write_validation(result, tmp)
     print(f"{validation_summary(result)} -> {output}/")
     return 0
+
+
+def _pairs(text: str) -> list[tuple[str, ...]] | None:
+    """``--pairs``: None for the default pairs, [] for none, else the A+B items of the comma list."""
+    text = text.strip()
+    if text == "default":
+        return None
+    if text == "none":
+        return []
+    return [tuple(part.strip() for part in item.split("+")) for item in text.split(",") if item.strip()]
+
+
+def _disturbances(text: str) -> tuple[str, ...]:
+    """``--disturbance``: all, none or a comma list of :data:`DISTURBANCES` (ConfigError naming an unknown one)."""
+    text = text.strip()
+    if text == "all":
+        return DISTURBANCES
+    if text == "none":
+        return ()
+    names = tuple(part.strip() for part in text.split(",") if part.strip())
+    unknown = [n for n in names if n not in DISTURBANCES]
+    if unknown:
+        raise ConfigError(f"--disturbance {', '.join(unknown)}: known disturbances are {', '.join(DISTURBANCES)} (or all, none)")
+    return names

@@ -28,11 +28,14 @@ The effects, their parameters and the seed are stored in the log's notes (meta_j
 
 effects: {", ".join(SIM_EFFECTS)}
   --effects none | all | default (all but {", ".join(DISTURBANCES)}) | a comma list
+  {", ".join(DISTURBANCES)} are disturbances no catalogue effect describes (moving air; the centre
+  of mass below the IMU; motor 1 tilted 3 degrees about its arm): docs/simulator.md
 
 examples:
   quad-modelling simulate -o flight.mat
   quad-modelling simulate -o flight.mat --vehicle crazyflie21 --effects rotor_drag,battery --seed 3
   quad-modelling simulate -o bags/sim_flight --bag --effects none --duration 60
+  quad-modelling simulate -o damaged.mat --effects rotor_drag,battery,motor_lag,com_offset,bent_arm --seed 4
 """
 
 

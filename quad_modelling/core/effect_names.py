@@ -7,8 +7,12 @@ The two sets differ explicitly, never by a second list:
 
 * :data:`IDENTIFIABLE_ONLY` -- catalogue entries with no simulator switch: the simulator's thrust is
   always :math:`T = a\\Omega^2` (thrust nonlinearity), and its trim drift comes with the battery drain;
-* :data:`DISTURBANCES` -- simulator switches outside the catalogue: ``wind``, which a diagnosis must
-  report as unexplained, not as a catalogue effect (DESIGN 8).
+* :data:`DISTURBANCES` -- simulator switches outside the catalogue, which a diagnosis must report as
+  unexplained, not as a catalogue effect (DESIGN 8): ``wind`` (moving air, airframe drag), ``com_offset``
+  (the centre of mass a distance *below* the IMU, a battery hung under the frame: lever-arm terms in the
+  accelerometer, a longer rotor-drag moment arm; the catalogue's motor_imbalance offset is horizontal) and
+  ``bent_arm`` (motor 1 tilted about its arm: a yaw torque and a body-fixed horizontal force that scale
+  with its thrust; no catalogue form has either). Physics: :mod:`quad_modelling.core.sim.dynamics`.
 
 :data:`SWITCHED_EFFECTS` (the catalogue effects the simulator can switch on) is what the known-answer
 validation withholds. :func:`parse_effect_names` is the one grammar of an ``--effects`` option
@@ -38,7 +42,7 @@ CATALOGUE_EFFECTS: tuple[str, ...] = (
 IDENTIFIABLE_ONLY: tuple[str, ...] = ("thrust_nonlinearity", "trim_drift")
 """Catalogue effects the simulator has no switch for (module docstring)."""
 
-DISTURBANCES: tuple[str, ...] = ("wind",)
+DISTURBANCES: tuple[str, ...] = ("wind", "com_offset", "bent_arm")
 """Simulator switches that are no catalogue effect (module docstring)."""
 
 SWITCHED_EFFECTS: tuple[str, ...] = tuple(name for name in CATALOGUE_EFFECTS if name not in IDENTIFIABLE_ONLY)
@@ -48,7 +52,8 @@ SIM_EFFECTS: tuple[str, ...] = SWITCHED_EFFECTS + DISTURBANCES
 """Every switch of the truth simulator, in order: the switched catalogue effects, then the disturbances."""
 
 SIM_DEFAULT_EFFECTS: tuple[str, ...] = SWITCHED_EFFECTS
-"""The simulator's default: a realistic indoor (motion-capture lab) flight, every effect but the disturbances."""
+"""The simulator's default: a realistic indoor (motion-capture lab) flight of an undamaged airframe, every
+effect but the disturbances."""
 
 
 @dataclass(frozen=True)
@@ -63,10 +68,10 @@ class EffectChoice:
 
 
 SIMULATOR = EffectChoice("simulator effect", SIM_EFFECTS, SIM_DEFAULT_EFFECTS)
-"""Effects ``quad-modelling simulate`` (and the simulator) accept; default every effect but wind."""
+"""Effects ``quad-modelling simulate`` (and the simulator) accept; default every effect but the disturbances."""
 
 DIAGNOSIS = EffectChoice("catalogue effect", CATALOGUE_EFFECTS, CATALOGUE_EFFECTS,
-                         hint=f"{', '.join(DISTURBANCES)}: a simulator disturbance, not a catalogue effect")
+                         hint=f"{', '.join(DISTURBANCES)}: simulator disturbances, not catalogue effects")
 """Effects ``quad-modelling diagnose`` can assess; default the whole catalogue."""
 
 

@@ -27,10 +27,10 @@ def test_the_catalogue_and_the_simulator_differ_only_by_the_named_exceptions():
     assert tuple(CATALOGUE) == CATALOGUE_EFFECTS  # the catalogue has one form per name, in that order
     assert len(CATALOGUE_EFFECTS) == 9
     assert set(CATALOGUE) - set(SIM_EFFECTS) == set(IDENTIFIABLE_ONLY) == {"thrust_nonlinearity", "trim_drift"}
-    assert set(SIM_EFFECTS) - set(CATALOGUE) == set(DISTURBANCES) == {"wind"}
+    assert set(SIM_EFFECTS) - set(CATALOGUE) == set(DISTURBANCES) == {"wind", "com_offset", "bent_arm"}
     assert SIM_EFFECTS == ("rotor_drag", "battery", "motor_lag", "input_delay", "ground_effect", "gyroscopic",
-                           "motor_imbalance", "wind")
-    assert SIM_DEFAULT_EFFECTS == SWITCHED_EFFECTS == SIM_EFFECTS[:-1]
+                           "motor_imbalance", "wind", "com_offset", "bent_arm")
+    assert SIM_DEFAULT_EFFECTS == SWITCHED_EFFECTS == SIM_EFFECTS[:-3]
     assert inspect.signature(validate).parameters["effects"].default == SWITCHED_EFFECTS  # the validation withholds every switched catalogue effect
 
 
@@ -54,6 +54,8 @@ def test_one_grammar_for_simulate_and_diagnose():
 def test_each_side_rejects_the_names_only_the_other_has():
     with pytest.raises(ConfigError, match="unknown catalogue effect 'wind'.*simulator disturbance"):
         parse_effect_names("battery,wind", DIAGNOSIS)
+    with pytest.raises(ConfigError, match="unknown catalogue effect 'com_offset', 'bent_arm'.*simulator disturbance"):
+        parse_effect_names("com_offset,bent_arm", DIAGNOSIS)
     with pytest.raises(ConfigError, match="unknown simulator effect 'trim_drift'"):
         parse_effect_names("trim_drift", SIMULATOR)
     with pytest.raises(ConfigError, match="'warp', 'flapping'"):

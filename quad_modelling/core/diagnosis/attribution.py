@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from quad_modelling.core.diagnosis.catalogue import Effect
-from quad_modelling.core.diagnosis.fitting import fit_effects
+from quad_modelling.core.diagnosis.fitting import FitResult, fit_effects
 from quad_modelling.core.diagnosis.statistics import (
     bootstrap_shrink,
     correction_correlation,
@@ -19,6 +19,15 @@ from quad_modelling.core.diagnosis.statistics import (
     variable_scores,
     window_rms,
     window_tic,
+)
+from quad_modelling.core.diagnosis.verdicts import (
+    VERDICTS,
+    ParameterCheck,
+    fold_stability,
+    material_parameters,
+    parameter_checks,
+    parameter_failure,
+    total_error,
 )
 from quad_modelling.core.evaluation.metrics import root_mean_square
 from quad_modelling.core.evaluation.windowed import window_mean
@@ -68,6 +77,13 @@ CONFOUND_SHRINK_RATIO = 0.5
 
 LADDER_MAX_RUNGS = 4
 
+NUISANCE_MIN_COST_DROP = 0.01
+"""A nuisance parameter (the wind of rotor drag) is kept free only when freeing it lowers the training cost by
+at least this fraction and every nuisance estimate is at least :data:`NUISANCE_MIN_SIGMAS` sigma from zero:
+otherwise the data shows no wind and it is held at zero (an indoor flight)."""
+
+NUISANCE_MIN_SIGMAS = 2.0
+
 
 # ----------------------------------------------------------------------------- which effect
 
@@ -90,6 +106,11 @@ class EffectOutcome:
     alone: EffectOutcome | None = None  # the effect's assessment on its own, when ``given`` is not empty
     variables: tuple[str, ...] = ()  # the affected variables it is scored on (:func:`affected_variables`); () = its candidates
     variable_correction: dict[str, float] = field(default_factory=dict)  # candidate -> training RMS(correction) / s_v
+    reason: str = ""  # why the verdict (verdicts module docstring)
+    parameters: list[ParameterCheck] = field(default_factory=list)
+    stability: dict = field(default_factory=dict)  # fold_stability(), {} when not reached
+    total: dict = field(default_factory=dict)  # {"before", "after", "change"}: total held-out error (verdicts.total_error)
+    shrink_by_variable: dict = field(default_factory=dict)  # {"train": {v: s}, "held_out": {v: s}}
 
     def __post_init__(self) -> None:
         if not self.variables:
@@ -110,9 +131,14 @@ class EffectOutcome:
             "after_tic": self.after_tic,
             "params": {} if self.theta is None else {k: float(v) for k, v in zip(e.parameters, self.theta)},
             "param_units": dict(zip(e.parameters, e.units)),
+            "parameters": [c.to_json(e.plausible_source) for c in self.parameters],
+            "shrink_by_variable": self.shrink_by_variable,
+            "total_error": self.total,
+            "fold_stability": self.stability,
             "evidence": self.evidence,
             "confounded_with": self.confounded_with,
             "verdict": self.verdict,
+            "reason": self.reason,
             "given": list(self.given),
             "alone": self._alone_json(),
             **({"note": self.note} if self.note else {}),
@@ -121,7 +147,7 @@ class EffectOutcome:
     def _alone_json(self) -> dict:
         """The effect assessed on its own against the base model (the shrink that defines the per-effect score)."""
         a = self.alone or self
-        return {"shrink": a.shrink, "train_shrink": a.train_shrink, "verdict": a.verdict,
+        return {"shrink": a.shrink, "train_shrink": a.train_shrink, "verdict": a.verdict, "reason": a.reason,
                 "params": {} if a.theta is None else {k: float(v) for k, v in zip(a.effect.parameters, a.theta)}}
 
 
@@ -156,31 +182,46 @@ def excited_windows(batch: WindowBatch, correction: np.ndarray, cols: np.ndarray
     return excited if excited.sum() >= EXCITED_MIN_WINDOWS else np.zeros_like(excited)
 
 
-def verdict_of(shrink: float, train_shrink: float, ci_low: float, improved_fraction: float) -> str:
-    """The verdict rule of the module docstring."""
-    held_out_ok = shrink >= FOUND_MIN_SHRINK and ci_low > 0.0 and improved_fraction >= FOUND_MIN_WINDOW_FRACTION
-    if held_out_ok and train_shrink > 0.0:
-        return "found"
-    if train_shrink >= FOUND_MIN_SHRINK:
-        return "rejected"
-    return "insignificant"
+def held_out_failure(shrink: float, train_shrink: float, ci_low: float, improved: int, windows: int) -> str | None:
+    """Why the held-out test of the verdict rules fails (rule 1 of :mod:`~quad_modelling.core.diagnosis.verdicts`),
+    or None when it passes: shrink >= :data:`FOUND_MIN_SHRINK`, bootstrap 5 % bound > 0, at least
+    :data:`FOUND_MIN_WINDOW_FRACTION` of the excited held-out windows improved, a positive training shrink
+    (a held-out gain the fitted flights do not show is chance)."""
+    if windows == 0:
+        return f"it changes the prediction materially in fewer than {EXCITED_MIN_WINDOWS} held-out windows"
+    if shrink < FOUND_MIN_SHRINK:
+        if train_shrink >= FOUND_MIN_SHRINK:
+            return (f"it fits the training flights ({train_shrink:.0%} shrink) but not the held-out ones "
+                    f"({shrink:.1%} < {FOUND_MIN_SHRINK:.0%})")
+        return f"held-out shrink {shrink:.1%} < {FOUND_MIN_SHRINK:.0%}"
+    if train_shrink <= 0.0:
+        return f"it does not shrink the training gap ({train_shrink:.1%}): the held-out gain is chance"
+    if ci_low <= 0.0:
+        return f"the 90% interval of its held-out shrink reaches {ci_low:.1%}"
+    if improved < FOUND_MIN_WINDOW_FRACTION * windows:
+        return f"only {improved}/{windows} held-out windows improve (< {FOUND_MIN_WINDOW_FRACTION:.0%})"
+    return None
 
 
-def ranking_key(outcome: EffectOutcome) -> tuple[bool, float]:
-    """Sort key of the ranking: found effects first, each group by held-out shrink (largest first). A rejected
-    effect's shrink rests on too few or inconsistent windows; it never outranks an effect that passed the test."""
-    return (outcome.verdict != "found", -outcome.shrink)
+def ranking_key(outcome: EffectOutcome) -> tuple[int, float]:
+    """Sort key of the ranking: found effects first, then weak, then not supported, each group by held-out
+    shrink (largest first): an effect that failed a rule never outranks one that passed it."""
+    return (VERDICTS.index(outcome.verdict), -outcome.shrink)
 
 
 def assess_effect(
     effect: Effect, base: BaseModel, train: WindowBatch, test: WindowBatch, scales: np.ndarray,
     base_train: np.ndarray, base_test: np.ndarray, fixed: Sequence[tuple[Effect, np.ndarray]] = (),
+    reference: dict[str, dict[str, float]] | None = None,
 ) -> EffectOutcome:
-    """Identify one effect on ``train``, score it on ``test`` (see module docstring).
+    """Identify one effect on ``train``, score it on ``test`` and give its verdict with the reason (module
+    docstring; rules in :mod:`~quad_modelling.core.diagnosis.verdicts`).
 
     ``fixed``: effects held at their identified parameters (the ones ranked above, :func:`greedy_ranking`);
     ``base_train``/``base_test`` are then the predictions of base + ``fixed`` and the shrink is the
-    effect's contribution on top of them.
+    effect's contribution on top of them. ``reference``: the base model's held-out scores
+    (:func:`~quad_modelling.core.diagnosis.statistics.variable_scores`), the unit of the total error
+    (default: those of ``base_test``).
     """
     fixed = list(fixed)
     fixed_effects, fixed_thetas = [f[0] for f in fixed], [f[1] for f in fixed]
@@ -190,10 +231,11 @@ def assess_effect(
     before_rms = window_mean(window_rms(test, base_test, eval_cols))
     before = {v: float(before_rms[i]) for i, v in enumerate(EVAL_VARIABLES)}
     if reason:
-        return EffectOutcome(effect, None, 0.0, 0.0, before, before, {}, {}, "insignificant", [], None, note=f"not evaluated: {reason}",
-                             given=[e.name for e in fixed_effects])
-    fit = fit_effects(base, train, [effect], scales, fixed=fixed)
-    theta = fit.thetas[0]
+        return EffectOutcome(effect, None, 0.0, 0.0, before, before, {}, {}, "not supported", [], None, note=f"not evaluated: {reason}",
+                             given=[e.name for e in fixed_effects], reason=f"not evaluated: {reason}")
+    reference = reference if reference is not None else variable_scores(test, base_test)
+    fit = _fit_with_nuisance(effect, base, train, scales, fixed)
+    theta, sigma = fit.thetas[0], fit.sigmas[0] if fit.sigmas else None
     after_train = predict_batch(base, train, fixed_effects + [effect], fixed_thetas + [theta], columns=candidates)
     after_test = predict_batch(base, test, fixed_effects + [effect], fixed_thetas + [theta])
     variables, moved = affected_variables(train, after_train - base_train, effect.variables, scales,
@@ -230,13 +272,73 @@ def assess_effect(
         "per_window_shrink_median": float(np.median(per_window)),
         "per_window_shrink_iqr": [float(np.quantile(per_window, 0.25)), float(np.quantile(per_window, 0.75))],
         "fit_evaluations": fit.evaluations,
+        "nuisance": {"held": list(fit.held), "free": [n for n in effect.nuisance if n not in fit.held]},
     }
+    total = {"before": total_error(test, base_test, reference), "after": total_error(test, after_test, reference)}
+    total["change"] = total["after"] - total["before"]
+    material = material_parameters(effect, theta, base, train, cols, base_train, fixed, fit.held)
+    checks = parameter_checks(effect, theta, sigma, base, material, fit.held)
+    verdict, why, stability = verdict_with_reason(effect, theta, checks, shrink, train_shrink, ci[0], improved, len(scored_before), total,
+                                       lambda fold: _fit_with_nuisance(replace(effect, initial=tuple(float(v) for v in theta)),
+                                                                       base, fold, scales, fixed, held=fit.held).thetas[0],
+                                       train)
     return EffectOutcome(
         effect, theta, shrink, train_shrink, before, {v: float(after_rms[i]) for i, v in enumerate(EVAL_VARIABLES)},
-        {v: float(after_tic[i]) for i, v in enumerate(EVAL_VARIABLES)}, evidence,
-        verdict_of(shrink, train_shrink, ci[0], improved / max(len(scored_before), 1)), [], correction,
-        given=[e.name for e in fixed_effects], variables=variables, variable_correction=moved,
+        {v: float(after_tic[i]) for i, v in enumerate(EVAL_VARIABLES)}, evidence, verdict, [], correction,
+        given=[e.name for e in fixed_effects], variables=variables, variable_correction=moved, reason=why,
+        parameters=checks, stability=stability, total=total,
+        shrink_by_variable={"train": _variable_shrinks(train, base_train, after_train, effect.variables),
+                            "held_out": _variable_shrinks(test, base_test, after_test, effect.variables)},
     )
+
+
+def verdict_with_reason(effect: Effect, theta: np.ndarray, checks: list[ParameterCheck], shrink: float, train_shrink: float, ci_low: float,
+             improved: int, windows: int, total: dict, refit, train: WindowBatch) -> tuple[str, str, dict]:
+    """(verdict, reason, fold stability) by the rules of :mod:`~quad_modelling.core.diagnosis.verdicts`, in order;
+    the folds are fitted only when every earlier rule passes."""
+    failure = held_out_failure(shrink, train_shrink, ci_low, improved, windows)
+    if failure:
+        return "not supported", failure, {}
+    if not total["after"] < total["before"]:
+        return "not supported", (f"its variables improve ({shrink:.0%}) but the total held-out error of the scored "
+                                 f"variables does not fall ({total['before']:.3f} -> {total['after']:.3f})"), {}
+    failure = parameter_failure(effect, checks)
+    if failure:
+        return "weak", failure, {}
+    stability = fold_stability(effect, theta, checks, train, refit)
+    if not stability["stable"]:
+        return "weak", stability["reason"], stability
+    return "found", (f"held-out shrink {shrink:.0%} ({improved}/{windows} windows better), total held-out error "
+                     f"{total['before']:.3f} -> {total['after']:.3f}, parameters inside bounds and plausible, "
+                     f"{stability['reason']}"), stability
+
+
+def _fit_with_nuisance(effect: Effect, base: BaseModel, train: WindowBatch, scales: np.ndarray,
+                       fixed: Sequence[tuple[Effect, np.ndarray]], held: Sequence[str] | None = None) -> FitResult:
+    """Fit ``effect`` on ``train``; its nuisance parameters (``Effect.nuisance``) stay held at their initial value
+    unless freeing them passes :data:`NUISANCE_MIN_COST_DROP` and :data:`NUISANCE_MIN_SIGMAS` (``held`` given:
+    fit with exactly those held)."""
+    if held is not None or not effect.nuisance:
+        return fit_effects(base, train, [effect], scales, fixed=fixed, held=tuple(held or ()))
+    without = fit_effects(base, train, [effect], scales, fixed=fixed, held=effect.nuisance)
+    seeded = replace(effect, initial=tuple(float(v) for v in without.thetas[0]))
+    with_nuisance = fit_effects(base, train, [seeded], scales, fixed=fixed)
+    index = [effect.parameters.index(n) for n in effect.nuisance]
+    values, sigmas = with_nuisance.thetas[0][index], with_nuisance.sigmas[0][index]
+    significant = bool(np.all(np.abs(values) >= NUISANCE_MIN_SIGMAS * np.nan_to_num(sigmas, nan=np.inf)))
+    if with_nuisance.cost <= (1.0 - NUISANCE_MIN_COST_DROP) * without.cost and significant:
+        with_nuisance.evaluations += without.evaluations
+        return with_nuisance
+    without.evaluations += with_nuisance.evaluations
+    return without
+
+
+def _variable_shrinks(batch: WindowBatch, before: np.ndarray, after: np.ndarray, names: Sequence[str]) -> dict[str, float]:
+    """Per variable: 1 - mean window RMS after / before, over every window of ``batch``."""
+    cols = np.array([INDEX[v] for v in names])
+    rms_before = window_mean(window_rms(batch, before, cols))
+    rms_after = window_mean(window_rms(batch, after, cols))
+    return {v: float(1.0 - rms_after[i] / rms_before[i]) if rms_before[i] > 0 else 0.0 for i, v in enumerate(names)}
 
 
 def greedy_ranking(
@@ -248,12 +350,14 @@ def greedy_ranking(
     found one of largest shrink *on top of them* comes next; until none is found (or ``max_rungs``).
 
     A twin of a ranked effect (input delay after motor lag) then explains nothing more and stops taking a
-    place from a genuinely second effect. ``outcomes`` are the effects assessed alone (rank 1 is the same
-    as ranking them alone). Returns the ranked outcomes, then the rest by :func:`ranking_key` of their last
+    place from a genuinely second effect; an effect is ranked only when it is found on top of the ones above
+    (held-out confirmation: its conditional shrink passes and the total held-out error falls again).
+    ``outcomes`` are the effects assessed alone (rank 1 is the same as ranking them alone). Returns the ranked outcomes, then the rest by :func:`ranking_key` of their last
     assessment; an outcome assessed on top of others keeps its lone assessment in ``alone``.
     """
     current = {o.effect.name: o for o in outcomes}
     alone = dict(current)
+    reference = variable_scores(test, base_test)
     ranked: list[EffectOutcome] = []
     fixed: list[tuple[Effect, np.ndarray]] = []
     ref_train, ref_test = base_train, base_test
@@ -270,8 +374,8 @@ def greedy_ranking(
         effects, thetas = [f[0] for f in fixed], [f[1] for f in fixed]
         ref_train = predict_batch(base, train, effects, thetas)
         ref_test = predict_batch(base, test, effects, thetas)
-        current = {name: assess_effect(o.effect, base, train, test, scales, ref_train, ref_test, fixed) if o.theta is not None else o
-                   for name, o in current.items()}
+        current = {name: assess_effect(o.effect, base, train, test, scales, ref_train, ref_test, fixed, reference)
+                   if o.theta is not None else o for name, o in current.items()}
     rest = sorted(current.values(), key=ranking_key)
     for o in ranked + rest:
         if o.given:
@@ -311,21 +415,27 @@ def total_gap(batch: WindowBatch, predicted: np.ndarray, reference: dict[str, di
 
 
 def build_ladder(outcomes: list[EffectOutcome], base: BaseModel, train: WindowBatch, test: WindowBatch, scales: np.ndarray,
-                 base_test: np.ndarray) -> list[dict]:
-    """base -> +best -> +next found effect, each rung identified jointly on the training windows."""
+                 base_test: np.ndarray) -> tuple[list[dict], np.ndarray]:
+    """(ladder, best prediction): base -> +best -> +next found effect, each rung identified jointly on the
+    training windows; ``normalised_gap`` is the total held-out error of the scored variables
+    (:func:`~quad_modelling.core.diagnosis.verdicts.total_error`), ``normalised_gap_all`` the same over the
+    12 variables. The best prediction (W, N, 18) is the last rung's (``base_test`` when nothing is found)."""
     reference = variable_scores(test, base_test)
-    ladder = [{"effects": [], "gap": reference, "normalised_gap": 1.0, "params": {}}]
+    ladder = [{"effects": [], "gap": reference, "normalised_gap": 1.0, "normalised_gap_all": 1.0, "params": {}}]
     chosen: list[Effect] = []
+    best = base_test
     for outcome in [o for o in outcomes if o.verdict == "found"][:LADDER_MAX_RUNGS]:
         seeded = replace(outcome.effect, initial=tuple(float(v) for v in outcome.theta))
         previous = ladder[-1]["params"]
         chosen = [replace(e, initial=tuple(previous[e.name][k] for k in e.parameters)) for e in chosen] + [seeded]
-        fit = fit_effects(base, train, chosen, scales)
-        predicted = predict_batch(base, test, fit.effects, fit.thetas)
+        held = tuple(n for o in outcomes if o.effect.name in {e.name for e in chosen} for n in o.evidence.get("nuisance", {}).get("held", []))
+        fit = fit_effects(base, train, chosen, scales, held=held)
+        best = predict_batch(base, test, fit.effects, fit.thetas)
         ladder.append({
             "effects": [e.name for e in chosen],
-            "gap": variable_scores(test, predicted),
-            "normalised_gap": total_gap(test, predicted, reference),
+            "gap": variable_scores(test, best),
+            "normalised_gap": total_error(test, best, reference),
+            "normalised_gap_all": total_gap(test, best, reference),
             "params": fit.params(),
         })
-    return ladder
+    return ladder, best

@@ -11,6 +11,7 @@ from scipy import optimize
 from quad_modelling.core.diagnosis.catalogue import Effect
 from quad_modelling.core.evaluation.metrics import rms, root_mean_square
 from quad_modelling.core.identification.base_model import BaseModel, predict_batch
+from quad_modelling.core.identification.uncertainty import bandwidth_samples, hac_covariance
 from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.variables import INDEX, VARIABLES
 from quad_modelling.errors import ConfigError
@@ -32,6 +33,9 @@ class FitResult:
     evaluations: int
     success: bool
     message: str
+    sigmas: list[np.ndarray] | None = None  # 1-sigma per parameter (HAC, windows as blocks); NaN where held or singular
+    held: tuple[str, ...] = ()  # parameters held at their initial value
+    covariance: np.ndarray | None = None  # (P, P) HAC covariance of all parameters in order (NaN rows where held)
 
     def params(self) -> dict[str, dict[str, float]]:
         return {e.name: {k: float(v) for k, v in zip(e.parameters, th)} for e, th in zip(self.effects, self.thetas)}
@@ -47,6 +51,7 @@ def variable_scales(batch: WindowBatch, predicted: np.ndarray) -> np.ndarray:
 def fit_effects(
     base: BaseModel, batch: WindowBatch, effects: Sequence[Effect], scales: np.ndarray, variables: Sequence[str] | None = None,
     fixed: Sequence[tuple[Effect, np.ndarray]] = (), smooth_cutoff_hz: float | None = None, starts: int = 1,
+    held: Sequence[str] = (),
 ) -> FitResult:
     """Identify the parameters of ``effects`` on ``batch`` (with ``fixed`` effects held at their values).
 
@@ -55,7 +60,9 @@ def fit_effects(
     variables (or ``variables``), :math:`s_v` = ``scales`` (the base model's
     training residual RMS, so each variable weighs by its share of the gap),
     with :func:`scipy.optimize.least_squares` (trust-region reflective, bounds
-    from the catalogue, parameters scaled by their bound widths).
+    from the catalogue, parameters scaled by their bound widths). ``held``: parameter names (of any of
+    ``effects``) kept at their ``initial`` value. The 1-sigma of each free parameter is the HAC sandwich of
+    :func:`~quad_modelling.core.identification.uncertainty.hac_covariance` (windows as blocks) at the optimum.
     """
     effects = list(effects)
     if not effects:
@@ -83,15 +90,36 @@ def fit_effects(
         return r.ravel()
 
     z0 = (x0 - lower) / width
-    candidates = [z0]
+    names_all = [name for e in effects for name in e.parameters]
+    free = np.array([name not in held for name in names_all])
+    if not free.any():
+        raise ConfigError(f"fit_effects: every parameter of {', '.join(e.name for e in effects)} is held")
+
+    def full(z_free: np.ndarray) -> np.ndarray:
+        z = z0.copy()
+        z[free] = z_free
+        return z
+
+    candidates = [z0[free]]
     rng = np.random.default_rng(0)
     for _ in range(max(starts, 1) - 1):
-        candidates.append(np.clip(z0 + rng.normal(0.0, 0.15, size=z0.shape), 0.0, 1.0))
+        candidates.append(np.clip(z0[free] + rng.normal(0.0, 0.15, size=int(free.sum())), 0.0, 1.0))
     best = None
     evaluations = 0
     for z in candidates:
-        fit = optimize.least_squares(residuals, z, bounds=(0.0, 1.0), method="trf", diff_step=1e-3, xtol=1e-6, ftol=1e-6, max_nfev=60)
+        fit = optimize.least_squares(lambda zf: residuals(full(zf)), z, bounds=(0.0, 1.0), method="trf", diff_step=1e-3,
+                                     xtol=1e-6, ftol=1e-6, max_nfev=60)
         evaluations += fit.nfev
         if best is None or fit.cost < best.cost:
             best = fit
-    return FitResult(effects, split(best.x), float(best.cost), evaluations, bool(best.success), str(best.message))
+    cov_theta = np.full((z0.size, z0.size), np.nan)
+    shape = target.shape
+    try:
+        cov = hac_covariance(best.jac.reshape(*shape, -1), best.fun.reshape(shape), bandwidth_samples(batch.dt, FIT_STRIDE))
+        cov_theta[np.ix_(free, free)] = cov * np.outer(width[free], width[free])
+    except np.linalg.LinAlgError:
+        pass  # a singular J^T J: the parameters are not separable on these windows, their sigmas stay NaN
+    sigma = np.sqrt(np.clip(np.diag(cov_theta), 0.0, None))
+    return FitResult(effects, split(full(best.x)), float(best.cost), evaluations, bool(best.success), str(best.message),
+                     sigmas=np.split(sigma, np.cumsum(sizes)[:-1]), held=tuple(n for n in names_all if n in held),
+                     covariance=cov_theta)

@@ -51,6 +51,12 @@ class Effect:
     ``needs``: regime signals required (``"vbat"``). ``variables``: the candidate variables the form can
     change; the effect is fitted on all of them and scored on those its fitted correction moves
     (:func:`quad_modelling.core.diagnosis.attribution.affected_variables`).
+
+    The verdict rules (:mod:`quad_modelling.core.diagnosis.verdicts`) read three more: ``plausible(base)``
+    -> one (low, high) physically plausible range per parameter for this vehicle, with its
+    ``plausible_source``; ``null``: per parameter the value at which its term vanishes (None for a shape
+    parameter, e.g. a height offset, that matters whenever the effect does); ``nuisance``: parameters fitted
+    only where the training data shows them (the wind of an airspeed-driven effect), else held at ``initial``.
     """
 
     name: str
@@ -66,6 +72,16 @@ class Effect:
     forcing: Callable | None = None
     a_delta: Callable | None = None
     needs: tuple[str, ...] = ()
+    plausible: Callable | None = None
+    plausible_source: str = ""
+    null: tuple[float | None, ...] = ()
+    nuisance: tuple[str, ...] = ()
+
+    def plausible_ranges(self, base: BaseModel) -> tuple[tuple[float, float], ...]:
+        """(low, high) per parameter for the vehicle of ``base``; the search bounds when none is given."""
+        if self.plausible is None:
+            return tuple(zip(self.lower, self.upper))
+        return tuple(self.plausible(base))
 
     def applicable(self, batch: WindowBatch) -> str | None:
         """None when the effect can be evaluated on ``batch``, else the reason why not."""
@@ -171,7 +187,7 @@ def predict_batch(
       linearisation). With the attitude measured, as the effects' regime signals
       are, accelerations are driven by the forces without integration;
     * **offsets of roll/pitch/yaw acceleration** (the linearisation point,
-      :func:`_angular_acceleration_offsets`): the least-squares slope of the raw
+      :func:`angular_acceleration_offsets`): the least-squares slope of the raw
       gyro over the warm start instead of the mean of the differentiated gyro over 0.2 s, whose noise
       (the difference of two noisy rates over 0.2 s, ~0.02 rad/s²) stayed in the
       prediction as a constant error for the whole window.
@@ -193,7 +209,7 @@ def predict_batch(
     offsets = batch.offsets
     if not greybox_outputs and anchor >= 2:
         offsets = offsets.copy()
-        offsets[:, ANGULAR_ACCELERATION_COLUMNS] = _angular_acceleration_offsets(batch)
+        offsets[:, ANGULAR_ACCELERATION_COLUMNS] = angular_acceleration_offsets(batch)
     x = np.concatenate([batch.anchor_states, thrust0], axis=1)
     forced = inputs @ bd_ext.T  # (W, N, 16)
     states = np.zeros((w, n, N_STATES))
@@ -224,7 +240,7 @@ def _motor_linearisation_point(u: np.ndarray, history: np.ndarray, pole: float, 
     r"""(W, 4) thrust state at the anchor and (W, 4) command trim of the motors, both relative to the warm start.
 
     The outputs' linearisation point is the warm-start mean of the measurement (``batch.offsets``,
-    ``batch.specific_force0``, :func:`_angular_acceleration_offsets`): the accelerations the *mean thrust*
+    ``batch.specific_force0``, :func:`angular_acceleration_offsets`): the accelerations the *mean thrust*
     over the warm rows gave, :math:`\bar T = \frac{1}{n_w}\sum_{k<n_w} T_k`, with :math:`T_k` the motor
     filter :math:`T_{k+1} = p T_k + g u_k` run over the commands before the window (``history``, (W, H, 4),
     :data:`~quad_modelling.core.identification.window_batch.COMMAND_HISTORY_S`, from the steady state of its
@@ -248,7 +264,7 @@ def _motor_linearisation_point(u: np.ndarray, history: np.ndarray, pole: float, 
     return thrusts[:, warm - 1] - thrust_trim, thrust_trim * (1.0 - pole) / gain
 
 
-def _angular_acceleration_offsets(batch: WindowBatch) -> np.ndarray:
+def angular_acceleration_offsets(batch: WindowBatch) -> np.ndarray:
     r"""(W, 3) linearisation point of roll/pitch/yaw acceleration, window-trimmed [rad/s²]: the least-squares
     slope of the raw gyro rates over the warm start.
 

@@ -167,8 +167,20 @@ def fitted_parameters(p: GreyboxParameters, tau_m: float, gain: float, yaw_ratio
     )
 
 
-def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
-    """Fit the linear model's identifiable constants on the windows of ``batch`` (module docstring)."""
+def identify_base(batch: WindowBatch, vehicle: VehicleConfig, motor_time_constant: float | None = None) -> BaseFit:
+    """Fit the linear model's identifiable constants on the windows of ``batch`` (module docstring).
+
+    ``motor_time_constant``: hold :math:`\\tau_m` at this value [s] (inside :data:`MOTOR_TIME_CONSTANT_RANGE`)
+    and fit the rest; None fits it. The diagnosis holds it at :data:`MIN_MOTOR_TIME_CONSTANT` when it assesses
+    the effects that own the motor's dynamics (motor lag, input delay): a base that refits :math:`\\tau_m` on
+    the same effect-on flights soaks them up (a simulated 105 ms motor lag became a 95 ms base constant and
+    the lag was then named input delay). Held at the vehicle file's value instead, the LinkQuad base carried
+    Table 3-1's 105 ms pole -- the simulator's whole motor lag -- and neither lag nor delay was found
+    on flights with them on (seed 31337).
+    """
+    if motor_time_constant is not None and not MIN_MOTOR_TIME_CONSTANT <= motor_time_constant <= MAX_MOTOR_TIME_CONSTANT:
+        raise ValueError(f"motor_time_constant {motor_time_constant:g} s outside {MOTOR_TIME_CONSTANT_RANGE} s")
+    hold_motor_time_constant = motor_time_constant is not None
     p0 = GreyboxParameters.from_vehicle(vehicle)
     v_ref = float(batch.vbat.mean()) if batch.vbat is not None else None
     rows = slice(batch.warm, None, RESIDUAL_STRIDE)
@@ -182,17 +194,22 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
     target = batch.measured[:, rows][:, :, cols]
     scale = rms[[FITTED_VARIABLES.index(v) for v in excited]]
     free = np.array([not shown or any(v in excited for v in shown) for shown in PARAMETER_VARIABLES])
+    free[0] = not hold_motor_time_constant
     if free[4] and _rotor_reaction_negligible(p0, batch, rms[FITTED_VARIABLES.index("yaw_acc")]):
         free[4] = False  # k_R held at 1: the data cannot tell the configured term from none (ROTOR_REACTION_FLOOR)
     tau_config = -1.0 / p0.motor_a_m
     steady_config = p0.input_gain * tau_config
     tau0 = min(max(tau_config, 1.1 * MIN_MOTOR_TIME_CONSTANT), 0.95 * MAX_MOTOR_TIME_CONSTANT)
+    if hold_motor_time_constant:
+        tau0 = motor_time_constant
     x0 = np.array([math.log(tau0), 0.0, p0.drag_constant / p0.thrust_constant, 1.0, 0.0])
     ranges = (MOTOR_TIME_CONSTANT_RANGE, STEADY_GAIN_RATIO_RANGE, YAW_DRAG_RATIO_RANGE, ARM_SCALE_RANGE, ROTOR_REACTION_SCALE_RANGE)
     logarithmic = np.array([True, True, False, False, True])
     lower = np.array([math.log(r[0]) if log else r[0] for r, log in zip(ranges, logarithmic)])
     upper = np.array([math.log(r[1]) if log else r[1] for r, log in zip(ranges, logarithmic)])
     x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
+    if hold_motor_time_constant:
+        x0[0] = math.log(motor_time_constant)
 
     def full(z_free: np.ndarray) -> np.ndarray:
         z = x0.copy()
@@ -208,6 +225,7 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
         return ((target - pred[:, rows][:, :, cols]) / scale).ravel()
 
     best = None
+    note = f"tau_m held at {motor_time_constant * 1e3:g} ms; " if hold_motor_time_constant else "tau_m, "
     for start_gain in GAIN_STARTS:
         z = x0.copy()
         z[1] = start_gain
@@ -222,10 +240,11 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig) -> BaseFit:
               "prop_inertia": float(p.prop_inertia), "reference_voltage": v_ref}
     tau = math.exp(best.x[0])
     return BaseFit(BaseModel(p, v_ref), values, True,
-                   "identified on the training windows (acc_z, roll/pitch/yaw acceleration): tau_m, steady gain, d/a, arm scale, rotor-reaction scale",
+                   "identified on the training windows (acc_z, roll/pitch/yaw acceleration): " + note
+                   + "steady gain, d/a, arm scale, rotor-reaction scale",
                    sigma=_sigma(best, free, p, target.shape, batch.dt), fit={
                        "cost": float(best.cost), "residuals": int(best.fun.size), "motor_time_constant_s": tau,
-                       "motor_time_constant_at_bound": bool(np.isclose(tau, MOTOR_TIME_CONSTANT_RANGE, rtol=1e-3).any()),
+                       "motor_time_constant_at_bound": bool(free[0] and np.isclose(tau, MOTOR_TIME_CONSTANT_RANGE, rtol=1e-3).any()),
                        "motor_time_constant_range_s": list(MOTOR_TIME_CONSTANT_RANGE),
                        "motor_pole_range_per_s": list(MOTOR_POLE_RANGE),
                        "fitted_on": ", ".join(excited) + " jointly (output error, open loop over each window)",
@@ -259,7 +278,8 @@ def _sigma(fit: optimize.OptimizeResult, free: np.ndarray, p: GreyboxParameters,
         cov[np.ix_(free, free)] = hac_covariance(fit.jac.reshape(*shape, n_free), fit.fun.reshape(shape), lags)
     except np.linalg.LinAlgError:
         pass  # a singular J^T J: the constants are not separable here, their sigmas stay NaN
-    log_gain_var = cov[1, 1] + cov[0, 0] - 2.0 * cov[0, 1]  # ln K = ln G_config + z_1 - z_0
+    motor = cov[0, :2] if free[0] else np.zeros(2)  # a held tau_m (z_0) adds no variance to ln K
+    log_gain_var = cov[1, 1] + motor[0] - 2.0 * motor[1]  # ln K = ln G_config + z_1 - z_0
     sigma_log_gain = math.sqrt(log_gain_var) if log_gain_var >= 0 else float("nan")
 
     def root(v: float) -> float:
@@ -284,12 +304,14 @@ def constant_estimates(fit: BaseFit, vehicle: VehicleConfig) -> list[ConstantEst
     motor_at_bound = bool(flags.get("ln_motor_time_constant") or flags.get("ln_steady_gain_ratio"))
     unit = {key: vehicle.constants[key].unit for key in ("motor_a_m", "motor_b_m", "drag_constant")}
     excite = "more collective (throttle) steps"
-    why = {"ln_rotor_reaction_scale": f"its term is below {ROTOR_REACTION_FLOOR:.0%} of the yaw acceleration"}
+    why = {"ln_rotor_reaction_scale": f"its term is below {ROTOR_REACTION_FLOOR:.0%} of the yaw acceleration",
+           "ln_motor_time_constant": "the diagnosis judges motor lag and input delay against the configured value"}
     held = {name: why.get(name, "the flights do not excite it") for name in fit.fit.get("held", [])}
     return [
         ConstantEstimate("motor_a_m", v["motor_a_m"], unit["motor_a_m"], s.get("motor_a_m", math.nan),
                          (-MOTOR_POLE_RANGE[1], -MOTOR_POLE_RANGE[0]), vehicle.value("motor_a_m"),
-                         bool(flags.get("ln_motor_time_constant")), excite + " faster than the motor lag"),
+                         bool(flags.get("ln_motor_time_constant")), excite + " faster than the motor lag",
+                         held.get("ln_motor_time_constant", "")),
         ConstantEstimate("motor_b_m", v["motor_b_m"], unit["motor_b_m"], s.get("motor_b_m", math.nan),
                          (k_range[0] / root, k_range[1] / root), vehicle.value("motor_b_m"), motor_at_bound, excite),
         ConstantEstimate("thrust_gain_K", v["thrust_gain_K"], "N/s per command unit", s.get("thrust_gain_K", math.nan),

@@ -21,7 +21,9 @@ stabiliser does not know them; its integrators absorb them).
 
 The pilot holds position (human-like, slow): it adds roll/pitch references
 :math:`\\theta_{hold} = -a_{fwd}/g,\\ \\phi_{hold} = a_{right}/g` with
-:math:`a = -k_p p_{N,xy} - k_d v_{N,xy}` rotated into the heading frame.
+:math:`a = -k_p p_{N,xy} - k_d v_{N,xy}` rotated into the heading frame, and a
+stick trim :math:`(\\phi_{trim}, \\theta_{trim})` that balances a body-fixed side
+force in hover (a bent arm's; zero otherwise, :meth:`Stabiliser.set_trim`).
 """
 
 from __future__ import annotations
@@ -90,17 +92,21 @@ class Stabiliser:
         self.max_tilt = control.max_tilt
         self.max_thrust = 4.0 * a * ((self.u_max - self.u0) * self.k_u) ** 2
         self.trim_integrals = (0.0, 0.0, 0.0, 0.0)
+        self.trim_tilt = (0.0, 0.0)
         self.reset()
 
     def reset(self) -> None:
         """Integrators back to the pilot's trim (on the ground)."""
         self.integrals = list(self.trim_integrals)
 
-    def set_trim(self, commands) -> None:
+    def set_trim(self, commands, tilt: tuple[float, float] = (0.0, 0.0)) -> None:
         r"""Trim like a pilot who flew this airframe before: start the integrators where
         they settle in a steady hover flown with ``commands``. The nominal mixer reads
         those commands as the wrench :math:`W = M T_{nom}(u)`; the integrators then hold
-        :math:`k_i I_h = W_0/m - g` and :math:`k_i I_\phi = W_1/I_{xx}` etc."""
+        :math:`k_i I_h = W_0/m - g` and :math:`k_i I_\phi = W_1/I_{xx}` etc. ``tilt``:
+        the roll/pitch stick trim [rad] added to every reference (a hover attitude that
+        is not level, :meth:`QuadDynamics.hover_tilt <quad_modelling.core.sim.dynamics.QuadDynamics.hover_tilt>`)."""
+        self.trim_tilt = (float(tilt[0]), float(tilt[1]))
         thrusts = [self.thrust_constant * ((u - self.u0) * self.k_u) ** 2 for u in commands]
         wrench = self.allocation @ np.asarray(thrusts)
         needed = (wrench[1] / self.inertia[0], wrench[2] / self.inertia[1], wrench[3] / self.inertia[2], wrench[0] / self.mass - GRAVITY)
@@ -125,8 +131,8 @@ class Stabiliser:
         roll, pitch, yaw = euler_from_quaternion(*s[6:10])
         lim = self.max_tilt
         roll_hold, pitch_hold = self.hold_position(s) if airborne else (0.0, 0.0)
-        roll_ref = max(-lim, min(lim, refs[0] + roll_hold))
-        pitch_ref = max(-lim, min(lim, refs[1] + pitch_hold))
+        roll_ref = max(-lim, min(lim, refs[0] + roll_hold + self.trim_tilt[0]))
+        pitch_ref = max(-lim, min(lim, refs[1] + pitch_hold + self.trim_tilt[1]))
         errors = (roll_ref - roll, pitch_ref - pitch, _wrap(refs[2] - yaw), refs[3] + s[2])
         if airborne:
             for i in range(4):

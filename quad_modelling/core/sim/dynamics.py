@@ -8,9 +8,10 @@ position and velocity of the CG in N [m, m/s]; unit quaternion
 :math:`q = (q_0, q_1, q_2, q_3)` of :math:`R_{N \\leftarrow B}` (scalar first);
 body rates :math:`\\omega = (p, q, r)` [rad/s]; rotor speeds Ω_i [rad/s].
 
-Rotor i sits at :math:`r_i = (x_i - c_x, y_i - c_y, z_r)` from the CG (config
-position, CG offset c when ``motor_imbalance`` is on, hub height z_r) and spins
-with sign s_i (+1 = counter-clockwise seen from above). Wrench in B:
+Rotor i sits at :math:`r_i = (x_i - c_x, y_i - c_y, z_r - d_z)` from the CG (config
+position, CG offset c when ``motor_imbalance`` is on, hub height z_r, CoM depth d_z when
+``com_offset`` is on) and spins with sign s_i (+1 = counter-clockwise seen from above).
+Wrench in B (every thrust along :math:`-e_z`; ``bent_arm`` tilts rotor 1's, below):
 
 .. math::
 
@@ -45,6 +46,26 @@ Effects (names of :data:`quad_modelling.core.effect_names.SIM_EFFECTS`):
   :math:`F_{wind} = -\\tfrac12 \\rho C_D A \\, |v_N - w_N| (v_N - w_N)`; rotor drag then sees
   the relative air. Off: w = 0 and no airframe drag.
 * ``motor_imbalance``: CG offset c (here) and per-ESC gain spread (in :meth:`QuadDynamics.omega_command`).
+* ``com_offset`` (disturbance): the CoM sits d_z below the IMU and geometric centre (a battery hung
+  under the frame). Hubs and feet are d_z higher above it (:math:`z_r \\to z_r - d_z`): the moment
+  arm of rotor drag (and of the bent arm's side force) grows, the hubs are d_z higher above the
+  ground at a given CoM height. Thrust along body z and gravity have no moment about a CoM on the
+  thrust line, so a purely vertical offset adds no torque in hover. The accelerometer, now at
+  :math:`r = (0, 0, -d_z)` from the CoM, reads
+  :math:`f_{imu} = f_{cm} + \\dot\\omega \\times r + \\omega \\times (\\omega \\times r)`
+  (:mod:`quad_modelling.core.sim.sensors`; :attr:`QuadDynamics.imu_position`). The inertia stays
+  the config's, taken about the true CoM; the horizontal CG offset of ``motor_imbalance`` is not
+  applied to the IMU position (logs of the catalogue effects stay as they were).
+* ``bent_arm`` (disturbance): rotor 1's thrust axis is turned by γ about its arm direction
+  :math:`a = (x_1, y_1, 0)/l_1` (config position, :math:`l_1` its distance from the geometric
+  centre) to :math:`e_1 = -\\cos\\gamma\\, e_z + \\sin\\gamma\\, t`, :math:`t = e_z \\times a`. Its force
+  is :math:`T_1 e_1`: a side force :math:`T_1 \\sin\\gamma` along t (fixed in B) and a lift
+  :math:`T_1\\cos\\gamma`; its moment :math:`r_1 \\times T_1 e_1` has the yaw part
+  :math:`T_1 \\sin\\gamma\\, l_1` (without a CG offset) and a roll/pitch part
+  :math:`z_r T_1 \\sin\\gamma` from the hub height. The rotor's drag and acceleration torque
+  :math:`-s_1 (Q_1 + I_p \\dot\\Omega_1) e_1` and momentum :math:`I_p s_1 \\Omega_1 e_1` turn with it.
+  Rotor drag of rotor 1 and the reaction impulse without ``motor_lag`` stay along z (a 3° tilt
+  changes them by 0.1 %).
 * ``battery``, ``input_delay``: act on the command path (:mod:`quad_modelling.core.sim.simulate`).
 
 Ground contact (always on): each landing-gear foot below z = 0 gets a
@@ -88,10 +109,19 @@ class QuadDynamics:
         self.prop_inertia = vehicle.value("prop_inertia")
         self.yaw_signs = vehicle.yaw_signs
         cg = params.imbalance.cg_offset if "motor_imbalance" in self.effects else (0.0, 0.0)
+        depth = params.com_offset.depth if "com_offset" in self.effects else 0.0
+        self.imu_position = np.array([0.0, 0.0, -depth])
+        """r: the IMU (at the geometric centre) from the CoM in B [m]; zero unless ``com_offset``."""
         self.rotor_positions = np.column_stack(
-            [vehicle.motor_positions - np.asarray(cg), np.full(4, params.geometry.rotor_plane_z)]
+            [vehicle.motor_positions - np.asarray(cg), np.full(4, params.geometry.rotor_plane_z - depth)]
         )
-        self.feet = np.asarray(params.geometry.feet, dtype=float) - np.array([cg[0], cg[1], 0.0])
+        self.feet = np.asarray(params.geometry.feet, dtype=float) - np.array([cg[0], cg[1], depth])
+        self.thrust_axes = np.tile([0.0, 0.0, -1.0], (4, 1))
+        """(4, 3) unit thrust directions e_i in B; rotor 1's tilted by γ with ``bent_arm``."""
+        if "bent_arm" in self.effects:
+            gamma = params.bent_arm.tilt
+            arm = vehicle.motor_positions[0] / float(np.hypot(*vehicle.motor_positions[0]))
+            self.thrust_axes[0] = (-math.sin(gamma) * arm[1], math.sin(gamma) * arm[0], -math.cos(gamma))
         motor_gains = params.imbalance.motor_gains if "motor_imbalance" in self.effects else (1.0, 1.0, 1.0, 1.0)
         self.motor_gains = tuple(float(g) for g in motor_gains)
         self.derivative = self._build_derivative()
@@ -106,24 +136,57 @@ class QuadDynamics:
         u0 = esc.zero_speed_input
         return [g * scale * (ui - u0) if ui > u0 else 0.0 for g, ui in zip(self.motor_gains, u)]
 
-    def hover_commands(self, voltage: float) -> list[float]:
-        r"""Engine commands that hold this vehicle (with its CG offset and motor gains)
-        in a steady hover out of ground effect at battery voltage ``voltage``: rotor
-        thrusts :math:`T = M^{-1} (m g, 0, 0, 0)^T` with the true allocation M, then
-        :math:`u_i = u_0 + \sqrt{T_i/a} / (g_i k_u V/V_{ref})`."""
+    def allocation(self) -> np.ndarray:
+        r"""The true allocation M (4x4): lift and torque per newton of each rotor's thrust,
+        :math:`M_{:,i} = (-e_{i,z},\ r_i \times e_i - s_i (d/a)\, e_i)` with the thrust directions
+        :attr:`thrust_axes` e_i; for :math:`e_i = -e_z` the columns are :math:`(1, -y_i, x_i, s_i d/a)`."""
         ratio = self.drag_constant / self.thrust_constant
-        allocation = np.vstack([np.ones(4), -self.rotor_positions[:, 1], self.rotor_positions[:, 0], self.yaw_signs * ratio])
-        thrusts = np.linalg.solve(allocation, [self.mass * GRAVITY, 0.0, 0.0, 0.0])
+        axes = self.thrust_axes
+        torque = np.cross(self.rotor_positions, axes) - (np.asarray(self.yaw_signs, dtype=float) * ratio)[:, None] * axes
+        return np.vstack([-axes[:, 2], torque.T])
+
+    def hover_thrusts(self) -> np.ndarray:
+        r"""Rotor thrusts [N] of a steady hover out of ground effect: no torque and a body force
+        :math:`F_B = \sum_i T_i e_i` of magnitude m g, :math:`T = k M^{-1} (1, 0, 0, 0)^T` with the true
+        allocation M (:meth:`allocation`) and k = m g (with ``bent_arm``, :math:`k = m g / |F_B(k=1)|`:
+        the side force :math:`T_1 \sin\gamma` is held by leaning, :meth:`hover_tilt`, so the lift row
+        alone falls short by a factor :math:`\cos` of the lean)."""
+        thrusts = np.linalg.solve(self.allocation(), [self.mass * GRAVITY, 0.0, 0.0, 0.0])
+        if "bent_arm" in self.effects:
+            thrusts *= self.mass * GRAVITY / float(np.linalg.norm(thrusts @ self.thrust_axes))
+        return thrusts
+
+    def hover_commands(self, voltage: float) -> list[float]:
+        r"""Engine commands that hold this vehicle (with its CG offset, motor gains and bent arm)
+        in a steady hover at battery voltage ``voltage`` (attitude :meth:`hover_tilt`): the thrusts
+        :meth:`hover_thrusts` through :math:`u_i = u_0 + \sqrt{T_i/a} / (g_i k_u V/V_{ref})`."""
+        thrusts = self.hover_thrusts()
         esc = self.params.esc
         scale = esc.speed_gain * voltage / self.params.battery.reference_voltage
         return [esc.zero_speed_input + math.sqrt(t / self.thrust_constant) / (g * scale) for t, g in zip(thrusts, self.motor_gains)]
 
+    def hover_tilt(self) -> tuple[float, float]:
+        r"""Roll and pitch [rad] at which the thrusts :meth:`hover_thrusts` lift straight up:
+        the body force :math:`F_B = \sum_i T_i e_i` must point along :math:`R^T (0, 0, -1) =
+        (\sin\theta, -\sin\phi\cos\theta, -\cos\phi\cos\theta)`, so
+        :math:`\phi = \operatorname{atan2}(-F_y, -F_z),\ \theta = \operatorname{atan2}(F_x, \sqrt{F_y^2 + F_z^2})`.
+        Level (0, 0) unless ``bent_arm`` is on (then :math:`\approx T_1 \sin\gamma / (m g)` away from its side force)."""
+        if "bent_arm" not in self.effects:
+            return 0.0, 0.0
+        fx, fy, fz = self.hover_thrusts() @ self.thrust_axes
+        return math.atan2(-fy, -fz), math.atan2(fx, math.hypot(fy, fz))
+
     # ------------------------------------------------------------------ states
+
+    @property
+    def rest_height(self) -> float:
+        """CG height above ground when standing level on the feet [m]."""
+        return float(np.max(self.feet[:, 2]))
 
     def state_at_rest(self) -> list[float]:
         """Standing level on its feet, rotors stopped (feet just touching z = 0)."""
         s = [0.0] * N_STATE
-        s[2] = -float(np.max(self.feet[:, 2]))
+        s[2] = -self.rest_height
         s[6] = 1.0
         return s
 
@@ -197,6 +260,9 @@ class QuadDynamics:
         ge_on = "ground_effect" in effects
         gyro_on = "gyroscopic" in effects
         wind_on = "wind" in effects
+        bent_on = "bent_arm" in effects
+        # rotor 1's e_1 - (0, 0, -1): the change of its thrust direction (zeros when not bent)
+        b1x, b1y, b1z = float(self.thrust_axes[0, 0]), float(self.thrust_axes[0, 1]), 1.0 + float(self.thrust_axes[0, 2])
         g = GRAVITY
         m = self.mass
         inv_m = 1.0 / m
@@ -263,6 +329,18 @@ class QuadDynamics:
             tx = -(y1 * t1 + y2 * t2 + y3 * t3 + y4 * t4)
             ty = x1 * t1 + x2 * t2 + x3 * t3 + x4 * t4
             tz = d_q * (s1 * o1 * o1 + s2 * o2 * o2 + s3 * o3 * o3 + s4 * o4 * o4) + i_p * (s1 * d1 + s2 * d2 + s3 * d3 + s4 * d4)
+            if bent_on:
+                # force T_1 (e_1 - (0, 0, -1)) at r_1, and the reaction -s_1 (Q_1 + I_p dOmega_1) turned with the shaft
+                dfx = t1 * b1x
+                dfy = t1 * b1y
+                dfz = t1 * b1z
+                fx += dfx
+                fy += dfy
+                fz += dfz
+                react = s1 * (d_q * o1 * o1 + i_p * d1)
+                tx += y1 * dfz - zr * dfy - react * b1x
+                ty += zr * dfx - x1 * dfz - react * b1y
+                tz += x1 * dfy - y1 * dfx - react * b1z
             if wind_on:
                 ax_rel = vx - wind[0]
                 ay_rel = vy - wind[1]
@@ -290,6 +368,11 @@ class QuadDynamics:
                 lx = ixx * wp
                 ly = iyy * wq
                 lz = izz * wr - i_p * (s1 * o1 + s2 * o2 + s3 * o3 + s4 * o4)
+                if bent_on:
+                    h1 = i_p * s1 * o1  # rotor 1's momentum I_p s_1 Omega_1 e_1, minus its untilted part
+                    lx += h1 * b1x
+                    ly += h1 * b1y
+                    lz += h1 * b1z
                 tx -= wq * lz - wr * ly
                 ty -= wr * lx - wp * lz
                 tz -= wp * ly - wq * lx

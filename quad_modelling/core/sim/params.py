@@ -119,6 +119,25 @@ class ImbalanceParams:
 
 
 @dataclass(frozen=True)
+class ComOffsetParams:
+    """``com_offset`` disturbance: the centre of mass sits :math:`d_z` below the IMU, which is at the
+    frame's geometric centre (where every other geometry value puts the CG): the IMU is at
+    :math:`r = (0, 0, -d_z)` from the CoM and the rotor hubs and feet are :math:`d_z` further up."""
+
+    depth: float  # d_z: CoM below the IMU / geometric centre, along FRD +z [m]
+
+
+@dataclass(frozen=True)
+class BentArmParams:
+    """``bent_arm`` disturbance: the thrust axis of motor 1 (the vehicle config's first motor) tilted by γ
+    about its arm (the line from the geometric centre to the motor), towards :math:`t = e_z \\times a`
+    (a = arm direction), so a positive γ gives a positive (FRD: clockwise seen from above) yaw torque
+    :math:`T_1 \\sin\\gamma\\, l_1`."""
+
+    tilt: float  # γ [rad]
+
+
+@dataclass(frozen=True)
 class SensorParams:
     """Motion capture and IMU noise models (1 sigma)."""
 
@@ -180,6 +199,8 @@ class SimParams:
     input_delay: float  # transport delay stabiliser -> rotor [s]
     ground_effect_min_height: float  # Cheeseman-Bennett clamp h >= c R [in rotor radii]
     imbalance: ImbalanceParams
+    com_offset: ComOffsetParams
+    bent_arm: BentArmParams
     sensors: SensorParams
     control: ControlParams
     pilot: PilotParams
@@ -193,7 +214,8 @@ class SimParams:
 
     @property
     def rest_height(self) -> float:
-        """CG height above ground when standing on the feet [m]."""
+        """CG height above ground when standing on the feet [m] (undamaged airframe: with ``com_offset`` the
+        CoM sits d_z lower, :attr:`QuadDynamics.rest_height <quad_modelling.core.sim.dynamics.QuadDynamics.rest_height>`)."""
         return max(f[2] for f in self.geometry.feet)
 
     def replace(self, **changes) -> SimParams:
@@ -227,6 +249,24 @@ class SimParams:
                 out[name] = {"motor_gains": list(self.imbalance.motor_gains), "cg_offset_m": list(self.imbalance.cg_offset)}
             elif name == "wind":
                 out[name] = {k: _plain(v) for k, v in dataclasses.asdict(self.wind).items()}
+            elif name == "com_offset":
+                depth = self.com_offset.depth
+                out[name] = {
+                    "com_below_imu_m": depth,
+                    "imu_position_from_com_frd_m": [0.0, 0.0, -depth],
+                    "rotor_plane_z_from_com_m": self.geometry.rotor_plane_z - depth,
+                }
+            elif name == "bent_arm":
+                arm = float(np.hypot(*self.vehicle.motor_positions[0]))
+                gamma = self.bent_arm.tilt
+                out[name] = {
+                    "motor": 1,
+                    "tilt_rad": gamma,
+                    "arm_length_m": arm,
+                    "yaw_torque_per_thrust_m": float(np.sin(gamma)) * arm,  # T_1 sin(gamma) l_1 per newton of T_1
+                    "side_force_per_thrust": float(np.sin(gamma)),
+                    "yaw_torque_at_mg_over_4_N_m": self.vehicle.hover_thrust_per_rotor * float(np.sin(gamma)) * arm,
+                }
         return out
 
 
@@ -236,6 +276,13 @@ def _plain(value):
     if isinstance(value, np.generic):
         return value.item()
     return value
+
+
+BENT_ARM_TILT = float(np.deg2rad(3.0))
+"""γ of ``bent_arm`` [rad], both vehicles (guess): a few degrees is what a hard landing leaves in an arm or
+motor mount and what pilots notice as a yaw drift the trim has to hold; under ~1° the thrust tilt is lost
+in the motor spread, over ~5° it is seen on the ground and straightened. Racing frames tilt motors 3-5°
+on purpose for yaw authority, so 3° is also a size real airframes fly with."""
 
 
 # --------------------------------------------------------------------------- LinkQuad
@@ -302,6 +349,12 @@ def _linkquad(vehicle: VehicleConfig) -> SimParams:
         input_delay=0.02,  # s: stabiliser -> ESC PWM update (guess, typical 50 Hz-class ESC loop)
         ground_effect_min_height=0.5,  # R: the model's singularity is at h = R/4
         imbalance=ImbalanceParams(motor_gains=(1.03, 0.98, 1.015, 0.975), cg_offset=(0.006, -0.004)),
+        # guess: the 5.2 Ah 3S pack (~0.4 kg, a third of the 1.2 kg) strapped flat under the centre plate that
+        # carries the IMU, its centre ~3 cm below it: 0.4/1.2 x 0.03 m = 0.01 m. Hung lower (d_z = 0.03-0.04 m)
+        # it doubles the hub height above the CoM, and the hub moment of rotor drag (a velocity-to-pitch
+        # coupling the 3.5 rad/s attitude loop barely holds) topples some seeded flights (docs/simulator.md)
+        com_offset=ComOffsetParams(depth=0.01),
+        bent_arm=BentArmParams(tilt=BENT_ARM_TILT),
         sensors=_sensors(),
         control=ControlParams(
             rate=250.0,  # Hz: thesis onboard loop (1.4.3.1)
@@ -385,6 +438,10 @@ def _crazyflie21(vehicle: VehicleConfig) -> SimParams:
         input_delay=0.008,  # s: guess (500 Hz firmware loop, PWM update)
         ground_effect_min_height=0.5,
         imbalance=ImbalanceParams(motor_gains=(1.03, 0.98, 1.015, 0.975), cg_offset=(0.0015, -0.001)),
+        # guess: the 7 g pack (a quarter of the 27 g) hung on a deck ~4 cm under the PCB that carries the IMU:
+        # 0.26 x 0.04 m = 0.01 m
+        com_offset=ComOffsetParams(depth=0.01),
+        bent_arm=BentArmParams(tilt=BENT_ARM_TILT),
         sensors=_sensors(),
         control=ControlParams(
             rate=250.0,

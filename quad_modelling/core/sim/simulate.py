@@ -25,11 +25,16 @@ changes over minutes):
 
 so the stabiliser must raise u over the flight to keep hovering (the input
 trend of thesis Fig 2.2). Wind (``wind`` on): steady mean plus first-order
-Gauss-Markov gusts, updated every control tick.
+Gauss-Markov gusts, updated every control tick. The airframe disturbances
+``com_offset`` and ``bent_arm`` act in the dynamics (and, for ``com_offset``, the
+accelerometer); they draw no random numbers, so every stream is the same with
+them on or off.
 
 The stabiliser starts trimmed for the airframe (its integrators hold what a
-steady hover at V_ref needs, as a pilot who flew it before would trim it); the
-pilot cuts the throttle once the vehicle touches down during the descent.
+steady hover at V_ref needs, as a pilot who flew it before would trim it; with
+``bent_arm`` that includes the yaw torque, and a roll/pitch stick trim leans the
+vehicle against the side force); the pilot cuts the throttle once the vehicle
+touches down during the descent.
 
 Randomness: one ``numpy.random.SeedSequence(seed)`` spawns independent streams
 for the pilot script, the stabiliser's gyro noise, the wind and the sensors, so
@@ -95,9 +100,13 @@ class SimResult:
     """A simulated flight: the sensor log and the truth behind it.
 
     ``truth`` holds arrays at the log times: ``pos_n``, ``vel_n``, ``euler``,
-    ``rates_b`` [rad/s], ``specific_force_b`` [m/s²] (period averages),
+    ``rates_b`` [rad/s], ``specific_force_b`` [m/s²] (period averages, at the CoM),
     ``omega`` [rad/s], ``thrust`` (N, 4) [N] (with ground effect), ``vbat`` [V],
-    ``wind_n`` [m/s], ``height`` (CG above ground) [m], ``phase`` (0 off, 1 idle, 2 flying).
+    ``wind_n`` [m/s], ``height`` (CG above ground) [m], ``phase`` (0 off, 1 idle, 2 flying);
+    ``imu_noise_free_acc_b`` [m/s²] and ``imu_noise_free_gyro_b`` [rad/s]: the logged IMU
+    without its white noise (period average + turn-on bias + bias walk, and the lever-arm
+    terms of ``com_offset``), so ``acc_b - imu_noise_free_acc_b`` is the white noise alone;
+    ``imu_lever_arm_acc_b`` [m/s²]: the period-averaged lever-arm terms (zeros without ``com_offset``).
     """
 
     log: FlightLog
@@ -170,7 +179,7 @@ def run_simulation(
 
     dynamics = QuadDynamics(params, effects)
     stabiliser = Stabiliser(params)
-    stabiliser.set_trim(dynamics.hover_commands(params.battery.reference_voltage))
+    stabiliser.set_trim(dynamics.hover_commands(params.battery.reference_voltage), dynamics.hover_tilt())
     lag = "motor_lag" in effects
     battery_on = "battery" in effects
     battery = params.battery
@@ -178,11 +187,11 @@ def run_simulation(
     i_prop_over_izz = dynamics.prop_inertia / float(dynamics.inertia[2])
     yaw_signs = [float(v) for v in dynamics.yaw_signs]
     drag_constant = dynamics.drag_constant
-    airborne_height = params.rest_height + 0.03
+    airborne_height = dynamics.rest_height + 0.03
     touchdown_window = script.land_start + 0.5 * script.descent_time
 
     state = dynamics.state_at_rest()
-    record = np.empty((n_steps, N_STATE + 3))
+    record = np.empty((n_steps, N_STATE + 6))  # state, then k1's translational and angular accelerations
     commands = np.empty((n_ticks, 4))
     voltages = np.empty(n_ticks)
     soc = battery.initial_soc
@@ -236,7 +245,7 @@ def run_simulation(
                     omega_cmd = apply_commands(s, u_esc)
                 s2, k1 = step_fn(s, omega_cmd, air, dt)
                 record[step, :N_STATE] = s
-                record[step, N_STATE:] = k1[3:6]
+                record[step, N_STATE:] = k1[3:6] + k1[10:13]
                 s = s2
             state = s
             if k % record_every == record_every - 1:
@@ -270,7 +279,11 @@ def _assemble(params, effects, seed, script, record, commands, voltages, wind, p
     t_log = np.arange(n_log) * log_dt
     log_steps = np.arange(n_log) * steps_per_log
     quat = record[:, 6:10]
-    acc_b, gyro_b, true_acc, true_gyro = sim_sensors.imu(quat, record[:, N_STATE:], record[:, 10:13], steps_per_log, log_dt, sensors, rng)
+    com_on = "com_offset" in effects
+    imu = sim_sensors.imu(
+        quat, record[:, N_STATE:N_STATE + 3], record[:, 10:13], steps_per_log, log_dt, sensors, rng,
+        angular_accel_b=record[:, N_STATE + 3:] if com_on else None, position_b=dynamics.imu_position if com_on else None,
+    )
     mocap_steps = np.arange(0, len(record), steps_per_mocap)
     t_mocap = mocap_steps / params.physics_rate
     pos_n, vel_n, euler = sim_sensors.motion_capture(t_mocap, record[mocap_steps, 0:3], quat[mocap_steps], t_log, sensors, rng)
@@ -284,8 +297,11 @@ def _assemble(params, effects, seed, script, record, commands, voltages, wind, p
         "pos_n": true_states[:, 0:3],
         "vel_n": true_states[:, 3:6],
         "euler": np.unwrap(frames.rotation_to_euler_ned(sim_sensors.quaternion_rotations(true_states[:, 6:10])), axis=0),
-        "rates_b": true_gyro,
-        "specific_force_b": true_acc,
+        "rates_b": imu.rates_b,
+        "specific_force_b": imu.specific_force_b,
+        "imu_noise_free_acc_b": imu.noise_free_acc_b,
+        "imu_noise_free_gyro_b": imu.noise_free_gyro_b,
+        "imu_lever_arm_acc_b": imu.lever_arm_acc_b,
         "omega": omega,
         "thrust": np.array([dynamics.rotor_thrusts(row) for row in true_states]),
         "vbat": voltages[tick_of_log],
@@ -295,7 +311,7 @@ def _assemble(params, effects, seed, script, record, commands, voltages, wind, p
     }
     notes = _notes(params, effects, seed, script)
     log = FlightLog(
-        t=t_log, u=u, acc_b=acc_b, gyro_b=gyro_b, pos_n=pos_n, vel_n=vel_n, euler=euler,
+        t=t_log, u=u, acc_b=imu.acc_b, gyro_b=imu.gyro_b, pos_n=pos_n, vel_n=vel_n, euler=euler,
         vbat=vbat, omega=omega, meta=FlightMeta(vehicle=params.vehicle.name, source="simulated", notes=notes),
     )
     return SimResult(log=log, truth=truth, script=script, params=params, effects=effects, seed=seed)

@@ -11,6 +11,7 @@ angular variables, 1 otherwise). Their JSON documents keep the SI units
 from __future__ import annotations
 
 import json
+import textwrap
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -22,6 +23,11 @@ RMS_DIGITS = 3
 
 TIC_DECIMALS = 2
 """Decimals of a Theil inequality coefficient (0 = perfect, 1 = no match), as the thesis tables."""
+
+
+REPORT_WIDTH = 100
+"""Longest line of a Markdown report or console summary [characters]: prose is wrapped to it
+(:func:`prose`), and a table that would be wider becomes a list (:func:`narrow_table`)."""
 
 
 def markdown_table(header: Sequence[object], rows: Iterable[Sequence[object]], align: bool = False,
@@ -48,6 +54,29 @@ def markdown_table(header: Sequence[object], rows: Iterable[Sequence[object]], a
 
     rule = "|" + "|".join("-" * (w + 2) if k < label_columns else "-" * (w + 1) + ":" for k, w in enumerate(widths)) + "|"
     return [padded(head), rule] + [padded(row) for row in body]
+
+
+def narrow_table(header: Sequence[object], rows: Iterable[Sequence[object]], width: int = REPORT_WIDTH) -> list[str]:
+    """:func:`markdown_table` when every line fits in ``width`` characters; otherwise one bullet per row,
+    ``- cell 1: header 2 cell 2; header 3 cell 3`` wrapped to ``width`` (long names or units cannot make
+    a report line wider than ``width``)."""
+    rows = [list(row) for row in rows]
+    table = markdown_table(header, rows)
+    if all(len(line) <= width for line in table):
+        return table
+    out = []
+    for row in rows:
+        text = f"{row[0]}: " + "; ".join(f"{h} {c}" for h, c in zip(header[1:], row[1:]))
+        out += prose(text, width, first="- ", rest="  ")
+    return out
+
+
+def prose(text: str, width: int = REPORT_WIDTH, first: str = "", rest: str = "") -> list[str]:
+    """``text`` wrapped to lines of at most ``width`` characters (:func:`textwrap.wrap`), the first line
+    prefixed by ``first``, the others by ``rest`` (e.g. ``"- "`` and ``"  "`` for a list item); a word
+    longer than a line (a path) is broken. Empty text gives ``[first.rstrip()]``."""
+    lines = textwrap.wrap(text, width, initial_indent=first, subsequent_indent=rest, break_on_hyphens=False)
+    return lines or [first.rstrip()]
 
 
 def _cell(value: object) -> str:

@@ -1,20 +1,24 @@
 """Diagnosis validation reports: validation.md and validation.json of ``quad-modelling diagnose --validate``.
 
 The document is :func:`quad_modelling.core.diagnosis.validation.validate`'s (shrinks as fractions:
-0.4 = the held-out gap shrinks by 40 %); the Markdown shows them as percentages.
+0.4 = the held-out gap shrinks by 40 %); the Markdown shows them as percentages, the targets first, every
+line at most :data:`~quad_modelling.io.reports.formatting.REPORT_WIDTH` characters.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from quad_modelling.io.reports.formatting import json_text, markdown_table, percent
+from quad_modelling.io.reports.formatting import json_text, narrow_table, percent, prose
 
 
 def validation_summary(result: dict) -> str:
-    """One line: accuracy, runs, what the null case found, pairs accuracy."""
-    return (f"accuracy {percent(result['accuracy'], 0)} over {len(result['runs'])} runs; "
-            f"null case found {', '.join(result['null']['found']) or 'nothing'}; pairs {percent(result['pairs_accuracy'], 0)}")
+    """One line: single-effect accuracy, null, pairs, all effects, disturbances."""
+    t = result["targets"]
+    all_found = ", ".join(f"{f}/{n}" for f, n in zip(t["all_effects"]["found"], t["all_effects"]["of"])) or "-"
+    return (f"single {percent(result['accuracy'], 0)} of {len(result['runs'])}; null {t['null_clean']['right']}/"
+            f"{t['null_clean']['runs']} clean; pairs {percent(result['pairs_accuracy'], 0)}; all on: {all_found} found; "
+            f"disturbances {t['disturbances_unexplained']['right']}/{t['disturbances_unexplained']['runs']} unexplained")
 
 
 def write_validation(result: dict, directory: Path) -> list[str]:
@@ -26,53 +30,75 @@ def write_validation(result: dict, directory: Path) -> list[str]:
 
 
 def validation_markdown(result: dict) -> str:
-    """validation.md: accuracy, the shrink columns explained, shrink per effect, then every run, null run and pair."""
-    out = [f"# Diagnosis validation on simulated {result['vehicle']} flights", "",
-           f"Accuracy (right effect ranked first and found): **{percent(result['accuracy'], 0)}** over {len(result['runs'])} (effect, seed) runs; "
-           f"null case found: {', '.join(result['null']['found']) or 'nothing'}; pairs both found in top 3: "
-           f"{percent(result['pairs_accuracy'], 0)}.", "",
-           "Shrink columns: **held-out shrink** = the literal target (the diagnosis's shrink of the effect's affected-variable gap, "
-           "base model without the effect -> with it); **attributable** = 1 - G_off/G_on, the share of the base model's held-out "
-           "gap (all windows) that the same test seed flown with every effect off does not have, i.e. the ceiling of the literal "
-           "shrink; **removed** = (G_on - G_after)/(G_on - G_off), the share of that effect-attributable gap the fitted effect removes "
-           "(can exceed 100 %: the effect-off twin flies the manoeuvres slightly differently); **sensor ceiling** = "
-           "1 - G_sensor/G_on on the scored windows and variables, G_sensor the gap between the measurement and the simulator's "
-           "true IMU signals (same preprocessing): what a model predicting the true signals exactly would reach, so the literal "
-           "shrink cannot exceed it (in expectation) and a run whose ceiling is below the target cannot meet it.", ""]
-    if result.get("shrink_by_effect"):
-        out += markdown_table(("effect", "held-out shrink min / median / max", "sensor ceiling min / median / max",
-                               "attributable min / median", "removed min / median"),
-                              (_effect_spread_row(result, name) for name in result["shrink_by_effect"]))
-        out.append("")
-    out += markdown_table(
-        ("effect", "seed", "top", "correct", "held-out shrink", "sensor ceiling", "scored on", "attributable", "removed", "verdict", "ranking"),
-        ((r["effect"], r["seed"], r["top"], _yes_no(r["correct"]), percent(r["shrink"]), percent(r.get("sensor_ceiling")),
-          ", ".join(r.get("variables", [])) or "-", percent(r.get("attributable_share")), percent(r.get("attributable_removed")),
-          r["verdict"], _shrinks(r["top_shrinks"])) for r in result["runs"]))
-    out += [""] + markdown_table(("null seed", "found", "top shrinks"),
-                                 ((n["seed"], ", ".join(n["found"]) or "-", _shrinks(n["top_shrinks"])) for n in result["null"]["runs"]))
+    """validation.md: the targets, the shrink against the ceiling per effect, then every case."""
+    t = result["targets"]
+    out = [f"# Diagnosis validation on simulated {result['vehicle']} flights", ""]
+    out += prose(f"Seeds {', '.join(map(str, result['seeds']))}, {result['duration_s']:g} s flights; base model "
+                 f"{result['flights']['base']}; {result['seconds']:.0f} s.")
+    out += ["", "## Targets", ""]
+    ceiling = t["shrink_of_ceiling"]
+    rows = [
+        ("single effects right (first and found)", ">= 90 %", f"{percent(t['single_right']['value'], 0)} of {t['single_right']['runs']}"),
+        ("shrink >= 80 % of a ceiling >= 20 %", "all runs", f"{ceiling['met']} of {ceiling['runs']} (min {percent(ceiling['min'], 0)})"),
+        ("shrink above its ceiling + 2 points", "none", f"{t['shrink_not_above_ceiling']['above']} of {t['shrink_not_above_ceiling']['runs']} "
+         f"(max excess {percent(t['shrink_not_above_ceiling']['max_excess'])})"),
+        ("pairs: both found in the top 3", ">= 90 %", f"{percent(t['pairs_both_top3']['value'], 0)} of {t['pairs_both_top3']['runs']}"),
+        ("null case: nothing found", "all", f"{t['null_clean']['right']} of {t['null_clean']['runs']}"),
+        ("disturbances: nothing found", "all", f"{t['disturbances_unexplained']['right']} of {t['disturbances_unexplained']['runs']}"),
+        ("all effects on: found", t["all_effects"]["target"],
+         ", ".join(f"{f} of {n}" for f, n in zip(t["all_effects"]["found"], t["all_effects"]["of"])) or "-"),
+        ("time", "< 600 s on 2 cores", f"{t['seconds']['value']:.0f} s (jobs {t['seconds']['jobs'] or 1})"),
+    ]
+    out += narrow_table(("target", "wanted", "measured"), rows)
+    out += ["", "## Single effects: shrink against the sensor ceiling", ""]
+    out += prose("Shrink: the held-out shrink of the effect's affected-variable gap. Sensor ceiling: the shrink a "
+                 "perfect model anchored as the diagnosis anchors would reach on the same windows and variables "
+                 "(the simulator's noise-free IMU: every sensor error but the white noise); of ceiling = shrink / ceiling.")
+    out.append("")
+    out += narrow_table(("effect", "shrink min/med/max", "ceiling min/med/max", "of ceiling min/med"),
+                        (_spread_row(result, name) for name in result.get("shrink_by_effect", {})))
+    out.append("")
+    out += narrow_table(("effect", "seed", "top", "right", "shrink", "ceiling", "verdict"),
+                        ((r["effect"], r["seed"], r["top"], _yes_no(r["right"]), percent(r["shrink"]),
+                          percent(r["sensor_ceiling"]), r["verdict"]) for r in result["runs"]))
+    wrong = [r for r in result["runs"] if not r["right"]]
+    if wrong:
+        out += ["", "Why the wrong single runs went wrong:", ""]
+        for r in wrong:
+            out += prose(f"{r['effect']} seed {r['seed']}: ranked {', '.join(r['ranking'])}; {r['effect']} {r['verdict']}: "
+                         f"{r['reason']}", first="- ", rest="  ")
+    out += ["", "## Null case, disturbances, pairs, all effects", ""]
+    out += narrow_table(("case", "seed", "found", "right", "where (share of the gap left)"),
+                        ((r["effects"][0] if r["effects"] else "null", r["seed"], ", ".join(r["found"]) or "-",
+                          _yes_no(r["right"]), _where(r.get("where", {})))
+                         for r in result["null"]["runs"] + result["disturbances"]))
     if result["pairs"]:
-        out += ["", "Pairs are ranked by conditional contribution: the second effect's shrink is what it adds on top of the first.", ""]
-        out += markdown_table(("pair", "seed", "top 3", "found", "both in top 3", "shrinks"),
-                              ((" + ".join(p["effects"]), p["seed"], ", ".join(p["top3"]), ", ".join(p["found"]) or "-",
-                                _yes_no(p["both_found_in_top3"]), _shrinks(p["shrinks"])) for p in result["pairs"]))
+        out.append("")
+        out += narrow_table(("pair", "seed", "top 3", "found", "right"),
+                            ((" + ".join(p["effects"]), p["seed"], ", ".join(p["top3"]), ", ".join(p["found"]) or "-",
+                              _yes_no(p["right"])) for p in result["pairs"]))
+    for r in result["all"]:
+        out.append("")
+        out += prose(f"All effects on, seed {r['seed']}: {len(r['found_of_on'])} of {len(r['effects'])} found "
+                     f"({', '.join(r['found_of_on']) or 'none'}); missed: "
+                     f"{', '.join(e for e in r['effects'] if e not in r['found_of_on']) or 'none'}; "
+                     f"found but not on: {', '.join(r['false']) or 'none'}.")
     return "\n".join(out) + "\n"
 
 
-def _effect_spread_row(result: dict, name: str) -> list[str]:
-    """min / median / max of one effect's held-out shrink and sensor ceiling, min / median of its attributable shares."""
+def _spread_row(result: dict, name: str) -> list[str]:
     shrink = result["shrink_by_effect"][name]
     ceiling = result.get("sensor_ceiling_by_effect", {}).get(name, {})
-    share = result.get("attributable_share_by_effect", {}).get(name, {})
-    removed = result.get("attributable_removed_by_effect", {}).get(name, {})
-    return [name, " / ".join(percent(shrink[k]) for k in ("min", "median", "max")),
-            " / ".join(percent(ceiling.get(k)) for k in ("min", "median", "max")),
-            " / ".join(percent(share.get(k)) for k in ("min", "median")), " / ".join(percent(removed.get(k)) for k in ("min", "median"))]
+    fraction = result.get("ceiling_fraction_by_effect", {}).get(name, {})
+    return [name, "/".join(percent(shrink[k], 0) for k in ("min", "median", "max")),
+            "/".join(percent(ceiling.get(k), 0) for k in ("min", "median", "max")),
+            "/".join(percent(fraction.get(k), 0) for k in ("min", "median"))]
 
 
-def _shrinks(shrinks: dict) -> str:
-    """``{"rotor_drag": 0.559, "battery": 0.002}`` -> ``rotor_drag 55.9%, battery 0.2%``."""
-    return ", ".join(f"{name} {percent(value)}" for name, value in shrinks.items())
+def _where(where: dict) -> str:
+    parts = [f"{v} {percent(s, 0)}" for v, s in where.get("variables", [])[:2]]
+    parts += [f"{b} Hz {percent(s, 0)}" for b, s in where.get("bands", [])[:1]]
+    return ", ".join(parts) or "-"
 
 
 def _yes_no(flag: bool) -> str:

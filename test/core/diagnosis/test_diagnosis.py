@@ -1,5 +1,5 @@
 """Gap diagnosis on simulated known answers: the withheld effect is ranked first and found, an effect
-that only fits training data is rejected, and a flight without unmodelled effects yields no discovery."""
+that only fits training data is not supported, and a flight without unmodelled effects yields no discovery."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from quad_modelling.core.diagnosis.attribution import (
     FOUND_MIN_SHRINK,
     affected_variables,
     excited_windows,
-    verdict_of,
+    held_out_failure,
 )
 from quad_modelling.core.diagnosis.catalogue import CATALOGUE, Effect
 from quad_modelling.core.diagnosis.diagnose import (
@@ -23,6 +23,7 @@ from quad_modelling.core.diagnosis.diagnose import (
     learnable_floor,
 )
 from quad_modelling.core.diagnosis.localisation import localise
+from quad_modelling.core.diagnosis.verdicts import VERDICTS
 from quad_modelling.core.diagnosis.statistics import (
     bootstrap_shrink,
     shrink_of,
@@ -86,7 +87,7 @@ def test_withheld_effect_is_ranked_first_and_found(flights, linkquad, base):
     found = [o for o in result.outcomes if o.verdict == "found"]
     assert result.outcomes[: len(found)] == found
     assert all(o.given == [f.effect.name for f in found] for o in result.outcomes[len(found):])
-    keys = [(o.verdict != "found", -o.shrink) for o in result.outcomes[len(found):]]
+    keys = [(VERDICTS.index(o.verdict), -o.shrink) for o in result.outcomes[len(found):]]
     assert keys == sorted(keys)
     assert result.ladder[0]["normalised_gap"] == 1.0 and result.ladder[1]["effects"] == ["motor_imbalance"]
     assert result.ladder[1]["normalised_gap"] < 1.0
@@ -118,7 +119,7 @@ def test_null_flight_yields_no_discovery(flights, linkquad, base):
     assert all(o.shrink < FOUND_MIN_SHRINK for o in result.outcomes)
 
 
-def test_overfitting_effect_is_rejected(flights, linkquad, base):
+def test_overfitting_effect_is_not_supported_with_the_reason(flights, linkquad, base):
     train, test = flights[()]
     windows = len(prepare_windows([train], linkquad, DIAGNOSIS_CONFIG))
     size = 4 * windows
@@ -128,15 +129,18 @@ def test_overfitting_effect_is_rejected(flights, linkquad, base):
     result = diagnose([train], [test], linkquad, [overfit, CATALOGUE["motor_lag"]], base=base)
     outcome = next(o for o in result.outcomes if o.effect.name == "per_window_ramps")
     assert outcome.train_shrink >= FOUND_MIN_SHRINK
-    assert outcome.verdict == "rejected"
+    assert outcome.verdict == "not supported"
+    assert outcome.reason.startswith("it fits the training flights")
 
 
-def test_verdict_rule():
-    assert verdict_of(0.2, 0.3, 0.1, 0.9) == "found"
-    assert verdict_of(0.2, 0.3, -0.01, 0.9) == "rejected"  # not consistent over windows
-    assert verdict_of(0.01, 0.3, 0.005, 0.9) == "rejected"  # helps training only
-    assert verdict_of(0.01, 0.02, 0.005, 0.9) == "insignificant"
-    assert verdict_of(0.2, -0.001, 0.1, 0.9) == "insignificant"  # held-out gain without a training gain: chance
+def test_held_out_rule_names_the_first_test_that_fails():
+    assert held_out_failure(0.2, 0.3, 0.1, 9, 10) is None
+    assert held_out_failure(0.2, 0.3, -0.01, 9, 10) == "the 90% interval of its held-out shrink reaches -1.0%"
+    assert held_out_failure(0.01, 0.3, 0.005, 9, 10) == "it fits the training flights (30% shrink) but not the held-out ones (1.0% < 5%)"
+    assert held_out_failure(0.01, 0.02, 0.005, 9, 10) == "held-out shrink 1.0% < 5%"
+    assert held_out_failure(0.2, -0.001, 0.1, 9, 10).startswith("it does not shrink the training gap")  # chance
+    assert held_out_failure(0.2, 0.3, 0.1, 5, 10) == "only 5/10 held-out windows improve (< 60%)"
+    assert held_out_failure(0.2, 0.3, 0.1, 0, 0).startswith("it changes the prediction materially in fewer than 3")
 
 
 def test_bootstrap_and_sign_test():
@@ -270,5 +274,5 @@ def test_a_flight_without_a_window_is_named(flights, linkquad, base):
     assert "short_flight" not in result.to_json()["config"]["train_flights"]
     from quad_modelling.io.reports.diagnosis import markdown_report
 
-    assert "- flights with no window (too short after the drops, or every window near the ground): train: short_flight" in \
-        markdown_report(result.to_json(), "linkquad", [])
+    text = " ".join(markdown_report(result.to_json(), "linkquad", []).split())
+    assert "- flights with no window (too short after the drops, or every window near the ground): train: short_flight" in text

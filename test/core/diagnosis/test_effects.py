@@ -16,7 +16,7 @@ from quad_modelling.core.identification.base_model import (
     ANGULAR_ACCELERATION_COLUMNS,
     RATE_COLUMNS,
     BaseModel,
-    _angular_acceleration_offsets,
+    angular_acceleration_offsets,
     apply_effects,
     measurement_filter,
     predict_batch,
@@ -36,7 +36,7 @@ from quad_modelling.core.windows import span_windows
 from quad_modelling.errors import ConfigError
 
 NEUTRAL = {
-    "rotor_drag": [0.0, 0.0, 0.0], "battery": [0.0, 0.0], "motor_lag": [1e-4], "input_delay": [0.0],
+    "rotor_drag": [0.0, 0.0, 0.0, 0.0, 0.0], "battery": [0.0, 0.0], "motor_lag": [1e-4, 1.0], "input_delay": [0.0],
     "ground_effect": [0.0, 0.2], "gyroscopic": [0.0, 0.0], "thrust_nonlinearity": [0.0],
     "motor_imbalance": [0.0] * 5, "trim_drift": [0.0] * 4,
 }
@@ -93,12 +93,15 @@ def test_motor_lag_is_a_unit_gain_first_order_lag(batch, base):
     step[:, 10:] = 1.0
     tau = 0.1
     one = replace(batch.subset([0]), u=step, u_history=np.zeros_like(batch.u_history[:1]))
-    lagged = CATALOGUE["motor_lag"].input_map(np.array([tau]), one, base, step)
+    lagged = CATALOGUE["motor_lag"].input_map(np.array([tau, 1.0]), one, base, step)
     n = int(round(tau / batch.dt))  # one time constant after the step
     pole = np.exp(-batch.dt / tau)
     assert lagged[0, 10 + n, 0] == pytest.approx(1.0 - pole ** (n + 1), abs=1e-9)  # y_k = p y_(k-1) + (1-p) u_k
     assert lagged[0, 10 + n, 0] == pytest.approx(1.0 - np.exp(-1.0), abs=0.04)
     assert lagged[0, -1, 0] == pytest.approx(1.0, abs=1e-6)
+    # the gain re-fits the base's command gain: it scales the lagged command, steady state included
+    scaled = CATALOGUE["motor_lag"].input_map(np.array([tau, 1.5]), one, base, step)
+    np.testing.assert_allclose(scaled, 1.5 * lagged, rtol=1e-12)
 
 
 def test_lag_and_delay_start_from_the_commands_before_the_window(batch, base):
@@ -111,7 +114,7 @@ def test_lag_and_delay_start_from_the_commands_before_the_window(batch, base):
     history[:, h - 10 :] = 1.0  # the step, 10 samples before the window
     step = replace(one, u=np.ones_like(one.u), u_history=history)
     tau = 0.1
-    lagged = CATALOGUE["motor_lag"].input_map(np.array([tau]), step, base, step.u)
+    lagged = CATALOGUE["motor_lag"].input_map(np.array([tau, 1.0]), step, base, step.u)
     pole = np.exp(-batch.dt / tau)
     assert lagged[0, 0, 0] == pytest.approx(1.0 - pole**11, abs=1e-9)  # 11 samples after the step
     delayed = CATALOGUE["input_delay"].input_map(np.array([15 * batch.dt]), step, base, step.u)
@@ -122,14 +125,14 @@ def test_lag_and_delay_start_from_the_commands_before_the_window(batch, base):
 def test_mapped_commands_are_trimmed_at_the_warm_start(batch, base):
     """The linearisation point is the warm start: the mapped commands have zero warm-start mean, as the
     raw trimmed ones do."""
-    for name, theta in (("motor_lag", [0.1]), ("input_delay", [0.05]), ("thrust_nonlinearity", [2.0])):
+    for name, theta in (("motor_lag", [0.1, 1.2]), ("input_delay", [0.05]), ("thrust_nonlinearity", [2.0])):
         aug = apply_effects([CATALOGUE[name]], [np.array(theta)], batch, base)
         np.testing.assert_allclose(aug.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12, err_msg=name)
     np.testing.assert_allclose(batch.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12)
 
 
 def test_drag_force_opposes_the_measured_velocity(batch, base):
-    e = CATALOGUE["rotor_drag"].forcing(np.array([0.5, 0.0, 0.0]), batch, base, batch.u)
+    e = CATALOGUE["rotor_drag"].forcing(np.array([0.5, 0.0, 0.0, 0.0, 0.0]), batch, base, batch.u)
     v = batch.velocity_smooth - batch.velocity_smooth[:, : batch.warm].mean(axis=1, keepdims=True)
     np.testing.assert_allclose(e[:, :, 0], -0.5 * v[:, :, 0], atol=1e-12)
 
@@ -146,21 +149,74 @@ def test_drag_moment_follows_the_body_axes_velocity_in_a_turn(batch, base):
     euler = np.zeros((1, n, 3))
     euler[0, :, 2] = yaw
     turn = replace(one, velocity_smooth=v, euler=euler)
-    e = CATALOGUE["rotor_drag"].forcing(np.array([0.3, 0.3, -1.5]), turn, base, turn.u)
+    e = CATALOGUE["rotor_drag"].forcing(np.array([0.3, 0.3, -1.5, 0.0, 0.0]), turn, base, turn.u)
     np.testing.assert_allclose(e[0, :, 0:3], 0.0, atol=1e-12)  # no change of the velocity in N: no change of the force
     # end of the turn: v_B = (0, -2); warm start: v_B = (2, 0)
     assert e[0, -1, 3] == pytest.approx(-1.5 * (-2.0 - 0.0))
     assert e[0, -1, 4] == pytest.approx(1.5 * (0.0 - 2.0))
+    # hovering (ground speed 0) in a 2 m/s south wind through the same turn: the same airspeed, the same moment
+    # (wind moment m = c_m w = -1.5 * (-2, 0)); the steady wind leaves the trimmed force unchanged
+    still = replace(turn, velocity_smooth=np.zeros_like(v))
+    windy = CATALOGUE["rotor_drag"].forcing(np.array([0.3, 0.3, -1.5, 3.0, 0.0]), still, base, still.u)
+    np.testing.assert_allclose(windy, e, atol=1e-12)
 
 
-@pytest.mark.parametrize("name, truth", [("motor_lag", [0.08]), ("input_delay", [0.035]), ("rotor_drag", [0.4, 0.3, -1.5])])
+@pytest.mark.parametrize("name, truth", [("motor_lag", [0.08, 1.0]), ("input_delay", [0.035]), ("rotor_drag", [0.4, 0.3, -1.5, 0.0, 0.0])])
 def test_fit_recovers_the_parameters_of_a_known_effect(batch, base, name, truth):
     effect = CATALOGUE[name]
     made = predict_batch(base, batch, [effect], [np.array(truth)])
     synthetic = replace(batch, measured=made)
     scales = variable_scales(synthetic, predict_batch(base, synthetic))
-    fit = fit_effects(base, synthetic, [effect], scales)
+    fit = fit_effects(base, synthetic, [effect], scales, held=effect.nuisance)
     np.testing.assert_allclose(fit.thetas[0], truth, rtol=0.05, atol=2e-3)
+    assert fit.held == effect.nuisance and np.isnan(fit.sigmas[0][[effect.parameters.index(n) for n in effect.nuisance]]).all()
+    free = [i for i, n in enumerate(effect.parameters) if n not in effect.nuisance]
+    assert np.isfinite(fit.sigmas[0][free]).all()
+
+
+def _turning_batch(batch):
+    """``batch`` with every window turning its heading by 180 degrees while it flies back and forth along x at up
+    to 1 m/s (0.3 Hz): the drag moment then sees the ground speed and the wind apart."""
+    n = batch.samples
+    turn = np.clip((np.arange(n) - batch.warm) / (n - 1 - batch.warm), 0.0, 1.0) * np.pi
+    euler = batch.euler.copy()
+    euler[:, :, 2] = batch.euler[:, :1, 2] + turn
+    velocity = batch.velocity_smooth.copy()
+    velocity[:, :, 0] += np.sin(2 * np.pi * 0.3 * np.arange(n) * batch.dt)
+    return replace(batch, euler=euler, velocity_smooth=velocity)
+
+
+def test_drag_wind_is_fitted_as_a_nuisance_only_where_the_data_shows_it(batch, base):
+    """Rotor drag on airspeed: data made with a (1.5, -1.0) m/s wind through turns gives the wind back (freed: it
+    lowers the cost by far more than 1 % and lies many sigma from zero); data made without wind keeps it held at 0."""
+    from quad_modelling.core.diagnosis.attribution import _fit_with_nuisance
+    from quad_modelling.core.diagnosis.catalogue import drag_wind_estimate
+
+    effect = CATALOGUE["rotor_drag"]
+    turning = _turning_batch(batch)
+    scales = variable_scales(turning, predict_batch(base, turning))
+    for wind, freed in (((1.5, -1.0), True), ((0.0, 0.0), False)):
+        truth = [0.4, 0.3, -1.5, -1.5 * wind[0], -1.5 * wind[1]]  # the wind moment m = c_m w
+        synthetic = replace(turning, measured=predict_batch(base, turning, [effect], [np.array(truth)]))
+        fit = _fit_with_nuisance(effect, base, synthetic, scales, ())
+        assert (fit.held == ()) is freed
+        np.testing.assert_allclose(fit.thetas[0], truth, rtol=0.05, atol=0.02)
+        estimate = drag_wind_estimate(fit.thetas[0], fit.sigmas[0])
+        assert (estimate["w_x"], estimate["w_y"]) == pytest.approx(wind, abs=0.05)
+
+
+def test_lag_and_delay_are_told_apart_on_data_that_separates_them(batch, base):
+    """Data made with a 80 ms motor lag: fitted jointly with an input delay, the lag comes back and the delay
+    stays near zero, and the diagnosis says the flights separate them."""
+    from quad_modelling.core.diagnosis.diagnose import motor_dynamics_separability
+
+    made = predict_batch(base, batch, [CATALOGUE["motor_lag"]], [np.array([0.08, 1.0])])
+    synthetic = replace(batch, measured=made)
+    scales = variable_scales(synthetic, predict_batch(base, synthetic))
+    result = motor_dynamics_separability(base, synthetic, scales)
+    assert result["motor_lag_s"] == pytest.approx(0.08, rel=0.05)
+    assert result["input_delay_s"] < 0.005
+    assert result["separable"] and "show motor lag and none of the other" in result["text"]
 
 
 def test_unknown_effect_names_are_a_config_error():
@@ -247,7 +303,7 @@ def test_angular_acceleration_offsets_halve_the_noise_of_the_warm_start_mean(bat
     rates = 0.3 * t[None, :] + rng.normal(0.0, 0.003, size=(400, many.warm))
     warm_rows = many.warm_rows.copy()
     warm_rows[:, :, RATE_COLUMNS[0]] = rates
-    offsets = _angular_acceleration_offsets(replace(many, warm_rows=warm_rows, angacc_trim=np.zeros((400, 3))))[:, 0]
+    offsets = angular_acceleration_offsets(replace(many, warm_rows=warm_rows, angacc_trim=np.zeros((400, 3))))[:, 0]
     greybox = np.array([differentiate(r[:, None], many.dt).mean() for r in rates])
     assert offsets.mean() == pytest.approx(0.3, abs=0.002)
     assert offsets.std() == pytest.approx(0.003 / np.sqrt(np.sum((t - t.mean()) ** 2)), rel=0.1)

@@ -11,7 +11,9 @@ from quad_modelling.io.reports.formatting import (
     display_value,
     json_text,
     markdown_table,
+    narrow_table,
     percent,
+    prose,
     tic_text,
     variable_label,
 )
@@ -71,3 +73,20 @@ def test_json_text_writes_numpy_numbers_and_arrays():
         '{\n  "rms": 0.25,\n  "edges": [\n    1.0,\n    2.0\n  ],\n  "n": 3\n}')
     with pytest.raises(TypeError, match="not JSON serialisable: object"):
         json_text({"x": object()})
+
+
+def test_prose_wraps_to_the_width_with_list_indents():
+    text = "the base model's held-out gap " * 8
+    lines = prose(text, 40, first="- ", rest="  ")
+    assert max(len(line) for line in lines) <= 40
+    assert lines[0].startswith("- the base") and all(line.startswith("  ") for line in lines[1:])
+    assert " ".join(line[2:] for line in lines) == text.strip()
+    assert prose("/a/" + "x" * 150, 100)[0] == "/a/" + "x" * 97  # a path longer than a line is broken
+    assert prose("", first="- ") == ["-"]
+
+
+def test_narrow_table_is_a_table_when_it_fits_and_a_list_when_it_does_not():
+    assert narrow_table(["flight", "start [s]"], [["a.mat", "1.0"]]) == ["| flight | start [s] |", "|---|---|", "| a.mat | 1.0 |"]
+    long = "flight_" * 13 + "x" * 5
+    assert narrow_table(["flight", "start [s]", "gap"], [[long, "1.0", "2.35"], ["b.mat", "2.0", "1.1"]]) == [
+        f"- {long}:", "  start [s] 1.0; gap 2.35", "- b.mat: start [s] 2.0; gap 1.1"]

@@ -1,0 +1,232 @@
+"""Verdicts with reasons (DESIGN 8): when an effect that shrinks the held-out gap is *found*.
+
+An effect is ``found`` only when every test below passes, in this order; the first that fails names the
+verdict and its reason:
+
+1. **Held-out shrink** (:func:`~quad_modelling.core.diagnosis.attribution.held_out_failure`): shrink
+   :math:`S_e \\ge` 5 % on its affected variables, the 5 % bootstrap bound above zero, at least 60 % of the
+   excited held-out windows improved, a positive training shrink. Else ``not supported``.
+2. **Total held-out error falls**: the mean over the scored variables (:data:`SCORED_VARIABLES`) of the
+   held-out RMS relative to the base model's, with the effect added to the effects ranked above it, is
+   below the same without it. An effect that helps its own variables but makes the whole prediction worse
+   (battery on the NanoBench Crazyflie: 0.981 -> 1.034) is ``not supported``.
+3. **Parameters inside their bounds** (:func:`parameter_checks`): no *material* parameter within
+   :data:`AT_BOUND_FRACTION` of a search bound -- a bound's value is the optimiser's, not the data's (ground
+   effect with its height offset at 2 m is a near-linear height trend standing in for something else).
+   Else ``weak``.
+4. **Physically plausible**: every material parameter inside the effect's plausible range for this vehicle
+   (``Effect.plausible``, with the source in ``Effect.plausible_source``). Else ``weak``.
+5. **Stable across folds** (:func:`fold_stability`): the effect refitted on each of :data:`FOLDS` folds of
+   the training flights gives every material, *determined* parameter the same sign and a value within
+   :data:`FOLD_TOLERANCE` (+-50 %) of the full fit. Else ``weak``. A parameter is determined when it lies at
+   least :data:`DETERMINED_SIGMAS` standard errors from its null value (a shape parameter always is): one
+   whose 1-sigma covers its null is reported as not determined, and the finding does not rest on it (the
+   simulator's motor imbalance: the CG offset is found to +-0.2 mm, one motor's 1.5 % gain is not
+   determined on 90 s of flight, and its sign differs between the folds).
+
+A parameter is *material* (:func:`material_parameters`) when setting it to its null value (``Effect.null``,
+where its term vanishes) changes the effect's correction of the affected variables by at least
+:data:`MATERIAL_FRACTION` of that correction: a parameter that does nothing where the effect is scored
+(rotor drag's vertical coefficient when only acc_x/acc_y are affected) cannot make the finding wrong, and
+its bound (c_v = 0: no vertical drag) is then a physical limit, not a failure of the fit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_modelling.core.diagnosis.statistics import variable_scores
+from quad_modelling.core.identification.base_model import BaseModel, Effect, predict_batch
+from quad_modelling.core.identification.window_batch import WindowBatch
+
+VERDICTS = ("found", "weak", "not supported")
+"""found: every rule passes; weak: the held-out gap and the total error fall, but a parameter is at a
+bound, implausible or unstable (the form stands in for something else); not supported: the held-out data
+does not show it, or adding it makes the total held-out error worse."""
+
+SCORED_VARIABLES = ("acc_x", "acc_y", "acc_z", "roll_acc", "pitch_acc", "yaw_acc")
+"""The variables the total held-out error is taken over: the ones the diagnosis scores (driven by forces
+and torques without integration). The open-loop velocities, rates and angles drift over a window whatever
+the effect (docs/diagnosis.md, Limits), so a total over them ranks drift, not effects."""
+
+AT_BOUND_FRACTION = 1e-3
+"""A parameter within this fraction of its search range from a bound is *at* the bound."""
+
+MATERIAL_FRACTION = 0.1
+"""A parameter is material when its term is at least this fraction of the effect's correction (RMS over the
+affected variables of the training windows)."""
+
+FOLDS = 2
+"""Folds of the training windows for the stability test: flights dealt alternately (in source order) when
+there are two or more training flights, else the windows split in time order."""
+
+FOLD_MIN_WINDOWS = 3
+"""Fewest training windows a fold needs to be fitted on."""
+
+FOLD_TOLERANCE = 0.5
+"""Largest relative difference of a fold's parameter from the full fit (+-50 %), same sign required."""
+
+DETERMINED_SIGMAS = 3.0
+"""A parameter is determined when it is at least this many standard errors (HAC) from its null value: the
+conventional 3-sigma detection bound. The HAC standard errors are optimistic here (windows of one flight
+share its manoeuvres): on a 90 s simulated flight with motor imbalance one motor's gain came out
+-0.0117 +- 0.0049 (2.4 sigma) and +0.0006 / -0.015 on the two halves of the flight."""
+
+
+@dataclass
+class ParameterCheck:
+    """One identified parameter with its uncertainty, bounds and the tests of the verdict rules."""
+
+    name: str
+    value: float
+    sigma: float
+    unit: str
+    lower: float
+    upper: float
+    plausible: tuple[float, float]
+    material: bool
+    held: bool = False
+
+    @property
+    def at_bound(self) -> str | None:
+        """'lower' or 'upper' when the value sits on that search bound, else None."""
+        tolerance = AT_BOUND_FRACTION * (self.upper - self.lower)
+        if self.value <= self.lower + tolerance:
+            return "lower"
+        if self.value >= self.upper - tolerance:
+            return "upper"
+        return None
+
+    null: float | None = None
+
+    @property
+    def determined(self) -> bool:
+        """Whether the value is at least :data:`DETERMINED_SIGMAS` sigma from its null (always for a shape parameter;
+        never when the sigma is unknown: a singular fit)."""
+        if self.null is None:
+            return True
+        return bool(np.isfinite(self.sigma) and abs(self.value - self.null) >= DETERMINED_SIGMAS * self.sigma)
+
+    @property
+    def plausible_ok(self) -> bool:
+        return self.plausible[0] <= self.value <= self.plausible[1]
+
+    def to_json(self, source: str) -> dict:
+        return {"name": self.name, "value": self.value, "sigma": None if not np.isfinite(self.sigma) else self.sigma,
+                "unit": self.unit, "lower": self.lower, "upper": self.upper, "at_bound": self.at_bound is not None,
+                "bound": self.at_bound, "plausible": list(self.plausible), "plausible_source": source,
+                "plausible_ok": self.plausible_ok, "material": self.material, "determined": self.determined, "held": self.held}
+
+
+def parameter_checks(effect: Effect, theta: np.ndarray, sigma: np.ndarray | None, base: BaseModel, material: np.ndarray,
+                     held: Sequence[str] = ()) -> list[ParameterCheck]:
+    """One :class:`ParameterCheck` per parameter of ``effect`` at ``theta``."""
+    ranges = effect.plausible_ranges(base)
+    sigma = np.full(len(theta), np.nan) if sigma is None else sigma
+    nulls = tuple(effect.null) + (None,) * (len(theta) - len(effect.null))
+    return [ParameterCheck(name, float(theta[i]), float(sigma[i]), effect.units[i], float(effect.lower[i]), float(effect.upper[i]),
+                           (float(ranges[i][0]), float(ranges[i][1])), bool(material[i]), name in held, nulls[i])
+            for i, name in enumerate(effect.parameters)]
+
+
+def material_parameters(effect: Effect, theta: np.ndarray, base: BaseModel, batch: WindowBatch, cols: np.ndarray,
+                        reference: np.ndarray, fixed: Sequence[tuple[Effect, np.ndarray]] = (),
+                        held: Sequence[str] = ()) -> np.ndarray:
+    """(P,) bool: the parameters whose term is at least :data:`MATERIAL_FRACTION` of the effect's correction.
+
+    ``reference``: the prediction without the effect (base + ``fixed``) on ``batch``; ``cols`` the affected
+    variables' columns. A parameter with no null value (a shape parameter) is material; a held one is not.
+    """
+    fixed_effects, fixed_thetas = [f[0] for f in fixed], [f[1] for f in fixed]
+    rows = slice(batch.warm, None)
+
+    def correction(values: np.ndarray) -> np.ndarray:
+        predicted = predict_batch(base, batch, fixed_effects + [effect], fixed_thetas + [values], columns=cols)
+        return (predicted - reference)[:, rows][:, :, cols]
+
+    full = correction(theta)
+    size = float(np.sqrt(np.mean(full**2)))
+    material = np.ones(len(theta), dtype=bool)
+    for i, name in enumerate(effect.parameters):
+        null = effect.null[i] if i < len(effect.null) else None
+        if name in held:
+            material[i] = False
+        elif null is not None and size > 0:
+            without = theta.copy()
+            without[i] = null
+            material[i] = float(np.sqrt(np.mean((full - correction(without)) ** 2))) >= MATERIAL_FRACTION * size
+        elif size == 0:
+            material[i] = False
+    return material
+
+
+def training_folds(batch: WindowBatch) -> list[np.ndarray]:
+    """:data:`FOLDS` index arrays over the windows of ``batch`` (module docstring); [] when a fold would have
+    fewer than :data:`FOLD_MIN_WINDOWS` windows."""
+    sources = sorted(set(batch.sources))
+    if len(sources) >= FOLDS:
+        fold_of = {s: i % FOLDS for i, s in enumerate(sources)}
+        labels = np.array([fold_of[s] for s in batch.sources])
+    else:
+        labels = (np.arange(len(batch)) * FOLDS) // max(len(batch), 1)
+    folds = [np.flatnonzero(labels == k) for k in range(FOLDS)]
+    return folds if all(len(f) >= FOLD_MIN_WINDOWS for f in folds) else []
+
+
+def fold_stability(effect: Effect, theta: np.ndarray, checks: Sequence[ParameterCheck], batch: WindowBatch,
+                   refit: Callable[[WindowBatch], np.ndarray]) -> dict:
+    """{"folds", "stable" (True/False/None), "values" {param: [per fold]}, "reason"}: the rule of the module
+    docstring on the material parameters. ``refit(fold_batch) -> theta`` fits the effect on one fold."""
+    folds = training_folds(batch)
+    if not folds:
+        return {"folds": 0, "stable": None, "values": {},
+                "reason": f"too few training windows ({len(batch)}) for {FOLDS} folds of {FOLD_MIN_WINDOWS}"}
+    thetas = [refit(batch.subset(index)) for index in folds]
+    values = {c.name: [float(t[i]) for t in thetas] for i, c in enumerate(checks)}
+    unstable = []
+    for i, c in enumerate(checks):
+        if not (c.material and c.determined):
+            continue
+        for t in thetas:
+            same_sign = np.sign(t[i]) == np.sign(c.value) or c.value == 0.0
+            if not same_sign or abs(t[i] - c.value) > FOLD_TOLERANCE * abs(c.value):
+                unstable.append(c)
+                break
+    if unstable:
+        text = "; ".join(f"{c.name} {c.value:.3g}{_unit(c.unit)} on all, "
+                         + ", ".join(f"{v:.3g}" for v in values[c.name]) + " on the folds" for c in unstable)
+        return {"folds": len(folds), "stable": False, "values": values,
+                "reason": f"unstable across {len(folds)} training folds (same sign, within +-{FOLD_TOLERANCE:.0%}): {text}"}
+    loose = [c.name for c in checks if c.material and not c.determined]
+    return {"folds": len(folds), "stable": True, "values": values,
+            "reason": f"stable across {len(folds)} training folds"
+                      + (f" ({', '.join(loose)} not determined: within {DETERMINED_SIGMAS:g} sigma of its null)" if loose else "")}
+
+
+def parameter_failure(effect: Effect, checks: Sequence[ParameterCheck]) -> str | None:
+    """The reason a material parameter fails rule 3 or 4 (module docstring), or None."""
+    for c in checks:
+        if c.material and c.at_bound:
+            bound = c.lower if c.at_bound == "lower" else c.upper
+            return f"{c.name} = {c.value:.3g}{_unit(c.unit)} is at its {c.at_bound} search bound {bound:g}"
+    for c in checks:
+        if c.material and not c.plausible_ok:
+            return (f"{c.name} = {c.value:.3g}{_unit(c.unit)} is outside the plausible {c.plausible[0]:.3g}..{c.plausible[1]:.3g} "
+                    f"({effect.plausible_source or 'the search bounds'})")
+    return None
+
+
+def total_error(batch: WindowBatch, predicted: np.ndarray, reference: dict[str, dict[str, float]]) -> float:
+    """Mean over :data:`SCORED_VARIABLES` of the held-out RMS relative to ``reference`` (the base model's
+    scores): 1.0 for the base model."""
+    scores = variable_scores(batch, predicted, SCORED_VARIABLES)
+    ratios = [scores[v]["rms"] / reference[v]["rms"] for v in SCORED_VARIABLES if reference[v]["rms"] > 0]
+    return float(np.mean(ratios)) if ratios else float("nan")
+
+
+def _unit(unit: str) -> str:
+    """' UNIT' for a reason sentence; nothing for a dimensionless '1'."""
+    return "" if unit in ("", "1") else f" {unit}"
