@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -169,13 +170,21 @@ def _run_validation(args, config, effects, output: Path) -> int:
     try:
         result = validate(args.vehicle or "linkquad", switched, seeds, pairs=_pairs(args.pairs), catalogue=names,
                           duration=args.duration, config=config, progress=say, base_from=args.base_from,
-                          disturbances=_disturbances(args.disturbance), jobs=args.jobs)
+                          disturbances=_disturbances(args.disturbance), jobs=validation_jobs(args.jobs))
     finally:
         bar.close()
     with atomic_output(output, args.force) as tmp:
         write_validation(result, tmp)
     print(f"{validation_summary(result)} -> {output}/")
     return 0
+
+
+def validation_jobs(jobs: int | None) -> int | None:
+    """``--jobs`` for ``--validate``: as given, else two local workers where the machine has two cores (the cases
+    are independent simulations and fits; on one core, here), None meaning serial."""
+    if jobs is not None:
+        return jobs
+    return 2 if (os.cpu_count() or 1) >= 2 else None
 
 
 def _pairs(text: str) -> list[tuple[str, ...]] | None:

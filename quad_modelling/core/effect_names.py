@@ -48,6 +48,13 @@ DISTURBANCES: tuple[str, ...] = ("wind", "com_offset", "bent_arm")
 SWITCHED_EFFECTS: tuple[str, ...] = tuple(name for name in CATALOGUE_EFFECTS if name not in IDENTIFIABLE_ONLY)
 """Catalogue effects the simulator switches on: the known answers of the diagnosis validation."""
 
+SIGNATURES: dict[str, tuple[str, ...]] = {"battery": ("battery", "trim_drift")}
+"""Catalogue effects a simulator switch shows as besides its own name (the others show as themselves): the
+simulated battery drains during the flight and the stabiliser raises its commands to hold the height, so within a
+window the commands drift against the thrust they give -- the catalogue's trim drift, "input trim drift within a
+window (e.g. battery drain)". The validation reports a run right by the strict rule (its own name first) and,
+separately, by these signatures."""
+
 SIM_EFFECTS: tuple[str, ...] = SWITCHED_EFFECTS + DISTURBANCES
 """Every switch of the truth simulator, in order: the switched catalogue effects, then the disturbances."""
 

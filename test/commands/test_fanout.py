@@ -88,11 +88,15 @@ def test_bad_jobs_or_unreachable_scheduler_is_one_line_exit_2(flights, tmp_path,
         assert not (tmp_path / "out").exists()
 
 
-def test_diagnose_validate_refuses_jobs(tmp_path, capsys):
-    """--validate simulates its flights: nothing to fan out, and a flag that would do nothing is refused."""
-    assert main(["diagnose", "--validate", "-o", str(tmp_path / "out"), "--jobs", "2"]) == 2
+def test_diagnose_validate_runs_its_cases_locally_and_refuses_a_scheduler(tmp_path, capsys):
+    """--validate fans its cases out over --jobs local workers (test/core/diagnosis/test_diagnosis_validation.py runs
+    them); a running scheduler is refused in one line, and a bad --jobs as for every verb."""
+    assert main(["diagnose", "--validate", "-o", str(tmp_path / "out"), "--scheduler", "tcp://127.0.0.1:1"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "--jobs/--scheduler fan out the reading of --train/--test flights; --validate reads none" in err[0]
+    assert len(err) == 1 and "--scheduler: --validate runs its cases on a local cluster (--jobs N) or here" in err[0]
+    assert main(["diagnose", "--validate", "-o", str(tmp_path / "out"), "--jobs", "0"]) == 2
+    assert "--jobs" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 def test_identify_on_workers_identifies_the_serial_constants(flights, tmp_path):

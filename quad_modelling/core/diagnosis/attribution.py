@@ -276,12 +276,14 @@ def assess_effect(
     }
     total = {"before": total_error(test, base_test, reference), "after": total_error(test, after_test, reference)}
     total["change"] = total["after"] - total["before"]
-    material = material_parameters(effect, theta, base, train, cols, base_train, fixed, fit.held)
+    passes = held_out_failure(shrink, train_shrink, ci[0], improved, len(scored_before)) is None and total["after"] < total["before"]
+    material = (material_parameters(effect, theta, base, train, cols, base_train, fixed, fit.held) if passes
+                else np.full(len(theta), None))  # only the parameters rules 3-5 need (verdicts module docstring)
     checks = parameter_checks(effect, theta, sigma, base, material, fit.held)
     verdict, why, stability = verdict_with_reason(effect, theta, checks, shrink, train_shrink, ci[0], improved, len(scored_before), total,
-                                       lambda fold: _fit_with_nuisance(replace(effect, initial=tuple(float(v) for v in theta)),
-                                                                       base, fold, scales, fixed, held=fit.held).thetas[0],
-                                       train)
+                                                  lambda fold: _fit_with_nuisance(replace(effect, initial=tuple(float(v) for v in theta)),
+                                                                                  base, fold, scales, fixed, held=fit.held).thetas[0],
+                                                  train)
     return EffectOutcome(
         effect, theta, shrink, train_shrink, before, {v: float(after_rms[i]) for i, v in enumerate(EVAL_VARIABLES)},
         {v: float(after_tic[i]) for i, v in enumerate(EVAL_VARIABLES)}, evidence, verdict, [], correction,

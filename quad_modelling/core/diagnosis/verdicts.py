@@ -87,7 +87,7 @@ class ParameterCheck:
     lower: float
     upper: float
     plausible: tuple[float, float]
-    material: bool
+    material: bool | None  # None: not computed (the effect failed an earlier rule)
     held: bool = False
 
     @property
@@ -128,14 +128,16 @@ def parameter_checks(effect: Effect, theta: np.ndarray, sigma: np.ndarray | None
     sigma = np.full(len(theta), np.nan) if sigma is None else sigma
     nulls = tuple(effect.null) + (None,) * (len(theta) - len(effect.null))
     return [ParameterCheck(name, float(theta[i]), float(sigma[i]), effect.units[i], float(effect.lower[i]), float(effect.upper[i]),
-                           (float(ranges[i][0]), float(ranges[i][1])), bool(material[i]), name in held, nulls[i])
+                           (float(ranges[i][0]), float(ranges[i][1])), None if material[i] is None else bool(material[i]),
+                           name in held, nulls[i])
             for i, name in enumerate(effect.parameters)]
 
 
 def material_parameters(effect: Effect, theta: np.ndarray, base: BaseModel, batch: WindowBatch, cols: np.ndarray,
                         reference: np.ndarray, fixed: Sequence[tuple[Effect, np.ndarray]] = (),
                         held: Sequence[str] = ()) -> np.ndarray:
-    """(P,) bool: the parameters whose term is at least :data:`MATERIAL_FRACTION` of the effect's correction.
+    """(P,) bool: the parameters whose term is at least :data:`MATERIAL_FRACTION` of the effect's correction
+    (computed only for an effect that passes the held-out and total-error rules: the later rules need it).
 
     ``reference``: the prediction without the effect (base + ``fixed``) on ``batch``; ``cols`` the affected
     variables' columns. A parameter with no null value (a shape parameter) is material; a held one is not.

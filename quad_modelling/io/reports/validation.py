@@ -39,6 +39,8 @@ def validation_markdown(result: dict) -> str:
     ceiling = t["shrink_of_ceiling"]
     rows = [
         ("single effects right (first and found)", ">= 90 %", f"{percent(t['single_right']['value'], 0)} of {t['single_right']['runs']}"),
+        ("... or a signature first (battery: trim drift)", "", f"{percent(t['single_right'].get('by_signature'), 0)}"),
+        ("... lag/delay twin first, said inseparable", "", f"{t['single_right'].get('inseparable_twin_first', 0)} runs"),
         ("shrink >= 80 % of a ceiling >= 20 %", "all runs", f"{ceiling['met']} of {ceiling['runs']} (min {percent(ceiling['min'], 0)})"),
         ("shrink above its ceiling + 2 points", "none", f"{t['shrink_not_above_ceiling']['above']} of {t['shrink_not_above_ceiling']['runs']} "
          f"(max excess {percent(t['shrink_not_above_ceiling']['max_excess'])})"),
@@ -97,7 +99,7 @@ def _spread_row(result: dict, name: str) -> list[str]:
 
 def _where(where: dict) -> str:
     parts = [f"{v} {percent(s, 0)}" for v, s in where.get("variables", [])[:2]]
-    parts += [f"{b} Hz {percent(s, 0)}" for b, s in where.get("bands", [])[:1]]
+    parts += [f"{b} {percent(s, 0)}" for b, s in where.get("bands", [])[:1]]
     return ", ".join(parts) or "-"
 
 

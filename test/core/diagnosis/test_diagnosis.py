@@ -36,6 +36,10 @@ from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
 
 DURATION = 50.0
+"""Length of the simulated flights [s]; the withheld-effect tests train on two flights of 90 s (TRAIN_DURATION):
+the verdict's fold-stability rule needs a flight per fold."""
+
+TRAIN_DURATION = 90.0
 
 
 @pytest.fixture(scope="session")
@@ -71,10 +75,16 @@ def _per_window_ramp(theta, batch, base, u):
     return e
 
 
-def test_withheld_effect_is_ranked_first_and_found(flights, linkquad, base):
-    train, test = flights[("motor_imbalance",)]
+@pytest.fixture(scope="session")
+def imbalance_flights():
+    """Two 90 s training flights (seeds 11, 13) and a test flight (seed 12) with motor imbalance."""
+    return [simulate("linkquad", effects=("motor_imbalance",), seed=s, duration=TRAIN_DURATION) for s in (11, 13, 12)]
+
+
+def test_withheld_effect_is_ranked_first_and_found(imbalance_flights, linkquad, base):
+    *train, test = imbalance_flights
     effects = [CATALOGUE[n] for n in ("motor_imbalance", "battery", "motor_lag")]
-    result = diagnose([train], [test], linkquad, effects, base=base)
+    result = diagnose(train, [test], linkquad, effects, base=base)
     top = result.outcomes[0]
     assert top.effect.name == "motor_imbalance"
     assert top.verdict == "found"
@@ -91,14 +101,20 @@ def test_withheld_effect_is_ranked_first_and_found(flights, linkquad, base):
     assert keys == sorted(keys)
     assert result.ladder[0]["normalised_gap"] == 1.0 and result.ladder[1]["effects"] == ["motor_imbalance"]
     assert result.ladder[1]["normalised_gap"] < 1.0
+    # found with its reason: every rule passed, the CG offset determined and stable over the two training flights
+    assert top.reason.startswith("held-out shrink") and "stable across 2 training folds" in top.reason
+    assert top.stability["stable"] and top.total["after"] < top.total["before"]
+    cg = {c.name: c for c in top.parameters}
+    assert cg["cg_x"].material and cg["cg_x"].determined and cg["cg_x"].at_bound is None and cg["cg_x"].plausible_ok
+    assert result.best_effects == ["motor_imbalance"] and result.where["variables"]
 
 
-def test_a_twin_of_the_top_effect_adds_nothing_on_top_of_it(flights, linkquad, base):
+def test_a_twin_of_the_top_effect_adds_nothing_on_top_of_it(imbalance_flights, linkquad, base):
     """Greedy conditional ranking: an exact copy of the withheld effect is found alone (same shrink), but
     assessed with the top effect held fixed it explains nothing more, so it takes no 'found' place."""
-    train, test = flights[("motor_imbalance",)]
+    *train, test = imbalance_flights
     twin = replace(CATALOGUE["motor_imbalance"], name="imbalance_twin")
-    result = diagnose([train], [test], linkquad, [CATALOGUE["motor_imbalance"], twin, CATALOGUE["motor_lag"]], base=base)
+    result = diagnose(train, [test], linkquad, [CATALOGUE["motor_imbalance"], twin, CATALOGUE["motor_lag"]], base=base)
     first = result.outcomes[0]
     other = next(o for o in result.outcomes if o.effect.name in ("motor_imbalance", "imbalance_twin") and o is not first)
     assert first.verdict == "found" and first.given == [] and first.shrink > 0.1
@@ -237,7 +253,9 @@ def test_an_effect_is_scored_only_on_the_candidates_its_fit_moves(linkquad, base
     assert broad.variables == narrow.variables == ("roll_acc", "pitch_acc")
     assert broad.variable_correction["acc_z"] < 1e-9 and broad.variable_correction["yaw_acc"] < 0.05
     assert min(broad.variable_correction["roll_acc"], broad.variable_correction["pitch_acc"]) >= AFFECTED_MIN_CORRECTION
-    assert broad.verdict == "found" and broad.shrink == pytest.approx(narrow.shrink, abs=0.01) and broad.shrink > 0.2
+    # (one 50 s training flight: the fold rule may call it weak; the two candidate lists must agree either way)
+    assert broad.verdict == narrow.verdict != "not supported"
+    assert broad.shrink == pytest.approx(narrow.shrink, abs=0.01) and broad.shrink > 0.2
     data = broad.to_json()
     assert data["variables"] == ["roll_acc", "pitch_acc"] and data["candidate_variables"] == list(wide.variables)
 

@@ -18,8 +18,8 @@ DURATION = 60.0
 
 @pytest.fixture(scope="module")
 def result():
-    """Seed 0: motor imbalance alone, the null case and the bent-arm disturbance, base fitted the user's way."""
-    return validate("linkquad", effects=("motor_imbalance",), seeds=(0,), pairs=[], disturbances=("bent_arm",), duration=DURATION)
+    """Seed 0: motor imbalance alone, the null case and the CoM-offset disturbance, base fitted the user's way."""
+    return validate("linkquad", effects=("motor_imbalance",), seeds=(0,), pairs=[], disturbances=("com_offset",), duration=DURATION)
 
 
 def test_a_withheld_effect_is_found_with_the_base_fitted_on_the_same_effect_on_flights(result):
@@ -42,9 +42,10 @@ def test_the_shrink_stays_below_its_sensor_ceiling(result):
 
 def test_null_and_out_of_catalogue_cases_find_nothing_and_say_where_the_gap_lies(result):
     assert [n["right"] for n in result["null"]["runs"]] == [True]
-    bent = result["disturbances"][0]
-    assert bent["effects"] == ["bent_arm"] and bent["found"] == [] and bent["right"]
-    assert bent["where"]["variables"] and bent["where"]["bands"]
+    com = result["disturbances"][0]
+    assert com["effects"] == ["com_offset"] and com["found"] == [] and com["right"]
+    assert com["where"]["variables"] and com["where"]["bands"]
+    assert abs(sum(share for _, share in com["where"]["variables"])) <= 1.0
     assert result["targets"]["disturbances_unexplained"] == {"target": "nothing found", "runs": 1, "right": 1}
 
 

@@ -36,7 +36,7 @@ from quad_modelling.core.windows import span_windows
 from quad_modelling.errors import ConfigError
 
 NEUTRAL = {
-    "rotor_drag": [0.0, 0.0, 0.0, 0.0, 0.0], "battery": [0.0, 0.0], "motor_lag": [1e-4, 1.0], "input_delay": [0.0],
+    "rotor_drag": [0.0, 0.0, 0.0, 0.0, 0.0], "battery": [0.0, 0.0], "motor_lag": [1e-4, 1.0], "input_delay": [0.0, 1.0],
     "ground_effect": [0.0, 0.2], "gyroscopic": [0.0, 0.0], "thrust_nonlinearity": [0.0],
     "motor_imbalance": [0.0] * 5, "trim_drift": [0.0] * 4,
 }
@@ -82,9 +82,9 @@ def test_every_catalogue_effect_is_neutral_at_its_null_parameters(batch, base):
 
 def test_input_delay_shifts_commands_by_whole_and_fractional_samples(batch, base):
     u = batch.u
-    shifted = CATALOGUE["input_delay"].input_map(np.array([3 * batch.dt]), batch, base, u)
+    shifted = CATALOGUE["input_delay"].input_map(np.array([3 * batch.dt, 1.0]), batch, base, u)
     np.testing.assert_allclose(shifted[:, 3:], u[:, :-3])
-    half = CATALOGUE["input_delay"].input_map(np.array([0.5 * batch.dt]), batch, base, u)
+    half = CATALOGUE["input_delay"].input_map(np.array([0.5 * batch.dt, 1.0]), batch, base, u)
     np.testing.assert_allclose(half[:, 1:], 0.5 * (u[:, 1:] + u[:, :-1]))
 
 
@@ -117,7 +117,7 @@ def test_lag_and_delay_start_from_the_commands_before_the_window(batch, base):
     lagged = CATALOGUE["motor_lag"].input_map(np.array([tau, 1.0]), step, base, step.u)
     pole = np.exp(-batch.dt / tau)
     assert lagged[0, 0, 0] == pytest.approx(1.0 - pole**11, abs=1e-9)  # 11 samples after the step
-    delayed = CATALOGUE["input_delay"].input_map(np.array([15 * batch.dt]), step, base, step.u)
+    delayed = CATALOGUE["input_delay"].input_map(np.array([15 * batch.dt, 1.0]), step, base, step.u)
     np.testing.assert_allclose(delayed[0, :5, 0], 0.0)  # u(t - 0.15 s): before the step
     np.testing.assert_allclose(delayed[0, 5:, 0], 1.0)
 
@@ -125,7 +125,7 @@ def test_lag_and_delay_start_from_the_commands_before_the_window(batch, base):
 def test_mapped_commands_are_trimmed_at_the_warm_start(batch, base):
     """The linearisation point is the warm start: the mapped commands have zero warm-start mean, as the
     raw trimmed ones do."""
-    for name, theta in (("motor_lag", [0.1, 1.2]), ("input_delay", [0.05]), ("thrust_nonlinearity", [2.0])):
+    for name, theta in (("motor_lag", [0.1, 1.2]), ("input_delay", [0.05, 0.9]), ("thrust_nonlinearity", [2.0])):
         aug = apply_effects([CATALOGUE[name]], [np.array(theta)], batch, base)
         np.testing.assert_allclose(aug.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12, err_msg=name)
     np.testing.assert_allclose(batch.u[:, : batch.warm].mean(axis=1), 0.0, atol=1e-12)
@@ -161,7 +161,7 @@ def test_drag_moment_follows_the_body_axes_velocity_in_a_turn(batch, base):
     np.testing.assert_allclose(windy, e, atol=1e-12)
 
 
-@pytest.mark.parametrize("name, truth", [("motor_lag", [0.08, 1.0]), ("input_delay", [0.035]), ("rotor_drag", [0.4, 0.3, -1.5, 0.0, 0.0])])
+@pytest.mark.parametrize("name, truth", [("motor_lag", [0.08, 1.0]), ("input_delay", [0.035, 1.0]), ("rotor_drag", [0.4, 0.3, -1.5, 0.0, 0.0])])
 def test_fit_recovers_the_parameters_of_a_known_effect(batch, base, name, truth):
     effect = CATALOGUE[name]
     made = predict_batch(base, batch, [effect], [np.array(truth)])
