@@ -21,6 +21,7 @@ from quad_modelling.core.diagnosis.statistics import (
     window_tic,
 )
 from quad_modelling.core.diagnosis.verdicts import (
+    DETERMINED_SIGMAS,
     VERDICTS,
     ParameterCheck,
     fold_stability,
@@ -82,7 +83,9 @@ NUISANCE_MIN_COST_DROP = 0.01
 at least this fraction and every nuisance estimate is at least :data:`NUISANCE_MIN_SIGMAS` sigma from zero:
 otherwise the data shows no wind and it is held at zero (an indoor flight)."""
 
-NUISANCE_MIN_SIGMAS = 2.0
+NUISANCE_MIN_SIGMAS = DETERMINED_SIGMAS
+"""3 sigma, as a determined parameter: at 2 sigma a simulated flight with no wind freed a wind moment of 2.2 sigma
+(a wind of 1 cm/s)."""
 
 
 # ----------------------------------------------------------------------------- which effect
@@ -132,6 +135,8 @@ class EffectOutcome:
             "params": {} if self.theta is None else {k: float(v) for k, v in zip(e.parameters, self.theta)},
             "param_units": dict(zip(e.parameters, e.units)),
             "parameters": [c.to_json(e.plausible_source) for c in self.parameters],
+            **({"derived": e.derived(self.theta, np.array([c.sigma for c in self.parameters]))}
+               if e.derived is not None and self.theta is not None and self.parameters else {}),
             "shrink_by_variable": self.shrink_by_variable,
             "total_error": self.total,
             "fold_stability": self.stability,

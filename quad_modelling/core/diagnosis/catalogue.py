@@ -142,7 +142,8 @@ def _drag_forcing(theta, batch: WindowBatch, base: BaseModel, u):
 
 def drag_wind_estimate(theta, sigma=None) -> dict:
     """The wind behind a rotor-drag fit, :math:`w = m / c_m` [m/s] in N (with its 1-sigma from the fit's, the
-    product rule, when ``sigma`` is given); None entries when c_m is zero."""
+    product rule, when ``sigma`` is given); None entries when c_m is zero. ``diagnosis.json`` reports it per effect
+    under ``derived``."""
     c_m, m_x, m_y = float(theta[2]), float(theta[3]), float(theta[4])
     if c_m == 0.0:
         return {"w_x": None, "w_y": None}
@@ -151,6 +152,7 @@ def drag_wind_estimate(theta, sigma=None) -> dict:
         s_c, s_x, s_y = float(sigma[2]), float(sigma[3]), float(sigma[4])
         out["sigma_w_x"] = abs(out["w_x"]) * float(np.hypot(s_x / m_x if m_x else 0.0, s_c / c_m)) if m_x else s_x / abs(c_m)
         out["sigma_w_y"] = abs(out["w_y"]) * float(np.hypot(s_y / m_y if m_y else 0.0, s_c / c_m)) if m_y else s_y / abs(c_m)
+        out = {k: (v if v is None or np.isfinite(v) else None) for k, v in out.items()}  # a held wind has no sigma
     return out
 
 
@@ -329,7 +331,7 @@ CATALOGUE: dict[str, Effect] = {
                ("c_h", "c_v", "c_m", "m_x", "m_y"), ("1/s", "1/s", "rad/s2 per m/s", "rad/s2", "rad/s2"), (0.0,) * 5,
                (0.0, 0.0, -20.0, -100.0, -100.0), (5.0, 5.0, 20.0, 100.0, 100.0),
                ("acc_x", "acc_y", "acc_z", "roll_acc", "pitch_acc"), forcing=_drag_forcing,
-               plausible=_drag_plausible, null=(0.0, 0.0, 0.0, 0.0, 0.0), nuisance=("m_x", "m_y"),
+               plausible=_drag_plausible, null=(0.0, 0.0, 0.0, 0.0, 0.0), nuisance=("m_x", "m_y"), derived=drag_wind_estimate,
                plausible_source="drag per mass 0.01-2 1/s (Foerster 2015; Faessler et al. 2018), hub <= 0.1 m above "
                                 "the CG, wind <= 5 m/s (DRAG_PER_MASS_MAX, HUB_HEIGHT_MAX, WIND_MAX)"),
         Effect("battery", "battery voltage: thrust gain proportional to voltage, and voltage sag",

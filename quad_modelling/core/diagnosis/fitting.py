@@ -62,7 +62,9 @@ def fit_effects(
     with :func:`scipy.optimize.least_squares` (trust-region reflective, bounds
     from the catalogue, parameters scaled by their bound widths). ``held``: parameter names (of any of
     ``effects``) kept at their ``initial`` value. The 1-sigma of each free parameter is the HAC sandwich of
-    :func:`~quad_modelling.core.identification.uncertainty.hac_covariance` (windows as blocks) at the optimum.
+    :func:`~quad_modelling.core.identification.uncertainty.hac_covariance` (windows as blocks) at the optimum,
+    over the parameters whose Jacobian column is not zero (one on a bound where its term vanishes, drag's c_v at
+    0 on the NanoBench shape split, made J^T J singular and every sigma NaN); the others' stay NaN.
     """
     effects = list(effects)
     if not effects:
@@ -114,9 +116,13 @@ def fit_effects(
             best = fit
     cov_theta = np.full((z0.size, z0.size), np.nan)
     shape = target.shape
+    jac = np.asarray(best.jac)
+    norms = np.linalg.norm(jac, axis=0)
+    moving = norms > 1e-9 * max(float(norms.max()), 1e-300)  # a parameter on a bound where it does nothing: no column
+    covered = np.flatnonzero(free)[moving]
     try:
-        cov = hac_covariance(best.jac.reshape(*shape, -1), best.fun.reshape(shape), bandwidth_samples(batch.dt, FIT_STRIDE))
-        cov_theta[np.ix_(free, free)] = cov * np.outer(width[free], width[free])
+        cov = hac_covariance(jac[:, moving].reshape(*shape, -1), best.fun.reshape(shape), bandwidth_samples(batch.dt, FIT_STRIDE))
+        cov_theta[np.ix_(covered, covered)] = cov * np.outer(width[covered], width[covered])
     except np.linalg.LinAlgError:
         pass  # a singular J^T J: the parameters are not separable on these windows, their sigmas stay NaN
     sigma = np.sqrt(np.clip(np.diag(cov_theta), 0.0, None))

@@ -76,6 +76,7 @@ class Effect:
     plausible_source: str = ""
     null: tuple[float | None, ...] = ()
     nuisance: tuple[str, ...] = ()
+    derived: Callable | None = None  # (theta, sigma) -> {name: value}: quantities reported from the parameters
 
     def plausible_ranges(self, base: BaseModel) -> tuple[tuple[float, float], ...]:
         """(low, high) per parameter for the vehicle of ``base``; the search bounds when none is given."""

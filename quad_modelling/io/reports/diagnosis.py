@@ -63,7 +63,11 @@ def reason_of(effect: dict) -> str:
     text = effect.get("reason") or effect.get("note") or (
         f"held-out shrink {percent(effect['shrink'])}, training shrink {percent(effect['train_shrink'])}")
     text = text.strip()
-    return text[0].upper() + text[1:] + ("" if text.endswith(".") else ".")
+    names = set(effect.get("params", {}))
+    first = text.split(" ", 1)[0]
+    if first not in names:  # a parameter's name (g_ref, c_h) keeps its case
+        text = text[0].upper() + text[1:]
+    return text + ("" if text.endswith(".") else ".")
 
 
 # ----------------------------------------------------------------------------- verdict
@@ -140,8 +144,8 @@ def _which(data: dict, found: list[dict]) -> list[str]:
         out.append(f"Warning: on this data {top['name']} cannot be told apart from {', '.join(top['confounded_with'])}.")
     if len(data["ladder"]) > 1:
         last = data["ladder"][-1]
-        out.append(f"With all found effects ({' + '.join(last['effects'])}) the mean held-out RMS over the 12 variables is "
-                   f"{last['normalised_gap']:.0%} of the base model's.")
+        out.append(f"With all found effects ({' + '.join(last['effects'])}) the mean held-out RMS over the scored "
+                   f"variables is {last['normalised_gap']:.0%} of the base model's.")
     return out
 
 
@@ -199,7 +203,8 @@ def markdown_report(data: dict, vehicle: str, figures: list[str]) -> str:
                  "rank is assessed with the effects above it held at their identified parameters ('on top of'), so its "
                  "shrink is what it adds to them; 'alone' is the effect assessed on its own against the base model. "
                  "Held-out and training: shrink of the gap on the effect's variables; windows: held-out windows "
-                 "improved / scored; total error: change of the mean held-out RMS over the 12 variables, relative to "
+                 "improved / scored; total error: change of the mean held-out RMS over the scored variables (accelerations "
+                 "and angular accelerations), relative to "
                  "the base model (negative = better).") + [""]
     out += narrow_table(SUMMARY_COLUMNS, (_summary_row(k, e) for k, e in enumerate(data["effects"], 1))) + [""]
     for k, effect in enumerate(data["effects"], 1):
@@ -210,8 +215,9 @@ def markdown_report(data: dict, vehicle: str, figures: list[str]) -> str:
             out += prose(f"**{key}**: {text}", first="- ", rest="  ")
     out += ["", "## Held-out gap per variable (display units)", ""] + _gap_table(data)
     out += ["", "## Ladder", ""]
-    out += narrow_table(("rung", "mean RMS / base RMS (12 variables)"),
-                        ((f"base{''.join(' + ' + e for e in rung['effects'])}", f"{rung['normalised_gap']:.3f}") for rung in data["ladder"]))
+    out += narrow_table(("rung", "mean RMS / base RMS (scored variables)", "(12 variables)"),
+                        ((f"base{''.join(' + ' + e for e in rung['effects'])}", f"{rung['normalised_gap']:.3f}",
+                          f"{rung['normalised_gap_all']:.3f}" if "normalised_gap_all" in rung else "-") for rung in data["ladder"]))
     if data.get("where"):
         out += ["", "## Where: unexplained error after the best model", ""] + _where_lines(data)
     reg = data["regimes"]
@@ -284,7 +290,7 @@ def _effect_block(rank: int, effect: dict, data: dict) -> list[str]:
                      f"alone: {alone_text}; confounded with: {', '.join(effect.get('confounded_with') or []) or '-'}")
     total = effect.get("total_error")
     if total:
-        items.append(f"total error (mean held-out RMS over the 12 variables / base): {total['before']:.3f} -> "
+        items.append(f"total error (mean held-out RMS over the scored variables / base): {total['before']:.3f} -> "
                      f"{total['after']:.3f} ({total['change']:+.3f})")
     folds = effect.get("fold_stability")
     if folds:

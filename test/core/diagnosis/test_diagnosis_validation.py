@@ -19,7 +19,8 @@ DURATION = 60.0
 @pytest.fixture(scope="module")
 def result():
     """Seed 0: motor imbalance alone, the null case and the CoM-offset disturbance, base fitted the user's way."""
-    return validate("linkquad", effects=("motor_imbalance",), seeds=(0,), pairs=[], disturbances=("com_offset",), duration=DURATION)
+    return validate("linkquad", effects=("motor_imbalance",), seeds=(0,), pairs=[], disturbances=("com_offset",), duration=DURATION,
+                    jobs=2)  # three cases on two local workers: the fan-out as --validate runs it
 
 
 def test_a_withheld_effect_is_found_with_the_base_fitted_on_the_same_effect_on_flights(result):

@@ -182,7 +182,7 @@ def test_summary_table_and_effect_blocks_with_units_sigma_and_bounds():
     assert drag[2:4] == ["Rotor/body drag: force against the velocity, and its moment about the CG.",
                          "Reason: Shrinks the held-out gap by 40% on 9 of 10 windows, as on the training flights."]
     assert "- scored on acc_x, acc_y (candidates acc_x, acc_y, acc_z, roll_acc, pitch_acc)" in drag
-    assert "- total error (mean held-out RMS over the 12 variables / base): 1.000 -> 0.800 (-0.200)" in drag
+    assert "- total error (mean held-out RMS over the scored variables / base): 1.000 -> 0.800 (-0.200)" in drag
     assert ("- fold stability (3 folds): stable -- every fold within 10% of the fit; per fold: c_h 0.38, 0.39, 0.4"
             in " ".join(" ".join(drag).split()))
     assert _section(report, "### 1. rotor_drag: found") == [
@@ -221,8 +221,8 @@ def test_where_after_the_best_model_and_the_base_tables_in_display_units():
         "| regime | ratio | larger at | concentrated | quartile edges |", "|---|---|---|---|---|",
         "| speed [m/s] | 1.80 | high | yes | 0, 0.5, 1, 1.5, 2 |", "| height [m] | 1.25 | low | no | 0.1, 0.4, 0.5, 0.6, 1 |",
         "| tilt | - | - | no | constant over the held-out windows |"]
-    assert _section(report, "## Ladder") == ["| rung | mean RMS / base RMS (12 variables) |", "|---|---|", "| base | 1.000 |",
-                                             "| base + rotor_drag | 0.800 |"]
+    assert _section(report, "## Ladder") == ["| rung | mean RMS / base RMS (scored variables) | (12 variables) |", "|---|---|---|",
+                                             "| base | 1.000 | - |", "| base + rotor_drag | 0.800 | - |"]
     assert _section(report, "## Where: base model residual by regime") == [
         "| regime | quartile edges | RMS per quartile | top/bottom |", "|---|---|---|---|",
         "| speed [m/s] | 0, 0.5, 1, 1.5, 2 | 1.00, 1.10, 1.20, 1.50 | 1.50 |",
