@@ -38,18 +38,14 @@ slope over the warm start (:func:`~quad_modelling.core.effects.predict_batch`).
    (:func:`excited_windows`: its correction of the prediction is at least
    :data:`EXCITED_MIN_CORRECTION` of the window's gap, decided by the fitted
    model, never the truth), on training and held-out data alike.
-4. **Verdict rule** (constants below):
-
-   * ``found``: held-out shrink :math:`S_e \\ge` :data:`FOUND_MIN_SHRINK`, the
-     5 % lower bound of its bootstrap over the excited held-out windows
-     (:data:`BOOTSTRAP` resamples, seeded) above zero, at least
-     :data:`FOUND_MIN_WINDOW_FRACTION` of them improved, and a positive
-     training shrink (a held-out gain the fitted flights do not show is chance:
-     e.g. a ground-effect fit near zero on the training flights that happens to
-     help one take-off window of the held-out flight);
-   * ``rejected``: the training shrink is at least :data:`FOUND_MIN_SHRINK` but
-     the held-out test above fails (it fits the training data, not new data);
-   * ``insignificant``: otherwise.
+4. **Verdict rule** (:mod:`~quad_modelling.core.diagnosis.verdicts`, each verdict with its reason):
+   ``found`` when the held-out shrink passes (:data:`FOUND_MIN_SHRINK`, the 5 % lower bound of its
+   bootstrap over the excited held-out windows above zero, at least :data:`FOUND_MIN_WINDOW_FRACTION` of
+   them improved, a positive training shrink), the total held-out error falls, and every material
+   parameter is inside its bounds, plausible and stable across folds of the training flights; ``weak``
+   when only the parameter rules fail; ``not supported`` otherwise. With both motor lag and input delay
+   searched, the joint fit (:func:`motor_dynamics_separability`) arbitrates between the twins
+   (:func:`arbitrate_motor_dynamics`).
 
    Effects are ranked by conditional contribution (:func:`greedy_ranking`): the found effect of
    largest held-out shrink first, then every other effect assessed again on top of the ranked ones

@@ -121,8 +121,9 @@ def fit_effects(
     moving = norms > 1e-9 * max(float(norms.max()), 1e-300)  # a parameter on a bound where it does nothing: no column
     covered = np.flatnonzero(free)[moving]
     try:
-        cov = hac_covariance(jac[:, moving].reshape(*shape, -1), best.fun.reshape(shape), bandwidth_samples(batch.dt, FIT_STRIDE))
-        cov_theta[np.ix_(covered, covered)] = cov * np.outer(width[covered], width[covered])
+        if moving.any():  # else no parameter moves the prediction at the optimum: every sigma stays NaN
+            cov = hac_covariance(jac[:, moving].reshape(*shape, -1), best.fun.reshape(shape), bandwidth_samples(batch.dt, FIT_STRIDE))
+            cov_theta[np.ix_(covered, covered)] = cov * np.outer(width[covered], width[covered])
     except np.linalg.LinAlgError:
         pass  # a singular J^T J: the parameters are not separable on these windows, their sigmas stay NaN
     sigma = np.sqrt(np.clip(np.diag(cov_theta), 0.0, None))

@@ -342,3 +342,18 @@ def test_the_touchdown_window_is_left_out(flight, linkquad):
     for t0 in kept.t0:
         around = (flight.t >= t0 - CONTACT_GUARD_S) & (flight.t < t0 + config.window_s + CONTACT_GUARD_S)
         assert np.min(ground - flight.pos_n[around, 2]) >= GROUND_CONTACT_M
+
+
+def test_sigmas_of_parameters_that_do_nothing_are_nan_not_an_error(batch, base):
+    """Gyroscopic torques on windows without rotation: no parameter moves the prediction, the fit keeps its start
+    and every 1-sigma is NaN (before, an empty Jacobian ended the validation in a ValueError). With rotation the
+    body term is determined and only the propeller term, ~100x smaller on the LinkQuad, is not."""
+    effect = CATALOGUE["gyroscopic"]
+    still = replace(batch, rates=np.zeros_like(batch.rates))
+    scales = variable_scales(still, predict_batch(base, still))
+    fit = fit_effects(base, still, [effect], scales)
+    assert np.isnan(fit.sigmas[0]).all() and fit.thetas[0].tolist() == [0.0, 0.0]
+    made = predict_batch(base, batch, [effect], [np.array([1.0, 0.0])])
+    turning = replace(batch, measured=made)
+    fit = fit_effects(base, turning, [effect], variable_scales(turning, predict_batch(base, turning)))
+    assert fit.thetas[0][0] == pytest.approx(1.0, rel=0.05) and 0.0 < fit.sigmas[0][0] < 0.1

@@ -102,6 +102,10 @@ def test_fold_stability_same_sign_within_half_of_the_full_fit(batch):
     # an undetermined parameter (within 3 sigma of its null) does not decide: the finding does not rest on it
     loose = [replace(checks[0], sigma=1e-3), checks[1]]
     assert fold_stability(GROUND, theta, loose, batch, lambda fold: np.array([-0.001, 0.2]))["stable"] is True
+    # ... but a finding none of whose material parameters is determined rests on nothing
+    nothing = [replace(checks[0], sigma=1e-3), replace(checks[1], sigma=0.1, null=0.0)]
+    none_determined = fold_stability(GROUND, theta, nothing, batch, lambda fold: theta)
+    assert none_determined["stable"] is False and none_determined["reason"].startswith("no material parameter is determined")
     too_few = fold_stability(GROUND, theta, checks, batch.subset(np.arange(3)), lambda fold: theta)
     assert too_few["stable"] is None and "too few training windows (3)" in too_few["reason"]
 
