@@ -13,7 +13,7 @@ from quad_modelling.core.sim.params import sim_params_for
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.reports.validation import validation_markdown, validation_summary
 
-DURATION = 60.0
+DURATION = 45.0
 
 
 @pytest.fixture(scope="module")
@@ -80,7 +80,8 @@ def test_effects_off_base_mode_and_a_perfect_imu_reach_a_ceiling_of_one():
     params = sim_params_for("linkquad")
     perfect = replace(params.sensors, acc_noise=0.0, acc_bias=0.0, acc_drift=0.0, gyro_noise=0.0, gyro_bias=0.0, gyro_drift=0.0)
     result = validate("linkquad", effects=("motor_imbalance",), seeds=(0,), pairs=[], disturbances=(), null=False,
-                      duration=DURATION, sim_params=replace(params, sensors=perfect), base_from="effects-off")
+                      duration=DURATION, sim_params=replace(params, sensors=perfect), base_from="effects-off",
+                      catalogue=("motor_imbalance", "battery", "rotor_drag"))
     run = result["runs"][0]
     assert "every effect off" in result["flights"]["base"]
     assert run["sensor_ceiling"] == pytest.approx(1.0)
