@@ -82,7 +82,7 @@ PHYSICS_KEYS = (
     "physics_ixx",
     "physics_iyy",
 )
-"""Constants of the nonlinear physics model (:mod:`quad_modelling.core.models.physics_params`), optional in a
+"""Constants of the nonlinear physics model (:mod:`quad_modelling.core.physics.parameters`), optional in a
 vehicle file (validated when present; the ``physics`` model names the missing ones): the motor map
 Ω_ss = k_u u + Ω_off, the rotor time constant τ_m and command delay δ, thrust/torque k_f, k_m (T = k_f Ω², Q = k_m Ω²), the linear
 rotor drag d_xy, d_z and its arm h_d (FRD z of where it acts) and the roll/pitch inertias the physics model uses (identified separately from the

@@ -67,8 +67,10 @@ from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
 from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
-from quad_modelling.core.models.physics import Observer, delayed_commands, rotor_speeds
-from quad_modelling.core.models.physics_params import PHYSICS_UNITS, PhysicsParameters
+from quad_modelling.core.models.physics import Observer
+from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_wrench
+from quad_modelling.core.physics.rotors import delayed_commands, rotor_speeds
+from quad_modelling.core.physics.parameters import PHYSICS_UNITS, PhysicsParameters
 from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
 from quad_modelling.errors import DataError
@@ -213,32 +215,36 @@ def training_segments(flights: Sequence[FlightLog], config: EvaluationConfig, ob
     return segments
 
 
+def _wrench_per_unit(p: PhysicsParameters, rotor: np.ndarray, v_b: np.ndarray, **unit) -> tuple[np.ndarray, np.ndarray]:
+    """(F_B, τ_B) (N, 3) of the one physics' rotor wrench (:func:`~quad_modelling.core.physics.rigid_body.rotor_wrench`)
+    with every constant it is linear in set to 0 except ``unit`` (e.g. ``thrust_constant=1``): the regressor column of
+    that constant."""
+    zero = {"thrust_constant": 0.0, "torque_constant": 0.0, "drag": (0.0, 0.0, 0.0), "drag_arm": 0.0, "prop_inertia": 0.0}
+    return rotor_wrench(p.with_values(**{**zero, **unit}), rotor, np.zeros_like(rotor), v_b)
+
+
 def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: float) -> dict[str, tuple]:
-    """Per channel (state y (N, k_y), regressors X (N, k_y, k_θ), known part (N, k_y)) of one segment."""
+    """Per channel (state y (N, k_y), regressors X (N, k_y, k_θ), known part (N, k_y)) of one segment: the columns are
+    the one physics' wrench per unit constant (module docstring), the known part its gyroscopic torque."""
     q = p.with_values(time_constant=time_constant, delay=delay)
     commands = delayed_commands(q, seg.u, seg.t)
     rotor = rotor_speeds(q, commands, seg.t)
-    w2 = rotor * rotor
-    total = rotor.sum(axis=1)
     m = p.mass
-    ixx, iyy, izz = p.inertia
-    pr, qr, rr = seg.rates.T
-    body = np.zeros((len(seg.t), 3, 3))  # body-frame force per unit constant, columns (k_f, d_xy, d_z)
-    body[:, 2, 0] = -w2.sum(axis=1) / m
-    body[:, 0, 1] = -total * seg.v_b[:, 0] / m
-    body[:, 1, 1] = -total * seg.v_b[:, 1] / m
-    body[:, 2, 2] = -total * seg.v_b[:, 2] / m
-    zeros = np.zeros((len(seg.t), 1))
+    inertia = np.asarray(p.inertia, dtype=float)
+    thrust_force, thrust_torque = _wrench_per_unit(p, rotor, seg.v_b, thrust_constant=1.0)
+    drag_xy_force, drag_xy_torque = _wrench_per_unit(p, rotor, seg.v_b, drag=(1.0, 1.0, 0.0), drag_arm=1.0)
+    drag_z_force, _ = _wrench_per_unit(p, rotor, seg.v_b, drag=(0.0, 0.0, 1.0))
+    _, yaw_torque = _wrench_per_unit(p, rotor, seg.v_b, torque_constant=1.0)
+    body = np.stack([thrust_force, drag_xy_force, drag_z_force], axis=2) / m  # body force per unit (k_f, d_xy, d_z)
+    gyro = gyroscopic_torque(seg.rates, inertia) / inertia
     # yaw's rotor-reaction term I_p/I_zz sum s_i dΩ_i/dt integrates to I_p/I_zz sum s_i (Ω(t) - Ω(t_0)): added to the known part
     # after integration (below), exact for the model's rectangle rule up to the filter's own step.
     return {
         "velocity": (seg.vel_n, np.einsum("nij,njk->nik", seg.rot, body), np.zeros((len(seg.t), 3))),
-        "roll": (seg.rates[:, :1], np.stack([-w2 @ p.positions[:, 1], total * seg.v_b[:, 1]], axis=1)[:, None, :],
-                 (-(izz - iyy) / ixx * qr * rr)[:, None]),
-        "pitch": (seg.rates[:, 1:2], np.stack([w2 @ p.positions[:, 0], -total * seg.v_b[:, 0]], axis=1)[:, None, :],
-                  (-(ixx - izz) / iyy * pr * rr)[:, None]),
-        "yaw": (seg.rates[:, 2:], (w2 @ p.spins)[:, None, None], (-(iyy - ixx) / izz * pr * qr)[:, None] + zeros,
-                p.prop_inertia / izz * (rotor @ p.spins)[:, None]),
+        "roll": (seg.rates[:, :1], np.stack([thrust_torque[:, 0], drag_xy_torque[:, 0]], axis=1)[:, None, :], gyro[:, :1]),
+        "pitch": (seg.rates[:, 1:2], np.stack([thrust_torque[:, 1], drag_xy_torque[:, 1]], axis=1)[:, None, :], gyro[:, 1:2]),
+        "yaw": (seg.rates[:, 2:], yaw_torque[:, 2][:, None, None], gyro[:, 2:],
+                p.prop_inertia / inertia[2] * (rotor @ p.spins)[:, None]),
     }
 
 

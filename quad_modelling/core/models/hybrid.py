@@ -53,7 +53,10 @@ import numpy as np
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
-from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsParameters, PhysicsState, PhysicsStream
+from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsStream
+from quad_modelling.core.physics.parameters import PhysicsParameters
+from quad_modelling.core.physics.rigid_body import PhysicsState
+from quad_modelling.core.physics.rotors import delayed_commands
 from quad_modelling.core.models.residual_net import ResidualNet
 from quad_modelling.core.preprocess import TrimConfig, state_measurement, trim_prediction
 from quad_modelling.core.variables import VARIABLES
@@ -88,7 +91,7 @@ def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
 def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(N, 8) commands of the hybrid per row: the delayed commands the rotors answer
     (:func:`physics.delayed_commands`) and the logged commands ``u`` (N, 4) stamped ``t`` (N,) [s]."""
-    return np.concatenate([physics.delayed_commands(p, u, t), np.asarray(u, dtype=float)], axis=1)
+    return np.concatenate([delayed_commands(p, u, t), np.asarray(u, dtype=float)], axis=1)
 
 
 def physics_constants(p: PhysicsParameters) -> dict[str, float | list]:

@@ -41,7 +41,9 @@ import numpy as np
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.hybrid import HybridModel, hybrid_commands, observer_dict, observer_rows
-from quad_modelling.core.models.physics import Observer, PhysicsParameters
+from quad_modelling.core.models.physics import Observer
+from quad_modelling.core.physics import rigid_body, rotors
+from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.models.residual_net import ResidualNet
 from quad_modelling.core.training.rollout import (
     VAL_FRACTION,
@@ -98,7 +100,7 @@ def segment_arrays(p: PhysicsParameters, segment: FlightLog, observer: Observer)
     measured = state_measurement(segment)
     rows = np.arange(len(segment))
     commands = hybrid_commands(p, segment.u, segment.t)
-    rotor = physics.rotor_speeds(p, commands[:, :4], segment.t)
+    rotor = rotors.rotor_speeds(p, commands[:, :4], segment.t)
     disturbance = physics.disturbance_estimate(p, segment.t, commands[:, :4], measured, rotor, rows, observer)
     dt = np.diff(segment.t)
     arrays = {
@@ -138,7 +140,7 @@ def feature_statistics(segments: list[dict[str, np.ndarray]]) -> tuple[np.ndarra
 
     count, mean, m2 = 0, None, None
     for s in segments:
-        state = physics.PhysicsState(np.zeros_like(s["vel"]), s["vel"], s["rot"].reshape(-1, 3, 3), s["rates"], s["rotor"],
+        state = rigid_body.PhysicsState(np.zeros_like(s["vel"]), s["vel"], s["rot"].reshape(-1, 3, 3), s["rates"], s["rotor"],
                                      np.zeros(len(s["vel"])))
         f = net_features(state, s["u"])
         n, f_mean = len(f), f.mean(axis=0)
@@ -181,10 +183,10 @@ def acceleration_scale(p: PhysicsParameters, logs: Sequence[FlightLog], spans: S
         if len(log) < 2:
             continue
         measured = measured_variables(log)
-        commands = physics.delayed_commands(p, log.u, log.t)
-        rotor = physics.rotor_speeds(p, commands, log.t)
+        commands = rotors.delayed_commands(p, log.u, log.t)
+        rotor = rotors.rotor_speeds(p, commands, log.t)
         state = physics.measured_states(p, measured, rotor, np.arange(len(log)))
-        acc_n, ang_acc = physics.accelerations(p, state.vel_n, state.rot, state.rates, rotor, physics.rotor_acceleration(p, rotor, commands))
+        acc_n, ang_acc = rigid_body.accelerations(p, state.vel_n, state.rot, state.rates, rotor, rotors.rotor_acceleration(p, rotor, commands))
         lin_b = np.einsum("bji,bj->bi", state.rot, measured[:, 6:9] - acc_n)
         residual = np.concatenate([lin_b, measured[:, 15:18] - ang_acc], axis=1)
         residual = residual[np.all(np.isfinite(residual), axis=1)]
@@ -238,6 +240,7 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
     """``loss_fn(module, batch)`` of :func:`train_rollout` (module docstring): observer, then K twin steps."""
     import torch
 
+    from quad_modelling.core.physics import arrays
     from quad_modelling.core.training import physics_torch as pt
 
     scale_v, scale_w = (float(s) for s in scales)
@@ -267,7 +270,7 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
             r = a + k
             u = batch["u"][:, r]
             delta = net(_features(state.vel_n, state.rot, state.rates, u, state.rotor))
-            lin = d[:, :3] + pt.rotate(state.rot, delta[:, :3])
+            lin = d[:, :3] + arrays.rotate(state.rot, delta[:, :3])
             state = pt.step(tp, state, u[:, :4], batch["dt"][:, r, 0], lin, d[:, 3:] + delta[:, 3:])
             loss = loss + norm(state.vel_n - batch["vel"][:, r + 1], eps_v).sum() / scale_v \
                 + norm(state.rates - batch["rates"][:, r + 1], eps_w).sum() / scale_w

@@ -17,7 +17,7 @@ from quad_modelling.core.identification.physics_fit import (
     training_segments,
 )
 from quad_modelling.core.models.physics import Observer
-from quad_modelling.core.models.physics_params import PhysicsParameters
+from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.io.loader import load_flight

@@ -22,7 +22,10 @@ from quad_modelling.core.models.hybrid import (
     observer_rows,
 )
 from quad_modelling.core.training.hybrid import HybridTrainingConfig, train_hybrid_on_flights
-from quad_modelling.core.models.physics import PhysicsParameters, PhysicsPredictor
+from quad_modelling.core.models.physics import PhysicsPredictor
+from quad_modelling.core.physics.parameters import PhysicsParameters
+from quad_modelling.core.physics.rigid_body import PhysicsState
+from quad_modelling.core.physics.rotors import steady_rotor_speed
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.models.residual_net import ResidualNet, zero_net
 from quad_modelling.core.training.rollout import RolloutConfig
@@ -73,7 +76,7 @@ def sim_flight():
 def random_states(params, batch, rng):
     """Flying states near hover: speeds ~1 m/s, attitudes within 0.5 rad, rates ~2 rad/s, rotors near hover speed."""
     hover = params.hover_rotor_speed(GRAVITY)
-    return physics.PhysicsState(rng.normal(size=(batch, 3)), rng.normal(size=(batch, 3)),
+    return PhysicsState(rng.normal(size=(batch, 3)), rng.normal(size=(batch, 3)),
                                 frames.euler_ned_to_matrix(rng.uniform(-0.5, 0.5, (batch, 3))), 2 * rng.normal(size=(batch, 3)),
                                 hover * rng.uniform(0.8, 1.2, (batch, 4)), rng.uniform(-3, 3, batch))
 
@@ -174,7 +177,7 @@ def rollout_bounds(log, params, horizon_s):
     """Largest speed [m/s] and rate [rad/s] a 50-step rollout may reach from the flight's states: the measured
     maximum plus what the vehicle's largest force / torque could add over the horizon (all rotors at the speed of
     the largest command, plus gravity; the roll/pitch torque of two rotors at that speed on their arm)."""
-    rotor_max = float(physics.steady_rotor_speed(params, np.array(params.input_max)))
+    rotor_max = float(steady_rotor_speed(params, np.array(params.input_max)))
     thrust_max = params.thrust_constant * rotor_max**2
     acc_max = 4 * thrust_max / params.mass + GRAVITY
     arm = float(np.max(np.abs(params.positions)))

@@ -10,20 +10,10 @@ import pytest
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.models.physics import (
-    Disturbance,
-    Observer,
-    PhysicsPredictor,
-    PhysicsState,
-    accelerations,
-    delayed_commands,
-    first_order_scan,
-    rollout,
-    rotor_speeds,
-    step,
-    steady_rotor_speed,
-)
-from quad_modelling.core.models.physics_params import PhysicsParameters
+from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor, rollout, step
+from quad_modelling.core.physics.rigid_body import PhysicsState, accelerations
+from quad_modelling.core.physics.rotors import delayed_commands, first_order_scan, rotor_speeds, steady_rotor_speed
+from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.models.registry import make_model, streaming_predictor
 from quad_modelling.core.models.streaming import predict_window_by_stream, push_sample
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig, load_vehicle

@@ -164,7 +164,9 @@ def test_hybrid_input_statistics_merged_per_segment_equal_those_of_every_row():
     """The residual net's normalisation from per-segment means and squared deviations (Chan's merge) equals
     np.mean / np.std over the stacked inputs of every row of the bundled bag's segments (1e-12 relative)."""
     from quad_modelling.core.models.hybrid import net_features
-    from quad_modelling.core.models.physics import Observer, PhysicsParameters, PhysicsState
+    from quad_modelling.core.models.physics import Observer
+    from quad_modelling.core.physics.parameters import PhysicsParameters
+    from quad_modelling.core.physics.rigid_body import PhysicsState
     from quad_modelling.core.training.hybrid import feature_statistics, flight_segments
     from quad_modelling.core.vehicle import load_vehicle
     from quad_modelling.io.loader import load_flight

@@ -1,4 +1,4 @@
-"""Constants of the nonlinear physics model (:mod:`quad_modelling.core.models.physics`), read from a vehicle file.
+"""Constants of the nonlinear physics model (:mod:`quad_modelling.core.physics`), read from a vehicle file.
 
 The physics constants are the vehicle file's :data:`~quad_modelling.core.vehicle.PHYSICS_KEYS` (optional in a
 vehicle file; the ``physics`` model needs them all and names the missing ones) plus its mass, yaw inertia

@@ -1,0 +1,138 @@
+"""The few array operations the physics needs, on numpy arrays and torch tensors alike.
+
+The quadrotor's physics (:mod:`quad_modelling.core.physics`) is written once against these operations plus
+the arithmetic operators, so the hybrid's training back-propagates through the very formulas the numpy model
+runs (:mod:`quad_modelling.core.training.physics_torch` only converts states and parameters). torch is never
+imported here: a tensor brings its own module, so the numpy path does not need torch installed.
+
+Shapes: a batch of B members along axis 0; vectors (B, 3), rotations (B, 3, 3), rotor quantities (B, 4).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def is_tensor(x) -> bool:
+    """True for a torch tensor (told by its type's module, without importing torch)."""
+    return type(x).__module__.split(".", 1)[0] == "torch"
+
+
+def clamp_min(x, low: float):
+    """max(x, low) element-wise."""
+    return x.clamp_min(low) if is_tensor(x) else np.maximum(x, low)
+
+
+def exp(x):
+    """e^x element-wise (a Python float gives a numpy float)."""
+    return x.exp() if is_tensor(x) else np.exp(x)
+
+
+def sqrt(x):
+    """√x element-wise."""
+    return x.sqrt() if is_tensor(x) else np.sqrt(x)
+
+
+def cross(a, b):
+    """a × b of (..., 3) vectors."""
+    if is_tensor(a) or is_tensor(b):
+        import torch
+
+        return torch.linalg.cross(a, b, dim=-1)
+    return np.cross(a, b)
+
+
+def rotate(rot, v):
+    """R v (B, 3) of rotations (B, 3, 3) and vectors (B, 3) (a broadcast sum on torch: its batched 3x3 matmul is slow)."""
+    if is_tensor(rot):
+        return (rot * v[:, None, :]).sum(dim=2)
+    return np.einsum("bij,bj->bi", rot, v)
+
+
+def rotate_back(rot, v):
+    """R^T v (B, 3)."""
+    if is_tensor(rot):
+        return (rot * v[:, :, None]).sum(dim=1)
+    return np.einsum("bji,bj->bi", rot, v)
+
+
+def matmul3(a, b):
+    """a b of (B, 3, 3) matrices."""
+    if is_tensor(a):
+        return (a[:, :, :, None] * b[:, None, :, :]).sum(dim=2)
+    return a @ b
+
+
+def columns(parts):
+    """(B, k) from k arrays (B,)."""
+    if is_tensor(parts[0]):
+        import torch
+
+        return torch.stack(parts, dim=1)
+    return np.column_stack(parts)
+
+
+def vector_norm(x, keepdims: bool = False):
+    """Euclidean norm of each row of (B, k) ``x``."""
+    if is_tensor(x):
+        return x.norm(dim=1, keepdim=keepdims)
+    return np.linalg.norm(x, axis=1, keepdims=keepdims)
+
+
+def where(condition, a, b):
+    """a where condition, else b."""
+    if is_tensor(condition):
+        import torch
+
+        return torch.where(condition, a, b)
+    return np.where(condition, a, b)
+
+
+def atan2(y, x):
+    """atan2(y, x) element-wise."""
+    if is_tensor(y):
+        import torch
+
+        return torch.atan2(y, x)
+    return np.arctan2(y, x)
+
+
+def remainder(x, modulus: float):
+    """x mod modulus, with the sign of the modulus (Python's %, numpy's and torch's remainder)."""
+    return x.remainder(modulus) if is_tensor(x) else np.remainder(x, modulus)
+
+
+def sin(x):
+    return x.sin() if is_tensor(x) else np.sin(x)
+
+
+def cos(x):
+    return x.cos() if is_tensor(x) else np.cos(x)
+
+
+def eye3_like(rot):
+    """The identity (B, 3, 3) of ``rot``'s batch, dtype and backend."""
+    if is_tensor(rot):
+        import torch
+
+        return torch.eye(3, dtype=rot.dtype).expand_as(rot)
+    return np.broadcast_to(np.eye(3), rot.shape)
+
+
+def zeros_like(x):
+    if is_tensor(x):
+        import torch
+
+        return torch.zeros_like(x)
+    return np.zeros_like(x)
+
+
+def unit_z_like(v, value: float):
+    """(B, 3) of ``v``'s batch and backend holding (0, 0, value)."""
+    out = zeros_like(v)
+    if is_tensor(v):
+        import torch
+
+        return out + torch.tensor([0.0, 0.0, value], dtype=v.dtype)
+    out[:, 2] = value
+    return out

@@ -1,0 +1,173 @@
+r"""The rigid body: rotor wrench, gyroscopic torque, Newton-Euler derivative and the integration step.
+
+Frames and units: N = NED, B = FRD (:mod:`quad_modelling.core.frames`), SI. Per batch member the state is
+
+.. math:: x = (p_N, v_N, R, \omega_B, \Omega)
+
+position [m] and velocity [m/s] in N, attitude :math:`R = R_{N \leftarrow B}`, body rates
+:math:`\omega = (p, q, r)` [rad/s], rotor speeds :math:`\Omega_i` [rad/s] (command order)
+(:class:`PhysicsState`). Constants: :class:`~quad_modelling.core.physics.parameters.PhysicsParameters`.
+
+Wrench in B (:func:`rotor_wrench`), rotor i at :math:`(x_i, y_i)` with spin :math:`s_i` (+1 = counter-clockwise
+seen from above), thrust and yaw torque :math:`T_i = k_f \Omega_i^2`, :math:`Q_i = k_m \Omega_i^2`
+(:mod:`~quad_modelling.core.physics.rotors`), rotor drag :math:`F_d, \tau_d` (:mod:`~quad_modelling.core.physics.aero`):
+
+.. math::
+
+    F_B = (0, 0, -\textstyle\sum_i T_i) + F_d, \qquad
+    \tau_B = \big(-\textstyle\sum_i y_i T_i,\ \sum_i x_i T_i,\ \sum_i s_i Q_i + I_p \sum_i s_i \dot\Omega_i\big) + \tau_d
+
+Motion (:func:`accelerations`), with the gyroscopic torque :math:`-\omega \times I\omega` (:func:`gyroscopic_torque`):
+
+.. math::
+
+    \dot v_N = R F_B / m + g e_z, \qquad
+    \dot\omega = I^{-1}(\tau_B - \omega \times I \omega), \qquad
+    \dot R = R [\omega]_\times
+
+Integration (:func:`step`): semi-implicit (symplectic) Euler over the real sample interval :math:`\Delta t`,
+
+.. math::
+
+    \omega_{k+1} = \omega_k + \Delta t \dot\omega_k,\quad R_{k+1} = R_k \mathrm{Exp}(\omega_{k+1} \Delta t),\quad
+    v_{k+1} = v_k + \Delta t \dot v_k,\quad p_{k+1} = p_k + \Delta t\, v_{k+1}
+
+with the rotor speeds stepped exactly (:func:`~quad_modelling.core.physics.rotors.rotor_step`), |ω| limited to the
+gyro full scale and |v| to :data:`MAX_SPEED_MPS`. Why: the rotor lag, the only fast mode, is integrated exactly,
+leaving the rigid body, whose open-loop modes are integrators (no stiffness); semi-implicit Euler keeps the
+attitude on SO(3) (the exponential map, :func:`rotation_increment`) and costs one wrench evaluation per sample, a
+quarter of RK4's. Its local error is :math:`O(\Delta t^2)` per step.
+
+The mixer's allocation (:func:`allocation_matrix`) is the same wrench written per newton of thrust.
+
+Every function takes numpy arrays or torch tensors (:mod:`quad_modelling.core.physics.arrays`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_modelling.core.flight_log import GYRO_FULL_SCALE
+from quad_modelling.core.physics import arrays
+from quad_modelling.core.physics.aero import rotor_drag
+from quad_modelling.core.physics.rotors import rotor_acceleration, rotor_step, rotor_thrusts, rotor_yaw_torques
+from quad_modelling.core.vehicle import GRAVITY
+
+MAX_SPEED_MPS = 50.0
+"""Largest speed the open-loop state may reach [m/s] (racing multirotors reach ~40 m/s): with the rates limited to
+the gyro full scale (:data:`~quad_modelling.core.flight_log.GYRO_FULL_SCALE`), it keeps a long open-loop window
+(the thesis's 10 s) finite, where an uncontrolled rigid body tumbles and ω × Iω grows without bound."""
+
+
+@dataclass
+class PhysicsState:
+    """A batch of B model states (module docstring), SI, N = NED, B = FRD.
+
+    pos_n, vel_n (B, 3); rot (B, 3, 3) R_N<-B; rates (B, 3) body rates; rotor (B, 4) rotor speeds [rad/s];
+    yaw (B,) continuous (unwrapped) yaw [rad] that the Euler output follows.
+    """
+
+    pos_n: np.ndarray
+    vel_n: np.ndarray
+    rot: np.ndarray
+    rates: np.ndarray
+    rotor: np.ndarray
+    yaw: np.ndarray
+
+    def take(self, index) -> PhysicsState:
+        """The members ``index`` of the batch."""
+        return PhysicsState(self.pos_n[index], self.vel_n[index], self.rot[index], self.rates[index], self.rotor[index], self.yaw[index])
+
+
+def _inertia(p, like):
+    """(I_xx, I_yy, I_zz) of ``p`` on ``like``'s backend."""
+    return p.inertia if arrays.is_tensor(like) else np.asarray(p.inertia, dtype=float)
+
+
+def allocation_matrix(positions: np.ndarray, spins: np.ndarray, torque_ratio: float) -> np.ndarray:
+    """M (4, 4): lift and torque (F, τ_x, τ_y, τ_z) per newton of each rotor's thrust (columns), of the wrench
+    (module docstring) without drag: :math:`M_{:,i} = (1, -y_i, x_i, s_i k_m/k_f)`; ``torque_ratio`` = k_m/k_f [m]."""
+    positions = np.asarray(positions, dtype=float)
+    return np.vstack([np.ones(len(positions)), -positions[:, 1], positions[:, 0], np.asarray(spins, dtype=float) * torque_ratio])
+
+
+def rotor_wrench(p, rotor, rotor_dot, vel_b):
+    """(F_B (B, 3) [N], τ_B (B, 3) [N m]) in B of rotor speeds ``rotor`` (B, 4), their rates ``rotor_dot`` (B, 4)
+    [rad/s²] and the body airspeed ``vel_b`` (B, 3) [m/s] (module docstring)."""
+    thrust = rotor_thrusts(p.thrust_constant, rotor)
+    drag_force, drag_moment = rotor_drag(p, rotor, vel_b)
+    force = drag_force - arrays.unit_z_like(drag_force, 1.0) * thrust.sum(axis=1)[:, None]
+    torque = arrays.columns([
+        -thrust @ p.positions[:, 1],
+        thrust @ p.positions[:, 0],
+        rotor_yaw_torques(p.torque_constant, rotor) @ p.spins + p.prop_inertia * (rotor_dot @ p.spins),
+    ]) + drag_moment
+    return force, torque
+
+
+def gyroscopic_torque(rates, inertia):
+    """-ω × (I ω) [N m] in B of body rates ``rates`` (B, 3) [rad/s] and principal inertias ``inertia`` (3,) [kg m²]."""
+    return -arrays.cross(rates, rates * inertia)
+
+
+def accelerations(p, vel_n, rot, rates, rotor, rotor_dot):
+    """(dv_N/dt (B, 3) [m/s², N], dω/dt (B, 3) [rad/s², B]) of a state (module docstring), ``rotor_dot`` dΩ/dt (B, 4)."""
+    force_b, torque_b = rotor_wrench(p, rotor, rotor_dot, arrays.rotate_back(rot, vel_n))
+    acc_n = arrays.rotate(rot, force_b) / p.mass + arrays.unit_z_like(force_b, GRAVITY)
+    inertia = _inertia(p, rates)
+    return acc_n, (torque_b + gyroscopic_torque(rates, inertia)) / inertia
+
+
+def limit_norm(vectors, limit: float):
+    """Rows of ``vectors`` scaled down to norm ``limit`` where longer."""
+    norm = arrays.vector_norm(vectors, keepdims=True)
+    return arrays.where(norm > limit, vectors * (limit / arrays.clamp_min(norm, 1e-12)), vectors)
+
+
+def continue_yaw(previous, rot):
+    """The yaw of ``rot`` [rad] unwrapped next to ``previous`` (the continuous yaw the Euler output follows)."""
+    psi = arrays.atan2(rot[:, 1, 0], rot[:, 0, 0])
+    return previous + arrays.remainder(psi - previous + np.pi, 2.0 * np.pi) - np.pi
+
+
+def _skew(phi):
+    """[φ]× (B, 3, 3) of vectors φ (B, 3)."""
+    zero = arrays.zeros_like(phi[:, 0])
+    x, y, z = phi[:, 0], phi[:, 1], phi[:, 2]
+    rows = [arrays.columns([zero, -z, y]), arrays.columns([z, zero, -x]), arrays.columns([-y, x, zero])]
+    if arrays.is_tensor(phi):
+        import torch
+
+        return torch.stack(rows, dim=1)
+    return np.stack(rows, axis=1)
+
+
+def rotation_increment(rot, rates_b, dt):
+    """R_{k+1} = R_k Exp([ω Δt]×): (B, 3, 3) attitudes R_NED←FRD turned by body rates ``rates_b`` (B, 3)
+    [rad/s, FRD] held for ``dt`` (B,) [s] (Rodrigues' formula, exact for a constant ω; stays orthonormal).
+
+    .. math:: \\mathrm{Exp}(\\phi) = I + \\frac{\\sin\\|\\phi\\|}{\\|\\phi\\|}[\\phi]_\\times
+              + \\frac{1 - \\cos\\|\\phi\\|}{\\|\\phi\\|^2}[\\phi]_\\times^2, \\qquad \\phi = \\omega \\Delta t
+    """
+    phi = rates_b * dt[:, None]
+    angle = arrays.vector_norm(phi)
+    small = angle < 1e-8
+    safe = arrays.where(small, angle * 0.0 + 1.0, angle)
+    a = arrays.where(small, 1.0 - angle**2 / 6.0, arrays.sin(safe) / safe)
+    b = arrays.where(small, 0.5 - angle**2 / 24.0, (1.0 - arrays.cos(safe)) / safe**2)
+    k = _skew(phi)
+    return arrays.matmul3(rot, arrays.eye3_like(rot) + a[:, None, None] * k + b[:, None, None] * arrays.matmul3(k, k))
+
+
+def step(p, state, u, dt, linear_n, angular_b):
+    """One semi-implicit Euler step (module docstring) of every batch member under commands ``u`` (B, 4) held for
+    ``dt`` (B,) [s], with constant extra accelerations ``linear_n`` (B, 3) [m/s², N] and ``angular_b`` (B, 3)
+    [rad/s², B] (the model's disturbance estimate). Returns a state of ``state``'s type."""
+    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, state.rotor, u))
+    rates = limit_norm(state.rates + dt[:, None] * (ang_acc + angular_b), GYRO_FULL_SCALE)
+    rot = rotation_increment(state.rot, rates, dt)
+    vel = limit_norm(state.vel_n + dt[:, None] * (acc_n + linear_n), MAX_SPEED_MPS)
+    pos = state.pos_n + dt[:, None] * vel
+    return type(state)(pos, vel, rot, rates, rotor_step(p, state.rotor, u, dt), continue_yaw(state.yaw, rot))

@@ -1,0 +1,156 @@
+r"""The rotors: command-to-speed map, command delay, rotor lag, thrust and yaw torque, hover speed (one definition).
+
+Symbols (the code's :class:`~quad_modelling.core.physics.parameters.PhysicsParameters` fields): engine command
+:math:`u_i` [input unit] of rotor i (command order), speed map :math:`k_u` [rad/s per input unit] and
+:math:`\Omega_{off}` [rad/s], rotor time constant :math:`\tau_m` [s], command delay :math:`\delta` [s], thrust and
+yaw-torque constants :math:`k_f` [N s²/rad²] and :math:`k_m` [N m s²/rad²], rotor speed :math:`\Omega_i` [rad/s].
+
+* command map (:func:`steady_rotor_speed`, inverse :func:`command_for_rotor_speed`):
+  :math:`\Omega_{ss,i} = \max(k_u u_i + \Omega_{off}, 0)`;
+* command delay (:func:`delayed_commands`): the rotors answer :math:`\tilde u_k = u_j`, j the last row with
+  :math:`t_j \le t_k - \delta`;
+* rotor lag (:func:`rotor_step`, exact for a command held over :math:`\Delta t`):
+  :math:`\Omega_{k+1} = \Omega_{ss} + (\Omega_k - \Omega_{ss}) e^{-\Delta t/\tau_m}`, its derivative
+  :math:`\dot\Omega = (\Omega_{ss} - \Omega)/\tau_m` (:func:`rotor_acceleration`), a whole series at once
+  (:func:`rotor_speeds`);
+* thrust and yaw torque of each rotor (:func:`rotor_thrusts`, :func:`rotor_yaw_torques`):
+  :math:`T_i = k_f \Omega_i^2`, :math:`Q_i = k_m \Omega_i^2`; inverse :func:`rotor_speed_for_thrust`;
+* hover (:func:`hover_rotor_speed`): :math:`\Omega_H = \sqrt{m g / (4 k_f)}`; the thrust slope there
+  (:func:`thrust_slope`) :math:`\partial T/\partial\Omega = 2 k_f \Omega_H` is what the thesis's linear greybox
+  calls :math:`K / B_m = 2 \sqrt{a m g / 4}` (Eq 3-7);
+* battery-voltage scaling (:func:`battery_speed_factor`, the model's form): the rotor speed a command reaches
+  grows with the battery voltage V, :math:`\Omega_{ss} \to \Omega_{ss} (1 + \kappa (V - V_{ref}))`.
+
+Every function takes numpy arrays or torch tensors (:mod:`quad_modelling.core.physics.arrays`) and any record
+``p`` with the fields it names (:class:`PhysicsParameters` or the torch twin's).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from quad_modelling.core.physics import arrays
+
+STAMP_TOLERANCE_S = 1e-7
+"""Stamps closer than this [s] count as equal when looking up the delayed command (float rounding of t - δ)."""
+
+
+def delayed_commands(p, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """(N, 4) commands the rotors answer at each row: ũ_k = u_j, j the last row with t_j <= t_k - δ (row 0 before
+    the first); ``u`` (N, 4) logged commands, ``t`` (N,) [s]. Causal: ũ_k uses rows <= k."""
+    u = np.asarray(u, dtype=float)
+    if p.delay <= 0.0:
+        return u
+    t = np.asarray(t, dtype=float)
+    rows = np.searchsorted(t, t - p.delay + STAMP_TOLERANCE_S, side="right") - 1
+    return u[np.maximum(rows, 0)]
+
+
+def delayed_command_at(p, times, commands, t_s: float):
+    """The command the rotors answer at ``t_s`` from a short history (``times`` ascending [s], ``commands`` the
+    logged ones): the last logged at or before t_s - δ (the first one before any) -- :func:`delayed_commands` of
+    one row, for a live stream."""
+    limit = t_s - p.delay + STAMP_TOLERANCE_S
+    for i in range(len(times) - 1, -1, -1):
+        if times[i] <= limit:
+            return commands[i]
+    return commands[0]
+
+
+def steady_rotor_speed(p, u):
+    """Ω_ss = max(k_u u + Ω_off, 0) [rad/s] of commands ``u`` (..., 4)."""
+    if not arrays.is_tensor(u):
+        u = np.asarray(u, dtype=float)
+    return arrays.clamp_min(p.speed_gain * u + p.speed_offset, 0.0)
+
+
+def command_for_rotor_speed(p, speed):
+    """u = (Ω - Ω_off) / k_u [input unit]: the command whose steady rotor speed is ``speed`` (Ω >= 0)."""
+    return (speed - p.speed_offset) / p.speed_gain
+
+
+def rotor_step(p, rotor, u, dt):
+    """Ω_{k+1} from Ω_k = ``rotor`` under command ``u`` held for ``dt`` [s] (scalar or one per batch member):
+    the exact first-order lag (τ_m = 0: at once)."""
+    target = steady_rotor_speed(p, u)
+    if p.time_constant <= 0.0:
+        return target
+    decay = arrays.exp(-dt / p.time_constant) if arrays.is_tensor(dt) else np.exp(-np.asarray(dt, dtype=float) / p.time_constant)
+    if decay.ndim and decay.ndim < target.ndim:
+        decay = decay.reshape(tuple(decay.shape) + (1,) * (target.ndim - decay.ndim))
+    return target + (rotor - target) * decay
+
+
+def rotor_acceleration(p, rotor, u):
+    """dΩ/dt = (Ω_ss(u) - Ω)/τ_m [rad/s²] (0 without lag)."""
+    if p.time_constant <= 0.0:
+        return arrays.zeros_like(rotor)
+    return (steady_rotor_speed(p, u) - rotor) / p.time_constant
+
+
+def rotor_speeds(p, u: np.ndarray, t: np.ndarray, initial: np.ndarray | None = None) -> np.ndarray:
+    """(N, ..., 4) rotor speeds Ω_k at each row of commands ``u`` (N, ..., 4) stamped ``t`` (N, ...) [s]: the
+    exact lag (:func:`rotor_step`) over each interval, for a whole series at once (numpy).
+
+    Row k depends on u_0..u_{k-1} only (causal); Ω_0 = ``initial`` or the steady speed of u_0 (the motor
+    settled before the data starts). Time runs along axis 0; other leading axes are independent series.
+    """
+    u = np.asarray(u, dtype=float)
+    target = steady_rotor_speed(p, u)
+    out = np.empty_like(target)
+    out[0] = target[0] if initial is None else initial
+    if p.time_constant <= 0.0:
+        out[1:] = target[:-1]
+        return out
+    decay = np.exp(-np.diff(np.asarray(t, dtype=float), axis=0) / p.time_constant)
+    decay = decay.reshape(decay.shape + (1,) * (target.ndim - decay.ndim)) * np.ones_like(target[:-1])
+    gain, offset = first_order_scan(decay, (1.0 - decay) * target[:-1])
+    out[1:] = gain * out[0] + offset
+    return out
+
+
+def first_order_scan(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(P, Q) with x_{k+1} = P_k x_0 + Q_k for the recurrence x_{k+1} = a_k x_k + b_k along axis 0.
+
+    A Hillis-Steele prefix scan of the affine maps f_k(x) = a_k x + b_k (composition
+    (P, Q)_k ∘ (P, Q)_{k-s} = (P_k P_{k-s}, P_k Q_{k-s} + Q_k)): log2(N) vectorised passes instead of N
+    Python steps, exact up to rounding, stable for |a_k| <= 1 (products only shrink).
+    """
+    p, q = np.array(a, dtype=float), np.array(b, dtype=float)
+    shift = 1
+    while shift < len(p):
+        q[shift:] = p[shift:] * q[:-shift] + q[shift:]
+        p[shift:] = p[shift:] * p[:-shift]
+        shift *= 2
+    return p, q
+
+
+def rotor_thrusts(thrust_constant: float, rotor):
+    """T_i = k_f Ω_i² [N] of rotor speeds ``rotor`` (..., 4) [rad/s]."""
+    return thrust_constant * (rotor * rotor)
+
+
+def rotor_yaw_torques(torque_constant: float, rotor):
+    """Q_i = k_m Ω_i² [N m]: each rotor's drag torque about its shaft (reaction on the body: -s_i Q_i e_z... in
+    FRD, :func:`~quad_modelling.core.physics.rigid_body.rotor_wrench` gives the sign)."""
+    return torque_constant * (rotor * rotor)
+
+
+def rotor_speed_for_thrust(thrust_constant: float, thrust):
+    """Ω = √(T / k_f) [rad/s] (T >= 0): the inverse of :func:`rotor_thrusts`."""
+    return arrays.sqrt(thrust / thrust_constant)
+
+
+def hover_rotor_speed(mass: float, thrust_constant: float, gravity: float) -> float:
+    """Ω_H = √(m g / (4 k_f)) [rad/s]: each rotor's speed when four equal thrusts carry the weight."""
+    return float(np.sqrt(mass * gravity / (4.0 * thrust_constant)))
+
+
+def thrust_slope(thrust_constant: float, speed: float) -> float:
+    """∂T/∂Ω = 2 k_f Ω [N s/rad]: the thrust change per rotor-speed change at ``speed`` (the linearisation)."""
+    return 2.0 * thrust_constant * speed
+
+
+def battery_speed_factor(voltage, reference_voltage: float, kappa: float):
+    """1 + κ (V - V_ref): the model's battery-voltage scaling of the steady rotor speed (κ [1/V])."""
+    return 1.0 + kappa * (voltage - reference_voltage)
