@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core.input_files import read_yaml
+from quad_modelling.core.physics.rotors import hover_rotor_speed
 from quad_modelling.errors import ConfigError
 
 GRAVITY = 9.81
@@ -173,8 +174,8 @@ class VehicleConfig:
 
     @property
     def hover_rotor_speed(self) -> float:
-        """Ω0 = sqrt(m g / (4 a)) [rad/s]."""
-        return float(np.sqrt(self.hover_thrust_per_rotor / self.value("thrust_constant")))
+        """Ω0 = sqrt(m g / (4 a)) [rad/s] (:func:`~quad_modelling.core.physics.rotors.hover_rotor_speed`)."""
+        return hover_rotor_speed(self.mass, self.value("thrust_constant"), GRAVITY)
 
     @property
     def motor_positions(self) -> np.ndarray:

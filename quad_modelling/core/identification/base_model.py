@@ -108,8 +108,7 @@ class BaseModel:
     @property
     def thrust_to_speed(self) -> float:
         """dΩ/dT at hover = 1 / (2 a Ω0) [rad/s per N]."""
-        p = self.parameters
-        return 1.0 / (2.0 * p.thrust_constant * p.hover_rotor_speed)
+        return 1.0 / self.parameters.thrust_slope
 
 
 def base_from_vehicle(vehicle: VehicleConfig, reference_voltage: float | None = None) -> BaseModel:

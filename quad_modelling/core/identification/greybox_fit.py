@@ -61,7 +61,7 @@ from quad_modelling.core.identification.uncertainty import bandwidth_samples, ha
 from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.models.greybox import GreyboxParameters
 from quad_modelling.core.variables import INDEX
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import DataError
 
 MIN_MOTOR_TIME_CONSTANT = 0.002
@@ -156,11 +156,10 @@ class BaseFit:
 def fitted_parameters(p: GreyboxParameters, tau_m: float, gain: float, yaw_ratio: float, arm_scale: float,
                       rotor_reaction_scale: float = 1.0) -> GreyboxParameters:
     """``p`` with A_m = -1/tau_m, B_m from K = ``gain``, d = a (d/a), arms scaled, I_prop scaled by k_R."""
-    root = 2.0 * math.sqrt(p.thrust_constant * p.mass * GRAVITY / 4.0)
     return replace(
         p,
         motor_a_m=-1.0 / tau_m,
-        motor_b_m=gain / root,
+        motor_b_m=gain / p.thrust_slope,
         drag_constant=yaw_ratio * p.thrust_constant,
         motor_positions=tuple((arm_scale * x, arm_scale * y) for x, y in p.motor_positions),
         prop_inertia=rotor_reaction_scale * p.prop_inertia,
@@ -298,7 +297,7 @@ def constant_estimates(fit: BaseFit, vehicle: VehicleConfig) -> list[ConstantEst
     vehicle file's values (:mod:`~quad_modelling.core.identification.constants_report`)."""
     p0 = GreyboxParameters.from_vehicle(vehicle)
     v, s, flags = fit.values, fit.sigma, fit.fit.get("at_bound", {})
-    root = 2.0 * math.sqrt(p0.thrust_constant * p0.mass * GRAVITY / 4.0)
+    root = p0.thrust_slope  # ∂T/∂Ω at hover = 2 sqrt(a m g / 4): K = B_m root
     steady = p0.input_gain * (-1.0 / p0.motor_a_m)  # G_config = K tau_m [N per command unit]
     k_range = (steady * STEADY_GAIN_RATIO_RANGE[0] / MAX_MOTOR_TIME_CONSTANT, steady * STEADY_GAIN_RATIO_RANGE[1] / MIN_MOTOR_TIME_CONSTANT)
     motor_at_bound = bool(flags.get("ln_motor_time_constant") or flags.get("ln_steady_gain_ratio"))

@@ -12,7 +12,7 @@ with the rotor speed at full command from the motor model,
     a_{max} = M \\left(\\frac{4 T_{max}}{m} + g\\right), \\qquad
     \\alpha_{max} = M \\frac{r_{max}\\, 2 T_{max}}{\\min(I_{xx}, I_{yy})}
 
-(:math:`r_{max}` the largest rotor arm, :math:`M` = :data:`MARGIN`, a divergence guard: see there). Against the state at the
+(the thrust by :func:`~quad_modelling.core.physics.rotors.rotor_thrusts`; :math:`r_{max}` the largest rotor arm, :math:`M` = :data:`MARGIN`, a divergence guard: see there). Against the state at the
 window's anchor (position :math:`p_a`, velocity :math:`v_a`, rates :math:`\\omega_a`), a prediction
 :math:`\\tau` seconds from the anchor must satisfy, with :math:`\\tau' = |\\tau| + \\tau_s`
 (:data:`SLACK_S`, for the anchor's own smoothing and measurement noise):
@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from quad_modelling.core.physics.rotors import rotor_thrusts
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 
 MARGIN = 1000.0
@@ -65,7 +66,7 @@ class PhysicalBounds:
 
         p = GreyboxParameters.from_vehicle(vehicle)
         omega_max = p.hover_rotor_speed + p.motor_b_m / abs(p.motor_a_m) * (vehicle.input_max - vehicle.input_min)
-        thrust = p.thrust_constant * omega_max ** 2
+        thrust = float(rotor_thrusts(p.thrust_constant, omega_max))
         arm = float(np.max(np.linalg.norm(np.asarray(p.motor_positions, dtype=float), axis=1)))
         return cls(MARGIN * (4.0 * thrust / p.mass + GRAVITY), MARGIN * arm * 2.0 * thrust / min(p.ixx, p.iyy))
 

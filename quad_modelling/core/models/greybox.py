@@ -76,6 +76,8 @@ from quad_modelling.core.preprocess import (
     uniform_time_check,
 )
 from quad_modelling.core.variables import VARIABLES
+from quad_modelling.core.physics.rigid_body import allocation_matrix
+from quad_modelling.core.physics.rotors import hover_rotor_speed, thrust_slope
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import ConfigError, DataError
 
@@ -125,19 +127,23 @@ class GreyboxParameters:
 
     @property
     def hover_rotor_speed(self) -> float:
-        """Ω0 = sqrt(m g / (4 a)) [rad/s]."""
-        return float(np.sqrt(self.mass * GRAVITY / (4.0 * self.thrust_constant)))
+        """Ω0 = sqrt(m g / (4 a)) [rad/s] (:func:`~quad_modelling.core.physics.rotors.hover_rotor_speed`)."""
+        return hover_rotor_speed(self.mass, self.thrust_constant, GRAVITY)
+
+    @property
+    def thrust_slope(self) -> float:
+        """∂T/∂Ω at hover, 2 a Ω0 = 2 sqrt(a m g / 4) [N s/rad] (:func:`~quad_modelling.core.physics.rotors.thrust_slope`)."""
+        return thrust_slope(self.thrust_constant, self.hover_rotor_speed)
 
     @property
     def input_gain(self) -> float:
-        """K = 2 B_m sqrt(a m g / 4): thrust-rate per unit trimmed command [N/s per unit]."""
-        return float(2.0 * self.motor_b_m * np.sqrt(self.thrust_constant * self.mass * GRAVITY / 4.0))
+        """K = 2 B_m sqrt(a m g / 4) = B_m ∂T/∂Ω: thrust-rate per unit trimmed command [N/s per unit]."""
+        return float(self.motor_b_m * self.thrust_slope)
 
     def torque_matrix(self) -> np.ndarray:
-        """(3, 4) map from rotor thrust deviations to (τφ, τθ, thrust part of τψ) [N m per N]."""
-        pos = np.array(self.motor_positions)
-        signs = np.array(self.yaw_signs)
-        return np.vstack([-pos[:, 1], pos[:, 0], (self.drag_constant / self.thrust_constant) * signs])
+        """(3, 4) map from rotor thrust deviations to (τφ, τθ, thrust part of τψ) [N m per N]: the torque rows of the
+        one allocation (:func:`~quad_modelling.core.physics.rigid_body.allocation_matrix`)."""
+        return allocation_matrix(self.motor_positions, self.yaw_signs, self.drag_constant / self.thrust_constant)[1:]
 
 
 def continuous_matrices(p: GreyboxParameters) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -151,7 +157,7 @@ def continuous_matrices(p: GreyboxParameters) -> tuple[np.ndarray, np.ndarray, n
     a[5, 12:16] = -1.0 / p.mass
     torque = p.torque_matrix()
     signs = np.array(p.yaw_signs)
-    omega_per_thrust = p.motor_a_m / (2.0 * p.thrust_constant * p.hover_rotor_speed)
+    omega_per_thrust = p.motor_a_m / p.thrust_slope
     inertia = np.array([p.ixx, p.iyy, p.izz])
     a[9:12, 12:16] = torque / inertia[:, None]
     a[11, 12:16] += p.prop_inertia * signs * omega_per_thrust / p.izz

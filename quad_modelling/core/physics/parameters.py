@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from quad_modelling.core.physics import rotors
 from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
 from quad_modelling.errors import ConfigError
 
@@ -115,9 +116,10 @@ class PhysicsParameters:
         }
 
     def hover_rotor_speed(self, gravity: float) -> float:
-        """Ω_H = sqrt(m g / (4 k_f)) [rad/s]: each rotor's speed in a level hover."""
-        return float(np.sqrt(self.mass * gravity / (4.0 * self.thrust_constant)))
+        """Ω_H = sqrt(m g / (4 k_f)) [rad/s]: each rotor's speed in a level hover
+        (:func:`~quad_modelling.core.physics.rotors.hover_rotor_speed`)."""
+        return rotors.hover_rotor_speed(self.mass, self.thrust_constant, gravity)
 
     def hover_command(self, gravity: float) -> float:
         """u_H = (Ω_H - Ω_off) / k_u [input unit]: the command of a level hover (all rotors equal)."""
-        return (self.hover_rotor_speed(gravity) - self.speed_offset) / self.speed_gain
+        return float(rotors.command_for_rotor_speed(self.hover_rotor_speed(gravity), self.speed_gain, self.speed_offset))

@@ -17,7 +17,9 @@ seen from above), thrust and yaw torque :math:`T_i = k_f \Omega_i^2`, :math:`Q_i
     F_B = (0, 0, -\textstyle\sum_i T_i) + F_d, \qquad
     \tau_B = \big(-\textstyle\sum_i y_i T_i,\ \sum_i x_i T_i,\ \sum_i s_i Q_i + I_p \sum_i s_i \dot\Omega_i\big) + \tau_d
 
-Motion (:func:`accelerations`), with the gyroscopic torque :math:`-\omega \times I\omega` (:func:`gyroscopic_torque`):
+Motion (:func:`accelerations`), with the body's gyroscopic torque :math:`-\omega \times I\omega`
+(:func:`gyroscopic_torque`; the rotors' part :math:`-\omega \times h_r`, :func:`rotor_momentum`, is the optional
+``gyroscopic`` term):
 
 .. math::
 
@@ -107,9 +109,17 @@ def rotor_wrench(p, rotor, rotor_dot, vel_b):
     return force, torque
 
 
-def gyroscopic_torque(rates, inertia):
-    """-ω × (I ω) [N m] in B of body rates ``rates`` (B, 3) [rad/s] and principal inertias ``inertia`` (3,) [kg m²]."""
-    return -arrays.cross(rates, rates * inertia)
+def rotor_momentum(prop_inertia: float, spins, rotor):
+    """h_r = (0, 0, -I_p Σ_i s_i Ω_i) [N m s] in B: the rotors' angular momentum (a counter-clockwise rotor's points
+    up, -z in FRD), of rotor speeds ``rotor`` (B, 4) [rad/s]."""
+    return arrays.unit_z_like(rotor[:, :3], -1.0) * (prop_inertia * (rotor @ spins))[:, None]
+
+
+def gyroscopic_torque(rates, inertia, momentum=None):
+    """-ω × (I ω + h_r) [N m] in B of body rates ``rates`` (B, 3) [rad/s], principal inertias ``inertia`` (3,)
+    [kg m²] and the rotors' momentum ``momentum`` (B, 3) (:func:`rotor_momentum`; None: the body's term alone)."""
+    angular_momentum = rates * inertia if momentum is None else rates * inertia + momentum
+    return -arrays.cross(rates, angular_momentum)
 
 
 def accelerations(p, vel_n, rot, rates, rotor, rotor_dot):

@@ -64,9 +64,10 @@ def steady_rotor_speed(p, u):
     return arrays.clamp_min(p.speed_gain * u + p.speed_offset, 0.0)
 
 
-def command_for_rotor_speed(p, speed):
-    """u = (Ω - Ω_off) / k_u [input unit]: the command whose steady rotor speed is ``speed`` (Ω >= 0)."""
-    return (speed - p.speed_offset) / p.speed_gain
+def command_for_rotor_speed(speed, speed_gain: float, speed_offset: float):
+    """u = (Ω - Ω_off) / k_u [input unit]: the command whose steady rotor speed is ``speed`` (Ω >= 0), the inverse
+    of :func:`steady_rotor_speed` for the map k_u = ``speed_gain``, Ω_off = ``speed_offset``."""
+    return (speed - speed_offset) / speed_gain
 
 
 def rotor_step(p, rotor, u, dt):
@@ -131,8 +132,8 @@ def rotor_thrusts(thrust_constant: float, rotor):
 
 
 def rotor_yaw_torques(torque_constant: float, rotor):
-    """Q_i = k_m Ω_i² [N m]: each rotor's drag torque about its shaft (reaction on the body: -s_i Q_i e_z... in
-    FRD, :func:`~quad_modelling.core.physics.rigid_body.rotor_wrench` gives the sign)."""
+    """Q_i = k_m Ω_i² [N m]: each rotor's drag torque about its shaft; on the body it acts as s_i Q_i about FRD z
+    (:func:`~quad_modelling.core.physics.rigid_body.rotor_wrench`)."""
     return torque_constant * (rotor * rotor)
 
 

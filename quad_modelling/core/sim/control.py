@@ -32,6 +32,8 @@ import math
 
 import numpy as np
 
+from quad_modelling.core.physics.rigid_body import allocation_matrix
+from quad_modelling.core.physics.rotors import command_for_rotor_speed, rotor_speed_for_thrust, rotor_thrusts, steady_rotor_speed
 from quad_modelling.core.sim.params import SimParams
 from quad_modelling.core.vehicle import GRAVITY
 
@@ -76,13 +78,12 @@ class Stabiliser:
         pos_w = control.position_bandwidth
         self.hold_gains = (pos_w**2, 2.0 * control.damping * pos_w)
         a = vehicle.value("thrust_constant")
-        ratio = vehicle.value("drag_constant") / a
-        positions = vehicle.motor_positions
-        allocation = np.vstack([np.ones(4), -positions[:, 1], positions[:, 0], vehicle.yaw_signs * ratio])
+        allocation = allocation_matrix(vehicle.motor_positions, vehicle.yaw_signs, vehicle.value("drag_constant") / a)
         self.allocation = allocation
         self.mix = tuple(tuple(float(v) for v in row) for row in np.linalg.inv(allocation))
         self.thrust_constant = a
         esc = params.esc
+        self.esc = esc
         self.u0 = esc.zero_speed_input
         self.k_u = esc.speed_gain
         hover = vehicle.hover_rotor_speed
@@ -90,7 +91,7 @@ class Stabiliser:
         self.u_max = vehicle.input_max
         self.u_off = vehicle.input_min
         self.max_tilt = control.max_tilt
-        self.max_thrust = 4.0 * a * ((self.u_max - self.u0) * self.k_u) ** 2
+        self.max_thrust = 4.0 * float(rotor_thrusts(a, steady_rotor_speed(esc, self.u_max)))
         self.trim_integrals = (0.0, 0.0, 0.0, 0.0)
         self.trim_tilt = (0.0, 0.0)
         self.reset()
@@ -107,8 +108,7 @@ class Stabiliser:
         the roll/pitch stick trim [rad] added to every reference (a hover attitude that
         is not level, :meth:`QuadDynamics.hover_tilt <quad_modelling.core.sim.dynamics.QuadDynamics.hover_tilt>`)."""
         self.trim_tilt = (float(tilt[0]), float(tilt[1]))
-        thrusts = [self.thrust_constant * ((u - self.u0) * self.k_u) ** 2 for u in commands]
-        wrench = self.allocation @ np.asarray(thrusts)
+        wrench = self.allocation @ rotor_thrusts(self.thrust_constant, steady_rotor_speed(self.esc, commands))
         needed = (wrench[1] / self.inertia[0], wrench[2] / self.inertia[1], wrench[3] / self.inertia[2], wrench[0] / self.mass - GRAVITY)
         ki = (self.attitude_gains[2], self.attitude_gains[2], self.yaw_gains[2], self.altitude_gains[2])
         self.trim_integrals = tuple(max(-lim, min(lim, n / k)) for n, k, lim in zip(needed, ki, self.integral_limits))
@@ -152,6 +152,6 @@ class Stabiliser:
         commands = []
         for row in self.mix:
             t_i = row[0] * wrench[0] + row[1] * wrench[1] + row[2] * wrench[2] + row[3] * wrench[3]
-            u_i = self.u0 + math.sqrt(t_i / self.thrust_constant) / self.k_u if t_i > 0.0 else self.u0
+            u_i = command_for_rotor_speed(rotor_speed_for_thrust(self.thrust_constant, t_i), self.k_u, self.esc.speed_offset) if t_i > 0.0 else self.u0
             commands.append(max(self.u_idle, min(self.u_max, u_i)))
         return commands

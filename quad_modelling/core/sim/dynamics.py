@@ -80,6 +80,7 @@ import math
 import numpy as np
 
 from quad_modelling.core.effect_names import SIMULATOR, normalise_effect_names
+from quad_modelling.core.physics.rotors import command_for_rotor_speed, hover_rotor_speed, rotor_speed_for_thrust
 from quad_modelling.core.sim.params import SimParams
 from quad_modelling.core.vehicle import GRAVITY
 
@@ -163,7 +164,8 @@ class QuadDynamics:
         thrusts = self.hover_thrusts()
         esc = self.params.esc
         scale = esc.speed_gain * voltage / self.params.battery.reference_voltage
-        return [esc.zero_speed_input + math.sqrt(t / self.thrust_constant) / (g * scale) for t, g in zip(thrusts, self.motor_gains)]
+        return [float(command_for_rotor_speed(rotor_speed_for_thrust(self.thrust_constant, t), g * scale, -g * scale * esc.zero_speed_input))
+                for t, g in zip(thrusts, self.motor_gains)]
 
     def hover_tilt(self) -> tuple[float, float]:
         r"""Roll and pitch [rad] at which the thrusts :meth:`hover_thrusts` lift straight up:
@@ -195,7 +197,7 @@ class QuadDynamics:
         s = [0.0] * N_STATE
         s[2] = -height
         s[6], s[9] = math.cos(yaw / 2), math.sin(yaw / 2)
-        hover = math.sqrt(self.mass * GRAVITY / 4 / self.thrust_constant)
+        hover = hover_rotor_speed(self.mass, self.thrust_constant, GRAVITY)
         s[13:17] = [hover] * 4
         return s
 

@@ -51,6 +51,12 @@ class EscParams:
     speed_gain: float  # k_u = -B_m / A_m [rad/s per input unit]
     idle_speed_fraction: float  # armed idle rotor speed / hover speed [1]
 
+    @property
+    def speed_offset(self) -> float:
+        """Ω_off = -k_u u_0 [rad/s]: the map in the physics' form Ω_ss = max(k_u u + Ω_off, 0)
+        (:func:`~quad_modelling.core.physics.rotors.steady_rotor_speed`) at the reference voltage."""
+        return -self.speed_gain * self.zero_speed_input
+
 
 @dataclass(frozen=True)
 class GeometryParams:

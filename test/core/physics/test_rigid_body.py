@@ -1,0 +1,105 @@
+"""The rigid body of the one physics: allocation = wrench per newton, rotor drag and its moment, the ground-effect
+factor, numpy = torch, and the truth simulator's rigid body equal to it where their forms coincide."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quad_modelling.core.physics import aero, rigid_body, rotors
+from quad_modelling.core.physics.parameters import PhysicsParameters
+from quad_modelling.core.sim.dynamics import QuadDynamics
+from quad_modelling.core.sim.params import sim_params_for
+from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+
+CF = load_vehicle("crazyflie21")
+P = PhysicsParameters.from_vehicle(CF)
+
+
+def test_allocation_matrix_is_the_wrench_per_newton_of_thrust():
+    rng = np.random.default_rng(0)
+    rotor = rng.uniform(1000.0, 2500.0, (5, 4))
+    bare = P.with_values(drag=(0.0, 0.0, 0.0), prop_inertia=0.0)
+    force, torque = rigid_body.rotor_wrench(bare, rotor, np.zeros_like(rotor), np.zeros((5, 3)))
+    thrust = rotors.rotor_thrusts(P.thrust_constant, rotor)
+    wrench = thrust @ rigid_body.allocation_matrix(P.positions, P.spins, P.torque_constant / P.thrust_constant).T
+    assert np.allclose(wrench[:, 0], -force[:, 2], rtol=1e-12)
+    assert np.allclose(wrench[:, 1:], torque, rtol=1e-12, atol=1e-18)
+
+
+def test_rotor_drag_opposes_the_airspeed_and_acts_at_the_rotor_plane():
+    rotor = np.full((1, 4), 2000.0)
+    vel_b = np.array([[1.0, -0.5, 0.2]])
+    force, moment = aero.rotor_drag(P, rotor, vel_b)
+    assert np.allclose(force, -8000.0 * np.asarray(P.drag) * vel_b)
+    assert np.allclose(moment, np.cross([0.0, 0.0, P.drag_arm], force))
+
+
+def test_ground_effect_factor_grows_near_the_ground_and_vanishes_far_from_it():
+    h = np.array([0.05, 0.3, 100.0])
+    k = aero.ground_effect_factor(h, 0.002, 0.01)
+    assert np.allclose(k, 1.0 + 0.002 / (h + 0.01) ** 2)
+    assert k[0] > k[1] > k[2] > 1.0 and k[2] < 1.0 + 1e-6
+
+
+def test_level_hover_is_an_equilibrium_and_rotor_momentum_adds_the_propeller_gyroscopic_torque():
+    hover = P.hover_rotor_speed(GRAVITY)
+    rot = np.eye(3)[None]
+    acc, ang = rigid_body.accelerations(P, np.zeros((1, 3)), rot, np.zeros((1, 3)), np.full((1, 4), hover), np.zeros((1, 4)))
+    assert np.allclose(acc, 0.0, atol=1e-12) and np.allclose(ang, 0.0, atol=1e-9)
+    rates = np.array([[0.3, -0.2, 0.1]])
+    rotor = np.array([[1500.0, 1600.0, 1700.0, 1800.0]])
+    h = rigid_body.rotor_momentum(P.prop_inertia, P.spins, rotor)
+    assert np.allclose(h, [[0.0, 0.0, -P.prop_inertia * (rotor @ P.spins)[0]]])
+    inertia = np.asarray(P.inertia)
+    with_rotors = rigid_body.gyroscopic_torque(rates, inertia, h)
+    assert np.allclose(with_rotors - rigid_body.gyroscopic_torque(rates, inertia), -np.cross(rates, h))
+
+
+def test_numpy_and_torch_give_the_same_wrench_and_accelerations_in_float64():
+    import torch
+
+    from quad_modelling.core.training.physics_torch import TorchParameters
+
+    rng = np.random.default_rng(2)
+    rot = rigid_body.rotation_increment(np.tile(np.eye(3), (8, 1, 1)), rng.normal(size=(8, 3)), np.full(8, 0.5))
+    args = (rng.normal(size=(8, 3)), rot, rng.normal(size=(8, 3)), rng.uniform(1000, 2500, (8, 4)), rng.normal(size=(8, 4)))
+    acc, ang = rigid_body.accelerations(P, *args)
+    acc_t, ang_t = rigid_body.accelerations(TorchParameters.from_params(P), *(torch.as_tensor(a) for a in args))
+    assert np.allclose(acc_t.numpy(), acc, rtol=1e-12, atol=1e-12) and np.allclose(ang_t.numpy(), ang, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("vehicle", ["crazyflie21", "linkquad"])
+def test_the_simulators_rigid_body_equals_the_one_physics_where_their_forms_coincide(vehicle):
+    """With motor lag and gyroscopic torques on and nothing else (no drag, ground effect, wind, imbalance), in the
+    air, the simulator's derivative is the one physics' rigid body with the rotors' momentum: the same wrench,
+    Newton-Euler and quaternion kinematics (its RK4 is its own, for speed)."""
+    params = sim_params_for(vehicle)
+    dyn = QuadDynamics(params, ("motor_lag", "gyroscopic"))
+    v = params.vehicle
+    esc = params.esc
+    p = PhysicsParameters(mass=v.mass, inertia=tuple(float(x) for x in v.inertia), prop_inertia=v.value("prop_inertia"),
+                          positions=v.motor_positions, spins=v.yaw_signs, speed_gain=esc.speed_gain, speed_offset=esc.speed_offset,
+                          time_constant=params.motor_time_constant, delay=0.0, thrust_constant=v.value("thrust_constant"),
+                          torque_constant=v.value("drag_constant"), drag=(0.0, 0.0, 0.0), drag_arm=0.0,
+                          input_min=v.input_min, input_max=v.input_max)
+    rng = np.random.default_rng(3)
+    hover = v.hover_rotor_speed
+    for _ in range(5):
+        q = rng.normal(size=4)
+        q /= np.linalg.norm(q)
+        state = [0.0, 0.0, -20.0, *rng.normal(size=3), *q, *rng.normal(scale=0.5, size=3), *(hover * rng.uniform(0.8, 1.2, 4))]
+        u = v.input_min + rng.uniform(0.4, 0.7, 4) * (v.input_max - v.input_min)
+        omega_cmd = rotors.steady_rotor_speed(p, u)
+        ds = dyn.derivative(state, list(omega_cmd), (0.0, 0.0, 0.0))
+        rot = QuadDynamics.rotation(state)[None]
+        rates = np.array([state[10:13]])
+        rotor = np.array([state[13:17]])
+        rotor_dot = rotors.rotor_acceleration(p, rotor, u[None])
+        force_b, torque_b = rigid_body.rotor_wrench(p, rotor, rotor_dot, np.zeros((1, 3)))
+        inertia = np.asarray(p.inertia)
+        ang = (torque_b + rigid_body.gyroscopic_torque(rates, inertia, rigid_body.rotor_momentum(p.prop_inertia, p.spins, rotor))) / inertia
+        acc, _ = rigid_body.accelerations(p, np.array([state[3:6]]), rot, rates, rotor, rotor_dot)
+        assert np.allclose(ds[3:6], acc[0], rtol=1e-10, atol=1e-10)
+        assert np.allclose(ds[10:13], ang[0], rtol=1e-10, atol=1e-8)
+        assert np.allclose(ds[13:17], rotor_dot[0], rtol=1e-12)

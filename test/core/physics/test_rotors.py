@@ -1,0 +1,75 @@
+"""The rotors of the one physics: command map and its inverse, thrust and its inverse, hover, lag, battery."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from quad_modelling.core.models.greybox import GreyboxParameters
+from quad_modelling.core.physics import rotors
+from quad_modelling.core.physics.parameters import PhysicsParameters
+from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+
+CF = load_vehicle("crazyflie21")
+P = PhysicsParameters.from_vehicle(CF)
+
+
+def test_command_map_and_its_inverse_round_trip_and_clip_at_zero_speed():
+    u = np.array([0.0, 1000.0, 30000.0, 65535.0])
+    speed = rotors.steady_rotor_speed(P, u)
+    assert np.allclose(speed, P.speed_gain * u + P.speed_offset)
+    assert np.allclose(rotors.command_for_rotor_speed(speed, P.speed_gain, P.speed_offset), u)
+    below = -2.0 * P.speed_offset / P.speed_gain  # a command whose map is negative
+    assert rotors.steady_rotor_speed(P.with_values(speed_offset=-P.speed_offset), np.array([below / 4]))[0] == 0.0
+
+
+def test_four_hover_thrusts_carry_the_weight_and_the_thrust_inverse_returns_the_speed():
+    hover = rotors.hover_rotor_speed(P.mass, P.thrust_constant, GRAVITY)
+    thrust = rotors.rotor_thrusts(P.thrust_constant, np.full(4, hover))
+    assert np.isclose(thrust.sum(), P.mass * GRAVITY, rtol=1e-12)
+    assert np.isclose(rotors.rotor_speed_for_thrust(P.thrust_constant, thrust[0]), hover, rtol=1e-12)
+    assert np.isclose(P.hover_rotor_speed(GRAVITY), hover)
+    assert np.isclose(rotors.steady_rotor_speed(P, P.hover_command(GRAVITY)), hover)
+    assert np.allclose(rotors.rotor_yaw_torques(P.torque_constant, np.full(4, hover)), P.torque_constant * hover**2)
+
+
+def test_the_greybox_derives_its_thesis_constants_from_the_same_rotor_formulas():
+    """Eq 3-7: K = 2 B_m sqrt(a m g / 4) = B_m ∂T/∂Ω at Ω0 = sqrt(m g / (4 a))."""
+    g = GreyboxParameters.from_vehicle(CF)
+    a, m = g.thrust_constant, g.mass
+    assert np.isclose(g.hover_rotor_speed, np.sqrt(m * GRAVITY / (4 * a)), rtol=1e-14)
+    assert np.isclose(g.input_gain, 2 * g.motor_b_m * np.sqrt(a * m * GRAVITY / 4), rtol=1e-14)
+    assert np.isclose(CF.hover_rotor_speed, g.hover_rotor_speed, rtol=1e-14)
+    pos = np.asarray(g.motor_positions)
+    assert np.allclose(g.torque_matrix(), np.vstack([-pos[:, 1], pos[:, 0], g.drag_constant / a * np.asarray(g.yaw_signs)]))
+
+
+def test_rotor_lag_step_is_the_exact_first_order_response_and_the_series_form_agrees():
+    tau = P.time_constant
+    u_step = np.full((1, 4), 40000.0)
+    start = rotors.steady_rotor_speed(P, np.full((1, 4), 20000.0))
+    target = rotors.steady_rotor_speed(P, u_step)
+    after = rotors.rotor_step(P, start, u_step, 0.03)
+    assert np.allclose(after, target + (start - target) * np.exp(-0.03 / tau), rtol=1e-14)
+    assert np.allclose(rotors.rotor_acceleration(P, start, u_step), (target - start) / tau)
+    t = np.array([0.0, 0.01, 0.025, 0.04])
+    u = np.vstack([np.full(4, 20000.0), u_step[0], u_step[0], u_step[0]])
+    series = rotors.rotor_speeds(P, u, t)
+    step_by_step = [start[0]]
+    for k in range(3):
+        step_by_step.append(rotors.rotor_step(P, step_by_step[-1], u[k], t[k + 1] - t[k]))
+    assert np.allclose(series, np.array(step_by_step), rtol=1e-12)
+
+
+def test_delayed_commands_table_and_live_lookup_agree():
+    p = P.with_values(delay=0.02)
+    t = np.arange(10) * 0.01
+    u = np.arange(40.0).reshape(10, 4)
+    table = rotors.delayed_commands(p, u, t)
+    live = [rotors.delayed_command_at(p, list(t[: k + 1]), list(u[: k + 1]), t[k]) for k in range(10)]
+    assert np.array_equal(table, np.array(live))
+    assert np.array_equal(table[5], u[3])
+
+
+def test_battery_factor_is_one_at_the_reference_voltage_and_linear_in_the_voltage():
+    assert rotors.battery_speed_factor(3.9, 3.9, 0.2) == 1.0
+    assert np.isclose(rotors.battery_speed_factor(3.7, 3.9, 0.2), 0.96)
