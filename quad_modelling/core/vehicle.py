@@ -21,12 +21,13 @@ Thrust and drag torque per rotor (thesis Eq 3-3, 3-13):
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from quad_modelling.core.input_files import read_yaml
+from quad_modelling.core.physics.effects import EffectTerm, parse_effects
 from quad_modelling.core.physics.rotors import hover_rotor_speed
 from quad_modelling.errors import ConfigError
 
@@ -155,6 +156,8 @@ class VehicleConfig:
     input_max: float
     input_unit: str
     path: str
+    effects: dict[str, EffectTerm] = field(default_factory=dict)
+    """The physics model's optional terms (:mod:`quad_modelling.core.physics.effects`), by name."""
 
     def value(self, key: str) -> float:
         """The numeric value of a constant, e.g. ``cfg.value('mass')``."""
@@ -209,10 +212,7 @@ class VehicleConfig:
                 raise ConfigError(f"{self.path}: cannot set unknown constant {key!r}")
             check_constant(key, float(value), f"{self.path} ({source})")
             constants[key] = Constant(float(value), old.unit, source, old.status)
-        return VehicleConfig(
-            self.name, self.description, self.geometry, self.motors, constants,
-            self.input_min, self.input_max, self.input_unit, self.path,
-        )
+        return replace(self, constants=constants)
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> VehicleConfig:
@@ -295,6 +295,7 @@ class VehicleConfig:
             input_max=input_max,
             input_unit=str(need(inputs, "unit", "inputs.")),
             path=where,
+            effects=parse_effects(doc.get("effects"), where),
         )
 
 

@@ -56,7 +56,7 @@ from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsStream
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
-from quad_modelling.core.physics.rotors import delayed_commands
+from quad_modelling.core.physics.rotors import delayed_commands, effective_commands
 from quad_modelling.core.models.residual_net import ResidualNet
 from quad_modelling.core.preprocess import TrimConfig, state_measurement, trim_prediction
 from quad_modelling.core.variables import VARIABLES
@@ -88,10 +88,10 @@ def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
     return np.concatenate([vel_b, rot[:, 2, :], state.rates, u[:, :4], state.rotor, u[:, 4:]], axis=1)
 
 
-def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray) -> np.ndarray:
+def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray, voltage=None) -> np.ndarray:
     """(N, 8) commands of the hybrid per row: the delayed commands the rotors answer
     (:func:`physics.delayed_commands`) and the logged commands ``u`` (N, 4) stamped ``t`` (N,) [s]."""
-    return np.concatenate([delayed_commands(p, u, t), np.asarray(u, dtype=float)], axis=1)
+    return np.concatenate([effective_commands(p, delayed_commands(p, u, t), voltage), np.asarray(u, dtype=float)], axis=-1)
 
 
 def physics_constants(p: PhysicsParameters) -> dict[str, float | list]:
@@ -159,7 +159,7 @@ class HybridModel:
         if self.net.is_zero() or last == 0:
             return state, base
         rows = np.arange(last)
-        commands = hybrid_commands(self.params, log.u, log.t)
+        commands = hybrid_commands(self.params, log.u, log.t, physics.battery_voltage(self.params, log))
         c = self.correction(physics.measured_states(self.params, measured, rotor, rows), commands[rows])
         integral = np.concatenate([np.zeros((1, 6)), np.cumsum(c * np.diff(log.t[: last + 1])[:, None], axis=0)])
         corrected = []
@@ -190,8 +190,11 @@ class HybridModel:
         segment.require(("gyro_b",), "the hybrid model's multi-step form (body rates at each anchor)")
         state, disturbance = self.anchor(segment, starts)
         rows = starts[:, None] + np.arange(horizon + 1)[None, :]
-        commands = hybrid_commands(self.params, segment.u, segment.t)
-        return self.rollout(state, disturbance, commands[rows], np.diff(segment.t)[rows[:, :-1]])
+        voltage = physics.battery_voltage(self.params, segment)
+        commands = np.concatenate([  # the anchor's battery voltage held over each horizon, as the physics model
+            effective_commands(self.params, delayed_commands(self.params, segment.u, segment.t)[rows],
+                               None if voltage is None else voltage[starts][:, None]), segment.u[rows]], axis=-1)
+        return self.rollout(state, disturbance, commands, np.diff(segment.t)[rows[:, :-1]])
 
     # ---- files ------------------------------------------------------------------
     def header(self) -> dict:
@@ -253,8 +256,8 @@ class HybridStream(PhysicsStream):
     sample, ``push(command)`` by the warm rows' median interval) with the hybrid's step and outputs."""
 
     def __init__(self, model: HybridModel, state: PhysicsState, disturbance: Disturbance, times: np.ndarray,
-                 commands: np.ndarray, period_s: float) -> None:
-        super().__init__(model.params, state, disturbance, times, commands, period_s)
+                 commands: np.ndarray, period_s: float, voltage: float | None = None) -> None:
+        super().__init__(model.params, state, disturbance, times, commands, period_s, voltage)
         self.model = model
 
     def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
@@ -286,7 +289,9 @@ class HybridPredictor:
         measured = state_measurement(warm)
         state, disturbance = self.model.anchor(warm, np.array([len(warm) - 1]), measured)
         period = float(np.median(np.diff(warm.t)))
-        return measured, HybridStream(self.model, state, disturbance, warm.t, warm.u, period)
+        voltage = physics.battery_voltage(self.model.params, warm)
+        return measured, HybridStream(self.model, state, disturbance, warm.t, warm.u, period,
+                                      None if voltage is None else float(voltage[-1]))
 
     def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) absolute prediction of a window: the live calls with each sample's real stamp."""

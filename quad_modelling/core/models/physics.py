@@ -58,6 +58,7 @@ from quad_modelling.core.physics.rotors import (
     STAMP_TOLERANCE_S,
     delayed_command_at,
     delayed_commands,
+    effective_commands,
     rotor_acceleration,
     rotor_speeds,
 )
@@ -105,7 +106,8 @@ class Disturbance:
 
 def outputs(p: PhysicsParameters, state: PhysicsState, u: np.ndarray, disturbance: Disturbance) -> np.ndarray:
     """(B, 18) VARIABLES of ``state`` under commands ``u`` (B, 4): absolute, internal convention."""
-    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, state.rotor, u))
+    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, state.rotor, u),
+                                   state.pos_n)
     out = np.empty((len(state.pos_n), len(VARIABLES)))
     out[:, 0:3] = state.pos_n
     out[:, 3:6] = state.vel_n
@@ -156,7 +158,7 @@ def disturbance_estimate(p: PhysicsParameters, t: np.ndarray, u: np.ndarray, mea
     anchors = np.asarray(anchors, dtype=int)
     all_rows = np.arange(len(t))
     state = measured_states(p, measured, rotor, all_rows)
-    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, rotor, u))
+    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, rotor, u), state.pos_n)
     dt = np.diff(t)
     modelled = np.concatenate([acc_n[:-1], ang_acc[:-1]], axis=1) * dt[:, None]
     integral = np.concatenate([np.zeros((1, 6)), np.cumsum(modelled, axis=0)])  # ∫ modelled from t_0 to t_k
@@ -175,6 +177,22 @@ def disturbance_estimate(p: PhysicsParameters, t: np.ndarray, u: np.ndarray, mea
     return Disturbance(parts[0], parts[1])
 
 
+def battery_voltage(p: PhysicsParameters, log: FlightLog) -> np.ndarray | None:
+    """The log's battery voltage (N,) [V] when the battery term is on (DataError naming the file without one)."""
+    if p.battery is None:
+        return None
+    if log.vbat is None:
+        raise DataError(f"{log.meta.source}: the vehicle's battery term needs the battery voltage, and this flight has none "
+                        f"(switch effects.battery off in the vehicle file)")
+    return log.vbat
+
+
+def rotor_commands(p: PhysicsParameters, log: FlightLog) -> np.ndarray:
+    """(N, 4) the commands the rotors answer at each row of ``log``: delayed (:func:`delayed_commands`), then through
+    the command path's terms with each row's measured voltage (:func:`~quad_modelling.core.physics.rotors.effective_commands`)."""
+    return effective_commands(p, delayed_commands(p, log.u, log.t), battery_voltage(p, log))
+
+
 def anchor_state(p: PhysicsParameters, log: FlightLog, anchors: np.ndarray, observer: Observer = Observer(),
                  measured: np.ndarray | None = None) -> tuple[PhysicsState, Disturbance, np.ndarray]:
     """(start states, disturbances, rotor speeds (N, 4)) at ``anchors`` rows of ``log``, causally (module docstring).
@@ -184,7 +202,7 @@ def anchor_state(p: PhysicsParameters, log: FlightLog, anchors: np.ndarray, obse
     """
     if measured is None:
         measured = state_measurement(log)
-    commands = delayed_commands(p, log.u, log.t)
+    commands = rotor_commands(p, log)
     rotor = rotor_speeds(p, commands, log.t)
     return (measured_states(p, measured, rotor, anchors),
             disturbance_estimate(p, log.t, commands, measured, rotor, anchors, observer), rotor)
@@ -199,8 +217,9 @@ class PhysicsStream:
     """
 
     def __init__(self, params: PhysicsParameters, state: PhysicsState, disturbance: Disturbance, times: np.ndarray,
-                 commands: np.ndarray, period_s: float):
+                 commands: np.ndarray, period_s: float, voltage: float | None = None):
         self.params = params
+        self.voltage = voltage  # the anchor's battery voltage [V], held over the window (battery term)
         self.state = state
         self.disturbance = disturbance
         self.times = [float(x) for x in times]
@@ -209,7 +228,7 @@ class PhysicsStream:
 
     def _command_at(self, t_s: float) -> np.ndarray:
         """The command the rotors answer at ``t_s`` (:func:`~quad_modelling.core.physics.rotors.delayed_command_at`)."""
-        return delayed_command_at(self.params, self.times, self.commands, t_s)
+        return effective_commands(self.params, delayed_command_at(self.params, self.times, self.commands, t_s), self.voltage)
 
     def _forget(self) -> None:
         """Drop commands no later sample can need (keep the last one at or before t - δ)."""
@@ -259,7 +278,9 @@ class PhysicsPredictor:
         last = np.array([len(warm) - 1])
         state, disturbance, _ = anchor_state(self.params, warm, last, self.observer, measured)
         period = float(np.median(np.diff(warm.t)))
-        return measured, PhysicsStream(self.params, state, disturbance, warm.t, warm.u, period)
+        voltage = battery_voltage(self.params, warm)
+        return measured, PhysicsStream(self.params, state, disturbance, warm.t, warm.u, period,
+                                       None if voltage is None else float(voltage[-1]))
 
     def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) absolute prediction: the live calls with each sample's real stamp."""
@@ -279,4 +300,7 @@ class PhysicsPredictor:
         state, disturbance, _ = anchor_state(self.params, segment, starts, self.observer)
         rows = starts[:, None] + np.arange(horizon + 1)[None, :]
         dt = np.diff(segment.t)[rows[:, :-1]]
-        return rollout(self.params, state, disturbance, delayed_commands(self.params, segment.u, segment.t)[rows], dt)
+        voltage = battery_voltage(self.params, segment)
+        commands = effective_commands(self.params, delayed_commands(self.params, segment.u, segment.t)[rows],
+                                      None if voltage is None else voltage[starts][:, None])  # the anchor's voltage, held
+        return rollout(self.params, state, disturbance, commands, dt)

@@ -31,6 +31,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from quad_modelling.core.physics import rotors
+from quad_modelling.core.physics.effects import switched_on
 from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
 from quad_modelling.errors import ConfigError
 
@@ -58,6 +59,9 @@ class PhysicsParameters:
     in FRD [m]; spins (4,) s_i = +1 for a rotor spinning counter-clockwise seen from above (positive
     reaction torque about FRD z); speed_gain k_u, speed_offset Ω_off, time_constant τ_m, delay δ [s], thrust_constant
     k_f, torque_constant k_m, drag (d_xy, d_xy, d_z), drag_arm h_d [m]; input_min/max: the command range.
+
+    The optional terms (:mod:`quad_modelling.core.physics.effects`), None when off: ground_effect (c_ge [m²],
+    h_off [m]); battery (κ [1/V], V_ref [V]); motor_gains (g_1..g_4) [1]; rotor_momentum_scale k_p [1] (0: off).
     """
 
     mass: float
@@ -75,6 +79,10 @@ class PhysicsParameters:
     drag_arm: float
     input_min: float
     input_max: float
+    ground_effect: tuple[float, float] | None = None
+    battery: tuple[float, float] | None = None
+    motor_gains: tuple[float, float, float, float] | None = None
+    rotor_momentum_scale: float = 0.0
 
     @classmethod
     def from_vehicle(cls, vehicle: VehicleConfig) -> PhysicsParameters:
@@ -100,7 +108,18 @@ class PhysicsParameters:
             drag_arm=v("rotor_drag_arm"),
             input_min=vehicle.input_min,
             input_max=vehicle.input_max,
+            ground_effect=switched_on(vehicle.effects, "ground_effect"),
+            battery=switched_on(vehicle.effects, "battery"),
+            motor_gains=switched_on(vehicle.effects, "motor_imbalance"),
+            rotor_momentum_scale=(switched_on(vehicle.effects, "gyroscopic") or (0.0,))[0],
         )
+
+    @property
+    def terms_on(self) -> tuple[str, ...]:
+        """The optional terms switched on (:data:`~quad_modelling.core.physics.effects.TERMS` names)."""
+        on = {"ground_effect": self.ground_effect is not None, "battery": self.battery is not None,
+              "motor_imbalance": self.motor_gains is not None, "gyroscopic": self.rotor_momentum_scale != 0.0}
+        return tuple(name for name, is_on in on.items() if is_on)
 
     def with_values(self, **changes) -> PhysicsParameters:
         """A copy with some fields replaced."""

@@ -53,7 +53,7 @@ import numpy as np
 
 from quad_modelling.core.flight_log import GYRO_FULL_SCALE
 from quad_modelling.core.physics import arrays
-from quad_modelling.core.physics.aero import rotor_drag
+from quad_modelling.core.physics.aero import ground_effect_factor, rotor_drag
 from quad_modelling.core.physics.rotors import rotor_acceleration, rotor_step, rotor_thrusts, rotor_yaw_torques
 from quad_modelling.core.vehicle import GRAVITY
 
@@ -95,10 +95,13 @@ def allocation_matrix(positions: np.ndarray, spins: np.ndarray, torque_ratio: fl
     return np.vstack([np.ones(len(positions)), -positions[:, 1], positions[:, 0], np.asarray(spins, dtype=float) * torque_ratio])
 
 
-def rotor_wrench(p, rotor, rotor_dot, vel_b):
+def rotor_wrench(p, rotor, rotor_dot, vel_b, height=None):
     """(F_B (B, 3) [N], τ_B (B, 3) [N m]) in B of rotor speeds ``rotor`` (B, 4), their rates ``rotor_dot`` (B, 4)
-    [rad/s²] and the body airspeed ``vel_b`` (B, 3) [m/s] (module docstring)."""
+    [rad/s²] and the body airspeed ``vel_b`` (B, 3) [m/s] (module docstring); with the ground-effect term on, the
+    thrusts grow by :func:`~quad_modelling.core.physics.aero.ground_effect_factor` at ``height`` (B,) [m]."""
     thrust = rotor_thrusts(p.thrust_constant, rotor)
+    if p.ground_effect is not None and height is not None:
+        thrust = thrust * ground_effect_factor(arrays.clamp_min(height, 0.0), *p.ground_effect)[:, None]
     drag_force, drag_moment = rotor_drag(p, rotor, vel_b)
     force = drag_force - arrays.unit_z_like(drag_force, 1.0) * thrust.sum(axis=1)[:, None]
     torque = arrays.columns([
@@ -122,12 +125,17 @@ def gyroscopic_torque(rates, inertia, momentum=None):
     return -arrays.cross(rates, angular_momentum)
 
 
-def accelerations(p, vel_n, rot, rates, rotor, rotor_dot):
-    """(dv_N/dt (B, 3) [m/s², N], dω/dt (B, 3) [rad/s², B]) of a state (module docstring), ``rotor_dot`` dΩ/dt (B, 4)."""
-    force_b, torque_b = rotor_wrench(p, rotor, rotor_dot, arrays.rotate_back(rot, vel_n))
+def accelerations(p, vel_n, rot, rates, rotor, rotor_dot, pos_n=None):
+    """(dv_N/dt (B, 3) [m/s², N], dω/dt (B, 3) [rad/s², B]) of a state (module docstring), ``rotor_dot`` dΩ/dt (B, 4);
+    ``pos_n`` (B, 3) gives the height above the ground plane z_N = 0 the ground-effect term needs."""
+    height = None if pos_n is None else -pos_n[:, 2]
+    force_b, torque_b = rotor_wrench(p, rotor, rotor_dot, arrays.rotate_back(rot, vel_n), height)
     acc_n = arrays.rotate(rot, force_b) / p.mass + arrays.unit_z_like(force_b, GRAVITY)
     inertia = _inertia(p, rates)
-    return acc_n, (torque_b + gyroscopic_torque(rates, inertia)) / inertia
+    momentum = None
+    if p.rotor_momentum_scale:
+        momentum = p.rotor_momentum_scale * rotor_momentum(p.prop_inertia, p.spins, rotor)
+    return acc_n, (torque_b + gyroscopic_torque(rates, inertia, momentum)) / inertia
 
 
 def limit_norm(vectors, limit: float):
@@ -175,7 +183,8 @@ def step(p, state, u, dt, linear_n, angular_b):
     """One semi-implicit Euler step (module docstring) of every batch member under commands ``u`` (B, 4) held for
     ``dt`` (B,) [s], with constant extra accelerations ``linear_n`` (B, 3) [m/s², N] and ``angular_b`` (B, 3)
     [rad/s², B] (the model's disturbance estimate). Returns a state of ``state``'s type."""
-    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, state.rotor, u))
+    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, state.rotor, u),
+                                   state.pos_n)
     rates = limit_norm(state.rates + dt[:, None] * (ang_acc + angular_b), GYRO_FULL_SCALE)
     rot = rotation_increment(state.rot, rates, dt)
     vel = limit_norm(state.vel_n + dt[:, None] * (acc_n + linear_n), MAX_SPEED_MPS)

@@ -57,6 +57,26 @@ def delayed_command_at(p, times, commands, t_s: float):
     return commands[0]
 
 
+def effective_commands(p, u, voltage=None):
+    r"""The commands the rotor map sees (..., 4): the (delayed) logged commands ``u`` through the optional terms of the
+    command path (:mod:`~quad_modelling.core.physics.effects`), in order
+
+    * motor imbalance, :math:`u_i \to g_i u_i`;
+    * battery, :math:`\Omega_{ss} \to f \Omega_{ss}` with :math:`f = 1 + \kappa (V - V_{ref})`
+      (:func:`battery_speed_factor`), written on the command as :math:`u \to f u + (f - 1) \Omega_{off} / k_u`
+      (then :math:`k_u u + \Omega_{off} \to f (k_u u + \Omega_{off})`), ``voltage`` [V] broadcast against ``u``'s
+      leading axes (one per row, or the anchor's held over a horizon).
+
+    Without terms on, ``u`` itself. DataError-free: a battery term without a voltage is the caller's to refuse."""
+    if p.motor_gains is not None:
+        u = u * np.asarray(p.motor_gains, dtype=float)
+    if p.battery is not None:
+        kappa, reference = p.battery
+        factor = battery_speed_factor(np.asarray(voltage, dtype=float), reference, kappa)[..., None]
+        u = factor * u + (factor - 1.0) * (p.speed_offset / p.speed_gain)
+    return u
+
+
 def steady_rotor_speed(p, u):
     """Ω_ss = max(k_u u + Ω_off, 0) [rad/s] of commands ``u`` (..., 4)."""
     if not arrays.is_tensor(u):

@@ -99,12 +99,12 @@ def segment_arrays(p: PhysicsParameters, segment: FlightLog, observer: Observer)
     delayed commands the rotors answer and the logged ones (:func:`~quad_modelling.core.models.hybrid.hybrid_commands`)."""
     measured = state_measurement(segment)
     rows = np.arange(len(segment))
-    commands = hybrid_commands(p, segment.u, segment.t)
+    commands = hybrid_commands(p, segment.u, segment.t, physics.battery_voltage(p, segment))  # per-row voltage (training only)
     rotor = rotors.rotor_speeds(p, commands[:, :4], segment.t)
     disturbance = physics.disturbance_estimate(p, segment.t, commands[:, :4], measured, rotor, rows, observer)
     dt = np.diff(segment.t)
     arrays = {
-        "vel": measured[:, 3:6], "rot": physics.measured_states(p, measured, rotor, rows).rot.reshape(-1, 9),
+        "pos": measured[:, 0:3], "vel": measured[:, 3:6], "rot": physics.measured_states(p, measured, rotor, rows).rot.reshape(-1, 9),
         "rates": measured[:, 12:15], "rotor": rotor, "u": commands, "dt": np.append(dt, np.median(dt))[:, None],
         "d": np.concatenate([disturbance.linear_n, disturbance.angular_b], axis=1),
     }
@@ -140,7 +140,7 @@ def feature_statistics(segments: list[dict[str, np.ndarray]]) -> tuple[np.ndarra
 
     count, mean, m2 = 0, None, None
     for s in segments:
-        state = rigid_body.PhysicsState(np.zeros_like(s["vel"]), s["vel"], s["rot"].reshape(-1, 3, 3), s["rates"], s["rotor"],
+        state = rigid_body.PhysicsState(s["pos"], s["vel"], s["rot"].reshape(-1, 3, 3), s["rates"], s["rotor"],
                                      np.zeros(len(s["vel"])))
         f = net_features(state, s["u"])
         n, f_mean = len(f), f.mean(axis=0)
@@ -183,10 +183,11 @@ def acceleration_scale(p: PhysicsParameters, logs: Sequence[FlightLog], spans: S
         if len(log) < 2:
             continue
         measured = measured_variables(log)
-        commands = rotors.delayed_commands(p, log.u, log.t)
+        commands = physics.rotor_commands(p, log)
         rotor = rotors.rotor_speeds(p, commands, log.t)
         state = physics.measured_states(p, measured, rotor, np.arange(len(log)))
-        acc_n, ang_acc = rigid_body.accelerations(p, state.vel_n, state.rot, state.rates, rotor, rotors.rotor_acceleration(p, rotor, commands))
+        acc_n, ang_acc = rigid_body.accelerations(p, state.vel_n, state.rot, state.rates, rotor, rotors.rotor_acceleration(p, rotor, commands),
+                                                  state.pos_n)
         lin_b = np.einsum("bji,bj->bi", state.rot, measured[:, 6:9] - acc_n)
         residual = np.concatenate([lin_b, measured[:, 15:18] - ang_acc], axis=1)
         residual = residual[np.all(np.isfinite(residual), axis=1)]
@@ -264,7 +265,7 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
         d = batch["d"][:, a] - torch.cat(corrections, dim=1)
         b = len(d)
         zeros = torch.zeros(b, 3, dtype=d.dtype)
-        state = pt.TorchState(zeros, batch["vel"][:, a], rot[:, a], batch["rates"][:, a], batch["rotor"][:, a], zeros[:, 0])
+        state = pt.TorchState(batch["pos"][:, a], batch["vel"][:, a], rot[:, a], batch["rates"][:, a], batch["rotor"][:, a], zeros[:, 0])
         loss = torch.zeros((), dtype=d.dtype)
         for k in range(horizon):
             r = a + k

@@ -43,7 +43,8 @@ class TorchState(NamedTuple):
 
 class TorchParameters(NamedTuple):
     """The :class:`PhysicsParameters` the step uses, as tensors of one dtype (positions (4, 2), spins (4,)). The
-    command delay δ is not here: the caller feeds the delayed commands (:func:`physics.delayed_commands`)."""
+    command path (delay δ, motor gains, battery scaling) is not here: the caller feeds the commands the rotors answer
+    (:func:`~quad_modelling.core.physics.rotors.effective_commands`)."""
 
     mass: float
     inertia: torch.Tensor
@@ -57,6 +58,8 @@ class TorchParameters(NamedTuple):
     torque_constant: float
     drag: torch.Tensor
     drag_arm: float
+    ground_effect: tuple[float, float] | None = None
+    rotor_momentum_scale: float = 0.0
 
     @classmethod
     def from_params(cls, p: PhysicsParameters, dtype=torch.float64) -> TorchParameters:
@@ -65,7 +68,7 @@ class TorchParameters(NamedTuple):
 
         return cls(float(p.mass), t(p.inertia), float(p.prop_inertia), t(p.positions), t(p.spins), float(p.speed_gain),
                    float(p.speed_offset), float(p.time_constant), float(p.thrust_constant), float(p.torque_constant), t(p.drag),
-                   float(p.drag_arm))
+                   float(p.drag_arm), p.ground_effect, float(p.rotor_momentum_scale))
 
 
 def step(p: TorchParameters, state: TorchState, u: torch.Tensor, dt: torch.Tensor, linear_n: torch.Tensor,

@@ -1,0 +1,165 @@
+r"""Optional terms of the physics model, switched on in the vehicle file (DESIGN 6.1b, 6.2): one definition each.
+
+The base physics (:mod:`~quad_modelling.core.physics.rigid_body`) is the rigid body with the rotors' thrust and
+yaw torque, their lag and command delay, and rotor drag. The terms below extend it; each is off unless the
+vehicle file's ``effects`` section switches it on with identified parameters (``quad-modelling identify --effects
+LIST`` fits them with the base constants). Their forms are the model's, simpler than the truth simulator's
+(``docs/simulator.md``); the code of each form is in the module named:
+
+====================  ==========================================================================  ==========================
+term                  form (the module's symbols)                                                  parameters
+====================  ==========================================================================  ==========================
+``ground_effect``     :math:`T_i \to k_{GE}(h) T_i`, :math:`k_{GE} = 1 + c_{ge}/(h + h_{off})^2`,   coefficient c_ge [m2],
+                      h = -z_N the height above the ground plane z_N = 0 [m] (:mod:`.aero`)          offset h_off [m]
+``battery``           :math:`\Omega_{ss} \to (1 + \kappa (V - V_{ref})) \Omega_{ss}`, V the measured  kappa [1/V],
+                      battery voltage, held at the anchor's over a prediction (:mod:`.rotors`)       reference_voltage [V]
+``motor_imbalance``   :math:`u_i \to g_i u_i`: each motor answers its logged command times its gain  gain_1..gain_4 [1]
+                      (mean 1: the collective gain is the thrust constant's) (:mod:`.rotors`)
+``gyroscopic``        the rotors' gyroscopic torque :math:`-\omega \times k_p h_r`,                 scale k_p [1]
+                      :math:`h_r = (0, 0, -I_p \sum_i s_i \Omega_i)` (:mod:`.rigid_body`)
+====================  ==========================================================================  ==========================
+
+The rest of the catalogue (:data:`~quad_modelling.core.effect_names.CATALOGUE_EFFECTS`) is already in the base
+physics -- rotor drag (``rotor_drag_xy/_z/_arm``), motor lag (``rotor_time_constant``), input delay
+(``rotor_delay``), the thrust nonlinearity (:math:`T = k_f \Omega^2` is the physics itself) -- or is what the
+physics model's disturbance observer absorbs (trim drift: a constant trim over the observer's history).
+
+A vehicle file's ``effects`` section (validated by :func:`parse_effects`; every error one line naming the file,
+the term and the key)::
+
+    effects:
+      ground_effect:
+        on: true
+        coefficient: {value: 3.1e-5, sigma: 4e-6, unit: m2, bounds: [0, 0.0021], source: "...", status: identified}
+        offset: {value: 0.023, unit: m, bounds: [0, 0.46], source: "...", status: identified}
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_modelling.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class TermParameter:
+    """One parameter of a term: name, unit (as written in vehicle files), what it is."""
+
+    name: str
+    unit: str
+    doc: str
+
+
+TERMS: dict[str, tuple[TermParameter, ...]] = {
+    "ground_effect": (TermParameter("coefficient", "m2", "c_ge: thrust gain (h + h_off)^2 near the ground"),
+                      TermParameter("offset", "m", "h_off: height offset of the ground-effect law")),
+    "battery": (TermParameter("kappa", "1/V", "rotor-speed change per volt of battery voltage"),
+                TermParameter("reference_voltage", "V", "V_ref: voltage at which the base constants hold")),
+    "motor_imbalance": tuple(TermParameter(f"gain_{i}", "1", f"motor {i}'s gain on its logged command") for i in range(1, 5)),
+    "gyroscopic": (TermParameter("scale", "1", "k_p: scale of the rotors' gyroscopic torque"),),
+}
+"""The physics model's optional terms and their parameters (module docstring), in the order they are applied."""
+
+
+@dataclass(frozen=True)
+class TermValue:
+    """A term parameter's value as a vehicle file holds it."""
+
+    value: float
+    unit: str
+    bounds: tuple[float, float]
+    source: str
+    status: str
+    sigma: float = float("nan")
+
+
+@dataclass(frozen=True)
+class EffectTerm:
+    """One term of the vehicle file's ``effects`` section: switched ``on`` or not, its parameters by name."""
+
+    name: str
+    on: bool
+    parameters: dict[str, TermValue]
+
+    def values(self) -> tuple[float, ...]:
+        """The parameter values in :data:`TERMS` order."""
+        return tuple(self.parameters[p.name].value for p in TERMS[self.name])
+
+
+def parse_term_names(names, where: str = "--effects") -> tuple[str, ...]:
+    """Term names of an ``identify --effects`` list, validated: known (:data:`TERMS`), each named once."""
+    names = [str(n).strip() for n in names if str(n).strip()]
+    unknown = [n for n in names if n not in TERMS]
+    if unknown:
+        raise ConfigError(f"{where}: unknown physics-model term {', '.join(map(repr, unknown))}; known: {', '.join(TERMS)} "
+                          f"(rotor drag, motor lag and input delay are base constants; docs/models.md)")
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise ConfigError(f"{where}: {', '.join(twice)} named more than once")
+    return tuple(n for n in TERMS if n in names)
+
+
+def parse_effects(doc, where: str) -> dict[str, EffectTerm]:
+    """The ``effects`` section of a vehicle document (None: no terms), validated (module docstring): every term known,
+    every parameter present with its unit (the term's), finite bounds low <= high and a value inside them, a known
+    status; a term switched on must have every parameter identified or measured (a value, not null)."""
+    if doc is None:
+        return {}
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{where}: effects must be a mapping of term names")
+    terms = {}
+    for name, entry in doc.items():
+        if name not in TERMS:
+            raise ConfigError(f"{where}: effects.{name}: unknown physics-model term; known: {', '.join(TERMS)}")
+        if not isinstance(entry, dict) or not isinstance(entry.get("on"), bool):
+            raise ConfigError(f"{where}: effects.{name}.on must be true or false")
+        known = {p.name: p for p in TERMS[name]}
+        extra = sorted(set(entry) - set(known) - {"on"})
+        if extra:
+            raise ConfigError(f"{where}: effects.{name}.{extra[0]}: unknown parameter; {name} has {', '.join(known)}")
+        parameters = {}
+        for key, spec in known.items():
+            context = f"{where}: effects.{name}.{key}"
+            value = entry.get(key)
+            if value is None:
+                if entry["on"]:
+                    raise ConfigError(f"{context}: {name} is switched on but its parameter {key} was never identified "
+                                      f"(quad-modelling identify --effects {name})")
+                continue
+            parameters[key] = _term_value(value, spec, context, entry["on"], name)
+        terms[name] = EffectTerm(name, entry["on"], parameters)
+    return terms
+
+
+def _term_value(entry, spec: TermParameter, context: str, on: bool, name: str) -> TermValue:
+    if not isinstance(entry, dict):
+        raise ConfigError(f"{context} must be a mapping {{value, unit, bounds, source, status}}")
+    for key in ("unit", "bounds", "source", "status"):
+        if key not in entry:
+            raise ConfigError(f"{context}: missing {key}")
+    if entry["unit"] != spec.unit:
+        raise ConfigError(f"{context}.unit must be {spec.unit!r}, got {entry['unit']!r}")
+    if entry["status"] not in ("measured", "identified", "not identified"):
+        raise ConfigError(f"{context}.status must be measured, identified or 'not identified', got {entry['status']!r}")
+    if on and entry["status"] == "not identified":
+        raise ConfigError(f"{context}: {name} is switched on but this parameter was never identified "
+                          f"(quad-modelling identify --effects {name})")
+    try:
+        value = float(entry.get("value"))
+        low, high = (float(b) for b in entry["bounds"])
+        sigma = float(entry.get("sigma", "nan"))
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"{context}: value, bounds [low, high] and sigma must be numbers") from err
+    if not (np.isfinite(low) and np.isfinite(high) and low <= high):
+        raise ConfigError(f"{context}.bounds must be finite [low, high] with low <= high, got [{low:g}, {high:g}]")
+    if not (np.isfinite(value) and low <= value <= high):
+        raise ConfigError(f"{context}.value {value:g} {spec.unit} lies outside its bounds [{low:g}, {high:g}]")
+    return TermValue(value, spec.unit, (low, high), str(entry["source"]), entry["status"], sigma)
+
+
+def switched_on(terms: dict[str, EffectTerm], name: str) -> tuple[float, ...] | None:
+    """The parameter values of term ``name`` when it is switched on, else None."""
+    term = terms.get(name)
+    return term.values() if term is not None and term.on else None
