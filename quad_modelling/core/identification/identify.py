@@ -38,6 +38,7 @@ import numpy as np
 import yaml
 
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.physics.effects import effects_document
 from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
 from quad_modelling.core.identification.greybox_fit import BaseFit, constant_estimates, identify_base
 from quad_modelling.core.identification.motor_check import check_lines, check_motor_layout
@@ -110,7 +111,8 @@ def modelled_thrusts(batch: WindowBatch, fit: BaseFit) -> np.ndarray:
     return smooth(thrusts.transpose(1, 0, 2), 1.0 / batch.dt, batch.smooth_cutoff_hz).transpose(1, 0, 2)
 
 
-def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig | None = None) -> IdentificationResult:
+def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig | None = None,
+             terms: Sequence[str] = ()) -> IdentificationResult:
     """Identify A_m, B_m (with a held), d and the voltage dependence; check motor order/spins."""
     config = config or EvaluationConfig()
     batch = training_batch(flights, vehicle, config)
@@ -130,7 +132,7 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
     gains = np.array(window_gains)
     finite = np.isfinite(gains)
     spread = float(np.std(gains[finite]) / np.sqrt(finite.sum())) if finite.any() else float("nan")
-    physics, physics_note = identify_physics_if_configured(flights, vehicle, config)
+    physics, physics_note = identify_physics_if_configured(flights, vehicle, config, terms)
     return IdentificationResult(
         {key: float(fit.values[key]) for key in IDENTIFIED_CONSTANTS}, {key: fit.sigma[key] for key in IDENTIFIED_CONSTANTS},
         float(gain), fit.sigma["thrust_gain_K"], window_gains, voltage, motor_check, spans, files,
@@ -218,6 +220,8 @@ def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationRe
             "fit": result.fit,
         },
     }
+    if vehicle.effects:
+        document["effects"] = effects_document(vehicle.effects)  # the terms identify did not fit, as the file had them
     add_physics_constants(document, result.physics, result.physics_note, source)
     return document
 

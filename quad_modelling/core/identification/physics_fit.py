@@ -58,7 +58,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy import optimize
@@ -68,12 +68,20 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
 from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
 from quad_modelling.core.models.physics import Observer
-from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_wrench
-from quad_modelling.core.physics.rotors import delayed_commands, rotor_speeds
+from quad_modelling.core.identification.physics_terms import (
+    GROUND_OFFSETS,
+    TermDesign,
+    effects_section,
+    rate_column,
+    term_estimates,
+    velocity_columns,
+)
+from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
+from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, rotor_speeds
 from quad_modelling.core.physics.parameters import PHYSICS_UNITS, PhysicsParameters
 from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
-from quad_modelling.errors import DataError
+from quad_modelling.errors import ConfigError, DataError
 
 FIT_HORIZONS_S = (0.1, 0.25, 0.5)
 """Horizons of the fitted multi-step error [s]: 10, 25 and 50 samples at 100 Hz, spread over the SimErr horizon."""
@@ -129,11 +137,19 @@ class PhysicsFit:
     start: dict[str, float]
     diagnostics: dict = field(default_factory=dict)
     identifiable: dict[str, bool] = field(default_factory=dict)
+    terms: dict[str, dict] = field(default_factory=dict)
+    """The fitted optional terms (:func:`~quad_modelling.core.identification.physics_terms.term_estimates`)."""
 
     def parameters(self, base: PhysicsParameters) -> PhysicsParameters:
-        """``base`` with the identified values."""
+        """``base`` with the identified values (and the fitted terms switched on where identified)."""
         v = self.values
-        return base.with_values(
+        terms = {}
+        for name, params in self.terms.items():
+            if all(q["identifiable"] for q in params.values()):
+                values = tuple(params[key]["value"] for key in params)
+                terms.update({"ground_effect": {"ground_effect": values}, "battery": {"battery": values},
+                              "gyroscopic": {"rotor_momentum_scale": values[0]}}[name])
+        return base.with_values(**terms,
             time_constant=v["rotor_time_constant"], delay=v["rotor_delay"], thrust_constant=v["rotor_thrust_constant"],
             torque_constant=v["rotor_torque_constant"], drag=(v["rotor_drag_xy"], v["rotor_drag_xy"], v["rotor_drag_z"]),
             drag_arm=v["rotor_drag_arm"], inertia=(v["physics_ixx"], v["physics_iyy"], base.inertia[2]))
@@ -142,7 +158,7 @@ class PhysicsFit:
         return {key: {"value": self.values[key], "sigma": self.sigma[key], "unit": PHYSICS_UNITS[key],
                       "bounds": [float(b) for b in self.bounds[key]], "at_bound": self.at_bound[key], "start": self.start[key],
                       "identifiable": self.identifiable.get(key, True)}
-                for key in FITTED} | {"diagnostics": self.diagnostics}
+                for key in FITTED} | {"diagnostics": self.diagnostics, "terms": self.terms}
 
     def estimates(self) -> list[ConstantEstimate]:
         """The fitted constants as the one constant record every fit reports
@@ -150,7 +166,10 @@ class PhysicsFit:
         return [ConstantEstimate(key, self.values[key], PHYSICS_UNITS[key], self.sigma[key], tuple(self.bounds[key]),
                                  self.start[key], bool(self.at_bound[key]),
                                  held="" if self.identifiable.get(key, True) else "not identifiable from these flights")
-                for key in FITTED]
+                for key in FITTED] + [
+            ConstantEstimate(f"{name}.{key}", q["value"], q["unit"], q["sigma"], tuple(q["bounds"]), float("nan"), q["at_bound"],
+                             held="" if q["identifiable"] else "not identifiable from these flights")
+            for name, params in self.terms.items() for key, q in params.items()]
 
     def summary(self) -> list[str]:
         """The printed block (lines <= 100 characters)."""
@@ -174,6 +193,8 @@ class _Segment:
     anchors: np.ndarray  # (A,) anchor rows
     history: dict  # "linear"/"angular" -> (A,) first observer row of each anchor (= the anchor: no observer)
     horizons: np.ndarray  # (H,) horizon lengths [rows]
+    height: np.ndarray  # (N,) height above the ground plane z_N = 0 [m]
+    voltage: np.ndarray | None  # (N,) battery voltage [V]
 
 
 def _cumulative(values: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -207,7 +228,7 @@ def training_segments(flights: Sequence[FlightLog], config: EvaluationConfig, ob
                 continue
             rot = frames.euler_ned_to_matrix(seg.euler)
             segments.append(_Segment(seg.t, seg.u, rot, seg.vel_n, np.einsum("nji,nj->ni", rot, seg.vel_n), seg.gyro_b,
-                                     candidates[ok], {k: h[ok] for k, h in histories.items()}, horizons))
+                                     candidates[ok], {k: h[ok] for k, h in histories.items()}, horizons, -seg.pos_n[:, 2], seg.vbat))
     if not segments or sum(len(s.anchors) for s in segments) < 20:
         raise DataError(f"no usable training anchors for the physics identification in span {config.train} "
                         f"(after the drops {config.drop_start:g}/{config.drop_end:g} s, ground contact, {SETTLE_S} s settling "
@@ -215,48 +236,66 @@ def training_segments(flights: Sequence[FlightLog], config: EvaluationConfig, ob
     return segments
 
 
-def _wrench_per_unit(p: PhysicsParameters, rotor: np.ndarray, v_b: np.ndarray, **unit) -> tuple[np.ndarray, np.ndarray]:
+def _wrench_per_unit(p: PhysicsParameters, rotor: np.ndarray, v_b: np.ndarray, height: np.ndarray | None,
+                     **unit) -> tuple[np.ndarray, np.ndarray]:
     """(F_B, τ_B) (N, 3) of the one physics' rotor wrench (:func:`~quad_modelling.core.physics.rigid_body.rotor_wrench`)
     with every constant it is linear in set to 0 except ``unit`` (e.g. ``thrust_constant=1``): the regressor column of
     that constant."""
     zero = {"thrust_constant": 0.0, "torque_constant": 0.0, "drag": (0.0, 0.0, 0.0), "drag_arm": 0.0, "prop_inertia": 0.0}
-    return rotor_wrench(p.with_values(**{**zero, **unit}), rotor, np.zeros_like(rotor), v_b)
+    return rotor_wrench(p.with_values(**{**zero, **unit}), rotor, np.zeros_like(rotor), v_b, height)
 
 
-def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: float) -> dict[str, tuple]:
+def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: float, design: TermDesign = TermDesign()) -> dict[str, tuple]:
     """Per channel (state y (N, k_y), regressors X (N, k_y, k_θ), known part (N, k_y)) of one segment: the columns are
-    the one physics' wrench per unit constant (module docstring), the known part its gyroscopic torque."""
-    q = p.with_values(time_constant=time_constant, delay=delay)
-    commands = delayed_commands(q, seg.u, seg.t)
+    the one physics' wrench per unit constant (module docstring), then the fitted terms'
+    (:mod:`~quad_modelling.core.identification.physics_terms`); the known part its gyroscopic torque. Terms the
+    vehicle switches on and ``design`` does not fit act with their values."""
+    off = {"ground_effect": {"ground_effect": None}, "battery": {"battery": None}, "gyroscopic": {"rotor_momentum_scale": 0.0}}
+    q = p.with_values(time_constant=time_constant, delay=delay, **{k: v for n in design.names for k, v in off[n].items()})
+    if q.battery is not None and seg.voltage is None:
+        raise DataError("the vehicle's battery term needs the battery voltage, and a training flight has none")
+    commands = effective_commands(q, delayed_commands(q, seg.u, seg.t), seg.voltage if q.battery is not None else None)
     rotor = rotor_speeds(q, commands, seg.t)
     m = p.mass
     inertia = np.asarray(p.inertia, dtype=float)
-    thrust_force, thrust_torque = _wrench_per_unit(p, rotor, seg.v_b, thrust_constant=1.0)
-    drag_xy_force, drag_xy_torque = _wrench_per_unit(p, rotor, seg.v_b, drag=(1.0, 1.0, 0.0), drag_arm=1.0)
-    drag_z_force, _ = _wrench_per_unit(p, rotor, seg.v_b, drag=(0.0, 0.0, 1.0))
-    _, yaw_torque = _wrench_per_unit(p, rotor, seg.v_b, torque_constant=1.0)
+    thrust_force, thrust_torque = _wrench_per_unit(q, rotor, seg.v_b, seg.height, thrust_constant=1.0)
+    drag_xy_force, drag_xy_torque = _wrench_per_unit(q, rotor, seg.v_b, None, drag=(1.0, 1.0, 0.0), drag_arm=1.0)
+    drag_z_force, _ = _wrench_per_unit(q, rotor, seg.v_b, None, drag=(0.0, 0.0, 1.0))
+    _, yaw_torque = _wrench_per_unit(q, rotor, seg.v_b, None, torque_constant=1.0)
     body = np.stack([thrust_force, drag_xy_force, drag_z_force], axis=2) / m  # body force per unit (k_f, d_xy, d_z)
-    gyro = gyroscopic_torque(seg.rates, inertia) / inertia
+    momentum = q.rotor_momentum_scale * rotor_momentum(q.prop_inertia, q.spins, rotor) if q.rotor_momentum_scale else None
+    gyro = gyroscopic_torque(seg.rates, inertia, momentum) / inertia
+    velocity = np.einsum("nij,njk->nik", seg.rot, body)
+    extra = velocity_columns(design, velocity[:, :, 0], seg.height, seg.voltage)
+    if extra:
+        velocity = np.concatenate([velocity, np.stack(extra, axis=2)], axis=2)
+    rate_extra = rate_column(design, q.prop_inertia, q.spins, seg.rates, rotor, inertia)
     # yaw's rotor-reaction term I_p/I_zz sum s_i dΩ_i/dt integrates to I_p/I_zz sum s_i (Ω(t) - Ω(t_0)): added to the known part
     # after integration (below), exact for the model's rectangle rule up to the filter's own step.
     return {
-        "velocity": (seg.vel_n, np.einsum("nij,njk->nik", seg.rot, body), np.zeros((len(seg.t), 3))),
-        "roll": (seg.rates[:, :1], np.stack([thrust_torque[:, 0], drag_xy_torque[:, 0]], axis=1)[:, None, :], gyro[:, :1]),
-        "pitch": (seg.rates[:, 1:2], np.stack([thrust_torque[:, 1], drag_xy_torque[:, 1]], axis=1)[:, None, :], gyro[:, 1:2]),
+        "velocity": (seg.vel_n, velocity, np.zeros((len(seg.t), 3))),
+        "roll": (seg.rates[:, :1], _torque_columns(thrust_torque, drag_xy_torque, rate_extra, 0), gyro[:, :1]),
+        "pitch": (seg.rates[:, 1:2], _torque_columns(thrust_torque, drag_xy_torque, rate_extra, 1), gyro[:, 1:2]),
         "yaw": (seg.rates[:, 2:], yaw_torque[:, 2][:, None, None], gyro[:, 2:],
                 p.prop_inertia / inertia[2] * (rotor @ p.spins)[:, None]),
     }
 
 
+def _torque_columns(thrust: np.ndarray, drag: np.ndarray, extra: np.ndarray | None, axis: int) -> np.ndarray:
+    """(N, 1, k) regressors of the roll (``axis`` 0) or pitch (1) rate: (thrust gain, drag moment[, rotors' gyroscopic])."""
+    parts = [thrust[:, axis], drag[:, axis]] + ([] if extra is None else [extra[:, axis]])
+    return np.stack(parts, axis=1)[:, None, :]
+
+
 def _design_blocks(p: PhysicsParameters, segments: list[_Segment], time_constant: float, delay: float,
-                   observer: Observer = Observer()) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+                   observer: Observer = Observer(), design: TermDesign = TermDesign()) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
     """The rows of the observer-corrected multi-step error (module docstring), one block at a time: (channel,
     regressors (rows, k_θ), target (rows,)) per segment, channel and horizon, in the order of the stacked design
     (segments, then channels, then horizons; within a block anchors, then state components). Only one segment's
     rows exist at a time."""
     for seg in segments:
         a = seg.anchors
-        for name, entry in _rows(p, seg, time_constant, delay).items():
+        for name, entry in _rows(p, seg, time_constant, delay, design).items():
             j = seg.history["linear" if name == "velocity" else "angular"]
             span = np.maximum(seg.t[a] - seg.t[j], 1e-12)[:, None]  # j = a: no observer, every slope difference is 0
             y, x, known = entry[:3]
@@ -312,10 +351,10 @@ class NormalEquations:
 
 
 def _normal_equations(p: PhysicsParameters, segments: list[_Segment], time_constant: float, delay: float,
-                      observer: Observer = Observer(), thin: int = 1) -> dict[str, NormalEquations]:
+                      observer: Observer = Observer(), thin: int = 1, design: TermDesign = TermDesign()) -> dict[str, NormalEquations]:
     """Per channel the :class:`NormalEquations` of all segments' rows (:func:`_design_blocks`), streamed."""
     sums: dict[str, NormalEquations] = {}
-    for name, x, y in _design_blocks(p, segments, time_constant, delay, observer):
+    for name, x, y in _design_blocks(p, segments, time_constant, delay, observer, design):
         if name not in sums:
             sums[name] = NormalEquations.empty(x.shape[1], thin)
         sums[name].add(x, y)
@@ -366,15 +405,17 @@ def _excited_columns(gram: np.ndarray, rows: int) -> list[int]:
 
 
 def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
-                     observer: Observer = Observer()) -> PhysicsFit:
-    """Fit the physics constants :data:`FITTED` on ``config``'s training span of ``flights`` (module docstring)."""
+                     observer: Observer = Observer(), terms: Sequence[str] = ()) -> PhysicsFit:
+    """Fit the physics constants :data:`FITTED` on ``config``'s training span of ``flights`` (module docstring), with
+    the optional ``terms`` (:mod:`~quad_modelling.core.identification.physics_terms`)."""
     began = time.perf_counter()
     p = PhysicsParameters.from_vehicle(vehicle)
     segments = training_segments(flights, config, observer)
     rate = float(np.median([1.0 / np.median(np.diff(s.t)) for s in segments]))
+    design = _term_design(tuple(terms), segments, vehicle)
 
     def objective(log_tau: float, delay: float) -> float:
-        fit = _solve(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer))
+        fit = _solve(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer, 1, design))
         return sum(fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS if fit[c]["ssr0"] > 0)
 
     lo, hi = TIME_CONSTANT_RANGE_S
@@ -403,7 +444,12 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     tau, delay = searched[i][1], float(grid[i])
     profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
     thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
-    fit = _solve(_normal_equations(p, segments, tau, delay, observer, thin))
+    if "ground_effect" in design.names:  # h_off: the grid value of least velocity error at the chosen τ, δ
+        offsets = [g * vehicle.value("arm_length") for g in GROUND_OFFSETS]
+        errors = [_solve(_normal_equations(p, segments, tau, delay, observer, 1, replace(design, ground_offset=h)))["velocity"]["ssr"]
+                  for h in offsets]
+        design = replace(design, ground_offset=offsets[int(np.argmin(errors))])
+    fit = _solve(_normal_equations(p, segments, tau, delay, observer, thin, design))
 
     kf, kf_sd = fit["velocity"]["coef"][0], np.sqrt(fit["velocity"]["cov"][0, 0])
     values = {"rotor_time_constant": tau, "rotor_delay": delay, "rotor_thrust_constant": kf,
@@ -429,7 +475,7 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
         values["rotor_drag_arm"], sigma["rotor_drag_arm"] = float("nan"), float("nan")
     values["rotor_torque_constant"] = fit["yaw"]["coef"][0] * p.inertia[2]
     sigma["rotor_torque_constant"] = np.sqrt(fit["yaw"]["cov"][0, 0]) * p.inertia[2]
-    sigma["rotor_time_constant"] = _tau_sigma(p, segments, tau, delay, observer, thin, {c: fit[c]["s2"] for c in CHANNELS})
+    sigma["rotor_time_constant"] = _tau_sigma(p, segments, tau, delay, observer, thin, {c: fit[c]["s2"] for c in CHANNELS}, design)
     sigma["rotor_delay"] = (1.0 / rate) / np.sqrt(12.0)
 
     start = {key: float(vehicle.value(key)) for key in FITTED}
@@ -467,17 +513,29 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
         "held": {"rotor_speed_gain": p.speed_gain, "rotor_speed_offset": p.speed_offset, "izz": p.inertia[2]},
         "seconds": time.perf_counter() - began,
     }
-    return PhysicsFit(values, sigma, bounds, at_bound, start, diagnostics, identifiable)
+    terms_fitted = term_estimates(design, fit, (values["rotor_thrust_constant"], sigma["rotor_thrust_constant"]), vehicle.value("arm_length"))
+    return PhysicsFit(values, sigma, bounds, at_bound, start, diagnostics, identifiable, terms_fitted)
+
+
+def _term_design(terms: tuple[str, ...], segments: list[_Segment], vehicle: VehicleConfig) -> TermDesign:
+    """The :class:`TermDesign` of ``terms``: V_ref the mean training voltage (DataError without one), h_off the middle
+    of its grid until the search."""
+    reference = float("nan")
+    if "battery" in terms:
+        if any(s.voltage is None for s in segments):
+            raise DataError("identify --effects battery needs the battery voltage, and a training flight has none")
+        reference = float(np.mean(np.concatenate([s.voltage for s in segments])))
+    return TermDesign(terms, GROUND_OFFSETS[len(GROUND_OFFSETS) // 2] * vehicle.value("arm_length"), reference)
 
 
 def _tau_sigma(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: float, observer: Observer, thin: int,
-               s2: dict[str, float]) -> float:
+               s2: dict[str, float], design: TermDesign = TermDesign()) -> float:
     """σ_τ = sqrt(2 / χ²''(τ)) from a central second difference of the profile χ²(τ) = Σ_c SSR_c / (thin s_c²)
     (module docstring); NaN when the profile is not convex there (τ not identifiable from these flights)."""
     h = 0.05 * tau
 
     def chi2(value: float) -> float:
-        fit = _solve(_normal_equations(p, segments, value, delay, observer))
+        fit = _solve(_normal_equations(p, segments, value, delay, observer, 1, design))
         return sum(fit[c]["ssr"] / (thin * s2[c]) for c in CHANNELS if np.isfinite(s2[c]) and s2[c] > 0)
 
     curvature = (chi2(tau + h) - 2.0 * chi2(tau) + chi2(tau - h)) / h**2
@@ -485,15 +543,21 @@ def _tau_sigma(p: PhysicsParameters, segments: list[_Segment], tau: float, delay
 
 
 def identify_physics_if_configured(flights: Sequence[FlightLog], vehicle: VehicleConfig,
-                                   config: EvaluationConfig) -> tuple[PhysicsFit | None, str]:
+                                   config: EvaluationConfig, terms: Sequence[str] = ()) -> tuple[PhysicsFit | None, str]:
     """What ``quad-modelling identify`` runs: (the physics fit, "") or (None, why not) when the vehicle file has no
-    physics constants or the training span has no usable anchor (the greybox identification still runs)."""
+    physics constants or the training span has no usable anchor (the greybox identification still runs). With
+    ``terms`` asked for, either is an error (ConfigError, DataError): the user asked for the physics model."""
     missing = vehicle.missing(PHYSICS_KEYS)
     if missing:
+        if terms:
+            raise ConfigError(f"{vehicle.path}: --effects {','.join(terms)} fits terms of the physics model, and the vehicle "
+                              f"file has no physics constants ({', '.join(missing)})")
         return None, f"not identified: the vehicle file has no physics constants ({', '.join(missing)})"
     try:
-        return identify_physics(flights, vehicle, config), ""
+        return identify_physics(flights, vehicle, config, terms=terms), ""
     except DataError as err:
+        if terms:
+            raise
         return None, f"not identified: {err}"
 
 
@@ -505,6 +569,8 @@ def add_physics_constants(document: dict, fit: PhysicsFit | None, note: str, sou
         identification["physics"] = {"note": note}
         return
     for estimate in fit.estimates():
+        if estimate.name not in FITTED:
+            continue  # a term's parameter: the effects section below
         entry = document["constants"][estimate.name]
         if estimate.held:
             entry["source"] = f"{entry['source']}; kept: {estimate.held}"
@@ -514,6 +580,8 @@ def add_physics_constants(document: dict, fit: PhysicsFit | None, note: str, sou
             entry["source"] = f"{source}; AT BOUND {list(estimate.bounds)} {estimate.unit}"
     identification.setdefault("constants", {}).update({e.name: e.as_dict() for e in fit.estimates()})
     identification["physics"] = _plain(fit.to_dict())
+    if fit.terms:
+        document.setdefault("effects", {}).update(_plain(effects_section(fit.terms, source)))
 
 
 def _plain(value):

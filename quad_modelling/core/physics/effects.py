@@ -29,7 +29,7 @@ the term and the key)::
 
     effects:
       ground_effect:
-        on: true
+        enabled: true
         coefficient: {value: 3.1e-5, sigma: 4e-6, unit: m2, bounds: [0, 0.0021], source: "...", status: identified}
         offset: {value: 0.023, unit: m, bounds: [0, 0.46], source: "...", status: identified}
 """
@@ -113,10 +113,10 @@ def parse_effects(doc, where: str) -> dict[str, EffectTerm]:
     for name, entry in doc.items():
         if name not in TERMS:
             raise ConfigError(f"{where}: effects.{name}: unknown physics-model term; known: {', '.join(TERMS)}")
-        if not isinstance(entry, dict) or not isinstance(entry.get("on"), bool):
-            raise ConfigError(f"{where}: effects.{name}.on must be true or false")
+        if not isinstance(entry, dict) or not isinstance(entry.get("enabled"), bool):
+            raise ConfigError(f"{where}: effects.{name}.enabled must be true or false")
         known = {p.name: p for p in TERMS[name]}
-        extra = sorted(set(entry) - set(known) - {"on"})
+        extra = sorted(set(entry) - set(known) - {"enabled"})
         if extra:
             raise ConfigError(f"{where}: effects.{name}.{extra[0]}: unknown parameter; {name} has {', '.join(known)}")
         parameters = {}
@@ -124,12 +124,12 @@ def parse_effects(doc, where: str) -> dict[str, EffectTerm]:
             context = f"{where}: effects.{name}.{key}"
             value = entry.get(key)
             if value is None:
-                if entry["on"]:
+                if entry["enabled"]:
                     raise ConfigError(f"{context}: {name} is switched on but its parameter {key} was never identified "
                                       f"(quad-modelling identify --effects {name})")
                 continue
-            parameters[key] = _term_value(value, spec, context, entry["on"], name)
-        terms[name] = EffectTerm(name, entry["on"], parameters)
+            parameters[key] = _term_value(value, spec, context, entry["enabled"], name)
+        terms[name] = EffectTerm(name, entry["enabled"], parameters)
     return terms
 
 
@@ -157,6 +157,18 @@ def _term_value(entry, spec: TermParameter, context: str, on: bool, name: str) -
     if not (np.isfinite(value) and low <= value <= high):
         raise ConfigError(f"{context}.value {value:g} {spec.unit} lies outside its bounds [{low:g}, {high:g}]")
     return TermValue(value, spec.unit, (low, high), str(entry["source"]), entry["status"], sigma)
+
+
+def effects_document(terms: dict[str, EffectTerm]) -> dict:
+    """The ``effects`` section of a vehicle document holding ``terms`` (the inverse of :func:`parse_effects`)."""
+    section = {}
+    for name, term in terms.items():
+        entry: dict = {"enabled": term.on}
+        for key, v in term.parameters.items():
+            entry[key] = {"value": v.value, "sigma": v.sigma, "unit": v.unit, "bounds": list(v.bounds), "source": v.source,
+                          "status": v.status}
+        section[name] = entry
+    return section
 
 
 def switched_on(terms: dict[str, EffectTerm], name: str) -> tuple[float, ...] | None:
