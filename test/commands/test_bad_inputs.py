@@ -57,6 +57,18 @@ def alarm():
 # ---- the inputs ------------------------------------------------------------------------------------------------
 
 
+GROUND_TERM = ("effects:\n  ground_effect:\n    enabled: true\n"
+               "    coefficient: {{value: {c}, unit: {unit}, bounds: [0, 0.01], source: test, status: identified}}\n"
+               "    offset: {{value: 0.05, unit: m, bounds: [0, 0.5], source: test, status: {status}}}\n")
+EFFECT_SECTIONS = {
+    "effect_unknown": "effects:\n  wind: {enabled: true}\n",
+    "effect_unit": GROUND_TERM.format(c=0.001, unit="mm", status="identified"),
+    "effect_bounds": GROUND_TERM.format(c=0.5, unit="m2", status="identified"),
+    "effect_unidentified": GROUND_TERM.format(c=0.001, unit="m2", status="not identified"),
+}
+"""Vehicle files whose effects section a user got wrong (appended to the LinkQuad config)."""
+
+
 def _vehicle_text(**values) -> str:
     """The shipped LinkQuad config with some constants' values replaced (text substitution: the file as a user edits it)."""
     text = (vehicle_dir() / "linkquad.yaml").read_text()
@@ -103,6 +115,9 @@ def inputs(tmp_path_factory) -> Path:
     (d / "heavy.yaml").write_text(_vehicle_text(mass="1.0e6"))
     (d / "huge.yaml").write_text(_vehicle_text() + "#" * (2 << 20) + "\n")
     (d / "linkquad_copy.yaml").write_text(_vehicle_text())
+    # vehicles with a faulty effects section (the physics model's optional terms)
+    for name, section in EFFECT_SECTIONS.items():
+        (d / f"{name}.yaml").write_text(_vehicle_text() + section)
     # mappings
     mapping = (REPO / "config" / "mappings" / "example_lab.yaml").read_text()
     (d / "map_columns.yaml").write_text(mapping.replace("columns: [1, 2, 3, 4]", "columns: [a, b, c, d]"))
@@ -218,6 +233,20 @@ CORPUS = [
     ("bag-mocap-gap-to-mat", ["convert", "{d}/mocap_gap", "-o", "{d}/work/b.mat"],
      "{d}/mocap_gap has measurement gaps (/quad/mocap/odom 1.00..7.68 s): a .mat log has one time base; convert to a bag"),
     ("run-bag-damaged", ["run-bag", "{d}/damaged", "-o", "{d}/work/live"], "{d}/damaged: not a readable rosbag2 bag"),
+    ("effects-unknown-term", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/effect_unknown.yaml", "-o", "{d}/work/e"],
+     "{d}/effect_unknown.yaml: effects.wind: unknown physics-model term; known: ground_effect"),
+    ("effects-wrong-unit", ["identify", "{d}/flight.mat", "--vehicle", "{d}/effect_unit.yaml", "-o", "{d}/work/v.yaml"],
+     "{d}/effect_unit.yaml: effects.ground_effect.coefficient.unit must be 'm2', got 'mm'"),
+    ("effects-out-of-bounds", ["identify", "{d}/flight.mat", "--vehicle", "{d}/effect_bounds.yaml", "-o", "{d}/work/v.yaml"],
+     "{d}/effect_bounds.yaml: effects.ground_effect.coefficient.value 0.5 m2 lies outside its bounds [0, 0.01]"),
+    ("effects-never-identified", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/effect_unidentified.yaml", "-o", "{d}/work/e"],
+     "effects.ground_effect.offset: ground_effect is switched on but this parameter was never identified"),
+    ("identify-effects-twice", ["identify", "{d}/flight.mat", "--effects", "battery,ground_effect,battery", "-o", "{d}/work/v.yaml"],
+     "--effects: battery named more than once"),
+    ("identify-effects-unknown", ["identify", "{d}/flight.mat", "--effects", "wind", "-o", "{d}/work/v.yaml"],
+     "--effects: unknown physics-model term 'wind'"),
+    ("identify-effects-unfittable", ["identify", "{d}/flight.mat", "--effects", "motor_imbalance", "-o", "{d}/work/v.yaml"],
+     "--effects: identify cannot fit motor_imbalance yet"),
     ("run-bag-imu-other-clock", ["run-bag", "{d}/imu_clock", "-o", "{d}/work/live"], "topic /quad/imu stamps are offset by +100.000 s"),
 ]
 

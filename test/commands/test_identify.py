@@ -45,3 +45,31 @@ def test_identify_on_the_bundled_bag_reports_constants_and_no_false_alarm(tmp_pa
         assert flagged == (entry["poorly_determined"] is not None)
     assert fitted["rotor_reaction_scale"]["held"] and fitted["rotor_reaction_scale"]["value"] == 1.0
     assert doc["identification"]["motor_check"]["verdict"] == "consistent"
+
+
+def test_identify_effects_fits_ground_effect_on_a_simulated_flight_and_switches_it_on(tmp_path, capsys):
+    """The simulator's ground effect is Cheeseman-Bennett's 1/(1 - (R/4h)²) at each hub (its own, richer form); the
+    model's 1 + c/(h + h_off)² fitted on one 45 s flight must give a thrust gain near the truth's where the flight has
+    data (take-off and landing, 0.1-0.3 m), fade with height, and be written switched on with its sigma and bounds."""
+    from quad_modelling.core.physics.aero import ground_effect_factor
+    from quad_modelling.core.physics.parameters import PhysicsParameters
+    from quad_modelling.core.sim.params import sim_params_for
+    from quad_modelling.core.sim.simulate import simulate
+    from quad_modelling.io.matlog import write_matlog
+
+    flight = tmp_path / "ground.mat"
+    write_matlog(simulate("linkquad", ("ground_effect", "motor_lag"), seed=21, duration=45.0), flight)
+    out = tmp_path / "lq_ground.yaml"
+    assert main(["identify", str(flight), "--vehicle", "linkquad", "--drop", "3:2", "--train", "3:40", "--eval", "40:43",
+                 "--effects", "ground_effect", "-o", str(out)]) == 0
+    assert "  ground_effect.coefficient " in capsys.readouterr().out
+    term = load_vehicle(out).effects["ground_effect"]
+    assert term.on and term.parameters["coefficient"].status == "identified" and term.parameters["coefficient"].sigma > 0
+    params = sim_params_for("linkquad")
+    radius, hub_above_cg = params.geometry.rotor_radius, -params.geometry.rotor_plane_z
+    height = 0.15
+    truth_gain = 1.0 / (1.0 - (radius / (4.0 * (height + hub_above_cg))) ** 2) - 1.0
+    fitted_gain = float(ground_effect_factor(height, *term.values())) - 1.0
+    assert 0.5 * truth_gain < fitted_gain < 2.0 * truth_gain, (fitted_gain, truth_gain)
+    assert float(ground_effect_factor(2.0, *term.values())) - 1.0 < 0.3 * fitted_gain
+    assert PhysicsParameters.from_vehicle(load_vehicle(out)).ground_effect == term.values()
