@@ -85,6 +85,17 @@ class Observer:
     angular_s: float = ANGULAR_HISTORY_S
     angular_trim: bool = True
 
+    @classmethod
+    def from_vehicle(cls, vehicle: VehicleConfig) -> Observer:
+        """The observer the vehicle file asks for: its ``moment_trim`` term (:mod:`quad_modelling.core.physics.effects`)
+        switched on (its history) or off (the measured minus modelled angular mean); without one, the default."""
+        term = vehicle.effects.get("moment_trim")
+        if term is None:
+            return cls()
+        if not term.on:
+            return cls(angular_trim=False)
+        return cls(angular_s=term.values()[0])
+
     def __post_init__(self) -> None:
         for name in ("linear_s", "angular_s"):
             value = getattr(self, name)
@@ -262,11 +273,11 @@ class PhysicsPredictor:
     to the warm rows.
     """
 
-    def __init__(self, vehicle: VehicleConfig, observer: Observer = Observer(), trim: TrimConfig | None = None,
+    def __init__(self, vehicle: VehicleConfig, observer: Observer | None = None, trim: TrimConfig | None = None,
                  name: str = "physics"):
         self.vehicle = vehicle
         self.params = PhysicsParameters.from_vehicle(vehicle)
-        self.observer = observer
+        self.observer = observer or Observer.from_vehicle(vehicle)
         self.trim = trim or TrimConfig()
         self.name = name
 

@@ -17,6 +17,11 @@ term                  form (the module's symbols)                               
                       (mean 1: the collective gain is the thrust constant's) (:mod:`.rotors`)
 ``gyroscopic``        the rotors' gyroscopic torque :math:`-\omega \times k_p h_r`,                 scale k_p [1]
                       :math:`h_r = (0, 0, -I_p \sum_i s_i \Omega_i)` (:mod:`.rigid_body`)
+``moment_trim``       a constant moment the controller balances (CG offset, motor imbalance): at    history [s]
+                      each anchor the model's mean angular acceleration over the history is
+                      removed (:class:`~quad_modelling.core.models.physics.Observer` ``angular_trim``);
+                      off: the measured minus the modelled mean is held instead. No entry: on
+                      with 0.5 s (the physics model's default)
 ====================  ==========================================================================  ==========================
 
 The rest of the catalogue (:data:`~quad_modelling.core.effect_names.CATALOGUE_EFFECTS`) is already in the base
@@ -59,6 +64,7 @@ TERMS: dict[str, tuple[TermParameter, ...]] = {
                 TermParameter("reference_voltage", "V", "V_ref: voltage at which the base constants hold")),
     "motor_imbalance": tuple(TermParameter(f"gain_{i}", "1", f"motor {i}'s gain on its logged command") for i in range(1, 5)),
     "gyroscopic": (TermParameter("scale", "1", "k_p: scale of the rotors' gyroscopic torque"),),
+    "moment_trim": (TermParameter("history", "s", "the anchor's trim: the model's mean angular acceleration over it"),),
 }
 """The physics model's optional terms and their parameters (module docstring), in the order they are applied."""
 
