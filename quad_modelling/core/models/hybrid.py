@@ -15,7 +15,7 @@ corrects the linear and angular accelerations from the current model state and c
 
 (:math:`R_k^T v_N` body-frame velocity [m/s, FRD], :math:`R_k^T e_z` the gravity direction in B (roll and
 pitch, yaw-free), :math:`\omega` body rates [rad/s], :math:`\tilde u` the commands the rotors answer (the physics
-model's delayed commands, :func:`~quad_modelling.core.models.physics.delayed_commands`), :math:`\Omega` rotor speeds
+model's delayed commands, :func:`~quad_modelling.core.physics.rotors.delayed_commands`), :math:`\Omega` rotor speeds
 [rad/s], :math:`u_k` the command logged at sample k (the controller's newest, which the rotors answer only after
 the delay; a model input, like every command); :math:`\Delta a_B` [m/s², FRD], :math:`\Delta\alpha` [rad/s², FRD]). The corrected accelerations are
 handed to the physics step as its per-step disturbance, so the hybrid integrates exactly as the physics model
@@ -90,7 +90,7 @@ def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
 
 def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(N, 8) commands of the hybrid per row: the delayed commands the rotors answer
-    (:func:`physics.delayed_commands`) and the logged commands ``u`` (N, 4) stamped ``t`` (N,) [s]."""
+    (:func:`~quad_modelling.core.physics.rotors.delayed_commands`) and the logged commands ``u`` (N, 4) stamped ``t`` (N,) [s]."""
     return np.concatenate([delayed_commands(p, u, t), np.asarray(u, dtype=float)], axis=1)
 
 
