@@ -54,6 +54,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsStream
+from quad_modelling.core.physics.arrays import rotate_back
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.physics.rotors import delayed_commands
@@ -83,7 +84,7 @@ def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
     """(B, 21) inputs f_k (:data:`FEATURES`) of states ``state`` under commands ``u`` (B, 8): the delayed commands the
     rotors answer, then the logged ones (:func:`hybrid_commands`)."""
     rot = state.rot
-    vel_b = np.einsum("bji,bj->bi", rot, state.vel_n)
+    vel_b = rotate_back(rot, state.vel_n)
     u = np.asarray(u, dtype=float)
     return np.concatenate([vel_b, rot[:, 2, :], state.rates, u[:, :4], state.rotor, u[:, 4:]], axis=1)
 
