@@ -91,7 +91,7 @@ def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
 
 def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray) -> np.ndarray:
     """(N, 8) commands of the hybrid per row: the delayed commands the rotors answer
-    (:func:`~quad_modelling.core.physics.rotors.delayed_commands`) and the logged commands ``u`` (N, 4) stamped ``t`` (N,) [s]."""
+    (:func:`physics.delayed_commands`) and the logged commands ``u`` (N, 4) stamped ``t`` (N,) [s]."""
     return np.concatenate([delayed_commands(p, u, t), np.asarray(u, dtype=float)], axis=1)
 
 

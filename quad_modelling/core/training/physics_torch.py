@@ -43,7 +43,7 @@ class TorchState(NamedTuple):
 
 class TorchParameters(NamedTuple):
     """The :class:`PhysicsParameters` the step uses, as tensors of one dtype (positions (4, 2), spins (4,)). The
-    command delay δ is not here: the caller feeds the delayed commands (:func:`~quad_modelling.core.physics.rotors.delayed_commands`)."""
+    command delay δ is not here: the caller feeds the delayed commands (:func:`physics.delayed_commands`)."""
 
     mass: float
     inertia: torch.Tensor
