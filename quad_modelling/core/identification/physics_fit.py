@@ -24,7 +24,7 @@ error is linear in θ, so each channel is a linear least squares over all anchor
 :math:`y^T y − 2θ^T X^T y + θ^T X^T X θ`. The regressors use the measured attitude and
 velocity along the horizon (the equation error of the whole step, not of one row), rotor speeds
 :math:`\Omega_i` from the lag filter over the delayed commands
-(:func:`~quad_modelling.core.physics.rotors.rotor_speeds`), :math:`S = \sum_i \Omega_i`, :math:`v_B = R^T v_N`:
+(:func:`~quad_modelling.core.models.physics.rotor_speeds`), :math:`S = \sum_i \Omega_i`, :math:`v_B = R^T v_N`:
 
 * velocity (3 axes in N, jointly): :math:`\dot v_N = R\big(-\tfrac{k_f}{m}\sum_i\Omega_i^2 e_z
   - \tfrac{d_{xy}}{m} S (v_{B,x}, v_{B,y}, 0) - \tfrac{d_z}{m} S (0, 0, v_{B,z})\big) + g e_z`, θ = (k_f, d_xy, d_z);
@@ -68,7 +68,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
 from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
 from quad_modelling.core.models.physics import Observer
-from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
+from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_wrench
 from quad_modelling.core.physics.rotors import delayed_commands, rotor_speeds
 from quad_modelling.core.physics.parameters import PHYSICS_UNITS, PhysicsParameters
 from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
@@ -237,15 +237,14 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
     _, yaw_torque = _wrench_per_unit(p, rotor, seg.v_b, torque_constant=1.0)
     body = np.stack([thrust_force, drag_xy_force, drag_z_force], axis=2) / m  # body force per unit (k_f, d_xy, d_z)
     gyro = gyroscopic_torque(seg.rates, inertia) / inertia
-    # yaw's rotor-reaction term I_p/I_zz sum s_i dΩ_i/dt integrates to I_p/I_zz sum s_i (Ω(t) - Ω(t_0)), the change of the
-    # rotors' momentum -h_r,z/I_zz (rotor_momentum): added to the known part after integration (below), exact for the
-    # model's rectangle rule up to the filter's own step.
+    # yaw's rotor-reaction term I_p/I_zz sum s_i dΩ_i/dt integrates to I_p/I_zz sum s_i (Ω(t) - Ω(t_0)): added to the known part
+    # after integration (below), exact for the model's rectangle rule up to the filter's own step.
     return {
         "velocity": (seg.vel_n, np.einsum("nij,njk->nik", seg.rot, body), np.zeros((len(seg.t), 3))),
         "roll": (seg.rates[:, :1], np.stack([thrust_torque[:, 0], drag_xy_torque[:, 0]], axis=1)[:, None, :], gyro[:, :1]),
         "pitch": (seg.rates[:, 1:2], np.stack([thrust_torque[:, 1], drag_xy_torque[:, 1]], axis=1)[:, None, :], gyro[:, 1:2]),
         "yaw": (seg.rates[:, 2:], yaw_torque[:, 2][:, None, None], gyro[:, 2:],
-                -rotor_momentum(p.prop_inertia, p.spins, rotor)[:, 2:] / inertia[2]),
+                p.prop_inertia / inertia[2] * (rotor @ p.spins)[:, None]),
     }
 
 
