@@ -15,7 +15,7 @@ corrects the linear and angular accelerations from the current model state and c
 
 (:math:`R_k^T v_N` body-frame velocity [m/s, FRD], :math:`R_k^T e_z` the gravity direction in B (roll and
 pitch, yaw-free), :math:`\omega` body rates [rad/s], :math:`\tilde u` the commands the rotors answer (the physics
-model's delayed commands, :func:`~quad_modelling.core.models.physics.delayed_commands`), :math:`\Omega` rotor speeds
+model's delayed commands, :func:`~quad_modelling.core.physics.rotors.delayed_commands`), :math:`\Omega` rotor speeds
 [rad/s], :math:`u_k` the command logged at sample k (the controller's newest, which the rotors answer only after
 the delay; a model input, like every command); :math:`\Delta a_B` [m/s², FRD], :math:`\Delta\alpha` [rad/s², FRD]). The corrected accelerations are
 handed to the physics step as its per-step disturbance, so the hybrid integrates exactly as the physics model
@@ -54,6 +54,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsStream
+from quad_modelling.core.physics.arrays import rotate_back
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands
@@ -83,7 +84,7 @@ def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
     """(B, 21) inputs f_k (:data:`FEATURES`) of states ``state`` under commands ``u`` (B, 8): the delayed commands the
     rotors answer, then the logged ones (:func:`hybrid_commands`)."""
     rot = state.rot
-    vel_b = np.einsum("bji,bj->bi", rot, state.vel_n)
+    vel_b = rotate_back(rot, state.vel_n)
     u = np.asarray(u, dtype=float)
     return np.concatenate([vel_b, rot[:, 2, :], state.rates, u[:, :4], state.rotor, u[:, 4:]], axis=1)
 

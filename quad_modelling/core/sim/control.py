@@ -87,7 +87,7 @@ class Stabiliser:
         self.u0 = esc.zero_speed_input
         self.k_u = esc.speed_gain
         hover = vehicle.hover_rotor_speed
-        self.u_idle = self.u0 + esc.idle_speed_fraction * hover / self.k_u
+        self.u_idle = float(command_for_rotor_speed(esc.idle_speed_fraction * hover, self.k_u, esc.speed_offset))
         self.u_max = vehicle.input_max
         self.u_off = vehicle.input_min
         self.max_tilt = control.max_tilt

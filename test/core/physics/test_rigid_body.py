@@ -103,3 +103,23 @@ def test_the_simulators_rigid_body_equals_the_one_physics_where_their_forms_coin
         assert np.allclose(ds[3:6], acc[0], rtol=1e-10, atol=1e-10)
         assert np.allclose(ds[10:13], ang[0], rtol=1e-10, atol=1e-8)
         assert np.allclose(ds[13:17], rotor_dot[0], rtol=1e-12)
+
+
+@pytest.mark.parametrize("vehicle", ["crazyflie21", "linkquad"])
+def test_the_simulators_true_allocation_and_idle_command_use_the_one_physics_where_no_rotor_is_bent(vehicle):
+    """The simulator's own allocation (tilted thrust axes, for ``bent_arm``) is the one physics' allocation of its rotor
+    positions when every axis points along -z, with the CG offset of ``motor_imbalance`` as well; the stabiliser's idle
+    command is the one command map's inverse of the idle rotor speed."""
+    from quad_modelling.core.sim.control import Stabiliser
+
+    params = sim_params_for(vehicle)
+    v = params.vehicle
+    ratio = v.value("drag_constant") / v.value("thrust_constant")
+    for effects in ((), ("motor_imbalance",)):
+        dyn = QuadDynamics(params, effects)
+        expected = rigid_body.allocation_matrix(dyn.rotor_positions[:, :2], v.yaw_signs, ratio)
+        assert np.allclose(dyn.allocation(), expected, rtol=1e-12, atol=1e-15)
+    bent = QuadDynamics(params, ("bent_arm",)).allocation()
+    assert not np.allclose(bent, rigid_body.allocation_matrix(v.motor_positions, v.yaw_signs, ratio), rtol=1e-6)
+    idle = Stabiliser(params).u_idle
+    assert np.isclose(rotors.steady_rotor_speed(params.esc, idle), params.esc.idle_speed_fraction * v.hover_rotor_speed, rtol=1e-12)
