@@ -24,7 +24,7 @@ error is linear in θ, so each channel is a linear least squares over all anchor
 :math:`y^T y − 2θ^T X^T y + θ^T X^T X θ`. The regressors use the measured attitude and
 velocity along the horizon (the equation error of the whole step, not of one row), rotor speeds
 :math:`\Omega_i` from the lag filter over the delayed commands
-(:func:`~quad_modelling.core.models.physics.rotor_speeds`), :math:`S = \sum_i \Omega_i`, :math:`v_B = R^T v_N`:
+(:func:`~quad_modelling.core.physics.rotors.rotor_speeds`), :math:`S = \sum_i \Omega_i`, :math:`v_B = R^T v_N`:
 
 * velocity (3 axes in N, jointly): :math:`\dot v_N = R\big(-\tfrac{k_f}{m}\sum_i\Omega_i^2 e_z
   - \tfrac{d_{xy}}{m} S (v_{B,x}, v_{B,y}, 0) - \tfrac{d_z}{m} S (0, 0, v_{B,z})\big) + g e_z`, θ = (k_f, d_xy, d_z);
@@ -283,7 +283,7 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
         "roll": (seg.rates[:, :1], _torque_columns(thrust_torque, drag_xy_torque, rate_extra, 0), gyro[:, :1]),
         "pitch": (seg.rates[:, 1:2], _torque_columns(thrust_torque, drag_xy_torque, rate_extra, 1), gyro[:, 1:2]),
         "yaw": (seg.rates[:, 2:], yaw_torque[:, 2][:, None, None], gyro[:, 2:],
-                p.prop_inertia / inertia[2] * (rotor @ p.spins)[:, None]),
+                -rotor_momentum(p.prop_inertia, p.spins, rotor)[:, 2:] / inertia[2]),  # I_p Σ s_i Ω_i / I_zz
     }
 
 

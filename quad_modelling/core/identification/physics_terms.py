@@ -29,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from quad_modelling.core.physics.aero import ground_effect_factor
 from quad_modelling.core.physics.effects import TERMS
 from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum
 from quad_modelling.errors import ConfigError
@@ -71,8 +72,8 @@ def velocity_columns(design: TermDesign, thrust_n: np.ndarray, height: np.ndarra
     column ``thrust_n`` (N, 3) (module docstring)."""
     columns = []
     if "ground_effect" in design.names:
-        h = np.maximum(height, 0.0) + design.ground_offset
-        columns.append(thrust_n / (h * h)[:, None])
+        per_coefficient = ground_effect_factor(np.maximum(height, 0.0), 1.0, design.ground_offset) - 1.0  # ∂k_GE/∂c_ge
+        columns.append(thrust_n * per_coefficient[:, None])
     if "battery" in design.names:
         columns.append(thrust_n * 2.0 * (voltage - design.reference_voltage)[:, None])
     return columns

@@ -90,8 +90,9 @@ def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
 
 
 def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray, voltage=None) -> np.ndarray:
-    """(N, 8) commands of the hybrid per row: the delayed commands the rotors answer
-    (:func:`physics.delayed_commands`) and the logged commands ``u`` (N, 4) stamped ``t`` (N,) [s]."""
+    """(N, 8) commands of the hybrid per row: the commands the rotors answer (delayed, through the command path's
+    terms with ``voltage``: :func:`~quad_modelling.core.physics.rotors.effective_commands`) and the logged commands
+    ``u`` (N, 4) stamped ``t`` (N,) [s]."""
     return np.concatenate([effective_commands(p, delayed_commands(p, u, t), voltage), np.asarray(u, dtype=float)], axis=-1)
 
 
@@ -191,10 +192,7 @@ class HybridModel:
         segment.require(("gyro_b",), "the hybrid model's multi-step form (body rates at each anchor)")
         state, disturbance = self.anchor(segment, starts)
         rows = starts[:, None] + np.arange(horizon + 1)[None, :]
-        voltage = physics.battery_voltage(self.params, segment)
-        commands = np.concatenate([  # the anchor's battery voltage held over each horizon, as the physics model
-            effective_commands(self.params, delayed_commands(self.params, segment.u, segment.t)[rows],
-                               None if voltage is None else voltage[starts][:, None]), segment.u[rows]], axis=-1)
+        commands = np.concatenate([physics.horizon_commands(self.params, segment, starts, rows), segment.u[rows]], axis=-1)
         return self.rollout(state, disturbance, commands, np.diff(segment.t)[rows[:, :-1]])
 
     # ---- files ------------------------------------------------------------------

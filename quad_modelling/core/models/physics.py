@@ -204,6 +204,13 @@ def rotor_commands(p: PhysicsParameters, log: FlightLog) -> np.ndarray:
     return effective_commands(p, delayed_commands(p, log.u, log.t), battery_voltage(p, log))
 
 
+def horizon_commands(p: PhysicsParameters, log: FlightLog, starts: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """(S, H + 1, 4) the commands the rotors answer over each horizon ``rows`` (S, H + 1) from ``starts`` (S,): delayed,
+    through the command path's terms with the anchor's battery voltage held (causal: no later voltage is used)."""
+    voltage = battery_voltage(p, log)
+    return effective_commands(p, delayed_commands(p, log.u, log.t)[rows], None if voltage is None else voltage[starts][:, None])
+
+
 def anchor_state(p: PhysicsParameters, log: FlightLog, anchors: np.ndarray, observer: Observer = Observer(),
                  measured: np.ndarray | None = None) -> tuple[PhysicsState, Disturbance, np.ndarray]:
     """(start states, disturbances, rotor speeds (N, 4)) at ``anchors`` rows of ``log``, causally (module docstring).
@@ -311,7 +318,4 @@ class PhysicsPredictor:
         state, disturbance, _ = anchor_state(self.params, segment, starts, self.observer)
         rows = starts[:, None] + np.arange(horizon + 1)[None, :]
         dt = np.diff(segment.t)[rows[:, :-1]]
-        voltage = battery_voltage(self.params, segment)
-        commands = effective_commands(self.params, delayed_commands(self.params, segment.u, segment.t)[rows],
-                                      None if voltage is None else voltage[starts][:, None])  # the anchor's voltage, held
-        return rollout(self.params, state, disturbance, commands, dt)
+        return rollout(self.params, state, disturbance, horizon_commands(self.params, segment, starts, rows), dt)

@@ -42,7 +42,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.hybrid import HybridModel, hybrid_commands, observer_dict, observer_rows
 from quad_modelling.core.models.physics import Observer
-from quad_modelling.core.physics import rigid_body, rotors
+from quad_modelling.core.physics import arrays, rigid_body, rotors
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.models.residual_net import ResidualNet
 from quad_modelling.core.training.rollout import (
@@ -188,7 +188,7 @@ def acceleration_scale(p: PhysicsParameters, logs: Sequence[FlightLog], spans: S
         state = physics.measured_states(p, measured, rotor, np.arange(len(log)))
         acc_n, ang_acc = rigid_body.accelerations(p, state.vel_n, state.rot, state.rates, rotor, rotors.rotor_acceleration(p, rotor, commands),
                                                   state.pos_n)
-        lin_b = np.einsum("bji,bj->bi", state.rot, measured[:, 6:9] - acc_n)
+        lin_b = arrays.rotate_back(state.rot, measured[:, 6:9] - acc_n)
         residual = np.concatenate([lin_b, measured[:, 15:18] - ang_acc], axis=1)
         residual = residual[np.all(np.isfinite(residual), axis=1)]
         squares += ((residual - residual.mean(axis=0)) ** 2).sum(axis=0)
