@@ -72,7 +72,7 @@ from quad_modelling.core.identification.physics_terms import (
     GROUND_OFFSETS,
     TermDesign,
     effects_section,
-    rate_column,
+    rate_columns,
     term_estimates,
     velocity_columns,
 )
@@ -150,7 +150,7 @@ class PhysicsFit:
             if all(q["identifiable"] for q in params.values()):
                 values = tuple(params[key]["value"] for key in params)
                 terms.update({"ground_effect": {"ground_effect": values}, "battery": {"battery": values},
-                              "gyroscopic": {"rotor_momentum_scale": values[0]}}[name])
+                              "gyroscopic": {"gyroscopic": values}}[name])
         return base.with_values(**terms,
             time_constant=v["rotor_time_constant"], delay=v["rotor_delay"], thrust_constant=v["rotor_thrust_constant"],
             torque_constant=v["rotor_torque_constant"], drag=(v["rotor_drag_xy"], v["rotor_drag_xy"], v["rotor_drag_z"]),
@@ -179,10 +179,10 @@ class PhysicsFit:
         lines = constant_lines(self.estimates(), f"physics model constants ({d.get('anchors', 0)} anchors, "
                                                  f"{d.get('seconds', 0):.1f} s):")
         ratios = ", ".join(f"{c} {r:.2f}" for c, r in d.get("error_ratio", {}).items())
-        chosen = d.get("angular_observer")
-        observer = [] if chosen is None else [
-            f"  angular observer: {chosen['chosen']} (rate error {chosen['error_moment_trim']:.3g} with the moment trim, "
-            f"{chosen['error_measured_minus_modelled']:.3g} without)"]
+        choice = d.get("observer_choice")
+        observer = [] if choice is None else [
+            f"  disturbance observer: {choice['chosen']} (error "
+            + ", ".join(f"{name} {e:.3g}" for name, e in choice["errors"].items()) + ")"]
         return [lines[0], f"  multi-step error / the observer alone's: {ratios}", *observer, *lines[1:]]
 
 
@@ -209,10 +209,11 @@ def _cumulative(values: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.concatenate([np.zeros((1,) + values.shape[1:]), np.cumsum(values[:-1] * dt, axis=0)])
 
 
-def training_segments(flights: Sequence[FlightLog], config: EvaluationConfig, observer: Observer = Observer()) -> list[_Segment]:
+def training_segments(flights: Sequence[FlightLog], config: EvaluationConfig, observer: Observer = Observer(),
+                      min_history_s: float = 0.0) -> list[_Segment]:
     """The fixed data of every training segment (module docstring); DataError when no anchor is usable."""
     span = SpanSpec.parse("train", config.train)
-    history_s = max(observer.linear_s, observer.angular_s)
+    history_s = max(observer.linear_s, observer.angular_s, min_history_s)  # the same anchors for every observer compared
     segments = []
     for log in flights:
         log.require(("gyro_b",), "the physics identification (it fits the body-rate predictions)")
@@ -256,7 +257,7 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
     the one physics' wrench per unit constant (module docstring), then the fitted terms'
     (:mod:`~quad_modelling.core.identification.physics_terms`); the known part its gyroscopic torque. Terms the
     vehicle switches on and ``design`` does not fit act with their values."""
-    off = {"ground_effect": {"ground_effect": None}, "battery": {"battery": None}, "gyroscopic": {"rotor_momentum_scale": 0.0}}
+    off = {"ground_effect": {"ground_effect": None}, "battery": {"battery": None}, "gyroscopic": {"gyroscopic": None}}
     q = p.with_values(time_constant=time_constant, delay=delay, **{k: v for n in design.names for k, v in off[n].items()})
     if q.battery is not None and seg.voltage is None:
         raise DataError("the vehicle's battery term needs the battery voltage, and a training flight has none")
@@ -269,27 +270,32 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
     drag_z_force, _ = _wrench_per_unit(q, rotor, seg.v_b, None, drag=(0.0, 0.0, 1.0))
     _, yaw_torque = _wrench_per_unit(q, rotor, seg.v_b, None, torque_constant=1.0)
     body = np.stack([thrust_force, drag_xy_force, drag_z_force], axis=2) / m  # body force per unit (k_f, d_xy, d_z)
-    momentum = q.rotor_momentum_scale * rotor_momentum(q.prop_inertia, q.spins, rotor) if q.rotor_momentum_scale else None
-    gyro = gyroscopic_torque(seg.rates, inertia, momentum) / inertia
+    gyro = np.zeros_like(seg.rates)
+    if q.gyroscopic is not None:  # the vehicle's gyroscopic torques, known (not fitted here)
+        body_scale, rotor_scale = q.gyroscopic
+        momentum = rotor_scale * rotor_momentum(q.prop_inertia, q.spins, rotor) if rotor_scale else None
+        gyro = gyroscopic_torque(seg.rates, inertia, momentum, body_scale) / inertia
     velocity = np.einsum("nij,njk->nik", seg.rot, body)
     extra = velocity_columns(design, velocity[:, :, 0], seg.height, seg.voltage)
     if extra:
         velocity = np.concatenate([velocity, np.stack(extra, axis=2)], axis=2)
-    rate_extra = rate_column(design, q.prop_inertia, q.spins, seg.rates, rotor, inertia)
+    rate_extra = rate_columns(design, q.prop_inertia, q.spins, seg.rates, rotor, inertia)
+    yaw = yaw_torque[:, 2][:, None, None] if rate_extra is None else np.stack([yaw_torque[:, 2], rate_extra[:, 2, 0]], axis=1)[:, None, :]
     # yaw's rotor-reaction term I_p/I_zz sum s_i dΩ_i/dt integrates to I_p/I_zz sum s_i (Ω(t) - Ω(t_0)): added to the known part
     # after integration (below), exact for the model's rectangle rule up to the filter's own step.
     return {
         "velocity": (seg.vel_n, velocity, np.zeros((len(seg.t), 3))),
         "roll": (seg.rates[:, :1], _torque_columns(thrust_torque, drag_xy_torque, rate_extra, 0), gyro[:, :1]),
         "pitch": (seg.rates[:, 1:2], _torque_columns(thrust_torque, drag_xy_torque, rate_extra, 1), gyro[:, 1:2]),
-        "yaw": (seg.rates[:, 2:], yaw_torque[:, 2][:, None, None], gyro[:, 2:],
+        "yaw": (seg.rates[:, 2:], yaw, gyro[:, 2:],
                 -rotor_momentum(p.prop_inertia, p.spins, rotor)[:, 2:] / inertia[2]),  # I_p Σ s_i Ω_i / I_zz
     }
 
 
 def _torque_columns(thrust: np.ndarray, drag: np.ndarray, extra: np.ndarray | None, axis: int) -> np.ndarray:
-    """(N, 1, k) regressors of the roll (``axis`` 0) or pitch (1) rate: (thrust gain, drag moment[, rotors' gyroscopic])."""
-    parts = [thrust[:, axis], drag[:, axis]] + ([] if extra is None else [extra[:, axis]])
+    """(N, 1, k) regressors of the roll (``axis`` 0) or pitch (1) rate: (thrust gain, drag moment[, body and rotors'
+    gyroscopic])."""
+    parts = [thrust[:, axis], drag[:, axis]] + ([] if extra is None else [extra[:, axis, 0], extra[:, axis, 1]])
     return np.stack(parts, axis=1)[:, None, :]
 
 
@@ -415,24 +421,27 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     """Fit the physics constants :data:`FITTED` on ``config``'s training span of ``flights`` (module docstring), with
     the optional ``terms`` (:mod:`~quad_modelling.core.identification.physics_terms`).
 
-    Without an ``observer``, the angular observer is chosen by the data: the fit runs with the moment trim (the
-    physics model's default, :class:`~quad_modelling.core.models.physics.Observer` ``angular_trim``) and with the
-    measured minus modelled mean, and keeps the one whose multi-step rate errors are smaller, summed over the
-    channels relative to the trim's observer-alone errors (both fits predict the same rates, so their errors
-    compare). The trim stands for a constant moment the model lacks (a CG offset the controller balances); where
-    the model has no such gap (the simulator's flights), removing the model's own mean angular acceleration
-    throws away what it predicts right (roll rate error 0.14 -> 0.016 of the observer alone's, yaw 0.74 -> 0.004,
-    on simulated LinkQuad flights with the true constants)."""
+    Without an ``observer``, the observer is chosen by the data among :data:`OBSERVERS`: the fit runs with each
+    and keeps the one whose multi-step errors (velocity and rates, on the same anchors) are smallest, summed over
+    the channels relative to the default's observer-alone errors (every fit predicts the same states, so their
+    errors compare). The default's angular trim stands for a constant moment the model lacks (a CG offset the
+    controller balances) and its linear part for a force it lacks (battery sag, a mass error); where the model has
+    no such gap (the simulator's flights), they throw away what it predicts right (roll rate error 0.14 -> 0.016 of
+    the observer alone's, yaw 0.74 -> 0.004, on simulated LinkQuad flights with the true constants)."""
     if observer is not None:
         return _identify_with(flights, vehicle, config, observer, terms)
-    trim = _identify_with(flights, vehicle, config, Observer(), terms)
-    measured = _identify_with(flights, vehicle, config, Observer(angular_trim=False), terms)
-    reference = trim.diagnostics["ssr0"]
-    scores = [sum(f.diagnostics["ssr"][c] / reference[c] for c in CHANNELS if reference[c] > 0) for f in (trim, measured)]
-    best = trim if scores[0] <= scores[1] else measured
-    best.diagnostics["angular_observer"] = {"chosen": "moment trim" if best is trim else "measured minus modelled",
-                                            "error_moment_trim": scores[0], "error_measured_minus_modelled": scores[1]}
+    fits = {name: _identify_with(flights, vehicle, config, candidate, terms) for name, candidate in OBSERVERS.items()}
+    reference = fits["default"].diagnostics["ssr0"]
+    scores = {name: sum(f.diagnostics["ssr"][c] / reference[c] for c in CHANNELS if reference[c] > 0) for name, f in fits.items()}
+    chosen = min(scores, key=scores.get)
+    best = fits[chosen]
+    best.diagnostics["observer_choice"] = {"chosen": chosen, "errors": scores}
     return best
+
+
+OBSERVERS = {"default": Observer(), "measured minus modelled": Observer(angular_trim=False), "linear only": Observer(angular_s=0.0)}
+"""The disturbance observers ``identify`` chooses among (:func:`identify_physics`): the physics model's default
+(0.5 s each, the angular part a trim), the angular part as measured minus modelled, and the linear part alone."""
 
 
 def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
@@ -440,7 +449,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     """:func:`identify_physics` with one ``observer``."""
     began = time.perf_counter()
     p = PhysicsParameters.from_vehicle(vehicle)
-    segments = training_segments(flights, config, observer)
+    segments = training_segments(flights, config, observer, min_history_s=max(o.linear_s for o in OBSERVERS.values()))
     rate = float(np.median([1.0 / np.median(np.diff(s.t)) for s in segments]))
     design = _term_design(tuple(terms), segments, vehicle)
 
@@ -489,7 +498,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     d_xy, d_xy_sd = values["rotor_drag_xy"], sigma["rotor_drag_xy"]
     arms = []
     for key, channel in (("physics_ixx", "roll"), ("physics_iyy", "pitch")):
-        (alpha, b), cov = fit[channel]["coef"], fit[channel]["cov"]
+        (alpha, b), cov = fit[channel]["coef"][:2], fit[channel]["cov"]
         alpha_sd, b_sd = np.sqrt(cov[0, 0]), np.sqrt(cov[1, 1])
         values[key] = kf / alpha if alpha != 0 else float("nan")
         sigma[key] = abs(values[key]) * np.hypot(kf_sd / kf, alpha_sd / alpha) if alpha != 0 and kf != 0 else float("nan")
@@ -613,11 +622,15 @@ def add_physics_constants(document: dict, fit: PhysicsFit | None, note: str, sou
     identification["physics"] = _plain(fit.to_dict())
     if fit.terms:
         document.setdefault("effects", {}).update(_plain(effects_section(fit.terms, source)))
-    chosen = fit.diagnostics.get("angular_observer")
-    document.setdefault("effects", {})["moment_trim"] = {"enabled": bool(fit.observer.angular_trim), "history": {
-        "value": float(fit.observer.angular_s), "unit": "s", "bounds": [0.0, 10.0], "status": "identified",
-        "source": f"{source}; " + (f"chosen by the data: {chosen['chosen']} (multi-step rate error {chosen['error_moment_trim']:.3g} "
-                                   f"with the trim, {chosen['error_measured_minus_modelled']:.3g} without)" if chosen else "as fitted")}}
+    choice = fit.diagnostics.get("observer_choice")
+    why = (f"chosen by the data: {choice['chosen']} (multi-step error "
+           + ", ".join(f"{name} {e:.3g}" for name, e in choice["errors"].items()) + ")") if choice else "as fitted"
+    o = fit.observer
+    on = o.linear_s > 0 or o.angular_s > 0
+    values = {"linear_history": (o.linear_s, "s"), "angular_history": (o.angular_s, "s"), "angular_trim": (float(o.angular_trim), "1")}
+    document.setdefault("effects", {})["disturbance_observer"] = {"enabled": on, **{
+        key: {"value": float(value), "unit": unit, "bounds": [0.0, 10.0 if unit == "s" else 1.0], "status": "identified",
+              "source": f"{source}; {why}"} for key, (value, unit) in values.items()}}
 
 
 def _plain(value):

@@ -12,9 +12,10 @@ physics' wrench per unit of that coefficient (:mod:`quad_modelling.core.physics.
 * ``battery`` (velocity): :math:`X_T\, 2 (V - V_{ref})`, coefficient :math:`\theta = k_f \kappa`: the rotor
   speeds scale by :math:`f = 1 + \kappa (V - V_{ref})` (the lag is linear), the thrust by
   :math:`f^2 \approx 1 + 2 \kappa (V - V_{ref})`; :math:`V_{ref}` the mean training voltage;
-* ``gyroscopic`` (roll, pitch): :math:`-(\omega \times h_r)/I` of the rotors' momentum
-  (:func:`~quad_modelling.core.physics.rigid_body.rotor_momentum`), coefficient :math:`k_p`, the two axes'
-  estimates combined by inverse variance;
+* ``gyroscopic`` (roll, pitch, yaw): :math:`-(\omega \times I\omega)/I` (coefficient :math:`k_b`, all three
+  axes) and :math:`-(\omega \times h_r)/I` of the rotors' momentum
+  (:func:`~quad_modelling.core.physics.rigid_body.rotor_momentum`, coefficient :math:`k_p`, roll and pitch), each
+  coefficient's axes combined by inverse variance;
 * ``motor_imbalance``: not fitted here (it needs a per-motor joint fit of all channels); ``identify --effects
   motor_imbalance`` says so in one line.
 
@@ -46,7 +47,8 @@ TERM_BOUNDS = {
     ("ground_effect", "offset"): (0.0, 4.0),  # times arm_length (GROUND_OFFSETS)
     ("battery", "kappa"): (-1.0, 1.0),  # 1/V: a rotor speed proportional to V has kappa = 1/V_ref (0.24 at 4.2 V)
     ("battery", "reference_voltage"): (0.0, 100.0),  # V
-    ("gyroscopic", "scale"): (0.0, 10.0),
+    ("gyroscopic", "body_scale"): (0.0, 10.0),
+    ("gyroscopic", "rotor_scale"): (0.0, 10.0),
 }
 """Bounds of each fitted term parameter (ground effect in units of the vehicle's arm length)."""
 
@@ -79,13 +81,16 @@ def velocity_columns(design: TermDesign, thrust_n: np.ndarray, height: np.ndarra
     return columns
 
 
-def rate_column(design: TermDesign, prop_inertia: float, spins: np.ndarray, rates: np.ndarray, rotor: np.ndarray,
-                inertia: np.ndarray) -> np.ndarray | None:
-    """The gyroscopic regressor (N, 3) [rad/s² per unit k_p], or None when not fitted."""
+def rate_columns(design: TermDesign, prop_inertia: float, spins: np.ndarray, rates: np.ndarray, rotor: np.ndarray,
+                 inertia: np.ndarray) -> np.ndarray | None:
+    """The gyroscopic regressors (N, 3, 2) [rad/s² per unit k_b, k_p]: the body's -(ω × Iω)/I and the rotors'
+    -(ω × h_r)/I; None when not fitted."""
     if "gyroscopic" not in design.names:
         return None
     momentum = rotor_momentum(prop_inertia, spins, rotor)
-    return (gyroscopic_torque(rates, inertia, momentum) - gyroscopic_torque(rates, inertia)) / inertia
+    body = gyroscopic_torque(rates, inertia) / inertia
+    rotors = gyroscopic_torque(rates, inertia, momentum, body_scale=0.0) / inertia
+    return np.stack([body, rotors], axis=2)
 
 
 def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], arm_length: float) -> dict[str, dict]:
@@ -103,16 +108,21 @@ def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], a
             key = "coefficient" if name == "ground_effect" else "kappa"
             fixed = ("offset", design.ground_offset) if name == "ground_effect" else ("reference_voltage", design.reference_voltage)
             out[name] = {key: _bounded(name, key, value, sd, arm_length), fixed[0]: _bounded(name, fixed[0], fixed[1], np.nan, arm_length)}
-        else:
-            estimates = [(fit[c]["coef"][2], np.sqrt(fit[c]["cov"][2, 2])) for c in ("roll", "pitch")]
-            finite = [(v, s) for v, s in estimates if np.isfinite(v) and np.isfinite(s) and s > 0]
-            if finite:
-                w = np.array([1.0 / s**2 for _, s in finite])
-                value, sd = float(np.sum(w * np.array([v for v, _ in finite])) / w.sum()), float(1.0 / np.sqrt(w.sum()))
-            else:
-                value, sd = float("nan"), float("nan")
-            out[name] = {"scale": _bounded(name, "scale", value, sd, arm_length)}
+        else:  # body scale from roll, pitch and yaw (column 2, 2, 1); rotor scale from roll and pitch (column 3)
+            body = _combined([(fit[c]["coef"][i], fit[c]["cov"][i, i]) for c, i in (("roll", 2), ("pitch", 2), ("yaw", 1))])
+            rotor = _combined([(fit[c]["coef"][3], fit[c]["cov"][3, 3]) for c in ("roll", "pitch")])
+            out[name] = {"body_scale": _bounded(name, "body_scale", *body, arm_length),
+                         "rotor_scale": _bounded(name, "rotor_scale", *rotor, arm_length)}
     return out
+
+
+def _combined(estimates: list[tuple[float, float]]) -> tuple[float, float]:
+    """Inverse-variance mean and its sigma of (value, variance) estimates; NaN when none is finite."""
+    finite = [(v, var) for v, var in estimates if np.isfinite(v) and np.isfinite(var) and var > 0]
+    if not finite:
+        return float("nan"), float("nan")
+    w = np.array([1.0 / var for _, var in finite])
+    return float(np.sum(w * np.array([v for v, _ in finite])) / w.sum()), float(1.0 / np.sqrt(w.sum()))
 
 
 def _bounded(name: str, key: str, value: float, sigma: float, arm_length: float) -> dict:

@@ -87,14 +87,16 @@ class Observer:
 
     @classmethod
     def from_vehicle(cls, vehicle: VehicleConfig) -> Observer:
-        """The observer the vehicle file asks for: its ``moment_trim`` term (:mod:`quad_modelling.core.physics.effects`)
-        switched on (its history) or off (the measured minus modelled angular mean); without one, the default."""
-        term = vehicle.effects.get("moment_trim")
+        """The observer the vehicle file asks for: its ``disturbance_observer`` term
+        (:mod:`quad_modelling.core.physics.effects`) switched on (its histories and trim flag) or off (no observer);
+        without one, the default."""
+        term = vehicle.effects.get("disturbance_observer")
         if term is None:
             return cls()
         if not term.on:
-            return cls(angular_trim=False)
-        return cls(angular_s=term.values()[0])
+            return cls(0.0, 0.0)
+        linear_s, angular_s, trim = term.values()
+        return cls(linear_s, angular_s, trim >= 0.5)
 
     def __post_init__(self) -> None:
         for name in ("linear_s", "angular_s"):

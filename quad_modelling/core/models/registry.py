@@ -104,7 +104,7 @@ def _make_physics(arg: str, vehicle: VehicleConfig) -> Predictor:
         histories = [float(x) for x in arg.split(",")]
         if len(histories) > 2:
             raise ValueError(arg)
-        trim = Observer.from_vehicle(vehicle).angular_trim  # the vehicle's moment_trim term says how the angular part anchors
+        trim = Observer.from_vehicle(vehicle).angular_trim  # the vehicle's disturbance_observer term says how the angular part anchors
         observer = Observer(*histories, trim) if len(histories) == 2 else Observer(histories[0], angular_trim=trim)
     except ValueError as err:
         raise ConfigError(f"model spec physics:{arg}: the argument is the disturbance observer's history in seconds, "

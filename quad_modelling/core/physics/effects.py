@@ -15,13 +15,14 @@ term                  form (the module's symbols)                               
                       battery voltage, held at the anchor's over a prediction (:mod:`.rotors`)       reference_voltage [V]
 ``motor_imbalance``   :math:`u_i \to g_i u_i`: each motor answers its logged command times its gain  gain_1..gain_4 [1]
                       (mean 1: the collective gain is the thrust constant's) (:mod:`.rotors`)
-``gyroscopic``        the rotors' gyroscopic torque :math:`-\omega \times k_p h_r`,                 scale k_p [1]
-                      :math:`h_r = (0, 0, -I_p \sum_i s_i \Omega_i)` (:mod:`.rigid_body`)
-``moment_trim``       a constant moment the controller balances (CG offset, motor imbalance): at    history [s]
-                      each anchor the model's mean angular acceleration over the history is
-                      removed (:class:`~quad_modelling.core.models.physics.Observer` ``angular_trim``);
-                      off: the measured minus the modelled mean is held instead. No entry: on
-                      with 0.5 s (the physics model's default)
+``gyroscopic``        the gyroscopic torques :math:`-\omega \times (k_b I\omega + k_p h_r)`,        body_scale k_b [1],
+                      :math:`h_r = (0, 0, -I_p \sum_i s_i \Omega_i)` (:mod:`.rigid_body`). No       rotor_scale k_p [1]
+                      entry: the body's term alone (k_b = 1, k_p = 0), as rigid-body physics has
+``disturbance_observer``  how the model anchors (:class:`~quad_modelling.core.models.physics.Observer`):  linear_history [s],
+                      constant disturbances held over a horizon, estimated over the histories;      angular_history [s],
+                      ``angular_trim`` 1 removes the model's own mean angular acceleration (a       angular_trim [1]
+                      constant moment it lacks), 0 holds measured - modelled. Off: no observer.
+                      No entry: 0.5 s, 0.5 s, trim (``identify`` chooses it by the data)
 ====================  ==========================================================================  ==========================
 
 The rest of the catalogue (:data:`~quad_modelling.core.effect_names.CATALOGUE_EFFECTS`) is already in the base
@@ -63,8 +64,12 @@ TERMS: dict[str, tuple[TermParameter, ...]] = {
     "battery": (TermParameter("kappa", "1/V", "rotor-speed change per volt of battery voltage"),
                 TermParameter("reference_voltage", "V", "V_ref: voltage at which the base constants hold")),
     "motor_imbalance": tuple(TermParameter(f"gain_{i}", "1", f"motor {i}'s gain on its logged command") for i in range(1, 5)),
-    "gyroscopic": (TermParameter("scale", "1", "k_p: scale of the rotors' gyroscopic torque"),),
-    "moment_trim": (TermParameter("history", "s", "the anchor's trim: the model's mean angular acceleration over it"),),
+    "gyroscopic": (TermParameter("body_scale", "1", "k_b: scale of the body's gyroscopic torque -ω × Iω"),
+                   TermParameter("rotor_scale", "1", "k_p: scale of the rotors' gyroscopic torque -ω × h_r")),
+    "disturbance_observer": (TermParameter("linear_history", "s", "history of the linear disturbance estimate"),
+                             TermParameter("angular_history", "s", "history of the angular disturbance estimate"),
+                             TermParameter("angular_trim", "1", "1: remove the model's mean angular acceleration "
+                                                                "(a moment the model lacks); 0: hold measured - modelled")),
 }
 """The physics model's optional terms and their parameters (module docstring), in the order they are applied."""
 

@@ -61,7 +61,7 @@ class PhysicsParameters:
     k_f, torque_constant k_m, drag (d_xy, d_xy, d_z), drag_arm h_d [m]; input_min/max: the command range.
 
     The optional terms (:mod:`quad_modelling.core.physics.effects`), None when off: ground_effect (c_ge [m²],
-    h_off [m]); battery (κ [1/V], V_ref [V]); motor_gains (g_1..g_4) [1]; rotor_momentum_scale k_p [1] (0: off).
+    h_off [m]); battery (κ [1/V], V_ref [V]); motor_gains (g_1..g_4) [1]; gyroscopic (k_b, k_p) [1] (default: the body's term alone, (1, 0)).
     """
 
     mass: float
@@ -82,7 +82,7 @@ class PhysicsParameters:
     ground_effect: tuple[float, float] | None = None
     battery: tuple[float, float] | None = None
     motor_gains: tuple[float, float, float, float] | None = None
-    rotor_momentum_scale: float = 0.0
+    gyroscopic: tuple[float, float] | None = (1.0, 0.0)
 
     @classmethod
     def from_vehicle(cls, vehicle: VehicleConfig) -> PhysicsParameters:
@@ -111,14 +111,14 @@ class PhysicsParameters:
             ground_effect=switched_on(vehicle.effects, "ground_effect"),
             battery=switched_on(vehicle.effects, "battery"),
             motor_gains=switched_on(vehicle.effects, "motor_imbalance"),
-            rotor_momentum_scale=(switched_on(vehicle.effects, "gyroscopic") or (0.0,))[0],
+            gyroscopic=switched_on(vehicle.effects, "gyroscopic") if "gyroscopic" in vehicle.effects else (1.0, 0.0),
         )
 
     @property
     def terms_on(self) -> tuple[str, ...]:
         """The optional terms switched on (:data:`~quad_modelling.core.physics.effects.TERMS` names)."""
         on = {"ground_effect": self.ground_effect is not None, "battery": self.battery is not None,
-              "motor_imbalance": self.motor_gains is not None, "gyroscopic": self.rotor_momentum_scale != 0.0}
+              "motor_imbalance": self.motor_gains is not None, "gyroscopic": self.gyroscopic is not None}
         return tuple(name for name, is_on in on.items() if is_on)
 
     def with_values(self, **changes) -> PhysicsParameters:

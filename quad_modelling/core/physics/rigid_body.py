@@ -17,9 +17,9 @@ seen from above), thrust and yaw torque :math:`T_i = k_f \Omega_i^2`, :math:`Q_i
     F_B = (0, 0, -\textstyle\sum_i T_i) + F_d, \qquad
     \tau_B = \big(-\textstyle\sum_i y_i T_i,\ \sum_i x_i T_i,\ \sum_i s_i Q_i + I_p \sum_i s_i \dot\Omega_i\big) + \tau_d
 
-Motion (:func:`accelerations`), with the body's gyroscopic torque :math:`-\omega \times I\omega`
-(:func:`gyroscopic_torque`; the rotors' part :math:`-\omega \times h_r`, :func:`rotor_momentum`, is the optional
-``gyroscopic`` term):
+Motion (:func:`accelerations`), with the gyroscopic torque :math:`-\omega \times I\omega`
+(:func:`gyroscopic_torque`; the optional ``gyroscopic`` term scales it and adds the rotors' part
+:math:`-\omega \times h_r`, :func:`rotor_momentum`; without an entry the body's term alone acts):
 
 .. math::
 
@@ -118,10 +118,13 @@ def rotor_momentum(prop_inertia: float, spins, rotor):
     return arrays.unit_z_like(rotor[:, :3], -1.0) * (prop_inertia * (rotor @ spins))[:, None]
 
 
-def gyroscopic_torque(rates, inertia, momentum=None):
-    """-ω × (I ω + h_r) [N m] in B of body rates ``rates`` (B, 3) [rad/s], principal inertias ``inertia`` (3,)
-    [kg m²] and the rotors' momentum ``momentum`` (B, 3) (:func:`rotor_momentum`; None: the body's term alone)."""
-    angular_momentum = rates * inertia if momentum is None else rates * inertia + momentum
+def gyroscopic_torque(rates, inertia, momentum=None, body_scale: float = 1.0):
+    """-ω × (k_b I ω + h_r) [N m] in B of body rates ``rates`` (B, 3) [rad/s], principal inertias ``inertia`` (3,)
+    [kg m²], the rotors' momentum ``momentum`` (B, 3) (:func:`rotor_momentum`; None: the body's term alone) and the
+    body term's scale ``body_scale`` k_b (1: rigid-body physics; the ``gyroscopic`` term's parameter)."""
+    angular_momentum = body_scale * (rates * inertia)
+    if momentum is not None:
+        angular_momentum = angular_momentum + momentum
     return -arrays.cross(rates, angular_momentum)
 
 
@@ -132,10 +135,11 @@ def accelerations(p, vel_n, rot, rates, rotor, rotor_dot, pos_n=None):
     force_b, torque_b = rotor_wrench(p, rotor, rotor_dot, arrays.rotate_back(rot, vel_n), height)
     acc_n = arrays.rotate(rot, force_b) / p.mass + arrays.unit_z_like(force_b, GRAVITY)
     inertia = _inertia(p, rates)
-    momentum = None
-    if p.rotor_momentum_scale:
-        momentum = p.rotor_momentum_scale * rotor_momentum(p.prop_inertia, p.spins, rotor)
-    return acc_n, (torque_b + gyroscopic_torque(rates, inertia, momentum)) / inertia
+    if p.gyroscopic is None:
+        return acc_n, torque_b / inertia
+    body_scale, rotor_scale = p.gyroscopic
+    momentum = rotor_scale * rotor_momentum(p.prop_inertia, p.spins, rotor) if rotor_scale else None
+    return acc_n, (torque_b + gyroscopic_torque(rates, inertia, momentum, body_scale)) / inertia
 
 
 def limit_norm(vectors, limit: float):

@@ -59,7 +59,7 @@ class TorchParameters(NamedTuple):
     drag: torch.Tensor
     drag_arm: float
     ground_effect: tuple[float, float] | None = None
-    rotor_momentum_scale: float = 0.0
+    gyroscopic: tuple[float, float] | None = (1.0, 0.0)
 
     @classmethod
     def from_params(cls, p: PhysicsParameters, dtype=torch.float64) -> TorchParameters:
@@ -68,7 +68,7 @@ class TorchParameters(NamedTuple):
 
         return cls(float(p.mass), t(p.inertia), float(p.prop_inertia), t(p.positions), t(p.spins), float(p.speed_gain),
                    float(p.speed_offset), float(p.time_constant), float(p.thrust_constant), float(p.torque_constant), t(p.drag),
-                   float(p.drag_arm), p.ground_effect, float(p.rotor_momentum_scale))
+                   float(p.drag_arm), p.ground_effect, p.gyroscopic)
 
 
 def step(p: TorchParameters, state: TorchState, u: torch.Tensor, dt: torch.Tensor, linear_n: torch.Tensor,

@@ -38,7 +38,7 @@ def _vehicle(effects: dict) -> VehicleConfig:
 def test_a_valid_section_round_trips_and_switches_the_terms_on():
     vehicle = _vehicle({"ground_effect": GROUND, "battery": BATTERY})
     p = PhysicsParameters.from_vehicle(vehicle)
-    assert p.ground_effect == (3.3e-5, 0.02) and p.battery == (0.2, 3.9) and p.terms_on == ("ground_effect", "battery")
+    assert p.ground_effect == (3.3e-5, 0.02) and p.battery == (0.2, 3.9) and p.terms_on == ("ground_effect", "battery", "gyroscopic")  # the body gyroscopic term acts without an entry
     again = parse_effects(yaml.safe_load(yaml.safe_dump(effects_document(vehicle.effects))), "again.yaml")
     assert yaml.safe_dump(effects_document(again)) == yaml.safe_dump(effects_document(vehicle.effects))  # sigma NaN != NaN
     assert again["ground_effect"].values() == (3.3e-5, 0.02) and again["ground_effect"].parameters["coefficient"].sigma == 4e-6
@@ -95,7 +95,8 @@ def test_with_terms_on_live_equals_multistep_and_nothing_after_the_anchor_is_use
     vehicle = _vehicle({"ground_effect": GROUND, "battery": BATTERY,
                         "motor_imbalance": {"enabled": True, **{f"gain_{i}": {"value": g, "unit": "1", "bounds": [0.5, 2.0], "source": "test",
                                                                           "status": "identified"} for i, g in enumerate((1.1, 0.95, 1.0, 0.95), 1)}},
-                        "gyroscopic": {"enabled": True, "scale": {"value": 1.0, "unit": "1", "bounds": [0.0, 10.0], "source": "test", "status": "measured"}}})
+                        "gyroscopic": {"enabled": True, **{key: {"value": 1.0, "unit": "1", "bounds": [0.0, 10.0], "source": "test", "status": "measured"}
+                                                           for key in ("body_scale", "rotor_scale")}}})
     log = load_flight(FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz", CF).slice(300, 420)
     model = PhysicsPredictor(vehicle)
     horizons = model.predict_horizons(log, np.array([40]), 60)[0]
