@@ -37,18 +37,41 @@ with the catalogue: a 1e-6 change of a [0, 1]-scaled parameter is far below its 
 
 @dataclass
 class FitResult:
-    """Identified parameters of a set of effects (training windows only)."""
+    """Identified parameters of a set of effects (training windows only): the fitting engine's record
+    (``engine``: values, HAC sigmas and covariance, held and at-bound flags, advice) split per effect.
+    ``evaluations``: model evaluations of this fit and of any fit it was seeded from."""
 
     effects: list[Effect]
-    thetas: list[np.ndarray]
-    cost: float
+    engine: LeastSquaresFit
     evaluations: int
-    success: bool
-    message: str
-    sigmas: list[np.ndarray] | None = None  # 1-sigma per parameter (HAC, windows as blocks); NaN where held or singular
-    held: tuple[str, ...] = ()  # parameters held at their initial value
-    covariance: np.ndarray | None = None  # (P, P) HAC covariance of all parameters in order (NaN rows where held)
-    engine: LeastSquaresFit | None = None  # the engine's record: at-bound flags, poorly-determined advice
+
+    def _per_effect(self, values: np.ndarray) -> list[np.ndarray]:
+        return np.split(values, np.cumsum([len(e.parameters) for e in self.effects])[:-1])
+
+    @property
+    def thetas(self) -> list[np.ndarray]:
+        """The parameters of each effect, in the catalogue's order and units."""
+        return self._per_effect(self.engine.values)
+
+    @property
+    def sigmas(self) -> list[np.ndarray]:
+        """1-sigma of each effect's parameters (HAC, windows as blocks); NaN where held or not separable."""
+        return self._per_effect(self.engine.sigma)
+
+    @property
+    def covariance(self) -> np.ndarray:
+        """(P, P) HAC covariance of all parameters in order (NaN rows where held or not separable)."""
+        return self.engine.covariance
+
+    @property
+    def cost(self) -> float:
+        """Half the sum of the squared normalised residuals at the optimum."""
+        return self.engine.cost
+
+    @property
+    def held(self) -> tuple[str, ...]:
+        """The parameters held at their initial value."""
+        return tuple(name for name, held in zip(self.engine.names, self.engine.held) if held)
 
     def params(self) -> dict[str, dict[str, float]]:
         return {e.name: {k: float(v) for k, v in zip(e.parameters, th)} for e, th in zip(self.effects, self.thetas)}
@@ -101,7 +124,4 @@ def fit_effects(
     fit = fit_least_squares(residuals, searched, held=held, random_starts=max(starts, 1) - 1,
                             sample_period_s=batch.dt * FIT_STRIDE, max_evaluations=MAX_EVALUATIONS,
                             diff_step=DIFF_STEP, tolerance=TOLERANCE)
-    split = np.cumsum(sizes)[:-1]
-    return FitResult(effects, np.split(fit.values, split), fit.cost, fit.evaluations, fit.success, fit.message,
-                     sigmas=np.split(fit.sigma, split), held=tuple(p.name for p in searched if p.name in held),
-                     covariance=fit.covariance, engine=fit)
+    return FitResult(effects, fit, fit.evaluations)

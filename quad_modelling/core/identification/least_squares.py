@@ -142,13 +142,13 @@ class Parameter:
 
 def bound_side(value: float, lower: float, upper: float, transform: str = "linear") -> str | None:
     """'lower' or 'upper' when ``value`` lies within :data:`AT_BOUND_FRACTION` of the search range of that bound
-    (in the search coordinates of ``transform``), else None."""
-    p = Parameter("value", value, lower, upper, transform)
-    u, (lo, hi) = p.to_search(value), p.search_bounds
-    tolerance = AT_BOUND_FRACTION * (hi - lo)
-    if u - lo <= tolerance:
+    (in the search coordinates of ``transform``; a ``unit`` parameter's fraction is the same as a ``linear``
+    one's), else None. An infinite bound is reached only by the value itself."""
+    u, lo, hi = (math.log(value), math.log(lower), math.log(upper)) if transform == "log" else (value, lower, upper)
+    tolerance = AT_BOUND_FRACTION * (hi - lo) if math.isfinite(hi - lo) else 0.0
+    if u <= lo + tolerance:
         return "lower"
-    if hi - u <= tolerance:
+    if u >= hi - tolerance:
         return "upper"
     return None
 
