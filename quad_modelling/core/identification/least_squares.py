@@ -243,7 +243,8 @@ def fit_least_squares(
     (:data:`RANDOM_START_SPREAD`, :data:`RANDOM_START_SEED`); ``sample_period_s`` [s]: the spacing of the
     residuals' samples (the HAC bandwidth in samples follows from it); ``max_evaluations`` per start;
     ``diff_step`` (scipy's relative finite-difference step, None: its default) and ``tolerance`` (scipy's xtol
-    and ftol) of the search. Raises ValueError on an unknown or duplicate name or when every parameter is held.
+    and ftol) of the search. Raises ValueError on an unknown or duplicate name, a start of a held parameter, or
+    when every parameter is held.
     """
     parameters = tuple(parameters)
     names = [p.name for p in parameters]
@@ -256,6 +257,9 @@ def fit_least_squares(
     free = ~is_held
     if not free.any():
         raise ValueError(f"fit_least_squares: every parameter of {', '.join(names)} is held")
+    started_held = [n for n in names if n in held and any(n in s for s in starts)]
+    if started_held:
+        raise ValueError(f"fit_least_squares: a start names {started_held[0]!r}, which is held")
     lower, upper = (np.array(b, dtype=float) for b in zip(*(p.search_bounds for p in parameters)))
     declared = np.clip([p.to_search(p.start) for p in parameters], lower, upper)
 

@@ -10,7 +10,6 @@ import pytest
 
 from quad_modelling.core.identification.least_squares import (
     AT_BOUND_FRACTION,
-    NON_FINITE_RESIDUAL,
     POOR_RANGE_FRACTION,
     POOR_RELATIVE_SIGMA,
     Parameter,
@@ -150,6 +149,9 @@ def test_bad_requests_raise():
         fit_least_squares(line_residuals(x, y), [slope], held=["slope"], sample_period_s=PERIOD_S, max_evaluations=5)
     with pytest.raises(ValueError, match="'offset' is none of the parameters"):
         fit_least_squares(line_residuals(x, y), [slope], held=["offset"], sample_period_s=PERIOD_S, max_evaluations=5)
+    with pytest.raises(ValueError, match="'slope', which is held"):
+        fit_least_squares(line_residuals(x, y), [slope, Parameter("offset", 0.0, -1.0, 1.0)], held=["slope"], starts=[{"slope": 0.5}],
+                          sample_period_s=PERIOD_S, max_evaluations=5)
     with pytest.raises(ValueError, match="repeated"):
         fit_least_squares(line_residuals(x, y), [slope, slope], sample_period_s=PERIOD_S, max_evaluations=5)
     with pytest.raises(ValueError, match="windows, samples, variables"):
