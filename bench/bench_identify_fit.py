@@ -113,7 +113,7 @@ def main() -> None:
     for label, rows in (("kept", data["fits"]), ("0.5 Hz high-pass (not kept)", data["highpass_variant"])):
         for r in rows:
             s, b = r["sigma"], r["at_bound"]
-            flag = {name: " (bound)" if b.get(key) else "" for name, key in (("arm", "arm_scale"), ("kr", "ln_rotor_reaction_scale"))}
+            flag = {name: " (bound)" if b.get(key) else "" for name, key in (("arm", "arm_scale"), ("kr", "rotor_reaction_scale"))}
             rel = "/".join(f"{x:.2f}" for x in r["held_out_relative_rms"].values())
             lines.append(f"| {label} | {r['span']} | {r['motor_a_m']:.1f} ± {s['motor_a_m']:.2g} | {r['motor_b_m']:.3f} ± {s['motor_b_m']:.2g} "
                          f"| {r['drag_constant']:.2e} | {r['arm_scale']:.2f}{flag['arm']} | {r['rotor_reaction_scale']:.3g}{flag['kr']} | {rel} |")

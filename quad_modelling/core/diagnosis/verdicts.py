@@ -11,7 +11,8 @@ verdict and its reason:
    below the same without it. An effect that helps its own variables but makes the whole prediction worse
    (battery on the NanoBench Crazyflie: 0.981 -> 1.034) is ``not supported``.
 3. **Parameters inside their bounds** (:func:`parameter_checks`): no *material* parameter within
-   :data:`AT_BOUND_FRACTION` of a search bound -- a bound's value is the optimiser's, not the data's (ground
+   :data:`~quad_modelling.core.identification.least_squares.AT_BOUND_FRACTION` of its search range from a
+   bound (the fitting engine's rule) -- a bound's value is the optimiser's, not the data's (ground
    effect with its height offset at 2 m is a near-linear height trend standing in for something else).
    Else ``weak``.
 4. **Physically plausible**: every material parameter inside the effect's plausible range for this vehicle
@@ -43,6 +44,7 @@ import numpy as np
 
 from quad_modelling.core.diagnosis.statistics import variable_scores
 from quad_modelling.core.identification.base_model import BaseModel, Effect, predict_batch
+from quad_modelling.core.identification.least_squares import bound_side, poorly_determined
 from quad_modelling.core.identification.window_batch import WindowBatch
 
 VERDICTS = ("found", "weak", "not supported")
@@ -54,9 +56,6 @@ SCORED_VARIABLES = ("acc_x", "acc_y", "acc_z", "roll_acc", "pitch_acc", "yaw_acc
 """The variables the total held-out error is taken over: the ones the diagnosis scores (driven by forces
 and torques without integration). The open-loop velocities, rates and angles drift over a window whatever
 the effect (docs/diagnosis.md, Limits), so a total over them ranks drift, not effects."""
-
-AT_BOUND_FRACTION = 1e-3
-"""A parameter within this fraction of its search range from a bound is *at* the bound."""
 
 MATERIAL_FRACTION = 0.1
 """A parameter is material when its term is at least this fraction of the effect's correction (RMS over the
@@ -95,13 +94,8 @@ class ParameterCheck:
 
     @property
     def at_bound(self) -> str | None:
-        """'lower' or 'upper' when the value sits on that search bound, else None."""
-        tolerance = AT_BOUND_FRACTION * (self.upper - self.lower)
-        if self.value <= self.lower + tolerance:
-            return "lower"
-        if self.value >= self.upper - tolerance:
-            return "upper"
-        return None
+        """'lower' or 'upper' when the value sits on that search bound (the fitting engine's rule), else None."""
+        return bound_side(self.value, self.lower, self.upper)
 
     null: float | None = None
 
@@ -114,6 +108,13 @@ class ParameterCheck:
         return bool(np.isfinite(self.sigma) and abs(self.value - self.null) >= DETERMINED_SIGMAS * self.sigma)
 
     @property
+    def advice(self) -> str:
+        """Why the value is poorly determined, '' when it is not (the fitting engine's rule,
+        :func:`~quad_modelling.core.identification.least_squares.poorly_determined`)."""
+        return poorly_determined(self.value, self.sigma, self.unit, (self.lower, self.upper), self.at_bound is not None,
+                                 "not fitted" if self.held else "")
+
+    @property
     def plausible_ok(self) -> bool:
         return self.plausible[0] <= self.value <= self.plausible[1]
 
@@ -121,7 +122,8 @@ class ParameterCheck:
         return {"name": self.name, "value": self.value, "sigma": None if not np.isfinite(self.sigma) else self.sigma,
                 "unit": self.unit, "lower": self.lower, "upper": self.upper, "at_bound": self.at_bound is not None,
                 "bound": self.at_bound, "plausible": list(self.plausible), "plausible_source": source,
-                "plausible_ok": self.plausible_ok, "material": self.material, "determined": self.determined, "held": self.held}
+                "plausible_ok": self.plausible_ok, "material": self.material, "determined": self.determined, "held": self.held,
+                "poorly_determined": self.advice or None}
 
 
 def parameter_checks(effect: Effect, theta: np.ndarray, sigma: np.ndarray | None, base: BaseModel, material: np.ndarray,

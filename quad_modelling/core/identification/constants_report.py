@@ -2,8 +2,10 @@
 on a bound, and the change from the vehicle file -- one record per constant (:class:`ConstantEstimate`),
 for every fit (the linear greybox's, the physics model's), printed and written the same way.
 
-A constant is *poorly determined* when its 1-sigma exceeds :data:`POOR_RELATIVE_SIGMA` of its value,
-its sigma is unknown, or the fit ended on a search bound (the optimum is the bound, not the data's).
+A constant is *poorly determined* by the one fitting engine's rule
+(:func:`~quad_modelling.core.identification.least_squares.poorly_determined`): held, not finite, ended on a
+search bound (the optimum is the bound, not the data's), sigma unknown, or sigma above half its value or half
+its search range.
 """
 
 from __future__ import annotations
@@ -11,11 +13,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-POOR_RELATIVE_SIGMA = 0.5
-"""sigma / |value| above which a constant is reported as poorly determined (the task's 50 %)."""
-
-AT_BOUND_RTOL = 1e-3
-"""Relative distance to a bound below which a fitted value counts as on the bound."""
+from quad_modelling.core.identification.least_squares import poorly_determined
 
 LINE_WIDTH = 100
 
@@ -45,24 +43,11 @@ class ConstantEstimate:
 
     @property
     def poorly_determined(self) -> bool:
-        return (bool(self.held) or self.at_bound or not math.isfinite(self.sigma) or not math.isfinite(self.value)
-                or self.sigma > POOR_RELATIVE_SIGMA * abs(self.value))
+        return bool(self.reason())
 
     def reason(self) -> str:
-        """Why it is poorly determined ('' when it is not)."""
-        if self.held:
-            return f"held at {self.value:.3g} ({self.held})"
-        if not math.isfinite(self.value):
-            return "not identifiable from these flights"
-        if self.at_bound:
-            return f"ended on its search bound [{self.bounds[0]:.3g}, {self.bounds[1]:.3g}]" if self.bounds else "ended on a bound"
-        if not math.isfinite(self.sigma):
-            return "no uncertainty (the fit cannot separate it)"
-        if self.sigma > POOR_RELATIVE_SIGMA * abs(self.value):
-            if self.value == 0:
-                return f"sigma {self.sigma:.2g} {self.unit} about a value of 0"
-            return f"sigma {100.0 * self.sigma / abs(self.value):.0f} % of the value"
-        return ""
+        """Why it is poorly determined ('' when it is not; the engine's rule)."""
+        return poorly_determined(self.value, self.sigma, self.unit, self.bounds, self.at_bound, self.held)
 
     def lines(self, indent: str = "  ") -> list[str]:
         """'name value unit (sigma s), vehicle v: +c %' then bounds and flag, wrapped at 100 characters."""
@@ -90,13 +75,6 @@ class ConstantEstimate:
                 "at_bound": bool(self.at_bound), "vehicle_value": None if self.vehicle is None else float(self.vehicle),
                 "change_percent": None if change is None else round(float(change), 1),
                 "poorly_determined": self.reason() or None, "held": self.held or None}
-
-
-def at_bound(value: float, bounds: tuple[float, float]) -> bool:
-    """Whether ``value`` is within :data:`AT_BOUND_RTOL` of either bound (relative to the bound, or to the
-    range for a zero bound)."""
-    span = abs(bounds[1] - bounds[0])
-    return any(abs(value - b) <= AT_BOUND_RTOL * (abs(b) if b != 0 else span) for b in bounds)
 
 
 def constant_lines(estimates: list[ConstantEstimate], title: str) -> list[str]:

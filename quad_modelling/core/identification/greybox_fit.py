@@ -36,14 +36,18 @@ not enter), as the vector :math:`z`:
 :math:`a` is held (only :math:`B_m\\sqrt a` is identifiable): :math:`A_m = -1/\\tau_m`,
 :math:`B_m = K / (2\\sqrt{a m g/4})`, :math:`d = a \\cdot (d/a)`.
 
-Uncertainties (1 sigma) from the Jacobian at the optimum: the HAC (Newey-West) sandwich
+The search is the one fitting engine's (:func:`~quad_modelling.core.identification.least_squares.fit_least_squares`:
+trust-region reflective within the bounds, z_0, z_1, z_4 as logarithms, one start per :data:`GAIN_STARTS`).
+Uncertainties (1 sigma) from the Jacobian at the optimum: the engine's HAC (Newey-West) sandwich
 :math:`\\mathrm{cov}(z) = (J^T J)^{-1} S (J^T J)^{-1}` with windows as blocks
 (:mod:`~quad_modelling.core.identification.uncertainty`), because the residuals are autocorrelated
 (smoothed, 100 Hz, every 4th sample used): the textbook :math:`s^2 (J^T J)^{-1}` treated each kept
 sample as independent and was optimistic. Propagated to the constants
 (:math:`\\sigma_{A_m} = |A_m| \\sigma_{z_0}`, :math:`\\sigma_{\\ln K}^2 = \\mathrm{var}(z_1 - z_0)`,
 :math:`\\sigma_d = a\\, \\sigma_{z_2}`, :math:`\\sigma_{k_R} = k_R \\sigma_{z_4}`). Every fitted
-parameter that ends on its search bound is flagged (``fit['at_bound']``); its sigma is then the
+parameter that ends on its search bound (within the engine's
+:data:`~quad_modelling.core.identification.least_squares.AT_BOUND_FRACTION` of its range in z) is flagged
+(``fit['at_bound']``); its sigma is then the
 unconstrained curvature's and the value is the bound's, not the data's.
 """
 
@@ -53,11 +57,10 @@ import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy import optimize
 
 from quad_modelling.core.identification.base_model import BaseModel, predict_batch
 from quad_modelling.core.identification.constants_report import ConstantEstimate
-from quad_modelling.core.identification.uncertainty import bandwidth_samples, hac_covariance
+from quad_modelling.core.identification.least_squares import LeastSquaresFit, Parameter, fit_least_squares
 from quad_modelling.core.identification.window_batch import WindowBatch
 from quad_modelling.core.models.greybox import GreyboxParameters
 from quad_modelling.core.variables import INDEX
@@ -76,7 +79,7 @@ small-quadrotor motor (the LinkQuad's Table 3-1 pole gives 105 ms, the Crazyflie
 and within a 5-10 s window it could not be told apart from a drift of the trim."""
 
 MOTOR_TIME_CONSTANT_RANGE = (MIN_MOTOR_TIME_CONSTANT, MAX_MOTOR_TIME_CONSTANT)
-"""Search range of tau_m = -1/A_m [s]; a fit that ends on a bound says so (``fit['motor_time_constant_at_bound']``)."""
+"""Search range of tau_m = -1/A_m [s]; a fit that ends on a bound says so (``fit['at_bound']['motor_time_constant']``)."""
 
 MOTOR_POLE_RANGE = (1.0 / MAX_MOTOR_TIME_CONSTANT, 1.0 / MIN_MOTOR_TIME_CONSTANT)
 """The same search range as -A_m = 1/tau_m [1/s], as the vehicle files state A_m (reported in ``fit['motor_pole_range_per_s']``)."""
@@ -117,8 +120,8 @@ derivative's ~1e-2 rad/s²); below it is floating-point residue, as roll/pitch/y
 collective-only flights of the linear model, which normalised by their RMS became unit noise and stalled
 the fit at A_m = -20.4 1/s (truth -25)."""
 
-FITTED_NAMES = ("ln_motor_time_constant", "ln_steady_gain_ratio", "yaw_drag_ratio", "arm_scale", "ln_rotor_reaction_scale")
-"""Names of z_0...z_4 (module docstring)."""
+FITTED_NAMES = ("motor_time_constant", "steady_gain_ratio", "yaw_drag_ratio", "arm_scale", "rotor_reaction_scale")
+"""The fitted parameters (tau_m [s], G / G_config, d/a [m], arm scale, k_R), searched as z_0...z_4 (module docstring)."""
 
 PARAMETER_VARIABLES = ((), (), ("yaw_acc",), ("roll_acc", "pitch_acc"), ("yaw_acc",))
 """Which fitted variables show z_2...z_4 (z_0, z_1, the motor, show in all): a parameter none of the excited
@@ -131,8 +134,9 @@ after a 3-5 Hz low-pass; a quarter of the cost)."""
 MAX_EVALUATIONS = 80
 """Model evaluations per start of the least-squares search (each one predicts every window)."""
 
-GAIN_STARTS = (0.0, math.log(3.0), -math.log(3.0))
-"""Starts of z_1 (ln of the steady gain ratio): the configured gain can be off by a lot."""
+GAIN_STARTS = (1.0, 3.0, 1.0 / 3.0)
+"""Starts of the steady gain ratio G / G_config, one search each (the lowest cost wins): the configured gain can be
+off by a lot."""
 
 
 @dataclass
@@ -142,7 +146,8 @@ class BaseFit:
     ``values``: motor_a_m [1/s], motor_b_m, drag_constant [N m s²], thrust_gain_K [N/s per command unit],
     arm_scale [1], rotor_reaction_scale [1], prop_inertia [kg m²], reference_voltage [V] (None without
     voltage); ``sigma``: 1-sigma of motor_a_m, motor_b_m, drag_constant, thrust_gain_K, arm_scale,
-    rotor_reaction_scale (empty when not identified); ``fit``: cost, residual count, whether tau_m ended on a bound.
+    rotor_reaction_scale (empty when not identified); ``fit``: cost, residual count, the held parameters and which
+    ended on a search bound (:data:`FITTED_NAMES`).
     """
 
     model: BaseModel
@@ -167,7 +172,8 @@ def fitted_parameters(p: GreyboxParameters, tau_m: float, gain: float, yaw_ratio
 
 
 def identify_base(batch: WindowBatch, vehicle: VehicleConfig, motor_time_constant: float | None = None) -> BaseFit:
-    """Fit the linear model's identifiable constants on the windows of ``batch`` (module docstring).
+    """Fit the linear model's identifiable constants on the windows of ``batch`` (module docstring) with the one
+    fitting engine (:func:`~quad_modelling.core.identification.least_squares.fit_least_squares`).
 
     ``motor_time_constant``: hold :math:`\\tau_m` at this value [s] (inside :data:`MOTOR_TIME_CONSTANT_RANGE`)
     and fit the rest; None fits it. The diagnosis holds it at :data:`MIN_MOTOR_TIME_CONSTANT` when it assesses
@@ -192,66 +198,55 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig, motor_time_constan
     cols = np.array([INDEX[v] for v in excited])
     target = batch.measured[:, rows][:, :, cols]
     scale = rms[[FITTED_VARIABLES.index(v) for v in excited]]
-    free = np.array([not shown or any(v in excited for v in shown) for shown in PARAMETER_VARIABLES])
-    free[0] = not hold_motor_time_constant
-    if free[4] and _rotor_reaction_negligible(p0, batch, rms[FITTED_VARIABLES.index("yaw_acc")]):
-        free[4] = False  # k_R held at 1: the data cannot tell the configured term from none (ROTOR_REACTION_FLOOR)
+    held = [name for name, shown in zip(FITTED_NAMES, PARAMETER_VARIABLES) if shown and not any(v in excited for v in shown)]
+    if hold_motor_time_constant:
+        held.append("motor_time_constant")
+    if "rotor_reaction_scale" not in held and _rotor_reaction_negligible(p0, batch, rms[FITTED_VARIABLES.index("yaw_acc")]):
+        held.append("rotor_reaction_scale")  # k_R held at 1: the data cannot tell the configured term from none (ROTOR_REACTION_FLOOR)
     tau_config = -1.0 / p0.motor_a_m
     steady_config = p0.input_gain * tau_config
-    tau0 = min(max(tau_config, 1.1 * MIN_MOTOR_TIME_CONSTANT), 0.95 * MAX_MOTOR_TIME_CONSTANT)
-    if hold_motor_time_constant:
-        tau0 = motor_time_constant
-    x0 = np.array([math.log(tau0), 0.0, p0.drag_constant / p0.thrust_constant, 1.0, 0.0])
-    ranges = (MOTOR_TIME_CONSTANT_RANGE, STEADY_GAIN_RATIO_RANGE, YAW_DRAG_RATIO_RANGE, ARM_SCALE_RANGE, ROTOR_REACTION_SCALE_RANGE)
-    logarithmic = np.array([True, True, False, False, True])
-    lower = np.array([math.log(r[0]) if log else r[0] for r, log in zip(ranges, logarithmic)])
-    upper = np.array([math.log(r[1]) if log else r[1] for r, log in zip(ranges, logarithmic)])
-    x0 = np.clip(x0, lower + 1e-9, upper - 1e-9)
-    if hold_motor_time_constant:
-        x0[0] = math.log(motor_time_constant)
+    tau0 = motor_time_constant if hold_motor_time_constant else min(max(tau_config, 1.1 * MIN_MOTOR_TIME_CONSTANT), 0.95 * MAX_MOTOR_TIME_CONSTANT)
+    searched = _searched_parameters(tau0, p0.drag_constant / p0.thrust_constant)
 
-    def full(z_free: np.ndarray) -> np.ndarray:
-        z = x0.copy()
-        z[free] = z_free
-        return z
+    def parameters(values: np.ndarray) -> GreyboxParameters:
+        tau, ratio, yaw_ratio, arm_scale, reaction_scale = values
+        return fitted_parameters(p0, tau, steady_config * ratio / tau, yaw_ratio, arm_scale, reaction_scale)
 
-    def parameters(z: np.ndarray) -> GreyboxParameters:
-        tau = math.exp(z[0])
-        return fitted_parameters(p0, tau, steady_config * math.exp(z[1]) / tau, z[2], z[3], math.exp(z[4]))
+    def residuals(values: np.ndarray) -> np.ndarray:
+        pred = predict_batch(BaseModel(parameters(values)), batch, columns=cols)
+        return (target - pred[:, rows][:, :, cols]) / scale
 
-    def residuals(z_free: np.ndarray) -> np.ndarray:
-        pred = predict_batch(BaseModel(parameters(full(z_free))), batch, columns=cols)
-        return ((target - pred[:, rows][:, :, cols]) / scale).ravel()
-
-    best = None
-    note = f"tau_m held at {motor_time_constant * 1e3:g} ms; " if hold_motor_time_constant else "tau_m, "
-    for start_gain in GAIN_STARTS:
-        z = x0.copy()
-        z[1] = start_gain
-        fit = optimize.least_squares(residuals, z[free], bounds=(lower[free], upper[free]), method="trf",
-                                     x_scale=np.array([1.0, 1.0, 0.05, 0.3, 1.0])[free], max_nfev=MAX_EVALUATIONS)
-        if best is None or fit.cost < best.cost:
-            best = fit
-    best.x = full(best.x)
-    p = parameters(best.x)
+    fit = fit_least_squares(residuals, searched, held=held, starts=[{"steady_gain_ratio": ratio} for ratio in GAIN_STARTS[1:]],
+                            sample_period_s=batch.dt * RESIDUAL_STRIDE, max_evaluations=MAX_EVALUATIONS)
+    p = parameters(fit.values)
     values = {"motor_a_m": float(p.motor_a_m), "motor_b_m": float(p.motor_b_m), "drag_constant": float(p.drag_constant),
-              "thrust_gain_K": float(p.input_gain), "arm_scale": float(best.x[3]), "rotor_reaction_scale": float(math.exp(best.x[4])),
-              "prop_inertia": float(p.prop_inertia), "reference_voltage": v_ref}
-    tau = math.exp(best.x[0])
+              "thrust_gain_K": float(p.input_gain), "arm_scale": fit.value("arm_scale"),
+              "rotor_reaction_scale": fit.value("rotor_reaction_scale"), "prop_inertia": float(p.prop_inertia), "reference_voltage": v_ref}
+    note = f"tau_m held at {motor_time_constant * 1e3:g} ms; " if hold_motor_time_constant else "tau_m, "
     return BaseFit(BaseModel(p, v_ref), values, True,
                    "identified on the training windows (acc_z, roll/pitch/yaw acceleration): " + note
                    + "steady gain, d/a, arm scale, rotor-reaction scale",
-                   sigma=_sigma(best, free, p, target.shape, batch.dt), fit={
-                       "cost": float(best.cost), "residuals": int(best.fun.size), "motor_time_constant_s": tau,
-                       "motor_time_constant_at_bound": bool(free[0] and np.isclose(tau, MOTOR_TIME_CONSTANT_RANGE, rtol=1e-3).any()),
+                   sigma=_sigma(fit, p), fit={
+                       "cost": fit.cost, "residuals": int(fit.residuals.size), "motor_time_constant_s": fit.value("motor_time_constant"),
                        "motor_time_constant_range_s": list(MOTOR_TIME_CONSTANT_RANGE),
                        "motor_pole_range_per_s": list(MOTOR_POLE_RANGE),
                        "fitted_on": ", ".join(excited) + " jointly (output error, open loop over each window)",
                        "not_excited": {v: float(r) for v, r in zip(FITTED_VARIABLES, rms) if v not in excited},
-                       "held": [name for name, f in zip(FITTED_NAMES, free) if not f],
-                       "at_bound": {name: bool(f and (np.isclose(z, lo, rtol=1e-3, atol=1e-6) or np.isclose(z, hi, rtol=1e-3, atol=1e-6)))
-                                    for name, f, z, lo, hi in zip(FITTED_NAMES, free, best.x, lower, upper)},
+                       "held": [name for name in FITTED_NAMES if name in held],
+                       "at_bound": {name: fit.at_bound(name) is not None for name in FITTED_NAMES},
                    })
+
+
+def _searched_parameters(motor_time_constant: float, yaw_drag_ratio: float) -> tuple[Parameter, ...]:
+    """z_0...z_4 of the module docstring as the engine's parameters (starts: ``motor_time_constant`` [s], the
+    configured gain, ``yaw_drag_ratio`` [m], the configured arms and rotor reaction)."""
+    return (
+        Parameter("motor_time_constant", motor_time_constant, *MOTOR_TIME_CONSTANT_RANGE, transform="log"),
+        Parameter("steady_gain_ratio", GAIN_STARTS[0], *STEADY_GAIN_RATIO_RANGE, transform="log"),
+        Parameter("yaw_drag_ratio", yaw_drag_ratio, *YAW_DRAG_RATIO_RANGE, step=0.05),
+        Parameter("arm_scale", 1.0, *ARM_SCALE_RANGE, step=0.3),
+        Parameter("rotor_reaction_scale", 1.0, *ROTOR_REACTION_SCALE_RANGE, transform="log"),
+    )
 
 
 def _rotor_reaction_negligible(p0: GreyboxParameters, batch: WindowBatch, yaw_rms: float) -> bool:
@@ -265,19 +260,12 @@ def _rotor_reaction_negligible(p0: GreyboxParameters, batch: WindowBatch, yaw_rm
     return float(np.sqrt(np.mean((with_term - without) ** 2))) < ROTOR_REACTION_FLOOR * yaw_rms
 
 
-def _sigma(fit: optimize.OptimizeResult, free: np.ndarray, p: GreyboxParameters, shape: tuple[int, int, int], dt: float) -> dict[str, float]:
-    """1-sigma of the identified constants at the optimum (module docstring): the HAC covariance of the
-    ``free`` parameters (:func:`~quad_modelling.core.identification.uncertainty.hac_covariance`, windows as
-    blocks; ``shape`` = (windows, rows, variables) of the residuals, rows ``RESIDUAL_STRIDE`` samples of
-    ``dt`` apart), propagated to the constants; a held constant's is NaN."""
-    n_free = int(free.sum())
-    cov = np.full((free.size, free.size), np.nan)
-    try:
-        lags = bandwidth_samples(dt, RESIDUAL_STRIDE)
-        cov[np.ix_(free, free)] = hac_covariance(fit.jac.reshape(*shape, n_free), fit.fun.reshape(shape), lags)
-    except np.linalg.LinAlgError:
-        pass  # a singular J^T J: the constants are not separable here, their sigmas stay NaN
-    motor = cov[0, :2] if free[0] else np.zeros(2)  # a held tau_m (z_0) adds no variance to ln K
+def _sigma(fit: LeastSquaresFit, p: GreyboxParameters) -> dict[str, float]:
+    """1-sigma of the identified constants at the optimum (module docstring): the engine's HAC covariance of the
+    search coordinates (ln tau_m, ln G ratio, d/a, arm scale, ln k_R), propagated to the constants; a held
+    constant's is NaN."""
+    cov = fit.search_covariance
+    motor = cov[0, :2] if fit.moving[0] else np.zeros(2)  # a held tau_m (z_0) adds no variance to ln K
     log_gain_var = cov[1, 1] + motor[0] - 2.0 * motor[1]  # ln K = ln G_config + z_1 - z_0
     sigma_log_gain = math.sqrt(log_gain_var) if log_gain_var >= 0 else float("nan")
 
@@ -288,8 +276,8 @@ def _sigma(fit: optimize.OptimizeResult, free: np.ndarray, p: GreyboxParameters,
             "motor_b_m": float(p.motor_b_m * sigma_log_gain),
             "thrust_gain_K": float(p.input_gain * sigma_log_gain),
             "drag_constant": float(p.thrust_constant * root(cov[2, 2])),
-            "arm_scale": float(root(cov[3, 3])),
-            "rotor_reaction_scale": float(math.exp(fit.x[4]) * root(cov[4, 4]))}
+            "arm_scale": fit.sigma_of("arm_scale"),
+            "rotor_reaction_scale": fit.sigma_of("rotor_reaction_scale")}
 
 
 def constant_estimates(fit: BaseFit, vehicle: VehicleConfig) -> list[ConstantEstimate]:
@@ -300,17 +288,17 @@ def constant_estimates(fit: BaseFit, vehicle: VehicleConfig) -> list[ConstantEst
     root = p0.thrust_slope  # ∂T/∂Ω at hover = 2 sqrt(a m g / 4): K = B_m root
     steady = p0.input_gain * (-1.0 / p0.motor_a_m)  # G_config = K tau_m [N per command unit]
     k_range = (steady * STEADY_GAIN_RATIO_RANGE[0] / MAX_MOTOR_TIME_CONSTANT, steady * STEADY_GAIN_RATIO_RANGE[1] / MIN_MOTOR_TIME_CONSTANT)
-    motor_at_bound = bool(flags.get("ln_motor_time_constant") or flags.get("ln_steady_gain_ratio"))
+    motor_at_bound = bool(flags.get("motor_time_constant") or flags.get("steady_gain_ratio"))
     unit = {key: vehicle.constants[key].unit for key in ("motor_a_m", "motor_b_m", "drag_constant")}
     excite = "more collective (throttle) steps"
-    why = {"ln_rotor_reaction_scale": f"its term is below {ROTOR_REACTION_FLOOR:.0%} of the yaw acceleration",
-           "ln_motor_time_constant": "the diagnosis judges motor lag and input delay against the configured value"}
+    why = {"rotor_reaction_scale": f"its term is below {ROTOR_REACTION_FLOOR:.0%} of the yaw acceleration",
+           "motor_time_constant": "the diagnosis judges motor lag and input delay against the configured value"}
     held = {name: why.get(name, "the flights do not excite it") for name in fit.fit.get("held", [])}
     return [
         ConstantEstimate("motor_a_m", v["motor_a_m"], unit["motor_a_m"], s.get("motor_a_m", math.nan),
                          (-MOTOR_POLE_RANGE[1], -MOTOR_POLE_RANGE[0]), vehicle.value("motor_a_m"),
-                         bool(flags.get("ln_motor_time_constant")), excite + " faster than the motor lag",
-                         held.get("ln_motor_time_constant", "")),
+                         bool(flags.get("motor_time_constant")), excite + " faster than the motor lag",
+                         held.get("motor_time_constant", "")),
         ConstantEstimate("motor_b_m", v["motor_b_m"], unit["motor_b_m"], s.get("motor_b_m", math.nan),
                          (k_range[0] / root, k_range[1] / root), vehicle.value("motor_b_m"), motor_at_bound, excite),
         ConstantEstimate("thrust_gain_K", v["thrust_gain_K"], "N/s per command unit", s.get("thrust_gain_K", math.nan),
@@ -322,6 +310,6 @@ def constant_estimates(fit: BaseFit, vehicle: VehicleConfig) -> list[ConstantEst
                          bool(flags.get("arm_scale")), "roll/pitch manoeuvres (closed loop hides the slow ones)",
                          held.get("arm_scale", "")),
         ConstantEstimate("rotor_reaction_scale", v["rotor_reaction_scale"], "1", s.get("rotor_reaction_scale", math.nan),
-                         ROTOR_REACTION_SCALE_RANGE, 1.0, bool(flags.get("ln_rotor_reaction_scale")),
-                         "fast yaw command steps", held.get("ln_rotor_reaction_scale", "")),
+                         ROTOR_REACTION_SCALE_RANGE, 1.0, bool(flags.get("rotor_reaction_scale")),
+                         "fast yaw command steps", held.get("rotor_reaction_scale", "")),
     ]

@@ -42,6 +42,6 @@ def test_the_fit_recovers_the_motor_and_leaves_out_what_the_windows_do_not_excit
     assert fit.values["motor_a_m"] == pytest.approx(-25.0, rel=1e-4)
     assert fit.values["motor_b_m"] == pytest.approx(0.5, rel=1e-4)
     assert set(fit.fit["not_excited"]) == {"roll_acc", "pitch_acc", "yaw_acc"}
-    assert fit.fit["held"] == ["yaw_drag_ratio", "arm_scale", "ln_rotor_reaction_scale"]
+    assert fit.fit["held"] == ["yaw_drag_ratio", "arm_scale", "rotor_reaction_scale"]
     assert fit.values["arm_scale"] == 1.0 and fit.values["rotor_reaction_scale"] == pytest.approx(1.0)
     assert np.isnan(fit.sigma["drag_constant"]) and fit.sigma["motor_a_m"] > 0

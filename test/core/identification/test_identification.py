@@ -102,11 +102,11 @@ def test_a_negligible_rotor_reaction_term_is_held_not_run_to_its_bound():
     config = EvaluationConfig(drop_start=5, drop_end=5, train="5:30", eval="30:35")
     light = load_vehicle("crazyflie21")
     result = identify([_differential_flight(light, seed=3)], light, config)
-    assert "ln_rotor_reaction_scale" in result.fit["held"] and result.fit["rotor_reaction_scale"] == 1.0
+    assert "rotor_reaction_scale" in result.fit["held"] and result.fit["rotor_reaction_scale"] == 1.0
     k_r = next(e for e in result.constants if e.name == "rotor_reaction_scale")
     assert k_r.held == f"its term is below {ROTOR_REACTION_FLOOR:.0%} of the yaw acceleration" and k_r.poorly_determined
 
     heavy = light.with_values({"prop_inertia": 3.4e-7}, "test: heavy propellers")
     result = identify([_differential_flight(heavy, seed=3)], heavy, config)
-    assert "ln_rotor_reaction_scale" not in result.fit["held"]
-    assert 0.5 < result.fit["rotor_reaction_scale"] < 2.0 and not result.fit["at_bound"]["ln_rotor_reaction_scale"]
+    assert "rotor_reaction_scale" not in result.fit["held"]
+    assert 0.5 < result.fit["rotor_reaction_scale"] < 2.0 and not result.fit["at_bound"]["rotor_reaction_scale"]
