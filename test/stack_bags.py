@@ -39,13 +39,18 @@ def _f32(values) -> np.ndarray:
     return np.ascontiguousarray(values, dtype=np.float32)
 
 
+PWM_RANGE_US = (900.0, 2000.0)
+"""actuator_outputs pulse widths of the stopped and the full motor: PX4's defaults (config/topic_maps/px4.yaml)."""
+
+
 def px4_messages(writer: ForeignBagWriter, log: FlightLog, input_range: tuple[float, float], pwm: bool = False,
                  battery_ids: tuple[int, ...] = (1,), stamps_us: np.ndarray | None = None):
     """The PX4 messages of ``log``, one of each topic per sample, in time order: ``(topic, bag ns, message)``.
 
     vehicle_odometry (NED position and velocity, q = (w, x, y, z) of R_NED<-FRD), actuator_motors (control[0..3] =
     the commands mapped linearly from ``input_range`` onto 0..1, the other 8 channels NaN as PX4 leaves unused
-    ones) or, with ``pwm``, actuator_outputs (output[0..3] = the commands as they are), sensor_combined (FRD) and
+    ones) or, with ``pwm``, actuator_outputs (output[0..3] = those 0..1 as pulse widths on :data:`PWM_RANGE_US`),
+    sensor_combined (FRD) and
     battery_status (one message per id of ``battery_ids`` per sample: a multi-instance topic).
     """
     us = px4_stamps_us(log.t) if stamps_us is None else stamps_us
@@ -54,6 +59,7 @@ def px4_messages(writer: ForeignBagWriter, log: FlightLog, input_range: tuple[fl
     position, velocity = _f32(log.pos_n), _f32(log.vel_n)
     low, high = input_range
     control = _f32((log.u - low) / (high - low))
+    pulse = _f32(PWM_RANGE_US[0] + (log.u - low) / (high - low) * (PWM_RANGE_US[1] - PWM_RANGE_US[0]))
     acc = _f32(log.acc_b) if log.acc_b is not None else None
     gyro = _f32(log.gyro_b) if log.gyro_b is not None else None
     unused = np.full(8, np.nan, dtype=np.float32)
@@ -66,7 +72,7 @@ def px4_messages(writer: ForeignBagWriter, log: FlightLog, input_range: tuple[fl
         if pwm:
             yield "/fmu/out/actuator_outputs", ns, writer.new(
                 "px4_msgs/msg/ActuatorOutputs", timestamp=stamp, noutputs=4,
-                output=np.concatenate([_f32(log.u[i]), np.zeros(12, dtype=np.float32)]))
+                output=np.concatenate([pulse[i], np.zeros(12, dtype=np.float32)]))
         else:
             yield "/fmu/out/actuator_motors", ns, writer.new(
                 "px4_msgs/msg/ActuatorMotors", timestamp=stamp, timestamp_sample=stamp, control=np.concatenate([control[i], unused]))

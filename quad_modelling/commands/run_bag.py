@@ -18,6 +18,7 @@ import yaml
 
 from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.io.topic_maps import add_topic_map_argument
 from quad_modelling.nodes.domains import DISCOVERY_MODES
 from quad_modelling.nodes.executors import EXECUTORS
 
@@ -317,7 +318,6 @@ def run(args: argparse.Namespace) -> int:
     through its map and written as a contract bag in a temporary directory first (the replay publishes the contract)."""
     import tempfile
 
-    from quad_modelling.atomic import check_output
     from quad_modelling.core.vehicle import vehicle_file
     from quad_modelling.io.bag_io import read_bag_metadata, write_bag
     from quad_modelling.io.loader import load_flight

@@ -347,7 +347,7 @@ def flight_from_streams(topic_map: TopicMap, sources: dict[str, FieldSource], st
     notes["time_base"] = f"{base} stamps, {rate_hz(t_ns):.1f} Hz; {cut:.2f} s outside the span all kinematic streams cover cut"
     notes["sources"] = {name: f"{s.topic} {', '.join(s.paths)} ({s.unit or s.order}, {s.frame or '-'}), "
                               f"{rate_hz(streams[s.topic].stamps):.1f} Hz" for name, s in sources.items()}
-    instances = {t: f"{len(s.instances)} instances ({s.instances and next(iter(s.instances))} used)"
+    instances = {t: f"{len(s.instances)} instances seen, {topic_map.topics[t].instance} {next(iter(s.instances))} used"
                  for t, s in streams.items() if len(s.instances) > 1}
     if instances:
         notes["instances"] = instances
