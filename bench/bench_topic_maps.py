@@ -1,0 +1,128 @@
+"""Big PX4 recordings through the topic map: peak memory of reading a 6 min and a 60 min bag at PX4's native rates.
+
+Writes (into a temporary directory) a synthetic PX4 uXRCE-DDS recording as ``ros2 bag record`` stores it (MCAP,
+px4_msgs definitions stored in the bag, float32 fields, stamps in microseconds since boot), each stream at its own
+rate on its own phase: vehicle_odometry 100 Hz, actuator_motors 200 Hz, sensor_combined 250 Hz, battery_status 10 Hz
+(a hover with slow sinusoidal motion). Then reads it with ``load_flight`` (topic map ``px4``, vehicle px4_iris) in a
+child process and records the child's peak resident set (``ru_maxrss`` of :func:`os.wait4`), the FlightLog's array
+bytes and the difference: the memory beyond the result, which must not grow with the recording's length (the
+messages are converted one at a time into fixed-size numpy chunks, no message objects are kept).
+
+Run: .venv/bin/python bench/bench_topic_maps.py [--minutes 6,60]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from bench.common import write_results  # noqa: E402
+from quad_modelling.io.bag_io import ForeignBagWriter  # noqa: E402
+from test.stack_bags import BOOT_US, definitions  # noqa: E402
+
+RATES_HZ = {"/fmu/out/vehicle_odometry": 100, "/fmu/out/actuator_motors": 200, "/fmu/out/sensor_combined": 250,
+            "/fmu/out/battery_status": 10}
+"""Native rates of the recorded streams (PX4 uXRCE-DDS defaults are of this order; motors and IMU at their own)."""
+
+READ = """
+import resource, sys
+from quad_modelling.io.loader import load_flight
+log = load_flight(sys.argv[1], vehicle="px4_iris")
+arrays = sum(a.nbytes for a in (log.t, log.u, log.pos_n, log.vel_n, log.euler, log.acc_b, log.gyro_b, log.vbat))
+print(len(log), arrays)
+"""
+
+
+def write_px4_bag(path: Path, minutes: float) -> int:
+    """A synthetic PX4 recording of ``minutes`` at :data:`RATES_HZ` (module doc); returns the message count."""
+    f32 = np.float32
+    events = []
+    for k, (topic, rate) in enumerate(RATES_HZ.items()):
+        n = int(minutes * 60 * rate)
+        stamps = BOOT_US + 137 * k + np.arange(n, dtype=np.int64) * (1_000_000 // rate)  # own phase per stream
+        events.append((stamps, np.full(n, k)))
+    stamps = np.concatenate([e[0] for e in events])
+    which = np.concatenate([e[1] for e in events])
+    order = np.argsort(stamps, kind="stable")
+    topics = list(RATES_HZ)
+    nan8 = np.full(8, np.nan, dtype=f32)
+    with ForeignBagWriter(path, definitions()) as writer:
+        for stamp, k in zip(stamps[order].tolist(), which[order].tolist()):
+            t = (stamp - BOOT_US) * 1e-6
+            yaw = 0.3 * np.sin(0.05 * t)
+            if k == 0:
+                msg = writer.new("px4_msgs/msg/VehicleOdometry", timestamp=stamp, timestamp_sample=stamp, pose_frame=1, velocity_frame=1,
+                                 position=np.array([np.sin(0.1 * t), np.cos(0.1 * t), -2.0], dtype=f32),
+                                 q=np.array([np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)], dtype=f32),
+                                 velocity=np.array([0.1 * np.cos(0.1 * t), -0.1 * np.sin(0.1 * t), 0.0], dtype=f32))
+            elif k == 1:
+                msg = writer.new("px4_msgs/msg/ActuatorMotors", timestamp=stamp, timestamp_sample=stamp,
+                                 control=np.concatenate([np.full(4, 0.55 + 0.01 * np.sin(t), dtype=f32), nan8]))
+            elif k == 2:
+                msg = writer.new("px4_msgs/msg/SensorCombined", timestamp=stamp, gyro_rad=np.array([0.0, 0.0, 0.015], dtype=f32),
+                                 accelerometer_m_s2=np.array([0.0, 0.0, -9.81], dtype=f32))
+            else:
+                msg = writer.new("px4_msgs/msg/BatteryStatus", timestamp=stamp, connected=True, id=1, voltage_v=f32(16.0 - t * 1e-4))
+            writer.write(topics[k], stamp * 1000, msg)
+    return len(stamps)
+
+
+def read_peak(path: Path) -> dict:
+    """Read the bag in a child process: its peak RSS, wall time, the FlightLog's rows and array bytes."""
+    started = time.perf_counter()
+    child = subprocess.Popen([sys.executable, "-c", READ, str(path)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    output = child.stdout.read()
+    _, status, usage = os.wait4(child.pid, 0)
+    if status != 0:
+        raise RuntimeError(f"reading {path} failed with status {status}")
+    rows, arrays = map(int, output.split())
+    peak = usage.ru_maxrss * 1024
+    return {"rows": rows, "read_s": time.perf_counter() - started, "peak_rss_mb": peak / 2**20, "flight_arrays_mb": arrays / 2**20,
+            "beyond_result_mb": (peak - arrays) / 2**20}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--minutes", default="6,60", help="recording lengths [min] (default 6,60)")
+    args = parser.parse_args()
+    cases = []
+    with tempfile.TemporaryDirectory(prefix="bench_topic_maps_") as tmp:
+        for minutes in map(float, args.minutes.split(",")):
+            bag = Path(tmp) / f"px4_{minutes:g}min"
+            started = time.perf_counter()
+            messages = write_px4_bag(bag, minutes)
+            written = time.perf_counter() - started
+            size = sum(p.stat().st_size for p in bag.iterdir()) / 2**20
+            case = {"minutes": minutes, "messages": messages, "bag_mb": size, "write_s": written, **read_peak(bag)}
+            print(case, flush=True)
+            cases.append(case)
+    first, last = cases[0], cases[-1]
+    data = {"rates_hz": RATES_HZ, "cases": cases,
+            "peak_ratio": last["peak_rss_mb"] / first["peak_rss_mb"],
+            "beyond_result_ratio": last["beyond_result_mb"] / first["beyond_result_mb"]}
+    lines = ["# Reading big PX4 recordings through the topic map", "",
+             "Synthetic PX4 uXRCE-DDS bag (MCAP, definitions stored, float32, us stamps): vehicle_odometry 100 Hz, "
+             "actuator_motors 200 Hz, sensor_combined 250 Hz, battery_status 10 Hz. Read with `load_flight` (map px4) in a "
+             "child process; peak RSS = the child's ru_maxrss; beyond result = peak RSS minus the FlightLog's arrays.", "",
+             "| minutes | messages | bag MB | write s | read s | rows | peak RSS MB | FlightLog arrays MB | beyond result MB |",
+             "|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    lines += [f"| {c['minutes']:g} | {c['messages']} | {c['bag_mb']:.1f} | {c['write_s']:.0f} | {c['read_s']:.1f} | {c['rows']} | "
+              f"{c['peak_rss_mb']:.0f} | {c['flight_arrays_mb']:.1f} | {c['beyond_result_mb']:.0f} |" for c in cases]
+    lines += ["", f"Peak RSS {last['minutes']:g} min / {first['minutes']:g} min: {data['peak_ratio']:.2f}; "
+                  f"memory beyond the result: {data['beyond_result_ratio']:.2f}."]
+    write_results("topic_maps", data, "\n".join(lines) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
