@@ -512,7 +512,7 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
     message becomes numbers as it is read (:class:`~quad_modelling.io.mapped_flight.TopicReader`), then the streams
     are aligned (:func:`~quad_modelling.io.mapped_flight.flight_from_streams`). One-line errors name topic, field, type.
     """
-    from quad_modelling.io.mapped_flight import Stream, check_map_fields, checked_stream, flight_from_streams, readers_for
+    from quad_modelling.io.mapped_flight import FlightAssembler, check_map_fields, instance_notes, readers_for
 
     path, where = Path(path), str(path)
     reader = _open_reader(path)
@@ -522,18 +522,21 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
         if missing:
             raise BagError(f"{path}: topic map {topic_map.name} reads {'; '.join(missing)}: not in the bag, which has {sorted(present)}")
         sources = topic_map.sources(present)
-        for source in sources.values():
-            spec = topic_map.topics[source.topic]
-            if present[source.topic] != spec.msgtype:
-                raise BagError(f"{path}: topic {source.topic} has type {present[source.topic]}, topic map {topic_map.name} "
-                               f"reads {spec.msgtype}")
+        wrong = next((s.topic for s in sources.values() if present[s.topic] != topic_map.topics[s.topic].msgtype), None)
+        if wrong:
+            raise BagError(f"{path}: topic {wrong} has type {present[wrong]}, topic map {topic_map.name} reads {topic_map.topics[wrong].msgtype}")
         used = [c for c in reader.connections if c.topic in {s.topic for s in sources.values()}]
         store = _stored_typestore(used, path)
         check_map_fields(topic_map, sources, _fields_of(store), f"{path}: topic map {topic_map.name}")
         readers = readers_for(topic_map, sources, where)
+        capacity = sum(c.msgcount for c in used if c.topic == sources["commands"].topic)
+        assembler = FlightAssembler(topic_map, sources, readers, vehicle, where, capacity)
         deserialize = store.deserialize_cdr
         for connection, _, raw in reader.messages(connections=used):
-            readers[connection.topic].add(deserialize(raw, connection.msgtype))
+            msg = deserialize(raw, connection.msgtype)
+            topic_reader = readers[connection.topic]
+            if topic_reader.keep(msg):
+                assembler.add(connection.topic, topic_reader.stamp_ns(msg), topic_reader.values(msg))
     except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
             AssertionError, IndexError, ZstdError, SerdeError) as err:
         if isinstance(err, (BagError, ConfigError, DataError)):
@@ -541,10 +544,7 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
-    streams: dict[str, Stream] = {topic: checked_stream(r, where) for topic, r in readers.items()}
-    extra = sorted(t for t in present if any(t.startswith(f"{s}_") and t[len(s) + 1:].isdigit() for s in readers))
-    notes = {"instance_topics": f"{', '.join(extra)} not read (instance 0 topics used)"} if extra else {}
-    return flight_from_streams(topic_map, sources, streams, vehicle, where, notes)
+    return assembler.finish(instance_notes(readers, present))
 
 
 class ForeignBagWriter:

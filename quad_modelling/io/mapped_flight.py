@@ -25,14 +25,15 @@ Offline assembly (:func:`flight_from_streams`), the rules of streams on their ow
 from __future__ import annotations
 
 import operator
-from dataclasses import dataclass, field
+import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from quad_modelling.core import frames
 from quad_modelling.core.alignment import MAX_GAP_S, interpolate_at
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.preprocess import MeasurementGap, interpolation_gaps, mark_measurement_gaps
+from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.io.topic_maps import STAMP_UNITS, FieldSource, TopicMap, TopicSpec, parse_path
@@ -50,8 +51,13 @@ SAME_CLOCK_OVERLAP = 0.5
 HOLD_S = 1e6
 """Hold/interpolation limit [s] passed to interpolate_at for values: gaps are marked (not NaN) by the gap rule."""
 
-CHUNK_ROWS = 65536
-"""Rows per chunk a stream's numbers are collected in (memory grows with the rows kept, not with message objects)."""
+EMIT_ROWS = 8192
+"""Pending command rows aligned in one batch (the buffers of the other streams hold about this span)."""
+
+MAX_PENDING_S = 60.0
+"""Longest span [s] of command rows held while a stream has not reached them: then a stream that lags is on another
+clock (refused), has ended (the rows after its last message are cut, as at the end) or has not started (the rows
+before its first message are cut)."""
 
 
 # --- static check of a map against the message definitions ------------------------------------
@@ -129,10 +135,10 @@ def _getter(steps):
 
 
 class TopicReader:
-    """One mapped topic: each message -> (stamp [ns], numbers of every path the map reads from it); collects rows.
+    """One mapped topic: each message -> (stamp [ns], numbers of every path the map reads from it).
 
     ``paths``: the message field paths read (in order). With an ``instance`` field, only messages of the first
-    instance seen are kept (:attr:`instances` counts the instances seen).
+    instance seen are kept (:meth:`keep`; :attr:`instances` counts the messages of each instance seen).
     """
 
     def __init__(self, spec: TopicSpec, paths: list[str], where: str):
@@ -143,12 +149,6 @@ class TopicReader:
         self._instance = _getter(parse_path(spec.instance, spec, where)) if spec.instance else None
         self._factor = STAMP_UNITS[spec.stamp_unit] if spec.stamp_unit else None
         self.instances: dict = {}
-        self.count = 0
-        self._chunks: list[np.ndarray] = []
-        self._stamps: list[np.ndarray] = []
-        self._rows = np.empty((CHUNK_ROWS, len(self.paths)))
-        self._row_stamps = np.empty(CHUNK_ROWS, dtype=np.int64)
-        self._filled = 0
 
     def stamp_ns(self, msg) -> int:
         """The message's stamp [ns] (a builtin_interfaces/Time, or an integer field times its unit)."""
@@ -169,30 +169,6 @@ class TopicReader:
         self.instances[which] = self.instances.get(which, 0) + 1
         return which == next(iter(self.instances))
 
-    def add(self, msg) -> None:
-        """Convert and keep one message (streamed: rows go into fixed-size numpy chunks)."""
-        if not self.keep(msg):
-            return
-        if self._filled == CHUNK_ROWS:
-            self._flush()
-        self._row_stamps[self._filled] = self.stamp_ns(msg)
-        self._rows[self._filled] = self.values(msg)
-        self._filled += 1
-        self.count += 1
-
-    def _flush(self) -> None:
-        self._chunks.append(self._rows[:self._filled].copy())
-        self._stamps.append(self._row_stamps[:self._filled].copy())
-        self._filled = 0
-
-    def finish(self) -> tuple[np.ndarray, np.ndarray]:
-        """(stamps (n,) [ns], values (n, len(paths))) of every kept message, in arrival order."""
-        self._flush()
-        stamps = np.concatenate(self._stamps) if self._stamps else np.zeros(0, dtype=np.int64)
-        values = np.concatenate(self._chunks) if self._chunks else np.zeros((0, len(self.paths)))
-        self._chunks, self._stamps = [], []
-        return stamps, values
-
 
 def readers_for(topic_map: TopicMap, sources: dict[str, FieldSource], where: str) -> dict[str, TopicReader]:
     """One :class:`TopicReader` per topic the chosen ``sources`` read, with every path of that topic."""
@@ -201,6 +177,20 @@ def readers_for(topic_map: TopicMap, sources: dict[str, FieldSource], where: str
         paths.setdefault(source.topic, [])
         paths[source.topic] += [p for p in source.paths if p not in paths[source.topic]]
     return {topic: TopicReader(topic_map.topics[topic], wanted, where) for topic, wanted in paths.items()}
+
+
+def instance_notes(readers: dict[str, TopicReader], bag_topics) -> dict:
+    """Notes on multi-instance topics (as the ULog reader's): a topic with several instances (the first one read) and
+    instance topics ``<topic>_N`` of the bag that are not read."""
+    notes: dict = {}
+    several = {t: f"{len(r.instances)} instances seen, {r.spec.instance} {next(iter(r.instances))} used"
+               for t, r in readers.items() if len(r.instances) > 1}
+    if several:
+        notes["instances"] = several
+    extra = sorted(t for t in bag_topics if any(t.startswith(f"{s}_") and t[len(s) + 1:].isdigit() for s in readers))
+    if extra:
+        notes["instance_topics"] = f"{', '.join(extra)} not read (instance 0 topics used)"
+    return notes
 
 
 # --- numbers -> internal frames and units ----------------------------------------------------------
@@ -246,121 +236,220 @@ def convert_field(source: FieldSource, values: np.ndarray, euler: np.ndarray | N
     return si
 
 
-# --- streams -> FlightLog ---------------------------------------------------------------------------
+# --- streams -> FlightLog, streamed ---------------------------------------------------------------
 
-@dataclass
-class Stream:
-    """One topic's kept messages: stamps [ns], the numbers of each path, its reader (for the notes)."""
-
-    topic: str
-    stamps: np.ndarray
-    values: np.ndarray
-    paths: list[str]
-    instances: dict = field(default_factory=dict)
-
-    def columns(self, source: FieldSource) -> np.ndarray:
-        return self.values[:, [self.paths.index(p) for p in source.paths]]
+def rate_hz(count: int, first: int, last: int) -> float:
+    """Mean rate [Hz] of ``count`` stamps from ``first`` to ``last`` [ns]."""
+    return (count - 1) / ((last - first) / 1e9) if count > 1 and last > first else 0.0
 
 
-def checked_stream(reader: TopicReader, where: str) -> Stream:
-    """The reader's rows as a :class:`Stream`; DataError for no message or stamps going back (naming topic and
-    message); exact repeats of a stamp keep the first message."""
-    stamps, values = reader.finish()
-    topic = reader.spec.name
-    if len(stamps) == 0:
-        raise DataError(f"{where}: topic {topic} has no messages")
-    steps = np.diff(stamps)
-    if np.any(steps < 0):
-        k = int(np.argmax(steps < 0)) + 1
-        raise DataError(f"{where}: topic {topic} stamps ({reader.spec.stamp}) go back at message {k}")
-    keep = np.concatenate([[True], steps > 0])
-    return Stream(topic, stamps[keep], values[keep], reader.paths, dict(reader.instances))
+class _Stream:
+    """One topic while it is read: its recent samples (from the one before the oldest pending row on), its span,
+    its message count and the steps longer than :data:`~quad_modelling.core.alignment.MAX_GAP_S`."""
+
+    def __init__(self, topic: str, paths: list[str]):
+        self.topic, self.paths = topic, paths
+        self.stamps: list[int] = []
+        self.values: list[list[float]] = []
+        self.first = self.last = None
+        self.count = 0
+        self.long_steps: list[tuple[int, int]] = []
+        self.ended = False
+
+    def covers(self, ns: int) -> bool:
+        return self.last is not None and self.last >= ns
 
 
-def check_same_clock(streams: dict[str, Stream], base: str, where: str) -> None:
-    """DataError when a stream's stamps do not overlap the base stream's for at least :data:`SAME_CLOCK_OVERLAP` of
-    the shorter span: stamps from another clock (module doc)."""
-    b0, b1 = streams[base].stamps[0], streams[base].stamps[-1]
-    for topic, stream in streams.items():
-        s0, s1 = stream.stamps[0], stream.stamps[-1]
+class FlightAssembler:
+    """A map's streams -> a FlightLog, message by message in recording order (module doc), in memory that does not
+    grow with the recording: the commands wait (at most :data:`MAX_PENDING_S`) until every stream has a message at or
+    after them, are aligned in batches of :data:`EMIT_ROWS` (:func:`~quad_modelling.core.alignment.interpolate_at`)
+    and converted (:func:`convert_field`) into FlightLog arrays allocated once for ``capacity`` rows (the commands
+    topic's message count); only the samples around the pending rows are kept.
+    """
+
+    def __init__(self, topic_map: TopicMap, sources: dict[str, FieldSource], readers: dict[str, TopicReader],
+                 vehicle: VehicleConfig, where: str, capacity: int):
+        self.topic_map, self.sources, self.vehicle, self.where = topic_map, sources, vehicle, where
+        self.base = sources["commands"].topic
+        self.streams = {topic: _Stream(topic, reader.paths) for topic, reader in readers.items()}
+        self.kinematic = {sources[f].topic for f in KINEMATIC_FIELDS if f in sources}
+        self.pending: list[tuple[int, list[float]]] = []
+        capacity = max(int(capacity), 2)
+        self.t_ns = np.empty(capacity, dtype=np.int64)
+        self.out = {name: np.empty((capacity, 1 if name == "battery" else 4 if name == "commands" else 3))
+                    for name in sources}
+        self.rows = 0
+        self.stopped = 0
+        self._next_emit = EMIT_ROWS
+        self.last_yaw: float | None = None
+        self._column_index = {name: [self.streams[s.topic].paths.index(p) for p in s.paths] for name, s in sources.items()}
+
+    def add(self, topic: str, ns: int, values: list[float]) -> None:
+        """One kept message of ``topic``: stamp [ns] and the numbers of its reader's paths."""
+        stream = self.streams[topic]
+        if stream.last is not None:
+            if ns < stream.last:
+                raise DataError(f"{self.where}: topic {topic} stamps ({self.topic_map.topics[topic].stamp}) go back at message {stream.count}")
+            if ns == stream.last:
+                return  # a repeated stamp: the first message is kept
+            if stream.ended:
+                raise DataError(f"{self.where}: topic {topic} resumes after {(ns - stream.last) / 1e9:.1f} s without messages, "
+                                f"longer than the {MAX_PENDING_S:g} s held: a restarted publisher or another clock")
+            if ns - stream.last > MAX_GAP_S * 1e9:
+                stream.long_steps.append((stream.last, ns))
+        else:
+            stream.first = ns
+        self._check(stream, values)
+        stream.last = ns
+        stream.count += 1
+        stream.stamps.append(ns)
+        stream.values.append(values)
+        if topic == self.base:
+            self.pending.append((ns, values))
+            if len(self.pending) >= self._next_emit:
+                self._emit(final=False)
+                self._next_emit = len(self.pending) + EMIT_ROWS  # rows still waiting: not looked at again for a batch
+
+    def _check(self, stream: _Stream, values: list[float]) -> None:
+        for name, source in self.sources.items():
+            if source.topic != stream.topic:
+                continue
+            numbers = [values[i] for i in self._column_index[name]]
+            bad = [math.isinf(v) if name == "commands" else not math.isfinite(v) for v in numbers]
+            if any(bad):
+                raise DataError(f"{self.where}: topic {stream.topic} message {stream.count} field {source.paths[bad.index(True)]} is not finite")
+            if name == "attitude" and abs(math.sqrt(sum(v * v for v in numbers)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE:
+                raise DataError(f"{self.where}: topic {stream.topic} message {stream.count} has an attitude quaternion of norm "
+                                f"{math.sqrt(sum(v * v for v in numbers)):.3g}, not 1")
+
+    def _lagging(self) -> None:
+        """More than :data:`MAX_PENDING_S` of rows wait: decide about each stream silent for that long before the newest."""
+        horizon = self.pending[-1][0] - int(MAX_PENDING_S * 1e9)
+        for stream in self.streams.values():
+            if stream.ended or (stream.last is not None and stream.last >= horizon):
+                continue
+            if stream.last is None:  # not started yet: the rows before its first message are cut, as at the start
+                cut = int(np.searchsorted([p[0] for p in self.pending], horizon))
+                del self.pending[:cut]
+                continue
+            check_same_clock(self._spans(), self.base, self.where)
+            stream.ended = True  # stopped: the rows after its last message are cut, as at the end
+
+    def _spans(self) -> dict[str, tuple[int, int]]:
+        return {t: (s.first, s.last) for t, s in self.streams.items() if s.last is not None}
+
+    def _emit(self, final: bool) -> None:
+        """Align the pending rows every stream covers (``final``: all), convert them into the output arrays."""
+        if not self.pending:
+            return
+        if not final and self.pending[-1][0] - self.pending[0][0] > MAX_PENDING_S * 1e9:
+            self._lagging()
+        live = [s for s in self.streams.values() if not s.ended]
+        limit = None if final else min((s.last for s in live if s.last is not None), default=None)
+        if not final and (limit is None or any(s.last is None for s in live)):
+            return
+        take = len(self.pending) if final else int(np.searchsorted([p[0] for p in self.pending], limit, side="right"))
+        if take == 0:
+            return
+        rows, self.pending = self.pending[:take], self.pending[take:]
+        t_ns = np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows))
+        keep = np.ones(len(rows), dtype=bool)
+        for topic in self.kinematic:  # rows outside the span every kinematic stream covers are cut
+            stream = self.streams[topic]
+            if stream.last is None:
+                keep[:] = False
+            else:
+                keep &= (t_ns >= stream.first) & (t_ns <= stream.last)
+        commands = np.asarray([r[1] for r in rows], dtype=float)[:, self._column_index["commands"]][keep]
+        t_ns = t_ns[keep]
+        aligned = {}
+        for name, source in self.sources.items():
+            if name == "commands" or not len(t_ns):
+                continue
+            stream = self.streams[source.topic]
+            values = np.asarray(stream.values, dtype=float)[:, self._column_index[name]]
+            aligned[name] = interpolate_at(np.asarray(stream.stamps, dtype=np.int64), values, t_ns,
+                                           quaternion=(0, 4) if name == "attitude" else None, max_gap_s=HOLD_S)
+        if len(t_ns):
+            self._store(t_ns, commands, aligned)
+        last = int(rows[-1][0])
+        for stream in self.streams.values():  # keep the samples from the last one at or before the last row on
+            start = max(int(np.searchsorted(stream.stamps, last, side="right")) - 1, 0)
+            del stream.stamps[:start], stream.values[:start]
+
+    def _store(self, t_ns: np.ndarray, commands: np.ndarray, aligned: dict) -> None:
+        n, end = len(t_ns), self.rows + len(t_ns)
+        if end > len(self.t_ns):
+            raise DataError(f"{self.where}: topic {self.base} holds more messages than its recorded count {len(self.t_ns)}")
+        stopped = np.isnan(commands)
+        if stopped.any():  # PX4 actuator_motors: NaN = motor stopped, read as the range's low end (as the ULog reader)
+            self.stopped += int(stopped.sum())
+            commands = np.where(stopped, self._stopped_value(), commands)
+        rows = slice(self.rows, end)
+        self.t_ns[rows] = t_ns
+        self.out["commands"][rows] = commands_in_vehicle_unit(commands, self.sources["commands"], self.vehicle, self.where)
+        euler = convert_field(self.sources["attitude"], aligned["attitude"])
+        yaw = np.unwrap(np.concatenate([[self.last_yaw if self.last_yaw is not None else euler[0, 2]], euler[:, 2]]))[1:]
+        euler[:, 2], self.last_yaw = yaw, float(yaw[-1])
+        self.out["attitude"][rows] = euler
+        for name, values in aligned.items():
+            if name != "attitude":
+                self.out[name][rows] = convert_field(self.sources[name], values, euler).reshape(n, -1)
+        self.rows = end
+
+    def _stopped_value(self) -> float:
+        span = self.sources["commands"].range
+        return span[0] if span else 0.0
+
+    def finish(self, notes: dict | None = None) -> FlightLog:
+        """Align what is left and build the FlightLog (one-line DataError: a topic without messages, another clock,
+        no common span)."""
+        for stream in self.streams.values():
+            if stream.last is None:
+                raise DataError(f"{self.where}: topic {stream.topic} has no messages")
+        check_same_clock(self._spans(), self.base, self.where)
+        self._emit(final=True)
+        if self.rows < 2:
+            raise DataError(f"{self.where}: the topics {', '.join(sorted(self.kinematic | {self.base}))} share no common time span")
+        n = self.rows
+        t_ns = self.t_ns[:n]
+        base = self.streams[self.base]
+        notes = {"format": f"bag (topic map {self.topic_map.name})", **(notes or {})}
+        if self.stopped:
+            notes["motor_nan"] = f"{self.stopped} NaN commands (motor stopped) read as {self._stopped_value():g}"
+        cut = (base.last - base.first - (int(t_ns[-1]) - int(t_ns[0]))) / 1e9
+        notes["time_base"] = f"{self.base} stamps, {rate_hz(n, int(t_ns[0]), int(t_ns[-1])):.1f} Hz; {cut:.2f} s outside the span all kinematic streams cover cut"
+        notes["sources"] = {name: f"{s.topic} {', '.join(s.paths)} ({s.unit or s.order}, {s.frame or '-'}), "
+                                  f"{rate_hz(self.streams[s.topic].count, self.streams[s.topic].first, self.streams[s.topic].last):.1f} Hz"
+                            for name, s in self.sources.items()}
+        out = {name: array[:n] for name, array in self.out.items()}
+        t = t_ns / 1e9
+        gaps = []
+        for name in KINEMATIC_FIELDS:
+            if name in self.sources:
+                for a, b in self.streams[self.sources[name].topic].long_steps:  # a row strictly inside: interpolated through
+                    if np.searchsorted(t_ns, b, side="left") > np.searchsorted(t_ns, a, side="right"):
+                        gaps.append(MeasurementGap(self.sources[name].topic, a / 1e9, b / 1e9, GAP_FIELDS[name]))
+        log = FlightLog(
+            t=t, u=out["commands"], acc_b=out.get("acc"), gyro_b=out.get("gyro"), pos_n=out["position"], vel_n=out["velocity"],
+            euler=out["attitude"], vbat=out["battery"][:, 0] if "battery" in out else None,
+            meta=FlightMeta(vehicle=self.vehicle.name, source=self.where, notes=notes),
+        )
+        mark_measurement_gaps(log, sorted(set(gaps), key=lambda g: (g.start_s, g.topic)), MAX_GAP_S)
+        return log
+
+
+def check_same_clock(spans: dict[str, tuple[int, int]], base: str, where: str) -> None:
+    """DataError when a stream's stamps [ns] (``spans``: topic -> first, last) do not overlap the base stream's for at
+    least :data:`SAME_CLOCK_OVERLAP` of the shorter span: stamps from another clock (module doc)."""
+    if base not in spans:
+        return
+    b0, b1 = spans[base]
+    for topic, (s0, s1) in spans.items():
         overlap = min(b1, s1) - max(b0, s0)
         shorter = min(b1 - b0, s1 - s0)
-        if overlap < SAME_CLOCK_OVERLAP * shorter or (shorter == 0 and not b0 <= s0 <= b1):
+        if overlap < SAME_CLOCK_OVERLAP * shorter or (shorter == 0 and not b0 <= s0 <= b1 and not s0 <= b0 <= s1):
             raise DataError(
                 f"{where}: topic {topic} stamps span {s0 / 1e9:.3f}..{s1 / 1e9:.3f} s, topic {base} {b0 / 1e9:.3f}..{b1 / 1e9:.3f} s: "
                 "stamps from another clock; stamp every topic of the map on one clock (e.g. header.stamp everywhere)")
-
-
-def _finite(stream: Stream, source: FieldSource, columns: np.ndarray, where: str) -> None:
-    bad = ~np.isfinite(columns)
-    if bad.any():
-        k = int(np.argmax(bad.any(axis=1)))
-        raise DataError(f"{where}: topic {stream.topic} message {k} field {source.paths[int(np.argmax(bad[k]))]} is not finite")
-
-
-def rate_hz(stamps: np.ndarray) -> float:
-    span = (stamps[-1] - stamps[0]) / 1e9 if len(stamps) > 1 else 0.0
-    return (len(stamps) - 1) / span if span > 0 else 0.0
-
-
-def flight_from_streams(topic_map: TopicMap, sources: dict[str, FieldSource], streams: dict[str, Stream], vehicle: VehicleConfig,
-                        where: str, notes: dict | None = None) -> FlightLog:
-    """The FlightLog of a map's streams (module doc), commands in ``vehicle``'s input unit."""
-    base = sources["commands"].topic
-    check_same_clock(streams, base, where)
-    kinematic = {sources[f].topic for f in KINEMATIC_FIELDS if f in sources}
-    start = max(streams[t].stamps[0] for t in kinematic | {base})
-    end = min(streams[t].stamps[-1] for t in kinematic | {base})
-    t_all = streams[base].stamps
-    inside = (t_all >= start) & (t_all <= end)
-    if inside.sum() < 2:
-        raise DataError(f"{where}: the topics {', '.join(sorted(kinematic | {base}))} share no common time span")
-    t_ns = t_all[inside]
-    commands = streams[base].columns(sources["commands"])[inside]
-    stopped = np.isnan(commands)
-    notes = {"format": f"bag (topic map {topic_map.name})", **(notes or {})}
-    if stopped.any():  # PX4 actuator_motors: NaN = motor stopped, read as the range's low end (as the ULog reader)
-        low = sources["commands"].range[0] if sources["commands"].range else 0.0
-        commands = np.where(stopped, low, commands)
-        notes["motor_nan"] = f"{int(stopped.sum())} NaN commands (motor stopped) read as {low:g}"
-    _finite(streams[base], sources["commands"], commands, where)
-    at = {}
-    for name, source in sources.items():
-        if name == "commands":
-            continue
-        stream = streams[source.topic]
-        columns = stream.columns(source)
-        _finite(stream, source, columns, where)
-        if name == "attitude":
-            bad = frames.non_unit_quaternion(columns)
-            if bad:
-                raise DataError(f"{where}: topic {source.topic} message {bad[0]} has an attitude quaternion of norm {bad[1]:.3g}, not 1")
-        quaternion = (0, 4) if name == "attitude" else None
-        at[name] = interpolate_at(stream.stamps, columns, t_ns, quaternion=quaternion, max_gap_s=HOLD_S)
-    euler = convert_field(sources["attitude"], at["attitude"])
-    euler[:, 2] = np.unwrap(euler[:, 2])
-    t = t_ns / 1e9
-    gaps = {MeasurementGap(sources[f].topic, a, b, GAP_FIELDS[f])
-            for f in KINEMATIC_FIELDS if f in sources
-            for a, b in interpolation_gaps(streams[sources[f].topic].stamps / 1e9, t, MAX_GAP_S)}
-    cut = (t_all[-1] - t_all[0] - (t_ns[-1] - t_ns[0])) / 1e9
-    notes["time_base"] = f"{base} stamps, {rate_hz(t_ns):.1f} Hz; {cut:.2f} s outside the span all kinematic streams cover cut"
-    notes["sources"] = {name: f"{s.topic} {', '.join(s.paths)} ({s.unit or s.order}, {s.frame or '-'}), "
-                              f"{rate_hz(streams[s.topic].stamps):.1f} Hz" for name, s in sources.items()}
-    instances = {t: f"{len(s.instances)} instances seen, {topic_map.topics[t].instance} {next(iter(s.instances))} used"
-                 for t, s in streams.items() if len(s.instances) > 1}
-    if instances:
-        notes["instances"] = instances
-    log = FlightLog(
-        t=t,
-        u=commands_in_vehicle_unit(commands, sources["commands"], vehicle, where),
-        acc_b=convert_field(sources["acc"], at["acc"]) if "acc" in at else None,
-        gyro_b=convert_field(sources["gyro"], at["gyro"]) if "gyro" in at else None,
-        pos_n=convert_field(sources["position"], at["position"]),
-        vel_n=convert_field(sources["velocity"], at["velocity"], euler),
-        euler=euler,
-        vbat=convert_field(sources["battery"], at["battery"]) if "battery" in at else None,
-        meta=FlightMeta(vehicle=vehicle.name, source=where, notes=notes),
-    )
-    mark_measurement_gaps(log, sorted(gaps, key=lambda g: (g.start_s, g.topic)), MAX_GAP_S)
-    return log
