@@ -425,18 +425,20 @@ class FlightAssembler:
                             for name, s in self.sources.items()}
         out = {name: array[:n] for name, array in self.out.items()}
         t = t_ns / 1e9
-        gaps = []
+        gaps: dict[tuple[str, int, int], tuple[str, ...]] = {}  # (topic, start, end) -> the FlightLog fields it carries
         for name in KINEMATIC_FIELDS:
             if name in self.sources:
-                for a, b in self.streams[self.sources[name].topic].long_steps:  # a row strictly inside: interpolated through
+                topic = self.sources[name].topic
+                for a, b in self.streams[topic].long_steps:  # a row strictly inside: interpolated through
                     if np.searchsorted(t_ns, b, side="left") > np.searchsorted(t_ns, a, side="right"):
-                        gaps.append(MeasurementGap(self.sources[name].topic, a / 1e9, b / 1e9, GAP_FIELDS[name]))
+                        gaps[(topic, a, b)] = gaps.get((topic, a, b), ()) + GAP_FIELDS[name]
         log = FlightLog(
             t=t, u=out["commands"], acc_b=out.get("acc"), gyro_b=out.get("gyro"), pos_n=out["position"], vel_n=out["velocity"],
             euler=out["attitude"], vbat=out["battery"][:, 0] if "battery" in out else None,
             meta=FlightMeta(vehicle=self.vehicle.name, source=self.where, notes=notes),
         )
-        mark_measurement_gaps(log, sorted(set(gaps), key=lambda g: (g.start_s, g.topic)), MAX_GAP_S)
+        marked = [MeasurementGap(topic, a / 1e9, b / 1e9, fields) for (topic, a, b), fields in gaps.items()]
+        mark_measurement_gaps(log, sorted(marked, key=lambda g: (g.start_s, g.topic)), MAX_GAP_S)
         return log
 
 
