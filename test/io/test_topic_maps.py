@@ -191,3 +191,13 @@ def test_map_files_are_validated_in_one_line():
         load_topic_map("ardupilot")
     with pytest.raises(ConfigError, match="'cf1' is not a robot name for map px4"):
         load_topic_map("px4:cf1")
+
+
+def test_info_shows_what_the_map_reads_and_convert_writes_the_contract(bags, flight, tmp_path, capsys):
+    assert main(["info", str(bags["crazyswarm2"]), "--vehicle", "crazyflie21"]) == 0
+    out = capsys.readouterr().out
+    assert "/cf231/log_imu" in out and "flight:    " in out and "(bag, topic map crazyswarm2)" in out
+    assert "velocity:       /cf231/log_velocity values[stateEstimate.vx], values[stateEstimate.vy], values[stateEstimate.vz] (m/s, ENU), 100.0 Hz" in out
+    assert main(["convert", str(bags["px4"]), "--topic-map", "px4", "--vehicle", "crazyflie21", "-o", str(tmp_path / "quad")]) == 0
+    mapped, contract = load_flight(bags["px4"], vehicle="crazyflie21"), load_flight(tmp_path / "quad")
+    assert contract.meta.vehicle == "crazyflie21" and contract.allclose(mapped, rtol=1e-12, atol=1e-12)
