@@ -277,8 +277,7 @@ class FlightAssembler:
         self.pending: list[tuple[int, list[float]]] = []
         capacity = max(int(capacity), 2)
         self.t_ns = np.empty(capacity, dtype=np.int64)
-        self.out = {name: np.empty((capacity, 1 if name == "battery" else 4 if name == "commands" else 3))
-                    for name in sources}
+        self.out = {name: np.empty(capacity if name == "battery" else (capacity, 4 if name == "commands" else 3)) for name in sources}
         self.rows = 0
         self.stopped = 0
         self._next_emit = EMIT_ROWS
@@ -395,7 +394,7 @@ class FlightAssembler:
         self.out["attitude"][rows] = euler
         for name, values in aligned.items():
             if name != "attitude":
-                self.out[name][rows] = convert_field(self.sources[name], values, euler).reshape(n, -1)
+                self.out[name][rows] = convert_field(self.sources[name], values, euler)
         self.rows = end
 
     def _stopped_value(self) -> float:
@@ -425,6 +424,7 @@ class FlightAssembler:
                             for name, s in self.sources.items()}
         out = {name: array[:n] for name, array in self.out.items()}
         t = t_ns / 1e9
+        self.out, self.t_ns = {}, np.empty(0, dtype=np.int64)  # the log holds the arrays; the stamps [ns] go after the gaps
         gaps: dict[tuple[str, int, int], tuple[str, ...]] = {}  # (topic, start, end) -> the FlightLog fields it carries
         for name in KINEMATIC_FIELDS:
             if name in self.sources:
@@ -434,7 +434,7 @@ class FlightAssembler:
                         gaps[(topic, a, b)] = gaps.get((topic, a, b), ()) + GAP_FIELDS[name]
         log = FlightLog(
             t=t, u=out["commands"], acc_b=out.get("acc"), gyro_b=out.get("gyro"), pos_n=out["position"], vel_n=out["velocity"],
-            euler=out["attitude"], vbat=out["battery"][:, 0] if "battery" in out else None,
+            euler=out["attitude"], vbat=out.get("battery"),
             meta=FlightMeta(vehicle=self.vehicle.name, source=self.where, notes=notes),
         )
         marked = [MeasurementGap(topic, a / 1e9, b / 1e9, fields) for (topic, a, b), fields in gaps.items()]
