@@ -27,8 +27,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.common import write_results  # noqa: E402
-from quad_modelling.io.bag_io import ForeignBagWriter  # noqa: E402
-from test.stack_bags import BOOT_US, definitions  # noqa: E402
+
+BOOT_US = 5_000_000
+"""PX4 stamps: microseconds since boot (as test/stack_bags.py)."""
 
 RATES_HZ = {"/fmu/out/vehicle_odometry": 100, "/fmu/out/actuator_motors": 200, "/fmu/out/sensor_combined": 250,
             "/fmu/out/battery_status": 10}
@@ -56,6 +57,9 @@ else:
 
 def write_px4_bag(path: Path, minutes: float) -> int:
     """A synthetic PX4 recording of ``minutes`` at :data:`RATES_HZ` (module doc); returns the message count."""
+    from quad_modelling.io.bag_io import ForeignBagWriter
+    from test.stack_bags import definitions
+
     f32 = np.float32
     events = []
     for k, (topic, rate) in enumerate(RATES_HZ.items()):
@@ -90,7 +94,8 @@ def write_px4_bag(path: Path, minutes: float) -> int:
 
 def read_peak(path: Path | str) -> dict:
     """Read the bag in a child process (``--imports-only``: only import the reader): its peak RSS, wall time, the
-    FlightLog's rows and array bytes."""
+    FlightLog's rows and array bytes. The parent stays small (no bag, no reader imported): a child starts with the
+    peak RSS of its parent on Linux (ru_maxrss is kept across fork and exec)."""
     started = time.perf_counter()
     child = subprocess.Popen([sys.executable, "-c", READ, str(path)], cwd=ROOT, stdout=subprocess.PIPE, text=True)
     output = child.stdout.read()
@@ -106,14 +111,19 @@ def read_peak(path: Path | str) -> dict:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--minutes", default="6,60", help="recording lengths [min] (default 6,60)")
+    parser.add_argument("--write", nargs=2, metavar=("BAG", "MINUTES"), help=argparse.SUPPRESS)  # the writer child
     args = parser.parse_args()
+    if args.write:
+        print(write_px4_bag(Path(args.write[0]), float(args.write[1])))
+        return 0
     baseline = read_peak("--imports-only")["peak_rss_mb"]
     cases = []
     with tempfile.TemporaryDirectory(prefix="bench_topic_maps_") as tmp:
         for minutes in map(float, args.minutes.split(",")):
             bag = Path(tmp) / f"px4_{minutes:g}min"
-            started = time.perf_counter()
-            messages = write_px4_bag(bag, minutes)
+            started = time.perf_counter()  # written by a child: Linux keeps a parent's peak RSS in its children's
+            messages = int(subprocess.run([sys.executable, __file__, "--write", str(bag), str(minutes)], check=True,
+                                          stdout=subprocess.PIPE, text=True).stdout)
             written = time.perf_counter() - started
             size = sum(p.stat().st_size for p in bag.iterdir()) / 2**20
             case = {"minutes": minutes, "messages": messages, "bag_mb": size, "write_s": written, **read_peak(bag)}

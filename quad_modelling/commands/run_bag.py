@@ -328,6 +328,10 @@ def run(args: argparse.Namespace) -> int:
     if chosen.is_contract:
         return _run(args)
     flight = load_flight(args.bag, vehicle=args.vehicle, topic_map=args.topic_map)
+    if flight.acc_b is None or flight.gyro_b is None:  # the live nodes start from imu messages
+        imu = " or ".join(dict.fromkeys(s.topic for f in ("acc", "gyro") for s in chosen.fields.get(f, ()))) or "no topic"
+        raise ConfigError(f"{args.bag}: run-bag needs an IMU (the live nodes start from imu messages); topic map {chosen.name} "
+                          f"reads it from {imu}, which the bag lacks; evaluate it offline with quad-modelling evaluate")
     with tempfile.TemporaryDirectory(prefix="quad_run_bag_") as staging:
         converted = write_bag(flight, Path(staging) / "contract_bag")
         print(f"{args.bag}: read through topic map {chosen.name} ({len(flight)} samples); replaying it in the topic contract", flush=True)

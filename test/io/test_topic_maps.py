@@ -201,3 +201,12 @@ def test_info_shows_what_the_map_reads_and_convert_writes_the_contract(bags, fli
     assert main(["convert", str(bags["px4"]), "--topic-map", "px4", "--vehicle", "crazyflie21", "-o", str(tmp_path / "quad")]) == 0
     mapped, contract = load_flight(bags["px4"], vehicle="crazyflie21"), load_flight(tmp_path / "quad")
     assert contract.meta.vehicle == "crazyflie21" and contract.allclose(mapped, rtol=1e-12, atol=1e-12)
+
+
+def test_run_bag_of_a_stack_without_imu_is_refused_naming_the_topic(flight, tmp_path, capsys):
+    cf = load_vehicle("crazyflie21")
+    bag = write_stack_bag(tmp_path / "px4", partial(px4_messages, log=flight, input_range=(cf.input_min, cf.input_max)),
+                          skip=("/fmu/out/sensor_combined",))
+    err = _fails(capsys, "run-bag", str(bag), "--vehicle", "crazyflie21", "-o", str(tmp_path / "out"))
+    assert f"{bag}: run-bag needs an IMU" in err and "topic map px4 reads it from /fmu/out/sensor_combined, which the bag lacks" in err
+    assert not (tmp_path / "out").exists()
