@@ -16,6 +16,7 @@ setup(
         (f"share/{PACKAGE}/config", glob("config/*.yaml") + glob("config/*.xml") + glob("config/*.json")),
         (f"share/{PACKAGE}/config/vehicles", glob("config/vehicles/*.yaml")),
         (f"share/{PACKAGE}/config/mappings", glob("config/mappings/*.yaml")),
+        (f"share/{PACKAGE}/config/topic_maps", glob("config/topic_maps/*.yaml")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
     ],
     install_requires=["setuptools"],

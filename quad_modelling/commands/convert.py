@@ -12,6 +12,7 @@ from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.core.vehicle import VehicleConfig, vehicle_file
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.loader import FORMATS, detect_format, load_flight
+from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
 from quad_modelling.io.topics import check_namespace
 
 NAME = "convert"
@@ -55,6 +56,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicle-from-log", metavar="VEHICLE.yaml",
                         help="one PX4 .ulg input: write a vehicle config started from the log's parameters and convert with it")
     parser.add_argument("--namespace", default="/quad", help="topic namespace in the bag (default /quad)")
+    add_topic_map_argument(parser)
     parser.add_argument("--skip-bad", action="store_true", help="with several inputs: report bad ones, convert the rest, exit 1")
     parser.add_argument("--force", action="store_true", help="overwrite an existing output")
 
@@ -117,12 +119,13 @@ def run(args: argparse.Namespace) -> int:
     inputs = [Path(p) for p in args.inputs]
     output = Path(args.output)
     check_namespace(args.namespace)
-    check_output(output, args.force, inputs=[*inputs, args.mapping, vehicle_file(args.vehicle) if args.vehicle else None])
+    check_output(output, args.force, inputs=[*inputs, args.mapping, vehicle_file(args.vehicle) if args.vehicle else None,
+                                             topic_map_file(args.topic_map)])
     if args.vehicle_from_log is not None:
         return _vehicle_from_log(args, inputs, output)
 
     def load(path: Path):
-        log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping)
+        log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping, topic_map=args.topic_map)
         if output.suffix == ".mat" and len(inputs) == 1:  # refused before its warnings are printed: one line
             from quad_modelling.io.matlog import check_one_time_base
 

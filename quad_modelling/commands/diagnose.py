@@ -28,6 +28,7 @@ from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, map_flights, tty_progress
 from quad_modelling.io.loader import load_flight_or_skip
+from quad_modelling.io.topic_maps import add_topic_map_argument
 from quad_modelling.io.reports.diagnosis import verdict_text, write_diagnosis
 from quad_modelling.io.reports.validation import validation_summary, write_validation
 
@@ -77,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--smooth", type=float, default=DIAGNOSIS_CONFIG.smooth_cutoff_hz, metavar="HZ",
                         help=f"low-pass cutoff applied to measurement and prediction alike before scoring (default {DIAGNOSIS_CONFIG.smooth_cutoff_hz:g} Hz)")
     parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
+    add_topic_map_argument(parser)
     add_fanout_arguments(parser)
     parser.add_argument("--validate", action="store_true", help="known-answer validation on simulated flights instead")
     parser.add_argument("--seeds", default="0,1,2", metavar="LIST", help="validation seeds (default 0,1,2)")
@@ -127,7 +129,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("diagnose needs --train FLIGHT... and --test FLIGHT... (or --validate)")
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     paths = [*args.train, *args.test]  # read in one fan-out (--jobs/--scheduler), split again below
-    loaded = map_flights(load_flight_or_skip, [str(p) for p in paths], given, args.skip_bad, jobs=args.jobs,
+    loaded = map_flights(load_flight_or_skip, [str(p) for p in paths], given, args.skip_bad, args.topic_map, jobs=args.jobs,
                          scheduler=args.scheduler, progress=tty_progress("diagnose: read", len(paths)))
     train = [one.log for one in loaded[: len(args.train)] if one.log is not None]
     test = [one.log for one in loaded[len(args.train):] if one.log is not None]

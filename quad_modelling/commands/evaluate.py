@@ -17,6 +17,7 @@ from quad_modelling.core.windows import PRESETS, EvaluationConfig
 from quad_modelling.errors import ConfigError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, iter_flights, tty_progress
 from quad_modelling.io.loader import load_flight_or_skip, load_flights
+from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
 from quad_modelling.io.reports.evaluation import (
     headline_scores,
     windows_text,
@@ -65,6 +66,7 @@ def add_span_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--window", type=float, default=10.0, metavar="SECONDS", help="window length (default 10)")
     parser.add_argument("--warm", type=float, default=0.2, metavar="SECONDS", help="warm start given to the models (default 0.2)")
     parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
+    add_topic_map_argument(parser)
     add_fanout_arguments(parser)
 
 
@@ -72,7 +74,7 @@ def input_files(args: argparse.Namespace) -> list:
     """Every file the command reads: the flights, the vehicle file, model files (``narx:PATH``, ``hybrid:PATH``)."""
     specs = getattr(args, "model", None) or []
     models = [spec.partition(":")[2] for spec in specs if spec.partition(":")[0] in ("narx", "hybrid")]
-    return [*args.inputs, vehicle_file(args.vehicle), *models]
+    return [*args.inputs, vehicle_file(args.vehicle), topic_map_file(getattr(args, "topic_map", None)), *models]
 
 
 def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
@@ -93,7 +95,8 @@ def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], 
     config and skipped-file messages."""
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     flights, skipped = load_flights(args.inputs, given, args.skip_bad, jobs=args.jobs, scheduler=args.scheduler,
-                                    progress=tty_progress(f"{getattr(args, 'verb', 'read')}: read", len(args.inputs)))
+                                    progress=tty_progress(f"{getattr(args, 'verb', 'read')}: read", len(args.inputs)),
+                                    topic_map=getattr(args, "topic_map", None))
     for message in skipped:
         print(f"skipped: {message}", file=sys.stderr)
     if not flights:
@@ -120,13 +123,13 @@ class FlightOutcome:
 
 
 def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[str], config: EvaluationConfig,
-                         multistep: bool, skip_bad: bool, examples_from: str | None = None) -> FlightOutcome:
+                         multistep: bool, skip_bad: bool, examples_from: str | None = None, topic_map: str | None = None) -> FlightOutcome:
     """The per-flight task of ``evaluate`` (run here or on a Dask worker): read the flight, build the models for
     its vehicle (``vehicle``, else the one the flight names) and return its statistics
     (:func:`~quad_modelling.core.evaluation.windowed.evaluate_flight`). Only the flight ``examples_from`` returns
     its example windows for the figures (0.6 MB per span; the statistics are about 0.1 MB), so a fleet's results
     cross the network small."""
-    loaded = load_flight_or_skip(path, vehicle, skip_bad)
+    loaded = load_flight_or_skip(path, vehicle, skip_bad, topic_map)
     if loaded.log is None:
         return FlightOutcome(path, None, loaded.skipped, None, [])
     flight_vehicle = vehicle or load_vehicle(loaded.log.meta.vehicle)
@@ -158,14 +161,14 @@ def _evaluations(outcomes, skipped: list[str], vehicles: list[str], first_in_spa
         raise ConfigError("no readable flight among the inputs")
 
 
-def example_windows(result, first_in_span: dict[str, str], task: tuple) -> list:
+def example_windows(result, first_in_span: dict[str, str], task: tuple, topic_map: str | None = None) -> list:
     """The figures' windows: the first window of each span in flight order. The first flight sent its own; a span
     it has no window in takes the first flight that has, evaluated again here (once per such span)."""
     have = {example.span: example for example in result.examples}
     for span in [s.name for s in result.config.spans()]:
         if span not in have and span in first_in_span:
             path = first_in_span[span]
-            for example in evaluate_flight_file(path, *task, path).evaluation.examples:
+            for example in evaluate_flight_file(path, *task, path, topic_map).evaluation.examples:
                 have.setdefault(example.span, example)
     return [have[s.name] for s in result.config.spans() if s.name in have]
 
@@ -193,13 +196,13 @@ def run(args: argparse.Namespace) -> int:
     specs = list(dict.fromkeys((args.model or ["greybox"]) + ["dummy"]))
     paths = [str(p) for p in args.inputs]
     task = (given, specs, config, not args.no_multistep, args.skip_bad)
-    outcomes = iter_flights(evaluate_flight_file, paths, *task, paths[0],
+    outcomes = iter_flights(evaluate_flight_file, paths, *task, paths[0], args.topic_map,
                             jobs=args.jobs, scheduler=args.scheduler, progress=tty_progress("evaluate", len(paths)))
     skipped: list[str] = []
     vehicles: list[str] = []
     first_in_span: dict[str, str] = {}
     result = merge_flights(_evaluations(outcomes, skipped, vehicles, first_in_span), config)
-    result.examples = example_windows(result, first_in_span, task)
+    result.examples = example_windows(result, first_in_span, task, args.topic_map)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
     with atomic_output(output, args.force) as tmp:
         files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicles[0]}")

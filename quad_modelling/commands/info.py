@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
+import json
 
-from quad_modelling.errors import ConfigError
+from quad_modelling.errors import BagError, ConfigError
 from quad_modelling.io.bag_io import summarize_bag
+from quad_modelling.io.topic_maps import add_topic_map_argument, choose_topic_map
 from quad_modelling.io.loader import detect_format, load_flight
 from quad_modelling.io.reports.info import (
     bag_json,
@@ -38,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicle", metavar="NAME", help="vehicle for a .mat log that names none")
     parser.add_argument("--mapping", metavar="FILE", help="YAML variable mapping for a foreign .mat log (as convert --mapping)")
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    add_topic_map_argument(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -49,5 +52,22 @@ def run(args: argparse.Namespace) -> int:
         print(flight_json(document) if args.json else flight_text(document, file_format))
         return 0
     summary = summarize_bag(args.bag)
-    print(bag_json(summary) if args.json else bag_text(summary))
+    topics = {t.name: t.msgtype for t in summary.topics}
+    mapped = None
+    if args.topic_map or (topics and not any(t.startswith("/quad/") for t in topics)):
+        try:  # a bag of another stack: what its topic map reads from it
+            chosen = choose_topic_map(topics, str(args.bag), args.topic_map)
+        except BagError:
+            if args.topic_map:
+                raise
+            chosen = None  # no map matches: the topics alone
+        if chosen is not None and not chosen.is_contract:
+            mapped = flight_document(load_flight(args.bag, vehicle=args.vehicle, topic_map=args.topic_map), str(args.bag))
+    if args.json:
+        document = json.loads(bag_json(summary))
+        if mapped is not None:
+            document["flight"] = mapped
+        print(json.dumps(document, indent=2, default=str))
+    else:
+        print(bag_text(summary) + ("" if mapped is None else "\n\n" + flight_text(mapped, f"bag, topic map {chosen.name}")))
     return 0

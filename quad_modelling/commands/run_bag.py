@@ -18,6 +18,7 @@ import yaml
 
 from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.io.topic_maps import add_topic_map_argument
 from quad_modelling.nodes.domains import DISCOVERY_MODES
 from quad_modelling.nodes.executors import EXECUTORS
 
@@ -282,9 +283,10 @@ def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[st
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("bag", metavar="BAG", help="MCAP bag directory with the topic contract")
+    parser.add_argument("bag", metavar="BAG", help="rosbag2 bag directory: the topic contract, or another stack's topics (--topic-map)")
     parser.add_argument("--models", default="naive", metavar="SPEC,...", help="models to run live (default naive)")
     parser.add_argument("--vehicle", metavar="NAME|FILE", help="vehicle config (default: the one the bag names)")
+    add_topic_map_argument(parser)
     parser.add_argument("--rate", type=float, default=0.0, metavar="R",
                         help="real-time factor of the replay; 0 = as fast as the graph keeps up without loss (default)")
     parser.add_argument("--window", type=float, default=10.0, metavar="SECONDS", help="window length (default 10)")
@@ -312,6 +314,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    """Replay a contract bag through the live graph; a bag of another stack (a topic map other than ``quad``) is read
+    through its map and written as a contract bag in a temporary directory first (the replay publishes the contract)."""
+    import tempfile
+
+    from quad_modelling.core.vehicle import vehicle_file
+    from quad_modelling.io.bag_io import read_bag_metadata, write_bag
+    from quad_modelling.io.loader import load_flight
+    from quad_modelling.io.topic_maps import choose_topic_map, topic_map_file
+
+    check_output(Path(args.output), args.force, inputs=[args.bag, vehicle_file(args.vehicle), topic_map_file(args.topic_map)])
+    chosen = choose_topic_map(read_bag_metadata(args.bag).topics, str(args.bag), args.topic_map)
+    if chosen.is_contract:
+        return _run(args)
+    flight = load_flight(args.bag, vehicle=args.vehicle, topic_map=args.topic_map)
+    if flight.acc_b is None or flight.gyro_b is None:  # the live nodes start from imu messages
+        imu = " or ".join(dict.fromkeys(s.topic for f in ("acc", "gyro") for s in chosen.fields.get(f, ()))) or "no topic"
+        raise ConfigError(f"{args.bag}: run-bag needs an IMU (the live nodes start from imu messages); topic map {chosen.name} "
+                          f"reads it from {imu}, which the bag lacks; evaluate it offline with quad-modelling evaluate")
+    with tempfile.TemporaryDirectory(prefix="quad_run_bag_") as staging:
+        converted = write_bag(flight, Path(staging) / "contract_bag")
+        print(f"{args.bag}: read through topic map {chosen.name} ({len(flight)} samples); replaying it in the topic contract", flush=True)
+        return _run(argparse.Namespace(**{**vars(args), "bag": str(converted), "vehicle": args.vehicle or flight.meta.vehicle}))
+
+
+def _run(args: argparse.Namespace) -> int:
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.io.bag_io import read_bag_metadata
     from quad_modelling.io.loader import load_flight

@@ -11,6 +11,7 @@ from quad_modelling.core.training.narx import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
 from quad_modelling.core.training.rollout import VAL_FRACTION
 from quad_modelling.errors import ConfigError
 from quad_modelling.fanout import add_fanout_arguments
+from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
 
 TRAINING_METHODS = ("rollout", "thesis")
 
@@ -58,6 +59,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("flights", metavar="BAG", nargs="+", help="flights: MCAP bag directories, thesis .mat logs or NanoBench .csv.gz")
     parser.add_argument("-o", "--output", required=True, metavar="MODEL", help="model file to write (.npz)")
     parser.add_argument("--vehicle", help="vehicle config name or YAML (default: the one the flight names)")
+    add_topic_map_argument(parser)
     parser.add_argument("--preset", choices=("thesis", "short"), default="thesis",
                         help="span preset: thesis (drop 30:22 s, train 30:150) or short (drop 5:5 s, train 0%%:60%%)")
     parser.add_argument("--train", metavar="A:B", help="training span (seconds, or percent of the flying part)")
@@ -167,13 +169,14 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.io.loader import load_flights
 
     output = Path(args.output)
-    check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle)])  # fail before minutes of training
+    check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
+                                             topic_map_file(args.topic_map)])  # fail before minutes of training
     config, rollout = (hybrid_config(args), None) if args.hybrid else training_configs(args)
     check_fanout_options(args.jobs, args.scheduler)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     paths = [*args.flights, *(args.val_flights or [])]
     logs, _ = load_flights(paths, given, jobs=args.jobs, scheduler=args.scheduler,
-                           progress=None if args.quiet else tty_progress("train: read", len(paths)))
+                           progress=None if args.quiet else tty_progress("train: read", len(paths)), topic_map=args.topic_map)
     print_gap_warnings(logs)
     spans = training_spans(logs, args)
     val_flights = list(range(len(args.flights), len(logs))) if args.val_flights else None

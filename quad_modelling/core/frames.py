@@ -137,6 +137,11 @@ def quat_enu_to_euler_ned(quat_xyzw: np.ndarray) -> np.ndarray:
     return rotation_to_euler_ned(Rotation.from_matrix(r_ned))
 
 
+def quat_ned_to_euler_ned(quat_xyzw: np.ndarray) -> np.ndarray:
+    """Quaternion (x, y, z, w) of R_NED←FRD (PX4's attitude, reordered from its w, x, y, z) -> Euler (φ, θ, ψ) [rad]."""
+    return rotation_to_euler_ned(Rotation.from_quat(np.asarray(quat_xyzw, dtype=float)))
+
+
 def body_to_nav(vectors_b: np.ndarray, euler: np.ndarray) -> np.ndarray:
     """Rotate body FRD vectors (N, 3) into N (NED) with attitudes (N, 3) [rad]: v_N = R v_B."""
     v = np.atleast_2d(np.asarray(vectors_b, dtype=float))

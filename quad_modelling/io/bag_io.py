@@ -11,6 +11,7 @@ under ``quad_modelling.*`` keys (:func:`read_bag_metadata` reads it without a
 message). :func:`read_bag` puts every topic on the ``motor_input`` time base (linear
 interpolation when stamps differ; exact when they coincide, as in bags written here);
 :func:`read_recorded` gives the serialised messages as recorded (the replay's input).
+:func:`read_mapped_bag` reads any stack's bag through a topic map (:mod:`quad_modelling.io.topic_maps`).
 """
 
 from __future__ import annotations
@@ -34,19 +35,12 @@ except ImportError:  # pragma: no cover - Python < 3.14
 from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.atomic import atomic_output
-from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.input_files import read_yaml
-from quad_modelling.core.preprocess import (
-    MeasurementGap,
-    check_same_clock,
-    interpolation_gaps,
-    mark_measurement_gaps,
-    marked_gaps,
-)
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.topics import (
     DEFAULT_NAMESPACE,
+    GAP_FIELDS,
     LIVE_TOPICS,
     MEASUREMENT_TOPICS,
     REQUIRED_TOPICS,
@@ -54,13 +48,13 @@ from quad_modelling.io.topics import (
     MessageTypes,
     cdr_stamp_ns,
     check_namespace,
+    contract_flight_log,
+    gap_rows_by_topic,
     imu_fields,
-    measurement_log,
     motor_fields,
     odometry_fields,
     stamp_ns,
     stamps_ns,
-    stamps_to_seconds,
     topic_name,
 )
 
@@ -68,9 +62,6 @@ VEHICLE_KEY = "quad_modelling.vehicle"
 SOURCE_KEY = "quad_modelling.source"
 NOTES_KEY = "quad_modelling.notes"
 """custom_data keys of the flight's metadata (vehicle config name, source file name, JSON notes)."""
-
-GAP_FIELDS = {"mocap/odom": ("pos_n", "vel_n", "euler"), "imu": ("acc_b", "gyro_b")}
-"""The FlightLog fields each kinematic topic carries: a marked gap of the topic covers them (reader and writer)."""
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 BAG_TYPES = MessageTypes.from_lookup(TYPESTORE.types.__getitem__)
@@ -227,20 +218,6 @@ def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: 
         except WriterError as err:
             raise BagError(f"{path}: cannot write bag: {err}") from err
     return path
-
-
-def gap_rows_by_topic(log: FlightLog) -> dict[str, np.ndarray]:
-    """Per kinematic topic with a marked gap (``meta.notes['measurement_gaps']``) of its fields (:data:`GAP_FIELDS`;
-    a gap naming no fields covers both): the (N,) mask of rows strictly inside such a gap, whose messages are not written."""
-    masks = {}
-    for key, fields in GAP_FIELDS.items():
-        inside = np.zeros(len(log), dtype=bool)
-        for gap in marked_gaps(log):
-            if not gap.fields or set(gap.fields) & set(fields):
-                inside |= (log.t > gap.start_s) & (log.t < gap.end_s)
-        if inside.any():
-            masks[key] = inside
-    return masks
 
 
 @dataclass(frozen=True)
@@ -459,65 +436,165 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
         raise BagError(f"{path}: topic {connection.topic} message {len(stamps[key])}: cannot deserialise ({reason(err)})") from err
     finally:
         reader.close()
-    return _to_flight_log(path, namespace, columns, stamps, vehicle)
+
+    def flight_meta() -> tuple[str, dict]:
+        custom = _custom_data(path)
+        vehicle_name = vehicle or custom.get(VEHICLE_KEY)
+        if not vehicle_name:
+            raise DataError(f"{path}: the bag names no vehicle (custom_data {VEHICLE_KEY}); pass --vehicle NAME")
+        try:
+            notes = json.loads(custom.get(NOTES_KEY) or "{}")
+        except json.JSONDecodeError as err:
+            raise BagError(f"{path}: custom_data {NOTES_KEY} is not valid JSON ({err.msg} at character {err.pos})") from err
+        if not isinstance(notes, dict):
+            raise BagError(f"{path}: custom_data {NOTES_KEY} must hold a JSON object, got {type(notes).__name__}")
+        return vehicle_name, notes
+    return contract_flight_log(path, namespace, columns, stamps, flight_meta)
 
 
-def _to_flight_log(path: Path, namespace: str, columns: dict, stamps: dict, vehicle: str | None) -> FlightLog:
-    arrays = {}
-    times = {}
-    for key in MEASUREMENT_TOPICS:
-        if not columns[key]:
-            if key in REQUIRED_TOPICS:
-                raise BagError(f"{path}: topic {topic_name(namespace, key)} has no messages")
-            continue
-        arrays[key] = np.asarray(columns[key], dtype=float)
-        times[key] = np.asarray(stamps[key], dtype=np.int64)
-        steps = np.diff(times[key])
-        if np.any(steps <= 0):
-            k = int(np.argmax(steps <= 0)) + 1
-            raise DataError(f"{path}: topic {topic_name(namespace, key)} header stamps do not increase at message {k}")
-        data = arrays[key] if key != "motor_input" else arrays[key][:, :4]
-        if key == "imu":  # a vector the imu does not measure is NaN in every message (covariance -1)
-            data = data[:, ~np.isnan(data).all(axis=0)]
-        bad = ~np.isfinite(data)
-        if bad.any():
-            k = int(np.argmax(bad.any(axis=1)))
-            raise DataError(f"{path}: topic {topic_name(namespace, key)} message {k} holds a non-finite value")
-    t_ns = times["motor_input"]
-    bad_quaternion = frames.non_unit_quaternion(arrays["mocap/odom"][:, 3:7])
-    if bad_quaternion:
-        k, norm = bad_quaternion
-        raise DataError(f"{path}: topic {topic_name(namespace, 'mocap/odom')} message {k} has an orientation quaternion of norm {norm:.3g}, not 1")
-    gaps: list[MeasurementGap] = []
 
-    def on_motor_time(key: str) -> np.ndarray:
-        data, when = arrays[key], times[key]
-        if when.shape == t_ns.shape and np.array_equal(when, t_ns):
-            return data
-        if key != "battery":  # kinematic streams: a clock offset is refused, a dropout marked (never used)
-            topic = topic_name(namespace, key)
-            check_same_clock(topic, (when - t_ns[0]) * 1e-9, topic_name(namespace, "motor_input"), (t_ns - t_ns[0]) * 1e-9, str(path))
-            gaps.extend(MeasurementGap(topic, a, b, GAP_FIELDS[key])
-                        for a, b in interpolation_gaps(stamps_to_seconds(when), stamps_to_seconds(t_ns)))
-        return np.column_stack([np.interp(t_ns, when, column) for column in data.T])
 
-    omega = arrays["motor_input"][:, 4:8]
-    custom = _custom_data(path)
-    vehicle_name = vehicle or custom.get(VEHICLE_KEY)
-    if not vehicle_name:
-        raise DataError(f"{path}: the bag names no vehicle (custom_data {VEHICLE_KEY}); pass --vehicle NAME")
+# --- any recording through a topic map (DESIGN 5a "Users' own topics") ---------------------------------------
+
+def _stored_typestore(connections, path: Path):
+    """A type store of the definitions the bag stores for ``connections`` (MCAP schemas, sqlite3 message_definitions);
+    BagError naming the topic and type when the bag stores none or an unreadable one."""
+    from rosbags.interfaces import MessageDefinitionFormat
+    from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
+    types: dict = {}
+    for c in connections:
+        if c.msgdef.format == MessageDefinitionFormat.NONE or not c.msgdef.data.strip():
+            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): the bag stores no message definition (recorded by a "
+                           "rosbag2 older than Jazzy?); re-record it with ros2 bag record of Jazzy or later (MCAP or sqlite3)")
+        try:
+            if c.msgdef.format == MessageDefinitionFormat.MSG:
+                types.update(get_types_from_msg(c.msgdef.data, c.msgtype))
+            else:  # IDL: one or more "IDL: name" sections after a line of 80 '='
+                for part in filter(str.strip, c.msgdef.data.split("=" * 80 + "\n")):
+                    types.update(get_types_from_idl(part.split("\n", 1)[1] if part.startswith("IDL: ") else part))
+        except Exception as err:  # rosbags' definition parsers raise their own and bare errors on bad text
+            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): unreadable stored message definition ({reason(err)})") from err
+    store = get_typestore(Stores.EMPTY)
     try:
-        notes = json.loads(custom.get(NOTES_KEY) or "{}")
-    except json.JSONDecodeError as err:
-        raise BagError(f"{path}: custom_data {NOTES_KEY} is not valid JSON ({err.msg} at character {err.pos})") from err
-    if not isinstance(notes, dict):
-        raise BagError(f"{path}: custom_data {NOTES_KEY} must hold a JSON object, got {type(notes).__name__}")
-    log = measurement_log(
-        t_ns, arrays["motor_input"][:, :4], on_motor_time("mocap/odom"), on_motor_time("imu") if "imu" in arrays else None,
-        vehicle_name, str(path),
-        omega=omega if np.isfinite(omega).all() else None,
-        vbat=on_motor_time("battery")[:, 0] if "battery" in arrays else None,
-        notes=notes,
-    )
-    mark_measurement_gaps(log, gaps)
-    return log
+        store.register(types)
+    except Exception as err:
+        raise BagError(f"{path}: the bag's stored message definitions do not fit together ({reason(err)})") from err
+    return store
+
+
+def _fields_of(store):
+    """``fields_of(msgtype)`` -> {name: FieldType} from a type store's definitions (the map's static check)."""
+    from rosbags.typesys.store import Nodetype
+
+    from quad_modelling.io.mapped_flight import FieldType
+
+    def describe(kind, detail) -> FieldType:
+        if kind == Nodetype.NAME:
+            return FieldType(detail, None)
+        if kind == Nodetype.BASE:
+            return FieldType(None, detail[0])
+        (element_kind, element_detail), size = detail
+        element = describe(element_kind, element_detail)
+        return FieldType(element.nested, element.base, size if kind == Nodetype.ARRAY else None, kind == Nodetype.SEQUENCE)
+
+    def fields_of(msgtype: str) -> dict:
+        if msgtype not in store.fielddefs:
+            return {}
+        return {name: describe(kind, detail) for name, (kind, detail) in store.fielddefs[msgtype][1]}
+    return fields_of
+
+
+def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
+    """Any rosbag2 bag (MCAP or sqlite3) through a topic map (bound to its robot) into a FlightLog for ``vehicle``.
+
+    Deserialised with the definitions stored in the bag (no px4_msgs/crazyflie_interfaces install), streamed: each
+    message becomes numbers as it is read (:class:`~quad_modelling.io.mapped_flight.TopicReader`), then the streams
+    are aligned (:func:`~quad_modelling.io.mapped_flight.flight_from_streams`). One-line errors name topic, field, type.
+    """
+    from quad_modelling.io.mapped_flight import FlightAssembler, check_map_fields, instance_notes, readers_for
+
+    path, where = Path(path), str(path)
+    reader = _open_reader(path)
+    try:
+        present = {c.topic: c.msgtype for c in reader.connections}
+        missing = topic_map.missing(present)
+        if missing:
+            raise BagError(f"{path}: topic map {topic_map.name} reads {'; '.join(missing)}: not in the bag, which has {sorted(present)}")
+        sources = topic_map.sources(present)
+        wrong = next((s.topic for s in sources.values() if present[s.topic] != topic_map.topics[s.topic].msgtype), None)
+        if wrong:
+            raise BagError(f"{path}: topic {wrong} has type {present[wrong]}, topic map {topic_map.name} reads {topic_map.topics[wrong].msgtype}")
+        used = [c for c in reader.connections if c.topic in {s.topic for s in sources.values()}]
+        store = _stored_typestore(used, path)
+        check_map_fields(topic_map, sources, _fields_of(store), f"{path}: topic map {topic_map.name}")
+        readers = readers_for(topic_map, sources, where)
+        capacity = sum(c.msgcount for c in used if c.topic == sources["commands"].topic)
+        assembler = FlightAssembler(topic_map, sources, readers, vehicle, where, capacity)
+        deserialize = store.deserialize_cdr
+        for connection, _, raw in reader.messages(connections=used):
+            msg = deserialize(raw, connection.msgtype)
+            topic_reader = readers[connection.topic]
+            if topic_reader.keep(msg):
+                assembler.add(connection.topic, topic_reader.stamp_ns(msg), topic_reader.values(msg))
+    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
+            AssertionError, IndexError, ZstdError, SerdeError) as err:
+        if isinstance(err, (BagError, ConfigError, DataError)):
+            raise
+        raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
+    finally:
+        reader.close()
+    return assembler.finish(instance_notes(readers, present))
+
+
+class ForeignBagWriter:
+    """A rosbag2 bag (``storage`` mcap or sqlite3) of any types, ``definitions`` (type -> ``.msg`` text; standard types
+    from the Jazzy store) stored in it as ``ros2 bag record`` of Jazzy does (``store_definitions=False``: empty, as an
+    older rosbag2): the test and benchmark recordings of other stacks. A context manager; :meth:`new`, :meth:`write`."""
+
+    def __init__(self, path: str | Path, definitions: dict[str, str], storage: str = "mcap", store_definitions: bool = True):
+        from rosbags.typesys import get_types_from_msg
+
+        self.store = get_typestore(Stores.ROS2_JAZZY)
+        for msgtype, text in definitions.items():
+            self.store.register(get_types_from_msg(text, msgtype))
+        plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
+        self._writer = Writer(Path(path), version=9, storage_plugin=plugin)
+        self._store_definitions = store_definitions
+        self._connections: dict[str, object] = {}
+
+    def __enter__(self) -> ForeignBagWriter:
+        self._writer.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._writer.close()
+
+    def new(self, msgtype: str, **fields):
+        """A message of ``msgtype`` (``pkg/msg/Name``) with ``fields``; the fields not given are zero (numbers), empty
+        (strings, sequences), zero-filled (arrays) or such messages (nested)."""
+        from rosbags.typesys.store import Nodetype
+
+        def zero(kind, detail):
+            if kind == Nodetype.NAME:
+                return self.new(detail)
+            if kind == Nodetype.BASE:
+                return "" if detail[0] == "string" else False if detail[0] == "bool" else 0.0 if detail[0].startswith("float") else 0
+            (element_kind, element_detail), size = detail
+            if element_kind == Nodetype.BASE and element_detail[0] != "string":
+                dtype = _NUMPY_TYPES.get(element_detail[0], element_detail[0])
+                return np.zeros(size if kind == Nodetype.ARRAY else 0, dtype=dtype)
+            return [zero(element_kind, element_detail) for _ in range(size if kind == Nodetype.ARRAY else 0)]
+
+        values = {name: fields[name] if name in fields else zero(kind, detail)
+                  for name, (kind, detail) in self.store.fielddefs[msgtype][1]}
+        return self.store.types[msgtype](**values)
+
+    def write(self, topic: str, ns: int, msg) -> None:
+        """Serialise ``msg`` and add it on ``topic`` at bag time ``ns``."""
+        msgtype = msg.__msgtype__
+        connection = self._connections.get(topic)
+        if connection is None:
+            extra = {} if self._store_definitions else {"msgdef": "", "rihs01": "RIHS01_" + "0" * 64}
+            connection = self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=self.store, **extra)
+        self._writer.write(connection, int(ns), self.store.serialize_cdr(msg, msgtype))

@@ -32,8 +32,8 @@ def detect_format(path: str | Path) -> str:
 
 
 def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fmt: str = "auto",
-                mapping_file: str | Path | None = None) -> FlightLog:
-    """Read a thesis .mat log, a NanoBench CSV, a PX4 ULog or a contract MCAP bag into a FlightLog.
+                mapping_file: str | Path | None = None, topic_map: str | None = None) -> FlightLog:
+    """Read a thesis .mat log, a NanoBench CSV, a PX4 ULog or a rosbag2 bag into a FlightLog.
 
     ``vehicle``: config name, YAML path or a loaded config (required for .mat files
     that do not name one; NanoBench defaults to crazyflie21, PX4 ULog to px4_iris or
@@ -41,7 +41,10 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
     loaded once per call, not at all when ``vehicle`` is a loaded config (a command
     reading many flights of one ``--vehicle`` loads it once). The returned log's
     ``meta.vehicle`` is the config's name. ``mapping_file``: YAML
-    variable mapping for foreign .mat logs (see :mod:`quad_modelling.io.matlog`).
+    variable mapping for foreign .mat logs (see :mod:`quad_modelling.io.matlog`). ``topic_map``: for a bag, a
+    topic map name or YAML file (``--topic-map``); None: the one built-in map the bag's topics match
+    (:func:`~quad_modelling.io.topic_maps.choose_topic_map`; our own contract is the map ``quad``). A bag
+    of another stack without a ``--vehicle`` is read for its map's ``default_vehicle``.
     """
     path = Path(path)
     fmt = detect_format(path) if fmt == "auto" else fmt
@@ -52,14 +55,15 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
     if not path.is_dir():  # a FIFO or device would block or never end: refused before it is opened
         check_regular_file(path, "flight file", DataError)
     try:
-        return _load(path, vehicle, fmt, mapping_file)
+        return _load(path, vehicle, fmt, mapping_file, topic_map)
     except QuadModellingError as err:
         if str(path) in str(err):
             raise
         raise type(err)(f"{path}: {err}") from err  # e.g. an unknown vehicle the file names
 
 
-def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_file: str | Path | None) -> FlightLog:
+def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_file: str | Path | None,
+          topic_map: str | None = None) -> FlightLog:
     config = vehicle if isinstance(vehicle, VehicleConfig) else None
     name = config.name if config is not None else vehicle
     if fmt == "thesis-mat":
@@ -77,9 +81,18 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
 
         log = read_ulog(path, vehicle=config or name)
     else:
-        from quad_modelling.io.bag_io import read_bag
+        from quad_modelling.io.bag_io import read_bag, read_bag_metadata, read_mapped_bag
+        from quad_modelling.io.topic_maps import choose_topic_map
 
-        log = read_bag(path if path.is_dir() else path.parent, vehicle=name)
+        bag = path if path.is_dir() else path.parent
+        chosen = choose_topic_map(read_bag_metadata(bag).topics, str(bag), topic_map)
+        if chosen.is_contract:
+            log = read_bag(bag, vehicle=name)
+        else:
+            if config is None and not (name or chosen.default_vehicle):
+                raise DataError(f"{bag}: topic map {chosen.name} names no default vehicle; pass --vehicle NAME")
+            config = config or load_vehicle(name or chosen.default_vehicle)
+            log = read_mapped_bag(bag, chosen, config)
     config = config or load_vehicle(vehicle if vehicle is not None else log.meta.vehicle)  # a --vehicle FILE of any name
     if fmt == "thesis-mat" and mapping_file:  # a mapping names the commands' unit: it must be the vehicle's kind
         from quad_modelling.io.matlog import commands_in_vehicle_unit
@@ -100,11 +113,12 @@ class LoadedFlight(NamedTuple):
     skipped: str | None
 
 
-def load_flight_or_skip(path: str | Path, vehicle: VehicleConfig | None = None, skip_bad: bool = False) -> LoadedFlight:
+def load_flight_or_skip(path: str | Path, vehicle: VehicleConfig | None = None, skip_bad: bool = False,
+                        topic_map: str | None = None) -> LoadedFlight:
     """:func:`load_flight`; with ``skip_bad`` a file that cannot be read is a :class:`LoadedFlight` with its message
     instead of the error (the per-flight task of :func:`load_flights`, run where the flight is)."""
     try:
-        return LoadedFlight(load_flight(path, vehicle=vehicle), None)
+        return LoadedFlight(load_flight(path, vehicle=vehicle, topic_map=topic_map), None)
     except QuadModellingError as err:
         if not skip_bad:
             raise
@@ -112,15 +126,17 @@ def load_flight_or_skip(path: str | Path, vehicle: VehicleConfig | None = None, 
 
 
 def load_flights(paths, vehicle: str | VehicleConfig | None = None, skip_bad: bool = False, jobs: int | None = None,
-                 scheduler: str | None = None, progress=None) -> tuple[list[FlightLog], list[str]]:
+                 scheduler: str | None = None, progress=None, topic_map: str | None = None) -> tuple[list[FlightLog], list[str]]:
     """Read every path with :func:`load_flight`; returns the flights (in the order of ``paths``) and the messages
     of the files left out.
 
     A ``vehicle`` given by name or file is loaded once for all the flights. ``jobs``/``scheduler``: read the
     files on Dask workers (:func:`quad_modelling.fanout.map_flights`; ``progress(index, path)`` per file read).
+    ``topic_map``: as :func:`load_flight` (``--topic-map``), for every bag among the paths.
 
     A file that cannot be read raises its :class:`~quad_modelling.errors.QuadModellingError`, or, with
     ``skip_bad``, is left out and its message returned (the ``--skip-bad`` of the commands)."""
     given = load_vehicle(vehicle) if vehicle is not None and not isinstance(vehicle, VehicleConfig) else vehicle
-    loaded = map_flights(load_flight_or_skip, [str(p) for p in paths], given, skip_bad, jobs=jobs, scheduler=scheduler, progress=progress)
+    loaded = map_flights(load_flight_or_skip, [str(p) for p in paths], given, skip_bad, topic_map, jobs=jobs, scheduler=scheduler,
+                         progress=progress)
     return [one.log for one in loaded if one.log is not None], [one.skipped for one in loaded if one.log is None]

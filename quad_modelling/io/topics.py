@@ -55,7 +55,8 @@ from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY
-from quad_modelling.errors import ConfigError
+from quad_modelling.core.preprocess import MeasurementGap, check_same_clock, interpolation_gaps, mark_measurement_gaps, marked_gaps
+from quad_modelling.errors import BagError, ConfigError, DataError
 
 DEFAULT_NAMESPACE = "/quad"
 """Namespace of the contract topics in a bag and of every node unless remapped (``--ros-args -r __ns:=/other``)."""
@@ -89,6 +90,9 @@ MEASUREMENT_TOPICS = {
 
 REQUIRED_TOPICS = ("motor_input", "mocap/odom")
 """Measurement topics a flight must have (``imu`` and ``battery`` are optional: a pose-only flight has no imu)."""
+
+GAP_FIELDS = {"mocap/odom": ("pos_n", "vel_n", "euler"), "imu": ("acc_b", "gyro_b")}
+"""The FlightLog fields each kinematic topic carries: a marked gap of the topic covers them (reader and writer)."""
 
 LIVE_TOPICS = ("motor_input", "mocap/odom", "imu")
 """Measurement topics the live nodes need (the predictor and evaluator nodes wait for imu messages)."""
@@ -510,3 +514,73 @@ class PredictionMessages:
         out.accel.linear.x, out.accel.linear.y, out.accel.linear.z = a[0], a[1], a[2]
         out.accel.angular.x, out.accel.angular.y, out.accel.angular.z = a[3], a[4], a[5]
         return msg, out
+
+
+def contract_flight_log(path, namespace: str, columns: dict, stamps: dict, flight_meta: Callable[[], tuple[str, dict]]) -> FlightLog:
+    """The contract topics' rows (``columns``, ``stamps`` [ns] by relative topic, as read from a bag) -> a FlightLog on the
+    ``motor_input`` time base (:func:`quad_modelling.io.bag_io.read_bag`): other topics interpolated linearly (exact when
+    the stamps coincide), a kinematic topic on another clock refused, its dropouts marked. ``flight_meta()`` -> (vehicle
+    name, notes), asked once the rows are checked. DataError/BagError naming the topic and message at fault."""
+    arrays = {}
+    times = {}
+    for key in MEASUREMENT_TOPICS:
+        if not columns[key]:
+            if key in REQUIRED_TOPICS:
+                raise BagError(f"{path}: topic {topic_name(namespace, key)} has no messages")
+            continue
+        arrays[key] = np.asarray(columns[key], dtype=float)
+        times[key] = np.asarray(stamps[key], dtype=np.int64)
+        steps = np.diff(times[key])
+        if np.any(steps <= 0):
+            k = int(np.argmax(steps <= 0)) + 1
+            raise DataError(f"{path}: topic {topic_name(namespace, key)} header stamps do not increase at message {k}")
+        data = arrays[key] if key != "motor_input" else arrays[key][:, :4]
+        if key == "imu":  # a vector the imu does not measure is NaN in every message (covariance -1)
+            data = data[:, ~np.isnan(data).all(axis=0)]
+        bad = ~np.isfinite(data)
+        if bad.any():
+            k = int(np.argmax(bad.any(axis=1)))
+            raise DataError(f"{path}: topic {topic_name(namespace, key)} message {k} holds a non-finite value")
+    t_ns = times["motor_input"]
+    bad_quaternion = frames.non_unit_quaternion(arrays["mocap/odom"][:, 3:7])
+    if bad_quaternion:
+        k, norm = bad_quaternion
+        raise DataError(f"{path}: topic {topic_name(namespace, 'mocap/odom')} message {k} has an orientation quaternion of norm {norm:.3g}, not 1")
+    gaps: list[MeasurementGap] = []
+
+    def on_motor_time(key: str) -> np.ndarray:
+        data, when = arrays[key], times[key]
+        if when.shape == t_ns.shape and np.array_equal(when, t_ns):
+            return data
+        if key != "battery":  # kinematic streams: a clock offset is refused, a dropout marked (never used)
+            topic = topic_name(namespace, key)
+            check_same_clock(topic, (when - t_ns[0]) * 1e-9, topic_name(namespace, "motor_input"), (t_ns - t_ns[0]) * 1e-9, str(path))
+            gaps.extend(MeasurementGap(topic, a, b, GAP_FIELDS[key])
+                        for a, b in interpolation_gaps(stamps_to_seconds(when), stamps_to_seconds(t_ns)))
+        return np.column_stack([np.interp(t_ns, when, column) for column in data.T])
+
+    omega = arrays["motor_input"][:, 4:8]
+    vehicle_name, notes = flight_meta()
+    log = measurement_log(
+        t_ns, arrays["motor_input"][:, :4], on_motor_time("mocap/odom"), on_motor_time("imu") if "imu" in arrays else None,
+        vehicle_name, str(path),
+        omega=omega if np.isfinite(omega).all() else None,
+        vbat=on_motor_time("battery")[:, 0] if "battery" in arrays else None,
+        notes=notes,
+    )
+    mark_measurement_gaps(log, gaps)
+    return log
+
+
+def gap_rows_by_topic(log: FlightLog) -> dict[str, np.ndarray]:
+    """Per kinematic topic with a marked gap (``meta.notes['measurement_gaps']``) of its fields (:data:`GAP_FIELDS`;
+    a gap naming no fields covers both): the (N,) mask of rows strictly inside such a gap, whose messages are not written."""
+    masks = {}
+    for key, fields in GAP_FIELDS.items():
+        inside = np.zeros(len(log), dtype=bool)
+        for gap in marked_gaps(log):
+            if not gap.fields or set(gap.fields) & set(fields):
+                inside |= (log.t > gap.start_s) & (log.t < gap.end_s)
+        if inside.any():
+            masks[key] = inside
+    return masks

@@ -1,0 +1,457 @@
+"""Messages of a topic map's topics -> rows of numbers -> a FlightLog: the one conversion for any map.
+
+Used offline by :func:`quad_modelling.io.bag_io.read_mapped_bag` (messages deserialised with the
+definitions stored in the bag) and meant for a live node subscribing through a map: both call
+:class:`TopicReader` per message (attribute access only, so rosbags' and rclpy's messages alike) and
+:func:`convert_field` for the numbers, which converts units and frames through
+:mod:`quad_modelling.core.frames` only. Imports neither rclpy nor rosbags.
+
+Offline assembly (:func:`flight_from_streams`), the rules of streams on their own clocks
+(:mod:`quad_modelling.core.alignment`, DESIGN 5a):
+
+- time base: the commands topic's own stamps (the predictors answer at each input); no command is invented;
+- every other stream is interpolated onto it with :func:`~quad_modelling.core.alignment.interpolate_at`
+  (linear per component, the attitude quaternion a normalised lerp of the sign-aligned pair; exact at equal
+  stamps, so streams sharing the commands' stamps are taken as recorded);
+- rows outside the span every kinematic stream (position, attitude, velocity, IMU) covers are cut, no
+  extrapolation (the notes say how much);
+- a step longer than :data:`~quad_modelling.core.alignment.MAX_GAP_S` (the live coverage rule's longest gap)
+  of a kinematic stream around kept rows is marked as a measurement gap: windows and training segments
+  overlapping it are left out, as the live evaluator marks such windows;
+- a stream whose stamps do not overlap the commands' for at least half of the shorter span is on another
+  clock (e.g. an on-board ``timestamp`` next to ``header.stamp``): refused in one line.
+"""
+
+from __future__ import annotations
+
+import operator
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from quad_modelling.core import frames
+from quad_modelling.core.alignment import MAX_GAP_S, interpolate_at
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.errors import ConfigError, DataError
+from quad_modelling.io.topic_maps import STAMP_UNITS, FieldSource, TopicMap, TopicSpec, parse_path
+
+NANOSECONDS = 1_000_000_000
+KINEMATIC_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
+"""Fields whose streams bound the flight's span and whose long gaps are marked (battery is held and interpolated)."""
+
+GAP_FIELDS = {"position": ("pos_n",), "attitude": ("euler",), "velocity": ("vel_n",), "acc": ("acc_b",), "gyro": ("gyro_b",)}
+"""FlightLog fields of each map field (a marked gap names them)."""
+
+SAME_CLOCK_OVERLAP = 0.5
+"""Fraction of the shorter span two streams on one clock overlap at least (a late-discovered topic is fine)."""
+
+HOLD_S = 1e6
+"""Hold/interpolation limit [s] passed to interpolate_at for values: gaps are marked (not NaN) by the gap rule."""
+
+EMIT_ROWS = 8192
+"""Pending command rows aligned in one batch (the buffers of the other streams hold about this span)."""
+
+MAX_PENDING_S = 60.0
+"""Longest span [s] of command rows held while a stream has not reached them: then a stream that lags is on another
+clock (refused), has ended (the rows after its last message are cut, as at the end) or has not started (the rows
+before its first message are cut)."""
+
+
+# --- static check of a map against the message definitions ------------------------------------
+
+@dataclass(frozen=True)
+class FieldType:
+    """One message field as a definition gives it: a nested message type, or a base type; array length or sequence."""
+
+    nested: str | None
+    base: str | None
+    length: int | None = None
+    sequence: bool = False
+
+
+NUMERIC = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "octet"}
+TIME_TYPE = "builtin_interfaces/msg/Time"
+
+
+def check_path(path: str, spec: TopicSpec, fields_of, where: str, stamp: bool = False) -> None:
+    """ConfigError naming the field, the topic and its message type unless ``path`` reaches a number (``stamp``: a
+    number or a builtin_interfaces/Time) in ``spec.msgtype``; ``fields_of(msgtype)`` -> {name: FieldType}."""
+    msgtype = spec.msgtype
+    current: FieldType | None = None
+    what = f"{where}: field {path!r} of topic {spec.name} ({spec.msgtype})"
+    steps = parse_path(path, spec, where)
+    for kind, value in steps:
+        if kind == "attr":
+            if current is not None:
+                if current.nested is None or current.length is not None or current.sequence:
+                    raise ConfigError(f"{what}: {value!r} follows a field that is not a message")
+                msgtype = current.nested
+            known = fields_of(msgtype)
+            if value not in known:
+                raise ConfigError(f"{what}: {msgtype} has no field {value!r} (fields: {', '.join(known)})")
+            current = known[value]
+        else:
+            if current is None or (current.length is None and not current.sequence):
+                raise ConfigError(f"{what}: [{value}] indexes a field that is not an array")
+            if current.length is not None and value >= current.length:
+                raise ConfigError(f"{what}: index {value} is beyond the field's {current.length} elements")
+            current = FieldType(current.nested, current.base)
+    if current is None or current.length is not None or current.sequence:
+        raise ConfigError(f"{what}: does not name one number")
+    if current.base in NUMERIC and not (stamp and spec.stamp_unit is None):
+        return
+    if stamp and spec.stamp_unit is None and current.nested == TIME_TYPE:
+        return
+    expected = "a builtin_interfaces/Time (or give stamp_unit for an integer stamp)" if stamp and spec.stamp_unit is None else "a number"
+    raise ConfigError(f"{what}: is {current.base or current.nested}, not {expected}")
+
+
+def check_map_fields(topic_map: TopicMap, sources: dict[str, FieldSource], fields_of, where: str) -> None:
+    """Every stamp, instance and field path the ``sources`` read exists in the topics' message definitions."""
+    for topic in dict.fromkeys(s.topic for s in sources.values()):
+        spec = topic_map.topics[topic]
+        check_path(spec.stamp, spec, fields_of, where, stamp=True)
+        if spec.instance:
+            check_path(spec.instance, spec, fields_of, where)
+    for source in sources.values():
+        for path in source.paths:
+            check_path(path, topic_map.topics[source.topic], fields_of, where)
+
+
+# --- message -> numbers -------------------------------------------------------------------------
+
+def _getter(steps):
+    """A callable msg -> value following parsed path steps (attributes and indexes)."""
+    ops = [operator.attrgetter(v) if k == "attr" else operator.itemgetter(v) for k, v in steps]
+
+    def get(msg):
+        for op in ops:
+            msg = op(msg)
+        return msg
+    return get
+
+
+class TopicReader:
+    """One mapped topic: each message -> (stamp [ns], numbers of every path the map reads from it).
+
+    ``paths``: the message field paths read (in order). With an ``instance`` field, only messages of the first
+    instance seen are kept (:meth:`keep`; :attr:`instances` counts the messages of each instance seen).
+    """
+
+    def __init__(self, spec: TopicSpec, paths: list[str], where: str):
+        self.spec = spec
+        self.paths = list(paths)
+        self._stamp = _getter(parse_path(spec.stamp, spec, where))
+        self._values = [_getter(parse_path(p, spec, where)) for p in self.paths]
+        self._instance = _getter(parse_path(spec.instance, spec, where)) if spec.instance else None
+        self._factor = STAMP_UNITS[spec.stamp_unit] if spec.stamp_unit else None
+        self.instances: dict = {}
+
+    def stamp_ns(self, msg) -> int:
+        """The message's stamp [ns] (a builtin_interfaces/Time, or an integer field times its unit)."""
+        value = self._stamp(msg)
+        if self._factor is None:
+            return value.sec * NANOSECONDS + value.nanosec
+        return int(value) * self._factor
+
+    def values(self, msg) -> list[float]:
+        """The numbers of every path, in :attr:`paths` order."""
+        return [float(get(msg)) for get in self._values]
+
+    def keep(self, msg) -> bool:
+        """False for a message of another instance than the first one seen (counted in :attr:`instances`)."""
+        if self._instance is None:
+            return True
+        which = self._instance(msg)
+        self.instances[which] = self.instances.get(which, 0) + 1
+        return which == next(iter(self.instances))
+
+
+def readers_for(topic_map: TopicMap, sources: dict[str, FieldSource], where: str) -> dict[str, TopicReader]:
+    """One :class:`TopicReader` per topic the chosen ``sources`` read, with every path of that topic."""
+    paths: dict[str, list[str]] = {}
+    for source in sources.values():
+        paths.setdefault(source.topic, [])
+        paths[source.topic] += [p for p in source.paths if p not in paths[source.topic]]
+    return {topic: TopicReader(topic_map.topics[topic], wanted, where) for topic, wanted in paths.items()}
+
+
+def instance_notes(readers: dict[str, TopicReader], bag_topics) -> dict:
+    """Notes on multi-instance topics (as the ULog reader's): a topic with several instances (the first one read) and
+    instance topics ``<topic>_N`` of the bag that are not read."""
+    notes: dict = {}
+    several = {t: f"{len(r.instances)} instances seen, {r.spec.instance} {next(iter(r.instances))} used"
+               for t, r in readers.items() if len(r.instances) > 1}
+    if several:
+        notes["instances"] = several
+    extra = sorted(t for t in bag_topics if any(t.startswith(f"{s}_") and t[len(s) + 1:].isdigit() for s in readers))
+    if extra:
+        notes["instance_topics"] = f"{', '.join(extra)} not read (instance 0 topics used)"
+    return notes
+
+
+# --- numbers -> internal frames and units ----------------------------------------------------------
+
+def commands_in_vehicle_unit(values: np.ndarray, source: FieldSource, vehicle: VehicleConfig, where: str) -> np.ndarray:
+    """Commands as the map gives them -> the vehicle's input unit: as they are when the units agree (or ``unit:
+    vehicle``), else mapped linearly from the map's ``range`` [a, b] onto the vehicle's [min, max]:
+    :math:`u = u_{min} + (x - a) (u_{max} - u_{min}) / (b - a)`."""
+    if source.unit in ("vehicle", vehicle.input_unit):
+        return values
+    if source.range is None:
+        raise ConfigError(f"{where}: commands of topic {source.topic} are in {source.unit!r}, vehicle {vehicle.name} takes "
+                          f"{vehicle.input_unit!r}: give the map's commands a range: [low, high] to map them linearly")
+    low, high = source.range
+    return vehicle.input_min + (values - low) * ((vehicle.input_max - vehicle.input_min) / (high - low))
+
+
+def attitude_euler(quat: np.ndarray, source: FieldSource) -> np.ndarray:
+    """(n, 4) quaternions in the map's order and frame -> Euler (φ, θ, ψ) NED/FRD [rad], yaw not unwrapped."""
+    xyzw = quat if source.order == "xyzw" else quat[:, [1, 2, 3, 0]]
+    if source.frame == "ENU/FLU":
+        return frames.quat_enu_to_euler_ned(xyzw)
+    return frames.quat_ned_to_euler_ned(xyzw)
+
+
+def convert_field(source: FieldSource, values: np.ndarray, euler: np.ndarray | None = None) -> np.ndarray:
+    """(n, k) numbers of one non-command field, as the map gives them -> the FlightLog field (NED/FRD, SI).
+
+    position -> pos_n [m]; velocity -> vel_n [m/s] (a body-frame velocity rotated by ``euler``, the attitude at
+    the same rows); attitude -> euler [rad]; acc -> acc_b [m/s²]; gyro -> gyro_b [rad/s]; battery -> vbat [V].
+    """
+    if source.field == "attitude":
+        return attitude_euler(values, source)
+    si = frames.to_si(values, source.unit)
+    if source.field == "battery":
+        return si[:, 0]
+    if source.frame == "ENU":
+        return frames.enu_to_ned(si)
+    if source.frame == "FLU":
+        si = frames.flu_to_frd(si)
+    if source.field == "velocity" and source.frame in ("FLU", "FRD"):
+        return frames.body_to_nav(si, euler)
+    return si
+
+
+# --- streams -> FlightLog, streamed ---------------------------------------------------------------
+
+def rate_hz(count: int, first: int, last: int) -> float:
+    """Mean rate [Hz] of ``count`` stamps from ``first`` to ``last`` [ns]."""
+    return (count - 1) / ((last - first) / 1e9) if count > 1 and last > first else 0.0
+
+
+class _Stream:
+    """One topic while it is read: its recent samples (from the one before the oldest pending row on), its span,
+    its message count and the steps longer than :data:`~quad_modelling.core.alignment.MAX_GAP_S`."""
+
+    def __init__(self, topic: str, paths: list[str]):
+        self.topic, self.paths = topic, paths
+        self.stamps: list[int] = []
+        self.values: list[list[float]] = []
+        self.first = self.last = None
+        self.count = 0
+        self.long_steps: list[tuple[int, int]] = []
+        self.ended = False
+
+    def covers(self, ns: int) -> bool:
+        return self.last is not None and self.last >= ns
+
+
+class FlightAssembler:
+    """A map's streams -> a FlightLog, message by message in recording order (module doc), in memory that does not
+    grow with the recording: the commands wait (at most :data:`MAX_PENDING_S`) until every stream has a message at or
+    after them, are aligned in batches of :data:`EMIT_ROWS` (:func:`~quad_modelling.core.alignment.interpolate_at`)
+    and converted (:func:`convert_field`) into FlightLog arrays allocated once for ``capacity`` rows (the commands
+    topic's message count); only the samples around the pending rows are kept.
+    """
+
+    def __init__(self, topic_map: TopicMap, sources: dict[str, FieldSource], readers: dict[str, TopicReader],
+                 vehicle: VehicleConfig, where: str, capacity: int):
+        self.topic_map, self.sources, self.vehicle, self.where = topic_map, sources, vehicle, where
+        self.base = sources["commands"].topic
+        self.streams = {topic: _Stream(topic, reader.paths) for topic, reader in readers.items()}
+        self.kinematic = {sources[f].topic for f in KINEMATIC_FIELDS if f in sources}
+        self.pending: list[tuple[int, list[float]]] = []
+        capacity = max(int(capacity), 2)
+        self.t_ns = np.empty(capacity, dtype=np.int64)
+        self.out = {name: np.empty(capacity if name == "battery" else (capacity, 4 if name == "commands" else 3)) for name in sources}
+        self.rows = 0
+        self.stopped = 0
+        self._next_emit = EMIT_ROWS
+        self.last_yaw: float | None = None
+        self._column_index = {name: [self.streams[s.topic].paths.index(p) for p in s.paths] for name, s in sources.items()}
+
+    def add(self, topic: str, ns: int, values: list[float]) -> None:
+        """One kept message of ``topic``: stamp [ns] and the numbers of its reader's paths."""
+        stream = self.streams[topic]
+        if stream.last is not None:
+            if ns < stream.last:
+                raise DataError(f"{self.where}: topic {topic} stamps ({self.topic_map.topics[topic].stamp}) go back at message {stream.count}")
+            if ns == stream.last:
+                return  # a repeated stamp: the first message is kept
+            if stream.ended:
+                raise DataError(f"{self.where}: topic {topic} resumes after {(ns - stream.last) / 1e9:.1f} s without messages, "
+                                f"longer than the {MAX_PENDING_S:g} s held: a restarted publisher or another clock")
+            if ns - stream.last > MAX_GAP_S * 1e9:
+                stream.long_steps.append((stream.last, ns))
+        else:
+            stream.first = ns
+        self._check(stream, values)
+        stream.last = ns
+        stream.count += 1
+        stream.stamps.append(ns)
+        stream.values.append(values)
+        if topic == self.base:
+            self.pending.append((ns, values))
+            if len(self.pending) >= self._next_emit:
+                self._emit(final=False)
+                self._next_emit = len(self.pending) + EMIT_ROWS  # rows still waiting: not looked at again for a batch
+
+    def _check(self, stream: _Stream, values: list[float]) -> None:
+        for name, source in self.sources.items():
+            if source.topic != stream.topic:
+                continue
+            numbers = [values[i] for i in self._column_index[name]]
+            bad = [math.isinf(v) if name == "commands" else not math.isfinite(v) for v in numbers]
+            if any(bad):
+                raise DataError(f"{self.where}: topic {stream.topic} message {stream.count} field {source.paths[bad.index(True)]} is not finite")
+            if name == "attitude" and abs(math.sqrt(sum(v * v for v in numbers)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE:
+                raise DataError(f"{self.where}: topic {stream.topic} message {stream.count} has an attitude quaternion of norm "
+                                f"{math.sqrt(sum(v * v for v in numbers)):.3g}, not 1")
+
+    def _lagging(self) -> None:
+        """More than :data:`MAX_PENDING_S` of rows wait: decide about each stream silent for that long before the newest."""
+        horizon = self.pending[-1][0] - int(MAX_PENDING_S * 1e9)
+        for stream in self.streams.values():
+            if stream.ended or (stream.last is not None and stream.last >= horizon):
+                continue
+            if stream.last is None:  # not started yet: the rows before its first message are cut, as at the start
+                cut = int(np.searchsorted([p[0] for p in self.pending], horizon))
+                del self.pending[:cut]
+                continue
+            check_same_clock(self._spans(), self.base, self.where)
+            stream.ended = True  # stopped: the rows after its last message are cut, as at the end
+
+    def _spans(self) -> dict[str, tuple[int, int]]:
+        return {t: (s.first, s.last) for t, s in self.streams.items() if s.last is not None}
+
+    def _emit(self, final: bool) -> None:
+        """Align the pending rows every stream covers (``final``: all), convert them into the output arrays."""
+        if not self.pending:
+            return
+        if not final and self.pending[-1][0] - self.pending[0][0] > MAX_PENDING_S * 1e9:
+            self._lagging()
+        live = [s for s in self.streams.values() if not s.ended]
+        limit = None if final else min((s.last for s in live if s.last is not None), default=None)
+        if not final and (limit is None or any(s.last is None for s in live)):
+            return
+        take = len(self.pending) if final else int(np.searchsorted([p[0] for p in self.pending], limit, side="right"))
+        if take == 0:
+            return
+        rows, self.pending = self.pending[:take], self.pending[take:]
+        t_ns = np.fromiter((r[0] for r in rows), dtype=np.int64, count=len(rows))
+        keep = np.ones(len(rows), dtype=bool)
+        for topic in self.kinematic:  # rows outside the span every kinematic stream covers are cut
+            stream = self.streams[topic]
+            if stream.last is None:
+                keep[:] = False
+            else:
+                keep &= (t_ns >= stream.first) & (t_ns <= stream.last)
+        commands = np.asarray([r[1] for r in rows], dtype=float)[:, self._column_index["commands"]][keep]
+        t_ns = t_ns[keep]
+        aligned = {}
+        for name, source in self.sources.items():
+            if name == "commands" or not len(t_ns):
+                continue
+            stream = self.streams[source.topic]
+            values = np.asarray(stream.values, dtype=float)[:, self._column_index[name]]
+            aligned[name] = interpolate_at(np.asarray(stream.stamps, dtype=np.int64), values, t_ns,
+                                           quaternion=(0, 4) if name == "attitude" else None, max_gap_s=HOLD_S)
+        if len(t_ns):
+            self._store(t_ns, commands, aligned)
+        last = int(rows[-1][0])
+        for stream in self.streams.values():  # keep the samples from the last one at or before the last row on
+            start = max(int(np.searchsorted(stream.stamps, last, side="right")) - 1, 0)
+            del stream.stamps[:start], stream.values[:start]
+
+    def _store(self, t_ns: np.ndarray, commands: np.ndarray, aligned: dict) -> None:
+        n, end = len(t_ns), self.rows + len(t_ns)
+        if end > len(self.t_ns):
+            raise DataError(f"{self.where}: topic {self.base} holds more messages than its recorded count {len(self.t_ns)}")
+        stopped = np.isnan(commands)
+        if stopped.any():  # PX4 actuator_motors: NaN = motor stopped, read as the range's low end (as the ULog reader)
+            self.stopped += int(stopped.sum())
+            commands = np.where(stopped, self._stopped_value(), commands)
+        rows = slice(self.rows, end)
+        self.t_ns[rows] = t_ns
+        self.out["commands"][rows] = commands_in_vehicle_unit(commands, self.sources["commands"], self.vehicle, self.where)
+        euler = convert_field(self.sources["attitude"], aligned["attitude"])
+        yaw = np.unwrap(np.concatenate([[self.last_yaw if self.last_yaw is not None else euler[0, 2]], euler[:, 2]]))[1:]
+        euler[:, 2], self.last_yaw = yaw, float(yaw[-1])
+        self.out["attitude"][rows] = euler
+        for name, values in aligned.items():
+            if name != "attitude":
+                self.out[name][rows] = convert_field(self.sources[name], values, euler)
+        self.rows = end
+
+    def _stopped_value(self) -> float:
+        span = self.sources["commands"].range
+        return span[0] if span else 0.0
+
+    def finish(self, notes: dict | None = None) -> FlightLog:
+        """Align what is left and build the FlightLog (one-line DataError: a topic without messages, another clock,
+        no common span)."""
+        for stream in self.streams.values():
+            if stream.last is None:
+                raise DataError(f"{self.where}: topic {stream.topic} has no messages")
+        check_same_clock(self._spans(), self.base, self.where)
+        self._emit(final=True)
+        if self.rows < 2:
+            raise DataError(f"{self.where}: the topics {', '.join(sorted(self.kinematic | {self.base}))} share no common time span")
+        n = self.rows
+        t_ns = self.t_ns[:n]
+        base = self.streams[self.base]
+        notes = {"format": f"bag (topic map {self.topic_map.name})", **(notes or {})}
+        if self.stopped:
+            notes["motor_nan"] = f"{self.stopped} NaN commands (motor stopped) read as {self._stopped_value():g}"
+        cut = (base.last - base.first - (int(t_ns[-1]) - int(t_ns[0]))) / 1e9
+        notes["time_base"] = f"{self.base} stamps, {rate_hz(n, int(t_ns[0]), int(t_ns[-1])):.1f} Hz; {cut:.2f} s outside the span all kinematic streams cover cut"
+        notes["sources"] = {name: f"{s.topic} {', '.join(s.paths)} ({s.unit or s.order}, {s.frame or '-'}), "
+                                  f"{rate_hz(self.streams[s.topic].count, self.streams[s.topic].first, self.streams[s.topic].last):.1f} Hz"
+                            for name, s in self.sources.items()}
+        out = {name: array[:n] for name, array in self.out.items()}
+        t = t_ns / 1e9
+        self.out, self.t_ns = {}, np.empty(0, dtype=np.int64)  # the log holds the arrays; the stamps [ns] go after the gaps
+        gaps: dict[tuple[str, int, int], tuple[str, ...]] = {}  # (topic, start, end) -> the FlightLog fields it carries
+        for name in KINEMATIC_FIELDS:
+            if name in self.sources:
+                topic = self.sources[name].topic
+                for a, b in self.streams[topic].long_steps:  # a row strictly inside: interpolated through
+                    if np.searchsorted(t_ns, b, side="left") > np.searchsorted(t_ns, a, side="right"):
+                        gaps[(topic, a, b)] = gaps.get((topic, a, b), ()) + GAP_FIELDS[name]
+        log = FlightLog(
+            t=t, u=out["commands"], acc_b=out.get("acc"), gyro_b=out.get("gyro"), pos_n=out["position"], vel_n=out["velocity"],
+            euler=out["attitude"], vbat=out.get("battery"),
+            meta=FlightMeta(vehicle=self.vehicle.name, source=self.where, notes=notes),
+        )
+        marked = [MeasurementGap(topic, a / 1e9, b / 1e9, fields) for (topic, a, b), fields in gaps.items()]
+        mark_measurement_gaps(log, sorted(marked, key=lambda g: (g.start_s, g.topic)), MAX_GAP_S)
+        return log
+
+
+def check_same_clock(spans: dict[str, tuple[int, int]], base: str, where: str) -> None:
+    """DataError when a stream's stamps [ns] (``spans``: topic -> first, last) do not overlap the base stream's for at
+    least :data:`SAME_CLOCK_OVERLAP` of the shorter span: stamps from another clock (module doc)."""
+    if base not in spans:
+        return
+    b0, b1 = spans[base]
+    for topic, (s0, s1) in spans.items():
+        overlap = min(b1, s1) - max(b0, s0)
+        shorter = min(b1 - b0, s1 - s0)
+        if overlap < SAME_CLOCK_OVERLAP * shorter or (shorter == 0 and not b0 <= s0 <= b1 and not s0 <= b0 <= s1):
+            raise DataError(
+                f"{where}: topic {topic} stamps span {s0 / 1e9:.3f}..{s1 / 1e9:.3f} s, topic {base} {b0 / 1e9:.3f}..{b1 / 1e9:.3f} s: "
+                "stamps from another clock; stamp every topic of the map on one clock (e.g. header.stamp everywhere)")

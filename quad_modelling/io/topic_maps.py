@@ -1,0 +1,379 @@
+"""Topic maps: which topic and message field of a recording gives which flight field (DESIGN 5a).
+
+A topic map is a YAML document (the shipped ones: ``config/topic_maps/*.yaml``, documented in
+docs/formats.md)::
+
+    name: px4
+    default_vehicle: px4_iris              # when neither --vehicle nor the bag names one
+    topics:                                # every topic the map reads
+      /fmu/out/vehicle_odometry: {type: px4_msgs/msg/VehicleOdometry, stamp: timestamp_sample, stamp_unit: us}
+      /fmu/out/battery_status: {type: px4_msgs/msg/BatteryStatus, stamp: timestamp, stamp_unit: us,
+                                instance: id, optional: true}
+      /{robot}/log_imu: {type: crazyflie_interfaces/msg/LogDataGeneric, stamp: header.stamp,
+                         vars: [acc.x, acc.y, acc.z, gyro.x, gyro.y, gyro.z]}
+    fields:                                # flight field -> source (or a list of alternatives, first present wins)
+      position: {topic: /fmu/out/vehicle_odometry, fields: ["position[0]", "position[1]", "position[2]"],
+                 unit: m, frame: NED}
+
+Flight fields (:data:`FLIGHT_FIELDS`): ``commands`` (4, the vehicle's input unit, see below),
+``position`` (3, world ``ENU``/``NED``), ``attitude`` (4, quaternion, ``order`` ``xyzw``/``wxyz``,
+frame ``ENU/FLU`` or ``NED/FRD`` = the body-to-world rotation), ``velocity`` (3, world ``ENU``/``NED`` or
+body ``FLU``/``FRD``), ``acc`` (3, specific force, body ``FLU``/``FRD``), ``gyro`` (3, body rates) and
+``battery`` (1, voltage). The first four are required; the others are read when their topic is in the
+bag. Units come from :data:`~quad_modelling.core.frames.UNIT_FACTORS` (``m``, ``mm``, ``m/s``,
+``m/s2``, ``g``, ``rad/s``, ``deg/s``, ``V``) and must have the field's dimension.
+
+Commands: ``unit`` is the unit the commands are in (``normalised``, ``PWM``, ``us``, ...; ``vehicle``: the
+vehicle's own input unit, as the project's contract) and ``range: [low, high]`` what they span. A vehicle
+taking that unit gets them as they are; any other vehicle gets them mapped linearly from ``range`` onto its
+input range ``[inputs.min, inputs.max]``, so a PX4 ``actuator_motors`` recording (0..1) is read for a
+vehicle in PWM or in normalised units alike.
+
+Message field paths: attributes and indexes, ``pose.position.x``, ``q[0]``; ``values[acc.x]`` indexes a
+sequence by the topic's ``vars`` (crazyswarm2 log blocks publish their values in the order of the block's
+vars). Stamps: ``stamp`` is a builtin_interfaces/Time field (``header.stamp``) or an integer field with its
+``stamp_unit`` (``s``, ``ms``, ``us``, ``ns``). ``instance``: a field telling apart several publishers of
+one topic (PX4 multi-instance topics, as ULog instance 0): the first instance seen is read, the notes say
+how many there were. ``{robot}`` in a topic name stands for one ROS name token (the crazyswarm2 robot
+name); a bag of several robots is named with ``--topic-map crazyswarm2:cf231``.
+
+This module holds the definitions, their validation (one line naming file and key) and the choice of a map
+for a bag's topics (:func:`choose_topic_map`); :mod:`quad_modelling.io.mapped_flight` converts the messages.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from quad_modelling.core import frames
+from quad_modelling.core.input_files import read_yaml
+from quad_modelling.core.vehicle import config_dir
+from quad_modelling.errors import BagError, ConfigError
+
+CONTRACT_MAP = "quad"
+"""The project's own contract (DESIGN 5a): read by :func:`quad_modelling.io.bag_io.read_bag`, bit for bit as before maps."""
+
+ROBOT = "{robot}"
+"""Placeholder for one ROS name token in a topic name (the crazyswarm2 robot name)."""
+
+FLIGHT_FIELDS = {
+    # field: (components, SI unit the field's unit must have (None: see module doc), frames, required)
+    "commands": (4, None, (), True),
+    "position": (3, "m", ("ENU", "NED"), True),
+    "attitude": (4, None, ("ENU/FLU", "NED/FRD"), True),
+    "velocity": (3, "m/s", ("ENU", "NED", "FLU", "FRD"), True),
+    "acc": (3, "m/s2", ("FLU", "FRD"), False),
+    "gyro": (3, "rad/s", ("FLU", "FRD"), False),
+    "battery": (1, "V", (), False),
+}
+"""The flight fields a map can give (module doc)."""
+
+QUATERNION_ORDERS = ("xyzw", "wxyz")
+STAMP_UNITS = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000, "ns": 1}
+"""Integer stamp units and their nanoseconds."""
+
+COMMAND_UNITS = ("vehicle", "normalised", *frames.UNIT_FACTORS)
+"""Units a map's commands may be in: the vehicle's own, normalised (0..1 ratio) or a unit of UNIT_FACTORS."""
+
+_STEP = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[[^\]]+\])*)$")
+_TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
+TOPIC_KEYS = {"type", "stamp", "stamp_unit", "vars", "instance", "optional"}
+SOURCE_KEYS = {"topic", "fields", "unit", "frame", "order", "range"}
+
+
+def topic_maps_dir():
+    """Where the shipped topic maps are: ``config/topic_maps``."""
+    return config_dir() / "topic_maps"
+
+
+@dataclass(frozen=True)
+class TopicSpec:
+    """One topic a map reads: its message type, stamp field and unit, log-block vars, instance field."""
+
+    name: str
+    msgtype: str
+    stamp: str
+    stamp_unit: str | None
+    """None: ``stamp`` is a builtin_interfaces/Time; else the integer field's unit (:data:`STAMP_UNITS`)."""
+    vars: tuple[str, ...] | None = None
+    instance: str | None = None
+    optional: bool = False
+
+
+@dataclass(frozen=True)
+class FieldSource:
+    """Where one flight field comes from: topic, message field paths (one per component), unit, frame, order, range."""
+
+    field: str
+    topic: str
+    paths: tuple[str, ...]
+    unit: str | None = None
+    frame: str | None = None
+    order: str = "xyzw"
+    range: tuple[float, float] | None = None
+
+
+@dataclass(frozen=True)
+class TopicMap:
+    """A validated topic map (module doc). ``fields``: flight field -> its sources, the first present in a bag wins."""
+
+    name: str
+    description: str
+    origin: str
+    topics: dict[str, TopicSpec]
+    fields: dict[str, tuple[FieldSource, ...]]
+    default_vehicle: str | None = None
+
+    @property
+    def is_contract(self) -> bool:
+        return self.name == CONTRACT_MAP and self.origin == "built-in"
+
+    @property
+    def has_robot(self) -> bool:
+        return any(ROBOT in name for name in self.topics)
+
+    def bind(self, robot: str) -> TopicMap:
+        """The map with ``{robot}`` replaced by ``robot`` in every topic name."""
+        def sub(name: str) -> str:
+            return name.replace(ROBOT, robot)
+        return replace(self, topics={sub(n): replace(t, name=sub(n)) for n, t in self.topics.items()},
+                       fields={f: tuple(replace(s, topic=sub(s.topic)) for s in sources) for f, sources in self.fields.items()})
+
+    def robots(self, bag_topics) -> list[str]:
+        """The robot names for which some topic of the map is in ``bag_topics`` (maps with ``{robot}``)."""
+        found = set()
+        for pattern in self.topics:
+            if ROBOT in pattern:
+                regex = re.compile("^" + re.escape(pattern).replace(re.escape(ROBOT), f"({_TOKEN})") + "$")
+                found.update(m.group(1) for m in map(regex.match, bag_topics) if m)
+        return sorted(found)
+
+    def sources(self, bag_topics) -> dict[str, FieldSource]:
+        """Flight field -> the source read from a bag with ``bag_topics`` (the first alternative whose topic is there);
+        a required field without one is missing from the result (:meth:`missing`)."""
+        present = set(bag_topics)
+        chosen = {}
+        for field, alternatives in self.fields.items():
+            source = next((s for s in alternatives if s.topic in present), None)
+            if source is not None:
+                chosen[field] = source
+        return chosen
+
+    def missing(self, bag_topics) -> list[str]:
+        """What a bag with ``bag_topics`` lacks for this map: per field without a present source (unless all its topics
+        are optional), ``position from /topic (pkg/msg/Type)`` (alternatives joined by ``or``)."""
+        chosen = self.sources(bag_topics)
+        out = []
+        for field, alternatives in self.fields.items():
+            if field not in chosen and not all(self.topics[s.topic].optional for s in alternatives):
+                out.append(f"{field} from " + " or ".join(dict.fromkeys(f"{s.topic} ({self.topics[s.topic].msgtype})" for s in alternatives)))
+        return list(dict.fromkeys(out))
+
+
+def _need(doc: dict, key: str, where: str):
+    if key not in doc:
+        raise ConfigError(f"{where}: missing key {key!r}")
+    return doc[key]
+
+
+def _topic_spec(name: str, doc, where: str) -> TopicSpec:
+    here = f"{where}: topics.{name}"
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{here}: must be a mapping {{type, stamp, ...}}, got {type(doc).__name__}")
+    unknown = sorted(set(map(str, doc)) - TOPIC_KEYS)
+    if unknown:
+        raise ConfigError(f"{here}: unknown key(s) {unknown}; known: {sorted(TOPIC_KEYS)}")
+    if not re.fullmatch(r"(/(\{robot\}|" + _TOKEN + "))+", name):
+        raise ConfigError(f"{here}: not an absolute ROS 2 topic name (e.g. /fmu/out/vehicle_odometry or /{{robot}}/pose)")
+    msgtype = str(_need(doc, "type", here))
+    if not re.fullmatch(rf"{_TOKEN}/msg/{_TOKEN}", msgtype):
+        raise ConfigError(f"{here}: type {msgtype!r} is not a ROS 2 message type (package/msg/Name)")
+    unit = doc.get("stamp_unit")
+    if unit is not None and unit not in STAMP_UNITS:
+        raise ConfigError(f"{here}: unknown stamp_unit {unit!r}; known: {', '.join(STAMP_UNITS)} (none: a builtin_interfaces/Time stamp)")
+    variables = doc.get("vars")
+    if variables is not None and (not isinstance(variables, list) or not variables or len(set(map(str, variables))) != len(variables)):
+        raise ConfigError(f"{here}: vars must be a non-empty list of distinct log variable names")
+    instance = doc.get("instance")
+    return TopicSpec(name, msgtype, str(_need(doc, "stamp", here)), unit, tuple(map(str, variables)) if variables else None,
+                     str(instance) if instance is not None else None, bool(doc.get("optional", False)))
+
+
+def parse_path(path: str, spec: TopicSpec, where: str) -> list[tuple[str, object]]:
+    """``pose.position.x`` / ``q[0]`` / ``values[acc.x]`` -> steps ``("attr", name)``, ``("index", i)``; a name in
+    brackets is looked up in the topic's ``vars``. ConfigError naming the path when it cannot be parsed."""
+    steps: list[tuple[str, object]] = []
+    text = path
+    # split on dots outside brackets
+    parts, depth, current = [], 0, ""
+    for char in text:
+        depth += char == "["
+        depth -= char == "]"
+        if char == "." and depth == 0:
+            parts.append(current)
+            current = ""
+        else:
+            current += char
+    parts.append(current)
+    for part in parts:
+        match = _STEP.match(part)
+        if not match:
+            raise ConfigError(f"{where}: field {path!r} of topic {spec.name}: cannot parse {part!r} (expected name, name[0] or values[var])")
+        steps.append(("attr", match.group(1)))
+        for index in re.findall(r"\[([^\]]+)\]", match.group(2)):
+            if index.isdigit():
+                steps.append(("index", int(index)))
+            elif spec.vars and index in spec.vars:
+                steps.append(("index", spec.vars.index(index)))
+            else:
+                raise ConfigError(f"{where}: field {path!r}: {index!r} is not in the vars of topic {spec.name} "
+                                  f"({list(spec.vars) if spec.vars else 'none given'})")
+    return steps
+
+
+def _field_source(field: str, doc, topics: dict[str, TopicSpec], where: str) -> FieldSource:
+    here = f"{where}: fields.{field}"
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{here}: must be a mapping {{topic, fields, unit, frame}}, got {type(doc).__name__}")
+    unknown = sorted(set(map(str, doc)) - SOURCE_KEYS)
+    if unknown:
+        raise ConfigError(f"{here}: unknown key(s) {unknown}; known: {sorted(SOURCE_KEYS)}")
+    components, si_unit, known_frames, _ = FLIGHT_FIELDS[field]
+    topic = str(_need(doc, "topic", here))
+    if topic not in topics:
+        raise ConfigError(f"{here}: topic {topic} is not declared under topics (declared: {', '.join(topics)})")
+    paths = _need(doc, "fields", here)
+    if not isinstance(paths, list) or len(paths) != components:
+        raise ConfigError(f"{here}: fields must list {components} message field(s), one per component, got {paths!r}")
+    for path in paths:
+        parse_path(str(path), topics[topic], here)
+    unit = doc.get("unit")
+    if field == "commands":
+        if unit not in COMMAND_UNITS:
+            raise ConfigError(f"{here}: unknown unit {unit!r}; known: {', '.join(COMMAND_UNITS)}")
+    elif field != "attitude":
+        if unit not in frames.UNIT_FACTORS or frames.UNIT_FACTORS[unit][0] != si_unit:
+            known = [u for u, (si, _) in frames.UNIT_FACTORS.items() if si == si_unit]
+            raise ConfigError(f"{here}: unknown unit {unit!r} for {field}; known: {', '.join(known)}")
+    frame = doc.get("frame")
+    if known_frames and frame not in known_frames:
+        raise ConfigError(f"{here}: unknown frame {frame!r}; known: {', '.join(known_frames)}")
+    order = str(doc.get("order", "xyzw"))
+    if order not in QUATERNION_ORDERS:
+        raise ConfigError(f"{here}: unknown quaternion order {order!r}; known: {', '.join(QUATERNION_ORDERS)}")
+    span = doc.get("range")
+    if span is not None:
+        try:
+            low, high = (float(v) for v in span)
+        except (TypeError, ValueError) as err:
+            raise ConfigError(f"{here}: range must be [low, high], got {span!r}") from err
+        if not high > low:
+            raise ConfigError(f"{here}: range [{low:g}, {high:g}] must have high > low")
+        span = (low, high)
+    return FieldSource(field, topic, tuple(map(str, paths)), unit, frame, order, span)
+
+
+def topic_map_from_dict(doc, origin: str) -> TopicMap:
+    """Validate a parsed topic map document (module doc); ConfigError in one line naming ``origin`` and the key."""
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{origin}: a topic map must be a mapping with name, topics and fields")
+    unknown = sorted(set(map(str, doc)) - {"name", "description", "default_vehicle", "topics", "fields"})
+    if unknown:
+        raise ConfigError(f"{origin}: unknown key(s) {unknown}; known: name, description, default_vehicle, topics, fields")
+    topics_doc, fields_doc = _need(doc, "topics", origin), _need(doc, "fields", origin)
+    if not isinstance(topics_doc, dict) or not topics_doc:
+        raise ConfigError(f"{origin}: topics must be a mapping of topic name -> {{type, stamp, ...}}")
+    if not isinstance(fields_doc, dict):
+        raise ConfigError(f"{origin}: fields must be a mapping of flight field -> source")
+    topics = {str(name): _topic_spec(str(name), spec, origin) for name, spec in topics_doc.items()}
+    unknown = sorted(set(map(str, fields_doc)) - set(FLIGHT_FIELDS))
+    if unknown:
+        raise ConfigError(f"{origin}: unknown flight field(s) {unknown}; known: {', '.join(FLIGHT_FIELDS)}")
+    missing = [f for f, (_, _, _, required) in FLIGHT_FIELDS.items() if required and f not in fields_doc]
+    if missing:
+        raise ConfigError(f"{origin}: the map gives no {', '.join(missing)} (required: commands, position, attitude, velocity)")
+    fields = {}
+    for field, entry in fields_doc.items():
+        alternatives = entry if isinstance(entry, list) else [entry]
+        if not alternatives:
+            raise ConfigError(f"{origin}: fields.{field} lists no source")
+        fields[str(field)] = tuple(_field_source(str(field), alt, topics, origin) for alt in alternatives)
+    name = str(_need(doc, "name", origin))
+    default_vehicle = doc.get("default_vehicle")
+    return TopicMap(name, str(doc.get("description", "")), origin, topics, fields, str(default_vehicle) if default_vehicle else None)
+
+
+def builtin_names() -> list[str]:
+    """The shipped maps' names (``config/topic_maps/*.yaml``), the contract first."""
+    names = sorted(p.stem for p in topic_maps_dir().glob("*.yaml"))
+    return sorted(names, key=lambda n: n != CONTRACT_MAP)
+
+
+def load_topic_map(name_or_path: str) -> TopicMap:
+    """A shipped map by name (``px4``, ``crazyswarm2``, ``quad``; ``crazyswarm2:cf231`` binds the robot) or a YAML file."""
+    text = str(name_or_path)
+    if text.endswith((".yaml", ".yml")) or "/" in text:
+        path = Path(text)
+        return topic_map_from_dict(read_yaml(path, "topic map"), str(path))
+    name, _, robot = text.partition(":")
+    path = topic_maps_dir() / f"{name}.yaml"
+    if not path.is_file():
+        raise ConfigError(f"--topic-map {text}: no such built-in map; known: {', '.join(builtin_names())} (or a YAML file)")
+    topic_map = replace(topic_map_from_dict(read_yaml(path, "topic map"), str(path)), origin="built-in")
+    if robot:
+        if not re.fullmatch(_TOKEN, robot) or not topic_map.has_robot:
+            raise ConfigError(f"--topic-map {text}: {robot!r} is not a robot name for map {name} (maps with {ROBOT} topics take NAME:ROBOT)")
+        topic_map = topic_map.bind(robot)
+    return topic_map
+
+
+def bind_robot(topic_map: TopicMap, bag_topics, where: str) -> TopicMap:
+    """``topic_map`` with its ``{robot}`` bound to the one robot whose topics the bag has; BagError for none or several."""
+    if not topic_map.has_robot:
+        return topic_map
+    robots = topic_map.robots(bag_topics)
+    if len(robots) != 1:
+        found = f"robots {', '.join(robots)}" if robots else "no robot"
+        raise BagError(f"{where}: topic map {topic_map.name} reads one robot's topics; the bag has {found} "
+                       f"(name one with --topic-map {topic_map.name}:ROBOT)")
+    return topic_map.bind(robots[0])
+
+
+def choose_topic_map(bag_topics, where: str, requested: str | None = None) -> TopicMap:
+    """The map to read a bag whose topics are ``bag_topics`` with: ``requested`` (name or YAML) when given, else the one
+    built-in map whose required topics the bag has. BagError listing the topics found and the maps tried when no map
+    or several match."""
+    bag_topics = sorted(bag_topics)
+    if requested:
+        return bind_robot(load_topic_map(requested), bag_topics, where)
+    matching, tried = [], []
+    for name in builtin_names():
+        topic_map = load_topic_map(name)
+        robots = topic_map.robots(bag_topics) if topic_map.has_robot else [None]
+        candidates = [(f"{name}:{r}" if r else name, topic_map.bind(r) if r else topic_map) for r in robots] or [(name, topic_map)]
+        hits = [(label, c) for label, c in candidates if not c.missing(bag_topics)]
+        matching += hits
+        if not hits:
+            missing = candidates[0][1].missing(bag_topics)
+            tried.append(f"{name} (needs {', '.join(missing)})")
+    if len(matching) == 1:
+        return matching[0][1]
+    if not matching:
+        raise BagError(f"{where}: no topic map matches the bag's topics {bag_topics}; maps tried: {'; '.join(tried)}; "
+                       "name a map or a YAML file with --topic-map (docs/formats.md)")
+    raise BagError(f"{where}: the bag's topics match several topic maps; choose one with --topic-map "
+                   f"{' or '.join(label for label, _ in matching)}")
+
+
+def add_topic_map_argument(parser) -> None:
+    """``--topic-map NAME|YAML`` for every command that reads flights (the one definition of the option)."""
+    parser.add_argument("--topic-map", metavar="NAME|YAML", default=None,
+                        help="how to read a bag of another stack: a built-in topic map (px4, crazyswarm2, crazyswarm2:ROBOT, quad) "
+                             "or a YAML map (docs/formats.md); default: the one built-in map the bag's topics match")
+
+
+def topic_map_file(value: str | None) -> str | None:
+    """The YAML file a ``--topic-map`` value names (an input of the command), None for a built-in name."""
+    return value if value and (value.endswith((".yaml", ".yml")) or "/" in value) else None
