@@ -50,7 +50,7 @@ not independent); ratios by first-order propagation; :math:`\tau_m` from the cur
 :math:`\chi^2(\tau) = \sum_c \mathrm{SSR}_c / s_c^2` on the same thinning, :math:`\sigma_\tau^2 = 2 / \chi^{2\prime\prime}`;
 δ's is the grid's quantisation, one sample period / sqrt(12). A value outside its bounds (:data:`BOUNDS_FACTOR`
 around the starting value; drag from 0) is clipped there and flagged ``at_bound``. A channel whose normal matrix is
-singular (:data:`MAX_CONDITION`; the flights do not excite it) leaves its constants at the file's values, flagged
+singular (:data:`~quad_modelling.core.identification.normal_equations.MAX_CONDITION`; the flights do not excite it) leaves its constants at the file's values, flagged
 ``identifiable: false``.
 """
 
@@ -68,6 +68,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
 from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
 from quad_modelling.core.models.physics import Observer
+from quad_modelling.core.identification.normal_equations import NormalEquations, solve_channels
 from quad_modelling.core.identification.physics_terms import (
     GROUND_OFFSETS,
     TermDesign,
@@ -114,11 +115,6 @@ FITTED = ("rotor_time_constant", "rotor_delay", "rotor_thrust_constant", "rotor_
 """The physics constants ``identify`` fits (the speed map k_u, Ω_off and I_zz are held)."""
 
 CHANNELS = ("velocity", "roll", "pitch", "yaw")
-
-MAX_CONDITION = 1e10
-"""Largest condition number of a channel's column-scaled normal matrix: beyond it the flights do not excite the
-channel's constants apart (e.g. collective-only manoeuvres leave roll and pitch unexcited) and they are kept."""
-
 
 def delay_grid(sample_rate: float) -> np.ndarray:
     """Delays searched [s]: whole sample periods from 0 to :data:`DELAY_MAX_S` (the command is sampled; a delay
@@ -326,42 +322,6 @@ def _design_blocks(p: PhysicsParameters, segments: list[_Segment], time_constant
                 yield name, regressor.reshape(-1, regressor.shape[-1]), target.reshape(-1)
 
 
-@dataclass
-class NormalEquations:
-    r"""Sufficient statistics of one channel's least squares :math:`\min_θ \lVert y − Xθ\rVert^2`, summed block by block:
-    :math:`X^T X` (k, k), :math:`X^T y` (k,), :math:`y^T y`, the row count n; and the same of the rows thinned to every
-    ``thin``-th of the stacked design (rows 0, thin, 2 thin, … in stacking order) for the uncertainty. The memory is
-    O(k²), whatever the number of rows."""
-
-    xtx: np.ndarray
-    xty: np.ndarray
-    yty: float = 0.0
-    n: int = 0
-    thin: int = 1
-    xtx_thin: np.ndarray | None = None
-    xty_thin: np.ndarray | None = None
-    yty_thin: float = 0.0
-    n_thin: int = 0
-
-    @classmethod
-    def empty(cls, k: int, thin: int) -> NormalEquations:
-        return cls(np.zeros((k, k)), np.zeros(k), thin=thin, xtx_thin=np.zeros((k, k)), xty_thin=np.zeros(k))
-
-    def add(self, x: np.ndarray, y: np.ndarray) -> None:
-        """Add the rows (x (m, k), y (m,)) that follow the ones already added."""
-        # einsum, not BLAS: tall-skinny products are 100x slower with a multithreaded BLAS on a busy 2-core machine
-        self.xtx += np.einsum("ij,ik->jk", x, x)
-        self.xty += np.einsum("ij,i->j", x, y)
-        self.yty += float(np.einsum("i,i->", y, y))
-        kept = slice((-self.n) % self.thin, None, self.thin)  # the rows whose stacked index is a multiple of thin
-        xt, yt = x[kept], y[kept]
-        self.xtx_thin += np.einsum("ij,ik->jk", xt, xt)
-        self.xty_thin += np.einsum("ij,i->j", xt, yt)
-        self.yty_thin += float(np.einsum("i,i->", yt, yt))
-        self.n += len(y)
-        self.n_thin += len(yt)
-
-
 def _normal_equations(p: PhysicsParameters, segments: list[_Segment], time_constant: float, delay: float,
                       observer: Observer = Observer(), thin: int = 1, design: TermDesign = TermDesign()) -> dict[str, NormalEquations]:
     """Per channel the :class:`NormalEquations` of all segments' rows (:func:`_design_blocks`), streamed."""
@@ -371,49 +331,6 @@ def _normal_equations(p: PhysicsParameters, segments: list[_Segment], time_const
             sums[name] = NormalEquations.empty(x.shape[1], thin)
         sums[name].add(x, y)
     return sums
-
-
-def _quadratic(xtx: np.ndarray, xty: np.ndarray, yty: float, coef: np.ndarray) -> float:
-    r""":math:`\lVert y − Xθ\rVert^2 = y^T y − 2 θ^T X^T y + θ^T X^T X θ` (≥ 0) from the normal-equation sums."""
-    return max(float(yty - 2.0 * coef @ xty + coef @ xtx @ coef), 0.0)
-
-
-def _solve(design: dict[str, NormalEquations]) -> dict[str, dict]:
-    """Least squares per channel from its normal equations: coefficients, covariance s² (X_t^T X_t)^{-1} of the thinned
-    rows, SSR, the thinned rows' residual variance s², SSR at θ = 0."""
-    out = {}
-    for name, ne in design.items():
-        ssr0 = float(ne.yty)
-        k = len(ne.xty)
-        used = _excited_columns(ne.xtx, ne.n)
-        coef = np.full(k, np.nan)  # NaN: a constant the flights do not excite
-        cov = np.full((k, k), np.nan)
-        if not used:
-            out[name] = {"coef": coef, "cov": cov, "ssr": ssr0, "s2": np.nan, "ssr0": ssr0, "n": ne.n}
-            continue
-        block = np.ix_(used, used)
-        theta = np.linalg.solve(ne.xtx[block], ne.xty[used])
-        coef[used] = theta
-        ssr = _quadratic(ne.xtx[block], ne.xty[used], ne.yty, theta)
-        s2 = _quadratic(ne.xtx_thin[block], ne.xty_thin[used], ne.yty_thin, theta) / max(ne.n_thin - len(used), 1)
-        try:
-            cov[block] = np.linalg.inv(ne.xtx_thin[block]) * s2
-        except np.linalg.LinAlgError:
-            pass  # the thinned rows alone are singular: the sigmas stay NaN
-        out[name] = {"coef": coef, "cov": cov, "ssr": ssr, "s2": s2, "ssr0": ssr0, "n": ne.n}
-    return out
-
-
-def _excited_columns(gram: np.ndarray, rows: int) -> list[int]:
-    """The leading columns of a design (normal matrix ``gram`` = X^T X of ``rows`` rows) whose column-scaled normal
-    matrix has a condition number within :data:`MAX_CONDITION` (columns are ordered by importance: the thrust or
-    torque gain first, then drag terms)."""
-    for k in range(gram.shape[0], 0, -1):
-        part = gram[:k, :k]
-        scale = np.sqrt(np.diag(part))
-        if rows > k and np.all(scale > 0) and np.linalg.cond(part / np.outer(scale, scale)) <= MAX_CONDITION:
-            return list(range(k))
-    return []
 
 
 def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
@@ -454,7 +371,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     design = _term_design(tuple(terms), segments, vehicle)
 
     def objective(log_tau: float, delay: float) -> float:
-        fit = _solve(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer, 1, design))
+        fit = solve_channels(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer, 1, design))
         return sum(fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS if fit[c]["ssr0"] > 0)
 
     lo, hi = TIME_CONSTANT_RANGE_S
@@ -485,10 +402,10 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
     if "ground_effect" in design.names:  # h_off: the grid value of least velocity error at the chosen τ, δ
         offsets = [g * vehicle.value("arm_length") for g in GROUND_OFFSETS]
-        errors = [_solve(_normal_equations(p, segments, tau, delay, observer, 1, replace(design, ground_offset=h)))["velocity"]["ssr"]
+        errors = [solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, replace(design, ground_offset=h)))["velocity"]["ssr"]
                   for h in offsets]
         design = replace(design, ground_offset=offsets[int(np.argmin(errors))])
-    fit = _solve(_normal_equations(p, segments, tau, delay, observer, thin, design))
+    fit = solve_channels(_normal_equations(p, segments, tau, delay, observer, thin, design))
 
     kf, kf_sd = fit["velocity"]["coef"][0], np.sqrt(fit["velocity"]["cov"][0, 0])
     values = {"rotor_time_constant": tau, "rotor_delay": delay, "rotor_thrust_constant": kf,
@@ -575,7 +492,7 @@ def _tau_sigma(p: PhysicsParameters, segments: list[_Segment], tau: float, delay
     h = 0.05 * tau
 
     def chi2(value: float) -> float:
-        fit = _solve(_normal_equations(p, segments, value, delay, observer, 1, design))
+        fit = solve_channels(_normal_equations(p, segments, value, delay, observer, 1, design))
         return sum(fit[c]["ssr"] / (thin * s2[c]) for c in CHANNELS if np.isfinite(s2[c]) and s2[c] > 0)
 
     curvature = (chi2(tau + h) - 2.0 * chi2(tau) + chi2(tau - h)) / h**2

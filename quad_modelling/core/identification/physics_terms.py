@@ -95,7 +95,7 @@ def rate_columns(design: TermDesign, prop_inertia: float, spins: np.ndarray, rat
 
 def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], arm_length: float) -> dict[str, dict]:
     """Per fitted term and parameter: value, sigma, bounds, at_bound, identifiable (from the channel fits ``fit``
-    of :func:`~quad_modelling.core.identification.physics_fit._solve`; ``thrust`` = (k_f, its sigma))."""
+    of :func:`~quad_modelling.core.identification.normal_equations.solve_channels`; ``thrust`` = (k_f, its sigma))."""
     kf, kf_sd = thrust
     out: dict[str, dict] = {}
     velocity = iter(range(3, 3 + sum(n in design.names for n in ("ground_effect", "battery"))))

@@ -12,10 +12,10 @@ from quad_modelling.core.identification.physics_fit import (
     FITTED,
     _design_blocks,
     _normal_equations,
-    _solve,
     identify_physics,
     training_segments,
 )
+from quad_modelling.core.identification.normal_equations import solve_channels
 from quad_modelling.core.models.physics import Observer
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.vehicle import load_vehicle
@@ -53,7 +53,7 @@ def test_normal_equations_give_the_stacked_least_squares(bag):
     stacked = {c: [] for c in CHANNELS}
     for name, x, y in _design_blocks(p, segments, 0.03, 0.01):
         stacked[name].append((x, y))
-    fit = _solve(_normal_equations(p, segments, 0.03, 0.01, Observer(), thin))
+    fit = solve_channels(_normal_equations(p, segments, 0.03, 0.01, Observer(), thin))
     for name in CHANNELS:
         x = np.vstack([b[0] for b in stacked[name]])
         y = np.concatenate([b[1] for b in stacked[name]])
