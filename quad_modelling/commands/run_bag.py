@@ -313,6 +313,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
+    from quad_modelling.core.windows import check_window_rate
     from quad_modelling.io.bag_io import read_bag_metadata
     from quad_modelling.io.loader import load_flight
     from quad_modelling.io.reports.evaluation import live_summary_table, multistep_lines
@@ -348,6 +349,7 @@ def run(args: argparse.Namespace) -> int:
     # Check the whole bag here, as the offline commands read it, before any node starts:
     # a damaged bag is one line from this process, not a node's traceback.
     flight = load_flight(args.bag, vehicle=vehicle, fmt="bag")
+    check_window_rate(flight)  # the evaluator would mark every window of a flight this slow
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
         make_streaming_predictor(m.spec, vehicle)
     env = ros_environment(args.discovery, remote)
