@@ -15,10 +15,12 @@ import errno
 import os
 import shutil
 import signal
+import stat
 import uuid
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from quad_modelling.core.input_files import input_path_mode
 from quad_modelling.errors import OutputExistsError, QuadModellingError
 
 STAGING_SUFFIX_LEN = len(".tmp-") + 8 + 1
@@ -51,14 +53,16 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = ()) -> 
     if path.name in ("", ".", ".."):
         raise OutputDirError(f"-o {str(path)!r}: the output must name a new file or directory, not {str(path)!r}")
     parent = path.parent if str(path.parent) else Path(".")
-    limit = _name_max(parent if parent.is_dir() else Path(".")) - STAGING_SUFFIX_LEN
+    parent_mode = input_path_mode(parent, "output directory", OutputDirError)  # one line for a path too long to look up
+    parent_is_dir = parent_mode is not None and stat.S_ISDIR(parent_mode)
+    limit = _name_max(parent if parent_is_dir else Path(".")) - STAGING_SUFFIX_LEN
     if len(os.fsencode(path.name)) > limit:
         raise OutputDirError(f"{path.name[:40]}...: output name is {len(os.fsencode(path.name))} bytes long; "
                              f"the file system allows {limit} here")
     check_not_input(path, inputs)
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists; pass --force to overwrite")
-    if not parent.is_dir():
+    if not parent_is_dir:
         raise OutputDirError(f"{parent}: output directory does not exist or is not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise OutputDirError(f"{parent}: output directory is not writable")

@@ -10,6 +10,8 @@ before the document reaches any other code.
 
 from __future__ import annotations
 
+import errno
+import os
 import stat
 from pathlib import Path
 
@@ -25,15 +27,51 @@ MAX_YAML_NODES = 100_000
 
 
 
+SHOWN_PATH_CHARS = 120
+"""Longest input path quoted whole in an error [characters]; a longer one is shown by its start and its length."""
+
+
+def shown_path(path: str | Path) -> str:
+    """``path`` as an error message names it: whole, or (longer than :data:`SHOWN_PATH_CHARS`) its first 60
+    characters, ``...`` and its length in bytes."""
+    text = str(path)
+    if len(text) <= SHOWN_PATH_CHARS:
+        return text
+    return f"{text[:60]}... ({len(os.fsencode(text))} bytes)"
+
+
+def input_path_mode(path: str | Path, what: str, error: type[QuadModellingError] = ConfigError) -> int | None:
+    """The ``st_mode`` of an input path (symbolic links followed), None when nothing is there; ``error`` in one line
+    naming the path when it cannot even be looked up: a name or path longer than the file system allows
+    (ENAMETOOLONG), a loop of symbolic links, a directory on the way without search permission. The one place
+    every input path of every verb is first looked at (flight files, bags, results, YAML)."""
+    try:
+        return os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    except OSError as err:
+        if err.errno == errno.ENAMETOOLONG:
+            longest = max((len(os.fsencode(part)) for part in Path(path).parts), default=0)
+            raise error(f"{shown_path(path)}: {what} path is too long for the file system (longest name {longest} bytes, "
+                        f"path {len(os.fsencode(str(path)))} bytes; it allows {_limit('PC_NAME_MAX', 255)} and "
+                        f"{_limit('PC_PATH_MAX', 4096)})") from err
+        raise error(f"{shown_path(path)}: cannot look up the {what} ({err.strerror or reason(err)})") from err
+
+
+def _limit(name: str, default: int) -> int:
+    """A file system limit of the working directory (``os.pathconf``), ``default`` when it cannot be read."""
+    try:
+        return os.pathconf(".", name)
+    except (OSError, ValueError):
+        return default
+
+
 def check_regular_file(path: str | Path, what: str, error: type[QuadModellingError] = ConfigError) -> Path:
     """``path`` if it is a regular file (symbolic links followed); ``error`` naming it otherwise."""
     path = Path(path)
-    try:
-        mode = path.stat().st_mode
-    except FileNotFoundError as err:
-        raise error(f"{path}: no such {what}") from err
-    except OSError as err:
-        raise error(f"{path}: cannot read {what}: {err.strerror}") from err
+    mode = input_path_mode(path, what, error)
+    if mode is None:
+        raise error(f"{shown_path(path)}: no such {what}")
     if stat.S_ISDIR(mode):
         raise error(f"{path}: is a directory, not a {what}")
     if not stat.S_ISREG(mode):

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import stat
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,7 +37,7 @@ from rosbags.typesys import Stores, get_typestore
 from quad_modelling.atomic import atomic_output
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.input_files import read_yaml
+from quad_modelling.core.input_files import input_path_mode, read_yaml
 from quad_modelling.core.preprocess import (
     MeasurementGap,
     check_same_clock,
@@ -272,9 +273,10 @@ class BagSummary:
 
 
 def _open_reader(path: Path) -> Reader:
-    if not path.exists():
+    mode = input_path_mode(path, "bag", BagError)
+    if mode is None:
         raise BagError(f"{path}: no such bag")
-    if not path.is_dir():
+    if not stat.S_ISDIR(mode):
         raise BagError(f"{path}: not a bag directory (a rosbag2 bag is a directory with metadata.yaml)")
     try:
         if (path / "metadata.yaml").exists():

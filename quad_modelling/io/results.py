@@ -12,12 +12,13 @@ horizons; anything else is one :class:`~quad_modelling.errors.DataError` naming 
 from __future__ import annotations
 
 import json
+import stat
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from quad_modelling.core.evaluation.statistics import EvaluationStatistics
 from quad_modelling.core.evaluation.windowed import EvaluationResult, result_from_statistics
-from quad_modelling.core.input_files import check_regular_file
+from quad_modelling.core.input_files import check_regular_file, input_path_mode
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError, DataError
 
@@ -30,8 +31,9 @@ MAX_RESULTS_BYTES = 256 << 20
 def results_file(directory: str | Path) -> Path:
     """The results.json of an ``evaluate`` output directory (or the file itself); DataError when missing."""
     path = Path(directory)
-    path = path / RESULTS_FILE if path.is_dir() else path
-    if not path.exists():
+    mode = input_path_mode(path, "results directory", DataError)
+    path = path / RESULTS_FILE if mode is not None and stat.S_ISDIR(mode) else path
+    if input_path_mode(path, "results file", DataError) is None:
         raise DataError(f"{directory}: no {RESULTS_FILE} (not an output directory of quad-modelling evaluate)")
     check_regular_file(path, "results file", DataError)
     if path.stat().st_size > MAX_RESULTS_BYTES:
