@@ -15,13 +15,11 @@ import errno
 import os
 import shutil
 import signal
-import stat
 import uuid
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from quad_modelling.core.input_files import input_path_mode
-from quad_modelling.errors import OutputExistsError, QuadModellingError
+from quad_modelling.errors import OutputExistsError, QuadModellingError, shown_path
 
 STAGING_SUFFIX_LEN = len(".tmp-") + 8 + 1
 """Characters the staging and backup names add to an output's name (``.NAME.tmp-XXXXXXXX``)."""
@@ -53,8 +51,10 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = ()) -> 
     if path.name in ("", ".", ".."):
         raise OutputDirError(f"-o {str(path)!r}: the output must name a new file or directory, not {str(path)!r}")
     parent = path.parent if str(path.parent) else Path(".")
-    parent_mode = input_path_mode(parent, "output directory", OutputDirError)  # one line for a path too long to look up
-    parent_is_dir = parent_mode is not None and stat.S_ISDIR(parent_mode)
+    try:
+        parent_is_dir = parent.is_dir()
+    except OSError as err:  # a path longer than the file system allows (ENAMETOOLONG), a loop of links
+        raise OutputDirError(f"{shown_path(parent)}: output directory path cannot be looked up ({err.strerror})") from err
     limit = _name_max(parent if parent_is_dir else Path(".")) - STAGING_SUFFIX_LEN
     if len(os.fsencode(path.name)) > limit:
         raise OutputDirError(f"{path.name[:40]}...: output name is {len(os.fsencode(path.name))} bytes long; "

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import yaml
 
-from quad_modelling.errors import ConfigError, QuadModellingError, reason
+from quad_modelling.errors import ConfigError, QuadModellingError, reason, shown_path
 
 MAX_YAML_BYTES = 1 << 20
 """Largest YAML file read [bytes]: a vehicle config or mapping is a few kB, a bag's metadata.yaml tens of kB."""
@@ -25,19 +25,6 @@ MAX_YAML_BYTES = 1 << 20
 MAX_YAML_NODES = 100_000
 """Most nodes a document may hold with every alias expanded (a 1 MiB file of plain values holds fewer)."""
 
-
-
-SHOWN_PATH_CHARS = 120
-"""Longest input path quoted whole in an error [characters]; a longer one is shown by its start and its length."""
-
-
-def shown_path(path: str | Path) -> str:
-    """``path`` as an error message names it: whole, or (longer than :data:`SHOWN_PATH_CHARS`) its first 60
-    characters, ``...`` and its length in bytes."""
-    text = str(path)
-    if len(text) <= SHOWN_PATH_CHARS:
-        return text
-    return f"{text[:60]}... ({len(os.fsencode(text))} bytes)"
 
 
 def input_path_mode(path: str | Path, what: str, error: type[QuadModellingError] = ConfigError) -> int | None:

@@ -238,8 +238,8 @@ CORPUS = [
         ("vehicle", ["evaluate", "{d}/flight.mat", "--vehicle", LONG_NAME + ".yaml", "-o", "{d}/work/out"], "vehicle config", 305),
         ("mapping", ["convert", "{d}/flight.mat", "--mapping", DEEP_PATH + ".yaml", "-o", "{d}/work/b"], "mapping file", 205),
         ("model", ["evaluate", "{d}/flight.mat", "--model", f"narx:{LONG_NAME}.npz", "-o", "{d}/work/out"], "model file", 304),
-        ("output-dir", ["simulate", "-o", DEEP_PATH + "/s.mat"], "output directory", 200),
     ]],
+    ("path-too-long-output-dir", ["simulate", "-o", DEEP_PATH + "/s.mat"], "bytes): output directory path cannot be looked up (File name too long)"),
 ]
 
 
