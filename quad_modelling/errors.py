@@ -37,6 +37,11 @@ class ModelError(QuadModellingError, ValueError):
     """A model file is invalid or does not fit the vehicle/variables asked for."""
 
 
+class ClusterError(QuadModellingError, RuntimeError):
+    """The Dask cluster of ``--jobs``/``--scheduler`` failed under the work: a worker died running a flight,
+    or the scheduler went away."""
+
+
 class OutputExistsError(QuadModellingError, FileExistsError):
     """An output path exists and --force was not given."""
 
