@@ -52,8 +52,11 @@ def read_results(directory: str | Path) -> tuple[Path, dict, EvaluationStatistic
     if not isinstance(document, dict) or not {"models", "config"} <= set(document):
         raise DataError(f"{path}: not the results.json of quad-modelling evaluate (no 'models' and 'config')")
     if "statistics" not in document:
-        raise DataError(f"{path}: holds averages only, no 'statistics' to merge (written by run-bag or an older version); "
-                        f"re-run quad-modelling evaluate on its flights")
+        raise DataError(f"{path}: holds averages only, no 'statistics' to merge (written by an older version); "
+                        f"re-run quad-modelling evaluate (or run-bag) on its flights")
+    if "live" in document and not (document["config"].get("train") and document["config"].get("eval")):
+        raise DataError(f"{path}: a run-bag result without both --train and --eval (its span is live:0:inf); merge takes "
+                        "evaluations over train and eval spans: re-run run-bag with --train and --eval")
     statistics = EvaluationStatistics.from_json(document["statistics"], f"{path}: statistics")
     try:
         config = EvaluationConfig.from_dict(document["config"], f"{path}: config")

@@ -559,6 +559,7 @@ class EvaluatorNode(Node):
         """Write results.json, tables.md (and figures) into output_dir; returns a one-line summary."""
         if self.output_dir is None:
             return "output_dir is empty: nothing written"
+        self.scores.vehicle = self.vehicle.name if self.vehicle else ""
         return self.scores.write(self.output_dir, "live", self.figures, f"Live evaluation of {', '.join(self.models)} on vehicle "
                                                                           f"{self.vehicle.name if self.vehicle else '(unknown)'}")
 
