@@ -37,6 +37,7 @@ from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
+from quad_modelling.nodes.common import IMU, MOCAP_ODOM, MOTOR_INPUT
 
 
 @dataclass
@@ -277,9 +278,9 @@ def window_measurements(window: WindowBuffer, neighbours: list[WindowBuffer], lo
     """The window's measurements on its rows (the engine-input stamps in [lo, hi) [ns]) and their smoothed trimmed
     variables, or (None, None, reason) when a measurement stream fails the coverage rule or cannot be used."""
     rows = np.array(sorted(window.motor), dtype=np.int64)
-    reason = coverage_reason([stream_coverage("motor_input", rows, lo, hi),
-                              stream_coverage("mocap_odom", np.array(sorted(window.odom)), lo, hi),
-                              stream_coverage("imu", np.array(sorted(window.imu)), lo, hi)])
+    reason = coverage_reason([stream_coverage(MOTOR_INPUT, rows, lo, hi),
+                              stream_coverage(MOCAP_ODOM, np.array(sorted(window.odom)), lo, hi),
+                              stream_coverage(IMU, np.array(sorted(window.imu)), lo, hi)])
     if reason:
         return None, None, reason
     omegas = [window.omega[ns] for ns in rows]
