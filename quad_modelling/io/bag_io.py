@@ -84,8 +84,8 @@ def _mcap_writer(path: Path, compress: bool = True) -> Writer:
     rosbags' MCAP storage compresses each chunk (~1 MiB of messages) with zstd when asked for
     storage-level compression (``CompressionMode.STORAGE``): the bag stays one ``.mcap`` file that
     ``ros2 bag``, the mcap library, Foxglove and PlotJuggler read as is (chunk compression is part of
-    MCAP), and metadata.yaml records no file/message compression. The bundled 40 s flight: 6.1 MB
-    uncompressed, 1.1 MB with zstd chunks (docs/formats.md).
+    MCAP), and metadata.yaml records no file/message compression. The bundled 42 s flight (itself written so): 6.1 MB
+    uncompressed, 1.08 MB with zstd chunks (docs/formats.md).
     """
     writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
     if compress:
