@@ -6,6 +6,9 @@ Shape check: the README shows real output trimmed to the telling lines (``...`` 
 tables are padded to their widths). Each shown line must appear in the command's output, after the line shown before
 it, with whitespace collapsed, every number a wildcard (timings, domain ids and the last digits of scores are not the
 README's to fix) and a table rule's dashes of any length: the words, names, units, columns and their order must match.
+
+Cost: the tour itself, about 60 s of CPU (run-bag 20 s and diagnose 18 s of it; 105 s wall measured here at a load
+average of 8 on 2 cores); nothing is shortened for the test.
 """
 
 from __future__ import annotations
@@ -56,10 +59,12 @@ def shape_pattern(lines: list[str]) -> re.Pattern:
     """The regular expression of shown lines: whitespace collapsed, numbers and a table rule's dashes wildcards."""
     text = " ".join(" ".join(lines).split())
     parts = []
-    for token in re.split(rf"({NUMBER}|-{{3,}}| )", text):
+    for token in re.split(rf"(\.\.\.|{NUMBER}|-{{3,}}| )", text):
         if not token:
             continue
-        if token == " ":
+        if token == "...":  # a cut inside a line ("fig_z.png, ...")
+            parts.append(".*?")
+        elif token == " ":
             parts.append(r"\s+")
         elif re.fullmatch(NUMBER, token):
             parts.append(NUMBER)
@@ -111,6 +116,7 @@ def test_the_readme_tour_makes_every_file_it_reads_and_the_shape_check_is_strict
     pattern = shape_pattern(["| a  | b  |", "|----|---:|", "x 1.5e+03 / 0.2 s"])
     assert pattern.fullmatch("| a | b | |---|------:| x 2 / 0.25 s")
     assert not pattern.fullmatch("| a | c | |---|------:| x 2 / 0.25 s") and not pattern.fullmatch("| a | b | |---|------:| x 2 / 0.25 ms")
+    assert shape_pattern(["-> out/ (a.json, b.png, ...)"]).fullmatch("-> out/ (a.json, b.png, c.png, d.png)")
 
 
 def test_the_readme_tour_runs_as_written_from_a_fresh_directory(tmp_path, monkeypatch, capsys):
@@ -118,12 +124,8 @@ def test_the_readme_tour_runs_as_written_from_a_fresh_directory(tmp_path, monkey
     monkeypatch.chdir(tmp_path)
     steps = tour_steps((REPO / "README.md").read_text())
     made = []
-    import time
     for step in steps:
-        started = time.monotonic()
         check_shape(step, run_step(step, capsys))
         made.append(step.command)
-        with open("/tmp/fc_steps.log", "a") as f:
-            print(f"{time.monotonic() - started:6.1f} {step.command}", file=f)
     assert len(made) == len(steps) >= 12
     assert (tmp_path / "tour" / "merged" / "results.json").is_file() and (tmp_path / "tour" / "diag" / "report.md").is_file()
