@@ -118,9 +118,11 @@ def distributed_logs_held() -> Iterator[None]:
             logging.getLogger(name).setLevel(level)
 
 
-def first_line(err: BaseException) -> str:
-    """The first line of an exception's text (distributed's messages go on with advice over several lines)."""
-    return (str(err).strip().splitlines() or ["no details"])[0][:200]
+def lost(where: str, finished: int, total: int, err: BaseException) -> str:
+    """The one line of a scheduler lost mid-run (``where``: which cluster), with the first line of distributed's text."""
+    first = (str(err).strip().splitlines() or ["no details"])[0][:200]
+    return (f"lost {where} after {finished} of {total} flight(s): it stopped or its connection failed "
+            f"({type(err).__name__}: {first}); nothing was written, run the command again")
 
 
 def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: int | None = None, scheduler: str | None = None,
@@ -142,6 +144,7 @@ def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: in
     from concurrent.futures import CancelledError
 
     from distributed import KilledWorker, as_completed
+    from distributed.comm.core import CommClosedError
 
     where = f"the Dask scheduler at {scheduler}" if scheduler else f"the local Dask cluster (--jobs {jobs})"
     finished = 0
@@ -157,11 +160,13 @@ def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: in
             for future in as_completed(futures):
                 index = order[future.key]
                 try:
-                    done[index] = future.result()  # re-raises a worker's exception as it is
+                    done[index] = future.result()  # re-raises a worker's exception as it is (BagError, an OSError, too)
                 except KilledWorker as err:
                     raise ClusterError(f"flight {paths[index]}: every Dask worker that ran it died ({type(err).__name__}: "
                                        "killed for memory, by a signal, or a crash in native code) on "
                                        f"{where}; run it alone without --jobs/--scheduler to see why") from err
+                except CancelledError as err:  # distributed cancels every future when the scheduler is lost
+                    raise ClusterError(lost(where, finished, len(paths), err)) from err
                 finished += 1
                 future.release()
                 if progress:
@@ -169,9 +174,8 @@ def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: in
                 while next_index in done:
                     yield done.pop(next_index)
                     next_index += 1
-        except (CancelledError, OSError, TimeoutError) as err:  # CommClosedError is an OSError
-            raise ClusterError(f"lost {where} after {finished} of {len(paths)} flight(s): it stopped or its connection "
-                               f"failed ({type(err).__name__}: {first_line(err)}); nothing was written, run the command again") from err
+        except (CancelledError, CommClosedError) as err:  # submitting or waiting when the scheduler is gone
+            raise ClusterError(lost(where, finished, len(paths), err)) from err
         finally:
             for future in futures:
                 future.cancel()

@@ -14,7 +14,7 @@ import dask
 import pytest
 
 from quad_modelling import fanout
-from quad_modelling.errors import ClusterError, ConfigError, DataError, QuadModellingError
+from quad_modelling.errors import BagError, ClusterError, ConfigError, DataError, QuadModellingError
 from quad_modelling.fanout import check_fanout_options, map_flights, tty_progress
 from test.conftest import REPO
 
@@ -24,6 +24,8 @@ def square_or_refuse(value: int, offset: int) -> int:
     so on a cluster later values finish first."""
     if value == 5:
         time.sleep(0.3)
+    if value <= -100:
+        raise BagError(f"bag{value}: not a readable rosbag2 bag")
     if value < 0:
         raise DataError(f"flight{value}.csv: column px: not a number in row 3")
     return value * value + offset
@@ -52,6 +54,8 @@ def test_serial_and_running_cluster_give_the_results_in_input_order(dask_schedul
 def test_a_worker_error_is_the_project_error_naming_the_flight(dask_scheduler):
     with pytest.raises(DataError, match=r"^flight-4\.csv: column px: not a number in row 3$"):
         map_flights(square_or_refuse, [1, 2, -4, 3], 0, scheduler=dask_scheduler)
+    with pytest.raises(BagError, match=r"^bag-100: not a readable rosbag2 bag$"):  # an OSError too: not a lost scheduler
+        map_flights(square_or_refuse, [1, -100], 0, scheduler=dask_scheduler)
 
 
 @pytest.mark.parametrize(("jobs", "scheduler", "message"), [
