@@ -13,6 +13,7 @@ included), 105-125 s wall measured here at a load average of 8 on 2 cores (run-b
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shlex
@@ -128,4 +129,8 @@ def test_the_readme_tour_runs_as_written_from_a_fresh_directory(tmp_path, monkey
         check_shape(step, run_step(step, capsys))
         made.append(step.command)
     assert len(made) == len(steps) >= 12
-    assert (tmp_path / "tour" / "merged" / "results.json").is_file() and (tmp_path / "tour" / "diag" / "report.md").is_file()
+    assert (tmp_path / "tour" / "diag" / "report.md").is_file()
+    # "Every number of the two results.json is the same, bit for bit": the --jobs 2 fleet and the merge of its parts
+    fleet, merged = (json.loads((tmp_path / "tour" / name / "results.json").read_text()) for name in ("fleet", "merged"))
+    for key in ("models", "windows", "horizons", "statistics"):
+        assert fleet[key] == merged[key], key
