@@ -7,8 +7,9 @@ tables are padded to their widths). Each shown line must appear in the command's
 it, with whitespace collapsed, every number a wildcard (timings, domain ids and the last digits of scores are not the
 README's to fix) and a table rule's dashes of any length: the words, names, units, columns and their order must match.
 
-Cost: the tour itself, nothing shortened for the test: 43 s of CPU (user + sys, the run-bag nodes and Dask workers
-included), 105-125 s wall measured here at a load average of 8 on 2 cores (run-bag and diagnose about 20 s each of it).
+Cost: the tour itself, nothing shortened for the test: 45 s of CPU (user + sys, the run-bag nodes and Dask workers
+included); wall 56 s here at a load average of 6 on 2 cores, 49 s inside a full-suite run, 105-125 s at a load average of
+8-12 (run-bag and diagnose about 20 s each of it).
 """
 
 from __future__ import annotations
