@@ -369,9 +369,9 @@ def run(args: argparse.Namespace) -> int:
     # a damaged bag is one line from this process, not a node's traceback.
     flight = load_flight(args.bag, vehicle=vehicle, fmt="bag")
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
-        predictor = make_streaming_predictor(m.spec, vehicle)
-        if is_truth(m):
-            predictor.simulator(flight)  # a bag without simulator notes: one line naming it
+        check = getattr(make_streaming_predictor(m.spec, vehicle), "check_flight", None)
+        if check is not None:
+            check(flight)  # a model that cannot predict this bag (truth without simulator notes): one line naming it
     env = ros_environment(args.discovery, remote)
     local_nodes = graph_nodes(here, models)
     remote_nodes = [f"/quad/{n}" for n in graph_nodes(remote, models)]

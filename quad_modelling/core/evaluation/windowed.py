@@ -199,6 +199,10 @@ def evaluate_flight(
     if len(set(names)) != len(names):
         raise ConfigError(f"model names must be unique, got {names}")
     config.validate()
+    for model in models:  # a model that predicts only some flights (the truth model: simulated ones) says so first
+        check = getattr(model, "check_flight", None)
+        if check is not None:
+            check(log)
     # Windows score the recorded rows (the coverage rule of core.alignment, as the live evaluator); the multi-step
     # horizons count steps, so they run on the uniform grid (and resample_uniform refuses a gap over 50 ms).
     uniform = resample_uniform(log)

@@ -325,6 +325,10 @@ class TruthPredictor:
             self._cache = (key, TruthDynamics.from_notes(notes, where))
         return self._cache[1]
 
+    def check_flight(self, log: FlightLog) -> None:
+        """DataError naming ``log`` when the model cannot predict it (no simulator notes), before any window."""
+        self.simulator(log)
+
     def start_window(self, warm: FlightLog) -> tuple[np.ndarray, TruthStream]:
         """Warm rows -> (their measurement (W, 18) as predictions, stream anchored on the last warm row)."""
         if len(warm) < 2:
