@@ -13,6 +13,8 @@ Reported per trial: those ratios, physics / truth (the issue's target: within 1.
 level the issue quotes (50 x naive's one-step MAE / naive's SimErr: a model that is exact but starts from and is
 compared with noisy measurements scores about this). ``truth:0.5,0.5`` is the truth anchored with the physics
 model's disturbance observer, ``physics:0,0`` the physics model without it: what the observer itself costs.
+``physics@true`` (:func:`true_constant_physics`) is the physics model with the simulator's true constants: what its
+structure reaches when identification is perfect.
 
 Run: ``.venv/bin/python -m bench.bench_truth_floor [--seeds 4711,31337] [--effects none ground_effect,battery]``
 (seeds are trial seeds; the development seed was 5001: report others). Writes bench/results/truth_floor.json/.md.
@@ -34,9 +36,14 @@ sys.path.insert(0, str(ROOT))
 
 from bench.common import write_results  # noqa: E402
 from quad_modelling.cli import main as cli  # noqa: E402
+from quad_modelling.core.models.physics import Observer  # noqa: E402
 from quad_modelling.io.reports.formatting import markdown_table  # noqa: E402
 
 MODELS = ("physics", "truth", "naive", "truth:0.5,0.5", "physics:0,0")
+"""Specs evaluated on the held-out flight by ``quad-modelling evaluate``."""
+TRUE_MODELS = {"physics@true": Observer(0.0, 0.0), "physics@true:0.5,0.5": Observer()}
+"""The physics model with the simulator's true constants (:func:`true_constant_physics`), without and with its
+default disturbance observer."""
 GROUPS = ("velocity", "angular_velocity")
 TARGET = 1.25
 """Issue #25: the identified physics model's held-out SimErr within 1.25x of truth's."""
@@ -51,6 +58,40 @@ def _run(args: list[str]) -> None:
         code = cli(args)
     if code != 0:
         raise RuntimeError(f"quad-modelling {' '.join(args)} exited {code}: {out.getvalue()[-2000:]}")
+
+
+def true_constant_physics(flight: Path, identified: Path) -> dict:
+    """The multi-step table (evaluate's thesis spans) of the physics model with the simulator's true constants instead
+    of the identified ones (:data:`TRUE_MODELS`): what its structure reaches. Mapped from the log's notes: the ESC map
+    Ω_ss = k_u (u - u_0) at V_ref, the motor lag and input delay when on (else 0), a, d, the rotor drag (k_h, k_h, k_v)
+    at the hub height when on (else 0), the airframe's inertias; ground effect and battery have no term in it."""
+    from quad_modelling.core.evaluation.multistep import multistep_evaluation
+    from quad_modelling.core.models.physics import Observer, PhysicsPredictor
+    from quad_modelling.core.preprocess import resample_uniform
+    from quad_modelling.core.sim.params import sim_params_from_notes
+    from quad_modelling.core.vehicle import load_vehicle
+    from quad_modelling.core.windows import EvaluationConfig
+    from quad_modelling.io.loader import load_flight
+
+    log = load_flight(str(flight))
+    truth = sim_params_from_notes(log.meta.notes, str(flight))
+    effects = set(log.meta.notes["effects"])
+    vehicle = load_vehicle(str(identified))
+    constants = truth.vehicle
+    k_u = truth.esc.speed_gain
+    drag = (truth.rotor_drag.horizontal, truth.rotor_drag.horizontal, truth.rotor_drag.vertical) if "rotor_drag" in effects else (0.0,) * 3
+    models = []
+    for name, observer in TRUE_MODELS.items():
+        model = PhysicsPredictor(vehicle, observer, name=name)
+        model.params = model.params.with_values(
+            mass=constants.mass, inertia=tuple(float(x) for x in constants.inertia), prop_inertia=constants.value("prop_inertia"),
+            speed_gain=k_u, speed_offset=-k_u * truth.esc.zero_speed_input,
+            time_constant=truth.motor_time_constant if "motor_lag" in effects else 0.0,
+            delay=truth.input_delay if "input_delay" in effects else 0.0,
+            thrust_constant=constants.value("thrust_constant"), torque_constant=constants.value("drag_constant"),
+            drag=drag, drag_arm=truth.geometry.rotor_plane_z if "rotor_drag" in effects else 0.0)
+        models.append(model)
+    return multistep_evaluation([resample_uniform(log)], models, vehicle, EvaluationConfig())
 
 
 def trial(seed: int, effects: str, directory: Path, duration: float) -> dict:
@@ -73,6 +114,14 @@ def trial(seed: int, effects: str, directory: Path, duration: float) -> dict:
           "--force"])
     times["evaluate_s"] = time.perf_counter() - started
     horizons = json.loads((out / "results.json").read_text())["horizons"]
+    started = time.perf_counter()
+    true_constants = true_constant_physics(flights[2], vehicle)
+    for name, entry in true_constants["models"].items():
+        if name == "naive":  # the same starts as evaluate's table
+            assert abs(entry["velocity"]["sim_err"] - horizons["models"]["naive"]["velocity"]["sim_err"]) < 1e-9
+        else:
+            horizons["models"][name] = entry
+    times["true_constants_s"] = time.perf_counter() - started
     result = {"seed": seed, "effects": effects, "flights": [seed, seed + 1, seed + 2], "starts": horizons["starts"],
               "times": times, "ratio": {}, "sim_err": {}, "noise_ratio": {}}
     for model, entry in horizons["models"].items():
@@ -92,7 +141,9 @@ def markdown(results: list[dict], duration: float) -> str:
              "vehicle: multi-step SimErr (h = 1..50, every start of the evaluation span 150-190 s) as a ratio to naive, "
              "velocity / angular velocity. `truth` = the simulator's own physics, effects and constants from the log's "
              "notes, anchored on the measured state without a disturbance observer; `truth:0.5,0.5` = the same with the "
-             "physics model's observer; `physics:0,0` = the identified physics model without it. Noise = 50 x naive's "
+             "physics model's observer; `physics:0,0` = the identified physics model without it; `physics@true` = the physics "
+             "model's structure with the simulator's true constants (ESC map, lag and delay when on, a, d, rotor drag when "
+             "on, the airframe's inertias; no term for ground effect or battery), without and with its observer. Noise = 50 x naive's "
              "one-step MAE / naive's SimErr (what an exact model scored against noisy measurements gets, about). "
              f"physics / truth: the ratio of their SimErr, target <= {TARGET} (issue #25). Development seed "
              f"{', '.join(map(str, DEVELOPMENT_SEEDS))}; the others were not looked at before this run.", ""]
@@ -105,10 +156,12 @@ def markdown(results: list[dict], duration: float) -> str:
                          pair(r["ratio"]["physics"]), pair(r["ratio"]["truth"]), pair(r["physics_over_truth"]),
                          " / ".join("yes" if r["within_target"][g] else "no" for g in GROUPS),
                          pair(r["noise_ratio"]), pair(r["ratio"]["truth:0.5,0.5"]), pair(r["ratio"]["physics:0,0"]),
+                         pair(r["ratio"]["physics@true"]), pair(r["ratio"]["physics@true:0.5,0.5"]),
                          f"{r['times']['identify_s']:.0f} / {r['times']['evaluate_s']:.0f}"])
         lines += [f"## Simulator effects: {effects}", "",
                   *markdown_table(["trial seed", "physics", "truth", "physics / truth", f"<= {TARGET}x", "noise",
-                                   "truth:0.5,0.5", "physics:0,0", "identify / evaluate s"], rows), ""]
+                                   "truth:0.5,0.5", "physics:0,0", "physics@true", "physics@true:0.5,0.5",
+                                   "identify / evaluate s"], rows), ""]
     return "\n".join(lines)
 
 

@@ -20,10 +20,11 @@ through the simulator's command path:
 Anchored as the ``physics`` model anchors (:mod:`quad_modelling.core.models.physics`): a prediction from row a
 starts from the raw measured row a (motion-capture position, velocity and attitude, gyro rates), the rotor speeds
 are the command path run over the logged commands up to a (from the steady speed of the first command,
-:meth:`TruthDynamics.rotor_history`), and the same constant-disturbance
+:meth:`TruthDynamics.rotor_history`). The physics model's constant-disturbance
 :class:`~quad_modelling.core.models.physics.Observer` (its means:
-:func:`~quad_modelling.core.models.physics.observed_disturbance`) adds its linear and angular accelerations over
-the horizon. Three forms, as every model: window (:meth:`TruthPredictor.predict_window`, by the live form),
+:func:`~quad_modelling.core.models.physics.observed_disturbance`) is there with ``truth:L,A`` but off by default
+(:data:`NO_OBSERVER`): the truth has no model error for it to absorb, only noise and the closed loop's recent
+motion to take in. Three forms, as every model: window (:meth:`TruthPredictor.predict_window`, by the live form),
 multi-step (:meth:`TruthPredictor.predict_horizons`, vectorised over the starts with
 :attr:`~quad_modelling.core.sim.dynamics.QuadDynamics.batch_derivative`) and live
 (:meth:`TruthPredictor.start_window` / :class:`TruthStream`, the scalar derivative the simulator runs); they give
@@ -35,9 +36,10 @@ log rows here), the start state is measured (motion-capture noise, gyro bias), t
 Where it lives: here, with the simulator it runs. It imports the models' anchoring (core/models: the observer,
 the live-window helper); core/models never imports core/sim: the registry knows the ``truth`` spec as a plug-in
 module it imports by name on first use (:data:`~quad_modelling.core.models.registry.PLUGIN_MODULES`), and this
-module registers its factory. Specs: ``truth`` (the notes of the log predicted) and ``truth:NOTES.json`` (the
-notes from a JSON file, for the live node, whose windows carry no notes; ``run-bag`` writes it from the bag).
-A flight without simulator notes is refused in one line naming it.
+module registers its factory. Specs: ``truth`` (the notes of the log predicted), ``truth:L,A`` (with the
+observer's histories [s]) and ``truth:NOTES.json[,L,A]`` (the notes from a JSON file, for the live node, whose
+windows carry no notes; ``run-bag`` writes it from the bag). A flight without simulator notes is refused in one line
+naming it (:meth:`TruthPredictor.check_flight`, which ``evaluate`` and ``run-bag`` call before any window).
 """
 
 from __future__ import annotations
