@@ -12,7 +12,8 @@ runs it:
 Reported per trial: those ratios, physics / truth (the issue's target: within 1.25x), and the measurement-noise
 level the issue quotes (50 x naive's one-step MAE / naive's SimErr: a model that is exact but starts from and is
 compared with noisy measurements scores about this). ``truth:0.5,0.5`` is the truth anchored with the physics
-model's disturbance observer, ``physics:0,0`` the physics model without it: what the observer itself costs.
+model's disturbance observer, ``physics:0,0`` the physics model without it and ``physics:0.5,0`` with its linear
+part only: what the observer itself costs.
 ``physics@true`` (:func:`true_constant_physics`) is the physics model with the simulator's true constants: what its
 structure reaches when identification is perfect.
 
@@ -39,9 +40,9 @@ from quad_modelling.cli import main as cli  # noqa: E402
 from quad_modelling.core.models.physics import Observer  # noqa: E402
 from quad_modelling.io.reports.formatting import markdown_table  # noqa: E402
 
-MODELS = ("physics", "truth", "naive", "truth:0.5,0.5", "physics:0,0")
+MODELS = ("physics", "truth", "naive", "truth:0.5,0.5", "physics:0,0", "physics:0.5,0")
 """Specs evaluated on the held-out flight by ``quad-modelling evaluate``."""
-TRUE_MODELS = {"physics@true": Observer(0.0, 0.0), "physics@true:0.5,0.5": Observer()}
+TRUE_MODELS = {"physics@true": Observer(0.0, 0.0), "physics@true:0.5,0": Observer(0.5, 0.0), "physics@true:0.5,0.5": Observer()}
 """The physics model with the simulator's true constants (:func:`true_constant_physics`), without and with its
 default disturbance observer."""
 GROUPS = ("velocity", "angular_velocity")
@@ -141,7 +142,8 @@ def markdown(results: list[dict], duration: float) -> str:
              "vehicle: multi-step SimErr (h = 1..50, every start of the evaluation span 150-190 s) as a ratio to naive, "
              "velocity / angular velocity. `truth` = the simulator's own physics, effects and constants from the log's "
              "notes, anchored on the measured state without a disturbance observer; `truth:0.5,0.5` = the same with the "
-             "physics model's observer; `physics:0,0` = the identified physics model without it; `physics@true` = the physics "
+             "physics model's observer; `physics:0,0` = the identified physics model without it, `physics:0.5,0` with its linear "
+             "part only (no angular trim); `physics@true` = the physics "
              "model's structure with the simulator's true constants (ESC map, lag and delay when on, a, d, rotor drag when "
              "on, the airframe's inertias; no term for ground effect or battery), without and with its observer. Noise = 50 x naive's "
              "one-step MAE / naive's SimErr (what an exact model scored against noisy measurements gets, about). "
@@ -156,11 +158,13 @@ def markdown(results: list[dict], duration: float) -> str:
                          pair(r["ratio"]["physics"]), pair(r["ratio"]["truth"]), pair(r["physics_over_truth"]),
                          " / ".join("yes" if r["within_target"][g] else "no" for g in GROUPS),
                          pair(r["noise_ratio"]), pair(r["ratio"]["truth:0.5,0.5"]), pair(r["ratio"]["physics:0,0"]),
-                         pair(r["ratio"]["physics@true"]), pair(r["ratio"]["physics@true:0.5,0.5"]),
+                         pair(r["ratio"]["physics:0.5,0"]), pair(r["ratio"]["physics@true"]),
+                         pair(r["ratio"]["physics@true:0.5,0"]), pair(r["ratio"]["physics@true:0.5,0.5"]),
                          f"{r['times']['identify_s']:.0f} / {r['times']['evaluate_s']:.0f}"])
         lines += [f"## Simulator effects: {effects}", "",
                   *markdown_table(["trial seed", "physics", "truth", "physics / truth", f"<= {TARGET}x", "noise",
-                                   "truth:0.5,0.5", "physics:0,0", "physics@true", "physics@true:0.5,0.5",
+                                   "truth:0.5,0.5", "physics:0,0", "physics:0.5,0", "physics@true", "physics@true:0.5,0",
+                                   "physics@true:0.5,0.5",
                                    "identify / evaluate s"], rows), ""]
     return "\n".join(lines)
 

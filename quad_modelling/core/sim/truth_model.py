@@ -307,8 +307,6 @@ class TruthPredictor:
     the disturbance observer (:data:`NO_OBSERVER` by default; the physics model's with ``Observer()``).
     """
 
-    description = "the truth simulator's own physics, effects and constants from the log's notes (perfect-model floor)"
-
     def __init__(self, notes: dict | None = None, observer: Observer = NO_OBSERVER, trim: TrimConfig | None = None,
                  name: str = "truth", notes_source: str = ""):
         self.notes = notes
