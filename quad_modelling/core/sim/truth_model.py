@@ -58,6 +58,7 @@ from quad_modelling.core.models.physics import (
     STAMP_TOLERANCE_S,
     Disturbance,
     Observer,
+    PhysicsStream,
     first_order_scan,
     observed_disturbance,
 )
@@ -255,34 +256,22 @@ def _states(measured: np.ndarray, rotor: np.ndarray) -> list:
     return [np.ascontiguousarray(c[:, i]) for c in columns for i in range(c.shape[1])]
 
 
-class TruthStream:
+class TruthStream(PhysicsStream):
     """Live stream of one window (:class:`~quad_modelling.core.models.streaming.WindowStream`): the scalar
     derivative stepped over the real interval since the previous sample (``push_at``) or the warm rows' median
-    interval (``push``); the logged commands of the last δ are kept for the delay."""
+    interval (``push``). The logged commands of the last δ are kept, and forgotten, as the physics model's stream
+    keeps them (its ``params`` here is the :class:`TruthDynamics`, whose ``delay`` it reads)."""
 
     def __init__(self, truth: TruthDynamics, state: list, disturbance: Disturbance, voltage: float, yaw: float,
                  times: np.ndarray, commands: np.ndarray, period_s: float):
+        super().__init__(truth, [float(x) for x in state], disturbance, times, commands, period_s)
         self.truth = truth
-        self.state = [float(x) for x in state]
-        self.disturbance = disturbance
         self.voltage = voltage
         self.yaw = np.array([yaw])
-        self.times = [float(x) for x in times]
-        self.commands = [np.asarray(c, dtype=float) for c in commands]
-        self.period_s = period_s
         self.derivative = truth.derivative(disturbance, batch=False)
 
     def _commands_at(self, times: np.ndarray) -> np.ndarray:
-        return self.truth.esc_commands(times, np.asarray(self.times), np.asarray(self.commands))
-
-    def _forget(self) -> None:
-        """Drop commands no later sample can need (keep the last one at or before t - δ)."""
-        limit = self.times[-1] - self.truth.delay + STAMP_TOLERANCE_S
-        drop = 0
-        while drop + 1 < len(self.times) and self.times[drop + 1] <= limit:
-            drop += 1
-        if drop:
-            del self.times[:drop], self.commands[:drop]
+        return self.truth.esc_commands(times, np.asarray(self.times), np.concatenate(self.commands))
 
     def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
         previous = self.times[-1]
@@ -291,13 +280,10 @@ class TruthStream:
             raise DataError(f"truth stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
         self.state = self.truth.advance(self.state, previous, dt, self._commands_at, self.voltage, self.derivative, batch=False)
         self.times.append(float(t_s))
-        self.commands.append(np.asarray(command, dtype=float).reshape(4))
+        self.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
         self._forget()
         out, self.yaw = self.truth.outputs(self.state, t_s, self._commands_at, self.voltage, self.disturbance, self.yaw, batch=False)
         return out[0]
-
-    def push(self, command: np.ndarray) -> np.ndarray:
-        return self.push_at(command, self.times[-1] + self.period_s)
 
 
 class TruthPredictor:
@@ -339,13 +325,9 @@ class TruthPredictor:
         stream = TruthStream(truth, [x[0] for x in state], disturbance, float(volts[0]), float(yaw[0]), warm.t, warm.u, period)
         return state_measurement(warm), stream
 
-    def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        """(N, 18) absolute prediction: the live calls with each sample's real stamp."""
-        return predict_window_by_stream(self, window, warm_samples)
-
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        """(N, 18) prediction in the evaluation's trimmed convention."""
-        return trim_prediction(window, self.predict_absolute(window, warm_samples), self.trim)
+        """(N, 18) prediction in the evaluation's trimmed convention, made by the live calls with each sample's stamp."""
+        return trim_prediction(window, predict_window_by_stream(self, window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
         """(S, horizon + 1, 18) absolute open-loop predictions from each start row (IDSIA multi-step), causal."""
