@@ -257,8 +257,25 @@ REPLAY_PATIENCE_S = 60.0
 """How long [wall s] the evaluator waits for a lagging predictor before marking its window, in run-bag."""
 
 
+TRUTH_NOTES_NAME = "truth_notes.json"
+"""The bag's simulator notes, written for the ``truth`` model's predictor nodes (their windows carry no notes)."""
+
+
+def is_truth(m: ModelEntry) -> bool:
+    """The ``truth`` model (:mod:`quad_modelling.core.sim.truth_model`): its nodes need the bag's simulator notes."""
+    return m.spec.partition(":")[0].strip() == "truth"
+
+
+def live_spec(m: ModelEntry, truth_notes: Path | None) -> str:
+    """The spec a predictor node runs: ``truth`` gets the notes file (``truth:NOTES.json``), unless its spec names one."""
+    kind, _, arg = m.spec.partition(":")
+    if not is_truth(m) or truth_notes is None or any(part.endswith(".json") for part in arg.split(",")):
+        return m.spec
+    return f"{kind}:{','.join([str(truth_notes), *([arg] if arg else [])])}"
+
+
 def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[str], report_dir: Path,
-                    record: Path | None = None) -> dict:
+                    record: Path | None = None, truth_notes: Path | None = None, battery: bool = False) -> dict:
     """Every node's parameters (one params file; every host of a split graph writes the same but its report paths).
     Subscriptions are reliable: the paced replay is lossless. The evaluator waits for the models' publishers and the
     replay for its subscribers and first acknowledgement as long as run-bag waits for remote nodes."""
@@ -278,7 +295,10 @@ def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[st
                                              "wait_for_subscribers": len(models) + 1}},
     }
     for m in models:
-        params[f"/quad/{m.name}_predictor"] = {"ros__parameters": {**common, "model": m.spec, "model_name": m.name}}
+        node = {**common, "model": live_spec(m, truth_notes), "model_name": m.name}
+        if is_truth(m) and battery:  # the battery effect's ESC scaling reads the logged voltage
+            node["battery_topic"] = "battery"
+        params[f"/quad/{m.name}_predictor"] = {"ros__parameters": node}
     return params
 
 
@@ -378,7 +398,9 @@ def _run(args: argparse.Namespace) -> int:
     flight = load_flight(args.bag, vehicle=vehicle, fmt="bag")
     check_window_rate(flight)  # the evaluator would mark every window of a flight this slow
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
-        make_streaming_predictor(m.spec, vehicle)
+        check = getattr(make_streaming_predictor(m.spec, vehicle), "check_flight", None)
+        if check is not None:
+            check(flight)  # a model that cannot predict this bag (truth without simulator notes): one line naming it
     env = ros_environment(args.discovery, remote)
     local_nodes = graph_nodes(here, models)
     remote_nodes = [f"/quad/{n}" for n in graph_nodes(remote, models)]
@@ -393,7 +415,12 @@ def _run(args: argparse.Namespace) -> int:
         report_dir = tmp / "report"
         params_file = tmp / "params.yaml"
         record = tmp / RECORD_NAME if args.record else None
-        params_file.write_text(yaml.safe_dump(node_parameters(args, models, vehicle_name, spans, report_dir, record), sort_keys=False))
+        truth_notes = None
+        if any(is_truth(m) for m in models):
+            truth_notes = tmp / TRUTH_NOTES_NAME
+            truth_notes.write_text(json.dumps(flight.meta.notes))
+        params_file.write_text(yaml.safe_dump(node_parameters(args, models, vehicle_name, spans, report_dir, record, truth_notes,
+                                                              flight.vbat is not None), sort_keys=False))
         graph = Graph(tmp, params_file, env)
         watch = RemoteNodes(env) if remote else None
         try:

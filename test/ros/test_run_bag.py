@@ -188,3 +188,32 @@ def test_bad_nodes_and_discovery_flags_are_one_line_errors(tmp_path, capsys, mon
     assert main(["run-bag", str(BAG), "--nodes", "replay", "--record", "-o", str(tmp_path / "x")]) == 2
     assert "--record with --nodes replay: the evaluator records; pass --record on its host" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_truth_model_live_equals_offline_on_a_simulated_bag_and_refuses_a_real_one(tmp_path, capsys):
+    """``--models truth`` on a simulated bag (default effects: delay, motor lag, battery...): the predictor node gets the
+    bag's simulator notes (truth_notes.json) and the battery topic, and scores as the offline evaluation; on a bag
+    without simulator notes run-bag refuses in one line naming it, before any node starts."""
+    bag = tmp_path / "sim"
+    assert main(["simulate", "-o", str(bag), "--bag", "--duration", "7", "--seed", "8"]) == 0
+    out = tmp_path / "live"
+    code = main(["run-bag", str(bag), "--models", "truth", "--window", "2", "--train", "2:4", "--eval", "4:6", "--no-figures",
+                 "-o", str(out)])
+    assert code == 0, capsys.readouterr().out
+    live = json.loads((out / "results.json").read_text())
+    log = read_bag(bag)
+    vehicle = load_vehicle(log.meta.vehicle)
+    config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train="2:4", eval="4:6", window_s=2.0, warm_s=0.2)
+    offline = evaluate([log], [make_model(m, vehicle) for m in ("truth", "dummy")], vehicle, config, multistep=False).to_json()
+    assert live["windows"]["truth"] == offline["windows"]["truth"] == {"train": 1, "eval": 1}
+    for span in ("train", "eval"):
+        for var, entry in offline["models"]["truth"][span].items():
+            assert live["models"]["truth"][span][var]["rms"] == pytest.approx(entry["rms"], rel=1e-6), (span, var)
+    multistep = multistep_evaluation([resample_uniform(log)], [make_model("truth", vehicle)], vehicle, config)
+    for group, entry in multistep["models"]["truth"].items():
+        assert live["horizons"]["models"]["truth"][group]["sim_err"] == pytest.approx(entry["sim_err"], rel=1e-9), group
+    assert json.loads((out / "truth_notes.json").read_text())["seed"] == 8
+    capsys.readouterr()
+    assert main(["run-bag", str(BAG), "--models", "truth", "-o", str(tmp_path / "real")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{BAG}: not a simulated flight" in err

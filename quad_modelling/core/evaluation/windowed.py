@@ -200,6 +200,10 @@ def evaluate_flight(
         raise ConfigError(f"model names must be unique, got {names}")
     config.validate()
     check_window_rate(log)  # before the multi-step table: a flight no window can score is refused for its rate
+    for model in models:  # a model that predicts only some flights (the truth model: simulated ones) says so first
+        check = getattr(model, "check_flight", None)
+        if check is not None:
+            check(log)
     # Windows score the recorded rows (the coverage rule of core.alignment, as the live evaluator); the multi-step
     # horizons count steps, so they run on the uniform grid (and resample_uniform refuses a gap over 50 ms).
     uniform = resample_uniform(log)

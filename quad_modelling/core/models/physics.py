@@ -172,8 +172,18 @@ def disturbance_estimate(p: PhysicsParameters, t: np.ndarray, u: np.ndarray, mea
     all_rows = np.arange(len(t))
     state = measured_states(p, measured, rotor, all_rows)
     acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, rotor, u), state.pos_n)
+    return observed_disturbance(t, measured, np.concatenate([acc_n, ang_acc], axis=1), anchors, observer)
+
+
+def observed_disturbance(t: np.ndarray, measured: np.ndarray, modelled: np.ndarray, anchors: np.ndarray,
+                         observer: Observer = Observer()) -> Disturbance:
+    """The observer's means (module docstring, :func:`disturbance_estimate`) from a model's accelerations at the
+    measured rows: ``modelled`` (N, 6) = (dv_N/dt [m/s², N], dω/dt [rad/s², B]) at each row of ``measured``
+    (N, 18, raw rows, VARIABLES order) stamped ``t`` (N,) [s]. Any model's anchoring can call it (the ``truth``
+    model does, :mod:`quad_modelling.core.sim.truth_model`). Uses rows <= each anchor only."""
+    anchors = np.asarray(anchors, dtype=int)
     dt = np.diff(t)
-    modelled = np.concatenate([acc_n[:-1], ang_acc[:-1]], axis=1) * dt[:, None]
+    modelled = modelled[:-1] * dt[:, None]
     integral = np.concatenate([np.zeros((1, 6)), np.cumsum(modelled, axis=0)])  # ∫ modelled from t_0 to t_k
     parts = []
     for history, cols in ((observer.linear_s, slice(0, 3)), (observer.angular_s, slice(3, 6))):

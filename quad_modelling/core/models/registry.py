@@ -11,6 +11,9 @@ Built-in specs (a factory receives the text after the first ``:``, or ``""``, an
 ``physics:L,A``    same with the disturbance observer's linear/angular histories [s] (0 = off)
 ``dummy``          :class:`~quad_modelling.core.models.base.DummyPredictor`, zero (thesis Fig 5.2)
 ``naive``          :class:`~quad_modelling.core.models.base.ConstantStatePredictor`, the last warm-start state held
+``truth``          simulated logs only: the simulator's own physics and constants from the log's notes (perfect-model
+                   floor), :mod:`quad_modelling.core.sim.truth_model` (a plug-in module, :data:`PLUGIN_MODULES`)
+``truth:NOTES``    same with the simulator notes from a JSON file (the live node's windows carry no notes)
 =================  ==========================================================
 
 The learned models are imported on first use (torch is imported only to train).
@@ -19,6 +22,7 @@ The learned models are imported on first use (torch is imported only to train).
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 
 from quad_modelling.core.models.base import (
@@ -34,6 +38,11 @@ ModelFactory = Callable[[str, VehicleConfig], Predictor]
 
 
 _REGISTRY: dict[str, ModelFactory] = {}
+
+PLUGIN_MODULES = {"truth": "quad_modelling.core.sim.truth_model"}
+"""Kinds whose factory lives outside core/models: the module, imported by name on the kind's first use, registers
+it (:func:`register_model`). The ``truth`` model runs the simulator (core/sim) and anchors with the physics model's
+observer (core/models): core/sim imports core/models, so core/models names it here instead of importing it."""
 
 
 def register_model(kind: str, factory: ModelFactory) -> None:
@@ -69,8 +78,10 @@ def make_model(spec: str, vehicle: VehicleConfig) -> Predictor:
     Raises ConfigError naming the spec and the known kinds when unknown.
     """
     kind, _, arg = spec.partition(":")
+    if kind not in _REGISTRY and kind in PLUGIN_MODULES:
+        importlib.import_module(PLUGIN_MODULES[kind])
     if kind not in _REGISTRY:
-        raise ConfigError(f"unknown model {spec!r}; known: {', '.join(sorted(_REGISTRY))}")
+        raise ConfigError(f"unknown model {spec!r}; known: {', '.join(sorted({*_REGISTRY, *PLUGIN_MODULES}))}")
     model = _REGISTRY[kind](arg, vehicle)
     if not getattr(model, "name", None):
         raise ConfigError(f"model spec {spec!r}: the predictor has no name")

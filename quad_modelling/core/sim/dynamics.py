@@ -126,6 +126,10 @@ class QuadDynamics:
         motor_gains = params.imbalance.motor_gains if "motor_imbalance" in self.effects else (1.0, 1.0, 1.0, 1.0)
         self.motor_gains = tuple(float(g) for g in motor_gains)
         self.derivative = self._build_derivative()
+        self.batch_derivative = self._build_derivative(batch=True)
+        """The same derivative on a batch: each state entry a (B,) array, ``omega_cmd`` a sequence of four (B,)
+        arrays, ``wind`` three scalars or (B,) arrays (the truth model's rollouts,
+        :mod:`quad_modelling.core.sim.truth_model`)."""
 
     # ------------------------------------------------------------------ command path
 
@@ -136,6 +140,19 @@ class QuadDynamics:
         scale = esc.speed_gain * voltage / self.params.battery.reference_voltage
         u0 = esc.zero_speed_input
         return [g * scale * (ui - u0) if ui > u0 else 0.0 for g, ui in zip(self.motor_gains, u)]
+
+    def omega_commands(self, u: np.ndarray, voltage) -> np.ndarray:
+        """:meth:`omega_command` of a batch: commands ``u`` (B, 4), battery voltage ``voltage`` scalar or (B,) [V]
+        -> (B, 4) [rad/s], the same operations in the same order."""
+        esc = self.params.esc
+        scale = esc.speed_gain * np.asarray(voltage, dtype=float) / self.params.battery.reference_voltage
+        u = np.asarray(u, dtype=float)
+        gains = np.asarray(self.motor_gains)
+        if np.ndim(scale):
+            factor = gains[None, :] * scale[:, None]
+        else:
+            factor = gains * scale
+        return np.where(u > esc.zero_speed_input, factor * (u - esc.zero_speed_input), 0.0)
 
     def allocation(self) -> np.ndarray:
         r"""The true allocation M (4x4): lift and torque per newton of each rotor's thrust,
@@ -203,10 +220,12 @@ class QuadDynamics:
 
     # ------------------------------------------------------------------ integration
 
-    def step(self, s: list[float], omega_cmd, wind, dt: float) -> tuple[list[float], list[float]]:
+    def step(self, s: list[float], omega_cmd, wind, dt: float, derivative=None) -> tuple[list[float], list[float]]:
         """One classical RK4 step; returns (new state, derivative at the start k1).
-        The quaternion is renormalised after the step."""
-        f = self.derivative
+        The quaternion is renormalised after the step. ``derivative``: another derivative with the same contract
+        (default :attr:`derivative`); with :attr:`batch_derivative` every state entry is a (B,) array and ``dt``
+        a scalar or (B,) array."""
+        f = derivative or self.derivative
         h2 = 0.5 * dt
         k1 = f(s, omega_cmd, wind)
         k2 = f([a + h2 * b for a, b in zip(s, k1)], omega_cmd, wind)
@@ -214,7 +233,8 @@ class QuadDynamics:
         k4 = f([a + dt * b for a, b in zip(s, k3)], omega_cmd, wind)
         h6 = dt / 6.0
         new = [a + h6 * (b1 + 2.0 * (b2 + b3) + b4) for a, b1, b2, b3, b4 in zip(s, k1, k2, k3, k4)]
-        n = 1.0 / math.sqrt(new[6] * new[6] + new[7] * new[7] + new[8] * new[8] + new[9] * new[9])
+        norm2 = new[6] * new[6] + new[7] * new[7] + new[8] * new[8] + new[9] * new[9]
+        n = 1.0 / (math.sqrt(norm2) if isinstance(norm2, float) else np.sqrt(norm2))
         new[6] *= n
         new[7] *= n
         new[8] *= n
@@ -254,7 +274,10 @@ class QuadDynamics:
 
     # ------------------------------------------------------------------ the derivative
 
-    def _build_derivative(self):
+    def _build_derivative(self, batch: bool = False):
+        """The state derivative (module docstring) as a closure over the constants; ``batch``: every state entry
+        a (B,) array (the ground-effect clamp elementwise; the ground contact evaluated, by the same scalar law,
+        for the members near the ground only)."""
         p = self.params
         effects = set(self.effects)
         lag = "motor_lag" in effects
@@ -287,7 +310,40 @@ class QuadDynamics:
         c_foot = 2.0 * p.ground.damping_ratio * math.sqrt(k_total * m) / len(feet)
         mu = p.ground.friction
         eps2 = p.ground.slip_speed**2
-        sqrt = math.sqrt
+        sqrt = np.sqrt if batch else math.sqrt
+
+        def ground_contact(ax, ay, az, tx, ty, tz, pz, vx, vy, vz, r00, r01, r02, r10, r11, r12, r20, r21, r22, wp, wq, wr):
+            """The feet's contact forces and moments added to (ax, ay, az) [m/s², N] and (tx, ty, tz) [N m, B]
+            (floats: one state)."""
+            for bx, by, bz in feet:
+                foot_z = pz + r20 * bx + r21 * by + r22 * bz
+                if foot_z <= 0.0:
+                    continue
+                # foot velocity v + R (omega x r_f)
+                ox = wq * bz - wr * by
+                oy = wr * bx - wp * bz
+                oz = wp * by - wq * bx
+                fvx = vx + r00 * ox + r01 * oy + r02 * oz
+                fvy = vy + r10 * ox + r11 * oy + r12 * oz
+                fvz = vz + r20 * ox + r21 * oy + r22 * oz
+                normal = k_foot * foot_z + c_foot * fvz
+                if normal <= 0.0:
+                    continue
+                slip = mu * normal / math.sqrt(fvx * fvx + fvy * fvy + eps2)
+                gx = -slip * fvx
+                gy = -slip * fvy
+                gz = -normal
+                ax += gx * inv_m
+                ay += gy * inv_m
+                az += gz * inv_m
+                # torque r_f x (R^T F)
+                bfx = r00 * gx + r10 * gy + r20 * gz
+                bfy = r01 * gx + r11 * gy + r21 * gz
+                bfz = r02 * gx + r12 * gy + r22 * gz
+                tx += by * bfz - bz * bfy
+                ty += bz * bfx - bx * bfz
+                tz += bx * bfy - by * bfx
+            return ax, ay, az, tx, ty, tz
 
         def derivative(s, wc, wind):
             px, py, pz, vx, vy, vz, q0, q1, q2, q3, wp, wq, wr, o1, o2, o3, o4 = s
@@ -314,16 +370,16 @@ class QuadDynamics:
             if ge_on:
                 hub = pz + r22 * zr
                 h = -(hub + r20 * x1 + r21 * y1)
-                h = h if h > ge_min_h else ge_min_h
+                h = np.maximum(h, ge_min_h) if batch else (h if h > ge_min_h else ge_min_h)
                 t1 /= 1.0 - (radius_quarter / h) ** 2
                 h = -(hub + r20 * x2 + r21 * y2)
-                h = h if h > ge_min_h else ge_min_h
+                h = np.maximum(h, ge_min_h) if batch else (h if h > ge_min_h else ge_min_h)
                 t2 /= 1.0 - (radius_quarter / h) ** 2
                 h = -(hub + r20 * x3 + r21 * y3)
-                h = h if h > ge_min_h else ge_min_h
+                h = np.maximum(h, ge_min_h) if batch else (h if h > ge_min_h else ge_min_h)
                 t3 /= 1.0 - (radius_quarter / h) ** 2
                 h = -(hub + r20 * x4 + r21 * y4)
-                h = h if h > ge_min_h else ge_min_h
+                h = np.maximum(h, ge_min_h) if batch else (h if h > ge_min_h else ge_min_h)
                 t4 /= 1.0 - (radius_quarter / h) ** 2
             fx = 0.0
             fy = 0.0
@@ -386,35 +442,14 @@ class QuadDynamics:
                 ax -= k * ax_rel
                 ay -= k * ay_rel
                 az -= k * az_rel
-            if pz > contact_gate:
-                for bx, by, bz in feet:
-                    foot_z = pz + r20 * bx + r21 * by + r22 * bz
-                    if foot_z <= 0.0:
-                        continue
-                    # foot velocity v + R (omega x r_f)
-                    ox = wq * bz - wr * by
-                    oy = wr * bx - wp * bz
-                    oz = wp * by - wq * bx
-                    fvx = vx + r00 * ox + r01 * oy + r02 * oz
-                    fvy = vy + r10 * ox + r11 * oy + r12 * oz
-                    fvz = vz + r20 * ox + r21 * oy + r22 * oz
-                    normal = k_foot * foot_z + c_foot * fvz
-                    if normal <= 0.0:
-                        continue
-                    slip = mu * normal / sqrt(fvx * fvx + fvy * fvy + eps2)
-                    gx = -slip * fvx
-                    gy = -slip * fvy
-                    gz = -normal
-                    ax += gx * inv_m
-                    ay += gy * inv_m
-                    az += gz * inv_m
-                    # torque r_f x (R^T F)
-                    bfx = r00 * gx + r10 * gy + r20 * gz
-                    bfy = r01 * gx + r11 * gy + r21 * gz
-                    bfz = r02 * gx + r12 * gy + r22 * gz
-                    tx += by * bfz - bz * bfy
-                    ty += bz * bfx - bx * bfz
-                    tz += bx * bfy - by * bfx
+            if batch:
+                for i in np.flatnonzero(pz > contact_gate):  # on or near the ground: the scalar law, member by member
+                    (ax[i], ay[i], az[i], tx[i], ty[i], tz[i]) = ground_contact(
+                        *(float(v[i]) for v in (ax, ay, az, tx, ty, tz, pz, vx, vy, vz, r00, r01, r02, r10, r11, r12, r20, r21, r22,
+                                                 wp, wq, wr)))
+            elif pz > contact_gate:
+                ax, ay, az, tx, ty, tz = ground_contact(ax, ay, az, tx, ty, tz, pz, vx, vy, vz, r00, r01, r02, r10, r11, r12,
+                                                        r20, r21, r22, wp, wq, wr)
             return [
                 vx, vy, vz, ax, ay, az,
                 -0.5 * (q1 * wp + q2 * wq + q3 * wr),

@@ -37,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
-from quad_modelling.errors import ConfigError
+from quad_modelling.core.vehicle import Motor, VehicleConfig, load_vehicle
+from quad_modelling.errors import ConfigError, DataError
 
 SIMULATED_VEHICLES = ("linkquad", "crazyflie21")
 
@@ -228,6 +228,26 @@ class SimParams:
         """A copy with some fields replaced (e.g. ``params.replace(input_delay=0.03)``)."""
         return dataclasses.replace(self, **changes)
 
+    def truth_model_notes(self) -> dict:
+        """JSON-ready: what the truth model (:mod:`quad_modelling.core.sim.truth_model`) needs to rebuild this
+        simulator's dynamics and command path from a log (the log's ``notes[TRUTH_NOTES_KEY]``), read back by
+        :func:`sim_params_from_notes`. The stabiliser, pilot and sensor parameters are not part of it (the truth
+        model is fed the logged commands and anchored on the logged measurements)."""
+        vehicle = self.vehicle
+        return {
+            "vehicle": vehicle.name,
+            "constants": {key: c.value for key, c in vehicle.constants.items()},
+            "motors": [{"name": m.name, "position": list(m.position), "yaw_sign": m.yaw_sign} for m in vehicle.motors],
+            "input_min": vehicle.input_min,
+            "input_max": vehicle.input_max,
+            **{name: _plain(dataclasses.asdict(getattr(self, name))) for name in _TRUTH_SECTIONS},
+            "input_delay": self.input_delay,
+            "ground_effect_min_height": self.ground_effect_min_height,
+            "physics_rate": self.physics_rate,
+            "log_rate": self.log_rate,
+            "control_rate": self.control.rate,
+        }
+
     def effect_parameters(self, effects: tuple[str, ...]) -> dict:
         """JSON-ready parameters of the given effects (what a diagnosis should find)."""
         out: dict = {}
@@ -274,6 +294,48 @@ class SimParams:
                     "yaw_torque_at_mg_over_4_N_m": self.vehicle.hover_thrust_per_rotor * float(np.sin(gamma)) * arm,
                 }
         return out
+
+
+TRUTH_NOTES_KEY = "truth_model"
+"""Key of :meth:`SimParams.truth_model_notes` in a simulated log's notes."""
+
+_TRUTH_SECTIONS = {"esc": EscParams, "geometry": GeometryParams, "ground": GroundParams, "battery": BatteryParams,
+                   "rotor_drag": RotorDragParams, "wind": WindParams, "imbalance": ImbalanceParams,
+                   "com_offset": ComOffsetParams, "bent_arm": BentArmParams}
+"""The parameter groups of :meth:`SimParams.truth_model_notes` and their dataclasses."""
+
+
+def _tuples(value):
+    """JSON lists back to the tuples the frozen parameter dataclasses hold."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
+def sim_params_from_notes(notes: dict, where: str) -> SimParams:
+    """The simulator parameters a log was flown with, from its notes (:meth:`SimParams.truth_model_notes`): the
+    shipped vehicle's simulator parameters with every value the notes hold put back. DataError naming ``where``
+    (the log) when the log is not simulated or was simulated before the notes held these values."""
+    if not isinstance(notes, dict) or notes.get("generator") != "quad_modelling.core.sim.simulate":
+        raise DataError(f"{where}: not a simulated flight (no simulator notes): the truth model predicts only logs "
+                        f"written by quad-modelling simulate")
+    saved = notes.get(TRUTH_NOTES_KEY)
+    if not isinstance(saved, dict):
+        raise DataError(f"{where}: simulated (sim_version {notes.get('sim_version')}) before the logs kept the truth "
+                        f"model's parameters (notes key {TRUTH_NOTES_KEY!r}); simulate it again")
+    try:
+        base = sim_params_for(str(saved["vehicle"]))
+        vehicle = base.vehicle.with_values({k: float(v) for k, v in saved["constants"].items()}, "simulator notes")
+        motors = tuple(Motor(str(m["name"]), (float(m["position"][0]), float(m["position"][1])), int(m["yaw_sign"]))
+                       for m in saved["motors"])
+        vehicle = dataclasses.replace(vehicle, motors=motors, input_min=float(saved["input_min"]),
+                                      input_max=float(saved["input_max"]))
+        sections = {name: cls(**{k: _tuples(v) for k, v in saved[name].items()}) for name, cls in _TRUTH_SECTIONS.items()}
+        return base.replace(vehicle=vehicle, **sections, input_delay=float(saved["input_delay"]),
+                            ground_effect_min_height=float(saved["ground_effect_min_height"]),
+                            physics_rate=float(saved["physics_rate"]), log_rate=float(saved["log_rate"]),
+                            control=dataclasses.replace(base.control, rate=float(saved["control_rate"])))
+    except (KeyError, TypeError, ValueError, IndexError) as err:
+        raise DataError(f"{where}: simulator notes key {TRUTH_NOTES_KEY!r} is malformed ({type(err).__name__}: {err}); "
+                        f"simulate the flight again") from err
 
 
 def _plain(value):

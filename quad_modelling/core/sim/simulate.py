@@ -66,6 +66,7 @@ from quad_modelling.core.sim.dynamics import N_STATE, QuadDynamics
 from quad_modelling.core.sim.params import (
     OCV_CELL,
     OCV_SOC,
+    TRUTH_NOTES_KEY,
     SimParams,
     sim_params_for,
 )
@@ -82,7 +83,7 @@ from quad_modelling.errors import ConfigError
 SIM_VERSION = 2
 """Bumped when the simulator's physics or script generator change the logs it writes."""
 
-__all__ = ["SimResult", "simulate", "run_simulation", "open_circuit_voltage"]
+__all__ = ["SimResult", "simulate", "run_simulation", "open_circuit_voltage", "wind_series"]
 
 
 def open_circuit_voltage(soc: float, cells: int) -> float:
@@ -174,7 +175,7 @@ def run_simulation(
     refs = script.references(t_ticks) + stick_noise(n_ticks, control.rate, params.pilot.stick_noise, pilot_rng) * (phases == PHASE_FLYING)[:, None]
     refs_list = refs.tolist()
     gyro_noise = (np.random.default_rng(control_seed).standard_normal((n_ticks, 3)) * params.sensors.gyro_noise).tolist()
-    wind = _wind(params, effects, n_ticks, dt_tick, np.random.default_rng(wind_seed))
+    wind = wind_series(params, effects, seed, duration)
     wind_list = wind.tolist()
 
     dynamics = QuadDynamics(params, effects)
@@ -258,6 +259,15 @@ def run_simulation(
     return _assemble(params, effects, seed, script, record, commands, voltages, wind, phases, n_log, steps_per_tick, steps_per_log, steps_per_mocap, dynamics)
 
 
+def wind_series(params: SimParams, effects, seed: int, duration: float) -> np.ndarray:
+    """(n_ticks, 3) air velocity in N [m/s] at each control tick of a flight of ``duration`` s: mean +
+    Gauss-Markov gusts drawn from the seed's wind stream (zeros without ``wind``); the truth model
+    (:mod:`~quad_modelling.core.sim.truth_model`) draws the same series from a log's notes."""
+    n_ticks = int(round(float(duration) * params.control.rate))
+    wind_seed = np.random.SeedSequence(int(seed)).spawn(4)[2]
+    return _wind(params, effects, n_ticks, 1.0 / params.control.rate, np.random.default_rng(wind_seed))
+
+
 def _wind(params: SimParams, effects, n_ticks: int, dt_tick: float, rng: np.random.Generator) -> np.ndarray:
     """(n, 3) air velocity in N [m/s]: mean + Gauss-Markov gusts (zeros without ``wind``)."""
     if "wind" not in effects:
@@ -333,4 +343,5 @@ def _notes(params: SimParams, effects, seed, script: PilotScript) -> dict:
         "rates_hz": {"physics": params.physics_rate, "control": params.control.rate, "mocap": params.sensors.mocap_rate, "log": params.log_rate},
         "sensors": {k: float(v) if not isinstance(v, int) else v for k, v in vars(params.sensors).items()},
         "pilot": script.to_notes(),
+        TRUTH_NOTES_KEY: params.truth_model_notes(),
     }

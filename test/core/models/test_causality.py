@@ -11,7 +11,8 @@ as absolute values: the evaluation's trim over the window's first second is adde
 trim belongs to the evaluation, not to the model).
 
 To check another model, add one line to :data:`MODELS`; a model that needs a trained file gets a
-trainer in :data:`TRAINERS` and ``{kind}`` in its spec (as ``narx:{narx}``).
+trainer in :data:`TRAINERS` and ``{kind}`` in its spec (as ``narx:{narx}``). The ``truth`` model predicts
+simulated flights only: its test runs the same helpers on one.
 """
 
 from __future__ import annotations
@@ -293,3 +294,24 @@ def test_greybox_multistep_trims_commands_over_the_second_before_each_start(vehi
     np.testing.assert_allclose(half, expected, rtol=1e-9, atol=1e-12)
     # the thrust deviation is positive, the model climbs (NED: z decreases) faster than at rest
     assert thrusts > 0 and half[-1, 2] < -1.0 - 1e-3 and half[-1, 5] < 0
+
+
+# ---- the truth model, on a simulated flight ------------------------------------------------------------
+@pytest.fixture(scope="module")
+def simulated():
+    """4 s of a simulated LinkQuad flight with the default effects (delay, motor lag, battery, ground effect...), in the
+    climb from 1 s after the take-off. (On the ground the truth model evaluates the simulator's contact law member by
+    member: slow for hundreds of starts.)"""
+    from quad_modelling.core.sim.simulate import simulate
+
+    return simulate("linkquad", seed=2, duration=14.0).slice(300, 700)
+
+
+def test_truth_model_reads_nothing_after_its_anchor(simulated):
+    """The truth model (the simulator's physics from the log's notes) in its three forms, with the physics model's
+    disturbance observer (its default has none: a subset); the battery voltage after the anchor is altered too."""
+    model = make_model("truth:0.5,0.5", load_vehicle("linkquad"))
+    assert_multistep_causal(model, simulated, 150, HORIZON)
+    window = simulated.slice(200, 320)
+    assert_streaming_causal(model, window, WARM)
+    assert_window_causal(model, window, WARM)
