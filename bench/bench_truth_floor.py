@@ -95,7 +95,7 @@ def true_constant_physics(flight: Path, identified: Path) -> dict:
     return multistep_evaluation([resample_uniform(log)], models, vehicle, EvaluationConfig())
 
 
-def trial(seed: int, effects: str, directory: Path, duration: float) -> dict:
+def trial(seed: int, effects: str, directory: Path, duration: float, terms: str = "") -> dict:
     """Simulate, identify on two flights, evaluate the third (module docstring): the multi-step ratios."""
     times = {}
     flights = []
@@ -107,7 +107,8 @@ def trial(seed: int, effects: str, directory: Path, duration: float) -> dict:
     times["simulate_s"] = time.perf_counter() - started
     vehicle = directory / f"identified_{seed}_{effects.replace(',', '+')}.yaml"
     started = time.perf_counter()
-    _run(["identify", str(flights[0]), str(flights[1]), "--vehicle", "linkquad", "-o", str(vehicle), "--force"])
+    _run(["identify", str(flights[0]), str(flights[1]), "--vehicle", "linkquad", "-o", str(vehicle), "--force",
+          *(["--effects", terms] if terms else [])])
     times["identify_s"] = time.perf_counter() - started
     out = directory / f"eval_{seed}_{effects.replace(',', '+')}"
     started = time.perf_counter()
@@ -150,6 +151,7 @@ def markdown(results: list[dict], duration: float) -> str:
              f"physics / truth: the ratio of their SimErr, target <= {TARGET} (issue #25). Development seed "
              f"{', '.join(map(str, DEVELOPMENT_SEEDS))}; the others were not looked at before this run.", ""]
     for effects in dict.fromkeys(r["effects"] for r in results):
+        fitted = next(r.get("identify_effects", "") for r in results if r["effects"] == effects)
         rows = []
         for r in (r for r in results if r["effects"] == effects):
             def pair(values):
@@ -162,6 +164,7 @@ def markdown(results: list[dict], duration: float) -> str:
                          pair(r["ratio"]["physics@true:0.5,0"]), pair(r["ratio"]["physics@true:0.5,0.5"]),
                          f"{r['times']['identify_s']:.0f} / {r['times']['evaluate_s']:.0f}"])
         lines += [f"## Simulator effects: {effects}", "",
+                  f"identify --effects: {fitted or '(none)'}; the disturbance observer as identify chose it from the data.", "",
                   *markdown_table(["trial seed", "physics", "truth", "physics / truth", f"<= {TARGET}x", "noise",
                                    "truth:0.5,0.5", "physics:0,0", "physics:0.5,0", "physics@true", "physics@true:0.5,0",
                                    "physics@true:0.5,0.5",
@@ -175,13 +178,18 @@ def main(argv=None) -> int:
     parser.add_argument("--effects", nargs="+", default=["none", "ground_effect,battery"], help="simulator effect sets")
     parser.add_argument("--duration", type=float, default=220.0, help="flight duration [s] (default 220, the thesis's)")
     parser.add_argument("--name", default="truth_floor", help="results name (bench/results/NAME.json/.md)")
+    parser.add_argument("--identify-effects", nargs="+", default=None, metavar="LIST",
+                        help="identify --effects per simulator effect set, in the order of --effects ('' for none); "
+                             "default: none for every set")
     args = parser.parse_args(argv)
     seeds = [int(s) for s in args.seeds.split(",")]
     results = []
     with tempfile.TemporaryDirectory() as tmp:
-        for effects in args.effects:
+        terms = args.identify_effects or [""] * len(args.effects)
+        for effects, fitted in zip(args.effects, terms):
             for seed in seeds:
-                results.append(trial(seed, effects, Path(tmp), args.duration))
+                results.append(trial(seed, effects, Path(tmp), args.duration, fitted))
+                results[-1]["identify_effects"] = fitted
                 print(f"seed {seed} effects {effects}: {json.dumps(results[-1]['ratio'])}", file=sys.stderr, flush=True)
     write_results(args.name, {"duration_s": args.duration, "models": list(MODELS), "target": TARGET, "trials": results},
                   markdown(results, args.duration))
