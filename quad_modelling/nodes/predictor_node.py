@@ -3,7 +3,8 @@
 Subscribes (relative names, namespace ``/quad`` unless remapped):
 ``motor_input`` (sensor_msgs/JointState), ``mocap/odom`` (nav_msgs/Odometry),
 ``imu`` (sensor_msgs/Imu), optionally ``battery`` (sensor_msgs/BatteryState),
-``window_origin`` (rosgraph_msgs/Clock, transient-local).
+``window_origin`` (rosgraph_msgs/Clock, transient-local); with ``topic_map`` (not ``quad``), a stack's own
+topics instead (:mod:`~quad_modelling.nodes.mapping.streams`, docs/nodes.md).
 Publishes ``<model>/odom`` (nav_msgs/Odometry: pose in ``world`` ENU, twist in
 ``<model>/base_link`` FLU) and ``<model>/accel`` (geometry_msgs/AccelStamped in
 ``<model>/base_link`` FLU), one of each per engine input, stamped with the input's stamp.

@@ -1,7 +1,7 @@
 """Live through a topic map, the custom-type half (issue #27 item 3): px4_msgs and crazyflie_interfaces messages
 generated from the stored definitions (test/data/ros_msgs) go through the node-side streams
 (:mod:`quad_modelling.nodes.mapping.streams`) and give the arrays the offline reader gives for the same messages;
-a custom type whose package is not importable stops the node in one line naming the package to source.
+the evaluator reading a user map scores what it scores from the contract; a custom type whose package is not importable stops the node in one line naming the package to source.
 """
 
 from __future__ import annotations
@@ -11,15 +11,23 @@ from functools import partial
 
 import numpy as np
 import pytest
+import yaml
 from rclpy.parameter import Parameter
 
+from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.io.bag_io import read_mapped_bag
 from quad_modelling.io.topic_maps import load_topic_map
+from quad_modelling.io.topics import stamps_ns
+from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import BadParameter, run_node
+from quad_modelling.nodes.evaluator_node import EvaluatorNode
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams
 from quad_modelling.nodes.predictor_node import PredictorNode
 from test.conftest import synthetic_log
+from test.ros.conftest import Capture, feed, hover_log
+from test.ros.test_evaluator_node import offset_prediction
+from test.ros.test_predictor_topic_map_live import USER_MAP, user_messages
 from test.stack_bags import crazyswarm2_messages, px4_messages, write_stack_bag
 
 
@@ -82,3 +90,37 @@ def test_a_custom_type_without_its_package_stops_the_node_in_one_line_naming_the
 def test_a_map_with_a_robot_placeholder_needs_the_robot_named(ros):
     with pytest.raises(BadParameter, match=r"topic_map='crazyswarm2'.*topic_map:=crazyswarm2:cf231"):
         PredictorNode(parameter_overrides=[Parameter("vehicle", value="crazyflie21"), Parameter("topic_map", value="crazyswarm2")])
+
+
+def test_the_evaluator_through_a_user_map_scores_what_it_scores_from_the_contract(ros, tmp_path):
+    """The same flight and predictions to two evaluators: one reading the contract, one a user map of standard types
+    (the live predictor test's); every scored window's RMS/TIC agree (measured: equal)."""
+    map_file = tmp_path / "user_map.yaml"
+    map_file.write_text(yaml.safe_dump(USER_MAP))
+    log = hover_log(1100)
+    prediction = offset_prediction(log, "vel_x", 0.25)
+    common = {"window_s": 5.0, "models": ["m"], "figures": False, "vehicle": "crazyflie21"}
+    contract, mapped = (EvaluatorNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+                        for values in (common, {**common, "topic_map": str(map_file)}))
+    for node in (contract, mapped):
+        node.diag_pub = Capture()
+    feed(contract, log, range(len(log)), predictions={"m": prediction})
+    arrays = messages.measurement_messages(log)
+    for row, ns in enumerate(stamps_ns(log.t).tolist()):
+        for kind, msg in (("motor", arrays.motor(row, ns)), ("odom", arrays.odometry(row, ns)), ("imu", arrays.imu(row, ns))):  # as feed()
+            for topic, user_msg in user_messages(kind, msg):
+                mapped.on_mapped(topic, user_msg)
+        o, a = messages.prediction_messages(ns, prediction[0][row], prediction[1][row], "m/base_link")
+        mapped.on_pred_odom("m", o)
+        mapped.on_pred_accel("m", a)
+    for node in (contract, mapped):
+        node.finish()
+    want, got = (sorted((r for r in node.scores.records if r.scored), key=lambda r: (r.model, r.index)) for node in (contract, mapped))
+    assert [(r.model, r.index) for r in got] == [(r.model, r.index) for r in want] == [("dummy", 0), ("dummy", 1), ("m", 0), ("m", 1)]
+    for w, g in zip(want, got):
+        np.testing.assert_allclose(g.rms, w.rms, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(g.tic, w.tic, rtol=0, atol=1e-9)
+    assert all(abs(r.rms[INDEX["vel_x"]] - 0.25) < 1e-9 for r in got if r.model == "m")
+    assert mapped.faults.summary() == "none"
+    for node in (contract, mapped):
+        node.destroy_node()

@@ -137,10 +137,25 @@ class MappedStreams:
             out[f] = value
         return out
 
+    @property
+    def measured_topics(self) -> list[str]:
+        """The topics giving measured fields (each one a stream of the evaluator's closing and coverage rules)."""
+        return list(dict.fromkeys(self.sources[f].topic for f in self.tracks))
+
+    def field_samples(self, buffers: dict[str, dict[int, dict]], field: str) -> dict[int, list[float]]:
+        """One field's samples (stamp [ns] -> numbers) out of per-topic buffers of messages' fields (the evaluator's)."""
+        return {ns: fields[field] for ns, fields in buffers.get(self.sources[field].topic, {}).items()}
+
     def rows_log(self, stamps: np.ndarray, u: np.ndarray, measured: list[dict], vehicle: str, source: str,
                  omega: np.ndarray | None = None) -> FlightLog:
         """Command rows (stamps [ns], commands in the vehicle's unit) and their fields (:meth:`at`) -> FlightLog."""
         aligned = {f: np.array([m[f] for m in measured], dtype=float) for f in self.tracks}
+        return self.flight_log(stamps, u, aligned, vehicle, source, omega)
+
+    def flight_log(self, stamps: np.ndarray, u: np.ndarray, aligned: dict[str, np.ndarray], vehicle: str, source: str,
+                   omega: np.ndarray | None = None) -> FlightLog:
+        """Rows (stamps [ns], commands in the vehicle's unit, each field's (n, k) numbers in the map's units and frames
+        on those rows) -> FlightLog (:func:`~quad_modelling.io.mapped_flight.convert_measurements`)."""
         arrays = convert_measurements(self.sources, aligned)
         return FlightLog(t=topics.stamps_to_seconds(np.asarray(stamps, dtype=np.int64)), u=np.asarray(u, dtype=float).reshape(-1, 4),
                          acc_b=arrays.get("acc"), gyro_b=arrays.get("gyro"), pos_n=arrays["position"], vel_n=arrays["velocity"],
