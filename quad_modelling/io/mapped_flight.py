@@ -1,9 +1,11 @@
 """Messages of a topic map's topics -> rows of numbers -> a FlightLog: the one conversion for any map.
 
 Used offline by :func:`quad_modelling.io.bag_io.read_mapped_bag` (messages deserialised with the
-definitions stored in the bag) and meant for a live node subscribing through a map: both call
-:class:`TopicReader` per message (attribute access only, so rosbags' and rclpy's messages alike) and
-:func:`convert_field` for the numbers, which converts units and frames through
+definitions stored in the bag) and live by the nodes' ``topic_map`` subscriptions
+(:mod:`quad_modelling.nodes.mapping.streams`, rclpy's messages): both call
+:class:`TopicReader` per message (attribute access only, so rosbags' and rclpy's messages alike),
+:func:`map_commands` and :func:`convert_measurements` (:func:`convert_field` per field) for the numbers, which
+convert units and frames through
 :mod:`quad_modelling.core.frames` only. Imports neither rclpy nor rosbags.
 
 Offline assembly (:func:`flight_from_streams`), the rules of streams on their own clocks

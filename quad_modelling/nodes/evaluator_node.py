@@ -145,6 +145,9 @@ class EvaluatorNode(Node):
         # Latest stamp [ns] of every stream the node scores (the closing rule); a model's streams also their wall time.
         topic_map = live_topic_map(p["topic_map"], "evaluator")
         self.mapped = None if topic_map is None else MappedStreams(topic_map, MEASURED_FIELDS, 0, 0, f"evaluator: topic_map {topic_map.name}")
+        if self.mapped is not None and p["record"]:  # the recorder writes the contract's types, stamped by their headers
+            raise BadParameter(f"evaluator: parameter record with topic_map={p['topic_map']!r}: record a stack's own topics "
+                               "with ros2 bag record (then quad-modelling evaluate --topic-map reads the bag)")
         self.measurement_streams = MEASUREMENT_STREAMS if self.mapped is None else ("motor_input", *self.mapped.measured_topics)
         self.stream_last_ns: dict[str, int | None] = {s: None for s in (*self.measurement_streams, *self.model_streams())}
         self.stamp_gates: dict[str, StampGate] = {}  # one per stream, the predictors' stamp rule (core.alignment)

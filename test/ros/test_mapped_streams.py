@@ -76,15 +76,23 @@ def test_generated_custom_type_messages_give_the_offline_readers_arrays(tmp_path
         np.testing.assert_allclose(live.vbat, log.vbat, atol=1e-6)
 
 
-def test_a_custom_type_without_its_package_stops_the_node_in_one_line_naming_the_package(monkeypatch, capsys):
+@pytest.mark.parametrize("node", ["predictor", "evaluator"])
+def test_a_custom_type_without_its_package_stops_the_node_in_one_line_naming_the_package(monkeypatch, capsys, node):
     monkeypatch.setitem(sys.modules, "px4_msgs", None)  # import px4_msgs raises ImportError, installed or not
     overrides = [Parameter("vehicle", value="crazyflie21"), Parameter("topic_map", value="px4")]
-    code = run_node(lambda: PredictorNode(parameter_overrides=overrides))
+    code = run_node(lambda: (PredictorNode if node == "predictor" else EvaluatorNode)(parameter_overrides=overrides))
     assert code == 2
     lines = capsys.readouterr().err.strip().splitlines()
     errors = [line for line in lines if line.startswith("error:")]
-    assert errors == ["error: predictor: topic_map px4 topic /fmu/out/actuator_motors: px4_msgs is not importable: "
+    assert errors == [f"error: {node}: topic_map px4 topic /fmu/out/actuator_motors: px4_msgs is not importable: "
                       "source the workspace that builds px4_msgs (docs/nodes.md)"]
+
+
+def test_the_evaluator_leaves_recording_a_stacks_topics_to_ros2_bag_record(ros, tmp_path):
+    overrides = [Parameter("topic_map", value="px4"), Parameter("record", value=str(tmp_path / "rec"))]
+    with pytest.raises(BadParameter, match=r"^evaluator: parameter record with topic_map='px4': record a stack's own topics with ros2 bag record"):
+        EvaluatorNode(parameter_overrides=overrides)
+    assert not (tmp_path / "rec").exists()
 
 
 def test_a_map_with_a_robot_placeholder_needs_the_robot_named(ros):
