@@ -19,7 +19,7 @@ import uuid
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from quad_modelling.errors import OutputExistsError, QuadModellingError
+from quad_modelling.errors import OutputExistsError, QuadModellingError, shown_path
 
 STAGING_SUFFIX_LEN = len(".tmp-") + 8 + 1
 """Characters the staging and backup names add to an output's name (``.NAME.tmp-XXXXXXXX``)."""
@@ -51,14 +51,18 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = ()) -> 
     if path.name in ("", ".", ".."):
         raise OutputDirError(f"-o {str(path)!r}: the output must name a new file or directory, not {str(path)!r}")
     parent = path.parent if str(path.parent) else Path(".")
-    limit = _name_max(parent if parent.is_dir() else Path(".")) - STAGING_SUFFIX_LEN
+    try:
+        parent_is_dir = parent.is_dir()
+    except OSError as err:  # a path longer than the file system allows (ENAMETOOLONG), a loop of links
+        raise OutputDirError(f"{shown_path(parent)}: output directory path cannot be looked up ({err.strerror})") from err
+    limit = _name_max(parent if parent_is_dir else Path(".")) - STAGING_SUFFIX_LEN
     if len(os.fsencode(path.name)) > limit:
         raise OutputDirError(f"{path.name[:40]}...: output name is {len(os.fsencode(path.name))} bytes long; "
                              f"the file system allows {limit} here")
     check_not_input(path, inputs)
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists; pass --force to overwrite")
-    if not parent.is_dir():
+    if not parent_is_dir:
         raise OutputDirError(f"{parent}: output directory does not exist or is not a directory")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise OutputDirError(f"{parent}: output directory is not writable")

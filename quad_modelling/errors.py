@@ -1,8 +1,11 @@
-"""Exceptions of quad_modelling.
+"""Exceptions of quad_modelling, and the helpers that quote a third-party error or a path in their messages.
 
 Every exception carries a one-line message that names the file, topic, field or
 row at fault, so the CLI can print it as is and exit non-zero.
 """
+
+import os
+from pathlib import Path
 
 
 class QuadModellingError(Exception):
@@ -34,6 +37,11 @@ class ModelError(QuadModellingError, ValueError):
     """A model file is invalid or does not fit the vehicle/variables asked for."""
 
 
+class ClusterError(QuadModellingError, RuntimeError):
+    """The Dask cluster of ``--jobs``/``--scheduler`` failed under the work: a worker died running a flight,
+    or the scheduler went away."""
+
+
 class OutputExistsError(QuadModellingError, FileExistsError):
     """An output path exists and --force was not given."""
 
@@ -49,3 +57,16 @@ def reason(err: BaseException) -> str:
     if len(text) > REASON_LIMIT:
         text = text[: REASON_LIMIT - 3] + "..."
     return f"{type(err).__name__}: {text}"
+
+
+SHOWN_PATH_CHARS = 120
+"""Longest path quoted whole in an error [characters]; a longer one is shown by its start and its length."""
+
+
+def shown_path(path: str | Path) -> str:
+    """``path`` as an error message names it: whole, or (longer than :data:`SHOWN_PATH_CHARS`) its first 60
+    characters, ``...`` and its length in bytes (a path too long for the file system stays a readable line)."""
+    text = str(path)
+    if len(text) <= SHOWN_PATH_CHARS:
+        return text
+    return f"{text[:60]}... ({len(os.fsencode(text))} bytes)"

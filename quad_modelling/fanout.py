@@ -15,7 +15,11 @@ driver never holds every flight of a fleet.
 Results come back in the order of ``paths`` whatever the order the flights finish in, so a merge
 over them (``core/evaluation/statistics``) gives the same numbers, bit for bit, as the serial run.
 A project error raised in a worker (:class:`~quad_modelling.errors.QuadModellingError`) is raised
-here as it is (the CLI prints its one line and exits 2). Docs: ``docs/scale.md``.
+here as it is (the CLI prints its one line and exits 2). The cluster failing under the work is one
+:class:`~quad_modelling.errors.ClusterError` line too: a flight whose workers all died running it
+(distributed's ``KilledWorker``: out of memory, killed by a signal, a crash in native code) names the flight;
+a scheduler that stops or whose connection is lost mid-run names the scheduler and how many flights were done.
+Distributed's own log lines about it are held back while the work runs (the one line says it). Docs: ``docs/scale.md``.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
-from quad_modelling.errors import ConfigError, reason
+from quad_modelling.errors import ClusterError, ConfigError, reason
 
 CONNECT_TIMEOUT_S = 10.0
 """How long [s] ``--scheduler ADDRESS`` may take to answer before the command gives up with one line."""
@@ -99,6 +103,28 @@ def dask_client(jobs: int | None = None, scheduler: str | None = None) -> Iterat
         client.close()
 
 
+@contextlib.contextmanager
+def distributed_logs_held() -> Iterator[None]:
+    """distributed's loggers at CRITICAL while the work runs: a lost scheduler or dead worker is reported as one
+    :class:`~quad_modelling.errors.ClusterError` line, not as the client's reconnection tracebacks."""
+    names = ["distributed", *(n for n in list(logging.root.manager.loggerDict) if n.startswith("distributed."))]
+    levels = {name: logging.getLogger(name).level for name in names}
+    for name in names:
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        for name, level in levels.items():
+            logging.getLogger(name).setLevel(level)
+
+
+def lost(where: str, finished: int, total: int, err: BaseException) -> str:
+    """The one line of a scheduler lost mid-run (``where``: which cluster), with the first line of distributed's text."""
+    first = (str(err).strip().splitlines() or ["no details"])[0][:200]
+    return (f"lost {where} after {finished} of {total} flight(s): it stopped or its connection failed "
+            f"({type(err).__name__}: {first}); nothing was written, run the command again")
+
+
 def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: int | None = None, scheduler: str | None = None,
                  progress: Callable[[int, Any], None] | None = None) -> Iterator[Any]:
     """``func(path, *args)`` for every path, yielded in the order of ``paths`` (module docstring).
@@ -115,25 +141,41 @@ def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: in
                 progress(index, path)
             yield result
         return
-    from distributed import as_completed
+    from concurrent.futures import CancelledError
 
-    with dask_client(jobs, scheduler) as client:
+    from distributed import KilledWorker, as_completed
+    from distributed.comm.core import CommClosedError
+
+    where = f"the Dask scheduler at {scheduler}" if scheduler else f"the local Dask cluster (--jobs {jobs})"
+    finished = 0
+    with distributed_logs_held(), dask_client(jobs, scheduler) as client:
         run = uuid.uuid4().hex  # task keys unique on a scheduler other commands may share
-        futures = [client.submit(func, path, *args, pure=False, key=f"{getattr(func, '__name__', 'task')}-{run}-{index}")
-                   for index, path in enumerate(paths)]
-        order = {future.key: index for index, future in enumerate(futures)}
-        done: dict[int, Any] = {}
-        next_index = 0
+        futures = []
         try:
+            futures = [client.submit(func, path, *args, pure=False, key=f"{getattr(func, '__name__', 'task')}-{run}-{index}")
+                       for index, path in enumerate(paths)]
+            order = {future.key: index for index, future in enumerate(futures)}
+            done: dict[int, Any] = {}
+            next_index = 0
             for future in as_completed(futures):
                 index = order[future.key]
-                done[index] = future.result()  # re-raises a worker's exception as it is
+                try:
+                    done[index] = future.result()  # re-raises a worker's exception as it is (BagError, an OSError, too)
+                except KilledWorker as err:
+                    raise ClusterError(f"flight {paths[index]}: every Dask worker that ran it died ({type(err).__name__}: "
+                                       "killed for memory, by a signal, or a crash in native code) on "
+                                       f"{where}; run it alone without --jobs/--scheduler to see why") from err
+                except CancelledError as err:  # distributed cancels every future when the scheduler is lost
+                    raise ClusterError(lost(where, finished, len(paths), err)) from err
+                finished += 1
                 future.release()
                 if progress:
                     progress(index, paths[index])
                 while next_index in done:
                     yield done.pop(next_index)
                     next_index += 1
+        except (CancelledError, CommClosedError) as err:  # submitting or waiting when the scheduler is gone
+            raise ClusterError(lost(where, finished, len(paths), err)) from err
         finally:
             for future in futures:
                 future.cancel()

@@ -3,13 +3,20 @@
 from __future__ import annotations
 
 import io
+import os
+import signal
+import socket
+import subprocess
+import sys
 import time
 
+import dask
 import pytest
 
 from quad_modelling import fanout
-from quad_modelling.errors import ConfigError, DataError
+from quad_modelling.errors import BagError, ClusterError, ConfigError, DataError, QuadModellingError
 from quad_modelling.fanout import check_fanout_options, map_flights, tty_progress
+from test.conftest import REPO
 
 
 def square_or_refuse(value: int, offset: int) -> int:
@@ -17,9 +24,20 @@ def square_or_refuse(value: int, offset: int) -> int:
     so on a cluster later values finish first."""
     if value == 5:
         time.sleep(0.3)
+    if value <= -100:
+        raise BagError(f"bag{value}: not a readable rosbag2 bag")
     if value < 0:
         raise DataError(f"flight{value}.csv: column px: not a number in row 3")
     return value * value + offset
+
+
+def kill_own_worker_on_negative(value: int) -> int:
+    """A per-flight task whose process dies on a negative value (as a worker killed for memory or by a crash in native
+    code would); value otherwise, after a moment (so a scheduler can go away while others run)."""
+    if value < 0:
+        os._exit(9)
+    time.sleep(0.5)
+    return value
 
 
 def test_serial_and_running_cluster_give_the_results_in_input_order(dask_scheduler):
@@ -36,6 +54,8 @@ def test_serial_and_running_cluster_give_the_results_in_input_order(dask_schedul
 def test_a_worker_error_is_the_project_error_naming_the_flight(dask_scheduler):
     with pytest.raises(DataError, match=r"^flight-4\.csv: column px: not a number in row 3$"):
         map_flights(square_or_refuse, [1, 2, -4, 3], 0, scheduler=dask_scheduler)
+    with pytest.raises(BagError, match=r"^bag-100: not a readable rosbag2 bag$"):  # an OSError too: not a lost scheduler
+        map_flights(square_or_refuse, [1, -100], 0, scheduler=dask_scheduler)
 
 
 @pytest.mark.parametrize(("jobs", "scheduler", "message"), [
@@ -73,3 +93,50 @@ def test_progress_is_one_line_per_finished_flight_on_a_terminal_only():
     assert map_flights(square_or_refuse, [2, 3, 4], 0, progress=say) == [4, 9, 16]
     assert terminal.getvalue().splitlines() == [f"evaluate: flight {k}/3 done: {v}" for k, v in ((1, 2), (2, 3), (3, 4))]
     assert tty_progress("evaluate", 3, io.StringIO()) is None  # a pipe or file gets no progress lines
+
+
+def test_a_flight_that_kills_its_worker_is_one_cluster_error_naming_it():
+    # The local cluster's scheduler runs in this process: with no failure allowed, the first death is final
+    # (distributed's default retries the flight on 3 more workers first: the same error, seconds later).
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        with pytest.raises(ClusterError) as err:
+            map_flights(kill_own_worker_on_negative, [-7], jobs=1)
+    message = str(err.value)
+    assert isinstance(err.value, QuadModellingError) and "\n" not in message  # the CLI's one line, exit 2
+    assert message.startswith("flight -7: every Dask worker that ran it died (KilledWorker: ")
+    assert "on the local Dask cluster (--jobs 1); run it alone without --jobs/--scheduler to see why" in message
+
+
+def _free_port() -> int:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        return probe.getsockname()[1]
+
+
+def test_a_scheduler_shut_down_mid_run_is_one_cluster_error_naming_it():
+    address = f"tcp://127.0.0.1:{_free_port()}"
+    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
+    scheduler = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port",
+                                  address.rsplit(":", 1)[1], "--no-dashboard"], **quiet)
+    worker = subprocess.Popen([sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1",
+                               "--no-dashboard", "--host", "127.0.0.1", "--no-nanny"], cwd=REPO, **quiet)
+    finished = []
+
+    def shut_down_after_the_first(index, value):  # progress: the scheduler stops once one flight is done
+        finished.append(value)
+        if len(finished) == 1:
+            scheduler.send_signal(signal.SIGTERM)
+            scheduler.wait(timeout=30)
+
+    try:
+        with pytest.raises(ClusterError) as err:
+            map_flights(kill_own_worker_on_negative, [1, 2, 3, 4], scheduler=address, progress=shut_down_after_the_first)
+    finally:
+        for process in (worker, scheduler):
+            process.kill()
+            process.wait(timeout=30)
+    message = str(err.value)
+    assert "\n" not in message and finished == [1]
+    assert message.startswith(f"lost the Dask scheduler at {address} after 1 of 4 flight(s): it stopped or its connection failed (")
+    assert message.endswith("nothing was written, run the command again")
+

@@ -13,8 +13,8 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.preprocess import gap_warnings
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
-from quad_modelling.core.windows import PRESETS, EvaluationConfig
-from quad_modelling.errors import ConfigError
+from quad_modelling.core.windows import PRESETS, EvaluationConfig, check_window_rate
+from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, iter_flights, tty_progress
 from quad_modelling.io.loader import load_flight_or_skip, load_flights
 from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
@@ -132,6 +132,11 @@ def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[s
     loaded = load_flight_or_skip(path, vehicle, skip_bad, topic_map)
     if loaded.log is None:
         return FlightOutcome(path, None, loaded.skipped, None, [])
+    if skip_bad:  # a flight too slow for any window is a bad file like an unreadable one (else evaluate_flight refuses it)
+        try:
+            check_window_rate(loaded.log)
+        except DataError as err:
+            return FlightOutcome(path, None, str(err), None, [])
     flight_vehicle = vehicle or load_vehicle(loaded.log.meta.vehicle)
     models = [make_model(spec, flight_vehicle) for spec in specs]
     evaluation = evaluate_flight(loaded.log, models, flight_vehicle, config, multistep, examples=path == examples_from)

@@ -340,6 +340,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
+    from quad_modelling.core.windows import check_window_rate
     from quad_modelling.io.bag_io import read_bag_metadata
     from quad_modelling.io.loader import load_flight
     from quad_modelling.io.reports.evaluation import live_summary_table, multistep_lines
@@ -375,6 +376,7 @@ def _run(args: argparse.Namespace) -> int:
     # Check the whole bag here, as the offline commands read it, before any node starts:
     # a damaged bag is one line from this process, not a node's traceback.
     flight = load_flight(args.bag, vehicle=vehicle, fmt="bag")
+    check_window_rate(flight)  # the evaluator would mark every window of a flight this slow
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
         make_streaming_predictor(m.spec, vehicle)
     env = ros_environment(args.discovery, remote)
@@ -503,12 +505,15 @@ def _wait_for_replay(graph: Graph, timeout: float, started: float) -> None:
 
 
 def add_multistep_table(report_dir: Path, flight, models: list[ModelEntry], vehicle, args: argparse.Namespace) -> None:
-    """Add the multi-step table of every model to the evaluator's results.json (``horizons``) and tables.md.
+    """Add the multi-step table of every model to the evaluator's results.json (``horizons``, and its sums to
+    ``statistics``, the configuration's ``horizons`` to the table's) and tables.md.
 
     Each model is the one its predictor node runs (same spec, same registry), predicting from every start of
     the --eval span (the whole bag without one) with its live form
-    (:func:`~quad_modelling.core.evaluation.multistep.multistep_evaluation`)."""
-    from quad_modelling.core.evaluation.multistep import multistep_evaluation
+    (:func:`~quad_modelling.core.evaluation.multistep.flight_multistep_sums`). With --train and --eval the
+    results.json is then the one ``evaluate BAG --drop 0:0`` with the same spans, window and warm start writes, and
+    ``quad-modelling merge`` takes it."""
+    from quad_modelling.core.evaluation.multistep import flight_multistep_sums, multistep_table
     from quad_modelling.core.models.base import DummyPredictor
     from quad_modelling.core.preprocess import resample_uniform
     from quad_modelling.core.windows import EvaluationConfig
@@ -524,12 +529,17 @@ def add_multistep_table(report_dir: Path, flight, models: list[ModelEntry], vehi
     config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train=args.train or "0:inf", eval=args.eval or "0:inf",
                               window_s=float(args.window), warm_s=float(args.warm))
     baseline = [] if "dummy" in [m.name for m in models] else [DummyPredictor()]  # listed as not multi-step, as offline
-    horizons = multistep_evaluation([resample_uniform(flight)], predictors + baseline, vehicle, config)
+    sums = flight_multistep_sums(resample_uniform(flight), predictors + baseline, vehicle, config)
+    horizons = multistep_table(sums, config)
     if not args.eval:
         horizons["span"] = "live (whole bag)"
     results_file = report_dir / "results.json"
     results = json.loads(results_file.read_text())
     results["horizons"] = horizons
+    results["config"]["horizons"] = list(config.horizons)
+    if results.get("statistics") is not None:
+        results["statistics"]["multistep"] = sums.to_json()
+        results["statistics"]["durations_s"] = [flight.duration]
     results_file.write_text(json_text(results))
     title = f"Live evaluation of {', '.join(m.name for m in models)} on vehicle {vehicle.name}"
     (report_dir / "tables.md").write_text(tables_text(results, title))

@@ -165,6 +165,7 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.commands.evaluate import print_gap_warnings
     from quad_modelling.core.training.narx import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
+    from quad_modelling.core.windows import check_window_rate
     from quad_modelling.fanout import check_fanout_options, tty_progress
     from quad_modelling.io.loader import load_flights
 
@@ -178,6 +179,8 @@ def run(args: argparse.Namespace) -> int:
     logs, _ = load_flights(paths, given, jobs=args.jobs, scheduler=args.scheduler,
                            progress=None if args.quiet else tty_progress("train: read", len(paths)), topic_map=args.topic_map)
     print_gap_warnings(logs)
+    for log in logs:  # windows and rollout segments are in samples: a flight no window can score is refused for its rate
+        check_window_rate(log)
     spans = training_spans(logs, args)
     val_flights = list(range(len(args.flights), len(logs))) if args.val_flights else None
     started = time.perf_counter()

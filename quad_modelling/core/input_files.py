@@ -10,12 +10,14 @@ before the document reaches any other code.
 
 from __future__ import annotations
 
+import errno
+import os
 import stat
 from pathlib import Path
 
 import yaml
 
-from quad_modelling.errors import ConfigError, QuadModellingError, reason
+from quad_modelling.errors import ConfigError, QuadModellingError, reason, shown_path
 
 MAX_YAML_BYTES = 1 << 20
 """Largest YAML file read [bytes]: a vehicle config or mapping is a few kB, a bag's metadata.yaml tens of kB."""
@@ -25,15 +27,38 @@ MAX_YAML_NODES = 100_000
 
 
 
+def input_path_mode(path: str | Path, what: str, error: type[QuadModellingError] = ConfigError) -> int | None:
+    """The ``st_mode`` of an input path (symbolic links followed), None when nothing is there; ``error`` in one line
+    naming the path when it cannot even be looked up: a name or path longer than the file system allows
+    (ENAMETOOLONG), a loop of symbolic links, a directory on the way without search permission. The one place
+    every input path of every verb is first looked at (flight files, bags, results, YAML)."""
+    try:
+        return os.stat(path).st_mode
+    except (FileNotFoundError, NotADirectoryError):
+        return None
+    except OSError as err:
+        if err.errno == errno.ENAMETOOLONG:
+            longest = max((len(os.fsencode(part)) for part in Path(path).parts), default=0)
+            raise error(f"{shown_path(path)}: {what} path is too long for the file system (longest name {longest} bytes, "
+                        f"path {len(os.fsencode(str(path)))} bytes; it allows {_limit('PC_NAME_MAX', 255)} and "
+                        f"{_limit('PC_PATH_MAX', 4096)})") from err
+        raise error(f"{shown_path(path)}: cannot look up the {what} ({err.strerror or reason(err)})") from err
+
+
+def _limit(name: str, default: int) -> int:
+    """A file system limit of the working directory (``os.pathconf``), ``default`` when it cannot be read."""
+    try:
+        return os.pathconf(".", name)
+    except (OSError, ValueError):
+        return default
+
+
 def check_regular_file(path: str | Path, what: str, error: type[QuadModellingError] = ConfigError) -> Path:
     """``path`` if it is a regular file (symbolic links followed); ``error`` naming it otherwise."""
     path = Path(path)
-    try:
-        mode = path.stat().st_mode
-    except FileNotFoundError as err:
-        raise error(f"{path}: no such {what}") from err
-    except OSError as err:
-        raise error(f"{path}: cannot read {what}: {err.strerror}") from err
+    mode = input_path_mode(path, what, error)
+    if mode is None:
+        raise error(f"{shown_path(path)}: no such {what}")
     if stat.S_ISDIR(mode):
         raise error(f"{path}: is a directory, not a {what}")
     if not stat.S_ISREG(mode):

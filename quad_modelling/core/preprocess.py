@@ -247,13 +247,17 @@ def causal_derivative(values: np.ndarray, dt: float, window_s: float = DERIVATIV
     min(:data:`DERIVATIVE_POLYORDER`, m - 1) through the m = min(j + 1, L) rows
     j - m + 1 .. j, L = ``window_s`` / ``dt`` rounded up to odd (the same L as the
     centred fit; :func:`scipy.signal.savgol_coeffs` with ``pos`` = m - 1); row 0
-    is 0. On a log of at least L rows, the last row of the centred fit (``interp`` mode) is the
+    is 0. With L <= :data:`DERIVATIVE_POLYORDER` (a sample period longer than ``window_s`` / 2) every row is
+    the backward difference. On a log of at least L rows, the last row of the centred fit (``interp`` mode) is the
     same fit, so a warm start's last row (a window's anchor) gets the same derivative either way.
     """
     values = np.asarray(values, dtype=float)
     n = values.shape[0]
     length = int(round(window_s / dt)) | 1
     out = np.zeros_like(values)
+    if length <= DERIVATIVE_POLYORDER:  # dt longer than the window (a log slower than ~18 Hz): backward differences
+        out[1:] = np.diff(values, axis=0) / dt
+        return out
     for m in range(2, min(length, n + 1)):  # the first L - 1 rows: all the m rows up to row m - 1
         coeffs = signal.savgol_coeffs(m, min(DERIVATIVE_POLYORDER, m - 1), deriv=1, delta=dt, pos=m - 1, use="dot")
         out[m - 1] = np.tensordot(coeffs, values[:m], axes=(0, 0))

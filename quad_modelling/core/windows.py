@@ -63,7 +63,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 
 import numpy as np
 
-from quad_modelling.core.alignment import stream_coverage
+from quad_modelling.core.alignment import MAX_GAP_S, stream_coverage
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.preprocess import (
     SMOOTH_CUTOFF_HZ,
@@ -388,9 +388,33 @@ def gap_free_runs(log: FlightLog, start: int, stop: int) -> list[tuple[int, int]
     return [(start + int(a), start + int(b)) for a, b in zip(edges[::2], edges[1::2]) if b > a]
 
 
+MIN_SAMPLE_RATE_HZ = 1.0 / MAX_GAP_S
+"""Slowest flight that can be scored [Hz]: the coverage rule allows no step over
+:data:`~quad_modelling.core.alignment.MAX_GAP_S` (50 ms) in a window."""
+
+
+def check_window_rate(log: FlightLog) -> None:
+    """DataError naming the flight, its rate and the rate needed when its median step is longer than
+    :data:`~quad_modelling.core.alignment.MAX_GAP_S`: then at least half its steps are, so no window of any
+    length in any span can meet the coverage rule (a PX4 ULog at the logger's default 10 Hz, for one).
+    Checked before spans are blamed; also where the multi-step table, identification and NARX training
+    take a flight (their windows and segments are in samples of the same rate)."""
+    if len(log) < 2:
+        return
+    rate = log.sample_rate
+    if rate < MIN_SAMPLE_RATE_HZ * (1 - 1e-6):
+        raise DataError(
+            f"{log.meta.source}: sampled at {rate:.3g} Hz (median step {1e3 / rate:.0f} ms); scoring needs "
+            f"{MIN_SAMPLE_RATE_HZ:g} Hz or faster (a window allows no step over {MAX_GAP_S * 1e3:g} ms), whatever "
+            f"the spans: record the flight at {MIN_SAMPLE_RATE_HZ:g} Hz or more"
+        )
+
+
 def windows_between(log: FlightLog, start_s: float, end_s: float, window_s: float) -> list[tuple[int, int]]:
     """Rows [start, stop) of the complete windows of the clock with origin ``start_s`` inside [start_s, end_s),
-    leaving out every window with a row inside a marked measurement gap (:func:`gap_rows`)."""
+    leaving out every window with a row inside a marked measurement gap (:func:`gap_rows`); DataError for a
+    flight too slow for any window (:func:`check_window_rate`)."""
+    check_window_rate(log)
     if end_s <= start_s:
         return []
     clock = flight_clock(log, start_s, window_s)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import stat
 import struct
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,7 +37,7 @@ from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.atomic import atomic_output
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.input_files import read_yaml
+from quad_modelling.core.input_files import input_path_mode, read_yaml
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.topics import (
     DEFAULT_NAMESPACE,
@@ -74,8 +75,8 @@ def _mcap_writer(path: Path, compress: bool = True) -> Writer:
     rosbags' MCAP storage compresses each chunk (~1 MiB of messages) with zstd when asked for
     storage-level compression (``CompressionMode.STORAGE``): the bag stays one ``.mcap`` file that
     ``ros2 bag``, the mcap library, Foxglove and PlotJuggler read as is (chunk compression is part of
-    MCAP), and metadata.yaml records no file/message compression. The bundled 40 s flight: 6.1 MB
-    uncompressed, 1.1 MB with zstd chunks (docs/formats.md).
+    MCAP), and metadata.yaml records no file/message compression. The bundled 42 s flight (itself written so): 6.1 MB
+    uncompressed, 1.08 MB with zstd chunks (docs/formats.md).
     """
     writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
     if compress:
@@ -249,13 +250,12 @@ class BagSummary:
 
 
 def _open_reader(path: Path) -> Reader:
-    if not path.exists():
+    if (mode := input_path_mode(path, "bag", BagError)) is None:
         raise BagError(f"{path}: no such bag")
-    if not path.is_dir():
+    if not stat.S_ISDIR(mode):
         raise BagError(f"{path}: not a bag directory (a rosbag2 bag is a directory with metadata.yaml)")
-    try:
-        if (path / "metadata.yaml").exists():
-            read_yaml(path / "metadata.yaml", "bag metadata")  # bounded first: rosbags' own YAML read has no limits
+    try:  # bounded first: rosbags' own YAML read has no limits
+        _ = (path / "metadata.yaml").exists() and read_yaml(path / "metadata.yaml", "bag metadata")
     except ConfigError as err:
         raise BagError(f"{path}: not a readable rosbag2 bag: {err}") from err
     try:

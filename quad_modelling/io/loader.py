@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import stat
 from pathlib import Path
 from typing import NamedTuple
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.input_files import check_regular_file
+from quad_modelling.core.input_files import check_regular_file, input_path_mode
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import DataError, QuadModellingError
 from quad_modelling.fanout import map_flights
@@ -18,7 +19,8 @@ def detect_format(path: str | Path) -> str:
     """``thesis-mat`` for .mat, ``nanobench`` for .csv/.csv.gz, ``px4-ulog`` for .ulg, ``bag`` for a rosbag2 directory or .mcap."""
     path = Path(path)
     name = path.name.lower()
-    if path.is_dir() or name.endswith(".mcap"):
+    mode = input_path_mode(path, "flight file", DataError)
+    if (mode is not None and stat.S_ISDIR(mode)) or name.endswith(".mcap"):
         return "bag"
     if name.endswith(".mat"):
         return "thesis-mat"
@@ -26,7 +28,7 @@ def detect_format(path: str | Path) -> str:
         return "nanobench"
     if name.endswith(".ulg"):
         return "px4-ulog"
-    if not path.exists():
+    if mode is None:
         raise DataError(f"{path}: no such file or directory")
     raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz, .ulg or a bag directory)")
 
@@ -50,9 +52,10 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
     fmt = detect_format(path) if fmt == "auto" else fmt
     if fmt not in FORMATS:
         raise DataError(f"{path}: unknown format {fmt!r}; known: {', '.join(FORMATS)}")
-    if not path.exists():
+    mode = input_path_mode(path, "flight file", DataError)
+    if mode is None:
         raise DataError(f"{path}: no such file or directory")
-    if not path.is_dir():  # a FIFO or device would block or never end: refused before it is opened
+    if not stat.S_ISDIR(mode):  # a FIFO or device would block or never end: refused before it is opened
         check_regular_file(path, "flight file", DataError)
     try:
         return _load(path, vehicle, fmt, mapping_file, topic_map)

@@ -12,12 +12,13 @@ horizons; anything else is one :class:`~quad_modelling.errors.DataError` naming 
 from __future__ import annotations
 
 import json
+import stat
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from quad_modelling.core.evaluation.statistics import EvaluationStatistics
 from quad_modelling.core.evaluation.windowed import EvaluationResult, result_from_statistics
-from quad_modelling.core.input_files import check_regular_file
+from quad_modelling.core.input_files import check_regular_file, input_path_mode
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError, DataError
 
@@ -30,8 +31,9 @@ MAX_RESULTS_BYTES = 256 << 20
 def results_file(directory: str | Path) -> Path:
     """The results.json of an ``evaluate`` output directory (or the file itself); DataError when missing."""
     path = Path(directory)
-    path = path / RESULTS_FILE if path.is_dir() else path
-    if not path.exists():
+    mode = input_path_mode(path, "results directory", DataError)
+    path = path / RESULTS_FILE if mode is not None and stat.S_ISDIR(mode) else path
+    if input_path_mode(path, "results file", DataError) is None:
         raise DataError(f"{directory}: no {RESULTS_FILE} (not an output directory of quad-modelling evaluate)")
     check_regular_file(path, "results file", DataError)
     if path.stat().st_size > MAX_RESULTS_BYTES:
@@ -50,8 +52,11 @@ def read_results(directory: str | Path) -> tuple[Path, dict, EvaluationStatistic
     if not isinstance(document, dict) or not {"models", "config"} <= set(document):
         raise DataError(f"{path}: not the results.json of quad-modelling evaluate (no 'models' and 'config')")
     if "statistics" not in document:
-        raise DataError(f"{path}: holds averages only, no 'statistics' to merge (written by run-bag or an older version); "
-                        f"re-run quad-modelling evaluate on its flights")
+        raise DataError(f"{path}: holds averages only, no 'statistics' to merge (written by an older version); "
+                        f"re-run quad-modelling evaluate (or run-bag) on its flights")
+    if "live" in document and not (document["config"].get("train") and document["config"].get("eval")):
+        raise DataError(f"{path}: a run-bag result without both --train and --eval (its span is live:0:inf); merge takes "
+                        "evaluations over train and eval spans: re-run run-bag with --train and --eval")
     statistics = EvaluationStatistics.from_json(document["statistics"], f"{path}: statistics")
     try:
         config = EvaluationConfig.from_dict(document["config"], f"{path}: config")

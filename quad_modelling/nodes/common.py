@@ -253,6 +253,32 @@ def declare_parameters(node, params: list[Param]) -> dict:
     return values
 
 
+MOTOR_INPUT, MOCAP_ODOM, IMU, BATTERY = "motor_input", "mocap_odom", "imu", "battery"
+STREAMS = (MOTOR_INPUT, MOCAP_ODOM, IMU, BATTERY)
+"""The measurement streams of every node, named after their topics (``mocap/odom`` is ``mocap_odom``): in the logs,
+the fault kinds (:func:`stream_fault`) and the reasons of marked windows. A model's prediction streams are
+``<model>/odom``, ``<model>/accel`` and ``<model>/horizon``."""
+
+STREAM_FAULTS = {
+    "stamp_outlier": "a stamp off the stream's time (a duplicate, back in time, or beyond max_stamp_step_s ahead): dropped",
+    "clock_jump": "the stamps jumped to a new time base (restarted publisher, clock reset, end of a long silence): followed",
+    "nan": "a message with a non-finite value: dropped",
+    "bad": "a message that cannot be decoded or used (e.g. not 4 efforts): dropped",
+    "duplicate": "a second message with a stamp already stored: dropped",
+    "late": "a message for a window the evaluator already closed: dropped",
+}
+"""The one vocabulary of per-stream faults of every node: ``<kind>_<stream>`` (:func:`stream_fault`), kind -> meaning
+(the table in docs/nodes.md)."""
+
+
+def stream_fault(kind: str, stream: str) -> str:
+    """The fault kind ``<kind>_<stream>`` of a stream (e.g. ``stamp_outlier_imu``, ``clock_jump_motor_input``); ``kind``
+    must be one of :data:`STREAM_FAULTS` (ValueError otherwise: a new name belongs in the vocabulary first)."""
+    if kind not in STREAM_FAULTS:
+        raise ValueError(f"fault kind {kind!r} is not in the vocabulary {sorted(STREAM_FAULTS)}")
+    return f"{kind}_{stream}"
+
+
 class FaultLog:
     """One clear warning per kind of fault (not per message), with counts for the summary."""
 

@@ -71,6 +71,7 @@ from quad_modelling.io import topics
 from quad_modelling.io.topics import HORIZON_TOPIC
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
+    IMU, MOCAP_ODOM, MOTOR_INPUT,  # the one stream naming and fault vocabulary (stream_fault)
     VEHICLE_TOPIC,
     BadParameter,
     FaultLog,
@@ -83,6 +84,7 @@ from quad_modelling.nodes.common import (
     run_node,
     say,
     spin,
+    stream_fault,
     subscription_qos,
 )
 from quad_modelling.nodes.recording import open_recorder
@@ -105,7 +107,7 @@ MAX_OPEN_WINDOWS = 3
 """Windows buffered at once; an older one is closed (and marked if incomplete) when a newer one opens."""
 
 
-MEASUREMENT_STREAMS = ("motor_input", "mocap_odom", "imu")
+MEASUREMENT_STREAMS = (MOTOR_INPUT, MOCAP_ODOM, IMU)
 """Names of the measurement streams in the closing rule and in the reasons of marked windows."""
 
 class EvaluatorNode(Node):
@@ -148,7 +150,7 @@ class EvaluatorNode(Node):
         if self.mapped is not None and p["record"]:  # the recorder writes the contract's types, stamped by their headers
             raise BadParameter(f"evaluator: parameter record with topic_map={p['topic_map']!r}: record a stack's own topics "
                                "with ros2 bag record (then quad-modelling evaluate --topic-map reads the bag)")
-        self.measurement_streams = MEASUREMENT_STREAMS if self.mapped is None else ("motor_input", *self.mapped.measured_topics)
+        self.measurement_streams = MEASUREMENT_STREAMS if self.mapped is None else (MOTOR_INPUT, *self.mapped.measured_topics)
         self.stream_last_ns: dict[str, int | None] = {s: None for s in (*self.measurement_streams, *self.model_streams())}
         self.stamp_gates: dict[str, StampGate] = {}  # one per stream, the predictors' stamp rule (core.alignment)
         self.max_step_ns = seconds_to_ns(p["max_stamp_step_s"])
@@ -163,9 +165,9 @@ class EvaluatorNode(Node):
         self.recorder = open_recorder("evaluator", p["record"], self.output_dir, p["force"], self.vehicle)
         subscribe = self._subscribe
         if self.mapped is None:
-            subscribe(JointState, p["motor_input_topic"], self._guarded("motor_input", self.on_motor), qos)
-            subscribe(Odometry, p["odom_topic"], self._guarded("mocap_odom", self.on_odom), qos)
-            subscribe(Imu, p["imu_topic"], self._guarded("imu", self.on_imu), qos)
+            subscribe(JointState, p["motor_input_topic"], self._guarded(MOTOR_INPUT, self.on_motor), qos)
+            subscribe(Odometry, p["odom_topic"], self._guarded(MOCAP_ODOM, self.on_odom), qos)
+            subscribe(Imu, p["imu_topic"], self._guarded(IMU, self.on_imu), qos)
         else:  # a stack's own topics (nodes.mapping.streams): the offline reader's conversion
             where = f"evaluator: topic_map {topic_map.name} topic"
             for topic, kind in {t: message_class(topic_map.topics[t].msgtype, f"{where} {t}") for t in self.mapped.readers}.items():
@@ -220,7 +222,7 @@ class EvaluatorNode(Node):
             try:
                 callback(msg)
             except (ValueError, TypeError, IndexError, AttributeError, OverflowError, QuadModellingError) as err:
-                self.faults.report(f"bad_{stream}", f"unusable {stream} message dropped ({type(err).__name__}: {err})")
+                self.faults.report(stream_fault("bad", stream), f"unusable {stream} message dropped ({type(err).__name__}: {err})")
 
         return guarded
 
@@ -246,16 +248,16 @@ class EvaluatorNode(Node):
         last = gate.last
         verdict = gate.admit(ns, (ns, payload))
         for dropped in gate.dropped:
-            self.faults.report(f"outlier_stamp_{stream}", f"{stream} stamp {dropped} ns lies {(dropped - last) / 1e9:+.3f} s "
+            self.faults.report(stream_fault("stamp_outlier", stream), f"{stream} stamp {dropped} ns lies {(dropped - last) / 1e9:+.3f} s "
                                                            "from the stream's time (a duplicate, back in time, or beyond "
                                                            f"max_stamp_step_s={self.max_step_ns / 1e9:g} ahead): dropped")
         if verdict is Stamp.ACCEPTED:
             return [(ns, payload)]
         if verdict is Stamp.SUSPECT:
             return []
-        self.faults.report(f"clock_jump_{stream}", f"{stream} jumped to stamp {ns} ns ({CONFIRM} consistent stamps): "
+        self.faults.report(stream_fault("clock_jump", stream), f"{stream} jumped to stamp {ns} ns ({CONFIRM} consistent stamps): "
                                                     "publisher restarted or clock reset; following it")
-        if stream == "motor_input":
+        if stream == MOTOR_INPUT:
             self._restart_clock(ns)
             return [(ns, payload)]  # the windows go on from here, on the predictors' window clock
         self.stream_last_ns[stream] = None
@@ -272,12 +274,12 @@ class EvaluatorNode(Node):
             self.clock_.origin_ns = ns
             self.origin_pub.publish(messages.clock_message(ns))
         self.stream_last_ns = dict.fromkeys(self.stream_last_ns)
-        for gate in (g for name, g in self.stamp_gates.items() if name != "motor_input"):
+        for gate in (g for name, g in self.stamp_gates.items() if name != MOTOR_INPUT):
             gate.reset()
 
     def _window_for(self, ns: int, stream: str) -> WindowBuffer | None:
         if self.clock_.origin_ns is None:
-            if stream != "motor":
+            if stream != MOTOR_INPUT:
                 return None  # no origin yet: wait for the first engine input
             self.clock_.origin_ns = ns
             self.origin_pub.publish(messages.clock_message(ns))
@@ -285,7 +287,7 @@ class EvaluatorNode(Node):
             return None
         k, _ = self.clock_.locate(ns)
         if self.closed_below is not None and k < self.closed_below:
-            self.faults.report(f"late_{stream}", f"{stream} message for the already closed window {k}: dropped")
+            self.faults.report(stream_fault("late", stream), f"{stream} message for the already closed window {k}: dropped")
             return None
         if k < 0:
             # Samples within a window before t0 bracket window 0's first rows; they belong to no scored window.
@@ -302,7 +304,7 @@ class EvaluatorNode(Node):
     def _accept(self, stream: str, ns: int, values) -> list:
         """The samples ``(ns, values)`` of a message to use now (:meth:`_admit`); none for a non-finite one."""
         if not topics.all_finite(values):
-            self.faults.report(f"nan_{stream}", f"non-finite {stream} message dropped")
+            self.faults.report(stream_fault("nan", stream), f"non-finite {stream} message dropped")
             return []
         return self._admit(stream, ns, values)
 
@@ -310,25 +312,25 @@ class EvaluatorNode(Node):
         ns = topics.stamp_ns(msg.header.stamp)
         fields = topics.motor_fields(msg)
         if fields is None:
-            self.faults.report("bad_motor_input", f"motor_input message with {len(msg.effort)} efforts (4 expected) dropped")
+            self.faults.report(stream_fault("bad", MOTOR_INPUT), f"motor_input message with {len(msg.effort)} efforts (4 expected) dropped")
             return
         if not topics.all_finite(fields[0]):
-            self.faults.report("nan_motor_input", "non-finite motor_input message dropped")
+            self.faults.report(stream_fault("nan", MOTOR_INPUT), "non-finite motor_input message dropped")
             return
-        for ns, (u, omega) in self._admit("motor_input", ns, fields):
+        for ns, (u, omega) in self._admit(MOTOR_INPUT, ns, fields):
             self._motor(ns, u, omega)
 
     def _motor(self, ns: int, u, omega) -> None:
         """One engine input with a stamp after the previous one (the stamp gate keeps them increasing)."""
         self.clock_.observe(ns)
-        window = self._window_for(ns, "motor")
+        window = self._window_for(ns, MOTOR_INPUT)
         if window is None:
             return
         window.motor[ns] = u.tolist()
         window.omega[ns] = None if omega is None else omega.tolist()
         if self.first_motor_wall is None:
             self.first_motor_wall = time.monotonic()
-        self._advance("motor_input", ns, window.index)
+        self._advance(MOTOR_INPUT, ns, window.index)
 
     def _advance(self, stream: str, ns: int, k: int) -> None:
         """Stream ``stream`` delivered stamp ``ns`` [ns] of window ``k``: note its latest stamp; on entering a new window,
@@ -353,8 +355,11 @@ class EvaluatorNode(Node):
             return  # another instance of a multi-instance topic
         ns, fields = read
         fault = self.mapped.fault(fields)
+        if fault == "zero_quaternion":
+            self.faults.report("zero_quaternion", f"{topic} message with a zero (non-unit) quaternion dropped")
+            return
         if fault:
-            self.faults.report(f"{fault}_{topic}", f"{topic} message with a {fault.replace('_', ' ')} value dropped")
+            self.faults.report(stream_fault("nan", topic), f"non-finite {topic} message dropped")
             return
         measured = {f: v for f, v in fields.items() if f != "commands"}
         if measured:
@@ -365,7 +370,7 @@ class EvaluatorNode(Node):
             self.faults.report("no_vehicle", f"no vehicle yet: {topic} dropped until a replay announces one on topic "
                                              f"{VEHICLE_TOPIC} (or set parameter vehicle)")
             return
-        for ns, u in self._admit("motor_input", ns, self.mapped.command(fields["commands"], self.vehicle)):
+        for ns, u in self._admit(MOTOR_INPUT, ns, self.mapped.command(fields["commands"], self.vehicle)):
             self._motor(ns, u, None)
 
     def _measurement(self, stream: str, ns: int, fields: list, store: str) -> None:
@@ -380,27 +385,27 @@ class EvaluatorNode(Node):
                 continue
             buffer = buffer_of(window)
             if ns in buffer:
-                self.faults.report(f"duplicate_{stream}", f"duplicated {stream} stamp {ns} ns: later copy dropped")
+                self.faults.report(stream_fault("duplicate", stream), f"duplicated {stream} stamp {ns} ns: later copy dropped")
                 continue
             buffer[ns] = fields
             self._advance(stream, ns, window.index)
 
     def on_odom(self, msg: Odometry) -> None:
-        self._measurement("mocap_odom", topics.stamp_ns(msg.header.stamp), topics.odometry_fields(msg), "odom")
+        self._measurement(MOCAP_ODOM, topics.stamp_ns(msg.header.stamp), topics.odometry_fields(msg), "odom")
 
     def on_imu(self, msg: Imu) -> None:
-        self._measurement("imu", topics.stamp_ns(msg.header.stamp), topics.imu_fields(msg), "imu")
+        self._measurement(IMU, topics.stamp_ns(msg.header.stamp), topics.imu_fields(msg), "imu")
 
     def _prediction(self, model: str, ns: int, fields: list, store: str) -> None:
         stream = f"{model}/{'odom' if store == 'pred_odom' else 'accel'}"
         for ns, fields in self._accept(stream, ns, fields):
-            window = self._window_for(ns, f"{model}_prediction")
+            window = self._window_for(ns, stream)
             if window is None:
                 continue
             buffer = getattr(window, store)[model]
             if ns in buffer:
                 # A restarted predictor may re-publish a stamp: keep the first copy.
-                self.faults.report(f"duplicate_{model}", f"model {model}: duplicated prediction stamp {ns} ns: later copy dropped")
+                self.faults.report(stream_fault("duplicate", stream), f"model {model}: duplicated prediction stamp {ns} ns: later copy dropped")
                 continue
             buffer[ns] = fields
             self.model_last_wall[model] = time.monotonic()
@@ -420,7 +425,7 @@ class EvaluatorNode(Node):
                     and len(self.open) >= MAX_OPEN_WINDOWS):
                 self.faults.report(f"horizon_ahead_{model}", f"{model}/{HORIZON_TOPIC} stamp {ns} ns beyond the open windows: dropped")
                 continue
-            window = self._window_for(ns, f"{model}_horizon")
+            window = self._window_for(ns, f"{model}/horizon")
             if window is not None:
                 window.horizon[model].setdefault(ns, fields)
 
@@ -551,6 +556,7 @@ class EvaluatorNode(Node):
         """Write results.json, tables.md (and figures) into output_dir; returns a one-line summary."""
         if self.output_dir is None:
             return "output_dir is empty: nothing written"
+        self.scores.vehicle = self.vehicle.name if self.vehicle else ""
         return self.scores.write(self.output_dir, "live", self.figures, f"Live evaluation of {', '.join(self.models)} on vehicle "
                                                                           f"{self.vehicle.name if self.vehicle else '(unknown)'}")
 

@@ -37,10 +37,10 @@ the model's multi-step form (:func:`~quad_modelling.core.evaluation.multistep.mu
 forecast) flies u_s held, published at input s, stamped t_s + h dt; ``flown`` flies the recorded commands,
 published at input s+h, stamped t_{s+h}: equal to the offline multi-step prediction, too late to be a forecast.
 
-Faults (one warning per kind, then counted): non-finite or malformed messages and zero
-quaternions are dropped; warm rows without a measurement within tolerance are left out (fewer
-than 2: the window is not predicted); a model error or a non-finite prediction stops the window.
-"""
+Faults (one warning per kind, then counted; per stream ``<kind>_<stream>`` of the one vocabulary
+:data:`~quad_modelling.nodes.common.STREAM_FAULTS`, as the evaluator's): non-finite or malformed messages and zero
+quaternions are dropped; warm rows without a measurement within tolerance are left out (fewer than 2: the window is
+not predicted); a model error or a non-finite prediction stops the window."""
 
 from __future__ import annotations
 
@@ -67,6 +67,7 @@ from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.common import (
+    BATTERY, IMU, MOCAP_ODOM, MOTOR_INPUT, STREAMS,  # the one stream naming and fault vocabulary (stream_fault)
     VEHICLE_TOPIC,
     BadParameter,
     FaultLog,
@@ -80,6 +81,7 @@ from quad_modelling.nodes.common import (
     say,
     set_realtime_priority,
     spin,
+    stream_fault,
     subscription_qos,
 )
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, subscribe
@@ -164,13 +166,14 @@ class PredictorNode(Node):
         self.imu = MeasurementTrack(topics.IMU_FIELDS, gap_ns, TRACK_CAPACITY)
         self.battery = MeasurementTrack(1, gap_ns, TRACK_CAPACITY)
         self.tracks = [self.odom, self.imu] + ([self.battery] if self.use_battery else [])
-        self.gates = {name: StampGate(step_ns) for name in ("motor", "odom", "imu", "battery")}
+        self.track_of = {MOCAP_ODOM: self.odom, IMU: self.imu, BATTERY: self.battery}
+        self.gates = {name: StampGate(step_ns) for name in STREAMS}
         topic_map, self.mapped = live_topic_map(p["topic_map"], node_name), None
         if topic_map is None:  # the contract
             self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
             # measurements arrive serialised and are decoded after the answer to the next command (_decode_pending)
-            self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, data), qos, raw=True)
-            self.create_subscription(Imu, p["imu_topic"], lambda data: self._receive(self.on_imu, Imu, data), qos, raw=True)
+            self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, MOCAP_ODOM, data), qos, raw=True)
+            self.create_subscription(Imu, p["imu_topic"], lambda data: self._receive(self.on_imu, Imu, IMU, data), qos, raw=True)
             if self.use_battery:
                 self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
         else:  # a stack's own topics (nodes.mapping.streams): the offline reader's conversion
@@ -239,21 +242,21 @@ class PredictorNode(Node):
         gate = self.gates[stream]
         verdict = gate.admit(ns, (ns, fields))
         for dropped in gate.dropped:
-            self.faults.report(f"stamp_outlier_{stream}", f"{stream} stamp {dropped} ns off the stream's time (a duplicate, "
+            self.faults.report(stream_fault("stamp_outlier", stream), f"{stream} stamp {dropped} ns off the stream's time (a duplicate, "
                                                           "back in time, or beyond max_stamp_step_s ahead): dropped")
         if verdict is Stamp.SUSPECT:
             return False
         if verdict is Stamp.JUMPED:
-            self.faults.report(f"stamps_jumped_{stream}", f"{stream} stamps jumped to a new time base at {ns} ns "
+            self.faults.report(stream_fault("clock_jump", stream), f"{stream} stamps jumped to a new time base at {ns} ns "
                                                           "(restarted publisher, clock jump or a long gap): its buffer restarts")
-            if stream == "motor":
+            if stream == MOTOR_INPUT:
                 self._reset_time_base(ns)
             elif self.mapped is not None:
                 self.mapped.clear(stream)
                 for stamp, values in gate.confirmed[:-1]:
                     self.mapped.store(stamp, values)
             else:
-                track = getattr(self, stream)
+                track = self.track_of[stream]
                 track.clear()
                 for stamp, values in gate.confirmed[:-1]:
                     track.add(stamp, values)
@@ -273,8 +276,8 @@ class PredictorNode(Node):
             self.clock_.origin_ns = ns
             self.origin_pub.publish(messages.clock_message(ns))
 
-    def _receive(self, handler, kind, data: bytes) -> None:
-        self.pending.append((handler, kind, data))
+    def _receive(self, handler, kind, stream: str, data: bytes) -> None:
+        self.pending.append((handler, kind, stream, data))
         if len(self.pending) > MAX_PENDING_MEASUREMENTS or (self.state == "warm" and self.warm_closed) or \
                 (self.horizon is not None and self.horizon.waiting()):
             self._decode_pending()  # no commands to answer (or a start or horizon anchor waits on them): decode now
@@ -287,11 +290,11 @@ class PredictorNode(Node):
         answered; it runs before any window start, after every command, and on the timer.
         """
         while self.pending:
-            handler, kind, data = self.pending.popleft()
+            handler, kind, stream, data = self.pending.popleft()
             try:
                 msg = deserialize_message(data, kind)
             except Exception as err:  # noqa: BLE001 -- rclpy raises a bare RuntimeError/TypeError on bad CDR
-                self.faults.report(f"bad_{kind.__name__.lower()}", f"undecodable {kind.__name__} message dropped: {err}")
+                self.faults.report(stream_fault("bad", stream), f"undecodable {kind.__name__} message dropped: {err}")
                 continue
             handler(msg)
 
@@ -305,39 +308,39 @@ class PredictorNode(Node):
     def on_odom(self, msg: Odometry) -> None:
         fields = topics.odometry_fields(msg)
         if not topics.all_finite(fields):
-            self.faults.report("nan_odom", "non-finite motion-capture message dropped")
+            self.faults.report(stream_fault("nan", MOCAP_ODOM), "non-finite motion-capture message dropped")
             return
         if topics.invalid_odometry_quaternion(fields):
             self.faults.report("zero_quaternion", "motion-capture message with a zero (non-unit) quaternion dropped; "
                                                   "its neighbours are interpolated across it")
             return
         ns = topics.stamp_ns(msg.header.stamp)
-        if self._gate("odom", ns, fields):
-            self._store(self.odom, ns, fields, "odom")
+        if self._gate(MOCAP_ODOM, ns, fields):
+            self._store(self.odom, ns, fields, MOCAP_ODOM)
             self._measured()
 
     def on_imu(self, msg: Imu) -> None:
         fields = topics.imu_fields(msg)
         if not topics.all_finite(fields):
-            self.faults.report("nan_imu", "non-finite IMU message dropped")
+            self.faults.report(stream_fault("nan", IMU), "non-finite IMU message dropped")
             return
         ns = topics.stamp_ns(msg.header.stamp)
-        if self._gate("imu", ns, fields):
-            self._store(self.imu, ns, fields, "imu")
+        if self._gate(IMU, ns, fields):
+            self._store(self.imu, ns, fields, IMU)
             self._measured()
 
     def on_battery(self, msg: BatteryState) -> None:
         if not np.isfinite(msg.voltage):
-            self.faults.report("nan_battery", "non-finite battery voltage dropped")
+            self.faults.report(stream_fault("nan", BATTERY), "non-finite battery voltage dropped")
             return
         ns = topics.stamp_ns(msg.header.stamp)
-        if self._gate("battery", ns, [msg.voltage]):
-            self._store(self.battery, ns, [msg.voltage], "battery")
+        if self._gate(BATTERY, ns, [msg.voltage]):
+            self._store(self.battery, ns, [msg.voltage], BATTERY)
             self._measured()
 
-    def _store(self, track: MeasurementTrack, ns: int, fields, kind: str) -> None:
+    def _store(self, track: MeasurementTrack, ns: int, fields, stream: str) -> None:
         if not track.add(ns, fields):
-            self.faults.report(f"duplicate_{kind}", f"duplicated {kind} stamp {ns} ns: later copy dropped")
+            self.faults.report(stream_fault("duplicate", stream), f"duplicated {stream} stamp {ns} ns: later copy dropped")
 
     def on_mapped(self, topic: str, msg) -> None:
         """A message of a ``topic_map`` topic (:mod:`~quad_modelling.nodes.mapping.streams`): its measurements stored,
@@ -347,13 +350,16 @@ class PredictorNode(Node):
             return  # another instance of a multi-instance topic
         ns, fields = read
         fault = self.mapped.fault(fields)
+        if fault == "zero_quaternion":
+            self.faults.report("zero_quaternion", f"{topic} message with a zero (non-unit) quaternion dropped")
+            return
         if fault:
-            self.faults.report(f"{fault}_{topic}", f"{topic} message with a {fault.replace('_', ' ')} value dropped")
+            self.faults.report(stream_fault("nan", topic), f"non-finite {topic} message dropped")
             return
         measured = {f: v for f, v in fields.items() if f != "commands"}
         if measured and self._gate(topic, ns, measured):
             if not self.mapped.store(ns, measured):
-                self.faults.report(f"duplicate_{topic}", f"duplicated {topic} stamp {ns} ns: later copy dropped")
+                self.faults.report(stream_fault("duplicate", topic), f"duplicated {topic} stamp {ns} ns: later copy dropped")
             self._measured()
         if "commands" in fields:
             self.on_command(ns, self.mapped.command(fields["commands"], self.vehicle) if self.model else None, None)
@@ -361,7 +367,7 @@ class PredictorNode(Node):
     def on_motor(self, msg: JointState) -> None:
         fields = topics.motor_fields(msg)
         if self.model is not None and (fields is None or not np.isfinite(fields[0]).all()):
-            self.faults.report("bad_motor", "motor_input without 4 finite efforts dropped")
+            self.faults.report(stream_fault("bad" if fields is None else "nan", MOTOR_INPUT), "motor_input without 4 finite efforts dropped")
             return
         self.on_command(topics.stamp_ns(msg.header.stamp), *(fields or (None, None)))
 
@@ -371,7 +377,7 @@ class PredictorNode(Node):
             self.faults.report("no_vehicle", f"no vehicle yet: motor_input dropped until a replay announces one on topic "
                                              f"{VEHICLE_TOPIC} (or set parameter vehicle)")
             return
-        if not self._gate("motor", ns):
+        if not self._gate(MOTOR_INPUT, ns):
             return
         if self.clock_.origin_ns is None:
             self.clock_.origin_ns = ns

@@ -23,6 +23,7 @@ import numpy as np
 
 from quad_modelling.core.alignment import coverage_reason, interpolate_at, stream_coverage
 from quad_modelling.core.evaluation.multistep import GROUP_UNITS, GROUPS, group_error_norms, measured_groups
+from quad_modelling.core.evaluation.statistics import EvaluationStatistics
 from quad_modelling.core.evaluation.windowed import (
     EvaluationResult,
     ExampleWindow,
@@ -38,6 +39,9 @@ from quad_modelling.core.windows import EvaluationConfig, SpanSpec
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.nodes.common import (
+    IMU,
+    MOCAP_ODOM,
+    MOTOR_INPUT,
     Param,
     executor_param,
     niceness,
@@ -107,6 +111,7 @@ class LiveScores:
     examples: dict[str, ExampleWindow] = field(default_factory=dict)
     horizon_s: float = 0.0
     horizon: list[HorizonRecord] = field(default_factory=list)
+    vehicle: str = ""  # the vehicle config's name, for the statistics (set once the node knows it)
 
     def horizon_mae(self) -> dict:
         """MAE@h per model and group over every scored receding-horizon prediction (pooled over windows:
@@ -127,17 +132,28 @@ class LiveScores:
             self.examples[span] = ExampleWindow(window.meta.source, span, window.t - window.t[0], trimmed_inputs(window, self.config.trim),
                                                 measured, dict(predicted), warm)
 
+    def statistics(self) -> EvaluationStatistics:
+        """The sufficient statistics of the scored windows (per model and span: window count, exact sums of RMS and
+        TIC; :mod:`~quad_modelling.core.evaluation.statistics`), as ``evaluate`` writes them, so ``quad-modelling
+        merge`` takes a run-bag result. No multi-step sums: run-bag adds them (``commands/run_bag.add_multistep_table``)."""
+        stats = EvaluationStatistics.empty(self.vehicle, self.models, [s.name for s in self.spans], None)
+        for record in self.records:
+            if record.scored and record.model in stats.windowed:
+                stats.windowed[record.model][record.span].add_window(record.rms, record.tic)
+        return stats
+
     def result(self, source: str) -> EvaluationResult:
-        """Mean RMS/TIC over scored windows per model and span, as a core EvaluationResult."""
+        """Mean RMS/TIC over scored windows per model and span (the exact sums over the windows divided by their count,
+        as offline), as a core EvaluationResult with its statistics."""
+        stats = self.statistics()
         scores: dict[str, dict[str, SpanScores]] = {m: {} for m in self.models}
         for model in self.models:
-            for span in (s.name for s in self.spans):
-                done = [r for r in self.records if r.model == model and r.span == span and r.scored]
-                if done:
-                    scores[model][span] = SpanScores.over_windows([r.rms for r in done], [r.tic for r in done])
+            for span, sums in stats.windowed[model].items():
+                if sums.windows:
+                    scores[model][span] = SpanScores(*sums.means(), sums.windows)
         flights = [{"source": source, "live": True}]
         examples = list(self.examples.values())
-        return EvaluationResult(scores, {}, self.config, flights, examples)
+        return EvaluationResult(scores, {}, self.config, flights, examples, stats)
 
     def write(self, output_dir, source: str, figures: bool, title: str) -> str:
         """Write results.json, tables.md (and, with ``figures``, the figures) into ``output_dir`` (replaced
@@ -296,9 +312,9 @@ def window_measurements(window: WindowBuffer, neighbours: list[WindowBuffer], lo
     variables, or (None, None, reason) when a measurement stream (with a topic map ``mapped``: each measured topic)
     fails the coverage rule or cannot be used."""
     rows = np.array(sorted(window.motor), dtype=np.int64)
-    streams = [("mocap_odom", window.odom), ("imu", window.imu)] if mapped is None else \
+    streams = [(MOCAP_ODOM, window.odom), (IMU, window.imu)] if mapped is None else \
         [(topic, window.mapped.get(topic, {})) for topic in mapped.measured_topics]
-    reason = coverage_reason([stream_coverage("motor_input", rows, lo, hi),
+    reason = coverage_reason([stream_coverage(MOTOR_INPUT, rows, lo, hi),
                               *(stream_coverage(name, np.array(sorted(buffer)), lo, hi) for name, buffer in streams)])
     if reason:
         return None, None, reason

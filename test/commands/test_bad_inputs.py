@@ -160,6 +160,12 @@ def _snapshot(root: Path) -> dict[str, str]:
 
 # ---- the corpus: (id, argv with {d} for the inputs directory, what the one line must say) --------------------
 
+LONG_NAME = "{d}/" + "n" * 300
+"""An input whose last name is longer than the 255 bytes a Linux file system allows (ENAMETOOLONG)."""
+
+DEEP_PATH = "{d}/" + "/".join(["p" * 200] * 25)
+"""An input path of 25 names of 200 bytes: longer than the 4096 bytes of PATH_MAX (ENAMETOOLONG)."""
+
 CORPUS = [
     # outputs: never an input, never '', . or .., never a name the file system cannot hold
     ("o-empty", ["convert", "{d}/flight.mat", "-o", ""], "the output must name a new file or directory, not '.'"),
@@ -248,6 +254,21 @@ CORPUS = [
     ("identify-effects-unfittable", ["identify", "{d}/flight.mat", "--effects", "motor_imbalance", "-o", "{d}/work/v.yaml"],
      "--effects: identify cannot fit motor_imbalance yet"),
     ("run-bag-imu-other-clock", ["run-bag", "{d}/imu_clock", "-o", "{d}/work/live"], "topic /quad/imu stamps are offset by +100.000 s"),
+    # paths longer than the file system allows (a name over NAME_MAX, a path over PATH_MAX), on every verb that takes one
+    *[(f"path-too-long-{case}", argv, f"{what} path is too long for the file system (longest name {name} bytes") for case, argv, what, name in [
+        ("convert", ["convert", LONG_NAME + ".csv", "-o", "{d}/work/b"], "flight file", 304),
+        ("info", ["info", LONG_NAME], "flight file", 300),
+        ("evaluate", ["evaluate", DEEP_PATH + ".mat", "-o", "{d}/work/out"], "flight file", 204),
+        ("identify", ["identify", LONG_NAME + ".mat", "-o", "{d}/work/v.yaml"], "flight file", 304),
+        ("train", ["train", DEEP_PATH + ".csv", "-o", "{d}/work/m.npz"], "flight file", 204),
+        ("diagnose", ["diagnose", "--train", "{d}/flight.mat", "--test", LONG_NAME + ".mat", "-o", "{d}/work/d"], "flight file", 304),
+        ("run-bag", ["run-bag", DEEP_PATH, "-o", "{d}/work/live"], "bag", 200),
+        ("merge", ["merge", LONG_NAME, "{d}/bag", "-o", "{d}/work/m"], "results directory", 300),
+        ("vehicle", ["evaluate", "{d}/flight.mat", "--vehicle", LONG_NAME + ".yaml", "-o", "{d}/work/out"], "vehicle config", 305),
+        ("mapping", ["convert", "{d}/flight.mat", "--mapping", DEEP_PATH + ".yaml", "-o", "{d}/work/b"], "mapping file", 205),
+        ("model", ["evaluate", "{d}/flight.mat", "--model", f"narx:{LONG_NAME}.npz", "-o", "{d}/work/out"], "model file", 304),
+    ]],
+    ("path-too-long-output-dir", ["simulate", "-o", DEEP_PATH + "/s.mat"], "bytes): output directory path cannot be looked up (File name too long)"),
 ]
 
 

@@ -62,6 +62,11 @@ def test_merge_refuses_missing_foreign_and_incompatible_results(results, tmp_pat
     del averages_only["statistics"]
     (foreign / "results.json").write_text(json.dumps(averages_only))
     assert "no 'statistics' to merge" in merge_error([str(foreign), "-o", out], capsys)
+    live_only = json.loads((results["a"] / "results.json").read_text())  # run-bag without spans: live:0:inf
+    live_only["config"].update(train="", eval="")
+    live_only["live"] = {"spans": [{"name": "live", "start_s": 0.0, "end_s": None}]}
+    (foreign / "results.json").write_text(json.dumps(live_only))
+    assert "a run-bag result without both --train and --eval (its span is live:0:inf)" in merge_error([str(foreign), "-o", out], capsys)
     assert "models ['naive', 'dummy'] differs from models ['greybox', 'dummy']" in merge_error(
         [str(results["a"]), str(results["other_models"]), "-o", out], capsys)
     message = merge_error([str(results["a"]), str(results["other_spans"]), "-o", out], capsys)

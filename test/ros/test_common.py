@@ -61,3 +61,32 @@ def test_realtime_priority_zero_puts_every_thread_back_under_normal_scheduling()
         set_realtime_priority(0)
         stop.set()
         worker.join()
+
+
+def test_both_nodes_name_stream_faults_from_the_one_vocabulary():
+    """Every per-stream fault of the predictor and the evaluator is ``stream_fault(kind, stream)`` with a kind of
+    STREAM_FAULTS and a stream of STREAMS (or a model's prediction stream): no node spells one of its own."""
+    import re
+
+    import pytest
+
+    from quad_modelling.nodes.common import STREAM_FAULTS, STREAMS, stream_fault
+    from test.conftest import REPO
+
+    assert STREAMS == ("motor_input", "mocap_odom", "imu", "battery")
+    assert stream_fault("stamp_outlier", "imu") == "stamp_outlier_imu" and stream_fault("clock_jump", "motor_input") == "clock_jump_motor_input"
+    with pytest.raises(ValueError, match="fault kind 'outlier_stamp' is not in the vocabulary"):
+        stream_fault("outlier_stamp", "imu")
+    for node in ("predictor_node", "evaluator_node"):
+        source = (REPO / "quad_modelling" / "nodes" / f"{node}.py").read_text()
+        kinds = re.findall(r"faults\.report\(\s*(.+?),", source)
+        assert len(kinds) > 10, node
+        for kind in kinds:
+            literal = re.fullmatch(r'f?"([^"]*)"', kind)
+            if literal is None:
+                assert kind.startswith("stream_fault(") or kind in ("event[1]",), (node, kind)
+                continue
+            text = literal.group(1)
+            assert "{" not in text.replace("{model}", ""), (node, kind)  # no per-stream name built by hand (a model's own may be)
+            assert not any(text.endswith(f"_{s}") for s in STREAMS + ("odom", "motor")), (node, kind)  # a stream's own name
+            assert text not in {f"{k}_{s}" for k in STREAM_FAULTS for s in STREAMS}, (node, kind)

@@ -142,7 +142,7 @@ def test_outlier_stamps_clock_jumps_and_bad_messages_are_survived(ros):
     feed(node, log, range(0, 1700), arrays, predictions={"m": prediction})  # restarted: the flight again
     node.finish()
     counts = node.faults.counts
-    assert counts["outlier_stamp_motor_input"] == 1 and counts["outlier_stamp_mocap_odom"] == 1  # the run of a jump is no outlier
+    assert counts["stamp_outlier_motor_input"] == 1 and counts["stamp_outlier_mocap_odom"] == 1  # the run of a jump is no outlier
     assert counts["bad_motor_input"] == 1 and counts["bad_imu"] == 1
     assert counts["clock_jump_motor_input"] == 1
     records = [r for r in node.scores.records if r.model == "m"]

@@ -79,8 +79,8 @@ def test_faults_are_dropped_with_one_warning_each_and_nothing_non_finite_is_publ
     # a motion-capture gap across the warm start of window 1 (rows 500..509)
     feed(node, log, range(301, 1100), arrays, skip_odom=set(range(500, 510)))
     # 4 stamps back in time and 1 duplicate: each a single outlier (a regular stamp follows), dropped one by one
-    assert node.faults.counts["stamp_outlier_motor"] == 5 and "stamps_jumped_motor" not in node.faults.counts
-    assert node.faults.counts["bad_motor"] == 1 and node.faults.counts["nan_odom"] == 1
+    assert node.faults.counts["stamp_outlier_motor_input"] == 5 and "clock_jump_motor_input" not in node.faults.counts
+    assert node.faults.counts["nan_motor_input"] == 1 and node.faults.counts["nan_mocap_odom"] == 1
     assert node.faults.counts["warm_gap"] == 1
     got, predicted = published(node, stamps)
     assert np.isfinite(predicted).all()
@@ -278,13 +278,13 @@ def test_serialised_measurements_are_decoded_after_the_answer_and_still_checked(
         odom = arrays.odometry(row, ns)
         if row == 21:
             odom.pose.pose.position.x = float("nan")
-        node._receive(node.on_odom, Odometry, serialize_message(odom))
-        node._receive(node.on_imu, Imu, b"\x00\x01" if row == 23 else serialize_message(arrays.imu(row, ns)))
+        node._receive(node.on_odom, Odometry, "mocap_odom", serialize_message(odom))
+        node._receive(node.on_imu, Imu, "imu", b"\x00\x01" if row == 23 else serialize_message(arrays.imu(row, ns)))
         if row == 22:
             assert len(node.pending) == 2  # held while command 22 is not yet answered
         node.on_motor(arrays.motor(row, ns))
         assert not node.pending
-    assert node.faults.counts == {"nan_odom": 1, "bad_imu": 1}
+    assert node.faults.counts == {"nan_mocap_odom": 1, "bad_imu": 1}
     assert int(stamps[21]) not in node.odom.stamps and int(stamps[23]) not in node.imu.stamps
     assert int(stamps[22]) in node.odom.stamps
     assert node.state == "stream" and node.published == 20 + 5  # the 20 warm rows at the start, then commands 20..24
@@ -318,7 +318,7 @@ def test_a_stamp_from_the_future_costs_one_sample_not_the_flight(ros):
     node.on_imu(arrays.imu(300, int(stamps[300]) + 10 ** 15))
     feed(node, log, range(301, 1100), arrays)
     got, predicted = published(node, stamps)
-    assert node.faults.counts["stamp_outlier_motor"] == 1 and node.faults.counts["stamp_outlier_imu"] == 1
+    assert node.faults.counts["stamp_outlier_motor_input"] == 1 and node.faults.counts["stamp_outlier_imu"] == 1
     assert got == [s for s in stamps[:1100].tolist() if s != stamps[300]]  # everything else answered, windows 0 and 1
     assert node.windows_started == 3
     node.destroy_node()
@@ -334,8 +334,8 @@ def test_a_restarted_publisher_resets_cleanly_and_the_predictor_resumes_at_the_n
     feed(node, log, range(0, 700), arrays)
     first = len(node.odom_pub.messages)
     feed(node, log, range(0, 1100), arrays)
-    assert node.faults.counts["stamps_jumped_motor"] == 1
-    assert node.faults.counts["stamps_jumped_odom"] == 1 and node.faults.counts["stamps_jumped_imu"] == 1
+    assert node.faults.counts["clock_jump_motor_input"] == 1
+    assert node.faults.counts["clock_jump_mocap_odom"] == 1 and node.faults.counts["clock_jump_imu"] == 1
     again = [topics.stamp_ns(m.header.stamp) for m in node.odom_pub.messages[first:]]
     assert again == stamps[2:1100].tolist()  # rows 0 and 1 were the suspects; window 0 from row 2, window 1 whole
     assert np.all(np.diff(again) > 0)
@@ -423,7 +423,7 @@ def test_a_clock_jump_forward_resets_the_windows_and_prediction_resumes_in_the_w
         node.on_motor(arrays.motor(row, ns))
         node.on_odom(arrays.odometry(row, ns))
         node.on_imu(arrays.imu(row, ns))
-    assert node.faults.counts["stamps_jumped_motor"] == 1 and node.clock_.origin_ns == int(stamps[0])
+    assert node.faults.counts["clock_jump_motor_input"] == 1 and node.clock_.origin_ns == int(stamps[0])
     got = [topics.stamp_ns(m.header.stamp) for m in node.odom_pub.messages]
     assert got[:600] == stamps[:600].tolist()
     # rows 600, 601 were suspects; row 602 landed 102 ms into window 201, after its warm start: window 202 from its start

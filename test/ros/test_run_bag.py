@@ -88,6 +88,27 @@ def test_live_equals_offline_on_a_flight_with_an_irregular_step(tmp_path, capsys
                 for metric in ("rms", "tic"):
                     assert live["models"][model][span][var][metric] == pytest.approx(entry[metric], rel=1e-9), (model, span, var)
     assert live["live"]["marked"] == []
+    # The live result carries the exact statistics, as evaluate writes them: merge takes it, and its numbers are the
+    # merge of the offline evaluation of the same windows (same configuration, multi-step table included).
+    assert live["statistics"]["windowed"]["greybox"]["eval"]["windows"] == 1 and live["statistics"]["multistep"]["starts"] > 0
+    assert main(["evaluate", str(tmp_path / "bag"), "--model", "greybox", "--drop", "0:0", "--window", "4", "--train", "0:4",
+                 "--eval", "4:8", "-o", str(tmp_path / "offline")]) == 0
+    merged = {}
+    for name, inputs in (("live", [out]), ("offline", [tmp_path / "offline"]), ("both", [out, tmp_path / "offline"])):
+        assert main(["merge", *map(str, inputs), "-o", str(tmp_path / f"merged_{name}")]) == 0, capsys.readouterr().err
+        merged[name] = json.loads((tmp_path / f"merged_{name}" / "results.json").read_text())
+    assert merged["live"]["config"]["horizons"] == merged["offline"]["config"]["horizons"] == [1, 10, 50]
+    assert merged["both"]["windows"] == {m: {"train": 2, "eval": 2} for m in ("greybox", "dummy")}
+    for model in ("greybox", "dummy"):
+        for span in ("train", "eval"):
+            for var, entry in merged["offline"]["models"][model][span].items():
+                for metric in ("rms", "tic"):
+                    for other in ("live", "both"):
+                        assert merged[other]["models"][model][span][var][metric] == pytest.approx(entry[metric], rel=1e-9), (other, model, var)
+    assert merged["live"]["horizons"]["starts"] == merged["offline"]["horizons"]["starts"]
+    for model, groups in merged["offline"]["horizons"]["models"].items():
+        for group, entry in groups.items():
+            assert merged["live"]["horizons"]["models"][model][group]["sim_err"] == pytest.approx(entry["sim_err"], rel=1e-9)
 
 
 def test_unknown_model_is_a_clear_error_before_any_node_starts(tmp_path, capsys):

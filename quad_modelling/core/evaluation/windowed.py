@@ -59,7 +59,7 @@ from quad_modelling.core.preprocess import (
 )
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX, VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.core.windows import EvaluationConfig, no_window_error, span_windows, warm_samples_for
+from quad_modelling.core.windows import EvaluationConfig, check_window_rate, no_window_error, span_windows, warm_samples_for
 from quad_modelling.errors import ConfigError, DataError
 
 
@@ -199,6 +199,7 @@ def evaluate_flight(
     if len(set(names)) != len(names):
         raise ConfigError(f"model names must be unique, got {names}")
     config.validate()
+    check_window_rate(log)  # before the multi-step table: a flight no window can score is refused for its rate
     # Windows score the recorded rows (the coverage rule of core.alignment, as the live evaluator); the multi-step
     # horizons count steps, so they run on the uniform grid (and resample_uniform refuses a gap over 50 ms).
     uniform = resample_uniform(log)

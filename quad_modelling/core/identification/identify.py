@@ -52,7 +52,7 @@ from quad_modelling.core.models.motors import discrete_motor, motor_thrusts
 from quad_modelling.core.preprocess import smooth
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.core.windows import EvaluationConfig, SpanSpec
+from quad_modelling.core.windows import EvaluationConfig, SpanSpec, check_window_rate
 from quad_modelling.errors import DataError
 
 IDENTIFIED_CONSTANTS = ("motor_a_m", "motor_b_m", "drag_constant")
@@ -97,6 +97,7 @@ def training_batch(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     config.validate()
     for log in flights:
         log.require(("acc_b", "gyro_b"), "identify (it fits the measured Z and angular accelerations)")
+        check_window_rate(log)  # a flight too slow for any window: its rate is the problem, not the spans
     try:
         return prepare_windows(flights, vehicle, config, SpanSpec.parse("train", config.train))
     except DataError as err:

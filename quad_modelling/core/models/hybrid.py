@@ -240,8 +240,11 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
     changed = sorted(k for k in set(stored) | set(current)
                      if not np.allclose(np.asarray(stored.get(k, np.nan), float), np.asarray(current.get(k, np.nan), float), rtol=1e-12, atol=0))
     if changed:
-        raise ModelError(f"{path}: the physics constants of vehicle {vehicle.name!r} changed since the hybrid was trained "
-                         f"({', '.join(changed)}); retrain it with quad-modelling train --hybrid")
+        trained_with = header["training"].get("vehicle_file")
+        which = trained_with or "FILE (the one given to train --hybrid)"
+        raise ModelError(f"{path}: the hybrid was trained with other physics constants of vehicle {vehicle.name!r} than "
+                         f"{vehicle.path} holds ({', '.join(changed)}); pass the vehicle it was trained with: --vehicle "
+                         f"{which} (a node: parameter vehicle), or retrain it on these constants")
     try:
         return HybridModel(params, net, vehicle.name, observer, dict(header.get("training", {})))
     except (ModelError, ConfigError) as err:

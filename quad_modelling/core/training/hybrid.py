@@ -337,5 +337,9 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
 def train_hybrid_on_flights(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], vehicle: VehicleConfig,
                             config: HybridTrainingConfig = HybridTrainingConfig(), seed: int = 0, progress: bool = False,
                             val_flights: Sequence[int] | None = None) -> HybridModel:
-    """:func:`train_hybrid` with the physics constants of ``vehicle`` (ConfigError naming any missing one)."""
-    return train_hybrid(PhysicsParameters.from_vehicle(vehicle), vehicle.name, logs, spans, config, seed, progress, val_flights)
+    """:func:`train_hybrid` with the physics constants of ``vehicle`` (ConfigError naming any missing one); the
+    model's training record names the vehicle file (``vehicle_file``), so a load with other constants can say which
+    ``--vehicle`` to pass."""
+    model = train_hybrid(PhysicsParameters.from_vehicle(vehicle), vehicle.name, logs, spans, config, seed, progress, val_flights)
+    model.training["vehicle_file"] = str(vehicle.path)
+    return model

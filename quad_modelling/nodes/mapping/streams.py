@@ -100,11 +100,11 @@ class MappedStreams:
 
     @staticmethod
     def fault(fields: dict[str, list[float]]) -> str | None:
-        """Why a message's numbers are unusable (a fault kind), or None: a non-finite number (an infinite command:
-        a NaN command is a stopped motor), an attitude quaternion of norm off 1."""
+        """Why a message's numbers are unusable (a fault kind), or None: ``nan``, a non-finite number (an infinite
+        command: a NaN command is a stopped motor); ``zero_quaternion``, an attitude quaternion of norm off 1."""
         for name, values in fields.items():
             if any(math.isinf(v) if name == "commands" else not math.isfinite(v) for v in values):
-                return "non_finite"
+                return "nan"
         attitude = fields.get("attitude")
         if attitude is not None and abs(math.sqrt(sum(v * v for v in attitude)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE:
             return "zero_quaternion"
