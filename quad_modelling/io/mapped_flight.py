@@ -1,9 +1,11 @@
 """Messages of a topic map's topics -> rows of numbers -> a FlightLog: the one conversion for any map.
 
 Used offline by :func:`quad_modelling.io.bag_io.read_mapped_bag` (messages deserialised with the
-definitions stored in the bag) and meant for a live node subscribing through a map: both call
-:class:`TopicReader` per message (attribute access only, so rosbags' and rclpy's messages alike) and
-:func:`convert_field` for the numbers, which converts units and frames through
+definitions stored in the bag) and live by the nodes' ``topic_map`` subscriptions
+(:mod:`quad_modelling.nodes.mapping.streams`, rclpy's messages): both call
+:class:`TopicReader` per message (attribute access only, so rosbags' and rclpy's messages alike),
+:func:`map_commands` and :func:`convert_measurements` (:func:`convert_field` per field) for the numbers, which
+convert units and frames through
 :mod:`quad_modelling.core.frames` only. Imports neither rclpy nor rosbags.
 
 Offline assembly (:func:`flight_from_streams`), the rules of streams on their own clocks
@@ -236,6 +238,37 @@ def convert_field(source: FieldSource, values: np.ndarray, euler: np.ndarray | N
     return si
 
 
+def stopped_command(source: FieldSource) -> float:
+    """The command a NaN stands for (PX4 actuator_motors: motor stopped): the low end of the map's range (else 0)."""
+    return source.range[0] if source.range else 0.0
+
+
+def map_commands(values: np.ndarray, source: FieldSource, vehicle: VehicleConfig, where: str) -> np.ndarray:
+    """(n, 4) commands as the map gives them -> the vehicle's input unit (:func:`commands_in_vehicle_unit`), a NaN
+    (motor stopped) read as :func:`stopped_command`, as the ULog reader does. Offline and live alike."""
+    values = np.asarray(values, dtype=float)
+    stopped = np.isnan(values)
+    if stopped.any():
+        values = np.where(stopped, stopped_command(source), values)
+    return commands_in_vehicle_unit(values, source, vehicle, where)
+
+
+def convert_measurements(sources: dict[str, FieldSource], aligned: dict[str, np.ndarray],
+                         last_yaw: float | None = None) -> dict[str, np.ndarray]:
+    """Every non-command field's (n, k) numbers on the same rows (the map's units and frames) -> FlightLog arrays
+    by map field name (:func:`convert_field`): the attitude first (Euler NED/FRD, yaw unwrapped over the rows and
+    from ``last_yaw``, the previous row's), then the others (a body-frame velocity rotated by it). Offline
+    (:class:`FlightAssembler`) and live (:mod:`quad_modelling.nodes.mapping.streams`) alike."""
+    euler = convert_field(sources["attitude"], aligned["attitude"])
+    yaw = np.unwrap(np.concatenate([[last_yaw if last_yaw is not None else euler[0, 2]], euler[:, 2]]))[1:]
+    euler[:, 2] = yaw
+    out = {"attitude": euler}
+    for name, values in aligned.items():
+        if name not in ("attitude", "commands"):
+            out[name] = convert_field(sources[name], values, euler)
+    return out
+
+
 # --- streams -> FlightLog, streamed ---------------------------------------------------------------
 
 def rate_hz(count: int, first: int, last: int) -> float:
@@ -381,25 +414,18 @@ class FlightAssembler:
         n, end = len(t_ns), self.rows + len(t_ns)
         if end > len(self.t_ns):
             raise DataError(f"{self.where}: topic {self.base} holds more messages than its recorded count {len(self.t_ns)}")
-        stopped = np.isnan(commands)
-        if stopped.any():  # PX4 actuator_motors: NaN = motor stopped, read as the range's low end (as the ULog reader)
-            self.stopped += int(stopped.sum())
-            commands = np.where(stopped, self._stopped_value(), commands)
+        self.stopped += int(np.isnan(commands).sum())
         rows = slice(self.rows, end)
         self.t_ns[rows] = t_ns
-        self.out["commands"][rows] = commands_in_vehicle_unit(commands, self.sources["commands"], self.vehicle, self.where)
-        euler = convert_field(self.sources["attitude"], aligned["attitude"])
-        yaw = np.unwrap(np.concatenate([[self.last_yaw if self.last_yaw is not None else euler[0, 2]], euler[:, 2]]))[1:]
-        euler[:, 2], self.last_yaw = yaw, float(yaw[-1])
-        self.out["attitude"][rows] = euler
-        for name, values in aligned.items():
-            if name != "attitude":
-                self.out[name][rows] = convert_field(self.sources[name], values, euler)
+        self.out["commands"][rows] = map_commands(commands, self.sources["commands"], self.vehicle, self.where)
+        converted = convert_measurements(self.sources, aligned, self.last_yaw)
+        self.last_yaw = float(converted["attitude"][-1, 2])
+        for name, values in converted.items():
+            self.out[name][rows] = values
         self.rows = end
 
     def _stopped_value(self) -> float:
-        span = self.sources["commands"].range
-        return span[0] if span else 0.0
+        return stopped_command(self.sources["commands"])
 
     def finish(self, notes: dict | None = None) -> FlightLog:
         """Align what is left and build the FlightLog (one-line DataError: a topic without messages, another clock,

@@ -2,7 +2,8 @@
 
 Subscribes (relative names, namespace ``/quad`` unless remapped): ``motor_input``,
 ``mocap/odom``, ``imu`` and, for each name in ``models``, ``<model>/odom`` and
-``<model>/accel``; ``window_origin`` (transient-local). Publishes
+``<model>/accel``; ``window_origin`` (transient-local); with ``topic_map`` (not ``quad``), a stack's
+own topics instead of the first three (:mod:`~quad_modelling.nodes.mapping.streams`). Publishes
 ``evaluation`` (diagnostic_msgs/DiagnosticArray, one status per model and span
 for each closed window: level OK with ``<variable>.rms``/``<variable>.tic``
 values in SI units, or WARN with the reason the window was not scored) and
@@ -74,30 +75,22 @@ from quad_modelling.nodes.common import (
     VEHICLE_TOPIC,
     BadParameter,
     FaultLog,
-    Param,
     VehicleSource,
     adopt_vehicle,
     data_qos,
     declare_parameters,
-    executor_param,
     latched_qos,
     make_executor,
-    niceness,
-    non_empty,
-    non_negative,
-    positive,
-    qos_param,
     run_node,
     say,
-    spans_check,
     spin,
     stream_fault,
-    stamp_step_param,
     subscription_qos,
-    vehicle_param,
 )
 from quad_modelling.nodes.recording import open_recorder
-from quad_modelling.nodes.scoring import (
+from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, message_class
+from quad_modelling.nodes.scoring import (  # noqa: F401  (EVALUATOR_PARAMETERS re-exported)
+    EVALUATOR_PARAMETERS,
     LiveScores,
     WindowBuffer,
     WindowRecord,
@@ -112,46 +105,6 @@ PROGRESS_REPEAT_S = 0.2
 
 MAX_OPEN_WINDOWS = 3
 """Windows buffered at once; an older one is closed (and marked if incomplete) when a newer one opens."""
-
-
-def _models_check(value) -> str | None:
-    names = [str(v).strip() for v in value]
-    if any(not n or "/" in n or ":" in n for n in names):
-        return f"model names must be plain topic prefixes (no '/' or ':'), got {names}"
-    if len(set(names)) != len(names):
-        return f"model names must be unique, got {names}"
-    return None
-
-
-EVALUATOR_PARAMETERS = [
-    Param("models", ["naive"], "names of the predictors to score (their topics <name>/odom, <name>/accel)", _models_check),
-    vehicle_param(),
-    Param("window_s", 10.0, "window length W [s], as the predictors", positive),
-    Param("warm_s", 0.2, "warm start [s], as the predictors", positive),
-    Param("sample_period_s", 0.0, "nominal engine-input period [s] of the window clock's dt/2 shift; 0 = median of the first "
-                                  "motor-input steps", non_negative),
-    Param("horizon_s", 0.0, "receding-horizon scoring: MAE@h of <model>/horizon/odom (predicted horizon_s ahead, stamped at the "
-                            "predicted time) against the measurements; the predictors' horizon_s; 0 = off", non_negative),
-    stamp_step_param(),
-    Param("spans", ["live:0:inf"], "spans NAME:A:B in seconds from t0; only windows entirely inside one are scored", spans_check),
-    Param("output_dir", "", "directory for results.json/tables.md/figures (replaced on each write); empty = do not write"),
-    Param("record", "", "record measurements, predictions and evaluation into this new MCAP bag directory (zstd "
-                        "chunks; written when the node ends); empty = do not record"),
-    Param("force", False, "replace an output_dir (or record bag) that existed before this node started"),
-    Param("figures", True, "also write the thesis-style figures of the first window of each span"),
-    Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
-    Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
-    Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
-    Param("stale_model_s", 2.0, "a model silent this long [wall s] no longer holds back progress or window closing", positive),
-    Param("close_grace_s", 3.0, "close a window this long [wall s] after the first stream passed its end, even if another "
-                                "stream (measurement or model) has not; that stream's part is then marked, naming it", positive),
-    Param("ready_timeout_s", 20.0, "wait this long [wall s] for every model's publishers before acknowledging progress", non_negative),
-    qos_param(),
-    Param("qos_depth", 1000, "depth of the keep-last subscriptions", positive),
-    Param("nice", 10, "raise this process's scheduling niceness by this much (0-19): scoring a closed window is not "
-                      "time-critical, the predictors' per-input answers are", niceness),
-    executor_param(),
-]
 
 
 MEASUREMENT_STREAMS = (MOTOR_INPUT, MOCAP_ODOM, IMU)
@@ -192,7 +145,13 @@ class EvaluatorNode(Node):
         self.previous: WindowBuffer | None = None  # the last closed window: its samples bracket the next one's first rows
         self.closed_below = None  # windows with index < this are closed
         # Latest stamp [ns] of every stream the node scores (the closing rule); a model's streams also their wall time.
-        self.stream_last_ns: dict[str, int | None] = {s: None for s in (*MEASUREMENT_STREAMS, *self.model_streams())}
+        topic_map = live_topic_map(p["topic_map"], "evaluator")
+        self.mapped = None if topic_map is None else MappedStreams(topic_map, MEASURED_FIELDS, 0, 0, f"evaluator: topic_map {topic_map.name}")
+        if self.mapped is not None and p["record"]:  # the recorder writes the contract's types, stamped by their headers
+            raise BadParameter(f"evaluator: parameter record with topic_map={p['topic_map']!r}: record a stack's own topics "
+                               "with ros2 bag record (then quad-modelling evaluate --topic-map reads the bag)")
+        self.measurement_streams = MEASUREMENT_STREAMS if self.mapped is None else (MOTOR_INPUT, *self.mapped.measured_topics)
+        self.stream_last_ns: dict[str, int | None] = {s: None for s in (*self.measurement_streams, *self.model_streams())}
         self.stamp_gates: dict[str, StampGate] = {}  # one per stream, the predictors' stamp rule (core.alignment)
         self.max_step_ns = seconds_to_ns(p["max_stamp_step_s"])
         self.model_last_wall = {m: None for m in self.models}
@@ -205,9 +164,15 @@ class EvaluatorNode(Node):
         qos = subscription_qos(p["qos"], p["qos_depth"])
         self.recorder = open_recorder("evaluator", p["record"], self.output_dir, p["force"], self.vehicle)
         subscribe = self._subscribe
-        subscribe(JointState, p["motor_input_topic"], self._guarded(MOTOR_INPUT, self.on_motor), qos)
-        subscribe(Odometry, p["odom_topic"], self._guarded(MOCAP_ODOM, self.on_odom), qos)
-        subscribe(Imu, p["imu_topic"], self._guarded(IMU, self.on_imu), qos)
+        if self.mapped is None:
+            subscribe(JointState, p["motor_input_topic"], self._guarded(MOTOR_INPUT, self.on_motor), qos)
+            subscribe(Odometry, p["odom_topic"], self._guarded(MOCAP_ODOM, self.on_odom), qos)
+            subscribe(Imu, p["imu_topic"], self._guarded(IMU, self.on_imu), qos)
+        else:  # a stack's own topics (nodes.mapping.streams): the offline reader's conversion
+            where = f"evaluator: topic_map {topic_map.name} topic"
+            for topic, kind in {t: message_class(topic_map.topics[t].msgtype, f"{where} {t}") for t in self.mapped.readers}.items():
+                subscribe(kind, topic, self._guarded(topic, lambda msg, t=topic: self.on_mapped(t, msg)), qos)
+            self.get_logger().info(f"topic map {topic_map.name} ({topic_map.origin}): {self.mapped.describe()}")
         self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
         self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
         for model in self.models:
@@ -382,13 +347,43 @@ class EvaluatorNode(Node):
                 w.passed_at = now
         self._try_close()
 
+    def on_mapped(self, topic: str, msg) -> None:
+        """A message of a ``topic_map`` topic (:mod:`~quad_modelling.nodes.mapping.streams`): its commands (in the
+        vehicle's unit) an engine input, its measured fields kept in the window's ``mapped`` buffer of the topic."""
+        read = self.mapped.read(topic, msg)
+        if read is None:
+            return  # another instance of a multi-instance topic
+        ns, fields = read
+        fault = self.mapped.fault(fields)
+        if fault == "zero_quaternion":
+            self.faults.report("zero_quaternion", f"{topic} message with a zero (non-unit) quaternion dropped")
+            return
+        if fault:
+            self.faults.report(stream_fault("nan", topic), f"non-finite {topic} message dropped")
+            return
+        measured = {f: v for f, v in fields.items() if f != "commands"}
+        if measured:
+            self._keep(topic, self._admit(topic, ns, measured), lambda window: window.mapped.setdefault(topic, {}))
+        if "commands" not in fields:
+            return
+        if self.vehicle is None:
+            self.faults.report("no_vehicle", f"no vehicle yet: {topic} dropped until a replay announces one on topic "
+                                             f"{VEHICLE_TOPIC} (or set parameter vehicle)")
+            return
+        for ns, u in self._admit(MOTOR_INPUT, ns, self.mapped.command(fields["commands"], self.vehicle)):
+            self._motor(ns, u, None)
+
     def _measurement(self, stream: str, ns: int, fields: list, store: str) -> None:
         """One ``mocap_odom`` or ``imu`` message (``store``: the window's buffer)."""
-        for ns, fields in self._accept(stream, ns, fields):
+        self._keep(stream, self._accept(stream, ns, fields), lambda window: getattr(window, store))
+
+    def _keep(self, stream: str, admitted: list, buffer_of) -> None:
+        """Store the admitted samples ``(ns, fields)`` of a measurement stream in their window's ``buffer_of(window)``."""
+        for ns, fields in admitted:
             window = self._window_for(ns, stream)
             if window is None:
                 continue
-            buffer = getattr(window, store)
+            buffer = buffer_of(window)
             if ns in buffer:
                 self.faults.report(stream_fault("duplicate", stream), f"duplicated {stream} stamp {ns} ns: later copy dropped")
                 continue
@@ -444,7 +439,7 @@ class EvaluatorNode(Node):
 
     def waited_streams(self, now: float) -> list[str]:
         """The streams progress and window closing wait for: the measurements and every model not stale."""
-        return [*MEASUREMENT_STREAMS, *(s for m in self.models if not self._stale(m, now) for s in self.model_streams(m))]
+        return [*self.measurement_streams, *(s for m in self.models if not self._stale(m, now) for s in self.model_streams(m))]
 
     def progress_ns(self) -> int | None:
         """Last stamp [ns] every measurement stream and every live model has delivered (None: one has delivered nothing)."""
@@ -512,7 +507,7 @@ class EvaluatorNode(Node):
             return
         records = self._score(window, neighbours, start_s, end_s, spans, reason_if_incomplete, list(late))
         self.scores.records.extend(records)
-        horizon = score_horizon(window, neighbours, self.models, self.vehicle) if self.horizon_s > 0 and self.vehicle else []
+        horizon = score_horizon(window, neighbours, self.models, self.vehicle, self.mapped) if self.horizon_s > 0 and self.vehicle else []
         self.scores.horizon.extend(horizon)
         msg = diagnostics_message(records, self.clock_.origin_ns + (window.index + 1) * self.clock_.window_ns, horizon)
         if self.context.ok():  # at shutdown the results still go to results.json (and the recording)
@@ -526,12 +521,12 @@ class EvaluatorNode(Node):
             return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason)
                     for m in (models or self.models + self.baselines) for s in spans]
 
-        if any(s in MEASUREMENT_STREAMS for s in late):
-            return marked(self._late_reason([s for s in late if s in MEASUREMENT_STREAMS]))
+        if any(s in self.measurement_streams for s in late):
+            return marked(self._late_reason([s for s in late if s in self.measurement_streams]))
         if self.vehicle is None:
             return marked(f"no vehicle: parameter vehicle is empty and no replay announced one on topic {VEHICLE_TOPIC}")
         lo, hi = self.clock_.stamp_bounds(window.index)
-        log, measured, reason = window_measurements(window, neighbours, lo, hi, self.vehicle, self.config)
+        log, measured, reason = window_measurements(window, neighbours, lo, hi, self.vehicle, self.config, self.mapped)
         if log is None:
             return marked(f"{reason}{'; ' + extra if extra else ''}")
         warm = warm_samples_for(log, self.warm_s)

@@ -1,4 +1,4 @@
-"""Model specs -> streaming predictors for the predictor node and run-bag.
+"""Model specs -> streaming predictors for the predictor node and run-bag; the predictor node's parameters.
 
 Every spec (``naive``, ``greybox``, ``greybox:euler``, ``narx:PATH``, ...) is built
 by the core registry through :func:`quad_modelling.core.models.streaming.streaming_predictor`,
@@ -8,8 +8,21 @@ the same objects ``quad-modelling evaluate`` uses.
 from __future__ import annotations
 
 from quad_modelling.core.models.registry import streaming_predictor
-from quad_modelling.core.models.streaming import StreamingPredictor
+from quad_modelling.core.models.streaming import HORIZON_INPUTS, StreamingPredictor
 from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.io import topics
+from quad_modelling.nodes.common import (
+    Param,
+    executor_param,
+    non_empty,
+    non_negative,
+    positive,
+    qos_param,
+    realtime_param,
+    stamp_step_param,
+    vehicle_param,
+)
+from quad_modelling.nodes.mapping.streams import topic_map_param
 
 
 def model_name(spec: str) -> str:
@@ -34,3 +47,41 @@ def check_spec_without_vehicle(spec: str) -> None:
         streaming_predictor(spec, None)
     except (AttributeError, TypeError):
         pass
+
+
+def horizon_inputs_kind(value) -> str | None:
+    return None if value in HORIZON_INPUTS else f"must be one of {', '.join(HORIZON_INPUTS)}"
+
+
+def predictor_parameters(default_model: str) -> list[Param]:
+    return [
+        Param("model", default_model, "model spec: naive, greybox, greybox:euler, narx:PATH, hybrid:PATH", non_empty),
+        Param("model_file", "", "model file appended to the spec as MODEL:FILE (e.g. the NARX .npz); empty = none"),
+        Param("model_name", "", "topic prefix and name of the predictions (<model_name>/odom); empty = the spec's kind"),
+        vehicle_param(),
+        Param("window_s", 10.0, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input", positive),
+        Param("warm_s", 0.2, "warm start at each window start [s] (thesis 0.2 s)", positive),
+        Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
+        Param("measurement_tolerance_s", 0.02, "a command stamp with no measurement sample on both sides uses the nearest "
+                                              "one within this [s], else the row has no measurement", non_negative),
+        Param("measurement_gap_s", 0.1, "longest gap between two samples of a measurement stream interpolated through [s]",
+              positive),
+        stamp_step_param(),
+        Param("horizon_s", 0.0, "receding-horizon mode: publish <model>/horizon/odom, the state horizon_s [s] ahead of "
+                                "each anchor; 0 = window mode (the thesis's)", non_negative),
+        Param("horizon_inputs", "hold", "receding-horizon mode: commands after each anchor: hold (the last one held, "
+                                        "published at once: the forecast) or flown (the recorded ones, published h "
+                                        "commands later: equals the offline multi-step MAE@h)", horizon_inputs_kind),
+        Param("horizon_history_s", 2.5, "receding-horizon mode: rows [s] up to each anchor the multi-step form sees "
+                                        "(trims and filters settle within 2 s)", positive),
+        Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
+        Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
+        Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
+        Param("battery_topic", "", "battery voltage (sensor_msgs/BatteryState) for models that use it; empty = not subscribed"),
+        Param("world_frame", topics.WORLD_FRAME, "frame_id of the predicted pose", non_empty),
+        topic_map_param(),
+        qos_param(),
+        Param("qos_depth", 1000, "depth of the keep-last subscriptions and publishers", positive),
+        executor_param(),
+        realtime_param(),
+    ]

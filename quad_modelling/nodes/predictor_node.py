@@ -3,7 +3,8 @@
 Subscribes (relative names, namespace ``/quad`` unless remapped):
 ``motor_input`` (sensor_msgs/JointState), ``mocap/odom`` (nav_msgs/Odometry),
 ``imu`` (sensor_msgs/Imu), optionally ``battery`` (sensor_msgs/BatteryState),
-``window_origin`` (rosgraph_msgs/Clock, transient-local).
+``window_origin`` (rosgraph_msgs/Clock, transient-local); with ``topic_map`` (not ``quad``), a stack's own
+topics instead (:mod:`~quad_modelling.nodes.mapping.streams`, docs/nodes.md).
 Publishes ``<model>/odom`` (nav_msgs/Odometry: pose in ``world`` ENU, twist in
 ``<model>/base_link`` FLU) and ``<model>/accel`` (geometry_msgs/AccelStamped in
 ``<model>/base_link`` FLU), one of each per engine input, stamped with the input's stamp.
@@ -60,7 +61,7 @@ from std_msgs.msg import String
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.models.bounds import PhysicalBounds
 from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate
-from quad_modelling.core.models.streaming import HORIZON_INPUTS, RecedingHorizon, prime, push_sample
+from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
@@ -70,32 +71,25 @@ from quad_modelling.nodes.common import (
     VEHICLE_TOPIC,
     BadParameter,
     FaultLog,
-    Param,
     VehicleSource,
     adopt_vehicle,
     data_qos,
     declare_parameters,
-    executor_param,
     latched_qos,
     make_executor,
-    non_empty,
-    non_negative,
-    positive,
-    qos_param,
-    realtime_param,
     run_node,
     say,
     set_realtime_priority,
     spin,
     stream_fault,
-    stamp_step_param,
     subscription_qos,
-    vehicle_param,
 )
-from quad_modelling.nodes.model_factory import (
+from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, subscribe
+from quad_modelling.nodes.model_factory import (  # noqa: F401  (predictor_parameters re-exported)
     check_spec_without_vehicle,
     make_streaming_predictor,
     model_name,
+    predictor_parameters,
 )
 
 MEASUREMENT_WAIT_S = 0.5
@@ -108,43 +102,6 @@ WAIT_TIMER_PERIOD_S = 0.01
 
 MAX_DEFERRED_COMMANDS = 4096
 """Commands held back while a window start waits (bounded memory)."""
-
-
-def horizon_inputs_kind(value) -> str | None:
-    return None if value in HORIZON_INPUTS else f"must be one of {', '.join(HORIZON_INPUTS)}"
-
-
-def predictor_parameters(default_model: str) -> list[Param]:
-    return [
-        Param("model", default_model, "model spec: naive, greybox, greybox:euler, narx:PATH, hybrid:PATH", non_empty),
-        Param("model_file", "", "model file appended to the spec as MODEL:FILE (e.g. the NARX .npz); empty = none"),
-        Param("model_name", "", "topic prefix and name of the predictions (<model_name>/odom); empty = the spec's kind"),
-        vehicle_param(),
-        Param("window_s", 10.0, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input", positive),
-        Param("warm_s", 0.2, "warm start at each window start [s] (thesis 0.2 s)", positive),
-        Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
-        Param("measurement_tolerance_s", 0.02, "a command stamp with no measurement sample on both sides uses the nearest "
-                                              "one within this [s], else the row has no measurement", non_negative),
-        Param("measurement_gap_s", 0.1, "longest gap between two samples of a measurement stream interpolated through [s]",
-              positive),
-        stamp_step_param(),
-        Param("horizon_s", 0.0, "receding-horizon mode: publish <model>/horizon/odom, the state horizon_s [s] ahead of "
-                                "each anchor; 0 = window mode (the thesis's)", non_negative),
-        Param("horizon_inputs", "hold", "receding-horizon mode: commands after each anchor: hold (the last one held, "
-                                        "published at once: the forecast) or flown (the recorded ones, published h "
-                                        "commands later: equals the offline multi-step MAE@h)", horizon_inputs_kind),
-        Param("horizon_history_s", 2.5, "receding-horizon mode: rows [s] up to each anchor the multi-step form sees "
-                                        "(trims and filters settle within 2 s)", positive),
-        Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
-        Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
-        Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
-        Param("battery_topic", "", "battery voltage (sensor_msgs/BatteryState) for models that use it; empty = not subscribed"),
-        Param("world_frame", topics.WORLD_FRAME, "frame_id of the predicted pose", non_empty),
-        qos_param(),
-        Param("qos_depth", 1000, "depth of the keep-last subscriptions and publishers", positive),
-        executor_param(),
-        realtime_param(),
-    ]
 
 
 PRIME_SAMPLE_PERIOD_S = 0.01
@@ -201,13 +158,6 @@ class PredictorNode(Node):
             self.accel_pub = self.create_publisher(AccelStamped, f"{self.name_}/accel", out_qos)
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
         self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
-        self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
-        # measurements arrive serialised and are decoded after the answer to the next command (_decode_pending)
-        self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, MOCAP_ODOM, data), qos, raw=True)
-        self.create_subscription(Imu, p["imu_topic"], lambda data: self._receive(self.on_imu, Imu, IMU, data), qos, raw=True)
-        self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
-        if self.use_battery:
-            self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
         # Measurement streams, each on its own clock: read at any command stamp (core.alignment).
         self.tolerance_ns = seconds_to_ns(p["measurement_tolerance_s"])
         gap_ns, step_ns = seconds_to_ns(p["measurement_gap_s"]), seconds_to_ns(p["max_stamp_step_s"])
@@ -218,6 +168,22 @@ class PredictorNode(Node):
         self.tracks = [self.odom, self.imu] + ([self.battery] if self.use_battery else [])
         self.track_of = {MOCAP_ODOM: self.odom, IMU: self.imu, BATTERY: self.battery}
         self.gates = {name: StampGate(step_ns) for name in STREAMS}
+        topic_map, self.mapped = live_topic_map(p["topic_map"], node_name), None
+        if topic_map is None:  # the contract
+            self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
+            # measurements arrive serialised and are decoded after the answer to the next command (_decode_pending)
+            self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, MOCAP_ODOM, data), qos, raw=True)
+            self.create_subscription(Imu, p["imu_topic"], lambda data: self._receive(self.on_imu, Imu, IMU, data), qos, raw=True)
+            if self.use_battery:
+                self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
+        else:  # a stack's own topics (nodes.mapping.streams): the offline reader's conversion
+            fields = [*MEASURED_FIELDS, *(["battery"] if self.use_battery else [])]
+            self.mapped = MappedStreams(topic_map, fields, gap_ns, TRACK_CAPACITY, f"{node_name}: topic_map {topic_map.name}")
+            subscribe(self, self.mapped, qos, self.on_mapped)
+            self.tracks = list(self.mapped.tracks.values())
+            self.gates.update({topic: StampGate(step_ns) for topic in self.mapped.readers})
+            self.get_logger().info(f"topic map {topic_map.name} ({topic_map.origin}): {self.mapped.describe()}")
+        self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
         self.window = None  # current window index
         self.state = "idle"  # idle | warm | stream | skip
         self.warm_rows: list[tuple[int, np.ndarray, np.ndarray | None]] = []
@@ -285,6 +251,10 @@ class PredictorNode(Node):
                                                           "(restarted publisher, clock jump or a long gap): its buffer restarts")
             if stream == MOTOR_INPUT:
                 self._reset_time_base(ns)
+            elif self.mapped is not None:
+                self.mapped.clear(stream)
+                for stamp, values in gate.confirmed[:-1]:
+                    self.mapped.store(stamp, values)
             else:
                 track = self.track_of[stream]
                 track.clear()
@@ -372,15 +342,40 @@ class PredictorNode(Node):
         if not track.add(ns, fields):
             self.faults.report(stream_fault("duplicate", stream), f"duplicated {stream} stamp {ns} ns: later copy dropped")
 
+    def on_mapped(self, topic: str, msg) -> None:
+        """A message of a ``topic_map`` topic (:mod:`~quad_modelling.nodes.mapping.streams`): its measurements stored,
+        its commands (in the vehicle's unit) handled as a ``motor_input``."""
+        read = self.mapped.read(topic, msg)
+        if read is None:
+            return  # another instance of a multi-instance topic
+        ns, fields = read
+        fault = self.mapped.fault(fields)
+        if fault == "zero_quaternion":
+            self.faults.report("zero_quaternion", f"{topic} message with a zero (non-unit) quaternion dropped")
+            return
+        if fault:
+            self.faults.report(stream_fault("nan", topic), f"non-finite {topic} message dropped")
+            return
+        measured = {f: v for f, v in fields.items() if f != "commands"}
+        if measured and self._gate(topic, ns, measured):
+            if not self.mapped.store(ns, measured):
+                self.faults.report(stream_fault("duplicate", topic), f"duplicated {topic} stamp {ns} ns: later copy dropped")
+            self._measured()
+        if "commands" in fields:
+            self.on_command(ns, self.mapped.command(fields["commands"], self.vehicle) if self.model else None, None)
+
     def on_motor(self, msg: JointState) -> None:
+        fields = topics.motor_fields(msg)
+        if self.model is not None and (fields is None or not np.isfinite(fields[0]).all()):
+            self.faults.report(stream_fault("bad" if fields is None else "nan", MOTOR_INPUT), "motor_input without 4 finite efforts dropped")
+            return
+        self.on_command(topics.stamp_ns(msg.header.stamp), *(fields or (None, None)))
+
+    def on_command(self, ns: int, u: np.ndarray, omega: np.ndarray | None) -> None:
+        """One engine input: stamp [ns], command (4,) in the vehicle's unit, rotor speeds (4,) or None."""
         if self.model is None:
             self.faults.report("no_vehicle", f"no vehicle yet: motor_input dropped until a replay announces one on topic "
                                              f"{VEHICLE_TOPIC} (or set parameter vehicle)")
-            return
-        ns = topics.stamp_ns(msg.header.stamp)
-        fields = topics.motor_fields(msg)
-        if fields is None or not np.isfinite(fields[0]).all():
-            self.faults.report(stream_fault("bad" if fields is None else "nan", MOTOR_INPUT), "motor_input without 4 finite efforts dropped")
             return
         if not self._gate(MOTOR_INPUT, ns):
             return
@@ -391,7 +386,6 @@ class PredictorNode(Node):
         if ns < self.clock_.origin_ns:
             self.faults.report("before_origin", "motor_input stamped before the window origin: dropped")
             return
-        u, omega = fields
         if self.horizon is not None:
             fault = self.horizon.add(ns, u, omega)
             if fault:
@@ -441,7 +435,10 @@ class PredictorNode(Node):
         self.stream = None
 
     def _row_measurements(self, ns: int):
-        """(odometry fields, imu fields, battery voltage or None) at a command stamp, or None when a stream has none."""
+        """(odometry fields, imu fields, battery voltage or None) at a command stamp, or None when a stream has none;
+        with a topic map, every field's numbers (:meth:`~quad_modelling.nodes.mapping.streams.MappedStreams.at`)."""
+        if self.mapped is not None:
+            return self.mapped.at(ns, self.tolerance_ns)
         odom, imu = self.odom.at(ns, self.tolerance_ns), self.imu.at(ns, self.tolerance_ns)
         battery = self.battery.at(ns, self.tolerance_ns) if self.use_battery else None
         if odom is None or imu is None or (self.use_battery and battery is None):
@@ -451,6 +448,8 @@ class PredictorNode(Node):
     def _rows_log(self, stamps: np.ndarray, rows: list, measured: list, source: str = "live receding horizon"):
         """Command rows (stamp, command, rotor speeds) and their measurements (:meth:`_row_measurements`) -> FlightLog."""
         omegas = [row[2] for row in rows]
+        if self.mapped is not None:
+            return self.mapped.rows_log(stamps, np.array([row[1] for row in rows]), measured, self.vehicle.name, source)
         return topics.measurement_log(
             stamps, np.array([row[1] for row in rows]), np.array([m[0] for m in measured]), np.array([m[1] for m in measured]),
             self.vehicle.name, source, omega=np.array(omegas) if all(o is not None for o in omegas) else None,

@@ -12,6 +12,7 @@ offline predictors do.
 * :class:`LiveScores`: per-window results of the evaluator node gathered into a core
   :class:`~quad_modelling.core.evaluation.windowed.EvaluationResult` (mean over scored windows
   per model and span), written with ``quad_modelling.io.reports.evaluation.write_report``.
+* :data:`EVALUATOR_PARAMETERS`: the evaluator node's parameters.
 """
 
 from __future__ import annotations
@@ -37,7 +38,22 @@ from quad_modelling.core.variables import EVAL_VARIABLES, VARIABLES
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
-from quad_modelling.nodes.common import IMU, MOCAP_ODOM, MOTOR_INPUT
+from quad_modelling.nodes.common import (
+    IMU,
+    MOCAP_ODOM,
+    MOTOR_INPUT,
+    Param,
+    executor_param,
+    niceness,
+    non_empty,
+    non_negative,
+    positive,
+    qos_param,
+    spans_check,
+    stamp_step_param,
+    vehicle_param,
+)
+from quad_modelling.nodes.mapping.streams import topic_map_param
 
 
 @dataclass
@@ -213,7 +229,7 @@ class WindowBuffer:
     """Received samples of one window, by stamp [ns]: measurement fields, each model's prediction fields and
     receding-horizon predictions (stamped at the predicted time)."""
 
-    __slots__ = ("index", "motor", "omega", "odom", "imu", "pred_odom", "pred_accel", "horizon", "passed_at")
+    __slots__ = ("index", "motor", "omega", "odom", "imu", "mapped", "pred_odom", "pred_accel", "horizon", "passed_at")
 
     def __init__(self, index: int, models: list[str]):
         self.index = index
@@ -221,6 +237,7 @@ class WindowBuffer:
         self.omega: dict[int, list | None] = {}
         self.odom: dict[int, list] = {}
         self.imu: dict[int, list] = {}
+        self.mapped: dict[str, dict[int, dict]] = {}  # with a topic map: topic -> stamp -> {map field: numbers}
         self.pred_odom = {m: {} for m in models}
         self.pred_accel = {m: {} for m in models}
         self.horizon = {m: {} for m in models}
@@ -236,19 +253,36 @@ def samples(windows: list[WindowBuffer], get) -> tuple[np.ndarray, np.ndarray]:
     return stamps, np.array([merged[ns] for ns in stamps], dtype=float)
 
 
+def measurement_samples(neighbours: list[WindowBuffer], rows: np.ndarray, mapped=None, hold: bool = True) -> dict[str, np.ndarray]:
+    """Every measured stream at the stamps ``rows`` [ns] (:func:`~quad_modelling.core.alignment.interpolate_at`, NaN
+    where it does not reach): the contract's ``odom`` (n, 10) and ``imu`` (n, 6) fields or, with a topic map
+    (``mapped``: :class:`~quad_modelling.nodes.mapping.streams.MappedStreams`), each map field's numbers."""
+    if mapped is None:
+        return {"odom": interpolate_at(*samples(neighbours, lambda w: w.odom), rows, quaternion=topics.ODOM_QUATERNION, hold=hold),
+                "imu": interpolate_at(*samples(neighbours, lambda w: w.imu), rows, hold=hold)}
+    return {f: interpolate_at(*samples(neighbours, lambda w, f=f: mapped.field_samples(w.mapped, f)), rows,
+                              quaternion=(0, 4) if f == "attitude" else None, hold=hold) for f in mapped.tracks}
+
+
+def samples_log(measured: dict[str, np.ndarray], rows: np.ndarray, motor, vehicle: str, source: str, omega=None, mapped=None) -> FlightLog:
+    """:func:`measurement_samples` on ``rows`` -> FlightLog (the contract's or the map's conversion)."""
+    motor = np.zeros((len(rows), 4)) if motor is None else motor
+    if mapped is None:
+        return topics.measurement_log(rows, motor, measured["odom"], measured["imu"], vehicle, source, omega=omega)
+    return mapped.flight_log(rows, motor, measured, vehicle, source, omega)
+
+
 def measured_at(neighbours: list[WindowBuffer], rows: np.ndarray, vehicle: str, source: str, motor: list | None = None,
-                omega=None) -> FlightLog | None:
-    """The measurement FlightLog at stamps ``rows`` [ns]: motion capture and IMU interpolated to them
-    (:func:`~quad_modelling.core.alignment.interpolate_at`); None when a stream does not reach a row."""
-    odom = interpolate_at(*samples(neighbours, lambda w: w.odom), rows, quaternion=topics.ODOM_QUATERNION)
-    imu = interpolate_at(*samples(neighbours, lambda w: w.imu), rows)
-    if len(odom) == 0 or not (np.isfinite(odom).all() and np.isfinite(imu).all()):
+                omega=None, mapped=None) -> FlightLog | None:
+    """The measurement FlightLog at stamps ``rows`` [ns]: motion capture and IMU (or a map's fields) interpolated to
+    them (:func:`measurement_samples`); None when a stream does not reach a row."""
+    measured = measurement_samples(neighbours, rows, mapped)
+    if len(rows) == 0 or not all(np.isfinite(v).all() for v in measured.values()):
         return None
-    return topics.measurement_log(rows, np.zeros((len(rows), 4)) if motor is None else motor, odom, imu,
-                                  vehicle, source, omega=omega)
+    return samples_log(measured, rows, motor, vehicle, source, omega, mapped)
 
 
-def score_horizon(window: WindowBuffer, neighbours: list[WindowBuffer], models: list[str], vehicle) -> list[HorizonRecord]:
+def score_horizon(window: WindowBuffer, neighbours: list[WindowBuffer], models: list[str], vehicle, mapped=None) -> list[HorizonRecord]:
     """Error of each group (:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`) of every
     receding-horizon prediction stamped in this window against the measurements interpolated at its stamp;
     predictions whose stamp the measurements do not bracket (e.g. past the flight's end) are counted as
@@ -259,13 +293,12 @@ def score_horizon(window: WindowBuffer, neighbours: list[WindowBuffer], models: 
         if len(stamps) == 0:
             continue
         fields = np.array([window.horizon[model][ns] for ns in stamps])
-        odom = interpolate_at(*samples(neighbours, lambda w: w.odom), stamps, quaternion=topics.ODOM_QUATERNION, hold=False)
-        imu = interpolate_at(*samples(neighbours, lambda w: w.imu), stamps, hold=False)
-        have = np.isfinite(odom).all(axis=1) & np.isfinite(imu).all(axis=1)
+        measured = measurement_samples(neighbours, stamps, mapped, hold=False)
+        have = np.logical_and.reduce([np.isfinite(v).all(axis=1) for v in measured.values()])
         errors = np.empty((0, len(GROUPS)))
         if have.any():
-            truth = measured_groups(topics.measurement_log(stamps[have], np.zeros((int(have.sum()), 4)), odom[have], imu[have],
-                                                           vehicle.name, f"live window {window.index}"))
+            truth = measured_groups(samples_log({k: v[have] for k, v in measured.items()}, stamps[have], None, vehicle.name,
+                                                f"live window {window.index}", mapped=mapped))
             predicted = topics.predictions_from_fields(fields[have], np.zeros((int(have.sum()), topics.ACCEL_FIELDS)))
             errors = group_error_norms(truth, predicted)
         out.append(HorizonRecord(model, window.index, errors.sum(axis=0) if len(errors) else np.zeros(len(GROUPS)),
@@ -274,19 +307,21 @@ def score_horizon(window: WindowBuffer, neighbours: list[WindowBuffer], models: 
 
 
 def window_measurements(window: WindowBuffer, neighbours: list[WindowBuffer], lo: int, hi: int, vehicle,
-                        config: EvaluationConfig) -> tuple[FlightLog | None, np.ndarray | None, str]:
+                        config: EvaluationConfig, mapped=None) -> tuple[FlightLog | None, np.ndarray | None, str]:
     """The window's measurements on its rows (the engine-input stamps in [lo, hi) [ns]) and their smoothed trimmed
-    variables, or (None, None, reason) when a measurement stream fails the coverage rule or cannot be used."""
+    variables, or (None, None, reason) when a measurement stream (with a topic map ``mapped``: each measured topic)
+    fails the coverage rule or cannot be used."""
     rows = np.array(sorted(window.motor), dtype=np.int64)
+    streams = [(MOCAP_ODOM, window.odom), (IMU, window.imu)] if mapped is None else \
+        [(topic, window.mapped.get(topic, {})) for topic in mapped.measured_topics]
     reason = coverage_reason([stream_coverage(MOTOR_INPUT, rows, lo, hi),
-                              stream_coverage(MOCAP_ODOM, np.array(sorted(window.odom)), lo, hi),
-                              stream_coverage(IMU, np.array(sorted(window.imu)), lo, hi)])
+                              *(stream_coverage(name, np.array(sorted(buffer)), lo, hi) for name, buffer in streams)])
     if reason:
         return None, None, reason
     omegas = [window.omega[ns] for ns in rows]
     try:
         log = measured_at(neighbours, rows, vehicle.name, f"live window {window.index}", [window.motor[ns] for ns in rows],
-                          np.array(omegas) if all(o is not None for o in omegas) else None)
+                          np.array(omegas) if all(o is not None for o in omegas) else None, mapped)
         if log is None:
             return None, None, "measurements do not reach every engine input of the window (mocap or imu ends early)"
         return log, smooth(trimmed_variables(log, config.trim, vehicle), log.sample_rate, config.smooth_cutoff_hz), ""
@@ -315,3 +350,44 @@ def score_model(model: str, window: WindowBuffer, neighbours: list[WindowBuffer]
                                config.smooth_cutoff_hz, measured), ""
     except QuadModellingError as err:
         return None, f"cannot score: {err}"
+
+
+def _models_check(value) -> str | None:
+    names = [str(v).strip() for v in value]
+    if any(not n or "/" in n or ":" in n for n in names):
+        return f"model names must be plain topic prefixes (no '/' or ':'), got {names}"
+    if len(set(names)) != len(names):
+        return f"model names must be unique, got {names}"
+    return None
+
+
+EVALUATOR_PARAMETERS = [
+    Param("models", ["naive"], "names of the predictors to score (their topics <name>/odom, <name>/accel)", _models_check),
+    vehicle_param(),
+    Param("window_s", 10.0, "window length W [s], as the predictors", positive),
+    Param("warm_s", 0.2, "warm start [s], as the predictors", positive),
+    Param("sample_period_s", 0.0, "nominal engine-input period [s] of the window clock's dt/2 shift; 0 = median of the first "
+                                  "motor-input steps", non_negative),
+    Param("horizon_s", 0.0, "receding-horizon scoring: MAE@h of <model>/horizon/odom (predicted horizon_s ahead, stamped at the "
+                            "predicted time) against the measurements; the predictors' horizon_s; 0 = off", non_negative),
+    stamp_step_param(),
+    Param("spans", ["live:0:inf"], "spans NAME:A:B in seconds from t0; only windows entirely inside one are scored", spans_check),
+    Param("output_dir", "", "directory for results.json/tables.md/figures (replaced on each write); empty = do not write"),
+    Param("record", "", "record measurements, predictions and evaluation into this new MCAP bag directory (zstd "
+                        "chunks; written when the node ends); empty = do not record"),
+    Param("force", False, "replace an output_dir (or record bag) that existed before this node started"),
+    Param("figures", True, "also write the thesis-style figures of the first window of each span"),
+    Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
+    Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
+    Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
+    topic_map_param(),
+    Param("stale_model_s", 2.0, "a model silent this long [wall s] no longer holds back progress or window closing", positive),
+    Param("close_grace_s", 3.0, "close a window this long [wall s] after the first stream passed its end, even if another "
+                                "stream (measurement or model) has not; that stream's part is then marked, naming it", positive),
+    Param("ready_timeout_s", 20.0, "wait this long [wall s] for every model's publishers before acknowledging progress", non_negative),
+    qos_param(),
+    Param("qos_depth", 1000, "depth of the keep-last subscriptions", positive),
+    Param("nice", 10, "raise this process's scheduling niceness by this much (0-19): scoring a closed window is not "
+                      "time-critical, the predictors' per-input answers are", niceness),
+    executor_param(),
+]

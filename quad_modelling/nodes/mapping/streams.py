@@ -1,0 +1,172 @@
+"""A node's subscriptions through a topic map: a stack's own messages -> the node's stream buffers (issue #27).
+
+With the ``topic_map`` parameter set to a map other than the contract (``px4``, ``crazyswarm2:ROBOT``, a YAML
+file; docs/formats.md), a node subscribes to each topic the map reads with the map's message type: standard
+types (geometry_msgs, nav_msgs, sensor_msgs, ...) through rclpy's classes; custom types (px4_msgs,
+crazyflie_interfaces) when their package is importable (the user's workspace sourced), else the node refuses
+to start in one line naming the package to source (:func:`message_class`).
+
+Every message goes through the conversion the offline reader uses
+(:func:`quad_modelling.io.bag_io.read_mapped_bag`): :class:`~quad_modelling.io.mapped_flight.TopicReader`
+(message -> stamp [ns] and numbers), then :func:`~quad_modelling.io.mapped_flight.map_commands` for the
+commands and :func:`~quad_modelling.io.mapped_flight.convert_measurements` for the rest (units and frames
+through :mod:`quad_modelling.core.frames`). Between the two, each field's numbers wait in a
+:class:`~quad_modelling.core.alignment.MeasurementTrack` (in the map's units and frames, the attitude
+quaternion interpolated as a quaternion) and are read at the command stamps, as the contract's streams are.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+
+import numpy as np
+
+from quad_modelling.core import frames
+from quad_modelling.core.alignment import MeasurementTrack
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.errors import QuadModellingError
+from quad_modelling.io import topics
+from quad_modelling.io.mapped_flight import TopicReader, convert_measurements, map_commands, readers_for
+from quad_modelling.io.topic_maps import CONTRACT_MAP, TopicMap, load_topic_map
+from quad_modelling.nodes.common import BadParameter, Param
+
+MEASURED_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
+"""Map fields a node reads besides the commands (``battery`` too when the node reads a battery)."""
+
+
+def topic_map_param() -> Param:
+    return Param("topic_map", CONTRACT_MAP, "the topics to read: quad (the project's contract, the *_topic parameters), a "
+                                            "built-in map of another stack (px4, crazyswarm2:ROBOT) or a YAML map "
+                                            "(docs/formats.md, docs/nodes.md)")
+
+
+def live_topic_map(value: str, node_name: str) -> TopicMap | None:
+    """The map the ``topic_map`` parameter names, None for the contract; BadParameter in one line otherwise."""
+    try:
+        topic_map = load_topic_map(value)
+    except QuadModellingError as err:
+        raise BadParameter(f"{node_name}: parameter topic_map={value!r}: {err}") from err
+    if topic_map.is_contract:
+        return None
+    if topic_map.has_robot:
+        raise BadParameter(f"{node_name}: parameter topic_map={value!r}: the map reads one robot's topics; name it, "
+                           f"e.g. topic_map:={value}:cf231")
+    return topic_map
+
+
+def message_class(msgtype: str, where: str) -> type:
+    """rclpy's class of ``pkg/msg/Name``; BadParameter naming the package to source when it is not importable."""
+    package, _, name = msgtype.split("/")
+    try:
+        module = importlib.import_module(f"{package}.msg")
+    except ImportError as err:
+        raise BadParameter(f"{where}: {package} is not importable: source the workspace that builds {package} "
+                           f"(docs/nodes.md)") from err
+    if not hasattr(module, name):
+        raise BadParameter(f"{where}: {package} has no message {name} (the sourced {package} is another version?)")
+    return getattr(module, name)
+
+
+class MappedStreams:
+    """The fields a node reads through ``topic_map`` (the first source of each field), message by message.
+
+    ``fields``: the map fields besides the commands to read (those the map gives; :data:`MEASURED_FIELDS`);
+    ``gap_ns``, ``capacity``: the :class:`~quad_modelling.core.alignment.MeasurementTrack` rules of the node.
+    Imports no rclpy: fed with rclpy messages live, or any object with the same attributes in tests.
+    """
+
+    def __init__(self, topic_map: TopicMap, fields, gap_ns: int, capacity: int, where: str):
+        self.topic_map, self.where = topic_map, where
+        first = topic_map.sources(topic_map.topics)
+        self.sources = {f: first[f] for f in ("commands", *fields) if f in first}
+        self.readers: dict[str, TopicReader] = readers_for(topic_map, self.sources, where)
+        self.command_topic = self.sources["commands"].topic
+        self.tracks = {f: MeasurementTrack(len(s.paths), gap_ns, capacity, quaternion=(0, 4) if f == "attitude" else None)
+                       for f, s in self.sources.items() if f != "commands"}
+        self.columns = {f: [self.readers[s.topic].paths.index(p) for p in s.paths] for f, s in self.sources.items()}
+        self.fields_of = {t: [f for f, s in self.sources.items() if s.topic == t] for t in self.readers}
+
+    def describe(self) -> str:
+        return "; ".join(f"{t} ({self.topic_map.topics[t].msgtype}): {', '.join(fs)}" for t, fs in self.fields_of.items())
+
+    def read(self, topic: str, msg) -> tuple[int, dict[str, list[float]]] | None:
+        """(stamp [ns], numbers of each field the topic gives) of a message; None for another instance's message."""
+        reader = self.readers[topic]
+        if not reader.keep(msg):
+            return None
+        values = reader.values(msg)
+        return reader.stamp_ns(msg), {f: [values[i] for i in self.columns[f]] for f in self.fields_of[topic]}
+
+    @staticmethod
+    def fault(fields: dict[str, list[float]]) -> str | None:
+        """Why a message's numbers are unusable (a fault kind), or None: ``nan``, a non-finite number (an infinite
+        command: a NaN command is a stopped motor); ``zero_quaternion``, an attitude quaternion of norm off 1."""
+        for name, values in fields.items():
+            if any(math.isinf(v) if name == "commands" else not math.isfinite(v) for v in values):
+                return "nan"
+        attitude = fields.get("attitude")
+        if attitude is not None and abs(math.sqrt(sum(v * v for v in attitude)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE:
+            return "zero_quaternion"
+        return None
+
+    def command(self, values: list[float], vehicle) -> np.ndarray:
+        """One message's commands -> the vehicle's input unit (:func:`~quad_modelling.io.mapped_flight.map_commands`)."""
+        return map_commands(np.array([values], dtype=float), self.sources["commands"], vehicle, self.where)[0]
+
+    def store(self, ns: int, fields: dict[str, list[float]]) -> bool:
+        """Keep a message's measured numbers; False when its stamp is already held."""
+        stored = [self.tracks[f].add(ns, v) for f, v in fields.items() if f in self.tracks]
+        return all(stored)
+
+    def clear(self, topic: str | None = None) -> None:
+        for f, track in self.tracks.items():
+            if topic is None or self.sources[f].topic == topic:
+                track.clear()
+
+    def covers(self, ns: int) -> bool:
+        return all(track.covers(ns) for track in self.tracks.values())
+
+    def at(self, ns: int, tolerance_ns: int) -> dict[str, np.ndarray] | None:
+        """Every field's numbers at ``ns`` (exact, interpolated, nearest within tolerance), None when one has none."""
+        out = {}
+        for f, track in self.tracks.items():
+            value = track.at(ns, tolerance_ns)
+            if value is None:
+                return None
+            out[f] = value
+        return out
+
+    @property
+    def measured_topics(self) -> list[str]:
+        """The topics giving measured fields (each one a stream of the evaluator's closing and coverage rules)."""
+        return list(dict.fromkeys(self.sources[f].topic for f in self.tracks))
+
+    def field_samples(self, buffers: dict[str, dict[int, dict]], field: str) -> dict[int, list[float]]:
+        """One field's samples (stamp [ns] -> numbers) out of per-topic buffers of messages' fields (the evaluator's)."""
+        return {ns: fields[field] for ns, fields in buffers.get(self.sources[field].topic, {}).items()}
+
+    def rows_log(self, stamps: np.ndarray, u: np.ndarray, measured: list[dict], vehicle: str, source: str,
+                 omega: np.ndarray | None = None) -> FlightLog:
+        """Command rows (stamps [ns], commands in the vehicle's unit) and their fields (:meth:`at`) -> FlightLog."""
+        aligned = {f: np.array([m[f] for m in measured], dtype=float) for f in self.tracks}
+        return self.flight_log(stamps, u, aligned, vehicle, source, omega)
+
+    def flight_log(self, stamps: np.ndarray, u: np.ndarray, aligned: dict[str, np.ndarray], vehicle: str, source: str,
+                   omega: np.ndarray | None = None) -> FlightLog:
+        """Rows (stamps [ns], commands in the vehicle's unit, each field's (n, k) numbers in the map's units and frames
+        on those rows) -> FlightLog (:func:`~quad_modelling.io.mapped_flight.convert_measurements`)."""
+        arrays = convert_measurements(self.sources, aligned)
+        return FlightLog(t=topics.stamps_to_seconds(np.asarray(stamps, dtype=np.int64)), u=np.asarray(u, dtype=float).reshape(-1, 4),
+                         acc_b=arrays.get("acc"), gyro_b=arrays.get("gyro"), pos_n=arrays["position"], vel_n=arrays["velocity"],
+                         euler=arrays["attitude"], vbat=arrays.get("battery"), omega=omega,
+                         meta=FlightMeta(vehicle=vehicle, source=source, notes={}))
+
+
+def subscribe(node, streams: MappedStreams, qos, handler) -> None:
+    """Subscribe ``node`` to every topic of ``streams`` with the map's message types, ``handler(topic, msg)`` per
+    message. Every class is resolved before the first subscription (a missing package: one line, nothing subscribed)."""
+    classes = {t: message_class(streams.topic_map.topics[t].msgtype, f"{node.get_name()}: topic_map {streams.topic_map.name} topic {t}")
+               for t in streams.readers}
+    for topic, kind in classes.items():
+        node.create_subscription(kind, topic, lambda msg, topic=topic: handler(topic, msg), qos)

@@ -1,0 +1,134 @@
+"""Live through a topic map, the custom-type half (issue #27 item 3): px4_msgs and crazyflie_interfaces messages
+generated from the stored definitions (test/data/ros_msgs) go through the node-side streams
+(:mod:`quad_modelling.nodes.mapping.streams`) and give the arrays the offline reader gives for the same messages;
+the evaluator reading a user map scores what it scores from the contract; a custom type whose package is not importable stops the node in one line naming the package to source.
+"""
+
+from __future__ import annotations
+
+import sys
+from functools import partial
+
+import numpy as np
+import pytest
+import yaml
+from rclpy.parameter import Parameter
+
+from quad_modelling.core.variables import INDEX
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.io.bag_io import read_mapped_bag
+from quad_modelling.io.topic_maps import load_topic_map
+from quad_modelling.io.topics import stamps_ns
+from quad_modelling.nodes import messages
+from quad_modelling.nodes.common import BadParameter, run_node
+from quad_modelling.nodes.evaluator_node import EvaluatorNode
+from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams
+from quad_modelling.nodes.predictor_node import PredictorNode
+from test.conftest import synthetic_log
+from test.ros.conftest import Capture, feed, hover_log
+from test.ros.test_evaluator_node import offset_prediction
+from test.ros.test_predictor_topic_map_live import USER_MAP, user_messages
+from test.stack_bags import crazyswarm2_messages, px4_messages, write_stack_bag
+
+
+def live_rows(streams: MappedStreams, messages, vehicle):
+    """Feed ``messages`` (topic, ns, message) as the predictor's on_mapped does; the log of every command row."""
+    commands = []
+    for topic, _, msg in messages:
+        read = streams.read(topic, msg)
+        if read is None:
+            continue
+        ns, fields = read
+        assert streams.fault(fields) is None
+        streams.store(ns, {f: v for f, v in fields.items() if f != "commands"})
+        if "commands" in fields:
+            commands.append((ns, streams.command(fields["commands"], vehicle)))
+    stamps = np.array([ns for ns, _ in commands], dtype=np.int64)
+    measured = [streams.at(int(ns), 0) for ns in stamps]
+    return streams.rows_log(stamps, np.array([u for _, u in commands]), measured, vehicle.name, "live")
+
+
+@pytest.mark.parametrize("stack", ["px4", "crazyswarm2:cf231"])
+def test_generated_custom_type_messages_give_the_offline_readers_arrays(tmp_path, stack):
+    vehicle = load_vehicle("crazyflie21")
+    log = synthetic_log(n=150, seed=4)
+    if stack == "px4":
+        make = partial(px4_messages, log=log, input_range=(vehicle.input_min, vehicle.input_max), battery_ids=(1, 2))
+    else:
+        make = partial(crazyswarm2_messages, log=log)
+    sent = []
+
+    def recorded(writer):
+        for item in make(writer):
+            sent.append(item)
+            yield item
+
+    bag = write_stack_bag(tmp_path / "bag", recorded)
+    topic_map = load_topic_map(stack)
+    offline = read_mapped_bag(bag, topic_map, vehicle)
+    streams = MappedStreams(topic_map, [*MEASURED_FIELDS, "battery"], 100_000_000, 4096, "test")
+    live = live_rows(streams, sent, vehicle)
+    assert len(live) == len(offline) == 150
+    np.testing.assert_array_equal(live.t, offline.t)
+    for field in ("u", "pos_n", "vel_n", "euler", "acc_b", "gyro_b", "vbat"):
+        np.testing.assert_array_equal(getattr(live, field), getattr(offline, field), err_msg=field)
+    if stack == "px4":  # the second battery (id 2, 1 V higher) is another instance: not read, as offline
+        np.testing.assert_allclose(live.vbat, log.vbat, atol=1e-6)
+
+
+@pytest.mark.parametrize("node", ["predictor", "evaluator"])
+def test_a_custom_type_without_its_package_stops_the_node_in_one_line_naming_the_package(monkeypatch, capsys, node):
+    monkeypatch.setitem(sys.modules, "px4_msgs", None)  # import px4_msgs raises ImportError, installed or not
+    overrides = [Parameter("vehicle", value="crazyflie21"), Parameter("topic_map", value="px4")]
+    code = run_node(lambda: (PredictorNode if node == "predictor" else EvaluatorNode)(parameter_overrides=overrides))
+    assert code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    errors = [line for line in lines if line.startswith("error:")]
+    assert errors == [f"error: {node}: topic_map px4 topic /fmu/out/actuator_motors: px4_msgs is not importable: "
+                      "source the workspace that builds px4_msgs (docs/nodes.md)"]
+
+
+def test_the_evaluator_leaves_recording_a_stacks_topics_to_ros2_bag_record(ros, tmp_path):
+    overrides = [Parameter("topic_map", value="px4"), Parameter("record", value=str(tmp_path / "rec"))]
+    with pytest.raises(BadParameter, match=r"^evaluator: parameter record with topic_map='px4': record a stack's own topics with ros2 bag record"):
+        EvaluatorNode(parameter_overrides=overrides)
+    assert not (tmp_path / "rec").exists()
+
+
+def test_a_map_with_a_robot_placeholder_needs_the_robot_named(ros):
+    with pytest.raises(BadParameter, match=r"topic_map='crazyswarm2'.*topic_map:=crazyswarm2:cf231"):
+        PredictorNode(parameter_overrides=[Parameter("vehicle", value="crazyflie21"), Parameter("topic_map", value="crazyswarm2")])
+
+
+def test_the_evaluator_through_a_user_map_scores_what_it_scores_from_the_contract(ros, tmp_path):
+    """The same flight and predictions to two evaluators: one reading the contract, one a user map of standard types
+    (the live predictor test's); every scored window's RMS/TIC agree (measured: equal)."""
+    map_file = tmp_path / "user_map.yaml"
+    map_file.write_text(yaml.safe_dump(USER_MAP))
+    log = hover_log(1100)
+    prediction = offset_prediction(log, "vel_x", 0.25)
+    common = {"window_s": 5.0, "models": ["m"], "figures": False, "vehicle": "crazyflie21"}
+    contract, mapped = (EvaluatorNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+                        for values in (common, {**common, "topic_map": str(map_file)}))
+    for node in (contract, mapped):
+        node.diag_pub = Capture()
+    feed(contract, log, range(len(log)), predictions={"m": prediction})
+    arrays = messages.measurement_messages(log)
+    for row, ns in enumerate(stamps_ns(log.t).tolist()):
+        for kind, msg in (("motor", arrays.motor(row, ns)), ("odom", arrays.odometry(row, ns)), ("imu", arrays.imu(row, ns))):  # as feed()
+            for topic, user_msg in user_messages(kind, msg):
+                mapped.on_mapped(topic, user_msg)
+        o, a = messages.prediction_messages(ns, prediction[0][row], prediction[1][row], "m/base_link")
+        mapped.on_pred_odom("m", o)
+        mapped.on_pred_accel("m", a)
+    for node in (contract, mapped):
+        node.finish()
+    want, got = (sorted((r for r in node.scores.records if r.scored), key=lambda r: (r.model, r.index)) for node in (contract, mapped))
+    assert [(r.model, r.index) for r in got] == [(r.model, r.index) for r in want] == [("dummy", 0), ("dummy", 1), ("m", 0), ("m", 1)]
+    for w, g in zip(want, got):
+        np.testing.assert_allclose(g.rms, w.rms, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(g.tic, w.tic, rtol=0, atol=1e-9)
+    assert all(abs(r.rms[INDEX["vel_x"]] - 0.25) < 1e-9 for r in got if r.model == "m")
+    assert mapped.faults.summary() == "none"
+    for node in (contract, mapped):
+        node.destroy_node()
