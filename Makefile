@@ -28,7 +28,7 @@ demo: $(STAMP)
 	$(PY) -m quad_modelling.demo
 
 # Two pytest-xdist workers (the 2 cores of the target machine; TEST_WORKERS=0: one process): a test file per
-# worker at a time, the run-bag graph tests one after another, the longest files first (test/parallel.py).
+# worker at a time, the ROS tests one after another on one worker, the longest files first (test/parallel.py).
 TEST_WORKERS ?= 2
 
 test: $(STAMP)

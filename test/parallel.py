@@ -4,10 +4,9 @@ the units known to be long are handed out first, so that no long unit starts las
 
 Two groups span several files:
 
-* ``run-bag``: the files whose tests run whole ``run-bag`` graphs (replay, predictors and evaluator as processes)
-  run one after another, on one worker: at most one such graph runs at a time, beside one test of another file.
-  The other ROS files are a unit each. Every worker process holds a ROS domain of its own
-  (``test/ros/conftest.py``, ``quad_modelling.nodes.domains``): the graphs of two workers never see each other.
+* ``test/ros``: every ROS test runs on one worker, one after the other, as in a serial run: no two DDS graphs
+  (or real-time publishers) compete with each other; the other worker runs the rest of the suite meanwhile. Each
+  worker process holds a ROS domain of its own anyway (``test/ros/conftest.py``, ``quad_modelling.nodes.domains``).
 * ``dask``: the two files that use the session-scoped local Dask cluster (``test/conftest.py::dask_scheduler``)
   share one cluster instead of starting one per worker.
 
@@ -30,35 +29,30 @@ from pathlib import Path
 from xdist.scheduler import LoadScopeScheduling
 
 GROUPS = {
-    "test/ros/test_run_bag.py": "run-bag",
-    "test/ros/test_two_hosts.py": "run-bag",
-    "test/ros/test_recording.py": "run-bag",
+    "test/ros/": "test/ros",
     "test/test_fanout.py": "dask",
     "test/commands/test_fanout.py": "dask",
 }
 """Path prefix of a test file -> the unit of work it joins (files not listed are a unit each)."""
 
 UNIT_SECONDS = {
-    "run-bag": 126,
-    "test/ros/test_predictor_live_streams.py": 45,
+    "test/ros": 250,
     "test/core/diagnosis/test_diagnosis_validation.py": 44,
     "dask": 33,
-    "test/ros/test_predictor_node.py": 27,
-    "test/core/diagnosis/test_diagnosis.py": 25,
-    "test/core/identification/test_identification.py": 17,
-    "test/ros/test_flight_stack.py": 20,
-    "test/ros/test_replay_node.py": 20,
-    "test/ros/test_live_graph_setup.py": 17,
-    "test/core/identification/test_motor_check.py": 15,
-    "test/test_colcon_build.py": 15,
+    "test/core/diagnosis/test_diagnosis.py": 27,
+    "test/core/identification/test_identification.py": 24,
+    "test/core/identification/test_motor_check.py": 17,
     "test/commands/test_diagnose.py": 13,
-    "test/core/sim/test_sim.py": 9,
+    "test/test_colcon_build.py": 15,
+    "test/core/sim/test_sim.py": 12,
+    "test/commands/test_evaluate.py": 10,
     "test/io/reports/test_diagnosis.py": 9,
-    "test/commands/test_evaluate.py": 8,
-    "test/core/diagnosis/test_effects.py": 8,
-    "test/commands/test_merge.py": 7,
-    "test/core/identification/test_physics_fit.py": 6,
+    "test/core/diagnosis/test_effects.py": 9,
+    "test/core/identification/test_physics_fit.py": 9,
+    "test/commands/test_merge.py": 8,
+    "test/fuzz/test_fuzz_binary_readers.py": 8,
     "test/io/test_bag_compression.py": 6,
+    "test/commands/test_identify.py": 6,
 }
 """Wall seconds of the longest units in a serial run on 2 cores (bench/results/test_time.md), to order the queue:
 longest first; units not listed follow in xdist's order. Rough numbers suffice: only their order matters."""
