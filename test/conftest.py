@@ -36,6 +36,9 @@ def pytest_configure(config):
 
 @pytest.hookimpl(hookwrapper=True)
 def pytest_runtest_protocol(item, nextitem):
+    if not os.environ.get("PYTEST_XDIST_WORKER"):  # one process: nothing beside the test to wait for
+        yield
+        return
     from test.parallel import cpu_turn
 
     with cpu_turn(item):
