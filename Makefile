@@ -27,8 +27,12 @@ $(STAMP): requirements.txt setup.py
 demo: $(STAMP)
 	$(PY) -m quad_modelling.demo
 
+# Two pytest-xdist workers (the 2 cores of the target machine; TEST_WORKERS=0: one process): a test file per
+# worker at a time, the ROS tests one after another on one worker, the longest files first (test/parallel.py).
+TEST_WORKERS ?= 2
+
 test: $(STAMP)
-	$(PY) -m pytest -q test
+	$(PY) -m pytest -q -n $(TEST_WORKERS) test
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py

@@ -29,6 +29,32 @@ settings.register_profile("deep", parent=settings.get_profile("ci"), derandomize
 settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
+def pytest_configure(config):
+    config.addinivalue_line("markers", "exclusive: runs with no other test running beside it under pytest-xdist "
+                                       "(a real-time graph that counts what arrived in time; test/parallel.py)")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    if not os.environ.get("PYTEST_XDIST_WORKER"):  # one process: nothing beside the test to wait for
+        yield
+        return
+    from test.parallel import cpu_turn
+
+    with cpu_turn(item):
+        yield
+
+
+@pytest.hookimpl(optionalhook=True)
+def pytest_xdist_make_scheduler(config, log):
+    """``-n N`` (``make test``): a file or group per worker, longest first (test/parallel.py); another --dist as given."""
+    if config.getvalue("dist") != "load":
+        return None
+    from test.parallel import LongestFileFirstScheduling
+
+    return LongestFileFirstScheduling(config, log)
+
+
 def synthetic_log(n: int = 400, vehicle: str = "crazyflie21", seed: int = 0, rate: float = 100.0, with_optional: bool = True) -> FlightLog:
     """A smooth, plausible flight: hover-level commands, gentle attitude and yaw beyond ±π."""
     rng = np.random.default_rng(seed)
