@@ -356,10 +356,10 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     return best
 
 
-OBSERVERS = {"default": Observer(), "measured minus modelled": Observer(angular_trim=False), "linear only": Observer(angular_s=0.0),
+OBSERVERS = {"default": Observer(), "measured": Observer(angular_trim=False), "linear only": Observer(angular_s=0.0),
              "none": Observer(0.0, 0.0)}
 """The disturbance observers ``identify`` chooses among (:func:`identify_physics`): the physics model's default
-(0.5 s each, the angular part a trim), the angular part as measured minus modelled, the linear part alone, and
+(0.5 s each, the angular part a trim), the angular part as measured minus modelled (``measured``), the linear part alone, and
 none (a model that lacks no force or moment: held-out velocity SimErr ratio 0.51 against 0.62 with the linear
 part on an effect-free simulated LinkQuad flight, seed 4711)."""
 
