@@ -350,17 +350,10 @@ class EvaluatorNode(Node):
     def on_mapped(self, topic: str, msg) -> None:
         """A message of a ``topic_map`` topic (:mod:`~quad_modelling.nodes.mapping.streams`): its commands (in the
         vehicle's unit) an engine input, its measured fields kept in the window's ``mapped`` buffer of the topic."""
-        read = self.mapped.read(topic, msg)
+        read = self.mapped.admit(topic, msg, self.faults)
         if read is None:
-            return  # another instance of a multi-instance topic
+            return  # another instance of a multi-instance topic, or a fault (reported)
         ns, fields = read
-        fault = self.mapped.fault(fields)
-        if fault == "zero_quaternion":
-            self.faults.report("zero_quaternion", f"{topic} message with a zero (non-unit) quaternion dropped")
-            return
-        if fault:
-            self.faults.report(stream_fault("nan", topic), f"non-finite {topic} message dropped")
-            return
         measured = {f: v for f, v in fields.items() if f != "commands"}
         if measured:
             self._keep(topic, self._admit(topic, ns, measured), lambda window: window.mapped.setdefault(topic, {}))

@@ -345,17 +345,10 @@ class PredictorNode(Node):
     def on_mapped(self, topic: str, msg) -> None:
         """A message of a ``topic_map`` topic (:mod:`~quad_modelling.nodes.mapping.streams`): its measurements stored,
         its commands (in the vehicle's unit) handled as a ``motor_input``."""
-        read = self.mapped.read(topic, msg)
+        read = self.mapped.admit(topic, msg, self.faults)
         if read is None:
-            return  # another instance of a multi-instance topic
+            return  # another instance of a multi-instance topic, or a fault (reported)
         ns, fields = read
-        fault = self.mapped.fault(fields)
-        if fault == "zero_quaternion":
-            self.faults.report("zero_quaternion", f"{topic} message with a zero (non-unit) quaternion dropped")
-            return
-        if fault:
-            self.faults.report(stream_fault("nan", topic), f"non-finite {topic} message dropped")
-            return
         measured = {f: v for f, v in fields.items() if f != "commands"}
         if measured and self._gate(topic, ns, measured):
             if not self.mapped.store(ns, measured):

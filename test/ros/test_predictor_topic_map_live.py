@@ -9,6 +9,7 @@ predictions a predictor reading the project's contract gives for the same flight
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import yaml
 from geometry_msgs.msg import AccelStamped, PoseStamped, TwistStamped
 from nav_msgs.msg import Odometry
@@ -51,6 +52,7 @@ def user_messages(kind: str, contract_msg):
     return [({"motor": "/user/motors", "imu": "/user/imu"}[kind], contract_msg)]
 
 
+@pytest.mark.exclusive  # two predictors on their own real-time streams: the machine to itself under xdist
 def test_a_user_map_of_standard_types_predicts_what_the_contract_predicts(ros, tmp_path):
     map_file = tmp_path / "user_map.yaml"
     map_file.write_text(yaml.safe_dump(USER_MAP))

@@ -29,7 +29,7 @@ from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.io.mapped_flight import TopicReader, convert_measurements, map_commands, readers_for
 from quad_modelling.io.topic_maps import CONTRACT_MAP, TopicMap, load_topic_map
-from quad_modelling.nodes.common import BadParameter, Param
+from quad_modelling.nodes.common import BadParameter, Param, stream_fault
 
 MEASURED_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
 """Map fields a node reads besides the commands (``battery`` too when the node reads a battery)."""
@@ -109,6 +109,22 @@ class MappedStreams:
         if attitude is not None and abs(math.sqrt(sum(v * v for v in attitude)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE:
             return "zero_quaternion"
         return None
+
+    def admit(self, topic: str, msg, faults) -> tuple[int, dict[str, list[float]]] | None:
+        """(stamp [ns], fields) of a message both nodes may use, or None: another instance of a multi-instance topic
+        (silently), or a fault reported to ``faults`` (the nodes' fault log: ``zero_quaternion`` or
+        ``nan_<topic>``) and the message dropped."""
+        read = self.read(topic, msg)
+        if read is None:
+            return None
+        fault = self.fault(read[1])
+        if fault == "zero_quaternion":
+            faults.report("zero_quaternion", f"{topic} message with a zero (non-unit) quaternion dropped")
+            return None
+        if fault:
+            faults.report(stream_fault("nan", topic), f"non-finite {topic} message dropped")
+            return None
+        return read
 
     def command(self, values: list[float], vehicle) -> np.ndarray:
         """One message's commands -> the vehicle's input unit (:func:`~quad_modelling.io.mapped_flight.map_commands`)."""
