@@ -178,13 +178,18 @@ def _need(doc: dict, key: str, where: str):
     return doc[key]
 
 
+def _check_mapping(doc, here: str, shape: str, known) -> None:
+    """ConfigError naming ``here`` unless ``doc`` is a mapping with only ``known`` keys (``shape`` shows them)."""
+    if not isinstance(doc, dict):
+        raise ConfigError(f"{here}: must be a mapping {shape}, got {type(doc).__name__}")
+    unknown = sorted(set(map(str, doc)) - known)
+    if unknown:
+        raise ConfigError(f"{here}: unknown key(s) {unknown}; known: {sorted(known)}")
+
+
 def _topic_spec(name: str, doc, where: str) -> TopicSpec:
     here = f"{where}: topics.{name}"
-    if not isinstance(doc, dict):
-        raise ConfigError(f"{here}: must be a mapping {{type, stamp, ...}}, got {type(doc).__name__}")
-    unknown = sorted(set(map(str, doc)) - TOPIC_KEYS)
-    if unknown:
-        raise ConfigError(f"{here}: unknown key(s) {unknown}; known: {sorted(TOPIC_KEYS)}")
+    _check_mapping(doc, here, "{type, stamp, ...}", TOPIC_KEYS)
     if not re.fullmatch(r"(/(\{robot\}|" + _TOKEN + "))+", name):
         raise ConfigError(f"{here}: not an absolute ROS 2 topic name (e.g. /fmu/out/vehicle_odometry or /{{robot}}/pose)")
     msgtype = str(_need(doc, "type", here))
@@ -235,11 +240,7 @@ def parse_path(path: str, spec: TopicSpec, where: str) -> list[tuple[str, object
 
 def _field_source(field: str, doc, topics: dict[str, TopicSpec], where: str) -> FieldSource:
     here = f"{where}: fields.{field}"
-    if not isinstance(doc, dict):
-        raise ConfigError(f"{here}: must be a mapping {{topic, fields, unit, frame}}, got {type(doc).__name__}")
-    unknown = sorted(set(map(str, doc)) - SOURCE_KEYS)
-    if unknown:
-        raise ConfigError(f"{here}: unknown key(s) {unknown}; known: {sorted(SOURCE_KEYS)}")
+    _check_mapping(doc, here, "{topic, fields, unit, frame}", SOURCE_KEYS)
     components, si_unit, known_frames, _ = FLIGHT_FIELDS[field]
     topic = str(_need(doc, "topic", here))
     if topic not in topics:
