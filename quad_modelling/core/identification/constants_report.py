@@ -13,7 +13,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from quad_modelling.core.identification.least_squares import poorly_determined
+from quad_modelling.core.identification.physics_terms import effects_section
 
 LINE_WIDTH = 100
 
@@ -90,3 +93,46 @@ def constant_lines(estimates: list[ConstantEstimate], title: str) -> list[str]:
             lines += [text] if len(text) <= LINE_WIDTH else [f"  poorly determined: {e.name}: {e.reason()};",
                                                              f"    would help: {e.helps}"]
     return lines
+
+
+def add_physics_constants(document: dict, fit, note: str, source: str) -> None:
+    """Write the identified physics constants (value, 1-sigma, source, at-bound flag) into a vehicle ``document``'s
+    ``constants`` and the fit's details into ``identification.physics``; without a fit only the note."""
+    identification = document.setdefault("identification", {})
+    if fit is None:
+        identification["physics"] = {"note": note}
+        return
+    for estimate in fit.estimates():
+        if "." in estimate.name:
+            continue  # a term's parameter: the effects section below
+        entry = document["constants"][estimate.name]
+        if estimate.held:
+            entry["source"] = f"{entry['source']}; kept: {estimate.held}"
+            continue
+        entry.update(value=estimate.value, source=source, sigma=estimate.sigma)
+        if estimate.at_bound:
+            entry["source"] = f"{source}; AT BOUND {list(estimate.bounds)} {estimate.unit}"
+    identification.setdefault("constants", {}).update({e.name: e.as_dict() for e in fit.estimates()})
+    identification["physics"] = _plain(fit.to_dict())
+    if fit.terms:
+        document.setdefault("effects", {}).update(_plain(effects_section(fit.terms, source)))
+    choice = fit.diagnostics.get("observer_choice")
+    why = (f"chosen by the data: {choice['chosen']} (multi-step error "
+           + ", ".join(f"{name} {e:.3g}" for name, e in choice["errors"].items()) + ")") if choice else "as fitted"
+    o = fit.observer
+    on = o.linear_s > 0 or o.angular_s > 0
+    values = {"linear_history": (o.linear_s, "s"), "angular_history": (o.angular_s, "s"), "angular_trim": (float(o.angular_trim), "1")}
+    document.setdefault("effects", {})["disturbance_observer"] = {"enabled": on, **{
+        key: {"value": float(value), "unit": unit, "bounds": [0.0, 10.0 if unit == "s" else 1.0], "status": "identified",
+              "source": f"{source}; {why}"} for key, (value, unit) in values.items()}}
+
+
+def _plain(value):
+    """``value`` with numpy scalars and tuples made YAML-plain (floats, lists)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value

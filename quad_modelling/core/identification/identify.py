@@ -42,9 +42,9 @@ from quad_modelling.core.physics.effects import effects_document
 from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
 from quad_modelling.core.identification.greybox_fit import BaseFit, constant_estimates, identify_base
 from quad_modelling.core.identification.motor_check import check_lines, check_motor_layout
+from quad_modelling.core.identification.constants_report import add_physics_constants
 from quad_modelling.core.identification.physics_fit import (
     PhysicsFit,
-    add_physics_constants,
     identify_physics_if_configured,
 )
 from quad_modelling.core.identification.window_batch import WindowBatch, prepare_windows

@@ -71,10 +71,13 @@ from quad_modelling.core.models.physics import Observer
 from quad_modelling.core.identification.normal_equations import NormalEquations, solve_channels
 from quad_modelling.core.identification.physics_terms import (
     GROUND_OFFSETS,
+    IMBALANCE_ITERATIONS,
     TermDesign,
-    effects_section,
+    channel_columns,
+    imbalance_columns,
     rate_columns,
     term_estimates,
+    updated_gains,
     velocity_columns,
 )
 from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
@@ -99,9 +102,12 @@ TIME_CONSTANT_RANGE_S = (0.002, 0.3)
 TAU_LOG_TOLERANCE = 0.05
 """Tolerance of the τ search in log τ (5 %): finer than its uncertainty on real flights."""
 
-DELAY_MAX_S = 0.06
-"""Largest command delay searched [s]: 6 samples at 100 Hz; a radio-controlled ESC's 50 Hz frame and a
-brushed motor's spin-up stay well below it."""
+DELAY_MAX_S = 0.15
+"""Largest command delay searched [s]: 15 samples at 100 Hz. The NanoBench Crazyflie's logged commands lead its
+response by about 40 ms; at the earlier 60 ms limit a 20 ms delay added to those flights sat on the bound."""
+
+DELAY_TOLERANCE_SAMPLES = 0.02
+"""Tolerance of the fractional delay search, in sample periods (0.2 ms at 100 Hz): far below its sigma."""
 
 BOUNDS_FACTOR = 10.0
 """k_f, k_m and the roll/pitch inertias are bounded to [start / 10, start * 10]: an order of magnitude either side
@@ -146,7 +152,7 @@ class PhysicsFit:
             if all(q["identifiable"] for q in params.values()):
                 values = tuple(params[key]["value"] for key in params)
                 terms.update({"ground_effect": {"ground_effect": values}, "battery": {"battery": values},
-                              "gyroscopic": {"gyroscopic": values}}[name])
+                              "gyroscopic": {"gyroscopic": values}, "motor_imbalance": {"motor_gains": values}}[name])
         return base.with_values(**terms,
             time_constant=v["rotor_time_constant"], delay=v["rotor_delay"], thrust_constant=v["rotor_thrust_constant"],
             torque_constant=v["rotor_torque_constant"], drag=(v["rotor_drag_xy"], v["rotor_drag_xy"], v["rotor_drag_z"]),
@@ -251,9 +257,11 @@ def _wrench_per_unit(p: PhysicsParameters, rotor: np.ndarray, v_b: np.ndarray, h
 def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: float, design: TermDesign = TermDesign()) -> dict[str, tuple]:
     """Per channel (state y (N, k_y), regressors X (N, k_y, k_θ), known part (N, k_y)) of one segment: the columns are
     the one physics' wrench per unit constant (module docstring), then the fitted terms'
-    (:mod:`~quad_modelling.core.identification.physics_terms`); the known part its gyroscopic torque. Terms the
-    vehicle switches on and ``design`` does not fit act with their values."""
-    off = {"ground_effect": {"ground_effect": None}, "battery": {"battery": None}, "gyroscopic": {"gyroscopic": None}}
+    (:mod:`~quad_modelling.core.identification.physics_terms`), named by
+    :func:`~quad_modelling.core.identification.physics_terms.channel_columns`; the known part its gyroscopic torque.
+    Terms the vehicle switches on and ``design`` does not fit act with their values."""
+    off = {"ground_effect": {"ground_effect": None}, "battery": {"battery": None}, "gyroscopic": {"gyroscopic": None},
+           "motor_imbalance": {"motor_gains": design.motor_gains}}
     q = p.with_values(time_constant=time_constant, delay=delay, **{k: v for n in design.names for k, v in off[n].items()})
     if q.battery is not None and seg.voltage is None:
         raise DataError("the vehicle's battery term needs the battery voltage, and a training flight has none")
@@ -265,7 +273,7 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
     drag_xy_force, drag_xy_torque = _wrench_per_unit(q, rotor, seg.v_b, None, drag=(1.0, 1.0, 0.0), drag_arm=1.0)
     drag_z_force, _ = _wrench_per_unit(q, rotor, seg.v_b, None, drag=(0.0, 0.0, 1.0))
     _, yaw_torque = _wrench_per_unit(q, rotor, seg.v_b, None, torque_constant=1.0)
-    body = np.stack([thrust_force, drag_xy_force, drag_z_force], axis=2) / m  # body force per unit (k_f, d_xy, d_z)
+    body = np.stack([thrust_force, drag_xy_force, drag_z_force] if design.drag else [thrust_force], axis=2) / m
     gyro = np.zeros_like(seg.rates)
     if q.gyroscopic is not None:  # the vehicle's gyroscopic torques, known (not fitted here)
         body_scale, rotor_scale = q.gyroscopic
@@ -276,22 +284,30 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
     if extra:
         velocity = np.concatenate([velocity, np.stack(extra, axis=2)], axis=2)
     rate_extra = rate_columns(design, q.prop_inertia, q.spins, seg.rates, rotor, inertia)
-    yaw = yaw_torque[:, 2][:, None, None] if rate_extra is None else np.stack([yaw_torque[:, 2], rate_extra[:, 2, 0]], axis=1)[:, None, :]
+    imbalance = (imbalance_columns(design, q.positions, q.spins, q.speed_offset, rotor)
+                 if "motor_imbalance" in design.names else None)
+    torques = [_torque_columns(thrust_torque, drag_xy_torque if design.drag else None, rate_extra, imbalance, axis) for axis in range(3)]
     # yaw's rotor-reaction term I_p/I_zz sum s_i dΩ_i/dt integrates to I_p/I_zz sum s_i (Ω(t) - Ω(t_0)): added to the known part
     # after integration (below), exact for the model's rectangle rule up to the filter's own step.
     return {
         "velocity": (seg.vel_n, velocity, np.zeros((len(seg.t), 3))),
-        "roll": (seg.rates[:, :1], _torque_columns(thrust_torque, drag_xy_torque, rate_extra, 0), gyro[:, :1]),
-        "pitch": (seg.rates[:, 1:2], _torque_columns(thrust_torque, drag_xy_torque, rate_extra, 1), gyro[:, 1:2]),
-        "yaw": (seg.rates[:, 2:], yaw, gyro[:, 2:],
+        "roll": (seg.rates[:, :1], torques[0], gyro[:, :1]),
+        "pitch": (seg.rates[:, 1:2], torques[1], gyro[:, 1:2]),
+        "yaw": (seg.rates[:, 2:], _torque_columns(yaw_torque, None, rate_extra, imbalance, 2), gyro[:, 2:],
                 -rotor_momentum(p.prop_inertia, p.spins, rotor)[:, 2:] / inertia[2]),  # I_p Σ s_i Ω_i / I_zz
     }
 
 
-def _torque_columns(thrust: np.ndarray, drag: np.ndarray, extra: np.ndarray | None, axis: int) -> np.ndarray:
-    """(N, 1, k) regressors of the roll (``axis`` 0) or pitch (1) rate: (thrust gain, drag moment[, body and rotors'
-    gyroscopic])."""
-    parts = [thrust[:, axis], drag[:, axis]] + ([] if extra is None else [extra[:, axis, 0], extra[:, axis, 1]])
+def _torque_columns(gain: np.ndarray, drag: np.ndarray | None, gyro: np.ndarray | None, imbalance: np.ndarray | None,
+                    axis: int) -> np.ndarray:
+    """(N, 1, k) regressors of the roll (``axis`` 0), pitch (1) or yaw (2) rate in the order of
+    :func:`~quad_modelling.core.identification.physics_terms.channel_columns`: the thrust (yaw: torque) gain[, drag
+    moment][, body and rotors' gyroscopic (yaw: the body's)][, imbalance]."""
+    parts = [gain[:, axis]] + ([] if drag is None else [drag[:, axis]])
+    if gyro is not None:
+        parts += [gyro[:, axis, 0]] + ([gyro[:, axis, 1]] if axis < 2 else [])
+    if imbalance is not None:
+        parts.append(imbalance[:, axis])
     return np.stack(parts, axis=1)[:, None, :]
 
 
@@ -334,7 +350,7 @@ def _normal_equations(p: PhysicsParameters, segments: list[_Segment], time_const
 
 
 def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
-                     observer: Observer | None = None, terms: Sequence[str] = ()) -> PhysicsFit:
+                     observer: Observer | None = None, terms: Sequence[str] = (), drag: bool = True) -> PhysicsFit:
     """Fit the physics constants :data:`FITTED` on ``config``'s training span of ``flights`` (module docstring), with
     the optional ``terms`` (:mod:`~quad_modelling.core.identification.physics_terms`).
 
@@ -346,8 +362,8 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     no such gap (the simulator's flights), they throw away what it predicts right (roll rate error 0.14 -> 0.016 of
     the observer alone's, yaw 0.74 -> 0.004, on simulated LinkQuad flights with the true constants)."""
     if observer is not None:
-        return _identify_with(flights, vehicle, config, observer, terms)
-    fits = {name: _identify_with(flights, vehicle, config, candidate, terms) for name, candidate in OBSERVERS.items()}
+        return _identify_with(flights, vehicle, config, observer, terms, drag)
+    fits = {name: _identify_with(flights, vehicle, config, candidate, terms, drag) for name, candidate in OBSERVERS.items()}
     reference = fits["default"].diagnostics["ssr0"]
     scores = {name: sum(f.diagnostics["ssr"][c] / reference[c] for c in CHANNELS if reference[c] > 0) for name, f in fits.items()}
     chosen = min(scores, key=scores.get)
@@ -365,61 +381,36 @@ part on an effect-free simulated LinkQuad flight, seed 4711)."""
 
 
 def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
-                   observer: Observer, terms: Sequence[str]) -> PhysicsFit:
-    """:func:`identify_physics` with one ``observer``."""
+                   observer: Observer, terms: Sequence[str], drag: bool = True) -> PhysicsFit:
+    """:func:`identify_physics` with one ``observer``; with motor_imbalance among the ``terms``, the whole fit is
+    repeated :data:`~quad_modelling.core.identification.physics_terms.IMBALANCE_ITERATIONS` times from the gains of
+    the previous pass (Gauss-Newton)."""
     began = time.perf_counter()
     p = PhysicsParameters.from_vehicle(vehicle)
     segments = training_segments(flights, config, observer, min_history_s=max(o.linear_s for o in OBSERVERS.values()))
     rate = float(np.median([1.0 / np.median(np.diff(s.t)) for s in segments]))
-    design = _term_design(tuple(terms), segments, vehicle)
+    design = replace(_term_design(tuple(terms), segments, vehicle), drag=drag)
+    passes = IMBALANCE_ITERATIONS if "motor_imbalance" in design.names else 1
+    for _ in range(passes):
+        tau, delay, delay_sd, profile, design, fit, thin = _search_dynamics(p, segments, observer, design, rate, vehicle)
+        gains = updated_gains(design, fit, p.positions, p.spins) if "motor_imbalance" in design.names else None
+        if gains is not None:
+            design = replace(design, motor_gains=tuple(float(g) for g in gains[0]))
+    columns = channel_columns(design)
 
-    def objective(log_tau: float, delay: float) -> float:
-        fit = solve_channels(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer, 1, design))
-        return sum(fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS if fit[c]["ssr0"] > 0)
+    def coef(channel: str, name: str) -> tuple[float, float]:
+        if name not in columns[channel]:
+            return 0.0, float("nan")  # held at 0 (rotor drag off)
+        i = columns[channel].index(name)
+        return float(fit[channel]["coef"][i]), float(np.sqrt(fit[channel]["cov"][i, i]))
 
-    lo, hi = TIME_CONSTANT_RANGE_S
-    grid = delay_grid(rate)
-    start_tau = float(np.clip(p.time_constant, lo, hi))
-    searched: dict[int, tuple[float, float]] = {}
-
-    def best_tau(i: int) -> tuple[float, float]:
-        if i not in searched:
-            search = optimize.minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), args=(float(grid[i]),),
-                                              method="bounded", options={"xatol": TAU_LOG_TOLERANCE})
-            searched[i] = (float(search.fun), float(np.exp(search.x)))
-        return searched[i]
-
-    # coordinate search: the best delay at the starting τ, then τ there, then neighbouring delays while they improve
-    i = int(np.argmin([objective(np.log(start_tau), float(d)) for d in grid]))
-    while True:
-        best_tau(i)
-        for j in (i - 1, i + 1):
-            if 0 <= j < len(grid):
-                best_tau(j)
-        j = min(searched, key=lambda k: searched[k][0])
-        if j == i:
-            break
-        i = j
-    tau, delay = searched[i][1], float(grid[i])
-    profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
-    thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
-    if "ground_effect" in design.names:  # h_off: the grid value of least velocity error at the chosen τ, δ
-        offsets = [g * vehicle.value("arm_length") for g in GROUND_OFFSETS]
-        errors = [solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, replace(design, ground_offset=h)))["velocity"]["ssr"]
-                  for h in offsets]
-        design = replace(design, ground_offset=offsets[int(np.argmin(errors))])
-    fit = solve_channels(_normal_equations(p, segments, tau, delay, observer, thin, design))
-
-    kf, kf_sd = fit["velocity"]["coef"][0], np.sqrt(fit["velocity"]["cov"][0, 0])
-    values = {"rotor_time_constant": tau, "rotor_delay": delay, "rotor_thrust_constant": kf,
-              "rotor_drag_xy": fit["velocity"]["coef"][1], "rotor_drag_z": fit["velocity"]["coef"][2]}
-    sigma = {"rotor_thrust_constant": kf_sd, "rotor_drag_xy": np.sqrt(fit["velocity"]["cov"][1, 1]),
-             "rotor_drag_z": np.sqrt(fit["velocity"]["cov"][2, 2])}
-    d_xy, d_xy_sd = values["rotor_drag_xy"], sigma["rotor_drag_xy"]
+    kf, kf_sd = coef("velocity", "thrust")
+    (d_xy, d_xy_sd), (d_z, d_z_sd) = coef("velocity", "drag_xy"), coef("velocity", "drag_z")
+    values = {"rotor_time_constant": tau, "rotor_delay": delay, "rotor_thrust_constant": kf, "rotor_drag_xy": d_xy, "rotor_drag_z": d_z}
+    sigma = {"rotor_thrust_constant": kf_sd, "rotor_drag_xy": d_xy_sd, "rotor_drag_z": d_z_sd}
     arms = []
     for key, channel in (("physics_ixx", "roll"), ("physics_iyy", "pitch")):
-        (alpha, b), cov = fit[channel]["coef"][:2], fit[channel]["cov"]
-        alpha_sd, b_sd = np.sqrt(cov[0, 0]), np.sqrt(cov[1, 1])
+        (alpha, alpha_sd), (b, b_sd) = coef(channel, "thrust"), coef(channel, "drag_moment")
         values[key] = kf / alpha if alpha != 0 else float("nan")
         sigma[key] = abs(values[key]) * np.hypot(kf_sd / kf, alpha_sd / alpha) if alpha != 0 and kf != 0 else float("nan")
         arm = b * values[key] / d_xy if d_xy != 0 and np.isfinite(values[key]) else float("nan")
@@ -430,12 +421,15 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
         weights = np.array([1.0 / sd**2 for _, sd in finite])
         values["rotor_drag_arm"] = float(np.sum(weights * np.array([a for a, _ in finite])) / weights.sum())
         sigma["rotor_drag_arm"] = float(1.0 / np.sqrt(weights.sum()))
+    elif not drag:
+        values["rotor_drag_arm"], sigma["rotor_drag_arm"] = 0.0, float("nan")
     else:
         values["rotor_drag_arm"], sigma["rotor_drag_arm"] = float("nan"), float("nan")
-    values["rotor_torque_constant"] = fit["yaw"]["coef"][0] * p.inertia[2]
-    sigma["rotor_torque_constant"] = np.sqrt(fit["yaw"]["cov"][0, 0]) * p.inertia[2]
-    sigma["rotor_time_constant"] = _tau_sigma(p, segments, tau, delay, observer, thin, {c: fit[c]["s2"] for c in CHANNELS}, design)
-    sigma["rotor_delay"] = (1.0 / rate) / np.sqrt(12.0)
+    torque, torque_sd = coef("yaw", "torque")
+    values["rotor_torque_constant"], sigma["rotor_torque_constant"] = torque * p.inertia[2], torque_sd * p.inertia[2]
+    sigma["rotor_time_constant"] = _profile_sigma(
+        lambda value: _chi2(p, segments, value, delay, observer, thin, fit, design), tau, 0.05 * tau)
+    sigma["rotor_delay"] = delay_sd
 
     start = {key: float(vehicle.value(key)) for key in FITTED}
     bounds = {key: (start[key] / BOUNDS_FACTOR, start[key] * BOUNDS_FACTOR) for key in FITTED}
@@ -459,6 +453,8 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
             at_bound[key] = bool(min(abs(np.log(value / low)), abs(np.log(value / high))) < 0.05)
         elif key == "rotor_delay":
             at_bound[key] = bool(value >= high - 0.5 / rate)
+        elif not drag and key.startswith("rotor_drag"):
+            at_bound[key] = False  # held at 0: rotor drag off
         else:
             at_bound[key] = bool(value <= low or value >= high)
             values[key] = float(np.clip(value, low, high))
@@ -471,10 +467,84 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
         "horizons_s": list(FIT_HORIZONS_S), "observer": {"linear_s": observer.linear_s, "angular_s": observer.angular_s, "angular_trim": observer.angular_trim}, "anchor_thinning": thin,
         "delay_profile": [{"delay_s": d, "time_constant_s": t, "objective": f} for f, t, d in profile],
         "held": {"rotor_speed_gain": p.speed_gain, "rotor_speed_offset": p.speed_offset, "izz": p.inertia[2]},
+        "rotor_drag": "fitted" if drag else "held at 0 (off)",
         "seconds": time.perf_counter() - began,
     }
-    terms_fitted = term_estimates(design, fit, (values["rotor_thrust_constant"], sigma["rotor_thrust_constant"]), vehicle.value("arm_length"))
+    terms_fitted = term_estimates(design, fit, (values["rotor_thrust_constant"], sigma["rotor_thrust_constant"]),
+                                  vehicle.value("arm_length"), gains)
     return PhysicsFit(values, sigma, bounds, at_bound, start, diagnostics, identifiable, terms_fitted, observer)
+
+
+def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: Observer, design: TermDesign, rate: float,
+                     vehicle: VehicleConfig) -> tuple:
+    """τ_m and δ of least :math:`J` (module docstring): a coordinate search over whole-sample delays (the best at the
+    starting τ first, then neighbours while they improve, each with τ's bounded search), then δ between the
+    neighbouring samples (commands interpolated, :func:`~quad_modelling.core.physics.rotors.delayed_commands`) and τ
+    again there; h_off of ground effect on its grid. Returns (τ, δ, σ_δ, profile, design, channel fits, thinning)."""
+
+    def objective(log_tau: float, delay: float) -> float:
+        fit = solve_channels(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer, 1, design))
+        return sum(fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS if fit[c]["ssr0"] > 0)
+
+    lo, hi = TIME_CONSTANT_RANGE_S
+    grid = delay_grid(rate)
+    start_tau = float(np.clip(p.time_constant, lo, hi))
+    searched: dict[int, tuple[float, float]] = {}
+
+    def tau_at(delay: float) -> tuple[float, float]:
+        search = optimize.minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), args=(delay,),
+                                          method="bounded", options={"xatol": TAU_LOG_TOLERANCE})
+        return float(search.fun), float(np.exp(search.x))
+
+    i = int(np.argmin([objective(np.log(start_tau), float(d)) for d in grid]))
+    while True:
+        for j in (i - 1, i, i + 1):
+            if 0 <= j < len(grid) and j not in searched:
+                searched[j] = tau_at(float(grid[j]))
+        j = min(searched, key=lambda k: searched[k][0])
+        if j == i:
+            break
+        i = j
+    tau = searched[i][1]
+    period = 1.0 / rate
+    low, high = max(float(grid[i]) - period, 0.0), min(float(grid[i]) + period, float(grid[-1]))
+    fine = optimize.minimize_scalar(lambda d: objective(np.log(tau), d), bounds=(low, high), method="bounded",
+                                    options={"xatol": DELAY_TOLERANCE_SAMPLES * period})
+    delay = float(grid[i])
+    if fine.fun < searched[i][0]:
+        delay = float(fine.x)
+        best, tau_fine = tau_at(delay)
+        tau = tau_fine if best <= fine.fun else tau
+    profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
+    thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
+    if "ground_effect" in design.names:  # h_off: the grid value of least velocity error at the chosen τ, δ
+        offsets = [g * vehicle.value("arm_length") for g in GROUND_OFFSETS]
+        errors = [solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, replace(design, ground_offset=h)))["velocity"]["ssr"]
+                  for h in offsets]
+        design = replace(design, ground_offset=offsets[int(np.argmin(errors))])
+    fit = solve_channels(_normal_equations(p, segments, tau, delay, observer, thin, design))
+    sigma = _profile_sigma(lambda d: _chi2(p, segments, tau, d, observer, thin, fit, design), delay, 0.25 * period)
+    if not np.isfinite(sigma):
+        sigma = period / np.sqrt(12.0)  # the profile is flat or kinked there: the grid's quantisation
+    return tau, delay, sigma, profile, design, fit, thin
+
+
+def _chi2(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: float, observer: Observer, thin: int, fit: dict,
+          design: TermDesign) -> float:
+    """χ²(τ, δ) = Σ_c SSR_c / (thin s_c²) with the channel variances s_c² of ``fit`` (module docstring)."""
+    trial = solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, design))
+    s2 = {c: fit[c]["s2"] for c in CHANNELS}
+    return sum(trial[c]["ssr"] / (thin * s2[c]) for c in CHANNELS if np.isfinite(s2[c]) and s2[c] > 0)
+
+
+def _profile_sigma(chi2, x: float, h: float) -> float:
+    """σ = sqrt(2 / χ²''(x)) from a central second difference with step ``h`` (one side only at x < h: a delay of
+    0); NaN when the profile is not convex there (not identifiable from these flights)."""
+    if x - h < 0:
+        curvature = (chi2(x + 2 * h) - 2.0 * chi2(x + h) + chi2(x)) / h**2
+    else:
+        curvature = (chi2(x + h) - 2.0 * chi2(x) + chi2(x - h)) / h**2
+    return float(np.sqrt(2.0 / curvature)) if curvature > 0 else float("nan")
 
 
 def _term_design(terms: tuple[str, ...], segments: list[_Segment], vehicle: VehicleConfig) -> TermDesign:
@@ -486,20 +556,6 @@ def _term_design(terms: tuple[str, ...], segments: list[_Segment], vehicle: Vehi
             raise DataError("identify --effects battery needs the battery voltage, and a training flight has none")
         reference = float(np.mean(np.concatenate([s.voltage for s in segments])))
     return TermDesign(terms, GROUND_OFFSETS[len(GROUND_OFFSETS) // 2] * vehicle.value("arm_length"), reference)
-
-
-def _tau_sigma(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: float, observer: Observer, thin: int,
-               s2: dict[str, float], design: TermDesign = TermDesign()) -> float:
-    """σ_τ = sqrt(2 / χ²''(τ)) from a central second difference of the profile χ²(τ) = Σ_c SSR_c / (thin s_c²)
-    (module docstring); NaN when the profile is not convex there (τ not identifiable from these flights)."""
-    h = 0.05 * tau
-
-    def chi2(value: float) -> float:
-        fit = solve_channels(_normal_equations(p, segments, value, delay, observer, 1, design))
-        return sum(fit[c]["ssr"] / (thin * s2[c]) for c in CHANNELS if np.isfinite(s2[c]) and s2[c] > 0)
-
-    curvature = (chi2(tau + h) - 2.0 * chi2(tau) + chi2(tau - h)) / h**2
-    return float(np.sqrt(2.0 / curvature)) if curvature > 0 else float("nan")
 
 
 def identify_physics_if_configured(flights: Sequence[FlightLog], vehicle: VehicleConfig,
@@ -519,46 +575,3 @@ def identify_physics_if_configured(flights: Sequence[FlightLog], vehicle: Vehicl
         if terms:
             raise
         return None, f"not identified: {err}"
-
-
-def add_physics_constants(document: dict, fit: PhysicsFit | None, note: str, source: str) -> None:
-    """Write the identified physics constants (value, 1-sigma, source, at-bound flag) into a vehicle ``document``'s
-    ``constants`` and the fit's details into ``identification.physics``; without a fit only the note."""
-    identification = document.setdefault("identification", {})
-    if fit is None:
-        identification["physics"] = {"note": note}
-        return
-    for estimate in fit.estimates():
-        if estimate.name not in FITTED:
-            continue  # a term's parameter: the effects section below
-        entry = document["constants"][estimate.name]
-        if estimate.held:
-            entry["source"] = f"{entry['source']}; kept: {estimate.held}"
-            continue
-        entry.update(value=estimate.value, source=source, sigma=estimate.sigma)
-        if estimate.at_bound:
-            entry["source"] = f"{source}; AT BOUND {list(estimate.bounds)} {estimate.unit}"
-    identification.setdefault("constants", {}).update({e.name: e.as_dict() for e in fit.estimates()})
-    identification["physics"] = _plain(fit.to_dict())
-    if fit.terms:
-        document.setdefault("effects", {}).update(_plain(effects_section(fit.terms, source)))
-    choice = fit.diagnostics.get("observer_choice")
-    why = (f"chosen by the data: {choice['chosen']} (multi-step error "
-           + ", ".join(f"{name} {e:.3g}" for name, e in choice["errors"].items()) + ")") if choice else "as fitted"
-    o = fit.observer
-    on = o.linear_s > 0 or o.angular_s > 0
-    values = {"linear_history": (o.linear_s, "s"), "angular_history": (o.angular_s, "s"), "angular_trim": (float(o.angular_trim), "1")}
-    document.setdefault("effects", {})["disturbance_observer"] = {"enabled": on, **{
-        key: {"value": float(value), "unit": unit, "bounds": [0.0, 10.0 if unit == "s" else 1.0], "status": "identified",
-              "source": f"{source}; {why}"} for key, (value, unit) in values.items()}}
-
-
-def _plain(value):
-    """``value`` with numpy scalars and tuples made YAML-plain (floats, lists)."""
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        return value.item()
-    return value

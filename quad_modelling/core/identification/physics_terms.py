@@ -16,8 +16,18 @@ physics' wrench per unit of that coefficient (:mod:`quad_modelling.core.physics.
   axes) and :math:`-(\omega \times h_r)/I` of the rotors' momentum
   (:func:`~quad_modelling.core.physics.rigid_body.rotor_momentum`, coefficient :math:`k_p`, roll and pitch), each
   coefficient's axes combined by inverse variance;
-* ``motor_imbalance``: not fitted here (it needs a per-motor joint fit of all channels); ``identify --effects
-  motor_imbalance`` says so in one line.
+* ``motor_imbalance`` (roll, pitch, yaw): each motor's gain :math:`g_i` on its logged command, mean 1 (the common
+  gain is :math:`k_f`'s). The gains move along three patterns :math:`P_c` (:func:`imbalance_patterns`: the rows
+  :math:`-y_i, x_i, s_i` of the allocation, zero-mean), each seen first by its own channel c: around the current
+  gains :math:`\hat g`, :math:`\partial \Omega_i / \partial g_i = (\Omega_i - \Omega_{off}) / \hat g_i` (the speed map
+  and the lag are linear in the command), so the channel's acceleration gains the column
+  :math:`\sum_i M_{c,i}\, 2 \Omega_i (\Omega_i - \Omega_{off}) / \hat g_i\, P_{c,i}` with coefficient
+  :math:`\gamma_c = \alpha_c e_c` (:math:`\alpha_c` the channel's thrust or torque gain), and
+  :math:`g \leftarrow \hat g + \sum_c e_c P_c`, renormalised to mean 1; repeated :data:`IMBALANCE_ITERATIONS`
+  times (Gauss-Newton) by :func:`~quad_modelling.core.identification.physics_fit.identify_physics`.
+
+Rotor drag is a base constant of the physics (``rotor_drag_xy/_z/_arm``); ``TermDesign.drag`` False holds it at 0
+(its columns left out): the diagnosis's base without rotor drag.
 
 The torques of roll and pitch keep the thrust without the ground-effect and battery factors (second order: a
 common factor of the differential thrust). Sigmas by first-order propagation of the channel's; bounds
@@ -32,10 +42,10 @@ import numpy as np
 
 from quad_modelling.core.physics.aero import ground_effect_factor
 from quad_modelling.core.physics.effects import TERMS
-from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum
+from quad_modelling.core.physics.rigid_body import allocation_matrix, gyroscopic_torque, rotor_momentum
 from quad_modelling.errors import ConfigError
 
-FITTABLE = ("ground_effect", "battery", "gyroscopic")
+FITTABLE = ("ground_effect", "battery", "gyroscopic", "motor_imbalance")
 """The terms ``identify --effects`` fits with the base constants (module docstring)."""
 
 GROUND_OFFSETS = (0.25, 0.5, 1.0, 2.0)
@@ -49,6 +59,7 @@ TERM_BOUNDS = {
     ("battery", "reference_voltage"): (0.0, 100.0),  # V
     ("gyroscopic", "body_scale"): (0.0, 10.0),
     ("gyroscopic", "rotor_scale"): (0.0, 10.0),
+    **{("motor_imbalance", f"gain_{i}"): (0.5, 2.0) for i in range(1, 5)},  # a motor at half or twice the others' answer
 }
 """Bounds of each fitted term parameter (ground effect in units of the vehicle's arm length)."""
 
@@ -61,12 +72,67 @@ class TermDesign:
     names: tuple[str, ...] = ()
     ground_offset: float = float("nan")
     reference_voltage: float = float("nan")
+    drag: bool = True
+    """False: rotor drag held at 0, its columns left out (module docstring)."""
+    motor_gains: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    """The current gains :math:`\\hat g` of the imbalance iteration (module docstring)."""
 
     def __post_init__(self) -> None:
         refused = [n for n in self.names if n not in FITTABLE]
         if refused:
             raise ConfigError(f"--effects: identify cannot fit {', '.join(refused)} yet (it fits {', '.join(FITTABLE)}); "
                               f"set its parameters in the vehicle file's effects section (docs/formats.md)")
+
+
+IMBALANCE_ITERATIONS = 3
+"""Gauss-Newton passes of the motor gains (module docstring): a 25 % gain on one motor converges to 0.1 % in 3."""
+
+
+def channel_columns(design: TermDesign) -> dict[str, list[str]]:
+    """The regressor names of each channel, in column order (the main gain first: columns are kept in order while
+    the flights excite them, :func:`~quad_modelling.core.identification.normal_equations.excited_columns`)."""
+    drag = ["drag_xy", "drag_z"] if design.drag else []
+    gyro = ["gyro_body", "gyro_rotor"] if "gyroscopic" in design.names else []
+    imbalance = ["imbalance"] if "motor_imbalance" in design.names else []
+    velocity = ["thrust", *drag, *[n for n in ("ground_effect", "battery") if n in design.names]]
+    torque = ["thrust", *(["drag_moment"] if design.drag else []), *gyro, *imbalance]
+    return {"velocity": velocity, "roll": torque, "pitch": list(torque), "yaw": ["torque", *gyro[:1], *imbalance]}
+
+
+def imbalance_patterns(positions: np.ndarray, spins: np.ndarray) -> np.ndarray:
+    """(3, 4) gain patterns P_c of roll, pitch and yaw: the allocation's rows -y_i, x_i, s_i
+    (:func:`~quad_modelling.core.physics.rigid_body.allocation_matrix`), each made zero-mean and scaled to a largest
+    entry of 1."""
+    rows = allocation_matrix(positions, spins, 1.0)[1:]
+    rows = rows - rows.mean(axis=1, keepdims=True)
+    return rows / np.abs(rows).max(axis=1, keepdims=True)
+
+
+def imbalance_columns(design: TermDesign, positions: np.ndarray, spins: np.ndarray, speed_offset: float,
+                      rotor: np.ndarray) -> np.ndarray:
+    """(N, 3) the imbalance regressors of roll, pitch and yaw (module docstring) of rotor speeds ``rotor`` (N, 4)."""
+    rows = allocation_matrix(positions, spins, 1.0)[1:]
+    slope = 2.0 * rotor * (rotor - speed_offset) / np.asarray(design.motor_gains)  # ∂Ω_i²/∂g_i
+    return slope @ (rows * imbalance_patterns(positions, spins)).T
+
+
+def updated_gains(design: TermDesign, fit: dict, positions: np.ndarray, spins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(gains (4,), sigma (4,)): :math:`\\hat g + \\sum_c e_c P_c` renormalised to mean 1, :math:`e_c = \\gamma_c / \\alpha_c`
+    from the channel fits ``fit`` (module docstring); a channel the flights do not excite adds nothing (sigma NaN)."""
+    patterns = imbalance_patterns(positions, spins)
+    columns = channel_columns(design)
+    step, variance = np.zeros(3), np.zeros(3)
+    for c, channel in enumerate(("roll", "pitch", "yaw")):
+        i = columns[channel].index("imbalance")
+        alpha, gamma = fit[channel]["coef"][0], fit[channel]["coef"][i]
+        if np.isfinite(alpha) and np.isfinite(gamma) and alpha != 0:
+            step[c] = gamma / alpha
+            variance[c] = fit[channel]["cov"][i, i] / alpha**2
+        else:
+            variance[c] = np.nan
+    gains = np.asarray(design.motor_gains) + step @ patterns
+    scale = gains.mean()
+    return gains / scale, np.sqrt(variance @ patterns**2) / scale
 
 
 def velocity_columns(design: TermDesign, thrust_n: np.ndarray, height: np.ndarray, voltage: np.ndarray | None) -> list[np.ndarray]:
@@ -93,26 +159,35 @@ def rate_columns(design: TermDesign, prop_inertia: float, spins: np.ndarray, rat
     return np.stack([body, rotors], axis=2)
 
 
-def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], arm_length: float) -> dict[str, dict]:
+def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], arm_length: float,
+                   gains: tuple[np.ndarray, np.ndarray] | None = None) -> dict[str, dict]:
     """Per fitted term and parameter: value, sigma, bounds, at_bound, identifiable (from the channel fits ``fit``
-    of :func:`~quad_modelling.core.identification.normal_equations.solve_channels`; ``thrust`` = (k_f, its sigma))."""
+    of :func:`~quad_modelling.core.identification.normal_equations.solve_channels`; ``thrust`` = (k_f, its sigma);
+    ``gains`` the motor gains and their sigmas, :func:`updated_gains`)."""
     kf, kf_sd = thrust
+    columns = channel_columns(design)
     out: dict[str, dict] = {}
-    velocity = iter(range(3, 3 + sum(n in design.names for n in ("ground_effect", "battery"))))
     for name in design.names:
         if name in ("ground_effect", "battery"):
-            i = next(velocity)
+            i = columns["velocity"].index(name)
             theta, theta_sd = fit["velocity"]["coef"][i], np.sqrt(fit["velocity"]["cov"][i, i])
             value = theta / kf
             sd = abs(value) * np.hypot(theta_sd / theta, kf_sd / kf) if theta != 0 else theta_sd / kf
             key = "coefficient" if name == "ground_effect" else "kappa"
             fixed = ("offset", design.ground_offset) if name == "ground_effect" else ("reference_voltage", design.reference_voltage)
             out[name] = {key: _bounded(name, key, value, sd, arm_length), fixed[0]: _bounded(name, fixed[0], fixed[1], np.nan, arm_length)}
-        else:  # body scale from roll, pitch and yaw (column 2, 2, 1); rotor scale from roll and pitch (column 3)
-            body = _combined([(fit[c]["coef"][i], fit[c]["cov"][i, i]) for c, i in (("roll", 2), ("pitch", 2), ("yaw", 1))])
-            rotor = _combined([(fit[c]["coef"][3], fit[c]["cov"][3, 3]) for c in ("roll", "pitch")])
+        elif name == "gyroscopic":  # body scale from roll, pitch and yaw; rotor scale from roll and pitch
+            def estimate(channel: str, column: str) -> tuple[float, float]:
+                i = columns[channel].index(column)
+                return fit[channel]["coef"][i], fit[channel]["cov"][i, i]
+
+            body = _combined([estimate(c, "gyro_body") for c in ("roll", "pitch", "yaw")])
+            rotor = _combined([estimate(c, "gyro_rotor") for c in ("roll", "pitch")])
             out[name] = {"body_scale": _bounded(name, "body_scale", *body, arm_length),
                          "rotor_scale": _bounded(name, "rotor_scale", *rotor, arm_length)}
+        elif name == "motor_imbalance" and gains is not None:
+            out[name] = {f"gain_{i + 1}": _bounded(name, f"gain_{i + 1}", float(g), float(sd), arm_length)
+                         for i, (g, sd) in enumerate(zip(*gains))}
     return out
 
 

@@ -7,8 +7,10 @@ yaw-torque constants :math:`k_f` [N s²/rad²] and :math:`k_m` [N m s²/rad²], 
 
 * command map (:func:`steady_rotor_speed`, inverse :func:`command_for_rotor_speed`):
   :math:`\Omega_{ss,i} = \max(k_u u_i + \Omega_{off}, 0)`;
-* command delay (:func:`delayed_commands`): the rotors answer :math:`\tilde u_k = u_j`, j the last row with
-  :math:`t_j \le t_k - \delta`;
+* command delay (:func:`delayed_commands`): the rotors answer the logged commands interpolated at
+  :math:`t_k - \delta`, :math:`\tilde u_k = (1 - f) u_j + f u_{j+1}`, j the last row with :math:`t_j \le t_k - \delta`,
+  :math:`f = (t_k - \delta - t_j) / (t_{j+1} - t_j)`: for a command held between samples (zero-order hold) this is
+  its mean over the model's step, so a delay between two samples is resolved (causal: j + 1 <= k for δ > 0);
 * rotor lag (:func:`rotor_step`, exact for a command held over :math:`\Delta t`):
   :math:`\Omega_{k+1} = \Omega_{ss} + (\Omega_k - \Omega_{ss}) e^{-\Delta t/\tau_m}`, its derivative
   :math:`\dot\Omega = (\Omega_{ss} - \Omega)/\tau_m` (:func:`rotor_acceleration`), a whole series at once
@@ -36,23 +38,34 @@ STAMP_TOLERANCE_S = 1e-7
 
 
 def delayed_commands(p, u: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(N, 4) commands the rotors answer at each row: ũ_k = u_j, j the last row with t_j <= t_k - δ (row 0 before
-    the first); ``u`` (N, 4) logged commands, ``t`` (N,) [s]. Causal: ũ_k uses rows <= k."""
+    """(N, 4) commands the rotors answer at each row: the logged ``u`` (N, 4) interpolated at t_k - δ (module
+    docstring; row 0 before the first), ``t`` (N,) [s]. Causal: ũ_k uses rows <= k."""
     u = np.asarray(u, dtype=float)
     if p.delay <= 0.0:
         return u
     t = np.asarray(t, dtype=float)
-    rows = np.searchsorted(t, t - p.delay + STAMP_TOLERANCE_S, side="right") - 1
-    return u[np.maximum(rows, 0)]
+    target = t - p.delay
+    rows = np.searchsorted(t, target + STAMP_TOLERANCE_S, side="right") - 1
+    j = np.clip(rows, 0, len(t) - 1)
+    nxt = np.minimum(j + 1, len(t) - 1)
+    span = t[nxt] - t[j]
+    f = np.where((rows >= 0) & (span > 0), (target - t[j]) / np.where(span > 0, span, 1.0), 0.0)
+    f = np.clip(np.where(f * span <= STAMP_TOLERANCE_S, 0.0, f), 0.0, 1.0)[:, None]
+    return (1.0 - f) * u[j] + f * u[nxt]
 
 
 def delayed_command_at(p, times, commands, t_s: float):
     """The command the rotors answer at ``t_s`` from a short history (``times`` ascending [s], ``commands`` the
-    logged ones): the last logged at or before t_s - δ (the first one before any) -- :func:`delayed_commands` of
-    one row, for a live stream."""
-    limit = t_s - p.delay + STAMP_TOLERANCE_S
+    logged ones): interpolated at t_s - δ between the last logged at or before it and the next (the first one
+    before any) -- :func:`delayed_commands` of one row, for a live stream."""
+    target = t_s - p.delay
     for i in range(len(times) - 1, -1, -1):
-        if times[i] <= limit:
+        if times[i] <= target + STAMP_TOLERANCE_S:
+            if i + 1 < len(times) and p.delay > 0.0:
+                f = (target - times[i]) / (times[i + 1] - times[i])
+                if f * (times[i + 1] - times[i]) > STAMP_TOLERANCE_S:
+                    f = min(f, 1.0)
+                    return (1.0 - f) * commands[i] + f * commands[i + 1]
             return commands[i]
     return commands[0]
 
