@@ -16,6 +16,8 @@ from quad_modelling.core.diagnosis.diagnose import (
     diagnose,
     narx_floor,
 )
+from quad_modelling.core.diagnosis.injection import injection_checks, parse_injection
+from quad_modelling.core.diagnosis.physics_base import CANDIDATES, IN_BASE
 from quad_modelling.core.diagnosis.validation import BASE_FROM, DEFAULT_PAIRS
 from quad_modelling.core.effect_names import (
     CATALOGUE_EFFECTS,
@@ -23,13 +25,14 @@ from quad_modelling.core.effect_names import (
     SWITCHED_EFFECTS,
 )
 from quad_modelling.core.preprocess import check_cutoff
-from quad_modelling.core.vehicle import load_vehicle, vehicle_file
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, map_flights, tty_progress
 from quad_modelling.io.loader import load_flight_or_skip
 from quad_modelling.io.topic_maps import add_topic_map_argument
 from quad_modelling.io.reports.diagnosis import verdict_text, write_diagnosis
+from quad_modelling.io.reports.physics_diagnosis import verdict_lines, write_physics_diagnosis
 from quad_modelling.io.reports.validation import validation_summary, write_validation
 
 NAME = "diagnose"
@@ -73,13 +76,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-identify", action="store_true", help="use the vehicle's constants as the base model instead of identifying them on --train")
     parser.add_argument("--narx", action="store_true", help="also train a NARX model on --train as the learnable floor (slower)")
     parser.add_argument("--window", type=float, default=DIAGNOSIS_CONFIG.window_s, metavar="SECONDS", help="window length (default 5)")
-    parser.add_argument("--drop", default=f"{DIAGNOSIS_CONFIG.drop_start:g}:{DIAGNOSIS_CONFIG.drop_end:g}", metavar="START:END",
-                        help=f"seconds dropped at take-off:landing of every flight (default {DIAGNOSIS_CONFIG.drop_start:g}:{DIAGNOSIS_CONFIG.drop_end:g})")
+    parser.add_argument("--drop", metavar="START:END",
+                        help=f"seconds dropped at take-off:landing of every flight (default: physics base "
+                             f"{PHYSICS_CONFIG.drop_start:g}:{PHYSICS_CONFIG.drop_end:g}, greybox "
+                             f"{DIAGNOSIS_CONFIG.drop_start:g}:{DIAGNOSIS_CONFIG.drop_end:g})")
     parser.add_argument("--smooth", type=float, default=DIAGNOSIS_CONFIG.smooth_cutoff_hz, metavar="HZ",
                         help=f"low-pass cutoff applied to measurement and prediction alike before scoring (default {DIAGNOSIS_CONFIG.smooth_cutoff_hz:g} Hz)")
     parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
     add_topic_map_argument(parser)
     add_fanout_arguments(parser)
+    parser.add_argument("--base", choices=("physics", "greybox"), default="physics",
+                        help="the model diagnosed: the identified physics model (default; its terms are the candidates) or the "
+                             "thesis's linear greybox on 5 s windows (the catalogue's hooks; --validate uses it)")
+    parser.add_argument("--inject", metavar="SPEC", help="physics base: change every flight's commands by a known answer and "
+                        "compare with the un-injected run: delay:MS, gain:MOTOR:K, swap:A:B or none (docs/diagnosis.md)")
+    parser.add_argument("--write-vehicle", metavar="V.yaml", help="physics base: write the identified vehicle with the found "
+                        "effects switched on")
     parser.add_argument("--validate", action="store_true", help="known-answer validation on simulated flights instead")
     parser.add_argument("--seeds", default="0,1,2", metavar="LIST", help="validation seeds (default 0,1,2)")
     parser.add_argument("--duration", type=float, default=90.0, metavar="SECONDS", help="validation flight length (default 90)")
@@ -95,10 +107,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--force", action="store_true", help="overwrite an existing OUTDIR")
 
 
+PHYSICS_CONFIG = EvaluationConfig.preset("short", train="0%:100%", eval="0%:100%", horizons=(1, 10, 50))
+"""The physics base's spans and scorer: the models table's (bench/bench_models.py), every flight whole after the drops."""
+
+
 def _config(args: argparse.Namespace) -> EvaluationConfig:
     if not args.smooth > 0:
         raise ConfigError(f"--smooth {args.smooth:g}: the low-pass cutoff must be a positive frequency in Hz")
-    config = replace(DIAGNOSIS_CONFIG.with_drop(args.drop), window_s=args.window, smooth_cutoff_hz=args.smooth)
+    if args.base == "physics" and not args.validate:
+        config = PHYSICS_CONFIG.with_drop(args.drop) if args.drop else PHYSICS_CONFIG
+        config.validate()
+        return config
+    drop = args.drop or f"{DIAGNOSIS_CONFIG.drop_start:g}:{DIAGNOSIS_CONFIG.drop_end:g}"
+    config = replace(DIAGNOSIS_CONFIG.with_drop(drop), window_s=args.window, smooth_cutoff_hz=args.smooth)
     config.validate()
     return config
 
@@ -117,10 +138,17 @@ def _progress():
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_output(output, args.force, inputs=[*(args.train or []), *(args.test or []), vehicle_file(args.vehicle)])
+    inputs = [*(args.train or []), *(args.test or []), vehicle_file(args.vehicle)]
+    check_output(output, args.force, inputs=inputs)
+    physics = args.base == "physics" and not args.validate
+    if not physics and (args.inject or args.write_vehicle):
+        raise ConfigError("--inject and --write-vehicle diagnose the physics base: drop --base greybox / --validate")
+    injection = parse_injection(args.inject) if args.inject else None
+    if args.write_vehicle:
+        check_output(Path(args.write_vehicle), args.force, inputs=[*inputs, output])
     config = _config(args)
     check_fanout_options(args.jobs, args.scheduler)
-    effects = parse_effect_list(args.effects)
+    effects = None if physics else parse_effect_list(args.effects)
     if args.validate:
         if args.scheduler is not None:
             raise ConfigError("--scheduler: --validate runs its cases on a local cluster (--jobs N) or here")
@@ -142,6 +170,8 @@ def run(args: argparse.Namespace) -> int:
     for log in train + test:
         check_cutoff(args.smooth, log)
     vehicle = given or load_vehicle(train[0].meta.vehicle)
+    if physics:
+        return _run_physics(args, train, test, vehicle, config, injection, output, skipped)
     say, bar = _progress()
     learnable = (lambda: narx_floor(train, test, vehicle, config)) if args.narx else None
     try:
@@ -155,6 +185,68 @@ def run(args: argparse.Namespace) -> int:
     print(verdict_text(data))
     print(f"-> {output}/ ({', '.join(files)})")
     return 0
+
+
+def _physics_candidates(text: str) -> tuple[str, ...]:
+    """``--effects`` for the physics base: all/default, none, or a comma list of its candidates (catalogue effects that
+    are base constants are named as such)."""
+    text = text.strip()
+    if text in ("all", "default"):
+        return CANDIDATES
+    if text == "none":
+        raise ConfigError("--effects none: the diagnosis needs at least one candidate")
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    for name in names:
+        if name in IN_BASE:
+            raise ConfigError(f"--effects {name}: {IN_BASE[name]}; the physics base's candidates are {', '.join(CANDIDATES)}")
+        if name not in CANDIDATES:
+            raise ConfigError(f"--effects {name}: unknown; the physics base's candidates are {', '.join(CANDIDATES)}")
+    if len(set(names)) != len(names):
+        raise ConfigError(f"--effects {text}: an effect is named twice")
+    return tuple(names)
+
+
+def _run_physics(args, train, test, vehicle, config, injection, output: Path, skipped: list[str]) -> int:
+    """The physics-base diagnosis (:mod:`quad_modelling.core.diagnosis.physics_base`), with --inject and --write-vehicle."""
+    import yaml
+
+    from quad_modelling.core.diagnosis.physics_base import diagnose_physics, identified_document
+
+    candidates = _physics_candidates(args.effects)
+    if injection is not None:
+        parse_injection(args.inject, len(vehicle.motors))  # the motor numbers against this vehicle
+        injected_train = [injection.apply(f) for f in train]
+        injected_test = [injection.apply(f) for f in test]
+    say, bar = _progress()
+    try:
+        result = diagnose_physics(train, test, vehicle, config, candidates, progress=say)
+        injected = None
+        if injection is not None:
+            injected = diagnose_physics(injected_train, injected_test, vehicle, config, candidates, progress=say)
+    finally:
+        bar.close()
+    plain = result
+    data = result.to_json()
+    data["skipped"] = skipped
+    if injected is not None:
+        data = {**injected.to_json(), "un_injected": {"summary": data["summary"], "found": data["found"]},
+                "injection": injection_checks(injection, result.summary, injected.summary), "skipped": skipped}
+        result = injected
+    document = None
+    if args.write_vehicle:
+        names = ", ".join(Path(f).name for f in args.train)
+        document = identified_document(vehicle, plain.final, f"identified by quad-modelling diagnose on {names}")
+        VehicleConfig.from_dict(document, args.write_vehicle)  # what we write must load
+        data["vehicle_written"] = {"path": args.write_vehicle, "from": "the un-injected run" if injected is not None else "this run",
+                                   "evaluate": "quad-modelling evaluate TEST... --model physics --vehicle V.yaml --preset short --eval 0%:100%"}
+    with atomic_output(output, args.force) as tmp:
+        files = write_physics_diagnosis(data, tmp)
+    if document is not None:
+        with atomic_output(Path(args.write_vehicle), args.force) as tmp:
+            tmp.write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True))
+    print("\n".join(verdict_lines(data)))
+    print(f"-> {output}/ ({', '.join(files)})" + (f", {args.write_vehicle}" if document is not None else ""))
+    return 0 if injection is None or data["injection"]["passed"] else 1
 
 
 def _run_validation(args, config, effects, output: Path) -> int:

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core.input_files import read_yaml
-from quad_modelling.core.physics.effects import EffectTerm, parse_effects
+from quad_modelling.core.physics.effects import EffectTerm, effects_document, parse_effects
 from quad_modelling.core.physics.rotors import hover_rotor_speed
 from quad_modelling.errors import ConfigError
 
@@ -342,3 +342,16 @@ def load_vehicle(name_or_path: str | Path) -> VehicleConfig:
         known = sorted(p.stem for p in directory.glob("*.yaml"))
         raise ConfigError(f"unknown vehicle {name_or_path!r}; shipped: {', '.join(known)} (or give a .yaml path)")
     return VehicleConfig.from_yaml(path)
+
+
+def vehicle_document(vehicle: VehicleConfig, description: str | None = None) -> dict:
+    """The YAML document of ``vehicle`` (the inverse of :meth:`VehicleConfig.from_dict`), optionally re-described."""
+    return {
+        "name": vehicle.name,
+        "description": description or vehicle.description,
+        "geometry": vehicle.geometry,
+        "motors": [{"name": m.name, "position": list(m.position), "spin": "ccw" if m.yaw_sign > 0 else "cw"} for m in vehicle.motors],
+        "inputs": {"min": vehicle.input_min, "max": vehicle.input_max, "unit": vehicle.input_unit},
+        "constants": {k: {"value": c.value, "unit": c.unit, "source": c.source, "status": c.status} for k, c in vehicle.constants.items()},
+        "effects": effects_document(vehicle.effects),
+    }

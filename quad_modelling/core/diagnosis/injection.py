@@ -1,0 +1,138 @@
+"""Known answers on the user's own flights (``diagnose --inject SPEC``): change the command channel of every flight in
+a way whose right answer is known, diagnose again, and compare with the un-injected run.
+
+=================  ==========================================================  ===========================================
+spec               change of the logged commands u (N, 4)                       right answer
+=================  ==========================================================  ===========================================
+``delay:MS``       advanced by MS: :math:`u'(t) = u(t + MS)` (linear            the delay rises by MS (+-
+                   interpolation; the last MS of the flight is dropped)          :data:`DELAY_TOLERANCE_S`)
+``gain:M:K``       motor M's command divided by K: :math:`u'_M = u_M / K`       motor M's gain relative to the others'
+                                                                                 rises by the factor K (+- :data:`GAIN_TOLERANCE`)
+``swap:A:B``       the columns of motors A and B exchanged                      the motor-order check names the swap
+``none``           unchanged                                                    nothing changes
+=================  ==========================================================  ===========================================
+
+In every case no effect may newly be found.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.errors import ConfigError, DataError
+
+DELAY_TOLERANCE_S = 0.005
+"""Allowed error of the delay's rise [s] (issue #26: MS +- 5 ms)."""
+
+GAIN_TOLERANCE = 0.05
+"""Allowed relative error of the gain ratio (issue #26: K +- 5 %)."""
+
+MIN_FLIGHT_S = 1.0
+"""Least flight left after a delay injection [s]."""
+
+
+@dataclass(frozen=True)
+class Injection:
+    """A parsed ``--inject`` spec: kind ('delay', 'gain', 'swap', 'none') and its numbers (delay [s]; motor, factor;
+    motors A, B; 1-based)."""
+
+    kind: str
+    delay_s: float = 0.0
+    motor: int = 0
+    factor: float = 1.0
+    swap: tuple[int, int] = (0, 0)
+    spec: str = "none"
+
+    def apply(self, log: FlightLog) -> FlightLog:
+        """``log`` with its commands changed (module docstring); DataError when a delay leaves no commands."""
+        if self.kind == "none":
+            return log
+        u = np.array(log.u, dtype=float)
+        if self.kind == "gain":
+            u[:, self.motor - 1] /= self.factor
+            return replace(log, u=u)
+        if self.kind == "swap":
+            a, b = self.swap[0] - 1, self.swap[1] - 1
+            u[:, [a, b]] = u[:, [b, a]]
+            return replace(log, u=u)
+        keep = int(np.searchsorted(log.t, log.t[-1] - self.delay_s, side="right"))
+        if log.t[max(keep - 1, 0)] - log.t[0] < MIN_FLIGHT_S:
+            raise DataError(f"{log.meta.source}: --inject {self.spec} leaves no commands (the flight lasts "
+                            f"{log.t[-1] - log.t[0]:.2f} s)")
+        shifted = np.column_stack([np.interp(log.t[:keep] + self.delay_s, log.t, u[:, i]) for i in range(u.shape[1])])
+        cut = log.slice(0, keep)
+        return replace(cut, u=shifted)
+
+
+def parse_injection(spec: str, motors: int = 4) -> Injection:
+    """An :class:`Injection` from ``delay:MS``, ``gain:M:K``, ``swap:A:B`` or ``none``; ConfigError in one line naming
+    the spec and what is wrong."""
+    text = spec.strip()
+    parts = text.split(":")
+    kind = parts[0]
+    usage = "expected delay:MS, gain:MOTOR:K, swap:A:B or none"
+    try:
+        if kind == "none" and len(parts) == 1:
+            return Injection("none", spec=text)
+        if kind == "delay" and len(parts) == 2:
+            ms = float(parts[1])
+            if not (np.isfinite(ms) and ms > 0):
+                raise ConfigError(f"--inject {text}: the delay must be a positive number of milliseconds")
+            return Injection("delay", delay_s=ms / 1000.0, spec=text)
+        if kind == "gain" and len(parts) == 3:
+            motor, factor = int(parts[1]), float(parts[2])
+            _check_motor(text, motor, motors)
+            if not (np.isfinite(factor) and factor > 0):
+                raise ConfigError(f"--inject {text}: the gain factor K must be a positive number")
+            return Injection("gain", motor=motor, factor=factor, spec=text)
+        if kind == "swap" and len(parts) == 3:
+            a, b = int(parts[1]), int(parts[2])
+            _check_motor(text, a, motors)
+            _check_motor(text, b, motors)
+            if a == b:
+                raise ConfigError(f"--inject {text}: swap needs two different motors")
+            return Injection("swap", swap=(a, b), spec=text)
+    except ValueError as err:
+        raise ConfigError(f"--inject {text}: {usage} (numbers where MS, MOTOR, K, A, B stand)") from err
+    raise ConfigError(f"--inject {text}: {usage}")
+
+
+def _check_motor(text: str, motor: int, motors: int) -> None:
+    if not 1 <= motor <= motors:
+        raise ConfigError(f"--inject {text}: motor {motor}: the vehicle has motors 1..{motors}")
+
+
+def relative_gain(gains, motor: int) -> float:
+    """Motor ``motor``'s (1-based) gain over the mean of the others'."""
+    g = np.asarray(gains, dtype=float)
+    others = np.delete(g, motor - 1)
+    return float(g[motor - 1] / others.mean())
+
+
+def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
+    """The comparison of the injected run's summary with the un-injected one (module docstring): per check the
+    expected and measured values and whether it holds; ``passed`` all of them."""
+    checks = []
+    new = sorted(set(injected["found"]) - set(plain["found"]))
+    allowed = {"gain": {"motor_imbalance"}}.get(injection.kind, set())
+    checks.append({"check": "nothing else newly found", "newly_found": new,
+                   "holds": not [n for n in new if n not in allowed]})
+    if injection.kind == "delay":
+        rise = injected["delay_s"]["value"] - plain["delay_s"]["value"]
+        checks.append({"check": "delay rises by the injected delay", "expected_s": injection.delay_s, "measured_s": rise,
+                       "tolerance_s": DELAY_TOLERANCE_S, "holds": abs(rise - injection.delay_s) <= DELAY_TOLERANCE_S})
+    if injection.kind == "gain":
+        ratio = (relative_gain(injected["motor_command_gains"]["value"], injection.motor)
+                 / relative_gain(plain["motor_command_gains"]["value"], injection.motor))
+        checks.append({"check": f"motor {injection.motor}'s relative command gain rises by K", "expected": injection.factor,
+                       "measured": ratio, "tolerance": GAIN_TOLERANCE,
+                       "holds": abs(ratio / injection.factor - 1.0) <= GAIN_TOLERANCE})
+    if injection.kind == "swap":
+        fix = (injected.get("motor_order") or {}).get("swap")
+        expected = sorted(injection.swap)
+        checks.append({"check": "the motor-order check names the swap", "expected": expected, "named": fix,
+                       "holds": fix == expected})
+    return {"spec": injection.spec, "checks": checks, "passed": all(c["holds"] for c in checks)}

@@ -1,0 +1,410 @@
+r"""The sim-to-real gap diagnosis on the identified physics model (DESIGN 8; ``quad-modelling diagnose``).
+
+The base is the physics model users predict with (:mod:`quad_modelling.core.models.physics`), its constants
+identified on the training flights by ``identify``'s fit
+(:func:`~quad_modelling.core.identification.physics_fit.identify_physics`), with the effects the vehicle does not
+switch on left off. The candidates are terms of that model (:data:`CANDIDATES`), each fitted *with* the base
+constants by the same least squares (``identify --effects``); motor lag and input delay are base constants (fitted,
+the delay between samples), the thrust nonlinearity is the physics itself (:math:`T = k_f \Omega^2`) and a trim drift is
+what the disturbance observer absorbs (:data:`IN_BASE`).
+
+Score: the multi-step scorer of the models table on the held-out flights -- every start of their flying part,
+horizons 1..H, the error norms of velocity and angular velocity (:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`)
+summed over h (SimErr), each relative to naive's (the state held):
+
+.. math::
+
+    J = \frac{1}{2} \sum_{g \in \{v, \omega\}} \frac{\overline{E}_{model,g}}{\overline{E}_{naive,g}}, \qquad
+    S = 1 - J_{with} / J_{without}
+
+with :math:`\overline{E}` the mean over starts of :math:`\sum_{h \le H} \lVert y_{s+h} - \hat y_{s+h} \rVert`. The
+uncertainty of S is a block bootstrap over the starts (:data:`BLOCK_S` blocks, :data:`BOOTSTRAP` resamples; the
+same blocks for both models).
+
+Selection (joint, order-free): forward -- every remaining candidate is fitted *jointly* with the chosen ones (all
+constants and terms refitted together), the one of largest held-out shrink :math:`S` joins when
+:math:`S \ge` :data:`FOUND_MIN_SHRINK`, its bootstrap 5 % bound is above 0 and its main component is resolved;
+then backward -- each chosen effect is dropped and the rest refitted; one whose drop raises J by less than
+:data:`FOUND_MIN_SHRINK` leaves (it only soaked up another's signature). Each found effect is reported with its
+shrink as added and when dropped from the final set.
+
+A component is *resolved* when its value is at least :data:`~quad_modelling.core.diagnosis.verdicts.DETERMINED_SIGMAS`
+sigma from its null, not at a search bound, and (with two or more training flights) of the same sign on both halves
+of them (folds).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from quad_modelling.core.diagnosis.verdicts import DETERMINED_SIGMAS
+from quad_modelling.core.evaluation.metrics import SIM_ERR_HORIZON
+from quad_modelling.core.evaluation.multistep import GROUPS, group_error_norms, multistep_evaluation
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.identification.physics_fit import PhysicsFit, identify_physics
+from quad_modelling.core.identification.physics_terms import effects_section
+from quad_modelling.core.models.base import ConstantStatePredictor
+from quad_modelling.core.models.physics import Observer, PhysicsPredictor
+from quad_modelling.core.physics.effects import effects_document, parse_effects
+from quad_modelling.core.preprocess import measured_variables, resample_uniform
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.windows import EvaluationConfig, span_segments, warm_samples_for
+from quad_modelling.errors import ConfigError, DataError
+
+CANDIDATES = ("rotor_drag", "ground_effect", "battery", "gyroscopic", "motor_imbalance")
+"""The physics model's terms the diagnosis assesses (module docstring), in the order ties are broken."""
+
+IN_BASE = {
+    "motor_lag": "in the base physics: the rotor time constant is fitted with every model",
+    "input_delay": "in the base physics: the command delay is fitted with every model (between samples)",
+    "thrust_nonlinearity": "in the base physics: T = k_f Omega^2 of a speed linear in the command",
+    "trim_drift": "absorbed by the disturbance observer (a slowly varying trim over its history)",
+}
+"""Catalogue effects that are not candidates of the physics base, and why."""
+
+SCORED_GROUPS = ("velocity", "angular_velocity")
+
+FOUND_MIN_SHRINK = 0.02
+"""Least held-out shrink of J for an effect to join (and to stay): 2 % of the base's error relative to naive."""
+
+BLOCK_S = 2.0
+"""Length of the bootstrap's blocks of starts [s]: longer than the 0.5 s horizon, so blocks are nearly independent."""
+
+BOOTSTRAP = 400
+"""Bootstrap resamples of the shrink's 5 % bound."""
+
+SELECTION_STRIDE = 2
+"""Every 2nd start is scored during the selection (the final table scores every start, as ``evaluate``)."""
+
+COMPONENTS = {
+    "rotor_drag": (("horizontal", "rotor_drag_xy", 0.0), ("vertical", "rotor_drag_z", 0.0), ("moment arm", "rotor_drag_arm", 0.0)),
+    "ground_effect": (("coefficient", "ground_effect.coefficient", 0.0),),
+    "battery": (("kappa", "battery.kappa", 0.0),),
+    "gyroscopic": (("body scale", "gyroscopic.body_scale", 0.0), ("rotor scale", "gyroscopic.rotor_scale", 0.0)),
+    "motor_imbalance": tuple((f"motor {i} gain", f"motor_imbalance.gain_{i}", 1.0) for i in range(1, 5)),
+}
+"""Per candidate: its components (label, estimate name, null value); the first is the main one (for the
+imbalance: the gain furthest from 1)."""
+
+
+@dataclass
+class HeldOutScore:
+    """Per-start SimErr contributions on the held-out flights: ``model``/``naive`` (S, 2) for velocity and angular
+    velocity, ``blocks`` (S,) block index of each start."""
+
+    model: np.ndarray
+    naive: np.ndarray
+    blocks: np.ndarray
+
+    @property
+    def j(self) -> float:
+        return objective(self.model, self.naive)
+
+    def ratios(self) -> dict[str, float]:
+        return {g: float(self.model[:, i].mean() / self.naive[:, i].mean()) for i, g in enumerate(SCORED_GROUPS)}
+
+
+def objective(model: np.ndarray, naive: np.ndarray) -> float:
+    """J of the module docstring from per-start errors (S, 2)."""
+    return float(np.mean(model.mean(axis=0) / naive.mean(axis=0)))
+
+
+@dataclass
+class Rung:
+    """One fitted model: its effects, the fit, the vehicle it makes, its held-out score."""
+
+    effects: tuple[str, ...]
+    fit: PhysicsFit
+    vehicle: VehicleConfig
+    score: HeldOutScore
+
+
+@dataclass
+class PhysicsDiagnosis:
+    base: Rung
+    final: Rung
+    candidates: list[str]
+    steps: list[dict]
+    effects: dict[str, dict]
+    dropped: dict[str, float]
+    table: dict
+    folds: list[dict]
+    summary: dict
+    train_sources: list[str]
+    test_sources: list[str]
+    timings: dict = field(default_factory=dict)
+    motor_order: dict | None = None
+
+    @property
+    def found(self) -> list[str]:
+        return list(self.final.effects)
+
+    def to_json(self) -> dict:
+        return {
+            "base_model": "physics", "found": self.found, "summary": self.summary,
+            "held_out": {"base": rung_json(self.base), "final": rung_json(self.final)},
+            "selection": self.steps, "dropped_shrink": self.dropped, "effects": self.effects,
+            "multistep": self.table, "folds": self.folds, "motor_order": self.motor_order,
+            "in_base": IN_BASE,
+            "constants": {e.name: e.as_dict() for e in self.final.fit.estimates()},
+            "rule": {
+                "score": "J = mean over velocity and angular velocity of SimErr / naive SimErr (h = 1..50) on the held-out flights",
+                "found": f"joins when its held-out shrink of J >= {FOUND_MIN_SHRINK:.0%}, bootstrap 5% bound > 0 ({BOOTSTRAP} "
+                         f"resamples of {BLOCK_S:g} s blocks of starts) and its main component is resolved; stays when "
+                         f"dropping it from the final set raises J by >= {FOUND_MIN_SHRINK:.0%}",
+                "resolved": f"|value - null| >= {DETERMINED_SIGMAS} sigma, not at a search bound, same sign on both folds of "
+                            f"the training flights",
+            },
+            "config": {"train_flights": self.train_sources, "test_flights": self.test_sources},
+            "timings_s": self.timings, "units": "SI (m/s, rad/s, s)",
+        }
+
+
+def rung_json(rung: Rung) -> dict:
+    return {"effects": list(rung.effects), "J": rung.score.j, "ratio_to_naive": rung.score.ratios()}
+
+
+def fitted_vehicle(vehicle: VehicleConfig, fit: PhysicsFit, source: str) -> VehicleConfig:
+    """``vehicle`` with the fit's constants, its fitted terms and its disturbance observer (in memory)."""
+    fitted = vehicle.with_values({k: v for k, v in fit.values.items() if np.isfinite(v)}, source)
+    section = effects_document(vehicle.effects)
+    section.update(effects_section(fit.terms, source))
+    o = fit.observer
+    section["disturbance_observer"] = {"enabled": o.linear_s > 0 or o.angular_s > 0, **{
+        key: {"value": float(value), "unit": unit, "bounds": [0.0, 10.0 if unit == "s" else 1.0], "status": "identified",
+              "source": source} for key, value, unit in (("linear_history", o.linear_s, "s"), ("angular_history", o.angular_s, "s"),
+                                                         ("angular_trim", float(o.angular_trim), "1"))}}
+    return replace(fitted, effects=parse_effects(section, f"{vehicle.path} ({source})"))
+
+
+def held_out_score(vehicle: VehicleConfig, observer: Observer, flights: Sequence[FlightLog], config: EvaluationConfig,
+                   stride: int = 1) -> HeldOutScore:
+    """Per-start SimErr contributions of the physics model of ``vehicle`` and of naive on ``flights`` (the multi-step
+    protocol's starts and segments: :func:`~quad_modelling.core.evaluation.multistep.flight_multistep_sums`)."""
+    model = PhysicsPredictor(vehicle, observer=observer, trim=config.trim)
+    naive = ConstantStatePredictor(vehicle, config.trim)
+    span = next(s for s in config.spans() if s.name == config.multistep_span)
+    horizon = max(max(config.horizons), SIM_ERR_HORIZON)
+    columns = [list(GROUPS).index(g) for g in SCORED_GROUPS]
+    parts, naive_parts, blocks = [], [], []
+    block0 = 0
+    for log in flights:
+        for start, stop in span_segments(log, span, config):
+            segment = log.slice(start, stop)
+            warm = warm_samples_for(segment, config.warm_s)
+            starts = np.arange(warm - 1, len(segment) - horizon, stride)
+            if not starts.size:
+                continue
+            truth = measured_variables(segment, vehicle)[starts[:, None] + np.arange(1, horizon + 1)[None, :]]
+            for predictor, out in ((model, parts), (naive, naive_parts)):
+                predicted = np.asarray(predictor.predict_horizons(segment, starts, horizon))[:, 1:]
+                norms = group_error_norms(truth.reshape(-1, truth.shape[-1]), predicted.reshape(-1, truth.shape[-1]))
+                out.append(norms.reshape(len(starts), horizon, -1)[:, :, columns].sum(axis=1))
+            block = np.floor((segment.t[starts] - segment.t[starts[0]]) / BLOCK_S).astype(int)
+            blocks.append(block0 + block)
+            block0 += int(block.max()) + 1
+    if not parts:
+        raise DataError(f"no held-out segment longer than {horizon} samples plus the warm start: use longer --test flights")
+    return HeldOutScore(np.vstack(parts), np.vstack(naive_parts), np.concatenate(blocks))
+
+
+def shrink(before: HeldOutScore, after: HeldOutScore, seed: int = 0) -> tuple[float, float]:
+    """(S, its bootstrap 5 % bound) of ``after`` against ``before`` (module docstring; the same starts)."""
+    value = 1.0 - after.j / before.j
+    rng = np.random.default_rng(seed)
+    ids = np.unique(before.blocks)
+    rows = [np.flatnonzero(before.blocks == b) for b in ids]
+    draws = []
+    for _ in range(BOOTSTRAP):
+        pick = np.concatenate([rows[i] for i in rng.integers(0, len(rows), len(rows))])
+        draws.append(1.0 - objective(after.model[pick], after.naive[pick]) / objective(before.model[pick], before.naive[pick]))
+    return float(value), float(np.quantile(draws, 0.05))
+
+
+def components(effect: str, fit: PhysicsFit, folds: Sequence[PhysicsFit] = ()) -> list[dict]:
+    """The effect's components as fitted: value, sigma, unit, bounds, at_bound, fold values, resolved (module
+    docstring); the main one first."""
+    estimates = {e.name: e for e in fit.estimates()}
+    out = []
+    for label, name, null in COMPONENTS[effect]:
+        e = estimates.get(name)
+        if e is None:
+            continue
+        fold_values = [float({x.name: x for x in f.estimates()}[name].value) for f in folds
+                       if name in {x.name for x in f.estimates()}]
+        determined = bool(np.isfinite(e.sigma) and e.sigma > 0 and abs(e.value - null) >= DETERMINED_SIGMAS * e.sigma)
+        stable = len(fold_values) < 2 or len({np.sign(v - null) for v in fold_values}) == 1
+        out.append({"component": label, "name": name, "value": float(e.value), "sigma": float(e.sigma), "unit": e.unit,
+                    "bounds": list(e.bounds), "at_bound": bool(e.at_bound), "folds": fold_values,
+                    "resolved": bool(determined and not e.at_bound and stable and not e.held)})
+    if effect == "motor_imbalance" and out:  # the main component: the gain furthest from 1
+        out.sort(key=lambda c: -abs(c["value"] - 1.0))
+    return out
+
+
+def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
+                     candidates: Sequence[str] = CANDIDATES, progress: Callable[[str], None] | None = None) -> PhysicsDiagnosis:
+    """Run the diagnosis of the module docstring on ``train`` (fits) and ``test`` (scores)."""
+    import time
+
+    say = progress or (lambda _m: None)
+    clock = time.perf_counter()
+    unknown = [c for c in candidates if c not in CANDIDATES]
+    if unknown:
+        raise ConfigError(f"--effects: {', '.join(unknown)} is not a term of the physics base; its candidates are "
+                          f"{', '.join(CANDIDATES)}")
+    switched = [c for c in candidates if c in vehicle.effects and vehicle.effects[c].on]
+    candidates = [c for c in candidates if c not in switched]
+    if any(log.vbat is None for log in (*train, *test)) and "battery" in candidates:
+        candidates.remove("battery")
+        switched.append("battery (no battery voltage in the flights)")
+    test = [resample_uniform(f) for f in test]
+    say("motor order and spin check")
+    layout = motor_order_check(train, vehicle, config)
+    say("identifying the base (the observer chosen by the data)")
+    observer = identify_physics(train, vehicle, config, drag=False).observer
+    cache: dict[tuple[str, ...], Rung] = {}
+
+    def rung(effects: Sequence[str], flights: Sequence[FlightLog] = train) -> Rung:
+        key = tuple(sorted(effects))
+        if flights is train and key in cache:
+            return cache[key]
+        say(f"fitting base + {', '.join(key) or 'nothing'}")
+        fit = identify_physics(flights, vehicle, config, observer=observer, drag="rotor_drag" in key,
+                               terms=[e for e in key if e != "rotor_drag"])
+        fitted = fitted_vehicle(vehicle, fit, f"diagnose: base + {', '.join(key) or 'nothing'}")
+        result = Rung(key, fit, fitted, held_out_score(fitted, observer, test, config, SELECTION_STRIDE))
+        if flights is train:
+            cache[key] = result
+        return result
+
+    base = current = rung(())
+    chosen: list[str] = []
+    steps, trials = [], {}
+    remaining = list(candidates)
+    while remaining:
+        scored = {}
+        for c in remaining:
+            trial = rung([*chosen, c])
+            trials[c] = trial
+            scored[c] = (*shrink(current.score, trial.score), components(c, trial.fit))
+        best = max(remaining, key=lambda c: scored[c][0])
+        value, low, parts = scored[best]
+        joins = value >= FOUND_MIN_SHRINK and low > 0 and bool(parts) and parts[0]["resolved"]
+        steps.append({"on_top_of": list(chosen), "J_before": current.score.j,
+                      "trials": {c: {"shrink": s[0], "shrink_5pct": s[1], "J": trials[c].score.j} for c, s in scored.items()},
+                      "best": best, "joined": bool(joins)})
+        if not joins:
+            break
+        chosen.append(best)
+        remaining.remove(best)
+        current = trials[best]
+    dropped = {}
+    for c in list(chosen):
+        without = rung([e for e in chosen if e != c])
+        rise = 1.0 - current.score.j / without.score.j
+        dropped[c] = rise
+        if rise < FOUND_MIN_SHRINK:
+            chosen.remove(c)
+            current = rung(chosen)
+            dropped[c] = rise
+    final = current
+    say("folds and the final table")
+    folds = []
+    if len(train) >= 2:
+        halves = [list(train[0::2]), list(train[1::2])]
+        folds = [identify_physics(h, vehicle, config, observer=observer, drag="rotor_drag" in final.effects,
+                                  terms=[e for e in final.effects if e != "rotor_drag"])
+                 for h in halves]
+    effects = {}
+    order = {c: i for i, c in enumerate(chosen)}
+    for c in candidates:
+        source = final if c in final.effects else trials.get(c, rung([*final.effects, c]))
+        found = c in final.effects
+        parts = components(c, source.fit, folds if found else ())
+        shrink_alone = next((s["trials"][c]["shrink"] for s in steps if c in s["trials"]), float("nan"))
+        effects[c] = {"verdict": "found" if found else "not supported", "rank": order.get(c),
+                      "shrink_when_added": shrink_alone, "shrink_when_dropped": dropped.get(c),
+                      "components": parts, "text": component_text(c, parts, found)}
+    for c in switched:
+        effects[c] = {"verdict": "in the vehicle", "text": f"{c}: switched on in the vehicle file: part of the base"}
+    table = multistep_evaluation(test, [_named(PhysicsPredictor(base.vehicle, observer=observer, trim=config.trim), "base"),
+                                        _named(PhysicsPredictor(final.vehicle, observer=observer, trim=config.trim), "final")],
+                                 final.vehicle, config)
+    gains_source = final if "motor_imbalance" in final.effects else trials.get("motor_imbalance")
+    summary = {"found": list(final.effects),
+               "delay_s": {"value": final.fit.values["rotor_delay"], "sigma": final.fit.sigma["rotor_delay"]},
+               "motor_command_gains": motor_gains(gains_source.fit if gains_source else None),
+               "ratio_to_naive": {"base": base.score.ratios(), "final": final.score.ratios()},
+               "motor_order": {"verdict": layout["verdict"], "swap": layout["swap"]}}
+    return PhysicsDiagnosis(base, final, list(candidates), steps, effects, dropped, table,
+                            [{"flights": [f.meta.source for f in h], "values": fit.values} for h, fit in
+                             zip([train[0::2], train[1::2]], folds)],
+                            summary, sorted({f.meta.source for f in train}), sorted({f.meta.source for f in test}),
+                            {"total": time.perf_counter() - clock}, layout)
+
+
+def motor_order_check(train: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig) -> dict:
+    """``identify``'s motor order and spin check (:mod:`~quad_modelling.core.identification.motor_check`) on the
+    training flights, with ``swap`` [A, B] (1-based) when the likely fix is exactly one exchange of two columns."""
+    from quad_modelling.core.identification.greybox_fit import identify_base
+    from quad_modelling.core.identification.identify import modelled_thrusts, training_batch
+    from quad_modelling.core.identification.motor_check import check_motor_layout
+
+    batch = training_batch(train, vehicle, config)
+    check = check_motor_layout(batch, modelled_thrusts(batch, identify_base(batch, vehicle)), vehicle)
+    names = [m.name for m in vehicle.motors]
+    swap = None
+    fix = check.get("fix")
+    if fix and fix["moved"] == 2:
+        moved = [i + 1 for i, name in enumerate(fix["order"]) if name != names[i]]
+        swap = sorted(moved)
+    return {"verdict": check["verdict"], "wrong": check["wrong"], "actions": fix["actions"] if fix else [], "swap": swap}
+
+
+def identified_document(vehicle: VehicleConfig, final: Rung, source: str) -> dict:
+    """The vehicle document ``--write-vehicle`` writes: the final model's constants (value, sigma, at-bound flags) and
+    its effects switched on (the found ones; rotor drag as its constants, 0 when not found)."""
+    from quad_modelling.core.identification.constants_report import add_physics_constants
+    from quad_modelling.core.vehicle import vehicle_document
+
+    document = vehicle_document(vehicle, f"{vehicle.description} -- identified by quad-modelling diagnose")
+    add_physics_constants(document, final.fit, "", source)
+    for name in CANDIDATES:
+        entry = document.get("effects", {}).get(name)
+        if entry is not None and name not in final.effects:
+            entry["enabled"] = False
+    return document
+
+
+def _named(predictor, name: str):
+    predictor.name = name
+    return predictor
+
+
+def motor_gains(fit: PhysicsFit | None) -> dict:
+    """``summary.motor_command_gains``: the factor on each motor's logged command the model needs (mean 1), from the
+    motor-imbalance fit (gains 1, sigma NaN without one)."""
+    if fit is None or "motor_imbalance" not in fit.terms:
+        return {"value": [1.0] * 4, "sigma": [float("nan")] * 4, "fitted": False}
+    terms = fit.terms["motor_imbalance"]
+    return {"value": [terms[f"gain_{i}"]["value"] for i in range(1, 5)],
+            "sigma": [terms[f"gain_{i}"]["sigma"] for i in range(1, 5)], "fitted": True}
+
+
+def component_text(effect: str, parts: list[dict], found: bool) -> str:
+    """One sentence per effect: which components are resolved, with value +- sigma (and the folds when not)."""
+    if not parts:
+        return f"{effect}: not fitted on these flights"
+    head = f"{effect.replace('_', ' ')} {'found' if found else 'not supported'}"
+    resolved = [f"{p['component']} {p['value']:.4g} +- {p['sigma']:.2g} {p['unit']}" for p in parts if p["resolved"]]
+    unresolved = [f"{p['component']} {p['value']:.4g}" + (" (AT BOUND)" if p["at_bound"] else "")
+                  + (f" ({' / '.join(f'{v:.3g}' for v in p['folds'])} on the folds)" if p["folds"] else "")
+                  for p in parts if not p["resolved"]]
+    text = head + (": " + ", ".join(resolved) if resolved else "")
+    if unresolved:
+        text += ("; not resolved: " if resolved else ": not resolved: ") + ", ".join(unresolved)
+    return text

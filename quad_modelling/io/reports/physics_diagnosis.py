@@ -1,0 +1,90 @@
+"""The physics-base diagnosis's report.md and diagnosis.json (:mod:`quad_modelling.core.diagnosis.physics_base`).
+
+report.md leads with the answer (what was found, how far the held-out error falls), then the user's terms (delay,
+motor command gains), the selection, each effect's components, the constants with their at-bound flags and, with
+``--inject``, the known-answer checks. Lines are at most :data:`~quad_modelling.io.reports.formatting.REPORT_WIDTH`
+characters.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from quad_modelling.io.reports.formatting import json_text, markdown_table, prose
+
+
+def verdict_lines(data: dict) -> list[str]:
+    """The console answer: found effects with their shrink, the held-out ratios before and after."""
+    base, final = data["held_out"]["base"], data["held_out"]["final"]
+    found = data["found"]
+    head = (f"found: {', '.join(found)}" if found else "nothing among the candidates explains the gap")
+    lines = [f"diagnosis (physics base): {head}"]
+    for name in found:
+        lines.append(f"  {data['effects'][name]['text']}")
+    lines.append(f"  held-out SimErr / naive, velocity {base['ratio_to_naive']['velocity']:.3f} -> "
+                 f"{final['ratio_to_naive']['velocity']:.3f}, angular velocity {base['ratio_to_naive']['angular_velocity']:.3f} -> "
+                 f"{final['ratio_to_naive']['angular_velocity']:.3f} (J {base['J']:.3f} -> {final['J']:.3f})")
+    s = data["summary"]
+    lines.append(f"  command delay {s['delay_s']['value'] * 1e3:.1f} +- {s['delay_s']['sigma'] * 1e3:.1f} ms; motor command gains "
+                 + " ".join(f"{g:.3f}" for g in s["motor_command_gains"]["value"]))
+    injection = data.get("injection")
+    if injection:
+        lines.append(f"  --inject {injection['spec']}: {'PASSED' if injection['passed'] else 'FAILED'} ("
+                     + "; ".join(f"{c['check']}: {'yes' if c['holds'] else 'NO'}" for c in injection["checks"]) + ")")
+    return lines
+
+
+def report_markdown(data: dict) -> str:
+    """report.md of a physics-base diagnosis document (:meth:`PhysicsDiagnosis.to_json` plus injection/vehicle)."""
+    out = ["# Sim-to-real gap diagnosis (physics base)", ""]
+    out += [f"    {line}" for line in verdict_lines(data)] + [""]
+    out += prose("The base is the physics model identified on the training flights with the candidate effects off; "
+                 "each candidate is a term of that model, fitted with all its constants on the training flights and "
+                 "scored on the held-out flights with the multi-step protocol of the models table (SimErr over "
+                 "h = 1..50 relative to naive, J = the mean of velocity and angular velocity).") + [""]
+    table = data["multistep"]
+    if table.get("models"):
+        out += ["## Held-out multi-step error (every start, as `evaluate`)", ""]
+        rows = [[name, f"{m['velocity']['ratio_sim_err']:.3f}", f"{m['angular_velocity']['ratio_sim_err']:.3f}"]
+                for name, m in table["models"].items() if "velocity" in m and "ratio_sim_err" in m["velocity"]]
+        out += markdown_table(["model", "velocity / naive", "angular velocity / naive"], rows) + [""]
+    out += ["## Selection (joint refit of every chosen effect)", ""]
+    rows = []
+    for step in data["selection"]:
+        for name, t in step["trials"].items():
+            rows.append([" + ".join(step["on_top_of"]) or "base", name, f"{t['shrink']:+.1%}", f"{t['shrink_5pct']:+.1%}",
+                         "joined" if step["joined"] and name == step["best"] else ""])
+    out += markdown_table(["on top of", "candidate", "shrink of J", "5 % bound", ""], rows) + [""]
+    if data["dropped_shrink"]:
+        out += prose("Order-free: J rises when each chosen effect is dropped from the final set and the rest refitted: "
+                     + ", ".join(f"{k} {v:+.1%}" for k, v in data["dropped_shrink"].items())
+                     + " (an effect under 2 % left the set).") + [""]
+    out += ["## Effects", ""]
+    for name, effect in data["effects"].items():
+        out += prose(effect["text"], first="- ", rest="  ")
+    for name, why in data["in_base"].items():
+        out += prose(f"{name.replace('_', ' ')}: {why}", first="- ", rest="  ")
+    out += ["", "## Constants of the final model", ""]
+    rows = [[name, f"{c['value']:.4g}", f"{c['sigma']:.2g}", c["unit"], f"[{c['bounds'][0]:.3g}, {c['bounds'][1]:.3g}]",
+             "AT BOUND" if c["at_bound"] else ""] for name, c in data["constants"].items()]
+    out += markdown_table(["constant", "value", "sigma", "unit", "bounds", ""], rows) + [""]
+    order = data.get("motor_order")
+    if order:
+        out += prose(f"Motor order check: {order['verdict']}" + (f"; likely fix: {', '.join(order['actions'])}" if order["actions"] else ""))
+        out += [""]
+    injection = data.get("injection")
+    if injection:
+        out += [f"## Known answer: --inject {injection['spec']}", ""]
+        out += markdown_table(["check", "expected", "measured", "holds"],
+                              [[c["check"], str(c.get("expected", c.get("expected_s", ""))),
+                                str(c.get("measured", c.get("measured_s", c.get("named", c.get("newly_found", ""))))),
+                                "yes" if c["holds"] else "NO"] for c in injection["checks"]]) + [""]
+    return "\n".join(out) + "\n"
+
+
+def write_physics_diagnosis(data: dict, directory: Path) -> list[str]:
+    """Write diagnosis.json and report.md into ``directory`` (created); the file names."""
+    directory.mkdir(parents=True)
+    (directory / "diagnosis.json").write_text(json_text(data))
+    (directory / "report.md").write_text(report_markdown(data))
+    return ["diagnosis.json", "report.md"]
