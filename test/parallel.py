@@ -38,6 +38,7 @@ GROUPS = {
 UNIT_SECONDS = {
     "test/ros": 250,
     "test/core/diagnosis/test_diagnosis_validation.py": 44,
+    "test/commands/test_diagnose_physics.py": 40,
     "dask": 33,
     "test/core/diagnosis/test_diagnosis.py": 27,
     "test/core/identification/test_identification.py": 24,

@@ -229,7 +229,7 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
     data = result.to_json()
     data["skipped"] = skipped
     if injected is not None:
-        data = {**injected.to_json(), "un_injected": {"summary": data["summary"], "found": data["found"]},
+        data = {**injected.to_json(), "un_injected": {k: data[k] for k in ("summary", "found", "held_out", "multistep")},
                 "injection": injection_checks(injection, result.summary, injected.summary), "skipped": skipped}
         result = injected
     document = None

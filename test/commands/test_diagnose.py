@@ -28,7 +28,7 @@ def mat_flights(tmp_path_factory):
 
 def test_diagnose_writes_json_report_and_figures(mat_flights, tmp_path, capsys):
     out = tmp_path / "diag"
-    code = main(["diagnose", "--train", mat_flights[0], mat_flights[2], "--test", mat_flights[1], "--vehicle", "linkquad",
+    code = main(["diagnose", "--base", "greybox", "--train", mat_flights[0], mat_flights[2], "--test", mat_flights[1], "--vehicle", "linkquad",
                  "--effects", "motor_imbalance,battery,motor_lag", "-o", str(out)])
     assert code == 0
     data = json.loads((out / "diagnosis.json").read_text())
@@ -60,7 +60,7 @@ def test_diagnose_writes_json_report_and_figures(mat_flights, tmp_path, capsys):
         assert (out / figure).stat().st_size > 0
     assert "->" in capsys.readouterr().out
     # never overwrite without --force
-    assert main(["diagnose", "--train", mat_flights[0], "--test", mat_flights[1], "--vehicle", "linkquad",
+    assert main(["diagnose", "--base", "greybox", "--train", mat_flights[0], "--test", mat_flights[1], "--vehicle", "linkquad",
                  "--effects", "motor_lag", "-o", str(out)]) == 2
 
 

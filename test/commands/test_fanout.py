@@ -115,7 +115,7 @@ def test_diagnose_and_train_on_workers_equal_serial(flights, dask_scheduler, tmp
     reports = []
     for name, extra in (("serial", []), ("jobs", ["--jobs", "2"])):
         out = tmp_path / f"diag_{name}"
-        assert main(["diagnose", "--train", flights[0], "--test", flights[1], "--vehicle", "linkquad", "--effects", "battery",
+        assert main(["diagnose", "--base", "greybox", "--train", flights[0], "--test", flights[1], "--vehicle", "linkquad", "--effects", "battery",
                      "-o", str(out), *extra]) == 0
         reports.append(json.loads((out / "diagnosis.json").read_text()))
     assert reports[1]["gap"] == reports[0]["gap"] and reports[1]["effects"] == reports[0]["effects"]

@@ -43,7 +43,7 @@ def px4_bag(tmp_path_factory):
     ["evaluate", "{ulog}", "--drop", "1:1", "--train", "0%:50%", "--eval", "50%:100%", "--window", "5", "-o", "{out}/e"],  # was the polyorder traceback
     ["identify", "{ulog}", "--drop", "1:1", "--train", "0%:50%", "--eval", "50%:100%", "--window", "5", "-o", "{out}/v.yaml"],
     ["train", "{ulog}", "--drop", "1:1", "--train", "0%:60%", "--quiet", "-o", "{out}/m.npz"],
-    ["diagnose", "--train", "{ulog}", "--test", "{ulog}", "--drop", "1:1", "--window", "5", "-o", "{out}/d"],
+    ["diagnose", "--base", "greybox", "--train", "{ulog}", "--test", "{ulog}", "--drop", "1:1", "--window", "5", "-o", "{out}/d"],
     ["run-bag", "{bag}", "--models", "naive", "--window", "5", "-o", "{out}/live"],
 ], ids=["evaluate-thesis", "evaluate-short", "evaluate-window-5", "identify", "train", "diagnose", "run-bag"])
 def test_a_10_hz_flight_is_refused_for_its_rate_on_every_verb_that_scores(argv, px4_bag, tmp_path, capsys):

@@ -74,35 +74,35 @@ def parse_injection(spec: str, motors: int = 4) -> Injection:
     parts = text.split(":")
     kind = parts[0]
     usage = "expected delay:MS, gain:MOTOR:K, swap:A:B or none"
+    shapes = {"none": 1, "delay": 2, "gain": 3, "swap": 3}
+    if shapes.get(kind) != len(parts):
+        raise ConfigError(f"--inject {text}: {usage}")
     try:
-        if kind == "none" and len(parts) == 1:
-            return Injection("none", spec=text)
-        if kind == "delay" and len(parts) == 2:
-            ms = float(parts[1])
-            if not (np.isfinite(ms) and ms > 0):
-                raise ConfigError(f"--inject {text}: the delay must be a positive number of milliseconds")
-            return Injection("delay", delay_s=ms / 1000.0, spec=text)
-        if kind == "gain" and len(parts) == 3:
-            motor, factor = int(parts[1]), float(parts[2])
-            _check_motor(text, motor, motors)
-            if not (np.isfinite(factor) and factor > 0):
-                raise ConfigError(f"--inject {text}: the gain factor K must be a positive number")
-            return Injection("gain", motor=motor, factor=factor, spec=text)
-        if kind == "swap" and len(parts) == 3:
-            a, b = int(parts[1]), int(parts[2])
-            _check_motor(text, a, motors)
-            _check_motor(text, b, motors)
-            if a == b:
-                raise ConfigError(f"--inject {text}: swap needs two different motors")
-            return Injection("swap", swap=(a, b), spec=text)
+        numbers = [float(x) for x in parts[1:]]
     except ValueError as err:
         raise ConfigError(f"--inject {text}: {usage} (numbers where MS, MOTOR, K, A, B stand)") from err
-    raise ConfigError(f"--inject {text}: {usage}")
+    if kind == "none":
+        return Injection("none", spec=text)
+    if kind == "delay":
+        if not (np.isfinite(numbers[0]) and numbers[0] > 0):
+            raise ConfigError(f"--inject {text}: the delay must be a positive number of milliseconds")
+        return Injection("delay", delay_s=numbers[0] / 1000.0, spec=text)
+    first = _check_motor(text, numbers[0], motors)
+    if kind == "gain":
+        if not (np.isfinite(numbers[1]) and numbers[1] > 0):
+            raise ConfigError(f"--inject {text}: the gain factor K must be a positive number")
+        return Injection("gain", motor=first, factor=numbers[1], spec=text)
+    second = _check_motor(text, numbers[1], motors)
+    if first == second:
+        raise ConfigError(f"--inject {text}: swap needs two different motors")
+    return Injection("swap", swap=(first, second), spec=text)
 
 
-def _check_motor(text: str, motor: int, motors: int) -> None:
-    if not 1 <= motor <= motors:
-        raise ConfigError(f"--inject {text}: motor {motor}: the vehicle has motors 1..{motors}")
+def _check_motor(text: str, motor: float, motors: int) -> int:
+    """The 1-based motor number ``motor``; ConfigError unless a whole number in 1..``motors``."""
+    if not (float(motor).is_integer() and 1 <= motor <= motors):
+        raise ConfigError(f"--inject {text}: motor {motor:g}: the vehicle has motors 1..{motors}")
+    return int(motor)
 
 
 def relative_gain(gains, motor: int) -> float:

@@ -10,11 +10,17 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from quad_modelling.io.reports.formatting import json_text, markdown_table, prose
+from quad_modelling.io.reports.formatting import REPORT_WIDTH, json_text, markdown_table, prose
 
 
-def verdict_lines(data: dict) -> list[str]:
-    """The console answer: found effects with their shrink, the held-out ratios before and after."""
+def verdict_lines(data: dict, width: int = REPORT_WIDTH) -> list[str]:
+    """The console answer, lines of at most ``width`` characters: found effects with their components, the held-out
+    ratios before and after, the delay and motor gains, the known-answer checks."""
+    return [wrapped for line in _verdict(data) for wrapped in prose(line.strip(), width, "  " if line.startswith(" ") else "",
+                                                                   "    " if line.startswith(" ") else "  ")]
+
+
+def _verdict(data: dict) -> list[str]:
     base, final = data["held_out"]["base"], data["held_out"]["final"]
     found = data["found"]
     head = (f"found: {', '.join(found)}" if found else "nothing among the candidates explains the gap")
@@ -37,7 +43,7 @@ def verdict_lines(data: dict) -> list[str]:
 def report_markdown(data: dict) -> str:
     """report.md of a physics-base diagnosis document (:meth:`PhysicsDiagnosis.to_json` plus injection/vehicle)."""
     out = ["# Sim-to-real gap diagnosis (physics base)", ""]
-    out += [f"    {line}" for line in verdict_lines(data)] + [""]
+    out += [f"    {line}" for line in verdict_lines(data, REPORT_WIDTH - 4)] + [""]
     out += prose("The base is the physics model identified on the training flights with the candidate effects off; "
                  "each candidate is a term of that model, fitted with all its constants on the training flights and "
                  "scored on the held-out flights with the multi-step protocol of the models table (SimErr over "

@@ -73,3 +73,21 @@ def test_delayed_commands_table_and_live_lookup_agree():
 def test_battery_factor_is_one_at_the_reference_voltage_and_linear_in_the_voltage():
     assert rotors.battery_speed_factor(3.9, 3.9, 0.2) == 1.0
     assert np.isclose(rotors.battery_speed_factor(3.7, 3.9, 0.2), 0.96)
+
+
+def test_a_delay_between_samples_interpolates_the_commands_and_live_equals_offline():
+    """δ = 1.5 sample periods: the rotors answer the mean of the commands 1 and 2 rows back (a zero-order-held command
+    averaged over the step); the live lookup gives the same rows; δ a whole number of periods picks one row."""
+    from quad_modelling.core.physics.rotors import delayed_command_at, delayed_commands
+
+    class P:
+        delay = 0.015
+
+    t = np.arange(20) * 0.01
+    u = np.column_stack([np.arange(20.0) ** 2 + i for i in range(4)])
+    offline = delayed_commands(P, u, t)
+    np.testing.assert_allclose(offline[5], 0.5 * (u[3] + u[4]))
+    for k in range(len(t)):
+        np.testing.assert_allclose(delayed_command_at(P, list(t[: k + 1]), list(u[: k + 1]), t[k]), offline[k])
+    P.delay = 0.02
+    np.testing.assert_allclose(delayed_commands(P, u, t)[5], u[3])

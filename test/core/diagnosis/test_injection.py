@@ -1,0 +1,67 @@
+"""Known answers injected into a flight's commands (``diagnose --inject``): parsing, the change itself, the checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from quad_modelling.core.diagnosis.injection import injection_checks, parse_injection, relative_gain
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.errors import ConfigError, DataError
+
+
+def _log(seconds: float = 3.0, rate: float = 100.0) -> FlightLog:
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    u = np.column_stack([1000.0 * t + 10.0 * i for i in range(4)])
+    zeros = np.zeros((len(t), 3))
+    return FlightLog(t, u, zeros, zeros, zeros, zeros, zeros, FlightMeta("crazyflie21", "ramp.csv"))
+
+
+def test_delay_advances_the_commands_and_drops_the_tail():
+    log = _log()
+    shifted = parse_injection("delay:20").apply(log)
+    assert len(shifted) == len(log) - 2  # the last 20 ms have no command 20 ms later
+    np.testing.assert_allclose(shifted.u, log.u[2:], atol=1e-9)  # u'(t) = u(t + 20 ms) on the 10 ms grid
+    half = parse_injection("delay:15").apply(log)
+    np.testing.assert_allclose(half.u[:, 0], 1000.0 * (log.t[: len(half)] + 0.015), atol=1e-9)  # interpolated
+
+
+def test_gain_divides_one_motor_and_swap_exchanges_two():
+    log = _log()
+    gained = parse_injection("gain:2:1.25").apply(log)
+    np.testing.assert_allclose(gained.u[:, 1], log.u[:, 1] / 1.25)
+    np.testing.assert_array_equal(gained.u[:, [0, 2, 3]], log.u[:, [0, 2, 3]])
+    swapped = parse_injection("swap:1:3").apply(log)
+    np.testing.assert_array_equal(swapped.u[:, [2, 1, 0, 3]], log.u)
+    assert parse_injection("none").apply(log) is log
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("delay", "expected delay:MS"), ("delay:-5", "positive number of milliseconds"), ("gain:5:1.2", "motor 5"),
+    ("gain:1:0", "positive number"), ("swap:2:2", "two different motors"), ("swap:a:b", "numbers where"),
+    ("warp:9", "expected delay:MS"),
+])
+def test_bad_specs_are_one_line(spec, message):
+    with pytest.raises(ConfigError, match=message) as err:
+        parse_injection(spec)
+    assert "\n" not in str(err.value) and spec in str(err.value)
+
+
+def test_a_delay_that_leaves_no_commands_is_refused():
+    with pytest.raises(DataError, match="leaves no commands"):
+        parse_injection("delay:2500").apply(_log())
+
+
+def test_checks_hold_within_the_tolerances_and_fail_outside():
+    plain = {"found": ["rotor_drag"], "delay_s": {"value": 0.040}, "motor_command_gains": {"value": [1.0, 1.02, 0.99, 0.99]}}
+    delayed = {**plain, "delay_s": {"value": 0.0641}}
+    assert injection_checks(parse_injection("delay:20"), plain, delayed)["passed"] is True
+    late = {**plain, "delay_s": {"value": 0.0660}}
+    assert injection_checks(parse_injection("delay:20"), plain, late)["passed"] is False
+    gains = [1.25 * 1.0, 1.02, 0.99, 0.99]
+    gained = {**plain, "found": ["rotor_drag", "motor_imbalance"], "motor_command_gains": {"value": gains}}
+    result = injection_checks(parse_injection("gain:1:1.25"), plain, gained)
+    assert result["passed"] and result["checks"][1]["measured"] == pytest.approx(1.25)
+    extra = {**plain, "found": ["rotor_drag", "battery"]}
+    assert injection_checks(parse_injection("none"), plain, extra)["passed"] is False
+    assert relative_gain([1.25, 1, 1, 1], 1) == pytest.approx(1.25)
