@@ -38,25 +38,24 @@ from quad_modelling.io.reports.validation import validation_summary, write_valid
 NAME = "diagnose"
 HELP = "diagnose the sim-to-real gap: where the model diverges, which effect causes it, how far it shrinks"
 DESCRIPTION = f"""\
-Compare the linear greybox model with flights and find which unmodelled effect explains the
-gap. The base model's constants are identified on the --train flights (with no motor lag of
-its own: lag and delay are the effects' to claim); every catalogue effect
-({", ".join(CATALOGUE_EFFECTS)}) is added alone, its parameters identified on the --train flights
-only, and the gap measured on the --test flights. Verdicts, each with its reason: "found" when
-it shrinks the held-out gap on its variables by >= 5 % consistently over held-out windows, the
-total held-out error falls, and its parameters are inside their bounds, physically plausible
-and stable across folds of the training flights; "weak" when the gap falls but a parameter
-fails; "not supported" otherwise. Also: where the gap lies (variables, regimes, frequency
-bands) before and after the best model, a cumulative ladder, whether lag and delay can be told
-apart, and (--narx) the NARX model's error as the learnable floor.
+Find which unmodelled effect explains the gap between the model and the flights. Default (physics
+base): the physics model users predict with is identified on the --train flights with the candidate
+effects off; the candidates ({", ".join(CANDIDATES)}) are terms of that model, chosen jointly
+(forward: each refitted with the chosen ones, the best joins when it shrinks the held-out
+multi-step error J by >= 2 % with a positive bootstrap bound and its main component resolved;
+backward: one whose removal costs < 2 % leaves). J is the mean over velocity and angular velocity of
+the held-out SimErr (h = 1..50) relative to naive. The report gives each effect's components with
+value, sigma and whether each is resolved, the command delay and each motor's command gain, the
+constants with their at-bound flags. --write-vehicle V.yaml writes the final model; --inject
+delay:MS | gain:M:K | swap:A:B | none checks the diagnosis on your own flights against a known
+answer (exit 1 when a check fails).
 
-OUTDIR receives diagnosis.json (SI units), report.md (plain-language verdict first) and PNG
-figures. --validate instead flies simulated known-answer flights and runs the diagnosis on
-them as a user would (base identified on the same effect-on flights; --base-from effects-off
-for the easier mode): each effect alone, a null case, pairs (--pairs), all effects at once,
-and out-of-catalogue disturbances (--disturbance: {", ".join(DISTURBANCES)}), whose right
-answer is "unexplained"; each single run is scored against its sensor ceiling. It writes
-validation.json + validation.md; --jobs N runs the cases on N local Dask workers.
+--base greybox: the thesis's linear greybox on 5 s windows with the catalogue's hooks
+({", ".join(CATALOGUE_EFFECTS)}): each effect added alone, verdicts found / weak / not supported,
+a greedy ladder, where the gap lies (variables, regimes, frequency bands), --narx for the learnable
+floor. --validate flies simulated known-answer flights and runs the greybox diagnosis on them
+(--base-from, --pairs, --disturbance: {", ".join(DISTURBANCES)}); --jobs N runs the cases on N
+local Dask workers.
 
 --jobs N / --scheduler ADDRESS read and check the --train/--test flights on Dask workers;
 the fits and the scoring run here (joint over flights; docs/scale.md).
@@ -64,6 +63,7 @@ the fits and the scoring run here (joint over flights; docs/scale.md).
 examples:
   quad-modelling diagnose --train slow1.csv.gz slow2.csv.gz --test fast1.csv.gz -o diag
   quad-modelling diagnose --train a.mat --test b.mat --vehicle linkquad --effects rotor_drag,battery -o diag
+  quad-modelling diagnose --train m1.csv.gz m2.csv.gz --test f1.csv.gz --inject delay:20 -o diag
   quad-modelling diagnose --validate --vehicle linkquad --seeds 0,1,2 --jobs 2 -o validation
 """
 

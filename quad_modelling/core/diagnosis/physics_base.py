@@ -137,6 +137,7 @@ class PhysicsDiagnosis:
     test_sources: list[str]
     timings: dict = field(default_factory=dict)
     motor_order: dict | None = None
+    ladder: list[dict] = field(default_factory=list)
 
     @property
     def found(self) -> list[str]:
@@ -146,7 +147,7 @@ class PhysicsDiagnosis:
         return {
             "base_model": "physics", "found": self.found, "summary": self.summary,
             "held_out": {"base": rung_json(self.base), "final": rung_json(self.final)},
-            "selection": self.steps, "dropped_shrink": self.dropped, "effects": self.effects,
+            "selection": self.steps, "ladder": self.ladder, "dropped_shrink": self.dropped, "effects": self.effects,
             "multistep": self.table, "folds": self.folds, "motor_order": self.motor_order,
             "in_base": IN_BASE,
             "constants": {e.name: e.as_dict() for e in self.final.fit.estimates()},
@@ -312,6 +313,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             current = rung(chosen)
             dropped[c] = rise
     final = current
+    ladder = [rung_json(rung(chosen[:k])) for k in range(len(chosen) + 1)]  # base, + rank 1, ...: each refitted jointly
     say("folds and the final table")
     folds = []
     if len(train) >= 2:
@@ -344,7 +346,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
                             [{"flights": [f.meta.source for f in h], "values": fit.values} for h, fit in
                              zip([train[0::2], train[1::2]], folds)],
                             summary, sorted({f.meta.source for f in train}), sorted({f.meta.source for f in test}),
-                            {"total": time.perf_counter() - clock}, layout)
+                            {"total": time.perf_counter() - clock}, layout, ladder)
 
 
 def motor_order_check(train: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig) -> dict:

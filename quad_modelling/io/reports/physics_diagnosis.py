@@ -31,8 +31,13 @@ def _verdict(data: dict) -> list[str]:
                  f"{final['ratio_to_naive']['velocity']:.3f}, angular velocity {base['ratio_to_naive']['angular_velocity']:.3f} -> "
                  f"{final['ratio_to_naive']['angular_velocity']:.3f} (J {base['J']:.3f} -> {final['J']:.3f})")
     s = data["summary"]
+    gains = s["motor_command_gains"]
     lines.append(f"  command delay {s['delay_s']['value'] * 1e3:.1f} +- {s['delay_s']['sigma'] * 1e3:.1f} ms; motor command gains "
-                 + " ".join(f"{g:.3f}" for g in s["motor_command_gains"]["value"]))
+                 + (" ".join(f"{g:.3f}" for g in gains["value"]) if gains["fitted"] else "not fitted (motor_imbalance not a candidate)"))
+    order = data.get("motor_order") or {}
+    if order.get("verdict") == "inconsistent":
+        lines.append("  motor order/spin: INCONSISTENT with the vehicle file (fix it before trusting the effects): "
+                     + ", ".join(order["actions"]))
     injection = data.get("injection")
     if injection:
         lines.append(f"  --inject {injection['spec']}: {'PASSED' if injection['passed'] else 'FAILED'} ("
@@ -61,6 +66,9 @@ def report_markdown(data: dict) -> str:
             rows.append([" + ".join(step["on_top_of"]) or "base", name, f"{t['shrink']:+.1%}", f"{t['shrink_5pct']:+.1%}",
                          "joined" if step["joined"] and name == step["best"] else ""])
     out += markdown_table(["on top of", "candidate", "shrink of J", "5 % bound", ""], rows) + [""]
+    if data.get("ladder"):
+        out += prose("Ladder (each rung refitted jointly), held-out J: " + " -> ".join(
+            f"{' + '.join(r['effects']) or 'base'} {r['J']:.3f}" for r in data["ladder"])) + [""]
     if data["dropped_shrink"]:
         out += prose("Order-free: J rises when each chosen effect is dropped from the final set and the rest refitted: "
                      + ", ".join(f"{k} {v:+.1%}" for k, v in data["dropped_shrink"].items())
