@@ -251,8 +251,8 @@ CORPUS = [
      "--effects: battery named more than once"),
     ("identify-effects-unknown", ["identify", "{d}/flight.mat", "--effects", "wind", "-o", "{d}/work/v.yaml"],
      "--effects: unknown physics-model term 'wind'"),
-    ("identify-effects-unfittable", ["identify", "{d}/flight.mat", "--effects", "motor_imbalance", "-o", "{d}/work/v.yaml"],
-     "--effects: identify cannot fit motor_imbalance yet"),
+    ("identify-effects-unfittable", ["identify", "{d}/flight.mat", "--effects", "disturbance_observer", "-o", "{d}/work/v.yaml"],
+     "--effects: identify cannot fit disturbance_observer yet"),
     ("run-bag-imu-other-clock", ["run-bag", "{d}/imu_clock", "-o", "{d}/work/live"], "topic /quad/imu stamps are offset by +100.000 s"),
     # paths longer than the file system allows (a name over NAME_MAX, a path over PATH_MAX), on every verb that takes one
     *[(f"path-too-long-{case}", argv, f"{what} path is too long for the file system (longest name {name} bytes") for case, argv, what, name in [

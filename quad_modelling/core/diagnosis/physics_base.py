@@ -36,22 +36,20 @@ of them (folds).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from quad_modelling.core.diagnosis.verdicts import DETERMINED_SIGMAS
-from quad_modelling.core.evaluation.metrics import SIM_ERR_HORIZON
-from quad_modelling.core.evaluation.multistep import GROUPS, group_error_norms, multistep_evaluation
+from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.physics_fit import PhysicsFit, identify_physics
-from quad_modelling.core.identification.physics_terms import effects_section
+from quad_modelling.core.identification.constants_report import fitted_vehicle
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
-from quad_modelling.core.physics.effects import effects_document, parse_effects
-from quad_modelling.core.preprocess import measured_variables, resample_uniform
+from quad_modelling.core.preprocess import resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.core.windows import EvaluationConfig, span_segments, warm_samples_for
+from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError, DataError
 
 CANDIDATES = ("rotor_drag", "ground_effect", "battery", "gyroscopic", "motor_imbalance")
@@ -107,9 +105,8 @@ class HeldOutScore:
         return {g: float(self.model[:, i].mean() / self.naive[:, i].mean()) for i, g in enumerate(SCORED_GROUPS)}
 
 
-def objective(model: np.ndarray, naive: np.ndarray) -> float:
-    """J of the module docstring from per-start errors (S, 2)."""
-    return float(np.mean(model.mean(axis=0) / naive.mean(axis=0)))
+objective = ratio_to_naive
+"""J of the module docstring from per-start errors (S, 2)."""
 
 
 @dataclass
@@ -168,48 +165,14 @@ def rung_json(rung: Rung) -> dict:
     return {"effects": list(rung.effects), "J": rung.score.j, "ratio_to_naive": rung.score.ratios()}
 
 
-def fitted_vehicle(vehicle: VehicleConfig, fit: PhysicsFit, source: str) -> VehicleConfig:
-    """``vehicle`` with the fit's constants, its fitted terms and its disturbance observer (in memory)."""
-    fitted = vehicle.with_values({k: v for k, v in fit.values.items() if np.isfinite(v)}, source)
-    section = effects_document(vehicle.effects)
-    section.update(effects_section(fit.terms, source))
-    o = fit.observer
-    section["disturbance_observer"] = {"enabled": o.linear_s > 0 or o.angular_s > 0, **{
-        key: {"value": float(value), "unit": unit, "bounds": [0.0, 10.0 if unit == "s" else 1.0], "status": "identified",
-              "source": source} for key, value, unit in (("linear_history", o.linear_s, "s"), ("angular_history", o.angular_s, "s"),
-                                                         ("angular_trim", float(o.angular_trim), "1"))}}
-    return replace(fitted, effects=parse_effects(section, f"{vehicle.path} ({source})"))
-
-
 def held_out_score(vehicle: VehicleConfig, observer: Observer, flights: Sequence[FlightLog], config: EvaluationConfig,
                    stride: int = 1) -> HeldOutScore:
-    """Per-start SimErr contributions of the physics model of ``vehicle`` and of naive on ``flights`` (the multi-step
-    protocol's starts and segments: :func:`~quad_modelling.core.evaluation.multistep.flight_multistep_sums`)."""
+    """Per-start SimErr contributions of the physics model of ``vehicle`` and of naive on ``flights``
+    (:func:`~quad_modelling.core.evaluation.multistep.start_errors`: the multi-step protocol's starts and segments)."""
     model = PhysicsPredictor(vehicle, observer=observer, trim=config.trim)
     naive = ConstantStatePredictor(vehicle, config.trim)
-    span = next(s for s in config.spans() if s.name == config.multistep_span)
-    horizon = max(max(config.horizons), SIM_ERR_HORIZON)
-    columns = [list(GROUPS).index(g) for g in SCORED_GROUPS]
-    parts, naive_parts, blocks = [], [], []
-    block0 = 0
-    for log in flights:
-        for start, stop in span_segments(log, span, config):
-            segment = log.slice(start, stop)
-            warm = warm_samples_for(segment, config.warm_s)
-            starts = np.arange(warm - 1, len(segment) - horizon, stride)
-            if not starts.size:
-                continue
-            truth = measured_variables(segment, vehicle)[starts[:, None] + np.arange(1, horizon + 1)[None, :]]
-            for predictor, out in ((model, parts), (naive, naive_parts)):
-                predicted = np.asarray(predictor.predict_horizons(segment, starts, horizon))[:, 1:]
-                norms = group_error_norms(truth.reshape(-1, truth.shape[-1]), predicted.reshape(-1, truth.shape[-1]))
-                out.append(norms.reshape(len(starts), horizon, -1)[:, :, columns].sum(axis=1))
-            block = np.floor((segment.t[starts] - segment.t[starts[0]]) / BLOCK_S).astype(int)
-            blocks.append(block0 + block)
-            block0 += int(block.max()) + 1
-    if not parts:
-        raise DataError(f"no held-out segment longer than {horizon} samples plus the warm start: use longer --test flights")
-    return HeldOutScore(np.vstack(parts), np.vstack(naive_parts), np.concatenate(blocks))
+    (errors, naive_errors), blocks = start_errors(flights, [model, naive], vehicle, config, SCORED_GROUPS, stride, BLOCK_S)
+    return HeldOutScore(errors, naive_errors, blocks)
 
 
 def shrink(before: HeldOutScore, after: HeldOutScore, seed: int = 0) -> tuple[float, float]:

@@ -47,6 +47,7 @@ from quad_modelling.core.preprocess import (
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, span_segments, warm_samples_for
+from quad_modelling.errors import DataError
 
 GROUPS: dict[str, slice] = {
     "position": slice(0, 3),
@@ -205,3 +206,41 @@ def multistep_table(sums: MultistepSums, config: EvaluationConfig, start_stride:
     if sums.not_multistep:
         out["not_multistep"] = {m: sums.not_multistep[m] for m in sums.order if m in sums.not_multistep}
     return out
+
+
+def start_errors(flights: Sequence[FlightLog], models: Sequence[MultiStepPredictor], vehicle: VehicleConfig,
+                 config: EvaluationConfig, groups: Sequence[str] = ("velocity", "angular_velocity"), stride: int = 1,
+                 block_s: float = 2.0) -> tuple[list[np.ndarray], np.ndarray]:
+    """Per start, each model's SimErr contribution :math:`\\sum_{h \\le H} \\lVert y_{s+h} - \\hat y_{s+h} \\rVert` of
+    ``groups`` (the protocol's starts and segments of ``config.multistep_span``, every ``stride``-th start): a list of
+    (S, G) arrays in ``models`` order, and (S,) the index of each start's block of ``block_s`` seconds (consecutive
+    over segments; for a block bootstrap). Their means over starts are the models' SimErr (:func:`multistep_table`'s
+    at ``stride`` 1). DataError when no segment is long enough."""
+    span = next(s for s in config.spans() if s.name == config.multistep_span)
+    horizon = max(max(config.horizons), SIM_ERR_HORIZON)
+    columns = [list(GROUPS).index(g) for g in groups]
+    parts: list[list[np.ndarray]] = [[] for _ in models]
+    blocks, first_block = [], 0
+    for log in flights:
+        for start, stop in span_segments(log, span, config):
+            segment = log.slice(start, stop)
+            starts = np.arange(warm_samples_for(segment, config.warm_s) - 1, len(segment) - horizon, stride)
+            if not starts.size:
+                continue
+            truth = measured_variables(segment, vehicle)[starts[:, None] + np.arange(1, horizon + 1)[None, :]]
+            for model, out in zip(models, parts):
+                predicted = np.asarray(model.predict_horizons(segment, starts, horizon))[:, 1:]
+                norms = group_error_norms(truth.reshape(-1, len(VARIABLES)), predicted.reshape(-1, len(VARIABLES)))
+                out.append(norms.reshape(len(starts), horizon, -1)[:, :, columns].sum(axis=1))
+            block = np.floor((segment.t[starts] - segment.t[starts[0]]) / block_s).astype(int)
+            blocks.append(first_block + block)
+            first_block += int(block.max()) + 1
+    if not blocks:
+        raise DataError(f"no {span.name} segment longer than {horizon} samples plus the warm start")
+    return [np.vstack(p) for p in parts], np.concatenate(blocks)
+
+
+def ratio_to_naive(errors: np.ndarray, naive: np.ndarray) -> float:
+    """The mean over the groups of SimErr / naive's SimErr from per-start errors (S, G) of :func:`start_errors`: the
+    one number the physics model's observer choice and the diagnosis minimise."""
+    return float(np.mean(errors.mean(axis=0) / naive.mean(axis=0)))

@@ -11,12 +11,14 @@ its search range.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from quad_modelling.core.identification.least_squares import poorly_determined
 from quad_modelling.core.identification.physics_terms import effects_section
+from quad_modelling.core.physics.effects import effects_document, parse_effects
+from quad_modelling.core.vehicle import VehicleConfig
 
 LINE_WIDTH = 100
 
@@ -119,12 +121,7 @@ def add_physics_constants(document: dict, fit, note: str, source: str) -> None:
     choice = fit.diagnostics.get("observer_choice")
     why = (f"chosen by the data: {choice['chosen']} (multi-step error "
            + ", ".join(f"{name} {e:.3g}" for name, e in choice["errors"].items()) + ")") if choice else "as fitted"
-    o = fit.observer
-    on = o.linear_s > 0 or o.angular_s > 0
-    values = {"linear_history": (o.linear_s, "s"), "angular_history": (o.angular_s, "s"), "angular_trim": (float(o.angular_trim), "1")}
-    document.setdefault("effects", {})["disturbance_observer"] = {"enabled": on, **{
-        key: {"value": float(value), "unit": unit, "bounds": [0.0, 10.0 if unit == "s" else 1.0], "status": "identified",
-              "source": f"{source}; {why}"} for key, (value, unit) in values.items()}}
+    document.setdefault("effects", {})["disturbance_observer"] = observer_entry(fit.observer, f"{source}; {why}")
 
 
 def _plain(value):
@@ -136,3 +133,21 @@ def _plain(value):
     if isinstance(value, np.generic):
         return value.item()
     return value
+
+
+def fitted_vehicle(vehicle: VehicleConfig, fit, source: str) -> VehicleConfig:
+    """``vehicle`` with the fit's constants, its fitted terms and its disturbance observer (in memory)."""
+    fitted = vehicle.with_values({k: v for k, v in fit.values.items() if np.isfinite(v)}, source)
+    section = effects_document(vehicle.effects)
+    section.update(effects_section(fit.terms, source))
+    section["disturbance_observer"] = observer_entry(fit.observer, source)
+    return replace(fitted, effects=parse_effects(section, f"{vehicle.path} ({source})"))
+
+
+def observer_entry(observer, source: str) -> dict:
+    """The vehicle file's ``disturbance_observer`` entry of an :class:`~quad_modelling.core.models.physics.Observer`."""
+    o = observer
+    values = {"linear_history": (o.linear_s, "s"), "angular_history": (o.angular_s, "s"), "angular_trim": (float(o.angular_trim), "1")}
+    return {"enabled": o.linear_s > 0 or o.angular_s > 0, **{
+        key: {"value": float(value), "unit": unit, "bounds": [0.0, 10.0 if unit == "s" else 1.0], "status": "identified",
+              "source": source} for key, (value, unit) in values.items()}}

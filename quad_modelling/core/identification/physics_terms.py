@@ -80,8 +80,10 @@ class TermDesign:
     def __post_init__(self) -> None:
         refused = [n for n in self.names if n not in FITTABLE]
         if refused:
+            why = ("identify chooses the observer by the data; set it in the vehicle file's effects section to hold one"
+                   if refused == ["disturbance_observer"] else "set its parameters in the vehicle file's effects section")
             raise ConfigError(f"--effects: identify cannot fit {', '.join(refused)} yet (it fits {', '.join(FITTABLE)}); "
-                              f"set its parameters in the vehicle file's effects section (docs/formats.md)")
+                              f"{why} (docs/formats.md)")
 
 
 IMBALANCE_ITERATIONS = 3
