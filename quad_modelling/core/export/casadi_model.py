@@ -162,6 +162,12 @@ def casadi_functions(model: ExportedModel) -> dict:
     }
 
 
+def terms_on(model: ExportedModel) -> list[str]:
+    """The physics-model terms the vehicle file switches on (:mod:`quad_modelling.core.physics.effects`; the
+    disturbance observer is not a term of f: it gives ``d``)."""
+    return [name for name, term in model.vehicle.effects.items() if term.on and name != "disturbance_observer"]
+
+
 def layout(model: ExportedModel) -> dict:
     """The export's description (``layout.yaml``): what each Function computes, the state, input and disturbance
     layout with units, and the constants a controller needs beside f (delay, command range, hover)."""
@@ -175,7 +181,7 @@ def layout(model: ExportedModel) -> dict:
     return {
         "format": "quad_modelling casadi export", "format_version": FORMAT_VERSION, "casadi_version": casadi.__version__,
         "vehicle": model.vehicle.name, "vehicle_file": str(model.vehicle.path), "model": model.spec,
-        "terms_on": list(p.terms_on), "frames": "N = NED, B = FRD; SI units",
+        "terms_on": terms_on(model), "frames": "N = NED, B = FRD; SI units",
         "functions": {name: {"file": f"{name}.casadi", "computes": text} for name, text in FUNCTIONS.items()},
         "state": rows(STATE), "input": rows(input_names(model)), "disturbance": rows(DISTURBANCE),
         "constants": {
