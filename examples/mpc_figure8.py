@@ -35,7 +35,9 @@ import casadi
 import numpy as np
 import yaml
 
+from quad_modelling.core.models.physics import Observer, observed_disturbance
 from quad_modelling.core.sim.closed_loop import TruthLoop, stabiliser_commands, trimmed_stabiliser
+from quad_modelling.core.variables import VARIABLES
 
 
 @dataclass(frozen=True)
@@ -92,32 +94,28 @@ def state_vector(observation: dict, rotor: np.ndarray) -> np.ndarray:
 
 
 class DisturbanceObserver:
-    """The physics model's observer (docs/export.md) on the controller's ticks: over the last ``linear_history_s``,
-    d_v = measured mean acceleration - the model's mean dv/dt; over ``angular_history_s``, d_ω = -the model's mean
-    dω/dt (angular trim) or measured - modelled."""
+    """The physics model's observer (docs/export.md; ``quad_modelling.core.models.physics.observed_disturbance``, the
+    package's one definition) on the controller's ticks, with the model's accelerations from the exported
+    ``f_disturbed``: over the last ``linear_history_s``, d_v = measured mean acceleration - the model's mean dv/dt;
+    over ``angular_history_s``, d_ω = -the model's mean dω/dt (angular trim) or measured - modelled."""
 
     def __init__(self, model: ExportedModel):
         o = model.layout["observer"]
-        self.model, self.linear_s, self.angular_s, self.trim = model, o["linear_history_s"], o["angular_history_s"], o["angular_trim"]
+        self.model = model
+        self.observer = Observer(o["linear_history_s"], o["angular_history_s"], o["angular_trim"])
         self.history: deque = deque()
 
     def estimate(self, t: float, x: np.ndarray, u_answered: np.ndarray, voltage: float) -> np.ndarray:
         """d (6) at time ``t`` from the state ``x`` and the commands the rotors answer now."""
-        zero = np.zeros(6)
-        modelled = np.asarray(self.model.derivative(x, self.model.inputs(u_answered, voltage), zero)).ravel()
-        self.history.append((t, x, modelled))
-        while self.history and t - self.history[0][0] > max(self.linear_s, self.angular_s) + 1e-9:
+        xdot = np.asarray(self.model.derivative(x, self.model.inputs(u_answered, voltage), np.zeros(6))).ravel()
+        measured = np.zeros(len(VARIABLES))  # the observer reads the velocity and the body rates of a measurement row
+        measured[3:6], measured[12:15] = x[3:6], x[15:18]
+        self.history.append((t, measured, np.concatenate([xdot[3:6], xdot[15:18]])))
+        while t - self.history[0][0] > max(self.observer.linear_s, self.observer.angular_s) + 1.0:
             self.history.popleft()
-        d = np.zeros(6)
-        for history, cols, state_cols in ((self.linear_s, slice(0, 3), slice(3, 6)), (self.angular_s, slice(3, 6), slice(15, 18))):
-            rows = [h for h in self.history if t - h[0] <= history + 1e-9]
-            if history <= 0 or len(rows) < 2:
-                continue
-            span = rows[-1][0] - rows[0][0]
-            mean_model = np.mean([r[2][state_cols] for r in rows[:-1]], axis=0)  # xdot has the state's layout
-            measured = (rows[-1][1][state_cols] - rows[0][1][state_cols]) / span
-            d[cols] = -mean_model if (cols.start == 3 and self.trim) else measured - mean_model
-        return d
+        times, rows, modelled = (np.array(column) for column in zip(*self.history))
+        d = observed_disturbance(times, rows, modelled, np.array([len(times) - 1]), self.observer)
+        return np.concatenate([d.linear_n[0], d.angular_b[0]])
 
 
 class ModelPredictiveController:
