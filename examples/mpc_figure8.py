@@ -119,7 +119,8 @@ class DisturbanceObserver:
 
 
 class ModelPredictiveController:
-    """The MPC of the module docstring on ``model``, ``horizon`` steps of ``dt`` seconds."""
+    """The MPC of the module docstring on ``model``, ``horizon`` steps of ``dt`` seconds. :data:`WEIGHTS`: chosen
+    by hand on this figure-8 (position first, then calm rates and commands); the same for every model."""
 
     WEIGHTS = {"position": 20.0, "height": 40.0, "velocity": 2.0, "rates": 0.2, "yaw": 5.0, "input": 0.05, "input_change": 2.0}
 
@@ -134,7 +135,11 @@ class ModelPredictiveController:
         opti = casadi.Opti()
         X, U = opti.variable(22, horizon + 1), opti.variable(4, horizon)
         x0, d, ref, u_prev, voltage = opti.parameter(22), opti.parameter(6), opti.parameter(6, horizon), opti.parameter(4), opti.parameter()
-        physical = lambda un: model.u_min + span * un  # noqa: E731 (normalised command -> input unit)
+
+        def physical(normalised):
+            """Commands [input unit] of commands scaled to 0..1 of the vehicle's range."""
+            return model.u_min + span * normalised
+
         opti.subject_to(X[:, 0] == x0 / scale)
         cost = 0
         for k in range(horizon):
@@ -206,9 +211,9 @@ def fly_mpc(model: ExportedModel, reference: Figure8, duration: float, use_obser
         started = time.perf_counter()
         u_new = mpc.command(x, d, ref, observation["voltage"])
         solve_s.append(time.perf_counter() - started)
-        inputs = lambda u: model.inputs(u, observation["voltage"])  # noqa: E731
-        x_mid = model.step(x, inputs(u_sent), model.delay, d) if model.delay > 0 else x
-        rotor = np.asarray(model.step(x_mid, inputs(u_new), dt - model.delay, d)).ravel()[18:22]  # the model's rotor estimate
+        voltage = observation["voltage"]
+        x_mid = model.step(x, model.inputs(u_sent, voltage), model.delay, d) if model.delay > 0 else x
+        rotor = np.asarray(model.step(x_mid, model.inputs(u_new, voltage), dt - model.delay, d)).ravel()[18:22]  # the model's rotor estimate
         u_answered, u_sent = u_sent, u_new
         for _ in range(ticks_per_step):
             loop.tick(u_new)
