@@ -19,10 +19,14 @@ from test.core.export.vehicles import crazyflie_document, random_hybrid, vehicle
 
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory) -> Path:
-    """An identified Crazyflie (every term on), one never identified, a hybrid of each vehicle, and a work directory."""
+    """An identified Crazyflie (every term on), one never identified, one with a broken identification record, a hybrid
+    of each vehicle, and a work directory."""
     d = tmp_path_factory.mktemp("export")
     write_vehicle(crazyflie_document(), d / "cf.yaml")
     write_vehicle(crazyflie_document(identified=False), d / "cf_starting_values.yaml")
+    broken = crazyflie_document()
+    broken["identification"]["constants"] = ["rotor_delay"]
+    write_vehicle(broken, d / "cf_bad_record.yaml")
     random_hybrid(vehicle_of(crazyflie_document())).save(d / "hybrid.npz")
     linkquad = load_vehicle("linkquad")
     random_hybrid(linkquad).save(d / "linkquad_hybrid.npz")
@@ -70,9 +74,11 @@ BAD = [
     ("unknown-model", ["{d}/cf.yaml", "--model", "narx:{d}/hybrid.npz", "--format", "casadi", "-o", "{d}/work/out"],
      "--model narx:{d}/hybrid.npz: export takes physics or hybrid:FILE"),
     ("never-identified", ["{d}/cf_starting_values.yaml", "--format", "casadi", "-o", "{d}/work/out"],
-     "{d}/cf_starting_values.yaml: the physics constants rotor_time_constant, rotor_delay,"),
+     "{d}/cf_starting_values.yaml: never identified: the physics constants "),
+    ("identification-record-not-a-mapping", ["{d}/cf_bad_record.yaml", "--format", "casadi", "-o", "{d}/work/out"],
+     "{d}/cf_bad_record.yaml: identification.constants must be a mapping of constant names"),
     ("no-physics-constants", ["px4_iris", "--format", "casadi", "-o", "{d}/work/out"],
-     f"{vehicle_dir() / 'px4_iris.yaml'}: the physics model needs the vehicle constants rotor_speed_gain"),
+     f"{vehicle_dir() / 'px4_iris.yaml'}: the physics model needs the vehicle constants "),
     ("hybrid-of-another-vehicle", ["{d}/cf.yaml", "--model", "hybrid:{d}/linkquad_hybrid.npz", "--format", "casadi", "-o", "{d}/work/out"],
      "{d}/linkquad_hybrid.npz: model was trained for vehicle 'linkquad', not 'crazyflie21'"),
     ("output-is-the-vehicle", ["{d}/cf.yaml", "--format", "casadi", "-o", "{d}/cf.yaml", "--force"],

@@ -88,8 +88,8 @@ def exportable_model(vehicle: VehicleConfig, hybrid_file: str | Path | None = No
     params = PhysicsParameters.from_vehicle(vehicle)
     never = vehicle.never_identified(PHYSICS_KEYS)
     if never:
-        raise ConfigError(f"{vehicle.path}: the physics constants {', '.join(never)} were never identified (status identified, "
-                          f"but no identification record names them: starting values); export a vehicle file written by "
+        raise ConfigError(f"{vehicle.path}: never identified: the physics constants {', '.join(never)} hold starting values "
+                          f"(status identified, but no identification record names them); export a vehicle file written by "
                           f"`quad-modelling identify FLIGHTS --vehicle {vehicle.name} -o FILE`")
     if hybrid_file is None:
         return ExportedModel(vehicle, params, Observer.from_vehicle(vehicle), "physics")
