@@ -100,7 +100,7 @@ def exportable_model(vehicle: VehicleConfig, hybrid_file: str | Path | None = No
 def input_names(model: ExportedModel) -> tuple[tuple[str, str, str], ...]:
     """The input u: (name, unit, meaning) of each element, in order (module docstring)."""
     unit = model.vehicle.input_unit
-    names = [(f"u_{i}", unit, f"command rotor {i} answers now (logged rotor_delay earlier)") for i in range(1, 5)]
+    names = [(f"u_{i}", unit, f"command rotor {i} answers now: the logged commands at t - rotor_delay") for i in range(1, 5)]
     if model.hybrid is not None:
         names += [(f"u_logged_{i}", unit, f"command of rotor {i} logged at this sample (the net's input)") for i in range(1, 5)]
     if model.params.battery is not None:
