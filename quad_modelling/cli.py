@@ -28,6 +28,7 @@ VERB_MODULES = (
     "run_bag",
     "diagnose",
     "merge",
+    "export",
 )
 """Modules under quad_modelling.commands, in --help order."""
 
@@ -66,7 +67,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = OneLineParser(
         prog="quad-modelling",
         description="Model quadrotor flight dynamics from flight data: convert logs to MCAP bags, "
-        "simulate, identify, evaluate, train and diagnose.",
+        "simulate, identify, evaluate, train, diagnose and export.",
     )
     verbs = parser.add_subparsers(dest="verb", metavar="VERB", required=True)
     for module_name in VERB_MODULES:

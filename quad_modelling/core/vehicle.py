@@ -2,7 +2,10 @@
 
 Every constant in the YAML is a mapping ``{value, unit, source, status}`` where
 ``status`` is ``measured`` (from the airframe or literature) or ``identified``
-(a starting value that ``quad-modelling identify`` refines from flight data).
+(a starting value that ``quad-modelling identify`` refines from flight data). A file that
+``identify`` wrote records what it fitted in its ``identification`` section; a constant marked
+``identified`` that no such record names still holds its starting value
+(:meth:`VehicleConfig.never_identified`: the CasADi export refuses to hand those to a controller).
 There are no silent defaults: a missing key is a ConfigError naming the file
 and key.
 
@@ -158,6 +161,9 @@ class VehicleConfig:
     path: str
     effects: dict[str, EffectTerm] = field(default_factory=dict)
     """The physics model's optional terms (:mod:`quad_modelling.core.physics.effects`), by name."""
+    fitted: frozenset[str] = frozenset()
+    """The constants the file's ``identification`` record names (``identification.constants``: what
+    ``quad-modelling identify`` fitted, or held and said why); empty for a hand-written file."""
 
     def value(self, key: str) -> float:
         """The numeric value of a constant, e.g. ``cfg.value('mass')``."""
@@ -202,6 +208,11 @@ class VehicleConfig:
     def identified(self) -> list[str]:
         """Names of the constants to identify from flight data."""
         return [k for k, c in self.constants.items() if c.status == "identified"]
+
+    def never_identified(self, keys) -> list[str]:
+        """Those of ``keys`` whose status is ``identified`` (to be identified from flight data) but that no
+        identification record names: the file still holds their starting values (module docstring)."""
+        return [k for k in keys if k in self.constants and self.constants[k].status == "identified" and k not in self.fitted]
 
     def with_values(self, values: dict[str, float], source: str) -> VehicleConfig:
         """A copy with some constants replaced (e.g. identified ones), noting the source."""
@@ -296,7 +307,18 @@ class VehicleConfig:
             input_unit=str(need(inputs, "unit", "inputs.")),
             path=where,
             effects=parse_effects(doc.get("effects"), where),
+            fitted=_fitted_constants(doc.get("identification"), where),
         )
+
+
+def _fitted_constants(record, where: str) -> frozenset[str]:
+    """The constant names of a vehicle document's ``identification.constants`` record (None: none)."""
+    if record is None:
+        return frozenset()
+    fitted = record.get("constants", {}) if isinstance(record, dict) else None
+    if not isinstance(fitted, dict):
+        raise ConfigError(f"{where}: identification.constants must be a mapping of constant names (as identify writes it)")
+    return frozenset(str(k) for k in fitted)
 
 
 def check_constant(key: str, value: float, where: str) -> None:

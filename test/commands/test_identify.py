@@ -45,6 +45,9 @@ def test_identify_on_the_bundled_bag_reports_constants_and_no_false_alarm(tmp_pa
         assert flagged == (entry["poorly_determined"] is not None)
     assert fitted["rotor_reaction_scale"]["held"] and fitted["rotor_reaction_scale"]["value"] == 1.0
     assert doc["identification"]["motor_check"]["verdict"] == "consistent"
+    # what identify wrote is an identified vehicle: export takes it (the shipped file's starting values it refuses)
+    assert main(["export", str(out), "--format", "casadi", "-o", str(tmp_path / "cf_model")]) == 0
+    assert (tmp_path / "cf_model" / "F.casadi").is_file()
 
 
 def test_identify_effects_fits_ground_effect_on_a_simulated_flight_and_switches_it_on(tmp_path, capsys):

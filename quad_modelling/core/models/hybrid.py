@@ -54,7 +54,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsStream
-from quad_modelling.core.physics.arrays import rotate_back
+from quad_modelling.core.physics.arrays import as_array, rotate, rotate_back
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands
@@ -85,7 +85,7 @@ def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
     rotors answer, then the logged ones (:func:`hybrid_commands`)."""
     rot = state.rot
     vel_b = rotate_back(rot, state.vel_n)
-    u = np.asarray(u, dtype=float)
+    u = as_array(u)
     return np.concatenate([vel_b, rot[:, 2, :], state.rates, u[:, :4], state.rotor, u[:, 4:]], axis=1)
 
 
@@ -135,7 +135,7 @@ class HybridModel:
         """(B, 6) net correction as disturbance accelerations: (R Δa_B [m/s², N], Δα [rad/s², B]); ``u`` (B, 8) as
         :func:`hybrid_commands` (so are the ``u`` of :meth:`step`, :meth:`outputs` and :meth:`rollout`)."""
         delta = self.net.forward(net_features(state, u))
-        return np.concatenate([np.einsum("bij,bj->bi", state.rot, delta[:, :3]), delta[:, 3:]], axis=1)
+        return np.concatenate([rotate(state.rot, delta[:, :3]), delta[:, 3:]], axis=1)
 
     def corrected(self, state: PhysicsState, u: np.ndarray, disturbance: Disturbance) -> Disturbance:
         """The per-step disturbance handed to the physics step: observer estimate plus net correction."""

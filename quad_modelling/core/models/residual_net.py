@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from quad_modelling.core.physics import arrays
 from quad_modelling.errors import ModelError
 
 ARRAY_PREFIX = "net_"
@@ -65,8 +66,9 @@ class ResidualNet:
         return tuple(w.shape[0] for w in self.weights[:-1])
 
     def forward(self, features: np.ndarray) -> np.ndarray:
-        """Correction Δ (..., n_out) of features (..., F) (module docstring)."""
-        h = (np.asarray(features, dtype=float) - self.in_mean) / self.in_std
+        """Correction Δ (..., n_out) of features (..., F) (module docstring); numpy or symbolic
+        (:mod:`quad_modelling.core.physics.arrays`: the CasADi export builds the net's expression with this code)."""
+        h = (arrays.as_array(features) - self.in_mean) / self.in_std
         for w, b in zip(self.weights[:-1], self.biases[:-1]):
             h = np.tanh(h @ w.T + b)
         return (h @ self.weights[-1].T + self.biases[-1]) * self.out_scale

@@ -1,9 +1,17 @@
-"""The few array operations the physics needs, on numpy arrays and torch tensors alike.
+"""The few array operations the physics needs, on numpy arrays, torch tensors and CasADi expressions alike.
 
 The quadrotor's physics (:mod:`quad_modelling.core.physics`) is written once against these operations plus
 the arithmetic operators, so the hybrid's training back-propagates through the very formulas the numpy model
-runs (:mod:`quad_modelling.core.training.physics_torch` only converts states and parameters). torch is never
-imported here: a tensor brings its own module, so the numpy path does not need torch installed.
+runs (:mod:`quad_modelling.core.training.physics_torch` only converts states and parameters), and the CasADi
+export (:mod:`quad_modelling.core.export.casadi_model`) builds the same formulas as symbolic expressions. torch
+and casadi are never imported here unless such an array is passed: a tensor brings its own module, so the numpy
+path needs neither installed.
+
+Backends: numpy float arrays; torch tensors (:func:`is_tensor`); *symbolic* arrays (:func:`is_symbolic`): numpy
+arrays of dtype object whose elements are CasADi ``SX`` scalars. numpy's arithmetic, ``@``, ``einsum``, ``cross``,
+``sum`` and the elementary ufuncs (``exp``, ``sin``, ``tanh``, ...) already work on them element by element;
+this module supplies the rest (comparisons, max, where, atan2, norm), so an expression is built by the very
+code that computes the numbers.
 
 Shapes: a batch of B members along axis 0; vectors (B, 3), rotations (B, 3, 3), rotor quantities (B, 4).
 """
@@ -18,8 +26,41 @@ def is_tensor(x) -> bool:
     return type(x).__module__.split(".", 1)[0] == "torch"
 
 
+def is_symbolic(x) -> bool:
+    """True for a symbolic array: a numpy array of CasADi scalar expressions (dtype object; module docstring)."""
+    return isinstance(x, np.ndarray) and x.dtype == object
+
+
+def _casadi():
+    import casadi
+
+    return casadi
+
+
+def _elementwise(function, *args):
+    """``function`` applied to the elements of ``args`` (broadcast), as a symbolic array."""
+    return np.frompyfunc(function, len(args), 1)(*args)
+
+
+def as_array(x):
+    """``x`` as an array of its backend: a tensor or a symbolic array as it is, anything else as a float numpy array."""
+    return x if is_tensor(x) or is_symbolic(x) else np.asarray(x, dtype=float)
+
+
+def greater(x, limit: float):
+    """x > limit element-wise (a symbolic array: CasADi 0/1 expressions, for :func:`where`)."""
+    return _elementwise(lambda a: a > limit, x) if is_symbolic(x) else x > limit
+
+
+def less(x, limit: float):
+    """x < limit element-wise (a symbolic array: CasADi 0/1 expressions, for :func:`where`)."""
+    return _elementwise(lambda a: a < limit, x) if is_symbolic(x) else x < limit
+
+
 def clamp_min(x, low: float):
     """max(x, low) element-wise."""
+    if is_symbolic(x):
+        return _elementwise(lambda a: _casadi().fmax(a, low), x)
     return x.clamp_min(low) if is_tensor(x) else np.maximum(x, low)
 
 
@@ -76,6 +117,8 @@ def vector_norm(x, keepdims: bool = False):
     """Euclidean norm of each row of (B, k) ``x``."""
     if is_tensor(x):
         return x.norm(dim=1, keepdim=keepdims)
+    if is_symbolic(x):
+        return np.sqrt((x * x).sum(axis=1, keepdims=keepdims))
     return np.linalg.norm(x, axis=1, keepdims=keepdims)
 
 
@@ -85,6 +128,8 @@ def where(condition, a, b):
         import torch
 
         return torch.where(condition, a, b)
+    if is_symbolic(condition):
+        return _elementwise(lambda c, x, y: _casadi().if_else(c, x, y), condition, a, b)
     return np.where(condition, a, b)
 
 
@@ -94,11 +139,15 @@ def atan2(y, x):
         import torch
 
         return torch.atan2(y, x)
+    if is_symbolic(y) or is_symbolic(x):
+        return _elementwise(lambda a, b: _casadi().atan2(a, b), y, x)
     return np.arctan2(y, x)
 
 
 def remainder(x, modulus: float):
     """x mod modulus, with the sign of the modulus (Python's %, numpy's and torch's remainder)."""
+    if is_symbolic(x):
+        return x - modulus * _elementwise(lambda a: _casadi().floor(a / modulus), x)
     return x.remainder(modulus) if is_tensor(x) else np.remainder(x, modulus)
 
 

@@ -142,10 +142,20 @@ def accelerations(p, vel_n, rot, rates, rotor, rotor_dot, pos_n=None):
     return acc_n, (torque_b + gyroscopic_torque(rates, inertia, momentum, body_scale)) / inertia
 
 
+def derivative(p, state, u, linear_n, angular_b):
+    """dx/dt of every batch member under the commands the rotors answer ``u`` (B, 4), with constant extra
+    accelerations ``linear_n`` (B, 3) [m/s², N] and ``angular_b`` (B, 3) [rad/s², B] (module docstring's motion):
+    (dp_N/dt = v_N, dv_N/dt, dR/dt = R [ω]×, dω/dt, dΩ/dt), shaped as the state's fields. The continuous
+    dynamics that :func:`step` discretises (without its limits on |ω| and |v|)."""
+    rotor_dot = rotor_acceleration(p, state.rotor, u)
+    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_dot, state.pos_n)
+    return state.vel_n, acc_n + linear_n, arrays.matmul3(state.rot, _skew(state.rates)), ang_acc + angular_b, rotor_dot
+
+
 def limit_norm(vectors, limit: float):
     """Rows of ``vectors`` scaled down to norm ``limit`` where longer."""
     norm = arrays.vector_norm(vectors, keepdims=True)
-    return arrays.where(norm > limit, vectors * (limit / arrays.clamp_min(norm, 1e-12)), vectors)
+    return arrays.where(arrays.greater(norm, limit), vectors * (limit / arrays.clamp_min(norm, 1e-12)), vectors)
 
 
 def continue_yaw(previous, rot):
@@ -175,7 +185,7 @@ def rotation_increment(rot, rates_b, dt):
     """
     phi = rates_b * dt[:, None]
     angle = arrays.vector_norm(phi)
-    small = angle < 1e-8
+    small = arrays.less(angle, 1e-8)
     safe = arrays.where(small, angle * 0.0 + 1.0, angle)
     a = arrays.where(small, 1.0 - angle**2 / 6.0, arrays.sin(safe) / safe)
     b = arrays.where(small, 0.5 - angle**2 / 24.0, (1.0 - arrays.cos(safe)) / safe**2)

@@ -85,15 +85,14 @@ def effective_commands(p, u, voltage=None):
         u = u * np.asarray(p.motor_gains, dtype=float)
     if p.battery is not None:
         kappa, reference = p.battery
-        factor = battery_speed_factor(np.asarray(voltage, dtype=float), reference, kappa)[..., None]
+        factor = battery_speed_factor(arrays.as_array(voltage), reference, kappa)[..., None]
         u = factor * u + (factor - 1.0) * (p.speed_offset / p.speed_gain)
     return u
 
 
 def steady_rotor_speed(p, u):
     """Ω_ss = max(k_u u + Ω_off, 0) [rad/s] of commands ``u`` (..., 4)."""
-    if not arrays.is_tensor(u):
-        u = np.asarray(u, dtype=float)
+    u = arrays.as_array(u)
     return arrays.clamp_min(p.speed_gain * u + p.speed_offset, 0.0)
 
 
@@ -109,7 +108,7 @@ def rotor_step(p, rotor, u, dt):
     target = steady_rotor_speed(p, u)
     if p.time_constant <= 0.0:
         return target
-    decay = arrays.exp(-dt / p.time_constant) if arrays.is_tensor(dt) else np.exp(-np.asarray(dt, dtype=float) / p.time_constant)
+    decay = arrays.exp(-arrays.as_array(dt) / p.time_constant)
     if decay.ndim and decay.ndim < target.ndim:
         decay = decay.reshape(tuple(decay.shape) + (1,) * (target.ndim - decay.ndim))
     return target + (rotor - target) * decay

@@ -185,8 +185,6 @@ def run_simulation(
     battery_on = "battery" in effects
     battery = params.battery
     delay_steps = int(round(params.input_delay * params.physics_rate)) if "input_delay" in effects else 0
-    i_prop_over_izz = dynamics.prop_inertia / float(dynamics.inertia[2])
-    yaw_signs = [float(v) for v in dynamics.yaw_signs]
     drag_constant = dynamics.drag_constant
     airborne_height = dynamics.rest_height + 0.03
     touchdown_window = script.land_start + 0.5 * script.descent_time
@@ -196,7 +194,7 @@ def run_simulation(
     commands = np.empty((n_ticks, 4))
     voltages = np.empty(n_ticks)
     soc = battery.initial_soc
-    voltage = open_circuit_voltage(soc, battery.cells) - battery.avionics_current * battery.internal_resistance if battery_on else battery.reference_voltage
+    voltage = initial_voltage(params, battery_on)
     u_esc = [params.vehicle.input_min] * 4
     pending: deque = deque()
     omega_cmd = [0.0] * 4
@@ -205,14 +203,7 @@ def run_simulation(
     bar = tqdm(total=n_ticks, unit="tick", desc="simulate", disable=not progress, file=sys.stderr, mininterval=0.5)
 
     def apply_commands(s, u):
-        """New ESC targets; without motor lag the rotors jump there and the body takes
-        the reaction impulse I_p sum s_i dOmega_i / Izz about z."""
-        target = dynamics.omega_command(u, voltage)
-        if not lag:
-            jump = sum(sign * (new - old) for sign, new, old in zip(yaw_signs, target, s[13:17]))
-            s[12] += i_prop_over_izz * jump
-            s[13:17] = target
-        return target
+        return esc_targets(dynamics, s, u, voltage, lag)
 
     try:
         for k in range(n_ticks):
@@ -229,9 +220,7 @@ def run_simulation(
                 u = [stabiliser.u_idle] * 4 if phase == PHASE_IDLE else [stabiliser.u_off] * 4
             commands[k] = u
             if battery_on:
-                current = drag_constant * sum(o * o * o for o in s[13:17]) / (battery.efficiency * voltage) + battery.avionics_current
-                soc -= current * dt_tick / (3600.0 * battery.capacity_ah)
-                voltage = open_circuit_voltage(soc, battery.cells) - current * battery.internal_resistance
+                soc, voltage = battery_tick(battery, drag_constant, s[13:17], soc, voltage, dt_tick)
             voltages[k] = voltage
             first = k * steps_per_tick
             if delay_steps:
@@ -257,6 +246,33 @@ def run_simulation(
         bar.close()
 
     return _assemble(params, effects, seed, script, record, commands, voltages, wind, phases, n_log, steps_per_tick, steps_per_log, steps_per_mocap, dynamics)
+
+
+def initial_voltage(params: SimParams, battery_on: bool) -> float:
+    """Battery voltage [V] at the start of a flight: the full pack under the avionics' current (``battery`` on), else V_ref."""
+    battery = params.battery
+    if not battery_on:
+        return battery.reference_voltage
+    return open_circuit_voltage(battery.initial_soc, battery.cells) - battery.avionics_current * battery.internal_resistance
+
+
+def battery_tick(battery, drag_constant: float, rotor_speeds, soc: float, voltage: float, dt_tick: float) -> tuple[float, float]:
+    """(state of charge, voltage [V]) after one control tick of ``dt_tick`` [s] at rotor speeds ``rotor_speeds``
+    [rad/s] (module docstring's battery: the rotors' power over the efficiency, plus the avionics)."""
+    current = drag_constant * sum(o * o * o for o in rotor_speeds) / (battery.efficiency * voltage) + battery.avionics_current
+    soc -= current * dt_tick / (3600.0 * battery.capacity_ah)
+    return soc, open_circuit_voltage(soc, battery.cells) - current * battery.internal_resistance
+
+
+def esc_targets(dynamics: QuadDynamics, s: list, u, voltage: float, lag: bool) -> list[float]:
+    """New ESC targets [rad/s] for commands ``u`` at ``voltage``; without motor lag (``lag`` False) the rotors of state
+    ``s`` jump there and the body takes the reaction impulse I_p Σ s_i ΔΩ_i / I_zz about z (``s`` changed in place)."""
+    target = dynamics.omega_command(u, voltage)
+    if not lag:
+        jump = sum(sign * (new - old) for sign, new, old in zip(dynamics.yaw_signs, target, s[13:17]))
+        s[12] += dynamics.prop_inertia / float(dynamics.inertia[2]) * jump
+        s[13:17] = target
+    return target
 
 
 def wind_series(params: SimParams, effects, seed: int, duration: float) -> np.ndarray:

@@ -1,0 +1,208 @@
+r"""The identified physics model (and a hybrid's residual net) as CasADi Functions (docs/export.md).
+
+Nothing here writes an equation: the expressions are built by the one physics definition
+(:mod:`quad_modelling.core.physics`) and the hybrid's own code (:class:`~quad_modelling.core.models.hybrid.HybridModel`,
+:class:`~quad_modelling.core.models.residual_net.ResidualNet`) fed *symbolic arrays* -- numpy arrays of CasADi
+``SX`` scalars (:mod:`quad_modelling.core.physics.arrays`) -- for a batch of one. The exported step therefore equals
+the numpy step of the model to rounding (test: 1e-9 on a held-out flight).
+
+Layout (:data:`STATE`, :func:`input_names`, :data:`DISTURBANCE`), SI units, N = NED, B = FRD:
+
+* state x (22): position p_N [m], velocity v_N [m/s], attitude R = R_N<-B (9, row-major: ``rot_ij`` = R[i, j]),
+  body rates ω = (p, q, r) [rad/s], rotor speeds Ω_1..4 [rad/s] (command order);
+* input u: the four commands the rotors answer now [input unit] -- the command logged δ = ``rotor_delay`` earlier
+  (the model's command delay is not inside f: an MPC shifts its inputs by δ, docs/export.md) -- then, for a hybrid,
+  the four commands logged at this sample (the net's other input), then, with the ``battery`` term on, the battery
+  voltage V [V];
+* disturbance d (6), of the ``*_disturbed`` Functions only: the disturbance observer's constant accelerations
+  :math:`\hat d_v` [m/s², N] and :math:`\hat d_\omega` [rad/s², B] (:class:`~quad_modelling.core.models.physics.Observer`),
+  added to the rigid body's as in the model's predictions.
+
+Functions (:func:`casadi_functions`): ``f(x, u) -> xdot`` (:func:`~quad_modelling.core.physics.rigid_body.derivative`,
+d = 0), ``F(x, u, dt) -> x_next`` (:func:`~quad_modelling.core.physics.rigid_body.step`, d = 0: semi-implicit Euler
+with the exact rotor lag over ``dt`` [s], rates and speed limited as the model's), ``f_disturbed(x, u, d)`` and
+``F_disturbed(x, u, dt, d)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from quad_modelling.core.models.hybrid import HybridModel, load_hybrid
+from quad_modelling.core.models.physics import Observer
+from quad_modelling.core.physics import rigid_body
+from quad_modelling.core.physics.parameters import PhysicsParameters
+from quad_modelling.core.physics.rigid_body import PhysicsState
+from quad_modelling.core.physics.rotors import effective_commands
+from quad_modelling.core.vehicle import GRAVITY, PHYSICS_KEYS, VehicleConfig
+from quad_modelling.errors import ConfigError
+
+FORMAT_VERSION = 1
+"""Version of the export's layout (``layout.yaml``); bumped when the state or input layout changes."""
+
+STATE: tuple[tuple[str, str, str], ...] = (
+    *((f"pos_n_{a}", "m", f"position {a} in N (NED)") for a in "xyz"),
+    *((f"vel_n_{a}", "m/s", f"velocity {a} in N (NED)") for a in "xyz"),
+    *((f"rot_{i}{j}", "1", f"R_N<-B[{i - 1}, {j - 1}] (B = FRD to N = NED)") for i in (1, 2, 3) for j in (1, 2, 3)),
+    ("roll_rate", "rad/s", "body rate p about FRD x"), ("pitch_rate", "rad/s", "body rate q about FRD y"),
+    ("yaw_rate", "rad/s", "body rate r about FRD z"),
+    *((f"rotor_{i}", "rad/s", f"rotor {i}'s speed (command order)") for i in range(1, 5)),
+)
+"""The state x: (name, unit, meaning) of each element, in order (module docstring)."""
+
+DISTURBANCE: tuple[tuple[str, str, str], ...] = (
+    *((f"dist_acc_n_{a}", "m/s2", f"observer's linear acceleration {a} in N") for a in "xyz"),
+    *((f"dist_ang_acc_{a}", "rad/s2", f"observer's angular acceleration about FRD {a}") for a in "xyz"),
+)
+"""The disturbance d of the ``*_disturbed`` Functions (module docstring)."""
+
+FUNCTIONS: dict[str, str] = {
+    "f": "f(x, u) -> xdot: continuous dynamics, no disturbance",
+    "F": "F(x, u, dt) -> x_next: one step of dt seconds (semi-implicit Euler, exact rotor lag), no disturbance",
+    "f_disturbed": "f_disturbed(x, u, d) -> xdot: continuous dynamics with the observer's disturbance d",
+    "F_disturbed": "F_disturbed(x, u, dt, d) -> x_next: one step with the observer's disturbance d",
+}
+"""The exported Functions, each saved as ``NAME.casadi`` (casadi.Function.load)."""
+
+
+@dataclass(frozen=True)
+class ExportedModel:
+    """What an export holds: the vehicle's physics constants and terms, the hybrid's net (None: the physics model),
+    the observer the model anchors with, and the model spec as given (``physics`` or ``hybrid:FILE``)."""
+
+    vehicle: VehicleConfig
+    params: PhysicsParameters
+    observer: Observer
+    spec: str
+    hybrid: HybridModel | None = None
+
+
+def exportable_model(vehicle: VehicleConfig, hybrid_file: str | Path | None = None) -> ExportedModel:
+    """The model to export for ``vehicle`` (and the hybrid in ``hybrid_file``), refused in one line when the
+    vehicle lacks the physics constants, still holds starting values for constants to be identified
+    (:meth:`~quad_modelling.core.vehicle.VehicleConfig.never_identified`), or the model file is not a hybrid of
+    this vehicle and its constants (:func:`~quad_modelling.core.models.hybrid.load_hybrid`)."""
+    params = PhysicsParameters.from_vehicle(vehicle)
+    never = vehicle.never_identified(PHYSICS_KEYS)
+    if never:
+        raise ConfigError(f"{vehicle.path}: never identified: the physics constants {', '.join(never)} hold starting values "
+                          f"(status identified, but no identification record names them); export a vehicle file written by "
+                          f"`quad-modelling identify FLIGHTS --vehicle {vehicle.name} -o FILE`")
+    if hybrid_file is None:
+        return ExportedModel(vehicle, params, Observer.from_vehicle(vehicle), "physics")
+    hybrid = load_hybrid(hybrid_file, vehicle)
+    return ExportedModel(vehicle, params, hybrid.observer, f"hybrid:{hybrid_file}", hybrid)
+
+
+def input_names(model: ExportedModel) -> tuple[tuple[str, str, str], ...]:
+    """The input u: (name, unit, meaning) of each element, in order (module docstring)."""
+    unit = model.vehicle.input_unit
+    names = [(f"u_{i}", unit, f"command rotor {i} answers now: the logged commands at t - rotor_delay") for i in range(1, 5)]
+    if model.hybrid is not None:
+        names += [(f"u_logged_{i}", unit, f"command of rotor {i} logged at this sample (the net's input)") for i in range(1, 5)]
+    if model.params.battery is not None:
+        names.append(("battery_voltage", "V", "measured battery voltage (battery term)"))
+    return tuple(names)
+
+
+def symbolic_state(x) -> PhysicsState:
+    """A batch-of-one :class:`PhysicsState` of symbolic arrays from a CasADi column ``x`` (22) in :data:`STATE` order."""
+    e = _elements(x)
+    return PhysicsState(e[None, 0:3], e[None, 3:6], e[6:15].reshape(1, 3, 3), e[None, 15:18], e[None, 18:22], np.zeros(1))
+
+
+def _elements(column) -> np.ndarray:
+    """The scalars of a CasADi column as a symbolic array (:mod:`quad_modelling.core.physics.arrays`)."""
+    return np.array([column[i] for i in range(column.shape[0])], dtype=object)
+
+
+def _column(parts):
+    """One CasADi column of the symbolic (or float) arrays ``parts``, flattened row-major in order."""
+    import casadi
+
+    return casadi.vertcat(*(element for part in parts for element in np.asarray(part, dtype=object).ravel()))
+
+
+def _dynamics(model: ExportedModel, x, u, d, dt=None):
+    """x_next of one step of ``dt`` (None: dx/dt) as a CasADi column, from the one physics (module docstring)."""
+    state = symbolic_state(x)
+    inputs = _elements(u)
+    voltage = inputs[-1:] if model.params.battery is not None else None
+    commands = effective_commands(model.params, inputs[None, 0:4], voltage)
+    disturbance = _elements(d)[None, :]
+    linear, angular = disturbance[:, 0:3], disturbance[:, 3:6]
+    if model.hybrid is not None:
+        correction = model.hybrid.correction(state, np.concatenate([commands, inputs[None, 4:8]], axis=1))
+        linear, angular = linear + correction[:, 0:3], angular + correction[:, 3:6]
+    if dt is None:
+        return _column(rigid_body.derivative(model.params, state, commands, linear, angular))
+    after = rigid_body.step(model.params, state, commands, np.array([dt], dtype=object), linear, angular)
+    return _column((after.pos_n, after.vel_n, after.rot, after.rates, after.rotor))
+
+
+def casadi_functions(model: ExportedModel) -> dict:
+    """The exported Functions (:data:`FUNCTIONS`) by name."""
+    import casadi
+
+    x = casadi.SX.sym("x", len(STATE))
+    u = casadi.SX.sym("u", len(input_names(model)))
+    d = casadi.SX.sym("d", len(DISTURBANCE))
+    dt = casadi.SX.sym("dt")
+    f_disturbed = casadi.Function("f_disturbed", [x, u, d], [_dynamics(model, x, u, d)], ["x", "u", "d"], ["xdot"])
+    step_disturbed = casadi.Function("F_disturbed", [x, u, dt, d], [_dynamics(model, x, u, d, dt)], ["x", "u", "dt", "d"], ["x_next"])
+    zero = casadi.SX.zeros(len(DISTURBANCE))
+    return {
+        "f": casadi.Function("f", [x, u], [f_disturbed(x, u, zero)], ["x", "u"], ["xdot"]),
+        "F": casadi.Function("F", [x, u, dt], [step_disturbed(x, u, dt, zero)], ["x", "u", "dt"], ["x_next"]),
+        "f_disturbed": f_disturbed,
+        "F_disturbed": step_disturbed,
+    }
+
+
+def terms_on(model: ExportedModel) -> list[str]:
+    """The physics-model terms the vehicle file switches on (:mod:`quad_modelling.core.physics.effects`; the
+    disturbance observer is not a term of f: it gives ``d``)."""
+    return [name for name, term in model.vehicle.effects.items() if term.on and name != "disturbance_observer"]
+
+
+def layout(model: ExportedModel) -> dict:
+    """The export's description (``layout.yaml``): what each Function computes, the state, input and disturbance
+    layout with units, and the constants a controller needs beside f (delay, command range, hover)."""
+    import casadi
+
+    p = model.params
+
+    def rows(entries):
+        return [{"name": name, "unit": unit, "meaning": meaning} for name, unit, meaning in entries]
+
+    return {
+        "format": "quad_modelling casadi export", "format_version": FORMAT_VERSION, "casadi_version": casadi.__version__,
+        "vehicle": model.vehicle.name, "vehicle_file": str(model.vehicle.path), "model": model.spec,
+        "terms_on": terms_on(model), "frames": "N = NED, B = FRD; SI units",
+        "functions": {name: {"file": f"{name}.casadi", "computes": text} for name, text in FUNCTIONS.items()},
+        "state": rows(STATE), "input": rows(input_names(model)), "disturbance": rows(DISTURBANCE),
+        "constants": {
+            "rotor_delay_s": float(p.delay), "input_min": float(p.input_min), "input_max": float(p.input_max),
+            "input_unit": model.vehicle.input_unit, "mass_kg": float(p.mass), "gravity_m_s2": GRAVITY,
+            "hover_command": float(p.hover_command(GRAVITY)), "hover_rotor_speed_rad_s": float(p.hover_rotor_speed(GRAVITY)),
+        },
+        "observer": {"linear_history_s": model.observer.linear_s, "angular_history_s": model.observer.angular_s,
+                     "angular_trim": model.observer.angular_trim},
+    }
+
+
+def write_casadi_export(model: ExportedModel, directory: Path) -> dict:
+    """Write the Functions (``NAME.casadi``, casadi.Function.save) and ``layout.yaml`` into the new ``directory``
+    (the caller's staging path: it writes atomically); returns the layout."""
+    import yaml
+
+    directory = Path(directory)
+    directory.mkdir()
+    for name, function in casadi_functions(model).items():
+        function.save(str(directory / f"{name}.casadi"))
+    description = layout(model)
+    (directory / "layout.yaml").write_text(yaml.safe_dump(description, sort_keys=False, allow_unicode=True))
+    return description
