@@ -80,7 +80,7 @@ from quad_modelling.core.identification.physics_terms import (
 from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, rotor_speeds
 from quad_modelling.core.physics.parameters import PHYSICS_UNITS, PhysicsParameters
-from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
+from quad_modelling.core.vehicle import AIRFRAME_OF, PHYSICS_KEYS, VehicleConfig, effective_source
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
 from quad_modelling.errors import ConfigError, DataError
 
@@ -111,7 +111,7 @@ DRAG_MAX_FACTOR = 100.0
 """The rotor drag is bounded to [0, 100 x start]; its arm to ±10 x max(|start|, arm_length / 10)."""
 
 FITTED = ("rotor_time_constant", "rotor_delay", "rotor_thrust_constant", "rotor_torque_constant", "rotor_drag_xy",
-          "rotor_drag_z", "rotor_drag_arm", "physics_ixx", "physics_iyy")
+          "rotor_drag_z", "rotor_drag_arm", "effective_ixx", "effective_iyy")
 """The physics constants ``identify`` fits (the speed map k_u, Ω_off and I_zz are held)."""
 
 CHANNELS = ("velocity", "roll", "pitch", "yaw")
@@ -150,7 +150,7 @@ class PhysicsFit:
         return base.with_values(**terms,
             time_constant=v["rotor_time_constant"], delay=v["rotor_delay"], thrust_constant=v["rotor_thrust_constant"],
             torque_constant=v["rotor_torque_constant"], drag=(v["rotor_drag_xy"], v["rotor_drag_xy"], v["rotor_drag_z"]),
-            drag_arm=v["rotor_drag_arm"], inertia=(v["physics_ixx"], v["physics_iyy"], base.inertia[2]))
+            drag_arm=v["rotor_drag_arm"], inertia=(v["effective_ixx"], v["effective_iyy"], base.inertia[2]))
 
     def to_dict(self) -> dict:
         return {key: {"value": self.values[key], "sigma": self.sigma[key], "unit": PHYSICS_UNITS[key],
@@ -417,7 +417,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
              "rotor_drag_z": np.sqrt(fit["velocity"]["cov"][2, 2])}
     d_xy, d_xy_sd = values["rotor_drag_xy"], sigma["rotor_drag_xy"]
     arms = []
-    for key, channel in (("physics_ixx", "roll"), ("physics_iyy", "pitch")):
+    for key, channel in (("effective_ixx", "roll"), ("effective_iyy", "pitch")):
         (alpha, b), cov = fit[channel]["coef"][:2], fit[channel]["cov"]
         alpha_sd, b_sd = np.sqrt(cov[0, 0]), np.sqrt(cov[1, 1])
         values[key] = kf / alpha if alpha != 0 else float("nan")
@@ -437,7 +437,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     sigma["rotor_time_constant"] = _tau_sigma(p, segments, tau, delay, observer, thin, {c: fit[c]["s2"] for c in CHANNELS}, design)
     sigma["rotor_delay"] = (1.0 / rate) / np.sqrt(12.0)
 
-    start = {key: float(vehicle.value(key)) for key in FITTED}
+    start = {key: float(vehicle.effective_value(key)) for key in FITTED}
     bounds = {key: (start[key] / BOUNDS_FACTOR, start[key] * BOUNDS_FACTOR) for key in FITTED}
     bounds["rotor_time_constant"] = TIME_CONSTANT_RANGE_S
     bounds["rotor_delay"] = (0.0, DELAY_MAX_S)
@@ -531,13 +531,15 @@ def add_physics_constants(document: dict, fit: PhysicsFit | None, note: str, sou
     for estimate in fit.estimates():
         if estimate.name not in FITTED:
             continue  # a term's parameter: the effects section below
-        entry = document["constants"][estimate.name]
+        entry = document["constants"].setdefault(estimate.name, {"value": estimate.value, "unit": estimate.unit, "source": "the airframe's", "status": "effective"})
         if estimate.held:
             entry["source"] = f"{entry['source']}; kept: {estimate.held}"
             continue
         entry.update(value=estimate.value, source=source, sigma=estimate.sigma)
+        if estimate.name in AIRFRAME_OF:
+            entry["source"] = effective_source(source, estimate.value, document["constants"][AIRFRAME_OF[estimate.name]]["value"], AIRFRAME_OF[estimate.name])
         if estimate.at_bound:
-            entry["source"] = f"{source}; AT BOUND {list(estimate.bounds)} {estimate.unit}"
+            entry["source"] = f"{entry['source']}; AT BOUND {list(estimate.bounds)} {estimate.unit}"
     identification.setdefault("constants", {}).update({e.name: e.as_dict() for e in fit.estimates()})
     identification["physics"] = _plain(fit.to_dict())
     if fit.terms:

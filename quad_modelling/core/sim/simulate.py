@@ -187,7 +187,7 @@ def run_simulation(
     delay_steps = int(round(params.input_delay * params.physics_rate)) if "input_delay" in effects else 0
     i_prop_over_izz = dynamics.prop_inertia / float(dynamics.inertia[2])
     yaw_signs = [float(v) for v in dynamics.yaw_signs]
-    drag_constant = dynamics.drag_constant
+    torque_constant = dynamics.torque_constant
     airborne_height = dynamics.rest_height + 0.03
     touchdown_window = script.land_start + 0.5 * script.descent_time
 
@@ -229,7 +229,7 @@ def run_simulation(
                 u = [stabiliser.u_idle] * 4 if phase == PHASE_IDLE else [stabiliser.u_off] * 4
             commands[k] = u
             if battery_on:
-                current = drag_constant * sum(o * o * o for o in s[13:17]) / (battery.efficiency * voltage) + battery.avionics_current
+                current = torque_constant * sum(o * o * o for o in s[13:17]) / (battery.efficiency * voltage) + battery.avionics_current
                 soc -= current * dt_tick / (3600.0 * battery.capacity_ah)
                 voltage = open_circuit_voltage(soc, battery.cells) - current * battery.internal_resistance
             voltages[k] = voltage
