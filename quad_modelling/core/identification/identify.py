@@ -105,7 +105,7 @@ class IdentificationResult:
             value, airframe = self.physics.values.get(key), self.airframe.get(airframe_key)
             if value is not None and airframe:
                 lines.append(f"  {key} {value:.3g} kg m2 = {value / airframe:.2f} x the airframe's {airframe_key} {airframe:.3g} "
-                             f"(effective: what the physics fit needs)")
+                             f"(effective value)")
         return lines
 
 
