@@ -168,3 +168,18 @@ def test_load_by_path(tmp_path):
     path = Path(tmp_path / "mine.yaml")
     path.write_text((vehicle_dir() / "crazyflie21.yaml").read_text())
     assert load_vehicle(path).name == "crazyflie21"
+
+
+def test_a_constant_may_carry_its_sigma_and_a_bad_one_is_named():
+    doc = _doc()
+    doc["constants"]["mass"]["sigma"] = 0.005
+    doc["constants"]["izz"]["sigma"] = float("nan")  # not determined
+    cfg = VehicleConfig.from_dict(doc, "doc")
+    assert cfg.constants["mass"].sigma == 0.005 and np.isnan(cfg.constants["izz"].sigma)
+    assert cfg.constants["ixx"].sigma is None
+    doc["constants"]["mass"]["sigma"] = -1.0
+    with pytest.raises(ConfigError, match=r"^doc: constants.mass.sigma must be a finite number >= 0 \(or .nan: not determined\), got -1$"):
+        VehicleConfig.from_dict(doc, "doc")
+    doc["constants"]["mass"]["sigma"] = "big"
+    with pytest.raises(ConfigError, match=r"^doc: constants.mass.sigma is not a number: 'big'$"):
+        VehicleConfig.from_dict(doc, "doc")
