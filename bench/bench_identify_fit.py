@@ -84,7 +84,7 @@ def fits(log, vehicle, variant: bool) -> list[dict]:
         meas = held_out.measured[:, held_out.warm :][:, :, COLUMNS]
         rel = np.sqrt(np.mean((meas - pred) ** 2, axis=(0, 1))) / np.sqrt(np.mean(meas**2, axis=(0, 1)))
         v, s = fit.values, fit.sigma
-        rows.append({"span": span, **{k: v[k] for k in ("motor_a_m", "motor_b_m", "drag_constant", "arm_scale", "rotor_reaction_scale")},
+        rows.append({"span": span, **{k: v[k] for k in ("motor_a_m", "motor_b_m", "torque_constant", "arm_scale", "rotor_reaction_scale")},
                      "sigma": s, "at_bound": fit.fit["at_bound"], "held": fit.fit["held"],
                      "held_out_relative_rms": dict(zip(greybox_fit.FITTED_VARIABLES, rel.round(3).tolist()))})
     return rows
@@ -116,7 +116,7 @@ def main() -> None:
             flag = {name: " (bound)" if b.get(key) else "" for name, key in (("arm", "arm_scale"), ("kr", "rotor_reaction_scale"))}
             rel = "/".join(f"{x:.2f}" for x in r["held_out_relative_rms"].values())
             lines.append(f"| {label} | {r['span']} | {r['motor_a_m']:.1f} ± {s['motor_a_m']:.2g} | {r['motor_b_m']:.3f} ± {s['motor_b_m']:.2g} "
-                         f"| {r['drag_constant']:.2e} | {r['arm_scale']:.2f}{flag['arm']} | {r['rotor_reaction_scale']:.3g}{flag['kr']} | {rel} |")
+                         f"| {r['torque_constant']:.2e} | {r['arm_scale']:.2f}{flag['arm']} | {r['rotor_reaction_scale']:.3g}{flag['kr']} | {rel} |")
     lines += ["", "| coherence | 0-1.2 Hz | 2-10 Hz | 10-20 Hz |", "|---|---|---|---|"]
     lines += [f"| {name} | {c['0-1.2 Hz']:.2f} | {c['2-10 Hz']:.2f} | {c['10-20 Hz']:.2f} |" for name, c in data["coherence"].items()]
     lines += ["", READING]

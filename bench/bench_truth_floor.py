@@ -89,7 +89,7 @@ def true_constant_physics(flight: Path, identified: Path) -> dict:
             speed_gain=k_u, speed_offset=-k_u * truth.esc.zero_speed_input,
             time_constant=truth.motor_time_constant if "motor_lag" in effects else 0.0,
             delay=truth.input_delay if "input_delay" in effects else 0.0,
-            thrust_constant=constants.value("thrust_constant"), torque_constant=constants.value("drag_constant"),
+            thrust_constant=constants.value("rotor_thrust_constant"), torque_constant=constants.value("rotor_torque_constant"),
             drag=drag, drag_arm=truth.geometry.rotor_plane_z if "rotor_drag" in effects else 0.0)
         models.append(model)
     return multistep_evaluation([resample_uniform(log)], models, vehicle, EvaluationConfig())

@@ -15,8 +15,9 @@ import importlib
 import os
 import signal
 import sys
+import warnings
 
-from quad_modelling.errors import QuadModellingError
+from quad_modelling.errors import QuadModellingError, VehicleKeyWarning
 
 VERB_MODULES = (
     "convert",
@@ -83,8 +84,24 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line_warnings(verb: str):
+    """A ``warnings.showwarning`` that prints the project's warnings (:class:`VehicleKeyWarning`) as one line
+    ``quad-modelling VERB: warning: ...`` on stderr, once per message; others as Python would."""
+    default = warnings.showwarning
+
+    def show(message, category, filename, lineno, file=None, line=None):
+        if issubclass(category, VehicleKeyWarning):
+            print(f"quad-modelling {verb}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+        else:
+            default(message, category, filename, lineno, file, line)
+
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    previous_show = warnings.showwarning
+    warnings.showwarning = _one_line_warnings(args.verb)
     try:
         previous = signal.signal(signal.SIGTERM, _raise_interrupted)
     except ValueError:  # not the main thread: signals stay as they are
@@ -104,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"quad-modelling {args.verb}: interrupted ({signal.Signals(signum).name})", file=sys.stderr)
         return EXIT_INTERRUPTED[signum]
     finally:
+        warnings.showwarning = previous_show
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
 

@@ -21,6 +21,11 @@ class QuadModellingError(Exception):
         super().__init__(message, *args)
 
 
+class VehicleKeyWarning(FutureWarning):
+    """A vehicle file uses old key names, read as the new ones; the message (one line) names the file and each
+    old -> new key. The CLI prints it as one ``warning:`` line."""
+
+
 class DataError(QuadModellingError, ValueError):
     """A flight log, CSV, MATLAB file or bag holds data that cannot be used."""
 

@@ -1,29 +1,43 @@
 """VehicleConfig: one airframe's constants, loaded from ``config/vehicles/*.yaml``.
 
-Every constant in the YAML is a mapping ``{value, unit, source, status}`` where
-``status`` is ``measured`` (from the airframe or literature) or ``identified``
-(a starting value that ``quad-modelling identify`` refines from flight data). A file that
-``identify`` wrote records what it fitted in its ``identification`` section; a constant marked
-``identified`` that no such record names still holds its starting value
+One value per physical constant (``constants:``): mass, geometry, the airframe's inertias, the rotor inertia
+and the rotor constants of the one physics (:mod:`quad_modelling.core.physics`). Every entry is a mapping
+``{value, unit, source, status}`` with an optional ``sigma`` (1-sigma, same unit); ``status`` is ``measured``
+(from the airframe or literature), ``identified`` (a starting value that ``quad-modelling identify`` refines
+from flight data) or ``effective`` (a value that makes one model fit, not the airframe's: it stands in for
+something that model lacks). A file that ``identify`` wrote records what it fitted in its ``identification``
+section; a constant marked ``identified`` that no such record names still holds its starting value
 (:meth:`VehicleConfig.never_identified`: the CasADi export refuses to hand those to a controller).
 There are no silent defaults: a missing key is a ConfigError naming the file
 and key.
+
+Values named for what they are, both optional:
+
+* ``effective_ixx``/``effective_iyy`` (:data:`EFFECTIVE_KEYS`): the roll/pitch inertias the physics fit
+  identifies; absent, the physics model uses the airframe's ``ixx``/``iyy``;
+* a ``greybox:`` section (:data:`GREYBOX_KEYS`): the thesis greybox's own identified constants A_m, B_m, a, d
+  (e.g. thesis Table 3-1 for the LinkQuad, or what ``identify`` fits for the linear model); absent, the
+  greybox derives them from the physical constants (:meth:`VehicleConfig.greybox_constants`).
+
+Old key names (before one value per constant) are read with one warning line naming the file and each
+old -> new key (:data:`RENAMED_KEYS`, :data:`MOVED_TO_GREYBOX`).
 
 Motors are listed in command order (u1..u4); each has a position in the body
 frame FRD [m] and a spin direction seen from above. A rotor spinning
 counter-clockwise seen from above pushes the body clockwise, i.e. a positive
 yaw torque about the FRD z axis (down): ``yaw_sign = +1``; clockwise: ``-1``.
 
-Thrust and drag torque per rotor (thesis Eq 3-3, 3-13):
+Thrust and yaw torque per rotor (thesis Eq 3-3, 3-13; :mod:`quad_modelling.core.physics.rotors`):
 
 .. math::
 
-    T_i = a \\Omega_i^2, \\qquad Q_i = d \\Omega_i^2, \\qquad
-    \\Omega_0 = \\sqrt{m g / (4 a)}
+    T_i = k_f \\Omega_i^2, \\qquad Q_i = k_m \\Omega_i^2, \\qquad
+    \\Omega_0 = \\sqrt{m g / (4 k_f)}
 """
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -31,8 +45,8 @@ import numpy as np
 
 from quad_modelling.core.input_files import read_yaml
 from quad_modelling.core.physics.effects import EffectTerm, effects_document, parse_effects
-from quad_modelling.core.physics.rotors import hover_rotor_speed
-from quad_modelling.errors import ConfigError
+from quad_modelling.core.physics.rotors import hover_rotor_speed, linear_motor
+from quad_modelling.errors import ConfigError, VehicleKeyWarning
 
 GRAVITY = 9.81
 """Local gravity used by the models [m/s²] (thesis value, Eq 3-10)."""
@@ -67,12 +81,15 @@ CONSTANT_KEYS = (
     "iyy",
     "izz",
     "prop_inertia",
-    "motor_a_m",
-    "motor_b_m",
-    "thrust_constant",
-    "drag_constant",
+    "rotor_speed_gain",
+    "rotor_speed_offset",
+    "rotor_time_constant",
+    "rotor_thrust_constant",
+    "rotor_torque_constant",
 )
-"""Constants every vehicle file must give (thesis Table 3-1 names; docs/formats.md, vehicle configs)."""
+"""Physical constants every vehicle file must give (docs/formats.md, vehicle configs): mass, arm, the airframe's
+inertias, rotor inertia, the command-to-rotor-speed map Ω_ss = k_u u + Ω_off, the rotor time constant τ_m and
+the thrust and yaw-torque constants k_f, k_m (T = k_f Ω², Q = k_m Ω²)."""
 
 PHYSICS_KEYS = (
     "rotor_speed_gain",
@@ -84,16 +101,32 @@ PHYSICS_KEYS = (
     "rotor_drag_xy",
     "rotor_drag_z",
     "rotor_drag_arm",
-    "physics_ixx",
-    "physics_iyy",
 )
-"""Constants of the nonlinear physics model (:mod:`quad_modelling.core.physics.parameters`), optional in a
-vehicle file (validated when present; the ``physics`` model names the missing ones): the motor map
-Ω_ss = k_u u + Ω_off, the rotor time constant τ_m and command delay δ, thrust/torque k_f, k_m (T = k_f Ω², Q = k_m Ω²), the linear
-rotor drag d_xy, d_z and its arm h_d (FRD z of where it acts) and the roll/pitch inertias the physics model uses (identified separately from the
-thesis's ``ixx``/``iyy``, which the linear greybox keeps)."""
+"""Constants of the nonlinear physics model (:mod:`quad_modelling.core.physics.parameters`); those not in
+:data:`CONSTANT_KEYS` are optional in a vehicle file (validated when present; the ``physics`` model names the
+missing ones): the command delay δ, the linear rotor drag d_xy, d_z and its arm h_d (FRD z of where it acts)."""
 
-STATUSES = ("measured", "identified")
+EFFECTIVE_KEYS = ("effective_ixx", "effective_iyy")
+"""Optional effective values (status ``effective``): the roll/pitch inertias the physics fit identifies, which stand
+in for what the physics model lacks (docs/models.md, effective inertia); absent, the physics model uses the
+airframe's ``ixx``/``iyy``."""
+
+AIRFRAME_OF = {"effective_ixx": "ixx", "effective_iyy": "iyy"}
+"""The airframe constant each effective value stands in for."""
+
+GREYBOX_KEYS = ("motor_a_m", "motor_b_m", "thrust_constant", "torque_constant")
+"""The thesis greybox's constants (thesis Table 3-1 symbols A_m, B_m, a, d) in a vehicle file's optional
+``greybox:`` section: the linear model's own identified (effective) values. Absent, they are derived from the
+physical constants (:meth:`VehicleConfig.greybox_constants`)."""
+
+RENAMED_KEYS = {"physics_ixx": "effective_ixx", "physics_iyy": "effective_iyy"}
+"""Old ``constants`` keys read as new ``constants`` keys (with one warning line)."""
+
+MOVED_TO_GREYBOX = {"motor_a_m": "motor_a_m", "motor_b_m": "motor_b_m", "thrust_constant": "thrust_constant",
+                    "drag_constant": "torque_constant"}
+"""Old ``constants`` keys (the thesis greybox's, next to the physical ones) read as ``greybox`` section keys."""
+
+STATUSES = ("measured", "identified", "effective")
 
 CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
     "mass": (0.0, 1000.0, "kg"),
@@ -102,10 +135,6 @@ CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
     "iyy": (0.0, 1000.0, "kg m2"),
     "izz": (0.0, 1000.0, "kg m2"),
     "prop_inertia": (0.0, 10.0, "kg m2"),
-    "motor_a_m": (-1.0e5, 0.0, "1/s"),
-    "motor_b_m": (0.0, np.inf, "per input unit"),
-    "thrust_constant": (0.0, 1.0, "N s2/rad2"),
-    "drag_constant": (0.0, 1.0, "N m s2/rad2"),
     "rotor_speed_gain": (0.0, np.inf, "rad/s per input unit"),
     "rotor_speed_offset": (-1.0e5, 1.0e5, "rad/s"),
     "rotor_time_constant": (0.0, 10.0, "s"),
@@ -115,8 +144,12 @@ CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
     "rotor_drag_xy": (0.0, 1.0, "N s/(m rad)"),
     "rotor_drag_z": (0.0, 1.0, "N s/(m rad)"),
     "rotor_drag_arm": (-10.0, 10.0, "m"),
-    "physics_ixx": (0.0, 1000.0, "kg m2"),
-    "physics_iyy": (0.0, 1000.0, "kg m2"),
+    "effective_ixx": (0.0, 1000.0, "kg m2"),
+    "effective_iyy": (0.0, 1000.0, "kg m2"),
+    "motor_a_m": (-1.0e5, 0.0, "1/s"),
+    "motor_b_m": (0.0, np.inf, "rad/s2 per input unit"),
+    "thrust_constant": (0.0, 1.0, "N s2/rad2"),
+    "torque_constant": (0.0, 1.0, "N m s2/rad2"),
 }
 """Open interval (low, high) each constant must lie in, and its unit: positive masses, lengths, inertias and
 rotor constants, a stable motor pole (negative, faster than 10 us), nothing beyond what a multirotor of up
@@ -135,6 +168,8 @@ class Constant:
     unit: str
     source: str
     status: str
+    sigma: float | None = None
+    """1-sigma in ``unit`` when the file gives one (NaN: not determined)."""
 
 
 @dataclass(frozen=True)
@@ -164,6 +199,8 @@ class VehicleConfig:
     fitted: frozenset[str] = frozenset()
     """The constants the file's ``identification`` record names (``identification.constants``: what
     ``quad-modelling identify`` fitted, or held and said why); empty for a hand-written file."""
+    greybox: dict[str, Constant] = field(default_factory=dict)
+    """The file's ``greybox:`` section (:data:`GREYBOX_KEYS`), empty when the greybox derives its constants."""
 
     def value(self, key: str) -> float:
         """The numeric value of a constant, e.g. ``cfg.value('mass')``."""
@@ -183,8 +220,8 @@ class VehicleConfig:
 
     @property
     def hover_rotor_speed(self) -> float:
-        """Ω0 = sqrt(m g / (4 a)) [rad/s] (:func:`~quad_modelling.core.physics.rotors.hover_rotor_speed`)."""
-        return hover_rotor_speed(self.mass, self.value("thrust_constant"), GRAVITY)
+        """Ω0 = sqrt(m g / (4 k_f)) [rad/s] (:func:`~quad_modelling.core.physics.rotors.hover_rotor_speed`)."""
+        return hover_rotor_speed(self.mass, self.value("rotor_thrust_constant"), GRAVITY)
 
     @property
     def motor_positions(self) -> np.ndarray:
@@ -200,6 +237,52 @@ class VehicleConfig:
     def inertia(self) -> np.ndarray:
         """Diagonal inertia (Ixx, Iyy, Izz) [kg m²]."""
         return np.array([self.value("ixx"), self.value("iyy"), self.value("izz")])
+
+    def effective_value(self, key: str) -> float:
+        """The value a model fits for ``key``: an :data:`EFFECTIVE_KEYS` value the file lacks is the airframe's
+        (``effective_ixx`` -> ``ixx``); any other key as :meth:`value`."""
+        if key in AIRFRAME_OF and key not in self.constants:
+            return self.value(AIRFRAME_OF[key])
+        return self.value(key)
+
+    def greybox_constants(self) -> dict[str, Constant]:
+        """The thesis greybox's A_m [1/s], B_m [rad/s² per input unit], a [N s²/rad²], d [N m s²/rad²]
+        (:data:`GREYBOX_KEYS`): the ``greybox:`` section when the file has one, else derived from the physical
+        constants -- A_m = -1/τ_m, B_m = k_u/τ_m (:func:`~quad_modelling.core.physics.rotors.linear_motor`),
+        a = k_f, d = k_m. ConfigError when a derivation needs τ_m > 0 and the file has 0."""
+        if self.greybox:
+            return dict(self.greybox)
+        tau = self.constants["rotor_time_constant"]
+        if not tau.value > 0:
+            raise ConfigError(f"{self.path}: the linear greybox needs constants.rotor_time_constant > 0 (its motor pole "
+                              f"A_m = -1/tau_m) or a greybox section with motor_a_m")
+        gain = self.constants["rotor_speed_gain"]
+        a_m, b_m = linear_motor(tau.value, gain.value)
+        thrust, torque = self.constants["rotor_thrust_constant"], self.constants["rotor_torque_constant"]
+        status = "identified" if "identified" in (tau.status, gain.status) else "measured"
+        return {
+            "motor_a_m": Constant(a_m, "1/s", "derived: -1/rotor_time_constant", tau.status),
+            "motor_b_m": Constant(b_m, f"rad/s2 per {self.input_unit}", "derived: rotor_speed_gain/rotor_time_constant", status),
+            "thrust_constant": Constant(thrust.value, thrust.unit, "derived: rotor_thrust_constant", thrust.status),
+            "torque_constant": Constant(torque.value, torque.unit, "derived: rotor_torque_constant", torque.status),
+        }
+
+    def greybox_value(self, key: str) -> float:
+        """One of :meth:`greybox_constants` by key (e.g. ``'motor_a_m'``)."""
+        try:
+            return self.greybox_constants()[key].value
+        except KeyError as err:
+            raise ConfigError(f"{self.path}: vehicle {self.name} has no greybox constant {key!r}") from err
+
+    def with_greybox(self, values: dict[str, float], source: str) -> VehicleConfig:
+        """A copy whose ``greybox:`` section holds :meth:`greybox_constants` with some replaced (e.g. identified)."""
+        section = self.greybox_constants()
+        for key, value in values.items():
+            if key not in section:
+                raise ConfigError(f"{self.path}: cannot set unknown greybox constant {key!r} (known: {', '.join(GREYBOX_KEYS)})")
+            check_constant(key, float(value), f"{self.path} ({source})", "greybox")
+            section[key] = Constant(float(value), section[key].unit, source, "effective")
+        return replace(self, greybox=section)
 
     def missing(self, keys) -> list[str]:
         """Those of ``keys`` this vehicle file does not give (e.g. :data:`PHYSICS_KEYS`)."""
@@ -219,6 +302,8 @@ class VehicleConfig:
         constants = dict(self.constants)
         for key, value in values.items():
             old = self.constants.get(key)
+            if old is None and key in AIRFRAME_OF:
+                old = Constant(self.value(AIRFRAME_OF[key]), self.constants[AIRFRAME_OF[key]].unit, source, "effective")
             if old is None:
                 raise ConfigError(f"{self.path}: cannot set unknown constant {key!r}")
             check_constant(key, float(value), f"{self.path} ({source})")
@@ -248,20 +333,25 @@ class VehicleConfig:
         if geometry not in ("plus", "x"):
             raise ConfigError(f"{where}: geometry must be 'plus' or 'x', got {geometry!r}")
         constants_doc = need(doc, "constants", "")
-        constants: dict[str, Constant] = {}
-        optional = [k for k in PHYSICS_KEYS if isinstance(constants_doc, dict) and k in constants_doc]
-        for key in (*CONSTANT_KEYS, *optional):
-            entry = need(constants_doc, key, "constants.")
-            for sub in ("value", "unit", "source", "status"):
-                need(entry, sub, f"constants.{key}.")
-            if entry["status"] not in STATUSES:
-                raise ConfigError(f"{where}: constants.{key}.status must be one of {STATUSES}, got {entry['status']!r}")
-            try:
-                value = float(entry["value"])
-            except (TypeError, ValueError) as err:
-                raise ConfigError(f"{where}: constants.{key}.value is not a number: {str(entry['value'])[:40]!r}") from err
-            check_constant(key, value, where)
-            constants[key] = Constant(value, str(entry["unit"]), str(entry["source"]), entry["status"])
+        if not isinstance(constants_doc, dict):
+            raise ConfigError(f"{where}: constants must be a mapping of constant name to {{value, unit, source, status}}")
+        greybox_doc = doc.get("greybox") or {}
+        if not isinstance(greybox_doc, dict):
+            raise ConfigError(f"{where}: greybox must be a mapping of {', '.join(GREYBOX_KEYS)} to {{value, unit, source, status}}")
+        constants_doc, greybox_doc, old = _read_old_keys(constants_doc, greybox_doc, where)
+        optional = [k for k in (*PHYSICS_KEYS, *EFFECTIVE_KEYS) if k in constants_doc and k not in CONSTANT_KEYS]
+        for key in CONSTANT_KEYS:
+            if key not in constants_doc and old:
+                raise ConfigError(f"{where}: missing required key constants.{key} (an old vehicle file: its "
+                                  f"{', '.join(old)} are the greybox section's now; the physical rotor constants "
+                                  f"{', '.join(k for k in CONSTANT_KEYS if k.startswith('rotor_'))} are required, docs/formats.md)")
+        constants = {key: _constant(need(constants_doc, key, "constants."), key, "constants", where, need)
+                     for key in (*CONSTANT_KEYS, *optional)}
+        unknown = sorted(set(greybox_doc) - set(GREYBOX_KEYS))
+        if unknown:
+            raise ConfigError(f"{where}: greybox.{unknown[0]} is not a greybox constant (known: {', '.join(GREYBOX_KEYS)})")
+        greybox = {key: _constant(need(greybox_doc, key, "greybox."), key, "greybox", where, need)
+                   for key in GREYBOX_KEYS if greybox_doc}
         motors_doc = need(doc, "motors", "")
         if not isinstance(motors_doc, list) or len(motors_doc) != 4:
             raise ConfigError(f"{where}: motors must list exactly 4 rotors in command order u1..u4")
@@ -308,6 +398,7 @@ class VehicleConfig:
             path=where,
             effects=parse_effects(doc.get("effects"), where),
             fitted=_fitted_constants(doc.get("identification"), where),
+            greybox=greybox,
         )
 
 
@@ -321,11 +412,54 @@ def _fitted_constants(record, where: str) -> frozenset[str]:
     return frozenset(str(k) for k in fitted)
 
 
-def check_constant(key: str, value: float, where: str) -> None:
-    """ConfigError naming ``where`` and ``constants.<key>.value`` unless the value is finite and inside
+def _constant(entry, key: str, section: str, where: str, need) -> Constant:
+    """One ``{value, unit, source, status[, sigma]}`` entry of ``section`` validated (ConfigError naming the key)."""
+    for sub in ("value", "unit", "source", "status"):
+        need(entry, sub, f"{section}.{key}.")
+    if entry["status"] not in STATUSES:
+        raise ConfigError(f"{where}: {section}.{key}.status must be one of {STATUSES}, got {entry['status']!r}")
+    try:
+        value = float(entry["value"])
+    except (TypeError, ValueError) as err:
+        raise ConfigError(f"{where}: {section}.{key}.value is not a number: {str(entry['value'])[:40]!r}") from err
+    check_constant(key, value, where, section)
+    sigma = entry.get("sigma")
+    if sigma is not None:
+        try:
+            sigma = float(sigma)
+        except (TypeError, ValueError) as err:
+            raise ConfigError(f"{where}: {section}.{key}.sigma is not a number: {str(sigma)[:40]!r}") from err
+        if sigma < 0 or np.isinf(sigma):
+            raise ConfigError(f"{where}: {section}.{key}.sigma must be a finite number >= 0 (or .nan: not determined), got {sigma:g}")
+    return Constant(value, str(entry["unit"]), str(entry["source"]), entry["status"], sigma)
+
+
+def _read_old_keys(constants_doc: dict, greybox_doc: dict, where: str) -> tuple[dict, dict, list[str]]:
+    """(constants, greybox section, old keys found) with the old key names read as the new ones
+    (:data:`RENAMED_KEYS`, :data:`MOVED_TO_GREYBOX`) and one :class:`VehicleKeyWarning` line naming ``where`` and
+    each old -> new key; ConfigError when a file gives both an old key and its replacement."""
+    old = [k for k in constants_doc if k in RENAMED_KEYS or k in MOVED_TO_GREYBOX]
+    if not old:
+        return constants_doc, greybox_doc, old
+    constants_doc, greybox_doc = dict(constants_doc), dict(greybox_doc)
+    moves = []
+    for key in old:
+        section, new = ("constants", RENAMED_KEYS[key]) if key in RENAMED_KEYS else ("greybox", MOVED_TO_GREYBOX[key])
+        target = constants_doc if section == "constants" else greybox_doc
+        if new in target:
+            raise ConfigError(f"{where}: constants.{key} is the old name of {section}.{new}, and the file gives both; keep {section}.{new}")
+        target[new] = constants_doc.pop(key)
+        moves.append(f"constants.{key} -> {section}.{new}")
+    warnings.warn(VehicleKeyWarning(f"{where}: old vehicle keys read as the new ones (rename them, docs/formats.md): {', '.join(moves)}"),
+                  stacklevel=3)
+    return constants_doc, greybox_doc, old
+
+
+def check_constant(key: str, value: float, where: str, section: str = "constants") -> None:
+    """ConfigError naming ``where`` and ``<section>.<key>.value`` unless the value is finite and inside
     :data:`CONSTANT_RANGES`."""
     if not np.isfinite(value):
-        raise ConfigError(f"{where}: constants.{key}.value must be a finite number, got {value}")
+        raise ConfigError(f"{where}: {section}.{key}.value must be a finite number, got {value}")
     if key not in CONSTANT_RANGES:
         return
     low, high, unit = CONSTANT_RANGES[key]
@@ -340,7 +474,14 @@ def check_constant(key: str, value: float, where: str) -> None:
             rule = "must be positive"
         else:
             rule = f"must lie in {'[' if key in ZERO_ALLOWED else '('}{low:g}, {high:g}) {unit}"
-        raise ConfigError(f"{where}: constants.{key}.value {rule}, got {value:g}")
+        raise ConfigError(f"{where}: {section}.{key}.value {rule}, got {value:g}")
+
+
+def effective_source(source: str, value: float, airframe: float, airframe_key: str) -> str:
+    """The source text of an effective value (e.g. ``effective_ixx``): where it was fitted and its ratio to the
+    airframe's constant ``airframe_key``."""
+    return (f"effective value of the physics fit, {value / airframe:.2f} x the airframe's {airframe_key} {airframe:.4g} "
+            f"(stands in for what the physics model lacks, docs/models.md): {source}")
 
 
 def vehicle_file(name_or_path: str | Path | None) -> Path | None:
@@ -374,6 +515,12 @@ def vehicle_document(vehicle: VehicleConfig, description: str | None = None) -> 
         "geometry": vehicle.geometry,
         "motors": [{"name": m.name, "position": list(m.position), "spin": "ccw" if m.yaw_sign > 0 else "cw"} for m in vehicle.motors],
         "inputs": {"min": vehicle.input_min, "max": vehicle.input_max, "unit": vehicle.input_unit},
-        "constants": {k: {"value": c.value, "unit": c.unit, "source": c.source, "status": c.status} for k, c in vehicle.constants.items()},
+        "constants": {k: _constant_document(c) for k, c in vehicle.constants.items()},
+        **({"greybox": {k: _constant_document(c) for k, c in vehicle.greybox.items()}} if vehicle.greybox else {}),
         "effects": effects_document(vehicle.effects),
     }
+
+
+def _constant_document(c: Constant) -> dict:
+    entry = {"value": c.value, "unit": c.unit, "source": c.source, "status": c.status}
+    return entry if c.sigma is None else {**entry, "sigma": c.sigma}

@@ -111,7 +111,7 @@ def inputs(tmp_path_factory) -> Path:
         f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join([f'*{chr(97 + i)}'] * 9)}]\n" for i in range(9))
     (d / "bomb.yaml").write_text(bomb)
     (d / "nan_mass.yaml").write_text(_vehicle_text(mass=".nan"))
-    (d / "inf_thrust.yaml").write_text(_vehicle_text(thrust_constant=".inf"))
+    (d / "inf_thrust.yaml").write_text(_vehicle_text(rotor_thrust_constant=".inf"))
     (d / "heavy.yaml").write_text(_vehicle_text(mass="1.0e6"))
     (d / "huge.yaml").write_text(_vehicle_text() + "#" * (2 << 20) + "\n")
     (d / "linkquad_copy.yaml").write_text(_vehicle_text())
@@ -208,7 +208,7 @@ CORPUS = [
     ("vehicle-not-utf8", ["convert", "{d}/flight.mat", "--vehicle", "{d}/latin1.yaml", "-o", "{d}/work/b"], "{d}/latin1.yaml: vehicle config is not UTF-8 text (byte "),
     ("vehicle-alias-bomb", ["convert", "{d}/flight.mat", "--vehicle", "{d}/bomb.yaml", "-o", "{d}/work/b"], "{d}/bomb.yaml: vehicle config expands (through YAML aliases) to more than 100000 nodes"),
     ("vehicle-nan-mass", ["identify", "{d}/flight.mat", "--vehicle", "{d}/nan_mass.yaml", "-o", "{d}/work/v.yaml"], "{d}/nan_mass.yaml: constants.mass.value must be a finite number, got nan"),
-    ("vehicle-inf-thrust", ["identify", "{d}/flight.mat", "--vehicle", "{d}/inf_thrust.yaml", "-o", "{d}/work/v.yaml"], "constants.thrust_constant.value must be a finite number, got inf"),
+    ("vehicle-inf-thrust", ["identify", "{d}/flight.mat", "--vehicle", "{d}/inf_thrust.yaml", "-o", "{d}/work/v.yaml"], "constants.rotor_thrust_constant.value must be a finite number, got inf"),
     ("vehicle-out-of-range", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/heavy.yaml", "-o", "{d}/work/out"], "constants.mass.value must lie in (0, 1000) kg, got 1e+06"),
     ("vehicle-too-large", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/huge.yaml", "-o", "{d}/work/out"], "bytes, larger than the 1048576 read"),
     ("vehicle-fifo", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/fifo.yaml", "-o", "{d}/work/out"], "{d}/fifo.yaml: is a FIFO, not a regular file; give the vehicle config as a file"),

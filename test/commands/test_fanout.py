@@ -106,8 +106,8 @@ def test_identify_on_workers_identifies_the_serial_constants(flights, tmp_path):
         assert main(["identify", *flights, *SPANS, "-o", str(out), *extra]) == 0
         documents.append(yaml.safe_load(out.read_text()))
     serial = documents[0]
-    assert serial["constants"]["motor_a_m"]["value"] < 0  # a motor pole [1/s] was identified
-    assert documents[1]["constants"] == serial["constants"]
+    assert serial["greybox"]["motor_a_m"]["value"] < 0  # a motor pole [1/s] was identified
+    assert documents[1]["constants"] == serial["constants"] and documents[1]["greybox"] == serial["greybox"]
     assert documents[1]["identification"]["spans"] == serial["identification"]["spans"]
 
 

@@ -13,11 +13,11 @@ def test_identify_writes_loadable_vehicle(flights, tmp_path, capsys):
 
     identified = load(out)
     truth = load_vehicle("linkquad")
-    assert identified.value("motor_a_m") == pytest.approx(truth.value("motor_a_m"), rel=0.05)
-    assert identified.value("motor_b_m") == pytest.approx(truth.value("motor_b_m"), rel=0.05)
-    assert "identified on flight0.mat, flight1.mat spans 0%:60%" in identified.constants["motor_a_m"].source
+    assert identified.greybox_value("motor_a_m") == pytest.approx(truth.greybox_value("motor_a_m"), rel=0.05)
+    assert identified.greybox_value("motor_b_m") == pytest.approx(truth.greybox_value("motor_b_m"), rel=0.05)
+    assert "greybox fit identified on flight0.mat, flight1.mat spans 0%:60%" in identified.greybox["motor_a_m"].source
     doc = yaml.safe_load(out.read_text())
-    assert len(doc["identification"]["spans"]) == 2 and np.isfinite(doc["constants"]["motor_a_m"]["sigma"])
+    assert len(doc["identification"]["spans"]) == 2 and np.isfinite(doc["greybox"]["motor_a_m"]["sigma"])
     assert "motor order/spin check" in capsys.readouterr().out
 
 
@@ -32,12 +32,17 @@ def test_identify_on_the_bundled_bag_reports_constants_and_no_false_alarm(tmp_pa
     printed = capsys.readouterr().out
     assert all(len(line) <= 100 for line in printed.splitlines())
     assert "motor order/spin check: consistent with the config" in printed and "INCONSISTENT" not in printed
-    assert "  motor_b_m " in printed and "rad/s2 per PWM count (sigma " in printed and "vehicle 0.76: " in printed
+    derived = 0.04076521 / 0.05  # B_m = k_u / tau_m: the greybox's constant derived from the physical ones
+    assert "  motor_b_m " in printed and "rad/s2 per PWM (sigma " in printed and f"vehicle {derived:.3g}: " in printed
     doc = yaml.safe_load(out.read_text())
-    b_m = doc["constants"]["motor_b_m"]
-    assert b_m["vehicle_value"] == 0.76 and b_m["sigma"] > 0 and len(b_m["bounds"]) == 2
-    assert b_m["change_percent"] == pytest.approx(100 * (b_m["value"] - 0.76) / 0.76, abs=0.05)
-    assert b_m["source"].startswith("identified on nanobench_B7_oval_medium_rep2 spans 10:25") and "sigma" in b_m["source"]
+    b_m = doc["greybox"]["motor_b_m"]
+    assert b_m["vehicle_value"] == pytest.approx(derived, rel=1e-12) and b_m["sigma"] > 0 and len(b_m["bounds"]) == 2
+    assert b_m["change_percent"] == pytest.approx(100 * (b_m["value"] - derived) / derived, abs=0.05)
+    assert b_m["source"].startswith("greybox fit identified on nanobench_B7_oval_medium_rep2 spans 10:25") and "sigma" in b_m["source"]
+    assert b_m["status"] == "effective" and "motor_b_m" not in doc["constants"]
+    # the physics fit's roll/pitch inertias: effective values compared with the airframe's, which stay as they were
+    assert doc["constants"]["ixx"]["value"] == 1.657171e-5 and doc["constants"]["effective_ixx"]["status"] == "effective"
+    assert "effective_ixx " in printed and " x the airframe's ixx 1.66e-05 (effective value)" in printed
     fitted = doc["identification"]["constants"]
     assert fitted["arm_scale"]["at_bound"] == (fitted["arm_scale"]["value"] <= 0.3 * 1.001)
     for name, entry in fitted.items():  # every poorly determined constant has its one line (a held one says so in its entry)

@@ -4,13 +4,20 @@ import numpy as np
 import pytest
 import yaml
 
+from quad_modelling.cli import main
+from quad_modelling.core.models.greybox import GreyboxParameters
+from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.vehicle import (
+    CONSTANT_KEYS,
     GRAVITY,
+    GREYBOX_KEYS,
+    MOVED_TO_GREYBOX,
+    RENAMED_KEYS,
     VehicleConfig,
     load_vehicle,
     vehicle_dir,
 )
-from quad_modelling.errors import ConfigError
+from quad_modelling.errors import ConfigError, VehicleKeyWarning
 
 
 def test_linkquad_matches_thesis_table_3_1():
@@ -18,8 +25,10 @@ def test_linkquad_matches_thesis_table_3_1():
     assert cfg.geometry == "plus"
     assert cfg.mass == 1.2 and cfg.value("arm_length") == 0.215
     np.testing.assert_allclose(cfg.inertia, [9.56e-3, 9.85e-3, 15.2e-3])
-    # Omega_0 = sqrt(m g / 4a) with a = 1.59e-7
-    assert cfg.hover_rotor_speed == pytest.approx(np.sqrt(1.2 * GRAVITY / (4 * 1.59e-7)))
+    # the physical hover speed Omega_0 = sqrt(m g / 4 k_f), k_f = 1.0e-5: 542 rad/s
+    assert cfg.hover_rotor_speed == pytest.approx(np.sqrt(1.2 * GRAVITY / (4 * 1.0e-5)))
+    # the thesis greybox keeps Table 3-1's a = 1.59e-7 (its greybox section): Omega_0 = 4302 rad/s
+    assert GreyboxParameters.from_vehicle(cfg).hover_rotor_speed == pytest.approx(np.sqrt(1.2 * GRAVITY / (4 * 1.59e-7)))
     # thesis yaw sum (-1)^i T_i: rotors 1 and 3 negative, 2 and 4 positive
     np.testing.assert_array_equal(cfg.yaw_signs, [-1, 1, -1, 1])
     np.testing.assert_allclose(cfg.motor_positions, [[0.215, 0], [0, 0.215], [-0.215, 0], [0, -0.215]])
@@ -30,7 +39,77 @@ def test_crazyflie_is_an_x_frame_with_every_constant_sourced():
     assert cfg.geometry == "x" and cfg.input_max == 65535
     np.testing.assert_allclose(np.hypot(*cfg.motor_positions.T), 0.046, rtol=1e-3)
     assert all(c.source for c in cfg.constants.values())
-    assert {"motor_a_m", "motor_b_m", "thrust_constant", "drag_constant"} <= set(cfg.identified())
+    assert {"rotor_time_constant", "rotor_thrust_constant", "rotor_torque_constant"} <= set(cfg.identified())
+
+
+@pytest.mark.parametrize("name", ["crazyflie21", "linkquad", "px4_iris", "px4_iris_pwm"])
+def test_a_shipped_vehicle_gives_one_value_per_physical_constant(name, recwarn):
+    cfg = load_vehicle(name)
+    assert not [w for w in recwarn if issubclass(w.category, VehicleKeyWarning)]
+    assert set(CONSTANT_KEYS) <= set(cfg.constants)
+    assert not set(cfg.constants) & (set(GREYBOX_KEYS) | set(RENAMED_KEYS) | set(MOVED_TO_GREYBOX))
+    assert all(c.unit and c.source and c.status in ("measured", "identified") for c in cfg.constants.values())
+    # only the thesis reproduction carries the greybox's own identified values, named as such
+    assert bool(cfg.greybox) == (name == "linkquad")
+
+
+def _old_crazyflie(tmp_path, drop=()):
+    """The Crazyflie file as it was before one value per constant: the greybox's A_m, B_m, a, d next to the
+    physical rotor constants, and the physics fit's inertias as physics_ixx/iyy."""
+    doc = yaml.safe_load((vehicle_dir() / "crazyflie21.yaml").read_text())
+    old = {"motor_a_m": -20.0, "motor_b_m": 0.76, "thrust_constant": 2.88e-8, "drag_constant": 7.24e-10,
+           "physics_ixx": 8.4e-5, "physics_iyy": 7.4e-5}
+    for key, value in old.items():
+        doc["constants"][key] = {"value": value, "unit": "u", "source": "old file", "status": "identified"}
+    for key in drop:
+        del doc["constants"][key]
+    path = tmp_path / "old_crazyflie.yaml"
+    path.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return path
+
+
+def test_an_old_vehicle_file_loads_with_one_warning_line_naming_each_old_and_new_key(tmp_path):
+    path = _old_crazyflie(tmp_path)
+    with pytest.warns(VehicleKeyWarning) as caught:
+        cfg = load_vehicle(path)
+    assert len(caught) == 1 and "\n" not in str(caught[0].message)
+    assert str(caught[0].message) == (
+        f"{path}: old vehicle keys read as the new ones (rename them, docs/formats.md): constants.motor_a_m -> greybox.motor_a_m, "
+        "constants.motor_b_m -> greybox.motor_b_m, constants.thrust_constant -> greybox.thrust_constant, "
+        "constants.drag_constant -> greybox.torque_constant, constants.physics_ixx -> constants.effective_ixx, "
+        "constants.physics_iyy -> constants.effective_iyy")
+    # the greybox keeps the old file's values exactly; the physical constants are the file's rotor_* ones
+    g = GreyboxParameters.from_vehicle(cfg)
+    assert (g.motor_a_m, g.motor_b_m, g.thrust_constant, g.torque_constant) == (-20.0, 0.76, 2.88e-8, 7.24e-10)
+    assert cfg.value("rotor_thrust_constant") == 1.788e-8
+    assert PhysicsParameters.from_vehicle(cfg).inertia[:2] == (8.4e-5, 7.4e-5)
+    assert cfg.value("ixx") == 1.657171e-5  # the airframe's
+
+
+def test_an_old_vehicle_file_without_the_physical_rotor_constants_is_one_error_naming_the_key(tmp_path):
+    path = _old_crazyflie(tmp_path, drop=("rotor_speed_gain",))
+    with pytest.warns(VehicleKeyWarning), pytest.raises(ConfigError) as err:
+        load_vehicle(path)
+    assert str(err.value).startswith(f"{path}: missing required key constants.rotor_speed_gain (an old vehicle file: its "
+                                     "motor_a_m, motor_b_m, thrust_constant, drag_constant, physics_ixx, physics_iyy are")
+
+
+def test_an_old_key_next_to_its_replacement_is_an_error():
+    doc = _doc()
+    doc["constants"]["thrust_constant"] = doc["greybox"]["thrust_constant"]
+    with pytest.raises(ConfigError, match=r"doc: constants.thrust_constant is the old name of greybox.thrust_constant, and the file gives both"):
+        VehicleConfig.from_dict(doc, "doc")
+
+
+def test_the_cli_prints_an_old_vehicle_files_warning_as_one_line(tmp_path, capsys):
+    path = _old_crazyflie(tmp_path)
+    # the vehicle is read before the flights: one warning line, then the missing flight's one error line (exit 2)
+    assert main(["evaluate", str(tmp_path / "missing.csv"), "--vehicle", str(path), "--model", "greybox",
+                 "-o", str(tmp_path / "out")]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2 and lines[1].startswith("quad-modelling evaluate: error: ") and "missing.csv" in lines[1]
+    assert lines[0].startswith(f"quad-modelling evaluate: warning: {path}: old vehicle keys read as the new ones (rename "
+                               "them, docs/formats.md): constants.motor_a_m -> greybox.motor_a_m, ")
 
 
 def _doc():
@@ -62,8 +141,8 @@ def test_motor_positions_must_sit_on_the_arm():
 
 def test_unstable_motor_pole_is_rejected():
     doc = _doc()
-    doc["constants"]["motor_a_m"]["value"] = 9.56
-    with pytest.raises(ConfigError, match="motor_a_m.value must be negative"):
+    doc["greybox"]["motor_a_m"]["value"] = 9.56
+    with pytest.raises(ConfigError, match="greybox.motor_a_m.value must be negative"):
         VehicleConfig.from_dict(doc, "doc")
 
 
@@ -73,14 +152,34 @@ def test_unknown_vehicle_lists_the_shipped_ones():
 
 
 def test_with_values_replaces_and_records_source():
-    cfg = load_vehicle("crazyflie21").with_values({"motor_b_m": 1.5}, "identified from test")
-    assert cfg.value("motor_b_m") == 1.5
-    assert cfg.constants["motor_b_m"].source == "identified from test"
+    cfg = load_vehicle("crazyflie21").with_values({"rotor_speed_gain": 0.05}, "identified from test")
+    assert cfg.value("rotor_speed_gain") == 0.05
+    assert cfg.constants["rotor_speed_gain"].source == "identified from test"
     with pytest.raises(ConfigError):
         cfg.with_values({"nope": 1.0}, "x")
+    with pytest.raises(ConfigError, match="unknown constant 'motor_b_m'"):
+        cfg.with_values({"motor_b_m": 1.0}, "x")  # a greybox constant: with_greybox
+    greybox = cfg.with_greybox({"motor_b_m": 1.5}, "identified from test")
+    assert greybox.greybox_value("motor_b_m") == 1.5 and greybox.greybox["motor_b_m"].status == "effective"
+    assert greybox.greybox_value("motor_a_m") == -1.0 / 0.05  # the others as derived
 
 
 def test_load_by_path(tmp_path):
     path = Path(tmp_path / "mine.yaml")
     path.write_text((vehicle_dir() / "crazyflie21.yaml").read_text())
     assert load_vehicle(path).name == "crazyflie21"
+
+
+def test_a_constant_may_carry_its_sigma_and_a_bad_one_is_named():
+    doc = _doc()
+    doc["constants"]["mass"]["sigma"] = 0.005
+    doc["constants"]["izz"]["sigma"] = float("nan")  # not determined
+    cfg = VehicleConfig.from_dict(doc, "doc")
+    assert cfg.constants["mass"].sigma == 0.005 and np.isnan(cfg.constants["izz"].sigma)
+    assert cfg.constants["ixx"].sigma is None
+    doc["constants"]["mass"]["sigma"] = -1.0
+    with pytest.raises(ConfigError, match=r"^doc: constants.mass.sigma must be a finite number >= 0 \(or .nan: not determined\), got -1$"):
+        VehicleConfig.from_dict(doc, "doc")
+    doc["constants"]["mass"]["sigma"] = "big"
+    with pytest.raises(ConfigError, match=r"^doc: constants.mass.sigma is not a number: 'big'$"):
+        VehicleConfig.from_dict(doc, "doc")

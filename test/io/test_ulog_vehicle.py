@@ -54,7 +54,8 @@ def test_events_sample_frame_spins_and_range_are_the_logs():
         "log parameters CA_ROTOR0..3_PX/PY, x frame symmetrised (logged radii 0.2881, 0.2411, 0.2881, 0.2411 m, mean 0.2646 m)")
     mass = config.constants["mass"]
     assert (mass.value, mass.source, mass.status) == (1.5, "guess: px4_iris.yaml (not in the log)", "identified")
-    assert config.value("motor_b_m") == 40000.0 and vehicle.warnings == []
+    assert config.value("rotor_speed_gain") == 1000.0 and vehicle.warnings == []
+    assert config.greybox_value("motor_b_m") == 40000.0  # the greybox's B_m = k_u / tau_m
 
 
 def test_pwm_sample_range_from_its_parameters_and_frame_guessed_with_a_warning():
@@ -68,7 +69,7 @@ def test_pwm_sample_range_from_its_parameters_and_frame_guessed_with_a_warning()
                                 "motor positions and spins copied from px4_iris_pwm.yaml"]
     np.testing.assert_allclose(config.motor_positions, [[0.1515, 0.21625], [-0.1515, -0.21625], [0.1515, -0.21625], [-0.1515, 0.21625]])
     assert config.constants["arm_length"].source == "guess: px4_iris_pwm.yaml (no CA_ROTORn_PX/PY in the log)"
-    assert config.constants["motor_b_m"].unit == "rad/s2 per us"
+    assert config.constants["rotor_speed_gain"].unit == "rad/s per us"
 
 
 def test_the_yaml_text_reads_back_to_the_same_document():

@@ -18,7 +18,7 @@ import numpy as np
 from quad_modelling.core.identification.least_squares import poorly_determined
 from quad_modelling.core.identification.physics_terms import effects_section
 from quad_modelling.core.physics.effects import effects_document, parse_effects
-from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.vehicle import AIRFRAME_OF, VehicleConfig, effective_source
 
 LINE_WIDTH = 100
 
@@ -107,13 +107,15 @@ def add_physics_constants(document: dict, fit, note: str, source: str) -> None:
     for estimate in fit.estimates():
         if "." in estimate.name:
             continue  # a term's parameter: the effects section below
-        entry = document["constants"][estimate.name]
+        entry = document["constants"].setdefault(estimate.name, {"value": estimate.value, "unit": estimate.unit, "source": "the airframe's", "status": "effective"})
         if estimate.held:
             entry["source"] = f"{entry['source']}; kept: {estimate.held}"
             continue
         entry.update(value=estimate.value, source=source, sigma=estimate.sigma)
+        if estimate.name in AIRFRAME_OF:
+            entry["source"] = effective_source(source, estimate.value, document["constants"][AIRFRAME_OF[estimate.name]]["value"], AIRFRAME_OF[estimate.name])
         if estimate.at_bound:
-            entry["source"] = f"{source}; AT BOUND {list(estimate.bounds)} {estimate.unit}"
+            entry["source"] = f"{entry['source']}; AT BOUND {list(estimate.bounds)} {estimate.unit}"
     identification.setdefault("constants", {}).update({e.name: e.as_dict() for e in fit.estimates()})
     identification["physics"] = _plain(fit.to_dict())
     if fit.terms:

@@ -143,9 +143,9 @@ off by a lot."""
 class BaseFit:
     """The identified linear model (the diagnosis base) and how it was obtained.
 
-    ``values``: motor_a_m [1/s], motor_b_m, drag_constant [N m s²], thrust_gain_K [N/s per command unit],
+    ``values``: motor_a_m [1/s], motor_b_m, torque_constant d [N m s²], thrust_gain_K [N/s per command unit],
     arm_scale [1], rotor_reaction_scale [1], prop_inertia [kg m²], reference_voltage [V] (None without
-    voltage); ``sigma``: 1-sigma of motor_a_m, motor_b_m, drag_constant, thrust_gain_K, arm_scale,
+    voltage); ``sigma``: 1-sigma of motor_a_m, motor_b_m, torque_constant, thrust_gain_K, arm_scale,
     rotor_reaction_scale (empty when not identified); ``fit``: cost, residual count, the held parameters and which
     ended on a search bound (:data:`FITTED_NAMES`).
     """
@@ -165,7 +165,7 @@ def fitted_parameters(p: GreyboxParameters, tau_m: float, gain: float, yaw_ratio
         p,
         motor_a_m=-1.0 / tau_m,
         motor_b_m=gain / p.thrust_slope,
-        drag_constant=yaw_ratio * p.thrust_constant,
+        torque_constant=yaw_ratio * p.thrust_constant,
         motor_positions=tuple((arm_scale * x, arm_scale * y) for x, y in p.motor_positions),
         prop_inertia=rotor_reaction_scale * p.prop_inertia,
     )
@@ -206,7 +206,7 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig, motor_time_constan
     tau_config = -1.0 / p0.motor_a_m
     steady_config = p0.input_gain * tau_config
     tau0 = motor_time_constant if hold_motor_time_constant else min(max(tau_config, 1.1 * MIN_MOTOR_TIME_CONSTANT), 0.95 * MAX_MOTOR_TIME_CONSTANT)
-    searched = _searched_parameters(tau0, p0.drag_constant / p0.thrust_constant)
+    searched = _searched_parameters(tau0, p0.torque_constant / p0.thrust_constant)
 
     def parameters(values: np.ndarray) -> GreyboxParameters:
         tau, ratio, yaw_ratio, arm_scale, reaction_scale = values
@@ -219,7 +219,7 @@ def identify_base(batch: WindowBatch, vehicle: VehicleConfig, motor_time_constan
     fit = fit_least_squares(residuals, searched, held=held, starts=[{"steady_gain_ratio": ratio} for ratio in GAIN_STARTS[1:]],
                             sample_period_s=batch.dt * RESIDUAL_STRIDE, max_evaluations=MAX_EVALUATIONS)
     p = parameters(fit.values)
-    values = {"motor_a_m": float(p.motor_a_m), "motor_b_m": float(p.motor_b_m), "drag_constant": float(p.drag_constant),
+    values = {"motor_a_m": float(p.motor_a_m), "motor_b_m": float(p.motor_b_m), "torque_constant": float(p.torque_constant),
               "thrust_gain_K": float(p.input_gain), "arm_scale": fit.value("arm_scale"),
               "rotor_reaction_scale": fit.value("rotor_reaction_scale"), "prop_inertia": float(p.prop_inertia), "reference_voltage": v_ref}
     note = f"tau_m held at {motor_time_constant * 1e3:g} ms; " if hold_motor_time_constant else "tau_m, "
@@ -253,7 +253,7 @@ def _rotor_reaction_negligible(p0: GreyboxParameters, batch: WindowBatch, yaw_rm
     """Whether the configured rotor-reaction term (k_R = 1) moves the predicted yaw acceleration by less than
     :data:`ROTOR_REACTION_FLOOR` of the measured one (RMS over the windows)."""
     column = INDEX["yaw_acc"]
-    yaw_ratio = p0.drag_constant / p0.thrust_constant
+    yaw_ratio = p0.torque_constant / p0.thrust_constant
     tau = min(max(-1.0 / p0.motor_a_m, MIN_MOTOR_TIME_CONSTANT), MAX_MOTOR_TIME_CONSTANT)
     with_term, without = (predict_batch(BaseModel(fitted_parameters(p0, tau, p0.input_gain, yaw_ratio, 1.0, k)), batch,
                                         columns=[column])[:, batch.warm :, column] for k in (1.0, 0.0))
@@ -275,7 +275,7 @@ def _sigma(fit: LeastSquaresFit, p: GreyboxParameters) -> dict[str, float]:
     return {"motor_a_m": float(abs(p.motor_a_m) * root(cov[0, 0])),
             "motor_b_m": float(p.motor_b_m * sigma_log_gain),
             "thrust_gain_K": float(p.input_gain * sigma_log_gain),
-            "drag_constant": float(p.thrust_constant * root(cov[2, 2])),
+            "torque_constant": float(p.thrust_constant * root(cov[2, 2])),
             "arm_scale": fit.sigma_of("arm_scale"),
             "rotor_reaction_scale": fit.sigma_of("rotor_reaction_scale")}
 
@@ -289,22 +289,23 @@ def constant_estimates(fit: BaseFit, vehicle: VehicleConfig) -> list[ConstantEst
     steady = p0.input_gain * (-1.0 / p0.motor_a_m)  # G_config = K tau_m [N per command unit]
     k_range = (steady * STEADY_GAIN_RATIO_RANGE[0] / MAX_MOTOR_TIME_CONSTANT, steady * STEADY_GAIN_RATIO_RANGE[1] / MIN_MOTOR_TIME_CONSTANT)
     motor_at_bound = bool(flags.get("motor_time_constant") or flags.get("steady_gain_ratio"))
-    unit = {key: vehicle.constants[key].unit for key in ("motor_a_m", "motor_b_m", "drag_constant")}
+    configured = vehicle.greybox_constants()  # the greybox section, or derived from the physical constants
+    unit = {key: configured[key].unit for key in ("motor_a_m", "motor_b_m", "torque_constant")}
     excite = "more collective (throttle) steps"
     why = {"rotor_reaction_scale": f"its term is below {ROTOR_REACTION_FLOOR:.0%} of the yaw acceleration",
            "motor_time_constant": "the diagnosis judges motor lag and input delay against the configured value"}
     held = {name: why.get(name, "the flights do not excite it") for name in fit.fit.get("held", [])}
     return [
         ConstantEstimate("motor_a_m", v["motor_a_m"], unit["motor_a_m"], s.get("motor_a_m", math.nan),
-                         (-MOTOR_POLE_RANGE[1], -MOTOR_POLE_RANGE[0]), vehicle.value("motor_a_m"),
+                         (-MOTOR_POLE_RANGE[1], -MOTOR_POLE_RANGE[0]), configured["motor_a_m"].value,
                          bool(flags.get("motor_time_constant")), excite + " faster than the motor lag",
                          held.get("motor_time_constant", "")),
         ConstantEstimate("motor_b_m", v["motor_b_m"], unit["motor_b_m"], s.get("motor_b_m", math.nan),
-                         (k_range[0] / root, k_range[1] / root), vehicle.value("motor_b_m"), motor_at_bound, excite),
+                         (k_range[0] / root, k_range[1] / root), configured["motor_b_m"].value, motor_at_bound, excite),
         ConstantEstimate("thrust_gain_K", v["thrust_gain_K"], "N/s per command unit", s.get("thrust_gain_K", math.nan),
                          k_range, p0.input_gain, motor_at_bound, excite),
-        ConstantEstimate("drag_constant", v["drag_constant"], unit["drag_constant"], s.get("drag_constant", math.nan),
-                         tuple(p0.thrust_constant * b for b in YAW_DRAG_RATIO_RANGE), vehicle.value("drag_constant"),
+        ConstantEstimate("torque_constant", v["torque_constant"], unit["torque_constant"], s.get("torque_constant", math.nan),
+                         tuple(p0.thrust_constant * b for b in YAW_DRAG_RATIO_RANGE), configured["torque_constant"].value,
                          bool(flags.get("yaw_drag_ratio")), "yaw manoeuvres", held.get("yaw_drag_ratio", "")),
         ConstantEstimate("arm_scale", v["arm_scale"], "1", s.get("arm_scale", math.nan), ARM_SCALE_RANGE, 1.0,
                          bool(flags.get("arm_scale")), "roll/pitch manoeuvres (closed loop hides the slow ones)",

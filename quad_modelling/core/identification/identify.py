@@ -51,12 +51,14 @@ from quad_modelling.core.identification.window_batch import WindowBatch, prepare
 from quad_modelling.core.models.motors import discrete_motor, motor_thrusts
 from quad_modelling.core.preprocess import smooth
 from quad_modelling.core.variables import INDEX
-from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.vehicle import AIRFRAME_OF, Constant, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, check_window_rate
 from quad_modelling.errors import DataError
 
-IDENTIFIED_CONSTANTS = ("motor_a_m", "motor_b_m", "drag_constant")
-"""The vehicle constants ``identify`` writes (the others of the fit are reported in ``identification.fit``)."""
+IDENTIFIED_CONSTANTS = ("motor_a_m", "motor_b_m", "torque_constant")
+"""The greybox constants ``identify`` writes into the vehicle file's ``greybox:`` section, as effective values of
+the linear model (the others of the fit are reported in ``identification.fit``); the physical constants are the
+physics fit's (:func:`~quad_modelling.core.identification.physics_fit.add_physics_constants`)."""
 
 
 @dataclass
@@ -74,6 +76,8 @@ class IdentificationResult:
     spins: list[int] = field(default_factory=list)
     physics: PhysicsFit | None = None
     physics_note: str = ""
+    airframe: dict[str, float] = field(default_factory=dict)
+    """The vehicle file's airframe inertias (ixx, iyy [kg m²]) the effective ones are compared with."""
     constants: list[ConstantEstimate] = field(default_factory=list)
     """Every identified constant (:class:`~quad_modelling.core.identification.constants_report.ConstantEstimate`)
     of every fit, in print order; a fit adds its own (e.g. the physics model's) the same way."""
@@ -88,7 +92,21 @@ class IdentificationResult:
                          f", sigma {self.voltage['kappa_sigma']:.2g} 1/V")
         lines += check_lines(self.motor_check)
         lines.extend(self.physics.summary() if self.physics is not None else [f"physics model constants {self.physics_note}"])
+        lines.extend(self.effective_inertia_lines())
         return "\n".join(lines)
+
+    def effective_inertia_lines(self) -> list[str]:
+        """One line per effective roll/pitch inertia the physics fit identified, with its ratio to the airframe's
+        (an effective value: docs/models.md, effective inertia)."""
+        if self.physics is None:
+            return []
+        lines = []
+        for key, airframe_key in AIRFRAME_OF.items():
+            value, airframe = self.physics.values.get(key), self.airframe.get(airframe_key)
+            if value is not None and airframe:
+                lines.append(f"  {key} {value:.3g} kg m2 = {value / airframe:.2f} x the airframe's {airframe_key} {airframe:.3g} "
+                             f"(effective value)")
+        return lines
 
 
 def training_batch(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig) -> WindowBatch:
@@ -143,7 +161,7 @@ def identify(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Evalu
                                   "(1 = consistent with the configured geometry and inertia)",
              "ground_contact_windows_dropped": int(batch.ground_contact_dropped)},
         spins=[int(s) for s in vehicle.yaw_signs], physics=physics, physics_note=physics_note,
-        constants=constant_estimates(fit, start),
+        airframe={key: vehicle.value(key) for key in AIRFRAME_OF.values()}, constants=constant_estimates(fit, start),
     )
 
 
@@ -190,19 +208,19 @@ def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationRe
     names = ", ".join(Path(f).name for f in result.files)
     source = f"identified on {names} spans {span_text} ({len(result.spans)} training windows) by quad-modelling identify"
     estimates = {e.name: e for e in result.constants}
-    constants = {}
-    for key, c in vehicle.constants.items():
-        entry = {"value": c.value, "unit": c.unit, "source": c.source, "status": c.status}
+    constants = {key: _entry(c) for key, c in vehicle.constants.items()}  # the physics fit's are added below
+    greybox = {}
+    for key, c in vehicle.greybox_constants().items():
+        entry = _entry(c)
         if key in result.values and not np.isfinite(result.values[key]):  # the flights do not excite it
             entry["source"] = f"{c.source}; kept: not identifiable from {names} spans {span_text} (no excitation)"
         elif key in estimates:
-            entry.update(source=_estimate_source(estimates[key], source), **estimates[key].as_dict())
+            entry.update(source=_estimate_source(estimates[key], "greybox fit " + source), **estimates[key].as_dict())
             entry["unit"] = c.unit
-        elif key in result.values:
-            entry.update(value=result.values[key], source=source, sigma=result.sigma[key])
-        elif key == "thrust_constant" and c.status == "identified":
+        elif key == "thrust_constant":
             entry["source"] = f"{c.source}; held fixed by identify (only B_m sqrt(a) is identifiable from motion)"
-        constants[key] = entry
+        entry["status"] = "effective"  # the linear model's own values, whatever the physical constants are
+        greybox[key] = entry
     document = {
         "name": vehicle.name,
         "description": f"{vehicle.description} -- constants identified from flight data",
@@ -211,6 +229,7 @@ def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationRe
                    for m, s in zip(vehicle.motors, result.spins or vehicle.yaw_signs)],
         "inputs": {"min": vehicle.input_min, "max": vehicle.input_max, "unit": vehicle.input_unit},
         "constants": constants,
+        "greybox": greybox,
         "identification": {
             "files": result.files,
             "spans": result.spans,
@@ -225,6 +244,14 @@ def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationRe
         document["effects"] = effects_document(vehicle.effects)  # the terms identify did not fit, as the file had them
     add_physics_constants(document, result.physics, result.physics_note, source)
     return document
+
+
+def _entry(c: Constant) -> dict:
+    """A constant as a vehicle-file entry (its sigma when it has one)."""
+    entry = {"value": c.value, "unit": c.unit, "source": c.source, "status": c.status}
+    if c.sigma is not None:
+        entry["sigma"] = c.sigma
+    return entry
 
 
 def _estimate_source(estimate: ConstantEstimate, source: str) -> str:

@@ -12,7 +12,7 @@ smoothed as the measurement) with one intercept per window, over the training wi
 roll and pitch after a high-pass of both sides (:data:`HIGHPASS_HZ`: the closed loop owns the low band).
 
 The configuration predicts :math:`g_{i,\\phi} = -y_i / I_{xx}`, :math:`g_{i,\\theta} = x_i / I_{yy}`
-(rotor i at :math:`(x_i, y_i)` in body FRD) and :math:`g_{i,\\psi} = s_i\\, (d/a) / I_{zz}` (spin
+(rotor i at :math:`(x_i, y_i)` in body FRD) and :math:`g_{i,\\psi} = s_i\\, (k_m/k_f) / I_{zz}` (spin
 :math:`s_i = +1` counter-clockwise from above). The standard error of each :math:`g_{i,a}` is the HAC
 (Newey-West) one over windows (:mod:`~quad_modelling.core.identification.uncertainty`): the
 residuals are autocorrelated, and counting every 100 Hz sample as independent made gains like
@@ -67,7 +67,7 @@ def expected_gains(vehicle: VehicleConfig, positions: np.ndarray | None = None, 
     pos = vehicle.motor_positions if positions is None else positions
     spins = vehicle.yaw_signs if spins is None else spins
     ixx, iyy, izz = vehicle.inertia
-    yaw_arm = vehicle.value("drag_constant") / vehicle.value("thrust_constant")  # d/a [m]
+    yaw_arm = vehicle.value("rotor_torque_constant") / vehicle.value("rotor_thrust_constant")  # k_m/k_f [m]
     return np.column_stack([-pos[:, 1] / ixx, pos[:, 0] / iyy, spins * yaw_arm / izz])
 
 

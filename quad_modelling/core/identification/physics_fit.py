@@ -120,7 +120,7 @@ DRAG_MAX_FACTOR = 100.0
 """The rotor drag is bounded to [0, 100 x start]; its arm to ±10 x max(|start|, arm_length / 10)."""
 
 FITTED = ("rotor_time_constant", "rotor_delay", "rotor_thrust_constant", "rotor_torque_constant", "rotor_drag_xy",
-          "rotor_drag_z", "rotor_drag_arm", "physics_ixx", "physics_iyy")
+          "rotor_drag_z", "rotor_drag_arm", "effective_ixx", "effective_iyy")
 """The physics constants ``identify`` fits (the speed map k_u, Ω_off and I_zz are held)."""
 
 CHANNELS = ("velocity", "roll", "pitch", "yaw")
@@ -159,7 +159,7 @@ class PhysicsFit:
         return base.with_values(**terms,
             time_constant=v["rotor_time_constant"], delay=v["rotor_delay"], thrust_constant=v["rotor_thrust_constant"],
             torque_constant=v["rotor_torque_constant"], drag=(v["rotor_drag_xy"], v["rotor_drag_xy"], v["rotor_drag_z"]),
-            drag_arm=v["rotor_drag_arm"], inertia=(v["physics_ixx"], v["physics_iyy"], base.inertia[2]))
+            drag_arm=v["rotor_drag_arm"], inertia=(v["effective_ixx"], v["effective_iyy"], base.inertia[2]))
 
     def to_dict(self) -> dict:
         return {key: {"value": self.values[key], "sigma": self.sigma[key], "unit": PHYSICS_UNITS[key],
@@ -430,7 +430,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     values = {"rotor_time_constant": tau, "rotor_delay": delay, "rotor_thrust_constant": kf, "rotor_drag_xy": d_xy, "rotor_drag_z": d_z}
     sigma = {"rotor_thrust_constant": kf_sd, "rotor_drag_xy": d_xy_sd, "rotor_drag_z": d_z_sd}
     arms = []
-    for key, channel in (("physics_ixx", "roll"), ("physics_iyy", "pitch")):
+    for key, channel in (("effective_ixx", "roll"), ("effective_iyy", "pitch")):
         (alpha, alpha_sd), (b, b_sd) = coef(channel, "thrust"), coef(channel, "drag_moment")
         values[key] = kf / alpha if alpha != 0 else float("nan")
         sigma[key] = abs(values[key]) * np.hypot(kf_sd / kf, alpha_sd / alpha) if alpha != 0 and kf != 0 else float("nan")
@@ -452,7 +452,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
         lambda value: _chi2(p, segments, value, delay, observer, thin, fit, design), tau, 0.05 * tau)
     sigma["rotor_delay"] = delay_sd
 
-    start = {key: float(vehicle.value(key)) for key in FITTED}
+    start = {key: float(vehicle.effective_value(key)) for key in FITTED}
     bounds = {key: (start[key] / BOUNDS_FACTOR, start[key] * BOUNDS_FACTOR) for key in FITTED}
     bounds["rotor_time_constant"] = TIME_CONSTANT_RANGE_S
     bounds["rotor_delay"] = (0.0, DELAY_MAX_S)

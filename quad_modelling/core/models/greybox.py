@@ -105,22 +105,26 @@ class GreyboxParameters:
     motor_a_m: float
     motor_b_m: float
     thrust_constant: float
-    drag_constant: float
+    torque_constant: float
     motor_positions: tuple[tuple[float, float], ...]
     yaw_signs: tuple[float, ...]
 
     @classmethod
     def from_vehicle(cls, vehicle: VehicleConfig) -> GreyboxParameters:
+        """The airframe's mass and inertias with the greybox constants A_m, B_m, a, d of
+        :meth:`~quad_modelling.core.vehicle.VehicleConfig.greybox_constants`: the file's ``greybox`` section (thesis
+        Table 3-1 for the LinkQuad reproduction), else derived from the physical rotor constants."""
+        greybox = {key: c.value for key, c in vehicle.greybox_constants().items()}
         return cls(
             mass=vehicle.mass,
             ixx=vehicle.value("ixx"),
             iyy=vehicle.value("iyy"),
             izz=vehicle.value("izz"),
             prop_inertia=vehicle.value("prop_inertia"),
-            motor_a_m=vehicle.value("motor_a_m"),
-            motor_b_m=vehicle.value("motor_b_m"),
-            thrust_constant=vehicle.value("thrust_constant"),
-            drag_constant=vehicle.value("drag_constant"),
+            motor_a_m=greybox["motor_a_m"],
+            motor_b_m=greybox["motor_b_m"],
+            thrust_constant=greybox["thrust_constant"],
+            torque_constant=greybox["torque_constant"],
             motor_positions=tuple(map(tuple, vehicle.motor_positions.tolist())),
             yaw_signs=tuple(vehicle.yaw_signs.tolist()),
         )
@@ -143,7 +147,7 @@ class GreyboxParameters:
     def torque_matrix(self) -> np.ndarray:
         """(3, 4) map from rotor thrust deviations to (τφ, τθ, thrust part of τψ) [N m per N]: the torque rows of the
         one allocation (:func:`~quad_modelling.core.physics.rigid_body.allocation_matrix`)."""
-        return allocation_matrix(self.motor_positions, self.yaw_signs, self.drag_constant / self.thrust_constant)[1:]
+        return allocation_matrix(self.motor_positions, self.yaw_signs, self.torque_constant / self.thrust_constant)[1:]
 
 
 def continuous_matrices(p: GreyboxParameters) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -61,7 +61,7 @@ from quad_modelling.core.physics.rotors import delayed_commands, effective_comma
 from quad_modelling.core.models.residual_net import ResidualNet
 from quad_modelling.core.preprocess import TrimConfig, state_measurement, trim_prediction
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.vehicle import RENAMED_KEYS, VehicleConfig
 from quad_modelling.errors import ConfigError, DataError, ModelError, reason
 
 KIND = "hybrid"
@@ -235,6 +235,7 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
         raise ModelError(f"{path}: hybrid model file lacks its settings ({reason(err)})") from err
     if features != list(FEATURES):
         raise ModelError(f"{path}: hybrid net inputs {features} differ from this program's {list(FEATURES)}; retrain the model")
+    stored = {RENAMED_KEYS.get(k, k): v for k, v in stored.items()}  # a file saved before effective_ixx/iyy (physics_ixx/iyy)
     params = PhysicsParameters.from_vehicle(vehicle)
     current = physics_constants(params)
     changed = sorted(k for k in set(stored) | set(current)

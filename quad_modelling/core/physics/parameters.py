@@ -15,11 +15,12 @@ k_f (``thrust_constant``)         ``rotor_thrust_constant``   N s²/rad²
 k_m (``torque_constant``)         ``rotor_torque_constant``   N m s²/rad²
 d_xy, d_z (``drag``)              ``rotor_drag_xy``/``_z``    N s/(m rad)
 h_d (``drag_arm``)                ``rotor_drag_arm``          m (FRD z from the CG; < 0: above it)
-I_xx, I_yy (``inertia[:2]``)      ``physics_ixx``/``_iyy``    kg m²
+I_xx, I_yy (``inertia[:2]``)      ``effective_ixx``/``_iyy``  kg m² (absent: the airframe's ``ixx``/``iyy``)
 ================================  ==========================  ===========================================
 
-The roll/pitch inertias have their own keys: the physics fit identifies them, while the thesis's linear
-greybox keeps the file's ``ixx``/``iyy`` (changing those would change the reproduction). Only the
+The roll/pitch inertias the physics fit identifies are effective values (status ``effective``, 3-10x the
+airframe's on the NanoBench flights: docs/models.md, effective inertia) with their own keys; the airframe's
+``ixx``/``iyy`` stay the measured ones (the thesis greybox uses those). Only the
 products k_f k_u² and k_m k_u² are identifiable from motion without rotor-speed measurements, so
 ``identify`` holds k_u and Ω_off (literature, a thrust-stand measurement) and fits the rest.
 """
@@ -45,8 +46,8 @@ PHYSICS_UNITS: dict[str, str] = {
     "rotor_drag_xy": "N s/(m rad)",
     "rotor_drag_z": "N s/(m rad)",
     "rotor_drag_arm": "m",
-    "physics_ixx": "kg m2",
-    "physics_iyy": "kg m2",
+    "effective_ixx": "kg m2",
+    "effective_iyy": "kg m2",
 }
 """Unit of each physics constant (as written in vehicle files)."""
 
@@ -94,7 +95,7 @@ class PhysicsParameters:
         v = vehicle.value
         return cls(
             mass=vehicle.mass,
-            inertia=(v("physics_ixx"), v("physics_iyy"), v("izz")),
+            inertia=(vehicle.effective_value("effective_ixx"), vehicle.effective_value("effective_iyy"), v("izz")),
             prop_inertia=v("prop_inertia"),
             positions=vehicle.motor_positions,
             spins=vehicle.yaw_signs,
@@ -126,12 +127,13 @@ class PhysicsParameters:
         return replace(self, **changes)
 
     def vehicle_values(self) -> dict[str, float]:
-        """These parameters as vehicle-file constants (:data:`~quad_modelling.core.vehicle.PHYSICS_KEYS`)."""
+        """These parameters as vehicle-file constants (:data:`~quad_modelling.core.vehicle.PHYSICS_KEYS` and the
+        effective roll/pitch inertias, :data:`~quad_modelling.core.vehicle.EFFECTIVE_KEYS`)."""
         return {
             "rotor_speed_gain": self.speed_gain, "rotor_speed_offset": self.speed_offset,
             "rotor_time_constant": self.time_constant, "rotor_delay": self.delay, "rotor_thrust_constant": self.thrust_constant,
             "rotor_torque_constant": self.torque_constant, "rotor_drag_xy": self.drag[0], "rotor_drag_z": self.drag[2], "rotor_drag_arm": self.drag_arm,
-            "physics_ixx": self.inertia[0], "physics_iyy": self.inertia[1],
+            "effective_ixx": self.inertia[0], "effective_iyy": self.inertia[1],
         }
 
     def hover_rotor_speed(self, gravity: float) -> float:

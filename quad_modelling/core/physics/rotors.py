@@ -20,6 +20,9 @@ yaw-torque constants :math:`k_f` [N s²/rad²] and :math:`k_m` [N m s²/rad²], 
 * hover (:func:`hover_rotor_speed`): :math:`\Omega_H = \sqrt{m g / (4 k_f)}`; the thrust slope there
   (:func:`thrust_slope`) :math:`\partial T/\partial\Omega = 2 k_f \Omega_H` is what the thesis's linear greybox
   calls :math:`K / B_m = 2 \sqrt{a m g / 4}` (Eq 3-7);
+* the rotor lag as the greybox's linear motor (:func:`linear_motor`): :math:`\dot\Omega = A_m \Omega + B_m u + \Omega_{off}/\tau_m`
+  with :math:`A_m = -1/\tau_m`, :math:`B_m = k_u/\tau_m` (thesis Eq 3-5, A-0-1; the offset drops out of the
+  deviations about hover);
 * battery-voltage scaling (:func:`battery_speed_factor`, the model's form): the rotor speed a command reaches
   grows with the battery voltage V, :math:`\Omega_{ss} \to \Omega_{ss} (1 + \kappa (V - V_{ref}))`.
 
@@ -182,6 +185,13 @@ def hover_rotor_speed(mass: float, thrust_constant: float, gravity: float) -> fl
 def thrust_slope(thrust_constant: float, speed: float) -> float:
     """∂T/∂Ω = 2 k_f Ω [N s/rad]: the thrust change per rotor-speed change at ``speed`` (the linearisation)."""
     return 2.0 * thrust_constant * speed
+
+
+def linear_motor(time_constant: float, speed_gain: float) -> tuple[float, float]:
+    """(A_m [1/s], B_m [rad/s² per input unit]) of the rotor lag τ_m Ω̇ = k_u u + Ω_off - Ω written as the thesis's linear
+    motor Ω̇ = A_m Ω + B_m u (+ a constant): A_m = -1/τ_m, B_m = k_u/τ_m. ``time_constant`` τ_m > 0 [s], ``speed_gain``
+    k_u [rad/s per input unit]."""
+    return -1.0 / time_constant, speed_gain / time_constant
 
 
 def battery_speed_factor(voltage, reference_voltage: float, kappa: float):

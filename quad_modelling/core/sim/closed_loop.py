@@ -65,7 +65,7 @@ class TruthLoop:
         u = [min(vehicle.input_max, max(vehicle.input_min, float(v))) for v in u]
         s = self.state
         if self.battery_on:
-            self.soc, self.voltage = battery_tick(self.params.battery, self.dynamics.drag_constant, s[13:17], self.soc,
+            self.soc, self.voltage = battery_tick(self.params.battery, self.dynamics.torque_constant, s[13:17], self.soc,
                                                   self.voltage, self.control_dt)
         first = self.step_index
         if self.delay_steps:

@@ -77,8 +77,8 @@ class Stabiliser:
         self.integral_limits = tuple(limit / k for limit, k in zip(INTEGRAL_AUTHORITY, ki))
         pos_w = control.position_bandwidth
         self.hold_gains = (pos_w**2, 2.0 * control.damping * pos_w)
-        a = vehicle.value("thrust_constant")
-        allocation = allocation_matrix(vehicle.motor_positions, vehicle.yaw_signs, vehicle.value("drag_constant") / a)
+        a = vehicle.value("rotor_thrust_constant")
+        allocation = allocation_matrix(vehicle.motor_positions, vehicle.yaw_signs, vehicle.value("rotor_torque_constant") / a)
         self.allocation = allocation
         self.mix = tuple(tuple(float(v) for v in row) for row in np.linalg.inv(allocation))
         self.thrust_constant = a

@@ -105,8 +105,8 @@ class QuadDynamics:
         vehicle = params.vehicle
         self.mass = vehicle.mass
         self.inertia = vehicle.inertia
-        self.thrust_constant = vehicle.value("thrust_constant")
-        self.drag_constant = vehicle.value("drag_constant")
+        self.thrust_constant = vehicle.value("rotor_thrust_constant")
+        self.torque_constant = vehicle.value("rotor_torque_constant")
         self.prop_inertia = vehicle.value("prop_inertia")
         self.yaw_signs = vehicle.yaw_signs
         cg = params.imbalance.cg_offset if "motor_imbalance" in self.effects else (0.0, 0.0)
@@ -158,7 +158,7 @@ class QuadDynamics:
         r"""The true allocation M (4x4): lift and torque per newton of each rotor's thrust,
         :math:`M_{:,i} = (-e_{i,z},\ r_i \times e_i - s_i (d/a)\, e_i)` with the thrust directions
         :attr:`thrust_axes` e_i; for :math:`e_i = -e_z` the columns are :math:`(1, -y_i, x_i, s_i d/a)`."""
-        ratio = self.drag_constant / self.thrust_constant
+        ratio = self.torque_constant / self.thrust_constant
         axes = self.thrust_axes
         torque = np.cross(self.rotor_positions, axes) - (np.asarray(self.yaw_signs, dtype=float) * ratio)[:, None] * axes
         return np.vstack([-axes[:, 2], torque.T])
@@ -293,7 +293,7 @@ class QuadDynamics:
         inv_m = 1.0 / m
         ixx, iyy, izz = (float(v) for v in self.inertia)
         a_t = self.thrust_constant
-        d_q = self.drag_constant
+        d_q = self.torque_constant
         i_p = self.prop_inertia
         s1, s2, s3, s4 = (float(v) for v in self.yaw_signs)
         (x1, y1, _), (x2, y2, _), (x3, y3, _), (x4, y4, zr) = (tuple(float(c) for c in row) for row in self.rotor_positions)

@@ -9,25 +9,31 @@ describe (ESC mapping, battery, landing gear, sensors, effect strengths,
 stabiliser gains, pilot script ranges) lives in this module, one value per
 field, with its unit and source in the comment next to it.
 
-LinkQuad adjustments of thesis Table 3-1 (see docs/simulator.md):
+The simulator flies a vehicle file's physical constants (``rotor_*``, one value per constant), never its
+``greybox`` section (the linear model's effective values).
 
-* ``thrust_constant`` a: 1.59e-7 -> 1.0e-5 N s². Table 3-1's a gives a hover
+LinkQuad (see docs/simulator.md): flown as the vehicle file gives it. Its physical rotor constants are thesis
+Table 3-1's made self-consistent (Table 3-1's own identified values are the file's ``greybox`` section):
+
+* rotor thrust constant k_f: Table 3-1's a = 1.59e-7 -> 1.0e-5 N s². Table 3-1's a gives a hover
   speed :math:`\\Omega_0 = \\sqrt{m g/(4a)} = 4302` rad/s (41,000 rpm); a 1.2 kg
   quad with ~10 in propellers hovers near 5,200 rpm. a = 1.0e-5 gives
   :math:`\\Omega_0 = 542` rad/s; a 10x4.7 in propeller gives ~2.7 N at 5,000 rpm
   (APC performance data), i.e. a ≈ 1.0e-5.
-* ``drag_constant`` d: 2.93e-9 -> 1.843e-7 N m s², keeping Table 3-1's ratio
+* rotor torque constant k_m: d = 2.93e-9 -> 1.843e-7 N m s², keeping Table 3-1's ratio
   d/a = 0.01843 m (the only place d enters the thesis model, Eq 3-13). Check:
   :math:`d\\Omega_0^2 = 0.054` N m per rotor, shaft power :math:`d\\Omega_0^3 =
   29` W per rotor, figure of merit 0.49 against momentum theory: plausible.
-* ``motor_b_m`` B_m: 8.49e7 -> 1.0705e7 rad/s² per s of pulse, keeping the
+* rotor speed gain k_u = -B_m/A_m with B_m: 8.49e7 -> 1.0705e7 rad/s² per s of pulse, keeping the
   thesis model's thrust gain :math:`K = 2 B_m \\sqrt{a m g/4}` (Eq 3-7, the only
   place B_m enters the thrust) unchanged. The resulting ESC speed gain
-  :math:`k_u = -B_m/A_m = 1.12` rad/s per µs maps the 1.0–2.0 ms pulse range to
+  :math:`k_u = 1.12` rad/s per µs maps the 1.0–2.0 ms pulse range to
   0–1120 rad/s, what an RC ESC does; Table 3-1's B_m would map it to 0–8,900 rad/s.
-* A_m, m, l, inertias and I_prop are used as given.
+* A_m (τ_m = 1/9.56 s), m, l, inertias and I_prop are used as given.
 
-The Crazyflie 2.1 config is used as shipped.
+Crazyflie 2.1: the simulator's world keeps its own rotor constants (:data:`CRAZYFLIE_WORLD`, Landry 2015), as
+shipped before the vehicle file's one value per constant took Foerster 2015's: fitting a model to data made with
+the model's own starting constants would prove little (:attr:`SimParams.adjustments` names each).
 """
 
 from __future__ import annotations
@@ -37,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from quad_modelling.core.vehicle import Motor, VehicleConfig, load_vehicle
+from quad_modelling.core.vehicle import MOVED_TO_GREYBOX, RENAMED_KEYS, Motor, VehicleConfig, load_vehicle
 from quad_modelling.errors import ConfigError, DataError
 
 SIMULATED_VEHICLES = ("linkquad", "crazyflie21")
@@ -215,8 +221,8 @@ class SimParams:
 
     @property
     def motor_time_constant(self) -> float:
-        """tau_m = -1 / A_m [s] (thesis Eq A-0-1 pole)."""
-        return -1.0 / self.vehicle.value("motor_a_m")
+        """tau_m [s]: the rotor time constant (thesis Eq A-0-1: -1/A_m)."""
+        return self.vehicle.value("rotor_time_constant")
 
     @property
     def rest_height(self) -> float:
@@ -321,6 +327,10 @@ def sim_params_from_notes(notes: dict, where: str) -> SimParams:
     if not isinstance(saved, dict):
         raise DataError(f"{where}: simulated (sim_version {notes.get('sim_version')}) before the logs kept the truth "
                         f"model's parameters (notes key {TRUTH_NOTES_KEY!r}); simulate it again")
+    stale = sorted(set(saved.get("constants") or {}) & (set(RENAMED_KEYS) | set(MOVED_TO_GREYBOX)))
+    if stale:
+        raise DataError(f"{where}: simulated (sim_version {notes.get('sim_version')}) before the vehicle files held one value "
+                        f"per physical constant (notes constant {stale[0]!r}, docs/formats.md); simulate it again")
     try:
         base = sim_params_for(str(saved["vehicle"]))
         vehicle = base.vehicle.with_values({k: float(v) for k, v in saved["constants"].items()}, "simulator notes")
@@ -355,36 +365,23 @@ on purpose for yaw authority, so 3° is also a size real airframes fly with."""
 
 # --------------------------------------------------------------------------- LinkQuad
 
-LINKQUAD_ADJUSTMENTS = {
-    "thrust_constant": (
-        1.0e-5,
-        "Table 3-1's a=1.59e-7 gives a 4302 rad/s hover speed; a=1.0e-5 gives 542 rad/s (5180 rpm), "
-        "what a 1.2 kg quad on ~10 in propellers turns (APC 10x4.7: ~2.7 N at 5000 rpm)",
-    ),
-    "drag_constant": (
-        1.843e-7,
-        "keeps Table 3-1's ratio d/a = 0.01843 m (Eq 3-13); gives 0.054 N m and 29 W shaft power per rotor at hover",
-    ),
-    "motor_b_m": (
-        1.0705e7,
-        "keeps the thesis thrust gain K = 2 B_m sqrt(a m g/4) (Eq 3-7) with the new a; "
-        "k_u = -B_m/A_m = 1.12 rad/s per us maps a 1.0-2.0 ms ESC pulse to 0-1120 rad/s",
-    ),
-}
+def _world(vehicle: VehicleConfig, world: dict[str, tuple[float, str]]) -> tuple[VehicleConfig, dict]:
+    """(the simulator's vehicle, its adjustments): ``vehicle``'s physical constants with the simulator's own
+    ``world`` values {key: (value, reason)} put in, without a ``greybox`` section (the simulator flies physics)."""
+    adjusted = dataclasses.replace(vehicle.with_values({k: v for k, (v, _) in world.items()}, "simulator world (sim/params.py)"),
+                                   greybox={})
+    return adjusted, {k: {"config": vehicle.value(k), "used": v, "reason": why} for k, (v, why) in world.items()}
 
 
 def _linkquad(vehicle: VehicleConfig) -> SimParams:
-    adjusted = vehicle.with_values({k: v for k, (v, _) in LINKQUAD_ADJUSTMENTS.items()}, "simulator adjustment (sim_params.py)")
-    adjustments = {
-        k: {"config": vehicle.value(k), "used": v, "reason": why} for k, (v, why) in LINKQUAD_ADJUSTMENTS.items()
-    }
+    adjusted, adjustments = _world(vehicle, {})
     hover = adjusted.hover_rotor_speed
     return SimParams(
         vehicle=adjusted,
         adjustments=adjustments,
         esc=EscParams(
             zero_speed_input=1.0e-3,  # s: RC ESC zero-throttle pulse (1.0 ms; ESC convention)
-            speed_gain=-adjusted.value("motor_b_m") / adjusted.value("motor_a_m"),  # k_u = -B_m/A_m [rad/s per s]
+            speed_gain=adjusted.value("rotor_speed_gain"),  # k_u = -B_m/A_m [rad/s per s] (vehicle file, module docstring)
             idle_speed_fraction=0.25,  # guess: armed idle
         ),
         geometry=GeometryParams(
@@ -468,15 +465,27 @@ def _sensors(position_noise: float = 0.5e-3) -> SensorParams:
 # --------------------------------------------------------------------------- Crazyflie 2.1
 
 
+CRAZYFLIE_WORLD = {
+    "rotor_thrust_constant": (2.88e-8, "Landry 2015 (MIT MSc): kf 3.16e-10 N/rpm^2; the vehicle file's is Foerster 2015's fit"),
+    "rotor_torque_constant": (7.24e-10, "Landry 2015: km 7.94e-12 N m/rpm^2"),
+    "rotor_speed_gain": (0.76 / 20.0, "~2500 rad/s at full PWM (guess: B_m 0.76 rad/s2 per count over the 20 1/s pole), "
+                                      "rotor speed proportional to PWM (brushed DC, firmware motors.h)"),
+    "rotor_speed_offset": (0.0, "rotor speed proportional to PWM (zero_speed_input 0)"),
+}
+"""The simulated Crazyflie's own rotor constants {key: (value, reason)} where they differ from the vehicle file (module
+docstring): the world the simulator has flown since before the vehicle file held one value per constant."""
+
+
 def _crazyflie21(vehicle: VehicleConfig) -> SimParams:
     arm = vehicle.value("arm_length")
     foot = arm / np.sqrt(2.0)
+    vehicle, adjustments = _world(vehicle, CRAZYFLIE_WORLD)
     return SimParams(
         vehicle=vehicle,
-        adjustments={},
+        adjustments=adjustments,
         esc=EscParams(
             zero_speed_input=0.0,  # PWM: rotor speed proportional to PWM ratio (brushed DC, firmware motors.h)
-            speed_gain=-vehicle.value("motor_b_m") / vehicle.value("motor_a_m"),  # k_u = -B_m/A_m [rad/s per count]
+            speed_gain=vehicle.value("rotor_speed_gain"),  # k_u [rad/s per count] (CRAZYFLIE_WORLD)
             idle_speed_fraction=0.25,
         ),
         geometry=GeometryParams(

@@ -185,7 +185,7 @@ def run_simulation(
     battery_on = "battery" in effects
     battery = params.battery
     delay_steps = int(round(params.input_delay * params.physics_rate)) if "input_delay" in effects else 0
-    drag_constant = dynamics.drag_constant
+    torque_constant = dynamics.torque_constant
     airborne_height = dynamics.rest_height + 0.03
     touchdown_window = script.land_start + 0.5 * script.descent_time
 
@@ -220,7 +220,7 @@ def run_simulation(
                 u = [stabiliser.u_idle] * 4 if phase == PHASE_IDLE else [stabiliser.u_off] * 4
             commands[k] = u
             if battery_on:
-                soc, voltage = battery_tick(battery, drag_constant, s[13:17], soc, voltage, dt_tick)
+                soc, voltage = battery_tick(battery, torque_constant, s[13:17], soc, voltage, dt_tick)
             voltages[k] = voltage
             first = k * steps_per_tick
             if delay_steps:
@@ -256,10 +256,10 @@ def initial_voltage(params: SimParams, battery_on: bool) -> float:
     return open_circuit_voltage(battery.initial_soc, battery.cells) - battery.avionics_current * battery.internal_resistance
 
 
-def battery_tick(battery, drag_constant: float, rotor_speeds, soc: float, voltage: float, dt_tick: float) -> tuple[float, float]:
+def battery_tick(battery, torque_constant: float, rotor_speeds, soc: float, voltage: float, dt_tick: float) -> tuple[float, float]:
     """(state of charge, voltage [V]) after one control tick of ``dt_tick`` [s] at rotor speeds ``rotor_speeds``
     [rad/s] (module docstring's battery: the rotors' power over the efficiency, plus the avionics)."""
-    current = drag_constant * sum(o * o * o for o in rotor_speeds) / (battery.efficiency * voltage) + battery.avionics_current
+    current = torque_constant * sum(o * o * o for o in rotor_speeds) / (battery.efficiency * voltage) + battery.avionics_current
     soc -= current * dt_tick / (3600.0 * battery.capacity_ah)
     return soc, open_circuit_voltage(soc, battery.cells) - current * battery.internal_resistance
 

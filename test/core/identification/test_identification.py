@@ -10,9 +10,9 @@ from test.core.flightgen import linear_flight
 
 
 def test_identification_recovers_motor_constants_used_to_simulate():
-    truth = load_vehicle("crazyflie21").with_values({"motor_a_m": -25.0, "motor_b_m": 0.5}, "test truth")
+    truth = load_vehicle("crazyflie21").with_greybox({"motor_a_m": -25.0, "motor_b_m": 0.5}, "test truth")
     flights = [linear_flight(truth, duration=60.0, seed=s, source=f"f{s}.csv") for s in range(2)]
-    start = load_vehicle("crazyflie21")  # A_m -20, B_m 0.76: 20 % and 50 % off
+    start = load_vehicle("crazyflie21")  # A_m -20, B_m 0.815 (derived): 20 % and 60 % off
     config = EvaluationConfig(drop_start=5, drop_end=5, train="5:45", eval="45:55")
     result = identify(flights, start, config)
     assert abs(result.values["motor_a_m"] / -25.0 - 1) < 0.03
@@ -21,9 +21,12 @@ def test_identification_recovers_motor_constants_used_to_simulate():
     assert all(span["end_s"] <= 45.0 + 1e-6 for span in result.spans) and len(result.spans) == 8
     doc = identified_vehicle_document(start, result, config.train)
     loaded = VehicleConfig.from_dict(doc, "identified.yaml")
-    assert np.isclose(loaded.value("motor_a_m"), result.values["motor_a_m"])
-    assert "identified on f0.csv, f1.csv spans 5:45" in loaded.constants["motor_b_m"].source
-    assert doc["constants"]["motor_b_m"]["sigma"] > 0
+    assert np.isclose(loaded.greybox_value("motor_a_m"), result.values["motor_a_m"])
+    assert "greybox fit identified on f0.csv, f1.csv spans 5:45" in loaded.greybox["motor_b_m"].source
+    assert doc["greybox"]["motor_b_m"]["sigma"] > 0 and loaded.greybox["motor_b_m"].status == "effective"
+    assert loaded.greybox["thrust_constant"].value == start.value("rotor_thrust_constant")  # a held at k_f
+    airframe = ("mass", "arm_length", "ixx", "iyy", "izz", "prop_inertia")  # never written by identify
+    assert [loaded.constants[k] for k in airframe] == [start.constants[k] for k in airframe]
 
 
 def _differential_flight(vehicle, seed, duration=40.0, rate=100.0):
@@ -49,11 +52,11 @@ def _differential_flight(vehicle, seed, duration=40.0, rate=100.0):
 
 
 def test_identification_recovers_the_drag_constant_and_flags_reversed_spins():
-    truth = load_vehicle("crazyflie21").with_values({"drag_constant": 1.2e-9}, "test truth")
+    truth = load_vehicle("crazyflie21").with_greybox({"torque_constant": 7.45e-10}, "test truth")
     flights = [_differential_flight(truth, seed=s) for s in range(2)]
     config = EvaluationConfig(drop_start=5, drop_end=5, train="5:30", eval="30:35")
-    result = identify(flights, load_vehicle("crazyflie21"), config)  # starts from 7.24e-10
-    assert abs(result.values["drag_constant"] / 1.2e-9 - 1) < 0.05
+    result = identify(flights, load_vehicle("crazyflie21"), config)  # starts from the derived k_m 1.07e-10 (d/a 0.006)
+    assert abs(result.values["torque_constant"] / 7.45e-10 - 1) < 0.05  # d/a 0.042
     assert result.motor_check["consistent"] and not result.motor_check["yaw_reversed"]
 
     # the same flights read with every spin direction reversed: the check must say so
@@ -80,14 +83,14 @@ def test_identify_and_the_diagnosis_base_give_the_same_constants_on_the_same_win
     from quad_modelling.core.diagnosis.catalogue import CATALOGUE
     from quad_modelling.core.diagnosis.diagnose import diagnose
 
-    truth = load_vehicle("crazyflie21").with_values({"drag_constant": 1.2e-9}, "test truth")
+    truth = load_vehicle("crazyflie21").with_greybox({"torque_constant": 7.45e-10}, "test truth")
     flights = [_differential_flight(truth, seed=s, duration=25.0) for s in range(2)]
     config = EvaluationConfig(drop_start=5, drop_end=5, train="0%:100%", eval="0%:100%")
     start = load_vehicle("crazyflie21")
     identified = identify(flights, start, config)
     base = diagnose(flights, flights, start, [CATALOGUE["rotor_drag"]], config).base
     assert len(identified.spans) == 2
-    for key in ("motor_a_m", "motor_b_m", "drag_constant"):
+    for key in ("motor_a_m", "motor_b_m", "torque_constant"):
         assert identified.values[key] == base.values[key]
     assert identified.input_gain == base.values["thrust_gain_K"]
     assert identified.fit["arm_scale"] == base.values["arm_scale"]

@@ -51,8 +51,8 @@ def test_identification_recovers_the_simulator_constants(sim_flight):
     start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": 0.0}, "simulator speed map")
     fit = identify_physics([log], start, EvaluationConfig.preset("short", train="0%:100%"), Observer(0.5, 0.5, angular_trim=False))
     truth = {
-        "rotor_time_constant": params.motor_time_constant, "rotor_thrust_constant": CF.value("thrust_constant"),
-        "rotor_torque_constant": CF.value("drag_constant"), "physics_ixx": CF.value("ixx"), "physics_iyy": CF.value("iyy"),
+        "rotor_time_constant": params.motor_time_constant, "rotor_thrust_constant": params.vehicle.value("rotor_thrust_constant"),
+        "rotor_torque_constant": params.vehicle.value("rotor_torque_constant"), "effective_ixx": CF.value("ixx"), "effective_iyy": CF.value("iyy"),
     }
     for key, value in truth.items():
         assert fit.values[key] == pytest.approx(value, rel=0.03), key
@@ -85,7 +85,15 @@ def test_identify_writes_the_physics_constants_into_a_loadable_vehicle(bag, tmp_
     for key in FITTED:
         entry = document["constants"][key]
         assert entry["value"] == result.physics.values[key] and entry["sigma"] == result.physics.sigma[key]
-        assert entry["source"].startswith("identified on")
+        assert entry["source"].startswith("effective value of the physics fit, " if key.startswith("effective_") else "identified on")
+    # the fitted roll/pitch inertias are effective values next to the airframe's, which identify never overwrites
+    for key, airframe in (("effective_ixx", "ixx"), ("effective_iyy", "iyy")):
+        ratio = result.physics.values[key] / CF.value(airframe)
+        assert document["constants"][airframe] == {"value": CF.value(airframe), "unit": "kg m2", "source": CF.constants[airframe].source,
+                                                   "status": "measured"}
+        assert document["constants"][key]["status"] == "effective" and ratio > 2
+        assert f"{ratio:.2f} x the airframe's {airframe} " in document["constants"][key]["source"]
+        assert f"  {key} {result.physics.values[key]:.3g} kg m2 = {ratio:.2f} x the airframe's {airframe} " in result.summary()
     assert document["identification"]["physics"]["rotor_delay"]["unit"] == "s"
     path = tmp_path / "cf.yaml"
     from quad_modelling.core.identification.identify import write_vehicle_yaml
@@ -98,9 +106,9 @@ def test_identify_writes_the_physics_constants_into_a_loadable_vehicle(bag, tmp_
 
 
 def test_identify_without_physics_constants_says_so_and_still_identifies_the_greybox(bag):
-    doc_vehicle = VehicleConfig(**{**CF.__dict__, "constants": {k: c for k, c in CF.constants.items() if not k.startswith(("rotor_", "physics_"))}})
+    doc_vehicle = VehicleConfig(**{**CF.__dict__, "constants": {k: c for k, c in CF.constants.items() if not k.startswith(("rotor_d",))}})
     result = identify([bag], doc_vehicle, SHORT)
-    assert result.physics is None and "rotor_speed_gain" in result.physics_note
+    assert result.physics is None and "rotor_delay, rotor_drag_xy" in result.physics_note
     assert "not identified" in result.summary()
 
 
@@ -114,8 +122,8 @@ def test_constants_the_flights_do_not_excite_are_kept_and_flagged():
     linkquad = load_vehicle("linkquad")
     logs = [linear_flight(linkquad, duration=42.0, seed=seed) for seed in range(2)]
     fit = identify_physics(logs, linkquad, SHORT)
-    for key in ("physics_ixx", "physics_iyy", "rotor_drag_arm", "rotor_torque_constant"):
-        assert not fit.identifiable[key] and fit.values[key] == linkquad.value(key) and np.isnan(fit.sigma[key])
+    for key in ("effective_ixx", "effective_iyy", "rotor_drag_arm", "rotor_torque_constant"):
+        assert not fit.identifiable[key] and fit.values[key] == linkquad.effective_value(key) and np.isnan(fit.sigma[key])
         assert not fit.at_bound[key]
     assert fit.identifiable["rotor_thrust_constant"]
     assert fit.values["rotor_thrust_constant"] == pytest.approx(linkquad.value("rotor_thrust_constant"), rel=0.1)

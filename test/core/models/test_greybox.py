@@ -172,8 +172,8 @@ def test_linear_model_matches_the_nonlinear_simulator_on_a_small_manoeuvre(motor
     dynamics = QuadDynamics(params, effects=("motor_lag",) if motor_lag else ())
     truth = params.vehicle
     if not motor_lag:  # rotors follow the ESC at once: a fast motor pole with the same steady gain -B_m/A_m
-        a_m, b_m = truth.value("motor_a_m"), truth.value("motor_b_m")
-        truth = truth.with_values({"motor_a_m": -1000.0, "motor_b_m": b_m * 1000.0 / -a_m}, "test")
+        a_m, b_m = truth.greybox_value("motor_a_m"), truth.greybox_value("motor_b_m")
+        truth = truth.with_greybox({"motor_a_m": -1000.0, "motor_b_m": b_m * 1000.0 / -a_m}, "test")
     t = np.arange(300) * 0.01
     doublet = np.where(t < 0.5, 0.0, np.where(t < 1.0, 1.0, np.where(t < 1.5, -1.0, 0.0)))
     collective = np.repeat(10e-6 * doublet[:, None], 4, axis=1)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import re
 import subprocess
 import sys
@@ -252,6 +253,22 @@ def test_loading_refuses_changed_physics_constants_and_other_vehicles(trained, v
 
     with pytest.raises(ModelError, match="is a 'hybrid' model, expected 'narx'"):
         load_narx(path)
+
+
+def test_a_hybrid_file_saved_with_the_old_inertia_keys_still_loads(trained, flight, vehicle, tmp_path):
+    """A file saved before effective_ixx/iyy records the physics fit's inertias as physics_ixx/iyy: read as the new keys."""
+    path = trained.save(tmp_path / "hybrid.npz")
+    with np.load(path) as stored:
+        arrays = {k: stored[k] for k in stored.files}
+    header = json.loads(str(arrays.pop("header")))
+    physics = header["training"]["physics"]
+    physics["physics_ixx"], physics["physics_iyy"] = physics.pop("effective_ixx"), physics.pop("effective_iyy")
+    old = tmp_path / "old_hybrid.npz"
+    with open(old, "wb") as stream:
+        np.savez(stream, header=np.array(json.dumps(header)), **arrays)
+    segment, starts = flight.slice(1000, 1300), np.arange(0, 200, 13)
+    assert np.array_equal(load_hybrid(old, vehicle).predict_horizons(segment, starts, HORIZON),
+                          trained.predict_horizons(segment, starts, HORIZON))
 
 
 def test_predicting_needs_no_torch(trained, tmp_path):

@@ -249,7 +249,7 @@ def test_registry_builds_physics_and_names_what_is_missing():
         make_model("physics:abc", CF)
     with pytest.raises(ConfigError, match="physics:-1"):
         make_model("physics:-1", CF)
-    with pytest.raises(ConfigError, match="rotor_speed_gain"):
+    with pytest.raises(ConfigError, match="needs the vehicle constants rotor_delay, rotor_drag_xy, rotor_drag_z, rotor_drag_arm"):
         make_model("physics", load_vehicle("px4_iris"))
 
 

@@ -80,8 +80,8 @@ def test_the_simulators_rigid_body_equals_the_one_physics_where_their_forms_coin
     esc = params.esc
     p = PhysicsParameters(mass=v.mass, inertia=tuple(float(x) for x in v.inertia), prop_inertia=v.value("prop_inertia"),
                           positions=v.motor_positions, spins=v.yaw_signs, speed_gain=esc.speed_gain, speed_offset=esc.speed_offset,
-                          time_constant=params.motor_time_constant, delay=0.0, thrust_constant=v.value("thrust_constant"),
-                          torque_constant=v.value("drag_constant"), drag=(0.0, 0.0, 0.0), drag_arm=0.0,
+                          time_constant=params.motor_time_constant, delay=0.0, thrust_constant=v.value("rotor_thrust_constant"),
+                          torque_constant=v.value("rotor_torque_constant"), drag=(0.0, 0.0, 0.0), drag_arm=0.0,
                           input_min=v.input_min, input_max=v.input_max)
     rng = np.random.default_rng(3)
     hover = v.hover_rotor_speed
@@ -114,7 +114,7 @@ def test_the_simulators_true_allocation_and_idle_command_use_the_one_physics_whe
 
     params = sim_params_for(vehicle)
     v = params.vehicle
-    ratio = v.value("drag_constant") / v.value("thrust_constant")
+    ratio = v.value("rotor_torque_constant") / v.value("rotor_thrust_constant")
     for effects in ((), ("motor_imbalance",)):
         dyn = QuadDynamics(params, effects)
         expected = rigid_body.allocation_matrix(dyn.rotor_positions[:, :2], v.yaw_signs, ratio)

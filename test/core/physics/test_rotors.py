@@ -32,6 +32,22 @@ def test_four_hover_thrusts_carry_the_weight_and_the_thrust_inverse_returns_the_
     assert np.allclose(rotors.rotor_yaw_torques(P.torque_constant, np.full(4, hover)), P.torque_constant * hover**2)
 
 
+def test_the_greybox_constants_are_derived_from_the_physical_ones_without_a_greybox_section():
+    """A_m = -1/tau_m, B_m = k_u/tau_m (the rotor lag linearised), a = k_f, d = k_m; a greybox section wins."""
+    assert CF.greybox == {}
+    g = GreyboxParameters.from_vehicle(CF)
+    tau, k_u = CF.value("rotor_time_constant"), CF.value("rotor_speed_gain")
+    assert (g.motor_a_m, g.motor_b_m) == (-1.0 / tau, k_u / tau) == rotors.linear_motor(tau, k_u)
+    assert (g.thrust_constant, g.torque_constant) == (CF.value("rotor_thrust_constant"), CF.value("rotor_torque_constant"))
+    assert (g.ixx, g.iyy, g.izz) == tuple(CF.inertia)  # the airframe's inertias
+    assert CF.greybox_constants()["motor_b_m"].source == "derived: rotor_speed_gain/rotor_time_constant"
+    linkquad = load_vehicle("linkquad")  # the thesis reproduction: Table 3-1's own identified values
+    t = GreyboxParameters.from_vehicle(linkquad)
+    assert (t.motor_a_m, t.motor_b_m, t.thrust_constant, t.torque_constant) == (-9.56, 8.49e7, 1.59e-7, 2.93e-9)
+    assert {c.status for c in linkquad.greybox.values()} == {"effective"}
+    assert linkquad.value("rotor_thrust_constant") == 1.0e-5  # the physical one, a different value named for what it is
+
+
 def test_the_greybox_derives_its_thesis_constants_from_the_same_rotor_formulas():
     """Eq 3-7: K = 2 B_m sqrt(a m g / 4) = B_m ∂T/∂Ω at Ω0 = sqrt(m g / (4 a))."""
     g = GreyboxParameters.from_vehicle(CF)
@@ -40,7 +56,7 @@ def test_the_greybox_derives_its_thesis_constants_from_the_same_rotor_formulas()
     assert np.isclose(g.input_gain, 2 * g.motor_b_m * np.sqrt(a * m * GRAVITY / 4), rtol=1e-14)
     assert np.isclose(CF.hover_rotor_speed, g.hover_rotor_speed, rtol=1e-14)
     pos = np.asarray(g.motor_positions)
-    assert np.allclose(g.torque_matrix(), np.vstack([-pos[:, 1], pos[:, 0], g.drag_constant / a * np.asarray(g.yaw_signs)]))
+    assert np.allclose(g.torque_matrix(), np.vstack([-pos[:, 1], pos[:, 0], g.torque_constant / a * np.asarray(g.yaw_signs)]))
 
 
 def test_rotor_lag_step_is_the_exact_first_order_response_and_the_series_form_agrees():

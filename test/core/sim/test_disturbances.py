@@ -51,8 +51,8 @@ def test_a_bent_arm_turns_rotor_1s_thrust_into_a_yaw_torque_T1_sin_gamma_l1(vehi
     x1, y1 = params.vehicle.motor_positions[0]
     arm = math.hypot(x1, y1)
     omega1 = state[13]
-    t1 = params.vehicle.value("thrust_constant") * omega1**2
-    q1 = params.vehicle.value("drag_constant") * omega1**2
+    t1 = params.vehicle.value("rotor_thrust_constant") * omega1**2
+    q1 = params.vehicle.value("rotor_torque_constant") * omega1**2
     s1 = float(params.vehicle.yaw_signs[0])
     # the yaw torque: T_1 sin(gamma) l_1, less the (1 - cos gamma) share of rotor 1's drag torque it turns away from z
     assert torque[2] == pytest.approx(t1 * math.sin(gamma) * arm - s1 * q1 * (1.0 - math.cos(gamma)), rel=1e-9)

@@ -15,7 +15,7 @@ from quad_modelling.core.sim.simulate import (
     run_simulation,
     simulate,
 )
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.vehicle import GRAVITY, load_vehicle
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.matlog import read_matlog, write_matlog
 
@@ -46,15 +46,18 @@ def plain_flight():
 # --------------------------------------------------------------------------- parameters
 
 
-def test_linkquad_adjustments_give_a_realistic_hover_and_keep_the_thesis_products():
+def test_linkquad_physical_constants_give_a_realistic_hover_and_keep_the_thesis_products():
     params = sim_params_for("linkquad")
     v = params.vehicle
+    assert params.adjustments == {} and v.greybox == {}  # flown as the vehicle file's physical constants
     assert v.hover_rotor_speed == pytest.approx(542.5, abs=1.0)  # Table 3-1's a gives 4302 rad/s
-    thesis = {k: a["config"] for k, a in params.adjustments.items()}
-    assert thesis["thrust_constant"] == pytest.approx(1.59e-7)
-    # d/a and the thesis thrust gain K = 2 B_m sqrt(a m g / 4) are preserved
-    assert v.value("drag_constant") / v.value("thrust_constant") == pytest.approx(2.93e-9 / 1.59e-7, rel=1e-3)
-    gain = 2 * v.value("motor_b_m") * math.sqrt(v.value("thrust_constant") * v.hover_thrust_per_rotor)
+    thesis = load_vehicle("linkquad").greybox_constants()  # Table 3-1's own identified values
+    assert thesis["thrust_constant"].value == 1.59e-7 and thesis["thrust_constant"].source.startswith("thesis Table 3-1")
+    # d/a and the thesis thrust gain K = 2 B_m sqrt(a m g / 4) are preserved by k_f, k_m, k_u/tau_m
+    assert v.value("rotor_torque_constant") / v.value("rotor_thrust_constant") == pytest.approx(2.93e-9 / 1.59e-7, rel=1e-3)
+    derived = v.greybox_constants()
+    assert derived["motor_a_m"].value == -9.56 and derived["motor_b_m"].value == 1.0705e7
+    gain = 2 * derived["motor_b_m"].value * math.sqrt(v.value("rotor_thrust_constant") * v.hover_thrust_per_rotor)
     gain_thesis = 2 * 8.49e7 * math.sqrt(1.59e-7 * v.hover_thrust_per_rotor)
     assert gain == pytest.approx(gain_thesis, rel=1e-3)
     # the hover command lies inside the ESC pulse range, near mid-stick
@@ -67,6 +70,10 @@ def test_crazyflie_hovers_near_60_percent_pwm():
     params = sim_params_for("crazyflie21")
     u_hover = QuadDynamics(params).hover_commands(params.battery.reference_voltage)
     assert all(0.5 * 65535 < u < 0.7 * 65535 for u in u_hover)
+    # the simulated world keeps Landry 2015's rotor constants, named against the vehicle file's (Foerster 2015)
+    kf = params.adjustments["rotor_thrust_constant"]
+    assert (kf["config"], kf["used"]) == (1.788e-8, 2.88e-8) and kf["reason"].startswith("Landry 2015")
+    assert params.vehicle.value("rotor_speed_gain") == params.esc.speed_gain == 0.038
 
 
 def test_effect_names_parse():
@@ -134,7 +141,7 @@ def test_pure_yaw_torque_spins_without_tilting(vehicle):
     # counter-clockwise rotors (yaw sign +1) faster, clockwise slower, same total thrust
     fast, slow = hover * math.sqrt(1.05), hover * math.sqrt(0.95)
     state[13:17] = [fast if s > 0 else slow for s in dynamics.yaw_signs]
-    torque = dynamics.drag_constant * sum(s * w * w for s, w in zip(dynamics.yaw_signs, state[13:17]))
+    torque = dynamics.torque_constant * sum(s * w * w for s, w in zip(dynamics.yaw_signs, state[13:17]))
     assert torque > 0
     later = fly_open_loop(dynamics, state, 2.0)
     yaw_rate = torque / params.vehicle.inertia[2] * 2.0
@@ -371,7 +378,7 @@ def test_log_round_trips_through_the_thesis_mat_file_with_its_answer(tmp_path, p
     assert back.allclose(plain_flight.log)
     notes = back.meta.notes
     assert notes["seed"] == 5 and notes["effects"] == [] and back.meta.vehicle == "linkquad"
-    assert notes["truth_constants"]["thrust_constant"] == pytest.approx(1.0e-5)
+    assert notes["truth_constants"]["rotor_thrust_constant"] == pytest.approx(1.0e-5)
     assert set(notes["effects_off"]) == set(SIM_EFFECTS)
     flight = simulate("linkquad", ("rotor_drag", "input_delay"), seed=3, duration=6.0)
     assert flight.meta.notes["effect_parameters"]["input_delay"]["delay_s"] == pytest.approx(0.02)
