@@ -50,7 +50,7 @@ from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 from quad_modelling.core.preprocess import resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig
-from quad_modelling.errors import ConfigError, DataError
+from quad_modelling.errors import ConfigError
 
 CANDIDATES = ("rotor_drag", "ground_effect", "battery", "gyroscopic", "motor_imbalance")
 """The physics model's terms the diagnosis assesses (module docstring), in the order ties are broken."""

@@ -39,21 +39,17 @@ import yaml
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.physics.effects import effects_document
-from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
+from quad_modelling.core.identification.constants_report import ConstantEstimate, add_physics_constants, constant_lines
 from quad_modelling.core.identification.greybox_fit import BaseFit, constant_estimates, identify_base
 from quad_modelling.core.identification.motor_check import check_lines, check_motor_layout
-from quad_modelling.core.identification.constants_report import add_physics_constants
-from quad_modelling.core.identification.physics_fit import (
-    PhysicsFit,
-    identify_physics_if_configured,
-)
+from quad_modelling.core.identification.physics_fit import PhysicsFit, identify_physics
 from quad_modelling.core.identification.window_batch import WindowBatch, prepare_windows
 from quad_modelling.core.models.motors import discrete_motor, motor_thrusts
 from quad_modelling.core.preprocess import smooth
 from quad_modelling.core.variables import INDEX
-from quad_modelling.core.vehicle import AIRFRAME_OF, Constant, VehicleConfig
+from quad_modelling.core.vehicle import AIRFRAME_OF, PHYSICS_KEYS, Constant, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, check_window_rate
-from quad_modelling.errors import DataError
+from quad_modelling.errors import ConfigError, DataError
 
 IDENTIFIED_CONSTANTS = ("motor_a_m", "motor_b_m", "torque_constant")
 """The greybox constants ``identify`` writes into the vehicle file's ``greybox:`` section, as effective values of
@@ -267,3 +263,22 @@ def _estimate_source(estimate: ConstantEstimate, source: str) -> str:
 def write_vehicle_yaml(document: dict, path: Path) -> None:
     """Write a vehicle document as YAML (the caller wraps this in atomic_output)."""
     path.write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True))
+
+
+def identify_physics_if_configured(flights: Sequence[FlightLog], vehicle: VehicleConfig,
+                                   config: EvaluationConfig, terms: Sequence[str] = ()) -> tuple[PhysicsFit | None, str]:
+    """What ``quad-modelling identify`` runs: (the physics fit, "") or (None, why not) when the vehicle file has no
+    physics constants or the training span has no usable anchor (the greybox identification still runs). With
+    ``terms`` asked for, either is an error (ConfigError, DataError): the user asked for the physics model."""
+    missing = vehicle.missing(PHYSICS_KEYS)
+    if missing:
+        if terms:
+            raise ConfigError(f"{vehicle.path}: --effects {','.join(terms)} fits terms of the physics model, and the vehicle "
+                              f"file has no physics constants ({', '.join(missing)})")
+        return None, f"not identified: the vehicle file has no physics constants ({', '.join(missing)})"
+    try:
+        return identify_physics(flights, vehicle, config, terms=terms), ""
+    except DataError as err:
+        if terms:
+            raise
+        return None, f"not identified: {err}"

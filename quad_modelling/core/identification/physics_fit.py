@@ -86,9 +86,9 @@ from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_mome
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, rotor_speeds
 from quad_modelling.core.physics.parameters import PHYSICS_UNITS, PhysicsParameters
 from quad_modelling.core.preprocess import resample_uniform
-from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
-from quad_modelling.errors import ConfigError, DataError
+from quad_modelling.errors import DataError
 
 FIT_HORIZONS_S = (0.1, 0.25, 0.5)
 """Horizons of the fitted multi-step error [s]: 10, 25 and 50 samples at 100 Hz, spread over the SimErr horizon."""
@@ -145,7 +145,8 @@ class PhysicsFit:
     terms: dict[str, dict] = field(default_factory=dict)
     """The fitted optional terms (:func:`~quad_modelling.core.identification.physics_terms.term_estimates`)."""
     observer: Observer = field(default_factory=Observer)
-    """The disturbance observer the constants were fitted with (the model must predict with it)."""
+    """The disturbance observer the model predicts with (:func:`identify_physics` chooses it; the one the constants
+    were fitted with is ``diagnostics["observer_choice"]["fitted_with"]``)."""
 
     def parameters(self, base: PhysicsParameters) -> PhysicsParameters:
         """``base`` with the identified values (and the fitted terms switched on where identified)."""
@@ -360,7 +361,10 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     Without an ``observer``, the observer is chosen by the data among :data:`OBSERVERS`: the fit runs with each
     and keeps the one whose open-loop multi-step error on the training span is least (:func:`training_score`, the
     protocol the model is scored with; the fit's own error predicts along the *measured* attitude, and chose the
-    linear observer on simulated flights where none predicted velocity 18 % better, bench/results/truth_floor.md).
+    linear observer on simulated flights where none predicted velocity 18 % better, bench/results/truth_floor.md);
+    then the observer the model *predicts* with is chosen the same way with those constants (an observer steadies a
+    fit without helping its predictions: on simulated flights the constants fitted with no observer predicted
+    12x naive's error, those fitted with one predicted best without it).
     The default's angular trim stands for a constant moment the model lacks (a CG offset the
     controller balances) and its linear part for a force it lacks (battery sag, a mass error); where the model has
     no such gap (the simulator's flights), they throw away what it predicts right (roll rate error 0.14 -> 0.016 of
@@ -371,7 +375,12 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     scores = {name: training_score(f, flights, vehicle, config) for name, f in fits.items()}
     chosen = min(scores, key=scores.get)
     best = fits[chosen]
-    best.diagnostics["observer_choice"] = {"chosen": chosen, "errors": scores}
+    predicting = {name: training_score(replace(best, observer=o), flights, vehicle, config) if name != chosen else scores[chosen]
+                  for name, o in OBSERVERS.items()}
+    predict_with = min(predicting, key=predicting.get)
+    best.observer = OBSERVERS[predict_with]
+    best.diagnostics["observer_choice"] = {"chosen": predict_with, "fitted_with": chosen, "errors": scores,
+                                           "predicting_errors": predicting}
     return best
 
 
@@ -577,22 +586,3 @@ def _term_design(terms: tuple[str, ...], segments: list[_Segment], vehicle: Vehi
             raise DataError("identify --effects battery needs the battery voltage, and a training flight has none")
         reference = float(np.mean(np.concatenate([s.voltage for s in segments])))
     return TermDesign(terms, GROUND_OFFSETS[len(GROUND_OFFSETS) // 2] * vehicle.value("arm_length"), reference)
-
-
-def identify_physics_if_configured(flights: Sequence[FlightLog], vehicle: VehicleConfig,
-                                   config: EvaluationConfig, terms: Sequence[str] = ()) -> tuple[PhysicsFit | None, str]:
-    """What ``quad-modelling identify`` runs: (the physics fit, "") or (None, why not) when the vehicle file has no
-    physics constants or the training span has no usable anchor (the greybox identification still runs). With
-    ``terms`` asked for, either is an error (ConfigError, DataError): the user asked for the physics model."""
-    missing = vehicle.missing(PHYSICS_KEYS)
-    if missing:
-        if terms:
-            raise ConfigError(f"{vehicle.path}: --effects {','.join(terms)} fits terms of the physics model, and the vehicle "
-                              f"file has no physics constants ({', '.join(missing)})")
-        return None, f"not identified: the vehicle file has no physics constants ({', '.join(missing)})"
-    try:
-        return identify_physics(flights, vehicle, config, terms=terms), ""
-    except DataError as err:
-        if terms:
-            raise
-        return None, f"not identified: {err}"
