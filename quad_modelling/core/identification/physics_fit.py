@@ -109,8 +109,6 @@ DELAY_MAX_S = 0.15
 """Largest command delay searched [s]: 15 samples at 100 Hz. The NanoBench Crazyflie's logged commands lead its
 response by about 40 ms; at the earlier 60 ms limit a 20 ms delay added to those flights sat on the bound."""
 
-DELAY_TOLERANCE_SAMPLES = 0.02
-"""Tolerance of the fractional delay search, in sample periods (0.2 ms at 100 Hz): far below its sigma."""
 
 BOUNDS_FACTOR = 10.0
 """k_f, k_m and the roll/pitch inertias are bounded to [start / 10, start * 10]: an order of magnitude either side
@@ -507,10 +505,11 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
 
 def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: Observer, design: TermDesign, rate: float,
                      vehicle: VehicleConfig) -> tuple:
-    """τ_m and δ of least :math:`J` (module docstring): a coordinate search over whole-sample delays (the best at the
-    starting τ first, then neighbours while they improve, each with τ's bounded search), then δ between the
-    neighbouring samples (commands interpolated, :func:`~quad_modelling.core.physics.rotors.delayed_commands`) and τ
-    again there; h_off of ground effect on its grid. Returns (τ, δ, σ_δ, profile, design, channel fits, thinning)."""
+    """τ_m and δ of least :math:`J` (module docstring): a coordinate search over whole-sample delays (the best of
+    every other delay at the starting τ first, then neighbours while they improve, each with τ's bounded search),
+    then δ between samples at the vertex of the parabola through the best and its neighbours (commands interpolated,
+    :func:`~quad_modelling.core.physics.rotors.delayed_commands`) with τ searched again there, kept when better;
+    h_off of ground effect on its grid. Returns (τ, δ, σ_δ, profile, design, channel fits, thinning)."""
 
     def objective(log_tau: float, delay: float) -> float:
         fit = solve_channels(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer, 1, design))
@@ -526,7 +525,8 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
                                           method="bounded", options={"xatol": TAU_LOG_TOLERANCE})
         return float(search.fun), float(np.exp(search.x))
 
-    i = int(np.argmin([objective(np.log(start_tau), float(d)) for d in grid]))
+    coarse = np.arange(0, len(grid), 2)  # every other delay: the neighbours of the best are searched next
+    i = int(coarse[np.argmin([objective(np.log(start_tau), float(grid[k])) for k in coarse])])
     while True:
         for j in (i - 1, i, i + 1):
             if 0 <= j < len(grid) and j not in searched:
@@ -535,16 +535,16 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
         if j == i:
             break
         i = j
-    tau = searched[i][1]
+    tau, delay = searched[i][1], float(grid[i])
     period = 1.0 / rate
-    low, high = max(float(grid[i]) - period, 0.0), min(float(grid[i]) + period, float(grid[-1]))
-    fine = optimize.minimize_scalar(lambda d: objective(np.log(tau), d), bounds=(low, high), method="bounded",
-                                    options={"xatol": DELAY_TOLERANCE_SAMPLES * period})
-    delay = float(grid[i])
-    if fine.fun < searched[i][0]:
-        delay = float(fine.x)
-        best, tau_fine = tau_at(delay)
-        tau = tau_fine if best <= fine.fun else tau
+    if 0 < i < len(grid) - 1:  # between samples: the vertex of the parabola through the three profile values
+        low, mid, high = (searched[k][0] for k in (i - 1, i, i + 1))
+        curvature = low - 2.0 * mid + high
+        if curvature > 0:
+            trial = float(grid[i]) + float(np.clip(0.5 * (low - high) / curvature, -0.5, 0.5)) * period
+            value, tau_trial = tau_at(trial)
+            if value < mid:
+                tau, delay = tau_trial, trial
     profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
     thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
     if "ground_effect" in design.names:  # h_off: the grid value of least velocity error at the chosen τ, δ

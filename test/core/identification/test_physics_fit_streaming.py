@@ -26,18 +26,19 @@ from test.conftest import REPO
 CF = load_vehicle("crazyflie21")
 SHORT = EvaluationConfig.preset("short")
 
-BEFORE = {  # identify_physics([bundled bag], crazyflie21, short preset), re-recorded when the delay became fractional
-    # (commands interpolated at t - delay, searched to 150 ms): value, sigma. The profile over the delay is flat
-    # (objective 2.1399 at 40 ms, 2.1420 at 30 ms), and the lag goes to its 2 ms bound where the delay takes over.
-    "rotor_time_constant": (0.0020358684906068977, 0.0031343498376360914),
-    "rotor_delay": (0.0381671049282067, 0.004843865715282353),
-    "rotor_thrust_constant": (9.636892059574725e-09, 1.2718641079458012e-10),
-    "rotor_torque_constant": (1.0668e-11, 1.830990525032059e-12),
-    "rotor_drag_xy": (1.0986769101179852e-06, 5.773186557356925e-08),
-    "rotor_drag_z": (3.8001525496687644e-07, 4.0117791680091805e-07),
-    "rotor_drag_arm": (-0.0341288062934825, 0.004224572840910192),
-    "effective_ixx": (8.961319726356982e-05, 1.0467069117507218e-05),
-    "effective_iyy": (8.089788904490683e-05, 9.109915642115726e-06),
+BEFORE = {  # identify_physics([bundled bag], crazyflie21, short preset), re-recorded when the delay search reached
+    # 150 ms and the delay between samples (the parabola through the best whole-sample delay and its neighbours):
+    # value, sigma. The profile over the delay is flat (objective 2.1399 at 40 ms, 2.1420 at 30 ms); the lag goes
+    # to its 2 ms bound where the delay takes over.
+    "rotor_time_constant": (0.0020358684906068977, 0.002883001055542464),
+    "rotor_delay": (0.039999961853027344, 0.003940022616168135),
+    "rotor_thrust_constant": (9.636824055598798e-09, 1.2736894489229284e-10),
+    "rotor_torque_constant": (1.0668e-11, 1.824214919967605e-12),
+    "rotor_drag_xy": (1.0993596932932492e-06, 5.781575744076741e-08),
+    "rotor_drag_z": (4.1711836037429825e-07, 4.0184587555310826e-07),
+    "rotor_drag_arm": (-0.03410773593125048, 0.004273490762747951),
+    "effective_ixx": (8.98527035536413e-05, 1.0601965256691151e-05),
+    "effective_iyy": (8.220858215924144e-05, 9.41024990929724e-06),
 }
 
 
