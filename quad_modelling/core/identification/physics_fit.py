@@ -382,8 +382,9 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     return best
 
 
-CHOICE_STRIDE = 5
-"""Every 5th start of the training flights scores an observer (:func:`training_score`)."""
+CHOICE_STRIDE = 10
+"""Every 10th start (0.1 s at 100 Hz) of the training flights scores an observer (:func:`training_score`): the
+horizon is 50 starts long, so neighbouring starts share most of their errors."""
 
 
 def training_score(fit: PhysicsFit, flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig) -> float:
@@ -508,7 +509,7 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
     """τ_m and δ of least :math:`J` (module docstring): a coordinate search over whole-sample delays (the best of
     every other delay at the starting τ first, then neighbours while they improve, each with τ's bounded search),
     then δ between samples at the vertex of the parabola through the best and its neighbours (commands interpolated,
-    :func:`~quad_modelling.core.physics.rotors.delayed_commands`) with τ searched again there, kept when better;
+    :func:`~quad_modelling.core.physics.rotors.delayed_commands`), kept when better at the same τ;
     h_off of ground effect on its grid. Returns (τ, δ, σ_δ, profile, design, channel fits, thinning)."""
 
     def objective(log_tau: float, delay: float) -> float:
@@ -542,9 +543,8 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
         curvature = low - 2.0 * mid + high
         if curvature > 0:
             trial = float(grid[i]) + float(np.clip(0.5 * (low - high) / curvature, -0.5, 0.5)) * period
-            value, tau_trial = tau_at(trial)
-            if value < mid:
-                tau, delay = tau_trial, trial
+            if objective(np.log(tau), trial) < mid:  # at the best delay's τ: τ barely moves within half a sample
+                delay = trial
     profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
     thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
     if "ground_effect" in design.names:  # h_off: the grid value of least velocity error at the chosen τ, δ
