@@ -2,17 +2,25 @@
 
 from __future__ import annotations
 
-import fcntl
-import hashlib
 import os
-import pickle
-from pathlib import Path
 
-import numpy as np
-import pytest
-from hypothesis import HealthCheck, settings
+# One BLAS/OpenMP thread per test process (set before numpy is imported; subprocesses inherit it). The suite runs on
+# two xdist workers on two cores, and its matrices are small: OpenBLAS's extra threads spin-wait for work, and on a
+# busy machine a 20x20 scipy.linalg.expm costs 3 ms of CPU with them against 0.02 ms without (a 300x300 product
+# 13 ms against 1.1 ms) -- the same numbers, for a tenth of the CPU (bench/results/test_time.md).
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
 
-from quad_modelling.core.flight_log import FlightLog, FlightMeta
+import fcntl  # noqa: E402
+import hashlib  # noqa: E402
+import pickle  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+from quad_modelling.core.flight_log import FlightLog, FlightMeta  # noqa: E402
 
 FIXTURES = Path(__file__).parent / "fixtures"
 REPO = Path(__file__).resolve().parent.parent
