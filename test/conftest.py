@@ -7,7 +7,7 @@ import os
 # One BLAS/OpenMP thread per test process (set before numpy is imported; subprocesses inherit it). The suite runs on
 # two xdist workers on two cores, and its matrices are small: OpenBLAS's extra threads spin-wait for work, and on a
 # busy machine a 20x20 scipy.linalg.expm costs 3 ms of CPU with them against 0.02 ms without (a 300x300 product
-# 13 ms against 1.1 ms) -- the same numbers, for a tenth of the CPU (bench/results/test_time.md).
+# 13 ms against 1.1 ms) -- the same results for a tenth of the CPU (bench/results/test_time.md).
 for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_variable, "1")
 
