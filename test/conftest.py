@@ -1,4 +1,4 @@
-"""Shared test helpers: synthetic flight logs, simulated flights flown once per run, paths to the small committed fixtures."""
+"""Shared test helpers: synthetic flight logs, simulated flights flown once per run, the committed fixtures."""
 
 from __future__ import annotations
 
