@@ -1,15 +1,26 @@
-"""Shared test helpers: synthetic flight logs and paths to the small committed fixtures."""
+"""Shared test helpers: synthetic flight logs, simulated flights flown once per run, the committed fixtures."""
 
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
-import numpy as np
-import pytest
-from hypothesis import HealthCheck, settings
+# One BLAS/OpenMP thread per test process (set before numpy is imported; subprocesses inherit it). The suite runs on
+# two xdist workers on two cores, and its matrices are small: OpenBLAS's extra threads spin-wait for work, and on a
+# busy machine a 20x20 scipy.linalg.expm costs 3 ms of CPU with them against 0.02 ms without (a 300x300 product
+# 13 ms against 1.1 ms) -- the same results for a tenth of the CPU (bench/results/test_time.md).
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
 
-from quad_modelling.core.flight_log import FlightLog, FlightMeta
+import fcntl  # noqa: E402
+import hashlib  # noqa: E402
+import pickle  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+from hypothesis import HealthCheck, settings  # noqa: E402
+
+from quad_modelling.core.flight_log import FlightLog, FlightMeta  # noqa: E402
 
 FIXTURES = Path(__file__).parent / "fixtures"
 REPO = Path(__file__).resolve().parent.parent
@@ -30,6 +41,8 @@ settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "ci"))
 
 
 def pytest_configure(config):
+    global _CONFIG
+    _CONFIG = config
     config.addinivalue_line("markers", "exclusive: runs with no other test running beside it under pytest-xdist "
                                        "(a real-time graph that counts what arrived in time; test/parallel.py)")
 
@@ -90,3 +103,40 @@ def dask_scheduler():
 
     with local_cluster(2) as cluster:
         yield cluster.scheduler_address
+
+
+_CONFIG = None
+"""This run's pytest config (pytest_configure): where :func:`simulated_run` keeps its flights."""
+_SIMULATED: dict[tuple, bytes] = {}
+
+
+def simulated_run(vehicle: str, effects: tuple[str, ...], seed: int, duration: float):
+    """``run_simulation(vehicle, effects, seed=seed, duration=duration)`` (the vehicle's own simulator parameters),
+    flown once per test run and shared by every file that needs the same flight: the simulator is deterministic in
+    its seed (test/core/sim/test_sim.py), and a 90 s flight costs seconds. Under pytest-xdist the flights are shared
+    between the workers through pickles in the run's base temporary directory (a lock per flight: the second
+    worker waits for the first); each call returns a fresh copy, so no test sees another's changes."""
+    from quad_modelling.core.sim.simulate import run_simulation
+
+    key = (vehicle, tuple(effects), int(seed), float(duration))
+    if key not in _SIMULATED:
+        basetemp = _CONFIG.option.basetemp if _CONFIG is not None else None
+        if not (os.environ.get("PYTEST_XDIST_WORKER") and basetemp):
+            _SIMULATED[key] = pickle.dumps(run_simulation(vehicle, effects, seed=seed, duration=duration))
+        else:
+            folder = Path(basetemp).parent / "simulations"
+            folder.mkdir(exist_ok=True)
+            path = folder / f"{hashlib.sha256(repr(key).encode()).hexdigest()[:16]}.pickle"
+            with open(path.with_suffix(".lock"), "a") as lock:
+                fcntl.flock(lock, fcntl.LOCK_EX)
+                if not path.exists():
+                    staged = path.with_suffix(f".tmp-{os.getpid()}")
+                    staged.write_bytes(pickle.dumps(run_simulation(vehicle, effects, seed=seed, duration=duration)))
+                    os.replace(staged, path)
+                _SIMULATED[key] = path.read_bytes()
+    return pickle.loads(_SIMULATED[key])
+
+
+def simulated(vehicle: str, effects: tuple[str, ...], seed: int, duration: float) -> FlightLog:
+    """The sensor log of :func:`simulated_run` (``simulate(vehicle, effects, seed=seed, duration=duration)``)."""
+    return simulated_run(vehicle, effects, seed, duration).log

@@ -9,8 +9,8 @@ import pytest
 from quad_modelling.cli import main
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
 from quad_modelling.core.diagnosis.verdicts import VERDICTS
-from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.io.matlog import write_matlog
+from test.conftest import simulated
 
 
 @pytest.fixture(scope="session")
@@ -21,7 +21,7 @@ def mat_flights(tmp_path_factory):
     folder = tmp_path_factory.mktemp("diagnose_flights")
     paths = []
     for seed in (11, 12, 13):
-        log = simulate("linkquad", effects=("motor_imbalance",), seed=seed, duration=90.0)
+        log = simulated("linkquad", ("motor_imbalance",), seed, 90.0)  # the flights of test/core/diagnosis/test_diagnosis.py
         paths.append(str(write_matlog(log, folder / f"imbalance_{seed}.mat")))
     return paths
 

@@ -99,9 +99,11 @@ def test_diagnose_validate_runs_its_cases_locally_and_refuses_a_scheduler(tmp_pa
     assert not (tmp_path / "out").exists()
 
 
-def test_identify_on_workers_identifies_the_serial_constants(flights, tmp_path):
+def test_identify_on_workers_identifies_the_serial_constants(flights, dask_scheduler, tmp_path):
+    """On the running cluster: ``--jobs N`` differs only in starting a local one first (quad_modelling.fanout.dask_client),
+    which the evaluate test above runs."""
     documents = []
-    for name, extra in (("serial", []), ("jobs", ["--jobs", "2"])):
+    for name, extra in (("serial", []), ("running", ["--scheduler", dask_scheduler])):
         out = tmp_path / f"{name}.yaml"
         assert main(["identify", *flights, *SPANS, "-o", str(out), *extra]) == 0
         documents.append(yaml.safe_load(out.read_text()))
@@ -113,7 +115,7 @@ def test_identify_on_workers_identifies_the_serial_constants(flights, tmp_path):
 
 def test_diagnose_and_train_on_workers_equal_serial(flights, dask_scheduler, tmp_path):
     reports = []
-    for name, extra in (("serial", []), ("jobs", ["--jobs", "2"])):
+    for name, extra in (("serial", []), ("running", ["--scheduler", dask_scheduler])):
         out = tmp_path / f"diag_{name}"
         assert main(["diagnose", "--base", "greybox", "--train", flights[0], "--test", flights[1], "--vehicle", "linkquad", "--effects", "battery",
                      "-o", str(out), *extra]) == 0

@@ -183,9 +183,20 @@ def replay_events():
     return log, stamps, events
 
 
+FLOWN_RUNS: dict[str, tuple] = {}
+""":func:`flown_horizon_run` by model: the greybox run is read by two tests (the horizon messages and the live MAE)."""
+
+
 def flown_horizon_run(ros, model):
     """The replayed rows through a ``model`` predictor in receding-horizon mode (flown inputs, horizon_s 0.1 s):
-    (log, stamps [ns], predictor, stack holding the received <model>/horizon/odom messages)."""
+    (log, stamps [ns], predictor, stack holding the received <model>/horizon/odom messages). Run once per model in
+    this process (:data:`FLOWN_RUNS`); the tests only read what it received."""
+    if model not in FLOWN_RUNS:
+        FLOWN_RUNS[model] = _fly_horizon(ros, model)
+    return FLOWN_RUNS[model]
+
+
+def _fly_horizon(ros, model):
     log, stamps, events = replay_events()
     predictor = make_predictor(model=model, horizon_s=0.1, horizon_history_s=2.0, horizon_inputs="flown")
     stack = Stack(ros, predictor, f"{model}/horizon/odom")

@@ -34,6 +34,7 @@ from quad_modelling.core.identification.window_batch import prepare_windows
 from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
+from test.conftest import simulated
 
 DURATION = 50.0
 """Length of the simulated flights [s]; the withheld-effect tests train on two flights of 90 s (TRAIN_DURATION):
@@ -52,7 +53,7 @@ def flights():
     """Training seed 11 and test seed 12 (other manoeuvres), with and without motor imbalance."""
     out = {}
     for effects in ((), ("motor_imbalance",)):
-        out[effects] = [simulate("linkquad", effects=effects, seed=s, duration=DURATION) for s in (11, 12)]
+        out[effects] = [simulated("linkquad", effects, s, DURATION) for s in (11, 12)]
     return out
 
 
@@ -78,7 +79,7 @@ def _per_window_ramp(theta, batch, base, u):
 @pytest.fixture(scope="session")
 def imbalance_flights():
     """Two 90 s training flights (seeds 11, 13) and a test flight (seed 12) with motor imbalance."""
-    return [simulate("linkquad", effects=("motor_imbalance",), seed=s, duration=TRAIN_DURATION) for s in (11, 13, 12)]
+    return [simulated("linkquad", ("motor_imbalance",), s, TRAIN_DURATION) for s in (11, 13, 12)]
 
 
 def test_withheld_effect_is_ranked_first_and_found(imbalance_flights, linkquad, base):

@@ -34,6 +34,7 @@ from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import span_windows
 from quad_modelling.errors import ConfigError
+from test.conftest import simulated, simulated_run
 
 NEUTRAL = {
     "rotor_drag": [0.0, 0.0, 0.0, 0.0, 0.0], "battery": [0.0, 0.0], "motor_lag": [1e-4, 1.0], "input_delay": [0.0, 1.0],
@@ -49,7 +50,7 @@ def linkquad():
 
 @pytest.fixture(scope="session")
 def flight():
-    return simulate("linkquad", effects=(), seed=5, duration=35.0)
+    return simulated("linkquad", (), 5, 35.0)  # the log of truth_run
 
 
 @pytest.fixture(scope="session")
@@ -265,9 +266,7 @@ def test_windows_that_touch_the_ground_are_left_out(linkquad):
 @pytest.fixture(scope="session")
 def truth_run():
     """Effects-off flight (seed 5, 35 s) with the simulator's truth next to its log."""
-    from quad_modelling.core.sim.simulate import run_simulation
-
-    return run_simulation("linkquad", effects=(), seed=5, duration=35.0)
+    return simulated_run("linkquad", (), 5, 35.0)
 
 
 @pytest.fixture(scope="session")

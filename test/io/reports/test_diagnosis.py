@@ -311,10 +311,10 @@ def real_diagnosis():
     on the training flight, two effects assessed."""
     from quad_modelling.core.diagnosis.catalogue import CATALOGUE
     from quad_modelling.core.diagnosis.diagnose import diagnose
-    from quad_modelling.core.sim.simulate import simulate
+    from test.conftest import simulated
     from quad_modelling.core.vehicle import load_vehicle
 
-    train, test = (simulate("linkquad", effects=("motor_imbalance",), seed=s, duration=50.0) for s in (11, 12))
+    train, test = (simulated("linkquad", ("motor_imbalance",), s, 50.0) for s in (11, 12))  # test_diagnosis.py's flights
     return diagnose([train], [test], load_vehicle("linkquad"), [CATALOGUE["motor_imbalance"], CATALOGUE["battery"]])
 
 
