@@ -218,7 +218,6 @@ def start_errors(flights: Sequence[FlightLog], models: Sequence[MultiStepPredict
     at ``stride`` 1). DataError when no segment is long enough."""
     span = next(s for s in config.spans() if s.name == config.multistep_span)
     horizon = max(max(config.horizons), SIM_ERR_HORIZON)
-    columns = [list(GROUPS).index(g) for g in groups]
     parts: list[list[np.ndarray]] = [[] for _ in models]
     blocks, first_block = [], 0
     for log in flights:
@@ -230,8 +229,7 @@ def start_errors(flights: Sequence[FlightLog], models: Sequence[MultiStepPredict
             truth = measured_variables(segment, vehicle)[starts[:, None] + np.arange(1, horizon + 1)[None, :]]
             for model, out in zip(models, parts):
                 predicted = np.asarray(model.predict_horizons(segment, starts, horizon))[:, 1:]
-                norms = group_error_norms(truth.reshape(-1, len(VARIABLES)), predicted.reshape(-1, len(VARIABLES)))
-                out.append(norms.reshape(len(starts), horizon, -1)[:, :, columns].sum(axis=1))
+                out.append(np.stack([_group_norms(truth, predicted, group).sum(axis=1) for group in groups], axis=1))
             block = np.floor((segment.t[starts] - segment.t[starts[0]]) / block_s).astype(int)
             blocks.append(first_block + block)
             first_block += int(block.max()) + 1
@@ -244,3 +242,12 @@ def ratio_to_naive(errors: np.ndarray, naive: np.ndarray) -> float:
     """The mean over the groups of SimErr / naive's SimErr from per-start errors (S, G) of :func:`start_errors`: the
     one number the physics model's observer choice and the diagnosis minimise."""
     return float(np.mean(errors.mean(axis=0) / naive.mean(axis=0)))
+
+
+def _group_norms(truth: np.ndarray, predicted: np.ndarray, group: str) -> np.ndarray:
+    """(..., ) error of one group, as :func:`group_error_norms` computes it, for rows of any leading shape."""
+    if group == "orientation":
+        shape = truth.shape[:-1]
+        return group_error_norms(truth.reshape(-1, len(VARIABLES)), predicted.reshape(-1, len(VARIABLES)))[:, 2].reshape(shape)
+    cols = GROUPS[group]
+    return vector_error_norm(truth[..., cols], predicted[..., cols])

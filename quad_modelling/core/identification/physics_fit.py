@@ -102,8 +102,9 @@ SETTLE_S = 0.3
 TIME_CONSTANT_RANGE_S = (0.002, 0.3)
 """Bounds of the rotor time constant [s]: from a brushless ESC's few ms to a large slow rotor's 300 ms."""
 
-TAU_LOG_TOLERANCE = 0.05
-"""Tolerance of the τ search in log τ (5 %): finer than its uncertainty on real flights."""
+TAU_LOG_TOLERANCE = 0.1
+"""Tolerance of the τ search in log τ (10 %): finer than its uncertainty on real flights (sigma above 50 % of τ on the
+bundled bag and the NanoBench flights)."""
 
 DELAY_MAX_S = 0.15
 """Largest command delay searched [s]: 15 samples at 100 Hz. The NanoBench Crazyflie's logged commands lead its

@@ -151,3 +151,28 @@ def test_a_start_stride_scores_every_kth_start_with_the_same_known_errors():
     assert out["start_stride"] == 4 and out["starts"] == 258  # starts 19, 23, ..., 1047 of the 1099-row segment
     assert out["models"]["naive"]["position"]["mae"]["10"] == pytest.approx(0.1, rel=1e-9)
     assert out["models"]["constant_velocity"]["position"]["sim_err"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_start_errors_average_to_the_tables_sim_err():
+    """Per-start SimErr contributions (the diagnosis's and the observer choice's scorer) average to the table's SimErr
+    of every group, and the blocks number the starts in 2 s runs."""
+    from quad_modelling.core.evaluation.multistep import GROUPS, ratio_to_naive, start_errors
+    from quad_modelling.core.models.physics import PhysicsPredictor
+    from quad_modelling.io.loader import load_flight
+    from test.conftest import REPO
+
+    vehicle = load_vehicle("crazyflie21")
+    log = load_flight(REPO / "bags" / "nanobench_B7_oval_medium_rep2", vehicle)
+    config = EvaluationConfig.preset("short", horizons=(1, 10, 50))
+    model = PhysicsPredictor(vehicle, name="physics")
+    naive = ConstantStatePredictor(vehicle, config.trim)
+    table = multistep_evaluation([log], [model], vehicle, config)
+    groups = tuple(GROUPS)
+    (errors, naive_errors), blocks = start_errors([log], [model, naive], vehicle, config, groups)
+    assert len(errors) == table["starts"] == len(blocks)
+    for i, group in enumerate(groups):
+        assert errors[:, i].mean() == pytest.approx(table["models"]["physics"][group]["sim_err"], rel=1e-9)
+        assert naive_errors[:, i].mean() == pytest.approx(table["models"]["naive"][group]["sim_err"], rel=1e-9)
+    assert ratio_to_naive(errors[:, [1, 3]], naive_errors[:, [1, 3]]) == pytest.approx(
+        np.mean([table["models"]["physics"][g]["ratio_sim_err"] for g in ("velocity", "angular_velocity")]), rel=1e-9)
+    assert blocks[0] == 0 and np.all(np.diff(blocks) >= 0) and blocks[-1] >= 5
