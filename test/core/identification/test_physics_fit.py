@@ -128,3 +128,16 @@ def test_constants_the_flights_do_not_excite_are_kept_and_flagged():
     assert fit.identifiable["rotor_thrust_constant"]
     assert fit.values["rotor_thrust_constant"] == pytest.approx(linkquad.value("rotor_thrust_constant"), rel=0.1)
     assert "(held: not identifiable from these flights)" in "\n".join(fit.summary())
+
+
+def test_imbalance_patterns_span_every_gain_spread_of_x_and_plus_frames():
+    """The roll, pitch and yaw gain patterns are zero-mean, scaled to 1, and with the common mode span every per-motor
+    gain vector (so any motor's gain can be identified relative to the others') on both the x and the + frame."""
+    from quad_modelling.core.identification.physics_terms import imbalance_patterns
+
+    for name in ("crazyflie21", "linkquad"):
+        v = load_vehicle(name)
+        patterns = imbalance_patterns(v.motor_positions, v.yaw_signs)
+        np.testing.assert_allclose(patterns.sum(axis=1), 0.0, atol=1e-12)
+        np.testing.assert_allclose(np.abs(patterns).max(axis=1), 1.0)
+        assert np.linalg.matrix_rank(np.vstack([np.ones(4), patterns])) == 4, name
