@@ -33,7 +33,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.common import SHARED_DATA, write_results  # noqa: E402
+from bench.common import RESULTS, SHARED_DATA, write_results  # noqa: E402
 from bench.sindy_selection import HEADLINE, sindy_for  # noqa: E402
 from quad_modelling.commands.diagnose import PHYSICS_CONFIG  # noqa: E402
 from quad_modelling.core.diagnosis.injection import injection_checks, parse_injection, relative_gain  # noqa: E402
@@ -190,6 +190,7 @@ def run_fold(shape: str, injections: list[str], data: Path = NANOBENCH) -> dict:
     print(f"fold {shape}: {len(train)} train, {len(test)} test", file=sys.stderr, flush=True)
     plain, plain_summary = diagnose_case(train, test, vehicle, None, f"{shape} un-injected")
     runs = [{"spec": "un-injected", "summary": plain_summary}]
+    _save_partial(shape, runs)
     for spec in injections:
         injection = parse_injection(spec, len(vehicle.motors))
         injected, summary = diagnose_case(train, test, vehicle, injection, f"{shape} {spec}")
@@ -199,9 +200,19 @@ def run_fold(shape: str, injections: list[str], data: Path = NANOBENCH) -> dict:
                 "plain": relative_gain(plain.summary["motor_command_gains"]["value"], injection.motor),
                 "injected": relative_gain(injected.summary["motor_command_gains"]["value"], injection.motor)}
         runs.append({"spec": spec, "summary": summary, "checks": checks})
+        _save_partial(shape, runs)
         print(f"  {shape} {spec}: passed={checks['passed']} {checks['checks']}", file=sys.stderr, flush=True)
     return {"shape": shape, "train": [f.meta.source for f in train], "test": [f.meta.source for f in test],
             "refused": refused + refused_test, "runs": _finite(runs)}
+
+
+def _save_partial(shape: str, runs: list[dict]) -> None:
+    """The fold's runs so far (bench/results/partial/diagnose_real_<shape>.json): numbers survive a stopped run."""
+    import json
+
+    folder = RESULTS / "partial"
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / f"diagnose_real_{shape}.json").write_text(json.dumps(_finite(runs), indent=1) + "\n")
 
 
 def _finite(value):
