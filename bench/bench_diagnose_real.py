@@ -162,7 +162,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--injections", default=",".join(INJECTIONS))
     parser.add_argument("--jobs", type=int, default=1, help="folds run in parallel processes")
     parser.add_argument("--data", type=Path, default=NANOBENCH, help="NanoBench folder (default ../shared/data/nanobench)")
+    parser.add_argument("--reuse-plain", metavar="TAG", help="take each fold's un-injected run from its saved partial file "
+                        "(an earlier run of this bench) and save these runs as partial/diagnose_real_<fold>_<TAG>.json")
+    parser.add_argument("--assemble", action="store_true", help="write the results from the saved partial files")
     args = parser.parse_args(argv)
+    if args.assemble:
+        return assemble(args.folds.split(","), args.data)
     if not args.data.is_dir():
         print(f"no NanoBench data at {args.data}: pass --data DIR", file=sys.stderr)
         return 2
@@ -171,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     injections = args.injections.split(",")
     folds = []
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = {shape: pool.submit(run_fold, shape, injections, args.data) for shape in shapes}
+        futures = {shape: pool.submit(run_fold, shape, injections, args.data, args.reuse_plain) for shape in shapes}
         for shape in shapes:  # in fold order; results so far written, so a stopped run still leaves numbers
             folds.append(futures[shape].result())
             refused = sorted({r for f in folds for r in f["refused"]})
@@ -181,29 +186,73 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def run_fold(shape: str, injections: list[str], data: Path = NANOBENCH) -> dict:
-    """One fold: the un-injected run and every injection (module docstring). A module-level function: a worker task."""
+def run_fold(shape: str, injections: list[str], data: Path = NANOBENCH, reuse_plain: str | None = None) -> dict:
+    """One fold: the un-injected run and every injection (module docstring). A module-level function: a worker task.
+    ``reuse_plain``: the un-injected run read from the fold's partial file (its summary is all the checks compare)."""
     vehicle = load_vehicle(VEHICLE)
     train_paths, test_paths = fold_flights(shape, data)
     train, refused = readable(train_paths, vehicle)
     test, refused_test = readable(test_paths, vehicle)
     print(f"fold {shape}: {len(train)} train, {len(test)} test", file=sys.stderr, flush=True)
-    plain, plain_summary = diagnose_case(train, test, vehicle, None, f"{shape} un-injected")
-    runs = [{"spec": "un-injected", "summary": plain_summary}]
-    _save_partial(shape, runs)
+    if reuse_plain:
+        import json
+
+        plain_summary = json.loads((RESULTS / "partial" / f"diagnose_real_{shape}.json").read_text())[0]["summary"]
+        plain_checked = plain_summary
+        runs = []
+    else:
+        plain, plain_summary = diagnose_case(train, test, vehicle, None, f"{shape} un-injected")
+        plain_checked = plain.summary
+        runs = [{"spec": "un-injected", "summary": plain_summary}]
+        _save_partial(shape, runs)
     for spec in injections:
         injection = parse_injection(spec, len(vehicle.motors))
         injected, summary = diagnose_case(train, test, vehicle, injection, f"{shape} {spec}")
-        checks = injection_checks(injection, plain.summary, injected.summary)
+        checks = injection_checks(injection, plain_checked, injected.summary)
         if injection.kind == "gain":
             summary["relative_gain"] = {
-                "plain": relative_gain(plain.summary["motor_command_gains"]["value"], injection.motor),
+                "plain": relative_gain(plain_checked["motor_command_gains"]["value"], injection.motor),
                 "injected": relative_gain(injected.summary["motor_command_gains"]["value"], injection.motor)}
         runs.append({"spec": spec, "summary": summary, "checks": checks})
-        _save_partial(shape, runs)
+        _save_partial(shape + (f"_{reuse_plain}" if reuse_plain else ""), runs)
         print(f"  {shape} {spec}: passed={checks['passed']} {checks['checks']}", file=sys.stderr, flush=True)
     return {"shape": shape, "train": [f.meta.source for f in train], "test": [f.meta.source for f in test],
             "refused": refused + refused_test, "runs": _finite(runs)}
+
+
+def assemble(shapes: list[str], data: Path = NANOBENCH) -> int:
+    """bench/results/diagnose_real.json and .md from the partial files of ``shapes`` (the fold's own runs first, then
+    any ``_<TAG>`` files of --reuse-plain runs; a spec run twice is kept once, and whether the two agree is recorded)."""
+    import json
+
+    folder = RESULTS / "partial"
+    folds = []
+    for shape in shapes:
+        main_file = folder / f"diagnose_real_{shape}.json"
+        if not main_file.exists():
+            continue
+        runs = json.loads(main_file.read_text())
+        for extra in sorted(folder.glob(f"diagnose_real_{shape}_*.json")):
+            for run in json.loads(extra.read_text()):
+                twin = next((r for r in runs if r["spec"] == run["spec"]), None)
+                if twin is None:
+                    runs.append(run)
+                else:
+                    twin["rerun_agrees"] = twin["summary"]["found"] == run["summary"]["found"] and twin["checks"]["passed"] == run["checks"]["passed"]
+        order = ["un-injected", *INJECTIONS]
+        runs.sort(key=lambda r: order.index(r["spec"]) if r["spec"] in order else len(order))
+        train_paths, test_paths = fold_flights(shape, data)
+        folds.append({"shape": shape, "train": [p.name for p in train_paths], "test": [p.name for p in test_paths],
+                      "runs": runs, "refused": []})
+    missing = {f["shape"]: [s for s in INJECTIONS if s not in {r["spec"] for r in f["runs"]}] for f in folds}
+    wall = sum(r["summary"]["seconds"] for f in folds for r in f["runs"])
+    data = {"folds": folds, "excluded": EXCLUDED, "vehicle": VEHICLE, "candidates": list(CANDIDATES),
+            "not_run": missing, "diagnose_seconds_sum": wall}
+    text = markdown(folds, [], wall)
+    if any(missing.values()):
+        text += "\n\nNot run before the deadline: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in missing.items() if v) + "\n"
+    write_results("diagnose_real", _finite(data), text)
+    return 0
 
 
 def _save_partial(shape: str, runs: list[dict]) -> None:
