@@ -34,7 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.common import RESULTS, SHARED_DATA, write_results  # noqa: E402
-from bench.sindy_selection import HEADLINE, sindy_for  # noqa: E402
+from bench.sindy_selection import HEADLINE, agreement, sindy_for  # noqa: E402
 from quad_modelling.commands.diagnose import PHYSICS_CONFIG  # noqa: E402
 from quad_modelling.core.diagnosis.injection import injection_checks, parse_injection, relative_gain  # noqa: E402
 from quad_modelling.core.diagnosis.physics_base import CANDIDATES, diagnose_physics  # noqa: E402
@@ -111,7 +111,7 @@ def check_text(check: dict) -> str:
     return f"newly found: {', '.join(check['newly_found']) or 'nothing'}"
 
 
-def markdown(folds: list[dict], refused: list[str], wall: float) -> str:
+def markdown(folds: list[dict], refused: list[str], wall: float, wall_label: str = "Whole bench") -> str:
     lines = ["# Diagnosis on real held-out flights, with known answers injected (physics base)", "",
              f"NanoBench Crazyflie 2.1 flights, vehicle `{VEHICLE}`; per fold one shape's flights held out (`--test`), "
              f"the medium and fast flights of the other shapes of {', '.join(TRAIN_SHAPES)} train. Each row is one "
@@ -143,8 +143,9 @@ def markdown(folds: list[dict], refused: list[str], wall: float) -> str:
                 f"{rf['velocity']:.3f} / {rf['angular_velocity']:.3f} | {s['delay_s']['value'] * 1000:.1f} +- "
                 f"{s['delay_s']['sigma'] * 1000:.1f} | {gains} | {', '.join(s['sindy']['headline']) or 'nothing'} | {s['seconds']:.0f} |")
         lines.append("")
-    lines += [f"Injection checks passed: **{passed} of {total}** fold x injection runs. Whole bench {wall / 60:.1f} min "
-              "(load average about 8-10 on 2 cores: other work running; times are not quiet-machine times).", ""]
+    lines += [f"Injection checks passed: **{passed} of {total}** fold x injection runs. {wall_label} {wall / 60:.1f} min "
+              "(load average 10-22 on 2 cores: other work running, folds in parallel processes; per-run times are not "
+              "quiet-machine times).", ""]
     lines += ["SINDy selection at every threshold (standardised STLSQ), and the diagnosis's selection:", "",
               "| fold | run | diagnose found | " + " | ".join(f"STLSQ {t}" for t in folds[0]["runs"][0]["summary"]["sindy"]["selected"]) + " |",
               "|---|---|---|" + "---|" * len(folds[0]["runs"][0]["summary"]["sindy"]["selected"])]
@@ -153,6 +154,7 @@ def markdown(folds: list[dict], refused: list[str], wall: float) -> str:
             s = run["summary"]
             lines.append(f"| {fold['shape']} | {run['spec']} | {', '.join(s['found']) or 'nothing'} | "
                          + " | ".join(", ".join(v) or "nothing" for v in s["sindy"]["selected"].values()) + " |")
+    lines += ["", agreement([(r["summary"]["found"], r["summary"]["sindy"]) for f in folds for r in f["runs"]])]
     return "\n".join(lines)
 
 
@@ -248,7 +250,7 @@ def assemble(shapes: list[str], data: Path = NANOBENCH) -> int:
     wall = sum(r["summary"]["seconds"] for f in folds for r in f["runs"])
     data = {"folds": folds, "excluded": EXCLUDED, "vehicle": VEHICLE, "candidates": list(CANDIDATES),
             "not_run": missing, "diagnose_seconds_sum": wall}
-    text = markdown(folds, [], wall)
+    text = markdown(folds, [], wall, "Sum of the diagnosis runs' wall times")
     if any(missing.values()):
         text += "\n\nNot run before the deadline: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in missing.items() if v) + "\n"
     write_results("diagnose_real", _finite(data), text)

@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.bench_diagnose_real import _finite  # noqa: E402
 from bench.common import write_results  # noqa: E402
-from bench.sindy_selection import HEADLINE, sindy_for  # noqa: E402
+from bench.sindy_selection import HEADLINE, agreement, sindy_for  # noqa: E402
 from quad_modelling.commands.diagnose import PHYSICS_CONFIG  # noqa: E402
 from quad_modelling.core.diagnosis.physics_base import CANDIDATES, diagnose_physics  # noqa: E402
 from quad_modelling.core.sim.simulate import simulate  # noqa: E402
@@ -116,6 +116,8 @@ def markdown(rows: list[dict], duration: float, wall: float) -> str:
               "|---|" + "---|" * len(rows[0]["sindy"]["selected"])]
     for r in rows:
         lines.append(f"| {r['case']} | " + " | ".join(", ".join(v) or "nothing" for v in r["sindy"]["selected"].values()) + " |")
+    lines += ["", "Against the known answer: " + agreement([(r["effects"], r["sindy"]) for r in rows]).replace(
+        "the diagnosis's effects", "the switched effects")]
     return "\n".join(lines)
 
 

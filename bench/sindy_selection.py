@@ -123,3 +123,13 @@ def sindy_for(train: Sequence, vehicle, config, base_fit: PhysicsFit, candidates
     result["headline"] = result["selected"][f"{HEADLINE:g}"]
     result["seconds"] = time.perf_counter() - began
     return result
+
+
+def agreement(pairs: Sequence[tuple[Sequence[str], dict]]) -> str:
+    """One line: at each threshold, in how many of the (diagnosis found, sindy result) pairs STLSQ selects exactly
+    the diagnosis's effects."""
+    if not pairs:
+        return ""
+    counts = {t: sum(sorted(s["selected"][t]) == sorted(found) for found, s in pairs) for t in pairs[0][1]["selected"]}
+    return ("STLSQ selects exactly the diagnosis's effects in " + ", ".join(f"{n} of {len(pairs)} runs at {t}"
+                                                                          for t, n in counts.items()) + ".")
