@@ -251,6 +251,10 @@ def assemble(shapes: list[str], data: Path = NANOBENCH) -> int:
     data = {"folds": folds, "excluded": EXCLUDED, "vehicle": VEHICLE, "candidates": list(CANDIDATES),
             "not_run": missing, "diagnose_seconds_sum": wall}
     text = markdown(folds, [], wall, "Sum of the diagnosis runs' wall times")
+    reruns = [(f["shape"], r["spec"], r["rerun_agrees"]) for f in folds for r in f["runs"] if "rerun_agrees" in r]
+    if reruns:
+        text += ("\n\nRun twice (separate processes), same found effects and check outcome: "
+                 + "; ".join(f"{shape} {spec}: {'yes' if same else 'NO'}" for shape, spec, same in reruns) + "\n")
     if any(missing.values()):
         text += "\n\nNot run before the deadline: " + "; ".join(f"{k}: {', '.join(v)}" for k, v in missing.items() if v) + "\n"
     write_results("diagnose_real", _finite(data), text)
