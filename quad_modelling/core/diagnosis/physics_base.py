@@ -81,11 +81,12 @@ COMPONENTS = {
     "rotor_drag": (("horizontal", "rotor_drag_xy", 0.0), ("vertical", "rotor_drag_z", 0.0), ("moment arm", "rotor_drag_arm", 0.0)),
     "ground_effect": (("coefficient", "ground_effect.coefficient", 0.0),),
     "battery": (("kappa", "battery.kappa", 0.0),),
-    "gyroscopic": (("body scale", "gyroscopic.body_scale", 0.0), ("rotor scale", "gyroscopic.rotor_scale", 0.0)),
+    "gyroscopic": (("body scale", "gyroscopic.body_scale", 1.0), ("rotor scale", "gyroscopic.rotor_scale", 0.0)),
     "motor_imbalance": tuple((f"motor {i} gain", f"motor_imbalance.gain_{i}", 1.0) for i in range(1, 5)),
 }
 """Per candidate: its components (label, estimate name, null value); the first is the main one (for the
-imbalance: the gain furthest from 1)."""
+imbalance: the gain furthest from 1). The null is the base's own value: the base has the body's gyroscopic torque
+-omega x I omega (body scale 1, :class:`~quad_modelling.core.physics.parameters.PhysicsParameters`), no rotors' part."""
 
 
 @dataclass
