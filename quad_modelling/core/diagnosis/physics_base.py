@@ -3,7 +3,10 @@ r"""The sim-to-real gap diagnosis on the identified physics model (DESIGN 8; ``q
 The base is the physics model users predict with (:mod:`quad_modelling.core.models.physics`), its constants
 identified on the training flights by ``identify``'s fit
 (:func:`~quad_modelling.core.identification.physics_fit.identify_physics`), with the effects the vehicle does not
-switch on left off. The candidates are terms of that model (:data:`CANDIDATES`), each fitted *with* the base
+switch on left off. The disturbance observer, the rotor time constant and the command delay are identified once,
+as ``identify`` fits the model (rotor drag included), and held for every fit that follows, so that no candidate's
+presence or absence distorts them: refitted with rotor drag off, the delay went to its 150 ms bound and the roll
+inertia to its lower bound on two of three NanoBench shape folds (bench/results/diagnose_real.md, before this). The candidates are terms of that model (:data:`CANDIDATES`), each fitted *with* the base
 constants by the same least squares (``identify --effects``); motor lag and input delay are base constants (fitted,
 the delay between samples), the thrust nonlinearity is the physics itself (:math:`T = k_f \Omega^2`) and a trim drift is
 what the disturbance observer absorbs (:data:`IN_BASE`).
@@ -230,7 +233,9 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     say("motor order and spin check")
     layout = motor_order_check(train, vehicle, config)
     say("identifying the base (the observer chosen by the data)")
-    observer = identify_physics(train, vehicle, config, drag=False).observer
+    reference = identify_physics(train, vehicle, config)  # as identify fits it: the observer and the rotor dynamics
+    observer = reference.observer
+    dynamics = (reference.values["rotor_time_constant"], reference.values["rotor_delay"], reference.sigma["rotor_delay"])
     cache: dict[tuple[str, ...], Rung] = {}
 
     def rung(effects: Sequence[str], flights: Sequence[FlightLog] = train) -> Rung:
@@ -239,7 +244,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             return cache[key]
         say(f"fitting base + {', '.join(key) or 'nothing'}")
         fit = identify_physics(flights, vehicle, config, observer=observer, drag="rotor_drag" in key,
-                               terms=[e for e in key if e != "rotor_drag"])
+                               terms=[e for e in key if e != "rotor_drag"], dynamics=dynamics)
         fitted = fitted_vehicle(vehicle, fit, f"diagnose: base + {', '.join(key) or 'nothing'}")
         result = Rung(key, fit, fitted, held_out_score(fitted, observer, test, config, SELECTION_STRIDE))
         if flights is train:
@@ -283,7 +288,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     if len(train) >= 2:
         halves = [list(train[0::2]), list(train[1::2])]
         folds = [identify_physics(h, vehicle, config, observer=observer, drag="rotor_drag" in final.effects,
-                                  terms=[e for e in final.effects if e != "rotor_drag"])
+                                  terms=[e for e in final.effects if e != "rotor_drag"], dynamics=dynamics)
                  for h in halves]
     effects = {}
     order = {c: i for i, c in enumerate(chosen)}

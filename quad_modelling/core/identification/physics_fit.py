@@ -71,6 +71,7 @@ from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 from quad_modelling.core.identification.normal_equations import NormalEquations, solve_channels
+from quad_modelling.core.identification.uncertainty import profile_sigma
 from quad_modelling.core.identification.physics_terms import (
     GROUND_OFFSETS,
     IMBALANCE_ITERATIONS,
@@ -353,7 +354,8 @@ def _normal_equations(p: PhysicsParameters, segments: list[_Segment], time_const
 
 
 def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
-                     observer: Observer | None = None, terms: Sequence[str] = (), drag: bool = True) -> PhysicsFit:
+                     observer: Observer | None = None, terms: Sequence[str] = (), drag: bool = True,
+                     dynamics: tuple[float, float, float] | None = None) -> PhysicsFit:
     """Fit the physics constants :data:`FITTED` on ``config``'s training span of ``flights`` (module docstring), with
     the optional ``terms`` (:mod:`~quad_modelling.core.identification.physics_terms`).
 
@@ -369,8 +371,8 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     no such gap (the simulator's flights), they throw away what it predicts right (roll rate error 0.14 -> 0.016 of
     the observer alone's, yaw 0.74 -> 0.004, on simulated LinkQuad flights with the true constants)."""
     if observer is not None:
-        return _identify_with(flights, vehicle, config, observer, terms, drag)
-    fits = {name: _identify_with(flights, vehicle, config, OBSERVERS[name], terms, drag) for name in FIT_OBSERVERS}
+        return _identify_with(flights, vehicle, config, observer, terms, drag, dynamics)
+    fits = {name: _identify_with(flights, vehicle, config, OBSERVERS[name], terms, drag, dynamics) for name in FIT_OBSERVERS}
     scores = {name: training_score(f, flights, vehicle, config) for name, f in fits.items()}
     chosen = min(scores, key=scores.get)
     best = fits[chosen]
@@ -416,7 +418,8 @@ with none, the constants absorb every slow disturbance: their open-loop training
 
 
 def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
-                   observer: Observer, terms: Sequence[str], drag: bool = True) -> PhysicsFit:
+                   observer: Observer, terms: Sequence[str], drag: bool = True,
+                   dynamics: tuple[float, float, float] | None = None) -> PhysicsFit:
     """:func:`identify_physics` with one ``observer``; with motor_imbalance among the ``terms``, the whole fit is
     repeated :data:`~quad_modelling.core.identification.physics_terms.IMBALANCE_ITERATIONS` times from the gains of
     the previous pass (Gauss-Newton)."""
@@ -427,7 +430,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     design = replace(_term_design(tuple(terms), segments, vehicle), drag=drag)
     passes = IMBALANCE_ITERATIONS if "motor_imbalance" in design.names else 1
     for _ in range(passes):
-        tau, delay, delay_sd, profile, design, fit, thin = _search_dynamics(p, segments, observer, design, rate, vehicle)
+        tau, delay, delay_sd, profile, design, fit, thin = _search_dynamics(p, segments, observer, design, rate, vehicle, dynamics)
         gains = updated_gains(design, fit, p.positions, p.spins) if "motor_imbalance" in design.names else None
         if gains is not None:
             design = replace(design, motor_gains=tuple(float(g) for g in gains[0]))
@@ -462,7 +465,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
         values["rotor_drag_arm"], sigma["rotor_drag_arm"] = float("nan"), float("nan")
     torque, torque_sd = coef("yaw", "torque")
     values["rotor_torque_constant"], sigma["rotor_torque_constant"] = torque * p.inertia[2], torque_sd * p.inertia[2]
-    sigma["rotor_time_constant"] = _profile_sigma(
+    sigma["rotor_time_constant"] = profile_sigma(
         lambda value: _chi2(p, segments, value, delay, observer, thin, fit, design), tau, 0.05 * tau)
     sigma["rotor_delay"] = delay_sd
 
@@ -511,12 +514,13 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
 
 
 def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: Observer, design: TermDesign, rate: float,
-                     vehicle: VehicleConfig) -> tuple:
+                     vehicle: VehicleConfig, held: tuple[float, float, float] | None = None) -> tuple:
     """τ_m and δ of least :math:`J` (module docstring): a coordinate search over whole-sample delays (the best of
     every other delay at the starting τ first, then neighbours while they improve, each with τ's bounded search),
     then δ between samples at the vertex of the parabola through the best and its neighbours (commands interpolated,
     :func:`~quad_modelling.core.physics.rotors.delayed_commands`), kept when better at the same τ;
-    h_off of ground effect on its grid. Returns (τ, δ, σ_δ, profile, design, channel fits, thinning)."""
+    h_off of ground effect on its grid. ``held`` (τ, δ, σ_δ): no search. Returns (τ, δ, σ_δ, profile, design,
+    channel fits, thinning)."""
 
     def objective(log_tau: float, delay: float) -> float:
         fit = solve_channels(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer, 1, design))
@@ -532,6 +536,12 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
                                           method="bounded", options={"xatol": TAU_LOG_TOLERANCE})
         return float(search.fun), float(np.exp(search.x))
 
+    period = 1.0 / rate
+    thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
+    if held is not None:
+        tau, delay, sigma = held
+        design = _ground_offset(p, segments, tau, delay, observer, design, vehicle)
+        return tau, delay, sigma, [], design, solve_channels(_normal_equations(p, segments, tau, delay, observer, thin, design)), thin
     coarse = np.arange(0, len(grid), 2)  # every other delay: the neighbours of the best are searched next
     i = int(coarse[np.argmin([objective(np.log(start_tau), float(grid[k])) for k in coarse])])
     while True:
@@ -543,7 +553,6 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
             break
         i = j
     tau, delay = searched[i][1], float(grid[i])
-    period = 1.0 / rate
     if 0 < i < len(grid) - 1:  # between samples: the vertex of the parabola through the three profile values
         low, mid, high = (searched[k][0] for k in (i - 1, i, i + 1))
         curvature = low - 2.0 * mid + high
@@ -552,17 +561,23 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
             if objective(np.log(tau), trial) < mid:  # at the best delay's τ: τ barely moves within half a sample
                 delay = trial
     profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
-    thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
-    if "ground_effect" in design.names:  # h_off: the grid value of least velocity error at the chosen τ, δ
-        offsets = [g * vehicle.value("arm_length") for g in GROUND_OFFSETS]
-        errors = [solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, replace(design, ground_offset=h)))["velocity"]["ssr"]
-                  for h in offsets]
-        design = replace(design, ground_offset=offsets[int(np.argmin(errors))])
+    design = _ground_offset(p, segments, tau, delay, observer, design, vehicle)
     fit = solve_channels(_normal_equations(p, segments, tau, delay, observer, thin, design))
-    sigma = _profile_sigma(lambda d: _chi2(p, segments, tau, d, observer, thin, fit, design), delay, 0.25 * period)
+    sigma = profile_sigma(lambda d: _chi2(p, segments, tau, d, observer, thin, fit, design), delay, 0.25 * period)
     if not np.isfinite(sigma):
         sigma = period / np.sqrt(12.0)  # the profile is flat or kinked there: the grid's quantisation
     return tau, delay, sigma, profile, design, fit, thin
+
+
+def _ground_offset(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: float, observer: Observer,
+                   design: TermDesign, vehicle: VehicleConfig) -> TermDesign:
+    """``design`` with ground effect's h_off the grid value of least velocity error at τ, δ (unchanged without it)."""
+    if "ground_effect" not in design.names:
+        return design
+    offsets = [g * vehicle.value("arm_length") for g in GROUND_OFFSETS]
+    errors = [solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, replace(design, ground_offset=h)))["velocity"]["ssr"]
+              for h in offsets]
+    return replace(design, ground_offset=offsets[int(np.argmin(errors))])
 
 
 def _chi2(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: float, observer: Observer, thin: int, fit: dict,
@@ -571,16 +586,6 @@ def _chi2(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: flo
     trial = solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, design))
     s2 = {c: fit[c]["s2"] for c in CHANNELS}
     return sum(trial[c]["ssr"] / (thin * s2[c]) for c in CHANNELS if np.isfinite(s2[c]) and s2[c] > 0)
-
-
-def _profile_sigma(chi2, x: float, h: float) -> float:
-    """σ = sqrt(2 / χ²''(x)) from a central second difference with step ``h`` (one side only at x < h: a delay of
-    0); NaN when the profile is not convex there (not identifiable from these flights)."""
-    if x - h < 0:
-        curvature = (chi2(x + 2 * h) - 2.0 * chi2(x + h) + chi2(x)) / h**2
-    else:
-        curvature = (chi2(x + h) - 2.0 * chi2(x) + chi2(x - h)) / h**2
-    return float(np.sqrt(2.0 / curvature)) if curvature > 0 else float("nan")
 
 
 def _term_design(terms: tuple[str, ...], segments: list[_Segment], vehicle: VehicleConfig) -> TermDesign:

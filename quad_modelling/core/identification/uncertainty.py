@@ -64,3 +64,13 @@ def effective_samples(jac: np.ndarray, residuals: np.ndarray, lags: int) -> floa
     hac = np.diag(hac_covariance(jac, residuals, lags))
     ratio = np.mean(textbook / np.where(hac > 0, hac, np.nan))
     return float(residuals.size * ratio) if np.isfinite(ratio) else float("nan")
+
+
+def profile_sigma(chi2, x: float, h: float) -> float:
+    """σ = sqrt(2 / χ²''(x)) from a central second difference with step ``h`` (one side only at x < h: a delay of
+    0); NaN when the profile is not convex there (not identifiable from these flights)."""
+    if x - h < 0:
+        curvature = (chi2(x + 2 * h) - 2.0 * chi2(x + h) + chi2(x)) / h**2
+    else:
+        curvature = (chi2(x + h) - 2.0 * chi2(x) + chi2(x - h)) / h**2
+    return float(np.sqrt(2.0 / curvature)) if curvature > 0 else float("nan")
