@@ -27,18 +27,18 @@ CF = load_vehicle("crazyflie21")
 SHORT = EvaluationConfig.preset("short")
 
 BEFORE = {  # identify_physics([bundled bag], crazyflie21, short preset), re-recorded when the delay search reached
-    # 150 ms and the delay between samples (the parabola through the best whole-sample delay and its neighbours):
-    # value, sigma. The profile over the delay is flat (objective 2.1399 at 40 ms, 2.1420 at 30 ms); the lag goes
-    # to its 2 ms bound where the delay takes over.
-    "rotor_time_constant": (0.0020358684906068977, 0.002883001055542464),
-    "rotor_delay": (0.039999961853027344, 0.003940022616168135),
-    "rotor_thrust_constant": (9.636824055598798e-09, 1.2736894489229284e-10),
-    "rotor_torque_constant": (1.0668e-11, 1.824214919967605e-12),
-    "rotor_drag_xy": (1.0993596932932492e-06, 5.781575744076741e-08),
-    "rotor_drag_z": (4.1711836037429825e-07, 4.0184587555310826e-07),
-    "rotor_drag_arm": (-0.03410773593125048, 0.004273490762747951),
-    "effective_ixx": (8.98527035536413e-05, 1.0601965256691151e-05),
-    "effective_iyy": (8.220858215924144e-05, 9.41024990929724e-06),
+    # 150 ms and the delay between samples (the parabola through the best whole-sample delay and its neighbours), tau
+    # searched to 10 % in log tau: value, sigma. The profile over the delay is flat (objective 2.1399 at 40 ms, 2.1420
+    # at 30 ms); the lag goes to its 2 ms bound where the delay takes over.
+    "rotor_time_constant": (0.0021071104151363994, 0.0028610458969225614),
+    "rotor_delay": (0.039999961853027344, 0.003940820315151104),
+    "rotor_thrust_constant": (9.636822369805924e-09, 1.2737061877894014e-10),
+    "rotor_torque_constant": (1.0668e-11, 1.8241801116543816e-12),
+    "rotor_drag_xy": (1.0993654023876085e-06, 5.781653548292361e-08),
+    "rotor_drag_z": (4.173840648139663e-07, 4.018518518917116e-07),
+    "rotor_drag_arm": (-0.03410740103211082, 0.004273900489401306),
+    "effective_ixx": (8.985383544197422e-05, 1.0603403449955696e-05),
+    "effective_iyy": (8.221464042616327e-05, 9.41205622590213e-06),
 }
 
 
