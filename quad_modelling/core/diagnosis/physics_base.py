@@ -3,7 +3,8 @@ r"""The sim-to-real gap diagnosis on the identified physics model (DESIGN 8; ``q
 The base is the physics model users predict with (:mod:`quad_modelling.core.models.physics`), its constants
 identified on the training flights by ``identify``'s fit
 (:func:`~quad_modelling.core.identification.physics_fit.identify_physics`), with the effects the vehicle does not
-switch on left off. The disturbance observer, the rotor time constant and the command delay are identified once,
+switch on left off. The disturbance observers (the one the constants are fitted with, the one the model predicts
+with), the rotor time constant and the command delay are identified once,
 as ``identify`` fits the model (rotor drag included), and held for every fit that follows, so that no candidate's
 presence or absence distorts them: refitted with rotor drag off, the delay went to its 150 ms bound and the roll
 inertia to its lower bound on two of three NanoBench shape folds (bench/results/diagnose_real.md, before this). The candidates are terms of that model (:data:`CANDIDATES`), each fitted *with* the base
@@ -46,7 +47,7 @@ import numpy as np
 from quad_modelling.core.diagnosis.verdicts import DETERMINED_SIGMAS
 from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.identification.physics_fit import PhysicsFit, identify_physics
+from quad_modelling.core.identification.physics_fit import OBSERVERS, PhysicsFit, identify_physics
 from quad_modelling.core.identification.constants_report import fitted_vehicle
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
@@ -233,8 +234,9 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     say("motor order and spin check")
     layout = motor_order_check(train, vehicle, config)
     say("identifying the base (the observer chosen by the data)")
-    reference = identify_physics(train, vehicle, config)  # as identify fits it: the observer and the rotor dynamics
-    observer = reference.observer
+    reference = identify_physics(train, vehicle, config)  # as identify fits it: the observers and the rotor dynamics
+    observer = reference.observer  # the one the model predicts with
+    fit_observer = OBSERVERS[reference.diagnostics["observer_choice"]["fitted_with"]]  # the one its constants are fitted with
     dynamics = (reference.values["rotor_time_constant"], reference.values["rotor_delay"], reference.sigma["rotor_delay"])
     cache: dict[tuple[str, ...], Rung] = {}
 
@@ -243,8 +245,9 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         if flights is train and key in cache:
             return cache[key]
         say(f"fitting base + {', '.join(key) or 'nothing'}")
-        fit = identify_physics(flights, vehicle, config, observer=observer, drag="rotor_drag" in key,
+        fit = identify_physics(flights, vehicle, config, observer=fit_observer, drag="rotor_drag" in key,
                                terms=[e for e in key if e != "rotor_drag"], dynamics=dynamics)
+        fit.observer = observer
         fitted = fitted_vehicle(vehicle, fit, f"diagnose: base + {', '.join(key) or 'nothing'}")
         result = Rung(key, fit, fitted, held_out_score(fitted, observer, test, config, SELECTION_STRIDE))
         if flights is train:
@@ -287,7 +290,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     folds = []
     if len(train) >= 2:
         halves = [list(train[0::2]), list(train[1::2])]
-        folds = [identify_physics(h, vehicle, config, observer=observer, drag="rotor_drag" in final.effects,
+        folds = [identify_physics(h, vehicle, config, observer=fit_observer, drag="rotor_drag" in final.effects,
                                   terms=[e for e in final.effects if e != "rotor_drag"], dynamics=dynamics)
                  for h in halves]
     effects = {}
