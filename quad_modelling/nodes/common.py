@@ -94,6 +94,23 @@ def subscription_qos(kind: str, depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
     raise BadParameter(f"parameter qos={kind!r}: {qos_kind(kind)}")
 
 
+def prediction_qos(depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
+    """Reliable, transient-local, keep-last ``depth``: the predictor's prediction topics.
+
+    Transient-local so that a reader the predictor's writer matches late (discovery repaired over a lossy link
+    after the predictions began) still receives the last ``depth`` predictions instead of losing them. Any reader
+    matches it (a volatile reader gets only new samples); :func:`prediction_subscription_qos` asks for the history."""
+    return QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                      history=HistoryPolicy.KEEP_LAST, depth=depth)
+
+
+def prediction_subscription_qos(kind: str, depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
+    """The evaluator's subscriptions to predictions: :func:`subscription_qos`, transient-local when ``reliable``
+    (lossless, including what was published before the predictor's writer matched this reader)."""
+    qos = subscription_qos(kind, depth)
+    return prediction_qos(depth) if kind == "reliable" else qos
+
+
 def latched_qos() -> QoSProfile:
     """Reliable, transient-local, depth 1: the window origin, delivered to late joiners."""
     return QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,

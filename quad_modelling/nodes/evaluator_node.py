@@ -81,6 +81,7 @@ from quad_modelling.nodes.common import (
     declare_parameters,
     latched_qos,
     make_executor,
+    prediction_subscription_qos,
     run_node,
     say,
     spin,
@@ -175,6 +176,7 @@ class EvaluatorNode(Node):
             self.get_logger().info(f"topic map {topic_map.name} ({topic_map.origin}): {self.mapped.describe()}")
         self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
         self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
+        qos = prediction_subscription_qos(p["qos"], p["qos_depth"])
         for model in self.models:
             subscribe(Odometry, f"{model}/odom", self._guarded(f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg)), qos)
             subscribe(AccelStamped, f"{model}/accel", self._guarded(f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg)), qos)

@@ -73,10 +73,10 @@ from quad_modelling.nodes.common import (
     FaultLog,
     VehicleSource,
     adopt_vehicle,
-    data_qos,
     declare_parameters,
     latched_qos,
     make_executor,
+    prediction_qos,
     run_node,
     say,
     set_realtime_priority,
@@ -150,7 +150,7 @@ class PredictorNode(Node):
         self.child_frame = f"{self.name_}/base_link"
         self.world_frame = p["world_frame"]
         self.out = messages.prediction_publisher_messages(self.child_frame, self.world_frame)
-        out_qos, qos = data_qos(p["qos_depth"]), subscription_qos(p["qos"], p["qos_depth"])
+        out_qos, qos = prediction_qos(p["qos_depth"]), subscription_qos(p["qos"], p["qos_depth"])
         if self.horizon_s > 0:
             self.horizon_pub = self.create_publisher(Odometry, f"{self.name_}/horizon/odom", out_qos)
         else:

@@ -11,6 +11,8 @@ from quad_modelling.nodes.common import (
     Param,
     VehicleSource,
     integers_as_floats,
+    prediction_qos,
+    prediction_subscription_qos,
     subscription_qos,
     unknown_parameters,
 )
@@ -85,3 +87,11 @@ def test_each_claim_gets_a_domain_no_other_holder_has(tmp_path, monkeypatch):
         domains.claim_domain(tmp_path)
     domains._held.pop(got.index(41)).close()  # a holder that ends releases its domain
     assert domains.claim_domain(tmp_path) == 41
+
+
+def test_predictions_keep_their_history_for_a_late_reliable_reader():
+    offered = prediction_qos(400)
+    assert (offered.reliability, offered.durability, offered.depth) == (ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL, 400)
+    assert prediction_subscription_qos("reliable", 400) == offered  # asks for the history the predictor offers
+    for kind in ("best_effort", "sensor_data"):  # a best-effort reader stays volatile, as for measurements
+        assert prediction_subscription_qos(kind) == subscription_qos(kind)
