@@ -24,7 +24,8 @@ error is linear in θ, so each channel is a linear least squares over all anchor
 :math:`y^T y − 2θ^T X^T y + θ^T X^T X θ`. The regressors use the measured attitude and
 velocity along the horizon (the equation error of the whole step, not of one row), rotor speeds
 :math:`\Omega_i` from the lag filter over the delayed commands
-(:func:`~quad_modelling.core.physics.rotors.rotor_speeds`), :math:`S = \sum_i \Omega_i`, :math:`v_B = R^T v_N`:
+(:func:`~quad_modelling.core.physics.rotors.rotor_speeds`), each interval's rotor terms with its mean speed
+(:func:`~quad_modelling.core.physics.rotors.interval_rotor_speeds`, as the model's step), :math:`S = \sum_i \Omega_i`, :math:`v_B = R^T v_N`:
 
 * velocity (3 axes in N, jointly): :math:`\dot v_N = R\big(-\tfrac{k_f}{m}\sum_i\Omega_i^2 e_z
   - \tfrac{d_{xy}}{m} S (v_{B,x}, v_{B,y}, 0) - \tfrac{d_z}{m} S (0, 0, v_{B,z})\big) + g e_z`, θ = (k_f, d_xy, d_z);
@@ -84,7 +85,7 @@ from quad_modelling.core.identification.physics_terms import (
     velocity_columns,
 )
 from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
-from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, rotor_speeds
+from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, interval_rotor_speeds, rotor_speeds
 from quad_modelling.core.physics.parameters import PHYSICS_UNITS, PhysicsParameters
 from quad_modelling.core.preprocess import resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig
@@ -271,28 +272,28 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
         raise DataError("the vehicle's battery term needs the battery voltage, and a training flight has none")
     commands = effective_commands(q, delayed_commands(q, seg.u, seg.t), seg.voltage if q.battery is not None else None)
     rotor = rotor_speeds(q, commands, seg.t)
+    mean_rotor = interval_rotor_speeds(q, rotor, commands, seg.t)  # each interval's, as the model's step integrates
     m = p.mass
     inertia = np.asarray(p.inertia, dtype=float)
-    thrust_force, thrust_torque = _wrench_per_unit(q, rotor, seg.v_b, seg.height, thrust_constant=1.0)
-    drag_xy_force, drag_xy_torque = _wrench_per_unit(q, rotor, seg.v_b, None, drag=(1.0, 1.0, 0.0), drag_arm=1.0)
-    drag_z_force, _ = _wrench_per_unit(q, rotor, seg.v_b, None, drag=(0.0, 0.0, 1.0))
-    _, yaw_torque = _wrench_per_unit(q, rotor, seg.v_b, None, torque_constant=1.0)
+    thrust_force, thrust_torque = _wrench_per_unit(q, mean_rotor, seg.v_b, seg.height, thrust_constant=1.0)
+    drag_xy_force, drag_xy_torque = _wrench_per_unit(q, mean_rotor, seg.v_b, None, drag=(1.0, 1.0, 0.0), drag_arm=1.0)
+    drag_z_force, _ = _wrench_per_unit(q, mean_rotor, seg.v_b, None, drag=(0.0, 0.0, 1.0))
+    _, yaw_torque = _wrench_per_unit(q, mean_rotor, seg.v_b, None, torque_constant=1.0)
     body = np.stack([thrust_force, drag_xy_force, drag_z_force] if design.drag else [thrust_force], axis=2) / m
     gyro = np.zeros_like(seg.rates)
     if q.gyroscopic is not None:  # the vehicle's gyroscopic torques, known (not fitted here)
         body_scale, rotor_scale = q.gyroscopic
-        momentum = rotor_scale * rotor_momentum(q.prop_inertia, q.spins, rotor) if rotor_scale else None
+        momentum = rotor_scale * rotor_momentum(q.prop_inertia, q.spins, mean_rotor) if rotor_scale else None
         gyro = gyroscopic_torque(seg.rates, inertia, momentum, body_scale) / inertia
     velocity = np.einsum("nij,njk->nik", seg.rot, body)
     extra = velocity_columns(design, velocity[:, :, 0], seg.height, seg.voltage)
     if extra:
         velocity = np.concatenate([velocity, np.stack(extra, axis=2)], axis=2)
-    rate_extra = rate_columns(design, q.prop_inertia, q.spins, seg.rates, rotor, inertia)
-    imbalance = (imbalance_columns(design, q.positions, q.spins, q.speed_offset, rotor)
+    rate_extra = rate_columns(design, q.prop_inertia, q.spins, seg.rates, mean_rotor, inertia)
+    imbalance = (imbalance_columns(design, q.positions, q.spins, q.speed_offset, mean_rotor)
                  if "motor_imbalance" in design.names else None)
     torques = [_torque_columns(thrust_torque, drag_xy_torque if design.drag else None, rate_extra, imbalance, axis) for axis in range(3)]
-    # yaw's rotor-reaction term I_p/I_zz sum s_i dΩ_i/dt integrates to I_p/I_zz sum s_i (Ω(t) - Ω(t_0)): added to the known part
-    # after integration (below), exact for the model's rectangle rule up to the filter's own step.
+    # yaw's rotor reaction I_p/I_zz Σ s_i dΩ_i/dt integrates to I_p/I_zz Σ s_i (Ω(t) - Ω(t_0)): the known part below, exact
     return {
         "velocity": (seg.vel_n, velocity, np.zeros((len(seg.t), 3))),
         "roll": (seg.rates[:, :1], torques[0], gyro[:, :1]),

@@ -34,7 +34,10 @@ Integration (:func:`step`): semi-implicit (symplectic) Euler over the real sampl
     \omega_{k+1} = \omega_k + \Delta t \dot\omega_k,\quad R_{k+1} = R_k \mathrm{Exp}(\omega_{k+1} \Delta t),\quad
     v_{k+1} = v_k + \Delta t \dot v_k,\quad p_{k+1} = p_k + \Delta t\, v_{k+1}
 
-with the rotor speeds stepped exactly (:func:`~quad_modelling.core.physics.rotors.rotor_step`), |ω| limited to the
+where the rotor terms of the accelerations are the step's exact means under the held command: thrust and yaw
+torque with :math:`\bar\Omega` (:func:`~quad_modelling.core.physics.rotors.interval_rotor_speed`,
+:math:`\bar\Omega^2` the mean of :math:`\Omega^2`), the rotor reaction with :math:`(\Omega_{k+1} - \Omega_k)/\Delta t`;
+the rotor speeds stepped exactly (:func:`~quad_modelling.core.physics.rotors.rotor_step`), |ω| limited to the
 gyro full scale and |v| to :data:`MAX_SPEED_MPS`. Why: the rotor lag, the only fast mode, is integrated exactly,
 leaving the rigid body, whose open-loop modes are integrators (no stiffness); semi-implicit Euler keeps the
 attitude on SO(3) (the exponential map, :func:`rotation_increment`) and costs one wrench evaluation per sample, a
@@ -54,7 +57,7 @@ import numpy as np
 from quad_modelling.core.flight_log import GYRO_FULL_SCALE
 from quad_modelling.core.physics import arrays
 from quad_modelling.core.physics.aero import ground_effect_factor, rotor_drag
-from quad_modelling.core.physics.rotors import rotor_acceleration, rotor_step, rotor_thrusts, rotor_yaw_torques
+from quad_modelling.core.physics.rotors import interval_rotor_speed, rotor_acceleration, rotor_step, rotor_thrusts, rotor_yaw_torques
 from quad_modelling.core.vehicle import GRAVITY
 
 MAX_SPEED_MPS = 50.0
@@ -197,10 +200,12 @@ def step(p, state, u, dt, linear_n, angular_b):
     """One semi-implicit Euler step (module docstring) of every batch member under commands ``u`` (B, 4) held for
     ``dt`` (B,) [s], with constant extra accelerations ``linear_n`` (B, 3) [m/s², N] and ``angular_b`` (B, 3)
     [rad/s², B] (the model's disturbance estimate). Returns a state of ``state``'s type."""
-    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_acceleration(p, state.rotor, u),
+    rotor = rotor_step(p, state.rotor, u, dt)
+    rotor_dot = (rotor - state.rotor) / dt[:, None]  # the step's mean dΩ/dt, exact
+    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, interval_rotor_speed(p, state.rotor, u, dt), rotor_dot,
                                    state.pos_n)
     rates = limit_norm(state.rates + dt[:, None] * (ang_acc + angular_b), GYRO_FULL_SCALE)
     rot = rotation_increment(state.rot, rates, dt)
     vel = limit_norm(state.vel_n + dt[:, None] * (acc_n + linear_n), MAX_SPEED_MPS)
     pos = state.pos_n + dt[:, None] * vel
-    return type(state)(pos, vel, rot, rates, rotor_step(p, state.rotor, u, dt), continue_yaw(state.yaw, rot))
+    return type(state)(pos, vel, rot, rates, rotor, continue_yaw(state.yaw, rot))

@@ -40,8 +40,10 @@ Effects (names of :data:`quad_modelling.core.effect_names.SIM_EFFECTS`):
 * ``ground_effect``: Cheeseman & Bennett (1955),
   :math:`k_{GE}(h) = 1 / (1 - (R_p / (4 h))^2)`, h = hub height above the ground
   (z = 0), clamped to h >= c R_p; off: k_GE = 1.
-* ``gyroscopic``: the term :math:`-\\omega \\times (I\\omega + h_r)` (body and propeller
-  gyroscopic torques); off: dropped.
+* ``gyroscopic``: the propellers' gyroscopic torque :math:`-\\omega \\times h_r`; off: dropped (h_r = 0).
+  The body's own :math:`-\\omega \\times I\\omega` is rigid-body physics and always acts (until
+  2026-11-26 the effect switched both, so an "effect-free" flight lacked Euler's equations' own term,
+  which the physics model always has: the cause of most of its angular-velocity gap to ``truth``).
 * ``wind``: air moves with :math:`w_N`; airframe drag
   :math:`F_{wind} = -\\tfrac12 \\rho C_D A \\, |v_N - w_N| (v_N - w_N)`; rotor drag then sees
   the relative air. Off: w = 0 and no airframe drag.
@@ -422,18 +424,19 @@ class QuadDynamics:
                 tx += cy * uz - cz * uy
                 ty += cz * ux - cx * uz
                 tz += cx * uy - cy * ux
+            lx = ixx * wp  # the body's angular momentum I ω, plus the rotors' h_r with ``gyroscopic``
+            ly = iyy * wq
+            lz = izz * wr
             if gyro_on:
-                lx = ixx * wp
-                ly = iyy * wq
-                lz = izz * wr - i_p * (s1 * o1 + s2 * o2 + s3 * o3 + s4 * o4)
+                lz = lz - i_p * (s1 * o1 + s2 * o2 + s3 * o3 + s4 * o4)
                 if bent_on:
                     h1 = i_p * s1 * o1  # rotor 1's momentum I_p s_1 Omega_1 e_1, minus its untilted part
                     lx += h1 * b1x
                     ly += h1 * b1y
                     lz += h1 * b1z
-                tx -= wq * lz - wr * ly
-                ty -= wr * lx - wp * lz
-                tz -= wp * ly - wq * lx
+            tx -= wq * lz - wr * ly
+            ty -= wr * lx - wp * lz
+            tz -= wp * ly - wq * lx
             ax = (r00 * fx + r01 * fy + r02 * fz) * inv_m
             ay = (r10 * fx + r11 * fy + r12 * fz) * inv_m
             az = (r20 * fx + r21 * fy + r22 * fz) * inv_m + g

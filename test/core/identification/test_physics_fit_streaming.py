@@ -26,19 +26,18 @@ from test.conftest import REPO
 CF = load_vehicle("crazyflie21")
 SHORT = EvaluationConfig.preset("short")
 
-BEFORE = {  # identify_physics([bundled bag], crazyflie21, short preset), re-recorded when the delay search reached
-    # 150 ms and the delay between samples (the parabola through the best whole-sample delay and its neighbours), tau
-    # searched to 10 % in log tau: value, sigma. The profile over the delay is flat (objective 2.1399 at 40 ms, 2.1420
-    # at 30 ms); the lag goes to its 2 ms bound where the delay takes over.
-    "rotor_time_constant": (0.0021071104151363994, 0.0028610458969225614),
-    "rotor_delay": (0.039999961853027344, 0.003940820315151104),
-    "rotor_thrust_constant": (9.636822369805924e-09, 1.2737061877894014e-10),
-    "rotor_torque_constant": (1.0668e-11, 1.8241801116543816e-12),
-    "rotor_drag_xy": (1.0993654023876085e-06, 5.781653548292361e-08),
-    "rotor_drag_z": (4.173840648139663e-07, 4.018518518917116e-07),
-    "rotor_drag_arm": (-0.03410740103211082, 0.004273900489401306),
-    "effective_ixx": (8.985383544197422e-05, 1.0603403449955696e-05),
-    "effective_iyy": (8.221464042616327e-05, 9.41205622590213e-06),
+BEFORE = {  # identify_physics([bundled bag], crazyflie21, short preset), re-recorded when the model's step came to integrate
+    # each interval's mean thrust (rotors.interval_rotor_speed; before: the start-of-step speed): value, sigma. The delay
+    # stays at 40 ms (the profile over it is flat); the lag left its 2 ms bound (6.5 ms), the inertias moved 0.5 / 3.5 %.
+    "rotor_time_constant": (0.006527328321404227, 0.00469295200861565),
+    "rotor_delay": (0.039999961853027344, 0.004140818512580987),
+    "rotor_thrust_constant": (9.636997643420293e-09, 1.2704759613801658e-10),
+    "rotor_torque_constant": (1.0668e-11, 1.8386521690629532e-12),
+    "rotor_drag_xy": (1.0980997915934737e-06, 5.766787298815453e-08),
+    "rotor_drag_z": (3.448355701992909e-07, 4.0065074812511835e-07),
+    "rotor_drag_arm": (-0.03413198859688341, 0.004186607906471633),
+    "effective_ixx": (8.942499498082233e-05, 1.0401668774221966e-05),
+    "effective_iyy": (7.935742597250226e-05, 8.806588274669666e-06),
 }
 
 

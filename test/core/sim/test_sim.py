@@ -271,7 +271,8 @@ def test_gyroscopic_torques_couple_the_axes():
     h_z = -params.vehicle.value("prop_inertia") * sum(s * w for s, w in zip(on.yaw_signs, state[13:17]))
     q_dot = on.derivative(state, state[13:17], (0, 0, 0))[11]
     assert q_dot == pytest.approx(((izz - ixx) * p * r + p * h_z) / iyy, rel=1e-9)
-    assert off.derivative(state, state[13:17], (0, 0, 0))[11] == pytest.approx(0.0, abs=1e-12)
+    # off: the propellers' part goes, the body's own -ω × Iω (rigid-body physics) stays
+    assert off.derivative(state, state[13:17], (0, 0, 0))[11] == pytest.approx((izz - ixx) * p * r / iyy, rel=1e-9)
 
 
 def test_motor_imbalance_shifts_the_cg_and_spreads_the_gains():
