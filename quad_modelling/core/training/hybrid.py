@@ -64,16 +64,17 @@ HYBRID_HIDDEN = (32, 32)
 """Default widths of the residual net's hidden layers (21 inputs, 6 outputs: about 1.9k weights)."""
 
 
-HYBRID_ROLLOUT = RolloutConfig(horizon=50, stride=1, val_stride=5, batch_size=512, max_epochs=12, patience=3,
-                               learning_rate=2.8e-3, grad_clip=1.0, windows_per_epoch=8192, val_batch_size=2048)
-"""Default rollout settings of the hybrid: 8192 windows (16 Adam steps of 512) per epoch, at most 12 epochs, patience 3;
-validation in batches of 2048 windows.
+HYBRID_ROLLOUT = RolloutConfig(horizon=50, stride=1, val_stride=5, batch_size=256, max_epochs=12, patience=3,
+                               learning_rate=2e-3, grad_clip=1.0, windows_per_epoch=8192, val_batch_size=2048)
+"""Default rollout settings of the hybrid: 8192 windows (32 Adam steps of 256) per epoch, at most 12 epochs, patience 3;
+the validation loss in batches of 2048 windows.
 
-The rollout is bound by the cost of each tensor operation (~200 per step of the torch twin, on (B, 3) tensors), not by
-the batch: a batch of 512 windows costs 1.4x one of 256 on one thread, so 16 steps of 512 take 0.7x the time of 32
-of 256. With the step size raised by sqrt(2) (2e-3 -> 2.8e-3) the held-out SimErr ratios by shape stayed those of
-the smaller batches (bench/results/training_time.md); 1024 windows at 4e-3 stopped at epoch 5 on two folds (the validation loss rose), and a cosine decay
-of the step size cost angular velocity (the training is still improving at epoch 12)."""
+The rollout is bound by the cost of each tensor operation (about 200 per step of the torch twin, on (B, 3) tensors),
+not by the batch: a batch of 512 windows costs 1.4x one of 256 on one thread. Measured by shape on the NanoBench
+flights (bench/results/training_time_b512.md): 16 steps of 512 per epoch at step size 2.8e-3 trained in 0.63-0.75x the
+CPU time, with held-out SimErr ratios 0.668 / 0.346 (AV / Vel) against 0.664 / 0.344: a little accuracy lost, so not
+the default. 1024 windows at 4e-3 stopped at epoch 5 on two folds (the validation loss rose), and a cosine decay of
+the step size cost angular velocity (0.679): the training still improves at epoch 12."""
 
 
 @dataclass(frozen=True)
