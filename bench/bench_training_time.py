@@ -15,12 +15,13 @@ Target: the hybrid trains in under 120 s on all 18 NanoBench flights on the 2-co
    the rest of the wall time is start-up, reading the flights and writing the model.
 3. The accuracy the time is bought with: the hybrid's (and the physics model's) held-out SimErr ratios by shape,
    read from a ``bench_models.py --models naive,physics,hybrid --output NAME`` run of this checkout (``--accuracy``)
-   and of the baseline (``--accuracy-baseline``); they are not re-measured here (25-50 min on 2 cores).
+   and of the baseline (``--accuracy-baseline``); they are not re-measured here (20-40 min on 2 cores). ``--render``
+   re-reads them into an existing training_time.json (a bench_models run that ends after the timing).
 
 Writes bench/results/training_time.{json,md}.
 
 Run: ``.venv/bin/python -m bench.bench_training_time [--runs 3] [--baseline DIR --label main@abc1234]
-[--accuracy bench/results/models_hybrid_physics.json] [--accuracy-baseline FILE]``
+[--accuracy bench/results/models_hybrid_physics.json] [--accuracy-baseline FILE] [--render]``
 """
 
 from __future__ import annotations
