@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
-BENCHMARKS = ("bench_convert", "bench_bag_compression", "bench_sim", "bench_evaluate", "bench_narx", "bench_training_memory", "bench_models", "bench_nodes",
+BENCHMARKS = ("bench_convert", "bench_bag_compression", "bench_sim", "bench_evaluate", "bench_narx", "bench_training_memory", "bench_training_time", "bench_models", "bench_nodes",
               "bench_fleet", "bench_diagnose", "bench_diagnose_floor", "bench_topic_maps", "bench_mpc")
 
 

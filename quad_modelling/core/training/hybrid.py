@@ -33,6 +33,7 @@ not beat the physics model on validation is not kept. Seeded and deterministic (
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 
@@ -64,8 +65,16 @@ HYBRID_HIDDEN = (32, 32)
 
 
 HYBRID_ROLLOUT = RolloutConfig(horizon=50, stride=1, val_stride=5, batch_size=256, max_epochs=12, patience=3,
-                               learning_rate=2e-3, grad_clip=1.0, windows_per_epoch=8192)
-"""Default rollout settings of the hybrid: 8192 windows (32 Adam steps) per epoch, at most 12 epochs, patience 3."""
+                               learning_rate=2e-3, grad_clip=1.0, windows_per_epoch=8192, val_batch_size=2048)
+"""Default rollout settings of the hybrid: 8192 windows (32 Adam steps of 256) per epoch, at most 12 epochs, patience 3;
+the validation loss in batches of 2048 windows.
+
+The rollout is bound by the cost of each tensor operation (about 200 per step of the torch twin, on (B, 3) tensors),
+not by the batch: a batch of 512 windows costs 1.4x one of 256 on one thread. Measured by shape on the NanoBench
+flights (bench/results/training_time_b512.md): 16 steps of 512 per epoch at step size 2.8e-3 trained in 0.63-0.75x the
+CPU time, with held-out SimErr ratios 0.668 / 0.346 (AV / Vel) against 0.664 / 0.344: a little accuracy lost, so not
+the default. 1024 windows at 4e-3 stopped at epoch 5 on two folds (the validation loss rose), and a cosine decay of
+the step size cost angular velocity (0.679): the training still improves at epoch 12."""
 
 
 @dataclass(frozen=True)
@@ -248,7 +257,7 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
     eps_v, eps_w = 1e-3 * scale_v, 1e-3 * scale_w
 
     def norm(e, eps):
-        return torch.sqrt((e * e).sum(dim=1) + eps * eps) - eps
+        return torch.sqrt((e * e).sum(dim=-1) + eps * eps) - eps
 
     def loss_fn(net, batch):
         a = history
@@ -266,15 +275,18 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
         b = len(d)
         zeros = torch.zeros(b, 3, dtype=d.dtype)
         state = pt.TorchState(batch["pos"][:, a], batch["vel"][:, a], rot[:, a], batch["rates"][:, a], batch["rotor"][:, a], zeros[:, 0])
-        loss = torch.zeros((), dtype=d.dtype)
+        velocities, rates = [], []
         for k in range(horizon):
             r = a + k
             u = batch["u"][:, r]
             delta = net(_features(state.vel_n, state.rot, state.rates, u, state.rotor))
             lin = d[:, :3] + arrays.rotate(state.rot, delta[:, :3])
             state = pt.step(tp, state, u[:, :4], batch["dt"][:, r, 0], lin, d[:, 3:] + delta[:, 3:])
-            loss = loss + norm(state.vel_n - batch["vel"][:, r + 1], eps_v).sum() / scale_v \
-                + norm(state.rates - batch["rates"][:, r + 1], eps_w).sum() / scale_w
+            velocities.append(state.vel_n)
+            rates.append(state.rates)
+        # the error norms of every step at once (B, K): a few operations instead of a dozen per step
+        loss = norm(torch.stack(velocities, dim=1) - batch["vel"][:, a + 1:a + horizon + 1], eps_v).sum() / scale_v \
+            + norm(torch.stack(rates, dim=1) - batch["rates"][:, a + 1:a + horizon + 1], eps_w).sum() / scale_w
         return loss / (2.0 * b * horizon)
 
     return loss_fn
@@ -300,6 +312,7 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
     if names != [vehicle]:
         raise DataError(f"hybrid training: flights are for vehicle(s) {names}, the physics model for {vehicle!r}")
     rc = config.rollout
+    started = time.perf_counter()
     indices = list(range(len(logs)))
     train_idx, val_idx = hold_back_flights(indices, config.val_fraction, val_flights, seed)
     dts = np.concatenate([np.diff(log.t) for log in logs])
@@ -317,6 +330,7 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
     train_set = RolloutWindows(train_segments, history, rc.horizon + 1, rc.stride)
     val_set = RolloutWindows(val_segments, history, rc.horizon + 1, rc.val_stride) if val_segments else None
     del train_segments, val_segments  # the datasets hold the rows (float32): the float64 copies go before training
+    prepared = time.perf_counter() - started
     with seeded_torch(seed, rc.threads):
         net = _make_module(in_mean, np.maximum(in_std, 1e-6), out_scale, config.hidden)
         loss_fn = rollout_loss(pt.TorchParameters.from_params(p, torch.float32), history, rc.horizon, scales)
@@ -328,7 +342,7 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
         "flights": [logs[i].meta.source for i in train_idx], "validation_flights": [logs[i].meta.source for i in val_idx],
         "spans": [None if s is None else list(s) for s in spans], "windows": len(train_set),
         "validation_windows": 0 if val_set is None else len(val_set),
-        "samples": samples,
+        "samples": samples, "prepare_seconds": round(prepared, 3),
         "rollout": {**record.to_dict(), "val_windows": len(val_set) if val_set is not None else len(train_set)},
     }
     return HybridModel(p, residual, vehicle, config.observer, training)

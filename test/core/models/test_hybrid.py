@@ -174,6 +174,44 @@ def test_training_is_deterministic(trained, flight, vehicle, span):
     assert not np.array_equal(trained.net.weights[0], other.net.weights[0])
 
 
+def test_the_training_loss_is_the_mean_simerr_ratio_of_the_numpy_prediction(flight, params, vehicle):
+    # the rollout loss (torch twin, all horizons' error norms at once) of a non-zero net on every 7th window equals the
+    # module docstring's L computed from the numpy hybrid's own multi-step prediction from the same anchors
+    import torch
+
+    from quad_modelling.core.preprocess import state_measurement
+    from quad_modelling.core.training import hybrid as training
+    from quad_modelling.core.training import physics_torch as pt
+    from quad_modelling.core.training.rollout import RolloutWindows
+
+    segment, observer, horizon, scales = flight.slice(1000, 1300), physics.Observer(), 10, (0.05, 0.2)
+    arrays = training.segment_arrays(params, segment, observer)
+    history = int(max(arrays["obs_n_lin"].max(), arrays["obs_n_ang"].max()))
+    windows = RolloutWindows([arrays], history, horizon + 1, stride=7)
+    mean, std = training.feature_statistics([arrays])
+    torch.manual_seed(0)
+    net = training._make_module(mean, np.maximum(std, 1e-6), np.ones(len(CORRECTIONS)), (8,))
+    torch.nn.init.normal_(net.last.weight, std=0.3)
+    loss_fn = training.rollout_loss(pt.TorchParameters.from_params(params, torch.float32), history, horizon, scales)
+    with torch.no_grad():
+        loss = float(loss_fn(net, windows[list(range(len(windows)))]))
+    anchors = windows.starts(torch.arange(len(windows))).numpy() + history
+    predicted = HybridModel(params, net.to_numpy(), vehicle.name, observer).predict_horizons(segment, anchors, horizon)
+    measured = state_measurement(segment)[anchors[:, None] + np.arange(1, horizon + 1)]
+
+    def ratio(cols, scale):
+        error = np.linalg.norm(predicted[:, 1:, cols] - measured[..., cols], axis=-1)
+        eps = 1e-3 * scale
+        return (np.sqrt(error**2 + eps**2) - eps).mean() / scale
+
+    expected = 0.5 * (ratio(slice(3, 6), scales[0]) + ratio(slice(12, 15), scales[1]))
+    assert len(anchors) > 20 and loss == pytest.approx(expected, rel=1e-4)
+    zero = HybridModel(params, net.to_numpy(), vehicle.name, observer)
+    zero.net.weights[-1][:] = 0.0
+    zero.net.biases[-1][:] = 0.0
+    assert not np.allclose(zero.predict_horizons(segment, anchors, horizon), predicted, rtol=0, atol=1e-3)  # the net acts
+
+
 # ---- stability, causality, live ------------------------------------------------------------------------
 def rollout_bounds(log, params, horizon_s):
     """Largest speed [m/s] and rate [rad/s] a 50-step rollout may reach from the flight's states: the measured

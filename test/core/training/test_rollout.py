@@ -89,3 +89,18 @@ def test_training_is_deterministic_for_a_seed():
         train_rollout(module, _loss, data, None, RolloutConfig(horizon=5, batch_size=4, max_epochs=3, windows_per_epoch=12), seed)
         results.append(float(module.w.detach()))
     assert results[0] == results[1] and results[0] != results[2]
+
+
+def test_the_validation_batch_size_changes_no_validation_loss():
+    train = RolloutWindows([{"u": np.ones((40, 1)), "y": np.full((40, 1), 2.0)}], history=1, horizon=4)
+    val = RolloutWindows([{"u": np.ones((23, 1)), "y": np.full((23, 1), 1.0)}], history=1, horizon=4)
+    losses = []
+    for val_batch in (None, 3, 1000):
+        config = RolloutConfig(horizon=4, batch_size=8, max_epochs=5, learning_rate=0.05, val_batch_size=val_batch)
+        history = train_rollout(_Scalar(), _loss, train, val, config, seed=0)
+        assert history.validation_seconds > 0
+        losses.append(history.val_loss)
+    np.testing.assert_allclose(losses[1], losses[0], rtol=1e-6)
+    np.testing.assert_allclose(losses[2], losses[0], rtol=1e-6)
+    with pytest.raises(ConfigError, match="val_batch_size"):
+        RolloutConfig(val_batch_size=0)
