@@ -239,10 +239,12 @@ class RecedingHorizon:
     """
 
     def __init__(self, form_for: Callable, make_log: Callable, horizon_s: float, warm_s: float, history_s: float,
-                 sample_period_s: float, wait_s: float, inputs: str = "hold"):
+                 sample_period_s: float, wait_s: float, inputs: str = "hold", carried_for: Callable | None = None):
         if inputs not in HORIZON_INPUTS:
             raise ValueError(f"receding-horizon inputs {inputs!r}: expected one of {', '.join(HORIZON_INPUTS)}")
-        self.form_for, self.make_log = form_for, make_log
+        self.form_for, self.make_log, self.carried_for = form_for, make_log, carried_for
+        self.carried_form = self.carried = None  # the model's carried forecast (built once h is known); active one
+        self._forget_carried()
         self.horizon_s, self.warm_s, self.history_s = horizon_s, warm_s, history_s
         self.sample_period_s, self.wait_s = sample_period_s, wait_s
         self.inputs = inputs
@@ -254,12 +256,21 @@ class RecedingHorizon:
         self.wait_since = None
 
     def reset(self) -> None:
-        """A new time base (restart, clock jump): forget the commands; h and the form stay."""
+        """A new time base (restart, clock jump): forget the commands (and the carried anchor); h and the form stay."""
         self.rows.clear()
         self.steps_seen = []
         self.wait_since = None
         if self.steps is not None:
             self.next, self.first = self.warm - 1, 0
+        self._forget_carried()
+
+    def _forget_carried(self) -> None:
+        """Start the carried anchor over (a new time base): no row added yet."""
+        self.carried = self.carried_form
+        if self.carried is not None:
+            self.carried.reset()
+        self.context = None  # the last row added to the carried form and its measurement (the next log's first row)
+        self.fed = 0  # index (as ``next``) of the first row not added yet
 
     def add(self, ns: int, u: np.ndarray, omega) -> str | None:
         """Keep a command; learn h once dt is known. Returns a fault sentence when the model has no multi-step form."""
@@ -280,6 +291,12 @@ class RecedingHorizon:
         self.keep = max(int(round(self.history_s / period_s)), self.warm)
         self.form = self.form_for(self.warm)
         self.next, self.first = self.warm - 1, 0  # the first anchor with warm rows up to it; index of rows[0]
+        if self.carried_for is not None:
+            try:
+                self.carried_form = self.carried_for(period_s, self.steps)
+            except (QuadModellingError, ValueError):
+                self.carried_form = None  # the history re-run reports the model's error at each anchor
+            self._forget_carried()
         return None if self.form is not None else "has no multi-step form: no horizon predictions"
 
     def waiting(self) -> bool:
@@ -309,15 +326,23 @@ class RecedingHorizon:
                 rows.popleft()
                 self.first += 1
 
+    def _after(self, s: int) -> list[tuple]:
+        """The h rows after anchor ``s`` (index in rows): the flown ones, or u_s (and its rotor speeds) held at t_s + k dt."""
+        if self.inputs == "flown":
+            return [self.rows[i] for i in range(s + 1, s + self.steps + 1)]
+        ns, u, omega = self.rows[s]
+        return [(ns + k * self.period_ns, u, omega) for k in range(1, self.steps + 1)]
+
     def _predict(self, s: int, measurements: Callable) -> tuple:
+        if self.carried is not None:
+            return self._predict_carried(s, measurements)
+        return self._predict_history(s, measurements)
+
+    def _predict_history(self, s: int, measurements: Callable) -> tuple:
+        """Anchor ``s`` (index in rows) by the model's multi-step form over the history rows up to it."""
         rows, h = self.rows, self.steps
         first = max(0, s - self.keep + 1)
-        history = [rows[i] for i in range(first, s + 1)]
-        if self.inputs == "flown":
-            history += [rows[i] for i in range(s + 1, s + h + 1)]
-        else:  # zero-order hold of the anchor's command (and rotor speeds) at t_s + k dt
-            ns, u, omega = rows[s]
-            history += [(ns + k * self.period_ns, u, omega) for k in range(1, h + 1)]
+        history = [rows[i] for i in range(first, s + 1)] + self._after(s)
         measured = [measurements(row[0]) for row in history[:s - first + 1]]
         if measured[-1] is None:
             return "fault", "horizon_gap", "an anchor without a measurement within tolerance: skipped"
@@ -334,3 +359,38 @@ class RecedingHorizon:
         except (QuadModellingError, ValueError) as err:
             return "fault", "model_error", f"failed: {err}"
         return "prediction", int(stamps[-1]), prediction, (stamps[-1] - stamps[s - first]) / 1e9
+
+    def _predict_carried(self, s: int, measurements: Callable) -> tuple:
+        """Anchor ``s`` (index in rows) by the carried form (:mod:`~quad_modelling.core.models.forecast`): the rows since
+        the last one added (a row without a measurement takes its successor's, as in the history re-run) are added in
+        one log behind the last added row, then the model is rolled out over the h rows after s."""
+        row = self.rows[s]
+        if measurements(row[0]) is None:  # stays unadded: it takes the next measured row's measurement
+            return "fault", "horizon_gap", "an anchor without a measurement within tolerance: skipped"
+        start = self.fed - self.first  # index in rows of the first row not added yet
+        if start < 0:  # rows left the history before they could be added (a long run without measurements)
+            self.carried = None
+            return self._predict_history(s, measurements)
+        new = [self.rows[i] for i in range(start, s + 1)]
+        measured = [measurements(r[0]) for r in new]
+        for i in range(len(measured) - 2, -1, -1):
+            if measured[i] is None:
+                measured[i] = measured[i + 1]
+        rows = ([self.context] if self.context is not None else []) + list(zip(new, measured))
+        if len(rows) < 2:  # a log needs 2 rows: the time base's first anchor alone is re-run
+            return self._predict_history(s, measurements)
+        stamps = np.array([r[0] for r, _ in rows], dtype=np.int64)
+        after = self._after(s)
+        after_ns = np.array([r[0] for r in after], dtype=np.int64)
+        try:
+            log = self.make_log(stamps, [r for r, _ in rows], [m for _, m in rows])
+            if log.gyro_b is None:  # the carried forms need the gyro: this time base is re-run over its history
+                self.carried = None
+                return self._predict_history(s, measurements)
+            self.carried.add(log, 1 if self.context is not None else 0)
+            self.context, self.fed = rows[-1], self.first + s + 1
+            prediction = self.carried.predict(after_ns / 1e9, np.array([r[1] for r in after]))
+        except (QuadModellingError, ValueError) as err:
+            self.carried = None  # its anchor may be half-added: the rest of this time base is re-run
+            return "fault", "model_error", f"failed: {err}"
+        return "prediction", int(after_ns[-1]), prediction, (after_ns[-1] - row[0]) / 1e9

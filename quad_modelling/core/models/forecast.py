@@ -1,0 +1,338 @@
+r"""Carried-state forecasts: the receding-horizon mode's anchor advanced by one row per input, then rolled out h steps.
+
+The live receding-horizon mode (:class:`~quad_modelling.core.models.streaming.RecedingHorizon`) predicts from every
+anchor s, h steps ahead. A model's offline multi-step form (``predict_horizons``) derives its anchor from all the
+rows up to s: rotor speeds and the disturbance observer's means (physics, hybrid), the 1 s trims and the motor
+filter (greybox), the delayed outputs and commands (NARX). Re-running it at every input over a history costs the
+whole history per input. A *carried forecast* holds exactly that anchor and advances it by the rows that came in
+since the previous anchor (one per input), then rolls the model out from it:
+
+* :meth:`CarriedForecast.add` ``(rows, first)``: the rows ``first ..`` of the FlightLog ``rows`` are new, in time
+  order after every row added before (rows before ``first`` were added already: context for the yaw unwrap);
+* :meth:`CarriedForecast.predict` ``(t_after, u_after)``: (h + 1, 18) absolute prediction from the last row added
+  (row 0) over the h rows after it stamped ``t_after`` (h,) [s] with the commands ``u_after`` (h, 4), as the offline
+  multi-step form gives it.
+
+Per model (:func:`carried_forecast` picks the form; a model without one is predicted by the history re-run):
+
+* **physics, hybrid** (:class:`PhysicsForecast`): carried are the logged commands of the last δ (the command delay),
+  the rotor speeds (the exact lag stepped row by row: :func:`~quad_modelling.core.physics.rotors.rotor_step`), the
+  unwrapped yaw and the observer's rows of the last ``max(linear_s, angular_s)`` (time, velocity, rates and the
+  model's acceleration, with the hybrid's net correction: its observer subtracts the net's mean, which is the mean
+  of the sum), whose means are :func:`~quad_modelling.core.models.physics.observed_disturbance` itself. The h-step
+  rollout is the one physics step (:func:`~quad_modelling.core.physics.rigid_body.step`, with the hybrid's
+  correction) built once as a CasADi Function by the export
+  (:func:`~quad_modelling.core.export.casadi_model.casadi_functions`: ``F_disturbed``) and chained h times
+  (``mapaccum``): one call instead of h numpy steps of a batch of one (12 ms for h = 50 here). The outputs of the
+  h + 1 states are the model's own (:func:`~quad_modelling.core.models.physics.outputs`,
+  :meth:`~quad_modelling.core.models.hybrid.HybridModel.outputs`), one batched call.
+* **greybox** (:class:`GreyboxForecast`): carried are the running sums of the commands and of the measured
+  roll/pitch (the 1 s trailing means, :func:`~quad_modelling.core.preprocess.trailing_means`' own arithmetic), the
+  motor filter's state (:func:`~quad_modelling.core.models.motors.motor_thrusts`, its recursion) and the unwrapped
+  yaw; the rollout is :func:`~quad_modelling.core.models.greybox.linear_horizons`. The sample period is the
+  receding horizon's dt (the offline form takes the segment's median step: the same on a regular timer).
+* **NARX** (:class:`NarxForecast`): its memory is finite: the last max(max(D_u) + 1, n_y) rows of commands and
+  measured outputs, whose rollout is :func:`~quad_modelling.core.models.narx.horizons_from_measured`.
+
+Equality with the offline multi-step form on all the rows of the time base (test:
+``test/core/models/test_forecast.py``): to rounding, 1e-9 and tighter. What differs is the order of float
+operations only: the rotor lag stepped row by row instead of the prefix scan, the observer's integral summed over
+its rows instead of the segment, the CasADi step instead of numpy's (3e-15 over 50 steps), the yaw unwrapped by
+differences. The physics forms need the gyro (as their multi-step forms); the greybox's carried form does too (a
+flight without one gets its rates from differentiated attitudes over past rows: the history re-run does that).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Protocol
+
+import numpy as np
+
+from quad_modelling.core import frames
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.models import physics
+from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, linear_horizons
+from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor
+from quad_modelling.core.models.narx import NarxPredictor, horizons_from_measured
+from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
+from quad_modelling.core.physics.parameters import PhysicsParameters
+from quad_modelling.core.physics.rigid_body import PhysicsState, accelerations
+from quad_modelling.core.physics.rotors import (
+    STAMP_TOLERANCE_S,
+    delayed_commands,
+    effective_commands,
+    rotor_acceleration,
+    rotor_step,
+    steady_rotor_speed,
+)
+from quad_modelling.core.variables import VARIABLES
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.errors import DataError
+
+OBSERVER_MARGIN_S = 1e-9
+"""The observer's rows start at the first row with t >= t_a - history - this [s] (its ``searchsorted``)."""
+
+
+class CarriedForecast(Protocol):
+    """A model's anchor carried from row to row (module docstring)."""
+
+    def add(self, rows: FlightLog, first: int) -> None:
+        ...
+
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray) -> np.ndarray:
+        ...
+
+
+def carried_forecast(model, vehicle: VehicleConfig, period_s: float, steps: int) -> CarriedForecast | None:
+    """The carried form of ``model`` (a streaming predictor of the registry) for h = ``steps`` at the sample period
+    ``period_s`` [s], or None when it has none (module docstring)."""
+    if isinstance(model, PhysicsPredictor):
+        return PhysicsForecast(vehicle, model.params, model.observer, steps)
+    if isinstance(model, HybridPredictor):
+        return PhysicsForecast(vehicle, model.model.params, model.model.observer, steps, model.model)
+    if isinstance(model, GreyboxPredictor):
+        return GreyboxForecast(model, period_s)
+    if isinstance(model, NarxPredictor):
+        return NarxForecast(model, period_s)
+    return None
+
+
+class UnwrappedYaw:
+    """The continuous yaw of rows added in order: the first rows' as their log unwraps it, then each later row the
+    previous one's plus the step between them in its log (logs unwrap their rows: ``measurement_log``)."""
+
+    def __init__(self) -> None:
+        self.last = None  # continuous yaw of the last row added [rad]
+
+    def add(self, rows: FlightLog, first: int) -> np.ndarray:
+        """(n,) continuous yaw [rad] of rows ``first ..`` of ``rows`` (``first`` > 0 once a row was added: the row
+        before them is the context)."""
+        yaw = np.unwrap(rows.euler[:, 2])
+        out = np.empty(len(rows) - first)
+        for i in range(first, len(rows)):
+            self.last = float(yaw[i]) if self.last is None else self.last + float(yaw[i] - yaw[i - 1])
+            out[i - first] = self.last
+        return out
+
+
+def _require_gyro(rows: FlightLog, what: str) -> None:
+    if rows.gyro_b is None:
+        raise DataError(f"{rows.meta.source}: the carried forecast of {what} needs the gyro (body rates at each anchor)")
+
+
+class _Rows:
+    """Rows of fixed width kept in one growing numpy array; :meth:`drop_before` forgets the oldest."""
+
+    def __init__(self, width: int, capacity: int = 256):
+        self.data = np.empty((capacity, width))
+        self.start = self.stop = 0
+
+    def append(self, values: np.ndarray) -> None:
+        if self.stop == len(self.data):
+            kept = self.stop - self.start
+            if kept * 2 > len(self.data):
+                self.data = np.concatenate([self.data, np.empty_like(self.data)])
+            self.data[:kept] = self.data[self.start:self.stop]
+            self.start, self.stop = 0, kept
+        self.data[self.stop] = values
+        self.stop += 1
+
+    def view(self) -> np.ndarray:
+        return self.data[self.start:self.stop]
+
+    def drop_before(self, count: int) -> None:
+        self.start += count
+
+
+class PhysicsForecast:
+    """Physics or hybrid model (``hybrid`` given), carried (module docstring)."""
+
+    def __init__(self, vehicle: VehicleConfig, params: PhysicsParameters, observer: Observer, steps: int,
+                 hybrid: HybridModel | None = None):
+        from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions
+
+        self.params, self.observer, self.hybrid, self.steps = params, observer, hybrid, steps
+        self.history_s = max(observer.linear_s, observer.angular_s)
+        exported = ExportedModel(vehicle, params, observer, "hybrid" if hybrid else "physics", hybrid)
+        self.rollout_function = casadi_functions(exported)["F_disturbed"].mapaccum("forecast", steps)
+        self.reset()
+
+    def reset(self) -> None:
+        """A new time base: forget every row."""
+        self.times: list[float] = []  # logged commands of the last δ (and the one before): the delay's table
+        self.commands: list[np.ndarray] = []
+        self.observer_rows = _Rows(1 + 3 + 3 + 6)  # t, v_N, ω, modelled (dv_N/dt, dω/dt) incl. the net's correction
+        self.yaw = UnwrappedYaw()
+        self.rotor = None  # rotor speeds at the last row [rad/s]
+        self.rotor_command = None  # the effective command the rotors answered at the last row
+        self.last_t = None  # time of the last row [s]
+        self.anchor = None  # (t, pos, vel, euler with continuous yaw, rates, rotor, logged u, voltage) of the last row
+
+    def add(self, rows: FlightLog, first: int) -> None:
+        _require_gyro(rows, "the physics model")
+        p, n = self.params, len(rows) - first
+        self.times += rows.t[first:].tolist()
+        self.commands += list(rows.u[first:])
+        delayed = delayed_commands(p, np.array(self.commands), np.array(self.times))[-n:]
+        voltage = physics.battery_voltage(p, rows)
+        voltage = None if voltage is None else voltage[first:]
+        effective = effective_commands(p, delayed, voltage)
+        yaw = self.yaw.add(rows, first)
+        rotor = np.empty((n, 4))
+        for i in range(n):  # rotor_speeds' recursion: Ω_0 steady at the first command, then the exact lag per interval
+            t_i = float(rows.t[first + i])
+            if self.rotor is None:
+                rotor[i] = steady_rotor_speed(p, effective[i])
+            else:
+                rotor[i] = rotor_step(p, self.rotor, self.rotor_command, t_i - self.last_t)
+            self.rotor, self.rotor_command, self.last_t = rotor[i], effective[i], t_i
+        euler = rows.euler[first:].copy()
+        euler[:, 2] = yaw
+        rot = frames.euler_ned_to_matrix(euler)
+        pos, vel, rates = rows.pos_n[first:], rows.vel_n[first:], rows.gyro_b[first:]
+        acc_n, ang_acc = accelerations(p, vel, rot, rates, rotor, rotor_acceleration(p, rotor, effective), pos)
+        modelled = np.concatenate([acc_n, ang_acc], axis=1)
+        if self.hybrid is not None:
+            state = PhysicsState(pos.copy(), vel.copy(), rot, rates.copy(), rotor.copy(), yaw)
+            modelled = modelled + self.hybrid.correction(state, np.concatenate([effective, rows.u[first:]], axis=1))
+        for i in range(n):
+            self.observer_rows.append(np.concatenate([[rows.t[first + i]], vel[i], rates[i], modelled[i]]))
+        t_last = float(rows.t[-1])
+        self.anchor = (t_last, pos[-1].copy(), vel[-1].copy(), euler[-1], rates[-1].copy(), rotor[-1].copy(),
+                       rows.u[-1].copy(), None if voltage is None else float(voltage[-1]))
+        self._forget(t_last)
+
+    def _forget(self, t_last: float) -> None:
+        """Drop the commands no later delay can need (keep the last at or before t - δ) and the observer's rows no
+        later anchor's history reaches."""
+        limit = t_last - self.params.delay + STAMP_TOLERANCE_S
+        drop = 0
+        while drop + 1 < len(self.times) and self.times[drop + 1] <= limit:
+            drop += 1
+        if drop:
+            del self.times[:drop], self.commands[:drop]
+        t = self.observer_rows.view()[:, 0]
+        self.observer_rows.drop_before(int(np.searchsorted(t, t_last - self.history_s - OBSERVER_MARGIN_S, side="left")))
+
+    def disturbance(self) -> Disturbance:
+        """The observer's constant disturbance at the last row (:func:`~quad_modelling.core.models.physics.observed_disturbance`)."""
+        rows = self.observer_rows.view()
+        measured = np.zeros((len(rows), len(VARIABLES)))
+        measured[:, 3:6], measured[:, 12:15] = rows[:, 1:4], rows[:, 4:7]
+        return physics.observed_disturbance(rows[:, 0], measured, rows[:, 7:13], np.array([len(rows) - 1]), self.observer)
+
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray) -> np.ndarray:
+        p, h = self.params, len(t_after)
+        if h != self.steps:
+            raise ValueError(f"carried physics forecast built for {self.steps} steps, asked for {h}")
+        t_s, pos, vel, euler, rates, rotor, u_s, voltage = self.anchor
+        t = np.concatenate([[t_s], t_after])
+        logged = np.concatenate([u_s[None, :], u_after])
+        delayed = delayed_commands(p, np.vstack([*self.commands, u_after]), np.concatenate([self.times, t_after]))[-(h + 1):]
+        disturbance = self.disturbance()
+        inputs = [delayed.T] + ([logged.T] if self.hybrid is not None else []) + ([np.full((1, h + 1), voltage)] if p.battery else [])
+        x0 = np.concatenate([pos, vel, frames.euler_ned_to_matrix(euler[None])[0].ravel(), rates, rotor])
+        d = np.concatenate([disturbance.linear_n[0], disturbance.angular_b[0]])
+        after = np.asarray(self.rollout_function(x0, np.concatenate(inputs)[:, :h], np.diff(t)[None, :], np.tile(d[:, None], (1, h))))
+        x = np.concatenate([x0[:, None], after], axis=1).T  # (h + 1, 22)
+        rot = x[:, 6:15].reshape(-1, 3, 3)
+        states = PhysicsState(x[:, 0:3], x[:, 3:6], rot, x[:, 15:18], x[:, 18:22], continued_yaw(float(euler[2]), rot))
+        held = Disturbance(np.repeat(disturbance.linear_n, h + 1, axis=0), np.repeat(disturbance.angular_b, h + 1, axis=0))
+        effective = effective_commands(p, delayed, voltage)
+        if self.hybrid is None:
+            return physics.outputs(p, states, effective, held)
+        return self.hybrid.outputs(states, np.concatenate([effective, logged], axis=1), held)
+
+
+def continued_yaw(yaw0: float, rot: np.ndarray) -> np.ndarray:
+    """(K,) continuous yaw of attitudes ``rot`` (K, 3, 3) from ``yaw0`` at row 0, each row unwrapped next to the one
+    before: :func:`~quad_modelling.core.physics.rigid_body.continue_yaw` applied row by row (its formula on floats)."""
+    psi = np.arctan2(rot[:, 1, 0], rot[:, 0, 0]).tolist()
+    out = [yaw0]
+    for value in psi[1:]:
+        previous = out[-1]
+        out.append(previous + (value - previous + np.pi) % (2.0 * np.pi) - np.pi)
+    return np.array(out)
+
+
+class GreyboxForecast:
+    """The linear greybox, carried (module docstring; the anchor of :meth:`GreyboxPredictor.predict_horizons`)."""
+
+    def __init__(self, predictor: GreyboxPredictor, period_s: float):
+        self.model = predictor.model.discretise(period_s, predictor.discretisation)
+        self.trim_rows = max(1, int(round(predictor.trim.trim_s * (1.0 / period_s))))
+        self.pole, self.gain = float(self.model.ad[12, 12]), float(self.model.bd[12, 0])
+        self.reset()
+
+    def reset(self) -> None:
+        self.u_ref = self.attitude_ref = None  # the first row's command and roll/pitch (trailing_means' offset)
+        self.u_totals: deque[np.ndarray] = deque(maxlen=self.trim_rows + 1)
+        self.attitude_totals: deque[np.ndarray] = deque(maxlen=self.trim_rows + 1)
+        self.motor = None  # the motor filter's state (lfilter's z)
+        self.thrust = None  # filtered thrust of the last row, before the trim
+        self.yaw = UnwrappedYaw()
+        self.anchor = None  # the measured state (12) of the last row and its command
+
+    def add(self, rows: FlightLog, first: int) -> None:
+        _require_gyro(rows, "the greybox")
+        yaw = self.yaw.add(rows, first)
+        for i in range(first, len(rows)):
+            u, attitude = rows.u[i], rows.euler[i, 0:2]
+            if self.u_ref is None:
+                self.u_ref, self.attitude_ref = u.copy(), attitude.copy()
+                self.u_totals.append(np.zeros(4))
+                self.attitude_totals.append(np.zeros(2))
+                self.motor = np.zeros(4)  # steady state of the first (reference-removed) command: zero
+            self.u_totals.append(self.u_totals[-1] + (u - self.u_ref))
+            self.attitude_totals.append(self.attitude_totals[-1] + (attitude - self.attitude_ref))
+            x = u - self.u_ref  # lfilter([0, g], [1, -p]) of the commands minus the reference, one row
+            self.thrust = 0.0 * x + self.motor
+            self.motor = self.gain * x - (-self.pole) * self.thrust
+        measured = np.empty(len(VARIABLES))
+        measured[0:3], measured[3:6], measured[9:12], measured[12:15] = rows.pos_n[-1], rows.vel_n[-1], rows.euler[-1], rows.gyro_b[-1]
+        measured[11] = yaw[-1]
+        self.anchor = (measured[MEASURED_STATE_COLUMNS], rows.u[-1].copy())
+
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray) -> np.ndarray:
+        count = len(self.u_totals) - 1
+        input_trim = self.u_ref + (self.u_totals[-1] - self.u_totals[0]) / count
+        attitude_trim = self.attitude_ref + (self.attitude_totals[-1] - self.attitude_totals[0]) / count
+        thrusts = self.thrust - (input_trim - self.u_ref) * (self.gain / (1.0 - self.pole))
+        state, u_s = self.anchor
+        x = np.concatenate([state, thrusts])
+        x[6:8] -= attitude_trim
+        u = np.concatenate([u_s[None, :], u_after]) - input_trim
+        return linear_horizons(self.model, x[None, :], u[None], attitude_trim[None, :])[0]
+
+
+class NarxForecast:
+    """NARX, carried: its last rows (module docstring)."""
+
+    def __init__(self, predictor: NarxPredictor, period_s: float):
+        model = predictor.model
+        if abs(period_s - model.dt) > 0.01 * model.dt:
+            raise DataError(f"receding horizon: sampled every {period_s * 1e3:.3f} ms but the {model.kind} model was trained "
+                            f"at {model.dt * 1e3:.3f} ms")
+        self.model = model
+        self.keep = max(max(model.config.input_delays) + 1, model.config.output_delays, 2)
+        self.reset()
+
+    def reset(self) -> None:
+        self.rows: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.keep)  # (command, measured (18)) per row
+        self.yaw = UnwrappedYaw()
+
+    def add(self, rows: FlightLog, first: int) -> None:
+        _require_gyro(rows, "NARX")
+        yaw = self.yaw.add(rows, first)
+        for i in range(first, len(rows)):
+            measured = np.zeros(len(VARIABLES))  # positions, velocities, angles, rates: what the rollout reads
+            measured[0:3], measured[3:6], measured[9:12], measured[12:15] = rows.pos_n[i], rows.vel_n[i], rows.euler[i], rows.gyro_b[i]
+            measured[11] = yaw[i - first]
+            self.rows.append((rows.u[i].copy(), measured))
+
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray) -> np.ndarray:
+        h = len(t_after)
+        u = np.concatenate([np.array([row[0] for row in self.rows]), u_after])
+        measured = np.array([row[1] for row in self.rows] + [self.rows[-1][1]] * h)  # rows after s: not read
+        return horizons_from_measured(self.model, measured, u, np.array([len(self.rows) - 1]), h)[0]
