@@ -155,7 +155,15 @@ class PhysicsForecast:
         self.params, self.observer, self.hybrid, self.steps = params, observer, hybrid, steps
         self.history_s = max(observer.linear_s, observer.angular_s)
         exported = ExportedModel(vehicle, params, observer, "hybrid" if hybrid else "physics", hybrid)
-        self.rollout_function = casadi_functions(exported)["F_disturbed"].mapaccum("forecast", steps)
+        step = casadi_functions(exported)["F_disturbed"]
+        rollout = step.mapaccum("forecast", steps).expand()  # x_{k+1} = F(x_k, u_k, dt_k, d), k < h: (22, h)
+        # evaluated in place on these arrays (CasADi is column-major: an (n, h) argument is an (h, n) C array)
+        self._x0, self._u = np.zeros(22), np.zeros((steps, step.size1_in(1)))
+        self._dt, self._d, self._after = np.zeros(steps), np.zeros((steps, 6)), np.zeros((steps, 22))
+        self._buffer, self._evaluate = rollout.buffer()
+        for i, array in enumerate((self._x0, self._u, self._dt, self._d)):
+            self._buffer.set_arg(i, memoryview(array))
+        self._buffer.set_res(0, memoryview(self._after))
         self.reset()
 
     def reset(self) -> None:
@@ -231,11 +239,17 @@ class PhysicsForecast:
         logged = np.concatenate([u_s[None, :], u_after])
         delayed = delayed_commands(p, np.vstack([*self.commands, u_after]), np.concatenate([self.times, t_after]))[-(h + 1):]
         disturbance = self.disturbance()
-        inputs = [delayed.T] + ([logged.T] if self.hybrid is not None else []) + ([np.full((1, h + 1), voltage)] if p.battery else [])
-        x0 = np.concatenate([pos, vel, frames.euler_ned_to_matrix(euler[None])[0].ravel(), rates, rotor])
-        d = np.concatenate([disturbance.linear_n[0], disturbance.angular_b[0]])
-        after = np.asarray(self.rollout_function(x0, np.concatenate(inputs)[:, :h], np.diff(t)[None, :], np.tile(d[:, None], (1, h))))
-        x = np.concatenate([x0[:, None], after], axis=1).T  # (h + 1, 22)
+        self._u[:, 0:4] = delayed[:h]  # the export's input layout: delayed commands, logged ones (hybrid), voltage
+        if self.hybrid is not None:
+            self._u[:, 4:8] = logged[:h]
+        if p.battery is not None:
+            self._u[:, -1] = voltage
+        x0 = self._x0
+        x0[0:3], x0[3:6], x0[6:15], x0[15:18], x0[18:22] = pos, vel, frames.euler_ned_to_matrix(euler[None])[0].ravel(), rates, rotor
+        self._dt[:] = np.diff(t)
+        self._d[:, 0:3], self._d[:, 3:6] = disturbance.linear_n, disturbance.angular_b
+        self._evaluate()
+        x = np.concatenate([x0[None, :], self._after])  # (h + 1, 22)
         rot = x[:, 6:15].reshape(-1, 3, 3)
         states = PhysicsState(x[:, 0:3], x[:, 3:6], rot, x[:, 15:18], x[:, 18:22], continued_yaw(float(euler[2]), rot))
         held = Disturbance(np.repeat(disturbance.linear_n, h + 1, axis=0), np.repeat(disturbance.angular_b, h + 1, axis=0))
