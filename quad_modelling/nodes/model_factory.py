@@ -14,6 +14,7 @@ from quad_modelling.io import topics
 from quad_modelling.nodes.common import (
     Param,
     executor_param,
+    math_threads_param,
     non_empty,
     non_negative,
     positive,
@@ -84,4 +85,5 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("qos_depth", 1000, "depth of the keep-last subscriptions and publishers", positive),
         executor_param(),
         realtime_param(),
+        math_threads_param(),
     ]

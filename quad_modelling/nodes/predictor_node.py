@@ -76,6 +76,7 @@ from quad_modelling.nodes.common import (
     adopt_vehicle,
     declare_parameters,
     latched_qos,
+    limit_math_threads,
     make_executor,
     prediction_qos,
     run_node,
@@ -145,7 +146,7 @@ class PredictorNode(Node):
             except QuadModellingError as err:
                 raise BadParameter(f"{node_name}: parameter model={spec!r}: {err}") from err
         self.executor_kind = p["executor"]
-        self.realtime_priority = p["realtime_priority"]
+        self.realtime_priority, self.math_threads = p["realtime_priority"], p["math_threads"]
         self.faults = FaultLog(self.get_logger())
         self.clock_ = WindowClock(p["window_s"], p["warm_s"], p["sample_period_s"])
         self.child_frame = f"{self.name_}/base_link"
@@ -573,6 +574,7 @@ class PredictorNode(Node):
 
     def run(self) -> None:
         executor = make_executor(self.executor_kind, self)
+        self.get_logger().info(limit_math_threads(self.math_threads))  # before SCHED_FIFO moves every thread
         if self.realtime_priority:
             refused = set_realtime_priority(self.realtime_priority)
             if refused:
