@@ -31,9 +31,10 @@ beyond the vehicle's :class:`~quad_modelling.core.models.bounds.PhysicalBounds` 
 (``out_of_bounds``): nothing beyond them, and nothing non-finite, is published.
 
 Receding-horizon mode (``horizon_s`` > 0, instead of windows): h = round(horizon_s / dt) steps; anchor s gets
-the model's multi-step form (:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) over the last
-``horizon_history_s`` of rows, h steps ahead, on ``<model>/horizon/odom``
-(:class:`~quad_modelling.core.models.streaming.RecedingHorizon`). ``horizon_inputs``: ``hold`` (default, the
+the model's multi-step form (:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) over the rows up to
+s, h steps ahead, on ``<model>/horizon/odom`` (:class:`~quad_modelling.core.models.streaming.RecedingHorizon`):
+its anchor carried from input to input (:func:`~quad_modelling.core.models.forecast.carried_forecast`), or for a
+model without a carried form re-run over the last ``horizon_history_s`` of rows. ``horizon_inputs``: ``hold`` (default, the
 forecast) flies u_s held, published at input s, stamped t_s + h dt; ``flown`` flies the recorded commands,
 published at input s+h, stamped t_{s+h}: equal to the offline multi-step prediction, too late to be a forecast.
 

@@ -29,11 +29,14 @@ wraps a streaming predictor as a
 
 :class:`RecedingHorizon` is the live receding-horizon form (the predictor's
 ``horizon_s`` > 0). It holds the recent commands of the current time base and predicts, from an
-anchor s, h = round(horizon_s / dt) steps ahead: the anchor's rows (the last ``history_s`` up to s,
-measurements read at the command stamps) and h rows of commands after it become a FlightLog
-(``make_log``, the node's message conversion), and the model's offline multi-step form
-(``form_for(warm rows)``, the node passes
-:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) predicts it h steps ahead. The
+anchor s, h = round(horizon_s / dt) steps ahead what the model's offline multi-step form
+(``form_for(warm rows)``, the node passes :func:`~quad_modelling.core.evaluation.multistep.multistep_form`)
+predicts from s on the rows up to s (measurements read at the command stamps, ``make_log``: the node's
+message conversion) and h rows of commands after it. With the model's carried-state forecast
+(``carried_for(dt, h)``, the node passes :func:`~quad_modelling.core.models.forecast.carried_forecast`) the
+rows since the previous anchor are added to the anchor it carries (one per input) and it is rolled out h
+steps; without one (or for a flight without a gyro) the multi-step form is re-run over the last ``history_s``
+of rows up to s (the same numbers once the model's trims and filters settle within it). The
 two ``inputs`` modes differ only in the commands after s (one prediction path):
 
 * ``"hold"`` (the forecast MPC and monitoring consume): every command s is an anchor as soon as it
@@ -44,9 +47,9 @@ two ``inputs`` modes differ only in the commands after s (one prediction path):
   flies the recorded commands.
 * ``"flown"``: the anchor s waits for the h flown commands s+1..s+h and is predicted when command
   s+h is in, stamped t_{s+h}: the same numbers as the offline multi-step evaluation for the same
-  start, as long as the model's multi-step form settles within ``history_s`` (trims over 1 s,
-  causal filters: 2 s gives 5e-12 on the bundled flight), but published when the predicted instant
-  is already past (a replay of the protocol, not a forecast).
+  start (carried: to rounding; re-run: as long as the model's multi-step form settles within ``history_s``,
+  trims over 1 s, causal filters: 2 s gives 5e-12 on the bundled flight), but published when the predicted
+  instant is already past (a replay of the protocol, not a forecast).
 
 :class:`RecordedPrediction` wraps predictions received over ROS as a
 :class:`~quad_modelling.core.models.Predictor`, so the live evaluator scores a
@@ -235,7 +238,8 @@ class RecedingHorizon:
     ``covered(ns)`` -> True when every stream holds a sample at or after ``ns``; ``wait_s``: how long
     [wall s] an anchor waits for that before it is computed from what the streams give;
     ``inputs``: the commands after an anchor, ``"hold"`` (u_s held: a forecast at input s) or ``"flown"``
-    (the recorded ones: predicted when command s + h is in), :data:`HORIZON_INPUTS`.
+    (the recorded ones: predicted when command s + h is in), :data:`HORIZON_INPUTS`; ``carried_for(dt [s], h)``
+    -> the model's carried-state forecast or None (module docstring).
     """
 
     def __init__(self, form_for: Callable, make_log: Callable, horizon_s: float, warm_s: float, history_s: float,
