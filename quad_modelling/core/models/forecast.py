@@ -32,7 +32,8 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   yaw; the rollout is :func:`~quad_modelling.core.models.greybox.linear_horizons`. The sample period is the
   receding horizon's dt (the offline form takes the segment's median step: the same on a regular timer).
 * **NARX** (:class:`NarxForecast`): its memory is finite: the last max(max(D_u) + 1, n_y) rows of commands and
-  measured outputs, whose rollout is :func:`~quad_modelling.core.models.narx.horizons_from_measured`.
+  measured outputs; the h closed-loop steps are the model's own step built as a CasADi Function and chained
+  (:func:`narx_rollout`), the expansion to 18 variables :func:`~quad_modelling.core.models.narx.expand_horizons`.
 
 Equality with the offline multi-step form on all the rows of the time base (test:
 ``test/core/models/test_forecast.py``): to rounding, 1e-9 and tighter. What differs is the order of float
@@ -54,7 +55,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, linear_horizons
 from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor
-from quad_modelling.core.models.narx import NarxPredictor, horizons_from_measured
+from quad_modelling.core.models.narx import OUTPUTS, NarxPredictor, expand_horizons, lagged_inputs, sigmoid
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState, accelerations
@@ -66,7 +67,7 @@ from quad_modelling.core.physics.rotors import (
     rotor_step,
     steady_rotor_speed,
 )
-from quad_modelling.core.variables import VARIABLES
+from quad_modelling.core.variables import VARIABLES, columns
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import DataError
 
@@ -94,7 +95,7 @@ def carried_forecast(model, vehicle: VehicleConfig, period_s: float, steps: int)
     if isinstance(model, GreyboxPredictor):
         return GreyboxForecast(model, period_s)
     if isinstance(model, NarxPredictor):
-        return NarxForecast(model, period_s)
+        return NarxForecast(model, period_s, steps)
     return None
 
 
@@ -321,15 +322,28 @@ class GreyboxForecast:
 
 
 class NarxForecast:
-    """NARX, carried: its last rows (module docstring)."""
+    """NARX, carried: its last rows (module docstring). The h closed-loop steps of
+    :meth:`~quad_modelling.core.models.narx.NarxModel.simulate_from_starts` (the nets fed back their own outputs)
+    run as one CasADi Function built by the model's own step (:meth:`~quad_modelling.core.models.narx.NarxModel.net_output`
+    of :func:`~quad_modelling.core.models.narx.sigmoid`, fed symbolic arrays) chained h times; the input part of the
+    nets, ``W_u`` times the lagged commands, and the expansion to 18 variables are the model's numpy code."""
 
-    def __init__(self, predictor: NarxPredictor, period_s: float):
+    def __init__(self, predictor: NarxPredictor, period_s: float, steps: int):
         model = predictor.model
         if abs(period_s - model.dt) > 0.01 * model.dt:
             raise DataError(f"receding horizon: sampled every {period_s * 1e3:.3f} ms but the {model.kind} model was trained "
                             f"at {model.dt * 1e3:.3f} ms")
-        self.model = model
+        self.model, self.steps = model, steps
         self.keep = max(max(model.config.input_delays) + 1, model.config.output_delays, 2)
+        n_y, hidden = model.config.output_delays, model.config.hidden
+        self._feedback, self._z_u = np.zeros((len(OUTPUTS), n_y)), np.zeros((steps, len(OUTPUTS), hidden))
+        self._outputs = np.zeros((steps, len(OUTPUTS)))
+        self._buffer, self._evaluate = narx_rollout(model, steps).buffer()
+        self._buffer.set_arg(0, memoryview(self._feedback))
+        self._buffer.set_arg(1, memoryview(self._z_u))
+        self._buffer.set_res(1, memoryview(self._outputs))
+        self._states = np.zeros((steps, len(OUTPUTS) * n_y))
+        self._buffer.set_res(0, memoryview(self._states))
         self.reset()
 
     def reset(self) -> None:
@@ -346,7 +360,36 @@ class NarxForecast:
             self.rows.append((rows.u[i].copy(), measured))
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray) -> np.ndarray:
-        h = len(t_after)
+        model, h, n_y = self.model, len(t_after), self.model.config.output_delays
+        if h != self.steps:
+            raise ValueError(f"carried NARX forecast built for {self.steps} steps, asked for {h}")
+        s = len(self.rows) - 1
         u = np.concatenate([np.array([row[0] for row in self.rows]), u_after])
-        measured = np.array([row[1] for row in self.rows] + [self.rows[-1][1]] * h)  # rows after s: not read
-        return horizons_from_measured(self.model, measured, u, np.array([len(self.rows) - 1]), h)[0]
+        measured = np.array([row[1] for row in self.rows])
+        y = model.normalise_outputs(measured[:, columns(OUTPUTS)])
+        padded = np.concatenate([np.repeat(y[:1], n_y - 1, axis=0), y])  # rows before the first repeat it (as offline)
+        self._feedback[:] = padded[-n_y:].T  # y(s - n_y + 1 .. s), oldest first
+        lagged = lagged_inputs(model.normalise_inputs(u), model.config.input_delays)[s + 1:]
+        self._z_u[:] = np.einsum("nd,khd->nkh", lagged, model.w_u) + model.b_1
+        self._evaluate()
+        v = np.concatenate([measured[-1:, columns(OUTPUTS)], model.denormalise_outputs(self._outputs)])
+        return expand_horizons(model, measured, np.array([s]), v[None])[0]
+
+
+def narx_rollout(model, steps: int):
+    """CasADi Function (feedback ỹ (6, n_y), input parts z_u (h, 6, H)) -> (feedback after each step, ỹ of each step):
+    the closed loop of :meth:`~quad_modelling.core.models.narx.NarxModel.simulate_from_starts`, one step built by the
+    model's ``net_output`` and ``sigmoid`` on symbolic arrays and chained ``steps`` times (``mapaccum``). Argument and
+    result shapes as C arrays: feedback (6, n_y), z_u (h, 6, H), feedbacks (h, 6 n_y), outputs (h, 6)."""
+    import casadi
+
+    n_y, hidden, nets = model.config.output_delays, model.config.hidden, len(OUTPUTS)
+    feedback = casadi.SX.sym("feedback", nets * n_y)  # column-major (n_y, 6) = C (6, n_y): net k's lags at k n_y ..
+    z_u = casadi.SX.sym("z_u", nets * hidden)
+    lags = np.array([feedback[i] for i in range(nets * n_y)], dtype=object).reshape(nets, n_y)
+    inputs = np.array([z_u[i] for i in range(nets * hidden)], dtype=object).reshape(nets, hidden)
+    z = inputs + np.matmul(model.w_y, lags[..., None])[..., 0]
+    y = model.net_output(sigmoid(z), lags[:, -1])
+    shifted = np.concatenate([lags[:, 1:], y[:, None]], axis=1)
+    step = casadi.Function("narx_step", [feedback, z_u], [casadi.vertcat(*shifted.ravel()), casadi.vertcat(*y)])
+    return step.mapaccum("narx_forecast", steps).expand()

@@ -391,9 +391,15 @@ def horizons_from_measured(model: NarxModel, measured: np.ndarray, u: np.ndarray
     """(S, horizon + 1, 18) of :meth:`NarxPredictor.predict_horizons` from the measurement (N, 18, VARIABLES order; of
     each row only positions, velocities, angles and rates are read) and commands ``u`` (N, 4) of one series
     (the carried-state forecast, :mod:`quad_modelling.core.models.forecast`, calls it on its last rows)."""
-    dt = model.dt
+    return expand_horizons(model, measured, starts, model.simulate_from_starts(u, measured[:, columns(OUTPUTS)], starts, horizon))
+
+
+def expand_horizons(model: NarxModel, measured: np.ndarray, starts: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(S, H + 1, 18) of :func:`horizons_from_measured` from the predicted outputs ``v`` (S, H + 1, 6) (row 0: the
+    measured y(s)): positions/angles integrated (trapezoid) from the measured ones at s, accelerations as backward
+    differences (row 0: of the measured outputs)."""
+    dt, horizon = model.dt, v.shape[1] - 1
     y = measured[:, columns(OUTPUTS)]
-    v = model.simulate_from_starts(u, y, starts, horizon)  # (S, H+1, 6)
     out = np.empty((len(starts), horizon + 1, len(VARIABLES)))
     out[:, 0] = measured[starts]
     previous = y[np.maximum(starts - 1, 0)]
