@@ -157,3 +157,19 @@ def test_a_new_time_base_starts_the_carried_anchor_over(models, flight):
             again[int(event[1])] = event[2]
     assert len(again) == len(fresh)
     np.testing.assert_array_equal(np.array(list(again.values())), np.array([p for _, p in fresh.values()]))
+
+
+def test_without_a_c_compiler_the_rollout_runs_in_casadis_virtual_machine_with_the_same_numbers(models, monkeypatch):
+    """The compiled step and the virtual machine's give the same forecast (the compiler is an option, not a need)."""
+    from quad_modelling.core.models import forecast
+
+    model, vehicle = models["hybrid"]
+    log = load_flight(FLIGHT, vehicle).slice(250, 400)
+    period = float(np.median(np.diff(log.t)))
+    t_after, u_after = log.t[99] + period * np.arange(1, 11), np.tile(log.u[99], (10, 1))
+    compiled = carried_forecast(model, vehicle, period, 10)
+    monkeypatch.setattr(forecast, "JIT_OPTIONS", {"compiler": "/nonexistent/cc", "flags": []})
+    interpreted = carried_forecast(model, vehicle, period, 10)
+    for carried in (compiled, interpreted):
+        carried.add(log.slice(0, 100), 0)
+    np.testing.assert_allclose(interpreted.predict(t_after, u_after), compiled.predict(t_after, u_after), rtol=0, atol=1e-12)
