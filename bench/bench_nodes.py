@@ -324,7 +324,8 @@ def forecasts(seconds: float, workdir: Path, models: list[str]) -> tuple[list[di
     specs = {kind: kind if MODEL_FILES[kind] is None else f"{kind}:{MODEL_FILES[kind](FORECAST_RATE_HZ, workdir)}" for kind in models}
     rclpy.init()
     try:
-        costs = [forecast_cost(specs[kind], carried, seconds) for kind in models for carried in (True, False)]
+        # the history re-run costs up to ~60 ms per input here: 2 s of inputs are enough for its median
+        costs = [forecast_cost(specs[kind], carried, seconds if carried else 2.0) for kind in models for carried in (True, False)]
     finally:
         rclpy.shutdown()
     keep_up = []
@@ -415,6 +416,7 @@ def main() -> int:
     parser.add_argument("--memory-wall", type=float, default=None,
                         help="run only the memory test for this many wall seconds (results in nodes_memory.{json,md})")
     args = parser.parse_args()
+    load_before = os.getloadavg()  # the machine is shared: the results say how busy it was
     if args.memory_wall:
         with tempfile.TemporaryDirectory() as tmp:
             mem = memory(args.memory_wall, Path(tmp))
@@ -429,8 +431,11 @@ def main() -> int:
     if args.forecast_only:
         with tempfile.TemporaryDirectory() as tmp:
             costs, keep_up = forecasts(seconds, Path(tmp), args.models.split(","))
-        write_results("nodes_forecast", {"forecast_cost": costs, "forecast_400hz": keep_up},
-                      "\n".join(["# Receding-horizon forecasts", "", *forecast_markdown(costs, keep_up)]))
+        write_results("nodes_forecast", {"forecast_cost": costs, "forecast_400hz": keep_up, "argv": sys.argv[1:],
+                                         "load_average_before": load_before},
+                      "\n".join(["# Receding-horizon forecasts", "", f"`bench/bench_nodes.py {' '.join(sys.argv[1:])}`; "
+                                  f"load average (1 min) {load_before[0]:.2f} before the run.", "",
+                                  *forecast_markdown(costs, keep_up)]))
         return 0
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -450,7 +455,10 @@ def main() -> int:
                         lat.append(median)
             lat.append(latency(400.0, seconds, work, "greybox", realtime=realtime, echo=True))  # the floor again, after
         if args.latency_only:
-            write_results("nodes_latency", {"latency": lat}, "\n".join(["# Predictor node latency", "", *latency_markdown(lat)]))
+            write_results("nodes_latency", {"latency": lat, "argv": sys.argv[1:], "load_average_before": load_before},
+                          "\n".join(["# Predictor node latency", "", f"`bench/bench_nodes.py {' '.join(sys.argv[1:])}`; "
+                                      f"load average (1 min) {load_before[0]:.2f} before the run.", "",
+                                      *latency_markdown(lat)]))
             return 0
         graphs = [throughput(work, executor, run) for run in range(3) for executor in ("events", "single")]
         events = sorted((g for g in graphs if g["executor"] == "events"), key=lambda g: g["samples_per_s"])
