@@ -61,7 +61,7 @@ from std_msgs.msg import String
 
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.models.bounds import PhysicalBounds
-from quad_modelling.core.models.forecast import carried_forecast
+from quad_modelling.core.models.forecast import carried_forecast, prepare_carried_forecast
 from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate
 from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
@@ -222,6 +222,7 @@ class PredictorNode(Node):
         period = self.sample_period_s or PRIME_SAMPLE_PERIOD_S
         prime(self.model, self.vehicle, period, int(round(self.warm_s / period)))
         if self.horizon_s > 0:
+            prepare_carried_forecast(self.model, self.vehicle)
             self.horizon = RecedingHorizon(lambda warm: multistep_form(self.model, warm), self._rows_log, self.horizon_s,
                                            self.warm_s, self.horizon_history_s, self.sample_period_s, MEASUREMENT_WAIT_S,
                                            self.horizon_inputs,

@@ -23,7 +23,7 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   rollout is the one physics step (:func:`~quad_modelling.core.physics.rigid_body.step`, with the hybrid's
   correction) built once as a CasADi Function by the export
   (:func:`~quad_modelling.core.export.casadi_model.casadi_functions`: ``F_disturbed``) and chained h times
-  (:func:`chained`, compiled to C where a C compiler is found): one call instead of h numpy steps of a batch of
+  (:meth:`Step.chained`, compiled to C where a C compiler is found: :func:`compile_step`): one call instead of h numpy steps of a batch of
   one (12 ms for h = 50 here). The outputs of the
   h + 1 states are the model's own (:func:`~quad_modelling.core.models.physics.outputs`,
   :meth:`~quad_modelling.core.models.hybrid.HybridModel.outputs`), one batched call.
@@ -34,7 +34,7 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   receding horizon's dt (the offline form takes the segment's median step: the same on a regular timer).
 * **NARX** (:class:`NarxForecast`): its memory is finite: the last max(max(D_u) + 1, n_y) rows of commands and
   measured outputs; the h closed-loop steps are the model's own step built as a CasADi Function and chained
-  (:func:`narx_rollout`), the expansion to 18 variables :func:`~quad_modelling.core.models.narx.expand_horizons`.
+  (:func:`narx_step`), the expansion to 18 variables :func:`~quad_modelling.core.models.narx.expand_horizons`.
 
 Equality with the offline multi-step form on all the rows of the time base (test:
 ``test/core/models/test_forecast.py``): to rounding, 1e-9 and tighter. What differs is the order of float
@@ -48,7 +48,9 @@ from __future__ import annotations
 
 import os
 import tempfile
+import weakref
 from collections import deque
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -92,14 +94,42 @@ def carried_forecast(model, vehicle: VehicleConfig, period_s: float, steps: int)
     """The carried form of ``model`` (a streaming predictor of the registry) for h = ``steps`` at the sample period
     ``period_s`` [s], or None when it has none (module docstring)."""
     if isinstance(model, PhysicsPredictor):
-        return PhysicsForecast(vehicle, model.params, model.observer, steps)
+        return PhysicsForecast(model_step(model, vehicle), model.params, model.observer, steps)
     if isinstance(model, HybridPredictor):
-        return PhysicsForecast(vehicle, model.model.params, model.model.observer, steps, model.model)
+        return PhysicsForecast(model_step(model, vehicle), model.model.params, model.model.observer, steps, model.model)
     if isinstance(model, GreyboxPredictor):
         return GreyboxForecast(model, period_s)
     if isinstance(model, NarxPredictor):
-        return NarxForecast(model, period_s, steps)
+        return NarxForecast(model, period_s, steps, model_step(model, vehicle))
     return None
+
+
+def prepare_carried_forecast(model, vehicle: VehicleConfig) -> None:
+    """Build (and compile) the model's step now, not at its first anchor: the predictor node calls it at start-up with
+    its model, as it primes the model (the compilation takes about half a second once)."""
+    model_step(model, vehicle)
+
+
+_STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+"""model -> its :class:`Step` (:func:`model_step`), built once per model object."""
+
+
+def model_step(model, vehicle: VehicleConfig) -> Step | None:
+    """The one-step CasADi Function a model's carried forecast chains (physics, hybrid: the export's ``F_disturbed``;
+    NARX: :func:`narx_step`), compiled (:func:`compile_step`); None for a model whose forecast needs none."""
+    if model not in _STEPS:
+        if isinstance(model, (PhysicsPredictor, HybridPredictor)):
+            from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions
+
+            hybrid = model.model if isinstance(model, HybridPredictor) else None
+            params, observer = (hybrid.params, hybrid.observer) if hybrid else (model.params, model.observer)
+            exported = ExportedModel(vehicle, params, observer, "hybrid" if hybrid else "physics", hybrid)
+            _STEPS[model] = compile_step(casadi_functions(exported)["F_disturbed"])
+        elif isinstance(model, NarxPredictor):
+            _STEPS[model] = compile_step(narx_step(model.model))
+        else:
+            return None
+    return _STEPS[model]
 
 
 class UnwrappedYaw:
@@ -152,17 +182,12 @@ class _Rows:
 class PhysicsForecast:
     """Physics or hybrid model (``hybrid`` given), carried (module docstring)."""
 
-    def __init__(self, vehicle: VehicleConfig, params: PhysicsParameters, observer: Observer, steps: int,
-                 hybrid: HybridModel | None = None):
-        from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions
-
+    def __init__(self, step: Step, params: PhysicsParameters, observer: Observer, steps: int, hybrid: HybridModel | None = None):
         self.params, self.observer, self.hybrid, self.steps = params, observer, hybrid, steps
         self.history_s = max(observer.linear_s, observer.angular_s)
-        exported = ExportedModel(vehicle, params, observer, "hybrid" if hybrid else "physics", hybrid)
-        step = casadi_functions(exported)["F_disturbed"]
-        rollout = chained(step, steps)  # x_{k+1} = F(x_k, u_k, dt_k, d), k < h: (22, h)
+        rollout = step.chained(steps)  # x_{k+1} = F(x_k, u_k, dt_k, d), k < h: (22, h)
         # evaluated in place on these arrays (CasADi is column-major: an (n, h) argument is an (h, n) C array)
-        self._x0, self._u = np.zeros(22), np.zeros((steps, step.size1_in(1)))
+        self._x0, self._u = np.zeros(22), np.zeros((steps, step.function.size1_in(1)))
         self._dt, self._d, self._after = np.zeros(steps), np.zeros((steps, 6)), np.zeros((steps, 22))
         self._buffer, self._evaluate = rollout.buffer()
         for i, array in enumerate((self._x0, self._u, self._dt, self._d)):
@@ -331,7 +356,7 @@ class NarxForecast:
     of :func:`~quad_modelling.core.models.narx.sigmoid`, fed symbolic arrays) chained h times; the input part of the
     nets, ``W_u`` times the lagged commands, and the expansion to 18 variables are the model's numpy code."""
 
-    def __init__(self, predictor: NarxPredictor, period_s: float, steps: int):
+    def __init__(self, predictor: NarxPredictor, period_s: float, steps: int, step: Step):
         model = predictor.model
         if abs(period_s - model.dt) > 0.01 * model.dt:
             raise DataError(f"receding horizon: sampled every {period_s * 1e3:.3f} ms but the {model.kind} model was trained "
@@ -341,7 +366,7 @@ class NarxForecast:
         n_y, hidden = model.config.output_delays, model.config.hidden
         self._feedback, self._z_u = np.zeros((len(OUTPUTS), n_y)), np.zeros((steps, len(OUTPUTS), hidden))
         self._outputs = np.zeros((steps, len(OUTPUTS)))
-        self._buffer, self._evaluate = narx_rollout(model, steps).buffer()
+        self._buffer, self._evaluate = step.chained(steps).buffer()
         self._buffer.set_arg(0, memoryview(self._feedback))
         self._buffer.set_arg(1, memoryview(self._z_u))
         self._buffer.set_res(1, memoryview(self._outputs))
@@ -379,11 +404,11 @@ class NarxForecast:
         return expand_horizons(model, measured, np.array([s]), v[None])[0]
 
 
-def narx_rollout(model, steps: int):
-    """CasADi Function (feedback ỹ (6, n_y), input parts z_u (h, 6, H)) -> (feedback after each step, ỹ of each step):
-    the closed loop of :meth:`~quad_modelling.core.models.narx.NarxModel.simulate_from_starts`, one step built by the
-    model's ``net_output`` and ``sigmoid`` on symbolic arrays and chained ``steps`` times (``mapaccum``). Argument and
-    result shapes as C arrays: feedback (6, n_y), z_u (h, 6, H), feedbacks (h, 6 n_y), outputs (h, 6)."""
+def narx_step(model):
+    """CasADi Function (feedback ỹ (6, n_y), input part z_u (6, H)) -> (feedback after the step, ỹ of the step): one
+    closed-loop step of :meth:`~quad_modelling.core.models.narx.NarxModel.simulate_from_starts`, built by the model's
+    ``net_output`` and ``sigmoid`` on symbolic arrays. Chained h times (:meth:`Step.chained`) its arguments and results
+    are, as C arrays: feedback (6, n_y), z_u (h, 6, H), feedbacks (h, 6 n_y), outputs (h, 6)."""
     import casadi
 
     n_y, hidden, nets = model.config.output_delays, model.config.hidden, len(OUTPUTS)
@@ -394,8 +419,7 @@ def narx_rollout(model, steps: int):
     z = inputs + np.matmul(model.w_y, lags[..., None])[..., 0]
     y = model.net_output(sigmoid(z), lags[:, -1])
     shifted = np.concatenate([lags[:, 1:], y[:, None]], axis=1)
-    step = casadi.Function("narx_step", [feedback, z_u], [casadi.vertcat(*shifted.ravel()), casadi.vertcat(*y)])
-    return chained(step, steps)
+    return casadi.Function("narx_step", [feedback, z_u], [casadi.vertcat(*shifted.ravel()), casadi.vertcat(*y)])
 
 
 JIT_OPTIONS = {"flags": ["-O1"]}
@@ -403,19 +427,30 @@ JIT_OPTIONS = {"flags": ["-O1"]}
 operations as CasADi's virtual machine); its files go to the system's temporary directory (removed at exit)."""
 
 
-def chained(step, steps: int):
-    """``step`` (a CasADi SX Function whose first input and output are the state) chained ``steps`` times
-    (``mapaccum``: the state carried, the other inputs one column per step). The step is compiled to C by the
-    system's C compiler when there is one (CasADi's ``jit``: about 0.5 s once, when h is known; the same numbers,
-    measured 0 difference), else evaluated by CasADi's virtual machine: the hybrid's 50 steps (6357 instructions each)
-    take ~0.1 ms compiled against ~0.4 ms (``bench/results/nodes_forecast.md``)."""
+@dataclass(frozen=True)
+class Step:
+    """A model's one-step CasADi Function (first input and output: the state) and whether it is compiled to C."""
+
+    function: object
+    compiled: bool
+
+    def chained(self, steps: int):
+        """The step chained ``steps`` times (``mapaccum``: the state carried, the other inputs one column per step)."""
+        chained = self.function.mapaccum(f"{self.function.name()}_chained", steps)
+        return chained if self.compiled else chained.expand()
+
+
+def compile_step(step) -> Step:
+    """``step`` (a CasADi SX Function) compiled to C by the system's C compiler when there is one (CasADi's ``jit``:
+    about half a second once; the same numbers, measured 0 difference), else as it is, for CasADi's virtual machine:
+    the hybrid's 50 steps (6357 instructions each) take ~0.1 ms compiled against ~0.4 ms
+    (``bench/results/nodes_forecast.md``)."""
     import casadi
 
     try:
         symbols = [casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
-        compiled = casadi.Function(f"{step.name()}_compiled", symbols, step.call(symbols),
-                                   {"jit": True, "compiler": "shell",
-                                    "jit_options": {"directory": tempfile.gettempdir() + os.sep, **JIT_OPTIONS}})
-        return compiled.mapaccum(f"{step.name()}_chained", steps)
+        return Step(casadi.Function(f"{step.name()}_compiled", symbols, step.call(symbols),
+                                    {"jit": True, "compiler": "shell",
+                                     "jit_options": {"directory": tempfile.gettempdir() + os.sep, **JIT_OPTIONS}}), True)
     except RuntimeError:  # no C compiler (CasADi names the failed command): its virtual machine
-        return step.mapaccum(f"{step.name()}_chained", steps).expand()
+        return Step(step, False)

@@ -168,8 +168,11 @@ def test_without_a_c_compiler_the_rollout_runs_in_casadis_virtual_machine_with_t
     period = float(np.median(np.diff(log.t)))
     t_after, u_after = log.t[99] + period * np.arange(1, 11), np.tile(log.u[99], (10, 1))
     compiled = carried_forecast(model, vehicle, period, 10)
+    assert forecast.model_step(model, vehicle).compiled  # this machine has a C compiler
     monkeypatch.setattr(forecast, "JIT_OPTIONS", {"compiler": "/nonexistent/cc", "flags": []})
+    monkeypatch.setattr(forecast, "_STEPS", forecast.weakref.WeakKeyDictionary())
     interpreted = carried_forecast(model, vehicle, period, 10)
+    assert not forecast.model_step(model, vehicle).compiled
     for carried in (compiled, interpreted):
         carried.add(log.slice(0, 100), 0)
     np.testing.assert_allclose(interpreted.predict(t_after, u_after), compiled.predict(t_after, u_after), rtol=0, atol=1e-12)
