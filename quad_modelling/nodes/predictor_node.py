@@ -226,7 +226,8 @@ class PredictorNode(Node):
             self.horizon = RecedingHorizon(lambda warm: multistep_form(self.model, warm), self._rows_log, self.horizon_s,
                                            self.warm_s, self.horizon_history_s, self.sample_period_s, MEASUREMENT_WAIT_S,
                                            self.horizon_inputs,
-                                           lambda period, steps: carried_forecast(self.model, self.vehicle, period, steps))
+                                           lambda period, steps: carried_forecast(self.model, self.vehicle, period, steps),
+                                           ends_only=True)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -555,19 +556,18 @@ class PredictorNode(Node):
             if event[0] == "fault":
                 self.faults.report(event[1], f"receding horizon: model {self.name_}: {event[2]}")
                 continue
-            _, ns, prediction, elapsed = event
-            h = self.horizon.steps
+            _, ns, prediction, elapsed = event  # rows 0 (the anchor) and h
             if not np.isfinite(prediction).all():
                 self.faults.report("nan_prediction", f"receding horizon: model {self.name_} predicted a non-finite value: "
                                                      "not published")
                 continue
-            violation = self.bounds.violation(prediction[h], elapsed, prediction[0])
+            violation = self.bounds.violation(prediction[1], elapsed, prediction[0])
             if violation is not None:
                 self.faults.report("out_of_bounds", f"receding horizon: model {self.name_} predicted {violation}: not published")
                 continue
             if not self._monotonic(ns):
                 continue
-            odom, accel = topics.prediction_fields(prediction[h])
+            odom, accel = topics.prediction_fields(prediction[1])
             o, _ = self.out.fill(ns, odom[0], accel[0])
             self.horizon_pub.publish(o)
             self.published += 1

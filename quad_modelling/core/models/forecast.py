@@ -9,9 +9,10 @@ since the previous anchor (one per input), then rolls the model out from it:
 
 * :meth:`CarriedForecast.add` ``(rows, first)``: the rows ``first ..`` of the FlightLog ``rows`` are new, in time
   order after every row added before (rows before ``first`` were added already: context for the yaw unwrap);
-* :meth:`CarriedForecast.predict` ``(t_after, u_after)``: (h + 1, 18) absolute prediction from the last row added
-  (row 0) over the h rows after it stamped ``t_after`` (h,) [s] with the commands ``u_after`` (h, 4), as the offline
-  multi-step form gives it.
+* :meth:`CarriedForecast.predict` ``(t_after, u_after, rows=None)``: (h + 1, 18) absolute prediction from the last
+  row added (row 0) over the h rows after it stamped ``t_after`` (h,) [s] with the commands ``u_after`` (h, 4), as
+  the offline multi-step form gives it; ``rows``: only these rows of it (a forecast publishes row h, and checks it
+  against row 0: the physics models then output 2 states instead of h + 1).
 
 Per model (:func:`carried_forecast` picks the form; a model without one is predicted by the history re-run):
 
@@ -86,7 +87,7 @@ class CarriedForecast(Protocol):
     def add(self, rows: FlightLog, first: int) -> None:
         ...
 
-    def predict(self, t_after: np.ndarray, u_after: np.ndarray) -> np.ndarray:
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         ...
 
 
@@ -259,7 +260,7 @@ class PhysicsForecast:
         measured[:, 3:6], measured[:, 12:15] = rows[:, 1:4], rows[:, 4:7]
         return physics.observed_disturbance(rows[:, 0], measured, rows[:, 7:13], np.array([len(rows) - 1]), self.observer)
 
-    def predict(self, t_after: np.ndarray, u_after: np.ndarray) -> np.ndarray:
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         p, h = self.params, len(t_after)
         if h != self.steps:
             raise ValueError(f"carried physics forecast built for {self.steps} steps, asked for {h}")
@@ -281,11 +282,12 @@ class PhysicsForecast:
         x = np.concatenate([x0[None, :], self._after])  # (h + 1, 22)
         rot = x[:, 6:15].reshape(-1, 3, 3)
         states = PhysicsState(x[:, 0:3], x[:, 3:6], rot, x[:, 15:18], x[:, 18:22], continued_yaw(float(euler[2]), rot))
-        held = Disturbance(np.repeat(disturbance.linear_n, h + 1, axis=0), np.repeat(disturbance.angular_b, h + 1, axis=0))
-        effective = effective_commands(p, delayed, voltage)
+        rows = np.arange(h + 1) if rows is None else np.asarray(rows)
+        held = Disturbance(np.repeat(disturbance.linear_n, len(rows), axis=0), np.repeat(disturbance.angular_b, len(rows), axis=0))
+        effective = effective_commands(p, delayed[rows], voltage)
         if self.hybrid is None:
-            return physics.outputs(p, states, effective, held)
-        return self.hybrid.outputs(states, np.concatenate([effective, logged], axis=1), held)
+            return physics.outputs(p, states.take(rows), effective, held)
+        return self.hybrid.outputs(states.take(rows), np.concatenate([effective, logged[rows]], axis=1), held)
 
 
 def continued_yaw(yaw0: float, rot: np.ndarray) -> np.ndarray:
@@ -337,7 +339,7 @@ class GreyboxForecast:
         measured[11] = yaw[-1]
         self.anchor = (measured[MEASURED_STATE_COLUMNS], rows.u[-1].copy())
 
-    def predict(self, t_after: np.ndarray, u_after: np.ndarray) -> np.ndarray:
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         count = len(self.u_totals) - 1
         input_trim = self.u_ref + (self.u_totals[-1] - self.u_totals[0]) / count
         attitude_trim = self.attitude_ref + (self.attitude_totals[-1] - self.attitude_totals[0]) / count
@@ -346,7 +348,8 @@ class GreyboxForecast:
         x = np.concatenate([state, thrusts])
         x[6:8] -= attitude_trim
         u = np.concatenate([u_s[None, :], u_after]) - input_trim
-        return linear_horizons(self.model, x[None, :], u[None], attitude_trim[None, :])[0]
+        out = linear_horizons(self.model, x[None, :], u[None], attitude_trim[None, :])[0]
+        return out if rows is None else out[rows]
 
 
 class NarxForecast:
@@ -387,7 +390,7 @@ class NarxForecast:
             measured[11] = yaw[i - first]
             self.rows.append((rows.u[i].copy(), measured))
 
-    def predict(self, t_after: np.ndarray, u_after: np.ndarray) -> np.ndarray:
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         model, h, n_y = self.model, len(t_after), self.model.config.output_delays
         if h != self.steps:
             raise ValueError(f"carried NARX forecast built for {self.steps} steps, asked for {h}")
@@ -401,7 +404,8 @@ class NarxForecast:
         self._z_u[:] = np.einsum("nd,khd->nkh", lagged, model.w_u) + model.b_1
         self._evaluate()
         v = np.concatenate([measured[-1:, columns(OUTPUTS)], model.denormalise_outputs(self._outputs)])
-        return expand_horizons(model, measured, np.array([s]), v[None])[0]
+        out = expand_horizons(model, measured, np.array([s]), v[None])[0]
+        return out if rows is None else out[rows]
 
 
 def narx_step(model):

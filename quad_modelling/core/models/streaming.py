@@ -239,14 +239,16 @@ class RecedingHorizon:
     [wall s] an anchor waits for that before it is computed from what the streams give;
     ``inputs``: the commands after an anchor, ``"hold"`` (u_s held: a forecast at input s) or ``"flown"``
     (the recorded ones: predicted when command s + h is in), :data:`HORIZON_INPUTS`; ``carried_for(dt [s], h)``
-    -> the model's carried-state forecast or None (module docstring).
+    -> the model's carried-state forecast or None (module docstring); ``ends_only``: the predictions yielded are
+    rows 0 (the anchor) and h only (what a forecast publishes and checks), not the h + 1 rows.
     """
 
     def __init__(self, form_for: Callable, make_log: Callable, horizon_s: float, warm_s: float, history_s: float,
-                 sample_period_s: float, wait_s: float, inputs: str = "hold", carried_for: Callable | None = None):
+                 sample_period_s: float, wait_s: float, inputs: str = "hold", carried_for: Callable | None = None,
+                 ends_only: bool = False):
         if inputs not in HORIZON_INPUTS:
             raise ValueError(f"receding-horizon inputs {inputs!r}: expected one of {', '.join(HORIZON_INPUTS)}")
-        self.form_for, self.make_log, self.carried_for = form_for, make_log, carried_for
+        self.form_for, self.make_log, self.carried_for, self.ends_only = form_for, make_log, carried_for, ends_only
         self.carried_form = self.carried = None  # the model's carried forecast (built once h is known); active one
         self._forget_carried()
         self.horizon_s, self.warm_s, self.history_s = horizon_s, warm_s, history_s
@@ -311,7 +313,8 @@ class RecedingHorizon:
 
     def ready(self, covered: Callable[[int], bool], measurements: Callable) -> Iterator[tuple]:
         """Every anchor that is ready, in order: its command s (``hold``; s + h for ``flown``) is in and its
-        measurements are covered. Yields ("prediction", stamp [ns], (h + 1, 18) prediction, stamp - t_s [s]) with
+        measurements are covered. Yields ("prediction", stamp [ns], (h + 1, 18) prediction (rows 0 and h:
+        (2, 18) with ``ends_only``), stamp - t_s [s]) with
         the stamp of the predicted time (t_s + h dt held, t_{s+h} flown) or ("fault", kind, sentence)."""
         if self.steps is None or self.form is None:
             return
@@ -360,6 +363,8 @@ class RecedingHorizon:
         try:
             log = self.make_log(stamps, history, filled)
             prediction = self.form.predict_horizons(log, np.array([s - first]), h)[0]
+            if self.ends_only:
+                prediction = prediction[[0, h]]
         except (QuadModellingError, ValueError) as err:
             return "fault", "model_error", f"failed: {err}"
         return "prediction", int(stamps[-1]), prediction, (stamps[-1] - stamps[s - first]) / 1e9
@@ -393,7 +398,8 @@ class RecedingHorizon:
                 return self._predict_history(s, measurements)
             self.carried.add(log, 1 if self.context is not None else 0)
             self.context, self.fed = rows[-1], self.first + s + 1
-            prediction = self.carried.predict(after_ns / 1e9, np.array([r[1] for r in after]))
+            prediction = self.carried.predict(after_ns / 1e9, np.array([r[1] for r in after]),
+                                              np.array([0, self.steps]) if self.ends_only else None)
         except (QuadModellingError, ValueError) as err:
             self.carried = None  # its anchor may be half-added: the rest of this time base is re-run
             return "fault", "model_error", f"failed: {err}"

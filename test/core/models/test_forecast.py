@@ -82,7 +82,7 @@ def models(tmp_path_factory, vehicle):
     }
 
 
-def receding(model, vehicle, log, inputs: str) -> tuple[dict, RecedingHorizon]:
+def receding(model, vehicle, log, inputs: str, ends_only: bool = False) -> tuple[dict, RecedingHorizon]:
     """Feed ``log`` to a receding horizon with the model's carried form, one command at a time (measurements always
     covered): {anchor row: (stamp [ns], (h + 1, 18) prediction)}."""
     stamps = np.round(log.t * 1e9).astype(np.int64)
@@ -96,7 +96,8 @@ def receding(model, vehicle, log, inputs: str) -> tuple[dict, RecedingHorizon]:
 
     horizon = RecedingHorizon(lambda warm: multistep_form(model, warm), make_log, horizon_s=HORIZON * 0.01, warm_s=0.2,
                               history_s=0.3, sample_period_s=0.0, wait_s=0.5, inputs=inputs,
-                              carried_for=lambda period, steps: carried_forecast(model, vehicle, period, steps))
+                              carried_for=lambda period, steps: carried_forecast(model, vehicle, period, steps),
+                              ends_only=ends_only)
     out = {}
     for i, ns in enumerate(stamps.tolist()):
         horizon.add(ns, log.u[i], None)
@@ -127,6 +128,9 @@ def test_carried_forecast_equals_the_offline_multistep_form_flown_and_held(model
     print(f"{kind} held: max |carried - offline on held inputs| = {np.abs(got - expected).max():.2e}")
     np.testing.assert_allclose(got, expected, rtol=0, atol=TOLERANCE)
     assert [held[s][0] for s in checked] == [int(round(flight.t[s] * 1e9)) + HORIZON * PERIOD_NS for s in checked]
+    ends, _ = receding(model, vehicle, flight, "hold", ends_only=True)  # what the node asks for: rows 0 and h
+    assert sorted(ends) == sorted(held)
+    np.testing.assert_array_equal(np.array([ends[s][1] for s in held]), np.array([held[s][1][[0, HORIZON]] for s in held]))
 
 
 def test_every_registered_model_with_a_multistep_table_row_has_its_carried_form(models, vehicle):
