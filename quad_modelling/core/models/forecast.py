@@ -205,7 +205,7 @@ class PhysicsForecast:
         self.rotor = None  # rotor speeds at the last row [rad/s]
         self.rotor_command = None  # the effective command the rotors answered at the last row
         self.last_t = None  # time of the last row [s]
-        self.anchor = None  # (t, pos, vel, euler with continuous yaw, rates, rotor, logged u, voltage) of the last row
+        self.anchor = None  # (t, pos, vel, euler with continuous yaw, R, rates, rotor, logged u, voltage) of the last row
 
     def add(self, rows: FlightLog, first: int) -> None:
         _require_gyro(rows, "the physics model")
@@ -237,7 +237,7 @@ class PhysicsForecast:
         for i in range(n):
             self.observer_rows.append(np.concatenate([[rows.t[first + i]], vel[i], rates[i], modelled[i]]))
         t_last = float(rows.t[-1])
-        self.anchor = (t_last, pos[-1].copy(), vel[-1].copy(), euler[-1], rates[-1].copy(), rotor[-1].copy(),
+        self.anchor = (t_last, pos[-1].copy(), vel[-1].copy(), euler[-1], rot[-1], rates[-1].copy(), rotor[-1].copy(),
                        rows.u[-1].copy(), None if voltage is None else float(voltage[-1]))
         self._forget(t_last)
 
@@ -264,7 +264,7 @@ class PhysicsForecast:
         p, h = self.params, len(t_after)
         if h != self.steps:
             raise ValueError(f"carried physics forecast built for {self.steps} steps, asked for {h}")
-        t_s, pos, vel, euler, rates, rotor, u_s, voltage = self.anchor
+        t_s, pos, vel, euler, rot_s, rates, rotor, u_s, voltage = self.anchor
         t = np.concatenate([[t_s], t_after])
         logged = np.concatenate([u_s[None, :], u_after])
         delayed = delayed_commands(p, np.vstack([*self.commands, u_after]), np.concatenate([self.times, t_after]))[-(h + 1):]
@@ -275,7 +275,7 @@ class PhysicsForecast:
         if p.battery is not None:
             self._u[:, -1] = voltage
         x0 = self._x0
-        x0[0:3], x0[3:6], x0[6:15], x0[15:18], x0[18:22] = pos, vel, frames.euler_ned_to_matrix(euler[None])[0].ravel(), rates, rotor
+        x0[0:3], x0[3:6], x0[6:15], x0[15:18], x0[18:22] = pos, vel, rot_s.ravel(), rates, rotor
         self._dt[:] = np.diff(t)
         self._d[:, 0:3], self._d[:, 3:6] = disturbance.linear_n, disturbance.angular_b
         self._evaluate()
