@@ -387,12 +387,14 @@ def latency_markdown(lat: list[dict]) -> list[str]:
           "and this harness (standing in for the flight stack that reads the predictions) under SCHED_FIFO; the evaluator "
           "keeps normal scheduling (nice 10). `normal`: every process under the default scheduler. The echo row is a no-op "
           "rclpy node answering each input at once (`bench/echo_node.py`): the floor of rclpy + Fast DDS + this harness "
-          f"on this machine. 400 Hz rows: the run of median p99 out of {LATENCY_RUNS} (all p99s listed).", "",
+          f"on this machine, run in turn with each model's runs (the machine is shared and its load drifts). 400 Hz rows: "
+          f"the run of median p99 out of {LATENCY_RUNS} (all p99s listed).", "",
           "`math threads`: the nodes' parameter `math_threads` (1: numpy's and scipy's OpenBLAS pools on one thread, "
           "the default; 0: the pools as the libraries start them, one thread per core, as before the parameter).", "",
           "| model | scheduling | math threads | rate | inputs | p50 [ms] | p99 [ms] | max [ms] | drops | p99 of each run [ms] |",
           "|---|---|---|---|---|---|---|---|---|---|"]
-    md += [f"| {r['model']} | {'SCHED_FIFO ' + str(r['realtime_priority']) if r['realtime_priority'] else 'normal'} | "
+    md += [f"| {r['model'] + (' (runs next to ' + r['next_to'] + ')' if r.get('next_to') and r['model'].startswith('echo') else '')} | "
+           f"{'SCHED_FIFO ' + str(r['realtime_priority']) if r['realtime_priority'] else 'normal'} | "
            f"{'-' if r.get('math_threads') is None else r['math_threads']} | {r['rate_hz']:g} Hz | "
            f"{r['inputs']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['max_ms']:.2f} | {r['drops']} | "
            f"{', '.join(f'{x:.2f}' for x in r.get('runs_p99_ms', [r['p99_ms']]))} |" for r in lat]
@@ -441,19 +443,23 @@ def main() -> int:
         work = Path(tmp)
         lat = []
         schedulers = {"fifo": LATENCY_REALTIME_PRIORITY, "normal": 0}
+        threads = [int(x) for x in args.math_threads.split(",")]
         for realtime in (schedulers[name] for name in args.schedulers.split(",")):
-            lat.append(latency(400.0, seconds, work, "greybox", realtime=realtime, echo=True))
-            for threads in (int(x) for x in args.math_threads.split(",")):
-                for kind in args.models.split(","):
-                    for rate in args.rates:
-                        spec = kind if MODEL_FILES[kind] is None else f"{kind}:{MODEL_FILES[kind](rate, work)}"
-                        runs = [latency(rate, seconds, work, spec, realtime=realtime, math_threads=threads)
-                                for _ in range(LATENCY_RUNS if rate == 400.0 else 1)]
-                        best_to_worst = sorted(runs, key=lambda r: r["p99_ms"])
-                        median = dict(best_to_worst[len(runs) // 2])
-                        median["runs_p99_ms"] = [r["p99_ms"] for r in runs]
+            for kind in args.models.split(","):
+                for rate in args.rates:
+                    spec = kind if MODEL_FILES[kind] is None else f"{kind}:{MODEL_FILES[kind](rate, work)}"
+                    # the echo floor and every math_threads setting run in turn, run after run: the machine is shared,
+                    # its load drifts, and each row's median then sees the same drift
+                    runs: dict = {n: [] for n in ["echo", *threads]}
+                    for _ in range(LATENCY_RUNS if rate == 400.0 else 1):
+                        runs["echo"].append(latency(rate, seconds, work, "greybox", realtime=realtime, echo=True))
+                        for n in threads:
+                            runs[n].append(latency(rate, seconds, work, spec, realtime=realtime, math_threads=n))
+                    for n, group in runs.items():
+                        median = dict(sorted(group, key=lambda r: r["p99_ms"])[len(group) // 2])
+                        median["runs_p99_ms"] = [r["p99_ms"] for r in group]
+                        median["next_to"] = kind
                         lat.append(median)
-            lat.append(latency(400.0, seconds, work, "greybox", realtime=realtime, echo=True))  # the floor again, after
         if args.latency_only:
             write_results("nodes_latency", {"latency": lat, "argv": sys.argv[1:], "load_average_before": load_before},
                           "\n".join(["# Predictor node latency", "", f"`bench/bench_nodes.py {' '.join(sys.argv[1:])}`; "
