@@ -61,7 +61,7 @@ from std_msgs.msg import String
 
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.models.bounds import PhysicalBounds
-from quad_modelling.core.models.forecast import carried_forecast, prepare_carried_forecast
+from quad_modelling.core.models.forecast import carried_forecast, compiled_window_stream, prepare_compiled_step
 from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate
 from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
@@ -221,8 +221,8 @@ class PredictorNode(Node):
             raise BadParameter(f"{self.get_name()}: parameter model={self.spec!r} vehicle={self.vehicle.name!r}: {err}") from err
         period = self.sample_period_s or PRIME_SAMPLE_PERIOD_S
         prime(self.model, self.vehicle, period, int(round(self.warm_s / period)))
+        prepare_compiled_step(self.model, self.vehicle)  # the physics models' compiled step: built now, not live
         if self.horizon_s > 0:
-            prepare_carried_forecast(self.model, self.vehicle)
             self.horizon = RecedingHorizon(lambda warm: multistep_form(self.model, warm), self._rows_log, self.horizon_s,
                                            self.warm_s, self.horizon_history_s, self.sample_period_s, MEASUREMENT_WAIT_S,
                                            self.horizon_inputs,
@@ -479,6 +479,7 @@ class PredictorNode(Node):
         try:
             warm = self._rows_log(stamps, [row for row, _ in complete], [m for _, m in complete], f"live window {self.window}")
             predictions, self.stream = self.model.start_window(warm)
+            self.stream = compiled_window_stream(self.model, self.vehicle, self.stream)
         except (QuadModellingError, ValueError) as err:
             self.faults.report("model_error", f"window {self.window}: model {self.name_} cannot start: {err}")
             return

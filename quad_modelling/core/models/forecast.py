@@ -1,4 +1,5 @@
-r"""Carried-state forecasts: the receding-horizon mode's anchor advanced by one row per input, then rolled out h steps.
+r"""Carried-state forecasts: the receding-horizon mode's anchor advanced by one row per input, then rolled out h steps;
+and the compiled one physics step of the live window streams.
 
 The live receding-horizon mode (:class:`~quad_modelling.core.models.streaming.RecedingHorizon`) predicts from every
 anchor s, h steps ahead. A model's offline multi-step form (``predict_horizons``) derives its anchor from all the
@@ -43,6 +44,10 @@ operations only: the rotor lag stepped row by row instead of the prefix scan, th
 its rows instead of the segment, the CasADi step instead of numpy's (3e-15 over 50 steps), the yaw unwrapped by
 differences. The physics forms need the gyro (as their multi-step forms); the greybox's carried form does too (a
 flight without one gets its rates from differentiated attitudes over past rows: the history re-run does that).
+
+The same compiled step serves the window mode (:func:`compiled_window_stream`): the physics and hybrid models' live
+streams step from sample to sample with it instead of numpy's step on a batch of one (the most of a physics
+predictor's answer to an input), the stream's own outputs and delay kept.
 """
 
 from __future__ import annotations
@@ -67,6 +72,7 @@ from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState, accelerations
 from quad_modelling.core.physics.rotors import (
     STAMP_TOLERANCE_S,
+    delayed_command_at,
     delayed_commands,
     effective_commands,
     rotor_acceleration,
@@ -105,14 +111,15 @@ def carried_forecast(model, vehicle: VehicleConfig, period_s: float, steps: int)
     return None
 
 
-def prepare_carried_forecast(model, vehicle: VehicleConfig) -> None:
-    """Build (and compile) the model's step now, not at its first anchor: the predictor node calls it at start-up with
-    its model, as it primes the model (the compilation takes about half a second once)."""
+def prepare_compiled_step(model, vehicle: VehicleConfig) -> None:
+    """Build (and compile) the model's step now, not at its first window or anchor: the predictor node calls it at
+    start-up with its model, as it primes the model (the compilation takes about half a second once)."""
     model_step(model, vehicle)
 
 
 _STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-"""model -> its :class:`Step` (:func:`model_step`), built once per model object."""
+"""model -> its :class:`Step` (:func:`model_step`), built once per model object (its carried forecasts and live
+window streams share it)."""
 
 
 def model_step(model, vehicle: VehicleConfig) -> Step | None:
@@ -458,3 +465,64 @@ def compile_step(step) -> Step:
                                      "jit_options": {"directory": tempfile.gettempdir() + os.sep, **JIT_OPTIONS}}), True)
     except RuntimeError:  # no C compiler (CasADi names the failed command): its virtual machine
         return Step(step, False)
+
+
+# --- the live window stream through the compiled step ---------------------------------------------------------------
+
+class CompiledWindowStream:
+    """A physics or hybrid model's live window stream (:class:`~quad_modelling.core.models.physics.PhysicsStream`,
+    :class:`~quad_modelling.core.models.hybrid.HybridStream`) whose step from sample to sample is the compiled one
+    physics step (:func:`model_step`) instead of numpy's on a batch of one (~150 us a step here, the most of a physics
+    predictor's answer to an input); everything else -- the delay's table, the outputs -- is the stream's own. The same
+    numbers (test: 1e-12 over a window)."""
+
+    def __init__(self, stream, step: Step, hybrid: HybridModel | None):
+        self.stream, self.hybrid = stream, hybrid
+        self._x, self._u = np.zeros(22), np.zeros(step.function.size1_in(1))
+        self._dt, self._d, self._after = np.zeros(1), np.zeros(6), np.zeros(22)
+        self._buffer, self._evaluate = step.function.buffer()
+        for i, array in enumerate((self._x, self._u, self._dt, self._d)):
+            self._buffer.set_arg(i, memoryview(array))
+        self._buffer.set_res(0, memoryview(self._after))
+
+    def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
+        s, p = self.stream, self.stream.params
+        previous = s.times[-1]
+        dt = t_s - previous
+        if not dt > 0:
+            raise DataError(f"physics stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
+        state = s.state
+        self._x[0:3], self._x[3:6], self._x[6:15] = state.pos_n[0], state.vel_n[0], state.rot[0].ravel()
+        self._x[15:18], self._x[18:22] = state.rates[0], state.rotor[0]
+        self._u[0:4] = delayed_command_at(p, s.times, s.commands, previous)[0]  # the export's input layout
+        if self.hybrid is not None:
+            self._u[4:8] = s.commands[-1][0]  # the command logged at the previous sample
+        if p.battery is not None:
+            self._u[-1] = s.voltage
+        self._dt[0] = dt
+        self._d[0:3], self._d[3:6] = s.disturbance.linear_n[0], s.disturbance.angular_b[0]
+        self._evaluate()
+        x = self._after
+        rot = x[6:15].reshape(1, 3, 3).copy()
+        s.state = PhysicsState(x[None, 0:3].copy(), x[None, 3:6].copy(), rot, x[None, 15:18].copy(), x[None, 18:22].copy(),
+                               continued_yaw(float(state.yaw[0]), np.concatenate([state.rot, rot]))[1:])
+        s.times.append(float(t_s))
+        s.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
+        s._forget()
+        if self.hybrid is None:
+            return physics.outputs(p, s.state, s._command_at(t_s), s.disturbance)[0]
+        return self.hybrid.outputs(s.state, np.concatenate([s._command_at(t_s), s.commands[-1]], axis=1), s.disturbance)[0]
+
+    def push(self, command: np.ndarray) -> np.ndarray:
+        return self.push_at(command, self.stream.times[-1] + self.stream.period_s)
+
+
+def compiled_window_stream(model, vehicle: VehicleConfig, stream):
+    """``stream`` (what ``model.start_window`` returned) stepped by the compiled step when the model is a physics or
+    hybrid model whose step compiled (:func:`model_step`); else ``stream`` itself."""
+    if not isinstance(model, (PhysicsPredictor, HybridPredictor)):
+        return stream
+    step = model_step(model, vehicle)
+    if not step.compiled:
+        return stream
+    return CompiledWindowStream(stream, step, model.model if isinstance(model, HybridPredictor) else None)
