@@ -435,7 +435,7 @@ def narx_step(model):
 
 JIT_OPTIONS = {"flags": ["-O1"]}
 """CasADi's shell compiler options of a compiled step: the system's C compiler, no fast-math (the same float
-operations as CasADi's virtual machine); its files go to the system's temporary directory (removed at exit)."""
+operations as CasADi's virtual machine). Its files go to a temporary directory, removed once the step is loaded."""
 
 
 @dataclass(frozen=True)
@@ -458,13 +458,19 @@ def compile_step(step) -> Step:
     (``bench/results/nodes_forecast.md``)."""
     import casadi
 
-    try:
-        symbols = [casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
-        return Step(casadi.Function(f"{step.name()}_compiled", symbols, step.call(symbols),
-                                    {"jit": True, "compiler": "shell",
-                                     "jit_options": {"directory": tempfile.gettempdir() + os.sep, **JIT_OPTIONS}}), True)
-    except RuntimeError:  # no C compiler (CasADi names the failed command): its virtual machine
-        return Step(step, False)
+    symbols = [casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
+    here = os.getcwd()
+    with tempfile.TemporaryDirectory(prefix="quad_modelling_jit_") as directory:
+        os.chdir(directory)  # CasADi writes the C source into the working directory: a temporary one, removed after
+        try:
+            compiled = casadi.Function(f"{step.name()}_compiled", symbols, step.call(symbols),
+                                       {"jit": True, "compiler": "shell", "jit_cleanup": False,
+                                        "jit_options": {"directory": directory + os.sep, "cleanup": False, **JIT_OPTIONS}})
+        except RuntimeError:  # no C compiler (CasADi names the failed command): its virtual machine
+            return Step(step, False)
+        finally:
+            os.chdir(here)
+    return Step(compiled, True)  # loaded: its library file may go
 
 
 # --- the live window stream through the compiled step ---------------------------------------------------------------
