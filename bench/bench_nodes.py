@@ -104,8 +104,14 @@ MODEL_FILES = {"greybox": None, "physics": None, "narx": small_narx, "hybrid": s
 """Latency models: kind -> builder of its model file for a rate (None: the spec needs no file)."""
 
 
-def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", realtime: int = 0, echo: bool = False) -> dict:
+def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", realtime: int = 0, echo: bool = False,
+            horizon_s: float = 0.0, math_threads: int = 1) -> dict:
     """Input-to-prediction latency of one predictor node with the evaluator running.
+
+    ``horizon_s`` > 0: the predictor in receding-horizon mode (held inputs: the forecast) with ``sample_period_s``
+    1 / ``rate``; every input from the first anchor on is answered by a forecast on ``<model>/horizon/odom`` stamped
+    t_s + h dt, which maps it back to its input (h = round(horizon_s * rate)). ``math_threads``: the predictor's and
+    evaluator's parameter (0: the math libraries' pools as they start, one thread per core).
 
     ``realtime`` > 0: the predictor runs with ``realtime_priority`` and this harness (standing in for the
     flight stack that consumes the predictions) under SCHED_FIFO at the same priority; the evaluator keeps
@@ -130,16 +136,20 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
 
     window = "5.0"
     name = model.partition(":")[0]
-    tag = f"{'echo' if echo else name}_{rate:g}_rt{realtime}"
+    tag = f"{'echo' if echo else name}_{rate:g}_rt{realtime}_h{horizon_s:g}_m{math_threads}"
+    steps = int(round(horizon_s * rate))
+    period_ns = int(round(1e9 / rate))
+    horizon = [f"horizon_s:={horizon_s}", f"sample_period_s:={1.0 / rate}"] if horizon_s > 0 else []
+    topic = f"{name}/horizon/odom" if horizon_s > 0 else f"{name}/odom"
     if echo:
         procs = [subprocess.Popen([sys.executable, str(REPO / "bench" / "echo_node.py"), f"{name}/odom", str(realtime)],
                                   stdout=(workdir / f"echo_{tag}.log").open("w"), stderr=subprocess.STDOUT, start_new_session=True)]
     else:
         # no replay announces the vehicle here: the nodes are told, as next to a real flight
         procs = [start("predictor_node", f"window_s:={window}", f"model:={model}", f"model_name:={name}", "vehicle:=crazyflie21",
-                       f"realtime_priority:={realtime}", log=workdir / f"pred_{tag}.log"),
+                       f"realtime_priority:={realtime}", f"math_threads:={math_threads}", *horizon, log=workdir / f"pred_{tag}.log"),
                  start("evaluator_node", f"window_s:={window}", f"models:=[{name}]", "vehicle:=crazyflie21",
-                       log=workdir / f"eval_{tag}.log")]
+                       f"math_threads:={math_threads}", *horizon[:1], log=workdir / f"eval_{tag}.log")]
     log = synthetic_flight(rate, seconds)
     arrays = messages.measurement_messages(log)
     stamps = (stamps_ns(log.t) + time.time_ns()).tolist()
@@ -154,9 +164,11 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
             node.create_publisher(Imu, "imu", qos))
     sent: dict[int, float] = {}
     received: dict[int, float] = {}
-    node.create_subscription(Odometry, f"{name}/odom", lambda m: received.setdefault(topics.stamp_ns(m.header.stamp), time.perf_counter()), qos)
+    answered_ns = steps * period_ns  # a forecast's stamp - its input's
+    node.create_subscription(Odometry, topic, lambda m: received.setdefault(topics.stamp_ns(m.header.stamp) - answered_ns,
+                                                                            time.perf_counter()), qos)
     deadline = time.monotonic() + 60
-    while (pubs[0].get_subscription_count() < len(procs) or node.count_publishers(f"{name}/odom") < 1) and time.monotonic() < deadline:
+    while (pubs[0].get_subscription_count() < len(procs) or node.count_publishers(topic) < 1) and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
     end = time.monotonic() + 1.0
     while time.monotonic() < end:
@@ -182,13 +194,21 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
     stop(procs)
     warm_rows = int(round(0.2 * rate))
     window_rows = int(round(5.0 * rate))
-    # warm-start rows are predicted only once the warm start is complete: not a per-input latency
-    streamed = [ns for i, ns in enumerate(stamps) if i % window_rows >= warm_rows + 1]
+    if horizon_s > 0:  # every input from the first anchor (the last warm row) on is answered by its forecast
+        streamed = stamps[warm_rows - 1:]
+        expected = streamed
+    else:  # warm-start rows are predicted only once the warm start is complete: not a per-input latency
+        streamed = [ns for i, ns in enumerate(stamps) if i % window_rows >= warm_rows + 1]
+        expected = stamps
     lat = np.array([received[ns] - sent[ns] for ns in streamed if ns in received]) * 1e3
-    drops = sum(ns not in received for ns in stamps)
-    return {"model": "echo (no-op node)" if echo else name, "realtime_priority": realtime, "rate_hz": rate, "seconds": seconds,
-            "inputs": len(stamps), "p50_ms": float(np.percentile(lat, 50)),
-            "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max()), "drops": int(drops)}
+    drops = sum(ns not in received for ns in expected)
+    out = {"model": "echo (no-op node)" if echo else name, "realtime_priority": realtime, "rate_hz": rate, "seconds": seconds,
+           "math_threads": None if echo else math_threads,
+           "inputs": len(stamps), "p50_ms": float(np.percentile(lat, 50)),
+           "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max()), "drops": int(drops)}
+    if horizon_s > 0:
+        out.update(horizon_s=horizon_s, steps=steps, forecasts_expected=len(expected))
+    return out
 
 
 def throughput(workdir: Path, executor: str = "events", run: int = 0) -> dict:
@@ -212,6 +232,111 @@ def throughput(workdir: Path, executor: str = "events", run: int = 0) -> dict:
             "real_time_factor": flight_s / seconds, "run_bag_total_s": total,
             "predictions_per_model": predictions, "lost": int(sum(samples - p for p in predictions)),
             "windows": results["windows"], "marked": len(results["live"]["marked"]), "faults": faults}
+
+
+FORECAST_RATE_HZ = 400.0
+FORECAST_HORIZON_S = 0.125
+"""The receding-horizon runs: 400 Hz inputs, h = 50 steps (the issue's target)."""
+
+FORECAST_MODELS = ("greybox", "narx", "physics", "hybrid")
+
+
+def forecast_cost(spec: str, carried: bool, seconds: float) -> dict:
+    """Per-input cost [ms] of a predictor node in receding-horizon mode (held inputs, h = 50 at 400 Hz), in this
+    process: each input's measurements handed to the node, then its command; the wall time of the command's handler
+    (anchor, forecast, bounds, message, publish) is the cost. ``carried`` False: the model's carried form switched off,
+    the multi-step form re-run over ``horizon_history_s`` (2.5 s) per input, as before the carried forms."""
+    from rclpy.parameter import Parameter
+
+    from quad_modelling.io.topics import stamps_ns
+    from quad_modelling.nodes import messages
+    from quad_modelling.nodes.predictor_node import PredictorNode
+
+    log = synthetic_flight(FORECAST_RATE_HZ, seconds)
+    arrays = messages.measurement_messages(log)
+    stamps = (stamps_ns(log.t) + 1_000_000_000_000).tolist()
+    params = {"vehicle": "crazyflie21", "model": spec, "model_name": spec.partition(":")[0], "horizon_s": FORECAST_HORIZON_S,
+              "sample_period_s": 1.0 / FORECAST_RATE_HZ}
+    node = PredictorNode(parameter_overrides=[Parameter(k, value=v) for k, v in params.items()])
+    if not carried:
+        node.horizon.carried_for = None
+    costs, forecast = [], [0.0]
+    ready = node.horizon.ready
+
+    def timed_ready(*args):  # the forecast's share: the anchors' rows converted, added, rolled out
+        started = time.perf_counter()
+        events = list(ready(*args))
+        forecast[0] += time.perf_counter() - started
+        return iter(events)
+
+    node.horizon.ready = timed_ready
+    forecasts = []
+    try:
+        for row, ns in enumerate(stamps):
+            node.on_odom(arrays.odometry(row, ns))
+            node.on_imu(arrays.imu(row, ns))
+            motor = arrays.motor(row, ns)
+            forecast[0] = 0.0
+            started = time.perf_counter()
+            node.on_motor(motor)
+            costs.append(time.perf_counter() - started)
+            forecasts.append(forecast[0])
+        published, faults = node.published, dict(node.faults.counts)
+        form = type(node.horizon.carried).__name__ if node.horizon.carried is not None else "history re-run"
+    finally:
+        node.destroy_node()
+    warm = int(round(0.2 * FORECAST_RATE_HZ))
+    cost = np.array(costs[warm + 20:]) * 1e3  # after the first anchors (one-time costs)
+    share = np.array(forecasts[warm + 20:]) * 1e3
+    return {"model": spec.partition(":")[0], "form": form, "rate_hz": FORECAST_RATE_HZ, "horizon_s": FORECAST_HORIZON_S,
+            "steps": node.horizon.steps, "inputs": len(stamps), "published": published, "faults": faults,
+            "median_ms": float(np.median(cost)), "p99_ms": float(np.percentile(cost, 99)), "mean_ms": float(cost.mean()),
+            "forecast_median_ms": float(np.median(share)), "forecast_p99_ms": float(np.percentile(share, 99))}
+
+
+def forecast_markdown(costs: list[dict], keep_up: list[dict]) -> list[str]:
+    md = ["## Receding-horizon forecasts: per-input cost (h = 50 at 400 Hz, held inputs)", "",
+          "A predictor node in this process (no spinning: each input's measurements handed to it, then its command); the "
+          "wall time of the command's handler (`handler`: the anchor's row converted from the messages, the anchor "
+          "advanced, the h-step forecast, the bounds check, the message and its publication) and of the forecast alone "
+          "(`forecast`: `RecedingHorizon.ready`, the row's conversion included). Form: the model's carried-state forecast "
+          "(`core/models/forecast.py`, its class named), or `history re-run`: the model's multi-step form over "
+          "`horizon_history_s` (2.5 s) of rows at every input, as before it.", "",
+          "| model | form | inputs | forecasts | handler median [ms] | handler p99 [ms] | forecast median [ms] | forecast p99 [ms] |",
+          "|---|---|---|---|---|---|---|---|"]
+    md += [f"| {c['model']} | {c['form']} | {c['inputs']} | {c['published']} | {c['median_ms']:.3f} | {c['p99_ms']:.3f} | "
+           f"{c['forecast_median_ms']:.3f} | {c['forecast_p99_ms']:.3f} |" for c in costs]
+    md += ["", "## Receding-horizon forecasts at 400 Hz over DDS (predictor and evaluator processes, SCHED_FIFO)", "",
+           "Held inputs, h = 50 (0.125 s): every input from the first anchor on must be answered by its forecast "
+           "(stamped t_s + h dt); `dropped` = inputs without one. Latency as in the table above the input's publication "
+           f"to its forecast's reception. 400 Hz rows: the run of median p99 out of {LATENCY_RUNS}.", "",
+           "| model | inputs | forecasts expected | dropped | p50 [ms] | p99 [ms] | max [ms] | p99 of each run [ms] |",
+           "|---|---|---|---|---|---|---|---|"]
+    md += [f"| {r['model']} | {r['inputs']} | {r['forecasts_expected']} | {r['drops']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | "
+           f"{r['max_ms']:.2f} | {', '.join(f'{x:.2f}' for x in r.get('runs_p99_ms', [r['p99_ms']]))} |" for r in keep_up]
+    return md + [""]
+
+
+def forecasts(seconds: float, workdir: Path, models: list[str]) -> tuple[list[dict], list[dict]]:
+    """Per-input costs (carried and history re-run) of every model, then the 400 Hz DDS runs of every model."""
+    import rclpy
+
+    specs = {kind: kind if MODEL_FILES[kind] is None else f"{kind}:{MODEL_FILES[kind](FORECAST_RATE_HZ, workdir)}" for kind in models}
+    rclpy.init()
+    try:
+        # the history re-run costs up to ~60 ms per input here: 2 s of inputs are enough for its median
+        costs = [forecast_cost(specs[kind], carried, seconds if carried else 2.0) for kind in models for carried in (True, False)]
+    finally:
+        rclpy.shutdown()
+    keep_up = []
+    for kind in models:
+        runs = [latency(FORECAST_RATE_HZ, seconds, workdir, specs[kind], realtime=LATENCY_REALTIME_PRIORITY,
+                        horizon_s=FORECAST_HORIZON_S) for _ in range(LATENCY_RUNS)]
+        median = dict(sorted(runs, key=lambda r: r["p99_ms"])[len(runs) // 2])
+        median["runs_p99_ms"] = [r["p99_ms"] for r in runs]
+        median["runs_drops"] = [r["drops"] for r in runs]
+        keep_up.append(median)
+    return costs, keep_up
 
 
 LATENCY_REALTIME_PRIORITY = 10
@@ -262,10 +387,15 @@ def latency_markdown(lat: list[dict]) -> list[str]:
           "and this harness (standing in for the flight stack that reads the predictions) under SCHED_FIFO; the evaluator "
           "keeps normal scheduling (nice 10). `normal`: every process under the default scheduler. The echo row is a no-op "
           "rclpy node answering each input at once (`bench/echo_node.py`): the floor of rclpy + Fast DDS + this harness "
-          f"on this machine. 400 Hz rows: the run of median p99 out of {LATENCY_RUNS} (all p99s listed).", "",
-          "| model | scheduling | rate | inputs | p50 [ms] | p99 [ms] | max [ms] | drops | p99 of each run [ms] |",
-          "|---|---|---|---|---|---|---|---|---|"]
-    md += [f"| {r['model']} | {'SCHED_FIFO ' + str(r['realtime_priority']) if r['realtime_priority'] else 'normal'} | {r['rate_hz']:g} Hz | "
+          f"on this machine, run in turn with each model's runs (the machine is shared and its load drifts). 400 Hz rows: "
+          f"the run of median p99 out of {LATENCY_RUNS} (all p99s listed).", "",
+          "`math threads`: the nodes' parameter `math_threads` (1: numpy's and scipy's OpenBLAS pools on one thread, "
+          "the default; 0: the pools as the libraries start them, one thread per core, as before the parameter).", "",
+          "| model | scheduling | math threads | rate | inputs | p50 [ms] | p99 [ms] | max [ms] | drops | p99 of each run [ms] |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
+    md += [f"| {r['model'] + (' (runs next to ' + r['next_to'] + ')' if r.get('next_to') and r['model'].startswith('echo') else '')} | "
+           f"{'SCHED_FIFO ' + str(r['realtime_priority']) if r['realtime_priority'] else 'normal'} | "
+           f"{'-' if r.get('math_threads') is None else r['math_threads']} | {r['rate_hz']:g} Hz | "
            f"{r['inputs']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['max_ms']:.2f} | {r['drops']} | "
            f"{', '.join(f'{x:.2f}' for x in r.get('runs_p99_ms', [r['p99_ms']]))} |" for r in lat]
     return md + ["", "Streamed rows only: a warm-start row's prediction exists only once the warm start is complete (then it is "
@@ -279,9 +409,16 @@ def main() -> int:
                         help=f"predictor models of the latency runs, comma-separated (of {', '.join(MODEL_FILES)})")
     parser.add_argument("--latency-only", action="store_true",
                         help="only the latency runs (results in nodes_latency.{json,md}); no graph or memory runs")
+    parser.add_argument("--schedulers", default="fifo,normal", help="latency runs: fifo (SCHED_FIFO), normal, or both")
+    parser.add_argument("--math-threads", default="1", help="latency runs: the nodes' math_threads, comma-separated (e.g. 0,1)")
+    parser.add_argument("--rates", default="100,400", type=lambda v: [float(x) for x in v.split(",")],
+                        help="latency runs: input rates [Hz], comma-separated")
+    parser.add_argument("--forecast-only", action="store_true",
+                        help="only the receding-horizon runs (results in nodes_forecast.{json,md})")
     parser.add_argument("--memory-wall", type=float, default=None,
                         help="run only the memory test for this many wall seconds (results in nodes_memory.{json,md})")
     args = parser.parse_args()
+    load_before = os.getloadavg()  # the machine is shared: the results say how busy it was
     if args.memory_wall:
         with tempfile.TemporaryDirectory() as tmp:
             mem = memory(args.memory_wall, Path(tmp))
@@ -293,21 +430,41 @@ def main() -> int:
         write_results("nodes_memory", {"memory": mem}, "\n".join(md))
         return 0
     seconds = 8.0 if args.quick else 20.0
+    if args.forecast_only:
+        with tempfile.TemporaryDirectory() as tmp:
+            costs, keep_up = forecasts(seconds, Path(tmp), args.models.split(","))
+        write_results("nodes_forecast", {"forecast_cost": costs, "forecast_400hz": keep_up, "argv": sys.argv[1:],
+                                         "load_average_before": load_before},
+                      "\n".join(["# Receding-horizon forecasts", "", f"`bench/bench_nodes.py {' '.join(sys.argv[1:])}`; "
+                                  f"load average (1 min) {load_before[0]:.2f} before the run.", "",
+                                  *forecast_markdown(costs, keep_up)]))
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         lat = []
-        for realtime in (LATENCY_REALTIME_PRIORITY, 0):
-            lat.append(latency(400.0, seconds, work, "greybox", realtime=realtime, echo=True))
+        schedulers = {"fifo": LATENCY_REALTIME_PRIORITY, "normal": 0}
+        threads = [int(x) for x in args.math_threads.split(",")]
+        for realtime in (schedulers[name] for name in args.schedulers.split(",")):
             for kind in args.models.split(","):
-                for rate in (100.0, 400.0):
+                for rate in args.rates:
                     spec = kind if MODEL_FILES[kind] is None else f"{kind}:{MODEL_FILES[kind](rate, work)}"
-                    runs = [latency(rate, seconds, work, spec, realtime=realtime) for _ in range(LATENCY_RUNS if rate == 400.0 else 1)]
-                    best_to_worst = sorted(runs, key=lambda r: r["p99_ms"])
-                    median = dict(best_to_worst[len(runs) // 2])
-                    median["runs_p99_ms"] = [r["p99_ms"] for r in runs]
-                    lat.append(median)
+                    # the echo floor and every math_threads setting run in turn, run after run: the machine is shared,
+                    # its load drifts, and each row's median then sees the same drift
+                    runs: dict = {n: [] for n in ["echo", *threads]}
+                    for _ in range(LATENCY_RUNS if rate == 400.0 else 1):
+                        runs["echo"].append(latency(rate, seconds, work, "greybox", realtime=realtime, echo=True))
+                        for n in threads:
+                            runs[n].append(latency(rate, seconds, work, spec, realtime=realtime, math_threads=n))
+                    for n, group in runs.items():
+                        median = dict(sorted(group, key=lambda r: r["p99_ms"])[len(group) // 2])
+                        median["runs_p99_ms"] = [r["p99_ms"] for r in group]
+                        median["next_to"] = kind
+                        lat.append(median)
         if args.latency_only:
-            write_results("nodes_latency", {"latency": lat}, "\n".join(["# Predictor node latency", "", *latency_markdown(lat)]))
+            write_results("nodes_latency", {"latency": lat, "argv": sys.argv[1:], "load_average_before": load_before},
+                          "\n".join(["# Predictor node latency", "", f"`bench/bench_nodes.py {' '.join(sys.argv[1:])}`; "
+                                      f"load average (1 min) {load_before[0]:.2f} before the run.", "",
+                                      *latency_markdown(lat)]))
             return 0
         graphs = [throughput(work, executor, run) for run in range(3) for executor in ("events", "single")]
         events = sorted((g for g in graphs if g["executor"] == "events"), key=lambda g: g["samples_per_s"])

@@ -24,7 +24,9 @@ def main() -> int:
     from sensor_msgs.msg import Imu, JointState
 
     from quad_modelling.nodes.common import (
+        MATH_THREADS,
         data_qos,
+        limit_math_threads,
         make_executor,
         set_realtime_priority,
         spin,
@@ -47,6 +49,7 @@ def main() -> int:
     node.create_subscription(Odometry, "mocap/odom", lambda msg: None, qos)
     node.create_subscription(Imu, "imu", lambda msg: None, qos)
     executor = make_executor("events", node)
+    limit_math_threads(MATH_THREADS)  # as the nodes do by default
     if priority and (refused := set_realtime_priority(priority)):
         print(f"echo_node: {refused}", file=sys.stderr)
         return 1

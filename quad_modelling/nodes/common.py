@@ -171,6 +171,38 @@ def set_realtime_priority(priority: int) -> str | None:
     return None
 
 
+MATH_THREADS = 1
+"""Default threads of the math libraries' pools in a node process (parameter ``math_threads``)."""
+
+
+def limit_math_threads(threads: int) -> str:
+    """Run the thread pools of the math libraries this process has loaded (numpy's and scipy's OpenBLAS, an OpenMP
+    runtime, torch's intra-op pool when torch is loaded) on ``threads`` threads; 0 leaves them as the libraries
+    started them (one thread per core). Returns what it set, for the log.
+
+    Why one: a node's arrays are tiny (a batch of one state, a window of rows), where a pool's extra threads never
+    pay, and an idle OpenBLAS worker spins before it sleeps: under SCHED_FIFO (``realtime_priority``, which moves
+    every thread of the process) it holds the second core of a two-core flight computer against the flight stack."""
+    if threads <= 0:
+        return "math libraries' thread pools as they start (one thread per core)"
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(limits=threads)
+    torch = sys.modules.get("torch")
+    if torch is not None:
+        torch.set_num_threads(threads)
+    return f"math libraries' thread pools (BLAS, OpenMP{', torch' if torch is not None else ''}) on {threads} thread(s)"
+
+
+def non_negative_int(value) -> str | None:
+    return None if value >= 0 else "must be >= 0"
+
+
+def math_threads_param() -> Param:
+    return Param("math_threads", MATH_THREADS, "threads of the math libraries' pools (OpenBLAS, OpenMP, torch) in this node; "
+                                               "0 = as the libraries start them (one per core)", non_negative_int)
+
+
 def realtime_param() -> Param:
     return Param("realtime_priority", 0, "0 = normal scheduling; 1-99 = run every thread of this node under SCHED_FIFO at "
                                          "this priority (needs CAP_SYS_NICE or rtprio in limits.conf; a warning if refused). "

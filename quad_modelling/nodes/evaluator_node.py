@@ -80,6 +80,7 @@ from quad_modelling.nodes.common import (
     data_qos,
     declare_parameters,
     latched_qos,
+    limit_math_threads,
     make_executor,
     prediction_subscription_qos,
     run_node,
@@ -129,7 +130,7 @@ class EvaluatorNode(Node):
         if self.output_dir is not None and self.output_dir.exists() and not p["force"]:
             raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
         self.figures = p["figures"]
-        self.executor_kind = p["executor"]
+        self.executor_kind, self.math_threads = p["executor"], p["math_threads"]
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
         if p["nice"]:
             os.nice(int(p["nice"]))
@@ -564,7 +565,9 @@ class EvaluatorNode(Node):
         return response
 
     def run(self) -> None:
-        spin(self, make_executor(self.executor_kind, self))
+        executor = make_executor(self.executor_kind, self)
+        self.get_logger().info(limit_math_threads(self.math_threads))
+        spin(self, executor)
 
     def finish(self) -> None:
         for k in sorted(self.open):

@@ -14,6 +14,7 @@ from quad_modelling.io import topics
 from quad_modelling.nodes.common import (
     Param,
     executor_param,
+    math_threads_param,
     non_empty,
     non_negative,
     positive,
@@ -72,8 +73,9 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("horizon_inputs", "hold", "receding-horizon mode: commands after each anchor: hold (the last one held, "
                                         "published at once: the forecast) or flown (the recorded ones, published h "
                                         "commands later: equals the offline multi-step MAE@h)", horizon_inputs_kind),
-        Param("horizon_history_s", 2.5, "receding-horizon mode: rows [s] up to each anchor the multi-step form sees "
-                                        "(trims and filters settle within 2 s)", positive),
+        Param("horizon_history_s", 2.5, "receding-horizon mode, a model without a carried-state forecast (naive, truth) "
+                                        "or a flight without a gyro: rows [s] up to each anchor its multi-step form is "
+                                        "re-run over (trims and filters settle within 2 s)", positive),
         Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
         Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
         Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
@@ -84,4 +86,5 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("qos_depth", 1000, "depth of the keep-last subscriptions and publishers", positive),
         executor_param(),
         realtime_param(),
+        math_threads_param(),
     ]

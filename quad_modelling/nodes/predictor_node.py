@@ -31,9 +31,10 @@ beyond the vehicle's :class:`~quad_modelling.core.models.bounds.PhysicalBounds` 
 (``out_of_bounds``): nothing beyond them, and nothing non-finite, is published.
 
 Receding-horizon mode (``horizon_s`` > 0, instead of windows): h = round(horizon_s / dt) steps; anchor s gets
-the model's multi-step form (:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) over the last
-``horizon_history_s`` of rows, h steps ahead, on ``<model>/horizon/odom``
-(:class:`~quad_modelling.core.models.streaming.RecedingHorizon`). ``horizon_inputs``: ``hold`` (default, the
+the model's multi-step form (:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) over the rows up to
+s, h steps ahead, on ``<model>/horizon/odom`` (:class:`~quad_modelling.core.models.streaming.RecedingHorizon`):
+its anchor carried from input to input (:func:`~quad_modelling.core.models.forecast.carried_forecast`), or for a
+model without a carried form re-run over the last ``horizon_history_s`` of rows. ``horizon_inputs``: ``hold`` (default, the
 forecast) flies u_s held, published at input s, stamped t_s + h dt; ``flown`` flies the recorded commands,
 published at input s+h, stamped t_{s+h}: equal to the offline multi-step prediction, too late to be a forecast.
 
@@ -60,6 +61,7 @@ from std_msgs.msg import String
 
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.models.bounds import PhysicalBounds
+from quad_modelling.core.models.forecast import carried_forecast, compiled_window_stream, prepare_compiled_step
 from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate
 from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
@@ -75,6 +77,7 @@ from quad_modelling.nodes.common import (
     adopt_vehicle,
     declare_parameters,
     latched_qos,
+    limit_math_threads,
     make_executor,
     prediction_qos,
     run_node,
@@ -144,7 +147,7 @@ class PredictorNode(Node):
             except QuadModellingError as err:
                 raise BadParameter(f"{node_name}: parameter model={spec!r}: {err}") from err
         self.executor_kind = p["executor"]
-        self.realtime_priority = p["realtime_priority"]
+        self.realtime_priority, self.math_threads = p["realtime_priority"], p["math_threads"]
         self.faults = FaultLog(self.get_logger())
         self.clock_ = WindowClock(p["window_s"], p["warm_s"], p["sample_period_s"])
         self.child_frame = f"{self.name_}/base_link"
@@ -218,10 +221,13 @@ class PredictorNode(Node):
             raise BadParameter(f"{self.get_name()}: parameter model={self.spec!r} vehicle={self.vehicle.name!r}: {err}") from err
         period = self.sample_period_s or PRIME_SAMPLE_PERIOD_S
         prime(self.model, self.vehicle, period, int(round(self.warm_s / period)))
+        prepare_compiled_step(self.model, self.vehicle)  # the physics models' compiled step: built now, not live
         if self.horizon_s > 0:
             self.horizon = RecedingHorizon(lambda warm: multistep_form(self.model, warm), self._rows_log, self.horizon_s,
                                            self.warm_s, self.horizon_history_s, self.sample_period_s, MEASUREMENT_WAIT_S,
-                                           self.horizon_inputs)
+                                           self.horizon_inputs,
+                                           lambda period, steps: carried_forecast(self.model, self.vehicle, period, steps),
+                                           ends_only=True)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -473,6 +479,7 @@ class PredictorNode(Node):
         try:
             warm = self._rows_log(stamps, [row for row, _ in complete], [m for _, m in complete], f"live window {self.window}")
             predictions, self.stream = self.model.start_window(warm)
+            self.stream = compiled_window_stream(self.model, self.vehicle, self.stream)
         except (QuadModellingError, ValueError) as err:
             self.faults.report("model_error", f"window {self.window}: model {self.name_} cannot start: {err}")
             return
@@ -550,19 +557,18 @@ class PredictorNode(Node):
             if event[0] == "fault":
                 self.faults.report(event[1], f"receding horizon: model {self.name_}: {event[2]}")
                 continue
-            _, ns, prediction, elapsed = event
-            h = self.horizon.steps
+            _, ns, prediction, elapsed = event  # rows 0 (the anchor) and h
             if not np.isfinite(prediction).all():
                 self.faults.report("nan_prediction", f"receding horizon: model {self.name_} predicted a non-finite value: "
                                                      "not published")
                 continue
-            violation = self.bounds.violation(prediction[h], elapsed, prediction[0])
+            violation = self.bounds.violation(prediction[1], elapsed, prediction[0])
             if violation is not None:
                 self.faults.report("out_of_bounds", f"receding horizon: model {self.name_} predicted {violation}: not published")
                 continue
             if not self._monotonic(ns):
                 continue
-            odom, accel = topics.prediction_fields(prediction[h])
+            odom, accel = topics.prediction_fields(prediction[1])
             o, _ = self.out.fill(ns, odom[0], accel[0])
             self.horizon_pub.publish(o)
             self.published += 1
@@ -571,6 +577,7 @@ class PredictorNode(Node):
 
     def run(self) -> None:
         executor = make_executor(self.executor_kind, self)
+        self.get_logger().info(limit_math_threads(self.math_threads))  # before SCHED_FIFO moves every thread
         if self.realtime_priority:
             refused = set_realtime_priority(self.realtime_priority)
             if refused:

@@ -44,6 +44,7 @@ from quad_modelling.nodes.common import (
     MOTOR_INPUT,
     Param,
     executor_param,
+    math_threads_param,
     niceness,
     non_empty,
     non_negative,
@@ -390,4 +391,5 @@ EVALUATOR_PARAMETERS = [
     Param("nice", 10, "raise this process's scheduling niceness by this much (0-19): scoring a closed window is not "
                       "time-critical, the predictors' per-input answers are", niceness),
     executor_param(),
+    math_threads_param(),
 ]

@@ -73,3 +73,17 @@ def test_closed_form_rotations_equal_scipy():
     reference = Rotation.from_quat(frames.euler_ned_to_quat_enu(euler))
     np.testing.assert_allclose(Rotation.from_quat(quat).as_matrix(), reference.as_matrix(), atol=1e-12)
     np.testing.assert_allclose(frames.body_to_nav(vectors[0], euler[0]), frames.euler_ned_to_rotation(euler[0]).apply(vectors[0]), atol=1e-12)
+
+
+def test_the_closed_form_quaternion_conversion_equals_scipys():
+    """quat_enu_to_euler_ned (closed form, the live forecast's per-row conversion) against scipy's Rotation: random
+    attitudes away from θ = ±π/2, unnormalised quaternions included."""
+    rng = np.random.default_rng(4)
+    quat = rng.normal(size=(500, 4)) * rng.uniform(0.5, 2.0, (500, 1))
+    r_ned = frames.ENU_TO_NED @ Rotation.from_quat(quat).as_matrix() @ frames.FLU_TO_FRD
+    expected = Rotation.from_matrix(r_ned).as_euler("ZYX")[:, ::-1]
+    keep = np.abs(expected[:, 1]) < 1.5
+    np.testing.assert_allclose(frames.quat_enu_to_euler_ned(quat)[keep], expected[keep], atol=1e-12)
+    np.testing.assert_allclose(frames.quat_enu_to_euler_ned(quat[0]), expected[0], atol=1e-12)
+    with pytest.raises(ValueError, match="zero norm"):
+        frames.quat_enu_to_euler_ned(np.zeros(4))

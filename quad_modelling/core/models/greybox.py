@@ -486,11 +486,20 @@ class GreyboxPredictor:
         thrusts = model.motor_thrusts(segment.u - reference)[starts] - (input_trim - reference) * (gain / (1.0 - pole))
         x = np.concatenate([measured[starts][:, MEASURED_STATE_COLUMNS], thrusts], axis=1)
         x[:, 6:8] -= attitude_trim
-        out = np.empty((starts.size, horizon + 1, len(VARIABLES)))
-        ad_t, bd_t, cd_t, dd_t = model.ad.T, model.bd.T, model.cd.T, model.dd.T
-        for h in range(horizon + 1):
-            u_h = segment.u[starts + h] - input_trim
-            out[:, h] = x @ cd_t + u_h @ dd_t
-            x = x @ ad_t + u_h @ bd_t
-        out[:, :, 9:11] += attitude_trim[:, None, :]
-        return out
+        rows = starts[:, None] + np.arange(horizon + 1)[None, :]
+        return linear_horizons(model, x, segment.u[rows] - input_trim[:, None, :], attitude_trim)
+
+
+def linear_horizons(model: DiscreteGreybox, x: np.ndarray, u: np.ndarray, attitude_trim: np.ndarray) -> np.ndarray:
+    """(S, H + 1, 18) open-loop outputs of the multi-step form (:meth:`GreyboxPredictor.predict_horizons`; the
+    carried-state forecast, :mod:`quad_modelling.core.models.forecast`, calls it too): from anchor states ``x``
+    (S, 16) under trimmed inputs ``u`` (S, H + 1, 4), :math:`y_h = C_d x_h + D_d u_h`,
+    :math:`x_{h+1} = A_d x_h + B_d u_h`, with the roll/pitch offset ``attitude_trim`` (S, 2) [rad] added back."""
+    out = np.empty((len(x), u.shape[1], len(VARIABLES)))
+    ad_t, bd_t, cd_t, dd_t = model.ad.T, model.bd.T, model.cd.T, model.dd.T
+    for h in range(u.shape[1]):
+        u_h = u[:, h]
+        out[:, h] = x @ cd_t + u_h @ dd_t
+        x = x @ ad_t + u_h @ bd_t
+    out[:, :, 9:11] += attitude_trim[:, None, :]
+    return out

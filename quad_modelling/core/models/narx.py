@@ -387,6 +387,31 @@ def expand_outputs(measured: np.ndarray, y: np.ndarray, warm: int, dt: float) ->
     return out
 
 
+def horizons_from_measured(model: NarxModel, measured: np.ndarray, u: np.ndarray, starts: np.ndarray, horizon: int) -> np.ndarray:
+    """(S, horizon + 1, 18) of :meth:`NarxPredictor.predict_horizons` from the measurement (N, 18, VARIABLES order; of
+    each row only positions, velocities, angles and rates are read) and commands ``u`` (N, 4) of one series
+    (the carried-state forecast, :mod:`quad_modelling.core.models.forecast`, calls it on its last rows)."""
+    return expand_horizons(model, measured, starts, model.simulate_from_starts(u, measured[:, columns(OUTPUTS)], starts, horizon))
+
+
+def expand_horizons(model: NarxModel, measured: np.ndarray, starts: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(S, H + 1, 18) of :func:`horizons_from_measured` from the predicted outputs ``v`` (S, H + 1, 6) (row 0: the
+    measured y(s)): positions/angles integrated (trapezoid) from the measured ones at s, accelerations as backward
+    differences (row 0: of the measured outputs)."""
+    dt, horizon = model.dt, v.shape[1] - 1
+    y = measured[:, columns(OUTPUTS)]
+    out = np.empty((len(starts), horizon + 1, len(VARIABLES)))
+    out[:, 0] = measured[starts]
+    previous = y[np.maximum(starts - 1, 0)]
+    out[:, 0, columns(DIFFERENTIATED)] = (y[starts] - previous) / dt
+    out[:, :, columns(OUTPUTS)] = v
+    out[:, 1:, columns(DIFFERENTIATED)] = np.diff(v, axis=1) / dt
+    start = measured[starts][:, columns(INTEGRATED)]
+    out[:, 0, columns(INTEGRATED)] = start
+    out[:, 1:, columns(INTEGRATED)] = start[:, None, :] + np.cumsum(0.5 * (v[:, 1:] + v[:, :-1]) * dt, axis=1)
+    return out
+
+
 def check_sample_rate(model: NarxModel, window: FlightLog) -> None:
     """Refuse a window whose sample period differs from the model's by more than 1 %."""
     dt = 1.0 / window.sample_rate
@@ -494,21 +519,8 @@ class NarxPredictor:
 
         segment.require(("gyro_b",), "model narx (its outputs are velocities and gyro rates)")
         check_sample_rate(self.model, segment)
-        starts = np.asarray(starts, dtype=int)
-        dt = self.model.dt
-        measured = np.asarray(measured_variables(segment), dtype=float)
-        y = measured[:, columns(OUTPUTS)]
-        v = self.model.simulate_from_starts(segment.u, y, starts, horizon)  # (S, H+1, 6)
-        out = np.empty((len(starts), horizon + 1, len(VARIABLES)))
-        out[:, 0] = measured[starts]
-        previous = y[np.maximum(starts - 1, 0)]
-        out[:, 0, columns(DIFFERENTIATED)] = (y[starts] - previous) / dt
-        out[:, :, columns(OUTPUTS)] = v
-        out[:, 1:, columns(DIFFERENTIATED)] = np.diff(v, axis=1) / dt
-        start = measured[starts][:, columns(INTEGRATED)]
-        out[:, 0, columns(INTEGRATED)] = start
-        out[:, 1:, columns(INTEGRATED)] = start[:, None, :] + np.cumsum(0.5 * (v[:, 1:] + v[:, :-1]) * dt, axis=1)
-        return out
+        return horizons_from_measured(self.model, np.asarray(measured_variables(segment), dtype=float), segment.u,
+                                      np.asarray(starts, dtype=int), horizon)
 
     def start_window(self, warm: FlightLog):
         """Warm rows (at least n_y) -> (their measurement (W, 18), stream predicting each later sample)."""

@@ -29,11 +29,14 @@ wraps a streaming predictor as a
 
 :class:`RecedingHorizon` is the live receding-horizon form (the predictor's
 ``horizon_s`` > 0). It holds the recent commands of the current time base and predicts, from an
-anchor s, h = round(horizon_s / dt) steps ahead: the anchor's rows (the last ``history_s`` up to s,
-measurements read at the command stamps) and h rows of commands after it become a FlightLog
-(``make_log``, the node's message conversion), and the model's offline multi-step form
-(``form_for(warm rows)``, the node passes
-:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) predicts it h steps ahead. The
+anchor s, h = round(horizon_s / dt) steps ahead what the model's offline multi-step form
+(``form_for(warm rows)``, the node passes :func:`~quad_modelling.core.evaluation.multistep.multistep_form`)
+predicts from s on the rows up to s (measurements read at the command stamps, ``make_log``: the node's
+message conversion) and h rows of commands after it. With the model's carried-state forecast
+(``carried_for(dt, h)``, the node passes :func:`~quad_modelling.core.models.forecast.carried_forecast`) the
+rows since the previous anchor are added to the anchor it carries (one per input) and it is rolled out h
+steps; without one (or for a flight without a gyro) the multi-step form is re-run over the last ``history_s``
+of rows up to s (the same numbers once the model's trims and filters settle within it). The
 two ``inputs`` modes differ only in the commands after s (one prediction path):
 
 * ``"hold"`` (the forecast MPC and monitoring consume): every command s is an anchor as soon as it
@@ -44,9 +47,9 @@ two ``inputs`` modes differ only in the commands after s (one prediction path):
   flies the recorded commands.
 * ``"flown"``: the anchor s waits for the h flown commands s+1..s+h and is predicted when command
   s+h is in, stamped t_{s+h}: the same numbers as the offline multi-step evaluation for the same
-  start, as long as the model's multi-step form settles within ``history_s`` (trims over 1 s,
-  causal filters: 2 s gives 5e-12 on the bundled flight), but published when the predicted instant
-  is already past (a replay of the protocol, not a forecast).
+  start (carried: to rounding; re-run: as long as the model's multi-step form settles within ``history_s``,
+  trims over 1 s, causal filters: 2 s gives 5e-12 on the bundled flight), but published when the predicted
+  instant is already past (a replay of the protocol, not a forecast).
 
 :class:`RecordedPrediction` wraps predictions received over ROS as a
 :class:`~quad_modelling.core.models.Predictor`, so the live evaluator scores a
@@ -235,14 +238,19 @@ class RecedingHorizon:
     ``covered(ns)`` -> True when every stream holds a sample at or after ``ns``; ``wait_s``: how long
     [wall s] an anchor waits for that before it is computed from what the streams give;
     ``inputs``: the commands after an anchor, ``"hold"`` (u_s held: a forecast at input s) or ``"flown"``
-    (the recorded ones: predicted when command s + h is in), :data:`HORIZON_INPUTS`.
+    (the recorded ones: predicted when command s + h is in), :data:`HORIZON_INPUTS`; ``carried_for(dt [s], h)``
+    -> the model's carried-state forecast or None (module docstring); ``ends_only``: the predictions yielded are
+    rows 0 (the anchor) and h only (what a forecast publishes and checks), not the h + 1 rows.
     """
 
     def __init__(self, form_for: Callable, make_log: Callable, horizon_s: float, warm_s: float, history_s: float,
-                 sample_period_s: float, wait_s: float, inputs: str = "hold"):
+                 sample_period_s: float, wait_s: float, inputs: str = "hold", carried_for: Callable | None = None,
+                 ends_only: bool = False):
         if inputs not in HORIZON_INPUTS:
             raise ValueError(f"receding-horizon inputs {inputs!r}: expected one of {', '.join(HORIZON_INPUTS)}")
-        self.form_for, self.make_log = form_for, make_log
+        self.form_for, self.make_log, self.carried_for, self.ends_only = form_for, make_log, carried_for, ends_only
+        self.carried_form = self.carried = None  # the model's carried forecast (built once h is known); active one
+        self._forget_carried()
         self.horizon_s, self.warm_s, self.history_s = horizon_s, warm_s, history_s
         self.sample_period_s, self.wait_s = sample_period_s, wait_s
         self.inputs = inputs
@@ -254,12 +262,21 @@ class RecedingHorizon:
         self.wait_since = None
 
     def reset(self) -> None:
-        """A new time base (restart, clock jump): forget the commands; h and the form stay."""
+        """A new time base (restart, clock jump): forget the commands (and the carried anchor); h and the form stay."""
         self.rows.clear()
         self.steps_seen = []
         self.wait_since = None
         if self.steps is not None:
             self.next, self.first = self.warm - 1, 0
+        self._forget_carried()
+
+    def _forget_carried(self) -> None:
+        """Start the carried anchor over (a new time base): no row added yet."""
+        self.carried = self.carried_form
+        if self.carried is not None:
+            self.carried.reset()
+        self.context = None  # the last row added to the carried form and its measurement (the next log's first row)
+        self.fed = 0  # index (as ``next``) of the first row not added yet
 
     def add(self, ns: int, u: np.ndarray, omega) -> str | None:
         """Keep a command; learn h once dt is known. Returns a fault sentence when the model has no multi-step form."""
@@ -280,6 +297,12 @@ class RecedingHorizon:
         self.keep = max(int(round(self.history_s / period_s)), self.warm)
         self.form = self.form_for(self.warm)
         self.next, self.first = self.warm - 1, 0  # the first anchor with warm rows up to it; index of rows[0]
+        if self.carried_for is not None:
+            try:
+                self.carried_form = self.carried_for(period_s, self.steps)
+            except (QuadModellingError, ValueError):
+                self.carried_form = None  # the history re-run reports the model's error at each anchor
+            self._forget_carried()
         return None if self.form is not None else "has no multi-step form: no horizon predictions"
 
     def waiting(self) -> bool:
@@ -290,7 +313,8 @@ class RecedingHorizon:
 
     def ready(self, covered: Callable[[int], bool], measurements: Callable) -> Iterator[tuple]:
         """Every anchor that is ready, in order: its command s (``hold``; s + h for ``flown``) is in and its
-        measurements are covered. Yields ("prediction", stamp [ns], (h + 1, 18) prediction, stamp - t_s [s]) with
+        measurements are covered. Yields ("prediction", stamp [ns], (h + 1, 18) prediction (rows 0 and h:
+        (2, 18) with ``ends_only``), stamp - t_s [s]) with
         the stamp of the predicted time (t_s + h dt held, t_{s+h} flown) or ("fault", kind, sentence)."""
         if self.steps is None or self.form is None:
             return
@@ -309,15 +333,23 @@ class RecedingHorizon:
                 rows.popleft()
                 self.first += 1
 
+    def _after(self, s: int) -> list[tuple]:
+        """The h rows after anchor ``s`` (index in rows): the flown ones, or u_s (and its rotor speeds) held at t_s + k dt."""
+        if self.inputs == "flown":
+            return [self.rows[i] for i in range(s + 1, s + self.steps + 1)]
+        ns, u, omega = self.rows[s]
+        return [(ns + k * self.period_ns, u, omega) for k in range(1, self.steps + 1)]
+
     def _predict(self, s: int, measurements: Callable) -> tuple:
+        if self.carried is not None:
+            return self._predict_carried(s, measurements)
+        return self._predict_history(s, measurements)
+
+    def _predict_history(self, s: int, measurements: Callable) -> tuple:
+        """Anchor ``s`` (index in rows) by the model's multi-step form over the history rows up to it."""
         rows, h = self.rows, self.steps
         first = max(0, s - self.keep + 1)
-        history = [rows[i] for i in range(first, s + 1)]
-        if self.inputs == "flown":
-            history += [rows[i] for i in range(s + 1, s + h + 1)]
-        else:  # zero-order hold of the anchor's command (and rotor speeds) at t_s + k dt
-            ns, u, omega = rows[s]
-            history += [(ns + k * self.period_ns, u, omega) for k in range(1, h + 1)]
+        history = [rows[i] for i in range(first, s + 1)] + self._after(s)
         measured = [measurements(row[0]) for row in history[:s - first + 1]]
         if measured[-1] is None:
             return "fault", "horizon_gap", "an anchor without a measurement within tolerance: skipped"
@@ -331,6 +363,44 @@ class RecedingHorizon:
         try:
             log = self.make_log(stamps, history, filled)
             prediction = self.form.predict_horizons(log, np.array([s - first]), h)[0]
+            if self.ends_only:
+                prediction = prediction[[0, h]]
         except (QuadModellingError, ValueError) as err:
             return "fault", "model_error", f"failed: {err}"
         return "prediction", int(stamps[-1]), prediction, (stamps[-1] - stamps[s - first]) / 1e9
+
+    def _predict_carried(self, s: int, measurements: Callable) -> tuple:
+        """Anchor ``s`` (index in rows) by the carried form (:mod:`~quad_modelling.core.models.forecast`): the rows since
+        the last one added (a row without a measurement takes its successor's, as in the history re-run) are added in
+        one log behind the last added row, then the model is rolled out over the h rows after s."""
+        row = self.rows[s]
+        if measurements(row[0]) is None:  # stays unadded: it takes the next measured row's measurement
+            return "fault", "horizon_gap", "an anchor without a measurement within tolerance: skipped"
+        start = self.fed - self.first  # index in rows of the first row not added yet
+        if start < 0:  # rows left the history before they could be added (a long run without measurements)
+            self.carried = None
+            return self._predict_history(s, measurements)
+        new = [self.rows[i] for i in range(start, s + 1)]
+        measured = [measurements(r[0]) for r in new]
+        for i in range(len(measured) - 2, -1, -1):
+            if measured[i] is None:
+                measured[i] = measured[i + 1]
+        rows = ([self.context] if self.context is not None else []) + list(zip(new, measured))
+        if len(rows) < 2:  # a log needs 2 rows: the time base's first anchor alone is re-run
+            return self._predict_history(s, measurements)
+        stamps = np.array([r[0] for r, _ in rows], dtype=np.int64)
+        after = self._after(s)
+        after_ns = np.array([r[0] for r in after], dtype=np.int64)
+        try:
+            log = self.make_log(stamps, [r for r, _ in rows], [m for _, m in rows])
+            if log.gyro_b is None:  # the carried forms need the gyro: this time base is re-run over its history
+                self.carried = None
+                return self._predict_history(s, measurements)
+            self.carried.add(log, 1 if self.context is not None else 0)
+            self.context, self.fed = rows[-1], self.first + s + 1
+            prediction = self.carried.predict(after_ns / 1e9, np.array([r[1] for r in after]),
+                                              np.array([0, self.steps]) if self.ends_only else None)
+        except (QuadModellingError, ValueError) as err:
+            self.carried = None  # its anchor may be half-added: the rest of this time base is re-run
+            return "fault", "model_error", f"failed: {err}"
+        return "prediction", int(after_ns[-1]), prediction, (after_ns[-1] - row[0]) / 1e9

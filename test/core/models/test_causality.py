@@ -5,10 +5,11 @@ predicted row, nothing later. The helpers alter a real flight after the anchor a
 every prediction that ends before the alteration is unchanged (to 1e-12), and, so that the check is
 not hollow, that the model does read the altered data where it may.
 
-Three forms are checked, each when the model has it: the multi-step form (``predict_horizons``),
-the live form (``start_window``/``push``) and the offline window form (``predict_window``, compared
+Four forms are checked, each when the model has it: the multi-step form (``predict_horizons``),
+the live form (``start_window``/``push``), the offline window form (``predict_window``, compared
 as absolute values: the evaluation's trim over the window's first second is added back, since that
-trim belongs to the evaluation, not to the model).
+trim belongs to the evaluation, not to the model) and the receding horizon's carried-state forecast
+(:mod:`quad_modelling.core.models.forecast`, the command held after the anchor).
 
 To check another model, add one line to :data:`MODELS`; a model that needs a trained file gets a
 trainer in :data:`TRAINERS` and ``{kind}`` in its spec (as ``narx:{narx}``). The ``truth`` model predicts
@@ -196,6 +197,32 @@ def assert_window_causal(model, window: FlightLog, warm: int = WARM, reads_comma
         assert_changed(moved[later:], base[later:], f"{model.name} window from row {later}")
 
 
+def carried_held_forecasts(model, vehicle, log: FlightLog, anchors: np.ndarray, horizon: int = HORIZON) -> np.ndarray:
+    """(A, horizon + 1, 18) carried-state forecasts (:func:`~quad_modelling.core.models.forecast.carried_forecast`) from
+    each of the increasing ``anchors``, the anchor's command held at its period after it: the rows are added as the
+    receding horizon adds them (the first anchor's rows from row 0 at once, then each later row behind the last)."""
+    from quad_modelling.core.models.forecast import carried_forecast
+
+    period = float(np.median(np.diff(log.t)))
+    carried = carried_forecast(model, vehicle, period, horizon)
+    out, added = [], None
+    for a in anchors:
+        carried.add(log.slice(0 if added is None else added, a + 1), 0 if added is None else 1)
+        added = a
+        out.append(carried.predict(log.t[a] + period * np.arange(1, horizon + 1), np.tile(log.u[a], (horizon, 1))))
+    return np.array(out)
+
+
+def assert_carried_causal(model, vehicle, log: FlightLog, anchor: int, horizon: int = HORIZON) -> None:
+    """Measurements and commands after ``anchor`` changed: the held forecasts from the anchors up to it are
+    unchanged; the one from the next row changes."""
+    anchors = np.arange(anchor - 5, anchor + 2)
+    base = carried_held_forecasts(model, vehicle, log, anchors, horizon)
+    moved = carried_held_forecasts(model, vehicle, altered(log, anchor + 1), anchors, horizon)
+    assert_unchanged(moved[:-1], base[:-1], f"{model.name} carried forecast (data after row {anchor})")
+    assert_changed(moved[-1], base[-1], f"{model.name} carried forecast from row {anchor + 1}")
+
+
 # ---- every model ------------------------------------------------------------------------------------
 def _flights(flight: FlightLog, needs_gyro: bool) -> list[FlightLog]:
     """The flight, and (for models that do without) the same flight without its gyro: rates from the attitude."""
@@ -219,6 +246,14 @@ def test_live_and_window_predictions_read_nothing_after_their_anchor(build, flig
         window = log.slice(300, 500)  # a 2 s window in flight
         assert_streaming_causal(model, window, WARM, reads_commands)
         assert_window_causal(model, window, WARM, reads_commands)
+
+
+@pytest.mark.parametrize(("spec", "reads_commands", "needs_gyro"), [m for m in MODELS if m.id != "naive"])
+def test_carried_forecasts_read_nothing_after_their_anchor(build, flight, vehicle, spec, reads_commands, needs_gyro):
+    """Every model with a carried form (naive has none: the receding horizon re-runs its multi-step form)."""
+    model = build(spec)
+    for anchor in ANCHORS:
+        assert_carried_causal(model, vehicle, flight, anchor)
 
 
 # ---- the helpers catch a leak --------------------------------------------------------------------------

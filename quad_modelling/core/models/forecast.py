@@ -1,0 +1,534 @@
+r"""Carried-state forecasts: the receding-horizon mode's anchor advanced by one row per input, then rolled out h steps;
+and the compiled one physics step of the live window streams.
+
+The live receding-horizon mode (:class:`~quad_modelling.core.models.streaming.RecedingHorizon`) predicts from every
+anchor s, h steps ahead. A model's offline multi-step form (``predict_horizons``) derives its anchor from all the
+rows up to s: rotor speeds and the disturbance observer's means (physics, hybrid), the 1 s trims and the motor
+filter (greybox), the delayed outputs and commands (NARX). Re-running it at every input over a history costs the
+whole history per input. A *carried forecast* holds exactly that anchor and advances it by the rows that came in
+since the previous anchor (one per input), then rolls the model out from it:
+
+* :meth:`CarriedForecast.add` ``(rows, first)``: the rows ``first ..`` of the FlightLog ``rows`` are new, in time
+  order after every row added before (rows before ``first`` were added already: context for the yaw unwrap);
+* :meth:`CarriedForecast.predict` ``(t_after, u_after, rows=None)``: (h + 1, 18) absolute prediction from the last
+  row added (row 0) over the h rows after it stamped ``t_after`` (h,) [s] with the commands ``u_after`` (h, 4), as
+  the offline multi-step form gives it; ``rows``: only these rows of it (a forecast publishes row h, and checks it
+  against row 0: the physics models then output 2 states instead of h + 1).
+
+Per model (:func:`carried_forecast` picks the form; a model without one is predicted by the history re-run):
+
+* **physics, hybrid** (:class:`PhysicsForecast`): carried are the logged commands of the last δ (the command delay),
+  the rotor speeds (the exact lag stepped row by row: :func:`~quad_modelling.core.physics.rotors.rotor_step`), the
+  unwrapped yaw and the observer's rows of the last ``max(linear_s, angular_s)`` (time, velocity, rates and the
+  model's acceleration, with the hybrid's net correction: its observer subtracts the net's mean, which is the mean
+  of the sum), whose means are :func:`~quad_modelling.core.models.physics.observed_disturbance` itself. The h-step
+  rollout is the one physics step (:func:`~quad_modelling.core.physics.rigid_body.step`, with the hybrid's
+  correction) built once as a CasADi Function by the export
+  (:func:`~quad_modelling.core.export.casadi_model.casadi_functions`: ``F_disturbed``) and chained h times
+  (:meth:`Step.chained`, compiled to C where a C compiler is found: :func:`compile_step`): one call instead of h numpy steps of a batch of
+  one (12 ms for h = 50 here). The outputs of the
+  h + 1 states are the model's own (:func:`~quad_modelling.core.models.physics.outputs`,
+  :meth:`~quad_modelling.core.models.hybrid.HybridModel.outputs`), one batched call.
+* **greybox** (:class:`GreyboxForecast`): carried are the running sums of the commands and of the measured
+  roll/pitch (the 1 s trailing means, :func:`~quad_modelling.core.preprocess.trailing_means`' own arithmetic), the
+  motor filter's state (:func:`~quad_modelling.core.models.motors.motor_thrusts`, its recursion) and the unwrapped
+  yaw; the rollout is :func:`~quad_modelling.core.models.greybox.linear_horizons`. The sample period is the
+  receding horizon's dt (the offline form takes the segment's median step: the same on a regular timer).
+* **NARX** (:class:`NarxForecast`): its memory is finite: the last max(max(D_u) + 1, n_y) rows of commands and
+  measured outputs; the h closed-loop steps are the model's own step built as a CasADi Function and chained
+  (:func:`narx_step`), the expansion to 18 variables :func:`~quad_modelling.core.models.narx.expand_horizons`.
+
+Equality with the offline multi-step form on all the rows of the time base (test:
+``test/core/models/test_forecast.py``): to rounding, 1e-9 and tighter. What differs is the order of float
+operations only: the rotor lag stepped row by row instead of the prefix scan, the observer's integral summed over
+its rows instead of the segment, the CasADi step instead of numpy's (3e-15 over 50 steps), the yaw unwrapped by
+differences. The physics forms need the gyro (as their multi-step forms); the greybox's carried form does too (a
+flight without one gets its rates from differentiated attitudes over past rows: the history re-run does that).
+
+The same compiled step serves the window mode (:func:`compiled_window_stream`): the physics and hybrid models' live
+streams step from sample to sample with it instead of numpy's step on a batch of one (the most of a physics
+predictor's answer to an input), the stream's own outputs and delay kept.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import weakref
+from collections import deque
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from quad_modelling.core import frames
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.models import physics
+from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, linear_horizons
+from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor
+from quad_modelling.core.models.narx import OUTPUTS, NarxPredictor, expand_horizons, lagged_inputs, sigmoid
+from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
+from quad_modelling.core.physics.parameters import PhysicsParameters
+from quad_modelling.core.physics.rigid_body import PhysicsState, accelerations
+from quad_modelling.core.physics.rotors import (
+    STAMP_TOLERANCE_S,
+    delayed_command_at,
+    delayed_commands,
+    effective_commands,
+    rotor_acceleration,
+    rotor_step,
+    steady_rotor_speed,
+)
+from quad_modelling.core.variables import VARIABLES, columns
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.errors import DataError
+
+OBSERVER_MARGIN_S = 1e-9
+"""The observer's rows start at the first row with t >= t_a - history - this [s] (its ``searchsorted``)."""
+
+
+class CarriedForecast(Protocol):
+    """A model's anchor carried from row to row (module docstring)."""
+
+    def add(self, rows: FlightLog, first: int) -> None:
+        ...
+
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        ...
+
+
+def carried_forecast(model, vehicle: VehicleConfig, period_s: float, steps: int) -> CarriedForecast | None:
+    """The carried form of ``model`` (a streaming predictor of the registry) for h = ``steps`` at the sample period
+    ``period_s`` [s], or None when it has none (module docstring)."""
+    if isinstance(model, PhysicsPredictor):
+        return PhysicsForecast(model_step(model, vehicle), model.params, model.observer, steps)
+    if isinstance(model, HybridPredictor):
+        return PhysicsForecast(model_step(model, vehicle), model.model.params, model.model.observer, steps, model.model)
+    if isinstance(model, GreyboxPredictor):
+        return GreyboxForecast(model, period_s)
+    if isinstance(model, NarxPredictor):
+        return NarxForecast(model, period_s, steps, model_step(model, vehicle))
+    return None
+
+
+def prepare_compiled_step(model, vehicle: VehicleConfig) -> None:
+    """Build (and compile) the model's step now, not at its first window or anchor: the predictor node calls it at
+    start-up with its model, as it primes the model (the compilation takes about half a second once)."""
+    model_step(model, vehicle)
+
+
+_STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+"""model -> its :class:`Step` (:func:`model_step`), built once per model object (its carried forecasts and live
+window streams share it)."""
+
+
+def model_step(model, vehicle: VehicleConfig) -> Step | None:
+    """The one-step CasADi Function a model's carried forecast chains (physics, hybrid: the export's ``F_disturbed``;
+    NARX: :func:`narx_step`), compiled (:func:`compile_step`); None for a model whose forecast needs none."""
+    if model not in _STEPS:
+        if isinstance(model, (PhysicsPredictor, HybridPredictor)):
+            from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions
+
+            hybrid = model.model if isinstance(model, HybridPredictor) else None
+            params, observer = (hybrid.params, hybrid.observer) if hybrid else (model.params, model.observer)
+            exported = ExportedModel(vehicle, params, observer, "hybrid" if hybrid else "physics", hybrid)
+            _STEPS[model] = compile_step(casadi_functions(exported)["F_disturbed"])
+        elif isinstance(model, NarxPredictor):
+            _STEPS[model] = compile_step(narx_step(model.model))
+        else:
+            return None
+    return _STEPS[model]
+
+
+class UnwrappedYaw:
+    """The continuous yaw of rows added in order: the first rows' as their log unwraps it, then each later row the
+    previous one's plus the step between them in its log (logs unwrap their rows: ``measurement_log``)."""
+
+    def __init__(self) -> None:
+        self.last = None  # continuous yaw of the last row added [rad]
+
+    def add(self, rows: FlightLog, first: int) -> np.ndarray:
+        """(n,) continuous yaw [rad] of rows ``first ..`` of ``rows`` (``first`` > 0 once a row was added: the row
+        before them is the context)."""
+        yaw = np.unwrap(rows.euler[:, 2])
+        out = np.empty(len(rows) - first)
+        for i in range(first, len(rows)):
+            self.last = float(yaw[i]) if self.last is None else self.last + float(yaw[i] - yaw[i - 1])
+            out[i - first] = self.last
+        return out
+
+
+def _require_gyro(rows: FlightLog, what: str) -> None:
+    if rows.gyro_b is None:
+        raise DataError(f"{rows.meta.source}: the carried forecast of {what} needs the gyro (body rates at each anchor)")
+
+
+class _Rows:
+    """Rows of fixed width kept in one growing numpy array; :meth:`drop_before` forgets the oldest."""
+
+    def __init__(self, width: int, capacity: int = 256):
+        self.data = np.empty((capacity, width))
+        self.start = self.stop = 0
+
+    def append(self, values: np.ndarray) -> None:
+        if self.stop == len(self.data):
+            kept = self.stop - self.start
+            if kept * 2 > len(self.data):
+                self.data = np.concatenate([self.data, np.empty_like(self.data)])
+            self.data[:kept] = self.data[self.start:self.stop]
+            self.start, self.stop = 0, kept
+        self.data[self.stop] = values
+        self.stop += 1
+
+    def view(self) -> np.ndarray:
+        return self.data[self.start:self.stop]
+
+    def drop_before(self, count: int) -> None:
+        self.start += count
+
+
+class PhysicsForecast:
+    """Physics or hybrid model (``hybrid`` given), carried (module docstring)."""
+
+    def __init__(self, step: Step, params: PhysicsParameters, observer: Observer, steps: int, hybrid: HybridModel | None = None):
+        self.params, self.observer, self.hybrid, self.steps = params, observer, hybrid, steps
+        self.history_s = max(observer.linear_s, observer.angular_s)
+        rollout = step.chained(steps)  # x_{k+1} = F(x_k, u_k, dt_k, d), k < h: (22, h)
+        # evaluated in place on these arrays (CasADi is column-major: an (n, h) argument is an (h, n) C array)
+        self._x0, self._u = np.zeros(22), np.zeros((steps, step.function.size1_in(1)))
+        self._dt, self._d, self._after = np.zeros(steps), np.zeros((steps, 6)), np.zeros((steps, 22))
+        self._buffer, self._evaluate = rollout.buffer()
+        for i, array in enumerate((self._x0, self._u, self._dt, self._d)):
+            self._buffer.set_arg(i, memoryview(array))
+        self._buffer.set_res(0, memoryview(self._after))
+        self.reset()
+
+    def reset(self) -> None:
+        """A new time base: forget every row."""
+        self.times: list[float] = []  # logged commands of the last δ (and the one before): the delay's table
+        self.commands: list[np.ndarray] = []
+        self.observer_rows = _Rows(1 + 3 + 3 + 6)  # t, v_N, ω, modelled (dv_N/dt, dω/dt) incl. the net's correction
+        self.yaw = UnwrappedYaw()
+        self.rotor = None  # rotor speeds at the last row [rad/s]
+        self.rotor_command = None  # the effective command the rotors answered at the last row
+        self.last_t = None  # time of the last row [s]
+        self.anchor = None  # (t, pos, vel, euler with continuous yaw, R, rates, rotor, logged u, voltage) of the last row
+
+    def add(self, rows: FlightLog, first: int) -> None:
+        _require_gyro(rows, "the physics model")
+        p, n = self.params, len(rows) - first
+        self.times += rows.t[first:].tolist()
+        self.commands += list(rows.u[first:])
+        delayed = delayed_commands(p, np.array(self.commands), np.array(self.times))[-n:]
+        voltage = physics.battery_voltage(p, rows)
+        voltage = None if voltage is None else voltage[first:]
+        effective = effective_commands(p, delayed, voltage)
+        yaw = self.yaw.add(rows, first)
+        rotor = np.empty((n, 4))
+        for i in range(n):  # rotor_speeds' recursion: Ω_0 steady at the first command, then the exact lag per interval
+            t_i = float(rows.t[first + i])
+            if self.rotor is None:
+                rotor[i] = steady_rotor_speed(p, effective[i])
+            else:
+                rotor[i] = rotor_step(p, self.rotor, self.rotor_command, t_i - self.last_t)
+            self.rotor, self.rotor_command, self.last_t = rotor[i], effective[i], t_i
+        euler = rows.euler[first:].copy()
+        euler[:, 2] = yaw
+        rot = frames.euler_ned_to_matrix(euler)
+        pos, vel, rates = rows.pos_n[first:], rows.vel_n[first:], rows.gyro_b[first:]
+        acc_n, ang_acc = accelerations(p, vel, rot, rates, rotor, rotor_acceleration(p, rotor, effective), pos)
+        modelled = np.concatenate([acc_n, ang_acc], axis=1)
+        if self.hybrid is not None:
+            state = PhysicsState(pos.copy(), vel.copy(), rot, rates.copy(), rotor.copy(), yaw)
+            modelled = modelled + self.hybrid.correction(state, np.concatenate([effective, rows.u[first:]], axis=1))
+        for i in range(n):
+            self.observer_rows.append(np.concatenate([[rows.t[first + i]], vel[i], rates[i], modelled[i]]))
+        t_last = float(rows.t[-1])
+        self.anchor = (t_last, pos[-1].copy(), vel[-1].copy(), euler[-1], rot[-1], rates[-1].copy(), rotor[-1].copy(),
+                       rows.u[-1].copy(), None if voltage is None else float(voltage[-1]))
+        self._forget(t_last)
+
+    def _forget(self, t_last: float) -> None:
+        """Drop the commands no later delay can need (keep the last at or before t - δ) and the observer's rows no
+        later anchor's history reaches."""
+        limit = t_last - self.params.delay + STAMP_TOLERANCE_S
+        drop = 0
+        while drop + 1 < len(self.times) and self.times[drop + 1] <= limit:
+            drop += 1
+        if drop:
+            del self.times[:drop], self.commands[:drop]
+        t = self.observer_rows.view()[:, 0]
+        self.observer_rows.drop_before(int(np.searchsorted(t, t_last - self.history_s - OBSERVER_MARGIN_S, side="left")))
+
+    def disturbance(self) -> Disturbance:
+        """The observer's constant disturbance at the last row (:func:`~quad_modelling.core.models.physics.observed_disturbance`)."""
+        rows = self.observer_rows.view()
+        measured = np.zeros((len(rows), len(VARIABLES)))
+        measured[:, 3:6], measured[:, 12:15] = rows[:, 1:4], rows[:, 4:7]
+        return physics.observed_disturbance(rows[:, 0], measured, rows[:, 7:13], np.array([len(rows) - 1]), self.observer)
+
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        p, h = self.params, len(t_after)
+        if h != self.steps:
+            raise ValueError(f"carried physics forecast built for {self.steps} steps, asked for {h}")
+        t_s, pos, vel, euler, rot_s, rates, rotor, u_s, voltage = self.anchor
+        t = np.concatenate([[t_s], t_after])
+        logged = np.concatenate([u_s[None, :], u_after])
+        delayed = delayed_commands(p, np.vstack([*self.commands, u_after]), np.concatenate([self.times, t_after]))[-(h + 1):]
+        disturbance = self.disturbance()
+        self._u[:, 0:4] = delayed[:h]  # the export's input layout: delayed commands, logged ones (hybrid), voltage
+        if self.hybrid is not None:
+            self._u[:, 4:8] = logged[:h]
+        if p.battery is not None:
+            self._u[:, -1] = voltage
+        x0 = self._x0
+        x0[0:3], x0[3:6], x0[6:15], x0[15:18], x0[18:22] = pos, vel, rot_s.ravel(), rates, rotor
+        self._dt[:] = np.diff(t)
+        self._d[:, 0:3], self._d[:, 3:6] = disturbance.linear_n, disturbance.angular_b
+        self._evaluate()
+        x = np.concatenate([x0[None, :], self._after])  # (h + 1, 22)
+        rot = x[:, 6:15].reshape(-1, 3, 3)
+        states = PhysicsState(x[:, 0:3], x[:, 3:6], rot, x[:, 15:18], x[:, 18:22], continued_yaw(float(euler[2]), rot))
+        rows = np.arange(h + 1) if rows is None else np.asarray(rows)
+        held = Disturbance(np.repeat(disturbance.linear_n, len(rows), axis=0), np.repeat(disturbance.angular_b, len(rows), axis=0))
+        effective = effective_commands(p, delayed[rows], voltage)
+        if self.hybrid is None:
+            return physics.outputs(p, states.take(rows), effective, held)
+        return self.hybrid.outputs(states.take(rows), np.concatenate([effective, logged[rows]], axis=1), held)
+
+
+def continued_yaw(yaw0: float, rot: np.ndarray) -> np.ndarray:
+    """(K,) continuous yaw of attitudes ``rot`` (K, 3, 3) from ``yaw0`` at row 0, each row unwrapped next to the one
+    before: :func:`~quad_modelling.core.physics.rigid_body.continue_yaw` applied row by row (its formula on floats)."""
+    psi = np.arctan2(rot[:, 1, 0], rot[:, 0, 0]).tolist()
+    out = [yaw0]
+    for value in psi[1:]:
+        previous = out[-1]
+        out.append(previous + (value - previous + np.pi) % (2.0 * np.pi) - np.pi)
+    return np.array(out)
+
+
+class GreyboxForecast:
+    """The linear greybox, carried (module docstring; the anchor of :meth:`GreyboxPredictor.predict_horizons`)."""
+
+    def __init__(self, predictor: GreyboxPredictor, period_s: float):
+        self.model = predictor.model.discretise(period_s, predictor.discretisation)
+        self.trim_rows = max(1, int(round(predictor.trim.trim_s * (1.0 / period_s))))
+        self.pole, self.gain = float(self.model.ad[12, 12]), float(self.model.bd[12, 0])
+        self.reset()
+
+    def reset(self) -> None:
+        self.u_ref = self.attitude_ref = None  # the first row's command and roll/pitch (trailing_means' offset)
+        self.u_totals: deque[np.ndarray] = deque(maxlen=self.trim_rows + 1)
+        self.attitude_totals: deque[np.ndarray] = deque(maxlen=self.trim_rows + 1)
+        self.motor = None  # the motor filter's state (lfilter's z)
+        self.thrust = None  # filtered thrust of the last row, before the trim
+        self.yaw = UnwrappedYaw()
+        self.anchor = None  # the measured state (12) of the last row and its command
+
+    def add(self, rows: FlightLog, first: int) -> None:
+        _require_gyro(rows, "the greybox")
+        yaw = self.yaw.add(rows, first)
+        for i in range(first, len(rows)):
+            u, attitude = rows.u[i], rows.euler[i, 0:2]
+            if self.u_ref is None:
+                self.u_ref, self.attitude_ref = u.copy(), attitude.copy()
+                self.u_totals.append(np.zeros(4))
+                self.attitude_totals.append(np.zeros(2))
+                self.motor = np.zeros(4)  # steady state of the first (reference-removed) command: zero
+            self.u_totals.append(self.u_totals[-1] + (u - self.u_ref))
+            self.attitude_totals.append(self.attitude_totals[-1] + (attitude - self.attitude_ref))
+            x = u - self.u_ref  # lfilter([0, g], [1, -p]) of the commands minus the reference, one row
+            self.thrust = 0.0 * x + self.motor
+            self.motor = self.gain * x - (-self.pole) * self.thrust
+        measured = np.empty(len(VARIABLES))
+        measured[0:3], measured[3:6], measured[9:12], measured[12:15] = rows.pos_n[-1], rows.vel_n[-1], rows.euler[-1], rows.gyro_b[-1]
+        measured[11] = yaw[-1]
+        self.anchor = (measured[MEASURED_STATE_COLUMNS], rows.u[-1].copy())
+
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        count = len(self.u_totals) - 1
+        input_trim = self.u_ref + (self.u_totals[-1] - self.u_totals[0]) / count
+        attitude_trim = self.attitude_ref + (self.attitude_totals[-1] - self.attitude_totals[0]) / count
+        thrusts = self.thrust - (input_trim - self.u_ref) * (self.gain / (1.0 - self.pole))
+        state, u_s = self.anchor
+        x = np.concatenate([state, thrusts])
+        x[6:8] -= attitude_trim
+        u = np.concatenate([u_s[None, :], u_after]) - input_trim
+        out = linear_horizons(self.model, x[None, :], u[None], attitude_trim[None, :])[0]
+        return out if rows is None else out[rows]
+
+
+class NarxForecast:
+    """NARX, carried: its last rows (module docstring). The h closed-loop steps of
+    :meth:`~quad_modelling.core.models.narx.NarxModel.simulate_from_starts` (the nets fed back their own outputs)
+    run as one CasADi Function built by the model's own step (:meth:`~quad_modelling.core.models.narx.NarxModel.net_output`
+    of :func:`~quad_modelling.core.models.narx.sigmoid`, fed symbolic arrays) chained h times; the input part of the
+    nets, ``W_u`` times the lagged commands, and the expansion to 18 variables are the model's numpy code."""
+
+    def __init__(self, predictor: NarxPredictor, period_s: float, steps: int, step: Step):
+        model = predictor.model
+        if abs(period_s - model.dt) > 0.01 * model.dt:
+            raise DataError(f"receding horizon: sampled every {period_s * 1e3:.3f} ms but the {model.kind} model was trained "
+                            f"at {model.dt * 1e3:.3f} ms")
+        self.model, self.steps = model, steps
+        self.keep = max(max(model.config.input_delays) + 1, model.config.output_delays, 2)
+        n_y, hidden = model.config.output_delays, model.config.hidden
+        self._feedback, self._z_u = np.zeros((len(OUTPUTS), n_y)), np.zeros((steps, len(OUTPUTS), hidden))
+        self._outputs = np.zeros((steps, len(OUTPUTS)))
+        self._buffer, self._evaluate = step.chained(steps).buffer()
+        self._buffer.set_arg(0, memoryview(self._feedback))
+        self._buffer.set_arg(1, memoryview(self._z_u))
+        self._buffer.set_res(1, memoryview(self._outputs))
+        self._states = np.zeros((steps, len(OUTPUTS) * n_y))
+        self._buffer.set_res(0, memoryview(self._states))
+        self.reset()
+
+    def reset(self) -> None:
+        self.rows: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=self.keep)  # (command, measured (18)) per row
+        self.yaw = UnwrappedYaw()
+
+    def add(self, rows: FlightLog, first: int) -> None:
+        _require_gyro(rows, "NARX")
+        yaw = self.yaw.add(rows, first)
+        for i in range(first, len(rows)):
+            measured = np.zeros(len(VARIABLES))  # positions, velocities, angles, rates: what the rollout reads
+            measured[0:3], measured[3:6], measured[9:12], measured[12:15] = rows.pos_n[i], rows.vel_n[i], rows.euler[i], rows.gyro_b[i]
+            measured[11] = yaw[i - first]
+            self.rows.append((rows.u[i].copy(), measured))
+
+    def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        model, h, n_y = self.model, len(t_after), self.model.config.output_delays
+        if h != self.steps:
+            raise ValueError(f"carried NARX forecast built for {self.steps} steps, asked for {h}")
+        s = len(self.rows) - 1
+        u = np.concatenate([np.array([row[0] for row in self.rows]), u_after])
+        measured = np.array([row[1] for row in self.rows])
+        y = model.normalise_outputs(measured[:, columns(OUTPUTS)])
+        padded = np.concatenate([np.repeat(y[:1], n_y - 1, axis=0), y])  # rows before the first repeat it (as offline)
+        self._feedback[:] = padded[-n_y:].T  # y(s - n_y + 1 .. s), oldest first
+        lagged = lagged_inputs(model.normalise_inputs(u), model.config.input_delays)[s + 1:]
+        self._z_u[:] = np.einsum("nd,khd->nkh", lagged, model.w_u) + model.b_1
+        self._evaluate()
+        v = np.concatenate([measured[-1:, columns(OUTPUTS)], model.denormalise_outputs(self._outputs)])
+        out = expand_horizons(model, measured, np.array([s]), v[None])[0]
+        return out if rows is None else out[rows]
+
+
+def narx_step(model):
+    """CasADi Function (feedback ỹ (6, n_y), input part z_u (6, H)) -> (feedback after the step, ỹ of the step): one
+    closed-loop step of :meth:`~quad_modelling.core.models.narx.NarxModel.simulate_from_starts`, built by the model's
+    ``net_output`` and ``sigmoid`` on symbolic arrays. Chained h times (:meth:`Step.chained`) its arguments and results
+    are, as C arrays: feedback (6, n_y), z_u (h, 6, H), feedbacks (h, 6 n_y), outputs (h, 6)."""
+    import casadi
+
+    n_y, hidden, nets = model.config.output_delays, model.config.hidden, len(OUTPUTS)
+    feedback = casadi.SX.sym("feedback", nets * n_y)  # column-major (n_y, 6) = C (6, n_y): net k's lags at k n_y ..
+    z_u = casadi.SX.sym("z_u", nets * hidden)
+    lags = np.array([feedback[i] for i in range(nets * n_y)], dtype=object).reshape(nets, n_y)
+    inputs = np.array([z_u[i] for i in range(nets * hidden)], dtype=object).reshape(nets, hidden)
+    z = inputs + np.matmul(model.w_y, lags[..., None])[..., 0]
+    y = model.net_output(sigmoid(z), lags[:, -1])
+    shifted = np.concatenate([lags[:, 1:], y[:, None]], axis=1)
+    return casadi.Function("narx_step", [feedback, z_u], [casadi.vertcat(*shifted.ravel()), casadi.vertcat(*y)])
+
+
+JIT_OPTIONS = {"flags": ["-O1"]}
+"""CasADi's shell compiler options of a compiled step: the system's C compiler, no fast-math (the same float
+operations as CasADi's virtual machine). Its files go to a temporary directory, removed once the step is loaded."""
+
+
+@dataclass(frozen=True)
+class Step:
+    """A model's one-step CasADi Function (first input and output: the state) and whether it is compiled to C."""
+
+    function: object
+    compiled: bool
+
+    def chained(self, steps: int):
+        """The step chained ``steps`` times (``mapaccum``: the state carried, the other inputs one column per step)."""
+        chained = self.function.mapaccum(f"{self.function.name()}_chained", steps)
+        return chained if self.compiled else chained.expand()
+
+
+def compile_step(step) -> Step:
+    """``step`` (a CasADi SX Function) compiled to C by the system's C compiler when there is one (CasADi's ``jit``:
+    about half a second once; the same numbers, measured 0 difference), else as it is, for CasADi's virtual machine:
+    the hybrid's 50 steps (6357 instructions each) take ~0.1 ms compiled against ~0.4 ms
+    (``bench/results/nodes_forecast.md``)."""
+    import casadi
+
+    symbols = [casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
+    here = os.getcwd()
+    with tempfile.TemporaryDirectory(prefix="quad_modelling_jit_") as directory:
+        os.chdir(directory)  # CasADi writes the C source into the working directory: a temporary one, removed after
+        try:
+            compiled = casadi.Function(f"{step.name()}_compiled", symbols, step.call(symbols),
+                                       {"jit": True, "compiler": "shell", "jit_cleanup": False,
+                                        "jit_options": {"directory": directory + os.sep, "cleanup": False, **JIT_OPTIONS}})
+        except RuntimeError:  # no C compiler (CasADi names the failed command): its virtual machine
+            return Step(step, False)
+        finally:
+            os.chdir(here)
+    return Step(compiled, True)  # loaded: its library file may go
+
+
+# --- the live window stream through the compiled step ---------------------------------------------------------------
+
+class CompiledWindowStream:
+    """A physics or hybrid model's live window stream (:class:`~quad_modelling.core.models.physics.PhysicsStream`,
+    :class:`~quad_modelling.core.models.hybrid.HybridStream`) whose step from sample to sample is the compiled one
+    physics step (:func:`model_step`) instead of numpy's on a batch of one (~150 us a step here, the most of a physics
+    predictor's answer to an input); everything else -- the delay's table, the outputs -- is the stream's own. The same
+    numbers (test: 1e-12 over a window)."""
+
+    def __init__(self, stream, step: Step, hybrid: HybridModel | None):
+        self.stream, self.hybrid = stream, hybrid
+        self._x, self._u = np.zeros(22), np.zeros(step.function.size1_in(1))
+        self._dt, self._d, self._after = np.zeros(1), np.zeros(6), np.zeros(22)
+        self._buffer, self._evaluate = step.function.buffer()
+        for i, array in enumerate((self._x, self._u, self._dt, self._d)):
+            self._buffer.set_arg(i, memoryview(array))
+        self._buffer.set_res(0, memoryview(self._after))
+
+    def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
+        s, p = self.stream, self.stream.params
+        previous = s.times[-1]
+        dt = t_s - previous
+        if not dt > 0:
+            raise DataError(f"physics stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
+        state = s.state
+        self._x[0:3], self._x[3:6], self._x[6:15] = state.pos_n[0], state.vel_n[0], state.rot[0].ravel()
+        self._x[15:18], self._x[18:22] = state.rates[0], state.rotor[0]
+        self._u[0:4] = delayed_command_at(p, s.times, s.commands, previous)[0]  # the export's input layout
+        if self.hybrid is not None:
+            self._u[4:8] = s.commands[-1][0]  # the command logged at the previous sample
+        if p.battery is not None:
+            self._u[-1] = s.voltage
+        self._dt[0] = dt
+        self._d[0:3], self._d[3:6] = s.disturbance.linear_n[0], s.disturbance.angular_b[0]
+        self._evaluate()
+        x = self._after
+        rot = x[6:15].reshape(1, 3, 3).copy()
+        s.state = PhysicsState(x[None, 0:3].copy(), x[None, 3:6].copy(), rot, x[None, 15:18].copy(), x[None, 18:22].copy(),
+                               continued_yaw(float(state.yaw[0]), np.concatenate([state.rot, rot]))[1:])
+        s.times.append(float(t_s))
+        s.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
+        s._forget()
+        if self.hybrid is None:
+            return physics.outputs(p, s.state, s._command_at(t_s), s.disturbance)[0]
+        return self.hybrid.outputs(s.state, np.concatenate([s._command_at(t_s), s.commands[-1]], axis=1), s.disturbance)[0]
+
+    def push(self, command: np.ndarray) -> np.ndarray:
+        return self.push_at(command, self.stream.times[-1] + self.stream.period_s)
+
+
+def compiled_window_stream(model, vehicle: VehicleConfig, stream):
+    """``stream`` (what ``model.start_window`` returned) stepped by the compiled step when the model is a physics or
+    hybrid model whose step compiled (:func:`model_step`); else ``stream`` itself."""
+    if not isinstance(model, (PhysicsPredictor, HybridPredictor)):
+        return stream
+    step = model_step(model, vehicle)
+    if not step.compiled:
+        return stream
+    return CompiledWindowStream(stream, step, model.model if isinstance(model, HybridPredictor) else None)
