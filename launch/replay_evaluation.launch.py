@@ -19,7 +19,7 @@ def generate_launch_description():
     config = PathJoinSubstitution([FindPackageShare(PACKAGE), "config"])
     # Reliable subscriptions: the replay is paced on the evaluator's acknowledgements and loses nothing.
     # The vehicle is the bag's: the replay announces it on topic vehicle, the other nodes learn it.
-    common = {"window_s": LaunchConfiguration("window_s"), "qos": "reliable"}
+    common = {"window_s": LaunchConfiguration("window_s"), "qos": "replay"}
     return LaunchDescription([
         DeclareLaunchArgument("bag", description="MCAP bag directory to replay"),
         DeclareLaunchArgument("narx_model", description="NARX model file (.npz, from quad-modelling train); required"),

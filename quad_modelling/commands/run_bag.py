@@ -51,8 +51,8 @@ OUTDIR receives (on the evaluator's host) results.json (as quad-modelling evalua
 marked), tables.md, figures, params.yaml (the nodes' parameters) and logs/<node>.log; with
 --record also record/, one MCAP bag of everything the evaluator received and published.
 
-Every node subscribes reliable (parameter qos): the replay is paced on the evaluator's
-acknowledgements and loses nothing. SIGINT/SIGTERM stop every node (each one's process
+Every node subscribes reliable and transient-local (parameter qos: replay): the replay is paced on
+the evaluator's acknowledgements and loses nothing, not even to a late discovery. SIGINT/SIGTERM stop every node (each one's process
 group) and remove the staging directory.
 
 examples:
@@ -280,7 +280,7 @@ def node_parameters(args, models: list[ModelEntry], vehicle: str, spans: list[st
     Subscriptions are reliable: the paced replay is lossless. The evaluator waits for the models' publishers and the
     replay for its subscribers and first acknowledgement as long as run-bag waits for remote nodes."""
     common = {"vehicle": vehicle, "window_s": float(args.window), "warm_s": float(args.warm), "executor": args.executor,
-              "qos": "reliable"}
+              "qos": "replay"}
     params = {
         # A replayed bag waits for slow predictors (a busy machine) instead of marking their windows:
         # run-bag itself reports a predictor that dies.

@@ -60,7 +60,7 @@ def data_qos(depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
                       history=HistoryPolicy.KEEP_LAST, depth=depth)
 
 
-QOS_KINDS = ("best_effort", "reliable", "sensor_data")
+QOS_KINDS = ("best_effort", "reliable", "sensor_data", "replay")
 """Values of the ``qos`` parameter of every subscribing node (:func:`subscription_qos`)."""
 
 
@@ -71,7 +71,9 @@ def qos_kind(value) -> str | None:
 def qos_param() -> Param:
     return Param("qos", "best_effort", "QoS of the data subscriptions: best_effort (default; matches reliable and "
                                        "best-effort publishers), reliable (reliable publishers only, lossless), sensor_data "
-                                       "(rclpy's qos_profile_sensor_data: best effort, depth 5)", qos_kind)
+                                       "(rclpy's qos_profile_sensor_data: best effort, depth 5), replay (reliable and "
+                                       "transient-local: our replay's topics, none lost to a late match; run-bag sets it)",
+                 qos_kind)
 
 
 def subscription_qos(kind: str, depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
@@ -82,10 +84,15 @@ def subscription_qos(kind: str, depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
     least as strong as the request), so it is the default. ``reliable``: :func:`data_qos`;
     it matches reliable writers only (a best-effort publisher and a reliable reader are
     incompatible: nothing is delivered). ``sensor_data``: rclpy's ``qos_profile_sensor_data``
-    as is (best effort, volatile, keep-last 5).
+    as is (best effort, volatile, keep-last 5). ``replay``: :func:`history_qos`, for topics of our own
+    replay (which offers them transient-local): lossless, and what was published before the replay's writer
+    matched this reader (discovery repaired late over a lossy link) is delivered too; a volatile publisher
+    (another stack's) does not match it.
     """
     if kind == "reliable":
         return data_qos(depth)
+    if kind == "replay":
+        return history_qos(depth)
     if kind == "best_effort":
         return QoSProfile(reliability=ReliabilityPolicy.BEST_EFFORT, durability=DurabilityPolicy.VOLATILE,
                           history=HistoryPolicy.KEEP_LAST, depth=depth)
@@ -94,21 +101,23 @@ def subscription_qos(kind: str, depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
     raise BadParameter(f"parameter qos={kind!r}: {qos_kind(kind)}")
 
 
-def prediction_qos(depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
-    """Reliable, transient-local, keep-last ``depth``: the predictor's prediction topics.
+def history_qos(depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
+    """Reliable, transient-local, keep-last ``depth``: what our nodes publish as data (the predictor's predictions,
+    the replay's measurements).
 
-    Transient-local so that a reader the predictor's writer matches late (discovery repaired over a lossy link
-    after the predictions began) still receives the last ``depth`` predictions instead of losing them. Any reader
-    matches it (a volatile reader gets only new samples); :func:`prediction_subscription_qos` asks for the history."""
+    Transient-local so that a reader the writer matches late (discovery repaired over a lossy link after the data
+    began) still receives the last ``depth`` samples instead of losing them (``test/ros/test_two_hosts.py`` lost the
+    first 0.3-1 s of a stream that way). Any reader matches it (a volatile reader gets only new samples); a reader
+    asks for the history with ``qos:=replay`` (measurements) or ``reliable`` / ``replay`` (predictions,
+    :func:`prediction_subscription_qos`)."""
     return QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                       history=HistoryPolicy.KEEP_LAST, depth=depth)
 
 
 def prediction_subscription_qos(kind: str, depth: int = DEFAULT_QOS_DEPTH) -> QoSProfile:
-    """The evaluator's subscriptions to predictions: :func:`subscription_qos`, transient-local when ``reliable``
-    (lossless, including what was published before the predictor's writer matched this reader)."""
-    qos = subscription_qos(kind, depth)
-    return prediction_qos(depth) if kind == "reliable" else qos
+    """The evaluator's subscriptions to predictions (always ours, offered with :func:`history_qos`):
+    :func:`subscription_qos`, with the history when ``reliable`` or ``replay``."""
+    return history_qos(depth) if kind in ("reliable", "replay") else subscription_qos(kind, depth)
 
 
 def latched_qos() -> QoSProfile:

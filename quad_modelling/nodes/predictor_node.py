@@ -79,7 +79,7 @@ from quad_modelling.nodes.common import (
     latched_qos,
     limit_math_threads,
     make_executor,
-    prediction_qos,
+    history_qos,
     run_node,
     say,
     set_realtime_priority,
@@ -153,7 +153,7 @@ class PredictorNode(Node):
         self.child_frame = f"{self.name_}/base_link"
         self.world_frame = p["world_frame"]
         self.out = messages.prediction_publisher_messages(self.child_frame, self.world_frame)
-        out_qos, qos = prediction_qos(p["qos_depth"]), subscription_qos(p["qos"], p["qos_depth"])
+        out_qos, qos = history_qos(p["qos_depth"]), subscription_qos(p["qos"], p["qos_depth"])
         if self.horizon_s > 0:
             self.horizon_pub = self.create_publisher(Odometry, f"{self.name_}/horizon/odom", out_qos)
         else:

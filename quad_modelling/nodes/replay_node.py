@@ -52,6 +52,7 @@ from quad_modelling.nodes.common import (
     FaultLog,
     Param,
     data_qos,
+    history_qos,
     declare_parameters,
     executor_param,
     latched_qos,
@@ -128,7 +129,8 @@ class ReplayNode(Node):
         self.faults = FaultLog(self.get_logger())
         qos = data_qos(p["qos_depth"])
         types = {key: messages.rclpy_message_class(msgtype) for key, msgtype in topics.MEASUREMENT_TOPICS.items()}
-        self.publishers_ = {key: self.create_publisher(types[key], key, qos) for key in topics.MEASUREMENT_TOPICS if key in present}
+        self.publishers_ = {key: self.create_publisher(types[key], key, history_qos(p["qos_depth"]))  # qos:=replay readers
+                            for key in topics.MEASUREMENT_TOPICS if key in present}
         self.motor_pub = self.publishers_["motor_input"]
         self.clock_pub = self.create_publisher(Clock, "/clock", qos) if self.publish_clock else None
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())

@@ -11,7 +11,7 @@ from quad_modelling.nodes.common import (
     Param,
     VehicleSource,
     integers_as_floats,
-    prediction_qos,
+    history_qos,
     prediction_subscription_qos,
     subscription_qos,
     unknown_parameters,
@@ -51,7 +51,7 @@ def test_subscription_qos_kinds():
     assert (reliable.reliability, reliable.depth) == (ReliabilityPolicy.RELIABLE, 50)
     sensor = subscription_qos("sensor_data", 1000)
     assert (sensor.reliability, sensor.depth) == (ReliabilityPolicy.BEST_EFFORT, 5)  # rclpy's qos_profile_sensor_data
-    with pytest.raises(BadParameter, match="qos='fast': must be one of best_effort, reliable, sensor_data"):
+    with pytest.raises(BadParameter, match="qos='fast': must be one of best_effort, reliable, sensor_data, replay"):
         subscription_qos("fast")
     for params in (predictor_parameters("naive"), EVALUATOR_PARAMETERS):  # every subscribing node has the parameter
         qos = next(p for p in params if p.name == "qos")
@@ -89,9 +89,13 @@ def test_each_claim_gets_a_domain_no_other_holder_has(tmp_path, monkeypatch):
     assert domains.claim_domain(tmp_path) == 41
 
 
-def test_predictions_keep_their_history_for_a_late_reliable_reader():
-    offered = prediction_qos(400)
+def test_our_data_keeps_its_history_for_a_late_reader_that_asks():
+    offered = history_qos(400)
     assert (offered.reliability, offered.durability, offered.depth) == (ReliabilityPolicy.RELIABLE, DurabilityPolicy.TRANSIENT_LOCAL, 400)
     assert prediction_subscription_qos("reliable", 400) == offered  # asks for the history the predictor offers
+    assert prediction_subscription_qos("replay", 400) == offered
     for kind in ("best_effort", "sensor_data"):  # a best-effort reader stays volatile, as for measurements
         assert prediction_subscription_qos(kind) == subscription_qos(kind)
+    # qos:=replay asks our replay's measurements for their history too; reliable stays volatile (matches any stack)
+    assert subscription_qos("replay", 400) == offered
+    assert subscription_qos("reliable", 400).durability == DurabilityPolicy.VOLATILE
