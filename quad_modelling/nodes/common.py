@@ -26,6 +26,7 @@ from __future__ import annotations
 import difflib
 import gc
 import os
+import signal
 import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -467,7 +468,13 @@ def run_node(factory, args=None) -> int:
     except QuadModellingError as err:
         print(f"error: {err}", file=sys.stderr, flush=True)
         return EXIT_BAD_PARAMETER
-    rclpy.init(args=args)
+    from rclpy.signals import SignalHandlerOptions
+
+    # rclpy's own handlers shut the context down from their signal thread while this thread may be inside a wait
+    # on it: a rare RCLError ("context is not valid") or a segfault at Ctrl-C. The signals stay Python's here:
+    # Ctrl-C and SIGTERM raise KeyboardInterrupt in this thread when the spin's wait returns (<= SPIN_TIMEOUT_S).
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGINT, signal.SIGTERM)}
     node = None
     code = 0
     try:
@@ -478,7 +485,7 @@ def run_node(factory, args=None) -> int:
         try:
             node.run()
         except (KeyboardInterrupt, ExternalShutdownException):
-            pass  # Ctrl-C, SIGTERM (rclpy's handler shuts the context down) or refuse(): the end of a node
+            pass  # Ctrl-C, SIGTERM (both KeyboardInterrupt: _interrupt) or refuse(): the end of a node
         if getattr(node, "fatal", None) is not None:  # a callback refused to go on (refuse())
             raise node.fatal
     except (BadParameter, QuadModellingError) as err:
@@ -491,4 +498,11 @@ def run_node(factory, args=None) -> int:
             node.finish()
             node.destroy_node()
         rclpy.try_shutdown()
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     return code
+
+
+def _interrupt(signum, frame):
+    """SIGINT and SIGTERM handler of a node process: KeyboardInterrupt, which ends it cleanly (summary, exit code 0)."""
+    raise KeyboardInterrupt(signal.Signals(signum).name)

@@ -5,8 +5,9 @@ Importing this module does not import rclpy (the CLI reads :data:`EXECUTORS`).
 
 from __future__ import annotations
 
-SPIN_TIMEOUT_S = 0.5
-"""Longest single wait of a node's spin loop [s]; Ctrl-C interrupts it at once."""
+SPIN_TIMEOUT_S = 0.2
+"""Longest single wait of a node's spin loop [s]: a node ends at most this long after Ctrl-C or SIGTERM (the
+signal's handler runs in Python when the wait returns; ``run_node``)."""
 
 EXECUTORS = ("events", "single")
 """rclpy executors a node can spin on (parameter ``executor``):
