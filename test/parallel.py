@@ -50,6 +50,7 @@ UNIT_SECONDS = {
     "test/commands/test_bad_inputs.py": 9,
     "test/core/identification/test_physics_fit.py": 8,
     "test/core/diagnosis/test_effects.py": 8,
+    "test/core/diagnosis/test_physics_base.py": 14,
     "test/io/test_topic_maps.py": 7,
     "test/core/models/test_causality.py": 7,
     "test/core/identification/test_identification.py": 7,

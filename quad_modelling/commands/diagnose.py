@@ -17,7 +17,8 @@ from quad_modelling.core.diagnosis.diagnose import (
     narx_floor,
 )
 from quad_modelling.core.diagnosis.injection import injection_checks, parse_injection
-from quad_modelling.core.diagnosis.physics_base import CANDIDATES, IN_BASE
+from quad_modelling.core.diagnosis.physics_base import CANDIDATES, IN_BASE, SWITCHED_BASE
+from quad_modelling.core.physics.effects import switched_off
 from quad_modelling.core.diagnosis.validation import BASE_FROM, DEFAULT_PAIRS
 from quad_modelling.core.effect_names import (
     CATALOGUE_EFFECTS,
@@ -40,7 +41,8 @@ HELP = "diagnose the sim-to-real gap: where the model diverges, which effect cau
 DESCRIPTION = f"""\
 Find which unmodelled effect explains the gap between the model and the flights. Default (physics
 base): the physics model users predict with is identified on the --train flights with the candidate
-effects off; the candidates ({", ".join(CANDIDATES)}) are terms of that model, chosen jointly
+effects off; the candidates ({", ".join(CANDIDATES)}; motor_lag and input_delay only where the
+vehicle file switches them off, rotor_drag unless it switches it on) are terms of that model, chosen jointly
 (forward: each refitted with the chosen ones, the best joins when it shrinks the held-out
 multi-step error J by >= 2 % with a positive bootstrap bound and its main component resolved;
 backward: one whose removal costs < 2 % leaves). J is the mean over velocity and angular velocity of
@@ -213,6 +215,10 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
     from quad_modelling.core.diagnosis.physics_base import diagnose_physics, identified_document
 
     candidates = _physics_candidates(args.effects)
+    if args.effects.strip() not in ("all", "default"):
+        for name in candidates:
+            if name in SWITCHED_BASE and not switched_off(vehicle.effects, name):
+                raise ConfigError(f"{vehicle.path}: --effects {name}: {SWITCHED_BASE[name]}")
     if injection is not None:
         parse_injection(args.inject, len(vehicle.motors))  # the motor numbers against this vehicle
         injected_train = [injection.apply(f) for f in train]

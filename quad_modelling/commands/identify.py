@@ -12,8 +12,7 @@ from quad_modelling.commands.evaluate import (
     input_files,
     load_evaluation_flights,
 )
-from quad_modelling.core.identification.physics_terms import TermDesign
-from quad_modelling.core.physics.effects import parse_term_names
+from quad_modelling.core.identification.physics_terms import identify_term_names
 from quad_modelling.core.identification.identify import (
     identified_vehicle_document,
     identify,
@@ -51,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_span_arguments(parser)
     parser.add_argument("--effects", metavar="LIST", default="",
                         help="optional terms of the physics model to fit with its constants and switch on in the output: "
-                             "a comma list of ground_effect, battery, gyroscopic (docs/models.md)")
+                             "a comma list of ground_effect, battery, gyroscopic, motor_imbalance, and rotor_drag, "
+                             "motor_lag, input_delay where the vehicle file switches them off (docs/models.md)")
     parser.add_argument("-o", "--output", required=True, metavar="VEHICLE.yaml", help="vehicle YAML to write")
     parser.add_argument("--force", action="store_true", help="overwrite an existing output")
 
@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=input_files(args))
     config = config_from_args(args)
-    terms = TermDesign(parse_term_names(args.effects.split(","))).names  # one line for an unknown, repeated or unfittable term
+    terms = identify_term_names(args.effects.split(","))  # one line for an unknown, repeated or unfittable term
     flights, vehicle, _ = load_evaluation_flights(args)
     result = identify(flights, vehicle, config, terms)
     document = identified_vehicle_document(vehicle, result, config.train)

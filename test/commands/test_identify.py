@@ -81,3 +81,28 @@ def test_identify_effects_fits_ground_effect_on_a_simulated_flight_and_switches_
     assert 0.5 * truth_gain < fitted_gain < 2.0 * truth_gain, (fitted_gain, truth_gain)
     assert float(ground_effect_factor(2.0, *term.values())) - 1.0 < 0.3 * fitted_gain
     assert PhysicsParameters.from_vehicle(load_vehicle(out)).ground_effect == term.values()
+
+
+def test_a_rotor_drag_switched_off_in_the_vehicle_file_stays_off_until_effects_names_it(tmp_path):
+    """The vehicle file switches rotor drag off: identify holds its constants at 0 and writes the switch off (the
+    file's values kept); ``--effects rotor_drag`` fits them and switches it on. The bundled real flight has drag."""
+    from pathlib import Path
+
+    from quad_modelling.core.physics.parameters import PhysicsParameters
+    from quad_modelling.core.vehicle import vehicle_file
+
+    bag = Path(__file__).resolve().parents[2] / "bags" / "nanobench_B7_oval_medium_rep2"
+    doc = yaml.safe_load(vehicle_file("crazyflie21").read_text())
+    doc["effects"] = {"rotor_drag": {"enabled": False}}
+    start = tmp_path / "cf_no_drag.yaml"
+    start.write_text(yaml.safe_dump(doc))
+    span = ["--drop", "0:0", "--train", "10:25", "--window", "5"]
+    kept, fitted = tmp_path / "kept.yaml", tmp_path / "fitted.yaml"
+    assert main(["identify", str(bag), "--vehicle", str(start), *span, "-o", str(kept)]) == 0
+    assert main(["identify", str(bag), "--vehicle", str(start), *span, "--effects", "rotor_drag", "-o", str(fitted)]) == 0
+    off, on = yaml.safe_load(kept.read_text()), yaml.safe_load(fitted.read_text())
+    assert off["effects"]["rotor_drag"] == {"enabled": False} and on["effects"]["rotor_drag"] == {"enabled": True}
+    assert off["constants"]["rotor_drag_xy"]["value"] == doc["constants"]["rotor_drag_xy"]["value"]  # the file's, kept
+    assert "held at 0: effects.rotor_drag is switched off" in off["constants"]["rotor_drag_xy"]["source"]
+    assert PhysicsParameters.from_vehicle(load_vehicle(kept)).drag == (0.0, 0.0, 0.0)
+    assert on["constants"]["rotor_drag_xy"]["sigma"] > 0 and PhysicsParameters.from_vehicle(load_vehicle(fitted)).drag[0] > 0

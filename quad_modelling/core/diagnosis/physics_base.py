@@ -8,9 +8,11 @@ with), the rotor time constant and the command delay are identified once,
 as ``identify`` fits the model (rotor drag included), and held for every fit that follows, so that no candidate's
 presence or absence distorts them: refitted with rotor drag off, the delay went to its 150 ms bound and the roll
 inertia to its lower bound on two of three NanoBench shape folds (bench/results/diagnose_real.md, before this). The candidates are terms of that model (:data:`CANDIDATES`), each fitted *with* the base
-constants by the same least squares (``identify --effects``); motor lag and input delay are base constants (fitted,
-the delay between samples), the thrust nonlinearity is the physics itself (:math:`T = k_f \Omega^2`) and a trim drift is
-what the disturbance observer absorbs (:data:`IN_BASE`).
+constants by the same least squares (``identify --effects``). Rotor drag is a candidate unless the vehicle file
+switches it on (``effects.rotor_drag: {enabled: true}``); motor lag and input delay are in the base unless the
+vehicle file switches them off (:data:`SWITCHED_BASE`: then the base holds them at 0 and the candidate fits them);
+the thrust nonlinearity is the physics itself (:math:`T = k_f \Omega^2`) and a trim drift is what the disturbance
+observer absorbs (:data:`IN_BASE`).
 
 Score: the multi-step scorer of the models table on the held-out flights -- every start of their flying part,
 horizons 1..H, the error norms of velocity and angular velocity (:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`)
@@ -47,21 +49,29 @@ import numpy as np
 from quad_modelling.core.diagnosis.verdicts import DETERMINED_SIGMAS
 from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.identification.physics_fit import OBSERVERS, PhysicsFit, identify_physics
+from quad_modelling.core.identification.physics_fit import OBSERVERS, identify_physics
+from quad_modelling.core.identification.physics_result import PhysicsFit
 from quad_modelling.core.identification.constants_report import fitted_vehicle
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
+from quad_modelling.core.physics.effects import switched_off
 from quad_modelling.core.preprocess import resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError
 
-CANDIDATES = ("rotor_drag", "ground_effect", "battery", "gyroscopic", "motor_imbalance")
+CANDIDATES = ("rotor_drag", "motor_lag", "input_delay", "ground_effect", "battery", "gyroscopic", "motor_imbalance")
 """The physics model's terms the diagnosis assesses (module docstring), in the order ties are broken."""
 
+SWITCHED_BASE = {
+    "motor_lag": "in the base physics: the rotor time constant is fitted with every model (to assess it, switch it "
+                 "off in the vehicle file: effects.motor_lag: {enabled: false})",
+    "input_delay": "in the base physics: the command delay is fitted with every model, between samples (to assess it, "
+                   "switch it off in the vehicle file: effects.input_delay: {enabled: false})",
+}
+"""Candidates in the base unless the vehicle file switches them off (module docstring), and why."""
+
 IN_BASE = {
-    "motor_lag": "in the base physics: the rotor time constant is fitted with every model",
-    "input_delay": "in the base physics: the command delay is fitted with every model (between samples)",
     "thrust_nonlinearity": "in the base physics: T = k_f Omega^2 of a speed linear in the command",
     "trim_drift": "absorbed by the disturbance observer (a slowly varying trim over its history)",
 }
@@ -86,6 +96,8 @@ COMPONENTS = {
     "ground_effect": (("coefficient", "ground_effect.coefficient", 0.0),),
     "battery": (("kappa", "battery.kappa", 0.0),),
     "gyroscopic": (("body scale", "gyroscopic.body_scale", 1.0), ("rotor scale", "gyroscopic.rotor_scale", 0.0)),
+    "motor_lag": (("time constant", "rotor_time_constant", 0.0),),
+    "input_delay": (("delay", "rotor_delay", 0.0),),
     "motor_imbalance": tuple((f"motor {i} gain", f"motor_imbalance.gain_{i}", 1.0) for i in range(1, 5)),
 }
 """Per candidate: its components (label, estimate name, null value); the first is the main one (for the
@@ -151,7 +163,7 @@ class PhysicsDiagnosis:
             "held_out": {"base": rung_json(self.base), "final": rung_json(self.final)},
             "selection": self.steps, "ladder": self.ladder, "dropped_shrink": self.dropped, "effects": self.effects,
             "multistep": self.table, "folds": self.folds, "motor_order": self.motor_order,
-            "in_base": IN_BASE,
+            "in_base": {**{c: t for c, t in SWITCHED_BASE.items() if c not in self.candidates}, **IN_BASE},
             "constants": {e.name: e.as_dict() for e in self.final.fit.estimates()},
             "rule": {
                 "score": "J = mean over velocity and angular velocity of SimErr / naive SimErr (h = 1..50) on the held-out flights",
@@ -226,7 +238,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         raise ConfigError(f"--effects: {', '.join(unknown)} is not a term of the physics base; its candidates are "
                           f"{', '.join(CANDIDATES)}")
     switched = [c for c in candidates if c in vehicle.effects and vehicle.effects[c].on]
-    candidates = [c for c in candidates if c not in switched]
+    candidates = [c for c in candidates if c not in switched and (c not in SWITCHED_BASE or switched_off(vehicle.effects, c))]
     if any(log.vbat is None for log in (*train, *test)) and "battery" in candidates:
         candidates.remove("battery")
         switched.append("battery (no battery voltage in the flights)")
@@ -237,16 +249,25 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     reference = identify_physics(train, vehicle, config)  # as identify fits it: the observers and the rotor dynamics
     observer = reference.observer  # the one the model predicts with
     fit_observer = OBSERVERS[reference.diagnostics["observer_choice"]["fitted_with"]]  # the one its constants are fitted with
-    dynamics = (reference.values["rotor_time_constant"], reference.values["rotor_delay"], reference.sigma["rotor_delay"])
     cache: dict[tuple[str, ...], Rung] = {}
+
+    def dynamics(key: Sequence[str]) -> tuple[float | None, float | None, float] | None:
+        """The reference's rotor lag and delay, held; with a candidate motor_lag or input_delay in ``key`` both
+        searched (a lag and a delay trade against each other: held, the other would keep what it absorbed)."""
+        if "motor_lag" in key or "input_delay" in key:
+            return None
+        return reference.values["rotor_time_constant"], reference.values["rotor_delay"], reference.sigma["rotor_delay"]
+
+    def fit_with(key: Sequence[str], flights: Sequence[FlightLog]):
+        return identify_physics(flights, vehicle, config, observer=fit_observer, drag="rotor_drag" in (*key, *switched),
+                                terms=[e for e in key if e != "rotor_drag"], dynamics=dynamics(key))
 
     def rung(effects: Sequence[str], flights: Sequence[FlightLog] = train) -> Rung:
         key = tuple(sorted(effects))
         if flights is train and key in cache:
             return cache[key]
         say(f"fitting base + {', '.join(key) or 'nothing'}")
-        fit = identify_physics(flights, vehicle, config, observer=fit_observer, drag="rotor_drag" in key,
-                               terms=[e for e in key if e != "rotor_drag"], dynamics=dynamics)
+        fit = fit_with(key, flights)
         fit.observer = observer
         fitted = fitted_vehicle(vehicle, fit, f"diagnose: base + {', '.join(key) or 'nothing'}")
         result = Rung(key, fit, fitted, held_out_score(fitted, observer, test, config, SELECTION_STRIDE))
@@ -290,9 +311,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     folds = []
     if len(train) >= 2:
         halves = [list(train[0::2]), list(train[1::2])]
-        folds = [identify_physics(h, vehicle, config, observer=fit_observer, drag="rotor_drag" in final.effects,
-                                  terms=[e for e in final.effects if e != "rotor_drag"], dynamics=dynamics)
-                 for h in halves]
+        folds = [fit_with(final.effects, h) for h in halves]
     effects = {}
     order = {c: i for i, c in enumerate(chosen)}
     for c in candidates:
@@ -341,16 +360,20 @@ def motor_order_check(train: Sequence[FlightLog], vehicle: VehicleConfig, config
 
 def identified_document(vehicle: VehicleConfig, final: Rung, source: str) -> dict:
     """The vehicle document ``--write-vehicle`` writes: the final model's constants (value, sigma, at-bound flags) and
-    its effects switched on (the found ones; rotor drag as its constants, 0 when not found)."""
+    its effects switched on (the found ones and those the vehicle had on; rotor drag on or off as found)."""
     from quad_modelling.core.identification.constants_report import add_physics_constants
     from quad_modelling.core.vehicle import vehicle_document
 
     document = vehicle_document(vehicle, f"{vehicle.description} -- identified by quad-modelling diagnose")
     add_physics_constants(document, final.fit, "", source)
+    effects = document.setdefault("effects", {})
     for name in CANDIDATES:
-        entry = document.get("effects", {}).get(name)
-        if entry is not None and name not in final.effects:
-            entry["enabled"] = False
+        if name in vehicle.effects and vehicle.effects[name].on:
+            continue  # part of the base: stays on
+        if name == "rotor_drag":
+            effects[name] = {"enabled": name in final.effects}  # its constants are 0 when not found
+        elif name in effects and name not in final.effects:
+            effects[name]["enabled"] = False
     return document
 
 

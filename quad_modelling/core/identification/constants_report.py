@@ -120,6 +120,7 @@ def add_physics_constants(document: dict, fit, note: str, source: str) -> None:
     identification["physics"] = _plain(fit.to_dict())
     if fit.terms:
         document.setdefault("effects", {}).update(_plain(effects_section(fit.terms, source)))
+    document.setdefault("effects", {}).update({name: {"enabled": on} for name, on in fit.switches.items()})
     choice = fit.diagnostics.get("observer_choice")
     why = (f"chosen by the data: {choice['chosen']} (multi-step error "
            + ", ".join(f"{name} {e:.3g}" for name, e in choice["errors"].items()) + ")") if choice else "as fitted"
@@ -142,6 +143,7 @@ def fitted_vehicle(vehicle: VehicleConfig, fit, source: str) -> VehicleConfig:
     fitted = vehicle.with_values({k: v for k, v in fit.values.items() if np.isfinite(v)}, source)
     section = effects_document(vehicle.effects)
     section.update(effects_section(fit.terms, source))
+    section.update({name: {"enabled": on} for name, on in fit.switches.items()})
     section["disturbance_observer"] = observer_entry(fit.observer, source)
     return replace(fitted, effects=parse_effects(section, f"{vehicle.path} ({source})"))
 

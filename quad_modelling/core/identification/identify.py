@@ -38,11 +38,12 @@ import numpy as np
 import yaml
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.physics.effects import effects_document
+from quad_modelling.core.physics.effects import effects_document, held_at_zero
 from quad_modelling.core.identification.constants_report import ConstantEstimate, add_physics_constants, constant_lines
 from quad_modelling.core.identification.greybox_fit import BaseFit, constant_estimates, identify_base
 from quad_modelling.core.identification.motor_check import check_lines, check_motor_layout
-from quad_modelling.core.identification.physics_fit import PhysicsFit, identify_physics
+from quad_modelling.core.identification.physics_fit import identify_physics
+from quad_modelling.core.identification.physics_result import PhysicsFit
 from quad_modelling.core.identification.window_batch import WindowBatch, prepare_windows
 from quad_modelling.core.models.motors import discrete_motor, motor_thrusts
 from quad_modelling.core.preprocess import smooth
@@ -270,7 +271,7 @@ def identify_physics_if_configured(flights: Sequence[FlightLog], vehicle: Vehicl
     """What ``quad-modelling identify`` runs: (the physics fit, "") or (None, why not) when the vehicle file has no
     physics constants or the training span has no usable anchor (the greybox identification still runs). With
     ``terms`` asked for, either is an error (ConfigError, DataError): the user asked for the physics model."""
-    missing = vehicle.missing(PHYSICS_KEYS)
+    missing = [key for key in vehicle.missing(PHYSICS_KEYS) if key not in held_at_zero(vehicle.effects)]
     if missing:
         if terms:
             raise ConfigError(f"{vehicle.path}: --effects {','.join(terms)} fits terms of the physics model, and the vehicle "

@@ -59,7 +59,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy import optimize
@@ -67,7 +67,8 @@ from scipy import optimize
 from quad_modelling.core import frames
 from quad_modelling.core.evaluation.multistep import ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines, fitted_vehicle
+from quad_modelling.core.identification.constants_report import fitted_vehicle
+from quad_modelling.core.identification.physics_result import FITTED, PhysicsFit
 from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
@@ -84,9 +85,10 @@ from quad_modelling.core.identification.physics_terms import (
     updated_gains,
     velocity_columns,
 )
+from quad_modelling.core.physics.effects import BASE_SWITCHES, switched_off
 from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, interval_rotor_speeds, rotor_speeds
-from quad_modelling.core.physics.parameters import PHYSICS_UNITS, PhysicsParameters
+from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.preprocess import resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
@@ -120,9 +122,6 @@ of the literature value; beyond it the data, not the constant, is wrong (e.g. a 
 DRAG_MAX_FACTOR = 100.0
 """The rotor drag is bounded to [0, 100 x start]; its arm to ±10 x max(|start|, arm_length / 10)."""
 
-FITTED = ("rotor_time_constant", "rotor_delay", "rotor_thrust_constant", "rotor_torque_constant", "rotor_drag_xy",
-          "rotor_drag_z", "rotor_drag_arm", "effective_ixx", "effective_iyy")
-"""The physics constants ``identify`` fits (the speed map k_u, Ω_off and I_zz are held)."""
 
 CHANNELS = ("velocity", "roll", "pitch", "yaw")
 
@@ -130,67 +129,6 @@ def delay_grid(sample_rate: float) -> np.ndarray:
     """Delays searched [s]: whole sample periods from 0 to :data:`DELAY_MAX_S` (the command is sampled; a delay
     between two samples is not resolvable from it)."""
     return np.arange(0, int(round(DELAY_MAX_S * sample_rate)) + 1) / sample_rate
-
-
-@dataclass
-class PhysicsFit:
-    """Identified physics constants: value, 1-sigma, unit, bounds, at-bound flag per key; fit diagnostics."""
-
-    values: dict[str, float]
-    sigma: dict[str, float]
-    bounds: dict[str, tuple[float, float]]
-    at_bound: dict[str, bool]
-    start: dict[str, float]
-    diagnostics: dict = field(default_factory=dict)
-    identifiable: dict[str, bool] = field(default_factory=dict)
-    terms: dict[str, dict] = field(default_factory=dict)
-    """The fitted optional terms (:func:`~quad_modelling.core.identification.physics_terms.term_estimates`)."""
-    observer: Observer = field(default_factory=Observer)
-    """The disturbance observer the model predicts with (:func:`identify_physics` chooses it; the one the constants
-    were fitted with is ``diagnostics["observer_choice"]["fitted_with"]``)."""
-
-    def parameters(self, base: PhysicsParameters) -> PhysicsParameters:
-        """``base`` with the identified values (and the fitted terms switched on where identified)."""
-        v = self.values
-        terms = {}
-        for name, params in self.terms.items():
-            if all(q["identifiable"] for q in params.values()):
-                values = tuple(params[key]["value"] for key in params)
-                terms.update({"ground_effect": {"ground_effect": values}, "battery": {"battery": values},
-                              "gyroscopic": {"gyroscopic": values}, "motor_imbalance": {"motor_gains": values}}[name])
-        return base.with_values(**terms,
-            time_constant=v["rotor_time_constant"], delay=v["rotor_delay"], thrust_constant=v["rotor_thrust_constant"],
-            torque_constant=v["rotor_torque_constant"], drag=(v["rotor_drag_xy"], v["rotor_drag_xy"], v["rotor_drag_z"]),
-            drag_arm=v["rotor_drag_arm"], inertia=(v["effective_ixx"], v["effective_iyy"], base.inertia[2]))
-
-    def to_dict(self) -> dict:
-        return {key: {"value": self.values[key], "sigma": self.sigma[key], "unit": PHYSICS_UNITS[key],
-                      "bounds": [float(b) for b in self.bounds[key]], "at_bound": self.at_bound[key], "start": self.start[key],
-                      "identifiable": self.identifiable.get(key, True)}
-                for key in FITTED} | {"diagnostics": self.diagnostics, "terms": self.terms}
-
-    def estimates(self) -> list[ConstantEstimate]:
-        """The fitted constants as the one constant record every fit reports
-        (:class:`~quad_modelling.core.identification.constants_report.ConstantEstimate`)."""
-        return [ConstantEstimate(key, self.values[key], PHYSICS_UNITS[key], self.sigma[key], tuple(self.bounds[key]),
-                                 self.start[key], bool(self.at_bound[key]),
-                                 held="" if self.identifiable.get(key, True) else "not identifiable from these flights")
-                for key in FITTED] + [
-            ConstantEstimate(f"{name}.{key}", q["value"], q["unit"], q["sigma"], tuple(q["bounds"]), float("nan"), q["at_bound"],
-                             held="" if q["identifiable"] else "not identifiable from these flights")
-            for name, params in self.terms.items() for key, q in params.items()]
-
-    def summary(self) -> list[str]:
-        """The printed block (lines <= 100 characters)."""
-        d = self.diagnostics
-        lines = constant_lines(self.estimates(), f"physics model constants ({d.get('anchors', 0)} anchors, "
-                                                 f"{d.get('seconds', 0):.1f} s):")
-        ratios = ", ".join(f"{c} {r:.2f}" for c, r in d.get("error_ratio", {}).items())
-        choice = d.get("observer_choice")
-        observer = [] if choice is None else [
-            f"  disturbance observer: {choice['chosen']} (error "
-            + ", ".join(f"{name} {e:.3g}" for name, e in choice["errors"].items()) + ")"]
-        return [lines[0], f"  multi-step error / the observer alone's: {ratios}", *observer, *lines[1:]]
 
 
 @dataclass
@@ -355,8 +293,8 @@ def _normal_equations(p: PhysicsParameters, segments: list[_Segment], time_const
 
 
 def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
-                     observer: Observer | None = None, terms: Sequence[str] = (), drag: bool = True,
-                     dynamics: tuple[float, float, float] | None = None) -> PhysicsFit:
+                     observer: Observer | None = None, terms: Sequence[str] = (), drag: bool | None = None,
+                     dynamics: tuple[float | None, float | None, float] | None = None) -> PhysicsFit:
     """Fit the physics constants :data:`FITTED` on ``config``'s training span of ``flights`` (module docstring), with
     the optional ``terms`` (:mod:`~quad_modelling.core.identification.physics_terms`).
 
@@ -419,16 +357,28 @@ with none, the constants absorb every slow disturbance: their open-loop training
 
 
 def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
-                   observer: Observer, terms: Sequence[str], drag: bool = True,
-                   dynamics: tuple[float, float, float] | None = None) -> PhysicsFit:
+                   observer: Observer, terms: Sequence[str], drag: bool | None = None,
+                   dynamics: tuple[float | None, float | None, float] | None = None) -> PhysicsFit:
     """:func:`identify_physics` with one ``observer``; with motor_imbalance among the ``terms``, the whole fit is
     repeated :data:`~quad_modelling.core.identification.physics_terms.IMBALANCE_ITERATIONS` times from the gains of
-    the previous pass (Gauss-Newton)."""
+    the previous pass (Gauss-Newton). A switch of :data:`~quad_modelling.core.physics.effects.BASE_SWITCHES` the
+    vehicle turns off and ``terms`` does not name holds its constants at 0; ``drag`` (not None) overrides the rotor
+    drag's, ``dynamics`` (τ_m, δ, σ_δ; None: searched) holds the rotor lag and delay."""
     began = time.perf_counter()
     p = PhysicsParameters.from_vehicle(vehicle)
     segments = training_segments(flights, config, observer, min_history_s=max(o.linear_s for o in OBSERVERS.values()))
     rate = float(np.median([1.0 / np.median(np.diff(s.t)) for s in segments]))
-    design = replace(_term_design(tuple(terms), segments, vehicle), drag=drag)
+    off = [name for name in BASE_SWITCHES if switched_off(vehicle.effects, name) and name not in terms]
+    drag = "rotor_drag" not in off if drag is None else drag
+    tau_held, delay_held, delay_held_sd = dynamics if dynamics is not None else (None, None, float("nan"))
+    tau_held = 0.0 if "motor_lag" in off else tau_held
+    delay_held, delay_held_sd = (0.0, float("nan")) if "input_delay" in off else (delay_held, delay_held_sd)
+    held = {key: f"held at 0: effects.{name} is switched off in the vehicle file" for name in off
+            for key in BASE_SWITCHES[name] if name != "rotor_drag" or not drag}
+    dynamics = None if tau_held is None and delay_held is None else (tau_held, delay_held, delay_held_sd)
+    switches = {name: (drag if name == "rotor_drag" else name not in off) for name in BASE_SWITCHES
+                if name in terms or name in vehicle.effects}
+    design = replace(_term_design(tuple(t for t in terms if t not in BASE_SWITCHES), segments, vehicle), drag=drag)
     passes = IMBALANCE_ITERATIONS if "motor_imbalance" in design.names else 1
     for _ in range(passes):
         tau, delay, delay_sd, profile, design, fit, thin = _search_dynamics(p, segments, observer, design, rate, vehicle, dynamics)
@@ -466,7 +416,7 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
         values["rotor_drag_arm"], sigma["rotor_drag_arm"] = float("nan"), float("nan")
     torque, torque_sd = coef("yaw", "torque")
     values["rotor_torque_constant"], sigma["rotor_torque_constant"] = torque * p.inertia[2], torque_sd * p.inertia[2]
-    sigma["rotor_time_constant"] = profile_sigma(
+    sigma["rotor_time_constant"] = float("nan") if tau_held is not None else profile_sigma(
         lambda value: _chi2(p, segments, value, delay, observer, thin, fit, design), tau, 0.05 * tau)
     sigma["rotor_delay"] = delay_sd
 
@@ -485,6 +435,9 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
         low, high = bounds[key]
         value = values[key]
         identifiable[key] = bool(np.isfinite(value))
+        if key in held:
+            values[key], sigma[key], at_bound[key] = 0.0, float("nan"), False
+            continue
         if not identifiable[key]:
             values[key], sigma[key], at_bound[key] = start[key], float("nan"), False
             continue
@@ -511,40 +464,43 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     }
     terms_fitted = term_estimates(design, fit, (values["rotor_thrust_constant"], sigma["rotor_thrust_constant"]),
                                   vehicle.value("arm_length"), gains)
-    return PhysicsFit(values, sigma, bounds, at_bound, start, diagnostics, identifiable, terms_fitted, observer)
+    return PhysicsFit(values, sigma, bounds, at_bound, start, diagnostics, identifiable, terms_fitted, observer, held, switches)
 
 
 def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: Observer, design: TermDesign, rate: float,
-                     vehicle: VehicleConfig, held: tuple[float, float, float] | None = None) -> tuple:
+                     vehicle: VehicleConfig, held: tuple[float | None, float | None, float] | None = None) -> tuple:
     """τ_m and δ of least :math:`J` (module docstring): a coordinate search over whole-sample delays (the best of
     every other delay at the starting τ first, then neighbours while they improve, each with τ's bounded search),
     then δ between samples at the vertex of the parabola through the best and its neighbours (commands interpolated,
     :func:`~quad_modelling.core.physics.rotors.delayed_commands`), kept when better at the same τ;
-    h_off of ground effect on its grid. ``held`` (τ, δ, σ_δ): no search. Returns (τ, δ, σ_δ, profile, design,
-    channel fits, thinning)."""
+    h_off of ground effect on its grid. ``held`` (τ, δ, σ_δ): the ones not None are not searched. Returns (τ, δ,
+    σ_δ, profile, design, channel fits, thinning)."""
 
-    def objective(log_tau: float, delay: float) -> float:
-        fit = solve_channels(_normal_equations(p, segments, float(np.exp(log_tau)), delay, observer, 1, design))
+    def objective(tau: float, delay: float) -> float:
+        fit = solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, design))
         return sum(fit[c]["ssr"] / fit[c]["ssr0"] for c in CHANNELS if fit[c]["ssr0"] > 0)
 
     lo, hi = TIME_CONSTANT_RANGE_S
-    grid = delay_grid(rate)
-    start_tau = float(np.clip(p.time_constant, lo, hi))
+    tau_held, delay_held, delay_held_sd = held if held is not None else (None, None, float("nan"))
+    grid = delay_grid(rate) if delay_held is None else np.array([delay_held])
+    start_tau = float(np.clip(p.time_constant, lo, hi)) if tau_held is None else tau_held
     searched: dict[int, tuple[float, float]] = {}
 
     def tau_at(delay: float) -> tuple[float, float]:
-        search = optimize.minimize_scalar(objective, bounds=(np.log(lo), np.log(hi)), args=(delay,),
+        if tau_held is not None:
+            return objective(tau_held, delay), tau_held
+        search = optimize.minimize_scalar(lambda log_tau: objective(float(np.exp(log_tau)), delay), bounds=(np.log(lo), np.log(hi)),
                                           method="bounded", options={"xatol": TAU_LOG_TOLERANCE})
         return float(search.fun), float(np.exp(search.x))
 
     period = 1.0 / rate
     thin = max(1, int(round(max(FIT_HORIZONS_S) / ANCHOR_STRIDE_S)))
-    if held is not None:
+    if tau_held is not None and delay_held is not None:
         tau, delay, sigma = held
         design = _ground_offset(p, segments, tau, delay, observer, design, vehicle)
         return tau, delay, sigma, [], design, solve_channels(_normal_equations(p, segments, tau, delay, observer, thin, design)), thin
     coarse = np.arange(0, len(grid), 2)  # every other delay: the neighbours of the best are searched next
-    i = int(coarse[np.argmin([objective(np.log(start_tau), float(grid[k])) for k in coarse])])
+    i = int(coarse[np.argmin([objective(start_tau, float(grid[k])) for k in coarse])])
     while True:
         for j in (i - 1, i, i + 1):
             if 0 <= j < len(grid) and j not in searched:
@@ -559,11 +515,13 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
         curvature = low - 2.0 * mid + high
         if curvature > 0:
             trial = float(grid[i]) + float(np.clip(0.5 * (low - high) / curvature, -0.5, 0.5)) * period
-            if objective(np.log(tau), trial) < mid:  # at the best delay's τ: τ barely moves within half a sample
+            if objective(tau, trial) < mid:  # at the best delay's τ: τ barely moves within half a sample
                 delay = trial
     profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
     design = _ground_offset(p, segments, tau, delay, observer, design, vehicle)
     fit = solve_channels(_normal_equations(p, segments, tau, delay, observer, thin, design))
+    if delay_held is not None:
+        return tau, delay, delay_held_sd, profile, design, fit, thin
     sigma = profile_sigma(lambda d: _chi2(p, segments, tau, d, observer, thin, fit, design), delay, 0.25 * period)
     if not np.isfinite(sigma):
         sigma = period / np.sqrt(12.0)  # the profile is flat or kinked there: the grid's quantisation

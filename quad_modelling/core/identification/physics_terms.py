@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from quad_modelling.core.physics.aero import ground_effect_factor
-from quad_modelling.core.physics.effects import TERMS
+from quad_modelling.core.physics.effects import BASE_SWITCHES, TERMS, parse_term_names
 from quad_modelling.core.physics.rigid_body import allocation_matrix, gyroscopic_torque, rotor_momentum
 from quad_modelling.errors import ConfigError
 
@@ -84,6 +84,15 @@ class TermDesign:
                    if refused == ["disturbance_observer"] else "set its parameters in the vehicle file's effects section")
             raise ConfigError(f"--effects: identify cannot fit {', '.join(refused)} yet (it fits {', '.join(FITTABLE)}); "
                               f"{why} (docs/formats.md)")
+
+
+def identify_term_names(names) -> tuple[str, ...]:
+    """The terms of an ``identify --effects`` list (ConfigError in one line otherwise): known, each named once, and
+    fittable (:data:`FITTABLE`) or a switch of base constants (:data:`~quad_modelling.core.physics.effects.BASE_SWITCHES`),
+    which ``identify`` then fits and switches on."""
+    names = parse_term_names(names)
+    TermDesign(tuple(n for n in names if n not in BASE_SWITCHES))  # refuses a term identify cannot fit
+    return names
 
 
 IMBALANCE_ITERATIONS = 3

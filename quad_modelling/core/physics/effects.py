@@ -25,10 +25,22 @@ term                  form (the module's symbols)                               
                       No entry: 0.5 s, 0.5 s, trim (``identify`` chooses it by the data)
 ====================  ==========================================================================  ==========================
 
-The rest of the catalogue (:data:`~quad_modelling.core.effect_names.CATALOGUE_EFFECTS`) is already in the base
-physics -- rotor drag (``rotor_drag_xy/_z/_arm``), motor lag (``rotor_time_constant``), input delay
-(``rotor_delay``), the thrust nonlinearity (:math:`T = k_f \Omega^2` is the physics itself) -- or is what the
-physics model's disturbance observer absorbs (trim drift: a constant trim over the observer's history).
+Three terms are switches over base constants (:data:`BASE_SWITCHES`): their parameters are those constants, in
+the vehicle file's ``constants`` with value, sigma, unit, bounds, source and status (one value per physical
+constant); an entry ``{enabled: false}`` holds them at 0 -- in every prediction and in ``identify``'s fit -- and
+no entry, or ``enabled: true``, uses them as identified:
+
+====================  ==========================================================================  ==========================
+``rotor_drag``        :math:`F_d = -\sum_i D\,\Omega_i v_B` and its moment about the CG           ``rotor_drag_xy``, ``_z``,
+                      (:mod:`.rigid_body`)                                                        ``rotor_drag_arm``
+``motor_lag``         first-order rotor lag :math:`\dot\Omega = (\Omega_{ss} - \Omega)/\tau_m`;    ``rotor_time_constant``
+                      off: :math:`\tau_m = 0`, each rotor at its steady speed (:mod:`.rotors`)
+``input_delay``       :math:`u(t) \to u(t - \delta)`; off: :math:`\delta = 0` (:mod:`.rotors`)        ``rotor_delay``
+====================  ==========================================================================  ==========================
+
+The rest of the catalogue (:data:`~quad_modelling.core.effect_names.CATALOGUE_EFFECTS`) is the physics itself --
+the thrust nonlinearity (:math:`T = k_f \Omega^2` of a speed affine in the command) -- or what the physics model's
+disturbance observer absorbs (trim drift: a constant trim over the observer's history; ``disturbance_observer``).
 
 A vehicle file's ``effects`` section (validated by :func:`parse_effects`; every error one line naming the file,
 the term and the key)::
@@ -66,12 +78,23 @@ TERMS: dict[str, tuple[TermParameter, ...]] = {
     "motor_imbalance": tuple(TermParameter(f"gain_{i}", "1", f"motor {i}'s gain on its logged command") for i in range(1, 5)),
     "gyroscopic": (TermParameter("body_scale", "1", "k_b: scale of the body's gyroscopic torque -ω × Iω"),
                    TermParameter("rotor_scale", "1", "k_p: scale of the rotors' gyroscopic torque -ω × h_r")),
+    "rotor_drag": (),
+    "motor_lag": (),
+    "input_delay": (),
     "disturbance_observer": (TermParameter("linear_history", "s", "history of the linear disturbance estimate"),
                              TermParameter("angular_history", "s", "history of the angular disturbance estimate"),
                              TermParameter("angular_trim", "1", "1: remove the model's mean angular acceleration "
                                                                 "(a moment the model lacks); 0: hold measured - modelled")),
 }
-"""The physics model's optional terms and their parameters (module docstring), in the order they are applied."""
+"""The physics model's optional terms and their parameters (module docstring), in the order they are applied; the
+switches of :data:`BASE_SWITCHES` have none of their own."""
+
+BASE_SWITCHES: dict[str, tuple[str, ...]] = {
+    "rotor_drag": ("rotor_drag_xy", "rotor_drag_z", "rotor_drag_arm"),
+    "motor_lag": ("rotor_time_constant",),
+    "input_delay": ("rotor_delay",),
+}
+"""Terms that switch base constants (module docstring): the vehicle-file constants each holds at 0 when off."""
 
 
 @dataclass(frozen=True)
@@ -105,7 +128,7 @@ def parse_term_names(names, where: str = "--effects") -> tuple[str, ...]:
     unknown = [n for n in names if n not in TERMS]
     if unknown:
         raise ConfigError(f"{where}: unknown physics-model term {', '.join(map(repr, unknown))}; known: {', '.join(TERMS)} "
-                          f"(rotor drag, motor lag and input delay are base constants; docs/models.md)")
+                          f"(docs/models.md)")
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise ConfigError(f"{where}: {', '.join(twice)} named more than once")
@@ -129,7 +152,9 @@ def parse_effects(doc, where: str) -> dict[str, EffectTerm]:
         known = {p.name: p for p in TERMS[name]}
         extra = sorted(set(entry) - set(known) - {"enabled"})
         if extra:
-            raise ConfigError(f"{where}: effects.{name}.{extra[0]}: unknown parameter; {name} has {', '.join(known)}")
+            has = (f"{name} has {', '.join(known)}" if known else
+                   f"{name} is a switch: its values are the constants {', '.join(BASE_SWITCHES[name])}")
+            raise ConfigError(f"{where}: effects.{name}.{extra[0]}: unknown parameter; {has}")
         parameters = {}
         for key, spec in known.items():
             context = f"{where}: effects.{name}.{key}"
@@ -180,6 +205,18 @@ def effects_document(terms: dict[str, EffectTerm]) -> dict:
                           "status": v.status}
         section[name] = entry
     return section
+
+
+def switched_off(terms: dict[str, EffectTerm], name: str) -> bool:
+    """Whether the vehicle file switches term ``name`` off explicitly (``enabled: false``); for the switches of
+    :data:`BASE_SWITCHES`, whose default (no entry) is on."""
+    term = terms.get(name)
+    return term is not None and not term.on
+
+
+def held_at_zero(terms: dict[str, EffectTerm]) -> tuple[str, ...]:
+    """The base constants the vehicle's switched-off :data:`BASE_SWITCHES` hold at 0."""
+    return tuple(key for name, keys in BASE_SWITCHES.items() if switched_off(terms, name) for key in keys)
 
 
 def switched_on(terms: dict[str, EffectTerm], name: str) -> tuple[float, ...] | None:

@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from quad_modelling.core.physics import rotors
-from quad_modelling.core.physics.effects import switched_on
+from quad_modelling.core.physics.effects import held_at_zero, switched_on
 from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
 from quad_modelling.errors import ConfigError
 
@@ -63,6 +63,7 @@ class PhysicsParameters:
 
     The optional terms (:mod:`quad_modelling.core.physics.effects`), None when off: ground_effect (c_ge [m²],
     h_off [m]); battery (κ [1/V], V_ref [V]); motor_gains (g_1..g_4) [1]; gyroscopic (k_b, k_p) [1] (default: the body's term alone, (1, 0)).
+    The switches ``rotor_drag``, ``motor_lag``, ``input_delay`` switched off hold drag and drag_arm, τ_m, δ at 0.
     """
 
     mass: float
@@ -88,11 +89,15 @@ class PhysicsParameters:
     @classmethod
     def from_vehicle(cls, vehicle: VehicleConfig) -> PhysicsParameters:
         """The physics constants of ``vehicle``; ConfigError naming the file and every missing key."""
-        missing = vehicle.missing(PHYSICS_KEYS)
+        held = held_at_zero(vehicle.effects)  # base constants of a switched-off rotor_drag, motor_lag, input_delay
+        missing = [key for key in vehicle.missing(PHYSICS_KEYS) if key not in held]
         if missing:
             raise ConfigError(f"{vehicle.path}: the physics model needs the vehicle constants {', '.join(missing)} "
                               f"(docs/formats.md, physics constants; `quad-modelling identify` writes them)")
-        v = vehicle.value
+
+        def v(key: str) -> float:
+            return 0.0 if key in held else vehicle.value(key)
+
         return cls(
             mass=vehicle.mass,
             inertia=(vehicle.effective_value("effective_ixx"), vehicle.effective_value("effective_iyy"), v("izz")),

@@ -8,12 +8,14 @@ import dataclasses
 import numpy as np
 import pytest
 
+from quad_modelling.core.identification.constants_report import add_physics_constants
 from quad_modelling.core.identification.identify import identified_vehicle_document, identify
 from quad_modelling.core.identification.physics_fit import FITTED, identify_physics
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
+from quad_modelling.core.physics.effects import parse_effects
 from quad_modelling.core.sim.params import sim_params_for
 from quad_modelling.core.sim.simulate import simulate
-from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_document
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.io.loader import load_flight
 from test.conftest import REPO
@@ -66,6 +68,29 @@ def test_identification_recovers_the_simulator_constants(sim_flight):
     assert fit.values["rotor_drag_arm"] == pytest.approx(params.geometry.rotor_plane_z, rel=0.25)
     assert not any(fit.at_bound.values())
     assert all(np.isfinite(fit.sigma[key]) and fit.sigma[key] > 0 for key in FITTED)
+
+
+def test_a_switched_off_lag_is_held_at_zero_and_identify_effects_motor_lag_fits_it_again(sim_flight):
+    """The vehicle file switches motor lag and input delay off: the fit holds τ_m = δ = 0 (no sigma, not at a bound,
+    the reason given), and the identified vehicle keeps them off; ``--effects motor_lag`` fits τ_m again (the
+    simulator's + Δt/2, as above) and switches it on, δ still held."""
+    log, params = sim_flight
+    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": 0.0}, "simulator speed map")
+    start = dataclasses.replace(start, effects=parse_effects({"motor_lag": {"enabled": False}, "input_delay": {"enabled": False}}, "t.yaml"))
+    config, observer = EvaluationConfig.preset("short", train="0%:100%"), Observer(0.5, 0.5, angular_trim=False)
+    held = identify_physics([log], start, config, observer)
+    for key in ("rotor_time_constant", "rotor_delay"):
+        assert held.values[key] == 0.0 and np.isnan(held.sigma[key]) and not held.at_bound[key]
+        assert "effects." in held.held[key] and "switched off" in held.held[key]
+    assert held.switches == {"motor_lag": False, "input_delay": False}
+    fitted = identify_physics([log], start, config, observer, terms=["motor_lag"])
+    assert fitted.values["rotor_time_constant"] == pytest.approx(params.motor_time_constant + 0.5 / params.log_rate, rel=0.03)
+    assert fitted.values["rotor_delay"] == 0.0 and fitted.switches == {"motor_lag": True, "input_delay": False}
+    assert sum(fitted.diagnostics["error_ratio"].values()) < sum(held.diagnostics["error_ratio"].values())  # the lag helps
+    document = vehicle_document(start, "lag and delay off")
+    add_physics_constants(document, held, "", "test")
+    assert document["effects"]["motor_lag"] == {"enabled": False} and "kept: held at 0" in document["constants"]["rotor_delay"]["source"]
+    assert document["constants"]["rotor_time_constant"]["value"] == start.value("rotor_time_constant")  # the file's, not 0
 
 
 def test_identification_on_the_bundled_bag_has_finite_sigmas_and_flags_values_at_their_bounds(bag):

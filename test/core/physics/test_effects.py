@@ -12,7 +12,7 @@ import yaml
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.physics import PhysicsPredictor
 from quad_modelling.core.physics import rigid_body, rotors
-from quad_modelling.core.physics.effects import effects_document, parse_effects, parse_term_names
+from quad_modelling.core.physics.effects import BASE_SWITCHES, effects_document, parse_effects, parse_term_names
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.errors import ConfigError
@@ -61,6 +61,36 @@ def test_each_fault_is_one_line_naming_the_file_the_term_and_the_key(change, mes
     with pytest.raises(ConfigError) as err:
         _vehicle(effects)
     assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_switched_off_drag_lag_and_delay_hold_their_constants_at_zero_and_need_none():
+    """rotor_drag, motor_lag, input_delay switch base constants: off, the model has no drag, each rotor at its
+    steady speed at once, no delay; no entry or ``enabled: true``, the file's constants; off, the file need not
+    have the drag constants."""
+    as_filed = PhysicsParameters.from_vehicle(_vehicle({}))
+    assert as_filed.time_constant > 0 and as_filed.delay > 0 and as_filed.drag[0] > 0
+    on = PhysicsParameters.from_vehicle(_vehicle({name: {"enabled": True} for name in BASE_SWITCHES}))
+    assert (on.time_constant, on.delay, on.drag, on.drag_arm) == (as_filed.time_constant, as_filed.delay, as_filed.drag, as_filed.drag_arm)
+    vehicle = _vehicle({name: {"enabled": False} for name in BASE_SWITCHES})
+    off = PhysicsParameters.from_vehicle(vehicle)
+    assert (off.time_constant, off.delay, off.drag, off.drag_arm) == (0.0, 0.0, (0.0, 0.0, 0.0), 0.0)
+    assert off.thrust_constant == as_filed.thrust_constant and off.inertia == as_filed.inertia
+    u = np.full(4, 0.6 * CF.input_max)
+    start = np.zeros(4)
+    assert np.allclose(rotors.interval_rotor_speed(off, start, u, 0.01), rotors.steady_rotor_speed(off, u))  # no lag
+    assert not np.allclose(rotors.interval_rotor_speed(as_filed, start, u, 0.01), rotors.steady_rotor_speed(as_filed, u))
+    again = parse_effects(yaml.safe_load(yaml.safe_dump(effects_document(vehicle.effects))), "again.yaml")
+    assert {name: term.on for name, term in again.items()} == {name: False for name in BASE_SWITCHES}
+    doc = yaml.safe_load(vehicle_file("crazyflie21").read_text())
+    for key in BASE_SWITCHES["rotor_drag"]:
+        doc["constants"].pop(key)
+    with pytest.raises(ConfigError, match="needs the vehicle constants rotor_drag_xy, rotor_drag_z, rotor_drag_arm"):
+        PhysicsParameters.from_vehicle(VehicleConfig.from_dict(doc, "no_drag.yaml"))
+    doc["effects"] = {"rotor_drag": {"enabled": False}}
+    assert PhysicsParameters.from_vehicle(VehicleConfig.from_dict(doc, "no_drag.yaml")).drag == (0.0, 0.0, 0.0)
+    with pytest.raises(ConfigError, match="effects.motor_lag.value: unknown parameter; motor_lag is a switch: its values "
+                                          "are the constants rotor_time_constant"):
+        _vehicle({"motor_lag": {"enabled": True, "value": 0.03}})
 
 
 def test_an_effects_list_names_known_terms_once():
