@@ -460,6 +460,9 @@ def prediction_fields(prediction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     acceleration FLU. A subscriber compares ``<model>/accel`` with ``imu`` directly.
     """
     y = np.atleast_2d(np.asarray(prediction, dtype=float))
+    if len(y) == 1:  # the live predictor's case: one row per input, in floats (frames.prediction_row_to_ros)
+        odom, accel = frames.prediction_row_to_ros(*(y[0, i:i + 3].tolist() for i in range(0, 18, 3)), GRAVITY)
+        return np.array([odom]), np.array([accel])
     pos, vel, acc, euler, rates, angular_acc = (y[:, i:i + 3] for i in range(0, 18, 3))
     position_enu, quat, twist_flu = frames.to_odometry(pos, vel, euler)
     odom = np.hstack([position_enu, quat, twist_flu, frames.frd_to_flu(rates)])

@@ -221,7 +221,7 @@ class PredictorNode(Node):
             raise BadParameter(f"{self.get_name()}: parameter model={self.spec!r} vehicle={self.vehicle.name!r}: {err}") from err
         period = self.sample_period_s or PRIME_SAMPLE_PERIOD_S
         prime(self.model, self.vehicle, period, int(round(self.warm_s / period)))
-        prepare_compiled_step(self.model, self.vehicle)  # the physics models' compiled step: built now, not live
+        prepare_compiled_step(self.model, self.vehicle, self.horizon_s > 0)  # the compiled step: built now, not live
         if self.horizon_s > 0:
             self.horizon = RecedingHorizon(lambda warm: multistep_form(self.model, warm), self._rows_log, self.horizon_s,
                                            self.warm_s, self.horizon_history_s, self.sample_period_s, MEASUREMENT_WAIT_S,

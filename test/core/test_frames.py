@@ -75,6 +75,22 @@ def test_closed_form_rotations_equal_scipy():
     np.testing.assert_allclose(frames.body_to_nav(vectors[0], euler[0]), frames.euler_ned_to_rotation(euler[0]).apply(vectors[0]), atol=1e-12)
 
 
+def test_one_prediction_row_in_floats_equals_the_array_forms():
+    """prediction_row_to_ros (the live predictor's per-input conversion, plain floats) against to_odometry,
+    specific_force and frd_to_flu on the same rows, attitudes over the whole range."""
+    rng = np.random.default_rng(5)
+    pos, vel, acc, rates, angular_acc = (rng.standard_normal((100, 3)) for _ in range(5))
+    euler = np.column_stack([rng.uniform(-3.1, 3.1, 100), rng.uniform(-1.5, 1.5, 100), rng.uniform(-6.0, 6.0, 100)])
+    position, quat, twist = frames.to_odometry(pos, vel, euler)
+    expected_odom = np.hstack([position, quat, twist, frames.frd_to_flu(rates)])
+    expected_accel = np.hstack([frames.frd_to_flu(frames.specific_force(acc, euler, 9.81)), frames.frd_to_flu(angular_acc)])
+    for i in range(100):
+        odom, accel = frames.prediction_row_to_ros(*(a[i].tolist() for a in (pos, vel, acc, euler, rates, angular_acc)), 9.81)
+        assert all(isinstance(v, float) for v in (*odom, *accel))
+        np.testing.assert_allclose(odom, expected_odom[i], atol=1e-13)
+        np.testing.assert_allclose(accel, expected_accel[i], atol=1e-13)
+
+
 def test_the_closed_form_quaternion_conversion_equals_scipys():
     """quat_enu_to_euler_ned (closed form, the live forecast's per-row conversion) against scipy's Rotation: random
     attitudes away from θ = ±π/2, unnormalised quaternions included."""

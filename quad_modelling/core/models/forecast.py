@@ -111,15 +111,21 @@ def carried_forecast(model, vehicle: VehicleConfig, period_s: float, steps: int)
     return None
 
 
-def prepare_compiled_step(model, vehicle: VehicleConfig) -> None:
+def prepare_compiled_step(model, vehicle: VehicleConfig, forecast: bool) -> None:
     """Build (and compile) the model's step now, not at its first window or anchor: the predictor node calls it at
-    start-up with its model, as it primes the model (the compilation takes about half a second once)."""
-    model_step(model, vehicle)
+    start-up with its model, as it primes the model (the compilation takes about half a second once): the carried
+    forecast's (``forecast``, :func:`model_step`) or the window stream's (:func:`window_step`)."""
+    if forecast:
+        model_step(model, vehicle)
+    elif isinstance(model, (PhysicsPredictor, HybridPredictor)):
+        window_step(model, vehicle)
 
 
 _STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-"""model -> its :class:`Step` (:func:`model_step`), built once per model object (its carried forecasts and live
-window streams share it)."""
+"""model -> its :class:`Step` (:func:`model_step`), built once per model object (its carried forecasts share it)."""
+
+_WINDOW_STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+"""model -> its :func:`window_step`, built once per model object."""
 
 
 def model_step(model, vehicle: VehicleConfig) -> Step | None:
@@ -127,17 +133,44 @@ def model_step(model, vehicle: VehicleConfig) -> Step | None:
     NARX: :func:`narx_step`), compiled (:func:`compile_step`); None for a model whose forecast needs none."""
     if model not in _STEPS:
         if isinstance(model, (PhysicsPredictor, HybridPredictor)):
-            from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions
+            from quad_modelling.core.export.casadi_model import casadi_functions
 
-            hybrid = model.model if isinstance(model, HybridPredictor) else None
-            params, observer = (hybrid.params, hybrid.observer) if hybrid else (model.params, model.observer)
-            exported = ExportedModel(vehicle, params, observer, "hybrid" if hybrid else "physics", hybrid)
-            _STEPS[model] = compile_step(casadi_functions(exported)["F_disturbed"])
+            _STEPS[model] = compile_step(casadi_functions(_exported(model, vehicle))["F_disturbed"])
         elif isinstance(model, NarxPredictor):
             _STEPS[model] = compile_step(narx_step(model.model))
         else:
             return None
     return _STEPS[model]
+
+
+def window_step(model, vehicle: VehicleConfig) -> Step:
+    """A physics or hybrid model's step and outputs in one compiled Function (:func:`compile_step`), what its live
+    window stream calls per sample (:class:`CompiledWindowStream`):
+    ``(x, u, dt, d, u_now) -> (x_next = F_disturbed(x, u, dt, d), xdot = f_disturbed(x_next, u_now, d))``, the
+    export's Functions (:mod:`~quad_modelling.core.export.casadi_model`): the state after the step and its
+    derivative under the command the rotors answer at the new sample (the accelerations the model outputs there)."""
+    if model not in _WINDOW_STEPS:
+        import casadi
+
+        from quad_modelling.core.export.casadi_model import casadi_functions
+
+        functions = casadi_functions(_exported(model, vehicle))
+        step, derivative = functions["F_disturbed"], functions["f_disturbed"]
+        x, u, dt, d = (casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(4))
+        u_now = casadi.SX.sym("u_now", step.sparsity_in(1))
+        after = step(x, u, dt, d)
+        _WINDOW_STEPS[model] = compile_step(casadi.Function("W_disturbed", [x, u, dt, d, u_now], [after, derivative(after, u_now, d)],
+                                                            ["x", "u", "dt", "d", "u_now"], ["x_next", "xdot"]))
+    return _WINDOW_STEPS[model]
+
+
+def _exported(model, vehicle: VehicleConfig):
+    """The :class:`~quad_modelling.core.export.casadi_model.ExportedModel` of a physics or hybrid predictor."""
+    from quad_modelling.core.export.casadi_model import ExportedModel
+
+    hybrid = model.model if isinstance(model, HybridPredictor) else None
+    params, observer = (hybrid.params, hybrid.observer) if hybrid else (model.params, model.observer)
+    return ExportedModel(vehicle, params, observer, "hybrid" if hybrid else "physics", hybrid)
 
 
 class UnwrappedYaw:
@@ -477,19 +510,21 @@ def compile_step(step) -> Step:
 
 class CompiledWindowStream:
     """A physics or hybrid model's live window stream (:class:`~quad_modelling.core.models.physics.PhysicsStream`,
-    :class:`~quad_modelling.core.models.hybrid.HybridStream`) whose step from sample to sample is the compiled one
-    physics step (:func:`model_step`) instead of numpy's on a batch of one (~150 us a step here, the most of a physics
-    predictor's answer to an input); everything else -- the delay's table, the outputs -- is the stream's own. The same
-    numbers (test: 1e-12 over a window)."""
+    :class:`~quad_modelling.core.models.hybrid.HybridStream`) whose step from sample to sample and outputs are the
+    compiled :func:`window_step` instead of numpy's on a batch of one (~150 us a step and ~150 us the outputs here,
+    the most of a physics predictor's answer to an input); the delay's table and the observer are the stream's own.
+    The same numbers (test: 1e-9 over a window)."""
 
     def __init__(self, stream, step: Step, hybrid: HybridModel | None):
         self.stream, self.hybrid = stream, hybrid
         self._x, self._u = np.zeros(22), np.zeros(step.function.size1_in(1))
-        self._dt, self._d, self._after = np.zeros(1), np.zeros(6), np.zeros(22)
+        self._dt, self._d, self._u_now = np.zeros(1), np.zeros(6), np.zeros(step.function.size1_in(1))
+        self._after, self._xdot = np.zeros(22), np.zeros(22)
         self._buffer, self._evaluate = step.function.buffer()
-        for i, array in enumerate((self._x, self._u, self._dt, self._d)):
+        for i, array in enumerate((self._x, self._u, self._dt, self._d, self._u_now)):
             self._buffer.set_arg(i, memoryview(array))
         self._buffer.set_res(0, memoryview(self._after))
+        self._buffer.set_res(1, memoryview(self._xdot))
 
     def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
         s, p = self.stream, self.stream.params
@@ -500,24 +535,30 @@ class CompiledWindowStream:
         state = s.state
         self._x[0:3], self._x[3:6], self._x[6:15] = state.pos_n[0], state.vel_n[0], state.rot[0].ravel()
         self._x[15:18], self._x[18:22] = state.rates[0], state.rotor[0]
+        command = np.asarray(command, dtype=float).reshape(1, 4)
         self._u[0:4] = delayed_command_at(p, s.times, s.commands, previous)[0]  # the export's input layout
+        s.times.append(float(t_s))
+        s.commands.append(command)
+        self._u_now[0:4] = delayed_command_at(p, s.times, s.commands, float(t_s))[0]  # what the rotors answer at t_s
         if self.hybrid is not None:
-            self._u[4:8] = s.commands[-1][0]  # the command logged at the previous sample
+            self._u[4:8] = s.commands[-2][0]  # the command logged at the previous sample
+            self._u_now[4:8] = command[0]
         if p.battery is not None:
-            self._u[-1] = s.voltage
+            self._u[-1] = self._u_now[-1] = s.voltage
         self._dt[0] = dt
         self._d[0:3], self._d[3:6] = s.disturbance.linear_n[0], s.disturbance.angular_b[0]
         self._evaluate()
-        x = self._after
+        x, xdot = self._after, self._xdot
         rot = x[6:15].reshape(1, 3, 3).copy()
         s.state = PhysicsState(x[None, 0:3].copy(), x[None, 3:6].copy(), rot, x[None, 15:18].copy(), x[None, 18:22].copy(),
                                continued_yaw(float(state.yaw[0]), np.concatenate([state.rot, rot]))[1:])
-        s.times.append(float(t_s))
-        s.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
         s._forget()
-        if self.hybrid is None:
-            return physics.outputs(p, s.state, s._command_at(t_s), s.disturbance)[0]
-        return self.hybrid.outputs(s.state, np.concatenate([s._command_at(t_s), s.commands[-1]], axis=1), s.disturbance)[0]
+        out = np.empty(len(VARIABLES))
+        out[0:6], out[6:9] = x[0:6], xdot[3:6]  # position, velocity; acceleration (with the disturbance)
+        out[9:12] = frames.matrix_to_euler_ned(rot)[0]
+        out[11] = s.state.yaw[0]
+        out[12:15], out[15:18] = x[15:18], xdot[15:18]  # rates; angular acceleration (with the disturbance)
+        return out
 
     def push(self, command: np.ndarray) -> np.ndarray:
         return self.push_at(command, self.stream.times[-1] + self.stream.period_s)
@@ -525,10 +566,10 @@ class CompiledWindowStream:
 
 def compiled_window_stream(model, vehicle: VehicleConfig, stream):
     """``stream`` (what ``model.start_window`` returned) stepped by the compiled step when the model is a physics or
-    hybrid model whose step compiled (:func:`model_step`); else ``stream`` itself."""
+    hybrid model whose step compiled (:func:`window_step`); else ``stream`` itself."""
     if not isinstance(model, (PhysicsPredictor, HybridPredictor)):
         return stream
-    step = model_step(model, vehicle)
+    step = window_step(model, vehicle)
     if not step.compiled:
         return stream
     return CompiledWindowStream(stream, step, model.model if isinstance(model, HybridPredictor) else None)

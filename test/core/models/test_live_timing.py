@@ -67,3 +67,24 @@ def test_bounds_come_from_the_vehicle_and_reject_a_diverged_prediction_but_not_a
     spin = predicted.copy()
     spin[200, 15] = 1e8  # 1e8 rad/s² angular acceleration (the bound: 2.6e6)
     assert bounds.violation(spin, elapsed, predicted[19]).startswith("angular acceleration")
+
+
+def test_one_row_at_a_time_the_bounds_say_what_the_batch_says():
+    """The live predictor tests one row per input (the float path): the same verdict and sentence as the batch."""
+    vehicle = load_vehicle("crazyflie21")
+    bounds = PhysicalBounds.from_vehicle(vehicle)
+    log = synthetic_log(n=300)
+    predicted = predict_window_by_stream(GreyboxPredictor(vehicle), log, 20)
+    elapsed = log.t - log.t[19]
+    rng = np.random.default_rng(4)
+    spoiled = predicted.copy()
+    rows = rng.choice(np.arange(20, 300), 40, replace=False)
+    columns = rng.integers(0, 18, 40)
+    spoiled[rows, columns] = rng.choice([1e30, -1e9, np.nan, np.inf, 2.6e6], 40)
+    verdicts = []
+    for i in range(20, 300):
+        row = bounds.violation(spoiled[i], elapsed[i], predicted[19])
+        assert row == bounds.violation(spoiled[i:i + 1], elapsed[i:i + 1], predicted[19])
+        verdicts.append(row)
+    flagged = {i for i, v in zip(range(20, 300), verdicts) if v is not None}
+    assert flagged <= set(rows.tolist()) and len(flagged) >= 25  # only spoiled rows; the attitude is not bounded
