@@ -153,12 +153,14 @@ def test_sigterm_stops_every_node_and_removes_the_staging(tmp_path, signum):
         time.sleep(2.0)  # the nodes are up and replaying (at real time, 40 s of flight)
         assert _processes_mentioning(str(staging[0]))  # the node processes, found by their params file
         proc.send_signal(getattr(signal, signum))
-        _, err = proc.communicate(timeout=60)
+        signalled = time.monotonic()
+        out, err = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == {"SIGTERM": 143, "SIGINT": 130}[signum], err
+    assert proc.returncode == {"SIGTERM": 143, "SIGINT": 130}[signum], \
+        f"exit {proc.returncode} {time.monotonic() - signalled:.1f} s after the signal; stderr: {err!r}; stdout: {out[-1500:]!r}"
     assert err.strip().splitlines()[-1] == f"quad-modelling run-bag: interrupted ({signum})"
     assert list(tmp_path.iterdir()) == []  # no output, no staging
     assert _processes_mentioning(str(staging[0])) == []  # no orphaned node
