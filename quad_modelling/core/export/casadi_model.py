@@ -31,12 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_modelling.core.models.hybrid import HybridModel, load_hybrid
+from quad_modelling.core import frames
+from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor, load_hybrid
 from quad_modelling.core.models.physics import Observer
 from quad_modelling.core.physics import rigid_body
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.physics.rotors import effective_commands
+from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY, PHYSICS_KEYS, VehicleConfig
 from quad_modelling.errors import ConfigError
 
@@ -141,6 +143,30 @@ def _dynamics(model: ExportedModel, x, u, d, dt=None):
         return _column(rigid_body.derivative(model.params, state, commands, linear, angular))
     after = rigid_body.step(model.params, state, commands, np.array([dt], dtype=object), linear, angular)
     return _column((after.pos_n, after.vel_n, after.rot, after.rates, after.rotor))
+
+
+def exported_predictor(model, vehicle: VehicleConfig) -> ExportedModel:
+    """The :class:`ExportedModel` of a physics or hybrid predictor (:mod:`~quad_modelling.core.models.forecast`'s
+    compiled steps)."""
+    hybrid = model.model if isinstance(model, HybridPredictor) else None
+    params, observer = (hybrid.params, hybrid.observer) if hybrid else (model.params, model.observer)
+    return ExportedModel(vehicle, params, observer, "hybrid" if hybrid else "physics", hybrid)
+
+
+def state_vector(pos, vel, rot, rates, rotor) -> np.ndarray:
+    """The export's state layout (22,): position N, velocity N, R row-major, rates B, rotor speeds."""
+    return np.concatenate([pos, vel, np.ravel(rot), rates, rotor])
+
+
+def output_row(x: np.ndarray, xdot: np.ndarray, yaw: float) -> np.ndarray:
+    """The VARIABLES row (18,) of export state ``x`` and its derivative ``xdot`` (accelerations, with the disturbance
+    when ``xdot`` has it), yaw the continuous one: what :func:`~quad_modelling.core.models.physics.outputs` gives."""
+    out = np.empty(len(VARIABLES))
+    out[0:6], out[6:9] = x[0:6], xdot[3:6]
+    out[9:12] = frames.matrix_to_euler_ned(x[6:15].reshape(1, 3, 3))[0]
+    out[11] = yaw
+    out[12:15], out[15:18] = x[15:18], xdot[15:18]
+    return out
 
 
 def casadi_functions(model: ExportedModel) -> dict:

@@ -64,6 +64,7 @@ from typing import Protocol
 import numpy as np
 
 from quad_modelling.core import frames
+from quad_modelling.core.export.casadi_model import casadi_functions, exported_predictor, output_row, state_vector
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, linear_horizons
@@ -71,7 +72,7 @@ from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor
 from quad_modelling.core.models.narx import OUTPUTS, NarxPredictor, expand_horizons, lagged_inputs, sigmoid
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
-from quad_modelling.core.physics.rigid_body import PhysicsState
+from quad_modelling.core.physics.rigid_body import PhysicsState, continued_yaw
 from quad_modelling.core.physics.rotors import (
     STAMP_TOLERANCE_S,
     delayed_command_at,
@@ -140,9 +141,7 @@ def model_step(model, vehicle: VehicleConfig) -> Step | None:
     NARX: :func:`narx_step`), compiled (:func:`compile_step`); None for a model whose forecast needs none."""
     if model not in _STEPS:
         if isinstance(model, (PhysicsPredictor, HybridPredictor)):
-            from quad_modelling.core.export.casadi_model import casadi_functions
-
-            _STEPS[model] = compile_step(casadi_functions(_exported(model, vehicle))["F_disturbed"])
+            _STEPS[model] = compile_step(casadi_functions(exported_predictor(model, vehicle))["F_disturbed"])
         elif isinstance(model, NarxPredictor):
             _STEPS[model] = compile_step(narx_step(model.model))
         else:
@@ -159,9 +158,7 @@ def window_step(model, vehicle: VehicleConfig) -> Step:
     if model not in _WINDOW_STEPS:
         import casadi
 
-        from quad_modelling.core.export.casadi_model import casadi_functions
-
-        functions = casadi_functions(_exported(model, vehicle))
+        functions = casadi_functions(exported_predictor(model, vehicle))
         step, derivative = functions["F_disturbed"], functions["f_disturbed"]
         x, u, dt, d = (casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(4))
         u_now = casadi.SX.sym("u_now", step.sparsity_in(1))
@@ -175,9 +172,7 @@ def model_derivative(model, vehicle: VehicleConfig) -> Step:
     """A physics or hybrid model's continuous dynamics of one state, the export's ``f_disturbed(x, u, d) -> xdot``,
     compiled (:func:`compile_step`): the accelerations its carried forecast outputs and its observer integrates."""
     if model not in _DERIVATIVES:
-        from quad_modelling.core.export.casadi_model import casadi_functions
-
-        _DERIVATIVES[model] = compile_step(casadi_functions(_exported(model, vehicle))["f_disturbed"])
+        _DERIVATIVES[model] = compile_step(casadi_functions(exported_predictor(model, vehicle))["f_disturbed"])
     return _DERIVATIVES[model]
 
 
@@ -197,31 +192,6 @@ class CompiledDerivative:
         self.x[:], self.u[:], self.d[:] = x, u, d
         self._evaluate()
         return self.xdot
-
-
-def state_vector(pos, vel, rot, rates, rotor) -> np.ndarray:
-    """The export's state layout (22,): position N, velocity N, R row-major, rates B, rotor speeds."""
-    return np.concatenate([pos, vel, np.ravel(rot), rates, rotor])
-
-
-def output_row(x: np.ndarray, xdot: np.ndarray, yaw: float) -> np.ndarray:
-    """The VARIABLES row (18,) of export state ``x`` and its derivative ``xdot`` (accelerations, with the disturbance
-    when ``xdot`` has it), yaw the continuous one: what :func:`~quad_modelling.core.models.physics.outputs` gives."""
-    out = np.empty(len(VARIABLES))
-    out[0:6], out[6:9] = x[0:6], xdot[3:6]
-    out[9:12] = frames.matrix_to_euler_ned(x[6:15].reshape(1, 3, 3))[0]
-    out[11] = yaw
-    out[12:15], out[15:18] = x[15:18], xdot[15:18]
-    return out
-
-
-def _exported(model, vehicle: VehicleConfig):
-    """The :class:`~quad_modelling.core.export.casadi_model.ExportedModel` of a physics or hybrid predictor."""
-    from quad_modelling.core.export.casadi_model import ExportedModel
-
-    hybrid = model.model if isinstance(model, HybridPredictor) else None
-    params, observer = (hybrid.params, hybrid.observer) if hybrid else (model.params, model.observer)
-    return ExportedModel(vehicle, params, observer, "hybrid" if hybrid else "physics", hybrid)
 
 
 class UnwrappedYaw:
@@ -382,17 +352,6 @@ class PhysicsForecast:
         """The export's input layout of one sample: the delayed command, the logged one (hybrid), the voltage (battery)."""
         parts = [delayed, logged] if self.hybrid is not None else [delayed]
         return np.concatenate([*parts, [voltage]] if self.params.battery is not None else parts)
-
-
-def continued_yaw(yaw0: float, rot: np.ndarray) -> np.ndarray:
-    """(K,) continuous yaw of attitudes ``rot`` (K, 3, 3) from ``yaw0`` at row 0, each row unwrapped next to the one
-    before: :func:`~quad_modelling.core.physics.rigid_body.continue_yaw` applied row by row (its formula on floats)."""
-    psi = np.arctan2(rot[:, 1, 0], rot[:, 0, 0]).tolist()
-    out = [yaw0]
-    for value in psi[1:]:
-        previous = out[-1]
-        out.append(previous + (value - previous + np.pi) % (2.0 * np.pi) - np.pi)
-    return np.array(out)
 
 
 class GreyboxForecast:

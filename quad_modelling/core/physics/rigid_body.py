@@ -167,6 +167,17 @@ def continue_yaw(previous, rot):
     return previous + arrays.remainder(psi - previous + np.pi, 2.0 * np.pi) - np.pi
 
 
+def continued_yaw(yaw0: float, rot: np.ndarray) -> np.ndarray:
+    """(K,) continuous yaw of attitudes ``rot`` (K, 3, 3) from ``yaw0`` at row 0, each row unwrapped next to the one
+    before: :func:`continue_yaw` applied row by row (its formula on floats)."""
+    psi = np.arctan2(rot[:, 1, 0], rot[:, 0, 0]).tolist()
+    out = [yaw0]
+    for value in psi[1:]:
+        previous = out[-1]
+        out.append(previous + (value - previous + np.pi) % (2.0 * np.pi) - np.pi)
+    return np.array(out)
+
+
 def _skew(phi):
     """[φ]× (B, 3, 3) of vectors φ (B, 3)."""
     zero = arrays.zeros_like(phi[:, 0])
