@@ -315,8 +315,7 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     scores = {name: training_score(f, flights, vehicle, config) for name, f in fits.items()}
     chosen = min(scores, key=scores.get)
     best = fits[chosen]
-    predicting = {name: training_score(replace(best, observer=o), flights, vehicle, config) if name != chosen else scores[chosen]
-                  for name, o in OBSERVERS.items()}
+    predicting = prediction_errors(best, flights, vehicle, config, {chosen: scores[chosen]})
     predict_with = min(predicting, key=predicting.get)
     best.observer = OBSERVERS[predict_with]
     best.diagnostics["observer_choice"] = {"chosen": predict_with, "fitted_with": chosen, "errors": scores,
@@ -341,6 +340,15 @@ def training_score(fit: PhysicsFit, flights: Sequence[FlightLog], vehicle: Vehic
     except DataError:
         return float("inf")
     return ratio_to_naive(errors, naive)
+
+
+def prediction_errors(fit: PhysicsFit, flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
+                      known: dict[str, float] | None = None) -> dict[str, float]:
+    """The :func:`training_score` of ``fit``'s constants predicting with each observer of :data:`OBSERVERS` (``known``:
+    scores already computed, by observer name); the least is the observer the model predicts with."""
+    known = known or {}
+    return {name: known[name] if name in known else training_score(replace(fit, observer=o), flights, vehicle, config)
+            for name, o in OBSERVERS.items()}
 
 
 OBSERVERS = {"default": Observer(), "measured": Observer(angular_trim=False), "linear only": Observer(angular_s=0.0),

@@ -8,7 +8,7 @@ import dataclasses
 
 import pytest
 
-from quad_modelling.core.diagnosis.physics_base import diagnose_physics, identified_document
+from quad_modelling.core.diagnosis.physics_base import diagnose_physics, identified_document, next_effect
 from quad_modelling.core.physics.effects import parse_effects
 from quad_modelling.core.sim.params import sim_params_for
 from quad_modelling.core.sim.simulate import simulate
@@ -49,3 +49,14 @@ def test_without_the_switches_lag_and_delay_are_in_the_base_and_no_candidate():
     result, _, _ = _diagnosed("motor_lag", 0.0, vehicle_effects={})
     assert result.candidates == [] and result.found == []
     assert set(result.to_json()["in_base"]) >= {"motor_lag", "input_delay", "thrust_nonlinearity", "trim_drift"}
+
+
+def test_a_larger_shrink_at_its_bound_does_not_block_a_resolved_effect():
+    """The all-seven case of seeds 6301-6303 (bench/results/diagnose_sim_physics_switched_before_fix.md): the delay at
+    its 150 ms bound shrank J most, the resolved lag next; the lag joins. Nothing may join: the largest, not joining."""
+    resolved, at_bound = [{"resolved": True}], [{"resolved": False}]
+    scored = {"rotor_drag": (0.165, 0.029, resolved), "motor_lag": (0.342, 0.250, resolved),
+              "input_delay": (0.347, 0.267, at_bound), "battery": (-0.004, -0.005, at_bound)}
+    assert next_effect(scored) == ("motor_lag", True)
+    assert next_effect({"input_delay": (0.347, 0.267, at_bound), "gyroscopic": (0.03, -0.01, resolved),
+                        "ground_effect": (0.01, 0.005, resolved)}) == ("input_delay", False)
