@@ -104,8 +104,12 @@ def main(argv: list[str] | None = None) -> int:
     warnings.showwarning = _one_line_warnings(args.verb)
     try:
         previous = signal.signal(signal.SIGTERM, _raise_interrupted)
+        # Ctrl-C must interrupt whatever started this process: a parent that ignores SIGINT (a background job, a
+        # test worker) or blocks it hands that on to its children, and a run-bag would then run to its end.
+        previous_int = signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     except ValueError:  # not the main thread: signals stay as they are
-        previous = None
+        previous = previous_int = None
     try:
         return int(args.run(args) or 0)
     except QuadModellingError as err:
@@ -124,6 +128,7 @@ def main(argv: list[str] | None = None) -> int:
         warnings.showwarning = previous_show
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+            signal.signal(signal.SIGINT, previous_int)
 
 
 if __name__ == "__main__":

@@ -475,6 +475,7 @@ def run_node(factory, args=None) -> int:
     # Ctrl-C and SIGTERM raise KeyboardInterrupt in this thread when the spin's wait returns (<= SPIN_TIMEOUT_S).
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGINT, signal.SIGTERM)}
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, set(previous))  # whatever the parent ignored or blocked
     node = None
     code = 0
     try:

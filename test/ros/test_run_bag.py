@@ -141,9 +141,15 @@ def test_sigterm_stops_every_node_and_removes_the_staging(tmp_path, signum):
     import time
 
     out = tmp_path / "live"
-    proc = subprocess.Popen([sys.executable, "-m", "quad_modelling.cli", "run-bag", str(BAG), "--models", "naive", "--rate", "1",
-                             "--no-figures", "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONPATH": str(REPO)})
+    # this worker may ignore SIGINT by now (an earlier test's library did: SigIgn had SIGHUP, SIGINT, SIGQUIT), which a
+    # child inherits: run-bag must interrupt anyway (cli.main installs its own SIGINT handler)
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "quad_modelling.cli", "run-bag", str(BAG), "--models", "naive", "--rate", "1",
+                                 "--no-figures", "-o", str(out)], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env={**os.environ, "PYTHONPATH": str(REPO)})
+    finally:
+        signal.signal(signal.SIGINT, previous)  # the child has inherited the ignored SIGINT
     try:
         deadline = time.monotonic() + 60
         while not list(tmp_path.glob(".live.tmp-*/live/logs/replay.log")) and time.monotonic() < deadline:
