@@ -60,3 +60,40 @@ def test_a_larger_shrink_at_its_bound_does_not_block_a_resolved_effect():
     assert next_effect(scored) == ("motor_lag", True)
     assert next_effect({"input_delay": (0.347, 0.267, at_bound), "gyroscopic": (0.03, -0.01, resolved),
                         "ground_effect": (0.01, 0.005, resolved)}) == ("input_delay", False)
+
+
+def test_lag_and_delay_are_said_apart_or_not_by_their_held_out_difference():
+    """A 50 ms lag: the delay fitted in its place shrinks J by less, outside the bootstrap interval (told apart); an
+    8 ms delay, under one 10 ms log period, shrinks J as a lag does (2.5 % each, session-12 note): not told apart,
+    said in both entries and in the summary."""
+    lag, _, _ = _diagnosed("motor_lag", 0.0)
+    check = lag.effects["motor_lag"]["twin"]
+    assert check["told_apart"] and check["difference_90"][0] > 0 and lag.summary["not_told_apart"] == []
+    assert "told from an input delay" in lag.effects["motor_lag"]["text"]
+    assert "tell the motor lag found from it" in lag.effects["input_delay"]["text"]
+    short, _, _ = _diagnosed("input_delay", 0.008)
+    (found,) = short.found
+    check = short.effects[found]["twin"]
+    low, high = check["difference_90"]
+    assert not check["told_apart"] and low <= 0 <= high
+    assert check["shrink"] - check["other_shrink"] == pytest.approx(0.0, abs=0.01)
+    assert short.summary["not_told_apart"] == [[found, check["other"]]]
+    assert "do not tell" in short.effects[check["other"]]["text"]
+
+
+def test_the_twin_check_reads_the_paired_bootstrap():
+    """Three scores on the same starts: an 'other' twin exactly as good as the found one is not told apart; one
+    10 % worse on every start is."""
+    import numpy as np
+
+    from quad_modelling.core.diagnosis.physics_base import HeldOutScore, twin_check
+
+    rng = np.random.default_rng(0)
+    naive = np.ones((400, 2))
+    blocks = np.repeat(np.arange(20), 20)
+    before = HeldOutScore(1.0 + 0.1 * rng.random((400, 2)), naive, blocks)
+    chosen = HeldOutScore(before.model * 0.8, naive, blocks)
+    assert not twin_check("motor_lag", before, chosen, HeldOutScore(chosen.model.copy(), naive, blocks))["told_apart"]
+    worse = twin_check("motor_lag", before, chosen, HeldOutScore(chosen.model * 1.1, naive, blocks))
+    assert worse["told_apart"] and worse["other"] == "input_delay"
+    assert worse["shrink"] - worse["other_shrink"] == pytest.approx(0.08, abs=1e-9)
