@@ -25,7 +25,8 @@ the log's notes, scored on the same starts: ceiling = 1 - J_truth / J_base) and 
 angular-velocity SimErr ratios to naive, the first-step shrink of every candidate with its main component, the wall
 time, and the sparse-regression comparison (:mod:`bench.sindy_selection`, PySINDy STLSQ over the same candidate
 columns; it has no linear column for the lag or the delay, nonlinear constants of the command path, so it cannot
-select them). The summary is against the targets of issue #26 item 9 (:func:`targets`).
+select them). The protocol, the per-case scoring and the targets are ``quad-modelling diagnose --validate``'s
+(:mod:`quad_modelling.core.diagnosis.physics_validation`); this bench runs them on explicit seed sets and adds SINDy.
 
 Writes bench/results/<--name>.json and .md (default ``diagnose_sim_physics_switched``). Run:
 ``nice -n 10 .venv/bin/python -m bench.bench_diagnose_sim_physics [--seeds 6201,6202,6203 6301,6302,6303]``
@@ -35,7 +36,6 @@ Writes bench/results/<--name>.json and .md (default ``diagnose_sim_physics_switc
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -47,22 +47,12 @@ from bench.bench_diagnose_real import _finite  # noqa: E402
 from bench.common import write_results  # noqa: E402
 from bench.sindy_selection import HEADLINE, agreement, sindy_for  # noqa: E402
 from quad_modelling.commands.diagnose import PHYSICS_CONFIG  # noqa: E402
-from quad_modelling.core.diagnosis.physics_base import (  # noqa: E402
-    BLOCK_S,
-    CANDIDATES,
-    SCORED_GROUPS,
-    SELECTION_STRIDE,
-    diagnose_physics,
-    objective,
-)
+from quad_modelling.core.diagnosis.physics_base import CANDIDATES  # noqa: E402
+from quad_modelling.core.diagnosis.physics_validation import ASSESSED_SWITCHES, assessing_vehicle, scored_case, targets  # noqa: E402
+from quad_modelling.core.diagnosis.validation import DEFAULT_PAIRS  # noqa: E402
 from quad_modelling.core.effect_names import DISTURBANCES  # noqa: E402
-from quad_modelling.core.evaluation.multistep import start_errors  # noqa: E402
-from quad_modelling.core.models.base import ConstantStatePredictor  # noqa: E402
-from quad_modelling.core.physics.effects import parse_effects  # noqa: E402
-from quad_modelling.core.preprocess import resample_uniform  # noqa: E402
 from quad_modelling.core.sim.simulate import simulate  # noqa: E402
-from quad_modelling.core.sim.truth_model import TruthPredictor  # noqa: E402
-from quad_modelling.core.vehicle import VehicleConfig, load_vehicle  # noqa: E402
+from quad_modelling.core.vehicle import VehicleConfig  # noqa: E402
 
 VEHICLE = "linkquad"
 SEED_SETS = ((6201, 6202, 6203), (6301, 6302, 6303))
@@ -71,21 +61,14 @@ DEVELOPMENT = (5101, 5102, 5103)
 """The seed set the bench and any fix were developed on."""
 DURATION_S = 60.0
 """Flight length [s]: 50 s scored after the 5 s / 5 s take-off and landing drops (the NanoBench flights give 32 s)."""
-PAIRS = (("rotor_drag", "motor_imbalance"), ("battery", "ground_effect"), ("motor_lag", "rotor_drag"))
-"""The two-effect cases (issue #26 item 9)."""
-SWITCHES = {"motor_lag": {"enabled": False}, "input_delay": {"enabled": False}}
-"""The vehicle file's effects section of every case: lag and delay off, so they are candidates."""
-CEILING_MIN = 0.20
-"""Issue #26 item 9: shrink >= 80 % of the ceiling wherever the ceiling is >= 20 %."""
+PAIRS = DEFAULT_PAIRS
+"""The two-effect cases (issue #26 item 9), ``diagnose --validate``'s."""
+SWITCHES = ASSESSED_SWITCHES
 
 
 def switched_vehicle() -> VehicleConfig:
-    """The ``linkquad`` vehicle with :data:`SWITCHES` (its other effects as its file has them; rotor drag not on)."""
-    vehicle = load_vehicle(VEHICLE)
-    effects = {**vehicle.effects, **parse_effects(SWITCHES, f"{VEHICLE}_switched.yaml")}
-    if "rotor_drag" in effects and effects["rotor_drag"].on:
-        raise SystemExit(f"{VEHICLE}: rotor drag is switched on in its file; the protocol needs it off")
-    return dataclasses.replace(vehicle, effects=effects)
+    """The ``linkquad`` vehicle with the validation's switches (lag and delay off; rotor drag not on)."""
+    return assessing_vehicle(VEHICLE)
 
 
 def cases() -> list[tuple[str, str, tuple[str, ...]]]:
@@ -95,46 +78,19 @@ def cases() -> list[tuple[str, str, tuple[str, ...]]]:
             *(("disturbance", d, (d,)) for d in DISTURBANCES)]
 
 
-def truth_j(test, vehicle: VehicleConfig) -> float:
-    """J of the ``truth`` model on the held-out flights, on the diagnosis's starts (stride, blocks, naive)."""
-    flights = [resample_uniform(f) for f in test]
-    naive = ConstantStatePredictor(vehicle, PHYSICS_CONFIG.trim)
-    (errors, naive_errors), _ = start_errors(flights, [TruthPredictor(trim=PHYSICS_CONFIG.trim), naive], vehicle,
-                                             PHYSICS_CONFIG, SCORED_GROUPS, SELECTION_STRIDE, BLOCK_S)
-    return objective(errors, naive_errors)
-
-
 def run_case(kind: str, label: str, effects: tuple[str, ...], seeds: tuple[int, int, int], vehicle: VehicleConfig,
              duration: float) -> dict:
+    """One case as ``diagnose --validate`` scores it (:func:`scored_case`), on this bench's explicit seed set, with
+    the sparse-regression comparison."""
     clock = time.perf_counter()
     train = [simulate(VEHICLE, effects=effects, seed=s, duration=duration) for s in seeds[:2]]
     test = [simulate(VEHICLE, effects=effects, seed=seeds[2], duration=duration)]
     simulated = time.perf_counter() - clock
-    result = diagnose_physics(train, test, vehicle, PHYSICS_CONFIG, CANDIDATES,
+    row, result = scored_case(kind, effects, train, test, vehicle, PHYSICS_CONFIG, CANDIDATES,
                               progress=lambda m: print(f"  [{label} {seeds}] {m}", file=sys.stderr, flush=True))
-    seconds = time.perf_counter() - clock - simulated
-    j_truth = truth_j(test, vehicle)
-    found = result.found
-    expected = [e for e in effects if e in CANDIDATES]
-    shrink = 1 - result.final.score.j / result.base.score.j
-    ceiling = 1 - j_truth / result.base.score.j
-    first = result.steps[0]["trials"] if result.steps else {}
     sindy = sindy_for(train, vehicle, PHYSICS_CONFIG, result.base.fit, result.candidates)
-    main_parts = {c: (e["components"][0] if e.get("components") else None) for c, e in result.effects.items()}
-    return {"kind": kind, "case": label, "seeds": list(seeds), "effects": list(effects), "expected": expected,
-            "found": found, "right": sorted(found) == sorted(expected),
-            "found_of_expected": len(set(found) & set(expected)), "extra": [c for c in found if c not in expected],
-            "candidates": result.candidates,
-            "J_base": result.base.score.j, "J_final": result.final.score.j, "J_truth": j_truth,
-            "shrink": shrink, "ceiling": ceiling, "shrink_of_ceiling": shrink / ceiling if ceiling > 0 else None,
-            "ratio_base": result.base.score.ratios(), "ratio_final": result.final.score.ratios(),
-            "first_step_shrink": {c: t["shrink"] for c, t in first.items()},
-            "first_step_shrink_5pct": {c: t["shrink_5pct"] for c, t in first.items()},
-            "main_component": main_parts, "selection": result.steps, "dropped_shrink": result.dropped,
-            "ladder": result.ladder, "texts": {c: e.get("text") for c, e in result.effects.items()},
-            "delay_s": result.summary["delay_s"], "not_told_apart": result.summary["not_told_apart"], "motor_command_gains": result.summary["motor_command_gains"],
-            "sindy": sindy, "sindy_right": sorted(sindy["headline"]) == sorted(expected),
-            "simulate_s": simulated, "diagnose_s": seconds}
+    return {**row, "case": label, "seeds": list(seeds), "selection": result.steps, "ladder": result.ladder,
+            "sindy": sindy, "sindy_right": sorted(sindy["headline"]) == sorted(row["expected"]), "simulate_s": simulated}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -165,45 +121,6 @@ def main(argv: list[str] | None = None) -> int:
     write_results(args.name, _finite(data(rows, seed_sets, args.duration, began, True)),
                   markdown(rows, seed_sets, args.duration, time.perf_counter() - began))
     return 0
-
-
-def targets(rows: list[dict]) -> list[dict]:
-    """Issue #26 item 9's simulated targets over ``rows``: (target, measured, n, met)."""
-    single = [r for r in rows if r["kind"] == "single"]
-    ceilinged = [r for r in single if r["ceiling"] >= CEILING_MIN]
-    pairs = [r for r in rows if r["kind"] == "pair"]
-    every = [r for r in rows if r["kind"] == "all"]
-    nothing = [r for r in rows if r["kind"] in ("null", "disturbance")]
-
-    def share(part: list, of: list) -> str:
-        return f"{len(part)} of {len(of)} ({len(part) / len(of):.0%})" if of else "no runs"
-
-    out = []
-    if single:
-        right = [r for r in single if r["right"]]
-        out.append({"target": "single effects right >= 90 %", "measured": share(right, single),
-                    "met": len(right) >= 0.9 * len(single)})
-        twin = [r for r in single if not r["right"] and any(r["effects"][0] in pair for pair in r.get("not_told_apart", []))]
-        out.append({"target": "... or wrong twin, said not told apart (lag / delay)", "measured": share(twin, single),
-                    "met": None})
-    if single:
-        close = [r for r in ceilinged if r["shrink_of_ceiling"] >= 0.8]
-        out.append({"target": f"shrink >= 80 % of the ceiling where the ceiling >= {CEILING_MIN:.0%}",
-                    "measured": share(close, ceilinged) + " of the single runs with such a ceiling",
-                    "met": bool(ceilinged) and len(close) == len(ceilinged)})
-    if pairs:
-        both = [r for r in pairs if r["found_of_expected"] == 2]
-        out.append({"target": "pairs both found >= 90 %", "measured": share(both, pairs) + f"; exactly the pair "
-                    f"{sum(r['right'] for r in pairs)} of {len(pairs)}", "met": len(both) >= 0.9 * len(pairs)})
-    if every:
-        counts = [r["found_of_expected"] for r in every]
-        out.append({"target": "all seven on: >= 5 found", "measured": " / ".join(map(str, counts)) + " found",
-                    "met": all(n >= 5 for n in counts)})
-    if nothing:
-        clean = [r for r in nothing if not r["found"]]
-        out.append({"target": "null and disturbances: nothing found", "measured": share(clean, nothing),
-                    "met": len(clean) == len(nothing)})
-    return out
 
 
 def data(rows: list[dict], seed_sets, duration: float, began: float, complete: bool) -> dict:

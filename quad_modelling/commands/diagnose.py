@@ -19,7 +19,8 @@ from quad_modelling.core.diagnosis.diagnose import (
 from quad_modelling.core.diagnosis.injection import injection_checks, parse_injection
 from quad_modelling.core.diagnosis.physics_base import CANDIDATES, IN_BASE, SWITCHED_BASE
 from quad_modelling.core.physics.effects import switched_off
-from quad_modelling.core.diagnosis.validation import BASE_FROM, DEFAULT_PAIRS
+from quad_modelling.core.diagnosis.physics_validation import PHYSICS_VALIDATION_DURATION_S
+from quad_modelling.core.diagnosis.validation import BASE_FROM, DEFAULT_PAIRS, VALIDATION_DURATION_S
 from quad_modelling.core.effect_names import (
     CATALOGUE_EFFECTS,
     DISTURBANCES,
@@ -55,9 +56,13 @@ answer (exit 1 when a check fails).
 --base greybox: the thesis's linear greybox on 5 s windows with the catalogue's hooks
 ({", ".join(CATALOGUE_EFFECTS)}): each effect added alone, verdicts found / weak / not supported,
 a greedy ladder, where the gap lies (variables, regimes, frequency bands), --narx for the learnable
-floor. --validate flies simulated known-answer flights and runs the greybox diagnosis on them
-(--base-from, --pairs, --disturbance: {", ".join(DISTURBANCES)}); --jobs N runs the cases on N
-local Dask workers.
+floor.
+
+--validate flies simulated known-answer flights and diagnoses them as above (--base): with the physics
+base the vehicle switches motor lag and input delay off so that all seven candidates are assessed, and
+each case (each candidate alone, none, --pairs, all on, --disturbance: {", ".join(DISTURBANCES)}) is
+scored against what the simulator switched on, with the perfect-model ceiling (the simulator's own
+physics); --jobs N runs the cases on N local Dask workers.
 
 --jobs N / --scheduler ADDRESS read and check the --train/--test flights on Dask workers;
 the fits and the scoring run here (joint over flights; docs/scale.md).
@@ -88,15 +93,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_topic_map_argument(parser)
     add_fanout_arguments(parser)
     parser.add_argument("--base", choices=("physics", "greybox"), default="physics",
-                        help="the model diagnosed: the identified physics model (default; its terms are the candidates) or the "
-                             "thesis's linear greybox on 5 s windows (the catalogue's hooks; --validate uses it)")
+                        help="the model diagnosed (and validated with --validate): the identified physics model (default; its terms "
+                             "are the candidates) or the thesis's linear greybox on 5 s windows (the catalogue's hooks)")
     parser.add_argument("--inject", metavar="SPEC", help="physics base: change every flight's commands by a known answer and "
                         "compare with the un-injected run: delay:MS, gain:MOTOR:K, swap:A:B or none (docs/diagnosis.md)")
     parser.add_argument("--write-vehicle", metavar="V.yaml", help="physics base: write the identified vehicle with the found "
                         "effects switched on")
     parser.add_argument("--validate", action="store_true", help="known-answer validation on simulated flights instead")
     parser.add_argument("--seeds", default="0,1,2", metavar="LIST", help="validation seeds (default 0,1,2)")
-    parser.add_argument("--duration", type=float, default=90.0, metavar="SECONDS", help="validation flight length (default 90)")
+    parser.add_argument("--duration", type=float, metavar="SECONDS",
+                        help=f"validation flight length (default: physics base {PHYSICS_VALIDATION_DURATION_S:g}, greybox "
+                             f"{VALIDATION_DURATION_S:g})")
     parser.add_argument("--base-from", choices=BASE_FROM, default="effects-on",
                         help="validation: identify the base on the effect-on training flights (default, as a user must) "
                              "or on the same seeds flown with every effect off")
@@ -116,7 +123,7 @@ PHYSICS_CONFIG = EvaluationConfig.preset("short", train="0%:100%", eval="0%:100%
 def _config(args: argparse.Namespace) -> EvaluationConfig:
     if not args.smooth > 0:
         raise ConfigError(f"--smooth {args.smooth:g}: the low-pass cutoff must be a positive frequency in Hz")
-    if args.base == "physics" and not args.validate:
+    if args.base == "physics":
         config = PHYSICS_CONFIG.with_drop(args.drop) if args.drop else PHYSICS_CONFIG
         config.validate()
         return config
@@ -150,7 +157,7 @@ def run(args: argparse.Namespace) -> int:
         check_output(Path(args.write_vehicle), args.force, inputs=[*inputs, output])
     config = _config(args)
     check_fanout_options(args.jobs, args.scheduler)
-    effects = None if physics else parse_effect_list(args.effects)
+    effects = None if args.base == "physics" else parse_effect_list(args.effects)
     if args.validate:
         if args.scheduler is not None:
             raise ConfigError("--scheduler: --validate runs its cases on a local cluster (--jobs N) or here")
@@ -258,18 +265,15 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
 def _run_validation(args, config, effects, output: Path) -> int:
     from quad_modelling.core.diagnosis.validation import validate
 
-    try:
-        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
-    except ValueError as err:
-        raise ConfigError(f"--seeds {args.seeds!r}: expected comma-separated integers") from err
-    if not seeds or min(seeds) < 0:
-        raise ConfigError(f"--seeds {args.seeds!r}: expected comma-separated non-negative integers")
+    if args.base == "physics":
+        return _run_physics_validation(args, config, output)
+    seeds = _seeds(args.seeds)
     names = [e.name for e in effects]
     switched = [e for e in SWITCHED_EFFECTS if e in names]  # the simulator can fly these with the effect on
     say, bar = _progress()
     try:
         result = validate(args.vehicle or "linkquad", switched, seeds, pairs=_pairs(args.pairs), catalogue=names,
-                          duration=args.duration, config=config, progress=say, base_from=args.base_from,
+                          duration=VALIDATION_DURATION_S if args.duration is None else args.duration, config=config, progress=say, base_from=args.base_from,
                           disturbances=_disturbances(args.disturbance), jobs=validation_jobs(args.jobs))
     finally:
         bar.close()
@@ -277,6 +281,43 @@ def _run_validation(args, config, effects, output: Path) -> int:
         write_validation(result, tmp)
     print(f"{validation_summary(result)} -> {output}/")
     return 0
+
+
+def _run_physics_validation(args, config, output: Path) -> int:
+    from quad_modelling.core.diagnosis.physics_validation import validate_physics
+
+    if args.base_from != "effects-on":
+        raise ConfigError("--base-from effects-off: the physics base's validation identifies the base on the effect-on "
+                          "training flights, as a user must (--base-from is the greybox validation's)")
+    if args.effects in ("all", "default"):
+        candidates = list(CANDIDATES)
+    else:
+        candidates = [e.strip() for e in args.effects.split(",") if e.strip()]
+        unknown = [c for c in candidates if c not in CANDIDATES]
+        if unknown or not candidates:
+            raise ConfigError(f"--effects {args.effects!r}: the physics base's candidates are {', '.join(CANDIDATES)}")
+    say, bar = _progress()
+    try:
+        result = validate_physics(args.vehicle or "linkquad", config, _seeds(args.seeds), candidates, _pairs(args.pairs),
+                                  _disturbances(args.disturbance), PHYSICS_VALIDATION_DURATION_S if args.duration is None else args.duration,
+                                  validation_jobs(args.jobs), say)
+    finally:
+        bar.close()
+    with atomic_output(output, args.force) as tmp:
+        write_validation(result, tmp)
+    print(f"{validation_summary(result)} -> {output}/")
+    return 0
+
+
+def _seeds(text: str) -> list[int]:
+    """``--seeds``: comma-separated non-negative integers (ConfigError otherwise)."""
+    try:
+        seeds = [int(s) for s in text.split(",") if s.strip()]
+    except ValueError as err:
+        raise ConfigError(f"--seeds {text!r}: expected comma-separated integers") from err
+    if not seeds or min(seeds) < 0:
+        raise ConfigError(f"--seeds {text!r}: expected comma-separated non-negative integers")
+    return seeds
 
 
 def validation_jobs(jobs: int | None) -> int | None:

@@ -159,10 +159,15 @@ class PilotScript:
         return out
 
 
-def make_pilot_script(params: SimParams, duration: float, rng: np.random.Generator) -> PilotScript:
-    """Draw one flight's script; same generator state -> same script."""
+def check_duration(duration: float) -> None:
+    """ConfigError unless a simulated flight of ``duration`` [s] can be flown (:data:`MIN_DURATION`..:data:`MAX_DURATION`)."""
     if not MIN_DURATION <= duration <= MAX_DURATION:
         raise ConfigError(f"simulation duration must be at least {MIN_DURATION:g} s and at most {MAX_DURATION:g} s, got {duration:g}")
+
+
+def make_pilot_script(params: SimParams, duration: float, rng: np.random.Generator) -> PilotScript:
+    """Draw one flight's script; same generator state -> same script."""
+    check_duration(duration)
     pilot = params.pilot
     t_arm, t_lift = 1.0, 2.0
     hovering = t_lift + pilot.climb_time + 3.0

@@ -1,0 +1,69 @@
+"""``diagnose --validate`` on the physics base: simulated known answers diagnosed as ``diagnose`` runs, scored
+against the switched effects and the perfect-model ceiling; the targets of issue #26 item 9 counted."""
+
+from __future__ import annotations
+
+import pytest
+
+from quad_modelling.commands.diagnose import PHYSICS_CONFIG
+from quad_modelling.core.diagnosis.physics_validation import ASSESSED_SWITCHES, assessing_vehicle, targets, validate_physics
+from quad_modelling.errors import ConfigError
+from quad_modelling.io.reports.validation import physics_validation_markdown, validation_summary
+
+
+@pytest.fixture(scope="module")
+def result():
+    """Seed 0, 40 s flights, two candidates: each alone, the null case, both on."""
+    return validate_physics("linkquad", PHYSICS_CONFIG, seeds=(0,), candidates=("rotor_drag", "battery"), pairs=[],
+                            disturbances=(), duration=40.0)
+
+
+def test_a_switched_effect_is_found_and_the_null_case_finds_nothing(result):
+    drag, battery, null, every = result["cases"]
+    assert [r["kind"] for r in result["cases"]] == ["single", "single", "null", "all"]
+    assert drag["case"] == "rotor_drag" and drag["found"] == ["rotor_drag"] and drag["right"]
+    assert null["found"] == [] and null["right"] and null["shrink"] == 0.0
+    assert battery["found"] == ["battery"] and battery["right"]
+    assert sorted(every["found"]) == ["battery", "rotor_drag"] and every["case"] == "all"
+    for row in (drag, battery, every):  # the simulator's own physics bounds what a term can take back
+        assert 0.2 < row["ceiling"] < 1.0 and row["shrink"] <= row["ceiling"] + 0.02
+        assert row["shrink_of_ceiling"] == pytest.approx(row["shrink"] / row["ceiling"])
+
+
+def test_the_report_leads_with_the_targets(result):
+    met = {t["target"]: t["met"] for t in result["targets"]}
+    assert met["single effects right >= 90 %"] and met["null and disturbances: nothing found"] and met["all on: >= 5 found"]
+    text = physics_validation_markdown(result)
+    assert text.startswith("# Physics-base diagnosis validation on simulated linkquad flights")
+    assert "- single effects right >= 90 %: measured 2 of 2 (100%); met yes" in text
+    assert "single effects right >= 90 %: 2 of 2 (100%)" in validation_summary(result)
+    assert max(len(line) for line in text.splitlines()) <= 100
+
+
+def test_targets_count_rights_twins_and_ceilings():
+    def row(kind, effects, found, ceiling=0.3, shrink=0.27, twin=False):
+        expected = list(effects)
+        return {"kind": kind, "effects": list(effects), "expected": expected, "found": found,
+                "right": sorted(found) == sorted(expected), "found_of_expected": len(set(found) & set(expected)),
+                "ceiling": ceiling, "shrink": shrink, "shrink_of_ceiling": shrink / ceiling if ceiling > 0 else None,
+                "twin_said_not_told_apart": twin}
+
+    rows = [row("single", ["rotor_drag"], ["rotor_drag"]), row("single", ["input_delay"], ["motor_lag"], 0.12, 0.09, True),
+            row("single", ["battery"], ["battery"], 0.2, 0.1), row("pair", ["battery", "ground_effect"], ["battery"]),
+            row("null", [], []), row("disturbance", ["wind"], ["rotor_drag"])]
+    got = {t["target"]: (t["measured"], t["met"]) for t in targets(rows, 300.0, 2)}
+    assert got["single effects right >= 90 %"] == ("2 of 3 (67%)", False)
+    assert got["... or the lag / delay twin found, said not told apart"] == ("1 of 3 (33%)", None)
+    assert got["shrink >= 80 % of the ceiling where the ceiling >= 20%"] == ("1 of 2 (50%) of the single runs with such a ceiling", False)
+    assert got["pairs both found >= 90 %"] == ("0 of 1 (0%); exactly the pair 0 of 1", False)
+    assert got["null and disturbances: nothing found"] == ("1 of 2 (50%)", False)
+    assert got["under 10 min on 2 cores"] == ("300 s (jobs 2)", True)
+
+
+def test_the_vehicle_assesses_every_candidate_and_bad_requests_stop_first():
+    vehicle = assessing_vehicle("linkquad")
+    assert all(not vehicle.effects[name].on for name in ASSESSED_SWITCHES)
+    with pytest.raises(ConfigError, match="not a candidate of the physics base"):
+        validate_physics("linkquad", PHYSICS_CONFIG, candidates=("warp_drive",))
+    with pytest.raises(ConfigError, match="simulation duration must be at least"):
+        validate_physics("linkquad", PHYSICS_CONFIG, duration=1e9)
