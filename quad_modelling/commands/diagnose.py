@@ -263,18 +263,9 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
 
 
 def _run_validation(args, config, effects, output: Path) -> int:
-    from quad_modelling.core.diagnosis.validation import validate
-
-    if args.base == "physics":
-        return _run_physics_validation(args, config, output)
-    seeds = _seeds(args.seeds)
-    names = [e.name for e in effects]
-    switched = [e for e in SWITCHED_EFFECTS if e in names]  # the simulator can fly these with the effect on
     say, bar = _progress()
     try:
-        result = validate(args.vehicle or "linkquad", switched, seeds, pairs=_pairs(args.pairs), catalogue=names,
-                          duration=VALIDATION_DURATION_S if args.duration is None else args.duration, config=config, progress=say, base_from=args.base_from,
-                          disturbances=_disturbances(args.disturbance), jobs=validation_jobs(args.jobs))
+        result = _physics_validation(args, config, say) if args.base == "physics" else _greybox_validation(args, config, effects, say)
     finally:
         bar.close()
     with atomic_output(output, args.force) as tmp:
@@ -283,7 +274,17 @@ def _run_validation(args, config, effects, output: Path) -> int:
     return 0
 
 
-def _run_physics_validation(args, config, output: Path) -> int:
+def _greybox_validation(args, config, effects, say) -> dict:
+    from quad_modelling.core.diagnosis.validation import validate
+
+    names = [e.name for e in effects]
+    switched = [e for e in SWITCHED_EFFECTS if e in names]  # the simulator can fly these with the effect on
+    return validate(args.vehicle or "linkquad", switched, _seeds(args.seeds), pairs=_pairs(args.pairs), catalogue=names,
+                    duration=VALIDATION_DURATION_S if args.duration is None else args.duration, config=config, progress=say,
+                    base_from=args.base_from, disturbances=_disturbances(args.disturbance), jobs=validation_jobs(args.jobs))
+
+
+def _physics_validation(args, config, say) -> dict:
     from quad_modelling.core.diagnosis.physics_validation import validate_physics
 
     if args.base_from != "effects-on":
@@ -296,17 +297,9 @@ def _run_physics_validation(args, config, output: Path) -> int:
         unknown = [c for c in candidates if c not in CANDIDATES]
         if unknown or not candidates:
             raise ConfigError(f"--effects {args.effects!r}: the physics base's candidates are {', '.join(CANDIDATES)}")
-    say, bar = _progress()
-    try:
-        result = validate_physics(args.vehicle or "linkquad", config, _seeds(args.seeds), candidates, _pairs(args.pairs),
-                                  _disturbances(args.disturbance), PHYSICS_VALIDATION_DURATION_S if args.duration is None else args.duration,
-                                  validation_jobs(args.jobs), say)
-    finally:
-        bar.close()
-    with atomic_output(output, args.force) as tmp:
-        write_validation(result, tmp)
-    print(f"{validation_summary(result)} -> {output}/")
-    return 0
+    return validate_physics(args.vehicle or "linkquad", config, _seeds(args.seeds), candidates, _pairs(args.pairs),
+                            _disturbances(args.disturbance), PHYSICS_VALIDATION_DURATION_S if args.duration is None else args.duration,
+                            validation_jobs(args.jobs), say)
 
 
 def _seeds(text: str) -> list[int]:
