@@ -8,7 +8,7 @@ import pytest
 from quad_modelling.commands.diagnose import PHYSICS_CONFIG
 from quad_modelling.core.diagnosis.physics_validation import ASSESSED_SWITCHES, assessing_vehicle, targets, validate_physics
 from quad_modelling.errors import ConfigError
-from quad_modelling.io.reports.validation import physics_validation_markdown, validation_summary
+from quad_modelling.io.reports.validation import physics_validation_markdown, validation_summary, write_validation
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def test_a_switched_effect_is_found_and_the_null_case_finds_nothing(result):
         assert row["shrink_of_ceiling"] == pytest.approx(row["shrink"] / row["ceiling"])
 
 
-def test_the_report_leads_with_the_targets(result):
+def test_the_report_leads_with_the_targets(result, tmp_path):
     met = {t["target"]: t["met"] for t in result["targets"]}
     assert met["single effects right >= 90 %"] and met["null and disturbances: nothing found"] and met["all on: >= 5 found"]
     text = physics_validation_markdown(result)
@@ -38,6 +38,8 @@ def test_the_report_leads_with_the_targets(result):
     assert "- single effects right >= 90 %: measured 2 of 2 (100%); met yes" in text
     assert "single effects right >= 90 %: 2 of 2 (100%)" in validation_summary(result)
     assert max(len(line) for line in text.splitlines()) <= 100
+    assert write_validation(result, tmp_path / "v") == ["validation.json", "validation.md"]
+    assert (tmp_path / "v" / "validation.md").read_text() == text
 
 
 def test_targets_count_rights_twins_and_ceilings():
