@@ -17,10 +17,13 @@ B5_helix_medium_rep1, B2_circle_fast_rep2: the flights this was developed on) an
 * (c) the observer: every fit with the default observer (angular trim) and the ``measured`` one.
 
 Writes bench/results/inertia_hypotheses.{json,md}. Run: .venv/bin/python -m bench.bench_inertia_hypotheses
+(``--write-compensated DIR`` instead writes the NanoBench copy with the compensation map, for
+``bench.bench_models --data DIR``: the held-out scores of the map, bench/results/models_inertia_compensated.md).
 """
 
 from __future__ import annotations
 
+import argparse
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -31,7 +34,7 @@ from scipy import signal
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_results  # noqa: E402
-from bench.compensated_data import equivalent_duty  # noqa: E402
+from bench.compensated_data import compensated_copy, equivalent_duty  # noqa: E402
 from quad_modelling.core.identification.physics_fit import OBSERVERS, identify_physics  # noqa: E402
 from quad_modelling.core.physics.parameters import PhysicsParameters  # noqa: E402
 from quad_modelling.core.physics.rigid_body import rotor_wrench  # noqa: E402
@@ -201,6 +204,13 @@ def markdown(real: list[dict], sim: list[dict]) -> str:
 
 
 def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--write-compensated", type=Path, help="write the NanoBench copy with the compensation map here and stop")
+    args = parser.parse_args()
+    if args.write_compensated:
+        written = compensated_copy(NANOBENCH, args.write_compensated)
+        print(f"{len(written)} flights in {args.write_compensated}; next: bench.bench_models --data {args.write_compensated}")
+        return
     vehicle = load_vehicle("crazyflie21")
     real = []
     for name in FLIGHTS:

@@ -14,7 +14,8 @@ its slope is 0.38 of the secant's, so a model linear in u over-predicts every di
 ``compensated_copy`` writes a copy of a NanoBench directory whose motor columns are the duty the same motor voltage
 takes at a fixed reference battery, u' = 65535 V_motor(u) / V_REF: the input of the vehicle file's speed map
 (Foerster 2015, rotor speed vs PWM duty), no parameter fitted to the flights. Values outside 0..65535 (a quirk of
-B9_trefoil_fast_rep2) are left as logged, for the reader to report as before.
+B9_trefoil_fast_rep2) are left as logged, for the reader to report as before; an extrapolated motor tail (the same
+flight) is cut as the reader cuts it.
 """
 
 from __future__ import annotations
@@ -54,6 +55,22 @@ def equivalent_duty(request):
     return np.where(inside, INPUT_MAX * motor_voltage(request) / V_REF, request)
 
 
+def _recorded_rows(header: list[str], body: list[list[str]]) -> int:
+    """Rows before the extrapolated motor tail the NanoBench reader cuts (io/nanobench.py): the copy drops it too,
+    since the mapped tail is no longer a straight line for the reader to find."""
+    from quad_modelling.io.nanobench import _recorded_rows as reader_rows
+
+    def number(text: str) -> float:
+        try:
+            return float(text)
+        except ValueError:
+            return float("nan")
+
+    motors = np.array([[number(row[header.index(c)]) for c in MOTOR_COLUMNS] for row in body])
+    t = np.array([number(row[header.index("t")]) for row in body])
+    return reader_rows(motors, t)
+
+
 def compensated_copy(source: Path, target: Path) -> list[Path]:
     """Copy every ``*.csv.gz`` of ``source`` into ``target`` with :data:`MOTOR_COLUMNS` mapped by
     :func:`equivalent_duty` (metadata, README and LICENSE copied as they are); returns the flights written."""
@@ -66,6 +83,7 @@ def compensated_copy(source: Path, target: Path) -> list[Path]:
             with gzip.open(path, "rt", newline="") as handle:
                 rows = list(csv.reader(handle))
             header, body = rows[0], rows[1:]
+            body = body[:_recorded_rows(header, body)]
             for column in MOTOR_COLUMNS:
                 i = header.index(column)
                 for row in body:
