@@ -1,8 +1,9 @@
 """NanoBench flights with the motor columns mapped through the Crazyflie firmware's battery compensation.
 
-The Crazyflie firmware (bitcraze/crazyflie-firmware, ``motors.c``, ``motorsCompensateBatteryVoltage``, with
-``CONFIG_ENABLE_THRUST_BAT_COMPENSATED``, on by default for the brushed Crazyflie 2.x) takes the power distribution's
-motor value as a *thrust request* (65536 = 60 g), turns it into a motor voltage with a quadratic fitted by Bitcraze,
+The Crazyflie firmware (bitcraze/crazyflie-firmware, ``motors.c``, ``motorsCompensateBatteryVoltage``, built with
+``CONFIG_ENABLE_THRUST_BAT_COMPENSATED``; whether the NanoBench build (2025.12.1) had it is not recorded, the flights'
+response is the evidence: docs/models.md) takes the power distribution's motor value as a *thrust request*
+(65536 = 60 g), turns it into a motor voltage with a quadratic fitted by Bitcraze,
 
     T = u / 65536 * 60 g,   V_motor = -0.0006239 T^2 + 0.088 T   [V],
 
