@@ -13,7 +13,7 @@ B5_helix_medium_rep1, B2_circle_fast_rep2: the flights this was developed on) an
 * (b) rotor dynamics: the fit with the rotor time constant held at 10/30/100 ms; a rate-damping moment (c ω) as a
   second regressor of the band-passed (0.3-15 Hz) acceleration regression; the command map: the logged commands
   taken as the Crazyflie firmware's thrust requests mapped through its battery compensation
-  (bench/compensated_data.py), fitted as they are otherwise.
+  (bench/compensated_data.py), fitted as they are otherwise; the four motors' gains (``motor_imbalance``) fitted.
 * (c) the observer: every fit with the default observer (angular trim) and the ``measured`` one.
 
 Writes bench/results/inertia_hypotheses.{json,md}. Run: .venv/bin/python -m bench.bench_inertia_hypotheses
@@ -125,10 +125,10 @@ def damping_regression(log, vehicle, time_constant: float, delay: float) -> dict
     return out
 
 
-def fit_row(log, vehicle, observer_name: str, dynamics=None) -> dict:
+def fit_row(log, vehicle, observer_name: str, dynamics=None, terms: tuple[str, ...] = ()) -> dict:
     """The physics fit on one flight (``short`` preset): effective / airframe roll and pitch inertia, the fitted rotor
     time constant and delay, each channel's error ratio (the fit's own multi-step SSR / the observer alone's)."""
-    fit = identify_physics([log], vehicle, CONFIG, OBSERVERS[observer_name], dynamics=dynamics)
+    fit = identify_physics([log], vehicle, CONFIG, OBSERVERS[observer_name], terms, dynamics=dynamics)
     return {"ixx_ratio": fit.values["effective_ixx"] / vehicle.value("ixx"), "iyy_ratio": fit.values["effective_iyy"] / vehicle.value("iyy"),
             "time_constant_s": fit.values["rotor_time_constant"], "delay_s": fit.values["rotor_delay"],
             "thrust_constant": fit.values["rotor_thrust_constant"], "error_ratio": dict(fit.diagnostics["error_ratio"])}
@@ -143,6 +143,8 @@ def real_flight(name: str, vehicle) -> dict:
     fits = {"logged, default observer": base, "logged, measured observer": fit_row(log, vehicle, "measured"),
             "compensated map, default observer": fit_row(compensated, vehicle, "default"),
             "compensated map, measured observer": fit_row(compensated, vehicle, "measured")}
+    fits["logged, +motor_imbalance fitted"] = fit_row(log, vehicle, "default", terms=("motor_imbalance",))
+    fits["compensated map, +motor_imbalance fitted"] = fit_row(compensated, vehicle, "default", terms=("motor_imbalance",))
     for held in HELD_TIME_CONSTANTS_S:
         fits[f"logged, tau held {held * 1e3:g} ms"] = fit_row(log, vehicle, "default", dynamics=(held, delay, 0.0))
     comp_fit = fits["compensated map, default observer"]
