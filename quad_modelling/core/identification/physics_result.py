@@ -64,7 +64,7 @@ class PhysicsFit:
                                                              else "not identifiable from these flights"))
                 for key in FITTED] + [
             ConstantEstimate(f"{name}.{key}", q["value"], q["unit"], q["sigma"], tuple(q["bounds"]), float("nan"), q["at_bound"],
-                             held="" if q["identifiable"] else "not identifiable from these flights")
+                             held=q.get("held") or ("" if q["identifiable"] else "not identifiable from these flights"))
             for name, params in self.terms.items() for key, q in params.items()]
 
     def summary(self) -> list[str]:

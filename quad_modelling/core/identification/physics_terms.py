@@ -88,6 +88,8 @@ class TermDesign:
     """False: rotor drag held at 0, its columns left out (module docstring)."""
     motor_gains: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
     """The current gains :math:`\\hat g` of the imbalance iteration (module docstring)."""
+    cg_offset: bool = True
+    """False: the imbalance's CG offset held at 0, its columns left out (:func:`imbalance_separated`)."""
 
     def __post_init__(self) -> None:
         refused = [n for n in self.names if n not in FITTABLE]
@@ -118,7 +120,8 @@ def channel_columns(design: TermDesign) -> dict[str, list[str]]:
     gyro = ["gyro_body", "gyro_rotor"] if "gyroscopic" in design.names else []
     imbalance = ["imbalance"] if "motor_imbalance" in design.names else []
     velocity = ["thrust", *drag, *[n for n in ("ground_effect", "battery") if n in design.names]]
-    torque = ["thrust", *(["drag_moment"] if design.drag else []), *gyro, *imbalance, *(["cg_offset"] if imbalance else [])]
+    cg = ["cg_offset"] if imbalance and design.cg_offset else []
+    torque = ["thrust", *(["drag_moment"] if design.drag else []), *gyro, *imbalance, *cg]
     return {"velocity": velocity, "roll": torque, "pitch": list(torque), "yaw": ["torque", *gyro[:1], *imbalance]}
 
 
@@ -161,6 +164,24 @@ def cg_offset_estimate(design: TermDesign, fit: dict) -> dict[str, tuple[float, 
         relative_alpha = np.sqrt(fit[channel]["cov"][0, 0]) / abs(alpha)
         out[key] = (float(value), float(np.hypot(np.sqrt(fit[channel]["cov"][i, i]) / abs(alpha), value * relative_alpha)))
     return {key: out[key] for key in ("cg_offset_x", "cg_offset_y")}
+
+
+def imbalance_separated(design: TermDesign, fit: dict, gains: tuple[np.ndarray, np.ndarray], arm_length: float) -> bool:
+    """Whether the flights separate the CG offset from the gains' roll and pitch patterns (module docstring): every
+    gain and both offsets finite and inside their bounds (:data:`TERM_BOUNDS`). On an X frame the two are collinear
+    but for the speed map's offset :math:`\Omega_{off}` (the gain's column :math:`2\Omega(\Omega - \Omega_{off})`,
+    the offset's :math:`\Omega^2`); where the flights do not part them the Gauss-Newton passes run both to their
+    bounds (the bundled NanoBench flight with motor 1's command divided by 1.25: gains 2 / 0.5 / 0.5 / 2, offsets
+    ±11.5 mm), and :func:`~quad_modelling.core.identification.physics_fit.identify_physics` refits with the offset
+    held at 0 (:attr:`TermDesign.cg_offset`)."""
+    values = [("gain_%d" % (i + 1), g) for i, g in enumerate(gains[0])]
+    values += [(key, value) for key, (value, _) in cg_offset_estimate(design, fit).items()]
+    for key, value in values:
+        low, high = TERM_BOUNDS[("motor_imbalance", key)]
+        power = ARM_POWERS.get(("motor_imbalance", key), 0)
+        if not (np.isfinite(value) and low * arm_length**power < value < high * arm_length**power):
+            return False
+    return True
 
 
 def updated_gains(design: TermDesign, fit: dict, positions: np.ndarray, spins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -235,8 +256,16 @@ def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], a
         elif name == "motor_imbalance" and gains is not None:
             out[name] = {f"gain_{i + 1}": _bounded(name, f"gain_{i + 1}", float(g), float(sd), arm_length)
                          for i, (g, sd) in enumerate(zip(*gains))}
-            out[name].update({key: _bounded(name, key, *estimate, arm_length) for key, estimate in cg_offset_estimate(design, fit).items()})
+            if design.cg_offset:
+                out[name].update({key: _bounded(name, key, *estimate, arm_length) for key, estimate in cg_offset_estimate(design, fit).items()})
+            else:  # held at 0 (imbalance_separated): reported as such, not as identified
+                out[name].update({key: {**_bounded(name, key, 0.0, float("nan"), arm_length), "held": CG_HELD}
+                                  for key in ("cg_offset_x", "cg_offset_y")})
     return out
+
+
+CG_HELD = "held at 0: the flights do not separate the CG offset from the motor gains (motor_imbalance)"
+"""Why a fit holds the CG offset at 0 (:func:`imbalance_separated`)."""
 
 
 def _combined(estimates: list[tuple[float, float]]) -> tuple[float, float]:
@@ -269,6 +298,8 @@ def effects_section(estimates: dict[str, dict], source: str) -> dict:
         for key, p in parameters.items():
             status = "identified" if p["identifiable"] else "not identified"
             note = "" if p["identifiable"] else "; the flights do not excite it"
+            if p.get("held"):
+                note += f"; {p['held']}"
             if p["at_bound"]:
                 note += f"; AT BOUND {p['bounds']} {p['unit']}"
             value = p["value"] if p["identifiable"] else float(np.mean(p["bounds"]))
