@@ -77,6 +77,7 @@ from quad_modelling.core.identification.uncertainty import profile_sigma
 from quad_modelling.core.identification.physics_terms import (
     GROUND_OFFSETS,
     IMBALANCE_ITERATIONS,
+    IMBALANCE_LEVEL_CHANNELS,
     TermDesign,
     cg_offset_columns,
     channel_columns,
@@ -134,20 +135,6 @@ which a 0.5 s observer takes out of the regression as a slow force. On simulated
 on (development seeds 5101-5102: V 12.35 -> 11.71 V over 60 s; the simulator's rotor speed is proportional to V,
 so κ = 1/V = 0.084 1/V at the mean voltage) κ came out 0.066 +- 0.029 with the 0.5 s observer (not resolved),
 0.077 +- 0.015 with 2 s and 0.081 +- 0.009 with 5 s, the thrust constant within 0.2 % across the three."""
-
-IMBALANCE_LEVEL_CHANNELS = ("roll", "pitch")
-"""Channels whose regression runs without the disturbance observer when the motor imbalance is fitted with its CG
-offset (held at 0, :func:`~quad_modelling.core.identification.physics_terms.imbalance_separated`, they keep it): the CG
-offset (and the gains' roll and pitch patterns, nearly collinear with it on an X frame) is a moment proportional to
-the thrust, nearly constant in a hover, which an angular observer takes out of the regression, leaving only its
-variation with the thrust to fit it on; a level left wrong makes the model need the observer to predict.
-Simulated LinkQuad, the simulator's CG offset alone (development seeds 5101-5103; its ESC gains held at 1 in a
-bench script, not in the simulator), diagnosis's held-out J (truth 0.212, base 0.318): observer in every channel
-0.286 (CG (6.01, -4.02) mm +- 0.09, truth (6, -4)); none in roll and pitch 0.263 ((6.05, -3.96) +- 0.045); none in
-yaw too 0.213. Yaw keeps it: without, the gains' spin pattern takes an unmodelled yaw torque's level, and a bent
-arm (a disturbance, to be found as nothing) was found as a motor imbalance on those seeds (7.5 %; with the
-simulator's gains and CG the imbalance then shrank J by 32.9 % of a 34.1 % ceiling, 10.7 % with yaw's observer)."""
-
 
 def delay_grid(sample_rate: float) -> np.ndarray:
     """Delays searched [s]: whole sample periods from 0 to :data:`DELAY_MAX_S` (the command is sampled; a delay
