@@ -41,7 +41,7 @@ EFFECT_COLUMNS = {
     "ground_effect": ("ground_effect",),
     "battery": ("battery",),
     "gyroscopic": ("gyro_body", "gyro_rotor"),
-    "motor_imbalance": ("imbalance",),
+    "motor_imbalance": ("imbalance", "cg_offset"),
 }
 """The regressor columns of each candidate (module docstring)."""
 

@@ -22,7 +22,7 @@ def inputs(tmp_path_factory) -> Path:
     """An identified Crazyflie (every term on), one never identified, one with a broken identification record, a hybrid
     of each vehicle, and a work directory."""
     d = tmp_path_factory.mktemp("export")
-    write_vehicle(crazyflie_document(), d / "cf.yaml")
+    write_vehicle(crazyflie_document(cg_offset=False), d / "cf.yaml")  # a level hover holds
     write_vehicle(crazyflie_document(identified=False), d / "cf_starting_values.yaml")
     broken = crazyflie_document()
     broken["identification"]["constants"] = ["rotor_delay"]
@@ -48,7 +48,7 @@ def test_export_writes_functions_casadi_loads_and_their_layout(inputs, tmp_path,
     layout = yaml.safe_load((out / "layout.yaml").read_text())
     assert [s["name"] for s in layout["state"][:3]] == ["pos_n_x", "pos_n_y", "pos_n_z"] and len(layout["state"]) == 22
     assert [i["name"] for i in layout["input"]] == ["u_1", "u_2", "u_3", "u_4", "battery_voltage"]
-    p = PhysicsParameters.from_vehicle(vehicle_of(crazyflie_document()))
+    p = PhysicsParameters.from_vehicle(vehicle_of(crazyflie_document(cg_offset=False)))
     assert layout["constants"]["rotor_delay_s"] == p.delay and layout["constants"]["input_max"] == 65535.0
     step = casadi.Function.load(str(out / "F.casadi"))
     assert step.name_in() == ["x", "u", "dt"] and step.size1_in(0) == 22 and step.size1_in(1) == 5

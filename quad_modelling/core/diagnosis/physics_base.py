@@ -106,11 +106,13 @@ COMPONENTS = {
     "gyroscopic": (("body scale", "gyroscopic.body_scale", 1.0), ("rotor scale", "gyroscopic.rotor_scale", 0.0)),
     "motor_lag": (("time constant", "rotor_time_constant", 0.0),),
     "input_delay": (("delay", "rotor_delay", 0.0),),
-    "motor_imbalance": tuple((f"motor {i} gain", f"motor_imbalance.gain_{i}", 1.0) for i in range(1, 5)),
+    "motor_imbalance": (*((f"motor {i} gain", f"motor_imbalance.gain_{i}", 1.0) for i in range(1, 5)),
+                        ("CG offset x", "motor_imbalance.cg_offset_x", 0.0), ("CG offset y", "motor_imbalance.cg_offset_y", 0.0)),
 }
 """Per candidate: its components (label, estimate name, null value); the first is the main one (for the
-imbalance: the gain furthest from 1). The null is the base's own value: the base has the body's gyroscopic torque
--omega x I omega (body scale 1, :class:`~quad_modelling.core.physics.parameters.PhysicsParameters`), no rotors' part."""
+imbalance: the gain or CG offset furthest from its null in sigmas). The null is the base's own value: the base has
+the body's gyroscopic torque -omega x I omega (body scale 1, :class:`~quad_modelling.core.physics.parameters.PhysicsParameters`),
+no rotors' part."""
 
 
 @dataclass
@@ -265,8 +267,9 @@ def components(effect: str, fit: PhysicsFit, folds: Sequence[PhysicsFit] = ()) -
         out.append({"component": label, "name": name, "value": float(e.value), "sigma": float(e.sigma), "unit": e.unit,
                     "bounds": list(e.bounds), "at_bound": bool(e.at_bound), "folds": fold_values,
                     "resolved": bool(determined and not e.at_bound and stable and not e.held)})
-    if effect == "motor_imbalance" and out:  # the main component: the gain furthest from 1
-        out.sort(key=lambda c: -abs(c["value"] - 1.0))
+    if effect == "motor_imbalance" and out:  # the main component: the gain or CG offset furthest from its null in sigmas
+        nulls = {name: null for _, name, null in COMPONENTS[effect]}
+        out.sort(key=lambda c: -(abs(c["value"] - nulls[c["name"]]) / c["sigma"] if np.isfinite(c["sigma"]) and c["sigma"] > 0 else 0.0))
     return out
 
 

@@ -77,9 +77,12 @@ from quad_modelling.core.identification.uncertainty import profile_sigma
 from quad_modelling.core.identification.physics_terms import (
     GROUND_OFFSETS,
     IMBALANCE_ITERATIONS,
+    IMBALANCE_LEVEL_CHANNELS,
     TermDesign,
+    cg_offset_columns,
     channel_columns,
     imbalance_columns,
+    imbalance_separated,
     rate_columns,
     term_estimates,
     updated_gains,
@@ -211,9 +214,9 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
     (:mod:`~quad_modelling.core.identification.physics_terms`), named by
     :func:`~quad_modelling.core.identification.physics_terms.channel_columns`; the known part its gyroscopic torque.
     Terms the vehicle switches on and ``design`` does not fit act with their values."""
-    off = {"ground_effect": {"ground_effect": None}, "battery": {"battery": None}, "gyroscopic": {"gyroscopic": None},
-           "motor_imbalance": {"motor_gains": design.motor_gains}}
-    q = p.with_values(time_constant=time_constant, delay=delay, **{k: v for n in design.names for k, v in off[n].items()})
+    q = p.with_values(time_constant=time_constant, delay=delay)
+    for name in design.names:  # fitted terms: off in the known part (the imbalance at the iteration's gains, no CG offset)
+        q = q.with_term(name, (*design.motor_gains, 0.0, 0.0) if name == "motor_imbalance" else None)
     if q.battery is not None and seg.voltage is None:
         raise DataError("the vehicle's battery term needs the battery voltage, and a training flight has none")
     commands = effective_commands(q, delayed_commands(q, seg.u, seg.t), seg.voltage if q.battery is not None else None)
@@ -238,7 +241,9 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
     rate_extra = rate_columns(design, q.prop_inertia, q.spins, seg.rates, mean_rotor, inertia)
     imbalance = (imbalance_columns(design, q.positions, q.spins, q.speed_offset, mean_rotor)
                  if "motor_imbalance" in design.names else None)
-    torques = [_torque_columns(thrust_torque, drag_xy_torque if design.drag else None, rate_extra, imbalance, axis) for axis in range(3)]
+    cg = cg_offset_columns(thrust_force) if imbalance is not None and design.cg_offset else None
+    torques = [_torque_columns(thrust_torque, drag_xy_torque if design.drag else None, rate_extra, imbalance, axis, cg)
+               for axis in range(3)]
     # yaw's rotor reaction I_p/I_zz Σ s_i dΩ_i/dt integrates to I_p/I_zz Σ s_i (Ω(t) - Ω(t_0)): the known part below, exact
     return {
         "velocity": (seg.vel_n, velocity, np.zeros((len(seg.t), 3))),
@@ -250,15 +255,17 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
 
 
 def _torque_columns(gain: np.ndarray, drag: np.ndarray | None, gyro: np.ndarray | None, imbalance: np.ndarray | None,
-                    axis: int) -> np.ndarray:
+                    axis: int, cg: np.ndarray | None = None) -> np.ndarray:
     """(N, 1, k) regressors of the roll (``axis`` 0), pitch (1) or yaw (2) rate in the order of
     :func:`~quad_modelling.core.identification.physics_terms.channel_columns`: the thrust (yaw: torque) gain[, drag
-    moment][, body and rotors' gyroscopic (yaw: the body's)][, imbalance]."""
+    moment][, body and rotors' gyroscopic (yaw: the body's)][, imbalance][, CG offset (roll, pitch: ``cg`` (N, 2))]."""
     parts = [gain[:, axis]] + ([] if drag is None else [drag[:, axis]])
     if gyro is not None:
         parts += [gyro[:, axis, 0]] + ([gyro[:, axis, 1]] if axis < 2 else [])
     if imbalance is not None:
         parts.append(imbalance[:, axis])
+    if cg is not None and axis < 2:
+        parts.append(cg[:, axis])
     return np.stack(parts, axis=1)[:, None, :]
 
 
@@ -272,6 +279,8 @@ def _design_blocks(p: PhysicsParameters, segments: list[_Segment], time_constant
         a = seg.anchors
         for name, entry in _rows(p, seg, time_constant, delay, design).items():
             j = seg.history["linear" if name == "velocity" else "angular"]
+            if name in IMBALANCE_LEVEL_CHANNELS and "motor_imbalance" in design.names and design.cg_offset:
+                j = a  # no observer: the CG offset rests on the level of the moment (IMBALANCE_LEVEL_CHANNELS)
             span = np.maximum(seg.t[a] - seg.t[j], 1e-12)[:, None]  # j = a: no observer, every slope difference is 0
             y, x, known = entry[:3]
             cx, ck = _cumulative(x, seg.t), _cumulative(known, seg.t)
@@ -400,12 +409,17 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     switches = {name: (drag if name == "rotor_drag" else name not in off) for name in BASE_SWITCHES
                 if name in terms or name in vehicle.effects}
     design = replace(_term_design(tuple(t for t in terms if t not in BASE_SWITCHES), segments, vehicle), drag=drag)
-    passes = IMBALANCE_ITERATIONS if "motor_imbalance" in design.names else 1
-    for _ in range(passes):
-        tau, delay, delay_sd, profile, design, fit, thin = _search_dynamics(p, segments, observer, design, rate, vehicle, dynamics)
-        gains = updated_gains(design, fit, p.positions, p.spins) if "motor_imbalance" in design.names else None
-        if gains is not None:
-            design = replace(design, motor_gains=tuple(float(g) for g in gains[0]))
+    imbalance = "motor_imbalance" in design.names
+    start = design
+    for cg_offset in ((True, False) if imbalance else (True,)):  # the CG offset held at 0 where the flights do not separate it
+        design = replace(start, cg_offset=cg_offset)
+        for _ in range(IMBALANCE_ITERATIONS if imbalance else 1):
+            tau, delay, delay_sd, profile, design, fit, thin = _search_dynamics(p, segments, observer, design, rate, vehicle, dynamics)
+            gains = updated_gains(design, fit, p.positions, p.spins) if imbalance else None
+            if gains is not None:
+                design = replace(design, motor_gains=tuple(float(g) for g in gains[0]))
+        if not imbalance or not cg_offset or imbalance_separated(design, fit, gains, vehicle.value("arm_length")):
+            break
     columns = channel_columns(design)
 
     def coef(channel: str, name: str) -> tuple[float, float]:

@@ -7,7 +7,8 @@ from dataclasses import dataclass, field
 
 from quad_modelling.core.identification.constants_report import ConstantEstimate, constant_lines
 from quad_modelling.core.models.physics import Observer
-from quad_modelling.core.physics.parameters import PHYSICS_UNITS, PhysicsParameters
+from quad_modelling.core.physics.effects import TERMS
+from quad_modelling.core.physics.parameters import PHYSICS_UNITS, PhysicsParameters, term_fields
 
 FITTED = ("rotor_time_constant", "rotor_delay", "rotor_thrust_constant", "rotor_torque_constant", "rotor_drag_xy",
           "rotor_drag_z", "rotor_drag_arm", "effective_ixx", "effective_iyy")
@@ -42,9 +43,7 @@ class PhysicsFit:
         terms = {}
         for name, params in self.terms.items():
             if all(q["identifiable"] for q in params.values()):
-                values = tuple(params[key]["value"] for key in params)
-                terms.update({"ground_effect": {"ground_effect": values}, "battery": {"battery": values},
-                              "gyroscopic": {"gyroscopic": values}, "motor_imbalance": {"motor_gains": values}}[name])
+                terms.update(term_fields(name, tuple(params[p.name]["value"] for p in TERMS[name])))
         return base.with_values(**terms,
             time_constant=v["rotor_time_constant"], delay=v["rotor_delay"], thrust_constant=v["rotor_thrust_constant"],
             torque_constant=v["rotor_torque_constant"], drag=(v["rotor_drag_xy"], v["rotor_drag_xy"], v["rotor_drag_z"]),
@@ -65,7 +64,7 @@ class PhysicsFit:
                                                              else "not identifiable from these flights"))
                 for key in FITTED] + [
             ConstantEstimate(f"{name}.{key}", q["value"], q["unit"], q["sigma"], tuple(q["bounds"]), float("nan"), q["at_bound"],
-                             held="" if q["identifiable"] else "not identifiable from these flights")
+                             held=q.get("held") or ("" if q["identifiable"] else "not identifiable from these flights"))
             for name, params in self.terms.items() for key, q in params.items()]
 
     def summary(self) -> list[str]:

@@ -24,7 +24,14 @@ physics' wrench per unit of that coefficient (:mod:`quad_modelling.core.physics.
   :math:`\sum_i M_{c,i}\, 2 \Omega_i (\Omega_i - \Omega_{off}) / \hat g_i\, P_{c,i}` with coefficient
   :math:`\gamma_c = \alpha_c e_c` (:math:`\alpha_c` the channel's thrust or torque gain), and
   :math:`g \leftarrow \hat g + \sum_c e_c P_c`, renormalised to mean 1; repeated :data:`IMBALANCE_ITERATIONS`
-  times (Gauss-Newton) by :func:`~quad_modelling.core.identification.physics_fit.identify_physics`.
+  times (Gauss-Newton) by :func:`~quad_modelling.core.identification.physics_fit.identify_physics`. Its CG offset
+  :math:`c` (roll, pitch) is linear: the rotor forces' moment about the CG gains :math:`-c \times F`
+  (:func:`~quad_modelling.core.physics.rigid_body.cg_offset_moment`), so roll gains the column
+  :math:`\sum_i \Omega_i^2` (the CG moment per unit :math:`k_f c_y`) with coefficient :math:`\alpha_x c_y` and pitch
+  :math:`-\sum_i \Omega_i^2` with :math:`\alpha_y c_x` (:func:`cg_offset_columns`; the yaw part :math:`c \times`
+  rotor drag is second order and left out of the fit, not of the model). Roll and pitch are then fitted without
+  the observer (:data:`IMBALANCE_LEVEL_CHANNELS`), and where the flights do not separate the offset from the gains
+  it is held at 0 (:func:`imbalance_separated`).
 
 Rotor drag is a base constant of the physics (``rotor_drag_xy/_z/_arm``); ``TermDesign.drag`` False holds it at 0
 (its columns left out): the diagnosis's base without rotor drag.
@@ -42,7 +49,7 @@ import numpy as np
 
 from quad_modelling.core.physics.aero import ground_effect_factor
 from quad_modelling.core.physics.effects import BASE_SWITCHES, TERMS, parse_term_names
-from quad_modelling.core.physics.rigid_body import allocation_matrix, gyroscopic_torque, rotor_momentum
+from quad_modelling.core.physics.rigid_body import allocation_matrix, cg_offset_moment, gyroscopic_torque, rotor_momentum
 from quad_modelling.errors import ConfigError
 
 FITTABLE = ("ground_effect", "battery", "gyroscopic", "motor_imbalance")
@@ -60,8 +67,15 @@ TERM_BOUNDS = {
     ("gyroscopic", "body_scale"): (0.0, 10.0),
     ("gyroscopic", "rotor_scale"): (0.0, 10.0),
     **{("motor_imbalance", f"gain_{i}"): (0.5, 2.0) for i in range(1, 5)},  # a motor at half or twice the others' answer
+    ("motor_imbalance", "cg_offset_x"): (-0.25, 0.25),  # times arm_length: a CG a quarter arm off centre needs a rotor
+    ("motor_imbalance", "cg_offset_y"): (-0.25, 0.25),  # ~1.7x the opposite one's thrust to hover (X frame)
 }
-"""Bounds of each fitted term parameter (ground effect in units of the vehicle's arm length)."""
+"""Bounds of each fitted term parameter (ground effect and the CG offset in units of the vehicle's arm length,
+:data:`ARM_POWERS`)."""
+
+ARM_POWERS = {("ground_effect", "coefficient"): 2, ("ground_effect", "offset"): 1,
+              ("motor_imbalance", "cg_offset_x"): 1, ("motor_imbalance", "cg_offset_y"): 1}
+"""The power of the arm length each :data:`TERM_BOUNDS` entry is written in (absent: absolute)."""
 
 
 @dataclass(frozen=True)
@@ -76,6 +90,8 @@ class TermDesign:
     """False: rotor drag held at 0, its columns left out (module docstring)."""
     motor_gains: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
     """The current gains :math:`\\hat g` of the imbalance iteration (module docstring)."""
+    cg_offset: bool = True
+    """False: the imbalance's CG offset held at 0, its columns left out (:func:`imbalance_separated`)."""
 
     def __post_init__(self) -> None:
         refused = [n for n in self.names if n not in FITTABLE]
@@ -99,6 +115,20 @@ IMBALANCE_ITERATIONS = 3
 """Gauss-Newton passes of the motor gains (module docstring): a 25 % gain on one motor converges to 0.1 % in 3."""
 
 
+IMBALANCE_LEVEL_CHANNELS = ("roll", "pitch")
+"""Channels whose regression runs without the disturbance observer when the motor imbalance is fitted with its CG
+offset (held at 0, :func:`imbalance_separated`, they keep it): the CG
+offset (and the gains' roll and pitch patterns, nearly collinear with it on an X frame) is a moment proportional to
+the thrust, nearly constant in a hover, which an angular observer takes out of the regression, leaving only its
+variation with the thrust to fit it on; a level left wrong makes the model need the observer to predict.
+Simulated LinkQuad, the simulator's CG offset alone (development seeds 5101-5103; its ESC gains held at 1 in a
+bench script, not in the simulator), diagnosis's held-out J (truth 0.212, base 0.318): observer in every channel
+0.286 (CG (6.01, -4.02) mm +- 0.09, truth (6, -4)); none in roll and pitch 0.263 ((6.05, -3.96) +- 0.045); none in
+yaw too 0.213. Yaw keeps it: without, the gains' spin pattern takes an unmodelled yaw torque's level, and a bent
+arm (a disturbance, to be found as nothing) was found as a motor imbalance on those seeds (7.5 %; with the
+simulator's gains and CG the imbalance then shrank J by 32.9 % of a 34.1 % ceiling, 10.7 % with yaw's observer)."""
+
+
 def channel_columns(design: TermDesign) -> dict[str, list[str]]:
     """The regressor names of each channel, in column order (the main gain first: columns are kept in order while
     the flights excite them, :func:`~quad_modelling.core.identification.normal_equations.excited_columns`)."""
@@ -106,7 +136,8 @@ def channel_columns(design: TermDesign) -> dict[str, list[str]]:
     gyro = ["gyro_body", "gyro_rotor"] if "gyroscopic" in design.names else []
     imbalance = ["imbalance"] if "motor_imbalance" in design.names else []
     velocity = ["thrust", *drag, *[n for n in ("ground_effect", "battery") if n in design.names]]
-    torque = ["thrust", *(["drag_moment"] if design.drag else []), *gyro, *imbalance]
+    cg = ["cg_offset"] if imbalance and design.cg_offset else []
+    torque = ["thrust", *(["drag_moment"] if design.drag else []), *gyro, *imbalance, *cg]
     return {"velocity": velocity, "roll": torque, "pitch": list(torque), "yaw": ["torque", *gyro[:1], *imbalance]}
 
 
@@ -125,6 +156,48 @@ def imbalance_columns(design: TermDesign, positions: np.ndarray, spins: np.ndarr
     rows = allocation_matrix(positions, spins, 1.0)[1:]
     slope = 2.0 * rotor * (rotor - speed_offset) / np.asarray(design.motor_gains)  # ∂Ω_i²/∂g_i
     return slope @ (rows * imbalance_patterns(positions, spins)).T
+
+
+def cg_offset_columns(thrust_force: np.ndarray) -> np.ndarray:
+    """(N, 2) the CG-offset regressors of roll and pitch (module docstring) from the body thrust per unit k_f
+    ``thrust_force`` (N, 3): the roll moment of a CG offset (0, 1) and the pitch moment of (1, 0)
+    (:func:`~quad_modelling.core.physics.rigid_body.cg_offset_moment`), coefficients α_x c_y and α_y c_x."""
+    return np.column_stack([cg_offset_moment((0.0, 1.0), thrust_force)[:, 0], cg_offset_moment((1.0, 0.0), thrust_force)[:, 1]])
+
+
+def cg_offset_estimate(design: TermDesign, fit: dict) -> dict[str, tuple[float, float]]:
+    """{cg_offset_x, cg_offset_y: (value [m], sigma)} from the roll and pitch fits: c_y = γ_roll / α_x,
+    c_x = γ_pitch / α_y (module docstring); NaN where the channel is not excited."""
+    out = {}
+    for key, channel in (("cg_offset_y", "roll"), ("cg_offset_x", "pitch")):
+        i = channel_columns(design)[channel].index("cg_offset")
+        alpha, gamma = fit[channel]["coef"][0], fit[channel]["coef"][i]
+        ok = np.isfinite(alpha) and np.isfinite(gamma) and alpha != 0
+        if not ok:
+            out[key] = (float("nan"), float("nan"))
+            continue
+        value = gamma / alpha
+        relative_alpha = np.sqrt(fit[channel]["cov"][0, 0]) / abs(alpha)
+        out[key] = (float(value), float(np.hypot(np.sqrt(fit[channel]["cov"][i, i]) / abs(alpha), value * relative_alpha)))
+    return {key: out[key] for key in ("cg_offset_x", "cg_offset_y")}
+
+
+def imbalance_separated(design: TermDesign, fit: dict, gains: tuple[np.ndarray, np.ndarray], arm_length: float) -> bool:
+    r"""Whether the flights separate the CG offset from the gains' roll and pitch patterns (module docstring): every
+    gain and both offsets finite and inside their bounds (:data:`TERM_BOUNDS`). On an X frame the two are collinear
+    but for the speed map's offset :math:`\Omega_{off}` (the gain's column :math:`2\Omega(\Omega - \Omega_{off})`,
+    the offset's :math:`\Omega^2`); where the flights do not part them the Gauss-Newton passes run both to their
+    bounds (the bundled NanoBench flight with motor 1's command divided by 1.25: gains 2 / 0.5 / 0.5 / 2, offsets
+    ±11.5 mm), and :func:`~quad_modelling.core.identification.physics_fit.identify_physics` refits with the offset
+    held at 0 (:attr:`TermDesign.cg_offset`)."""
+    values = [("gain_%d" % (i + 1), g) for i, g in enumerate(gains[0])]
+    values += [(key, value) for key, (value, _) in cg_offset_estimate(design, fit).items()]
+    for key, value in values:
+        low, high = TERM_BOUNDS[("motor_imbalance", key)]
+        power = ARM_POWERS.get(("motor_imbalance", key), 0)
+        if not (np.isfinite(value) and low * arm_length**power < value < high * arm_length**power):
+            return False
+    return True
 
 
 def updated_gains(design: TermDesign, fit: dict, positions: np.ndarray, spins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -199,7 +272,16 @@ def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], a
         elif name == "motor_imbalance" and gains is not None:
             out[name] = {f"gain_{i + 1}": _bounded(name, f"gain_{i + 1}", float(g), float(sd), arm_length)
                          for i, (g, sd) in enumerate(zip(*gains))}
+            if design.cg_offset:
+                out[name].update({key: _bounded(name, key, *estimate, arm_length) for key, estimate in cg_offset_estimate(design, fit).items()})
+            else:  # held at 0 (imbalance_separated): reported as such, not as identified
+                out[name].update({key: {**_bounded(name, key, 0.0, float("nan"), arm_length), "held": CG_HELD}
+                                  for key in ("cg_offset_x", "cg_offset_y")})
     return out
+
+
+CG_HELD = "held at 0: the flights do not separate the CG offset from the motor gains (motor_imbalance)"
+"""Why a fit holds the CG offset at 0 (:func:`imbalance_separated`)."""
 
 
 def _combined(estimates: list[tuple[float, float]]) -> tuple[float, float]:
@@ -213,8 +295,8 @@ def _combined(estimates: list[tuple[float, float]]) -> tuple[float, float]:
 
 def _bounded(name: str, key: str, value: float, sigma: float, arm_length: float) -> dict:
     low, high = TERM_BOUNDS[(name, key)]
-    if name == "ground_effect":
-        low, high = low * arm_length ** (2 if key == "coefficient" else 1), high * arm_length ** (2 if key == "coefficient" else 1)
+    power = ARM_POWERS.get((name, key), 0)
+    low, high = low * arm_length**power, high * arm_length**power
     unit = {p.name: p.unit for p in TERMS[name]}[key]
     if not np.isfinite(value):
         return {"value": float("nan"), "sigma": float("nan"), "unit": unit, "bounds": [low, high], "at_bound": False, "identifiable": False}
@@ -232,6 +314,8 @@ def effects_section(estimates: dict[str, dict], source: str) -> dict:
         for key, p in parameters.items():
             status = "identified" if p["identifiable"] else "not identified"
             note = "" if p["identifiable"] else "; the flights do not excite it"
+            if p.get("held"):
+                note += f"; {p['held']}"
             if p["at_bound"]:
                 note += f"; AT BOUND {p['bounds']} {p['unit']}"
             value = p["value"] if p["identifiable"] else float(np.mean(p["bounds"]))

@@ -13,8 +13,11 @@ term                  form (the module's symbols)                               
                       h = -z_N the height above the ground plane z_N = 0 [m] (:mod:`.aero`)          offset h_off [m]
 ``battery``           :math:`\Omega_{ss} \to (1 + \kappa (V - V_{ref})) \Omega_{ss}`, V the measured  kappa [1/V],
                       battery voltage, held at the anchor's over a prediction (:mod:`.rotors`)       reference_voltage [V]
-``motor_imbalance``   :math:`u_i \to g_i u_i`: each motor answers its logged command times its gain  gain_1..gain_4 [1]
-                      (mean 1: the collective gain is the thrust constant's) (:mod:`.rotors`)
+``motor_imbalance``   :math:`u_i \to g_i u_i`: each motor answers its logged command times its gain  gain_1..gain_4 [1],
+                      (mean 1: the collective gain is the thrust constant's) (:mod:`.rotors`); and  cg_offset_x,
+                      the CG at :math:`c = (c_x, c_y, 0)` from the geometric centre the rotor        cg_offset_y [m]
+                      positions are measured from: the rotor forces' moment about the CG gains       (absent: 0)
+                      :math:`-c \times F` (:func:`~.rigid_body.cg_offset_moment`)
 ``gyroscopic``        the gyroscopic torques :math:`-\omega \times (k_b I\omega + k_p h_r)`,        body_scale k_b [1],
                       :math:`h_r = (0, 0, -I_p \sum_i s_i \Omega_i)` (:mod:`.rigid_body`). No       rotor_scale k_p [1]
                       entry: the body's term alone (k_b = 1, k_p = 0), as rigid-body physics has
@@ -68,6 +71,9 @@ class TermParameter:
     name: str
     unit: str
     doc: str
+    default: float | None = None
+    """The value a vehicle file's entry without this parameter reads as (a parameter added to a term after files
+    were written: the motor imbalance's CG offset, 0); None: required."""
 
 
 TERMS: dict[str, tuple[TermParameter, ...]] = {
@@ -75,7 +81,9 @@ TERMS: dict[str, tuple[TermParameter, ...]] = {
                       TermParameter("offset", "m", "h_off: height offset of the ground-effect law")),
     "battery": (TermParameter("kappa", "1/V", "rotor-speed change per volt of battery voltage"),
                 TermParameter("reference_voltage", "V", "V_ref: voltage at which the base constants hold")),
-    "motor_imbalance": tuple(TermParameter(f"gain_{i}", "1", f"motor {i}'s gain on its logged command") for i in range(1, 5)),
+    "motor_imbalance": (*(TermParameter(f"gain_{i}", "1", f"motor {i}'s gain on its logged command") for i in range(1, 5)),
+                        TermParameter("cg_offset_x", "m", "c_x: the CG forward of the geometric centre (FRD x)", 0.0),
+                        TermParameter("cg_offset_y", "m", "c_y: the CG right of the geometric centre (FRD y)", 0.0)),
     "gyroscopic": (TermParameter("body_scale", "1", "k_b: scale of the body's gyroscopic torque -ω × Iω"),
                    TermParameter("rotor_scale", "1", "k_p: scale of the rotors' gyroscopic torque -ω × h_r")),
     "rotor_drag": (),
@@ -118,8 +126,8 @@ class EffectTerm:
     parameters: dict[str, TermValue]
 
     def values(self) -> tuple[float, ...]:
-        """The parameter values in :data:`TERMS` order."""
-        return tuple(self.parameters[p.name].value for p in TERMS[self.name])
+        """The parameter values in :data:`TERMS` order (a parameter the file lacks: its default)."""
+        return tuple(self.parameters[p.name].value if p.name in self.parameters else p.default for p in TERMS[self.name])
 
 
 def parse_term_names(names, where: str = "--effects") -> tuple[str, ...]:
@@ -138,7 +146,9 @@ def parse_term_names(names, where: str = "--effects") -> tuple[str, ...]:
 def parse_effects(doc, where: str) -> dict[str, EffectTerm]:
     """The ``effects`` section of a vehicle document (None: no terms), validated (module docstring): every term known,
     every parameter present with its unit (the term's), finite bounds low <= high and a value inside them, a known
-    status; a term switched on must have every parameter identified or measured (a value, not null)."""
+    status; a term switched on must have every parameter identified or measured (a value, not null), except one
+    with a :attr:`TermParameter.default`, which an entry may lack (read as the default: an older file's motor
+    imbalance without a CG offset has offset 0)."""
     if doc is None:
         return {}
     if not isinstance(doc, dict):
@@ -160,7 +170,7 @@ def parse_effects(doc, where: str) -> dict[str, EffectTerm]:
             context = f"{where}: effects.{name}.{key}"
             value = entry.get(key)
             if value is None:
-                if entry["enabled"]:
+                if entry["enabled"] and spec.default is None:
                     raise ConfigError(f"{context}: {name} is switched on but its parameter {key} was never identified "
                                       f"(quad-modelling identify --effects {name})")
                 continue

@@ -62,7 +62,9 @@ class PhysicsParameters:
     k_f, torque_constant k_m, drag (d_xy, d_xy, d_z), drag_arm h_d [m]; input_min/max: the command range.
 
     The optional terms (:mod:`quad_modelling.core.physics.effects`), None when off: ground_effect (c_ge [m²],
-    h_off [m]); battery (κ [1/V], V_ref [V]); motor_gains (g_1..g_4) [1]; gyroscopic (k_b, k_p) [1] (default: the body's term alone, (1, 0)).
+    h_off [m]); battery (κ [1/V], V_ref [V]); motor imbalance: motor_gains (g_1..g_4) [1] and cg_offset (c_x, c_y) [m]
+    (FRD, the CG from the geometric centre the positions are measured from; :func:`term_fields`); gyroscopic (k_b,
+    k_p) [1] (default: the body's term alone, (1, 0)).
     The switches ``rotor_drag``, ``motor_lag``, ``input_delay`` switched off hold drag and drag_arm, τ_m, δ at 0.
     """
 
@@ -84,6 +86,7 @@ class PhysicsParameters:
     ground_effect: tuple[float, float] | None = None
     battery: tuple[float, float] | None = None
     motor_gains: tuple[float, float, float, float] | None = None
+    cg_offset: tuple[float, float] | None = None
     gyroscopic: tuple[float, float] | None = (1.0, 0.0)
 
     @classmethod
@@ -114,9 +117,8 @@ class PhysicsParameters:
             drag_arm=v("rotor_drag_arm"),
             input_min=vehicle.input_min,
             input_max=vehicle.input_max,
-            ground_effect=switched_on(vehicle.effects, "ground_effect"),
-            battery=switched_on(vehicle.effects, "battery"),
-            motor_gains=switched_on(vehicle.effects, "motor_imbalance"),
+            **{key: value for name in ("ground_effect", "battery", "motor_imbalance")
+               for key, value in term_fields(name, switched_on(vehicle.effects, name)).items()},
             gyroscopic=switched_on(vehicle.effects, "gyroscopic") if "gyroscopic" in vehicle.effects else (1.0, 0.0),
         )
 
@@ -126,6 +128,11 @@ class PhysicsParameters:
         on = {"ground_effect": self.ground_effect is not None, "battery": self.battery is not None,
               "motor_imbalance": self.motor_gains is not None, "gyroscopic": self.gyroscopic is not None}
         return tuple(name for name, is_on in on.items() if is_on)
+
+    def with_term(self, name: str, values: tuple[float, ...] | None) -> PhysicsParameters:
+        """A copy with term ``name`` switched on with ``values`` (:data:`~quad_modelling.core.physics.effects.TERMS`
+        order), or off (None): :func:`term_fields`."""
+        return replace(self, **term_fields(name, values))
 
     def with_values(self, **changes) -> PhysicsParameters:
         """A copy with some fields replaced."""
@@ -149,3 +156,16 @@ class PhysicsParameters:
     def hover_command(self, gravity: float) -> float:
         """u_H = (Ω_H - Ω_off) / k_u [input unit]: the command of a level hover (all rotors equal)."""
         return float(rotors.command_for_rotor_speed(self.hover_rotor_speed(gravity), self.speed_gain, self.speed_offset))
+
+
+def term_fields(name: str, values: tuple[float, ...] | None) -> dict:
+    """The :class:`PhysicsParameters` fields of term ``name`` (:data:`~quad_modelling.core.physics.effects.TERMS`)
+    with its parameter ``values`` in TERMS order (None: off): the one mapping from a term's parameters to the
+    fields the physics reads. The motor imbalance's six are two fields: ``motor_gains`` (g_1..g_4) and
+    ``cg_offset`` (c_x, c_y) [m]."""
+    if name == "motor_imbalance":
+        return {"motor_gains": None if values is None else tuple(float(v) for v in values[:4]),
+                "cg_offset": None if values is None else tuple(float(v) for v in values[4:6])}
+    if name in ("ground_effect", "battery", "gyroscopic"):
+        return {name: None if values is None else tuple(float(v) for v in values)}
+    raise ValueError(f"{name} is not a physics-model term with parameters")

@@ -16,6 +16,9 @@ seen from above), thrust and yaw torque :math:`T_i = k_f \Omega_i^2`, :math:`Q_i
 
     F_B = (0, 0, -\textstyle\sum_i T_i) + F_d, \qquad
     \tau_B = \big(-\textstyle\sum_i y_i T_i,\ \sum_i x_i T_i,\ \sum_i s_i Q_i + I_p \sum_i s_i \dot\Omega_i\big) + \tau_d
+        \;[- c \times F_B]
+
+the bracket with the ``motor_imbalance`` term's CG offset c (:func:`cg_offset_moment`).
 
 Motion (:func:`accelerations`), with the gyroscopic torque :math:`-\omega \times I\omega`
 (:func:`gyroscopic_torque`; the optional ``gyroscopic`` term scales it and adds the rotors' part
@@ -112,7 +115,25 @@ def rotor_wrench(p, rotor, rotor_dot, vel_b, height=None):
         thrust @ p.positions[:, 0],
         rotor_yaw_torques(p.torque_constant, rotor) @ p.spins + p.prop_inertia * (rotor_dot @ p.spins),
     ]) + drag_moment
+    if p.cg_offset is not None:
+        torque = torque + cg_offset_moment(p.cg_offset, force)
     return force, torque
+
+
+def cg_offset_moment(offset, force):
+    r"""The moment change [N m] (B, 3) in B of rotor forces ``force`` (B, 3) [N] (thrust and rotor drag, in B) when
+    the CG sits at :math:`c = (c_x, c_y, 0)` = ``offset`` [m] (FRD) from the geometric centre the rotor positions
+    :math:`r_i` are measured from (the ``motor_imbalance`` term's CG offset). About the CG rotor i's force acts at
+    :math:`r_i - c`, so :math:`\sum_i (r_i - c) 	imes F_i = \sum_i r_i 	imes F_i - c 	imes F`, F the sum:
+
+    .. math:: -c 	imes F = (-c_y F_z,\ c_x F_z,\ c_y F_x - c_x F_y)
+
+    For the thrust alone, :math:`F = (0, 0, -T)`, :math:`T = \sum_i T_i`: :math:`(c_y T, -c_x T, 0)` -- a CG to the
+    right (c_y > 0) leaves more thrust on the left of it, rolling right (+p); a CG forward (c_x > 0) pitches the
+    nose down (-q). The truth simulator's rotor arms :math:`r_i - c` (``docs/simulator.md``) give the same. Not
+    the rotor drag's vertical arm ``drag_arm`` (:mod:`~quad_modelling.core.physics.aero`), a separate constant."""
+    c_x, c_y = offset
+    return arrays.columns([-c_y * force[:, 2], c_x * force[:, 2], c_y * force[:, 0] - c_x * force[:, 1]])
 
 
 def rotor_momentum(prop_inertia: float, spins, rotor):

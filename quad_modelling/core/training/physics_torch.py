@@ -60,6 +60,8 @@ class TorchParameters(NamedTuple):
     drag_arm: float
     ground_effect: tuple[float, float] | None = None
     gyroscopic: tuple[float, float] | None = (1.0, 0.0)
+    cg_offset: tuple[float, float] | None = None
+    """The motor imbalance's CG offset (c_x, c_y) [m]: a moment of the rotor forces, so the step needs it."""
 
     @classmethod
     def from_params(cls, p: PhysicsParameters, dtype=torch.float64) -> TorchParameters:
@@ -68,7 +70,7 @@ class TorchParameters(NamedTuple):
 
         return cls(float(p.mass), t(p.inertia), float(p.prop_inertia), t(p.positions), t(p.spins), float(p.speed_gain),
                    float(p.speed_offset), float(p.time_constant), float(p.thrust_constant), float(p.torque_constant), t(p.drag),
-                   float(p.drag_arm), p.ground_effect, p.gyroscopic)
+                   float(p.drag_arm), p.ground_effect, p.gyroscopic, p.cg_offset)
 
 
 def step(p: TorchParameters, state: TorchState, u: torch.Tensor, dt: torch.Tensor, linear_n: torch.Tensor,

@@ -127,7 +127,9 @@ def test_exported_hybrid_step_equals_the_numpy_hybrid_step(vehicle, flight):
 
 
 def test_the_exported_step_is_differentiable_at_rest_for_a_solver(physics_model):
-    """At hover with zero rates (where |ω| has no derivative) F's Jacobian is finite and hover is an equilibrium."""
+    """At hover with zero rates (where |ω| has no derivative) F's Jacobian is finite and hover is an equilibrium but
+    for the CG offset's moment: about a CG at (c_x, c_y) the weight-carrying thrust m g rolls by c_y m g / I_xx and
+    pitches by -c_x m g / I_yy (the thrust acts at -c from the CG)."""
     p = physics_model.params
     functions = casadi_functions(physics_model)
     x, u = casadi.SX.sym("x", len(STATE)), casadi.SX.sym("u", len(input_names(physics_model)))
@@ -143,4 +145,8 @@ def test_the_exported_step_is_differentiable_at_rest_for_a_solver(physics_model)
     xdot = np.asarray(functions["f"](hover, [*u_hover, reference])).ravel()
     coefficient, offset = p.ground_effect
     assert xdot[5] == pytest.approx(-GRAVITY * coefficient / (5.0 + offset) ** 2, rel=1e-6)  # ground effect's last 1e-6 of thrust
-    assert np.abs(np.delete(xdot, 5)).max() < 1e-9
+    c_x, c_y = p.cg_offset
+    weight = p.mass * GRAVITY
+    assert c_x != 0.0 and c_y != 0.0
+    assert xdot[15] == pytest.approx(c_y * weight / p.inertia[0], rel=1e-5) and xdot[16] == pytest.approx(-c_x * weight / p.inertia[1], rel=1e-5)
+    assert np.abs(np.delete(xdot, [5, 15, 16])).max() < 1e-9

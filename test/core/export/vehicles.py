@@ -15,21 +15,24 @@ from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig, vehicle_dir
 TERM_VALUES = {
     "ground_effect": {"coefficient": (3e-5, "m2", 0.0, 0.01), "offset": (0.02, "m", 0.0, 0.5)},
     "battery": {"kappa": (0.05, "1/V", -1.0, 1.0), "reference_voltage": (3.9, "V", 0.0, 30.0)},
-    "motor_imbalance": {f"gain_{i}": (g, "1", 0.5, 1.5) for i, g in zip(range(1, 5), (1.02, 0.98, 1.01, 0.99))},
+    "motor_imbalance": {**{f"gain_{i}": (g, "1", 0.5, 1.5) for i, g in zip(range(1, 5), (1.02, 0.98, 1.01, 0.99))},
+                        "cg_offset_x": (0.0015, "m", -0.01, 0.01), "cg_offset_y": (-0.001, "m", -0.01, 0.01)},
     "gyroscopic": {"body_scale": (1.0, "1", 0.0, 2.0), "rotor_scale": (1.0, "1", 0.0, 2.0)},
 }
 """Every term of the physics model switched on, with plausible Crazyflie values (not fitted: the equality tests
 only need every term's code to run)."""
 
 
-def crazyflie_document(terms: bool = True, identified: bool = True) -> dict:
-    """The shipped Crazyflie 2.1 vehicle document with every term of :data:`TERM_VALUES` on (``terms``) and an
+def crazyflie_document(terms: bool = True, identified: bool = True, cg_offset: bool = True) -> dict:
+    """The shipped Crazyflie 2.1 vehicle document with every term of :data:`TERM_VALUES` on (``terms``; without the
+    motor imbalance's CG offset unless ``cg_offset``, as an older file: a level hover is then an equilibrium) and an
     identification record naming its physics constants, as ``identify`` writes one (``identified``)."""
     doc = yaml.safe_load((vehicle_dir() / "crazyflie21.yaml").read_text())
     if terms:
         doc["effects"] = {name: {"enabled": True, **{key: {"value": value, "unit": unit, "bounds": [low, high], "source": "test",
                                                             "status": "identified"}
-                                                      for key, (value, unit, low, high) in parameters.items()}}
+                                                      for key, (value, unit, low, high) in parameters.items()
+                                                      if cg_offset or not key.startswith("cg_offset")}}
                           for name, parameters in TERM_VALUES.items()}
     if identified:
         doc["identification"] = {"files": ["test"], "constants": {key: {"value": doc["constants"][key]["value"]} for key in PHYSICS_KEYS}}

@@ -148,3 +148,30 @@ def test_a_battery_term_on_a_flight_without_voltage_is_refused_in_one_line():
     no_voltage = FlightLog(**{**log.__dict__, "vbat": None})
     with pytest.raises(DataError, match="battery term needs the battery voltage, and this flight has none"):
         PhysicsPredictor(_vehicle({"battery": BATTERY})).predict_horizons(no_voltage, np.array([40]), 10)
+
+
+def _imbalance(gains, offset=None) -> dict:
+    """A motor_imbalance entry with ``gains`` and, unless None, the CG offset (c_x, c_y) [m] (an older file has none)."""
+    entry = {"enabled": True, **{f"gain_{i}": {"value": g, "unit": "1", "bounds": [0.5, 2.0], "source": "test", "status": "identified"}
+                                 for i, g in enumerate(gains, 1)}}
+    if offset is not None:
+        entry.update({f"cg_offset_{axis}": {"value": c, "sigma": 1e-4, "unit": "m", "bounds": [-0.01, 0.01], "source": "test",
+                                            "status": "identified"} for axis, c in zip("xy", offset)})
+    return entry
+
+
+def test_the_motor_imbalance_cg_offset_round_trips_and_an_older_entry_without_it_reads_zero():
+    vehicle = _vehicle({"motor_imbalance": _imbalance((1.1, 0.95, 1.0, 0.95), (0.004, -0.003))})
+    p = PhysicsParameters.from_vehicle(vehicle)
+    assert p.motor_gains == (1.1, 0.95, 1.0, 0.95) and p.cg_offset == (0.004, -0.003) and "motor_imbalance" in p.terms_on
+    again = parse_effects(yaml.safe_load(yaml.safe_dump(effects_document(vehicle.effects))), "again.yaml")
+    assert again["motor_imbalance"].values() == (1.1, 0.95, 1.0, 0.95, 0.004, -0.003)
+    assert again["motor_imbalance"].parameters["cg_offset_y"].sigma == 1e-4
+    older = PhysicsParameters.from_vehicle(_vehicle({"motor_imbalance": _imbalance((1.1, 0.95, 1.0, 0.95))}))
+    assert older.motor_gains == (1.1, 0.95, 1.0, 0.95) and older.cg_offset == (0.0, 0.0)
+    off = PhysicsParameters.from_vehicle(_vehicle({"motor_imbalance": {**_imbalance((1.0,) * 4, (0.004, 0.0)), "enabled": False}}))
+    assert off.motor_gains is None and off.cg_offset is None
+    wrong = _imbalance((1.0,) * 4, (0.004, 0.0))
+    wrong["cg_offset_x"]["unit"] = "mm"
+    with pytest.raises(ConfigError, match="effects.motor_imbalance.cg_offset_x.unit must be 'm', got 'mm'"):
+        _vehicle({"motor_imbalance": wrong})

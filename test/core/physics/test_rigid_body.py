@@ -56,7 +56,8 @@ def test_level_hover_is_an_equilibrium_and_rotor_momentum_adds_the_propeller_gyr
     assert np.allclose(with_rotors - rigid_body.gyroscopic_torque(rates, inertia), -np.cross(rates, h))
 
 
-def test_numpy_and_torch_give_the_same_wrench_and_accelerations_in_float64():
+@pytest.mark.parametrize("cg_offset", [None, (0.004, -0.003)])
+def test_numpy_and_torch_give_the_same_wrench_and_accelerations_in_float64(cg_offset):
     import torch
 
     from quad_modelling.core.training.physics_torch import TorchParameters
@@ -64,8 +65,11 @@ def test_numpy_and_torch_give_the_same_wrench_and_accelerations_in_float64():
     rng = np.random.default_rng(2)
     rot = rigid_body.rotation_increment(np.tile(np.eye(3), (8, 1, 1)), rng.normal(size=(8, 3)), np.full(8, 0.5))
     args = (rng.normal(size=(8, 3)), rot, rng.normal(size=(8, 3)), rng.uniform(1000, 2500, (8, 4)), rng.normal(size=(8, 4)))
-    acc, ang = rigid_body.accelerations(P, *args)
-    acc_t, ang_t = rigid_body.accelerations(TorchParameters.from_params(P), *(torch.as_tensor(a) for a in args))
+    p = P.with_values(cg_offset=cg_offset)
+    acc, ang = rigid_body.accelerations(p, *args)
+    acc_t, ang_t = rigid_body.accelerations(TorchParameters.from_params(p), *(torch.as_tensor(a) for a in args))
+    if cg_offset is not None:
+        assert not np.allclose(ang, rigid_body.accelerations(P, *args)[1], rtol=1e-3)  # the offset acts
     assert np.allclose(acc_t.numpy(), acc, rtol=1e-12, atol=1e-12) and np.allclose(ang_t.numpy(), ang, rtol=1e-12, atol=1e-9)
 
 
@@ -181,3 +185,44 @@ def test_the_model_step_follows_the_simulator_over_50_samples_where_their_forms_
     assert np.max(np.abs(state.rates[0] - sim[10:13])) < 1e-3
     assert np.max(np.abs(state.vel_n[0] - sim[3:6])) < 1e-2
     assert np.allclose(state.rotor[0], sim[13:17], rtol=1e-9)
+
+
+def test_a_cg_offset_in_a_level_hover_rolls_and_pitches_by_the_weight_times_the_offset():
+    """Four equal thrusts carrying the weight m g, the CG at c = (4, -3) mm: about the CG the thrust acts at the
+    geometric centre, -c from it, so the moment is (-c) x (0, 0, -m g) = (c_y m g, -c_x m g, 0): the CG 3 mm left
+    (c_y < 0) rolls left (p' < 0), 4 mm forward (c_x > 0) pitches the nose down (q' < 0). No force changes."""
+    hover = P.hover_rotor_speed(GRAVITY)
+    args = (np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)), np.full((1, 4), hover), np.zeros((1, 4)))
+    offset = P.with_values(cg_offset=(0.004, -0.003))
+    acc, ang = rigid_body.accelerations(offset, *args)
+    weight = P.mass * GRAVITY
+    assert np.allclose(ang[0], [-0.003 * weight / P.inertia[0], -0.004 * weight / P.inertia[1], 0.0], rtol=1e-9, atol=1e-12)
+    assert np.allclose(acc, rigid_body.accelerations(P, *args)[0], atol=1e-12)
+    assert np.allclose(rigid_body.cg_offset_moment((0.01, 0.02), np.array([[1.0, 2.0, -3.0]])),
+                       -np.cross([0.01, 0.02, 0.0], [1.0, 2.0, -3.0]), rtol=1e-12)
+
+
+@pytest.mark.parametrize("vehicle", ["crazyflie21", "linkquad"])
+def test_the_simulators_cg_offset_gives_the_one_physics_cg_offset_moment(vehicle):
+    """With ``motor_imbalance`` on, the simulator's rotors sit at r_i - c about its CG (its gains act on the command
+    path, not in the derivative): its angular acceleration equals the one physics' with the same CG offset, and not
+    without one (the sign and size of cg_offset_moment checked against the truth's own form)."""
+    params = sim_params_for(vehicle)
+    dyn = QuadDynamics(params, ("motor_lag", "motor_imbalance"))
+    v = params.vehicle
+    p = PhysicsParameters(mass=v.mass, inertia=tuple(float(x) for x in v.inertia), prop_inertia=v.value("prop_inertia"),
+                          positions=v.motor_positions, spins=v.yaw_signs, speed_gain=params.esc.speed_gain,
+                          speed_offset=params.esc.speed_offset, time_constant=params.motor_time_constant, delay=0.0,
+                          thrust_constant=v.value("rotor_thrust_constant"), torque_constant=v.value("rotor_torque_constant"),
+                          drag=(0.0, 0.0, 0.0), drag_arm=0.0, input_min=v.input_min, input_max=v.input_max,
+                          cg_offset=params.imbalance.cg_offset)
+    rng = np.random.default_rng(4)
+    hover = v.hover_rotor_speed
+    state = [0.0, 0.0, -20.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, *(hover * rng.uniform(0.9, 1.1, 4))]
+    rotor = np.array([state[13:17]])
+    ds = dyn.derivative(state, list(rotor[0]), (0.0, 0.0, 0.0))
+    _, ang = rigid_body.accelerations(p, np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)), rotor, np.zeros((1, 4)))
+    _, without = rigid_body.accelerations(p.with_values(cg_offset=None), np.zeros((1, 3)), np.eye(3)[None], np.zeros((1, 3)), rotor,
+                                          np.zeros((1, 4)))
+    assert np.allclose(ds[10:13], ang[0], rtol=1e-10, atol=1e-9)
+    assert np.abs(ds[10:12] - without[0, :2]).min() > 0.1  # the offset's moment is what matched [rad/s²]
