@@ -40,6 +40,25 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     assert "--inject gain:1:1.25: PASSED" in report and max(len(line) for line in report.splitlines()) <= 120
 
 
+@pytest.mark.parametrize("spec, check", [("swap:3:4", "the motor-order check names the swap"),
+                                         ("delay:20", "delay rises by the injected delay")])
+def test_a_swap_is_named_and_diagnosed_with_the_fix_and_a_delay_is_measured(spec, check, tmp_path):
+    """The other inject kinds on the bundled real flight (rotor drag the candidate): motors 3 and 4 exchanged -- the
+    check names the swap, the diagnosis runs with it undone (a wrong motor order leaves a base no effect mends) and
+    finds what the un-injected run finds; the commands advanced by 20 ms -- the delay rises by 20 +- 5 ms."""
+    out = tmp_path / "diag"
+    assert main(["diagnose", "--train", BAG, "--test", BAG, "--effects", "rotor_drag", "--inject", spec, "-o", str(out)]) == 0
+    data = json.loads((out / "diagnosis.json").read_text())
+    assert data["injection"]["passed"] and data["found"] == data["un_injected"]["found"]
+    assert next(c for c in data["injection"]["checks"] if c["check"] == check)["holds"]
+    if spec.startswith("swap"):
+        assert data["motor_order"]["swap"] == [3, 4] and data["motor_order"]["diagnosed_with_swap"] == [3, 4]
+        assert data["held_out"]["final"]["J"] == pytest.approx(data["un_injected"]["held_out"]["final"]["J"], rel=1e-9)
+        assert "diagnosed with the logged commands of motors 3 and 4 exchanged" in " ".join((out / "report.md").read_text().split())
+    else:
+        assert data["summary"]["delay_s"]["value"] - data["un_injected"]["summary"]["delay_s"]["value"] == pytest.approx(0.020, abs=0.005)
+
+
 def test_components_are_reported_each_with_its_own_verdict(injected):
     _, data, _, _, _ = injected
     drag = data["effects"]["rotor_drag"]

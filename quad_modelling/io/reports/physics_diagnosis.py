@@ -36,8 +36,10 @@ def _verdict(data: dict) -> list[str]:
                  + (" ".join(f"{g:.3f}" for g in gains["value"]) if gains["fitted"] else "not fitted (motor_imbalance not a candidate)"))
     order = data.get("motor_order") or {}
     if order.get("verdict") == "inconsistent":
+        swap = order.get("diagnosed_with_swap")
         lines.append("  motor order/spin: INCONSISTENT with the vehicle file (fix it before trusting the effects): "
-                     + ", ".join(order["actions"]))
+                     + ", ".join(order["actions"])
+                     + (f"; diagnosed with the logged commands of motors {swap[0]} and {swap[1]} exchanged" if swap else ""))
     injection = data.get("injection")
     if injection:
         lines.append(f"  --inject {injection['spec']}: {'PASSED' if injection['passed'] else 'FAILED'} ("
