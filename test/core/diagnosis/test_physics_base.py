@@ -5,6 +5,7 @@ signature resembles; switched on (the default), they are part of the base and no
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import pytest
 
@@ -19,9 +20,12 @@ CF = load_vehicle("crazyflie21")
 SWITCHED_OFF = parse_effects({"motor_lag": {"enabled": False}, "input_delay": {"enabled": False}}, "cf_off.yaml")
 
 
-def _diagnosed(effect: str, delay_s: float, vehicle_effects=SWITCHED_OFF):
+@functools.lru_cache(maxsize=None)
+def _diagnosed(effect: str, delay_s: float, switched_off: bool = True):
     """Two 30 s simulated Crazyflie flights with ``effect`` on (the stabiliser at the 100 Hz log rate), diagnosed
-    with the simulator's speed map: train on one, score on the other."""
+    with the simulator's speed map: train on one, score on the other; lag and delay switched off in the vehicle
+    (``switched_off``) or not. Once per run for each arguments (tests share it)."""
+    vehicle_effects = SWITCHED_OFF if switched_off else {}
     params = sim_params_for(CF)
     params = params.replace(control=dataclasses.replace(params.control, rate=100.0), input_delay=delay_s)
     train, test = (simulate("crazyflie21", (effect,), seed=seed, duration=30.0, params=params) for seed in (11, 12))
@@ -46,7 +50,7 @@ def test_a_motor_lag_is_found_as_a_lag_and_a_delay_as_a_delay():
 
 
 def test_without_the_switches_lag_and_delay_are_in_the_base_and_no_candidate():
-    result, _, _ = _diagnosed("motor_lag", 0.0, vehicle_effects={})
+    result, _, _ = _diagnosed("motor_lag", 0.0, switched_off=False)
     assert result.candidates == [] and result.found == []
     assert set(result.to_json()["in_base"]) >= {"motor_lag", "input_delay", "thrust_nonlinearity", "trim_drift"}
 
