@@ -12,7 +12,7 @@ export ROS_AUTOMATIC_DISCOVERY_RANGE := LOCALHOST
 export ROS_DOMAIN_ID ?= 42
 export MPLBACKEND := Agg
 
-.PHONY: all venv demo test bench diagnosis-reports clean
+.PHONY: all venv demo test bench diagnosis-reports clean test-slow
 
 all: venv
 
@@ -32,7 +32,11 @@ demo: $(STAMP)
 TEST_WORKERS ?= 2
 
 test: $(STAMP)
-	$(PY) -m pytest -q -n $(TEST_WORKERS) test
+	$(PY) -m pytest -q -n $(TEST_WORKERS) -m "not slow" test
+
+# The slow scenario tests (marked `slow`: the greybox --validate, the two-host DDS test), which CI runs after `make test`.
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -n $(TEST_WORKERS) -m slow test
 
 bench: $(STAMP)
 	$(PY) bench/run_all.py

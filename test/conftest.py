@@ -45,6 +45,8 @@ def pytest_configure(config):
     _CONFIG = config
     config.addinivalue_line("markers", "exclusive: runs with no other test running beside it under pytest-xdist "
                                        "(a real-time graph that counts what arrived in time; test/parallel.py)")
+    config.addinivalue_line("markers", "slow: a slow scenario test, left out of `make test` and run by `make test-slow` "
+                                       "(CI runs both)")
 
 
 @pytest.hookimpl(hookwrapper=True)

@@ -17,6 +17,8 @@ import pytest
 from test.conftest import REPO
 from test.io.test_dds_profile import USER_PROFILE
 
+pytestmark = pytest.mark.slow  # two network namespaces, two DDS graphs over a lossy link (about 40 s): `make test-slow`
+
 BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
 RUN_BAG = [sys.executable, "-m", "quad_modelling.cli", "run-bag", str(BAG), "--models", "naive", "--window", "5", "--no-figures",
            "--no-multistep"]

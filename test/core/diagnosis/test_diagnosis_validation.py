@@ -13,6 +13,8 @@ from quad_modelling.core.sim.params import sim_params_for
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.reports.validation import validation_markdown, validation_summary
 
+pytestmark = pytest.mark.slow  # the greybox --validate: simulated flights on a local Dask cluster (about 1 min): `make test-slow`
+
 DURATION = 45.0
 
 
