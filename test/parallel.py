@@ -43,6 +43,7 @@ UNIT_SECONDS = {
     "dask": 37,
     "test/core/diagnosis/test_diagnosis.py": 36,
     "test/core/sim/test_sim.py": 23,
+    "test/core/sim/test_dynamics.py": 1,
     "test/core/sim/test_disturbances.py": 21,
     "test/core/models/test_hybrid.py": 10,
     "test/fuzz/test_fuzz_binary_readers.py": 9,

@@ -22,7 +22,7 @@ from quad_modelling.core.effect_names import SIM_DEFAULT_EFFECTS, SIMULATOR, nor
 from quad_modelling.core.sim.control import Stabiliser
 from quad_modelling.core.sim.dynamics import QuadDynamics
 from quad_modelling.core.sim.params import SimParams, sim_params_for
-from quad_modelling.core.sim.simulate import battery_tick, esc_targets, initial_voltage
+from quad_modelling.core.sim.simulate import battery_tick, esc_targets, initial_voltage, integrate_tick
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import ConfigError
 
@@ -54,6 +54,12 @@ class TruthLoop:
         self.pending: deque = deque()
         self.step_index = 0
 
+    def _apply(self, s: list, u) -> list[float]:
+        """A delayed command ``u`` reaching the ESCs: their new targets (the rotors of ``s`` jump without lag)."""
+        self.u_esc = u
+        self.omega_cmd = esc_targets(self.dynamics, s, u, self.voltage, self.lag)
+        return self.omega_cmd
+
     @property
     def t(self) -> float:
         """Time since the start [s]."""
@@ -73,11 +79,8 @@ class TruthLoop:
         else:
             self.u_esc = u
         self.omega_cmd = esc_targets(self.dynamics, s, self.u_esc, self.voltage, self.lag)
-        for step in range(first, first + self.steps_per_tick):
-            if self.pending and self.pending[0][0] <= step:
-                self.u_esc = self.pending.popleft()[1]
-                self.omega_cmd = esc_targets(self.dynamics, s, self.u_esc, self.voltage, self.lag)
-            s, _ = self.dynamics.step(s, self.omega_cmd, NO_WIND, self.physics_dt)
+        s = integrate_tick(self.dynamics, s, self.omega_cmd, NO_WIND, self.physics_dt, first, self.steps_per_tick,
+                           self.pending, self._apply)
         self.state = s
         self.step_index = first + self.steps_per_tick
         if not np.all(np.isfinite(s)):

@@ -12,7 +12,8 @@ reach the ESCs (after ``input_delay`` when on), which drive each rotor towards
 
 (g_i: ``motor_imbalance`` gains, else 1; V: battery voltage with ``battery``,
 else V_ref); the nonlinear rigid body (:mod:`~quad_modelling.core.sim.dynamics`)
-is integrated with RK4 at ``physics_rate`` (1 kHz); sensors
+is integrated with RK4 at ``physics_rate`` (1 kHz, each control tick's steps in one compiled call,
+:func:`integrate_tick`); sensors
 (:mod:`~quad_modelling.core.sim.sensors`) give the log at ``log_rate`` (100 Hz).
 
 Battery (``battery`` on), updated every control tick (explicit Euler; the pack
@@ -198,11 +199,12 @@ def run_simulation(
     u_esc = [params.vehicle.input_min] * 4
     pending: deque = deque()
     omega_cmd = [0.0] * 4
-    step_fn = dynamics.step
     record_every = max(1, n_ticks // 200)
     bar = tqdm(total=n_ticks, unit="tick", desc="simulate", disable=not progress, file=sys.stderr, mininterval=0.5)
 
     def apply_commands(s, u):
+        nonlocal u_esc
+        u_esc = u
         return esc_targets(dynamics, s, u, voltage, lag)
 
     try:
@@ -228,15 +230,7 @@ def run_simulation(
             else:
                 u_esc = u
             omega_cmd = apply_commands(s, u_esc)
-            air = wind_list[k]
-            for step in range(first, first + steps_per_tick):
-                if pending and pending[0][0] <= step:
-                    u_esc = pending.popleft()[1]
-                    omega_cmd = apply_commands(s, u_esc)
-                s2, k1 = step_fn(s, omega_cmd, air, dt)
-                record[step, :N_STATE] = s
-                record[step, N_STATE:] = k1[3:6] + k1[10:13]
-                s = s2
+            s = integrate_tick(dynamics, s, omega_cmd, wind_list[k], dt, first, steps_per_tick, pending, apply_commands, record)
             state = s
             if k % record_every == record_every - 1:
                 bar.update(record_every)
@@ -246,6 +240,26 @@ def run_simulation(
         bar.close()
 
     return _assemble(params, effects, seed, script, record, commands, voltages, wind, phases, n_log, steps_per_tick, steps_per_log, steps_per_mocap, dynamics)
+
+
+def integrate_tick(dynamics: QuadDynamics, s: list, omega_cmd, wind, dt: float, first: int, steps: int, pending: deque,
+                   apply_commands, record: np.ndarray | None = None) -> list:
+    """The state after the physics steps ``first`` .. ``first + steps - 1`` of one control tick, RK4 of ``dt`` [s] each
+    (:meth:`QuadDynamics.advance <quad_modelling.core.sim.dynamics.QuadDynamics.advance>`) from state ``s`` under the
+    ESC targets ``omega_cmd`` [rad/s] and air velocity ``wind``; a delayed command due at a step inside the tick
+    (``pending``: (step, commands) in order) switches the targets there through ``apply_commands(s, u) -> targets``.
+    ``record`` (n_steps, 23): each step's state and k1 accelerations written at its row."""
+    step, end = first, first + steps
+    while step < end:
+        if pending and pending[0][0] <= step:
+            omega_cmd = apply_commands(s, pending.popleft()[1])
+        stop = min(end, pending[0][0]) if pending and pending[0][0] > step else end
+        rows = dynamics.advance(s, omega_cmd, wind, dt, stop - step)
+        if record is not None:
+            record[step:stop] = rows[:-1]
+        s = rows[-1, :N_STATE].tolist()
+        step = stop
+    return s
 
 
 def initial_voltage(params: SimParams, battery_on: bool) -> float:
