@@ -192,9 +192,25 @@ def kinematic_acceleration(force_b: np.ndarray, euler: np.ndarray, gravity: floa
 
 
 def geodesic_angle(euler_a: np.ndarray, euler_b: np.ndarray) -> np.ndarray:
-    """Angle [rad] of the rotation between two attitudes, elementwise over rows."""
-    rel = euler_ned_to_rotation(euler_a).inv() * euler_ned_to_rotation(euler_b)
-    return rel.magnitude()
+    r"""Angle [rad] of the rotation between two attitudes (φ, θ, ψ) (..., 3), elementwise over rows, in closed form:
+    the quaternions :math:`q_a, q_b` (:func:`euler_ned_to_quat`), :math:`q = q_a^* \otimes q_b` with
+    :math:`q_w = q_a \cdot q_b` and :math:`q_v = a_w b_v - b_w a_v - a_v \times b_v`, angle
+    :math:`2\,\operatorname{atan2}(|q_v|, |q_w|)` (scipy's ``Rotation.magnitude``; its ``from_euler`` cost 0.36 µs a
+    row, 1.6 s of a 20 s diagnosis; tests hold the two equal to 1e-12)."""
+    ax, ay, az, aw = euler_ned_to_quat(euler_a)
+    bx, by, bz, bw = euler_ned_to_quat(euler_b)
+    w = ax * bx + ay * by + az * bz + aw * bw
+    vx = aw * bx - bw * ax - (ay * bz - az * by)
+    vy = aw * by - bw * ay - (az * bx - ax * bz)
+    vz = aw * bz - bw * az - (ax * by - ay * bx)
+    return 2.0 * np.arctan2(np.sqrt(vx * vx + vy * vy + vz * vz), np.abs(w))
+
+
+def euler_ned_to_quat(euler: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Quaternion (x, y, z, w) of R_NED←FRD from Euler angles (φ, θ, ψ) (..., 3) [rad], ZYX: four (...) arrays."""
+    half = 0.5 * np.asarray(euler, dtype=float)
+    return _quat_entries(np.cos(half[..., 0]), np.sin(half[..., 0]), np.cos(half[..., 1]), np.sin(half[..., 1]),
+                         np.cos(half[..., 2]), np.sin(half[..., 2]))
 
 
 def euler_ned_to_matrix(euler: np.ndarray) -> np.ndarray:
@@ -237,9 +253,7 @@ def _enu_flu_quaternion(x, y, z, w):
 
 def _quat_xyzw_of_euler_ned(euler: np.ndarray) -> np.ndarray:
     """Quaternion (x, y, z, w) of R_NED←FRD from (N, 3) ZYX Euler angles, closed form (half angles)."""
-    e = np.atleast_2d(np.asarray(euler, dtype=float)) / 2.0
-    return np.column_stack(_quat_entries(np.cos(e[:, 0]), np.sin(e[:, 0]), np.cos(e[:, 1]), np.sin(e[:, 1]),
-                                         np.cos(e[:, 2]), np.sin(e[:, 2])))
+    return np.column_stack(euler_ned_to_quat(np.atleast_2d(euler)))
 
 
 def to_odometry(pos_n: np.ndarray, vel_n: np.ndarray, euler: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -103,3 +103,16 @@ def test_the_closed_form_quaternion_conversion_equals_scipys():
     np.testing.assert_allclose(frames.quat_enu_to_euler_ned(quat[0]), expected[0], atol=1e-12)
     with pytest.raises(ValueError, match="zero norm"):
         frames.quat_enu_to_euler_ned(np.zeros(4))
+
+
+def test_closed_form_geodesic_angle_equals_scipys_magnitude():
+    """Random attitudes (pitch within ±1.43 rad), near pairs and far ones, any leading shape: scipy's relative
+    rotation magnitude to 1e-12."""
+    rng = np.random.default_rng(7)
+    a = rng.uniform(-3.0, 3.0, (4000, 3)) * np.array([1.0, 0.48, 1.0])
+    b = a + rng.normal(0.0, 1e-3, a.shape)
+    b[:500] = rng.uniform(-3.0, 3.0, (500, 3)) * np.array([1.0, 0.48, 1.0])
+    expected = (frames.euler_ned_to_rotation(a).inv() * frames.euler_ned_to_rotation(b)).magnitude()
+    np.testing.assert_allclose(frames.geodesic_angle(a, b), expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(frames.geodesic_angle(a.reshape(40, 100, 3), b.reshape(40, 100, 3)),
+                               expected.reshape(40, 100), rtol=0, atol=1e-12)

@@ -203,14 +203,22 @@ def held_out_score(vehicle: VehicleConfig, observer: Observer, flights: Sequence
 
 
 def block_draws(scores: Sequence[HeldOutScore], seed: int = 0) -> np.ndarray:
-    """(BOOTSTRAP, len(scores)) J of each score on the same :data:`BOOTSTRAP` block resamples of their starts (the
-    scores are of the same starts: their blocks are the first's)."""
+    r"""(BOOTSTRAP, len(scores)) J of each score on the same :data:`BOOTSTRAP` block resamples of their starts (the
+    scores are of the same starts: their blocks are the first's). A resample draws as many blocks as there are, with
+    replacement; J being a mean over the groups of ratios of sums over starts, a draw is its blocks' counts
+    :math:`c` (BOOTSTRAP, K) times the per-block sums: :math:`J = \operatorname{mean}_g (c\, E_g) / (c\, N_g)`."""
     rng = np.random.default_rng(seed)
-    rows = [np.flatnonzero(scores[0].blocks == b) for b in np.unique(scores[0].blocks)]
+    _, block = np.unique(scores[0].blocks, return_inverse=True)
+    n_blocks = int(block.max()) + 1
+    picks = rng.integers(0, n_blocks, (BOOTSTRAP, n_blocks))
+    counts = np.zeros((BOOTSTRAP, n_blocks))
+    np.add.at(counts, (np.repeat(np.arange(BOOTSTRAP), n_blocks), picks.ravel()), 1.0)
     draws = np.empty((BOOTSTRAP, len(scores)))
-    for k in range(BOOTSTRAP):
-        pick = np.concatenate([rows[i] for i in rng.integers(0, len(rows), len(rows))])
-        draws[k] = [objective(s.model[pick], s.naive[pick]) for s in scores]
+    for j, score in enumerate(scores):
+        sums_model, sums_naive = np.zeros((n_blocks, score.model.shape[1])), np.zeros((n_blocks, score.naive.shape[1]))
+        np.add.at(sums_model, block, score.model)
+        np.add.at(sums_naive, block, score.naive)
+        draws[:, j] = np.mean((counts @ sums_model) / (counts @ sums_naive), axis=1)
     return draws
 
 
