@@ -211,3 +211,20 @@ def test_identify_recovers_the_simulators_cg_offset_with_the_motor_imbalance():
         assert e.held != CG_HELD and e.unit == "m"
     p = fit.parameters(PhysicsParameters.from_vehicle(linkquad))
     assert p.cg_offset == pytest.approx((estimates["motor_imbalance.cg_offset_x"].value, estimates["motor_imbalance.cg_offset_y"].value))
+
+
+def test_fitted_without_an_observer_the_hover_pins_the_thrust_constant():
+    """Effect-free simulated LinkQuad flights: without an observer, gravity in the velocity channel's known part pins
+    k_f to the hover (the regression had no g there until 2026-11-26, and k_f went to its lower bound, 1e-6); the
+    observer choice then fits and scores with none as well."""
+    from test.conftest import simulated
+
+    linkquad = load_vehicle("linkquad")
+    truth = sim_params_for(linkquad).vehicle.value("rotor_thrust_constant")
+    flights = [simulated("linkquad", (), seed, 60.0) for seed in (5101, 5102)]
+    fit = identify_physics(flights, linkquad, SHORT, Observer(0.0, 0.0))
+    assert fit.values["rotor_thrust_constant"] == pytest.approx(truth, rel=2e-3)
+    assert fit.sigma["rotor_thrust_constant"] < 1e-3 * truth
+    assert not fit.at_bound["rotor_thrust_constant"]
+    chosen = identify_physics(flights, linkquad, SHORT)
+    assert set(chosen.diagnostics["observer_choice"]["errors"]) == {"default", "measured", "linear only", "none"}
