@@ -23,6 +23,7 @@ Writes bench/results/diagnose_real.json and .md. Run (about 15 min per fold on a
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -144,8 +145,7 @@ def markdown(folds: list[dict], refused: list[str], wall: float, wall_label: str
                 f"{s['delay_s']['sigma'] * 1000:.1f} | {gains} | {', '.join(s['sindy']['headline']) or 'nothing'} | {s['seconds']:.0f} |")
         lines.append("")
     lines += [f"Injection checks passed: **{passed} of {total}** fold x injection runs. {wall_label} {wall / 60:.1f} min "
-              "(load average 10-22 on 2 cores: other work running, folds in parallel processes; per-run times are not "
-              "quiet-machine times).", ""]
+              f"({os.getloadavg()[0]:.1f} load average at the end; folds in parallel processes on this 2-core machine).", ""]
     lines += ["SINDy selection at every threshold (standardised STLSQ), and the diagnosis's selection:", "",
               "| fold | run | diagnose found | " + " | ".join(f"STLSQ {t}" for t in folds[0]["runs"][0]["summary"]["sindy"]["selected"]) + " |",
               "|---|---|---|" + "---|" * len(folds[0]["runs"][0]["summary"]["sindy"]["selected"])]
