@@ -349,7 +349,8 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         predicting = prediction_errors(fit, flights, vehicle, config, known)  # as identify chooses it for these constants
         fit.observer = OBSERVERS[min(predicting, key=predicting.get)]
         fit.diagnostics["observer_choice"] = {**reference.diagnostics["observer_choice"], "predicting_errors": predicting,
-                                              "chosen": min(predicting, key=predicting.get)}
+                                              "chosen": min(predicting, key=predicting.get),
+                                              "fitted_with": choice["chosen"] if choice else fit_observer}
         fitted = fitted_vehicle(vehicle, fit, f"diagnose: base + {', '.join(key) or 'nothing'}")
         result = Rung(key, fit, fitted, held_out_score(fitted, fit.observer, test, config, SELECTION_STRIDE))
         if flights is train:
