@@ -44,13 +44,14 @@ and :math:`k_f, k_m, d_{xy}, d_z, h_d, I_{xx} = k_f/\alpha_x, I_{yy} = k_f/\alph
 :math:`\tau_m` and the command delay :math:`\delta` minimise :math:`J = \sum_c \mathrm{SSR}_c / \mathrm{SSR}_c^{0}`,
 each channel's SSR relative to its SSR with θ = 0 (the observer alone): a coordinate search over the delays of
 :func:`delay_grid` (whole sample periods; the best at the starting τ first, then neighbours while they improve),
-each with a bounded scalar search of τ in :data:`TIME_CONSTANT_RANGE_S`.
+each with a bounded scalar search of τ in :data:`TIME_CONSTANT_RANGE_S`, then δ between samples (:func:`subsample_delay`).
 
 Uncertainty (1 sigma, from the Jacobian): the linear parameters from :math:`s^2 (X^T X)^{-1}` with anchors
 thinned to one per longest horizon (overlapping horizons share their errors, so neighbouring anchors are
 not independent); ratios by first-order propagation; :math:`\tau_m` from the curvature of the profile
 :math:`\chi^2(\tau) = \sum_c \mathrm{SSR}_c / s_c^2` on the same thinning, :math:`\sigma_\tau^2 = 2 / \chi^{2\prime\prime}`;
-δ's is the grid's quantisation, one sample period / sqrt(12). A value outside its bounds (:data:`BOUNDS_FACTOR`
+δ's from the curvature of :math:`\chi^2(\delta)` over whole samples (the grid's quantisation, one sample period /
+sqrt(12), where that profile is flat). A value outside its bounds (:data:`BOUNDS_FACTOR`
 around the starting value; drag from 0) is clipped there and flagged ``at_bound``. A channel whose normal matrix is
 singular (:data:`~quad_modelling.core.identification.normal_equations.MAX_CONDITION`; the flights do not excite it) leaves its constants at the file's values, flagged
 ``identifiable: false``.
@@ -376,12 +377,8 @@ none (a model that lacks no force or moment: held-out velocity SimErr ratio 0.51
 part on an effect-free simulated LinkQuad flight, seed 4711)."""
 
 FIT_OBSERVERS = ("default", "measured", "linear only", "none")
-"""The observers the constants are fitted with; the model may then predict with any of :data:`OBSERVERS`. Until
-2026-11-26 "none" was left out: its fits were 7.4x (bundled bag) and 12.5x (simulated LinkQuad) naive's training
-error, because the velocity channel's known part lacked gravity (which cancels in an observer's slope, not
-without one), so k_f went to its lower bound. With g e_z in it, the effect-free simulated LinkQuad flights of
-seed 22 give k_f = 9.9994e-6 +- 2.2e-9 (truth 1e-5; with the linear observer 9.886e-6 +- 1.1e-7) and a held-out
-velocity SimErr ratio of 0.310, the truth model's own 0.310 (0.411 before, with the linear observer)."""
+"""The observers the constants are fitted with; the model may then predict with any of :data:`OBSERVERS` ("none"
+since 2026-11-26, when gravity joined the velocity channel's known part: docs/models.md)."""
 
 
 def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
@@ -509,9 +506,7 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
                      vehicle: VehicleConfig, held: tuple[float | None, float | None, float] | None = None) -> tuple:
     """τ_m and δ of least :math:`J` (module docstring): a coordinate search over whole-sample delays (the best of
     every other delay at the starting τ first, then neighbours while they improve, each with τ's bounded search),
-    then δ between samples at the vertex of the parabola through the best and its neighbours (commands interpolated,
-    :func:`~quad_modelling.core.physics.rotors.delayed_commands`), kept when better at the same τ;
-    h_off of ground effect on its grid. ``held`` (τ, δ, σ_δ): the ones not None are not searched. Returns (τ, δ,
+    then δ between samples (:func:`subsample_delay`); h_off of ground effect on its grid. ``held`` (τ, δ, σ_δ): the ones not None are not searched. Returns (τ, δ,
     σ_δ, profile, design, channel fits, thinning)."""
 
     def objective(tau: float, delay: float) -> float:
@@ -551,19 +546,28 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
     if 0 < i < len(grid) - 1:  # between samples: the vertex of the parabola through the three profile values
         low, mid, high = (searched[k][0] for k in (i - 1, i, i + 1))
         curvature = low - 2.0 * mid + high
-        if curvature > 0:
-            trial = float(grid[i]) + float(np.clip(0.5 * (low - high) / curvature, -0.5, 0.5)) * period
-            if objective(tau, trial) < mid:  # at the best delay's τ: τ barely moves within half a sample
-                delay = trial
+        if curvature > 0:  # not checked against J at the vertex itself: see subsample_delay
+            delay = subsample_delay(float(grid[i]), low, mid, high, period)
     profile = [(searched[k][0], searched[k][1], float(grid[k])) for k in sorted(searched)]
     design = _ground_offset(p, segments, tau, delay, observer, design, vehicle)
     fit = solve_channels(_normal_equations(p, segments, tau, delay, observer, thin, design))
     if delay_held is not None:
         return tau, delay, delay_held_sd, profile, design, fit, thin
-    sigma = profile_sigma(lambda d: _chi2(p, segments, tau, d, observer, thin, fit, design), delay, 0.25 * period)
+    sigma = profile_sigma(lambda d: _chi2(p, segments, tau, d, observer, thin, fit, design), float(grid[i]), period)
     if not np.isfinite(sigma):
         sigma = period / np.sqrt(12.0)  # the profile is flat or kinked there: the grid's quantisation
     return tau, delay, sigma, profile, design, fit, thin
+
+
+def subsample_delay(best: float, low: float, mid: float, high: float, period: float) -> float:
+    r"""δ [s] at the vertex of the parabola through J = ``low``, ``mid``, ``high`` at the whole-sample delays ``best`` - T,
+    ``best``, ``best`` + T (T = ``period`` [s]): :math:`\delta = \delta_{best} + T \operatorname{clip}((J_- - J_+) /
+    (2 (J_- - 2 J_0 + J_+)), -\tfrac12, \tfrac12)`. From whole-sample values only: between samples the commands
+    are interpolated linearly (:func:`~quad_modelling.core.physics.rotors.delayed_commands`), i.e. low-passed
+    (cos(ωT/2) at half a sample: 5 % at 10 Hz, 100 Hz samples), which biases J there up; checked against it, the
+    vertex was never kept (NanoBench helix fold, 15 / 25 ms injected: δ rose by 20 / 30 ms; vertices 16.2 / 26.2)."""
+    curvature = low - 2.0 * mid + high
+    return best + float(np.clip(0.5 * (low - high) / curvature, -0.5, 0.5)) * period
 
 
 def _ground_offset(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: float, observer: Observer,

@@ -10,7 +10,7 @@ import pytest
 
 from quad_modelling.core.identification.constants_report import add_physics_constants
 from quad_modelling.core.identification.identify import identified_vehicle_document, identify
-from quad_modelling.core.identification.physics_fit import FITTED, identify_physics
+from quad_modelling.core.identification.physics_fit import FITTED, identify_physics, subsample_delay
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 from quad_modelling.core.physics.effects import parse_effects
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -228,3 +228,14 @@ def test_fitted_without_an_observer_the_hover_pins_the_thrust_constant():
     assert not fit.at_bound["rotor_thrust_constant"]
     chosen = identify_physics(flights, linkquad, SHORT)
     assert set(chosen.diagnostics["observer_choice"]["errors"]) == {"default", "measured", "linear only", "none"}
+
+
+def test_the_delay_between_samples_is_the_vertex_of_the_whole_sample_profile():
+    """J sampled at whole samples of a parabola with its minimum at 66.1 ms (10 ms samples) gives 66.1 ms; a
+    symmetric profile gives the best sample; a neighbour as good as the best puts it half-way between them."""
+    def j(delay):
+        return 2.1 + 40.0 * (delay - 0.0661) ** 2
+
+    assert subsample_delay(0.07, j(0.06), j(0.07), j(0.08), 0.01) == pytest.approx(0.0661, abs=1e-12)
+    assert subsample_delay(0.05, 2.2, 2.1, 2.2, 0.01) == pytest.approx(0.05, abs=1e-15)
+    assert subsample_delay(0.05, 2.10, 2.10, 2.2, 0.01) == pytest.approx(0.045, abs=1e-15)

@@ -260,3 +260,17 @@ def test_vehicle_physics_constants_are_validated(tmp_path):
     with pytest.raises(ConfigError, match=r"bad.yaml: constants.rotor_time_constant.value must lie in \[0, 10\) s"):
         VehicleConfig.from_yaml(bad)
     assert CF.value("rotor_speed_gain") == pytest.approx(0.04076521)
+
+
+def test_starts_of_many_segments_in_one_batch_predict_as_each_segment_alone(real):
+    """predict_horizons_of (one rollout for the starts of every segment, what the multi-step scores use) gives each
+    segment's predict_horizons (the default observer on: each segment anchors on its own rows)."""
+    model = PhysicsPredictor(CF)
+    parts = [(real.slice(0, 400), np.arange(20, 340, 7)), (real.slice(300, 1000), np.arange(60, 640, 3)),
+             (real.slice(500, 700), np.array([10]))]
+    batched = model.predict_horizons_of(parts, 50)
+    for (segment, starts), together in zip(parts, batched):
+        alone = model.predict_horizons(segment, starts, 50)
+        assert together.shape == alone.shape == (len(starts), 51, 18)
+        np.testing.assert_allclose(together, alone, rtol=1e-12, atol=1e-12)
+    assert model.predict_horizons_of([], 50) == []
