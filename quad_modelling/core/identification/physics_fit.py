@@ -139,8 +139,7 @@ so κ = 1/V = 0.084 1/V at the mean voltage) κ came out 0.066 +- 0.029 with the
 0.077 +- 0.015 with 2 s and 0.081 +- 0.009 with 5 s, the thrust constant within 0.2 % across the three."""
 
 def delay_grid(sample_rate: float) -> np.ndarray:
-    """Delays searched [s]: whole sample periods from 0 to :data:`DELAY_MAX_S` (the command is sampled; a delay
-    between two samples is not resolvable from it)."""
+    """Delays searched [s]: whole sample periods from 0 to :data:`DELAY_MAX_S` (then between two: :func:`subsample_delay`)."""
     return np.arange(0, int(round(DELAY_MAX_S * sample_rate)) + 1) / sample_rate
 
 
@@ -506,8 +505,8 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
                      vehicle: VehicleConfig, held: tuple[float | None, float | None, float] | None = None) -> tuple:
     """τ_m and δ of least :math:`J` (module docstring): a coordinate search over whole-sample delays (the best of
     every other delay at the starting τ first, then neighbours while they improve, each with τ's bounded search),
-    then δ between samples (:func:`subsample_delay`); h_off of ground effect on its grid. ``held`` (τ, δ, σ_δ): the ones not None are not searched. Returns (τ, δ,
-    σ_δ, profile, design, channel fits, thinning)."""
+    then δ between samples (:func:`subsample_delay`); h_off of ground effect on its grid. ``held`` (τ, δ, σ_δ): those
+    not None are not searched. Returns (τ, δ, σ_δ, profile, design, channel fits, thinning)."""
 
     def objective(tau: float, delay: float) -> float:
         fit = solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, design))
@@ -554,18 +553,19 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
     if delay_held is not None:
         return tau, delay, delay_held_sd, profile, design, fit, thin
     sigma = profile_sigma(lambda d: _chi2(p, segments, tau, d, observer, thin, fit, design), float(grid[i]), period)
-    if not np.isfinite(sigma):
-        sigma = period / np.sqrt(12.0)  # the profile is flat or kinked there: the grid's quantisation
+    if not np.isfinite(sigma) or delay != float(grid[i]):  # flat or kinked there / the vertex's own error (subsample_delay)
+        sigma = float(np.hypot(sigma, period / np.sqrt(12.0))) if np.isfinite(sigma) else period / np.sqrt(12.0)
     return tau, delay, sigma, profile, design, fit, thin
 
 
 def subsample_delay(best: float, low: float, mid: float, high: float, period: float) -> float:
     r"""δ [s] at the vertex of the parabola through J = ``low``, ``mid``, ``high`` at the whole-sample delays ``best`` - T,
     ``best``, ``best`` + T (T = ``period`` [s]): :math:`\delta = \delta_{best} + T \operatorname{clip}((J_- - J_+) /
-    (2 (J_- - 2 J_0 + J_+)), -\tfrac12, \tfrac12)`. From whole-sample values only: between samples the commands
-    are interpolated linearly (:func:`~quad_modelling.core.physics.rotors.delayed_commands`), i.e. low-passed
-    (cos(ωT/2) at half a sample: 5 % at 10 Hz, 100 Hz samples), which biases J there up; checked against it, the
-    vertex was never kept (NanoBench helix fold, 15 / 25 ms injected: δ rose by 20 / 30 ms; vertices 16.2 / 26.2)."""
+    (2 (J_- - 2 J_0 + J_+)), -\tfrac12, \tfrac12)`. From whole samples only: between them the commands are
+    interpolated linearly (:func:`~quad_modelling.core.physics.rotors.delayed_commands`), i.e. low-passed (cos(ωT/2) at
+    half a sample: 5 % at 10 Hz, 100 Hz samples), which biases J up; checked against that J, the vertex was never kept
+    (NanoBench helix fold, 15 / 25 ms injected: δ rose by 20 / 30 ms; vertices 16.2 / 26.2). Its own error (up to T/2
+    on a lopsided profile: simulated 20 ms delays gave 18.4 / 22.8 / 19.2 ms) is in σ_δ as T/sqrt(12) in quadrature."""
     curvature = low - 2.0 * mid + high
     return best + float(np.clip(0.5 * (low - high) / curvature, -0.5, 0.5)) * period
 
@@ -576,8 +576,8 @@ def _ground_offset(p: PhysicsParameters, segments: list[_Segment], tau: float, d
     if "ground_effect" not in design.names:
         return design
     offsets = [g * vehicle.value("arm_length") for g in GROUND_OFFSETS]
-    errors = [solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, replace(design, ground_offset=h)))["velocity"]["ssr"]
-              for h in offsets]
+    errors = [solve_channels(_normal_equations(p, segments, tau, delay, observer, 1, replace(design, ground_offset=h)))
+              ["velocity"]["ssr"] for h in offsets]
     return replace(design, ground_offset=offsets[int(np.argmin(errors))])
 
 

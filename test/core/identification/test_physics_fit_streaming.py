@@ -27,10 +27,11 @@ CF = load_vehicle("crazyflie21")
 SHORT = EvaluationConfig.preset("short")
 
 BEFORE = {  # identify_physics([bundled bag], crazyflie21, short preset): value, sigma. Re-recorded 2026-11-27 when the
-    # delay came to lie between samples (physics_fit.subsample_delay: 40 -> 42.7 ms, sigma from the whole-sample profile's
-    # curvature 4.1 -> 4.9 ms; the profile over it is flat); the others within 0.15 sigma (rotor_drag_z +15 %, iyy +1.7 %).
+    # delay came to lie between samples (physics_fit.subsample_delay: 40 -> 42.7 ms; sigma 4.1 -> 5.7 ms, the curvature
+    # of the whole-sample profile, 4.9 ms, with the vertex's T/sqrt(12)); the others within 0.15 sigma (rotor_drag_z
+    # +15 %, iyy +1.7 %).
     "rotor_time_constant": (0.006527328321404227, 0.004970099818580315),
-    "rotor_delay": (0.04267684912988068, 0.0049160700072925735),
+    "rotor_delay": (0.04267684912988068, 0.0057009702468413725),
     "rotor_thrust_constant": (9.636810478971902e-09, 1.2734582952905598e-10),
     "rotor_torque_constant": (1.0668e-11, 1.8309769521397953e-12),
     "rotor_drag_xy": (1.0991893844128697e-06, 5.7805741403597364e-08),
