@@ -400,9 +400,13 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         found = c in final.effects
         parts = components(c, source.fit, folds if found else ())
         shrink_alone = next((s["trials"][c]["shrink"] for s in steps if c in s["trials"]), float("nan"))
+        text = component_text(c, parts, found)
+        last = [st for st in steps if c in st["trials"]]
+        if not found and last and any(part["resolved"] for part in parts):
+            text += "; " + unconfirmed_text(last[-1]["trials"][c], last[-1]["on_top_of"])
         effects[c] = {"verdict": "found" if found else "not supported", "rank": order.get(c),
                       "shrink_when_added": shrink_alone, "shrink_when_dropped": dropped.get(c),
-                      "components": parts, "text": component_text(c, parts, found)}
+                      "components": parts, "text": text}
     twins = []
     for c in final.effects:
         step = next((st for st in steps if st["joined"] and st["best"] == c), None)
@@ -509,6 +513,14 @@ def motor_gains(fit: PhysicsFit | None) -> dict:
     terms = fit.terms["motor_imbalance"]
     return {"value": [terms[f"gain_{i}"]["value"] for i in range(1, 5)],
             "sigma": [terms[f"gain_{i}"]["sigma"] for i in range(1, 5)], "fitted": True}
+
+
+def unconfirmed_text(trial: dict, on_top_of: Sequence[str]) -> str:
+    """Why an effect whose components are resolved on the training flights is still *not supported*: its last
+    forward trial (``trial``: shrink, shrink_5pct) on top of ``on_top_of`` did not shrink the held-out error enough."""
+    return (f"resolved on the training flights, but added to {' + '.join(['base', *on_top_of])} it shrinks the held-out "
+            f"error by {trial['shrink']:+.1%} (5 % bound {trial['shrink_5pct']:+.1%}; found needs >= {FOUND_MIN_SHRINK:.0%} "
+            f"and a bound above 0): the held-out flights do not confirm it")
 
 
 def component_text(effect: str, parts: list[dict], found: bool) -> str:

@@ -9,7 +9,7 @@ import functools
 
 import pytest
 
-from quad_modelling.core.diagnosis.physics_base import diagnose_physics, identified_document, next_effect
+from quad_modelling.core.diagnosis.physics_base import diagnose_physics, identified_document, next_effect, unconfirmed_text
 from quad_modelling.core.physics.effects import parse_effects
 from quad_modelling.core.sim.params import sim_params_for
 from quad_modelling.core.sim.simulate import simulate
@@ -47,6 +47,17 @@ def test_a_motor_lag_is_found_as_a_lag_and_a_delay_as_a_delay():
     delay, _, _ = _diagnosed("input_delay", 0.04)
     assert delay.found == ["input_delay"] and delay.summary["delay_s"]["value"] == pytest.approx(0.045, abs=0.01)
     assert delay.effects["motor_lag"]["verdict"] == "not supported"
+    # its 5 ms time constant is resolved (5 sigma) yet not supported: the report says why, in one sentence
+    assert delay.effects["motor_lag"]["components"][0]["resolved"]
+    assert "resolved on the training flights, but added to base + input_delay it shrinks the held-out error by -" in \
+        delay.effects["motor_lag"]["text"]
+
+
+def test_an_effect_resolved_but_not_supported_says_which_holds():
+    text = unconfirmed_text({"shrink": -0.0004, "shrink_5pct": -0.003}, ["rotor_drag", "battery"])
+    assert text == ("resolved on the training flights, but added to base + rotor_drag + battery it shrinks the held-out "
+                    "error by -0.0% (5 % bound -0.3%; found needs >= 2% and a bound above 0): the held-out flights do not "
+                    "confirm it")
 
 
 def test_without_the_switches_lag_and_delay_are_in_the_base_and_no_candidate():
