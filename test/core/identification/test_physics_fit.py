@@ -8,6 +8,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from quad_modelling.core.diagnosis.physics_validation import assessing_vehicle
 from quad_modelling.core.identification.constants_report import add_physics_constants
 from quad_modelling.core.identification.identify import identified_vehicle_document, identify
 from quad_modelling.core.identification.physics_fit import FITTED, identify_physics, subsample_delay
@@ -239,3 +240,15 @@ def test_the_delay_between_samples_is_the_vertex_of_the_whole_sample_profile():
     assert subsample_delay(0.07, j(0.06), j(0.07), j(0.08), 0.01) == pytest.approx(0.0661, abs=1e-12)
     assert subsample_delay(0.05, 2.2, 2.1, 2.2, 0.01) == pytest.approx(0.05, abs=1e-15)
     assert subsample_delay(0.05, 2.10, 2.10, 2.2, 0.01) == pytest.approx(0.045, abs=1e-15)
+
+
+def test_a_time_constant_the_search_leaves_at_its_lower_bound_is_flagged():
+    """A simulated LinkQuad flight without motor lag (its rotors jump to their targets), the lag searched as the
+    diagnosis's motor_lag candidate searches it (the vehicle switches it off), without an observer (the one its
+    rungs keep there): τ ends within the search's tolerance of its 2 ms bound (2.13 ms on --validate's null cases,
+    then read as resolved: 6 sigma from 0) and is flagged."""
+    vehicle = assessing_vehicle("linkquad")
+    log = simulate("linkquad", (), seed=5, duration=60.0)
+    config = EvaluationConfig.preset("short", train="0%:100%", eval="0%:100%")
+    fit = identify_physics([log], vehicle, config, observer=Observer(0.0, 0.0), terms=["motor_lag"])
+    assert fit.values["rotor_time_constant"] < 0.0022 and fit.at_bound["rotor_time_constant"]
