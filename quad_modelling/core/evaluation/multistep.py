@@ -233,11 +233,11 @@ def start_errors(flights: Sequence[FlightLog], models: Sequence[MultiStepPredict
             first_block += int(block.max()) + 1
     if not blocks:
         raise DataError(f"no {span.name} segment longer than {horizon} samples plus the warm start")
-    errors = []
-    for model in models:
-        predictions = predict_parts(model, scored, horizon)
-        errors.append(np.vstack([np.stack([_group_norms(truth, np.asarray(predicted)[:, 1:], group).sum(axis=1) for group in groups], axis=1)
-                                 for truth, predicted in zip(truths, predictions)]))
+    def contributions(truth, predicted):  # (S, G): each group's error summed over the horizon
+        return np.stack([_group_norms(truth, np.asarray(predicted)[:, 1:], group).sum(axis=1) for group in groups], axis=1)
+
+    errors = [np.vstack([contributions(truth, predicted) for truth, predicted in zip(truths, predict_parts(model, scored, horizon))])
+              for model in models]
     return errors, np.concatenate(blocks)
 
 

@@ -50,8 +50,8 @@ Uncertainty (1 sigma, from the Jacobian): the linear parameters from :math:`s^2 
 thinned to one per longest horizon (overlapping horizons share their errors, so neighbouring anchors are
 not independent); ratios by first-order propagation; :math:`\tau_m` from the curvature of the profile
 :math:`\chi^2(\tau) = \sum_c \mathrm{SSR}_c / s_c^2` on the same thinning, :math:`\sigma_\tau^2 = 2 / \chi^{2\prime\prime}`;
-δ's from the curvature of :math:`\chi^2(\delta)` over whole samples (the grid's quantisation, one sample period /
-sqrt(12), where that profile is flat). A value outside its bounds (:data:`BOUNDS_FACTOR`
+δ's from the curvature of :math:`\chi^2(\delta)` over whole samples, with a delay between them the vertex's error
+(one sample period / sqrt(12), alone where that profile is flat) in quadrature. A value outside its bounds (:data:`BOUNDS_FACTOR`
 around the starting value; drag from 0) is clipped there and flagged ``at_bound``. A channel whose normal matrix is
 singular (:data:`~quad_modelling.core.identification.normal_equations.MAX_CONDITION`; the flights do not excite it) leaves its constants at the file's values, flagged
 ``identifiable: false``.

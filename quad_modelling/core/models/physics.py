@@ -332,10 +332,12 @@ class PhysicsPredictor:
         inputs = [self._horizon_inputs(segment, np.asarray(starts, dtype=int), horizon) for segment, starts in parts]
         if not inputs:
             return []
-        state = PhysicsState(*(np.concatenate([getattr(i[0], f.name) for i in inputs]) for f in fields(PhysicsState)))
-        disturbance = Disturbance(np.concatenate([i[1].linear_n for i in inputs]), np.concatenate([i[1].angular_b for i in inputs]))
-        out = rollout(self.params, state, disturbance, np.concatenate([i[2] for i in inputs]), np.concatenate([i[3] for i in inputs]))
-        return np.split(out, np.cumsum([len(i[3]) for i in inputs])[:-1])
+        states, disturbances, commands, intervals = zip(*inputs)
+        state = PhysicsState(*(np.concatenate([getattr(s, f.name) for s in states]) for f in fields(PhysicsState)))
+        disturbance = Disturbance(np.concatenate([d.linear_n for d in disturbances]),
+                                  np.concatenate([d.angular_b for d in disturbances]))
+        out = rollout(self.params, state, disturbance, np.concatenate(commands), np.concatenate(intervals))
+        return np.split(out, np.cumsum([len(dt) for dt in intervals])[:-1])
 
     def _horizon_inputs(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> tuple:
         """(start states, disturbances, commands (S, H + 1, 4), sample intervals (S, H)) of :meth:`predict_horizons`."""
