@@ -12,7 +12,7 @@ spec               change of the logged commands u (N, 4)                       
 ``none``           unchanged                                                    nothing changes
 =================  ==========================================================  ===========================================
 
-In every case no effect may newly be found.
+In every case no effect may newly be found, and but for ``delay:MS`` the delay stays (+- :data:`DELAY_TOLERANCE_S`).
 """
 
 from __future__ import annotations
@@ -124,6 +124,10 @@ def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
         rise = injected["delay_s"]["value"] - plain["delay_s"]["value"]
         checks.append({"check": "delay rises by the injected delay", "expected_s": injection.delay_s, "measured_s": rise,
                        "tolerance_s": DELAY_TOLERANCE_S, "holds": abs(rise - injection.delay_s) <= DELAY_TOLERANCE_S})
+    else:
+        shift = injected["delay_s"]["value"] - plain["delay_s"]["value"]
+        checks.append({"check": "the delay stays", "expected_s": 0.0, "measured_s": shift, "tolerance_s": DELAY_TOLERANCE_S,
+                       "holds": abs(shift) <= DELAY_TOLERANCE_S})
     if injection.kind == "gain":
         ratio = (relative_gain(injected["motor_command_gains"]["value"], injection.motor)
                  / relative_gain(plain["motor_command_gains"]["value"], injection.motor))

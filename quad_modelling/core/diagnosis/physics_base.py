@@ -8,7 +8,8 @@ model (rotor drag included), and held for every fit that follows (the disturbanc
 fitted with is the base's, or none where that fits the rung's constants better: :data:`RUNG_FIT_OBSERVERS`), so
 that no candidate's presence or absence distorts them: refitted with rotor drag off, the delay went to
 its 150 ms bound and the roll inertia to its lower bound on two of three NanoBench shape folds
-(bench/results/diagnose_real.md, before this). The observer each fitted model *predicts* with is chosen for its
+(bench/results/diagnose_real.md, before this). Only a final model holding per-motor command gains is refitted with
+them searched (:data:`COMMAND_GAIN_TERMS`). The observer each fitted model *predicts* with is chosen for its
 constants as ``identify`` chooses it (:func:`~quad_modelling.core.identification.physics_fit.prediction_errors`:
 the least open-loop error on the training flights), so every rung is scored as the model ``identify --effects``
 gives: a term that explains what the base's observer absorbed lets the model predict without it (simulated
@@ -101,6 +102,14 @@ all of :data:`~quad_modelling.core.identification.physics_fit.FIT_OBSERVERS`); t
 force or moment the base lacks; once a rung's term supplies it, the constants are better fitted without (simulated
 LinkQuad, battery on, seed 22: the base fitted with the linear observer, kappa resolved at 0.087 +- 0.009 1/V, truth
 0.084, but with that observer the battery rung's held-out J did not fall, -0.6 %)."""
+
+COMMAND_GAIN_TERMS = {"motor_imbalance"}
+"""Found terms on the command path that trade with the held rotor delay: when the final set holds one (and neither
+motor lag nor input delay, which search the dynamics anyway), the final model is refitted once with the rotor time
+constant and delay searched with it. The reference fit has no per-motor gains, so a gain difference biases its
+delay: NanoBench, shape fold B2, motor 3's logged command divided by 0.8 (``--inject gain:3:0.8``) raised the
+reference delay from 55.3 to 64.0 ms; searched with the gains, 55.1 ms (bench/results/diagnose_real.md). Only the
+final is refitted: the selection's rungs keep the reference's dynamics (a search per rung would cost its 5-15 s)."""
 
 BOOTSTRAP = 400
 """Bootstrap resamples of the shrink's 5 % bound."""
@@ -324,12 +333,15 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             return None
         return reference.values["rotor_time_constant"], reference.values["rotor_delay"], reference.sigma["rotor_delay"]
 
-    def fit_with(key: Sequence[str], flights: Sequence[FlightLog], observers: Sequence[str] | None = None):
+    def fit_with(key: Sequence[str], flights: Sequence[FlightLog], observers: Sequence[str] | None = None,
+                 held: tuple[float | None, float | None, float] | None | str = "rung"):
         """The rung's constants fitted with each of ``observers`` (default: the base's and :data:`RUNG_FIT_OBSERVERS`),
-        the one of least training error kept (its score in ``diagnostics["fit_observer_choice"]``)."""
+        the one of least training error kept (its score in ``diagnostics["fit_observer_choice"]``); the rotor
+        dynamics as :func:`dynamics` holds them for ``key``, unless ``held`` says otherwise (None: searched)."""
         names = observers or (fit_observer, *RUNG_FIT_OBSERVERS)
+        held = dynamics(key) if held == "rung" else held
         fits = {name: identify_physics(flights, vehicle, config, observer=OBSERVERS[name], drag="rotor_drag" in (*key, *switched),
-                                       terms=[e for e in key if e != "rotor_drag"], dynamics=dynamics(key))
+                                       terms=[e for e in key if e != "rotor_drag"], dynamics=held)
                 for name in dict.fromkeys(names)}
         if len(fits) == 1:
             return next(iter(fits.values()))
@@ -338,12 +350,12 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         fits[chosen].diagnostics["fit_observer_choice"] = {"chosen": chosen, "errors": scores}
         return fits[chosen]
 
-    def rung(effects: Sequence[str], flights: Sequence[FlightLog] = train) -> Rung:
+    def rung(effects: Sequence[str], flights: Sequence[FlightLog] = train, searched: bool = False) -> Rung:
         key = tuple(sorted(effects))
-        if flights is train and key in cache:
+        if flights is train and key in cache and not searched:
             return cache[key]
-        say(f"fitting base + {', '.join(key) or 'nothing'}")
-        fit = fit_with(key, flights)
+        say(f"fitting base + {', '.join(key) or 'nothing'}" + (" (rotor lag and delay searched with it)" if searched else ""))
+        fit = fit_with(key, flights, held=None if searched else "rung")
         choice = fit.diagnostics.get("fit_observer_choice")
         known = {choice["chosen"]: choice["errors"][choice["chosen"]]} if choice else None  # its own observer's, scored
         predicting = prediction_errors(fit, flights, vehicle, config, known)  # as identify chooses it for these constants
@@ -385,6 +397,8 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             chosen.remove(c)
             current = rung(chosen)
             dropped[c] = rise
+    if dynamics(chosen) is not None and COMMAND_GAIN_TERMS & set(chosen):  # see COMMAND_GAIN_TERMS
+        cache[tuple(sorted(chosen))] = current = rung(chosen, searched=True)
     final = current
     ladder = [rung_json(rung(chosen[:k])) for k in range(len(chosen) + 1)]  # base, + rank 1, ...: each refitted jointly
     say("folds and the final table")
@@ -392,7 +406,9 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     if len(train) >= 2:
         halves = [list(train[0::2]), list(train[1::2])]
         fitted_with = final.fit.diagnostics.get("fit_observer_choice", {}).get("chosen", fit_observer)
-        folds = [fit_with(final.effects, h, (fitted_with,)) for h in halves]  # each half fitted as the final rung
+        held = dynamics(final.effects) and (final.fit.values["rotor_time_constant"], final.fit.values["rotor_delay"],
+                                            final.fit.sigma["rotor_delay"])  # the final's own
+        folds = [fit_with(final.effects, h, (fitted_with,), held) for h in halves]  # each half fitted as the final rung
     effects = {}
     order = {c: i for i, c in enumerate(chosen)}
     for c in candidates:

@@ -92,10 +92,21 @@ def report_markdown(data: dict) -> str:
     if injection:
         out += [f"## Known answer: --inject {injection['spec']}", ""]
         out += markdown_table(["check", "expected", "measured", "holds"],
-                              [[c["check"], str(c.get("expected", c.get("expected_s", ""))),
-                                str(c.get("measured", c.get("measured_s", c.get("named", c.get("newly_found", ""))))),
+                              [[c["check"], _check_value(c, "expected"), _check_value(c, "measured"),
                                 "yes" if c["holds"] else "NO"] for c in injection["checks"]]) + [""]
     return "\n".join(out) + "\n"
+
+
+def _check_value(check: dict, which: str) -> str:
+    """An injection check's ``expected`` or ``measured`` cell: a delay in ms (+- its tolerance), a ratio, motors named."""
+    if f"{which}_s" in check:
+        tolerance = f" +- {check['tolerance_s'] * 1000:g}" if which == "expected" else ""
+        return f"{check[f'{which}_s'] * 1000:.1f} ms{tolerance}"
+    if which in check and isinstance(check[which], float):
+        return f"{check[which]:.3f}" + (f" +- {check['tolerance']:.0%}" if which == "expected" and "tolerance" in check else "")
+    if which == "measured":
+        return str(check.get("named", check.get("newly_found", "")))
+    return str(check.get(which, ""))
 
 
 def write_physics_diagnosis(data: dict, directory: Path) -> list[str]:

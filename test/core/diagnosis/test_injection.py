@@ -61,7 +61,14 @@ def test_checks_hold_within_the_tolerances_and_fail_outside():
     gains = [1.25 * 1.0, 1.02, 0.99, 0.99]
     gained = {**plain, "found": ["rotor_drag", "motor_imbalance"], "motor_command_gains": {"value": gains}}
     result = injection_checks(parse_injection("gain:1:1.25"), plain, gained)
-    assert result["passed"] and result["checks"][1]["measured"] == pytest.approx(1.25)
+    gain_check = next(c for c in result["checks"] if c["check"].startswith("motor 1"))
+    assert result["passed"] and gain_check["measured"] == pytest.approx(1.25)
+    moved = {**gained, "delay_s": {"value": 0.0461}}  # the delay may not follow a gain (6.1 ms > 5 ms)
+    result = injection_checks(parse_injection("gain:1:1.25"), plain, moved)
+    stays = next(c for c in result["checks"] if c["check"] == "the delay stays")
+    assert result["passed"] is False and not stays["holds"] and stays["measured_s"] == pytest.approx(0.0061)
+    swapped = {**plain, "delay_s": {"value": 0.0449}, "motor_order": {"swap": [1, 2]}}
+    assert injection_checks(parse_injection("swap:1:2"), plain, swapped)["passed"] is True
     extra = {**plain, "found": ["rotor_drag", "battery"]}
     assert injection_checks(parse_injection("none"), plain, extra)["passed"] is False
     assert relative_gain([1.25, 1, 1, 1], 1) == pytest.approx(1.25)
