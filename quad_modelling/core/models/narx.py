@@ -500,6 +500,11 @@ class NarxPredictor:
         self.name = name
         self.trim = trim
 
+    @property
+    def sample_period_s(self) -> float:
+        """The period [s] the model was trained at: the only one its windows may have (:func:`check_sample_rate`)."""
+        return self.model.dt
+
     def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
         """(N, 18) trimmed closed-loop prediction (VARIABLES order)."""
         return trim_prediction(window, self.model.predict_window(window, warm_samples), self.trim)

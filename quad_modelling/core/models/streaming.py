@@ -195,9 +195,13 @@ def prime(predictor: StreamingPredictor, vehicle: VehicleConfig, sample_period_s
     discretisation cache, torch's first forward pass: 10-20 ms measured for the
     greybox against about 1.5 ms for later windows. A live node primes its model
     at start-up so the first real window does not hold its answers back by that.
-    Models that reject the synthetic window (DataError, ValueError) are simply
-    left unprimed.
+    A model trained at one sample period (``predictor.sample_period_s``: NARX) is
+    primed at that period, whatever ``sample_period_s`` says: it refuses any other,
+    and a NARX node left unprimed at 400 Hz held its first window's answers back by
+    37 ms (bench_nodes, 17 inputs queued behind it). Models that reject the
+    synthetic window (DataError, ValueError) are simply left unprimed.
     """
+    sample_period_s = getattr(predictor, "sample_period_s", None) or sample_period_s
     warm = hover_at_rest(vehicle, sample_period_s, max(warm_rows, 2))
     try:
         _, stream = predictor.start_window(warm)

@@ -22,6 +22,7 @@ from quad_modelling.core.models.narx import (
     NarxPredictor,
     load_narx,
 )
+from quad_modelling.core.models.streaming import prime
 from quad_modelling.core.training.narx import (
     Segment,
     _noisy_outputs,
@@ -35,6 +36,7 @@ from quad_modelling.core.preprocess import (
     trimmed_variables,
 )
 from quad_modelling.core.variables import columns
+from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import DataError, ModelError, OutputExistsError
 
 DT = 0.01
@@ -265,3 +267,15 @@ def test_training_segments_split_at_a_marked_measurement_gap():
     np.testing.assert_array_equal(parts[1].u, log.u[1068:])
     spanned = flight_segments([log], [(2.0, 20.0)])  # a span: split the same way
     assert [len(p.u) for p in spanned] == [201, 932]
+
+
+def test_a_live_node_primes_the_model_at_its_own_sample_period(trained):
+    """The node primes with the period it was told (0.01 s when it is not yet known); a NARX model accepts
+    only the period it was trained at, so it is primed at that one -- left unprimed, a 400 Hz NARX node's first
+    window paid its one-time costs live (37 ms, bench_nodes)."""
+    predictor = NarxPredictor(trained)
+    started = []
+    start_window = predictor.start_window
+    predictor.start_window = lambda warm: started.append(warm.sample_rate) or start_window(warm)
+    prime(predictor, load_vehicle("linkquad"), 0.01 if trained.dt != 0.01 else 0.02, 20)
+    assert predictor.sample_period_s == trained.dt and started == [pytest.approx(1.0 / trained.dt)]
