@@ -3,8 +3,8 @@
 1. Predictor latency (input stamp published -> its prediction received), p50/p99 and drops,
    at 100 Hz and 400 Hz, with the evaluator running (a publisher in this process plays a
    synthetic flight; predictor and evaluator are their own processes), with the predictor
-   under SCHED_FIFO (``realtime_priority``) and under normal scheduling, next to the floor
-   of a no-op echo node (bench/echo_node.py).
+   under SCHED_FIFO (``realtime_priority``) and under normal scheduling, with the floor of a
+   no-op echo node (bench/echo_node.py) answering the same inputs beside it in the same run.
 2. Whole-graph throughput at rate 0: run-bag on the bundled bag with two predictors
    (naive, greybox) and the evaluator; samples/s of the replay, real-time factor, and
    loss (every prediction published and every window scored).
@@ -105,7 +105,7 @@ MODEL_FILES = {"greybox": None, "physics": None, "narx": small_narx, "hybrid": s
 
 
 def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", realtime: int = 0, echo: bool = False,
-            horizon_s: float = 0.0, math_threads: int = 1) -> dict:
+            horizon_s: float = 0.0, math_threads: int = 1, echo_beside: bool = False) -> dict:
     """Input-to-prediction latency of one predictor node with the evaluator running.
 
     ``horizon_s`` > 0: the predictor in receding-horizon mode (held inputs: the forecast) with ``sample_period_s``
@@ -117,7 +117,9 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
     flight stack that consumes the predictions) under SCHED_FIFO at the same priority; the evaluator keeps
     normal scheduling (nice 10). ``echo``: instead of predictor and evaluator, a no-op rclpy node that
     answers each motor input with an empty Odometry of the same stamp (the floor of rclpy + Fast DDS
-    + this harness on this machine).
+    + this harness on this machine). ``echo_beside``: that echo node runs *next to* the predictor and evaluator, on
+    ``echo/odom``, answering the same inputs at the same moments; its latencies over the same rows are returned as
+    ``echo_p50_ms`` / ``echo_p99_ms`` (the floor in the very same run, whatever the shared machine does meanwhile).
     """
     import rclpy
     from nav_msgs.msg import Odometry
@@ -150,6 +152,10 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
                        f"realtime_priority:={realtime}", f"math_threads:={math_threads}", *horizon, log=workdir / f"pred_{tag}.log"),
                  start("evaluator_node", f"window_s:={window}", f"models:=[{name}]", "vehicle:=crazyflie21",
                        f"math_threads:={math_threads}", *horizon[:1], log=workdir / f"eval_{tag}.log")]
+        if echo_beside:
+            procs.append(subprocess.Popen([sys.executable, str(REPO / "bench" / "echo_node.py"), "echo/odom", str(realtime)],
+                                          stdout=(workdir / f"echo_beside_{tag}.log").open("w"), stderr=subprocess.STDOUT,
+                                          start_new_session=True))
     log = synthetic_flight(rate, seconds)
     arrays = messages.measurement_messages(log)
     stamps = (stamps_ns(log.t) + time.time_ns()).tolist()
@@ -167,8 +173,13 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
     answered_ns = steps * period_ns  # a forecast's stamp - its input's
     node.create_subscription(Odometry, topic, lambda m: received.setdefault(topics.stamp_ns(m.header.stamp) - answered_ns,
                                                                             time.perf_counter()), qos)
+    echoed: dict[int, float] = {}
+    if echo_beside:
+        node.create_subscription(Odometry, "echo/odom", lambda m: echoed.setdefault(topics.stamp_ns(m.header.stamp),
+                                                                                  time.perf_counter()), qos)
     deadline = time.monotonic() + 60
-    while (pubs[0].get_subscription_count() < len(procs) or node.count_publishers(topic) < 1) and time.monotonic() < deadline:
+    while (pubs[0].get_subscription_count() < len(procs) or node.count_publishers(topic) < 1
+           or (echo_beside and node.count_publishers("echo/odom") < 1)) and time.monotonic() < deadline:
         executor.spin_once(timeout_sec=0.05)
     end = time.monotonic() + 1.0
     while time.monotonic() < end:
@@ -208,6 +219,10 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
            "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max()), "drops": int(drops)}
     if horizon_s > 0:
         out.update(horizon_s=horizon_s, steps=steps, forecasts_expected=len(expected))
+    if echo_beside:  # the floor over the same rows, in the same run
+        floor = np.array([echoed[ns] - sent[ns] for ns in streamed if ns in echoed]) * 1e3
+        out.update(echo_p50_ms=float(np.percentile(floor, 50)), echo_p99_ms=float(np.percentile(floor, 99)),
+                   echo_drops=sum(ns not in echoed for ns in streamed))
     return out
 
 
@@ -385,19 +400,24 @@ def latency_markdown(lat: list[dict]) -> list[str]:
           "## Predictor latency (input published -> prediction received), evaluator running", "",
           f"Scheduling `SCHED_FIFO {LATENCY_REALTIME_PRIORITY}`: the predictor with `realtime_priority:={LATENCY_REALTIME_PRIORITY}` "
           "and this harness (standing in for the flight stack that reads the predictions) under SCHED_FIFO; the evaluator "
-          "keeps normal scheduling (nice 10). `normal`: every process under the default scheduler. The echo row is a no-op "
-          "rclpy node answering each input at once (`bench/echo_node.py`): the floor of rclpy + Fast DDS + this harness "
-          f"on this machine, run in turn with each model's runs (the machine is shared and its load drifts). 400 Hz rows: "
-          f"the run of median p99 out of {LATENCY_RUNS} (all p99s listed).", "",
+          "keeps normal scheduling (nice 10). `normal`: every process under the default scheduler. In every run a no-op "
+          "rclpy node (`bench/echo_node.py`, same scheduling as the predictor) answers the same inputs beside the "
+          "predictor: `echo p99` is the floor of rclpy + Fast DDS + this harness over the same rows *in the same run*, "
+          "and `p99 - echo` the predictor's p99 minus it, the median over the runs (the machine is shared: its load "
+          f"moves the floor from run to run, not between the two nodes of one run). 400 Hz rows: the run of median p99 "
+          f"out of {LATENCY_RUNS}; the last column lists every run's p99 - echo.", "",
           "`math threads`: the nodes' parameter `math_threads` (1: numpy's and scipy's OpenBLAS pools on one thread, "
           "the default; 0: the pools as the libraries start them, one thread per core, as before the parameter).", "",
-          "| model | scheduling | math threads | rate | inputs | p50 [ms] | p99 [ms] | max [ms] | drops | p99 of each run [ms] |",
-          "|---|---|---|---|---|---|---|---|---|---|"]
-    md += [f"| {r['model'] + (' (runs next to ' + r['next_to'] + ')' if r.get('next_to') and r['model'].startswith('echo') else '')} | "
-           f"{'SCHED_FIFO ' + str(r['realtime_priority']) if r['realtime_priority'] else 'normal'} | "
+          "| model | scheduling | math threads | rate | inputs | p50 [ms] | p99 [ms] | echo p99, same run [ms] | "
+          "p99 - echo, median of runs [ms] | max [ms] | drops | p99 - echo of each run [ms] |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    md += [f"| {r['model']} | {'SCHED_FIFO ' + str(r['realtime_priority']) if r['realtime_priority'] else 'normal'} | "
            f"{'-' if r.get('math_threads') is None else r['math_threads']} | {r['rate_hz']:g} Hz | "
-           f"{r['inputs']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | {r['max_ms']:.2f} | {r['drops']} | "
-           f"{', '.join(f'{x:.2f}' for x in r.get('runs_p99_ms', [r['p99_ms']]))} |" for r in lat]
+           f"{r['inputs']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | "
+           f"{'-' if r.get('echo_p99_ms') is None else format(r['echo_p99_ms'], '.2f')} | "
+           f"{'-' if r.get('p99_minus_echo_ms') is None else format(r['p99_minus_echo_ms'], '+.2f')} | "
+           f"{r['max_ms']:.2f} | {r['drops']} | "
+           f"{', '.join(f'{x:+.2f}' for x in r.get('runs_p99_minus_echo_ms', []))} |" for r in lat]
     return md + ["", "Streamed rows only: a warm-start row's prediction exists only once the warm start is complete (then it is "
                  "queued behind the live ones), so it has no per-input latency.", ""]
 
@@ -448,17 +468,17 @@ def main() -> int:
             for kind in args.models.split(","):
                 for rate in args.rates:
                     spec = kind if MODEL_FILES[kind] is None else f"{kind}:{MODEL_FILES[kind](rate, work)}"
-                    # the echo floor and every math_threads setting run in turn, run after run: the machine is shared,
-                    # its load drifts, and each row's median then sees the same drift
-                    runs: dict = {n: [] for n in ["echo", *threads]}
+                    # the echo node runs beside the predictor in every run (echo_beside): the floor of the same run,
+                    # the same inputs at the same moments, whatever the shared machine does meanwhile
+                    runs: dict = {n: [] for n in threads}
                     for _ in range(LATENCY_RUNS if rate == 400.0 else 1):
-                        runs["echo"].append(latency(rate, seconds, work, "greybox", realtime=realtime, echo=True))
                         for n in threads:
-                            runs[n].append(latency(rate, seconds, work, spec, realtime=realtime, math_threads=n))
+                            runs[n].append(latency(rate, seconds, work, spec, realtime=realtime, math_threads=n, echo_beside=True))
                     for n, group in runs.items():
                         median = dict(sorted(group, key=lambda r: r["p99_ms"])[len(group) // 2])
                         median["runs_p99_ms"] = [r["p99_ms"] for r in group]
-                        median["next_to"] = kind
+                        median["runs_p99_minus_echo_ms"] = [r["p99_ms"] - r["echo_p99_ms"] for r in group]
+                        median["p99_minus_echo_ms"] = float(np.median(median["runs_p99_minus_echo_ms"]))
                         lat.append(median)
         if args.latency_only:
             write_results("nodes_latency", {"latency": lat, "argv": sys.argv[1:], "load_average_before": load_before},

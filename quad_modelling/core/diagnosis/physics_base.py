@@ -106,7 +106,7 @@ LinkQuad, battery on, seed 22: the base fitted with the linear observer, kappa r
 COMMAND_GAIN_TERMS = {"motor_imbalance"}
 """Found terms on the command path that trade with the held rotor delay: when the final set holds one (and neither
 motor lag nor input delay, which search the dynamics anyway), the final model is refitted once with the rotor time
-constant and delay searched with it. The reference fit has no per-motor gains, so a gain difference biases its
+constant and delay searched with it, with the observer the held final's constants were fitted with. The reference fit has no per-motor gains, so a gain difference biases its
 delay: NanoBench, shape fold B2, motor 3's logged command divided by 0.8 (``--inject gain:3:0.8``) raised the
 reference delay from 55.3 to 64.0 ms; searched with the gains, 55.1 ms (bench/results/diagnose_real.md). Only the
 final is refitted: the selection's rungs keep the reference's dynamics (a search per rung would cost its 5-15 s)."""
@@ -350,19 +350,24 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         fits[chosen].diagnostics["fit_observer_choice"] = {"chosen": chosen, "errors": scores}
         return fits[chosen]
 
-    def rung(effects: Sequence[str], flights: Sequence[FlightLog] = train, searched: bool = False) -> Rung:
+    def rung(effects: Sequence[str], flights: Sequence[FlightLog] = train, searched_with: str | None = None) -> Rung:
+        """The rung of ``effects`` (cached on the training flights); ``searched_with``: fitted with that observer
+        only, the rotor lag and delay searched (:data:`COMMAND_GAIN_TERMS`), replacing the cached rung."""
         key = tuple(sorted(effects))
-        if flights is train and key in cache and not searched:
+        if flights is train and key in cache and searched_with is None:
             return cache[key]
-        say(f"fitting base + {', '.join(key) or 'nothing'}" + (" (rotor lag and delay searched with it)" if searched else ""))
-        fit = fit_with(key, flights, held=None if searched else "rung")
+        say(f"fitting base + {', '.join(key) or 'nothing'}" + (" (rotor lag and delay searched with it)" if searched_with else ""))
+        if searched_with is None:
+            fit = fit_with(key, flights)
+        else:
+            fit = fit_with(key, flights, (searched_with,), held=None)
         choice = fit.diagnostics.get("fit_observer_choice")
         known = {choice["chosen"]: choice["errors"][choice["chosen"]]} if choice else None  # its own observer's, scored
         predicting = prediction_errors(fit, flights, vehicle, config, known)  # as identify chooses it for these constants
         fit.observer = OBSERVERS[min(predicting, key=predicting.get)]
         fit.diagnostics["observer_choice"] = {**reference.diagnostics["observer_choice"], "predicting_errors": predicting,
                                               "chosen": min(predicting, key=predicting.get),
-                                              "fitted_with": choice["chosen"] if choice else fit_observer}
+                                              "fitted_with": choice["chosen"] if choice else searched_with or fit_observer}
         fitted = fitted_vehicle(vehicle, fit, f"diagnose: base + {', '.join(key) or 'nothing'}")
         result = Rung(key, fit, fitted, held_out_score(fitted, fit.observer, test, config, SELECTION_STRIDE))
         if flights is train:
@@ -398,14 +403,15 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             current = rung(chosen)
             dropped[c] = rise
     if dynamics(chosen) is not None and COMMAND_GAIN_TERMS & set(chosen):  # see COMMAND_GAIN_TERMS
-        cache[tuple(sorted(chosen))] = current = rung(chosen, searched=True)
+        fitted_with = current.fit.diagnostics["observer_choice"]["fitted_with"]  # the held rung's: one search, not two
+        cache[tuple(sorted(chosen))] = current = rung(chosen, searched_with=fitted_with)
     final = current
     ladder = [rung_json(rung(chosen[:k])) for k in range(len(chosen) + 1)]  # base, + rank 1, ...: each refitted jointly
     say("folds and the final table")
     folds = []
     if len(train) >= 2:
         halves = [list(train[0::2]), list(train[1::2])]
-        fitted_with = final.fit.diagnostics.get("fit_observer_choice", {}).get("chosen", fit_observer)
+        fitted_with = final.fit.diagnostics["observer_choice"]["fitted_with"]
         held = dynamics(final.effects) and (final.fit.values["rotor_time_constant"], final.fit.values["rotor_delay"],
                                             final.fit.sigma["rotor_delay"])  # the final's own
         folds = [fit_with(final.effects, h, (fitted_with,), held) for h in halves]  # each half fitted as the final rung
