@@ -43,13 +43,13 @@ def _name_max(directory: Path) -> int:
         return 255
 
 
-def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = ()) -> None:
+def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), flag: str = "-o") -> None:
     """Refuse an output that names no file (``''``, ``.``, ``..``), is too long a name, is or holds an
     input (``inputs``: every file the command reads), exists without force, or whose directory we
-    cannot write to."""
+    cannot write to; ``flag`` is the option that named it, as the error says."""
     path = Path(path)
     if path.name in ("", ".", ".."):
-        raise OutputDirError(f"-o {str(path)!r}: the output must name a new file or directory, not {str(path)!r}")
+        raise OutputDirError(f"{flag} {str(path)!r}: the output must name a new file or directory, not {str(path)!r}")
     parent = path.parent if str(path.parent) else Path(".")
     try:
         parent_is_dir = parent.is_dir()
@@ -59,7 +59,7 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = ()) -> 
     if len(os.fsencode(path.name)) > limit:
         raise OutputDirError(f"{path.name[:40]}...: output name is {len(os.fsencode(path.name))} bytes long; "
                              f"the file system allows {limit} here")
-    check_not_input(path, inputs)
+    check_not_input(path, inputs, flag)
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists; pass --force to overwrite")
     if not parent_is_dir:
@@ -68,7 +68,7 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = ()) -> 
         raise OutputDirError(f"{parent}: output directory is not writable")
 
 
-def check_not_input(path: Path, inputs: Iterable[str | Path]) -> None:
+def check_not_input(path: Path, inputs: Iterable[str | Path], flag: str = "-o") -> None:
     """OutputOverlapsInputError when ``path`` is one of ``inputs``, lies inside one or contains one
     (symbolic links resolved): overwriting or deleting an input is never what the user meant."""
     out = Path(path).resolve()
@@ -84,7 +84,7 @@ def check_not_input(path: Path, inputs: Iterable[str | Path]) -> None:
             relation = "contains the input"
         else:
             continue
-        raise OutputOverlapsInputError(f"-o {path}: the output {relation} {given}; choose another output (refused even with --force)")
+        raise OutputOverlapsInputError(f"{flag} {path}: the output {relation} {given}; choose another output (refused even with --force)")
 
 
 def _remove(path: Path) -> None:

@@ -154,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--inject and --write-vehicle diagnose the physics base: drop --base greybox / --validate")
     injection = parse_injection(args.inject) if args.inject else None
     if args.write_vehicle:
-        check_output(Path(args.write_vehicle), args.force, inputs=[*inputs, output])
+        check_output(Path(args.write_vehicle), args.force, inputs=[*inputs, output], flag="--write-vehicle")
     config = _config(args)
     check_fanout_options(args.jobs, args.scheduler)
     effects = None if args.base == "physics" else parse_effect_list(args.effects)

@@ -92,7 +92,7 @@ def test_the_written_vehicle_predicts_as_the_report_says(injected):
     (["--inject", "gain:9:1.2"], "motor 9"),
     (["--inject", "delay:abc"], "expected delay:MS"),
     (["--inject", "delay:99999"], "leaves no commands"),
-    (["--write-vehicle", BAG], "input"),
+    (["--write-vehicle", BAG], "--write-vehicle " + BAG + ": the output is the input"),
     (["--effects", "input_delay"], "in the base physics"),
     (["--base", "greybox", "--inject", "none"], "physics base"),
 ])
