@@ -106,10 +106,11 @@ LinkQuad, battery on, seed 22: the base fitted with the linear observer, kappa r
 COMMAND_GAIN_TERMS = {"motor_imbalance"}
 """Found terms on the command path that trade with the held rotor delay: when the final set holds one (and neither
 motor lag nor input delay, which search the dynamics anyway), the final model is refitted once with the rotor time
-constant and delay searched with it, with the observer the held final's constants were fitted with. The reference fit has no per-motor gains, so a gain difference biases its
-delay: NanoBench, shape fold B2, motor 3's logged command divided by 0.8 (``--inject gain:3:0.8``) raised the
-reference delay from 55.3 to 64.0 ms; searched with the gains, 55.1 ms (bench/results/diagnose_real.md). Only the
-final is refitted: the selection's rungs keep the reference's dynamics (a search per rung would cost its 5-15 s)."""
+constant and delay searched with it, with the observer the held final's constants were fitted with. The reference
+fit has no per-motor gains, so a gain difference biases its delay: NanoBench, shape fold B2, motor 3's logged
+command divided by 0.8 (``--inject gain:3:0.8``) raised the reference delay from 55.3 to 64.0 ms; searched with the
+gains, 55.1 ms (bench/results/diagnose_real.md). Only the final is refitted: the selection's rungs keep the
+reference's dynamics (a search per rung would cost its 5-15 s)."""
 
 BOOTSTRAP = 400
 """Bootstrap resamples of the shrink's 5 % bound."""
