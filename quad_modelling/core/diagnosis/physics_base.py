@@ -334,13 +334,12 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             return None
         return reference.values["rotor_time_constant"], reference.values["rotor_delay"], reference.sigma["rotor_delay"]
 
-    def fit_with(key: Sequence[str], flights: Sequence[FlightLog], observers: Sequence[str] | None = None,
-                 held: tuple[float | None, float | None, float] | None | str = "rung"):
+    def fit_with(key: Sequence[str], flights: Sequence[FlightLog], held: tuple[float | None, float | None, float] | None,
+                 observers: Sequence[str] | None = None):
         """The rung's constants fitted with each of ``observers`` (default: the base's and :data:`RUNG_FIT_OBSERVERS`),
-        the one of least training error kept (its score in ``diagnostics["fit_observer_choice"]``); the rotor
-        dynamics as :func:`dynamics` holds them for ``key``, unless ``held`` says otherwise (None: searched)."""
+        the one of least training error kept (its score in ``diagnostics["fit_observer_choice"]``); the rotor lag and
+        delay ``held`` (:func:`dynamics`), or searched (None)."""
         names = observers or (fit_observer, *RUNG_FIT_OBSERVERS)
-        held = dynamics(key) if held == "rung" else held
         fits = {name: identify_physics(flights, vehicle, config, observer=OBSERVERS[name], drag="rotor_drag" in (*key, *switched),
                                        terms=[e for e in key if e != "rotor_drag"], dynamics=held)
                 for name in dict.fromkeys(names)}
@@ -358,10 +357,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         if flights is train and key in cache and searched_with is None:
             return cache[key]
         say(f"fitting base + {', '.join(key) or 'nothing'}" + (" (rotor lag and delay searched with it)" if searched_with else ""))
-        if searched_with is None:
-            fit = fit_with(key, flights)
-        else:
-            fit = fit_with(key, flights, (searched_with,), held=None)
+        fit = fit_with(key, flights, dynamics(key)) if searched_with is None else fit_with(key, flights, None, (searched_with,))
         choice = fit.diagnostics.get("fit_observer_choice")
         known = {choice["chosen"]: choice["errors"][choice["chosen"]]} if choice else None  # its own observer's, scored
         predicting = prediction_errors(fit, flights, vehicle, config, known)  # as identify chooses it for these constants
@@ -415,7 +411,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         fitted_with = final.fit.diagnostics["observer_choice"]["fitted_with"]
         held = dynamics(final.effects) and (final.fit.values["rotor_time_constant"], final.fit.values["rotor_delay"],
                                             final.fit.sigma["rotor_delay"])  # the final's own
-        folds = [fit_with(final.effects, h, (fitted_with,), held) for h in halves]  # each half fitted as the final rung
+        folds = [fit_with(final.effects, h, held, (fitted_with,)) for h in halves]  # each half fitted as the final rung
     effects = {}
     order = {c: i for i, c in enumerate(chosen)}
     for c in candidates:
