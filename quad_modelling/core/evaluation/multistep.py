@@ -246,9 +246,10 @@ BATCH_STARTS = 4096
 
 
 def predict_parts(model: MultiStepPredictor, parts: Sequence[tuple[FlightLog, np.ndarray]], horizon: int) -> list[np.ndarray]:
-    """``model.predict_horizons`` of each (segment, starts) of ``parts``: through the model's
-    ``predict_horizons_of`` (one batch for the starts of many segments; the physics model's, whose per-step cost
-    is numpy's call overhead) in groups of at most :data:`BATCH_STARTS` starts where it has one, else part by part."""
+    """``model.predict_horizons`` of each (segment, starts) of ``parts``, for the :data:`GROUPS` (no acceleration):
+    through the model's ``predict_horizons_of`` (one batch for the starts of many segments; the physics model's,
+    whose per-step cost is numpy's call overhead; its acceleration columns NaN) in groups of at most
+    :data:`BATCH_STARTS` starts where it has one, else part by part."""
     batched = getattr(model, "predict_horizons_of", None)
     if batched is None:
         return [model.predict_horizons(segment, starts, horizon) for segment, starts in parts]

@@ -40,16 +40,24 @@ class NormalEquations:
     def add(self, x: np.ndarray, y: np.ndarray) -> None:
         """Add the rows (x (m, k), y (m,)) that follow the ones already added."""
         # einsum, not BLAS: tall-skinny products are 100x slower with a multithreaded BLAS on a busy 2-core machine
-        self.xtx += np.einsum("ij,ik->jk", x, x)
-        self.xty += np.einsum("ij,i->j", x, y)
-        self.yty += float(np.einsum("i,i->", y, y))
-        kept = slice((-self.n) % self.thin, None, self.thin)  # the rows whose stacked index is a multiple of thin
-        xt, yt = x[kept], y[kept]
-        self.xtx_thin += np.einsum("ij,ik->jk", xt, xt)
-        self.xty_thin += np.einsum("ij,i->j", xt, yt)
-        self.yty_thin += float(np.einsum("i,i->", yt, yt))
+        xtx, xty, yty = np.einsum("ij,ik->jk", x, x), np.einsum("ij,i->j", x, y), float(np.einsum("i,i->", y, y))
+        self.xtx += xtx
+        self.xty += xty
+        self.yty += yty
+        if self.thin == 1:  # every row kept: the same sums
+            self.xtx_thin += xtx
+            self.xty_thin += xty
+            self.yty_thin += yty
+            kept_rows = len(y)
+        else:
+            kept = slice((-self.n) % self.thin, None, self.thin)  # the rows whose stacked index is a multiple of thin
+            xt, yt = x[kept], y[kept]
+            self.xtx_thin += np.einsum("ij,ik->jk", xt, xt)
+            self.xty_thin += np.einsum("ij,i->j", xt, yt)
+            self.yty_thin += float(np.einsum("i,i->", yt, yt))
+            kept_rows = len(yt)
         self.n += len(y)
-        self.n_thin += len(yt)
+        self.n_thin += kept_rows
 
 
 def quadratic(xtx: np.ndarray, xty: np.ndarray, yty: float, coef: np.ndarray) -> float:
