@@ -64,7 +64,7 @@ def report_markdown(data: dict) -> str:
     out += ["## Selection (joint refit of every chosen effect)", ""]
     rows = []
     for step in data["selection"]:
-        for name, t in step["trials"].items():
+        for name, t in [*step["trials"].items(), *step.get("pairs", {}).items()]:
             rows.append([" + ".join(step["on_top_of"]) or "base", name, f"{t['shrink']:+.1%}", f"{t['shrink_5pct']:+.1%}",
                          "joined" if step["joined"] and name == step["best"] else ""])
     out += markdown_table(["on top of", "candidate", "shrink of J", "5 % bound", ""], rows) + [""]
