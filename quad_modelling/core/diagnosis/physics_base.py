@@ -219,10 +219,14 @@ def rung_json(rung: Rung) -> dict:
 def held_out_score(vehicle: VehicleConfig, observer: Observer, flights: Sequence[FlightLog], config: EvaluationConfig,
                    stride: int = 1) -> HeldOutScore:
     """Per-start SimErr contributions of the physics model of ``vehicle`` and of naive on ``flights``
-    (:func:`~quad_modelling.core.evaluation.multistep.start_errors`: the multi-step protocol's starts and segments)."""
+    (:func:`~quad_modelling.core.evaluation.multistep.start_errors`: the multi-step protocol's starts and segments),
+    those whose horizon touches the ground left out: no model here has ground contact, which no candidate can supply
+    (simulated LinkQuad, no effect, seed 82: a low pass set down for 2 s; with its starts the truth model scored
+    J 5 % below the identified base, without them 0.1 %)."""
     model = PhysicsPredictor(vehicle, observer=observer, trim=config.trim)
     naive = ConstantStatePredictor(vehicle, config.trim)
-    (errors, naive_errors), blocks = start_errors(flights, [model, naive], vehicle, config, SCORED_GROUPS, stride, BLOCK_S)
+    (errors, naive_errors), blocks = start_errors(flights, [model, naive], vehicle, config, SCORED_GROUPS, stride, BLOCK_S,
+                                                  airborne=True)
     return HeldOutScore(errors, naive_errors, blocks)
 
 

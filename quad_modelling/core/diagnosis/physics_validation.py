@@ -96,7 +96,7 @@ def truth_j(test: Sequence[FlightLog], vehicle: VehicleConfig, config: Evaluatio
     flights = [resample_uniform(f) for f in test]
     naive = ConstantStatePredictor(vehicle, config.trim)
     (errors, naive_errors), _ = start_errors(flights, [TruthPredictor(trim=config.trim), naive], vehicle, config,
-                                             SCORED_GROUPS, SELECTION_STRIDE, BLOCK_S)
+                                             SCORED_GROUPS, SELECTION_STRIDE, BLOCK_S, airborne=True)
     return objective(errors, naive_errors)
 
 

@@ -42,6 +42,7 @@ from quad_modelling.core.models.base import (
 from quad_modelling.core.models.streaming import StreamingHorizons, StreamingPredictor
 from quad_modelling.core.preprocess import (
     NEEDS,
+    ground_contact,
     measured_variables,
 )
 from quad_modelling.core.variables import VARIABLES
@@ -210,20 +211,25 @@ def multistep_table(sums: MultistepSums, config: EvaluationConfig, start_stride:
 
 def start_errors(flights: Sequence[FlightLog], models: Sequence[MultiStepPredictor], vehicle: VehicleConfig,
                  config: EvaluationConfig, groups: Sequence[str] = ("velocity", "angular_velocity"), stride: int = 1,
-                 block_s: float = 2.0) -> tuple[list[np.ndarray], np.ndarray]:
+                 block_s: float = 2.0, airborne: bool = False) -> tuple[list[np.ndarray], np.ndarray]:
     """Per start, each model's SimErr contribution :math:`\\sum_{h \\le H} \\lVert y_{s+h} - \\hat y_{s+h} \\rVert` of
     ``groups`` (the protocol's starts and segments of ``config.multistep_span``, every ``stride``-th start): a list of
     (S, G) arrays in ``models`` order, and (S,) the index of each start's block of ``block_s`` seconds (consecutive
     over segments; for a block bootstrap). Their means over starts are the models' SimErr (:func:`multistep_table`'s
-    at ``stride`` 1). DataError when no segment is long enough."""
+    at ``stride`` 1). ``airborne``: only the starts whose rows s..s+H do not touch the ground
+    (:func:`~quad_modelling.core.preprocess.ground_contact`; no model here has ground contact). DataError when no
+    segment is long enough."""
     span = next(s for s in config.spans() if s.name == config.multistep_span)
     horizon = max(max(config.horizons), SIM_ERR_HORIZON)
     scored, truths = [], []  # (segment, starts) and the measured rows 1..H after each start
     blocks, first_block = [], 0
     for log in flights:
+        contact = np.concatenate([[0], np.cumsum(ground_contact(log))]) if airborne else None
         for start, stop in span_segments(log, span, config):
             segment = log.slice(start, stop)
             starts = np.arange(warm_samples_for(segment, config.warm_s) - 1, len(segment) - horizon, stride)
+            if contact is not None:  # rows start + s .. start + s + H free of contact
+                starts = starts[contact[start + starts + horizon + 1] == contact[start + starts]]
             if not starts.size:
                 continue
             scored.append((segment, starts))

@@ -3,7 +3,7 @@ r"""Identification of the nonlinear physics model's constants (:mod:`quad_modell
 Data: the training span of each flight (``config.train`` after the take-off/landing drops, split at marked
 measurement gaps), raw rows; anchors every :data:`ANCHOR_STRIDE_S` from :data:`SETTLE_S` into each segment
 (the rotor filter starts from the first command's steady speed) that stay above
-:data:`~quad_modelling.core.identification.window_batch.GROUND_CONTACT_M` over their history and horizon.
+:data:`~quad_modelling.core.preprocess.GROUND_CONTACT_M` over their history and horizon.
 
 What is fitted is the model's own multi-step error, with its constant-disturbance observer, along the measured
 trajectory. For a channel with state y (velocity in N, a body rate) whose model acceleration is linear in the
@@ -71,7 +71,6 @@ from quad_modelling.core.evaluation.multistep import ratio_to_naive, start_error
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.constants_report import fitted_vehicle
 from quad_modelling.core.identification.physics_result import FITTED, PhysicsFit
-from quad_modelling.core.identification.window_batch import GROUND_CONTACT_M
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 from quad_modelling.core.identification.normal_equations import NormalEquations, solve_channels
@@ -94,7 +93,7 @@ from quad_modelling.core.physics.effects import BASE_SWITCHES, switched_off
 from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, interval_rotor_speeds, rotor_speeds
 from quad_modelling.core.physics.parameters import PhysicsParameters
-from quad_modelling.core.preprocess import resample_uniform
+from quad_modelling.core.preprocess import GROUND_CONTACT_M, resample_uniform
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
 from quad_modelling.errors import DataError
@@ -348,12 +347,13 @@ horizon is 50 starts long, so neighbouring starts share most of their errors."""
 def training_score(fit: PhysicsFit, flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig) -> float:
     """The fitted model's multi-step error on its own training span, the protocol's (open loop, SimErr over h = 1..50,
     :func:`~quad_modelling.core.evaluation.multistep.start_errors`, every :data:`CHOICE_STRIDE`-th start): the mean of
-    velocity and angular velocity relative to naive; inf when no segment is long enough."""
+    velocity and angular velocity relative to naive, on the starts whose horizon does not touch the ground (as the
+    fit's anchors); inf when no segment is long enough."""
     fitted = fitted_vehicle(vehicle, fit, "observer choice")
     models = [PhysicsPredictor(fitted, observer=fit.observer, trim=config.trim), ConstantStatePredictor(fitted, config.trim)]
     try:
         (errors, naive), _ = start_errors([resample_uniform(f) for f in flights], models, fitted,
-                                          replace(config, multistep_span="train"), stride=CHOICE_STRIDE)
+                                          replace(config, multistep_span="train"), stride=CHOICE_STRIDE, airborne=True)
     except DataError:
         return float("inf")
     return ratio_to_naive(errors, naive)

@@ -6,7 +6,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import signal
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.greybox import (
@@ -14,7 +13,9 @@ from quad_modelling.core.models.greybox import (
     trim_motion,
 )
 from quad_modelling.core.preprocess import (
+    GROUND_CONTACT_M,
     SMOOTH_CUTOFF_HZ,
+    height_above_ground,
     measured_variables,
     resample_uniform,
     smooth,
@@ -40,30 +41,6 @@ COMMAND_HISTORY_S = 0.5
 steady state at the window's first command is wrong by exp(-t/tau) of the difference to the true rotor
 state, and with the motors' 105 ms lag (LinkQuad) that error is still 15 % at the end of a 0.2 s warm start.
 0.5 s is 5 time constants of that lag and beyond the catalogue's 0.2 s delay bound."""
-
-
-GROUND_CONTACT_M = 0.01
-"""A window whose height comes within 1 cm of the flight's lowest point -- where the vehicle
-stood before take-off -- touches the ground and is left out: no model here has ground contact, and the
-contact forces read as a height-dependent thrust. On a simulated effects-off flight whose low pass
-touched down (test seed 2001), ground effect fitted the two contact windows and was 'found' with a
-40 % shrink. The simulator's feet compress ~1 mm at rest (15 Hz gear); its ground-effect low passes
-stay >= 1.1 cm above it.
-
-The test uses the motion-capture height through a 5-sample running median (:data:`CONTACT_MEDIAN_SAMPLES`:
-robust to a single bad sample, no smearing), not the 1 Hz regime signal, over the window and
-:data:`CONTACT_GUARD_S` either side of it. With the zero-phase 1 Hz low-pass inside the window alone, on
-150 s validation flights the window in which the vehicle touched down and the throttle was cut to idle
-(an acc_z step of ~g in its last samples, the feet still 2 cm above their resting height) stayed in, and
-pulled the base model's identification to a 70 ms motor time constant and the arm scale to its bound.
-
-A flight whose height never rises :data:`GROUND_CONTACT_M` above its lowest point has no take-off in it: its
-height cannot tell standing from hovering, so none of its windows is dropped (the linear model's own
-flights in ``test/core/test_identification.py`` move 1.7 mm; before, every window of such a flight was
-dropped and the flight refused)."""
-
-
-CONTACT_MEDIAN_SAMPLES = 5
 
 
 CONTACT_GUARD_S = 0.5
@@ -157,11 +134,11 @@ def prepare_windows(
         ground = float(np.max(log.pos_n[:, 2]))  # NED: the lowest point of the flight
         h = int(round(COMMAND_HISTORY_S * log.sample_rate))
         guard = int(round(CONTACT_GUARD_S * log.sample_rate))
-        height_above_ground = signal.medfilt(ground - log.pos_n[:, 2], CONTACT_MEDIAN_SAMPLES)
-        took_off = float(np.max(height_above_ground)) >= GROUND_CONTACT_M
+        height = height_above_ground(log)
+        took_off = float(np.max(height)) >= GROUND_CONTACT_M
         for w in span_windows(log, span, config):
             windows.append(log.slice(w.start, w.stop))
-            contact_height.append(float(np.min(height_above_ground[max(w.start - guard, 0) : w.stop + guard])) if took_off else np.inf)
+            contact_height.append(float(np.min(height[max(w.start - guard, 0) : w.stop + guard])) if took_off else np.inf)
             starts.append(float(log.t[w.start] - log.t[0]))
             grounds.append(ground)
             before = log.u[max(w.start - h, 0) : w.start]

@@ -24,11 +24,11 @@ from quad_modelling.core.identification.base_model import (
 from quad_modelling.core.identification.window_batch import (
     COMMAND_HISTORY_S,
     CONTACT_GUARD_S,
-    GROUND_CONTACT_M,
     flying_span,
     prepare_windows,
 )
 from quad_modelling.core.models.greybox import GreyboxParameters, GreyboxPredictor
+from quad_modelling.core.preprocess import GROUND_CONTACT_M
 from quad_modelling.core.sim.simulate import simulate
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle

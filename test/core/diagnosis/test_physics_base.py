@@ -9,7 +9,13 @@ import functools
 
 import pytest
 
-from quad_modelling.core.diagnosis.physics_base import diagnose_physics, identified_document, next_effect, unconfirmed_text
+from quad_modelling.core.diagnosis.physics_base import (
+    diagnose_physics,
+    identified_document,
+    next_effect,
+    pair_candidates,
+    unconfirmed_text,
+)
 from quad_modelling.core.physics.effects import parse_effects
 from quad_modelling.core.sim.params import sim_params_for
 from quad_modelling.core.sim.simulate import simulate
@@ -75,6 +81,20 @@ def test_a_larger_shrink_at_its_bound_does_not_block_a_resolved_effect():
     assert next_effect(scored) == ("motor_lag", True)
     assert next_effect({"input_delay": (0.347, 0.267, at_bound), "gyroscopic": (0.03, -0.01, resolved),
                         "ground_effect": (0.01, 0.005, resolved)}) == ("input_delay", False)
+
+
+def test_the_pair_step_tries_every_two_resolved_candidates_but_the_lag_and_the_delay():
+    """Seed 72, all seven on (bench/results/diagnose_validate_71.md): on top of motor lag and rotor drag no candidate
+    joined alone; the battery and the motor imbalance, resolved, are tried together, the delay (its own twin check)
+    and the unresolved ground effect are not."""
+    resolved, unresolved = [{"resolved": True}], [{"resolved": False}]
+    scored = {"input_delay": (0.006, -0.004, resolved), "ground_effect": (0.0, -0.001, unresolved),
+              "battery": (-0.006, -0.010, resolved), "gyroscopic": (-0.01, -0.02, unresolved),
+              "motor_imbalance": (0.016, -0.055, resolved)}
+    assert pair_candidates(scored) == [("battery", "motor_imbalance")]
+    scored["rotor_drag"] = (0.01, -0.002, resolved)
+    assert pair_candidates(scored) == [("battery", "motor_imbalance"), ("battery", "rotor_drag"), ("motor_imbalance", "rotor_drag")]
+    assert pair_candidates({"battery": (0.0, -0.01, resolved), "motor_lag": (0.01, 0.0, resolved)}) == []
 
 
 def test_lag_and_delay_are_said_apart_or_not_by_their_held_out_difference():

@@ -176,3 +176,23 @@ def test_start_errors_average_to_the_tables_sim_err():
     assert ratio_to_naive(errors[:, [1, 3]], naive_errors[:, [1, 3]]) == pytest.approx(
         np.mean([table["models"]["physics"][g]["ratio_sim_err"] for g in ("velocity", "angular_velocity")]), rel=1e-9)
     assert blocks[0] == 0 and np.all(np.diff(blocks) >= 0) and blocks[-1] >= 5
+
+
+def test_airborne_starts_leave_out_every_horizon_that_touches_the_ground():
+    """A level flight set down for 1 s (rows 600-699 at the height it stood at before rows 0-9): ``airborne`` keeps
+    exactly the starts whose rows s..s+50 miss the contact rows (and the stand before take-off); the table's starts
+    otherwise."""
+    from quad_modelling.core.evaluation.multistep import start_errors
+
+    vehicle = load_vehicle("crazyflie21")
+    log = straight_line_flight(velocity=(0.8, -0.6, 0.0))
+    log.pos_n[:10, 2] = 0.0  # standing before take-off: the lowest point
+    log.pos_n[600:700, 2] = -0.001  # within 1 cm of it: contact
+    config = EvaluationConfig(drop_start=0, drop_end=0, train="0:1", eval="1:12", horizons=(1, 10, 50))
+    naive = ConstantStatePredictor(vehicle, config.trim)
+    (every,), _ = start_errors([log], [naive], vehicle, config)
+    (kept,), blocks = start_errors([log], [naive], vehicle, config, airborne=True)
+    starts = 100 + np.arange(19, 1099 - 50)  # eval rows 100..1198, as the table's
+    clear = starts[(starts + 50 < 600) | (starts > 699)]
+    assert len(every) == len(starts) and len(kept) == len(clear) == len(blocks)
+    assert len(starts) - len(clear) == 150  # starts 550..699
