@@ -118,7 +118,8 @@ def physics_validation_markdown(result: dict) -> str:
                  f"motor lag and input delay off, so every candidate is assessed ({', '.join(result['candidates'])}); "
                  f"base model {result['flights']['base']}; {result['seconds']:.0f} s. Right: exactly the simulator's "
                  "switched candidates found (null and disturbances: nothing). Shrink = 1 - J final / J base on the "
-                 "held-out flight; ceiling = 1 - J truth / J base on the same starts (the simulator's own physics).")
+                 "held-out flight's starts whose horizon does not touch the ground; ceiling = 1 - J truth / J base on "
+                 "the same starts (the simulator's own physics).")
     out += ["", "## Targets", ""]
     out += narrow_table(("target", "measured", "met"),
                         ((t["target"], t["measured"], "" if t["met"] is None else _yes_no(t["met"])) for t in result["targets"]))
