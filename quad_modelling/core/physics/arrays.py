@@ -80,7 +80,11 @@ def cross(a, b):
         import torch
 
         return torch.linalg.cross(a, b, dim=-1)
-    return np.cross(a, b)
+    out = np.empty(np.broadcast_shapes(a.shape, b.shape), dtype=np.result_type(a, b))  # np.cross: 2x slower on (1, 3)
+    out[..., 0] = a[..., 1] * b[..., 2] - a[..., 2] * b[..., 1]
+    out[..., 1] = a[..., 2] * b[..., 0] - a[..., 0] * b[..., 2]
+    out[..., 2] = a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
+    return out
 
 
 def rotate(rot, v):
@@ -110,7 +114,10 @@ def columns(parts):
         import torch
 
         return torch.stack(parts, dim=1)
-    return np.column_stack(parts)
+    out = np.empty((len(parts[0]), len(parts)), dtype=np.result_type(*parts))  # np.column_stack: 2x slower on (1,)
+    for i, part in enumerate(parts):
+        out[:, i] = part
+    return out
 
 
 def vector_norm(x, keepdims: bool = False):
