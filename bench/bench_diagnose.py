@@ -4,7 +4,8 @@ alone, null, pairs, all effects at once, 3 out-of-catalogue disturbances) on the
 two Dask workers (time and every target of issue #17), then the same cases on seeds the diagnosis was never
 developed on (``--unseen``, default 4711 and 31337).
 
-Writes bench/results/diagnose.json and diagnose.md (and validation_unseen.md). Run:
+Writes bench/results/diagnose_greybox.json and .md (until session 17 diagnose.json / .md, whose greybox section
+is this bench's last run; diagnose.md now leads with the physics base's ``--validate`` table). Run:
 .venv/bin/python -m bench.bench_diagnose [--unseen 4711,31337] [--jobs 2]
 """
 
@@ -66,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     for key in ("validation", "validation_unseen"):
         if key in data:
             md += [f"## {key.replace('_', ' ')}", "", validation_markdown(data[key])]
-    write_results("diagnose", data, "\n".join(md))
+    write_results("diagnose_greybox", data, "\n".join(md))
     return 0
 
 
