@@ -265,12 +265,13 @@ thrust constant partly absorb; closed-loop flights may not tell them apart (:fun
 def twin_check(found: str, before: HeldOutScore, chosen: HeldOutScore, other: HeldOutScore, seed: int = 0) -> dict:
     r"""Whether the held-out flights tell the ``found`` twin from the other (:data:`TWINS`): each fitted on top of the
     same rung (score ``before``), the difference of their shrinks :math:`S_{found} - S_{other} = (J_{other} -
-    J_{found}) / J_{before}` with its block-bootstrap 90 % interval; told apart when the interval excludes 0."""
+    J_{found}) / J_{before}` with its block-bootstrap 90 % interval; told apart when the interval lies above 0,
+    ``other_better`` when it lies below (the other could not join on that rung: :func:`next_effect`)."""
     draws = block_draws([before, chosen, other], seed)
     differences = (draws[:, 2] - draws[:, 1]) / draws[:, 0]
     low, high = (float(q) for q in np.quantile(differences, [0.05, 0.95]))
     return {"found": found, "other": TWINS[found], "shrink": 1.0 - chosen.j / before.j, "other_shrink": 1.0 - other.j / before.j,
-            "difference_90": [low, high], "told_apart": bool(low > 0.0)}
+            "difference_90": [low, high], "told_apart": bool(low > 0.0), "other_better": bool(high < 0.0)}
 
 
 def twin_text(check: dict, entry: str) -> str:
@@ -279,6 +280,9 @@ def twin_text(check: dict, entry: str) -> str:
     low, high = check["difference_90"]
     numbers = (f"shrink {check['shrink']:.1%} against {check['other_shrink']:.1%} fitted in its place, difference "
                f"{low:+.1%} .. {high:+.1%} (90 %)")
+    if check.get("other_better"):  # next_effect passed it over: it was not resolved on that rung, or its bound <= 0
+        return (f"on the rung where the {found} joined, {other} fitted in its place shrank the held-out error more "
+                f"({numbers}) but could not join there (not resolved, or its 5 % bound not above 0)")
     if not check["told_apart"]:
         return (f"the held-out flights do not tell the {found} found from {other} ({numbers}): the command path lags, "
                 f"in one form or the other")
@@ -468,7 +472,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
                "ratio_to_naive": {"base": base.score.ratios(), "final": final.score.ratios()},
                "motor_order": {"verdict": layout["verdict"], "swap": layout["swap"],
                                "diagnosed_with_swap": layout.get("diagnosed_with_swap")},
-               "not_told_apart": [[t["found"], t["other"]] for t in twins if not t["told_apart"]]}
+               "not_told_apart": [[t["found"], t["other"]] for t in twins if not t["told_apart"] and not t["other_better"]]}
     return PhysicsDiagnosis(base, final, list(candidates), steps, effects, dropped, table,
                             [{"flights": [f.meta.source for f in h], "values": fit.values} for h, fit in
                              zip([train[0::2], train[1::2]], folds)],
