@@ -430,7 +430,7 @@ stay >= 1.1 cm above it.
 
 The test uses the motion-capture height through a 5-sample running median (:data:`CONTACT_MEDIAN_SAMPLES`:
 robust to a single bad sample, no smearing), not the 1 Hz regime signal, over the window and
-:data:`CONTACT_GUARD_S` either side of it. With the zero-phase 1 Hz low-pass inside the window alone, on
+:data:`~quad_modelling.core.identification.window_batch.CONTACT_GUARD_S` either side of it (windows). With the zero-phase 1 Hz low-pass inside the window alone, on
 150 s validation flights the window in which the vehicle touched down and the throttle was cut to idle
 (an acc_z step of ~g in its last samples, the feet still 2 cm above their resting height) stayed in, and
 pulled the base model's identification to a 70 ms motor time constant and the arm scale to its bound.
@@ -442,7 +442,6 @@ dropped and the flight refused)."""
 
 
 CONTACT_MEDIAN_SAMPLES = 5
-
 """[rows] of the running median of the height in :func:`height_above_ground`."""
 
 
