@@ -3,7 +3,7 @@
 The physics fit identifies the roll/pitch inertias as I = k_f / alpha (physics_fit.py); on the NanoBench Crazyflie
 flights they come out several times the airframe's (Foerster 2015). This refits them on the bundled bag and on
 NanoBench flights (each alone, ``short`` preset: training span 0-60 %) with each disturbance observer ``identify``
-chooses among (physics_fit.OBSERVERS), with the body's gyroscopic term off, and with each optional term the fit
+chooses among (physics_result.OBSERVERS), with the body's gyroscopic term off, and with each optional term the fit
 can switch on (gyroscopic k_b/k_p, ground_effect, battery; default observer), and reports effective / airframe
 for roll and pitch. Writes bench/results/effective_inertia.{json,md}.
 
@@ -20,7 +20,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_results  # noqa: E402
-from quad_modelling.core.identification.physics_fit import OBSERVERS, identify_physics  # noqa: E402
+from quad_modelling.core.identification.physics_fit import identify_physics  # noqa: E402
+from quad_modelling.core.identification.physics_result import OBSERVERS  # noqa: E402
 from quad_modelling.core.physics.effects import EffectTerm  # noqa: E402
 from quad_modelling.core.vehicle import load_vehicle  # noqa: E402
 from quad_modelling.core.windows import EvaluationConfig  # noqa: E402

@@ -35,7 +35,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.common import write_results  # noqa: E402
 from bench.compensated_data import compensated_copy, equivalent_duty  # noqa: E402
-from quad_modelling.core.identification.physics_fit import OBSERVERS, identify_physics  # noqa: E402
+from quad_modelling.core.identification.physics_fit import identify_physics  # noqa: E402
+from quad_modelling.core.identification.physics_result import OBSERVERS  # noqa: E402
 from quad_modelling.core.physics.parameters import PhysicsParameters  # noqa: E402
 from quad_modelling.core.physics.rigid_body import rotor_wrench  # noqa: E402
 from quad_modelling.core.physics.rotors import delayed_commands, interval_rotor_speeds, rotor_speeds  # noqa: E402

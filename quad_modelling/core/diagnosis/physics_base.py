@@ -10,7 +10,7 @@ that no candidate's presence or absence distorts them: refitted with rotor drag 
 its 150 ms bound and the roll inertia to its lower bound on two of three NanoBench shape folds
 (bench/results/diagnose_real.md, before this). Only a final model holding per-motor command gains is refitted with
 them searched (:data:`COMMAND_GAIN_TERMS`). The observer each fitted model *predicts* with is chosen for its
-constants as ``identify`` chooses it (:func:`~quad_modelling.core.identification.physics_fit.prediction_errors`:
+constants as ``identify`` chooses it (:func:`~quad_modelling.core.identification.physics_result.prediction_errors`:
 the least open-loop error on the training flights), so every rung is scored as the model ``identify --effects``
 gives: a term that explains what the base's observer absorbed lets the model predict without it (simulated
 LinkQuad, battery on, seeds 5101-5103: the base needs the linear observer for the pack's sag, held-out J 0.271;
@@ -60,7 +60,8 @@ import numpy as np
 from quad_modelling.core.diagnosis.verdicts import DETERMINED_SIGMAS
 from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.identification.physics_fit import OBSERVERS, identify_physics, prediction_errors, training_score
+from quad_modelling.core.identification.physics_fit import identify_physics
+from quad_modelling.core.identification.physics_result import OBSERVERS, prediction_errors, training_score
 from quad_modelling.core.identification.physics_result import PhysicsFit
 from quad_modelling.core.identification.constants_report import fitted_vehicle
 from quad_modelling.core.models.base import ConstantStatePredictor
@@ -98,8 +99,8 @@ BLOCK_S = 2.0
 
 RUNG_FIT_OBSERVERS = ("none",)
 """Observers every rung's constants are also fitted with, besides the base's (``identify`` chooses the base's among
-all of :data:`~quad_modelling.core.identification.physics_fit.FIT_OBSERVERS`); the fit of least training error
-(:func:`~quad_modelling.core.identification.physics_fit.training_score`) is kept. The base's observer stands for a
+all of :data:`~quad_modelling.core.identification.physics_result.FIT_OBSERVERS`); the fit of least training error
+(:func:`~quad_modelling.core.identification.physics_result.training_score`) is kept. The base's observer stands for a
 force or moment the base lacks; once a rung's term supplies it, the constants are better fitted without (simulated
 LinkQuad, battery on, seed 22: the base fitted with the linear observer, kappa resolved at 0.087 +- 0.009 1/V, truth
 0.084, but with that observer the battery rung's held-out J did not fall, -0.6 %)."""

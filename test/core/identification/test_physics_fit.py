@@ -252,3 +252,35 @@ def test_a_time_constant_the_search_leaves_at_its_lower_bound_is_flagged():
     config = EvaluationConfig.preset("short", train="0%:100%", eval="0%:100%")
     fit = identify_physics([log], vehicle, config, observer=Observer(0.0, 0.0), terms=["motor_lag"])
     assert fit.values["rotor_time_constant"] < 0.0022 and fit.at_bound["rotor_time_constant"]
+
+
+def test_a_later_pass_searches_the_lag_near_the_previous_one_and_the_whole_range_when_it_ends_at_that_edge(sim_flight, monkeypatch):
+    """The imbalance's later Gauss-Newton passes start the rotor-dynamics search at the previous pass's (τ, δ): the
+    same τ and δ as the full search (τ within its 10 % tolerance) with fewer objective evaluations; started 4x off
+    (log 4 = 1.39 > the 0.5 window), τ's minimum lies at the window's edge and the whole range is searched again."""
+    from quad_modelling.core.identification import physics_fit
+    from quad_modelling.core.identification.physics_terms import TermDesign
+
+    log, params = sim_flight
+    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": 0.0}, "simulator speed map")
+    config = EvaluationConfig.preset("short", train="0%:100%")
+    observer = Observer(0.5, 0.5, angular_trim=False)
+    segments = physics_fit.training_segments([log], config, observer)
+    p = PhysicsParameters.from_vehicle(start)
+    calls = []
+    counted = physics_fit._normal_equations
+    monkeypatch.setattr(physics_fit, "_normal_equations", lambda *a, **k: calls.append(1) or counted(*a, **k))
+
+    def search(near):
+        calls.clear()
+        tau, delay, *_ = physics_fit._search_dynamics(p, segments, observer, TermDesign(), log.sample_rate, start, None, near)
+        return tau, delay, len(calls)
+
+    tau, delay, full = search(None)
+    assert tau == pytest.approx(params.motor_time_constant + 0.5 / params.log_rate, rel=0.1)
+    near_tau, near_delay, near_calls = search((tau, delay))
+    assert near_tau == pytest.approx(tau, rel=0.1) and near_delay == delay
+    assert near_calls < 0.7 * full
+    far_tau, far_delay, far_calls = search((4.0 * tau, delay))
+    assert far_tau == pytest.approx(tau, rel=0.1) and far_delay == delay
+    assert far_calls > near_calls
