@@ -2,8 +2,8 @@ r"""Identification of the nonlinear physics model's constants (:mod:`quad_modell
 
 Data: the training span of each flight (``config.train`` after the take-off/landing drops, split at marked
 measurement gaps), raw rows; anchors every :data:`ANCHOR_STRIDE_S` from :data:`SETTLE_S` into each segment
-(the rotor filter starts from the first command's steady speed) that stay above
-:data:`~quad_modelling.core.preprocess.GROUND_CONTACT_M` over their history and horizon.
+(the rotor filter starts from the first command's steady speed) that stay off the ground over their history and
+horizon (:func:`~quad_modelling.core.preprocess.ground_contact`, the test the scores and the window drop use).
 
 What is fitted is the model's own multi-step error, with its constant-disturbance observer, along the measured
 trajectory. For a channel with state y (velocity in N, a body rate) whose model acceleration is linear in the
@@ -92,7 +92,7 @@ from quad_modelling.core.physics.effects import BASE_SWITCHES, switched_off
 from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, interval_rotor_speeds, rotor_speeds
 from quad_modelling.core.physics.parameters import PhysicsParameters
-from quad_modelling.core.preprocess import GROUND_CONTACT_M
+from quad_modelling.core.preprocess import ground_contact
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
 from quad_modelling.errors import DataError
@@ -176,7 +176,7 @@ def training_segments(flights: Sequence[FlightLog], config: EvaluationConfig, ob
     segments = []
     for log in flights:
         log.require(("gyro_b",), "the physics identification (it fits the body-rate predictions)")
-        floor = -np.max(log.pos_n[:, 2])  # lowest height above the start (NED z down)
+        contact = ground_contact(log)
         for start, stop in span_segments(log, span, config):
             seg = log.slice(start, stop)
             rate = seg.sample_rate
@@ -188,7 +188,7 @@ def training_segments(flights: Sequence[FlightLog], config: EvaluationConfig, ob
             history = np.minimum(np.searchsorted(seg.t, seg.t[candidates] - history_s - 1e-9, side="left"), candidates - 1)
             histories = {name: np.minimum(np.searchsorted(seg.t, seg.t[candidates] - h - 1e-9, side="left"), candidates)
                          for name, h in (("linear", observer.linear_s), ("angular", observer.angular_s))}
-            grounded = np.concatenate([[0], np.cumsum((-seg.pos_n[:, 2] - floor) <= GROUND_CONTACT_M)])
+            grounded = np.concatenate([[0], np.cumsum(contact[start:stop])])
             ok = grounded[candidates + horizons.max() + 1] == grounded[history]  # airborne from history to horizon
             if not ok.any():
                 continue

@@ -284,3 +284,32 @@ def test_a_later_pass_searches_the_lag_near_the_previous_one_and_the_whole_range
     far_tau, far_delay, far_calls = search((4.0 * tau, delay))
     assert far_tau == pytest.approx(tau, rel=0.1) and far_delay == delay
     assert far_calls > near_calls
+
+
+def test_the_fit_leaves_out_anchors_by_the_shared_ground_contact_test(bag):
+    """The physics fit's anchors use preprocess.ground_contact, the test of the scores and the window drop: one
+    motion-capture sample at the ground mid-flight (a glitch) leaves every anchor in (the 5-sample median), a 0.5 s
+    touchdown drops exactly the anchors whose history or horizon meets it."""
+    from quad_modelling.core.identification.physics_fit import training_segments
+    from quad_modelling.core.preprocess import ground_contact
+
+    config = EvaluationConfig.preset("short", train="0%:100%")
+
+    def anchor_times(log):
+        return np.concatenate([s.t[s.anchors] for s in training_segments([log], config)])
+
+    before = anchor_times(bag)
+    floor = float(np.max(bag.pos_n[:, 2]))  # NED z of the lowest point
+    middle = int(np.searchsorted(bag.t, before[len(before) // 2]))
+    glitch = bag.pos_n.copy()
+    glitch[middle, 2] = floor
+    assert np.array_equal(anchor_times(dataclasses.replace(bag, pos_n=glitch)), before)
+    down = bag.pos_n.copy()
+    rows = (bag.t >= bag.t[middle]) & (bag.t < bag.t[middle] + 0.5)
+    down[rows, 2] = floor
+    touched = dataclasses.replace(bag, pos_n=down)
+    assert ground_contact(touched)[rows][2:-2].all()
+    after = anchor_times(touched)
+    longest = 0.5  # FIT_HORIZONS_S[-1]: an anchor at t sees t + 0.5 s; its observer history 0.5 s back
+    kept = before[(before + longest < bag.t[middle] - 0.03) | (before - longest > bag.t[middle] + 0.5 + 0.03)]
+    assert set(kept) <= set(after) and len(after) < len(before)
