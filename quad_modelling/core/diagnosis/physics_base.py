@@ -61,8 +61,7 @@ from quad_modelling.core.diagnosis.verdicts import DETERMINED_SIGMAS
 from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.physics_fit import identify_physics
-from quad_modelling.core.identification.physics_result import OBSERVERS, prediction_errors, training_score
-from quad_modelling.core.identification.physics_result import PhysicsFit
+from quad_modelling.core.identification.physics_result import OBSERVERS, PhysicsFit, prediction_errors, training_score
 from quad_modelling.core.identification.constants_report import fitted_vehicle
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor

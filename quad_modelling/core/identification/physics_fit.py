@@ -70,7 +70,8 @@ from scipy import optimize
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.identification.physics_result import FIT_OBSERVERS, FITTED, OBSERVERS, PhysicsFit, prediction_errors, training_score
+from quad_modelling.core.identification.physics_result import (FIT_OBSERVERS, FITTED, OBSERVERS, PhysicsFit, prediction_errors,
+                                                                 training_score)
 from quad_modelling.core.models.physics import Observer
 from quad_modelling.core.identification.normal_equations import NormalEquations, solve_channels
 from quad_modelling.core.identification.uncertainty import profile_sigma
@@ -321,8 +322,9 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     Without an ``observer``, the observer is chosen by the data among
     :data:`~quad_modelling.core.identification.physics_result.OBSERVERS`: the fit runs with each and keeps the one
     whose open-loop multi-step error on the training span is least
-    (:func:`~quad_modelling.core.identification.physics_result.training_score`, the protocol the model is scored with; the fit's own error predicts along the *measured* attitude, and chose the
-    linear observer on simulated flights where none predicted velocity 18 % better, bench/results/truth_floor.md);
+    (:func:`~quad_modelling.core.identification.physics_result.training_score`, the protocol the model is scored
+    with; the fit's own error predicts along the *measured* attitude, and chose the linear observer on simulated
+    flights where none predicted velocity 18 % better, bench/results/truth_floor.md);
     then the observer the model *predicts* with is chosen the same way with those constants (an observer fitted with
     may still be dropped for predicting).
     The default's angular trim stands for a constant moment the model lacks (a CG offset the
