@@ -289,7 +289,7 @@ def test_a_later_pass_searches_the_lag_near_the_previous_one_and_the_whole_range
 def test_the_fit_leaves_out_anchors_by_the_shared_ground_contact_test(bag):
     """The physics fit's anchors use preprocess.ground_contact, the test of the scores and the window drop: one
     motion-capture sample at the ground mid-flight (a glitch) leaves every anchor in (the 5-sample median), a 0.5 s
-    touchdown drops exactly the anchors whose history or horizon meets it."""
+    touchdown keeps every anchor whose history and horizon stay clear of it and drops anchors that meet it."""
     from quad_modelling.core.identification.physics_fit import training_segments
     from quad_modelling.core.preprocess import ground_contact
 
