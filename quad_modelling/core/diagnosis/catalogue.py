@@ -86,7 +86,7 @@ from quad_modelling.core.identification.window_batch import WindowBatch, _trim_m
 from quad_modelling.core.models.greybox import (
     N_STATES,
 )
-from quad_modelling.core.models.motors import discrete_motor, motor_thrusts
+from quad_modelling.core.discretise import discrete_motor, motor_thrusts
 from quad_modelling.core.vehicle import GRAVITY
 
 THRUST_DRIVEN = ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")

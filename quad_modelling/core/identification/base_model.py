@@ -15,7 +15,7 @@ from quad_modelling.core.models.greybox import (
     GreyboxParameters,
     continuous_matrices,
 )
-from quad_modelling.core.models.motors import motor_thrusts
+from quad_modelling.core.discretise import motor_thrusts
 from quad_modelling.core.preprocess import (
     differentiate,
     smooth,

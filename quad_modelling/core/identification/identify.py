@@ -10,7 +10,7 @@ acc_z, roll, pitch and yaw accelerations. :math:`a` itself cannot be separated f
 :math:`B_m = K / (2\\sqrt{a m g/4})`, :math:`d = a \\cdot (d/a)`. Bounds, units and uncertainties
 are those of :mod:`~quad_modelling.core.identification.greybox_fit`.
 
-Around that fit, with the identified motor (:func:`quad_modelling.core.models.motors.motor_thrusts`):
+Around that fit, with the identified motor (:func:`quad_modelling.core.discretise.motor_thrusts`):
 
 Battery voltage: the thrust gain per command :math:`K` is fitted per window
 (with :math:`A_m` fixed) on the acc_z of the linear model,
@@ -45,7 +45,7 @@ from quad_modelling.core.identification.motor_check import check_lines, check_mo
 from quad_modelling.core.identification.physics_fit import identify_physics
 from quad_modelling.core.identification.physics_result import PhysicsFit
 from quad_modelling.core.identification.window_batch import WindowBatch, prepare_windows
-from quad_modelling.core.models.motors import discrete_motor, motor_thrusts
+from quad_modelling.core.discretise import discrete_motor, motor_thrusts
 from quad_modelling.core.preprocess import smooth
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import AIRFRAME_OF, PHYSICS_KEYS, Constant, VehicleConfig

@@ -64,7 +64,7 @@ import numpy as np
 
 from quad_modelling.core.discretise import zero_order_hold
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.models.motors import motor_thrusts
+from quad_modelling.core.discretise import motor_thrusts
 from quad_modelling.core.models.streaming import predict_window_by_stream
 from quad_modelling.core.preprocess import (
     TrimConfig,
@@ -465,7 +465,7 @@ class GreyboxPredictor:
           they are (:func:`~quad_modelling.core.preprocess.state_measurement`,
           causal), roll/pitch minus their offset; thrust deviations
           :math:`T_s = M(u)_s - G \\bar u_s`, the motor filter :math:`M`
-          (:func:`~quad_modelling.core.models.motors.motor_thrusts`) run over the
+          (:func:`~quad_modelling.core.discretise.motor_thrusts`) run over the
           raw commands up to s, :math:`G = g / (1 - p)` its steady-state gain
           (linear, so this is the filter of :math:`u - \\bar u_s`);
         * then :math:`x_{h+1} = A_d x_h + B_d (u_{s+h} - \\bar u_s)`,
