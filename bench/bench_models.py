@@ -88,6 +88,7 @@ MODELS = (
     BenchModel("physics", "physics"),
     BenchModel("narx", "narx:{file}", ()),
     BenchModel("hybrid", "hybrid:{file}", ("--hybrid",)),
+    BenchModel("direct", "direct:{file}", ("--direct",), note="physics with body rates from a direct regression per horizon"),
 )
 """Adding a model is one line: its name, spec and the training options (identify's vehicle is passed to both)."""
 

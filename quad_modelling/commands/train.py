@@ -25,7 +25,7 @@ MAX_DELAYS = 1000
 """Most delayed outputs or input taps (10 s at 100 Hz; the thesis used 20)."""
 
 NAME = "train"
-HELP = "train the NARX blackbox model (or the hybrid physics + residual net model) and write a model file"
+HELP = "train the NARX blackbox model (or the hybrid or direct physics-based model) and write a model file"
 DESCRIPTION = """\
 Train the NARX model (thesis chapter 4: six nets for the X/Y/Z velocities and roll/pitch/yaw
 rates, 10 sigmoid hidden units, 20 delayed outputs) on the training span of one or more flights,
@@ -39,7 +39,10 @@ best epoch kept. --training thesis: the thesis's training exactly (series-parall
 epochs, 10 dB noise on the rates). With --hybrid, train the hybrid model instead: the vehicle's
 nonlinear physics model with a residual net (--hybrid-hidden) correcting its accelerations inside
 the integration, trained through the physics step with the same rollout loss, horizon, early
-stopping and validation flights; evaluate it with --model hybrid:MODEL.
+stopping and validation flights; evaluate it with --model hybrid:MODEL. With --direct, fit the
+direct model: the physics model whose body rates for the first 0.5 s come from a ridge regression
+per horizon on the last 0.1 s of rates and the commands (closed-form, seconds, no torch; give the
+identified vehicle with --vehicle); evaluate it with --model direct:MODEL.
 
 Spans follow the evaluation: take-off/landing are dropped (--drop, thesis 30:22 s) and --train
 A:B is seconds from each flight's start (thesis 30:150) or percent of the flying part
@@ -52,6 +55,7 @@ example:
   quad-modelling train bags/nanobench_B7_oval_medium_rep2 --preset short -o narx.npz
   quad-modelling train flight1.mat flight2.mat --vehicle linkquad --train 30:150 -o narx.npz
   quad-modelling train bags/nanobench_B7_oval_medium_rep2 --preset short --hybrid -o hybrid.npz
+  quad-modelling train bags/nanobench_B7_oval_medium_rep2 --preset short --vehicle identified.yaml --direct -o direct.npz
 """
 
 
@@ -78,6 +82,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input-delays", type=int, default=20, help="engine-command taps u(t)..u(t-N+1) (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (weights init, noise)")
     parser.add_argument("--hybrid", action="store_true", help="train the hybrid model: physics model + residual net (rollout loss)")
+    parser.add_argument("--direct", action="store_true", help="fit the direct model: physics model with body rates from a direct "
+                        "multi-horizon ridge regression (seconds; no torch)")
     parser.add_argument("--hybrid-hidden", metavar="W[,W...]", default=",".join(map(str, HYBRID_HIDDEN)),
                         help="hybrid: widths of the residual net's tanh hidden layers (default %(default)s)")
     add_fanout_arguments(parser)
@@ -172,7 +178,11 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
                                              topic_map_file(args.topic_map)])  # fail before minutes of training
-    config, rollout = (hybrid_config(args), None) if args.hybrid else training_configs(args)
+    if args.hybrid and args.direct:
+        raise ConfigError("--hybrid and --direct: choose one model to train")
+    if args.direct and args.val_flights:
+        raise ConfigError("--val-flights: the direct model's fit is closed-form, with no validation; pass those flights as training flights")
+    config, rollout = (hybrid_config(args), None) if args.hybrid else (None, None) if args.direct else training_configs(args)
     check_fanout_options(args.jobs, args.scheduler)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     paths = [*args.flights, *(args.val_flights or [])]
@@ -190,12 +200,17 @@ def run(args: argparse.Namespace) -> int:
 
         model = train_hybrid_on_flights(logs, spans, given or load_vehicle(logs[0].meta.vehicle), config, args.seed, progress, val_flights)
         samples = model.training["samples"]
+    elif args.direct:
+        from quad_modelling.core.models.direct import train_direct
+
+        model = train_direct(logs, spans, given or load_vehicle(logs[0].meta.vehicle))
+        samples = model.training["samples"]
     else:
         model = train_narx_on_flights(logs, spans, config, args.seed, progress, rollout, args.val_fraction, val_flights)
         samples = model.training["samples"]
     elapsed = time.perf_counter() - started
     model.save(output, args.force)
-    kind = "hybrid" if args.hybrid else "narx"
+    kind = "hybrid" if args.hybrid else "direct" if args.direct else "narx"
     print(f"trained {kind} model on {samples} samples of {len(logs)} flight(s) in {elapsed:.1f} s -> {output}")
     if "rollout" in getattr(model, "training", {}):
         r = model.training["rollout"]

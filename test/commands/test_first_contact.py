@@ -97,6 +97,6 @@ def test_run_bag_with_a_hybrid_trained_on_another_vehicle_file_says_which_vehicl
     model = train_hybrid_on_flights([flight.slice(1000, 1600)], [None], vehicle, tiny, seed=0).save(tmp_path / "hybrid.npz")
     assert main(["run-bag", str(BAG), "--models", f"hybrid:{model}", "-o", str(tmp_path / "live")]) == 2
     line = one_error_line(capsys)
-    assert f"{model}: the hybrid was trained with other physics constants of vehicle 'crazyflie21' than " in line
+    assert f"{model}: the hybrid model was trained with other physics constants of vehicle 'crazyflie21' than " in line
     assert f"(rotor_thrust_constant); pass the vehicle it was trained with: --vehicle {identified} " in line
     assert "retrain it with" not in line and not (tmp_path / "live").exists()

@@ -1,10 +1,11 @@
-"""``quad-modelling train``: writes loadable NARX/hybrid model files, refuses bad requests."""
+"""``quad-modelling train``: writes loadable NARX/hybrid/direct model files, refuses bad requests."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 from quad_modelling.cli import main
+from quad_modelling.core.models.direct import HORIZON, load_direct
 from quad_modelling.core.models.hybrid import load_hybrid
 from quad_modelling.core.models.narx import load_narx
 from quad_modelling.core.vehicle import load_vehicle
@@ -81,3 +82,28 @@ def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys)
     assert "hybrid:" in capsys.readouterr().out
     assert main(["train", BAG, "-o", str(tmp_path / "bad.npz"), "--hybrid", "--preset", "short", "--hybrid-hidden", "0,x"]) == 2
     assert "--hybrid-hidden '0,x'" in capsys.readouterr().err
+
+
+def test_train_direct_fits_the_rate_regression_and_evaluate_scores_it(tmp_path, capsys):
+    out = tmp_path / "direct.npz"
+    assert main(["train", BAG, "-o", str(out), "--direct", "--preset", "short", "--quiet"]) == 0
+    printed = capsys.readouterr().out
+    assert "trained direct model on" in printed and f"--model direct:{out}" in printed
+    model = load_direct(out, load_vehicle("crazyflie21"))
+    assert model.regression.horizon == HORIZON and abs(model.dt - 0.01) < 1e-4
+    # preset short: the first 60 % of the flying part, every anchor with 10 rows before and 50 after it
+    assert 1800 < model.training["samples"] < 1950
+    report = tmp_path / "report"
+    assert main(["evaluate", BAG, "--model", f"direct:{out}", "--preset", "short", "-o", str(report)]) == 0
+    assert (report / "results.json").exists()
+
+
+def test_train_direct_refuses_a_second_model_kind_and_validation_flights_in_one_line(tmp_path, capsys):
+    out = tmp_path / "direct.npz"
+    assert main(["train", BAG, "-o", str(out), "--direct", "--hybrid", "--preset", "short"]) == 2
+    err = capsys.readouterr().err
+    assert "--hybrid and --direct: choose one model to train" in err and len(err.strip().splitlines()) == 1
+    assert main(["train", BAG, "-o", str(out), "--direct", "--val-flights", BAG, "--preset", "short"]) == 2
+    assert "--val-flights: the direct model's fit is closed-form" in capsys.readouterr().err
+    assert not out.exists()
+

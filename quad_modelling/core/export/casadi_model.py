@@ -128,8 +128,9 @@ def _column(parts):
     return casadi.vertcat(*(element for part in parts for element in np.asarray(part, dtype=object).ravel()))
 
 
-def _dynamics(model: ExportedModel, x, u, d, dt=None):
-    """x_next of one step of ``dt`` (None: dx/dt) as a CasADi column, from the one physics (module docstring)."""
+def _dynamics(model: ExportedModel, x, u, d, dt=None, rates_next=None):
+    """x_next of one step of ``dt`` (None: dx/dt) as a CasADi column, from the one physics (module docstring);
+    ``rates_next`` (a CasADi column of 3): the step's end-of-step body rates given (``rigid_body.step``'s)."""
     state = symbolic_state(x)
     inputs = _elements(u)
     voltage = inputs[-1:] if model.params.battery is not None else None
@@ -141,7 +142,8 @@ def _dynamics(model: ExportedModel, x, u, d, dt=None):
         linear, angular = linear + correction[:, 0:3], angular + correction[:, 3:6]
     if dt is None:
         return _column(rigid_body.derivative(model.params, state, commands, linear, angular))
-    after = rigid_body.step(model.params, state, commands, np.array([dt], dtype=object), linear, angular)
+    given = None if rates_next is None else _elements(rates_next)[None, :]
+    after = rigid_body.step(model.params, state, commands, np.array([dt], dtype=object), linear, angular, given)
     return _column((after.pos_n, after.vel_n, after.rot, after.rates, after.rotor))
 
 
@@ -186,6 +188,22 @@ def casadi_functions(model: ExportedModel) -> dict:
         "f_disturbed": f_disturbed,
         "F_disturbed": step_disturbed,
     }
+
+
+def given_rates_step(model: ExportedModel):
+    """``F_given(x, u, dt, d, w, g) -> x_next``: ``F_disturbed``'s step whose end-of-step body rates are
+    :math:`g\\, w + (1 - g)\\, \\omega_{k+1}` (w (3) given [rad/s, FRD], g 1 or 0, :math:`\\omega_{k+1}` the integrated
+    rates): the direct model's step (:mod:`quad_modelling.core.models.direct`), whose first H steps take the rates of
+    its regression and the attitude turns with them. Not an export Function (a regression's rates are no state)."""
+    import casadi
+
+    x = casadi.SX.sym("x", len(STATE))
+    u = casadi.SX.sym("u", len(input_names(model)))
+    d = casadi.SX.sym("d", len(DISTURBANCE))
+    dt, w, g = casadi.SX.sym("dt"), casadi.SX.sym("w", 3), casadi.SX.sym("g")
+    integrated = _dynamics(model, x, u, d, dt)[15:18]
+    after = _dynamics(model, x, u, d, dt, g * w + (1 - g) * integrated)
+    return casadi.Function("F_given", [x, u, dt, d, w, g], [after], ["x", "u", "dt", "d", "w", "g"], ["x_next"])
 
 
 def terms_on(model: ExportedModel) -> list[str]:

@@ -32,7 +32,7 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   :meth:`~quad_modelling.core.models.hybrid.HybridModel.outputs` (~10 us a state against ~150 us in numpy).
 * **greybox** (:class:`GreyboxForecast`): carried are the running sums of the commands and of the measured
   roll/pitch (the 1 s trailing means, :func:`~quad_modelling.core.preprocess.trailing_means`' own arithmetic), the
-  motor filter's state (:func:`~quad_modelling.core.models.motors.motor_thrusts`, its recursion) and the unwrapped
+  motor filter's state (:func:`~quad_modelling.core.discretise.motor_thrusts`, its recursion) and the unwrapped
   yaw; the rollout is :func:`~quad_modelling.core.models.greybox.linear_horizons`. The sample period is the
   receding horizon's dt (the offline form takes the segment's median step: the same on a regular timer).
 * **NARX** (:class:`NarxForecast`): its memory is finite: the last max(max(D_u) + 1, n_y) rows of commands and
@@ -101,7 +101,11 @@ class CarriedForecast(Protocol):
 
 def carried_forecast(model, vehicle: VehicleConfig, period_s: float, steps: int) -> CarriedForecast | None:
     """The carried form of ``model`` (a streaming predictor of the registry) for h = ``steps`` at the sample period
-    ``period_s`` [s], or None when it has none (module docstring)."""
+    ``period_s`` [s], or None when it has none (module docstring); a model with a ``carried_forecast`` method of its
+    own (the direct model's) gives it."""
+    own = getattr(model, "carried_forecast", None)
+    if own is not None:
+        return own(vehicle, period_s, steps)
     if isinstance(model, PhysicsPredictor):
         return PhysicsForecast(model_step(model, vehicle), model_derivative(model, vehicle), model.params, model.observer, steps)
     if isinstance(model, HybridPredictor):
@@ -118,7 +122,9 @@ def prepare_compiled_step(model, vehicle: VehicleConfig, forecast: bool) -> None
     """Build (and compile) the model's step now, not at its first window or anchor: the predictor node calls it at
     start-up with its model, as it primes the model (the compilation takes about half a second once): the carried
     forecast's (``forecast``, :func:`model_step`) or the window stream's (:func:`window_step`)."""
-    if forecast:
+    if forecast and hasattr(model, "carried_forecast"):
+        model.carried_forecast(vehicle, 0.01, 1)  # builds and keeps its compiled step
+    elif forecast:
         model_step(model, vehicle)
         if isinstance(model, (PhysicsPredictor, HybridPredictor)):
             model_derivative(model, vehicle)

@@ -104,6 +104,22 @@ def physics_constants(p: PhysicsParameters) -> dict[str, float | list]:
             "spins": np.asarray(p.spins, float).tolist()}
 
 
+def trained_parameters(path: Path, kind: str, stored: dict, vehicle_file: str | None, vehicle: VehicleConfig) -> PhysicsParameters:
+    """The physics parameters of ``vehicle``, if they are the constants ``stored`` in model file ``path`` at training
+    (:func:`physics_constants`); else ModelError (one line) naming the changed constants and the vehicle file to pass."""
+    stored = {RENAMED_KEYS.get(k, k): v for k, v in stored.items()}  # a file saved before effective_ixx/iyy (physics_ixx/iyy)
+    params = PhysicsParameters.from_vehicle(vehicle)
+    current = physics_constants(params)
+    changed = sorted(k for k in set(stored) | set(current)
+                     if not np.allclose(np.asarray(stored.get(k, np.nan), float), np.asarray(current.get(k, np.nan), float), rtol=1e-12, atol=0))
+    if changed:
+        which = vehicle_file or f"FILE (the one given to train --{kind})"
+        raise ModelError(f"{path}: the {kind} model was trained with other physics constants of vehicle {vehicle.name!r} than "
+                         f"{vehicle.path} holds ({', '.join(changed)}); pass the vehicle it was trained with: --vehicle "
+                         f"{which} (a node: parameter vehicle), or retrain it on these constants")
+    return params
+
+
 def observer_rows(t: np.ndarray, anchors: np.ndarray, history_s: float) -> tuple[np.ndarray, np.ndarray]:
     """(first row (S,), span t_a - t_first (S,) [s]) of one part of the disturbance observer at ``anchors``: the rows
     of :func:`quad_modelling.core.models.physics.disturbance_estimate` (a test holds the two equal)."""
@@ -235,17 +251,7 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
         raise ModelError(f"{path}: hybrid model file lacks its settings ({reason(err)})") from err
     if features != list(FEATURES):
         raise ModelError(f"{path}: hybrid net inputs {features} differ from this program's {list(FEATURES)}; retrain the model")
-    stored = {RENAMED_KEYS.get(k, k): v for k, v in stored.items()}  # a file saved before effective_ixx/iyy (physics_ixx/iyy)
-    params = PhysicsParameters.from_vehicle(vehicle)
-    current = physics_constants(params)
-    changed = sorted(k for k in set(stored) | set(current)
-                     if not np.allclose(np.asarray(stored.get(k, np.nan), float), np.asarray(current.get(k, np.nan), float), rtol=1e-12, atol=0))
-    if changed:
-        trained_with = header["training"].get("vehicle_file")
-        which = trained_with or "FILE (the one given to train --hybrid)"
-        raise ModelError(f"{path}: the hybrid was trained with other physics constants of vehicle {vehicle.name!r} than "
-                         f"{vehicle.path} holds ({', '.join(changed)}); pass the vehicle it was trained with: --vehicle "
-                         f"{which} (a node: parameter vehicle), or retrain it on these constants")
+    params = trained_parameters(path, KIND, stored, header["training"].get("vehicle_file"), vehicle)
     try:
         return HybridModel(params, net, vehicle.name, observer, dict(header.get("training", {})))
     except (ModelError, ConfigError) as err:

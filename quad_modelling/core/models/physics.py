@@ -140,24 +140,29 @@ def state_outputs(state: PhysicsState) -> np.ndarray:
     return out
 
 
-def step(p: PhysicsParameters, state: PhysicsState, u: np.ndarray, dt, disturbance: Disturbance) -> PhysicsState:
+def step(p: PhysicsParameters, state: PhysicsState, u: np.ndarray, dt, disturbance: Disturbance,
+         rates_next: np.ndarray | None = None) -> PhysicsState:
     """One step of :func:`quad_modelling.core.physics.rigid_body.step` of every batch member under ``u`` (B, 4) held
-    for ``dt`` (scalar or (B,)) [s], with the anchor's constant ``disturbance``."""
+    for ``dt`` (scalar or (B,)) [s], with the anchor's constant ``disturbance`` (and given end-of-step body rates
+    ``rates_next`` (B, 3) [rad/s], if any)."""
     dt = np.broadcast_to(np.asarray(dt, dtype=float), (len(state.pos_n),))
-    return rigid_body.step(p, state, u, dt, disturbance.linear_n, disturbance.angular_b)
+    return rigid_body.step(p, state, u, dt, disturbance.linear_n, disturbance.angular_b, rates_next)
 
 
 def rollout(p: PhysicsParameters, state: PhysicsState, disturbance: Disturbance, u: np.ndarray, dt: np.ndarray,
-            with_accelerations: bool = True) -> np.ndarray:
+            with_accelerations: bool = True, rates: np.ndarray | None = None) -> np.ndarray:
     """(B, H + 1, 18) open-loop outputs from ``state`` (row 0) under commands ``u`` (B, H + 1, 4) with sample
     intervals ``dt`` (B, H) [s]: row h is the state after h steps, output with command u[:, h]. Without
-    ``with_accelerations`` the acceleration columns are NaN (:func:`state_outputs`; a quarter less work per step)."""
+    ``with_accelerations`` the acceleration columns are NaN (:func:`state_outputs`; a quarter less work per step).
+    ``rates`` (B, G + 1, 3) [rad/s]: body rates given for rows 1..G (G <= H; row 0 unused), each step's
+    ``rates_next`` (:func:`step`); after row G the rates are integrated again."""
     horizon = dt.shape[1]
+    given = 0 if rates is None else rates.shape[1] - 1
     out = np.empty((len(state.pos_n), horizon + 1, len(VARIABLES)))
     for h in range(horizon + 1):
         out[:, h] = outputs(p, state, u[:, h], disturbance) if with_accelerations else state_outputs(state)
         if h < horizon:
-            state = step(p, state, u[:, h], dt[:, h], disturbance)
+            state = step(p, state, u[:, h], dt[:, h], disturbance, rates[:, h + 1] if h < given else None)
     return out
 
 
@@ -279,12 +284,17 @@ class PhysicsStream:
         if drop:
             del self.times[:drop], self.commands[:drop]
 
+    def given_rates(self, command: np.ndarray) -> np.ndarray | None:
+        """Body rates (1, 3) [rad/s] given for the sample of ``command`` (a rate predictor's; the direct model's
+        stream), or None: the physics integrates them."""
+        return None
+
     def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
         previous = self.times[-1]
         dt = t_s - previous
         if not dt > 0:
             raise DataError(f"physics stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
-        self.state = step(self.params, self.state, self._command_at(previous), dt, self.disturbance)
+        self.state = step(self.params, self.state, self._command_at(previous), dt, self.disturbance, self.given_rates(command))
         self.times.append(float(t_s))
         self.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
         self._forget()
@@ -332,14 +342,14 @@ class PhysicsPredictor:
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
         """(S, horizon + 1, 18) absolute open-loop predictions from each start row (IDSIA multi-step), causal."""
-        return rollout(self.params, *self._horizon_inputs(segment, starts, horizon))
+        return rollout(self.params, *self.horizon_inputs(segment, starts, horizon))
 
     def predict_horizons_of(self, parts: Sequence[tuple[FlightLog, np.ndarray]], horizon: int) -> list[np.ndarray]:
         """:meth:`predict_horizons` of each (segment, starts) of ``parts`` for the multi-step scores, whose groups hold no
         acceleration: the starts of all parts stepped as one batch (one rollout instead of one per segment: the
         per-step cost of numpy's small arrays is paid once), the acceleration columns NaN (no wrench evaluated for
         the outputs). The other columns are :meth:`predict_horizons`'s numbers (test)."""
-        inputs = [self._horizon_inputs(segment, np.asarray(starts, dtype=int), horizon) for segment, starts in parts]
+        inputs = [self.horizon_inputs(segment, np.asarray(starts, dtype=int), horizon) for segment, starts in parts]
         if not inputs:
             return []
         states, disturbances, commands, intervals = zip(*inputs)
@@ -349,7 +359,7 @@ class PhysicsPredictor:
         out = rollout(self.params, state, disturbance, np.concatenate(commands), np.concatenate(intervals), with_accelerations=False)
         return np.split(out, np.cumsum([len(dt) for dt in intervals])[:-1])
 
-    def _horizon_inputs(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> tuple:
+    def horizon_inputs(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> tuple:
         """(start states, disturbances, commands (S, H + 1, 4), sample intervals (S, H)) of :meth:`predict_horizons`."""
         starts = np.asarray(starts, dtype=int)
         if starts.size and (starts.min() < 0 or starts.max() + horizon >= len(segment)):

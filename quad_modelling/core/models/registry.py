@@ -7,6 +7,8 @@ Built-in specs (a factory receives the text after the first ``:``, or ``""``, an
 ``greybox:euler``  same with the thesis's explicit-Euler discretisation
 ``narx:PATH``      NARX nets from a model file (window, live, multi-step), :mod:`quad_modelling.core.models.narx`
 ``hybrid:PATH``    physics model + residual net (window, live, multi-step), :mod:`quad_modelling.core.models.hybrid`
+``direct:PATH``    physics model with body rates from a direct multi-horizon regression (window, live, multi-step),
+                   :mod:`quad_modelling.core.models.direct`
 ``physics``        nonlinear rigid body + rotor map/lag/drag, :mod:`quad_modelling.core.models.physics`
 ``physics:L,A``    same with the disturbance observer's linear/angular histories [s] (0 = off)
 ``dummy``          :class:`~quad_modelling.core.models.base.DummyPredictor`, zero (thesis Fig 5.2)
@@ -104,6 +106,13 @@ def _make_hybrid(arg: str, vehicle: VehicleConfig) -> Predictor:
     return make_hybrid_predictor(arg, vehicle)
 
 
+def _make_direct(arg: str, vehicle: VehicleConfig) -> Predictor:
+    """``direct:PATH``: the physics model with the body rates of a direct regression from a model file."""
+    from quad_modelling.core.models.direct import make_direct_predictor
+
+    return make_direct_predictor(arg, vehicle)
+
+
 def _make_physics(arg: str, vehicle: VehicleConfig) -> Predictor:
     """``physics`` / ``physics:L`` / ``physics:L,A``: the nonlinear physics model from the vehicle's physics constants,
     with the disturbance observer's linear (and angular) history in seconds (0 = off)."""
@@ -129,6 +138,7 @@ register_model("dummy", _make_dummy)
 register_model("naive", _make_naive)
 register_model("narx", _make_narx)
 register_model("hybrid", _make_hybrid)
+register_model("direct", _make_direct)
 
 def streaming_predictor(spec: str, vehicle) -> StreamingPredictor:
     """The live form of a model spec (``greybox``, ``narx:PATH``, ``naive``...).

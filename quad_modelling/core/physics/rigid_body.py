@@ -228,15 +228,17 @@ def rotation_increment(rot, rates_b, dt):
     return arrays.matmul3(rot, arrays.eye3_like(rot) + a[:, None, None] * k + b[:, None, None] * arrays.matmul3(k, k))
 
 
-def step(p, state, u, dt, linear_n, angular_b):
+def step(p, state, u, dt, linear_n, angular_b, rates_next=None):
     """One semi-implicit Euler step (module docstring) of every batch member under commands ``u`` (B, 4) held for
     ``dt`` (B,) [s], with constant extra accelerations ``linear_n`` (B, 3) [m/s², N] and ``angular_b`` (B, 3)
-    [rad/s², B] (the model's disturbance estimate). Returns a state of ``state``'s type."""
+    [rad/s², B] (the model's disturbance estimate). ``rates_next`` (B, 3) [rad/s, B]: body rates given for the end
+    of the step (a rate predictor's, :mod:`quad_modelling.core.models.direct`) in place of the integrated ones; the
+    attitude then turns with them. Returns a state of ``state``'s type."""
     rotor = rotor_step(p, state.rotor, u, dt)
     rotor_dot = (rotor - state.rotor) / dt[:, None]  # the step's mean dΩ/dt, exact
     acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, interval_rotor_speed(p, state.rotor, u, dt), rotor_dot,
                                    state.pos_n)
-    rates = limit_norm(state.rates + dt[:, None] * (ang_acc + angular_b), GYRO_FULL_SCALE)
+    rates = limit_norm(state.rates + dt[:, None] * (ang_acc + angular_b) if rates_next is None else rates_next, GYRO_FULL_SCALE)
     rot = rotation_increment(state.rot, rates, dt)
     vel = limit_norm(state.vel_n + dt[:, None] * (acc_n + linear_n), MAX_SPEED_MPS)
     pos = state.pos_n + dt[:, None] * vel

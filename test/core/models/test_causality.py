@@ -68,7 +68,14 @@ def _train_hybrid(directory: Path, vehicle) -> Path:
     return train_hybrid_on_flights([load_flight(FLIGHT, vehicle)], [None], vehicle, config, seed=3).save(directory / "hybrid.npz")
 
 
-TRAINERS = {"narx": _train_narx, "hybrid": _train_hybrid}
+def _train_direct(directory: Path, vehicle) -> Path:
+    """The direct model's regression fitted (closed-form, a second) on the fixture flight."""
+    from quad_modelling.core.models.direct import train_direct
+
+    return train_direct([load_flight(FLIGHT, vehicle)], [None], vehicle).save(directory / "direct.npz")
+
+
+TRAINERS = {"narx": _train_narx, "hybrid": _train_hybrid, "direct": _train_direct}
 """Kind -> trainer(directory, vehicle) -> model file, for specs with ``{kind}`` in them."""
 
 MODELS = [
@@ -79,6 +86,7 @@ MODELS = [
     pytest.param("narx:{narx}", True, True, id="narx"),
     pytest.param("physics", True, True, id="physics"),
     pytest.param("hybrid:{hybrid}", True, True, id="hybrid"),
+    pytest.param("direct:{direct}", True, True, id="direct"),
 ]
 
 

@@ -17,12 +17,13 @@ import pytest
 import yaml
 
 from quad_modelling.core.evaluation.multistep import multistep_form
+from quad_modelling.core.models.direct import DirectForecast
 from quad_modelling.core.models.forecast import GreyboxForecast, NarxForecast, PhysicsForecast, carried_forecast
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.models.streaming import RecedingHorizon, hold_inputs
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.io.loader import load_flight
-from test.core.models.test_causality import FLIGHT, _train_hybrid
+from test.core.models.test_causality import FLIGHT, _train_direct, _train_hybrid
 
 HORIZON = 50
 WARM = 20
@@ -79,6 +80,7 @@ def models(tmp_path_factory, vehicle):
         "physics+terms": (make_model("physics", with_terms), with_terms),
         "hybrid": (hybrid, vehicle),
         "narx": (make_model(f"narx:{_train_narx(tmp_path_factory.mktemp('narx'), vehicle)}", vehicle), vehicle),
+        "direct": (make_model(f"direct:{_train_direct(tmp_path_factory.mktemp('direct'), vehicle)}", vehicle), vehicle),
     }
 
 
@@ -108,7 +110,7 @@ def receding(model, vehicle, log, inputs: str, ends_only: bool = False) -> tuple
     return out, horizon
 
 
-@pytest.mark.parametrize("kind", ["greybox", "greybox:euler", "physics", "physics+terms", "hybrid", "narx"])
+@pytest.mark.parametrize("kind", ["greybox", "greybox:euler", "physics", "physics+terms", "hybrid", "narx", "direct"])
 def test_carried_forecast_equals_the_offline_multistep_form_flown_and_held(models, flight, kind):
     model, vehicle = models[kind]
     form = multistep_form(model, WARM)
@@ -136,7 +138,8 @@ def test_carried_forecast_equals_the_offline_multistep_form_flown_and_held(model
 def test_every_registered_model_with_a_multistep_table_row_has_its_carried_form(models, vehicle):
     forms = {kind: type(carried_forecast(model, v, 0.01, HORIZON)) for kind, (model, v) in models.items()}
     assert forms == {"greybox": GreyboxForecast, "greybox:euler": GreyboxForecast, "physics": PhysicsForecast,
-                     "physics+terms": PhysicsForecast, "hybrid": PhysicsForecast, "narx": NarxForecast}
+                     "physics+terms": PhysicsForecast, "hybrid": PhysicsForecast, "narx": NarxForecast,
+                     "direct": DirectForecast}
     assert carried_forecast(make_model("naive", vehicle), vehicle, 0.01, HORIZON) is None  # the history re-run
 
 

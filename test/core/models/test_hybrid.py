@@ -282,7 +282,7 @@ def test_loading_refuses_changed_physics_constants_and_other_vehicles(trained, v
     path = trained.save(tmp_path / "hybrid.npz")
     key = "rotor_thrust_constant"
     changed = dataclasses.replace(vehicle, constants={**vehicle.constants, key: dataclasses.replace(vehicle.constants[key], value=vehicle.constants[key].value * 1.1)})
-    with pytest.raises(ModelError, match=f"hybrid was trained with other physics constants of vehicle 'crazyflie21' than .* \\({key}\\); pass the vehicle it was trained with: --vehicle {re.escape(str(vehicle.path))} ") as err:
+    with pytest.raises(ModelError, match=f"hybrid model was trained with other physics constants of vehicle 'crazyflie21' than .* \\({key}\\); pass the vehicle it was trained with: --vehicle {re.escape(str(vehicle.path))} ") as err:
         load_hybrid(path, changed)
     assert "\n" not in str(err.value)
     with pytest.raises(ModelError, match="trained for vehicle 'crazyflie21', not 'linkquad'"):

@@ -1,0 +1,178 @@
+"""The direct model: body rates from a ridge regression per horizon, the rest of the state from the physics model."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from quad_modelling.core import frames
+from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.models.direct import (
+    COMMAND_LEAD,
+    DirectPredictor,
+    RateRegression,
+    feature_count,
+    fit_rate_regression,
+    load_direct,
+    train_direct,
+)
+from quad_modelling.core.models.physics import PhysicsPredictor
+from quad_modelling.core.models.registry import make_model
+from quad_modelling.core.models.streaming import predict_window_by_stream
+from quad_modelling.core.physics.rigid_body import rotation_increment
+from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.errors import ConfigError, DataError, ModelError
+from quad_modelling.io.loader import load_flight
+
+BAG = Path(__file__).resolve().parents[3] / "bags" / "nanobench_B7_oval_medium_rep2"
+POLE = 0.9
+"""ω_{k+1} = POLE ω_k + G ũ_{k-DELAY} + e_k: the known system of the synthetic flights."""
+DELAY = 3
+GAIN = np.array([[1.0, -1.0, -1.0, 1.0], [1.0, 1.0, -1.0, -1.0], [0.5, -0.5, 0.5, -0.5]]) * 2e-5
+"""G [rad/s per command unit]: roll, pitch and yaw patterns of the four commands."""
+NOISE = 0.002
+"""e_k's standard deviation [rad/s]: the part of each row no model can predict."""
+
+
+def arx_flight(seed: int, rows: int = 6000) -> tuple[FlightLog, np.ndarray]:
+    """(a level 100 Hz flight whose gyro rates follow the known system, the rates without e after the start)."""
+    rng = np.random.default_rng(seed)
+    u = 40000.0 + np.cumsum(rng.standard_normal((rows, 4)) * 300.0, axis=0) * 0.05 + rng.standard_normal((rows, 4)) * 800.0
+    centred = u - 40000.0
+    rates = np.zeros((rows, 3))
+    for k in range(rows - 1):
+        rates[k + 1] = POLE * rates[k] + GAIN @ centred[max(k - DELAY, 0)] + NOISE * rng.standard_normal(3)
+    zeros = np.zeros((rows, 3))
+    log = FlightLog(t=np.arange(rows) * 0.01, u=u, acc_b=zeros + [0.0, 0.0, -9.81], gyro_b=rates, pos_n=zeros + [0.0, 0.0, -1.0],
+                    vel_n=zeros, euler=zeros, meta=FlightMeta("crazyflie21", f"arx seed {seed}"))
+    return log, centred
+
+
+def expected_rates(log: FlightLog, centred: np.ndarray, anchor: int, horizon: int) -> np.ndarray:
+    """E[ω_{s+h} | rows <= s, commands]: the known system run from the measured ω_s without its noise."""
+    out = [log.gyro_b[anchor]]
+    for h in range(horizon):
+        out.append(POLE * out[-1] + GAIN @ centred[anchor + h - DELAY])
+    return np.array(out)
+
+
+def test_the_regression_recovers_a_known_linear_system_on_a_flight_it_never_saw():
+    regression, anchors = fit_rate_regression([arx_flight(0)[0]], [None], horizon=20)
+    assert anchors == 6000 - COMMAND_LEAD - 20
+    held_out, centred = arx_flight(1)
+    starts = np.arange(100, 5900, 7)
+    predicted = regression.rates(held_out.u, held_out.gyro_b, starts, 20)
+    truth = np.array([expected_rates(held_out, centred, s, 20) for s in starts])
+    assert np.array_equal(predicted[:, 0], held_out.gyro_b[starts])
+    # the map is the system's conditional mean up to the ridge's small bias, and it predicts the measured rates
+    # nearly as well as the known system itself (whose error is the noise e no model can predict)
+    measured = held_out.gyro_b[starts[:, None] + np.arange(21)[None, :]]
+    for h in (1, 5, 10, 20):
+        floor = NOISE * np.sqrt(np.sum(POLE ** (2 * np.arange(h))))  # std of sum_i POLE^i e
+        assert np.sqrt(np.mean((predicted[:, h] - truth[:, h]) ** 2)) < 0.6 * floor
+        rms_model = np.sqrt(np.mean((measured[:, h] - predicted[:, h]) ** 2))
+        rms_known = np.sqrt(np.mean((measured[:, h] - truth[:, h]) ** 2))
+        assert rms_model < 1.2 * rms_known, (h, rms_model, rms_known)
+
+
+def test_a_horizons_map_reads_no_command_after_its_row():
+    regression = fit_rate_regression([arx_flight(0)[0]], [None], horizon=10)[0]
+    for h in range(1, 11):
+        assert not regression.weights[h - 1, feature_count(h):].any()
+        assert regression.weights[h - 1, feature_count(h) - 4:feature_count(h)].any()  # its own row's command
+
+
+@pytest.fixture(scope="module")
+def vehicle():
+    return load_vehicle("crazyflie21")
+
+
+@pytest.fixture(scope="module")
+def flight():
+    return load_flight(BAG)
+
+
+@pytest.fixture(scope="module")
+def model(flight, vehicle):
+    return train_direct([flight], [(5.0, 25.0)], vehicle)
+
+
+def test_the_first_rows_rates_are_the_regressions_then_the_physics_integrates_them(model, flight):
+    segment = flight.slice(1000, 1300)
+    starts = np.array([30, 90, 140])
+    horizon = model.regression.horizon + 20
+    predicted = model.predict_horizons(segment, starts, horizon)
+    given = model.regression.rates(segment.u, segment.gyro_b, starts, horizon)
+    assert given.shape == (3, model.regression.horizon + 1, 3)
+    assert np.array_equal(predicted[:, 1:model.regression.horizon + 1, 12:15], given[:, 1:])
+    # the attitude turns with the given rates: R_1 = R_0 Exp([ω̂_1 Δt]×)
+    state, _, _, dt = PhysicsPredictor(model.physics.vehicle).horizon_inputs(segment, starts, 1)
+    euler = frames.matrix_to_euler_ned(rotation_increment(state.rot, given[:, 1], dt[:, 0]))
+    assert np.allclose(predicted[:, 1, 9:11], euler[:, :2], rtol=0, atol=1e-12)
+    assert np.allclose(np.angle(np.exp(1j * (predicted[:, 1, 11] - euler[:, 2]))), 0.0, atol=1e-12)
+    # after H rows the physics integrates the rates on from the last given ones: a prediction to H is a prefix
+    shorter = model.predict_horizons(segment, starts, model.regression.horizon)
+    assert np.array_equal(predicted[:, :model.regression.horizon + 1], shorter)
+    assert not np.allclose(predicted[:, -1, 12:15], given[:, -1], rtol=0, atol=1e-6)
+
+
+def test_the_live_stream_equals_the_multi_step_form(model, flight):
+    window = flight.slice(1200, 1400)
+    warm = 20
+    live = predict_window_by_stream(DirectPredictor(model), window, warm)
+    offline = model.predict_horizons(window, np.array([warm - 1]), len(window) - warm)[0]
+    assert np.allclose(live[warm:], offline[1:], rtol=0, atol=1e-9)
+
+
+def test_the_direct_rates_beat_the_physics_model_on_the_bundled_flights_held_out_part(model, flight, vehicle):
+    """Trained on 5-25 s of the bundled oval, scored on 25-35 s (every start, 0.5 s horizons): the angular-velocity
+    SimErr falls below the physics model's, and the velocity's is no worse."""
+    from quad_modelling.core.evaluation.multistep import multistep_evaluation
+    from quad_modelling.core.windows import EvaluationConfig
+
+    config = EvaluationConfig.preset("short", train="0%:60%", eval="65%:100%", horizons=(1, 10, 50))
+    table = multistep_evaluation([flight], [PhysicsPredictor(vehicle), DirectPredictor(model)], vehicle, config)
+    physics, direct = table["models"]["physics"], table["models"]["direct"]
+    assert direct["angular_velocity"]["sim_err"] < 0.9 * physics["angular_velocity"]["sim_err"]
+    assert direct["velocity"]["sim_err"] < 1.05 * physics["velocity"]["sim_err"]
+
+
+def test_save_load_registry_round_trip_and_refusals(model, flight, vehicle, tmp_path):
+    path = model.save(tmp_path / "direct.npz")
+    segment = flight.slice(1000, 1300)
+    starts = np.arange(20, 200, 13)
+    expected = model.predict_horizons(segment, starts, 60)
+    assert np.array_equal(load_direct(path, vehicle).predict_horizons(segment, starts, 60), expected)
+    predictor = make_model(f"direct:{path}", vehicle)
+    assert predictor.name == "direct" and np.array_equal(predictor.predict_horizons(segment, starts, 60), expected)
+    with pytest.raises(ModelError, match="trained for vehicle 'crazyflie21', not 'linkquad'"):
+        load_direct(path, load_vehicle("linkquad"))
+    key = "rotor_thrust_constant"
+    changed = dataclasses.replace(vehicle, constants={**vehicle.constants, key: dataclasses.replace(vehicle.constants[key], value=vehicle.constants[key].value * 1.1)})
+    with pytest.raises(ModelError, match=f"direct model was trained with other physics constants .* \\({key}\\); pass the vehicle it was "
+                                         f"trained with: --vehicle {re.escape(str(vehicle.path))} "):
+        load_direct(path, changed)
+    with pytest.raises(ConfigError, match="model spec direct needs a model file: direct:PATH"):
+        make_model("direct", vehicle)
+
+
+def test_a_flight_at_another_rate_is_refused_in_one_line(model, flight):
+    fast = dataclasses.replace(flight, t=flight.t * 0.5)
+    with pytest.raises(DataError, match=r"sample period 5\.0 ms, the direct model counts rows of 10\.0 ms") as err:
+        model.predict_horizons(fast, np.array([100]), 10)
+    assert "\n" not in str(err.value)
+    with pytest.raises(DataError, match="sample period 5.0 ms"):
+        train_direct([flight, fast], [None, None], model.physics.vehicle)
+
+
+def test_too_short_training_spans_and_malformed_weights_are_refused(vehicle, flight):
+    with pytest.raises(DataError, match="training anchors for 274 inputs"):
+        fit_rate_regression([flight], [(5.0, 5.3)])
+    with pytest.raises(ModelError, match="do not fit 2 horizons"):
+        RateRegression(np.zeros((2, 5, 3)), np.zeros((2, 3)))
+    with pytest.raises(ModelError, match="NaN or infinity"):
+        RateRegression(np.full((1, feature_count(1), 3), np.nan), np.zeros((1, 3)))
