@@ -100,7 +100,19 @@ def small_hybrid(rate: float, workdir: Path) -> Path:
     return path
 
 
-MODEL_FILES = {"greybox": None, "physics": None, "narx": small_narx, "hybrid": small_hybrid}
+def small_direct(rate: float, workdir: Path) -> Path:
+    """A direct model file (physics base of ``crazyflie21`` + the rate regression fitted on the synthetic flight at
+    ``rate``): its cost per step is any direct model's (H = 50 rows), its accuracy does not matter here."""
+    from quad_modelling.core.models.direct import train_direct
+    from quad_modelling.core.vehicle import load_vehicle
+
+    path = workdir / f"direct_{rate:g}hz.npz"
+    if not path.exists():
+        train_direct([synthetic_flight(rate, 30.0)], [None], load_vehicle("crazyflie21")).save(path)
+    return path
+
+
+MODEL_FILES = {"greybox": None, "physics": None, "narx": small_narx, "hybrid": small_hybrid, "direct": small_direct}
 """Latency models: kind -> builder of its model file for a rate (None: the spec needs no file)."""
 
 
@@ -253,7 +265,7 @@ FORECAST_RATE_HZ = 400.0
 FORECAST_HORIZON_S = 0.125
 """The receding-horizon runs: 400 Hz inputs, h = 50 steps (the issue's target)."""
 
-FORECAST_MODELS = ("greybox", "narx", "physics", "hybrid")
+FORECAST_MODELS = ("greybox", "narx", "physics", "hybrid", "direct")
 
 
 def forecast_cost(spec: str, carried: bool, seconds: float) -> dict:
@@ -425,7 +437,7 @@ def latency_markdown(lat: list[dict]) -> list[str]:
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="shorter runs")
-    parser.add_argument("--models", default="greybox,narx,physics,hybrid",
+    parser.add_argument("--models", default="greybox,narx,physics,hybrid,direct",
                         help=f"predictor models of the latency runs, comma-separated (of {', '.join(MODEL_FILES)})")
     parser.add_argument("--latency-only", action="store_true",
                         help="only the latency runs (results in nodes_latency.{json,md}); no graph or memory runs")
