@@ -57,7 +57,7 @@ import numpy as np
 from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions, given_rates_step
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
-from quad_modelling.core.models.forecast import PhysicsForecast, Step, compile_step
+from quad_modelling.core.models.forecast import CompiledWindowStream, PhysicsForecast, Step, compile_step
 from quad_modelling.core.models.hybrid import physics_constants, trained_parameters
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
 from quad_modelling.core.models.physics import Disturbance, PhysicsPredictor, PhysicsStream
@@ -344,6 +344,25 @@ class DirectForecast(PhysicsForecast):
         return super().predict(t_after, u_after, rows)
 
 
+class CompiledDirectStream(CompiledWindowStream):
+    """A :class:`DirectStream` stepped by a compiled step with given rates (:meth:`DirectPredictor.compiled_stream`),
+    as the physics model's window stream is by :class:`~quad_modelling.core.models.forecast.CompiledWindowStream`: the
+    same numbers (test), without numpy's per-call cost on a batch of one."""
+
+    def __init__(self, stream: DirectStream, step: Step):
+        super().__init__(stream, step, None)
+        self._w, self._g = np.zeros(3), np.zeros(1)
+        self._buffer.set_arg(5, memoryview(self._w))
+        self._buffer.set_arg(6, memoryview(self._g))
+
+    def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
+        given = self.stream.given_rates(command)
+        self._g[0] = 0.0 if given is None else 1.0
+        if given is not None:
+            self._w[:] = given[0]
+        return super().push_at(command, t_s)
+
+
 class DirectPredictor:
     """The ``direct:PATH`` model: window (trimmed), multi-step, live and carried-forecast forms, all causal."""
 
@@ -351,14 +370,33 @@ class DirectPredictor:
         self.model = model
         self.name = name
         self.trim = trim or TrimConfig()
-        self._steps: tuple[Step, Step] | None = None  # the compiled step and derivative of the carried forecast
+        self._steps: dict[str, Step] = {}  # the compiled steps, built once per predictor
+
+    def _compiled(self, vehicle: VehicleConfig) -> dict[str, Step]:
+        """The compiled given-rates step (``F_given``), the continuous dynamics (``f_disturbed``) and the window
+        stream's step and outputs in one call (``W_given``: as :func:`~quad_modelling.core.models.forecast.window_step`)."""
+        if not self._steps:
+            import casadi
+
+            exported = ExportedModel(vehicle, self.model.params, self.model.physics.observer, "physics", None)
+            step, derivative = given_rates_step(exported), casadi_functions(exported)["f_disturbed"]
+            x, u, dt, d, w, g = (casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(6))
+            u_now = casadi.SX.sym("u_now", step.sparsity_in(1))
+            after = step(x, u, dt, d, w, g)
+            window = casadi.Function("W_given", [x, u, dt, d, u_now, w, g], [after, derivative(after, u_now, d)],
+                                     ["x", "u", "dt", "d", "u_now", "w", "g"], ["x_next", "xdot"])
+            self._steps = {"step": compile_step(step), "derivative": compile_step(derivative), "window": compile_step(window)}
+        return self._steps
 
     def carried_forecast(self, vehicle: VehicleConfig, period_s: float, steps: int) -> DirectForecast:
-        """The receding horizon's carried form (:class:`DirectForecast`; its compiled step built once per predictor)."""
-        if self._steps is None:
-            exported = ExportedModel(vehicle, self.model.params, self.model.physics.observer, "physics", None)
-            self._steps = (compile_step(given_rates_step(exported)), compile_step(casadi_functions(exported)["f_disturbed"]))
-        return DirectForecast(self.model, *self._steps, steps)
+        """The receding horizon's carried form (:class:`DirectForecast`)."""
+        compiled = self._compiled(vehicle)
+        return DirectForecast(self.model, compiled["step"], compiled["derivative"], steps)
+
+    def compiled_stream(self, vehicle: VehicleConfig, stream: DirectStream):
+        """``stream`` stepped by the compiled window step (:class:`CompiledDirectStream`), or itself without a C compiler."""
+        window = self._compiled(vehicle)["window"]
+        return CompiledDirectStream(stream, window) if window.compiled else stream
 
     def start_window(self, warm: FlightLog) -> tuple[np.ndarray, DirectStream]:
         """Warm rows -> (their measurement (W, 18), stream anchored on the last warm row)."""

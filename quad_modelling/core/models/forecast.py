@@ -122,8 +122,8 @@ def prepare_compiled_step(model, vehicle: VehicleConfig, forecast: bool) -> None
     """Build (and compile) the model's step now, not at its first window or anchor: the predictor node calls it at
     start-up with its model, as it primes the model (the compilation takes about half a second once): the carried
     forecast's (``forecast``, :func:`model_step`) or the window stream's (:func:`window_step`)."""
-    if forecast and hasattr(model, "carried_forecast"):
-        model.carried_forecast(vehicle, 0.01, 1)  # builds and keeps its compiled step
+    if hasattr(model, "carried_forecast"):
+        model.carried_forecast(vehicle, 0.01, 1)  # builds and keeps its compiled steps (forecast and window)
     elif forecast:
         model_step(model, vehicle)
         if isinstance(model, (PhysicsPredictor, HybridPredictor)):
@@ -580,7 +580,11 @@ class CompiledWindowStream:
 
 def compiled_window_stream(model, vehicle: VehicleConfig, stream):
     """``stream`` (what ``model.start_window`` returned) stepped by the compiled step when the model is a physics or
-    hybrid model whose step compiled (:func:`window_step`); else ``stream`` itself."""
+    hybrid model whose step compiled (:func:`window_step`), or has a ``compiled_stream`` of its own (the direct
+    model's); else ``stream`` itself."""
+    own = getattr(model, "compiled_stream", None)
+    if own is not None:
+        return own(vehicle, stream)
     if not isinstance(model, (PhysicsPredictor, HybridPredictor)):
         return stream
     step = window_step(model, vehicle)

@@ -185,7 +185,7 @@ def test_without_a_c_compiler_the_rollout_runs_in_casadis_virtual_machine_with_t
     np.testing.assert_allclose(interpreted.predict(t_after, u_after), compiled.predict(t_after, u_after), rtol=0, atol=1e-12)
 
 
-@pytest.mark.parametrize("kind", ["physics", "physics+terms", "hybrid"])
+@pytest.mark.parametrize("kind", ["physics", "physics+terms", "hybrid", "direct"])
 def test_the_live_window_stream_through_the_compiled_step_equals_the_models_own(models, flight, kind):
     """Window mode: the physics models' stream stepped by the compiled step (what the predictor node runs) gives the
     model's own stream's predictions, sample for sample over a window with a jittered and a dropped sample."""
