@@ -61,9 +61,10 @@ from quad_modelling.core.models.forecast import CompiledWindowStream, PhysicsFor
 from quad_modelling.core.models.hybrid import physics_constants, trained_parameters
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
 from quad_modelling.core.models.physics import Disturbance, PhysicsPredictor, PhysicsStream
+from quad_modelling.core.models.streaming import WindowByStream
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
-from quad_modelling.core.preprocess import TrimConfig, state_measurement, trim_prediction
+from quad_modelling.core.preprocess import TrimConfig, state_measurement
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import gap_free_runs, rows_between
@@ -363,7 +364,7 @@ class CompiledDirectStream(CompiledWindowStream):
         return super().push_at(command, t_s)
 
 
-class DirectPredictor:
+class DirectPredictor(WindowByStream):
     """The ``direct:PATH`` model: window (trimmed), multi-step, live and carried-forecast forms, all causal."""
 
     def __init__(self, model: DirectModel, name: str = "direct", trim: TrimConfig | None = None) -> None:
@@ -409,14 +410,7 @@ class DirectPredictor:
         voltage = physics.battery_voltage(self.model.params, warm)
         return measured, DirectStream(self.model, state, disturbance, warm, None if voltage is None else float(voltage[-1]))
 
-    def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        """(N, 18) absolute prediction of a window: the live calls with each sample's real stamp."""
-        from quad_modelling.core.models.streaming import predict_window_by_stream
 
-        return predict_window_by_stream(self, window, warm_samples)
-
-    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        return trim_prediction(window, self.predict_absolute(window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
         return self.model.predict_horizons(segment, starts, horizon)

@@ -59,7 +59,8 @@ from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands
 from quad_modelling.core.models.residual_net import ResidualNet
-from quad_modelling.core.preprocess import TrimConfig, state_measurement, trim_prediction
+from quad_modelling.core.models.streaming import WindowByStream
+from quad_modelling.core.preprocess import TrimConfig, state_measurement
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import RENAMED_KEYS, VehicleConfig
 from quad_modelling.errors import ConfigError, DataError, ModelError, reason
@@ -282,7 +283,7 @@ class HybridStream(PhysicsStream):
         return self.model.outputs(self.state, np.concatenate([self._command_at(t_s), self.commands[-1]], axis=1), self.disturbance)[0]
 
 
-class HybridPredictor:
+class HybridPredictor(WindowByStream):
     """The ``hybrid:PATH`` model: window (trimmed), multi-step and live forms, all causal."""
 
     def __init__(self, model: HybridModel, name: str = "hybrid", trim: TrimConfig | None = None) -> None:
@@ -302,14 +303,7 @@ class HybridPredictor:
         return measured, HybridStream(self.model, state, disturbance, warm.t, warm.u, period,
                                       None if voltage is None else float(voltage[-1]))
 
-    def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        """(N, 18) absolute prediction of a window: the live calls with each sample's real stamp."""
-        from quad_modelling.core.models.streaming import predict_window_by_stream
 
-        return predict_window_by_stream(self, window, warm_samples)
-
-    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        return trim_prediction(window, self.predict_absolute(window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
         return self.model.predict_horizons(segment, starts, horizon)

@@ -51,7 +51,7 @@ import numpy as np
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.models.streaming import predict_window_by_stream
+from quad_modelling.core.models.streaming import WindowByStream
 from quad_modelling.core.physics import rigid_body
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState, accelerations
@@ -63,7 +63,7 @@ from quad_modelling.core.physics.rotors import (
     rotor_acceleration,
     rotor_speeds,
 )
-from quad_modelling.core.preprocess import TrimConfig, state_measurement, trim_prediction
+from quad_modelling.core.preprocess import TrimConfig, state_measurement
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import DataError
@@ -304,7 +304,7 @@ class PhysicsStream:
         return self.push_at(command, self.times[-1] + self.period_s)
 
 
-class PhysicsPredictor:
+class PhysicsPredictor(WindowByStream):
     """The ``physics`` model: window (:meth:`predict_window`), multi-step (:meth:`predict_horizons`) and live
     (:meth:`start_window`) forms, all causal (module docstring).
 
@@ -332,13 +332,7 @@ class PhysicsPredictor:
         return measured, PhysicsStream(self.params, state, disturbance, warm.t, warm.u, period,
                                        None if voltage is None else float(voltage[-1]))
 
-    def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        """(N, 18) absolute prediction: the live calls with each sample's real stamp."""
-        return predict_window_by_stream(self, window, warm_samples)
 
-    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
-        """(N, 18) prediction in the evaluation's trimmed convention."""
-        return trim_prediction(window, self.predict_absolute(window, warm_samples), self.trim)
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
         """(S, horizon + 1, 18) absolute open-loop predictions from each start row (IDSIA multi-step), causal."""

@@ -68,6 +68,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.preprocess import trim_prediction
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import DataError, QuadModellingError
@@ -109,6 +110,20 @@ def predict_window_by_stream(predictor: StreamingPredictor, window: FlightLog, w
     for row in range(warm_samples, len(window)):
         predictions[row] = push_sample(stream, window.u[row], float(window.t[row]))
     return predictions
+
+
+class WindowByStream:
+    """The offline window forms of a streaming predictor (mixed into the physics, hybrid and direct predictors): its
+    live calls over a window with each sample's real stamp, absolute (:meth:`predict_absolute`) and in the
+    evaluation's trimmed convention (:meth:`predict_window`, the predictor's ``trim``)."""
+
+    def predict_absolute(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        """(N, 18) absolute prediction of a window: the live calls with each sample's real stamp."""
+        return predict_window_by_stream(self, window, warm_samples)
+
+    def predict_window(self, window: FlightLog, warm_samples: int) -> np.ndarray:
+        """(N, 18) prediction in the evaluation's trimmed convention."""
+        return trim_prediction(window, self.predict_absolute(window, warm_samples), self.trim)
 
 
 def predict_horizons_by_stream(predictor: StreamingPredictor, segment: FlightLog, starts: np.ndarray, horizon: int,
