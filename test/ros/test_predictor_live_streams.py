@@ -113,8 +113,18 @@ def make_predictor(**params):
     return PredictorNode(parameter_overrides=overrides)
 
 
-@pytest.mark.parametrize("model", ["greybox", "physics"])
-def test_predictions_for_99_percent_of_jittered_independent_streams_with_increasing_stamps_and_a_continuous_pose(ros, model):
+@pytest.fixture(scope="module")
+def direct_spec(tmp_path_factory) -> str:
+    """``direct:FILE``: the direct model's regression fitted on the bundled flight's 5-25 s (a second)."""
+    from quad_modelling.core.models.direct import train_direct
+
+    path = train_direct([read_bag(BAG)], [(5.0, 25.0)], load_vehicle("crazyflie21")).save(tmp_path_factory.mktemp("direct") / "direct.npz")
+    return f"direct:{path}"
+
+
+@pytest.mark.parametrize("model", ["greybox", "physics", "direct"])
+def test_predictions_for_99_percent_of_jittered_independent_streams_with_increasing_stamps_and_a_continuous_pose(ros, model, request):
+    model = request.getfixturevalue("direct_spec") if model == "direct" else model
     log = read_bag(BAG)
     rng = np.random.default_rng(15)
     t0, t1 = log.t[300], log.t[300] + 11.0  # two 5 s windows and the start of a third
@@ -132,7 +142,7 @@ def test_predictions_for_99_percent_of_jittered_independent_streams_with_increas
                     key=lambda e: e[0])
 
     predictor = make_predictor(model=model, window_s=5.0)
-    stack = Stack(ros, predictor, f"{model}/odom")
+    stack = Stack(ros, predictor, f"{model.partition(':')[0]}/odom")
     try:
         stack.wait_for_match()
         stack.play(events)
@@ -199,7 +209,7 @@ def flown_horizon_run(ros, model):
 def _fly_horizon(ros, model):
     log, stamps, events = replay_events()
     predictor = make_predictor(model=model, horizon_s=0.1, horizon_history_s=2.0, horizon_inputs="flown")
-    stack = Stack(ros, predictor, f"{model}/horizon/odom")
+    stack = Stack(ros, predictor, f"{model.partition(':')[0]}/horizon/odom")
     try:
         stack.wait_for_match()
         stack.play(events)
@@ -208,11 +218,12 @@ def _fly_horizon(ros, model):
     return log, stamps, predictor, stack
 
 
-@pytest.mark.parametrize("model", ["greybox", "physics"])
-def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(ros, model):
+@pytest.mark.parametrize("model", ["greybox", "physics", "direct"])
+def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(ros, model, request):
     """horizon_inputs flown, horizon_s = 0.1 s at 100 Hz: h = 10. Each published <model>/horizon/odom equals, to 1e-9,
     the offline multi-step form's prediction (core/evaluation/multistep.py) from the same start over the same rows,
-    stamped t_{s+h}."""
+    stamped t_{s+h}. The direct model's carried forecast included (its compiled step with the regression's rates)."""
+    model = request.getfixturevalue("direct_spec") if model == "direct" else model
     log, stamps, predictor, stack = flown_horizon_run(ros, model)
     h, warm = 10, 20
     assert predictor.horizon.steps == h
@@ -223,7 +234,7 @@ def test_horizon_mode_publishes_the_offline_multistep_prediction_of_each_anchor(
     expected, _ = topics.prediction_fields(form.predict_horizons(log, starts, h)[:, h])
     fields = np.array([topics.predicted_odometry_fields(m) for m in stack.received])
     error = np.abs(fields - expected).max()
-    print(f"{model}: {len(got)} horizon predictions, max |live - offline| = {error:.2e}")
+    print(f"{model.partition(':')[0]}: {len(got)} horizon predictions, max |live - offline| = {error:.2e}")
     assert error < 1e-9
 
 
