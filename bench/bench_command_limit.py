@@ -23,6 +23,10 @@ for every form and naive), and SimErr = the trapezoid over :data:`HORIZONS` in h
 sums every h = 1..50; here 11 horizons stand for them), as a ratio to naive's on the same starts. The physics, NARX
 and hybrid ratios of ``bench/results/models.json`` (the protocol's starts) are quoted beside them.
 
+Velocity: how far the physics model's translation gets if the body rates were known
+(:func:`velocity_with_measured_rates`: the measured rates given at every step of its rollout), next to the physics
+model as it predicts and the direct model (``models.json``).
+
 Run: ``.venv/bin/python -m bench.bench_command_limit [--data DIR] [--folds B2,B3] [--seed N]``. Writes
 bench/results/command_limit.json and .md.
 """
@@ -32,6 +36,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -137,6 +142,35 @@ def run_fold(shape: str, logs: dict, seed: int) -> dict:
             "ratio": {name: sim_err(values) / sim_err(mae["naive"]) for name, values in mae.items() if name != "naive"}}
 
 
+VELOCITY_HORIZON = 50
+"""Horizons of the velocity check: every h = 1..50, the protocol's SimErr."""
+
+
+def velocity_with_measured_rates(shape: str, logs: dict, work: Path) -> dict:
+    """Velocity SimErr ratio to naive on ``shape``'s flights (every h = 1..50, the same starts) of the physics model
+    identified on the other shapes (``identify --vehicle crazyflie21``, the models benchmark's spans): as it predicts,
+    and with the *measured* body rates given at the end of every step (``rigid_body.step``'s ``rates_next``, as the
+    direct model gives its regression's): how far the translation gets if the rates were known."""
+    from bench.bench_models import SPANS, run_cli
+    from quad_modelling.core.models import physics
+
+    vehicle_file = work / f"vehicle_{shape}.yaml"
+    run_cli(["identify", *[str(p) for p in logs if shape_of(p) != shape], "--vehicle", "crazyflie21", *SPANS, "-o", str(vehicle_file)])
+    model = physics.PhysicsPredictor(load_vehicle(str(vehicle_file)))
+    sums = {"naive": 0.0, "physics": 0.0, "physics, measured rates": 0.0}
+    rows = np.arange(VELOCITY_HORIZON + 1)
+    for log in (log for path, log in logs.items() if shape_of(path) == shape):
+        starts = flying_starts(log)
+        state, disturbance, commands, intervals = model.horizon_inputs(log, starts, VELOCITY_HORIZON)
+        truth = log.vel_n[starts[:, None] + rows[None, 1:]]
+        own = physics.rollout(model.params, state, disturbance, commands, intervals, False)
+        given = physics.rollout(model.params, state, disturbance, commands, intervals, False, log.gyro_b[starts[:, None] + rows[None, :]])
+        sums["naive"] += np.linalg.norm(truth - log.vel_n[starts][:, None, :], axis=2).sum()
+        sums["physics"] += np.linalg.norm(truth - own[:, 1:, 3:6], axis=2).sum()
+        sums["physics, measured rates"] += np.linalg.norm(truth - given[:, 1:, 3:6], axis=2).sum()
+    return {name: value / sums["naive"] for name, value in sums.items() if name != "naive"}
+
+
 def models_ratios() -> dict:
     """shape -> model -> AV SimErr ratio from bench/results/models.json (the protocol's starts), if it is there."""
     path = RESULTS / "models.json"
@@ -164,6 +198,15 @@ def markdown(folds: list[dict], pooled: dict, reference: dict, run: str) -> str:
                      *[f"{fold['ratio'][n]:.3f}" for n in names],
                      *[f"{ref[m]:.3f}" if m in ref else "-" for m in ("physics", "narx", "hybrid")]])
     lines += markdown_table(["held out", "starts", *names, "physics", "narx", "hybrid"], rows)
+    velocity = json.loads((RESULTS / "models.json").read_text())["folds"] if (RESULTS / "models.json").exists() else []
+    direct_vel = {f["held_out"]: f["multistep"]["models"]["direct"]["velocity"]["ratio_sim_err"] for f in velocity
+                  if "direct" in f["multistep"]["models"]}
+    lines += ["", "Velocity SimErr ratio to naive (every h = 1..50, the same starts): the physics model identified on the other "
+              "shapes as it predicts, and with the measured body rates given at every step (what its translation reaches "
+              "if the rates were known); the direct model's from `models.json` (the protocol's starts).", ""]
+    lines += markdown_table(["held out", "physics", "physics, measured rates", "direct"],
+                            [[f["held_out"], f"{f['velocity_ratio']['physics']:.3f}", f"{f['velocity_ratio']['physics, measured rates']:.3f}",
+                              f"{direct_vel[f['held_out']]:.3f}" if f["held_out"] in direct_vel else "-"] for f in folds])
     lines += ["", "AV MAE by horizon, pooled [rad/s]:", ""]
     lines += markdown_table(["h", "naive", *names], [[str(h), f"{pooled['mae']['naive'][k]:.4f}", *[f"{pooled['mae'][n][k]:.4f}" for n in names]]
                                                      for k, h in enumerate(HORIZONS)])
@@ -184,9 +227,11 @@ def main(argv: list[str] | None = None) -> int:
     flights, skipped = readable_flights(args.data, vehicle)
     logs = {path: resample_uniform(log) for path, log in flights.items()}
     folds = []
+    work = Path(tempfile.mkdtemp(prefix="command_limit_"))
     for shape in args.folds.split(","):
         started = time.perf_counter()
         folds.append(run_fold(shape, logs, args.seed))
+        folds[-1]["velocity_ratio"] = velocity_with_measured_rates(shape, logs, work)
         print(f"{shape}: {folds[-1]['ratio']} ({time.perf_counter() - started:.0f} s)", file=sys.stderr, flush=True)
     total = sum(f["starts"] for f in folds)
     pooled_mae = {name: (sum(np.asarray(f["mae"][name]) * f["starts"] for f in folds) / total).tolist() for name in folds[0]["mae"]}
