@@ -1,8 +1,9 @@
 """``make demo``: the main job on the bundled bag, end to end.
 
-Identify the vehicle's constants, and train the NARX model and the hybrid (physics base plus
-residual nets) on 10-25 s of the bundled NanoBench flight (after take-off); then replay the bag
-through the live ROS 2 graph (replay; greybox, physics, NARX and hybrid predictors; evaluator:
+Identify the vehicle's constants, and train the NARX model, the hybrid (physics base plus
+residual nets) and the direct model (physics base, body rates from a regression per horizon) on 10-25 s
+of the bundled NanoBench flight (after take-off); then replay the bag through the live ROS 2 graph
+(replay; greybox, physics, NARX, hybrid and direct predictors; evaluator:
 separate processes over DDS on loopback) and print the live RMS/TIC table for the training
 (10-25 s) and held-out (25-35 s) 5 s windows and the multi-step table of every model. The
 ``physics`` model is built from the identified vehicle file. Steps run through the same CLI a
@@ -49,8 +50,12 @@ def run() -> int:
     step("Train the hybrid (physics base plus residual nets) on the same training span",
          ["train", bag, "--vehicle", str(out / "crazyflie21_identified.yaml"), "--drop", "0:0", "--train", "10:25",
           "--hybrid", "--quiet", "-o", str(out / "hybrid.npz")])
-    models = f"greybox,physics,narx:{out / 'narx.npz'},hybrid:{out / 'hybrid.npz'}"
-    step("Replay the bag through the live ROS 2 graph over DDS (replay; greybox, physics, NARX and hybrid predictors; evaluator)",
+    step("Fit the direct model (physics base, body rates from a ridge regression per horizon) on the same training span",
+         ["train", bag, "--vehicle", str(out / "crazyflie21_identified.yaml"), "--drop", "0:0", "--train", "10:25",
+          "--direct", "--quiet", "-o", str(out / "direct.npz")])
+    models = f"greybox,physics,narx:{out / 'narx.npz'},hybrid:{out / 'hybrid.npz'},direct:{out / 'direct.npz'}"
+    step("Replay the bag through the live ROS 2 graph over DDS (replay; greybox, physics, NARX, hybrid and direct predictors; "
+         "evaluator)",
          ["run-bag", bag, "--models", models, "--vehicle", str(out / "crazyflie21_identified.yaml"),
           "--window", "5", "--train", "10:25", "--eval", "25:35", "-o", str(out / "live")])
     print(f"\ndemo outputs in {OUTPUT.relative_to(REPO)}/")
