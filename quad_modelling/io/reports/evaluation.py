@@ -44,6 +44,7 @@ MODEL_NOTES = {
     "narx": "NARX nets (thesis ch. 4), closed loop from the measured warm start",
     "physics": "nonlinear rigid-body physics model (motor map, motor lag, rotor drag)",
     "hybrid": "physics base plus residual nets",
+    "direct": "physics base with the body rates of a ridge regression per horizon (0.5 s)",
     "truth": "the truth simulator's own physics and constants from the log's notes (the perfect-model floor)",
 }
 """What a table row is, by model kind (the text before ``:`` in a spec, e.g. ``greybox:euler`` -> greybox)."""
