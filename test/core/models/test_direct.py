@@ -169,7 +169,9 @@ def test_a_flight_at_another_rate_is_refused_in_one_line(model, flight):
         train_direct([flight, fast], [None, None], model.physics.vehicle)
 
 
-def test_too_short_training_spans_and_malformed_weights_are_refused(vehicle, flight):
+def test_too_short_training_spans_a_flight_without_gyro_and_malformed_weights_are_refused(vehicle, flight):
+    with pytest.raises(DataError, match="the direct model's training .* needs the gyro \\(gyro_b\\), which this flight does not have"):
+        train_direct([dataclasses.replace(flight, gyro_b=None)], [None], vehicle)
     with pytest.raises(DataError, match="training anchors for 274 inputs"):
         fit_rate_regression([flight], [(5.0, 5.3)])
     with pytest.raises(ModelError, match="do not fit 2 horizons"):
