@@ -11,26 +11,35 @@ anchor s's inputs to the change of the body rates:
 
 .. math::
 
-    \hat\omega_{s+h} = \omega_s + b_h + \sum_{i=0}^{n_\omega-1} V_{h,i}\, \omega_{s-i}
+    \hat\omega_{s+h} = \omega_s + b_h + \sum_{i=0}^{n_\omega-1} V_{h,i}\, \omega_{s-i} + P_h\, v^B_s
                        + \sum_{k=-L}^{h} W_{h,k}\, u_{s+k}
 
-:math:`\omega` the gyro's body rates [rad/s, FRD]; :math:`u` the four logged motor commands [command unit];
-:math:`n_\omega` = :data:`RATE_HISTORY` rows of rates up to the anchor; L = :data:`COMMAND_LEAD` rows of commands
-before it. Causal: the rates at row s + h use the commands up to that row and the measured rates up to the anchor
-(rows before a flight's first are its first row). The weights are stored as one array ``weights`` (H, D, 3) over
-the features :math:`z = (\omega_s, \dots, \omega_{s-n_\omega+1}, u_{s-L}, \dots, u_{s+H})` (D = 3 n_ω + 4 (L + H + 1)),
-zero beyond horizon h's own :math:`D_h = 3 n_\omega + 4 (L + h + 1)`, and ``bias`` (H, 3).
+:math:`\omega` the gyro's body rates [rad/s, FRD]; :math:`v^B_s = R_s^T v^N_s` the measured velocity at the anchor in
+the body frame [m/s, FRD] (the rotor drag's moment and the position loop's answer grow with it); :math:`u` the four
+logged motor commands [command unit]; :math:`n_\omega` = :data:`RATE_HISTORY` rows of rates up to the anchor;
+L = :data:`COMMAND_LEAD` rows of commands before it. Causal: the rates at row s + h use the commands up to that row
+and the measurements up to the anchor (rows before a flight's first are its first row). The weights are stored as
+one array ``weights`` (H, D, 3) over the features
+:math:`z = (\omega_s, \dots, \omega_{s-n_\omega+1}, v^B_s, u_{s-L}, \dots, u_{s+H})` (D = 3 n_ω + 3 + 4 (L + H + 1)),
+zero beyond horizon h's own :math:`D_h = 3 n_\omega + 3 + 4 (L + h + 1)`, and ``bias`` (H, 3). Files of session 19
+have no :math:`v^B` (header ``config.body_velocity`` false, D 3 fewer) and load as they were.
 
 Fit (:func:`fit_rate_regression`): per h, ridge regression on every anchor of the training spans' gap-free parts
-with room for the lead and H rows after it, the penalty on the standardised inputs,
+with room for the lead and H rows after it, the penalty on the standardised inputs, each anchor weighted by
+:math:`c_s`,
 
 .. math::
 
-    \min_{w}\ \tfrac{1}{n} \sum_s \lVert \Delta\omega_{s,h} - b_h - w^T z_{s,h} \rVert^2 + \lambda \sum_j \sigma_j^2 w_j^2,
+    \min_{w}\ \frac{\sum_s c_s \lVert \Delta\omega_{s,h} - b_h - w^T z_{s,h} \rVert^2}{\sum_s c_s}
+        + \lambda \sum_j \sigma_j^2 w_j^2,
     \qquad w = (C_{zz} + \lambda\, \mathrm{diag}\, \sigma^2)^{-1} C_{z\Delta\omega}, \qquad b_h = \mu_{\Delta\omega} - w^T \mu_z
 
-(C the covariances, σ² their diagonal, λ = :data:`RIDGE`), from the moments of z accumulated over the flights: one
-pass, no design matrix held. Every h's inputs are a leading block of z, so one Gram matrix serves all of them.
+(C the c-weighted covariances, σ² their diagonal, λ = :data:`RIDGE`), from the moments of z accumulated over the
+flights: no design matrix held. Every h's inputs are a leading block of z, so one Gram matrix serves all of them.
+The score is a mean *absolute* error, so after the least-squares fit (c = 1) :data:`ROBUST_STEPS` reweighted refits
+(IRLS for the absolute error) give each anchor :math:`c_s = 1 / \max(r_s, \delta)`, :math:`r_s` its mean error norm
+over h = 1..H in the previous fit and δ = :data:`ROBUST_FLOOR` times their median: a few violent anchors (a gust, a
+propeller strike) no longer pull every map.
 
 The rest of the state. The physics model (:mod:`~quad_modelling.core.models.physics`: anchor, disturbance observer,
 rotor map, thrust, translation) runs as usual with these rates given at the end of each of the first H steps
@@ -55,6 +64,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions, given_rates_step
+from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.forecast import CompiledWindowStream, PhysicsForecast, Step, compile_step
@@ -85,6 +95,13 @@ RIDGE = 1e-2
 """λ: ridge penalty on the standardised inputs, per sample. Set before any held-out score and not tuned
 (``bench/bench_command_limit.py`` used it first)."""
 
+ROBUST_STEPS = 1
+"""Reweighted refits after the least-squares one (module docstring). One: three changed no fold's held-out AV SimErr
+ratio by more than 0.01 (session 20, held out by shape on the NanoBench flights)."""
+
+ROBUST_FLOOR = 0.5
+"""δ / median(r_s): the smallest error an anchor's weight counts, so that well-fitted anchors do not dominate."""
+
 PERIOD_TOLERANCE = 0.1
 """Largest relative difference between a flight's median sample period and the model's ``dt``."""
 
@@ -92,91 +109,143 @@ OUTPUTS: tuple[str, ...] = ("roll_rate", "pitch_rate", "yaw_rate")
 """The variables the regression predicts (the header's ``outputs``)."""
 
 
-def feature_count(horizon: int, rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD) -> int:
+def feature_count(horizon: int, rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD, body_velocity: bool = True) -> int:
     """D_h: inputs of horizon h's map (module docstring)."""
-    return 3 * rate_history + 4 * (lead + horizon + 1)
+    return 3 * rate_history + 3 * body_velocity + 4 * (lead + horizon + 1)
 
 
-def anchor_features(u: np.ndarray, rates: np.ndarray, anchors: np.ndarray, horizon: int, rate_history: int = RATE_HISTORY,
-                    lead: int = COMMAND_LEAD) -> np.ndarray:
-    """(S, D_horizon) inputs z at ``anchors`` of commands ``u`` (N, 4) and body rates ``rates`` (N, 3): the rates
-    ω_s .. ω_{s-n_ω+1}, then the commands u_{s-L} .. u_{s+horizon}; rows before 0 are row 0."""
+def anchor_features(log: FlightLog, anchors: np.ndarray, horizon: int, rate_history: int = RATE_HISTORY,
+                    lead: int = COMMAND_LEAD, body_velocity: bool = True) -> np.ndarray:
+    """(S, D_horizon) inputs z at ``anchors`` of ``log``: the rates ω_s .. ω_{s-n_ω+1}, the body velocity v^B_s (if
+    ``body_velocity``), then the commands u_{s-L} .. u_{s+horizon}; rows before 0 are row 0."""
     anchors = np.asarray(anchors, dtype=int)
     past = np.maximum(anchors[:, None] - np.arange(rate_history)[None, :], 0)
     rows = np.maximum(anchors[:, None] + np.arange(-lead, horizon + 1)[None, :], 0)
-    return np.concatenate([rates[past].reshape(len(anchors), -1), u[rows].reshape(len(anchors), -1)], axis=1)
+    velocity = [frames.nav_to_body(log.vel_n[anchors], log.euler[anchors])] if body_velocity else []
+    return np.concatenate([log.gyro_b[past].reshape(len(anchors), -1), *velocity, log.u[rows].reshape(len(anchors), -1)], axis=1)
 
 
 class RateRegression:
     """The per-horizon maps (module docstring): ``weights`` (H, D, 3), ``bias`` (H, 3)."""
 
-    def __init__(self, weights: np.ndarray, bias: np.ndarray, rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD):
+    def __init__(self, weights: np.ndarray, bias: np.ndarray, rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD,
+                 body_velocity: bool = True):
         weights, bias = np.asarray(weights, dtype=float), np.asarray(bias, dtype=float)
         horizon = len(bias)
-        if horizon < 1 or bias.shape != (horizon, 3) or weights.shape != (horizon, feature_count(horizon, rate_history, lead), 3):
+        size = feature_count(horizon, rate_history, lead, body_velocity)
+        if horizon < 1 or bias.shape != (horizon, 3) or weights.shape != (horizon, size, 3):
             raise ModelError(f"direct model: weights {weights.shape} and bias {bias.shape} do not fit {horizon} horizons of "
-                             f"{feature_count(horizon, rate_history, lead)} inputs")
+                             f"{size} inputs")
         if not (np.isfinite(weights).all() and np.isfinite(bias).all()):
             raise ModelError("direct model: weights or bias hold NaN or infinity")
         self.weights, self.bias = weights, bias
-        self.horizon, self.rate_history, self.lead = horizon, rate_history, lead
+        self.horizon, self.rate_history, self.lead, self.body_velocity = horizon, rate_history, lead, bool(body_velocity)
 
-    def rates(self, u: np.ndarray, rates: np.ndarray, anchors: np.ndarray, horizon: int) -> np.ndarray:
-        """(S, G + 1, 3) body rates [rad/s] at rows s .. s + G of each anchor s (G = min(horizon, H)): row 0 the
-        measured ω_s, row h the map's :math:`\\hat\\omega_{s+h}`. Needs ``u`` up to row max(s) + G."""
+    def feature_count(self, horizon: int) -> int:
+        """D_h of this regression's layout."""
+        return feature_count(horizon, self.rate_history, self.lead, self.body_velocity)
+
+    def features(self, log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
+        """:func:`anchor_features` in this regression's layout."""
+        return anchor_features(log, anchors, horizon, self.rate_history, self.lead, self.body_velocity)
+
+    def changes(self, z: np.ndarray, given: int) -> np.ndarray:
+        """(S, given, 3) :math:`\\hat\\omega_{s+h} - \\omega_s` for h = 1..given from inputs ``z`` (S, >= D_given)."""
+        out = np.empty((len(z), given, 3))
+        for h in range(1, given + 1):
+            d = self.feature_count(h)
+            out[:, h - 1] = z[:, :d] @ self.weights[h - 1, :d] + self.bias[h - 1]
+        return out
+
+    def rates(self, log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
+        """(S, G + 1, 3) body rates [rad/s] at rows s .. s + G of each anchor s of ``log`` (G = min(horizon, H)): row 0
+        the measured ω_s, row h the map's :math:`\\hat\\omega_{s+h}`. Needs the commands up to row max(s) + G."""
         anchors = np.asarray(anchors, dtype=int)
         given = min(horizon, self.horizon)
-        z = anchor_features(u, rates, anchors, given, self.rate_history, self.lead)
         out = np.empty((len(anchors), given + 1, 3))
-        out[:, 0] = rates[anchors]
-        for h in range(1, given + 1):
-            d = feature_count(h, self.rate_history, self.lead)
-            out[:, h] = out[:, 0] + z[:, :d] @ self.weights[h - 1, :d] + self.bias[h - 1]
+        out[:, 0] = log.gyro_b[anchors]
+        out[:, 1:] = out[:, :1] + self.changes(self.features(log, anchors, given), given)
         return out
 
     def rate_at(self, h: int, z: np.ndarray) -> np.ndarray:
         """(3,) :math:`\\hat\\omega_{s+h} - \\omega_s` from one anchor's inputs ``z`` (at least D_h of them)."""
-        d = feature_count(h, self.rate_history, self.lead)
+        d = self.feature_count(h)
         return z[:d] @ self.weights[h - 1, :d] + self.bias[h - 1]
 
 
-def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int = HORIZON,
-                        ridge: float = RIDGE) -> tuple[RateRegression, int]:
-    """(the maps fitted on the ``spans`` [s from each flight's start; None: the whole flight] of ``logs``, number of
-    anchors): ridge per horizon from accumulated moments (module docstring). DataError when no gap-free part of a
-    span holds the lead and ``horizon`` rows after an anchor, or a flight lacks the gyro."""
-    if horizon < 1:
-        raise ConfigError(f"direct model: horizon {horizon} must be >= 1")
-    size = feature_count(horizon)
-    n, sum_z, sum_zz = 0, np.zeros(size), np.zeros((size, size))
-    sum_y, sum_zy = np.zeros((horizon, 3)), np.zeros((horizon, size, 3))
+def training_anchors(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int) -> list[tuple[FlightLog, np.ndarray]]:
+    """(flight, anchors) of every gap-free part of the ``spans`` [s from each flight's start; None: the whole flight]
+    with the history before and ``horizon`` rows after each anchor. DataError when a flight lacks the gyro."""
+    parts = []
     for log, span in zip(logs, spans):
         log.require(("gyro_b",), "the direct model's training (its regression predicts the gyro rates)")
         start, stop = (0, len(log)) if span is None else rows_between(log, *span)
         for a, b in gap_free_runs(log, start, stop):
             anchors = np.arange(a + max(COMMAND_LEAD, RATE_HISTORY - 1), b - horizon)
-            if not anchors.size:
-                continue
-            z = anchor_features(log.u, log.gyro_b, anchors, horizon)
-            change = log.gyro_b[anchors[:, None] + np.arange(1, horizon + 1)[None, :]] - log.gyro_b[anchors][:, None, :]  # (S, H, 3)
-            n += len(anchors)
-            sum_z += z.sum(axis=0)
-            sum_zz += z.T @ z
-            sum_y += change.sum(axis=0)
-            sum_zy += np.einsum("sd,shk->hdk", z, change)
-    if n < size:
-        raise DataError(f"direct model: {n} training anchors for {size} inputs; the training spans need more gap-free rows "
-                        f"({COMMAND_LEAD} before and {horizon} after each anchor)")
+            if anchors.size:
+                parts.append((log, anchors))
+    return parts
+
+
+def rate_changes(log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
+    """(S, horizon, 3) measured Δω_{s,h} = ω_{s+h} - ω_s [rad/s] for h = 1..horizon."""
+    return log.gyro_b[anchors[:, None] + np.arange(1, horizon + 1)[None, :]] - log.gyro_b[anchors][:, None, :]
+
+
+def weighted_ridge(parts: Sequence[tuple[FlightLog, np.ndarray]], weights: Sequence[np.ndarray], horizon: int, ridge: float) -> RateRegression:
+    """The maps minimising the c-weighted squared error plus the ridge (module docstring), from moments accumulated
+    over ``parts`` with anchor weights ``weights`` (one array per part)."""
+    size = feature_count(horizon)
+    n, sum_z, sum_zz = 0.0, np.zeros(size), np.zeros((size, size))
+    sum_y, sum_zy = np.zeros((horizon, 3)), np.zeros((horizon, size, 3))
+    for (log, anchors), c in zip(parts, weights):
+        z = anchor_features(log, anchors, horizon)
+        change = rate_changes(log, anchors, horizon)
+        cz = z * c[:, None]
+        n += c.sum()
+        sum_z += cz.sum(axis=0)
+        sum_zz += cz.T @ z
+        sum_y += np.einsum("s,shk->hk", c, change)
+        sum_zy += np.einsum("sd,shk->hdk", cz, change)
     mean_z, mean_y = sum_z / n, sum_y / n
     covariance = sum_zz / n - np.outer(mean_z, mean_z)
     variance = np.maximum(np.diag(covariance), 1e-12)
-    weights, bias = np.zeros((horizon, size, 3)), np.zeros((horizon, 3))
+    out, bias = np.zeros((horizon, size, 3)), np.zeros((horizon, 3))
     for h in range(1, horizon + 1):
         d = feature_count(h)
         cross = sum_zy[h - 1, :d] / n - np.outer(mean_z[:d], mean_y[h - 1])
-        weights[h - 1, :d] = np.linalg.solve(covariance[:d, :d] + ridge * np.diag(variance[:d]), cross)
-        bias[h - 1] = mean_y[h - 1] - mean_z[:d] @ weights[h - 1, :d]
-    return RateRegression(weights, bias), n
+        out[h - 1, :d] = np.linalg.solve(covariance[:d, :d] + ridge * np.diag(variance[:d]), cross)
+        bias[h - 1] = mean_y[h - 1] - mean_z[:d] @ out[h - 1, :d]
+    return RateRegression(out, bias)
+
+
+def mean_error_norms(regression: RateRegression, parts: Sequence[tuple[FlightLog, np.ndarray]]) -> list[np.ndarray]:
+    """r_s per anchor of each part: the mean over h = 1..H of ||Δω_{s,h} - the map's|| [rad/s]."""
+    h = regression.horizon
+    return [np.linalg.norm(rate_changes(log, anchors, h) - regression.changes(regression.features(log, anchors, h), h), axis=2).mean(axis=1)
+            for log, anchors in parts]
+
+
+def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int = HORIZON,
+                        ridge: float = RIDGE, robust_steps: int = ROBUST_STEPS) -> tuple[RateRegression, int]:
+    """(the maps fitted on the ``spans`` [s from each flight's start; None: the whole flight] of ``logs``, number of
+    anchors): ridge per horizon, then ``robust_steps`` reweighted refits (module docstring). DataError when no
+    gap-free part of a span holds the lead and ``horizon`` rows after an anchor, or a flight lacks the gyro."""
+    if horizon < 1:
+        raise ConfigError(f"direct model: horizon {horizon} must be >= 1")
+    parts = training_anchors(logs, spans, horizon)
+    n, size = sum(len(anchors) for _, anchors in parts), feature_count(horizon)
+    if n < size:
+        raise DataError(f"direct model: {n} training anchors for {size} inputs; the training spans need more gap-free rows "
+                        f"({COMMAND_LEAD} before and {horizon} after each anchor)")
+    weights = [np.ones(len(anchors)) for _, anchors in parts]
+    regression = weighted_ridge(parts, weights, horizon, ridge)
+    for _ in range(robust_steps):
+        errors = mean_error_norms(regression, parts)
+        floor = ROBUST_FLOOR * float(np.median(np.concatenate(errors)))
+        weights = [1.0 / np.maximum(r, max(floor, 1e-12)) for r in errors]
+        regression = weighted_ridge(parts, weights, horizon, ridge)
+    return regression, n
 
 
 class DirectModel:
@@ -207,7 +276,7 @@ class DirectModel:
             starts = np.asarray(starts, dtype=int)
             self.check_rate(segment)
             inputs.append(self.physics.horizon_inputs(segment, starts, horizon))
-            rates.append(self.regression.rates(segment.u, segment.gyro_b, starts, horizon))
+            rates.append(self.regression.rates(segment, starts, horizon))
         if not inputs:
             return []
         states, disturbances, commands, intervals = zip(*inputs)
@@ -223,7 +292,7 @@ class DirectModel:
             "format": FORMAT, "format_version": FORMAT_VERSION, "kind": KIND, "vehicle": self.vehicle,
             "variables": list(VARIABLES), "outputs": list(OUTPUTS),
             "config": {"horizon": self.regression.horizon, "rate_history": self.regression.rate_history,
-                       "command_lead": self.regression.lead},
+                       "command_lead": self.regression.lead, "body_velocity": self.regression.body_velocity},
             "dt": self.dt,
             "training": {**self.training, "physics": physics_constants(self.params)},
         }
@@ -276,7 +345,8 @@ def load_direct(path: str | Path, vehicle: VehicleConfig) -> DirectModel:
         stored = header["training"]["physics"]
         if not isinstance(stored, dict):
             raise TypeError("training.physics is not a mapping")
-        regression = RateRegression(contents["weights"], contents["bias"], int(config["rate_history"]), int(config["command_lead"]))
+        regression = RateRegression(contents["weights"], contents["bias"], int(config["rate_history"]), int(config["command_lead"]),
+                                    bool(config.get("body_velocity", False)))  # session 19's files: no v^B
         dt = float(header["dt"])
     except (KeyError, TypeError, ValueError) as err:
         raise ModelError(f"{path}: direct model file lacks its settings ({reason(err)})") from err
@@ -295,8 +365,7 @@ class DirectStream(PhysicsStream):
         super().__init__(model.params, state, disturbance, warm.t, warm.u, float(np.median(np.diff(warm.t))), voltage)
         self.regression = model.regression
         last = len(warm) - 1
-        self.inputs = list(anchor_features(warm.u, warm.gyro_b, np.array([last]), 0, model.regression.rate_history,
-                                           model.regression.lead)[0])
+        self.inputs = list(model.regression.features(warm, np.array([last]), 0)[0])
         self.anchor_rates = np.asarray(warm.gyro_b[last], dtype=float)
         self.pushed = 0
 
@@ -310,8 +379,8 @@ class DirectStream(PhysicsStream):
 
 class DirectForecast(PhysicsForecast):
     """The receding horizon's carried forecast (:mod:`~quad_modelling.core.models.forecast`): the physics model's
-    (commands of the last δ, rotor speeds, yaw, observer rows) and the regression's anchor inputs (the last n_ω rates
-    and L + 1 commands), rolled out by the compiled :func:`~quad_modelling.core.export.casadi_model.given_rates_step`
+    (commands of the last δ, rotor speeds, yaw, observer rows) and the regression's anchor inputs (the last n_ω rates,
+    the last body velocity and L + 1 commands), rolled out by the compiled :func:`~quad_modelling.core.export.casadi_model.given_rates_step`
     chained h times, the regression's rates given for the first min(h, H) steps."""
 
     def __init__(self, model: DirectModel, step: Step, derivative: Step, steps: int):
@@ -326,11 +395,14 @@ class DirectForecast(PhysicsForecast):
         super().reset()
         self.rate_rows: deque = deque(maxlen=self.regression.rate_history)
         self.command_rows: deque = deque(maxlen=self.regression.lead + 1)
+        self.body_velocity = np.zeros(3)
 
     def add(self, rows: FlightLog, first: int) -> None:
         super().add(rows, first)
         self.rate_rows.extend(np.asarray(rows.gyro_b[first:], dtype=float))
         self.command_rows.extend(np.asarray(rows.u[first:], dtype=float))
+        if first < len(rows):
+            self.body_velocity = frames.nav_to_body(rows.vel_n[-1], rows.euler[-1])
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         r = self.regression
@@ -339,7 +411,8 @@ class DirectForecast(PhysicsForecast):
         commands = list(self.command_rows)
         rates += [rates[-1]] * (r.rate_history - len(rates))
         commands = [commands[0]] * (r.lead + 1 - len(commands)) + commands
-        z = np.concatenate([np.ravel(rates), np.ravel(commands), np.ravel(u_after[:given])])
+        velocity = [self.body_velocity] if r.body_velocity else []
+        z = np.concatenate([np.ravel(rates), *velocity, np.ravel(commands), np.ravel(u_after[:given])])
         for k in range(given):
             self._w[k] = rates[0] + r.rate_at(k + 1, z)
         return super().predict(t_after, u_after, rows)

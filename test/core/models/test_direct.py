@@ -36,28 +36,48 @@ GAIN = np.array([[1.0, -1.0, -1.0, 1.0], [1.0, 1.0, -1.0, -1.0], [0.5, -0.5, 0.5
 """G [rad/s per command unit]: roll, pitch and yaw patterns of the four commands."""
 NOISE = 0.002
 """e_k's standard deviation [rad/s]: the part of each row no model can predict."""
+DRAG = np.array([[0.0, -0.005, 0.0], [0.005, 0.0, 0.0], [0.0, 0.0, 0.0]])
+"""M [rad/s per m/s]: the rate a row gains from the body velocity v^B (a rotor-drag-like moment), where it is on."""
+LEG = 1000
+"""Rows of each constant ground velocity of the synthetic flights."""
+YAW = 0.7
+"""The synthetic flights' constant heading [rad]: v^B is v^N turned by it."""
 
 
-def arx_flight(seed: int, rows: int = 6000) -> tuple[FlightLog, np.ndarray]:
-    """(a level 100 Hz flight whose gyro rates follow the known system, the rates without e after the start)."""
+def arx_flight(seed: int, rows: int = 6000, yaw: float = YAW, drag: np.ndarray | None = None) -> tuple[FlightLog, np.ndarray]:
+    """(a level 100 Hz flight at heading ``yaw`` whose gyro rates follow the known system
+    ω_{k+1} = POLE ω_k + G ũ_{k-DELAY} + M v^B_k + e_k (M = ``drag``, none by default), flown in legs of :data:`LEG`
+    rows at a constant random velocity; the centred commands ũ)."""
+    drag = np.zeros((3, 3)) if drag is None else drag
     rng = np.random.default_rng(seed)
     u = 40000.0 + np.cumsum(rng.standard_normal((rows, 4)) * 300.0, axis=0) * 0.05 + rng.standard_normal((rows, 4)) * 800.0
     centred = u - 40000.0
+    vel_n = np.repeat(rng.uniform(-2.0, 2.0, (rows // LEG + 1, 3)) * [1.0, 1.0, 0.2], LEG, axis=0)[:rows]
+    euler = np.zeros((rows, 3)) + [0.0, 0.0, yaw]
+    vel_b = frames.nav_to_body(vel_n, euler)
     rates = np.zeros((rows, 3))
     for k in range(rows - 1):
-        rates[k + 1] = POLE * rates[k] + GAIN @ centred[max(k - DELAY, 0)] + NOISE * rng.standard_normal(3)
+        rates[k + 1] = POLE * rates[k] + GAIN @ centred[max(k - DELAY, 0)] + drag @ vel_b[k] + NOISE * rng.standard_normal(3)
     zeros = np.zeros((rows, 3))
     log = FlightLog(t=np.arange(rows) * 0.01, u=u, acc_b=zeros + [0.0, 0.0, -9.81], gyro_b=rates, pos_n=zeros + [0.0, 0.0, -1.0],
-                    vel_n=zeros, euler=zeros, meta=FlightMeta("crazyflie21", f"arx seed {seed}"))
+                    vel_n=vel_n, euler=euler, meta=FlightMeta("crazyflie21", f"arx seed {seed}"))
     return log, centred
 
 
-def expected_rates(log: FlightLog, centred: np.ndarray, anchor: int, horizon: int) -> np.ndarray:
-    """E[ω_{s+h} | rows <= s, commands]: the known system run from the measured ω_s without its noise."""
+def expected_rates(log: FlightLog, centred: np.ndarray, anchor: int, horizon: int, drag: np.ndarray | None = None) -> np.ndarray:
+    """E[ω_{s+h} | rows <= s, commands] inside one leg: the known system (M = ``drag``) run from the measured ω_s
+    without its noise."""
+    drag = np.zeros((3, 3)) if drag is None else drag
     out = [log.gyro_b[anchor]]
+    vel_b = frames.nav_to_body(log.vel_n[anchor], log.euler[anchor])
     for h in range(horizon):
-        out.append(POLE * out[-1] + GAIN @ centred[anchor + h - DELAY])
+        out.append(POLE * out[-1] + GAIN @ centred[anchor + h - DELAY] + drag @ vel_b)
     return np.array(out)
+
+
+def inside_legs(starts: np.ndarray, horizon: int) -> np.ndarray:
+    """The starts whose horizon stays in one leg of constant velocity."""
+    return starts[starts % LEG + horizon < LEG]
 
 
 def test_the_regression_recovers_a_known_linear_system_on_a_flight_it_never_saw():
@@ -65,7 +85,7 @@ def test_the_regression_recovers_a_known_linear_system_on_a_flight_it_never_saw(
     assert anchors == 6000 - COMMAND_LEAD - 20
     held_out, centred = arx_flight(1)
     starts = np.arange(100, 5900, 7)
-    predicted = regression.rates(held_out.u, held_out.gyro_b, starts, 20)
+    predicted = regression.rates(held_out, starts, 20)
     truth = np.array([expected_rates(held_out, centred, s, 20) for s in starts])
     assert np.array_equal(predicted[:, 0], held_out.gyro_b[starts])
     # the map is the system's conditional mean up to the ridge's small bias, and it predicts the measured rates
@@ -77,6 +97,41 @@ def test_the_regression_recovers_a_known_linear_system_on_a_flight_it_never_saw(
         rms_model = np.sqrt(np.mean((measured[:, h] - predicted[:, h]) ** 2))
         rms_known = np.sqrt(np.mean((measured[:, h] - truth[:, h]) ** 2))
         assert rms_model < 1.2 * rms_known, (h, rms_model, rms_known)
+
+
+def test_the_map_reads_the_velocity_in_the_body_frame_at_any_heading():
+    """Rates that gain M v^B each row, trained at one heading and scored at another: the map predicts them within the
+    noise floor as on the level flight, and without the velocity it cannot."""
+    regression = fit_rate_regression([arx_flight(0, drag=DRAG)[0]], [None], horizon=20)[0]
+    held_out, centred = arx_flight(1, yaw=YAW - 2.0, drag=DRAG)
+    starts = inside_legs(np.arange(100, 5900, 7), 20)
+    truth = np.array([expected_rates(held_out, centred, s, 20, DRAG) for s in starts])
+    blind = dataclasses.replace(held_out, vel_n=np.zeros_like(held_out.vel_n))
+    floor = NOISE * np.sqrt(np.sum(POLE ** (2 * np.arange(20))))
+    error = np.sqrt(np.mean((regression.rates(held_out, starts, 20)[:, 20] - truth[:, 20]) ** 2))
+    error_blind = np.sqrt(np.mean((regression.rates(blind, starts, 20)[:, 20] - truth[:, 20]) ** 2))
+    assert error < floor, (error, floor)
+    assert error_blind > 3 * error, (error_blind, error)
+
+
+def test_the_robust_refit_is_not_pulled_by_a_few_violent_rows():
+    """2 % of the training rows' rates struck by 3 rad/s spikes (a propeller strike, a bad gyro sample): the
+    least-squares maps follow them, the reweighted ones stay near the known system."""
+    flight, _ = arx_flight(0)
+    rng = np.random.default_rng(7)
+    struck = rng.choice(len(flight), len(flight) // 50, replace=False)
+    spiked = flight.gyro_b.copy()
+    spiked[struck] += rng.choice([-3.0, 3.0], (len(struck), 3))
+    training = dataclasses.replace(flight, gyro_b=spiked)
+    held_out, centred = arx_flight(1)
+    starts = inside_legs(np.arange(100, 5900, 7), 20)
+    truth = np.array([expected_rates(held_out, centred, s, 20) for s in starts])
+    errors = {}
+    for steps in (0, 1, 3):
+        predicted = fit_rate_regression([training], [None], horizon=20, robust_steps=steps)[0].rates(held_out, starts, 20)
+        errors[steps] = np.sqrt(np.mean((predicted - truth) ** 2))
+    assert errors[1] < 0.7 * errors[0], errors
+    assert errors[3] < errors[1], errors
 
 
 def test_a_horizons_map_reads_no_command_after_its_row():
@@ -106,7 +161,7 @@ def test_the_first_rows_rates_are_the_regressions_then_the_physics_integrates_th
     starts = np.array([30, 90, 140])
     horizon = model.regression.horizon + 20
     predicted = model.predict_horizons(segment, starts, horizon)
-    given = model.regression.rates(segment.u, segment.gyro_b, starts, horizon)
+    given = model.regression.rates(segment, starts, horizon)
     assert given.shape == (3, model.regression.horizon + 1, 3)
     assert np.array_equal(predicted[:, 1:model.regression.horizon + 1, 12:15], given[:, 1:])
     # the attitude turns with the given rates: R_1 = R_0 Exp([ω̂_1 Δt]×)
@@ -172,9 +227,34 @@ def test_a_flight_at_another_rate_is_refused_in_one_line(model, flight):
 def test_too_short_training_spans_a_flight_without_gyro_and_malformed_weights_are_refused(vehicle, flight):
     with pytest.raises(DataError, match="the direct model's training .* needs the gyro \\(gyro_b\\), which this flight does not have"):
         train_direct([dataclasses.replace(flight, gyro_b=None)], [None], vehicle)
-    with pytest.raises(DataError, match="training anchors for 274 inputs"):
+    with pytest.raises(DataError, match="training anchors for 277 inputs"):
         fit_rate_regression([flight], [(5.0, 5.3)])
     with pytest.raises(ModelError, match="do not fit 2 horizons"):
         RateRegression(np.zeros((2, 5, 3)), np.zeros((2, 3)))
     with pytest.raises(ModelError, match="NaN or infinity"):
         RateRegression(np.full((1, feature_count(1), 3), np.nan), np.zeros((1, 3)))
+
+
+def test_a_file_from_before_the_body_velocity_loads_with_its_own_layout(model, flight, vehicle, tmp_path):
+    """Session 19's files have no ``config.body_velocity`` and 3 inputs fewer (no v^B): they load and predict with
+    the rates and commands alone."""
+    import json
+
+    from quad_modelling.core.models.direct import RATE_HISTORY, DirectModel
+
+    h = model.regression.horizon
+    old = RateRegression(np.delete(model.regression.weights, np.s_[3 * RATE_HISTORY:3 * RATE_HISTORY + 3], axis=1),
+                         model.regression.bias, body_velocity=False)
+    path = DirectModel(vehicle, old, model.dt, model.training).save(tmp_path / "old.npz")
+    with np.load(path) as contents:
+        header, weights, bias = json.loads(str(contents["header"])), contents["weights"], contents["bias"]
+    del header["config"]["body_velocity"]
+    with open(path, "wb") as stream:
+        np.savez(stream, header=np.array(json.dumps(header)), weights=weights, bias=bias)
+    loaded = load_direct(path, vehicle)
+    assert not loaded.regression.body_velocity and loaded.regression.weights.shape == (h, feature_count(h, body_velocity=False), 3)
+    segment = flight.slice(1000, 1300)
+    starts = np.arange(20, 200, 13)
+    moved = dataclasses.replace(segment, vel_n=segment.vel_n + 1.0)  # the old layout reads no velocity
+    assert np.array_equal(loaded.regression.rates(segment, starts, h), loaded.regression.rates(moved, starts, h))
+    assert not np.array_equal(model.regression.rates(segment, starts, h), model.regression.rates(moved, starts, h))
