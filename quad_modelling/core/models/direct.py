@@ -11,18 +11,21 @@ anchor s's inputs to the change of the body rates:
 
 .. math::
 
-    \hat\omega_{s+h} = \omega_s + b_h + \sum_{i=0}^{n_\omega-1} V_{h,i}\, \omega_{s-i} + P_h\, v^B_s
+    \hat\omega_{s+h} = \omega_s + b_h + \sum_{i=0}^{n_\omega-1} V_{h,i}\, \omega_{s-i} + P_h\, v^B_s + Q_h\, \hat d^\omega_s
                        + \sum_{k=-L}^{h} W_{h,k}\, u_{s+k}
 
 :math:`\omega` the gyro's body rates [rad/s, FRD]; :math:`v^B_s = R_s^T v^N_s` the measured velocity at the anchor in
-the body frame [m/s, FRD] (the rotor drag's moment and the position loop's answer grow with it); :math:`u` the four
-logged motor commands [command unit]; :math:`n_\omega` = :data:`RATE_HISTORY` rows of rates up to the anchor;
+the body frame [m/s, FRD] (the rotor drag's moment and the position loop's answer grow with it);
+:math:`\hat d^\omega_s` the physics model's disturbance observer's angular acceleration at the anchor [rad/s², FRD]
+(what its torque model missed over the observer's window: a trim or CG torque the short rate history cannot
+separate from the commands' answer); :math:`u` the four logged motor commands [command unit]; :math:`n_\omega` = :data:`RATE_HISTORY` rows of rates up to the anchor;
 L = :data:`COMMAND_LEAD` rows of commands before it. Causal: the rates at row s + h use the commands up to that row
 and the measurements up to the anchor (rows before a flight's first are its first row). The weights are stored as
 one array ``weights`` (H, D, 3) over the features
-:math:`z = (\omega_s, \dots, \omega_{s-n_\omega+1}, v^B_s, u_{s-L}, \dots, u_{s+H})` (D = 3 n_ω + 3 + 4 (L + H + 1)),
-zero beyond horizon h's own :math:`D_h = 3 n_\omega + 3 + 4 (L + h + 1)`, and ``bias`` (H, 3). Files of session 19
-have no :math:`v^B` (header ``config.body_velocity`` false, D 3 fewer) and load as they were.
+:math:`z = (\omega_s, \dots, \omega_{s-n_\omega+1}, v^B_s, \hat d^\omega_s, u_{s-L}, \dots, u_{s+H})`
+(D = 3 n_ω + 3 n_a + 4 (L + H + 1), n_a the :data:`ANCHOR_INPUTS` in the file's ``config.anchor_inputs``), zero
+beyond horizon h's own :math:`D_h = 3 n_\omega + 3 n_a + 4 (L + h + 1)`, and ``bias`` (H, 3). Files of session 19
+have neither anchor input (``anchor_inputs`` absent, D 6 fewer) and load as they were.
 
 Fit (:func:`fit_rate_regression`): per h, ridge regression on every anchor of the training spans' gap-free parts
 with room for the lead and H rows after it, the penalty on the standardised inputs, each anchor weighted by
@@ -57,7 +60,7 @@ from __future__ import annotations
 
 import json
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import fields
 from pathlib import Path
 
@@ -99,6 +102,9 @@ ROBUST_STEPS = 1
 """Reweighted refits after the least-squares one (module docstring). One: three changed no fold's held-out AV SimErr
 ratio by more than 0.01 (session 20, held out by shape on the NanoBench flights)."""
 
+ANCHOR_INPUTS: tuple[str, ...] = ("body_velocity", "angular_disturbance")
+r"""The anchor's 3-vectors among the inputs, in order: v^B_s and \hat d^ω_s (module docstring)."""
+
 ROBUST_FLOOR = 0.5
 """δ / median(r_s): the smallest error an anchor's weight counts, so that well-fitted anchors do not dominate."""
 
@@ -109,45 +115,59 @@ OUTPUTS: tuple[str, ...] = ("roll_rate", "pitch_rate", "yaw_rate")
 """The variables the regression predicts (the header's ``outputs``)."""
 
 
-def feature_count(horizon: int, rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD, body_velocity: bool = True) -> int:
+def feature_count(horizon: int, rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD,
+                  anchor_inputs: Sequence[str] = ANCHOR_INPUTS) -> int:
     """D_h: inputs of horizon h's map (module docstring)."""
-    return 3 * rate_history + 3 * body_velocity + 4 * (lead + horizon + 1)
+    return 3 * rate_history + 3 * len(anchor_inputs) + 4 * (lead + horizon + 1)
 
 
-def anchor_features(log: FlightLog, anchors: np.ndarray, horizon: int, rate_history: int = RATE_HISTORY,
-                    lead: int = COMMAND_LEAD, body_velocity: bool = True) -> np.ndarray:
-    """(S, D_horizon) inputs z at ``anchors`` of ``log``: the rates ω_s .. ω_{s-n_ω+1}, the body velocity v^B_s (if
-    ``body_velocity``), then the commands u_{s-L} .. u_{s+horizon}; rows before 0 are row 0."""
+def anchor_features(log: FlightLog, anchors: np.ndarray, horizon: int, angular_disturbance: np.ndarray | None = None,
+                    rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD,
+                    anchor_inputs: Sequence[str] = ANCHOR_INPUTS) -> np.ndarray:
+    """(S, D_horizon) inputs z at ``anchors`` of ``log``: the rates ω_s .. ω_{s-n_ω+1}, the ``anchor_inputs`` (the
+    body velocity v^B_s; the observer's angular disturbance ``angular_disturbance`` (S, 3) [rad/s²] at the anchors),
+    then the commands u_{s-L} .. u_{s+horizon}; rows before 0 are row 0."""
     anchors = np.asarray(anchors, dtype=int)
     past = np.maximum(anchors[:, None] - np.arange(rate_history)[None, :], 0)
     rows = np.maximum(anchors[:, None] + np.arange(-lead, horizon + 1)[None, :], 0)
-    velocity = [frames.nav_to_body(log.vel_n[anchors], log.euler[anchors])] if body_velocity else []
-    return np.concatenate([log.gyro_b[past].reshape(len(anchors), -1), *velocity, log.u[rows].reshape(len(anchors), -1)], axis=1)
+    extra = []
+    for name in anchor_inputs:
+        if name == "body_velocity":
+            extra.append(frames.nav_to_body(log.vel_n[anchors], log.euler[anchors]).reshape(len(anchors), 3))
+        elif angular_disturbance is None:
+            raise ValueError("the direct model's angular_disturbance input needs the observer's disturbance at the anchors")
+        else:
+            extra.append(np.asarray(angular_disturbance, dtype=float).reshape(len(anchors), 3))
+    return np.concatenate([log.gyro_b[past].reshape(len(anchors), -1), *extra, log.u[rows].reshape(len(anchors), -1)], axis=1)
 
 
 class RateRegression:
     """The per-horizon maps (module docstring): ``weights`` (H, D, 3), ``bias`` (H, 3)."""
 
     def __init__(self, weights: np.ndarray, bias: np.ndarray, rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD,
-                 body_velocity: bool = True):
+                 anchor_inputs: Sequence[str] = ANCHOR_INPUTS):
         weights, bias = np.asarray(weights, dtype=float), np.asarray(bias, dtype=float)
         horizon = len(bias)
-        size = feature_count(horizon, rate_history, lead, body_velocity)
+        unknown = [name for name in anchor_inputs if name not in ANCHOR_INPUTS]
+        if unknown:
+            raise ModelError(f"direct model: unknown anchor input {unknown[0]!r}; known: {', '.join(ANCHOR_INPUTS)}")
+        size = feature_count(horizon, rate_history, lead, anchor_inputs)
         if horizon < 1 or bias.shape != (horizon, 3) or weights.shape != (horizon, size, 3):
             raise ModelError(f"direct model: weights {weights.shape} and bias {bias.shape} do not fit {horizon} horizons of "
                              f"{size} inputs")
         if not (np.isfinite(weights).all() and np.isfinite(bias).all()):
             raise ModelError("direct model: weights or bias hold NaN or infinity")
         self.weights, self.bias = weights, bias
-        self.horizon, self.rate_history, self.lead, self.body_velocity = horizon, rate_history, lead, bool(body_velocity)
+        self.horizon, self.rate_history, self.lead = horizon, rate_history, lead
+        self.anchor_inputs = tuple(anchor_inputs)
 
     def feature_count(self, horizon: int) -> int:
         """D_h of this regression's layout."""
-        return feature_count(horizon, self.rate_history, self.lead, self.body_velocity)
+        return feature_count(horizon, self.rate_history, self.lead, self.anchor_inputs)
 
-    def features(self, log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
+    def features(self, log: FlightLog, anchors: np.ndarray, horizon: int, angular_disturbance: np.ndarray | None = None) -> np.ndarray:
         """:func:`anchor_features` in this regression's layout."""
-        return anchor_features(log, anchors, horizon, self.rate_history, self.lead, self.body_velocity)
+        return anchor_features(log, anchors, horizon, angular_disturbance, self.rate_history, self.lead, self.anchor_inputs)
 
     def changes(self, z: np.ndarray, given: int) -> np.ndarray:
         """(S, given, 3) :math:`\\hat\\omega_{s+h} - \\omega_s` for h = 1..given from inputs ``z`` (S, >= D_given)."""
@@ -157,14 +177,15 @@ class RateRegression:
             out[:, h - 1] = z[:, :d] @ self.weights[h - 1, :d] + self.bias[h - 1]
         return out
 
-    def rates(self, log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
+    def rates(self, log: FlightLog, anchors: np.ndarray, horizon: int, angular_disturbance: np.ndarray | None = None) -> np.ndarray:
         """(S, G + 1, 3) body rates [rad/s] at rows s .. s + G of each anchor s of ``log`` (G = min(horizon, H)): row 0
-        the measured ω_s, row h the map's :math:`\\hat\\omega_{s+h}`. Needs the commands up to row max(s) + G."""
+        the measured ω_s, row h the map's :math:`\\hat\\omega_{s+h}`. Needs the commands up to row max(s) + G, and
+        the observer's ``angular_disturbance`` (S, 3) at the anchors if it is an input."""
         anchors = np.asarray(anchors, dtype=int)
         given = min(horizon, self.horizon)
         out = np.empty((len(anchors), given + 1, 3))
         out[:, 0] = log.gyro_b[anchors]
-        out[:, 1:] = out[:, :1] + self.changes(self.features(log, anchors, given), given)
+        out[:, 1:] = out[:, :1] + self.changes(self.features(log, anchors, given, angular_disturbance), given)
         return out
 
     def rate_at(self, h: int, z: np.ndarray) -> np.ndarray:
@@ -173,9 +194,15 @@ class RateRegression:
         return z[:d] @ self.weights[h - 1, :d] + self.bias[h - 1]
 
 
-def training_anchors(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int) -> list[tuple[FlightLog, np.ndarray]]:
-    """(flight, anchors) of every gap-free part of the ``spans`` [s from each flight's start; None: the whole flight]
-    with the history before and ``horizon`` rows after each anchor. DataError when a flight lacks the gyro."""
+Part = tuple[FlightLog, np.ndarray, "np.ndarray | None"]
+"""One gap-free part of a training span: (flight, anchors (S,), the observer's angular disturbance (S, 3) or None)."""
+
+
+def training_parts(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int,
+                   angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None) -> list[Part]:
+    """Every gap-free part of the ``spans`` [s from each flight's start; None: the whole flight] with the history
+    before and ``horizon`` rows after each anchor, with ``angular_disturbance(flight, anchors)`` if given. DataError
+    when a flight lacks the gyro."""
     parts = []
     for log, span in zip(logs, spans):
         log.require(("gyro_b",), "the direct model's training (its regression predicts the gyro rates)")
@@ -183,7 +210,7 @@ def training_anchors(logs: Sequence[FlightLog], spans: Sequence[tuple[float, flo
         for a, b in gap_free_runs(log, start, stop):
             anchors = np.arange(a + max(COMMAND_LEAD, RATE_HISTORY - 1), b - horizon)
             if anchors.size:
-                parts.append((log, anchors))
+                parts.append((log, anchors, None if angular_disturbance is None else angular_disturbance(log, anchors)))
     return parts
 
 
@@ -192,14 +219,15 @@ def rate_changes(log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarra
     return log.gyro_b[anchors[:, None] + np.arange(1, horizon + 1)[None, :]] - log.gyro_b[anchors][:, None, :]
 
 
-def weighted_ridge(parts: Sequence[tuple[FlightLog, np.ndarray]], weights: Sequence[np.ndarray], horizon: int, ridge: float) -> RateRegression:
+def weighted_ridge(parts: Sequence[Part], weights: Sequence[np.ndarray], horizon: int, ridge: float,
+                   anchor_inputs: Sequence[str]) -> RateRegression:
     """The maps minimising the c-weighted squared error plus the ridge (module docstring), from moments accumulated
     over ``parts`` with anchor weights ``weights`` (one array per part)."""
-    size = feature_count(horizon)
+    size = feature_count(horizon, anchor_inputs=anchor_inputs)
     n, sum_z, sum_zz = 0.0, np.zeros(size), np.zeros((size, size))
     sum_y, sum_zy = np.zeros((horizon, 3)), np.zeros((horizon, size, 3))
-    for (log, anchors), c in zip(parts, weights):
-        z = anchor_features(log, anchors, horizon)
+    for (log, anchors, disturbance), c in zip(parts, weights):
+        z = anchor_features(log, anchors, horizon, disturbance, anchor_inputs=anchor_inputs)
         change = rate_changes(log, anchors, horizon)
         cz = z * c[:, None]
         n += c.sum()
@@ -212,39 +240,43 @@ def weighted_ridge(parts: Sequence[tuple[FlightLog, np.ndarray]], weights: Seque
     variance = np.maximum(np.diag(covariance), 1e-12)
     out, bias = np.zeros((horizon, size, 3)), np.zeros((horizon, 3))
     for h in range(1, horizon + 1):
-        d = feature_count(h)
+        d = feature_count(h, anchor_inputs=anchor_inputs)
         cross = sum_zy[h - 1, :d] / n - np.outer(mean_z[:d], mean_y[h - 1])
         out[h - 1, :d] = np.linalg.solve(covariance[:d, :d] + ridge * np.diag(variance[:d]), cross)
         bias[h - 1] = mean_y[h - 1] - mean_z[:d] @ out[h - 1, :d]
-    return RateRegression(out, bias)
+    return RateRegression(out, bias, anchor_inputs=anchor_inputs)
 
 
-def mean_error_norms(regression: RateRegression, parts: Sequence[tuple[FlightLog, np.ndarray]]) -> list[np.ndarray]:
+def mean_error_norms(regression: RateRegression, parts: Sequence[Part]) -> list[np.ndarray]:
     """r_s per anchor of each part: the mean over h = 1..H of ||Δω_{s,h} - the map's|| [rad/s]."""
     h = regression.horizon
-    return [np.linalg.norm(rate_changes(log, anchors, h) - regression.changes(regression.features(log, anchors, h), h), axis=2).mean(axis=1)
-            for log, anchors in parts]
+    return [np.linalg.norm(rate_changes(log, anchors, h) - regression.changes(regression.features(log, anchors, h, d), h), axis=2).mean(axis=1)
+            for log, anchors, d in parts]
 
 
 def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int = HORIZON,
-                        ridge: float = RIDGE, robust_steps: int = ROBUST_STEPS) -> tuple[RateRegression, int]:
+                        ridge: float = RIDGE, robust_steps: int = ROBUST_STEPS,
+                        angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None = None) -> tuple[RateRegression, int]:
     """(the maps fitted on the ``spans`` [s from each flight's start; None: the whole flight] of ``logs``, number of
-    anchors): ridge per horizon, then ``robust_steps`` reweighted refits (module docstring). DataError when no
-    gap-free part of a span holds the lead and ``horizon`` rows after an anchor, or a flight lacks the gyro."""
+    anchors): ridge per horizon, then ``robust_steps`` reweighted refits (module docstring). The observer's angular
+    disturbance is an input when ``angular_disturbance(flight, anchors)`` (S, 3) gives it (:func:`train_direct`: the
+    physics model's observer). DataError when no gap-free part of a span holds the lead and ``horizon`` rows after
+    an anchor, or a flight lacks the gyro."""
     if horizon < 1:
         raise ConfigError(f"direct model: horizon {horizon} must be >= 1")
-    parts = training_anchors(logs, spans, horizon)
-    n, size = sum(len(anchors) for _, anchors in parts), feature_count(horizon)
+    inputs = ANCHOR_INPUTS if angular_disturbance is not None else tuple(i for i in ANCHOR_INPUTS if i != "angular_disturbance")
+    parts = training_parts(logs, spans, horizon, angular_disturbance)
+    n, size = sum(len(anchors) for _, anchors, _ in parts), feature_count(horizon, anchor_inputs=inputs)
     if n < size:
         raise DataError(f"direct model: {n} training anchors for {size} inputs; the training spans need more gap-free rows "
                         f"({COMMAND_LEAD} before and {horizon} after each anchor)")
-    weights = [np.ones(len(anchors)) for _, anchors in parts]
-    regression = weighted_ridge(parts, weights, horizon, ridge)
+    weights = [np.ones(len(anchors)) for _, anchors, _ in parts]
+    regression = weighted_ridge(parts, weights, horizon, ridge, inputs)
     for _ in range(robust_steps):
         errors = mean_error_norms(regression, parts)
         floor = ROBUST_FLOOR * float(np.median(np.concatenate(errors)))
         weights = [1.0 / np.maximum(r, max(floor, 1e-12)) for r in errors]
-        regression = weighted_ridge(parts, weights, horizon, ridge)
+        regression = weighted_ridge(parts, weights, horizon, ridge, inputs)
     return regression, n
 
 
@@ -276,7 +308,7 @@ class DirectModel:
             starts = np.asarray(starts, dtype=int)
             self.check_rate(segment)
             inputs.append(self.physics.horizon_inputs(segment, starts, horizon))
-            rates.append(self.regression.rates(segment, starts, horizon))
+            rates.append(self.regression.rates(segment, starts, horizon, inputs[-1][1].angular_b))
         if not inputs:
             return []
         states, disturbances, commands, intervals = zip(*inputs)
@@ -292,7 +324,7 @@ class DirectModel:
             "format": FORMAT, "format_version": FORMAT_VERSION, "kind": KIND, "vehicle": self.vehicle,
             "variables": list(VARIABLES), "outputs": list(OUTPUTS),
             "config": {"horizon": self.regression.horizon, "rate_history": self.regression.rate_history,
-                       "command_lead": self.regression.lead, "body_velocity": self.regression.body_velocity},
+                       "command_lead": self.regression.lead, "anchor_inputs": list(self.regression.anchor_inputs)},
             "dt": self.dt,
             "training": {**self.training, "physics": physics_constants(self.params)},
         }
@@ -330,7 +362,12 @@ def train_direct(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] 
         raise DataError(f"{logs[0].meta.source}: too few rows to train the direct model")
     for log in logs:
         check_period(log, dt)
-    regression, anchors = fit_rate_regression(logs, spans)
+    model = PhysicsPredictor(vehicle)
+
+    def observed(log: FlightLog, anchors: np.ndarray) -> np.ndarray:  # as the multi-step form anchors (horizon_inputs)
+        return physics.anchor_state(model.params, log, anchors, model.observer)[1].angular_b
+
+    regression, anchors = fit_rate_regression(logs, spans, angular_disturbance=observed)
     return DirectModel(vehicle, regression, dt, {"samples": anchors, "flights": [log.meta.source for log in logs], "ridge": RIDGE,
                                                  "vehicle_file": str(vehicle.path)})
 
@@ -346,7 +383,7 @@ def load_direct(path: str | Path, vehicle: VehicleConfig) -> DirectModel:
         if not isinstance(stored, dict):
             raise TypeError("training.physics is not a mapping")
         regression = RateRegression(contents["weights"], contents["bias"], int(config["rate_history"]), int(config["command_lead"]),
-                                    bool(config.get("body_velocity", False)))  # session 19's files: no v^B
+                                    tuple(config.get("anchor_inputs", ())))  # session 19's files: none
         dt = float(header["dt"])
     except (KeyError, TypeError, ValueError) as err:
         raise ModelError(f"{path}: direct model file lacks its settings ({reason(err)})") from err
@@ -365,7 +402,7 @@ class DirectStream(PhysicsStream):
         super().__init__(model.params, state, disturbance, warm.t, warm.u, float(np.median(np.diff(warm.t))), voltage)
         self.regression = model.regression
         last = len(warm) - 1
-        self.inputs = list(model.regression.features(warm, np.array([last]), 0)[0])
+        self.inputs = list(model.regression.features(warm, np.array([last]), 0, disturbance.angular_b)[0])
         self.anchor_rates = np.asarray(warm.gyro_b[last], dtype=float)
         self.pushed = 0
 
@@ -380,7 +417,7 @@ class DirectStream(PhysicsStream):
 class DirectForecast(PhysicsForecast):
     """The receding horizon's carried forecast (:mod:`~quad_modelling.core.models.forecast`): the physics model's
     (commands of the last δ, rotor speeds, yaw, observer rows) and the regression's anchor inputs (the last n_ω rates,
-    the last body velocity and L + 1 commands), rolled out by the compiled :func:`~quad_modelling.core.export.casadi_model.given_rates_step`
+    the last body velocity, the observer's disturbance and L + 1 commands), rolled out by the compiled :func:`~quad_modelling.core.export.casadi_model.given_rates_step`
     chained h times, the regression's rates given for the first min(h, H) steps."""
 
     def __init__(self, model: DirectModel, step: Step, derivative: Step, steps: int):
@@ -395,7 +432,7 @@ class DirectForecast(PhysicsForecast):
         super().reset()
         self.rate_rows: deque = deque(maxlen=self.regression.rate_history)
         self.command_rows: deque = deque(maxlen=self.regression.lead + 1)
-        self.body_velocity = np.zeros(3)
+        self.body_velocity = np.zeros(3)  # v^B at the last row [m/s]
 
     def add(self, rows: FlightLog, first: int) -> None:
         super().add(rows, first)
@@ -411,8 +448,10 @@ class DirectForecast(PhysicsForecast):
         commands = list(self.command_rows)
         rates += [rates[-1]] * (r.rate_history - len(rates))
         commands = [commands[0]] * (r.lead + 1 - len(commands)) + commands
-        velocity = [self.body_velocity] if r.body_velocity else []
-        z = np.concatenate([np.ravel(rates), *velocity, np.ravel(commands), np.ravel(u_after[:given])])
+        anchor = {"body_velocity": self.body_velocity}
+        if "angular_disturbance" in r.anchor_inputs:
+            anchor["angular_disturbance"] = self.disturbance().angular_b[0]
+        z = np.concatenate([np.ravel(rates), *(anchor[name] for name in r.anchor_inputs), np.ravel(commands), np.ravel(u_after[:given])])
         for k in range(given):
             self._w[k] = rates[0] + r.rate_at(k + 1, z)
         return super().predict(t_after, u_after, rows)

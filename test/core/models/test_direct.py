@@ -114,6 +114,30 @@ def test_the_map_reads_the_velocity_in_the_body_frame_at_any_heading():
     assert error_blind > 3 * error, (error_blind, error)
 
 
+def test_the_map_reads_the_observers_angular_disturbance_when_given():
+    """The same rates, with the velocity hidden from the log but the per-row rate gain M v^B given as the observer's
+    angular disturbance (a perfect observer): the map predicts within the noise floor from it alone."""
+    def hidden(seed: int, yaw: float) -> tuple[FlightLog, np.ndarray, np.ndarray]:
+        log, centred = arx_flight(seed, yaw=yaw, drag=DRAG)
+        gain = frames.nav_to_body(log.vel_n, log.euler) @ DRAG.T  # M v^B per row [rad/s per row]
+        return dataclasses.replace(log, vel_n=np.zeros_like(log.vel_n)), centred, gain
+
+    training, _, gain = hidden(0, YAW)
+    regression = fit_rate_regression([training], [None], horizon=20, angular_disturbance=lambda log, anchors: gain[anchors])[0]
+    assert regression.anchor_inputs == ("body_velocity", "angular_disturbance")
+    held_out, centred, gain = hidden(1, YAW - 2.0)
+    starts = inside_legs(np.arange(100, 5900, 7), 20)
+    seen = arx_flight(1, yaw=YAW - 2.0, drag=DRAG)[0]
+    truth = np.array([expected_rates(seen, centred, s, 20, DRAG) for s in starts])
+    floor = NOISE * np.sqrt(np.sum(POLE ** (2 * np.arange(20))))
+    error = np.sqrt(np.mean((regression.rates(held_out, starts, 20, gain[starts])[:, 20] - truth[:, 20]) ** 2))
+    error_blind = np.sqrt(np.mean((regression.rates(held_out, starts, 20, np.zeros((len(starts), 3)))[:, 20] - truth[:, 20]) ** 2))
+    assert error < floor, (error, floor)
+    assert error_blind > 3 * error, (error_blind, error)
+    with pytest.raises(ValueError, match="needs the observer's disturbance"):
+        regression.rates(held_out, starts, 20)
+
+
 def test_the_robust_refit_is_not_pulled_by_a_few_violent_rows():
     """2 % of the training rows' rates struck by 3 rad/s spikes (a propeller strike, a bad gyro sample): the
     least-squares maps follow them, the reweighted ones stay near the known system."""
@@ -161,7 +185,8 @@ def test_the_first_rows_rates_are_the_regressions_then_the_physics_integrates_th
     starts = np.array([30, 90, 140])
     horizon = model.regression.horizon + 20
     predicted = model.predict_horizons(segment, starts, horizon)
-    given = model.regression.rates(segment, starts, horizon)
+    disturbance = PhysicsPredictor(model.physics.vehicle).horizon_inputs(segment, starts, horizon)[1]
+    given = model.regression.rates(segment, starts, horizon, disturbance.angular_b)
     assert given.shape == (3, model.regression.horizon + 1, 3)
     assert np.array_equal(predicted[:, 1:model.regression.horizon + 1, 12:15], given[:, 1:])
     # the attitude turns with the given rates: R_1 = R_0 Exp([ω̂_1 Δt]×)
@@ -236,25 +261,29 @@ def test_too_short_training_spans_a_flight_without_gyro_and_malformed_weights_ar
 
 
 def test_a_file_from_before_the_body_velocity_loads_with_its_own_layout(model, flight, vehicle, tmp_path):
-    """Session 19's files have no ``config.body_velocity`` and 3 inputs fewer (no v^B): they load and predict with
-    the rates and commands alone."""
+    """Session 19's files have no ``config.anchor_inputs`` and 6 inputs fewer (no v^B, no observer disturbance): they
+    load and predict with the rates and commands alone."""
     import json
 
     from quad_modelling.core.models.direct import RATE_HISTORY, DirectModel
 
     h = model.regression.horizon
-    old = RateRegression(np.delete(model.regression.weights, np.s_[3 * RATE_HISTORY:3 * RATE_HISTORY + 3], axis=1),
-                         model.regression.bias, body_velocity=False)
+    assert model.regression.anchor_inputs == ("body_velocity", "angular_disturbance")
+    old = RateRegression(np.delete(model.regression.weights, np.s_[3 * RATE_HISTORY:3 * RATE_HISTORY + 6], axis=1),
+                         model.regression.bias, anchor_inputs=())
     path = DirectModel(vehicle, old, model.dt, model.training).save(tmp_path / "old.npz")
     with np.load(path) as contents:
         header, weights, bias = json.loads(str(contents["header"])), contents["weights"], contents["bias"]
-    del header["config"]["body_velocity"]
+    del header["config"]["anchor_inputs"]
     with open(path, "wb") as stream:
         np.savez(stream, header=np.array(json.dumps(header)), weights=weights, bias=bias)
     loaded = load_direct(path, vehicle)
-    assert not loaded.regression.body_velocity and loaded.regression.weights.shape == (h, feature_count(h, body_velocity=False), 3)
+    assert loaded.regression.anchor_inputs == () and loaded.regression.weights.shape == (h, feature_count(h, anchor_inputs=()), 3)
     segment = flight.slice(1000, 1300)
     starts = np.arange(20, 200, 13)
     moved = dataclasses.replace(segment, vel_n=segment.vel_n + 1.0)  # the old layout reads no velocity
     assert np.array_equal(loaded.regression.rates(segment, starts, h), loaded.regression.rates(moved, starts, h))
-    assert not np.array_equal(model.regression.rates(segment, starts, h), model.regression.rates(moved, starts, h))
+    disturbance = np.zeros((len(starts), 3))
+    assert not np.array_equal(model.regression.rates(segment, starts, h, disturbance), model.regression.rates(moved, starts, h, disturbance))
+    assert np.array_equal(loaded.predict_horizons(segment, starts, 60)[:, :, 12:15],
+                          DirectModel(vehicle, old, model.dt).predict_horizons(segment, starts, 60)[:, :, 12:15])
