@@ -452,8 +452,7 @@ class DirectForecast(PhysicsForecast):
         if "angular_disturbance" in r.anchor_inputs:
             anchor["angular_disturbance"] = self.disturbance().angular_b[0]
         z = np.concatenate([np.ravel(rates), *(anchor[name] for name in r.anchor_inputs), np.ravel(commands), np.ravel(u_after[:given])])
-        for k in range(given):
-            self._w[k] = rates[0] + r.rate_at(k + 1, z)
+        self._w[:given] = rates[0] + np.einsum("d,hdk->hk", z, r.weights[:given, :len(z)]) + r.bias[:given]  # zero past D_h
         return super().predict(t_after, u_after, rows)
 
 

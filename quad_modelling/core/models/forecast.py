@@ -275,6 +275,7 @@ class PhysicsForecast:
         self.rotor_command = None  # the effective command the rotors answered at the last row
         self.last_t = None  # time of the last row [s]
         self.anchor = None  # (t, pos, vel, euler with continuous yaw, R, rates, rotor, logged u, voltage) of the last row
+        self._disturbance = None  # disturbance() of the last row, once asked
 
     def add(self, rows: FlightLog, first: int) -> None:
         _require_gyro(rows, "the physics model")
@@ -307,6 +308,7 @@ class PhysicsForecast:
         self.anchor = (t_last, pos[-1].copy(), vel[-1].copy(), euler[-1], rot[-1], rates[-1].copy(), rotor[-1].copy(),
                        rows.u[-1].copy(), None if voltage is None else float(voltage[-1]))
         self._forget(t_last)
+        self._disturbance = None
 
     def _forget(self, t_last: float) -> None:
         """Drop the commands no later delay can need (keep the last at or before t - δ) and the observer's rows no
@@ -322,10 +324,12 @@ class PhysicsForecast:
 
     def disturbance(self) -> Disturbance:
         """The observer's constant disturbance at the last row (:func:`~quad_modelling.core.models.physics.observed_disturbance`)."""
-        rows = self.observer_rows.view()
-        measured = np.zeros((len(rows), len(VARIABLES)))
-        measured[:, 3:6], measured[:, 12:15] = rows[:, 1:4], rows[:, 4:7]
-        return physics.observed_disturbance(rows[:, 0], measured, rows[:, 7:13], np.array([len(rows) - 1]), self.observer)
+        if self._disturbance is None:  # every forecast from one row holds it (held inputs re-forecast without a row)
+            rows = self.observer_rows.view()
+            measured = np.zeros((len(rows), len(VARIABLES)))
+            measured[:, 3:6], measured[:, 12:15] = rows[:, 1:4], rows[:, 4:7]
+            self._disturbance = physics.observed_disturbance(rows[:, 0], measured, rows[:, 7:13], np.array([len(rows) - 1]), self.observer)
+        return self._disturbance
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         p, h = self.params, len(t_after)
