@@ -256,15 +256,21 @@ def mean_error_norms(regression: RateRegression, parts: Sequence[Part]) -> list[
 
 def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int = HORIZON,
                         ridge: float = RIDGE, robust_steps: int = ROBUST_STEPS,
-                        angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None = None) -> tuple[RateRegression, int]:
+                        angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None = None,
+                        anchor_inputs: Sequence[str] | None = None) -> tuple[RateRegression, int]:
     """(the maps fitted on the ``spans`` [s from each flight's start; None: the whole flight] of ``logs``, number of
-    anchors): ridge per horizon, then ``robust_steps`` reweighted refits (module docstring). The observer's angular
-    disturbance is an input when ``angular_disturbance(flight, anchors)`` (S, 3) gives it (:func:`train_direct`: the
-    physics model's observer). DataError when no gap-free part of a span holds the lead and ``horizon`` rows after
-    an anchor, or a flight lacks the gyro."""
+    anchors): ridge per horizon, then ``robust_steps`` reweighted refits (module docstring). The ``anchor_inputs``
+    (default: the body velocity, and the observer's angular disturbance when ``angular_disturbance(flight, anchors)``
+    (S, 3) gives it, as :func:`train_direct` does with the physics model's observer). DataError when no gap-free part
+    of a span holds the lead and ``horizon`` rows after an anchor, or a flight lacks the gyro."""
     if horizon < 1:
         raise ConfigError(f"direct model: horizon {horizon} must be >= 1")
-    inputs = ANCHOR_INPUTS if angular_disturbance is not None else tuple(i for i in ANCHOR_INPUTS if i != "angular_disturbance")
+    if anchor_inputs is None:
+        inputs = tuple(i for i in ANCHOR_INPUTS if i != "angular_disturbance" or angular_disturbance is not None)
+    else:
+        inputs = tuple(anchor_inputs)
+    if "angular_disturbance" in inputs and angular_disturbance is None:
+        raise ConfigError("direct model: the angular_disturbance input needs the observer's disturbance (angular_disturbance=)")
     parts = training_parts(logs, spans, horizon, angular_disturbance)
     n, size = sum(len(anchors) for _, anchors, _ in parts), feature_count(horizon, anchor_inputs=inputs)
     if n < size:

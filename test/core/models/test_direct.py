@@ -254,6 +254,9 @@ def test_too_short_training_spans_a_flight_without_gyro_and_malformed_weights_ar
         train_direct([dataclasses.replace(flight, gyro_b=None)], [None], vehicle)
     with pytest.raises(DataError, match="training anchors for 277 inputs"):
         fit_rate_regression([flight], [(5.0, 5.3)])
+    with pytest.raises(ConfigError, match="the angular_disturbance input needs the observer's disturbance"):
+        fit_rate_regression([flight], [None], anchor_inputs=("angular_disturbance",))
+    assert fit_rate_regression([flight], [None], horizon=5, anchor_inputs=())[0].weights.shape == (5, feature_count(5, anchor_inputs=()), 3)
     with pytest.raises(ModelError, match="do not fit 2 horizons"):
         RateRegression(np.zeros((2, 5, 3)), np.zeros((2, 3)))
     with pytest.raises(ModelError, match="NaN or infinity"):
