@@ -18,9 +18,9 @@ anchor s's inputs to the change of the body rates:
 the body frame [m/s, FRD] (the rotor drag's moment and the position loop's answer grow with it);
 :math:`\hat d^\omega_s` the physics model's disturbance observer's angular acceleration at the anchor [rad/s², FRD]
 (what its torque model missed over the observer's window: a trim or CG torque the short rate history cannot
-separate from the commands' answer); :math:`u` the four logged motor commands [command unit]; :math:`n_\omega` = :data:`RATE_HISTORY` rows of rates up to the anchor;
-L = :data:`COMMAND_LEAD` rows of commands before it. Causal: the rates at row s + h use the commands up to that row
-and the measurements up to the anchor (rows before a flight's first are its first row). The weights are stored as
+separate from the commands' answer); :math:`u` the four logged motor commands [command unit];
+:math:`n_\omega` = :data:`RATE_HISTORY` rows of rates up to the anchor; L = :data:`COMMAND_LEAD` rows of commands
+before it. Causal: the rates at row s + h use the commands up to that row and the measurements up to the anchor (rows before a flight's first are its first row). The weights are stored as
 one array ``weights`` (H, D, 3) over the features
 :math:`z = (\omega_s, \dots, \omega_{s-n_\omega+1}, v^B_s, \hat d^\omega_s, u_{s-L}, \dots, u_{s+H})`
 (D = 3 n_ω + 3 n_a + 4 (L + H + 1), n_a the :data:`ANCHOR_INPUTS` in the file's ``config.anchor_inputs``), zero
@@ -66,8 +66,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions, given_rates_step
 from quad_modelling.core import frames
+from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions, given_rates_step
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.forecast import CompiledWindowStream, PhysicsForecast, Step, compile_step
@@ -423,8 +423,8 @@ class DirectStream(PhysicsStream):
 class DirectForecast(PhysicsForecast):
     """The receding horizon's carried forecast (:mod:`~quad_modelling.core.models.forecast`): the physics model's
     (commands of the last δ, rotor speeds, yaw, observer rows) and the regression's anchor inputs (the last n_ω rates,
-    the last body velocity, the observer's disturbance and L + 1 commands), rolled out by the compiled :func:`~quad_modelling.core.export.casadi_model.given_rates_step`
-    chained h times, the regression's rates given for the first min(h, H) steps."""
+    the last body velocity, the observer's disturbance and L + 1 commands), rolled out by the compiled
+    :func:`~quad_modelling.core.export.casadi_model.given_rates_step` chained h times, the regression's rates given for the first min(h, H) steps."""
 
     def __init__(self, model: DirectModel, step: Step, derivative: Step, steps: int):
         self.regression = model.regression
@@ -457,8 +457,10 @@ class DirectForecast(PhysicsForecast):
         anchor = {"body_velocity": self.body_velocity}
         if "angular_disturbance" in r.anchor_inputs:
             anchor["angular_disturbance"] = self.disturbance().angular_b[0]
-        z = np.concatenate([np.ravel(rates), *(anchor[name] for name in r.anchor_inputs), np.ravel(commands), np.ravel(u_after[:given])])
-        self._w[:given] = rates[0] + np.einsum("d,hdk->hk", z, r.weights[:given, :len(z)]) + r.bias[:given]  # zero past D_h
+        z = np.concatenate([np.ravel(rates), *(anchor[name] for name in r.anchor_inputs), np.ravel(commands),
+                            np.ravel(u_after[:given])])
+        # one contraction for every map: horizon h's weights are zero past its own D_h
+        self._w[:given] = rates[0] + np.einsum("d,hdk->hk", z, r.weights[:given, :len(z)]) + r.bias[:given]
         return super().predict(t_after, u_after, rows)
 
 
