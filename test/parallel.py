@@ -51,7 +51,7 @@ UNIT_SECONDS = {
     "test/commands/test_bad_inputs.py": 9,
     "test/core/identification/test_physics_fit.py": 14,
     "test/core/diagnosis/test_effects.py": 8,
-    "test/core/diagnosis/test_physics_base.py": 20,
+    "test/core/diagnosis/test_physics_base.py": 35,
     "test/core/diagnosis/test_physics_validation.py": 18,
     "test/io/test_topic_maps.py": 7,
     "test/core/models/test_causality.py": 7,

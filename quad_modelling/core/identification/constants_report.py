@@ -155,3 +155,13 @@ def observer_entry(observer, source: str) -> dict:
     return {"enabled": o.linear_s > 0 or o.angular_s > 0, **{
         key: {"value": float(value), "unit": unit, "bounds": [0.0, 10.0 if unit == "s" else 1.0], "status": "identified",
               "source": source} for key, (value, unit) in values.items()}}
+
+
+def motor_command_gains(fit) -> dict:
+    """``summary.motor_command_gains`` of ``diagnose``: the factor on each motor's logged command the model needs
+    (mean 1), from a fit with the motor-imbalance term (gains 1, sigma NaN without one, or for ``fit`` None)."""
+    if fit is None or "motor_imbalance" not in fit.terms:
+        return {"value": [1.0] * 4, "sigma": [float("nan")] * 4, "fitted": False}
+    terms = fit.terms["motor_imbalance"]
+    return {"value": [terms[f"gain_{i}"]["value"] for i in range(1, 5)],
+            "sigma": [terms[f"gain_{i}"]["sigma"] for i in range(1, 5)], "fitted": True}

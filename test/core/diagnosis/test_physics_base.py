@@ -10,6 +10,7 @@ import functools
 import pytest
 
 from quad_modelling.core.diagnosis.physics_base import (
+    FOUND_MIN_BOUND,
     diagnose_physics,
     identified_document,
     next_effect,
@@ -62,7 +63,7 @@ def test_a_motor_lag_is_found_as_a_lag_and_a_delay_as_a_delay():
 def test_an_effect_resolved_but_not_supported_says_which_holds():
     text = unconfirmed_text({"shrink": -0.0004, "shrink_5pct": -0.003}, ["rotor_drag", "battery"])
     assert text == ("resolved on the training flights, but added to base + rotor_drag + battery it shrinks the held-out "
-                    "error by -0.0% (5 % bound -0.3%; found needs >= 2% and a bound above 0): the held-out flights do not "
+                    "error by -0.0% (5 % bound -0.3%; found needs a 5 % bound >= 1%): the held-out flights do not "
                     "confirm it")
 
 
@@ -81,6 +82,17 @@ def test_a_larger_shrink_at_its_bound_does_not_block_a_resolved_effect():
     assert next_effect(scored) == ("motor_lag", True)
     assert next_effect({"input_delay": (0.347, 0.267, at_bound), "gyroscopic": (0.03, -0.01, resolved),
                         "ground_effect": (0.01, 0.005, resolved)}) == ("input_delay", False)
+
+
+def test_an_effect_joins_on_the_evidence_of_its_bootstrap_bound_not_on_its_point_estimate():
+    """Seed 132, all seven on (bench/results/diagnose_validate_131.md, session 21): on top of drag, imbalance, lag and
+    battery the input delay shrank J by 1.95 % with a 5 % bound of 1.2 %: it joins. Seed 131's bent arm: the motor
+    imbalance shrank J by 3.2 % with a bound of 0.4 %: it does not (a disturbance outside the catalogue)."""
+    resolved = [{"resolved": True}]
+    assert next_effect({"input_delay": (0.0195, 0.0121, resolved), "ground_effect": (0.0166, 0.0103, resolved),
+                        "gyroscopic": (0.0005, -0.0002, resolved)}) == ("input_delay", True)
+    assert next_effect({"motor_imbalance": (0.032, 0.004, resolved), "battery": (0.001, -0.003, resolved)}) == ("motor_imbalance", False)
+    assert next_effect({"motor_imbalance": (0.032, FOUND_MIN_BOUND, resolved)}) == ("motor_imbalance", True)
 
 
 def test_the_pair_step_tries_every_two_resolved_candidates_but_the_lag_and_the_delay():
@@ -137,3 +149,27 @@ def test_the_twin_check_reads_the_paired_bootstrap():
     assert better["other_better"] and not better["told_apart"]
     text = twin_text(better, "motor_lag")
     assert "an input delay fitted in its place shrank the held-out error more" in text and "do not tell" not in text
+
+
+def test_a_lag_searched_to_its_bound_with_the_base_observer_is_refitted_with_the_others():
+    """Simulated LinkQuad, all seven effects on, the validation's seed-142 flights as the pilot flew them before it
+    led with a low pass (physics_validation.LEADING; session 21): the base is fitted with the
+    default observer, whose angular trim trades with the rotor lag; fitted with it (and with none) the lag went to its
+    0.3 s bound and was not resolved, so the lag was never found. Refitted with the measured observer it lands inside
+    and is found (0.21 s alone: it also stands for the 20 ms delay and the rotor drag's damping; truth 0.105 s)."""
+    from quad_modelling.commands.diagnose import PHYSICS_CONFIG
+    from quad_modelling.core.diagnosis.physics_validation import assessing_vehicle
+    from quad_modelling.core.diagnosis.validation import CaseSettings, simulated_flight, test_seeds, train_seeds
+    from quad_modelling.core.effect_names import SWITCHED_EFFECTS
+
+    everything = ("rotor_drag", "battery", "motor_lag", "input_delay", "ground_effect", "gyroscopic", "motor_imbalance")
+    assert set(everything) <= set(SWITCHED_EFFECTS)
+    settings = CaseSettings("linkquad", (), 60.0, PHYSICS_CONFIG, "effects-on", None)
+    train = [simulated_flight(settings, everything, s)[0] for s in train_seeds(142)]
+    test = [simulated_flight(settings, everything, s)[0] for s in test_seeds(142)]
+    result = diagnose_physics(train, test, assessing_vehicle("linkquad"), PHYSICS_CONFIG, ("motor_lag",))
+    tau = result.effects["motor_lag"]["components"][0]
+    assert result.found == ["motor_lag"] and tau["resolved"] and not tau["at_bound"]
+    assert 0.1 < tau["value"] < 0.25
+    choice = result.final.fit.diagnostics["fit_observer_choice"]
+    assert choice["chosen"] == "measured" and choice["errors"]["default"] > 1.3 * choice["errors"]["measured"]
