@@ -11,8 +11,8 @@ flights hold nothing the base lacks.
 
 Cases (:func:`physics_cases`, per seed s; flights :func:`~quad_modelling.core.diagnosis.validation.train_seeds`
 (two) and :func:`~quad_modelling.core.diagnosis.validation.test_seeds` (one), the same manoeuvres and noise in
-every case of a seed, so the cases differ only by their effects) and what is right -- exactly the switched
-candidates found:
+every case of a seed, so the cases differ only by their effects; every flight flies :data:`LEADING` first) and what
+is right -- exactly the switched candidates found:
 
 * **single** -- each candidate alone; **null** -- no effect (right: nothing found);
 * **pair** -- :data:`~quad_modelling.core.diagnosis.validation.DEFAULT_PAIRS` (both found);
@@ -63,6 +63,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.base import ConstantStatePredictor
 from quad_modelling.core.physics.effects import parse_effects
 from quad_modelling.core.preprocess import resample_uniform
+from quad_modelling.core.sim.params import SimParams, sim_params_for
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError
@@ -73,6 +74,14 @@ NanoBench flights give 32 s)."""
 
 ASSESSED_SWITCHES = {"motor_lag": {"enabled": False}, "input_delay": {"enabled": False}}
 """The vehicle file's effects section of every case: lag and delay off, so they are candidates."""
+
+LEADING = ("low_hover",)
+"""Manoeuvre classes every validation flight flies first (``PilotParams.leading``), before the pilot's random card:
+a low pass, so that a ground effect switched on is in the training and the held-out flights. In 60 s the card's
+round of seven manoeuvres is often cut before its low pass: on seeds 121-153 the ground effect alone was found in 2
+of 12 cases (ceilings 0.1-6.1 % in the other 11) and with the battery in 2 of 12; a known-answer test must hold its
+answer. Flown first (seeds 131-133, then 161-163 never run before): found alone in 4 of 6, with the battery 8 of 9
+and 9 of 9 (bench/results/diagnose.md)."""
 
 CEILING_MIN = 0.20
 """Issue #26 item 9: shrink >= 80 % of the ceiling wherever the ceiling is >= 20 %."""
@@ -146,7 +155,7 @@ class PhysicsCaseSettings:
 
 def run_physics_case(case: Case, settings: PhysicsCaseSettings) -> dict:
     """Simulate one case's flights and score its diagnosis (:func:`scored_case`). A module-level function: a Dask task."""
-    flights = CaseSettings(settings.vehicle, (), settings.duration, settings.config, "effects-on", None)
+    flights = CaseSettings(settings.vehicle, (), settings.duration, settings.config, "effects-on", validation_params(settings.vehicle))
     clock = time.perf_counter()
     train = [simulated_flight(flights, case.effects, s)[0] for s in train_seeds(case.seed)]
     test = [simulated_flight(flights, case.effects, s)[0] for s in test_seeds(case.seed)]
@@ -154,6 +163,12 @@ def run_physics_case(case: Case, settings: PhysicsCaseSettings) -> dict:
     row, _ = scored_case(case.kind, case.effects, train, test, assessing_vehicle(settings.vehicle), settings.config,
                          settings.candidates)
     return {**row, "seed": case.seed, "simulate_s": simulated}
+
+
+def validation_params(vehicle: str) -> SimParams:
+    """The simulator's parameters for ``vehicle`` with the pilot flying :data:`LEADING` first."""
+    params = sim_params_for(vehicle)
+    return params.replace(pilot=dataclasses.replace(params.pilot, leading=LEADING))
 
 
 def physics_cases(candidates: Sequence[str], seeds: Sequence[int], pairs: Sequence[tuple[str, str]],

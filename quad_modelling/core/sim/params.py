@@ -194,6 +194,7 @@ class PilotParams:
     low_hover: tuple[float, float]  # CG height range of low passes (ground effect) [m]
     turn_rate: tuple[float, float]  # yaw rate range of turns (yaw with roll/pitch doublets) [rad/s]
     stick_noise: tuple[float, float, float]  # roll/pitch [rad], yaw [rad], height [m] pilot jitter, 1 sigma
+    leading: tuple[str, ...] = ()  # manoeuvre classes flown first, in this order, before the random card rounds
 
 
 @dataclass(frozen=True)

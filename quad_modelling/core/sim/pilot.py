@@ -176,9 +176,12 @@ def make_pilot_script(params: SimParams, duration: float, rng: np.random.Generat
     manoeuvre_end = land_start - 2.0
     t_cut = land_start + pilot.descent_time + 2.0
     t_off = min(t_cut + 3.0, duration - 0.5)
+    unknown = [c for c in pilot.leading if c not in CHANNELS]
+    if unknown:
+        raise ConfigError(f"pilot.leading: {unknown[0]!r} is not a manoeuvre class; known: {', '.join(CHANNELS)}")
     manoeuvres: list[Manoeuvre] = []
     t = manoeuvre_start + rng.uniform(0.5, 2.0)
-    card: list[str] = []
+    card: list[str] = list(reversed(pilot.leading))  # flown first (popped from the end), then the random rounds
     while True:
         if not card:  # a new round of the test card: every class once, in random order
             card = [str(c) for c in rng.permutation(CARD)]

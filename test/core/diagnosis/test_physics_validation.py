@@ -23,8 +23,9 @@ def test_a_switched_effect_is_found_and_the_null_case_finds_nothing(result):
     assert [r["kind"] for r in result["cases"]] == ["single", "null"] and battery["case"] == "battery"
     assert battery["found"] == ["battery"] and battery["right"] and null["found"] == [] and null["right"]
     assert null["shrink"] == 0.0 and null["case"] == "null"
-    # the simulator's own physics bounds what the term can take back
-    assert 0.05 < battery["ceiling"] < 1.0 and 0.0 < battery["shrink"] <= battery["ceiling"] + 0.02
+    # the simulator's own physics bounds what the term can take back (a ceiling of 4.2 % on these 30 s flights,
+    # which fly the low pass first: physics_validation.LEADING)
+    assert 0.02 < battery["ceiling"] < 1.0 and 0.0 < battery["shrink"] <= battery["ceiling"] + 0.02
     assert battery["shrink_of_ceiling"] == pytest.approx(battery["shrink"] / battery["ceiling"])
 
 

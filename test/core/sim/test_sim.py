@@ -329,6 +329,25 @@ def test_script_fits_the_thesis_spans_and_differs_between_seeds():
         make_pilot_script(params, 2.0, np.random.default_rng(0))
 
 
+def test_leading_manoeuvres_are_flown_first_and_the_rest_of_the_card_after():
+    """``PilotParams.leading`` (the validation's low pass, physics_validation.LEADING): the classes flown first, in
+    order; without it the script is the one the seed always drew; an unknown class is refused in one line."""
+    import dataclasses
+
+    params = sim_params_for("linkquad")
+    plain = make_pilot_script(params, 60.0, np.random.default_rng(5))
+    led = params.replace(pilot=dataclasses.replace(params.pilot, leading=("low_hover", "turn")))
+    script = make_pilot_script(led, 60.0, np.random.default_rng(5))
+    assert script.manoeuvres[0].channel == "low_hover" and script.manoeuvres[1].shape == "turn"
+    low, high = params.pilot.low_hover
+    first = script.manoeuvres[0]
+    assert low - params.pilot.hover_height <= first.amplitude <= high - params.pilot.hover_height
+    assert plain == make_pilot_script(params, 60.0, np.random.default_rng(5))  # deterministic (and as before the field)
+    with pytest.raises(ConfigError, match="pilot.leading: 'loop' is not a manoeuvre class"):
+        make_pilot_script(params.replace(pilot=dataclasses.replace(params.pilot, leading=("loop",))), 60.0,
+                          np.random.default_rng(5))
+
+
 def test_turns_hold_a_yaw_rate_while_the_pilot_flies_tilt_doublets():
     """A turn's yaw reference is the integral of a held rate (cosine entry and exit); roll/pitch doublets
     are flown inside it, so yaw and tilt rates are simultaneous (what excites gyroscopic torques). Every
