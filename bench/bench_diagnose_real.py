@@ -23,6 +23,7 @@ Writes bench/results/diagnose_real.json and .md. Run (about 15 min per fold on a
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import sys
 import time
@@ -174,6 +175,10 @@ def main(argv: list[str] | None = None) -> int:
         return assemble(args.folds.split(","), args.data)
     if not args.data.is_dir():
         print(f"no NanoBench data at {args.data}: pass --data DIR", file=sys.stderr)
+        return 2
+    if importlib.util.find_spec("pysindy") is None:  # needed after each fold's first diagnosis, minutes in
+        print("bench_diagnose_real: pysindy is not installed: .venv/bin/pip install -r bench/requirements-bench.txt",
+              file=sys.stderr)
         return 2
     began = time.perf_counter()
     shapes = args.folds.split(",")
