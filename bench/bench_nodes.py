@@ -103,7 +103,7 @@ def small_hybrid(rate: float, workdir: Path) -> Path:
 def small_direct(rate: float, workdir: Path) -> Path:
     """A direct model file (physics base of ``crazyflie21`` + the rate regression fitted on the synthetic flight at
     ``rate``): its cost per step is any direct model's (H = 50 rows), its accuracy does not matter here."""
-    from quad_modelling.core.models.direct import train_direct
+    from quad_modelling.core.training.direct import train_direct
     from quad_modelling.core.vehicle import load_vehicle
 
     path = workdir / f"direct_{rate:g}hz.npz"

@@ -40,9 +40,10 @@ epochs, 10 dB noise on the rates). With --hybrid, train the hybrid model instead
 nonlinear physics model with a residual net (--hybrid-hidden) correcting its accelerations inside
 the integration, trained through the physics step with the same rollout loss, horizon, early
 stopping and validation flights; evaluate it with --model hybrid:MODEL. With --direct, fit the
-direct model: the physics model whose body rates for the first 0.5 s come from a ridge regression
-per horizon on the last 0.1 s of rates and the commands (closed-form, seconds, no torch; give the
-identified vehicle with --vehicle); evaluate it with --model direct:MODEL.
+direct model: the physics model whose body rates (and, with an accelerometer in every flight, down
+velocity) for the first 0.5 s come from ridge regressions per horizon on the last rows and the
+commands (closed-form, seconds, no torch; give the identified vehicle with --vehicle); evaluate it
+with --model direct:MODEL.
 
 Spans follow the evaluation: take-off/landing are dropped (--drop, thesis 30:22 s) and --train
 A:B is seconds from each flight's start (thesis 30:150) or percent of the flying part
@@ -82,8 +83,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--input-delays", type=int, default=20, help="engine-command taps u(t)..u(t-N+1) (default 20)")
     parser.add_argument("--seed", type=int, default=0, help="random seed (weights init, noise)")
     parser.add_argument("--hybrid", action="store_true", help="train the hybrid model: physics model + residual net (rollout loss)")
-    parser.add_argument("--direct", action="store_true", help="fit the direct model: physics model with body rates from a direct "
-                        "multi-horizon ridge regression (seconds; no torch)")
+    parser.add_argument("--direct", action="store_true", help="fit the direct model: physics model with body rates and down "
+                        "velocity from direct multi-horizon ridge regressions (seconds; no torch)")
     parser.add_argument("--hybrid-hidden", metavar="W[,W...]", default=",".join(map(str, HYBRID_HIDDEN)),
                         help="hybrid: widths of the residual net's tanh hidden layers (default %(default)s)")
     add_fanout_arguments(parser)
@@ -201,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
         model = train_hybrid_on_flights(logs, spans, given or load_vehicle(logs[0].meta.vehicle), config, args.seed, progress, val_flights)
         samples = model.training["samples"]
     elif args.direct:
-        from quad_modelling.core.models.direct import train_direct
+        from quad_modelling.core.training.direct import train_direct
 
         model = train_direct(logs, spans, given or load_vehicle(logs[0].meta.vehicle))
         samples = model.training["samples"]

@@ -116,7 +116,7 @@ def make_predictor(**params):
 @pytest.fixture(scope="module")
 def direct_spec(tmp_path_factory) -> str:
     """``direct:FILE``: the direct model's regression fitted on the bundled flight's 5-25 s (a second)."""
-    from quad_modelling.core.models.direct import train_direct
+    from quad_modelling.core.training.direct import train_direct
 
     path = train_direct([read_bag(BAG)], [(5.0, 25.0)], load_vehicle("crazyflie21")).save(tmp_path_factory.mktemp("direct") / "direct.npz")
     return f"direct:{path}"

@@ -128,9 +128,10 @@ def _column(parts):
     return casadi.vertcat(*(element for part in parts for element in np.asarray(part, dtype=object).ravel()))
 
 
-def _dynamics(model: ExportedModel, x, u, d, dt=None, rates_next=None):
+def _dynamics(model: ExportedModel, x, u, d, dt=None, rates_next=None, down_velocity_next=None):
     """x_next of one step of ``dt`` (None: dx/dt) as a CasADi column, from the one physics (module docstring);
-    ``rates_next`` (a CasADi column of 3): the step's end-of-step body rates given (``rigid_body.step``'s)."""
+    ``rates_next`` (a CasADi column of 3) and ``down_velocity_next`` (a CasADi scalar): the step's end-of-step body
+    rates and down velocity given (``rigid_body.step``'s)."""
     state = symbolic_state(x)
     inputs = _elements(u)
     voltage = inputs[-1:] if model.params.battery is not None else None
@@ -143,7 +144,8 @@ def _dynamics(model: ExportedModel, x, u, d, dt=None, rates_next=None):
     if dt is None:
         return _column(rigid_body.derivative(model.params, state, commands, linear, angular))
     given = None if rates_next is None else _elements(rates_next)[None, :]
-    after = rigid_body.step(model.params, state, commands, np.array([dt], dtype=object), linear, angular, given)
+    down = None if down_velocity_next is None else np.array([down_velocity_next], dtype=object)
+    after = rigid_body.step(model.params, state, commands, np.array([dt], dtype=object), linear, angular, given, down)
     return _column((after.pos_n, after.vel_n, after.rot, after.rates, after.rotor))
 
 
@@ -191,19 +193,24 @@ def casadi_functions(model: ExportedModel) -> dict:
 
 
 def given_rates_step(model: ExportedModel):
-    """``F_given(x, u, dt, d, w, g) -> x_next``: ``F_disturbed``'s step whose end-of-step body rates are
+    """``F_given(x, u, dt, d, w, g, v, gv) -> x_next``: ``F_disturbed``'s step whose end-of-step body rates are
     :math:`g\\, w + (1 - g)\\, \\omega_{k+1}` (w (3) given [rad/s, FRD], g 1 or 0, :math:`\\omega_{k+1}` the integrated
-    rates): the direct model's step (:mod:`quad_modelling.core.models.direct`), whose first H steps take the rates of
-    its regression and the attitude turns with them. Not an export Function (a regression's rates are no state)."""
+    rates) and whose end-of-step down velocity is :math:`g_v\\, v + (1 - g_v)\\, v_{D,k+1}` (v given [m/s, N down],
+    g_v 1 or 0): the direct model's step (:mod:`quad_modelling.core.models.direct`), whose first H steps take the
+    rates (and the down velocity) of its regressions; the attitude turns with those rates, the position moves with
+    that velocity. Not an export Function (a regression's outputs are no state)."""
     import casadi
 
     x = casadi.SX.sym("x", len(STATE))
     u = casadi.SX.sym("u", len(input_names(model)))
     d = casadi.SX.sym("d", len(DISTURBANCE))
     dt, w, g = casadi.SX.sym("dt"), casadi.SX.sym("w", 3), casadi.SX.sym("g")
-    integrated = _dynamics(model, x, u, d, dt)[15:18]
-    after = _dynamics(model, x, u, d, dt, g * w + (1 - g) * integrated)
-    return casadi.Function("F_given", [x, u, dt, d, w, g], [after], ["x", "u", "dt", "d", "w", "g"], ["x_next"])
+    v, gv = casadi.SX.sym("v"), casadi.SX.sym("gv")
+    integrated = _dynamics(model, x, u, d, dt)
+    rates = g * w + (1 - g) * integrated[15:18]
+    down = gv * v + (1 - gv) * integrated[5]  # the step's velocity does not depend on its end-of-step rates
+    after = _dynamics(model, x, u, d, dt, rates, down)
+    return casadi.Function("F_given", [x, u, dt, d, w, g, v, gv], [after], ["x", "u", "dt", "d", "w", "g", "v", "gv"], ["x_next"])
 
 
 def terms_on(model: ExportedModel) -> list[str]:

@@ -27,27 +27,32 @@ one array ``weights`` (H, D, 3) over the features
 beyond horizon h's own :math:`D_h = 3 n_\omega + 3 n_a + 4 (L + h + 1)`, and ``bias`` (H, 3). Files of session 19
 have neither anchor input (``anchor_inputs`` absent, D 6 fewer) and load as they were.
 
-Fit (:func:`fit_rate_regression`): per h, ridge regression on every anchor of the training spans' gap-free parts
-with room for the lead and H rows after it, the penalty on the standardised inputs, each anchor weighted by
-:math:`c_s`,
+Fit (:func:`quad_modelling.core.training.direct.fit_rate_regression`): per h, ridge regression on the moments of z
+over every training anchor (λ = :data:`RIDGE`), then :data:`ROBUST_STEPS` reweighted refits for the mean absolute
+error (:mod:`quad_modelling.core.training.direct`).
+
+The vertical map (files since session 22; absent in older ones, and when a training flight had no accelerometer).
+The logged commands read through the rotor map predict the vertical velocity poorly: held out by shape, the physics
+model's down-velocity error at h = 50 was that of holding the velocity on the linear-ramp flights (0.093 m/s against
+0.094), and a linear map from the commands did a third better (scratch study of session 22; ``bench/results/models.md``
+has the held-out SimErr). So the down velocity gets maps of its own, fitted as the rates':
 
 .. math::
 
-    \min_{w}\ \frac{\sum_s c_s \lVert \Delta\omega_{s,h} - b_h - w^T z_{s,h} \rVert^2}{\sum_s c_s}
-        + \lambda \sum_j \sigma_j^2 w_j^2,
-    \qquad w = (C_{zz} + \lambda\, \mathrm{diag}\, \sigma^2)^{-1} C_{z\Delta\omega}, \qquad b_h = \mu_{\Delta\omega} - w^T \mu_z
+    \hat v_{D,s+h} = v_{D,s} + c_h + \sum_{i=0}^{n_v-1} A_{h,i}\, v_{D,s-i} + B_h\, a_{D,s} + C_h \cos\phi_s\cos\theta_s
+                     + \sum_{k=-L}^{h} E_{h,k}\, u_{s+k}
 
-(C the c-weighted covariances, σ² their diagonal, λ = :data:`RIDGE`), from the moments of z accumulated over the
-flights: no design matrix held. Every h's inputs are a leading block of z, so one Gram matrix serves all of them.
-The score is a mean *absolute* error, so after the least-squares fit (c = 1) :data:`ROBUST_STEPS` reweighted refits
-(IRLS for the absolute error) give each anchor :math:`c_s = 1 / \max(r_s, \delta)`, :math:`r_s` its mean error norm
-over h = 1..H in the previous fit and δ = :data:`ROBUST_FLOOR` times their median: a few violent anchors (a gust, a
-propeller strike) no longer pull every map.
+:math:`v_D` the measured velocity's down component [m/s, N]; :math:`a_{D,s} = (R_s f_{B,s})_D + g` the anchor's down
+acceleration from the accelerometer's specific force f_B [m/s²] (the thrust the rotors give now); :math:`\cos\phi\cos\theta`
+the share of the thrust pointing down; n_v = :data:`VELOCITY_HISTORY`. These inputs were chosen on three folds (B3,
+B6, B9): the body-rate history and the observer's vertical disturbance changed nothing there and were left out.
 
 The rest of the state. The physics model (:mod:`~quad_modelling.core.models.physics`: anchor, disturbance observer,
 rotor map, thrust, translation) runs as usual with these rates given at the end of each of the first H steps
 (:func:`~quad_modelling.core.physics.rigid_body.step`'s ``rates_next``): the attitude turns with them and tilts the
-thrust. After H rows the physics integrates the rates again from the last given one. The model's angular
+thrust. The vertical map's down velocity is given the same way (``down_velocity_next``): the horizontal velocity
+stays the physics model's, the position moves with both. After H rows the physics integrates again from the last
+given state. The model's angular
 accelerations (``roll_acc..yaw_acc``) are the physics model's, not the regression's.
 
 Rows, not seconds: the regression counts rows of the training flights' sample period (the file's ``dt``); a flight
@@ -60,7 +65,7 @@ from __future__ import annotations
 
 import json
 from collections import deque
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import fields
 from pathlib import Path
 
@@ -79,8 +84,7 @@ from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.preprocess import TrimConfig, state_measurement
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.core.windows import gap_free_runs, rows_between
+from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import ConfigError, DataError, ModelError, reason
 
 KIND = "direct"
@@ -93,6 +97,9 @@ RATE_HISTORY = 10
 
 COMMAND_LEAD = 10
 """L: command rows before the anchor (0.1 s; the Crazyflie's identified command delay is 40 ms)."""
+
+VELOCITY_HISTORY = 5
+"""n_v: measured down-velocity rows up to and including the anchor (the vertical map's)."""
 
 RIDGE = 1e-2
 """λ: ridge penalty on the standardised inputs, per sample. Set before any held-out score and not tuned
@@ -141,41 +148,55 @@ def anchor_features(log: FlightLog, anchors: np.ndarray, horizon: int, angular_d
     return np.concatenate([log.gyro_b[past].reshape(len(anchors), -1), *extra, log.u[rows].reshape(len(anchors), -1)], axis=1)
 
 
-class RateRegression:
-    """The per-horizon maps (module docstring): ``weights`` (H, D, 3), ``bias`` (H, 3)."""
+class HorizonMaps:
+    """Per-horizon linear maps from z = (anchor block a_s, u_{s-L} .. u_{s+h}) to the change of K outputs h rows after
+    the anchor: ``weights`` (H, D, K), zero beyond horizon h's own D_h = A + 4 (L + h + 1), and ``bias`` (H, K)."""
 
-    def __init__(self, weights: np.ndarray, bias: np.ndarray, rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD,
-                 anchor_inputs: Sequence[str] = ANCHOR_INPUTS):
+    def __init__(self, weights: np.ndarray, bias: np.ndarray, anchor_size: int, lead: int, outputs: int, what: str):
         weights, bias = np.asarray(weights, dtype=float), np.asarray(bias, dtype=float)
         horizon = len(bias)
-        unknown = [name for name in anchor_inputs if name not in ANCHOR_INPUTS]
-        if unknown:
-            raise ModelError(f"direct model: unknown anchor input {unknown[0]!r}; known: {', '.join(ANCHOR_INPUTS)}")
-        size = feature_count(horizon, rate_history, lead, anchor_inputs)
-        if horizon < 1 or bias.shape != (horizon, 3) or weights.shape != (horizon, size, 3):
-            raise ModelError(f"direct model: weights {weights.shape} and bias {bias.shape} do not fit {horizon} horizons of "
-                             f"{size} inputs")
+        self.anchor_size, self.lead = anchor_size, lead
+        size = self.feature_count(horizon)
+        if horizon < 1 or bias.shape != (horizon, outputs) or weights.shape != (horizon, size, outputs):
+            raise ModelError(f"direct model: {what} weights {weights.shape} and bias {bias.shape} do not fit {horizon} horizons "
+                             f"of {size} inputs")
         if not (np.isfinite(weights).all() and np.isfinite(bias).all()):
-            raise ModelError("direct model: weights or bias hold NaN or infinity")
-        self.weights, self.bias = weights, bias
-        self.horizon, self.rate_history, self.lead = horizon, rate_history, lead
-        self.anchor_inputs = tuple(anchor_inputs)
+            raise ModelError(f"direct model: {what} weights or bias hold NaN or infinity")
+        self.weights, self.bias, self.horizon = weights, bias, horizon
 
     def feature_count(self, horizon: int) -> int:
-        """D_h of this regression's layout."""
-        return feature_count(horizon, self.rate_history, self.lead, self.anchor_inputs)
-
-    def features(self, log: FlightLog, anchors: np.ndarray, horizon: int, angular_disturbance: np.ndarray | None = None) -> np.ndarray:
-        """:func:`anchor_features` in this regression's layout."""
-        return anchor_features(log, anchors, horizon, angular_disturbance, self.rate_history, self.lead, self.anchor_inputs)
+        """D_h of this layout."""
+        return self.anchor_size + 4 * (self.lead + horizon + 1)
 
     def changes(self, z: np.ndarray, given: int) -> np.ndarray:
-        """(S, given, 3) :math:`\\hat\\omega_{s+h} - \\omega_s` for h = 1..given from inputs ``z`` (S, >= D_given)."""
-        out = np.empty((len(z), given, 3))
+        """(S, given, K) predicted changes for h = 1..given from inputs ``z`` (S, >= D_given)."""
+        out = np.empty((len(z), given, self.bias.shape[1]))
         for h in range(1, given + 1):
             d = self.feature_count(h)
             out[:, h - 1] = z[:, :d] @ self.weights[h - 1, :d] + self.bias[h - 1]
         return out
+
+    def change_at(self, h: int, z: np.ndarray) -> np.ndarray:
+        """(K,) the predicted change h rows after the anchor from one anchor's inputs ``z`` (at least D_h of them)."""
+        d = self.feature_count(h)
+        return z[:d] @ self.weights[h - 1, :d] + self.bias[h - 1]
+
+
+class RateRegression(HorizonMaps):
+    """The body rates' maps (module docstring): ``weights`` (H, D, 3), ``bias`` (H, 3)."""
+
+    def __init__(self, weights: np.ndarray, bias: np.ndarray, rate_history: int = RATE_HISTORY, lead: int = COMMAND_LEAD,
+                 anchor_inputs: Sequence[str] = ANCHOR_INPUTS):
+        unknown = [name for name in anchor_inputs if name not in ANCHOR_INPUTS]
+        if unknown:
+            raise ModelError(f"direct model: unknown anchor input {unknown[0]!r}; known: {', '.join(ANCHOR_INPUTS)}")
+        super().__init__(weights, bias, 3 * rate_history + 3 * len(anchor_inputs), lead, 3, "rate")
+        self.rate_history = rate_history
+        self.anchor_inputs = tuple(anchor_inputs)
+
+    def features(self, log: FlightLog, anchors: np.ndarray, horizon: int, angular_disturbance: np.ndarray | None = None) -> np.ndarray:
+        """:func:`anchor_features` in this regression's layout."""
+        return anchor_features(log, anchors, horizon, angular_disturbance, self.rate_history, self.lead, self.anchor_inputs)
 
     def rates(self, log: FlightLog, anchors: np.ndarray, horizon: int, angular_disturbance: np.ndarray | None = None) -> np.ndarray:
         """(S, G + 1, 3) body rates [rad/s] at rows s .. s + G of each anchor s of ``log`` (G = min(horizon, H)): row 0
@@ -188,111 +209,58 @@ class RateRegression:
         out[:, 1:] = out[:, :1] + self.changes(self.features(log, anchors, given, angular_disturbance), given)
         return out
 
-    def rate_at(self, h: int, z: np.ndarray) -> np.ndarray:
-        """(3,) :math:`\\hat\\omega_{s+h} - \\omega_s` from one anchor's inputs ``z`` (at least D_h of them)."""
-        d = self.feature_count(h)
-        return z[:d] @ self.weights[h - 1, :d] + self.bias[h - 1]
+
+def vertical_feature_count(horizon: int, velocity_history: int = VELOCITY_HISTORY, lead: int = COMMAND_LEAD) -> int:
+    """D_h of the vertical map: n_v down velocities, the down acceleration, the tilt, 4 (L + h + 1) commands."""
+    return velocity_history + 2 + 4 * (lead + horizon + 1)
 
 
-Part = tuple[FlightLog, np.ndarray, "np.ndarray | None"]
-"""One gap-free part of a training span: (flight, anchors (S,), the observer's angular disturbance (S, 3) or None)."""
+def vertical_features(log: FlightLog, anchors: np.ndarray, horizon: int, velocity_history: int = VELOCITY_HISTORY,
+                      lead: int = COMMAND_LEAD) -> np.ndarray:
+    """(S, D_horizon) inputs of the vertical map at ``anchors`` of ``log`` (module docstring): v_D at rows s .. s-n_v+1,
+    the down acceleration a_D = (R f_B)_D + g [m/s²] from the accelerometer, the tilt cos φ cos θ (the share of the
+    thrust that points down), then the commands u_{s-L} .. u_{s+horizon}; rows before 0 are row 0."""
+    anchors = np.asarray(anchors, dtype=int)
+    log.require(("acc_b",), "the direct model's vertical map (the anchor's acceleration is an input)")
+    past = np.maximum(anchors[:, None] - np.arange(velocity_history)[None, :], 0)
+    rows = np.maximum(anchors[:, None] + np.arange(-lead, horizon + 1)[None, :], 0)
+    euler = log.euler[anchors]
+    down_acc = frames.body_to_nav(log.acc_b[anchors], euler)[:, 2] + GRAVITY
+    tilt = np.cos(euler[:, 0]) * np.cos(euler[:, 1])
+    return np.concatenate([log.vel_n[past, 2], down_acc[:, None], tilt[:, None], log.u[rows].reshape(len(anchors), -1)], axis=1)
 
 
-def training_parts(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int,
-                   angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None) -> list[Part]:
-    """Every gap-free part of the ``spans`` [s from each flight's start; None: the whole flight] with the history
-    before and ``horizon`` rows after each anchor, with ``angular_disturbance(flight, anchors)`` if given. DataError
-    when a flight lacks the gyro."""
-    parts = []
-    for log, span in zip(logs, spans):
-        log.require(("gyro_b",), "the direct model's training (its regression predicts the gyro rates)")
-        start, stop = (0, len(log)) if span is None else rows_between(log, *span)
-        for a, b in gap_free_runs(log, start, stop):
-            anchors = np.arange(a + max(COMMAND_LEAD, RATE_HISTORY - 1), b - horizon)
-            if anchors.size:
-                parts.append((log, anchors, None if angular_disturbance is None else angular_disturbance(log, anchors)))
-    return parts
+class VerticalRegression(HorizonMaps):
+    """The down velocity's maps (module docstring): ``weights`` (H, D, 1), ``bias`` (H, 1)."""
 
+    def __init__(self, weights: np.ndarray, bias: np.ndarray, velocity_history: int = VELOCITY_HISTORY, lead: int = COMMAND_LEAD):
+        super().__init__(weights, bias, velocity_history + 2, lead, 1, "vertical")
+        self.velocity_history = velocity_history
 
-def rate_changes(log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
-    """(S, horizon, 3) measured Δω_{s,h} = ω_{s+h} - ω_s [rad/s] for h = 1..horizon."""
-    return log.gyro_b[anchors[:, None] + np.arange(1, horizon + 1)[None, :]] - log.gyro_b[anchors][:, None, :]
+    def features(self, log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
+        """:func:`vertical_features` in this map's layout."""
+        return vertical_features(log, anchors, horizon, self.velocity_history, self.lead)
 
-
-def weighted_ridge(parts: Sequence[Part], weights: Sequence[np.ndarray], horizon: int, ridge: float,
-                   anchor_inputs: Sequence[str]) -> RateRegression:
-    """The maps minimising the c-weighted squared error plus the ridge (module docstring), from moments accumulated
-    over ``parts`` with anchor weights ``weights`` (one array per part)."""
-    size = feature_count(horizon, anchor_inputs=anchor_inputs)
-    n, sum_z, sum_zz = 0.0, np.zeros(size), np.zeros((size, size))
-    sum_y, sum_zy = np.zeros((horizon, 3)), np.zeros((horizon, size, 3))
-    for (log, anchors, disturbance), c in zip(parts, weights):
-        z = anchor_features(log, anchors, horizon, disturbance, anchor_inputs=anchor_inputs)
-        change = rate_changes(log, anchors, horizon)
-        cz = z * c[:, None]
-        n += c.sum()
-        sum_z += cz.sum(axis=0)
-        sum_zz += cz.T @ z
-        sum_y += np.einsum("s,shk->hk", c, change)
-        sum_zy += np.einsum("sd,shk->hdk", cz, change)
-    mean_z, mean_y = sum_z / n, sum_y / n
-    covariance = sum_zz / n - np.outer(mean_z, mean_z)
-    variance = np.maximum(np.diag(covariance), 1e-12)
-    out, bias = np.zeros((horizon, size, 3)), np.zeros((horizon, 3))
-    for h in range(1, horizon + 1):
-        d = feature_count(h, anchor_inputs=anchor_inputs)
-        cross = sum_zy[h - 1, :d] / n - np.outer(mean_z[:d], mean_y[h - 1])
-        out[h - 1, :d] = np.linalg.solve(covariance[:d, :d] + ridge * np.diag(variance[:d]), cross)
-        bias[h - 1] = mean_y[h - 1] - mean_z[:d] @ out[h - 1, :d]
-    return RateRegression(out, bias, anchor_inputs=anchor_inputs)
-
-
-def mean_error_norms(regression: RateRegression, parts: Sequence[Part]) -> list[np.ndarray]:
-    """r_s per anchor of each part: the mean over h = 1..H of ||Δω_{s,h} - the map's|| [rad/s]."""
-    h = regression.horizon
-    return [np.linalg.norm(rate_changes(log, anchors, h) - regression.changes(regression.features(log, anchors, h, d), h), axis=2).mean(axis=1)
-            for log, anchors, d in parts]
-
-
-def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int = HORIZON,
-                        ridge: float = RIDGE, robust_steps: int = ROBUST_STEPS,
-                        angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None = None,
-                        anchor_inputs: Sequence[str] | None = None) -> tuple[RateRegression, int]:
-    """(the maps fitted on the ``spans`` [s from each flight's start; None: the whole flight] of ``logs``, number of
-    anchors): ridge per horizon, then ``robust_steps`` reweighted refits (module docstring). The ``anchor_inputs``
-    (default: the body velocity, and the observer's angular disturbance when ``angular_disturbance(flight, anchors)``
-    (S, 3) gives it, as :func:`train_direct` does with the physics model's observer). DataError when no gap-free part
-    of a span holds the lead and ``horizon`` rows after an anchor, or a flight lacks the gyro."""
-    if horizon < 1:
-        raise ConfigError(f"direct model: horizon {horizon} must be >= 1")
-    if anchor_inputs is None:
-        inputs = tuple(i for i in ANCHOR_INPUTS if i != "angular_disturbance" or angular_disturbance is not None)
-    else:
-        inputs = tuple(anchor_inputs)
-    if "angular_disturbance" in inputs and angular_disturbance is None:
-        raise ConfigError("direct model: the angular_disturbance input needs the observer's disturbance (angular_disturbance=)")
-    parts = training_parts(logs, spans, horizon, angular_disturbance)
-    n, size = sum(len(anchors) for _, anchors, _ in parts), feature_count(horizon, anchor_inputs=inputs)
-    if n < size:
-        raise DataError(f"direct model: {n} training anchors for {size} inputs; the training spans need more gap-free rows "
-                        f"({COMMAND_LEAD} before and {horizon} after each anchor)")
-    weights = [np.ones(len(anchors)) for _, anchors, _ in parts]
-    regression = weighted_ridge(parts, weights, horizon, ridge, inputs)
-    for _ in range(robust_steps):
-        errors = mean_error_norms(regression, parts)
-        floor = ROBUST_FLOOR * float(np.median(np.concatenate(errors)))
-        weights = [1.0 / np.maximum(r, max(floor, 1e-12)) for r in errors]
-        regression = weighted_ridge(parts, weights, horizon, ridge, inputs)
-    return regression, n
+    def velocities(self, log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
+        """(S, G + 1) down velocities [m/s] at rows s .. s + G of each anchor s (G = min(horizon, H)): row 0 the
+        measured v_D(s), row h the map's."""
+        anchors = np.asarray(anchors, dtype=int)
+        given = min(horizon, self.horizon)
+        out = np.empty((len(anchors), given + 1))
+        out[:, 0] = log.vel_n[anchors, 2]
+        out[:, 1:] = out[:, :1] + self.changes(self.features(log, anchors, given), given)[..., 0]
+        return out
 
 
 class DirectModel:
-    """Physics constants + observer + rate regression (module docstring)."""
+    """Physics constants + observer + rate regression + vertical map (None: the physics integrates v_D) (module docstring)."""
 
-    def __init__(self, vehicle: VehicleConfig, regression: RateRegression, dt: float, training: dict | None = None):
+    def __init__(self, vehicle: VehicleConfig, regression: RateRegression, dt: float, training: dict | None = None,
+                 vertical: VerticalRegression | None = None):
         self.physics = PhysicsPredictor(vehicle)
         self.params: PhysicsParameters = self.physics.params
         self.regression = regression
+        self.vertical = vertical
         self.dt = float(dt)
         self.vehicle = vehicle.name
         self.training = dict(training or {})
@@ -309,19 +277,21 @@ class DirectModel:
                             with_accelerations: bool = False) -> list[np.ndarray]:
         """:meth:`predict_horizons` of each (segment, starts) of ``parts`` in one batch (as the physics model's), the
         acceleration columns NaN unless ``with_accelerations``."""
-        inputs, rates = [], []
+        inputs, rates, down = [], [], []
         for segment, starts in parts:
             starts = np.asarray(starts, dtype=int)
             self.check_rate(segment)
             inputs.append(self.physics.horizon_inputs(segment, starts, horizon))
             rates.append(self.regression.rates(segment, starts, horizon, inputs[-1][1].angular_b))
+            if self.vertical is not None:
+                down.append(self.vertical.velocities(segment, starts, horizon))
         if not inputs:
             return []
         states, disturbances, commands, intervals = zip(*inputs)
         state = PhysicsState(*(np.concatenate([getattr(s, f.name) for s in states]) for f in fields(PhysicsState)))
         disturbance = Disturbance(np.concatenate([d.linear_n for d in disturbances]), np.concatenate([d.angular_b for d in disturbances]))
         out = physics.rollout(self.params, state, disturbance, np.concatenate(commands), np.concatenate(intervals),
-                              with_accelerations, np.concatenate(rates))
+                              with_accelerations, np.concatenate(rates), np.concatenate(down) if down else None)
         return np.split(out, np.cumsum([len(dt) for dt in intervals])[:-1])
 
     # ---- files ------------------------------------------------------------------
@@ -330,7 +300,9 @@ class DirectModel:
             "format": FORMAT, "format_version": FORMAT_VERSION, "kind": KIND, "vehicle": self.vehicle,
             "variables": list(VARIABLES), "outputs": list(OUTPUTS),
             "config": {"horizon": self.regression.horizon, "rate_history": self.regression.rate_history,
-                       "command_lead": self.regression.lead, "anchor_inputs": list(self.regression.anchor_inputs)},
+                       "command_lead": self.regression.lead, "anchor_inputs": list(self.regression.anchor_inputs),
+                       "vertical": None if self.vertical is None else {"velocity_history": self.vertical.velocity_history,
+                                                                       "command_lead": self.vertical.lead}},
             "dt": self.dt,
             "training": {**self.training, "physics": physics_constants(self.params)},
         }
@@ -342,8 +314,9 @@ class DirectModel:
         path = Path(path)
         with atomic_output(path, force) as tmp:
             with open(tmp, "wb") as stream:
+                vertical = {} if self.vertical is None else {"vertical_weights": self.vertical.weights, "vertical_bias": self.vertical.bias}
                 np.savez(stream, header=np.array(json.dumps(self.header())), weights=self.regression.weights,
-                         bias=self.regression.bias)
+                         bias=self.regression.bias, **vertical)
         return path
 
 
@@ -355,27 +328,6 @@ def check_period(log: FlightLog, dt: float) -> None:
     if not abs(period - dt) <= PERIOD_TOLERANCE * dt:
         raise DataError(f"{log.meta.source}: sample period {period * 1e3:.1f} ms, the direct model counts rows of "
                         f"{dt * 1e3:.1f} ms (its training flights'); resample the flight or train on flights of its rate")
-
-
-def train_direct(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], vehicle: VehicleConfig) -> DirectModel:
-    """A direct model of ``vehicle`` with its regression fitted on ``spans`` of ``logs``, which must share one sample
-    period (the first flight's median; DataError naming a flight of another). Its training record names the vehicle
-    file (``vehicle_file``), so a load with other constants can say which file to pass."""
-    if not logs or len(logs) != len(spans):
-        raise DataError(f"direct model: {len(logs)} training flights for {len(spans)} spans")
-    dt = float(np.median(np.diff(logs[0].t))) if len(logs[0]) > 1 else 0.0
-    if not dt > 0:
-        raise DataError(f"{logs[0].meta.source}: too few rows to train the direct model")
-    for log in logs:
-        check_period(log, dt)
-    model = PhysicsPredictor(vehicle)
-
-    def observed(log: FlightLog, anchors: np.ndarray) -> np.ndarray:  # as the multi-step form anchors (horizon_inputs)
-        return physics.anchor_state(model.params, log, anchors, model.observer)[1].angular_b
-
-    regression, anchors = fit_rate_regression(logs, spans, angular_disturbance=observed)
-    return DirectModel(vehicle, regression, dt, {"samples": anchors, "flights": [log.meta.source for log in logs], "ridge": RIDGE,
-                                                 "vehicle_file": str(vehicle.path)})
 
 
 def load_direct(path: str | Path, vehicle: VehicleConfig) -> DirectModel:
@@ -390,13 +342,16 @@ def load_direct(path: str | Path, vehicle: VehicleConfig) -> DirectModel:
             raise TypeError("training.physics is not a mapping")
         regression = RateRegression(contents["weights"], contents["bias"], int(config["rate_history"]), int(config["command_lead"]),
                                     tuple(config.get("anchor_inputs", ())))  # session 19's files: none
+        layout = config.get("vertical")  # files before session 22: none
+        vertical = None if layout is None else VerticalRegression(contents["vertical_weights"], contents["vertical_bias"],
+                                                                  int(layout["velocity_history"]), int(layout["command_lead"]))
         dt = float(header["dt"])
     except (KeyError, TypeError, ValueError) as err:
         raise ModelError(f"{path}: direct model file lacks its settings ({reason(err)})") from err
     trained_parameters(path, KIND, stored, header["training"].get("vehicle_file"), vehicle)
     if not dt > 0:
         raise ModelError(f"{path}: direct model sample period dt {dt} must be positive")
-    return DirectModel(vehicle, regression, dt, dict(header.get("training", {})))
+    return DirectModel(vehicle, regression, dt, dict(header.get("training", {})), vertical)
 
 
 # ---- the predictor protocols (offline window, multi-step, live) --------------------------------------
@@ -410,14 +365,26 @@ class DirectStream(PhysicsStream):
         last = len(warm) - 1
         self.inputs = list(model.regression.features(warm, np.array([last]), 0, disturbance.angular_b)[0])
         self.anchor_rates = np.asarray(warm.gyro_b[last], dtype=float)
+        self.vertical = model.vertical
+        if self.vertical is not None:
+            self.vertical_inputs = list(self.vertical.features(warm, np.array([last]), 0)[0])
+            self.anchor_down = float(warm.vel_n[last, 2])
         self.pushed = 0
 
     def given_rates(self, command: np.ndarray) -> np.ndarray | None:
         self.pushed += 1
+        command = np.asarray(command, dtype=float).reshape(4)
+        if self.vertical is not None and self.pushed <= self.vertical.horizon:
+            self.vertical_inputs.extend(command)
         if self.pushed > self.regression.horizon:
             return None
-        self.inputs.extend(np.asarray(command, dtype=float).reshape(4))
-        return (self.anchor_rates + self.regression.rate_at(self.pushed, np.asarray(self.inputs)))[None, :]
+        self.inputs.extend(command)
+        return (self.anchor_rates + self.regression.change_at(self.pushed, np.asarray(self.inputs)))[None, :]
+
+    def given_down_velocity(self) -> np.ndarray | None:
+        if self.vertical is None or not 0 < self.pushed <= self.vertical.horizon:
+            return None
+        return self.anchor_down + self.vertical.change_at(self.pushed, np.asarray(self.vertical_inputs))
 
 
 class DirectForecast(PhysicsForecast):
@@ -427,18 +394,24 @@ class DirectForecast(PhysicsForecast):
     :func:`~quad_modelling.core.export.casadi_model.given_rates_step` chained h times, the regression's rates given for the first min(h, H) steps."""
 
     def __init__(self, model: DirectModel, step: Step, derivative: Step, steps: int):
-        self.regression = model.regression
+        self.regression, self.vertical = model.regression, model.vertical
         super().__init__(step, derivative, model.params, model.physics.observer, steps)
-        self._w, self._g = np.zeros((steps, 3)), np.zeros(steps)
+        self._w, self._g, self._v, self._gv = np.zeros((steps, 3)), np.zeros(steps), np.zeros(steps), np.zeros(steps)
         self._g[:min(steps, self.regression.horizon)] = 1.0
-        self._buffer.set_arg(4, memoryview(self._w))
-        self._buffer.set_arg(5, memoryview(self._g))
+        if self.vertical is not None:
+            self._gv[:min(steps, self.vertical.horizon)] = 1.0
+        for i, array in enumerate((self._w, self._g, self._v, self._gv)):
+            self._buffer.set_arg(4 + i, memoryview(array))
 
     def reset(self) -> None:
         super().reset()
         self.rate_rows: deque = deque(maxlen=self.regression.rate_history)
-        self.command_rows: deque = deque(maxlen=self.regression.lead + 1)
+        lead = max(self.regression.lead, 0 if self.vertical is None else self.vertical.lead)
+        self.command_rows: deque = deque(maxlen=lead + 1)
         self.body_velocity = np.zeros(3)  # v^B at the last row [m/s]
+        if self.vertical is not None:
+            self.down_rows: deque = deque(maxlen=self.vertical.velocity_history)  # v_D of the last rows [m/s]
+            self.vertical_anchor = np.zeros(2)  # a_D [m/s²] and cos φ cos θ at the last row
 
     def add(self, rows: FlightLog, first: int) -> None:
         super().add(rows, first)
@@ -446,6 +419,10 @@ class DirectForecast(PhysicsForecast):
         self.command_rows.extend(np.asarray(rows.u[first:], dtype=float))
         if first < len(rows):
             self.body_velocity = frames.nav_to_body(rows.vel_n[-1], rows.euler[-1])
+        if self.vertical is not None and first < len(rows):
+            self.down_rows.extend(np.asarray(rows.vel_n[first:, 2], dtype=float))
+            z = vertical_features(rows, np.array([len(rows) - 1]), 0, 1, 0)[0]  # (v_D, a_D, tilt, u) of the last row
+            self.vertical_anchor = z[1:3]
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         r = self.regression
@@ -453,14 +430,21 @@ class DirectForecast(PhysicsForecast):
         rates = list(self.rate_rows)[::-1]  # ω_s, ω_{s-1}, ...; before the first row added, that row (anchor_features)
         commands = list(self.command_rows)
         rates += [rates[-1]] * (r.rate_history - len(rates))
-        commands = [commands[0]] * (r.lead + 1 - len(commands)) + commands
+        commands = [commands[0]] * (self.command_rows.maxlen - len(commands)) + commands
         anchor = {"body_velocity": self.body_velocity}
         if "angular_disturbance" in r.anchor_inputs:
             anchor["angular_disturbance"] = self.disturbance().angular_b[0]
-        z = np.concatenate([np.ravel(rates), *(anchor[name] for name in r.anchor_inputs), np.ravel(commands),
+        z = np.concatenate([np.ravel(rates), *(anchor[name] for name in r.anchor_inputs), np.ravel(commands[-(r.lead + 1):]),
                             np.ravel(u_after[:given])])
         # one contraction for every map: horizon h's weights are zero past its own D_h
         self._w[:given] = rates[0] + np.einsum("d,hdk->hk", z, r.weights[:given, :len(z)]) + r.bias[:given]
+        if self.vertical is not None:
+            v = self.vertical
+            down = list(self.down_rows)[::-1]  # v_D(s), v_D(s-1), ...; before the first row added, that row
+            down += [down[-1]] * (v.velocity_history - len(down))
+            given_down = min(len(t_after), v.horizon)
+            z_v = np.concatenate([down, self.vertical_anchor, np.ravel(commands[-(v.lead + 1):]), np.ravel(u_after[:given_down])])
+            self._v[:given_down] = down[0] + z_v @ v.weights[:given_down, :len(z_v), 0].T + v.bias[:given_down, 0]
         return super().predict(t_after, u_after, rows)
 
 
@@ -471,15 +455,17 @@ class CompiledDirectStream(CompiledWindowStream):
 
     def __init__(self, stream: DirectStream, step: Step):
         super().__init__(stream, step, None)
-        self._w, self._g = np.zeros(3), np.zeros(1)
-        self._buffer.set_arg(5, memoryview(self._w))
-        self._buffer.set_arg(6, memoryview(self._g))
+        self._w, self._g, self._v, self._gv = np.zeros(3), np.zeros(1), np.zeros(1), np.zeros(1)
+        for i, array in enumerate((self._w, self._g, self._v, self._gv)):
+            self._buffer.set_arg(5 + i, memoryview(array))
 
     def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
-        given = self.stream.given_rates(command)
-        self._g[0] = 0.0 if given is None else 1.0
+        given, down = self.stream.given_rates(command), self.stream.given_down_velocity()
+        self._g[0], self._gv[0] = float(given is not None), float(down is not None)
         if given is not None:
             self._w[:] = given[0]
+        if down is not None:
+            self._v[:] = down
         return super().push_at(command, t_s)
 
 
@@ -500,11 +486,11 @@ class DirectPredictor(WindowByStream):
 
             exported = ExportedModel(vehicle, self.model.params, self.model.physics.observer, "physics", None)
             step, derivative = given_rates_step(exported), casadi_functions(exported)["f_disturbed"]
-            x, u, dt, d, w, g = (casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(6))
+            x, u, dt, d, w, g, v, gv = (casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(8))
             u_now = casadi.SX.sym("u_now", step.sparsity_in(1))
-            after = step(x, u, dt, d, w, g)
-            window = casadi.Function("W_given", [x, u, dt, d, u_now, w, g], [after, derivative(after, u_now, d)],
-                                     ["x", "u", "dt", "d", "u_now", "w", "g"], ["x_next", "xdot"])
+            after = step(x, u, dt, d, w, g, v, gv)
+            window = casadi.Function("W_given", [x, u, dt, d, u_now, w, g, v, gv], [after, derivative(after, u_now, d)],
+                                     ["x", "u", "dt", "d", "u_now", "w", "g", "v", "gv"], ["x_next", "xdot"])
             self._steps = {"step": compile_step(step), "derivative": compile_step(derivative), "window": compile_step(window)}
         return self._steps
 

@@ -141,28 +141,32 @@ def state_outputs(state: PhysicsState) -> np.ndarray:
 
 
 def step(p: PhysicsParameters, state: PhysicsState, u: np.ndarray, dt, disturbance: Disturbance,
-         rates_next: np.ndarray | None = None) -> PhysicsState:
+         rates_next: np.ndarray | None = None, down_velocity_next: np.ndarray | None = None) -> PhysicsState:
     """One step of :func:`quad_modelling.core.physics.rigid_body.step` of every batch member under ``u`` (B, 4) held
     for ``dt`` (scalar or (B,)) [s], with the anchor's constant ``disturbance`` (and given end-of-step body rates
-    ``rates_next`` (B, 3) [rad/s], if any)."""
+    ``rates_next`` (B, 3) [rad/s] and down velocity ``down_velocity_next`` (B,) [m/s], if any)."""
     dt = np.broadcast_to(np.asarray(dt, dtype=float), (len(state.pos_n),))
-    return rigid_body.step(p, state, u, dt, disturbance.linear_n, disturbance.angular_b, rates_next)
+    return rigid_body.step(p, state, u, dt, disturbance.linear_n, disturbance.angular_b, rates_next, down_velocity_next)
 
 
 def rollout(p: PhysicsParameters, state: PhysicsState, disturbance: Disturbance, u: np.ndarray, dt: np.ndarray,
-            with_accelerations: bool = True, rates: np.ndarray | None = None) -> np.ndarray:
+            with_accelerations: bool = True, rates: np.ndarray | None = None,
+            down_velocity: np.ndarray | None = None) -> np.ndarray:
     """(B, H + 1, 18) open-loop outputs from ``state`` (row 0) under commands ``u`` (B, H + 1, 4) with sample
     intervals ``dt`` (B, H) [s]: row h is the state after h steps, output with command u[:, h]. Without
     ``with_accelerations`` the acceleration columns are NaN (:func:`state_outputs`; a quarter less work per step).
     ``rates`` (B, G + 1, 3) [rad/s]: body rates given for rows 1..G (G <= H; row 0 unused), each step's
-    ``rates_next`` (:func:`step`); after row G the rates are integrated again."""
+    ``rates_next`` (:func:`step`); after row G the rates are integrated again. ``down_velocity`` (B, G' + 1) [m/s]:
+    the same for the velocity's down component (``down_velocity_next``)."""
     horizon = dt.shape[1]
     given = 0 if rates is None else rates.shape[1] - 1
+    given_down = 0 if down_velocity is None else down_velocity.shape[1] - 1
     out = np.empty((len(state.pos_n), horizon + 1, len(VARIABLES)))
     for h in range(horizon + 1):
         out[:, h] = outputs(p, state, u[:, h], disturbance) if with_accelerations else state_outputs(state)
         if h < horizon:
-            state = step(p, state, u[:, h], dt[:, h], disturbance, rates[:, h + 1] if h < given else None)
+            state = step(p, state, u[:, h], dt[:, h], disturbance, rates[:, h + 1] if h < given else None,
+                         down_velocity[:, h + 1] if h < given_down else None)
     return out
 
 
@@ -289,12 +293,19 @@ class PhysicsStream:
         stream), or None: the physics integrates them."""
         return None
 
+    def given_down_velocity(self) -> np.ndarray | None:
+        """The velocity's down component (1,) [m/s] given for the sample whose rates :meth:`given_rates` just gave (the
+        direct model's vertical map), or None: the physics integrates it."""
+        return None
+
     def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
         previous = self.times[-1]
         dt = t_s - previous
         if not dt > 0:
             raise DataError(f"physics stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
-        self.state = step(self.params, self.state, self._command_at(previous), dt, self.disturbance, self.given_rates(command))
+        rates_next = self.given_rates(command)
+        self.state = step(self.params, self.state, self._command_at(previous), dt, self.disturbance, rates_next,
+                          self.given_down_velocity())
         self.times.append(float(t_s))
         self.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
         self._forget()

@@ -228,12 +228,14 @@ def rotation_increment(rot, rates_b, dt):
     return arrays.matmul3(rot, arrays.eye3_like(rot) + a[:, None, None] * k + b[:, None, None] * arrays.matmul3(k, k))
 
 
-def step(p, state, u, dt, linear_n, angular_b, rates_next=None):
+def step(p, state, u, dt, linear_n, angular_b, rates_next=None, down_velocity_next=None):
     """One semi-implicit Euler step (module docstring) of every batch member under commands ``u`` (B, 4) held for
     ``dt`` (B,) [s], with constant extra accelerations ``linear_n`` (B, 3) [m/s², N] and ``angular_b`` (B, 3)
     [rad/s², B] (the model's disturbance estimate). ``rates_next`` (B, 3) [rad/s, B]: body rates given for the end
     of the step (a rate predictor's, :mod:`quad_modelling.core.models.direct`) in place of the integrated ones; the
-    attitude then turns with them. Returns a state of ``state``'s type."""
+    attitude then turns with them. ``down_velocity_next`` (B,) [m/s, N down]: the velocity's down component given
+    for the end of the step (the direct model's vertical map) in place of the integrated (and limited) one; the
+    position integrates it. Returns a state of ``state``'s type."""
     rotor = rotor_step(p, state.rotor, u, dt)
     rotor_dot = (rotor - state.rotor) / dt[:, None]  # the step's mean dΩ/dt, exact
     acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, interval_rotor_speed(p, state.rotor, u, dt), rotor_dot,
@@ -241,5 +243,7 @@ def step(p, state, u, dt, linear_n, angular_b, rates_next=None):
     rates = limit_norm(state.rates + dt[:, None] * (ang_acc + angular_b) if rates_next is None else rates_next, GYRO_FULL_SCALE)
     rot = rotation_increment(state.rot, rates, dt)
     vel = limit_norm(state.vel_n + dt[:, None] * (acc_n + linear_n), MAX_SPEED_MPS)
+    if down_velocity_next is not None:
+        vel = vel + arrays.unit_z_like(vel, 1.0) * (down_velocity_next - vel[:, 2])[:, None]
     pos = state.pos_n + dt[:, None] * vel
     return type(state)(pos, vel, rot, rates, rotor, continue_yaw(state.yaw, rot))

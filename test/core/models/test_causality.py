@@ -70,7 +70,7 @@ def _train_hybrid(directory: Path, vehicle) -> Path:
 
 def _train_direct(directory: Path, vehicle) -> Path:
     """The direct model's regression fitted (closed-form, a second) on the fixture flight."""
-    from quad_modelling.core.models.direct import train_direct
+    from quad_modelling.core.training.direct import train_direct
 
     return train_direct([load_flight(FLIGHT, vehicle)], [None], vehicle).save(directory / "direct.npz")
 

@@ -11,19 +11,12 @@ import pytest
 
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.models.direct import (
-    COMMAND_LEAD,
-    DirectPredictor,
-    RateRegression,
-    feature_count,
-    fit_rate_regression,
-    load_direct,
-    train_direct,
-)
+from quad_modelling.core.models.direct import COMMAND_LEAD, DirectModel, DirectPredictor, RateRegression, feature_count, load_direct
 from quad_modelling.core.models.physics import PhysicsPredictor
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.models.streaming import predict_window_by_stream
 from quad_modelling.core.physics.rigid_body import rotation_increment
+from quad_modelling.core.training.direct import fit_rate_regression, train_direct
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import ConfigError, DataError, ModelError
 from quad_modelling.io.loader import load_flight
@@ -200,6 +193,34 @@ def test_the_first_rows_rates_are_the_regressions_then_the_physics_integrates_th
     assert not np.allclose(predicted[:, -1, 12:15], given[:, -1], rtol=0, atol=1e-6)
 
 
+def test_the_first_rows_down_velocity_is_the_vertical_maps_and_the_position_moves_with_it(model, flight):
+    segment = flight.slice(1000, 1300)
+    starts = np.array([30, 90, 140])
+    h_max = model.vertical.horizon
+    predicted = model.predict_horizons(segment, starts, h_max + 20)
+    given = model.vertical.velocities(segment, starts, h_max + 20)
+    assert given.shape == (3, h_max + 1)
+    assert np.array_equal(predicted[:, 1:h_max + 1, 5], given[:, 1:])
+    # semi-implicit Euler: p_{k+1} = p_k + Δt v_{k+1}, with the given v_D
+    dt = np.diff(segment.t)[starts[:, None] + np.arange(h_max)[None, :]]
+    assert np.allclose(np.diff(predicted[:, :h_max + 1, 2], axis=1), dt * given[:, 1:], rtol=0, atol=1e-12)
+    # the horizontal velocity stays the physics model's: as without the map but for the rotor drag's (and ground
+    # effect's) coupling to v_D and the altitude, from the second step on
+    without = DirectModel(model.physics.vehicle, model.regression, model.dt, model.training)
+    plain = without.predict_horizons(segment, starts, h_max + 20)
+    assert np.array_equal(predicted[:, :2, 3:5], plain[:, :2, 3:5])
+    assert np.allclose(predicted[:, :, 3:5], plain[:, :, 3:5], rtol=0, atol=1e-3)
+    assert not np.allclose(predicted[:, 1:h_max + 1, 5], plain[:, 1:h_max + 1, 5], rtol=0, atol=1e-4)
+    # after H rows the physics integrates v_D on from the last given one
+    assert np.array_equal(predicted[:, :h_max + 1], model.predict_horizons(segment, starts, h_max))
+
+
+def test_a_model_with_a_vertical_map_refuses_a_flight_without_accelerometer_in_one_line(model, flight):
+    with pytest.raises(DataError, match="the direct model's vertical map .* needs the accelerometer") as err:
+        model.predict_horizons(dataclasses.replace(flight, acc_b=None), np.array([1100]), 10)
+    assert "\n" not in str(err.value)
+
+
 def test_the_live_stream_equals_the_multi_step_form(model, flight):
     window = flight.slice(1200, 1400)
     warm = 20
@@ -268,7 +289,7 @@ def test_a_file_from_before_the_body_velocity_loads_with_its_own_layout(model, f
     load and predict with the rates and commands alone."""
     import json
 
-    from quad_modelling.core.models.direct import RATE_HISTORY, DirectModel
+    from quad_modelling.core.models.direct import RATE_HISTORY
 
     h = model.regression.horizon
     assert model.regression.anchor_inputs == ("body_velocity", "angular_disturbance")
@@ -290,3 +311,23 @@ def test_a_file_from_before_the_body_velocity_loads_with_its_own_layout(model, f
     assert not np.array_equal(model.regression.rates(segment, starts, h, disturbance), model.regression.rates(moved, starts, h, disturbance))
     assert np.array_equal(loaded.predict_horizons(segment, starts, 60)[:, :, 12:15],
                           DirectModel(vehicle, old, model.dt).predict_horizons(segment, starts, 60)[:, :, 12:15])
+
+
+def test_a_file_from_before_the_vertical_map_loads_and_integrates_the_down_velocity(model, flight, vehicle, tmp_path):
+    """Files before session 22 have no ``config.vertical`` and no vertical arrays: they load without the map and
+    predict as the model without it (the physics integrates v_D)."""
+    import json
+
+    path = model.save(tmp_path / "new.npz")
+    with np.load(path) as contents:
+        header, arrays = json.loads(str(contents["header"])), {k: contents[k] for k in ("weights", "bias")}
+        assert contents["vertical_weights"].shape == model.vertical.weights.shape
+    del header["config"]["vertical"]
+    with open(path, "wb") as stream:
+        np.savez(stream, header=np.array(json.dumps(header)), **arrays)
+    loaded = load_direct(path, vehicle)
+    assert loaded.vertical is None
+    segment = flight.slice(1000, 1300)
+    starts = np.arange(20, 200, 13)
+    without = DirectModel(vehicle, model.regression, model.dt, model.training)
+    assert np.array_equal(loaded.predict_horizons(segment, starts, 60), without.predict_horizons(segment, starts, 60))
