@@ -99,11 +99,12 @@ COMMAND_LEAD = 10
 """L: command rows before the anchor (0.1 s; the Crazyflie's identified command delay is 40 ms)."""
 
 VELOCITY_HISTORY = 5
-"""n_v: measured down-velocity rows up to and including the anchor (the vertical map's)."""
+"""n_v: measured down-velocity rows up to and including the anchor (the vertical map's; 0.05 s at 100 Hz, the first
+choice of session 22's scratch study, not tuned)."""
 
 RIDGE = 1e-2
-"""λ: ridge penalty on the standardised inputs, per sample. Set before any held-out score and not tuned
-(``bench/bench_command_limit.py`` used it first)."""
+"""λ: ridge penalty on the standardised inputs, per sample, of the rate and the vertical maps. Set before any held-out
+score and not tuned (``bench/bench_command_limit.py`` used it first)."""
 
 ROBUST_STEPS = 1
 """Reweighted refits after the least-squares one (module docstring). One: three changed no fold's held-out AV SimErr
