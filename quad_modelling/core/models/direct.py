@@ -31,7 +31,8 @@ Fit (:func:`quad_modelling.core.training.direct.fit_rate_regression`): per h, ri
 over every training anchor (λ = :data:`RIDGE`), then :data:`ROBUST_STEPS` reweighted refits for the mean absolute
 error (:mod:`quad_modelling.core.training.direct`).
 
-The vertical map (files since session 22; absent in older ones, and when a training flight had no accelerometer).
+The vertical map (files since session 22; absent in older ones, and when a training flight had no accelerometer; on
+a flight without one the physics integrates v_D in every form, :meth:`DirectModel.uses_vertical`).
 The logged commands read through the rotor map predict the vertical velocity poorly: held out by shape, the physics
 model's down-velocity error at h = 50 was that of holding the velocity on the linear-ramp flights (0.093 m/s against
 0.094), and a linear map from the commands did a third better (scratch study of session 22; ``bench/results/models.md``
@@ -266,6 +267,11 @@ class DirectModel:
         self.vehicle = vehicle.name
         self.training = dict(training or {})
 
+    def uses_vertical(self, log: FlightLog) -> bool:
+        """Whether the vertical map predicts v_D on ``log``: the model has one and the flight an accelerometer (the
+        map's input); else the physics integrates v_D, as in a model without the map."""
+        return self.vertical is not None and log.acc_b is not None
+
     def check_rate(self, log: FlightLog) -> None:
         """DataError unless ``log``'s median sample period is the model's ``dt`` (:func:`check_period`)."""
         check_period(log, self.dt)
@@ -277,14 +283,23 @@ class DirectModel:
     def predict_horizons_of(self, parts: Sequence[tuple[FlightLog, np.ndarray]], horizon: int,
                             with_accelerations: bool = False) -> list[np.ndarray]:
         """:meth:`predict_horizons` of each (segment, starts) of ``parts`` in one batch (as the physics model's), the
-        acceleration columns NaN unless ``with_accelerations``."""
+        acceleration columns NaN unless ``with_accelerations``; segments with and without the vertical map
+        (:meth:`uses_vertical`) in a batch each."""
+        flags = [self.uses_vertical(segment) for segment, _ in parts]
+        if any(flags) and not all(flags):
+            out: list = [None] * len(parts)
+            for flag in (True, False):
+                index = [i for i, f in enumerate(flags) if f == flag]
+                for i, result in zip(index, self.predict_horizons_of([parts[i] for i in index], horizon, with_accelerations)):
+                    out[i] = result
+            return out
         inputs, rates, down = [], [], []
         for segment, starts in parts:
             starts = np.asarray(starts, dtype=int)
             self.check_rate(segment)
             inputs.append(self.physics.horizon_inputs(segment, starts, horizon))
             rates.append(self.regression.rates(segment, starts, horizon, inputs[-1][1].angular_b))
-            if self.vertical is not None:
+            if self.uses_vertical(segment):
                 down.append(self.vertical.velocities(segment, starts, horizon))
         if not inputs:
             return []
@@ -366,7 +381,7 @@ class DirectStream(PhysicsStream):
         last = len(warm) - 1
         self.inputs = list(model.regression.features(warm, np.array([last]), 0, disturbance.angular_b)[0])
         self.anchor_rates = np.asarray(warm.gyro_b[last], dtype=float)
-        self.vertical = model.vertical
+        self.vertical = model.vertical if model.uses_vertical(warm) else None
         if self.vertical is not None:
             self.vertical_inputs = list(self.vertical.features(warm, np.array([last]), 0)[0])
             self.anchor_down = float(warm.vel_n[last, 2])
@@ -399,8 +414,6 @@ class DirectForecast(PhysicsForecast):
         super().__init__(step, derivative, model.params, model.physics.observer, steps)
         self._w, self._g, self._v, self._gv = np.zeros((steps, 3)), np.zeros(steps), np.zeros(steps), np.zeros(steps)
         self._g[:min(steps, self.regression.horizon)] = 1.0
-        if self.vertical is not None:
-            self._gv[:min(steps, self.vertical.horizon)] = 1.0
         for i, array in enumerate((self._w, self._g, self._v, self._gv)):
             self._buffer.set_arg(4 + i, memoryview(array))
 
@@ -410,6 +423,7 @@ class DirectForecast(PhysicsForecast):
         lead = max(self.regression.lead, 0 if self.vertical is None else self.vertical.lead)
         self.command_rows: deque = deque(maxlen=lead + 1)
         self.body_velocity = np.zeros(3)  # v^B at the last row [m/s]
+        self.vertical_on = False  # the vertical map gives v_D from the last row (it has an accelerometer)
         if self.vertical is not None:
             self.down_rows: deque = deque(maxlen=self.vertical.velocity_history)  # v_D of the last rows [m/s]
             self.vertical_anchor = np.zeros(2)  # a_D [m/s²] and cos φ cos θ at the last row
@@ -422,8 +436,10 @@ class DirectForecast(PhysicsForecast):
             self.body_velocity = frames.nav_to_body(rows.vel_n[-1], rows.euler[-1])
         if self.vertical is not None and first < len(rows):
             self.down_rows.extend(np.asarray(rows.vel_n[first:, 2], dtype=float))
-            z = vertical_features(rows, np.array([len(rows) - 1]), 0, 1, 0)[0]  # (v_D, a_D, tilt, u) of the last row
-            self.vertical_anchor = z[1:3]
+            self.vertical_on = rows.acc_b is not None  # without it the physics integrates v_D (DirectModel.uses_vertical)
+            if self.vertical_on:
+                z = vertical_features(rows, np.array([len(rows) - 1]), 0, 1, 0)[0]  # (v_D, a_D, tilt, u) of the last row
+                self.vertical_anchor = z[1:3]
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         r = self.regression
@@ -439,8 +455,10 @@ class DirectForecast(PhysicsForecast):
                             np.ravel(u_after[:given])])
         # one contraction for every map: horizon h's weights are zero past its own D_h
         self._w[:given] = rates[0] + np.einsum("d,hdk->hk", z, r.weights[:given, :len(z)]) + r.bias[:given]
-        if self.vertical is not None:
+        self._gv[:] = 0.0
+        if self.vertical_on:
             v = self.vertical
+            self._gv[:min(len(t_after), v.horizon)] = 1.0
             down = list(self.down_rows)[::-1]  # v_D(s), v_D(s-1), ...; before the first row added, that row
             down += [down[-1]] * (v.velocity_history - len(down))
             given_down = min(len(t_after), v.horizon)

@@ -244,6 +244,6 @@ def step(p, state, u, dt, linear_n, angular_b, rates_next=None, down_velocity_ne
     rot = rotation_increment(state.rot, rates, dt)
     vel = limit_norm(state.vel_n + dt[:, None] * (acc_n + linear_n), MAX_SPEED_MPS)
     if down_velocity_next is not None:
-        vel = vel + arrays.unit_z_like(vel, 1.0) * (down_velocity_next - vel[:, 2])[:, None]
+        vel = arrays.columns([vel[:, 0], vel[:, 1], down_velocity_next])
     pos = state.pos_n + dt[:, None] * vel
     return type(state)(pos, vel, rot, rates, rotor, continue_yaw(state.yaw, rot))

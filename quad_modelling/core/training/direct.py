@@ -94,7 +94,10 @@ Targets = Callable[[Part], np.ndarray]
 def ridge_maps(parts: Sequence[Part], weights: Sequence[np.ndarray], horizon: int, ridge: float, inputs: Inputs,
                targets: Targets, count: Callable[[int], int]) -> tuple[np.ndarray, np.ndarray]:
     """(weights (H, D_H, K), bias (H, K)) minimising the c-weighted squared error plus the ridge (module docstring),
-    from moments accumulated over ``parts`` with anchor weights ``weights`` (one array per part); ``count(h)`` = D_h."""
+    from moments accumulated over ``parts`` with anchor weights ``weights`` (one array per part); ``count(h)`` = D_h.
+    DataError without a part."""
+    if not parts:
+        raise DataError("direct model: no gap-free part of the training spans holds an anchor with its history and horizon")
     n, sum_z, sum_zz, sum_y, sum_zy = 0.0, 0.0, 0.0, 0.0, 0.0
     for part, c in zip(parts, weights):
         z, change = inputs(part), targets(part)

@@ -215,10 +215,23 @@ def test_the_first_rows_down_velocity_is_the_vertical_maps_and_the_position_move
     assert np.array_equal(predicted[:, :h_max + 1], model.predict_horizons(segment, starts, h_max))
 
 
-def test_a_model_with_a_vertical_map_refuses_a_flight_without_accelerometer_in_one_line(model, flight):
-    with pytest.raises(DataError, match="the direct model's vertical map .* needs the accelerometer") as err:
-        model.predict_horizons(dataclasses.replace(flight, acc_b=None), np.array([1100]), 10)
-    assert "\n" not in str(err.value)
+def test_without_an_accelerometer_the_physics_integrates_the_down_velocity_in_every_form(model, flight):
+    """The vertical map reads the anchor's accelerometer: on a flight without one (a topic map without the IMU's
+    acceleration) every form predicts as the model without the map, and a batch mixing such a flight with one that has
+    it predicts each as alone."""
+    no_imu = dataclasses.replace(flight, acc_b=None)
+    without = DirectModel(model.physics.vehicle, model.regression, model.dt, model.training)
+    starts = np.array([1100, 1300])
+    expected = without.predict_horizons(no_imu, starts, 60)
+    assert np.array_equal(model.predict_horizons(no_imu, starts, 60), expected)
+    mixed = model.predict_horizons_of([(no_imu, starts), (flight, starts)], 60)
+    alone = [model.predict_horizons_of([part], 60)[0] for part in ((no_imu, starts), (flight, starts))]
+    assert all(np.array_equal(m, a, equal_nan=True) for m, a in zip(mixed, alone))
+    assert np.array_equal(alone[0][..., :6], expected[..., :6]) and not np.allclose(alone[1][..., 5], alone[0][..., 5])
+    window = no_imu.slice(1200, 1300)
+    live = predict_window_by_stream(DirectPredictor(model), window, 20)
+    offline = without.predict_horizons(window, np.array([19]), 80)[0]
+    assert np.allclose(live[20:], offline[1:], rtol=0, atol=1e-9)
 
 
 def test_the_live_stream_equals_the_multi_step_form(model, flight):

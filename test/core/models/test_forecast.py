@@ -93,7 +93,7 @@ def receding(model, vehicle, log, inputs: str, ends_only: bool = False) -> tuple
     def make_log(rows_ns, rows, measured):  # the node's conversion: the rows' commands, their measured rows
         at = np.array(measured)
         return dataclasses.replace(log, t=np.asarray(rows_ns) / 1e9, u=np.array([r[1] for r in rows]), omega=None,
-                                   acc_b=log.acc_b[at], gyro_b=log.gyro_b[at], pos_n=log.pos_n[at], vel_n=log.vel_n[at],
+                                   acc_b=None if log.acc_b is None else log.acc_b[at], gyro_b=log.gyro_b[at], pos_n=log.pos_n[at], vel_n=log.vel_n[at],
                                    euler=log.euler[at], vbat=log.vbat[at])
 
     horizon = RecedingHorizon(lambda warm: multistep_form(model, warm), make_log, horizon_s=HORIZON * 0.01, warm_s=0.2,
@@ -133,6 +133,19 @@ def test_carried_forecast_equals_the_offline_multistep_form_flown_and_held(model
     ends, _ = receding(model, vehicle, flight, "hold", ends_only=True)  # what the node asks for: rows 0 and h
     assert sorted(ends) == sorted(held)
     np.testing.assert_array_equal(np.array([ends[s][1] for s in held]), np.array([held[s][1][[0, HORIZON]] for s in held]))
+
+
+def test_the_direct_forecast_without_an_accelerometer_integrates_v_d_as_the_offline_form(models, flight):
+    """The vertical map reads the accelerometer: without it the carried form, as the multi-step form, lets the physics
+    integrate the down velocity."""
+    model, vehicle = models["direct"]
+    assert model.model.vertical is not None
+    no_imu = dataclasses.replace(flight, acc_b=None)
+    flown, horizon = receding(model, vehicle, no_imu, "flown")
+    assert horizon.carried is not None
+    starts = np.arange(WARM - 1, len(flight) - HORIZON)
+    got = np.array([flown[s][1] for s in starts])
+    np.testing.assert_allclose(got, multistep_form(model, WARM).predict_horizons(no_imu, starts, HORIZON), rtol=0, atol=TOLERANCE)
 
 
 def test_every_registered_model_with_a_multistep_table_row_has_its_carried_form(models, vehicle):
