@@ -218,5 +218,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"rollout fine-tuning: best validation epoch {r['best_epoch']} of {r['epochs_run']} "
               f"({'stopped early' if r['stopped_early'] else 'epoch limit'}), validation loss {r['val_loss'][0]:.4g} -> "
               f"{r['val_loss'][r['best_epoch']]:.4g} on {r['val_windows']} windows")
+    if args.direct:
+        print(f"vertical map (down velocity): {model.training['vertical_map']}")
     print(f"evaluate it with: quad-modelling evaluate ... --model {kind}:{output}")
     return 0

@@ -89,8 +89,10 @@ def test_train_direct_fits_the_rate_regression_and_evaluate_scores_it(tmp_path, 
     assert main(["train", BAG, "-o", str(out), "--direct", "--preset", "short", "--quiet"]) == 0
     printed = capsys.readouterr().out
     assert "trained direct model on" in printed and f"--model direct:{out}" in printed
+    assert "vertical map (down velocity): fitted" in printed
     model = load_direct(out, load_vehicle("crazyflie21"))
     assert model.regression.horizon == HORIZON and abs(model.dt - 0.01) < 1e-4
+    assert model.vertical is not None and model.vertical.horizon == HORIZON
     # preset short: the first 60 % of the flying part, every anchor with 10 rows before and 50 after it
     assert 1800 < model.training["samples"] < 1950
     report = tmp_path / "report"
