@@ -35,7 +35,7 @@ The vertical map (files since session 22; absent in older ones, and when a train
 a flight without one the physics integrates v_D in every form, :meth:`DirectModel.uses_vertical`).
 The logged commands read through the rotor map predict the vertical velocity poorly: held out by shape, the physics
 model's down-velocity error at h = 50 was that of holding the velocity on the linear-ramp flights (0.093 m/s against
-0.094), and a linear map from the commands did a third better (scratch study of session 22; ``bench/results/models.md``
+0.094), and the map below cuts it by a third (0.065 m/s there, 0.038 -> 0.025 on the figure-8; ``bench/results/models.md``
 has the held-out SimErr). So the down velocity gets maps of its own, fitted as the rates':
 
 .. math::
