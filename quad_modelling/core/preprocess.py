@@ -213,10 +213,11 @@ def sample_period(log: FlightLog) -> float:
     return 1.0 / log.sample_rate
 
 
-def nav_acceleration(log: FlightLog, gravity: float = GRAVITY) -> np.ndarray:
-    """(N, 3) acceleration in N [m/s²] from the body specific force: a_N = R f_B + g e_z."""
+def nav_acceleration(log: FlightLog, gravity: float = GRAVITY, rows: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) acceleration in N [m/s²] from the body specific force: a_N = R f_B + g e_z (at ``rows`` only, if given)."""
     log.require(("acc_b",), "the acceleration")
-    acc = frames.body_to_nav(log.acc_b, log.euler)
+    at = slice(None) if rows is None else np.asarray(rows, dtype=int)
+    acc = frames.body_to_nav(log.acc_b[at], log.euler[at])
     acc[:, 2] += gravity
     return acc
 

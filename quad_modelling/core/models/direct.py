@@ -83,9 +83,9 @@ from quad_modelling.core.models.physics import Disturbance, PhysicsPredictor, Ph
 from quad_modelling.core.models.streaming import WindowByStream
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
-from quad_modelling.core.preprocess import TrimConfig, state_measurement
+from quad_modelling.core.preprocess import TrimConfig, nav_acceleration, state_measurement
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError, DataError, ModelError, reason
 
 KIND = "direct"
@@ -227,7 +227,7 @@ def vertical_features(log: FlightLog, anchors: np.ndarray, horizon: int, velocit
     past = np.maximum(anchors[:, None] - np.arange(velocity_history)[None, :], 0)
     rows = np.maximum(anchors[:, None] + np.arange(-lead, horizon + 1)[None, :], 0)
     euler = log.euler[anchors]
-    down_acc = frames.body_to_nav(log.acc_b[anchors], euler)[:, 2] + GRAVITY
+    down_acc = nav_acceleration(log, rows=anchors)[:, 2]
     tilt = np.cos(euler[:, 0]) * np.cos(euler[:, 1])
     return np.concatenate([log.vel_n[past, 2], down_acc[:, None], tilt[:, None], log.u[rows].reshape(len(anchors), -1)], axis=1)
 
