@@ -28,7 +28,7 @@ beyond horizon h's own :math:`D_h = 3 n_\omega + 3 n_a + 4 (L + h + 1)`, and ``b
 have neither anchor input (``anchor_inputs`` absent, D 6 fewer) and load as they were.
 
 Fit (:func:`quad_modelling.core.training.direct.fit_rate_regression`): per h, ridge regression on the moments of z
-over every training anchor (λ = :data:`RIDGE`), then :data:`ROBUST_STEPS` reweighted refits for the mean absolute
+over every training anchor (λ = :data:`RATE_RIDGE`), then :data:`ROBUST_STEPS` reweighted refits for the mean absolute
 error (:mod:`quad_modelling.core.training.direct`).
 
 The vertical map (files since session 22; absent in older ones, and when a training flight had no accelerometer; on
@@ -103,9 +103,13 @@ VELOCITY_HISTORY = 5
 """n_v: measured down-velocity rows up to and including the anchor (the vertical map's; 0.05 s at 100 Hz, the first
 choice of session 22's scratch study, not tuned)."""
 
-RIDGE = 1e-2
-"""λ: ridge penalty on the standardised inputs, per sample, of the rate and the vertical maps. Set before any held-out
-score and not tuned (``bench/bench_command_limit.py`` used it first)."""
+RATE_RIDGE = 1e-3
+"""λ of the rate maps: ridge penalty on the standardised inputs, per sample. Chosen on the training shapes only
+(``bench/bench_direct_ridge.py``, nested leave-one-shape-out over 1e-4..1e-2; session 23): 1e-2 before, set before any
+held-out score and never varied until then."""
+
+VERTICAL_RIDGE = 1e-2
+"""λ of the vertical map, as :data:`RATE_RIDGE` (set before any held-out score, not varied)."""
 
 ROBUST_STEPS = 1
 """Reweighted refits after the least-squares one (module docstring). One: three changed no fold's held-out AV SimErr

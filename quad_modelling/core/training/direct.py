@@ -13,7 +13,8 @@ with room for the history before it and H rows after it, each anchor weighted by
         + \lambda \sum_j \sigma_j^2 w_j^2,
     \qquad w = (C_{zz} + \lambda\, \mathrm{diag}\, \sigma^2)^{-1} C_{z\Delta y}, \qquad b_h = \mu_{\Delta y} - w^T \mu_z
 
-(C the c-weighted covariances, σ² their diagonal, λ = :data:`~quad_modelling.core.models.direct.RIDGE`), from the
+(C the c-weighted covariances, σ² their diagonal, λ = :data:`~quad_modelling.core.models.direct.RATE_RIDGE` for the
+rates', :data:`~quad_modelling.core.models.direct.VERTICAL_RIDGE` for the down velocity's), from the
 moments of z accumulated over the flights: no design matrix held. Every h's inputs are a leading block of z, so one
 Gram matrix serves all of them. The score is a mean *absolute* error, so after the least-squares fit (c = 1)
 :data:`~quad_modelling.core.models.direct.ROBUST_STEPS` reweighted refits (IRLS for the absolute error) give each anchor
@@ -35,10 +36,11 @@ from quad_modelling.core.models.direct import (
     COMMAND_LEAD,
     HORIZON,
     RATE_HISTORY,
-    RIDGE,
+    RATE_RIDGE,
     ROBUST_FLOOR,
     ROBUST_STEPS,
     VELOCITY_HISTORY,
+    VERTICAL_RIDGE,
     DirectModel,
     HorizonMaps,
     RateRegression,
@@ -133,7 +135,7 @@ def robust_maps(parts: Sequence[Part], horizon: int, ridge: float, robust_steps:
 
 
 def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int = HORIZON,
-                        ridge: float = RIDGE, robust_steps: int = ROBUST_STEPS,
+                        ridge: float = RATE_RIDGE, robust_steps: int = ROBUST_STEPS,
                         angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None = None,
                         anchor_inputs: Sequence[str] | None = None) -> tuple[RateRegression, int]:
     """(the rate maps fitted on the ``spans`` [s from each flight's start; None: the whole flight] of ``logs``, number
@@ -164,7 +166,7 @@ def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, 
 
 
 def fit_vertical_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int = HORIZON,
-                            ridge: float = RIDGE, robust_steps: int = ROBUST_STEPS) -> VerticalRegression:
+                            ridge: float = VERTICAL_RIDGE, robust_steps: int = ROBUST_STEPS) -> VerticalRegression:
     """The down-velocity maps (:class:`~quad_modelling.core.models.direct.VerticalRegression`) fitted on the ``spans``
     of ``logs`` as :func:`fit_rate_regression` fits the rates'. DataError when a flight lacks the accelerometer (an
     input) or no gap-free part holds an anchor."""
@@ -199,7 +201,8 @@ def train_direct(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] 
     regression, anchors = fit_rate_regression(logs, spans, angular_disturbance=observed)
     without = [log.meta.source for log in logs if log.acc_b is None]
     vertical = None if without else fit_vertical_regression(logs, spans)
-    training = {"samples": anchors, "flights": [log.meta.source for log in logs], "ridge": RIDGE,
+    training = {"samples": anchors, "flights": [log.meta.source for log in logs], "ridge": RATE_RIDGE,
+                "vertical_ridge": VERTICAL_RIDGE,
                 "vehicle_file": str(vehicle.path),
                 "vertical_map": "fitted" if vertical is not None else f"not fitted: no accelerometer in {without[0]}"}
     return DirectModel(vehicle, regression, dt, training, vertical)
