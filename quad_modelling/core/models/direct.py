@@ -124,6 +124,9 @@ ROBUST_FLOOR = 0.5
 PERIOD_TOLERANCE = 0.1
 """Largest relative difference between a flight's median sample period and the model's ``dt``."""
 
+ARRAYS = ("weights", "bias", "vertical_weights", "vertical_bias")
+"""The arrays a direct model file may hold (the vertical map's two since session 22)."""
+
 OUTPUTS: tuple[str, ...] = ("roll_rate", "pitch_rate", "yaw_rate")
 """The variables the regression predicts (the header's ``outputs``)."""
 
@@ -354,7 +357,7 @@ def load_direct(path: str | Path, vehicle: VehicleConfig) -> DirectModel:
     """Load a direct model file for ``vehicle``; ModelError (one line) for another vehicle, changed physics
     constants or a corrupt file."""
     path = Path(path)
-    header, contents = read_model_file(path, KIND, OUTPUTS, vehicle.name)
+    header, contents = read_model_file(path, KIND, OUTPUTS, vehicle.name, ARRAYS.__contains__)
     try:
         config = header["config"]
         stored = header["training"]["physics"]

@@ -238,7 +238,7 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
     """Load a hybrid model file for ``vehicle``; ModelError (one line) for another vehicle, changed physics
     constants, or a corrupt file."""
     path = Path(path)
-    header, contents = read_model_file(path, KIND, TRAINED_ON, vehicle.name)
+    header, contents = read_model_file(path, KIND, TRAINED_ON, vehicle.name, ResidualNet.stores)
     net = ResidualNet.from_arrays(contents, str(path))
     try:
         config = header["config"]

@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import zipfile
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -89,11 +89,16 @@ def _check_header(path: Path, header: dict) -> None:
 
 
 # ---- files ----------------------------------------------------------------------
-def read_model_file(path: str | Path, kind: str, outputs: Sequence[str], vehicle: str | None = None) -> tuple[dict, dict[str, np.ndarray]]:
+def read_model_file(path: str | Path, kind: str, outputs: Sequence[str], vehicle: str | None = None,
+                    reads: Callable[[str], bool] | None = None) -> tuple[dict, dict[str, np.ndarray]]:
     """Header and arrays of a model file, checked against ``kind``, ``vehicle`` and VARIABLES.
 
+    ``reads(name)``: whether the caller's loader reads an array of that name. A file holding an array the loader
+    does not read is refused: the format version is shared by every kind, so a newer program's file with a part
+    this one does not know (the direct model's vertical map, session 22) would otherwise predict without it, silently.
+
     Raises ModelError naming the file and the mismatch (missing, corrupt, other
-    format/version/kind/vehicle/variable set).
+    format/version/kind/vehicle/variable set, an unknown array).
     """
     path = Path(path)
     _check_archive(path)
@@ -118,6 +123,10 @@ def read_model_file(path: str | Path, kind: str, outputs: Sequence[str], vehicle
                          f"retrain the model with quad-modelling train")
     if header.get("kind") != kind:
         raise ModelError(f"{path}: is a {header.get('kind')!r} model, expected {kind!r}")
+    unknown = sorted(name for name in contents if reads is not None and not reads(name))
+    if unknown:
+        raise ModelError(f"{path}: holds array {unknown[0]!r}, which this program's {kind} model does not read (a file from a newer "
+                         f"quad-modelling?): predicting without it would be wrong; update quad-modelling or retrain the model")
     if vehicle is not None and header.get("vehicle") != vehicle:
         raise ModelError(f"{path}: model was trained for vehicle {header.get('vehicle')!r}, not {vehicle!r}")
     if header.get("variables") != list(VARIABLES) or header.get("outputs") != list(outputs):

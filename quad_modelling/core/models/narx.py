@@ -460,7 +460,7 @@ def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) 
 def load_narx(path: str | Path, vehicle: str | None = None) -> NarxModel:
     """Load a NARX model file; ``vehicle`` (if given) must be the one it was trained for."""
     path = Path(path)
-    header, contents = read_model_file(path, "narx", OUTPUTS, vehicle)
+    header, contents = read_model_file(path, "narx", OUTPUTS, vehicle, ARRAY_NAMES.__contains__)
     return model_from_parts(path, header, contents)
 
 

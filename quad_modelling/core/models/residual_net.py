@@ -16,6 +16,7 @@ untrained net adds exactly nothing.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,6 +87,11 @@ class ResidualNet:
             out[f"{ARRAY_PREFIX}w{j}"] = w
             out[f"{ARRAY_PREFIX}b{j}"] = b
         return out
+
+    @staticmethod
+    def stores(name: str) -> bool:
+        """Whether a model file's array ``name`` is one of a net's (:meth:`arrays`)."""
+        return re.fullmatch(f"{ARRAY_PREFIX}(w[0-9]+|b[0-9]+|in_mean|in_std|out_scale)", name) is not None
 
     @classmethod
     def from_arrays(cls, contents: dict[str, np.ndarray], where: str) -> ResidualNet:

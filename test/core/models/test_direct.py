@@ -344,3 +344,15 @@ def test_a_file_from_before_the_vertical_map_loads_and_integrates_the_down_veloc
     starts = np.arange(20, 200, 13)
     without = DirectModel(vehicle, model.regression, model.dt, model.training)
     assert np.array_equal(loaded.predict_horizons(segment, starts, 60), without.predict_horizons(segment, starts, 60))
+
+
+def test_a_file_with_an_array_this_program_does_not_read_is_refused(model, vehicle, tmp_path):
+    """A newer program's file with a part this one does not know (as the vertical map was for session 21's reader)
+    is refused in one line, not loaded and predicted without it."""
+    path = model.save(tmp_path / "direct.npz")
+    with np.load(path) as contents:
+        arrays = {k: contents[k] for k in contents.files}
+    np.savez(tmp_path / "newer.npz", **arrays, lateral_weights=np.zeros((2, 3)))
+    with pytest.raises(ModelError, match="newer.npz: holds array 'lateral_weights', which this program's direct model does not read") as err:
+        load_direct(tmp_path / "newer.npz", vehicle)
+    assert "\n" not in str(err.value)

@@ -330,3 +330,13 @@ def test_predicting_needs_no_torch(trained, tmp_path):
                           env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "(100, 51, 18) True False"
+
+
+def test_a_file_with_an_array_this_program_does_not_read_is_refused(trained, vehicle, tmp_path):
+    path = trained.save(tmp_path / "hybrid.npz")
+    with np.load(path) as contents:
+        arrays = {k: contents[k] for k in contents.files}
+    assert all(ResidualNet.stores(name) for name in arrays if name != "header")
+    np.savez(tmp_path / "newer.npz", **arrays, net_gate=np.ones(3))
+    with pytest.raises(ModelError, match="newer.npz: holds array 'net_gate', which this program's hybrid model does not read"):
+        load_hybrid(tmp_path / "newer.npz", vehicle)

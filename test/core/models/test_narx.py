@@ -163,6 +163,15 @@ def test_corrupt_or_missing_model_file_refused(trained, tmp_path):
         load_narx(tmp_path / "shape.npz")
 
 
+def test_a_file_with_an_array_this_program_does_not_read_is_refused(trained, tmp_path):
+    good = trained.save(tmp_path / "model.npz")
+    with np.load(good, allow_pickle=False) as archive:
+        contents = {name: archive[name] for name in archive.files}
+    np.savez(tmp_path / "newer.npz", **contents, w_skip=np.zeros(3))
+    with pytest.raises(ModelError, match="newer.npz: holds array 'w_skip', which this program's narx model does not read"):
+        load_narx(tmp_path / "newer.npz", vehicle="linkquad")
+
+
 def test_same_seed_same_weights_other_seed_differs():
     u, y = linear_system(600, seed=3)
     config = NarxConfig(hidden=3, output_delays=2, input_delays=(0, 1), epochs=2, iterations_per_epoch=5)
