@@ -71,14 +71,20 @@ def error_sums(regression, logs, disturbance_of) -> tuple[float, float]:
     return model, naive
 
 
-def scores(train, test, vehicle) -> dict[str, tuple[float, float]]:
-    """variant -> error sums on ``test`` of its maps fitted on ``train`` (the observer's disturbance from ``vehicle``'s
-    physics model, as ``train --direct``)."""
+def observer_disturbance(vehicle):
+    """(flight, anchors) -> the physics observer's angular disturbance (S, 3) at the anchors, as ``train --direct``."""
     model = physics.PhysicsPredictor(vehicle)
 
     def disturbance_of(log, anchors):
         return physics.anchor_state(model.params, log, anchors, model.observer)[1].angular_b
 
+    return disturbance_of
+
+
+def scores(train, test, vehicle) -> dict[str, tuple[float, float]]:
+    """variant -> error sums on ``test`` of its maps fitted on ``train`` (the observer's disturbance from ``vehicle``'s
+    physics model, as ``train --direct``)."""
+    disturbance_of = observer_disturbance(vehicle)
     out = {}
     for name, (inputs, steps) in VARIANTS.items():
         regression = fit_rate_regression(train, flying_spans(train), robust_steps=steps, anchor_inputs=inputs,

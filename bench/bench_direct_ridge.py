@@ -1,7 +1,7 @@
 """Would the training data alone have chosen the rate maps' ridge penalty? (nested leave-one-shape-out, #28 item 1)
 
 The direct model's rate maps (:mod:`quad_modelling.core.models.direct`) were fitted with λ = 1e-2 from session 19 to
-22, set before any held-out score and never varied. A scratch scan of the six held-out folds of ``bench/bench_models.py``
+22 (``bench_command_limit.py``'s). A scratch scan of the six held-out folds of ``bench/bench_models.py``
 (session 23) found the held-out AV error lower at λ = 1e-3 in five folds. A choice made on the held-out folds makes
 their scores optimistic, so this benchmark repeats it inside each fold's *training* shapes only, as
 ``bench/bench_direct_inputs.py`` does for the inputs: per held-out shape (outer fold) the vehicle is identified on
@@ -27,8 +27,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.bench_direct_inputs import error_sums, flying_spans, nested_main  # noqa: E402
-from quad_modelling.core.models import physics  # noqa: E402
+from bench.bench_direct_inputs import error_sums, flying_spans, nested_main, observer_disturbance  # noqa: E402
 from quad_modelling.core.training.direct import fit_rate_regression  # noqa: E402
 
 RIDGES = (1e-4, 3e-4, 1e-3, 3e-3, 1e-2)
@@ -41,11 +40,7 @@ def name_of(ridge: float) -> str:
 
 def ridge_sums(train, test, vehicle) -> dict[str, tuple[float, float]]:
     """λ -> error sums on ``test`` of the rate maps fitted on ``train`` with that λ."""
-    model = physics.PhysicsPredictor(vehicle)
-
-    def disturbance_of(log, anchors):
-        return physics.anchor_state(model.params, log, anchors, model.observer)[1].angular_b
-
+    disturbance_of = observer_disturbance(vehicle)
     return {name_of(ridge): error_sums(fit_rate_regression(train, flying_spans(train), ridge=ridge,
                                                            angular_disturbance=disturbance_of)[0], test, disturbance_of)
             for ridge in RIDGES}

@@ -105,8 +105,8 @@ choice of session 22's scratch study, not tuned)."""
 
 RATE_RIDGE = 1e-3
 """λ of the rate maps: ridge penalty on the standardised inputs, per sample. Chosen on the training shapes only
-(``bench/bench_direct_ridge.py``, nested leave-one-shape-out over 1e-4..1e-2; session 23): 1e-2 before, set before any
-held-out score and never varied until then."""
+(``bench/bench_direct_ridge.py``, nested leave-one-shape-out over 1e-4..1e-2; session 23); 1e-2 before, from
+``bench/bench_command_limit.py``."""
 
 VERTICAL_RIDGE = 1e-2
 """λ of the vertical map, as :data:`RATE_RIDGE` (set before any held-out score, not varied)."""
