@@ -40,13 +40,17 @@ has the held-out SimErr). So the down velocity gets maps of its own, fitted as t
 
 .. math::
 
-    \hat v_{D,s+h} = v_{D,s} + c_h + \sum_{i=0}^{n_v-1} A_{h,i}\, v_{D,s-i} + B_h\, a_{D,s} + C_h \cos\phi_s\cos\theta_s
-                     + \sum_{k=-L}^{h} E_{h,k}\, u_{s+k}
+    \hat v_{D,s+h} = v_{D,s} + c_h + \sum_{i=0}^{n_v-1} A_{h,i}\, v_{D,s-i} + B_h\, \bar a_{D,s} + C_h \cos\phi_s\cos\theta_s
+                     + \sum_{k=-L}^{h} E_{h,k}\, u_{s+k}, \qquad
+    \bar a_{D,s} = \frac{1}{n_a} \sum_{i=0}^{n_a-1} a_{D,s-i}
 
-:math:`v_D` the measured velocity's down component [m/s, N]; :math:`a_{D,s} = (R_s f_{B,s})_D + g` the anchor's down
-acceleration from the accelerometer's specific force f_B [m/s²] (the thrust the rotors give now); :math:`\cos\phi\cos\theta`
-the share of the thrust pointing down; n_v = :data:`VELOCITY_HISTORY`. These inputs were chosen on three folds (B3,
-B6, B9): the body-rate history and the observer's vertical disturbance changed nothing there and were left out.
+:math:`v_D` the measured velocity's down component [m/s, N]; :math:`a_{D,j} = (R_j f_{B,j})_D + g` the down
+acceleration at row j from the accelerometer's specific force f_B [m/s²] (the thrust the rotors give now), averaged
+over the last n_a = :data:`ACCELERATION_ROWS` rows up to the anchor (the accelerometer's vibration noise; files before
+session 24 hold n_a = 1, the anchor's row alone); :math:`\cos\phi\cos\theta` the share of the thrust pointing down;
+n_v = :data:`VELOCITY_HISTORY`. These inputs were chosen on three folds (B3, B6, B9): the body-rate history and the
+observer's vertical disturbance changed nothing there and were left out; n_a on the training shapes only
+(``bench/bench_direct_vertical_acceleration.py``).
 
 The rest of the state. The physics model (:mod:`~quad_modelling.core.models.physics`: anchor, disturbance observer,
 rotor map, thrust, translation) runs as usual with these rates given at the end of each of the first H steps
@@ -103,6 +107,12 @@ VELOCITY_HISTORY = 5
 """n_v: measured down-velocity rows up to and including the anchor (the vertical map's; 0.05 s at 100 Hz, the first
 choice of session 22's scratch study, not tuned)."""
 
+ACCELERATION_ROWS = 5
+"""n_a: rows of down acceleration averaged up to and including the anchor (the vertical map's; 0.05 s at 100 Hz).
+Chosen on the training shapes only among 1, 3, 5 and 10 (``bench/bench_direct_vertical_acceleration.py``, nested
+leave-one-shape-out, session 24): the training shapes pick 5 in four folds of six and 3 in two (their inner scores
+within 0.003); 1 before."""
+
 RATE_RIDGE = 1e-3
 """λ of the rate maps: ridge penalty on the standardised inputs, per sample. Chosen on the training shapes only
 (``bench/bench_direct_ridge.py``, nested leave-one-shape-out over 1e-4..1e-2; session 23); 1e-2 before, from
@@ -126,6 +136,10 @@ PERIOD_TOLERANCE = 0.1
 
 ARRAYS = ("weights", "bias", "vertical_weights", "vertical_bias")
 """The arrays a direct model file may hold (the vertical map's two since session 22)."""
+
+VERTICAL_SETTINGS = ("velocity_history", "command_lead", "acceleration_rows")
+"""The vertical map's settings a direct model file may hold (``config.vertical``; ``acceleration_rows`` since session 24:
+a file with a setting not listed is refused, as an unread array is)."""
 
 OUTPUTS: tuple[str, ...] = ("roll_rate", "pitch_rate", "yaw_rate")
 """The variables the regression predicts (the header's ``outputs``)."""
@@ -225,16 +239,18 @@ def vertical_feature_count(horizon: int, velocity_history: int = VELOCITY_HISTOR
 
 
 def vertical_features(log: FlightLog, anchors: np.ndarray, horizon: int, velocity_history: int = VELOCITY_HISTORY,
-                      lead: int = COMMAND_LEAD) -> np.ndarray:
+                      lead: int = COMMAND_LEAD, acceleration_rows: int = ACCELERATION_ROWS) -> np.ndarray:
     """(S, D_horizon) inputs of the vertical map at ``anchors`` of ``log`` (module docstring): v_D at rows s .. s-n_v+1,
-    the down acceleration a_D = (R f_B)_D + g [m/s²] from the accelerometer, the tilt cos φ cos θ (the share of the
-    thrust that points down), then the commands u_{s-L} .. u_{s+horizon}; rows before 0 are row 0."""
+    the mean down acceleration ā_D over rows s .. s-n_a+1 (a_D = (R f_B)_D + g [m/s²] from the accelerometer), the
+    tilt cos φ cos θ (the share of the thrust that points down), then the commands u_{s-L} .. u_{s+horizon}; rows
+    before 0 are row 0."""
     anchors = np.asarray(anchors, dtype=int)
     log.require(("acc_b",), "the direct model's vertical map (the anchor's acceleration is an input)")
     past = np.maximum(anchors[:, None] - np.arange(velocity_history)[None, :], 0)
     rows = np.maximum(anchors[:, None] + np.arange(-lead, horizon + 1)[None, :], 0)
     euler = log.euler[anchors]
-    down_acc = nav_acceleration(log, rows=anchors)[:, 2]
+    averaged = np.maximum(anchors[:, None] - np.arange(acceleration_rows)[None, :], 0)
+    down_acc = nav_acceleration(log, rows=averaged.ravel())[:, 2].reshape(averaged.shape).mean(axis=1)
     tilt = np.cos(euler[:, 0]) * np.cos(euler[:, 1])
     return np.concatenate([log.vel_n[past, 2], down_acc[:, None], tilt[:, None], log.u[rows].reshape(len(anchors), -1)], axis=1)
 
@@ -242,13 +258,17 @@ def vertical_features(log: FlightLog, anchors: np.ndarray, horizon: int, velocit
 class VerticalRegression(HorizonMaps):
     """The down velocity's maps (module docstring): ``weights`` (H, D, 1), ``bias`` (H, 1)."""
 
-    def __init__(self, weights: np.ndarray, bias: np.ndarray, velocity_history: int = VELOCITY_HISTORY, lead: int = COMMAND_LEAD):
+    def __init__(self, weights: np.ndarray, bias: np.ndarray, velocity_history: int = VELOCITY_HISTORY, lead: int = COMMAND_LEAD,
+                 acceleration_rows: int = ACCELERATION_ROWS):
         super().__init__(weights, bias, velocity_history + 2, lead, 1, "vertical")
+        if int(acceleration_rows) != acceleration_rows or acceleration_rows < 1:
+            raise ModelError(f"direct model: the vertical map's acceleration_rows {acceleration_rows!r} must be a whole number >= 1")
         self.velocity_history = velocity_history
+        self.acceleration_rows = int(acceleration_rows)
 
     def features(self, log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
         """:func:`vertical_features` in this map's layout."""
-        return vertical_features(log, anchors, horizon, self.velocity_history, self.lead)
+        return vertical_features(log, anchors, horizon, self.velocity_history, self.lead, self.acceleration_rows)
 
     def velocities(self, log: FlightLog, anchors: np.ndarray, horizon: int) -> np.ndarray:
         """(S, G + 1) down velocities [m/s] at rows s .. s + G of each anchor s (G = min(horizon, H)): row 0 the
@@ -325,7 +345,8 @@ class DirectModel:
             "config": {"horizon": self.regression.horizon, "rate_history": self.regression.rate_history,
                        "command_lead": self.regression.lead, "anchor_inputs": list(self.regression.anchor_inputs),
                        "vertical": None if self.vertical is None else {"velocity_history": self.vertical.velocity_history,
-                                                                       "command_lead": self.vertical.lead}},
+                                                                       "command_lead": self.vertical.lead,
+                                                                       "acceleration_rows": self.vertical.acceleration_rows}},
             "dt": self.dt,
             "training": {**self.training, "physics": physics_constants(self.params)},
         }
@@ -366,9 +387,16 @@ def load_direct(path: str | Path, vehicle: VehicleConfig) -> DirectModel:
         regression = RateRegression(contents["weights"], contents["bias"], int(config["rate_history"]), int(config["command_lead"]),
                                     tuple(config.get("anchor_inputs", ())))  # session 19's files: none
         layout = config.get("vertical")  # files before session 22: none
+        unread = sorted(set(layout or {}) - set(VERTICAL_SETTINGS))
+        if unread:
+            raise ModelError(f"direct model file holds vertical-map setting {unread[0]!r}, which this program's direct "
+                             "model does not read (a file from a newer quad-modelling?)")
         vertical = None if layout is None else VerticalRegression(contents["vertical_weights"], contents["vertical_bias"],
-                                                                  int(layout["velocity_history"]), int(layout["command_lead"]))
+                                                                  int(layout["velocity_history"]), int(layout["command_lead"]),
+                                                                  layout.get("acceleration_rows", 1))  # before session 24: 1
         dt = float(header["dt"])
+    except ModelError as err:  # a setting out of range or not read: the message with the file's name
+        raise ModelError(f"{path}: {err}") from err
     except (KeyError, TypeError, ValueError) as err:
         raise ModelError(f"{path}: direct model file lacks its settings ({reason(err)})") from err
     trained_parameters(path, KIND, stored, header["training"].get("vehicle_file"), vehicle)
@@ -433,7 +461,8 @@ class DirectForecast(PhysicsForecast):
         self.vertical_on = False  # the vertical map gives v_D from the last row (it has an accelerometer)
         if self.vertical is not None:
             self.down_rows: deque = deque(maxlen=self.vertical.velocity_history)  # v_D of the last rows [m/s]
-            self.vertical_anchor = np.zeros(2)  # a_D [m/s²] and cos φ cos θ at the last row
+            self.down_acceleration_rows: deque = deque(maxlen=self.vertical.acceleration_rows)  # a_D of the last rows [m/s²]
+            self.tilt = 1.0  # cos φ cos θ at the last row
 
     def add(self, rows: FlightLog, first: int) -> None:
         super().add(rows, first)
@@ -445,8 +474,8 @@ class DirectForecast(PhysicsForecast):
             self.down_rows.extend(np.asarray(rows.vel_n[first:, 2], dtype=float))
             self.vertical_on = rows.acc_b is not None  # without it the physics integrates v_D (DirectModel.uses_vertical)
             if self.vertical_on:
-                z = vertical_features(rows, np.array([len(rows) - 1]), 0, 1, 0)[0]  # (v_D, a_D, tilt, u) of the last row
-                self.vertical_anchor = z[1:3]
+                self.down_acceleration_rows.extend(nav_acceleration(rows, rows=np.arange(first, len(rows)))[:, 2])
+                self.tilt = float(np.cos(rows.euler[-1, 0]) * np.cos(rows.euler[-1, 1]))
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         r = self.regression
@@ -469,7 +498,10 @@ class DirectForecast(PhysicsForecast):
             down = list(self.down_rows)[::-1]  # v_D(s), v_D(s-1), ...; before the first row added, that row
             down += [down[-1]] * (v.velocity_history - len(down))
             given_down = min(len(t_after), v.horizon)
-            z_v = np.concatenate([down, self.vertical_anchor, np.ravel(commands[-(v.lead + 1):]), np.ravel(u_after[:given_down])])
+            accelerations = list(self.down_acceleration_rows)  # before the first row added, that row (vertical_features)
+            accelerations = [accelerations[0]] * (v.acceleration_rows - len(accelerations)) + accelerations
+            z_v = np.concatenate([down, [np.mean(accelerations), self.tilt], np.ravel(commands[-(v.lead + 1):]),
+                                  np.ravel(u_after[:given_down])])
             self._v[:given_down] = down[0] + z_v @ v.weights[:given_down, :len(z_v), 0].T + v.bias[:given_down, 0]
         return super().predict(t_after, u_after, rows)
 

@@ -32,6 +32,7 @@ import numpy as np
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.direct import (
+    ACCELERATION_ROWS,
     ANCHOR_INPUTS,
     COMMAND_LEAD,
     HORIZON,
@@ -70,7 +71,7 @@ def training_parts(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float
         log.require(("gyro_b",), "the direct model's training (its regression predicts the gyro rates)")
         start, stop = (0, len(log)) if span is None else rows_between(log, *span)
         for a, b in gap_free_runs(log, start, stop):
-            anchors = np.arange(a + max(COMMAND_LEAD, RATE_HISTORY - 1, VELOCITY_HISTORY - 1), b - horizon)
+            anchors = np.arange(a + max(COMMAND_LEAD, RATE_HISTORY - 1, VELOCITY_HISTORY - 1, ACCELERATION_ROWS - 1), b - horizon)
             if anchors.size:
                 parts.append((log, anchors, None if angular_disturbance is None else angular_disturbance(log, anchors)))
     return parts
@@ -166,19 +167,22 @@ def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, 
 
 
 def fit_vertical_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int = HORIZON,
-                            ridge: float = VERTICAL_RIDGE, robust_steps: int = ROBUST_STEPS) -> VerticalRegression:
+                            ridge: float = VERTICAL_RIDGE, robust_steps: int = ROBUST_STEPS,
+                            acceleration_rows: int = ACCELERATION_ROWS) -> VerticalRegression:
     """The down-velocity maps (:class:`~quad_modelling.core.models.direct.VerticalRegression`) fitted on the ``spans``
-    of ``logs`` as :func:`fit_rate_regression` fits the rates'. DataError when a flight lacks the accelerometer (an
-    input) or no gap-free part holds an anchor."""
+    of ``logs`` as :func:`fit_rate_regression` fits the rates', the down acceleration averaged over
+    ``acceleration_rows`` rows. DataError when a flight lacks the accelerometer (an input) or no gap-free part holds
+    an anchor."""
     for log in logs:
         log.require(("acc_b",), "the direct model's vertical map (the anchor's acceleration is an input)")
     parts = training_parts(logs, spans, horizon, None)
     if sum(len(anchors) for _, anchors, _ in parts) < vertical_feature_count(horizon):
         raise DataError(f"direct model: too few training anchors for the vertical map's {vertical_feature_count(horizon)} inputs")
     return robust_maps(parts, horizon, ridge, robust_steps,
-                       lambda part: vertical_features(part[0], part[1], horizon),
+                       lambda part: vertical_features(part[0], part[1], horizon, acceleration_rows=acceleration_rows),
                        lambda part: down_velocity_changes(part[0], part[1], horizon),
-                       vertical_feature_count, VerticalRegression)
+                       vertical_feature_count,
+                       lambda weights, bias: VerticalRegression(weights, bias, acceleration_rows=acceleration_rows))
 
 
 def train_direct(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], vehicle: VehicleConfig) -> DirectModel:

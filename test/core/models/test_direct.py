@@ -16,6 +16,7 @@ from quad_modelling.core.models.physics import PhysicsPredictor
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.models.streaming import predict_window_by_stream
 from quad_modelling.core.physics.rigid_body import rotation_increment
+from quad_modelling.core.preprocess import nav_acceleration
 from quad_modelling.core.training.direct import fit_rate_regression, train_direct
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import ConfigError, DataError, ModelError
@@ -354,5 +355,34 @@ def test_a_file_with_an_array_this_program_does_not_read_is_refused(model, vehic
         arrays = {k: contents[k] for k in contents.files}
     np.savez(tmp_path / "newer.npz", **arrays, lateral_weights=np.zeros((2, 3)))
     with pytest.raises(ModelError, match="newer.npz: holds array 'lateral_weights', which this program's direct model does not read") as err:
+        load_direct(tmp_path / "newer.npz", vehicle)
+    assert "\n" not in str(err.value)
+
+
+def test_a_file_from_before_the_averaged_acceleration_reads_the_anchors_row_alone(model, flight, vehicle, tmp_path):
+    """Files before session 24 have no ``config.vertical.acceleration_rows``: their vertical map read the anchor's
+    down acceleration alone (n_a = 1), and loads so; a file that names a vertical setting this program does not
+    read is refused in one line."""
+    import json
+
+    path = model.save(tmp_path / "new.npz")
+    with np.load(path) as contents:
+        header, arrays = json.loads(str(contents["header"])), {k: contents[k] for k in contents.files if k != "header"}
+    assert header["config"]["vertical"]["acceleration_rows"] == model.vertical.acceleration_rows > 1
+    del header["config"]["vertical"]["acceleration_rows"]
+    with open(tmp_path / "old.npz", "wb") as stream:
+        np.savez(stream, header=np.array(json.dumps(header)), **arrays)
+    old = load_direct(tmp_path / "old.npz", vehicle)
+    assert old.vertical.acceleration_rows == 1
+    segment = flight.slice(1000, 1300)
+    starts = np.arange(20, 200, 13)
+    one_row = old.vertical.features(segment, starts, 5)[:, old.vertical.velocity_history]
+    assert np.allclose(one_row, nav_acceleration(segment, rows=starts)[:, 2], rtol=0, atol=1e-12)
+    assert not np.allclose(one_row, model.vertical.features(segment, starts, 5)[:, model.vertical.velocity_history])
+    header["config"]["vertical"]["jerk_rows"] = 2
+    with open(tmp_path / "newer.npz", "wb") as stream:
+        np.savez(stream, header=np.array(json.dumps(header)), **arrays)
+    with pytest.raises(ModelError, match="newer.npz: direct model file holds vertical-map setting 'jerk_rows', which this "
+                                         "program's direct model does not read") as err:
         load_direct(tmp_path / "newer.npz", vehicle)
     assert "\n" not in str(err.value)

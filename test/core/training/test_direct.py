@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.models.direct import COMMAND_LEAD, VELOCITY_HISTORY, vertical_feature_count
+from quad_modelling.core.models.direct import ACCELERATION_ROWS, COMMAND_LEAD, VELOCITY_HISTORY, vertical_feature_count
 from quad_modelling.core.training.direct import fit_vertical_regression, train_direct
 from quad_modelling.core.vehicle import GRAVITY, load_vehicle
 from quad_modelling.errors import DataError
@@ -76,7 +76,11 @@ def test_the_vertical_maps_inputs_are_the_anchors_velocities_acceleration_tilt_a
     z = vertical_features(log, np.array([50]), 3)[0]
     assert len(z) == vertical_feature_count(3) == VELOCITY_HISTORY + 2 + 4 * (COMMAND_LEAD + 4)
     assert np.array_equal(z[:VELOCITY_HISTORY], log.vel_n[50 - np.arange(VELOCITY_HISTORY), 2])
-    assert z[VELOCITY_HISTORY] == pytest.approx(log.acc_b[50, 2] + GRAVITY, abs=1e-12)  # level: a_D = f_z + g
+    rows = 50 - np.arange(ACCELERATION_ROWS)  # level: a_D = f_z + g, averaged over the last n_a rows
+    assert ACCELERATION_ROWS > 1 and np.ptp(log.acc_b[rows, 2]) > 0  # the mean differs from the anchor's row
+    assert z[VELOCITY_HISTORY] == pytest.approx(np.mean(log.acc_b[rows, 2]) + GRAVITY, abs=1e-12)
+    assert vertical_features(log, np.array([1]), 3, acceleration_rows=4)[0, VELOCITY_HISTORY] == pytest.approx(
+        np.mean(log.acc_b[[1, 0, 0, 0], 2]) + GRAVITY, abs=1e-12)  # rows before the first are the first
     assert z[VELOCITY_HISTORY + 1] == 1.0  # level: all the thrust points down
     assert np.array_equal(z[VELOCITY_HISTORY + 2:], log.u[50 - COMMAND_LEAD:54].ravel())
 
