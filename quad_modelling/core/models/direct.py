@@ -23,8 +23,8 @@ separate from the commands' answer); :math:`u` the four logged motor commands [c
 before it. Causal: the rates at row s + h use the commands up to that row and the measurements up to the anchor (rows before a flight's first are its first row). The weights are stored as
 one array ``weights`` (H, D, 3) over the features
 :math:`z = (\omega_s, \dots, \omega_{s-n_\omega+1}, v^B_s, \hat d^\omega_s, u_{s-L}, \dots, u_{s+H})`
-(D = 3 n_ω + 3 n_a + 4 (L + H + 1), n_a the :data:`ANCHOR_INPUTS` in the file's ``config.anchor_inputs``), zero
-beyond horizon h's own :math:`D_h = 3 n_\omega + 3 n_a + 4 (L + h + 1)`, and ``bias`` (H, 3). Files of session 19
+(D = 3 n_ω + 3 n_b + 4 (L + H + 1), n_b the :data:`ANCHOR_INPUTS` in the file's ``config.anchor_inputs``), zero
+beyond horizon h's own :math:`D_h = 3 n_\omega + 3 n_b + 4 (L + h + 1)`, and ``bias`` (H, 3). Files of session 19
 have neither anchor input (``anchor_inputs`` absent, D 6 fewer) and load as they were.
 
 Fit (:func:`quad_modelling.core.training.direct.fit_rate_regression`): per h, ridge regression on the moments of z
@@ -245,7 +245,7 @@ def vertical_features(log: FlightLog, anchors: np.ndarray, horizon: int, velocit
     tilt cos φ cos θ (the share of the thrust that points down), then the commands u_{s-L} .. u_{s+horizon}; rows
     before 0 are row 0."""
     anchors = np.asarray(anchors, dtype=int)
-    log.require(("acc_b",), "the direct model's vertical map (the anchor's acceleration is an input)")
+    log.require(("acc_b",), "the direct model's vertical map (the accelerometer's down acceleration is an input)")
     past = np.maximum(anchors[:, None] - np.arange(velocity_history)[None, :], 0)
     rows = np.maximum(anchors[:, None] + np.arange(-lead, horizon + 1)[None, :], 0)
     euler = log.euler[anchors]
@@ -260,9 +260,9 @@ class VerticalRegression(HorizonMaps):
 
     def __init__(self, weights: np.ndarray, bias: np.ndarray, velocity_history: int = VELOCITY_HISTORY, lead: int = COMMAND_LEAD,
                  acceleration_rows: int = ACCELERATION_ROWS):
-        super().__init__(weights, bias, velocity_history + 2, lead, 1, "vertical")
-        if int(acceleration_rows) != acceleration_rows or acceleration_rows < 1:
+        if not isinstance(acceleration_rows, (int, np.integer)) or acceleration_rows < 1:
             raise ModelError(f"direct model: the vertical map's acceleration_rows {acceleration_rows!r} must be a whole number >= 1")
+        super().__init__(weights, bias, velocity_history + 2, lead, 1, "vertical")
         self.velocity_history = velocity_history
         self.acceleration_rows = int(acceleration_rows)
 
@@ -387,6 +387,8 @@ def load_direct(path: str | Path, vehicle: VehicleConfig) -> DirectModel:
         regression = RateRegression(contents["weights"], contents["bias"], int(config["rate_history"]), int(config["command_lead"]),
                                     tuple(config.get("anchor_inputs", ())))  # session 19's files: none
         layout = config.get("vertical")  # files before session 22: none
+        if layout is not None and not isinstance(layout, dict):
+            raise TypeError("config.vertical is not a mapping")
         unread = sorted(set(layout or {}) - set(VERTICAL_SETTINGS))
         if unread:
             raise ModelError(f"direct model file holds vertical-map setting {unread[0]!r}, which this program's direct "
@@ -440,8 +442,9 @@ class DirectStream(PhysicsStream):
 
 class DirectForecast(PhysicsForecast):
     """The receding horizon's carried forecast (:mod:`~quad_modelling.core.models.forecast`): the physics model's
-    (commands of the last δ, rotor speeds, yaw, observer rows) and the regression's anchor inputs (the last n_ω rates,
-    the last body velocity, the observer's disturbance and L + 1 commands), rolled out by the compiled
+    (commands of the last δ, rotor speeds, yaw, observer rows), the regression's anchor inputs (the last n_ω rates,
+    the last body velocity, the observer's disturbance and L + 1 commands) and the vertical map's (the last n_v down
+    velocities, the last n_a down accelerations and the last row's tilt), rolled out by the compiled
     :func:`~quad_modelling.core.export.casadi_model.given_rates_step` chained h times, the regression's rates given for the first min(h, H) steps."""
 
     def __init__(self, model: DirectModel, step: Step, derivative: Step, steps: int):
@@ -476,6 +479,8 @@ class DirectForecast(PhysicsForecast):
             if self.vertical_on:
                 self.down_acceleration_rows.extend(nav_acceleration(rows, rows=np.arange(first, len(rows)))[:, 2])
                 self.tilt = float(np.cos(rows.euler[-1, 0]) * np.cos(rows.euler[-1, 1]))
+            else:  # rows without the accelerometer: the next mean starts afresh, not across the gap
+                self.down_acceleration_rows.clear()
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         r = self.regression

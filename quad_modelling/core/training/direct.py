@@ -62,16 +62,17 @@ Part = tuple[FlightLog, np.ndarray, "np.ndarray | None"]
 
 
 def training_parts(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int,
-                   angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None) -> list[Part]:
+                   angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None,
+                   acceleration_rows: int = ACCELERATION_ROWS) -> list[Part]:
     """Every gap-free part of the ``spans`` [s from each flight's start; None: the whole flight] with the history
-    before and ``horizon`` rows after each anchor, with ``angular_disturbance(flight, anchors)`` if given. DataError
-    when a flight lacks the gyro."""
+    before (the inputs' rows and ``acceleration_rows`` of down acceleration) and ``horizon`` rows after each anchor,
+    with ``angular_disturbance(flight, anchors)`` if given. DataError when a flight lacks the gyro."""
     parts = []
     for log, span in zip(logs, spans):
         log.require(("gyro_b",), "the direct model's training (its regression predicts the gyro rates)")
         start, stop = (0, len(log)) if span is None else rows_between(log, *span)
         for a, b in gap_free_runs(log, start, stop):
-            anchors = np.arange(a + max(COMMAND_LEAD, RATE_HISTORY - 1, VELOCITY_HISTORY - 1, ACCELERATION_ROWS - 1), b - horizon)
+            anchors = np.arange(a + max(COMMAND_LEAD, RATE_HISTORY - 1, VELOCITY_HISTORY - 1, acceleration_rows - 1), b - horizon)
             if anchors.size:
                 parts.append((log, anchors, None if angular_disturbance is None else angular_disturbance(log, anchors)))
     return parts
@@ -174,8 +175,8 @@ def fit_vertical_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[flo
     ``acceleration_rows`` rows. DataError when a flight lacks the accelerometer (an input) or no gap-free part holds
     an anchor."""
     for log in logs:
-        log.require(("acc_b",), "the direct model's vertical map (the anchor's acceleration is an input)")
-    parts = training_parts(logs, spans, horizon, None)
+        log.require(("acc_b",), "the direct model's vertical map (the accelerometer's down acceleration is an input)")
+    parts = training_parts(logs, spans, horizon, None, acceleration_rows)
     if sum(len(anchors) for _, anchors, _ in parts) < vertical_feature_count(horizon):
         raise DataError(f"direct model: too few training anchors for the vertical map's {vertical_feature_count(horizon)} inputs")
     return robust_maps(parts, horizon, ridge, robust_steps,
