@@ -478,7 +478,7 @@ class DirectForecast(PhysicsForecast):
             self.vertical_on = rows.acc_b is not None  # without it the physics integrates v_D (DirectModel.uses_vertical)
             if self.vertical_on:
                 self.down_acceleration_rows.extend(nav_acceleration(rows, rows=np.arange(first, len(rows)))[:, 2])
-                self.tilt = float(np.cos(rows.euler[-1, 0]) * np.cos(rows.euler[-1, 1]))
+                self.tilt = float(vertical_features(rows, np.array([len(rows) - 1]), 0, 1, 0, 1)[0, 2])  # the last row's
             else:  # rows without the accelerometer: the next mean starts afresh, not across the gap
                 self.down_acceleration_rows.clear()
 
