@@ -164,7 +164,7 @@ def run_fold(shape: str, flights: dict[Path, object], work: Path, epochs: int | 
             train_s[model.name] = identify_s if model.name != "naive" else 0.0
             continue
         files[model.name] = work / f"{model.name}.npz"
-        extra = ["--epochs", str(epochs)] if epochs is not None else []
+        extra = ["--epochs", str(epochs)] if epochs is not None and model.name == "narx" else []  # NARX pre-training only
         try:
             train_s[model.name] = run_cli(["train", *train_files, "--vehicle", str(vehicle_file), *SPANS, *model.train, *extra,
                                            "--quiet", "-o", str(files[model.name])])

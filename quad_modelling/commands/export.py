@@ -27,7 +27,8 @@ The vehicle file must be one `quad-modelling identify` wrote: constants still ma
 
 examples:
   quad-modelling export cf_identified.yaml --format casadi -o cf_model
-  quad-modelling export cf_identified.yaml --model hybrid:hybrid.npz --format casadi -o cf_hybrid
+  quad-modelling train bags/nanobench_B7_oval_medium_rep2 --preset short --vehicle cf_identified.yaml --hybrid -o cf_hybrid.npz
+  quad-modelling export cf_identified.yaml --model hybrid:cf_hybrid.npz --format casadi -o cf_hybrid
 """
 
 

@@ -110,6 +110,29 @@ def training_spans(logs, args) -> list[tuple[float, float]]:
     return spans
 
 
+ROLLOUT_OPTIONS = ("horizon", "rollout_epochs", "patience", "val_fraction", "val_flights", "seed")
+OPTIONS_READ = {
+    "narx": ("hidden", "delays", "input_delays", "epochs", "training", *ROLLOUT_OPTIONS),
+    "hybrid": (*ROLLOUT_OPTIONS, "hybrid_hidden"),
+    "direct": (),
+}
+"""The model options each kind of model reads (argparse names); another one set away from its default is refused."""
+
+
+def check_model_options(args: argparse.Namespace, kind: str) -> None:
+    """ConfigError (one line) naming the first model option given with a value other than its default that the
+    ``kind`` model does not read (``--hidden 5 --direct``): nothing is silently ignored."""
+    parser = argparse.ArgumentParser()
+    add_arguments(parser)
+    every = sorted({name for names in OPTIONS_READ.values() for name in names})
+    for name in every:
+        value = getattr(args, name)
+        if name not in OPTIONS_READ[kind] and value is not None and value != parser.get_default(name):
+            shown = " ".join(value) if isinstance(value, list) else value
+            reads = ", ".join("--" + n.replace("_", "-") for n in OPTIONS_READ[kind]) or "no model option (the fit is closed-form)"
+            raise ConfigError(f"--{name.replace('_', '-')} {shown}: the {kind} model does not read it (it reads {reads})")
+
+
 def training_configs(args: argparse.Namespace):
     """(NarxConfig, RolloutConfig or None) of the options, validated (ConfigError naming the flag)."""
     from quad_modelling.core.models.narx import NarxConfig
@@ -165,6 +188,18 @@ def hybrid_config(args: argparse.Namespace):
     return HybridTrainingConfig(hidden=hidden, rollout=rollout, val_fraction=args.val_fraction)
 
 
+def warn_starting_values(vehicle, kind: str) -> None:
+    """One warning line (stderr) when the physics base of a ``kind`` (hybrid or direct) model holds constants no
+    identification fitted: the model is built on them, and ``export`` refuses such a vehicle."""
+    from quad_modelling.core.vehicle import PHYSICS_KEYS
+
+    never = vehicle.never_identified(PHYSICS_KEYS)
+    if never:
+        print(f"warning: {vehicle.path}: the {kind} model's physics base holds starting values, never identified "
+              f"({', '.join(never)}); for the identified vehicle run `quad-modelling identify FLIGHTS --vehicle {vehicle.name} "
+              f"-o FILE` and pass --vehicle FILE", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
@@ -177,12 +212,16 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.io.loader import load_flights
 
     output = Path(args.output)
+    if output.suffix != ".npz":
+        raise ConfigError(f"-o {output}: a model file is an .npz archive; name it MODEL.npz")
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
                                              topic_map_file(args.topic_map)])  # fail before minutes of training
     if args.hybrid and args.direct:
         raise ConfigError("--hybrid and --direct: choose one model to train")
     if args.direct and args.val_flights:
         raise ConfigError("--val-flights: the direct model's fit is closed-form, with no validation; pass those flights as training flights")
+    kind = "hybrid" if args.hybrid else "direct" if args.direct else "narx"
+    check_model_options(args, kind)
     config, rollout = (hybrid_config(args), None) if args.hybrid else (None, None) if args.direct else training_configs(args)
     check_fanout_options(args.jobs, args.scheduler)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
@@ -196,6 +235,8 @@ def run(args: argparse.Namespace) -> int:
     val_flights = list(range(len(args.flights), len(logs))) if args.val_flights else None
     started = time.perf_counter()
     progress = not args.quiet and sys.stderr.isatty()
+    if args.hybrid or args.direct:
+        warn_starting_values(given or load_vehicle(logs[0].meta.vehicle), kind)
     if args.hybrid:
         from quad_modelling.core.training.hybrid import train_hybrid_on_flights
 
@@ -211,7 +252,6 @@ def run(args: argparse.Namespace) -> int:
         samples = model.training["samples"]
     elapsed = time.perf_counter() - started
     model.save(output, args.force)
-    kind = "hybrid" if args.hybrid else "direct" if args.direct else "narx"
     print(f"trained {kind} model on {samples} samples of {len(logs)} flight(s) in {elapsed:.1f} s -> {output}")
     if "rollout" in getattr(model, "training", {}):
         r = model.training["rollout"]

@@ -202,6 +202,12 @@ class VehicleConfig:
     greybox: dict[str, Constant] = field(default_factory=dict)
     """The file's ``greybox:`` section (:data:`GREYBOX_KEYS`), empty when the greybox derives its constants."""
 
+    @property
+    def file_path(self) -> str:
+        """The file this vehicle was read from as an absolute path (what a model file records, so that a hint to pass
+        it works from any directory); :attr:`path` unchanged when it names no file."""
+        return str(Path(self.path).resolve()) if Path(self.path).is_file() else self.path
+
     def value(self, key: str) -> float:
         """The numeric value of a constant, e.g. ``cfg.value('mass')``."""
         try:

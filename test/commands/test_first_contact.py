@@ -81,7 +81,7 @@ def test_the_causal_derivative_of_a_slow_log_is_a_backward_difference_not_a_trac
     assert np.allclose(differentiate(values, dt)[1:-1, 1], -10.0)  # the centred form: numpy.gradient, as before
 
 
-def test_run_bag_with_a_hybrid_trained_on_another_vehicle_file_says_which_vehicle_to_pass(tmp_path, capsys):
+def test_run_bag_with_a_hybrid_trained_on_another_vehicle_file_says_which_vehicle_to_pass(tmp_path, capsys, monkeypatch):
     from quad_modelling.core.training.hybrid import HybridTrainingConfig, train_hybrid_on_flights
     from quad_modelling.core.training.rollout import RolloutConfig
     from quad_modelling.core.vehicle import load_vehicle
@@ -90,13 +90,17 @@ def test_run_bag_with_a_hybrid_trained_on_another_vehicle_file_says_which_vehicl
     identified = tmp_path / "crazyflie21_identified.yaml"  # as identify writes: the bag's vehicle, other constants
     text = (REPO / "config" / "vehicles" / "crazyflie21.yaml").read_text()
     identified.write_text(text.replace("rotor_thrust_constant: {value: 1.788e-8,", "rotor_thrust_constant: {value: 1.9e-8,"))
-    vehicle = load_vehicle(identified)
+    monkeypatch.chdir(tmp_path)
+    vehicle = load_vehicle(identified.name)  # given relative, as a user types it: the file records the absolute path
     tiny = HybridTrainingConfig(hidden=(4,), rollout=RolloutConfig(horizon=5, batch_size=64, max_epochs=1, patience=1,
                                                                    learning_rate=3e-3, windows_per_epoch=64))
     flight = load_flight(BAG, vehicle)
     model = train_hybrid_on_flights([flight.slice(1000, 1600)], [None], vehicle, tiny, seed=0).save(tmp_path / "hybrid.npz")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)  # the hint works from another directory
     assert main(["run-bag", str(BAG), "--models", f"hybrid:{model}", "-o", str(tmp_path / "live")]) == 2
     line = one_error_line(capsys)
     assert f"{model}: the hybrid model was trained with other physics constants of vehicle 'crazyflie21' than " in line
-    assert f"(rotor_thrust_constant); pass the vehicle it was trained with: --vehicle {identified} " in line
+    assert f"(rotor_thrust_constant); pass the vehicle it was trained with: --vehicle {identified.resolve()} " in line
     assert "retrain it with" not in line and not (tmp_path / "live").exists()

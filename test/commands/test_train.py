@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from quad_modelling.cli import main
 from quad_modelling.core.models.direct import HORIZON, load_direct
 from quad_modelling.core.models.hybrid import load_hybrid
@@ -109,3 +111,34 @@ def test_train_direct_refuses_a_second_model_kind_and_validation_flights_in_one_
     assert "--val-flights: the direct model's fit is closed-form" in capsys.readouterr().err
     assert not out.exists()
 
+
+
+@pytest.mark.parametrize("option, kind, message", [
+    (["--hidden", "5"], "--direct", "--hidden 5: the direct model does not read it (it reads no model option"),
+    (["--hybrid-hidden", "8"], "--direct", "--hybrid-hidden 8: the direct model does not read it"),
+    (["--seed", "3"], "--direct", "--seed 3: the direct model does not read it"),
+    (["--delays", "5"], "--hybrid", "--delays 5: the hybrid model does not read it (it reads --horizon, --rollout-epochs"),
+    (["--training", "thesis"], "--hybrid", "--training thesis: the hybrid model does not read it"),
+    (["--hybrid-hidden", "8"], None, "--hybrid-hidden 8: the narx model does not read it"),
+])
+def test_train_refuses_an_option_the_chosen_model_does_not_read_in_one_line(option, kind, message, tmp_path, capsys):
+    out = tmp_path / "model.npz"
+    assert main(["train", BAG, "-o", str(out), "--preset", "short", *option, *([kind] if kind else [])]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()
+
+
+def test_train_refuses_a_model_file_name_that_is_not_npz(tmp_path, capsys):
+    for name in ("direct.yaml", "direct"):
+        assert main(["train", BAG, "-o", str(tmp_path / name), "--direct", "--preset", "short"]) == 2
+        assert f"-o {tmp_path / name}: a model file is an .npz archive" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_train_direct_on_starting_values_says_so_in_one_warning_line(tmp_path, capsys):
+    out = tmp_path / "direct.npz"
+    assert main(["train", BAG, "-o", str(out), "--direct", "--preset", "short", "--quiet"]) == 0  # crazyflie21.yaml: never identified
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1 and "the direct model's physics base holds starting values, never identified (" in warnings[0]
+    assert "rotor_thrust_constant" in warnings[0] and "pass --vehicle FILE" in warnings[0]

@@ -231,7 +231,7 @@ def layout(model: ExportedModel) -> dict:
 
     return {
         "format": "quad_modelling casadi export", "format_version": FORMAT_VERSION, "casadi_version": casadi.__version__,
-        "vehicle": model.vehicle.name, "vehicle_file": str(model.vehicle.path), "model": model.spec,
+        "vehicle": model.vehicle.name, "vehicle_file": model.vehicle.file_path, "model": model.spec,
         "terms_on": terms_on(model), "frames": "N = NED, B = FRD; SI units",
         "functions": {name: {"file": f"{name}.casadi", "computes": text} for name, text in FUNCTIONS.items()},
         "state": rows(STATE), "input": rows(input_names(model)), "disturbance": rows(DISTURBANCE),

@@ -117,7 +117,7 @@ def trained_parameters(path: Path, kind: str, stored: dict, vehicle_file: str | 
         which = vehicle_file or f"FILE (the one given to train --{kind})"
         raise ModelError(f"{path}: the {kind} model was trained with other physics constants of vehicle {vehicle.name!r} than "
                          f"{vehicle.path} holds ({', '.join(changed)}); pass the vehicle it was trained with: --vehicle "
-                         f"{which} (a node: parameter vehicle), or retrain it on these constants")
+                         f"{which} (export: as its VEHICLE; a node: parameter vehicle), or retrain it on these constants")
     return params
 
 

@@ -208,6 +208,6 @@ def train_direct(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] 
     vertical = None if without else fit_vertical_regression(logs, spans)
     training = {"samples": anchors, "flights": [log.meta.source for log in logs], "ridge": RATE_RIDGE,
                 "vertical_ridge": VERTICAL_RIDGE,
-                "vehicle_file": str(vehicle.path),
+                "vehicle_file": vehicle.file_path,
                 "vertical_map": "fitted" if vertical is not None else f"not fitted: no accelerometer in {without[0]}"}
     return DirectModel(vehicle, regression, dt, training, vertical)

@@ -355,5 +355,5 @@ def train_hybrid_on_flights(logs: Sequence[FlightLog], spans: Sequence[tuple[flo
     model's training record names the vehicle file (``vehicle_file``), so a load with other constants can say which
     ``--vehicle`` to pass."""
     model = train_hybrid(PhysicsParameters.from_vehicle(vehicle), vehicle.name, logs, spans, config, seed, progress, val_flights)
-    model.training["vehicle_file"] = str(vehicle.path)
+    model.training["vehicle_file"] = vehicle.file_path
     return model
