@@ -8,6 +8,8 @@ import sys
 from dataclasses import replace
 from pathlib import Path
 
+import numpy as np
+
 from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.commands.evaluate import print_gap_warnings
 from quad_modelling.core.diagnosis.catalogue import parse_effect_list
@@ -29,7 +31,7 @@ from quad_modelling.core.effect_names import (
 from quad_modelling.core.preprocess import check_cutoff
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import EvaluationConfig
-from quad_modelling.errors import ConfigError
+from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, map_flights, tty_progress
 from quad_modelling.io.loader import load_flight_or_skip
 from quad_modelling.io.topic_maps import add_topic_map_argument
@@ -79,7 +81,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--train", nargs="+", metavar="FLIGHT", help="training flights (bags, .mat, NanoBench .csv.gz)")
     parser.add_argument("--test", nargs="+", metavar="FLIGHT", help="held-out flights")
     parser.add_argument("--vehicle", metavar="NAME|FILE", help="vehicle config name or YAML (default: the one the first flight names)")
-    parser.add_argument("--effects", default="all", metavar="all|LIST", help="none, all, default (= all), or a comma list of catalogue effects")
+    parser.add_argument("--effects", default="all", metavar="all|LIST", help="all (= default) or a comma list of candidates; "
+                        "greybox base: also none (catalogue effects)")
     parser.add_argument("--no-identify", action="store_true", help="use the vehicle's constants as the base model instead of identifying them on --train")
     parser.add_argument("--narx", action="store_true", help="also train a NARX model on --train as the learnable floor (slower)")
     parser.add_argument("--window", type=float, default=DIAGNOSIS_CONFIG.window_s, metavar="SECONDS", help="window length (default 5)")
@@ -150,11 +153,18 @@ def run(args: argparse.Namespace) -> int:
     inputs = [*(args.train or []), *(args.test or []), vehicle_file(args.vehicle)]
     check_output(output, args.force, inputs=inputs)
     physics = args.base == "physics" and not args.validate
-    if not physics and (args.inject or args.write_vehicle):
+    if not physics and (args.inject is not None or args.write_vehicle):
         raise ConfigError("--inject and --write-vehicle diagnose the physics base: drop --base greybox / --validate")
-    injection = parse_injection(args.inject) if args.inject else None
+    if physics:
+        _refuse_greybox_options(args)
+    injection = parse_injection(args.inject) if args.inject is not None else None
     if args.write_vehicle:
-        check_output(Path(args.write_vehicle), args.force, inputs=[*inputs, output], flag="--write-vehicle")
+        written = Path(args.write_vehicle)
+        if written.suffix not in (".yaml", ".yml"):
+            raise ConfigError(f"--write-vehicle {written}: a vehicle file is YAML; name it V.yaml")
+        if written.resolve() == output.resolve():
+            raise ConfigError(f"--write-vehicle {written}: the same path as -o; name the vehicle file apart from the output directory")
+        check_output(written, args.force, inputs=inputs, flag="--write-vehicle")
     config = _config(args)
     check_fanout_options(args.jobs, args.scheduler)
     effects = None if args.base == "physics" else parse_effect_list(args.effects)
@@ -196,6 +206,17 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _refuse_greybox_options(args: argparse.Namespace) -> None:
+    """ConfigError (one line) naming the greybox base's options given to a physics-base diagnosis, which reads none of
+    them (its spans and scorer are the models table's: :data:`PHYSICS_CONFIG`)."""
+    given = [flag for flag, on in (("--window", args.window != DIAGNOSIS_CONFIG.window_s),
+                                   ("--smooth", args.smooth != DIAGNOSIS_CONFIG.smooth_cutoff_hz),
+                                   ("--no-identify", args.no_identify), ("--narx", args.narx)) if on]
+    if given:
+        raise ConfigError(f"{', '.join(given)}: option(s) of the greybox base (--base greybox); the physics base identifies its "
+                          f"constants and scores every start over h = 1..50 (docs/diagnosis.md)")
+
+
 def _physics_candidates(text: str) -> tuple[str, ...]:
     """``--effects`` for the physics base: all/default, none, or a comma list of its candidates (catalogue effects that
     are base constants are named as such)."""
@@ -228,8 +249,18 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
                 raise ConfigError(f"{vehicle.path}: --effects {name}: {SWITCHED_BASE[name]}")
     if injection is not None:
         parse_injection(args.inject, len(vehicle.motors))  # the motor numbers against this vehicle
+        if injection.kind == "gain" and "motor_imbalance" not in candidates:
+            raise ConfigError(f"--inject {injection.spec}: its check reads the motor command gains, which the motor_imbalance "
+                              f"candidate fits; add motor_imbalance to --effects")
         injected_train = [injection.apply(f) for f in train]
         injected_test = [injection.apply(f) for f in test]
+    for flights in (train, injected_train if injection is not None else []):
+        flying = [log.duration - config.drop_start - config.drop_end for log in flights]
+        if flights and max(flying) < config.window_s:  # no training flight holds one identification window
+            longest = flights[int(np.argmax(flying))]
+            raise DataError(f"{longest.meta.source}: {max(max(flying), 0.0):.1f} s of flight left after --drop "
+                            f"{config.drop_start:g}:{config.drop_end:g}" + (f" and --inject {injection.spec}" if flights is not train else "")
+                            + f", the longest of the --train flights; the physics base identifies on {config.window_s:g} s windows")
     say, bar = _progress()
     try:
         result = diagnose_physics(train, test, vehicle, config, candidates, progress=say)
@@ -242,13 +273,14 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
     data = result.to_json()
     data["skipped"] = skipped
     if injected is not None:
-        data = {**injected.to_json(), "un_injected": {k: data[k] for k in ("summary", "found", "held_out", "multistep")},
+        data = {**injected.to_json(), "un_injected": {k: data[k] for k in ("summary", "found", "held_out", "multistep", "motor_order")},
                 "injection": injection_checks(injection, result.summary, injected.summary), "skipped": skipped}
         result = injected
     document = None
     if args.write_vehicle:
         names = ", ".join(Path(f).name for f in args.train)
-        document = identified_document(vehicle, plain.final, f"identified by quad-modelling diagnose on {names}")
+        swap = (plain.motor_order or {}).get("diagnosed_with_swap")
+        document = identified_document(vehicle, plain.final, f"identified by quad-modelling diagnose on {names}", swap)
         VehicleConfig.from_dict(document, args.write_vehicle)  # what we write must load
         data["vehicle_written"] = {"path": args.write_vehicle, "from": "the un-injected run" if injected is not None else "this run",
                                    "evaluate": "quad-modelling evaluate TEST... --model physics --vehicle V.yaml --preset short --eval 0%:100%"}

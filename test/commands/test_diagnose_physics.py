@@ -40,6 +40,10 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     assert "rotor_drag" in data["found"]  # the real flight's own drag, found in both runs
     assert "rotor_drag" in data["un_injected"]["found"]
     assert "--inject gain:1:1.25: PASSED" in report and max(len(line) for line in report.splitlines()) <= 120
+    text = " ".join(report.split())
+    assert "diagnosis (physics base) of the flights with --inject gain:1:1.25: found" in text
+    assert "the flights as logged (un-injected run): found rotor_drag;" in text and "--write-vehicle wrote this run's model" in text
+    assert "## Held-out multi-step error, flights as logged (every start)" in report
 
 
 @pytest.mark.parametrize("spec, check", [("swap:3:4", "the motor-order check names the swap"),
@@ -88,11 +92,21 @@ def test_the_written_vehicle_predicts_as_the_report_says(injected):
         assert table[group]["ratio_sim_err"] == pytest.approx(report[group]["ratio_sim_err"], rel=1e-9)
 
 
+VEHICLE = str(REPO / "config" / "vehicles" / "crazyflie21.yaml")
+
+
 @pytest.mark.parametrize("args, message", [
     (["--inject", "gain:9:1.2"], "motor 9"),
     (["--inject", "delay:abc"], "expected delay:MS"),
     (["--inject", "delay:99999"], "leaves no commands"),
-    (["--write-vehicle", BAG], "--write-vehicle " + BAG + ": the output is the input"),
+    (["--inject", ""], "--inject : expected delay:MS"),
+    (["--inject", "delay:30000"], "s of flight left after --drop 5:5 and --inject delay:30000, the longest of the --train flights"),
+    (["--drop", "20:20"], "s of flight left after --drop 20:20, the longest of the --train flights"),
+    (["--inject", "gain:1:1.2", "--effects", "rotor_drag"], "add motor_imbalance to --effects"),
+    (["--vehicle", VEHICLE, "--write-vehicle", VEHICLE], "--write-vehicle " + VEHICLE + ": the output is the input"),
+    (["--write-vehicle", "v.txt"], "--write-vehicle v.txt: a vehicle file is YAML"),
+    (["--smooth", "1", "--narx"], "--smooth, --narx: option(s) of the greybox base"),
+    (["--window", "2"], "--window: option(s) of the greybox base"),
     (["--effects", "input_delay"], "in the base physics"),
     (["--base", "greybox", "--inject", "none"], "physics base"),
 ])
@@ -102,3 +116,36 @@ def test_bad_input_is_one_line_and_writes_nothing(args, message, tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_write_vehicle_onto_the_output_directory_is_refused_in_one_line(tmp_path, capsys):
+    same = str(tmp_path / "same.yaml")
+    assert main(["diagnose", "--train", BAG, "--test", BAG, "--write-vehicle", same, "-o", same]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--write-vehicle {same}: the same path as -o" in err[0] and list(tmp_path.iterdir()) == []
+
+
+def test_a_swap_in_the_logged_data_is_carried_into_the_written_vehicle(tmp_path):
+    """A flight whose logged commands of motors 3 and 4 are exchanged: the motor-order check names the swap, the
+    diagnosis runs with it undone, and the vehicle --write-vehicle writes lists motors 3 and 4 exchanged, so that
+    evaluate with it on the flight as logged gives the report's final SimErr ratios (before: the file kept the order)."""
+    from quad_modelling.core.diagnosis.injection import Injection
+    from quad_modelling.io.bag_io import write_bag
+    from quad_modelling.io.loader import load_flight
+
+    swapped = tmp_path / "swapped_bag"
+    write_bag(Injection("swap", swap=(3, 4)).apply(load_flight(BAG)), swapped)
+    out, written = tmp_path / "diag", tmp_path / "v.yaml"
+    assert main(["diagnose", "--train", str(swapped), "--test", str(swapped), "--effects", "rotor_drag",
+                 "--write-vehicle", str(written), "-o", str(out)]) == 0
+    data = json.loads((out / "diagnosis.json").read_text())
+    assert data["motor_order"]["diagnosed_with_swap"] == [3, 4]
+    vehicle, shipped = load_vehicle(str(written)), load_vehicle("crazyflie21")
+    assert [m.name for m in vehicle.motors] == [shipped.motors[i].name for i in (0, 1, 3, 2)]
+    assert "the written vehicle lists them in that order" in " ".join((out / "report.md").read_text().split())
+    assert main(["evaluate", str(swapped), "--model", "physics", "--vehicle", str(written), "--preset", "short",
+                 "--eval", "0%:100%", "-o", str(tmp_path / "eval")]) == 0
+    table = json.loads((tmp_path / "eval" / "results.json").read_text())["horizons"]["models"]["physics"]
+    final = data["multistep"]["models"]["final"]
+    for group in ("velocity", "angular_velocity"):
+        assert table[group]["ratio_sim_err"] == pytest.approx(final[group]["ratio_sim_err"], rel=1e-9)

@@ -552,9 +552,13 @@ def swapped(log: FlightLog, swap: Sequence[int]) -> FlightLog:
     return Injection("swap", swap=(int(swap[0]), int(swap[1]))).apply(log)
 
 
-def identified_document(vehicle: VehicleConfig, final: Rung, source: str) -> dict:
+def identified_document(vehicle: VehicleConfig, final: Rung, source: str, swap: Sequence[int] | None = None) -> dict:
     """The vehicle document ``--write-vehicle`` writes: the final model's constants (value, sigma, at-bound flags) and
-    its effects switched on (the found ones and those the vehicle had on; rotor drag on or off as found)."""
+    its effects switched on (the found ones and those the vehicle had on; rotor drag on or off as found). With
+    ``swap`` = [A, B] (1-based: the motor-order check found the logged commands of motors A and B exchanged, and the
+    diagnosis ran with them undone) the document lists motors A and B (name, position, spin) and their
+    ``motor_imbalance`` gains exchanged: the order in which the logged commands hold them, so the written vehicle
+    predicts the flights as logged as the report says."""
     from quad_modelling.core.identification.constants_report import add_physics_constants
     from quad_modelling.core.vehicle import vehicle_document
 
@@ -568,6 +572,15 @@ def identified_document(vehicle: VehicleConfig, final: Rung, source: str) -> dic
             effects[name] = {"enabled": name in final.effects}  # its constants are 0 when not found
         elif name in effects and name not in final.effects:
             effects[name]["enabled"] = False
+    if swap:
+        a, b = (int(i) - 1 for i in swap)
+        motors = document["motors"]
+        motors[a], motors[b] = motors[b], motors[a]
+        terms = effects.get("motor_imbalance", {})
+        if f"gain_{a + 1}" in terms and f"gain_{b + 1}" in terms:
+            terms[f"gain_{a + 1}"], terms[f"gain_{b + 1}"] = terms[f"gain_{b + 1}"], terms[f"gain_{a + 1}"]
+        document["description"] += (f" (motors {a + 1} and {b + 1} listed in the order the logged commands hold them: "
+                                    f"the motor-order check's fix)")
     return document
 
 

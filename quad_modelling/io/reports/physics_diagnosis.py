@@ -24,7 +24,8 @@ def _verdict(data: dict) -> list[str]:
     base, final = data["held_out"]["base"], data["held_out"]["final"]
     found = data["found"]
     head = (f"found: {', '.join(found)}" if found else "nothing among the candidates explains the gap")
-    lines = [f"diagnosis (physics base): {head}"]
+    injection = data.get("injection")
+    lines = [f"diagnosis (physics base){' of the flights with --inject ' + injection['spec'] if injection else ''}: {head}"]
     for name in found:
         lines.append(f"  {data['effects'][name]['text']}")
     lines.append(f"  held-out SimErr / naive, velocity {base['ratio_to_naive']['velocity']:.3f} -> "
@@ -35,13 +36,25 @@ def _verdict(data: dict) -> list[str]:
     lines.append(f"  command delay {s['delay_s']['value'] * 1e3:.1f} +- {s['delay_s']['sigma'] * 1e3:.1f} ms; motor command gains "
                  + (" ".join(f"{g:.3f}" for g in gains["value"]) if gains["fitted"] else "not fitted (motor_imbalance not a candidate)"))
     order = data.get("motor_order") or {}
-    if order.get("verdict") == "inconsistent":
+    logged_order = ((data.get("un_injected") or {}).get("motor_order") or {}).get("verdict")
+    if order.get("verdict") == "inconsistent" and injection and logged_order != "inconsistent":
+        swap = order.get("diagnosed_with_swap")
+        lines.append(f"  motor order/spin of the injected flights: {', '.join(order['actions'])} (the injected change; the flights "
+                     f"as logged: {logged_order or 'not checked'})"
+                     + (f"; diagnosed with the logged commands of motors {swap[0]} and {swap[1]} exchanged" if swap else ""))
+    elif order.get("verdict") == "inconsistent":
         swap = order.get("diagnosed_with_swap")
         lines.append("  motor order/spin: INCONSISTENT with the vehicle file (fix it before trusting the effects): "
                      + ", ".join(order["actions"])
-                     + (f"; diagnosed with the logged commands of motors {swap[0]} and {swap[1]} exchanged" if swap else ""))
-    injection = data.get("injection")
+                     + (f"; diagnosed with the logged commands of motors {swap[0]} and {swap[1]} exchanged" if swap else "")
+                     + ("; the written vehicle lists them in that order" if swap and data.get("vehicle_written") else ""))
     if injection:
+        logged = data["un_injected"]
+        s0 = logged["summary"]
+        lines.append(f"  the flights as logged (un-injected run): found {', '.join(logged['found']) or 'nothing'}; command delay "
+                     f"{s0['delay_s']['value'] * 1e3:.1f} ms; held-out J {logged['held_out']['base']['J']:.3f} -> "
+                     f"{logged['held_out']['final']['J']:.3f}" + ("; --write-vehicle wrote this run's model"
+                                                                 if data.get("vehicle_written") else ""))
         lines.append(f"  --inject {injection['spec']}: {'PASSED' if injection['passed'] else 'FAILED'} ("
                      + "; ".join(f"{c['check']}: {'yes' if c['holds'] else 'NO'}" for c in injection["checks"]) + ")")
     return lines
@@ -55,12 +68,18 @@ def report_markdown(data: dict) -> str:
                  "each candidate is a term of that model, fitted with all its constants on the training flights and "
                  "scored on the held-out flights with the multi-step protocol of the models table (SimErr over "
                  "h = 1..50 relative to naive, J = the mean of velocity and angular velocity).") + [""]
-    table = data["multistep"]
-    if table.get("models"):
-        out += ["## Held-out multi-step error (every start, as `evaluate`)", ""]
-        rows = [[name, f"{m['velocity']['ratio_sim_err']:.3f}", f"{m['angular_velocity']['ratio_sim_err']:.3f}"]
-                for name, m in table["models"].items() if "velocity" in m and "ratio_sim_err" in m["velocity"]]
-        out += markdown_table(["model", "velocity / naive", "angular velocity / naive"], rows) + [""]
+    tables = [("Held-out multi-step error (every start, as `evaluate`)", "", data["multistep"])]
+    if data.get("injection"):
+        tables = [("Held-out multi-step error, injected flights (every start)", "", data["multistep"]),
+                  ("Held-out multi-step error, flights as logged (every start)",
+                   "The un-injected run: what `evaluate --model physics --vehicle V.yaml` gives on the held-out flights as "
+                   "logged for the vehicle `--write-vehicle` writes.", data["un_injected"]["multistep"])]
+    for title, note, table in tables:
+        if table.get("models"):
+            out += [f"## {title}", ""] + (prose(note) + [""] if note else [])
+            rows = [[name, f"{m['velocity']['ratio_sim_err']:.3f}", f"{m['angular_velocity']['ratio_sim_err']:.3f}"]
+                    for name, m in table["models"].items() if "velocity" in m and "ratio_sim_err" in m["velocity"]]
+            out += markdown_table(["model", "velocity / naive", "angular velocity / naive"], rows) + [""]
     out += ["## Selection (joint refit of every chosen effect)", ""]
     rows = []
     for step in data["selection"]:
