@@ -75,6 +75,20 @@ count as radians agreeing with it (recorded in ``meta.notes``; the attitude alwa
 quaternion)."""
 
 
+def _unparsable(err: ValueError, columns: list[str]) -> str:
+    """The message of numpy.loadtxt's ValueError in the reader's terms: the column by its ``columns`` (header) name and
+    the data row counted from 1 after the header (numpy counts the row from 0 and the file's column from 1)."""
+    import re
+
+    text = reason(err)
+    found = re.search(r"could not convert string (.*) to \w+ at row (\d+), column (\d+)", text)
+    if not found:
+        return f"unparsable value ({text})"
+    value, row, col = found.group(1), int(found.group(2)), int(found.group(3))
+    name = columns[col - 1] if 0 < col <= len(columns) else f"number {col}"
+    return f"unparsable value {value} in column {name} at data row {row + 1} (line {row + 2} of the file)"
+
+
 def _open_text(path: Path):
     if path.suffix == ".gz":
         return gzip.open(path, "rt")
@@ -116,7 +130,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
     except UnicodeDecodeError as err:
         raise DataError(f"{where}: not UTF-8 text (byte {err.start} of a line: {err.object[err.start:err.start + 1]!r})") from err
     except ValueError as err:
-        raise DataError(f"{where}: unparsable value ({reason(err)})") from err
+        raise DataError(f"{where}: {_unparsable(err, header)}") from err
     if len(rows) == 0:
         raise DataError(f"{where}: no data rows after the header")
     column = {name: rows[:, i] for i, name in enumerate(index)}
@@ -124,7 +138,8 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         bad = ~np.isfinite(values)
         if bad.any():
             row = int(np.argmax(bad))
-            raise DataError(f"{where}: column {name} is not finite at data row {row + 1} (t={column['t'][row]:.3f})")
+            raise DataError(f"{where}: column {name} is not finite at data row {row + 1} (line {row + 2} of the file, "
+                            f"t={column['t'][row] - column['t'][0]:.2f} s into the flight)")
 
     def stack(names: tuple[str, ...]) -> np.ndarray:
         return np.column_stack([column[n] for n in names])

@@ -89,8 +89,17 @@ def test_flight_without_imu_and_battery_columns_has_no_such_sensors(tmp_path):
 
 
 def test_nan_row_is_named(tmp_path):
-    with pytest.raises(DataError, match=r"edited.csv: column vx is not finite at data row 17"):
+    t = read_nanobench(FLIGHT).t
+    with pytest.raises(DataError, match=rf"edited.csv: column vx is not finite at data row 17 \(line 18 of the file, "
+                                        rf"t={t[16] - t[0]:.2f} s into the flight\)"):
         read_nanobench(_edit(tmp_path, 17, "vx", "nan"))
+
+
+def test_text_in_a_number_column_names_the_column_and_the_data_row_as_a_nan_does(tmp_path):
+    path = _edit(tmp_path, 17, "vx", "xyz")
+    with pytest.raises(DataError) as info:
+        read_nanobench(path)
+    assert str(info.value) == f"{path}: unparsable value 'xyz' in column vx at data row 17 (line 18 of the file)"
 
 
 def test_non_monotonic_time_is_named(tmp_path):

@@ -58,7 +58,9 @@ class ConstantEstimate:
         """'name value unit (sigma s), vehicle v: +c %' then bounds and flag, wrapped at 100 characters."""
         head = f"{indent}{self.name} {self.value:.3g} {self.unit} " + (f"(held: {self.held})" if self.held else f"(sigma {self.sigma:.2g})")
         change = self.change_percent
-        if self.vehicle is not None:
+        if self.vehicle is not None and not math.isfinite(self.vehicle):
+            head += ", new (not in the vehicle file)"  # an effect term the file did not have
+        elif self.vehicle is not None:
             head += f", vehicle {self.vehicle:.3g}" + (f": {change:+.0f} %" if change is not None else "")
         tail = ""
         if self.bounds is not None:

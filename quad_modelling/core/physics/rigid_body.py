@@ -237,7 +237,8 @@ def step(p, state, u, dt, linear_n, angular_b, rates_next=None, down_velocity_ne
     for the end of the step (the direct model's vertical map) in place of the integrated (and limited) one; the
     position integrates it. Returns a state of ``state``'s type."""
     rotor = rotor_step(p, state.rotor, u, dt)
-    rotor_dot = (rotor - state.rotor) / dt[:, None]  # the step's mean dΩ/dt, exact
+    nonzero = arrays.where(arrays.greater(dt, 0.0), dt, dt * 0.0 + 1.0)  # dt = 0: the state unchanged, dΩ/dt 0 (not 0/0)
+    rotor_dot = (rotor - state.rotor) / nonzero[:, None]  # the step's mean dΩ/dt, exact
     acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, interval_rotor_speed(p, state.rotor, u, dt), rotor_dot,
                                    state.pos_n)
     rates = limit_norm(state.rates + dt[:, None] * (ang_acc + angular_b) if rates_next is None else rates_next, GYRO_FULL_SCALE)

@@ -136,8 +136,10 @@ def interval_rotor_speed(p, rotor, u, dt):
     x = arrays.as_array(dt) / p.time_constant
     if x.ndim and x.ndim < target.ndim:
         x = x.reshape(tuple(x.shape) + (1,) * (target.ndim - x.ndim))
-    first = (1.0 - arrays.exp(-x)) / x
-    second = (1.0 - arrays.exp(-2.0 * x)) / (2.0 * x)
+    small = arrays.less(x, 1e-9)  # a step of dt = 0 (an MPC splitting a step at the delay): the limits, Ω̄ = Ω_0
+    safe = arrays.where(small, x * 0.0 + 1.0, x)
+    first = arrays.where(small, 1.0 - 0.5 * x, (1.0 - arrays.exp(-safe)) / safe)
+    second = arrays.where(small, 1.0 - x, (1.0 - arrays.exp(-2.0 * safe)) / (2.0 * safe))
     d = rotor - target
     return arrays.sqrt(arrays.clamp_min(target * target + 2.0 * first * target * d + second * d * d, 0.0))
 

@@ -150,3 +150,20 @@ def test_the_exported_step_is_differentiable_at_rest_for_a_solver(physics_model)
     assert c_x != 0.0 and c_y != 0.0
     assert xdot[15] == pytest.approx(c_y * weight / p.inertia[0], rel=1e-5) and xdot[16] == pytest.approx(-c_x * weight / p.inertia[1], rel=1e-5)
     assert np.abs(np.delete(xdot, [5, 15, 16])).max() < 1e-9
+
+
+def test_a_step_of_zero_seconds_leaves_the_state_as_it_is(physics_model):
+    """F(x, u, 0) = x (an MPC splitting its first step at the command delay calls F with dt = 0 when the delay is a
+    whole number of steps; it gave NaN: the step's mean dΩ/dt and the lag's interval mean were 0/0), for a turning,
+    climbing state whose rotors are off their commands' speeds; and F stays continuous at dt -> 0."""
+    p = physics_model.params
+    functions = casadi_functions(physics_model)
+    state = np.zeros(len(STATE))
+    state[[6, 10, 14]] = 1.0
+    state[:6] = [0.3, -0.2, -1.5, 0.4, 0.1, -0.3]
+    state[15:18] = [0.8, -0.5, 0.3]
+    state[18:] = p.hover_rotor_speed(GRAVITY) * np.array([1.05, 0.95, 1.02, 0.98])
+    command = [*(p.hover_command(GRAVITY) / np.asarray(p.motor_gains) * 1.1), p.battery[1]]
+    assert np.array_equal(np.asarray(functions["F"](state, command, 0.0)).ravel(), state)
+    tiny = np.asarray(functions["F"](state, command, 1e-7)).ravel()
+    assert np.all(np.isfinite(tiny)) and np.abs(tiny - state).max() < 1e-3

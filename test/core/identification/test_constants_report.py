@@ -40,3 +40,8 @@ def test_a_zero_estimate_with_a_sigma_is_poorly_determined_without_dividing_by_z
     assert estimate.poorly_determined
     assert estimate.reason() == "sigma 0.01 m about a value of 0"
     assert estimate.change_percent is None
+
+
+def test_a_term_the_vehicle_file_did_not_have_says_new_not_nan():
+    line = ConstantEstimate("ground_effect.coefficient", 0.00118, "m2", 0.00011, vehicle=float("nan")).lines()[0]
+    assert line == "  ground_effect.coefficient 0.00118 m2 (sigma 0.00011), new (not in the vehicle file)"

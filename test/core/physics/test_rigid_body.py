@@ -226,3 +226,15 @@ def test_the_simulators_cg_offset_gives_the_one_physics_cg_offset_moment(vehicle
                                           np.zeros((1, 4)))
     assert np.allclose(ds[10:13], ang[0], rtol=1e-10, atol=1e-9)
     assert np.abs(ds[10:12] - without[0, :2]).min() > 0.1  # the offset's moment is what matched [rad/s²]
+
+
+def test_a_step_of_zero_seconds_returns_the_state_unchanged():
+    """rigid_body.step with dt = 0 gives back the state, finite (not 0/0 in the rotor terms), in the numpy form."""
+    v = load_vehicle("crazyflie21")
+    p = PhysicsParameters.from_vehicle(v)
+    rot = np.eye(3)[None]
+    state = rigid_body.PhysicsState(np.array([[0.1, 0.2, -1.0]]), np.array([[0.5, -0.2, 0.1]]), rot, np.array([[0.7, -0.4, 0.2]]),
+                                    np.full((1, 4), 1500.0), np.zeros(1))
+    after = rigid_body.step(p, state, np.full((1, 4), 40000.0), np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
+    for name in ("pos_n", "vel_n", "rot", "rates", "rotor"):
+        assert np.array_equal(getattr(after, name), getattr(state, name)), name
