@@ -191,6 +191,7 @@ def run(args: argparse.Namespace) -> int:
     vehicle = given or load_vehicle(train[0].meta.vehicle)
     if physics:
         return _run_physics(args, train, test, vehicle, config, injection, output, skipped)
+    warn_in_sample(train, test)
     say, bar = _progress()
     learnable = (lambda: narx_floor(train, test, vehicle, config)) if args.narx else None
     try:
@@ -204,6 +205,14 @@ def run(args: argparse.Namespace) -> int:
     print(verdict_text(data))
     print(f"-> {output}/ ({', '.join(files)})")
     return 0
+
+
+def warn_in_sample(train, test) -> None:
+    """One warning line (stderr) when a flight is both a training and a held-out flight: its scores are in-sample."""
+    both = sorted({f.meta.source for f in train} & {f.meta.source for f in test})
+    if both:
+        print(f"warning: {', '.join(both)} in both --train and --test: the held-out scores of the diagnosis are in-sample",
+              file=sys.stderr)
 
 
 def _refuse_greybox_options(args: argparse.Namespace) -> None:
@@ -261,6 +270,7 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
             raise DataError(f"{longest.meta.source}: {max(max(flying), 0.0):.1f} s of flight left after --drop "
                             f"{config.drop_start:g}:{config.drop_end:g}" + (f" and --inject {injection.spec}" if flights is not train else "")
                             + f", the longest of the --train flights; the physics base identifies on {config.window_s:g} s windows")
+    warn_in_sample(train, test)
     say, bar = _progress()
     try:
         result = diagnose_physics(train, test, vehicle, config, candidates, progress=say)

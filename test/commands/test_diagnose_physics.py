@@ -48,13 +48,15 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
 
 @pytest.mark.parametrize("spec, check", [("swap:3:4", "the motor-order check names the swap"),
                                          ("delay:15", "delay rises by the injected delay")])
-def test_a_swap_is_named_and_diagnosed_with_the_fix_and_a_delay_is_measured(spec, check, tmp_path):
+def test_a_swap_is_named_and_diagnosed_with_the_fix_and_a_delay_is_measured(spec, check, tmp_path, capsys):
     """The other inject kinds on the bundled real flight (rotor drag the candidate): motors 3 and 4 exchanged -- the
     check names the swap, the diagnosis runs with it undone (a wrong motor order leaves a base no effect mends) and
     finds what the un-injected run finds; the commands advanced by 15 ms, half a sample past a whole one -- the delay
     rises by 15 +- 2.5 ms (between samples: until 2026-11-27 the search kept whole samples, and 15 ms rose by 20)."""
     out = tmp_path / "diag"
     assert main(["diagnose", "--train", BAG, "--test", BAG, "--effects", "rotor_drag", "--inject", spec, "-o", str(out)]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert warnings == [f"warning: {BAG} in both --train and --test: the held-out scores of the diagnosis are in-sample"]
     data = json.loads((out / "diagnosis.json").read_text())
     assert data["injection"]["passed"] and data["found"] == data["un_injected"]["found"]
     assert next(c for c in data["injection"]["checks"] if c["check"] == check)["holds"]
