@@ -212,10 +212,10 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.io.loader import load_flights
 
     output = Path(args.output)
-    if output.suffix != ".npz":
-        raise ConfigError(f"-o {output}: a model file is an .npz archive; name it MODEL.npz")
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
                                              topic_map_file(args.topic_map)])  # fail before minutes of training
+    if output.suffix != ".npz":
+        raise ConfigError(f"-o {output}: a model file is an .npz archive; name it MODEL.npz")
     if args.hybrid and args.direct:
         raise ConfigError("--hybrid and --direct: choose one model to train")
     if args.direct and args.val_flights:

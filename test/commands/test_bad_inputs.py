@@ -194,7 +194,7 @@ CORPUS = [
     ("simulate-duration-1e9", ["simulate", "--duration", "1e9", "-o", "{d}/work/s.mat"], "--duration 1e+09: must be at least 5 s and at most 3600 s"),
     ("simulate-duration-nan", ["simulate", "--duration", "nan", "-o", "{d}/work/s.mat"], "--duration nan: must be at least 5 s and at most 3600 s"),
     ("diagnose-validate-duration", ["diagnose", "--validate", "--duration", "1e9", "-o", "{d}/work/v"], "simulation duration must be at least 5 s and at most 3600 s, got 1e+09"),
-    ("diagnose-smooth-nyquist", ["diagnose", "--train", "{d}/flight.mat", "--test", "{d}/flight.mat", "--smooth", "80", "-o", "{d}/work/d"],
+    ("diagnose-smooth-nyquist", ["diagnose", "--base", "greybox", "--train", "{d}/flight.mat", "--test", "{d}/flight.mat", "--smooth", "80", "-o", "{d}/work/d"],
      "--smooth 80 Hz: must be below the Nyquist frequency 50 Hz of {d}/flight.mat (100 Hz samples)"),
     ("diagnose-seeds-negative", ["diagnose", "--validate", "--seeds", "0,-1", "-o", "{d}/work/v"], "--seeds '0,-1': expected comma-separated non-negative integers"),
     ("run-bag-timeout-nan", ["run-bag", "{d}/bag", "--timeout", "nan", "-o", "{d}/work/live"], "--timeout nan: must be a finite number"),
