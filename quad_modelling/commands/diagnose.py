@@ -191,7 +191,6 @@ def run(args: argparse.Namespace) -> int:
     vehicle = given or load_vehicle(train[0].meta.vehicle)
     if physics:
         return _run_physics(args, train, test, vehicle, config, injection, output, skipped)
-    warn_in_sample(train, test)
     say, bar = _progress()
     learnable = (lambda: narx_floor(train, test, vehicle, config)) if args.narx else None
     try:
@@ -202,6 +201,7 @@ def run(args: argparse.Namespace) -> int:
     data["skipped"] = skipped
     with atomic_output(output, args.force) as tmp:
         files = write_diagnosis(result, data, tmp, vehicle.name)
+    warn_in_sample(train, test)
     print(verdict_text(data))
     print(f"-> {output}/ ({', '.join(files)})")
     return 0
@@ -270,7 +270,6 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
             raise DataError(f"{longest.meta.source}: {max(max(flying), 0.0):.1f} s of flight left after --drop "
                             f"{config.drop_start:g}:{config.drop_end:g}" + (f" and --inject {injection.spec}" if flights is not train else "")
                             + f", the longest of the --train flights; the physics base identifies on {config.window_s:g} s windows")
-    warn_in_sample(train, test)
     say, bar = _progress()
     try:
         result = diagnose_physics(train, test, vehicle, config, candidates, progress=say)
@@ -299,6 +298,7 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
     if document is not None:
         with atomic_output(Path(args.write_vehicle), args.force) as tmp:
             tmp.write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True))
+    warn_in_sample(train, test)  # after the run: an error on the way stays the one line
     print("\n".join(verdict_lines(data)))
     print(f"-> {output}/ ({', '.join(files)})" + (f", {args.write_vehicle}" if document is not None else ""))
     return 0 if injection is None or data["injection"]["passed"] else 1
