@@ -63,7 +63,8 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), fla
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists; pass --force to overwrite")
     if not parent_is_dir:
-        raise OutputDirError(f"{parent}: output directory does not exist or is not a directory")
+        raise OutputDirError(f"{flag} {path}: its parent directory {parent} does not exist (or is not a directory); "
+                             f"create it first")
     if not os.access(parent, os.W_OK | os.X_OK):
         raise OutputDirError(f"{parent}: output directory is not writable")
 

@@ -47,7 +47,7 @@ from quad_modelling.core.alignment import CONFIRM
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.nodes.domains import DDS_PROFILE_ENV, use_dds_profile  # noqa: F401  (re-exported)
-from quad_modelling.nodes.executors import executor_kind, make_executor, spin  # noqa: F401  (re-exported for the nodes)
+from quad_modelling.nodes.executors import executor_kind, interrupt, make_executor, spin, spin_once  # noqa: F401  (re-exported for the nodes)
 
 DEFAULT_QOS_DEPTH = 1000
 """Depth of data topics [messages]: 10 s at 100 Hz, 2.5 s at 400 Hz."""
@@ -285,17 +285,20 @@ def declare_parameters(node, params: list[Param]) -> dict:
     for warning in unknown_parameters(overrides, [p.name for p in params]):
         node.get_logger().warning(f"{node.get_name()}: {warning}")
 
+    refused: dict[str, str] = {}  # name -> the reason validate() gave: the one line a refused start value prints
+
     def validate(parameters) -> SetParametersResult:
         for parameter in parameters:
             if parameter.name in floats and parameter.type_ == Parameter.Type.INTEGER:
-                return SetParametersResult(successful=False, reason=f"parameter {parameter.name}={parameter.value!r}: "
-                                                                    f"give a float ({float(parameter.value)!r})")
+                refused[parameter.name] = f"parameter {parameter.name}={parameter.value!r}: give a float ({float(parameter.value)!r})"
+                return SetParametersResult(successful=False, reason=refused[parameter.name])
             check = checks.get(parameter.name)
             if check is None:
                 continue
             reason = check(parameter.value)
             if reason:
-                return SetParametersResult(successful=False, reason=f"parameter {parameter.name}={parameter.value!r}: {reason}")
+                refused[parameter.name] = f"parameter {parameter.name}={parameter.value!r}: {reason}"
+                return SetParametersResult(successful=False, reason=refused[parameter.name])
         return SetParametersResult(successful=True)
 
     node.add_on_set_parameters_callback(validate)
@@ -307,7 +310,7 @@ def declare_parameters(node, params: list[Param]) -> dict:
         try:
             value = node.declare_parameter(p.name, p.default, descriptor).value
         except (ParameterException, InvalidParameterTypeException) as err:  # value rejected by validate(), wrong type
-            raise BadParameter(f"{node.get_name()}: {err}") from err
+            raise BadParameter(f"{node.get_name()}: {refused.get(p.name, err)}") from err
         values[p.name] = value
     return values
 
@@ -448,8 +451,11 @@ def spans_check(value) -> str | None:
 
 def say(node, text: str, error: bool = False) -> None:
     """Log through the node while ROS runs; after shutdown (final summaries) print to stderr."""
-    if node.context.ok():
-        (node.get_logger().error if error else node.get_logger().info)(text)
+    if node.context.ok():  # two call sites: rclpy refuses a severity change between calls from one line
+        if error:
+            node.get_logger().error(text)
+        else:
+            node.get_logger().info(text)
     else:
         print(f"[{'ERROR' if error else 'INFO'}] [{node.get_namespace().strip('/')}.{node.get_name()}]: {text}", file=sys.stderr, flush=True)
 
@@ -505,5 +511,6 @@ def run_node(factory, args=None) -> int:
 
 
 def _interrupt(signum, frame):
-    """SIGINT and SIGTERM handler of a node process: KeyboardInterrupt, which ends it cleanly (summary, exit code 0)."""
-    raise KeyboardInterrupt(signal.Signals(signum).name)
+    """SIGINT and SIGTERM handler of a node process: KeyboardInterrupt, which ends it cleanly (summary, exit code 0);
+    inside an executor's spin (a callback may be running) raised when the spin returns (:func:`executors.interrupt`)."""
+    interrupt(signal.Signals(signum).name)

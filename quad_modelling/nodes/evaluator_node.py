@@ -2,7 +2,8 @@
 
 Subscribes (relative names, namespace ``/quad`` unless remapped): ``motor_input``,
 ``mocap/odom``, ``imu`` and, for each name in ``models``, ``<model>/odom`` and
-``<model>/accel``; ``window_origin`` (transient-local); with ``topic_map`` (not ``quad``), a stack's
+``<model>/accel`` (receding-horizon mode, ``horizon_s`` > 0: ``<model>/horizon/odom`` instead, scored by MAE@h
+only: the windows then hold the dummy baseline's RMS/TIC and wait for the measurements alone); ``window_origin`` (transient-local); with ``topic_map`` (not ``quad``), a stack's
 own topics instead of the first three (:mod:`~quad_modelling.nodes.mapping.streams`). Publishes
 ``evaluation`` (diagnostic_msgs/DiagnosticArray, one status per model and span
 for each closed window: level OK with ``<variable>.rms``/``<variable>.tic``
@@ -129,6 +130,9 @@ class EvaluatorNode(Node):
         self.output_dir = Path(p["output_dir"]) if p["output_dir"] else None
         if self.output_dir is not None and self.output_dir.exists() and not p["force"]:
             raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
+        if self.output_dir is not None and not self.output_dir.absolute().parent.is_dir():  # found now, not after a flight
+            raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r}: its parent directory "
+                               f"{str(self.output_dir.absolute().parent)!r} does not exist")
         self.figures = p["figures"]
         self.executor_kind, self.math_threads = p["executor"], p["math_threads"]
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
@@ -179,9 +183,10 @@ class EvaluatorNode(Node):
         self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
         qos = prediction_subscription_qos(p["qos"], p["qos_depth"])
         for model in self.models:
-            subscribe(Odometry, f"{model}/odom", self._guarded(f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg)), qos)
-            subscribe(AccelStamped, f"{model}/accel", self._guarded(f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg)), qos)
-            if self.horizon_s > 0:
+            if self.horizon_s <= 0:  # windowed predictions; in receding-horizon mode the predictors publish only these:
+                subscribe(Odometry, f"{model}/odom", self._guarded(f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg)), qos)
+                subscribe(AccelStamped, f"{model}/accel", self._guarded(f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg)), qos)
+            else:
                 subscribe(Odometry, f"{model}/{HORIZON_TOPIC}", self._guarded(f"{model}/horizon",
                                                                               lambda msg, m=model: self.on_horizon(m, msg)), qos)
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
@@ -201,7 +206,11 @@ class EvaluatorNode(Node):
         return self.vehicles.vehicle
 
     def model_streams(self, model: str | None = None) -> list[str]:
-        """Stream names of one model's (or every model's) predictions: ``<model>/odom``, ``<model>/accel``."""
+        """Stream names of one model's (or every model's) windowed predictions: ``<model>/odom``, ``<model>/accel``;
+        none in receding-horizon mode (the predictors then publish ``<model>/horizon/odom`` only, stamped ahead: not a
+        stream the windows wait for)."""
+        if self.horizon_s > 0:
+            return []
         return [f"{m}/{kind}" for m in ([model] if model else self.models) for kind in ("odom", "accel")]
 
     def _subscribe(self, kind, topic: str, callback, qos) -> None:
@@ -387,7 +396,12 @@ class EvaluatorNode(Node):
             self._advance(stream, ns, window.index)
 
     def on_odom(self, msg: Odometry) -> None:
-        self._measurement(MOCAP_ODOM, topics.stamp_ns(msg.header.stamp), topics.odometry_fields(msg), "odom")
+        fields = topics.odometry_fields(msg)
+        if topics.all_finite(fields) and topics.invalid_odometry_quaternion(fields):  # as the predictors drop it
+            self.faults.report("zero_quaternion", "motion-capture message with a zero (non-unit) quaternion dropped; "
+                                                  "its neighbours are interpolated across it")
+            return
+        self._measurement(MOCAP_ODOM, topics.stamp_ns(msg.header.stamp), fields, "odom")
 
     def on_imu(self, msg: Imu) -> None:
         self._measurement(IMU, topics.stamp_ns(msg.header.stamp), topics.imu_fields(msg), "imu")
@@ -446,7 +460,9 @@ class EvaluatorNode(Node):
         """Acknowledge progress: on change, and every :data:`PROGRESS_REPEAT_S` for late subscribers."""
         now = time.monotonic()
         if not self.ready:
-            have_all = all(self.count_publishers(f"{m}/accel") > 0 and self.count_publishers(f"{m}/odom") > 0 for m in self.models)
+            published = [f"{m}/{HORIZON_TOPIC}" for m in self.models] if self.horizon_s > 0 else \
+                [f"{m}/{kind}" for m in self.models for kind in ("accel", "odom")]
+            have_all = all(self.count_publishers(topic) > 0 for topic in published)
             waited = now - self.started_wall
             if not have_all and waited < self.ready_timeout_s:
                 return
@@ -527,7 +543,7 @@ class EvaluatorNode(Node):
             return marked(f"{reason}{'; ' + extra if extra else ''}")
         warm = warm_samples_for(log, self.warm_s)
         records, predicted = [], {}
-        for model in self.models:
+        for model in self.models if self.horizon_s <= 0 else []:  # receding horizon: the models are scored by MAE@h
             model_late = [s for s in self.model_streams(model) if s in late]
             if model_late:
                 records += marked(self._late_reason(model_late), [model])

@@ -39,7 +39,36 @@ def make_executor(kind: str, node):
     return executor
 
 
+class _SignalState:
+    """Whether this process is inside an executor's ``spin_once`` (where a node's callbacks run), and a signal that
+    arrived there: the handler (``common.run_node``) defers it, so that Ctrl-C or SIGTERM never raises inside a
+    callback (the events executor logged that as FATAL with a traceback) but right after the spin returns."""
+
+    spinning = False
+    pending: str | None = None
+
+
+def interrupt(name: str) -> None:
+    """A SIGINT or SIGTERM (``name``) arrived: KeyboardInterrupt now, or after the running ``spin_once`` returns."""
+    if _SignalState.spinning:
+        _SignalState.pending = name
+        return
+    raise KeyboardInterrupt(name)
+
+
+def spin_once(executor, timeout_s: float) -> None:
+    """``executor.spin_once`` with a signal that arrives during it raised as KeyboardInterrupt when it returns."""
+    _SignalState.spinning = True
+    try:
+        executor.spin_once(timeout_sec=timeout_s)
+    finally:
+        _SignalState.spinning = False
+    if _SignalState.pending is not None:
+        name, _SignalState.pending = _SignalState.pending, None
+        raise KeyboardInterrupt(name)
+
+
 def spin(node, executor) -> None:
-    """Spin ``executor`` until ``node``'s context shuts down (Ctrl-C raises KeyboardInterrupt out of it)."""
+    """Spin ``executor`` until ``node``'s context shuts down (Ctrl-C raises KeyboardInterrupt out of it, between callbacks)."""
     while node.context.ok():
-        executor.spin_once(timeout_sec=SPIN_TIMEOUT_S)
+        spin_once(executor, SPIN_TIMEOUT_S)

@@ -587,8 +587,8 @@ class PredictorNode(Node):
         spin(self, executor)
 
     def finish(self) -> None:
-        unit = "windows" if self.horizon_s == 0 else "(receding horizon)"
-        say(self, f"published {self.published} predictions over {self.windows_started} {unit}; faults: {self.faults.summary()}")
+        where = f"over {self.windows_started} windows" if self.horizon_s == 0 else f"{self.horizon_s:g} s ahead (receding horizon)"
+        say(self, f"published {self.published} predictions {where}; faults: {self.faults.summary()}")
 
 
 def main(args=None) -> int:

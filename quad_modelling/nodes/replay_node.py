@@ -62,6 +62,7 @@ from quad_modelling.nodes.common import (
     positive,
     run_node,
     say,
+    spin_once,
 )
 
 DONE_ACK_S = 5.0
@@ -162,7 +163,7 @@ class ReplayNode(Node):
                 self.in_flight.popleft()
 
     def _spin_once(self, timeout_s: float) -> None:
-        self.executor_.spin_once(timeout_sec=timeout_s)
+        spin_once(self.executor_, timeout_s)
 
     def _spin_for(self, seconds: float) -> None:
         end = time.monotonic() + seconds

@@ -354,7 +354,9 @@ def score_model(model: str, window: WindowBuffer, neighbours: list[WindowBuffer]
 
 
 def _models_check(value) -> str | None:
-    names = [str(v).strip() for v in value]
+    names = [str(v).strip() for v in (value or [])]
+    if not names:
+        return "give at least one predictor name, e.g. models:=[greybox]"
     if any(not n or "/" in n or ":" in n for n in names):
         return f"model names must be plain topic prefixes (no '/' or ':'), got {names}"
     if len(set(names)) != len(names):

@@ -268,6 +268,7 @@ CORPUS = [
         ("mapping", ["convert", "{d}/flight.mat", "--mapping", DEEP_PATH + ".yaml", "-o", "{d}/work/b"], "mapping file", 205),
         ("model", ["evaluate", "{d}/flight.mat", "--model", f"narx:{LONG_NAME}.npz", "-o", "{d}/work/out"], "model file", 304),
     ]],
+    ("output-parent-missing", ["simulate", "-o", "{d}/nowhere/s.mat"], "-o {d}/nowhere/s.mat: its parent directory {d}/nowhere does not exist"),
     ("path-too-long-output-dir", ["simulate", "-o", DEEP_PATH + "/s.mat"], "bytes): output directory path cannot be looked up (File name too long)"),
 ]
 

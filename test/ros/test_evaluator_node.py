@@ -4,6 +4,7 @@ import json
 import time
 
 import numpy as np
+import pytest
 from rclpy.parameter import Parameter
 
 from quad_modelling.core.preprocess import measured_variables
@@ -180,3 +181,51 @@ def test_a_stream_late_past_close_grace_marks_the_window_naming_it(ros):
     assert node.faults.counts["late_imu"] == 10  # rows 490-499 of the closed window; 500-599 belong to window 1
     assert [r.scored for r in node.scores.records if r.index == 1] == [True, True]
     node.destroy_node()
+
+
+def test_an_output_dir_whose_parent_is_missing_is_refused_at_start(ros, tmp_path):
+    """Found at start-up (one line), not after a flight when the results are written."""
+    import pytest
+
+    from quad_modelling.nodes.common import BadParameter
+
+    with pytest.raises(BadParameter, match=r"output_dir=.*nope/out': its parent directory .*nope' does not exist"):
+        make_node(output_dir=str(tmp_path / "nope" / "out"))
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_empty_model_list_is_one_line_exit_2():
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-m", "quad_modelling.nodes.evaluator_node", "--ros-args", "-p", "models:=[]",
+                          "-p", "vehicle:=crazyflie21"], capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "Traceback" not in run.stderr
+    assert run.stderr.strip().splitlines()[-1] == "error: evaluator: parameter models=None: give at least one predictor name, e.g. models:=[greybox]"
+
+
+@pytest.mark.parametrize("executor", ["events", "single"])
+def test_ctrl_c_ends_the_evaluator_without_a_fatal_line_and_writes_its_results(executor, tmp_path):
+    """SIGINT while its timers run: exit code 0, the results written, and no FATAL line or traceback (the signal
+    raised inside a timer callback was logged as FATAL by the events executor)."""
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "results"
+    node = subprocess.Popen([sys.executable, "-m", "quad_modelling.nodes.evaluator_node", "--ros-args", "-p", f"executor:={executor}",
+                             "-p", "vehicle:=crazyflie21", "-p", f"output_dir:={out}", "-p", "figures:=false"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        line = node.stdout.readline()
+        lines.append(line)
+        if "scoring models" in line or not line:
+            break
+    time.sleep(1.5)  # its timers fire many times a second by now
+    node.send_signal(signal.SIGINT)
+    text = "".join(lines) + node.communicate(timeout=20)[0]
+    assert node.returncode == 0, text
+    assert "FATAL" not in text and "Traceback" not in text and "Error occurred" not in text, text
+    assert (out / "results.json").exists() and "closed 0 windows; faults: none" in text

@@ -118,6 +118,25 @@ def test_receding_horizon_mae_equals_the_offline_multistep_mae(ros):
     assert offline[0, h - 1] > 1e-4  # a real error, not a trivially equal zero
     windows = [s for msg in node.diag_pub.messages for s in msg.status if "/horizon/" in s.name]
     assert [s.name for s in windows] == ["evaluation/greybox/horizon/window_0", "evaluation/greybox/horizon/window_1"]
+    # the predictors publish no windowed predictions in this mode: no window is marked for the model, none waits for it
+    assert [r for r in node.scores.records if r.model == "greybox"] == [] and node.model_streams() == []
+    assert "model_missing" not in node.faults.counts
+    node.destroy_node()
+
+
+def test_a_zero_quaternion_motion_capture_message_is_dropped_as_the_predictors_drop_it(ros):
+    """A motion-capture message whose attitude quaternion is zero is dropped with the predictors' fault name
+    (``zero_quaternion``), not taken in and blamed on the model's prediction later; the windows are still scored."""
+    log = hover_log(1200)
+    plan = schedule(log.t[0], log.t[-1], seed=3)
+    node = make_node()
+    bad = messages.measurement_messages(log_at(log, plan.mocap)).odometry(0, int(plan.mocap[0]))
+    bad.pose.pose.orientation.w = bad.pose.pose.orientation.x = bad.pose.pose.orientation.y = bad.pose.pose.orientation.z = 0.0
+    node.on_odom(bad)  # first: taken in, it would hold the stream's first stamp
+    feed_streams(node, log, plan)
+    node.finish()
+    assert node.faults.counts.get("zero_quaternion") == 1
+    assert [r.index for r in node.scores.records if r.model == "m" and r.scored] == [0, 1]
     node.destroy_node()
 
 
