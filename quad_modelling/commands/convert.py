@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     if duplicates:
         raise QuadModellingError(f"several inputs map to the same bag name(s) {sorted(duplicates)}")
     refused: list[str] = []
-    converted = 0
+    converted, done = 0, []  # the success lines, printed once the output is in place (an error rolls it all back)
     with atomic_output(output, args.force) as staging:
         staging.mkdir()
         for path, name in tqdm(list(zip(inputs, names)), unit="file", desc="convert", disable=not sys.stderr.isatty()):
@@ -157,8 +157,12 @@ def run(args: argparse.Namespace) -> int:
                 refused.append(str(err))
                 print(f"refused: {err}", file=sys.stderr)
                 continue
+            for message in log.meta.notes.get("warnings", []):  # clipped commands, a cut tail, a damaged ULog
+                print(f"warning: {message}", file=sys.stderr)
             _write(log, staging / name, args.namespace, force=False)
             converted += 1
-            print(f"{path} -> {output / name} ({len(log)} samples, {log.duration:.1f} s)")
+            done.append(f"{path} -> {output / name} ({len(log)} samples, {log.duration:.1f} s)")
+    if done:
+        print("\n".join(done))
     print(f"converted {converted} of {len(inputs)} inputs into {output}" + (f"; refused {len(refused)}" if refused else ""))
     return 1 if refused else 0

@@ -81,6 +81,11 @@ def _unparsable(err: ValueError, columns: list[str]) -> str:
     import re
 
     text = reason(err)
+    short = re.search(r"invalid column index \d+ at row (\d+) with (\d+) columns", text)
+    if short:  # a row with fewer cells than the header: cut short (a truncated file's last line) or cells lost
+        row, cells = int(short.group(1)), int(short.group(2))  # numpy counts this row from 1 (a bad value's from 0)
+        return (f"data row {row} (line {row + 1} of the file) has {cells} values, the header {len(columns)} columns: "
+                f"a short or truncated row")
     found = re.search(r"could not convert string (.*) to \w+ at row (\d+), column (\d+)", text)
     if not found:
         return f"unparsable value ({text})"
@@ -89,10 +94,14 @@ def _unparsable(err: ValueError, columns: list[str]) -> str:
     return f"unparsable value {value} in column {name} at data row {row + 1} (line {row + 2} of the file)"
 
 
+GZIP_MAGIC = b"\x1f\x8b"
+"""The first two bytes of a gzip file (RFC 1952): a compressed CSV is read as one whatever its name."""
+
+
 def _open_text(path: Path):
-    if path.suffix == ".gz":
-        return gzip.open(path, "rt")
-    return open(path)
+    with open(path, "rb") as head:
+        compressed = head.read(2) == GZIP_MAGIC
+    return gzip.open(path, "rt") if compressed else open(path)
 
 
 def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21") -> FlightLog:

@@ -137,6 +137,9 @@ def read_ulog(path: str | Path, vehicle: str | VehicleConfig | None = None) -> F
     topics, notes = topics_of(ulog.data_list)
     if said.getvalue().strip():
         notes["pyulog"] = " ".join(sorted(set(said.getvalue().split("\n")) - {""}))
+    if getattr(ulog, "file_corruption", False):  # pyulog skipped a damaged part: its messages are lost, say so
+        notes["warnings"] = [f"{where}: pyulog found the file damaged and skipped the damaged part (its messages are lost; "
+                             f"notes.pyulog has what it said)"]
     if ulog.has_data_appended:
         notes["appended_data"] = "yes (read by pyulog after the regular data)"
     if ulog.dropouts:

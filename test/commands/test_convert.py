@@ -52,8 +52,10 @@ def test_several_inputs_go_to_a_directory_and_a_bad_one_is_refused(tmp_path, cap
     out = tmp_path / "bags"
     bad = _far_beyond(tmp_path / "in")
     code = main(["convert", str(FLIGHT), str(bad), "-o", str(out)])
-    err = capsys.readouterr().err
+    printed = capsys.readouterr()
+    err = printed.err
     assert code == 2 and "column motor_motor_m2 data row 500" in err and "outside the crazyflie21 input range" in err
+    assert printed.out == ""  # no "FLIGHT -> out/..." for a bag the refusal rolled back
     assert len(err.strip().splitlines()) == 1  # one clear line
     assert not out.exists() and list(tmp_path.iterdir()) == [tmp_path / "in"]  # nothing partial left behind
     assert main(["convert", str(FLIGHT), str(bad), "-o", str(out), "--skip-bad"]) == 1
@@ -129,3 +131,17 @@ def test_command_line_entry_point_runs(tmp_path):
     result = subprocess.run([str(entry_point), "info", str(tmp_path / "absent")], capture_output=True, text=True)
     assert result.returncode == 2
     assert result.stderr.strip() == f"quad-modelling info: error: {tmp_path / 'absent'}: no such file or directory"
+
+
+def test_a_damaged_ulog_converts_with_a_warning_that_it_is_damaged(tmp_path, capsys):
+    """400 bytes overwritten in the middle of a ULog: pyulog skips the damaged part; convert says so in a warning
+    line (before: exit 0 and nothing said, the lost messages only visible as lower rates in `info`)."""
+    source = Path(__file__).resolve().parents[1] / "data" / "px4" / "sample_px4_events.ulg"
+    damaged = bytearray(source.read_bytes())
+    damaged[500000:500400] = b"\xab" * 400
+    ulog = tmp_path / "damaged.ulg"
+    ulog.write_bytes(bytes(damaged))
+    assert main(["convert", str(ulog), "-o", str(tmp_path / "bag")]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert warnings == [f"warning: {ulog}: pyulog found the file damaged and skipped the damaged part (its messages are lost; "
+                        "notes.pyulog has what it said)"]

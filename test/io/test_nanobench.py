@@ -123,3 +123,19 @@ def test_truncated_gzip_is_a_data_error(tmp_path):
     path.write_bytes(data[: len(data) // 2])
     with pytest.raises(DataError, match="cut.csv.gz"):
         read_nanobench(path)
+
+
+def test_a_truncated_file_names_its_short_last_row(tmp_path):
+    lines = gzip.open(FLIGHT, "rt").read().splitlines()
+    path = tmp_path / "truncated.csv"
+    path.write_text("\n".join(lines[:300]) + "\n" + lines[300][: len(lines[300]) // 2])
+    with pytest.raises(DataError) as info:
+        read_nanobench(path)
+    assert str(info.value).startswith(f"{path}: data row 300 (line 301 of the file) has ")
+    assert str(info.value).endswith(f"values, the header {len(lines[0].split(','))} columns: a short or truncated row")
+
+
+def test_a_gzipped_csv_is_read_whatever_its_name(tmp_path):
+    renamed = tmp_path / "flight.txt"
+    renamed.write_bytes(FLIGHT.read_bytes())
+    np.testing.assert_array_equal(read_nanobench(renamed).pos_n, read_nanobench(FLIGHT).pos_n)
