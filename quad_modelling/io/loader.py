@@ -62,7 +62,9 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
     except QuadModellingError as err:
         if str(path) in str(err):
             raise
-        raise type(err)(f"{path}: {err}") from err  # e.g. an unknown vehicle the file names
+        hint = ("; the flight names it: pass its vehicle file with --vehicle FILE.yaml (for a bag of a PX4 log, the one "
+                "`convert --vehicle-from-log` wrote)" if vehicle is None and str(err).startswith("unknown vehicle") else "")
+        raise type(err)(f"{path}: {err}{hint}") from err  # e.g. an unknown vehicle the file names
 
 
 def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_file: str | Path | None,

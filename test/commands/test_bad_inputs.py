@@ -202,7 +202,8 @@ CORPUS = [
     ("namespace-space", ["convert", "{d}/flight.mat", "--namespace", "/quad drone/1", "-o", "{d}/work/b"],
      "--namespace '/quad drone/1': not a valid ROS 2 namespace: token 'quad drone' must be letters, digits and '_', not starting with a digit"),
     ("namespace-relative", ["convert", "{d}/flight.mat", "--namespace", "quad", "-o", "{d}/work/b"], "not a valid ROS 2 namespace: must start with '/'"),
-    ("mistyped-flag", ["evaluate", "{d}/flight.mat", "--windw", "3", "-o", "{d}/work/out"], "unrecognized arguments: --windw 3"),
+    ("mistyped-flag", ["evaluate", "{d}/flight.mat", "--windw", "3", "-o", "{d}/work/out"],
+     "quad-modelling evaluate: error: unrecognized arguments: --windw 3 (see quad-modelling evaluate --help)"),
     ("float-for-int", ["train", "{d}/flight.mat", "--seed", "1.5", "-o", "{d}/work/m.npz"], "argument --seed: invalid int value: '1.5'"),
     # vehicle configs
     ("vehicle-not-utf8", ["convert", "{d}/flight.mat", "--vehicle", "{d}/latin1.yaml", "-o", "{d}/work/b"], "{d}/latin1.yaml: vehicle config is not UTF-8 text (byte "),

@@ -204,7 +204,10 @@ def test_unknown_vehicle_named_by_a_file_names_the_file(tmp_path):
     log = synthetic_log(vehicle="linkquad")
     log.meta.vehicle = "no_such_quad"
     write_matlog(log, tmp_path / "a.mat")
-    assert refusal(ConfigError, load_flight, tmp_path / "a.mat").startswith(f"{tmp_path / 'a.mat'}: unknown vehicle 'no_such_quad'; shipped: ")
+    message = refusal(ConfigError, load_flight, tmp_path / "a.mat")
+    assert message.startswith(f"{tmp_path / 'a.mat'}: unknown vehicle 'no_such_quad'; shipped: ")
+    assert message.endswith("; the flight names it: pass its vehicle file with --vehicle FILE.yaml (for a bag of a PX4 log, "
+                            "the one `convert --vehicle-from-log` wrote)")
 
 
 def test_ulog_corruption_notice_stays_off_stdout(tmp_path, capsys):
