@@ -19,7 +19,7 @@ import uuid
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-from quad_modelling.errors import OutputExistsError, QuadModellingError, shown_path
+from quad_modelling.errors import ConfigError, OutputExistsError, QuadModellingError, shown_path
 
 STAGING_SUFFIX_LEN = len(".tmp-") + 8 + 1
 """Characters the staging and backup names add to an output's name (``.NAME.tmp-XXXXXXXX``)."""
@@ -41,6 +41,18 @@ def _name_max(directory: Path) -> int:
         return os.pathconf(directory, "PC_NAME_MAX")
     except (OSError, ValueError):
         return 255
+
+
+FILE_SUFFIXES = (".mat", ".csv", ".gz", ".ulg", ".mcap", ".npz", ".yaml", ".yml", ".json")
+"""Names of files a command reads or writes: a bag directory named so would pass for one."""
+
+
+def check_bag_name(path: Path, flag: str = "-o") -> None:
+    """ConfigError (one line) when the bag directory ``path`` is named like a file of another format
+    (``-o flight.csv`` makes a directory a user takes for a CSV)."""
+    if path.suffix.lower() in FILE_SUFFIXES:
+        raise ConfigError(f"{flag} {path}: an MCAP bag is a directory; a name ending in {path.suffix} passes for a "
+                          f"{path.suffix.lstrip('.')} file: name the bag without it")
 
 
 def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), flag: str = "-o") -> None:

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.atomic import atomic_output, check_bag_name, check_output
 from quad_modelling.core.vehicle import VehicleConfig, vehicle_file
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.loader import FORMATS, detect_format, load_flight
@@ -121,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
     check_namespace(args.namespace)
     check_output(output, args.force, inputs=[*inputs, args.mapping, vehicle_file(args.vehicle) if args.vehicle else None,
                                              topic_map_file(args.topic_map)])
+    if not (output.suffix == ".mat" and len(inputs) == 1):  # a bag, or a directory of bags
+        check_bag_name(output)
     if args.vehicle_from_log is not None:
         return _vehicle_from_log(args, inputs, output)
 

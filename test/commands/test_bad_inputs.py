@@ -270,6 +270,8 @@ CORPUS = [
         ("model", ["evaluate", "{d}/flight.mat", "--model", f"narx:{LONG_NAME}.npz", "-o", "{d}/work/out"], "model file", 304),
     ]],
     ("output-parent-missing", ["simulate", "-o", "{d}/nowhere/s.mat"], "-o {d}/nowhere/s.mat: its parent directory {d}/nowhere does not exist"),
+    ("bag-named-mat", ["simulate", "-o", "{d}/work/s.mat", "--bag", "--duration", "5"], "-o {d}/work/s.mat: an MCAP bag is a directory; a name ending in .mat"),
+    ("bag-named-csv", ["convert", "{d}/flight.mat", "-o", "{d}/work/s.csv"], "-o {d}/work/s.csv: an MCAP bag is a directory; a name ending in .csv"),
     ("path-too-long-output-dir", ["simulate", "-o", DEEP_PATH + "/s.mat"], "bytes): output directory path cannot be looked up (File name too long)"),
 ]
 
