@@ -46,6 +46,7 @@ from rclpy.qos import (
 from quad_modelling.core.alignment import CONFIRM
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.io import topics
 from quad_modelling.nodes.domains import DDS_PROFILE_ENV, use_dds_profile  # noqa: F401  (re-exported)
 from quad_modelling.nodes.executors import executor_kind, interrupt, make_executor, spin, spin_once  # noqa: F401  (re-exported for the nodes)
 
@@ -356,6 +357,16 @@ class FaultLog:
 
     def summary(self) -> str:
         return ", ".join(f"{k} x{n}" for k, n in sorted(self.counts.items())) or "none"
+
+
+def zero_quaternion(faults: FaultLog, fields) -> bool:
+    """True, with the fault ``zero_quaternion`` reported, for motion-capture ``fields`` whose attitude quaternion is
+    zero (not a rotation): every node drops such a message (the predictors and the evaluator alike)."""
+    if not topics.invalid_odometry_quaternion(fields):
+        return False
+    faults.report("zero_quaternion", "motion-capture message with a zero (non-unit) quaternion dropped; its neighbours "
+                                     "are interpolated across it")
+    return True
 
 
 VEHICLE_TOPIC = "vehicle"

@@ -2,8 +2,7 @@
 
 Subscribes (relative names, namespace ``/quad`` unless remapped): ``motor_input``,
 ``mocap/odom``, ``imu`` and, for each name in ``models``, ``<model>/odom`` and
-``<model>/accel`` (receding-horizon mode, ``horizon_s`` > 0: ``<model>/horizon/odom`` instead, scored by MAE@h
-only: the windows then hold the dummy baseline's RMS/TIC and wait for the measurements alone); ``window_origin`` (transient-local); with ``topic_map`` (not ``quad``), a stack's
+``<model>/accel`` (``horizon_s`` > 0: ``<model>/horizon/odom`` instead, MAE@h only); ``window_origin`` (transient-local); with ``topic_map`` (not ``quad``), a stack's
 own topics instead of the first three (:mod:`~quad_modelling.nodes.mapping.streams`). Publishes
 ``evaluation`` (diagnostic_msgs/DiagnosticArray, one status per model and span
 for each closed window: level OK with ``<variable>.rms``/``<variable>.tic``
@@ -89,6 +88,7 @@ from quad_modelling.nodes.common import (
     spin,
     stream_fault,
     subscription_qos,
+    zero_quaternion,
 )
 from quad_modelling.nodes.recording import open_recorder
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, message_class
@@ -98,6 +98,7 @@ from quad_modelling.nodes.scoring import (  # noqa: F401  (EVALUATOR_PARAMETERS 
     WindowBuffer,
     WindowRecord,
     diagnostics_message,
+    late_reason,
     score_horizon,
     score_model,
     window_measurements,
@@ -130,9 +131,8 @@ class EvaluatorNode(Node):
         self.output_dir = Path(p["output_dir"]) if p["output_dir"] else None
         if self.output_dir is not None and self.output_dir.exists() and not p["force"]:
             raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
-        if self.output_dir is not None and not self.output_dir.absolute().parent.is_dir():  # found now, not after a flight
-            raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r}: its parent directory "
-                               f"{str(self.output_dir.absolute().parent)!r} does not exist")
+        if self.output_dir is not None and not self.output_dir.absolute().parent.is_dir():  # now, not after a flight
+            raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r}: its parent directory {str(self.output_dir.absolute().parent)!r} does not exist")
         self.figures = p["figures"]
         self.executor_kind, self.math_threads = p["executor"], p["math_threads"]
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
@@ -182,13 +182,12 @@ class EvaluatorNode(Node):
         self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
         self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
         qos = prediction_subscription_qos(p["qos"], p["qos_depth"])
+        # windowed predictions; in receding-horizon mode the predictors publish <model>/horizon/odom alone
+        readers = ((Odometry, HORIZON_TOPIC, "horizon", self.on_horizon),) if self.horizon_s > 0 else \
+            ((Odometry, "odom", "odom", self.on_pred_odom), (AccelStamped, "accel", "accel", self.on_pred_accel))
         for model in self.models:
-            if self.horizon_s <= 0:  # windowed predictions; in receding-horizon mode the predictors publish only these:
-                subscribe(Odometry, f"{model}/odom", self._guarded(f"{model}/odom", lambda msg, m=model: self.on_pred_odom(m, msg)), qos)
-                subscribe(AccelStamped, f"{model}/accel", self._guarded(f"{model}/accel", lambda msg, m=model: self.on_pred_accel(m, msg)), qos)
-            else:
-                subscribe(Odometry, f"{model}/{HORIZON_TOPIC}", self._guarded(f"{model}/horizon",
-                                                                              lambda msg, m=model: self.on_horizon(m, msg)), qos)
+            for kind, topic, stream, callback in readers:
+                subscribe(kind, f"{model}/{topic}", self._guarded(f"{model}/{stream}", lambda msg, m=model, c=callback: c(m, msg)), qos)
         self.origin_pub = self.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos())
         self.diag_pub = self.create_publisher(DiagnosticArray, "evaluation", data_qos(100))
         self.diag_topic = self.resolve_topic_name("evaluation")
@@ -207,8 +206,7 @@ class EvaluatorNode(Node):
 
     def model_streams(self, model: str | None = None) -> list[str]:
         """Stream names of one model's (or every model's) windowed predictions: ``<model>/odom``, ``<model>/accel``;
-        none in receding-horizon mode (the predictors then publish ``<model>/horizon/odom`` only, stamped ahead: not a
-        stream the windows wait for)."""
+        none in receding-horizon mode (``<model>/horizon/odom`` is stamped ahead: the windows do not wait for it)."""
         if self.horizon_s > 0:
             return []
         return [f"{m}/{kind}" for m in ([model] if model else self.models) for kind in ("odom", "accel")]
@@ -397,9 +395,7 @@ class EvaluatorNode(Node):
 
     def on_odom(self, msg: Odometry) -> None:
         fields = topics.odometry_fields(msg)
-        if topics.all_finite(fields) and topics.invalid_odometry_quaternion(fields):  # as the predictors drop it
-            self.faults.report("zero_quaternion", "motion-capture message with a zero (non-unit) quaternion dropped; "
-                                                  "its neighbours are interpolated across it")
+        if topics.all_finite(fields) and zero_quaternion(self.faults, fields):  # dropped as the predictors drop it
             return
         self._measurement(MOCAP_ODOM, topics.stamp_ns(msg.header.stamp), fields, "odom")
 
@@ -460,9 +456,8 @@ class EvaluatorNode(Node):
         """Acknowledge progress: on change, and every :data:`PROGRESS_REPEAT_S` for late subscribers."""
         now = time.monotonic()
         if not self.ready:
-            published = [f"{m}/{HORIZON_TOPIC}" for m in self.models] if self.horizon_s > 0 else \
-                [f"{m}/{kind}" for m in self.models for kind in ("accel", "odom")]
-            have_all = all(self.count_publishers(topic) > 0 for topic in published)
+            kinds = (HORIZON_TOPIC,) if self.horizon_s > 0 else ("accel", "odom")
+            have_all = all(self.count_publishers(f"{m}/{kind}") > 0 for m in self.models for kind in kinds)
             waited = now - self.started_wall
             if not have_all and waited < self.ready_timeout_s:
                 return
@@ -497,13 +492,7 @@ class EvaluatorNode(Node):
             self._close(k, late=late)
 
     def _late_reason(self, late: list[str]) -> str:
-        described = []
-        for stream in late:
-            ns = self.stream_last_ns[stream]
-            last = "nothing yet" if ns is None else f"last stamp {(ns - self.clock_.origin_ns) / 1e9:.3f} s after t0"
-            described.append(f"{stream} ({last})")
-        return (f"closed by close_grace_s={self.grace_s:g} s before every stream passed the window's end: "
-                f"late {', '.join(described)}")
+        return late_reason({stream: self.stream_last_ns[stream] for stream in late}, self.clock_.origin_ns, self.grace_s)
 
     def _close(self, k: int, reason_if_incomplete: str = "", late: list[str] = ()) -> None:
         """Score (or mark) window ``k`` and publish its diagnostics. ``late``: streams that had not passed its end

@@ -86,6 +86,7 @@ from quad_modelling.nodes.common import (
     spin,
     stream_fault,
     subscription_qos,
+    zero_quaternion,
 )
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, subscribe
 from quad_modelling.nodes.model_factory import (  # noqa: F401  (predictor_parameters re-exported)
@@ -316,9 +317,7 @@ class PredictorNode(Node):
         if not topics.all_finite(fields):
             self.faults.report(stream_fault("nan", MOCAP_ODOM), "non-finite motion-capture message dropped")
             return
-        if topics.invalid_odometry_quaternion(fields):
-            self.faults.report("zero_quaternion", "motion-capture message with a zero (non-unit) quaternion dropped; "
-                                                  "its neighbours are interpolated across it")
+        if zero_quaternion(self.faults, fields):
             return
         ns = topics.stamp_ns(msg.header.stamp)
         if self._gate(MOCAP_ODOM, ns, fields):

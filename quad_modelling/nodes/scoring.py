@@ -353,6 +353,14 @@ def score_model(model: str, window: WindowBuffer, neighbours: list[WindowBuffer]
         return None, f"cannot score: {err}"
 
 
+def late_reason(last_ns: dict[str, int | None], origin_ns: int, grace_s: float) -> str:
+    """Why a window closed by ``close_grace_s`` is marked: each late stream with its last stamp (``last_ns``, None:
+    nothing yet) relative to the window origin."""
+    described = [f"{stream} ({'nothing yet' if ns is None else f'last stamp {(ns - origin_ns) / 1e9:.3f} s after t0'})"
+                 for stream, ns in last_ns.items()]
+    return f"closed by close_grace_s={grace_s:g} s before every stream passed the window's end: late {', '.join(described)}"
+
+
 def _models_check(value) -> str | None:
     names = [str(v).strip() for v in (value or [])]
     if not names:

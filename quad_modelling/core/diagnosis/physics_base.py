@@ -55,6 +55,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from quad_modelling.core.diagnosis.injection import swapped, swapped_motors
 from quad_modelling.core.diagnosis.verdicts import DETERMINED_SIGMAS
 from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
@@ -543,22 +544,11 @@ def motor_order_check(train: Sequence[FlightLog], vehicle: VehicleConfig, config
     return {"verdict": check["verdict"], "wrong": check["wrong"], "actions": fix["actions"] if fix else [], "swap": swap}
 
 
-def swapped(log: FlightLog, swap: Sequence[int]) -> FlightLog:
-    """``log`` with the command columns of motors ``swap`` = [A, B] (1-based) exchanged: the motor-order check's
-    fix, with which the diagnosis then runs (a wrong motor order leaves a base no effect can mend, and one of
-    them took 5 % of its error on NanoBench flights with motors 3 and 4 exchanged: battery, newly found)."""
-    from quad_modelling.core.diagnosis.injection import Injection
-
-    return Injection("swap", swap=(int(swap[0]), int(swap[1]))).apply(log)
-
-
 def identified_document(vehicle: VehicleConfig, final: Rung, source: str, swap: Sequence[int] | None = None) -> dict:
     """The vehicle document ``--write-vehicle`` writes: the final model's constants (value, sigma, at-bound flags) and
     its effects switched on (the found ones and those the vehicle had on; rotor drag on or off as found). With
     ``swap`` = [A, B] (1-based: the motor-order check found the logged commands of motors A and B exchanged, and the
-    diagnosis ran with them undone) the document lists motors A and B (name, position, spin) and their
-    ``motor_imbalance`` gains exchanged: the order in which the logged commands hold them, so the written vehicle
-    predicts the flights as logged as the report says."""
+    diagnosis ran with them undone) the motors are listed in the logged order (:func:`~.injection.swapped_motors`)."""
     from quad_modelling.core.identification.constants_report import add_physics_constants
     from quad_modelling.core.vehicle import vehicle_document
 
@@ -572,16 +562,7 @@ def identified_document(vehicle: VehicleConfig, final: Rung, source: str, swap: 
             effects[name] = {"enabled": name in final.effects}  # its constants are 0 when not found
         elif name in effects and name not in final.effects:
             effects[name]["enabled"] = False
-    if swap:
-        a, b = (int(i) - 1 for i in swap)
-        motors = document["motors"]
-        motors[a], motors[b] = motors[b], motors[a]
-        terms = effects.get("motor_imbalance", {})
-        if f"gain_{a + 1}" in terms and f"gain_{b + 1}" in terms:
-            terms[f"gain_{a + 1}"], terms[f"gain_{b + 1}"] = terms[f"gain_{b + 1}"], terms[f"gain_{a + 1}"]
-        document["description"] += (f" (motors {a + 1} and {b + 1} listed in the order the logged commands hold them: "
-                                    f"the motor-order check's fix)")
-    return document
+    return swapped_motors(document, swap) if swap else document
 
 
 def _named(predictor, name: str):
