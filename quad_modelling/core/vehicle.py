@@ -156,6 +156,16 @@ rotor constants, a stable motor pole (negative, faster than 10 us), nothing beyo
 to a tonne and 10 m arms could have. ``prop_inertia`` may be 0 (rotor inertia neglected). Values must be
 finite. Rotor time constant, delay and drag may be 0 (no lag, no delay, no drag)."""
 
+DOCUMENT_KEYS = ("name", "description", "geometry", "motors", "inputs", "constants", "greybox", "effects", "identification")
+"""The top-level keys of a vehicle file; any other (a typo: ``geomtery``) is refused, not ignored."""
+
+CONSTANT_FIELDS = ("value", "unit", "source", "status", "sigma", "bounds", "at_bound", "vehicle_value", "change_percent",
+                   "poorly_determined", "held")
+"""The fields of one constant entry (``identify`` writes those after ``sigma``); any other (``vlaue``) is refused."""
+
+ANY_INPUT_UNIT = "input unit"
+"""In :data:`CONSTANT_RANGES`: per unit of the vehicle's own command (``rad/s per PWM``, ``rad/s per us``)."""
+
 ZERO_ALLOWED = ("prop_inertia", "rotor_time_constant", "rotor_delay", "rotor_drag_arm", "rotor_drag_xy", "rotor_drag_z")
 """Constants whose range includes its lower end 0 (the effect neglected)."""
 
@@ -334,6 +344,9 @@ class VehicleConfig:
                 raise ConfigError(f"{where}: missing required key {context}{key}")
             return mapping[key]
 
+        unknown_keys = sorted(str(k) for k in doc if k not in DOCUMENT_KEYS) if isinstance(doc, dict) else []
+        if unknown_keys:
+            raise ConfigError(f"{where}: {unknown_keys[0]} is not a key of a vehicle file (known: {', '.join(DOCUMENT_KEYS)})")
         name = str(need(doc, "name", ""))
         geometry = need(doc, "geometry", "")
         if geometry not in ("plus", "x"):
@@ -422,6 +435,10 @@ def _constant(entry, key: str, section: str, where: str, need) -> Constant:
     """One ``{value, unit, source, status[, sigma]}`` entry of ``section`` validated (ConfigError naming the key)."""
     for sub in ("value", "unit", "source", "status"):
         need(entry, sub, f"{section}.{key}.")
+    unknown = sorted(str(k) for k in entry if k not in CONSTANT_FIELDS)
+    if unknown:
+        raise ConfigError(f"{where}: {section}.{key}.{unknown[0]} is not a field of a constant (known: {', '.join(CONSTANT_FIELDS)})")
+    check_unit(key, str(entry["unit"]), f"{where}: {section}.{key}")
     if entry["status"] not in STATUSES:
         raise ConfigError(f"{where}: {section}.{key}.status must be one of {STATUSES}, got {entry['status']!r}")
     try:
@@ -438,6 +455,22 @@ def _constant(entry, key: str, section: str, where: str, need) -> Constant:
         if sigma < 0 or np.isinf(sigma):
             raise ConfigError(f"{where}: {section}.{key}.sigma must be a finite number >= 0 (or .nan: not determined), got {sigma:g}")
     return Constant(value, str(entry["unit"]), str(entry["source"]), entry["status"], sigma)
+
+
+def check_unit(key: str, unit: str, where: str) -> None:
+    """ConfigError (one line) when a constant's ``unit`` is not the one this program reads it in
+    (:data:`CONSTANT_RANGES`): a mass in g would be read as kg. Units per command accept the vehicle's own command
+    unit (``rad/s per PWM``)."""
+    if key not in CONSTANT_RANGES:
+        return
+    expected = CONSTANT_RANGES[key][2]
+    given = " ".join(unit.split())
+    if expected.endswith(ANY_INPUT_UNIT):
+        ok = given.startswith(expected[: -len(ANY_INPUT_UNIT)]) and len(given) > len(expected) - len(ANY_INPUT_UNIT)
+    else:
+        ok = given == expected
+    if not ok:
+        raise ConfigError(f"{where}.unit is {unit!r}; {key} is read in {expected} (convert the value and write that unit)")
 
 
 def _read_old_keys(constants_doc: dict, greybox_doc: dict, where: str) -> tuple[dict, dict, list[str]]:

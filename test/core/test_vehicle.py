@@ -14,10 +14,13 @@ from quad_modelling.core.vehicle import (
     MOVED_TO_GREYBOX,
     RENAMED_KEYS,
     VehicleConfig,
+    check_unit,
     load_vehicle,
     vehicle_dir,
 )
 from quad_modelling.errors import ConfigError, VehicleKeyWarning
+
+REPO_VEHICLES = vehicle_dir()
 
 
 def test_linkquad_matches_thesis_table_3_1():
@@ -59,8 +62,10 @@ def _old_crazyflie(tmp_path, drop=()):
     doc = yaml.safe_load((vehicle_dir() / "crazyflie21.yaml").read_text())
     old = {"motor_a_m": -20.0, "motor_b_m": 0.76, "thrust_constant": 2.88e-8, "drag_constant": 7.24e-10,
            "physics_ixx": 8.4e-5, "physics_iyy": 7.4e-5}
+    units = {"motor_a_m": "1/s", "motor_b_m": "rad/s2 per PWM", "thrust_constant": "N s2/rad2", "drag_constant": "N m s2/rad2",
+             "physics_ixx": "kg m2", "physics_iyy": "kg m2"}
     for key, value in old.items():
-        doc["constants"][key] = {"value": value, "unit": "u", "source": "old file", "status": "identified"}
+        doc["constants"][key] = {"value": value, "unit": units[key], "source": "old file", "status": "identified"}
     for key in drop:
         del doc["constants"][key]
     path = tmp_path / "old_crazyflie.yaml"
@@ -183,3 +188,27 @@ def test_a_constant_may_carry_its_sigma_and_a_bad_one_is_named():
     doc["constants"]["mass"]["sigma"] = "big"
     with pytest.raises(ConfigError, match=r"^doc: constants.mass.sigma is not a number: 'big'$"):
         VehicleConfig.from_dict(doc, "doc")
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["constants"]["mass"].update(unit="g", value=27), "constants.mass.unit is 'g'; mass is read in kg"),
+    (lambda d: d["constants"]["ixx"].update(unit="g cm2"), "constants.ixx.unit is 'g cm2'; ixx is read in kg m2"),
+    (lambda d: d["constants"]["rotor_speed_gain"].update(unit="rad per PWM"), "rotor_speed_gain is read in rad/s per input unit"),
+    (lambda d: d["constants"]["mass"].update(vlaue=1.0), "constants.mass.vlaue is not a field of a constant"),
+    (lambda d: d.update(geomtery="x"), "geomtery is not a key of a vehicle file"),
+])
+def test_a_wrong_unit_or_a_mistyped_key_is_one_error_not_read_silently(edit, message, tmp_path):
+    """A mass in g was read as 27 kg, and a typo'd key ignored: now one line naming the key."""
+    document = yaml.safe_load((REPO_VEHICLES / "crazyflie21.yaml").read_text())
+    edit(document)
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(document))
+    with pytest.raises(ConfigError) as info:
+        load_vehicle(path)
+    assert message in str(info.value) and str(info.value).startswith(str(path)) and "\n" not in str(info.value)
+
+
+def test_a_unit_per_command_accepts_the_vehicles_own_command_unit():
+    check_unit("rotor_speed_gain", "rad/s per PWM", "x")
+    check_unit("rotor_speed_gain", "rad/s per us", "x")
+    check_unit("mass", "kg", "x")
