@@ -19,6 +19,7 @@ from quad_modelling.core.identification.identify import (
     write_vehicle_yaml,
 )
 from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.errors import ConfigError
 
 NAME = "identify"
 HELP = "identify the motor constants marked 'identified' from flight data (training spans only)"
@@ -59,6 +60,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=input_files(args))
+    if output.suffix not in (".yaml", ".yml"):  # what --vehicle reads back as a file
+        raise ConfigError(f"-o {output}: a vehicle file is YAML; name it VEHICLE.yaml")
     config = config_from_args(args)
     terms = identify_term_names(args.effects.split(","))  # one line for an unknown, repeated or unfittable term
     flights, vehicle, _ = load_evaluation_flights(args)

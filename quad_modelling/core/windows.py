@@ -230,12 +230,14 @@ class EvaluationConfig:
                             ("--drop end", self.drop_end), ("--smooth", self.smooth_cutoff_hz)):
             if not math.isfinite(value):
                 raise ConfigError(f"{flag} {value}: must be a finite number")
-        if self.window_s <= 0 or self.warm_s < 0 or self.warm_s >= self.window_s:
-            raise ConfigError(f"need window_s > warm_s >= 0, got window {self.window_s} s, warm {self.warm_s} s")
+        if self.window_s <= 0 or self.warm_s <= 0 or self.warm_s >= self.window_s:  # the warm start anchors on measurements
+            raise ConfigError(f"need window_s > warm_s > 0 (--window, --warm), got window {self.window_s} s, warm {self.warm_s} s")
         if self.drop_start < 0 or self.drop_end < 0:
             raise ConfigError("take-off/landing drops must be >= 0 s")
         if not self.horizons or min(self.horizons) < 1:
             raise ConfigError(f"horizons must be positive step counts, got {self.horizons}")
+        if list(self.horizons) != sorted(set(self.horizons)):
+            raise ConfigError(f"--horizons {','.join(map(str, self.horizons))}: give each step count once, in increasing order")
         if not self.smooth_cutoff_hz > 0:
             raise ConfigError(f"the smoothing cutoff must be a positive frequency in Hz, got {self.smooth_cutoff_hz:g}")
         self.spans()

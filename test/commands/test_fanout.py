@@ -82,7 +82,8 @@ def test_bad_jobs_or_unreachable_scheduler_is_one_line_exit_2(flights, tmp_path,
     monkeypatch.setattr(fanout, "CONNECT_TIMEOUT_S", 1.0)
     verbs = (["evaluate", *flights, *SPANS], ["identify", *flights, *SPANS], ["train", flights[0], "--vehicle", "linkquad"])
     for verb in verbs if flags[0] == "--jobs" else verbs[:1]:  # the same fanout code: one verb waits for the timeout
-        assert main([*verb, "-o", str(tmp_path / ("out.npz" if verb[0] == "train" else "out")), *flags]) == 2
+        name = {"train": "out.npz", "identify": "out.yaml"}.get(verb[0], "out")
+        assert main([*verb, "-o", str(tmp_path / name), *flags]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and message in err[0], err
         assert list(tmp_path.iterdir()) == []
