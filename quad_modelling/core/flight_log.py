@@ -255,3 +255,14 @@ def saturate_commands(u: np.ndarray, t: np.ndarray, low: float, high: float, whe
                     f"clipped ({'max' if side == 'above' else 'min'} {u[row, col]:.6g} at row {row + 1}, t={t[row] - t[0]:.2f} s)"
                 )
     return np.clip(u, low, high), warnings, counts
+
+
+def chosen_vehicle(given: str | None, named: str | None, where: str) -> str | None:
+    """The vehicle name a flight is read with: ``given`` (``--vehicle``: a name, or the ``name`` of a file a command
+    loaded) or else the one the file ``named``; DataError (one line) when both names are there and differ -- a LinkQuad
+    log read as a Crazyflie would have its commands taken in the other's unit, every constant fitted to its bound. A
+    YAML path given as such (not loaded yet) may name any vehicle."""
+    if given and named and str(given) != str(named) and not str(given).endswith((".yaml", ".yml")):  # a FILE: any name
+        raise DataError(f"{where}: the flight names vehicle {named!r}, --vehicle gives {given!r}: pass a vehicle file of "
+                        f"{named!r} (name: {named} in the YAML, as identify writes it) or none")
+    return given or named

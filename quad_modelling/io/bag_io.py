@@ -36,7 +36,7 @@ except ImportError:  # pragma: no cover - Python < 3.14
 from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.atomic import atomic_output
-from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.flight_log import FlightLog, chosen_vehicle
 from quad_modelling.core.input_files import input_path_mode, read_yaml
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.topics import (
@@ -439,7 +439,7 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
 
     def flight_meta() -> tuple[str, dict]:
         custom = _custom_data(path)
-        vehicle_name = vehicle or custom.get(VEHICLE_KEY)
+        vehicle_name = chosen_vehicle(vehicle, custom.get(VEHICLE_KEY), str(path))
         if not vehicle_name:
             raise DataError(f"{path}: the bag names no vehicle (custom_data {VEHICLE_KEY}); pass --vehicle NAME")
         try:

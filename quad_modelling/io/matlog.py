@@ -35,7 +35,7 @@ import scipy.io
 
 from quad_modelling.atomic import atomic_output
 from quad_modelling.core import frames
-from quad_modelling.core.flight_log import FlightLog, FlightMeta
+from quad_modelling.core.flight_log import FlightLog, FlightMeta, chosen_vehicle
 from quad_modelling.core.input_files import read_yaml
 from quad_modelling.core.preprocess import marked_gaps
 from quad_modelling.errors import ConfigError, DataError, reason
@@ -288,7 +288,7 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
             raise DataError(f"{where}: variable meta_json must hold a JSON object, got {type(notes).__name__}")
     if "vehicle" in found and not vehicle and not isinstance(found["vehicle"], str):
         raise DataError(f"{where}: variable vehicle must be a vehicle config name (text), got a {type(found['vehicle']).__name__}")
-    vehicle_name = vehicle or (str(found["vehicle"]) if "vehicle" in found else None)
+    vehicle_name = chosen_vehicle(vehicle, str(found["vehicle"]) if "vehicle" in found else None, where)
     if not vehicle_name:
         raise DataError(f"{where}: no 'vehicle' variable in the file; pass --vehicle NAME")
     return FlightLog(

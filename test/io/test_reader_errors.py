@@ -254,3 +254,19 @@ def test_wrong_types_in_a_model_header(tmp_path, key, value, message):
     path.write_bytes(model_bytes(header, MODEL.arrays()))
     assert refusal(ModelError, load_narx, path) == f"{path}: {message}"
     json.dumps(header)  # the header itself is valid JSON: the refusal is about the types
+
+
+def test_a_vehicle_given_that_contradicts_the_one_a_flight_names_is_refused(tmp_path):
+    """A simulated LinkQuad log read with --vehicle crazyflie21 had its pulse seconds taken as PWM (every constant
+    fitted to a bound, exit 0): refused in one line, .mat and bag alike; the vehicle the flight names (or a file of
+    it) is still taken."""
+    from quad_modelling.io.bag_io import write_bag
+
+    log = synthetic_log(vehicle="linkquad")
+    write_matlog(log, tmp_path / "lq.mat")
+    write_bag(log, tmp_path / "lq_bag")
+    for path in (tmp_path / "lq.mat", tmp_path / "lq_bag"):
+        message = refusal(DataError, load_flight, path, "crazyflie21")
+        assert message == (f"{path}: the flight names vehicle 'linkquad', --vehicle gives 'crazyflie21': pass a vehicle file "
+                           "of 'linkquad' (name: linkquad in the YAML, as identify writes it) or none")
+        assert load_flight(path, "linkquad").meta.vehicle == "linkquad"
