@@ -104,7 +104,10 @@ def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], 
     print_gap_warnings(flights)
     names = sorted({f.meta.vehicle for f in flights})
     if len(names) > 1:
-        raise ConfigError(f"the flights are of different vehicles {names}; evaluate one vehicle at a time")
+        other = next(f for f in flights if f.meta.vehicle != flights[0].meta.vehicle)
+        raise ConfigError(f"the flights are of different vehicles {names} ({flights[0].meta.source} of "
+                          f"{flights[0].meta.vehicle!r}, {other.meta.source} of {other.meta.vehicle!r}); "
+                          f"{getattr(args, 'verb', 'evaluate')} one vehicle at a time")
     vehicle = given or load_vehicle(flights[0].meta.vehicle)
     if vehicle.name != names[0]:
         raise ConfigError(f"--vehicle {args.vehicle} describes {vehicle.name!r}, the flights are of {names[0]!r}")

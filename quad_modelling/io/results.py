@@ -11,6 +11,8 @@ horizons; anything else is one :class:`~quad_modelling.errors.DataError` naming 
 
 from __future__ import annotations
 
+import dataclasses
+
 import json
 import stat
 from collections.abc import Iterator, Sequence
@@ -66,9 +68,17 @@ def read_results(directory: str | Path) -> tuple[Path, dict, EvaluationStatistic
 
 
 def _same(name: str, first, other, first_path: Path, other_path: Path) -> None:
-    if first != other:
-        raise DataError(f"{other_path}: {name} {other} differs from {name} {first} of {first_path}; only evaluations with the "
-                        f"same vehicle, models, spans and configuration can be merged")
+    """DataError (one line) when ``other`` differs from ``first``: for a configuration (a dataclass) the fields that
+    differ, with both values, not the two whole configurations."""
+    if first == other:
+        return
+    if dataclasses.is_dataclass(first) and type(first) is type(other):
+        fields = [f.name for f in dataclasses.fields(first) if getattr(first, f.name) != getattr(other, f.name)]
+        what = "; ".join(f"{f} {getattr(other, f)!r} (there {getattr(first, f)!r})" for f in fields)
+    else:
+        what = f"{other} (there {first})"
+    raise DataError(f"{other_path}: {name} differs from {first_path}'s: {what}; only evaluations with the same vehicle, "
+                    f"models, spans and configuration can be merged")
 
 
 def merge_results(directories: Sequence[str | Path]) -> EvaluationResult:

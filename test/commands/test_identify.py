@@ -106,3 +106,16 @@ def test_a_rotor_drag_switched_off_in_the_vehicle_file_stays_off_until_effects_n
     assert "held at 0: effects.rotor_drag is switched off" in off["constants"]["rotor_drag_xy"]["source"]
     assert PhysicsParameters.from_vehicle(load_vehicle(kept)).drag == (0.0, 0.0, 0.0)
     assert on["constants"]["rotor_drag_xy"]["sigma"] > 0 and PhysicsParameters.from_vehicle(load_vehicle(fitted)).drag[0] > 0
+
+
+def test_flights_of_two_vehicles_are_refused_naming_one_of_each(tmp_path, capsys):
+    from quad_modelling.io.matlog import write_matlog
+    from test.conftest import FIXTURES, synthetic_log
+
+    linkquad = tmp_path / "lq.mat"
+    write_matlog(synthetic_log(vehicle="linkquad"), linkquad)
+    crazyflie = FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz"
+    assert main(["identify", str(crazyflie), str(linkquad), "-o", str(tmp_path / "v.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "the flights are of different vehicles ['crazyflie21', 'linkquad']" in err and "identify one vehicle at a time" in err
+    assert f"{crazyflie} of 'crazyflie21', {linkquad} of 'linkquad'" in err and len(err.splitlines()) == 1

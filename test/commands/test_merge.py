@@ -67,10 +67,11 @@ def test_merge_refuses_missing_foreign_and_incompatible_results(results, tmp_pat
     live_only["live"] = {"spans": [{"name": "live", "start_s": 0.0, "end_s": None}]}
     (foreign / "results.json").write_text(json.dumps(live_only))
     assert "a run-bag result without both --train and --eval (its span is live:0:inf)" in merge_error([str(foreign), "-o", out], capsys)
-    assert "models ['naive', 'dummy'] differs from models ['greybox', 'dummy']" in merge_error(
-        [str(results["a"]), str(results["other_models"]), "-o", out], capsys)
+    assert "models differs from" in (message := merge_error([str(results["a"]), str(results["other_models"]), "-o", out], capsys))
+    assert "['naive', 'dummy'] (there ['greybox', 'dummy'])" in message
     message = merge_error([str(results["a"]), str(results["other_spans"]), "-o", out], capsys)
-    assert "other_spans/results.json: configuration" in message and "eval='50%:100%'" in message
+    assert "other_spans/results.json: configuration differs from" in message and "eval '50%:100%' (there " in message
+    assert "EvaluationConfig(" not in message and len(message) < 400  # the field that differs, not two whole configurations
     assert "given twice" in merge_error([str(results["a"]), str(results["a"]), "-o", out], capsys)
     assert not (tmp_path / "out").exists()
 
