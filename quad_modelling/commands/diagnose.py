@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.atomic import atomic_output, check_output
-from quad_modelling.commands.evaluate import print_gap_warnings
+from quad_modelling.commands.evaluate import print_flight_warnings
 from quad_modelling.core.diagnosis.catalogue import parse_effect_list
 from quad_modelling.core.diagnosis.diagnose import (
     DIAGNOSIS_CONFIG,
@@ -185,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"skipped: {message}", file=sys.stderr)
     if not train or not test:
         raise ConfigError("no readable flight left in --train or --test")
-    print_gap_warnings(train + test)
+    print_flight_warnings(train + test)
     for log in train + test:
         check_cutoff(args.smooth, log)
     vehicle = given or load_vehicle(train[0].meta.vehicle)

@@ -11,7 +11,7 @@ from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.core.evaluation.windowed import FlightEvaluation, evaluate_flight, merge_flights
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import make_model
-from quad_modelling.core.preprocess import gap_warnings
+from quad_modelling.core.preprocess import flight_warnings
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import PRESETS, EvaluationConfig, check_window_rate
 from quad_modelling.errors import ConfigError, DataError
@@ -83,10 +83,11 @@ def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
                                          window_s=args.window, warm_s=args.warm, **extra)
 
 
-def print_gap_warnings(flights: list[FlightLog]) -> None:
-    """One ``warning:`` line on stderr per marked measurement gap of the flights (their windows are left out)."""
+def print_flight_warnings(flights: list[FlightLog]) -> None:
+    """One ``warning:`` line on stderr per warning the reader recorded about each flight (a marked gap, whose windows
+    are left out; clipped commands; a cut tail; a damaged file)."""
     for log in flights:
-        for message in gap_warnings(log):
+        for message in flight_warnings(log):
             print(f"warning: {message}", file=sys.stderr)
 
 
@@ -101,7 +102,7 @@ def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], 
         print(f"skipped: {message}", file=sys.stderr)
     if not flights:
         raise ConfigError("no readable flight among the inputs")
-    print_gap_warnings(flights)
+    print_flight_warnings(flights)
     names = sorted({f.meta.vehicle for f in flights})
     if len(names) > 1:
         other = next(f for f in flights if f.meta.vehicle != flights[0].meta.vehicle)
@@ -143,7 +144,7 @@ def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[s
     flight_vehicle = vehicle or load_vehicle(loaded.log.meta.vehicle)
     models = [make_model(spec, flight_vehicle) for spec in specs]
     evaluation = evaluate_flight(loaded.log, models, flight_vehicle, config, multistep, examples=path == examples_from)
-    return FlightOutcome(path, evaluation, None, flight_vehicle.name, gap_warnings(loaded.log))
+    return FlightOutcome(path, evaluation, None, flight_vehicle.name, flight_warnings(loaded.log))
 
 
 def _evaluations(outcomes, skipped: list[str], vehicles: list[str], first_in_span: dict[str, str]):

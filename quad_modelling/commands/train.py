@@ -204,7 +204,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from quad_modelling.atomic import check_output
-    from quad_modelling.commands.evaluate import print_gap_warnings
+    from quad_modelling.commands.evaluate import print_flight_warnings
     from quad_modelling.core.training.narx import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.core.windows import check_window_rate
@@ -228,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
     paths = [*args.flights, *(args.val_flights or [])]
     logs, _ = load_flights(paths, given, jobs=args.jobs, scheduler=args.scheduler,
                            progress=None if args.quiet else tty_progress("train: read", len(paths)), topic_map=args.topic_map)
-    print_gap_warnings(logs)
+    print_flight_warnings(logs)
     for log in logs:  # windows and rollout segments are in samples: a flight no window can score is refused for its rate
         check_window_rate(log)
     spans = training_spans(logs, args)

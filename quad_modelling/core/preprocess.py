@@ -176,13 +176,19 @@ def marked_gaps(log: FlightLog) -> list[MeasurementGap]:
     return gaps
 
 
-def gap_warnings(log: FlightLog) -> list[str]:
-    """The warnings of ``log`` about its marked measurement gaps (what evaluate, identify, train and diagnose print);
-    DataError when the notes' ``warnings`` is not a list."""
+def flight_warnings(log: FlightLog) -> list[str]:
+    """Every warning the reader recorded about ``log`` (``notes['warnings']``: marked gaps, clipped commands, a cut
+    tail, a damaged file), what every verb that reads flights prints; DataError when the notes' ``warnings`` is not a
+    list."""
     warnings = log.meta.notes.get("warnings", [])
     if not isinstance(warnings, list):
         raise DataError(f"{log.meta.source}: notes warnings is {type(warnings).__name__}, expected a list")
-    return [w for w in warnings if isinstance(w, str) and GAP_MARK in w]
+    return [w for w in warnings if isinstance(w, str)]
+
+
+def gap_warnings(log: FlightLog) -> list[str]:
+    """The warnings of ``log`` about its marked measurement gaps (:func:`flight_warnings` naming a gap)."""
+    return [w for w in flight_warnings(log) if GAP_MARK in w]
 
 
 def check_same_clock(topic: str, source_t: np.ndarray, base: str, t: np.ndarray, where: str,

@@ -64,3 +64,15 @@ def test_the_multistep_table_lists_every_model_evaluated(tmp_path):
     assert tables.count("| narx | ") == 4
     assert "Not in the multi-step table: dummy (no multi-step form" in tables
     assert "greybox = linear greybox, the thesis reproduction" in tables
+
+
+def test_a_flight_the_reader_cut_is_said_by_evaluate_as_by_convert(tmp_path, capsys):
+    """The NanoBench extrapolated tail: the reader cuts the flight with a warning, which evaluate prints too (it printed
+    gap warnings only, so a flight scored over its first 0.5 s said nothing of the cut)."""
+    from test.conftest import FIXTURES
+
+    quirk = FIXTURES / "nanobench" / "B9_trefoil_fast_rep2_rows1199-1399.csv.gz"
+    main(["evaluate", str(quirk), "--drop", "0:0", "--train", "0%:50%", "--eval", "50%:100%", "-o", str(tmp_path / "e")])
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert len(warnings) == 1 and warnings[0].startswith(f"warning: {quirk}: motor columns continue as one straight line")
+    assert warnings[0].endswith("the flight is cut at t=0.53 s")
