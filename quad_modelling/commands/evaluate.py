@@ -219,4 +219,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"{len(vehicles)} flight(s), {windows_text(data)} -> {output}/ ({', '.join(files)})")
     for line in headline_scores(data, result.statistics.models):
         print(line)
+    for span in config.spans():  # the other span held windows (else: no_window_error)
+        if not data["windows"]["dummy"].get(span.name):
+            print(f"warning: span {span.name} {span.text()} holds no {config.window_s:g} s window of any flight after "
+                  f"dropping {config.drop_start:g} s/{config.drop_end:g} s: nothing scored there", file=sys.stderr)
     return 0

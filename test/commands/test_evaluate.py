@@ -76,3 +76,14 @@ def test_a_flight_the_reader_cut_is_said_by_evaluate_as_by_convert(tmp_path, cap
     warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
     assert len(warnings) == 1 and warnings[0].startswith(f"warning: {quirk}: motor columns continue as one straight line")
     assert warnings[0].endswith("the flight is cut at t=0.53 s")
+
+
+def test_a_span_that_holds_no_window_is_said_in_one_warning_line(tmp_path, capsys):
+    """--train 50:60 on a 42 s flight: the eval span is scored, the empty train span is said (exit 0 before, silently)."""
+    from test.conftest import REPO
+
+    bag = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
+    assert main(["evaluate", str(bag), "--drop", "5:5", "--train", "50:60", "--eval", "10:30", "--window", "5",
+                 "--no-multistep", "-o", str(tmp_path / "e")]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert warnings == ["warning: span train 50:60 holds no 5 s window of any flight after dropping 5 s/5 s: nothing scored there"]
