@@ -77,3 +77,26 @@ def hover_log(n: int = 2500, rate: float = 100.0, seed: int = 3):
 
 
 __all__ = ["Capture", "feed", "hover_log", "np"]
+
+
+def interrupted_node(module: str, params: list[str], ready: str, settle_s: float, timeout_s: float = 20.0) -> tuple[int, str]:
+    """Run node ``module`` (``python -m``) with ``--ros-args`` ``params`` until a line holds ``ready``, let it spin
+    ``settle_s``, send SIGINT; (exit code, everything it printed)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    node = subprocess.Popen([sys.executable, "-m", module, "--ros-args", *params], stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    lines = []
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        line = node.stdout.readline()
+        lines.append(line)
+        if ready in line or not line:
+            break
+    time.sleep(settle_s)
+    node.send_signal(signal.SIGINT)
+    out = node.communicate(timeout=timeout_s)[0]
+    return node.returncode, "".join(lines) + out

@@ -12,7 +12,7 @@ from quad_modelling.core.variables import INDEX
 from quad_modelling.io import topics
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.evaluator_node import EvaluatorNode
-from test.ros.conftest import Capture, feed, hover_log
+from test.ros.conftest import Capture, feed, hover_log, interrupted_node
 
 
 def make_node(**params):
@@ -208,24 +208,9 @@ def test_an_empty_model_list_is_one_line_exit_2():
 def test_ctrl_c_ends_the_evaluator_without_a_fatal_line_and_writes_its_results(executor, tmp_path):
     """SIGINT while its timers run: exit code 0, the results written, and no FATAL line or traceback (the signal
     raised inside a timer callback was logged as FATAL by the events executor)."""
-    import signal
-    import subprocess
-    import sys
-
     out = tmp_path / "results"
-    node = subprocess.Popen([sys.executable, "-m", "quad_modelling.nodes.evaluator_node", "--ros-args", "-p", f"executor:={executor}",
-                             "-p", "vehicle:=crazyflie21", "-p", f"output_dir:={out}", "-p", "figures:=false"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    lines = []
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        line = node.stdout.readline()
-        lines.append(line)
-        if "scoring models" in line or not line:
-            break
-    time.sleep(1.5)  # its timers fire many times a second by now
-    node.send_signal(signal.SIGINT)
-    text = "".join(lines) + node.communicate(timeout=20)[0]
-    assert node.returncode == 0, text
+    code, text = interrupted_node("quad_modelling.nodes.evaluator_node", ["-p", f"executor:={executor}", "-p", "vehicle:=crazyflie21",
+                                  "-p", f"output_dir:={out}", "-p", "figures:=false"], "scoring models", 1.5)
+    assert code == 0, text  # its timers fired many times a second before the signal
     assert "FATAL" not in text and "Traceback" not in text and "Error occurred" not in text, text
     assert (out / "results.json").exists() and "closed 0 windows; faults: none" in text

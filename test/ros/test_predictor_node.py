@@ -19,7 +19,7 @@ from quad_modelling.io.topics import stamps_ns
 from quad_modelling.nodes import messages
 from quad_modelling.nodes.model_factory import make_streaming_predictor
 from quad_modelling.nodes.predictor_node import PredictorNode
-from test.ros.conftest import Capture, feed, hover_log
+from test.ros.conftest import Capture, feed, hover_log, interrupted_node
 
 
 def make_node(**params):
@@ -130,19 +130,8 @@ def test_bad_parameters_exit_with_code_2_and_the_reason():
 @pytest.mark.parametrize("executor", ["events", "single"])
 def test_ctrl_c_ends_a_spinning_node_cleanly_with_its_summary(executor):
     """SIGINT while spinning: exit code 0 and the closing summary (EventsExecutor.spin() would busy-loop here)."""
-    node = subprocess.Popen([sys.executable, "-m", "quad_modelling.nodes.predictor_node", "--ros-args", "-p", f"executor:={executor}"],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    lines = []
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        line = node.stdout.readline()
-        lines.append(line)
-        if "predicting with" in line or not line:
-            break
-    time.sleep(0.5)  # spinning by now
-    node.send_signal(signal.SIGINT)
-    out = node.communicate(timeout=10)[0]
-    assert node.returncode == 0, "".join(lines) + out
+    code, out = interrupted_node("quad_modelling.nodes.predictor_node", ["-p", f"executor:={executor}"], "predicting with", 0.5, 10)
+    assert code == 0, out
     assert "published 0 predictions over 0 windows" in out
 
 
