@@ -24,8 +24,10 @@ or model that needs a missing sensor says so by name (:data:`SENSORS`,
 
 Construction validates shapes, strictly increasing time and finite values
 (a NaN is rejected with the channel and sample time named; readers that can
-fill gaps say so in ``meta.notes``), and the sensor full-scale limits below,
-which catch data in the wrong unit (e.g. accelerations in g, angles in deg).
+fill gaps say so in ``meta.notes``), the sensor full-scale limits below,
+which catch data in the wrong unit (e.g. accelerations in g, angles in deg),
+and plausibility bounds on position and velocity (:data:`POSITION_LIMIT`,
+:data:`VELOCITY_LIMIT`), which catch corrupt values (a position of 1e30 m).
 
 Engine commands beyond the vehicle's input range (:func:`saturate_commands`):
 the actuator saturates, so a command up to :data:`SATURATION_MARGIN` of the
@@ -48,6 +50,15 @@ GYRO_FULL_SCALE = np.deg2rad(2000.0)
 
 ACCEL_FULL_SCALE = 24.0 * 9.80665
 """Largest specific force a MEMS accelerometer reports [m/s²] (±24 g: BMI088)."""
+
+POSITION_LIMIT = 1.0e5
+"""Largest |position| component [m] a flight may hold: 100 km, beyond any local frame a multirotor flight is logged
+in (motion-capture volumes, a PX4 local NED frame whose origin is set at arming). A judgement, not a measurement:
+it catches a corrupt or wrongly scaled position (1e30 m, a mm log read as km), not a long flight."""
+
+VELOCITY_LIMIT = 200.0
+"""Largest |velocity| component [m/s] a flight may hold: above any multirotor's (racing quadrotors reach about
+50 m/s) and below the speed of sound; a judgement that catches corrupt or wrongly scaled velocities."""
 
 MAX_TIME_S = (2**63 - 1) / 1e9
 """Largest |t| [s] a flight may hold: what a ROS stamp of int64 nanoseconds reaches (year 2262 in Unix time)."""
@@ -133,6 +144,8 @@ class FlightLog:
         self._check_range(where, "gyro_b", GYRO_FULL_SCALE, "rad/s (gyro full scale)")
         self._check_range(where, "acc_b", ACCEL_FULL_SCALE, "m/s² (accelerometer full scale)")
         self._check_range(where, "euler", np.pi + 1e-6, "rad for roll/pitch", columns=(0, 1))
+        self._check_range(where, "pos_n", POSITION_LIMIT, "m (no local frame is that large)")
+        self._check_range(where, "vel_n", VELOCITY_LIMIT, "m/s (faster than any multirotor)")
 
     def _check_finite(self, where: str) -> None:
         for name in ("t", "u", *VECTOR_FIELDS, "vbat", "omega"):

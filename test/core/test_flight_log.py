@@ -63,3 +63,19 @@ def test_allclose_detects_a_difference(flight):
     assert flight.allclose(other)
     other.pos_n[3, 1] += 1e-3
     assert not flight.allclose(other)
+
+
+def test_implausible_position_and_velocity_are_refused(flight):
+    fields = _fields(flight)
+    fields["pos_n"] = fields["pos_n"].copy()
+    fields["pos_n"][42, 1] = 1e30
+    with pytest.raises(DataError, match=r"synthetic: field pos_n column 1 row 42 is 1e\+30, beyond ±1e\+05 m \(no local frame is that large\)"):
+        FlightLog(**fields)
+    fields = _fields(flight)
+    fields["vel_n"] = fields["vel_n"].copy() * 1000.0  # mm/s read as m/s
+    fields["vel_n"][7, 0] = -350.0
+    with pytest.raises(DataError, match=r"synthetic: field vel_n column \d row \d+ is .*, beyond ±200 m/s \(faster than any multirotor\)"):
+        FlightLog(**fields)
+    fields = _fields(flight)
+    fields["pos_n"] = fields["pos_n"] + 9.0e4  # a PX4 local frame 90 km from its origin is still a flight
+    assert len(FlightLog(**fields)) == 400

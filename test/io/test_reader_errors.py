@@ -270,3 +270,10 @@ def test_a_vehicle_given_that_contradicts_the_one_a_flight_names_is_refused(tmp_
         assert message == (f"{path}: the flight names vehicle 'linkquad', --vehicle gives 'crazyflie21': pass a vehicle file "
                            "of 'linkquad' (name: linkquad in the YAML, as identify writes it) or none")
         assert load_flight(path, "linkquad").meta.vehicle == "linkquad"
+
+
+def test_position_of_1e30_m_is_refused(tmp_path):
+    path = csv_with(tmp_path, 10, "py", "1e30")
+    # NanoBench's y (east) is the internal NED frame's column 0 (north-east swapped, frames.py)
+    assert refusal(DataError, load_flight, path) == (f"{path}: field pos_n column 0 row 9 is 1e+30, beyond ±1e+05 m "
+                                                     "(no local frame is that large): wrong unit or corrupt data")
