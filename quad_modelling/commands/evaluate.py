@@ -78,9 +78,19 @@ def input_files(args: argparse.Namespace) -> list:
 
 
 def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
-    """The evaluation configuration of the span options (core span grammar, :meth:`EvaluationConfig.from_options`)."""
-    return EvaluationConfig.from_options(args.preset, args.drop, train=args.train, eval=args.eval,
-                                         window_s=args.window, warm_s=args.warm, **extra)
+    """The evaluation configuration of the span options (core span grammar, :meth:`EvaluationConfig.from_options`);
+    a warning line when its training and evaluation spans overlap (:func:`warn_span_overlap`)."""
+    config = EvaluationConfig.from_options(args.preset, args.drop, train=args.train, eval=args.eval,
+                                           window_s=args.window, warm_s=args.warm, **extra)
+    warn_span_overlap(config)
+    return config
+
+
+def warn_span_overlap(config: EvaluationConfig) -> None:
+    """One ``warning:`` line on stderr when ``config``'s training and evaluation spans share time."""
+    overlap = config.span_overlap()
+    if overlap:
+        print(f"warning: {overlap}", file=sys.stderr)
 
 
 def print_flight_warnings(flights: list[FlightLog]) -> None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from quad_modelling.atomic import atomic_output, check_output
@@ -64,12 +65,15 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"-o {output}: a vehicle file is YAML; name it VEHICLE.yaml")
     config = config_from_args(args)
     terms = identify_term_names(args.effects.split(","))  # one line for an unknown, repeated or unfittable term
-    flights, vehicle, _ = load_evaluation_flights(args)
+    flights, vehicle, skipped = load_evaluation_flights(args)
     result = identify(flights, vehicle, config, terms)
     document = identified_vehicle_document(vehicle, result, config.train)
     VehicleConfig.from_dict(document, str(output))  # what we write must load
     with atomic_output(output, args.force) as tmp:
         write_vehicle_yaml(document, tmp)
     print(result.summary())
+    if skipped:
+        print(f"identified from {len(flights)} of {len(flights) + len(skipped)} inputs: {len(skipped)} skipped "
+              "(above), not in identification.files", file=sys.stderr)
     print(f"-> {output}")
     return 0

@@ -93,10 +93,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def training_spans(logs, args) -> list[tuple[float, float]]:
-    """Training span [s from each flight's start] per flight, as the evaluation computes it."""
+    """Training span [s from each flight's start] per flight, as the evaluation computes it; a warning line when it
+    overlaps the preset's evaluation span (what ``evaluate --preset`` then scores partly in-sample)."""
+    from quad_modelling.commands.evaluate import warn_span_overlap
     from quad_modelling.core.windows import EvaluationConfig
 
     config = EvaluationConfig.from_options(args.preset, args.drop, train=args.train)
+    warn_span_overlap(config)
     span = config.spans()[0]
     spans = []
     for log in logs:

@@ -225,6 +225,20 @@ class EvaluationConfig:
     def spans(self) -> list[SpanSpec]:
         return [SpanSpec.parse("train", self.train), SpanSpec.parse("eval", self.eval)]
 
+    def span_overlap(self) -> str | None:
+        """A sentence when the training and evaluation spans share time (both in seconds or both in percent of the
+        flying part; mixed kinds depend on each flight's length and are not judged), else None: what is fitted on
+        the training span is then scored partly in-sample."""
+        train, held_out = self.spans()
+        if train.relative != held_out.relative:
+            return None
+        start, end = max(train.start, held_out.start), min(train.end, held_out.end)
+        if start >= end:
+            return None
+        shared = SpanSpec("shared", start, end, train.relative).text()
+        return (f"the training span {train.text()} and the evaluation span {held_out.text()} share {shared}: "
+                "what is fitted there is scored partly in-sample")
+
     def validate(self) -> None:
         for flag, value in (("--window", self.window_s), ("--warm", self.warm_s), ("--drop start", self.drop_start),
                             ("--drop end", self.drop_end), ("--smooth", self.smooth_cutoff_hz)):

@@ -119,3 +119,21 @@ def test_flights_of_two_vehicles_are_refused_naming_one_of_each(tmp_path, capsys
     err = capsys.readouterr().err.strip()
     assert "the flights are of different vehicles ['crazyflie21', 'linkquad']" in err and "identify one vehicle at a time" in err
     assert f"{crazyflie} of 'crazyflie21', {linkquad} of 'linkquad'" in err and len(err.splitlines()) == 1
+
+
+def test_skipped_input_and_overlapping_spans_are_said(flights, tmp_path, capsys):
+    """--skip-bad: the vehicle is identified from the readable flights, and a line says how many were left out of
+    identification.files; a training span that overlaps the evaluation span is one warning line."""
+    bad = tmp_path / "broken.mat"
+    bad.write_bytes(b"not a MAT file")
+    out = tmp_path / "lq.yaml"
+    assert main(["identify", *flights, str(bad), "--vehicle", "linkquad", "--preset", "short", "--train", "0%:70%",
+                 "--skip-bad", "-o", str(out)]) == 0
+    err = capsys.readouterr().err
+    assert f"skipped: {bad}: " in err
+    assert "identified from 2 of 3 inputs: 1 skipped (above), not in identification.files" in err
+    assert ("warning: the training span 0%:70% and the evaluation span 60%:100% share 60%:70%: "
+            "what is fitted there is scored partly in-sample") in err
+    assert len(yaml.safe_load(out.read_text())["identification"]["files"]) == 2
+    assert main(["identify", *flights, "--vehicle", "linkquad", "--preset", "short", "-o", str(tmp_path / "b.yaml")]) == 0
+    assert "warning" not in capsys.readouterr().err  # the preset's spans meet at 60 % and do not overlap

@@ -210,3 +210,11 @@ def test_segments_split_at_a_marked_gap():
     assert gap_free_runs(synthetic_log(n=300), 10, 200) == [(10, 200)]
     config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train="0:30", eval="2:20", window_s=2.0)
     assert span_segments(log, config.spans()[1], config) == [(200, 401), (1068, 2000)]  # the multi-step segments
+
+
+def test_span_overlap_is_judged_for_spans_of_one_kind():
+    assert EvaluationConfig().span_overlap() is None  # 30:150 and 150:190 meet, share nothing
+    assert EvaluationConfig(train="30:160").span_overlap() == (
+        "the training span 30:160 and the evaluation span 150:190 share 150:160: what is fitted there is scored partly in-sample")
+    assert EvaluationConfig(train="0%:100%", eval="60%:100%").span_overlap().endswith("share 60%:100%: what is fitted there is scored partly in-sample")
+    assert EvaluationConfig(train="0%:60%", eval="100:190").span_overlap() is None  # mixed kinds depend on the flight
