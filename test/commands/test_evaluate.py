@@ -66,6 +66,21 @@ def test_the_multistep_table_lists_every_model_evaluated(tmp_path):
     assert "greybox = linear greybox, the thesis reproduction" in tables
 
 
+def test_a_horizon_beyond_50_says_the_starts_differ_and_too_long_a_horizon_says_why_no_table(tmp_path):
+    """SimErr sums h = 1..50 whatever the horizons; a longer horizon leaves fewer starts (each needs its rows ahead),
+    which the table says; one longer than every segment gives the note instead of a table."""
+    from test.commands.test_train import BAG
+
+    for horizons, name in (("1,10,50", "default"), ("1,100", "long"), ("1,100000", "too_long")):
+        assert main(["evaluate", BAG, "--preset", "short", "--horizons", horizons, "-o", str(tmp_path / name)]) == 0
+    default, long = (json.loads((tmp_path / n / "results.json").read_text())["horizons"] for n in ("default", "long"))
+    assert long["sim_err_horizon"] == 100 and long["starts"] == default["starts"] - 50
+    assert "Every start has 100 rows ahead" in (tmp_path / "long" / "tables.md").read_text()
+    assert "rows ahead" not in (tmp_path / "default" / "tables.md").read_text()
+    assert ("Multi-step table: no eval segment longer than 100000 samples plus the warm start."
+            in (tmp_path / "too_long" / "tables.md").read_text())
+
+
 def test_a_flight_the_reader_cut_is_said_by_evaluate_as_by_convert(tmp_path, capsys):
     """The NanoBench extrapolated tail: the reader cuts the flight with a warning, which evaluate prints too (it printed
     gap warnings only, so a flight scored over its first 0.5 s said nothing of the cut)."""

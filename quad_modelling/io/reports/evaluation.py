@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from quad_modelling.core.evaluation.metrics import SIM_ERR_HORIZON
 from quad_modelling.core.evaluation.multistep import GROUPS
 from quad_modelling.core.evaluation.windowed import EvaluationResult, ExampleWindow
 from quad_modelling.core.variables import DISPLAY, EVAL_VARIABLES, INDEX
@@ -109,8 +110,12 @@ def multistep_lines(horizons: dict, align: bool = False) -> list[str]:
     if not horizons.get("models"):
         return [f"Multi-step table: {horizons['note']}.", ""] if horizons.get("note") else []
     lines = [f"## Multi-step prediction (IDSIA protocol, span {horizons['span']}, {horizons['starts']} start times)", "",
-             "MAE at horizon h steps and SimErr = sum of MAE_h for h = 1..50; ratio = model / naive constant-state prediction. "
+             f"MAE at horizon h steps and SimErr = sum of MAE_h for h = 1..{SIM_ERR_HORIZON}; ratio = model / naive constant-state prediction. "
              "Units: m, m/s, rad (geodesic angle), rad/s.", ""]
+    longest = horizons.get("sim_err_horizon", SIM_ERR_HORIZON)
+    if longest > SIM_ERR_HORIZON:  # every start needs the longest horizon's rows ahead: fewer starts than the default's
+        lines[-1:-1] = [f"Every start has {longest} rows ahead (the longest horizon asked for), so the starts are fewer than "
+                        f"with horizons up to {SIM_ERR_HORIZON} and SimErr is not comparable with a default run's."]
     hs = horizons["horizons"]
     rows = []
     for m, groups in horizons["models"].items():
