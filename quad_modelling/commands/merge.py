@@ -19,7 +19,7 @@ The merge adds them in the order given, as one evaluation of all the flights doe
 receives the results.json and tables.md of one `evaluate` over every flight (no figures: the
 inputs keep no flight data). The inputs are read one at a time.
 
-The inputs must share the vehicle, models, spans, windows, trim, smoothing and horizons; a
+The inputs must share the vehicle (every constant), models, spans, windows, trim, smoothing and horizons; a
 missing, foreign or incompatible results.json is a one-line error naming it.
 
 examples:

@@ -218,6 +218,22 @@ class VehicleConfig:
         it works from any directory); :attr:`path` unchanged when it names no file."""
         return str(Path(self.path).resolve()) if Path(self.path).is_file() else self.path
 
+    def numbers(self) -> dict[str, float]:
+        """Every number the models read from this vehicle, by name: constants, greybox constants (``greybox.KEY``),
+        motor positions and spin signs (``motor.NAME.x``...), effect switches and parameters (``effect.NAME.on``,
+        ``effect.NAME.PARAM``) and the input range. Two vehicles with equal numbers predict alike whatever their files'
+        names (what ``merge`` compares)."""
+        out = {name: float(c.value) for name, c in self.constants.items()}
+        out.update({f"greybox.{name}": float(c.value) for name, c in self.greybox_constants().items()})
+        for m in self.motors:
+            out.update({f"motor.{m.name}.x": float(m.position[0]), f"motor.{m.name}.y": float(m.position[1]),
+                        f"motor.{m.name}.yaw_sign": float(m.yaw_sign)})
+        for name, term in self.effects.items():
+            out[f"effect.{name}.on"] = float(term.on)
+            out.update({f"effect.{name}.{key}": float(v.value) for key, v in term.parameters.items()})
+        out.update({"input_min": float(self.input_min), "input_max": float(self.input_max)})
+        return out
+
     def value(self, key: str) -> float:
         """The numeric value of a constant, e.g. ``cfg.value('mass')``."""
         try:

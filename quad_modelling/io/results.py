@@ -93,6 +93,10 @@ def merge_results(directories: Sequence[str | Path]) -> EvaluationResult:
             total = statistics.empty_like([s.name for s in config.spans()])
         first_path, first_config, first_stats = first
         _same("vehicle", first_stats.vehicle, statistics.vehicle, first_path, path)
+        difference = first_stats.vehicle_difference(statistics)
+        if difference:
+            raise DataError(f"{path}: vehicle constants differ from {first_path}'s ({difference}): evaluations run with different "
+                            "vehicle files do not merge; evaluate every flight with one --vehicle")
         _same("models", first_stats.models, statistics.models, first_path, path)
         _same("configuration", first_config, config, first_path, path)
         _same("multi-step table", first_stats.multistep is not None, statistics.multistep is not None, first_path, path)

@@ -79,3 +79,27 @@ def test_merge_refuses_missing_foreign_and_incompatible_results(results, tmp_pat
 def test_merge_refuses_an_input_as_output(results, capsys):
     assert "the output is the input" in merge_error([str(results["a"]), str(results["b"]), "-o", str(results["b"]), "--force"], capsys)
     assert (results["b"] / "results.json").exists()
+
+
+def test_merge_refuses_evaluations_run_with_different_vehicle_files_of_one_airframe(results, flights, tmp_path, capsys):
+    """Two vehicle files of the LinkQuad that differ in one constant predict differently: their evaluations do not
+    merge, and the message names the constant; one without the numbers (written before they were kept) still does."""
+    import yaml
+
+    from quad_modelling.core.vehicle import load_vehicle
+
+    document = yaml.safe_load(open(load_vehicle("linkquad").path))
+    document["constants"]["mass"]["value"] *= 1.1
+    heavier = tmp_path / "linkquad_heavier.yaml"
+    heavier.write_text(yaml.safe_dump(document))
+    other = tmp_path / "other_vehicle"
+    assert main(["evaluate", flights[1], "--vehicle", str(heavier), "--preset", "short", "-o", str(other)]) == 0
+    message = merge_error([str(results["a"]), str(other), "-o", str(tmp_path / "out")], capsys)
+    mass = load_vehicle("linkquad").value("mass")
+    assert f"other_vehicle/results.json: vehicle constants differ from {results['a']}/results.json's (mass {mass:.6g} vs {mass * 1.1:.6g})" in message
+    older = tmp_path / "older"
+    older.mkdir()
+    document = json.loads((other / "results.json").read_text())
+    del document["statistics"]["vehicle_numbers"]
+    (older / "results.json").write_text(json.dumps(document))
+    assert main(["merge", str(results["a"]), str(older), "-o", str(tmp_path / "out")]) == 0

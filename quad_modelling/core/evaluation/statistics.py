@@ -230,20 +230,40 @@ class EvaluationStatistics:
     windowed: dict[str, dict[str, WindowSums]]
     multistep: MultistepSums | None
     durations: list[float] = field(default_factory=list)
+    vehicle_numbers: dict[str, float] | None = None
+    """Every number of the vehicle the models were run with (:meth:`~quad_modelling.core.vehicle.VehicleConfig.numbers`);
+    None where it is not known (the live evaluator scores predictors that loaded their own vehicle files)."""
 
     @classmethod
-    def empty(cls, vehicle: str, models: list[str], spans: list[str], multistep: MultistepSums | None) -> EvaluationStatistics:
+    def empty(cls, vehicle: str, models: list[str], spans: list[str], multistep: MultistepSums | None,
+              vehicle_numbers: dict[str, float] | None = None) -> EvaluationStatistics:
         """No flight yet: every sum zero (the start of every merge)."""
-        return cls(vehicle, list(models), {m: {s: WindowSums() for s in spans} for m in models}, multistep)
+        return cls(vehicle, list(models), {m: {s: WindowSums() for s in spans} for m in models}, multistep,
+                   vehicle_numbers=vehicle_numbers)
 
     def empty_like(self, spans: list[str]) -> EvaluationStatistics:
-        """The statistics of no flight for the same models and multi-step table, with ``spans`` in order."""
-        return EvaluationStatistics.empty(self.vehicle, self.models, spans, None if self.multistep is None else self.multistep.empty_like())
+        """The statistics of no flight for the same models, vehicle and multi-step table, with ``spans`` in order."""
+        return EvaluationStatistics.empty(self.vehicle, self.models, spans, None if self.multistep is None else self.multistep.empty_like(),
+                                          self.vehicle_numbers)
+
+    def vehicle_difference(self, other: EvaluationStatistics) -> str | None:
+        """The first number in which the two evaluations' vehicles differ (``NAME A vs B``), or None when they agree
+        or either is not known."""
+        if self.vehicle_numbers is None or other.vehicle_numbers is None:
+            return None
+        for name in dict.fromkeys([*self.vehicle_numbers, *other.vehicle_numbers]):
+            mine, theirs = self.vehicle_numbers.get(name), other.vehicle_numbers.get(name)
+            if mine != theirs:
+                return f"{name} {'absent' if mine is None else f'{mine:.6g}'} vs {'absent' if theirs is None else f'{theirs:.6g}'}"
+        return None
 
     def merge(self, other: EvaluationStatistics) -> None:
         """Add a later flight's (or a later evaluation's) statistics: the one merge (module docstring)."""
         if other.vehicle != self.vehicle:
             raise DataError(f"cannot merge an evaluation on vehicle {other.vehicle!r} into one on {self.vehicle!r}")
+        difference = self.vehicle_difference(other)
+        if difference:
+            raise DataError(f"cannot merge evaluations of vehicle {self.vehicle!r} run with different constants ({difference})")
         if other.models != self.models:
             raise DataError(f"cannot merge the statistics of models {other.models} into those of {self.models}")
         for model, spans in other.windowed.items():
@@ -264,7 +284,8 @@ class EvaluationStatistics:
         return {"version": STATISTICS_VERSION, "vehicle": self.vehicle, "models": list(self.models),
                 "windowed": {m: {s: sums.to_json() for s, sums in spans.items()} for m, spans in self.windowed.items()},
                 "multistep": None if self.multistep is None else self.multistep.to_json(),
-                "durations_s": list(self.durations)}
+                "durations_s": list(self.durations),
+                **({} if self.vehicle_numbers is None else {"vehicle_numbers": dict(self.vehicle_numbers)})}
 
     @classmethod
     def from_json(cls, data: dict, where: str = "statistics") -> EvaluationStatistics:
@@ -276,7 +297,9 @@ class EvaluationStatistics:
             windowed = {m: {s: WindowSums.from_json(v, f"{where}.windowed.{m}.{s}") for s, v in spans.items()}
                         for m, spans in data["windowed"].items()}
             multistep = None if data["multistep"] is None else MultistepSums.from_json(data["multistep"], f"{where}.multistep")
-            stats = cls(str(data["vehicle"]), [str(m) for m in data["models"]], windowed, multistep, [float(d) for d in data["durations_s"]])
+            numbers = data.get("vehicle_numbers")  # absent in results written before it was kept
+            stats = cls(str(data["vehicle"]), [str(m) for m in data["models"]], windowed, multistep, [float(d) for d in data["durations_s"]],
+                        None if numbers is None else {str(k): float(v) for k, v in numbers.items()})
         except (KeyError, TypeError, AttributeError, ValueError) as err:
             if isinstance(err, DataError):
                 raise

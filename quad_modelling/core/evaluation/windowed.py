@@ -209,7 +209,7 @@ def evaluate_flight(
     uniform = resample_uniform(log)
     spans = config.spans()
     steps = flight_multistep_sums(uniform, models, vehicle, config) if multistep else None
-    stats = EvaluationStatistics.empty(vehicle.name, names, [s.name for s in spans], steps)
+    stats = EvaluationStatistics.empty(vehicle.name, names, [s.name for s in spans], steps, vehicle.numbers())
     stats.durations.append(log.duration)
     kept: list[ExampleWindow] = []
     for span in spans:
