@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import hashlib
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -136,6 +137,12 @@ class FlightOutcome:
     warnings: list[str]
 
 
+def model_file_digests(specs: list[str], models: list) -> dict[str, str]:
+    """SHA-256 of the file of every file-backed model spec (``narx:PATH``...), by the model's name."""
+    return {model.name: hashlib.sha256(Path(spec.partition(":")[2]).read_bytes()).hexdigest()
+            for spec, model in zip(specs, models) if spec.partition(":")[2]}
+
+
 def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[str], config: EvaluationConfig,
                          multistep: bool, skip_bad: bool, examples_from: str | None = None, topic_map: str | None = None) -> FlightOutcome:
     """The per-flight task of ``evaluate`` (run here or on a Dask worker): read the flight, build the models for
@@ -154,6 +161,7 @@ def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[s
     flight_vehicle = vehicle or load_vehicle(loaded.log.meta.vehicle)
     models = [make_model(spec, flight_vehicle) for spec in specs]
     evaluation = evaluate_flight(loaded.log, models, flight_vehicle, config, multistep, examples=path == examples_from)
+    evaluation.statistics.model_files = model_file_digests(specs, models)
     return FlightOutcome(path, evaluation, None, flight_vehicle.name, flight_warnings(loaded.log))
 
 

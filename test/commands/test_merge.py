@@ -103,3 +103,21 @@ def test_merge_refuses_evaluations_run_with_different_vehicle_files_of_one_airfr
     del document["statistics"]["vehicle_numbers"]
     (older / "results.json").write_text(json.dumps(document))
     assert main(["merge", str(results["a"]), str(older), "-o", str(tmp_path / "out")]) == 0
+
+
+def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, capsys):
+    """Two NARX files are both the model `narx`: evaluations of each do not merge (by the files' contents); the same
+    file under another path does."""
+    import shutil
+
+    from test.commands.test_train import BAG, SMALL
+
+    assert main(["train", BAG, "-o", str(tmp_path / "a.npz"), *SMALL]) == 0
+    assert main(["train", BAG, "-o", str(tmp_path / "b.npz"), *SMALL, "--hidden", "6"]) == 0
+    shutil.copy(tmp_path / "a.npz", tmp_path / "a_copy.npz")
+    for name in ("a", "b", "a_copy"):
+        assert main(["evaluate", BAG, "--preset", "short", "--no-multistep", "--model", f"narx:{tmp_path / name}.npz",
+                     "-o", str(tmp_path / f"r_{name}")]) == 0
+    message = merge_error([str(tmp_path / "r_a"), str(tmp_path / "r_b"), "-o", str(tmp_path / "out")], capsys)
+    assert f"r_b/results.json: model narx was loaded from another file than in {tmp_path / 'r_a'}/results.json" in message
+    assert main(["merge", str(tmp_path / "r_a"), str(tmp_path / "r_a_copy"), "-o", str(tmp_path / "out")]) == 0

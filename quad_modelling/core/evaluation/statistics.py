@@ -233,6 +233,8 @@ class EvaluationStatistics:
     vehicle_numbers: dict[str, float] | None = None
     """Every number of the vehicle the models were run with (:meth:`~quad_modelling.core.vehicle.VehicleConfig.numbers`);
     None where it is not known (the live evaluator scores predictors that loaded their own vehicle files)."""
+    model_files: dict[str, str] | None = None
+    """The SHA-256 of each file-backed model's file, by model name (two ``narx`` of different files differ)."""
 
     @classmethod
     def empty(cls, vehicle: str, models: list[str], spans: list[str], multistep: MultistepSums | None,
@@ -243,8 +245,10 @@ class EvaluationStatistics:
 
     def empty_like(self, spans: list[str]) -> EvaluationStatistics:
         """The statistics of no flight for the same models, vehicle and multi-step table, with ``spans`` in order."""
-        return EvaluationStatistics.empty(self.vehicle, self.models, spans, None if self.multistep is None else self.multistep.empty_like(),
-                                          self.vehicle_numbers)
+        empty = EvaluationStatistics.empty(self.vehicle, self.models, spans, None if self.multistep is None else self.multistep.empty_like(),
+                                           self.vehicle_numbers)
+        empty.model_files = self.model_files
+        return empty
 
     def vehicle_difference(self, other: EvaluationStatistics) -> str | None:
         """The first number in which the two evaluations' vehicles differ (``NAME A vs B``), or None when they agree
@@ -257,6 +261,12 @@ class EvaluationStatistics:
                 return f"{name} {'absent' if mine is None else f'{mine:.6g}'} vs {'absent' if theirs is None else f'{theirs:.6g}'}"
         return None
 
+    def model_file_difference(self, other: EvaluationStatistics) -> str | None:
+        """The name of the first model whose file differs between the two evaluations (by content), or None."""
+        if self.model_files is None or other.model_files is None:
+            return None
+        return next((m for m in self.models if self.model_files.get(m) != other.model_files.get(m)), None)
+
     def merge(self, other: EvaluationStatistics) -> None:
         """Add a later flight's (or a later evaluation's) statistics: the one merge (module docstring)."""
         if other.vehicle != self.vehicle:
@@ -264,6 +274,9 @@ class EvaluationStatistics:
         difference = self.vehicle_difference(other)
         if difference:
             raise DataError(f"cannot merge evaluations of vehicle {self.vehicle!r} run with different constants ({difference})")
+        difference = self.model_file_difference(other)
+        if difference:
+            raise DataError(f"cannot merge evaluations whose model {difference} was loaded from different files")
         if other.models != self.models:
             raise DataError(f"cannot merge the statistics of models {other.models} into those of {self.models}")
         for model, spans in other.windowed.items():
@@ -285,7 +298,8 @@ class EvaluationStatistics:
                 "windowed": {m: {s: sums.to_json() for s, sums in spans.items()} for m, spans in self.windowed.items()},
                 "multistep": None if self.multistep is None else self.multistep.to_json(),
                 "durations_s": list(self.durations),
-                **({} if self.vehicle_numbers is None else {"vehicle_numbers": dict(self.vehicle_numbers)})}
+                **({} if self.vehicle_numbers is None else {"vehicle_numbers": dict(self.vehicle_numbers)}),
+                **({} if self.model_files is None else {"model_files": dict(self.model_files)})}
 
     @classmethod
     def from_json(cls, data: dict, where: str = "statistics") -> EvaluationStatistics:
@@ -300,6 +314,8 @@ class EvaluationStatistics:
             numbers = data.get("vehicle_numbers")  # absent in results written before it was kept
             stats = cls(str(data["vehicle"]), [str(m) for m in data["models"]], windowed, multistep, [float(d) for d in data["durations_s"]],
                         None if numbers is None else {str(k): float(v) for k, v in numbers.items()})
+            files = data.get("model_files")
+            stats.model_files = None if files is None else {str(k): str(v) for k, v in files.items()}
         except (KeyError, TypeError, AttributeError, ValueError) as err:
             if isinstance(err, DataError):
                 raise
