@@ -49,6 +49,14 @@ def test_identify_on_the_bundled_bag_reports_constants_and_no_false_alarm(tmp_pa
         flagged = f"poorly determined: {name}:" in printed or f"  {name} {entry['value']:.3g} 1 (held: " in printed
         assert flagged == (entry["poorly_determined"] is not None)
     assert fitted["rotor_reaction_scale"]["held"] and fitted["rotor_reaction_scale"]["value"] == 1.0
+    # an identified physics constant's entry has the fields the greybox's have (formats.md), equal to identification's
+    delay = doc["constants"]["rotor_delay"]
+    assert {k: delay[k] for k in ("value", "sigma", "bounds", "at_bound", "vehicle_value", "change_percent")} == \
+        {k: fitted["rotor_delay"][k] for k in ("value", "sigma", "bounds", "at_bound", "vehicle_value", "change_percent")}
+    assert delay["vehicle_value"] == load_vehicle("crazyflie21").value("rotor_delay")
+    held_a = doc["greybox"]["thrust_constant"]  # the greybox's a: the file's rotor constant before identification, said so
+    assert held_a["value"] == load_vehicle("crazyflie21").value("rotor_thrust_constant") != doc["constants"]["rotor_thrust_constant"]["value"]
+    assert held_a["source"].startswith("derived from the vehicle file's rotor_thrust_constant before identification (1.788e-08 N s2/rad2;")
     assert doc["identification"]["motor_check"]["verdict"] == "consistent"
     # what identify wrote is an identified vehicle: export takes it (the shipped file's starting values it refuses)
     assert main(["export", str(out), "--format", "casadi", "-o", str(tmp_path / "cf_model")]) == 0

@@ -99,8 +99,19 @@ def constant_lines(estimates: list[ConstantEstimate], title: str) -> list[str]:
     return lines
 
 
+def estimate_source(estimate: ConstantEstimate, source: str) -> str:
+    """The source text of an identified constant: where, its 1-sigma, its change from the vehicle file."""
+    text = f"{source}, sigma {estimate.sigma:.2g} {estimate.unit}"
+    if estimate.change_percent is not None:
+        text += f"; vehicle file {estimate.vehicle:.3g} ({estimate.change_percent:+.0f} %)"
+    if estimate.poorly_determined:
+        text += f"; poorly determined: {estimate.reason()}"
+    return text
+
+
 def add_physics_constants(document: dict, fit, note: str, source: str) -> None:
-    """Write the identified physics constants (value, 1-sigma, source, at-bound flag) into a vehicle ``document``'s
+    """Write the identified physics constants (value, 1-sigma, bounds, at-bound flag, the vehicle file's value and the
+    change from it, why poorly determined, source) into a vehicle ``document``'s
     ``constants`` and the fit's details into ``identification.physics``; without a fit only the note."""
     identification = document.setdefault("identification", {})
     if fit is None:
@@ -111,11 +122,12 @@ def add_physics_constants(document: dict, fit, note: str, source: str) -> None:
             continue  # a term's parameter: the effects section below
         entry = document["constants"].setdefault(estimate.name, {"value": estimate.value, "unit": estimate.unit, "source": "the airframe's", "status": "effective"})
         if estimate.held:
-            entry["source"] = f"{entry['source']}; kept: {estimate.held}"
+            entry.update(source=f"{entry['source']}; kept: {estimate.held}", held=estimate.held)
             continue
-        entry.update(value=estimate.value, source=source, sigma=estimate.sigma)
+        entry.update({k: v for k, v in estimate.as_dict().items() if k != "unit"})  # bounds, change... as the greybox's
+        entry["source"] = estimate_source(estimate, source)
         if estimate.name in AIRFRAME_OF:
-            entry["source"] = effective_source(source, estimate.value, document["constants"][AIRFRAME_OF[estimate.name]]["value"], AIRFRAME_OF[estimate.name])
+            entry["source"] = effective_source(entry["source"], estimate.value, document["constants"][AIRFRAME_OF[estimate.name]]["value"], AIRFRAME_OF[estimate.name])
         if estimate.at_bound:
             entry["source"] = f"{entry['source']}; AT BOUND {list(estimate.bounds)} {estimate.unit}"
     identification.setdefault("constants", {}).update({e.name: e.as_dict() for e in fit.estimates()})

@@ -39,7 +39,7 @@ import yaml
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.physics.effects import effects_document, held_at_zero
-from quad_modelling.core.identification.constants_report import ConstantEstimate, add_physics_constants, constant_lines
+from quad_modelling.core.identification.constants_report import ConstantEstimate, add_physics_constants, constant_lines, estimate_source
 from quad_modelling.core.identification.greybox_fit import BaseFit, constant_estimates, identify_base
 from quad_modelling.core.identification.motor_check import check_lines, check_motor_layout
 from quad_modelling.core.identification.physics_fit import identify_physics
@@ -212,10 +212,12 @@ def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationRe
         if key in result.values and not np.isfinite(result.values[key]):  # the flights do not excite it
             entry["source"] = f"{c.source}; kept: not identifiable from {names} spans {span_text} (no excitation)"
         elif key in estimates:
-            entry.update(source=_estimate_source(estimates[key], "greybox fit " + source), **estimates[key].as_dict())
+            entry.update(source=estimate_source(estimates[key], "greybox fit " + source), **estimates[key].as_dict())
             entry["unit"] = c.unit
-        elif key == "thrust_constant":
-            entry["source"] = f"{c.source}; held fixed by identify (only B_m sqrt(a) is identifiable from motion)"
+        elif key == "thrust_constant":  # the greybox's a, before the physics fit (which writes rotor_thrust_constant)
+            before = (f"derived from the vehicle file's rotor_thrust_constant before identification ({c.value:.4g} {c.unit}; "
+                      "the physics fit's is in constants.rotor_thrust_constant)") if c.source.startswith("derived:") else c.source
+            entry["source"] = f"{before}; held fixed by identify (only B_m sqrt(a) is identifiable from motion)"
         entry["status"] = "effective"  # the linear model's own values, whatever the physical constants are
         greybox[key] = entry
     document = {
@@ -249,16 +251,6 @@ def _entry(c: Constant) -> dict:
     if c.sigma is not None:
         entry["sigma"] = c.sigma
     return entry
-
-
-def _estimate_source(estimate: ConstantEstimate, source: str) -> str:
-    """The source text of an identified constant: where, its 1-sigma, its change from the vehicle file."""
-    text = f"{source}, sigma {estimate.sigma:.2g} {estimate.unit}"
-    if estimate.change_percent is not None:
-        text += f"; vehicle file {estimate.vehicle:.3g} ({estimate.change_percent:+.0f} %)"
-    if estimate.poorly_determined:
-        text += f"; poorly determined: {estimate.reason()}"
-    return text
 
 
 def write_vehicle_yaml(document: dict, path: Path) -> None:
