@@ -456,6 +456,7 @@ def _run(args: argparse.Namespace) -> int:
             for item in report_dir.iterdir():
                 shutil.move(str(item), tmp / item.name)
             report_dir.rmdir()
+        name_final_paths([params_file, *sorted((tmp / "logs").glob("*.log"))], {report_dir: output, tmp: output})
     if "evaluator" not in here:
         print(f"{', '.join(local_nodes)} done in {time.monotonic() - started:.1f} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}); "
               f"the evaluator on the other host writes the results; logs in {output}/logs/")
@@ -529,6 +530,19 @@ def _wait_for_replay(graph: Graph, timeout: float, started: float) -> None:
         time.sleep(0.1)
     if replay.returncode != 0:
         raise _failure(graph, "replay", f"replay exited with code {replay.returncode}")
+
+
+def name_final_paths(files: list[Path], moves: dict[Path, Path]) -> None:
+    """Rewrite the staging paths the nodes were given and logged (``moves``: staging path -> where it ends up, the
+    longest first) in ``files``, so the params file and the logs name the output directory the user gets, not a
+    hidden directory that is gone once the output is in place."""
+    for path in files:
+        text = original = path.read_text(errors="replace")
+        for staged, final in moves.items():
+            for form in dict.fromkeys((str(staged.absolute()), str(staged))):
+                text = text.replace(form, str(final.absolute() if form == str(staged.absolute()) else final))
+        if text != original:
+            path.write_text(text)
 
 
 def add_multistep_table(report_dir: Path, flight, models: list[ModelEntry], vehicle, args: argparse.Namespace) -> None:

@@ -41,6 +41,10 @@ def test_live_results_equal_offline_evaluation(tmp_path, capsys):
                     assert live["models"][model][span][var][metric] == pytest.approx(entry[metric], rel=1e-6), (model, span, var, metric)
     assert live["live"]["marked"] == []  # windows outside both spans are not scored, not marked
     assert (out / "tables.md").is_file() and (out / "logs" / "replay.log").is_file()
+    # the params file and the logs name the output the user gets, not the staging directory that is gone
+    for written in [out / "params.yaml", *(out / "logs").glob("*.log")]:
+        assert ".tmp-" not in written.read_text(), written
+    assert f"output_dir: {out}\n" in (out / "params.yaml").read_text()
     # The multi-step table lists every model run live (NARX by its live form), with the offline numbers.
     horizons = live["horizons"]
     assert list(horizons["models"]) == ["naive", "greybox", "narx"] and list(horizons["not_multistep"]) == ["dummy"]
