@@ -11,7 +11,7 @@ from pathlib import Path
 from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.core.evaluation.windowed import FlightEvaluation, evaluate_flight, merge_flights
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.models.registry import make_model
+from quad_modelling.core.models.registry import MODEL_FILE_KINDS, make_model
 from quad_modelling.core.preprocess import flight_warnings
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import PRESETS, EvaluationConfig, check_window_rate
@@ -138,9 +138,10 @@ class FlightOutcome:
 
 
 def model_file_digests(specs: list[str], models: list) -> dict[str, str]:
-    """SHA-256 of the file of every file-backed model spec (``narx:PATH``...), by the model's name."""
+    """SHA-256 of the model file of every file-backed spec (``narx:PATH``, :data:`MODEL_FILE_KINDS`), by the model's
+    name (the files were read to build ``models``)."""
     return {model.name: hashlib.sha256(Path(spec.partition(":")[2]).read_bytes()).hexdigest()
-            for spec, model in zip(specs, models) if spec.partition(":")[2]}
+            for spec, model in zip(specs, models) if spec.partition(":")[0] in MODEL_FILE_KINDS}
 
 
 def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[str], config: EvaluationConfig,

@@ -121,3 +121,12 @@ def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, 
     message = merge_error([str(tmp_path / "r_a"), str(tmp_path / "r_b"), "-o", str(tmp_path / "out")], capsys)
     assert f"r_b/results.json: model narx was loaded from another file than in {tmp_path / 'r_a'}/results.json" in message
     assert main(["merge", str(tmp_path / "r_a"), str(tmp_path / "r_a_copy"), "-o", str(tmp_path / "out")]) == 0
+
+
+def test_model_specs_whose_argument_is_an_option_are_evaluated_and_merge(flights, tmp_path):
+    """greybox:euler and physics:L,A take options, not files: nothing is read as a model file (a traceback before)."""
+    for name in ("x", "y"):
+        assert main(["evaluate", flights[0], *SHORT, "--no-multistep", "--model", "greybox", "--model", "greybox:euler",
+                     "--model", "physics:0.5,0.5", "-o", str(tmp_path / name)]) == 0
+    assert "model_files" in json.loads((tmp_path / "x" / "results.json").read_text())["statistics"]
+    assert main(["merge", str(tmp_path / "x"), str(tmp_path / "y"), "-o", str(tmp_path / "out")]) == 0

@@ -41,6 +41,10 @@ ModelFactory = Callable[[str, VehicleConfig], Predictor]
 
 _REGISTRY: dict[str, ModelFactory] = {}
 
+MODEL_FILE_KINDS = ("narx", "hybrid", "direct")
+"""Kinds whose spec argument is a model file (``narx:PATH``): the file is the model (``evaluate`` records its digest);
+the other kinds' arguments are options (``greybox:euler``, ``physics:L,A``)."""
+
 PLUGIN_MODULES = {"truth": "quad_modelling.core.sim.truth_model"}
 """Kinds whose factory lives outside core/models: the module, imported by name on the kind's first use, registers
 it (:func:`register_model`). The ``truth`` model runs the simulator (core/sim) and anchors with the physics model's
