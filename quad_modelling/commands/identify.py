@@ -20,7 +20,7 @@ from quad_modelling.core.identification.identify import (
     write_vehicle_yaml,
 )
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.errors import ConfigError
+from quad_modelling.errors import ConfigError, DataError
 
 NAME = "identify"
 HELP = "identify the motor constants marked 'identified' from flight data (training spans only)"
@@ -68,7 +68,10 @@ def run(args: argparse.Namespace) -> int:
     flights, vehicle, skipped = load_evaluation_flights(args)
     result = identify(flights, vehicle, config, terms)
     document = identified_vehicle_document(vehicle, result, config.train)
-    VehicleConfig.from_dict(document, str(output))  # what we write must load
+    try:  # what we write must load
+        VehicleConfig.from_dict(document, "identified vehicle")
+    except ConfigError as err:
+        raise DataError(f"{err} (identified from {len(flights)} flight(s)); nothing written to {output}") from err
     with atomic_output(output, args.force) as tmp:
         write_vehicle_yaml(document, tmp)
     print(result.summary())

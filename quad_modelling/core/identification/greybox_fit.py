@@ -89,9 +89,12 @@ STEADY_GAIN_RATIO_RANGE = (0.05, 20.0)
 configured constants are a starting guess that can be off by an order of magnitude (Table 3-1's units of
 u are unstated), not by more."""
 
-YAW_DRAG_RATIO_RANGE = (-1.0, 1.0)
+YAW_DRAG_RATIO_RANGE = (1.0e-4, 1.0)
 """Search range of d/a [m] (drag torque per thrust): physical values are a few mm to cm (LinkQuad
-2.93e-9 / 1.59e-7 = 18 mm); 1 m is far beyond any propeller."""
+2.93e-9 / 1.59e-7 = 18 mm); 1 m is far beyond any propeller, 0.1 mm far below. Positive: the drag torque opposes
+each rotor's spin, whose direction the vehicle file gives (a wrong one is the motor check's finding, not a negative
+d). It was (-1, 1) until session 26: a flight with little yaw excitation (5 of the 18 NanoBench flights alone) then
+fitted a negative d, which the vehicle file's range refused when the identified file was written."""
 
 ARM_SCALE_RANGE = (0.3, 3.0)
 """Search range of the common scale of the motor arm lengths [1]: the configured geometry is measured, so

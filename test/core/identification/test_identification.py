@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 
 from quad_modelling.core.identification.identify import (
     identified_vehicle_document,
@@ -113,3 +114,16 @@ def test_a_negligible_rotor_reaction_term_is_held_not_run_to_its_bound():
     result = identify([_differential_flight(heavy, seed=3)], heavy, config)
     assert "rotor_reaction_scale" not in result.fit["held"]
     assert 0.5 < result.fit["rotor_reaction_scale"] < 2.0 and not result.fit["at_bound"]["rotor_reaction_scale"]
+
+
+@pytest.mark.parametrize("name", ["linkquad", "crazyflie21", "px4_iris"])
+def test_every_greybox_search_bound_is_a_value_the_vehicle_file_accepts(name):
+    """identify searches d = a (d/a) within YAW_DRAG_RATIO_RANGE; a fit on its bound must still write a loadable file
+    (a negative d was refused when the file was written: 5 of the 18 NanoBench flights alone)."""
+    from quad_modelling.core.identification.greybox_fit import YAW_DRAG_RATIO_RANGE
+    from quad_modelling.core.models.greybox import GreyboxParameters
+    from quad_modelling.core.vehicle import CONSTANT_RANGES
+
+    thrust_constant = GreyboxParameters.from_vehicle(load_vehicle(name)).thrust_constant
+    low, high, _ = CONSTANT_RANGES["torque_constant"]
+    assert all(low < ratio * thrust_constant < high for ratio in YAW_DRAG_RATIO_RANGE)
