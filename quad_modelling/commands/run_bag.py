@@ -341,11 +341,11 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.core.vehicle import vehicle_file
     from quad_modelling.io.bag_io import read_bag_metadata, write_bag
     from quad_modelling.io.loader import load_flight
-    from quad_modelling.io.topic_maps import choose_topic_map, topic_map_file
+    from quad_modelling.io.topic_maps import CONTRACT_NAMESPACE, choose_topic_map, topic_map_file
 
     check_output(Path(args.output), args.force, inputs=[args.bag, vehicle_file(args.vehicle), topic_map_file(args.topic_map)])
     chosen = choose_topic_map(read_bag_metadata(args.bag).topics, str(args.bag), args.topic_map)
-    if chosen.is_contract:
+    if chosen.is_contract and chosen.namespace == CONTRACT_NAMESPACE:
         return _run(args)
     flight = load_flight(args.bag, vehicle=args.vehicle, topic_map=args.topic_map)
     if flight.acc_b is None or flight.gyro_b is None:  # the live nodes start from imu messages

@@ -289,6 +289,8 @@ def summarize_bag(path: str | Path) -> BagSummary:
         start = min(first.values(), default=0) / 1e9
         end = max(last.values(), default=0) / 1e9
         return BagSummary(str(path), storage, end - start, start, end, sum(counts.values()), topics, custom)
+    except BagError:  # a missing topic or a wrong type, named (a BagError is an OSError: not "corrupt")
+        raise
     except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
             ZstdError) as err:  # a corrupt zstd chunk: ZstdError
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
@@ -390,6 +392,8 @@ def read_recorded(path: str | Path, namespace: str = DEFAULT_NAMESPACE) -> list[
         for connection, _, raw in reader.messages(connections=[c for cs in by_topic.values() for c in cs]):
             key = key_of[connection.id]
             recorded.append(RecordedMessage(key, cdr_stamp_ns(raw), bytes(raw)))
+    except BagError:  # a missing topic or a wrong type, named (a BagError is an OSError: not "corrupt")
+        raise
     except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
             ZstdError) as err:  # a corrupt zstd chunk: ZstdError
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
@@ -429,6 +433,8 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
                 columns[key].append(imu_fields(msg))
             else:
                 columns[key].append((msg.voltage,))
+    except BagError:  # a missing topic or a wrong type, named (a BagError is an OSError: not "corrupt")
+        raise
     except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError, AssertionError,
             IndexError, ZstdError) as err:
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
@@ -537,6 +543,8 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
             topic_reader = readers[connection.topic]
             if topic_reader.keep(msg):
                 assembler.add(connection.topic, topic_reader.stamp_ns(msg), topic_reader.values(msg))
+    except BagError:  # a missing topic or a wrong type, named (a BagError is an OSError: not "corrupt")
+        raise
     except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
             AssertionError, IndexError, ZstdError, SerdeError) as err:
         if isinstance(err, (BagError, ConfigError, DataError)):

@@ -92,7 +92,7 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
         bag = path if path.is_dir() else path.parent
         chosen = choose_topic_map(read_bag_metadata(bag).topics, str(bag), topic_map)
         if chosen.is_contract:
-            log = read_bag(bag, vehicle=name)
+            log = read_bag(bag, vehicle=name, namespace=chosen.namespace)
         else:
             if config is None and not (name or chosen.default_vehicle):
                 raise DataError(f"{bag}: topic map {chosen.name} names no default vehicle; pass --vehicle NAME")

@@ -51,8 +51,13 @@ from quad_modelling.core import frames
 from quad_modelling.core.input_files import read_yaml
 from quad_modelling.core.vehicle import config_dir
 from quad_modelling.errors import BagError, ConfigError
+from quad_modelling.io.topics import check_namespace
 
 CONTRACT_MAP = "quad"
+CONTRACT_NAMESPACE = "/quad"
+"""The namespace of the contract map's topics as shipped (``io.topics.DEFAULT_NAMESPACE``)."""
+CONTRACT_COMMANDS = "/motor_input"
+"""The contract's command topic, relative to its namespace: what tells a bag's contract namespace."""
 """The project's own contract (DESIGN 5a): read by :func:`quad_modelling.io.bag_io.read_bag`, bit for bit as before maps."""
 
 ROBOT = "{robot}"
@@ -129,6 +134,19 @@ class TopicMap:
     @property
     def is_contract(self) -> bool:
         return self.name == CONTRACT_MAP and self.origin == "built-in"
+
+    @property
+    def namespace(self) -> str:
+        """The contract's topic namespace (``/quad`` unless :meth:`in_namespace` moved it); ``/quad`` for other maps."""
+        motor = next((name for name in self.topics if name.endswith(CONTRACT_COMMANDS)), None)
+        return motor[: -len(CONTRACT_COMMANDS)] or "/" if self.is_contract and motor else CONTRACT_NAMESPACE
+
+    def in_namespace(self, namespace: str) -> TopicMap:
+        """The contract map with its topics under ``namespace`` (a bag written by ``convert --namespace``)."""
+        def sub(name: str) -> str:
+            return namespace.rstrip("/") + name[len(CONTRACT_NAMESPACE):]
+        return replace(self, topics={sub(n): replace(t, name=sub(n)) for n, t in self.topics.items()},
+                       fields={f: tuple(replace(s, topic=sub(s.topic)) for s in sources) for f, sources in self.fields.items()})
 
     @property
     def has_robot(self) -> bool:
@@ -315,7 +333,7 @@ def builtin_names() -> list[str]:
 def load_topic_map(name_or_path: str) -> TopicMap:
     """A shipped map by name (``px4``, ``crazyswarm2``, ``quad``; ``crazyswarm2:cf231`` binds the robot) or a YAML file."""
     text = str(name_or_path)
-    if text.endswith((".yaml", ".yml")) or "/" in text:
+    if _names_file(text):
         path = Path(text)
         return topic_map_from_dict(read_yaml(path, "topic map"), str(path))
     name, _, robot = text.partition(":")
@@ -323,6 +341,11 @@ def load_topic_map(name_or_path: str) -> TopicMap:
     if not path.is_file():
         raise ConfigError(f"--topic-map {text}: no such built-in map; known: {', '.join(builtin_names())} (or a YAML file)")
     topic_map = replace(topic_map_from_dict(read_yaml(path, "topic map"), str(path)), origin="built-in")
+    if topic_map.is_contract and robot:  # quad:/my_drone/cf1, a contract bag written under another namespace
+        try:
+            return topic_map.in_namespace(check_namespace(robot))
+        except ConfigError as err:
+            raise ConfigError(f"--topic-map {text}: {err} (the contract map takes quad:/NAMESPACE)") from err
     if robot:
         if not re.fullmatch(_TOKEN, robot) or not topic_map.has_robot:
             raise ConfigError(f"--topic-map {text}: {robot!r} is not a robot name for map {name} (maps with {ROBOT} topics take NAME:ROBOT)")
@@ -348,12 +371,19 @@ def choose_topic_map(bag_topics, where: str, requested: str | None = None) -> To
     or several match."""
     bag_topics = sorted(bag_topics)
     if requested:
-        return bind_robot(load_topic_map(requested), bag_topics, where)
+        topic_map = load_topic_map(requested)
+        namespaces = contract_namespaces(bag_topics)
+        if topic_map.is_contract and topic_map.missing(bag_topics) and len(namespaces) == 1:  # --topic-map quad
+            topic_map = topic_map.in_namespace(namespaces[0])
+        return bind_robot(topic_map, bag_topics, where)
     matching, tried = [], []
     for name in builtin_names():
         topic_map = load_topic_map(name)
         robots = topic_map.robots(bag_topics) if topic_map.has_robot else [None]
         candidates = [(f"{name}:{r}" if r else name, topic_map.bind(r) if r else topic_map) for r in robots] or [(name, topic_map)]
+        if topic_map.is_contract:  # the contract under any namespace (convert --namespace)
+            candidates += [(f"{name}:{ns}", topic_map.in_namespace(ns)) for ns in contract_namespaces(bag_topics)
+                           if ns != CONTRACT_NAMESPACE]
         hits = [(label, c) for label, c in candidates if not c.missing(bag_topics)]
         matching += hits
         if not hits:
@@ -368,6 +398,11 @@ def choose_topic_map(bag_topics, where: str, requested: str | None = None) -> To
                    f"{' or '.join(label for label, _ in matching)}")
 
 
+def contract_namespaces(bag_topics) -> list[str]:
+    """The namespaces under which ``bag_topics`` hold the contract's command topic (``/a/b/motor_input`` -> ``/a/b``)."""
+    return sorted({t[: -len(CONTRACT_COMMANDS)] or "/" for t in bag_topics if t.endswith(CONTRACT_COMMANDS)})
+
+
 def add_topic_map_argument(parser) -> None:
     """``--topic-map NAME|YAML`` for every command that reads flights (the one definition of the option)."""
     parser.add_argument("--topic-map", metavar="NAME|YAML", default=None,
@@ -375,6 +410,12 @@ def add_topic_map_argument(parser) -> None:
                              "or a YAML map (docs/formats.md); default: the one built-in map the bag's topics match")
 
 
+def _names_file(text: str) -> bool:
+    """Whether a ``--topic-map`` value is a file: a YAML name, or a path (a ``/`` before any ``:``; ``quad:/ns`` is
+    the contract map in a namespace)."""
+    return text.endswith((".yaml", ".yml")) or "/" in text.partition(":")[0]
+
+
 def topic_map_file(value: str | None) -> str | None:
     """The YAML file a ``--topic-map`` value names (an input of the command), None for a built-in name."""
-    return value if value and (value.endswith((".yaml", ".yml")) or "/" in value) else None
+    return value if value and _names_file(value) else None

@@ -210,3 +210,36 @@ def test_run_bag_of_a_stack_without_imu_is_refused_naming_the_topic(flight, tmp_
     err = _fails(capsys, "run-bag", str(bag), "--vehicle", "crazyflie21", "-o", str(tmp_path / "out"))
     assert f"{bag}: run-bag needs an IMU" in err and "topic map px4 reads it from /fmu/out/sensor_combined, which the bag lacks" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_contract_bag_under_another_namespace_is_read_as_the_contract(tmp_path, capsys):
+    """convert --namespace writes the contract under /my_drone/cf1: every verb reads it back (the namespace found from
+    the topics, or named as quad:/NAMESPACE), with the numbers of the same flight under /quad."""
+    from test.conftest import REPO
+
+    bag = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
+    moved = tmp_path / "namespaced"
+    assert main(["convert", str(bag), "-o", str(moved), "--namespace", "/my_drone/cf1"]) == 0
+    original = load_flight(bag)
+    for requested in (None, "quad", "quad:/my_drone/cf1"):
+        log = load_flight(moved, topic_map=requested)
+        assert np.array_equal(log.u, original.u) and np.array_equal(log.pos_n, original.pos_n), requested
+    topics = ["/my_drone/cf1/motor_input", "/my_drone/cf1/mocap/odom", "/my_drone/cf1/imu"]
+    chosen = choose_topic_map(topics, "bag")
+    assert chosen.is_contract and chosen.namespace == "/my_drone/cf1" and load_topic_map("quad").namespace == "/quad"
+    assert main(["evaluate", str(moved), "--topic-map", "quad:my_drone", "--preset", "short", "-o", str(tmp_path / "e")]) == 2
+    assert "the contract map takes quad:/NAMESPACE" in capsys.readouterr().err
+    two = topics + ["/other/motor_input", "/other/mocap/odom"]  # two contracts: the user chooses
+    with pytest.raises(BagError, match="choose one with --topic-map quad:/my_drone/cf1 or quad:/other"):
+        choose_topic_map(two, "bag")
+
+
+def test_a_contract_bag_missing_a_topic_says_which_not_corrupt(tmp_path):
+    """A BagError naming the missing topics was re-wrapped as 'corrupt or truncated bag' (a BagError is an OSError)."""
+    from quad_modelling.io.bag_io import read_bag
+    from test.conftest import REPO
+
+    with pytest.raises(BagError) as caught:
+        read_bag(REPO / "bags" / "nanobench_B7_oval_medium_rep2", namespace="/elsewhere")
+    assert "missing required topic(s) ['/elsewhere/motor_input', '/elsewhere/mocap/odom']" in str(caught.value)
+    assert "corrupt" not in str(caught.value)

@@ -229,3 +229,18 @@ def test_truth_model_live_equals_offline_on_a_simulated_bag_and_refuses_a_real_o
     assert main(["run-bag", str(BAG), "--models", "truth", "-o", str(tmp_path / "real")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and f"{BAG}: not a simulated flight" in err
+
+
+def test_a_contract_bag_under_another_namespace_is_replayed(tmp_path, capsys):
+    """A bag written by convert --namespace is replayed in the contract (read, then rewritten under /quad), with the
+    offline numbers of the same flight."""
+    moved = tmp_path / "namespaced"
+    assert main(["convert", str(BAG), "-o", str(moved), "--namespace", "/my_drone/cf1"]) == 0
+    out = tmp_path / "live"
+    code = main(["run-bag", str(moved), "--models", "naive", "--train", "0:20", "--eval", "20:40", "--no-figures",
+                 "--no-multistep", "-o", str(out)])
+    printed = capsys.readouterr().out
+    assert code == 0, printed
+    assert f"{moved}: read through topic map quad (4227 samples); replaying it in the topic contract" in printed
+    live = json.loads((out / "results.json").read_text())
+    assert live["windows"]["naive"] == {"train": 2, "eval": 2}
