@@ -90,13 +90,15 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
         from quad_modelling.io.topic_maps import choose_topic_map
 
         bag = path if path.is_dir() else path.parent
-        chosen = choose_topic_map(read_bag_metadata(bag).topics, str(bag), topic_map)
+        metadata = read_bag_metadata(bag)
+        chosen = choose_topic_map(metadata.topics, str(bag), topic_map)
         if chosen.is_contract:
             log = read_bag(bag, vehicle=name, namespace=chosen.namespace)
-        else:
-            if config is None and not (name or chosen.default_vehicle):
-                raise DataError(f"{bag}: topic map {chosen.name} names no default vehicle; pass --vehicle NAME")
-            config = config or load_vehicle(name or chosen.default_vehicle)
+        else:  # the vehicle: --vehicle, else the one the bag records (a bag we wrote), else the map's default
+            recorded = name or metadata.vehicle or chosen.default_vehicle
+            if config is None and not recorded:
+                raise DataError(f"{bag}: neither the bag nor topic map {chosen.name} names a vehicle; pass --vehicle NAME")
+            config = config or load_vehicle(recorded)
             log = read_mapped_bag(bag, chosen, config)
     config = config or load_vehicle(vehicle if vehicle is not None else log.meta.vehicle)  # a --vehicle FILE of any name
     if fmt == "thesis-mat" and mapping_file:  # a mapping names the commands' unit: it must be the vehicle's kind

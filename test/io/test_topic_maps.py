@@ -243,3 +243,13 @@ def test_a_contract_bag_missing_a_topic_says_which_not_corrupt(tmp_path):
         read_bag(REPO / "bags" / "nanobench_B7_oval_medium_rep2", namespace="/elsewhere")
     assert "missing required topic(s) ['/elsewhere/motor_input', '/elsewhere/mocap/odom']" in str(caught.value)
     assert "corrupt" not in str(caught.value)
+
+
+def test_a_yaml_topic_map_takes_the_vehicle_the_bag_records(tmp_path):
+    """formats.md: default_vehicle is used when neither --vehicle nor the bag names one. A copy of the contract map read
+    as a YAML map (no default_vehicle) takes the bag's recorded crazyflie21 (it asked for --vehicle before)."""
+    from test.conftest import REPO
+
+    bag = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
+    log = load_flight(bag, topic_map=str(REPO / "config" / "topic_maps" / "quad.yaml"))
+    assert log.meta.vehicle == "crazyflie21" and len(log) > 4000
