@@ -100,6 +100,21 @@ def check_not_input(path: Path, inputs: Iterable[str | Path], flag: str = "-o") 
         raise OutputOverlapsInputError(f"{flag} {path}: the output {relation} {given}; choose another output (refused even with --force)")
 
 
+def check_distinct_inputs(paths: Iterable[str | Path], flag: str = "input", other: Iterable[str | Path] = (),
+                          other_flag: str = "") -> None:
+    """ConfigError when a file is given twice among ``paths`` (symbolic links and ``./`` resolved; its windows would
+    count twice), or is also among ``other`` (``other_flag``'s files, e.g. ``--val-flights``)."""
+    seen: dict[Path, str] = {}
+    for given in paths:
+        key = Path(given).resolve()
+        if key in seen:
+            raise ConfigError(f"{flag} {given}: given twice (also as {seen[key]}); every flight counts once, give it once")
+        seen[key] = str(given)
+    for given in other:
+        if Path(given).resolve() in seen:
+            raise ConfigError(f"{other_flag} {given}: also a {flag} ({seen[Path(given).resolve()]}); a flight is one or the other")
+
+
 def _remove(path: Path) -> None:
     if path.is_dir() and not path.is_symlink():
         shutil.rmtree(path, ignore_errors=True)

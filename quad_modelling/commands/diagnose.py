@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.atomic import atomic_output, check_distinct_inputs, check_output
 from quad_modelling.commands.evaluate import print_flight_warnings
 from quad_modelling.core.diagnosis.catalogue import parse_effect_list
 from quad_modelling.core.diagnosis.diagnose import (
@@ -152,6 +152,8 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     inputs = [*(args.train or []), *(args.test or []), vehicle_file(args.vehicle)]
     check_output(output, args.force, inputs=inputs)
+    check_distinct_inputs(args.train or [], "--train")
+    check_distinct_inputs(args.test or [], "--test")
     physics = args.base == "physics" and not args.validate
     if not physics and (args.inject is not None or args.write_vehicle):
         raise ConfigError("--inject and --write-vehicle diagnose the physics base: drop --base greybox / --validate")

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.atomic import atomic_output, check_distinct_inputs, check_output
 from quad_modelling.commands.evaluate import (
     add_span_arguments,
     config_from_args,
@@ -61,6 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=input_files(args))
+    check_distinct_inputs(args.inputs, "FLIGHT")
     if output.suffix not in (".yaml", ".yml"):  # what --vehicle reads back as a file
         raise ConfigError(f"-o {output}: a vehicle file is YAML; name it VEHICLE.yaml")
     config = config_from_args(args)

@@ -206,7 +206,7 @@ def warn_starting_values(vehicle, kind: str) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from quad_modelling.atomic import check_output
+    from quad_modelling.atomic import check_distinct_inputs, check_output
     from quad_modelling.commands.evaluate import print_flight_warnings
     from quad_modelling.core.training.narx import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
@@ -217,6 +217,8 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
                                              topic_map_file(args.topic_map)])  # fail before minutes of training
+    check_distinct_inputs(args.flights, "FLIGHT", args.val_flights or [], "--val-flights")
+    check_distinct_inputs(args.val_flights or [], "--val-flights")
     if output.suffix != ".npz":
         raise ConfigError(f"-o {output}: a model file is an .npz archive; name it MODEL.npz")
     if args.hybrid and args.direct:

@@ -230,6 +230,14 @@ CORPUS = [
     ("model-header-types", ["evaluate", "{d}/flight.mat", "--model", "narx:{d}/header_types.npz", "-o", "{d}/work/out"],
      "header field 'dt' is str 'fast', expected int or float"),
     ("model-fifo", ["evaluate", "{d}/flight.mat", "--model", "narx:{d}/fifo.npz", "-o", "{d}/work/out"], "{d}/fifo.npz: is a FIFO, not a regular file"),
+    # a flight given twice would count twice
+    ("evaluate-flight-twice", ["evaluate", "{d}/flight.mat", "../../flight.mat", "-o", "{d}/work/out"],
+     "FLIGHT ../../flight.mat: given twice (also as {d}/flight.mat); every flight counts once, give it once"),
+    ("identify-flight-twice", ["identify", "{d}/flight.mat", "{d}/flight.mat", "-o", "{d}/work/v.yaml"], "given twice"),
+    ("train-val-is-train", ["train", "{d}/flight.mat", "--val-flights", "{d}/flight.mat", "-o", "{d}/work/m.npz"],
+     "--val-flights {d}/flight.mat: also a FLIGHT ({d}/flight.mat); a flight is one or the other"),
+    ("diagnose-train-twice", ["diagnose", "--train", "{d}/flight.mat", "{d}/flight.mat", "--test", "{d}/flight.mat",
+                              "-o", "{d}/work/diag"], "--train {d}/flight.mat: given twice"),
     # flights
     ("flight-fifo", ["convert", "{d}/fifo.csv", "-o", "{d}/work/b"], "{d}/fifo.csv: is a FIFO, not a regular file; give the flight file as a file"),
     ("flight-device", ["info", "{d}/zero.csv"], "{d}/zero.csv: is a device, not a regular file"),
