@@ -181,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
             _write(log, staging / name, args.namespace, force=False)
             converted += 1
             done.append(f"{path} -> {output / name} ({len(log)} samples, {log.duration:.1f} s)")
+        if not converted:  # nothing to keep: no empty output directory (the staging is removed)
+            raise DataError(f"none of the {len(inputs)} inputs could be converted (each refused above); nothing written to {output}")
     if done:
         print("\n".join(done))
     print(f"converted {converted} of {len(inputs)} inputs into {output}" + (f"; refused {len(refused)}" if refused else ""))

@@ -60,6 +60,12 @@ def test_several_inputs_go_to_a_directory_and_a_bad_one_is_refused(tmp_path, cap
     assert not out.exists() and list(tmp_path.iterdir()) == [tmp_path / "in"]  # nothing partial left behind
     assert main(["convert", str(FLIGHT), str(bad), "-o", str(out), "--skip-bad"]) == 1
     assert sorted(p.name for p in out.iterdir()) == ["B7_oval_medium_rep2_first1000"]
+    capsys.readouterr()
+    none = tmp_path / "none"  # every input refused: exit 2 and no empty directory
+    assert main(["convert", str(bad), str(tmp_path / "in" / "nosuch.csv"), "-o", str(none), "--skip-bad"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err[-1] == f"quad-modelling convert: error: none of the 2 inputs could be converted (each refused above); nothing written to {none}"
+    assert len(err) == 3 and not none.exists()
 
 
 def test_the_extrapolated_quirk_converts_with_one_warning_kept_in_the_bag(tmp_path, capsys):
