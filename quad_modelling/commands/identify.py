@@ -76,6 +76,11 @@ def run(args: argparse.Namespace) -> int:
     with atomic_output(output, args.force) as tmp:
         write_vehicle_yaml(document, tmp)
     print(result.summary())
+    windowed = {span["file"] for span in result.spans}
+    for log in flights:  # a flight that gave no window (too short, or every window on the ground) is said
+        if log.meta.source not in windowed:
+            print(f"warning: {log.meta.source}: no {config.window_s:g} s training window in span {config.train} (too short, "
+                  "or every window touches the ground or a gap): the greybox fit did not use it", file=sys.stderr)
     if skipped:
         print(f"identified from {len(flights)} of {len(flights) + len(skipped)} inputs: {len(skipped)} skipped "
               "(above), not in identification.files", file=sys.stderr)

@@ -145,3 +145,18 @@ def test_skipped_input_and_overlapping_spans_are_said(flights, tmp_path, capsys)
     assert len(yaml.safe_load(out.read_text())["identification"]["files"]) == 2
     assert main(["identify", *flights, "--vehicle", "linkquad", "--preset", "short", "-o", str(tmp_path / "b.yaml")]) == 0
     assert "warning" not in capsys.readouterr().err  # the preset's spans meet at 60 % and do not overlap
+
+
+def test_a_flight_without_a_training_window_is_said(flights, tmp_path, capsys):
+    """A flight too short for one training window adds nothing to the greybox fit: one warning line names it."""
+    from quad_modelling.io.matlog import read_matlog, write_matlog
+
+    short = read_matlog(flights[1], vehicle="linkquad")
+    short = short.slice(0, int(8 * short.sample_rate))  # 8 s: no 10 s window
+    write_matlog(short, tmp_path / "short.mat")
+    assert main(["identify", flights[0], str(tmp_path / "short.mat"), "--vehicle", "linkquad", "--preset", "short",
+                 "--drop", "0:0", "-o", str(tmp_path / "v.yaml")]) == 0
+    err = capsys.readouterr().err
+    assert (f"warning: {tmp_path / 'short.mat'}: no 10 s training window in span 0%:60% (too short, or every window "
+            "touches the ground or a gap): the greybox fit did not use it") in err
+    assert f"warning: {flights[0]}" not in err
