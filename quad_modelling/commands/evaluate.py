@@ -184,6 +184,9 @@ def _evaluations(outcomes, skipped: list[str], vehicles: list[str], first_in_spa
         for span, sums in windowed[next(iter(windowed))].items():
             if sums.windows:
                 first_in_span.setdefault(span, outcome.path)
+        if not outcome.evaluation.statistics.windows:  # counted among the flights, scored nowhere: said
+            print(f"warning: {outcome.path}: no window in either span (too short, or every window touches the ground or a "
+                  "gap): not in the window scores", file=sys.stderr)
         yield outcome.evaluation
     if not vehicles:
         raise ConfigError("no readable flight among the inputs")

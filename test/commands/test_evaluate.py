@@ -102,3 +102,16 @@ def test_a_span_that_holds_no_window_is_said_in_one_warning_line(tmp_path, capsy
                  "--no-multistep", "-o", str(tmp_path / "e")]) == 0
     warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
     assert warnings == ["warning: span train 50:60 holds no 5 s window of any flight after dropping 5 s/5 s: nothing scored there"]
+
+
+def test_a_flight_with_no_window_in_either_span_is_said(flights, tmp_path, capsys):
+    """Counted among the flights but scored nowhere: one warning line names it (it was silent)."""
+    from quad_modelling.io.matlog import read_matlog, write_matlog
+
+    short = read_matlog(flights[1], vehicle="linkquad")
+    write_matlog(short.slice(0, int(8 * short.sample_rate)), tmp_path / "short.mat")
+    assert main(["evaluate", flights[0], str(tmp_path / "short.mat"), "--vehicle", "linkquad", "--preset", "short",
+                 "--drop", "0:0", "--no-multistep", "-o", str(tmp_path / "out")]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
+    assert warnings == [f"warning: {tmp_path / 'short.mat'}: no window in either span (too short, or every window touches "
+                        "the ground or a gap): not in the window scores"]
