@@ -63,6 +63,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration {args.duration:g}: must be at least {MIN_DURATION:g} s and at most {MAX_DURATION:g} s")
     result = run_simulation(args.vehicle, effects, args.seed, args.duration, progress=sys.stderr.isatty())
     log = result.log
+    short = result.script.short_flight()
+    if short:
+        print(f"warning: {short}", file=sys.stderr)
     if args.bag:
         from quad_modelling.io.bag_io import write_bag
 

@@ -97,13 +97,20 @@ def normalise_effect_names(names: Iterable[str], choice: EffectChoice) -> tuple[
 
 
 def parse_effect_names(text: str | None, choice: EffectChoice) -> tuple[str, ...]:
-    """The ``--effects`` grammar: ``none`` -> (); ``all`` -> ``choice.known``; ``default``, an empty
-    text or None -> ``choice.default``; else a comma list of names (:func:`normalise_effect_names`)."""
+    """The ``--effects`` grammar: ``none`` -> (); ``all`` -> ``choice.known``; ``default`` or None ->
+    ``choice.default``; else a comma list of names, each once (:func:`normalise_effect_names`). An empty text is
+    refused (ConfigError): ``--effects ""`` reads as "no effects" to some and "the default" to others."""
     text = "default" if text is None else text.strip()
-    if text in ("", "default"):
+    if not text:
+        raise ConfigError("--effects '': give none, all, default or a comma list of names")
+    if text == "default":
         return choice.default
     if text == "none":
         return ()
     if text == "all":
         return choice.known
-    return normalise_effect_names([part for part in text.split(",") if part.strip()], choice)
+    names = [part.strip() for part in text.split(",") if part.strip()]
+    twice = sorted({name for name in names if names.count(name) > 1})
+    if twice:
+        raise ConfigError(f"--effects {text}: {', '.join(twice)} named more than once; name each once")
+    return normalise_effect_names(names, choice)

@@ -54,3 +54,16 @@ def test_simulate_bag(tmp_path):
     assert len(log) == 600
     assert np.all(np.isfinite(log.pos_n))
     assert log.u.max() <= 0.0021
+
+
+def test_a_flight_too_short_for_its_script_is_said(tmp_path, capsys):
+    """--duration 5 is allowed (short flights serve tests) but never leaves the ground: one warning says so and how
+    long a flight needs; a 14 s flight takes off, hovers and lands without a word."""
+    assert main(["simulate", "-o", str(tmp_path / "short.mat"), "--duration", "5"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["warning: a 5 s flight never leaves the ground (its descent starts at -3 s, the climb ends at 6 s): "
+                   "fly at least 14 s for a take-off, a hover and a landing"]
+    assert main(["simulate", "-o", str(tmp_path / "enough.mat"), "--duration", "14"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    log = read_matlog(tmp_path / "enough.mat")
+    assert -log.pos_n[:, 2].min() > 1.0  # the LinkQuad's 1.1 m hover height reached

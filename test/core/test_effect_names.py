@@ -43,9 +43,13 @@ def test_one_grammar_for_simulate_and_diagnose():
     for choice in (SIMULATOR, DIAGNOSIS):
         assert parse_effect_names("none", choice) == ()
         assert parse_effect_names("all", choice) == choice.known
-        assert parse_effect_names(None, choice) == parse_effect_names("default", choice) == parse_effect_names(" ", choice)
-        # catalogue order, once each, whatever the order and repetitions typed
-        assert parse_effect_names("motor_lag, battery,motor_lag", choice) == ("battery", "motor_lag")
+        assert parse_effect_names(None, choice) == parse_effect_names("default", choice)
+        # catalogue order whatever the order typed; a blank text and a name typed twice are refused, as identify's
+        assert parse_effect_names("motor_lag, battery", choice) == ("battery", "motor_lag")
+        with pytest.raises(ConfigError, match=r"--effects '': give none, all, default or a comma list of names"):
+            parse_effect_names(" ", choice)
+        with pytest.raises(ConfigError, match="motor_lag named more than once; name each once"):
+            parse_effect_names("motor_lag, battery,motor_lag", choice)
     assert parse_effect_names(None, DIAGNOSIS) == CATALOGUE_EFFECTS
     assert [e.name for e in parse_effect_list("trim_drift,rotor_drag")] == ["rotor_drag", "trim_drift"]
     assert normalise_effect_names(["wind", "battery"], SIMULATOR) == ("battery", "wind")

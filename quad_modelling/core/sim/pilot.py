@@ -152,6 +152,17 @@ class PilotScript:
             refs[:, column[manoeuvre.channel]] += manoeuvre.value(t)
         return refs
 
+    def short_flight(self) -> str | None:
+        """Why this flight is too short for its script, or None: the descent starts (``land_start``, the last
+        max(8 s, 10 %) of the flight) before the vehicle lifts or before its climb to the hover height ends."""
+        climbed = self.t_lift + self.climb_time
+        if self.land_start >= climbed:
+            return None
+        enough = self.duration + climbed - self.land_start
+        what = "never leaves the ground" if self.land_start <= self.t_lift else "lands before it reaches the hover height"
+        return (f"a {self.duration:g} s flight {what} (its descent starts at {self.land_start:g} s, the climb ends at "
+                f"{climbed:g} s): fly at least {enough:g} s for a take-off, a hover and a landing")
+
     def to_notes(self) -> dict:
         """JSON-ready description (phase times and manoeuvres)."""
         out = {k: v for k, v in asdict(self).items() if k != "manoeuvres"}
