@@ -485,8 +485,13 @@ def plan_windows(flights: Sequence[FlightLog], config: EvaluationConfig) -> dict
 def no_window_error(config: EvaluationConfig, durations: Sequence[float]) -> DataError:
     """The DataError of an evaluation in which no span of any flight (``durations`` [s]) holds a single window."""
     text = ", ".join(f"{d:.1f}" for d in durations)
+    if all(span.relative for span in config.spans()):  # --preset short already: the window is what does not fit
+        flying = max(durations, default=0.0) - config.drop_start - config.drop_end
+        hint = (f"the longest flight flies {max(flying, 0.0):.1f} s after the drops: use a shorter --window, smaller "
+                "--drop, or longer flights")
+    else:
+        hint = "for short flights use --preset short or relative spans such as --drop 5:5 --train 0%:60% --eval 60%:100%"
     return DataError(
         f"no {config.window_s:g} s window fits the spans train {config.train}, eval {config.eval} after dropping "
-        f"{config.drop_start:g} s/{config.drop_end:g} s (flight durations {text} s); for short flights use "
-        f"--preset short or relative spans such as --drop 5:5 --train 0%:60% --eval 60%:100%"
+        f"{config.drop_start:g} s/{config.drop_end:g} s (flight durations {text} s); {hint}"
     )

@@ -218,3 +218,13 @@ def test_span_overlap_is_judged_for_spans_of_one_kind():
         "the training span 30:160 and the evaluation span 150:190 share 150:160: what is fitted there is scored partly in-sample")
     assert EvaluationConfig(train="0%:100%", eval="60%:100%").span_overlap().endswith("share 60%:100%: what is fitted there is scored partly in-sample")
     assert EvaluationConfig(train="0%:60%", eval="100:190").span_overlap() is None  # mixed kinds depend on the flight
+
+
+def test_no_window_error_suggests_what_would_fit():
+    """Seconds spans: try the short preset; the short preset already: the window or the drops are what does not fit."""
+    from quad_modelling.core.windows import no_window_error
+
+    thesis = str(no_window_error(EvaluationConfig(), [40.0]))
+    assert thesis.endswith("for short flights use --preset short or relative spans such as --drop 5:5 --train 0%:60% --eval 60%:100%")
+    short = str(no_window_error(EvaluationConfig.preset("short"), [12.0, 9.0]))
+    assert short.endswith("the longest flight flies 2.0 s after the drops: use a shorter --window, smaller --drop, or longer flights")
