@@ -89,8 +89,10 @@ def _vehicle_from_log(args: argparse.Namespace, inputs: list[Path], output: Path
     target = Path(args.vehicle_from_log)
     fmt = detect_format(inputs[0]) if len(inputs) == 1 and args.format == "auto" else args.format
     if len(inputs) != 1 or fmt != "px4-ulog" or args.vehicle:
+        kind = f", a {fmt} input" if len(inputs) == 1 and fmt != "px4-ulog" else ""
         raise ConfigError("--vehicle-from-log takes one PX4 .ulg input and no --vehicle "
-                          f"(got {len(inputs)} input(s): {', '.join(p.name for p in inputs[:3])}{', --vehicle' if args.vehicle else ''})")
+                          f"(got {len(inputs)} input(s): {', '.join(p.name for p in inputs[:3])}{kind}"
+                          f"{', --vehicle' if args.vehicle else ''})")
     if target.suffix not in (".yaml", ".yml"):
         raise ConfigError(f"--vehicle-from-log {args.vehicle_from_log!r}: the vehicle file must end in .yaml or .yml")
     ours, bag = target.resolve(), output.resolve()

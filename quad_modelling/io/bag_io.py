@@ -254,6 +254,8 @@ def _open_reader(path: Path) -> Reader:
         raise BagError(f"{path}: no such bag")
     if not stat.S_ISDIR(mode):
         raise BagError(f"{path}: not a bag directory (a rosbag2 bag is a directory with metadata.yaml)")
+    if not (path / "metadata.yaml").exists() and not any(path.glob("*.mcap")) and not any(path.glob("*.db3")):
+        raise BagError(f"{path}: not a bag: the directory holds no metadata.yaml and no .mcap or .db3 file")
     try:  # bounded first: rosbags' own YAML read has no limits
         _ = (path / "metadata.yaml").exists() and read_yaml(path / "metadata.yaml", "bag metadata")
     except ConfigError as err:

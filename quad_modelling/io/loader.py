@@ -89,6 +89,8 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
         from quad_modelling.io.bag_io import read_bag, read_bag_metadata, read_mapped_bag
         from quad_modelling.io.topic_maps import choose_topic_map
 
+        if not path.is_dir() and path.suffix != ".mcap":  # --format bag on a file: not the parent directory's fault
+            raise DataError(f"{path}: --format bag reads a bag directory (or its .mcap file); this is a file")
         bag = path if path.is_dir() else path.parent
         metadata = read_bag_metadata(bag)
         chosen = choose_topic_map(metadata.topics, str(bag), topic_map)

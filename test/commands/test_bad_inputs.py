@@ -232,6 +232,8 @@ CORPUS = [
     ("model-fifo", ["evaluate", "{d}/flight.mat", "--model", "narx:{d}/fifo.npz", "-o", "{d}/work/out"], "{d}/fifo.npz: is a FIFO, not a regular file"),
     ("convert-mapping-for-a-csv", ["convert", "{d}/missing_px.csv", "--mapping", "{d}/nosuch.yaml", "-o", "{d}/work/b"],
      "--mapping {d}/nosuch.yaml: a mapping applies to .mat logs only, and no input is one ({d}/missing_px.csv is a nanobench input)"),
+    ("convert-format-bag-on-a-csv", ["convert", "{d}/missing_px.csv", "--format", "bag", "-o", "{d}/work/b"],
+     "{d}/missing_px.csv: --format bag reads a bag directory (or its .mcap file); this is a file"),
     # a flight given twice would count twice
     ("evaluate-flight-twice", ["evaluate", "{d}/flight.mat", "../../flight.mat", "-o", "{d}/work/out"],
      "FLIGHT ../../flight.mat: given twice (also as {d}/flight.mat); every flight counts once, give it once"),

@@ -105,7 +105,7 @@ def test_not_a_bag(tmp_path):
     with pytest.raises(BagError, match="no such bag"):
         read_bag(tmp_path / "nothing")
     (tmp_path / "empty").mkdir()
-    with pytest.raises(BagError, match="not a readable rosbag2 bag"):
+    with pytest.raises(BagError, match="empty: not a bag: the directory holds no metadata.yaml and no .mcap or .db3 file"):
         read_bag(tmp_path / "empty")
 
 
