@@ -86,6 +86,7 @@ def merge_results(directories: Sequence[str | Path]) -> EvaluationResult:
     given, one file held at a time); the flights list is the inputs' lists in order."""
     total: EvaluationStatistics | None = None
     flights: list[dict] = []
+    seen_flights: dict[tuple, str] = {}
     first = None
     for path, document, statistics, config in _each(directories):
         if first is None:
@@ -104,6 +105,13 @@ def merge_results(directories: Sequence[str | Path]) -> EvaluationResult:
         _same("models", first_stats.models, statistics.models, first_path, path)
         _same("configuration", first_config, config, first_path, path)
         _same("multi-step table", first_stats.multistep is not None, statistics.multistep is not None, first_path, path)
+        scored = [f for f in document["config"].get("flights", []) if isinstance(f, dict) and not f.get("skipped")]
+        for flight in scored:  # the same flight in two results would count twice
+            key = (str(flight.get("source")), flight.get("duration_s"), flight.get("sample_rate_hz"))
+            if key in seen_flights:
+                raise DataError(f"{path}: flight {key[0]} ({key[1]} s) is also in {seen_flights[key]}; its windows would "
+                                "count twice: merge results of different flights")
+            seen_flights[key] = f"{path}"
         total.merge(statistics)
         flights.extend(document["config"].get("flights", []))
     if first is None:

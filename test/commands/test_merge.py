@@ -115,8 +115,9 @@ def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, 
     assert main(["train", BAG, "-o", str(tmp_path / "a.npz"), *SMALL]) == 0
     assert main(["train", BAG, "-o", str(tmp_path / "b.npz"), *SMALL, "--hidden", "6"]) == 0
     shutil.copy(tmp_path / "a.npz", tmp_path / "a_copy.npz")
-    for name in ("a", "b", "a_copy"):
-        assert main(["evaluate", BAG, "--preset", "short", "--no-multistep", "--model", f"narx:{tmp_path / name}.npz",
+    shutil.copytree(BAG, tmp_path / "other_flight")  # another flight's results (the same flight twice is refused)
+    for name, flight in (("a", BAG), ("b", BAG), ("a_copy", str(tmp_path / "other_flight"))):
+        assert main(["evaluate", flight, "--preset", "short", "--no-multistep", "--model", f"narx:{tmp_path / name}.npz",
                      "-o", str(tmp_path / f"r_{name}")]) == 0
     message = merge_error([str(tmp_path / "r_a"), str(tmp_path / "r_b"), "-o", str(tmp_path / "out")], capsys)
     assert f"r_b/results.json: model narx was loaded from another file than in {tmp_path / 'r_a'}/results.json" in message
@@ -125,8 +126,19 @@ def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, 
 
 def test_model_specs_whose_argument_is_an_option_are_evaluated_and_merge(flights, tmp_path):
     """greybox:euler and physics:L,A take options, not files: nothing is read as a model file (a traceback before)."""
-    for name in ("x", "y"):
-        assert main(["evaluate", flights[0], *SHORT, "--no-multistep", "--model", "greybox", "--model", "greybox:euler",
+    for name, flight in (("x", flights[0]), ("y", flights[1])):
+        assert main(["evaluate", flight, *SHORT, "--no-multistep", "--model", "greybox", "--model", "greybox:euler",
                      "--model", "physics:0.5,0.5", "-o", str(tmp_path / name)]) == 0
     assert "model_files" in json.loads((tmp_path / "x" / "results.json").read_text())["statistics"]
     assert main(["merge", str(tmp_path / "x"), str(tmp_path / "y"), "-o", str(tmp_path / "out")]) == 0
+
+
+def test_merge_refuses_one_flight_in_two_results(results, tmp_path, capsys):
+    """A copy of a result (or the same flight evaluated twice) would count its windows twice."""
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(results["a"], copy)
+    message = merge_error([str(results["a"]), str(copy), "-o", str(tmp_path / "out")], capsys)
+    assert f"{copy}/results.json: flight " in message and f"is also in {results['a']}/results.json" in message
+    assert "its windows would count twice" in message and not (tmp_path / "out").exists()
