@@ -11,7 +11,7 @@ under ``quad_modelling.*`` keys (:func:`read_bag_metadata` reads it without a
 message). :func:`read_bag` puts every topic on the ``motor_input`` time base (linear
 interpolation when stamps differ; exact when they coincide, as in bags written here);
 :func:`read_recorded` gives the serialised messages as recorded (the replay's input).
-:func:`read_mapped_bag` reads any stack's bag through a topic map (:mod:`quad_modelling.io.topic_maps`).
+:func:`quad_modelling.io.mapped_flight.read_mapped_bag` reads any stack's bag through a topic map (:mod:`quad_modelling.io.topic_maps`).
 """
 
 from __future__ import annotations
@@ -63,6 +63,11 @@ VEHICLE_KEY = "quad_modelling.vehicle"
 SOURCE_KEY = "quad_modelling.source"
 NOTES_KEY = "quad_modelling.notes"
 """custom_data keys of the flight's metadata (vehicle config name, source file name, JSON notes)."""
+
+READ_ERRORS = (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
+               AssertionError, IndexError, ZstdError, SerdeError)
+"""What rosbags, the MCAP and zstd layers and the deserialiser raise on a corrupt or truncated bag (our BagError, an
+OSError, is re-raised as it is by every reader)."""
 
 TYPESTORE = get_typestore(Stores.ROS2_JAZZY)
 BAG_TYPES = MessageTypes.from_lookup(TYPESTORE.types.__getitem__)
@@ -249,7 +254,8 @@ class BagSummary:
     custom_data: dict
 
 
-def _open_reader(path: Path) -> Reader:
+def open_reader(path: Path) -> Reader:
+    """An opened rosbags Reader of the bag directory ``path``; BagError (one line) for no bag or an unreadable one."""
     if (mode := input_path_mode(path, "bag", BagError)) is None:
         raise BagError(f"{path}: no such bag")
     if not stat.S_ISDIR(mode):
@@ -272,7 +278,7 @@ def _open_reader(path: Path) -> Reader:
 def summarize_bag(path: str | Path) -> BagSummary:
     """Topics, types, counts, time spans and rates of a bag (reads every message header)."""
     path = Path(path)
-    reader = _open_reader(path)
+    reader = open_reader(path)
     try:
         first: dict[str, int] = {}
         last: dict[str, int] = {}
@@ -338,7 +344,7 @@ def read_bag_metadata(path: str | Path) -> BagMetadata:
     Raises BagError for a path that is not a readable rosbag2 bag.
     """
     path = Path(path)
-    reader = _open_reader(path)
+    reader = open_reader(path)
     try:
         span_ns = max(reader.end_time - 1 - reader.start_time, 0) if reader.message_count else 0  # end_time is after the last message
         count = reader.message_count
@@ -385,7 +391,7 @@ def read_recorded(path: str | Path, namespace: str = DEFAULT_NAMESPACE) -> list[
     unreadable bag, a missing required topic, a wrong type or a message without a header.
     """
     path = Path(path)
-    reader = _open_reader(path)
+    reader = open_reader(path)
     try:
         by_topic = _contract_connections(reader, path, namespace)
         key_of = {c.id: key for key, connections in by_topic.items() for c in connections}
@@ -413,7 +419,7 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
     non-finite values or stamps that do not increase.
     """
     path = Path(path)
-    reader = _open_reader(path)
+    reader = open_reader(path)
     try:
         by_topic = _contract_connections(reader, path, namespace)
         key_of = {c.id: key for key, connections in by_topic.items() for c in connections}
@@ -458,103 +464,6 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
             raise BagError(f"{path}: custom_data {NOTES_KEY} must hold a JSON object, got {type(notes).__name__}")
         return vehicle_name, notes
     return contract_flight_log(path, namespace, columns, stamps, flight_meta)
-
-
-
-
-# --- any recording through a topic map (DESIGN 5a "Users' own topics") ---------------------------------------
-
-def _stored_typestore(connections, path: Path):
-    """A type store of the definitions the bag stores for ``connections`` (MCAP schemas, sqlite3 message_definitions);
-    BagError naming the topic and type when the bag stores none or an unreadable one."""
-    from rosbags.interfaces import MessageDefinitionFormat
-    from rosbags.typesys import get_types_from_idl, get_types_from_msg
-
-    types: dict = {}
-    for c in connections:
-        if c.msgdef.format == MessageDefinitionFormat.NONE or not c.msgdef.data.strip():
-            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): the bag stores no message definition (recorded by a "
-                           "rosbag2 older than Jazzy?); re-record it with ros2 bag record of Jazzy or later (MCAP or sqlite3)")
-        try:
-            if c.msgdef.format == MessageDefinitionFormat.MSG:
-                types.update(get_types_from_msg(c.msgdef.data, c.msgtype))
-            else:  # IDL: one or more "IDL: name" sections after a line of 80 '='
-                for part in filter(str.strip, c.msgdef.data.split("=" * 80 + "\n")):
-                    types.update(get_types_from_idl(part.split("\n", 1)[1] if part.startswith("IDL: ") else part))
-        except Exception as err:  # rosbags' definition parsers raise their own and bare errors on bad text
-            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): unreadable stored message definition ({reason(err)})") from err
-    store = get_typestore(Stores.EMPTY)
-    try:
-        store.register(types)
-    except Exception as err:
-        raise BagError(f"{path}: the bag's stored message definitions do not fit together ({reason(err)})") from err
-    return store
-
-
-def _fields_of(store):
-    """``fields_of(msgtype)`` -> {name: FieldType} from a type store's definitions (the map's static check)."""
-    from rosbags.typesys.store import Nodetype
-
-    from quad_modelling.io.mapped_flight import FieldType
-
-    def describe(kind, detail) -> FieldType:
-        if kind == Nodetype.NAME:
-            return FieldType(detail, None)
-        if kind == Nodetype.BASE:
-            return FieldType(None, detail[0])
-        (element_kind, element_detail), size = detail
-        element = describe(element_kind, element_detail)
-        return FieldType(element.nested, element.base, size if kind == Nodetype.ARRAY else None, kind == Nodetype.SEQUENCE)
-
-    def fields_of(msgtype: str) -> dict:
-        if msgtype not in store.fielddefs:
-            return {}
-        return {name: describe(kind, detail) for name, (kind, detail) in store.fielddefs[msgtype][1]}
-    return fields_of
-
-
-def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
-    """Any rosbag2 bag (MCAP or sqlite3) through a topic map (bound to its robot) into a FlightLog for ``vehicle``.
-
-    Deserialised with the definitions stored in the bag (no px4_msgs/crazyflie_interfaces install), streamed: each
-    message becomes numbers as it is read (:class:`~quad_modelling.io.mapped_flight.TopicReader`), then the streams
-    are aligned (:func:`~quad_modelling.io.mapped_flight.flight_from_streams`). One-line errors name topic, field, type.
-    """
-    from quad_modelling.io.mapped_flight import FlightAssembler, check_map_fields, instance_notes, readers_for
-
-    path, where = Path(path), str(path)
-    reader = _open_reader(path)
-    try:
-        present = {c.topic: c.msgtype for c in reader.connections}
-        missing = topic_map.missing(present)
-        if missing:
-            raise BagError(f"{path}: topic map {topic_map.name} reads {'; '.join(missing)}: not in the bag, which has {sorted(present)}")
-        sources = topic_map.sources(present)
-        wrong = next((s.topic for s in sources.values() if present[s.topic] != topic_map.topics[s.topic].msgtype), None)
-        if wrong:
-            raise BagError(f"{path}: topic {wrong} has type {present[wrong]}, topic map {topic_map.name} reads {topic_map.topics[wrong].msgtype}")
-        used = [c for c in reader.connections if c.topic in {s.topic for s in sources.values()}]
-        store = _stored_typestore(used, path)
-        check_map_fields(topic_map, sources, _fields_of(store), f"{path}: topic map {topic_map.name}")
-        readers = readers_for(topic_map, sources, where)
-        capacity = sum(c.msgcount for c in used if c.topic == sources["commands"].topic)
-        assembler = FlightAssembler(topic_map, sources, readers, vehicle, where, capacity)
-        deserialize = store.deserialize_cdr
-        for connection, _, raw in reader.messages(connections=used):
-            msg = deserialize(raw, connection.msgtype)
-            topic_reader = readers[connection.topic]
-            if topic_reader.keep(msg):
-                assembler.add(connection.topic, topic_reader.stamp_ns(msg), topic_reader.values(msg))
-    except BagError:  # a missing topic or a wrong type, named (a BagError is an OSError: not "corrupt")
-        raise
-    except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError,
-            AssertionError, IndexError, ZstdError, SerdeError) as err:
-        if isinstance(err, (BagError, ConfigError, DataError)):
-            raise
-        raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
-    finally:
-        reader.close()
-    return assembler.finish(instance_notes(readers, present))
 
 
 class ForeignBagWriter:

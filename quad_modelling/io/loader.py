@@ -86,7 +86,8 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
 
         log = read_ulog(path, vehicle=config or name)
     else:
-        from quad_modelling.io.bag_io import read_bag, read_bag_metadata, read_mapped_bag
+        from quad_modelling.io.bag_io import read_bag, read_bag_metadata
+        from quad_modelling.io.mapped_flight import read_mapped_bag
         from quad_modelling.io.topic_maps import choose_topic_map
 
         if not path.is_dir() and path.suffix != ".mcap":  # --format bag on a file: not the parent directory's fault

@@ -1,6 +1,6 @@
 """Messages of a topic map's topics -> rows of numbers -> a FlightLog: the one conversion for any map.
 
-Used offline by :func:`quad_modelling.io.bag_io.read_mapped_bag` (messages deserialised with the
+Used offline by :func:`read_mapped_bag` (messages deserialised with the
 definitions stored in the bag) and live by the nodes' ``topic_map`` subscriptions
 (:mod:`quad_modelling.nodes.mapping.streams`, rclpy's messages): both call
 :class:`TopicReader` per message (attribute access only, so rosbags' and rclpy's messages alike),
@@ -29,15 +29,18 @@ from __future__ import annotations
 import operator
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.core import frames
 from quad_modelling.core.alignment import MAX_GAP_S, interpolate_at
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.errors import ConfigError, DataError
+from quad_modelling.errors import BagError, ConfigError, DataError, reason
+from quad_modelling.io.bag_io import READ_ERRORS, open_reader
 from quad_modelling.io.topic_maps import STAMP_UNITS, FieldSource, TopicMap, TopicSpec, parse_path
 
 NANOSECONDS = 1_000_000_000
@@ -481,3 +484,91 @@ def check_same_clock(spans: dict[str, tuple[int, int]], base: str, where: str) -
             raise DataError(
                 f"{where}: topic {topic} stamps span {s0 / 1e9:.3f}..{s1 / 1e9:.3f} s, topic {base} {b0 / 1e9:.3f}..{b1 / 1e9:.3f} s: "
                 "stamps from another clock; stamp every topic of the map on one clock (e.g. header.stamp everywhere)")
+
+
+# --- any recording through a topic map (users' own topics) ---------------------------------------------------
+
+def _stored_typestore(connections, path: Path):
+    """A type store of the definitions the bag stores for ``connections`` (MCAP schemas, sqlite3 message_definitions);
+    BagError naming the topic and type when the bag stores none or an unreadable one."""
+    from rosbags.interfaces import MessageDefinitionFormat
+    from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
+    types: dict = {}
+    for c in connections:
+        if c.msgdef.format == MessageDefinitionFormat.NONE or not c.msgdef.data.strip():
+            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): the bag stores no message definition (recorded by a "
+                           "rosbag2 older than Jazzy?); re-record it with ros2 bag record of Jazzy or later (MCAP or sqlite3)")
+        try:
+            if c.msgdef.format == MessageDefinitionFormat.MSG:
+                types.update(get_types_from_msg(c.msgdef.data, c.msgtype))
+            else:  # IDL: one or more "IDL: name" sections after a line of 80 '='
+                for part in filter(str.strip, c.msgdef.data.split("=" * 80 + "\n")):
+                    types.update(get_types_from_idl(part.split("\n", 1)[1] if part.startswith("IDL: ") else part))
+        except Exception as err:  # rosbags' definition parsers raise their own and bare errors on bad text
+            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): unreadable stored message definition ({reason(err)})") from err
+    store = get_typestore(Stores.EMPTY)
+    try:
+        store.register(types)
+    except Exception as err:
+        raise BagError(f"{path}: the bag's stored message definitions do not fit together ({reason(err)})") from err
+    return store
+
+
+def _fields_of(store):
+    """``fields_of(msgtype)`` -> {name: FieldType} from a type store's definitions (the map's static check)."""
+    from rosbags.typesys.store import Nodetype
+
+    def describe(kind, detail) -> FieldType:
+        if kind == Nodetype.NAME:
+            return FieldType(detail, None)
+        if kind == Nodetype.BASE:
+            return FieldType(None, detail[0])
+        (element_kind, element_detail), size = detail
+        element = describe(element_kind, element_detail)
+        return FieldType(element.nested, element.base, size if kind == Nodetype.ARRAY else None, kind == Nodetype.SEQUENCE)
+
+    def fields_of(msgtype: str) -> dict:
+        if msgtype not in store.fielddefs:
+            return {}
+        return {name: describe(kind, detail) for name, (kind, detail) in store.fielddefs[msgtype][1]}
+    return fields_of
+
+
+def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
+    """Any rosbag2 bag (MCAP or sqlite3) through a topic map (bound to its robot) into a FlightLog for ``vehicle``.
+
+    Deserialised with the definitions stored in the bag (no px4_msgs/crazyflie_interfaces install), streamed: each
+    message becomes numbers as it is read (:class:`~quad_modelling.io.mapped_flight.TopicReader`), then the streams
+    are aligned (:func:`~quad_modelling.io.mapped_flight.flight_from_streams`). One-line errors name topic, field, type.
+    """
+    path, where = Path(path), str(path)
+    reader = open_reader(path)
+    try:
+        present = {c.topic: c.msgtype for c in reader.connections}
+        missing = topic_map.missing(present)
+        if missing:
+            raise BagError(f"{path}: topic map {topic_map.name} reads {'; '.join(missing)}: not in the bag, which has {sorted(present)}")
+        sources = topic_map.sources(present)
+        wrong = next((s.topic for s in sources.values() if present[s.topic] != topic_map.topics[s.topic].msgtype), None)
+        if wrong:
+            raise BagError(f"{path}: topic {wrong} has type {present[wrong]}, topic map {topic_map.name} reads {topic_map.topics[wrong].msgtype}")
+        used = [c for c in reader.connections if c.topic in {s.topic for s in sources.values()}]
+        store = _stored_typestore(used, path)
+        check_map_fields(topic_map, sources, _fields_of(store), f"{path}: topic map {topic_map.name}")
+        readers = readers_for(topic_map, sources, where)
+        capacity = sum(c.msgcount for c in used if c.topic == sources["commands"].topic)
+        assembler = FlightAssembler(topic_map, sources, readers, vehicle, where, capacity)
+        deserialize = store.deserialize_cdr
+        for connection, _, raw in reader.messages(connections=used):
+            msg = deserialize(raw, connection.msgtype)
+            topic_reader = readers[connection.topic]
+            if topic_reader.keep(msg):
+                assembler.add(connection.topic, topic_reader.stamp_ns(msg), topic_reader.values(msg))
+    except READ_ERRORS as err:
+        if isinstance(err, (BagError, ConfigError, DataError)):
+            raise
+        raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
+    finally:
+        reader.close()
+    return assembler.finish(instance_notes(readers, present))

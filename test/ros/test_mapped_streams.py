@@ -16,7 +16,7 @@ from rclpy.parameter import Parameter
 
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import load_vehicle
-from quad_modelling.io.bag_io import read_mapped_bag
+from quad_modelling.io.mapped_flight import read_mapped_bag
 from quad_modelling.io.topic_maps import load_topic_map
 from quad_modelling.io.topics import stamps_ns
 from quad_modelling.nodes import messages

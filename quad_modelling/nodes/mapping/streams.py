@@ -7,7 +7,7 @@ crazyflie_interfaces) when their package is importable (the user's workspace sou
 to start in one line naming the package to source (:func:`message_class`).
 
 Every message goes through the conversion the offline reader uses
-(:func:`quad_modelling.io.bag_io.read_mapped_bag`): :class:`~quad_modelling.io.mapped_flight.TopicReader`
+(:func:`quad_modelling.io.mapped_flight.read_mapped_bag`): :class:`~quad_modelling.io.mapped_flight.TopicReader`
 (message -> stamp [ns] and numbers), then :func:`~quad_modelling.io.mapped_flight.map_commands` for the
 commands and :func:`~quad_modelling.io.mapped_flight.convert_measurements` for the rest (units and frames
 through :mod:`quad_modelling.core.frames`). Between the two, each field's numbers wait in a
