@@ -217,14 +217,14 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
                                              topic_map_file(args.topic_map)])  # fail before minutes of training
-    check_distinct_inputs(args.flights, "FLIGHT", args.val_flights or [], "--val-flights")
-    check_distinct_inputs(args.val_flights or [], "--val-flights")
     if output.suffix != ".npz":
         raise ConfigError(f"-o {output}: a model file is an .npz archive; name it MODEL.npz")
     if args.hybrid and args.direct:
         raise ConfigError("--hybrid and --direct: choose one model to train")
     if args.direct and args.val_flights:
         raise ConfigError("--val-flights: the direct model's fit is closed-form, with no validation; pass those flights as training flights")
+    check_distinct_inputs(args.flights, "FLIGHT", args.val_flights or [], "--val-flights")
+    check_distinct_inputs(args.val_flights or [], "--val-flights")
     kind = "hybrid" if args.hybrid else "direct" if args.direct else "narx"
     check_model_options(args, kind)
     config, rollout = (hybrid_config(args), None) if args.hybrid else (None, None) if args.direct else training_configs(args)

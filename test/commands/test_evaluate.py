@@ -89,8 +89,10 @@ def test_a_flight_the_reader_cut_is_said_by_evaluate_as_by_convert(tmp_path, cap
     quirk = FIXTURES / "nanobench" / "B9_trefoil_fast_rep2_rows1199-1399.csv.gz"
     main(["evaluate", str(quirk), "--drop", "0:0", "--train", "0%:50%", "--eval", "50%:100%", "-o", str(tmp_path / "e")])
     warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
-    assert len(warnings) == 1 and warnings[0].startswith(f"warning: {quirk}: motor columns continue as one straight line")
+    assert len(warnings) == 2 and warnings[0].startswith(f"warning: {quirk}: motor columns continue as one straight line")
     assert warnings[0].endswith("the flight is cut at t=0.53 s")
+    assert warnings[1] == (f"warning: {quirk}: no window in either span (too short, or every window touches the ground or "
+                           "a gap): not in the window scores")  # the 0.53 s left
 
 
 def test_a_span_that_holds_no_window_is_said_in_one_warning_line(tmp_path, capsys):

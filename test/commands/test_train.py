@@ -48,8 +48,11 @@ def test_train_default_is_rollout_training_early_stopped_on_held_back_data(tmp_p
 
 
 def test_train_val_flights_are_used_for_early_stopping_only(tmp_path):
+    import shutil
+
     out = tmp_path / "narx.npz"
-    assert main(["train", BAG, "-o", str(out), "--val-flights", BAG, *SMALL, *QUICK_ROLLOUT]) == 0
+    other = shutil.copytree(BAG, tmp_path / "other_flight")  # the same flight as both is refused (test_bad_inputs)
+    assert main(["train", BAG, "-o", str(out), "--val-flights", str(other), *SMALL, *QUICK_ROLLOUT]) == 0
     model = load_narx(out, vehicle="crazyflie21")
     (train,), (val,) = model.training["segments"], model.training["rollout"]["validation"]
     assert train["span"] == val["span"]  # the whole training span of the validation flight, not a part of the training one
