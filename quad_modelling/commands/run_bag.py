@@ -6,6 +6,7 @@ import argparse
 import json
 import math
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -104,6 +105,9 @@ def parse_models(text: str) -> list[ModelEntry]:
         name, spec = name.strip(), spec.strip()
         if not name or not spec or "/" in name:
             raise ConfigError(f"--models {text!r}: bad entry {item!r}; expected SPEC or NAME=SPEC")
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):  # it names a node (NAME_predictor) and its topics
+            raise ConfigError(f"--models {text!r}: model name {name!r} must be letters, digits and '_', not starting with a "
+                              "digit (it names the predictor node and its topics)")
         entries.append(ModelEntry(name, spec))
     if not entries:
         raise ConfigError("--models: give at least one model spec")

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import difflib
 import gc
+import math
 import os
 import signal
 import sys
@@ -45,7 +46,7 @@ from rclpy.qos import (
 
 from quad_modelling.core.alignment import CONFIRM
 from quad_modelling.core.windows import seconds_spans
-from quad_modelling.errors import ConfigError, QuadModellingError
+from quad_modelling.errors import ConfigError, QuadModellingError, reason
 from quad_modelling.io import topics
 from quad_modelling.nodes.domains import DDS_PROFILE_ENV, use_dds_profile  # noqa: F401  (re-exported)
 from quad_modelling.nodes.executors import executor_kind, interrupt, make_executor, spin, spin_once  # noqa: F401  (re-exported for the nodes)
@@ -143,12 +144,54 @@ class Param:
     read_only: bool = True
 
 
+MAX_PARAMETER = 1.0e6
+"""Largest value a numeric parameter takes (seconds, rates, depths): 11.6 days as a time; beyond it (or inf) a
+time would overflow the nanosecond stamps it is turned into, a depth or a count exhaust memory -- a typo, refused."""
+
+
+def _bounded(value) -> str | None:
+    if not math.isfinite(value) or value > MAX_PARAMETER:
+        return f"must be finite and at most {MAX_PARAMETER:g}"
+    return None
+
+
 def positive(value) -> str | None:
-    return None if value > 0 else "must be > 0"
+    return _bounded(value) or (None if value > 0 else "must be > 0")
 
 
 def non_negative(value) -> str | None:
-    return None if value >= 0 else "must be >= 0"
+    return _bounded(value) or (None if value >= 0 else "must be >= 0")
+
+
+MIN_SAMPLE_PERIOD_S = 1.0e-4
+"""Shortest nominal sample period [s] (10 kHz, beyond any flight stack's command rate): a window of shorter periods
+would be allocated with billions of rows."""
+
+
+def sample_period(value) -> str | None:
+    """0 (measured from the first steps) or a period of at least :data:`MIN_SAMPLE_PERIOD_S` [s]."""
+    return non_negative(value) or (None if value == 0 or value >= MIN_SAMPLE_PERIOD_S else
+                                   f"must be 0 (measured) or at least {MIN_SAMPLE_PERIOD_S:g} s")
+
+
+def topic_name(value) -> str | None:
+    """A ROS 2 topic name (relative or absolute), as rclpy validates it."""
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.validate_topic_name import validate_topic_name
+
+    if not str(value).strip():
+        return "must not be empty"
+    try:
+        validate_topic_name(str(value))
+    except InvalidTopicNameException as err:
+        return f"not a ROS 2 topic name ({str(err).splitlines()[0].rstrip(':')})"
+    return None
+
+
+def model_name_check(value) -> str | None:
+    """Empty (the spec's kind) or one topic-name token: the predictions are <model_name>/odom."""
+    return None if not str(value) else topic_name(f"{value}/odom") and (
+        f"{value!r} cannot prefix a topic: use letters, digits and '_'")
 
 
 def niceness(value) -> str | None:
@@ -477,22 +520,31 @@ def run_node(factory, args=None) -> int:
     A :class:`BadParameter` or a package error raised while building the node is
     printed as one line on stderr and gives :data:`EXIT_BAD_PARAMETER`.
     """
-    import rclpy
-    from rclpy.executors import ExternalShutdownException
-
-    try:
-        use_dds_profile()
-    except QuadModellingError as err:
-        print(f"error: {err}", file=sys.stderr, flush=True)
-        return EXIT_BAD_PARAMETER
-    from rclpy.signals import SignalHandlerOptions
-
-    # rclpy's own handlers shut the context down from their signal thread while this thread may be inside a wait
-    # on it: a rare RCLError ("context is not valid") or a segfault at Ctrl-C. The signals stay Python's here:
-    # Ctrl-C and SIGTERM raise KeyboardInterrupt in this thread when the spin's wait returns (<= SPIN_TIMEOUT_S).
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    # Ours from the start (a parent's SIG_IGN of a background job included): a Ctrl-C while rclpy loads or starts
+    # ends the process with 130, not a traceback, and is not lost. rclpy's own handlers shut the context down from
+    # their signal thread while this thread may be inside a wait on it: a rare RCLError ("context is not valid") or
+    # a segfault at Ctrl-C. The signals stay Python's here: Ctrl-C and SIGTERM raise KeyboardInterrupt in this thread
+    # when the spin's wait returns (<= SPIN_TIMEOUT_S).
     previous = {signum: signal.signal(signum, _interrupt) for signum in (signal.SIGINT, signal.SIGTERM)}
     signal.pthread_sigmask(signal.SIG_UNBLOCK, set(previous))  # whatever the parent ignored or blocked
+    try:
+        import rclpy
+        from rclpy.executors import ExternalShutdownException
+        from rclpy.signals import SignalHandlerOptions
+
+        use_dds_profile()
+        rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    except QuadModellingError as err:
+        print(f"error: {err}", file=sys.stderr, flush=True)
+        return _restored(previous, EXIT_BAD_PARAMETER)
+    except KeyboardInterrupt:  # Ctrl-C or SIGTERM before the node existed: nothing to summarise
+        return _restored(previous, EXIT_INTERRUPTED)
+    except Exception as err:  # rclpy's RCLError: an unreadable --params-file, a malformed -p override
+        if type(err).__name__ != "RCLError":
+            raise
+        print(f"error: cannot start ROS 2 with these arguments: {reason(err)} (check --params-file and -p NAME:=VALUE)",
+              file=sys.stderr, flush=True)
+        return _restored(previous, EXIT_BAD_PARAMETER)
     node = None
     code = 0
     try:
@@ -518,6 +570,17 @@ def run_node(factory, args=None) -> int:
         rclpy.try_shutdown()
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+    return code
+
+
+EXIT_INTERRUPTED = 130
+"""Exit code of a node stopped by a signal before it was built (128 + SIGINT, as a shell reports it)."""
+
+
+def _restored(previous: dict, code: int) -> int:
+    """Put back the signal handlers ``previous`` held; ``code``."""
+    for signum, handler in previous.items():
+        signal.signal(signum, handler)
     return code
 
 

@@ -12,6 +12,9 @@ from quad_modelling.core.models.streaming import HORIZON_INPUTS, StreamingPredic
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.io import topics
 from quad_modelling.nodes.common import (
+    model_name_check,
+    sample_period,
+    topic_name,
     Param,
     executor_param,
     math_threads_param,
@@ -58,11 +61,12 @@ def predictor_parameters(default_model: str) -> list[Param]:
     return [
         Param("model", default_model, "model spec: naive, greybox, greybox:euler, narx:PATH, hybrid:PATH", non_empty),
         Param("model_file", "", "model file appended to the spec as MODEL:FILE (e.g. the NARX .npz); empty = none"),
-        Param("model_name", "", "topic prefix and name of the predictions (<model_name>/odom); empty = the spec's kind"),
+        Param("model_name", "", "topic prefix and name of the predictions (<model_name>/odom); empty = the spec's kind",
+              model_name_check),
         vehicle_param(),
         Param("window_s", 10.0, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input", positive),
         Param("warm_s", 0.2, "warm start at each window start [s] (thesis 0.2 s)", positive),
-        Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", non_negative),
+        Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", sample_period),
         Param("measurement_tolerance_s", 0.02, "a command stamp with no measurement sample on both sides uses the nearest "
                                               "one within this [s], else the row has no measurement", non_negative),
         Param("measurement_gap_s", 0.1, "longest gap between two samples of a measurement stream interpolated through [s]",
@@ -76,9 +80,9 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("horizon_history_s", 2.5, "receding-horizon mode, a model without a carried-state forecast (naive, truth) "
                                         "or a flight without a gyro: rows [s] up to each anchor its multi-step form is "
                                         "re-run over (trims and filters settle within 2 s)", positive),
-        Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
-        Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
-        Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
+        Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", topic_name),
+        Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", topic_name),
+        Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", topic_name),
         Param("battery_topic", "", "battery voltage (sensor_msgs/BatteryState) for models that use it; empty = not subscribed"),
         Param("world_frame", topics.WORLD_FRAME, "frame_id of the predicted pose", non_empty),
         topic_map_param(),

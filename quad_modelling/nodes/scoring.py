@@ -39,6 +39,9 @@ from quad_modelling.core.windows import EvaluationConfig, SpanSpec
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.nodes.common import (
+    model_name_check,
+    sample_period,
+    topic_name,
     IMU,
     MOCAP_ODOM,
     MOTOR_INPUT,
@@ -369,7 +372,7 @@ def _models_check(value) -> str | None:
         return f"model names must be plain topic prefixes (no '/' or ':'), got {names}"
     if len(set(names)) != len(names):
         return f"model names must be unique, got {names}"
-    return None
+    return next((model_name_check(n) for n in names if model_name_check(n)), None)
 
 
 EVALUATOR_PARAMETERS = [
@@ -378,7 +381,7 @@ EVALUATOR_PARAMETERS = [
     Param("window_s", 10.0, "window length W [s], as the predictors", positive),
     Param("warm_s", 0.2, "warm start [s], as the predictors", positive),
     Param("sample_period_s", 0.0, "nominal engine-input period [s] of the window clock's dt/2 shift; 0 = median of the first "
-                                  "motor-input steps", non_negative),
+                                  "motor-input steps", sample_period),
     Param("horizon_s", 0.0, "receding-horizon scoring: MAE@h of <model>/horizon/odom (predicted horizon_s ahead, stamped at the "
                             "predicted time) against the measurements; the predictors' horizon_s; 0 = off", non_negative),
     stamp_step_param(),
@@ -388,9 +391,9 @@ EVALUATOR_PARAMETERS = [
                         "chunks; written when the node ends); empty = do not record"),
     Param("force", False, "replace an output_dir (or record bag) that existed before this node started"),
     Param("figures", True, "also write the thesis-style figures of the first window of each span"),
-    Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", non_empty),
-    Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", non_empty),
-    Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", non_empty),
+    Param("motor_input_topic", "motor_input", "engine inputs (sensor_msgs/JointState)", topic_name),
+    Param("odom_topic", "mocap/odom", "motion capture (nav_msgs/Odometry)", topic_name),
+    Param("imu_topic", "imu", "IMU (sensor_msgs/Imu)", topic_name),
     topic_map_param(),
     Param("stale_model_s", 2.0, "a model silent this long [wall s] no longer holds back progress or window closing", positive),
     Param("close_grace_s", 3.0, "close a window this long [wall s] after the first stream passed its end, even if another "

@@ -197,6 +197,8 @@ CORPUS = [
     ("diagnose-smooth-nyquist", ["diagnose", "--base", "greybox", "--train", "{d}/flight.mat", "--test", "{d}/flight.mat", "--smooth", "80", "-o", "{d}/work/d"],
      "--smooth 80 Hz: must be below the Nyquist frequency 50 Hz of {d}/flight.mat (100 Hz samples)"),
     ("diagnose-seeds-negative", ["diagnose", "--validate", "--seeds", "0,-1", "-o", "{d}/work/v"], "--seeds '0,-1': expected comma-separated non-negative integers"),
+    ("run-bag-model-name", ["run-bag", "{d}/bag", "--models", "Bad-Name=greybox", "-o", "{d}/work/live"],
+     "model name 'Bad-Name' must be letters, digits and '_', not starting with a digit"),
     ("run-bag-timeout-nan", ["run-bag", "{d}/bag", "--timeout", "nan", "-o", "{d}/work/live"], "--timeout nan: must be a finite number"),
     ("run-bag-rate-inf", ["run-bag", "{d}/bag", "--rate", "inf", "-o", "{d}/work/live"], "--rate inf: must be a finite number"),
     ("namespace-space", ["convert", "{d}/flight.mat", "--namespace", "/quad drone/1", "-o", "{d}/work/b"],

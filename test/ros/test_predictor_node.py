@@ -422,3 +422,25 @@ def test_a_clock_jump_forward_resets_the_windows_and_prediction_resumes_in_the_w
     # rows 600, 601 were suspects; row 602 landed 102 ms into window 201, after its warm start: window 202 from its start
     assert got[600:] == (stamps[1000:1100] + jump).tolist() and node.faults.counts["joined_mid_window"] == 1
     node.destroy_node()
+
+
+def test_parameters_ros_refuses_or_a_number_too_big_exit_2_in_one_line_without_a_traceback(tmp_path):
+    """An unreadable params file and a malformed -p are rclpy's start-up errors (a traceback before); infinite or
+    absurd numbers and names that cannot be topics are refused by their checks (an OverflowError, a 1.5 TiB
+    allocation or rclpy's topic-name traceback before)."""
+    cases = {
+        "params-file": (["--params-file", str(tmp_path / "nonexistent.yaml")], "error: cannot start ROS 2 with these arguments: "),
+        "override": (["-p", "window_s:=[a:5:2]"], "error: cannot start ROS 2 with these arguments: "),
+        "inf": (["-p", "measurement_tolerance_s:=inf"], "parameter measurement_tolerance_s=inf: must be finite and at most 1e+06"),
+        "period": (["-p", "sample_period_s:=1e-12"], "parameter sample_period_s=1e-12: must be 0 (measured) or at least 0.0001 s"),
+        "name": (["-p", "model_name:=bad-name"], "parameter model_name='bad-name': 'bad-name' cannot prefix a topic"),
+        "topic": (["-p", "odom_topic:=bad topic"], "parameter odom_topic='bad topic': not a ROS 2 topic name"),
+    }
+    with ThreadPoolExecutor(max_workers=3) as pool:
+        runs = {key: pool.submit(run_node, args) for key, (args, _) in cases.items()}
+        results = {key: run.result() for key, run in runs.items()}
+    for key, (_, expected) in cases.items():
+        run = results[key]
+        assert run.returncode == 2 and "Traceback" not in run.stderr, (key, run.stderr)
+        errors = [line for line in run.stderr.splitlines() if line.startswith("error: ")]
+        assert len(errors) == 1 and expected in errors[0], (key, run.stderr)
