@@ -40,6 +40,7 @@ keeps the origin (aligned with the predictors'), unless it lies before it. Timer
 from __future__ import annotations
 
 import os
+import tempfile
 import time
 from pathlib import Path
 
@@ -133,6 +134,12 @@ class EvaluatorNode(Node):
             raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
         if self.output_dir is not None and not self.output_dir.absolute().parent.is_dir():  # now, not after a flight
             raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r}: its parent directory {str(self.output_dir.absolute().parent)!r} does not exist")
+        if self.output_dir is not None:  # a directory can be made there now (not only after the flight)
+            try:
+                os.rmdir(tempfile.mkdtemp(prefix=".quad_write_check_", dir=self.output_dir.absolute().parent))
+            except OSError as err:
+                raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r}: cannot write in "
+                                   f"{str(self.output_dir.absolute().parent)!r} ({err.strerror})") from err
         self.figures = p["figures"]
         self.executor_kind, self.math_threads = p["executor"], p["math_threads"]
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]

@@ -192,6 +192,10 @@ def test_an_output_dir_whose_parent_is_missing_is_refused_at_start(ros, tmp_path
     with pytest.raises(BadParameter, match=r"output_dir=.*nope/out': its parent directory .*nope' does not exist"):
         make_node(output_dir=str(tmp_path / "nope" / "out"))
     assert list(tmp_path.iterdir()) == []
+    with pytest.raises(BadParameter, match=r"output_dir='/proc/quad_out': cannot write in '/proc' \("):
+        make_node(output_dir="/proc/quad_out")  # a directory no one (not even root) can make anything in
+    make_node(output_dir=str(tmp_path / "out")).destroy_node()
+    assert list(tmp_path.iterdir()) == []  # the write check leaves nothing behind
 
 
 def test_an_empty_model_list_is_one_line_exit_2():
