@@ -369,6 +369,7 @@ STREAM_FAULTS = {
     "stamp_outlier": "a stamp off the stream's time (a duplicate, back in time, or beyond max_stamp_step_s ahead): dropped",
     "clock_jump": "the stamps jumped to a new time base (restarted publisher, clock reset, end of a long silence): followed",
     "nan": "a message with a non-finite value: dropped",
+    "range": "a message beyond what a flight can hold (a sensor's full scale, 100 km, 200 m/s; flight_log's bounds): dropped",
     "bad": "a message that cannot be decoded or used (e.g. not 4 efforts): dropped",
     "duplicate": "a second message with a stamp already stored: dropped",
     "late": "a message for a window the evaluator already closed: dropped",
@@ -483,6 +484,21 @@ def adopt_vehicle(node, vehicles: VehicleSource, announced: str, learned: Callab
             node.get_logger().info(f"vehicle {vehicles.vehicle.name} learned from topic {VEHICLE_TOPIC}")
     except BadParameter as err:
         refuse(node, err)
+
+
+def beyond_bounds(stream: str, values) -> str | None:
+    """Why a finite measurement message is impossible (a corrupt or wrongly scaled value, e.g. 1e300), or None: the
+    bounds a flight log holds (:mod:`quad_modelling.core.flight_log`): position and velocity of ``mocap_odom``
+    (:func:`~quad_modelling.io.topics.odometry_fields` order), specific force and rates of ``imu``."""
+    from quad_modelling.core.flight_log import ACCEL_FULL_SCALE, GYRO_FULL_SCALE, POSITION_LIMIT, VELOCITY_LIMIT
+
+    limits = {MOCAP_ODOM: (("position", slice(0, 3), POSITION_LIMIT, "m"), ("velocity", slice(7, 10), VELOCITY_LIMIT, "m/s")),
+              IMU: (("specific force", slice(0, 3), ACCEL_FULL_SCALE, "m/s²"), ("rate", slice(3, 6), GYRO_FULL_SCALE, "rad/s"))}
+    for what, part, limit, unit in limits.get(stream, ()):
+        big = [v for v in values[part] if abs(v) > limit]  # NaN (not measured) compares False
+        if big:
+            return f"{what} {big[0]:.4g} {unit} beyond ±{limit:.4g} {unit}"
+    return None
 
 
 def refuse(node, error: BadParameter) -> None:

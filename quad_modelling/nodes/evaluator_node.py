@@ -75,6 +75,7 @@ from quad_modelling.nodes.common import (
     IMU, MOCAP_ODOM, MOTOR_INPUT,  # the one stream naming and fault vocabulary (stream_fault)
     VEHICLE_TOPIC,
     BadParameter,
+    beyond_bounds,
     FaultLog,
     VehicleSource,
     adopt_vehicle,
@@ -322,6 +323,9 @@ class EvaluatorNode(Node):
         """The samples ``(ns, values)`` of a message to use now (:meth:`_admit`); none for a non-finite one."""
         if not topics.all_finite(values):
             self.faults.report(stream_fault("nan", stream), f"non-finite {stream} message dropped")
+            return []
+        if (why := beyond_bounds(stream, values)) is not None:
+            self.faults.report(stream_fault("range", stream), f"{stream} message dropped: {why}")
             return []
         return self._admit(stream, ns, values)
 

@@ -72,6 +72,7 @@ from quad_modelling.nodes.common import (
     BATTERY, IMU, MOCAP_ODOM, MOTOR_INPUT, STREAMS,  # the one stream naming and fault vocabulary (stream_fault)
     VEHICLE_TOPIC,
     BadParameter,
+    beyond_bounds,
     FaultLog,
     VehicleSource,
     adopt_vehicle,
@@ -317,6 +318,9 @@ class PredictorNode(Node):
         if not topics.all_finite(fields):
             self.faults.report(stream_fault("nan", MOCAP_ODOM), "non-finite motion-capture message dropped")
             return
+        if (why := beyond_bounds(MOCAP_ODOM, fields)) is not None:
+            self.faults.report(stream_fault("range", MOCAP_ODOM), f"motion-capture message dropped: {why}")
+            return
         if zero_quaternion(self.faults, fields):
             return
         ns = topics.stamp_ns(msg.header.stamp)
@@ -328,6 +332,9 @@ class PredictorNode(Node):
         fields = topics.imu_fields(msg)
         if not topics.all_finite(fields):
             self.faults.report(stream_fault("nan", IMU), "non-finite IMU message dropped")
+            return
+        if (why := beyond_bounds(IMU, fields)) is not None:
+            self.faults.report(stream_fault("range", IMU), f"IMU message dropped: {why}")
             return
         ns = topics.stamp_ns(msg.header.stamp)
         if self._gate(IMU, ns, fields):

@@ -444,3 +444,27 @@ def test_parameters_ros_refuses_or_a_number_too_big_exit_2_in_one_line_without_a
         assert run.returncode == 2 and "Traceback" not in run.stderr, (key, run.stderr)
         errors = [line for line in run.stderr.splitlines() if line.startswith("error: ")]
         assert len(errors) == 1 and expected in errors[0], (key, run.stderr)
+
+
+def test_an_impossible_finite_measurement_is_dropped_as_a_nan_is(ros):
+    """A gyro of 1e300 rad/s or a position of 1e300 m is finite but impossible: dropped with its fault kind (it broke
+    2.5 s of forecasts before), the window goes on from the neighbouring rows."""
+    from quad_modelling.nodes.common import IMU, MOCAP_ODOM, beyond_bounds
+
+    assert beyond_bounds(IMU, [0.0, 0.0, -9.8, 1e300, 0.0, 0.0]) == "rate 1e+300 rad/s beyond ±34.91 rad/s"
+    assert beyond_bounds(MOCAP_ODOM, [1e300, 0, 1, 0, 0, 0, 1, 0, 0, 0]) == "position 1e+300 m beyond ±1e+05 m"
+    assert beyond_bounds(IMU, [float("nan")] * 3 + [0.1, 0.2, 0.3]) is None  # an unmeasured vector is not out of range
+    log = hover_log(1100)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
+    node = make_node(model="greybox")
+    feed(node, log, range(0, 505), arrays)
+    node.on_motor(arrays.motor(505, int(stamps[505])))
+    node.on_odom(arrays.odometry(505, int(stamps[505])))
+    broken = arrays.imu(505, int(stamps[505]))
+    broken.angular_velocity.x = 1e300
+    node.on_imu(broken)
+    feed(node, log, range(506, 1100), arrays)
+    assert node.faults.counts == {"range_imu": 1}
+    got, _ = published(node, stamps)
+    assert got == stamps[:1100].tolist()
+    node.destroy_node()
