@@ -586,6 +586,12 @@ class EvaluatorNode(Node):
         spin(self, executor)
 
     def finish(self) -> None:
+        if getattr(self, "fatal", None) is not None:  # refused (e.g. another vehicle's flight): its windows are no results
+            if self.output_dir is not None:
+                say(self, f"results not written to {self.output_dir}: the evaluation was refused")
+            if self.recorder is not None:
+                self.recorder.abort()
+            return
         for k in sorted(self.open):
             self._close(k, reason_if_incomplete="input ended before the window was complete")
         if self.output_dir is not None:

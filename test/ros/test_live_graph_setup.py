@@ -134,6 +134,8 @@ def test_nodes_learn_the_replayed_vehicle_or_refuse_another_in_one_line(ros, tmp
     announcer.publish(String(data="linkquad"))  # transient-local: nodes started later receive it
     learner = start("predictor_node", ["--params-file", str(REPO / "config" / "greybox_predictor.yaml")], tmp_path / "learner.log")
     refuser = start("predictor_node", ["-r", "__node:=refuser", "-p", "vehicle:=crazyflie21"], tmp_path / "refuser.log")
+    evaluator = start("evaluator_node", ["-p", "vehicle:=crazyflie21", "-p", f"output_dir:={tmp_path / 'out'}"],
+                      tmp_path / "evaluator.log")
     try:
         learned = wait_for_line(tmp_path / "learner.log", "vehicle linkquad learned from topic vehicle", node)
         assert "predicting with 'greybox'" in learned  # the params file (keyed /**) gave the model
@@ -144,8 +146,11 @@ def test_nodes_learn_the_replayed_vehicle_or_refuse_another_in_one_line(ros, tmp
         assert errors == ["error: refuser: parameter vehicle='crazyflie21' (crazyflie21) but the replay plays a flight of "
                           "vehicle 'linkquad' (topic vehicle); set vehicle:=linkquad or leave it empty to learn it"]
         assert stop(learner) == 0
+        assert evaluator.wait(60) == 2  # refused: no results of another vehicle's windows are written
+        text = (tmp_path / "evaluator.log").read_text()
+        assert f"results not written to {tmp_path / 'out'}: the evaluation was refused" in text and not (tmp_path / "out").exists()
     finally:
-        for proc in (learner, refuser):
+        for proc in (learner, refuser, evaluator):
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
