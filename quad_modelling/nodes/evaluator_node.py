@@ -536,6 +536,8 @@ class EvaluatorNode(Node):
         if any(s in self.measurement_streams for s in late):
             return marked(self._late_reason([s for s in late if s in self.measurement_streams]))
         if self.vehicle is None:
+            self.faults.report("no_vehicle", f"no vehicle: window {window.index} marked, not scored; set parameter vehicle "
+                                             f"(nothing announces one on topic {VEHICLE_TOPIC} next to a real flight)")
             return marked(f"no vehicle: parameter vehicle is empty and no replay announced one on topic {VEHICLE_TOPIC}")
         lo, hi = self.clock_.stamp_bounds(window.index)
         log, measured, reason = window_measurements(window, neighbours, lo, hi, self.vehicle, self.config, self.mapped)

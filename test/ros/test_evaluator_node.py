@@ -130,6 +130,7 @@ def test_without_a_vehicle_windows_are_marked_not_scored(ros):
     assert len(node.scores.records) == 6  # windows 0, 1 and the partial 2, of m and the dummy
     assert {r.reason for r in node.scores.records} == {"no vehicle: parameter vehicle is empty and no replay announced one "
                                                        "on topic vehicle"}
+    assert node.faults.counts == {"no_vehicle": 3}  # one warning line (counted per window) says why nothing scored
     node.destroy_node()
 
 
