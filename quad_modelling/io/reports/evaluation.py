@@ -76,10 +76,17 @@ def tables_text(data: dict, title: str = "Evaluation") -> str:
     lines = [f"# {title}", ""]
     flights = config["flights"]
     used = [f for f in flights if not f.get("skipped")]
-    lines.append(f"{len(used)} flight(s) ({len(flights) - len(used)} skipped); spans train {config['train']}, eval {config['eval']} "
-                 f"(drop {config['drop_start']:g} s / {config['drop_end']:g} s); {config['window_s']:g} s windows, "
-                 f"{config['warm_s']:g} s warm start. Windows per span: "
-                 + ", ".join(f"{s} {data['windows'][models[0]].get(s, 0)}" for s in spans) + ".")
+    live = (data.get("live") or {}).get("spans")  # run-bag / the evaluator node: named seconds spans, no drops
+    if live:
+        named = ", ".join(f"{s['name']} {s['start_s']:g}:{'inf' if s.get('end_s') is None else format(s['end_s'], 'g')}"
+                          for s in live)
+        where = f"spans {named} (seconds from the first motor input)"
+    else:
+        where = (f"spans train {config['train']}, eval {config['eval']} "
+                 f"(drop {config['drop_start']:g} s / {config['drop_end']:g} s)")
+    counts = ", ".join(f"{s} {data['windows'][models[0]].get(s, 0)}" for s in spans) or "none scored"
+    lines.append(f"{len(used)} flight(s) ({len(flights) - len(used)} skipped); {where}; {config['window_s']:g} s windows, "
+                 f"{config['warm_s']:g} s warm start. Windows per span: {counts}.")
     lines.append("")
     lines += model_notes(models)
     columns = [(m, s) for s in spans for m in models]

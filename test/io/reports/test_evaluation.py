@@ -43,3 +43,17 @@ def test_console_lines_of_evaluate():
     assert windows_text(_results()) == "windows train 4, eval 2"
     assert headline_scores(_results(), ["greybox", "dummy"]) == ["  greybox: TIC acc_z 0.25, roll_rate 0.25, vel_z 0.25",
                                                                  "  dummy: TIC acc_z 1.00, roll_rate 1.00, vel_z 1.00"]
+
+
+def test_live_tables_name_the_live_spans_not_empty_train_and_eval():
+    """A live result (the evaluator node, run-bag without spans) has named seconds spans and no drops: the header
+    says them (it read 'spans train , eval  (drop 0 s / 0 s) ... Windows per span: .')."""
+    from quad_modelling.io.reports.evaluation import tables_text
+
+    document = {**_results(), "models": {"greybox": {}, "dummy": {}}, "windows": {"greybox": {}, "dummy": {}},
+                "config": {"flights": [], "train": "", "eval": "", "drop_start": 0.0, "drop_end": 0.0, "window_s": 5.0,
+                           "warm_s": 0.2},
+                "live": {"spans": [{"name": "live", "start_s": 0.0, "end_s": None}], "marked": []}}
+    header = tables_text(document, "Live evaluation").splitlines()[2]
+    assert header == ("0 flight(s) (0 skipped); spans live 0:inf (seconds from the first motor input); 5 s windows, "
+                      "0.2 s warm start. Windows per span: none scored.")
