@@ -98,6 +98,9 @@ def test_the_evaluator_leaves_recording_a_stacks_topics_to_ros2_bag_record(ros, 
 def test_a_map_with_a_robot_placeholder_needs_the_robot_named(ros):
     with pytest.raises(BadParameter, match=r"topic_map='crazyswarm2'.*topic_map:=crazyswarm2:cf231"):
         PredictorNode(parameter_overrides=[Parameter("vehicle", value="crazyflie21"), Parameter("topic_map", value="crazyswarm2")])
+    with pytest.raises(BadParameter) as caught:  # the parameter named, not the CLI's --topic-map
+        PredictorNode(parameter_overrides=[Parameter("vehicle", value="crazyflie21"), Parameter("topic_map", value="nope")])
+    assert str(caught.value).startswith("predictor: parameter topic_map='nope': no such built-in map; known: quad")
 
 
 def test_the_evaluator_through_a_user_map_scores_what_it_scores_from_the_contract(ros, tmp_path):

@@ -45,8 +45,8 @@ def live_topic_map(value: str, node_name: str) -> TopicMap | None:
     """The map the ``topic_map`` parameter names, None for the contract; BadParameter in one line otherwise."""
     try:
         topic_map = load_topic_map(value)
-    except QuadModellingError as err:
-        raise BadParameter(f"{node_name}: parameter topic_map={value!r}: {err}") from err
+    except QuadModellingError as err:  # the loader speaks of the CLI's --topic-map; here it is the parameter
+        raise BadParameter(f"{node_name}: parameter topic_map={value!r}: {str(err).removeprefix(f'--topic-map {value}: ')}") from err
     if topic_map.is_contract:
         return None
     if topic_map.has_robot:
