@@ -103,7 +103,10 @@ class StreamCoverage:
         return self.coverage >= MIN_COVERAGE and self.longest_gap_s <= MAX_GAP_S + 1e-9
 
     def describe(self) -> str:
-        """``imu: 52.0 % of 2500 nominal samples (1300 received), longest gap 240 ms at 3.120 s into the window``."""
+        """``imu: 52.0 % of 2500 nominal samples (1300 received), longest gap 240 ms at 3.120 s into the window``; a
+        stream with too few samples to tell its rate: ``motor_input: 1 sample received, too few to tell its rate``."""
+        if self.nominal <= 0:
+            return f"{self.stream}: {self.received} sample{'s' if self.received != 1 else ''} received, too few to tell its rate"
         return (f"{self.stream}: {100 * self.coverage:.1f} % of {self.nominal:.0f} nominal samples ({self.received} received), "
                 f"longest gap {self.longest_gap_s * 1e3:.0f} ms at {self.gap_at_s:.3f} s into the window")
 

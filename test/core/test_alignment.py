@@ -142,3 +142,11 @@ def test_inconsistent_suspects_never_make_a_time_base():
 def test_gate_refuses_a_non_positive_step():
     with pytest.raises(ValueError, match="max_step_ns"):
         StampGate(0)
+
+
+def test_a_stream_too_short_to_tell_its_rate_is_described_so():
+    """A window mark read 'motor_input: 0.0 % of 0 nominal samples (1 received)'."""
+    from quad_modelling.core.alignment import StreamCoverage
+
+    coverage = StreamCoverage("motor_input", received=1, nominal=0.0, longest_gap_s=0.0, gap_at_s=0.0)
+    assert coverage.describe() == "motor_input: 1 sample received, too few to tell its rate" and not coverage.ok
