@@ -468,3 +468,28 @@ def test_an_impossible_finite_measurement_is_dropped_as_a_nan_is(ros):
     got, _ = published(node, stamps)
     assert got == stamps[:1100].tolist()
     node.destroy_node()
+
+
+def test_a_command_far_beyond_the_input_range_is_dropped_one_just_beyond_is_clipped(ros):
+    """Live as offline (flight_log.saturate_commands): within 5 % of the range past an end the actuator saturates
+    (clipped, predicted as the end), further out the message is impossible (dropped, range_motor_input)."""
+    log = hover_log(700)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
+    node = make_node(model="greybox")
+    feed(node, log, range(0, 505), arrays)
+    far = arrays.motor(505, int(stamps[505]))
+    far.effort = [-1e6, 30000.0, 30000.0, 30000.0]
+    node.on_motor(far)
+    assert node.faults.counts == {"range_motor_input": 1}
+    node.on_odom(arrays.odometry(505, int(stamps[505])))
+    node.on_imu(arrays.imu(505, int(stamps[505])))
+    near = arrays.motor(506, int(stamps[506]))
+    near.effort = [66000.0, 30000.0, 30000.0, 30000.0]  # 0.7 % past 65535: saturation, clipped
+    node.on_motor(near)
+    node.on_odom(arrays.odometry(506, int(stamps[506])))
+    node.on_imu(arrays.imu(506, int(stamps[506])))
+    feed(node, log, range(507, 700), arrays)
+    assert node.faults.counts == {"range_motor_input": 1}
+    got, _ = published(node, stamps)
+    assert int(stamps[505]) not in got and int(stamps[506]) in got and len(got) == 699
+    node.destroy_node()
