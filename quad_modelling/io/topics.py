@@ -361,11 +361,14 @@ class MeasurementMessages:
 # --- measurements: messages -> fields -> FlightLog (bag reader, predictor, evaluator) -----------
 
 def motor_fields(msg) -> tuple[np.ndarray, np.ndarray | None] | None:
-    """(command (4,), rotor speed (4,) or None); None when the message does not hold 4 efforts."""
+    """(command (4,), rotor speed (4,) or None) in motor order; None when the message does not hold 4 efforts. Names
+    ``motor_1..4`` in another order are put in motor order; other or no names: the efforts in the order sent."""
     if len(msg.effort) != 4:
         return None
-    u = np.array(msg.effort, dtype=float)
-    omega = np.array(msg.velocity, dtype=float) if len(msg.velocity) == 4 else None
+    names = [str(n) for n in msg.name]
+    order = [names.index(m) for m in MOTOR_NAMES] if len(names) == 4 and sorted(names) == list(MOTOR_NAMES) else [0, 1, 2, 3]
+    u = np.array(msg.effort, dtype=float)[order]
+    omega = np.array(msg.velocity, dtype=float)[order] if len(msg.velocity) == 4 else None
     if omega is not None and not np.isfinite(omega).all():
         omega = None
     return u, omega

@@ -81,3 +81,19 @@ def test_bag_metadata_is_read_without_touching_a_message(tmp_path, monkeypatch):
     assert (meta.vehicle, meta.message_count) == ("linkquad", 4 * 300)
     assert meta.source == "synthetic"
     assert meta.duration_s == pytest.approx((topics.stamps_ns(log.t)[-1] - topics.stamps_ns(log.t)[0]) / 1e9, abs=1e-9)
+
+
+def test_motor_efforts_are_read_by_their_names_when_the_four_are_named():
+    """A JointState named motor_4..motor_1 was read by position (motor 4's command as motor 1's)."""
+    from types import SimpleNamespace
+
+    from quad_modelling.io.topics import motor_fields
+
+    reversed_names = SimpleNamespace(effort=[4.0, 3.0, 2.0, 1.0], velocity=[40.0, 30.0, 20.0, 10.0],
+                                     name=["motor_4", "motor_3", "motor_2", "motor_1"])
+    u, omega = motor_fields(reversed_names)
+    assert u.tolist() == [1.0, 2.0, 3.0, 4.0] and omega.tolist() == [10.0, 20.0, 30.0, 40.0]
+    unnamed = SimpleNamespace(effort=[1.0, 2.0, 3.0, 4.0], velocity=[], name=[])  # another stack's: the order sent
+    assert motor_fields(unnamed)[0].tolist() == [1.0, 2.0, 3.0, 4.0] and motor_fields(unnamed)[1] is None
+    other = SimpleNamespace(effort=[1.0, 2.0, 3.0, 4.0], velocity=[], name=["m4", "m3", "m2", "m1"])
+    assert motor_fields(other)[0].tolist() == [1.0, 2.0, 3.0, 4.0]
