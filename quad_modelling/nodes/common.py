@@ -501,6 +501,19 @@ def beyond_bounds(stream: str, values) -> str | None:
     return None
 
 
+def command_beyond_range(vehicle, u) -> str | None:
+    """Why a command (4,) in ``vehicle``'s unit is impossible -- more than ``SATURATION_MARGIN`` of the input range past
+    either end, what a flight log refuses (:func:`~quad_modelling.core.flight_log.saturate_commands`) -- or None
+    (within the margin the actuator saturates: the caller clips)."""
+    from quad_modelling.core.flight_log import SATURATION_MARGIN
+
+    low, high = vehicle.input_min, vehicle.input_max
+    margin = SATURATION_MARGIN * (high - low)
+    if min(u) < low - margin or max(u) > high + margin:
+        return f"a command beyond the vehicle's input range [{low:g}, {high:g}] {vehicle.input_unit}"
+    return None
+
+
 def refuse(node, error: BadParameter) -> None:
     """Stop ``node`` from a callback because of ``error``: :func:`run_node` prints it and exits 2."""
     node.fatal = error

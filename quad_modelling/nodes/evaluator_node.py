@@ -76,6 +76,7 @@ from quad_modelling.nodes.common import (
     VEHICLE_TOPIC,
     BadParameter,
     beyond_bounds,
+    command_beyond_range,
     FaultLog,
     VehicleSource,
     adopt_vehicle,
@@ -337,6 +338,9 @@ class EvaluatorNode(Node):
             return
         if not topics.all_finite(fields[0]):
             self.faults.report(stream_fault("nan", MOTOR_INPUT), "non-finite motor_input message dropped")
+            return
+        if self.vehicle is not None and (why := command_beyond_range(self.vehicle, fields[0])) is not None:
+            self.faults.report(stream_fault("range", MOTOR_INPUT), f"motor_input dropped: {why}")
             return
         for ns, (u, omega) in self._admit(MOTOR_INPUT, ns, fields):
             self._motor(ns, u, omega)

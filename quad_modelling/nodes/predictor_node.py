@@ -63,7 +63,6 @@ from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.models.bounds import PhysicalBounds
 from quad_modelling.core.models.forecast import carried_forecast, compiled_window_stream, prepare_compiled_step
 from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate
-from quad_modelling.core.flight_log import SATURATION_MARGIN
 from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
@@ -74,6 +73,7 @@ from quad_modelling.nodes.common import (
     VEHICLE_TOPIC,
     BadParameter,
     beyond_bounds,
+    command_beyond_range,
     FaultLog,
     VehicleSource,
     adopt_vehicle,
@@ -383,14 +383,11 @@ class PredictorNode(Node):
             self.faults.report("no_vehicle", f"no vehicle yet: motor_input dropped until a replay announces one on topic "
                                              f"{VEHICLE_TOPIC} (or set parameter vehicle)")
             return
-        if u is not None:  # the actuators saturate: clipped within SATURATION_MARGIN, as offline; beyond, impossible
-            low, high = self.vehicle.input_min, self.vehicle.input_max
-            margin = SATURATION_MARGIN * (high - low)
-            if np.any(u < low - margin) or np.any(u > high + margin):
-                self.faults.report(stream_fault("range", MOTOR_INPUT), f"motor_input dropped: a command beyond the vehicle's "
-                                                                       f"input range [{low:g}, {high:g}] {self.vehicle.input_unit}")
+        if u is not None:  # the actuators saturate: clipped within the margin, as offline; beyond it, impossible
+            if (why := command_beyond_range(self.vehicle, u)) is not None:
+                self.faults.report(stream_fault("range", MOTOR_INPUT), f"motor_input dropped: {why}")
                 return
-            u = np.clip(u, low, high)
+            u = np.clip(u, self.vehicle.input_min, self.vehicle.input_max)
         if not self._gate(MOTOR_INPUT, ns):
             return
         if self.clock_.origin_ns is None:

@@ -219,3 +219,23 @@ def test_ctrl_c_ends_the_evaluator_without_a_fatal_line_and_writes_its_results(e
     assert code == 0, text  # its timers fired many times a second before the signal
     assert "FATAL" not in text and "Traceback" not in text and "Error occurred" not in text, text
     assert (out / "results.json").exists() and "closed 0 windows; faults: none" in text
+
+
+def test_a_command_far_beyond_the_input_range_is_dropped_as_by_the_predictors(ros):
+    """The predictors' intake rule (common.command_beyond_range): -1e6 PWM is impossible, dropped with its fault; the
+    window is still scored from the other rows."""
+    from quad_modelling.io.topics import stamps_ns
+
+    log = hover_log(1200)
+    arrays, stamps = messages.measurement_messages(log), stamps_ns(log.t)
+    node = make_node()
+    y = measured_variables(log)
+    feed(node, log, range(0, 300), arrays, predictions={"m": topics.prediction_fields(y)})
+    far = arrays.motor(300, int(stamps[300]))
+    far.effort = [-1e6, 30000.0, 30000.0, 30000.0]
+    node.on_motor(far)
+    feed(node, log, range(301, 1200), arrays, predictions={"m": topics.prediction_fields(y)})
+    node.finish()
+    assert node.faults.counts.get("range_motor_input") == 1
+    assert any(r.scored for r in node.scores.records if r.index == 0 and r.model == "m")
+    node.destroy_node()
