@@ -92,7 +92,7 @@ def test_gap_restart_and_late_start_mark_windows_instead_of_failing(ros, tmp_pat
     assert data["windows"]["m"]["live"] == 2 and len(marked_m) == 3  # windows 1, 2 and the partial 4
     assert data["windows"]["dummy"]["live"] == 3  # the dummy needs no predictor: only the gap and the partial window are marked
     assert abs(data["models"]["m"]["live"]["vel_z"]["rms"] - 0.1) < 1e-9
-    assert (tmp_path / "out" / "tables.md").is_file()
+    assert "spans live 0:inf (seconds from the first motor input); 5 s windows" in (tmp_path / "out" / "tables.md").read_text()
     node.destroy_node()
 
     late = make_node(spans=["live:0:inf"])

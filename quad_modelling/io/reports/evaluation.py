@@ -247,7 +247,7 @@ def write_report(result: EvaluationResult, directory: Path, title: str = "Evalua
     ``result.to_json()``."""
     directory.mkdir(parents=True)
     (directory / "results.json").write_text(json_text(result.to_json() if document is None else document))
-    (directory / "tables.md").write_text(markdown_tables(result, title))
+    (directory / "tables.md").write_text(markdown_tables(result, title) if document is None else tables_text(document, title))
     written = ["results.json", "tables.md"]
     example = next((e for e in result.examples if e.span == "eval"), result.examples[0] if result.examples else None)
     if example is not None:
