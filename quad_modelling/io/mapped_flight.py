@@ -154,6 +154,8 @@ class TopicReader:
         self._instance = _getter(parse_path(spec.instance, spec, where)) if spec.instance else None
         self._factor = STAMP_UNITS[spec.stamp_unit] if spec.stamp_unit else None
         self.instances: dict = {}
+        self.where = where
+        self.read = 0  # messages whose values were read (the index a fault names)
 
     def stamp_ns(self, msg) -> int:
         """The message's stamp [ns] (a builtin_interfaces/Time, or an integer field times its unit)."""
@@ -163,8 +165,17 @@ class TopicReader:
         return int(value) * self._factor
 
     def values(self, msg) -> list[float]:
-        """The numbers of every path, in :attr:`paths` order."""
-        return [float(get(msg)) for get in self._values]
+        """The numbers of every path, in :attr:`paths` order; DataError naming topic, field and message index when the
+        message lacks one (a JointState with 3 efforts for ``effort[3]``)."""
+        index, self.read = self.read, self.read + 1
+        out = []
+        for path, get in zip(self.paths, self._values):
+            try:
+                out.append(float(get(msg)))
+            except (IndexError, AttributeError, TypeError, ValueError, KeyError) as err:
+                raise DataError(f"{self.where}: topic {self.spec.name} message {index} has no usable field {path} "
+                                f"({type(err).__name__}: {err})") from err
+        return out
 
     def keep(self, msg) -> bool:
         """False for a message of another instance than the first one seen (counted in :attr:`instances`)."""

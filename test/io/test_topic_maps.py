@@ -253,3 +253,16 @@ def test_a_yaml_topic_map_takes_the_vehicle_the_bag_records(tmp_path):
     bag = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
     log = load_flight(bag, topic_map=str(REPO / "config" / "topic_maps" / "quad.yaml"))
     assert log.meta.vehicle == "crazyflie21" and len(log) > 4000
+
+
+def test_a_message_without_a_mapped_field_is_named_not_called_corrupt(tmp_path):
+    """A map reading effort[4] of a 4-effort JointState (or a stack's 3-effort message): topic, message index and
+    field in one line (it read 'corrupt or truncated bag (IndexError ...)')."""
+    from test.conftest import REPO
+
+    text = (REPO / "config" / "topic_maps" / "quad.yaml").read_text().replace('"effort[3]"]', '"effort[4]"]')
+    (tmp_path / "beyond.yaml").write_text(text)
+    with pytest.raises(DataError) as caught:
+        load_flight(REPO / "bags" / "nanobench_B7_oval_medium_rep2", topic_map=str(tmp_path / "beyond.yaml"))
+    assert "topic /quad/motor_input message 0 has no usable field effort[4] (IndexError" in str(caught.value)
+    assert "corrupt" not in str(caught.value)
