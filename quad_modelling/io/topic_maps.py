@@ -334,8 +334,14 @@ def load_topic_map(name_or_path: str) -> TopicMap:
     """A shipped map by name (``px4``, ``crazyswarm2``, ``quad``; ``crazyswarm2:cf231`` binds the robot) or a YAML file."""
     text = str(name_or_path)
     if _names_file(text):
-        path = Path(text)
-        return topic_map_from_dict(read_yaml(path, "topic map"), str(path))
+        file, _, robot = text.rpartition(":") if re.search(r"\.ya?ml:[^/:]+$", text) else (text, "", "")
+        topic_map = topic_map_from_dict(read_yaml(Path(file), "topic map"), file)
+        if robot:  # FILE.yaml:ROBOT, as a built-in map's NAME:ROBOT
+            if not re.fullmatch(_TOKEN, robot) or not topic_map.has_robot:
+                raise ConfigError(f"--topic-map {text}: {robot!r} is not a robot name for map {file} (maps with {ROBOT} "
+                                  "topics take FILE.yaml:ROBOT)")
+            topic_map = topic_map.bind(robot)
+        return topic_map
     name, _, robot = text.partition(":")
     path = topic_maps_dir() / f"{name}.yaml"
     if not path.is_file():
@@ -360,8 +366,9 @@ def bind_robot(topic_map: TopicMap, bag_topics, where: str) -> TopicMap:
     robots = topic_map.robots(bag_topics)
     if len(robots) != 1:
         found = f"robots {', '.join(robots)}" if robots else "no robot"
+        named = topic_map.name if topic_map.origin == "built-in" else topic_map.origin  # a YAML map: its file
         raise BagError(f"{where}: topic map {topic_map.name} reads one robot's topics; the bag has {found} "
-                       f"(name one with --topic-map {topic_map.name}:ROBOT)")
+                       f"(name one with --topic-map {named}:ROBOT)")
     return topic_map.bind(robots[0])
 
 
@@ -411,11 +418,13 @@ def add_topic_map_argument(parser) -> None:
 
 
 def _names_file(text: str) -> bool:
-    """Whether a ``--topic-map`` value is a file: a YAML name, or a path (a ``/`` before any ``:``; ``quad:/ns`` is
-    the contract map in a namespace)."""
-    return text.endswith((".yaml", ".yml")) or "/" in text.partition(":")[0]
+    """Whether a ``--topic-map`` value is a file: a YAML name (``maps/x.yaml``, ``maps/x.yaml:ROBOT``), or a path (a
+    ``/`` before any ``:``; ``quad:/ns`` is the contract map in a namespace)."""
+    return text.endswith((".yaml", ".yml")) or re.search(r"\.ya?ml:[^/:]+$", text) is not None or "/" in text.partition(":")[0]
 
 
 def topic_map_file(value: str | None) -> str | None:
     """The YAML file a ``--topic-map`` value names (an input of the command), None for a built-in name."""
-    return value if value and _names_file(value) else None
+    if not value or not _names_file(value):
+        return None
+    return value.rpartition(":")[0] if re.search(r"\.ya?ml:[^/:]+$", value) else value

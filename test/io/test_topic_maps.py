@@ -266,3 +266,20 @@ def test_a_message_without_a_mapped_field_is_named_not_called_corrupt(tmp_path):
         load_flight(REPO / "bags" / "nanobench_B7_oval_medium_rep2", topic_map=str(tmp_path / "beyond.yaml"))
     assert "topic /quad/motor_input message 0 has no usable field effort[4] (IndexError" in str(caught.value)
     assert "corrupt" not in str(caught.value)
+
+
+def test_a_yaml_map_with_a_robot_placeholder_takes_its_robot_after_the_file_name(tmp_path):
+    """A copy of crazyswarm2.yaml (as the docs suggest) on a bag of two robots: FILE.yaml:ROBOT binds it, and the error
+    without a robot names that form (it suggested NAME:ROBOT, which no file map took)."""
+    from quad_modelling.io.topic_maps import topic_map_file
+    from test.conftest import REPO
+
+    copy = tmp_path / "cs2_onboard.yaml"
+    copy.write_text((REPO / "config" / "topic_maps" / "crazyswarm2.yaml").read_text())
+    two = ["/cf1/pose", "/cf1/cmd_motors", "/cf2/pose", "/cf2/cmd_motors"]
+    bound = load_topic_map(f"{copy}:cf2")
+    assert all(name.startswith("/cf2/") for name in bound.topics) and topic_map_file(f"{copy}:cf2") == str(copy)
+    with pytest.raises(BagError, match=rf"name one with --topic-map {copy}:ROBOT"):
+        choose_topic_map(two, "bag", str(copy))
+    with pytest.raises(ConfigError, match="is not a robot name for map"):
+        load_topic_map(f"{copy}:bad-name")
