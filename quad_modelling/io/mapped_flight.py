@@ -447,6 +447,14 @@ class FlightAssembler:
         for stream in self.streams.values():
             if stream.last is None:
                 raise DataError(f"{self.where}: topic {stream.topic} has no messages")
+        for name in KINEMATIC_FIELDS:  # a stream slower than the gap rule would be one marked gap after another
+            stream = self.streams[self.sources[name].topic] if name in self.sources else None
+            if stream is not None and stream.count > 2:
+                step_s = (stream.last - stream.first) / (stream.count - 1) / 1e9  # the mean step (the stamps stream by)
+                if step_s > MAX_GAP_S:
+                    raise DataError(f"{self.where}: topic {stream.topic} ({name}) is sampled at {1 / step_s:.3g} Hz (mean "
+                                    f"step {step_s * 1e3:.0f} ms): every step is longer than the {MAX_GAP_S * 1e3:.0f} ms a "
+                                    f"measurement may be interpolated over; record it at {1 / MAX_GAP_S:.0f} Hz or more")
         check_same_clock(self._spans(), self.base, self.where)
         self._emit(final=True)
         if self.rows < 2:
