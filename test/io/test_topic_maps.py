@@ -283,3 +283,24 @@ def test_a_yaml_map_with_a_robot_placeholder_takes_its_robot_after_the_file_name
         choose_topic_map(two, "bag", str(copy))
     with pytest.raises(ConfigError, match="is not a robot name for map"):
         load_topic_map(f"{copy}:bad-name")
+
+
+def test_a_mapped_stream_slower_than_the_gap_rule_is_refused_in_one_line(flight, tmp_path):
+    """Odometry at ~14 Hz beside 100 Hz commands: every step is a 70 ms gap. One line naming topic and rate (it gave
+    one warning per step, and convert wrote a bag without motion capture)."""
+    cf = load_vehicle("crazyflie21")
+
+    def slow_odometry(writer):
+        kept = 0
+        for topic, ns, msg in px4_messages(writer, log=flight, input_range=(cf.input_min, cf.input_max)):
+            if topic == "/fmu/out/vehicle_odometry":
+                kept += 1
+                if kept % 7:
+                    continue
+            yield topic, ns, msg
+
+    bag = write_stack_bag(tmp_path / "slow", slow_odometry)
+    with pytest.raises(DataError) as caught:
+        load_flight(bag)
+    assert str(caught.value).startswith(f"{bag}: topic /fmu/out/vehicle_odometry (position) is sampled at 14.3 Hz (mean step 70 ms)")
+    assert str(caught.value).endswith("record it at 20 Hz or more")
