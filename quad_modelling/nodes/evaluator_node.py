@@ -131,6 +131,7 @@ class EvaluatorNode(Node):
         self.spans = seconds_spans(p["spans"])
         self.window_s, self.warm_s = p["window_s"], p["warm_s"]
         self.horizon_s = p["horizon_s"]
+        self.horizon_ns = seconds_to_ns(self.horizon_s)
         self.output_dir = Path(p["output_dir"]) if p["output_dir"] else None
         if self.output_dir is not None and self.output_dir.exists() and not p["force"]:
             raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
@@ -214,11 +215,10 @@ class EvaluatorNode(Node):
         return self.vehicles.vehicle
 
     def model_streams(self, model: str | None = None) -> list[str]:
-        """Stream names of one model's (or every model's) windowed predictions: ``<model>/odom``, ``<model>/accel``;
-        none in receding-horizon mode (``<model>/horizon/odom`` is stamped ahead: the windows do not wait for it)."""
-        if self.horizon_s > 0:
-            return []
-        return [f"{m}/{kind}" for m in ([model] if model else self.models) for kind in ("odom", "accel")]
+        """Stream names of one model's (or every model's) predictions: ``<model>/odom``, ``<model>/accel``; in
+        receding-horizon mode ``<model>/horizon``, whose progress is the last input its forecasts answer (on_horizon)."""
+        kinds = ("horizon",) if self.horizon_s > 0 else ("odom", "accel")
+        return [f"{m}/{kind}" for m in ([model] if model else self.models) for kind in kinds]
 
     def _subscribe(self, kind, topic: str, callback, qos) -> None:
         """A data subscription; with ``record``, every message is received serialised, recorded as it came on its
@@ -449,6 +449,14 @@ class EvaluatorNode(Node):
             window = self._window_for(ns, f"{model}/horizon")
             if window is not None:
                 window.horizon[model].setdefault(ns, fields)
+            self.model_last_wall[model] = time.monotonic()
+            # The input this forecast answers -- its stream's progress, as a windowed prediction's stamp is: held inputs
+            # publish at once, stamped horizon_s ahead of the input; flown ones when the input at the predicted time
+            # arrives (stamped at it, so not after the latest input).
+            motor = self.stream_last_ns[MOTOR_INPUT]
+            answered = ns - self.horizon_ns if motor is None or ns > motor else ns
+            if self.clock_.origin_ns is not None:
+                self._advance(f"{model}/horizon", answered, self.clock_.locate(answered)[0])
 
     # --- progress and closing -----------------------------------------------------------------
 

@@ -118,8 +118,12 @@ def test_receding_horizon_mae_equals_the_offline_multistep_mae(ros):
     assert offline[0, h - 1] > 1e-4  # a real error, not a trivially equal zero
     windows = [s for msg in node.diag_pub.messages for s in msg.status if "/horizon/" in s.name]
     assert [s.name for s in windows] == ["evaluation/greybox/horizon/window_0", "evaluation/greybox/horizon/window_1"]
-    # the predictors publish no windowed predictions in this mode: no window is marked for the model, none waits for it
-    assert [r for r in node.scores.records if r.model == "greybox"] == [] and node.model_streams() == []
+    # the predictors publish no windowed predictions in this mode: no window is marked for the model; the windows and
+    # a rate-0 replay's acknowledgements wait for its forecasts, whose progress is the last input they answer (a
+    # forecast stamped horizon_s after the latest input answers that input)
+    assert [r for r in node.scores.records if r.model == "greybox"] == [] and node.model_streams() == ["greybox/horizon"]
+    answered = node.stream_last_ns["greybox/horizon"]  # stamp - horizon_s: the input, to the log's stamp jitter
+    assert abs(answered - int(stamps[starts[-1]])) < 1e6 and node.progress_ns() == answered
     assert "model_missing" not in node.faults.counts
     node.destroy_node()
 
