@@ -486,34 +486,6 @@ def adopt_vehicle(node, vehicles: VehicleSource, announced: str, learned: Callab
         refuse(node, err)
 
 
-def beyond_bounds(stream: str, values) -> str | None:
-    """Why a finite measurement message is impossible (a corrupt or wrongly scaled value, e.g. 1e300), or None: the
-    bounds a flight log holds (:mod:`quad_modelling.core.flight_log`): position and velocity of ``mocap_odom``
-    (:func:`~quad_modelling.io.topics.odometry_fields` order), specific force and rates of ``imu``."""
-    from quad_modelling.core.flight_log import ACCEL_FULL_SCALE, GYRO_FULL_SCALE, POSITION_LIMIT, VELOCITY_LIMIT
-
-    limits = {MOCAP_ODOM: (("position", slice(0, 3), POSITION_LIMIT, "m"), ("velocity", slice(7, 10), VELOCITY_LIMIT, "m/s")),
-              IMU: (("specific force", slice(0, 3), ACCEL_FULL_SCALE, "m/s²"), ("rate", slice(3, 6), GYRO_FULL_SCALE, "rad/s"))}
-    for what, part, limit, unit in limits.get(stream, ()):
-        big = [v for v in values[part] if abs(v) > limit]  # NaN (not measured) compares False
-        if big:
-            return f"{what} {big[0]:.4g} {unit} beyond ±{limit:.4g} {unit}"
-    return None
-
-
-def command_beyond_range(vehicle, u) -> str | None:
-    """Why a command (4,) in ``vehicle``'s unit is impossible -- more than ``SATURATION_MARGIN`` of the input range past
-    either end, what a flight log refuses (:func:`~quad_modelling.core.flight_log.saturate_commands`) -- or None
-    (within the margin the actuator saturates: the caller clips)."""
-    from quad_modelling.core.flight_log import SATURATION_MARGIN
-
-    low, high = vehicle.input_min, vehicle.input_max
-    margin = SATURATION_MARGIN * (high - low)
-    if min(u) < low - margin or max(u) > high + margin:
-        return f"a command beyond the vehicle's input range [{low:g}, {high:g}] {vehicle.input_unit}"
-    return None
-
-
 def refuse(node, error: BadParameter) -> None:
     """Stop ``node`` from a callback because of ``error``: :func:`run_node` prints it and exits 2."""
     node.fatal = error

@@ -40,7 +40,6 @@ keeps the origin (aligned with the predictors'), unless it lies before it. Timer
 from __future__ import annotations
 
 import os
-import tempfile
 import time
 from pathlib import Path
 
@@ -51,7 +50,6 @@ from nav_msgs.msg import Odometry
 from rclpy.clock import Clock as RosClock
 from rclpy.clock import ClockType
 from rclpy.node import Node
-from rclpy.serialization import deserialize_message
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import String
@@ -75,8 +73,6 @@ from quad_modelling.nodes.common import (
     IMU, MOCAP_ODOM, MOTOR_INPUT,  # the one stream naming and fault vocabulary (stream_fault)
     VEHICLE_TOPIC,
     BadParameter,
-    beyond_bounds,
-    command_beyond_range,
     FaultLog,
     VehicleSource,
     adopt_vehicle,
@@ -93,7 +89,7 @@ from quad_modelling.nodes.common import (
     subscription_qos,
     zero_quaternion,
 )
-from quad_modelling.nodes.recording import open_recorder
+from quad_modelling.nodes.recording import check_output_dir, close_recording, open_recorder, subscribe_recorded
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, message_class
 from quad_modelling.nodes.scoring import (  # noqa: F401  (EVALUATOR_PARAMETERS re-exported)
     EVALUATOR_PARAMETERS,
@@ -133,16 +129,7 @@ class EvaluatorNode(Node):
         self.horizon_s = p["horizon_s"]
         self.horizon_ns = seconds_to_ns(self.horizon_s)
         self.output_dir = Path(p["output_dir"]) if p["output_dir"] else None
-        if self.output_dir is not None and self.output_dir.exists() and not p["force"]:
-            raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r} exists; set force:=true to replace it")
-        if self.output_dir is not None and not self.output_dir.absolute().parent.is_dir():  # now, not after a flight
-            raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r}: its parent directory {str(self.output_dir.absolute().parent)!r} does not exist")
-        if self.output_dir is not None:  # a directory can be made there now (not only after the flight)
-            try:
-                os.rmdir(tempfile.mkdtemp(prefix=".quad_write_check_", dir=self.output_dir.absolute().parent))
-            except OSError as err:
-                raise BadParameter(f"evaluator: parameter output_dir={str(self.output_dir)!r}: cannot write in "
-                                   f"{str(self.output_dir.absolute().parent)!r} ({err.strerror})") from err
+        check_output_dir("evaluator", self.output_dir, p["force"])
         self.figures = p["figures"]
         self.executor_kind, self.math_threads = p["executor"], p["math_threads"]
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
@@ -221,18 +208,7 @@ class EvaluatorNode(Node):
         return [f"{m}/{kind}" for m in ([model] if model else self.models) for kind in kinds]
 
     def _subscribe(self, kind, topic: str, callback, qos) -> None:
-        """A data subscription; with ``record``, every message is received serialised, recorded as it came on its
-        topic, then deserialised for ``callback``."""
-        if self.recorder is None:
-            self.create_subscription(kind, topic, callback, qos)
-            return
-        name, msgtype = self.resolve_topic_name(topic), self.recorder.type_name(kind)
-
-        def recorded(data: bytes):
-            self.recorder.add_raw(name, msgtype, data)
-            callback(deserialize_message(data, kind))
-
-        self.create_subscription(kind, topic, recorded, qos, raw=True)
+        subscribe_recorded(self, self.recorder, kind, topic, callback, qos)
 
     def _guarded(self, stream: str, callback):
         """``callback`` that survives a message it cannot use: reported (once per stream, counted) and dropped."""
@@ -322,11 +298,7 @@ class EvaluatorNode(Node):
 
     def _accept(self, stream: str, ns: int, values) -> list:
         """The samples ``(ns, values)`` of a message to use now (:meth:`_admit`); none for a non-finite one."""
-        if not topics.all_finite(values):
-            self.faults.report(stream_fault("nan", stream), f"non-finite {stream} message dropped")
-            return []
-        if (why := beyond_bounds(stream, values)) is not None:
-            self.faults.report(stream_fault("range", stream), f"{stream} message dropped: {why}")
+        if messages.dropped(self.faults, stream, values, f"{stream} message"):
             return []
         return self._admit(stream, ns, values)
 
@@ -339,8 +311,7 @@ class EvaluatorNode(Node):
         if not topics.all_finite(fields[0]):
             self.faults.report(stream_fault("nan", MOTOR_INPUT), "non-finite motor_input message dropped")
             return
-        if self.vehicle is not None and (why := command_beyond_range(self.vehicle, fields[0])) is not None:
-            self.faults.report(stream_fault("range", MOTOR_INPUT), f"motor_input dropped: {why}")
+        if self.vehicle is not None and messages.admitted_command(self.faults, self.vehicle, fields[0]) is None:
             return
         for ns, (u, omega) in self._admit(MOTOR_INPUT, ns, fields):
             self._motor(ns, u, omega)
@@ -600,24 +571,17 @@ class EvaluatorNode(Node):
         spin(self, executor)
 
     def finish(self) -> None:
-        if getattr(self, "fatal", None) is not None:  # refused (e.g. another vehicle's flight): its windows are no results
-            if self.output_dir is not None:
-                say(self, f"results not written to {self.output_dir}: the evaluation was refused")
-            if self.recorder is not None:
-                self.recorder.abort()
-            return
-        for k in sorted(self.open):
+        refused = getattr(self, "fatal", None) is not None  # e.g. another vehicle's flight: its windows are no results
+        if refused and self.output_dir is not None:
+            say(self, f"results not written to {self.output_dir}: the evaluation was refused")
+        for k in sorted(self.open) if not refused else ():
             self._close(k, reason_if_incomplete="input ended before the window was complete")
-        if self.output_dir is not None:
+        if self.output_dir is not None and not refused:
             try:
                 say(self, self.write_results())
             except (QuadModellingError, OSError) as err:
                 say(self, f"cannot write results: {err}", error=True)
-        if self.recorder is not None:
-            try:
-                say(self, f"recorded {self.recorder.count} messages in {self.recorder.close()}")
-            except (QuadModellingError, OSError) as err:
-                say(self, f"cannot write the recording: {err}", error=True)
+        close_recording(lambda text, error=False: say(self, text, error=error), self.recorder, refused)  # after the last window
         say(self, f"closed {self.windows_closed} windows; faults: {self.faults.summary()}")
 
 

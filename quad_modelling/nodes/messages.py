@@ -14,7 +14,11 @@ import importlib
 from builtin_interfaces.msg import Time
 from rosgraph_msgs.msg import Clock
 
+import numpy as np
+
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.io import topics
+from quad_modelling.nodes.common import IMU, MOCAP_ODOM, MOTOR_INPUT, stream_fault
 from quad_modelling.io.topics import (
     NANOSECONDS,
     WORLD_FRAME,
@@ -58,3 +62,54 @@ def prediction_publisher_messages(child_frame: str, world_frame: str = WORLD_FRA
 def prediction_messages(ns: int, odom, accel, child_frame: str, world_frame: str = WORLD_FRAME):
     """One row of prediction fields -> a new rclpy (Odometry, AccelStamped) pair stamped ``ns``."""
     return prediction_publisher_messages(child_frame, world_frame).fill(ns, odom, accel)
+
+
+# --- intake checks: what a node drops from a stream (one rule for the predictors and the evaluator) ---
+
+def beyond_bounds(stream: str, values) -> str | None:
+    """Why a finite measurement message is impossible (a corrupt or wrongly scaled value, e.g. 1e300), or None: the
+    bounds a flight log holds (:mod:`quad_modelling.core.flight_log`): position and velocity of ``mocap_odom``
+    (:func:`~quad_modelling.io.topics.odometry_fields` order), specific force and rates of ``imu``."""
+    from quad_modelling.core.flight_log import ACCEL_FULL_SCALE, GYRO_FULL_SCALE, POSITION_LIMIT, VELOCITY_LIMIT
+
+    limits = {MOCAP_ODOM: (("position", slice(0, 3), POSITION_LIMIT, "m"), ("velocity", slice(7, 10), VELOCITY_LIMIT, "m/s")),
+              IMU: (("specific force", slice(0, 3), ACCEL_FULL_SCALE, "m/s²"), ("rate", slice(3, 6), GYRO_FULL_SCALE, "rad/s"))}
+    for what, part, limit, unit in limits.get(stream, ()):
+        big = [v for v in values[part] if abs(v) > limit]  # NaN (not measured) compares False
+        if big:
+            return f"{what} {big[0]:.4g} {unit} beyond ±{limit:.4g} {unit}"
+    return None
+
+
+def command_beyond_range(vehicle, u) -> str | None:
+    """Why a command (4,) in ``vehicle``'s unit is impossible -- more than ``SATURATION_MARGIN`` of the input range past
+    either end, what a flight log refuses (:func:`~quad_modelling.core.flight_log.saturate_commands`) -- or None
+    (within the margin the actuator saturates: the caller clips)."""
+    from quad_modelling.core.flight_log import SATURATION_MARGIN
+
+    low, high = vehicle.input_min, vehicle.input_max
+    margin = SATURATION_MARGIN * (high - low)
+    if min(u) < low - margin or max(u) > high + margin:
+        return f"a command beyond the vehicle's input range [{low:g}, {high:g}] {vehicle.input_unit}"
+    return None
+
+
+def dropped(faults, stream: str, values, what: str) -> bool:
+    """Report and True when a measurement message is unusable: a non-finite value (``nan_<stream>``) or an impossible
+    one (``range_<stream>``, :func:`beyond_bounds`); ``what`` names the message in the warning."""
+    if not topics.all_finite(values):
+        faults.report(stream_fault("nan", stream), f"non-finite {what} dropped")
+        return True
+    if (why := beyond_bounds(stream, values)) is not None:
+        faults.report(stream_fault("range", stream), f"{what} dropped: {why}")
+        return True
+    return False
+
+
+def admitted_command(faults, vehicle, u):
+    """The command (4,) to use, clipped to ``vehicle``'s input range (the actuators saturate), or None (reported,
+    ``range_motor_input``) for one beyond it by more than the margin (:func:`command_beyond_range`)."""
+    if (why := command_beyond_range(vehicle, u)) is not None:
+        faults.report(stream_fault("range", MOTOR_INPUT), f"motor_input dropped: {why}")
+        return None
+    return np.clip(u, vehicle.input_min, vehicle.input_max)

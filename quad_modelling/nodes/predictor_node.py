@@ -72,8 +72,6 @@ from quad_modelling.nodes.common import (
     BATTERY, IMU, MOCAP_ODOM, MOTOR_INPUT, STREAMS,  # the one stream naming and fault vocabulary (stream_fault)
     VEHICLE_TOPIC,
     BadParameter,
-    beyond_bounds,
-    command_beyond_range,
     FaultLog,
     VehicleSource,
     adopt_vehicle,
@@ -316,11 +314,7 @@ class PredictorNode(Node):
 
     def on_odom(self, msg: Odometry) -> None:
         fields = topics.odometry_fields(msg)
-        if not topics.all_finite(fields):
-            self.faults.report(stream_fault("nan", MOCAP_ODOM), "non-finite motion-capture message dropped")
-            return
-        if (why := beyond_bounds(MOCAP_ODOM, fields)) is not None:
-            self.faults.report(stream_fault("range", MOCAP_ODOM), f"motion-capture message dropped: {why}")
+        if messages.dropped(self.faults, MOCAP_ODOM, fields, "motion-capture message"):
             return
         if zero_quaternion(self.faults, fields):
             return
@@ -331,11 +325,7 @@ class PredictorNode(Node):
 
     def on_imu(self, msg: Imu) -> None:
         fields = topics.imu_fields(msg)
-        if not topics.all_finite(fields):
-            self.faults.report(stream_fault("nan", IMU), "non-finite IMU message dropped")
-            return
-        if (why := beyond_bounds(IMU, fields)) is not None:
-            self.faults.report(stream_fault("range", IMU), f"IMU message dropped: {why}")
+        if messages.dropped(self.faults, IMU, fields, "IMU message"):
             return
         ns = topics.stamp_ns(msg.header.stamp)
         if self._gate(IMU, ns, fields):
@@ -383,11 +373,8 @@ class PredictorNode(Node):
             self.faults.report("no_vehicle", f"no vehicle yet: motor_input dropped until a replay announces one on topic "
                                              f"{VEHICLE_TOPIC} (or set parameter vehicle)")
             return
-        if u is not None:  # the actuators saturate: clipped within the margin, as offline; beyond it, impossible
-            if (why := command_beyond_range(self.vehicle, u)) is not None:
-                self.faults.report(stream_fault("range", MOTOR_INPUT), f"motor_input dropped: {why}")
-                return
-            u = np.clip(u, self.vehicle.input_min, self.vehicle.input_max)
+        if u is not None and (u := messages.admitted_command(self.faults, self.vehicle, u)) is None:  # clipped, or impossible
+            return
         if not self._gate(MOTOR_INPUT, ns):
             return
         if self.clock_.origin_ns is None:

@@ -12,6 +12,8 @@ custom data, as converted bags do, so ``quad-modelling evaluate``/``info`` read 
 
 from __future__ import annotations
 
+import os
+import tempfile
 from pathlib import Path
 
 from quad_modelling.errors import QuadModellingError
@@ -80,3 +82,50 @@ def open_recorder(node_name: str, record: str, output_dir: Path | None, force: b
     if vehicle is not None:
         recorder.set_vehicle(vehicle.name)
     return recorder
+
+
+def check_output_dir(node_name: str, output_dir: Path | None, force: bool) -> None:
+    """Refuse (:class:`BadParameter`) an ``output_dir`` that exists without ``force``, whose parent is missing, or in
+    which no directory can be made -- at start, not after the flight when the results are written."""
+    if output_dir is None:
+        return
+    where = f"{node_name}: parameter output_dir={str(output_dir)!r}"
+    parent = output_dir.absolute().parent
+    if output_dir.exists() and not force:
+        raise BadParameter(f"{where} exists; set force:=true to replace it")
+    if not parent.is_dir():
+        raise BadParameter(f"{where}: its parent directory {str(parent)!r} does not exist")
+    try:  # a directory can be made there (a read-only or special file system cannot)
+        os.rmdir(tempfile.mkdtemp(prefix=".quad_write_check_", dir=parent))
+    except OSError as err:
+        raise BadParameter(f"{where}: cannot write in {str(parent)!r} ({err.strerror})") from err
+
+
+def subscribe_recorded(node, recorder: TopicRecorder | None, kind, topic: str, callback, qos) -> None:
+    """A data subscription of ``node``; with a ``recorder``, every message is received serialised, recorded as it came
+    on its topic, then deserialised for ``callback``."""
+    if recorder is None:
+        node.create_subscription(kind, topic, callback, qos)
+        return
+    from rclpy.serialization import deserialize_message
+
+    name, msgtype = node.resolve_topic_name(topic), recorder.type_name(kind)
+
+    def recorded(data: bytes):
+        recorder.add_raw(name, msgtype, data)
+        callback(deserialize_message(data, kind))
+
+    node.create_subscription(kind, topic, recorded, qos, raw=True)
+
+
+def close_recording(say, recorder: TopicRecorder | None, refused: bool) -> None:
+    """End a node's recording: written (``say`` the count, or why it could not be), or, for a refused run, removed."""
+    if recorder is None:
+        return
+    if refused:
+        recorder.abort()
+        return
+    try:
+        say(f"recorded {recorder.count} messages in {recorder.close()}")
+    except (QuadModellingError, OSError) as err:
+        say(f"cannot write the recording: {err}", True)

@@ -449,7 +449,8 @@ def test_parameters_ros_refuses_or_a_number_too_big_exit_2_in_one_line_without_a
 def test_an_impossible_finite_measurement_is_dropped_as_a_nan_is(ros):
     """A gyro of 1e300 rad/s or a position of 1e300 m is finite but impossible: dropped with its fault kind (it broke
     2.5 s of forecasts before), the window goes on from the neighbouring rows."""
-    from quad_modelling.nodes.common import IMU, MOCAP_ODOM, beyond_bounds
+    from quad_modelling.nodes.common import IMU, MOCAP_ODOM
+    from quad_modelling.nodes.messages import beyond_bounds
 
     assert beyond_bounds(IMU, [0.0, 0.0, -9.8, 1e300, 0.0, 0.0]) == "rate 1e+300 rad/s beyond ±34.91 rad/s"
     assert beyond_bounds(MOCAP_ODOM, [1e300, 0, 1, 0, 0, 0, 1, 0, 0, 0]) == "position 1e+300 m beyond ±1e+05 m"
