@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 
 from quad_modelling.errors import BagError, ConfigError
 from quad_modelling.io.bag_io import summarize_bag
@@ -57,10 +58,11 @@ def run(args: argparse.Namespace) -> int:
     if args.topic_map or (topics and not any(t.startswith("/quad/") for t in topics)):
         try:  # a bag of another stack: what its topic map reads from it
             chosen = choose_topic_map(topics, str(args.bag), args.topic_map)
-        except BagError:
+        except BagError as err:
             if args.topic_map:
                 raise
-            chosen = None  # no map matches: the topics alone
+            chosen = None  # no map matches: the topics alone, and why no flight is read from them
+            print(f"note: {err}", file=sys.stderr)
         if chosen is not None and not chosen.is_contract:
             mapped = flight_document(load_flight(args.bag, vehicle=args.vehicle, topic_map=args.topic_map), str(args.bag))
     if args.json:

@@ -54,3 +54,25 @@ def test_info_into_a_closed_pipe_exits_quietly(tmp_path):
     reader.stdout.close()  # the pipe's reader is gone before the first line is written
     _, err = reader.communicate(timeout=60)
     assert reader.returncode == 141 and b"Traceback" not in err and err == b""
+
+
+def test_info_says_why_no_flight_is_read_from_a_bag_no_map_matches(tmp_path, capsys):
+    """A bag of topics no built-in map reads: the topic table, and one note line saying which maps were tried."""
+    from test.stack_bags import px4_messages, write_stack_bag
+    from quad_modelling.core.vehicle import load_vehicle
+    from quad_modelling.io.loader import load_flight
+    from test.conftest import REPO
+
+    flight = load_flight(REPO / "test" / "fixtures" / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz")
+    cf = load_vehicle("crazyflie21")
+
+    def namespaced(writer):
+        for topic, ns, msg in px4_messages(writer, log=flight, input_range=(cf.input_min, cf.input_max)):
+            yield "/px4_1" + topic, ns, msg
+
+    bag = write_stack_bag(tmp_path / "px4_ns", namespaced)
+    assert main(["info", str(bag)]) == 0
+    captured = capsys.readouterr()
+    assert "/px4_1/fmu/out/vehicle_odometry" in captured.out
+    notes = [line for line in captured.err.splitlines() if line.startswith("note: ")]
+    assert len(notes) == 1 and notes[0].startswith(f"note: {bag}: no topic map matches the bag's topics")
