@@ -300,6 +300,7 @@ class _Stream:
         self.values: list[list[float]] = []
         self.first = self.last = None
         self.count = 0
+        self.leading_skipped = 0  # messages before the first with every mapped field finite (an estimator not yet valid)
         self.long_steps: list[tuple[int, int]] = []
         self.ended = False
 
@@ -334,6 +335,9 @@ class FlightAssembler:
     def add(self, topic: str, ns: int, values: list[float]) -> None:
         """One kept message of ``topic``: stamp [ns] and the numbers of its reader's paths."""
         stream = self.streams[topic]
+        if stream.last is None and self._not_finite(stream, values) is not None:
+            stream.leading_skipped += 1  # before the stream's first valid message: skipped, as before its first message
+            return
         if stream.last is not None:
             if ns < stream.last:
                 raise DataError(f"{self.where}: topic {topic} stamps ({self.topic_map.topics[topic].stamp}) go back at message {stream.count}")
@@ -357,16 +361,30 @@ class FlightAssembler:
                 self._emit(final=False)
                 self._next_emit = len(self.pending) + EMIT_ROWS  # rows still waiting: not looked at again for a batch
 
+    def _not_finite(self, stream: _Stream, values: list[float]) -> str | None:
+        """The first mapped field path of ``stream``'s message ``values`` that is not finite (a command may be NaN:
+        motor stopped), or None."""
+        for name, source in self.sources.items():
+            if source.topic == stream.topic:
+                for path, i in zip(source.paths, self._column_index[name]):
+                    if math.isinf(values[i]) if name == "commands" else not math.isfinite(values[i]):
+                        return path
+        return None
+
     def _check(self, stream: _Stream, values: list[float]) -> None:
+        """DataError for a message after the stream's first valid one with a field not finite or an attitude
+        quaternion not of norm 1 (its index counts the skipped leading messages)."""
+        index = stream.count + stream.leading_skipped
+        path = self._not_finite(stream, values)
+        if path is not None:
+            raise DataError(f"{self.where}: topic {stream.topic} message {index} field {path} is not finite (after "
+                            f"{stream.count} valid messages; only messages before a stream's first valid one are skipped)")
         for name, source in self.sources.items():
             if source.topic != stream.topic:
                 continue
             numbers = [values[i] for i in self._column_index[name]]
-            bad = [math.isinf(v) if name == "commands" else not math.isfinite(v) for v in numbers]
-            if any(bad):
-                raise DataError(f"{self.where}: topic {stream.topic} message {stream.count} field {source.paths[bad.index(True)]} is not finite")
             if name == "attitude" and abs(math.sqrt(sum(v * v for v in numbers)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE:
-                raise DataError(f"{self.where}: topic {stream.topic} message {stream.count} has an attitude quaternion of norm "
+                raise DataError(f"{self.where}: topic {stream.topic} message {index} has an attitude quaternion of norm "
                                 f"{math.sqrt(sum(v * v for v in numbers)):.3g}, not 1")
 
     def _lagging(self) -> None:
@@ -445,6 +463,9 @@ class FlightAssembler:
         """Align what is left and build the FlightLog (one-line DataError: a topic without messages, another clock,
         no common span)."""
         for stream in self.streams.values():
+            if stream.last is None and stream.leading_skipped:
+                raise DataError(f"{self.where}: topic {stream.topic}: none of its {stream.leading_skipped} messages has every "
+                                f"mapped field ({', '.join(stream.paths)}) finite")
             if stream.last is None:
                 raise DataError(f"{self.where}: topic {stream.topic} has no messages")
         for name in KINEMATIC_FIELDS:  # a stream slower than the gap rule would be one marked gap after another
@@ -463,6 +484,10 @@ class FlightAssembler:
         t_ns = self.t_ns[:n]
         base = self.streams[self.base]
         notes = {"format": f"bag (topic map {self.topic_map.name})", **(notes or {})}
+        skipped = {s.topic: s.leading_skipped for s in self.streams.values() if s.leading_skipped}
+        if skipped:
+            notes["leading_not_finite"] = "; ".join(f"{topic}: the first {count} messages skipped (a mapped field not finite: "
+                                                    "an estimator not yet valid)" for topic, count in skipped.items())
         if self.stopped:
             notes["motor_nan"] = f"{self.stopped} NaN commands (motor stopped) read as {self._stopped_value():g}"
         cut = (base.last - base.first - (int(t_ns[-1]) - int(t_ns[0]))) / 1e9

@@ -29,8 +29,9 @@ def _values(path: str, t: float) -> float:
             "gyro_rad[2]": 0.01 * t, "voltage_v": 16.0 - 0.01 * t}.get(path, 0.5)
 
 
-def _assemble(duration_s=4.0, skip=lambda topic, ns: False, offset_ns=None):
-    """Messages of the four streams in stamp order -> (FlightLog, the motor stamps fed) for vehicle px4_iris."""
+def _assemble(duration_s=4.0, skip=lambda topic, ns: False, offset_ns=None, values=_values):
+    """Messages of the four streams in stamp order -> (FlightLog, the motor stamps fed) for vehicle px4_iris;
+    ``values(path, t, topic)`` the numbers of each message (default: :func:`_values`)."""
     topic_map = load_topic_map("px4")
     sources = topic_map.sources(RATES)
     readers = readers_for(topic_map, sources, "test")
@@ -43,7 +44,8 @@ def _assemble(duration_s=4.0, skip=lambda topic, ns: False, offset_ns=None):
     motors = np.array([ns for ns, topic in events if topic == MOTORS])
     assembler = FlightAssembler(topic_map, sources, readers, load_vehicle("px4_iris"), "test", capacity=len(motors))
     for ns, topic in events:
-        assembler.add(topic, ns, [_values(p, (ns - 10**9) / 1e9) for p in readers[topic].paths])
+        t = (ns - 10**9) / 1e9
+        assembler.add(topic, ns, [values(p, t) if values is _values else values(p, t, topic) for p in readers[topic].paths])
     return assembler.finish(), motors
 
 
@@ -62,6 +64,30 @@ def test_streams_on_their_own_rates_are_aligned_on_the_commands():
     np.testing.assert_allclose(log.u, 0.5)
     np.testing.assert_allclose(log.vbat, np.clip(16.0 - 0.01 * t, 16.0 - 0.01 * 3.94, 16.0 - 0.01 * 0.04), atol=1e-12)
     assert log.meta.notes["sources"]["position"].endswith("30.0 Hz") and "measurement_gaps" not in log.meta.notes
+
+
+def _odometry_not_finite(until_s: float, also_at_s: float | None = None):
+    """Values whose odometry velocity is NaN before ``until_s`` [s] (an estimator not yet valid) and at ``also_at_s``."""
+    def values(path, t, topic):
+        late = also_at_s is not None and abs(t - also_at_s) < 0.01
+        return float("nan") if topic == ODOM and path == "velocity[0]" and (t < until_s or late) else _values(path, t)
+    return values
+
+
+def test_leading_odometry_without_a_finite_velocity_is_skipped_and_noted():
+    log, motors = _assemble(values=_odometry_not_finite(1.0))
+    first_valid_odom = 10**9 + PHASE_NS[ODOM] + round(30 * 1e9 / 30)  # the 31st message, at 1.0031 s
+    assert round(log.t[0] * 1e9) >= first_valid_odom  # the rows begin where the odometry is valid
+    assert round(log.t[0] * 1e9) == motors[motors >= first_valid_odom][0]
+    np.testing.assert_allclose(log.vel_n[:, 0], 2.0, atol=1e-12)
+    assert log.meta.notes["leading_not_finite"].startswith(f"{ODOM}: the first 30 messages skipped")
+
+
+def test_a_not_finite_field_after_valid_messages_is_refused_naming_the_message():
+    with pytest.raises(DataError, match=rf"test: topic {ODOM} message 60 field velocity\[0\] is not finite \(after 30 valid"):
+        _assemble(values=_odometry_not_finite(1.0, also_at_s=2.0031))
+    with pytest.raises(DataError, match=rf"topic {ODOM}: none of its 120 messages has every mapped field .* finite"):
+        _assemble(values=_odometry_not_finite(10.0))
 
 
 def test_small_batches_give_the_same_flight(monkeypatch):
