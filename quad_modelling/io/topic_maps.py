@@ -142,11 +142,22 @@ class TopicMap:
         return motor[: -len(CONTRACT_COMMANDS)] or "/" if self.is_contract and motor else CONTRACT_NAMESPACE
 
     def in_namespace(self, namespace: str) -> TopicMap:
-        """The contract map with its topics under ``namespace`` (a bag written by ``convert --namespace``)."""
+        """The map with its topics under ``namespace``: the contract's ``/quad`` replaced (a bag written by ``convert
+        --namespace``), any other map's topics prefixed (PX4's multi-vehicle ``/px4_1/fmu/out/...``)."""
         def sub(name: str) -> str:
-            return namespace.rstrip("/") + name[len(CONTRACT_NAMESPACE):]
+            rest = name[len(CONTRACT_NAMESPACE):] if self.is_contract else name
+            return namespace.rstrip("/") + rest
         return replace(self, topics={sub(n): replace(t, name=sub(n)) for n, t in self.topics.items()},
                        fields={f: tuple(replace(s, topic=sub(s.topic)) for s in sources) for f, sources in self.fields.items()})
+
+    def namespaces(self, bag_topics) -> list[str]:
+        """The namespaces under which ``bag_topics`` hold one of the map's command topics (``/a/b/motor_input`` ->
+        ``/a/b`` for the contract, whose own namespace is ``/quad``; ``/px4_1/fmu/out/actuator_motors`` -> ``/px4_1``)."""
+        if self.is_contract:
+            return contract_namespaces(bag_topics)
+        commands = [s.topic for s in self.fields.get("commands", ())]
+        found = {t[: -len(c)] for t in bag_topics for c in commands if t.endswith(c) and len(t) > len(c)}
+        return sorted(ns for ns in found if ns.startswith("/") and not ns.endswith("/"))
 
     @property
     def has_robot(self) -> bool:
@@ -347,11 +358,11 @@ def load_topic_map(name_or_path: str) -> TopicMap:
     if not path.is_file():
         raise ConfigError(f"--topic-map {text}: no such built-in map; known: {', '.join(builtin_names())} (or a YAML file)")
     topic_map = replace(topic_map_from_dict(read_yaml(path, "topic map"), str(path)), origin="built-in")
-    if topic_map.is_contract and robot:  # quad:/my_drone/cf1, a contract bag written under another namespace
+    if robot.startswith("/") or (robot and topic_map.is_contract):  # quad:/my_drone/cf1, px4:/px4_1: under a namespace
         try:
             return topic_map.in_namespace(check_namespace(robot))
         except ConfigError as err:
-            raise ConfigError(f"--topic-map {text}: {err} (the contract map takes quad:/NAMESPACE)") from err
+            raise ConfigError(f"--topic-map {text}: {err} (a map takes NAME:/NAMESPACE)") from err
     if robot:
         if not re.fullmatch(_TOKEN, robot) or not topic_map.has_robot:
             raise ConfigError(f"--topic-map {text}: {robot!r} is not a robot name for map {name} (maps with {ROBOT} topics take NAME:ROBOT)")
@@ -379,18 +390,21 @@ def choose_topic_map(bag_topics, where: str, requested: str | None = None) -> To
     bag_topics = sorted(bag_topics)
     if requested:
         topic_map = load_topic_map(requested)
-        namespaces = contract_namespaces(bag_topics)
-        if topic_map.is_contract and topic_map.missing(bag_topics) and len(namespaces) == 1:  # --topic-map quad
+        namespaces = topic_map.namespaces(bag_topics) if topic_map.origin == "built-in" and not topic_map.has_robot else []
+        if topic_map.missing(bag_topics) and len(namespaces) == 1:  # --topic-map px4, one /px4_1
             topic_map = topic_map.in_namespace(namespaces[0])
+        elif topic_map.missing(bag_topics) and namespaces:
+            raise BagError(f"{where}: the bag holds the topics of map {topic_map.name} under several namespaces; name one "
+                           f"with --topic-map {' or '.join(f'{topic_map.name}:{ns}' for ns in namespaces)}")
         return bind_robot(topic_map, bag_topics, where)
     matching, tried = [], []
     for name in builtin_names():
         topic_map = load_topic_map(name)
         robots = topic_map.robots(bag_topics) if topic_map.has_robot else [None]
         candidates = [(f"{name}:{r}" if r else name, topic_map.bind(r) if r else topic_map) for r in robots] or [(name, topic_map)]
-        if topic_map.is_contract:  # the contract under any namespace (convert --namespace)
-            candidates += [(f"{name}:{ns}", topic_map.in_namespace(ns)) for ns in contract_namespaces(bag_topics)
-                           if ns != CONTRACT_NAMESPACE]
+        if not topic_map.has_robot:  # under a namespace: convert --namespace, PX4's multi-vehicle /px4_N
+            candidates += [(f"{name}:{ns}", topic_map.in_namespace(ns)) for ns in topic_map.namespaces(bag_topics)
+                           if not (topic_map.is_contract and ns == CONTRACT_NAMESPACE)]
         hits = [(label, c) for label, c in candidates if not c.missing(bag_topics)]
         matching += hits
         if not hits:

@@ -228,10 +228,33 @@ def test_a_contract_bag_under_another_namespace_is_read_as_the_contract(tmp_path
     chosen = choose_topic_map(topics, "bag")
     assert chosen.is_contract and chosen.namespace == "/my_drone/cf1" and load_topic_map("quad").namespace == "/quad"
     assert main(["evaluate", str(moved), "--topic-map", "quad:my_drone", "--preset", "short", "-o", str(tmp_path / "e")]) == 2
-    assert "the contract map takes quad:/NAMESPACE" in capsys.readouterr().err
+    assert "(a map takes NAME:/NAMESPACE)" in capsys.readouterr().err
     two = topics + ["/other/motor_input", "/other/mocap/odom"]  # two contracts: the user chooses
     with pytest.raises(BagError, match="choose one with --topic-map quad:/my_drone/cf1 or quad:/other"):
         choose_topic_map(two, "bag")
+
+
+def test_a_px4_bag_under_a_vehicle_namespace_is_read_as_px4(flight, tmp_path):
+    """PX4's multi-vehicle SITL publishes /px4_1/fmu/out/...: the px4 map is found under the namespace (or named as
+    px4:/px4_1), with the numbers of the same flight recorded without it; two vehicles in one bag: the user chooses."""
+    cf = load_vehicle("crazyflie21")
+    messages = partial(px4_messages, log=flight, input_range=(cf.input_min, cf.input_max))
+    plain = write_stack_bag(tmp_path / "plain", messages)
+
+    def namespaced(writer):
+        for topic, ns, msg in messages(writer):
+            yield "/px4_1" + topic, ns, msg
+    moved = write_stack_bag(tmp_path / "px4_1", namespaced)
+    reference = load_flight(plain, vehicle="crazyflie21")
+    for requested in (None, "px4", "px4:/px4_1"):
+        log = load_flight(moved, vehicle="crazyflie21", topic_map=requested)
+        assert np.array_equal(log.u, reference.u) and np.array_equal(log.pos_n, reference.pos_n), requested
+    topics = ["/px4_1/fmu/out/vehicle_odometry", "/px4_1/fmu/out/actuator_motors"]
+    two = topics + [t.replace("px4_1", "px4_2") for t in topics]
+    for requested in (None, "px4"):
+        with pytest.raises(BagError, match="px4:/px4_1 or px4:/px4_2"):
+            choose_topic_map(two, "bag", requested)
+    assert list(load_topic_map("px4:/px4_2").topics)[0] == "/px4_2/fmu/out/vehicle_odometry"
 
 
 def test_a_contract_bag_missing_a_topic_says_which_not_corrupt(tmp_path):
