@@ -66,13 +66,13 @@ def test_info_says_why_no_flight_is_read_from_a_bag_no_map_matches(tmp_path, cap
     flight = load_flight(REPO / "test" / "fixtures" / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz")
     cf = load_vehicle("crazyflie21")
 
-    def namespaced(writer):
+    def renamed(writer):  # a bridge configured with other topic names
         for topic, ns, msg in px4_messages(writer, log=flight, input_range=(cf.input_min, cf.input_max)):
-            yield "/px4_1" + topic, ns, msg
+            yield topic.replace("/fmu/out/", "/fmu/renamed/"), ns, msg
 
-    bag = write_stack_bag(tmp_path / "px4_ns", namespaced)
+    bag = write_stack_bag(tmp_path / "px4_renamed", renamed)
     assert main(["info", str(bag)]) == 0
     captured = capsys.readouterr()
-    assert "/px4_1/fmu/out/vehicle_odometry" in captured.out
+    assert "/fmu/renamed/vehicle_odometry" in captured.out
     notes = [line for line in captured.err.splitlines() if line.startswith("note: ")]
     assert len(notes) == 1 and notes[0].startswith(f"note: {bag}: no topic map matches the bag's topics")
