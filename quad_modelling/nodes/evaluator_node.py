@@ -25,7 +25,8 @@ received measurements become a FlightLog, received absolute predictions a
 Closing rule: window k = [t0 + kW, t0 + (k+1)W) closes when every scored stream (``motor_input``,
 ``mocap/odom``, ``imu``, each model's ``<model>/odom`` and ``<model>/accel``) has delivered a stamp of a
 later window, or ``close_grace_s`` [wall s] after the first passed its end (then marked naming the late
-stream; a late model: its records). A model silent for ``stale_model_s`` is not waited for.
+stream; a late model: its records). A model silent for ``stale_model_s`` is not waited for. A model whose
+prediction topics have several publishers (two predictors under one name) is marked, not scored (a fault, once).
 
 Streams on their own clocks (:mod:`~quad_modelling.core.alignment`, shared with offline; the rules in
 docs/nodes.md): the scored rows are the window's engine-input stamps, motion capture, IMU and predictions
@@ -58,13 +59,7 @@ from std_srvs.srv import Trigger
 from quad_modelling.core.alignment import CONFIRM, Stamp, StampGate
 from quad_modelling.core.evaluation.windowed import evaluate_window
 from quad_modelling.core.models.base import DummyPredictor
-from quad_modelling.core.windows import (
-    EvaluationConfig,
-    WindowClock,
-    seconds_spans,
-    seconds_to_ns,
-    warm_samples_for,
-)
+from quad_modelling.core.windows import EvaluationConfig, WindowClock, seconds_spans, seconds_to_ns, warm_samples_for
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.io.topics import HORIZON_TOPIC
@@ -98,6 +93,8 @@ from quad_modelling.nodes.scoring import (  # noqa: F401  (EVALUATOR_PARAMETERS 
     WindowRecord,
     diagnostics_message,
     late_reason,
+    shared_models,
+    shared_reason,
     score_horizon,
     score_model,
     window_measurements,
@@ -159,6 +156,8 @@ class EvaluatorNode(Node):
         self.max_step_ns = seconds_to_ns(p["max_stamp_step_s"])
         self.model_last_wall = {m: None for m in self.models}
         self.ready = False
+        self.shared: dict[str, int] = {}  # model -> publishers, for a model several nodes publish (shared_models)
+        self.prediction_kinds = (HORIZON_TOPIC,) if self.horizon_s > 0 else ("accel", "odom")  # <model>/<kind> topics
         self.started_wall = time.monotonic()
         self.first_motor_wall: float | None = None
         self.progress_sent = None
@@ -450,8 +449,7 @@ class EvaluatorNode(Node):
         """Acknowledge progress: on change, and every :data:`PROGRESS_REPEAT_S` for late subscribers."""
         now = time.monotonic()
         if not self.ready:
-            kinds = (HORIZON_TOPIC,) if self.horizon_s > 0 else ("accel", "odom")
-            have_all = all(self.count_publishers(f"{m}/{kind}") > 0 for m in self.models for kind in kinds)
+            have_all = all(self.count_publishers(f"{m}/{kind}") > 0 for m in self.models for kind in self.prediction_kinds)
             waited = now - self.started_wall
             if not have_all and waited < self.ready_timeout_s:
                 return
@@ -465,6 +463,9 @@ class EvaluatorNode(Node):
             self.progress_pub.publish(messages.clock_message(ns))
 
     def on_close_timer(self) -> None:
+        self.shared = shared_models(self.count_publishers, self.models, self.prediction_kinds)
+        for model, publishers in self.shared.items():
+            self.faults.report(f"shared_{model}", shared_reason(model, publishers))
         self._try_close()
 
     def late_streams(self, k: int, now: float) -> list[str]:
@@ -502,7 +503,7 @@ class EvaluatorNode(Node):
             return
         records = self._score(window, neighbours, start_s, end_s, spans, reason_if_incomplete, list(late))
         self.scores.records.extend(records)
-        horizon = score_horizon(window, neighbours, self.models, self.vehicle, self.mapped) if self.horizon_s > 0 and self.vehicle else []
+        horizon = score_horizon(window, neighbours, [m for m in self.models if m not in self.shared], self.vehicle, self.mapped) if self.horizon_s > 0 and self.vehicle else []
         self.scores.horizon.extend(horizon)
         msg = diagnostics_message(records, self.clock_.origin_ns + (window.index + 1) * self.clock_.window_ns, horizon)
         if self.context.ok():  # at shutdown the results still go to results.json (and the recording)
@@ -530,6 +531,9 @@ class EvaluatorNode(Node):
         records, predicted = [], {}
         for model in self.models if self.horizon_s <= 0 else []:  # receding horizon: the models are scored by MAE@h
             model_late = [s for s in self.model_streams(model) if s in late]
+            if model in self.shared:
+                records += marked(shared_reason(model, self.shared[model]), [model])
+                continue
             if model_late:
                 records += marked(self._late_reason(model_late), [model])
                 continue

@@ -364,6 +364,21 @@ def late_reason(last_ns: dict[str, int | None], origin_ns: int, grace_s: float) 
     return f"closed by close_grace_s={grace_s:g} s before every stream passed the window's end: late {', '.join(described)}"
 
 
+def shared_models(count_publishers, models: list[str], kinds: tuple[str, ...]) -> dict[str, int]:
+    """model -> the most publishers any of its prediction topics ``<model>/<kind>`` has, for the models with more
+    than one: two predictors given one ``model_name`` (or a bag replay republishing recorded predictions beside a
+    live predictor) interleave their predictions on one topic, which no score may mix. ``count_publishers(topic)``:
+    the node's graph query."""
+    counts = {model: max(count_publishers(f"{model}/{kind}") for kind in kinds) for model in models}
+    return {model: n for model, n in counts.items() if n > 1}
+
+
+def shared_reason(model: str, publishers: int) -> str:
+    """Why a model's records are marked while :func:`shared_models` finds it published by several nodes."""
+    return (f"{publishers} nodes publish {model}'s predictions: two predictors share the model name {model} (give each "
+            "its own model_name); mixed predictions are not scored")
+
+
 def _models_check(value) -> str | None:
     names = [str(v).strip() for v in (value or [])]
     if not names:

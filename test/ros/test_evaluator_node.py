@@ -239,3 +239,34 @@ def test_a_command_far_beyond_the_input_range_is_dropped_as_by_the_predictors(ro
     assert node.faults.counts.get("range_motor_input") == 1
     assert any(r.scored for r in node.scores.records if r.index == 0 and r.model == "m")
     node.destroy_node()
+
+
+def test_a_model_two_nodes_publish_is_marked_naming_them(ros):
+    """Two predictors given one model_name interleave their predictions on one topic: while the graph holds two
+    publishers of m/odom, m's records are marked (the dummy still scored) and the fault said once; with one, scored."""
+    import rclpy
+    from nav_msgs.msg import Odometry
+
+    log = hover_log(1100)
+    node = make_node()
+    others = [rclpy.create_node(f"predictor_{i}", namespace=node.get_namespace()) for i in range(2)]
+    publishers = [other.create_publisher(Odometry, "m/odom", 10) for other in others]
+    deadline = time.monotonic() + 10.0
+    while node.count_publishers("m/odom") < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    node.on_close_timer()
+    assert node.shared == {"m": 2} and node.faults.counts == {"shared_m": 1}
+    feed(node, log, range(len(log)), predictions={"m": topics.prediction_fields(measured_variables(log))})
+    node.finish()
+    marked = [r for r in node.scores.records if r.model == "m" and r.index < 2]  # window 2: the flight ends in it
+    assert len(marked) == 2 and all(not r.scored and r.reason.startswith("2 nodes publish m's predictions: two predictors share "
+                                                                  "the model name m") for r in marked)
+    assert all(r.scored for r in node.scores.records if r.model == "dummy" and r.index < 2)
+    others[1].destroy_publisher(publishers[1])
+    while node.count_publishers("m/odom") > 1 and time.monotonic() < deadline + 10.0:
+        time.sleep(0.05)
+    node.on_close_timer()
+    assert node.shared == {}
+    for other in others:
+        other.destroy_node()
+    node.destroy_node()
