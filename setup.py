@@ -28,11 +28,11 @@ setup(
     entry_points={
         "console_scripts": [
             "quad-modelling = quad_modelling.cli:main",
-            "replay = quad_modelling.nodes.replay_node:main",
-            "predictor = quad_modelling.nodes.predictor_node:main",
-            "greybox_predictor = quad_modelling.nodes.greybox_predictor_node:main",
-            "narx_predictor = quad_modelling.nodes.narx_predictor_node:main",
-            "evaluator = quad_modelling.nodes.evaluator_node:main",
+            "replay = quad_modelling.node_entry:replay",
+            "predictor = quad_modelling.node_entry:predictor",
+            "greybox_predictor = quad_modelling.node_entry:greybox_predictor",
+            "narx_predictor = quad_modelling.node_entry:narx_predictor",
+            "evaluator = quad_modelling.node_entry:evaluator",
         ],
     },
 )

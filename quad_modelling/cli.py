@@ -101,8 +101,12 @@ def _one_line_warnings(verb: str):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args, unknown = parser.parse_known_args(argv)
+    try:  # the verbs' modules (numpy, scipy, torch) are imported here, before the signal handlers below
+        parser = build_parser()
+        args, unknown = parser.parse_known_args(argv)
+    except KeyboardInterrupt:
+        print("quad-modelling: interrupted while starting", file=sys.stderr)
+        return EXIT_INTERRUPTED[signal.SIGINT]
     if unknown:  # named by the verb's parser: "quad-modelling convert: error: ... (see quad-modelling convert --help)"
         parser.verb_parsers[args.verb].error(f"unrecognized arguments: {' '.join(unknown)}")
     previous_show = warnings.showwarning

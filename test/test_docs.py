@@ -150,8 +150,9 @@ def test_readme_commands_use_existing_flags():
 
 
 def test_node_executables_match_setup_py():
-    scripts = re.findall(r'"(\w+) = quad_modelling\.nodes\.\w+_node:main"', (REPO / "setup.py").read_text())
-    assert sorted(scripts) == sorted(NODE_PARAMETERS)
+    scripts = re.findall(r'"(\w+) = quad_modelling\.node_entry:(\w+)"', (REPO / "setup.py").read_text())
+    assert all(name == function for name, function in scripts)
+    assert sorted(name for name, _ in scripts) == sorted(NODE_PARAMETERS)
 
 
 def test_every_documented_parameter_is_declared_and_every_parameter_is_documented():

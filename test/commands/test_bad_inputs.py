@@ -400,3 +400,15 @@ def test_sigterm_during_convert_leaves_no_staging_and_no_output(tmp_path):
     assert proc.returncode == 143
     assert err.strip().splitlines()[-1] == "quad-modelling convert: interrupted (SIGTERM)" and "Traceback" not in err
     assert _snapshot(tmp_path) == before  # no bags/, no .bags.tmp-*
+
+
+def test_a_ctrl_c_while_the_verbs_import_is_one_line_and_exit_130(monkeypatch, capsys):
+    """The verbs' modules (numpy, scipy, torch) import before the signal handlers: a Ctrl-C then was a traceback."""
+    from quad_modelling import cli
+
+    def interrupted():
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(cli, "build_parser", interrupted)
+    assert cli.main(["info", "x"]) == 130
+    assert capsys.readouterr().err == "quad-modelling: interrupted while starting\n"
