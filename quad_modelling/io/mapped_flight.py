@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import operator
 import math
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -41,7 +40,8 @@ from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.bag_io import READ_ERRORS, open_reader
-from quad_modelling.io.topic_maps import STAMP_UNITS, FieldSource, TopicMap, TopicSpec, parse_path
+from quad_modelling.io.topic_maps import (STAMP_UNITS, FieldSource, TopicMap, TopicSpec, check_map_fields, fields_of_store,
+                                         parse_path)
 
 NANOSECONDS = 1_000_000_000
 KINEMATIC_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
@@ -63,67 +63,6 @@ MAX_PENDING_S = 60.0
 """Longest span [s] of command rows held while a stream has not reached them: then a stream that lags is on another
 clock (refused), has ended (the rows after its last message are cut, as at the end) or has not started (the rows
 before its first message are cut)."""
-
-
-# --- static check of a map against the message definitions ------------------------------------
-
-@dataclass(frozen=True)
-class FieldType:
-    """One message field as a definition gives it: a nested message type, or a base type; array length or sequence."""
-
-    nested: str | None
-    base: str | None
-    length: int | None = None
-    sequence: bool = False
-
-
-NUMERIC = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "octet"}
-TIME_TYPE = "builtin_interfaces/msg/Time"
-
-
-def check_path(path: str, spec: TopicSpec, fields_of, where: str, stamp: bool = False) -> None:
-    """ConfigError naming the field, the topic and its message type unless ``path`` reaches a number (``stamp``: a
-    number or a builtin_interfaces/Time) in ``spec.msgtype``; ``fields_of(msgtype)`` -> {name: FieldType}."""
-    msgtype = spec.msgtype
-    current: FieldType | None = None
-    what = f"{where}: field {path!r} of topic {spec.name} ({spec.msgtype})"
-    steps = parse_path(path, spec, where)
-    for kind, value in steps:
-        if kind == "attr":
-            if current is not None:
-                if current.nested is None or current.length is not None or current.sequence:
-                    raise ConfigError(f"{what}: {value!r} follows a field that is not a message")
-                msgtype = current.nested
-            known = fields_of(msgtype)
-            if value not in known:
-                raise ConfigError(f"{what}: {msgtype} has no field {value!r} (fields: {', '.join(known)})")
-            current = known[value]
-        else:
-            if current is None or (current.length is None and not current.sequence):
-                raise ConfigError(f"{what}: [{value}] indexes a field that is not an array")
-            if current.length is not None and value >= current.length:
-                raise ConfigError(f"{what}: index {value} is beyond the field's {current.length} elements")
-            current = FieldType(current.nested, current.base)
-    if current is None or current.length is not None or current.sequence:
-        raise ConfigError(f"{what}: does not name one number")
-    if current.base in NUMERIC and not (stamp and spec.stamp_unit is None):
-        return
-    if stamp and spec.stamp_unit is None and current.nested == TIME_TYPE:
-        return
-    expected = "a builtin_interfaces/Time (or give stamp_unit for an integer stamp)" if stamp and spec.stamp_unit is None else "a number"
-    raise ConfigError(f"{what}: is {current.base or current.nested}, not {expected}")
-
-
-def check_map_fields(topic_map: TopicMap, sources: dict[str, FieldSource], fields_of, where: str) -> None:
-    """Every stamp, instance and field path the ``sources`` read exists in the topics' message definitions."""
-    for topic in dict.fromkeys(s.topic for s in sources.values()):
-        spec = topic_map.topics[topic]
-        check_path(spec.stamp, spec, fields_of, where, stamp=True)
-        if spec.instance:
-            check_path(spec.instance, spec, fields_of, where)
-    for source in sources.values():
-        for path in source.paths:
-            check_path(path, topic_map.topics[source.topic], fields_of, where)
 
 
 # --- message -> numbers -------------------------------------------------------------------------
@@ -559,26 +498,6 @@ def _stored_typestore(connections, path: Path):
     return store
 
 
-def _fields_of(store):
-    """``fields_of(msgtype)`` -> {name: FieldType} from a type store's definitions (the map's static check)."""
-    from rosbags.typesys.store import Nodetype
-
-    def describe(kind, detail) -> FieldType:
-        if kind == Nodetype.NAME:
-            return FieldType(detail, None)
-        if kind == Nodetype.BASE:
-            return FieldType(None, detail[0])
-        (element_kind, element_detail), size = detail
-        element = describe(element_kind, element_detail)
-        return FieldType(element.nested, element.base, size if kind == Nodetype.ARRAY else None, kind == Nodetype.SEQUENCE)
-
-    def fields_of(msgtype: str) -> dict:
-        if msgtype not in store.fielddefs:
-            return {}
-        return {name: describe(kind, detail) for name, (kind, detail) in store.fielddefs[msgtype][1]}
-    return fields_of
-
-
 def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
     """Any rosbag2 bag (MCAP or sqlite3) through a topic map (bound to its robot) into a FlightLog for ``vehicle``.
 
@@ -599,7 +518,7 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
             raise BagError(f"{path}: topic {wrong} has type {present[wrong]}, topic map {topic_map.name} reads {topic_map.topics[wrong].msgtype}")
         used = [c for c in reader.connections if c.topic in {s.topic for s in sources.values()}]
         store = _stored_typestore(used, path)
-        check_map_fields(topic_map, sources, _fields_of(store), f"{path}: topic map {topic_map.name}")
+        check_map_fields(topic_map, sources, fields_of_store(store), f"{path}: topic map {topic_map.name}")
         readers = readers_for(topic_map, sources, where)
         capacity = sum(c.msgcount for c in used if c.topic == sources["commands"].topic)
         assembler = FlightAssembler(topic_map, sources, readers, vehicle, where, capacity)

@@ -37,8 +37,10 @@ one topic (PX4 multi-instance topics, as ULog instance 0): the first instance se
 how many there were. ``{robot}`` in a topic name stands for one ROS name token (the crazyswarm2 robot
 name); a bag of several robots is named with ``--topic-map crazyswarm2:cf231``.
 
-This module holds the definitions, their validation (one line naming file and key) and the choice of a map
-for a bag's topics (:func:`choose_topic_map`); :mod:`quad_modelling.io.mapped_flight` converts the messages.
+This module holds the definitions, their validation (one line naming file and key), the choice of a map
+for a bag's topics (:func:`choose_topic_map`, namespaces included) and the check of a map's paths against the
+message definitions a bag stores (:func:`check_map_fields`); :mod:`quad_modelling.io.mapped_flight` converts the
+messages.
 """
 
 from __future__ import annotations
@@ -442,3 +444,84 @@ def topic_map_file(value: str | None) -> str | None:
     if not value or not _names_file(value):
         return None
     return value.rpartition(":")[0] if re.search(r"\.ya?ml:[^/:]+$", value) else value
+
+
+# --- static check of a map against the message definitions ------------------------------------
+
+@dataclass(frozen=True)
+class FieldType:
+    """One message field as a definition gives it: a nested message type, or a base type; array length or sequence."""
+
+    nested: str | None
+    base: str | None
+    length: int | None = None
+    sequence: bool = False
+
+
+NUMERIC = {"bool", "byte", "char", "float32", "float64", "int8", "uint8", "int16", "uint16", "int32", "uint32", "int64", "uint64", "octet"}
+TIME_TYPE = "builtin_interfaces/msg/Time"
+
+
+def check_path(path: str, spec: TopicSpec, fields_of, where: str, stamp: bool = False) -> None:
+    """ConfigError naming the field, the topic and its message type unless ``path`` reaches a number (``stamp``: a
+    number or a builtin_interfaces/Time) in ``spec.msgtype``; ``fields_of(msgtype)`` -> {name: FieldType}."""
+    msgtype = spec.msgtype
+    current: FieldType | None = None
+    what = f"{where}: field {path!r} of topic {spec.name} ({spec.msgtype})"
+    steps = parse_path(path, spec, where)
+    for kind, value in steps:
+        if kind == "attr":
+            if current is not None:
+                if current.nested is None or current.length is not None or current.sequence:
+                    raise ConfigError(f"{what}: {value!r} follows a field that is not a message")
+                msgtype = current.nested
+            known = fields_of(msgtype)
+            if value not in known:
+                raise ConfigError(f"{what}: {msgtype} has no field {value!r} (fields: {', '.join(known)})")
+            current = known[value]
+        else:
+            if current is None or (current.length is None and not current.sequence):
+                raise ConfigError(f"{what}: [{value}] indexes a field that is not an array")
+            if current.length is not None and value >= current.length:
+                raise ConfigError(f"{what}: index {value} is beyond the field's {current.length} elements")
+            current = FieldType(current.nested, current.base)
+    if current is None or current.length is not None or current.sequence:
+        raise ConfigError(f"{what}: does not name one number")
+    if current.base in NUMERIC and not (stamp and spec.stamp_unit is None):
+        return
+    if stamp and spec.stamp_unit is None and current.nested == TIME_TYPE:
+        return
+    expected = "a builtin_interfaces/Time (or give stamp_unit for an integer stamp)" if stamp and spec.stamp_unit is None else "a number"
+    raise ConfigError(f"{what}: is {current.base or current.nested}, not {expected}")
+
+
+def check_map_fields(topic_map: TopicMap, sources: dict[str, FieldSource], fields_of, where: str) -> None:
+    """Every stamp, instance and field path the ``sources`` read exists in the topics' message definitions."""
+    for topic in dict.fromkeys(s.topic for s in sources.values()):
+        spec = topic_map.topics[topic]
+        check_path(spec.stamp, spec, fields_of, where, stamp=True)
+        if spec.instance:
+            check_path(spec.instance, spec, fields_of, where)
+    for source in sources.values():
+        for path in source.paths:
+            check_path(path, topic_map.topics[source.topic], fields_of, where)
+
+
+def fields_of_store(store):
+    """``fields_of(msgtype)`` -> {name: FieldType} from a type store's definitions (the map's static check)."""
+    from rosbags.typesys.store import Nodetype
+
+    def describe(kind, detail) -> FieldType:
+        if kind == Nodetype.NAME:
+            return FieldType(detail, None)
+        if kind == Nodetype.BASE:
+            return FieldType(None, detail[0])
+        (element_kind, element_detail), size = detail
+        element = describe(element_kind, element_detail)
+        return FieldType(element.nested, element.base, size if kind == Nodetype.ARRAY else None, kind == Nodetype.SEQUENCE)
+
+    def fields_of(msgtype: str) -> dict:
+        if msgtype not in store.fielddefs:
+            return {}
+        return {name: describe(kind, detail) for name, (kind, detail) in store.fielddefs[msgtype][1]}
+    return fields_of
