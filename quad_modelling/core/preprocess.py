@@ -228,6 +228,45 @@ def nav_acceleration(log: FlightLog, gravity: float = GRAVITY, rows: np.ndarray 
     return acc
 
 
+GRAVITY_DISAGREEMENT = 0.3
+"""Largest |mean a_N| / g of a flight whose attitude and accelerometer agree (:func:`frame_disagreements`): a flight
+averages to Δv / T (under 0.05 g for 1 m/s over 2 s), an accelerometer's bias to well under 0.05 g; an attitude read
+in the wrong quaternion order or an accelerometer in the wrong body frame puts gravity 1-2 g off."""
+
+VELOCITY_AGREEMENT = 0.5
+"""Smallest correlation, per axis, of a flight's velocity with its position's time derivative (:func:`frame_disagreements`)."""
+
+MOVING_AXIS_MPS = 0.1
+"""RMS of the position's derivative [m/s] above which an axis moves enough for the velocity check."""
+
+
+def frame_disagreements(log: FlightLog) -> list[str]:
+    r"""Warnings for a flight whose measurements disagree with each other as a mistaken frame, order or sign makes
+    them: (1) the mean over the flight of :math:`a_N = R f_B + g e_z` (:func:`nav_acceleration`) is near zero when
+    the attitude R and the accelerometer's specific force :math:`f_B` agree on where gravity is; above
+    :data:`GRAVITY_DISAGREEMENT` g one of them is misread; (2) per N axis that moves (RMS of :math:`\dot p` above
+    :data:`MOVING_AXIS_MPS`), the correlation of the velocity with the position's derivative :math:`\dot p`
+    (``numpy.gradient`` over t) is at least :data:`VELOCITY_AGREEMENT`; a flipped or swapped axis gives -1 or
+    about 0. For readers of users' own maps (:mod:`quad_modelling.io.mapped_flight`)."""
+    out, where = [], log.meta.source
+    if log.acc_b is not None and len(log) > 1:
+        mean = nav_acceleration(log).mean(axis=0)
+        if np.linalg.norm(mean) > GRAVITY_DISAGREEMENT * GRAVITY:
+            out.append(f"{where}: the attitude and the accelerometer disagree on where gravity is: R f_B + g averages "
+                       f"({mean[0]:.2f}, {mean[1]:.2f}, {mean[2]:.2f}) m/s² N over the flight, not about 0 "
+                       "(check the attitude's quaternion order and the frames of attitude and accelerometer)")
+    if len(log) > 2:
+        derivative = np.gradient(log.pos_n, log.t, axis=0)
+        for k, axis in enumerate("NED"):
+            moving = float(np.sqrt(np.mean(derivative[:, k] ** 2)))
+            if moving > MOVING_AXIS_MPS and np.std(log.vel_n[:, k]) > 0:
+                correlation = float(np.corrcoef(log.vel_n[:, k], derivative[:, k])[0, 1])
+                if correlation < VELOCITY_AGREEMENT:
+                    out.append(f"{where}: the velocity's {axis} axis does not follow the position's derivative "
+                               f"(correlation {correlation:.2f}): check the frames of position and velocity")
+    return out
+
+
 def differentiate(values: np.ndarray, dt: float, window_s: float = DERIVATIVE_WINDOW_S, causal: bool = False) -> np.ndarray:
     """Time derivative of (N, k) ``values`` sampled every ``dt`` [s] (Savitzky-Golay).
 

@@ -36,7 +36,7 @@ from rosbags.typesys import Stores, get_typestore
 from quad_modelling.core import frames
 from quad_modelling.core.alignment import MAX_GAP_S, interpolate_at
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
+from quad_modelling.core.preprocess import MeasurementGap, frame_disagreements, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.bag_io import READ_ERRORS, open_reader
@@ -451,6 +451,8 @@ class FlightAssembler:
         )
         marked = [MeasurementGap(topic, a / 1e9, b / 1e9, fields) for (topic, a, b), fields in gaps.items()]
         mark_measurement_gaps(log, sorted(marked, key=lambda g: (g.start_s, g.topic)), MAX_GAP_S)
+        for warning in frame_disagreements(log):  # a map's order, frame or sign mistake (the map is the user's)
+            log.warn(f"{warning}: topic map {self.topic_map.name}")
         return log
 
 

@@ -327,3 +327,23 @@ def test_a_mapped_stream_slower_than_the_gap_rule_is_refused_in_one_line(flight,
         load_flight(bag)
     assert str(caught.value).startswith(f"{bag}: topic /fmu/out/vehicle_odometry (position) is sampled at 14.3 Hz (mean step 70 ms)")
     assert str(caught.value).endswith("record it at 20 Hz or more")
+
+
+@pytest.mark.parametrize("change, expected", [
+    (("order: wxyz", "order: xyzw"), ["the attitude and the accelerometer disagree on where gravity is"]),
+    (('"velocity[2]"], unit: m/s, frame: NED', '"velocity[2]"], unit: m/s, frame: ENU'),
+     ["the velocity's N axis does not follow", "the velocity's E axis does not follow"]),
+])
+def test_a_yaml_map_read_in_the_wrong_order_or_frame_warns_naming_it(bags, flight, tmp_path, change, expected):
+    """A user's map with the quaternion order or the velocity frame wrong reads without an error; the measurements
+    then disagree with each other (gravity 2 g off, the velocity not the position's derivative): a warning names it.
+    The map as shipped: no such warning."""
+    from quad_modelling.core.preprocess import flight_warnings
+
+    text = open("config/topic_maps/px4.yaml").read()
+    assert change[0] in text
+    (tmp_path / "mine.yaml").write_text(text.replace(change[0], change[1], 1))
+    warnings = flight_warnings(load_flight(bags["px4"], vehicle="crazyflie21", topic_map=str(tmp_path / "mine.yaml")))
+    assert all(any(e in w and w.endswith("topic map px4") for w in warnings) for e in expected), warnings
+    shipped = flight_warnings(load_flight(bags["px4"], vehicle="crazyflie21"))
+    assert not [w for w in shipped if "disagree" in w or "does not follow" in w]
