@@ -272,7 +272,31 @@ def open_reader(path: Path) -> Reader:
     except (ReaderError, OSError, ValueError, KeyError, TypeError, SerdeError, MemoryError, OverflowError, struct.error,
             ZstdError) as err:  # a corrupt record size: MemoryError
         raise BagError(f"{path}: not a readable rosbag2 bag ({reason(err)})") from err
+    check_mcap_crcs(path)
     return reader
+
+
+def check_mcap_crcs(path: Path) -> None:
+    """BagError naming the file when an MCAP file of the bag ``path`` fails a CRC its writer stored: the data
+    section's and each chunk's (rosbag2 stores them; rosbags reads without checking, so a damaged byte in an
+    uncompressed chunk read as other numbers). Checked with the mcap library (its StreamReader and chunk reader) in a
+    pass over the raw chunks, decompressing only those with a stored CRC; files without CRCs (this project's own
+    bags: rosbags writes none) pass at the cost of reading their bytes. Any other damage is left to the reader's
+    own error."""
+    from mcap.exceptions import McapError
+    from mcap.records import Chunk
+    from mcap.stream_reader import CRCValidationError, StreamReader, get_chunk_data_stream
+
+    for file in sorted(path.glob("*.mcap")):
+        try:
+            with open(file, "rb") as stream:
+                for record in StreamReader(stream, validate_crcs=True, emit_chunks=True).records:
+                    if isinstance(record, Chunk) and record.uncompressed_crc != 0:
+                        get_chunk_data_stream(record, validate_crc=True)
+        except CRCValidationError as err:
+            raise BagError(f"{path}: {file.name} is damaged: {err} (a byte changed since it was recorded)") from err
+        except (McapError, *READ_ERRORS):  # truncated or malformed: the reader's error says so
+            return
 
 
 def summarize_bag(path: str | Path) -> BagSummary:

@@ -1,15 +1,18 @@
+from pathlib import Path
+
 import numpy as np
 import pytest
 from mcap.reader import make_reader
 from rosbags.rosbag2 import Reader, Writer
 from rosbags.rosbag2.enums import StoragePlugin
 
+from quad_modelling.cli import main
 from quad_modelling.errors import BagError, DataError, OutputExistsError
 from quad_modelling.io import bag_io, topics
 from quad_modelling.io.bag_io import read_bag, summarize_bag, write_bag
 from quad_modelling.io.matlog import read_matlog, write_matlog
 from quad_modelling.io.nanobench import read_nanobench
-from test.conftest import FIXTURES, synthetic_log
+from test.conftest import FIXTURES, REPO, synthetic_log
 
 CONTRACT = {
     "/quad/motor_input": "sensor_msgs/msg/JointState",
@@ -270,3 +273,46 @@ def test_imu_on_another_clock_is_refused_with_its_offset(tmp_path):
     with pytest.raises(DataError, match=r"topic /quad/imu stamps are offset by \+100\.000 s from /quad/motor_input "
                                         r"\(spans 100\.000\.\.100\.090 s of a 0\.090 s flight\): another clock\?"):
         read_bag(tmp_path / "bag")
+
+
+def _recorded_with_crcs(source: Path, target: Path) -> Path:
+    """``source`` (a bag of this project: rosbags stores no CRCs) rewritten by the mcap library as rosbag2 records
+    it: uncompressed chunks with their CRCs and the data section's."""
+    import shutil
+
+    from mcap.writer import CompressionType, Writer
+
+    target.mkdir()
+    shutil.copy(source / "metadata.yaml", target / "metadata.yaml")
+    (mcap_file,) = source.glob("*.mcap")
+    with open(mcap_file, "rb") as stream, open(target / mcap_file.name, "wb") as out:
+        reader = make_reader(stream)
+        writer = Writer(out, compression=CompressionType.NONE, enable_crcs=True, enable_data_crcs=True)
+        writer.start(reader.get_header().profile, "test")
+        schemas, channels = {}, {}
+        for schema, channel, message in reader.iter_messages():
+            if schema is not None and schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding, schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding,
+                                                               schemas.get(channel.schema_id, 0), channel.metadata)
+            writer.add_message(channels[channel.id], message.log_time, message.data, message.publish_time, message.sequence)
+        writer.finish()
+    return target
+
+
+def test_a_damaged_byte_in_a_recorded_bag_fails_its_crc_in_one_line(tmp_path):
+    """rosbag2 stores CRCs; rosbags reads without checking them, so one flipped byte in an uncompressed chunk's message
+    read as another number. The CRCs are checked: one line naming the file; the intact copy reads as the original."""
+    from quad_modelling.io.loader import load_flight
+
+    source = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
+    recorded = _recorded_with_crcs(source, tmp_path / "recorded")
+    assert load_flight(recorded).allclose(load_flight(source), rtol=0, atol=0)
+    (mcap_file,) = recorded.glob("*.mcap")
+    data = bytearray(mcap_file.read_bytes())
+    data[len(data) // 3] ^= 0x10  # inside a chunk, among the messages
+    mcap_file.write_bytes(bytes(data))
+    with pytest.raises(BagError, match=rf"{recorded}: {mcap_file.name} is damaged: crc validation failed in Chunk"):
+        load_flight(recorded)
+    assert main(["info", str(recorded)]) == 2
