@@ -101,17 +101,7 @@ def _one_line_warnings(verb: str):
 
 
 def main(argv: list[str] | None = None) -> int:
-    try:  # the verbs' modules (numpy, scipy, torch) are imported here, before the signal handlers below
-        parser = build_parser()
-        args, unknown = parser.parse_known_args(argv)
-    except KeyboardInterrupt:
-        print("quad-modelling: interrupted while starting", file=sys.stderr)
-        return EXIT_INTERRUPTED[signal.SIGINT]
-    if unknown:  # named by the verb's parser: "quad-modelling convert: error: ... (see quad-modelling convert --help)"
-        parser.verb_parsers[args.verb].error(f"unrecognized arguments: {' '.join(unknown)}")
-    previous_show = warnings.showwarning
-    warnings.showwarning = _one_line_warnings(args.verb)
-    try:
+    try:  # first: the verbs' modules (numpy, scipy, torch) take seconds to import
         previous = signal.signal(signal.SIGTERM, _raise_interrupted)
         # Ctrl-C must interrupt whatever started this process: a parent that ignores SIGINT (a background job, a
         # test worker) or blocks it hands that on to its children, and a run-bag would then run to its end.
@@ -119,6 +109,27 @@ def main(argv: list[str] | None = None) -> int:
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
     except ValueError:  # not the main thread: signals stay as they are
         previous = previous_int = None
+    try:
+        return _parse_and_run(argv)
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+            signal.signal(signal.SIGINT, previous_int)
+
+
+def _parse_and_run(argv: list[str] | None) -> int:
+    """Parse ``argv`` and run the verb; the package's errors as one line and exit 2, signals as 130 / 143."""
+    try:
+        parser = build_parser()
+        args, unknown = parser.parse_known_args(argv)
+    except KeyboardInterrupt as err:
+        signum = getattr(err, "signum", signal.SIGINT)
+        print(f"quad-modelling: interrupted while starting ({signal.Signals(signum).name})", file=sys.stderr)
+        return EXIT_INTERRUPTED[signum]
+    if unknown:  # named by the verb's parser: "quad-modelling convert: error: ... (see quad-modelling convert --help)"
+        parser.verb_parsers[args.verb].error(f"unrecognized arguments: {' '.join(unknown)}")
+    previous_show = warnings.showwarning
+    warnings.showwarning = _one_line_warnings(args.verb)
     try:
         return int(args.run(args) or 0)
     except QuadModellingError as err:
@@ -135,9 +146,6 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERRUPTED[signum]
     finally:
         warnings.showwarning = previous_show
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
-            signal.signal(signal.SIGINT, previous_int)
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ as a shell reports it), as it does once started. This module imports nothing hea
 from __future__ import annotations
 
 import importlib
+import signal
 import sys
 
 EXIT_INTERRUPTED = 130
@@ -16,7 +17,13 @@ EXIT_INTERRUPTED = 130
 
 
 def run(module: str, name: str) -> int:
-    """``quad_modelling.nodes.<module>.main()``; exit 130 with one line when interrupted while importing it."""
+    """``quad_modelling.nodes.<module>.main()``; exit 130 with one line when interrupted while importing it (SIGINT
+    is taken first even when the process started with it ignored, as a background job does)."""
+    try:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+    except ValueError:  # not the main thread
+        pass
     try:
         main = importlib.import_module(f"quad_modelling.nodes.{module}").main
     except KeyboardInterrupt:

@@ -411,4 +411,4 @@ def test_a_ctrl_c_while_the_verbs_import_is_one_line_and_exit_130(monkeypatch, c
 
     monkeypatch.setattr(cli, "build_parser", interrupted)
     assert cli.main(["info", "x"]) == 130
-    assert capsys.readouterr().err == "quad-modelling: interrupted while starting\n"
+    assert capsys.readouterr().err == "quad-modelling: interrupted while starting (SIGINT)\n"
