@@ -84,12 +84,35 @@ def expanded_size(node: yaml.Node, sizes: dict[int, int] | None = None) -> int:
     return sizes[key]
 
 
+def duplicate_key(node: yaml.Node) -> str | None:
+    """``'KEY' at lines A and B`` for the first mapping of ``node`` (its sub-tree, each node once) that holds a key twice
+    (YAML forbids it; PyYAML keeps the last silently, so a file edited by appending ``name: other`` renamed its
+    vehicle without a word), or None. Merge keys (``<<``) are YAML's own and left alone."""
+    seen, stack = set(), [node]
+    while stack:
+        current = stack.pop()
+        if id(current) in seen:
+            continue
+        seen.add(id(current))
+        if isinstance(current, yaml.MappingNode):
+            lines: dict = {}
+            for key, value in current.value:
+                if isinstance(key, yaml.ScalarNode) and key.value != "<<":
+                    if key.value in lines:
+                        return f"{key.value!r} at lines {lines[key.value]} and {key.start_mark.line + 1}"
+                    lines[key.value] = key.start_mark.line + 1
+                stack += [key, value]
+        elif isinstance(current, yaml.SequenceNode):
+            stack += current.value
+    return None
+
+
 def read_yaml(path: str | Path, what: str):
     """The parsed document of the YAML file ``path`` (``what`` names it in errors, e.g. "vehicle config").
 
     Raises ConfigError in one line naming the file: missing, not a regular file, larger
-    than :data:`MAX_YAML_BYTES`, not UTF-8, not valid YAML, or expanding (through
-    aliases) to more than :data:`MAX_YAML_NODES` nodes.
+    than :data:`MAX_YAML_BYTES`, not UTF-8, not valid YAML, expanding (through
+    aliases) to more than :data:`MAX_YAML_NODES` nodes, or a mapping holding a key twice (:func:`duplicate_key`).
     """
     path = check_regular_file(path, what)
     try:
@@ -109,6 +132,9 @@ def read_yaml(path: str | Path, what: str):
             return None
         if expanded_size(node) > MAX_YAML_NODES:
             raise ConfigError(f"{path}: {what} expands (through YAML aliases) to more than {MAX_YAML_NODES} nodes")
+        twice = duplicate_key(node)
+        if twice:
+            raise ConfigError(f"{path}: {what} holds key {twice} (a key may appear once; which one was meant?)")
         return loader.construct_document(node)
     except ConfigError:
         raise

@@ -111,6 +111,7 @@ def inputs(tmp_path_factory) -> Path:
         f"{chr(98 + i)}: &{chr(98 + i)} [{', '.join([f'*{chr(97 + i)}'] * 9)}]\n" for i in range(9))
     (d / "bomb.yaml").write_text(bomb)
     (d / "nan_mass.yaml").write_text(_vehicle_text(mass=".nan"))
+    (d / "renamed.yaml").write_text(_vehicle_text() + "name: other\n")  # an appended key: PyYAML kept the last silently
     (d / "inf_thrust.yaml").write_text(_vehicle_text(rotor_thrust_constant=".inf"))
     (d / "heavy.yaml").write_text(_vehicle_text(mass="1.0e6"))
     (d / "huge.yaml").write_text(_vehicle_text() + "#" * (2 << 20) + "\n")
@@ -210,6 +211,8 @@ CORPUS = [
     # vehicle configs
     ("vehicle-not-utf8", ["convert", "{d}/flight.mat", "--vehicle", "{d}/latin1.yaml", "-o", "{d}/work/b"], "{d}/latin1.yaml: vehicle config is not UTF-8 text (byte "),
     ("vehicle-alias-bomb", ["convert", "{d}/flight.mat", "--vehicle", "{d}/bomb.yaml", "-o", "{d}/work/b"], "{d}/bomb.yaml: vehicle config expands (through YAML aliases) to more than 100000 nodes"),
+    ("vehicle-key-twice", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/renamed.yaml", "-o", "{d}/work/out"],
+     "{d}/renamed.yaml: vehicle config holds key 'name' at lines 15 and "),
     ("vehicle-nan-mass", ["identify", "{d}/flight.mat", "--vehicle", "{d}/nan_mass.yaml", "-o", "{d}/work/v.yaml"], "{d}/nan_mass.yaml: constants.mass.value must be a finite number, got nan"),
     ("vehicle-inf-thrust", ["identify", "{d}/flight.mat", "--vehicle", "{d}/inf_thrust.yaml", "-o", "{d}/work/v.yaml"], "constants.rotor_thrust_constant.value must be a finite number, got inf"),
     ("vehicle-out-of-range", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/heavy.yaml", "-o", "{d}/work/out"], "constants.mass.value must lie in (0, 1000) kg, got 1e+06"),
