@@ -59,9 +59,10 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), fla
     """Refuse an output that names no file (``''``, ``.``, ``..``), is too long a name, is or holds an
     input (``inputs``: every file the command reads), exists without force, or whose directory we
     cannot write to; ``flag`` is the option that named it, as the error says."""
+    given = str(path)  # as typed: Path("") is "."
     path = Path(path)
     if path.name in ("", ".", ".."):
-        raise OutputDirError(f"{flag} {str(path)!r}: the output must name a new file or directory, not {str(path)!r}")
+        raise OutputDirError(f"{flag} {given!r}: the output must name a new file or directory, not {given!r}")
     parent = path.parent if str(path.parent) else Path(".")
     try:
         parent_is_dir = parent.is_dir()

@@ -128,6 +128,8 @@ def _parse_and_run(argv: list[str] | None) -> int:
         return EXIT_INTERRUPTED[signum]
     if unknown:  # named by the verb's parser: "quad-modelling convert: error: ... (see quad-modelling convert --help)"
         parser.verb_parsers[args.verb].error(f"unrecognized arguments: {' '.join(unknown)}")
+    if getattr(args, "output", None) == "":  # as typed: the verbs' Path("") would be "."
+        parser.verb_parsers[args.verb].error("-o '': the output must name a new file or directory, not ''")
     previous_show = warnings.showwarning
     warnings.showwarning = _one_line_warnings(args.verb)
     try:

@@ -169,7 +169,7 @@ DEEP_PATH = "{d}/" + "/".join(["p" * 200] * 25)
 
 CORPUS = [
     # outputs: never an input, never '', . or .., never a name the file system cannot hold
-    ("o-empty", ["convert", "{d}/flight.mat", "-o", ""], "the output must name a new file or directory, not '.'"),
+    ("o-empty", ["convert", "{d}/flight.mat", "-o", ""], "-o '': the output must name a new file or directory, not ''"),
     ("o-dot", ["convert", "{d}/flight.mat", "-o", ".", "--force"], "the output must name a new file or directory, not '.'"),
     ("o-dotdot", ["convert", "{d}/flight.mat", "-o", "..", "--force"], "the output must name a new file or directory, not '..'"),
     ("o-long-name", ["convert", "{d}/flight.mat", "-o", "{d}/work/" + "x" * 300], "output name is 300 bytes long; the file system allows 241 here"),

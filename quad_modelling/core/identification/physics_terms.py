@@ -98,7 +98,8 @@ class TermDesign:
         if refused:
             why = ("identify chooses the observer by the data; set it in the vehicle file's effects section to hold one"
                    if refused == ["disturbance_observer"] else "set its parameters in the vehicle file's effects section")
-            raise ConfigError(f"--effects: identify cannot fit {', '.join(refused)} yet (it fits {', '.join(FITTABLE)}); "
+            fits = (*FITTABLE, *BASE_SWITCHES)
+            raise ConfigError(f"--effects: identify cannot fit {', '.join(refused)} yet (it fits {', '.join(fits)}); "
                               f"{why} (docs/formats.md)")
 
 
