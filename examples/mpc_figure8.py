@@ -39,6 +39,12 @@ from quad_modelling.core.models.physics import Observer, observed_disturbance
 from quad_modelling.core.sim.closed_loop import TruthLoop, stabiliser_commands, trimmed_stabiliser
 from quad_modelling.core.variables import VARIABLES
 
+TRUTH_VEHICLE = "linkquad"
+"""The simulator's vehicle the example flies (its truth physics); the exports must be models of it."""
+
+SETTLE_S = 1.0
+"""The tracking error is scored from this time on [s] (the controller takes over in hover at the reference's start)."""
+
 
 @dataclass(frozen=True)
 class Figure8:
@@ -80,8 +86,9 @@ class ExportedModel:
         self.battery = names[-1] == "battery_voltage"
         c = self.layout["constants"]
         self.delay, self.u_min, self.u_max = c["rotor_delay_s"], c["input_min"], c["input_max"]
-        self.hover_command, self.hover_rotor_speed = c["hover_command"], c["hover_rotor_speed_rad_s"]
-        self.terms = self.layout["terms_on"]
+        self.hover_rotor_speed = c["hover_rotor_speed_rad_s"]
+        self.hover_commands = np.asarray(c.get("hover_commands", [c["hover_command"]] * 4), dtype=float)  # per motor
+        self.terms, self.vehicle = self.layout["terms_on"], self.layout["vehicle"]
 
     def inputs(self, commands, voltage):
         """The Function's input u: the commands, then the battery voltage when the battery term is on."""
@@ -131,7 +138,7 @@ class ModelPredictiveController:
         w = self.WEIGHTS
         scale = np.concatenate([np.ones(18), np.full(4, model.hover_rotor_speed)])
         span = model.u_max - model.u_min
-        self.hover = (model.hover_command - model.u_min) / span
+        self.hover = (model.hover_commands - model.u_min) / span  # (4,): each motor's, with its command gain
         opti = casadi.Opti()
         X, U = opti.variable(22, horizon + 1), opti.variable(4, horizon)
         x0, d, ref, u_prev, voltage = opti.parameter(22), opti.parameter(6), opti.parameter(6, horizon), opti.parameter(4), opti.parameter()
@@ -163,8 +170,8 @@ class ModelPredictiveController:
         self.solve = opti.to_function("mpc", [x0, d, ref, u_prev, voltage, X, U], [U, X],
                                       ["x0", "d", "ref", "u_prev", "voltage", "X_guess", "U_guess"], ["U", "X"])
         self.scale = scale
-        self.X_guess, self.U_guess = None, np.full((4, horizon), self.hover)
-        self.u_prev = np.full(4, self.hover)
+        self.X_guess, self.U_guess = None, np.tile(self.hover[:, None], (1, horizon))
+        self.u_prev = self.hover.copy()
 
     def command(self, x: np.ndarray, d: np.ndarray, reference: np.ndarray, voltage: float) -> np.ndarray:
         """The commands (4,) [input unit] to send now, from the state ``x``, disturbance ``d`` and the reference
@@ -190,14 +197,14 @@ def tracking(errors: list) -> dict:
 
 
 def fly_mpc(model: ExportedModel, reference: Figure8, duration: float, use_observer: bool, dt: float = 0.04,
-            horizon: int = 15, settle: float = 1.0, vehicle: str = "linkquad") -> dict:
+            horizon: int = 15, settle: float = SETTLE_S, vehicle: str = TRUTH_VEHICLE) -> dict:
     """Fly the truth simulator with the MPC on ``model`` for ``duration`` s; tracking error after ``settle`` s."""
     loop = TruthLoop(vehicle, height=reference.height)
     mpc = ModelPredictiveController(model, dt, horizon)
     ticks_per_step = int(round(dt / loop.control_dt))
     observer = DisturbanceObserver(model)
     rotor = loop.observation()["rotor"].copy()  # starts at the simulator's hover: the controller took over in hover
-    u_sent = np.full(4, model.hover_command)
+    u_sent = model.hover_commands.copy()
     u_answered = u_sent.copy()
     errors, solve_s = [], []
     for k in range(int(round(duration / dt))):
@@ -220,7 +227,8 @@ def fly_mpc(model: ExportedModel, reference: Figure8, duration: float, use_obser
     return {**tracking(errors), "solve_ms_median": 1e3 * float(np.median(solve_s)), "solve_ms_max": 1e3 * float(np.max(solve_s))}
 
 
-def fly_stabiliser(reference: Figure8, duration: float, dt: float = 0.04, settle: float = 1.0, vehicle: str = "linkquad") -> dict:
+def fly_stabiliser(reference: Figure8, duration: float, dt: float = 0.04, settle: float = SETTLE_S,
+                   vehicle: str = TRUTH_VEHICLE) -> dict:
     """Fly the truth simulator with its own stabiliser steered to the reference; error sampled every ``dt``."""
     loop = TruthLoop(vehicle, height=reference.height)
     stabiliser = trimmed_stabiliser(loop)
@@ -255,15 +263,19 @@ def main(argv=None) -> int:
     parser.add_argument("--height", type=float, default=1.0, help="figure-8 height [m] (default 1)")
     parser.add_argument("-o", "--output", required=True, help="directory to write results.json and results.md into")
     args = parser.parse_args(argv)
+    if not args.duration > SETTLE_S + 0.04:
+        parser.error(f"--duration {args.duration:g} s: the tracking error is scored from {SETTLE_S:g} s on; fly longer")
+    models = {label: ExportedModel(d) for label, d in (("exported model", args.model), ("base model", args.base)) if d is not None}
+    for directory, model in zip([d for d in (args.model, args.base) if d is not None], models.values()):
+        if model.vehicle != TRUTH_VEHICLE:
+            parser.error(f"{directory}: a model of vehicle {model.vehicle}; this example flies the simulator's {TRUTH_VEHICLE} "
+                         f"(export a model identified on `quad-modelling simulate --vehicle {TRUTH_VEHICLE}` flights)")
     reference = Figure8(height=args.height)
     output = Path(args.output)
     output.mkdir(parents=True, exist_ok=True)
     runs = {"simulator's stabiliser + position hold": fly_stabiliser(reference, args.duration)}
     started = time.perf_counter()
-    for label, directory in (("exported model", args.model), ("base model", args.base)):
-        if directory is None:
-            continue
-        model = ExportedModel(directory)
+    for label, model in models.items():
         for use_observer in (True, False):
             name = f"MPC, {label}, observer {'on' if use_observer else 'off'}"
             runs[name] = {**fly_mpc(model, reference, args.duration, use_observer), "terms": ", ".join(model.terms) or "none",

@@ -45,3 +45,17 @@ def test_the_mpc_tracks_the_figure8_far_closer_than_the_simulators_controller(ex
     stabiliser = example.fly_stabiliser(reference, duration=3.0)
     assert mpc["rms_m"] < 0.03 and mpc["max_m"] < 0.06, mpc
     assert stabiliser["rms_m"] > 5 * mpc["rms_m"], (stabiliser, mpc)
+
+
+def test_an_export_of_another_vehicle_and_a_too_short_flight_are_refused_in_one_line(example, exported, tmp_path, capsys):
+    """The example flies the simulator's LinkQuad: a Crazyflie export flew it with no word (2.4 m RMS); a flight
+    shorter than the 1 s before scoring ended in an AxisError traceback."""
+    crazyflie = load_vehicle("crazyflie21")
+    other = tmp_path / "crazyflie_model"
+    write_casadi_export(Export(crazyflie, PhysicsParameters.from_vehicle(crazyflie), Observer.from_vehicle(crazyflie), "physics"), other)
+    for argv, message in ((["--model", str(other)], f"{other}: a model of vehicle crazyflie21; this example flies the simulator's linkquad"),
+                          (["--model", str(exported), "--duration", "0.5"], "--duration 0.5 s: the tracking error is scored from 1 s on")):
+        with pytest.raises(SystemExit) as stopped:
+            example.main([*argv, "-o", str(tmp_path / "out")])
+        assert stopped.value.code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

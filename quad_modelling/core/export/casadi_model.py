@@ -239,10 +239,21 @@ def layout(model: ExportedModel) -> dict:
             "rotor_delay_s": float(p.delay), "input_min": float(p.input_min), "input_max": float(p.input_max),
             "input_unit": model.vehicle.input_unit, "mass_kg": float(p.mass), "gravity_m_s2": GRAVITY,
             "hover_command": float(p.hover_command(GRAVITY)), "hover_rotor_speed_rad_s": float(p.hover_rotor_speed(GRAVITY)),
+            "hover_commands": [float(c) for c in hover_commands(p)],
+            "hover_voltage_v": None if p.battery is None else float(p.battery[1]),
         },
         "observer": {"linear_history_s": model.observer.linear_s, "angular_history_s": model.observer.angular_s,
                      "angular_trim": model.observer.angular_trim},
     }
+
+
+def hover_commands(p) -> np.ndarray:
+    r"""(4,) each motor's command of a level hover of the exported model: :math:`u_{H,i} = u_H / g_i` with u_H =
+    :meth:`~quad_modelling.core.physics.parameters.PhysicsParameters.hover_command` and g_i the motor imbalance's
+    gains (1 when off), at the battery term's reference voltage (``hover_voltage_v``; its factor is 1 there): the
+    commands whose steady rotor speeds are all Ω_H, thrust = weight."""
+    gains = np.ones(4) if p.motor_gains is None else np.asarray(p.motor_gains, dtype=float)
+    return p.hover_command(GRAVITY) / gains
 
 
 def write_casadi_export(model: ExportedModel, directory: Path) -> dict:

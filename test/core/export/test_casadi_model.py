@@ -6,7 +6,7 @@ import casadi
 import numpy as np
 import pytest
 
-from quad_modelling.core.export.casadi_model import DISTURBANCE, STATE, ExportedModel, casadi_functions, input_names
+from quad_modelling.core.export.casadi_model import DISTURBANCE, STATE, ExportedModel, casadi_functions, input_names, layout
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -137,9 +137,11 @@ def test_the_exported_step_is_differentiable_at_rest_for_a_solver(physics_model)
     hover = np.zeros(len(STATE))
     hover[[6, 10, 14]] = 1.0
     hover[2] = -5.0  # 5 m up: no ground effect
-    reference = p.battery[1]
+    constants = layout(physics_model)["constants"]  # the layout's hover: each motor's command at the reference voltage
+    reference, u_hover = constants["hover_voltage_v"], np.asarray(constants["hover_commands"])
+    assert reference == p.battery[1] and np.allclose(u_hover, p.hover_command(GRAVITY) / np.asarray(p.motor_gains))
+    assert len(set(u_hover)) == 4  # the motor gains differ: so do the hover commands
     hover[18:] = p.hover_rotor_speed(GRAVITY)
-    u_hover = p.hover_command(GRAVITY) / np.asarray(p.motor_gains)
     J = np.asarray(jacobian(hover, [*u_hover, reference]))
     assert J.shape == (22, 27) and np.all(np.isfinite(J))
     xdot = np.asarray(functions["f"](hover, [*u_hover, reference])).ravel()
