@@ -44,6 +44,22 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     assert "diagnosis (physics base) of the flights with --inject gain:1:1.25: found" in text
     assert "the flights as logged (un-injected run): found rotor_drag;" in text and "--write-vehicle wrote this run's model" in text
     assert "## Held-out multi-step error, flights as logged (every start)" in report
+    assert data["found"] == sorted(data["found"], key=lambda name: data["effects"][name]["rank"])  # in joining order
+    assert "| nothing else newly found | nothing but motor_imbalance | ['motor_imbalance'] | yes |  |" in report
+
+
+def test_a_motor_order_verdict_an_injection_did_not_make_is_not_called_the_injected_change(injected):
+    """The order check naming a swap on flights injected with a delay or a gain is no injected change (the report
+    called every such verdict one); only a swap injection makes it."""
+    from quad_modelling.io.reports.physics_diagnosis import verdict_lines
+
+    _, data, _, _, _ = injected
+    confused = {**data, "motor_order": {"verdict": "inconsistent", "actions": ["swapped order: m2 <-> m4"],
+                                        "diagnosed_with_swap": [2, 4]}}
+    text = " ".join(" ".join(verdict_lines(confused, 200)).split())
+    assert "(NOT the injection's doing: --inject gain:1:1.25 exchanges no motors; the flights as logged:" in text
+    swap = {**confused, "injection": {**data["injection"], "spec": "swap:2:4"}}
+    assert "(the injected change; the flights as logged:" in " ".join(" ".join(verdict_lines(swap, 200)).split())
 
 
 @pytest.mark.parametrize("spec, check", [("swap:3:4", "the motor-order check names the swap"),
@@ -100,9 +116,9 @@ VEHICLE = str(REPO / "config" / "vehicles" / "crazyflie21.yaml")
 @pytest.mark.parametrize("args, message", [
     (["--inject", "gain:9:1.2"], "motor 9"),
     (["--inject", "delay:abc"], "expected delay:MS"),
-    (["--inject", "delay:99999"], "leaves no commands"),
+    (["--inject", "delay:99999"], "--inject delay:99999: the identification searches delays up to 150 ms"),
     (["--inject", ""], "--inject : expected delay:MS"),
-    (["--inject", "delay:30000"], "s of flight left after --drop 5:5 and --inject delay:30000, the longest of the --train flights"),
+    (["--inject", "gain:1:3"], "--inject gain:1:3: the identification searches motor gains in 0.5..2"),
     (["--drop", "20:20"], "s of flight left after --drop 20:20, the longest of the --train flights"),
     (["--inject", "gain:1:1.2", "--effects", "rotor_drag"], "add motor_imbalance to --effects"),
     (["--vehicle", VEHICLE, "--write-vehicle", VEHICLE], "--write-vehicle " + VEHICLE + ": the output is the input"),

@@ -12,7 +12,11 @@ spec               change of the logged commands u (N, 4)                       
 ``none``           unchanged                                                    nothing changes
 =================  ==========================================================  ===========================================
 
-In every case no effect may newly be found, and but for ``delay:MS`` the delay stays (+- :data:`DELAY_TOLERANCE_S`).
+In every case no effect may newly be found (but the motor imbalance for ``gain``), the motor-order check's verdict
+stays (but for ``swap``), and but for ``delay:MS`` the delay stays (+- :data:`DELAY_TOLERANCE_S`). What the
+identification cannot measure is refused: a delay of :data:`~quad_modelling.core.identification.physics_fit.DELAY_MAX_S`
+or more (the delay's whole search range), a factor K outside the motor gains' search range :data:`GAIN_RANGE`; a
+delay that puts the identified one on its search bound fails its check saying so.
 """
 
 from __future__ import annotations
@@ -22,6 +26,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.identification.physics_fit import DELAY_MAX_S
+from quad_modelling.core.identification.physics_terms import TERM_BOUNDS
 from quad_modelling.errors import ConfigError, DataError
 
 DELAY_TOLERANCE_S = 0.005
@@ -29,6 +35,9 @@ DELAY_TOLERANCE_S = 0.005
 
 GAIN_TOLERANCE = 0.05
 """Allowed relative error of the gain ratio (issue #26: K +- 5 %)."""
+
+GAIN_RANGE = TERM_BOUNDS[("motor_imbalance", "gain_1")]
+"""The motor gains' search range (the identification's bounds): an injected factor K must lie inside it."""
 
 MIN_FLIGHT_S = 1.0
 """Least flight left after a delay injection [s]."""
@@ -86,11 +95,17 @@ def parse_injection(spec: str, motors: int = 4) -> Injection:
     if kind == "delay":
         if not (np.isfinite(numbers[0]) and numbers[0] > 0):
             raise ConfigError(f"--inject {text}: the delay must be a positive number of milliseconds")
+        if numbers[0] >= DELAY_MAX_S * 1e3:
+            raise ConfigError(f"--inject {text}: the identification searches delays up to {DELAY_MAX_S * 1e3:g} ms (the "
+                              f"vehicle's own delay included); inject less (the check's range: 10-40 ms)")
         return Injection("delay", delay_s=numbers[0] / 1000.0, spec=text)
     first = _check_motor(text, numbers[0], motors)
     if kind == "gain":
         if not (np.isfinite(numbers[1]) and numbers[1] > 0):
             raise ConfigError(f"--inject {text}: the gain factor K must be a positive number")
+        if not GAIN_RANGE[0] < numbers[1] < GAIN_RANGE[1]:
+            raise ConfigError(f"--inject {text}: the identification searches motor gains in {GAIN_RANGE[0]:g}..{GAIN_RANGE[1]:g}; "
+                              "K must lie inside (the check's range: 1.1-1.3)")
         return Injection("gain", motor=first, factor=numbers[1], spec=text)
     second = _check_motor(text, numbers[1], motors)
     if first == second:
@@ -118,12 +133,18 @@ def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
     checks = []
     new = sorted(set(injected["found"]) - set(plain["found"]))
     allowed = {"gain": {"motor_imbalance"}}.get(injection.kind, set())
-    checks.append({"check": "nothing else newly found", "newly_found": new,
+    checks.append({"check": "nothing else newly found", "newly_found": new, "expected_new": sorted(allowed),
                    "holds": not [n for n in new if n not in allowed]})
+    if injection.kind != "swap":
+        before, after = ((run.get("motor_order") or {}).get("swap") for run in (plain, injected))
+        checks.append({"check": "the motor-order check's verdict stays", "expected": before, "named": after,
+                       "holds": after == before})
     if injection.kind == "delay":
         rise = injected["delay_s"]["value"] - plain["delay_s"]["value"]
+        at_bound = injected["delay_s"]["value"] >= DELAY_MAX_S - 1e-9
         checks.append({"check": "delay rises by the injected delay", "expected_s": injection.delay_s, "measured_s": rise,
-                       "tolerance_s": DELAY_TOLERANCE_S, "holds": abs(rise - injection.delay_s) <= DELAY_TOLERANCE_S})
+                       "tolerance_s": DELAY_TOLERANCE_S, "at_search_bound": at_bound,
+                       "holds": abs(rise - injection.delay_s) <= DELAY_TOLERANCE_S and not at_bound})
     else:
         shift = injected["delay_s"]["value"] - plain["delay_s"]["value"]
         checks.append({"check": "the delay stays", "expected_s": 0.0, "measured_s": shift, "tolerance_s": DELAY_TOLERANCE_S,

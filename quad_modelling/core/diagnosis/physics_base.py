@@ -198,7 +198,8 @@ class PhysicsDiagnosis:
 
     @property
     def found(self) -> list[str]:
-        return list(self.final.effects)
+        """The found effects in the order they joined (rank 1 first; the summary's)."""
+        return list(self.summary["found"])
 
     def to_json(self) -> dict:
         return {
@@ -482,7 +483,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
                                         _named(PhysicsPredictor(final.vehicle, observer=final.fit.observer, trim=config.trim), "final")],
                                  final.vehicle, config)
     gains_source = final if "motor_imbalance" in final.effects else trials.get("motor_imbalance")
-    summary = {"found": list(final.effects),
+    summary = {"found": [c for c in chosen if c in final.effects] + [c for c in final.effects if c not in chosen],
                "delay_s": {"value": final.fit.values["rotor_delay"], "sigma": final.fit.sigma["rotor_delay"]},
                "motor_command_gains": motor_command_gains(gains_source.fit if gains_source else None),
                "ratio_to_naive": {"base": base.score.ratios(), "final": final.score.ratios()},

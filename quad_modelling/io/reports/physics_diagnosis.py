@@ -39,7 +39,9 @@ def _verdict(data: dict) -> list[str]:
     logged_order = ((data.get("un_injected") or {}).get("motor_order") or {}).get("verdict")
     if order.get("verdict") == "inconsistent" and injection and logged_order != "inconsistent":
         swap = order.get("diagnosed_with_swap")
-        lines.append(f"  motor order/spin of the injected flights: {', '.join(order['actions'])} (the injected change; the flights "
+        why = ("the injected change" if injection["spec"].startswith("swap:") else
+               f"NOT the injection's doing: --inject {injection['spec']} exchanges no motors")
+        lines.append(f"  motor order/spin of the injected flights: {', '.join(order['actions'])} ({why}; the flights "
                      f"as logged: {logged_order or 'not checked'})"
                      + (f"; diagnosed with the logged commands of motors {swap[0]} and {swap[1]} exchanged" if swap else ""))
     elif order.get("verdict") == "inconsistent":
@@ -112,9 +114,9 @@ def report_markdown(data: dict) -> str:
     injection = data.get("injection")
     if injection:
         out += [f"## Known answer: --inject {injection['spec']}", ""]
-        out += markdown_table(["check", "expected", "measured", "holds"],
+        out += markdown_table(["check", "expected", "measured", "holds", "note"],
                               [[c["check"], _check_value(c, "expected"), _check_value(c, "measured"),
-                                "yes" if c["holds"] else "NO"] for c in injection["checks"]]) + [""]
+                                "yes" if c["holds"] else "NO", _check_note(c)] for c in injection["checks"]]) + [""]
     return "\n".join(out) + "\n"
 
 
@@ -125,9 +127,15 @@ def _check_value(check: dict, which: str) -> str:
         return f"{check[f'{which}_s'] * 1000:.1f} ms{tolerance}"
     if which in check and isinstance(check[which], float):
         return f"{check[which]:.3f}" + (f" +- {check['tolerance']:.0%}" if which == "expected" and "tolerance" in check else "")
-    if which == "measured":
-        return str(check.get("named", check.get("newly_found", "")))
-    return str(check.get(which, ""))
+    if which == "expected" and "newly_found" in check:
+        return "nothing" + (f" but {', '.join(check['expected_new'])}" if check.get("expected_new") else "")
+    value = check.get("named", check.get("newly_found", "")) if which == "measured" else check.get(which, "")
+    return "no swap" if value is None else str(value)
+
+
+def _check_note(check: dict) -> str:
+    """What a reader needs beside an injection check's numbers: a delay identified on its search bound."""
+    return "on the delay's search bound: not measured" if check.get("at_search_bound") else ""
 
 
 def write_physics_diagnosis(data: dict, directory: Path) -> list[str]:

@@ -39,7 +39,8 @@ def test_gain_divides_one_motor_and_swap_exchanges_two():
 @pytest.mark.parametrize("spec, message", [
     ("delay", "expected delay:MS"), ("delay:-5", "positive number of milliseconds"), ("gain:5:1.2", "motor 5"),
     ("gain:1:0", "positive number"), ("swap:2:2", "two different motors"), ("swap:a:b", "numbers where"),
-    ("warp:9", "expected delay:MS"),
+    ("warp:9", "expected delay:MS"), ("delay:150", "searches delays up to 150 ms"), ("delay:20000", "searches delays up to 150 ms"),
+    ("gain:1:3", "searches motor gains in 0.5..2"), ("gain:2:0.4", "searches motor gains in 0.5..2"),
 ])
 def test_bad_specs_are_one_line(spec, message):
     with pytest.raises(ConfigError, match=message) as err:
@@ -49,7 +50,7 @@ def test_bad_specs_are_one_line(spec, message):
 
 def test_a_delay_that_leaves_no_commands_is_refused():
     with pytest.raises(DataError, match="leaves no commands"):
-        parse_injection("delay:2500").apply(_log())
+        parse_injection("delay:100").apply(_log(1.05))
 
 
 def test_checks_hold_within_the_tolerances_and_fail_outside():
@@ -72,3 +73,22 @@ def test_checks_hold_within_the_tolerances_and_fail_outside():
     extra = {**plain, "found": ["rotor_drag", "battery"]}
     assert injection_checks(parse_injection("none"), plain, extra)["passed"] is False
     assert relative_gain([1.25, 1, 1, 1], 1) == pytest.approx(1.25)
+
+
+def test_a_new_motor_order_verdict_and_a_delay_on_its_search_bound_fail_their_checks():
+    """A large delay made the order check name a swap no one injected (it was called 'the injected change'), and a
+    delay the identification could not reach passed as a plain miss: both are checks of their own now."""
+    plain = {"found": ["rotor_drag"], "delay_s": {"value": 0.050}, "motor_command_gains": {"value": [1.0] * 4},
+             "motor_order": {"swap": None}}
+    confused = {**plain, "delay_s": {"value": 0.070}, "motor_order": {"swap": [2, 4]}}
+    result = injection_checks(parse_injection("delay:20"), plain, confused)
+    order = next(c for c in result["checks"] if c["check"] == "the motor-order check's verdict stays")
+    assert result["passed"] is False and order == {"check": "the motor-order check's verdict stays", "expected": None,
+                                                     "named": [2, 4], "holds": False}
+    bound = {**plain, "delay_s": {"value": 0.150}}
+    result = injection_checks(parse_injection("delay:100"), plain, bound)
+    delay = next(c for c in result["checks"] if c["check"] == "delay rises by the injected delay")
+    assert delay["at_search_bound"] and not delay["holds"] and result["passed"] is False
+    gained = {**plain, "found": ["rotor_drag", "motor_imbalance"], "motor_command_gains": {"value": [1.2, 1, 1, 1]}}
+    new = injection_checks(parse_injection("gain:1:1.2"), plain, gained)["checks"][0]
+    assert new["holds"] and new["expected_new"] == ["motor_imbalance"]
