@@ -237,6 +237,8 @@ def _physics_candidates(text: str) -> tuple[str, ...]:
     if text == "none":
         raise ConfigError("--effects none: the diagnosis needs at least one candidate")
     names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise ConfigError(f"--effects {text!r}: names no candidate; give some of {', '.join(CANDIDATES)} (or all)")
     for name in names:
         if name in IN_BASE:
             raise ConfigError(f"--effects {name}: {IN_BASE[name]}; the physics base's candidates are {', '.join(CANDIDATES)}")

@@ -78,12 +78,14 @@ def input_files(args: argparse.Namespace) -> list:
     return [*args.inputs, vehicle_file(args.vehicle), topic_map_file(getattr(args, "topic_map", None)), *models]
 
 
-def config_from_args(args: argparse.Namespace, **extra) -> EvaluationConfig:
+def config_from_args(args: argparse.Namespace, fits: bool = True, **extra) -> EvaluationConfig:
     """The evaluation configuration of the span options (core span grammar, :meth:`EvaluationConfig.from_options`);
-    a warning line when its training and evaluation spans overlap (:func:`warn_span_overlap`)."""
+    a warning line when its training and evaluation spans overlap (:func:`warn_span_overlap`) if the command ``fits``
+    on the training span (identify; evaluate fits nothing: there the spans only label the scored windows)."""
     config = EvaluationConfig.from_options(args.preset, args.drop, train=args.train, eval=args.eval,
                                            window_s=args.window, warm_s=args.warm, **extra)
-    warn_span_overlap(config)
+    if fits:
+        warn_span_overlap(config)
     return config
 
 
@@ -223,7 +225,7 @@ def run(args: argparse.Namespace) -> int:
         horizons = tuple(int(h) for h in args.horizons.split(","))
     except ValueError as err:
         raise ConfigError(f"--horizons {args.horizons!r}: expected comma-separated step counts") from err
-    config = config_from_args(args, horizons=horizons)
+    config = config_from_args(args, fits=False, horizons=horizons)
     given = load_vehicle(args.vehicle) if args.vehicle else None  # once for every flight
     specs = list(dict.fromkeys((args.model or ["greybox"]) + ["dummy"]))
     paths = [str(p) for p in args.inputs]

@@ -121,6 +121,8 @@ VEHICLE = str(REPO / "config" / "vehicles" / "crazyflie21.yaml")
     (["--inject", "gain:1:3"], "--inject gain:1:3: the identification searches motor gains in 0.5..2"),
     (["--drop", "20:20"], "s of flight left after --drop 20:20, the longest of the --train flights"),
     (["--inject", "gain:1:1.2", "--effects", "rotor_drag"], "add motor_imbalance to --effects"),
+    (["--effects", ""], "--effects '': names no candidate; give some of"),
+    (["--effects", " , "], "--effects ',': names no candidate"),
     (["--vehicle", VEHICLE, "--write-vehicle", VEHICLE], "--write-vehicle " + VEHICLE + ": the output is the input"),
     (["--write-vehicle", "v.txt"], "--write-vehicle v.txt: a vehicle file is YAML"),
     (["--smooth", "1", "--narx"], "--smooth, --narx: option(s) of the greybox base"),
