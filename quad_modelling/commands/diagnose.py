@@ -209,9 +209,14 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def in_sample(train, test) -> list[str]:
+    """The flights both training and held-out flights (their held-out scores are in-sample)."""
+    return sorted({f.meta.source for f in train} & {f.meta.source for f in test})
+
+
 def warn_in_sample(train, test) -> None:
     """One warning line (stderr) when a flight is both a training and a held-out flight: its scores are in-sample."""
-    both = sorted({f.meta.source for f in train} & {f.meta.source for f in test})
+    both = in_sample(train, test)
     if both:
         print(f"warning: {', '.join(both)} in both --train and --test: the held-out scores of the diagnosis are in-sample",
               file=sys.stderr)
@@ -289,6 +294,7 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
         data = {**injected.to_json(), "un_injected": {k: data[k] for k in ("summary", "found", "held_out", "multistep", "motor_order")},
                 "injection": injection_checks(injection, result.summary, injected.summary), "skipped": skipped}
         result = injected
+    data["in_sample_flights"] = in_sample(train, test)  # saved with the scores, not only said on stderr
     document = None
     if args.write_vehicle:
         names = ", ".join(Path(f).name for f in args.train)

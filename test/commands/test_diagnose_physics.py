@@ -44,6 +44,7 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     assert "diagnosis (physics base) of the flights with --inject gain:1:1.25: found" in text
     assert "the flights as logged (un-injected run): found rotor_drag;" in text and "--write-vehicle wrote this run's model" in text
     assert "## Held-out multi-step error, flights as logged (every start)" in report
+    assert data["in_sample_flights"] == [BAG] and f"IN-SAMPLE: {BAG} in both --train and --test" in text
     assert data["found"] == sorted(data["found"], key=lambda name: data["effects"][name]["rank"])  # in joining order
     assert "| nothing else newly found | nothing but motor_imbalance | ['motor_imbalance'] | yes |  |" in report
 

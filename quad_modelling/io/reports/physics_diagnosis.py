@@ -26,6 +26,9 @@ def _verdict(data: dict) -> list[str]:
     head = (f"found: {', '.join(found)}" if found else "nothing among the candidates explains the gap")
     injection = data.get("injection")
     lines = [f"diagnosis (physics base){' of the flights with --inject ' + injection['spec'] if injection else ''}: {head}"]
+    if data.get("in_sample_flights"):
+        lines.append(f"  IN-SAMPLE: {', '.join(data['in_sample_flights'])} in both --train and --test: the held-out scores "
+                     "below are in-sample")
     for name in found:
         lines.append(f"  {data['effects'][name]['text']}")
     lines.append(f"  held-out SimErr / naive, velocity {base['ratio_to_naive']['velocity']:.3f} -> "
