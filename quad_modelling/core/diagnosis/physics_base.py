@@ -575,7 +575,7 @@ def _named(predictor, name: str):
 def unconfirmed_text(trial: dict, on_top_of: Sequence[str]) -> str:
     """Why an effect whose components are resolved on the training flights is still *not supported*: its last
     forward trial (``trial``: shrink, shrink_5pct) on top of ``on_top_of`` did not shrink the held-out error enough."""
-    return (f"resolved on the training flights, but added to {' + '.join(['base', *on_top_of])} it shrinks the held-out "
+    return (f"resolved on the training flights (>= 3 sigma, off its bounds; the halves are fitted for found effects), but added to {' + '.join(['base', *on_top_of])} it shrinks the held-out "
             f"error by {trial['shrink']:+.1%} (5 % bound {trial['shrink_5pct']:+.1%}; found needs a 5 % bound >= "
             f"{FOUND_MIN_BOUND:.0%}): the held-out flights do not confirm it")
 

@@ -56,13 +56,13 @@ def test_a_motor_lag_is_found_as_a_lag_and_a_delay_as_a_delay():
     assert delay.effects["motor_lag"]["verdict"] == "not supported"
     # its 5 ms time constant is resolved (5 sigma) yet not supported: the report says why, in one sentence
     assert delay.effects["motor_lag"]["components"][0]["resolved"]
-    assert "resolved on the training flights, but added to base + input_delay it shrinks the held-out error by -" in \
+    assert "resolved on the training flights (>= 3 sigma, off its bounds; the halves are fitted for found effects), but added to base + input_delay it shrinks the held-out error by -" in \
         delay.effects["motor_lag"]["text"]
 
 
 def test_an_effect_resolved_but_not_supported_says_which_holds():
     text = unconfirmed_text({"shrink": -0.0004, "shrink_5pct": -0.003}, ["rotor_drag", "battery"])
-    assert text == ("resolved on the training flights, but added to base + rotor_drag + battery it shrinks the held-out "
+    assert text == ("resolved on the training flights (>= 3 sigma, off its bounds; the halves are fitted for found effects), but added to base + rotor_drag + battery it shrinks the held-out "
                     "error by -0.0% (5 % bound -0.3%; found needs a 5 % bound >= 1%): the held-out flights do not "
                     "confirm it")
 
