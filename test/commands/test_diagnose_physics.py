@@ -45,6 +45,10 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     assert "the flights as logged (un-injected run): found rotor_drag;" in text and "--write-vehicle wrote this run's model" in text
     assert "## Held-out multi-step error, flights as logged (every start)" in report
     assert data["in_sample_flights"] == [BAG] and f"IN-SAMPLE: {BAG} in both --train and --test" in text
+    trials = [t for step in data["selection"] for t in step["trials"].values()]
+    assert all(isinstance(t["main_resolved"], bool) for t in trials)
+    missed = [t for t in trials if t["shrink_5pct"] < 0.01]  # the selection table says which rule each missed
+    assert missed and "| 5 % bound < 1% |" in report
     assert data["found"] == sorted(data["found"], key=lambda name: data["effects"][name]["rank"])  # in joining order
     assert "| nothing else newly found | nothing but motor_imbalance | ['motor_imbalance'] | yes |  |" in report
 

@@ -413,7 +413,8 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             scored[c] = (*shrink(current.score, trial.score), components(c, trial.fit))
         best, joins = next_effect(scored)
         step = {"on_top_of": list(chosen), "J_before": current.score.j,
-                "trials": {c: {"shrink": s[0], "shrink_5pct": s[1], "J": trials[c].score.j} for c, s in scored.items()},
+                "trials": {c: {"shrink": s[0], "shrink_5pct": s[1], "J": trials[c].score.j,
+                               "main_resolved": bool(s[2] and s[2][0]["resolved"])} for c, s in scored.items()},
                 "best": best, "joined": bool(joins)}
         steps.append(step)
         joining = [best]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from quad_modelling.core.diagnosis.physics_base import FOUND_MIN_BOUND
 from quad_modelling.io.reports.formatting import REPORT_WIDTH, json_text, markdown_table, prose
 
 
@@ -91,8 +92,9 @@ def report_markdown(data: dict) -> str:
     rows = []
     for step in data["selection"]:
         for name, t in [*step["trials"].items(), *step.get("pairs", {}).items()]:
+            why = _why_not_joined(t) if name in step["trials"] else ""  # a pair joins on twice the bound, both resolved
             rows.append([" + ".join(step["on_top_of"]) or "base", name, f"{t['shrink']:+.1%}", f"{t['shrink_5pct']:+.1%}",
-                         "joined" if step["joined"] and name == step["best"] else ""])
+                         "joined" if step["joined"] and name == step["best"] else why])
     out += markdown_table(["on top of", "candidate", "shrink of J", "5 % bound", ""], rows) + [""]
     if data.get("ladder"):
         out += prose("Ladder (each rung refitted jointly), held-out J: " + " -> ".join(
@@ -134,6 +136,15 @@ def _check_value(check: dict, which: str) -> str:
         return "nothing" + (f" but {', '.join(check['expected_new'])}" if check.get("expected_new") else "")
     value = check.get("named", check.get("newly_found", "")) if which == "measured" else check.get(which, "")
     return "no swap" if value is None else str(value)
+
+
+def _why_not_joined(trial: dict) -> str:
+    """The selection table's last cell for a trial that did not join: the rule it missed (a pair's row: none given)."""
+    if trial["shrink_5pct"] < FOUND_MIN_BOUND:
+        return f"5 % bound < {FOUND_MIN_BOUND:.0%}"
+    if trial.get("main_resolved") is False:
+        return "main component not resolved"
+    return ""
 
 
 def _check_note(check: dict) -> str:
