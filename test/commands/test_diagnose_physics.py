@@ -49,6 +49,7 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     assert all(isinstance(t["main_resolved"], bool) for t in trials)
     missed = [t for t in trials if t["shrink_5pct"] < 0.01]  # the selection table says which rule each missed
     assert missed and "| 5 % bound < 1% |" in report
+    assert "| rotor_drag | horizontal |" in report and "| effect | component | value | sigma | unit | bounds |  |" in report
     assert data["found"] == sorted(data["found"], key=lambda name: data["effects"][name]["rank"])  # in joining order
     assert "| nothing else newly found | nothing but motor_imbalance | ['motor_imbalance'] | yes |  |" in report
 

@@ -315,7 +315,7 @@ def components(effect: str, fit: PhysicsFit, folds: Sequence[PhysicsFit] = ()) -
         determined = bool(np.isfinite(e.sigma) and e.sigma > 0 and abs(e.value - null) >= DETERMINED_SIGMAS * e.sigma)
         stable = len(fold_values) < 2 or len({np.sign(v - null) for v in fold_values}) == 1
         out.append({"component": label, "name": name, "value": float(e.value), "sigma": float(e.sigma), "unit": e.unit,
-                    "bounds": list(e.bounds), "at_bound": bool(e.at_bound), "folds": fold_values,
+                    "bounds": list(e.bounds), "at_bound": bool(e.at_bound), "held": bool(e.held), "folds": fold_values,
                     "resolved": bool(determined and not e.at_bound and stable and not e.held)})
     if effect == "motor_imbalance" and out:  # the main component: the gain or CG offset furthest from its null in sigmas
         nulls = {name: null for _, name, null in COMPONENTS[effect]}
@@ -587,7 +587,8 @@ def component_text(effect: str, parts: list[dict], found: bool) -> str:
         return f"{effect}: not fitted on these flights"
     head = f"{effect.replace('_', ' ')} {'found' if found else 'not supported'}"
     resolved = [f"{p['component']} {p['value']:.4g} +- {p['sigma']:.2g} {p['unit']}" for p in parts if p["resolved"]]
-    unresolved = [f"{p['component']} {p['value']:.4g}" + (" (AT BOUND)" if p["at_bound"] else "")
+    unresolved = [f"{p['component']} {p['value']:.4g}" + (" (held there)" if p.get("held") else "")
+                  + (" (AT BOUND)" if p["at_bound"] else "")
                   + (f" ({' / '.join(f'{v:.3g}' for v in p['folds'])} on the folds)" if p["folds"] else "")
                   for p in parts if not p["resolved"]]
     text = head + (": " + ", ".join(resolved) if resolved else "")

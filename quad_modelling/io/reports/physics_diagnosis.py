@@ -108,6 +108,12 @@ def report_markdown(data: dict) -> str:
         out += prose(effect["text"], first="- ", rest="  ")
     for name, why in data["in_base"].items():
         out += prose(f"{name.replace('_', ' ')}: {why}", first="- ", rest="  ")
+    rows = [[name, p["component"], f"{p['value']:.4g}", f"{p['sigma']:.2g}", p["unit"],
+             f"[{p['bounds'][0]:.3g}, {p['bounds'][1]:.3g}]", _component_state(p)]
+            for name, effect in data["effects"].items() for p in effect.get("components", [])]
+    if rows:
+        out += ["", "Every component as fitted (sigma nan: the fit cannot separate it):", ""]
+        out += markdown_table(["effect", "component", "value", "sigma", "unit", "bounds", ""], rows)
     out += ["", "## Constants of the final model", ""]
     rows = [[name, f"{c['value']:.4g}", f"{c['sigma']:.2g}", c["unit"], f"[{c['bounds'][0]:.3g}, {c['bounds'][1]:.3g}]",
              "AT BOUND" if c["at_bound"] else ""] for name, c in data["constants"].items()]
@@ -136,6 +142,15 @@ def _check_value(check: dict, which: str) -> str:
         return "nothing" + (f" but {', '.join(check['expected_new'])}" if check.get("expected_new") else "")
     value = check.get("named", check.get("newly_found", "")) if which == "measured" else check.get(which, "")
     return "no swap" if value is None else str(value)
+
+
+def _component_state(part: dict) -> str:
+    """A component's flag in the report's table: resolved, held, at its bound, or not resolved."""
+    if part.get("held"):
+        return "held"
+    if part["at_bound"]:
+        return "AT BOUND"
+    return "resolved" if part["resolved"] else "not resolved"
 
 
 def _why_not_joined(trial: dict) -> str:
