@@ -14,6 +14,7 @@ from quad_modelling.core.preprocess import (
     trailing_means,
     trimmed_inputs,
     trimmed_variables,
+    uniform_time_check,
 )
 from quad_modelling.core.variables import INDEX
 from quad_modelling.core.vehicle import GRAVITY
@@ -175,3 +176,14 @@ def test_frame_disagreements_name_gravity_off_and_a_flipped_velocity_axis():
     assert frame_disagreements(circle) == [
         "test: the velocity's E axis does not follow the position's derivative (correlation -1.00): check the frames of "
         "position and velocity"]
+
+
+def test_stamp_jitter_of_receipt_times_passes_the_uniform_check_and_a_missing_sample_does_not():
+    """crazyswarm2 stamps on receipt: 100 Hz with +-2 ms jitter (steps 6-14 ms) is uniform data, scored live; a step of
+    twice the median is a missing sample."""
+    rng = np.random.default_rng(3)
+    t = np.arange(1000) / 100.0 + rng.uniform(-0.002, 0.002, 1000)
+    uniform_time_check(make_log(t=np.sort(t)))
+    dropped = np.delete(np.arange(1000) / 100.0, 500)
+    with pytest.raises(DataError, match=r"test: sample step at row 500 \(5.010 s into the flight\) is 20.00 ms, median 10.00 ms"):
+        uniform_time_check(make_log(t=dropped))
