@@ -34,7 +34,7 @@ import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.core import frames
-from quad_modelling.core.alignment import MAX_GAP_S, interpolate_at
+from quad_modelling.core.alignment import MAX_GAP_S, Stamp, StampGate, interpolate_at
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.preprocess import MeasurementGap, frame_disagreements, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
@@ -58,6 +58,9 @@ HOLD_S = 1e6
 
 EMIT_ROWS = 8192
 """Pending command rows aligned in one batch (the buffers of the other streams hold about this span)."""
+
+MAX_STAMP_STEP_S = 1.0
+"""Longest regular step of a stream's stamps [s] for the stamp gate: the live nodes' ``max_stamp_step_s`` default."""
 
 MAX_PENDING_S = 60.0
 """Longest span [s] of command rows held while a stream has not reached them: then a stream that lags is on another
@@ -240,6 +243,8 @@ class _Stream:
         self.first = self.last = None
         self.count = 0
         self.leading_skipped = 0  # messages before the first with every mapped field finite (an estimator not yet valid)
+        self.gate = StampGate(int(MAX_STAMP_STEP_S * 1e9))  # the live nodes' stamp rule
+        self.outliers = 0  # single stamps off the stream's time, dropped
         self.long_steps: list[tuple[int, int]] = []
         self.ended = False
 
@@ -272,11 +277,24 @@ class FlightAssembler:
         self._column_index = {name: [self.streams[s.topic].paths.index(p) for p in s.paths] for name, s in sources.items()}
 
     def add(self, topic: str, ns: int, values: list[float]) -> None:
-        """One kept message of ``topic``: stamp [ns] and the numbers of its reader's paths."""
+        """One kept message of ``topic``: stamp [ns] and the numbers of its reader's paths. Its stamp passes the live
+        nodes' gate (:class:`~quad_modelling.core.alignment.StampGate`, :data:`MAX_STAMP_STEP_S`): a single stamp off
+        the stream's time (far ahead, or back) costs that message, counted in the notes, not the flight."""
         stream = self.streams[topic]
         if stream.last is None and self._not_finite(stream, values) is not None:
             stream.leading_skipped += 1  # before the stream's first valid message: skipped, as before its first message
             return
+        if ns == stream.last:
+            return  # a repeated stamp: the first message is kept
+        decision = stream.gate.admit(ns, (ns, values))
+        stream.outliers += len(stream.gate.dropped)
+        if decision is Stamp.SUSPECT:
+            return
+        for held_ns, held in stream.gate.confirmed if decision is Stamp.JUMPED else [(ns, values)]:
+            self._add(stream, held_ns, held)
+
+    def _add(self, stream: _Stream, ns: int, values: list[float]) -> None:
+        topic = stream.topic
         if stream.last is not None:
             if ns < stream.last:
                 raise DataError(f"{self.where}: topic {topic} stamps ({self.topic_map.topics[topic].stamp}) go back at message {stream.count}")
@@ -423,6 +441,12 @@ class FlightAssembler:
         t_ns = self.t_ns[:n]
         base = self.streams[self.base]
         notes = {"format": f"bag (topic map {self.topic_map.name})", **(notes or {})}
+        for stream in self.streams.values():  # suspects still held at the end: never confirmed by a following message
+            stream.outliers += len(stream.gate.suspects)
+        outliers = {s.topic: s.outliers for s in self.streams.values() if s.outliers}
+        if outliers:
+            notes["stamp_outliers"] = "; ".join(f"{topic}: {count} message(s) whose stamp lay off the stream's time dropped"
+                                                for topic, count in outliers.items())
         skipped = {s.topic: s.leading_skipped for s in self.streams.values() if s.leading_skipped}
         if skipped:
             notes["leading_not_finite"] = "; ".join(f"{topic}: the first {count} messages skipped (a mapped field not finite: "

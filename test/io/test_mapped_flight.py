@@ -90,6 +90,33 @@ def test_a_not_finite_field_after_valid_messages_is_refused_naming_the_message()
         _assemble(values=_odometry_not_finite(10.0))
 
 
+def test_a_single_stamp_far_ahead_costs_that_message_not_the_flight():
+    """One odometry stamp 10 s in the future (a bad timestamp_sample) was refused as 'stamps go back' at the good
+    message after it; the live nodes' stamp gate drops it, and so does the reader: the flight is the one without it."""
+    clean, _ = _assemble()
+    bad_ns = 10**9 + PHASE_NS[ODOM] + round(60 * 1e9 / 30)  # the 61st odometry message
+
+    def shifted(topic, ns):
+        return topic == ODOM and ns == bad_ns
+
+    topic_map = load_topic_map("px4")
+    sources = topic_map.sources(RATES)
+    readers = readers_for(topic_map, sources, "test")
+    events = []
+    for topic, rate in RATES.items():
+        stamps = 10**9 + PHASE_NS[topic] + np.round(np.arange(int(4.0 * rate)) * 1e9 / rate).astype(np.int64)
+        events += [(int(ns) + (10 * 10**9 if shifted(topic, ns) else 0), int(ns), topic) for ns in stamps]
+    events.sort(key=lambda e: e[1])  # recorded in arrival order, the bad stamp among its neighbours
+    motors = sum(1 for _, _, topic in events if topic == MOTORS)
+    assembler = FlightAssembler(topic_map, sources, readers, load_vehicle("px4_iris"), "test", capacity=motors)
+    for stamp, arrival, topic in events:
+        assembler.add(topic, stamp, [_values(p, (arrival - 10**9) / 1e9) for p in readers[topic].paths])
+    log = assembler.finish()
+    assert log.meta.notes["stamp_outliers"] == f"{ODOM}: 1 message(s) whose stamp lay off the stream's time dropped"
+    np.testing.assert_array_equal(log.t, clean.t)
+    np.testing.assert_allclose(log.pos_n, clean.pos_n, atol=1e-12)  # linear signals: one sample fewer changes nothing
+
+
 def test_small_batches_give_the_same_flight(monkeypatch):
     whole, _ = _assemble()
     monkeypatch.setattr(mapped_flight, "EMIT_ROWS", 7)
