@@ -149,14 +149,24 @@ def mark_measurement_gaps(log: FlightLog, gaps: list[MeasurementGap], max_gap_s:
         return
     kept = [w for w in notes.get("warnings", []) if not (isinstance(w, str) and GAP_MARK in w)]
     notes.pop("measurement_gaps", None)
+    notes.pop("gap_rule_s", None)
     notes.pop("warnings", None)
     if kept:
         notes["warnings"] = kept
     gaps = sorted(gaps, key=lambda g: (g.start_s, g.topic))
     if gaps:
         notes["measurement_gaps"] = [gap.to_note() for gap in gaps]
+        notes["gap_rule_s"] = float(max_gap_s)  # the rule they were found by: a bag written from the log re-finds them by it
         for gap in gaps:
             log.warn(gap_warning(log.meta.source, gap, float(log.t[0]), max_gap_s))
+
+
+def recorded_gap_rule(notes: dict, default_s: float = MAX_INTERPOLATION_GAP_S) -> float:
+    """The gap rule [s] the notes' measurement gaps were found by (``gap_rule_s``, :func:`mark_measurement_gaps`): a
+    contract bag converted from a topic-map bag (50 ms rule) re-finds its gaps by it; ``default_s`` without one (a
+    value outside (0, default_s] is not taken)."""
+    rule = notes.get("gap_rule_s")
+    return float(rule) if isinstance(rule, (int, float)) and 0 < rule <= default_s else default_s
 
 
 def marked_gaps(log: FlightLog) -> list[MeasurementGap]:

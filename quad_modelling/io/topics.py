@@ -55,7 +55,8 @@ from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY
-from quad_modelling.core.preprocess import MeasurementGap, check_same_clock, interpolation_gaps, mark_measurement_gaps, marked_gaps
+from quad_modelling.core.preprocess import (MeasurementGap, check_same_clock, interpolation_gaps, mark_measurement_gaps, marked_gaps,
+                                           recorded_gap_rule)
 from quad_modelling.errors import BagError, ConfigError, DataError
 
 DEFAULT_NAMESPACE = "/quad"
@@ -562,11 +563,12 @@ def contract_flight_log(path, namespace: str, columns: dict, stamps: dict, fligh
             topic = topic_name(namespace, key)
             check_same_clock(topic, (when - t_ns[0]) * 1e-9, topic_name(namespace, "motor_input"), (t_ns - t_ns[0]) * 1e-9, str(path))
             gaps.extend(MeasurementGap(topic, a, b, GAP_FIELDS[key])
-                        for a, b in interpolation_gaps(stamps_to_seconds(when), stamps_to_seconds(t_ns)))
+                        for a, b in interpolation_gaps(stamps_to_seconds(when), stamps_to_seconds(t_ns), rule))
         return np.column_stack([np.interp(t_ns, when, column) for column in data.T])
 
     omega = arrays["motor_input"][:, 4:8]
     vehicle_name, notes = flight_meta()
+    rule = recorded_gap_rule(notes)
     log = measurement_log(
         t_ns, arrays["motor_input"][:, :4], on_motor_time("mocap/odom"), on_motor_time("imu") if "imu" in arrays else None,
         vehicle_name, str(path),
@@ -574,7 +576,7 @@ def contract_flight_log(path, namespace: str, columns: dict, stamps: dict, fligh
         vbat=on_motor_time("battery")[:, 0] if "battery" in arrays else None,
         notes=notes,
     )
-    mark_measurement_gaps(log, gaps)
+    mark_measurement_gaps(log, gaps, rule)
     return log
 
 

@@ -347,3 +347,28 @@ def test_a_yaml_map_read_in_the_wrong_order_or_frame_warns_naming_it(bags, fligh
     assert all(any(e in w and w.endswith("topic map px4") for w in warnings) for e in expected), warnings
     shipped = flight_warnings(load_flight(bags["px4"], vehicle="crazyflie21"))
     assert not [w for w in shipped if "disagree" in w or "does not follow" in w]
+
+
+def test_a_gap_a_map_found_by_its_50_ms_rule_survives_convert(flight, tmp_path):
+    """A 0.3 s hole in the odometry is marked by the topic-map reader (50 ms rule); the contract bag convert writes
+    from it was read by the 0.5 s rule and lost the mark (its windows over interpolated rows were scored). The gap's
+    rule travels in the notes: the converted bag marks the same gap."""
+    from quad_modelling.core.preprocess import marked_gaps
+
+    cf = load_vehicle("crazyflie21")
+
+    def with_hole(writer):
+        odometry = 0
+        for topic, ns, msg in px4_messages(writer, log=flight, input_range=(cf.input_min, cf.input_max)):
+            odometry += topic == "/fmu/out/vehicle_odometry"
+            if not (topic == "/fmu/out/vehicle_odometry" and 401 <= odometry <= 429):  # 29 of the 100 Hz messages
+                yield topic, ns, msg
+
+    bag = write_stack_bag(tmp_path / "px4_gap", with_hole)
+    mapped = load_flight(bag, vehicle="crazyflie21")
+    assert main(["convert", str(bag), "--vehicle", "crazyflie21", "-o", str(tmp_path / "quad")]) == 0
+    converted = load_flight(tmp_path / "quad")
+    (gap,) = marked_gaps(mapped)
+    assert 0.29 < gap.end_s - gap.start_s < 0.32 and mapped.meta.notes["gap_rule_s"] == 0.05
+    (again,) = marked_gaps(converted)
+    assert (again.start_s, again.end_s) == pytest.approx((gap.start_s, gap.end_s), abs=1e-6)
