@@ -333,6 +333,9 @@ def test_a_mapped_stream_slower_than_the_gap_rule_is_refused_in_one_line(flight,
     (("order: wxyz", "order: xyzw"), ["the attitude and the accelerometer disagree on where gravity is"]),
     (('"velocity[2]"], unit: m/s, frame: NED', '"velocity[2]"], unit: m/s, frame: ENU'),
      ["the velocity's N axis does not follow", "the velocity's E axis does not follow"]),
+    (('order: wxyz, frame: NED/FRD', 'order: wxyz, frame: ENU/FLU'), ["does not follow the attitude's"]),
+    (('"gyro_rad[2]"], unit: rad/s, frame: FRD', '"gyro_rad[2]"], unit: rad/s, frame: FLU'), ["does not follow the attitude's"]),
+    (('"gyro_rad[2]"], unit: rad/s', '"gyro_rad[2]"], unit: deg/s'), ["does not follow the attitude's"]),
 ])
 def test_a_yaml_map_read_in_the_wrong_order_or_frame_warns_naming_it(bags, flight, tmp_path, change, expected):
     """A user's map with the quaternion order or the velocity frame wrong reads without an error; the measurements
