@@ -570,7 +570,8 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
     Real logs drop the odd sample (NanoBench: one to five 20-30 ms steps per
     flight). The discrete models and filters need uniform sampling, so missing
     samples are filled by linear interpolation (yaw unwrapped first); a gap
-    longer than ``max_gap_s`` is a DataError naming the time. A log that is
+    longer than ``max_gap_s`` is a DataError naming the time, unless a marked measurement gap spans it (a hole of
+    the time-base stream: the rows filled inside it are gap rows, left out by the windows). A log that is
     already uniform is returned unchanged. The number of filled samples is
     recorded in ``meta.notes['resampled_filled_samples']``.
     """
@@ -578,8 +579,11 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
     dt = float(np.median(steps))
     if np.all(np.abs(steps - dt) <= 0.25 * dt):
         return log
-    worst = int(np.argmax(steps))
-    if steps[worst] > max_gap_s:
+    long = steps > max_gap_s
+    for gap in marked_gaps(log):  # a hole marked as a gap is filled: the rows inside it are left out downstream
+        long &= ~((log.t[:-1] >= gap.start_s - 1e-9) & (log.t[1:] <= gap.end_s + 1e-9))
+    worst = int(np.argmax(np.where(long, steps, 0.0)))
+    if long.any():
         raise DataError(
             f"{log.meta.source}: gap of {steps[worst] * 1e3:.0f} ms at t={log.t[worst] - log.t[0]:.3f} s into the flight "
             f"exceeds the {max_gap_s * 1e3:.0f} ms that may be filled by interpolation"

@@ -468,6 +468,9 @@ class FlightAssembler:
                 for a, b in self.streams[topic].long_steps:  # a row strictly inside: interpolated through
                     if np.searchsorted(t_ns, b, side="left") > np.searchsorted(t_ns, a, side="right"):
                         gaps[(topic, a, b)] = gaps.get((topic, a, b), ()) + GAP_FIELDS[name]
+        for a, b in self.streams[self.base].long_steps:  # a hole in the time base: no row inside, the rows around kept
+            if t_ns[0] <= a and b <= t_ns[-1]:
+                gaps[(self.base, a, b)] = ("u",)
         log = FlightLog(
             t=t, u=out["commands"], acc_b=out.get("acc"), gyro_b=out.get("gyro"), pos_n=out["position"], vel_n=out["velocity"],
             euler=out["attitude"], vbat=out.get("battery"),

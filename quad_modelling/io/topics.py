@@ -569,6 +569,9 @@ def contract_flight_log(path, namespace: str, columns: dict, stamps: dict, fligh
     omega = arrays["motor_input"][:, 4:8]
     vehicle_name, notes = flight_meta()
     rule = recorded_gap_rule(notes)
+    base_s = stamps_to_seconds(t_ns)  # a hole of the time base itself: marked, no row inside (resampling fills it)
+    gaps.extend(MeasurementGap(topic_name(namespace, "motor_input"), float(base_s[i]), float(base_s[i + 1]), ("u",))
+                for i in np.flatnonzero(np.diff(base_s) > rule))
     log = measurement_log(
         t_ns, arrays["motor_input"][:, :4], on_motor_time("mocap/odom"), on_motor_time("imu") if "imu" in arrays else None,
         vehicle_name, str(path),

@@ -375,3 +375,32 @@ def test_a_gap_a_map_found_by_its_50_ms_rule_survives_convert(flight, tmp_path):
     assert 0.29 < gap.end_s - gap.start_s < 0.32 and mapped.meta.notes["gap_rule_s"] == 0.05
     (again,) = marked_gaps(converted)
     assert (again.start_s, again.end_s) == pytest.approx((gap.start_s, gap.end_s), abs=1e-6)
+
+
+def test_a_hole_in_the_command_topic_is_a_marked_gap_not_a_refused_flight(flight, tmp_path, capsys):
+    """A bridge's link loss: every topic silent for 1 s. info said nothing and evaluate refused the flight ('gap of
+    1010 ms ... exceeds the 50 ms'); the hole is now a marked gap of the time base, a warning, and the windows and
+    multi-step segments around it are scored (as an odometry hole's are), through convert too."""
+    from quad_modelling.core.preprocess import marked_gaps
+
+    cf = load_vehicle("crazyflie21")
+
+    def link_loss(writer):
+        first = None
+        for topic, ns, msg in px4_messages(writer, log=flight, input_range=(cf.input_min, cf.input_max)):
+            first = ns if first is None else first
+            if not 4.0e9 < ns - first < 5.0e9:
+                yield topic, ns, msg
+
+    bag = write_stack_bag(tmp_path / "px4_loss", link_loss)
+    log = load_flight(bag, vehicle="crazyflie21")
+    base = [g for g in marked_gaps(log) if g.topic == "/fmu/out/actuator_motors"]
+    assert len(base) == 1 and 0.99 < base[0].end_s - base[0].start_s < 1.02 and base[0].fields == ("u",)
+    spans = ["--drop", "0:0", "--train", "0:4", "--eval", "5:9.9", "--window", "2"]
+    assert main(["evaluate", str(bag), "--vehicle", "crazyflie21", *spans, "-o", str(tmp_path / "e")]) == 0
+    assert "/fmu/out/actuator_motors" in capsys.readouterr().err  # the gap's warning
+    results = json.loads((tmp_path / "e" / "results.json").read_text())
+    assert results["windows"]["greybox"] == {"train": 2, "eval": 2} and results["horizons"]["starts"] > 0
+    assert main(["convert", str(bag), "--vehicle", "crazyflie21", "-o", str(tmp_path / "quad")]) == 0
+    converted = [g for g in marked_gaps(load_flight(tmp_path / "quad")) if g.fields == ("u",)]
+    assert len(converted) == 1 and (converted[0].start_s, converted[0].end_s) == pytest.approx((base[0].start_s, base[0].end_s))
