@@ -59,6 +59,10 @@ HOLD_S = 1e6
 EMIT_ROWS = 8192
 """Pending command rows aligned in one batch (the buffers of the other streams hold about this span)."""
 
+SAME_STAMP_NS = 1_000
+"""Stamps of one stream closer than this [ns] are one stamp (the first message kept): float64 seconds since the epoch
+resolve about 0.2 us, and two rows 128 ns apart were one time, refused as 'time is not strictly increasing'."""
+
 MAX_STAMP_STEP_S = 1.0
 """Longest regular step of a stream's stamps [s] for the stamp gate: the live nodes' ``max_stamp_step_s`` default."""
 
@@ -284,8 +288,8 @@ class FlightAssembler:
         if stream.last is None and self._not_finite(stream, values) is not None:
             stream.leading_skipped += 1  # before the stream's first valid message: skipped, as before its first message
             return
-        if ns == stream.last:
-            return  # a repeated stamp: the first message is kept
+        if stream.last is not None and abs(ns - stream.last) < SAME_STAMP_NS:
+            return  # a repeated stamp (to the microsecond): the first message is kept
         decision = stream.gate.admit(ns, (ns, values))
         stream.outliers += len(stream.gate.dropped)
         if decision is Stamp.SUSPECT:

@@ -233,8 +233,11 @@ def _topic_spec(name: str, doc, where: str) -> TopicSpec:
     if variables is not None and (not isinstance(variables, list) or not variables or len(set(map(str, variables))) != len(variables)):
         raise ConfigError(f"{here}: vars must be a non-empty list of distinct log variable names")
     instance = doc.get("instance")
+    optional = doc.get("optional", False)
+    if not isinstance(optional, bool):  # bool("false") is True: a quoted or misspelt value would flip it
+        raise ConfigError(f"{here}: optional must be true or false, got {optional!r}")
     return TopicSpec(name, msgtype, str(_need(doc, "stamp", here)), unit, tuple(map(str, variables)) if variables else None,
-                     str(instance) if instance is not None else None, bool(doc.get("optional", False)))
+                     str(instance) if instance is not None else None, optional)
 
 
 def parse_path(path: str, spec: TopicSpec, where: str) -> list[tuple[str, object]]:
@@ -292,6 +295,8 @@ def _field_source(field: str, doc, topics: dict[str, TopicSpec], where: str) -> 
     frame = doc.get("frame")
     if known_frames and frame not in known_frames:
         raise ConfigError(f"{here}: unknown frame {frame!r}; known: {', '.join(known_frames)}")
+    if field == "attitude" and "order" not in doc:  # xyzw (ROS) and wxyz (PX4) both occur: no silent default
+        raise ConfigError(f"{here}: give the quaternion's order (xyzw: geometry_msgs; wxyz: PX4)")
     order = str(doc.get("order", "xyzw"))
     if order not in QUATERNION_ORDERS:
         raise ConfigError(f"{here}: unknown quaternion order {order!r}; known: {', '.join(QUATERNION_ORDERS)}")

@@ -117,6 +117,26 @@ def test_a_single_stamp_far_ahead_costs_that_message_not_the_flight():
     np.testing.assert_allclose(log.pos_n, clean.pos_n, atol=1e-12)  # linear signals: one sample fewer changes nothing
 
 
+def test_a_stamp_within_a_microsecond_of_the_last_is_a_repeat():
+    """Two command stamps 128 ns apart (a burst) were two rows of one float64 time, refused as 'time is not strictly
+    increasing'; they are one stamp, the first message kept, as an exact repeat is."""
+    clean, motors = _assemble()
+    topic_map = load_topic_map("px4")
+    sources = topic_map.sources(RATES)
+    readers = readers_for(topic_map, sources, "test")
+    events = []
+    for topic, rate in RATES.items():
+        stamps = 10**9 + PHASE_NS[topic] + np.round(np.arange(int(4.0 * rate)) * 1e9 / rate).astype(np.int64)
+        events += [(int(ns), topic) for ns in stamps]
+    events += [(int(motors[100]) + 128, MOTORS)]  # the burst's second message
+    events.sort()
+    assembler = FlightAssembler(topic_map, sources, readers, load_vehicle("px4_iris"), "test", capacity=len(motors) + 1)
+    for ns, topic in events:
+        assembler.add(topic, ns, [_values(p, (ns - 10**9) / 1e9) for p in readers[topic].paths])
+    log = assembler.finish()
+    np.testing.assert_array_equal(log.t, clean.t)
+
+
 def test_small_batches_give_the_same_flight(monkeypatch):
     whole, _ = _assemble()
     monkeypatch.setattr(mapped_flight, "EMIT_ROWS", 7)

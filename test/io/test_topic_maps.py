@@ -162,6 +162,8 @@ def test_a_bag_without_stored_definitions_is_refused(flight, tmp_path):
     (("unit: m, frame: NED", "unit: furlong, frame: NED"), "fields.position: unknown unit 'furlong' for position; known: m, mm"),
     (("frame: NED/FRD", "frame: NWU"), "fields.attitude: unknown frame 'NWU'; known: ENU/FLU, NED/FRD"),
     (("stamp_unit: us, optional: true}", "stamp_unit: fortnights, optional: true}"), "unknown stamp_unit 'fortnights'"),
+    (("stamp_unit: us, optional: true}", "stamp_unit: us, optional: yes-please}"), "optional must be true or false, got 'yes-please'"),
+    ((", order: wxyz, frame: NED/FRD}", ", frame: NED/FRD}"), "fields.attitude: give the quaternion's order (xyzw: geometry_msgs; wxyz: PX4)"),
 ])
 def test_a_map_with_unknown_units_or_frames_is_refused(bags, tmp_path, capsys, change, message):
     text = open("config/topic_maps/px4.yaml").read()
