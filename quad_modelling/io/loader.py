@@ -62,7 +62,7 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
     except QuadModellingError as err:
         if str(path) in str(err):
             raise
-        hint = ("; the flight names it: pass its vehicle file with --vehicle FILE.yaml (for a bag of a PX4 log, the one "
+        hint = ("; the flight (or its topic map's default_vehicle) names it: pass its vehicle file with --vehicle FILE.yaml (for a bag of a PX4 log, the one "
                 "`convert --vehicle-from-log` wrote)" if vehicle is None and str(err).startswith("unknown vehicle") else "")
         raise type(err)(f"{path}: {err}{hint}") from err  # e.g. an unknown vehicle the file names
 

@@ -436,7 +436,8 @@ class FlightAssembler:
                 if step_s > MAX_GAP_S:
                     raise DataError(f"{self.where}: topic {stream.topic} ({name}) is sampled at {1 / step_s:.3g} Hz (mean "
                                     f"step {step_s * 1e3:.0f} ms): every step is longer than the {MAX_GAP_S * 1e3:.0f} ms a "
-                                    f"measurement may be interpolated over; record it at {1 / MAX_GAP_S:.0f} Hz or more")
+                                    f"measurement may be interpolated over; record it at {1 / MAX_GAP_S:.0f} Hz or more "
+                                    f"(or check the map's stamp_unit, {self.topic_map.topics[stream.topic].stamp_unit or 'Time'})")
         check_same_clock(self._spans(), self.base, self.where)
         self._emit(final=True)
         if self.rows < 2:

@@ -206,7 +206,7 @@ def test_unknown_vehicle_named_by_a_file_names_the_file(tmp_path):
     write_matlog(log, tmp_path / "a.mat")
     message = refusal(ConfigError, load_flight, tmp_path / "a.mat")
     assert message.startswith(f"{tmp_path / 'a.mat'}: unknown vehicle 'no_such_quad'; shipped: ")
-    assert message.endswith("; the flight names it: pass its vehicle file with --vehicle FILE.yaml (for a bag of a PX4 log, "
+    assert message.endswith("; the flight (or its topic map's default_vehicle) names it: pass its vehicle file with --vehicle FILE.yaml (for a bag of a PX4 log, "
                             "the one `convert --vehicle-from-log` wrote)")
 
 

@@ -328,7 +328,7 @@ def test_a_mapped_stream_slower_than_the_gap_rule_is_refused_in_one_line(flight,
     with pytest.raises(DataError) as caught:
         load_flight(bag)
     assert str(caught.value).startswith(f"{bag}: topic /fmu/out/vehicle_odometry (position) is sampled at 14.3 Hz (mean step 70 ms)")
-    assert str(caught.value).endswith("record it at 20 Hz or more")
+    assert str(caught.value).endswith("record it at 20 Hz or more (or check the map's stamp_unit, us)")
 
 
 @pytest.mark.parametrize("change, expected", [
