@@ -36,7 +36,8 @@ from rosbags.typesys import Stores, get_typestore
 from quad_modelling.core import frames
 from quad_modelling.core.alignment import MAX_GAP_S, Stamp, StampGate, interpolate_at
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.preprocess import MeasurementGap, frame_disagreements, mark_measurement_gaps
+from quad_modelling.core.consistency import frame_disagreements
+from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.bag_io import READ_ERRORS, open_reader

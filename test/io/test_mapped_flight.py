@@ -66,6 +66,26 @@ def test_streams_on_their_own_rates_are_aligned_on_the_commands():
     assert log.meta.notes["sources"]["position"].endswith("30.0 Hz") and "measurement_gaps" not in log.meta.notes
 
 
+def _stamps(duration_s: float = 4.0) -> list[tuple[int, str]]:
+    """(stamp [ns], topic) of the four streams at their own rates and phases, in stamp order."""
+    events = []
+    for topic, rate in RATES.items():
+        stamps = 10**9 + PHASE_NS[topic] + np.round(np.arange(int(duration_s * rate)) * 1e9 / rate).astype(np.int64)
+        events += [(int(ns), topic) for ns in stamps]
+    return sorted(events)
+
+
+def _feed(events, capacity: int):
+    """The flight of ``events`` (stamp given [ns], true time [ns], topic), fed in their order, for px4_iris."""
+    topic_map = load_topic_map("px4")
+    sources = topic_map.sources(RATES)
+    readers = readers_for(topic_map, sources, "test")
+    assembler = FlightAssembler(topic_map, sources, readers, load_vehicle("px4_iris"), "test", capacity=capacity)
+    for stamp, true_ns, topic in events:
+        assembler.add(topic, stamp, [_values(p, (true_ns - 10**9) / 1e9) for p in readers[topic].paths])
+    return assembler.finish()
+
+
 def _odometry_not_finite(until_s: float, also_at_s: float | None = None):
     """Values whose odometry velocity is NaN before ``until_s`` [s] (an estimator not yet valid) and at ``also_at_s``."""
     def values(path, t, topic):
@@ -99,19 +119,8 @@ def test_a_single_stamp_far_ahead_costs_that_message_not_the_flight():
     def shifted(topic, ns):
         return topic == ODOM and ns == bad_ns
 
-    topic_map = load_topic_map("px4")
-    sources = topic_map.sources(RATES)
-    readers = readers_for(topic_map, sources, "test")
-    events = []
-    for topic, rate in RATES.items():
-        stamps = 10**9 + PHASE_NS[topic] + np.round(np.arange(int(4.0 * rate)) * 1e9 / rate).astype(np.int64)
-        events += [(int(ns) + (10 * 10**9 if shifted(topic, ns) else 0), int(ns), topic) for ns in stamps]
-    events.sort(key=lambda e: e[1])  # recorded in arrival order, the bad stamp among its neighbours
-    motors = sum(1 for _, _, topic in events if topic == MOTORS)
-    assembler = FlightAssembler(topic_map, sources, readers, load_vehicle("px4_iris"), "test", capacity=motors)
-    for stamp, arrival, topic in events:
-        assembler.add(topic, stamp, [_values(p, (arrival - 10**9) / 1e9) for p in readers[topic].paths])
-    log = assembler.finish()
+    events = [(ns + (10 * 10**9 if shifted(topic, ns) else 0), ns, topic) for ns, topic in _stamps()]  # arrival order
+    log = _feed(events, capacity=sum(1 for _, topic in _stamps() if topic == MOTORS))
     assert log.meta.notes["stamp_outliers"] == f"{ODOM}: 1 message(s) whose stamp lay off the stream's time dropped"
     np.testing.assert_array_equal(log.t, clean.t)
     np.testing.assert_allclose(log.pos_n, clean.pos_n, atol=1e-12)  # linear signals: one sample fewer changes nothing
@@ -121,19 +130,8 @@ def test_a_stamp_within_a_microsecond_of_the_last_is_a_repeat():
     """Two command stamps 128 ns apart (a burst) were two rows of one float64 time, refused as 'time is not strictly
     increasing'; they are one stamp, the first message kept, as an exact repeat is."""
     clean, motors = _assemble()
-    topic_map = load_topic_map("px4")
-    sources = topic_map.sources(RATES)
-    readers = readers_for(topic_map, sources, "test")
-    events = []
-    for topic, rate in RATES.items():
-        stamps = 10**9 + PHASE_NS[topic] + np.round(np.arange(int(4.0 * rate)) * 1e9 / rate).astype(np.int64)
-        events += [(int(ns), topic) for ns in stamps]
-    events += [(int(motors[100]) + 128, MOTORS)]  # the burst's second message
-    events.sort()
-    assembler = FlightAssembler(topic_map, sources, readers, load_vehicle("px4_iris"), "test", capacity=len(motors) + 1)
-    for ns, topic in events:
-        assembler.add(topic, ns, [_values(p, (ns - 10**9) / 1e9) for p in readers[topic].paths])
-    log = assembler.finish()
+    events = sorted([*_stamps(), (int(motors[100]) + 128, MOTORS)])  # the burst's second message
+    log = _feed([(ns, ns, topic) for ns, topic in events], capacity=len(motors) + 1)
     np.testing.assert_array_equal(log.t, clean.t)
 
 

@@ -1,0 +1,94 @@
+"""Measurements checked against each other: what a topic map's order, frame, sign or unit mistake makes of them.
+
+A user's topic map (:mod:`quad_modelling.io.topic_maps`) reads without an error whatever frame it names, so every
+flight read through a map is checked against itself (:func:`frame_disagreements`): gravity from attitude and
+accelerometer, velocity against the position's derivative, the gyro against the attitude's rates. A disagreement is a
+warning; thresholds are set with margin against the 18 NanoBench flights (docs/formats.md quotes both).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.preprocess import attitude_rates, nav_acceleration
+from quad_modelling.core.vehicle import GRAVITY
+
+GRAVITY_DISAGREEMENT = 0.3
+"""Largest |mean a_N| / g of a flight whose attitude and accelerometer agree (:func:`frame_disagreements`): a flight
+averages to Δv / T (under 0.05 g for 1 m/s over 2 s), an accelerometer's bias to well under 0.05 g; an attitude read
+in the wrong quaternion order or an accelerometer in the wrong body frame puts gravity 1-2 g off."""
+
+VELOCITY_AGREEMENT = 0.5
+"""Smallest correlation, per axis, of a flight's velocity with its position's time derivative (:func:`frame_disagreements`)."""
+
+MOVING_AXIS_MPS = 0.1
+"""RMS of the position's derivative [m/s] above which an axis moves enough for the velocity check."""
+
+RATE_WINDOW_S = 0.3
+"""The gyro check compares the body rates summed over this window [s] (the attitude's derivative is noisy per row)."""
+
+RATE_AGREEMENT = 0.2
+"""Smallest correlation of the gyro's windowed rates with the attitude's, per axis (:func:`frame_disagreements`); on
+the 18 NanoBench flights 0.45 or more (B9 trefoil medium, yaw)."""
+
+RATE_GAIN_RANGE = (0.25, 4.0)
+"""Range of the gyro's windowed rates over the attitude's (least squares), per axis: 0.5-1.03 on the NanoBench
+flights; deg/s read as rad/s is 57."""
+
+MOVING_RATE_RAD_S = 0.05
+"""RMS of the attitude's body rates [rad/s] above which an axis turns enough for the gyro check."""
+
+
+def frame_disagreements(log: FlightLog) -> list[str]:
+    r"""Warnings for a flight whose measurements disagree with each other as a mistaken frame, order or sign makes
+    them: (1) the mean over the flight of :math:`a_N = R f_B + g e_z` (:func:`nav_acceleration`) is near zero when
+    the attitude R and the accelerometer's specific force :math:`f_B` agree on where gravity is; above
+    :data:`GRAVITY_DISAGREEMENT` g one of them is misread; (2) per N axis that moves (RMS of :math:`\dot p` above
+    :data:`MOVING_AXIS_MPS`), the correlation of the velocity with the position's derivative :math:`\dot p`
+    (``numpy.gradient`` over t) is at least :data:`VELOCITY_AGREEMENT`; a flipped or swapped axis gives -1 or
+    about 0. For readers of users' own maps (:mod:`quad_modelling.io.mapped_flight`)."""
+    out, where = [], log.meta.source
+    if log.acc_b is not None and len(log) > 1:
+        mean = nav_acceleration(log).mean(axis=0)
+        if np.linalg.norm(mean) > GRAVITY_DISAGREEMENT * GRAVITY:
+            out.append(f"{where}: the attitude and the accelerometer disagree on where gravity is: R f_B + g averages "
+                       f"({mean[0]:.2f}, {mean[1]:.2f}, {mean[2]:.2f}) m/s² N over the flight, not about 0 "
+                       "(check the attitude's quaternion order and the frames of attitude and accelerometer)")
+    out += _gyro_disagreements(log)
+    if len(log) > 2:
+        derivative = np.gradient(log.pos_n, log.t, axis=0)
+        for k, axis in enumerate("NED"):
+            moving = float(np.sqrt(np.mean(derivative[:, k] ** 2)))
+            if moving > MOVING_AXIS_MPS and np.std(log.vel_n[:, k]) > 0:
+                correlation = float(np.corrcoef(log.vel_n[:, k], derivative[:, k])[0, 1])
+                if correlation < VELOCITY_AGREEMENT:
+                    out.append(f"{where}: the velocity's {axis} axis does not follow the position's derivative "
+                               f"(correlation {correlation:.2f}): check the frames of position and velocity")
+    return out
+
+
+def _gyro_disagreements(log: FlightLog) -> list[str]:
+    r"""Per body axis that turns (attitude rates' RMS above :data:`MOVING_RATE_RAD_S`): the gyro's rates summed over
+    :data:`RATE_WINDOW_S` against the attitude's (:func:`attitude_rates`), correlation at least
+    :data:`RATE_AGREEMENT` and least-squares gain in :data:`RATE_GAIN_RANGE`; a flipped axis, an attitude or gyro in
+    the wrong frame or a gyro in deg/s read as rad/s fails."""
+    rows = int(round(RATE_WINDOW_S * log.sample_rate)) if len(log) > 1 else 0
+    if log.gyro_b is None or rows < 2 or len(log) < 4 * rows:
+        return []
+    derived = attitude_rates(log)
+
+    def windowed(values: np.ndarray) -> np.ndarray:
+        total = np.cumsum(np.vstack([np.zeros((1, 3)), values]), axis=0)
+        return total[rows:] - total[:-rows]
+    gyro, attitude = windowed(log.gyro_b), windowed(derived)
+    out = []
+    for k, axis in enumerate(("roll", "pitch", "yaw")):
+        if np.sqrt(np.mean(derived[:, k] ** 2)) <= MOVING_RATE_RAD_S or np.std(gyro[:, k]) == 0:
+            continue
+        correlation = float(np.corrcoef(gyro[:, k], attitude[:, k])[0, 1])
+        gain = float(gyro[:, k] @ attitude[:, k] / (attitude[:, k] @ attitude[:, k]))
+        if correlation < RATE_AGREEMENT or not RATE_GAIN_RANGE[0] <= gain <= RATE_GAIN_RANGE[1]:
+            out.append(f"{log.meta.source}: the gyro's {axis} rate does not follow the attitude's (correlation "
+                       f"{correlation:.2f}, gain {gain:.2f}): check the frames of attitude and gyro and the gyro's unit")
+    return out
