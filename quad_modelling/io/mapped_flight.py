@@ -40,7 +40,7 @@ from quad_modelling.core.consistency import frame_disagreements
 from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
-from quad_modelling.io.bag_io import READ_ERRORS, open_reader
+from quad_modelling.io.bag_io import READ_ERRORS, missing_messages, open_reader
 from quad_modelling.io.topic_maps import (STAMP_UNITS, FieldSource, TopicMap, TopicSpec, check_map_fields, fields_of_store,
                                          parse_path)
 
@@ -558,7 +558,9 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
         capacity = sum(c.msgcount for c in used if c.topic == sources["commands"].topic)
         assembler = FlightAssembler(topic_map, sources, readers, vehicle, where, capacity)
         deserialize = store.deserialize_cdr
+        read: dict[int, int] = {}
         for connection, _, raw in reader.messages(connections=used):
+            read[connection.id] = read.get(connection.id, 0) + 1
             msg = deserialize(raw, connection.msgtype)
             topic_reader = readers[connection.topic]
             if topic_reader.keep(msg):
@@ -569,4 +571,7 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
-    return assembler.finish(instance_notes(readers, present))
+    log = assembler.finish(instance_notes(readers, present))
+    for warning in missing_messages(path, used, read):
+        log.warn(warning)
+    return log

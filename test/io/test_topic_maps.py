@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from functools import partial
 
 import numpy as np
@@ -406,3 +407,24 @@ def test_a_hole_in_the_command_topic_is_a_marked_gap_not_a_refused_flight(flight
     assert main(["convert", str(bag), "--vehicle", "crazyflie21", "-o", str(tmp_path / "quad")]) == 0
     converted = [g for g in marked_gaps(load_flight(tmp_path / "quad")) if g.fields == ("u",)]
     assert len(converted) == 1 and (converted[0].start_s, converted[0].end_s) == pytest.approx((base[0].start_s, base[0].end_s))
+
+
+def test_a_damaged_bag_without_crcs_that_loses_messages_says_so(flight, tmp_path):
+    """rosbags reads past 4 KB zeroed inside an uncompressed chunk of a bag without CRCs and loses the messages there
+    without an error: the counts the bag's metadata gives are compared with the messages read, a warning per topic."""
+    import shutil
+
+    from quad_modelling.core.preprocess import flight_warnings
+
+    cf = load_vehicle("crazyflie21")
+    bag = write_stack_bag(tmp_path / "px4", partial(px4_messages, log=flight, input_range=(cf.input_min, cf.input_max)))
+    assert not [w for w in flight_warnings(load_flight(bag, vehicle="crazyflie21")) if "messages the bag's metadata" in w]
+    damaged = tmp_path / "damaged"
+    shutil.copytree(bag, damaged)
+    (mcap_file,) = damaged.glob("*.mcap")
+    data = bytearray(mcap_file.read_bytes())
+    data[len(data) // 2: len(data) // 2 + 4096] = bytes(4096)
+    mcap_file.write_bytes(bytes(data))
+    warnings = [w for w in flight_warnings(load_flight(damaged, vehicle="crazyflie21")) if "messages the bag's metadata" in w]
+    assert len(warnings) == 4 and all(re.search(r"topic /fmu/out/\w+: \d+ of the 1000 messages the bag's metadata counts "
+                                                r"were read: the file is damaged or was cut", w) for w in warnings)
