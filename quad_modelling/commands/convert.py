@@ -144,6 +144,9 @@ def run(args: argparse.Namespace) -> int:
     if args.mapping and not any(_is_mat_log(path, args.format) for path in inputs):  # else it would be ignored
         raise ConfigError(f"--mapping {args.mapping}: a mapping applies to .mat logs only, and no input is one "
                           f"({inputs[0]} is a {_format_of(inputs[0], args.format)} input)")
+    if args.topic_map and not any(_format_of(path, args.format) == "bag" for path in inputs):  # else ignored unread
+        raise ConfigError(f"--topic-map {args.topic_map}: a topic map applies to bags only, and no input is one "
+                          f"({inputs[0]} is a {_format_of(inputs[0], args.format)} input)")
 
     def load(path: Path):
         log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping, topic_map=args.topic_map)

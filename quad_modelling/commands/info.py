@@ -48,6 +48,8 @@ def run(args: argparse.Namespace) -> int:
     file_format = detect_format(args.bag)
     if args.mapping and file_format != "thesis-mat":
         raise ConfigError(f"--mapping {args.mapping}: a mapping applies to .mat logs only, {args.bag} is a {file_format} input")
+    if args.topic_map and file_format != "bag":
+        raise ConfigError(f"--topic-map {args.topic_map}: a topic map applies to bags only, {args.bag} is a {file_format} input")
     if file_format != "bag":
         document = flight_document(load_flight(args.bag, vehicle=args.vehicle, mapping_file=args.mapping), str(args.bag))
         print(flight_json(document) if args.json else flight_text(document, file_format))
@@ -63,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
                 raise
             chosen = None  # no map matches: the topics alone, and why no flight is read from them
             print(f"note: {err}", file=sys.stderr)
+        if chosen is not None and chosen.is_contract and args.topic_map and chosen.missing(topics):
+            raise BagError(f"{args.bag}: topic map {chosen.name} reads {'; '.join(chosen.missing(topics))}: not in the bag")
         if chosen is not None and not chosen.is_contract:
             mapped = flight_document(load_flight(args.bag, vehicle=args.vehicle, topic_map=args.topic_map), str(args.bag))
     if args.json:

@@ -428,3 +428,15 @@ def test_a_damaged_bag_without_crcs_that_loses_messages_says_so(flight, tmp_path
     warnings = [w for w in flight_warnings(load_flight(damaged, vehicle="crazyflie21")) if "messages the bag's metadata" in w]
     assert len(warnings) == 4 and all(re.search(r"topic /fmu/out/\w+: \d+ of the 1000 messages the bag's metadata counts "
                                                 r"were read: the file is damaged or was cut", w) for w in warnings)
+
+
+def test_a_topic_map_the_input_cannot_take_is_refused_in_one_line(bags, tmp_path, capsys):
+    """info on a PX4 bag with --topic-map quad printed the topics and exited 0 (evaluate refused it); convert of a CSV
+    with --topic-map ignored the map unread. Both are one line, exit 2, nothing written."""
+    err = _fails(capsys, "info", str(bags["px4"]), "--topic-map", "quad")
+    assert f"{bags['px4']}: topic map quad reads commands from /quad/motor_input" in err
+    err = _fails(capsys, "convert", str(CSV), "--topic-map", "px4", "-o", str(tmp_path / "out"))
+    assert "--topic-map px4: a topic map applies to bags only, and no input is one" in err
+    err = _fails(capsys, "info", str(CSV), "--topic-map", "px4")
+    assert "--topic-map px4: a topic map applies to bags only" in err
+    assert not (tmp_path / "out").exists()
