@@ -11,6 +11,7 @@ from __future__ import annotations
 import importlib
 import signal
 import sys
+import threading
 
 EXIT_INTERRUPTED = 130
 """Exit code of a node interrupted while starting (128 + SIGINT)."""
@@ -19,11 +20,9 @@ EXIT_INTERRUPTED = 130
 def run(module: str, name: str) -> int:
     """``quad_modelling.nodes.<module>.main()``; exit 130 with one line when interrupted while importing it (SIGINT
     is taken first even when the process started with it ignored, as a background job does)."""
-    try:
+    if threading.current_thread() is threading.main_thread():  # only the main thread may set signal handlers
         signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-    except ValueError:  # not the main thread
-        pass
     try:
         main = importlib.import_module(f"quad_modelling.nodes.{module}").main
     except KeyboardInterrupt:
