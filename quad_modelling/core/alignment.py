@@ -252,6 +252,10 @@ class MeasurementTrack:
 CONFIRM = 3
 """Consecutive mutually regular irregular stamps that make a new time base (restart, clock jump)."""
 
+MAX_STAMP_STEP_S = 1.0
+"""Longest regular step of a stream's stamps [s] (:class:`StampGate`): the nodes' ``max_stamp_step_s`` default and
+the offline topic-map reader's rule."""
+
 
 class Stamp(Enum):
     """What :meth:`StampGate.admit` decided about a stamp."""

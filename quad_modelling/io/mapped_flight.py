@@ -34,7 +34,7 @@ import numpy as np
 from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.core import frames
-from quad_modelling.core.alignment import MAX_GAP_S, Stamp, StampGate, interpolate_at
+from quad_modelling.core.alignment import MAX_GAP_S, MAX_STAMP_STEP_S, Stamp, StampGate, interpolate_at
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.consistency import frame_disagreements
 from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
@@ -63,9 +63,6 @@ EMIT_ROWS = 8192
 SAME_STAMP_NS = 1_000
 """Stamps of one stream closer than this [ns] are one stamp (the first message kept): float64 seconds since the epoch
 resolve about 0.2 us, and two rows 128 ns apart were one time, refused as 'time is not strictly increasing'."""
-
-MAX_STAMP_STEP_S = 1.0
-"""Longest regular step of a stream's stamps [s] for the stamp gate: the live nodes' ``max_stamp_step_s`` default."""
 
 MAX_PENDING_S = 60.0
 """Longest span [s] of command rows held while a stream has not reached them: then a stream that lags is on another

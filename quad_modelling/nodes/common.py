@@ -44,7 +44,7 @@ from rclpy.qos import (
     qos_profile_sensor_data,
 )
 
-from quad_modelling.core.alignment import CONFIRM
+from quad_modelling.core.alignment import CONFIRM, MAX_STAMP_STEP_S
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError, reason
 from quad_modelling.io import topics
@@ -470,7 +470,7 @@ def vehicle_param() -> Param:
 
 def stamp_step_param() -> Param:
     """``max_stamp_step_s``: the one stamp rule of every node (:class:`~quad_modelling.core.alignment.StampGate`)."""
-    return Param("max_stamp_step_s", 1.0, "longest regular step of a stream's stamps [s]; a stamp beyond it, back in time or "
+    return Param("max_stamp_step_s", MAX_STAMP_STEP_S, "longest regular step of a stream's stamps [s]; a stamp beyond it, back in time or "
                                           f"repeated is dropped as an outlier, {CONFIRM} consistent ones are a new time base "
                                           "(restarted publisher, clock jump, end of a longer silence)", positive)
 
