@@ -135,6 +135,45 @@ def coverage_reason(coverages: list[StreamCoverage]) -> str:
             + "; ".join(failing))
 
 
+BATTERY_PAUSE_S = 2.0
+"""Longest step [s] of a battery stream bridged without a note: battery monitors publish at 1-100 Hz (PX4
+``battery_status`` 10 Hz, crazyswarm2's ``status`` 10 Hz), and a pack's voltage moves by millivolts in a second."""
+
+
+def usable_voltage(volts: float) -> bool:
+    """A battery reading that measures a pack: finite and above 0 V (a disconnected monitor or an unused PX4 battery
+    instance reports 0 V). One rule for the bag readers (:func:`battery_on_rows`) and the live nodes."""
+    return bool(np.isfinite(volts) and volts > 0.0)
+
+
+def battery_on_rows(stamps_s: np.ndarray, volts: np.ndarray, t: np.ndarray) -> tuple[np.ndarray | None, str | None]:
+    """A battery stream (stamps [s], voltage [V]) on the rows ``t`` [s]: its usable readings (:func:`usable_voltage`)
+    interpolated linearly, the first held before them and the last after them (a battery does not bound a flight:
+    it is optional and slow), and a note of what was not measured -- readings skipped, a late start or early end
+    longer than :data:`BATTERY_PAUSE_S`, pauses longer than it (with the longest) -- or None when the stream covers
+    the rows. No usable reading: (None, the note), the flight is read without a voltage."""
+    stamps_s, volts = np.asarray(stamps_s, dtype=float), np.asarray(volts, dtype=float)
+    usable = np.isfinite(volts) & (volts > 0.0)
+    skipped = int(len(volts) - usable.sum())
+    said = f"{skipped} of {len(volts)} readings at 0 V or not finite skipped (a battery not connected)" if skipped else ""
+    if not usable.any():
+        return None, f"{said or 'no readings'}: no usable reading, the flight is read without a voltage"
+    s, v = stamps_s[usable], volts[usable]
+    parts = [said] if said else []
+    if s[0] - t[0] > BATTERY_PAUSE_S:
+        parts.append(f"starts {s[0] - t[0]:.1f} s after the first row (its first reading held before)")
+    if t[-1] - s[-1] > BATTERY_PAUSE_S:
+        parts.append(f"ends {t[-1] - s[-1]:.1f} s before the last row (its last reading held after)")
+    steps = np.diff(s)
+    inside = (s[1:] > t[0]) & (s[:-1] < t[-1])
+    pauses = np.flatnonzero((steps > BATTERY_PAUSE_S) & inside)
+    if len(pauses):
+        worst = pauses[int(np.argmax(steps[pauses]))]
+        parts.append(f"{len(pauses)} pause(s) longer than {BATTERY_PAUSE_S:g} s interpolated (longest {steps[worst]:.1f} s "
+                     f"from {s[worst] - t[0]:.1f} s into the flight)")
+    return np.interp(t, s, v), "; ".join(parts) or None
+
+
 def lerp(y_a: np.ndarray, y_b: np.ndarray, fraction, quaternion: tuple[int, int] | None = None) -> np.ndarray:
     """The interpolation formula (module doc): :math:`y_a + (y_b - y_a) f` for samples ``y_a``, ``y_b`` (m,) or (r, m)
     at ``fraction`` f (a number, or (r, 1)); ``quaternion``: columns [start, stop) of a unit quaternion, taken from

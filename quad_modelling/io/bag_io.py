@@ -554,3 +554,30 @@ class ForeignBagWriter:
             extra = {} if self._store_definitions else {"msgdef": "", "rihs01": "RIHS01_" + "0" * 64}
             connection = self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=self.store, **extra)
         self._writer.write(connection, int(ns), self.store.serialize_cdr(msg, msgtype))
+
+
+def stored_typestore(connections, path: Path):
+    """A type store of the definitions the bag stores for ``connections`` (MCAP schemas, sqlite3 message_definitions);
+    BagError naming the topic and type when the bag stores none or an unreadable one."""
+    from rosbags.interfaces import MessageDefinitionFormat
+    from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
+    types: dict = {}
+    for c in connections:
+        if c.msgdef.format == MessageDefinitionFormat.NONE or not c.msgdef.data.strip():
+            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): the bag stores no message definition (recorded by a "
+                           "rosbag2 older than Jazzy?); re-record it with ros2 bag record of Jazzy or later (MCAP or sqlite3)")
+        try:
+            if c.msgdef.format == MessageDefinitionFormat.MSG:
+                types.update(get_types_from_msg(c.msgdef.data, c.msgtype))
+            else:  # IDL: one or more "IDL: name" sections after a line of 80 '='
+                for part in filter(str.strip, c.msgdef.data.split("=" * 80 + "\n")):
+                    types.update(get_types_from_idl(part.split("\n", 1)[1] if part.startswith("IDL: ") else part))
+        except Exception as err:  # rosbags' definition parsers raise their own and bare errors on bad text
+            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): unreadable stored message definition ({reason(err)})") from err
+    store = get_typestore(Stores.EMPTY)
+    try:
+        store.register(types)
+    except Exception as err:
+        raise BagError(f"{path}: the bag's stored message definitions do not fit together ({reason(err)})") from err
+    return store

@@ -21,7 +21,11 @@ Offline assembly (:func:`flight_from_streams`), the rules of streams on their ow
   of a kinematic stream around kept rows is marked as a measurement gap: windows and training segments
   overlapping it are left out, as the live evaluator marks such windows;
 - a stream whose stamps do not overlap the commands' for at least half of the shorter span is on another
-  clock (e.g. an on-board ``timestamp`` next to ``header.stamp``): refused in one line.
+  clock (e.g. an on-board ``timestamp`` next to ``header.stamp``): refused in one line;
+- the battery (optional, slow) bounds nothing: its readings at 0 V or not finite are skipped (a monitor not
+  connected; of a multi-instance topic, the first instance with a usable reading is read), the rest put on the
+  rows at the end, held beyond its first and last, a late start, early end or pause noted
+  (:func:`~quad_modelling.core.alignment.battery_on_rows`).
 """
 
 from __future__ import annotations
@@ -31,22 +35,22 @@ import math
 from pathlib import Path
 
 import numpy as np
-from rosbags.typesys import Stores, get_typestore
 
 from quad_modelling.core import frames
-from quad_modelling.core.alignment import MAX_GAP_S, MAX_STAMP_STEP_S, Stamp, StampGate, interpolate_at
+from quad_modelling.core.alignment import (MAX_GAP_S, MAX_STAMP_STEP_S, Stamp, StampGate, battery_on_rows, interpolate_at,
+                                           usable_voltage)
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.consistency import frame_disagreements
 from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
-from quad_modelling.io.bag_io import READ_ERRORS, missing_messages, open_reader
+from quad_modelling.io.bag_io import READ_ERRORS, missing_messages, open_reader, stored_typestore
 from quad_modelling.io.topic_maps import (STAMP_UNITS, FieldSource, TopicMap, TopicSpec, check_map_fields, fields_of_store,
                                          parse_path)
 
 NANOSECONDS = 1_000_000_000
 KINEMATIC_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
-"""Fields whose streams bound the flight's span and whose long gaps are marked (battery is held and interpolated)."""
+"""Fields whose streams bound the flight's span and whose long gaps are marked (the battery is read apart, module doc)."""
 
 GAP_FIELDS = {"position": ("pos_n",), "attitude": ("euler",), "velocity": ("vel_n",), "acc": ("acc_b",), "gyro": ("gyro_b",)}
 """FlightLog fields of each map field (a marked gap names them)."""
@@ -87,10 +91,12 @@ class TopicReader:
     """One mapped topic: each message -> (stamp [ns], numbers of every path the map reads from it).
 
     ``paths``: the message field paths read (in order). With an ``instance`` field, only messages of the first
-    instance seen are kept (:meth:`keep`; :attr:`instances` counts the messages of each instance seen).
+    instance seen with a ``usable`` reading are kept (:meth:`keep`; :attr:`instances` counts the messages of each
+    instance seen; :attr:`chosen` the one read): ``usable`` tells a message's values measure something (a battery
+    topic: :func:`~quad_modelling.core.alignment.usable_voltage`, so PX4's unused battery slot at 0 V is not read).
     """
 
-    def __init__(self, spec: TopicSpec, paths: list[str], where: str):
+    def __init__(self, spec: TopicSpec, paths: list[str], where: str, usable=None):
         self.spec = spec
         self.paths = list(paths)
         self._stamp = _getter(parse_path(spec.stamp, spec, where))
@@ -98,6 +104,8 @@ class TopicReader:
         self._instance = _getter(parse_path(spec.instance, spec, where)) if spec.instance else None
         self._factor = STAMP_UNITS[spec.stamp_unit] if spec.stamp_unit else None
         self.instances: dict = {}
+        self.chosen = None
+        self.usable = usable
         self.where = where
         self.read = 0  # messages whose values were read (the index a fault names)
 
@@ -121,13 +129,16 @@ class TopicReader:
                                 f"({type(err).__name__}: {err})") from err
         return out
 
-    def keep(self, msg) -> bool:
-        """False for a message of another instance than the first one seen (counted in :attr:`instances`)."""
+    def keep(self, msg, values: list[float]) -> bool:
+        """False for a message of another instance than the first one seen with usable ``values`` (its numbers,
+        :meth:`values`; every instance counted in :attr:`instances`)."""
         if self._instance is None:
             return True
         which = self._instance(msg)
         self.instances[which] = self.instances.get(which, 0) + 1
-        return which == next(iter(self.instances))
+        if self.chosen is None and (self.usable is None or self.usable(values)):
+            self.chosen = which
+        return which == self.chosen
 
 
 def readers_for(topic_map: TopicMap, sources: dict[str, FieldSource], where: str) -> dict[str, TopicReader]:
@@ -136,14 +147,26 @@ def readers_for(topic_map: TopicMap, sources: dict[str, FieldSource], where: str
     for source in sources.values():
         paths.setdefault(source.topic, [])
         paths[source.topic] += [p for p in source.paths if p not in paths[source.topic]]
-    return {topic: TopicReader(topic_map.topics[topic], wanted, where) for topic, wanted in paths.items()}
+    battery = battery_topic(sources)
+    return {topic: TopicReader(topic_map.topics[topic], wanted, where,
+                               usable=(lambda values: all(map(usable_voltage, values))) if topic == battery else None)
+            for topic, wanted in paths.items()}
+
+
+def battery_topic(sources: dict[str, FieldSource]) -> str | None:
+    """The topic of the map's battery when it carries nothing else (read apart, :class:`FlightAssembler`), or None."""
+    if "battery" not in sources:
+        return None
+    topic = sources["battery"].topic
+    return topic if all(s.topic != topic for name, s in sources.items() if name != "battery") else None
 
 
 def instance_notes(readers: dict[str, TopicReader], bag_topics) -> dict:
     """Notes on multi-instance topics (as the ULog reader's): a topic with several instances (the first one read) and
     instance topics ``<topic>_N`` of the bag that are not read."""
     notes: dict = {}
-    several = {t: f"{len(r.instances)} instances seen, {r.spec.instance} {next(iter(r.instances))} used"
+    several = {t: f"{len(r.instances)} instances seen, " + (f"{r.spec.instance} {r.chosen} used" if r.chosen is not None
+                                                            else "none with a usable reading")
                for t, r in readers.items() if len(r.instances) > 1}
     if several:
         notes["instances"] = several
@@ -268,6 +291,8 @@ class FlightAssembler:
         self.base = sources["commands"].topic
         self.streams = {topic: _Stream(topic, reader.paths) for topic, reader in readers.items()}
         self.kinematic = {sources[f].topic for f in KINEMATIC_FIELDS if f in sources}
+        self.battery = battery_topic(sources)  # read apart: every reading kept, put on the rows at the end
+        self.battery_samples: list[tuple[int, float]] = []
         self.pending: list[tuple[int, list[float]]] = []
         capacity = max(int(capacity), 2)
         self.t_ns = np.empty(capacity, dtype=np.int64)
@@ -283,7 +308,7 @@ class FlightAssembler:
         nodes' gate (:class:`~quad_modelling.core.alignment.StampGate`, :data:`MAX_STAMP_STEP_S`): a single stamp off
         the stream's time (far ahead, or back) costs that message, counted in the notes, not the flight."""
         stream = self.streams[topic]
-        if stream.last is None and self._not_finite(stream, values) is not None:
+        if stream.last is None and topic != self.battery and self._not_finite(stream, values) is not None:
             stream.leading_skipped += 1  # before the stream's first valid message: skipped, as before its first message
             return
         if stream.last is not None and abs(ns - stream.last) < SAME_STAMP_NS:
@@ -309,9 +334,14 @@ class FlightAssembler:
                 stream.long_steps.append((stream.last, ns))
         else:
             stream.first = ns
-        self._check(stream, values)
+        if topic == self.battery:  # an unusable reading (0 V: not connected) is counted by battery_on_rows, not refused
+            self.battery_samples.append((ns, values[0]))
+        else:
+            self._check(stream, values)
         stream.last = ns
         stream.count += 1
+        if topic == self.battery:
+            return
         stream.stamps.append(ns)
         stream.values.append(values)
         if topic == self.base:
@@ -350,7 +380,7 @@ class FlightAssembler:
         """More than :data:`MAX_PENDING_S` of rows wait: decide about each stream silent for that long before the newest."""
         horizon = self.pending[-1][0] - int(MAX_PENDING_S * 1e9)
         for stream in self.streams.values():
-            if stream.ended or (stream.last is not None and stream.last >= horizon):
+            if stream.ended or stream.topic == self.battery or (stream.last is not None and stream.last >= horizon):
                 continue
             if stream.last is None:  # not started yet: the rows before its first message are cut, as at the start
                 cut = int(np.searchsorted([p[0] for p in self.pending], horizon))
@@ -368,7 +398,7 @@ class FlightAssembler:
             return
         if not final and self.pending[-1][0] - self.pending[0][0] > MAX_PENDING_S * 1e9:
             self._lagging()
-        live = [s for s in self.streams.values() if not s.ended]
+        live = [s for s in self.streams.values() if not s.ended and s.topic != self.battery]
         limit = None if final else min((s.last for s in live if s.last is not None), default=None)
         if not final and (limit is None or any(s.last is None for s in live)):
             return
@@ -388,7 +418,7 @@ class FlightAssembler:
         t_ns = t_ns[keep]
         aligned = {}
         for name, source in self.sources.items():
-            if name == "commands" or not len(t_ns):
+            if name == "commands" or source.topic == self.battery or not len(t_ns):
                 continue
             stream = self.streams[source.topic]
             values = np.asarray(stream.values, dtype=float)[:, self._column_index[name]]
@@ -422,6 +452,8 @@ class FlightAssembler:
         """Align what is left and build the FlightLog (one-line DataError: a topic without messages, another clock,
         no common span)."""
         for stream in self.streams.values():
+            if stream.topic == self.battery:
+                continue  # no usable reading: the flight is read without a voltage (noted below)
             if stream.last is None and stream.leading_skipped:
                 raise DataError(f"{self.where}: topic {stream.topic}: none of its {stream.leading_skipped} messages has every "
                                 f"mapped field ({', '.join(stream.paths)}) finite")
@@ -463,6 +495,13 @@ class FlightAssembler:
                             for name, s in self.sources.items()}
         out = {name: array[:n] for name, array in self.out.items()}
         t = t_ns / 1e9
+        if self.battery is not None:
+            samples = np.asarray(self.battery_samples, dtype=float).reshape(-1, 2)
+            out["battery"], battery_note = battery_on_rows(samples[:, 0] / 1e9, samples[:, 1], t)
+            if out["battery"] is None:
+                notes["sources"].pop("battery")
+            if battery_note:
+                notes["battery"] = f"{self.battery}: {battery_note}"
         self.out, self.t_ns = {}, np.empty(0, dtype=np.int64)  # the log holds the arrays; the stamps [ns] go after the gaps
         gaps: dict[tuple[str, int, int], tuple[str, ...]] = {}  # (topic, start, end) -> the FlightLog fields it carries
         for name in KINEMATIC_FIELDS:
@@ -503,33 +542,6 @@ def check_same_clock(spans: dict[str, tuple[int, int]], base: str, where: str) -
 
 # --- any recording through a topic map (users' own topics) ---------------------------------------------------
 
-def _stored_typestore(connections, path: Path):
-    """A type store of the definitions the bag stores for ``connections`` (MCAP schemas, sqlite3 message_definitions);
-    BagError naming the topic and type when the bag stores none or an unreadable one."""
-    from rosbags.interfaces import MessageDefinitionFormat
-    from rosbags.typesys import get_types_from_idl, get_types_from_msg
-
-    types: dict = {}
-    for c in connections:
-        if c.msgdef.format == MessageDefinitionFormat.NONE or not c.msgdef.data.strip():
-            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): the bag stores no message definition (recorded by a "
-                           "rosbag2 older than Jazzy?); re-record it with ros2 bag record of Jazzy or later (MCAP or sqlite3)")
-        try:
-            if c.msgdef.format == MessageDefinitionFormat.MSG:
-                types.update(get_types_from_msg(c.msgdef.data, c.msgtype))
-            else:  # IDL: one or more "IDL: name" sections after a line of 80 '='
-                for part in filter(str.strip, c.msgdef.data.split("=" * 80 + "\n")):
-                    types.update(get_types_from_idl(part.split("\n", 1)[1] if part.startswith("IDL: ") else part))
-        except Exception as err:  # rosbags' definition parsers raise their own and bare errors on bad text
-            raise BagError(f"{path}: topic {c.topic} ({c.msgtype}): unreadable stored message definition ({reason(err)})") from err
-    store = get_typestore(Stores.EMPTY)
-    try:
-        store.register(types)
-    except Exception as err:
-        raise BagError(f"{path}: the bag's stored message definitions do not fit together ({reason(err)})") from err
-    return store
-
-
 def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
     """Any rosbag2 bag (MCAP or sqlite3) through a topic map (bound to its robot) into a FlightLog for ``vehicle``.
 
@@ -549,7 +561,7 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
         if wrong:
             raise BagError(f"{path}: topic {wrong} has type {present[wrong]}, topic map {topic_map.name} reads {topic_map.topics[wrong].msgtype}")
         used = [c for c in reader.connections if c.topic in {s.topic for s in sources.values()}]
-        store = _stored_typestore(used, path)
+        store = stored_typestore(used, path)
         check_map_fields(topic_map, sources, fields_of_store(store), f"{path}: topic map {topic_map.name}")
         readers = readers_for(topic_map, sources, where)
         capacity = sum(c.msgcount for c in used if c.topic == sources["commands"].topic)
@@ -560,8 +572,9 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
             read[connection.id] = read.get(connection.id, 0) + 1
             msg = deserialize(raw, connection.msgtype)
             topic_reader = readers[connection.topic]
-            if topic_reader.keep(msg):
-                assembler.add(connection.topic, topic_reader.stamp_ns(msg), topic_reader.values(msg))
+            values = topic_reader.values(msg)
+            if topic_reader.keep(msg, values):
+                assembler.add(connection.topic, topic_reader.stamp_ns(msg), values)
     except READ_ERRORS as err:
         if isinstance(err, (BagError, ConfigError, DataError)):
             raise

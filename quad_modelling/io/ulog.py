@@ -18,6 +18,7 @@ euler      vehicle_attitude.q[0..3] (w, x, y, z)       timestamp_sample     refu
 acc_b      sensor_combined.accelerometer_m_s2 [m/s²]   timestamp + accelerometer_timestamp_relative
 gyro_b     sensor_combined.gyro_rad [rad/s]            timestamp            refused
 vbat       battery_status.voltage_v [V]                timestamp            left out
+           (lowest connected instance; held at its ends)
 armed      vehicle_status.arming_state == 2            timestamp            actuator_armed.armed
 =========  ==========================================  ===================  ===================
 
@@ -51,7 +52,16 @@ channels; any other count (hexa, octo, VTOL with a pusher) is refused in one
 line naming the count and where it came from.
 
 Multi-instance topics: instance 0 is used and ``meta.notes["instances"]``
-says how many were logged. Appended data and logging dropouts are noted.
+says how many were logged; ``battery_status``: the lowest instance that measured
+a pack (PX4 logs every battery slot, an unused one at 0 V, not connected).
+Appended data and logging dropouts are noted.
+
+Battery: optional and slow, it does not bound the flight. Its readings at 0 V,
+not connected or not finite are skipped, the rest interpolated, the first and
+last held beyond them; ``meta.notes["battery"]`` says what was skipped, a late
+start or early end and pauses longer than
+:data:`~quad_modelling.core.alignment.BATTERY_PAUSE_S`
+(:func:`~quad_modelling.core.alignment.battery_on_rows`).
 
 Default vehicle (``vehicle=None``): ``px4_iris`` for ``actuator_motors`` logs,
 ``px4_iris_pwm`` for PWM logs (``config/vehicles/``). A vehicle whose input
@@ -82,6 +92,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from quad_modelling.core import frames
+from quad_modelling.core.alignment import battery_on_rows
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.preprocess import (
     MeasurementGap,
@@ -161,16 +172,33 @@ def open_ulog(path: str | Path, topics) -> tuple:
         raise DataError(f"{path}: not a readable ULog file ({reason(err)})") from err
 
 
+def connected_battery(data) -> bool:
+    """Whether a ``battery_status`` instance measured a pack: a reading connected (where the field is logged),
+    finite and above 0 V (the rule of :func:`~quad_modelling.core.alignment.usable_voltage`). PX4 logs every
+    battery slot; an unused one reports 0 V, ``connected`` false."""
+    volts = np.asarray(data.get("voltage_v", []), dtype=float)
+    ok = np.isfinite(volts) & (volts > 0.0)
+    if "connected" in data:
+        ok &= np.asarray(data["connected"]) != 0
+    return bool(ok.any())
+
+
 def topics_of(data_list) -> tuple[Topics, dict]:
-    """Instance 0 of each topic of pyulog ``data_list``, and a note naming multi-instance topics."""
+    """Instance 0 of each topic of pyulog ``data_list`` (``battery_status``: the lowest instance that measured a pack,
+    :func:`connected_battery`), and a note naming multi-instance topics and the instance used."""
     instances: dict[str, int] = {}
     topics: Topics = {}
+    batteries = sorted((d for d in data_list if d.name == "battery_status"), key=lambda d: d.multi_id)
+    battery = next((d for d in batteries if connected_battery(d.data)), batteries[0] if batteries else None)
     for dataset in data_list:
         instances[dataset.name] = instances.get(dataset.name, 0) + 1
-        if dataset.multi_id == 0:
+        if dataset is battery or (dataset.multi_id == 0 and dataset.name != "battery_status"):
             topics[dataset.name] = dataset.data
     multi = {name: count for name, count in instances.items() if count > 1 and name in topics}
-    notes = {"instances": {name: f"{count} instances logged, instance 0 used" for name, count in sorted(multi.items())}} if multi else {}
+    used = {name: battery.multi_id if name == "battery_status" else 0 for name in multi}
+    notes = {"instances": {name: f"{count} instances logged, instance {used[name]} used"
+                           + (" (the lowest connected)" if name == "battery_status" else "")
+                           for name, count in sorted(multi.items())}} if multi else {}
     return topics, notes
 
 
@@ -360,8 +388,10 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
     streams = {pos_topic: pos_t, "vehicle_attitude": att_t, "sensor_combined": acc_t}
     battery = None
     if "battery_status" in topics and "voltage_v" in topics["battery_status"]:
-        battery = (_time(topics, "battery_status", where, field="timestamp"), np.asarray(topics["battery_status"]["voltage_v"], dtype=float))
-        streams["battery_status"] = battery[0]
+        volts = np.asarray(topics["battery_status"]["voltage_v"], dtype=float)
+        if "connected" in topics["battery_status"]:
+            volts = np.where(np.asarray(topics["battery_status"]["connected"]) != 0, volts, 0.0)
+        battery = (_time(topics, "battery_status", where, field="timestamp"), volts)
     start = max(t[0], *(s[0] for s in streams.values()), gyro_t[0])
     end = min(t[-1], *(s[-1] for s in streams.values()), gyro_t[-1])
     inside = (t >= start) & (t <= end)
@@ -384,7 +414,7 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
         t, u = t[first:last + 1], u[first:last + 1]
     gap_fields = {pos_topic: ("pos_n", "vel_n"), "vehicle_attitude": ("euler",), "sensor_combined": ("acc_b", "gyro_b")}
     gaps = {MeasurementGap(topic, a, b, gap_fields[topic])
-            for topic, stamps in (*streams.items(), ("sensor_combined", gyro_t)) if topic != "battery_status"
+            for topic, stamps in (*streams.items(), ("sensor_combined", gyro_t))
             for a, b in interpolation_gaps(stamps, t, MAX_INTERPOLATION_GAP_S)}
     rates = {motor_topic: rate_hz(t), **{name: rate_hz(stamps) for name, stamps in streams.items()}}
     notes["time_base"] = f"{motor_topic} stamps, {rates[motor_topic]:.1f} Hz; {cut:.2f} s outside the span all streams cover cut"
@@ -393,9 +423,15 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
         "pos_n, vel_n": f"{pos_topic}, {rates[pos_topic]:.1f} Hz, linear",
         "euler": f"vehicle_attitude q, {rates['vehicle_attitude']:.1f} Hz, slerp",
         "acc_b, gyro_b": f"sensor_combined, {rates['sensor_combined']:.1f} Hz, linear",
-        **({"vbat": f"battery_status voltage_v, {rates['battery_status']:.1f} Hz, linear"} if battery else {}),
     }
-    notes["interpolated"] = sorted(name for name, rate in rates.items() if name != motor_topic)
+    vbat = None
+    if battery:
+        vbat, battery_note = battery_on_rows(*battery, t)
+        if vbat is not None:
+            notes["sources"]["vbat"] = f"battery_status voltage_v, {rate_hz(battery[0]):.1f} Hz, linear, held at its ends"
+        if battery_note:
+            notes["battery"] = battery_note
+    notes["interpolated"] = sorted([*(name for name in rates if name != motor_topic), *(["battery_status"] if vbat is not None else [])])
     log = FlightLog(
         t=t,
         u=u,
@@ -404,7 +440,7 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
         pos_n=linear(pos_t, pos_vel[:, :3], t),
         vel_n=linear(pos_t, pos_vel[:, 3:], t),
         euler=attitude(att_t, quat, t, where),
-        vbat=linear(*battery, t)[:, 0] if battery else None,
+        vbat=vbat,
         meta=FlightMeta(vehicle=config.name, source=where, notes=notes),
     )
     mark_measurement_gaps(log, list(gaps), MAX_INTERPOLATION_GAP_S)

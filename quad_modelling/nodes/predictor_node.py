@@ -62,7 +62,7 @@ from std_msgs.msg import String
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.models.bounds import PhysicalBounds
 from quad_modelling.core.models.forecast import carried_forecast, compiled_window_stream, prepare_compiled_step
-from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate
+from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate, usable_voltage
 from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
@@ -333,8 +333,9 @@ class PredictorNode(Node):
             self._measured()
 
     def on_battery(self, msg: BatteryState) -> None:
-        if not np.isfinite(msg.voltage):
-            self.faults.report(stream_fault("nan", BATTERY), "non-finite battery voltage dropped")
+        if not usable_voltage(msg.voltage):
+            kind, what = ("nan", "non-finite") if not np.isfinite(msg.voltage) else ("range", "at or below 0 V (not connected)")
+            self.faults.report(stream_fault(kind, BATTERY), f"battery voltage {what} dropped")
             return
         ns = topics.stamp_ns(msg.header.stamp)
         if self._gate(BATTERY, ns, [msg.voltage]):

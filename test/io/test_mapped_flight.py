@@ -6,6 +6,8 @@ linear interpolation is exact, so every aligned row is known.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -168,3 +170,39 @@ def test_a_stream_on_another_clock_is_refused(monkeypatch, held_s):
     with pytest.raises(DataError, match=rf"topic {IMU} stamps span -\d+\.\d+\.\.-\d+\.\d+ s, topic {MOTORS} 1\.000\.\.\d\.\d+ s: "
                                         "stamps from another clock"):
         _assemble(offset_ns={IMU: -100 * 10**9})
+
+
+@pytest.mark.parametrize("held_s", [60.0, 0.5])
+def test_a_late_or_pausing_battery_bounds_nothing_and_is_noted(monkeypatch, held_s):
+    """The battery (optional, slow) starts 2.9 s late, then pauses 2.5 s: every row kept, its readings held before its
+    first and interpolated through the pause, both said; the rows decided on the way (held_s 0.5) give the same."""
+    monkeypatch.setattr(mapped_flight, "MAX_PENDING_S", held_s)
+    monkeypatch.setattr(mapped_flight, "EMIT_ROWS", 16)
+    reference, _ = _assemble(duration_s=8.0)
+    log, _ = _assemble(duration_s=8.0, skip=lambda topic, ns: topic == BATTERY and (ns < 3.94e9 or 5.0e9 < ns < 7.5e9))
+    np.testing.assert_array_equal(log.t, reference.t)
+    t = log.t - 1.0
+    first, last = 2.94, 7.94  # the battery's first and last readings [s from the motors' first stamp]
+    np.testing.assert_allclose(log.vbat, 16.0 - 0.01 * np.clip(t, first, last), atol=1e-12)
+    assert log.meta.notes["battery"] == (f"{BATTERY}: starts 2.9 s after the first row (its first reading held before); "
+                                         "1 pause(s) longer than 2 s interpolated (longest 2.6 s from 3.9 s into the flight)")
+
+
+def test_battery_readings_at_zero_volts_or_not_finite_are_skipped_not_refused():
+    def values(path, t, topic):
+        if path == "voltage_v" and 1.0 < t < 1.5:
+            return 0.0 if t < 1.25 else float("nan")  # a monitor that dropped out
+        return _values(path, t)
+    log, _ = _assemble(values=values)
+    t = log.t - 1.0
+    np.testing.assert_allclose(log.vbat, 16.0 - 0.01 * np.clip(t, 0.04, 3.94), atol=1e-12)  # linear through the dropout
+    assert log.meta.notes["battery"] == f"{BATTERY}: 5 of 40 readings at 0 V or not finite skipped (a battery not connected)"
+
+
+def test_a_battery_instance_at_zero_volts_is_not_the_one_read():
+    """PX4's unused battery slot (0 V) seen first: the first instance with a usable reading is read."""
+    topic_map = load_topic_map("px4")
+    reader = readers_for(topic_map, topic_map.sources(RATES), "test")[BATTERY]
+    seen = [(0, 0.0), (1, 15.9), (0, 0.0), (1, 15.8)]
+    kept = [reader.keep(SimpleNamespace(id=which), [volts]) for which, volts in seen]
+    assert kept == [False, True, False, True] and reader.chosen == 1 and reader.instances == {0: 2, 1: 2}

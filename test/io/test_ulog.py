@@ -30,7 +30,7 @@ def test_samples_are_shipped_with_their_licence():
     assert detect_format(EVENTS) == "px4-ulog"
 
 
-@pytest.mark.parametrize("path, vehicle, samples", [(EVENTS, "px4_iris", 152), (GROUND, "px4_iris_pwm", 97)])
+@pytest.mark.parametrize("path, vehicle, samples", [(EVENTS, "px4_iris", 152), (GROUND, "px4_iris_pwm", 98)])
 def test_both_samples_convert_to_bags_with_the_contract_topics(tmp_path, path, vehicle, samples):
     log = load_flight(path)
     assert (log.meta.vehicle, len(log)) == (vehicle, samples)
@@ -135,6 +135,48 @@ def test_multi_instance_topics_use_instance_0_and_say_so():
     assert notes == {"instances": {"sensor_combined": "2 instances logged, instance 0 used"}}
     log = flight_from_topics(chosen, {"CA_ROTOR_COUNT": 4}, "flight.ulg", notes=notes)
     assert np.allclose(log.acc_b[:, 2], -9.81)
+
+
+def _battery(rate_hz: float, start_s: float, end_s: float, volts: float, connected: bool = True) -> dict:
+    stamp = (10.0 + np.arange(start_s, end_s, 1 / rate_hz)) * 1e6
+    return {"timestamp": stamp, "voltage_v": np.full(len(stamp), volts), "connected": np.full(len(stamp), connected)}
+
+
+def test_the_battery_is_the_lowest_connected_instance_and_bounds_nothing():
+    """PX4 logs every battery slot: instance 0 unused (0 V, not connected), instance 1 the pack, starting 0.5 s late."""
+    topics = synthetic_topics()  # 2 s at 100 Hz from 10 s
+    data_list = [SimpleNamespace(name=name, multi_id=0, data=data) for name, data in topics.items()]
+    data_list += [SimpleNamespace(name="battery_status", multi_id=0, data=_battery(10, 0.0, 2.0, 0.0, connected=False)),
+                  SimpleNamespace(name="battery_status", multi_id=1, data=_battery(10, 0.5, 2.0, 15.2))]
+    chosen, notes = topics_of(data_list)
+    assert notes == {"instances": {"battery_status": "2 instances logged, instance 1 used (the lowest connected)"}}
+    log = flight_from_topics(chosen, {"CA_ROTOR_COUNT": 4}, "flight.ulg", notes=notes)
+    assert len(log) == 200 and np.all(log.vbat == pytest.approx(15.2))  # the 0.5 s before its first reading kept, held
+    assert "battery" not in log.meta.notes  # 0.5 s late: within BATTERY_PAUSE_S
+
+
+def test_battery_readings_not_connected_are_skipped_and_a_pause_is_noted():
+    topics = synthetic_topics(n=1000)  # 10 s
+    battery = _battery(10, 0.0, 10.0, 16.0)
+    battery["voltage_v"] = 16.0 - 0.1 * np.arange(100) / 10  # 16 V falling 0.1 V/s
+    battery["connected"][20:25] = False  # 2.0-2.4 s: disconnected, reported at whatever voltage
+    keep = (battery["timestamp"] < 15e6) | (battery["timestamp"] >= 18e6)  # silent from 5.0 s to 8.0 s
+    topics["battery_status"] = {key: value[keep] for key, value in battery.items()}
+    log = flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "flight.ulg")
+    inside = log.t <= 19.9  # the last reading; held after it
+    np.testing.assert_allclose(log.vbat[inside], 16.0 - 0.1 * (log.t[inside] - 10.0), atol=1e-9)  # across the skip and pause
+    assert np.all(log.vbat[~inside] == pytest.approx(16.0 - 0.99))
+    note = log.meta.notes["battery"]
+    assert note.startswith("5 of 70 readings at 0 V or not finite skipped (a battery not connected)")
+    assert "1 pause(s) longer than 2 s interpolated (longest 3.1 s from 4.9 s into the flight)" in note
+
+
+def test_a_battery_without_a_connected_reading_is_left_out_and_said():
+    topics = {**synthetic_topics(), "battery_status": _battery(10, 0.0, 2.0, 0.0, connected=False)}
+    log = flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "flight.ulg")
+    assert log.vbat is None and "vbat" not in log.meta.notes["sources"]
+    assert log.meta.notes["battery"] == ("20 of 20 readings at 0 V or not finite skipped (a battery not connected): no usable "
+                                         "reading, the flight is read without a voltage")
 
 
 def test_a_position_gap_is_marked_not_interpolated_through(tmp_path):

@@ -135,3 +135,7 @@ def test_the_evaluator_through_a_user_map_scores_what_it_scores_from_the_contrac
     assert mapped.faults.summary() == "none"
     for node in (contract, mapped):
         node.destroy_node()
+
+
+def test_a_battery_reading_at_or_below_zero_volts_is_a_range_fault():
+    assert [MappedStreams.fault({"battery": [v]}) for v in (15.2, 0.0, -0.1, float("nan"))] == [None, "range", "range", "nan"]

@@ -494,3 +494,16 @@ def test_a_command_far_beyond_the_input_range_is_dropped_one_just_beyond_is_clip
     got, _ = published(node, stamps)
     assert int(stamps[505]) not in got and int(stamps[506]) in got and len(got) == 699
     node.destroy_node()
+
+
+def test_a_battery_reading_at_zero_volts_or_not_finite_is_dropped_with_one_warning_each(ros):
+    from sensor_msgs.msg import BatteryState
+
+    node = make_node(model="naive", battery_topic="/quad/battery")
+    for volts in (0.0, 0.0, -1.0, float("nan"), 3.9):
+        msg = BatteryState(voltage=volts)
+        msg.header.stamp.sec = 5
+        node.on_battery(msg)
+    assert node.faults.counts == {"range_battery": 3, "nan_battery": 1}
+    assert node.battery.stamps == [5 * 10**9]  # the 3.9 V reading only
+    node.destroy_node()

@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.alignment import MeasurementTrack
+from quad_modelling.core.alignment import MeasurementTrack, usable_voltage
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
@@ -93,18 +93,21 @@ class MappedStreams:
     def read(self, topic: str, msg) -> tuple[int, dict[str, list[float]]] | None:
         """(stamp [ns], numbers of each field the topic gives) of a message; None for another instance's message."""
         reader = self.readers[topic]
-        if not reader.keep(msg):
-            return None
         values = reader.values(msg)
+        if not reader.keep(msg, values):
+            return None
         return reader.stamp_ns(msg), {f: [values[i] for i in self.columns[f]] for f in self.fields_of[topic]}
 
     @staticmethod
     def fault(fields: dict[str, list[float]]) -> str | None:
         """Why a message's numbers are unusable (a fault kind), or None: ``nan``, a non-finite number (an infinite
-        command: a NaN command is a stopped motor); ``zero_quaternion``, an attitude quaternion of norm off 1."""
+        command: a NaN command is a stopped motor); ``zero_quaternion``, an attitude quaternion of norm off 1;
+        ``range``, a battery reading at or below 0 V (not connected, :func:`~quad_modelling.core.alignment.usable_voltage`)."""
         for name, values in fields.items():
             if any(math.isinf(v) if name == "commands" else not math.isfinite(v) for v in values):
                 return "nan"
+        if not all(map(usable_voltage, fields.get("battery", ()))):
+            return "range"
         attitude = fields.get("attitude")
         if attitude is not None and abs(math.sqrt(sum(v * v for v in attitude)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE:
             return "zero_quaternion"
@@ -112,8 +115,8 @@ class MappedStreams:
 
     def admit(self, topic: str, msg, faults) -> tuple[int, dict[str, list[float]]] | None:
         """(stamp [ns], fields) of a message both nodes may use, or None: another instance of a multi-instance topic
-        (silently), or a fault reported to ``faults`` (the nodes' fault log: ``zero_quaternion`` or
-        ``nan_<topic>``) and the message dropped."""
+        (silently), or a fault reported to ``faults`` (the nodes' fault log: ``zero_quaternion``, ``nan_<topic>`` or
+        ``range_<topic>``) and the message dropped."""
         read = self.read(topic, msg)
         if read is None:
             return None
@@ -122,7 +125,8 @@ class MappedStreams:
             faults.report("zero_quaternion", f"{topic} message with a zero (non-unit) quaternion dropped")
             return None
         if fault:
-            faults.report(stream_fault("nan", topic), f"non-finite {topic} message dropped")
+            what = "non-finite" if fault == "nan" else "battery reading at or below 0 V (not connected):"
+            faults.report(stream_fault(fault, topic), f"{what} {topic} message dropped")
             return None
         return read
 
