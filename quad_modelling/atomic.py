@@ -4,6 +4,8 @@ An existing output is never replaced unless ``force`` is true, and never when it
 is, lies inside or contains one of the command's inputs (not even with
 ``force``); a failed or interrupted write leaves nothing behind (the staging
 path is removed, and the final rename cannot be cut in half by SIGINT/SIGTERM).
+A replaced output is swapped in one step (:func:`_replace`): a reader of it finds
+the old or the new output at every moment.
 A full disk, a read-only file system or a name too long for the file system is
 one :class:`OutputDirError` naming the output.
 """
@@ -11,6 +13,7 @@ one :class:`OutputDirError` naming the output.
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import errno
 import os
 import shutil
@@ -163,12 +166,44 @@ def atomic_output(path: str | Path, force: bool = False) -> Iterator[Path]:
         if not tmp.exists():
             raise FileNotFoundError(f"{tmp}: nothing was written")
         with _signals_held():
-            if path.exists():
-                backup = path.with_name(f".{path.name}.old-{uuid.uuid4().hex[:8]}")
-                path.rename(backup)
-                tmp.rename(path)
-                _remove(backup)
+            if path.exists() or path.is_symlink():
+                _replace(tmp, path)
             else:
                 tmp.rename(path)
     finally:
         _remove(staging)
+
+
+RENAME_EXCHANGE = 2
+"""``renameat2`` flag (linux/fs.h): swap two paths in one step."""
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Swap ``a`` and ``b`` in one step (Linux ``renameat2(RENAME_EXCHANGE)``, glibc 2.28); False where the system or
+    the file system cannot (then nothing was done)."""
+    rename2 = getattr(ctypes.CDLL(None, use_errno=True), "renameat2", None)
+    if rename2 is None:
+        return False
+    at_cwd = -100  # AT_FDCWD: paths relative to the working directory
+    if rename2(at_cwd, os.fsencode(a), at_cwd, os.fsencode(b), RENAME_EXCHANGE) == 0:
+        return True
+    code = ctypes.get_errno()
+    if code in (errno.EINVAL, errno.ENOSYS, errno.EPERM):
+        return False
+    raise OSError(code, os.strerror(code), str(b))
+
+
+def _replace(tmp: Path, path: Path) -> None:
+    """Put ``tmp`` where the existing ``path`` is, so that a reader of ``path`` at any moment finds the old or the new
+    output, never none: a file over a file by ``os.replace`` (one rename); a directory by swapping the two
+    (:func:`_exchange`), then removing the old one; where the system cannot swap, the old output renamed aside first
+    (a moment without it)."""
+    if tmp.is_file() and path.is_file() and not path.is_symlink():
+        os.replace(tmp, path)
+    elif _exchange(tmp, path):
+        _remove(tmp)
+    else:
+        backup = path.with_name(f".{path.name}.old-{uuid.uuid4().hex[:8]}")
+        path.rename(backup)
+        tmp.rename(path)
+        _remove(backup)
