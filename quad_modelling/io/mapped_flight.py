@@ -180,10 +180,14 @@ def instance_notes(readers: dict[str, TopicReader], bag_topics) -> dict:
 
 def commands_in_vehicle_unit(values: np.ndarray, source: FieldSource, vehicle: VehicleConfig, where: str) -> np.ndarray:
     """Commands as the map gives them -> the vehicle's input unit: as they are when the units agree (or ``unit:
-    vehicle``), else mapped linearly from the map's ``range`` [a, b] onto the vehicle's [min, max]:
-    :math:`u = u_{min} + (x - a) (u_{max} - u_{min}) / (b - a)`."""
+    vehicle``), converted when both are units of one dimension (a pulse width in us for a vehicle in s:
+    :func:`~quad_modelling.core.frames.to_si`), else mapped linearly from the map's ``range`` [a, b] onto the
+    vehicle's [min, max]: :math:`u = u_{min} + (x - a) (u_{max} - u_{min}) / (b - a)`."""
     if source.unit in ("vehicle", vehicle.input_unit):
         return values
+    dimensions = {frames.UNIT_FACTORS.get(unit, (unit,))[0] for unit in (source.unit, vehicle.input_unit)}
+    if len(dimensions) == 1 and vehicle.input_unit in frames.UNIT_FACTORS:
+        return frames.from_si(frames.to_si(values, source.unit), vehicle.input_unit)
     if source.range is None:
         raise ConfigError(f"{where}: commands of topic {source.topic} are in {source.unit!r}, vehicle {vehicle.name} takes "
                           f"{vehicle.input_unit!r}: give the map's commands a range: [low, high] to map them linearly")

@@ -25,7 +25,8 @@ bag. Units come from :data:`~quad_modelling.core.frames.UNIT_FACTORS` (``m``, ``
 
 Commands: ``unit`` is the unit the commands are in (``normalised``, ``PWM``, ``us``, ...; ``vehicle``: the
 vehicle's own input unit, as the project's contract) and ``range: [low, high]`` what they span. A vehicle
-taking that unit gets them as they are; any other vehicle gets them mapped linearly from ``range`` onto its
+taking that unit gets them as they are, one taking a unit of the same kind converted (``us`` for a vehicle in
+``s``); any other vehicle gets them mapped linearly from ``range`` onto its
 input range ``[inputs.min, inputs.max]``, so a PX4 ``actuator_motors`` recording (0..1) is read for a
 vehicle in PWM or in normalised units alike.
 

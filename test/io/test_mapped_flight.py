@@ -6,6 +6,7 @@ linear interpolation is exact, so every aligned row is known.
 
 from __future__ import annotations
 
+import dataclasses
 from types import SimpleNamespace
 
 import numpy as np
@@ -206,3 +207,14 @@ def test_a_battery_instance_at_zero_volts_is_not_the_one_read():
     seen = [(0, 0.0), (1, 15.9), (0, 0.0), (1, 15.8)]
     kept = [reader.keep(SimpleNamespace(id=which), [volts]) for which, volts in seen]
     assert kept == [False, True, False, True] and reader.chosen == 1 and reader.instances == {0: 2, 1: 2}
+
+
+def test_commands_in_another_unit_of_the_same_dimension_are_converted_not_range_mapped():
+    """PX4 PWM pulse widths (us, range 900..2000) for a vehicle taking seconds (0.001..0.002 s): 1500 us is 0.0015 s,
+    not the 0.00155 s of the linear range map; a vehicle in a unit of another kind still gets the range map."""
+    source = load_topic_map("px4").sources({"/fmu/out/actuator_outputs": "", "/fmu/out/vehicle_odometry": ""})["commands"]
+    in_seconds = dataclasses.replace(load_vehicle("px4_iris_pwm"), input_unit="s", input_min=0.001, input_max=0.002)
+    pulses = np.array([[900.0, 1500.0, 2000.0, 1000.0]])
+    np.testing.assert_allclose(mapped_flight.commands_in_vehicle_unit(pulses, source, in_seconds, "t"), pulses * 1e-6)
+    normalised = load_vehicle("px4_iris")
+    np.testing.assert_allclose(mapped_flight.commands_in_vehicle_unit(pulses, source, normalised, "t"), (pulses - 900) / 1100)
