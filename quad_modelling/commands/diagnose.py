@@ -311,7 +311,7 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
     warn_in_sample(train, test)  # after the run: an error on the way stays the one line
     print("\n".join(verdict_lines(data)))
     print(f"-> {output}/ ({', '.join(files)})" + (f", {args.write_vehicle}" if document is not None else ""))
-    return 0 if injection is None or data["injection"]["passed"] else 1
+    return 1 if injection is not None and data["injection"]["passed"] is False else 0
 
 
 def _run_validation(args, config, effects, output: Path) -> int:

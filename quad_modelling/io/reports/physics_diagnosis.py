@@ -61,8 +61,9 @@ def _verdict(data: dict) -> list[str]:
                      f"{s0['delay_s']['value'] * 1e3:.1f} ms; held-out J {logged['held_out']['base']['J']:.3f} -> "
                      f"{logged['held_out']['final']['J']:.3f}" + ("; --write-vehicle wrote this run's model"
                                                                  if data.get("vehicle_written") else ""))
-        lines.append(f"  --inject {injection['spec']}: {'PASSED' if injection['passed'] else 'FAILED'} ("
-                     + "; ".join(f"{c['check']}: {'yes' if c['holds'] else 'NO'}" for c in injection["checks"]) + ")")
+        lines.append(f"  --inject {injection['spec']}: {VERDICTS[injection['passed']]} ("
+                     + "; ".join(f"{c['check']}: {HOLDS[c['holds']]}" for c in injection["checks"]) + ")")
+        lines += [f"    {_check_note(c)}" for c in injection["checks"] if c["holds"] is None]
     return lines
 
 
@@ -127,7 +128,7 @@ def report_markdown(data: dict) -> str:
         out += [f"## Known answer: --inject {injection['spec']}", ""]
         out += markdown_table(["check", "expected", "measured", "holds", "note"],
                               [[c["check"], _check_value(c, "expected"), _check_value(c, "measured"),
-                                "yes" if c["holds"] else "NO", _check_note(c)] for c in injection["checks"]]) + [""]
+                                HOLDS[c["holds"]], _check_note(c)] for c in injection["checks"]]) + [""]
     return "\n".join(out) + "\n"
 
 
@@ -162,9 +163,21 @@ def _why_not_joined(trial: dict) -> str:
     return ""
 
 
+VERDICTS = {True: "PASSED", False: "FAILED", None: "NOT JUDGED"}
+"""An injection's verdict (``passed``: every check holds, one does not, one could not be judged)."""
+HOLDS = {True: "yes", False: "NO", None: "not judged"}
+
+
 def _check_note(check: dict) -> str:
-    """What a reader needs beside an injection check's numbers: a delay identified on its search bound."""
-    return "on the delay's search bound: not measured" if check.get("at_search_bound") else ""
+    """What a reader needs beside an injection check's numbers: a delay identified on its search bound, a rise not
+    judged from an un-injected delay of 0 ms (its lower bound)."""
+    if check.get("at_search_bound"):
+        return "on the delay's search bound: not measured"
+    if check.get("reference_at_zero"):
+        return ("the un-injected delay is 0 ms, its search's lower bound (commands that act at or before their stamps, as "
+                "in flights simulated without input delay): the rise from it is not measured; compare two injections "
+                "(delay:20 and delay:40) instead")
+    return ""
 
 
 def write_physics_diagnosis(data: dict, directory: Path) -> list[str]:

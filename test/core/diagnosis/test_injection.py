@@ -92,3 +92,22 @@ def test_a_new_motor_order_verdict_and_a_delay_on_its_search_bound_fail_their_ch
     gained = {**plain, "found": ["rotor_drag", "motor_imbalance"], "motor_command_gains": {"value": [1.2, 1, 1, 1]}}
     new = injection_checks(parse_injection("gain:1:1.2"), plain, gained)["checks"][0]
     assert new["holds"] and new["expected_new"] == ["motor_imbalance"]
+
+
+def test_a_rise_from_an_un_injected_delay_of_zero_is_not_judged_and_says_why():
+    """The README tour's simulated flights (no input delay): the un-injected delay sits on 0 ms, its search's lower
+    bound, and delay:20 rose 9.3 ms (the profile's minimum lies about 10 ms below 0): not judged, not failed; other
+    checks still decide, and a delay on its upper bound still fails."""
+    from quad_modelling.io.reports.physics_diagnosis import _check_note
+
+    plain = {"found": ["rotor_drag"], "delay_s": {"value": 0.0}, "motor_command_gains": {"value": [1.0] * 4}}
+    result = injection_checks(parse_injection("delay:20"), plain, {**plain, "delay_s": {"value": 0.0093}})
+    delay = next(c for c in result["checks"] if c["check"] == "delay rises by the injected delay")
+    assert delay["holds"] is None and delay["reference_at_zero"] and result["passed"] is None
+    assert "the un-injected delay is 0 ms, its search's lower bound" in _check_note(delay)
+    extra = {**plain, "found": ["rotor_drag", "battery"], "delay_s": {"value": 0.0093}}
+    assert injection_checks(parse_injection("delay:20"), plain, extra)["passed"] is False  # a new effect still fails
+    bound = {**plain, "delay_s": {"value": 0.150}}
+    assert injection_checks(parse_injection("delay:140"), plain, bound)["passed"] is False
+    assert injection_checks(parse_injection("gain:1:1.2"), plain, {**plain, "found": ["rotor_drag", "motor_imbalance"],
+                            "motor_command_gains": {"value": [1.2, 1, 1, 1]}})["passed"] is True  # not a delay check
