@@ -39,6 +39,7 @@ a negative command (range starting at 0 or above) or one further out is refused.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -182,6 +183,17 @@ class FlightLog:
     def sample_rate(self) -> float:
         """Median sample rate [Hz]."""
         return float(1.0 / np.median(np.diff(self.t)))
+
+    def fingerprint(self) -> str:
+        """A digest of the flight's numbers (stamps relative to the first, commands, measurements; SHA-256, 16 hex
+        digits): the same flight under any path or name has the same, two flights of one name differ (``merge``)."""
+        digest = hashlib.sha256()
+        for name in ("t", "u", *VECTOR_FIELDS, "vbat"):
+            values = getattr(self, name)
+            if values is not None:
+                digest.update(name.encode())
+                digest.update(np.ascontiguousarray(values - self.t[0] if name == "t" else values, dtype=np.float64).tobytes())
+        return digest.hexdigest()[:16]
 
     def slice(self, start: int, stop: int) -> FlightLog:
         """Rows [start, stop) as a new FlightLog (copied arrays) with the same metadata."""

@@ -86,7 +86,7 @@ def merge_results(directories: Sequence[str | Path]) -> EvaluationResult:
     given, one file held at a time); the flights list is the inputs' lists in order."""
     total: EvaluationStatistics | None = None
     flights: list[dict] = []
-    seen_flights: dict[tuple, str] = {}
+    seen_flights: dict[tuple, tuple] = {}
     first = None
     for path, document, statistics, config in _each(directories):
         if first is None:
@@ -107,16 +107,27 @@ def merge_results(directories: Sequence[str | Path]) -> EvaluationResult:
         _same("multi-step table", first_stats.multistep is not None, statistics.multistep is not None, first_path, path)
         scored = [f for f in document["config"].get("flights", []) if isinstance(f, dict) and not f.get("skipped")]
         for flight in scored:  # the same flight in two results would count twice
-            key = (str(flight.get("source")), flight.get("duration_s"), flight.get("sample_rate_hz"))
+            key = _flight_key(flight)
             if key in seen_flights:
-                raise DataError(f"{path}: flight {key[0]} ({key[1]} s) is also in {seen_flights[key]}; its windows would "
-                                "count twice: merge results of different flights")
-            seen_flights[key] = f"{path}"
+                name, where = seen_flights[key]
+                raise DataError(f"{path}: flight {flight.get('source')} ({flight.get('duration_s')} s) is also in {where}"
+                                + (f" (as {name})" if name != flight.get("source") else "")
+                                + "; its windows would count twice: merge results of different flights")
+            seen_flights[key] = (flight.get("source"), f"{path}")
         total.merge(statistics)
         flights.extend(document["config"].get("flights", []))
     if first is None:
         raise ConfigError("merge needs at least one results directory")
     return result_from_statistics(total, first[1], flights)
+
+
+def _flight_key(flight: dict) -> tuple:
+    """What makes two scored flights one: the digest of its numbers (:meth:`FlightLog.fingerprint
+    <quad_modelling.core.flight_log.FlightLog.fingerprint>`: the same flight under another path is one, two flights
+    of one name are two); results written before it carry none: the source as given, duration and rate."""
+    if flight.get("fingerprint"):
+        return ("fingerprint", flight["fingerprint"])
+    return (str(flight.get("source")), flight.get("duration_s"), flight.get("sample_rate_hz"))
 
 
 def _each(directories: Sequence[str | Path]) -> Iterator[tuple[Path, dict, EvaluationStatistics, EvaluationConfig]]:

@@ -115,7 +115,10 @@ def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, 
     assert main(["train", BAG, "-o", str(tmp_path / "a.npz"), *SMALL]) == 0
     assert main(["train", BAG, "-o", str(tmp_path / "b.npz"), *SMALL, "--hidden", "6"]) == 0
     shutil.copy(tmp_path / "a.npz", tmp_path / "a_copy.npz")
-    shutil.copytree(BAG, tmp_path / "other_flight")  # another flight's results (the same flight twice is refused)
+    from quad_modelling.io.bag_io import read_bag, write_bag
+
+    flight = read_bag(BAG)  # another flight (the same flight twice, under any path, is refused): its last second cut
+    write_bag(flight.slice(0, len(flight) - 100), tmp_path / "other_flight")
     for name, flight in (("a", BAG), ("b", BAG), ("a_copy", str(tmp_path / "other_flight"))):
         assert main(["evaluate", flight, "--preset", "short", "--no-multistep", "--model", f"narx:{tmp_path / name}.npz",
                      "-o", str(tmp_path / f"r_{name}")]) == 0
@@ -142,3 +145,25 @@ def test_merge_refuses_one_flight_in_two_results(results, tmp_path, capsys):
     message = merge_error([str(results["a"]), str(copy), "-o", str(tmp_path / "out")], capsys)
     assert f"{copy}/results.json: flight " in message and f"is also in {results['a']}/results.json" in message
     assert "its windows would count twice" in message and not (tmp_path / "out").exists()
+
+
+def test_merge_tells_flights_by_their_numbers_not_their_paths(flights, tmp_path, capsys, monkeypatch):
+    """The same flight evaluated by a relative and by an absolute path is one flight (it was merged, counted twice);
+    two different flights both named flight.mat in their own directories are two (they were refused)."""
+    import shutil
+    from pathlib import Path
+
+    for site, flight in (("site1", flights[0]), ("site2", flights[1])):
+        (tmp_path / site).mkdir()
+        shutil.copy(flight, tmp_path / site / ("flight" + Path(flight).suffix))
+    name = "flight" + Path(flights[0]).suffix
+    for site in ("site1", "site2"):
+        monkeypatch.chdir(tmp_path / site)
+        assert main(["evaluate", name, *SHORT, "--no-multistep", "-o", str(tmp_path / f"r_{site}")]) == 0
+    monkeypatch.chdir(tmp_path)
+    assert main(["merge", "r_site1", "r_site2", "-o", "both"]) == 0
+    assert "2 flight(s) from 2 results" in capsys.readouterr().out
+    assert main(["evaluate", str(tmp_path / "site1" / name), *SHORT, "--no-multistep", "-o", "absolute"]) == 0
+    message = merge_error(["r_site1", "absolute", "-o", "twice"], capsys)
+    assert f"absolute/results.json: flight {tmp_path / 'site1' / name} " in message
+    assert f"is also in r_site1/results.json (as {name})" in message and not (tmp_path / "twice").exists()

@@ -226,7 +226,8 @@ def evaluate_flight(
                 kept.append(
                     ExampleWindow(window.meta.source, span.name, window.t - window.t[0], trimmed_inputs(window, config.trim), measured, predicted, warm)
                 )
-    flight = {"source": log.meta.source, "duration_s": log.duration, "sample_rate_hz": log.sample_rate}
+    flight = {"source": log.meta.source, "duration_s": log.duration, "sample_rate_hz": log.sample_rate,
+              "fingerprint": log.fingerprint()}
     return FlightEvaluation(stats, flight, kept)
 
 
