@@ -11,7 +11,7 @@ from tqdm import tqdm
 from quad_modelling.atomic import atomic_output, check_bag_name, check_output
 from quad_modelling.core.vehicle import VehicleConfig, vehicle_file
 from quad_modelling.errors import ConfigError, DataError, QuadModellingError
-from quad_modelling.io.loader import FORMATS, detect_format, load_flight
+from quad_modelling.io.loader import FORMATS, check_topic_map_applies, detect_format, input_format, load_flight
 from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
 from quad_modelling.io.topics import check_namespace
 
@@ -117,18 +117,8 @@ def _vehicle_from_log(args: argparse.Namespace, inputs: list[Path], output: Path
     return 0
 
 
-def _format_of(path: Path, given: str) -> str:
-    """The input format ``--format`` gives, or the one its name tells (``unknown`` when it tells none)."""
-    if given != "auto":
-        return given
-    try:
-        return detect_format(path)
-    except DataError:
-        return "unknown"
-
-
 def _is_mat_log(path: Path, given: str) -> bool:
-    return _format_of(path, given) == "thesis-mat"
+    return input_format(path, given) == "thesis-mat"
 
 
 def run(args: argparse.Namespace) -> int:
@@ -143,10 +133,8 @@ def run(args: argparse.Namespace) -> int:
         return _vehicle_from_log(args, inputs, output)
     if args.mapping and not any(_is_mat_log(path, args.format) for path in inputs):  # else it would be ignored
         raise ConfigError(f"--mapping {args.mapping}: a mapping applies to .mat logs only, and no input is one "
-                          f"({inputs[0]} is a {_format_of(inputs[0], args.format)} input)")
-    if args.topic_map and not any(_format_of(path, args.format) == "bag" for path in inputs):  # else ignored unread
-        raise ConfigError(f"--topic-map {args.topic_map}: a topic map applies to bags only, and no input is one "
-                          f"({inputs[0]} is a {_format_of(inputs[0], args.format)} input)")
+                          f"({inputs[0]} is a {input_format(inputs[0], args.format)} input)")
+    check_topic_map_applies(args.topic_map, inputs, args.format)
 
     def load(path: Path):
         log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping, topic_map=args.topic_map)

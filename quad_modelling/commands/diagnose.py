@@ -33,8 +33,8 @@ from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_fil
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, map_flights, tty_progress
-from quad_modelling.io.loader import load_flight_or_skip
-from quad_modelling.io.topic_maps import add_topic_map_argument
+from quad_modelling.io.loader import check_topic_map_applies, load_flight_or_skip
+from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
 from quad_modelling.io.reports.diagnosis import verdict_text, write_diagnosis
 from quad_modelling.io.reports.physics_diagnosis import verdict_lines, write_physics_diagnosis
 from quad_modelling.io.reports.validation import validation_summary, write_validation
@@ -150,10 +150,11 @@ def _progress():
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    inputs = [*(args.train or []), *(args.test or []), vehicle_file(args.vehicle)]
+    inputs = [*(args.train or []), *(args.test or []), vehicle_file(args.vehicle), topic_map_file(args.topic_map)]
     check_output(output, args.force, inputs=inputs)
     check_distinct_inputs(args.train or [], "--train")
     check_distinct_inputs(args.test or [], "--test")
+    check_topic_map_applies(args.topic_map, [*(args.train or []), *(args.test or [])])
     physics = args.base == "physics" and not args.validate
     if not physics and (args.inject is not None or args.write_vehicle):
         raise ConfigError("--inject and --write-vehicle diagnose the physics base: drop --base greybox / --validate")

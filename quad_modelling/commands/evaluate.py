@@ -17,7 +17,7 @@ from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_fil
 from quad_modelling.core.windows import PRESETS, EvaluationConfig, check_window_rate
 from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, iter_flights, tty_progress
-from quad_modelling.io.loader import load_flight_or_skip, load_flights
+from quad_modelling.io.loader import check_topic_map_applies, load_flight_or_skip, load_flights
 from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
 from quad_modelling.io.reports.evaluation import (
     headline_scores,
@@ -220,6 +220,7 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=input_files(args))
     check_distinct_inputs(args.inputs, "FLIGHT")
+    check_topic_map_applies(args.topic_map, args.inputs)
     check_fanout_options(args.jobs, args.scheduler)
     try:
         horizons = tuple(int(h) for h in args.horizons.split(","))

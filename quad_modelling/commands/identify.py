@@ -21,6 +21,7 @@ from quad_modelling.core.identification.identify import (
 )
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError, DataError
+from quad_modelling.io.loader import check_topic_map_applies
 
 NAME = "identify"
 HELP = "identify the motor constants marked 'identified' from flight data (training spans only)"
@@ -62,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_output(output, args.force, inputs=input_files(args))
     check_distinct_inputs(args.inputs, "FLIGHT")
+    check_topic_map_applies(args.topic_map, args.inputs)
     if output.suffix not in (".yaml", ".yml"):  # what --vehicle reads back as a file
         raise ConfigError(f"-o {output}: a vehicle file is YAML; name it VEHICLE.yaml")
     config = config_from_args(args)

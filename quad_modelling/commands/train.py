@@ -212,7 +212,7 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.core.windows import check_window_rate
     from quad_modelling.fanout import check_fanout_options, tty_progress
-    from quad_modelling.io.loader import load_flights
+    from quad_modelling.io.loader import check_topic_map_applies, load_flights
 
     output = Path(args.output)
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
@@ -225,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--val-flights: the direct model's fit is closed-form, with no validation; pass those flights as training flights")
     check_distinct_inputs(args.flights, "FLIGHT", args.val_flights or [], "--val-flights")
     check_distinct_inputs(args.val_flights or [], "--val-flights")
+    check_topic_map_applies(args.topic_map, [*args.flights, *(args.val_flights or [])])
     kind = "hybrid" if args.hybrid else "direct" if args.direct else "narx"
     check_model_options(args, kind)
     config, rollout = (hybrid_config(args), None) if args.hybrid else (None, None) if args.direct else training_configs(args)

@@ -9,7 +9,7 @@ from typing import NamedTuple
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.input_files import check_regular_file, input_path_mode
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
-from quad_modelling.errors import DataError, QuadModellingError
+from quad_modelling.errors import ConfigError, DataError, QuadModellingError
 from quad_modelling.fanout import map_flights
 
 FORMATS = ("thesis-mat", "nanobench", "px4-ulog", "bag")
@@ -31,6 +31,27 @@ def detect_format(path: str | Path) -> str:
     if mode is None:
         raise DataError(f"{path}: no such file or directory")
     raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz, .ulg or a bag directory)")
+
+
+def input_format(path: str | Path, given: str = "auto") -> str:
+    """The input format ``--format`` gives, or the one its name tells (``unknown`` when it tells none)."""
+    if given != "auto":
+        return given
+    try:
+        return detect_format(path)
+    except DataError:
+        return "unknown"
+
+
+def check_topic_map_applies(topic_map: str | None, paths, given: str = "auto") -> None:
+    """ConfigError (one line) when ``--topic-map`` is given and no input is a bag: a topic map reads bags only, and
+    unread it would be ignored without a word (every verb that takes flights calls this)."""
+    if not topic_map or not paths:
+        return
+    formats = [input_format(p, given) for p in paths]
+    if "bag" not in formats:
+        raise ConfigError(f"--topic-map {topic_map}: a topic map applies to bags only, and no input is one "
+                          f"({paths[0]} is a {formats[0]} input)")
 
 
 def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fmt: str = "auto",

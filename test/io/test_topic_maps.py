@@ -440,3 +440,9 @@ def test_a_topic_map_the_input_cannot_take_is_refused_in_one_line(bags, tmp_path
     err = _fails(capsys, "info", str(CSV), "--topic-map", "px4")
     assert "--topic-map px4: a topic map applies to bags only" in err
     assert not (tmp_path / "out").exists()
+    for verb, args in (("evaluate", [str(CSV)]), ("identify", [str(CSV)]), ("train", [str(CSV), "--direct"]),
+                       ("diagnose", ["--train", str(CSV), "--test", str(CSV)])):  # the map was ignored, exit 0
+        out = tmp_path / ("out.yaml" if verb == "identify" else "out.npz" if verb == "train" else "out")
+        err = _fails(capsys, verb, *args, "--topic-map", "crazyswarm2", "-o", str(out))
+        assert f"--topic-map crazyswarm2: a topic map applies to bags only, and no input is one ({CSV} is a nanobench input)" in err
+        assert not out.exists()
