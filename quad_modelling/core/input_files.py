@@ -150,3 +150,12 @@ def read_yaml(path: str | Path, what: str):
     finally:
         if loader is not None:
             loader.dispose()
+
+
+def yaml_number(value) -> float:
+    """``float(value)`` of a number read from YAML, refusing a YAML boolean (``true`` would be 1.0, ``false`` 0.0: a
+    misplaced flag read as a mass or a bound); TypeError or ValueError as ``float`` raises them, for the caller's
+    one-line error naming the key. A string of a number stays accepted (PyYAML reads ``1e-5`` as one)."""
+    if isinstance(value, bool):
+        raise TypeError(f"a YAML boolean ({str(value).lower()}) is not a number")
+    return float(value)

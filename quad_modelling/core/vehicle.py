@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_modelling.core.input_files import read_yaml
+from quad_modelling.core.input_files import read_yaml, yaml_number
 from quad_modelling.core.physics.effects import EffectTerm, effects_document, parse_effects
 from quad_modelling.core.physics.rotors import hover_rotor_speed, linear_motor
 from quad_modelling.errors import ConfigError, VehicleKeyWarning
@@ -399,7 +399,7 @@ class VehicleConfig:
             if not (isinstance(position, list) and len(position) == 2):
                 raise ConfigError(f"{where}: motors[{i}].position must be [x, y] in body FRD metres")
             try:
-                xy = (float(position[0]), float(position[1]))
+                xy = (yaml_number(position[0]), yaml_number(position[1]))
             except (TypeError, ValueError) as err:
                 raise ConfigError(f"{where}: motors[{i}].position is not two numbers: {str(position)[:60]}") from err
             if not np.all(np.isfinite(xy)):
@@ -413,8 +413,8 @@ class VehicleConfig:
             raise ConfigError(f"{where}: two rotors must spin cw and two ccw")
         inputs = need(doc, "inputs", "")
         try:
-            input_min = float(need(inputs, "min", "inputs."))
-            input_max = float(need(inputs, "max", "inputs."))
+            input_min = yaml_number(need(inputs, "min", "inputs."))
+            input_max = yaml_number(need(inputs, "max", "inputs."))
         except (TypeError, ValueError) as err:
             raise ConfigError(f"{where}: inputs.min and inputs.max must be numbers") from err
         if not (np.isfinite(input_min) and np.isfinite(input_max)):
@@ -458,14 +458,14 @@ def _constant(entry, key: str, section: str, where: str, need) -> Constant:
     if entry["status"] not in STATUSES:
         raise ConfigError(f"{where}: {section}.{key}.status must be one of {STATUSES}, got {entry['status']!r}")
     try:
-        value = float(entry["value"])
+        value = yaml_number(entry["value"])
     except (TypeError, ValueError) as err:
         raise ConfigError(f"{where}: {section}.{key}.value is not a number: {str(entry['value'])[:40]!r}") from err
     check_constant(key, value, where, section)
     sigma = entry.get("sigma")
     if sigma is not None:
         try:
-            sigma = float(sigma)
+            sigma = yaml_number(sigma)
         except (TypeError, ValueError) as err:
             raise ConfigError(f"{where}: {section}.{key}.sigma is not a number: {str(sigma)[:40]!r}") from err
         if sigma < 0 or np.isinf(sigma):

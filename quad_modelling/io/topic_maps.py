@@ -51,7 +51,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from quad_modelling.core import frames
-from quad_modelling.core.input_files import read_yaml
+from quad_modelling.core.input_files import read_yaml, yaml_number
 from quad_modelling.core.vehicle import config_dir
 from quad_modelling.errors import BagError, ConfigError
 from quad_modelling.io.topics import check_namespace
@@ -304,7 +304,7 @@ def _field_source(field: str, doc, topics: dict[str, TopicSpec], where: str) -> 
     span = doc.get("range")
     if span is not None:
         try:
-            low, high = (float(v) for v in span)
+            low, high = (yaml_number(v) for v in span)
         except (TypeError, ValueError) as err:
             raise ConfigError(f"{here}: range must be [low, high], got {span!r}") from err
         if not high > low:

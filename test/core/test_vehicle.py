@@ -212,3 +212,17 @@ def test_a_unit_per_command_accepts_the_vehicles_own_command_unit():
     check_unit("rotor_speed_gain", "rad/s per PWM", "x")
     check_unit("rotor_speed_gain", "rad/s per us", "x")
     check_unit("mass", "kg", "x")
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["constants"]["mass"].update(value=True), r"constants.mass.value is not a number: 'True'"),
+    (lambda d: d["constants"]["mass"].update(sigma=True), r"constants.mass.sigma is not a number: 'True'"),
+    (lambda d: d["inputs"].update(min=False), r"inputs.min and inputs.max must be numbers"),
+    (lambda d: d["motors"][0].update(position=[True, 0.03]), r"motors\[0\].position is not two numbers"),
+])
+def test_a_yaml_boolean_is_not_a_number(edit, message):
+    """`mass: {value: true}` flew as 1.0 kg (float(True)); every number of a vehicle file refuses a boolean."""
+    doc = _doc()
+    edit(doc)
+    with pytest.raises(ConfigError, match=message):
+        VehicleConfig.from_dict(doc, "doc")

@@ -61,6 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from quad_modelling.core.input_files import yaml_number
 from quad_modelling.errors import ConfigError
 
 
@@ -193,9 +194,9 @@ def _term_value(entry, spec: TermParameter, context: str, on: bool, name: str) -
         raise ConfigError(f"{context}: {name} is switched on but this parameter was never identified "
                           f"(quad-modelling identify --effects {name})")
     try:
-        value = float(entry.get("value"))
-        low, high = (float(b) for b in entry["bounds"])
-        sigma = float(entry.get("sigma", "nan"))
+        value = yaml_number(entry.get("value"))
+        low, high = (yaml_number(b) for b in entry["bounds"])
+        sigma = yaml_number(entry.get("sigma", "nan"))
     except (TypeError, ValueError) as err:
         raise ConfigError(f"{context}: value, bounds [low, high] and sigma must be numbers") from err
     if not (np.isfinite(low) and np.isfinite(high) and low <= high):

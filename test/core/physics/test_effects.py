@@ -54,6 +54,8 @@ def test_a_valid_section_round_trips_and_switches_the_terms_on():
     (lambda e: e["ground_effect"]["offset"].update(status="not identified"), "effects.ground_effect.offset: ground_effect is switched on but this parameter was never identified"),
     (lambda e: e["ground_effect"].update(gain=1.0), "effects.ground_effect.gain: unknown parameter; ground_effect has coefficient, offset"),
     (lambda e: e["ground_effect"].update(enabled="yes"), "effects.ground_effect.enabled must be true or false"),
+    (lambda e: e["ground_effect"]["coefficient"].update(bounds=[False, 0.002]),  # read as 0 before
+     "effects.ground_effect.coefficient: value, bounds [low, high] and sigma must be numbers"),
 ])
 def test_each_fault_is_one_line_naming_the_file_the_term_and_the_key(change, message):
     effects = {"ground_effect": copy.deepcopy(GROUND)}
