@@ -6,6 +6,7 @@ import argparse
 import sys
 import time
 
+from quad_modelling.core.models.narx import OUTPUTS as NARX_OUTPUTS
 from quad_modelling.core.training.hybrid import HYBRID_HIDDEN, HYBRID_ROLLOUT
 from quad_modelling.core.training.narx import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
 from quad_modelling.core.training.rollout import VAL_FRACTION
@@ -259,11 +260,17 @@ def run(args: argparse.Namespace) -> int:
     elapsed = time.perf_counter() - started
     model.save(output, args.force)
     print(f"trained {kind} model on {samples} samples of {len(logs)} flight(s) in {elapsed:.1f} s -> {output}")
+    weights = model.training.get("weights") if kind == "narx" else None
+    if weights and samples * len(NARX_OUTPUTS) < weights:  # fewer numbers to fit than weights: it can memorise them
+        print(f"warning: {samples} training rows x {len(NARX_OUTPUTS)} outputs for {weights} weights: the NARX can learn these rows "
+              "by heart; give longer or more flights (or --preset/--train spans that keep more of them)", file=sys.stderr)
     if "rollout" in getattr(model, "training", {}):
         r = model.training["rollout"]
-        print(f"rollout fine-tuning: best validation epoch {r['best_epoch']} of {r['epochs_run']} "
-              f"({'stopped early' if r['stopped_early'] else 'epoch limit'}), validation loss {r['val_loss'][0]:.4g} -> "
-              f"{r['val_loss'][r['best_epoch']]:.4g} on {r['val_windows']} windows")
+        judged = (f"validation loss {r['val_loss'][0]:.4g} -> {r['val_loss'][r['best_epoch']]:.4g} on {r['val_windows']} windows"
+                  if r["val_windows"] else f"no validation window (--val-fraction 0, or a held-back part shorter than one): stopped on the training "
+                  f"loss, {r['val_loss'][0]:.4g} -> {r['val_loss'][r['best_epoch']]:.4g}")
+        print(f"rollout fine-tuning: best epoch {r['best_epoch']} of {r['epochs_run']} "
+              f"({'stopped early' if r['stopped_early'] else 'epoch limit'}), {judged}")
     if args.direct:
         print(f"vertical map (down velocity): {model.training['vertical_map']}")
     print(f"evaluate it with: quad-modelling evaluate ... --model {kind}:{output}")

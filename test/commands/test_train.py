@@ -44,7 +44,20 @@ def test_train_default_is_rollout_training_early_stopped_on_held_back_data(tmp_p
     # one flight: its span's last 20 % (of 5.0 .. 24.4 s) is held back for validation
     assert abs(train["span"][1] - val["span"][0]) < 0.011 and abs(val["span"][0] - (5.0 + 0.8 * 19.38)) < 0.1
     printed = capsys.readouterr().out
-    assert f"best validation epoch {rollout['best_epoch']} of {rollout['epochs_run']}" in printed
+    assert f"best epoch {rollout['best_epoch']} of {rollout['epochs_run']}" in printed and "validation loss" in printed
+
+
+def test_training_without_validation_windows_or_on_few_rows_says_so(tmp_path, capsys):
+    """--val-fraction 0 stopped on the training loss while saying 'validation loss ... on 0 windows'; 100 rows for
+    6126 weights trained without a word."""
+    out = tmp_path / "narx.npz"
+    assert main(["train", BAG, "-o", str(out), *SMALL, *QUICK_ROLLOUT, "--val-fraction", "0", "--train", "0%:1%"]) == 0
+    model = load_narx(out, vehicle="crazyflie21")
+    printed = capsys.readouterr()
+    assert model.training["rollout"]["val_windows"] == 0
+    assert "no validation window (--val-fraction 0, or a held-back part shorter than one): stopped on the training loss" in printed.out
+    rows, weights = model.training["samples"], model.training["weights"]
+    assert rows * 6 < weights and f"warning: {rows} training rows x 6 outputs for {weights} weights" in printed.err
 
 
 def test_train_val_flights_are_used_for_early_stopping_only(tmp_path):

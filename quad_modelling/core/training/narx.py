@@ -159,6 +159,7 @@ def train_narx(
         training={
             "seed": seed,
             "samples": len(rows),
+            "weights": int(sum(w.size for w in weights.values())),
             "segments": [{"source": s.source, "span": list(s.span)} for s in usable],
             **info,
             **(training or {}),
