@@ -169,8 +169,6 @@ def run(args: argparse.Namespace) -> int:
                 refused.append(str(err))
                 print(f"refused: {err}", file=sys.stderr)
                 continue
-            for message in log.meta.notes.get("warnings", []):  # clipped commands, a cut tail, a damaged ULog
-                print(f"warning: {message}", file=sys.stderr)
             _write(log, staging / name, args.namespace, force=False)
             converted += 1
             done.append(f"{path} -> {output / name} ({len(log)} samples, {log.duration:.1f} s)")

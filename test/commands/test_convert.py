@@ -76,6 +76,8 @@ def test_the_extrapolated_quirk_converts_with_one_warning_kept_in_the_bag(tmp_pa
                    "(148 rows, up to 294574): the onboard log stopped and the CSV extrapolated it; the flight is cut at t=0.53 s"]
     log = read_bag(tmp_path / "bag")
     assert len(log) == 53 and log.meta.notes["extrapolated_tail"]["rows"] == 148 and len(log.meta.notes["warnings"]) == 1
+    assert main(["convert", str(QUIRK), str(FLIGHT), "-o", str(tmp_path / "bags")]) == 0  # with others: once too (was twice)
+    assert sum("motor columns continue as one straight line" in line for line in capsys.readouterr().err.splitlines()) == 1
 
 
 def test_existing_output_is_kept_without_force(tmp_path, capsys):
