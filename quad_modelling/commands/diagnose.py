@@ -207,7 +207,7 @@ def run(args: argparse.Namespace) -> int:
     warn_in_sample(train, test)
     print(verdict_text(data))
     print(f"-> {output}/ ({', '.join(files)})")
-    return 0
+    return 1 if skipped else 0  # --skip-bad left a flight out: done, with less (as convert)
 
 
 def in_sample(train, test) -> list[str]:
@@ -312,7 +312,7 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
     warn_in_sample(train, test)  # after the run: an error on the way stays the one line
     print("\n".join(verdict_lines(data)))
     print(f"-> {output}/ ({', '.join(files)})" + (f", {args.write_vehicle}" if document is not None else ""))
-    return 1 if injection is not None and data["injection"]["passed"] is False else 0
+    return 1 if skipped or (injection is not None and data["injection"]["passed"] is False) else 0
 
 
 def _run_validation(args, config, effects, output: Path) -> int:

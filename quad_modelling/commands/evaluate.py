@@ -249,4 +249,4 @@ def run(args: argparse.Namespace) -> int:
         if not data["windows"]["dummy"].get(span.name):
             print(f"warning: span {span.name} {span.text()} holds no {config.window_s:g} s window of any flight after "
                   f"dropping {config.drop_start:g} s/{config.drop_end:g} s: nothing scored there", file=sys.stderr)
-    return 0
+    return 1 if skipped else 0  # --skip-bad left a flight out: done, with less (as convert)

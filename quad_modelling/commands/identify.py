@@ -87,4 +87,4 @@ def run(args: argparse.Namespace) -> int:
         print(f"identified from {len(flights)} of {len(flights) + len(skipped)} inputs: {len(skipped)} skipped "
               "(above), not in identification.files", file=sys.stderr)
     print(f"-> {output}")
-    return 0
+    return 1 if skipped else 0  # --skip-bad left a flight out: done, with less (as convert)

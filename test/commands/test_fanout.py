@@ -22,9 +22,10 @@ def exact(stored: dict, index: int) -> float:
     return float(ExactSum.from_json(stored, "sum").mean(1)[index])
 
 
-def evaluation(directory, inputs, *extra):
-    """results.json of ``evaluate INPUTS`` (greybox, naive, dummy) into ``directory``: (document, bytes)."""
-    assert main(["evaluate", *inputs, *SPANS, "--model", "greybox", "--model", "naive", "-o", str(directory), *extra]) == 0
+def evaluation(directory, inputs, *extra, code: int = 0):
+    """results.json of ``evaluate INPUTS`` (greybox, naive, dummy) into ``directory``: (document, bytes); ``code`` the
+    exit code expected (1: --skip-bad left a flight out)."""
+    assert main(["evaluate", *inputs, *SPANS, "--model", "greybox", "--model", "naive", "-o", str(directory), *extra]) == code
     return json.loads((directory / "results.json").read_text()), (directory / "results.json").read_bytes()
 
 
@@ -65,7 +66,7 @@ def test_evaluate_bad_file_among_many_on_workers(flights, serial, dask_scheduler
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("quad-modelling evaluate: error: ") and "broken.mat" in err[0], err
     assert not (tmp_path / "x").exists()
-    skipping, _ = evaluation(tmp_path / "skip", inputs, "--skip-bad", "--scheduler", dask_scheduler)
+    skipping, _ = evaluation(tmp_path / "skip", inputs, "--skip-bad", "--scheduler", dask_scheduler, code=1)
     assert "skipped: " in capsys.readouterr().err
     assert skipping["models"] == serial[0]["models"]  # the bad file left out: the numbers of the two good flights
     assert [f.get("skipped", False) for f in skipping["config"]["flights"]] == [False, False, True]

@@ -59,7 +59,7 @@ def test_a_10_hz_flight_is_refused_for_its_rate_on_every_verb_that_scores(argv, 
 def test_skip_bad_leaves_a_too_slow_flight_out_like_an_unreadable_one(tmp_path, capsys):
     nanobench = REPO / "test" / "fixtures" / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz"  # 10 s at 100 Hz
     assert main(["evaluate", str(ULOG), str(nanobench), "--skip-bad", "--drop", "0:0", "--train", "0:4", "--eval", "4:8",
-                 "--window", "4", "--no-multistep", "-o", str(tmp_path / "e")]) == 0
+                 "--window", "4", "--no-multistep", "-o", str(tmp_path / "e")]) == 1  # done, one left out
     captured = capsys.readouterr()
     assert f"skipped: {ULOG}: {RATE_LINE}" in captured.err
     assert captured.out.startswith("1 flight(s), windows train 1, eval 1")

@@ -136,7 +136,7 @@ def test_skipped_input_and_overlapping_spans_are_said(flights, tmp_path, capsys)
     bad.write_bytes(b"not a MAT file")
     out = tmp_path / "lq.yaml"
     assert main(["identify", *flights, str(bad), "--vehicle", "linkquad", "--preset", "short", "--train", "0%:70%",
-                 "--skip-bad", "-o", str(out)]) == 0
+                 "--skip-bad", "-o", str(out)]) == 1  # written, with an input left out: exit 1, as convert
     err = capsys.readouterr().err
     assert f"skipped: {bad}: " in err
     assert "identified from 2 of 3 inputs: 1 skipped (above), not in identification.files" in err
