@@ -55,9 +55,9 @@ SHAPE_TEST := B5_helix_fast_rep1 B5_helix_medium_rep1 B5_helix_slow_rep1 B9_tref
 
 diagnosis-reports: $(STAMP)
 	$(VENV)/bin/quad-modelling diagnose --train $(call NB,$(SPEED_TRAIN)) --test $(call NB,$(SPEED_TEST)) \
-		--skip-bad --narx --force -o docs/diagnosis_nanobench
+		--skip-bad --force -o docs/diagnosis_nanobench
 	$(VENV)/bin/quad-modelling diagnose --train $(call NB,$(SHAPE_TRAIN)) --test $(call NB,$(SHAPE_TEST)) \
-		--skip-bad --narx --force -o docs/diagnosis_nanobench_by_shape
+		--skip-bad --force -o docs/diagnosis_nanobench_by_shape
 
 clean:
 	rm -rf build install log .pytest_cache

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.atomic import atomic_output, check_distinct_inputs, check_output
-from quad_modelling.commands.evaluate import print_flight_warnings
+from quad_modelling.commands.evaluate import check_one_vehicle, print_flight_warnings
 from quad_modelling.core.diagnosis.catalogue import parse_effect_list
 from quad_modelling.core.diagnosis.diagnose import (
     DIAGNOSIS_CONFIG,
@@ -30,7 +30,7 @@ from quad_modelling.core.effect_names import (
 )
 from quad_modelling.core.preprocess import check_cutoff
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
-from quad_modelling.core.windows import EvaluationConfig
+from quad_modelling.core.windows import EvaluationConfig, check_window_rate
 from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, map_flights, tty_progress
 from quad_modelling.io.loader import check_topic_map_applies, load_flight_or_skip
@@ -148,6 +148,23 @@ def _progress():
     return say, bar
 
 
+def _fast_enough(flights: list, skip_bad: bool, skipped: list[str]) -> list:
+    """The flights fast enough for a window (:func:`~quad_modelling.core.windows.check_window_rate`: a 10 Hz ULog is
+    refused for its rate, not for its spans); with ``skip_bad`` a slow one is left out and its reason added to
+    ``skipped``, as an unreadable one."""
+    kept = []
+    for log in flights:
+        try:
+            check_window_rate(log)
+        except DataError as err:
+            if not skip_bad:
+                raise
+            skipped.append(str(err))
+            continue
+        kept.append(log)
+    return kept
+
+
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     inputs = [*(args.train or []), *(args.test or []), vehicle_file(args.vehicle), topic_map_file(args.topic_map)]
@@ -184,11 +201,13 @@ def run(args: argparse.Namespace) -> int:
     train = [one.log for one in loaded[: len(args.train)] if one.log is not None]
     test = [one.log for one in loaded[len(args.train):] if one.log is not None]
     skipped = [one.skipped for one in loaded if one.log is None]
+    train, test = (_fast_enough(flights, args.skip_bad, skipped) for flights in (train, test))
     for message in skipped:
         print(f"skipped: {message}", file=sys.stderr)
     if not train or not test:
         raise ConfigError("no readable flight left in --train or --test")
     print_flight_warnings(train + test)
+    check_one_vehicle(train + test, "diagnose")
     for log in train + test:
         check_cutoff(args.smooth, log)
     vehicle = given or load_vehicle(train[0].meta.vehicle)

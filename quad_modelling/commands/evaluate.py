@@ -104,6 +104,15 @@ def print_flight_warnings(flights: list[FlightLog]) -> None:
             print(f"warning: {message}", file=sys.stderr)
 
 
+def check_one_vehicle(flights: list[FlightLog], verb: str) -> None:
+    """ConfigError (one line, naming a flight of each) when the flights are of more than one vehicle."""
+    names = sorted({f.meta.vehicle for f in flights})
+    if len(names) > 1:
+        other = next(f for f in flights if f.meta.vehicle != flights[0].meta.vehicle)
+        raise ConfigError(f"the flights are of different vehicles {names} ({flights[0].meta.source} of "
+                          f"{flights[0].meta.vehicle!r}, {other.meta.source} of {other.meta.vehicle!r}); {verb} one vehicle at a time")
+
+
 def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
     """Read every input (one loader for all formats; on Dask with --jobs/--scheduler); returns flights, vehicle
     config and skipped-file messages."""
@@ -116,12 +125,8 @@ def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], 
     if not flights:
         raise ConfigError("no readable flight among the inputs")
     print_flight_warnings(flights)
-    names = sorted({f.meta.vehicle for f in flights})
-    if len(names) > 1:
-        other = next(f for f in flights if f.meta.vehicle != flights[0].meta.vehicle)
-        raise ConfigError(f"the flights are of different vehicles {names} ({flights[0].meta.source} of "
-                          f"{flights[0].meta.vehicle!r}, {other.meta.source} of {other.meta.vehicle!r}); "
-                          f"{getattr(args, 'verb', 'evaluate')} one vehicle at a time")
+    check_one_vehicle(flights, getattr(args, "verb", "evaluate"))
+    names = [flights[0].meta.vehicle]
     vehicle = given or load_vehicle(flights[0].meta.vehicle)
     if vehicle.name != names[0]:
         raise ConfigError(f"--vehicle {args.vehicle} describes {vehicle.name!r}, the flights are of {names[0]!r}")

@@ -175,3 +175,22 @@ def test_a_swap_in_the_logged_data_is_carried_into_the_written_vehicle(tmp_path)
     final = data["multistep"]["models"]["final"]
     for group in ("velocity", "angular_velocity"):
         assert table[group]["ratio_sim_err"] == pytest.approx(final[group]["ratio_sim_err"], rel=1e-9)
+
+
+def test_the_makefile_diagnosis_reports_options_are_the_physics_bases():
+    """`make diagnosis-reports` passed --narx (an option of the greybox base) and stopped with one line, exit 2."""
+    import re
+    import shlex
+
+    from quad_modelling.cli import build_parser
+    from quad_modelling.commands.diagnose import _refuse_greybox_options
+    from test.conftest import REPO
+
+    recipe = (REPO / "Makefile").read_text().split("diagnosis-reports:", 1)[1].split("\nclean:", 1)[0]
+    commands = [shlex.split(c.replace("\\\n", " ")) for c in re.findall(r"quad-modelling diagnose (.+?)(?=\n\t\$|\Z)", recipe, re.S)]
+    assert len(commands) == 2
+    for words in commands:
+        flags = [w for w in words if w.startswith("--") and w not in ("--train", "--test")]
+        args = build_parser().parse_args(["diagnose", "--train", "a.csv", "--test", "b.csv", *flags, "-o", "out"])
+        assert args.base == "physics"
+        _refuse_greybox_options(args)  # raises ConfigError for a greybox option

@@ -12,7 +12,7 @@ spec               change of the logged commands u (N, 4)                       
 ``none``           unchanged                                                    nothing changes
 =================  ==========================================================  ===========================================
 
-In every case no effect may newly be found (but the motor imbalance for ``gain``), the motor-order check's verdict
+In every case no effect may newly be found (but the motor imbalance for ``gain``, the input delay for ``delay``), the motor-order check's verdict
 stays (but for ``swap``), and but for ``delay:MS`` the delay stays (+- :data:`DELAY_TOLERANCE_S`). The delay's rise
 is not judged (the verdict NOT JUDGED, exit code 0) when the un-injected delay sits on its search's lower bound, 0 ms
 (:func:`injection_checks`). What the
@@ -23,6 +23,7 @@ delay that puts the identified one on its search bound fails its check saying so
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -30,6 +31,8 @@ import numpy as np
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.physics_fit import DELAY_MAX_S
 from quad_modelling.core.identification.physics_terms import TERM_BOUNDS
+from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import ConfigError, DataError
 
 DELAY_TOLERANCE_S = 0.005
@@ -40,6 +43,9 @@ GAIN_TOLERANCE = 0.05
 
 GAIN_RANGE = TERM_BOUNDS[("motor_imbalance", "gain_1")]
 """The motor gains' search range (the identification's bounds): an injected factor K must lie inside it."""
+
+AT_BOUND_S = 5e-4
+"""A delay within this of the search's upper bound [s] is on it (the stored delay may be a float32: 149.99986 ms)."""
 
 MIN_FLIGHT_S = 1.0
 """Least flight left after a delay injection [s]."""
@@ -97,6 +103,9 @@ def parse_injection(spec: str, motors: int = 4) -> Injection:
     if kind == "delay":
         if not (np.isfinite(numbers[0]) and numbers[0] > 0):
             raise ConfigError(f"--inject {text}: the delay must be a positive number of milliseconds")
+        if numbers[0] <= DELAY_TOLERANCE_S * 1e3:
+            raise ConfigError(f"--inject {text}: the check tells a delay from none only beyond its {DELAY_TOLERANCE_S * 1e3:g} ms "
+                              "tolerance; inject more (the check's range: 10-40 ms)")
         if numbers[0] >= DELAY_MAX_S * 1e3:
             raise ConfigError(f"--inject {text}: the identification searches delays up to {DELAY_MAX_S * 1e3:g} ms (the "
                               f"vehicle's own delay included); inject less (the check's range: 10-40 ms)")
@@ -105,6 +114,9 @@ def parse_injection(spec: str, motors: int = 4) -> Injection:
     if kind == "gain":
         if not (np.isfinite(numbers[1]) and numbers[1] > 0):
             raise ConfigError(f"--inject {text}: the gain factor K must be a positive number")
+        if abs(numbers[1] - 1.0) <= GAIN_TOLERANCE:
+            raise ConfigError(f"--inject {text}: the check tells a gain from none only beyond its {GAIN_TOLERANCE:.0%} tolerance; "
+                              "inject more (the check's range: 1.1-1.3)")
         if not GAIN_RANGE[0] < numbers[1] < GAIN_RANGE[1]:
             raise ConfigError(f"--inject {text}: the identification searches motor gains in {GAIN_RANGE[0]:g}..{GAIN_RANGE[1]:g}; "
                               "K must lie inside (the check's range: 1.1-1.3)")
@@ -131,7 +143,9 @@ def relative_gain(gains, motor: int) -> float:
 
 def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
     """The comparison of the injected run's summary with the un-injected one (module docstring): per check the
-    expected and measured values and whether it holds (None: not judged); ``passed`` True when all hold, False when
+    expected and measured values and whether it holds (None: not judged); a swap is expected relative to the flights
+    as logged (their own exchange of the same motors and the injected one cancel: no swap; another one makes two
+    exchanges, which the order check, naming one, cannot: not judged); ``passed`` True when all hold, False when
     one does not, else None. The delay's rise is not judged when the un-injected delay sits on the search's lower
     bound, 0 ms (``reference_at_zero``): the flights' commands act at or before their stamps, and the rise from that
     bound is less than the injected delay by the unknown amount the un-injected optimum lies below it (simulated
@@ -139,7 +153,7 @@ def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
     rose 9.3 ms, a 40 ms one 30 ms); comparing two injections (``delay:20`` and ``delay:40``) measures it."""
     checks = []
     new = sorted(set(injected["found"]) - set(plain["found"]))
-    allowed = {"gain": {"motor_imbalance"}}.get(injection.kind, set())
+    allowed = {"gain": {"motor_imbalance"}, "delay": {"input_delay"}}.get(injection.kind, set())  # the injected change
     checks.append({"check": "nothing else newly found", "newly_found": new, "expected_new": sorted(allowed),
                    "holds": not [n for n in new if n not in allowed]})
     if injection.kind != "swap":
@@ -148,7 +162,7 @@ def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
                        "holds": after == before})
     if injection.kind == "delay":
         rise = injected["delay_s"]["value"] - plain["delay_s"]["value"]
-        at_bound = injected["delay_s"]["value"] >= DELAY_MAX_S - 1e-9
+        at_bound = injected["delay_s"]["value"] >= DELAY_MAX_S - AT_BOUND_S
         from_floor = plain["delay_s"]["value"] <= 0.0  # the un-injected delay on the search's lower bound
         checks.append({"check": "delay rises by the injected delay", "expected_s": injection.delay_s, "measured_s": rise,
                        "tolerance_s": DELAY_TOLERANCE_S, "at_search_bound": at_bound, "reference_at_zero": from_floor,
@@ -164,11 +178,12 @@ def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
         checks.append({"check": f"motor {injection.motor}'s relative command gain rises by K", "expected": injection.factor,
                        "measured": ratio, "tolerance": GAIN_TOLERANCE,
                        "holds": abs(ratio / injection.factor - 1.0) <= GAIN_TOLERANCE})
-    if injection.kind == "swap":
+    if injection.kind == "swap":  # relative to the flights as logged: a swap there and the same injected cancel
         fix = (injected.get("motor_order") or {}).get("swap")
-        expected = sorted(injection.swap)
-        checks.append({"check": "the motor-order check names the swap", "expected": expected, "named": fix,
-                       "holds": fix == expected})
+        logged = (plain.get("motor_order") or {}).get("swap")
+        expected = sorted(injection.swap) if logged is None else None if sorted(logged) == sorted(injection.swap) else "two"
+        checks.append({"check": "the motor-order check names the swap", "expected": None if expected == "two" else expected,
+                       "named": fix, "logged_swap": logged, "holds": None if expected == "two" else fix == expected})
     verdicts = [c["holds"] for c in checks]
     return {"spec": injection.spec, "checks": checks,
             "passed": False if False in verdicts else None if None in verdicts else True}
@@ -193,3 +208,21 @@ def swapped_motors(document: dict, swap) -> dict:
         terms[f"gain_{a + 1}"], terms[f"gain_{b + 1}"] = terms[f"gain_{b + 1}"], terms[f"gain_{a + 1}"]
     document["description"] += f" (motors {a + 1} and {b + 1} listed in the order the logged commands hold them)"
     return document
+
+
+def motor_order_check(train: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig) -> dict:
+    """``identify``'s motor order and spin check (:mod:`~quad_modelling.core.identification.motor_check`) on the
+    training flights, with ``swap`` [A, B] (1-based) when the likely fix is exactly one exchange of two columns."""
+    from quad_modelling.core.identification.greybox_fit import identify_base
+    from quad_modelling.core.identification.identify import modelled_thrusts, training_batch
+    from quad_modelling.core.identification.motor_check import check_motor_layout
+
+    batch = training_batch(train, vehicle, config)
+    check = check_motor_layout(batch, modelled_thrusts(batch, identify_base(batch, vehicle)), vehicle)
+    names = [m.name for m in vehicle.motors]
+    swap = None
+    fix = check.get("fix")
+    if fix and fix["moved"] == 2:
+        moved = [i + 1 for i, name in enumerate(fix["order"]) if name != names[i]]
+        swap = sorted(moved)
+    return {"verdict": check["verdict"], "wrong": check["wrong"], "actions": fix["actions"] if fix else [], "swap": swap}

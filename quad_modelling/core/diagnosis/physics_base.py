@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from quad_modelling.core.diagnosis.injection import swapped, swapped_motors
+from quad_modelling.core.diagnosis.injection import motor_order_check, swapped, swapped_motors
 from quad_modelling.core.diagnosis.verdicts import DETERMINED_SIGMAS
 from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
@@ -68,7 +68,7 @@ from quad_modelling.core.physics.effects import switched_off
 from quad_modelling.core.preprocess import resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig
-from quad_modelling.errors import ConfigError
+from quad_modelling.errors import ConfigError, DataError
 
 CANDIDATES = ("rotor_drag", "motor_lag", "input_delay", "ground_effect", "battery", "gyroscopic", "motor_imbalance")
 """The physics model's terms the diagnosis assesses (module docstring), in the order ties are broken."""
@@ -195,6 +195,7 @@ class PhysicsDiagnosis:
     timings: dict = field(default_factory=dict)
     motor_order: dict | None = None
     ladder: list[dict] = field(default_factory=list)
+    folds_note: str | None = None
 
     @property
     def found(self) -> list[str]:
@@ -206,7 +207,7 @@ class PhysicsDiagnosis:
             "base_model": "physics", "found": self.found, "summary": self.summary,
             "held_out": {"base": rung_json(self.base), "final": rung_json(self.final)},
             "selection": self.steps, "ladder": self.ladder, "dropped_shrink": self.dropped, "effects": self.effects,
-            "multistep": self.table, "folds": self.folds, "motor_order": self.motor_order,
+            "multistep": self.table, "folds": self.folds, "folds_note": self.folds_note, "motor_order": self.motor_order,
             "in_base": {**{c: t for c, t in SWITCHED_BASE.items() if c not in self.candidates}, **IN_BASE},
             "constants": {e.name: e.as_dict() for e in self.final.fit.estimates()},
             "rule": {
@@ -215,7 +216,7 @@ class PhysicsDiagnosis:
                          f"({BOOTSTRAP} resamples of {BLOCK_S:g} s blocks of starts) and its main component is resolved; "
                          f"stays when the 5% bound of the rise of J on dropping it from the final set is >= {FOUND_MIN_BOUND:.0%}",
                 "resolved": f"|value - null| >= {DETERMINED_SIGMAS} sigma, not at a search bound, same sign on both folds of "
-                            f"the training flights",
+                            f"the training flights (a fold on a search bound does not count)",
             },
             "config": {"train_flights": self.train_sources, "test_flights": self.test_sources},
             "timings_s": self.timings, "units": "SI (m/s, rad/s, s)",
@@ -310,12 +311,14 @@ def components(effect: str, fit: PhysicsFit, folds: Sequence[PhysicsFit] = ()) -
         e = estimates.get(name)
         if e is None:
             continue
-        fold_values = [float({x.name: x for x in f.estimates()}[name].value) for f in folds
-                       if name in {x.name for x in f.estimates()}]
+        on_folds = [x for x in ({y.name: y for y in f.estimates()}.get(name) for f in folds) if x is not None]
+        fold_values = [float(x.value) for x in on_folds]
+        measured = [x.value for x in on_folds if not x.at_bound]  # a half that ran to a search bound did not measure it
         determined = bool(np.isfinite(e.sigma) and e.sigma > 0 and abs(e.value - null) >= DETERMINED_SIGMAS * e.sigma)
-        stable = len(fold_values) < 2 or len({np.sign(v - null) for v in fold_values}) == 1
+        stable = len(measured) < 2 or len({np.sign(v - null) for v in measured}) == 1
         out.append({"component": label, "name": name, "value": float(e.value), "sigma": float(e.sigma), "unit": e.unit,
                     "bounds": list(e.bounds), "at_bound": bool(e.at_bound), "held": bool(e.held), "folds": fold_values,
+                    "folds_at_bound": [bool(x.at_bound) for x in on_folds],
                     "resolved": bool(determined and not e.at_bound and stable and not e.held)})
     if effect == "motor_imbalance" and out:  # the main component: the gain or CG offset furthest from its null in sigmas
         nulls = {name: null for _, name, null in COMPONENTS[effect]}
@@ -447,26 +450,30 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     final = current
     ladder = [rung_json(rung(chosen[:k])) for k in range(len(chosen) + 1)]  # base, + rank 1, ...: each refitted jointly
     say("folds and the final table")
-    folds = []
+    folds, folds_note = [], None
     if len(train) >= 2:
         halves = [list(train[0::2]), list(train[1::2])]
         fitted_with = final.fit.diagnostics["observer_choice"]["fitted_with"]
         held = dynamics(final.effects) and (final.fit.values["rotor_time_constant"], final.fit.values["rotor_delay"],
                                             final.fit.sigma["rotor_delay"])  # the final's own
-        folds = [fit_with(final.effects, h, held, (fitted_with,)) for h in halves]  # each half fitted as the final rung
+        try:
+            folds = [fit_with(final.effects, h, held, (fitted_with,)) for h in halves]  # each half fitted as the final rung
+        except DataError as err:  # a half too short to fit alone (one short flight): judged on sigma and bounds alone
+            folds_note = (f"the halves of the training flights ({' / '.join(', '.join(f.meta.source for f in h) for h in halves)}) "
+                          f"were not fitted apart: {err}; components judged on sigma and bounds alone")
     effects = {}
     order = {c: i for i, c in enumerate(chosen)}
     for c in candidates:
         source = final if c in final.effects else trials.get(c, rung([*final.effects, c]))
         found = c in final.effects
         parts = components(c, source.fit, folds if found else ())
-        shrink_alone = next((s["trials"][c]["shrink"] for s in steps if c in s["trials"]), float("nan"))
+        shrink_added = next((s["trials"][c]["shrink"] for s in reversed(steps) if c in s["trials"]), float("nan"))
         text = component_text(c, parts, found)
         last = [st for st in steps if c in st["trials"]]
         if not found and last and any(part["resolved"] for part in parts):
             text += "; " + unconfirmed_text(last[-1]["trials"][c], last[-1]["on_top_of"])
         effects[c] = {"verdict": "found" if found else "not supported", "rank": order.get(c),
-                      "shrink_when_added": shrink_alone, "shrink_when_dropped": dropped.get(c),
+                      "shrink_when_added": shrink_added, "shrink_when_dropped": dropped.get(c),
                       "components": parts, "text": text}
     twins = []
     for c in final.effects:
@@ -495,7 +502,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
                             [{"flights": [f.meta.source for f in h], "values": fit.values} for h, fit in
                              zip([train[0::2], train[1::2]], folds)],
                             summary, sorted({f.meta.source for f in train}), sorted({f.meta.source for f in test}),
-                            {"total": time.perf_counter() - clock}, layout, ladder)
+                            {"total": time.perf_counter() - clock}, layout, ladder, folds_note)
 
 
 def next_effect(scored: dict[str, tuple[float, float, list[dict]]]) -> tuple[str, bool]:
@@ -526,24 +533,6 @@ def pair_candidates(scored: dict[str, tuple[float, float, list[dict]]]) -> list[
     rotor drag, held-out J 0.222 -> 0.224 with the battery, 0.219 with the imbalance, 0.172 with both)."""
     resolved = [c for c, (_, _, parts) in scored.items() if c not in PAIR_EXCLUDED and parts and parts[0]["resolved"]]
     return list(itertools.combinations(resolved, 2))
-
-
-def motor_order_check(train: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig) -> dict:
-    """``identify``'s motor order and spin check (:mod:`~quad_modelling.core.identification.motor_check`) on the
-    training flights, with ``swap`` [A, B] (1-based) when the likely fix is exactly one exchange of two columns."""
-    from quad_modelling.core.identification.greybox_fit import identify_base
-    from quad_modelling.core.identification.identify import modelled_thrusts, training_batch
-    from quad_modelling.core.identification.motor_check import check_motor_layout
-
-    batch = training_batch(train, vehicle, config)
-    check = check_motor_layout(batch, modelled_thrusts(batch, identify_base(batch, vehicle)), vehicle)
-    names = [m.name for m in vehicle.motors]
-    swap = None
-    fix = check.get("fix")
-    if fix and fix["moved"] == 2:
-        moved = [i + 1 for i, name in enumerate(fix["order"]) if name != names[i]]
-        swap = sorted(moved)
-    return {"verdict": check["verdict"], "wrong": check["wrong"], "actions": fix["actions"] if fix else [], "swap": swap}
 
 
 def identified_document(vehicle: VehicleConfig, final: Rung, source: str, swap: Sequence[int] | None = None) -> dict:
@@ -589,7 +578,8 @@ def component_text(effect: str, parts: list[dict], found: bool) -> str:
     resolved = [f"{p['component']} {p['value']:.4g} +- {p['sigma']:.2g} {p['unit']}" for p in parts if p["resolved"]]
     unresolved = [f"{p['component']} {p['value']:.4g}" + (" (held there)" if p.get("held") else "")
                   + (" (AT BOUND)" if p["at_bound"] else "")
-                  + (f" ({' / '.join(f'{v:.3g}' for v in p['folds'])} on the folds)" if p["folds"] else "")
+                  + (f" ({' / '.join(f'{v:.3g}' + (' at its bound' if b else '') for v, b in zip(p['folds'], p.get('folds_at_bound', [False] * len(p['folds']))))} on the folds)"
+                     if p["folds"] else "")
                   for p in parts if not p["resolved"]]
     text = head + (": " + ", ".join(resolved) if resolved else "")
     if unresolved:

@@ -238,7 +238,9 @@ def start_errors(flights: Sequence[FlightLog], models: Sequence[MultiStepPredict
             blocks.append(first_block + block)
             first_block += int(block.max()) + 1
     if not blocks:
-        raise DataError(f"no {span.name} segment longer than {horizon} samples plus the warm start")
+        raise DataError(f"no {span.name} segment longer than {horizon} samples plus the warm start in the flights "
+                        f"({', '.join(f'{log.meta.source} {log.duration:.1f} s' for log in flights)}) after the drops "
+                        f"{config.drop_start:g}/{config.drop_end:g} s and ground contact")
     def contributions(truth, predicted):  # (S, G): each group's error summed over the horizon
         return np.stack([_group_norms(truth, np.asarray(predicted)[:, 1:], group).sum(axis=1) for group in groups], axis=1)
 

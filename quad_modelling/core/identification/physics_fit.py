@@ -198,8 +198,9 @@ def training_segments(flights: Sequence[FlightLog], config: EvaluationConfig, ob
                                      candidates[ok], {k: h[ok] for k, h in histories.items()}, horizons, -seg.pos_n[:, 2], seg.vbat))
     if not segments or sum(len(s.anchors) for s in segments) < 20:
         raise DataError(f"no usable training anchors for the physics identification in span {config.train} "
-                        f"(after the drops {config.drop_start:g}/{config.drop_end:g} s, ground contact, {SETTLE_S} s settling "
-                        f"and the {history_s:g} s observer history)")
+                        f"of the flights ({', '.join(f'{log.meta.source} {log.duration:.1f} s' for log in flights)}) after the "
+                        f"drops {config.drop_start:g}/{config.drop_end:g} s, ground contact, {SETTLE_S} s settling and the "
+                        f"{history_s:g} s observer history")
     return segments
 
 

@@ -32,6 +32,9 @@ def _verdict(data: dict) -> list[str]:
                      "below are in-sample")
     for name in found:
         lines.append(f"  {data['effects'][name]['text']}")
+    if found and data.get("folds_note"):
+        lines.append("  (the training flights' halves were not fitted apart, a half too short to fit alone: components "
+                     "resolved on sigma and bounds alone; report.md says why)")
     lines.append(f"  held-out SimErr / naive, velocity {base['ratio_to_naive']['velocity']:.3f} -> "
                  f"{final['ratio_to_naive']['velocity']:.3f}, angular velocity {base['ratio_to_naive']['angular_velocity']:.3f} -> "
                  f"{final['ratio_to_naive']['angular_velocity']:.3f} (J {base['J']:.3f} -> {final['J']:.3f})")
@@ -48,6 +51,11 @@ def _verdict(data: dict) -> list[str]:
         lines.append(f"  motor order/spin of the injected flights: {', '.join(order['actions'])} ({why}; the flights "
                      f"as logged: {logged_order or 'not checked'})"
                      + (f"; diagnosed with the logged commands of motors {swap[0]} and {swap[1]} exchanged" if swap else ""))
+    elif injection and logged_order == "inconsistent":
+        logged = data["un_injected"]["motor_order"]
+        lines.append(f"  motor order/spin of the flights as logged: INCONSISTENT with the vehicle file (fix it before trusting "
+                     f"the effects): {', '.join(logged.get('actions') or []) or 'swap ' + str(logged.get('swap'))}; the "
+                     f"injected flights ({injection['spec']}): {order.get('verdict', 'not checked')}")
     elif order.get("verdict") == "inconsistent":
         swap = order.get("diagnosed_with_swap")
         lines.append("  motor order/spin: INCONSISTENT with the vehicle file (fix it before trusting the effects): "
@@ -115,6 +123,8 @@ def report_markdown(data: dict) -> str:
     if rows:
         out += ["", "Every component as fitted (sigma nan: the fit cannot separate it):", ""]
         out += markdown_table(["effect", "component", "value", "sigma", "unit", "bounds", ""], rows)
+        if data.get("folds_note"):
+            out += [""] + prose(f"Note: {data['folds_note']}.")
     out += ["", "## Constants of the final model", ""]
     rows = [[name, f"{c['value']:.4g}", f"{c['sigma']:.2g}", c["unit"], f"[{c['bounds'][0]:.3g}, {c['bounds'][1]:.3g}]",
              "AT BOUND" if c["at_bound"] else ""] for name, c in data["constants"].items()]
@@ -173,6 +183,10 @@ def _check_note(check: dict) -> str:
     judged from an un-injected delay of 0 ms (its lower bound)."""
     if check.get("at_search_bound"):
         return "on the delay's search bound: not measured"
+    if check.get("logged_swap"):
+        motors = " and ".join(map(str, check["logged_swap"]))
+        return (f"the flights as logged have motors {motors} exchanged: " + ("the injection undoes it" if check["holds"] is not None
+                else "with the injected one that makes two exchanges, which the order check (naming one) cannot name"))
     if check.get("reference_at_zero"):
         return ("the un-injected delay is 0 ms, its search's lower bound (commands that act at or before their stamps, as "
                 "in flights simulated without input delay): the rise from it is not measured; compare two injections "

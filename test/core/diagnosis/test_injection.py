@@ -41,6 +41,8 @@ def test_gain_divides_one_motor_and_swap_exchanges_two():
     ("gain:1:0", "positive number"), ("swap:2:2", "two different motors"), ("swap:a:b", "numbers where"),
     ("warp:9", "expected delay:MS"), ("delay:150", "searches delays up to 150 ms"), ("delay:20000", "searches delays up to 150 ms"),
     ("gain:1:3", "searches motor gains in 0.5..2"), ("gain:2:0.4", "searches motor gains in 0.5..2"),
+    ("delay:0.001", "beyond its 5 ms tolerance"), ("delay:5", "beyond its 5 ms tolerance"), ("gain:1:1", "beyond its 5% tolerance"),
+    ("gain:3:0.96", "beyond its 5% tolerance"),
 ])
 def test_bad_specs_are_one_line(spec, message):
     with pytest.raises(ConfigError, match=message) as err:
@@ -111,3 +113,33 @@ def test_a_rise_from_an_un_injected_delay_of_zero_is_not_judged_and_says_why():
     assert injection_checks(parse_injection("delay:140"), plain, bound)["passed"] is False
     assert injection_checks(parse_injection("gain:1:1.2"), plain, {**plain, "found": ["rotor_drag", "motor_imbalance"],
                             "motor_command_gains": {"value": [1.2, 1, 1, 1]}})["passed"] is True  # not a delay check
+
+
+def test_a_swap_is_checked_against_the_flights_as_logged():
+    """Flights logged with motors 1 and 3 exchanged: swap:1:3 undoes it (the check expects no swap, it failed
+    expecting [1, 3]); swap:2:4 on top makes two exchanges: not judged."""
+    from quad_modelling.io.reports.physics_diagnosis import _check_note
+
+    plain = {"found": ["rotor_drag"], "delay_s": {"value": 0.05}, "motor_command_gains": {"value": [1.0] * 4},
+             "motor_order": {"swap": [1, 3]}}
+    undone = {**plain, "motor_order": {"swap": None}}
+    result = injection_checks(parse_injection("swap:3:1"), plain, undone)
+    check = next(c for c in result["checks"] if c["check"] == "the motor-order check names the swap")
+    assert result["passed"] is True and check["expected"] is None and check["logged_swap"] == [1, 3]
+    assert _check_note(check) == "the flights as logged have motors 1 and 3 exchanged: the injection undoes it"
+    result = injection_checks(parse_injection("swap:2:4"), plain, {**plain, "motor_order": {"swap": None}})
+    assert result["passed"] is None and "two exchanges" in _check_note(result["checks"][-1])
+    clean = {**plain, "motor_order": {"swap": None}}
+    assert injection_checks(parse_injection("swap:1:2"), clean, {**clean, "motor_order": {"swap": [1, 2]}})["passed"] is True
+
+
+def test_a_delay_stored_a_hair_under_its_bound_is_on_it_and_a_found_input_delay_is_the_injected_change():
+    """150 ms stored as 0.14999985694885254 passed as a rise (>= 0.15 - 1e-9 was false); with input_delay a candidate
+    the un-injected run may not find it (delay 0) and the injected one does: the injected change, not a new effect."""
+    plain = {"found": ["rotor_drag"], "delay_s": {"value": 0.04}, "motor_command_gains": {"value": [1.0] * 4}}
+    result = injection_checks(parse_injection("delay:110"), plain, {**plain, "delay_s": {"value": 0.14999985694885254}})
+    assert result["passed"] is False and result["checks"][-1]["at_search_bound"]
+    zero = {**plain, "delay_s": {"value": 0.0}}
+    found = {**plain, "found": ["rotor_drag", "input_delay"], "delay_s": {"value": 0.0775}}
+    result = injection_checks(parse_injection("delay:25"), zero, found)
+    assert result["checks"][0]["holds"] and result["checks"][0]["expected_new"] == ["input_delay"] and result["passed"] is None

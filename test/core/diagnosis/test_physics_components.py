@@ -51,3 +51,29 @@ def test_the_imbalances_main_component_is_the_one_furthest_from_its_null_in_sigm
     gains = components("motor_imbalance", _ImbalanceFit((1.2, 0.93, 0.94, 0.93), 0.03, (0.0, 0.0), float("nan"), held="held at 0"))
     assert gains[0]["component"] == "motor 1 gain" and gains[0]["resolved"]
     assert not any(p["resolved"] for p in gains if p["component"].startswith("CG"))  # held at 0: never resolved
+
+
+class _Gains:
+    def __init__(self, gains, at_bound=()):
+        self._estimates = [ConstantEstimate(f"motor_imbalance.gain_{i}", g, "1", 0.02, (0.5, 2.0), at_bound=i in at_bound)
+                           for i, g in enumerate(gains, 1)]
+
+    def estimates(self):
+        return self._estimates
+
+
+def test_a_half_that_ran_a_gain_to_its_search_bound_does_not_void_it():
+    """Trained on B7 + B3 / B6 (a linear ramp alone): the B6 half ran motor 2's gain to 0.5 and motor 4's to 2, and
+    the found imbalance read 'not resolved' on every gain; a bound is the optimiser's value, not a measurement."""
+    from quad_modelling.core.diagnosis.physics_base import component_text
+
+    final = _Gains((1.26, 0.82, 1.05, 0.87))
+    folds = [_Gains((1.27, 0.80, 1.05, 0.88)), _Gains((1.3, 0.5, 1.0, 2.0), at_bound=(2, 4))]
+    parts = {p["name"]: p for p in components("motor_imbalance", final, folds)}
+    assert parts["motor_imbalance.gain_2"]["resolved"] and parts["motor_imbalance.gain_2"]["folds_at_bound"] == [False, True]
+    assert parts["motor_imbalance.gain_1"]["resolved"]  # both halves above 1
+    flipped = [_Gains((1.27, 0.80, 1.05, 0.88)), _Gains((0.9, 0.85, 1.0, 0.9))]  # a half that measured the other sign
+    parts = {p["name"]: p for p in components("motor_imbalance", final, flipped)}
+    assert not parts["motor_imbalance.gain_1"]["resolved"]
+    text = component_text("motor_imbalance", components("motor_imbalance", _Gains((1.26, 1.0, 1.0, 1.0)), folds), True)
+    assert "motor 2 gain 1 (0.8 / 0.5 at its bound on the folds)" in text
