@@ -194,3 +194,29 @@ def test_the_makefile_diagnosis_reports_options_are_the_physics_bases():
         args = build_parser().parse_args(["diagnose", "--train", "a.csv", "--test", "b.csv", *flags, "-o", "out"])
         assert args.base == "physics"
         _refuse_greybox_options(args)  # raises ConfigError for a greybox option
+
+
+def test_flights_of_two_vehicles_or_too_slow_for_a_window_are_one_line(flights, tmp_path, capsys):
+    """A LinkQuad flight trained with a Crazyflie one was diagnosed as one vehicle (J 339 -> 339, exit 0); a 10 Hz PX4
+    log was refused for 'no eval segment longer than 50 samples' without its name."""
+    ulog = REPO / "test" / "data" / "px4" / "sample_px4_events.ulg"
+    for args, message in (([flights[0]], "the flights are of different vehicles ['crazyflie21', 'linkquad']"),
+                          ([str(ulog)], f"{ulog}: sampled at 10 Hz (median step 100 ms); scoring needs 20 Hz or faster")):
+        assert main(["diagnose", "--train", BAG, "--test", *args, "-o", str(tmp_path / "out")]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and message in err[0] and not (tmp_path / "out").exists()
+
+
+def test_a_training_half_too_short_to_fit_alone_is_said_not_fatal(tmp_path):
+    """The bundled flight and its first 12 s as training flights: the halves (one each) cannot both be fitted alone
+    (2 s after the drops); the run ended with 'no usable training anchors' after the whole selection."""
+    from quad_modelling.io.bag_io import read_bag, write_bag
+
+    flight = read_bag(BAG)
+    write_bag(flight.slice(0, 1200), tmp_path / "first12s")
+    out = tmp_path / "diag"
+    assert main(["diagnose", "--train", BAG, str(tmp_path / "first12s"), "--test", BAG, "--effects", "rotor_drag",
+                 "-o", str(out)]) == 0
+    data = json.loads((out / "diagnosis.json").read_text())
+    assert data["folds"] == [] and "were not fitted apart: no usable training anchors" in data["folds_note"]
+    assert f"{tmp_path / 'first12s'} 12.0 s" in data["folds_note"] and "Note: the halves" in (out / "report.md").read_text()
