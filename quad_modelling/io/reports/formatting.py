@@ -11,6 +11,7 @@ angular variables, 1 otherwise). Their JSON documents keep the SI units
 from __future__ import annotations
 
 import json
+import math
 import textwrap
 from collections.abc import Iterable, Sequence
 
@@ -118,13 +119,22 @@ def percent(fraction: float | None, decimals: int = 1) -> str:
 
 
 def json_text(document: dict) -> str:
-    """A report's JSON document, indented by 2; numpy scalars and arrays become numbers and lists."""
-    return json.dumps(document, indent=2, default=_json_default)
+    """A report's JSON document, indented by 2; numpy scalars and arrays become numbers and lists, and a number that
+    is not finite (a sigma the fit cannot give: NaN) null -- JSON has no NaN, and strict parsers (JavaScript's
+    JSON.parse, jq) refuse Python's bare ``NaN``."""
+    return json.dumps(_finite(document), indent=2, allow_nan=False)
 
 
-def _json_default(value):
-    if isinstance(value, np.generic):
-        return value.item()
+def _finite(value):
+    """``value`` with numpy scalars and arrays made Python numbers and lists and every non-finite float None."""
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite(item) for item in value]
     if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON serialisable: {type(value).__name__}")
+        return _finite(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

@@ -71,8 +71,17 @@ def test_tic_and_percent():
 def test_json_text_writes_numpy_numbers_and_arrays():
     assert json_text({"rms": np.float64(0.25), "edges": np.array([1.0, 2.0]), "n": np.int64(3)}) == (
         '{\n  "rms": 0.25,\n  "edges": [\n    1.0,\n    2.0\n  ],\n  "n": 3\n}')
-    with pytest.raises(TypeError, match="not JSON serialisable: object"):
+    with pytest.raises(TypeError, match="is not JSON serializable"):
         json_text({"x": object()})
+
+
+def test_json_text_writes_a_number_that_is_not_finite_as_null():
+    """diagnosis.json held a bare NaN (a sigma the fit cannot give), which JSON.parse and jq refuse."""
+    import json
+
+    text = json_text({"sigma": float("nan"), "values": np.array([1.0, np.inf]), "x": np.float64("nan")})
+    assert "NaN" not in text and "Infinity" not in text
+    assert json.loads(text) == {"sigma": None, "values": [1.0, None], "x": None}
 
 
 def test_prose_wraps_to_the_width_with_list_indents():
