@@ -565,7 +565,9 @@ def run_node(factory, args=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         code = 0  # Ctrl-C while the node was being built
     finally:
-        if node is not None:
+        if node is not None:  # the end is decided: a second Ctrl-C or a SIGTERM after it may not cut the results short
+            for signum in previous:
+                signal.signal(signum, signal.SIG_IGN)
             node.finish()
             node.destroy_node()
         rclpy.try_shutdown()

@@ -90,3 +90,34 @@ def test_both_nodes_name_stream_faults_from_the_one_vocabulary():
             assert "{" not in text.replace("{model}", ""), (node, kind)  # no per-stream name built by hand (a model's own may be)
             assert not any(text.endswith(f"_{s}") for s in STREAMS + ("odom", "motor")), (node, kind)  # a stream's own name
             assert text not in {f"{k}_{s}" for k in STREAM_FAULTS for s in STREAMS}, (node, kind)
+
+
+def test_a_second_signal_while_a_node_writes_what_it_owes_is_ignored():
+    """The evaluator drawing its figures after Ctrl-C took a SIGTERM (ros2 launch, systemd) as a KeyboardInterrupt
+    inside matplotlib: a traceback, exit 130, no results. Now the end is decided once: finish runs to its end."""
+    import os
+    import signal
+    import time
+
+    seen = {}
+
+    class Node:
+        def run(self):
+            raise KeyboardInterrupt  # the first Ctrl-C ends the spin
+
+        def finish(self):
+            os.kill(os.getpid(), signal.SIGTERM)
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)  # delivered here, in the middle of writing
+            seen["finished"] = True
+
+        def destroy_node(self):
+            seen["destroyed"] = True
+
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        assert run_node(Node, []) == 0
+    finally:
+        gc.unfreeze()
+    assert seen == {"finished": True, "destroyed": True}
+    assert {s: signal.getsignal(s) for s in before} == before  # the caller's handlers back
