@@ -37,6 +37,19 @@ def test_coverage_of_a_uniform_stream_a_dropped_sample_and_a_burst_loss():
     assert coverage_reason([full, one]) == ""
 
 
+def test_commands_stamped_in_pairs_are_judged_by_the_pairs_period():
+    """A link delivering (or a stack stamping on receipt) two commands 0.1 ms apart every 20 ms: all 500 of a 5 s
+    window there, the median step 0.1 ms or 19.9 ms by chance -- it read '1.0 % of 50000 nominal samples'."""
+    pairs = np.sort(np.concatenate([np.arange(250) * 20 * MS, np.arange(250) * 20 * MS + 100_000]))
+    both = stream_coverage("motor_input", pairs, -5 * MS, 4995 * MS)
+    assert both.received == 500 and both.nominal == pytest.approx(5000 / 19.9, rel=1e-9) and both.ok
+    lost = stream_coverage("motor_input", np.delete(pairs, range(200, 260)), -5 * MS, 4995 * MS)  # 0.6 s of them lost
+    assert not lost.ok and lost.longest_gap_s == pytest.approx(0.6199, abs=1e-6)
+    jitter = np.arange(500) * 10 * MS + np.random.default_rng(0).integers(-2 * MS, 2 * MS, 500)  # +-2 ms: as before
+    assert stream_coverage("motor_input", jitter, -5 * MS, 4995 * MS).nominal == pytest.approx(
+        5000 / (np.median(np.diff(jitter)) / MS), rel=1e-9)
+
+
 def test_interpolation_is_exact_at_sample_stamps_linear_between_and_never_crosses_a_gap():
     stamps = np.array([0, 10, 20, 100, 110], dtype=np.int64) * MS
     values = np.array([[0.0], [1.0], [2.0], [3.0], [4.0]]) * np.pi
