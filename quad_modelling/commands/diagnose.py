@@ -261,9 +261,11 @@ def _physics_candidates(text: str) -> tuple[str, ...]:
         return CANDIDATES
     if text == "none":
         raise ConfigError("--effects none: the diagnosis needs at least one candidate")
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    if not names:
+    names = [n.strip() for n in text.split(",")]
+    if not any(names):
         raise ConfigError(f"--effects {text!r}: names no candidate; give some of {', '.join(CANDIDATES)} (or all)")
+    if not all(names):
+        raise ConfigError(f"--effects {text}: an empty name in the list (a comma too many?); name each candidate once")
     for name in names:
         if name in IN_BASE:
             raise ConfigError(f"--effects {name}: {IN_BASE[name]}; the physics base's candidates are {', '.join(CANDIDATES)}")

@@ -109,7 +109,9 @@ def parse_effect_names(text: str | None, choice: EffectChoice) -> tuple[str, ...
         return ()
     if text == "all":
         return choice.known
-    names = [part.strip() for part in text.split(",") if part.strip()]
+    names = [part.strip() for part in text.split(",")]
+    if not all(names):
+        raise ConfigError(f"--effects {text}: an empty name in the list (a comma too many?); name each effect once")
     twice = sorted({name for name in names if names.count(name) > 1})
     if twice:
         raise ConfigError(f"--effects {text}: {', '.join(twice)} named more than once; name each once")

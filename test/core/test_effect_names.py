@@ -50,6 +50,9 @@ def test_one_grammar_for_simulate_and_diagnose():
             parse_effect_names(" ", choice)
         with pytest.raises(ConfigError, match="motor_lag named more than once; name each once"):
             parse_effect_names("motor_lag, battery,motor_lag", choice)
+        for text in ("rotor_drag,", "rotor_drag,,battery"):  # a comma too many was read as nothing
+            with pytest.raises(ConfigError, match="an empty name in the list"):
+                parse_effect_names(text, choice)
     assert parse_effect_names(None, DIAGNOSIS) == CATALOGUE_EFFECTS
     assert [e.name for e in parse_effect_list("trim_drift,rotor_drag")] == ["rotor_drag", "trim_drift"]
     assert normalise_effect_names(["wind", "battery"], SIMULATOR) == ("battery", "wind")

@@ -107,7 +107,7 @@ def identify_term_names(names) -> tuple[str, ...]:
     """The terms of an ``identify --effects`` list (ConfigError in one line otherwise): known, each named once, and
     fittable (:data:`FITTABLE`) or a switch of base constants (:data:`~quad_modelling.core.physics.effects.BASE_SWITCHES`),
     which ``identify`` then fits and switches on."""
-    names = parse_term_names(names)
+    names = parse_term_names(names, listed=(*FITTABLE, *BASE_SWITCHES))
     TermDesign(tuple(n for n in names if n not in BASE_SWITCHES))  # refuses a term identify cannot fit
     return names
 

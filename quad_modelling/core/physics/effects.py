@@ -131,12 +131,17 @@ class EffectTerm:
         return tuple(self.parameters[p.name].value if p.name in self.parameters else p.default for p in TERMS[self.name])
 
 
-def parse_term_names(names, where: str = "--effects") -> tuple[str, ...]:
-    """Term names of an ``identify --effects`` list, validated: known (:data:`TERMS`), each named once."""
-    names = [str(n).strip() for n in names if str(n).strip()]
+def parse_term_names(names, where: str = "--effects", listed: tuple[str, ...] = TERMS) -> tuple[str, ...]:
+    """Term names of an ``identify --effects`` list, validated: known (:data:`TERMS`), each named once, no empty item
+    between commas (a whole list left empty is no term); ``listed`` the names an unknown one's error offers (the
+    verb's own)."""
+    names = [str(n).strip() for n in names]
+    if len(names) > 1 and not all(names):
+        raise ConfigError(f"{where} {','.join(names)}: an empty name in the list (a comma too many?); name each term once")
+    names = [n for n in names if n]
     unknown = [n for n in names if n not in TERMS]
     if unknown:
-        raise ConfigError(f"{where}: unknown physics-model term {', '.join(map(repr, unknown))}; known: {', '.join(TERMS)} "
+        raise ConfigError(f"{where}: unknown physics-model term {', '.join(map(repr, unknown))}; known: {', '.join(listed)} "
                           f"(docs/models.md)")
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:

@@ -101,6 +101,17 @@ def test_an_effects_list_names_known_terms_once():
         parse_term_names(["ground_effect", "battery", "ground_effect"])
     with pytest.raises(ConfigError, match="unknown physics-model term 'wind'"):
         parse_term_names(["wind"])
+    with pytest.raises(ConfigError, match="an empty name in the list"):
+        parse_term_names(["battery", ""])
+    assert parse_term_names([""]) == ()  # identify's default: no term
+
+
+def test_identifys_unknown_term_error_lists_only_what_identify_fits():
+    from quad_modelling.core.identification.physics_terms import identify_term_names
+
+    with pytest.raises(ConfigError) as err:
+        identify_term_names(["wind"])
+    assert "disturbance_observer" not in str(err.value) and "motor_imbalance" in str(err.value)
 
 
 def test_ground_effect_lifts_near_the_ground_and_fades_with_height():
