@@ -449,12 +449,13 @@ class EvaluatorNode(Node):
         """Acknowledge progress: on change, and every :data:`PROGRESS_REPEAT_S` for late subscribers."""
         now = time.monotonic()
         if not self.ready:
-            have_all = all(self.count_publishers(f"{m}/{kind}") > 0 for m in self.models for kind in self.prediction_kinds)
+            missing = [m for m in self.models if any(self.count_publishers(f"{m}/{kind}") == 0 for kind in self.prediction_kinds)]
             waited = now - self.started_wall
-            if not have_all and waited < self.ready_timeout_s:
+            if missing and waited < self.ready_timeout_s:
                 return
-            if not have_all:
-                self.faults.report("model_missing", f"not every model in {self.models} publishes after {waited:.0f} s; going on without")
+            if missing:
+                self.faults.report("model_missing", f"no publisher of model(s) {', '.join(missing)} after {waited:.0f} s "
+                                                    f"(of {self.models}); going on without")
             self.ready = True
         ns = self.progress_ns()
         ns = 0 if ns is None else ns  # 0 = ready, nothing processed yet

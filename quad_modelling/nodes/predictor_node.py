@@ -206,7 +206,7 @@ class PredictorNode(Node):
                 if self.horizon_s > 0
                 else f"windows {p['window_s']:g} s, warm start {p['warm_s']:g} s")
         self.get_logger().info(f"predicting with {self.spec!r} as '{self.name_}' on vehicle "
-                               f"{self.vehicle.name if self.vehicle else '(from the replay, topic ' + VEHICLE_TOPIC + ')'}; "
+                               f"{f'{self.vehicle.name} ({self.vehicle.path})' if self.vehicle else '(from the replay, topic ' + VEHICLE_TOPIC + ')'}; "
                                f"{mode}, {p['qos']} subscriptions")
 
     @property

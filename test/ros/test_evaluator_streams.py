@@ -202,3 +202,16 @@ def test_a_forward_jump_keeps_the_window_origin_of_the_predictors(ros):
     # window 20 starts 3 ms before the first row after the jump (within the coverage rule), 21 is whole, 22 partial
     assert scored[2:] == [(20, 0.25), (21, 0.25)]
     node.destroy_node()
+
+
+def test_a_model_that_never_publishes_is_named(ros):
+    """'not every model in ['greybox', 'narx'] publishes after 20 s' left the user to guess which one."""
+    node = make_node(models=["greybox", "narx"])
+    warned = []
+    node.faults.logger = type("Logger", (), {"warning": lambda self, text: warned.append(text)})()
+    node.count_publishers = lambda topic: 1 if topic.startswith("greybox/") else 0
+    node.ready_timeout_s, node.started_wall = 0.0, 0.0
+    node.on_progress_timer()
+    assert node.faults.counts == {"model_missing": 1} and node.ready
+    assert warned[0].startswith("no publisher of model(s) narx after ") and "(of ['greybox', 'narx'])" in warned[0]
+    node.destroy_node()
