@@ -170,8 +170,24 @@ class LiveScores:
             result.examples = []
         with atomic_output(output_dir, force=True) as tmp:
             write_report(result, tmp, title=title, document=self.to_json(source))
+            if self.horizon_s > 0:  # the receding-horizon mode's scores: in tables.md too, not only results.json
+                with (tmp / "tables.md").open("a") as tables:
+                    tables.write("\n" + self.horizon_table() + "\n")
         scored = sum(r.scored for r in self.records)
         return f"wrote {output_dir} ({scored} scored, {len(self.records) - scored} marked window results)"
+
+    def horizon_table(self) -> str:
+        """tables.md's section of the receding-horizon MAE (:meth:`horizon_mae`) per model and group, SI units."""
+        from quad_modelling.io.reports.formatting import markdown_table
+
+        mae = self.horizon_mae()
+        rows = [[model, str(m["predictions"]), str(m["unreached"]),
+                 *("-" if m["mae"][g] is None else f"{m['mae'][g]:.4g}" for g in GROUPS)] for model, m in mae["models"].items()]
+        head = [f"## Receding horizon: MAE at {self.horizon_s:g} s ahead", "",
+                "Every forecast scored against the measurement at its stamp, pooled over the windows (results.json "
+                "live.horizon).", ""]
+        columns = ["model", "predictions", "unreached", *(f"{g} [{GROUP_UNITS[g]}]" for g in GROUPS)]
+        return "\n".join(head + markdown_table(columns, rows or [["(none received)", "0", "0", *("-" for _ in GROUPS)]]))
 
     def to_json(self, source: str) -> dict:
         """results.json: the core EvaluationResult JSON plus the live spans and every window (scored or marked)."""

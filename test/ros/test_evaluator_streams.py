@@ -84,7 +84,7 @@ def test_jittered_independent_streams_are_scored_and_a_burst_loss_is_marked_nami
     lossy.destroy_node()
 
 
-def test_receding_horizon_mae_equals_the_offline_multistep_mae(ros):
+def test_receding_horizon_mae_equals_the_offline_multistep_mae(ros, tmp_path):
     """greybox, h = 10 steps (horizon_s 0.1 s) on the first 10 s of the bundled flight: the horizon predictions a
     predictor publishes (the model's predict_horizons from each start, stamped at the predicted time) give the
     evaluator's MAE@h per group equal to the offline multi-step MAE_h over the same starts."""
@@ -125,6 +125,10 @@ def test_receding_horizon_mae_equals_the_offline_multistep_mae(ros):
     answered = node.stream_last_ns["greybox/horizon"]  # stamp - horizon_s: the input, to the log's stamp jitter
     assert abs(answered - int(stamps[starts[-1]])) < 1e6 and node.progress_ns() == answered
     assert "model_missing" not in node.faults.counts
+    table = node.scores.horizon_table()  # tables.md's section: the mode's scores were only in results.json
+    assert f"| greybox | {len(starts)} | 0 | {live['mae']['position']:.4g} |" in table and "position [m]" in table
+    node.scores.write(tmp_path / "out", "live", False, "live")
+    assert table in (tmp_path / "out" / "tables.md").read_text()
     node.destroy_node()
 
 
