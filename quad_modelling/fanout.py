@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import signal
+import threading
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
@@ -78,9 +80,22 @@ def local_cluster(jobs: int) -> Iterator[Any]:
 
     environ = {key: value for key, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                if key not in DROPPED_WORKER_ENVIRON}
-    with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}), LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, host=LOCAL_HOST, dashboard_address=None,
-                      scheduler_kwargs={"dashboard": False, "dashboard_address": f"{LOCAL_HOST}:0"},
-                      silence_logs=logging.CRITICAL) as cluster:  # a task's error is raised here, not logged there
+    # SIGINT ignored while the cluster starts its workers (LocalCluster returns once they run): a worker process
+    # starts with it ignored (an ignored signal stays so across exec, and Python keeps it so), so a Ctrl-C of the
+    # process group reaches this process alone, which closes the cluster -- each worker printed a KeyboardInterrupt
+    # traceback, 55 lines for two (a blocked mask is not inherited by them). A Ctrl-C in those 1-3 s is lost: press
+    # it again. SIGTERM stays: the nannies stop their workers with it.
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    try:
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+            cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, host=LOCAL_HOST, dashboard_address=None,
+                                   scheduler_kwargs={"dashboard": False, "dashboard_address": f"{LOCAL_HOST}:0"},
+                                   silence_logs=logging.CRITICAL)  # a task's error is raised here, not logged there
+    finally:
+        if main:
+            signal.signal(signal.SIGINT, previous)
+    with cluster:
         yield cluster
 
 

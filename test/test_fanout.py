@@ -52,6 +52,18 @@ def test_local_workers_run_one_blas_thread_and_glibcs_default_trimming(dask_sche
         assert environment == {"MALLOC_TRIM_THRESHOLD_": None, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
 
 
+def worker_sigint(_value: int) -> str:
+    """A per-flight task reporting how the process it runs in takes SIGINT."""
+    return {signal.SIG_IGN: "ignored", signal.SIG_DFL: "default"}.get(signal.getsignal(signal.SIGINT), "handled")
+
+
+def test_local_workers_leave_a_ctrl_c_to_the_process_that_started_them(dask_scheduler):
+    """A Ctrl-C of the process group reached every worker too: a KeyboardInterrupt traceback each (55 lines for two)
+    under the command's one line; the command closes the cluster."""
+    assert map_flights(worker_sigint, [0, 1, 2], scheduler=dask_scheduler) == ["ignored"] * 3
+    assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # this process's own handler back
+
+
 def test_serial_and_running_cluster_give_the_results_in_input_order(dask_scheduler):
     values = [5, 0, 3, 9, 1, 7, 2]
     expected = [v * v + 10 for v in values]
