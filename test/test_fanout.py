@@ -57,11 +57,19 @@ def worker_sigint(_value: int) -> str:
     return {signal.SIG_IGN: "ignored", signal.SIG_DFL: "default"}.get(signal.getsignal(signal.SIGINT), "handled")
 
 
-def test_local_workers_leave_a_ctrl_c_to_the_process_that_started_them(dask_scheduler):
+def test_local_workers_leave_a_ctrl_c_to_the_process_that_started_them():
     """A Ctrl-C of the process group reached every worker too: a KeyboardInterrupt traceback each (55 lines for two)
-    under the command's one line; the command closes the cluster."""
-    assert map_flights(worker_sigint, [0, 1, 2], scheduler=dask_scheduler) == ["ignored"] * 3
-    assert signal.getsignal(signal.SIGINT) is not signal.SIG_IGN  # this process's own handler back
+    under the command's one line; the command closes the cluster. This process's own handler is back after."""
+    def own(signum, frame):
+        raise KeyboardInterrupt
+
+    before = signal.signal(signal.SIGINT, own)
+    try:
+        with fanout.local_cluster(1) as cluster:
+            assert signal.getsignal(signal.SIGINT) is own
+            assert map_flights(worker_sigint, [0, 1], scheduler=cluster.scheduler_address) == ["ignored"] * 2
+    finally:
+        signal.signal(signal.SIGINT, before)
 
 
 def test_serial_and_running_cluster_give_the_results_in_input_order(dask_scheduler):
