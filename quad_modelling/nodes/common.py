@@ -341,7 +341,8 @@ def declare_parameters(node, params: list[Param]) -> dict:
                 continue
             reason = check(parameter.value)
             if reason:
-                refused[parameter.name] = f"parameter {parameter.name}={parameter.value!r}: {reason}"
+                shown = "[] (empty: rclpy reads an empty list as no value)" if parameter.value is None else repr(parameter.value)
+                refused[parameter.name] = f"parameter {parameter.name}={shown}: {reason}"
                 return SetParametersResult(successful=False, reason=refused[parameter.name])
         return SetParametersResult(successful=True)
 

@@ -206,7 +206,7 @@ def test_an_empty_model_list_is_one_line_exit_2():
     run = subprocess.run([sys.executable, "-m", "quad_modelling.nodes.evaluator_node", "--ros-args", "-p", "models:=[]",
                           "-p", "vehicle:=crazyflie21"], capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "Traceback" not in run.stderr
-    assert run.stderr.strip().splitlines()[-1] == "error: evaluator: parameter models=None: give at least one predictor name, e.g. models:=[greybox]"
+    assert run.stderr.strip().splitlines()[-1] == "error: evaluator: parameter models=[] (empty: rclpy reads an empty list as no value): give at least one predictor name, e.g. models:=[greybox]"
 
 
 @pytest.mark.parametrize("executor", ["events", "single"])
