@@ -467,9 +467,12 @@ class PredictorNode(Node):
             return
         rows = [(row, self._row_measurements(row[0])) for row in self.warm_rows]
         complete = [(row, m) for row, m in rows if m is not None]
-        if len(complete) < len(rows):
-            self.faults.report("warm_gap", f"window {self.window}: {len(rows) - len(complete)} warm-start rows have no "
-                                           "measurement within tolerance (motion-capture/IMU gap); starting from the others")
+        if len(complete) < len(rows):  # name the streams without a sample near the first such row (a gap, or none yet)
+            ns = next(row[0] for row, m in rows if m is None)
+            tracks = self.mapped.tracks if self.mapped is not None else {n: t for n, t in self.track_of.items() if n != BATTERY or self.use_battery}
+            empty = ", ".join(f"{name} ({'nothing received yet' if not t.stamps else 'a gap'})" for name, t in tracks.items() if t.at(ns, self.tolerance_ns) is None)
+            self.faults.report("warm_gap", f"window {self.window}: {len(rows) - len(complete)} warm-start rows have no measurement "
+                                           f"within tolerance ({empty or 'a motion-capture/IMU gap'}); starting from the others")
         deferred, self.deferred = self.deferred, []
         self.state = "skip"
         if len(complete) < 2:
@@ -580,10 +583,8 @@ class PredictorNode(Node):
         self.get_logger().info(limit_math_threads(self.math_threads))  # before SCHED_FIFO moves every thread
         if self.realtime_priority:
             refused = set_realtime_priority(self.realtime_priority)
-            if refused:
-                self.get_logger().warning(f"parameter realtime_priority={self.realtime_priority}: {refused}")
-            else:
-                self.get_logger().info(f"running under SCHED_FIFO priority {self.realtime_priority}")
+            (self.get_logger().warning if refused else self.get_logger().info)(
+                f"parameter realtime_priority={self.realtime_priority}: {refused}" if refused else f"running under SCHED_FIFO priority {self.realtime_priority}")
         spin(self, executor)
 
     def finish(self) -> None:

@@ -171,8 +171,11 @@ def test_window_waits_for_late_measurements_of_its_warm_rows(ros, monkeypatch):
 
     monkeypatch.setattr(predictor_node, "MEASUREMENT_WAIT_S", 0.0)
     node = make_node(model="greybox")
+    warned = []  # the warning names the stream (it said 'motion-capture/IMU gap' whichever it was)
+    node.faults.logger = type("Logger", (), {"warning": lambda self, text: warned.append(text)})()
     feed(node, log, range(30), skip_odom=set(range(15, 20)))
     assert node.faults.counts["warm_gap"] == 1 and node.state == "stream"
+    assert "3 warm-start rows have no measurement within tolerance (mocap_odom (a gap))" in warned[0]  # 2 interpolated
     node.destroy_node()
 
 
