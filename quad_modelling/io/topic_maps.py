@@ -398,7 +398,8 @@ def choose_topic_map(bag_topics, where: str, requested: str | None = None) -> To
     bag_topics = sorted(bag_topics)
     if requested:
         topic_map = load_topic_map(requested)
-        namespaces = topic_map.namespaces(bag_topics) if topic_map.origin == "built-in" and not topic_map.has_robot else []
+        named = ":" in str(requested) and not _names_file(str(requested))  # quad:/cf1: the namespace given, not searched
+        namespaces = topic_map.namespaces(bag_topics) if topic_map.origin == "built-in" and not (topic_map.has_robot or named) else []
         if topic_map.missing(bag_topics) and len(namespaces) == 1:  # --topic-map px4, one /px4_1
             topic_map = topic_map.in_namespace(namespaces[0])
         elif topic_map.missing(bag_topics) and namespaces:

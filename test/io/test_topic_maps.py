@@ -232,6 +232,9 @@ def test_a_contract_bag_under_another_namespace_is_read_as_the_contract(tmp_path
     assert chosen.is_contract and chosen.namespace == "/my_drone/cf1" and load_topic_map("quad").namespace == "/quad"
     assert main(["evaluate", str(moved), "--topic-map", "quad:my_drone", "--preset", "short", "-o", str(tmp_path / "e")]) == 2
     assert "(a map takes NAME:/NAMESPACE)" in capsys.readouterr().err
+    for named in ("/other", "/quad"):  # the namespace named is the one read: applied twice it read /quadr/motor_input,
+        missing = choose_topic_map(topics, "bag", f"quad:{named}").missing(topics)  # and quad:/quad read /my_drone/cf1
+        assert missing[0] == f"commands from {named}/motor_input (sensor_msgs/msg/JointState)", missing
     two = topics + ["/other/motor_input", "/other/mocap/odom"]  # two contracts: the user chooses
     with pytest.raises(BagError, match="choose one with --topic-map quad:/my_drone/cf1 or quad:/other"):
         choose_topic_map(two, "bag")
