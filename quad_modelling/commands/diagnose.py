@@ -292,6 +292,9 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
         if injection.kind == "gain" and "motor_imbalance" not in candidates:
             raise ConfigError(f"--inject {injection.spec}: its check reads the motor command gains, which the motor_imbalance "
                               f"candidate fits; add motor_imbalance to --effects")
+        if injection.kind == "delay" and switched_off(vehicle.effects, "input_delay") and "input_delay" not in candidates:
+            raise ConfigError(f"--inject {injection.spec}: {vehicle.path} switches input_delay off and it is not among "
+                              "--effects, so the delay is held at 0, not searched; add input_delay to --effects")
         injected_train = [injection.apply(f) for f in train]
         injected_test = [injection.apply(f) for f in test]
     for flights in (train, injected_train if injection is not None else []):

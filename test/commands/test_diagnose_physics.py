@@ -220,3 +220,16 @@ def test_a_training_half_too_short_to_fit_alone_is_said_not_fatal(tmp_path):
     data = json.loads((out / "diagnosis.json").read_text())
     assert data["folds"] == [] and "were not fitted apart: no usable training anchors" in data["folds_note"]
     assert f"{tmp_path / 'first12s'} 12.0 s" in data["folds_note"] and "Note: the halves" in (out / "report.md").read_text()
+
+
+def test_a_delay_injection_on_a_vehicle_that_holds_the_delay_is_refused(tmp_path, capsys):
+    """input_delay switched off in the vehicle and not a candidate: the delay is held at 0, the check could only
+    say NOT JUDGED for a wrong reason; refused up front, as a gain injection without motor_imbalance."""
+    document = yaml.safe_load((REPO / "config" / "vehicles" / "crazyflie21.yaml").read_text())
+    document["effects"] = {**(document.get("effects") or {}), "input_delay": {"enabled": False}}
+    vehicle = tmp_path / "held.yaml"
+    vehicle.write_text(yaml.safe_dump(document))
+    assert main(["diagnose", "--train", BAG, "--test", BAG, "--vehicle", str(vehicle), "--effects", "rotor_drag",
+                 "--inject", "delay:20", "-o", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "so the delay is held at 0, not searched; add input_delay to --effects" in err[0]

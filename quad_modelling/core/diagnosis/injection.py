@@ -163,7 +163,8 @@ def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
     if injection.kind == "delay":
         rise = injected["delay_s"]["value"] - plain["delay_s"]["value"]
         at_bound = injected["delay_s"]["value"] >= DELAY_MAX_S - AT_BOUND_S
-        from_floor = plain["delay_s"]["value"] <= 0.0  # the un-injected delay on the search's lower bound
+        # the un-injected delay searched and on its lower bound (a delay held at 0, not searched, has no sigma)
+        from_floor = plain["delay_s"]["value"] <= 0.0 and np.isfinite(plain["delay_s"].get("sigma", 0.0))
         checks.append({"check": "delay rises by the injected delay", "expected_s": injection.delay_s, "measured_s": rise,
                        "tolerance_s": DELAY_TOLERANCE_S, "at_search_bound": at_bound, "reference_at_zero": from_floor,
                        "holds": None if from_floor and not at_bound

@@ -143,3 +143,12 @@ def test_a_delay_stored_a_hair_under_its_bound_is_on_it_and_a_found_input_delay_
     found = {**plain, "found": ["rotor_drag", "input_delay"], "delay_s": {"value": 0.0775}}
     result = injection_checks(parse_injection("delay:25"), zero, found)
     assert result["checks"][0]["holds"] and result["checks"][0]["expected_new"] == ["input_delay"] and result["passed"] is None
+
+
+def test_a_delay_held_at_zero_un_injected_is_a_reference_the_rise_is_judged_from():
+    """Flights without a delay, input_delay a candidate not found un-injected (held at 0: no sigma), found injected at
+    20.8 ms: judged (it said NOT JUDGED, 'on the search's lower bound', though nothing was searched)."""
+    plain = {"found": ["rotor_drag"], "delay_s": {"value": 0.0, "sigma": float("nan")}, "motor_command_gains": {"value": [1.0] * 4}}
+    found = {**plain, "found": ["rotor_drag", "input_delay"], "delay_s": {"value": 0.0208, "sigma": 0.001}}
+    result = injection_checks(parse_injection("delay:20"), plain, found)
+    assert result["passed"] is True and not result["checks"][-1]["reference_at_zero"]
