@@ -233,3 +233,32 @@ def test_a_delay_injection_on_a_vehicle_that_holds_the_delay_is_refused(tmp_path
                  "--inject", "delay:20", "-o", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "so the delay is held at 0, not searched; add input_delay to --effects" in err[0]
+
+
+def test_an_effect_the_backward_step_drops_says_so(tmp_path, monkeypatch):
+    """An effect that joined and left in the backward step read 'not supported: ... (5 % bound +26.4 %; found needs a
+    5 % bound >= 1 %): the held-out flights do not confirm it' -- a bound that passes the rule it quotes."""
+    from quad_modelling.core.diagnosis import physics_base
+
+    real, calls = physics_base.shrink, []
+
+    def shrink(before, after, seed=0):  # the forward trial as measured; the backward step's rise made negligible
+        calls.append(1)
+        return real(before, after, seed) if len(calls) == 1 else (0.001, -0.002)
+
+    monkeypatch.setattr(physics_base, "shrink", shrink)
+    out = tmp_path / "diag"
+    assert main(["diagnose", "--train", BAG, "--test", BAG, "--effects", "rotor_drag", "-o", str(out)]) == 0
+    data = json.loads((out / "diagnosis.json").read_text())
+    assert data["found"] == [] and data["selection"][0]["joined"]
+    assert ("it joined, then left the final set: dropped from it (the rest base refitted), J rose by +0.1% (5 % bound "
+            "-0.2% < 1%): the others explain it") in data["effects"]["rotor_drag"]["text"]
+
+
+def test_held_constants_and_the_injected_runs_constants_are_said_as_such(injected):
+    """A held constant printed sigma nan (the legend's 'cannot separate'); the constants of an --inject run were not
+    said to be the injected run's while --write-vehicle writes the un-injected one's."""
+    _, _, report, _, _ = injected
+    assert "| motor_imbalance.cg_offset_x | 0 | - | m | [-0.0115, 0.0115] | held at 0 |" in report
+    assert "## Constants of the final model (the injected flights' run; --write-vehicle writes the un-injected run's)" in report
+    assert " 1 |" not in report.split("## Constants")[0].split("Every component")[0]  # no dimensionless unit '1' in prose

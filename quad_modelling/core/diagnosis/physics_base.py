@@ -435,7 +435,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         chosen += joining
         remaining = [c for c in remaining if c not in joining]
         current = rung(chosen)
-    dropped = {}
+    dropped, left = {}, {}
     for c in list(chosen):
         without = rung([e for e in chosen if e != c])
         rise, rise_low = shrink(without.score, current.score)
@@ -443,7 +443,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         if rise_low < FOUND_MIN_BOUND:
             chosen.remove(c)
             current = rung(chosen)
-            dropped[c] = rise
+            left[c] = (rise, rise_low, [e for e in chosen])
     if dynamics(chosen) is not None and COMMAND_GAIN_TERMS & set(chosen):  # see COMMAND_GAIN_TERMS
         fitted_with = current.fit.diagnostics["observer_choice"]["fitted_with"]  # the held rung's: one search, not two
         cache[tuple(sorted(chosen))] = current = rung(chosen, searched_with=fitted_with)
@@ -470,7 +470,11 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         shrink_added = next((s["trials"][c]["shrink"] for s in reversed(steps) if c in s["trials"]), float("nan"))
         text = component_text(c, parts, found)
         last = [st for st in steps if c in st["trials"]]
-        if not found and last and any(part["resolved"] for part in parts):
+        if c in left:  # joined, then dropped by the backward step: its trial's numbers passed, say why it left
+            rise, low, others = left[c]
+            text += (f"; it joined, then left the final set: dropped from it (the rest {' + '.join(['base', *others])} "
+                     f"refitted), J rose by {rise:+.1%} (5 % bound {low:+.1%} < {FOUND_MIN_BOUND:.0%}): the others explain it")
+        elif not found and last and any(part["resolved"] for part in parts):
             text += "; " + unconfirmed_text(last[-1]["trials"][c], last[-1]["on_top_of"])
         effects[c] = {"verdict": "found" if found else "not supported", "rank": order.get(c),
                       "shrink_when_added": shrink_added, "shrink_when_dropped": dropped.get(c),
@@ -575,7 +579,8 @@ def component_text(effect: str, parts: list[dict], found: bool) -> str:
     if not parts:
         return f"{effect}: not fitted on these flights"
     head = f"{effect.replace('_', ' ')} {'found' if found else 'not supported'}"
-    resolved = [f"{p['component']} {p['value']:.4g} +- {p['sigma']:.2g} {p['unit']}" for p in parts if p["resolved"]]
+    resolved = [f"{p['component']} {p['value']:.4g} +- {p['sigma']:.2g}" + (f" {p['unit']}" if p["unit"] != "1" else "")
+                for p in parts if p["resolved"]]
     unresolved = [f"{p['component']} {p['value']:.4g}" + (" (held there)" if p.get("held") else "")
                   + (" (AT BOUND)" if p["at_bound"] else "")
                   + (f" ({' / '.join(f'{v:.3g}' + (' at its bound' if b else '') for v, b in zip(p['folds'], p.get('folds_at_bound', [False] * len(p['folds']))))} on the folds)"

@@ -40,7 +40,10 @@ def _verdict(data: dict) -> list[str]:
                  f"{final['ratio_to_naive']['angular_velocity']:.3f} (J {base['J']:.3f} -> {final['J']:.3f})")
     s = data["summary"]
     gains = s["motor_command_gains"]
-    lines.append(f"  command delay {s['delay_s']['value'] * 1e3:.1f} +- {s['delay_s']['sigma'] * 1e3:.1f} ms; motor command gains "
+    held = ((data.get("constants") or {}).get("rotor_delay") or {}).get("held")
+    delay = (f"{s['delay_s']['value'] * 1e3:.1f} ms ({held})" if held
+             else f"{s['delay_s']['value'] * 1e3:.1f} +- {s['delay_s']['sigma'] * 1e3:.1f} ms")
+    lines.append(f"  command delay {delay}; motor command gains "
                  + (" ".join(f"{g:.3f}" for g in gains["value"]) if gains["fitted"] else "not fitted (motor_imbalance not a candidate)"))
     order = data.get("motor_order") or {}
     logged_order = ((data.get("un_injected") or {}).get("motor_order") or {}).get("verdict")
@@ -117,17 +120,19 @@ def report_markdown(data: dict) -> str:
         out += prose(effect["text"], first="- ", rest="  ")
     for name, why in data["in_base"].items():
         out += prose(f"{name.replace('_', ' ')}: {why}", first="- ", rest="  ")
-    rows = [[name, p["component"], f"{p['value']:.4g}", f"{p['sigma']:.2g}", p["unit"],
+    rows = [[name, p["component"], f"{p['value']:.4g}", "-" if p.get("held") else f"{p['sigma']:.2g}", p["unit"],
              f"[{p['bounds'][0]:.3g}, {p['bounds'][1]:.3g}]", _component_state(p)]
             for name, effect in data["effects"].items() for p in effect.get("components", [])]
     if rows:
-        out += ["", "Every component as fitted (sigma nan: the fit cannot separate it):", ""]
+        out += ["", "Every component as fitted (sigma nan: the fit cannot separate it; -: held, not fitted):", ""]
         out += markdown_table(["effect", "component", "value", "sigma", "unit", "bounds", ""], rows)
         if data.get("folds_note"):
             out += [""] + prose(f"Note: {data['folds_note']}.")
-    out += ["", "## Constants of the final model", ""]
-    rows = [[name, f"{c['value']:.4g}", f"{c['sigma']:.2g}", c["unit"], f"[{c['bounds'][0]:.3g}, {c['bounds'][1]:.3g}]",
-             "AT BOUND" if c["at_bound"] else ""] for name, c in data["constants"].items()]
+    out += ["", "## Constants of the final model" + (" (the injected flights' run; --write-vehicle writes the un-injected run's)"
+                                                      if data.get("injection") else ""), ""]
+    rows = [[name, f"{c['value']:.4g}", "-" if c.get("held") else f"{c['sigma']:.2g}", c["unit"],
+             f"[{c['bounds'][0]:.3g}, {c['bounds'][1]:.3g}]", c["held"].split(":")[0] if c.get("held") else "AT BOUND" if c["at_bound"] else ""]
+            for name, c in data["constants"].items()]
     out += markdown_table(["constant", "value", "sigma", "unit", "bounds", ""], rows) + [""]
     order = data.get("motor_order")
     if order:
