@@ -400,6 +400,10 @@ def test_log_round_trips_through_the_thesis_mat_file_with_its_answer(tmp_path, p
     assert notes["seed"] == 5 and notes["effects"] == [] and back.meta.vehicle == "linkquad"
     assert notes["truth_constants"]["rotor_thrust_constant"] == pytest.approx(1.0e-5)
     assert set(notes["effects_off"]) == set(SIM_EFFECTS)
+    assert notes["truth_constants"]["rotor_delay"] == notes["truth_constants"]["rotor_time_constant"] == 0.0  # all off
     flight = simulate("linkquad", ("rotor_drag", "input_delay"), seed=3, duration=6.0)
     assert flight.meta.notes["effect_parameters"]["input_delay"]["delay_s"] == pytest.approx(0.02)
+    flown = flight.meta.notes["truth_constants"]  # the values flown, not the vehicle file's (lag off: 0, not 0.1046)
+    assert flown["rotor_delay"] == pytest.approx(0.02) and flown["rotor_time_constant"] == 0.0
+    assert flown["rotor_drag_xy"] == flight.meta.notes["effect_parameters"]["rotor_drag"]["k_h_N_s_per_m_rad"]
     assert set(flight.meta.notes["effect_parameters"]) == {"rotor_drag", "input_delay"}
