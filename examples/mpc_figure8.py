@@ -265,6 +265,10 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if not args.duration > SETTLE_S + 0.04:
         parser.error(f"--duration {args.duration:g} s: the tracking error is scored from {SETTLE_S:g} s on; fly longer")
+    for directory in (d for d in (args.model, args.base) if d is not None):  # one line, not a traceback
+        if not (Path(directory) / "layout.yaml").is_file():
+            parser.error(f"{directory}: not an export directory (no layout.yaml); write one with "
+                         "`quad-modelling export VEHICLE.yaml --format casadi -o DIR`")
     models = {label: ExportedModel(d) for label, d in (("exported model", args.model), ("base model", args.base)) if d is not None}
     for directory, model in zip([d for d in (args.model, args.base) if d is not None], models.values()):
         if model.vehicle != TRUTH_VEHICLE:

@@ -54,7 +54,8 @@ def test_an_export_of_another_vehicle_and_a_too_short_flight_are_refused_in_one_
     other = tmp_path / "crazyflie_model"
     write_casadi_export(Export(crazyflie, PhysicsParameters.from_vehicle(crazyflie), Observer.from_vehicle(crazyflie), "physics"), other)
     for argv, message in ((["--model", str(other)], f"{other}: a model of vehicle crazyflie21; this example flies the simulator's linkquad"),
-                          (["--model", str(exported), "--duration", "0.5"], "--duration 0.5 s: the tracking error is scored from 1 s on")):
+                          (["--model", str(exported), "--duration", "0.5"], "--duration 0.5 s: the tracking error is scored from 1 s on"),
+                          (["--model", str(tmp_path / "nope")], f"{tmp_path / 'nope'}: not an export directory (no layout.yaml)")):
         with pytest.raises(SystemExit) as stopped:
             example.main([*argv, "-o", str(tmp_path / "out")])
         assert stopped.value.code == 2 and message in capsys.readouterr().err
