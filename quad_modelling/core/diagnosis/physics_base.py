@@ -289,8 +289,9 @@ def twin_text(check: dict, entry: str) -> str:
     """The sentence of :func:`twin_check`'s verdict for the ``entry`` of the found twin or of the other."""
     found, other = check["found"].replace("_", " "), {"motor_lag": "a motor lag", "input_delay": "an input delay"}[check["other"]]
     low, high = check["difference_90"]
+    digits = 1 if min(abs(low), abs(high)) >= 0.001 else 3  # a bound of +0.003 % is not shown as +0.0 %: it is above 0
     numbers = (f"shrink {check['shrink']:.1%} against {check['other_shrink']:.1%} fitted in its place, difference "
-               f"{low:+.1%} .. {high:+.1%} (90 %)")
+               f"{low:+.{digits}%} .. {high:+.{digits}%} (90 %)")
     if check.get("other_better"):  # next_effect passed it over: it was not resolved on that rung, or its bound <= 0
         return (f"on the rung where the {found} joined, {other} fitted in its place shrank the held-out error more "
                 f"({numbers}) but could not join there (not resolved, or its 5 % bound not above 0)")

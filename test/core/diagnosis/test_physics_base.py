@@ -149,6 +149,8 @@ def test_the_twin_check_reads_the_paired_bootstrap():
     assert better["other_better"] and not better["told_apart"]
     text = twin_text(better, "motor_lag")
     assert "an input delay fitted in its place shrank the held-out error more" in text and "do not tell" not in text
+    narrow = {**worse, "shrink": 0.064, "other_shrink": 0.063, "difference_90": [2.8e-05, 0.0024]}  # told apart, barely
+    assert "difference +0.003% .. +0.240% (90 %)" in twin_text(narrow, "motor_lag")  # it read +0.0 % .. +0.2 %
 
 
 def test_a_lag_searched_to_its_bound_with_the_base_observer_is_refitted_with_the_others():
