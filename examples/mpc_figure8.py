@@ -262,6 +262,7 @@ def main(argv=None) -> int:
     parser.add_argument("--duration", type=float, default=12.0, help="seconds flown (default 12: the ramp-in and one lap)")
     parser.add_argument("--height", type=float, default=1.0, help="figure-8 height [m] (default 1)")
     parser.add_argument("-o", "--output", required=True, help="directory to write results.json and results.md into")
+    parser.add_argument("--force", action="store_true", help="overwrite the results an earlier run wrote there")
     args = parser.parse_args(argv)
     if not args.duration > SETTLE_S + 0.04:
         parser.error(f"--duration {args.duration:g} s: the tracking error is scored from {SETTLE_S:g} s on; fly longer")
@@ -274,8 +275,10 @@ def main(argv=None) -> int:
         if model.vehicle != TRUTH_VEHICLE:
             parser.error(f"{directory}: a model of vehicle {model.vehicle}; this example flies the simulator's {TRUTH_VEHICLE} "
                          f"(export a model identified on `quad-modelling simulate --vehicle {TRUTH_VEHICLE}` flights)")
-    reference = Figure8(height=args.height)
     output = Path(args.output)
+    if not args.force and any((output / name).exists() for name in ("results.json", "results.md")):
+        parser.error(f"-o {output}: holds the results of an earlier run; pass --force to overwrite them")
+    reference = Figure8(height=args.height)
     output.mkdir(parents=True, exist_ok=True)
     runs = {"simulator's stabiliser + position hold": fly_stabiliser(reference, args.duration)}
     started = time.perf_counter()

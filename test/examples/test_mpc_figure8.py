@@ -60,3 +60,9 @@ def test_an_export_of_another_vehicle_and_a_too_short_flight_are_refused_in_one_
             example.main([*argv, "-o", str(tmp_path / "out")])
         assert stopped.value.code == 2 and message in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "results.json").write_text("{}")  # an earlier run's: kept without --force (it was overwritten)
+    with pytest.raises(SystemExit) as stopped:
+        example.main(["--model", str(exported), "-o", str(tmp_path / "out")])
+    assert stopped.value.code == 2 and "holds the results of an earlier run; pass --force" in capsys.readouterr().err
+    assert (tmp_path / "out" / "results.json").read_text() == "{}"
