@@ -150,10 +150,17 @@ BATTERY_PAUSE_S = 2.0
 ``battery_status`` 10 Hz, crazyswarm2's ``status`` 10 Hz), and a pack's voltage moves by millivolts in a second."""
 
 
+def usable_voltages(volts) -> np.ndarray:
+    """Which battery readings measure a pack: finite and above 0 V (a disconnected monitor or an unused PX4 battery
+    instance reports 0 V). The one rule of the bag readers (:func:`battery_on_rows`, the ULog instance choice) and the
+    live nodes (:func:`usable_voltage`)."""
+    volts = np.asarray(volts, dtype=float)
+    return np.isfinite(volts) & (volts > 0.0)
+
+
 def usable_voltage(volts: float) -> bool:
-    """A battery reading that measures a pack: finite and above 0 V (a disconnected monitor or an unused PX4 battery
-    instance reports 0 V). One rule for the bag readers (:func:`battery_on_rows`) and the live nodes."""
-    return bool(np.isfinite(volts) and volts > 0.0)
+    """:func:`usable_voltages` of one reading (a live message)."""
+    return bool(usable_voltages(volts))
 
 
 def battery_on_rows(stamps_s: np.ndarray, volts: np.ndarray, t: np.ndarray) -> tuple[np.ndarray | None, str | None]:
@@ -163,7 +170,7 @@ def battery_on_rows(stamps_s: np.ndarray, volts: np.ndarray, t: np.ndarray) -> t
     longer than :data:`BATTERY_PAUSE_S`, pauses longer than it (with the longest) -- or None when the stream covers
     the rows. No usable reading: (None, the note), the flight is read without a voltage."""
     stamps_s, volts = np.asarray(stamps_s, dtype=float), np.asarray(volts, dtype=float)
-    usable = np.isfinite(volts) & (volts > 0.0)
+    usable = usable_voltages(volts)
     skipped = int(len(volts) - usable.sum())
     said = f"{skipped} of {len(volts)} readings at 0 V or not finite skipped (a battery not connected)" if skipped else ""
     if not usable.any():

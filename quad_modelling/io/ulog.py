@@ -92,7 +92,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from quad_modelling.core import frames
-from quad_modelling.core.alignment import battery_on_rows
+from quad_modelling.core.alignment import battery_on_rows, usable_voltages
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.preprocess import (
     MeasurementGap,
@@ -174,10 +174,9 @@ def open_ulog(path: str | Path, topics) -> tuple:
 
 def connected_battery(data) -> bool:
     """Whether a ``battery_status`` instance measured a pack: a reading connected (where the field is logged),
-    finite and above 0 V (the rule of :func:`~quad_modelling.core.alignment.usable_voltage`). PX4 logs every
+    finite and above 0 V (:func:`~quad_modelling.core.alignment.usable_voltages`). PX4 logs every
     battery slot; an unused one reports 0 V, ``connected`` false."""
-    volts = np.asarray(data.get("voltage_v", []), dtype=float)
-    ok = np.isfinite(volts) & (volts > 0.0)
+    ok = usable_voltages(data.get("voltage_v", []))
     if "connected" in data:
         ok &= np.asarray(data["connected"]) != 0
     return bool(ok.any())
