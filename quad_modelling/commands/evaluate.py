@@ -126,10 +126,9 @@ def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], 
         raise ConfigError("no readable flight among the inputs")
     print_flight_warnings(flights)
     check_one_vehicle(flights, getattr(args, "verb", "evaluate"))
-    names = [flights[0].meta.vehicle]
     vehicle = given or load_vehicle(flights[0].meta.vehicle)
-    if vehicle.name != names[0]:
-        raise ConfigError(f"--vehicle {args.vehicle} describes {vehicle.name!r}, the flights are of {names[0]!r}")
+    if vehicle.name != flights[0].meta.vehicle:
+        raise ConfigError(f"--vehicle {args.vehicle} describes {vehicle.name!r}, the flights are of {flights[0].meta.vehicle!r}")
     return flights, vehicle, skipped
 
 
