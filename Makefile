@@ -34,7 +34,8 @@ TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) -m "not slow" test
 
-# The slow scenario tests (marked `slow`: the greybox --validate, the two-host DDS test), which CI runs after `make test`.
+# The slow scenario tests (marked `slow`: the greybox and physics --validate, the README tour, the two-host DDS test),
+# which CI runs after `make test`.
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) -m slow test
 

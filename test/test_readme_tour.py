@@ -21,6 +21,8 @@ import shlex
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import pytest
+
 from quad_modelling.cli import main
 from test.conftest import REPO
 
@@ -121,6 +123,7 @@ def test_the_readme_tour_makes_every_file_it_reads_and_the_shape_check_is_strict
     assert shape_pattern(["-> out/ (a.json, b.png, ...)"]).fullmatch("-> out/ (a.json, b.png, c.png, d.png)")
 
 
+@pytest.mark.slow  # every command of the README's tour, as written (about 30 s): `make test-slow`
 def test_the_readme_tour_runs_as_written_from_a_fresh_directory(tmp_path, monkeypatch, capsys):
     (tmp_path / "bags").symlink_to(REPO / "bags")
     monkeypatch.chdir(tmp_path)

@@ -18,6 +18,7 @@ def result():
                             duration=30.0)
 
 
+@pytest.mark.slow  # the physics --validate on simulated flights (about 20 s): `make test-slow`
 def test_a_switched_effect_is_found_and_the_null_case_finds_nothing(result):
     battery, null = result["cases"]
     assert [r["kind"] for r in result["cases"]] == ["single", "null"] and battery["case"] == "battery"
@@ -29,6 +30,7 @@ def test_a_switched_effect_is_found_and_the_null_case_finds_nothing(result):
     assert battery["shrink_of_ceiling"] == pytest.approx(battery["shrink"] / battery["ceiling"])
 
 
+@pytest.mark.slow  # the physics --validate on simulated flights (about 20 s): `make test-slow`
 def test_the_report_leads_with_the_targets(result, tmp_path):
     met = {t["target"]: t["met"] for t in result["targets"]}
     assert met["single effects right >= 90 %"] and met["null and disturbances: nothing found"]
