@@ -144,6 +144,7 @@ class EvaluatorNode(Node):
         self.open: dict[int, WindowBuffer] = {}
         self.previous: WindowBuffer | None = None  # the last closed window: its samples bracket the next one's first rows
         self.closed_below = None  # windows with index < this are closed
+        self.time_base = 0  # clock jumps and origin moves so far (WindowRecord.time_base)
         # Latest stamp [ns] of every stream the node scores (the closing rule); a model's streams also their wall time.
         topic_map = live_topic_map(p["topic_map"], "evaluator")
         self.mapped = None if topic_map is None else MappedStreams(topic_map, MEASURED_FIELDS, 0, 0, f"evaluator: topic_map {topic_map.name}")
@@ -231,6 +232,7 @@ class EvaluatorNode(Node):
             if self.clock_.origin_ns is not None:
                 self.faults.report("origin_changed", f"window origin moved to an earlier t0 ({ns} ns): open windows discarded")
                 self.open.clear()
+                self.time_base += 1
                 self.previous = None
                 self.closed_below = None
             self.clock_.origin_ns = ns
@@ -264,6 +266,7 @@ class EvaluatorNode(Node):
         for k in sorted(self.open):
             self._close(k, reason_if_incomplete="the engine inputs' clock jumped before the window was complete")
         self.previous = self.closed_below = None
+        self.time_base += 1  # the windows from here on: their indices may repeat earlier ones
         if self.clock_.origin_ns is not None and ns < self.clock_.origin_ns:
             self.clock_.origin_ns = ns
             self.origin_pub.publish(messages.clock_message(ns))
@@ -286,11 +289,11 @@ class EvaluatorNode(Node):
         if k < 0:
             # Samples within a window before t0 bracket window 0's first rows; they belong to no scored window.
             if self.previous is None:
-                self.previous = WindowBuffer(-1, self.models)
+                self.previous = WindowBuffer(-1, self.models, self.time_base)
             return self.previous
         window = self.open.get(k)
         if window is None:
-            window = self.open[k] = WindowBuffer(k, self.models)
+            window = self.open[k] = WindowBuffer(k, self.models, self.time_base)
             while len(self.open) > MAX_OPEN_WINDOWS:
                 self._close(min(self.open), reason_if_incomplete="closed early to bound memory")
         return window
@@ -515,7 +518,7 @@ class EvaluatorNode(Node):
     def _score(self, window: WindowBuffer, neighbours: list[WindowBuffer], start_s: float, end_s: float, spans: list[str], extra: str,
                late: list[str]) -> list[WindowRecord]:
         def marked(reason: str, models=None) -> list[WindowRecord]:
-            return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason)
+            return [WindowRecord(m, s, window.index, start_s, end_s, reason=reason, time_base=window.time_base)
                     for m in (models or self.models + self.baselines) for s in spans]
 
         if any(s in self.measurement_streams for s in late):
@@ -543,10 +546,10 @@ class EvaluatorNode(Node):
                 records += marked(reason, [model])
                 continue
             predicted[model] = result.predicted
-            records += [WindowRecord(model, s, window.index, start_s, end_s, rms=result.rms, tic=result.tic) for s in spans]
+            records += [WindowRecord(model, s, window.index, start_s, end_s, result.rms, result.tic, time_base=window.time_base) for s in spans]
         for baseline in self.baselines:
             result = evaluate_window(DummyPredictor(), log, warm, self.config.trim, self.vehicle, self.config.smooth_cutoff_hz, measured)
-            records += [WindowRecord(baseline, s, window.index, start_s, end_s, rms=result.rms, tic=result.tic) for s in spans]
+            records += [WindowRecord(baseline, s, window.index, start_s, end_s, result.rms, result.tic, time_base=window.time_base) for s in spans]
         if predicted and self.figures:
             for s in spans:
                 self.scores.add_example(s, log, measured, predicted, warm)

@@ -72,14 +72,17 @@ class WindowRecord:
     rms: np.ndarray | None = None
     tic: np.ndarray | None = None
     reason: str = ""
+    time_base: int = 0
+    """How many times the engine inputs' clock jumped or the window origin moved before this window (0: none):
+    after a jump back the window indices repeat, and (time_base, index) tells the windows apart."""
 
     @property
     def scored(self) -> bool:
         return self.rms is not None
 
     def to_json(self) -> dict:
-        out = {"model": self.model, "span": self.span, "window": self.index, "start_s": self.start_s, "end_s": self.end_s,
-               "scored": self.scored}
+        out = {"model": self.model, "span": self.span, "window": self.index, "time_base": self.time_base,
+               "start_s": self.start_s, "end_s": self.end_s, "scored": self.scored}
         if self.scored:
             idx = {v: i for i, v in enumerate(VARIABLES)}
             out["scores"] = {v: {"rms": float(self.rms[idx[v]]), "tic": float(self.tic[idx[v]])} for v in EVAL_VARIABLES}
@@ -217,7 +220,8 @@ def diagnostics_message(records: list[WindowRecord], stamp_ns: int, horizon: lis
     idx = {v: i for i, v in enumerate(VARIABLES)}
     for r in records:
         status = DiagnosticStatus(name=f"evaluation/{r.model}/{r.span}/window_{r.index}", hardware_id=r.model)
-        values = [KeyValue(key="start_s", value=f"{r.start_s:g}"), KeyValue(key="end_s", value=f"{r.end_s:g}")]
+        values = [KeyValue(key="start_s", value=f"{r.start_s:g}"), KeyValue(key="end_s", value=f"{r.end_s:g}"),
+                  KeyValue(key="time_base", value=str(r.time_base))]
         if r.scored:
             status.level = DiagnosticStatus.OK
             status.message = "scored"
@@ -249,10 +253,11 @@ class WindowBuffer:
     """Received samples of one window, by stamp [ns]: measurement fields, each model's prediction fields and
     receding-horizon predictions (stamped at the predicted time)."""
 
-    __slots__ = ("index", "motor", "omega", "odom", "imu", "mapped", "pred_odom", "pred_accel", "horizon", "passed_at")
+    __slots__ = ("index", "time_base", "motor", "omega", "odom", "imu", "mapped", "pred_odom", "pred_accel", "horizon", "passed_at")
 
-    def __init__(self, index: int, models: list[str]):
+    def __init__(self, index: int, models: list[str], time_base: int = 0):
         self.index = index
+        self.time_base = time_base  # WindowRecord.time_base
         self.motor: dict[int, list] = {}
         self.omega: dict[int, list | None] = {}
         self.odom: dict[int, list] = {}

@@ -173,8 +173,10 @@ def test_outlier_stamps_clock_jumps_and_bad_messages_are_survived(ros):
     assert counts["bad_motor_input"] == 1 and counts["bad_imu"] == 1
     assert counts["clock_jump_motor_input"] == 1
     records = [r for r in node.scores.records if r.model == "m"]
-    scored = [(r.index, round(r.rms[INDEX["vel_x"]], 9)) for r in records if r.scored]
-    assert scored == [(0, 0.25), (1, 0.25), (2, 0.25)] * 2  # before and after the restart (rows CONFIRM - 1 on then)
+    scored = [(r.time_base, r.index, round(r.rms[INDEX["vel_x"]], 9)) for r in records if r.scored]
+    # before and after the restart (rows CONFIRM - 1 on then): the indices repeat, the time base tells them apart
+    assert scored == [(b, k, 0.25) for b in (0, 1) for k in (0, 1, 2)]
+    assert [r.to_json()["time_base"] for r in records if r.scored] == [0, 0, 0, 1, 1, 1]
     node.destroy_node()
 
 
@@ -205,6 +207,7 @@ def test_a_forward_jump_keeps_the_window_origin_of_the_predictors(ros):
     assert scored[:2] == [(0, 0.25), (1, 0.25)]  # before the jump
     # window 20 starts 3 ms before the first row after the jump (within the coverage rule), 21 is whole, 22 partial
     assert scored[2:] == [(20, 0.25), (21, 0.25)]
+    assert [r.time_base for r in records if r.scored] == [0, 0, 1, 1]  # one jump: the windows after it are base 1
     node.destroy_node()
 
 

@@ -56,6 +56,7 @@ def test_recording_holds_every_measurement_prediction_and_evaluation(recorded_ru
         values = {kv.key: kv.value for kv in statuses[f"evaluation/{w['model']}/{w['span']}/window_{w['window']}"].values}
         for var, score in w["scores"].items():
             assert float(values[f"{var}.rms"]) == score["rms"] and float(values[f"{var}.tic"]) == score["tic"]
+        assert int(values["time_base"]) == w["time_base"] == 0  # one replay, no clock jump
 
 
 def _field_type(msgtype: str, path: str) -> str:
