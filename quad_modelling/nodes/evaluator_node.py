@@ -233,8 +233,7 @@ class EvaluatorNode(Node):
                 self.faults.report("origin_changed", f"window origin moved to an earlier t0 ({ns} ns): open windows discarded")
                 self.open.clear()
                 self.time_base += 1
-                self.previous = None
-                self.closed_below = None
+                self.previous = self.closed_below = None
             self.clock_.origin_ns = ns
 
     def _admit(self, stream: str, ns: int, payload) -> list:
