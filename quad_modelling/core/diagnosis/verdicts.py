@@ -241,3 +241,42 @@ def total_error(batch: WindowBatch, predicted: np.ndarray, reference: dict[str, 
 def _unit(unit: str) -> str:
     """' UNIT' for a reason sentence; nothing for a dimensionless '1'."""
     return "" if unit in ("", "1") else f" {unit}"
+
+
+# --- the physics base's sentences (:mod:`~quad_modelling.core.diagnosis.physics_base`) ------------------------------
+
+
+def twin_text(check: dict, entry: str) -> str:
+    """The sentence of :func:`~quad_modelling.core.diagnosis.physics_base.twin_check`'s verdict for the ``entry`` of the found twin or of the other."""
+    found, other = check["found"].replace("_", " "), {"motor_lag": "a motor lag", "input_delay": "an input delay"}[check["other"]]
+    low, high = check["difference_90"]
+    digits = 1 if min(abs(low), abs(high)) >= 0.001 else 3  # a bound of +0.003 % is not shown as +0.0 %: it is above 0
+    numbers = (f"shrink {check['shrink']:.1%} against {check['other_shrink']:.1%} fitted in its place, difference "
+               f"{low:+.{digits}%} .. {high:+.{digits}%} (90 %)")
+    if check.get("other_better"):  # next_effect passed it over: it was not resolved on that rung, or its bound <= 0
+        return (f"on the rung where the {found} joined, {other} fitted in its place shrank the held-out error more "
+                f"({numbers}) but could not join there (not resolved, or its 5 % bound not above 0)")
+    if not check["told_apart"]:
+        return (f"the held-out flights do not tell the {found} found from {other} ({numbers}): the command path lags, "
+                f"in one form or the other")
+    if entry == check["found"]:
+        return f"told from {other} by the held-out flights: {numbers}"
+    return f"the held-out flights tell the {found} found from it: {numbers}"
+
+
+def component_text(effect: str, parts: list[dict], found: bool) -> str:
+    """One sentence per effect: which components are resolved, with value +- sigma (and the folds when not)."""
+    if not parts:
+        return f"{effect}: not fitted on these flights"
+    head = f"{effect.replace('_', ' ')} {'found' if found else 'not supported'}"
+    resolved = [f"{p['component']} {p['value']:.4g} +- {p['sigma']:.2g}" + (f" {p['unit']}" if p["unit"] != "1" else "")
+                for p in parts if p["resolved"]]
+    unresolved = [f"{p['component']} {p['value']:.4g}" + (" (held there)" if p.get("held") else "")
+                  + (" (AT BOUND)" if p["at_bound"] else "")
+                  + (f" ({' / '.join(f'{v:.3g}' + (' at its bound' if b else '') for v, b in zip(p['folds'], p.get('folds_at_bound', [False] * len(p['folds']))))} on the folds)"
+                     if p["folds"] else "")
+                  for p in parts if not p["resolved"]]
+    text = head + (": " + ", ".join(resolved) if resolved else "")
+    if unresolved:
+        text += ("; not resolved: " if resolved else ": not resolved: ") + ", ".join(unresolved)
+    return text

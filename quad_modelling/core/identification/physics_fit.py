@@ -77,6 +77,7 @@ from quad_modelling.core.identification.normal_equations import NormalEquations,
 from quad_modelling.core.identification.uncertainty import profile_sigma
 from quad_modelling.core.identification.physics_terms import (
     GROUND_OFFSETS,
+    IMBALANCE_AXES,
     IMBALANCE_ITERATIONS,
     IMBALANCE_LEVEL_CHANNELS,
     TermDesign,
@@ -247,14 +248,15 @@ def _rows(p: PhysicsParameters, seg: _Segment, time_constant: float, delay: floa
     imbalance = (imbalance_columns(design, q.positions, q.spins, q.speed_offset, mean_rotor)
                  if "motor_imbalance" in design.names else None)
     cg = cg_offset_columns(thrust_force) if imbalance is not None and design.cg_offset else None
-    torques = [_torque_columns(thrust_torque, drag_xy_torque if design.drag else None, rate_extra, imbalance, axis, cg)
-               for axis in range(3)]
+    patterns = [imbalance if name in design.imbalance_axes else None for name in ("roll", "pitch", "yaw")]
+    torques = [_torque_columns(thrust_torque, drag_xy_torque if design.drag else None, rate_extra, patterns[axis], axis, cg)
+               for axis in range(2)]
     # yaw's rotor reaction I_p/I_zz Σ s_i dΩ_i/dt integrates to I_p/I_zz Σ s_i (Ω(t) - Ω(t_0)): the known part below, exact
     return {
         "velocity": (seg.vel_n, velocity, np.tile([0.0, 0.0, GRAVITY], (len(seg.t), 1))),  # g e_z (cancels in an observer)
         "roll": (seg.rates[:, :1], torques[0], gyro[:, :1]),
         "pitch": (seg.rates[:, 1:2], torques[1], gyro[:, 1:2]),
-        "yaw": (seg.rates[:, 2:], _torque_columns(yaw_torque, None, rate_extra, imbalance, 2), gyro[:, 2:],
+        "yaw": (seg.rates[:, 2:], _torque_columns(yaw_torque, None, rate_extra, patterns[2], 2), gyro[:, 2:],
                 -rotor_momentum(p.prop_inertia, p.spins, rotor)[:, 2:] / inertia[2]),  # I_p Σ s_i Ω_i / I_zz
     }
 
@@ -316,9 +318,11 @@ def _normal_equations(p: PhysicsParameters, segments: list[_Segment], time_const
 
 def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
                      observer: Observer | None = None, terms: Sequence[str] = (), drag: bool | None = None,
-                     dynamics: tuple[float | None, float | None, float] | None = None) -> PhysicsFit:
+                     dynamics: tuple[float | None, float | None, float] | None = None,
+                     imbalance_axes: tuple[str, ...] = IMBALANCE_AXES) -> PhysicsFit:
     """Fit the physics constants :data:`FITTED` on ``config``'s training span of ``flights`` (module docstring), with
-    the optional ``terms`` (:mod:`~quad_modelling.core.identification.physics_terms`).
+    the optional ``terms`` (:mod:`~quad_modelling.core.identification.physics_terms`; ``imbalance_axes``: the motor
+    imbalance's gain patterns fitted, :attr:`~quad_modelling.core.identification.physics_terms.TermDesign.imbalance_axes`).
 
     Without an ``observer``, the observer is chosen by the data among
     :data:`~quad_modelling.core.identification.physics_result.OBSERVERS`: the fit runs with each and keeps the one
@@ -333,8 +337,9 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     no such gap (the simulator's flights), they throw away what it predicts right (roll rate error 0.14 -> 0.016 of
     the observer alone's, yaw 0.74 -> 0.004, on simulated LinkQuad flights with the true constants)."""
     if observer is not None:
-        return _identify_with(flights, vehicle, config, observer, terms, drag, dynamics)
-    fits = {name: _identify_with(flights, vehicle, config, OBSERVERS[name], terms, drag, dynamics) for name in FIT_OBSERVERS}
+        return _identify_with(flights, vehicle, config, observer, terms, drag, dynamics, imbalance_axes)
+    fits = {name: _identify_with(flights, vehicle, config, OBSERVERS[name], terms, drag, dynamics, imbalance_axes)
+            for name in FIT_OBSERVERS}
     scores = {name: training_score(f, flights, vehicle, config) for name, f in fits.items()}
     chosen = min(scores, key=scores.get)
     best = fits[chosen]
@@ -348,7 +353,8 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
 
 def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
                    observer: Observer, terms: Sequence[str], drag: bool | None = None,
-                   dynamics: tuple[float | None, float | None, float] | None = None) -> PhysicsFit:
+                   dynamics: tuple[float | None, float | None, float] | None = None,
+                   imbalance_axes: tuple[str, ...] = IMBALANCE_AXES) -> PhysicsFit:
     """:func:`identify_physics` with one ``observer``; with motor_imbalance among the ``terms``, the whole fit is
     repeated :data:`~quad_modelling.core.identification.physics_terms.IMBALANCE_ITERATIONS` times from the gains of
     the previous pass (Gauss-Newton). A switch of :data:`~quad_modelling.core.physics.effects.BASE_SWITCHES` the
@@ -373,11 +379,13 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
     dynamics = None if tau_held is None and delay_held is None else (tau_held, delay_held, delay_held_sd)
     switches = {name: (drag if name == "rotor_drag" else name not in off) for name in BASE_SWITCHES
                 if name in terms or name in vehicle.effects}
-    design = replace(_term_design(tuple(t for t in terms if t not in BASE_SWITCHES), segments, vehicle), drag=drag)
+    design = replace(_term_design(tuple(t for t in terms if t not in BASE_SWITCHES), segments, vehicle), drag=drag,
+                     imbalance_axes=imbalance_axes)
     imbalance = "motor_imbalance" in design.names
     start = design
     near = None  # the previous pass's (τ, δ): the next pass's search starts there (SEARCH_NEAR_LOG)
-    for cg_offset in ((True, False) if imbalance else (True,)):  # the CG offset held at 0 where the flights do not separate it
+    levels = (True, False) if "roll" in imbalance_axes else (False,)  # the CG offset held at 0 without roll and pitch
+    for cg_offset in (levels if imbalance else (True,)):  # ... and where the flights do not separate it
         design = replace(start, cg_offset=cg_offset)
         for _ in range(IMBALANCE_ITERATIONS if imbalance else 1):
             tau, delay, delay_sd, profile, design, fit, thin = _search_dynamics(p, segments, observer, design, rate, vehicle,

@@ -78,6 +78,10 @@ ARM_POWERS = {("ground_effect", "coefficient"): 2, ("ground_effect", "offset"): 
 """The power of the arm length each :data:`TERM_BOUNDS` entry is written in (absent: absolute)."""
 
 
+IMBALANCE_AXES = ("roll", "pitch", "yaw")
+"""The imbalance's gain patterns (:func:`imbalance_patterns`), all fitted by default (:attr:`TermDesign.imbalance_axes`)."""
+
+
 @dataclass(frozen=True)
 class TermDesign:
     """The terms fitted and their held nonlinear parameters: ``names`` (of :data:`FITTABLE`), ``ground_offset``
@@ -92,6 +96,10 @@ class TermDesign:
     """The current gains :math:`\\hat g` of the imbalance iteration (module docstring)."""
     cg_offset: bool = True
     """False: the imbalance's CG offset held at 0, its columns left out (:func:`imbalance_separated`)."""
+    imbalance_axes: tuple[str, ...] = IMBALANCE_AXES
+    """The gain patterns fitted (the others held, their channel's imbalance column left out; without roll and pitch
+    the CG offset is held at 0 too): ``("yaw",)`` is the imbalance's yaw pattern alone, against which the diagnosis
+    weighs the rest (:data:`~quad_modelling.core.diagnosis.physics_base.YAW_PATTERN_ONLY`)."""
 
     def __post_init__(self) -> None:
         refused = [n for n in self.names if n not in FITTABLE]
@@ -138,8 +146,13 @@ def channel_columns(design: TermDesign) -> dict[str, list[str]]:
     imbalance = ["imbalance"] if "motor_imbalance" in design.names else []
     velocity = ["thrust", *drag, *[n for n in ("ground_effect", "battery") if n in design.names]]
     cg = ["cg_offset"] if imbalance and design.cg_offset else []
-    torque = ["thrust", *(["drag_moment"] if design.drag else []), *gyro, *imbalance, *cg]
-    return {"velocity": velocity, "roll": torque, "pitch": list(torque), "yaw": ["torque", *gyro[:1], *imbalance]}
+
+    def pattern(axis: str) -> list[str]:
+        return imbalance if axis in design.imbalance_axes else []
+
+    torque = ["thrust", *(["drag_moment"] if design.drag else []), *gyro]
+    return {"velocity": velocity, "roll": [*torque, *pattern("roll"), *cg], "pitch": [*torque, *pattern("pitch"), *cg],
+            "yaw": ["torque", *gyro[:1], *pattern("yaw")]}
 
 
 def imbalance_patterns(positions: np.ndarray, spins: np.ndarray) -> np.ndarray:
@@ -203,11 +216,14 @@ def imbalance_separated(design: TermDesign, fit: dict, gains: tuple[np.ndarray, 
 
 def updated_gains(design: TermDesign, fit: dict, positions: np.ndarray, spins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(gains (4,), sigma (4,)): :math:`\\hat g + \\sum_c e_c P_c` renormalised to mean 1, :math:`e_c = \\gamma_c / \\alpha_c`
-    from the channel fits ``fit`` (module docstring); a channel the flights do not excite adds nothing (sigma NaN)."""
+    from the channel fits ``fit`` (module docstring); a channel the flights do not excite adds nothing (sigma NaN), a
+    pattern held (:attr:`TermDesign.imbalance_axes`) nothing (sigma 0)."""
     patterns = imbalance_patterns(positions, spins)
     columns = channel_columns(design)
     step, variance = np.zeros(3), np.zeros(3)
     for c, channel in enumerate(("roll", "pitch", "yaw")):
+        if "imbalance" not in columns[channel]:
+            continue  # held: no step
         i = columns[channel].index("imbalance")
         alpha, gamma = fit[channel]["coef"][0], fit[channel]["coef"][i]
         if np.isfinite(alpha) and np.isfinite(gamma) and alpha != 0:

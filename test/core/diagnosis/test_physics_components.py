@@ -65,7 +65,7 @@ class _Gains:
 def test_a_half_that_ran_a_gain_to_its_search_bound_does_not_void_it():
     """Trained on B7 + B3 / B6 (a linear ramp alone): the B6 half ran motor 2's gain to 0.5 and motor 4's to 2, and
     the found imbalance read 'not resolved' on every gain; a bound is the optimiser's value, not a measurement."""
-    from quad_modelling.core.diagnosis.physics_base import component_text
+    from quad_modelling.core.diagnosis.verdicts import component_text
 
     final = _Gains((1.26, 0.82, 1.05, 0.87))
     folds = [_Gains((1.27, 0.80, 1.05, 0.88)), _Gains((1.3, 0.5, 1.0, 2.0), at_bound=(2, 4))]

@@ -214,6 +214,27 @@ def test_identify_recovers_the_simulators_cg_offset_with_the_motor_imbalance():
     assert p.cg_offset == pytest.approx((estimates["motor_imbalance.cg_offset_x"].value, estimates["motor_imbalance.cg_offset_y"].value))
 
 
+def test_the_imbalance_fitted_on_its_yaw_pattern_alone_holds_the_rest():
+    """``imbalance_axes=("yaw",)`` (the diagnosis's reference for the rest of an imbalance): on the flight above the
+    gains move along the yaw pattern only (their roll and pitch coordinates 0) and the CG offset is held at 0, where
+    the full fit has both, many sigma from 0."""
+    from quad_modelling.core.identification.physics_terms import imbalance_patterns
+    from test.conftest import simulated
+
+    linkquad = load_vehicle("linkquad")
+    patterns = imbalance_patterns(linkquad.motor_positions, linkquad.yaw_signs)
+    flight = simulated("linkquad", ("motor_imbalance",), 5101, 40.0)
+    coordinates, cg = {}, {}
+    for axes in (("roll", "pitch", "yaw"), ("yaw",)):
+        fit = identify_physics([flight], linkquad, SHORT, terms=["motor_imbalance"], imbalance_axes=axes)
+        gains = np.array([fit.terms["motor_imbalance"][f"gain_{i}"]["value"] for i in range(1, 5)])
+        coordinates[axes] = np.linalg.lstsq(patterns.T, gains - 1.0, rcond=None)[0]  # roll, pitch, yaw coordinates
+        cg[axes] = [fit.terms["motor_imbalance"][f"cg_offset_{axis}"]["value"] for axis in "xy"]
+    np.testing.assert_allclose(coordinates[("yaw",)][:2], 0.0, atol=1e-12)
+    assert abs(coordinates[("yaw",)][2]) > 0.003 and cg[("yaw",)] == [0.0, 0.0]
+    assert cg[("roll", "pitch", "yaw")] == pytest.approx(sim_params_for("linkquad").imbalance.cg_offset, abs=1e-3)
+
+
 def test_fitted_without_an_observer_the_hover_pins_the_thrust_constant():
     """Effect-free simulated LinkQuad flights: without an observer, gravity in the velocity channel's known part pins
     k_f to the hover (the regression had no g there until 2026-11-26, and k_f went to its lower bound, 1e-6); the
