@@ -230,8 +230,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def in_sample(train, test) -> list[str]:
-    """The flights both training and held-out flights (their held-out scores are in-sample)."""
-    return sorted({f.meta.source for f in train} & {f.meta.source for f in test})
+    """The held-out flights that are also training flights -- the same numbers (:meth:`FlightLog.fingerprint`) under
+    any path or name -- as given to ``--test`` (their held-out scores are in-sample)."""
+    trained = {f.fingerprint() for f in train}
+    return sorted(f.meta.source for f in test if f.fingerprint() in trained)
 
 
 def warn_in_sample(train, test) -> None:

@@ -87,17 +87,8 @@ from quad_modelling.nodes.common import (
 from quad_modelling.nodes.recording import check_output_dir, close_recording, open_recorder, subscribe_recorded
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, message_class
 from quad_modelling.nodes.scoring import (  # noqa: F401  (EVALUATOR_PARAMETERS re-exported)
-    EVALUATOR_PARAMETERS,
-    LiveScores,
-    WindowBuffer,
-    WindowRecord,
-    diagnostics_message,
-    late_reason,
-    shared_models,
-    shared_reason,
-    score_horizon,
-    score_model,
-    window_measurements,
+    EVALUATOR_PARAMETERS, LiveScores, WindowBuffer, WindowRecord, diagnostics_message, late_reason, shared_models,
+    shared_reason, score_horizon, score_model, window_measurements,
 )
 
 PROGRESS_REPEAT_S = 0.2
@@ -144,7 +135,7 @@ class EvaluatorNode(Node):
         self.open: dict[int, WindowBuffer] = {}
         self.previous: WindowBuffer | None = None  # the last closed window: its samples bracket the next one's first rows
         self.closed_below = None  # windows with index < this are closed
-        self.time_base = 0  # clock jumps and origin moves so far (WindowRecord.time_base)
+        self.time_base, self.base_pending = 0, False  # WindowRecord.time_base; a jump or origin move since the last window
         # Latest stamp [ns] of every stream the node scores (the closing rule); a model's streams also their wall time.
         topic_map = live_topic_map(p["topic_map"], "evaluator")
         self.mapped = None if topic_map is None else MappedStreams(topic_map, MEASURED_FIELDS, 0, 0, f"evaluator: topic_map {topic_map.name}")
@@ -230,10 +221,9 @@ class EvaluatorNode(Node):
         ns = topics.stamp_ns(msg.clock)
         if self.clock_.origin_ns is None or ns < self.clock_.origin_ns:
             if self.clock_.origin_ns is not None:
-                self.faults.report("origin_changed", f"window origin moved to an earlier t0 ({ns} ns): open windows discarded")
-                self.open.clear()
-                self.time_base += 1
-                self.previous = self.closed_below = None
+                self.faults.report("origin_changed", f"window origin moved {(ns - self.clock_.origin_ns) / 1e9:+.3f} s to an "
+                                                     "earlier t0 (a replay restarted earlier): the open windows closed")
+                self._end_time_base("the window origin moved to an earlier t0 before the window was complete")
             self.clock_.origin_ns = ns
 
     def _admit(self, stream: str, ns: int, payload) -> list:
@@ -262,16 +252,21 @@ class EvaluatorNode(Node):
         """The engine inputs jumped to ``ns`` [ns]: close (score or mark) the open windows and forget every stream's
         position. The window origin stays (the predictors keep theirs: windows stay aligned with the predictions),
         unless ``ns`` lies before it: then ``ns`` is the new origin, published, as a predictor does."""
-        for k in sorted(self.open):
-            self._close(k, reason_if_incomplete="the engine inputs' clock jumped before the window was complete")
-        self.previous = self.closed_below = None
-        self.time_base += 1  # the windows from here on: their indices may repeat earlier ones
+        self._end_time_base("the engine inputs' clock jumped before the window was complete")
         if self.clock_.origin_ns is not None and ns < self.clock_.origin_ns:
             self.clock_.origin_ns = ns
             self.origin_pub.publish(messages.clock_message(ns))
         self.stream_last_ns = dict.fromkeys(self.stream_last_ns)
         for gate in (g for name, g in self.stamp_gates.items() if name != MOTOR_INPUT):
             gate.reset()
+
+    def _end_time_base(self, reason: str) -> None:
+        """Close the open windows (scored if complete, else marked with ``reason``); the windows opened next get the
+        next time base (:attr:`WindowRecord.time_base`: their indices may repeat earlier ones)."""
+        for k in sorted(self.open):
+            self._close(k, reason_if_incomplete=reason)
+        self.previous = self.closed_below = None
+        self.base_pending = True
 
     def _window_for(self, ns: int, stream: str) -> WindowBuffer | None:
         if self.clock_.origin_ns is None:
@@ -282,6 +277,7 @@ class EvaluatorNode(Node):
         if ns < self.clock_.origin_ns - self.clock_.window_ns:
             return None
         k, _ = self.clock_.locate(ns)
+        self.time_base, self.base_pending = self.time_base + self.base_pending, False  # one per jump, however many events
         if self.closed_below is not None and k < self.closed_below:
             self.faults.report(stream_fault("late", stream), f"{stream} message for the already closed window {k}: dropped")
             return None

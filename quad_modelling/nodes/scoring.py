@@ -101,6 +101,7 @@ class HorizonRecord:
     error_sums: np.ndarray
     scored: int
     unreached: int = 0
+    time_base: int = 0  # WindowRecord.time_base
 
     def mae(self) -> np.ndarray | None:
         """MAE@h of this window per group, :math:`\\frac{1}{S}\\sum_s e_s` (None without a scored prediction)."""
@@ -236,7 +237,8 @@ def diagnostics_message(records: list[WindowRecord], stamp_ns: int, horizon: lis
     for h in horizon:
         status = DiagnosticStatus(name=f"evaluation/{h.model}/horizon/window_{h.index}", hardware_id=h.model)
         mae = h.mae()
-        values = [KeyValue(key="predictions", value=str(h.scored)), KeyValue(key="unreached", value=str(h.unreached))]
+        values = [KeyValue(key="predictions", value=str(h.scored)), KeyValue(key="unreached", value=str(h.unreached)),
+                  KeyValue(key="time_base", value=str(h.time_base))]
         if mae is None:
             status.level, status.message = DiagnosticStatus.WARN, "not scored: no measurement reaches the predicted stamps"
         else:
@@ -327,7 +329,7 @@ def score_horizon(window: WindowBuffer, neighbours: list[WindowBuffer], models: 
             predicted = topics.predictions_from_fields(fields[have], np.zeros((int(have.sum()), topics.ACCEL_FIELDS)))
             errors = group_error_norms(truth, predicted)
         out.append(HorizonRecord(model, window.index, errors.sum(axis=0) if len(errors) else np.zeros(len(GROUPS)),
-                                 len(errors), int((~have).sum())))
+                                 len(errors), int((~have).sum()), window.time_base))
     return out
 
 

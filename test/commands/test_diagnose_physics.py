@@ -166,6 +166,7 @@ def test_a_swap_in_the_logged_data_is_carried_into_the_written_vehicle(tmp_path)
                  "--write-vehicle", str(written), "-o", str(out)]) == 0
     data = json.loads((out / "diagnosis.json").read_text())
     assert data["motor_order"]["diagnosed_with_swap"] == [3, 4]
+    assert data["summary"]["motor_command_gains"]["order"] == "as logged"  # physics_base.logged_order
     vehicle, shipped = load_vehicle(str(written)), load_vehicle("crazyflie21")
     assert [m.name for m in vehicle.motors] == [shipped.motors[i].name for i in (0, 1, 3, 2)]
     assert "the written vehicle lists them in that order" in " ".join((out / "report.md").read_text().split())
@@ -262,3 +263,29 @@ def test_held_constants_and_the_injected_runs_constants_are_said_as_such(injecte
     assert "| motor_imbalance.cg_offset_x | 0 | - | m | [-0.0115, 0.0115] | held at 0 |" in report
     assert "## Constants of the final model (the injected flights' run; --write-vehicle writes the un-injected run's)" in report
     assert " 1 |" not in report.split("## Constants")[0].split("Every component")[0]  # no dimensionless unit '1' in prose
+
+
+def test_a_flight_given_to_train_and_test_under_another_path_is_in_sample(tmp_path):
+    """The in-sample warning compared the paths as typed: the same flight through a symlinked folder was scored as
+    held out. It compares the flights' numbers (FlightLog.fingerprint) and names the --test flight as given."""
+    from quad_modelling.commands.diagnose import in_sample
+    from quad_modelling.io.loader import load_flight
+
+    (tmp_path / "elsewhere").symlink_to(REPO / "bags")
+    again = str(tmp_path / "elsewhere" / "nanobench_B7_oval_medium_rep2")
+    flight, same = load_flight(BAG), load_flight(again)
+    assert in_sample([flight], [same]) == [same.meta.source] and again in same.meta.source
+    other = load_flight(BAG)
+    other.u = other.u * 1.01  # another flight's numbers
+    assert in_sample([other], [same]) == []
+
+
+def test_the_summary_gains_are_on_the_logged_command_columns():
+    """With a swap the motor-order check found undone for the diagnosis, summary.motor_command_gains read in the
+    corrected order: motor 1's logged column held motor 4's command but showed motor 1's gain (a review, session 29)."""
+    from quad_modelling.core.diagnosis.physics_base import logged_order
+
+    gains = {"value": [1.03, 1.01, 1.02, 0.94], "sigma": [0.1, 0.2, 0.3, 0.4], "fitted": True}
+    assert logged_order(gains, None) is gains
+    logged = logged_order(gains, [1, 4])
+    assert logged["value"] == [0.94, 1.01, 1.02, 1.03] and logged["sigma"] == [0.4, 0.2, 0.3, 0.1] and logged["order"] == "as logged"

@@ -211,6 +211,31 @@ def test_a_forward_jump_keeps_the_window_origin_of_the_predictors(ros):
     node.destroy_node()
 
 
+def test_a_replay_restarted_earlier_closes_the_open_window_and_starts_one_time_base(ros):
+    """A replay restarted from an earlier point publishes its earlier window origin before its inputs jump back: the
+    window in progress is closed and marked (it had no record at all), and the windows after the restart are the next
+    time base -- one, though both the origin and the inputs' clock moved."""
+    import copy
+
+    from quad_modelling.io.topics import stamps_ns
+
+    log = hover_log(1700)
+    prediction = topics.prediction_fields(_offset(log, "vel_x", 0.25))
+    node = make_node()
+    feed(node, log, range(0, 700), messages.measurement_messages(log), predictions={"m": prediction})  # 7 s: window 1 open
+    earlier = copy.deepcopy(log)
+    earlier.t = log.t - 3.0
+    node.on_origin(messages.clock_message(int(stamps_ns(earlier.t)[0])))
+    feed(node, earlier, range(0, 1100), messages.measurement_messages(earlier), predictions={"m": prediction})
+    node.finish()
+    records = [(r.time_base, r.index, r.scored, r.reason) for r in node.scores.records if r.model == "m"]
+    assert records[0] == (0, 0, True, "") and records[1][:3] == (0, 1, False)
+    assert records[1][3].endswith("; the window origin moved to an earlier t0 before the window was complete")
+    assert [(b, k, scored) for b, k, scored, _ in records[2:]] == [(1, 0, True), (1, 1, True), (1, 2, False)]  # 2: partial
+    assert node.faults.counts["origin_changed"] == 1
+    node.destroy_node()
+
+
 def test_a_model_that_never_publishes_is_named(ros):
     """'not every model in ['greybox', 'narx'] publishes after 20 s' left the user to guess which one."""
     node = make_node(models=["greybox", "narx"])

@@ -56,7 +56,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quad_modelling.core.diagnosis.injection import motor_order_check, swapped, swapped_motors
-from quad_modelling.core.diagnosis.verdicts import DETERMINED_SIGMAS, component_text, twin_text
+from quad_modelling.core.diagnosis.verdicts import (
+    DETERMINED_SIGMAS, FOUND_MIN_BOUND, component_text, twin_text, unconfirmed_text, yaw_only_text,
+)
 from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.constants_report import fitted_vehicle, motor_command_gains
@@ -89,14 +91,6 @@ IN_BASE = {
 """Catalogue effects that are not candidates of the physics base, and why."""
 
 SCORED_GROUPS = ("velocity", "angular_velocity")
-
-FOUND_MIN_BOUND = 0.01
-"""Least bootstrap 5 % bound of an effect's held-out shrink of J for it to join, and of the rise of J when it is
-dropped from the final set for it to stay: the held-out flights must show, at 95 %, that it explains at least 1 % of
-the error relative to naive. The evidence, not the point estimate: the rule before (S >= 2 % and a bound above 0)
-missed the input delay on top of the lag in the all-seven case at S 1.95 % with a bound of 1.2 % (simulated LinkQuad,
-seeds 132 and 133), and found the bent arm as the motor imbalance at S 3.2 % with a bound of 0.4 % (seed 131).
-Measured on seeds 131-133 and then on seeds never run before: bench/results/diagnose.md."""
 
 BLOCK_S = 2.0
 """Length of the bootstrap's blocks of starts [s]: longer than the 0.5 s horizon, so blocks are nearly independent."""
@@ -404,11 +398,22 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             cache[key] = result
         return result
 
-    def roll_pitch_part(on_top: Sequence[str]) -> dict:
+    def roll_pitch_part(on_top: Sequence[str], before: Rung) -> dict:
         """The imbalance's roll and pitch part on top of ``on_top`` and its yaw pattern (:data:`YAW_PATTERN_ONLY`):
-        the held-out shrink of the whole imbalance against its yaw pattern alone."""
-        value, low = shrink(rung([*on_top, YAW_PATTERN_ONLY]).score, rung([*on_top, "motor_imbalance"]).score)
-        return {"shrink": value, "shrink_5pct": low, "on_top_of": list(on_top), "supported": bool(low >= FOUND_MIN_BOUND)}
+        the held-out shrink of the whole imbalance against its yaw pattern alone (and the whole's against ``before``)."""
+        whole = rung([*on_top, "motor_imbalance"])
+        value, low = shrink(rung([*on_top, YAW_PATTERN_ONLY]).score, whole.score)
+        alone, alone_low = shrink(before.score, whole.score)
+        return {"shrink": value, "shrink_5pct": low, "on_top_of": list(on_top), "supported": bool(low >= FOUND_MIN_BOUND),
+                "imbalance_shrink": alone, "imbalance_shrink_5pct": alone_low,
+                "cg_offset": not whole.fit.terms["motor_imbalance"]["cg_offset_x"].get("held")}
+
+    def pair_part(on_top: Sequence[str], before: Rung, step: dict) -> bool:
+        """Whether a pair with the imbalance may join by its roll and pitch part (recorded in ``step``)."""
+        nonlocal yaw_only
+        step["imbalance_roll_pitch"] = checked = roll_pitch_part(on_top, before)
+        yaw_only = yaw_only if checked["supported"] else checked
+        return checked["supported"]
 
     base = current = rung(())
     chosen: list[str] = []
@@ -421,14 +426,15 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             trials[c] = trial
             scored[c] = (*shrink(current.score, trial.score), components(c, trial.fit))
         best, joins = next_effect(scored)
-        part = roll_pitch_part(chosen) if joins and best == "motor_imbalance" else None
+        part = roll_pitch_part(chosen, current) if joins and best == "motor_imbalance" else None
         eligible = scored if part is None or part["supported"] else {c: v for c, v in scored.items() if c != best}
         if part is not None and not part["supported"]:  # a yaw pattern only: not told from a tilted rotor
             yaw_only = part
             best, joins = next_effect(eligible) if eligible else (best, False)
         step = {"on_top_of": list(chosen), "J_before": current.score.j,
                 "trials": {c: {"shrink": s[0], "shrink_5pct": s[1], "J": trials[c].score.j,
-                               "main_resolved": bool(s[2] and s[2][0]["resolved"])} for c, s in scored.items()},
+                               "main_resolved": bool(s[2] and s[2][0]["resolved"]),
+                               **({"yaw_pattern_only": True} if c not in eligible else {})} for c, s in scored.items()},
                 "best": best, "joined": bool(joins), **({"imbalance_roll_pitch": part} if part else {})}
         steps.append(step)
         joining = [best]
@@ -439,7 +445,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             step["pairs"] = {" + ".join(p): {"shrink": v[0], "shrink_5pct": v[1], "J": pairs[p].score.j} for p, v in scored_pairs.items()}
             may_join = [p for p, (value, low, parts) in scored_pairs.items()
                         if low >= 2 * FOUND_MIN_BOUND and all(part and part[0]["resolved"] for part in parts)
-                        and ("motor_imbalance" not in p or roll_pitch_part(chosen)["supported"])]
+                        and ("motor_imbalance" not in p or pair_part(chosen, current, step))]
             if not may_join:
                 break
             joining = list(max(may_join, key=lambda p: scored_pairs[p][0]))
@@ -511,7 +517,8 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     gains_source = final if "motor_imbalance" in final.effects else trials.get("motor_imbalance")
     summary = {"found": [c for c in chosen if c in final.effects] + [c for c in final.effects if c not in chosen],
                "delay_s": {"value": final.fit.values["rotor_delay"], "sigma": final.fit.sigma["rotor_delay"]},
-               "motor_command_gains": motor_command_gains(gains_source.fit if gains_source else None),
+               "motor_command_gains": logged_order(motor_command_gains(gains_source.fit if gains_source else None),
+                                                   layout.get("diagnosed_with_swap")),
                "ratio_to_naive": {"base": base.score.ratios(), "final": final.score.ratios()},
                "motor_order": {"verdict": layout["verdict"], "swap": layout["swap"],
                                "diagnosed_with_swap": layout.get("diagnosed_with_swap")},
@@ -574,25 +581,17 @@ def identified_document(vehicle: VehicleConfig, final: Rung, source: str, swap: 
     return swapped_motors(document, swap) if swap else document
 
 
+def logged_order(gains: dict, swap: Sequence[int] | None) -> dict:
+    """``gains`` (:func:`~quad_modelling.core.identification.constants_report.motor_command_gains`) on the logged
+    command columns: with the motor-order check's ``swap`` [A, B] undone for the diagnosis, the gains of motors A and
+    B exchanged back (summary.motor_command_gains: the factor on each logged command, as --inject gain:M:K names M)."""
+    if not swap:
+        return gains
+    order = list(range(4))
+    order[swap[0] - 1], order[swap[1] - 1] = swap[1] - 1, swap[0] - 1
+    return {**gains, "value": [gains["value"][i] for i in order], "sigma": [gains["sigma"][i] for i in order], "order": "as logged"}
+
+
 def _named(predictor, name: str):
     predictor.name = name  # the multi-step table's row name
     return predictor
-
-
-
-def yaw_only_text(part: dict) -> str:
-    """Why a motor imbalance that shrank the held-out error is *not supported*: its roll and pitch part did not
-    (:data:`YAW_PATTERN_ONLY`; ``part`` the check's record)."""
-    return (f"its shrink of the held-out error comes from a yaw pattern of its gains, which a rotor tilted about its arm "
-            f"(a bent arm) makes as well: on top of {' + '.join(['base', *part['on_top_of']])} and that pattern alone, "
-            f"its roll and pitch part (the CG offset, the gains' roll and pitch patterns) shrinks it by "
-            f"{part['shrink']:+.1%} (5 % bound {part['shrink_5pct']:+.1%}; found needs a 5 % bound >= {FOUND_MIN_BOUND:.0%}): "
-            "the flights do not tell motor gains from a tilted rotor (summary.motor_command_gains holds the gains)")
-
-
-def unconfirmed_text(trial: dict, on_top_of: Sequence[str]) -> str:
-    """Why an effect whose components are resolved on the training flights is still *not supported*: its last
-    forward trial (``trial``: shrink, shrink_5pct) on top of ``on_top_of`` did not shrink the held-out error enough."""
-    return (f"resolved on the training flights (>= 3 sigma, off its bounds; the halves are fitted for found effects), but added to {' + '.join(['base', *on_top_of])} it shrinks the held-out "
-            f"error by {trial['shrink']:+.1%} (5 % bound {trial['shrink_5pct']:+.1%}; found needs a 5 % bound >= "
-            f"{FOUND_MIN_BOUND:.0%}): the held-out flights do not confirm it")

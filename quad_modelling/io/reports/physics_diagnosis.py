@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from quad_modelling.core.diagnosis.physics_base import FOUND_MIN_BOUND
+from quad_modelling.core.diagnosis.verdicts import FOUND_MIN_BOUND
 from quad_modelling.io.reports.formatting import REPORT_WIDTH, json_text, markdown_table, prose
 
 
@@ -171,6 +171,8 @@ def _component_state(part: dict) -> str:
 
 def _why_not_joined(trial: dict) -> str:
     """The selection table's last cell for a trial that did not join: the rule it missed (a pair's row: none given)."""
+    if trial.get("yaw_pattern_only"):
+        return f"a yaw pattern only: its roll and pitch part's 5 % bound < {FOUND_MIN_BOUND:.0%}"
     if trial["shrink_5pct"] < FOUND_MIN_BOUND:
         return f"5 % bound < {FOUND_MIN_BOUND:.0%}"
     if trial.get("main_resolved") is False:

@@ -10,13 +10,12 @@ import functools
 import pytest
 
 from quad_modelling.core.diagnosis.physics_base import (
-    FOUND_MIN_BOUND,
     diagnose_physics,
     identified_document,
     next_effect,
     pair_candidates,
-    unconfirmed_text,
 )
+from quad_modelling.core.diagnosis.verdicts import FOUND_MIN_BOUND, unconfirmed_text
 from quad_modelling.core.physics.effects import parse_effects
 from quad_modelling.core.sim.params import sim_params_for
 from quad_modelling.core.sim.simulate import simulate
@@ -90,6 +89,8 @@ def test_an_imbalance_whose_gains_shrink_the_error_only_by_their_yaw_pattern_is_
     else:
         assert result.steps[0]["trials"]["motor_imbalance"]["shrink_5pct"] >= FOUND_MIN_BOUND  # it passed alone
         assert part["shrink_5pct"] < FOUND_MIN_BOUND and "a rotor tilted about its arm (a bent arm)" in text
+        assert result.steps[0]["trials"]["motor_imbalance"]["yaw_pattern_only"]  # the selection table's reason
+        assert f"it shrinks the held-out error by {part['imbalance_shrink']:+.1%}" in text and part["imbalance_shrink"] > 0.02
         assert result.summary["motor_command_gains"]["fitted"] and result.final.effects == ()
 
 
