@@ -452,6 +452,10 @@ class VehicleSource:
         except QuadModellingError as err:
             if self.vehicle is not None and Path(announced).stem == self.vehicle.name:
                 return None  # the same vehicle by name, its file elsewhere (another host)
+            if self.vehicle is not None:  # set by the parameter: the flight is another vehicle's
+                raise BadParameter(f"{self.node_name}: parameter vehicle={self.requested!r} ({self.vehicle.name}) but the "
+                                   f"replay plays a flight of vehicle {announced!r} (topic {VEHICLE_TOPIC}), which this host "
+                                   "cannot load either: replay this vehicle's flights") from err
             raise BadParameter(f"{self.node_name}: the replay announces vehicle {announced!r} on topic {VEHICLE_TOPIC}, "
                                f"which this host cannot load: {err}; set parameter vehicle") from err
         if self.vehicle is None:

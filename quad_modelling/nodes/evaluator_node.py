@@ -585,7 +585,9 @@ class EvaluatorNode(Node):
             except (QuadModellingError, OSError) as err:
                 say(self, f"cannot write results: {err}", error=True)
         close_recording(lambda text, error=False: say(self, text, error=error), self.recorder, refused)  # after the last window
-        say(self, f"closed {self.windows_closed} windows; faults: {self.faults.summary()}")
+        silent = [s for s in self.stream_last_ns if s not in self.stamp_gates]  # a stream's gate comes with its first sample
+        say(self, f"closed {self.windows_closed} windows; faults: {self.faults.summary()}"
+            + (f"; nothing usable received on {', '.join(silent)}" if silent else ""))
 
 
 def main(args=None) -> int:

@@ -219,6 +219,8 @@ def test_ctrl_c_ends_the_evaluator_without_a_fatal_line_and_writes_its_results(e
     assert code == 0, text  # its timers fired many times a second before the signal
     assert "FATAL" not in text and "Traceback" not in text and "Error occurred" not in text, text
     assert (out / "results.json").exists() and "closed 0 windows; faults: none" in text
+    # nothing was published: every stream it waits for is named (a flight without an IMU said "faults: none" alone)
+    assert "; nothing usable received on motor_input, mocap_odom, imu, naive/odom, naive/accel" in text
 
 
 def test_a_command_far_beyond_the_input_range_is_dropped_as_by_the_predictors(ros):

@@ -74,6 +74,10 @@ def test_vehicle_is_learned_from_the_replay_or_a_mismatch_refused_in_one_line():
     with pytest.raises(BadParameter, match="cannot load"):
         VehicleSource("predictor", "").announce("/nowhere/custom_quad.yaml")
     assert VehicleSource("p", "crazyflie21").announce("/elsewhere/crazyflie21.yaml") is None  # same name, file on another host
+    with pytest.raises(BadParameter) as err:  # with the parameter set, it is the mismatch (it said "set parameter vehicle")
+        VehicleSource("evaluator", "crazyflie21").announce("not_a_vehicle_xyz")
+    assert "vehicle='crazyflie21'" in str(err.value) and "cannot load either" in str(err.value)
+    assert "set parameter vehicle" not in str(err.value)
     with pytest.raises(BadParameter, match="parameter vehicle='warp': unknown vehicle"):
         VehicleSource("predictor", "warp")
 
