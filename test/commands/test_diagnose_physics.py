@@ -66,6 +66,10 @@ def test_a_motor_order_verdict_an_injection_did_not_make_is_not_called_the_injec
     assert "(NOT the injection's doing: --inject gain:1:1.25 exchanges no motors; the flights as logged:" in text
     swap = {**confused, "injection": {**data["injection"], "spec": "swap:2:4"}}
     assert "(the injected change; the flights as logged:" in " ".join(" ".join(verdict_lines(swap, 200)).split())
+    # a delay on its search bound is flagged where the summary line gives it (it read "150.0 +- 2.5 ms")
+    bound = {**data, "constants": {**data["constants"], "rotor_delay": {**data["constants"]["rotor_delay"], "at_bound": True}}}
+    assert "ms (AT BOUND: the search's; not measured); motor command gains" in " ".join(" ".join(verdict_lines(bound, 200)).split())
+    assert "AT BOUND" not in " ".join(verdict_lines(data, 200))
 
 
 @pytest.mark.parametrize("spec, check", [("swap:3:4", "the motor-order check names the swap"),

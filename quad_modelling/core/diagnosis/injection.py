@@ -105,10 +105,10 @@ def parse_injection(spec: str, motors: int = 4) -> Injection:
             raise ConfigError(f"--inject {text}: the delay must be a positive number of milliseconds")
         if numbers[0] <= DELAY_TOLERANCE_S * 1e3:
             raise ConfigError(f"--inject {text}: the check tells a delay from none only beyond its {DELAY_TOLERANCE_S * 1e3:g} ms "
-                              "tolerance; inject more (the check's range: 10-40 ms)")
+                              "tolerance; inject more (e.g. 10-40 ms)")
         if numbers[0] >= DELAY_MAX_S * 1e3:
             raise ConfigError(f"--inject {text}: the identification searches delays up to {DELAY_MAX_S * 1e3:g} ms (the "
-                              f"vehicle's own delay included); inject less (the check's range: 10-40 ms)")
+                              f"vehicle's own delay included); inject less (e.g. 10-40 ms)")
         return Injection("delay", delay_s=numbers[0] / 1000.0, spec=text)
     first = _check_motor(text, numbers[0], motors)
     if kind == "gain":
@@ -116,10 +116,10 @@ def parse_injection(spec: str, motors: int = 4) -> Injection:
             raise ConfigError(f"--inject {text}: the gain factor K must be a positive number")
         if abs(numbers[1] - 1.0) <= GAIN_TOLERANCE:
             raise ConfigError(f"--inject {text}: the check tells a gain from none only beyond its {GAIN_TOLERANCE:.0%} tolerance; "
-                              "inject more (the check's range: 1.1-1.3)")
+                              "inject more (e.g. 1.1-1.3, or 0.8)")
         if not GAIN_RANGE[0] < numbers[1] < GAIN_RANGE[1]:
             raise ConfigError(f"--inject {text}: the identification searches motor gains in {GAIN_RANGE[0]:g}..{GAIN_RANGE[1]:g}; "
-                              "K must lie inside (the check's range: 1.1-1.3)")
+                              "K must lie strictly inside")
         return Injection("gain", motor=first, factor=numbers[1], spec=text)
     second = _check_motor(text, numbers[1], motors)
     if first == second:

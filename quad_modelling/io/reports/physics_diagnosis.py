@@ -40,9 +40,11 @@ def _verdict(data: dict) -> list[str]:
                  f"{final['ratio_to_naive']['angular_velocity']:.3f} (J {base['J']:.3f} -> {final['J']:.3f})")
     s = data["summary"]
     gains = s["motor_command_gains"]
-    held = ((data.get("constants") or {}).get("rotor_delay") or {}).get("held")
+    constant = (data.get("constants") or {}).get("rotor_delay") or {}
+    held = constant.get("held")
     delay = (f"{s['delay_s']['value'] * 1e3:.1f} ms ({held})" if held
-             else f"{s['delay_s']['value'] * 1e3:.1f} +- {s['delay_s']['sigma'] * 1e3:.1f} ms")
+             else f"{s['delay_s']['value'] * 1e3:.1f} +- {s['delay_s']['sigma'] * 1e3:.1f} ms"
+             + (" (AT BOUND: the search's; not measured)" if constant.get("at_bound") else ""))
     lines.append(f"  command delay {delay}; motor command gains "
                  + (" ".join(f"{g:.3f}" for g in gains["value"]) if gains["fitted"] else "not fitted (motor_imbalance not a candidate)"))
     order = data.get("motor_order") or {}
