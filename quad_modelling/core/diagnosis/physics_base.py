@@ -466,7 +466,8 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         fitted_with = current.fit.diagnostics["observer_choice"]["fitted_with"]  # the held rung's: one search, not two
         cache[tuple(sorted(chosen))] = current = rung(chosen, searched_with=fitted_with)
     final = current
-    ladder = [rung_json(rung(chosen[:k])) for k in range(len(chosen) + 1)]  # base, + rank 1, ...: each refitted jointly
+    # base, + rank 1, ...: each refitted jointly, its effects named in joining order
+    ladder = [{**rung_json(rung(chosen[:k])), "effects": chosen[:k]} for k in range(len(chosen) + 1)]
     say("folds and the final table")
     folds, folds_note = [], None
     if len(train) >= 2:

@@ -283,7 +283,7 @@ def component_text(effect: str, parts: list[dict], found: bool) -> str:
     unresolved = [f"{p['component']} {p['value']:.4g}" + (" (held there)" if p.get("held") else "")
                   + (" (AT BOUND)" if p["at_bound"] else "")
                   + (f" ({' / '.join(f'{v:.3g}' + (' at its bound' if b else '') for v, b in zip(p['folds'], p.get('folds_at_bound', [False] * len(p['folds']))))} on the folds)"
-                     if p["folds"] else "")
+                     if p["folds"] and not p.get("held") else "")
                   for p in parts if not p["resolved"]]
     text = head + (": " + ", ".join(resolved) if resolved else "")
     if unresolved:
