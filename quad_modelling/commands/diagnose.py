@@ -33,7 +33,7 @@ from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_fil
 from quad_modelling.core.windows import EvaluationConfig, check_window_rate
 from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, map_flights, tty_progress
-from quad_modelling.io.loader import check_topic_map_applies, load_flight_or_skip
+from quad_modelling.io.loader import check_distinct_flights, check_topic_map_applies, load_flight_or_skip
 from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
 from quad_modelling.io.reports.diagnosis import verdict_text, write_diagnosis
 from quad_modelling.io.reports.physics_diagnosis import verdict_lines, write_physics_diagnosis
@@ -208,6 +208,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("no readable flight left in --train or --test")
     print_flight_warnings(train + test)
     check_one_vehicle(train + test, "diagnose")
+    for flag, flights in (("--train", train), ("--test", test)):  # one flight in both is in-sample: warned (in_sample)
+        check_distinct_flights([(f.meta.source, f.fingerprint()) for f in flights], flag)
     for log in train + test:
         check_cutoff(args.smooth, log)
     vehicle = given or load_vehicle(train[0].meta.vehicle)

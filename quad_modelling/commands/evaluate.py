@@ -17,7 +17,7 @@ from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_fil
 from quad_modelling.core.windows import PRESETS, EvaluationConfig, check_window_rate
 from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, iter_flights, tty_progress
-from quad_modelling.io.loader import check_topic_map_applies, load_flight_or_skip, load_flights
+from quad_modelling.io.loader import check_distinct_flights, check_topic_map_applies, load_flight_or_skip, load_flights
 from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
 from quad_modelling.io.reports.evaluation import (
     headline_scores,
@@ -126,6 +126,7 @@ def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], 
         raise ConfigError("no readable flight among the inputs")
     print_flight_warnings(flights)
     check_one_vehicle(flights, getattr(args, "verb", "evaluate"))
+    check_distinct_flights([(f.meta.source, f.fingerprint()) for f in flights])
     vehicle = given or load_vehicle(flights[0].meta.vehicle)
     if vehicle.name != flights[0].meta.vehicle:
         raise ConfigError(f"--vehicle {args.vehicle} describes {vehicle.name!r}, the flights are of {flights[0].meta.vehicle!r}")
@@ -241,6 +242,7 @@ def run(args: argparse.Namespace) -> int:
     vehicles: list[str] = []
     first_in_span: dict[str, str] = {}
     result = merge_flights(_evaluations(outcomes, skipped, vehicles, first_in_span), config)
+    check_distinct_flights([(f["source"], f["fingerprint"]) for f in result.flights])  # before anything is written
     result.examples = example_windows(result, first_in_span, task, args.topic_map)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
     with atomic_output(output, args.force) as tmp:

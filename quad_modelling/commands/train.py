@@ -213,7 +213,7 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.core.windows import check_window_rate
     from quad_modelling.fanout import check_fanout_options, tty_progress
-    from quad_modelling.io.loader import check_topic_map_applies, load_flights
+    from quad_modelling.io.loader import check_distinct_flights, check_topic_map_applies, load_flights
 
     output = Path(args.output)
     check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
@@ -236,6 +236,9 @@ def run(args: argparse.Namespace) -> int:
     logs, _ = load_flights(paths, given, jobs=args.jobs, scheduler=args.scheduler,
                            progress=None if args.quiet else tty_progress("train: read", len(paths)), topic_map=args.topic_map)
     print_flight_warnings(logs)
+    named = [(log.meta.source, log.fingerprint()) for log in logs]
+    check_distinct_flights(named[: len(args.flights)], "FLIGHT", named[len(args.flights):], "--val-flights")
+    check_distinct_flights(named[len(args.flights):], "--val-flights")
     for log in logs:  # windows and rollout segments are in samples: a flight no window can score is refused for its rate
         check_window_rate(log)
     spans = training_spans(logs, args)

@@ -171,3 +171,18 @@ def load_flights(paths, vehicle: str | VehicleConfig | None = None, skip_bad: bo
     loaded = map_flights(load_flight_or_skip, [str(p) for p in paths], given, skip_bad, topic_map, jobs=jobs, scheduler=scheduler,
                          progress=progress)
     return [one.log for one in loaded if one.log is not None], [one.skipped for one in loaded if one.log is None]
+
+
+def check_distinct_flights(named, flag: str = "FLIGHT", other=(), other_flag: str = "") -> None:
+    """ConfigError (one line) when two of ``named`` ((source, :meth:`~quad_modelling.core.flight_log.FlightLog.fingerprint`)
+    pairs) are one flight -- the same recorded numbers under another path, name or format (a bag and the CSV it was
+    converted from): its windows would count twice -- or one is also among ``other`` (``other_flag``'s)."""
+    seen: dict[str, str] = {}
+    for source, print_ in named:
+        if print_ in seen:
+            raise ConfigError(f"{flag} {source}: the same flight as {seen[print_]} (the same recorded numbers); every flight "
+                              "counts once, give it once")
+        seen[print_] = source
+    for source, print_ in other:
+        if print_ in seen:
+            raise ConfigError(f"{other_flag} {source}: the same flight as the {flag} {seen[print_]}; a flight is one or the other")

@@ -3,6 +3,7 @@ import json
 import pytest
 
 from quad_modelling.cli import main
+from test.conftest import REPO
 
 
 def test_evaluate_writes_results_tables_and_figures(flights, tmp_path, capsys):
@@ -117,3 +118,21 @@ def test_a_flight_with_no_window_in_either_span_is_said(flights, tmp_path, capsy
     warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
     assert warnings == [f"warning: {tmp_path / 'short.mat'}: no window in either span (too short, or every window touches "
                         "the ground or a gap): not in the window scores"]
+
+
+def test_one_flight_in_two_formats_counts_once(tmp_path, capsys):
+    """A bag and the .mat converted from it are one flight (the same recorded numbers, FlightLog.fingerprint):
+    evaluate, identify and train refuse it given twice, one line, exit 2, nothing written (evaluate scored it twice
+    and train early-stopped on its own training flight; a review, session 29)."""
+    bag = str(REPO / "bags" / "nanobench_B7_oval_medium_rep2")
+    mat = tmp_path / "b7.mat"
+    assert main(["convert", bag, "-o", str(mat)]) == 0
+    capsys.readouterr()
+    runs = {"evaluate": ["evaluate", bag, str(mat), "--preset", "short", "-o", str(tmp_path / "e")],
+            "identify": ["identify", bag, str(mat), "--preset", "short", "-o", str(tmp_path / "v.yaml")],
+            "train": ["train", bag, "--val-flights", str(mat), "--preset", "short", "-o", str(tmp_path / "t.npz")]}
+    for verb, argv in runs.items():
+        assert main(argv) == 2, verb
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and f"{mat}: the same flight as" in err[0] and bag in err[0], (verb, err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b7.mat"]

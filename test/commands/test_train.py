@@ -61,10 +61,13 @@ def test_training_without_validation_windows_or_on_few_rows_says_so(tmp_path, ca
 
 
 def test_train_val_flights_are_used_for_early_stopping_only(tmp_path):
-    import shutil
+    from quad_modelling.core.diagnosis.injection import Injection
+    from quad_modelling.io.bag_io import write_bag
+    from quad_modelling.io.loader import load_flight
 
     out = tmp_path / "narx.npz"
-    other = shutil.copytree(BAG, tmp_path / "other_flight")  # the same flight as both is refused (test_bad_inputs)
+    other = tmp_path / "other_flight"  # another flight's numbers: the same flight as both is refused (test_evaluate)
+    write_bag(Injection("gain", motor=1, factor=1.1).apply(load_flight(BAG)), other)
     assert main(["train", BAG, "-o", str(out), "--val-flights", str(other), *SMALL, *QUICK_ROLLOUT]) == 0
     model = load_narx(out, vehicle="crazyflie21")
     (train,), (val,) = model.training["segments"], model.training["rollout"]["validation"]
