@@ -58,10 +58,12 @@ def check_bag_name(path: Path, flag: str = "-o") -> None:
                           f"{path.suffix.lstrip('.')} file: name the bag without it")
 
 
-def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), flag: str = "-o") -> None:
+def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), flag: str = "-o",
+                 directory: bool = False) -> None:
     """Refuse an output that names no file (``''``, ``.``, ``..``), is too long a name, is or holds an
     input (``inputs``: every file the command reads), exists without force, or whose directory we
-    cannot write to; ``flag`` is the option that named it, as the error says."""
+    cannot write to; ``flag`` is the option that named it, as the error says. A ``directory`` output refuses an
+    existing regular file even with force (``--force`` replaces an earlier output directory, not another file)."""
     given = str(path)  # as typed: Path("") is "."
     path = Path(path)
     if path.name in ("", ".", ".."):
@@ -78,6 +80,9 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), fla
     check_not_input(path, inputs, flag)
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists; pass --force to overwrite")
+    if directory and path.exists() and not path.is_dir():
+        raise OutputExistsError(f"{flag} {path}: an existing file, not an output directory; --force replaces an earlier "
+                                "output directory only: choose another name")
     if not parent_is_dir:
         raise OutputDirError(f"{flag} {path}: its parent directory {parent} does not exist (or is not a directory); "
                              f"create it first")

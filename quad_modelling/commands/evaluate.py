@@ -223,7 +223,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_output(output, args.force, inputs=input_files(args))
+    check_output(output, args.force, inputs=input_files(args), directory=True)
     check_distinct_inputs(args.inputs, "FLIGHT")
     check_topic_map_applies(args.topic_map, args.inputs)
     check_fanout_options(args.jobs, args.scheduler)

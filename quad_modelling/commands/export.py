@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
     if args.format not in FORMATS:
         raise ConfigError(f"--format {args.format}: unknown export format; known: {', '.join(FORMATS)}")
     hybrid_file = _hybrid_file(args.model)
-    check_output(args.output, args.force, inputs=[vehicle_file(args.vehicle), hybrid_file])
+    check_output(args.output, args.force, inputs=[vehicle_file(args.vehicle), hybrid_file], directory=True)
     from quad_modelling.core.export.casadi_model import exportable_model, write_casadi_export
 
     model = exportable_model(load_vehicle(args.vehicle), hybrid_file)

@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_output(output, args.force, inputs=args.inputs)
+    check_output(output, args.force, inputs=args.inputs, directory=True)
     result = merge_results(args.inputs)
     stats = result.statistics
     with atomic_output(output, args.force) as tmp:

@@ -375,7 +375,7 @@ def _run(args: argparse.Namespace) -> int:
     here = parse_nodes(args.nodes)
     remote = tuple(group for group in NODE_GROUPS if group not in here)
     model_files = [m.spec.partition(":")[2] for m in models if m.spec.partition(":")[0] in ("narx", "hybrid")]
-    check_output(output, args.force, inputs=[args.bag, vehicle_file(args.vehicle), *model_files])
+    check_output(output, args.force, inputs=[args.bag, vehicle_file(args.vehicle), *model_files], directory=True)
     for flag, value in (("--rate", args.rate), ("--window", args.window), ("--warm", args.warm), ("--timeout", args.timeout),
                         ("--remote-timeout", args.remote_timeout)):
         if not math.isfinite(value):

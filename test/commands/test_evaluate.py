@@ -136,3 +136,15 @@ def test_one_flight_in_two_formats_counts_once(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"{mat}: the same flight as" in err[0] and bag in err[0], (verb, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b7.mat"]
+
+
+def test_force_replaces_an_output_directory_not_another_file(tmp_path, capsys):
+    """`evaluate -o model.npz --force` turned an existing model file into a directory of figures (the model lost; a
+    review, session 29): an output directory's --force replaces an earlier output directory only."""
+    bag = str(REPO / "bags" / "nanobench_B7_oval_medium_rep2")
+    precious = tmp_path / "narx_copy.npz"
+    precious.write_bytes(b"a model")
+    assert main(["evaluate", bag, "--preset", "short", "-o", str(precious), "--force"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "an existing file, not an output directory" in err[0]
+    assert precious.read_bytes() == b"a model"

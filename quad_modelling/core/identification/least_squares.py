@@ -59,6 +59,9 @@ AT_BOUND_FRACTION = 1e-3
 a ``log`` parameter) from a bound is *at* the bound. The trust-region search stops a few 1e-6 of the range
 short of a bound it presses on; 0.1 % of the range is a value no data put there."""
 
+LOG_JUDGED_DECADES = 2
+"""Decades of a positive search range beyond which :func:`bound_side` judges in log coordinates."""
+
 POOR_RELATIVE_SIGMA = 0.5
 """sigma / |value| above which a parameter is poorly determined: its 1-sigma interval reaches half way to zero
 (the 50 % rule the constants report of ``identify`` has used since it was written)."""
@@ -143,8 +146,12 @@ class Parameter:
 def bound_side(value: float, lower: float, upper: float, transform: str = "linear") -> str | None:
     """'lower' or 'upper' when ``value`` lies within :data:`AT_BOUND_FRACTION` of the search range of that bound
     (in the search coordinates of ``transform``; a ``unit`` parameter's fraction is the same as a ``linear``
-    one's), else None. An infinite bound is reached only by the value itself."""
-    u, lo, hi = (math.log(value), math.log(lower), math.log(upper)) if transform == "log" else (value, lower, upper)
+    one's), else None. An infinite bound is reached only by the value itself. A positive range of more than
+    :data:`LOG_JUDGED_DECADES` decades is judged in log coordinates whatever the search's: the greybox's yaw drag
+    ratio searched linearly over four decades put a torque constant 9 times its lower bound 'AT BOUND' (0.08 % of
+    the linear range; NanoBench B2_circle_slow_rep2, a review, session 29)."""
+    wide = 0 < lower <= value and math.isfinite(upper) and upper > lower * 10**LOG_JUDGED_DECADES
+    u, lo, hi = (math.log(value), math.log(lower), math.log(upper)) if transform == "log" or wide else (value, lower, upper)
     tolerance = AT_BOUND_FRACTION * (hi - lo) if math.isfinite(hi - lo) else 0.0
     if u <= lo + tolerance:
         return "lower"

@@ -204,3 +204,13 @@ def test_hac_sigma_grows_with_autocorrelated_residuals():
 def test_an_infinite_bound_is_reached_only_by_the_value():
     assert bound_side(0.0, 0.0, math.inf) == "lower" and bound_side(1e-9, 0.0, math.inf) is None
     assert bound_side(1e300, 0.0, math.inf) is None and bound_side(math.inf, 0.0, math.inf) == "upper"
+
+
+def test_a_value_nine_times_its_lower_bound_in_a_four_decade_range_is_not_at_it():
+    """A positive range of more than two decades is judged in log coordinates: 1.55e-11 in [1.79e-12, 1.79e-8]
+    was 'AT BOUND' (0.08 % of the linear range) though 9 times the bound (a review, session 29)."""
+    from quad_modelling.core.identification.least_squares import bound_side
+
+    assert bound_side(1.55e-11, 1.79e-12, 1.79e-8) is None
+    assert bound_side(1.7905e-12, 1.79e-12, 1.79e-8) == "lower" and bound_side(1.7899e-8, 1.79e-12, 1.79e-8) == "upper"
+    assert bound_side(0.0005, 0.0, 1.0) == "lower" and bound_side(0.5, 0.1, 1.0) is None  # narrow or from 0: linear
