@@ -262,7 +262,8 @@ def run(args: argparse.Namespace) -> int:
         samples = model.training["samples"]
     elapsed = time.perf_counter() - started
     model.save(output, args.force)
-    print(f"trained {kind} model on {samples} samples of {len(logs)} flight(s) in {elapsed:.1f} s -> {output}")
+    trained = len({seg["source"] for seg in model.training.get("segments", ())}) or len(args.flights)  # held-back ones not
+    print(f"trained {kind} model on {samples} samples of {trained} flight(s) in {elapsed:.1f} s -> {output}")
     weights = model.training.get("weights") if kind == "narx" else None
     if weights and samples * len(NARX_OUTPUTS) < weights:  # fewer numbers to fit than weights: it can memorise them
         print(f"warning: {samples} training rows x {len(NARX_OUTPUTS)} outputs for {weights} weights: the NARX can learn these rows "

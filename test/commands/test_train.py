@@ -60,7 +60,7 @@ def test_training_without_validation_windows_or_on_few_rows_says_so(tmp_path, ca
     assert rows * 6 < weights and f"warning: {rows} training rows x 6 outputs for {weights} weights" in printed.err
 
 
-def test_train_val_flights_are_used_for_early_stopping_only(tmp_path):
+def test_train_val_flights_are_used_for_early_stopping_only(tmp_path, capsys):
     from quad_modelling.core.diagnosis.injection import Injection
     from quad_modelling.io.bag_io import write_bag
     from quad_modelling.io.loader import load_flight
@@ -72,6 +72,7 @@ def test_train_val_flights_are_used_for_early_stopping_only(tmp_path):
     model = load_narx(out, vehicle="crazyflie21")
     (train,), (val,) = model.training["segments"], model.training["rollout"]["validation"]
     assert train["span"] == val["span"]  # the whole training span of the validation flight, not a part of the training one
+    assert " samples of 1 flight(s) in " in capsys.readouterr().out  # the validation flight is not counted as trained on
 
 
 def test_train_refuses_to_overwrite_and_empty_spans(tmp_path, capsys):
