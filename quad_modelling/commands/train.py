@@ -270,7 +270,9 @@ def run(args: argparse.Namespace) -> int:
               "by heart; give longer or more flights (or --preset/--train spans that keep more of them)", file=sys.stderr)
     if "rollout" in getattr(model, "training", {}):
         r = model.training["rollout"]
-        judged = (f"validation loss {r['val_loss'][0]:.4g} -> {r['val_loss'][r['best_epoch']]:.4g} on {r['val_windows']} windows"
+        in_sample = kind == "hybrid" and not model.training.get("validation_flights")  # one flight: its own windows
+        judged = (f"{'training' if in_sample else 'validation'} loss {r['val_loss'][0]:.4g} -> {r['val_loss'][r['best_epoch']]:.4g} "
+                  f"on {r['val_windows']} windows" + (" (one flight, none held back: in-sample)" if in_sample else "")
                   if r["val_windows"] else f"no validation window (--val-fraction 0, or a held-back part shorter than one): stopped on the training "
                   f"loss, {r['val_loss'][0]:.4g} -> {r['val_loss'][r['best_epoch']]:.4g}")
         print(f"rollout fine-tuning: best epoch {r['best_epoch']} of {r['epochs_run']} "

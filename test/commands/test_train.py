@@ -101,7 +101,9 @@ def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys)
     assert model.training["rollout"]["epochs_run"] == 1
     (span,) = model.training["spans"]  # preset short: drop 5 s, train on the first 60 % of the rest
     assert abs(span[0] - 5.0) < 0.011 and abs(span[1] - (5.0 + 0.6 * 32.3)) < 0.1
-    assert "hybrid:" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "hybrid:" in printed
+    assert "rollout fine-tuning: best epoch" in printed and "(one flight, none held back: in-sample)" in printed  # not 'validation'
     assert main(["train", BAG, "-o", str(tmp_path / "bad.npz"), "--hybrid", "--preset", "short", "--hybrid-hidden", "0,x"]) == 2
     assert "--hybrid-hidden '0,x'" in capsys.readouterr().err
 
