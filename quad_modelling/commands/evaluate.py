@@ -113,6 +113,19 @@ def check_one_vehicle(flights: list[FlightLog], verb: str) -> None:
                           f"{flights[0].meta.vehicle!r}, {other.meta.source} of {other.meta.vehicle!r}); {verb} one vehicle at a time")
 
 
+def warn_starting_values(vehicle, kind: str) -> None:
+    """One warning line (stderr) when the physics base of a ``kind`` (physics, hybrid or direct) model holds constants
+    no identification fitted: the model is built on them, and ``export`` refuses such a vehicle."""
+    from quad_modelling.core.vehicle import PHYSICS_KEYS
+
+    never = vehicle.never_identified(PHYSICS_KEYS)
+    if never:
+        what = "the physics model" if kind == "physics" else f"the {kind} model's physics base"
+        print(f"warning: {vehicle.path}: {what} holds starting values, never identified "
+              f"({', '.join(never)}); for the identified vehicle run `quad-modelling identify FLIGHTS --vehicle {vehicle.name} "
+              f"-o FILE` and pass --vehicle FILE", file=sys.stderr)
+
+
 def load_evaluation_flights(args: argparse.Namespace) -> tuple[list[FlightLog], VehicleConfig, list[str]]:
     """Read every input (one loader for all formats; on Dask with --jobs/--scheduler); returns flights, vehicle
     config and skipped-file messages."""
@@ -242,6 +255,8 @@ def run(args: argparse.Namespace) -> int:
     vehicles: list[str] = []
     first_in_span: dict[str, str] = {}
     result = merge_flights(_evaluations(outcomes, skipped, vehicles, first_in_span), config)
+    if "physics" in specs:  # its constants are the vehicle's: starting values unless identified (train warns alike)
+        warn_starting_values(given or load_vehicle(vehicles[0]), "physics")
     check_distinct_flights([(f["source"], f["fingerprint"]) for f in result.flights])  # before anything is written
     result.examples = example_windows(result, first_in_span, task, args.topic_map)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)

@@ -192,23 +192,11 @@ def hybrid_config(args: argparse.Namespace):
     return HybridTrainingConfig(hidden=hidden, rollout=rollout, val_fraction=args.val_fraction)
 
 
-def warn_starting_values(vehicle, kind: str) -> None:
-    """One warning line (stderr) when the physics base of a ``kind`` (hybrid or direct) model holds constants no
-    identification fitted: the model is built on them, and ``export`` refuses such a vehicle."""
-    from quad_modelling.core.vehicle import PHYSICS_KEYS
-
-    never = vehicle.never_identified(PHYSICS_KEYS)
-    if never:
-        print(f"warning: {vehicle.path}: the {kind} model's physics base holds starting values, never identified "
-              f"({', '.join(never)}); for the identified vehicle run `quad-modelling identify FLIGHTS --vehicle {vehicle.name} "
-              f"-o FILE` and pass --vehicle FILE", file=sys.stderr)
-
-
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from quad_modelling.atomic import check_distinct_inputs, check_output
-    from quad_modelling.commands.evaluate import print_flight_warnings
+    from quad_modelling.commands.evaluate import print_flight_warnings, warn_starting_values
     from quad_modelling.core.training.narx import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.core.windows import check_window_rate

@@ -492,9 +492,8 @@ def adopt_vehicle(node, vehicles: VehicleSource, announced: str, learned: Callab
 
 
 def refuse(node, error: BadParameter) -> None:
-    """Stop ``node`` from a callback because of ``error``: :func:`run_node` prints it and exits 2."""
+    """Stop ``node`` from a callback because of ``error``: :func:`run_node` prints it (its one line) and exits 2."""
     node.fatal = error
-    node.get_logger().error(str(error))
     import rclpy
 
     rclpy.try_shutdown(context=node.context)

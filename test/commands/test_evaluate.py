@@ -148,3 +148,13 @@ def test_force_replaces_an_output_directory_not_another_file(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "an existing file, not an output directory" in err[0]
     assert precious.read_bytes() == b"a model"
+
+
+def test_the_physics_model_on_never_identified_constants_is_warned(tmp_path, capsys):
+    """`evaluate --model physics` with the shipped vehicle (starting values) said nothing, where export refuses such a
+    vehicle and train warns (a review, session 29): one warning line naming the constants and how to identify them."""
+    bag = str(REPO / "bags" / "nanobench_B7_oval_medium_rep2")
+    assert main(["evaluate", bag, "--model", "physics", "--preset", "short", "--no-multistep", "-o", str(tmp_path / "e")]) == 0
+    warned = [line for line in capsys.readouterr().err.splitlines() if "never identified" in line]
+    assert len(warned) == 1 and "the physics model holds starting values" in warned[0]
+    assert "quad-modelling identify FLIGHTS --vehicle crazyflie21 -o FILE" in warned[0]

@@ -145,6 +145,7 @@ def test_nodes_learn_the_replayed_vehicle_or_refuse_another_in_one_line(ros, tmp
         errors = [line for line in refused.splitlines() if line.startswith("error:")]
         assert errors == ["error: refuser: parameter vehicle='crazyflie21' (crazyflie21) but the replay plays a flight of "
                           "vehicle 'linkquad' (topic vehicle); set vehicle:=linkquad or leave it empty to learn it"]
+        assert refused.count("but the replay plays a flight of") == 1  # one line, not a log line and the error
         assert stop(learner) == 0
         assert evaluator.wait(60) == 2  # refused: no results of another vehicle's windows are written
         text = (tmp_path / "evaluator.log").read_text()
