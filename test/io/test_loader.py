@@ -3,7 +3,7 @@ once per flight, and not at all when given a loaded one."""
 
 import pytest
 
-from quad_modelling.errors import DataError
+from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.io.loader import load_flights
 from quad_modelling.io.matlog import write_matlog
 from test.conftest import synthetic_log
@@ -56,7 +56,13 @@ def test_a_loaded_vehicle_is_not_read_again(yaml_loads):
 
 
 def test_evaluate_reads_the_given_vehicle_once_for_all_flights(yaml_loads):
-    args = argparse.Namespace(inputs=[str(NANOBENCH)] * 3, vehicle="crazyflie21", skip_bad=False, jobs=None, scheduler=None)
+    from test.conftest import REPO
+
+    bag = REPO / "bags" / "nanobench_B7_oval_medium_rep2"  # the whole flight: other numbers than its first 1000 rows
+    args = argparse.Namespace(inputs=[str(NANOBENCH), str(bag)], vehicle="crazyflie21", skip_bad=False, jobs=None, scheduler=None)
     flights, config, skipped = load_evaluation_flights(args)
-    assert len(flights) == 3 and config.name == "crazyflie21" and skipped == []
-    assert len(yaml_loads) == 1  # before: 2 per flight + 1 = 7
+    assert len(flights) == 2 and config.name == "crazyflie21" and skipped == []
+    assert len(yaml_loads) == 1  # before: 2 per flight + 1 = 5
+    args.inputs = [str(NANOBENCH)] * 2  # one flight twice (the command's path check bypassed): its numbers tell
+    with pytest.raises(ConfigError, match="the same flight as"):
+        load_evaluation_flights(args)
