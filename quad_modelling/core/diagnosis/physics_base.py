@@ -38,8 +38,8 @@ Selection (joint, order-free): forward -- every remaining candidate is fitted *j
 constants and terms refitted together); of those whose held-out shrink has a bootstrap 5 % bound
 :math:`S_{5\%} \ge` :data:`FOUND_MIN_BOUND` and whose main component is resolved, the one of largest :math:`S` joins
 (:func:`next_effect`; the motor imbalance only when its roll and pitch part passes too, :data:`YAW_PATTERN_ONLY`);
-when none may, pairs of resolved candidates are tried together (:func:`pair_candidates`); then backward -- each chosen effect is dropped and the rest refitted; one whose drop raises J by an amount whose
-5 % bound is below :data:`FOUND_MIN_BOUND` leaves (it only soaked up another's signature). Each found effect is reported with its
+when none may, pairs of resolved candidates are tried together (:func:`pair_candidates`); then backward -- each
+chosen effect is dropped and the rest refitted; one whose drop raises J by an amount whose 5 % bound is below :data:`FOUND_MIN_BOUND` leaves (it only soaked up another's signature). Each found effect is reported with its
 shrink as added and when dropped from the final set.
 
 A component is *resolved* when its value is at least :data:`~quad_modelling.core.diagnosis.verdicts.DETERMINED_SIGMAS`
