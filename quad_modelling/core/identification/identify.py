@@ -58,6 +58,11 @@ the linear model (the others of the fit are reported in ``identification.fit``);
 physics fit's (:func:`~quad_modelling.core.identification.physics_fit.add_physics_constants`)."""
 
 
+def windows_text(count: int) -> str:
+    """"1 training window", "3 training windows"."""
+    return f"{count} training window{'' if count == 1 else 's'}"
+
+
 @dataclass
 class IdentificationResult:
     values: dict[str, float]
@@ -82,7 +87,7 @@ class IdentificationResult:
     def summary(self) -> str:
         """The printed report (lines <= 100 characters)."""
         names = ", ".join(Path(f).name for f in self.files)
-        lines = constant_lines(self.constants, f"identified on {names} ({len(self.spans)} training windows); "
+        lines = constant_lines(self.constants, f"identified on {names} ({windows_text(len(self.spans))}); "
                                                f"1-sigma from HAC standard errors:")
         if self.voltage:
             lines.append(f"  voltage dependence: K(V) = K0 (1 + {self.voltage['kappa_per_volt']:.3g} (V - {self.voltage['v0']:.2f} V))"
@@ -203,7 +208,7 @@ def vehicle_with_spins(vehicle: VehicleConfig, yaw_signs: np.ndarray) -> Vehicle
 def identified_vehicle_document(vehicle: VehicleConfig, result: IdentificationResult, span_text: str) -> dict:
     """A vehicle YAML document (loadable by load_vehicle) with the identified constants and their provenance."""
     names = ", ".join(Path(f).name for f in result.files)
-    source = f"identified on {names} spans {span_text} ({len(result.spans)} training windows) by quad-modelling identify"
+    source = f"identified on {names} spans {span_text} ({windows_text(len(result.spans))}) by quad-modelling identify"
     estimates = {e.name: e for e in result.constants}
     constants = {key: _entry(c) for key, c in vehicle.constants.items()}  # the physics fit's are added below
     greybox = {}

@@ -4,6 +4,7 @@ import pytest
 from quad_modelling.core.identification.identify import (
     identified_vehicle_document,
     identify,
+    windows_text,
 )
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
@@ -23,11 +24,15 @@ def test_identification_recovers_motor_constants_used_to_simulate():
     doc = identified_vehicle_document(start, result, config.train)
     loaded = VehicleConfig.from_dict(doc, "identified.yaml")
     assert np.isclose(loaded.greybox_value("motor_a_m"), result.values["motor_a_m"])
-    assert "greybox fit identified on f0.csv, f1.csv spans 5:45" in loaded.greybox["motor_b_m"].source
+    assert "greybox fit identified on f0.csv, f1.csv spans 5:45 (8 training windows)" in loaded.greybox["motor_b_m"].source
     assert doc["greybox"]["motor_b_m"]["sigma"] > 0 and loaded.greybox["motor_b_m"].status == "effective"
     assert loaded.greybox["thrust_constant"].value == start.value("rotor_thrust_constant")  # a held at k_f
     airframe = ("mass", "arm_length", "ixx", "iyy", "izz", "prop_inertia")  # never written by identify
     assert [loaded.constants[k] for k in airframe] == [start.constants[k] for k in airframe]
+
+
+def test_the_window_count_reads_as_english():
+    assert [windows_text(n) for n in (1, 2, 8)] == ["1 training window", "2 training windows", "8 training windows"]
 
 
 def _differential_flight(vehicle, seed, duration=40.0, rate=100.0):
