@@ -149,6 +149,7 @@ class ReplayNode(Node):
         self.published = 0
         self.last_published_ns: int | None = None
         self.passes = 0
+        self.completed_passes = 0
         self.play_started: float | None = None
         self.get_logger().info(f"replaying {p['bag']}: {len(self.recorded)} messages at {self.stamp_count} stamps, "
                                f"{(self.last_ns - self.first_ns) / 1e9:.2f} s, "
@@ -199,8 +200,10 @@ class ReplayNode(Node):
         shift = 0
         self.origin_pub.publish(messages.clock_message(self.first_ns))
         while rclpy.ok(context=self.context):
+            self.passes += 1  # counted when started: an interrupted pass is one, said as such in finish()
             self._play_pass(shift)
-            self.passes += 1
+            if rclpy.ok(context=self.context):  # not cut short by a shutdown (a signal raises out of it)
+                self.completed_passes += 1
             if not self.loop:
                 break
             shift += self.last_ns - self.first_ns + self.period_ns
@@ -257,7 +260,8 @@ class ReplayNode(Node):
 
     def finish(self) -> None:
         took = time.monotonic() - self.play_started if self.play_started else 0.0
-        say(self, f"published {self.published} stamps in {self.passes} pass(es) in {took:.2f} s "
+        interrupted = " (the last interrupted)" if self.passes > self.completed_passes else ""
+        say(self, f"published {self.published} stamps in {self.passes} pass(es){interrupted} in {took:.2f} s "
                   f"({self.published / took if took > 0 else 0:.0f} samples/s); faults: {self.faults.summary()}")
 
 

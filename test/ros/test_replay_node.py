@@ -105,3 +105,17 @@ def test_loop_passes_restamp_the_recorded_messages_by_one_bag_length(ros, tmp_pa
         assert topics.odometry_fields(got["odom"][i]) == topics.odometry_fields(got["odom"][i % 30])
         assert list(got["motor"][i].effort) == log.u[i % 30].tolist()
     node.destroy_node()
+
+
+def test_an_interrupted_replay_says_its_pass_was_cut_short(ros, tmp_path):
+    """SIGINT in the middle of the bag: exit 0 and the summary counts the pass it was in, marked interrupted
+    (it said "0 pass(es)": passes were counted only when finished)."""
+    from test.ros.conftest import interrupted_node
+
+    bag = write_bag(synthetic_log(n=1000), tmp_path / "bag")  # 10 s at 100 Hz, played in real time
+    code, out = interrupted_node("quad_modelling.nodes.replay_node", ["-p", f"bag:={bag}", "-p", "rate:=1.0"],
+                                 "replaying", settle_s=2.0)
+    assert code == 0, out
+    assert "in 1 pass(es) (the last interrupted)" in out, out
+    published = int(out.split("published ")[1].split(" stamps")[0])
+    assert 0 < published < 1000, out
