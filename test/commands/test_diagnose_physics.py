@@ -51,7 +51,7 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     assert missed and "| 5 % bound < 1% |" in report
     assert "| rotor_drag | horizontal |" in report and "| effect | component | value | sigma | unit | bounds |  |" in report
     assert data["found"] == sorted(data["found"], key=lambda name: data["effects"][name]["rank"])  # in joining order
-    assert "| nothing else newly found | nothing but motor_imbalance | ['motor_imbalance'] | yes |  |" in report
+    assert "| nothing else newly found | nothing (motor_imbalance may: the injected change) | motor_imbalance | yes |  |" in report
 
 
 def test_a_motor_order_verdict_an_injection_did_not_make_is_not_called_the_injected_change(injected):

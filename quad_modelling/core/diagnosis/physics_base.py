@@ -57,7 +57,7 @@ import numpy as np
 
 from quad_modelling.core.diagnosis.injection import motor_order_check, swapped, swapped_motors
 from quad_modelling.core.diagnosis.verdicts import (
-    DETERMINED_SIGMAS, FOUND_MIN_BOUND, component_text, twin_text, unconfirmed_text, yaw_only_text,
+    DETERMINED_SIGMAS, FOUND_MIN_BOUND, component_text, signed_percent, twin_text, unconfirmed_text, yaw_only_text,
 )
 from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
@@ -442,7 +442,8 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             pairs = {pair: rung([*chosen, *pair]) for pair in pair_candidates(eligible)}
             scored_pairs = {pair: (*shrink(current.score, trial.score), [components(c, trial.fit)[:1] for c in pair])
                             for pair, trial in pairs.items()}
-            step["pairs"] = {" + ".join(p): {"shrink": v[0], "shrink_5pct": v[1], "J": pairs[p].score.j} for p, v in scored_pairs.items()}
+            step["pairs"] = {" + ".join(p): {"shrink": v[0], "shrink_5pct": v[1], "J": pairs[p].score.j,
+                                             "main_resolved": all(part and part[0]["resolved"] for part in v[2])} for p, v in scored_pairs.items()}
             may_join = [p for p, (value, low, parts) in scored_pairs.items()
                         if low >= 2 * FOUND_MIN_BOUND and all(part and part[0]["resolved"] for part in parts)
                         and ("motor_imbalance" not in p or pair_part(chosen, current, step))]
@@ -492,7 +493,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         if c in left:  # joined, then dropped by the backward step: its trial's numbers passed, say why it left
             rise, low, others = left[c]
             text += (f"; it joined, then left the final set: dropped from it (the rest {' + '.join(['base', *others])} "
-                     f"refitted), J rose by {rise:+.1%} (5 % bound {low:+.1%} < {FOUND_MIN_BOUND:.0%}): the others explain it")
+                     f"refitted), J rose by {signed_percent(rise)} (5 % bound {signed_percent(low)} < {FOUND_MIN_BOUND:.0%}): the others explain it")
         elif c == "motor_imbalance" and not found and yaw_only is not None:
             text += "; " + yaw_only_text(yaw_only)
         elif not found and last and any(part["resolved"] for part in parts):

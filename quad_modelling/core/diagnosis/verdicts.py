@@ -255,6 +255,13 @@ seeds 132 and 133), and found the bent arm as the motor imbalance at S 3.2 % wit
 Measured on seeds 131-133 and then on seeds never run before: bench/results/diagnose.md."""
 
 
+def signed_percent(fraction: float) -> str:
+    """``fraction`` as a signed percentage with one decimal ("+6.5%"); a value that rounds to zero is "+0.0%"
+    (Python's format gives "-0.0%" for -0.0004)."""
+    rounded = round(float(fraction), 3)
+    return f"{rounded if rounded != 0 else 0.0:+.1%}"
+
+
 def twin_text(check: dict, entry: str) -> str:
     """The sentence of :func:`~quad_modelling.core.diagnosis.physics_base.twin_check`'s verdict for the ``entry`` of the found twin or of the other."""
     found, other = check["found"].replace("_", " "), {"motor_lag": "a motor lag", "input_delay": "an input delay"}[check["other"]]
@@ -295,7 +302,7 @@ def unconfirmed_text(trial: dict, on_top_of: Sequence[str]) -> str:
     """Why an effect whose components are resolved on the training flights is still *not supported*: its last
     forward trial (``trial``: shrink, shrink_5pct) on top of ``on_top_of`` did not shrink the held-out error enough."""
     return (f"resolved on the training flights (>= 3 sigma, off its bounds; the halves are fitted for found effects), but added to {' + '.join(['base', *on_top_of])} it shrinks the held-out "
-            f"error by {trial['shrink']:+.1%} (5 % bound {trial['shrink_5pct']:+.1%}; found needs a 5 % bound >= "
+            f"error by {signed_percent(trial['shrink'])} (5 % bound {signed_percent(trial['shrink_5pct'])}; found needs a 5 % bound >= "
             f"{FOUND_MIN_BOUND:.0%}): the held-out flights do not confirm it")
 
 
@@ -304,9 +311,9 @@ def yaw_only_text(part: dict) -> str:
     (:data:`~quad_modelling.core.diagnosis.physics_base.YAW_PATTERN_ONLY`; ``part`` the check's record)."""
     rest = "the CG offset and the gains' roll and pitch patterns" if part["cg_offset"] else \
         "the gains' roll and pitch patterns; the CG offset held at 0, not separated from them"
-    return (f"it shrinks the held-out error by {part['imbalance_shrink']:+.1%} (5 % bound {part['imbalance_shrink_5pct']:+.1%}), "
+    return (f"it shrinks the held-out error by {signed_percent(part['imbalance_shrink'])} (5 % bound {signed_percent(part['imbalance_shrink_5pct'])}), "
             f"but by a yaw pattern of its gains, which a rotor tilted about its arm (a bent arm) makes as well: on top of "
             f"{' + '.join(['base', *part['on_top_of']])} and that pattern alone, its roll and pitch part ({rest}) shrinks "
-            f"it by {part['shrink']:+.1%} (5 % bound {part['shrink_5pct']:+.1%}; found needs a 5 % bound >= "
+            f"it by {signed_percent(part['shrink'])} (5 % bound {signed_percent(part['shrink_5pct'])}; found needs a 5 % bound >= "
             f"{FOUND_MIN_BOUND:.0%}): the flights do not tell motor gains from a tilted rotor (summary.motor_command_gains "
             "holds the gains)")

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from quad_modelling.core.diagnosis.verdicts import FOUND_MIN_BOUND
+from quad_modelling.core.diagnosis.verdicts import FOUND_MIN_BOUND, signed_percent
 from quad_modelling.io.reports.formatting import REPORT_WIDTH, json_text, markdown_table, prose
 
 
@@ -106,8 +106,8 @@ def report_markdown(data: dict) -> str:
     rows = []
     for step in data["selection"]:
         for name, t in [*step["trials"].items(), *step.get("pairs", {}).items()]:
-            why = _why_not_joined(t) if name in step["trials"] else ""  # a pair joins on twice the bound, both resolved
-            rows.append([" + ".join(step["on_top_of"]) or "base", name, f"{t['shrink']:+.1%}", f"{t['shrink_5pct']:+.1%}",
+            why = _why_not_joined(t) if name in step["trials"] else _why_pair_not_joined(t, name, step)
+            rows.append([" + ".join(step["on_top_of"]) or "base", name, f"{signed_percent(t['shrink'])}", f"{signed_percent(t['shrink_5pct'])}",
                          "joined" if step["joined"] and name == step["best"] else why])
     out += markdown_table(["on top of", "candidate", "shrink of J", "5 % bound", ""], rows) + [""]
     if data.get("ladder"):
@@ -115,7 +115,7 @@ def report_markdown(data: dict) -> str:
             f"{' + '.join(r['effects']) or 'base'} {r['J']:.3f}" for r in data["ladder"])) + [""]
     if data["dropped_shrink"]:
         out += prose("Order-free: J rises when each chosen effect is dropped from the final set and the rest refitted: "
-                     + ", ".join(f"{k} {v:+.1%}" for k, v in data["dropped_shrink"].items())
+                     + ", ".join(f"{k} {signed_percent(v)}" for k, v in data["dropped_shrink"].items())
                      + " (an effect whose rise has a 5 % bound under 1 % left the set).") + [""]
     out += ["## Effects", ""]
     for name, effect in data["effects"].items():
@@ -157,8 +157,11 @@ def _check_value(check: dict, which: str) -> str:
     if which in check and isinstance(check[which], float):
         return f"{check[which]:.3f}" + (f" +- {check['tolerance']:.0%}" if which == "expected" and "tolerance" in check else "")
     if which == "expected" and "newly_found" in check:
-        return "nothing" + (f" but {', '.join(check['expected_new'])}" if check.get("expected_new") else "")
+        allowed = ", ".join(check.get("expected_new") or ())
+        return "nothing" + (f" ({allowed} may: the injected change)" if allowed else "")
     value = check.get("named", check.get("newly_found", "")) if which == "measured" else check.get(which, "")
+    if isinstance(value, list):  # the effects newly found
+        return ", ".join(value) or "nothing"
     return "no swap" if value is None else str(value)
 
 
@@ -180,6 +183,18 @@ def _why_not_joined(trial: dict) -> str:
     if trial.get("main_resolved") is False:
         return "main component not resolved"
     return ""
+
+
+def _why_pair_not_joined(pair: dict, name: str, step: dict) -> str:
+    """The selection table's last cell for a pair that did not join (:func:`~quad_modelling.core.diagnosis.physics_base.
+    pair_candidates`: a pair joins on twice the single bound with both main components resolved)."""
+    if pair["shrink_5pct"] < 2 * FOUND_MIN_BOUND:
+        return f"5 % bound < {2 * FOUND_MIN_BOUND:.0%} (a pair's)"
+    if pair.get("main_resolved") is False:
+        return "a main component not resolved"
+    if "motor_imbalance" in name and not (step.get("imbalance_roll_pitch") or {}).get("supported", True):
+        return f"a yaw pattern only: its roll and pitch part's 5 % bound < {FOUND_MIN_BOUND:.0%}"
+    return "another pair shrinks J more" if step.get("joined") else ""
 
 
 VERDICTS = {True: "PASSED", False: "FAILED", None: "NOT JUDGED"}

@@ -142,3 +142,9 @@ def test_material_parameters_are_those_whose_term_moves_the_correction(batch, ba
     checks = parameter_checks(effect, np.array([1.0, 0.0]), np.array([0.05, np.nan]), base, material)
     assert [c.plausible for c in checks] == [(0.5, 1.5), (0.0, 3.0)]
     assert checks[0].to_json(effect.plausible_source)["plausible_ok"] and checks[0].determined
+
+
+def test_a_shrink_that_rounds_to_zero_reads_plus_zero():
+    from quad_modelling.core.diagnosis.verdicts import signed_percent
+
+    assert [signed_percent(x) for x in (-0.0004, 0.0004, 0.065, -0.0251, -0.0006)] == ["+0.0%", "+0.0%", "+6.5%", "-2.5%", "-0.1%"]
