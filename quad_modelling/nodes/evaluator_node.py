@@ -233,14 +233,14 @@ class EvaluatorNode(Node):
         last = gate.last
         verdict = gate.admit(ns, (ns, payload))
         for dropped in gate.dropped:
-            self.faults.report(stream_fault("stamp_outlier", stream), f"{stream} stamp {dropped} ns lies {(dropped - last) / 1e9:+.3f} s "
+            self.faults.report(stream_fault("stamp_outlier", stream), f"{stream} stamp t = {dropped / 1e9:.6f} s lies {(dropped - last) / 1e9:+.3f} s "
                                                            "from the stream's time (a duplicate, back in time, or beyond "
                                                            f"max_stamp_step_s={self.max_step_ns / 1e9:g} ahead): dropped")
         if verdict is Stamp.ACCEPTED:
             return [(ns, payload)]
         if verdict is Stamp.SUSPECT:
             return []
-        self.faults.report(stream_fault("clock_jump", stream), f"{stream} jumped to stamp {ns} ns ({CONFIRM} consistent stamps): "
+        self.faults.report(stream_fault("clock_jump", stream), f"{stream} jumped to stamp t = {ns / 1e9:.6f} s ({CONFIRM} consistent stamps): "
                                                     "publisher restarted or clock reset; following it")
         if stream == MOTOR_INPUT:
             self._restart_clock(ns)
@@ -371,7 +371,7 @@ class EvaluatorNode(Node):
                 continue
             buffer = buffer_of(window)
             if ns in buffer:
-                self.faults.report(stream_fault("duplicate", stream), f"duplicated {stream} stamp {ns} ns: later copy dropped")
+                self.faults.report(stream_fault("duplicate", stream), f"duplicated {stream} stamp t = {ns / 1e9:.6f} s: later copy dropped")
                 continue
             buffer[ns] = fields
             self._advance(stream, ns, window.index)
@@ -394,7 +394,7 @@ class EvaluatorNode(Node):
             buffer = getattr(window, store)[model]
             if ns in buffer:
                 # A restarted predictor may re-publish a stamp: keep the first copy.
-                self.faults.report(stream_fault("duplicate", stream), f"model {model}: duplicated prediction stamp {ns} ns: later copy dropped")
+                self.faults.report(stream_fault("duplicate", stream), f"model {model}: duplicated prediction stamp t = {ns / 1e9:.6f} s: later copy dropped")
                 continue
             buffer[ns] = fields
             self.model_last_wall[model] = time.monotonic()
@@ -412,7 +412,7 @@ class EvaluatorNode(Node):
         for ns, fields in self._accept(f"{model}/horizon", ns, fields):
             if (self.clock_.origin_ns is not None and self.clock_.locate(ns)[0] not in self.open
                     and len(self.open) >= MAX_OPEN_WINDOWS):
-                self.faults.report(f"horizon_ahead_{model}", f"{model}/{HORIZON_TOPIC} stamp {ns} ns beyond the open windows: dropped")
+                self.faults.report(f"horizon_ahead_{model}", f"{model}/{HORIZON_TOPIC} stamp t = {ns / 1e9:.6f} s beyond the open windows: dropped")
                 continue
             window = self._window_for(ns, f"{model}/horizon")
             if window is not None:

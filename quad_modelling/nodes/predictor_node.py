@@ -239,7 +239,7 @@ class PredictorNode(Node):
         ns = topics.stamp_ns(msg.clock)
         if self.clock_.origin_ns is None or ns < self.clock_.origin_ns:
             if self.clock_.origin_ns is not None:
-                self.faults.report("origin_changed", f"window origin moved to an earlier t0 ({ns} ns): re-aligning windows")
+                self.faults.report("origin_changed", f"window origin moved to an earlier t0 (t = {ns / 1e9:.6f} s): re-aligning windows")
                 self.state, self.window = "idle", None
             self.clock_.origin_ns = ns
 
@@ -249,12 +249,12 @@ class PredictorNode(Node):
         gate = self.gates[stream]
         verdict = gate.admit(ns, (ns, fields))
         for dropped in gate.dropped:
-            self.faults.report(stream_fault("stamp_outlier", stream), f"{stream} stamp {dropped} ns off the stream's time (a duplicate, "
+            self.faults.report(stream_fault("stamp_outlier", stream), f"{stream} stamp t = {dropped / 1e9:.6f} s off the stream's time (a duplicate, "
                                                           "back in time, or beyond max_stamp_step_s ahead): dropped")
         if verdict is Stamp.SUSPECT:
             return False
         if verdict is Stamp.JUMPED:
-            self.faults.report(stream_fault("clock_jump", stream), f"{stream} stamps jumped to a new time base at {ns} ns "
+            self.faults.report(stream_fault("clock_jump", stream), f"{stream} stamps jumped to a new time base at t = {ns / 1e9:.6f} s "
                                                           "(restarted publisher, clock jump or a long gap): its buffer restarts")
             if stream == MOTOR_INPUT:
                 self._reset_time_base(ns)
@@ -344,7 +344,7 @@ class PredictorNode(Node):
 
     def _store(self, track: MeasurementTrack, ns: int, fields, stream: str) -> None:
         if not track.add(ns, fields):
-            self.faults.report(stream_fault("duplicate", stream), f"duplicated {stream} stamp {ns} ns: later copy dropped")
+            self.faults.report(stream_fault("duplicate", stream), f"duplicated {stream} stamp t = {ns / 1e9:.6f} s: later copy dropped")
 
     def on_mapped(self, topic: str, msg) -> None:
         """A message of a ``topic_map`` topic (:mod:`~quad_modelling.nodes.mapping.streams`): its measurements stored,
@@ -356,7 +356,7 @@ class PredictorNode(Node):
         measured = {f: v for f, v in fields.items() if f != "commands"}
         if measured and self._gate(topic, ns, measured):
             if not self.mapped.store(ns, measured):
-                self.faults.report(stream_fault("duplicate", topic), f"duplicated {topic} stamp {ns} ns: later copy dropped")
+                self.faults.report(stream_fault("duplicate", topic), f"duplicated {topic} stamp t = {ns / 1e9:.6f} s: later copy dropped")
             self._measured()
         if "commands" in fields:
             self.on_command(ns, self.mapped.command(fields["commands"], self.vehicle) if self.model else None, None)
@@ -537,8 +537,8 @@ class PredictorNode(Node):
     def _monotonic(self, ns: int) -> bool:
         """True (and remembered) when ``ns`` is after the last published stamp: output stamps strictly increase."""
         if self.last_published_ns is not None and ns <= self.last_published_ns:
-            self.faults.report("stamp_not_increasing", f"prediction stamped {ns} ns is not after the last published one "
-                                                       f"({self.last_published_ns} ns): not published")
+            self.faults.report("stamp_not_increasing", f"prediction stamped t = {ns / 1e9:.6f} s is not after the last published one "
+                                                       f"(t = {self.last_published_ns / 1e9:.6f} s): not published")
             return False
         self.last_published_ns = ns
         return True

@@ -7,6 +7,7 @@ import re
 import numpy as np
 from rclpy.parameter import Parameter
 
+from quad_modelling.core.alignment import CONFIRM
 from quad_modelling.core.evaluation.multistep import multistep_form, multistep_mae
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.preprocess import measured_variables
@@ -157,6 +158,8 @@ def test_outlier_stamps_clock_jumps_and_bad_messages_are_survived(ros):
     log = hover_log(1700)
     prediction = topics.prediction_fields(_offset(log, "vel_x", 0.25))
     node = make_node()
+    warned = []
+    node.faults.logger = type("Warnings", (), {"warning": lambda self, line: warned.append(line)})()
     arrays = messages.measurement_messages(log)
     stamps = feed(node, log, range(0, 300), arrays, predictions={"m": prediction})
     node.on_motor(arrays.motor(300, int(stamps[300]) + 1000 * 10**9))
@@ -172,6 +175,8 @@ def test_outlier_stamps_clock_jumps_and_bad_messages_are_survived(ros):
     assert counts["stamp_outlier_motor_input"] == 1 and counts["stamp_outlier_mocap_odom"] == 1  # the run of a jump is no outlier
     assert counts["bad_motor_input"] == 1 and counts["bad_imu"] == 1
     assert counts["clock_jump_motor_input"] == 1
+    jump = next(line for line in warned if "jumped" in line)  # stamps in seconds, as the bag's clock (not raw ns)
+    assert f"motor_input jumped to stamp t = {stamps[CONFIRM - 1] / 1e9:.6f} s" in jump and " ns" not in jump, jump
     records = [r for r in node.scores.records if r.model == "m"]
     scored = [(r.time_base, r.index, round(r.rms[INDEX["vel_x"]], 9)) for r in records if r.scored]
     # before and after the restart (rows CONFIRM - 1 on then): the indices repeat, the time base tells them apart
