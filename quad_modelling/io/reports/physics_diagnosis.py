@@ -160,8 +160,8 @@ def _check_value(check: dict, which: str) -> str:
         allowed = ", ".join(check.get("expected_new") or ())
         return "nothing" + (f" ({allowed} may: the injected change)" if allowed else "")
     value = check.get("named", check.get("newly_found", "")) if which == "measured" else check.get(which, "")
-    if isinstance(value, list):  # the effects newly found
-        return ", ".join(value) or "nothing"
+    if which == "measured" and "newly_found" in check:  # the effects newly found
+        return ", ".join(check["newly_found"]) or "nothing"
     return "no swap" if value is None else str(value)
 
 
