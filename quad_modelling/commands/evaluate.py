@@ -188,7 +188,9 @@ def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[s
 
 def _evaluations(outcomes, skipped: list[str], vehicles: list[str], first_in_span: dict[str, str]):
     """The flights' evaluations of the outcomes, in order; skipped files and gap warnings printed on the way;
-    ``first_in_span``: span name -> the first flight with a window in it (filled on the way)."""
+    ``first_in_span``: span name -> the first flight with a window in it (filled on the way). A flight given twice
+    (the same recorded numbers) is refused as soon as its second copy's result arrives, not after every flight."""
+    fingerprints: list[tuple[str, str]] = []
     for outcome in outcomes:
         for message in outcome.warnings:
             print(f"warning: {message}", file=sys.stderr)
@@ -200,6 +202,8 @@ def _evaluations(outcomes, skipped: list[str], vehicles: list[str], first_in_spa
             raise ConfigError(f"the flights are of different vehicles {sorted({vehicles[0], outcome.vehicle})} "
                               f"({outcome.path} is of {outcome.vehicle!r}); evaluate one vehicle at a time")
         vehicles.append(outcome.vehicle)
+        fingerprints.append((outcome.evaluation.flight["source"], outcome.evaluation.flight["fingerprint"]))
+        check_distinct_flights(fingerprints)  # before anything is written
         windowed = outcome.evaluation.statistics.windowed
         for span, sums in windowed[next(iter(windowed))].items():
             if sums.windows:
@@ -257,7 +261,6 @@ def run(args: argparse.Namespace) -> int:
     result = merge_flights(_evaluations(outcomes, skipped, vehicles, first_in_span), config)
     if "physics" in specs:  # its constants are the vehicle's: starting values unless identified (train warns alike)
         warn_starting_values(given or load_vehicle(vehicles[0]), "physics")
-    check_distinct_flights([(f["source"], f["fingerprint"]) for f in result.flights])  # before anything is written
     result.examples = example_windows(result, first_in_span, task, args.topic_map)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
     with atomic_output(output, args.force) as tmp:

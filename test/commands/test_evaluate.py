@@ -136,6 +136,13 @@ def test_one_flight_in_two_formats_counts_once(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and f"{mat}: the same flight as" in err[0] and bag in err[0], (verb, err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b7.mat"]
+    # refused when the second copy is scored, before a later flight is read (a broken one here: never reached)
+    broken = tmp_path / "broken.mat"
+    broken.write_bytes(b"not a MATLAB file")
+    assert main(["evaluate", bag, str(mat), str(broken), "--preset", "short", "-o", str(tmp_path / "e")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{mat}: the same flight as" in err[0], err
+    broken.unlink()
 
 
 def test_force_replaces_an_output_directory_not_another_file(tmp_path, capsys):
