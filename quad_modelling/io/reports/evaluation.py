@@ -6,6 +6,7 @@ results.json keeps SI units. Figures use matplotlib's Agg backend (no display ne
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +68,23 @@ def markdown_tables(result: EvaluationResult, title: str = "Evaluation") -> str:
     return tables_text(result.to_json(), title)
 
 
+MARKED_REASONS_SHOWN = 3
+"""Distinct reasons of marked live windows tables.md lists (the rest are counted; results.json has every one)."""
+
+
+def marked_lines(marked: list[dict]) -> list[str]:
+    """tables.md's line on the live windows that were closed without a score (results.json ``live.marked``): how many,
+    per model, and why (the most frequent reasons first)."""
+    if not marked:
+        return []
+    per_model = Counter(r["model"] for r in marked)
+    reasons = Counter(r["reason"] for r in marked).most_common()
+    shown = "; ".join(f"{reason} (x{n})" for reason, n in reasons[:MARKED_REASONS_SHOWN])
+    more = f"; {len(reasons) - MARKED_REASONS_SHOWN} other reason(s)" if len(reasons) > MARKED_REASONS_SHOWN else ""
+    return ["", f"Marked, not scored: {len(marked)} window result(s) ({', '.join(f'{m} {n}' for m, n in per_model.items())}), "
+                f"not in the tables below: {shown}{more} (each in results.json live.marked)."]
+
+
 def tables_text(data: dict, title: str = "Evaluation") -> str:
     """tables.md from a results.json document: one table per metric (rows = variables, columns = model x span),
     then the multi-step table (:func:`multistep_lines`) when the document has one."""
@@ -87,6 +105,7 @@ def tables_text(data: dict, title: str = "Evaluation") -> str:
     counts = ", ".join(f"{s} {data['windows'][models[0]].get(s, 0)}" for s in spans) or "none scored"
     lines.append(f"{len(used)} flight(s) ({len(flights) - len(used)} skipped); {where}; {config['window_s']:g} s windows, "
                  f"{config['warm_s']:g} s warm start. Windows per span: {counts}.")
+    lines += marked_lines((data.get("live") or {}).get("marked") or [])
     lines.append("")
     lines += model_notes(models)
     columns = [(m, s) for s in spans for m in models]

@@ -57,3 +57,22 @@ def test_live_tables_name_the_live_spans_not_empty_train_and_eval():
     header = tables_text(document, "Live evaluation").splitlines()[2]
     assert header == ("0 flight(s) (0 skipped); spans live 0:inf (seconds from the first motor input); 5 s windows, "
                       "0.2 s warm start. Windows per span: none scored.")
+
+
+def test_live_tables_count_the_marked_windows_and_say_why():
+    """Windows closed without a score (predictor late, incomplete, ...) were only in results.json: tables.md
+    counts them per model and names the reasons, most frequent first."""
+    from quad_modelling.io.reports.evaluation import tables_text
+
+    late, cut = "predictor late: its predictions stopped", "incomplete: the engine inputs stopped"
+    marked = [{"model": "greybox", "reason": late}, {"model": "narx", "reason": late}, {"model": "narx", "reason": cut},
+              {"model": "narx", "reason": "a"}, {"model": "narx", "reason": "b"}]
+    document = {**_results(), "models": {"greybox": {}, "dummy": {}}, "windows": {"greybox": {}, "dummy": {}},
+                "config": {"flights": [], "train": "", "eval": "", "drop_start": 0.0, "drop_end": 0.0, "window_s": 5.0,
+                           "warm_s": 0.2},
+                "live": {"spans": [{"name": "live", "start_s": 0.0, "end_s": None}], "marked": marked}}
+    line = tables_text(document, "Live evaluation").splitlines()[4]
+    assert line == (f"Marked, not scored: 5 window result(s) (greybox 1, narx 4), not in the tables below: {late} (x2); "
+                    f"{cut} (x1); a (x1); 1 other reason(s) (each in results.json live.marked).")
+    document["live"]["marked"] = []
+    assert "Marked" not in tables_text(document, "Live evaluation")
