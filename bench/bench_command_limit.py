@@ -33,7 +33,6 @@ bench/results/command_limit.json and .md.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import tempfile
@@ -45,7 +44,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.bench_models import CONFIG, NANOBENCH, SHAPES, readable_flights, shape_of  # noqa: E402
+from bench.bench_models import CONFIG, SHAPES, fold_parser, readable_flights, shape_of  # noqa: E402
 from bench.common import RESULTS, write_results  # noqa: E402
 from quad_modelling.core.preprocess import resample_uniform  # noqa: E402
 from quad_modelling.core.vehicle import load_vehicle  # noqa: E402
@@ -214,11 +213,8 @@ def markdown(folds: list[dict], pooled: dict, reference: dict, run: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=NANOBENCH)
-    parser.add_argument("--folds", default=",".join(SHAPES), help="held-out shapes (default: all six)")
+    parser = fold_parser(__doc__, "command_limit")
     parser.add_argument("--seed", type=int, default=0, help="torch seed of the MLPs (+ the horizon's index)")
-    parser.add_argument("--output", default="command_limit")
     args = parser.parse_args(argv)
     import torch
 

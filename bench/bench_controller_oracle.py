@@ -31,7 +31,6 @@ bench/results/controller_oracle.json and .md.
 
 from __future__ import annotations
 
-import argparse
 import gzip
 import sys
 import tempfile
@@ -45,7 +44,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.bench_direct_features import Maps  # noqa: E402
 from bench.bench_direct_inputs import flying_spans, observer_disturbance  # noqa: E402
-from bench.bench_models import CONFIG, NANOBENCH, SHAPES, SPANS, readable_flights, run_cli, shape_of  # noqa: E402
+from bench.bench_models import CONFIG, SHAPES, SPANS, fold_parser, readable_flights, run_cli, shape_of  # noqa: E402
 from bench.common import write_results  # noqa: E402
 from quad_modelling.core import frames  # noqa: E402
 from quad_modelling.core.evaluation.multistep import multistep_evaluation  # noqa: E402
@@ -186,11 +185,8 @@ def markdown(folds: list[dict], pool: dict[str, dict[str, float]], run: str, str
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=NANOBENCH)
-    parser.add_argument("--folds", default=",".join(SHAPES), help="held-out shapes (default: all six)")
+    parser = fold_parser(__doc__, "controller_oracle")
     parser.add_argument("--stride", type=int, default=3, help="score every N-th start (default 3)")
-    parser.add_argument("--output", default="controller_oracle")
     args = parser.parse_args(argv)
     flights, skipped = readable_flights(args.data, load_vehicle("crazyflie21"))
     setpoints = Setpoints()

@@ -21,7 +21,6 @@ bench/results/direct_command_cut.json and .md.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import time
@@ -31,7 +30,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.bench_direct_inputs import error_sums, flying_spans, observer_disturbance  # noqa: E402
-from bench.bench_models import NANOBENCH, SHAPES, SPANS, readable_flights, run_cli, shape_of  # noqa: E402
+from bench.bench_models import SHAPES, SPANS, fold_parser, readable_flights, run_cli, shape_of  # noqa: E402
 from bench.common import write_results  # noqa: E402
 from quad_modelling.core.models.direct import (  # noqa: E402
     ANCHOR_INPUTS,
@@ -93,11 +92,8 @@ def markdown(folds: list[dict], pooled: dict[str, float], cuts, run: str) -> str
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=NANOBENCH)
-    parser.add_argument("--folds", default=",".join(SHAPES), help="held-out shapes (default: all six)")
+    parser = fold_parser(__doc__, "direct_command_cut")
     parser.add_argument("--cuts", default=",".join(map(str, CUTS)), help="rows of commands left out (default 0,1,2,3,5)")
-    parser.add_argument("--output", default="direct_command_cut")
     args = parser.parse_args(argv)
     cuts = [int(c) for c in args.cuts.split(",")]
     flights, skipped = readable_flights(args.data, load_vehicle("crazyflie21"))

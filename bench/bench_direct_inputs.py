@@ -22,7 +22,6 @@ bench/results/direct_inputs.json and .md.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import time
@@ -34,7 +33,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.bench_command_limit import flying_starts  # noqa: E402
-from bench.bench_models import NANOBENCH, SHAPES, SPANS, readable_flights, run_cli, shape_of  # noqa: E402
+from bench.bench_models import SHAPES, SPANS, fold_parser, readable_flights, run_cli, shape_of  # noqa: E402
 from bench.common import write_results  # noqa: E402
 from quad_modelling.core.models import physics  # noqa: E402
 from quad_modelling.core.models.direct import HORIZON, ROBUST_STEPS  # noqa: E402
@@ -137,10 +136,7 @@ def nested_main(argv: list[str] | None, doc: str, script: str, output: str, scor
                 details: dict) -> int:
     """The command line of a nested choice (``--data``, ``--folds``, ``--output``): :func:`nested_fold` with ``scores``
     per held-out shape, then the pooled outer scores (sums over folds) and the results files."""
-    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=NANOBENCH)
-    parser.add_argument("--folds", default=",".join(SHAPES), help="held-out shapes (default: all six)")
-    parser.add_argument("--output", default=output)
+    parser = fold_parser(doc, output)
     args = parser.parse_args(argv)
     flights, skipped = readable_flights(args.data, load_vehicle("crazyflie21"))
     logs = {path: resample_uniform(log) for path, log in flights.items()}

@@ -93,6 +93,16 @@ MODELS = (
 """Adding a model is one line: its name, spec and the training options (identify's vehicle is passed to both)."""
 
 
+def fold_parser(doc: str, output: str) -> argparse.ArgumentParser:
+    """The command line every leave-one-shape-out study shares: ``--data`` (the NanoBench flights), ``--folds`` (the
+    held-out shapes, default all six) and ``--output`` (the results' name); a study adds its own options."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=NANOBENCH)
+    parser.add_argument("--folds", default=",".join(SHAPES), help="held-out shapes (default: all six)")
+    parser.add_argument("--output", default=output)
+    return parser
+
+
 def shape_of(path: Path) -> str:
     return path.name.split("_")[0]
 

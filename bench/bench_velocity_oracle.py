@@ -25,7 +25,6 @@ bench/results/velocity_oracle.json and .md.
 
 from __future__ import annotations
 
-import argparse
 import sys
 import tempfile
 import time
@@ -36,7 +35,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from bench.bench_models import CONFIG, NANOBENCH, SHAPES, SPANS, readable_flights, run_cli, shape_of  # noqa: E402
+from bench.bench_models import CONFIG, SHAPES, SPANS, fold_parser, readable_flights, run_cli, shape_of  # noqa: E402
 from bench.common import write_results  # noqa: E402
 from quad_modelling.core.evaluation.multistep import multistep_evaluation  # noqa: E402
 from quad_modelling.core.models import physics  # noqa: E402
@@ -114,11 +113,8 @@ def markdown(folds: list[dict], pool: dict[str, float], run: str, stride: int) -
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", type=Path, default=NANOBENCH)
-    parser.add_argument("--folds", default=",".join(SHAPES), help="held-out shapes (default: all six)")
+    parser = fold_parser(__doc__, "velocity_oracle")
     parser.add_argument("--stride", type=int, default=3, help="score every N-th start (default 3)")
-    parser.add_argument("--output", default="velocity_oracle")
     args = parser.parse_args(argv)
     flights, skipped = readable_flights(args.data, load_vehicle("crazyflie21"))
     work = Path(tempfile.mkdtemp(prefix="velocity_oracle_"))
