@@ -82,7 +82,7 @@ class ExportedModel:
         self.derivative = casadi.Function.load(str(directory / "f_disturbed.casadi"))
         names = [entry["name"] for entry in self.layout["input"]]
         if names[:4] != ["u_1", "u_2", "u_3", "u_4"] or "u_logged_1" in names:
-            raise SystemExit(f"{directory}: the example flies a physics model export (inputs u_1..u_4[, battery_voltage]), got {names}")
+            raise ValueError(f"{directory}: the example flies a physics model export (inputs u_1..u_4[, battery_voltage]), got {names}")
         self.battery = names[-1] == "battery_voltage"
         c = self.layout["constants"]
         self.delay, self.u_min, self.u_max = c["rotor_delay_s"], c["input_min"], c["input_max"]
@@ -266,11 +266,16 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if not args.duration > SETTLE_S + 0.04:
         parser.error(f"--duration {args.duration:g} s: the tracking error is scored from {SETTLE_S:g} s on; fly longer")
+    if not args.height > 0.0:
+        parser.error(f"--height {args.height:g} m: the figure-8 flies above the ground (height > 0)")
     for directory in (d for d in (args.model, args.base) if d is not None):  # one line, not a traceback
         if not (Path(directory) / "layout.yaml").is_file():
             parser.error(f"{directory}: not an export directory (no layout.yaml); write one with "
                          "`quad-modelling export VEHICLE.yaml --format casadi -o DIR`")
-    models = {label: ExportedModel(d) for label, d in (("exported model", args.model), ("base model", args.base)) if d is not None}
+    try:
+        models = {label: ExportedModel(d) for label, d in (("exported model", args.model), ("base model", args.base)) if d is not None}
+    except ValueError as err:  # a hybrid's export: one line, exit 2 as every other bad --model
+        parser.error(str(err))
     for directory, model in zip([d for d in (args.model, args.base) if d is not None], models.values()):
         if model.vehicle != TRUTH_VEHICLE:
             parser.error(f"{directory}: a model of vehicle {model.vehicle}; this example flies the simulator's {TRUTH_VEHICLE} "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from quad_modelling.atomic import atomic_output, check_output
 from quad_modelling.core.vehicle import load_vehicle, vehicle_file
@@ -65,4 +66,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"{args.output}: {layout['model']} model of {layout['vehicle']} (terms on: {terms}) as CasADi Functions "
           f"{', '.join(layout['functions'])}; x has {len(layout['state'])} states, u {len(layout['input'])} inputs "
           f"(layout.yaml; docs/export.md)")
+    constants = layout["constants"]
+    outside = [i + 1 for i, u in enumerate(constants["hover_commands"]) if not constants["input_min"] <= u <= constants["input_max"]]
+    if outside:  # the model cannot hover within its commands: an MPC's hover reference would break its bounds
+        print(f"warning: the model's level hover needs commands outside [{constants['input_min']:g}, {constants['input_max']:g}] "
+              f"on motor(s) {', '.join(map(str, outside))} (hover_commands {[round(u, 1) for u in constants['hover_commands']]}): "
+              "check the identified motor gains and CG offset (identify's AT BOUND flags)", file=sys.stderr)
     return 0

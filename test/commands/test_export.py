@@ -97,3 +97,18 @@ def test_bad_export_input_is_one_line_exit_2_and_writes_nothing(inputs, capsys, 
     assert code == 2 and len(lines) == 1, lines
     assert re.match(r"^quad-modelling export: error: ", lines[0]) and expected.replace("{d}", str(inputs)) in lines[0], lines[0]
     assert _snapshot(inputs) == before  # nothing written, no staging left, inputs untouched
+
+
+def test_export_warns_when_the_model_cannot_hover_within_its_commands(inputs, tmp_path, capsys):
+    """Identified motor gains far from 1 can put a motor's hover command beyond the command range (0.818 / 1.34 / 0.83
+    / 1.01 on two NanoBench flights: 69802 > 65535); the export is written, with one warning naming the motors."""
+    doc = crazyflie_document(cg_offset=False)
+    doc["effects"]["motor_imbalance"]["gain_2"]["value"] = 0.55
+    vehicle = write_vehicle(doc, tmp_path / "weak_motor.yaml")
+    out = tmp_path / "weak_model"
+    assert main(["export", str(vehicle), "--format", "casadi", "-o", str(out)]) == 0
+    captured = capsys.readouterr()
+    hover = yaml.safe_load((out / "layout.yaml").read_text())["constants"]["hover_commands"]
+    assert hover[1] > 65535.0 and max(hover[0], hover[2], hover[3]) < 65535.0
+    warnings = captured.err.strip().splitlines()
+    assert len(warnings) == 1 and warnings[0].startswith("warning: the model's level hover needs commands outside [0, 65535] on motor(s) 2 ")

@@ -9,10 +9,12 @@ ground effect, and the observer has to take that up.
 from __future__ import annotations
 
 import importlib.util
+import shutil
 import sys
 
 import numpy as np
 import pytest
+import yaml
 
 from quad_modelling.core.export.casadi_model import ExportedModel as Export, write_casadi_export
 from quad_modelling.core.models.physics import Observer
@@ -53,8 +55,15 @@ def test_an_export_of_another_vehicle_and_a_too_short_flight_are_refused_in_one_
     crazyflie = load_vehicle("crazyflie21")
     other = tmp_path / "crazyflie_model"
     write_casadi_export(Export(crazyflie, PhysicsParameters.from_vehicle(crazyflie), Observer.from_vehicle(crazyflie), "physics"), other)
+    hybrid = tmp_path / "hybrid_model"  # a hybrid's export: its input adds the logged commands (it exited 1, no usage)
+    shutil.copytree(exported, hybrid)
+    layout = yaml.safe_load((hybrid / "layout.yaml").read_text())
+    layout["input"] += [{"name": f"u_logged_{i}", "unit": "PWM", "meaning": "test"} for i in range(1, 5)]
+    (hybrid / "layout.yaml").write_text(yaml.safe_dump(layout))
     for argv, message in ((["--model", str(other)], f"{other}: a model of vehicle crazyflie21; this example flies the simulator's linkquad"),
                           (["--model", str(exported), "--duration", "0.5"], "--duration 0.5 s: the tracking error is scored from 1 s on"),
+                          (["--model", str(exported), "--height", "-1"], "--height -1 m: the figure-8 flies above the ground"),
+                          (["--model", str(hybrid)], f"{hybrid}: the example flies a physics model export"),
                           (["--model", str(tmp_path / "nope")], f"{tmp_path / 'nope'}: not an export directory (no layout.yaml)")):
         with pytest.raises(SystemExit) as stopped:
             example.main([*argv, "-o", str(tmp_path / "out")])

@@ -34,7 +34,7 @@ import numpy as np
 from quad_modelling.core import frames
 from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor, load_hybrid
 from quad_modelling.core.models.physics import Observer
-from quad_modelling.core.physics import rigid_body
+from quad_modelling.core.physics import rigid_body, rotors
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.physics.rotors import effective_commands
@@ -240,6 +240,7 @@ def layout(model: ExportedModel) -> dict:
             "input_unit": model.vehicle.input_unit, "mass_kg": float(p.mass), "gravity_m_s2": GRAVITY,
             "hover_command": float(p.hover_command(GRAVITY)), "hover_rotor_speed_rad_s": float(p.hover_rotor_speed(GRAVITY)),
             "hover_commands": [float(c) for c in hover_commands(p)],
+            "hover_rotor_speeds_rad_s": [float(w) for w in hover_rotor_speeds(p)],
             "hover_voltage_v": None if p.battery is None else float(p.battery[1]),
         },
         "observer": {"linear_history_s": model.observer.linear_s, "angular_history_s": model.observer.angular_s,
@@ -247,13 +248,28 @@ def layout(model: ExportedModel) -> dict:
     }
 
 
+def hover_rotor_speeds(p) -> np.ndarray:
+    r"""(4,) rotor speeds [rad/s] of a level hover at rest out of ground effect (the trim an MPC linearises around):
+    the thrusts T that carry the weight with no moment about the CG, :math:`M_c T = (m g, 0, 0, 0)`, M_c the
+    allocation (:func:`~quad_modelling.core.physics.rigid_body.allocation_matrix`) of the rotor positions about the
+    CG, :math:`r_i - c` (the motor imbalance's CG offset c; 0 when off), then :math:`\Omega_i = \sqrt{T_i / k_f}`.
+    All four equal Ω_H without an offset. ConfigError when a thrust is not positive (an offset beyond the rotors)."""
+    offset = np.zeros(2) if p.cg_offset is None else np.asarray(p.cg_offset, dtype=float)
+    allocation = rigid_body.allocation_matrix(np.asarray(p.positions, dtype=float) - offset, p.spins,
+                                              p.torque_constant / p.thrust_constant)
+    thrusts = np.linalg.solve(allocation, [p.mass * GRAVITY, 0.0, 0.0, 0.0])
+    if np.any(thrusts <= 0.0):
+        raise ConfigError(f"no level hover: the CG offset {tuple(offset)} m leaves rotor thrusts {np.round(thrusts, 4).tolist()} N")
+    return np.sqrt(thrusts / p.thrust_constant)
+
+
 def hover_commands(p) -> np.ndarray:
-    r"""(4,) each motor's command of a level hover of the exported model: :math:`u_{H,i} = u_H / g_i` with u_H =
-    :meth:`~quad_modelling.core.physics.parameters.PhysicsParameters.hover_command` and g_i the motor imbalance's
-    gains (1 when off), at the battery term's reference voltage (``hover_voltage_v``; its factor is 1 there): the
-    commands whose steady rotor speeds are all Ω_H, thrust = weight."""
+    r"""(4,) each motor's command of the level hover :func:`hover_rotor_speeds`: :math:`u_i = u(\Omega_i) / g_i`,
+    u(Ω) = (Ω - Ω_off) / k_u the rotor map's inverse and g_i the motor imbalance's gains (1 when off), at the battery
+    term's reference voltage (``hover_voltage_v``; its factor is 1 there). f(x, u) is zero there (level, at rest,
+    rotors at those speeds, out of ground effect: the ground effect adds its thrust near the ground)."""
     gains = np.ones(4) if p.motor_gains is None else np.asarray(p.motor_gains, dtype=float)
-    return p.hover_command(GRAVITY) / gains
+    return rotors.command_for_rotor_speed(hover_rotor_speeds(p), p.speed_gain, p.speed_offset) / gains
 
 
 def write_casadi_export(model: ExportedModel, directory: Path) -> dict:

@@ -60,7 +60,9 @@ import numpy as np
 from quad_modelling.core.flight_log import GYRO_FULL_SCALE
 from quad_modelling.core.physics import arrays
 from quad_modelling.core.physics.aero import ground_effect_factor, rotor_drag
-from quad_modelling.core.physics.rotors import interval_rotor_speed, rotor_acceleration, rotor_step, rotor_thrusts, rotor_yaw_torques
+from quad_modelling.core.physics.rotors import (
+    interval_rotor_speed, rotor_acceleration, rotor_step, rotor_thrusts, rotor_yaw_torques, steady_rotor_speed,
+)
 from quad_modelling.core.vehicle import GRAVITY
 
 MAX_SPEED_MPS = 50.0
@@ -170,9 +172,12 @@ def derivative(p, state, u, linear_n, angular_b):
     """dx/dt of every batch member under the commands the rotors answer ``u`` (B, 4), with constant extra
     accelerations ``linear_n`` (B, 3) [m/s², N] and ``angular_b`` (B, 3) [rad/s², B] (module docstring's motion):
     (dp_N/dt = v_N, dv_N/dt, dR/dt = R [ω]×, dω/dt, dΩ/dt), shaped as the state's fields. The continuous
-    dynamics that :func:`step` discretises (without its limits on |ω| and |v|)."""
+    dynamics that :func:`step` discretises (without its limits on |ω| and |v|). Without motor lag (τ_m = 0) the rotor
+    speeds are no state: the forces act at the steady speeds Ω_ss(u) of the commands (as :func:`step`'s rotors jump
+    to them) and dΩ/dt is 0 (the state's rotor entries are not read)."""
     rotor_dot = rotor_acceleration(p, state.rotor, u)
-    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, state.rotor, rotor_dot, state.pos_n)
+    rotor = state.rotor if p.time_constant > 0.0 else steady_rotor_speed(p, u)
+    acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, rotor, rotor_dot, state.pos_n)
     return state.vel_n, acc_n + linear_n, arrays.matmul3(state.rot, _skew(state.rates)), ang_acc + angular_b, rotor_dot
 
 

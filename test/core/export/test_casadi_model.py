@@ -126,32 +126,37 @@ def test_exported_hybrid_step_equals_the_numpy_hybrid_step(vehicle, flight):
     assert min(corrections) > 0.05  # the net acts: its corrections are part of what matched
 
 
-def test_the_exported_step_is_differentiable_at_rest_for_a_solver(physics_model):
-    """At hover with zero rates (where |ω| has no derivative) F's Jacobian is finite and hover is an equilibrium but
-    for the CG offset's moment: about a CG at (c_x, c_y) the weight-carrying thrust m g rolls by c_y m g / I_xx and
-    pitches by -c_x m g / I_yy (the thrust acts at -c from the CG)."""
+def test_the_exported_step_is_differentiable_at_rest_and_the_layouts_hover_is_an_equilibrium(physics_model):
+    """At hover with zero rates (where |ω| has no derivative) F's Jacobian is finite, and the layout's hover (each
+    motor's command and rotor speed) makes f zero but for the ground effect's last thrust at 5 m: with the CG offset
+    the four thrusts differ so that their moment about the CG is zero (the commands were the equal-thrust ones, which
+    left the offset's moment c_y m g / I_xx, -c_x m g / I_yy: 4.8 and 7.4 rad/s² on an identified Crazyflie)."""
     p = physics_model.params
     functions = casadi_functions(physics_model)
     x, u = casadi.SX.sym("x", len(STATE)), casadi.SX.sym("u", len(input_names(physics_model)))
     jacobian = casadi.Function("jacobian", [x, u], [casadi.jacobian(functions["F"](x, u, 0.01), casadi.vertcat(x, u))])
     hover = np.zeros(len(STATE))
     hover[[6, 10, 14]] = 1.0
-    hover[2] = -5.0  # 5 m up: no ground effect
+    hover[2] = -5.0  # 5 m up: out of ground effect but for 1e-6 of the thrust
     constants = layout(physics_model)["constants"]  # the layout's hover: each motor's command at the reference voltage
     reference, u_hover = constants["hover_voltage_v"], np.asarray(constants["hover_commands"])
-    assert reference == p.battery[1] and np.allclose(u_hover, p.hover_command(GRAVITY) / np.asarray(p.motor_gains))
-    assert len(set(u_hover)) == 4  # the motor gains differ: so do the hover commands
-    hover[18:] = p.hover_rotor_speed(GRAVITY)
+    speeds = np.asarray(constants["hover_rotor_speeds_rad_s"])
+    c_x, c_y = p.cg_offset
+    assert reference == p.battery[1] and c_x != 0.0 and c_y != 0.0
+    assert len(set(u_hover)) == 4 and len(set(speeds)) == 4  # the motor gains and the offset differ per motor
+    assert p.thrust_constant * (speeds ** 2).sum() == pytest.approx(p.mass * GRAVITY, rel=1e-12)  # thrust = weight
+    hover[18:] = speeds
     J = np.asarray(jacobian(hover, [*u_hover, reference]))
     assert J.shape == (22, 27) and np.all(np.isfinite(J))
     xdot = np.asarray(functions["f"](hover, [*u_hover, reference])).ravel()
     coefficient, offset = p.ground_effect
     assert xdot[5] == pytest.approx(-GRAVITY * coefficient / (5.0 + offset) ** 2, rel=1e-6)  # ground effect's last 1e-6 of thrust
-    c_x, c_y = p.cg_offset
+    assert np.abs(np.delete(xdot, 5)).max() < 1e-9  # level, at rest, no moment about the CG, rotors settled
+    equal = p.hover_command(GRAVITY) / np.asarray(p.motor_gains)  # the equal thrusts: the offset's moment is left
+    hover[18:] = p.hover_rotor_speed(GRAVITY)
+    xdot = np.asarray(functions["f"](hover, [*equal, reference])).ravel()
     weight = p.mass * GRAVITY
-    assert c_x != 0.0 and c_y != 0.0
     assert xdot[15] == pytest.approx(c_y * weight / p.inertia[0], rel=1e-5) and xdot[16] == pytest.approx(-c_x * weight / p.inertia[1], rel=1e-5)
-    assert np.abs(np.delete(xdot, [5, 15, 16])).max() < 1e-9
 
 
 def test_a_step_of_zero_seconds_leaves_the_state_as_it_is(physics_model):

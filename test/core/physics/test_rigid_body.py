@@ -238,3 +238,20 @@ def test_a_step_of_zero_seconds_returns_the_state_unchanged():
     after = rigid_body.step(p, state, np.full((1, 4), 40000.0), np.zeros(1), np.zeros((1, 3)), np.zeros((1, 3)))
     for name in ("pos_n", "vel_n", "rot", "rates", "rotor"):
         assert np.array_equal(getattr(after, name), getattr(state, name)), name
+
+
+def test_without_motor_lag_the_derivative_answers_the_commands_as_the_step_does():
+    """τ_m = 0: the rotor speeds are no state, the forces act at the commands' steady speeds. The derivative read the
+    rotor-speed state (whose dΩ/dt is 0 without lag), so an MPC on the exported f(x, u) had no control authority;
+    now f's acceleration is the step's over a short step, from any rotor entries, and differs between commands."""
+    p = P.with_values(time_constant=0.0)
+    state = rigid_body.PhysicsState(np.zeros((2, 3)), np.zeros((2, 3)), np.repeat(np.eye(3)[None], 2, axis=0),
+                                    np.zeros((2, 3)), np.zeros((2, 4)), np.zeros(2))  # stale rotor entries: 0 rad/s
+    u = np.array([[40000.0] * 4, [50000.0, 50000.0, 40000.0, 40000.0]])
+    _, acc, _, ang, rotor_dot = rigid_body.derivative(p, state, u, np.zeros((2, 3)), np.zeros((2, 3)))
+    dt = 1e-6
+    after = rigid_body.step(p, state, u, np.full(2, dt), np.zeros((2, 3)), np.zeros((2, 3)))
+    assert np.allclose(acc, (after.vel_n - state.vel_n) / dt, rtol=1e-6, atol=1e-6)
+    assert np.allclose(ang, (after.rates - state.rates) / dt, rtol=1e-6, atol=1e-6)
+    assert acc[0, 2] < 0.0 and acc[1, 2] < acc[0, 2] - 1.0 and abs(ang[1]).max() > 1.0  # net thrust up; more of it; a torque
+    assert np.array_equal(rotor_dot, np.zeros((2, 4)))
