@@ -106,6 +106,11 @@ PHYSICS_KEYS = (
 :data:`CONSTANT_KEYS` are optional in a vehicle file (validated when present; the ``physics`` model names the
 missing ones): the command delay δ, the linear rotor drag d_xy, d_z and its arm h_d (FRD z of where it acts)."""
 
+HELD_BY_IDENTIFY = ("rotor_speed_gain", "rotor_speed_offset")
+"""Physics constants ``identify`` never fits (its ``identification.fit.held``): the speed map Ω_ss = k_u u + Ω_off,
+whose scale the thrust constant k_f absorbs (T = k_f Ω_ss²). Marked ``identified`` in a vehicle file they are not
+starting values it left behind (:meth:`VehicleConfig.never_identified` passes them over)."""
+
 EFFECTIVE_KEYS = ("effective_ixx", "effective_iyy")
 """Optional effective values (status ``effective``): the roll/pitch inertias the physics fit identifies, which stand
 in for what the physics model lacks (docs/models.md, effective inertia); absent, the physics model uses the
@@ -326,8 +331,10 @@ class VehicleConfig:
 
     def never_identified(self, keys) -> list[str]:
         """Those of ``keys`` whose status is ``identified`` (to be identified from flight data) but that no
-        identification record names: the file still holds their starting values (module docstring)."""
-        return [k for k in keys if k in self.constants and self.constants[k].status == "identified" and k not in self.fitted]
+        identification record names: the file still holds their starting values (module docstring). The constants
+        ``identify`` holds (:data:`HELD_BY_IDENTIFY`) are never among them: no run of it would fit them."""
+        return [k for k in keys if k in self.constants and self.constants[k].status == "identified" and k not in self.fitted
+                and k not in HELD_BY_IDENTIFY]
 
     def with_values(self, values: dict[str, float], source: str) -> VehicleConfig:
         """A copy with some constants replaced (e.g. identified ones), noting the source."""

@@ -273,7 +273,8 @@ def identify_physics_if_configured(flights: Sequence[FlightLog], vehicle: Vehicl
         if terms:
             raise ConfigError(f"{vehicle.path}: --effects {','.join(terms)} fits terms of the physics model, and the vehicle "
                               f"file has no physics constants ({', '.join(missing)})")
-        return None, f"not identified: the vehicle file has no physics constants ({', '.join(missing)})"
+        return None, (f"not identified: the vehicle file has no physics constants ({', '.join(missing)}); add starting "
+                      "values for them (docs/formats.md, physics constants) to fit the physics model")
     try:
         return identify_physics(flights, vehicle, config, terms=terms), ""
     except DataError as err:

@@ -96,7 +96,8 @@ class PhysicsParameters:
         missing = [key for key in vehicle.missing(PHYSICS_KEYS) if key not in held]
         if missing:
             raise ConfigError(f"{vehicle.path}: the physics model needs the vehicle constants {', '.join(missing)} "
-                              f"(docs/formats.md, physics constants; `quad-modelling identify` writes them)")
+                              f"(docs/formats.md, physics constants): add starting values for them to the vehicle file "
+                              f"(config/vehicles/crazyflie21.yaml has each), then `quad-modelling identify` fits them")
 
         def v(key: str) -> float:
             return 0.0 if key in held else vehicle.value(key)
