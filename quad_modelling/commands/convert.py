@@ -8,7 +8,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from quad_modelling.atomic import atomic_output, check_bag_name, check_output
+from quad_modelling.atomic import atomic_output, check_bag_name
+from quad_modelling.commands import check_command_output
 from quad_modelling.core.vehicle import VehicleConfig, vehicle_file
 from quad_modelling.errors import ConfigError, DataError, QuadModellingError
 from quad_modelling.io.loader import FORMATS, check_topic_map_applies, detect_format, input_format, load_flight
@@ -98,7 +99,7 @@ def _vehicle_from_log(args: argparse.Namespace, inputs: list[Path], output: Path
     ours, bag = target.resolve(), output.resolve()
     if ours == bag or bag in ours.parents or ours in bag.parents:
         raise ConfigError(f"--vehicle-from-log {target} and -o {output} overlap; give the vehicle file and the output different places")
-    check_output(target, args.force, inputs=[inputs[0]])
+    check_command_output(target, args.force, inputs=[inputs[0]], flag="--vehicle-from-log")
     if not inputs[0].is_file():
         load_flight(inputs[0])  # the loader's one-line refusal of a missing or special file
     vehicle = vehicle_from_ulog(inputs[0], name=target.stem)
@@ -125,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     inputs = [Path(p) for p in args.inputs]
     output = Path(args.output)
     check_namespace(args.namespace)
-    check_output(output, args.force, inputs=[*inputs, args.mapping, vehicle_file(args.vehicle) if args.vehicle else None,
+    check_command_output(output, args.force, inputs=[*inputs, args.mapping, vehicle_file(args.vehicle) if args.vehicle else None,
                                              topic_map_file(args.topic_map)])
     if not (output.suffix == ".mat" and len(inputs) == 1):  # a bag, or a directory of bags
         check_bag_name(output)

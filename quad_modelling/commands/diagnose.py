@@ -10,7 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from quad_modelling.atomic import atomic_output, check_distinct_inputs, check_output
+from quad_modelling.atomic import atomic_output, check_distinct_inputs
+from quad_modelling.commands import check_command_output
 from quad_modelling.commands.evaluate import check_one_vehicle, print_flight_warnings
 from quad_modelling.core.diagnosis.catalogue import parse_effect_list
 from quad_modelling.core.diagnosis.diagnose import (
@@ -168,7 +169,7 @@ def _fast_enough(flights: list, skip_bad: bool, skipped: list[str]) -> list:
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     inputs = [*(args.train or []), *(args.test or []), vehicle_file(args.vehicle), topic_map_file(args.topic_map)]
-    check_output(output, args.force, inputs=inputs, directory=True)
+    check_command_output(output, args.force, inputs=inputs, directory=True)
     check_distinct_inputs(args.train or [], "--train")
     check_distinct_inputs(args.test or [], "--test")
     check_topic_map_applies(args.topic_map, [*(args.train or []), *(args.test or [])])
@@ -184,7 +185,7 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f"--write-vehicle {written}: a vehicle file is YAML; name it V.yaml")
         if written.resolve() == output.resolve():
             raise ConfigError(f"--write-vehicle {written}: the same path as -o; name the vehicle file apart from the output directory")
-        check_output(written, args.force, inputs=inputs, flag="--write-vehicle")
+        check_command_output(written, args.force, inputs=inputs, flag="--write-vehicle")
     config = _config(args)
     check_fanout_options(args.jobs, args.scheduler)
     effects = None if args.base == "physics" else parse_effect_list(args.effects)

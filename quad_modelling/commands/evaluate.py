@@ -8,7 +8,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from quad_modelling.atomic import atomic_output, check_distinct_inputs, check_output
+from quad_modelling.atomic import atomic_output, check_distinct_inputs
+from quad_modelling.commands import check_command_output
 from quad_modelling.core.evaluation.windowed import FlightEvaluation, evaluate_flight, merge_flights
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import MODEL_FILE_KINDS, make_model
@@ -240,7 +241,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_output(output, args.force, inputs=input_files(args), directory=True)
+    check_command_output(output, args.force, inputs=input_files(args), directory=True)
     check_distinct_inputs(args.inputs, "FLIGHT")
     check_topic_map_applies(args.topic_map, args.inputs)
     check_fanout_options(args.jobs, args.scheduler)

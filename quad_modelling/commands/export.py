@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 
-from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.atomic import atomic_output
+from quad_modelling.commands import check_command_output
 from quad_modelling.core.vehicle import load_vehicle, vehicle_file
 from quad_modelling.errors import ConfigError
 
@@ -56,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
     if args.format not in FORMATS:
         raise ConfigError(f"--format {args.format}: unknown export format; known: {', '.join(FORMATS)}")
     hybrid_file = _hybrid_file(args.model)
-    check_output(args.output, args.force, inputs=[vehicle_file(args.vehicle), hybrid_file], directory=True)
+    check_command_output(args.output, args.force, inputs=[vehicle_file(args.vehicle), hybrid_file], directory=True)
     from quad_modelling.core.export.casadi_model import exportable_model, write_casadi_export
 
     model = exportable_model(load_vehicle(args.vehicle), hybrid_file)

@@ -6,7 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from quad_modelling.atomic import atomic_output, check_distinct_inputs, check_output
+from quad_modelling.atomic import atomic_output, check_distinct_inputs
+from quad_modelling.commands import check_command_output
 from quad_modelling.commands.evaluate import (
     add_span_arguments,
     config_from_args,
@@ -61,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_output(output, args.force, inputs=input_files(args))
+    check_command_output(output, args.force, inputs=input_files(args))
     check_distinct_inputs(args.inputs, "FLIGHT")
     check_topic_map_applies(args.topic_map, args.inputs)
     if output.suffix not in (".yaml", ".yml"):  # what --vehicle reads back as a file

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.atomic import atomic_output
+from quad_modelling.commands import check_command_output
 from quad_modelling.io.reports.evaluation import headline_scores, windows_text, write_report
 from quad_modelling.io.results import merge_results
 
@@ -37,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_output(output, args.force, inputs=args.inputs, directory=True)
+    check_command_output(output, args.force, inputs=args.inputs, directory=True)
     result = merge_results(args.inputs)
     stats = result.statistics
     with atomic_output(output, args.force) as tmp:

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import yaml
 
-from quad_modelling.atomic import atomic_output, check_output
+from quad_modelling.atomic import atomic_output
+from quad_modelling.commands import check_command_output
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.topic_maps import add_topic_map_argument
 from quad_modelling.nodes.domains import DISCOVERY_MODES
@@ -347,7 +348,7 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.io.loader import load_flight
     from quad_modelling.io.topic_maps import CONTRACT_NAMESPACE, choose_topic_map, topic_map_file
 
-    check_output(Path(args.output), args.force, inputs=[args.bag, vehicle_file(args.vehicle), topic_map_file(args.topic_map)])
+    check_command_output(Path(args.output), args.force, inputs=[args.bag, vehicle_file(args.vehicle), topic_map_file(args.topic_map)])
     chosen = choose_topic_map(read_bag_metadata(args.bag).topics, str(args.bag), args.topic_map)
     if chosen.is_contract and chosen.namespace == CONTRACT_NAMESPACE:
         return _run(args)
@@ -375,7 +376,7 @@ def _run(args: argparse.Namespace) -> int:
     here = parse_nodes(args.nodes)
     remote = tuple(group for group in NODE_GROUPS if group not in here)
     model_files = [m.spec.partition(":")[2] for m in models if m.spec.partition(":")[0] in ("narx", "hybrid")]
-    check_output(output, args.force, inputs=[args.bag, vehicle_file(args.vehicle), *model_files], directory=True)
+    check_command_output(output, args.force, inputs=[args.bag, vehicle_file(args.vehicle), *model_files], directory=True)
     for flag, value in (("--rate", args.rate), ("--window", args.window), ("--warm", args.warm), ("--timeout", args.timeout),
                         ("--remote-timeout", args.remote_timeout)):
         if not math.isfinite(value):

@@ -6,6 +6,7 @@ import argparse
 import sys
 import time
 
+from quad_modelling.commands import check_command_output
 from quad_modelling.core.models.narx import OUTPUTS as NARX_OUTPUTS
 from quad_modelling.core.training.hybrid import HYBRID_HIDDEN, HYBRID_ROLLOUT
 from quad_modelling.core.training.narx import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
@@ -204,7 +205,7 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.io.loader import check_distinct_flights, check_topic_map_applies, load_flights
 
     output = Path(args.output)
-    check_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
+    check_command_output(output, args.force, inputs=[*args.flights, *(args.val_flights or []), vehicle_file(args.vehicle),
                                              topic_map_file(args.topic_map)])  # fail before minutes of training
     if output.suffix != ".npz":
         raise ConfigError(f"-o {output}: a model file is an .npz archive; name it MODEL.npz")

@@ -415,3 +415,21 @@ def test_a_ctrl_c_while_the_verbs_import_is_one_line_and_exit_130(monkeypatch, c
     monkeypatch.setattr(cli, "build_parser", interrupted)
     assert cli.main(["info", "x"]) == 130
     assert capsys.readouterr().err == "quad-modelling: interrupted while starting (SIGINT)\n"
+
+
+def test_the_shipped_configuration_is_never_an_output_even_with_force(tmp_path, capsys):
+    """A vehicle named by the flight (not by --vehicle) or the default a --vehicle-from-log copies its guesses from
+    was no input of the check: `identify -o config/vehicles/linkquad.yaml --force` rewrote the shipped file (review)."""
+    before = {p.name: p.read_bytes() for p in vehicle_dir().glob("*.yaml")}
+    mat = tmp_path / "flight.mat"
+    write_matlog(synthetic_log(n=400), mat)
+    ulog = REPO / "test" / "data" / "px4" / "sample_px4_events.ulg"
+    runs = [["identify", str(mat), "--preset", "short", "-o", str(vehicle_dir() / "linkquad.yaml"), "--force"],
+            ["convert", str(ulog), "--vehicle-from-log", str(vehicle_dir() / "px4_iris.yaml"), "-o", str(tmp_path / "bag"), "--force"],
+            ["evaluate", str(mat), "-o", str(vehicle_dir().parent), "--force"]]
+    for argv in runs:
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "the shipped configuration" in err[0] and "refused even with --force" in err[0], err
+    assert {p.name: p.read_bytes() for p in vehicle_dir().glob("*.yaml")} == before
+    assert not (tmp_path / "bag").exists()

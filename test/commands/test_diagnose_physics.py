@@ -133,7 +133,7 @@ VEHICLE = str(REPO / "config" / "vehicles" / "crazyflie21.yaml")
     (["--inject", "gain:1:1.2", "--effects", "rotor_drag"], "add motor_imbalance to --effects"),
     (["--effects", ""], "--effects '': names no candidate; give some of"),
     (["--effects", " , "], "--effects ',': names no candidate"),
-    (["--vehicle", VEHICLE, "--write-vehicle", VEHICLE], "--write-vehicle " + VEHICLE + ": the output is the input"),
+    (["--vehicle", VEHICLE, "--write-vehicle", VEHICLE], "--write-vehicle " + VEHICLE + ": the output lies inside the shipped configuration"),
     (["--write-vehicle", "v.txt"], "--write-vehicle v.txt: a vehicle file is YAML"),
     (["--smooth", "1", "--narx"], "--smooth, --narx: option(s) of the greybox base"),
     (["--window", "2"], "--window: option(s) of the greybox base"),
