@@ -58,12 +58,19 @@ def check_bag_name(path: Path, flag: str = "-o") -> None:
                           f"{path.suffix.lstrip('.')} file: name the bag without it")
 
 
+OUTPUT_MARKERS = ("results.json", "diagnosis.json", "validation.json", "layout.yaml", "metadata.yaml")
+"""A file one of these names marks a directory as an earlier output (evaluate, run-bag and merge; diagnose; diagnose
+--validate; export; a bag's rosbag2 metadata): only such a directory, or an empty one, is replaced by --force."""
+
+
 def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), flag: str = "-o",
                  directory: bool = False) -> None:
     """Refuse an output that names no file (``''``, ``.``, ``..``), is too long a name, is or holds an
     input (``inputs``: every file the command reads), exists without force, or whose directory we
     cannot write to; ``flag`` is the option that named it, as the error says. A ``directory`` output refuses an
-    existing regular file even with force (``--force`` replaces an earlier output directory, not another file)."""
+    existing regular file even with force (``--force`` replaces an earlier output directory, not another file), and
+    every output refuses an existing directory that is not empty and holds none of :data:`OUTPUT_MARKERS` (``-o
+    precious --force`` deleted a directory of the user's notes)."""
     given = str(path)  # as typed: Path("") is "."
     path = Path(path)
     if path.name in ("", ".", ".."):
@@ -83,6 +90,10 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), fla
     if directory and path.exists() and not path.is_dir():
         raise OutputExistsError(f"{flag} {path}: an existing file, not an output directory; --force replaces an earlier "
                                 "output directory only: choose another name")
+    if path.is_dir() and any(path.iterdir()) and not any((path / marker).exists() for marker in OUTPUT_MARKERS):
+        raise OutputExistsError(f"{flag} {path}: an existing directory that holds no earlier output of quad-modelling "
+                                f"(none of {', '.join(OUTPUT_MARKERS)}); --force replaces an earlier output only: choose "
+                                "another name or empty it")
     if not parent_is_dir:
         raise OutputDirError(f"{flag} {path}: its parent directory {parent} does not exist (or is not a directory); "
                              f"create it first")

@@ -72,3 +72,25 @@ def test_an_existing_output_is_kept_without_force_and_a_file_can_replace_a_direc
     assert (out / "results.json").read_text() == "old"
     _write_file(out, "new")
     assert out.is_file() and out.read_text() == "new" and [p.name for p in tmp_path.iterdir()] == ["out"]
+
+
+def test_force_replaces_an_earlier_output_directory_not_any_directory(tmp_path):
+    """`convert flight -o precious --force` deleted a directory of the user's own files: only a directory holding an
+    earlier output's marker (results.json, a bag's metadata.yaml, ...), or an empty one, may be replaced."""
+    from quad_modelling.atomic import OUTPUT_MARKERS, OutputExistsError, check_output
+
+    precious = tmp_path / "precious"
+    precious.mkdir()
+    (precious / "notes.txt").write_text("important")
+    for directory in (False, True):
+        with pytest.raises(OutputExistsError, match="holds no earlier output of quad-modelling"):
+            check_output(precious, force=True, directory=directory)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    check_output(empty, force=True, directory=True)
+    for marker in OUTPUT_MARKERS:
+        earlier = tmp_path / f"earlier_{marker}"
+        earlier.mkdir()
+        (earlier / marker).write_text("{}")
+        (earlier / "fig_z.png").write_bytes(b"")
+        check_output(earlier, force=True, directory=True)
