@@ -251,7 +251,8 @@ def run(args: argparse.Namespace) -> int:
         samples = model.training["samples"]
     elapsed = time.perf_counter() - started
     model.save(output, args.force)
-    trained = len({seg["source"] for seg in model.training.get("segments", ())}) or len(args.flights)  # held-back ones not
+    record = model.training  # the flights trained on, held-back validation flights not: the NARX's segments, else "flights"
+    trained = len({seg["source"] for seg in record.get("segments", ())}) or len(record.get("flights") or args.flights)
     print(f"trained {kind} model on {samples} samples of {trained} flight(s) in {elapsed:.1f} s -> {output}")
     weights = model.training.get("weights") if kind == "narx" else None
     if weights and samples * len(NARX_OUTPUTS) < weights:  # fewer numbers to fit than weights: it can memorise them
