@@ -45,6 +45,14 @@ def test_console_lines_of_evaluate():
                                                                  "  dummy: TIC acc_z 1.00, roll_rate 1.00, vel_z 1.00"]
 
 
+def test_the_headline_names_its_span_when_the_eval_span_holds_no_window():
+    """With no eval window the lines came from the train span unlabelled, read as held-out scores (review)."""
+    data = _results()
+    for model in data["models"].values():
+        model.pop("eval")
+    assert headline_scores(data, ["greybox"]) == ["  greybox (span train: no eval window): TIC acc_z 0.25, roll_rate 0.25, vel_z 0.25"]
+
+
 def test_live_tables_name_the_live_spans_not_empty_train_and_eval():
     """A live result (the evaluator node, run-bag without spans) has named seconds spans and no drops: the header
     says them (it read 'spans train , eval  (drop 0 s / 0 s) ... Windows per span: .')."""
