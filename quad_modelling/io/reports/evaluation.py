@@ -226,6 +226,17 @@ def live_summary_table(results: dict, model_names: list[str]) -> str:
     return "\n".join(lines + ([""] + notes[:1] if notes else []))
 
 
+MODEL_COLOURS = ("tab:red", "tab:cyan", "tab:purple", "tab:green", "black", "tab:orange", "tab:brown")
+"""Colours of the models' lines (the measurement is blue, solid)."""
+MODEL_LINES = ("--", "-.", ":")
+
+
+def model_style(k: int) -> tuple[str, str]:
+    """(colour, line style) of the k-th model of a figure: every model of up to 21 its own (a five-style cycle drew
+    greybox and direct alike in a figure of seven)."""
+    return MODEL_COLOURS[k % len(MODEL_COLOURS)], MODEL_LINES[(k // len(MODEL_COLOURS)) % len(MODEL_LINES)]
+
+
 def window_figure(example: ExampleWindow, title: str, acc_var: str, rate_var: str, path: Path) -> None:
     """Input, acceleration and velocity/rate, measured vs each model, over one window."""
     import matplotlib
@@ -243,9 +254,9 @@ def window_figure(example: ExampleWindow, title: str, acc_var: str, rate_var: st
         unit, factor = DISPLAY[var]
         col = INDEX[var]
         ax.plot(t, example.measured[:, col] * factor, "b-", lw=1.4, label="measured")
-        styles = ["r--", "c-.", "m:", "g--", "k-."]
         for k, (name, predicted) in enumerate(example.predicted.items()):
-            ax.plot(t, predicted[:, col] * factor, styles[k % len(styles)], lw=1.1, label=name)
+            color, line = model_style(k)
+            ax.plot(t, predicted[:, col] * factor, color=color, linestyle=line, lw=1.1, label=name)
         ax.axvline(t[example.warm_samples - 1], color="0.6", lw=0.8)
         ax.set_ylabel(f"{ROW_LABELS[var]} [{unit}]")
         if not np.isfinite(example.measured[:, col]).any():  # the flight lacks the sensor (results.json "needs")

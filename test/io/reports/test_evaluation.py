@@ -84,3 +84,9 @@ def test_live_tables_count_the_marked_windows_and_say_why():
                     f"{cut} (x1); a (x1); 1 other reason(s) (each in results.json live.marked).")
     document["live"]["marked"] = []
     assert "Marked" not in tables_text(document, "Live evaluation")
+
+
+def test_every_model_of_a_figure_has_its_own_line_style():
+    from quad_modelling.io.reports.evaluation import model_style
+
+    assert len({model_style(k) for k in range(21)}) == 21  # seven models shared five styles (greybox and direct alike)
