@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,8 +75,8 @@ def add_span_arguments(parser: argparse.ArgumentParser) -> None:
 
 def input_files(args: argparse.Namespace) -> list:
     """Every file the command reads: the flights, the vehicle file, model files (``narx:PATH``, ``hybrid:PATH``)."""
-    specs = getattr(args, "model", None) or []
-    models = [spec.partition(":")[2] for spec in specs if spec.partition(":")[0] in ("narx", "hybrid")]
+    specs = [named_spec(text)[1] for text in getattr(args, "model", None) or []]
+    models = [spec.partition(":")[2] for spec in specs if spec.partition(":")[0] in MODEL_FILE_KINDS]
     return [*args.inputs, vehicle_file(args.vehicle), topic_map_file(getattr(args, "topic_map", None)), *models]
 
 
@@ -158,11 +159,30 @@ class FlightOutcome:
     warnings: list[str]
 
 
+def named_spec(text: str) -> tuple[str | None, str]:
+    """``--model`` text -> (its name or None, the model spec): ``NAME=SPEC`` names a model (two files of one kind in one
+    table, e.g. ``a=narx:a.npz`` and ``b=narx:b.npz``; NAME letters, digits and '_', as run-bag's), else the spec."""
+    name, sep, spec = text.partition("=")
+    if sep and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        return name, spec
+    return None, text
+
+
+def build_model(text: str, vehicle: VehicleConfig):
+    """The predictor of one ``--model`` text (:func:`named_spec`), named as given."""
+    name, spec = named_spec(text)
+    model = make_model(spec, vehicle)
+    if name:
+        model.name = name
+    return model
+
+
 def model_file_digests(specs: list[str], models: list) -> dict[str, str]:
-    """SHA-256 of the model file of every file-backed spec (``narx:PATH``, :data:`MODEL_FILE_KINDS`), by the model's
-    name (the files were read to build ``models``)."""
+    """SHA-256 of the model file of every file-backed spec (``narx:PATH``, :data:`MODEL_FILE_KINDS`; ``NAME=`` allowed), by
+    the model's name (the files were read to build ``models``)."""
+    plain = [named_spec(text)[1] for text in specs]
     return {model.name: hashlib.sha256(Path(spec.partition(":")[2]).read_bytes()).hexdigest()
-            for spec, model in zip(specs, models) if spec.partition(":")[0] in MODEL_FILE_KINDS}
+            for spec, model in zip(plain, models) if spec.partition(":")[0] in MODEL_FILE_KINDS}
 
 
 def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[str], config: EvaluationConfig,
@@ -181,7 +201,7 @@ def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[s
         except DataError as err:
             return FlightOutcome(path, None, str(err), None, [])
     flight_vehicle = vehicle or load_vehicle(loaded.log.meta.vehicle)
-    models = [make_model(spec, flight_vehicle) for spec in specs]
+    models = [build_model(text, flight_vehicle) for text in specs]
     evaluation = evaluate_flight(loaded.log, models, flight_vehicle, config, multistep, examples=path == examples_from)
     evaluation.statistics.model_files = model_file_digests(specs, models)
     return FlightOutcome(path, evaluation, None, flight_vehicle.name, flight_warnings(loaded.log))
@@ -232,7 +252,8 @@ def example_windows(result, first_in_span: dict[str, str], task: tuple, topic_ma
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_span_arguments(parser)
     parser.add_argument("--model", action="append", metavar="SPEC",
-                        help="model to evaluate, repeatable: greybox, greybox:euler, dummy, naive, narx:PATH ... (default greybox)")
+                        help="model to evaluate, repeatable: greybox, greybox:euler, dummy, naive, narx:PATH ...; NAME=SPEC names it (two "
+                             "files of one kind: a=narx:a.npz, b=narx:b.npz) (default greybox)")
     parser.add_argument("--horizons", default="1,10,50", metavar="H,H,...", help="multi-step horizons in samples (default 1,10,50; SimErr sums 1..50)")
     parser.add_argument("--no-multistep", action="store_true", help="skip the multi-step table")
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="new output directory")
@@ -260,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
     vehicles: list[str] = []
     first_in_span: dict[str, str] = {}
     result = merge_flights(_evaluations(outcomes, skipped, vehicles, first_in_span), config)
-    if "physics" in specs:  # its constants are the vehicle's: starting values unless identified (train warns alike)
+    if "physics" in [named_spec(text)[1] for text in specs]:  # its constants are the vehicle's: starting values unless identified (train warns alike)
         warn_starting_values(given or load_vehicle(vehicles[0]), "physics")
     result.examples = example_windows(result, first_in_span, task, args.topic_map)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)

@@ -165,3 +165,22 @@ def test_the_physics_model_on_never_identified_constants_is_warned(tmp_path, cap
     warned = [line for line in capsys.readouterr().err.splitlines() if "never identified" in line]
     assert len(warned) == 1 and "the physics model holds starting values" in warned[0]
     assert "quad-modelling identify FLIGHTS --vehicle crazyflie21 -o FILE" in warned[0]
+
+
+def test_two_model_files_of_one_kind_are_compared_by_naming_them(tmp_path, capsys):
+    """`--model direct:a.npz --model direct:b.npz` were two models named direct, refused with no way out; NAME=SPEC
+    names them as run-bag's --models does. A direct model file is an input too (-o onto it is refused)."""
+    bag = str(REPO / "bags" / "nanobench_B7_oval_medium_rep2")
+    first, second = tmp_path / "a.npz", tmp_path / "b.npz"
+    assert main(["train", bag, "-o", str(first), "--direct", "--preset", "short", "--quiet"]) == 0
+    second.write_bytes(first.read_bytes())
+    capsys.readouterr()
+    plain = ["evaluate", bag, "--preset", "short", "--no-multistep", "--model", f"direct:{first}", "--model", f"direct:{second}"]
+    assert main([*plain, "-o", str(tmp_path / "out")]) == 2
+    assert "model names must be unique, got ['direct', 'direct', 'dummy']: name them, --model NAME=SPEC" in capsys.readouterr().err
+    named = ["evaluate", bag, "--preset", "short", "--no-multistep", "--model", f"a=direct:{first}", "--model", f"b=direct:{second}"]
+    assert main([*named, "-o", str(tmp_path / "out")]) == 0
+    results = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert list(results["models"]) == ["a", "b", "dummy"] and results["models"]["a"] == results["models"]["b"]
+    assert main([*named, "-o", str(first), "--force"]) == 2
+    assert f"the output is the input {first}" in capsys.readouterr().err

@@ -197,7 +197,7 @@ def evaluate_flight(
     window of each span for the figures (about 0.6 MB per span at 100 Hz; a fleet asks one flight for them)."""
     names = [m.name for m in models]
     if len(set(names)) != len(names):
-        raise ConfigError(f"model names must be unique, got {names}")
+        raise ConfigError(f"model names must be unique, got {names}: name them, --model NAME=SPEC (a=narx:a.npz)")
     config.validate()
     check_window_rate(log)  # before the multi-step table: a flight no window can score is refused for its rate
     for model in models:  # a model that predicts only some flights (the truth model: simulated ones) says so first
