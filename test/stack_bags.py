@@ -122,12 +122,15 @@ def crazyswarm2_messages(writer: ForeignBagWriter, log: FlightLog, robot: str = 
             yield f"/{robot}/log_battery", ns, block(ns, [log.vbat[i]])
 
 
-def write_stack_bag(path: Path, messages, storage: str = "mcap", store_definitions: bool = True, skip=()) -> Path:
+def write_stack_bag(path: Path, messages, storage: str = "mcap", store_definitions: bool = True, skip=(), empty=()) -> Path:
     """Record ``messages(writer)`` (a generator function of this module, bound with its arguments) into a bag at ``path``.
 
-    ``skip``: topics left out (a recording that lacks them)."""
+    ``skip``: topics left out (a recording that lacks them); ``empty``: topics recorded without a message (a publisher
+    whose QoS the recorder's did not match)."""
     with ForeignBagWriter(path, definitions(), storage=storage, store_definitions=store_definitions) as writer:
         for topic, ns, msg in messages(writer):
-            if topic not in skip:
+            if topic in empty:
+                writer.connection(topic, msg.__msgtype__)
+            elif topic not in skip:
                 writer.write(topic, ns, msg)
     return Path(path)

@@ -546,14 +546,18 @@ class ForeignBagWriter:
                   for name, (kind, detail) in self.store.fielddefs[msgtype][1]}
         return self.store.types[msgtype](**values)
 
+    def connection(self, topic: str, msgtype: str):
+        """The bag's connection of ``topic`` (added at the first call): a topic with no message written stays in the bag
+        with a count of 0, as ``ros2 bag record`` leaves one whose publisher never matched (a QoS mismatch)."""
+        if topic not in self._connections:
+            extra = {} if self._store_definitions else {"msgdef": "", "rihs01": "RIHS01_" + "0" * 64}
+            self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=self.store, **extra)
+        return self._connections[topic]
+
     def write(self, topic: str, ns: int, msg) -> None:
         """Serialise ``msg`` and add it on ``topic`` at bag time ``ns``."""
         msgtype = msg.__msgtype__
-        connection = self._connections.get(topic)
-        if connection is None:
-            extra = {} if self._store_definitions else {"msgdef": "", "rihs01": "RIHS01_" + "0" * 64}
-            connection = self._connections[topic] = self._writer.add_connection(topic, msgtype, typestore=self.store, **extra)
-        self._writer.write(connection, int(ns), self.store.serialize_cdr(msg, msgtype))
+        self._writer.write(self.connection(topic, msgtype), int(ns), self.store.serialize_cdr(msg, msgtype))
 
 
 def stored_typestore(connections, path: Path):

@@ -206,6 +206,21 @@ def test_info_shows_what_the_map_reads_and_convert_writes_the_contract(bags, fli
     assert contract.meta.vehicle == "crazyflie21" and contract.allclose(mapped, rtol=1e-12, atol=1e-12)
 
 
+def test_an_optional_topic_recorded_without_a_message_is_read_as_absent(flight, tmp_path, capsys):
+    """A topic in the bag with no message (its publisher's QoS never matched the recorder's) refused the whole flight
+    ("topic /fmu/out/sensor_combined has no messages"); an optional one is now left out as an absent one is, said once."""
+    cf = load_vehicle("crazyflie21")
+    messages = partial(px4_messages, log=flight, input_range=(cf.input_min, cf.input_max))
+    empty = write_stack_bag(tmp_path / "empty_imu", messages, empty=("/fmu/out/sensor_combined",))
+    absent = write_stack_bag(tmp_path / "no_imu", messages, skip=("/fmu/out/sensor_combined",))
+    read, reference = load_flight(empty, vehicle="crazyflie21"), load_flight(absent, vehicle="crazyflie21")
+    assert read.acc_b is None and read.gyro_b is None and read.allclose(reference, rtol=0, atol=0)
+    assert read.meta.notes["warnings"] == [f"{empty}: optional topic(s) /fmu/out/sensor_combined recorded with no message: read without them"]
+    required = write_stack_bag(tmp_path / "empty_motors", messages, empty=("/fmu/out/actuator_motors",))
+    with pytest.raises(DataError, match="topic /fmu/out/actuator_motors has no messages"):
+        load_flight(required, vehicle="crazyflie21")
+
+
 def test_run_bag_of_a_stack_without_imu_is_refused_naming_the_topic(flight, tmp_path, capsys):
     cf = load_vehicle("crazyflie21")
     bag = write_stack_bag(tmp_path / "px4", partial(px4_messages, log=flight, input_range=(cf.input_min, cf.input_max)),
