@@ -221,6 +221,19 @@ def test_an_optional_topic_recorded_without_a_message_is_read_as_absent(flight, 
         load_flight(required, vehicle="crazyflie21")
 
 
+def test_px4s_versioned_battery_topic_is_read(flight, tmp_path):
+    """BatteryStatus is at MESSAGE_VERSION 1 in px4_msgs, so newer PX4 publishes /fmu/out/battery_status_v1: it was
+    silently not read (the battery is optional), leaving the flight without a voltage."""
+    cf = load_vehicle("crazyflie21")
+
+    def versioned(writer):
+        for topic, ns, msg in px4_messages(writer, log=flight, input_range=(cf.input_min, cf.input_max)):
+            yield (topic + "_v1" if topic == "/fmu/out/battery_status" else topic), ns, msg
+
+    log = load_flight(write_stack_bag(tmp_path / "px4_v1", versioned), vehicle="crazyflie21")
+    assert log.vbat is not None and np.allclose(log.vbat, flight.vbat, atol=1e-6)
+
+
 def test_stamps_in_another_unit_than_the_maps_are_named_as_such(flight, tmp_path, capsys):
     """Stamps 1000x finer than stamp_unit said were read as a 100 kHz flight of 0.04 s with no word; 1000x coarser,
     "share no common time span" gave no hint of the unit."""

@@ -63,7 +63,7 @@ def bag_text(summary: BagSummary) -> str:
     lines = [f"bag:       {summary.path}",
              f"storage:   {summary.storage}",
              f"duration:  {summary.duration_s:.3f} s",
-             f"start/end: {summary.start_s:.3f} .. {summary.end_s:.3f} s (header time)",
+             f"start/end: {summary.start_s:.3f} .. {summary.end_s:.3f} s (bag time: when recorded; the header stamps in the bags quad-modelling writes)",
              f"messages:  {summary.message_count}"]
     lines += [f"{key + ':':<10} {summary.custom_data[f'quad_modelling.{key}']}"
               for key in ("vehicle", "source") if f"quad_modelling.{key}" in summary.custom_data]
