@@ -14,7 +14,7 @@ from quad_modelling.commands import check_command_output
 from quad_modelling.core.evaluation.windowed import FlightEvaluation, evaluate_flight, merge_flights
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import MODEL_FILE_KINDS, make_model
-from quad_modelling.core.preprocess import flight_warnings
+from quad_modelling.core.preprocess import flight_warnings, resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import PRESETS, EvaluationConfig, check_window_rate
 from quad_modelling.errors import ConfigError, DataError
@@ -204,7 +204,8 @@ def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[s
     models = [build_model(text, flight_vehicle) for text in specs]
     evaluation = evaluate_flight(loaded.log, models, flight_vehicle, config, multistep, examples=path == examples_from)
     evaluation.statistics.model_files = model_file_digests(specs, models)
-    return FlightOutcome(path, evaluation, None, flight_vehicle.name, flight_warnings(loaded.log))
+    # the uniform log's warnings: the reader's, and a logging hole resampling marked as a gap (core.preprocess.resample_uniform)
+    return FlightOutcome(path, evaluation, None, flight_vehicle.name, flight_warnings(resample_uniform(loaded.log)))
 
 
 def _evaluations(outcomes, skipped: list[str], vehicles: list[str], first_in_span: dict[str, str]):

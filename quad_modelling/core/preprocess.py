@@ -103,6 +103,13 @@ GAP_MARK = "marked as a measurement gap"
 """The phrase of every gap warning in ``meta.notes['warnings']`` (a re-read replaces them: gaps are found in the data)."""
 
 
+TIME_BASE_HOLE = "time base"
+"""The ``topic`` of a measurement gap :func:`resample_uniform` marks: a hole in every column of the log."""
+
+FIELDS_OF_A_ROW = ("u", "pos_n", "vel_n", "euler", "acc_b", "gyro_b")
+"""The FlightLog fields a row holds (a hole in the time base is a gap of each)."""
+
+
 @dataclass(frozen=True)
 class MeasurementGap:
     """A dropout of one measurement stream: no message of ``topic`` strictly between ``start_s`` and ``end_s``
@@ -489,10 +496,11 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
 
     Real logs drop the odd sample (NanoBench: one to five 20-30 ms steps per
     flight). The discrete models and filters need uniform sampling, so missing
-    samples are filled by linear interpolation (yaw unwrapped first); a gap
-    longer than ``max_gap_s`` is a DataError naming the time, unless a marked measurement gap spans it (a hole of
-    the time-base stream: the rows filled inside it are gap rows, left out by the windows). A log that is
-    already uniform is returned unchanged. The number of filled samples is
+    samples are filled by linear interpolation (yaw unwrapped first). A hole longer than ``max_gap_s`` that no
+    marked measurement gap spans (a logging dropout of every column: a CSV's missing rows) becomes one, of the
+    ``time base``, with a warning: the rows filled inside it are gap rows, left out by the windows and training
+    segments, as a bag reader's marked holes are (a 110 ms hole refused the whole flight, a 1 s one was accepted
+    once converted to a bag). A log that is already uniform is returned unchanged. The number of filled samples is
     recorded in ``meta.notes['resampled_filled_samples']``.
     """
     steps = np.diff(log.t)
@@ -500,14 +508,12 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
     if np.all(np.abs(steps - dt) <= 0.25 * dt):
         return log
     long = steps > max_gap_s
-    for gap in marked_gaps(log):  # a hole marked as a gap is filled: the rows inside it are left out downstream
+    known = marked_gaps(log)
+    for gap in known:  # a hole marked as a gap is filled: the rows inside it are left out downstream
         long &= ~((log.t[:-1] >= gap.start_s - 1e-9) & (log.t[1:] <= gap.end_s + 1e-9))
-    worst = int(np.argmax(np.where(long, steps, 0.0)))
-    if long.any():
-        raise DataError(
-            f"{log.meta.source}: gap of {steps[worst] * 1e3:.0f} ms at t={log.t[worst] - log.t[0]:.3f} s into the flight "
-            f"exceeds the {max_gap_s * 1e3:.0f} ms that may be filled by interpolation"
-        )
+    edge = 1e-9  # [s] inside the real rows around a hole: the uniform grid's row on one is not a filled row
+    holes = [MeasurementGap(TIME_BASE_HOLE, float(log.t[i]) + edge, float(log.t[i + 1]) - edge, FIELDS_OF_A_ROW)
+             for i in np.flatnonzero(long)]
     n = int(np.floor((log.t[-1] - log.t[0]) / dt + 0.5)) + 1
     grid = log.t[0] + dt * np.arange(n)
     grid = grid[grid <= log.t[-1] + 1e-9]
@@ -524,9 +530,12 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
     notes = dict(log.meta.notes)
     notes["resampled_filled_samples"] = int(n - len(log.t)) if n >= len(log.t) else 0
     meta = type(log.meta)(log.meta.vehicle, log.meta.source, notes)
-    return FlightLog(
+    out = FlightLog(
         t=grid, u=interp(log.u), acc_b=None if log.acc_b is None else interp(log.acc_b),
         gyro_b=None if log.gyro_b is None else interp(log.gyro_b), pos_n=interp(log.pos_n),
         vel_n=interp(log.vel_n), euler=euler, meta=meta,
         vbat=None if log.vbat is None else interp(log.vbat), omega=None if log.omega is None else interp(log.omega),
     )
+    if holes:  # the notes are a copy: the input log keeps its own gaps and warnings
+        mark_measurement_gaps(out, known + holes, min(recorded_gap_rule(notes), max_gap_s) if known else max_gap_s)
+    return out

@@ -184,3 +184,20 @@ def test_two_model_files_of_one_kind_are_compared_by_naming_them(tmp_path, capsy
     assert list(results["models"]) == ["a", "b", "dummy"] and results["models"]["a"] == results["models"]["b"]
     assert main([*named, "-o", str(first), "--force"]) == 2
     assert f"the output is the input {first}" in capsys.readouterr().err
+
+
+def test_a_logging_hole_in_a_csv_is_a_marked_gap_not_a_refused_flight(tmp_path, capsys):
+    """110 ms of rows missing from a NanoBench CSV refused the whole flight ("gap of 110 ms ... exceeds the 50 ms"),
+    while the same hole of 1 s was accepted once converted to a bag: now the hole is marked, said once, and the
+    windows away from it are scored."""
+    import gzip
+
+    lines = gzip.open(REPO / "test" / "fixtures" / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz", "rt").read().splitlines()
+    holed = tmp_path / "holed.csv"
+    holed.write_text("\n".join([lines[0], *(line for i, line in enumerate(lines[1:]) if not 600 <= i < 610)]) + "\n")
+    spans = ["--drop", "0:0", "--train", "2:5.5", "--eval", "6.5:9.9", "--window", "2", "--no-multistep", "--vehicle", "crazyflie21"]
+    assert main(["evaluate", str(holed), *spans, "-o", str(tmp_path / "e")]) == 0
+    err = capsys.readouterr().err
+    assert "topic time base has no message for 0.11 s" in err and "marked as a measurement gap" in err, err
+    results = json.loads((tmp_path / "e" / "results.json").read_text())
+    assert results["windows"]["greybox"] == {"train": 1, "eval": 1}

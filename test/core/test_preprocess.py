@@ -80,16 +80,25 @@ def test_smoothing_removes_noise_but_keeps_slow_motion():
     np.testing.assert_allclose(smooth(slow, 100.0)[50:-50], slow[50:-50], atol=0.01)  # 0.5 Hz passes unchanged
 
 
-def test_resample_fills_a_dropped_sample_and_refuses_long_gaps():
+def test_resample_fills_a_dropped_sample_and_marks_a_long_hole_as_a_gap():
+    """A hole over 50 ms in every column refused the flight (a 110 ms logging dropout of a CSV), while a bag reader
+    marks such holes: it is now a marked gap of the time base whose filled rows no window or segment uses."""
+    from quad_modelling.core.preprocess import TIME_BASE_HOLE, marked_gaps
+    from quad_modelling.core.windows import gap_free_runs, gap_rows
+
     t = np.delete(np.arange(300) / 100.0, 150)
     log = make_log(t=t, gyro=np.column_stack([t, 2 * t, 0 * t]))
     filled = resample_uniform(log)
     assert len(filled) == 300
     np.testing.assert_allclose(filled.gyro_b[150], [1.5, 3.0, 0.0])
-    assert filled.meta.notes["resampled_filled_samples"] == 1
-    gap = make_log(t=np.concatenate([np.arange(100) / 100.0, 2.0 + np.arange(100) / 100.0]))
-    with pytest.raises(DataError, match="gap of 1010 ms"):
-        resample_uniform(gap)
+    assert filled.meta.notes["resampled_filled_samples"] == 1 and not marked_gaps(filled)
+    hole = make_log(t=np.concatenate([np.arange(100) / 100.0, 1.1 + np.arange(100) / 100.0]))  # rows 0.99 .. 1.10: 110 ms
+    resampled = resample_uniform(hole)
+    (gap,) = marked_gaps(resampled)
+    assert gap.topic == TIME_BASE_HOLE and (gap.start_s, gap.end_s) == pytest.approx((0.99, 1.10))
+    assert int(gap_rows(resampled).sum()) == 10 and gap_free_runs(resampled, 0, len(resampled)) == [(0, 100), (110, 210)]
+    assert len(resampled.meta.notes["warnings"]) == 1 and "topic time base has no message for 0.11 s" in resampled.meta.notes["warnings"][0]
+    assert not marked_gaps(hole) and "warnings" not in hole.meta.notes  # the input log's notes are its own
 
 
 def test_measurement_gaps_are_found_between_stream_stamps_with_rows_inside():

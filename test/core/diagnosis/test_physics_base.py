@@ -97,7 +97,7 @@ def test_an_imbalance_whose_gains_shrink_the_error_only_by_their_yaw_pattern_is_
 def test_an_effect_resolved_but_not_supported_says_which_holds():
     text = unconfirmed_text({"shrink": -0.0004, "shrink_5pct": -0.003}, ["rotor_drag", "battery"])
     assert text == ("resolved on the training flights (>= 3 sigma, off its bounds; the halves are fitted for found effects), but added to base + rotor_drag + battery it shrinks the held-out "
-                    "error by -0.0% (5 % bound -0.3%; found needs a 5 % bound >= 1%): the held-out flights do not "
+                    "error by +0.0% (5 % bound -0.3%; found needs a 5 % bound >= 1%): the held-out flights do not "
                     "confirm it")
 
 
