@@ -200,6 +200,7 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.commands.evaluate import print_flight_warnings, warn_starting_values
     from quad_modelling.core.training.narx import train_narx_on_flights
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
+    from quad_modelling.core.preprocess import resample_uniform
     from quad_modelling.core.windows import check_window_rate
     from quad_modelling.fanout import check_fanout_options, tty_progress
     from quad_modelling.io.loader import check_distinct_flights, check_topic_map_applies, load_flights
@@ -224,12 +225,14 @@ def run(args: argparse.Namespace) -> int:
     paths = [*args.flights, *(args.val_flights or [])]
     logs, _ = load_flights(paths, given, jobs=args.jobs, scheduler=args.scheduler,
                            progress=None if args.quiet else tty_progress("train: read", len(paths)), topic_map=args.topic_map)
-    print_flight_warnings(logs)
     named = [(log.meta.source, log.fingerprint()) for log in logs]
     check_distinct_flights(named[: len(args.flights)], "FLIGHT", named[len(args.flights):], "--val-flights")
     check_distinct_flights(named[len(args.flights):], "--val-flights")
     for log in logs:  # windows and rollout segments are in samples: a flight no window can score is refused for its rate
         check_window_rate(log)
+    # rows of one period, as evaluate scores them: a dropped row is filled, a longer hole marked as a gap (it was one row)
+    logs = [resample_uniform(log) for log in logs]
+    print_flight_warnings(logs)
     spans = training_spans(logs, args)
     val_flights = list(range(len(args.flights), len(logs))) if args.val_flights else None
     started = time.perf_counter()

@@ -168,3 +168,27 @@ def test_train_direct_on_starting_values_says_so_in_one_warning_line(tmp_path, c
     warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
     assert len(warnings) == 1 and "the direct model's physics base holds starting values, never identified (" in warnings[0]
     assert "rotor_thrust_constant" in warnings[0] and "pass --vehicle FILE" in warnings[0]
+
+
+def test_training_reads_rows_of_one_period_as_evaluate_scores_them(tmp_path, capsys):
+    """train counted a 110 ms logging hole as one 10 ms row (the direct model's maps count rows); it now trains on the
+    resampled flight, the hole a marked gap no training segment crosses, said in one warning."""
+    import gzip
+
+    from test.conftest import FIXTURES
+
+    lines = gzip.open(FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz", "rt").read().splitlines()
+    holed = tmp_path / "holed.csv"
+    holed.write_text("\n".join([lines[0], *(line for i, line in enumerate(lines[1:]) if not 600 <= i < 610)]) + "\n")
+    whole = tmp_path / "whole.csv"
+    whole.write_text("\n".join(lines) + "\n")
+    spans = ["--drop", "1:0", "--train", "0%:100%", "--vehicle", "crazyflie21", "--direct", "--quiet"]
+    assert main(["train", str(whole), *spans, "-o", str(tmp_path / "whole.npz")]) == 0
+    assert main(["train", str(holed), *spans, "-o", str(tmp_path / "holed.npz")]) == 0
+    err = capsys.readouterr().err
+    assert "topic time base has no message for 0.11 s" in err and "marked as a measurement gap" in err, err
+    whole_model = load_direct(tmp_path / "whole.npz", load_vehicle("crazyflie21"))
+    holed_model = load_direct(tmp_path / "holed.npz", load_vehicle("crazyflie21"))
+    # two gap-free parts around the 10 filled rows: each loses the 10 rows of history and the 50 of horizon at its
+    # edges, so 10 + 60 anchors fewer (the span's row bounds move by a row or two with the hole)
+    assert abs(whole_model.training["samples"] - holed_model.training["samples"] - 70) <= 2
