@@ -27,6 +27,9 @@ def inputs(tmp_path_factory) -> Path:
     broken = crazyflie_document()
     broken["identification"]["constants"] = ["rotor_delay"]
     write_vehicle(broken, d / "cf_bad_record.yaml")
+    other = crazyflie_document(cg_offset=False)  # identified again: another delay than the hybrids were trained with
+    other["constants"]["rotor_delay"]["value"] = other["identification"]["constants"]["rotor_delay"]["value"] = 0.031
+    write_vehicle(other, d / "cf_reidentified.yaml")
     random_hybrid(vehicle_of(crazyflie_document())).save(d / "hybrid.npz")
     linkquad = load_vehicle("linkquad")
     random_hybrid(linkquad).save(d / "linkquad_hybrid.npz")
@@ -81,6 +84,9 @@ BAD = [
      f"{vehicle_dir() / 'px4_iris.yaml'}: the physics model needs the vehicle constants "),
     ("hybrid-of-another-vehicle", ["{d}/cf.yaml", "--model", "hybrid:{d}/linkquad_hybrid.npz", "--format", "casadi", "-o", "{d}/work/out"],
      "{d}/linkquad_hybrid.npz: model was trained for vehicle 'linkquad', not 'crazyflie21'"),
+    ("hybrid-of-other-constants", ["{d}/cf_reidentified.yaml", "--model", "hybrid:{d}/hybrid.npz", "--format", "casadi", "-o", "{d}/work/out"],
+     "{d}/hybrid.npz: the hybrid was trained with other physics constants than {d}/cf_reidentified.yaml holds; export takes a "
+     "hybrid of the identified vehicle it exports: retrain it, `quad-modelling train FLIGHTS --hybrid --vehicle {d}/cf_reidentified.yaml"),
     ("output-is-the-vehicle", ["{d}/cf.yaml", "--format", "casadi", "-o", "{d}/cf.yaml", "--force"],
      "-o {d}/cf.yaml: the output is the input {d}/cf.yaml"),
     ("output-is-the-model", ["{d}/cf.yaml", "--model", "hybrid:{d}/hybrid.npz", "--format", "casadi", "-o", "{d}/hybrid.npz", "--force"],

@@ -32,7 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor, load_hybrid
+from quad_modelling.core.models.hybrid import ConstantsChangedError, HybridModel, HybridPredictor, load_hybrid
 from quad_modelling.core.models.physics import Observer
 from quad_modelling.core.physics import rigid_body, rotors
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -95,7 +95,12 @@ def exportable_model(vehicle: VehicleConfig, hybrid_file: str | Path | None = No
                           f"`quad-modelling identify FLIGHTS --vehicle {vehicle.name} -o FILE`")
     if hybrid_file is None:
         return ExportedModel(vehicle, params, Observer.from_vehicle(vehicle), "physics")
-    hybrid = load_hybrid(hybrid_file, vehicle)
+    try:
+        hybrid = load_hybrid(hybrid_file, vehicle)
+    except ConstantsChangedError as err:  # the vehicle it was trained with may hold starting values: export refuses those
+        raise ConstantsChangedError(f"{hybrid_file}: the hybrid was trained with other physics constants than {vehicle.path} "
+                                    f"holds; export takes a hybrid of the identified vehicle it exports: retrain it, "
+                                    f"`quad-modelling train FLIGHTS --hybrid --vehicle {vehicle.path} -o FILE`") from err
     return ExportedModel(vehicle, params, hybrid.observer, f"hybrid:{hybrid_file}", hybrid)
 
 

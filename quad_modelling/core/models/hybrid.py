@@ -105,6 +105,10 @@ def physics_constants(p: PhysicsParameters) -> dict[str, float | list]:
             "spins": np.asarray(p.spins, float).tolist()}
 
 
+class ConstantsChangedError(ModelError):
+    """A model file trained on other physics constants than the vehicle given holds (:func:`trained_parameters`)."""
+
+
 def trained_parameters(path: Path, kind: str, stored: dict, vehicle_file: str | None, vehicle: VehicleConfig) -> PhysicsParameters:
     """The physics parameters of ``vehicle``, if they are the constants ``stored`` in model file ``path`` at training
     (:func:`physics_constants`); else ModelError (one line) naming the changed constants and the vehicle file to pass."""
@@ -115,7 +119,7 @@ def trained_parameters(path: Path, kind: str, stored: dict, vehicle_file: str | 
                      if not np.allclose(np.asarray(stored.get(k, np.nan), float), np.asarray(current.get(k, np.nan), float), rtol=1e-12, atol=0))
     if changed:
         which = vehicle_file or f"FILE (the one given to train --{kind})"
-        raise ModelError(f"{path}: the {kind} model was trained with other physics constants of vehicle {vehicle.name!r} than "
+        raise ConstantsChangedError(f"{path}: the {kind} model was trained with other physics constants of vehicle {vehicle.name!r} than "
                          f"{vehicle.path} holds ({', '.join(changed)}); pass the vehicle it was trained with: --vehicle "
                          f"{which} (export: as its VEHICLE; a node: parameter vehicle), or retrain it on these constants")
     return params
