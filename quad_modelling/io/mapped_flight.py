@@ -4,7 +4,7 @@ Used offline by :func:`read_mapped_bag` (messages deserialised with the
 definitions stored in the bag) and live by the nodes' ``topic_map`` subscriptions
 (:mod:`quad_modelling.nodes.mapping.streams`, rclpy's messages): both call
 :class:`TopicReader` per message (attribute access only, so rosbags' and rclpy's messages alike),
-:func:`map_commands` and :func:`convert_measurements` (:func:`convert_field` per field) for the numbers, which
+:func:`map_commands` and :func:`convert_measurements` (:func:`~quad_modelling.io.topic_maps.convert_field` per field) for the numbers, which
 convert units and frames through
 :mod:`quad_modelling.core.frames` only. Imports neither rclpy nor rosbags.
 
@@ -45,8 +45,8 @@ from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.bag_io import READ_ERRORS, missing_messages, open_reader, stored_typestore
-from quad_modelling.io.topic_maps import (STAMP_UNITS, FieldSource, TopicMap, TopicSpec, check_map_fields, fields_of_store,
-                                         parse_path)
+from quad_modelling.io.topic_maps import (STAMP_UNITS, FieldSource, TopicMap, TopicSpec, check_map_fields, convert_field,
+                                         fields_of_store, parse_path)
 
 NANOSECONDS = 1_000_000_000
 KINEMATIC_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
@@ -200,34 +200,6 @@ def commands_in_vehicle_unit(values: np.ndarray, source: FieldSource, vehicle: V
     return vehicle.input_min + (values - low) * ((vehicle.input_max - vehicle.input_min) / (high - low))
 
 
-def attitude_euler(quat: np.ndarray, source: FieldSource) -> np.ndarray:
-    """(n, 4) quaternions in the map's order and frame -> Euler (φ, θ, ψ) NED/FRD [rad], yaw not unwrapped."""
-    xyzw = quat if source.order == "xyzw" else quat[:, [1, 2, 3, 0]]
-    if source.frame == "ENU/FLU":
-        return frames.quat_enu_to_euler_ned(xyzw)
-    return frames.quat_ned_to_euler_ned(xyzw)
-
-
-def convert_field(source: FieldSource, values: np.ndarray, euler: np.ndarray | None = None) -> np.ndarray:
-    """(n, k) numbers of one non-command field, as the map gives them -> the FlightLog field (NED/FRD, SI).
-
-    position -> pos_n [m]; velocity -> vel_n [m/s] (a body-frame velocity rotated by ``euler``, the attitude at
-    the same rows); attitude -> euler [rad]; acc -> acc_b [m/s²]; gyro -> gyro_b [rad/s]; battery -> vbat [V].
-    """
-    if source.field == "attitude":
-        return attitude_euler(values, source)
-    si = frames.to_si(values, source.unit)
-    if source.field == "battery":
-        return si[:, 0]
-    if source.frame == "ENU":
-        return frames.enu_to_ned(si)
-    if source.frame == "FLU":
-        si = frames.flu_to_frd(si)
-    if source.field == "velocity" and source.frame in ("FLU", "FRD"):
-        return frames.body_to_nav(si, euler)
-    return si
-
-
 def stopped_command(source: FieldSource) -> float:
     """The command a NaN stands for (PX4 actuator_motors: motor stopped): the low end of the map's range (else 0)."""
     return source.range[0] if source.range else 0.0
@@ -246,7 +218,7 @@ def map_commands(values: np.ndarray, source: FieldSource, vehicle: VehicleConfig
 def convert_measurements(sources: dict[str, FieldSource], aligned: dict[str, np.ndarray],
                          last_yaw: float | None = None) -> dict[str, np.ndarray]:
     """Every non-command field's (n, k) numbers on the same rows (the map's units and frames) -> FlightLog arrays
-    by map field name (:func:`convert_field`): the attitude first (Euler NED/FRD, yaw unwrapped over the rows and
+    by map field name (:func:`~quad_modelling.io.topic_maps.convert_field`): the attitude first (Euler NED/FRD, yaw unwrapped over the rows and
     from ``last_yaw``, the previous row's), then the others (a body-frame velocity rotated by it). Offline
     (:class:`FlightAssembler`) and live (:mod:`quad_modelling.nodes.mapping.streams`) alike."""
     euler = convert_field(sources["attitude"], aligned["attitude"])
@@ -290,7 +262,7 @@ class FlightAssembler:
     """A map's streams -> a FlightLog, message by message in recording order (module doc), in memory that does not
     grow with the recording: the commands wait (at most :data:`MAX_PENDING_S`) until every stream has a message at or
     after them, are aligned in batches of :data:`EMIT_ROWS` (:func:`~quad_modelling.core.alignment.interpolate_at`)
-    and converted (:func:`convert_field`) into FlightLog arrays allocated once for ``capacity`` rows (the commands
+    and converted (:func:`~quad_modelling.io.topic_maps.convert_field`) into FlightLog arrays allocated once for ``capacity`` rows (the commands
     topic's message count); only the samples around the pending rows are kept.
     """
 

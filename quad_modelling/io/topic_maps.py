@@ -50,6 +50,8 @@ import re
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+import numpy as np
+
 from quad_modelling.core import frames
 from quad_modelling.core.input_files import read_yaml, yaml_number
 from quad_modelling.core.vehicle import config_dir
@@ -532,3 +534,33 @@ def fields_of_store(store):
             return {}
         return {name: describe(kind, detail) for name, (kind, detail) in store.fielddefs[msgtype][1]}
     return fields_of
+
+
+# --- a map field's numbers -> the FlightLog field (offline and live alike) -------------------------------------
+
+def attitude_euler(quat: np.ndarray, source: FieldSource) -> np.ndarray:
+    """(n, 4) quaternions in the map's order and frame -> Euler (φ, θ, ψ) NED/FRD [rad], yaw not unwrapped."""
+    xyzw = quat if source.order == "xyzw" else quat[:, [1, 2, 3, 0]]
+    if source.frame == "ENU/FLU":
+        return frames.quat_enu_to_euler_ned(xyzw)
+    return frames.quat_ned_to_euler_ned(xyzw)
+
+
+def convert_field(source: FieldSource, values: np.ndarray, euler: np.ndarray | None = None) -> np.ndarray:
+    """(n, k) numbers of one non-command field, as the map gives them -> the FlightLog field (NED/FRD, SI).
+
+    position -> pos_n [m]; velocity -> vel_n [m/s] (a body-frame velocity rotated by ``euler``, the attitude at
+    the same rows); attitude -> euler [rad]; acc -> acc_b [m/s²]; gyro -> gyro_b [rad/s]; battery -> vbat [V].
+    """
+    if source.field == "attitude":
+        return attitude_euler(values, source)
+    si = frames.to_si(values, source.unit)
+    if source.field == "battery":
+        return si[:, 0]
+    if source.frame == "ENU":
+        return frames.enu_to_ned(si)
+    if source.frame == "FLU":
+        si = frames.flu_to_frd(si)
+    if source.field == "velocity" and source.frame in ("FLU", "FRD"):
+        return frames.body_to_nav(si, euler)
+    return si
