@@ -6,7 +6,8 @@ import argparse
 import json
 import sys
 
-from quad_modelling.errors import BagError, ConfigError
+from quad_modelling.core.windows import check_window_rate
+from quad_modelling.errors import BagError, ConfigError, DataError
 from quad_modelling.io.bag_io import summarize_bag
 from quad_modelling.io.topic_maps import add_topic_map_argument, choose_topic_map
 from quad_modelling.io.loader import detect_format, load_flight
@@ -51,8 +52,13 @@ def run(args: argparse.Namespace) -> int:
     if args.topic_map and file_format != "bag":
         raise ConfigError(f"--topic-map {args.topic_map}: a topic map applies to bags only, {args.bag} is a {file_format} input")
     if file_format != "bag":
-        document = flight_document(load_flight(args.bag, vehicle=args.vehicle, mapping_file=args.mapping), str(args.bag))
+        log = load_flight(args.bag, vehicle=args.vehicle, mapping_file=args.mapping)
+        document = flight_document(log, str(args.bag))
         print(flight_json(document) if args.json else flight_text(document, file_format))
+        try:  # read, but too slow for any window: every scoring verb will refuse it, say so now
+            check_window_rate(log)
+        except DataError as err:
+            print(f"note: {err}", file=sys.stderr)
         return 0
     summary = summarize_bag(args.bag)
     topics = {t.name: t.msgtype for t in summary.topics}

@@ -51,9 +51,18 @@ def test_a_10_hz_flight_is_refused_for_its_rate_on_every_verb_that_scores(argv, 
     assert main(args) == 2
     line = one_error_line(capsys)
     source = str(px4_bag) if argv[0] == "run-bag" else str(ULOG)
-    assert line == f"quad-modelling {argv[0]}: error: {source}: {RATE_LINE}"
+    assert line.startswith(f"quad-modelling {argv[0]}: error: {source}: {RATE_LINE}")
+    assert line.endswith("add `actuator_motors 10` (interval ms) and the position and attitude topics to "
+                         "etc/logging/logger_topics.txt on the SD card (docs/px4.md)")  # a PX4 log, converted or not: how
     assert "--preset" not in line and "window fits" not in line  # the spans are not blamed
     assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_info_reads_a_10_hz_log_and_says_no_verb_can_score_it(capsys):
+    assert main(["info", str(ULOG)]) == 0
+    captured = capsys.readouterr()
+    assert "samples:   152 at 10.00 Hz" in captured.out
+    assert captured.err.startswith(f"note: {ULOG}: {RATE_LINE}; PX4 logs actuator_motors at 10 Hz by default")
 
 
 def test_skip_bad_leaves_a_too_slow_flight_out_like_an_unreadable_one(tmp_path, capsys):
