@@ -40,6 +40,24 @@ MOVING_RATE_RAD_S = 0.05
 """RMS of the attitude's body rates [rad/s] above which an axis turns enough for the gyro check."""
 
 
+COMMAND_RANGE_USE = 0.05
+"""Least share of the vehicle's input range the commands' 99th percentile reaches above its low end in a flight read
+through a map (:func:`unused_command_range`): a hover needs 30-70 % (NanoBench about 60 %); PX4's normalised 0..1
+read with a map range [0, 100] reaches under 1 %."""
+
+
+def unused_command_range(log: FlightLog, low: float, high: float) -> str | None:
+    """A warning when the commands stay within :data:`COMMAND_RANGE_USE` of the low end of the input range
+    [``low``, ``high``] (a map's commands ``range`` in the wrong unit: nothing is refused, the models see no thrust),
+    else None."""
+    top = float(np.nanpercentile(log.u, 99)) if np.isfinite(log.u).any() else low
+    use = (top - low) / (high - low)
+    if use >= COMMAND_RANGE_USE:
+        return None
+    return (f"{log.meta.source}: the commands reach {use:.1%} of the input range [{low:g}, {high:g}] (99th percentile); "
+            f"a flying vehicle's reach {COMMAND_RANGE_USE:.0%} or more: check the commands' range")
+
+
 def frame_disagreements(log: FlightLog) -> list[str]:
     r"""Warnings for a flight whose measurements disagree with each other as a mistaken frame, order or sign makes
     them: (1) the mean over the flight of :math:`a_N = R f_B + g e_z` (:func:`nav_acceleration`) is near zero when

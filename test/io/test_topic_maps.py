@@ -494,3 +494,18 @@ def test_a_topic_map_the_input_cannot_take_is_refused_in_one_line(bags, tmp_path
         err = _fails(capsys, verb, *args, "--topic-map", "crazyswarm2", "-o", str(out))
         assert f"--topic-map crazyswarm2: a topic map applies to bags only, and no input is one ({CSV} is a nanobench input)" in err
         assert not out.exists()
+
+
+def test_a_commands_range_in_the_wrong_unit_is_a_warning(flight, tmp_path):
+    """A px4 map whose actuator_motors range says [0, 100] for PX4's 0..1 put the commands at 1 % of the input range
+    with no word (greybox TIC acc_z 0.34 -> 0.92)."""
+    from test.conftest import REPO
+
+    cf = load_vehicle("crazyflie21")
+    bag = write_stack_bag(tmp_path / "px4", partial(px4_messages, log=flight, input_range=(cf.input_min, cf.input_max)))
+    assert not [w for w in load_flight(bag, vehicle="crazyflie21").meta.notes.get("warnings", []) if "input range" in w]
+    wrong = tmp_path / "px4_range.yaml"
+    wrong.write_text((REPO / "config" / "topic_maps" / "px4.yaml").read_text().replace("range: [0, 1]", "range: [0, 100]"))
+    warnings = load_flight(bag, vehicle="crazyflie21", topic_map=str(wrong)).meta.notes["warnings"]
+    (line,) = [w for w in warnings if "input range" in w]
+    assert "the commands reach 0." in line and "check the commands' range: topic map px4" in line, line
