@@ -98,6 +98,16 @@ def warn_span_overlap(config: EvaluationConfig) -> None:
         print(f"warning: {overlap}", file=sys.stderr)
 
 
+def warn_flight_span_overlap(config: EvaluationConfig, flights: list[FlightLog]) -> None:
+    """One ``warning:`` line when spans of mixed kinds (``--train 10:30`` with the preset's ``60%:100%``) share time on
+    a flight (:meth:`~quad_modelling.core.windows.EvaluationConfig.flight_span_overlap`): the first such flight, and
+    how many more."""
+    overlaps = [text for text in map(config.flight_span_overlap, flights) if text]
+    if overlaps:
+        more = f" (and on {len(overlaps) - 1} more flight(s))" if len(overlaps) > 1 else ""
+        print(f"warning: {overlaps[0]}{more}", file=sys.stderr)
+
+
 def print_flight_warnings(flights: list[FlightLog]) -> None:
     """One ``warning:`` line on stderr per warning the reader recorded about each flight (a marked gap, whose windows
     are left out; clipped commands; a cut tail; a damaged file)."""

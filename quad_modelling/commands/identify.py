@@ -13,6 +13,7 @@ from quad_modelling.commands.evaluate import (
     config_from_args,
     input_files,
     load_evaluation_flights,
+    warn_flight_span_overlap,
 )
 from quad_modelling.core.identification.physics_terms import identify_term_names
 from quad_modelling.core.identification.identify import (
@@ -70,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     terms = identify_term_names(args.effects.split(","))  # one line for an unknown, repeated or unfittable term
     flights, vehicle, skipped = load_evaluation_flights(args)
+    warn_flight_span_overlap(config, flights)
     result = identify(flights, vehicle, config, terms)
     document = identified_vehicle_document(vehicle, result, config.train)
     try:  # what we write must load

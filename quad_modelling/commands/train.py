@@ -97,11 +97,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def training_spans(logs, args) -> list[tuple[float, float]]:
     """Training span [s from each flight's start] per flight, as the evaluation computes it; a warning line when it
     overlaps the preset's evaluation span (what ``evaluate --preset`` then scores partly in-sample)."""
-    from quad_modelling.commands.evaluate import warn_span_overlap
+    from quad_modelling.commands.evaluate import warn_flight_span_overlap, warn_span_overlap
     from quad_modelling.core.windows import EvaluationConfig
 
     config = EvaluationConfig.from_options(args.preset, args.drop, train=args.train)
     warn_span_overlap(config)
+    warn_flight_span_overlap(config, logs)
     span = config.spans()[0]
     spans = []
     for log in logs:

@@ -239,6 +239,20 @@ class EvaluationConfig:
         return (f"the training span {train.text()} and the evaluation span {held_out.text()} share {shared}: "
                 "what is fitted there is scored partly in-sample")
 
+    def flight_span_overlap(self, log: FlightLog) -> str | None:
+        """:meth:`span_overlap` for spans of mixed kinds (one in seconds, one in percent), judged on ``log``'s flying
+        part: a sentence naming the flight and the seconds both spans share, else None (same kinds: :meth:`span_overlap`)."""
+        train, held_out = self.spans()
+        if train.relative == held_out.relative:
+            return None
+        (a, b), (c, d) = (span.interval(log, self.drop_start, self.drop_end) for span in (train, held_out))
+        start, end = max(a, c), min(b, d)
+        if start >= end:
+            return None
+        return (f"{log.meta.source}: the training span {train.text()} ({a:.1f}-{b:.1f} s of this flight) and the evaluation "
+                f"span {held_out.text()} ({c:.1f}-{d:.1f} s) share {start:.1f}-{end:.1f} s: what is fitted there is scored "
+                "partly in-sample")
+
     def validate(self) -> None:
         for flag, value in (("--window", self.window_s), ("--warm", self.warm_s), ("--drop start", self.drop_start),
                             ("--drop end", self.drop_end), ("--smooth", self.smooth_cutoff_hz)):

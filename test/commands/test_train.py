@@ -192,3 +192,14 @@ def test_training_reads_rows_of_one_period_as_evaluate_scores_them(tmp_path, cap
     # two gap-free parts around the 10 filled rows: each loses the 10 rows of history and the 50 of horizon at its
     # edges, so 10 + 60 anchors fewer (the span's row bounds move by a row or two with the hole)
     assert abs(whole_model.training["samples"] - holed_model.training["samples"] - 70) <= 2
+
+
+def test_a_seconds_training_span_overlapping_the_presets_percent_eval_span_is_warned(tmp_path, capsys):
+    """--train 10:30 with --preset short's eval 60%:100% shares time on a 42 s flight: the kinds differ, so the spans
+    alone could not tell, and nothing was said (review); judged on the flight, one warning naming it."""
+    assert main(["train", BAG, "--preset", "short", "--train", "10:30", "--direct", "--quiet", "-o", str(tmp_path / "d.npz")]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "in-sample" in line]
+    assert len(warnings) == 1 and f"{BAG}: the training span 10:30 (10.0-30.0 s of this flight) and the evaluation span " \
+                                  "60%:100%" in warnings[0], warnings
+    assert main(["train", BAG, "--preset", "short", "--train", "5:15", "--direct", "--quiet", "-o", str(tmp_path / "e.npz")]) == 0
+    assert "in-sample" not in capsys.readouterr().err
