@@ -275,10 +275,11 @@ def motor_channels(params: dict) -> tuple[list[int], str]:
     return list(range(ROTORS)), "outputs [0, 1, 2, 3] (no PWM_MAIN_FUNCn naming the motors: first four)"
 
 
-def motor_commands(topics: Topics, params: dict, where: str) -> tuple[str, np.ndarray, np.ndarray, dict]:
-    """(source topic, stamps [s], (N, 4) commands as logged, notes) of the four motors."""
+def motor_commands(topics: Topics, params: dict, where: str, prefer: str | None = None) -> tuple[str, np.ndarray, np.ndarray, dict]:
+    """(source topic, stamps [s], (N, 4) commands as logged, notes) of the four motors: from ``actuator_motors``, else
+    ``actuator_outputs``; ``prefer`` one of them when the log holds both (the one in the vehicle's input unit)."""
     notes: dict = {"rotor_count": four_rotors(topics, params, where)}
-    if "actuator_motors" in topics:
+    if "actuator_motors" in topics and not (prefer == "actuator_outputs" and "actuator_outputs" in topics):
         topic = "actuator_motors"
         u = np.column_stack(_need(topics, topic, [f"control[{i}]" for i in range(ROTORS)], where))
         stopped = np.isnan(u)
@@ -370,9 +371,11 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
     if missing:
         found = sorted(n for n in topics if n in TOPICS)
         raise DataError(f"{where}: missing PX4 topic(s) {'; '.join(missing)} (found: {', '.join(found) or 'none'})")
-    motor_topic, t, u, motor_notes = motor_commands(topics, params, where)
+    given = vehicle if isinstance(vehicle, VehicleConfig) else load_vehicle(vehicle) if vehicle else None
+    prefer = next((topic for topic, unit in MOTOR_UNITS.items() if given is not None and unit == given.input_unit), None)
+    motor_topic, t, u, motor_notes = motor_commands(topics, params, where, prefer)  # a PWM vehicle: actuator_outputs if logged
     notes.update(motor_notes)
-    config = vehicle if isinstance(vehicle, VehicleConfig) else load_vehicle(vehicle or DEFAULT_VEHICLES[motor_topic])
+    config = given or load_vehicle(DEFAULT_VEHICLES[motor_topic])
     if config.input_unit != MOTOR_UNITS[motor_topic]:
         raise DataError(
             f"{where}: motor commands come from {motor_topic} ({MOTOR_UNITS[motor_topic]}) but vehicle "

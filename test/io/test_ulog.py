@@ -216,3 +216,12 @@ def test_cli_convert_then_info_on_the_ulog_and_the_bag(tmp_path, capsys):
     assert "samples:   152 at 10.00 Hz, duration 15.100 s" in out
     assert "  euler:          vehicle_attitude q, 20.0 Hz, slerp" in out
     assert "disarmed:  dropped 14.90 s before arming and 0.90 s after disarming (vehicle_status)" in out
+
+
+def test_a_pwm_vehicle_reads_actuator_outputs_of_a_log_that_holds_both():
+    """The events sample logs actuator_motors (0..1) and actuator_outputs (PWM): with the PWM vehicle it was refused
+    ("motor commands come from actuator_motors ... but vehicle px4_iris_pwm takes us"); the outputs are read."""
+    log = load_flight(EVENTS, vehicle="px4_iris_pwm")
+    assert log.meta.vehicle == "px4_iris_pwm" and log.meta.notes["sources"]["u"].startswith("actuator_outputs")
+    assert 900.0 <= float(log.u.min()) and float(log.u.max()) <= 2000.0 and float(log.u.max()) > 1000.0
+    assert load_flight(EVENTS).meta.notes["sources"]["u"].startswith("actuator_motors")  # the default: unchanged
