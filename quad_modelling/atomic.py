@@ -59,18 +59,29 @@ def check_bag_name(path: Path, flag: str = "-o") -> None:
 
 
 OUTPUT_MARKERS = ("results.json", "diagnosis.json", "validation.json", "layout.yaml", "metadata.yaml")
-"""A file one of these names marks a directory as an earlier output (evaluate, run-bag and merge; diagnose; diagnose
---validate; export; a bag's rosbag2 metadata): only such a directory, or an empty one, is replaced by --force."""
+"""The files that mark a directory as an earlier output of some verb (evaluate, run-bag and merge; diagnose; diagnose
+--validate; export; a bag's rosbag2 metadata): a verb passes its own (``check_output``'s ``markers``)."""
+
+
+def earlier_output(path: Path, markers: Iterable[str]) -> bool:
+    """Whether directory ``path`` holds one of ``markers``, or is a directory of such directories (convert's bags of
+    several inputs): an earlier output of the verb that writes those files."""
+    markers = tuple(markers)
+    if any((path / marker).exists() for marker in markers):
+        return True
+    entries = [entry for entry in path.iterdir() if not entry.name.startswith(".")]
+    return bool(entries) and all(entry.is_dir() and any((entry / marker).exists() for marker in markers) for entry in entries)
 
 
 def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), flag: str = "-o",
-                 directory: bool = False) -> None:
+                 directory: bool = False, markers: Iterable[str] = OUTPUT_MARKERS) -> None:
     """Refuse an output that names no file (``''``, ``.``, ``..``), is too long a name, is or holds an
     input (``inputs``: every file the command reads), exists without force, or whose directory we
     cannot write to; ``flag`` is the option that named it, as the error says. A ``directory`` output refuses an
     existing regular file even with force (``--force`` replaces an earlier output directory, not another file), and
-    every output refuses an existing directory that is not empty and holds none of :data:`OUTPUT_MARKERS` (``-o
-    precious --force`` deleted a directory of the user's notes)."""
+    every output refuses an existing directory that is not empty and not an earlier output (:func:`earlier_output` by
+    the verb's ``markers``, default :data:`OUTPUT_MARKERS`): ``-o precious --force`` deleted a directory of the user's
+    notes, ``evaluate -o my_recording --force`` a PX4 bag."""
     given = str(path)  # as typed: Path("") is "."
     path = Path(path)
     if path.name in ("", ".", ".."):
@@ -90,10 +101,11 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), fla
     if directory and path.exists() and not path.is_dir():
         raise OutputExistsError(f"{flag} {path}: an existing file, not an output directory; --force replaces an earlier "
                                 "output directory only: choose another name")
-    if path.is_dir() and any(path.iterdir()) and not any((path / marker).exists() for marker in OUTPUT_MARKERS):
-        raise OutputExistsError(f"{flag} {path}: an existing directory that holds no earlier output of quad-modelling "
-                                f"(none of {', '.join(OUTPUT_MARKERS)}); --force replaces an earlier output only: choose "
-                                "another name or empty it")
+    markers = tuple(markers)
+    if path.is_dir() and any(path.iterdir()) and not earlier_output(path, markers):
+        raise OutputExistsError(f"{flag} {path}: an existing directory that is no earlier output of this command (none of "
+                                f"{', '.join(markers)}); --force replaces an earlier output only: choose another name or "
+                                "empty it")
     if not parent_is_dir:
         raise OutputDirError(f"{flag} {path}: its parent directory {parent} does not exist (or is not a directory); "
                              f"create it first")
@@ -154,7 +166,7 @@ def _signals_held() -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def atomic_output(path: str | Path, force: bool = False) -> Iterator[Path]:
+def atomic_output(path: str | Path, force: bool = False, markers: Iterable[str] = OUTPUT_MARKERS) -> Iterator[Path]:
     """Yield a temporary path with the same name, in a hidden staging directory next to
     ``path``; rename it onto ``path`` on success.
 
@@ -162,10 +174,10 @@ def atomic_output(path: str | Path, force: bool = False) -> Iterator[Path]:
     a directory there (keeping the final name, so a bag's inner ``.mcap`` file is
     named after the bag). On any exception (KeyboardInterrupt and SystemExit
     included) the staging directory is removed and the error re-raised; a full
-    disk or read-only file system becomes one OutputDirError.
+    disk or read-only file system becomes one OutputDirError. ``markers``: as :func:`check_output`'s.
     """
     path = Path(path)
-    check_output(path, force)
+    check_output(path, force, markers=markers)
     staging = path.with_name(f".{path.name}.tmp-{uuid.uuid4().hex[:8]}")
     try:
         staging.mkdir()

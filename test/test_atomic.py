@@ -83,7 +83,7 @@ def test_force_replaces_an_earlier_output_directory_not_any_directory(tmp_path):
     precious.mkdir()
     (precious / "notes.txt").write_text("important")
     for directory in (False, True):
-        with pytest.raises(OutputExistsError, match="holds no earlier output of quad-modelling"):
+        with pytest.raises(OutputExistsError, match="is no earlier output of this command"):
             check_output(precious, force=True, directory=directory)
     empty = tmp_path / "empty"
     empty.mkdir()
@@ -94,3 +94,28 @@ def test_force_replaces_an_earlier_output_directory_not_any_directory(tmp_path):
         (earlier / marker).write_text("{}")
         (earlier / "fig_z.png").write_bytes(b"")
         check_output(earlier, force=True, directory=True)
+
+
+def test_an_earlier_output_is_judged_by_the_verbs_own_files(tmp_path):
+    """convert of several inputs writes a directory of bags (no marker at its top: its --force re-run was refused);
+    evaluate --force replaced a PX4 recording (a bag's metadata.yaml counted for every verb); run-bag's onboard half
+    writes params.yaml and logs only."""
+    from quad_modelling.atomic import OutputExistsError, check_output, earlier_output
+
+    bags = tmp_path / "bags"
+    for name in ("a", "b"):
+        (bags / name).mkdir(parents=True)
+        (bags / name / "metadata.yaml").write_text("rosbag2_bagfile_information: {}")
+    assert earlier_output(bags, ("metadata.yaml",))
+    check_output(bags, force=True, directory=True)
+    (bags / "notes.txt").write_text("mine")  # a file beside the bags: not convert's
+    assert not earlier_output(bags, ("metadata.yaml",))
+    recording = tmp_path / "recording"
+    recording.mkdir()
+    (recording / "metadata.yaml").write_text("rosbag2_bagfile_information: {}")
+    with pytest.raises(OutputExistsError, match="no earlier output of this command .none of results.json."):
+        check_output(recording, force=True, directory=True, markers=("results.json",))
+    onboard = tmp_path / "onboard"
+    (onboard / "logs").mkdir(parents=True)
+    (onboard / "params.yaml").write_text("{}")
+    check_output(onboard, force=True, directory=True, markers=("results.json", "params.yaml"))

@@ -5,12 +5,12 @@ from __future__ import annotations
 from collections.abc import Iterable
 from pathlib import Path
 
-from quad_modelling.atomic import OutputOverlapsInputError, check_output
+from quad_modelling.atomic import OUTPUT_MARKERS, OutputOverlapsInputError, check_output
 from quad_modelling.core.vehicle import config_dir
 
 
 def check_command_output(path: str | Path, force: bool, inputs: Iterable[str | Path | None] = (), flag: str = "-o",
-                         directory: bool = False) -> None:
+                         directory: bool = False, markers: Iterable[str] = OUTPUT_MARKERS) -> None:
     """:func:`~quad_modelling.atomic.check_output` of a verb's output, which is also never the shipped configuration
     (:func:`~quad_modelling.core.vehicle.config_dir`: the vehicle files and topic maps a verb reads by name), inside
     it or around it, even with --force: ``identify FLIGHT -o config/vehicles/linkquad.yaml --force`` rewrote the
@@ -23,4 +23,4 @@ def check_command_output(path: str | Path, force: bool, inputs: Iterable[str | P
             raise OutputOverlapsInputError(f"{flag} {path}: the output {relation} the shipped configuration {shipped} (vehicle "
                                            "files and topic maps read by name); write your own file elsewhere (refused even "
                                            "with --force)")
-    check_output(Path(path), force, inputs, flag, directory)
+    check_output(Path(path), force, inputs, flag, directory, markers)

@@ -169,7 +169,7 @@ def _fast_enough(flights: list, skip_bad: bool, skipped: list[str]) -> list:
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     inputs = [*(args.train or []), *(args.test or []), vehicle_file(args.vehicle), topic_map_file(args.topic_map)]
-    check_command_output(output, args.force, inputs=inputs, directory=True)
+    check_command_output(output, args.force, inputs=inputs, directory=True, markers=("diagnosis.json", "validation.json"))
     check_distinct_inputs(args.train or [], "--train")
     check_distinct_inputs(args.test or [], "--test")
     check_topic_map_applies(args.topic_map, [*(args.train or []), *(args.test or [])])

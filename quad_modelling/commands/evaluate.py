@@ -16,7 +16,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models.registry import MODEL_FILE_KINDS, make_model
 from quad_modelling.core.preprocess import flight_warnings, resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
-from quad_modelling.core.windows import PRESETS, EvaluationConfig, check_window_rate
+from quad_modelling.core.windows import MIN_SAMPLE_RATE_HZ, PRESETS, EvaluationConfig, check_window_rate
 from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.fanout import add_fanout_arguments, check_fanout_options, iter_flights, tty_progress
 from quad_modelling.io.loader import check_distinct_flights, check_topic_map_applies, load_flight_or_skip, load_flights
@@ -110,9 +110,12 @@ def warn_flight_span_overlap(config: EvaluationConfig, flights: list[FlightLog])
 
 def print_flight_warnings(flights: list[FlightLog]) -> None:
     """One ``warning:`` line on stderr per warning the reader recorded about each flight (a marked gap, whose windows
-    are left out; clipped commands; a cut tail; a damaged file)."""
+    are left out; clipped commands; a cut tail; a damaged file), and per logging hole the resampling to one period marks
+    (:func:`~quad_modelling.core.preprocess.resample_uniform`, as every verb that scores or fits reads the flight; a
+    flight too slow to score is left as read: the rate's refusal follows)."""
     for log in flights:
-        for message in flight_warnings(log):
+        uniform = resample_uniform(log) if log.sample_rate >= MIN_SAMPLE_RATE_HZ else log
+        for message in flight_warnings(uniform):
             print(f"warning: {message}", file=sys.stderr)
 
 
@@ -173,9 +176,13 @@ def named_spec(text: str) -> tuple[str | None, str]:
     """``--model`` text -> (its name or None, the model spec): ``NAME=SPEC`` names a model (two files of one kind in one
     table, e.g. ``a=narx:a.npz`` and ``b=narx:b.npz``; NAME letters, digits and '_', as run-bag's), else the spec."""
     name, sep, spec = text.partition("=")
-    if sep and re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
-        return name, spec
-    return None, text
+    if not sep or ":" in name:  # a spec whose argument holds '=' (narx:/runs/lr=0.1.npz)
+        return None, text
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        raise ConfigError(f"--model {text!r}: a model name is letters, digits and '_', not starting with a digit")
+    if name == "dummy":
+        raise ConfigError(f"--model {text!r}: dummy is the baseline every evaluation holds; choose another name")
+    return name, spec
 
 
 def build_model(text: str, vehicle: VehicleConfig):
@@ -273,7 +280,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_command_output(output, args.force, inputs=input_files(args), directory=True)
+    check_command_output(output, args.force, inputs=input_files(args), directory=True, markers=("results.json",))
     check_distinct_inputs(args.inputs, "FLIGHT")
     check_topic_map_applies(args.topic_map, args.inputs)
     check_fanout_options(args.jobs, args.scheduler)

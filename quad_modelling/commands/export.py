@@ -57,7 +57,8 @@ def run(args: argparse.Namespace) -> int:
     if args.format not in FORMATS:
         raise ConfigError(f"--format {args.format}: unknown export format; known: {', '.join(FORMATS)}")
     hybrid_file = _hybrid_file(args.model)
-    check_command_output(args.output, args.force, inputs=[vehicle_file(args.vehicle), hybrid_file], directory=True)
+    check_command_output(args.output, args.force, inputs=[vehicle_file(args.vehicle), hybrid_file], directory=True,
+                         markers=("layout.yaml",))
     from quad_modelling.core.export.casadi_model import exportable_model, write_casadi_export
 
     model = exportable_model(load_vehicle(args.vehicle), hybrid_file)

@@ -38,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
-    check_command_output(output, args.force, inputs=args.inputs, directory=True)
+    check_command_output(output, args.force, inputs=args.inputs, directory=True, markers=("results.json",))
     result = merge_results(args.inputs)
     stats = result.statistics
     with atomic_output(output, args.force) as tmp:

@@ -19,6 +19,7 @@ import yaml
 
 from quad_modelling.atomic import atomic_output
 from quad_modelling.commands import check_command_output
+from quad_modelling.core.models.registry import MODEL_FILE_KINDS
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.topic_maps import add_topic_map_argument
 from quad_modelling.nodes.domains import DISCOVERY_MODES
@@ -92,6 +93,11 @@ def parse_nodes(text: str) -> tuple[str, ...]:
 class ModelEntry:
     name: str
     spec: str
+
+
+RUN_BAG_MARKERS = ("results.json", "params.yaml")
+"""What marks an earlier run-bag output (--force replaces it): its results, or the params.yaml every run writes (a run
+without the evaluator, ``--nodes replay,predictors``, writes no results)."""
 
 
 def parse_models(text: str) -> list[ModelEntry]:
@@ -348,7 +354,8 @@ def run(args: argparse.Namespace) -> int:
     from quad_modelling.io.loader import load_flight
     from quad_modelling.io.topic_maps import CONTRACT_NAMESPACE, choose_topic_map, topic_map_file
 
-    check_command_output(Path(args.output), args.force, inputs=[args.bag, vehicle_file(args.vehicle), topic_map_file(args.topic_map)])
+    check_command_output(Path(args.output), args.force, inputs=[args.bag, vehicle_file(args.vehicle), topic_map_file(args.topic_map)],
+                         markers=RUN_BAG_MARKERS)
     chosen = choose_topic_map(read_bag_metadata(args.bag).topics, str(args.bag), args.topic_map)
     if chosen.is_contract and chosen.namespace == CONTRACT_NAMESPACE:
         return _run(args)
@@ -375,8 +382,9 @@ def _run(args: argparse.Namespace) -> int:
     models = parse_models(args.models)
     here = parse_nodes(args.nodes)
     remote = tuple(group for group in NODE_GROUPS if group not in here)
-    model_files = [m.spec.partition(":")[2] for m in models if m.spec.partition(":")[0] in ("narx", "hybrid")]
-    check_command_output(output, args.force, inputs=[args.bag, vehicle_file(args.vehicle), *model_files], directory=True)
+    model_files = [m.spec.partition(":")[2] for m in models if m.spec.partition(":")[0] in MODEL_FILE_KINDS]
+    check_command_output(output, args.force, inputs=[args.bag, vehicle_file(args.vehicle), *model_files], directory=True,
+                         markers=RUN_BAG_MARKERS)
     for flag, value in (("--rate", args.rate), ("--window", args.window), ("--warm", args.warm), ("--timeout", args.timeout),
                         ("--remote-timeout", args.remote_timeout)):
         if not math.isfinite(value):
@@ -414,7 +422,7 @@ def _run(args: argparse.Namespace) -> int:
               f"(ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, discovery {env.get('ROS_AUTOMATIC_DISCOVERY_RANGE', 'default')}"
               f"{', static peers ' + env['ROS_STATIC_PEERS'] if env.get('ROS_STATIC_PEERS') else ''})", flush=True)
     started = time.monotonic()
-    with atomic_output(output, args.force) as tmp:
+    with atomic_output(output, args.force, markers=RUN_BAG_MARKERS) as tmp:
         tmp.mkdir()
         (tmp / "logs").mkdir()
         report_dir = tmp / "report"

@@ -55,7 +55,7 @@ def unused_command_range(log: FlightLog, low: float, high: float) -> str | None:
     if use >= COMMAND_RANGE_USE:
         return None
     return (f"{log.meta.source}: the commands reach {use:.1%} of the input range [{low:g}, {high:g}] (99th percentile); "
-            f"a flying vehicle's reach {COMMAND_RANGE_USE:.0%} or more: check the commands' range")
+            f"a flying vehicle's commands reach {COMMAND_RANGE_USE:.0%} or more: check the commands' range")
 
 
 def frame_disagreements(log: FlightLog) -> list[str]:

@@ -505,7 +505,8 @@ def no_window_error(config: EvaluationConfig, durations: Sequence[float]) -> Dat
     if all(span.relative for span in config.spans()):  # --preset short already: the window is what does not fit
         flying = max(durations, default=0.0) - config.drop_start - config.drop_end
         hint = (f"the longest flight flies {max(flying, 0.0):.1f} s after the drops: use a shorter --window, smaller "
-                "--drop, or longer flights")
+                "--drop, or longer flights (a window touching a marked measurement gap is left out too: the warnings "
+                "above name the gaps)")
     else:
         hint = "for short flights use --preset short or relative spans such as --drop 5:5 --train 0%:60% --eval 60%:100%"
     return DataError(

@@ -70,8 +70,8 @@ resolve about 0.2 us, and two rows 128 ns apart were one time, refused as 'time 
 
 MAX_COMMAND_RATE_HZ = 5000.0
 """Fastest engine-input stream read as such: a flight stack commands its motors at tens to hundreds of Hz (PX4
-actuator_motors up to about 1 kHz); a faster one is stamps read in a unit 1000x too coarse (a map's stamp_unit ns
-on stamps in us: 100 kHz, a 40 s flight read as 0.04 s)."""
+actuator_motors up to about 1 kHz); a faster one is stamps in a unit 1000x coarser than the map's stamp_unit says (us
+stamps under a map's ns: 100 kHz, a 40 s flight read as 0.04 s)."""
 
 MAX_PENDING_S = 60.0
 """Longest span [s] of command rows held while a stream has not reached them: then a stream that lags is on another
@@ -454,14 +454,15 @@ class FlightAssembler:
         unit = self.topic_map.topics[self.base].stamp_unit or "Time"
         if self.rows < 2:
             raise DataError(f"{self.where}: the topics {', '.join(sorted(self.kinematic | {self.base}))} share no common time span "
-                            f"(or their stamps are not in the map's stamp_unit, {unit}: every step then looks 1000x too long "
-                            "and is dropped)")
+                            f"(or their stamps are in a unit finer than the map's stamp_unit, {unit}: every step then "
+                            "looks 1000x too long and is dropped)")
         n = self.rows
         t_ns = self.t_ns[:n]
         rate = rate_hz(n, int(t_ns[0]), int(t_ns[-1]))
         if rate > MAX_COMMAND_RATE_HZ:
             raise DataError(f"{self.where}: topic {self.base} read at {rate:.0f} Hz ({n} commands in {(t_ns[-1] - t_ns[0]) / 1e9:.3g} s): "
-                            f"its stamps are not in the map's stamp_unit, {unit}, but a 1000x finer one; fix stamp_unit")
+                            f"its stamps are in a unit 1000x coarser than the map's stamp_unit, {unit} (ms stamps under us, us under ns); "
+                            "fix stamp_unit")
         base = self.streams[self.base]
         notes = {"format": f"bag (topic map {self.topic_map.name})", **(notes or {})}
         for stream in self.streams.values():  # suspects still held at the end: never confirmed by a following message

@@ -98,11 +98,11 @@ def merge_results(directories: Sequence[str | Path]) -> EvaluationResult:
         if difference:
             raise DataError(f"{path}: vehicle constants differ from {first_path}'s ({difference}): evaluations run with different "
                             "vehicle files do not merge; evaluate every flight with one --vehicle")
+        _same("models", first_stats.models, statistics.models, first_path, path)  # before their files: a model both hold
         model = first_stats.model_file_difference(statistics)
         if model:
             raise DataError(f"{path}: model {model} was loaded from another file than in {first_path} (its contents differ); "
                             "evaluations of different model files do not merge")
-        _same("models", first_stats.models, statistics.models, first_path, path)
         _same("configuration", first_config, config, first_path, path)
         _same("multi-step table", first_stats.multistep is not None, statistics.multistep is not None, first_path, path)
         scored = [f for f in document["config"].get("flights", []) if isinstance(f, dict) and not f.get("skipped")]

@@ -185,6 +185,8 @@ CORPUS = [
      "the output is the input {d}/linkquad_copy.yaml"),
     ("diagnose-onto-test", ["diagnose", "--train", "{d}/flight.mat", "--test", "{d}/bag", "-o", "{d}/bag", "--force"], "the output is the input {d}/bag"),
     ("run-bag-onto-bag", ["run-bag", "{d}/bag", "-o", "{d}/bag", "--force"], "the output is the input {d}/bag"),
+    ("run-bag-onto-direct-model", ["run-bag", "{d}/bag", "--models", "direct:{d}/text.npz", "-o", "{d}/text.npz", "--force"],
+     "the output is the input {d}/text.npz"),
     # numbers
     ("window-nan", ["evaluate", "{d}/flight.mat", "--window", "nan", "-o", "{d}/work/out"], "--window nan: must be a finite number"),
     ("window-inf", ["evaluate", "{d}/flight.mat", "--window", "inf", "-o", "{d}/work/out"], "--window inf: must be a finite number"),
@@ -433,3 +435,20 @@ def test_the_shipped_configuration_is_never_an_output_even_with_force(tmp_path, 
         assert len(err) == 1 and "the shipped configuration" in err[0] and "refused even with --force" in err[0], err
     assert {p.name: p.read_bytes() for p in vehicle_dir().glob("*.yaml")} == before
     assert not (tmp_path / "bag").exists()
+
+
+def test_convert_of_several_flights_reruns_with_force_and_evaluate_does_not_replace_a_bag(tmp_path, capsys):
+    """convert of several inputs writes a directory of bags: its --force re-run was refused (no marker at its top);
+    evaluate -o RECORDING --force replaced a bag (any verb took a bag's metadata.yaml for its own output)."""
+    flights = []
+    for seed in (1, 2):
+        flights.append(tmp_path / f"f{seed}.mat")
+        write_matlog(synthetic_log(n=400, seed=seed), flights[-1])
+    out = tmp_path / "bags"
+    assert main(["convert", *map(str, flights), "-o", str(out)]) == 0
+    assert main(["convert", *map(str, flights), "-o", str(out), "--force"]) == 0
+    capsys.readouterr()
+    recording = out / "f1"
+    assert main(["evaluate", str(flights[0]), "--preset", "short", "-o", str(recording), "--force"]) == 2
+    assert "is no earlier output of this command (none of results.json)" in capsys.readouterr().err
+    assert (recording / "metadata.yaml").is_file()

@@ -184,6 +184,10 @@ def test_two_model_files_of_one_kind_are_compared_by_naming_them(tmp_path, capsy
     assert list(results["models"]) == ["a", "b", "dummy"] and results["models"]["a"] == results["models"]["b"]
     assert main([*named, "-o", str(first), "--force"]) == 2
     assert f"the output is the input {first}" in capsys.readouterr().err
+    for text, why in (("1a=greybox", "a model name is letters, digits and '_', not starting with a digit"),
+                      (f"dummy=direct:{first}", "dummy is the baseline every evaluation holds")):
+        assert main(["evaluate", bag, "--preset", "short", "--model", text, "-o", str(tmp_path / "bad")]) == 2
+        assert why in capsys.readouterr().err
 
 
 def test_a_logging_hole_in_a_csv_is_a_marked_gap_not_a_refused_flight(tmp_path, capsys):

@@ -118,3 +118,13 @@ def test_export_warns_when_the_model_cannot_hover_within_its_commands(inputs, tm
     assert hover[1] > 65535.0 and max(hover[0], hover[2], hover[3]) < 65535.0
     warnings = captured.err.strip().splitlines()
     assert len(warnings) == 1 and warnings[0].startswith("warning: the model's level hover needs commands outside [0, 65535] on motor(s) 2 ")
+
+
+def test_a_cg_offset_beyond_the_rotors_is_one_line_naming_the_vehicle(tmp_path, capsys):
+    doc = crazyflie_document()
+    doc["effects"]["motor_imbalance"]["cg_offset_x"].update(value=0.04, bounds=[-0.1, 0.1])  # rotors at x = +-32.5 mm
+    vehicle = write_vehicle(doc, tmp_path / "offset.yaml")
+    assert main(["export", str(vehicle), "--format", "casadi", "-o", str(tmp_path / "out")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert f"{vehicle}: no level hover: the CG offset (0.04, -0.001) m lies beyond the rotors" in line and "np.float64" not in line, line
+    assert not (tmp_path / "out").exists()

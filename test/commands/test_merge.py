@@ -125,6 +125,11 @@ def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, 
     message = merge_error([str(tmp_path / "r_a"), str(tmp_path / "r_b"), "-o", str(tmp_path / "out")], capsys)
     assert f"r_b/results.json: model narx was loaded from another file than in {tmp_path / 'r_a'}/results.json" in message
     assert main(["merge", str(tmp_path / "r_a"), str(tmp_path / "r_a_copy"), "-o", str(tmp_path / "out")]) == 0
+    # a named model in one and not the other: their models differ (it blamed the named model's file)
+    assert main(["evaluate", str(tmp_path / "other_flight"), "--preset", "short", "--no-multistep", "--model",
+                 f"mine=narx:{tmp_path / 'a'}.npz", "-o", str(tmp_path / "r_named")]) == 0
+    message = merge_error([str(tmp_path / "r_a"), str(tmp_path / "r_named"), "-o", str(tmp_path / "out2")], capsys)
+    assert "models" in message and "another file" not in message, message
 
 
 def test_model_specs_whose_argument_is_an_option_are_evaluated_and_merge(flights, tmp_path):

@@ -227,4 +227,5 @@ def test_no_window_error_suggests_what_would_fit():
     thesis = str(no_window_error(EvaluationConfig(), [40.0]))
     assert thesis.endswith("for short flights use --preset short or relative spans such as --drop 5:5 --train 0%:60% --eval 60%:100%")
     short = str(no_window_error(EvaluationConfig.preset("short"), [12.0, 9.0]))
-    assert short.endswith("the longest flight flies 2.0 s after the drops: use a shorter --window, smaller --drop, or longer flights")
+    assert short.endswith("the longest flight flies 2.0 s after the drops: use a shorter --window, smaller --drop, or longer flights "
+                          "(a window touching a marked measurement gap is left out too: the warnings above name the gaps)")

@@ -244,11 +244,11 @@ def test_stamps_in_another_unit_than_the_maps_are_named_as_such(flight, tmp_path
     ns_map = tmp_path / "px4_ns.yaml"
     ns_map.write_text((REPO / "config" / "topic_maps" / "px4.yaml").read_text().replace("stamp_unit: us", "stamp_unit: ns"))
     err = _fails(capsys, "info", str(bag), "--topic-map", str(ns_map), "--vehicle", "crazyflie21")
-    assert "topic /fmu/out/actuator_motors read at 1000" in err and "not in the map's stamp_unit, ns, but a 1000x finer one" in err
+    assert "topic /fmu/out/actuator_motors read at 1000" in err and "its stamps are in a unit 1000x coarser than the map's stamp_unit, ns" in err
     coarse = write_stack_bag(tmp_path / "px4_coarse", partial(px4_messages, log=flight, input_range=(cf.input_min, cf.input_max),
                                                                stamps_us=(np.arange(len(flight)) * 10_000_000 + 10**9)))
     err = _fails(capsys, "info", str(coarse), "--vehicle", "crazyflie21")
-    assert "(or their stamps are not in the map's stamp_unit, us" in err or "check the map's stamp_unit, us" in err, err
+    assert "(or their stamps are in a unit finer than the map's stamp_unit, us" in err or "check the map's stamp_unit, us" in err, err
 
 
 def test_run_bag_of_a_stack_without_imu_is_refused_naming_the_topic(flight, tmp_path, capsys):

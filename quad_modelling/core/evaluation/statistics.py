@@ -274,11 +274,11 @@ class EvaluationStatistics:
         difference = self.vehicle_difference(other)
         if difference:
             raise DataError(f"cannot merge evaluations of vehicle {self.vehicle!r} run with different constants ({difference})")
+        if other.models != self.models:  # before their files: a model both hold
+            raise DataError(f"cannot merge the statistics of models {other.models} into those of {self.models}")
         difference = self.model_file_difference(other)
         if difference:
             raise DataError(f"cannot merge evaluations whose model {difference} was loaded from different files")
-        if other.models != self.models:
-            raise DataError(f"cannot merge the statistics of models {other.models} into those of {self.models}")
         for model, spans in other.windowed.items():
             for span, sums in spans.items():
                 self.windowed[model].setdefault(span, WindowSums()).merge(sums)

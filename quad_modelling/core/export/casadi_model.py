@@ -93,6 +93,10 @@ def exportable_model(vehicle: VehicleConfig, hybrid_file: str | Path | None = No
         raise ConfigError(f"{vehicle.path}: never identified: the physics constants {', '.join(never)} hold starting values "
                           f"(status identified, but no identification record names them); export a vehicle file written by "
                           f"`quad-modelling identify FLIGHTS --vehicle {vehicle.name} -o FILE`")
+    try:  # the layout's hover trim: refused before anything is written
+        hover_rotor_speeds(params)
+    except ConfigError as err:
+        raise ConfigError(f"{vehicle.path}: {err}") from err
     if hybrid_file is None:
         return ExportedModel(vehicle, params, Observer.from_vehicle(vehicle), "physics")
     try:
@@ -264,7 +268,9 @@ def hover_rotor_speeds(p) -> np.ndarray:
                                               p.torque_constant / p.thrust_constant)
     thrusts = np.linalg.solve(allocation, [p.mass * GRAVITY, 0.0, 0.0, 0.0])
     if np.any(thrusts <= 0.0):
-        raise ConfigError(f"no level hover: the CG offset {tuple(offset)} m leaves rotor thrusts {np.round(thrusts, 4).tolist()} N")
+        raise ConfigError(f"no level hover: the CG offset ({offset[0]:g}, {offset[1]:g}) m lies beyond the rotors (thrusts "
+                          f"{', '.join(f'{t:.3g}' for t in thrusts)} N carry the weight without a moment); check the motor "
+                          "imbalance's cg_offset_x/y")
     return np.sqrt(thrusts / p.thrust_constant)
 
 

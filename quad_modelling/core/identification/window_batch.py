@@ -148,7 +148,8 @@ def prepare_windows(
         durations = ", ".join(f"{log.duration:.1f} s" for log in flights)
         raise DataError(
             f"no {config.window_s:g} s window fits span {span.text()} after dropping {config.drop_start:g} s/"
-            f"{config.drop_end:g} s (flight durations {durations}); shorten --window or the drops"
+            f"{config.drop_end:g} s (flight durations {durations}); shorten --window or the drops (a window touching "
+            "a marked measurement gap or the ground is left out too)"
         )
     lengths = {len(w) for w in windows}
     n = min(lengths)
