@@ -271,7 +271,7 @@ def hover_rotor_speeds(p) -> np.ndarray:
         raise ConfigError(f"no level hover: the CG offset ({offset[0]:g}, {offset[1]:g}) m lies beyond the rotors (thrusts "
                           f"{', '.join(f'{t:.3g}' for t in thrusts)} N carry the weight without a moment); check the motor "
                           "imbalance's cg_offset_x/y")
-    return np.sqrt(thrusts / p.thrust_constant)
+    return rotors.rotor_speed_for_thrust(p.thrust_constant, thrusts)
 
 
 def hover_commands(p) -> np.ndarray:
