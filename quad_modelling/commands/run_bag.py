@@ -371,6 +371,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
+    from quad_modelling.commands.evaluate import print_flight_warnings
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.core.windows import check_window_rate
     from quad_modelling.io.bag_io import read_bag_metadata
@@ -406,9 +407,9 @@ def _run(args: argparse.Namespace) -> int:
     if not vehicle_name:
         raise ConfigError(f"{args.bag}: the bag names no vehicle; pass --vehicle NAME")
     vehicle = load_vehicle(vehicle_name)
-    # Check the whole bag here, as the offline commands read it, before any node starts:
-    # a damaged bag is one line from this process, not a node's traceback.
+    # Read the whole bag as evaluate does before any node starts: a damaged bag is one line, its warnings (a mapped bag's: in the notes) too
     flight = load_flight(args.bag, vehicle=vehicle, fmt="bag")
+    print_flight_warnings([flight])
     check_window_rate(flight)  # the evaluator would mark every window of a flight this slow
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
         check = getattr(make_streaming_predictor(m.spec, vehicle), "check_flight", None)

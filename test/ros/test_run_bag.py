@@ -244,3 +244,31 @@ def test_a_contract_bag_under_another_namespace_is_replayed(tmp_path, capsys):
     assert f"{moved}: read through topic map quad (4227 samples); replaying it in the topic contract" in printed
     live = json.loads((out / "results.json").read_text())
     assert live["windows"]["naive"] == {"train": 2, "eval": 2}
+
+
+def test_a_mapped_bags_reader_warnings_are_printed_once_as_evaluate_prints_them(tmp_path, capsys):
+    """A PX4 bag read through a map whose commands range is in the wrong unit, with battery_status recorded without a
+    message: run-bag printed neither warning (evaluate did); now each once, the same `warning:` line as evaluate's."""
+    from functools import partial
+
+    from quad_modelling.io.loader import load_flight
+    from test.stack_bags import px4_messages, write_stack_bag
+
+    cf = load_vehicle("crazyflie21")
+    flight = load_flight(REPO / "test" / "fixtures" / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz")  # 10 s
+    bag = write_stack_bag(tmp_path / "px4", partial(px4_messages, log=flight, input_range=(cf.input_min, cf.input_max)),
+                          empty=("/fmu/out/battery_status",))
+    wrong = tmp_path / "px4_range.yaml"
+    wrong.write_text((REPO / "config" / "topic_maps" / "px4.yaml").read_text().replace("range: [0, 1]", "range: [0, 100]"))
+    expected = [f"warning: {bag}: the commands reach 0.9% of the input range [0, 65535] (99th percentile); a flying "
+                "vehicle's commands reach 5% or more: check the commands' range: topic map px4",
+                f"warning: {bag}: optional topic(s) /fmu/out/battery_status recorded with no message: read without them"]
+    main(["evaluate", str(bag), "--topic-map", str(wrong), "--vehicle", "crazyflie21", "--window", "2", "--drop", "0:0",
+          "-o", str(tmp_path / "offline")])
+    assert [line for line in capsys.readouterr().err.splitlines() if line in expected] == expected
+    code = main(["run-bag", str(bag), "--topic-map", str(wrong), "--vehicle", "crazyflie21", "--window", "2", "--no-figures",
+                 "--no-multistep", "-o", str(tmp_path / "live")])
+    captured = capsys.readouterr()
+    assert code == 0, captured.err
+    assert captured.err.splitlines() == expected
+    assert json.loads((tmp_path / "live" / "results.json").read_text())["windows"]["naive"] == {"live": 5}
