@@ -304,7 +304,8 @@ def run(args: argparse.Namespace) -> int:
     result.examples = example_windows(result, first_in_span, task, args.topic_map)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
     with atomic_output(output, args.force) as tmp:
-        files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicles[0]}")
+        files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicles[0]}",
+                             specs={name: spec for name, spec in map(named_spec, specs) if name})
     data = result.to_json()
     print(f"{len(vehicles)} flight(s), {windows_text(data)} -> {output}/ ({', '.join(files)})")
     for line in headline_scores(data, result.statistics.models):

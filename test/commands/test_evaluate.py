@@ -182,6 +182,10 @@ def test_two_model_files_of_one_kind_are_compared_by_naming_them(tmp_path, capsy
     assert main([*named, "-o", str(tmp_path / "out")]) == 0
     results = json.loads((tmp_path / "out" / "results.json").read_text())
     assert list(results["models"]) == ["a", "b", "dummy"] and results["models"]["a"] == results["models"]["b"]
+    models_line = (tmp_path / "out" / "tables.md").read_text().splitlines()[4]  # it listed the dummy alone
+    assert models_line.startswith(f"Models: a (direct:{first}) = physics base with the body rates of a ridge regression")
+    assert f"; b (direct:{second}) = physics base with" in models_line and models_line.endswith("; dummy = predicts zero "
+                                                                                                "deviation from the trim (thesis Fig 5.2 baseline, TIC 1).")
     assert main([*named, "-o", str(first), "--force"]) == 2
     assert f"the output is the input {first}" in capsys.readouterr().err
     for text, why in (("1a=greybox", "a model name is letters, digits and '_', not starting with a digit"),

@@ -57,15 +57,20 @@ def model_note(name: str) -> str | None:
     return MODEL_NOTES.get(name.partition(":")[0])
 
 
-def model_notes(names) -> list[str]:
-    """``Models: greybox = linear greybox, the thesis reproduction (...); naive = ...`` (one line), or nothing."""
-    notes = [f"{name} = {model_note(name)}" for name in names if model_note(name)]
+def model_notes(names, specs: dict[str, str] | None = None) -> list[str]:
+    """``Models: greybox = linear greybox, the thesis reproduction (...); naive = ...`` (one line), or nothing.
+
+    ``specs``: the spec of each model given a name (``--model NAME=SPEC``, :func:`quad_modelling.commands.evaluate.named_spec`),
+    listed as ``NAME (SPEC) = note`` with the note of its spec's kind (a name alone has none)."""
+    specs = specs or {}
+    notes = [f"{name} ({specs[name]}) = {model_note(specs[name])}" if name in specs else f"{name} = {model_note(name)}"
+             for name in names if model_note(specs.get(name, name))]
     return ["Models: " + "; ".join(notes) + ".", ""] if notes else []
 
 
-def markdown_tables(result: EvaluationResult, title: str = "Evaluation") -> str:
+def markdown_tables(result: EvaluationResult, title: str = "Evaluation", specs: dict[str, str] | None = None) -> str:
     """Tables 5-1/5-2 style (:func:`tables_text`) of an evaluation result."""
-    return tables_text(result.to_json(), title)
+    return tables_text(result.to_json(), title, specs)
 
 
 MARKED_REASONS_SHOWN = 3
@@ -85,9 +90,10 @@ def marked_lines(marked: list[dict]) -> list[str]:
                 f"not in the tables below: {shown}{more} (each in results.json live.marked)."]
 
 
-def tables_text(data: dict, title: str = "Evaluation") -> str:
+def tables_text(data: dict, title: str = "Evaluation", specs: dict[str, str] | None = None) -> str:
     """tables.md from a results.json document: one table per metric (rows = variables, columns = model x span),
-    then the multi-step table (:func:`multistep_lines`) when the document has one."""
+    then the multi-step table (:func:`multistep_lines`) when the document has one. ``specs``: the spec of each named
+    model (:func:`model_notes`)."""
     models = list(data["models"])
     config = data["config"]
     spans = sorted({s for m in models for s in data["models"][m]}, key=lambda s: (s != "eval", s))
@@ -107,7 +113,7 @@ def tables_text(data: dict, title: str = "Evaluation") -> str:
                  f"{config['warm_s']:g} s warm start. Windows per span: {counts}.")
     lines += marked_lines((data.get("live") or {}).get("marked") or [])
     lines.append("")
-    lines += model_notes(models)
+    lines += model_notes(models, specs)
     columns = [(m, s) for s in spans for m in models]
     for metric, caption in (("tic", "TIC (0 = perfect, 1 = no match)"), ("rms", "RMS error (display units)")):
         lines += [f"## {caption}", ""]
@@ -274,14 +280,16 @@ def window_figure(example: ExampleWindow, title: str, acc_var: str, rate_var: st
     plt.close(fig)
 
 
-def write_report(result: EvaluationResult, directory: Path, title: str = "Evaluation", document: dict | None = None) -> list[str]:
+def write_report(result: EvaluationResult, directory: Path, title: str = "Evaluation", document: dict | None = None,
+                 specs: dict[str, str] | None = None) -> list[str]:
     """Write results.json, tables.md and the figures into ``directory`` (created); returns the file names.
 
     results.json holds ``document`` when given (the evaluator node's: the result plus every live window), else
-    ``result.to_json()``."""
+    ``result.to_json()``. ``specs``: the spec of each named model, for tables.md's ``Models:`` line (:func:`model_notes`)."""
     directory.mkdir(parents=True)
     (directory / "results.json").write_text(json_text(result.to_json() if document is None else document))
-    (directory / "tables.md").write_text(markdown_tables(result, title) if document is None else tables_text(document, title))
+    (directory / "tables.md").write_text(markdown_tables(result, title, specs) if document is None
+                                         else tables_text(document, title, specs))
     written = ["results.json", "tables.md"]
     example = next((e for e in result.examples if e.span == "eval"), result.examples[0] if result.examples else None)
     if example is not None:

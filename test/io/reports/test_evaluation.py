@@ -90,3 +90,19 @@ def test_every_model_of_a_figure_has_its_own_line_style():
     from quad_modelling.io.reports.evaluation import model_style
 
     assert len({model_style(k) for k in range(21)}) == 21  # seven models shared five styles (greybox and direct alike)
+
+
+def test_the_models_line_lists_named_models_with_their_specs():
+    """`evaluate --model a=narx:a.npz` listed the dummy alone on tables.md's Models: line (a name has no note): a named
+    model is listed as NAME (SPEC) with its spec's note, beside the unnamed ones as before."""
+    from quad_modelling.io.reports.evaluation import MODEL_NOTES, model_notes, tables_text
+
+    names = ["a", "greybox:euler", "b", "dummy"]
+    specs = {"a": "narx:a.npz", "b": "greybox"}
+    assert model_notes(names) == [f"Models: greybox:euler = {MODEL_NOTES['greybox']}; dummy = {MODEL_NOTES['dummy']}.", ""]
+    assert model_notes(names, specs) == [f"Models: a (narx:a.npz) = {MODEL_NOTES['narx']}; greybox:euler = {MODEL_NOTES['greybox']}; "
+                                         f"b (greybox) = {MODEL_NOTES['greybox']}; dummy = {MODEL_NOTES['dummy']}.", ""]
+    document = {**_results(), "models": {name: {} for name in names}, "windows": {name: {} for name in names},
+                "config": {"flights": [], "train": "0%:50%", "eval": "50%:100%", "drop_start": 1.0, "drop_end": 1.0,
+                           "window_s": 2.0, "warm_s": 0.2}, "live": {}}
+    assert tables_text(document, "Evaluation", specs).splitlines()[4] == model_notes(names, specs)[0]
