@@ -349,6 +349,7 @@ def run(args: argparse.Namespace) -> int:
     through its map and written as a contract bag in a temporary directory first (the replay publishes the contract)."""
     import tempfile
 
+    from quad_modelling.commands.evaluate import print_flight_warnings
     from quad_modelling.core.vehicle import vehicle_file
     from quad_modelling.io.bag_io import read_bag_metadata, write_bag
     from quad_modelling.io.loader import load_flight
@@ -360,6 +361,7 @@ def run(args: argparse.Namespace) -> int:
     if chosen.is_contract and chosen.namespace == CONTRACT_NAMESPACE:
         return _run(args)
     flight = load_flight(args.bag, vehicle=args.vehicle, topic_map=args.topic_map)
+    print_flight_warnings([flight])  # as evaluate prints them for this bag (the contract bag names a temporary path)
     if flight.acc_b is None or flight.gyro_b is None:  # the live nodes start from imu messages
         imu = " or ".join(dict.fromkeys(s.topic for f in ("acc", "gyro") for s in chosen.fields.get(f, ()))) or "no topic"
         raise ConfigError(f"{args.bag}: run-bag needs an IMU (the live nodes start from imu messages); topic map {chosen.name} "
@@ -367,10 +369,10 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="quad_run_bag_") as staging:
         converted = write_bag(flight, Path(staging) / "contract_bag")
         print(f"{args.bag}: read through topic map {chosen.name} ({len(flight)} samples); replaying it in the topic contract", flush=True)
-        return _run(argparse.Namespace(**{**vars(args), "bag": str(converted), "vehicle": args.vehicle or flight.meta.vehicle}))
+        return _run(argparse.Namespace(**{**vars(args), "bag": str(converted), "vehicle": args.vehicle or flight.meta.vehicle}), warned=True)
 
 
-def _run(args: argparse.Namespace) -> int:
+def _run(args: argparse.Namespace, warned: bool = False) -> int:
     from quad_modelling.commands.evaluate import print_flight_warnings
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
     from quad_modelling.core.windows import check_window_rate
@@ -394,10 +396,9 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--rate {args.rate}: must be >= 0")
     if not 0 < args.warm < args.window:
         raise ConfigError(f"--window {args.window} / --warm {args.warm}: need 0 < warm < window")
-    if not args.timeout > 0:
-        raise ConfigError(f"--timeout {args.timeout}: must be a positive number of seconds")
-    if not args.remote_timeout > 0:
-        raise ConfigError(f"--remote-timeout {args.remote_timeout}: must be a positive number of seconds")
+    for flag, value in (("--timeout", args.timeout), ("--remote-timeout", args.remote_timeout)):
+        if not value > 0:
+            raise ConfigError(f"{flag} {value}: must be a positive number of seconds")
     if args.record and "evaluator" not in here:
         raise ConfigError(f"--record with --nodes {','.join(here)}: the evaluator records; pass --record on its host")
     spans = span_list(args)
@@ -407,9 +408,9 @@ def _run(args: argparse.Namespace) -> int:
     if not vehicle_name:
         raise ConfigError(f"{args.bag}: the bag names no vehicle; pass --vehicle NAME")
     vehicle = load_vehicle(vehicle_name)
-    # Read the whole bag as evaluate does before any node starts: a damaged bag is one line, its warnings (a mapped bag's: in the notes) too
-    flight = load_flight(args.bag, vehicle=vehicle, fmt="bag")
-    print_flight_warnings([flight])
+    flight = load_flight(args.bag, vehicle=vehicle, fmt="bag")  # the whole bag before any node starts: a damaged bag is one line
+    if not warned:  # a bag of another stack: run printed them as read through its map
+        print_flight_warnings([flight])  # as evaluate prints them, once
     check_window_rate(flight)  # the evaluator would mark every window of a flight this slow
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
         check = getattr(make_streaming_predictor(m.spec, vehicle), "check_flight", None)
@@ -537,8 +538,7 @@ def _wait_for_replay(graph: Graph, timeout: float, started: float) -> None:
     while replay.poll() is None:
         dead = graph.dead(exclude=("replay",))
         if dead:
-            name = dead[0]
-            raise _failure(graph, name, f"node {name} died early (exit code {graph.procs[name].returncode})")
+            raise _failure(graph, dead[0], f"node {dead[0]} died early (exit code {graph.procs[dead[0]].returncode})")
         if time.monotonic() - started > timeout:
             raise _failure(graph, "replay", f"run did not finish within --timeout {timeout:g} s")
         time.sleep(0.1)
