@@ -4,7 +4,7 @@ Used offline by :func:`read_mapped_bag` (messages deserialised with the
 definitions stored in the bag) and live by the nodes' ``topic_map`` subscriptions
 (:mod:`quad_modelling.nodes.mapping.streams`, rclpy's messages): both call
 :class:`TopicReader` per message (attribute access only, so rosbags' and rclpy's messages alike),
-:func:`map_commands` and :func:`convert_measurements` (:func:`~quad_modelling.io.topic_maps.convert_field` per field) for the numbers, which
+:func:`map_commands` and :func:`convert_measurements` (:func:`~quad_modelling.io.field_conversion.convert_field` per field) for the numbers, which
 convert units and frames through
 :mod:`quad_modelling.core.frames` only. Imports neither rclpy nor rosbags.
 
@@ -45,8 +45,8 @@ from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.bag_io import READ_ERRORS, missing_messages, open_reader, stored_typestore
-from quad_modelling.io.topic_maps import (STAMP_UNITS, FieldSource, TopicMap, TopicSpec, check_map_fields, convert_field,
-                                         fields_of_store, parse_path)
+from quad_modelling.io.field_conversion import convert_field, frame_notes, message_frames
+from quad_modelling.io.topic_maps import STAMP_UNITS, FieldSource, TopicMap, TopicSpec, check_map_fields, fields_of_store, parse_path
 
 NANOSECONDS = 1_000_000_000
 KINEMATIC_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
@@ -99,9 +99,11 @@ class TopicReader:
     instance seen with a ``usable`` reading are kept (:meth:`keep`; :attr:`instances` counts the messages of each
     instance seen; :attr:`chosen` the one read): ``usable`` tells a message's values measure something (a battery
     topic: :func:`~quad_modelling.core.alignment.usable_voltage`, so PX4's unused battery slot at 0 V is not read).
+    ``frames``: the frames each message names (:class:`~quad_modelling.io.field_conversion.MessageFrames`), applied
+    to its numbers.
     """
 
-    def __init__(self, spec: TopicSpec, paths: list[str], where: str, usable=None):
+    def __init__(self, spec: TopicSpec, paths: list[str], where: str, usable=None, frames=None):
         self.spec = spec
         self.paths = list(paths)
         self._stamp = _getter(parse_path(spec.stamp, spec, where))
@@ -111,6 +113,8 @@ class TopicReader:
         self.instances: dict = {}
         self.chosen = None
         self.usable = usable
+        self.frames = frames
+        self._frame_codes = [_getter(parse_path(s.frame_field, spec, where)) for s in frames.sources] if frames else []
         self.where = where
         self.read = 0  # messages whose values were read (the index a fault names)
 
@@ -132,6 +136,8 @@ class TopicReader:
             except (IndexError, AttributeError, TypeError, ValueError, KeyError) as err:
                 raise DataError(f"{self.where}: topic {self.spec.name} message {index} has no usable field {path} "
                                 f"({type(err).__name__}: {err})") from err
+        if self.frames is not None:
+            self.frames.apply([get(msg) for get in self._frame_codes], out, index)
         return out
 
     def keep(self, msg, values: list[float]) -> bool:
@@ -154,7 +160,8 @@ def readers_for(topic_map: TopicMap, sources: dict[str, FieldSource], where: str
         paths[source.topic] += [p for p in source.paths if p not in paths[source.topic]]
     battery = battery_topic(sources)
     return {topic: TopicReader(topic_map.topics[topic], wanted, where,
-                               usable=(lambda values: all(map(usable_voltage, values))) if topic == battery else None)
+                               usable=(lambda values: all(map(usable_voltage, values))) if topic == battery else None,
+                               frames=message_frames(topic_map, sources, topic, wanted, where))
             for topic, wanted in paths.items()}
 
 
@@ -218,7 +225,7 @@ def map_commands(values: np.ndarray, source: FieldSource, vehicle: VehicleConfig
 def convert_measurements(sources: dict[str, FieldSource], aligned: dict[str, np.ndarray],
                          last_yaw: float | None = None) -> dict[str, np.ndarray]:
     """Every non-command field's (n, k) numbers on the same rows (the map's units and frames) -> FlightLog arrays
-    by map field name (:func:`~quad_modelling.io.topic_maps.convert_field`): the attitude first (Euler NED/FRD, yaw unwrapped over the rows and
+    by map field name (:func:`~quad_modelling.io.field_conversion.convert_field`): the attitude first (Euler NED/FRD, yaw unwrapped over the rows and
     from ``last_yaw``, the previous row's), then the others (a body-frame velocity rotated by it). Offline
     (:class:`FlightAssembler`) and live (:mod:`quad_modelling.nodes.mapping.streams`) alike."""
     euler = convert_field(sources["attitude"], aligned["attitude"])
@@ -262,7 +269,7 @@ class FlightAssembler:
     """A map's streams -> a FlightLog, message by message in recording order (module doc), in memory that does not
     grow with the recording: the commands wait (at most :data:`MAX_PENDING_S`) until every stream has a message at or
     after them, are aligned in batches of :data:`EMIT_ROWS` (:func:`~quad_modelling.core.alignment.interpolate_at`)
-    and converted (:func:`~quad_modelling.io.topic_maps.convert_field`) into FlightLog arrays allocated once for ``capacity`` rows (the commands
+    and converted (:func:`~quad_modelling.io.field_conversion.convert_field`) into FlightLog arrays allocated once for ``capacity`` rows (the commands
     topic's message count); only the samples around the pending rows are kept.
     """
 
@@ -575,8 +582,9 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
         raise BagError(f"{path}: corrupt or truncated bag ({reason(err)})") from err
     finally:
         reader.close()
-    log = assembler.finish(instance_notes(readers, present))
-    for warning in missing_messages(path, used, read):
+    notes, warnings = frame_notes(readers)
+    log = assembler.finish({**instance_notes(readers, present), **notes})
+    for warning in [*warnings, *missing_messages(path, used, read)]:
         log.warn(warning)
     if empty:  # a QoS mismatch records the topic without a message: read as an optional topic left out
         log.warn(f"{path}: optional topic(s) {', '.join(empty)} recorded with no message: read without them")

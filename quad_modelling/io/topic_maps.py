@@ -35,13 +35,16 @@ sequence by the topic's ``vars`` (crazyswarm2 log blocks publish their values in
 vars). Stamps: ``stamp`` is a builtin_interfaces/Time field (``header.stamp``) or an integer field with its
 ``stamp_unit`` (``s``, ``ms``, ``us``, ``ns``). ``instance``: a field telling apart several publishers of
 one topic (PX4 multi-instance topics, as ULog instance 0): the first instance seen is read, the notes say
-how many there were. ``{robot}`` in a topic name stands for one ROS name token (the crazyswarm2 robot
+how many there were. ``frame_field`` and ``frames``: a message field naming each message's frame (PX4's
+``velocity_frame: 1 NED, 3 body FRD``) and its values' frames, each the source's ``frame`` or a body frame rotated into
+it by the same message's attitude; a value not listed is refused (:mod:`quad_modelling.io.field_conversion`).
+``{robot}`` in a topic name stands for one ROS name token (the crazyswarm2 robot
 name); a bag of several robots is named with ``--topic-map crazyswarm2:cf231``.
 
 This module holds the definitions, their validation (one line naming file and key), the choice of a map
 for a bag's topics (:func:`choose_topic_map`, namespaces included) and the check of a map's paths against the
-message definitions a bag stores (:func:`check_map_fields`); :mod:`quad_modelling.io.mapped_flight` converts the
-messages.
+message definitions a bag stores (:func:`check_map_fields`); :mod:`quad_modelling.io.mapped_flight` reads the
+messages, :mod:`quad_modelling.io.field_conversion` converts their numbers.
 """
 
 from __future__ import annotations
@@ -49,8 +52,6 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
-
-import numpy as np
 
 from quad_modelling.core import frames
 from quad_modelling.core.input_files import read_yaml, yaml_number
@@ -90,7 +91,8 @@ COMMAND_UNITS = ("vehicle", "normalised", *frames.UNIT_FACTORS)
 _STEP = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[[^\]]+\])*)$")
 _TOKEN = r"[A-Za-z_][A-Za-z0-9_]*"
 TOPIC_KEYS = {"type", "stamp", "stamp_unit", "vars", "instance", "optional"}
-SOURCE_KEYS = {"topic", "fields", "unit", "frame", "order", "range"}
+SOURCE_KEYS = {"topic", "fields", "unit", "frame", "order", "range", "frame_field", "frames"}
+WORLD_FRAMES, BODY_FRAMES = ("ENU", "NED"), ("FLU", "FRD")
 
 
 def topic_maps_dir():
@@ -123,6 +125,9 @@ class FieldSource:
     frame: str | None = None
     order: str = "xyzw"
     range: tuple[float, float] | None = None
+    frame_field: str | None = None
+    """The message field naming each message's frame (``frames``: its values -> frames), or None: always ``frame``."""
+    frames: tuple[tuple[int, str], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -312,7 +317,25 @@ def _field_source(field: str, doc, topics: dict[str, TopicSpec], where: str) -> 
         if not high > low:
             raise ConfigError(f"{here}: range [{low:g}, {high:g}] must have high > low")
         span = (low, high)
-    return FieldSource(field, topic, tuple(map(str, paths)), unit, frame, order, span)
+    frame_field, listed = _frame_field(doc, field, frame, known_frames, topics[topic], here)
+    return FieldSource(field, topic, tuple(map(str, paths)), unit, frame, order, span, frame_field, listed)
+
+
+def _frame_field(doc: dict, field: str, frame, known_frames, spec: TopicSpec, here: str) -> tuple[str | None, tuple]:
+    """A source's ``frame_field`` and ``frames`` (module doc): the field's path and ((value, frame), ...), each frame
+    the source's ``frame`` or a body frame rotated into its world ``frame``; (None, ()) when not given."""
+    if "frame_field" not in doc and "frames" not in doc:
+        return None, ()
+    path, listed = str(_need(doc, "frame_field", here)), _need(doc, "frames", here)
+    parse_path(path, spec, here)
+    if not isinstance(listed, dict) or not listed or any(type(v) is not int for v in listed):
+        raise ConfigError(f"{here}: frames must map the integer values of {path} onto frames, e.g. {{1: NED, 3: FRD}}, got {listed!r}")
+    allowed = [frame, *(f for f in known_frames if f in BODY_FRAMES and frame in WORLD_FRAMES)]
+    wrong = sorted({str(f) for f in listed.values()} - set(allowed))
+    if wrong:
+        raise ConfigError(f"{here}: frames {wrong}: a message's frame must be the field's frame {frame} or a body frame "
+                          f"rotated into it (known: {', '.join(allowed)})")
+    return path, tuple((v, str(f)) for v, f in listed.items())
 
 
 def topic_map_from_dict(doc, origin: str) -> TopicMap:
@@ -512,7 +535,7 @@ def check_map_fields(topic_map: TopicMap, sources: dict[str, FieldSource], field
         if spec.instance:
             check_path(spec.instance, spec, fields_of, where)
     for source in sources.values():
-        for path in source.paths:
+        for path in (*source.paths, *([source.frame_field] if source.frame_field else [])):
             check_path(path, topic_map.topics[source.topic], fields_of, where)
 
 
@@ -534,33 +557,3 @@ def fields_of_store(store):
             return {}
         return {name: describe(kind, detail) for name, (kind, detail) in store.fielddefs[msgtype][1]}
     return fields_of
-
-
-# --- a map field's numbers -> the FlightLog field (offline and live alike) -------------------------------------
-
-def attitude_euler(quat: np.ndarray, source: FieldSource) -> np.ndarray:
-    """(n, 4) quaternions in the map's order and frame -> Euler (φ, θ, ψ) NED/FRD [rad], yaw not unwrapped."""
-    xyzw = quat if source.order == "xyzw" else quat[:, [1, 2, 3, 0]]
-    if source.frame == "ENU/FLU":
-        return frames.quat_enu_to_euler_ned(xyzw)
-    return frames.quat_ned_to_euler_ned(xyzw)
-
-
-def convert_field(source: FieldSource, values: np.ndarray, euler: np.ndarray | None = None) -> np.ndarray:
-    """(n, k) numbers of one non-command field, as the map gives them -> the FlightLog field (NED/FRD, SI).
-
-    position -> pos_n [m]; velocity -> vel_n [m/s] (a body-frame velocity rotated by ``euler``, the attitude at
-    the same rows); attitude -> euler [rad]; acc -> acc_b [m/s²]; gyro -> gyro_b [rad/s]; battery -> vbat [V].
-    """
-    if source.field == "attitude":
-        return attitude_euler(values, source)
-    si = frames.to_si(values, source.unit)
-    if source.field == "battery":
-        return si[:, 0]
-    if source.frame == "ENU":
-        return frames.enu_to_ned(si)
-    if source.frame == "FLU":
-        si = frames.flu_to_frd(si)
-    if source.field == "velocity" and source.frame in ("FLU", "FRD"):
-        return frames.body_to_nav(si, euler)
-    return si

@@ -15,6 +15,7 @@ alone are rounded to 1 us (docs/formats.md).
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import re
@@ -164,7 +165,10 @@ def test_a_bag_without_stored_definitions_is_refused(flight, tmp_path):
     (("frame: NED/FRD", "frame: NWU"), "fields.attitude: unknown frame 'NWU'; known: ENU/FLU, NED/FRD"),
     (("stamp_unit: us, optional: true}", "stamp_unit: fortnights, optional: true}"), "unknown stamp_unit 'fortnights'"),
     (("stamp_unit: us, optional: true}", "stamp_unit: us, optional: yes-please}"), "optional must be true or false, got 'yes-please'"),
-    ((", order: wxyz, frame: NED/FRD}", ", frame: NED/FRD}"), "fields.attitude: give the quaternion's order (xyzw: geometry_msgs; wxyz: PX4)"),
+    ((", order: wxyz, frame: NED/FRD,", ", frame: NED/FRD,"), "fields.attitude: give the quaternion's order (xyzw: geometry_msgs; wxyz: PX4)"),
+    (("frames: {1: NED, 3: FRD}", "frames: {1: NED, 2: ENU}"),
+     "fields.velocity: frames ['ENU']: a message's frame must be the field's frame NED or a body frame rotated into it (known: NED, FLU, FRD)"),
+    (("frame_field: velocity_frame, ", ""), "fields.velocity: missing key 'frame_field'"),
 ])
 def test_a_map_with_unknown_units_or_frames_is_refused(bags, tmp_path, capsys, change, message):
     text = open("config/topic_maps/px4.yaml").read()
@@ -382,9 +386,11 @@ def test_a_mapped_stream_slower_than_the_gap_rule_is_refused_in_one_line(flight,
 
 @pytest.mark.parametrize("change, expected", [
     (("order: wxyz", "order: xyzw"), ["the attitude and the accelerometer disagree on where gravity is"]),
-    (('"velocity[2]"], unit: m/s, frame: NED', '"velocity[2]"], unit: m/s, frame: ENU'),
+    (('"velocity[2]"], unit: m/s, frame: NED,\n             frame_field: velocity_frame, frames: {1: NED, 3: FRD}',
+      '"velocity[2]"], unit: m/s, frame: ENU,\n             frame_field: velocity_frame, frames: {1: ENU, 3: FLU}'),
      ["the velocity's N axis does not follow", "the velocity's E axis does not follow"]),
-    (('order: wxyz, frame: NED/FRD', 'order: wxyz, frame: ENU/FLU'), ["does not follow the attitude's"]),
+    (('order: wxyz, frame: NED/FRD,\n             frame_field: pose_frame, frames: {1: NED/FRD}',
+      'order: wxyz, frame: ENU/FLU,\n             frame_field: pose_frame, frames: {1: ENU/FLU}'), ["does not follow the attitude's"]),
     (('"gyro_rad[2]"], unit: rad/s, frame: FRD', '"gyro_rad[2]"], unit: rad/s, frame: FLU'), ["does not follow the attitude's"]),
     (('"gyro_rad[2]"], unit: rad/s', '"gyro_rad[2]"], unit: deg/s'), ["does not follow the attitude's"]),
 ])
@@ -509,3 +515,68 @@ def test_a_commands_range_in_the_wrong_unit_is_a_warning(flight, tmp_path):
     warnings = load_flight(bag, vehicle="crazyflie21", topic_map=str(wrong)).meta.notes["warnings"]
     (line,) = [w for w in warnings if "input range" in w]
     assert "the commands reach 0." in line and "check the commands' range: topic map px4" in line, line
+
+
+# --- the frames VehicleOdometry names in each message (velocity_frame, pose_frame) ---------------------------------
+
+ODOMETRY = "/fmu/out/vehicle_odometry"
+
+
+def _odometry_frames(flight, frame_of, expected: list | None = None, field: str = "velocity_frame"):
+    """The fixture flight's PX4 messages (yaw about 90 deg) with odometry message i's ``field`` set to ``frame_of(i)``;
+    a velocity_frame of 3 (BODY_FRD) holds the NED velocity rotated into the body by the message's own float32 q,
+    rounded to float32 as PX4 sends it. ``expected`` collects each odometry message's NED velocity in float64: the
+    float32 numbers as sent, a body one rotated back by scipy (the truth, independent of the reader)."""
+    from scipy.spatial.transform import Rotation
+
+    cf = load_vehicle("crazyflie21")
+
+    def messages(writer):
+        index = 0
+        for topic, ns, msg in px4_messages(writer, log=flight, input_range=(cf.input_min, cf.input_max)):
+            if topic == ODOMETRY:
+                frame, index = frame_of(index), index + 1
+                velocity = np.asarray(msg.velocity, dtype=float)
+                if field == "velocity_frame" and frame == 3:
+                    r_ned_frd = Rotation.from_quat(np.asarray(msg.q, dtype=float), scalar_first=True)
+                    body = r_ned_frd.inv().apply(velocity).astype(np.float32)
+                    msg = dataclasses.replace(msg, velocity=body)
+                    velocity = r_ned_frd.apply(body.astype(float))
+                msg = dataclasses.replace(msg, **{field: frame})
+                if expected is not None:
+                    expected.append(velocity)
+            yield topic, ns, msg
+    return messages
+
+
+@pytest.mark.parametrize("body_from", [0, 500])
+def test_a_body_frame_velocity_is_rotated_into_ned_by_each_messages_attitude(flight, tmp_path, body_from):
+    """velocity_frame 3 (BODY_FRD) was read as NED: on this flight at yaw 90 deg north and east swapped, with no word
+    (on a hover the consistency check cannot see it). Every message now rotated by its own q; a recording that changes
+    frame half-way (body_from 500) is read message by message and warns."""
+    expected: list = []
+    bag = write_stack_bag(tmp_path / "px4_body", _odometry_frames(flight, lambda i: 3 if i >= body_from else 1, expected))
+    log = load_flight(bag, vehicle="crazyflie21")
+    assert len(log) == len(flight) and np.ptp(flight.euler[:, 2]) < 0.1 and abs(flight.euler[0, 2] - math.pi / 2) < 0.05
+    np.testing.assert_allclose(log.vel_n, np.array(expected), rtol=0, atol=1e-12)  # the NED truth of the numbers sent
+    scale = np.max(np.abs(flight.vel_n))
+    np.testing.assert_allclose(log.vel_n, flight.vel_n, rtol=0, atol=8 * scale * 2**-24)  # the flight's, to float32
+    frames_note = log.meta.notes["frames"]["velocity"]
+    body = f"3 = FRD (body, rotated into NED by each message's attitude) in {len(flight) - body_from} messages"
+    assert frames_note == f"{ODOMETRY} velocity_frame " + ("; ".join(["1 = NED in 500 messages", body]) if body_from else body)
+    changes = [w for w in log.meta.notes.get("warnings", []) if "the frame changes within the recording" in w]
+    assert len(changes) == (1 if body_from else 0), changes
+    assert not [w for w in log.meta.notes.get("warnings", []) if "disagree" in w or "does not follow" in w]
+
+
+@pytest.mark.parametrize("field, frame, message", [
+    ("velocity_frame", 2, "velocity_frame is 2; topic map px4 reads velocity only with velocity_frame 1 = NED (world), 3 = FRD (body)"),
+    ("velocity_frame", 0, "velocity_frame is 0; topic map px4 reads velocity only with velocity_frame 1 = NED (world), 3 = FRD (body)"),
+    ("pose_frame", 2, "pose_frame is 2; topic map px4 reads position only with pose_frame 1 = NED (world)"),
+])
+def test_an_odometry_frame_the_map_does_not_read_is_refused_in_one_line(flight, tmp_path, capsys, field, frame, message):
+    """FRD (an earth-fixed frame at an arbitrary heading) and UNKNOWN are refused, as the ULog reader refuses them,
+    naming the bag, topic, message and field: here from message 700 on (a change of frame mid-recording)."""
+    bag = write_stack_bag(tmp_path / "px4_frd", _odometry_frames(flight, lambda i: frame if i >= 700 else 1, field=field))
+    err = _fails(capsys, "info", str(bag), "--vehicle", "crazyflie21")
+    assert f"{bag}: topic {ODOMETRY} message 700: {message}" in err, err
