@@ -13,7 +13,8 @@ u          actuator_outputs.output[motor channels]     timestamp            refu
 pos_n      vehicle_local_position.x, y, z [m]          timestamp_sample     vehicle_odometry
 vel_n      vehicle_local_position.vx, vy, vz [m/s]     timestamp_sample     vehicle_odometry
 pos/vel    vehicle_odometry.position, velocity         timestamp_sample     refused
-           (pose_frame and velocity_frame 1 = NED)
+           (pose_frame 1 = NED; velocity_frame 1 = NED,
+           3 = body FRD: rotated by the message's q)
 euler      vehicle_attitude.q[0..3] (w, x, y, z)       timestamp_sample     refused
 acc_b      sensor_combined.accelerometer_m_s2 [m/s²]   timestamp + accelerometer_timestamp_relative
 gyro_b     sensor_combined.gyro_rad [rad/s]            timestamp            refused
@@ -108,6 +109,10 @@ ROTORS = 4
 MAX_INTERPOLATION_GAP_S = 0.5
 """Longest gap [s] of a kinematic stream interpolated through: five periods of PX4's slowest
 default logging rate for these topics (vehicle_local_position at 10 Hz, logger default profile)."""
+
+POSE_FRAME_NED, VELOCITY_FRAME_NED, VELOCITY_FRAME_BODY_FRD = 1, 1, 3
+"""vehicle_odometry.pose_frame / velocity_frame values read (PX4 msg/VehicleOdometry.msg: POSE_FRAME_NED = 1,
+VELOCITY_FRAME_NED = 1, VELOCITY_FRAME_BODY_FRD = 3; FRD = 2 is earth-fixed with an arbitrary heading: refused)."""
 
 ARMING_STATE_ARMED = 2
 """vehicle_status.arming_state value of an armed vehicle (PX4 msg/VehicleStatus.msg)."""
@@ -304,10 +309,16 @@ def position_velocity(topics: Topics, where: str) -> tuple[str, np.ndarray, np.n
         values = np.column_stack(_need(topics, topic, ["x", "y", "z", "vx", "vy", "vz"], where))
     elif "vehicle_odometry" in topics:
         topic = "vehicle_odometry"
-        pose_frame, velocity_frame = _need(topics, topic, ["pose_frame", "velocity_frame"], where)
-        if np.any(pose_frame != 1) or np.any(velocity_frame != 1):
-            raise DataError(f"{where}: topic vehicle_odometry pose/velocity frame is not NED (1); FRD-referenced odometry is not read")
+        pose_frame, velocity_frame = (np.asarray(a) for a in _need(topics, topic, ["pose_frame", "velocity_frame"], where))
+        if np.any(pose_frame != POSE_FRAME_NED) or np.any(~np.isin(velocity_frame, (VELOCITY_FRAME_NED, VELOCITY_FRAME_BODY_FRD))):
+            raise DataError(f"{where}: topic vehicle_odometry: pose_frame {sorted({int(f) for f in pose_frame})}, velocity_frame "
+                            f"{sorted({int(f) for f in velocity_frame})}; read are pose_frame 1 (NED) and velocity_frame 1 (NED) "
+                            "or 3 (body FRD): an FRD-referenced odometry (frame 2) has no known heading")
         values = np.column_stack(_need(topics, topic, [f"position[{i}]" for i in range(3)] + [f"velocity[{i}]" for i in range(3)], where))
+        body = velocity_frame == VELOCITY_FRAME_BODY_FRD
+        if body.any():  # v_N = R v_B with the message's own attitude q (w, x, y, z) of R_NED<-FRD
+            w, x, y, z = (np.asarray(c, dtype=float)[body] for c in _need(topics, topic, [f"q[{i}]" for i in range(4)], where))
+            values[body, 3:6] = np.einsum("nij,nj->ni", frames.quat_to_matrix(np.column_stack([x, y, z, w])), values[body, 3:6])
     else:
         raise DataError(f"{where}: no position: neither vehicle_local_position nor vehicle_odometry was logged")
     return topic, _time(topics, topic, where), values

@@ -225,3 +225,39 @@ def test_a_pwm_vehicle_reads_actuator_outputs_of_a_log_that_holds_both():
     assert log.meta.vehicle == "px4_iris_pwm" and log.meta.notes["sources"]["u"].startswith("actuator_outputs")
     assert 900.0 <= float(log.u.min()) and float(log.u.max()) <= 2000.0 and float(log.u.max()) > 1000.0
     assert load_flight(EVENTS).meta.notes["sources"]["u"].startswith("actuator_motors")  # the default: unchanged
+
+
+def _odometry_topics(velocity_frame: np.ndarray, yaw: float, vel_n: np.ndarray) -> dict:
+    """synthetic_topics with vehicle_odometry instead of vehicle_local_position: attitude yawed by ``yaw`` [rad] and
+    tilted, the velocity ``vel_n`` (NED) given in NED or the body frame as ``velocity_frame`` says per message."""
+    topics = synthetic_topics()
+    n = len(topics["actuator_motors"]["timestamp"])
+    euler = np.tile([0.1, -0.2, yaw], (n, 1))
+    quat = frames.euler_ned_to_rotation(euler).as_quat()  # x, y, z, w of R_NED<-FRD
+    vel = np.tile(vel_n, (n, 1))
+    body = velocity_frame == 3
+    vel[body] = frames.nav_to_body(vel[body], euler[body])
+    del topics["vehicle_local_position"]
+    topics["vehicle_odometry"] = {"timestamp": topics["actuator_motors"]["timestamp"], "pose_frame": np.ones(n, int),
+                                  "velocity_frame": velocity_frame, **{f"position[{i}]": np.zeros(n) for i in range(3)},
+                                  **{f"velocity[{i}]": vel[:, i] for i in range(3)},
+                                  **{f"q[{i}]": quat[:, [3, 0, 1, 2][i]] for i in range(4)}}
+    return topics
+
+
+@pytest.mark.parametrize("frames_of", ["body", "switching"])
+def test_body_frame_odometry_velocity_is_rotated_into_ned_by_its_own_attitude(frames_of):
+    vel_n = np.array([1.5, -0.7, 0.3])
+    frame = np.full(200, 3) if frames_of == "body" else np.where(np.arange(200) < 100, 1, 3)
+    log = flight_from_topics(_odometry_topics(frame, 2.0, vel_n), {"CA_ROTOR_COUNT": 4}, "odometry.ulg")
+    assert np.abs(log.vel_n - vel_n).max() < 1e-9
+
+
+@pytest.mark.parametrize("field, value", [("velocity_frame", 2), ("velocity_frame", 0), ("pose_frame", 2)])
+def test_odometry_in_an_unknown_or_earth_frd_frame_is_refused_in_one_line(field, value):
+    topics = _odometry_topics(np.full(200, 1), 0.0, np.zeros(3))
+    topics["vehicle_odometry"][field] = np.where(np.arange(200) < 150, 1, value)
+    with pytest.raises(DataError) as err:
+        flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "odometry.ulg")
+    message = str(err.value)
+    assert "\n" not in message and "odometry.ulg" in message and f"{field} {sorted([1, value])}" in message
