@@ -41,7 +41,7 @@ guessed from px4_iris) and convert the log with it (docs/px4.md).
 
 examples:
   quad-modelling convert flight.mat --vehicle linkquad -o bags/flight
-  quad-modelling convert data/nanobench/*.csv.gz -o bags/nanobench --skip-bad
+  quad-modelling convert $NANOBENCH/*.csv.gz -o bags/nanobench --skip-bad
   quad-modelling convert bags/flight -o flight_copy.mat
   quad-modelling convert test/data/px4/sample_px4_events.ulg -o bags/px4_events
   quad-modelling convert test/data/px4/sample_px4_events.ulg --vehicle-from-log iris.yaml -o bags/px4_events

@@ -46,7 +46,7 @@ section holds the details. Spans as for `evaluate` (thesis defaults; --preset sh
 runs here (it is joint over all flights; docs/scale.md).
 
 examples:
-  quad-modelling identify data/nanobench/*.csv.gz --vehicle crazyflie21 --preset short --skip-bad -o cf_identified.yaml
+  quad-modelling identify $NANOBENCH/*.csv.gz --vehicle crazyflie21 --preset short --skip-bad -o cf_identified.yaml
   quad-modelling identify flight.mat --vehicle linkquad --train 30:150 -o linkquad_identified.yaml
 """
 

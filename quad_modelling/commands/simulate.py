@@ -20,7 +20,7 @@ from quad_modelling.core.sim.simulate import run_simulation
 from quad_modelling.errors import ConfigError
 
 NAME = "simulate"
-HELP = "simulate a LinkQuad-like flight with switchable physical effects"
+HELP = "simulate a LinkQuad- or Crazyflie-like flight with switchable physical effects"
 DESCRIPTION = f"""\
 Fly the truth simulator (nonlinear 6-DoF quadrotor, rotor dynamics, PID stabiliser,
 seeded pilot script: take-off, hover with throttle/roll/pitch/yaw manoeuvres, landing)
