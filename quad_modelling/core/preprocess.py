@@ -168,6 +168,19 @@ def mark_measurement_gaps(log: FlightLog, gaps: list[MeasurementGap], max_gap_s:
             log.warn(gap_warning(log.meta.source, gap, float(log.t[0]), max_gap_s))
 
 
+def add_measurement_gaps(log: FlightLog, gaps: list[MeasurementGap], max_gap_s: float) -> None:
+    """Add ``gaps``, found by the rule ``max_gap_s`` [s], to those ``log`` marks (:func:`mark_measurement_gaps`), with one
+    warning each by that rule; the gaps marked before keep their warnings, worded by the rule that found them (a
+    reader's 0.5 s), so each hole is said once, by the rule that marked it. ``gap_rule_s`` becomes the finer rule (a bag
+    written from the log re-finds every gap by it)."""
+    if not gaps:
+        return
+    notes, known = log.meta.notes, marked_gaps(log)
+    notes["gap_rule_s"] = float(min(recorded_gap_rule(notes), max_gap_s) if known else max_gap_s)
+    notes["measurement_gaps"] = [gap.to_note() for gap in sorted(known + gaps, key=lambda g: (g.start_s, g.topic))]
+    notes["warnings"] = [*notes.get("warnings", []), *(gap_warning(log.meta.source, g, float(log.t[0]), max_gap_s) for g in gaps)]
+
+
 def recorded_gap_rule(notes: dict, default_s: float = MAX_INTERPOLATION_GAP_S) -> float:
     """The gap rule [s] the notes' measurement gaps were found by (``gap_rule_s``, :func:`mark_measurement_gaps`): a
     contract bag converted from a topic-map bag (50 ms rule) re-finds its gaps by it; ``default_s`` without one (a
@@ -496,27 +509,29 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
 
     Real logs drop the odd sample (NanoBench: one to five 20-30 ms steps per
     flight). The discrete models and filters need uniform sampling, so missing
-    samples are filled by linear interpolation (yaw unwrapped first). A hole longer than ``max_gap_s`` that no
-    marked measurement gap spans (a logging dropout of every column: a CSV's missing rows) becomes one, of the
-    ``time base``, with a warning: the rows filled inside it are gap rows, left out by the windows and training
-    segments, as a bag reader's marked holes are (a 110 ms hole refused the whole flight, a 1 s one was accepted
-    once converted to a bag). A log that is already uniform is returned unchanged. The number of filled samples is
-    recorded in ``meta.notes['resampled_filled_samples']``.
+    samples are filled by linear interpolation (yaw unwrapped first). A hole longer than ``max_gap_s`` with a filled
+    row outside every marked measurement gap (a logging dropout of every column: a CSV's missing rows) becomes one, of
+    the ``time base``, with a warning by this rule (:func:`add_measurement_gaps`; the reader's gaps keep theirs): the
+    rows filled inside it are gap rows, left out by the windows and training segments, as a bag reader's marked holes
+    are (a 110 ms hole refused the whole flight, a 1 s one was accepted once converted to a bag). A hole whose filled
+    rows lie inside a reader's gap (the same hole, on a topic stamped a few ms later) is that gap, not said again. A
+    log that is already uniform is returned unchanged. The number of filled samples is recorded in
+    ``meta.notes['resampled_filled_samples']``.
     """
     steps = np.diff(log.t)
     dt = float(np.median(steps))
     if np.all(np.abs(steps - dt) <= 0.25 * dt):
         return log
-    long = steps > max_gap_s
-    known = marked_gaps(log)
-    for gap in known:  # a hole marked as a gap is filled: the rows inside it are left out downstream
-        long &= ~((log.t[:-1] >= gap.start_s - 1e-9) & (log.t[1:] <= gap.end_s + 1e-9))
-    edge = 1e-9  # [s] inside the real rows around a hole: the uniform grid's row on one is not a filled row
-    holes = [MeasurementGap(TIME_BASE_HOLE, float(log.t[i]) + edge, float(log.t[i + 1]) - edge, FIELDS_OF_A_ROW)
-             for i in np.flatnonzero(long)]
     n = int(np.floor((log.t[-1] - log.t[0]) / dt + 0.5)) + 1
     grid = log.t[0] + dt * np.arange(n)
     grid = grid[grid <= log.t[-1] + 1e-9]
+    edge = 1e-9  # [s] inside the real rows around a hole: the uniform grid's row on one is not a filled row
+    marked = np.zeros(len(grid), dtype=bool)
+    for gap in marked_gaps(log):  # a hole marked as a gap is filled: the rows inside it are left out downstream
+        marked |= (grid > gap.start_s) & (grid < gap.end_s)
+    holes = [MeasurementGap(TIME_BASE_HOLE, float(log.t[i]) + edge, float(log.t[i + 1]) - edge, FIELDS_OF_A_ROW)
+             for i in np.flatnonzero(steps > max_gap_s)]
+    holes = [h for h in holes if not marked[(grid > h.start_s) & (grid < h.end_s)].all()]
 
     def interp(values: np.ndarray) -> np.ndarray:
         if values.ndim == 1:
@@ -536,6 +551,5 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
         vel_n=interp(log.vel_n), euler=euler, meta=meta,
         vbat=None if log.vbat is None else interp(log.vbat), omega=None if log.omega is None else interp(log.omega),
     )
-    if holes:  # the notes are a copy: the input log keeps its own gaps and warnings
-        mark_measurement_gaps(out, known + holes, min(recorded_gap_rule(notes), max_gap_s) if known else max_gap_s)
+    add_measurement_gaps(out, holes, max_gap_s)  # the notes are a copy: the input log keeps its own gaps and warnings
     return out

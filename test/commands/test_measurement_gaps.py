@@ -69,3 +69,27 @@ def test_train_splits_its_segments_at_the_gap(tmp_path, capsys):
 
     warm = NarxConfig(hidden=2, epochs=1).warm_samples
     assert f"trained narx model on {(401 - warm) + (1931 - warm)} samples" in captured.out
+
+
+def test_each_hole_of_a_bag_is_said_once_by_the_rule_that_marked_it(tmp_path, capsys):
+    """Three holes in every topic of a 30 s bag: at 5 s 0.6 s (the reader marks the time base, 0.5 s rule), at 12 s 0.3 s
+    (resampling marks it, 50 ms rule), at 20 s 0.3 s with the odometry (stamped 3 ms later from 15 s on) silent 0.25 s
+    longer (the reader marks the odometry). The first was restated "longer than 0.05 s" and the third said twice (the reader's
+    odometry gap and resampling's time base hole): now each once, by the rule that marked it."""
+    from test.io.test_bag_io import GAP_STAMPS, _imu, _motor, _odom, _write_raw_bag
+
+    def without(stamps, *holes):  # holes [start, end) in ms from the first stamp
+        return [s for s in stamps if not any(GAP_STAMPS[0] + a * 10**6 <= s < GAP_STAMPS[0] + b * 10**6 for a, b in holes)]
+
+    every = ((5000, 5600), (12000, 12300), (20000, 20300))
+    later = [s + 3 * 10**6 if s >= GAP_STAMPS[0] + 15 * 10**9 else s for s in GAP_STAMPS]
+    bag = tmp_path / "holes"
+    _write_raw_bag(bag, {"motor_input": [(s, _motor(s)) for s in without(GAP_STAMPS, *every)],
+                         "mocap/odom": [(s, _odom(s)) for s in without(later, *every[:2], (20000, 20550))],
+                         "imu": [(s, _imu(s)) for s in without(GAP_STAMPS, *every)]})
+    assert main(["evaluate", str(bag), *SPANS, "--no-multistep", "-o", str(tmp_path / "out")]) == 0
+    tail = "marked as a measurement gap, not interpolated through; windows and training segments overlapping it are left out"
+    assert capsys.readouterr().err.splitlines() == [
+        f"warning: {bag}: topic /quad/motor_input has no message for 0.61 s (t=4.990..5.600 s into the flight), longer than 0.5 s: {tail}",
+        f"warning: {bag}: topic /quad/mocap/odom has no message for 0.56 s (t=19.993..20.553 s into the flight), longer than 0.5 s: {tail}",
+        f"warning: {bag}: topic time base has no message for 0.31 s (t=11.990..12.300 s into the flight), longer than 0.05 s: {tail}"]

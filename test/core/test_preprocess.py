@@ -177,3 +177,34 @@ def test_stamp_jitter_of_receipt_times_passes_the_uniform_check_and_a_missing_sa
     dropped = np.delete(np.arange(1000) / 100.0, 500)
     with pytest.raises(DataError, match=r"test: sample step at row 500 \(5.010 s into the flight\) is 20.00 ms, median 10.00 ms"):
         uniform_time_check(make_log(t=dropped))
+
+
+def test_each_hole_is_said_once_by_the_rule_that_marked_it():
+    """A reader's gap (0.5 s rule) was restated "longer than 0.05 s" once resampling marked a hole beside it, and a
+    hole of the time base whose filled rows lie inside a reader's gap of a topic stamped 3 ms later was said twice,
+    by both rules: the reader's gaps keep their warnings, resampling adds its own holes only, by its rule."""
+    from quad_modelling.core.preprocess import MeasurementGap, gap_warnings, mark_measurement_gaps, marked_gaps
+    from quad_modelling.core.windows import gap_rows
+
+    k = np.arange(1000)
+    t = np.round(k[~(((k > 100) & (k < 161)) | ((k > 300) & (k < 331)))] / 100.0, 9)  # holes 1.00..1.61 s, 3.00..3.31 s
+    log = make_log(t=t)
+    reader = MeasurementGap("/quad/motor_input", 1.0, 1.61, ("u",))  # the reader's hole of the time base, over 0.5 s
+    mark_measurement_gaps(log, [reader], 0.5)
+    resampled = resample_uniform(log)
+    (said_by_reader, said_by_resampling) = gap_warnings(resampled)
+    assert "no message for 0.61 s (t=1.000..1.610 s into the flight), longer than 0.5 s" in said_by_reader
+    assert "topic time base has no message for 0.31 s (t=3.000..3.310 s into the flight), longer than 0.05 s" in said_by_resampling
+    assert [g.topic for g in marked_gaps(resampled)] == ["/quad/motor_input", "time base"]
+    assert resampled.meta.notes["gap_rule_s"] == 0.05  # a bag written from it re-finds both
+    assert gap_warnings(log) == [said_by_reader] and marked_gaps(log) == [reader]  # the input's notes are its own
+
+    t = np.round(k[~((k > 300) & (k < 331))] / 100.0, 9)  # one hole in every column, 3.00..3.31 s
+    log = make_log(t=t)
+    mocap = MeasurementGap("/quad/mocap/odom", 3.003, 3.553, ("pos_n", "vel_n", "euler"))  # its stamps 3 ms later
+    mark_measurement_gaps(log, [mocap], 0.5)
+    resampled = resample_uniform(log)
+    assert marked_gaps(resampled) == [mocap] and len(gap_warnings(resampled)) == 1
+    assert "topic /quad/mocap/odom has no message for 0.55 s (t=3.003..3.553 s into the flight), longer than 0.5 s" \
+        in gap_warnings(resampled)[0]
+    assert np.flatnonzero(gap_rows(resampled)).tolist() == list(range(301, 356))  # the filled rows 3.01..3.30 among them
