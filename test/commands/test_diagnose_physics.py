@@ -43,7 +43,7 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     text = " ".join(report.split())
     assert "diagnosis (physics base) of the flights with --inject gain:1:1.25: found" in text
     assert "the flights as logged (un-injected run): found rotor_drag;" in text and "--write-vehicle wrote this run's model" in text
-    assert "## Held-out multi-step error, flights as logged (every start)" in report
+    assert "## Held-out multi-step error, flights as logged (SimErr / naive)" in report
     assert data["in_sample_flights"] == [BAG] and f"IN-SAMPLE: {BAG} in both --train and --test" in text
     trials = [t for step in data["selection"] for t in step["trials"].values()]
     assert all(isinstance(t["main_resolved"], bool) for t in trials)

@@ -59,7 +59,7 @@ from quad_modelling.core.diagnosis.injection import motor_order_check, swapped, 
 from quad_modelling.core.diagnosis.verdicts import (
     DETERMINED_SIGMAS, FOUND_MIN_BOUND, component_text, signed_percent, twin_text, unconfirmed_text, yaw_only_text,
 )
-from quad_modelling.core.evaluation.multistep import multistep_evaluation, ratio_to_naive, start_errors
+from quad_modelling.core.evaluation.multistep import multistep_evaluation, protocol_starts, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.constants_report import fitted_vehicle, motor_command_gains
 from quad_modelling.core.identification.physics_fit import identify_physics
@@ -234,7 +234,7 @@ class PhysicsDiagnosis:
 
 
 def rung_json(rung: Rung) -> dict:
-    return {"effects": list(rung.effects), "J": rung.score.j, "ratio_to_naive": rung.score.ratios()}
+    return {"effects": list(rung.effects), "J": rung.score.j, "ratio_to_naive": rung.score.ratios(), "starts": len(rung.score.blocks)}
 
 
 def held_out_score(vehicle: VehicleConfig, observer: Observer, flights: Sequence[FlightLog], config: EvaluationConfig,
@@ -513,9 +513,9 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
                 effects[entry]["text"] += "; " + twin_text(check, entry)
     for c in switched:
         effects[c] = {"verdict": "in the vehicle", "text": f"{c}: switched on in the vehicle file: part of the base"}
-    table = multistep_evaluation(test, [_named(PhysicsPredictor(base.vehicle, observer=base.fit.observer, trim=config.trim), "base"),
-                                        _named(PhysicsPredictor(final.vehicle, observer=final.fit.observer, trim=config.trim), "final")],
-                                 final.vehicle, config)
+    table = multistep_evaluation(test, [_named(PhysicsPredictor(r.vehicle, observer=r.fit.observer, trim=config.trim), name)
+                                        for r, name in ((base, "base"), (final, "final"))], final.vehicle, config)
+    table["airborne_starts"] = sum(len(s) for _, s in protocol_starts(test, config, airborne=True))  # the report's note
     gains_source = final if "motor_imbalance" in final.effects else trials.get("motor_imbalance")
     summary = {"found": [c for c in chosen if c in final.effects] + [c for c in final.effects if c not in chosen],
                "delay_s": {"value": final.fit.values["rotor_delay"], "sigma": final.fit.sigma["rotor_delay"]},

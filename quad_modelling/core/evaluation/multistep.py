@@ -21,7 +21,7 @@ A group whose sensor the flights lack (angular velocity without a gyro) is marke
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 
 import numpy as np
 
@@ -219,26 +219,17 @@ def start_errors(flights: Sequence[FlightLog], models: Sequence[MultiStepPredict
     at ``stride`` 1). ``airborne``: only the starts whose rows s..s+H do not touch the ground
     (:func:`~quad_modelling.core.preprocess.ground_contact`; no model here has ground contact). DataError when no
     segment is long enough."""
-    span = next(s for s in config.spans() if s.name == config.multistep_span)
     horizon = max(max(config.horizons), SIM_ERR_HORIZON)
     scored, truths = [], []  # (segment, starts) and the measured rows 1..H after each start
     blocks, first_block = [], 0
-    for log in flights:
-        contact = np.concatenate([[0], np.cumsum(ground_contact(log))]) if airborne else None
-        for start, stop in span_segments(log, span, config):
-            segment = log.slice(start, stop)
-            starts = np.arange(warm_samples_for(segment, config.warm_s) - 1, len(segment) - horizon, stride)
-            if contact is not None:  # rows start + s .. start + s + H free of contact
-                starts = starts[contact[start + starts + horizon + 1] == contact[start + starts]]
-            if not starts.size:
-                continue
-            scored.append((segment, starts))
-            truths.append(measured_variables(segment, vehicle)[starts[:, None] + np.arange(1, horizon + 1)[None, :]])
-            block = np.floor((segment.t[starts] - segment.t[starts[0]]) / block_s).astype(int)
-            blocks.append(first_block + block)
-            first_block += int(block.max()) + 1
+    for segment, starts in protocol_starts(flights, config, stride, airborne):
+        scored.append((segment, starts))
+        truths.append(measured_variables(segment, vehicle)[starts[:, None] + np.arange(1, horizon + 1)[None, :]])
+        block = np.floor((segment.t[starts] - segment.t[starts[0]]) / block_s).astype(int)
+        blocks.append(first_block + block)
+        first_block += int(block.max()) + 1
     if not blocks:
-        raise DataError(f"no {span.name} segment longer than {horizon} samples plus the warm start in the flights "
+        raise DataError(f"no {config.multistep_span} segment longer than {horizon} samples plus the warm start in the flights "
                         f"({', '.join(f'{log.meta.source} {log.duration:.1f} s' for log in flights)}) after the drops "
                         f"{config.drop_start:g}/{config.drop_end:g} s and ground contact")
     def contributions(truth, predicted):  # (S, G): each group's error summed over the horizon
@@ -247,6 +238,25 @@ def start_errors(flights: Sequence[FlightLog], models: Sequence[MultiStepPredict
     errors = [np.vstack([contributions(truth, predicted) for truth, predicted in zip(truths, predict_parts(model, scored, horizon))])
               for model in models]
     return errors, np.concatenate(blocks)
+
+
+def protocol_starts(flights: Sequence[FlightLog], config: EvaluationConfig, stride: int = 1,
+                    airborne: bool = False) -> Iterator[tuple[FlightLog, np.ndarray]]:
+    """Each segment of ``config.multistep_span`` with a start and its starts (rows of the segment): the protocol's
+    (:func:`multistep_evaluation`'s at ``stride`` 1: s from ``warm - 1`` to ``N - 1 - H``), every ``stride``-th;
+    ``airborne``: only those whose rows s..s+H do not touch the ground (:func:`~quad_modelling.core.preprocess.ground_contact`).
+    The one definition of the starts :func:`start_errors` scores and the diagnosis counts."""
+    span = next(s for s in config.spans() if s.name == config.multistep_span)
+    horizon = max(max(config.horizons), SIM_ERR_HORIZON)
+    for log in flights:
+        contact = np.concatenate([[0], np.cumsum(ground_contact(log))]) if airborne else None
+        for start, stop in span_segments(log, span, config):
+            segment = log.slice(start, stop)
+            starts = np.arange(warm_samples_for(segment, config.warm_s) - 1, len(segment) - horizon, stride)
+            if contact is not None:  # rows start + s .. start + s + H free of contact
+                starts = starts[contact[start + starts + horizon + 1] == contact[start + starts]]
+            if starts.size:
+                yield segment, starts
 
 
 BATCH_STARTS = 4096
