@@ -104,17 +104,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--write-vehicle", metavar="V.yaml", help="physics base: write the identified vehicle with the found "
                         "effects switched on")
     parser.add_argument("--validate", action="store_true", help="known-answer validation on simulated flights instead")
-    parser.add_argument("--seeds", default="0,1,2", metavar="LIST", help="validation seeds (default 0,1,2)")
+    parser.add_argument("--seeds", metavar="LIST", help="validation seeds (default 0,1,2)")
     parser.add_argument("--duration", type=float, metavar="SECONDS",
                         help=f"validation flight length (default: physics base {PHYSICS_VALIDATION_DURATION_S:g}, greybox "
                              f"{VALIDATION_DURATION_S:g})")
-    parser.add_argument("--base-from", choices=BASE_FROM, default="effects-on",
+    parser.add_argument("--base-from", choices=BASE_FROM,
                         help="validation: identify the base on the effect-on training flights (default, as a user must) "
                              "or on the same seeds flown with every effect off")
-    parser.add_argument("--pairs", default="default", metavar="LIST|none",
+    parser.add_argument("--pairs", metavar="LIST|none",
                         help="validation pairs, e.g. rotor_drag+motor_imbalance,battery+ground_effect (default: "
                              + ", ".join("+".join(p) for p in DEFAULT_PAIRS) + ", those searched)")
-    parser.add_argument("--disturbance", default="all", metavar="LIST|none",
+    parser.add_argument("--disturbance", metavar="LIST|none",
                         help=f"validation out-of-catalogue disturbances, right answer 'unexplained' (default all: {', '.join(DISTURBANCES)})")
     parser.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="new output directory")
     parser.add_argument("--force", action="store_true", help="overwrite an existing OUTDIR")
@@ -176,8 +176,9 @@ def run(args: argparse.Namespace) -> int:
     physics = args.base == "physics" and not args.validate
     if not physics and (args.inject is not None or args.write_vehicle):
         raise ConfigError("--inject and --write-vehicle diagnose the physics base: drop --base greybox / --validate")
-    if physics:
+    if args.base == "physics":  # --validate --base physics scores as the physics base does: the same options
         _refuse_greybox_options(args)
+    _refuse_other_mode_options(args)
     injection = parse_injection(args.inject) if args.inject is not None else None
     if args.write_vehicle:
         written = Path(args.write_vehicle)
@@ -256,6 +257,31 @@ def _refuse_greybox_options(args: argparse.Namespace) -> None:
     if given:
         raise ConfigError(f"{', '.join(given)}: option(s) of the greybox base (--base greybox); the physics base identifies its "
                           f"constants and scores every start over h = 1..50 (docs/diagnosis.md)")
+
+
+VALIDATION_OPTIONS = (("--seeds", "seeds"), ("--duration", "duration"), ("--base-from", "base_from"), ("--pairs", "pairs"),
+                      ("--disturbance", "disturbance"))
+"""The options only ``--validate`` reads (each None unless given; their defaults are resolved there)."""
+
+FLIGHT_OPTIONS = (("--train", "train"), ("--test", "test"), ("--skip-bad", "skip_bad"), ("--no-identify", "no_identify"),
+                  ("--narx", "narx"))
+"""The options only a diagnosis of ``--train``/``--test`` flights reads (``--validate`` flies its own flights; its
+greybox validation identifies the base and trains no NARX; ``--inject``/``--write-vehicle`` are refused apart)."""
+
+
+def _refuse_other_mode_options(args: argparse.Namespace) -> None:
+    """ConfigError (one line) naming the options of the other mode: ``--validate``'s given to a diagnosis of
+    ``--train``/``--test`` flights, or theirs given to ``--validate``; neither reads the other's."""
+    if args.validate:
+        given = [flag for flag, name in FLIGHT_OPTIONS if getattr(args, name)]
+        if given:
+            raise ConfigError(f"{', '.join(given)}: option(s) of a diagnosis of --train/--test flights; --validate flies "
+                              f"its own simulated flights and reads none of them (docs/diagnosis.md)")
+        return
+    given = [flag for flag, name in VALIDATION_OPTIONS if getattr(args, name) is not None]
+    if given:
+        raise ConfigError(f"{', '.join(given)}: option(s) of --validate (known answers on simulated flights); a diagnosis "
+                          f"of --train/--test flights reads none of them (docs/diagnosis.md)")
 
 
 def _physics_candidates(text: str) -> tuple[str, ...]:
@@ -363,13 +389,14 @@ def _greybox_validation(args, config, effects, say) -> dict:
     switched = [e for e in SWITCHED_EFFECTS if e in names]  # the simulator can fly these with the effect on
     return validate(args.vehicle or "linkquad", switched, _seeds(args.seeds), pairs=_pairs(args.pairs), catalogue=names,
                     duration=VALIDATION_DURATION_S if args.duration is None else args.duration, config=config, progress=say,
-                    base_from=args.base_from, disturbances=_disturbances(args.disturbance), jobs=validation_jobs(args.jobs))
+                    base_from=args.base_from or "effects-on", disturbances=_disturbances(args.disturbance),
+                    jobs=validation_jobs(args.jobs))
 
 
 def _physics_validation(args, config, say) -> dict:
     from quad_modelling.core.diagnosis.physics_validation import validate_physics
 
-    if args.base_from != "effects-on":
+    if args.base_from not in (None, "effects-on"):
         raise ConfigError("--base-from effects-off: the physics base's validation identifies the base on the effect-on "
                           "training flights, as a user must (--base-from is the greybox validation's)")
     if args.effects in ("all", "default"):
@@ -384,8 +411,9 @@ def _physics_validation(args, config, say) -> dict:
                             validation_jobs(args.jobs), say)
 
 
-def _seeds(text: str) -> list[int]:
-    """``--seeds``: comma-separated non-negative integers (ConfigError otherwise)."""
+def _seeds(text: str | None) -> list[int]:
+    """``--seeds``: comma-separated non-negative integers (ConfigError otherwise); not given, 0,1,2."""
+    text = "0,1,2" if text is None else text
     try:
         seeds = [int(s) for s in text.split(",") if s.strip()]
     except ValueError as err:
@@ -403,9 +431,9 @@ def validation_jobs(jobs: int | None) -> int | None:
     return 2 if (os.cpu_count() or 1) >= 2 else None
 
 
-def _pairs(text: str) -> list[tuple[str, ...]] | None:
-    """``--pairs``: None for the default pairs, [] for none, else the A+B items of the comma list."""
-    text = text.strip()
+def _pairs(text: str | None) -> list[tuple[str, ...]] | None:
+    """``--pairs``: None for the default pairs (not given or ``default``), [] for none, else the A+B items of the comma list."""
+    text = "default" if text is None else text.strip()
     if text == "default":
         return None
     if text == "none":
@@ -413,9 +441,10 @@ def _pairs(text: str) -> list[tuple[str, ...]] | None:
     return [tuple(part.strip() for part in item.split("+")) for item in text.split(",") if item.strip()]
 
 
-def _disturbances(text: str) -> tuple[str, ...]:
-    """``--disturbance``: all, none or a comma list of :data:`DISTURBANCES` (ConfigError naming an unknown one)."""
-    text = text.strip()
+def _disturbances(text: str | None) -> tuple[str, ...]:
+    """``--disturbance``: all (also when not given), none or a comma list of :data:`DISTURBANCES` (ConfigError naming an
+    unknown one)."""
+    text = "all" if text is None else text.strip()
     if text == "all":
         return DISTURBANCES
     if text == "none":

@@ -10,7 +10,7 @@ from quad_modelling.cli import main
 from quad_modelling.core.diagnosis.diagnose import DIAGNOSIS_CONFIG
 from quad_modelling.core.diagnosis.verdicts import VERDICTS
 from quad_modelling.io.matlog import write_matlog
-from test.conftest import simulated
+from test.conftest import REPO, simulated
 
 
 @pytest.fixture(scope="session")
@@ -78,6 +78,10 @@ def test_diagnose_rejects_unknown_effects_and_missing_inputs(mat_flights, tmp_pa
     (["--effects", "rotor_drag,motor_lag", "--pairs", "rotor_drag+battery"], "'battery' is not among the searched --effects"),
     (["--disturbance", "gust"], "--disturbance gust: known disturbances are wind, com_offset, bent_arm"),
     (["--scheduler", "tcp://127.0.0.1:1"], "--scheduler: --validate runs its cases on a local cluster"),
+    # the options of a diagnosis of given flights, which --validate does not read
+    (["--train", str(REPO / "bags" / "nanobench_B7_oval_medium_rep2")], "--train: option(s) of a diagnosis of --train/--test flights; --validate flies"),
+    (["--skip-bad", "--base", "greybox", "--narx"], "--skip-bad, --narx: option(s) of a diagnosis of --train/--test flights"),
+    (["--window", "3"], "--window: option(s) of the greybox base"),  # --validate of the physics base scores as it does
 ])
 def test_validate_refuses_bad_cases_in_one_line(tmp_path, capsys, flags, message):
     """Bad validation cases end in one line naming the flag, exit 2, before any flight is flown; nothing is written."""

@@ -139,6 +139,11 @@ VEHICLE = str(REPO / "config" / "vehicles" / "crazyflie21.yaml")
     (["--window", "2"], "--window: option(s) of the greybox base"),
     (["--effects", "input_delay"], "in the base physics"),
     (["--base", "greybox", "--inject", "none"], "physics base"),
+    # the options only --validate reads were ignored here (exit 0)
+    (["--seeds", "1,2"], "--seeds: option(s) of --validate (known answers on simulated flights); a diagnosis of --train/--test"),
+    (["--duration", "30"], "--duration: option(s) of --validate"),
+    (["--seeds", "0,1,2", "--base-from", "effects-on", "--pairs", "none", "--disturbance", "all"],
+     "--seeds, --base-from, --pairs, --disturbance: option(s) of --validate"),  # even as their defaults: given, ignored
 ])
 def test_bad_input_is_one_line_and_writes_nothing(args, message, tmp_path, capsys):
     out = tmp_path / "d"
