@@ -70,6 +70,26 @@ accelerations are then large enough to be a case at all."""
 ALL_EFFECTS_TARGET = 5
 """Effects of seven found with all of them on at once, base fitted the user's way (issue #17's target)."""
 
+ALL_EFFECTS_OF = 7
+"""The effects the all-on target is stated for: every candidate (:data:`ALL_EFFECTS_TARGET` of these)."""
+
+
+def all_effects_needed(on: int) -> int:
+    """Effects of the ``on`` switched on in the all-on case that must be found: :data:`ALL_EFFECTS_TARGET` of seven;
+    of fewer (``--effects`` narrowed), as many as the target asks of seven but at most all of them."""
+    return min(ALL_EFFECTS_TARGET, on)
+
+
+def all_effects_target(on: int) -> str:
+    """The all-on target stated against the ``on`` effects run: ">= 5 of 7 found" with all seven, else what applies
+    to ``on`` (all of them, or 5 of 6) and that the issue's target is for all seven (validation.md once read ">= 5
+    found: measured 3 found; met yes" with three candidates run)."""
+    needed = all_effects_needed(on)
+    if on == ALL_EFFECTS_OF:
+        return f">= {needed} of {on} found"
+    wanted = f"all {on} found" if needed == on else f">= {needed} of {on} found"
+    return f"{wanted} ({on} effects run; the target >= {ALL_EFFECTS_TARGET} of {ALL_EFFECTS_OF} is for all {ALL_EFFECTS_OF})"
+
 
 @dataclass(frozen=True)
 class Case:
@@ -159,7 +179,7 @@ def run_case(case: Case, settings: CaseSettings) -> dict:
         out["shrinks"] = {e: by_name[e].shrink for e in case.effects}
     elif case.kind == "all":
         out["found_of_on"] = sorted(set(found) & set(case.effects), key=case.effects.index)
-        out["right"] = len(out["found_of_on"]) >= min(ALL_EFFECTS_TARGET, len(case.effects))
+        out["right"] = len(out["found_of_on"]) >= all_effects_needed(len(case.effects))
         out["false"] = sorted(set(found) - set(case.effects))
     else:  # null and disturbance: nothing may be found
         out["right"] = not found
@@ -304,7 +324,8 @@ def summarise(results: list[dict], vehicle: str, seeds: Sequence[int], duration:
             "null_clean": {"target": "nothing found", "runs": len(by_kind["null"]), "right": sum(r["right"] for r in by_kind["null"])},
             "disturbances_unexplained": {"target": "nothing found", "runs": len(by_kind["disturbance"]),
                                          "right": sum(r["right"] for r in by_kind["disturbance"])},
-            "all_effects": {"target": f">= {ALL_EFFECTS_TARGET} of 7 found", "runs": len(by_kind["all"]),
+            "all_effects": {"target": "; ".join(all_effects_target(n) for n in sorted({len(r["effects"]) for r in by_kind["all"]}))
+                            or all_effects_target(ALL_EFFECTS_OF), "runs": len(by_kind["all"]),
                             "found": [len(r["found_of_on"]) for r in by_kind["all"]], "of": [len(r["effects"]) for r in by_kind["all"]]},
             "seconds": {"target": 600, "value": seconds, "jobs": jobs},
         },

@@ -64,6 +64,31 @@ def test_targets_count_rights_twins_and_ceilings():
     assert got["under 10 min on 2 cores"] == ("300 s (jobs 2)", True)
 
 
+def test_the_all_on_target_is_stated_against_the_candidates_run():
+    """Three candidates run (--effects rotor_drag,battery,motor_imbalance): validation.md read "all on: >= 5 found:
+    measured 3 found; met yes"; the target is now the one that applies to three -- all three found -- and "met" agrees
+    with the numbers; with all seven, issue #26's >= 5 of 7."""
+    def every(on, found):
+        return {"kind": "all", "seed": 7, "effects": list(on), "expected": list(on), "found": list(found),
+                "right": sorted(found) == sorted(on), "found_of_expected": len(found), "ceiling": 0.3, "shrink": 0.2}
+
+    three = ("rotor_drag", "battery", "motor_imbalance")
+    for found, met in ((three, True), (three[:2], False)):
+        (target,) = targets([every(three, found)])
+        assert target["target"] == "all on: all 3 found (3 effects run; the target >= 5 of 7 is for all 7)"
+        assert (target["measured"], target["met"]) == (f"{len(found)} of 3 found", met)
+    seven = ("rotor_drag", "motor_lag", "input_delay", "ground_effect", "battery", "gyroscopic", "motor_imbalance")
+    six = [t for t in targets([every(seven[:6], seven[:5]), every(seven[:6], seven[:4])])]
+    assert six == [{"target": "all on: >= 5 of 6 found (6 effects run; the target >= 5 of 7 is for all 7)",
+                    "measured": "5 of 6 / 4 of 6 found", "met": False}]
+    (target,) = targets([every(seven, seven[:5])])
+    assert (target["target"], target["measured"], target["met"]) == ("all on: >= 5 of 7 found", "5 of 7 found", True)
+    text = physics_validation_markdown({"vehicle": "linkquad", "seeds": [7], "duration_s": 60.0, "candidates": list(three),
+                                        "flights": {"base": "identified"}, "seconds": 1.0, "cases": [],
+                                        "targets": targets([every(three, three)])})
+    assert "| all on: all 3 found (3 effects run; the target >= 5 of 7 is for all 7) | 3 of 3 found | yes |" in text
+
+
 def test_the_vehicle_assesses_every_candidate_and_bad_requests_stop_first():
     vehicle = assessing_vehicle("linkquad")
     assert all(not vehicle.effects[name].on for name in ASSESSED_SWITCHES)
