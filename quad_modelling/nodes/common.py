@@ -123,10 +123,13 @@ def prediction_subscription_qos(kind: str, depth: int = DEFAULT_QOS_DEPTH) -> Qo
     return history_qos(depth) if kind in ("reliable", "replay") else subscription_qos(kind, depth)
 
 
-def latched_qos() -> QoSProfile:
-    """Reliable, transient-local, depth 1: the window origin, delivered to late joiners."""
+LATCHED_READER_DEPTH = 64
+"""A latched topic's reader history: every writer's sample and the node's own (depth 1 kept the last to arrive only: a
+late joiner's own window origin replaced the graph's earlier one, and it cut unaligned windows)."""
+def latched_qos(reader: bool = False) -> QoSProfile:
+    """Reliable, transient-local, for late joiners: a writer keeps its last sample, a ``reader`` :data:`LATCHED_READER_DEPTH`."""
     return QoSProfile(reliability=ReliabilityPolicy.RELIABLE, durability=DurabilityPolicy.TRANSIENT_LOCAL,
-                      history=HistoryPolicy.KEEP_LAST, depth=1)
+                      history=HistoryPolicy.KEEP_LAST, depth=LATCHED_READER_DEPTH if reader else 1)
 
 
 class BadParameter(ValueError):

@@ -167,7 +167,7 @@ class EvaluatorNode(Node):
             for topic, kind in {t: message_class(topic_map.topics[t].msgtype, f"{where} {t}") for t in self.mapped.readers}.items():
                 subscribe(kind, topic, self._guarded(topic, lambda msg, t=topic: self.on_mapped(t, msg)), qos)
             self.get_logger().info(f"topic map {topic_map.name} ({topic_map.origin}): {self.mapped.describe()}")
-        self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
+        self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos(reader=True))
         self.create_subscription(String, VEHICLE_TOPIC, self.on_vehicle, latched_qos())
         qos = prediction_subscription_qos(p["qos"], p["qos_depth"])
         # windowed predictions; in receding-horizon mode the predictors publish <model>/horizon/odom alone

@@ -187,7 +187,7 @@ class PredictorNode(Node):
             self.tracks = list(self.mapped.tracks.values())
             self.gates.update({topic: StampGate(step_ns) for topic in self.mapped.readers})
             self.get_logger().info(f"topic map {topic_map.name} ({topic_map.origin}): {self.mapped.describe()}")
-        self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos())
+        self.create_subscription(Clock, topics.ORIGIN_TOPIC, self.on_origin, latched_qos(reader=True))
         self.window = None  # current window index
         self.state = "idle"  # idle | warm | stream | skip
         self.warm_rows: list[tuple[int, np.ndarray, np.ndarray | None]] = []

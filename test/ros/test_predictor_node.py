@@ -510,3 +510,27 @@ def test_a_battery_reading_at_zero_volts_or_not_finite_is_dropped_with_one_warni
     assert node.faults.counts == {"range_battery": 3, "nan_battery": 1}
     assert node.battery.stamps == [5 * 10**9]  # the 3.9 V reading only
     node.destroy_node()
+
+
+def test_a_late_node_adopts_the_earlier_latched_origin_even_when_its_own_reaches_its_reader_after_it(ros):
+    """window_origin's readers keep each writer's latched origin: a predictor that joins a running graph, receives the
+    earlier origin into its reader and publishes its own (at its first input) before its executor takes the two, still
+    adopts the earlier t0. With a reader of depth 1 its own sample replaced the earlier one and it cut its own windows,
+    unaligned with the others' and unmarked (a review over DDS: a late predictor 0.81 s off the evaluator's windows)."""
+    from rosgraph_msgs.msg import Clock
+
+    from quad_modelling.nodes.common import latched_qos
+
+    early = ros.create_node("origin_of_a_running_graph", namespace="/quad")  # the nodes' namespace
+    early.create_publisher(Clock, topics.ORIGIN_TOPIC, latched_qos()).publish(messages.clock_message(1_000_000_000))
+    node = make_node()
+    deadline = time.monotonic() + 20
+    while node.count_publishers(topics.ORIGIN_TOPIC) < 2 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(1.0)  # the early writer's latched sample reaches the node's reader; the node is not spun
+    node.origin_pub.publish(messages.clock_message(5_000_000_000))  # its own, later origin, as at its first input
+    for _ in range(20):
+        ros.spin_once(node, timeout_sec=0.05)
+    assert node.clock_.origin_ns == 1_000_000_000
+    node.destroy_node()
+    early.destroy_node()
