@@ -377,7 +377,7 @@ STREAM_FAULTS = {
     "bad": "a message that cannot be decoded or used (e.g. not 4 efforts): dropped",
     "duplicate": "a second message with a stamp already stored: dropped",
     "late": "a message for a window the evaluator already closed: dropped",
-}
+    "stopped_motor": "(topic map) a NaN command, PX4's stopped motor: kept, read as the map's lowest command as offline"}
 """The one vocabulary of per-stream faults of every node: ``<kind>_<stream>`` (:func:`stream_fault`), kind -> meaning
 (the table in docs/nodes.md)."""
 

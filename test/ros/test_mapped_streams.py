@@ -139,3 +139,36 @@ def test_the_evaluator_through_a_user_map_scores_what_it_scores_from_the_contrac
 
 def test_a_battery_reading_at_or_below_zero_volts_is_a_range_fault():
     assert [MappedStreams.fault({"battery": [v]}) for v in (15.2, 0.0, -0.1, float("nan"))] == [None, "range", "range", "nan"]
+
+
+def test_a_nan_command_is_kept_as_a_stopped_motor_and_reported_once_as_offline(tmp_path):
+    """PX4 writes NaN for a stopped motor: live, as offline, the command reads as the map's lowest one; the node's
+    fault log says so once and counts every such message (a review found it used silently)."""
+    from types import SimpleNamespace
+
+    from quad_modelling.nodes.common import FaultLog
+
+    vehicle = load_vehicle("crazyflie21")
+    log = synthetic_log(n=20, seed=4)
+    sent = []
+
+    def recorded(writer):
+        for item in px4_messages(writer, log=log, input_range=(vehicle.input_min, vehicle.input_max)):
+            sent.append(item)
+            yield item
+
+    write_stack_bag(tmp_path / "bag", recorded)
+    topic_map = load_topic_map("px4")
+    streams = MappedStreams(topic_map, [*MEASURED_FIELDS, "battery"], 100_000_000, 4096, "test")
+    motors = [(topic, msg) for topic, _, msg in sent if topic == "/fmu/out/actuator_motors"][:3]
+    warnings = []
+    faults = FaultLog(SimpleNamespace(warning=warnings.append))
+    for k, (topic, msg) in enumerate(motors):
+        if k:
+            msg.control[1] = float("nan")
+        ns, fields = streams.admit(topic, msg, faults)
+        command = streams.command(fields["commands"], vehicle)
+        if k:
+            assert command[1] == vehicle.input_min and np.all(np.isfinite(command))
+    key = f"stopped_motor_{motors[0][0]}"
+    assert faults.counts == {key: 2} and len(warnings) == 1 and "stopped motor" in warnings[0]

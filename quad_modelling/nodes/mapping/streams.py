@@ -116,7 +116,8 @@ class MappedStreams:
     def admit(self, topic: str, msg, faults) -> tuple[int, dict[str, list[float]]] | None:
         """(stamp [ns], fields) of a message both nodes may use, or None: another instance of a multi-instance topic
         (silently), or a fault reported to ``faults`` (the nodes' fault log: ``zero_quaternion``, ``nan_<topic>`` or
-        ``range_<topic>``) and the message dropped."""
+        ``range_<topic>``) and the message dropped. A NaN command (a stopped motor) is kept and reported
+        (``stopped_motor_<topic>``), so the log says what the offline reader's notes count."""
         read = self.read(topic, msg)
         if read is None:
             return None
@@ -128,6 +129,9 @@ class MappedStreams:
             what = "non-finite" if fault == "nan" else "battery reading at or below 0 V (not connected):"
             faults.report(stream_fault(fault, topic), f"{what} {topic} message dropped")
             return None
+        if any(math.isnan(v) for v in read[1].get("commands", ())):  # kept: a stopped motor, read as offline
+            faults.report(stream_fault("stopped_motor", topic), f"{topic} message with a NaN command: read as a stopped motor "
+                                                                 "(the map's lowest command), as the offline reader does")
         return read
 
     def command(self, values: list[float], vehicle) -> np.ndarray:
