@@ -233,7 +233,7 @@ class EvaluatorNode(Node):
         last = gate.last
         verdict = gate.admit(ns, (ns, payload))
         for dropped in gate.dropped:
-            self.faults.report(stream_fault("stamp_outlier", stream), f"{stream} stamp t = {dropped / 1e9:.6f} s lies {(dropped - last) / 1e9:+.3f} s "
+            self.faults.report(stream_fault("stamp_outlier", stream), f"{stream} stamp t = {dropped / 1e9:.6f} s lies {(dropped - last) / 1e9:+.6f} s "
                                                            "from the stream's time (a duplicate, back in time, or beyond "
                                                            f"max_stamp_step_s={self.max_step_ns / 1e9:g} ahead): dropped")
         if verdict is Stamp.ACCEPTED:

@@ -175,6 +175,8 @@ def test_outlier_stamps_clock_jumps_and_bad_messages_are_survived(ros):
     assert counts["stamp_outlier_motor_input"] == 1 and counts["stamp_outlier_mocap_odom"] == 1  # the run of a jump is no outlier
     assert counts["bad_motor_input"] == 1 and counts["bad_imu"] == 1
     assert counts["clock_jump_motor_input"] == 1
+    outlier = next(line for line in warned if "stamp_outlier_motor_input" in line)  # the offset to the microsecond
+    assert f"lies {1000 + (stamps[300] - stamps[299]) / 1e9:+.6f} s from the stream's time" in outlier, outlier
     jump = next(line for line in warned if "jumped" in line)  # stamps in seconds, as the bag's clock (not raw ns)
     assert f"motor_input jumped to stamp t = {stamps[CONFIRM - 1] / 1e9:.6f} s" in jump and " ns" not in jump, jump
     records = [r for r in node.scores.records if r.model == "m"]
