@@ -69,6 +69,7 @@ def test_a_motor_order_verdict_an_injection_did_not_make_is_not_called_the_injec
     # a delay on its search bound is flagged where the summary line gives it (it read "150.0 +- 2.5 ms")
     bound = {**data, "constants": {**data["constants"], "rotor_delay": {**data["constants"]["rotor_delay"], "at_bound": True}}}
     assert "ms (AT BOUND: the search's; not measured); motor command gains" in " ".join(" ".join(verdict_lines(bound, 200)).split())
+    assert "+-" not in " ".join(verdict_lines(bound, 200)).split("command delay")[1].split(";")[0]  # no sigma on a bound
     assert "AT BOUND" not in " ".join(verdict_lines(data, 200))
 
 

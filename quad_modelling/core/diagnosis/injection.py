@@ -147,10 +147,12 @@ def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
     as logged (their own exchange of the same motors and the injected one cancel: no swap; another one makes two
     exchanges, which the order check, naming one, cannot: not judged); ``passed`` True when all hold, False when
     one does not, else None. The delay's rise is not judged when the un-injected delay sits on the search's lower
-    bound, 0 ms (``reference_at_zero``): the flights' commands act at or before their stamps, and the rise from that
-    bound is less than the injected delay by the unknown amount the un-injected optimum lies below it (simulated
-    flights without ``input_delay``: a profile whose minimum lies 10 ms below 0 with a 10 ms lag; a 20 ms injection
-    rose 9.3 ms, a 40 ms one 30 ms); comparing two injections (``delay:20`` and ``delay:40``) measures it."""
+    bound, 0 ms (``reference_at_zero``): what is known is that bound -- the flights' commands act at or before their
+    stamps, or the command path's lag was fitted as rotor lag -- and the rise from it is less than the injected delay
+    by the unknown amount the un-injected optimum lies below it (simulated flights without ``input_delay``: a profile
+    whose minimum lies 10 ms below 0 with a 10 ms lag, a 20 ms injection rose 9.3 ms, a 40 ms one 30 ms; simulated
+    Crazyflie flights with an 8 ms input delay and no motor lag, seeds 21-23: the delay at 0 and a rotor lag of 8.7 ms);
+    comparing two injections (``delay:20`` and ``delay:40``) measures it."""
     checks = []
     new = sorted(set(injected["found"]) - set(plain["found"]))
     allowed = {"gain": {"motor_imbalance"}, "delay": {"input_delay"}}.get(injection.kind, set())  # the injected change

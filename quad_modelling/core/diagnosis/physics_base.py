@@ -56,6 +56,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from quad_modelling.core.diagnosis.injection import motor_order_check, swapped, swapped_motors
+from quad_modelling.core.diagnosis.statistics import BLOCK_BOOTSTRAP as BOOTSTRAP
+from quad_modelling.core.diagnosis.statistics import block_draws, shrink
 from quad_modelling.core.diagnosis.verdicts import (
     DETERMINED_SIGMAS, FOUND_MIN_BOUND, component_text, signed_percent, twin_text, unconfirmed_text, yaw_only_text,
 )
@@ -135,9 +137,6 @@ before: bench/results/diagnose.md."""
 PAIR_EXCLUDED = ("motor_lag", "input_delay")
 """Candidates the pair step (:func:`pair_candidates`) leaves out: a rung with either searches the rotor lag and delay
 (5-20 s a rung against 1-2 s), and the two have their own check (:data:`TWINS`)."""
-
-BOOTSTRAP = 400
-"""Bootstrap resamples of the shrink's 5 % bound."""
 
 SELECTION_STRIDE = 2
 """Every 2nd start is scored during the selection (the final table scores every start, as ``evaluate``)."""
@@ -251,32 +250,6 @@ def held_out_score(vehicle: VehicleConfig, observer: Observer, flights: Sequence
     return HeldOutScore(errors, naive_errors, blocks)
 
 
-def block_draws(scores: Sequence[HeldOutScore], seed: int = 0) -> np.ndarray:
-    r"""(BOOTSTRAP, len(scores)) J of each score on the same :data:`BOOTSTRAP` block resamples of their starts (the
-    scores are of the same starts: their blocks are the first's). A resample draws as many blocks as there are, with
-    replacement; J being a mean over the groups of ratios of sums over starts, a draw is its blocks' counts
-    :math:`c` (BOOTSTRAP, K) times the per-block sums: :math:`J = \operatorname{mean}_g (c\, E_g) / (c\, N_g)`."""
-    rng = np.random.default_rng(seed)
-    _, block = np.unique(scores[0].blocks, return_inverse=True)
-    n_blocks = int(block.max()) + 1
-    picks = rng.integers(0, n_blocks, (BOOTSTRAP, n_blocks))
-    counts = np.zeros((BOOTSTRAP, n_blocks))
-    np.add.at(counts, (np.repeat(np.arange(BOOTSTRAP), n_blocks), picks.ravel()), 1.0)
-    draws = np.empty((BOOTSTRAP, len(scores)))
-    for j, score in enumerate(scores):
-        sums_model, sums_naive = np.zeros((n_blocks, score.model.shape[1])), np.zeros((n_blocks, score.naive.shape[1]))
-        np.add.at(sums_model, block, score.model)
-        np.add.at(sums_naive, block, score.naive)
-        draws[:, j] = np.mean((counts @ sums_model) / (counts @ sums_naive), axis=1)
-    return draws
-
-
-def shrink(before: HeldOutScore, after: HeldOutScore, seed: int = 0) -> tuple[float, float]:
-    """(S, its bootstrap 5 % bound) of ``after`` against ``before`` (module docstring; the same starts)."""
-    draws = block_draws([before, after], seed)
-    return float(1.0 - after.j / before.j), float(np.quantile(1.0 - draws[:, 1] / draws[:, 0], 0.05))
-
-
 TWINS = {"motor_lag": "input_delay", "input_delay": "motor_lag"}
 """Two forms of one lag of the command path: a first-order rotor lag and a pure command delay of the same mean lag
 differ only in the phase and gain they give above ~1/(2 pi tau) (8 Hz at 20 ms), which the fitted inertias and
@@ -293,6 +266,14 @@ def twin_check(found: str, before: HeldOutScore, chosen: HeldOutScore, other: He
     low, high = (float(q) for q in np.quantile(differences, [0.05, 0.95]))
     return {"found": found, "other": TWINS[found], "shrink": 1.0 - chosen.j / before.j, "other_shrink": 1.0 - other.j / before.j,
             "difference_90": [low, high], "told_apart": bool(low > 0.0), "other_better": bool(high < 0.0)}
+
+
+def dynamics_at_bound(fit: PhysicsFit) -> bool:
+    """Whether a searched rotor lag or delay ended on a search bound that the observer's trim may have pushed it to
+    (:data:`RUNG_FIT_OBSERVERS`): the lag on either, the delay on its upper one. A delay of 0 (its lower bound, flagged
+    AT BOUND) is what flights whose commands act at their stamps give, not a trade with the trim."""
+    return any(e.at_bound and not (e.name == "rotor_delay" and e.value <= e.bounds[0])
+               for e in fit.estimates() if e.name in DYNAMICS)
 
 
 def components(effect: str, fit: PhysicsFit, folds: Sequence[PhysicsFit] = ()) -> list[dict]:
@@ -369,7 +350,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
             return next(iter(fits.values()))
         scores = {name: training_score(fit, flights, vehicle, config) for name, fit in fits.items()}
         chosen = min(scores, key=scores.get)
-        if observers is None and held is None and any(e.at_bound for e in fits[chosen].estimates() if e.name in DYNAMICS):
+        if observers is None and held is None and dynamics_at_bound(fits[chosen]):
             for name in (n for n in FIT_OBSERVERS if n not in fits):
                 fits[name] = fitted(name)
                 scores[name] = training_score(fits[name], flights, vehicle, config)
@@ -518,7 +499,8 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     table["airborne_starts"] = sum(len(s) for _, s in protocol_starts(test, config, airborne=True))  # the report's note
     gains_source = final if "motor_imbalance" in final.effects else trials.get("motor_imbalance")
     summary = {"found": [c for c in chosen if c in final.effects] + [c for c in final.effects if c not in chosen],
-               "delay_s": {"value": final.fit.values["rotor_delay"], "sigma": final.fit.sigma["rotor_delay"]},
+               "delay_s": {"value": final.fit.values["rotor_delay"], "sigma": final.fit.sigma["rotor_delay"],
+                           "at_bound": bool(final.fit.at_bound["rotor_delay"])},
                "motor_command_gains": logged_order(motor_command_gains(gains_source.fit if gains_source else None),
                                                    layout.get("diagnosed_with_swap")),
                "ratio_to_naive": {"base": base.score.ratios(), "final": final.score.ratios()},

@@ -1,4 +1,4 @@
-"""Scores of the diagnosis: normalised window gaps, shrink, bootstrap, sign test, correlations."""
+"""Scores of the diagnosis: window gaps, shrink, bootstraps (of windows; of blocks of starts), sign test, correlations."""
 
 from __future__ import annotations
 
@@ -84,3 +84,39 @@ def correction_correlation(batch: WindowBatch, delta_a: np.ndarray, delta_b: np.
     if sa == 0 or sb == 0:
         return 0.0
     return float(np.mean((a - a.mean()) * (b - b.mean())) / (sa * sb))
+
+
+# ----------------------------------------------------------------------------- the physics base's block bootstrap
+
+
+BLOCK_BOOTSTRAP = 400
+"""Bootstrap resamples of the physics base's shrink and its 5 % bound
+(:mod:`~quad_modelling.core.diagnosis.physics_base`: blocks of held-out starts)."""
+
+
+def block_draws(scores: Sequence, seed: int = 0) -> np.ndarray:
+    r"""(BLOCK_BOOTSTRAP, len(scores)) J of each score (a :class:`~quad_modelling.core.diagnosis.physics_base.HeldOutScore`:
+    per-start ``model`` and ``naive`` errors, ``blocks``) on the same :data:`BLOCK_BOOTSTRAP` block resamples of their
+    starts (the scores are of the same starts: their blocks are the first's). A resample draws as many blocks as there
+    are, with replacement; J being a mean over the groups of ratios of sums over starts, a draw is its blocks' counts
+    :math:`c` (BLOCK_BOOTSTRAP, K) times the per-block sums: :math:`J = \operatorname{mean}_g (c\, E_g) / (c\, N_g)`."""
+    rng = np.random.default_rng(seed)
+    _, block = np.unique(scores[0].blocks, return_inverse=True)
+    n_blocks = int(block.max()) + 1
+    picks = rng.integers(0, n_blocks, (BLOCK_BOOTSTRAP, n_blocks))
+    counts = np.zeros((BLOCK_BOOTSTRAP, n_blocks))
+    np.add.at(counts, (np.repeat(np.arange(BLOCK_BOOTSTRAP), n_blocks), picks.ravel()), 1.0)
+    draws = np.empty((BLOCK_BOOTSTRAP, len(scores)))
+    for j, score in enumerate(scores):
+        sums_model, sums_naive = np.zeros((n_blocks, score.model.shape[1])), np.zeros((n_blocks, score.naive.shape[1]))
+        np.add.at(sums_model, block, score.model)
+        np.add.at(sums_naive, block, score.naive)
+        draws[:, j] = np.mean((counts @ sums_model) / (counts @ sums_naive), axis=1)
+    return draws
+
+
+def shrink(before, after, seed: int = 0) -> tuple[float, float]:
+    """(S, its bootstrap 5 % bound) of the score ``after`` against ``before`` (the physics base's S = 1 - J_after /
+    J_before; the same starts, :func:`block_draws`)."""
+    draws = block_draws([before, after], seed)
+    return float(1.0 - after.j / before.j), float(np.quantile(1.0 - draws[:, 1] / draws[:, 0], 0.05))

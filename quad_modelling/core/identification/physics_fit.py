@@ -454,8 +454,8 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
             continue
         if key == "rotor_time_constant":
             at_bound[key] = bool(min(abs(np.log(value / low)), abs(np.log(value / high))) < TAU_LOG_TOLERANCE)
-        elif key == "rotor_delay":
-            at_bound[key] = bool(value >= high - 0.5 / rate)
+        elif key == "rotor_delay":  # 0: the grid's first delay was the best (no vertex below it); near 150 ms: on it
+            at_bound[key] = bool(value <= low or value >= high - 0.5 / rate)
         elif not drag and key.startswith("rotor_drag"):
             at_bound[key] = False  # held at 0: rotor drag off
         else:

@@ -40,12 +40,7 @@ def _verdict(data: dict) -> list[str]:
                  f"{final['ratio_to_naive']['angular_velocity']:.3f} (J {base['J']:.3f} -> {final['J']:.3f})")
     s = data["summary"]
     gains = s["motor_command_gains"]
-    constant = (data.get("constants") or {}).get("rotor_delay") or {}
-    held = constant.get("held")
-    delay = (f"{s['delay_s']['value'] * 1e3:.1f} ms ({held})" if held
-             else f"{s['delay_s']['value'] * 1e3:.1f} +- {s['delay_s']['sigma'] * 1e3:.1f} ms"
-             + (" (AT BOUND: the search's; not measured)" if constant.get("at_bound") else ""))
-    lines.append(f"  command delay {delay}; motor command gains "
+    lines.append(f"  command delay {delay_text(s['delay_s'], (data.get('constants') or {}).get('rotor_delay'))}; motor command gains "
                  + (" ".join(f"{g:.3f}" for g in gains["value"]) if gains["fitted"] else "not fitted (motor_imbalance not a candidate)"))
     order = data.get("motor_order") or {}
     logged_order = ((data.get("un_injected") or {}).get("motor_order") or {}).get("verdict")
@@ -71,13 +66,29 @@ def _verdict(data: dict) -> list[str]:
         logged = data["un_injected"]
         s0 = logged["summary"]
         lines.append(f"  the flights as logged (un-injected run): found {', '.join(logged['found']) or 'nothing'}; command delay "
-                     f"{s0['delay_s']['value'] * 1e3:.1f} ms; held-out J {logged['held_out']['base']['J']:.3f} -> "
+                     f"{delay_text(s0['delay_s'], {}, sigma=False)}; held-out J {logged['held_out']['base']['J']:.3f} -> "
                      f"{logged['held_out']['final']['J']:.3f}" + ("; --write-vehicle wrote this run's model"
                                                                  if data.get("vehicle_written") else ""))
         lines.append(f"  --inject {injection['spec']}: {VERDICTS[injection['passed']]} ("
                      + "; ".join(f"{c['check']}: {HOLDS[c['holds']]}" for c in injection["checks"]) + ")")
         lines += [f"    {_check_note(c)}" for c in injection["checks"] if c["holds"] is None]
     return lines
+
+
+
+def delay_text(delay: dict, constant: dict | None, sigma: bool = True) -> str:
+    """The command delay of ``summary.delay_s`` (``constant``: its entry in ``constants``, for held and at-bound): value
+    +- sigma, or, held, why; on a search bound the bound said and no sigma (it read "0.0 +- 0.3 ms" on its lower bound)."""
+    constant = constant or {}
+    value = delay["value"] * 1e3
+    if constant.get("held"):
+        return f"{value:.1f} ms ({constant['held']})"
+    if delay.get("at_bound") or constant.get("at_bound"):
+        if value <= 0.0:
+            return (f"{value:.1f} ms (AT BOUND: the search's lower bound 0: the commands act at or before their stamps, "
+                    "or a lag of the command path took the delay)")
+        return f"{value:.1f} ms (AT BOUND: the search's; not measured)"
+    return f"{value:.1f} +- {delay['sigma'] * 1e3:.1f} ms" if sigma else f"{value:.1f} ms"
 
 
 def report_markdown(data: dict) -> str:
@@ -228,9 +239,9 @@ def _check_note(check: dict) -> str:
         return (f"the flights as logged have motors {motors} exchanged: " + ("the injection undoes it" if check["holds"] is not None
                 else "with the injected one that makes two exchanges, which the order check (naming one) cannot name"))
     if check.get("reference_at_zero"):
-        return ("the un-injected delay is 0 ms, its search's lower bound (commands that act at or before their stamps, as "
-                "in flights simulated without input delay): the rise from it is not measured; compare two injections "
-                "(delay:20 and delay:40) instead")
+        return ("the un-injected delay is 0 ms, its search's lower bound: the flights' commands act at or before their "
+                "stamps, or the command path's lag was fitted as rotor lag; the rise from that bound falls short of the "
+                "injected delay by an unknown amount and is not judged; compare two injections (delay:20 and delay:40) instead")
     return ""
 
 

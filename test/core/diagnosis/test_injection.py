@@ -106,7 +106,12 @@ def test_a_rise_from_an_un_injected_delay_of_zero_is_not_judged_and_says_why():
     result = injection_checks(parse_injection("delay:20"), plain, {**plain, "delay_s": {"value": 0.0093}})
     delay = next(c for c in result["checks"] if c["check"] == "delay rises by the injected delay")
     assert delay["holds"] is None and delay["reference_at_zero"] and result["passed"] is None
-    assert "the un-injected delay is 0 ms, its search's lower bound" in _check_note(delay)
+    note = _check_note(delay)
+    assert "the un-injected delay is 0 ms, its search's lower bound" in note
+    # what is known, not how the flights were made: it fired on flights simulated WITH an 8 ms input delay, fitted as
+    # an 8.7 ms rotor lag (it said "as in flights simulated without input delay")
+    assert "act at or before their stamps, or the command path's lag was fitted as rotor lag" in note
+    assert "simulated" not in note
     extra = {**plain, "found": ["rotor_drag", "battery"], "delay_s": {"value": 0.0093}}
     assert injection_checks(parse_injection("delay:20"), plain, extra)["passed"] is False  # a new effect still fails
     bound = {**plain, "delay_s": {"value": 0.150}}

@@ -77,3 +77,20 @@ def test_a_half_that_ran_a_gain_to_its_search_bound_does_not_void_it():
     assert not parts["motor_imbalance.gain_1"]["resolved"]
     text = component_text("motor_imbalance", components("motor_imbalance", _Gains((1.26, 1.0, 1.0, 1.0)), folds), True)
     assert "motor 2 gain 1 (0.8 / 0.5 at its bound on the folds)" in text
+
+
+def test_a_delay_on_its_lower_bound_is_at_bound_but_does_not_refit_the_rung_with_every_observer():
+    """A delay of 0 is on its search bound [0, 0.15] and flagged AT BOUND where listed (a review found it unflagged),
+    but it is what flights whose commands act at their stamps give: unlike a lag on either bound or a delay on 150 ms
+    it is no trade with the observer's trim, and the rung is not refitted with every observer for it."""
+    from quad_modelling.core.diagnosis.physics_base import dynamics_at_bound
+
+    def fit(delay: float, tau: float = 0.03) -> _Fit:
+        estimates = _Fit(1.0, 0.0)
+        estimates._estimates = [ConstantEstimate("rotor_time_constant", tau, "s", 1e-3, (0.002, 0.3), at_bound=tau in (0.002, 0.3)),
+                                ConstantEstimate("rotor_delay", delay, "s", 1e-4, (0.0, 0.15), at_bound=delay in (0.0, 0.15))]
+        return estimates
+
+    assert components("input_delay", fit(0.0))[0]["at_bound"] and not components("input_delay", fit(0.0))[0]["resolved"]
+    assert not dynamics_at_bound(fit(0.0)) and not dynamics_at_bound(fit(0.04))
+    assert dynamics_at_bound(fit(0.15)) and dynamics_at_bound(fit(0.0, tau=0.3))

@@ -64,12 +64,14 @@ def test_identification_recovers_the_simulator_constants(sim_flight):
     }
     for key, value in truth.items():
         assert fit.values[key] == pytest.approx(value, rel=0.03), key
-    assert fit.values["rotor_delay"] == 0.0
+    assert fit.values["rotor_delay"] == 0.0 and fit.at_bound["rotor_delay"]  # no delay simulated: on its lower bound 0
     assert fit.values["rotor_drag_xy"] == pytest.approx(params.rotor_drag.horizontal, rel=0.25)
     assert fit.values["rotor_drag_z"] == pytest.approx(params.rotor_drag.vertical, rel=0.25)
     assert fit.values["rotor_drag_arm"] == pytest.approx(params.geometry.rotor_plane_z, rel=0.25)
-    assert not any(fit.at_bound.values())
+    assert not any(on for key, on in fit.at_bound.items() if key != "rotor_delay")  # (flagged too, until a review said)
     assert all(np.isfinite(fit.sigma[key]) and fit.sigma[key] > 0 for key in FITTED)
+    delay = next(e for e in fit.estimates() if e.name == "rotor_delay")
+    assert delay.at_bound and "AT BOUND" in " ".join(delay.lines())  # every listing reads this one record
 
 
 def test_a_switched_off_lag_is_held_at_zero_and_identify_effects_motor_lag_fits_it_again(sim_flight):

@@ -1,7 +1,7 @@
 """The physics diagnosis report's table cells: why a pair of candidates did not join, an injection's expected and
 measured effects."""
 
-from quad_modelling.io.reports.physics_diagnosis import _check_value, _why_pair_not_joined
+from quad_modelling.io.reports.physics_diagnosis import _check_value, _why_pair_not_joined, delay_text
 
 
 def _pair(low: float, resolved: bool = True) -> dict:
@@ -24,3 +24,15 @@ def test_the_newly_found_check_lists_effects_not_a_python_list():
     assert _check_value(check, "measured") == "motor_imbalance"
     assert _check_value({**check, "newly_found": [], "expected_new": []}, "measured") == "nothing"
     assert _check_value({**check, "expected_new": []}, "expected") == "nothing"
+
+
+def test_a_delay_on_a_search_bound_says_so_without_a_sigma():
+    """Simulated Crazyflie flights, 8 ms input delay (seeds 21-23): the delay fitted 0 on its bound [0, 0.15] read
+    "command delay 0.0 +- 0.1 ms", a precise-looking value; on the upper bound the search's bound is said."""
+    bounds = {"bounds": [0.0, 0.15], "held": None}
+    lower = delay_text({"value": 0.0, "sigma": 1.4e-4, "at_bound": True}, {**bounds, "at_bound": True})
+    assert lower == ("0.0 ms (AT BOUND: the search's lower bound 0: the commands act at or before their stamps, or a lag "
+                     "of the command path took the delay)")
+    assert delay_text({"value": 0.15, "sigma": 2.5e-3}, {**bounds, "at_bound": True}) == "150.0 ms (AT BOUND: the search's; not measured)"
+    assert delay_text({"value": 0.0412, "sigma": 2.5e-3, "at_bound": False}, {**bounds, "at_bound": False}) == "41.2 +- 2.5 ms"
+    assert delay_text({"value": 0.0, "sigma": float("nan")}, {"held": "held at 0 (switched off)"}) == "0.0 ms (held at 0 (switched off))"
