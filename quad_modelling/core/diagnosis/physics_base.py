@@ -317,12 +317,12 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         candidates.remove("battery")
         switched.append("battery (no battery voltage in the flights)")
     test = [resample_uniform(f) for f in test]
-    say("motor order and spin check")
+    say("checking the motor order and spin")
     layout = motor_order_check(train, vehicle, config)
     if layout["verdict"] == "inconsistent" and layout["swap"]:
         train, test = ([swapped(f, layout["swap"]) for f in flights] for flights in (train, test))
         layout["diagnosed_with_swap"] = layout["swap"]
-    say("identifying the base (the observer chosen by the data)")
+    say(f"identifying the base (the observer chosen by the data); candidates {', '.join(candidates) or 'none'}")
     reference = identify_physics(train, vehicle, config)  # as identify fits it: the observers and the rotor dynamics
     fit_observer = reference.diagnostics["observer_choice"]["fitted_with"]  # the one its constants are fitted with
     cache: dict[tuple[str, ...], Rung] = {}
@@ -364,7 +364,8 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         key = tuple(sorted(effects))
         if flights is train and key in cache and searched_with is None:
             return cache[key]
-        say(f"fitting base + {', '.join(key) or 'nothing'}" + (" (rotor lag and delay searched with it)" if searched_with else ""))
+        say((f"fitting base + {', '.join(key)}" if key else "fitting the base (no candidate)")
+            + (" (rotor lag and delay searched with it)" if searched_with else ""))
         fit = fit_with(key, flights, dynamics(key)) if searched_with is None else fit_with(key, flights, None, (searched_with,))
         choice = fit.diagnostics.get("fit_observer_choice")
         known = {choice["chosen"]: choice["errors"][choice["chosen"]]} if choice else None  # its own observer's, scored
@@ -401,6 +402,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     steps, trials, yaw_only = [], {}, None
     remaining = list(candidates)
     while remaining:
+        say(f"forward step {len(steps) + 1}: {len(remaining)} candidate(s) on top of {' + '.join(['base', *chosen])}")
         scored = {}
         for c in remaining:
             trial = rung([*chosen, c])
@@ -436,6 +438,8 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         remaining = [c for c in remaining if c not in joining]
         current = rung(chosen)
     dropped, left = {}, {}
+    if chosen:
+        say(f"backward step: each of {', '.join(chosen)} dropped from the final set")
     for c in list(chosen):
         without = rung([e for e in chosen if e != c])
         rise, rise_low = shrink(without.score, current.score)
@@ -450,9 +454,9 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     final = current
     # base, + rank 1, ...: each refitted jointly, its effects named in joining order
     ladder = [{**rung_json(rung(chosen[:k])), "effects": chosen[:k]} for k in range(len(chosen) + 1)]
-    say("folds and the final table")
     folds, folds_note = [], None
     if len(train) >= 2:
+        say("fitting the final model on each half of the training flights (folds)")
         halves = [list(train[0::2]), list(train[1::2])]
         fitted_with = final.fit.diagnostics["observer_choice"]["fitted_with"]
         held = dynamics(final.effects) and (final.fit.values["rotor_time_constant"], final.fit.values["rotor_delay"],
@@ -494,6 +498,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
                 effects[entry]["text"] += "; " + twin_text(check, entry)
     for c in switched:
         effects[c] = {"verdict": "in the vehicle", "text": f"{c}: switched on in the vehicle file: part of the base"}
+    say("scoring the base and the final model on every held-out start")
     table = multistep_evaluation(test, [_named(PhysicsPredictor(r.vehicle, observer=r.fit.observer, trim=config.trim), name)
                                         for r, name in ((base, "base"), (final, "final"))], final.vehicle, config)
     table["airborne_starts"] = sum(len(s) for _, s in protocol_starts(test, config, airborne=True))  # the report's note

@@ -53,6 +53,7 @@ from quad_modelling.core.diagnosis.validation import (
     CaseSettings,
     all_effects_needed,
     all_effects_target,
+    case_progress,
     check_pairs,
     simulated_flight,
     test_seeds,
@@ -202,10 +203,11 @@ def validate_physics(vehicle: str, config: EvaluationConfig, seeds: Sequence[int
     settings = PhysicsCaseSettings(vehicle, duration, config, tuple(candidates))
     cases = physics_cases(candidates, seeds, pairs, disturbances)
     say = progress or (lambda _m: None)
+    say(f"{len(cases)} cases to simulate and diagnose, {jobs or 1} at a time")
     clock = time.perf_counter()
     order = sorted(range(len(cases)), key=lambda i: -len(cases[i].effects))  # the longest first: no late long tail
     done = map_flights(run_physics_case, [cases[i] for i in order], settings, jobs=jobs,
-                       progress=lambda i, case: say(f"seed {case.seed}: {case.kind} {case.label}"))
+                       progress=case_progress(say, len(cases)))
     rows = [row for _, row in sorted(zip(order, done), key=lambda pair: pair[0])]  # back in run order
     seconds = time.perf_counter() - clock
     return {"base": "physics", "vehicle": vehicle, "vehicle_effects": ASSESSED_SWITCHES, "seeds": list(seeds),

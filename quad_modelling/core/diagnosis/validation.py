@@ -215,6 +215,18 @@ def _single(case: Case, result, outcome, sensor_flights, vehicle, config: Evalua
             "shrink_by_variable": outcome.shrink_by_variable.get("held_out", {})}
 
 
+def case_progress(say: Callable[[str], None], total: int) -> Callable[[int, Case], None]:
+    """The ``progress(index, case)`` of the cases' fan-out (:func:`~quad_modelling.fanout.map_flights`): one line per
+    case done, ``case k/N done: seed S: KIND LABEL``, through ``say``."""
+    finished = [0]
+
+    def progress(_index: int, case: Case) -> None:
+        finished[0] += 1
+        say(f"case {finished[0]}/{total} done: seed {case.seed}: {case.kind} {case.label}")
+
+    return progress
+
+
 def validation_cases(effects: Sequence[str], seeds: Sequence[int], pairs: Sequence[tuple[str, str]], all_effects: bool,
                      disturbances: Sequence[str], null: bool = True) -> list[Case]:
     """Every (seed, case) in run order: singles, null, pairs, all, disturbances per seed."""
@@ -279,9 +291,10 @@ def validate(
     settings = CaseSettings(vehicle, searched, duration, config, base_from, sim_params)
     cases = validation_cases(effects, seeds, pairs, all_effects, disturbances, null)
     say = progress or (lambda _m: None)
+    say(f"{len(cases)} cases to simulate and diagnose, {jobs or 1} at a time")
     clock = time.perf_counter()
     results = map_flights(run_case, cases, settings, jobs=jobs,
-                          progress=lambda i, case: say(f"seed {case.seed}: {case.kind} {case.label}"))
+                          progress=case_progress(say, len(cases)))
     return summarise(results, vehicle, seeds, duration, base_from, searched, time.perf_counter() - clock, jobs)
 
 

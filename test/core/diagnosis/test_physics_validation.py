@@ -96,3 +96,13 @@ def test_the_vehicle_assesses_every_candidate_and_bad_requests_stop_first():
         validate_physics("linkquad", PHYSICS_CONFIG, candidates=("warp_drive",))
     with pytest.raises(ConfigError, match="simulation duration must be at least"):
         validate_physics("linkquad", PHYSICS_CONFIG, duration=1e9)
+
+
+def test_each_case_done_is_one_progress_line():
+    from quad_modelling.core.diagnosis.validation import Case, case_progress
+
+    said = []
+    progress = case_progress(said.append, 2)
+    progress(1, Case("single", ("battery",), 7))
+    progress(0, Case("null", (), 7))
+    assert said == ["case 1/2 done: seed 7: single battery", "case 2/2 done: seed 7: null none"]
