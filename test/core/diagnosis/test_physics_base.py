@@ -150,8 +150,8 @@ def test_lag_and_delay_are_said_apart_or_not_by_their_held_out_difference():
     lag, _, _ = _diagnosed("motor_lag", 0.0)
     check = lag.effects["motor_lag"]["twin"]
     assert check["told_apart"] and check["difference_90"][0] > 0 and lag.summary["not_told_apart"] == []
-    assert "told from an input delay" in lag.effects["motor_lag"]["text"]
-    assert "tell the motor lag found from it" in lag.effects["input_delay"]["text"]
+    assert "the held-out flights fit it better than an input delay in its place" in lag.effects["motor_lag"]["text"]
+    assert "the held-out flights fit the motor lag found better than it in its place" in lag.effects["input_delay"]["text"]
     short, _, _ = _diagnosed("input_delay", 0.008)
     (found,) = short.found
     check = short.effects[found]["twin"]
@@ -186,6 +186,14 @@ def test_the_twin_check_reads_the_paired_bootstrap():
     assert "an input delay fitted in its place shrank the held-out error more" in text and "do not tell" not in text
     narrow = {**worse, "shrink": 0.064, "other_shrink": 0.063, "difference_90": [2.8e-05, 0.0024]}  # told apart, barely
     assert "difference +0.003% .. +0.240% (90 %)" in twin_text(narrow, "motor_lag")  # it read +0.0 % .. +0.2 %
+    # told apart says what was compared, each twin alone on the rung, not that the other is absent: a 50 ms lag with an
+    # 8 ms delay was found as one 55.0 ms delay "told from a motor lag by the held-out flights" (seeds 31-33)
+    delay = twin_check("input_delay", before, chosen, HeldOutScore(chosen.model * 1.1, naive, blocks))
+    found, other = twin_text(delay, "input_delay"), twin_text(delay, "motor_lag")
+    assert found.startswith("the held-out flights fit it better than a motor lag in its place (shrink 20.0% against 12.0%")
+    assert other.startswith("the held-out flights fit the input delay found better than it in its place (")
+    assert all("a lag and a delay together are one lag of the command path, not separated here" in t for t in (found, other))
+    assert "told from" not in found + other
 
 
 def test_a_lag_searched_to_its_bound_with_the_base_observer_is_refitted_with_the_others():
