@@ -263,7 +263,7 @@ VALIDATION_OPTIONS = (("--seeds", "seeds"), ("--duration", "duration"), ("--base
 """The options only ``--validate`` reads (each None unless given; their defaults are resolved there)."""
 
 FLIGHT_OPTIONS = (("--train", "train"), ("--test", "test"), ("--skip-bad", "skip_bad"), ("--no-identify", "no_identify"),
-                  ("--narx", "narx"))
+                  ("--narx", "narx"), ("--topic-map", "topic_map"))
 """The options only a diagnosis of ``--train``/``--test`` flights reads (``--validate`` flies its own flights; its
 greybox validation identifies the base and trains no NARX; ``--inject``/``--write-vehicle`` are refused apart)."""
 
