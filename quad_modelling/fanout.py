@@ -15,7 +15,8 @@ driver never holds every flight of a fleet.
 Results come back in the order of ``paths`` whatever the order the flights finish in, so a merge
 over them (``core/evaluation/statistics``) gives the same numbers, bit for bit, as the serial run.
 A project error raised in a worker (:class:`~quad_modelling.errors.QuadModellingError`) is raised
-here as it is (the CLI prints its one line and exits 2). The cluster failing under the work is one
+here as it is (the CLI prints its one line and exits 2): the first failing flight in the order of ``paths``, the one a
+serial run stops at, whichever finishes first. The cluster failing under the work is one
 :class:`~quad_modelling.errors.ClusterError` line too: a flight whose workers all died running it
 (distributed's ``KilledWorker``: out of memory, killed by a signal, a crash in native code) names the flight;
 a scheduler that stops or whose connection is lost mid-run names the scheduler and how many flights were done.
@@ -26,6 +27,8 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
+import re
 import signal
 import threading
 import uuid
@@ -36,6 +39,14 @@ from quad_modelling.errors import ClusterError, ConfigError, reason
 
 CONNECT_TIMEOUT_S = 10.0
 """How long [s] ``--scheduler ADDRESS`` may take to answer before the command gives up with one line."""
+
+ANSWER_GRACE_S = 5.0
+"""Beyond :data:`CONNECT_TIMEOUT_S`, how long [s] a scheduler address that accepts the connection may take to answer
+(distributed's timeout bounds the connection, not a peer that accepts and stays silent: it waited without end)."""
+
+JOBS_PER_CORE = 4
+"""``--jobs`` at most this many worker processes per core: one-thread workers beyond the cores only cost memory and
+start-up (``--jobs 1000000`` grew the driver to 0.9 GB without a worker)."""
 
 WORKER_WAIT_S = 20.0
 """How long [s] a running scheduler may take to have at least one worker before the command gives up."""
@@ -57,8 +68,16 @@ def check_fanout_options(jobs: int | None, scheduler: str | None) -> None:
         raise ConfigError("--jobs and --scheduler exclude each other: --jobs starts a local cluster, --scheduler uses a running one")
     if jobs is not None and jobs < 1:
         raise ConfigError(f"--jobs {jobs}: the number of worker processes must be at least 1")
+    most = JOBS_PER_CORE * (os.cpu_count() or 1)
+    if jobs is not None and jobs > most:
+        raise ConfigError(f"--jobs {jobs}: at most {most} worker processes on this machine's {os.cpu_count() or 1} core(s) "
+                          f"({JOBS_PER_CORE} per core; one-thread workers beyond the cores only cost memory)")
     if scheduler is not None and not scheduler.strip():
         raise ConfigError("--scheduler '': expected a scheduler address such as tcp://127.0.0.1:8786")
+    port = re.search(r":(\d+)/?$", scheduler or "")
+    if port and not 0 < int(port.group(1)) <= 65535:
+        raise ConfigError(f"--scheduler {scheduler}: not a scheduler address such as tcp://127.0.0.1:8786 (port "
+                          f"{port.group(1)} is not in 1..65535)")
 
 
 def add_fanout_arguments(parser) -> None:
@@ -112,7 +131,9 @@ def dask_client(jobs: int | None = None, scheduler: str | None = None) -> Iterat
             yield client
         return
     try:
-        client = Client(scheduler, timeout=CONNECT_TIMEOUT_S)
+        client = _answering_client(Client, scheduler)
+    except ConfigError:
+        raise
     except (ValueError, TypeError) as err:
         raise ConfigError(f"--scheduler {scheduler}: not a scheduler address such as tcp://127.0.0.1:8786 ({reason(err)})") from err
     except (OSError, TimeoutError) as err:
@@ -127,6 +148,29 @@ def dask_client(jobs: int | None = None, scheduler: str | None = None) -> Iterat
         yield client
     finally:
         client.close()
+
+
+def _answering_client(client_class, scheduler: str):
+    """``Client(scheduler)`` made in a thread of its own, given :data:`CONNECT_TIMEOUT_S` + :data:`ANSWER_GRACE_S`:
+    ConfigError (one line) when the address accepts the connection and never answers (the thread is left to the
+    process's end)."""
+    made: dict[str, Any] = {}
+
+    def connect() -> None:
+        try:
+            made["client"] = client_class(scheduler, timeout=CONNECT_TIMEOUT_S)
+        except BaseException as err:  # re-raised in the caller's thread
+            made["error"] = err
+
+    thread = threading.Thread(target=connect, name="dask-scheduler-connect", daemon=True)
+    thread.start()
+    thread.join(CONNECT_TIMEOUT_S + ANSWER_GRACE_S)
+    if thread.is_alive():
+        raise ConfigError(f"--scheduler {scheduler}: something accepted the connection there but no Dask scheduler "
+                          f"answered within {CONNECT_TIMEOUT_S + ANSWER_GRACE_S:g} s")
+    if "error" in made:
+        raise made["error"]
+    return made["client"]
 
 
 @contextlib.contextmanager
@@ -182,11 +226,21 @@ def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: in
                        for index, path in enumerate(paths)]
             order = {future.key: index for index, future in enumerate(futures)}
             done: dict[int, Any] = {}
+            completed: set[int] = set()
             next_index = 0
             for future in as_completed(futures):
                 index = order[future.key]
                 try:
-                    done[index] = future.result()  # re-raises a worker's exception as it is (BagError, an OSError, too)
+                    try:
+                        done[index] = future.result()  # re-raises a worker's exception as it is (BagError, an OSError, too)
+                    except (KilledWorker, CancelledError):
+                        raise
+                    except Exception:  # the serial run's error: an earlier flight's own, if one fails too
+                        for earlier in range(index):
+                            if earlier not in completed:
+                                futures[earlier].result()
+                        raise
+                    completed.add(index)
                 except KilledWorker as err:
                     raise ClusterError(f"flight {paths[index]}: every Dask worker that ran it died ({type(err).__name__}: "
                                        "killed for memory, by a signal, or a crash in native code) on "
