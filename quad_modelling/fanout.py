@@ -102,19 +102,28 @@ def local_cluster(jobs: int) -> Iterator[Any]:
     # SIGINT ignored while the cluster starts its workers (LocalCluster returns once they run): a worker process
     # starts with it ignored (an ignored signal stays so across exec, and Python keeps it so), so a Ctrl-C of the
     # process group reaches this process alone, which closes the cluster -- each worker printed a KeyboardInterrupt
-    # traceback, 55 lines for two (a blocked mask is not inherited by them). A Ctrl-C in those 1-3 s is lost: press
-    # it again. SIGTERM stays: the nannies stop their workers with it.
+    # traceback, 55 lines for two (a blocked mask is not inherited by them). SIGINT is blocked here meanwhile, and
+    # Linux keeps a blocked signal pending even when ignored: a Ctrl-C in those 1-3 s is delivered once the handler is
+    # back and the cluster is under ``with`` (before, it was lost and the command ran on to exit 0). SIGTERM stays:
+    # the nannies stop their workers with it.
     main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+    if main:
+        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
             cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, host=LOCAL_HOST, dashboard_address=None,
                                    scheduler_kwargs={"dashboard": False, "dashboard_address": f"{LOCAL_HOST}:0"},
                                    silence_logs=logging.CRITICAL)  # a task's error is raised here, not logged there
-    finally:
+    except BaseException:
         if main:
             signal.signal(signal.SIGINT, previous)
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        raise
     with cluster:
+        if main:  # a Ctrl-C held pending while the workers started is raised here, the cluster closing on it
+            signal.signal(signal.SIGINT, previous)
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         yield cluster
 
 

@@ -72,6 +72,37 @@ def test_local_workers_leave_a_ctrl_c_to_the_process_that_started_them():
         signal.signal(signal.SIGINT, before)
 
 
+def test_a_ctrl_c_while_the_workers_start_is_raised_once_they_run_and_closes_the_cluster():
+    """SIGINT is ignored while the local cluster starts its workers (so that they start ignoring it); it was lost
+    then, and the command ran on to exit 0 with its output written. Held pending (blocked), it is raised as soon as
+    the cluster is under ``with``, which closes it: no worker process is left."""
+    import multiprocessing
+    import threading
+
+    def own(signum, frame):
+        raise KeyboardInterrupt
+
+    others = set(multiprocessing.active_children())  # a shared cluster's workers (the dask_scheduler fixture)
+    before = signal.signal(signal.SIGINT, own)
+    main = threading.get_ident()
+    poke = threading.Timer(0.2, signal.pthread_kill, (main, signal.SIGINT))  # a Ctrl-C while the workers start
+    try:
+        poke.start()
+        with pytest.raises(KeyboardInterrupt):
+            with fanout.local_cluster(1):
+                time.sleep(5)  # not reached: the held Ctrl-C is raised on entry
+                pytest.fail("the Ctrl-C during the start-up was lost")
+        assert signal.getsignal(signal.SIGINT) is own
+        assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, set())
+        deadline = time.monotonic() + 10
+        while set(multiprocessing.active_children()) - others and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert not set(multiprocessing.active_children()) - others
+    finally:
+        poke.cancel()
+        signal.signal(signal.SIGINT, before)
+
+
 def test_serial_and_running_cluster_give_the_results_in_input_order(dask_scheduler):
     values = [5, 0, 3, 9, 1, 7, 2]
     expected = [v * v + 10 for v in values]
