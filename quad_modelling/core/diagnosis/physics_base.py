@@ -272,7 +272,7 @@ def dynamics_at_bound(fit: PhysicsFit) -> bool:
     """Whether a searched rotor lag or delay ended on a search bound that the observer's trim may have pushed it to
     (:data:`RUNG_FIT_OBSERVERS`): the lag on either, the delay on its upper one. A delay of 0 (its lower bound, flagged
     AT BOUND) is what flights whose commands act at their stamps give, not a trade with the trim."""
-    return any(e.at_bound and not (e.name == "rotor_delay" and e.value <= e.bounds[0])
+    return any(e.at_bound and not e.delay_at_zero
                for e in fit.estimates() if e.name in DYNAMICS)
 
 
@@ -287,7 +287,7 @@ def components(effect: str, fit: PhysicsFit, folds: Sequence[PhysicsFit] = ()) -
             continue
         on_folds = [x for x in ({y.name: y for y in f.estimates()}.get(name) for f in folds) if x is not None]
         fold_values = [float(x.value) for x in on_folds]
-        measured = [x.value for x in on_folds if not x.at_bound]  # a half that ran to a search bound did not measure it
+        measured = [x.value for x in on_folds if not x.at_bound or x.delay_at_zero]  # a half that ran to a search bound did not measure it
         determined = bool(np.isfinite(e.sigma) and e.sigma > 0 and abs(e.value - null) >= DETERMINED_SIGMAS * e.sigma)
         stable = len(measured) < 2 or len({np.sign(v - null) for v in measured}) == 1
         out.append({"component": label, "name": name, "value": float(e.value), "sigma": float(e.sigma), "unit": e.unit,

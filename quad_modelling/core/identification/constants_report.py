@@ -47,6 +47,12 @@ class ConstantEstimate:
         return 100.0 * (self.value - self.vehicle) / abs(self.vehicle)
 
     @property
+    def delay_at_zero(self) -> bool:
+        """A command delay on its lower bound 0: flagged AT BOUND, but what flights whose commands act at their stamps
+        give -- a value measured, not a search run out (the diagnosis' fold stability and observer refits count it)."""
+        return self.name.split(".")[-1] == "rotor_delay" and self.bounds is not None and self.value <= self.bounds[0]
+
+    @property
     def poorly_determined(self) -> bool:
         return bool(self.reason())
 

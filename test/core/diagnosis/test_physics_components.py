@@ -94,3 +94,9 @@ def test_a_delay_on_its_lower_bound_is_at_bound_but_does_not_refit_the_rung_with
     assert components("input_delay", fit(0.0))[0]["at_bound"] and not components("input_delay", fit(0.0))[0]["resolved"]
     assert not dynamics_at_bound(fit(0.0)) and not dynamics_at_bound(fit(0.04))
     assert dynamics_at_bound(fit(0.15)) and dynamics_at_bound(fit(0.0, tau=0.3))
+    # a training half that fits 0 measured a delay of 0: it still makes a 20 ms delay unstable over the folds, as
+    # before the flag (dropped as a bound value, it turned the component resolved)
+    final = fit(0.020)
+    final._estimates[1] = ConstantEstimate("rotor_delay", 0.020, "s", 1e-3, (0.0, 0.15))
+    assert not components("input_delay", final, [fit(0.0), fit(0.035)])[0]["resolved"]
+    assert components("input_delay", final, [fit(0.018), fit(0.035)])[0]["resolved"]
