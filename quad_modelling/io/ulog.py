@@ -316,9 +316,12 @@ def position_velocity(topics: Topics, where: str) -> tuple[str, np.ndarray, np.n
                             "or 3 (body FRD): an FRD-referenced odometry (frame 2) has no known heading")
         values = np.column_stack(_need(topics, topic, [f"position[{i}]" for i in range(3)] + [f"velocity[{i}]" for i in range(3)], where))
         body = velocity_frame == VELOCITY_FRAME_BODY_FRD
-        if body.any():  # v_N = R v_B with the message's own attitude q (w, x, y, z) of R_NED<-FRD
+        if body.any():  # v_N = R v_B with the message's own attitude q (w, x, y, z) of R_NED<-FRD; NaN without a valid q
             w, x, y, z = (np.asarray(c, dtype=float)[body] for c in _need(topics, topic, [f"q[{i}]" for i in range(4)], where))
-            values[body, 3:6] = np.einsum("nij,nj->ni", frames.quat_to_matrix(np.column_stack([x, y, z, w])), values[body, 3:6])
+            quat, rows = np.column_stack([x, y, z, w]), np.flatnonzero(body)
+            valid = np.all(np.isfinite(quat), axis=1) & (np.linalg.norm(np.nan_to_num(quat), axis=1) > 0)
+            values[rows[~valid], 3:6] = np.nan  # PX4's "attitude not valid": no frame to read the velocity in
+            values[rows[valid], 3:6] = np.einsum("nij,nj->ni", frames.quat_to_matrix(quat[valid]), values[rows[valid], 3:6])
     else:
         raise DataError(f"{where}: no position: neither vehicle_local_position nor vehicle_odometry was logged")
     return topic, _time(topics, topic, where), values

@@ -261,3 +261,22 @@ def test_odometry_in_an_unknown_or_earth_frd_frame_is_refused_in_one_line(field,
         flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "odometry.ulg")
     message = str(err.value)
     assert "\n" not in message and "odometry.ulg" in message and f"{field} {sorted([1, value])}" in message
+
+
+def test_body_frame_odometry_without_a_valid_attitude_is_no_traceback():
+    """PX4 writes NaN for an attitude not (yet) valid: the body-frame velocity of such a message has no frame to be
+    read in; the flight reads (or is refused in one line), never a traceback (the rotation raised ValueError)."""
+    vel_n = np.array([0.5, 0.2, 0.0])
+    topics = _odometry_topics(np.full(200, 3), 1.0, vel_n)
+    for i in range(4):
+        topics["vehicle_odometry"][f"q[{i}]"][:3] = np.nan
+    topics["vehicle_odometry"]["q[0]"][3] = 0.0
+    for i in range(1, 4):
+        topics["vehicle_odometry"][f"q[{i}]"][3] = 0.0
+    try:
+        log = flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "odometry.ulg")
+    except DataError as err:
+        assert "\n" not in str(err) and "odometry.ulg" in str(err)
+    else:
+        finite = np.all(np.isfinite(log.vel_n), axis=1)
+        assert np.abs(log.vel_n[finite] - vel_n).max() < 1e-9 and finite.sum() >= 190
