@@ -239,19 +239,20 @@ def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: in
             next_index = 0
             for future in as_completed(futures):
                 index = order[future.key]
+                failing = index  # the flight an error is named after
                 try:
                     try:
                         done[index] = future.result()  # re-raises a worker's exception as it is (BagError, an OSError, too)
                     except (KilledWorker, CancelledError):
                         raise
                     except Exception:  # the serial run's error: an earlier flight's own, if one fails too
-                        for earlier in range(index):
-                            if earlier not in completed:
-                                futures[earlier].result()
+                        for failing in (earlier for earlier in range(index) if earlier not in completed):
+                            futures[failing].result()
+                        failing = index
                         raise
                     completed.add(index)
                 except KilledWorker as err:
-                    raise ClusterError(f"flight {paths[index]}: every Dask worker that ran it died ({type(err).__name__}: "
+                    raise ClusterError(f"flight {paths[failing]}: every Dask worker that ran it died ({type(err).__name__}: "
                                        "killed for memory, by a signal, or a crash in native code) on "
                                        f"{where}; run it alone without --jobs/--scheduler to see why") from err
                 except CancelledError as err:  # distributed cancels every future when the scheduler is lost

@@ -196,6 +196,21 @@ def _free_port() -> int:
         return probe.getsockname()[1]
 
 
+def crash_first_refuse_second(value: int) -> int:
+    """A per-flight task: value 1's worker dies after a moment, value 2 is a bad flight at once."""
+    if value == 1:
+        time.sleep(0.5)
+        os._exit(9)
+    raise DataError(f"flight{value}.csv: column px: not a number in row 3")
+
+
+def test_a_worker_that_dies_on_an_earlier_flight_is_named_after_that_flight():
+    """The first bad flight in input order is named; when that earlier one killed its worker, the cluster error names
+    it, not the later flight whose own error came first."""
+    with pytest.raises(ClusterError, match=r"^flight 1: every Dask worker that ran it died"):
+        map_flights(crash_first_refuse_second, [1, 2], jobs=2)
+
+
 def test_a_scheduler_shut_down_mid_run_is_one_cluster_error_naming_it():
     address = f"tcp://127.0.0.1:{_free_port()}"
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
