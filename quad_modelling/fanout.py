@@ -51,6 +51,9 @@ start-up (``--jobs 1000000`` grew the driver to 0.9 GB without a worker)."""
 WORKER_WAIT_S = 20.0
 """How long [s] a running scheduler may take to have at least one worker before the command gives up."""
 
+WORKER_PRELOAD = "quad_modelling.worker_setup"
+"""The module a local cluster's workers import at their start (dask's ``distributed.worker.preload``): SIGINT ignored."""
+
 LOCAL_HOST = "127.0.0.1"
 """The only interface a local cluster (``--jobs``) listens on: nothing leaves the machine."""
 
@@ -99,31 +102,31 @@ def local_cluster(jobs: int) -> Iterator[Any]:
 
     environ = {key: value for key, value in dask.config.get("distributed.nanny.pre-spawn-environ", {}).items()
                if key not in DROPPED_WORKER_ENVIRON}
-    # SIGINT ignored while the cluster starts its workers (LocalCluster returns once they run): a worker process
-    # starts with it ignored (an ignored signal stays so across exec, and Python keeps it so), so a Ctrl-C of the
-    # process group reaches this process alone, which closes the cluster -- each worker printed a KeyboardInterrupt
-    # traceback, 55 lines for two (a blocked mask is not inherited by them). SIGINT is blocked here meanwhile, and
-    # Linux keeps a blocked signal pending even when ignored: a Ctrl-C in those 1-3 s is delivered once the handler is
-    # back and the cluster is under ``with`` (before, it was lost and the command ran on to exit 0). SIGTERM stays:
-    # the nannies stop their workers with it.
+    # A Ctrl-C of the process group reaches the workers too (each printed a KeyboardInterrupt traceback, 55 lines for
+    # two): each ignores SIGINT from its start (WORKER_PRELOAD), and leaves it to this process, which closes the
+    # cluster. While the workers start, this process notes a Ctrl-C and raises it once the cluster is under ``with``
+    # (with SIGINT ignored here meanwhile, as before session 31, it was lost: the command ran on to exit 0 and wrote
+    # its output). A worker still importing when it comes may print its traceback. SIGTERM stays as it is: the
+    # nannies stop their workers with it.
     main = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
-    if main:
-        signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    held: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: held.append(signum)) if main else None
     try:
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ, "distributed.worker.preload": [WORKER_PRELOAD]}):
             cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True, host=LOCAL_HOST, dashboard_address=None,
                                    scheduler_kwargs={"dashboard": False, "dashboard_address": f"{LOCAL_HOST}:0"},
                                    silence_logs=logging.CRITICAL)  # a task's error is raised here, not logged there
     except BaseException:
         if main:
             signal.signal(signal.SIGINT, previous)
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        if held:  # a worker the Ctrl-C reached before it ignored SIGINT may have failed the start: the Ctrl-C it is
+            raise KeyboardInterrupt from None
         raise
     with cluster:
-        if main:  # a Ctrl-C held pending while the workers started is raised here, the cluster closing on it
+        if main:
             signal.signal(signal.SIGINT, previous)
-            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+            if held:  # the cluster closes on it
+                raise KeyboardInterrupt
         yield cluster
 
 
