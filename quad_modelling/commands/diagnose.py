@@ -30,6 +30,7 @@ from quad_modelling.core.effect_names import (
     SWITCHED_EFFECTS,
 )
 from quad_modelling.core.preprocess import check_cutoff
+from quad_modelling.core.sim.pilot import check_duration
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import EvaluationConfig, check_window_rate
 from quad_modelling.errors import ConfigError, DataError
@@ -276,6 +277,8 @@ def _refuse_other_mode_options(args: argparse.Namespace) -> None:
         if given:
             raise ConfigError(f"{', '.join(given)}: option(s) of a diagnosis of --train/--test flights; --validate flies "
                               f"its own simulated flights and reads none of them (docs/diagnosis.md)")
+        if args.duration is not None:  # before a cluster starts or a progress line is said (the greybox cases checked it)
+            check_duration(args.duration)
         return
     given = [flag for flag, name in VALIDATION_OPTIONS if getattr(args, name) is not None]
     if given:

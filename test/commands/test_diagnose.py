@@ -82,6 +82,7 @@ def test_diagnose_rejects_unknown_effects_and_missing_inputs(mat_flights, tmp_pa
     (["--train", str(REPO / "bags" / "nanobench_B7_oval_medium_rep2")], "--train: option(s) of a diagnosis of --train/--test flights; --validate flies"),
     (["--skip-bad", "--base", "greybox", "--narx"], "--skip-bad, --narx: option(s) of a diagnosis of --train/--test flights"),
     (["--topic-map", "px4"], "--topic-map: option(s) of a diagnosis of --train/--test flights"),
+    (["--base", "greybox", "--duration", "2"], "simulation duration must be at least"),  # before its cluster starts
     (["--window", "3"], "--window: option(s) of the greybox base"),  # --validate of the physics base scores as it does
 ])
 def test_validate_refuses_bad_cases_in_one_line(tmp_path, capsys, flags, message):
