@@ -208,10 +208,10 @@ def lost(where: str, finished: int, total: int, err: BaseException) -> str:
 
 
 def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: int | None = None, scheduler: str | None = None,
-                 progress: Callable[[int, Any], None] | None = None) -> Iterator[Any]:
+                 progress: Callable[[int, Any, Any], None] | None = None) -> Iterator[Any]:
     """``func(path, *args)`` for every path, yielded in the order of ``paths`` (module docstring).
 
-    ``progress(index, path)`` is called once per finished flight, in the order they finish. A worker's
+    ``progress(index, path, result)`` is called once per finished flight, in the order they finish. A worker's
     result is released from the cluster as soon as it is yielded, so a consumer that keeps only a
     running merge holds one flight's result at a time (plus those that finished ahead of their turn).
     """
@@ -220,7 +220,7 @@ def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: in
         for index, path in enumerate(paths):
             result = func(path, *args)
             if progress:
-                progress(index, path)
+                progress(index, path, result)
             yield result
         return
     from concurrent.futures import CancelledError
@@ -263,7 +263,7 @@ def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: in
                 finished += 1
                 future.release()
                 if progress:
-                    progress(index, paths[index])
+                    progress(index, paths[index], done[index])
                 while next_index in done:
                     yield done.pop(next_index)
                     next_index += 1
@@ -275,13 +275,14 @@ def iter_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: in
 
 
 def map_flights(func: Callable[..., Any], paths: Sequence, *args: Any, jobs: int | None = None, scheduler: str | None = None,
-                progress: Callable[[int, Any], None] | None = None) -> list:
+                progress: Callable[[int, Any, Any], None] | None = None) -> list:
     """The list of :func:`iter_flights`: ``[func(path, *args) for path in paths]``, serially or on Dask."""
     return list(iter_flights(func, paths, *args, jobs=jobs, scheduler=scheduler, progress=progress))
 
 
-def tty_progress(verb: str, total: int, stream=None) -> Callable[[int, Any], None] | None:
-    """A ``progress(index, path)`` printing ``VERB: flight k/N done: PATH`` on stderr when it is a terminal, else None."""
+def tty_progress(verb: str, total: int, stream=None) -> Callable[[int, Any, Any], None] | None:
+    """A ``progress(index, path, result)`` printing ``VERB: flight k/N done: PATH`` on stderr when it is a terminal, else
+    None; ``skipped`` for ``done`` when the result says the flight was left out (its ``skipped`` message, --skip-bad)."""
     import sys
 
     stream = stream or sys.stderr
@@ -289,8 +290,9 @@ def tty_progress(verb: str, total: int, stream=None) -> Callable[[int, Any], Non
         return None
     finished = [0]
 
-    def say(index: int, path) -> None:
+    def say(index: int, path, result=None) -> None:
         finished[0] += 1
-        print(f"{verb}: flight {finished[0]}/{total} done: {path}", file=stream, flush=True)
+        outcome = "skipped" if getattr(result, "skipped", None) else "done"
+        print(f"{verb}: flight {finished[0]}/{total} {outcome}: {path}", file=stream, flush=True)
 
     return say

@@ -16,7 +16,9 @@ import pytest
 from quad_modelling import fanout
 from quad_modelling.errors import BagError, ClusterError, ConfigError, DataError, QuadModellingError
 from quad_modelling.fanout import check_fanout_options, map_flights, tty_progress
-from test.conftest import REPO
+from quad_modelling.io.loader import load_flights
+from quad_modelling.io.matlog import write_matlog
+from test.conftest import REPO, synthetic_log
 
 
 def square_or_refuse(value: int, offset: int) -> int:
@@ -106,10 +108,10 @@ def test_serial_and_running_cluster_give_the_results_in_input_order(dask_schedul
     values = [5, 0, 3, 9, 1, 7, 2]
     expected = [v * v + 10 for v in values]
     finished = []
-    assert map_flights(square_or_refuse, values, 10, progress=lambda i, v: finished.append(i)) == expected
+    assert map_flights(square_or_refuse, values, 10, progress=lambda i, v, r: finished.append(i)) == expected
     assert finished == list(range(len(values)))  # one progress call per flight
     finished.clear()
-    assert map_flights(square_or_refuse, values, 10, scheduler=dask_scheduler, progress=lambda i, v: finished.append(i)) == expected
+    assert map_flights(square_or_refuse, values, 10, scheduler=dask_scheduler, progress=lambda i, v, r: finished.append(i)) == expected
     assert sorted(finished) == list(range(len(values)))
 
 
@@ -177,6 +179,16 @@ def test_progress_is_one_line_per_finished_flight_on_a_terminal_only():
     assert tty_progress("evaluate", 3, io.StringIO()) is None  # a pipe or file gets no progress lines
 
 
+def test_progress_says_skipped_for_a_flight_left_out(tmp_path):
+    good = write_matlog(synthetic_log(n=300, vehicle="linkquad"), tmp_path / "good.mat")
+    bad = tmp_path / "bad.mat"  # missing
+    terminal = Terminal()
+    flights, skipped = load_flights([good, bad], skip_bad=True, progress=tty_progress("evaluate: read", 2, terminal))
+    assert len(flights) == 1 and len(skipped) == 1
+    assert terminal.getvalue().splitlines() == [f"evaluate: read: flight 1/2 done: {good}",
+                                                f"evaluate: read: flight 2/2 skipped: {bad}"]
+
+
 def test_a_flight_that_kills_its_worker_is_one_cluster_error_naming_it():
     # The local cluster's scheduler runs in this process: with no failure allowed, the first death is final
     # (distributed's default retries the flight on 3 more workers first: the same error, seconds later).
@@ -219,7 +231,7 @@ def test_a_scheduler_shut_down_mid_run_is_one_cluster_error_naming_it():
                                "--no-dashboard", "--host", "127.0.0.1", "--no-nanny"], cwd=REPO, **quiet)
     finished = []
 
-    def shut_down_after_the_first(index, value):  # progress: the scheduler stops once one flight is done
+    def shut_down_after_the_first(index, value, result):  # progress: the scheduler stops once one flight is done
         finished.append(value)
         if len(finished) == 1:
             scheduler.send_signal(signal.SIGTERM)

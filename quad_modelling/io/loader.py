@@ -162,7 +162,7 @@ def load_flights(paths, vehicle: str | VehicleConfig | None = None, skip_bad: bo
     of the files left out.
 
     A ``vehicle`` given by name or file is loaded once for all the flights. ``jobs``/``scheduler``: read the
-    files on Dask workers (:func:`quad_modelling.fanout.map_flights`; ``progress(index, path)`` per file read).
+    files on Dask workers (:func:`quad_modelling.fanout.map_flights`; ``progress(index, path, loaded)`` per file read).
     ``topic_map``: as :func:`load_flight` (``--topic-map``), for every bag among the paths.
 
     A file that cannot be read raises its :class:`~quad_modelling.errors.QuadModellingError`, or, with
