@@ -29,7 +29,8 @@ from quad_modelling.core.effect_names import (
     DISTURBANCES,
     SWITCHED_EFFECTS,
 )
-from quad_modelling.core.preprocess import check_cutoff
+from quad_modelling.core.evaluation.multistep import check_protocol_starts
+from quad_modelling.core.preprocess import check_cutoff, resample_uniform
 from quad_modelling.core.sim.pilot import check_duration
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import EvaluationConfig, check_window_rate
@@ -337,6 +338,9 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
             raise DataError(f"{longest.meta.source}: {max(max(flying), 0.0):.1f} s of flight left after --drop "
                             f"{config.drop_start:g}:{config.drop_end:g}" + (f" and --inject {injection.spec}" if flights is not train else "")
                             + f", the longest of the --train flights; the physics base identifies on {config.window_s:g} s windows")
+    for flights in (test, injected_test if injection is not None else []):  # before a progress line: the scoring needs a start
+        if flights:
+            check_protocol_starts([resample_uniform(f) for f in flights], config, airborne=True)
     say = _progress(args)
     say(f"{len(train)} training and {len(test)} held-out flight(s) read"
         + (f"; then again on the flights with --inject {injection.spec}" if injection is not None else ""))

@@ -10,7 +10,7 @@ import yaml
 
 from quad_modelling.cli import main
 from quad_modelling.core.vehicle import load_vehicle
-from test.conftest import REPO
+from test.conftest import FIXTURES, REPO
 
 BAG = str(REPO / "bags" / "nanobench_B7_oval_medium_rep2")
 
@@ -191,6 +191,17 @@ def test_bad_input_is_one_line_and_writes_nothing(args, message, tmp_path, capsy
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not out.exists() and sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+def test_held_out_flights_without_a_scored_start_are_one_line_before_any_fit(tmp_path, capsys):
+    """A held-out flight with under 50 steps plus the warm start left after --drop: the error came after three
+    progress lines and the first fits; now it is the only line."""
+    out = tmp_path / "d"
+    short = str(FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz")  # 10 s; 0.5 s left after --drop 4.5:5
+    assert main(["diagnose", "--train", BAG, "--test", short, "--drop", "4.5:5", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no eval segment longer than 50 samples plus the warm start" in err[0] and short in err[0]
+    assert not out.exists()
 
 
 def test_write_vehicle_onto_the_output_directory_is_refused_in_one_line(tmp_path, capsys):

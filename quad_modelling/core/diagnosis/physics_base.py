@@ -61,7 +61,7 @@ from quad_modelling.core.diagnosis.statistics import block_draws, shrink
 from quad_modelling.core.diagnosis.verdicts import (
     DETERMINED_SIGMAS, FOUND_MIN_BOUND, component_text, signed_percent, twin_text, unconfirmed_text, yaw_only_text,
 )
-from quad_modelling.core.evaluation.multistep import multistep_evaluation, protocol_starts, ratio_to_naive, start_errors
+from quad_modelling.core.evaluation.multistep import check_protocol_starts, multistep_evaluation, protocol_starts, ratio_to_naive, start_errors
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.identification.constants_report import fitted_vehicle, motor_command_gains
 from quad_modelling.core.identification.physics_fit import identify_physics
@@ -317,6 +317,7 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         candidates.remove("battery")
         switched.append("battery (no battery voltage in the flights)")
     test = [resample_uniform(f) for f in test]
+    check_protocol_starts(test, config, airborne=True)
     say("checking the motor order and spin")
     layout = motor_order_check(train, vehicle, config)
     if layout["verdict"] == "inconsistent" and layout["swap"]:

@@ -229,15 +229,27 @@ def start_errors(flights: Sequence[FlightLog], models: Sequence[MultiStepPredict
         blocks.append(first_block + block)
         first_block += int(block.max()) + 1
     if not blocks:
-        raise DataError(f"no {config.multistep_span} segment longer than {horizon} samples plus the warm start in the flights "
-                        f"({', '.join(f'{log.meta.source} {log.duration:.1f} s' for log in flights)}) after the drops "
-                        f"{config.drop_start:g}/{config.drop_end:g} s and ground contact")
+        raise _no_segment(flights, config)
     def contributions(truth, predicted):  # (S, G): each group's error summed over the horizon
         return np.stack([_group_norms(truth, np.asarray(predicted)[:, 1:], group).sum(axis=1) for group in groups], axis=1)
 
     errors = [np.vstack([contributions(truth, predicted) for truth, predicted in zip(truths, predict_parts(model, scored, horizon))])
               for model in models]
     return errors, np.concatenate(blocks)
+
+
+def _no_segment(flights: Sequence[FlightLog], config: EvaluationConfig) -> DataError:
+    horizon = max(max(config.horizons), SIM_ERR_HORIZON)
+    return DataError(f"no {config.multistep_span} segment longer than {horizon} samples plus the warm start in the flights "
+                     f"({', '.join(f'{log.meta.source} {log.duration:.1f} s' for log in flights)}) after the drops "
+                     f"{config.drop_start:g}/{config.drop_end:g} s and ground contact")
+
+
+def check_protocol_starts(flights: Sequence[FlightLog], config: EvaluationConfig, airborne: bool = False) -> None:
+    """:func:`start_errors`'s DataError when ``flights`` hold no start of the protocol (:func:`protocol_starts`), raised
+    before a caller spends minutes fitting (the diagnosis said three phases first)."""
+    if next(protocol_starts(flights, config, 1, airborne), None) is None:
+        raise _no_segment(flights, config)
 
 
 def protocol_starts(flights: Sequence[FlightLog], config: EvaluationConfig, stride: int = 1,
