@@ -100,7 +100,7 @@ class TopicReader:
     instance seen; :attr:`chosen` the one read): ``usable`` tells a message's values measure something (a battery
     topic: :func:`~quad_modelling.core.alignment.usable_voltage`, so PX4's unused battery slot at 0 V is not read).
     ``frames``: the frames each message names (:class:`~quad_modelling.io.field_conversion.MessageFrames`), applied
-    to its numbers.
+    to the numbers of each kept message (:meth:`keep`).
     """
 
     def __init__(self, spec: TopicSpec, paths: list[str], where: str, usable=None, frames=None):
@@ -136,20 +136,22 @@ class TopicReader:
             except (IndexError, AttributeError, TypeError, ValueError, KeyError) as err:
                 raise DataError(f"{self.where}: topic {self.spec.name} message {index} has no usable field {path} "
                                 f"({type(err).__name__}: {err})") from err
-        if self.frames is not None:
-            self.frames.apply([get(msg) for get in self._frame_codes], out, index)
         return out
 
     def keep(self, msg, values: list[float]) -> bool:
         """False for a message of another instance than the first one seen with usable ``values`` (its numbers,
-        :meth:`values`; every instance counted in :attr:`instances`)."""
-        if self._instance is None:
-            return True
-        which = self._instance(msg)
-        self.instances[which] = self.instances.get(which, 0) + 1
-        if self.chosen is None and (self.usable is None or self.usable(values)):
-            self.chosen = which
-        return which == self.chosen
+        :meth:`values`; every instance counted in :attr:`instances`). A kept message's numbers are then read in the
+        frames it names (:attr:`frames`, ``values`` changed in place): another instance's frame is never checked."""
+        if self._instance is not None:
+            which = self._instance(msg)
+            self.instances[which] = self.instances.get(which, 0) + 1
+            if self.chosen is None and (self.usable is None or self.usable(values)):
+                self.chosen = which
+            if which != self.chosen:
+                return False
+        if self.frames is not None:
+            self.frames.apply([get(msg) for get in self._frame_codes], values, self.read - 1)
+        return True
 
 
 def readers_for(topic_map: TopicMap, sources: dict[str, FieldSource], where: str) -> dict[str, TopicReader]:

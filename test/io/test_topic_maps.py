@@ -580,3 +580,25 @@ def test_an_odometry_frame_the_map_does_not_read_is_refused_in_one_line(flight, 
     bag = write_stack_bag(tmp_path / "px4_frd", _odometry_frames(flight, lambda i: frame if i >= 700 else 1, field=field))
     err = _fails(capsys, "info", str(bag), "--vehicle", "crazyflie21")
     assert f"{bag}: topic {ODOMETRY} message 700: {message}" in err, err
+
+
+def test_another_instances_odometry_frame_is_not_checked(flight, tmp_path):
+    """A user map reading odometry with ``instance:`` (here told apart by ``quality``): the frames of the instance
+    not read were checked before it was dropped, so a second odometry in an FRD frame refused the whole bag."""
+    text = open("config/topic_maps/px4.yaml").read()
+    line = "/fmu/out/vehicle_odometry: {type: px4_msgs/msg/VehicleOdometry, stamp: timestamp_sample, stamp_unit: us}"
+    assert line in text
+    (tmp_path / "two.yaml").write_text(text.replace(line, line[:-1] + ", instance: quality}", 1))
+    plain = _odometry_frames(flight, lambda i: 1)
+
+    def two_odometries(writer):
+        for topic, ns, msg in plain(writer):
+            yield topic, ns, msg
+            if topic == ODOMETRY:  # a second estimator's odometry, FRD-referenced (velocity_frame 2)
+                yield topic, ns, dataclasses.replace(msg, quality=1, velocity_frame=2, velocity=np.zeros(3, np.float32))
+
+    bag = write_stack_bag(tmp_path / "two_odometries", two_odometries)
+    log = load_flight(bag, vehicle="crazyflie21", topic_map=str(tmp_path / "two.yaml"))
+    assert log.meta.notes["instances"] == {ODOMETRY: "2 instances seen, quality 0 used"}
+    scale = np.max(np.abs(flight.vel_n))
+    np.testing.assert_allclose(log.vel_n, flight.vel_n, rtol=0, atol=8 * scale * 2**-24)
