@@ -302,29 +302,39 @@ def motor_commands(topics: Topics, params: dict, where: str, prefer: str | None 
     return topic, _time(topics, topic, where, field="timestamp"), u, notes
 
 
-def position_velocity(topics: Topics, where: str) -> tuple[str, np.ndarray, np.ndarray]:
-    """(source topic, stamps [s], (n, 6) NED position [m] and velocity [m/s])."""
+def position_velocity(topics: Topics, where: str) -> tuple[str, np.ndarray, np.ndarray, list[str]]:
+    """(source topic, stamps [s], (n, 6) NED position [m] and velocity [m/s], warnings). ``vehicle_odometry`` (the
+    fallback): each message's ``pose_frame`` / ``velocity_frame`` is read where its numbers are finite (PX4 marks
+    invalid numbers NaN and their frame means nothing there, as the bag reader's topic maps); a velocity frame that
+    changes within the log is read message by message and warned about."""
     if "vehicle_local_position" in topics:
         topic = "vehicle_local_position"
-        values = np.column_stack(_need(topics, topic, ["x", "y", "z", "vx", "vy", "vz"], where))
-    elif "vehicle_odometry" in topics:
-        topic = "vehicle_odometry"
-        pose_frame, velocity_frame = (np.asarray(a) for a in _need(topics, topic, ["pose_frame", "velocity_frame"], where))
-        if np.any(pose_frame != POSE_FRAME_NED) or np.any(~np.isin(velocity_frame, (VELOCITY_FRAME_NED, VELOCITY_FRAME_BODY_FRD))):
-            raise DataError(f"{where}: topic vehicle_odometry: pose_frame {sorted({int(f) for f in pose_frame})}, velocity_frame "
-                            f"{sorted({int(f) for f in velocity_frame})}; read are pose_frame 1 (NED) and velocity_frame 1 (NED) "
-                            "or 3 (body FRD): an FRD-referenced odometry (frame 2) has no known heading")
-        values = np.column_stack(_need(topics, topic, [f"position[{i}]" for i in range(3)] + [f"velocity[{i}]" for i in range(3)], where))
-        body = velocity_frame == VELOCITY_FRAME_BODY_FRD
-        if body.any():  # v_N = R v_B with the message's own attitude q (w, x, y, z) of R_NED<-FRD; NaN without a valid q
-            w, x, y, z = (np.asarray(c, dtype=float)[body] for c in _need(topics, topic, [f"q[{i}]" for i in range(4)], where))
-            quat, rows = np.column_stack([x, y, z, w]), np.flatnonzero(body)
-            valid = np.all(np.isfinite(quat), axis=1) & (np.linalg.norm(np.nan_to_num(quat), axis=1) > 0)
-            values[rows[~valid], 3:6] = np.nan  # PX4's "attitude not valid": no frame to read the velocity in
-            values[rows[valid], 3:6] = np.einsum("nij,nj->ni", frames.quat_to_matrix(quat[valid]), values[rows[valid], 3:6])
-    else:
+        return topic, _time(topics, topic, where), np.column_stack(_need(topics, topic, ["x", "y", "z", "vx", "vy", "vz"], where)), []
+    if "vehicle_odometry" not in topics:
         raise DataError(f"{where}: no position: neither vehicle_local_position nor vehicle_odometry was logged")
-    return topic, _time(topics, topic, where), values
+    topic = "vehicle_odometry"
+    pose_frame, velocity_frame = (np.asarray(a) for a in _need(topics, topic, ["pose_frame", "velocity_frame"], where))
+    values = np.column_stack(_need(topics, topic, [f"position[{i}]" for i in range(3)] + [f"velocity[{i}]" for i in range(3)], where))
+    pose_named = pose_frame[np.all(np.isfinite(values[:, :3]), axis=1)]
+    velocity_named = velocity_frame[np.all(np.isfinite(values[:, 3:]), axis=1)]
+    if np.any(pose_named != POSE_FRAME_NED) or np.any(~np.isin(velocity_named, (VELOCITY_FRAME_NED, VELOCITY_FRAME_BODY_FRD))):
+        raise DataError(f"{where}: topic vehicle_odometry: pose_frame {sorted({int(f) for f in pose_named})}, velocity_frame "
+                        f"{sorted({int(f) for f in velocity_named})} (messages with finite numbers); read are pose_frame 1 "
+                        "(NED) and velocity_frame 1 (NED) or 3 (body FRD): an FRD-referenced odometry (frame 2) has no known heading")
+    warnings = []
+    if len(set(velocity_named.tolist())) > 1:
+        counts = "; ".join(f"{int(f)} = {name} in {int(np.sum(velocity_named == f))} messages"
+                           for f, name in ((VELOCITY_FRAME_NED, "NED"), (VELOCITY_FRAME_BODY_FRD, "FRD (body, rotated into NED)")))
+        warnings.append(f"{where}: velocity from vehicle_odometry velocity_frame {counts}: the frame changes within the "
+                        "recording, each message read in its own frame")
+    body = velocity_frame == VELOCITY_FRAME_BODY_FRD
+    if body.any():  # v_N = R v_B with the message's own attitude q (w, x, y, z) of R_NED<-FRD; NaN without a valid q
+        w, x, y, z = (np.asarray(c, dtype=float)[body] for c in _need(topics, topic, [f"q[{i}]" for i in range(4)], where))
+        quat, rows = np.column_stack([x, y, z, w]), np.flatnonzero(body)
+        valid = np.all(np.isfinite(quat), axis=1) & (np.linalg.norm(np.nan_to_num(quat), axis=1) > 0)
+        values[rows[~valid], 3:6] = np.nan  # PX4's "attitude not valid": no frame to read the velocity in
+        values[rows[valid], 3:6] = np.einsum("nij,nj->ni", frames.quat_to_matrix(quat[valid]), values[rows[valid], 3:6])
+    return topic, _time(topics, topic, where), values, warnings
 
 
 def imu(topics: Topics, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -397,7 +407,9 @@ def flight_from_topics(topics: Topics, params: dict, where: str, vehicle: str | 
         )
     keep = np.append(np.diff(t) > 0, True)
     t, u = t[keep], u[keep]
-    pos_topic, pos_t, pos_vel = position_velocity(topics, where)
+    pos_topic, pos_t, pos_vel, frame_warnings = position_velocity(topics, where)
+    if frame_warnings:
+        notes["warnings"] = [*notes.get("warnings", []), *frame_warnings]
     att_t = _time(topics, "vehicle_attitude", where)
     quat = np.column_stack(_need(topics, "vehicle_attitude", [f"q[{i}]" for i in range(4)], where))
     acc_t, acc, gyro_t, gyro = imu(topics, where)

@@ -251,6 +251,27 @@ def test_body_frame_odometry_velocity_is_rotated_into_ned_by_its_own_attitude(fr
     frame = np.full(200, 3) if frames_of == "body" else np.where(np.arange(200) < 100, 1, 3)
     log = flight_from_topics(_odometry_topics(frame, 2.0, vel_n), {"CA_ROTOR_COUNT": 4}, "odometry.ulg")
     assert np.abs(log.vel_n - vel_n).max() < 1e-9
+    switch = [w for w in log.meta.notes.get("warnings", []) if "the frame changes within the recording" in w]
+    if frames_of == "switching":  # said, as the bag reader says it
+        assert switch == ["odometry.ulg: velocity from vehicle_odometry velocity_frame 1 = NED in 100 messages; "
+                          "3 = FRD (body, rotated into NED) in 100 messages: the frame changes within the recording, "
+                          "each message read in its own frame"]
+    else:
+        assert switch == []
+
+
+def test_an_odometry_frame_is_read_only_where_its_numbers_are_finite():
+    """PX4 marks invalid numbers NaN; the frame such a message names means nothing (the bag reader skips it too):
+    the velocity_frame 0 of 20 messages with NaN velocity was the error, not the NaN numbers themselves."""
+    topics = _odometry_topics(np.full(200, 1), 0.0, np.array([0.4, 0.1, 0.0]))
+    topics["vehicle_odometry"]["velocity_frame"][:20] = 0
+    for i in range(3):
+        topics["vehicle_odometry"][f"velocity[{i}]"][:20] = np.nan
+    with pytest.raises(DataError, match=r"odometry.ulg: field vel_n column 0 is not finite at row 0 \(t=10.000 s\)$"):
+        flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "odometry.ulg")  # the not-finite rule, as any NaN row
+    topics["vehicle_odometry"]["velocity_frame"][:20] = 1  # the same rows in a frame that is read: the same error
+    with pytest.raises(DataError, match="is not finite at row 0"):
+        flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "odometry.ulg")
 
 
 @pytest.mark.parametrize("field, value", [("velocity_frame", 2), ("velocity_frame", 0), ("pose_frame", 2)])
