@@ -221,6 +221,7 @@ def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[s
     models = [build_model(text, flight_vehicle) for text in specs]
     evaluation = evaluate_flight(loaded.log, models, flight_vehicle, config, multistep, examples=path == examples_from)
     evaluation.statistics.model_files = model_file_digests(specs, models)
+    evaluation.statistics.model_specs = {name: spec for name, spec in map(named_spec, specs) if name} or None
     # the uniform log's warnings: the reader's, and a logging hole resampling marked as a gap (core.preprocess.resample_uniform)
     return FlightOutcome(path, evaluation, None, flight_vehicle.name, flight_warnings(resample_uniform(loaded.log)))
 
@@ -304,8 +305,7 @@ def run(args: argparse.Namespace) -> int:
     result.examples = example_windows(result, first_in_span, task, args.topic_map)
     result.flights.extend({"source": s, "skipped": True} for s in skipped)
     with atomic_output(output, args.force) as tmp:
-        files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicles[0]}",
-                             specs={name: spec for name, spec in map(named_spec, specs) if name})
+        files = write_report(result, tmp, title=f"Evaluation of {', '.join(specs)} on vehicle {vehicles[0]}")
     data = result.to_json()
     print(f"{len(vehicles)} flight(s), {windows_text(data)} -> {output}/ ({', '.join(files)})")
     for line in headline_scores(data, result.statistics.models):

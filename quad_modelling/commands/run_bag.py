@@ -466,8 +466,7 @@ def _run(args: argparse.Namespace, warned: bool = False) -> int:
                 raise _failure(graph, "evaluator", "the evaluator wrote no results")
             if record is not None and not (record / "metadata.yaml").is_file():
                 raise _failure(graph, "evaluator", "the evaluator wrote no recording")
-            if not args.no_multistep:
-                add_multistep_table(report_dir, flight, models, vehicle, args)
+            complete_results(report_dir, flight, models, vehicle, args)
             for item in report_dir.iterdir():
                 shutil.move(str(item), tmp / item.name)
             report_dir.rmdir()
@@ -559,15 +558,13 @@ def name_final_paths(files: list[Path], moves: dict[Path, Path]) -> None:
             path.write_text(text)
 
 
-def add_multistep_table(report_dir: Path, flight, models: list[ModelEntry], vehicle, args: argparse.Namespace) -> None:
-    """Add the multi-step table of every model to the evaluator's results.json (``horizons``, and its sums to
-    ``statistics``, the configuration's ``horizons`` to the table's) and tables.md.
-
-    Each model is the one its predictor node runs (same spec, same registry), predicting from every start of
-    the --eval span (the whole bag without one) with its live form
-    (:func:`~quad_modelling.core.evaluation.multistep.flight_multistep_sums`). With --train and --eval the
-    results.json is then the one ``evaluate BAG --drop 0:0`` with the same spans, window and warm start writes, and
-    ``quad-modelling merge`` takes it."""
+def complete_results(report_dir: Path, flight, models: list[ModelEntry], vehicle, args: argparse.Namespace) -> None:
+    """Add to the evaluator's results.json the spec of each named model (``statistics.model_specs``, as evaluate's)
+    and, unless --no-multistep, the multi-step table of every model (``horizons``, its sums in ``statistics``, the
+    configuration's ``horizons`` to the table's); tables.md written again from it. Each model is the one its predictor
+    node runs, predicting from every start of the --eval span (the whole bag without one) with its live form
+    (:func:`~quad_modelling.core.evaluation.multistep.flight_multistep_sums`). With --train and --eval the results.json
+    is then the one ``evaluate BAG --drop 0:0`` with the same spans, window and warm start writes, for ``merge``."""
     from quad_modelling.core.evaluation.multistep import flight_multistep_sums, multistep_table
     from quad_modelling.core.models.base import DummyPredictor
     from quad_modelling.core.preprocess import resample_uniform
@@ -576,25 +573,27 @@ def add_multistep_table(report_dir: Path, flight, models: list[ModelEntry], vehi
     from quad_modelling.io.reports.formatting import json_text
     from quad_modelling.nodes.model_factory import make_streaming_predictor
 
-    predictors = []
-    for m in models:
-        predictor = make_streaming_predictor(m.spec, vehicle)
-        predictor.name = m.name  # the topic name the tables use
-        predictors.append(predictor)
-    config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train=args.train or "0:inf", eval=args.eval or "0:inf",
-                              window_s=float(args.window), warm_s=float(args.warm))
-    baseline = [] if "dummy" in [m.name for m in models] else [DummyPredictor()]  # listed as not multi-step, as offline
-    sums = flight_multistep_sums(resample_uniform(flight), predictors + baseline, vehicle, config)
-    horizons = multistep_table(sums, config)
-    if not args.eval:
-        horizons["span"] = "live (whole bag)"
     results_file = report_dir / "results.json"
     results = json.loads(results_file.read_text())
-    results["horizons"] = horizons
-    results["config"]["horizons"] = list(config.horizons)
-    if results.get("statistics") is not None:
-        results["statistics"]["multistep"] = sums.to_json()
-        results["statistics"]["durations_s"] = [flight.duration]
+    named = {m.name: m.spec for m in models if m.name != m.spec.partition(":")[0]}  # given as NAME=SPEC
+    if results.get("statistics") is not None and named:
+        results["statistics"]["model_specs"] = named
+    if not args.no_multistep:
+        predictors = []
+        for m in models:
+            predictor = make_streaming_predictor(m.spec, vehicle)
+            predictor.name = m.name  # the topic name the tables use
+            predictors.append(predictor)
+        config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train=args.train or "0:inf", eval=args.eval or "0:inf",
+                                  window_s=float(args.window), warm_s=float(args.warm))
+        baseline = [] if "dummy" in [m.name for m in models] else [DummyPredictor()]  # listed as not multi-step, as offline
+        sums = flight_multistep_sums(resample_uniform(flight), predictors + baseline, vehicle, config)
+        results["horizons"] = multistep_table(sums, config)
+        if not args.eval:
+            results["horizons"]["span"] = "live (whole bag)"
+        results["config"]["horizons"] = list(config.horizons)
+        if results.get("statistics") is not None:  # as evaluate's: merge reads them
+            results["statistics"].update(multistep=sums.to_json(), durations_s=[flight.duration])
     results_file.write_text(json_text(results))
     title = f"Live evaluation of {', '.join(m.name for m in models)} on vehicle {vehicle.name}"
-    (report_dir / "tables.md").write_text(tables_text(results, title))
+    (report_dir / "tables.md").write_text(tables_text(results, title, named))

@@ -143,7 +143,7 @@ class LiveScores:
     def statistics(self) -> EvaluationStatistics:
         """The sufficient statistics of the scored windows (per model and span: window count, exact sums of RMS and
         TIC; :mod:`~quad_modelling.core.evaluation.statistics`), as ``evaluate`` writes them, so ``quad-modelling
-        merge`` takes a run-bag result. No multi-step sums: run-bag adds them (``commands/run_bag.add_multistep_table``)."""
+        merge`` takes a run-bag result. No multi-step sums: run-bag adds them (``commands/run_bag.complete_results``)."""
         stats = EvaluationStatistics.empty(self.vehicle, self.models, [s.name for s in self.spans], None)
         for record in self.records:
             if record.scored and record.model in stats.windowed:

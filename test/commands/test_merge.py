@@ -130,6 +130,12 @@ def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, 
                  f"mine=narx:{tmp_path / 'a'}.npz", "-o", str(tmp_path / "r_named")]) == 0
     message = merge_error([str(tmp_path / "r_a"), str(tmp_path / "r_named"), "-o", str(tmp_path / "out2")], capsys)
     assert "models" in message and "another file" not in message, message
+    # a named model's spec is kept in the statistics: the merged tables.md names it as evaluate's did (it lost it)
+    assert main(["evaluate", BAG, "--preset", "short", "--no-multistep", "--model", f"mine=narx:{tmp_path / 'a_copy'}.npz",
+                 "-o", str(tmp_path / "r_named2")]) == 0
+    assert main(["merge", str(tmp_path / "r_named"), str(tmp_path / "r_named2"), "-o", str(tmp_path / "out3")]) == 0
+    models_line = next(line for line in (tmp_path / "out3" / "tables.md").read_text().splitlines() if line.startswith("Models:"))
+    assert models_line.startswith(f"Models: mine (narx:{tmp_path / 'a'}.npz) = "), models_line
 
 
 def test_model_specs_whose_argument_is_an_option_are_evaluated_and_merge(flights, tmp_path):

@@ -237,13 +237,16 @@ def test_a_contract_bag_under_another_namespace_is_replayed(tmp_path, capsys):
     moved = tmp_path / "namespaced"
     assert main(["convert", str(BAG), "-o", str(moved), "--namespace", "/my_drone/cf1"]) == 0
     out = tmp_path / "live"
-    code = main(["run-bag", str(moved), "--models", "naive", "--train", "0:20", "--eval", "20:40", "--no-figures",
+    code = main(["run-bag", str(moved), "--models", "still=naive", "--train", "0:20", "--eval", "20:40", "--no-figures",
                  "--no-multistep", "-o", str(out)])
     printed = capsys.readouterr().out
     assert code == 0, printed
     assert f"{moved}: read through topic map quad (4227 samples); replaying it in the topic contract" in printed
     live = json.loads((out / "results.json").read_text())
-    assert live["windows"]["naive"] == {"train": 2, "eval": 2}
+    assert live["windows"]["still"] == {"train": 2, "eval": 2}
+    # a named model's spec is kept for merge and said in tables.md, as evaluate's (it was lost)
+    assert live["statistics"]["model_specs"] == {"still": "naive"}
+    assert "Models: still (naive) = " in (out / "tables.md").read_text()
 
 
 def test_a_mapped_bags_reader_warnings_are_printed_once_as_evaluate_prints_them(tmp_path, capsys):

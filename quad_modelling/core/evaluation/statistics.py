@@ -235,6 +235,9 @@ class EvaluationStatistics:
     None where it is not known (the live evaluator scores predictors that loaded their own vehicle files)."""
     model_files: dict[str, str] | None = None
     """The SHA-256 of each file-backed model's file, by model name (two ``narx`` of different files differ)."""
+    model_specs: dict[str, str] | None = None
+    """The spec of each model given a name (``--model NAME=SPEC``), by name: tables.md's ``Models:`` line after a
+    merge or run-bag, which read the statistics only."""
 
     @classmethod
     def empty(cls, vehicle: str, models: list[str], spans: list[str], multistep: MultistepSums | None,
@@ -247,7 +250,7 @@ class EvaluationStatistics:
         """The statistics of no flight for the same models, vehicle and multi-step table, with ``spans`` in order."""
         empty = EvaluationStatistics.empty(self.vehicle, self.models, spans, None if self.multistep is None else self.multistep.empty_like(),
                                            self.vehicle_numbers)
-        empty.model_files = self.model_files
+        empty.model_files, empty.model_specs = self.model_files, self.model_specs
         return empty
 
     def vehicle_difference(self, other: EvaluationStatistics) -> str | None:
@@ -287,6 +290,8 @@ class EvaluationStatistics:
         if self.multistep is not None:
             self.multistep.merge(other.multistep)
         self.durations.extend(other.durations)
+        if other.model_specs:  # a name's file content agrees (above); its path may differ: the first one said
+            self.model_specs = {**other.model_specs, **(self.model_specs or {})}
 
     @property
     def windows(self) -> int:
@@ -299,7 +304,8 @@ class EvaluationStatistics:
                 "multistep": None if self.multistep is None else self.multistep.to_json(),
                 "durations_s": list(self.durations),
                 **({} if self.vehicle_numbers is None else {"vehicle_numbers": dict(self.vehicle_numbers)}),
-                **({} if self.model_files is None else {"model_files": dict(self.model_files)})}
+                **({} if self.model_files is None else {"model_files": dict(self.model_files)}),
+                **({} if not self.model_specs else {"model_specs": dict(self.model_specs)})}
 
     @classmethod
     def from_json(cls, data: dict, where: str = "statistics") -> EvaluationStatistics:
@@ -316,6 +322,8 @@ class EvaluationStatistics:
                         None if numbers is None else {str(k): float(v) for k, v in numbers.items()})
             files = data.get("model_files")
             stats.model_files = None if files is None else {str(k): str(v) for k, v in files.items()}
+            specs = data.get("model_specs")  # absent in results written before it was kept, or without a named model
+            stats.model_specs = None if specs is None else {str(k): str(v) for k, v in specs.items()}
         except (KeyError, TypeError, AttributeError, ValueError) as err:
             if isinstance(err, DataError):
                 raise

@@ -93,8 +93,10 @@ def marked_lines(marked: list[dict]) -> list[str]:
 def tables_text(data: dict, title: str = "Evaluation", specs: dict[str, str] | None = None) -> str:
     """tables.md from a results.json document: one table per metric (rows = variables, columns = model x span),
     then the multi-step table (:func:`multistep_lines`) when the document has one. ``specs``: the spec of each named
-    model (:func:`model_notes`)."""
+    model (:func:`model_notes`); by default the document's ``statistics.model_specs``."""
     models = list(data["models"])
+    if specs is None:
+        specs = (data.get("statistics") or {}).get("model_specs")
     config = data["config"]
     spans = sorted({s for m in models for s in data["models"][m]}, key=lambda s: (s != "eval", s))
     lines = [f"# {title}", ""]
