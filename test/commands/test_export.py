@@ -118,6 +118,13 @@ def test_export_warns_when_the_model_cannot_hover_within_its_commands(inputs, tm
     assert hover[1] > 65535.0 and max(hover[0], hover[2], hover[3]) < 65535.0
     warnings = captured.err.strip().splitlines()
     assert len(warnings) == 1 and warnings[0].startswith("warning: the model's level hover needs commands outside [0, 65535] on motor(s) 2 ")
+    assert warnings[0].endswith("check the identified motor gains and CG offset (identify's AT BOUND flags)")
+    doc["effects"]["motor_imbalance"]["gain_2"]["value"] = 1.0
+    doc["constants"]["rotor_thrust_constant"]["value"] /= 4  # every motor short: the thrust constant, not the gains
+    assert main(["export", str(write_vehicle(doc, tmp_path / "weak_rotors.yaml")), "--format", "casadi", "-o", str(tmp_path / "m2")]) == 0
+    warnings = capsys.readouterr().err.strip().splitlines()
+    assert len(warnings) == 1 and "on motor(s) 1, 2, 3, 4 " in warnings[0], warnings
+    assert warnings[0].endswith("check the identified thrust constant k_f and mass (identify's AT BOUND flags)")
 
 
 def test_a_cg_offset_beyond_the_rotors_is_one_line_naming_the_vehicle(tmp_path, capsys):
