@@ -46,7 +46,7 @@ def test_identify_on_the_bundled_bag_reports_constants_and_no_false_alarm(tmp_pa
     fitted = doc["identification"]["constants"]
     assert fitted["arm_scale"]["at_bound"] == (fitted["arm_scale"]["value"] <= 0.3 * 1.001)
     for name, entry in fitted.items():  # every poorly determined constant has its one line (a held one says so in its entry)
-        flagged = f"poorly determined: {name}:" in printed or f"  {name} {entry['value']:.3g} 1 (held: " in printed
+        flagged = f"poorly determined: {name}:" in printed or f"  {name} {entry['value']:.3g} (held: " in printed  # a ratio: no unit 1
         assert flagged == (entry["poorly_determined"] is not None)
     assert fitted["rotor_reaction_scale"]["held"] and fitted["rotor_reaction_scale"]["value"] == 1.0
     # an identified physics constant's entry has the fields the greybox's have (formats.md), equal to identification's
@@ -78,7 +78,14 @@ def test_identify_effects_fits_ground_effect_on_a_simulated_flight_and_switches_
     out = tmp_path / "lq_ground.yaml"
     assert main(["identify", str(flight), "--vehicle", "linkquad", "--drop", "3:2", "--train", "3:40", "--eval", "40:43",
                  "--effects", "ground_effect", "-o", str(out)]) == 0
-    assert "  ground_effect.coefficient " in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "  ground_effect.coefficient " in printed and max(len(line) for line in printed.splitlines() if not line.startswith("->")) <= 100
+    # its offset is the best of a grid, not a fit: said so, not "poorly determined ... would help: more excitation"
+    assert "  ground_effect.offset 0.0537 m (held: the best of a grid, not fitted)" in printed
+    assert "poorly determined: ground_effect.offset" not in printed
+    # no command delay in these flights: the delay ends on 0, and the advice is the switch, not more excitation
+    assert "  poorly determined: rotor_delay: ended on its search bound [0, 0.15];\n    would help: none in the flights? switch " \
+           "input_delay off in the vehicle file\n      (effects.input_delay: {enabled: false})" in printed
     term = load_vehicle(out).effects["ground_effect"]
     assert term.on and term.parameters["coefficient"].status == "identified" and term.parameters["coefficient"].sigma > 0
     params = sim_params_for("linkquad")

@@ -11,6 +11,7 @@ its search range.
 from __future__ import annotations
 
 import math
+import textwrap
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -61,24 +62,27 @@ class ConstantEstimate:
         return poorly_determined(self.value, self.sigma, self.unit, self.bounds, self.at_bound, self.held)
 
     def lines(self, indent: str = "  ") -> list[str]:
-        """'name value unit (sigma s), vehicle v: +c %' then bounds and flag, wrapped at 100 characters."""
-        head = f"{indent}{self.name} {self.value:.3g} {self.unit} " + (f"(held: {self.held})" if self.held else f"(sigma {self.sigma:.2g})")
+        """'name value unit (sigma s), vehicle v: +c %, bounds [a, b] AT BOUND', each part after the first moved to a
+        continuation line where the line would pass 100 characters."""
+        unit = "" if self.unit == "1" else f" {self.unit}"  # a ratio: "gain_3 1.0048 (sigma ...)", not "gain_3 1 1"
+        parts = [f"{self.name} {value_text(self.value, self.sigma)}{unit} "
+                 + (f"(held: {self.held})" if self.held else f"(sigma {self.sigma:.2g})")]
         change = self.change_percent
         if self.vehicle is not None and not math.isfinite(self.vehicle):
-            head += ", new (not in the vehicle file)"  # an effect term the file did not have
+            parts.append("new (not in the vehicle file)")  # an effect term the file did not have
         elif self.vehicle is not None:
-            head += f", vehicle {self.vehicle:.3g}" + (f": {change:+.0f} %" if change is not None else "")
-        tail = ""
-        if self.bounds is not None:
-            tail = f"bounds [{self.bounds[0]:.3g}, {self.bounds[1]:.3g}]"
-        if self.at_bound:
-            tail += " AT BOUND"
-        tail = tail.strip()
-        if not tail:
-            return [head]
-        if len(head) + 2 + len(tail) <= LINE_WIDTH:
-            return [f"{head}, {tail}"]
-        return [head, f"{indent}    {tail}"]
+            parts.append(f"vehicle {self.vehicle:.3g}" + (f": {change:+.0f} %" if change is not None else ""))
+        tail = (f"bounds [{self.bounds[0]:.3g}, {self.bounds[1]:.3g}]" if self.bounds is not None else "") \
+            + (" AT BOUND" if self.at_bound else "")
+        if tail.strip():
+            parts.append(tail.strip())
+        lines = [f"{indent}{parts[0]}"]
+        for part in parts[1:]:
+            if len(lines[-1]) + 2 + len(part) <= LINE_WIDTH:
+                lines[-1] += f", {part}"
+            else:
+                lines.append(f"{indent}    {part}")
+        return lines
 
     def as_dict(self) -> dict:
         """Plain-YAML form (floats, lists, bools)."""
@@ -88,6 +92,15 @@ class ConstantEstimate:
                 "at_bound": bool(self.at_bound), "vehicle_value": None if self.vehicle is None else float(self.vehicle),
                 "change_percent": None if change is None else round(float(change), 1),
                 "poorly_determined": self.reason() or None, "held": self.held or None}
+
+
+def value_text(value: float, sigma: float) -> str:
+    """``value`` with 3 significant digits, more when its 1-sigma ``sigma`` is finer (a gain 1.0048 +- 7e-5 printed
+    "1" before): digits to the place of sigma's first digit, at most 8."""
+    digits = 3
+    if math.isfinite(value) and value != 0 and math.isfinite(sigma) and sigma > 0:
+        digits = min(8, max(3, math.ceil(math.log10(abs(value) / sigma)) + 1))
+    return f"{value:.{digits}g}"
 
 
 def constant_lines(estimates: list[ConstantEstimate], title: str) -> list[str]:
@@ -101,7 +114,8 @@ def constant_lines(estimates: list[ConstantEstimate], title: str) -> list[str]:
                 continue  # its line already says why
             text = f"  poorly determined: {e.name}: {e.reason()}; would help: {e.helps}"
             lines += [text] if len(text) <= LINE_WIDTH else [f"  poorly determined: {e.name}: {e.reason()};",
-                                                             f"    would help: {e.helps}"]
+                                                             *textwrap.wrap(f"would help: {e.helps}", LINE_WIDTH, initial_indent="    ",
+                                                                            subsequent_indent="      ")]
     return lines
 
 

@@ -41,6 +41,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.physics.effects import effects_document, held_at_zero
 from quad_modelling.core.identification.constants_report import ConstantEstimate, add_physics_constants, constant_lines, estimate_source
 from quad_modelling.core.identification.greybox_fit import BaseFit, constant_estimates, identify_base
+from quad_modelling.core.identification.least_squares import poorly_determined
 from quad_modelling.core.identification.motor_check import check_lines, check_motor_layout
 from quad_modelling.core.identification.physics_fit import identify_physics
 from quad_modelling.core.identification.physics_result import PhysicsFit
@@ -89,9 +90,12 @@ class IdentificationResult:
         names = ", ".join(Path(f).name for f in self.files)
         lines = constant_lines(self.constants, f"identified on {names} ({windows_text(len(self.spans))}); "
                                                f"1-sigma from HAC standard errors:")
-        if self.voltage:
-            lines.append(f"  voltage dependence: K(V) = K0 (1 + {self.voltage['kappa_per_volt']:.3g} (V - {self.voltage['v0']:.2f} V))"
-                         f", sigma {self.voltage['kappa_sigma']:.2g} 1/V")
+        if self.voltage:  # a fitted value as the constants: the one rule says when it is poorly determined
+            kappa, sigma = self.voltage["kappa_per_volt"], self.voltage["kappa_sigma"]
+            lines.append(f"  voltage dependence: K(V) = K0 (1 + {kappa:.3g} (V - {self.voltage['v0']:.2f} V)), sigma {sigma:.2g} 1/V")
+            why = poorly_determined(kappa, sigma, "1/V")
+            if why:
+                lines.append(f"  poorly determined: voltage dependence: {why}; would help: flights over a wider battery range")
         lines += check_lines(self.motor_check)
         lines.extend(self.physics.summary() if self.physics is not None else [f"physics model constants {self.physics_note}"])
         lines.extend(self.effective_inertia_lines())

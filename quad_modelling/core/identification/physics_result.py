@@ -69,7 +69,7 @@ class PhysicsFit:
         """The fitted constants as the one constant record every fit reports
         (:class:`~quad_modelling.core.identification.constants_report.ConstantEstimate`)."""
         return [ConstantEstimate(key, self.values[key], PHYSICS_UNITS[key], self.sigma[key], tuple(self.bounds[key]),
-                                 self.start[key], bool(self.at_bound[key]),
+                                 self.start[key], bool(self.at_bound[key]), helps=self._helps(key),
                                  held=self.held.get(key) or ("" if self.identifiable.get(key, True)
                                                              else "not identifiable from these flights"))
                 for key in FITTED] + [
@@ -77,12 +77,20 @@ class PhysicsFit:
                              held=q.get("held") or ("" if q["identifiable"] else "not identifiable from these flights"))
             for name, params in self.terms.items() for key, q in params.items()]
 
+    def _helps(self, key: str) -> str:
+        """What would determine constant ``key`` better: for a rotor lag or command delay on its lower bound 0, that
+        the flights show none (simulated without it, or too slow to tell), so the switch belongs off; else excitation."""
+        switch = {"rotor_time_constant": "motor_lag", "rotor_delay": "input_delay"}.get(key)
+        if switch and self.at_bound[key] and self.values[key] <= self.bounds[key][0]:
+            return f"none in the flights? switch {switch} off in the vehicle file (effects.{switch}: {{enabled: false}})"
+        return ConstantEstimate.helps
+
     def summary(self) -> list[str]:
         """The printed block (lines <= 100 characters)."""
         d = self.diagnostics
         lines = constant_lines(self.estimates(), f"physics model constants ({d.get('anchors', 0)} anchors, "
                                                  f"{d.get('seconds', 0):.1f} s):")
-        ratios = ", ".join(f"{c} {r:.2f}" for c, r in d.get("error_ratio", {}).items())
+        ratios = ", ".join(f"{c} {r:.2g}" for c, r in d.get("error_ratio", {}).items())  # 0.0041, not 0.00
         choice = d.get("observer_choice")
         observer = [] if choice is None else [
             f"  disturbance observer: {choice['chosen']} (error "

@@ -276,7 +276,8 @@ def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], a
             sd = abs(value) * np.hypot(theta_sd / theta, kf_sd / kf) if theta != 0 else theta_sd / kf
             key = "coefficient" if name == "ground_effect" else "kappa"
             fixed = ("offset", design.ground_offset) if name == "ground_effect" else ("reference_voltage", design.reference_voltage)
-            out[name] = {key: _bounded(name, key, value, sd, arm_length), fixed[0]: _bounded(name, fixed[0], fixed[1], np.nan, arm_length)}
+            out[name] = {key: _bounded(name, key, value, sd, arm_length),
+                         fixed[0]: {**_bounded(name, fixed[0], fixed[1], np.nan, arm_length), "held": FIXED_HELD[name]}}
         elif name == "gyroscopic":  # body scale from roll, pitch and yaw; rotor scale from roll and pitch
             def estimate(channel: str, column: str) -> tuple[float, float]:
                 i = columns[channel].index(column)
@@ -298,6 +299,10 @@ def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], a
 
 
 CG_HELD = "held at 0: the flights do not separate the CG offset from the motor gains (motor_imbalance)"
+
+FIXED_HELD = {"ground_effect": "the best of a grid, not fitted", "battery": "the flights' mean voltage, not fitted"}
+"""Why the ground effect's offset and the battery's reference voltage carry no sigma (reported as held, not as poorly
+determined: no amount of excitation would give them one)."""
 """Why a fit holds the CG offset at 0 (:func:`imbalance_separated`)."""
 
 
