@@ -23,8 +23,8 @@ previous command, so step 0 is two calls of F (delay, then dt - delay).
 
 from __future__ import annotations
 
-import argparse
 import json
+import os
 import sys
 import time
 from collections import deque
@@ -38,12 +38,16 @@ import yaml
 from quad_modelling.core.models.physics import Observer, observed_disturbance
 from quad_modelling.core.sim.closed_loop import TruthLoop, stabiliser_commands, trimmed_stabiliser
 from quad_modelling.core.variables import VARIABLES
+from quad_modelling.cli import OneLineParser
 
 TRUTH_VEHICLE = "linkquad"
 """The simulator's vehicle the example flies (its truth physics); the exports must be models of it."""
 
 SETTLE_S = 1.0
 """The tracking error is scored from this time on [s] (the controller takes over in hover at the reference's start)."""
+
+MPC_DT = 0.04
+"""The MPC's step [s] (25 Hz; a model's rotor_delay must be shorter)."""
 
 
 @dataclass(frozen=True)
@@ -87,6 +91,7 @@ class ExportedModel:
         c = self.layout["constants"]
         self.delay, self.u_min, self.u_max = c["rotor_delay_s"], c["input_min"], c["input_max"]
         self.hover_rotor_speed = c["hover_rotor_speed_rad_s"]
+        self.hover_rotor_speeds = np.asarray(c.get("hover_rotor_speeds_rad_s", [self.hover_rotor_speed] * 4), dtype=float)
         self.hover_commands = np.asarray(c.get("hover_commands", [c["hover_command"]] * 4), dtype=float)  # per motor
         self.terms, self.vehicle = self.layout["terms_on"], self.layout["vehicle"]
 
@@ -131,9 +136,9 @@ class ModelPredictiveController:
 
     WEIGHTS = {"position": 20.0, "height": 40.0, "velocity": 2.0, "rates": 0.2, "yaw": 5.0, "input": 0.05, "input_change": 2.0}
 
-    def __init__(self, model: ExportedModel, dt: float = 0.04, horizon: int = 15):
+    def __init__(self, model: ExportedModel, dt: float = MPC_DT, horizon: int = 15):
         if not 0.0 <= model.delay < dt:
-            raise SystemExit(f"the model's rotor_delay {model.delay} s must be shorter than the MPC step {dt} s")
+            raise ValueError(f"the model's rotor_delay {model.delay} s must be shorter than the MPC step {dt} s")
         self.model, self.dt, self.horizon = model, dt, horizon
         w = self.WEIGHTS
         scale = np.concatenate([np.ones(18), np.full(4, model.hover_rotor_speed)])
@@ -196,14 +201,14 @@ def tracking(errors: list) -> dict:
             "height_rms_m": float(np.sqrt(np.mean(errors[:, 2] ** 2)))}
 
 
-def fly_mpc(model: ExportedModel, reference: Figure8, duration: float, use_observer: bool, dt: float = 0.04,
+def fly_mpc(model: ExportedModel, reference: Figure8, duration: float, use_observer: bool, dt: float = MPC_DT,
             horizon: int = 15, settle: float = SETTLE_S, vehicle: str = TRUTH_VEHICLE) -> dict:
     """Fly the truth simulator with the MPC on ``model`` for ``duration`` s; tracking error after ``settle`` s."""
     loop = TruthLoop(vehicle, height=reference.height)
     mpc = ModelPredictiveController(model, dt, horizon)
     ticks_per_step = int(round(dt / loop.control_dt))
     observer = DisturbanceObserver(model)
-    rotor = loop.observation()["rotor"].copy()  # starts at the simulator's hover: the controller took over in hover
+    rotor = model.hover_rotor_speeds.copy()  # the model's estimate (nothing measures them): its hover, where it takes over
     u_sent = model.hover_commands.copy()
     u_answered = u_sent.copy()
     errors, solve_s = [], []
@@ -256,7 +261,7 @@ def markdown(results: dict, reference: Figure8, duration: float) -> str:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = OneLineParser(prog="mpc_figure8.py", description=__doc__.split("\n\n")[0])
     parser.add_argument("--model", required=True, help="export directory of the model with its effect terms")
     parser.add_argument("--base", help="export directory of the base model (no terms)")
     parser.add_argument("--duration", type=float, default=12.0, help="seconds flown (default 12: the ramp-in and one lap)")
@@ -264,11 +269,12 @@ def main(argv=None) -> int:
     parser.add_argument("-o", "--output", required=True, help="directory to write results.json and results.md into")
     parser.add_argument("--force", action="store_true", help="overwrite the results an earlier run wrote there")
     args = parser.parse_args(argv)
-    if not args.duration > SETTLE_S + 0.04:
+    if not args.duration > SETTLE_S + MPC_DT:
         parser.error(f"--duration {args.duration:g} s: the tracking error is scored from {SETTLE_S:g} s on; fly longer")
     if not args.height > 0.0:
         parser.error(f"--height {args.height:g} m: the figure-8 flies above the ground (height > 0)")
-    for directory in (d for d in (args.model, args.base) if d is not None):  # one line, not a traceback
+    directories = [d for d in (args.model, args.base) if d is not None]
+    for directory in directories:  # one line, not a traceback
         if not (Path(directory) / "layout.yaml").is_file():
             parser.error(f"{directory}: not an export directory (no layout.yaml); write one with "
                          "`quad-modelling export VEHICLE.yaml --format casadi -o DIR`")
@@ -276,15 +282,23 @@ def main(argv=None) -> int:
         models = {label: ExportedModel(d) for label, d in (("exported model", args.model), ("base model", args.base)) if d is not None}
     except ValueError as err:  # a hybrid's export: one line, exit 2 as every other bad --model
         parser.error(str(err))
-    for directory, model in zip([d for d in (args.model, args.base) if d is not None], models.values()):
+    for directory, model in zip(directories, models.values()):
         if model.vehicle != TRUTH_VEHICLE:
             parser.error(f"{directory}: a model of vehicle {model.vehicle}; this example flies the simulator's {TRUTH_VEHICLE} "
                          f"(export a model identified on `quad-modelling simulate --vehicle {TRUTH_VEHICLE}` flights)")
+        if not 0.0 <= model.delay < MPC_DT:  # before anything flies (it failed after the stabiliser's flight, exit 1)
+            parser.error(f"{directory}: the model's rotor_delay {model.delay:g} s must be shorter than the MPC step {MPC_DT:g} s")
     output = Path(args.output)
+    if output.exists() and not output.is_dir():
+        parser.error(f"-o {output}: exists and is not a directory")
+    for directory in map(Path, directories):  # an input is never an output
+        inside = output.resolve() == directory.resolve() or directory.resolve() in output.resolve().parents
+        if inside or output.resolve() in directory.resolve().parents:
+            parser.error(f"-o {output}: the output {'lies in' if inside else 'holds'} the export {directory} it reads; "
+                         "write the results elsewhere")
     if not args.force and any((output / name).exists() for name in ("results.json", "results.md")):
         parser.error(f"-o {output}: holds the results of an earlier run; pass --force to overwrite them")
     reference = Figure8(height=args.height)
-    output.mkdir(parents=True, exist_ok=True)
     runs = {"simulator's stabiliser + position hold": fly_stabiliser(reference, args.duration)}
     started = time.perf_counter()
     for label, model in models.items():
@@ -294,8 +308,11 @@ def main(argv=None) -> int:
                           "observer": "on" if use_observer else "off"}
             print(f"{name}: RMS {runs[name]['rms_m']:.3f} m, max {runs[name]['max_m']:.3f} m", file=sys.stderr)
     results = {"reference": vars(reference), "duration_s": args.duration, "mpc_wall_s": time.perf_counter() - started, "runs": runs}
-    (output / "results.json").write_text(json.dumps(results, indent=2))
-    (output / "results.md").write_text(markdown(results, reference, args.duration))
+    output.mkdir(parents=True, exist_ok=True)  # only now: a run that fails leaves nothing behind
+    for name, text in (("results.json", json.dumps(results, indent=2)), ("results.md", markdown(results, reference, args.duration))):
+        partial = output / f".{name}.partial"
+        partial.write_text(text)
+        os.replace(partial, output / name)  # atomic: an earlier run's file is whole or replaced
     print(markdown(results, reference, args.duration))
     return 0
 

@@ -67,8 +67,32 @@ def test_an_export_of_another_vehicle_and_a_too_short_flight_are_refused_in_one_
                           (["--model", str(tmp_path / "nope")], f"{tmp_path / 'nope'}: not an export directory (no layout.yaml)")):
         with pytest.raises(SystemExit) as stopped:
             example.main([*argv, "-o", str(tmp_path / "out")])
-        assert stopped.value.code == 2 and message in capsys.readouterr().err
+        err = capsys.readouterr().err.strip().splitlines()
+        assert stopped.value.code == 2 and len(err) == 1 and message in err[0], err  # no usage block before it
     assert not (tmp_path / "out").exists()
+
+
+def test_outputs_that_are_files_or_inputs_and_a_slow_model_are_refused_before_flying(example, exported, tmp_path, capsys):
+    """-o onto a file ended in a FileExistsError traceback; -o inside the export it reads was written into; a model
+    whose rotor_delay is not under the MPC step was refused only after the stabiliser's flight, exit 1, leaving an
+    empty -o directory."""
+    slow = tmp_path / "slow_model"
+    shutil.copytree(exported, slow)
+    layout = yaml.safe_load((slow / "layout.yaml").read_text())
+    layout["constants"]["rotor_delay_s"] = 0.045
+    (slow / "layout.yaml").write_text(yaml.safe_dump(layout))
+    (tmp_path / "a_file").write_text("mine")
+    for argv, message in (([str(slow), "-o", str(tmp_path / "out")], "the model's rotor_delay 0.045 s must be shorter than the MPC step 0.04 s"),
+                          ([str(exported), "-o", str(tmp_path / "a_file")], "exists and is not a directory"),
+                          ([str(exported), "-o", str(exported)], f"the output lies in the export {exported} it reads"),
+                          ([str(exported), "-o", str(exported / "results")], f"the output lies in the export {exported} it reads"),
+                          ([str(exported), "-o", str(exported.parent)], f"the output holds the export {exported} it reads")):
+        with pytest.raises(SystemExit) as stopped:
+            example.main(["--model", *argv])
+        err = capsys.readouterr().err.strip().splitlines()
+        assert stopped.value.code == 2 and len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "out").exists() and (tmp_path / "a_file").read_text() == "mine"
+    assert not (exported / "results").exists() and not (exported / "results.json").exists()
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "results.json").write_text("{}")  # an earlier run's: kept without --force (it was overwritten)
     with pytest.raises(SystemExit) as stopped:
