@@ -62,6 +62,10 @@ OUTPUT_MARKERS = ("results.json", "diagnosis.json", "validation.json", "layout.y
 """The files that mark a directory as an earlier output of some verb (evaluate, run-bag and merge; diagnose; diagnose
 --validate; export; a bag's rosbag2 metadata): a verb passes its own (``check_output``'s ``markers``)."""
 
+BAG_MARKERS = ("metadata.yaml",)
+"""What marks an earlier output of a verb that writes bags (convert): ``convert -o EVAL --force`` deleted an
+evaluation's results, any verb's marker counting."""
+
 
 def earlier_output(path: Path, markers: Iterable[str]) -> bool:
     """Whether directory ``path`` holds one of ``markers``, or is a directory of such directories (convert's bags of
@@ -121,6 +125,8 @@ def check_not_input(path: Path, inputs: Iterable[str | Path], flag: str = "-o") 
         if given is None or str(given) == "":
             continue
         source = Path(given).resolve()
+        if source.suffix == ".mcap" and (source.parent / "metadata.yaml").is_file():
+            source = source.parent  # a bag named by its .mcap file: the bag directory is the input
         if out == source:
             relation = "is the input"
         elif source in out.parents:

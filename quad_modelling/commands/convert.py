@@ -8,7 +8,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from quad_modelling.atomic import atomic_output, check_bag_name
+from quad_modelling.atomic import BAG_MARKERS, atomic_output, check_bag_name
 from quad_modelling.commands import check_command_output
 from quad_modelling.core.vehicle import VehicleConfig, vehicle_file
 from quad_modelling.errors import ConfigError, DataError, QuadModellingError
@@ -127,7 +127,7 @@ def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     check_namespace(args.namespace)
     check_command_output(output, args.force, inputs=[*inputs, args.mapping, vehicle_file(args.vehicle) if args.vehicle else None,
-                                             topic_map_file(args.topic_map)])
+                                             topic_map_file(args.topic_map)], markers=BAG_MARKERS)
     if not (output.suffix == ".mat" and len(inputs) == 1):  # a bag, or a directory of bags
         check_bag_name(output)
     if args.vehicle_from_log is not None:

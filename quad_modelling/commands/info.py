@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from pathlib import Path
 
 from quad_modelling.core.windows import check_window_rate
 from quad_modelling.errors import BagError, ConfigError, DataError
@@ -60,6 +61,8 @@ def run(args: argparse.Namespace) -> int:
         except DataError as err:
             print(f"note: {err}", file=sys.stderr)
         return 0
+    if Path(args.bag).suffix == ".mcap" and Path(args.bag).is_file():  # a bag named by its .mcap file, as evaluate takes it
+        args.bag = str(Path(args.bag).parent)
     summary = summarize_bag(args.bag)
     topics = {t.name: t.msgtype for t in summary.topics}
     mapped = None

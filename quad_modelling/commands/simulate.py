@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from quad_modelling.atomic import check_bag_name
+from quad_modelling.atomic import BAG_MARKERS, check_bag_name
 from quad_modelling.commands import check_command_output
 from quad_modelling.core.effect_names import (
     DISTURBANCES,
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"{output}: a thesis log needs a .mat name (or pass --bag for an MCAP bag directory)")
     if args.bag:
         check_bag_name(output)
-    check_command_output(output, args.force)  # fail before a long simulation, not after
+    check_command_output(output, args.force, markers=BAG_MARKERS)  # fail before a long simulation, not after; a bag replaces a bag only
     if not MIN_DURATION <= args.duration <= MAX_DURATION:
         raise ConfigError(f"--duration {args.duration:g}: must be at least {MIN_DURATION:g} s and at most {MAX_DURATION:g} s")
     result = run_simulation(args.vehicle, effects, args.seed, args.duration, progress=sys.stderr.isatty())

@@ -89,6 +89,28 @@ def test_existing_output_is_kept_without_force(tmp_path, capsys):
     assert main(["convert", str(FLIGHT), "-o", str(tmp_path / "bag"), "--force"]) == 0
 
 
+def test_force_replaces_an_earlier_bag_only_and_a_bag_named_by_its_mcap_is_an_input(tmp_path, capsys):
+    """``convert -o EVAL --force`` deleted an evaluation's results (any verb's marker counted); a bag given by its .mcap
+    file was not seen as the input its directory is (``convert BAG/x.mcap -o BAG/sub`` wrote into the input bag), and
+    ``info`` refused the .mcap file evaluate and convert take."""
+    evaluation = tmp_path / "evaluation"
+    evaluation.mkdir()
+    (evaluation / "results.json").write_text("{}")
+    assert main(["convert", str(FLIGHT), "-o", str(evaluation), "--force"]) == 2
+    assert "no earlier output of this command (none of metadata.yaml)" in capsys.readouterr().err
+    assert sorted(p.name for p in evaluation.iterdir()) == ["results.json"]
+    bag = tmp_path / "bag"
+    assert main(["convert", str(FLIGHT), "-o", str(bag)]) == 0
+    mcap = next(bag.glob("*.mcap"))
+    for output in (bag / "sub", bag / "sub.mat"):
+        assert main(["convert", str(mcap), "-o", str(output)]) == 2
+        assert f"the output lies inside the input {mcap}" in capsys.readouterr().err
+    assert sorted(p.name for p in bag.iterdir()) == ["bag.mcap", "metadata.yaml"]
+    capsys.readouterr()
+    assert main(["info", str(mcap)]) == 0
+    assert capsys.readouterr().out.startswith(f"bag:       {bag}\n")
+
+
 def _make_unwritable(directory):
     """chmod for ordinary users; root ignores modes, so also set the immutable flag."""
     directory.chmod(0o555)
