@@ -200,10 +200,12 @@ def atomic_output(path: str | Path, force: bool = False, markers: Iterable[str] 
         if not tmp.exists():
             raise FileNotFoundError(f"{tmp}: nothing was written")
         with _signals_held():
-            if path.exists() or path.is_symlink():
-                _replace(tmp, path)
-            else:
-                tmp.rename(path)
+            earlier = path.exists() or path.is_symlink()
+            try:
+                _replace(tmp, path) if earlier else tmp.rename(path)
+            except OSError as err:  # an immutable or foreign earlier output: one line, not a traceback
+                raise OutputDirError(f"{path}: cannot put the output in place ({err.strerror}); nothing was written"
+                                     + (", the earlier output kept" if earlier else "")) from err
     finally:
         _remove(staging)
 
@@ -239,5 +241,9 @@ def _replace(tmp: Path, path: Path) -> None:
     else:
         backup = path.with_name(f".{path.name}.old-{uuid.uuid4().hex[:8]}")
         path.rename(backup)
-        tmp.rename(path)
+        try:
+            tmp.rename(path)
+        except OSError:
+            backup.rename(path)  # the earlier output back where it was
+            raise
         _remove(backup)

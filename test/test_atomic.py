@@ -64,6 +64,26 @@ def test_a_failed_write_leaves_the_old_output_and_nothing_else(tmp_path):
     assert (out / "results.json").read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["report"]
 
 
+@pytest.mark.parametrize("kind", ["file", "directory"])
+def test_an_earlier_output_that_cannot_be_moved_is_one_line_and_kept(tmp_path, kind):
+    """An immutable earlier output (chattr +i; a foreign owner's) made --force end in a PermissionError traceback from
+    the final rename: now one OutputDirError, the earlier output whole, no staging or backup left."""
+    from quad_modelling.atomic import OutputDirError
+
+    out = tmp_path / ("model.json" if kind == "file" else "report")
+    (_write_file if kind == "file" else _write_dir)(out, "old")
+    subprocess.run(["chattr", "+i", str(out)], check=True)
+    try:
+        with pytest.raises(OutputDirError) as err:
+            (_write_file if kind == "file" else _write_dir)(out, "new")
+    finally:
+        subprocess.run(["chattr", "-i", str(out)], check=True)
+    assert str(err.value).startswith(f"{out}: cannot put the output in place (Operation not permitted); nothing was written, "
+                                     "the earlier output kept")
+    assert (out.read_text() if kind == "file" else (out / "results.json").read_text()) == "old"
+    assert [p.name for p in tmp_path.iterdir()] == [out.name]
+
+
 def test_an_existing_output_is_kept_without_force_and_a_file_can_replace_a_directory(tmp_path):
     out = tmp_path / "out"
     _write_dir(out, "old")

@@ -184,6 +184,10 @@ class BagRecorder:
             self._stack.__exit__(BagError, BagError(f"{self.path}: recording aborted"), None)
 
 
+MAX_STAMP_NS = 2**31 * 1_000_000_000
+"""The first time a bag cannot stamp [ns]: builtin_interfaces/Time holds int32 seconds (2038-01-19 as epoch time)."""
+
+
 def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: str = DEFAULT_NAMESPACE, progress=None,
               compress: bool = True) -> Path:
     """Write ``log`` as an MCAP bag directory at ``path`` (zstd chunks, :func:`_mcap_writer`), atomically.
@@ -197,6 +201,11 @@ def write_bag(log: FlightLog, path: str | Path, force: bool = False, namespace: 
     path = Path(path)
     check_namespace(namespace)
     stamps = stamps_ns(log.t)
+    if len(stamps) and (stamps[0] < 0 or stamps[-1] >= MAX_STAMP_NS):  # the writer's uint64 / the header's int32 raised
+        raise DataError(f"{log.meta.source}: sample times {log.t[0]:.6g}..{log.t[-1]:.6g} s cannot be bag stamps (ROS times "
+                        f"0..2^31 s, builtin_interfaces/Time int32 seconds): "
+                        + ("shift the time column to start at or after 0" if stamps[0] < 0 else
+                           "check the time column's unit (microseconds or nanoseconds read as seconds?)"))
     if np.any(np.diff(stamps) <= 0):
         raise DataError(f"{log.meta.source}: sample times collapse at nanosecond resolution")
     measurements = MeasurementMessages(log, BAG_TYPES)

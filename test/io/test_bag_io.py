@@ -88,6 +88,21 @@ def test_existing_bag_needs_force_and_nothing_is_left_on_failure(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["bag"]
 
 
+@pytest.mark.parametrize("offset, advice", [(-5.0, "shift the time column to start at or after 0"),
+                                             (3e9, "check the time column's unit")])
+def test_times_a_bag_cannot_stamp_are_one_line_and_nothing_is_written(tmp_path, capsys, offset, advice):
+    """A flight from t = -5 s, or at 3e9 s (microseconds since boot read as seconds), ended in an OverflowError or a
+    struct.error traceback from the writer: refused in one line naming the times, the .mat output still works."""
+    log = synthetic_log(n=300)
+    log.t = log.t - log.t[0] + offset
+    flight = write_matlog(log, tmp_path / "shifted.mat")
+    assert main(["convert", str(flight), "-o", str(tmp_path / "bag")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{flight}: sample times {offset:.6g}.." in err[0] and advice in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["shifted.mat"]
+    assert main(["convert", str(flight), "-o", str(tmp_path / "copy.mat")]) == 0
+
+
 def test_truncated_mcap_is_a_bag_error(tmp_path):
     write_bag(synthetic_log(), tmp_path / "bag")
     mcap_file = tmp_path / "bag" / "bag.mcap"
