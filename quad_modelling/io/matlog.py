@@ -196,14 +196,17 @@ def _user_variables(contents: dict) -> dict[str, np.ndarray]:
     return {k: v for k, v in contents.items() if not k.startswith("__")}
 
 
-def _extract(name: str, field: FieldMapping, found: dict, n: int | None, where: str) -> np.ndarray | None:
+def _extract(name: str, field: FieldMapping, found: dict, n: int | None, where: str, mapped: bool = False) -> np.ndarray | None:
     missing = [v for v in field.variables if v not in found]
     if missing:
-        if name in OPTIONAL_FIELDS:
-            return None
+        if name in OPTIONAL_FIELDS and len(missing) == len(field.variables):
+            return None  # an optional sensor the log does not have
+        if name in OPTIONAL_FIELDS:  # part of a sensor: its other axes were dropped with no word
+            raise DataError(f"{where}: field {name} has variable(s) {[v for v in field.variables if v in found]} but not "
+                            f"{missing}: give all of {list(field.variables)} or none")
         raise DataError(
             f"{where}: field {name} needs variable(s) {missing}, not in the file; found: {sorted(found)} "
-            "(give a --mapping file for foreign logs)"
+            + ("(check the --mapping file's variable names)" if mapped else "(give a --mapping file for foreign logs)")
         )
     complex_ = [v for v in field.variables if np.iscomplexobj(found[v])]
     if complex_:
@@ -243,6 +246,7 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
     """
     path = Path(path)
     where = str(path)
+    mapped = mapping is not None
     mapping = mapping or default_mapping()
     if not path.is_file():
         raise DataError(f"{where}: no such file")
@@ -261,11 +265,11 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
             zlib.error, scipy.io.matlab.MatReadError) as err:  # scipy's parser meets a corrupt file with any of these
         raise DataError(f"{where}: not a readable MATLAB file ({reason(err)})") from err
     found = _user_variables(contents)
-    time = _extract("time", mapping["time"], found, None, where)
+    time = _extract("time", mapping["time"], found, None, where, mapped)
     if time is None or time.ndim != 1:
         raise DataError(f"{where}: time variable {mapping['time'].variables} must be a vector")
     n = len(time)
-    fields = {name: _extract(name, mapping[name], found, n, where) for name in mapping if name != "time"}
+    fields = {name: _extract(name, mapping[name], found, n, where, mapped) for name in mapping if name != "time"}
     for name in BODY_FIELDS:
         if fields.get(name) is not None and mapping[name].frame == "FLU":
             fields[name] = frames.flu_to_frd(fields[name])

@@ -62,6 +62,19 @@ def test_file_without_the_mapped_variables_lists_what_it_found(tmp_path):
         read_matlog(tmp_path / "other.mat", vehicle="linkquad")
 
 
+@pytest.mark.parametrize("dropped, field", [(("ddZB",), "acc_b"), (("dPsi",), "gyro_b"), (("Omega3", "Omega4"), "omega")])
+def test_part_of_an_optional_sensor_is_refused_not_dropped(tmp_path, dropped, field):
+    """A .mat without ddZB read as a flight with no accelerometer (ddXB and ddYB thrown away, no word): the sensor's
+    variables come all or none."""
+    contents = scipy.io.loadmat(write_matlog(synthetic_log(vehicle="linkquad", with_optional=True), tmp_path / "f.mat"))
+    if field == "omega":
+        contents.update({f"Omega{i}": np.full(len(contents["time"].ravel()), 500.0) for i in range(1, 5)})
+    scipy.io.savemat(tmp_path / "part.mat", {k: v for k, v in contents.items() if not k.startswith("__") and k not in dropped})
+    with pytest.raises(DataError) as err:
+        read_matlog(tmp_path / "part.mat")
+    assert f"part.mat: field {field} has variable(s)" in str(err.value) and f"but not {list(dropped)}: give all of" in str(err.value)
+
+
 def test_mapping_without_a_unit_is_a_config_error(tmp_path):
     (tmp_path / "m.yaml").write_text(yaml.safe_dump({"time": {"variable": "t"}}))
     with pytest.raises(ConfigError, match="field 'time' needs a 'unit'"):
