@@ -8,8 +8,9 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from quad_modelling.atomic import BAG_MARKERS, atomic_output, check_bag_name
+from quad_modelling.atomic import BAG_MARKERS, atomic_output, check_bag_name, check_distinct_inputs
 from quad_modelling.commands import check_command_output
+from quad_modelling.core.preprocess import mark_time_base_holes
 from quad_modelling.core.vehicle import VehicleConfig, vehicle_file
 from quad_modelling.errors import ConfigError, DataError, QuadModellingError
 from quad_modelling.io.loader import FORMATS, check_topic_map_applies, detect_format, input_format, load_flight
@@ -139,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
 
     def load(path: Path):
         log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping, topic_map=args.topic_map)
+        mark_time_base_holes(log)  # a CSV's missing rows: a gap in the bag's notes and a warning, as evaluate says it
         if output.suffix == ".mat" and len(inputs) == 1:  # refused before its warnings are printed: one line
             from quad_modelling.io.matlog import check_one_time_base
 
@@ -153,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"{inputs[0]} -> {output} ({len(log)} samples, {log.duration:.1f} s, vehicle {log.meta.vehicle})")
         return 0
 
+    check_distinct_inputs(inputs)  # one file twice (./a.csv and a.csv): said so, not "the same bag name"
     names = [bag_name(p) for p in inputs]
     duplicates = {n for n in names if names.count(n) > 1}
     if duplicates:

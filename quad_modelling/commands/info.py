@@ -11,6 +11,7 @@ from quad_modelling.core.windows import check_window_rate
 from quad_modelling.errors import BagError, ConfigError, DataError
 from quad_modelling.io.bag_io import summarize_bag
 from quad_modelling.io.topic_maps import add_topic_map_argument, choose_topic_map
+from quad_modelling.core.preprocess import mark_time_base_holes
 from quad_modelling.io.loader import detect_format, load_flight
 from quad_modelling.io.reports.info import (
     bag_json,
@@ -54,6 +55,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--topic-map {args.topic_map}: a topic map applies to bags only, {args.bag} is a {file_format} input")
     if file_format != "bag":
         log = load_flight(args.bag, vehicle=args.vehicle, mapping_file=args.mapping)
+        mark_time_base_holes(log)  # a CSV's missing rows, as convert marks them
         document = flight_document(log, str(args.bag))
         print(flight_json(document) if args.json else flight_text(document, file_format))
         try:  # read, but too slow for any window: every scoring verb will refuse it, say so now

@@ -504,6 +504,38 @@ def ground_contact(log: FlightLog) -> np.ndarray:
     return height < GROUND_CONTACT_M if float(np.max(height)) >= GROUND_CONTACT_M else np.zeros(len(height), dtype=bool)
 
 
+def _uniform_grid(log: FlightLog) -> np.ndarray:
+    """t0 + k dt up to the last sample, dt the median step: :func:`resample_uniform`'s grid."""
+    dt = float(np.median(np.diff(log.t)))
+    n = int(np.floor((log.t[-1] - log.t[0]) / dt + 0.5)) + 1
+    grid = log.t[0] + dt * np.arange(n)
+    return grid[grid <= log.t[-1] + 1e-9]
+
+
+def time_base_holes(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> list[MeasurementGap]:
+    """The holes of ``log``'s time base longer than ``max_gap_s`` (rows missing from every column: a CSV's dropout) with
+    a row of the uniform grid (:func:`resample_uniform`'s) outside every marked measurement gap: a hole inside a
+    reader's gap (the same hole, on a topic stamped a few ms later) is that gap."""
+    steps = np.diff(log.t)
+    if len(log) < 3 or np.all(np.abs(steps - np.median(steps)) <= 0.25 * np.median(steps)):
+        return []  # uniform (a 10 Hz log's every step is longer than 50 ms, and no hole)
+    grid = _uniform_grid(log)
+    edge = 1e-9  # [s] inside the real rows around a hole: the uniform grid's row on one is not a filled row
+    marked = np.zeros(len(grid), dtype=bool)
+    for gap in marked_gaps(log):  # a hole marked as a gap is filled: the rows inside it are left out downstream
+        marked |= (grid > gap.start_s) & (grid < gap.end_s)
+    holes = [MeasurementGap(TIME_BASE_HOLE, float(log.t[i]) + edge, float(log.t[i + 1]) - edge, FIELDS_OF_A_ROW)
+             for i in np.flatnonzero(steps > max_gap_s)]
+    return [h for h in holes if not marked[(grid > h.start_s) & (grid < h.end_s)].all()]
+
+
+def mark_time_base_holes(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> None:
+    """Mark :func:`time_base_holes` in ``log``'s notes with one warning each, as :func:`resample_uniform` marks them on
+    its copy: what ``convert`` and ``info`` do to a flight they do not resample (a CSV's 5 s hole converted and was
+    described at 100 Hz with no word; only a scoring verb said it)."""
+    add_measurement_gaps(log, time_base_holes(log, max_gap_s), max_gap_s)
+
+
 def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> FlightLog:
     """The log on a uniform grid t0 + k dt (dt = median step), linearly interpolated.
 
@@ -522,16 +554,8 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
     dt = float(np.median(steps))
     if np.all(np.abs(steps - dt) <= 0.25 * dt):
         return log
-    n = int(np.floor((log.t[-1] - log.t[0]) / dt + 0.5)) + 1
-    grid = log.t[0] + dt * np.arange(n)
-    grid = grid[grid <= log.t[-1] + 1e-9]
-    edge = 1e-9  # [s] inside the real rows around a hole: the uniform grid's row on one is not a filled row
-    marked = np.zeros(len(grid), dtype=bool)
-    for gap in marked_gaps(log):  # a hole marked as a gap is filled: the rows inside it are left out downstream
-        marked |= (grid > gap.start_s) & (grid < gap.end_s)
-    holes = [MeasurementGap(TIME_BASE_HOLE, float(log.t[i]) + edge, float(log.t[i + 1]) - edge, FIELDS_OF_A_ROW)
-             for i in np.flatnonzero(steps > max_gap_s)]
-    holes = [h for h in holes if not marked[(grid > h.start_s) & (grid < h.end_s)].all()]
+    grid, holes = _uniform_grid(log), time_base_holes(log, max_gap_s)
+    n = int(np.floor((log.t[-1] - log.t[0]) / dt + 0.5)) + 1  # the filled count as before the grid's end was trimmed
 
     def interp(values: np.ndarray) -> np.ndarray:
         if values.ndim == 1:

@@ -111,6 +111,27 @@ def test_force_replaces_an_earlier_bag_only_and_a_bag_named_by_its_mcap_is_an_in
     assert capsys.readouterr().out.startswith(f"bag:       {bag}\n")
 
 
+def test_a_csvs_missing_rows_are_a_marked_gap_in_convert_and_info(tmp_path, capsys):
+    """3 s of rows cut from a NanoBench CSV converted to a bag with no word and no gap in its notes (only a scoring verb
+    said it), and to a .mat log that a bag of the same flight was refused as: now the hole is marked and warned by
+    the reader's rule, as evaluate does, and the .mat output refused alike. The same file twice is said so."""
+    import gzip
+
+    rows = gzip.open(FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz", "rt").read().splitlines()
+    cut = tmp_path / "cut.csv"
+    cut.write_text("\n".join(rows[:400] + rows[700:]) + "\n")
+    assert main(["convert", str(cut), "-o", str(tmp_path / "bag")]) == 0
+    warned = [line for line in capsys.readouterr().err.splitlines() if "time base has no message for 3.01 s" in line]
+    assert len(warned) == 1 and "t=3.980..6.990 s into the flight" in warned[0]
+    gaps = read_bag(tmp_path / "bag").meta.notes["measurement_gaps"]
+    assert [(g["topic"], round(g["end_s"] - g["start_s"], 2)) for g in gaps] == [("/quad/motor_input", 3.01)]  # the bag re-finds it
+    assert main(["convert", str(cut), "-o", str(tmp_path / "cut.mat")]) == 2
+    assert "has measurement gaps (time base 3.98..6.99 s): a .mat log has one time base" in capsys.readouterr().err
+    assert main(["info", str(cut)]) == 0 and "measurement_gaps: [{'topic': 'time base'" in capsys.readouterr().out
+    assert main(["convert", str(cut), str(tmp_path / "." / "cut.csv"), "-o", str(tmp_path / "two")]) == 2
+    assert "given twice" in capsys.readouterr().err
+
+
 def _make_unwritable(directory):
     """chmod for ordinary users; root ignores modes, so also set the immutable flag."""
     directory.chmod(0o555)

@@ -363,24 +363,26 @@ def test_a_yaml_map_with_a_robot_placeholder_takes_its_robot_after_the_file_name
         load_topic_map(f"{copy}:bad-name")
 
 
-def test_a_mapped_stream_slower_than_the_gap_rule_is_refused_in_one_line(flight, tmp_path):
-    """Odometry at ~14 Hz beside 100 Hz commands: every step is a 70 ms gap. One line naming topic and rate (it gave
-    one warning per step, and convert wrote a bag without motion capture)."""
+@pytest.mark.parametrize("slow, field", [("/fmu/out/vehicle_odometry", "position"), ("/fmu/out/actuator_motors", "commands")])
+def test_a_mapped_stream_slower_than_the_gap_rule_is_refused_in_one_line(flight, tmp_path, slow, field):
+    """Odometry (or the commands) at ~14 Hz beside 100 Hz streams: every step is a 70 ms gap. One line naming topic
+    and rate (it gave one warning per step -- 309 lines for PX4's 10 Hz actuator_motors -- and convert wrote a bag
+    without motion capture)."""
     cf = load_vehicle("crazyflie21")
 
-    def slow_odometry(writer):
+    def slow_stream(writer):
         kept = 0
         for topic, ns, msg in px4_messages(writer, log=flight, input_range=(cf.input_min, cf.input_max)):
-            if topic == "/fmu/out/vehicle_odometry":
+            if topic == slow:
                 kept += 1
                 if kept % 7:
                     continue
             yield topic, ns, msg
 
-    bag = write_stack_bag(tmp_path / "slow", slow_odometry)
+    bag = write_stack_bag(tmp_path / "slow", slow_stream)
     with pytest.raises(DataError) as caught:
         load_flight(bag)
-    assert str(caught.value).startswith(f"{bag}: topic /fmu/out/vehicle_odometry (position) is sampled at 14.3 Hz (mean step 70 ms)")
+    assert str(caught.value).startswith(f"{bag}: topic {slow} ({field}) is sampled at 14.3 Hz (mean step 70 ms)")
     assert str(caught.value).endswith("record it at 20 Hz or more (or check the map's stamp_unit, us)")
 
 
