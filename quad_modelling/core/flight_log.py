@@ -65,6 +65,11 @@ MAX_TIME_S = (2**63 - 1) / 1e9
 """Largest |t| [s] a flight may hold: what a ROS stamp of int64 nanoseconds reaches (year 2262 in Unix time)."""
 
 VECTOR_FIELDS = ("acc_b", "gyro_b", "pos_n", "vel_n", "euler")
+
+COLUMN_NAMES = {"u": ("motor 1", "motor 2", "motor 3", "motor 4"), "acc_b": ("x", "y", "z"), "gyro_b": ("roll rate", "pitch rate", "yaw rate"),
+                "pos_n": ("north", "east", "down"), "vel_n": ("north", "east", "down"), "euler": ("roll", "pitch", "yaw"),
+                "omega": ("rotor 1", "rotor 2", "rotor 3", "rotor 4")}
+"""What each column of a field is, for an error message a user reads (NED/FRD, whatever the file's own columns)."""
 """The (N, 3) fields, in the order used by writers."""
 
 FINGERPRINT_FIELDS = ("u", "pos_n", "acc_b", "gyro_b")
@@ -137,12 +142,13 @@ class FlightLog:
         beyond = np.abs(self.t) > MAX_TIME_S
         if beyond.any():
             row = int(np.argmax(beyond))
-            raise DataError(f"{where}: time at row {row} is {self.t[row]:.4g} s, beyond ±{MAX_TIME_S:.4g} s (int64 nanosecond stamps): corrupt time base")
+            raise DataError(f"{where}: time at sample {row + 1} of {n} is {self.t[row]:.4g} s, beyond ±{MAX_TIME_S:.4g} s (int64 "
+                            "nanosecond stamps): corrupt time base")
         steps = np.diff(self.t)
         if np.any(steps <= 0):
             row = int(np.argmax(steps <= 0)) + 1
             raise DataError(
-                f"{where}: time is not strictly increasing at row {row} "
+                f"{where}: time is not strictly increasing at sample {row + 1} of {n} "
                 f"(t={self.t[row]:.6f} s after {self.t[row - 1]:.6f} s)"
             )
         self._check_range(where, "gyro_b", GYRO_FULL_SCALE, "rad/s (gyro full scale)")
@@ -159,9 +165,19 @@ class FlightLog:
             bad = ~np.isfinite(value)
             if bad.any():
                 row = int(np.argmax(bad.reshape(len(value), -1).any(axis=1)))
-                column = "" if value.ndim == 1 else f" column {int(np.argmax(bad[row]))}"
-                time = f" (t={self.t[row]:.3f} s)" if name != "t" else ""
-                raise DataError(f"{where}: field {name}{column} is not finite at row {row}{time}")
+                column = None if value.ndim == 1 else int(np.argmax(bad[row]))
+                raise DataError(f"{where}: {self._field_text(name, column)} is not finite at {self._sample_text(row, name != 't')}")
+
+    def _field_text(self, name: str, column: int | None) -> str:
+        """``field pos_n column 1 (east)``: the internal name, and what the column is in words."""
+        if column is None:
+            return f"field {name}"
+        return f"field {name} column {column} ({COLUMN_NAMES[name][column]})" if name in COLUMN_NAMES else f"field {name} column {column}"
+
+    def _sample_text(self, row: int, timed: bool = True) -> str:
+        """``sample 500 of 1000 (t=4.990 s into the flight)``: 1-based, as a file's data rows are counted."""
+        time = f" (t={self.t[row] - self.t[0]:.3f} s into the flight)" if timed and np.isfinite(self.t[[0, row]]).all() else ""
+        return f"sample {row + 1} of {len(self.t)}{time}"
 
     def _check_range(self, where: str, name: str, limit: float, what: str, columns=(0, 1, 2)) -> None:
         if getattr(self, name) is None:
@@ -170,8 +186,8 @@ class FlightLog:
         if values.max() > limit:
             row, col = np.unravel_index(int(np.argmax(values)), values.shape)
             raise DataError(
-                f"{where}: field {name} column {columns[col]} row {row} is {getattr(self, name)[row, columns[col]]:.4g}, "
-                f"beyond ±{limit:.4g} {what}: wrong unit or corrupt data"
+                f"{where}: {self._field_text(name, columns[col])} at {self._sample_text(int(row))} is "
+                f"{getattr(self, name)[row, columns[col]]:.4g}, beyond ±{limit:.4g} {what}: wrong unit or corrupt data"
             )
 
     def __len__(self) -> int:

@@ -101,7 +101,7 @@ GZIP_MAGIC = b"\x1f\x8b"
 def _open_text(path: Path):
     with open(path, "rb") as head:
         compressed = head.read(2) == GZIP_MAGIC
-    return gzip.open(path, "rt") if compressed else open(path)
+    return gzip.open(path, "rt", encoding="utf-8-sig") if compressed else open(path, encoding="utf-8-sig")  # a BOM dropped
 
 
 def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21") -> FlightLog:
@@ -117,7 +117,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
     where = str(path)
     try:
         with _open_text(path) as stream:
-            header = [name.strip() for name in stream.readline().strip().split(",")]
+            header = [name.strip().strip('"').strip("'").strip() for name in stream.readline().strip().split(",")]  # "t" too
             missing = [c for c in REQUIRED if c not in header]
             missing += [c for group in OPTIONAL.values() if any(c in header for c in group) for c in group if c not in header]
             if missing:
@@ -176,6 +176,10 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         )
     config = vehicle if isinstance(vehicle, VehicleConfig) else load_vehicle(vehicle)
     notes_warnings = []
+    if notes.get("euler_columns_unit", "rad") != "rad":  # measured, and said (a wxyz quaternion under qx..qw: 180 deg off)
+        notes_warnings.append(f"{where}: the quaternion qx..qw and the roll/pitch/yaw columns disagree by up to "
+                              f"{notes['euler_columns_max_deviation_rad']:.3g} rad (data row {row + 1}); the attitude is read "
+                              "from the quaternion: check its column order (x, y, z, w) and its frame (ENU/FLU)")
     keep = _recorded_rows(stack(MOTORS), column["t"])
     if keep < len(column["t"]):
         t, motors = column["t"], stack(MOTORS)

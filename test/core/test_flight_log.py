@@ -25,7 +25,7 @@ def test_nan_is_rejected_with_field_row_and_time(flight):
     fields = _fields(flight)
     fields["vel_n"] = fields["vel_n"].copy()
     fields["vel_n"][123, 2] = np.nan
-    with pytest.raises(DataError, match=r"synthetic: field vel_n column 2 is not finite at row 123 \(t=6\.230 s\)"):
+    with pytest.raises(DataError, match=r"synthetic: field vel_n column 2 \(down\) is not finite at sample 124 of 400 \(t=1\.230 s into the flight\)"):
         FlightLog(**fields)
 
 
@@ -33,7 +33,7 @@ def test_non_monotonic_time_names_the_row(flight):
     fields = _fields(flight)
     fields["t"] = fields["t"].copy()
     fields["t"][50] = fields["t"][49]
-    with pytest.raises(DataError, match="time is not strictly increasing at row 50"):
+    with pytest.raises(DataError, match="time is not strictly increasing at sample 51 of 400"):
         FlightLog(**fields)
 
 
@@ -69,12 +69,12 @@ def test_implausible_position_and_velocity_are_refused(flight):
     fields = _fields(flight)
     fields["pos_n"] = fields["pos_n"].copy()
     fields["pos_n"][42, 1] = 1e30
-    with pytest.raises(DataError, match=r"synthetic: field pos_n column 1 row 42 is 1e\+30, beyond ±1e\+05 m \(no local frame is that large\)"):
+    with pytest.raises(DataError, match=r"synthetic: field pos_n column 1 \(east\) at sample 43 of 400 \(t=0\.420 s into the flight\) is 1e\+30, beyond ±1e\+05 m \(no local frame is that large\)"):
         FlightLog(**fields)
     fields = _fields(flight)
     fields["vel_n"] = fields["vel_n"].copy() * 1000.0  # mm/s read as m/s
     fields["vel_n"][7, 0] = -350.0
-    with pytest.raises(DataError, match=r"synthetic: field vel_n column \d row \d+ is .*, beyond ±200 m/s \(faster than any multirotor\)"):
+    with pytest.raises(DataError, match=r"synthetic: field vel_n column \d \(\w+\) at sample \d+ of \d+ \(t=[0-9.]+ s into the flight\) is .*, beyond ±200 m/s \(faster than any multirotor\)"):
         FlightLog(**fields)
     fields = _fields(flight)
     fields["pos_n"] = fields["pos_n"] + 9.0e4  # a PX4 local frame 90 km from its origin is still a flight

@@ -95,7 +95,7 @@ def test_nan_row_in_a_mat_log_is_named(tmp_path):
     contents = scipy.io.loadmat(path)
     contents["dTheta"][42] = np.nan
     scipy.io.savemat(tmp_path / "nan.mat", {k: v for k, v in contents.items() if not k.startswith("__")})
-    with pytest.raises(DataError, match=r"field gyro_b column 1 is not finite at row 42"):
+    with pytest.raises(DataError, match=r"field gyro_b column 1 \(pitch rate\) is not finite at sample 43 of 400 \(t=0.420 s into the flight\)"):
         read_matlog(tmp_path / "nan.mat")
 
 

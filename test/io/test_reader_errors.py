@@ -71,7 +71,7 @@ def test_corrupt_gzip_is_one_line(tmp_path):
 
 def test_time_of_1e300_is_refused_without_printing_it(tmp_path):
     path = csv_with(tmp_path, 10, "t", "1e300")
-    assert refusal(DataError, load_flight, path) == f"{path}: time at row 9 is 1e+300 s, beyond ±9.223e+09 s (int64 nanosecond stamps): corrupt time base"
+    assert refusal(DataError, load_flight, path) == f"{path}: time at sample 10 of 30 is 1e+300 s, beyond ±9.223e+09 s (int64 nanosecond stamps): corrupt time base"
 
 
 def test_duplicate_and_non_utf8_csv(tmp_path):
@@ -275,5 +275,5 @@ def test_a_vehicle_given_that_contradicts_the_one_a_flight_names_is_refused(tmp_
 def test_position_of_1e30_m_is_refused(tmp_path):
     path = csv_with(tmp_path, 10, "py", "1e30")
     # NanoBench's y (east) is the internal NED frame's column 0 (north-east swapped, frames.py)
-    assert refusal(DataError, load_flight, path) == (f"{path}: field pos_n column 0 row 9 is 1e+30, beyond ±1e+05 m "
+    assert refusal(DataError, load_flight, path) == (f"{path}: field pos_n column 0 (north) at sample 10 of 30 (t=0.090 s into the flight) is 1e+30, beyond ±1e+05 m "
                                                      "(no local frame is that large): wrong unit or corrupt data")

@@ -267,10 +267,10 @@ def test_an_odometry_frame_is_read_only_where_its_numbers_are_finite():
     topics["vehicle_odometry"]["velocity_frame"][:20] = 0
     for i in range(3):
         topics["vehicle_odometry"][f"velocity[{i}]"][:20] = np.nan
-    with pytest.raises(DataError, match=r"odometry.ulg: field vel_n column 0 is not finite at row 0 \(t=10.000 s\)$"):
+    with pytest.raises(DataError, match=r"odometry.ulg: field vel_n column 0 \(north\) is not finite at sample 1 of 200 \(t=0.000 s into the flight\)$"):
         flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "odometry.ulg")  # the not-finite rule, as any NaN row
     topics["vehicle_odometry"]["velocity_frame"][:20] = 1  # the same rows in a frame that is read: the same error
-    with pytest.raises(DataError, match="is not finite at row 0"):
+    with pytest.raises(DataError, match="is not finite at sample 1 of 200"):
         flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "odometry.ulg")
 
 
