@@ -476,7 +476,7 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
                 columns[key].append(imu_fields(msg))
             else:
                 columns[key].append((msg.voltage,))
-    except BagError:  # a missing topic or a wrong type, named (a BagError is an OSError: not "corrupt")
+    except (BagError, DataError):  # a missing topic, a wrong type, a message short of a field: named, not "corrupt"
         raise
     except (ReaderError, OSError, ValueError, KeyError, EOFError, MemoryError, OverflowError, struct.error, TypeError, AssertionError,
             IndexError, ZstdError) as err:

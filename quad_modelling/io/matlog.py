@@ -290,9 +290,13 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
             raise DataError(f"{where}: variable meta_json is not valid JSON ({err.msg})") from err
         if not isinstance(notes, dict):
             raise DataError(f"{where}: variable meta_json must hold a JSON object, got {type(notes).__name__}")
+    if "vehicle" in found and not vehicle and isinstance(found["vehicle"], np.ndarray) and found["vehicle"].size == 0:
+        raise DataError(f"{where}: variable vehicle is empty; store the vehicle config name in it or pass --vehicle NAME")
     if "vehicle" in found and not vehicle and not isinstance(found["vehicle"], str):
         raise DataError(f"{where}: variable vehicle must be a vehicle config name (text), got a {type(found['vehicle']).__name__}")
-    vehicle_name = chosen_vehicle(vehicle, str(found["vehicle"]) if "vehicle" in found else None, where)
+    named = found.get("vehicle")
+    named = None if named is None or (isinstance(named, np.ndarray) and named.size == 0) else str(named)  # '' is none
+    vehicle_name = chosen_vehicle(vehicle, named, where)
     if not vehicle_name:
         raise DataError(f"{where}: no 'vehicle' variable in the file; pass --vehicle NAME")
     return FlightLog(

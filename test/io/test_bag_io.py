@@ -174,6 +174,15 @@ def test_nan_in_a_message_names_topic_and_index(tmp_path):
         read_bag(tmp_path / "bag")
 
 
+def test_a_motor_message_short_of_an_effort_is_named_not_corrupt(tmp_path):
+    """A JointState with 3 efforts was "corrupt or truncated bag (DataError: ...)": the message is named as it is."""
+    motors = [(s, _motor(s, effort=(1.0, 2.0, 3.0) if k == 6 else (1.0, 2.0, 3.0, 4.0))) for k, s in enumerate(STAMPS)]
+    _write_raw_bag(tmp_path / "bag", {"motor_input": motors, "mocap/odom": [(s, _odom(s)) for s in STAMPS], "imu": [(s, _imu(s)) for s in STAMPS]})
+    with pytest.raises(DataError) as err:
+        read_bag(tmp_path / "bag")
+    assert str(err.value) == f"{tmp_path / 'bag'}: topic /quad/motor_input message 6 has 3 efforts, expected 4"
+
+
 def test_stamps_going_backwards_are_named(tmp_path):
     bad = STAMPS[:5] + [STAMPS[3]] + STAMPS[6:]
     _write_raw_bag(tmp_path / "bag", {"motor_input": [(s, _motor(s)) for s in bad], "mocap/odom": [(s, _odom(s)) for s in STAMPS], "imu": [(s, _imu(s)) for s in STAMPS]})

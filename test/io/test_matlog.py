@@ -75,6 +75,16 @@ def test_part_of_an_optional_sensor_is_refused_not_dropped(tmp_path, dropped, fi
     assert f"part.mat: field {field} has variable(s)" in str(err.value) and f"but not {list(dropped)}: give all of" in str(err.value)
 
 
+def test_an_empty_vehicle_variable_says_so(tmp_path):
+    """vehicle = '' in a .mat read as "got a ndarray"."""
+    contents = scipy.io.loadmat(write_matlog(synthetic_log(vehicle="linkquad"), tmp_path / "f.mat"))
+    contents["vehicle"] = ""
+    scipy.io.savemat(tmp_path / "empty.mat", {k: v for k, v in contents.items() if not k.startswith("__")})
+    with pytest.raises(DataError, match="empty.mat: variable vehicle is empty; store the vehicle config name in it or pass --vehicle NAME"):
+        read_matlog(tmp_path / "empty.mat")
+    assert read_matlog(tmp_path / "empty.mat", vehicle="linkquad").meta.vehicle == "linkquad"
+
+
 def test_mapping_without_a_unit_is_a_config_error(tmp_path):
     (tmp_path / "m.yaml").write_text(yaml.safe_dump({"time": {"variable": "t"}}))
     with pytest.raises(ConfigError, match="field 'time' needs a 'unit'"):
