@@ -97,11 +97,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def training_spans(logs, args) -> list[tuple[float, float]]:
     """Training span [s from each flight's start] per flight, as the evaluation computes it; a warning line when it
     overlaps the preset's evaluation span (what ``evaluate --preset`` then scores partly in-sample)."""
-    from quad_modelling.commands.evaluate import warn_flight_span_overlap, warn_span_overlap
+    from quad_modelling.commands.evaluate import warn_flight_span_overlap
     from quad_modelling.core.windows import EvaluationConfig
 
     config = EvaluationConfig.from_options(args.preset, args.drop, train=args.train)
-    warn_span_overlap(config)
+    overlap = config.span_overlap()
+    if overlap:  # train has no evaluation span of its own: say whose it is and what to do (it read as train's own)
+        print(f"warning: {overlap} if `evaluate --preset {args.preset}` scores these flights; evaluate the model on "
+              "other flights, or give evaluate an --eval span after the training one", file=sys.stderr)
     warn_flight_span_overlap(config, logs)
     span = config.spans()[0]
     spans = []

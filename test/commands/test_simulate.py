@@ -63,6 +63,11 @@ def test_a_flight_too_short_for_its_script_is_said(tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert err == ["warning: a 5 s flight never leaves the ground (its descent starts at -3 s, the climb ends at 6 s): "
                    "fly at least 14 s for a take-off, a hover and a landing"]
+    # 10 s: the descent starts as the vehicle lifts; it climbs to 0.49 m (it was said never to leave the ground)
+    assert main(["simulate", "-o", str(tmp_path / "ten.mat"), "--duration", "10"]) == 0
+    assert capsys.readouterr().err.startswith("warning: a 10 s flight lands before it reaches the hover height")
+    heights = -read_matlog(tmp_path / "ten.mat").pos_n[:, 2]
+    assert heights.min() < 0.13 and heights.max() > 0.4  # rests at 0.12 m, then leaves the ground
     assert main(["simulate", "-o", str(tmp_path / "enough.mat"), "--duration", "14"]) == 0
     assert "warning" not in capsys.readouterr().err
     log = read_matlog(tmp_path / "enough.mat")

@@ -203,3 +203,9 @@ def test_a_seconds_training_span_overlapping_the_presets_percent_eval_span_is_wa
                                   "60%:100%" in warnings[0], warnings
     assert main(["train", BAG, "--preset", "short", "--train", "5:15", "--direct", "--quiet", "-o", str(tmp_path / "e.npz")]) == 0
     assert "in-sample" not in capsys.readouterr().err
+    # spans of one kind: the evaluation span is evaluate's, which train has no flag for: the warning says whose it is
+    assert main(["train", BAG, "--preset", "short", "--train", "0%:80%", "--direct", "--quiet", "-o", str(tmp_path / "f.npz")]) == 0
+    warnings = [line for line in capsys.readouterr().err.splitlines() if "in-sample" in line]
+    assert warnings == ["warning: the training span 0%:80% and the evaluation span 60%:100% share 60%:80%: what is fitted "
+                        "there is scored partly in-sample if `evaluate --preset short` scores these flights; evaluate the "
+                        "model on other flights, or give evaluate an --eval span after the training one"], warnings

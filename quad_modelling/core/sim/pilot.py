@@ -159,7 +159,7 @@ class PilotScript:
         if self.land_start >= climbed:
             return None
         enough = self.duration + climbed - self.land_start
-        what = "never leaves the ground" if self.land_start <= self.t_lift else "lands before it reaches the hover height"
+        what = "never leaves the ground" if self.land_start < self.t_lift else "lands before it reaches the hover height"
         return (f"a {self.duration:g} s flight {what} (its descent starts at {self.land_start:g} s, the climb ends at "
                 f"{climbed:g} s): fly at least {enough:g} s for a take-off, a hover and a landing")
 
