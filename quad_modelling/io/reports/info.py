@@ -67,7 +67,8 @@ def bag_text(summary: BagSummary) -> str:
              f"messages:  {summary.message_count}"]
     lines += [f"{key + ':':<10} {summary.custom_data[f'quad_modelling.{key}']}"
               for key in ("vehicle", "source") if f"quad_modelling.{key}" in summary.custom_data]
-    width = max(len(t.name) for t in summary.topics) if summary.topics else 5
-    lines += ["", f"{'topic':<{width}}  {'type':<28} {'count':>7} {'rate Hz':>8} {'span s':>8}"]
-    lines += [f"{t.name:<{width}}  {t.msgtype:<28} {t.count:>7} {t.rate_hz:>8.2f} {t.end_s - t.start_s:>8.2f}" for t in summary.topics]
+    width = max([5, *(len(t.name) for t in summary.topics)])
+    types = max([28, *(len(t.msgtype) for t in summary.topics)])  # crazyflie_interfaces/msg/LogDataGeneric is 38
+    lines += ["", f"{'topic':<{width}}  {'type':<{types}} {'count':>7} {'rate Hz':>8} {'span s':>8}"]
+    lines += [f"{t.name:<{width}}  {t.msgtype:<{types}} {t.count:>7} {t.rate_hz:>8.2f} {t.end_s - t.start_s:>8.2f}" for t in summary.topics]
     return "\n".join(lines)
