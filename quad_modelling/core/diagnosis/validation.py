@@ -215,12 +215,12 @@ def _single(case: Case, result, outcome, sensor_flights, vehicle, config: Evalua
             "shrink_by_variable": outcome.shrink_by_variable.get("held_out", {})}
 
 
-def case_progress(say: Callable[[str], None], total: int) -> Callable[[int, Case], None]:
-    """The ``progress(index, case)`` of the cases' fan-out (:func:`~quad_modelling.fanout.map_flights`): one line per
-    case done, ``case k/N done: seed S: KIND LABEL``, through ``say``."""
+def case_progress(say: Callable[[str], None], total: int) -> Callable[[int, Case, object], None]:
+    """The ``progress(index, case, result)`` of the cases' fan-out (:func:`~quad_modelling.fanout.map_flights`): one
+    line per case done, ``case k/N done: seed S: KIND LABEL``, through ``say``."""
     finished = [0]
 
-    def progress(_index: int, case: Case) -> None:
+    def progress(_index: int, case: Case, _result=None) -> None:
         finished[0] += 1
         say(f"case {finished[0]}/{total} done: seed {case.seed}: {case.kind} {case.label}")
 
