@@ -107,9 +107,7 @@ def _vehicle_from_log(args: argparse.Namespace, inputs: list[Path], output: Path
     config = VehicleConfig.from_dict(vehicle.document, str(target))
     for message in vehicle.warnings:
         print(f"warning: {message}", file=sys.stderr)
-    log = load_flight(inputs[0], vehicle=config)
-    for message in log.meta.notes.get("warnings", []):
-        print(f"warning: {message}", file=sys.stderr)
+    log = _read(inputs[0], output.suffix == ".mat", vehicle=config)
     with atomic_output(target, args.force) as staging:
         staging.write_text(vehicle_yaml(vehicle), encoding="utf-8")
         _write(log, output, args.namespace, args.force)
@@ -117,6 +115,21 @@ def _vehicle_from_log(args: argparse.Namespace, inputs: list[Path], output: Path
           f"inputs {config.input_min:g}..{config.input_max:g} {config.input_unit})")
     print(f"{inputs[0]} -> {output} ({len(log)} samples, {log.duration:.1f} s, vehicle {log.meta.vehicle})")
     return 0
+
+
+def _read(path: Path, to_mat: bool, **options):
+    """The flight of ``path`` (:func:`load_flight` with ``options``) with its missing rows marked as gaps, refused for
+    a .mat output (``to_mat``) whose gaps hold rows, its warnings printed (clipped commands, a cut tail, a gap: also
+    kept in the bag's notes)."""
+    log = load_flight(path, **options)
+    mark_time_base_holes(log)  # a CSV's missing rows: a gap in the bag's notes and a warning, as evaluate says it
+    if to_mat:  # refused before its warnings are printed: one line
+        from quad_modelling.io.matlog import check_one_time_base
+
+        check_one_time_base(log)
+    for message in log.meta.notes.get("warnings", []):
+        print(f"warning: {message}", file=sys.stderr)
+    return log
 
 
 def _is_mat_log(path: Path, given: str) -> bool:
@@ -139,15 +152,8 @@ def run(args: argparse.Namespace) -> int:
     check_topic_map_applies(args.topic_map, inputs, args.format)
 
     def load(path: Path):
-        log = load_flight(path, vehicle=args.vehicle, fmt=args.format, mapping_file=args.mapping, topic_map=args.topic_map)
-        mark_time_base_holes(log)  # a CSV's missing rows: a gap in the bag's notes and a warning, as evaluate says it
-        if output.suffix == ".mat" and len(inputs) == 1:  # refused before its warnings are printed: one line
-            from quad_modelling.io.matlog import check_one_time_base
-
-            check_one_time_base(log)
-        for message in log.meta.notes.get("warnings", []):  # clipped commands, a cut tail: also kept in the bag's notes
-            print(f"warning: {message}", file=sys.stderr)
-        return log
+        return _read(path, output.suffix == ".mat" and len(inputs) == 1, vehicle=args.vehicle, fmt=args.format,
+                     mapping_file=args.mapping, topic_map=args.topic_map)
 
     if len(inputs) == 1:
         log = load(inputs[0])

@@ -140,7 +140,7 @@ def interpolation_gaps(source_t: np.ndarray, t: np.ndarray, max_gap_s: float = M
 def gap_warning(where: str, gap: MeasurementGap, t0: float, max_gap_s: float = MAX_INTERPOLATION_GAP_S) -> str:
     """The one-line warning of a marked gap: file, topic, length and time (seconds into the flight, from ``t0``)."""
     return (f"{where}: topic {gap.topic} has no message for {gap.end_s - gap.start_s:.2f} s "
-            f"(t={gap.start_s - t0:.3f}..{gap.end_s - t0:.3f} s into the flight), longer than {max_gap_s:g} s: "
+            f"(t={gap.start_s - t0:.3f}..{gap.end_s - t0:.3f} s into the flight), longer than {max_gap_s:.3g} s: "
             f"{GAP_MARK}, not interpolated through; windows and training segments overlapping it are left out")
 
 
@@ -512,20 +512,31 @@ def _uniform_grid(log: FlightLog) -> np.ndarray:
     return grid[grid <= log.t[-1] + 1e-9]
 
 
+HOLE_STEPS = 2.5
+"""A step of the time base is a hole only beyond this many median steps too (at 100 Hz the 50 ms rule decides; a
+10 Hz log's every 100 ms step was a "hole", 97 warnings for one missing row)."""
+
+
+def hole_rule(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> float:
+    """The step [s] beyond which ``log``'s time base has a hole: ``max_gap_s``, or HOLE_STEPS median steps if longer."""
+    return max(max_gap_s, HOLE_STEPS * float(np.median(np.diff(log.t))))
+
+
 def time_base_holes(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> list[MeasurementGap]:
-    """The holes of ``log``'s time base longer than ``max_gap_s`` (rows missing from every column: a CSV's dropout) with
-    a row of the uniform grid (:func:`resample_uniform`'s) outside every marked measurement gap: a hole inside a
-    reader's gap (the same hole, on a topic stamped a few ms later) is that gap."""
+    """The holes of ``log``'s time base, steps longer than :func:`hole_rule` (rows missing from every column: a CSV's
+    dropout) with a row of the uniform grid (:func:`resample_uniform`'s) outside every marked measurement gap: a hole
+    inside a reader's gap (the same hole, on a topic stamped a few ms later) is that gap."""
     steps = np.diff(log.t)
     if len(log) < 3 or np.all(np.abs(steps - np.median(steps)) <= 0.25 * np.median(steps)):
-        return []  # uniform (a 10 Hz log's every step is longer than 50 ms, and no hole)
+        return []  # uniform
+    rule = hole_rule(log, max_gap_s)
     grid = _uniform_grid(log)
     edge = 1e-9  # [s] inside the real rows around a hole: the uniform grid's row on one is not a filled row
     marked = np.zeros(len(grid), dtype=bool)
     for gap in marked_gaps(log):  # a hole marked as a gap is filled: the rows inside it are left out downstream
         marked |= (grid > gap.start_s) & (grid < gap.end_s)
     holes = [MeasurementGap(TIME_BASE_HOLE, float(log.t[i]) + edge, float(log.t[i + 1]) - edge, FIELDS_OF_A_ROW)
-             for i in np.flatnonzero(steps > max_gap_s)]
+             for i in np.flatnonzero(steps > rule)]
     return [h for h in holes if not marked[(grid > h.start_s) & (grid < h.end_s)].all()]
 
 
@@ -533,7 +544,7 @@ def mark_time_base_holes(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> N
     """Mark :func:`time_base_holes` in ``log``'s notes with one warning each, as :func:`resample_uniform` marks them on
     its copy: what ``convert`` and ``info`` do to a flight they do not resample (a CSV's 5 s hole converted and was
     described at 100 Hz with no word; only a scoring verb said it)."""
-    add_measurement_gaps(log, time_base_holes(log, max_gap_s), max_gap_s)
+    add_measurement_gaps(log, time_base_holes(log, max_gap_s), hole_rule(log, max_gap_s))
 
 
 def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> FlightLog:
@@ -575,5 +586,5 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
         vel_n=interp(log.vel_n), euler=euler, meta=meta,
         vbat=None if log.vbat is None else interp(log.vbat), omega=None if log.omega is None else interp(log.omega),
     )
-    add_measurement_gaps(out, holes, max_gap_s)  # the notes are a copy: the input log keeps its own gaps and warnings
+    add_measurement_gaps(out, holes, hole_rule(log, max_gap_s))  # the notes are a copy: the input log keeps its own
     return out

@@ -314,8 +314,10 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
 
 
 def check_one_time_base(log: FlightLog) -> None:
-    """DataError when ``log`` has marked measurement gaps, which a .mat log (one time base) cannot keep."""
-    gaps = marked_gaps(log)
+    """DataError when ``log`` has marked measurement gaps with rows inside them, which a .mat log (one time base)
+    cannot keep; a gap of the time base itself (rows missing from every column: a CSV's dropout) has none and is kept
+    as the missing rows it is (it refused a 70 ms dropout)."""
+    gaps = [g for g in marked_gaps(log) if np.any((log.t > g.start_s) & (log.t < g.end_s))]
     if gaps:
         listing = ", ".join(f"{g.topic} {g.start_s - log.t[0]:.2f}..{g.end_s - log.t[0]:.2f}" for g in gaps)
         raise DataError(f"{log.meta.source} has measurement gaps ({listing} s): a .mat log has one time base; "
@@ -325,8 +327,9 @@ def check_one_time_base(log: FlightLog) -> None:
 def write_matlog(log: FlightLog, path: str | Path, force: bool = False) -> Path:
     """Write ``log`` with the default thesis variable names, atomically.
 
-    A log with marked measurement gaps is refused: every variable of a .mat log shares its one time base, so
-    the gap could only be written as the interpolated rows it must never be used as (a bag keeps it).
+    A log with marked measurement gaps holding rows is refused (:func:`check_one_time_base`): every variable of a
+    .mat log shares its one time base, so the gap could only be written as the interpolated rows it must never be
+    used as (a bag keeps it).
     """
     path = Path(path)
     check_one_time_base(log)

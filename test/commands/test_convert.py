@@ -125,8 +125,20 @@ def test_a_csvs_missing_rows_are_a_marked_gap_in_convert_and_info(tmp_path, caps
     assert len(warned) == 1 and "t=3.980..6.990 s into the flight" in warned[0]
     gaps = read_bag(tmp_path / "bag").meta.notes["measurement_gaps"]
     assert [(g["topic"], round(g["end_s"] - g["start_s"], 2)) for g in gaps] == [("/quad/motor_input", 3.01)]  # the bag re-finds it
-    assert main(["convert", str(cut), "-o", str(tmp_path / "cut.mat")]) == 2
-    assert "has measurement gaps (time base 3.98..6.99 s): a .mat log has one time base" in capsys.readouterr().err
+    # a .mat keeps a hole of the time base as the rows it lacks (no row inside it to be misused), and reads it back so
+    assert main(["convert", str(cut), "-o", str(tmp_path / "cut.mat")]) == 0
+    capsys.readouterr()
+    assert len(read_matlog(tmp_path / "cut.mat")) == 700
+    assert main(["info", str(tmp_path / "cut.mat")]) == 0 and "measurement_gaps: [{'topic': 'time base'" in capsys.readouterr().out
+    # a 10 Hz log missing one row has one hole, not one per 100 ms step (97 warnings)
+    slow = tmp_path / "slow.csv"
+    slow.write_text("\n".join(rows[:1] + [r for k, r in enumerate(rows[1:]) if k % 10 == 0 and k != 500]) + "\n")
+    assert main(["convert", str(slow), "-o", str(tmp_path / "slow_bag")]) == 0
+    assert "has no message" not in capsys.readouterr().err
+    slow.write_text("\n".join(rows[:1] + [r for k, r in enumerate(rows[1:]) if k % 10 == 0 and not 500 <= k <= 520]) + "\n")
+    assert main(["convert", str(slow), "-o", str(tmp_path / "slow_bag2")]) == 0
+    warned = [line for line in capsys.readouterr().err.splitlines() if "has no message" in line]
+    assert len(warned) == 1 and "has no message for 0.40 s" in warned[0] and "longer than 0.25 s" in warned[0], warned
     assert main(["info", str(cut)]) == 0 and "measurement_gaps: [{'topic': 'time base'" in capsys.readouterr().out
     assert main(["convert", str(cut), str(tmp_path / "." / "cut.csv"), "-o", str(tmp_path / "two")]) == 2
     assert "given twice" in capsys.readouterr().err
