@@ -136,6 +136,11 @@ def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, 
     assert main(["merge", str(tmp_path / "r_named"), str(tmp_path / "r_named2"), "-o", str(tmp_path / "out3")]) == 0
     models_line = next(line for line in (tmp_path / "out3" / "tables.md").read_text().splitlines() if line.startswith("Models:"))
     assert models_line.startswith(f"Models: mine (narx:{tmp_path / 'a'}.npz) = "), models_line
+    # one name for two models without files: their scores would be averaged as one model's (merged under the first spec)
+    for name, spec, flight in (("g", "greybox", BAG), ("n", "naive", str(tmp_path / "other_flight"))):
+        assert main(["evaluate", flight, "--preset", "short", "--no-multistep", "--model", f"m={spec}", "-o", str(tmp_path / f"r_{name}")]) == 0
+    message = merge_error([str(tmp_path / "r_g"), str(tmp_path / "r_n"), "-o", str(tmp_path / "out4")], capsys)
+    assert "model m (greybox vs naive) is another model in each" in message, message
 
 
 def test_model_specs_whose_argument_is_an_option_are_evaluated_and_merge(flights, tmp_path):

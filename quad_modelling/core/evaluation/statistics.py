@@ -270,6 +270,18 @@ class EvaluationStatistics:
             return None
         return next((m for m in self.models if self.model_files.get(m) != other.model_files.get(m)), None)
 
+    def model_spec_difference(self, other: EvaluationStatistics) -> str | None:
+        """``NAME (SPEC vs SPEC)`` of the first named model whose spec differs in kind or, for a model without a file
+        (greybox, naive, physics:L,A), in its text; None when they agree or either is not known. A file's path may
+        differ (:meth:`model_file_difference` compares the contents): ``m=greybox`` and ``m=naive`` merged as one."""
+        mine, theirs = self.model_specs or {}, other.model_specs or {}
+        for name in (n for n in self.models if n in mine and n in theirs):
+            a, b = mine[name], theirs[name]
+            files = self.model_files is not None and name in self.model_files
+            if (a.partition(":")[0] != b.partition(":")[0]) if files else a != b:
+                return f"{name} ({a} vs {b})"
+        return None
+
     def merge(self, other: EvaluationStatistics) -> None:
         """Add a later flight's (or a later evaluation's) statistics: the one merge (module docstring)."""
         if other.vehicle != self.vehicle:
@@ -282,6 +294,9 @@ class EvaluationStatistics:
         difference = self.model_file_difference(other)
         if difference:
             raise DataError(f"cannot merge evaluations whose model {difference} was loaded from different files")
+        spec = self.model_spec_difference(other)
+        if spec:
+            raise DataError(f"cannot merge evaluations whose model {spec} is another model in each")
         for model, spans in other.windowed.items():
             for span, sums in spans.items():
                 self.windowed[model].setdefault(span, WindowSums()).merge(sums)
@@ -290,7 +305,7 @@ class EvaluationStatistics:
         if self.multistep is not None:
             self.multistep.merge(other.multistep)
         self.durations.extend(other.durations)
-        if other.model_specs:  # a name's file content agrees (above); its path may differ: the first one said
+        if other.model_specs:  # a name's model agrees (above); a file's path may differ: the first one said
             self.model_specs = {**other.model_specs, **(self.model_specs or {})}
 
     @property
