@@ -291,6 +291,10 @@ def main(argv=None) -> int:
     output = Path(args.output)
     if output.exists() and not output.is_dir():
         parser.error(f"-o {output}: exists and is not a directory")
+    existing = next(p for p in [output, *output.absolute().parents] if p.exists())  # where the results' directory goes
+    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        parser.error(f"-o {output}: {existing} is {'not a directory' if not existing.is_dir() else 'not writable'}; "
+                     "the results cannot be written there")
     for directory in map(Path, directories):  # an input is never an output
         inside = output.resolve() == directory.resolve() or directory.resolve() in output.resolve().parents
         if inside or output.resolve() in directory.resolve().parents:

@@ -73,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
     if outside:  # the model cannot hover within its commands: an MPC's hover reference would break its bounds
         print(f"warning: the model's level hover needs commands outside [{constants['input_min']:g}, {constants['input_max']:g}] "
               f"on motor(s) {', '.join(map(str, outside))} (hover_commands {[round(u, 1) for u in constants['hover_commands']]}): "
-              + ("check the identified thrust constant k_f and mass" if len(outside) == len(constants["hover_commands"]) else
+              + ("check the identified thrust constant k_f, the rotor speed map and the mass" if len(outside) == len(constants["hover_commands"]) else
                  "check the identified motor gains and CG offset")
               + " (identify's AT BOUND flags)", file=sys.stderr)
     return 0

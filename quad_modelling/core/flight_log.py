@@ -65,12 +65,12 @@ MAX_TIME_S = (2**63 - 1) / 1e9
 """Largest |t| [s] a flight may hold: what a ROS stamp of int64 nanoseconds reaches (year 2262 in Unix time)."""
 
 VECTOR_FIELDS = ("acc_b", "gyro_b", "pos_n", "vel_n", "euler")
+"""The (N, 3) fields, in the order used by writers."""
 
 COLUMN_NAMES = {"u": ("motor 1", "motor 2", "motor 3", "motor 4"), "acc_b": ("x", "y", "z"), "gyro_b": ("roll rate", "pitch rate", "yaw rate"),
                 "pos_n": ("north", "east", "down"), "vel_n": ("north", "east", "down"), "euler": ("roll", "pitch", "yaw"),
                 "omega": ("rotor 1", "rotor 2", "rotor 3", "rotor 4")}
 """What each column of a field is, for an error message a user reads (NED/FRD, whatever the file's own columns)."""
-"""The (N, 3) fields, in the order used by writers."""
 
 FINGERPRINT_FIELDS = ("u", "pos_n", "acc_b", "gyro_b")
 """The recorded fields :meth:`FlightLog.fingerprint` digests (a missing sensor's left out)."""

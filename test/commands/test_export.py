@@ -124,7 +124,7 @@ def test_export_warns_when_the_model_cannot_hover_within_its_commands(inputs, tm
     assert main(["export", str(write_vehicle(doc, tmp_path / "weak_rotors.yaml")), "--format", "casadi", "-o", str(tmp_path / "m2")]) == 0
     warnings = capsys.readouterr().err.strip().splitlines()
     assert len(warnings) == 1 and "on motor(s) 1, 2, 3, 4 " in warnings[0], warnings
-    assert warnings[0].endswith("check the identified thrust constant k_f and mass (identify's AT BOUND flags)")
+    assert warnings[0].endswith("check the identified thrust constant k_f, the rotor speed map and the mass (identify's AT BOUND flags)")
 
 
 def test_a_cg_offset_beyond_the_rotors_is_one_line_naming_the_vehicle(tmp_path, capsys):

@@ -84,6 +84,7 @@ def test_outputs_that_are_files_or_inputs_and_a_slow_model_are_refused_before_fl
     (tmp_path / "a_file").write_text("mine")
     for argv, message in (([str(slow), "-o", str(tmp_path / "out")], "the model's rotor_delay 0.045 s must be shorter than the MPC step 0.04 s"),
                           ([str(exported), "-o", str(tmp_path / "a_file")], "exists and is not a directory"),
+                          ([str(exported), "-o", str(tmp_path / "a_file" / "sub")], f"{tmp_path / 'a_file'} is not a directory"),
                           ([str(exported), "-o", str(exported)], f"the output lies in the export {exported} it reads"),
                           ([str(exported), "-o", str(exported / "results")], f"the output lies in the export {exported} it reads"),
                           ([str(exported), "-o", str(exported.parent)], f"the output holds the export {exported} it reads")):

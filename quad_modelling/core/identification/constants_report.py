@@ -65,8 +65,8 @@ class ConstantEstimate:
         """'name value unit (sigma s), vehicle v: +c %, bounds [a, b] AT BOUND', each part after the first moved to a
         continuation line where the line would pass 100 characters."""
         unit = "" if self.unit == "1" else f" {self.unit}"  # a ratio: "gain_3 1.0048 (sigma ...)", not "gain_3 1 1"
-        parts = [f"{self.name} {value_text(self.value, self.sigma)}{unit} "
-                 + (f"(held: {self.held})" if self.held else f"(sigma {self.sigma:.2g})")]
+        held = self.held if self.held.startswith("held") else f"held: {self.held}"  # "held at 0: ..." said once
+        parts = [f"{self.name} {value_text(self.value, self.sigma)}{unit} " + (f"({held})" if self.held else f"(sigma {self.sigma:.2g})")]
         change = self.change_percent
         if self.vehicle is not None and not math.isfinite(self.vehicle):
             parts.append("new (not in the vehicle file)")  # an effect term the file did not have
@@ -77,6 +77,9 @@ class ConstantEstimate:
         if tail.strip():
             parts.append(tail.strip())
         lines = [f"{indent}{parts[0]}"]
+        if len(lines[0]) > LINE_WIDTH:  # a long held reason: wrapped onto continuation lines
+            lines = textwrap.wrap(lines[0], LINE_WIDTH, initial_indent="", subsequent_indent=f"{indent}    ", drop_whitespace=True)
+            lines[0] = f"{indent}{lines[0].lstrip()}" if not lines[0].startswith(indent) else lines[0]
         for part in parts[1:]:
             if len(lines[-1]) + 2 + len(part) <= LINE_WIDTH:
                 lines[-1] += f", {part}"

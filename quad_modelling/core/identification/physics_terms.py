@@ -299,11 +299,11 @@ def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], a
 
 
 CG_HELD = "held at 0: the flights do not separate the CG offset from the motor gains (motor_imbalance)"
+"""Why a fit holds the CG offset at 0 (:func:`imbalance_separated`)."""
 
 FIXED_HELD = {"ground_effect": "the best of a grid, not fitted", "battery": "the flights' mean voltage, not fitted"}
 """Why the ground effect's offset and the battery's reference voltage carry no sigma (reported as held, not as poorly
 determined: no amount of excitation would give them one)."""
-"""Why a fit holds the CG offset at 0 (:func:`imbalance_separated`)."""
 
 
 def _combined(estimates: list[tuple[float, float]]) -> tuple[float, float]:

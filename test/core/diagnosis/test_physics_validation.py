@@ -98,11 +98,17 @@ def test_the_vehicle_assesses_every_candidate_and_bad_requests_stop_first():
         validate_physics("linkquad", PHYSICS_CONFIG, duration=1e9)
 
 
+def _case_label(case) -> str:
+    return case.label
+
+
 def test_each_case_done_is_one_progress_line():
+    """Through the fan-out that calls it, as --validate does (its call gained the result: a two-argument progress
+    broke every validation run with a TypeError, which calling it by hand did not show)."""
     from quad_modelling.core.diagnosis.validation import Case, case_progress
+    from quad_modelling.fanout import map_flights
 
     said = []
-    progress = case_progress(said.append, 2)
-    progress(1, Case("single", ("battery",), 7))
-    progress(0, Case("null", (), 7))
+    cases = [Case("single", ("battery",), 7), Case("null", (), 7)]
+    assert map_flights(_case_label, cases, progress=case_progress(said.append, 2)) == ["battery", "none"]
     assert said == ["case 1/2 done: seed 7: single battery", "case 2/2 done: seed 7: null none"]
