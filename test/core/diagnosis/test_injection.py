@@ -43,11 +43,21 @@ def test_gain_divides_one_motor_and_swap_exchanges_two():
     ("gain:1:3", "searches motor gains in 0.5..2"), ("gain:2:0.4", "searches motor gains in 0.5..2"),
     ("delay:0.001", "beyond its 5 ms tolerance"), ("delay:5", "beyond its 5 ms tolerance"), ("gain:1:1", "beyond its 5% tolerance"),
     ("gain:3:0.96", "beyond its 5% tolerance"),
+    # a measured ratio of 1 (nothing seen) lies within 5 % of K up to 1/0.95: such K passed without evidence
+    ("gain:1:1.05", r"beyond its 5% tolerance \(K outside 0.952..1.053\)"), ("gain:1:1.052", "beyond its 5% tolerance"),
+    ("gain:1:0.953", "beyond its 5% tolerance"),
 ])
 def test_bad_specs_are_one_line(spec, message):
     with pytest.raises(ConfigError, match=message) as err:
         parse_injection(spec)
     assert "\n" not in str(err.value) and spec in str(err.value)
+
+
+def test_a_gain_just_outside_the_refusal_fails_when_nothing_changes():
+    from quad_modelling.core.diagnosis.injection import GAIN_TOLERANCE
+
+    for k in (1.06, 0.94):
+        assert parse_injection(f"gain:1:{k}").factor == k and abs(1.0 / k - 1.0) > GAIN_TOLERANCE  # 1.000 measured: a FAIL
 
 
 def test_a_delay_that_leaves_no_commands_is_refused():
