@@ -51,7 +51,7 @@ effects off; the candidates ({", ".join(CANDIDATES)}; motor_lag and input_delay 
 vehicle file switches them off, rotor_drag unless it switches it on) are terms of that model, chosen jointly
 (forward: each refitted with the chosen ones, the best joins when its shrink of the held-out
 multi-step error J has a bootstrap 5 % bound >= 1 % and its main component is resolved;
-backward: one whose removal raises J by a 5 % bound under 1 % leaves). J is the mean over velocity and angular velocity of
+backward: one whose shrink of J on top of the rest has a 5 % bound under 1 % leaves). J is the mean over velocity and angular velocity of
 the held-out SimErr (h = 1..50) relative to naive. The report gives each effect's components with
 value, sigma and whether each is resolved, the command delay and each motor's command gain, the
 constants with their at-bound flags. --write-vehicle V.yaml writes the final model; --inject

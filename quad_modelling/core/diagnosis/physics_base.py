@@ -39,7 +39,7 @@ constants and terms refitted together); of those whose held-out shrink has a boo
 :math:`S_{5\%} \ge` :data:`FOUND_MIN_BOUND` and whose main component is resolved, the one of largest :math:`S` joins
 (:func:`next_effect`; the motor imbalance only when its roll and pitch part passes too, :data:`YAW_PATTERN_ONLY`);
 when none may, pairs of resolved candidates are tried together (:func:`pair_candidates`); then backward -- each
-chosen effect is dropped and the rest refitted; one whose drop raises J by an amount whose 5 % bound is below :data:`FOUND_MIN_BOUND` leaves (it only soaked up another's signature). Each found effect is reported with its
+chosen effect is dropped and the rest refitted; one whose shrink of J on top of the rest (1 - J_with / J_without) has a 5 % bound below :data:`FOUND_MIN_BOUND` leaves (it only soaked up another's signature). Each found effect is reported with its
 shrink as added and when dropped from the final set.
 
 A component is *resolved* when its value is at least :data:`~quad_modelling.core.diagnosis.verdicts.DETERMINED_SIGMAS`
@@ -443,12 +443,12 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
         say(f"backward step: each of {', '.join(chosen)} dropped from the final set")
     for c in list(chosen):
         without = rung([e for e in chosen if e != c])
-        rise, rise_low = shrink(without.score, current.score)
-        dropped[c] = rise
-        if rise_low < FOUND_MIN_BOUND:
+        kept, kept_low = shrink(without.score, current.score)  # the shrink c brings back on top of the rest
+        dropped[c] = kept
+        if kept_low < FOUND_MIN_BOUND:
             chosen.remove(c)
             current = rung(chosen)
-            left[c] = (rise, rise_low, [e for e in chosen])
+            left[c] = (kept, kept_low, [e for e in chosen])
     if dynamics(chosen) is not None and COMMAND_GAIN_TERMS & set(chosen):  # see COMMAND_GAIN_TERMS
         fitted_with = current.fit.diagnostics["observer_choice"]["fitted_with"]  # the held rung's: one search, not two
         cache[tuple(sorted(chosen))] = current = rung(chosen, searched_with=fitted_with)

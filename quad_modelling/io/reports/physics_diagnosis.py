@@ -145,9 +145,10 @@ def report_markdown(data: dict) -> str:
         out += prose("Ladder (each rung refitted jointly), held-out J: " + " -> ".join(
             f"{' + '.join(r['effects']) or 'base'} {r['J']:.3f}" for r in data["ladder"])) + [""]
     if data["dropped_shrink"]:
-        out += prose("Order-free: J rises when each chosen effect is dropped from the final set and the rest refitted: "
+        out += prose("Order-free: each chosen effect dropped from the final set and the rest refitted, the shrink of J it "
+                     "brings back (1 - J with it / J without it): "
                      + ", ".join(f"{k} {signed_percent(v)}" for k, v in data["dropped_shrink"].items())
-                     + " (an effect whose rise has a 5 % bound under 1 % left the set).") + [""]
+                     + " (an effect whose shrink has a 5 % bound under 1 % left the set).") + [""]
     out += ["## Effects", ""]
     for name, effect in data["effects"].items():
         injected = gain_injection_note(data) if name == "motor_imbalance" else ""  # the gain injected, beside its verdict
