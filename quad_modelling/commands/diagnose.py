@@ -221,6 +221,7 @@ def run(args: argparse.Namespace) -> int:
     vehicle = given or load_vehicle(train[0].meta.vehicle)
     if physics:
         return _run_physics(args, train, test, vehicle, config, injection, output, skipped)
+    warn_in_sample(train, test)  # as the flights are read, not after minutes of fitting
     learnable = (lambda: narx_floor(train, test, vehicle, config)) if args.narx else None
     result = diagnose(train, test, vehicle, effects, config, identify=not args.no_identify, learnable=learnable,
                       progress=_progress(args))
@@ -228,7 +229,6 @@ def run(args: argparse.Namespace) -> int:
     data["skipped"] = skipped
     with atomic_output(output, args.force) as tmp:
         files = write_diagnosis(result, data, tmp, vehicle.name)
-    warn_in_sample(train, test)
     print(verdict_text(data))
     print(f"-> {output}/ ({', '.join(files)})")
     return 1 if skipped else 0  # --skip-bad left a flight out: done, with less (as convert)
@@ -236,9 +236,11 @@ def run(args: argparse.Namespace) -> int:
 
 def in_sample(train, test) -> list[str]:
     """The held-out flights that are also training flights -- the same numbers (:meth:`FlightLog.fingerprint`) under
-    any path or name -- as given to ``--test`` (their held-out scores are in-sample)."""
-    trained = {f.fingerprint() for f in train}
-    return sorted(f.meta.source for f in test if f.fingerprint() in trained)
+    any path or name -- as given to ``--test``, with the ``--train`` path when it is another (their held-out scores
+    are in-sample)."""
+    trained = {f.fingerprint(): f.meta.source for f in train}
+    return sorted(f.meta.source + ("" if trained[f.fingerprint()] == f.meta.source else f" (= --train {trained[f.fingerprint()]})")
+                  for f in test if f.fingerprint() in trained)
 
 
 def warn_in_sample(train, test) -> None:
@@ -341,6 +343,7 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
     for flights in (test, injected_test if injection is not None else []):  # before a progress line: the scoring needs a start
         if flights:
             check_protocol_starts([resample_uniform(f) for f in flights], config, airborne=True)
+    warn_in_sample(train, test)  # as the flights are read, not after minutes of fitting
     say = _progress(args)
     say(f"{len(train)} training and {len(test)} held-out flight(s) read"
         + (f"; then again on the flights with --inject {injection.spec}" if injection is not None else ""))
@@ -370,7 +373,6 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
     if document is not None:
         with atomic_output(Path(args.write_vehicle), args.force) as tmp:
             tmp.write_text(yaml.safe_dump(document, sort_keys=False, allow_unicode=True))
-    warn_in_sample(train, test)  # after the run: an error on the way stays the one line
     print("\n".join(verdict_lines(data)))
     print(f"-> {output}/ ({', '.join(files)})" + (f", {args.write_vehicle}" if document is not None else ""))
     return 1 if skipped or (injection is not None and data["injection"]["passed"] is False) else 0

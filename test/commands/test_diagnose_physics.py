@@ -334,7 +334,8 @@ def test_a_flight_given_to_train_and_test_under_another_path_is_in_sample(tmp_pa
     (tmp_path / "elsewhere").symlink_to(REPO / "bags")
     again = str(tmp_path / "elsewhere" / "nanobench_B7_oval_medium_rep2")
     flight, same = load_flight(BAG), load_flight(again)
-    assert in_sample([flight], [same]) == [same.meta.source] and again in same.meta.source
+    assert in_sample([flight], [same]) == [f"{same.meta.source} (= --train {flight.meta.source})"] and again in same.meta.source
+    assert in_sample([flight], [flight]) == [flight.meta.source]  # the same path: named once
     other = load_flight(BAG)
     other.u = other.u * 1.01  # another flight's numbers
     assert in_sample([other], [same]) == []
