@@ -13,7 +13,7 @@ from quad_modelling.atomic import atomic_output, check_distinct_inputs
 from quad_modelling.commands import check_command_output
 from quad_modelling.core.evaluation.windowed import FlightEvaluation, evaluate_flight, merge_flights
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.models.registry import MODEL_FILE_KINDS, make_model
+from quad_modelling.core.models.registry import MODEL_FILE_KINDS, baseline_name_clash, make_model
 from quad_modelling.core.preprocess import flight_warnings, resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import MIN_SAMPLE_RATE_HZ, PRESETS, EvaluationConfig, check_window_rate
@@ -182,6 +182,8 @@ def named_spec(text: str) -> tuple[str | None, str]:
         raise ConfigError(f"--model {text!r}: a model name is letters, digits and '_', not starting with a digit")
     if name == "dummy":
         raise ConfigError(f"--model {text!r}: dummy is the baseline every evaluation holds; choose another name")
+    if baseline_name_clash(name, spec):
+        raise ConfigError(f"--model {text!r}: {baseline_name_clash(name, spec)}")
     return name, spec
 
 

@@ -19,7 +19,7 @@ import yaml
 
 from quad_modelling.atomic import atomic_output
 from quad_modelling.commands import check_command_output
-from quad_modelling.core.models.registry import MODEL_FILE_KINDS
+from quad_modelling.core.models.registry import MODEL_FILE_KINDS, baseline_name_clash
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.topic_maps import add_topic_map_argument
 from quad_modelling.nodes.domains import DISCOVERY_MODES
@@ -112,9 +112,9 @@ def parse_models(text: str) -> list[ModelEntry]:
         name, spec = name.strip(), spec.strip()
         if not name or not spec or "/" in name:
             raise ConfigError(f"--models {text!r}: bad entry {item!r}; expected SPEC or NAME=SPEC")
-        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):  # it names a node (NAME_predictor) and its topics
-            raise ConfigError(f"--models {text!r}: model name {name!r} must be letters, digits and '_', not starting with a "
-                              "digit (it names the predictor node and its topics)")
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name) or baseline_name_clash(name, spec):  # NAME_predictor, its topics
+            raise ConfigError(f"--models {text!r}: " + (baseline_name_clash(name, spec) or f"model name {name!r} must be letters, "
+                              "digits and '_', not starting with a digit (it names the predictor node and its topics)"))
         entries.append(ModelEntry(name, spec))
     if not entries:
         raise ConfigError("--models: give at least one model spec")

@@ -202,6 +202,8 @@ CORPUS = [
     ("diagnose-seeds-negative", ["diagnose", "--validate", "--seeds", "0,-1", "-o", "{d}/work/v"], "--seeds '0,-1': expected comma-separated non-negative integers"),
     ("run-bag-model-name", ["run-bag", "{d}/bag", "--models", "Bad-Name=greybox", "-o", "{d}/work/live"],
      "model name 'Bad-Name' must be letters, digits and '_', not starting with a digit"),
+    ("run-bag-baseline-name", ["run-bag", "{d}/bag", "--models", "naive=greybox", "-o", "{d}/work/live"],
+     "naive is the name of a baseline every evaluation holds; name the greybox model otherwise"),
     ("run-bag-timeout-nan", ["run-bag", "{d}/bag", "--timeout", "nan", "-o", "{d}/work/live"], "--timeout nan: must be a finite number"),
     ("run-bag-rate-inf", ["run-bag", "{d}/bag", "--rate", "inf", "-o", "{d}/work/live"], "--rate inf: must be a finite number"),
     ("namespace-space", ["convert", "{d}/flight.mat", "--namespace", "/quad drone/1", "-o", "{d}/work/b"],

@@ -189,7 +189,8 @@ def test_two_model_files_of_one_kind_are_compared_by_naming_them(tmp_path, capsy
     assert main([*named, "-o", str(first), "--force"]) == 2
     assert f"the output is the input {first}" in capsys.readouterr().err
     for text, why in (("1a=greybox", "a model name is letters, digits and '_', not starting with a digit"),
-                      (f"dummy=direct:{first}", "dummy is the baseline every evaluation holds")):
+                      (f"dummy=direct:{first}", "dummy is the baseline every evaluation holds"),
+                      ("naive=greybox", "naive is the name of a baseline every evaluation holds; name the greybox model otherwise")):
         assert main(["evaluate", bag, "--preset", "short", "--model", text, "-o", str(tmp_path / "bad")]) == 2
         assert why in capsys.readouterr().err
 

@@ -51,6 +51,18 @@ it (:func:`register_model`). The ``truth`` model runs the simulator (core/sim) a
 observer (core/models): core/sim imports core/models, so core/models names it here instead of importing it."""
 
 
+BASELINE_NAMES = ("naive", "dummy")
+"""The evaluation's baselines, found by their names (the multi-step table's reference is the rows named naive)."""
+
+
+def baseline_name_clash(name: str, spec: str) -> str | None:
+    """Why ``name`` cannot name the model ``spec`` (None when it can): a baseline's name on another model
+    (``naive=greybox`` replaced the greybox's multi-step rows with the baseline's)."""
+    if name in BASELINE_NAMES and spec != name:
+        return f"{name} is the name of a baseline every evaluation holds; name the {spec} model otherwise"
+    return None
+
+
 def register_model(kind: str, factory: ModelFactory) -> None:
     """Add (or replace) the factory for specs ``kind`` and ``kind:ARG``."""
     _REGISTRY[kind] = factory
