@@ -369,7 +369,8 @@ def run(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="quad_run_bag_") as staging:
         converted = write_bag(flight, Path(staging) / "contract_bag")
         print(f"{args.bag}: read through topic map {chosen.name} ({len(flight)} samples); replaying it in the topic contract", flush=True)
-        return _run(argparse.Namespace(**{**vars(args), "bag": str(converted), "vehicle": args.vehicle or flight.meta.vehicle}), warned=True)
+        return _run(argparse.Namespace(**{**vars(args), "bag": str(converted), "source_bag": args.bag,
+                                          "vehicle": args.vehicle or flight.meta.vehicle}), warned=True)
 
 
 def _run(args: argparse.Namespace, warned: bool = False) -> int:
@@ -559,12 +560,10 @@ def name_final_paths(files: list[Path], moves: dict[Path, Path]) -> None:
 
 
 def complete_results(report_dir: Path, flight, models: list[ModelEntry], vehicle, args: argparse.Namespace) -> None:
-    """Add to the evaluator's results.json the spec of each named model (``statistics.model_specs``, as evaluate's)
-    and, unless --no-multistep, the multi-step table of every model (``horizons``, its sums in ``statistics``, the
-    configuration's ``horizons`` to the table's); tables.md written again from it. Each model is the one its predictor
-    node runs, predicting from every start of the --eval span (the whole bag without one) with its live form
-    (:func:`~quad_modelling.core.evaluation.multistep.flight_multistep_sums`). With --train and --eval the results.json
-    is then the one ``evaluate BAG --drop 0:0`` with the same spans, window and warm start writes, for ``merge``."""
+    """Add to the evaluator's results.json the flight (fingerprint: ``merge`` tells flights apart) and the spec of each
+    named model (as evaluate's) and, unless --no-multistep, the multi-step table of every model (its sums in
+    ``statistics``), each model's live form from every start of the --eval span (the whole bag without one); tables.md
+    written again. With --train and --eval it is the results.json ``evaluate BAG --drop 0:0`` writes, for ``merge``."""
     from quad_modelling.core.evaluation.multistep import flight_multistep_sums, multistep_table
     from quad_modelling.core.models.base import DummyPredictor
     from quad_modelling.core.preprocess import resample_uniform
@@ -576,6 +575,8 @@ def complete_results(report_dir: Path, flight, models: list[ModelEntry], vehicle
     results_file = report_dir / "results.json"
     results = json.loads(results_file.read_text())
     named = {m.name: m.spec for m in models if m.name != m.spec.partition(":")[0]}  # given as NAME=SPEC
+    results["config"]["flights"] = [{"source": str(getattr(args, "source_bag", args.bag)), "live": True, "duration_s": flight.duration,
+                                     "sample_rate_hz": flight.sample_rate, "fingerprint": flight.fingerprint()}]
     if results.get("statistics") is not None and named:
         results["statistics"]["model_specs"] = named
     if not args.no_multistep:

@@ -13,6 +13,7 @@ from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.io.bag_io import read_bag
+from quad_modelling.io.loader import load_flight
 from test.conftest import REPO
 
 BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
@@ -98,17 +99,19 @@ def test_live_equals_offline_on_a_flight_with_an_irregular_step(tmp_path, capsys
     assert main(["evaluate", str(tmp_path / "bag"), "--model", "greybox", "--drop", "0:0", "--window", "4", "--train", "0:4",
                  "--eval", "4:8", "-o", str(tmp_path / "offline")]) == 0
     merged = {}
-    for name, inputs in (("live", [out]), ("offline", [tmp_path / "offline"]), ("both", [out, tmp_path / "offline"])):
+    for name, inputs in (("live", [out]), ("offline", [tmp_path / "offline"])):
         assert main(["merge", *map(str, inputs), "-o", str(tmp_path / f"merged_{name}")]) == 0, capsys.readouterr().err
         merged[name] = json.loads((tmp_path / f"merged_{name}" / "results.json").read_text())
+    # the live result names its flight by its numbers: beside the offline result of the same flight it is refused (it
+    # merged, every window counted twice)
+    assert main(["merge", str(out), str(tmp_path / "offline"), "-o", str(tmp_path / "merged_both")]) == 2
+    assert "is also in" in capsys.readouterr().err and not (tmp_path / "merged_both").exists()
     assert merged["live"]["config"]["horizons"] == merged["offline"]["config"]["horizons"] == [1, 10, 50]
-    assert merged["both"]["windows"] == {m: {"train": 2, "eval": 2} for m in ("greybox", "dummy")}
     for model in ("greybox", "dummy"):
         for span in ("train", "eval"):
             for var, entry in merged["offline"]["models"][model][span].items():
                 for metric in ("rms", "tic"):
-                    for other in ("live", "both"):
-                        assert merged[other]["models"][model][span][var][metric] == pytest.approx(entry[metric], rel=1e-9), (other, model, var)
+                    assert merged["live"]["models"][model][span][var][metric] == pytest.approx(entry[metric], rel=1e-9), (model, var)
     assert merged["live"]["horizons"]["starts"] == merged["offline"]["horizons"]["starts"]
     for model, groups in merged["offline"]["horizons"]["models"].items():
         for group, entry in groups.items():
@@ -247,6 +250,15 @@ def test_a_contract_bag_under_another_namespace_is_replayed(tmp_path, capsys):
     # a named model's spec is kept for merge and said in tables.md, as evaluate's (it was lost)
     assert live["statistics"]["model_specs"] == {"still": "naive"}
     assert "Models: still (naive) = " in (out / "tables.md").read_text()
+    # the flight is named by its numbers, as evaluate's: merge tells it from another and refuses it twice (every run-bag
+    # result was the flight "live (None s)": two of different flights were refused, one beside evaluate's counted twice)
+    [entry] = live["config"]["flights"]
+    assert entry["source"] == str(moved) and entry["fingerprint"] == load_flight(moved).fingerprint()
+    assert main(["evaluate", str(moved), "--drop", "0:0", "--train", "0:20", "--eval", "20:40", "--no-multistep", "--horizons", "1",
+                 "--model", "still=naive", "-o", str(tmp_path / "offline")]) == 0
+    capsys.readouterr()
+    assert main(["merge", str(out), str(tmp_path / "offline"), "-o", str(tmp_path / "merged")]) == 2
+    assert "is also in" in capsys.readouterr().err
 
 
 def test_a_mapped_bags_reader_warnings_are_printed_once_as_evaluate_prints_them(tmp_path, capsys):
