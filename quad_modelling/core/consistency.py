@@ -22,6 +22,10 @@ in the wrong quaternion order or an accelerometer in the wrong body frame puts g
 VELOCITY_AGREEMENT = 0.5
 """Smallest correlation, per axis, of a flight's velocity with its position's time derivative (:func:`frame_disagreements`)."""
 
+VELOCITY_GAIN_RANGE = (0.5, 2.0)
+"""Range of the position's derivative over the velocity (least squares), per N axis whose velocity or derivative
+moves (:func:`frame_disagreements`): 0.997-1.001 on the NanoBench flights; a position in m read as mm gives 0.001."""
+
 MOVING_AXIS_MPS = 0.1
 """RMS of the position's derivative [m/s] above which an axis moves enough for the velocity check."""
 
@@ -65,7 +69,9 @@ def frame_disagreements(log: FlightLog) -> list[str]:
     :data:`GRAVITY_DISAGREEMENT` g one of them is misread; (2) per N axis that moves (RMS of :math:`\dot p` above
     :data:`MOVING_AXIS_MPS`), the correlation of the velocity with the position's derivative :math:`\dot p`
     (``numpy.gradient`` over t) is at least :data:`VELOCITY_AGREEMENT`; a flipped or swapped axis gives -1 or
-    about 0. For readers of users' own maps (:mod:`quad_modelling.io.mapped_flight`)."""
+    about 0; and per axis whose velocity or derivative moves, :math:`\dot p` over v (least squares) lies in
+    :data:`VELOCITY_GAIN_RANGE` (a unit mistake keeps the correlation). For readers of users' own maps
+    (:mod:`quad_modelling.io.mapped_flight`)."""
     out, where = [], log.meta.source
     if log.acc_b is not None and len(log) > 1:
         mean = nav_acceleration(log).mean(axis=0)
@@ -78,11 +84,18 @@ def frame_disagreements(log: FlightLog) -> list[str]:
         derivative = np.gradient(log.pos_n, log.t, axis=0)
         for k, axis in enumerate("NED"):
             moving = float(np.sqrt(np.mean(derivative[:, k] ** 2)))
-            if moving > MOVING_AXIS_MPS and np.std(log.vel_n[:, k]) > 0:
-                correlation = float(np.corrcoef(log.vel_n[:, k], derivative[:, k])[0, 1])
+            velocity = log.vel_n[:, k]
+            if moving > MOVING_AXIS_MPS and np.std(velocity) > 0:
+                correlation = float(np.corrcoef(velocity, derivative[:, k])[0, 1])
                 if correlation < VELOCITY_AGREEMENT:
                     out.append(f"{where}: the velocity's {axis} axis does not follow the position's derivative "
                                f"(correlation {correlation:.2f}): check the frames of position and velocity")
+                    continue
+            if max(moving, float(np.sqrt(np.mean(velocity ** 2)))) > MOVING_AXIS_MPS and velocity @ velocity > 0:
+                gain = float(derivative[:, k] @ velocity / (velocity @ velocity))
+                if not VELOCITY_GAIN_RANGE[0] <= gain <= VELOCITY_GAIN_RANGE[1]:
+                    out.append(f"{where}: on the {axis} axis the position's derivative is {gain:.3g} x the velocity, not "
+                               "about 1: check the units of position and velocity")
     return out
 
 

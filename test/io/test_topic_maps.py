@@ -395,6 +395,8 @@ def test_a_mapped_stream_slower_than_the_gap_rule_is_refused_in_one_line(flight,
       'order: wxyz, frame: ENU/FLU,\n             frame_field: pose_frame, frames: {1: ENU/FLU}'), ["does not follow the attitude's"]),
     (('"gyro_rad[2]"], unit: rad/s, frame: FRD', '"gyro_rad[2]"], unit: rad/s, frame: FLU'), ["does not follow the attitude's"]),
     (('"gyro_rad[2]"], unit: rad/s', '"gyro_rad[2]"], unit: deg/s'), ["does not follow the attitude's"]),
+    # a position in m read as mm: the correlation holds, the scale does not (nothing was said)
+    (('"position[2]"], unit: m,', '"position[2]"], unit: mm,'), ["on the N axis the position's derivative is 0.001 x the velocity"]),
 ])
 def test_a_yaml_map_read_in_the_wrong_order_or_frame_warns_naming_it(bags, flight, tmp_path, change, expected):
     """A user's map with the quaternion order or the velocity frame wrong reads without an error; the measurements
