@@ -28,42 +28,38 @@ from quad_modelling.nodes.executors import EXECUTORS
 NAME = "run-bag"
 HELP = "replay a bag through the live predictor and evaluator nodes (separate processes, real DDS)"
 DESCRIPTION = """\
-Start the ROS 2 graph of the node suite on one MCAP bag: the evaluator, one predictor per
-model and the replay, each its own process talking over DDS (--discovery localhost, the default:
-loopback only; a ROS_DOMAIN_ID of its own unless the environment sets one). Waits until the
-replay has played the bag and the evaluator acknowledged the last sample, stops the nodes
-(SIGINT, then terminate), and prints the RMS/TIC tables. Then the multi-step
-table (IDSIA: MAE at 1/10/50 steps, SimErr, ratio to naive) of the same models on the bag, each
-predicting with its live form from every start (the code the predictor nodes run, called
-in-process); --no-multistep skips it.
+Start the ROS 2 graph of the node suite on one MCAP bag: the evaluator, one predictor per model and the replay, each
+its own process talking over DDS (--discovery localhost, the default: loopback only; a ROS_DOMAIN_ID of its own
+unless the environment sets one). Waits until the replay has played the bag and the evaluator acknowledged the last
+sample, stops the nodes (SIGINT, then terminate), and prints the RMS/TIC tables. Then the multi-step table (IDSIA:
+MAE at 1/10/50 steps, SimErr, ratio to naive) of the same models on the bag, each predicting with its live form from
+every start (the code the predictor nodes run, called in-process); --no-multistep skips it.
 
-Half a graph per host: --nodes names the nodes started here (replay, predictors, evaluator; default
-all); the others are expected on another host in the same ROS_DOMAIN_ID (set it, the same on every
-host) with --discovery subnet (multicast, plus ROS_STATIC_PEERS if set) or env (your
-ROS_AUTOMATIC_DISCOVERY_RANGE / ROS_STATIC_PEERS as they are). run-bag waits --remote-timeout
-for them, starts the replay last, and ends when the replay (here, or announcing replay/done from
-there) has finished; every host runs it on the same BAG and --models. A Fast DDS profile of yours
+Half a graph per host: --nodes names the nodes started here (replay, predictors, evaluator; default all); the others
+are expected on another host in the same ROS_DOMAIN_ID (set it, the same on every host) with --discovery subnet
+(multicast, plus ROS_STATIC_PEERS if set) or env (your ROS_AUTOMATIC_DISCOVERY_RANGE / ROS_STATIC_PEERS as they
+are). run-bag waits --remote-timeout for them, starts the replay last, and ends when the replay (here, or announcing
+replay/done from there) has finished; every host runs it on the same BAG and --models. A Fast DDS profile of yours
 (FASTRTPS_DEFAULT_PROFILES_FILE) is kept, with the nodes' writer heartbeat added where it sets none.
 
-Models: comma-separated specs (naive, greybox, greybox:euler, narx:MODEL.npz, ...); NAME=SPEC
-gives a spec another topic name (two NARX files: a=narx:a.npz,b=narx:b.npz). Spans: --train
-and --eval in seconds from the first sample (multiples of --window are best: only windows
-entirely inside a span are scored); without them one span live:0:inf.
+Models: comma-separated specs (naive, greybox, greybox:euler, narx:MODEL.npz, ...); NAME=SPEC gives a spec another
+topic name (two NARX files: a=narx:a.npz,b=narx:b.npz). Spans: --train and --eval in seconds from the first sample
+(multiples of --window are best: only windows entirely inside a span are scored; a span holding no whole window of
+the bag is warned about before any node starts); without them one span live:0:inf.
 
-OUTDIR receives (on the evaluator's host) results.json (as quad-modelling evaluate, plus every live window, scored or
-marked), tables.md, figures, params.yaml (the nodes' parameters) and logs/<node>.log; with
---record also record/, one MCAP bag of everything the evaluator received and published.
+OUTDIR receives (on the evaluator's host) results.json (as quad-modelling evaluate, plus every live window, scored
+or marked), tables.md, figures, params.yaml (the nodes' parameters) and logs/<node>.log; with --record also record/,
+one MCAP bag of everything the evaluator received and published.
 
-Every node subscribes reliable and transient-local (parameter qos: replay): the replay is paced on
-the evaluator's acknowledgements and loses nothing, not even to a late discovery. SIGINT/SIGTERM stop every node (each one's process
+Every node subscribes reliable and transient-local (parameter qos: replay): the replay is paced on the evaluator's
+acknowledgements and loses nothing, not even to a late discovery. SIGINT/SIGTERM stop every node (each one's process
 group) and remove the staging directory.
 
-examples:
-  quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models naive -o out/live
-  quad-modelling run-bag BAG --models greybox --nodes replay,predictors --discovery subnet -o out/drone    (onboard)
-  quad-modelling run-bag BAG --models greybox --nodes evaluator --discovery subnet -o out/ground           (ground)
-  quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models greybox --record -o out/recorded
-  quad-modelling run-bag bags/flight --models greybox,narx:narx.npz --train 30:150 --eval 150:190 --rate 0 -o out/flight
+examples: quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models naive -o out/live quad-modelling run-
+bag BAG --models greybox --nodes replay,predictors --discovery subnet -o out/drone (onboard) quad-modelling run-bag
+BAG --models greybox --nodes evaluator --discovery subnet -o out/ground (ground) quad-modelling run-bag
+bags/nanobench_B7_oval_medium_rep2 --models greybox --record -o out/recorded quad-modelling run-bag bags/flight
+--models greybox,narx:narx.npz --train 30:150 --eval 150:190 --rate 0 -o out/flight
 """
 
 STOP_TIMEOUT_S = 30.0
@@ -376,7 +372,7 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, warned: bool = False) -> int:
     from quad_modelling.commands.evaluate import print_flight_warnings
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
-    from quad_modelling.core.windows import check_window_rate
+    from quad_modelling.core.windows import check_window_rate, spans_without_a_window
     from quad_modelling.io.bag_io import read_bag_metadata
     from quad_modelling.io.loader import load_flight
     from quad_modelling.io.reports.evaluation import live_summary_table, multistep_lines
@@ -413,6 +409,8 @@ def _run(args: argparse.Namespace, warned: bool = False) -> int:
     if not warned:  # a bag of another stack: run printed them as read through its map
         print_flight_warnings([flight])  # as evaluate prints them, once
     check_window_rate(flight)  # the evaluator would mark every window of a flight this slow
+    for note in spans_without_a_window(spans, flight.duration, float(args.window)):
+        print(f"warning: {args.bag}: {note}", file=sys.stderr)
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
         check = getattr(make_streaming_predictor(m.spec, vehicle), "check_flight", None)
         if check is not None:

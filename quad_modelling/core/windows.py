@@ -172,6 +172,19 @@ def seconds_spans(texts: Sequence[str]) -> list[SpanSpec]:
     return spans
 
 
+def spans_without_a_window(texts: Sequence[str], duration_s: float, window_s: float) -> list[str]:
+    """One sentence per named seconds span (``NAME:A:B``, :func:`seconds_spans`) that holds no whole window of
+    ``window_s`` [s] within a flight of ``duration_s`` [s from its first sample]: nothing will be scored in it (run-bag
+    said so only after the replay, as a coverage mark)."""
+    out = []
+    for span in seconds_spans(texts):
+        end = min(span.end, duration_s)
+        if end - span.start < window_s:
+            out.append(f"span {span.name} {span.text()} holds no {window_s:g} s window of this {duration_s:.1f} s flight "
+                       f"({max(end - span.start, 0.0):.1f} s of it): nothing will be scored there")
+    return out
+
+
 PRESETS: dict[str, dict] = {
     "thesis": {"drop": (30.0, 22.0), "train": "30:150", "eval": "150:190"},
     "short": {"drop": (5.0, 5.0), "train": "0%:60%", "eval": "60%:100%"},

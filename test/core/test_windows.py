@@ -229,3 +229,13 @@ def test_no_window_error_suggests_what_would_fit():
     short = str(no_window_error(EvaluationConfig.preset("short"), [12.0, 9.0]))
     assert short.endswith("the longest flight flies 2.0 s after the drops: use a shorter --window, smaller --drop, or longer flights "
                           "(a window touching a marked measurement gap is left out too: the warnings above name the gaps)")
+
+
+def test_a_seconds_span_without_a_whole_window_of_the_flight_is_named():
+    """run-bag --eval 40:50 on a 42.3 s bag scored nothing and said so only after the replay, as a coverage mark."""
+    from quad_modelling.core.windows import spans_without_a_window
+
+    assert spans_without_a_window(["train:0:20", "eval:40:50"], 42.26, 10.0) == [
+        "span eval 40:50 holds no 10 s window of this 42.3 s flight (2.3 s of it): nothing will be scored there"]
+    assert spans_without_a_window(["live:0:inf"], 42.26, 10.0) == []
+    assert spans_without_a_window(["eval:50:60"], 42.26, 10.0)[0].endswith("(0.0 s of it): nothing will be scored there")
