@@ -1,7 +1,7 @@
 """The physics diagnosis report's table cells: why a pair of candidates did not join, an injection's expected and
 measured effects."""
 
-from quad_modelling.io.reports.physics_diagnosis import _check_value, _why_pair_not_joined, delay_text
+from quad_modelling.io.reports.physics_diagnosis import _check_value, _why_not_joined, _why_pair_not_joined, delay_text
 
 
 def _pair(low: float, resolved: bool = True) -> dict:
@@ -16,6 +16,14 @@ def test_a_pair_row_names_the_rule_it_missed():
     assert _why_pair_not_joined(_pair(0.03), "battery + motor_imbalance", refused).startswith("a yaw pattern only")
     assert _why_pair_not_joined(_pair(0.03), "battery + ground_effect", refused) == ""  # passed every rule, none joined
     assert _why_pair_not_joined(_pair(0.03), "battery + ground_effect", {"joined": True}) == "another pair shrinks J more"
+
+
+def test_a_candidate_that_qualified_but_did_not_join_says_which_did():
+    """NanoBench: battery on the base +2.7 %, bound +2.1 %, resolved: its cell was empty beside rotor drag's 'joined'."""
+    battery = {"shrink": 0.027, "shrink_5pct": 0.021, "main_resolved": True}
+    assert _why_not_joined(battery, {"joined": True, "best": "rotor_drag"}) == "qualified; rotor_drag shrinks J more"
+    assert _why_not_joined({**battery, "shrink_5pct": 0.004}, {"joined": True, "best": "rotor_drag"}) == "5 % bound < 1%"
+    assert _why_not_joined({**battery, "main_resolved": False}, {"joined": False}) == "main component not resolved"
 
 
 def test_the_newly_found_check_lists_effects_not_a_python_list():
