@@ -96,6 +96,11 @@ def test_a_motor_order_verdict_an_injection_did_not_make_is_not_called_the_injec
     assert "ms (AT BOUND: the search's; not measured); motor command gains" in " ".join(" ".join(verdict_lines(bound, 200)).split())
     assert "+-" not in " ".join(verdict_lines(bound, 200)).split("command delay")[1].split(";")[0]  # no sigma on a bound
     assert "AT BOUND" not in " ".join(verdict_lines(data, 200))
+    # another constant on a bound is said in the summary too (only the report's table flagged it: NanoBench's torque constant)
+    torque = {**data, "constants": {**data["constants"], "rotor_torque_constant": {**data["constants"]["rotor_torque_constant"],
+                                                                                   "at_bound": True}}}
+    assert ("AT BOUND (the fit ran to a search bound: not measured, the model holds the bound): rotor_torque_constant"
+            in " ".join(" ".join(verdict_lines(torque, 200)).split()))
 
 
 @pytest.mark.parametrize("spec, check", [("swap:3:4", "the motor-order check names the swap"),

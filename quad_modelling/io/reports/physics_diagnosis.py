@@ -42,6 +42,10 @@ def _verdict(data: dict) -> list[str]:
     gains = s["motor_command_gains"]
     lines.append(f"  command delay {delay_text(s['delay_s'], (data.get('constants') or {}).get('rotor_delay'))}; motor command gains "
                  + (" ".join(f"{g:.3f}" for g in gains["value"]) if gains["fitted"] else "not fitted (motor_imbalance not a candidate)"))
+    at_bound = [name for name, c in (data.get("constants") or {}).items()
+                if isinstance(c, dict) and c.get("at_bound") and name != "rotor_delay"]  # the delay's line says its own
+    if at_bound:  # in the report's constants table only, a user read the summary's model as fully measured
+        lines.append(f"  AT BOUND (the fit ran to a search bound: not measured, the model holds the bound): {', '.join(at_bound)}")
     order = data.get("motor_order") or {}
     logged_order = ((data.get("un_injected") or {}).get("motor_order") or {}).get("verdict")
     if order.get("verdict") == "inconsistent" and injection and logged_order != "inconsistent":
