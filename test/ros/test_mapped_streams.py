@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 from functools import partial
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -172,3 +173,27 @@ def test_a_nan_command_is_kept_as_a_stopped_motor_and_reported_once_as_offline(t
             assert command[1] == vehicle.input_min and np.all(np.isfinite(command))
     key = f"stopped_motor_{motors[0][0]}"
     assert faults.counts == {key: 2} and len(warnings) == 1 and "stopped motor" in warnings[0]
+
+
+def test_a_message_the_map_cannot_read_is_a_fault_not_the_end_of_the_predictor(ros, tmp_path):
+    """A JointState with 3 efforts on a user map's commands topic stopped the predictor with an IndexError traceback (exit
+    2, no prediction for the rest of the flight); the evaluator dropped it. Both now drop it, counted once as
+    ``bad_<topic>``, and read the next message."""
+    from sensor_msgs.msg import JointState
+
+    map_file = tmp_path / "user_map.yaml"
+    map_file.write_text(yaml.safe_dump(USER_MAP))
+    node = PredictorNode(parameter_overrides=[Parameter(k, value=v) for k, v in
+                                              {"vehicle": "crazyflie21", "model": "greybox", "topic_map": str(map_file)}.items()])
+    log = hover_log(20)
+    arrays = messages.measurement_messages(log)
+    short = JointState(header=arrays.motor(0, 0).header, name=["m1", "m2", "m3"], effort=[1000.0, 1000.0, 1000.0])
+    warnings = []
+    node.faults.logger = SimpleNamespace(warning=warnings.append)
+    node.on_mapped("/user/motors", short)
+    node.on_mapped("/user/motors", short)
+    assert node.faults.counts == {"bad_/user/motors": 2} and len(warnings) == 1
+    assert warnings[0].startswith("unusable /user/motors message dropped (") and "effort[3]" in warnings[0]
+    node.on_mapped("/user/motors", arrays.motor(1, int(stamps_ns(log.t)[1])))  # the next one is read as before
+    assert node.faults.counts == {"bad_/user/motors": 2}
+    node.destroy_node()

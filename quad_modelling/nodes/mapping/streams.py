@@ -25,7 +25,7 @@ import numpy as np
 from quad_modelling.core import frames
 from quad_modelling.core.alignment import MeasurementTrack, usable_voltage
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.errors import QuadModellingError
+from quad_modelling.errors import DataError, QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.io.mapped_flight import TopicReader, convert_measurements, map_commands, readers_for
 from quad_modelling.io.topic_maps import CONTRACT_MAP, TopicMap, load_topic_map
@@ -117,8 +117,14 @@ class MappedStreams:
         """(stamp [ns], fields) of a message both nodes may use, or None: another instance of a multi-instance topic
         (silently), or a fault reported to ``faults`` (the nodes' fault log: ``zero_quaternion``, ``nan_<topic>`` or
         ``range_<topic>``) and the message dropped. A NaN command (a stopped motor) is kept and reported
-        (``stopped_motor_<topic>``), so the log says what the offline reader's notes count."""
-        read = self.read(topic, msg)
+        (``stopped_motor_<topic>``), so the log says what the offline reader's notes count. A message the map cannot
+        read (a JointState short of an effort, a PX4 odometry in a frame the map does not list) is ``bad_<topic>``: the
+        predictor, unguarded, stopped on the first."""
+        try:
+            read = self.read(topic, msg)
+        except DataError as err:
+            faults.report(stream_fault("bad", topic), f"unusable {topic} message dropped ({err})")
+            return None
         if read is None:
             return None
         fault = self.fault(read[1])
