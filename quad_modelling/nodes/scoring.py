@@ -4,7 +4,7 @@ The evaluator node hands the received absolute predictions to
 :class:`~quad_modelling.core.models.streaming.RecordedPrediction`, which trims them as the
 offline predictors do.
 
-* :class:`WindowBuffer`: the evaluator node's received samples of one window; :func:`measured_at` (the
+* :class:`WindowBuffer`: the evaluator node's received samples of one window; :func:`window_measurements` (the
   measurements interpolated to the scored rows) and :func:`score_horizon` (receding-horizon errors) read them.
 * :class:`HorizonRecord`: the receding-horizon errors of one model in one closed window (sums of the
   per-prediction group errors of :func:`~quad_modelling.core.evaluation.multistep.group_error_norms`), pooled
@@ -299,16 +299,6 @@ def samples_log(measured: dict[str, np.ndarray], rows: np.ndarray, motor, vehicl
     return mapped.flight_log(rows, motor, measured, vehicle, source, omega)
 
 
-def measured_at(neighbours: list[WindowBuffer], rows: np.ndarray, vehicle: str, source: str, motor: list | None = None,
-                omega=None, mapped=None) -> FlightLog | None:
-    """The measurement FlightLog at stamps ``rows`` [ns]: motion capture and IMU (or a map's fields) interpolated to
-    them (:func:`measurement_samples`); None when a stream does not reach a row."""
-    measured = measurement_samples(neighbours, rows, mapped)
-    if len(rows) == 0 or not all(np.isfinite(v).all() for v in measured.values()):
-        return None
-    return samples_log(measured, rows, motor, vehicle, source, omega, mapped)
-
-
 def score_horizon(window: WindowBuffer, neighbours: list[WindowBuffer], models: list[str], vehicle, mapped=None) -> list[HorizonRecord]:
     """Error of each group (:func:`~quad_modelling.core.evaluation.multistep.group_error_norms`) of every
     receding-horizon prediction stamped in this window against the measurements interpolated at its stamp;
@@ -346,11 +336,18 @@ def window_measurements(window: WindowBuffer, neighbours: list[WindowBuffer], lo
     if reason:
         return None, None, reason
     omegas = [window.omega[ns] for ns in rows]
+    if len(rows) == 0:
+        return None, None, "no engine input in the window"
     try:
-        log = measured_at(neighbours, rows, vehicle.name, f"live window {window.index}", [window.motor[ns] for ns in rows],
+        measured = measurement_samples(neighbours, rows, mapped)
+        unreached = {name: np.flatnonzero(~np.isfinite(v).reshape(len(rows), -1).all(axis=1)) for name, v in measured.items()}
+        unreached = {name: k for name, k in unreached.items() if len(k)}
+        if unreached:  # named, with where (it said "mocap or imu ends early" of a stream late at the start)
+            return None, None, "measurements do not reach every engine input of the window: " + "; ".join(
+                f"{'mocap/odom' if name == 'odom' else name} none at {(rows[k[0]] - lo) / 1e9:.3f}..{(rows[k[-1]] - lo) / 1e9:.3f} s "
+                "into the window" for name, k in unreached.items())
+        log = samples_log(measured, rows, [window.motor[ns] for ns in rows], vehicle.name, f"live window {window.index}",
                           np.array(omegas) if all(o is not None for o in omegas) else None, mapped)
-        if log is None:
-            return None, None, "measurements do not reach every engine input of the window (mocap or imu ends early)"
         return log, smooth(trimmed_variables(log, config.trim, vehicle), log.sample_rate, config.smooth_cutoff_hz), ""
     except QuadModellingError as err:
         return None, None, f"measurements unusable: {err}"

@@ -108,6 +108,23 @@ def test_gap_restart_and_late_start_mark_windows_instead_of_failing(ros, tmp_pat
     late.destroy_node()
 
 
+def test_a_window_whose_first_inputs_no_measurement_reaches_names_the_stream_and_where(ros):
+    """Mocap stopped for 1 s and resumed 10 ms into the next window: that window was marked "mocap or imu ends early"
+    (the wrong end, no stream named); it names the stream and the rows it does not reach."""
+    import re
+
+    log = hover_log(1600)
+    node = make_node(spans=["live:0:inf"])
+    feed(node, log, range(0, 1600), skip_odom=set(range(400, 501)))
+    node.finish()
+    by_window = {r.index: r for r in node.scores.records if r.model == "dummy"}
+    assert not by_window[0].scored and "longest gap" in by_window[0].reason  # the gap itself: the coverage rule
+    assert not by_window[1].scored
+    assert re.match(r"measurements do not reach every engine input of the window: mocap/odom none at (0\.00\d)\.\.\1 s "
+                    "into the window", by_window[1].reason), by_window[1].reason  # its first input only
+    node.destroy_node()
+
+
 def test_record_bag_is_refused_when_it_exists_or_lies_in_output_dir(ros, tmp_path):
     import pytest
 
