@@ -86,15 +86,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicle", metavar="NAME|FILE", help="vehicle config name or YAML (default: the one the first flight names)")
     parser.add_argument("--effects", default="all", metavar="all|LIST", help="all (= default) or a comma list of candidates; "
                         "greybox base: also none (catalogue effects)")
-    parser.add_argument("--no-identify", action="store_true", help="use the vehicle's constants as the base model instead of identifying them on --train")
-    parser.add_argument("--narx", action="store_true", help="also train a NARX model on --train as the learnable floor (slower)")
-    parser.add_argument("--window", type=float, default=DIAGNOSIS_CONFIG.window_s, metavar="SECONDS", help="window length (default 5)")
+    parser.add_argument("--no-identify", action="store_true", help="greybox base: use the vehicle's constants as the base model "
+                        "instead of identifying them on --train")
+    parser.add_argument("--narx", action="store_true", help="greybox base: also train a NARX model on --train as the learnable floor (slower)")
+    parser.add_argument("--window", type=float, metavar="SECONDS", help=f"greybox base: window length (default {DIAGNOSIS_CONFIG.window_s:g})")
     parser.add_argument("--drop", metavar="START:END",
                         help=f"seconds dropped at take-off:landing of every flight (default: physics base "
                              f"{PHYSICS_CONFIG.drop_start:g}:{PHYSICS_CONFIG.drop_end:g}, greybox "
                              f"{DIAGNOSIS_CONFIG.drop_start:g}:{DIAGNOSIS_CONFIG.drop_end:g})")
-    parser.add_argument("--smooth", type=float, default=DIAGNOSIS_CONFIG.smooth_cutoff_hz, metavar="HZ",
-                        help=f"low-pass cutoff applied to measurement and prediction alike before scoring (default {DIAGNOSIS_CONFIG.smooth_cutoff_hz:g} Hz)")
+    parser.add_argument("--smooth", type=float, metavar="HZ", help="greybox base: low-pass cutoff applied to measurement and "
+                        f"prediction alike before scoring (default {DIAGNOSIS_CONFIG.smooth_cutoff_hz:g} Hz)")
     parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
     add_topic_map_argument(parser)
     add_fanout_arguments(parser)
@@ -183,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
     if args.base == "physics":  # --validate --base physics scores as the physics base does: the same options
         _refuse_greybox_options(args)
     _refuse_other_mode_options(args)
+    args.window = DIAGNOSIS_CONFIG.window_s if args.window is None else args.window  # the greybox base's defaults
+    args.smooth = DIAGNOSIS_CONFIG.smooth_cutoff_hz if args.smooth is None else args.smooth
     injection = parse_injection(args.inject) if args.inject is not None else None
     if args.write_vehicle:
         written = Path(args.write_vehicle)
@@ -254,8 +257,7 @@ def warn_in_sample(train, test) -> None:
 def _refuse_greybox_options(args: argparse.Namespace) -> None:
     """ConfigError (one line) naming the greybox base's options given to a physics-base diagnosis, which reads none of
     them (its spans and scorer are the models table's: :data:`PHYSICS_CONFIG`)."""
-    given = [flag for flag, on in (("--window", args.window != DIAGNOSIS_CONFIG.window_s),
-                                   ("--smooth", args.smooth != DIAGNOSIS_CONFIG.smooth_cutoff_hz),
+    given = [flag for flag, on in (("--window", args.window is not None), ("--smooth", args.smooth is not None),  # even at the default
                                    ("--no-identify", args.no_identify), ("--narx", args.narx)) if on]
     if given:
         raise ConfigError(f"{', '.join(given)}: option(s) of the greybox base (--base greybox); the physics base identifies its "

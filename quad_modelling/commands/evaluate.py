@@ -51,10 +51,10 @@ per-window RMS/TIC, multi-step sums), so `quad-modelling merge` combines evaluat
 and score each flight on a worker; the numbers are the serial run's, bit for bit (docs/scale.md).
 
 examples:
-  quad-modelling evaluate bags/flight --vehicle linkquad -o results/flight
-  quad-modelling evaluate $NANOBENCH/*.csv.gz --vehicle cf_identified.yaml --preset short --skip-bad -o results/nb
+  quad-modelling evaluate bags/flight --vehicle linkquad -o flight_results
+  quad-modelling evaluate $NANOBENCH/*.csv.gz --vehicle cf_identified.yaml --preset short --skip-bad -o nb_results
   quad-modelling evaluate a.mat b.mat --model greybox --model greybox:euler --train 30:120 --eval 120:190 -o out
-  quad-modelling evaluate $NANOBENCH/*.csv.gz --preset short --skip-bad --jobs 2 -o results/nb
+  quad-modelling evaluate $NANOBENCH/*.csv.gz --preset short --skip-bad --jobs 2 -o nb_results
 """
 
 

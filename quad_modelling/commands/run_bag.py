@@ -55,11 +55,12 @@ Every node subscribes reliable and transient-local (parameter qos: replay): the 
 acknowledgements and loses nothing, not even to a late discovery. SIGINT/SIGTERM stop every node (each one's process
 group) and remove the staging directory.
 
-examples: quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models naive -o out/live quad-modelling run-
-bag BAG --models greybox --nodes replay,predictors --discovery subnet -o out/drone (onboard) quad-modelling run-bag
-BAG --models greybox --nodes evaluator --discovery subnet -o out/ground (ground) quad-modelling run-bag
-bags/nanobench_B7_oval_medium_rep2 --models greybox --record -o out/recorded quad-modelling run-bag bags/flight
---models greybox,narx:narx.npz --train 30:150 --eval 150:190 --rate 0 -o out/flight
+examples:
+  quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models naive -o live
+  quad-modelling run-bag BAG --models greybox --nodes replay,predictors --discovery subnet -o drone    (onboard)
+  quad-modelling run-bag BAG --models greybox --nodes evaluator --discovery subnet -o ground           (ground)
+  quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models greybox --record -o recorded
+  quad-modelling run-bag bags/flight --models greybox,narx:narx.npz --train 30:150 --eval 150:190 --rate 0 -o flight_live
 """
 
 STOP_TIMEOUT_S = 30.0

@@ -54,7 +54,7 @@ A:B is seconds from each flight's start (thesis 30:150) or percent of the flying
 --jobs N / --scheduler ADDRESS read and check the flights on Dask workers; the training
 itself runs here (one network on all flights; docs/scale.md).
 
-example:
+examples:
   quad-modelling train bags/nanobench_B7_oval_medium_rep2 --preset short -o narx.npz
   quad-modelling train flight1.mat flight2.mat --vehicle linkquad --train 30:150 -o narx.npz
   quad-modelling train bags/nanobench_B7_oval_medium_rep2 --preset short --hybrid -o hybrid.npz
@@ -63,9 +63,10 @@ example:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("flights", metavar="BAG", nargs="+", help="flights: MCAP bag directories, thesis .mat logs or NanoBench .csv.gz")
+    parser.add_argument("flights", metavar="FLIGHT", nargs="+", help="flights: MCAP bag directories, thesis .mat logs, NanoBench "
+                        ".csv.gz or PX4 .ulg")
     parser.add_argument("-o", "--output", required=True, metavar="MODEL", help="model file to write (.npz)")
-    parser.add_argument("--vehicle", help="vehicle config name or YAML (default: the one the flight names)")
+    parser.add_argument("--vehicle", metavar="NAME|FILE", help="vehicle config name or YAML (default: the one the flight names)")
     add_topic_map_argument(parser)
     parser.add_argument("--preset", choices=("thesis", "short"), default="thesis",
                         help="span preset: thesis (drop 30:22 s, train 30:150) or short (drop 5:5 s, train 0%%:60%%)")
@@ -79,7 +80,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--patience", type=int, help=f"rollout: epochs without a better validation loss before stopping (NARX {DEFAULT_ROLLOUT.patience}, hybrid {HYBRID_ROLLOUT.patience})")
     parser.add_argument("--val-fraction", type=float, default=VAL_FRACTION,
                         help="rollout: fraction of the training flights held back whole for early stopping (default 0.2)")
-    parser.add_argument("--val-flights", nargs="+", metavar="BAG", help="rollout: validation flights (early stopping only) instead of --val-fraction")
+    parser.add_argument("--val-flights", nargs="+", metavar="FLIGHT", help="rollout: validation flights (early stopping only) instead of --val-fraction")
     parser.add_argument("--hidden", type=int, default=10, help="sigmoid units per net (thesis 10)")
     parser.add_argument("--delays", type=int, default=20, help="delayed outputs fed back (thesis 20 = 0.2 s at 100 Hz)")
     parser.add_argument("--input-delays", type=int, default=20, help="engine-command taps u(t)..u(t-N+1) (default 20)")

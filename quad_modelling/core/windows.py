@@ -450,10 +450,16 @@ def check_window_rate(log: FlightLog) -> None:
             f"{log.meta.source}: sampled at {rate:.3g} Hz (median step {1e3 / rate:.0f} ms); scoring needs "
             f"{MIN_SAMPLE_RATE_HZ:g} Hz or faster (a window allows no step over {MAX_GAP_S * 1e3:g} ms), whatever "
             f"the spans: record the flight at {MIN_SAMPLE_RATE_HZ:g} Hz or more"
-            + ("; PX4 logs actuator_motors at 10 Hz by default: add `actuator_motors 10` (interval ms) and the position "
-               "and attitude topics to etc/logging/logger_topics.txt on the SD card (docs/px4.md)"
+            + (f"; PX4 logs {_ulog_motor_topic(log)} at 10 Hz by default: add `{_ulog_motor_topic(log)} 10` (interval ms) and "
+               "the position and attitude topics to etc/logging/logger_topics.txt on the SD card (docs/px4.md)"
                if log.meta.notes.get("format") == "px4-ulog" else "")
         )
+
+
+def _ulog_motor_topic(log: FlightLog) -> str:
+    """The PX4 topic a ULog flight's commands came from (its ``time_base`` note: actuator_motors or actuator_outputs)."""
+    base = str(log.meta.notes.get("time_base", ""))
+    return "actuator_outputs" if base.startswith("actuator_outputs") else "actuator_motors"
 
 
 def windows_between(log: FlightLog, start_s: float, end_s: float, window_s: float) -> list[tuple[int, int]]:

@@ -182,6 +182,7 @@ VEHICLE = str(REPO / "config" / "vehicles" / "crazyflie21.yaml")
     (["--write-vehicle", "v.txt"], "--write-vehicle v.txt: a vehicle file is YAML"),
     (["--smooth", "1", "--narx"], "--smooth, --narx: option(s) of the greybox base"),
     (["--window", "2"], "--window: option(s) of the greybox base"),
+    (["--window", "5", "--smooth", "3"], "--window, --smooth: option(s) of the greybox base"),  # even its defaults, typed: ignored
     (["--effects", "input_delay"], "in the base physics"),
     (["--base", "greybox", "--inject", "none"], "physics base"),
     # the options only --validate reads were ignored here (exit 0)

@@ -95,7 +95,7 @@ class IdentificationResult:
             lines.append(f"  voltage dependence: K(V) = K0 (1 + {kappa:.3g} (V - {self.voltage['v0']:.2f} V)), sigma {sigma:.2g} 1/V")
             why = poorly_determined(kappa, sigma, "1/V")
             if why:
-                lines.append(f"  poorly determined: voltage dependence: {why}; would help: flights over a wider battery range")
+                lines += [f"  poorly determined: voltage dependence: {why};", "    would help: flights over a wider battery range"]
         lines += check_lines(self.motor_check)
         lines.extend(self.physics.summary() if self.physics is not None else [f"physics model constants {self.physics_note}"])
         lines.extend(self.effective_inertia_lines())
