@@ -68,6 +68,9 @@ from quad_modelling.nodes.common import (
 DONE_ACK_S = 5.0
 """How long [wall s] the replay waits for its ``replay/done`` readers to acknowledge the end before exiting."""
 
+WAITED_TOPICS = ("motor_input", "mocap/odom", "imu")
+"""The topics every predictor and the evaluator read: ``wait_for_subscribers`` counts each (the battery has fewer)."""
+
 SETTLE_S = 0.5
 """Pause after the subscribers matched, before the first sample [s], so every reader is matched both ways."""
 
@@ -80,7 +83,8 @@ REPLAY_PARAMETERS = [
     Param("end_s", -1.0, "end offset into the bag [s] (exclusive); < 0 = to the end"),
     Param("loop", False, "replay forever (stamps shifted by one bag length per pass)"),
     Param("publish_clock", True, "publish /clock with each sample's stamp (for use_sim_time nodes)"),
-    Param("wait_for_subscribers", 0, "wait until motor_input has this many matched subscribers before playing", non_negative),
+    Param("wait_for_subscribers", 0, "wait until motor_input, mocap/odom and imu each have this many matched subscribers "
+          "before playing", non_negative),
     Param("max_in_flight", 100, "rate 0: samples published but not yet acknowledged at most", positive),
     Param("pace_timeout_s", 10.0, "rate 0: acknowledgements silent this long [wall s] -> play in real time", positive),
     Param("startup_timeout_s", 30.0, "wait this long [wall s] for subscribers and the first acknowledgement", positive),
@@ -174,13 +178,21 @@ class ReplayNode(Node):
                 return
             self._spin_once(left)
 
+    def _unmatched(self) -> dict[str, int]:
+        """The waited-for topics (:data:`WAITED_TOPICS` the bag has) with fewer than ``wait_for_subscribers`` matched
+        subscribers, with their count: a reader matched late misses the first samples (volatile durability)."""
+        counts = {key: self.publishers_[key].get_subscription_count() for key in WAITED_TOPICS if key in self.publishers_}
+        return {key: n for key, n in counts.items() if n < self.wait_for}
+
     def _wait_startup(self) -> None:
         deadline = time.monotonic() + self.startup_timeout_s
-        while self.motor_pub.get_subscription_count() < self.wait_for and time.monotonic() < deadline:
+        while self._unmatched() and time.monotonic() < deadline:
             self._spin_once(0.05)
-        if self.motor_pub.get_subscription_count() < self.wait_for:
-            self.faults.report("subscribers", f"only {self.motor_pub.get_subscription_count()} of {self.wait_for} motor_input "
-                                              f"subscribers after {self.startup_timeout_s:g} s; playing anyway")
+        unmatched = self._unmatched()
+        if unmatched:
+            counts = ", ".join(f"{key} {n}" for key, n in unmatched.items())
+            self.faults.report("subscribers", f"only {counts} of {self.wait_for} subscribers after "
+                                              f"{self.startup_timeout_s:g} s; playing anyway")
         if self.rate == 0:
             while self.acked_ns is None and time.monotonic() < deadline:
                 self._spin_once(0.05)

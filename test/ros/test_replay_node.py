@@ -71,6 +71,38 @@ def test_replay_publishes_every_sample_with_its_stamp_and_exits(ros, tmp_path, e
     node.destroy_node()
 
 
+def test_replay_waits_for_a_reader_of_every_measurement_topic_not_only_the_engine_inputs(ros, tmp_path):
+    """A pose reader that matches after the engine-input reader (a lossy link delays its discovery) still gets the
+    first sample: the replay waits for wait_for_subscribers readers on motor_input, mocap/odom and imu each."""
+    log = synthetic_log(n=60)
+    bag = write_bag(log, tmp_path / "bag")
+    node = Node("late_listener", namespace="/quad")
+    got = {"motor": [], "odom": [], "imu": []}
+    node.create_subscription(JointState, "motor_input", lambda m: got["motor"].append(m), data_qos())
+    replay = subprocess.Popen(
+        [sys.executable, "-m", "quad_modelling.nodes.replay_node", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=20.0",
+         "-p", "wait_for_subscribers:=1"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        until = time.monotonic() + 3.0  # the replay is up and matched on motor_input well within this
+        while time.monotonic() < until:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        assert got["motor"] == []  # still waiting for the other topics' readers
+        node.create_subscription(Odometry, "mocap/odom", lambda m: got["odom"].append(m), data_qos())
+        node.create_subscription(Imu, "imu", lambda m: got["imu"].append(m), data_qos())
+        deadline = time.monotonic() + 60
+        while replay.poll() is None and time.monotonic() < deadline:
+            rclpy.spin_once(node, timeout_sec=0.05)
+        drain_received(node, got)
+    finally:
+        replay.terminate()
+        out = replay.communicate(timeout=10)[0]
+    assert replay.returncode == 0, out
+    for key in ("motor", "odom", "imu"):
+        assert [topics.stamp_ns(m.header.stamp) for m in got[key]] == stamps_ns(log.t).tolist(), key
+    assert "playing anyway" not in out
+    node.destroy_node()
+
+
 def test_missing_bag_exits_with_code_2_naming_it(tmp_path):
     run = subprocess.run([sys.executable, "-m", "quad_modelling.nodes.replay_node", "--ros-args", "-p", f"bag:={tmp_path}/nope"],
                          capture_output=True, text=True, timeout=60)
@@ -81,9 +113,10 @@ def test_loop_passes_restamp_the_recorded_messages_by_one_bag_length(ros, tmp_pa
     log = synthetic_log(n=30)
     bag = write_bag(log, tmp_path / "bag")
     node = Node("loop_listener", namespace="/quad")
-    got = {"motor": [], "odom": [], "clock": []}
+    got = {"motor": [], "odom": [], "imu": [], "clock": []}
     node.create_subscription(JointState, "motor_input", lambda m: got["motor"].append(m), data_qos())
     node.create_subscription(Odometry, "mocap/odom", lambda m: got["odom"].append(m), data_qos())
+    node.create_subscription(Imu, "imu", lambda m: got["imu"].append(m), data_qos())
     node.create_subscription(Clock, "/clock", lambda m: got["clock"].append(m), data_qos())
     replay = subprocess.Popen(
         [sys.executable, "-m", "quad_modelling.nodes.replay_node", "--ros-args", "-p", f"bag:={bag}", "-p", "rate:=5.0",
