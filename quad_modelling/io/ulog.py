@@ -149,12 +149,18 @@ Topics = dict[str, dict[str, np.ndarray]]
 def read_ulog(path: str | Path, vehicle: str | VehicleConfig | None = None) -> FlightLog:
     """Read a PX4 .ulg file into a FlightLog (see module doc); DataError names file and topic."""
     where = str(path)
-    ulog, said = open_ulog(path, TOPICS)
+    ulog, said, cut_at = open_ulog(path, TOPICS)
     topics, notes = topics_of(ulog.data_list)
+    if cut_at is not None:  # power lost mid-flight, a copy stopped early: what came before is read, the rest is not there
+        size = Path(path).stat().st_size
+        last_s = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
+        notes["warnings"] = [*notes.get("warnings", []), f"{where}: the file ends inside a message at byte {cut_at} of "
+                             f"{size} (cut short: power lost, or an incomplete copy?); read up to there, {last_s:.2f} s "
+                             "into the log"]
     if said.getvalue().strip():
         notes["pyulog"] = " ".join(sorted(set(said.getvalue().split("\n")) - {""}))
     if getattr(ulog, "file_corruption", False):  # pyulog skipped a damaged part: its messages are lost, say so
-        notes["warnings"] = [f"{where}: pyulog found the file damaged and skipped the damaged part (its messages are lost; "
+        notes["warnings"] = [*notes.get("warnings", []), f"{where}: pyulog found the file damaged and skipped the damaged part (its messages are lost; "
                              f"notes.pyulog has what it said)"]
     if ulog.has_data_appended:
         notes["appended_data"] = "yes (read by pyulog after the regular data)"
@@ -163,18 +169,49 @@ def read_ulog(path: str | Path, vehicle: str | VehicleConfig | None = None) -> F
     return flight_from_topics(topics, ulog.initial_parameters, where, vehicle=vehicle, notes=notes)
 
 
+class CutShortWatch(io.BufferedReader):
+    """The file as pyulog reads it, noting where it ends inside a message.
+
+    pyulog reads each message as a 3-byte header (size, type) then ``size`` bytes, and stops without a word at a
+    message the file ends inside (its comment: "File is most likely cut") -- a log whose writer lost power. A read
+    that returns some but fewer bytes than asked for, or no body after a whole header, is that place: ``cut_at``
+    [byte offset of the cut message]. A file cut exactly between two messages looks complete."""
+
+    def __init__(self, path: str | Path):
+        super().__init__(io.FileIO(str(path), "rb"))
+        self.cut_at: int | None = None
+        self._after_header = False
+
+    def read(self, size: int | None = -1) -> bytes:
+        start = self.tell()
+        data = super().read(size)
+        if size is not None and size > 0 and self.cut_at is None:
+            if 0 < len(data) < size:
+                self.cut_at = start
+            elif not data and self._after_header:
+                self.cut_at = start - 3
+        self._after_header = size == 3 and len(data) == 3
+        return data
+
+
 def open_ulog(path: str | Path, topics) -> tuple:
-    """(pyulog ULog holding ``topics``, what pyulog printed); DataError naming the file when unreadable."""
+    """(pyulog ULog holding ``topics``, what pyulog printed, the byte offset the file is cut at or None); DataError
+    naming the file when unreadable."""
     from pyulog import ULog
 
     said = io.StringIO()  # pyulog prints its corruption notices: kept in the notes, off the user's terminal
+    watch = None
     try:
         with contextlib.redirect_stdout(said):
-            return ULog(str(path), message_name_filter_list=list(topics)), said
+            watch = CutShortWatch(path)
+            return ULog(watch, message_name_filter_list=list(topics)), said, watch.cut_at
     except FileNotFoundError as err:
         raise DataError(f"{path}: no such file") from err
     except Exception as err:  # pyulog raises bare Exception/struct.error/IndexError on bad files
         raise DataError(f"{path}: not a readable ULog file ({reason(err)})") from err
+    finally:
+        if watch is not None:
+            watch.close()  # pyulog closes it after a whole read, not after raising
 
 
 def connected_battery(data) -> bool:

@@ -41,6 +41,24 @@ def test_both_samples_convert_to_bags_with_the_contract_topics(tmp_path, path, v
     assert read_bag(tmp_path / "bag").allclose(log, rtol=1e-6, atol=1e-6)
 
 
+def test_a_log_cut_inside_a_message_converts_what_it_holds_and_says_where_it_ends(tmp_path, events):
+    """pyulog stops without a word at a message the file ends inside (a log whose writer lost power): the reader
+    says so, naming the byte; cut inside the message's 3-byte header, the same byte; cut exactly between two
+    messages the file looks complete (no word: nothing tells it apart)."""
+    whole = EVENTS.read_bytes()
+    assert not any("ends inside a message" in w for w in events.meta.notes.get("warnings", []))
+    half = tmp_path / "half.ulg"
+    half.write_bytes(whole[:len(whole) // 2])
+    warnings = load_flight(half).meta.notes["warnings"]
+    assert len(warnings) == 1 and warnings[0].startswith(f"{half}: the file ends inside a message at byte 781570 of 781573 ")
+    assert warnings[0].endswith("read up to there, 14.64 s into the log")
+    for cut, said in ((781571, True), (781570, False)):  # one byte of the cut message's header; none of it
+        part = tmp_path / f"cut{cut}.ulg"
+        part.write_bytes(whole[:cut])
+        notes = load_flight(part).meta.notes
+        assert any("ends inside a message at byte 781570 of" in w for w in notes.get("warnings", [])) is said, cut
+
+
 def test_time_base_is_the_motor_topic_and_disarmed_time_is_dropped(events):
     notes = events.meta.notes
     assert events.sample_rate == pytest.approx(10.0, rel=1e-3)  # actuator_motors is logged at 10 Hz
