@@ -64,7 +64,9 @@ class PhysicsParameters:
     The optional terms (:mod:`quad_modelling.core.physics.effects`), None when off: ground_effect (c_ge [m²],
     h_off [m]); battery (κ [1/V], V_ref [V]); motor imbalance: motor_gains (g_1..g_4) [1] and cg_offset (c_x, c_y) [m]
     (FRD, the CG from the geometric centre the positions are measured from; :func:`term_fields`); gyroscopic (k_b,
-    k_p) [1] (default: the body's term alone, (1, 0)).
+    k_p) [1]: with no ``gyroscopic`` entry or the entry switched off, the body's term alone, (1, 0) -- the body's
+    -ω × Iω is Euler's equations, as the simulator keeps it (None, no gyroscopic torque at all, is only the fit's
+    known part while it fits k_b and k_p as columns).
     The switches ``rotor_drag``, ``motor_lag``, ``input_delay`` switched off hold drag and drag_arm, τ_m, δ at 0.
     """
 
@@ -120,7 +122,7 @@ class PhysicsParameters:
             input_max=vehicle.input_max,
             **{key: value for name in ("ground_effect", "battery", "motor_imbalance")
                for key, value in term_fields(name, switched_on(vehicle.effects, name)).items()},
-            gyroscopic=switched_on(vehicle.effects, "gyroscopic") if "gyroscopic" in vehicle.effects else (1.0, 0.0),
+            gyroscopic=switched_on(vehicle.effects, "gyroscopic") or (1.0, 0.0),  # off: the body's term (docstring)
         )
 
     @property
