@@ -191,6 +191,23 @@ def kinematic_acceleration(force_b: np.ndarray, euler: np.ndarray, gravity: floa
     return acc.reshape(np.shape(force_b))
 
 
+def euler_rates_to_body_rates(euler: np.ndarray, euler_dot: np.ndarray) -> np.ndarray:
+    """Body rates (p, q, r) (N, 3) [rad/s, FRD] of ZYX Euler angles (φ, θ, ψ) (N, 3) [rad] changing at ``euler_dot``
+    (N, 3) [rad/s]:
+
+    .. math:: p = \\dot\\phi - \\dot\\psi \\sin\\theta, \\quad
+              q = \\dot\\theta \\cos\\phi + \\dot\\psi \\sin\\phi \\cos\\theta, \\quad
+              r = -\\dot\\theta \\sin\\phi + \\dot\\psi \\cos\\phi \\cos\\theta
+    """
+    phi, theta = euler[:, 0], euler[:, 1]
+    d_phi, d_theta, d_psi = np.asarray(euler_dot, dtype=float).T
+    return np.column_stack([
+        d_phi - d_psi * np.sin(theta),
+        d_theta * np.cos(phi) + d_psi * np.sin(phi) * np.cos(theta),
+        -d_theta * np.sin(phi) + d_psi * np.cos(phi) * np.cos(theta),
+    ])
+
+
 def geodesic_angle(euler_a: np.ndarray, euler_b: np.ndarray) -> np.ndarray:
     r"""Angle [rad] of the rotation between two attitudes (φ, θ, ψ) (..., 3), elementwise over rows, in closed form:
     the quaternions :math:`q_a, q_b` (:func:`euler_ned_to_quat`), :math:`q = q_a^* \otimes q_b` with
@@ -324,24 +341,3 @@ def matrix_to_euler_ned(rotation: np.ndarray) -> np.ndarray:
         -np.arcsin(np.clip(r[:, 2, 0], -1.0, 1.0)),
         np.arctan2(r[:, 1, 0], r[:, 0, 0]),
     ])
-
-
-def rotation_increment(rotation: np.ndarray, rates_b: np.ndarray, dt: np.ndarray) -> np.ndarray:
-    """R_{k+1} = R_k Exp([ω Δt]×): (B, 3, 3) attitudes R_NED←FRD turned by body rates ``rates_b`` (B, 3)
-    [rad/s, FRD] held for ``dt`` (B,) [s] (Rodrigues' formula, exact for a constant ω; stays orthonormal).
-
-    .. math:: \\mathrm{Exp}(\\phi) = I + \\frac{\\sin\\|\\phi\\|}{\\|\\phi\\|}[\\phi]_\\times
-              + \\frac{1 - \\cos\\|\\phi\\|}{\\|\\phi\\|^2}[\\phi]_\\times^2, \\qquad \\phi = \\omega \\Delta t
-    """
-    phi = np.asarray(rates_b, dtype=float) * np.asarray(dt, dtype=float).reshape(-1, 1)
-    angle = np.linalg.norm(phi, axis=1)
-    small = angle < 1e-8
-    safe = np.where(small, 1.0, angle)
-    a = np.where(small, 1.0 - angle**2 / 6.0, np.sin(safe) / safe)
-    b = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
-    k = np.zeros((len(phi), 3, 3))
-    k[:, 0, 1], k[:, 0, 2] = -phi[:, 2], phi[:, 1]
-    k[:, 1, 0], k[:, 1, 2] = phi[:, 2], -phi[:, 0]
-    k[:, 2, 0], k[:, 2, 1] = -phi[:, 1], phi[:, 0]
-    exp = np.eye(3) + a[:, None, None] * k + b[:, None, None] * (k @ k)
-    return np.asarray(rotation) @ exp

@@ -253,9 +253,7 @@ def nav_acceleration(log: FlightLog, gravity: float = GRAVITY, rows: np.ndarray 
     """(N, 3) acceleration in N [m/s²] from the body specific force: a_N = R f_B + g e_z (at ``rows`` only, if given)."""
     log.require(("acc_b",), "the acceleration")
     at = slice(None) if rows is None else np.asarray(rows, dtype=int)
-    acc = frames.body_to_nav(log.acc_b[at], log.euler[at])
-    acc[:, 2] += gravity
-    return acc
+    return frames.kinematic_acceleration(log.acc_b[at], log.euler[at], gravity)
 
 
 def differentiate(values: np.ndarray, dt: float, window_s: float = DERIVATIVE_WINDOW_S, causal: bool = False) -> np.ndarray:
@@ -332,20 +330,12 @@ def attitude_rates(log: FlightLog, causal: bool = False) -> np.ndarray:
     """(N, 3) body rates p, q, r [rad/s] from the motion-capture attitude (no gyro needed).
 
     The Euler angle derivatives (:func:`differentiate`, yaw unwrapped) through the ZYX kinematics
-    :math:`p = \\dot\\phi - \\dot\\psi \\sin\\theta`,
-    :math:`q = \\dot\\theta \\cos\\phi + \\dot\\psi \\sin\\phi \\cos\\theta`,
-    :math:`r = -\\dot\\theta \\sin\\phi + \\dot\\psi \\cos\\phi \\cos\\theta`;
-    ``causal``: the derivatives from past rows only (:func:`causal_derivative`).
+    (:func:`~quad_modelling.core.frames.euler_rates_to_body_rates`); ``causal``: the derivatives from past rows only
+    (:func:`causal_derivative`).
     """
     euler = log.euler.copy()
     euler[:, 2] = np.unwrap(euler[:, 2])
-    d_phi, d_theta, d_psi = differentiate(euler, sample_period(log), causal=causal).T
-    phi, theta = euler[:, 0], euler[:, 1]
-    return np.column_stack([
-        d_phi - d_psi * np.sin(theta),
-        d_theta * np.cos(phi) + d_psi * np.sin(phi) * np.cos(theta),
-        -d_theta * np.sin(phi) + d_psi * np.cos(phi) * np.cos(theta),
-    ])
+    return frames.euler_rates_to_body_rates(euler, differentiate(euler, sample_period(log), causal=causal))
 
 
 def state_measurement(log: FlightLog, vehicle: VehicleConfig | None = None, causal: bool = False) -> np.ndarray:

@@ -116,3 +116,16 @@ def test_closed_form_geodesic_angle_equals_scipys_magnitude():
     np.testing.assert_allclose(frames.geodesic_angle(a, b), expected, rtol=0, atol=1e-12)
     np.testing.assert_allclose(frames.geodesic_angle(a.reshape(40, 100, 3), b.reshape(40, 100, 3)),
                                expected.reshape(40, 100), rtol=0, atol=1e-12)
+
+
+def test_euler_rates_give_the_body_rates_of_the_rotation_they_trace():
+    """[ω]× = Rᵀ dR/dt: the body rates of attitudes R(η(t)) along a smooth Euler path, by a central difference of
+    the rotation matrices, equal the ZYX kinematics of η and dη/dt."""
+    t = np.linspace(0.0, 2.0, 201)
+    euler = np.column_stack([0.4 * np.sin(2 * t), -0.3 * np.cos(3 * t), 1.5 * t])
+    euler_dot = np.column_stack([0.8 * np.cos(2 * t), 0.9 * np.sin(3 * t), np.full_like(t, 1.5)])
+    rot = frames.euler_ned_to_matrix(euler)
+    dt = t[1] - t[0]
+    skew = np.einsum("nji,njk->nik", rot[1:-1], (rot[2:] - rot[:-2]) / (2 * dt))
+    from_matrices = np.column_stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]])
+    np.testing.assert_allclose(frames.euler_rates_to_body_rates(euler, euler_dot)[1:-1], from_matrices, atol=1e-3)  # O(dt²) difference error

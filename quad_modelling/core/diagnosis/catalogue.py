@@ -55,7 +55,7 @@ motor_lag              :math:`\\tau \\dot{v}_i = u_i - v_i,\\ \\tilde u_i = g v_
 input_delay            :math:`\\tilde u_i(t) = g\\, u_i(t - \\delta)` (linear interpolation; g the   δ [s], g [1]
                        base command gain re-fitted with it)
 ground_effect          :math:`e_Z = -g\\,(G(h) - G(h_0)),\\ G(h) = c_{ge} / (h + h_{off})^2`,   g_ref [1], h_off [m]
-                       :math:`c_{ge} = g_{ref} (h_{ref} + h_{off})^2` (Cheeseman-Bennett's :math:`(R/4h)^2`)
+                       :math:`c_{ge} = g_{ref} (h_{ref} + h_{off})^2` (the physics model's form, aero.py)
 gyroscopic             :math:`e_\\phi = k_b \\frac{I_{yy}-I_{zz}}{I_{xx}} q r + k_p \\frac{I_p}{I_{xx}} H q`,
                        :math:`e_\\theta = k_b \\frac{I_{zz}-I_{xx}}{I_{yy}} p r - k_p \\frac{I_p}{I_{yy}} H p`,
                        :math:`e_\\psi = k_b \\frac{I_{xx}-I_{yy}}{I_{zz}} p q`,
@@ -68,11 +68,11 @@ motor_imbalance        :math:`\\tilde u_i = (1 + \\epsilon_i) u_i,\\ \\epsilon =
 trim_drift             :math:`\\tilde u_i = u_i - r_i\\, u_{span}\\, (t - t_{trim})`              r1..r4 [1/s]
 =====================  ===================================================================  =====================
 
-:func:`prepare_windows` cuts and preprocesses windows once into a
-:class:`WindowBatch` (all windows of equal length); :func:`predict_batch`
-runs the augmented model on every window at once (one time loop over an
-(W, 16) state array); :func:`fit_effects` identifies the parameters of a set
-of effects by :func:`scipy.optimize.least_squares`.
+:func:`~quad_modelling.core.identification.window_batch.prepare_windows` cuts and preprocesses windows once
+into a :class:`~quad_modelling.core.identification.window_batch.WindowBatch` (all windows of equal length);
+:func:`~quad_modelling.core.identification.base_model.predict_batch` runs the augmented model on every window at
+once (one time loop over an (W, 16) state array); :func:`~quad_modelling.core.diagnosis.fitting.fit_effects`
+identifies the parameters of a set of effects (:func:`~quad_modelling.core.identification.least_squares.fit_least_squares`).
 """
 
 from __future__ import annotations
@@ -211,8 +211,8 @@ fit on each training flight alone moved c_ge by -70 % / +74 % and h_off from 0.0
 
 
 def _ground_forcing(theta, batch: WindowBatch, base: BaseModel, u):
-    """:math:`e_Z = -g (G(h) - G(h_0))`, :math:`G(h) = g_{ref} ((h_{ref} + h_{off}) / (h + h_{off}))^2`: Cheeseman-Bennett's
-    :math:`c_{ge}/(h + h_{off})^2` with :math:`c_{ge} = g_{ref} (h_{ref} + h_{off})^2` (:data:`GROUND_REFERENCE_HEIGHT_M`)."""
+    """:math:`e_Z = -g (G(h) - G(h_0))`, :math:`G(h) = g_{ref} ((h_{ref} + h_{off}) / (h + h_{off}))^2`: the physics
+    model's :math:`c_{ge}/(h + h_{off})^2` (:func:`~quad_modelling.core.physics.aero.ground_effect_factor`) with :math:`c_{ge} = g_{ref} (h_{ref} + h_{off})^2` (:data:`GROUND_REFERENCE_HEIGHT_M`)."""
     g_ref, h_off = theta
     g = g_ref * ((GROUND_REFERENCE_HEIGHT_M + h_off) / (np.maximum(batch.height, 0.0) + h_off)) ** 2
     e = np.zeros(batch.height.shape + (6,))

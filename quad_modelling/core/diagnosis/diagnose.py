@@ -1,13 +1,13 @@
 """Sim-to-real gap diagnosis (DESIGN 8): where the linear model diverges, which effect causes it, how far it shrinks.
 
 Inputs: training flights and held-out (test) flights of one vehicle, the
-effect catalogue (:mod:`quad_modelling.core.effects`). Every flight's flying
-part is cut into windows (:func:`~quad_modelling.core.effects.prepare_windows`),
+effect catalogue (:mod:`quad_modelling.core.diagnosis.catalogue`). Every flight's flying
+part is cut into windows (:func:`~quad_modelling.core.identification.window_batch.prepare_windows`),
 each predicted open loop from the measured state at the end of its warm start,
 scored with the evaluation protocol's smoothed RMS/TIC (DESIGN 7; low-pass
 :data:`DIAGNOSIS_CONFIG`). The scored accelerations are the modelled force
 rotated by the measured attitude and the angular-acceleration offsets the gyro
-slope over the warm start (:func:`~quad_modelling.core.effects.predict_batch`).
+slope over the warm start (:func:`~quad_modelling.core.identification.base_model.predict_batch`).
 
 1. **Base model.** The linear greybox; by default its identifiable constants
    are fitted on the training windows first (:func:`~quad_modelling.core.identification.greybox_fit.identify_base`, the fit ``quad-modelling identify`` uses), so an
@@ -20,7 +20,7 @@ slope over the warm start (:func:`~quad_modelling.core.effects.predict_batch`).
    voltage, tilt, throttle, yaw rate, time since the anchor) and split into
    frequency bands (Welch PSD); the worst windows named (flight, time).
 3. **Which effect.** Each effect is added alone, its parameters identified on
-   the training windows only (:func:`~quad_modelling.core.effects.fit_effects`),
+   the training windows only (:func:`~quad_modelling.core.diagnosis.fitting.fit_effects`),
    and the held-out gap measured. The *shrink* of an effect is taken on its
    affected variables V_e (:func:`affected_variables`: the candidates of
    ``Effect.variables`` its fitted correction moves by at least

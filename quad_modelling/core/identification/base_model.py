@@ -298,9 +298,7 @@ def _projected_accelerations(batch: WindowBatch, base: BaseModel, thrusts: np.nd
     mass = base.parameters.mass
     f_b = np.repeat(batch.specific_force0[:, None, :], m, axis=1)
     f_b[:, :, 2] -= thrusts.sum(axis=2) / mass
-    rot = frames.euler_ned_to_matrix(batch.euler[:, anchor:].reshape(-1, 3)).reshape(w, m, 3, 3)
-    acc = np.einsum("wkij,wkj->wki", rot, f_b)
-    acc[:, :, 2] += GRAVITY
+    acc = frames.kinematic_acceleration(f_b.reshape(-1, 3), batch.euler[:, anchor:].reshape(-1, 3), GRAVITY).reshape(w, m, 3)
     return acc + forcing_n - batch.acc_trim[:, None, :]
 
 

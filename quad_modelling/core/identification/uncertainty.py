@@ -54,18 +54,6 @@ def hac_covariance(jac: np.ndarray, residuals: np.ndarray, lags: int) -> np.ndar
     return bread @ meat @ bread
 
 
-def effective_samples(jac: np.ndarray, residuals: np.ndarray, lags: int) -> float:
-    """Samples' worth of independent information: the count of residuals times the ratio of the
-    textbook variance to the HAC variance, averaged over the parameters (a reading aid for reports)."""
-    w, n, v, p = jac.shape
-    flat = jac.reshape(-1, p)
-    dof = max(residuals.size - p, 1)
-    textbook = np.diag(np.linalg.inv(flat.T @ flat)) * float(np.sum(residuals**2)) / dof
-    hac = np.diag(hac_covariance(jac, residuals, lags))
-    ratio = np.mean(textbook / np.where(hac > 0, hac, np.nan))
-    return float(residuals.size * ratio) if np.isfinite(ratio) else float("nan")
-
-
 def profile_sigma(chi2, x: float, h: float) -> float:
     """σ = sqrt(2 / χ²''(x)) from a central second difference with step ``h`` (one side only at x < h: a delay of
     0); NaN when the profile is not convex there (not identifiable from these flights)."""

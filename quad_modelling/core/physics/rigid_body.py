@@ -126,9 +126,9 @@ def cg_offset_moment(offset, force):
     r"""The moment change [N m] (B, 3) in B of rotor forces ``force`` (B, 3) [N] (thrust and rotor drag, in B) when
     the CG sits at :math:`c = (c_x, c_y, 0)` = ``offset`` [m] (FRD) from the geometric centre the rotor positions
     :math:`r_i` are measured from (the ``motor_imbalance`` term's CG offset). About the CG rotor i's force acts at
-    :math:`r_i - c`, so :math:`\sum_i (r_i - c) 	imes F_i = \sum_i r_i 	imes F_i - c 	imes F`, F the sum:
+    :math:`r_i - c`, so :math:`\sum_i (r_i - c) \times F_i = \sum_i r_i \times F_i - c \times F`, F the sum:
 
-    .. math:: -c 	imes F = (-c_y F_z,\ c_x F_z,\ c_y F_x - c_x F_y)
+    .. math:: -c \times F = (-c_y F_z,\ c_x F_z,\ c_y F_x - c_x F_y)
 
     For the thrust alone, :math:`F = (0, 0, -T)`, :math:`T = \sum_i T_i`: :math:`(c_y T, -c_x T, 0)` -- a CG to the
     right (c_y > 0) leaves more thrust on the left of it, rolling right (+p); a CG forward (c_x > 0) pitches the

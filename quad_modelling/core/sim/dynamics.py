@@ -332,11 +332,6 @@ class QuadDynamics:
             ]
         )
 
-    def specific_force(self, s, ds) -> np.ndarray:
-        """Accelerometer specific force in B [m/s²]: :math:`R^T (\\dot v_N - g e_z)`."""
-        accel = np.array([ds[3], ds[4], ds[5] - GRAVITY])
-        return self.rotation(s).T @ accel
-
     def rotor_thrusts(self, s) -> np.ndarray:
         """T_i = a Ω_i² k_GE(h_i) [N] of a state (ground effect when on)."""
         omega = np.asarray(s[13:17], dtype=float)
