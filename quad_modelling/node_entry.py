@@ -14,7 +14,8 @@ import sys
 import threading
 
 EXIT_INTERRUPTED = 130
-"""Exit code of a node interrupted while starting (128 + SIGINT)."""
+"""Exit code of a node interrupted while starting or stopped by a signal before it was built (128 + SIGINT, as a
+shell reports it)."""
 
 
 def run(module: str, name: str) -> int:

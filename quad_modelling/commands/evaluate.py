@@ -66,8 +66,10 @@ def add_span_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--drop", metavar="START:END", help="seconds dropped for take-off:landing (thesis 30:22)")
     parser.add_argument("--train", metavar="A:B", help="training span, seconds (30:150) or percent of the flying part (0%%:60%%)")
     parser.add_argument("--eval", metavar="C:D", help="evaluation span, like --train (thesis 150:190)")
-    parser.add_argument("--window", type=float, default=10.0, metavar="SECONDS", help="window length (default 10)")
-    parser.add_argument("--warm", type=float, default=0.2, metavar="SECONDS", help="warm start given to the models (default 0.2)")
+    parser.add_argument("--window", type=float, default=EvaluationConfig.window_s, metavar="SECONDS",
+                        help=f"window length (default {EvaluationConfig.window_s:g})")
+    parser.add_argument("--warm", type=float, default=EvaluationConfig.warm_s, metavar="SECONDS",
+                        help=f"warm start given to the models (default {EvaluationConfig.warm_s:g})")
     parser.add_argument("--skip-bad", action="store_true", help="report unreadable flights and continue with the rest")
     add_topic_map_argument(parser)
     add_fanout_arguments(parser)

@@ -20,6 +20,7 @@ import yaml
 from quad_modelling.atomic import atomic_output
 from quad_modelling.commands import check_command_output
 from quad_modelling.core.models.registry import MODEL_FILE_KINDS, baseline_name_clash
+from quad_modelling.core.windows import EvaluationConfig, check_window_rate, seconds_spans, spans_without_a_window
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.topic_maps import add_topic_map_argument
 from quad_modelling.nodes.domains import DISCOVERY_MODES
@@ -123,8 +124,6 @@ def parse_models(text: str) -> list[ModelEntry]:
 
 def span_list(args: argparse.Namespace) -> list[str]:
     """The evaluator's ``spans`` (``NAME:A:B``) of --train/--eval, or ``live:0:inf``; ConfigError when malformed."""
-    from quad_modelling.core.windows import seconds_spans
-
     spans = [f"train:{args.train}"] if args.train else []
     spans += [f"eval:{args.eval}"] if args.eval else []
     spans = spans or ["live:0:inf"]
@@ -317,8 +316,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_topic_map_argument(parser)
     parser.add_argument("--rate", type=float, default=0.0, metavar="R",
                         help="real-time factor of the replay; 0 = as fast as the graph keeps up without loss (default)")
-    parser.add_argument("--window", type=float, default=10.0, metavar="SECONDS", help="window length (default 10)")
-    parser.add_argument("--warm", type=float, default=0.2, metavar="SECONDS", help="warm start (default 0.2)")
+    parser.add_argument("--window", type=float, default=EvaluationConfig.window_s, metavar="SECONDS",
+                        help=f"window length (default {EvaluationConfig.window_s:g})")
+    parser.add_argument("--warm", type=float, default=EvaluationConfig.warm_s, metavar="SECONDS",
+                        help=f"warm start (default {EvaluationConfig.warm_s:g})")
     parser.add_argument("--train", metavar="A:B", help="training span, seconds from the first sample")
     parser.add_argument("--eval", metavar="C:D", help="evaluation span, seconds from the first sample")
     parser.add_argument("--timeout", type=float, default=900.0, metavar="SECONDS", help="give up after this long (default 900)")
@@ -373,7 +374,6 @@ def run(args: argparse.Namespace) -> int:
 def _run(args: argparse.Namespace, warned: bool = False) -> int:
     from quad_modelling.commands.evaluate import print_flight_warnings
     from quad_modelling.core.vehicle import load_vehicle, vehicle_file
-    from quad_modelling.core.windows import check_window_rate, spans_without_a_window
     from quad_modelling.io.bag_io import read_bag_metadata
     from quad_modelling.io.loader import load_flight
     from quad_modelling.io.reports.evaluation import live_summary_table, multistep_lines
@@ -566,7 +566,6 @@ def complete_results(report_dir: Path, flight, models: list[ModelEntry], vehicle
     from quad_modelling.core.evaluation.multistep import flight_multistep_sums, multistep_table
     from quad_modelling.core.models.base import DummyPredictor
     from quad_modelling.core.preprocess import resample_uniform
-    from quad_modelling.core.windows import EvaluationConfig
     from quad_modelling.io.reports.evaluation import tables_text
     from quad_modelling.io.reports.formatting import json_text
     from quad_modelling.nodes.model_factory import make_streaming_predictor

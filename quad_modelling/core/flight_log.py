@@ -44,12 +44,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from quad_modelling.core.frames import STANDARD_GRAVITY
 from quad_modelling.errors import DataError
 
 GYRO_FULL_SCALE = np.deg2rad(2000.0)
 """Largest rate a MEMS gyro reports [rad/s] (±2000 deg/s: BMI088, MPU-6050 ranges)."""
 
-ACCEL_FULL_SCALE = 24.0 * 9.80665
+ACCEL_FULL_SCALE = 24.0 * STANDARD_GRAVITY
 """Largest specific force a MEMS accelerometer reports [m/s²] (±24 g: BMI088)."""
 
 POSITION_LIMIT = 1.0e5

@@ -84,6 +84,13 @@ QUATERNION_NORM_TOLERANCE = 0.05
 """Largest deviation from 1 of a logged attitude quaternion's norm; beyond it the row is corrupt, not rounded."""
 
 
+def quaternion_norm_off(quat) -> float | None:
+    """The norm of one quaternion (4 numbers, any order) when it is off 1 beyond :data:`QUATERNION_NORM_TOLERANCE`
+    (a zero quaternion has no rotation), else None: the per-message check (no numpy for four numbers)."""
+    norm = math.sqrt(sum(c * c for c in quat))
+    return norm if abs(norm - 1.0) > QUATERNION_NORM_TOLERANCE else None
+
+
 def non_unit_quaternion(quat: np.ndarray) -> tuple[int, float] | None:
     """(row, norm) of the row of an (N, 4) quaternion array whose norm is furthest from 1, when beyond
     :data:`QUATERNION_NORM_TOLERANCE` (a zero quaternion has no rotation), else None."""

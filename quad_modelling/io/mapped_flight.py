@@ -46,9 +46,9 @@ from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
 from quad_modelling.io.bag_io import READ_ERRORS, missing_messages, open_reader, stored_typestore
 from quad_modelling.io.field_conversion import convert_field, frame_notes, message_frames
+from quad_modelling.io.topics import NANOSECONDS
 from quad_modelling.io.topic_maps import STAMP_UNITS, FieldSource, TopicMap, TopicSpec, check_map_fields, fields_of_store, parse_path
 
-NANOSECONDS = 1_000_000_000
 KINEMATIC_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
 """Fields whose streams bound the flight's span and whose long gaps are marked (the battery is read apart, module doc)."""
 
@@ -362,9 +362,10 @@ class FlightAssembler:
             if source.topic != stream.topic:
                 continue
             numbers = [values[i] for i in self._column_index[name]]
-            if name == "attitude" and abs(math.sqrt(sum(v * v for v in numbers)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE:
+            norm = frames.quaternion_norm_off(numbers) if name == "attitude" else None
+            if norm is not None:
                 raise DataError(f"{self.where}: topic {stream.topic} message {index} has an attitude quaternion of norm "
-                                f"{math.sqrt(sum(v * v for v in numbers)):.3g}, not 1")
+                                f"{norm:.3g}, not 1")
 
     def _lagging(self) -> None:
         """More than :data:`MAX_PENDING_S` of rows wait: decide about each stream silent for that long before the newest."""

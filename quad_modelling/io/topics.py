@@ -405,8 +405,7 @@ def accel_fields(msg) -> list[float]:
 def invalid_odometry_quaternion(fields) -> bool:
     """True when odometry fields carry a quaternion whose norm is off 1 beyond
     :data:`~quad_modelling.core.frames.QUATERNION_NORM_TOLERANCE` (a zero quaternion has no attitude)."""
-    q = fields[ODOM_QUATERNION[0]:ODOM_QUATERNION[1]]
-    return abs(math.sqrt(sum(c * c for c in q)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE
+    return frames.quaternion_norm_off(fields[ODOM_QUATERNION[0]:ODOM_QUATERNION[1]]) is not None
 
 
 def all_finite(values) -> bool:

@@ -96,6 +96,7 @@ from quad_modelling.core import frames
 from quad_modelling.core.alignment import battery_on_rows, usable_voltages
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.preprocess import (
+    MAX_INTERPOLATION_GAP_S,
     MeasurementGap,
     interpolation_gaps,
     mark_measurement_gaps,
@@ -105,10 +106,6 @@ from quad_modelling.errors import DataError, reason
 
 ROTORS = 4
 """Rotor count the FlightLog and the vehicle configs hold."""
-
-MAX_INTERPOLATION_GAP_S = 0.5
-"""Longest gap [s] of a kinematic stream interpolated through: five periods of PX4's slowest
-default logging rate for these topics (vehicle_local_position at 10 Hz, logger default profile)."""
 
 POSE_FRAME_NED, VELOCITY_FRAME_NED, VELOCITY_FRAME_BODY_FRD = 1, 1, 3
 """vehicle_odometry.pose_frame / velocity_frame values read (PX4 msg/VehicleOdometry.msg: POSE_FRAME_NED = 1,

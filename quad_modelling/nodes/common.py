@@ -45,6 +45,7 @@ from rclpy.qos import (
 )
 
 from quad_modelling.core.alignment import CONFIRM, MAX_STAMP_STEP_S
+from quad_modelling.node_entry import EXIT_INTERRUPTED
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError, reason
 from quad_modelling.io import topics
@@ -583,8 +584,6 @@ def run_node(factory, args=None) -> int:
     return code
 
 
-EXIT_INTERRUPTED = 130
-"""Exit code of a node stopped by a signal before it was built (128 + SIGINT, as a shell reports it)."""
 
 
 def _restored(previous: dict, code: int) -> int:

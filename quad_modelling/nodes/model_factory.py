@@ -10,6 +10,7 @@ from __future__ import annotations
 from quad_modelling.core.models.registry import streaming_predictor
 from quad_modelling.core.models.streaming import HORIZON_INPUTS, StreamingPredictor
 from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.io import topics
 from quad_modelling.nodes.common import (
     model_name_check,
@@ -64,8 +65,9 @@ def predictor_parameters(default_model: str) -> list[Param]:
         Param("model_name", "", "topic prefix and name of the predictions (<model_name>/odom); empty = the spec's kind",
               model_name_check),
         vehicle_param(),
-        Param("window_s", 10.0, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input", positive),
-        Param("warm_s", 0.2, "warm start at each window start [s] (thesis 0.2 s)", positive),
+        Param("window_s", EvaluationConfig.window_s, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input",
+              positive),
+        Param("warm_s", EvaluationConfig.warm_s, "warm start at each window start [s] (thesis 0.2 s)", positive),
         Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", sample_period),
         Param("measurement_tolerance_s", 0.02, "a command stamp with no measurement sample on both sides uses the nearest "
                                               "one within this [s], else the row has no measurement", non_negative),

@@ -413,8 +413,8 @@ def _models_check(value) -> str | None:
 EVALUATOR_PARAMETERS = [
     Param("models", ["naive"], "names of the predictors to score (their topics <name>/odom, <name>/accel)", _models_check),
     vehicle_param(),
-    Param("window_s", 10.0, "window length W [s], as the predictors", positive),
-    Param("warm_s", 0.2, "warm start [s], as the predictors", positive),
+    Param("window_s", EvaluationConfig.window_s, "window length W [s], as the predictors", positive),
+    Param("warm_s", EvaluationConfig.warm_s, "warm start [s], as the predictors", positive),
     Param("sample_period_s", 0.0, "nominal engine-input period [s] of the window clock's dt/2 shift; 0 = median of the first "
                                   "motor-input steps", sample_period),
     Param("horizon_s", 0.0, "receding-horizon scoring: MAE@h of <model>/horizon/odom (predicted horizon_s ahead, stamped at the "

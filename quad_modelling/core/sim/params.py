@@ -48,6 +48,9 @@ from quad_modelling.errors import ConfigError, DataError
 
 SIMULATED_VEHICLES = ("linkquad", "crazyflie21")
 
+ISA_SEA_LEVEL_AIR_DENSITY = 1.225
+"""Air density [kg/m³] of the ICAO standard atmosphere at sea level (ISO 2533:1975), both vehicles' flights."""
+
 
 @dataclass(frozen=True)
 class EscParams:
@@ -409,7 +412,7 @@ def _linkquad(vehicle: VehicleConfig) -> SimParams:
             mean_ned=(0.8, -0.5, 0.0),  # m/s: a draught from a door / ventilation (guess)
             gust_sigma=(0.4, 0.4, 0.15),  # m/s
             gust_time_constant=2.0,  # s
-            air_density=1.225,  # kg/m³ ISA sea level
+            air_density=ISA_SEA_LEVEL_AIR_DENSITY,
             body_drag_area=0.05,  # m²: C_D ~1 times ~0.05 m² casing (guess)
         ),
         input_delay=0.02,  # s: stabiliser -> ESC PWM update (guess, typical 50 Hz-class ESC loop)
@@ -510,7 +513,7 @@ def _crazyflie21(vehicle: VehicleConfig) -> SimParams:
             mean_ned=(0.4, -0.25, 0.0),
             gust_sigma=(0.2, 0.2, 0.08),
             gust_time_constant=2.0,
-            air_density=1.225,
+            air_density=ISA_SEA_LEVEL_AIR_DENSITY,
             body_drag_area=1.0e-3,  # m²: ~10 cm² frame + battery (guess)
         ),
         input_delay=0.008,  # s: guess (500 Hz firmware loop, PWM update)

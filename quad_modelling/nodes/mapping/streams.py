@@ -109,7 +109,7 @@ class MappedStreams:
         if not all(map(usable_voltage, fields.get("battery", ()))):
             return "range"
         attitude = fields.get("attitude")
-        if attitude is not None and abs(math.sqrt(sum(v * v for v in attitude)) - 1.0) > frames.QUATERNION_NORM_TOLERANCE:
+        if attitude is not None and frames.quaternion_norm_off(attitude) is not None:
             return "zero_quaternion"
         return None
 
