@@ -336,3 +336,20 @@ def test_the_fit_leaves_out_anchors_by_the_shared_ground_contact_test(bag):
     longest = 0.5  # FIT_HORIZONS_S[-1]: an anchor at t sees t + 0.5 s; its observer history 0.5 s back
     kept = before[(before + longest < bag.t[middle] - 0.03) | (before - longest > bag.t[middle] + 0.5 + 0.03)]
     assert set(kept) <= set(after) and len(after) < len(before)
+
+
+def test_a_ground_effect_the_bag_pushes_below_zero_vanishes_and_leaves_the_fit_without_it(bag):
+    """On the bundled bag the ground-effect coefficient comes out negative (no ground effect there: it flies at
+    0.5-1.5 m): held at its bound 0, the term is no term, and every other constant equals the fit without it
+    (clipping it alone kept constants that made up for its impossible sign)."""
+    observer = Observer()
+    without = identify_physics([bag], CF, SHORT, observer=observer)
+    with_term = identify_physics([bag], CF, SHORT, observer=observer, terms=("ground_effect",))
+    coefficient = with_term.terms["ground_effect"]["coefficient"]
+    assert coefficient["value"] == 0.0 and coefficient["at_bound"] and "vanishes" in coefficient["held"]
+    assert np.isnan(coefficient["sigma"]) and "ground_effect" in with_term.diagnostics["vanished_terms"]
+    assert with_term.values == without.values
+    p_with, p_without = with_term.parameters(PhysicsParameters.from_vehicle(CF)), without.parameters(PhysicsParameters.from_vehicle(CF))
+    assert p_with.ground_effect[0] == 0.0 and p_without.ground_effect is None
+    for name in (f.name for f in dataclasses.fields(p_with) if f.name != "ground_effect"):
+        assert np.array_equal(np.asarray(getattr(p_with, name), dtype=object), np.asarray(getattr(p_without, name), dtype=object)), name
