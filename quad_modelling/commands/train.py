@@ -7,6 +7,7 @@ import sys
 import time
 
 from quad_modelling.commands import check_command_output
+from quad_modelling.core.models.narx import MAX_DELAYS, MAX_HIDDEN
 from quad_modelling.core.models.narx import OUTPUTS as NARX_OUTPUTS
 from quad_modelling.core.training.hybrid import HYBRID_HIDDEN, HYBRID_ROLLOUT
 from quad_modelling.core.training.narx import DEFAULT_ROLLOUT, PRETRAIN_EPOCHS
@@ -20,11 +21,9 @@ TRAINING_METHODS = ("rollout", "thesis")
 MAX_EPOCHS = 10_000
 """Most training epochs (L-BFGS steps; the thesis used 25)."""
 
-MAX_HIDDEN = 1000
-"""Most sigmoid units per net (the thesis used 10)."""
 
-MAX_DELAYS = 1000
-"""Most delayed outputs or input taps (10 s at 100 Hz; the thesis used 20)."""
+MAX_SEED = 2**32 - 1
+"""Largest --seed: numpy's seed range (torch takes 64 bits); a larger one ended in an OverflowError traceback."""
 
 NAME = "train"
 HELP = "train the NARX blackbox model (or the hybrid or direct physics-based model) and write a model file"
@@ -120,6 +119,12 @@ def training_spans(logs, args) -> list[tuple[float, float]]:
     return spans
 
 
+def check_seed(seed: int) -> None:
+    """ConfigError unless 0 <= ``seed`` <= :data:`MAX_SEED`."""
+    if not 0 <= seed <= MAX_SEED:
+        raise ConfigError(f"--seed {seed}: must be a whole number in 0..{MAX_SEED}")
+
+
 ROLLOUT_OPTIONS = ("horizon", "rollout_epochs", "patience", "val_fraction", "val_flights", "seed")
 OPTIONS_READ = {
     "narx": ("hidden", "delays", "input_delays", "epochs", "training", *ROLLOUT_OPTIONS),
@@ -149,8 +154,7 @@ def training_configs(args: argparse.Namespace):
     from quad_modelling.core.training.narx import rollout_preset
 
     epochs = args.epochs if args.epochs is not None else (25 if args.training == "thesis" else PRETRAIN_EPOCHS)
-    if args.seed < 0:
-        raise ConfigError(f"--seed {args.seed}: must be a non-negative integer")
+    check_seed(args.seed)
     if not (0 <= epochs <= MAX_EPOCHS and 1 <= args.hidden <= MAX_HIDDEN and 1 <= args.delays <= MAX_DELAYS
             and 1 <= args.input_delays <= MAX_DELAYS):
         raise ConfigError(f"--epochs must lie in [0, {MAX_EPOCHS}], --hidden in [1, {MAX_HIDDEN}], "
@@ -182,8 +186,7 @@ def hybrid_config(args: argparse.Namespace):
 
     from quad_modelling.core.training.hybrid import HybridTrainingConfig
 
-    if args.seed < 0:
-        raise ConfigError(f"--seed {args.seed}: must be a non-negative integer")
+    check_seed(args.seed)
     rollout_defaults(args, HYBRID_ROLLOUT)
     if not 0 <= args.val_fraction < 1:
         raise ConfigError(f"--val-fraction {args.val_fraction}: must lie in [0, 1)")

@@ -134,11 +134,11 @@ MOVED_TO_GREYBOX = {"motor_a_m": "motor_a_m", "motor_b_m": "motor_b_m", "thrust_
 STATUSES = ("measured", "identified", "effective")
 
 CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
-    "mass": (0.0, 1000.0, "kg"),
-    "arm_length": (0.0, 10.0, "m"),
-    "ixx": (0.0, 1000.0, "kg m2"),
-    "iyy": (0.0, 1000.0, "kg m2"),
-    "izz": (0.0, 1000.0, "kg m2"),
+    "mass": (1e-5, 1000.0, "kg"),
+    "arm_length": (1e-3, 10.0, "m"),
+    "ixx": (1e-12, 1000.0, "kg m2"),
+    "iyy": (1e-12, 1000.0, "kg m2"),
+    "izz": (1e-12, 1000.0, "kg m2"),
     "prop_inertia": (0.0, 10.0, "kg m2"),
     "rotor_speed_gain": (0.0, np.inf, "rad/s per input unit"),
     "rotor_speed_offset": (-1.0e5, 1.0e5, "rad/s"),
@@ -149,8 +149,8 @@ CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
     "rotor_drag_xy": (0.0, 1.0, "N s/(m rad)"),
     "rotor_drag_z": (0.0, 1.0, "N s/(m rad)"),
     "rotor_drag_arm": (-10.0, 10.0, "m"),
-    "effective_ixx": (0.0, 1000.0, "kg m2"),
-    "effective_iyy": (0.0, 1000.0, "kg m2"),
+    "effective_ixx": (1e-12, 1000.0, "kg m2"),
+    "effective_iyy": (1e-12, 1000.0, "kg m2"),
     "motor_a_m": (-1.0e5, 0.0, "1/s"),
     "motor_b_m": (0.0, np.inf, "rad/s2 per input unit"),
     "thrust_constant": (0.0, 1.0, "N s2/rad2"),
@@ -158,11 +158,18 @@ CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
 }
 """Open interval (low, high) each constant must lie in, and its unit: positive masses, lengths, inertias and
 rotor constants, a stable motor pole (negative, faster than 10 us), nothing beyond what a multirotor of up
-to a tonne and 10 m arms could have. ``prop_inertia`` may be 0 (rotor inertia neglected). Values must be
+to a tonne and 10 m arms could have, nothing below 10 mg, 1 mm arms and 1e-12 kg m² (an insect-scale flyer: the
+RoboBee weighs 80 mg, its inertias ~1e-9 kg m²; a mass of 1e-300 kg ended a diagnosis in a traceback). ``prop_inertia`` may be 0 (rotor inertia neglected). Values must be
 finite. Rotor time constant, delay and drag may be 0 (no lag, no delay, no drag)."""
 
 DOCUMENT_KEYS = ("name", "description", "geometry", "motors", "inputs", "constants", "greybox", "effects", "identification")
 """The top-level keys of a vehicle file; any other (a typo: ``geomtery``) is refused, not ignored."""
+
+MOTOR_KEYS = ("name", "position", "spin")
+"""The keys of one ``motors`` entry; any other (``tilt_deg``) is refused: the model has no place for it."""
+
+INPUT_KEYS = ("min", "max", "unit")
+"""The keys of ``inputs``; any other (``offset``) is refused."""
 
 CONSTANT_FIELDS = ("value", "unit", "source", "status", "sigma", "bounds", "at_bound", "vehicle_value", "change_percent",
                    "poorly_determined", "held")
@@ -381,6 +388,10 @@ class VehicleConfig:
         if not isinstance(greybox_doc, dict):
             raise ConfigError(f"{where}: greybox must be a mapping of {', '.join(GREYBOX_KEYS)} to {{value, unit, source, status}}")
         constants_doc, greybox_doc, old = _read_old_keys(constants_doc, greybox_doc, where)
+        known = (*CONSTANT_KEYS, *PHYSICS_KEYS, *EFFECTIVE_KEYS)
+        unknown = sorted(str(k) for k in constants_doc if k not in known)
+        if unknown:  # a typo (effective_ixx_) would leave the model on the airframe's value without a word
+            raise ConfigError(f"{where}: constants.{unknown[0]} is not a vehicle constant (known: {', '.join(known)})")
         optional = [k for k in (*PHYSICS_KEYS, *EFFECTIVE_KEYS) if k in constants_doc and k not in CONSTANT_KEYS]
         for key in CONSTANT_KEYS:
             if key not in constants_doc and old:
@@ -399,6 +410,9 @@ class VehicleConfig:
             raise ConfigError(f"{where}: motors must list exactly 4 rotors in command order u1..u4")
         motors = []
         for i, m in enumerate(motors_doc):
+            extra = sorted(str(k) for k in m if k not in MOTOR_KEYS) if isinstance(m, dict) else []
+            if extra:
+                raise ConfigError(f"{where}: motors[{i}].{extra[0]} is not a key of a motor (known: {', '.join(MOTOR_KEYS)})")
             position = need(m, "position", f"motors[{i}].")
             spin = need(m, "spin", f"motors[{i}].")
             if spin not in ("cw", "ccw"):
@@ -418,7 +432,13 @@ class VehicleConfig:
             raise ConfigError(f"{where}: motor positions lie at {np.round(radii, 4).tolist()} m from the centre, not arm_length {arm} m")
         if sum(m.yaw_sign for m in motors) != 0:
             raise ConfigError(f"{where}: two rotors must spin cw and two ccw")
+        names = [m.name for m in motors]
+        if len(set(names)) != len(names):
+            raise ConfigError(f"{where}: motors name {sorted({n for n in names if names.count(n) > 1})[0]!r} twice; name each rotor once")
         inputs = need(doc, "inputs", "")
+        extra = sorted(str(k) for k in inputs if k not in INPUT_KEYS) if isinstance(inputs, dict) else []
+        if extra:
+            raise ConfigError(f"{where}: inputs.{extra[0]} is not a key of inputs (known: {', '.join(INPUT_KEYS)})")
         try:
             input_min = yaml_number(need(inputs, "min", "inputs."))
             input_max = yaml_number(need(inputs, "max", "inputs."))

@@ -114,6 +114,7 @@ def inputs(tmp_path_factory) -> Path:
     (d / "renamed.yaml").write_text(_vehicle_text() + "name: other\n")  # an appended key: PyYAML kept the last silently
     (d / "inf_thrust.yaml").write_text(_vehicle_text(rotor_thrust_constant=".inf"))
     (d / "heavy.yaml").write_text(_vehicle_text(mass="1.0e6"))
+    (d / "tiny.yaml").write_text(_vehicle_text(mass="1.0e-300"))
     (d / "huge.yaml").write_text(_vehicle_text() + "#" * (2 << 20) + "\n")
     (d / "linkquad_copy.yaml").write_text(_vehicle_text())
     # vehicles with a faulty effects section (the physics model's optional terms)
@@ -191,7 +192,11 @@ CORPUS = [
     ("window-nan", ["evaluate", "{d}/flight.mat", "--window", "nan", "-o", "{d}/work/out"], "--window nan: must be a finite number"),
     ("window-inf", ["evaluate", "{d}/flight.mat", "--window", "inf", "-o", "{d}/work/out"], "--window inf: must be a finite number"),
     ("warm-inf", ["identify", "{d}/flight.mat", "--warm", "inf", "-o", "{d}/work/v.yaml"], "--warm inf: must be a finite number"),
-    ("train-seed-negative", ["train", "{d}/flight.mat", "--seed", "-1", "-o", "{d}/work/m.npz"], "--seed -1: must be a non-negative integer"),
+    ("train-seed-negative", ["train", "{d}/flight.mat", "--seed", "-1", "-o", "{d}/work/m.npz"], "--seed -1: must be a whole number in 0..4294967295"),
+    ("train-seed-huge", ["train", "{d}/flight.mat", "--seed", "99999999999999999999", "-o", "{d}/work/m.npz"],
+     "--seed 99999999999999999999: must be a whole number in 0..4294967295"),
+    ("vehicle-mass-tiny", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/tiny.yaml", "-o", "{d}/work/out"],
+     "constants.mass.value must lie in (1e-05, 1000) kg, got 1e-300"),
     ("train-epochs-huge", ["train", "{d}/flight.mat", "--epochs", "1000000000", "-o", "{d}/work/m.npz"], "--epochs must lie in [0, 10000]"),
     ("simulate-duration-inf", ["simulate", "--duration", "inf", "-o", "{d}/work/s.mat"], "--duration inf: must be at least 5 s and at most 3600 s"),
     ("simulate-duration-1e9", ["simulate", "--duration", "1e9", "-o", "{d}/work/s.mat"], "--duration 1e+09: must be at least 5 s and at most 3600 s"),
@@ -219,7 +224,7 @@ CORPUS = [
      "{d}/renamed.yaml: vehicle config holds key 'name' at lines 15 and "),
     ("vehicle-nan-mass", ["identify", "{d}/flight.mat", "--vehicle", "{d}/nan_mass.yaml", "-o", "{d}/work/v.yaml"], "{d}/nan_mass.yaml: constants.mass.value must be a finite number, got nan"),
     ("vehicle-inf-thrust", ["identify", "{d}/flight.mat", "--vehicle", "{d}/inf_thrust.yaml", "-o", "{d}/work/v.yaml"], "constants.rotor_thrust_constant.value must be a finite number, got inf"),
-    ("vehicle-out-of-range", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/heavy.yaml", "-o", "{d}/work/out"], "constants.mass.value must lie in (0, 1000) kg, got 1e+06"),
+    ("vehicle-out-of-range", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/heavy.yaml", "-o", "{d}/work/out"], "constants.mass.value must lie in (1e-05, 1000) kg, got 1e+06"),
     ("vehicle-too-large", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/huge.yaml", "-o", "{d}/work/out"], "bytes, larger than the 1048576 read"),
     ("vehicle-fifo", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/fifo.yaml", "-o", "{d}/work/out"], "{d}/fifo.yaml: is a FIFO, not a regular file; give the vehicle config as a file"),
     # mapping files

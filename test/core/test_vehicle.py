@@ -196,6 +196,12 @@ def test_a_constant_may_carry_its_sigma_and_a_bad_one_is_named():
     (lambda d: d["constants"]["rotor_speed_gain"].update(unit="rad per PWM"), "rotor_speed_gain is read in rad/s per input unit"),
     (lambda d: d["constants"]["mass"].update(vlaue=1.0), "constants.mass.vlaue is not a field of a constant"),
     (lambda d: d.update(geomtery="x"), "geomtery is not a key of a vehicle file"),
+    # an identified effective inertia under a typo flew on the airframe's (orientation SimErr ratio 0.94 -> 1.64)
+    (lambda d: d["constants"].update(effective_ixx_=d["constants"]["ixx"]), "constants.effective_ixx_ is not a vehicle constant"),
+    (lambda d: d["constants"].update(masss=d["constants"]["mass"]), "constants.masss is not a vehicle constant"),
+    (lambda d: d["motors"][0].update(tilt_deg=3), "motors[0].tilt_deg is not a key of a motor (known: name, position, spin)"),
+    (lambda d: d["inputs"].update(offset=100), "inputs.offset is not a key of inputs (known: min, max, unit)"),
+    (lambda d: d["motors"][1].update(name=d["motors"][0]["name"]), "motors name 'm1_front_right' twice"),
 ])
 def test_a_wrong_unit_or_a_mistyped_key_is_one_error_not_read_silently(edit, message, tmp_path):
     """A mass in g was read as 27 kg, and a typo'd key ignored: now one line naming the key."""

@@ -161,8 +161,16 @@ class WindowSums:
 
     @classmethod
     def from_json(cls, data: dict, where: str) -> WindowSums:
-        return cls(int(data["windows"]), ExactSum.from_json(data["rms_sum"], f"{where}.rms_sum"),
+        return cls(count(data["windows"], f"{where}.windows"), ExactSum.from_json(data["rms_sum"], f"{where}.rms_sum"),
                    ExactSum.from_json(data["tic_sum"], f"{where}.tic_sum"))
+
+
+def count(value, where: str, least: int = 0) -> int:
+    """A count of a results document (windows, starts, horizons): a whole JSON number >= ``least`` and below 2^53;
+    ValueError naming ``where`` otherwise (a merge took -5 windows and printed TIC -0.5, truncated 1.5 to 1)."""
+    if isinstance(value, bool) or not isinstance(value, int) or not least <= value < 2**53:
+        raise ValueError(f"{where} is {value!r}, not a whole number >= {least}")
+    return value
 
 
 @dataclass
@@ -210,10 +218,11 @@ class MultistepSums:
     @classmethod
     def from_json(cls, data: dict, where: str) -> MultistepSums:
         sums = {m: ExactSum.from_json(s, f"{where}.error_sums.{m}") for m, s in data["error_sums"].items()}
+        max_horizon = count(data["max_horizon"], f"{where}.max_horizon", least=1)
         for m, s in sums.items():
-            if s.shape != (4, int(data["max_horizon"])):
-                raise DataError(f"{where}.error_sums.{m}: shape {s.shape}, expected (4, {data['max_horizon']})")
-        return cls(str(data["span"]), int(data["max_horizon"]), [str(m) for m in data["order"]], int(data["starts"]), sums,
+            if s.shape != (4, max_horizon):
+                raise DataError(f"{where}.error_sums.{m}: shape {s.shape}, expected (4, {max_horizon})")
+        return cls(str(data["span"]), max_horizon, [str(m) for m in data["order"]], count(data["starts"], f"{where}.starts"), sums,
                    dict(data["forms"]), dict(data["not_multistep"]))
 
 

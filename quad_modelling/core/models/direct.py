@@ -107,6 +107,9 @@ VELOCITY_HISTORY = 5
 """n_v: measured down-velocity rows up to and including the anchor (the vertical map's; 0.05 s at 100 Hz, the first
 choice of session 22's scratch study, not tuned)."""
 
+MAX_ACCELERATION_ROWS = 1000
+"""Most rows a model file's vertical map may average (10 s at 100 Hz): an edited 10^9 asked for terabytes."""
+
 ACCELERATION_ROWS = 5
 """n_a: rows of down acceleration averaged up to and including the anchor (the vertical map's; 0.05 s at 100 Hz).
 Chosen on the training shapes only among 1, 3, 5 and 10 (``bench/bench_direct_vertical_acceleration.py``, nested
@@ -260,8 +263,9 @@ class VerticalRegression(HorizonMaps):
 
     def __init__(self, weights: np.ndarray, bias: np.ndarray, velocity_history: int = VELOCITY_HISTORY, lead: int = COMMAND_LEAD,
                  acceleration_rows: int = ACCELERATION_ROWS):
-        if not isinstance(acceleration_rows, (int, np.integer)) or acceleration_rows < 1:
-            raise ModelError(f"direct model: the vertical map's acceleration_rows {acceleration_rows!r} must be a whole number >= 1")
+        if not isinstance(acceleration_rows, (int, np.integer)) or not 1 <= acceleration_rows <= MAX_ACCELERATION_ROWS:
+            raise ModelError(f"direct model: the vertical map's acceleration_rows {acceleration_rows!r} must be a whole number "
+                             f"in 1..{MAX_ACCELERATION_ROWS}")
         super().__init__(weights, bias, velocity_history + 2, lead, 1, "vertical")
         self.velocity_history = velocity_history
         self.acceleration_rows = int(acceleration_rows)

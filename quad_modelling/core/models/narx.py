@@ -87,6 +87,13 @@ THESIS_NOISE_SNR_DB: tuple[float | None, ...] = (None, None, None, 10.0, 10.0, 1
 
 
 
+MAX_HIDDEN = 1000
+"""Most sigmoid units per net (the thesis used 10): ``train``'s limit, and a model file's."""
+
+MAX_DELAYS = 1000
+"""Most delayed outputs or input taps (10 s at 100 Hz; the thesis used 20): an edited model file's 10^9 asked for
+gigabytes."""
+
 ARRAY_NAMES = ("w_u", "w_y", "b_1", "w_2", "b_2", "u_mean", "u_std", "y_mean", "y_std", "y_step")
 
 
@@ -122,6 +129,9 @@ class NarxConfig:
             raise ModelError(f"NARX config: hidden, output_delays, iterations must be >= 1 and epochs >= 0, got {self}")
         if not self.input_delays or min(self.input_delays) < 0 or len(set(self.input_delays)) != len(self.input_delays):
             raise ModelError(f"NARX config: input_delays must be distinct delays >= 0, got {self.input_delays}")
+        if self.hidden > MAX_HIDDEN or max(self.output_delays, *self.input_delays) > MAX_DELAYS:
+            raise ModelError(f"NARX config: at most {MAX_HIDDEN} hidden units and delays of at most {MAX_DELAYS} samples, got "
+                             f"hidden {self.hidden}, output_delays {self.output_delays}, input delays up to {max(self.input_delays)}")
         if len(self.noise_snr_db) != len(OUTPUTS):
             raise ModelError(f"NARX config: noise_snr_db needs {len(OUTPUTS)} entries, got {len(self.noise_snr_db)}")
 
@@ -451,6 +461,9 @@ def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) 
     for name, value in arrays.items():
         if not np.all(np.isfinite(value)):
             raise ModelError(f"{path}: array {name} holds non-finite values")
+    for name in ("u_std", "y_std", "y_step"):  # scales the nets divide by
+        if not np.all(arrays[name] > 0):
+            raise ModelError(f"{path}: array {name} holds a scale <= 0 (index {int(np.argmin(arrays[name] > 0))}); scales are positive")
     return NarxModel(
         config=config, dt=dt, vehicle=str(header["vehicle"]), kind=str(header["kind"]),
         training=training, **arrays,

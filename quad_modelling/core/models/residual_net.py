@@ -53,6 +53,8 @@ class ResidualNet:
         for name, value in self.arrays().items():
             if not np.all(np.isfinite(value)):
                 raise ModelError(f"residual net: array {name} holds non-finite values")
+        if not np.all(self.in_std > 0):  # the inputs are divided by it: a 0 made NaN forecasts and a NaN export
+            raise ModelError(f"residual net: input std holds a value <= 0 (feature {int(np.argmin(self.in_std > 0))}); it is positive")
 
     @property
     def n_inputs(self) -> int:

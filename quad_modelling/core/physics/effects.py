@@ -59,6 +59,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import math
+
 import numpy as np
 
 from quad_modelling.core.input_files import yaml_number
@@ -75,14 +77,25 @@ class TermParameter:
     default: float | None = None
     """The value a vehicle file's entry without this parameter reads as (a parameter added to a term after files
     were written: the motor imbalance's CG offset, 0); None: required."""
+    admissible: tuple[float, float] = (-math.inf, math.inf)
+    """The closed range a value must lie in whatever bounds the file gives (an observer history under 1000 s): a
+    file's own bounds [-1, 10] let an observer history of -0.5 s through to a traceback."""
+    positive: bool = False
+    """The value must be above 0 (a motor's gain, a reference voltage)."""
 
+
+OBSERVER_HISTORY_MAX_S = 999.0
+"""Longest disturbance-observer history a vehicle file may give [s] (:class:`~quad_modelling.core.models.physics.Observer`
+takes 0 .. 1000 s)."""
 
 TERMS: dict[str, tuple[TermParameter, ...]] = {
-    "ground_effect": (TermParameter("coefficient", "m2", "c_ge: thrust gain (h + h_off)^2 near the ground"),
-                      TermParameter("offset", "m", "h_off: height offset of the ground-effect law")),
+    "ground_effect": (TermParameter("coefficient", "m2", "c_ge: thrust gain (h + h_off)^2 near the ground", admissible=(0.0, math.inf)),
+                      TermParameter("offset", "m", "h_off: height offset of the ground-effect law", admissible=(0.0, math.inf))),
     "battery": (TermParameter("kappa", "1/V", "rotor-speed change per volt of battery voltage"),
-                TermParameter("reference_voltage", "V", "V_ref: voltage at which the base constants hold")),
-    "motor_imbalance": (*(TermParameter(f"gain_{i}", "1", f"motor {i}'s gain on its logged command") for i in range(1, 5)),
+                TermParameter("reference_voltage", "V", "V_ref: voltage at which the base constants hold",
+                              positive=True)),
+    "motor_imbalance": (*(TermParameter(f"gain_{i}", "1", f"motor {i}'s gain on its logged command", positive=True)
+                          for i in range(1, 5)),
                         TermParameter("cg_offset_x", "m", "c_x: the CG forward of the geometric centre (FRD x)", 0.0),
                         TermParameter("cg_offset_y", "m", "c_y: the CG right of the geometric centre (FRD y)", 0.0)),
     "gyroscopic": (TermParameter("body_scale", "1", "k_b: scale of the body's gyroscopic torque -ω × Iω"),
@@ -90,10 +103,13 @@ TERMS: dict[str, tuple[TermParameter, ...]] = {
     "rotor_drag": (),
     "motor_lag": (),
     "input_delay": (),
-    "disturbance_observer": (TermParameter("linear_history", "s", "history of the linear disturbance estimate"),
-                             TermParameter("angular_history", "s", "history of the angular disturbance estimate"),
+    "disturbance_observer": (TermParameter("linear_history", "s", "history of the linear disturbance estimate",
+                                           admissible=(0.0, OBSERVER_HISTORY_MAX_S)),
+                             TermParameter("angular_history", "s", "history of the angular disturbance estimate",
+                                           admissible=(0.0, OBSERVER_HISTORY_MAX_S)),
                              TermParameter("angular_trim", "1", "1: remove the model's mean angular acceleration "
-                                                                "(a moment the model lacks); 0: hold measured - modelled")),
+                                                                "(a moment the model lacks); 0: hold measured - modelled",
+                                           admissible=(0.0, 1.0))),
 }
 """The physics model's optional terms and their parameters (module docstring), in the order they are applied; the
 switches of :data:`BASE_SWITCHES` have none of their own."""
@@ -208,6 +224,12 @@ def _term_value(entry, spec: TermParameter, context: str, on: bool, name: str) -
         raise ConfigError(f"{context}.bounds must be finite [low, high] with low <= high, got [{low:g}, {high:g}]")
     if not (np.isfinite(value) and low <= value <= high):
         raise ConfigError(f"{context}.value {value:g} {spec.unit} lies outside its bounds [{low:g}, {high:g}]")
+    least, most = spec.admissible
+    if not least <= value <= most or (spec.positive and value <= 0) or (spec.name == "angular_trim" and value not in (0.0, 1.0)):
+        allowed = "0 or 1" if spec.name == "angular_trim" else "above 0" if spec.positive else f"in [{least:g}, {most:g}]"
+        raise ConfigError(f"{context}.value {value:g} {spec.unit}: must be {allowed}, whatever the bounds")
+    if not (np.isnan(sigma) or sigma >= 0):
+        raise ConfigError(f"{context}.sigma {sigma:g}: must be >= 0 (or .nan: not determined)")
     return TermValue(value, spec.unit, (low, high), str(entry["source"]), entry["status"], sigma)
 
 

@@ -96,3 +96,14 @@ def test_exact_sums_keep_nan_and_refuse_malformed_text():
     assert np.isnan(ExactSum.from_json(stored, "s").mean(1)[0])
     with pytest.raises(DataError, match="rms_sum"):
         ExactSum.from_json({"shape": [1], "sums": ["12.5"]}, "rms_sum")
+
+
+@pytest.mark.parametrize("windows", [-5, 1.5, 2**60, True, "3"])
+def test_a_count_that_is_not_a_whole_number_of_windows_is_malformed_statistics(two_flights, windows):
+    """merge took -5 windows (its table said eval -4 windows and TIC -0.50), truncated 1.5 to 1: one DataError."""
+    vehicle, flights = two_flights
+    config = EvaluationConfig.preset("short")
+    data = json.loads(json.dumps(evaluate_flight(flights[0], [make_model("greybox", vehicle)], vehicle, config).statistics.to_json()))
+    data["windowed"]["greybox"]["eval"]["windows"] = windows
+    with pytest.raises(DataError, match=r"^results.json: malformed statistics \(ValueError: .*windows is .*, not a whole number >= 0\)$"):
+        EvaluationStatistics.from_json(data, "results.json")

@@ -340,3 +340,14 @@ def test_a_file_with_an_array_this_program_does_not_read_is_refused(trained, veh
     np.savez(tmp_path / "newer.npz", **arrays, net_gate=np.ones(3))
     with pytest.raises(ModelError, match="newer.npz: holds array 'net_gate', which this program's hybrid model does not read"):
         load_hybrid(tmp_path / "newer.npz", vehicle)
+
+
+def test_a_file_whose_input_std_holds_a_zero_is_refused(trained, vehicle, tmp_path):
+    """The nets divide their inputs by it: an edited 0 gave NaN forecasts with exit 0 and a CasADi export of NaN."""
+    path = trained.save(tmp_path / "hybrid.npz")
+    with np.load(path) as contents:
+        arrays = {k: contents[k] for k in contents.files}
+    arrays["net_in_std"] = np.where(np.arange(len(arrays["net_in_std"])) == 0, 0.0, arrays["net_in_std"])
+    np.savez(tmp_path / "zero_std.npz", **arrays)
+    with pytest.raises(ModelError, match=r"zero_std.npz: .*input std holds a value <= 0 \(feature 0\)"):
+        load_hybrid(tmp_path / "zero_std.npz", vehicle)

@@ -172,6 +172,24 @@ def test_a_file_with_an_array_this_program_does_not_read_is_refused(trained, tmp
         load_narx(tmp_path / "newer.npz", vehicle="linkquad")
 
 
+def test_a_model_file_with_a_zero_scale_or_delays_beyond_the_limit_is_refused(trained, tmp_path):
+    """An edited scale of 0 divided the inputs into NaN forecasts (exit 0, scores changed); an input delay of 10^9
+    asked for 30 GiB: both one ModelError naming the file."""
+    good = trained.save(tmp_path / "model.npz")
+    with np.load(good, allow_pickle=False) as archive:
+        contents = {name: archive[name] for name in archive.files}
+    for name in ("u_std", "y_std", "y_step"):
+        edited = {**contents, name: np.where(np.arange(len(contents[name])) == 1, 0.0, contents[name])}
+        np.savez(tmp_path / f"{name}.npz", **edited)
+        with pytest.raises(ModelError, match=f"{name}.npz: array {name} holds a scale <= 0 \\(index 1\\)"):
+            load_narx(tmp_path / f"{name}.npz")
+    header = json.loads(str(contents["header"]))
+    header["config"]["input_delays"] = [*header["config"]["input_delays"][:-1], 10**9]
+    np.savez(tmp_path / "delays.npz", **{**contents, "header": np.array(json.dumps(header))})
+    with pytest.raises(ModelError, match="delays.npz: .*at most 1000 hidden units and delays of at most 1000 samples"):
+        load_narx(tmp_path / "delays.npz")
+
+
 def test_same_seed_same_weights_other_seed_differs():
     u, y = linear_system(600, seed=3)
     config = NarxConfig(hidden=3, output_delays=2, input_delays=(0, 1), epochs=2, iterations_per_epoch=5)

@@ -74,6 +74,26 @@ def test_a_gyroscopic_entry_switched_off_keeps_the_bodys_own_term_as_no_entry_do
     (lambda e: e["ground_effect"].update(enabled="yes"), "effects.ground_effect.enabled must be true or false"),
     (lambda e: e["ground_effect"]["coefficient"].update(bounds=[False, 0.002]),  # read as 0 before
      "effects.ground_effect.coefficient: value, bounds [low, high] and sigma must be numbers"),
+    # values the file's own bounds allow but the physics does not (a -0.5 s observer history was a traceback)
+    (lambda e: e["ground_effect"]["coefficient"].update(value=-1e-4, bounds=[-1.0, 1.0]),
+     "effects.ground_effect.coefficient.value -0.0001 m2: must be in [0, inf], whatever the bounds"),
+    (lambda e: e["ground_effect"]["coefficient"].update(sigma=-1e-5), "effects.ground_effect.coefficient.sigma -1e-05: must be >= 0"),
+    (lambda e: e.update(disturbance_observer={"enabled": True, **{key: {"value": value, "unit": unit, "bounds": [-1.0, 1e9],
+                                                                       "source": "test", "status": "identified"}
+                                                                 for key, value, unit in (("linear_history", -0.5, "s"),
+                                                                                          ("angular_history", 0.5, "s"),
+                                                                                          ("angular_trim", 1.0, "1"))}}),
+     "effects.disturbance_observer.linear_history.value -0.5 s: must be in [0, 999], whatever the bounds"),
+    (lambda e: e.update(disturbance_observer={"enabled": True, **{key: {"value": value, "unit": unit, "bounds": [0.0, 10.0],
+                                                                       "source": "test", "status": "identified"}
+                                                                 for key, value, unit in (("linear_history", 0.5, "s"),
+                                                                                          ("angular_history", 0.5, "s"),
+                                                                                          ("angular_trim", 0.5, "1"))}}),
+     "effects.disturbance_observer.angular_trim.value 0.5 1: must be 0 or 1"),
+    (lambda e: e.update(motor_imbalance={"enabled": True, **{f"gain_{i}": {"value": 0.0 if i == 2 else 1.0, "unit": "1",
+                                                                          "bounds": [-1.0, 2.0], "source": "test", "status": "identified"}
+                                                            for i in range(1, 5)}}),
+     "effects.motor_imbalance.gain_2.value 0 1: must be above 0"),
 ])
 def test_each_fault_is_one_line_naming_the_file_the_term_and_the_key(change, message):
     effects = {"ground_effect": copy.deepcopy(GROUND)}
