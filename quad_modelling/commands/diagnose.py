@@ -29,7 +29,7 @@ from quad_modelling.core.effect_names import (
     DISTURBANCES,
     SWITCHED_EFFECTS,
 )
-from quad_modelling.core.evaluation.multistep import check_protocol_starts
+from quad_modelling.core.evaluation.multistep import check_protocol_starts, protocol_starts
 from quad_modelling.core.preprocess import check_cutoff, resample_uniform
 from quad_modelling.core.sim.pilot import check_duration
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
@@ -345,6 +345,15 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
     for flights in (test, injected_test if injection is not None else []):  # before a progress line: the scoring needs a start
         if flights:
             check_protocol_starts([resample_uniform(f) for f in flights], config, airborne=True)
+    for log in train:  # one too short among longer ones added nothing without a word (and left a check skipped)
+        if log.duration - config.drop_start - config.drop_end < config.window_s:
+            print(f"warning: {log.meta.source}: {max(log.duration - config.drop_start - config.drop_end, 0.0):.1f} s of flight "
+                  f"after --drop {config.drop_start:g}:{config.drop_end:g}, under one {config.window_s:g} s window: it adds "
+                  "nothing to the fit (the others are fitted without it)", file=sys.stderr)
+    for log in test:
+        if next(protocol_starts([resample_uniform(log)], config, 1, airborne=True), None) is None:
+            print(f"warning: {log.meta.source}: no airborne start of the protocol after --drop {config.drop_start:g}:"
+                  f"{config.drop_end:g}: it adds nothing to the held-out scores", file=sys.stderr)
     warn_in_sample(train, test)  # as the flights are read, not after minutes of fitting
     say = _progress(args)
     say(f"{len(train)} training and {len(test)} held-out flight(s) read"

@@ -356,3 +356,25 @@ def test_the_summary_gains_are_on_the_logged_command_columns():
     assert logged_order(gains, None) is gains
     logged = logged_order(gains, [1, 4])
     assert logged["value"] == [0.94, 1.01, 1.02, 1.03] and logged["sigma"] == [0.4, 0.2, 0.3, 0.1] and logged["order"] == "as logged"
+
+
+def test_a_flight_too_short_to_add_anything_is_named_before_the_fit(tmp_path, capsys, monkeypatch):
+    """An 8 s flight among the training flights added nothing to the fit without a word (and the training-halves check
+    was skipped); a held-out one without an airborne start added nothing to the scores: each named in a warning
+    before the fit starts."""
+    import quad_modelling.core.diagnosis.physics_base as physics_base
+
+    class FitStarted(Exception):
+        pass
+
+    def fit(*_args, **_kwargs):
+        raise FitStarted
+
+    monkeypatch.setattr(physics_base, "diagnose_physics", fit)
+    short = str(FIXTURES / "nanobench" / "B9_trefoil_fast_rep2_rows1199-1399.csv.gz")
+    with pytest.raises(FitStarted):
+        main(["diagnose", "--train", BAG, short, "--test", BAG, short, "--effects", "rotor_drag", "-o", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert f"warning: {short}: 0.0 s of flight after --drop 5:5, under one 10 s window: it adds nothing to the fit" in err
+    assert f"warning: {short}: no airborne start of the protocol after --drop 5:5: it adds nothing to the held-out scores" in err
+    assert f"warning: {BAG}:" not in err
