@@ -103,7 +103,7 @@ def diagnose_case(train, test, vehicle, injection, label: str) -> tuple[object, 
 
 def check_text(check: dict) -> str:
     """One cell: the measured value against the expected, and by how much it misses."""
-    if check["check"] == "the delay stays":
+    if check["check"] == "the delay stays (its change)":
         return f"delay moves {check['measured_s'] * 1000:+.1f} ms (exp. 0 +- 5)"
     if "measured_s" in check:
         miss = check["measured_s"] - check["expected_s"]

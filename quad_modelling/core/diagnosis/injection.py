@@ -7,7 +7,7 @@ spec               change of the logged commands u (N, 4)                       
 ``delay:MS``       advanced by MS: :math:`u'(t) = u(t + MS)` (linear            the delay rises by MS (+-
                    interpolation; the last MS of the flight is dropped)          :data:`DELAY_TOLERANCE_S`)
 ``gain:M:K``       motor M's command divided by K: :math:`u'_M = u_M / K`       motor M's gain relative to the others'
-                                                                                 rises by the factor K (+- :data:`GAIN_TOLERANCE`)
+                                                                                 changes by the factor K (+- :data:`GAIN_TOLERANCE`)
 ``swap:A:B``       the columns of motors A and B exchanged                      the motor-order check names the swap
 ``none``           unchanged                                                    nothing changes
 =================  ==========================================================  ===========================================
@@ -174,12 +174,12 @@ def injection_checks(injection: Injection, plain: dict, injected: dict) -> dict:
                        else abs(rise - injection.delay_s) <= DELAY_TOLERANCE_S and not at_bound})
     else:
         shift = injected["delay_s"]["value"] - plain["delay_s"]["value"]
-        checks.append({"check": "the delay stays", "expected_s": 0.0, "measured_s": shift, "tolerance_s": DELAY_TOLERANCE_S,
+        checks.append({"check": "the delay stays (its change)", "expected_s": 0.0, "measured_s": shift, "tolerance_s": DELAY_TOLERANCE_S,
                        "holds": abs(shift) <= DELAY_TOLERANCE_S})
     if injection.kind == "gain":
         ratio = (relative_gain(injected["motor_command_gains"]["value"], injection.motor)
                  / relative_gain(plain["motor_command_gains"]["value"], injection.motor))
-        checks.append({"check": f"motor {injection.motor}'s relative command gain rises by K", "expected": injection.factor,
+        checks.append({"check": f"motor {injection.motor}'s relative gain changes by K", "expected": injection.factor,
                        "measured": ratio, "tolerance": GAIN_TOLERANCE,
                        "holds": abs(ratio / injection.factor - 1.0) <= GAIN_TOLERANCE})
     if injection.kind == "swap":  # relative to the flights as logged: a swap there and the same injected cancel

@@ -93,12 +93,12 @@ def gain_injection_note(data: dict) -> str:
     """For ``--inject gain:M:K``: the injected gain measured (motor M's ratio against K, the check) and, when the motor
     imbalance is not found, why it need not be (:data:`GAIN_NOT_FOUND`); '' for other injections or none."""
     injection = data.get("injection") or {}
-    check = next((c for c in injection.get("checks", []) if c["check"].endswith("relative command gain rises by K")), None)
+    check = next((c for c in injection.get("checks", []) if c["check"].endswith("relative gain changes by K")), None)
     if check is None:
         return ""
     motor = check["check"].split("'")[0]
     text = (f"--inject {injection['spec']}: the injected gain is measured in the imbalance's fitted gains, {motor}'s over "
-            f"the others' rose by {check['measured']:.3f} against K = {check['expected']:g} +- {check['tolerance']:.0%} "
+            f"the others' changed by the factor {check['measured']:.3f} against K = {check['expected']:g} +- {check['tolerance']:.0%} "
             f"(the check: {HOLDS[check['holds']]})")
     imbalance = (data.get("effects") or {}).get("motor_imbalance") or {}
     if imbalance.get("verdict") not in (None, "found"):
@@ -267,7 +267,7 @@ def _check_note(check: dict) -> str:
     judged from an un-injected delay of 0 ms (its lower bound)."""
     if check.get("at_search_bound"):
         return "on the delay's search bound: not measured"
-    if check["check"].endswith("relative command gain rises by K"):
+    if check["check"].endswith("relative gain changes by K"):
         return "from the imbalance's gains, found or not"
     if check.get("logged_swap"):
         motors = " and ".join(map(str, check["logged_swap"]))

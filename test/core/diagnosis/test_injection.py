@@ -78,7 +78,7 @@ def test_checks_hold_within_the_tolerances_and_fail_outside():
     assert result["passed"] and gain_check["measured"] == pytest.approx(1.25)
     moved = {**gained, "delay_s": {"value": 0.0461}}  # the delay may not follow a gain (6.1 ms > 5 ms)
     result = injection_checks(parse_injection("gain:1:1.25"), plain, moved)
-    stays = next(c for c in result["checks"] if c["check"] == "the delay stays")
+    stays = next(c for c in result["checks"] if c["check"] == "the delay stays (its change)")
     assert result["passed"] is False and not stays["holds"] and stays["measured_s"] == pytest.approx(0.0061)
     swapped = {**plain, "delay_s": {"value": 0.0449}, "motor_order": {"swap": [1, 2]}}
     assert injection_checks(parse_injection("swap:1:2"), plain, swapped)["passed"] is True
