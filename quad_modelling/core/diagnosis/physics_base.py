@@ -219,6 +219,7 @@ class PhysicsDiagnosis:
             "multistep": self.table, "folds": self.folds, "folds_note": self.folds_note, "motor_order": self.motor_order,
             "in_base": {**{c: t for c, t in SWITCHED_BASE.items() if c not in self.candidates}, **IN_BASE},
             "constants": {e.name: e.as_dict() for e in self.final.fit.estimates()},
+            "base_constants": {e.name: e.as_dict() for e in self.base.fit.estimates()},
             "rule": {
                 "score": "J = mean over velocity and angular velocity of SimErr / naive SimErr (h = 1..50) on the held-out flights",
                 "found": f"joins when the bootstrap 5% bound of its held-out shrink of J is >= {FOUND_MIN_BOUND:.0%} "

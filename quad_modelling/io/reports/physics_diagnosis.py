@@ -46,6 +46,11 @@ def _verdict(data: dict) -> list[str]:
                 if isinstance(c, dict) and c.get("at_bound") and name != "rotor_delay"]  # the delay's line says its own
     if at_bound:  # in the report's constants table only, a user read the summary's model as fully measured
         lines.append(f"  AT BOUND (the fit ran to a search bound: not measured, the model holds the bound): {', '.join(at_bound)}")
+    base_at_bound = [name for name, c in (data.get("base_constants") or {}).items()
+                     if isinstance(c, dict) and c.get("at_bound") and name != "rotor_delay" and name not in at_bound]
+    if base_at_bound:  # a base on its bounds: part of a term's shrink may be mending it (review: both splits' inertias)
+        lines.append(f"  the base model (candidates off) ended AT BOUND on {', '.join(base_at_bound)}"
+                     + (": part of a found term's shrink may mend that base, not the flights' physics" if found else ""))
     order = data.get("motor_order") or {}
     logged_order = ((data.get("un_injected") or {}).get("motor_order") or {}).get("verdict")
     if order.get("verdict") == "inconsistent" and injection and logged_order != "inconsistent":
@@ -169,10 +174,12 @@ def report_markdown(data: dict) -> str:
             out += [""] + prose(f"Note: {data['folds_note']}.")
     out += ["", "## Constants of the final model" + (" (the injected flights' run; --write-vehicle writes the un-injected run's)"
                                                       if data.get("injection") else ""), ""]
+    base = data.get("base_constants") or {}  # the base's (candidates off): a base on its bounds is what a term may mend
     rows = [[name, f"{c['value']:.4g}", "-" if c.get("held") else f"{c['sigma']:.2g}", c["unit"],
-             f"[{c['bounds'][0]:.3g}, {c['bounds'][1]:.3g}]", c["held"].split(":")[0] if c.get("held") else "AT BOUND" if c["at_bound"] else ""]
+             f"[{c['bounds'][0]:.3g}, {c['bounds'][1]:.3g}]", c["held"].split(":")[0] if c.get("held") else "AT BOUND" if c["at_bound"] else "",
+             (f"{base[name]['value']:.4g}" + (" AT BOUND" if base[name]["at_bound"] else "")) if name in base else ""]
             for name, c in data["constants"].items()]
-    out += markdown_table(["constant", "value", "sigma", "unit", "bounds", ""], rows) + [""]
+    out += markdown_table(["constant", "value", "sigma", "unit", "bounds", "", "base model's"], rows) + [""]
     order = data.get("motor_order")
     if order:
         out += prose(f"Motor order check: {order['verdict']}" + (f"; likely fix: {', '.join(order['actions'])}" if order["actions"] else ""))
