@@ -37,6 +37,9 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     gains = data["summary"]["motor_command_gains"]
     assert sum(gains["value"]) == pytest.approx(4.0) and len(gains["sigma"]) == 4
     assert data["summary"]["delay_s"]["sigma"] > 0 and 0.0 < data["summary"]["delay_s"]["value"] < 0.15
+    # the rotor lag held from the base's fit keeps that fit's sigma (it said "no uncertainty (the fit cannot separate it)")
+    lag = data["constants"]["rotor_time_constant"]
+    assert lag["sigma"] > 0 and lag["poorly_determined"] != "no uncertainty (the fit cannot separate it)"
     assert "rotor_drag" in data["found"]  # the real flight's own drag, found in both runs
     assert "rotor_drag" in data["un_injected"]["found"]
     assert "--inject gain:1:1.25: PASSED" in report and max(len(line) for line in report.splitlines()) <= 120

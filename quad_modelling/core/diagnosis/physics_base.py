@@ -329,12 +329,13 @@ def diagnose_physics(train: Sequence[FlightLog], test: Sequence[FlightLog], vehi
     fit_observer = reference.diagnostics["observer_choice"]["fitted_with"]  # the one its constants are fitted with
     cache: dict[tuple[str, ...], Rung] = {}
 
-    def dynamics(key: Sequence[str]) -> tuple[float | None, float | None, float] | None:
+    def dynamics(key: Sequence[str]) -> tuple[float | None, float | None, float, float] | None:
         """The reference's rotor lag and delay, held; with a candidate motor_lag or input_delay in ``key`` both
         searched (a lag and a delay trade against each other: held, the other would keep what it absorbed)."""
         if "motor_lag" in key or "input_delay" in key:
             return None
-        return reference.values["rotor_time_constant"], reference.values["rotor_delay"], reference.sigma["rotor_delay"]
+        return (reference.values["rotor_time_constant"], reference.values["rotor_delay"], reference.sigma["rotor_delay"],
+                reference.sigma["rotor_time_constant"])  # held with the reference's sigmas (a NaN said "cannot separate it")
 
     def fit_with(key: Sequence[str], flights: Sequence[FlightLog], held: tuple[float | None, float | None, float] | None,
                  observers: Sequence[str] | None = None):

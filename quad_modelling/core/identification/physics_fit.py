@@ -318,7 +318,7 @@ def _normal_equations(p: PhysicsParameters, segments: list[_Segment], time_const
 
 def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
                      observer: Observer | None = None, terms: Sequence[str] = (), drag: bool | None = None,
-                     dynamics: tuple[float | None, float | None, float] | None = None,
+                     dynamics: tuple[float | None, float | None, float, *tuple[float, ...]] | None = None,
                      imbalance_axes: tuple[str, ...] = IMBALANCE_AXES) -> PhysicsFit:
     """Fit the physics constants :data:`FITTED` on ``config``'s training span of ``flights`` (module docstring), with
     the optional ``terms`` (:mod:`~quad_modelling.core.identification.physics_terms`; ``imbalance_axes``: the motor
@@ -361,7 +361,7 @@ VANISHED_HELD = "the term vanishes at this bound: the other constants fitted wit
 
 def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
                    observer: Observer, terms: Sequence[str], drag: bool | None = None,
-                   dynamics: tuple[float | None, float | None, float] | None = None,
+                   dynamics: tuple[float | None, float | None, float, *tuple[float, ...]] | None = None,
                    imbalance_axes: tuple[str, ...] = IMBALANCE_AXES) -> PhysicsFit:
     """:func:`_fit_once`; a term whose unconstrained estimate lies beyond the bound it vanishes at
     (:data:`VANISHING_AT_BOUND`: a negative ground-effect coefficient) is held there and every other constant fitted
@@ -383,13 +383,14 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
 
 def _fit_once(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
               observer: Observer, terms: Sequence[str], drag: bool | None = None,
-              dynamics: tuple[float | None, float | None, float] | None = None,
+              dynamics: tuple[float | None, float | None, float, *tuple[float, ...]] | None = None,
               imbalance_axes: tuple[str, ...] = IMBALANCE_AXES) -> PhysicsFit:
     """:func:`identify_physics` with one ``observer``; with motor_imbalance among the ``terms``, the whole fit is
     repeated :data:`~quad_modelling.core.identification.physics_terms.IMBALANCE_ITERATIONS` times from the gains of
     the previous pass (Gauss-Newton). A switch of :data:`~quad_modelling.core.physics.effects.BASE_SWITCHES` the
     vehicle turns off and ``terms`` does not name holds its constants at 0; ``drag`` (not None) overrides the rotor
-    drag's, ``dynamics`` (τ_m, δ, σ_δ; None: searched) holds the rotor lag and delay. With the battery term among the
+    drag's, ``dynamics`` (τ_m, δ, σ_δ[, σ_τ]; None: searched) holds the rotor lag and delay (the sigmas those of the
+    fit they were taken from). With the battery term among the
     ``terms`` the regression's linear observer history is at least :data:`BATTERY_FIT_LINEAR_S` (the fit keeps
     ``observer``; its diagnostics name the regression's)."""
     began = time.perf_counter()
@@ -401,7 +402,8 @@ def _fit_once(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Eval
     rate = float(np.median([1.0 / np.median(np.diff(s.t)) for s in segments]))
     off = [name for name in BASE_SWITCHES if switched_off(vehicle.effects, name) and name not in terms]
     drag = "rotor_drag" not in off if drag is None else drag
-    tau_held, delay_held, delay_held_sd = dynamics if dynamics is not None else (None, None, float("nan"))
+    tau_held, delay_held, delay_held_sd = dynamics[:3] if dynamics is not None else (None, None, float("nan"))
+    tau_held_sd = dynamics[3] if dynamics is not None and len(dynamics) > 3 and "motor_lag" not in off else float("nan")
     tau_held = 0.0 if "motor_lag" in off else tau_held
     delay_held, delay_held_sd = (0.0, float("nan")) if "input_delay" in off else (delay_held, delay_held_sd)
     held = {key: f"held at 0: effects.{name} is switched off in the vehicle file" for name in off
@@ -457,7 +459,7 @@ def _fit_once(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Eval
         values["rotor_drag_arm"], sigma["rotor_drag_arm"] = float("nan"), float("nan")
     torque, torque_sd = coef("yaw", "torque")
     values["rotor_torque_constant"], sigma["rotor_torque_constant"] = torque * p.inertia[2], torque_sd * p.inertia[2]
-    sigma["rotor_time_constant"] = float("nan") if tau_held is not None else profile_sigma(
+    sigma["rotor_time_constant"] = tau_held_sd if tau_held is not None else profile_sigma(
         lambda value: _chi2(p, segments, value, delay, observer, thin, fit, design), tau, 0.05 * tau)
     sigma["rotor_delay"] = delay_sd
 
