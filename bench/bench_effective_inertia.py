@@ -3,7 +3,7 @@
 The physics fit identifies the roll/pitch inertias as I = k_f / alpha (physics_fit.py); on the NanoBench Crazyflie
 flights they come out several times the airframe's (Foerster 2015). This refits them on the bundled bag and on
 NanoBench flights (each alone, ``short`` preset: training span 0-60 %) with each disturbance observer ``identify``
-chooses among (physics_result.OBSERVERS), with the body's gyroscopic term off, and with each optional term the fit
+chooses among (physics_result.OBSERVERS), without the body's gyroscopic torque (k_b = 0), and with each optional term the fit
 can switch on (gyroscopic k_b/k_p, ground_effect, battery; default observer), and reports effective / airframe
 for roll and pitch. Writes bench/results/effective_inertia.{json,md}.
 
@@ -22,7 +22,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench.common import write_results  # noqa: E402
 from quad_modelling.core.identification.physics_fit import identify_physics  # noqa: E402
 from quad_modelling.core.identification.physics_result import OBSERVERS  # noqa: E402
-from quad_modelling.core.physics.effects import EffectTerm  # noqa: E402
+from quad_modelling.core.physics.effects import EffectTerm, TermValue  # noqa: E402
 from quad_modelling.core.vehicle import load_vehicle  # noqa: E402
 from quad_modelling.core.windows import EvaluationConfig  # noqa: E402
 from quad_modelling.io.loader import load_flight  # noqa: E402
@@ -37,8 +37,9 @@ CONFIG = EvaluationConfig.preset("short")
 def variants(vehicle):
     """(label, vehicle, observer or None, terms) of every fit compared."""
     out = [(f"observer {name}", vehicle, observer, ()) for name, observer in OBSERVERS.items()]
-    no_gyro = replace(vehicle, effects={**vehicle.effects, "gyroscopic": EffectTerm("gyroscopic", False, {})})
-    out.append(("gyroscopic off (default observer)", no_gyro, OBSERVERS["default"], ()))
+    held = {name: TermValue(0.0, "1", (0.0, 10.0), "bench: removed", "held") for name in ("body_scale", "rotor_scale")}
+    no_gyro = replace(vehicle, effects={**vehicle.effects, "gyroscopic": EffectTerm("gyroscopic", True, held)})
+    out.append(("no gyroscopic torque, k_b = k_p = 0 (default observer)", no_gyro, OBSERVERS["default"], ()))
     for term in ("gyroscopic", "ground_effect", "battery"):
         out.append((f"+{term} fitted (default observer)", vehicle, OBSERVERS["default"], (term,)))
     return out
