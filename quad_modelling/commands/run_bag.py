@@ -101,9 +101,10 @@ without the evaluator, ``--nodes replay,predictors``, writes no results)."""
 def parse_models(text: str) -> list[ModelEntry]:
     """``naive,greybox,b=narx:b.npz`` -> entries; ConfigError for empty or duplicate names."""
     entries = []
-    for item in (s.strip() for s in text.split(",")):
-        if not item:
-            continue
+    items = [s.strip() for s in text.split(",")]
+    if len(items) > 1 and not all(items):  # as --effects: 'greybox,,naive' is a typo, not two models
+        raise ConfigError(f"--models {text!r}: an empty entry in the list (a comma too many?); name each model once")
+    for item in filter(None, items):
         name, sep, spec = item.partition("=")
         if not sep:
             name, spec = item.partition(":")[0], item
