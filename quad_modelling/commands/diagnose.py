@@ -391,7 +391,14 @@ def _run_physics(args, train, test, vehicle, config, injection, output: Path, sk
 
 def _run_validation(args, config, effects, output: Path) -> int:
     say = _progress(args, "diagnose --validate")
-    result = _physics_validation(args, config, say) if args.base == "physics" else _greybox_validation(args, config, effects, say)
+    try:
+        result = _physics_validation(args, config, say) if args.base == "physics" else _greybox_validation(args, config, effects, say)
+    except DataError as err:  # its advice named --train/--drop/--window, which --validate refuses
+        default = PHYSICS_VALIDATION_DURATION_S if args.base == "physics" else VALIDATION_DURATION_S
+        if args.duration is None or args.duration >= default:
+            raise
+        raise DataError(f"--validate --duration {args.duration:g}: the simulated flights leave the diagnosis nothing to work "
+                        f"on ({str(err).split('; adjust')[0]}); give --duration {default:g} (the default) or more") from err
     with atomic_output(output, args.force) as tmp:
         write_validation(result, tmp)
     print(f"{validation_summary(result)} -> {output}/")
