@@ -202,7 +202,7 @@ CORPUS = [
     ("simulate-duration-1e9", ["simulate", "--duration", "1e9", "-o", "{d}/work/s.mat"], "--duration 1e+09: must be at least 5 s and at most 3600 s"),
     ("simulate-duration-nan", ["simulate", "--duration", "nan", "-o", "{d}/work/s.mat"], "--duration nan: must be at least 5 s and at most 3600 s"),
     ("diagnose-validate-short-duration", ["diagnose", "--validate", "--vehicle", "crazyflie21", "--seeds", "0", "--duration", "30",
-                                          "--jobs", "1", "-o", "{d}/work/v"],
+                                          "--jobs", "1", "--quiet", "-o", "{d}/work/v"],
      "--validate --duration 30: the simulated flights leave the diagnosis nothing to work on (no usable training window"),
     ("diagnose-validate-duration", ["diagnose", "--validate", "--duration", "1e9", "-o", "{d}/work/v"], "simulation duration must be at least 5 s and at most 3600 s, got 1e+09"),
     ("diagnose-smooth-nyquist", ["diagnose", "--base", "greybox", "--train", "{d}/flight.mat", "--test", "{d}/flight.mat", "--smooth", "80", "-o", "{d}/work/d"],
