@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import hashlib
-import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -13,7 +12,7 @@ from quad_modelling.atomic import atomic_output, check_distinct_inputs
 from quad_modelling.commands import check_command_output
 from quad_modelling.core.evaluation.windowed import FlightEvaluation, evaluate_flight, merge_flights
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.models.registry import MODEL_FILE_KINDS, baseline_name_clash, make_model
+from quad_modelling.core.models.registry import MODEL_FILE_KINDS, make_model, named_spec
 from quad_modelling.core.preprocess import flight_warnings, resample_uniform
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.core.windows import MIN_SAMPLE_RATE_HZ, PRESETS, EvaluationConfig, check_window_rate
@@ -172,21 +171,6 @@ class FlightOutcome:
     skipped: str | None
     vehicle: str | None
     warnings: list[str]
-
-
-def named_spec(text: str) -> tuple[str | None, str]:
-    """``--model`` text -> (its name or None, the model spec): ``NAME=SPEC`` names a model (two files of one kind in one
-    table, e.g. ``a=narx:a.npz`` and ``b=narx:b.npz``; NAME letters, digits and '_', as run-bag's), else the spec."""
-    name, sep, spec = text.partition("=")
-    if not sep or ":" in name:  # a spec whose argument holds '=' (narx:/runs/lr=0.1.npz)
-        return None, text
-    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
-        raise ConfigError(f"--model {text!r}: a model name is letters, digits and '_', not starting with a digit")
-    if name == "dummy":
-        raise ConfigError(f"--model {text!r}: dummy is the baseline every evaluation holds; choose another name")
-    if baseline_name_clash(name, spec):
-        raise ConfigError(f"--model {text!r}: {baseline_name_clash(name, spec)}")
-    return name, spec
 
 
 def build_model(text: str, vehicle: VehicleConfig):

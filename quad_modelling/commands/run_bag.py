@@ -19,7 +19,7 @@ import yaml
 
 from quad_modelling.atomic import atomic_output
 from quad_modelling.commands import check_command_output
-from quad_modelling.core.models.registry import MODEL_FILE_KINDS, baseline_name_clash
+from quad_modelling.core.models.registry import MODEL_FILE_KINDS, named_spec
 from quad_modelling.core.windows import EvaluationConfig, check_window_rate, seconds_spans, spans_without_a_window
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.topic_maps import add_topic_map_argument
@@ -105,16 +105,10 @@ def parse_models(text: str) -> list[ModelEntry]:
     if len(items) > 1 and not all(items):  # as --effects: 'greybox,,naive' is a typo, not two models
         raise ConfigError(f"--models {text!r}: an empty entry in the list (a comma too many?); name each model once")
     for item in filter(None, items):
-        name, sep, spec = item.partition("=")
-        if not sep:
-            name, spec = item.partition(":")[0], item
-        name, spec = name.strip(), spec.strip()
-        if not name or not spec or "/" in name:
+        name, spec = named_spec(item, "--models")
+        entries.append(ModelEntry(name or spec.partition(":")[0].strip(), spec))
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", entries[-1].name):  # a spec's kind names its node
             raise ConfigError(f"--models {text!r}: bad entry {item!r}; expected SPEC or NAME=SPEC")
-        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name) or baseline_name_clash(name, spec):  # NAME_predictor, its topics
-            raise ConfigError(f"--models {text!r}: " + (baseline_name_clash(name, spec) or f"model name {name!r} must be letters, "
-                              "digits and '_', not starting with a digit (it names the predictor node and its topics)"))
-        entries.append(ModelEntry(name, spec))
     if not entries:
         raise ConfigError("--models: give at least one model spec")
     names = [e.name for e in entries]

@@ -188,8 +188,8 @@ def test_two_model_files_of_one_kind_are_compared_by_naming_them(tmp_path, capsy
                                                                                                 "deviation from the trim (thesis Fig 5.2 baseline, TIC 1).")
     assert main([*named, "-o", str(first), "--force"]) == 2
     assert f"the output is the input {first}" in capsys.readouterr().err
-    for text, why in (("1a=greybox", "a model name is letters, digits and '_', not starting with a digit"),
-                      (f"dummy=direct:{first}", "dummy is the baseline every evaluation holds"),
+    for text, why in (("1a=greybox", "model name '1a' must be letters, digits and '_', not starting with a digit"),
+                      (f"dummy=direct:{first}", "dummy is the name of a baseline every evaluation holds"),
                       ("naive=greybox", "naive is the name of a baseline every evaluation holds; name the greybox model otherwise")):
         assert main(["evaluate", bag, "--preset", "short", "--model", text, "-o", str(tmp_path / "bad")]) == 2
         assert why in capsys.readouterr().err
@@ -210,3 +210,21 @@ def test_a_logging_hole_in_a_csv_is_a_marked_gap_not_a_refused_flight(tmp_path, 
     assert "topic time base has no message for 0.11 s" in err and "marked as a measurement gap" in err, err
     results = json.loads((tmp_path / "e" / "results.json").read_text())
     assert results["windows"]["greybox"] == {"train": 1, "eval": 1}
+
+
+def test_one_name_spec_rule_for_evaluate_and_run_bag():
+    """NAME=SPEC: run-bag refused a file path holding '=' (narx:/runs/lr=0.1.npz) that evaluate read as the spec."""
+    from quad_modelling.commands.run_bag import ModelEntry, parse_models
+    from quad_modelling.core.models.registry import named_spec
+    from quad_modelling.errors import ConfigError
+
+    assert named_spec("narx:/runs/lr=0.1.npz") == (None, "narx:/runs/lr=0.1.npz")
+    assert named_spec("a=narx:/runs/lr=0.1.npz") == ("a", "narx:/runs/lr=0.1.npz")
+    assert parse_models("naive, narx:/runs/lr=0.1.npz, b=narx:/runs/lr=0.2.npz") == [
+        ModelEntry("naive", "naive"), ModelEntry("narx", "narx:/runs/lr=0.1.npz"), ModelEntry("b", "narx:/runs/lr=0.2.npz")]
+    for text, why in (("1a=greybox", "model name '1a' must be letters"), ("naive=greybox", "naive is the name of a baseline"),
+                      ("a=", "NAME= names no model")):
+        with pytest.raises(ConfigError, match=why):
+            named_spec(text)
+        with pytest.raises(ConfigError, match=why):
+            parse_models(text)

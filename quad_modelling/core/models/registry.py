@@ -25,6 +25,7 @@ The learned models are imported on first use (torch is imported only to train).
 from __future__ import annotations
 
 import importlib
+import re
 from collections.abc import Callable
 
 from quad_modelling.core.models.base import (
@@ -61,6 +62,27 @@ def baseline_name_clash(name: str, spec: str) -> str | None:
     if name in BASELINE_NAMES and spec != name:
         return f"{name} is the name of a baseline every evaluation holds; name the {spec} model otherwise"
     return None
+
+
+def named_spec(text: str, flag: str = "--model") -> tuple[str | None, str]:
+    """A model text of ``--model`` (evaluate) or ``--models`` (run-bag) -> (its name or None, the model spec):
+    ``NAME=SPEC`` names a model (two files of one kind in one table, e.g. ``a=narx:a.npz`` and ``b=narx:b.npz``; NAME
+    letters, digits and '_': it names the predictor node and its topics), else the spec; ConfigError naming ``flag``
+    for a bad name or a baseline's name on another model. The one rule of both verbs (run-bag refused a file path
+    holding '=', evaluate read it as the spec)."""
+    name, sep, spec = text.partition("=")
+    if not sep or ":" in name:  # a spec whose argument holds '=' (narx:/runs/lr=0.1.npz)
+        return None, text
+    name, spec = name.strip(), spec.strip()
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        raise ConfigError(f"{flag} {text!r}: model name {name!r} must be letters, digits and '_', not starting with a digit "
+                          "(it names the predictor node and its topics)")
+    if not spec:
+        raise ConfigError(f"{flag} {text!r}: NAME= names no model; expected SPEC or NAME=SPEC")
+    clash = baseline_name_clash(name, spec)
+    if clash:
+        raise ConfigError(f"{flag} {text!r}: {clash}")
+    return name, spec
 
 
 def register_model(kind: str, factory: ModelFactory) -> None:

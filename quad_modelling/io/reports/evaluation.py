@@ -60,7 +60,7 @@ def model_note(name: str) -> str | None:
 def model_notes(names, specs: dict[str, str] | None = None) -> list[str]:
     """``Models: greybox = linear greybox, the thesis reproduction (...); naive = ...`` (one line), or nothing.
 
-    ``specs``: the spec of each model given a name (``--model NAME=SPEC``, :func:`quad_modelling.commands.evaluate.named_spec`),
+    ``specs``: the spec of each model given a name (``--model NAME=SPEC``, :func:`quad_modelling.core.models.registry.named_spec`),
     listed as ``NAME (SPEC) = note`` with the note of its spec's kind (a name alone has none)."""
     specs = specs or {}
     notes = [f"{name} ({specs[name]}) = {model_note(specs[name])}" if name in specs else f"{name} = {model_note(name)}"
