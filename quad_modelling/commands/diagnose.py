@@ -311,7 +311,7 @@ def _physics_candidates(text: str) -> tuple[str, ...]:
             raise ConfigError(f"--effects {name}: unknown; the physics base's candidates are {', '.join(CANDIDATES)}")
     if len(set(names)) != len(names):
         raise ConfigError(f"--effects {text}: an effect is named twice")
-    return tuple(names)
+    return tuple(c for c in CANDIDATES if c in names)  # the canonical order, whatever the typed one (ties break alike)
 
 
 def _run_physics(args, train, test, vehicle, config, injection, output: Path, skipped: list[str]) -> int:
@@ -422,13 +422,7 @@ def _physics_validation(args, config, say) -> dict:
     if args.base_from not in (None, "effects-on"):
         raise ConfigError("--base-from effects-off: the physics base's validation identifies the base on the effect-on "
                           "training flights, as a user must (--base-from is the greybox validation's)")
-    if args.effects in ("all", "default"):
-        candidates = list(CANDIDATES)
-    else:
-        candidates = [e.strip() for e in args.effects.split(",") if e.strip()]
-        unknown = [c for c in candidates if c not in CANDIDATES]
-        if unknown or not candidates:
-            raise ConfigError(f"--effects {args.effects!r}: the physics base's candidates are {', '.join(CANDIDATES)}")
+    candidates = list(_physics_candidates(args.effects))  # one --effects rule with the diagnosis of flights
     return validate_physics(args.vehicle or "linkquad", config, _seeds(args.seeds), candidates, _pairs(args.pairs),
                             _disturbances(args.disturbance), PHYSICS_VALIDATION_DURATION_S if args.duration is None else args.duration,
                             validation_jobs(args.jobs), say)

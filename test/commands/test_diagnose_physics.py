@@ -385,3 +385,13 @@ def test_a_flight_too_short_to_add_anything_is_named_before_the_fit(tmp_path, ca
     assert f"warning: {short}: 0.0 s of flight after --drop 5:5, under one 10 s window: it adds nothing to the fit" in err
     assert f"warning: {short}: no airborne start of the protocol after --drop 5:5: it adds nothing to the held-out scores" in err
     assert f"warning: {BAG}:" not in err
+
+
+def test_candidates_are_taken_in_the_canonical_order_whatever_the_typed_one():
+    """The selection breaks ties by candidate order: `--effects motor_imbalance,rotor_drag` ran in the typed order; the
+    --validate path parsed --effects by a second, looser rule."""
+    from quad_modelling.commands.diagnose import _physics_candidates
+    from quad_modelling.core.diagnosis.physics_base import CANDIDATES
+
+    assert _physics_candidates("motor_imbalance, rotor_drag") == ("rotor_drag", "motor_imbalance")
+    assert _physics_candidates("all") == CANDIDATES
