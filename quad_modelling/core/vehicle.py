@@ -165,11 +165,8 @@ finite. Rotor time constant, delay and drag may be 0 (no lag, no delay, no drag)
 DOCUMENT_KEYS = ("name", "description", "geometry", "motors", "inputs", "constants", "greybox", "effects", "identification")
 """The top-level keys of a vehicle file; any other (a typo: ``geomtery``) is refused, not ignored."""
 
-MOTOR_KEYS = ("name", "position", "spin")
-"""The keys of one ``motors`` entry; any other (``tilt_deg``) is refused: the model has no place for it."""
-
-INPUT_KEYS = ("min", "max", "unit")
-"""The keys of ``inputs``; any other (``offset``) is refused."""
+MOTOR_KEYS = ("name", "position", "spin")  # one motors entry's; any other (tilt_deg) is refused: no model reads it
+INPUT_KEYS = ("min", "max", "unit")  # the inputs'; any other (offset) is refused
 
 CONSTANT_FIELDS = ("value", "unit", "source", "status", "sigma", "bounds", "at_bound", "vehicle_value", "change_percent",
                    "poorly_determined", "held")
@@ -374,9 +371,7 @@ class VehicleConfig:
                 raise ConfigError(f"{where}: missing required key {context}{key}")
             return mapping[key]
 
-        unknown_keys = sorted(str(k) for k in doc if k not in DOCUMENT_KEYS) if isinstance(doc, dict) else []
-        if unknown_keys:
-            raise ConfigError(f"{where}: {unknown_keys[0]} is not a key of a vehicle file (known: {', '.join(DOCUMENT_KEYS)})")
+        _refuse_unknown(doc, DOCUMENT_KEYS, f"{where}: ", "a key of a vehicle file")
         name = str(need(doc, "name", ""))
         geometry = need(doc, "geometry", "")
         if geometry not in ("plus", "x"):
@@ -388,10 +383,8 @@ class VehicleConfig:
         if not isinstance(greybox_doc, dict):
             raise ConfigError(f"{where}: greybox must be a mapping of {', '.join(GREYBOX_KEYS)} to {{value, unit, source, status}}")
         constants_doc, greybox_doc, old = _read_old_keys(constants_doc, greybox_doc, where)
-        known = (*CONSTANT_KEYS, *PHYSICS_KEYS, *EFFECTIVE_KEYS)
-        unknown = sorted(str(k) for k in constants_doc if k not in known)
-        if unknown:  # a typo (effective_ixx_) would leave the model on the airframe's value without a word
-            raise ConfigError(f"{where}: constants.{unknown[0]} is not a vehicle constant (known: {', '.join(known)})")
+        # a typo (effective_ixx_) left the model on the airframe's value without a word
+        _refuse_unknown(constants_doc, (*CONSTANT_KEYS, *PHYSICS_KEYS, *EFFECTIVE_KEYS), f"{where}: constants.", "a vehicle constant")
         optional = [k for k in (*PHYSICS_KEYS, *EFFECTIVE_KEYS) if k in constants_doc and k not in CONSTANT_KEYS]
         for key in CONSTANT_KEYS:
             if key not in constants_doc and old:
@@ -400,9 +393,7 @@ class VehicleConfig:
                                   f"{', '.join(k for k in CONSTANT_KEYS if k.startswith('rotor_'))} are required, docs/formats.md)")
         constants = {key: _constant(need(constants_doc, key, "constants."), key, "constants", where, need)
                      for key in (*CONSTANT_KEYS, *optional)}
-        unknown = sorted(set(greybox_doc) - set(GREYBOX_KEYS))
-        if unknown:
-            raise ConfigError(f"{where}: greybox.{unknown[0]} is not a greybox constant (known: {', '.join(GREYBOX_KEYS)})")
+        _refuse_unknown(greybox_doc, GREYBOX_KEYS, f"{where}: greybox.", "a greybox constant")
         greybox = {key: _constant(need(greybox_doc, key, "greybox."), key, "greybox", where, need)
                    for key in GREYBOX_KEYS if greybox_doc}
         motors_doc = need(doc, "motors", "")
@@ -410,9 +401,7 @@ class VehicleConfig:
             raise ConfigError(f"{where}: motors must list exactly 4 rotors in command order u1..u4")
         motors = []
         for i, m in enumerate(motors_doc):
-            extra = sorted(str(k) for k in m if k not in MOTOR_KEYS) if isinstance(m, dict) else []
-            if extra:
-                raise ConfigError(f"{where}: motors[{i}].{extra[0]} is not a key of a motor (known: {', '.join(MOTOR_KEYS)})")
+            _refuse_unknown(m, MOTOR_KEYS, f"{where}: motors[{i}].", "a key of a motor")
             position = need(m, "position", f"motors[{i}].")
             spin = need(m, "spin", f"motors[{i}].")
             if spin not in ("cw", "ccw"):
@@ -436,9 +425,7 @@ class VehicleConfig:
         if len(set(names)) != len(names):
             raise ConfigError(f"{where}: motors name {sorted({n for n in names if names.count(n) > 1})[0]!r} twice; name each rotor once")
         inputs = need(doc, "inputs", "")
-        extra = sorted(str(k) for k in inputs if k not in INPUT_KEYS) if isinstance(inputs, dict) else []
-        if extra:
-            raise ConfigError(f"{where}: inputs.{extra[0]} is not a key of inputs (known: {', '.join(INPUT_KEYS)})")
+        _refuse_unknown(inputs, INPUT_KEYS, f"{where}: inputs.", "a key of inputs")
         try:
             input_min = yaml_number(need(inputs, "min", "inputs."))
             input_max = yaml_number(need(inputs, "max", "inputs."))
@@ -464,6 +451,13 @@ class VehicleConfig:
         )
 
 
+def _refuse_unknown(mapping, known, context: str, what: str) -> None:
+    """ConfigError naming the first key of ``mapping`` not in ``known``: '<context><key> is not <what> (known: ...)'."""
+    unknown = sorted(str(k) for k in mapping if k not in known) if isinstance(mapping, dict) else []
+    if unknown:
+        raise ConfigError(f"{context}{unknown[0]} is not {what} (known: {', '.join(known)})")
+
+
 def _fitted_constants(record, where: str) -> frozenset[str]:
     """The constant names of a vehicle document's ``identification.constants`` record (None: none)."""
     if record is None:
@@ -478,9 +472,7 @@ def _constant(entry, key: str, section: str, where: str, need) -> Constant:
     """One ``{value, unit, source, status[, sigma]}`` entry of ``section`` validated (ConfigError naming the key)."""
     for sub in ("value", "unit", "source", "status"):
         need(entry, sub, f"{section}.{key}.")
-    unknown = sorted(str(k) for k in entry if k not in CONSTANT_FIELDS)
-    if unknown:
-        raise ConfigError(f"{where}: {section}.{key}.{unknown[0]} is not a field of a constant (known: {', '.join(CONSTANT_FIELDS)})")
+    _refuse_unknown(entry, CONSTANT_FIELDS, f"{where}: {section}.{key}.", "a field of a constant")
     check_unit(key, str(entry["unit"]), f"{where}: {section}.{key}")
     if entry["status"] not in STATUSES:
         raise ConfigError(f"{where}: {section}.{key}.status must be one of {STATUSES}, got {entry['status']!r}")

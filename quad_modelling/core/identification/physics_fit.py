@@ -74,21 +74,11 @@ from quad_modelling.core.identification.physics_result import (FIT_OBSERVERS, FI
                                                                  training_score)
 from quad_modelling.core.models.physics import Observer
 from quad_modelling.core.identification.normal_equations import NormalEquations, solve_channels
-from quad_modelling.core.identification.uncertainty import profile_sigma
+from quad_modelling.core.identification.uncertainty import profile_sigma, subsample_delay
 from quad_modelling.core.identification.physics_terms import (
-    GROUND_OFFSETS,
-    IMBALANCE_AXES,
-    IMBALANCE_ITERATIONS,
-    IMBALANCE_LEVEL_CHANNELS,
-    TermDesign,
-    cg_offset_columns,
-    channel_columns,
-    imbalance_columns,
-    imbalance_separated,
-    rate_columns,
-    term_estimates,
-    updated_gains,
-    velocity_columns,
+    GROUND_OFFSETS, IMBALANCE_AXES, IMBALANCE_ITERATIONS, IMBALANCE_LEVEL_CHANNELS, VANISHED_HELD,
+    VANISHING_AT_BOUND, TermDesign, cg_offset_columns, channel_columns, imbalance_columns, imbalance_separated,
+    rate_columns, term_estimates, updated_gains, velocity_columns
 )
 from quad_modelling.core.physics.effects import BASE_SWITCHES, switched_off
 from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
@@ -122,7 +112,6 @@ previous pass's τ: a factor 1.65 either way, 5-6 objective evaluations instead 
 DELAY_MAX_S = 0.15
 """Largest command delay searched [s]: 15 samples at 100 Hz. The NanoBench Crazyflie's logged commands lead its
 response by about 40 ms; at the earlier 60 ms limit a 20 ms delay added to those flights sat on the bound."""
-
 
 BOUNDS_FACTOR = 10.0
 """k_f, k_m and the roll/pitch inertias are bounded to [start / 10, start * 10]: an order of magnitude either side
@@ -351,14 +340,6 @@ def identify_physics(flights: Sequence[FlightLog], vehicle: VehicleConfig, confi
     return best
 
 
-VANISHING_AT_BOUND = {"ground_effect": "coefficient"}
-"""Terms that are no term at a bound of one parameter: a ground-effect coefficient at its lower bound 0 is no ground
-effect (k_GE = 1)."""
-
-VANISHED_HELD = "the term vanishes at this bound: the other constants fitted without it"
-"""Why a vanished term's parameter is held (:func:`_identify_with`)."""
-
-
 def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: EvaluationConfig,
                    observer: Observer, terms: Sequence[str], drag: bool | None = None,
                    dynamics: tuple[float | None, float | None, float, *tuple[float, ...]] | None = None,
@@ -578,18 +559,6 @@ def _search_dynamics(p: PhysicsParameters, segments: list[_Segment], observer: O
     if not np.isfinite(sigma) or delay != float(grid[i]):  # flat or kinked there / the vertex's own error (subsample_delay)
         sigma = float(np.hypot(sigma, period / np.sqrt(12.0))) if np.isfinite(sigma) else period / np.sqrt(12.0)
     return tau, delay, sigma, profile, design, fit, thin
-
-
-def subsample_delay(best: float, low: float, mid: float, high: float, period: float) -> float:
-    r"""δ [s] at the vertex of the parabola through J = ``low``, ``mid``, ``high`` at the whole-sample delays ``best`` - T,
-    ``best``, ``best`` + T (T = ``period`` [s]): :math:`\delta = \delta_{best} + T \operatorname{clip}((J_- - J_+) /
-    (2 (J_- - 2 J_0 + J_+)), -\tfrac12, \tfrac12)`. From whole samples only: between them the commands are
-    interpolated linearly (:func:`~quad_modelling.core.physics.rotors.delayed_commands`), i.e. low-passed (cos(ωT/2) at
-    half a sample: 5 % at 10 Hz, 100 Hz samples), which biases J up; checked against that J, the vertex was never kept
-    (NanoBench helix fold, 15 / 25 ms injected: δ rose by 20 / 30 ms; vertices 16.2 / 26.2). Its own error (up to T/2
-    on a lopsided profile: simulated 20 ms delays gave 18.4 / 22.8 / 19.2 ms) is in σ_δ as T/sqrt(12) in quadrature."""
-    curvature = low - 2.0 * mid + high
-    return best + float(np.clip(0.5 * (low - high) / curvature, -0.5, 0.5)) * period
 
 
 def _ground_offset(p: PhysicsParameters, segments: list[_Segment], tau: float, delay: float, observer: Observer,

@@ -73,6 +73,14 @@ TERM_BOUNDS = {
 """Bounds of each fitted term parameter (ground effect and the CG offset in units of the vehicle's arm length,
 :data:`ARM_POWERS`)."""
 
+VANISHING_AT_BOUND = {"ground_effect": "coefficient"}
+"""Terms that are no term at a bound of one parameter: a ground-effect coefficient at its lower bound 0 is no ground
+effect (k_GE = 1)."""
+
+VANISHED_HELD = "the term vanishes at this bound: the other constants fitted without it"
+"""Why a vanished term's parameter is held (:func:`~quad_modelling.core.identification.physics_fit.identify_physics`)."""
+
+
 ARM_POWERS = {("ground_effect", "coefficient"): 2, ("ground_effect", "offset"): 1,
               ("motor_imbalance", "cg_offset_x"): 1, ("motor_imbalance", "cg_offset_y"): 1}
 """The power of the arm length each :data:`TERM_BOUNDS` entry is written in (absent: absolute)."""

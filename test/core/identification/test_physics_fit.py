@@ -11,7 +11,8 @@ import pytest
 from quad_modelling.core.diagnosis.physics_validation import assessing_vehicle
 from quad_modelling.core.identification.constants_report import add_physics_constants
 from quad_modelling.core.identification.identify import identified_vehicle_document, identify
-from quad_modelling.core.identification.physics_fit import FITTED, identify_physics, subsample_delay
+from quad_modelling.core.identification.physics_fit import FITTED, identify_physics
+from quad_modelling.core.identification.uncertainty import subsample_delay
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 from quad_modelling.core.physics.effects import parse_effects
 from quad_modelling.core.physics.parameters import PhysicsParameters
