@@ -130,8 +130,9 @@ def _parse_and_run(argv: list[str] | None) -> int:
         parser.verb_parsers[args.verb].error(f"unrecognized arguments: {' '.join(unknown)}")
     if getattr(args, "output", None) == "":  # as typed: the verbs' Path("") would be "."
         parser.verb_parsers[args.verb].error("-o '': the output must name a new file or directory, not ''")
+    options = {option for action in parser.verb_parsers[args.verb]._actions for option in action.option_strings}
     for flag in ("vehicle", "topic_map"):  # '' read as "not given": the default vehicle without a word
-        if getattr(args, flag, None) is not None and not str(getattr(args, flag)).strip():
+        if f"--{flag.replace('_', '-')}" in options and getattr(args, flag, None) is not None and not str(getattr(args, flag)).strip():
             parser.verb_parsers[args.verb].error(f"--{flag.replace('_', '-')} {getattr(args, flag)!r}: names nothing; give a name or a "
                                                  "YAML file, or leave it out")
     previous_show = warnings.showwarning

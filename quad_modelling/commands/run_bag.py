@@ -19,7 +19,7 @@ import yaml
 
 from quad_modelling.atomic import atomic_output
 from quad_modelling.commands import check_command_output
-from quad_modelling.core.models.registry import MODEL_FILE_KINDS, named_spec
+from quad_modelling.core.models.registry import MODEL_FILE_KINDS, baseline_name_clash, named_spec
 from quad_modelling.core.windows import EvaluationConfig, check_window_rate, seconds_spans, spans_without_a_window
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.topic_maps import add_topic_map_argument
@@ -109,6 +109,8 @@ def parse_models(text: str) -> list[ModelEntry]:
         entries.append(ModelEntry(name or spec.partition(":")[0].strip(), spec))
         if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", entries[-1].name):  # a spec's kind names its node
             raise ConfigError(f"--models {text!r}: bad entry {item!r}; expected SPEC or NAME=SPEC")
+        if baseline_name_clash(entries[-1].name, spec):  # naive:foo would take the baseline's name and topics
+            raise ConfigError(f"--models {text!r}: {baseline_name_clash(entries[-1].name, spec)}")
     if not entries:
         raise ConfigError("--models: give at least one model spec")
     names = [e.name for e in entries]

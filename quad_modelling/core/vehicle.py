@@ -383,8 +383,8 @@ class VehicleConfig:
         if not isinstance(greybox_doc, dict):
             raise ConfigError(f"{where}: greybox must be a mapping of {', '.join(GREYBOX_KEYS)} to {{value, unit, source, status}}")
         constants_doc, greybox_doc, old = _read_old_keys(constants_doc, greybox_doc, where)
-        # a typo (effective_ixx_) left the model on the airframe's value without a word
-        _refuse_unknown(constants_doc, (*CONSTANT_KEYS, *PHYSICS_KEYS, *EFFECTIVE_KEYS), f"{where}: constants.", "a vehicle constant")
+        _refuse_unknown(constants_doc, tuple(dict.fromkeys((*CONSTANT_KEYS, *PHYSICS_KEYS, *EFFECTIVE_KEYS))), f"{where}: constants.",
+                        "a vehicle constant")  # a typo (effective_ixx_) flew on the airframe's value without a word
         optional = [k for k in (*PHYSICS_KEYS, *EFFECTIVE_KEYS) if k in constants_doc and k not in CONSTANT_KEYS]
         for key in CONSTANT_KEYS:
             if key not in constants_doc and old:

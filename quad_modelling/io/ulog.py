@@ -148,7 +148,8 @@ def read_ulog(path: str | Path, vehicle: str | VehicleConfig | None = None) -> F
     where = str(path)
     ulog, said, cut_at = open_ulog(path, TOPICS)
     topics, notes = topics_of(ulog.data_list)
-    if cut_at is not None:  # power lost mid-flight, a copy stopped early: what came before is read, the rest is not there
+    if cut_at is not None and not getattr(ulog, "file_corruption", False):  # power lost, a copy stopped early (a damaged
+        # file is said below: pyulog's resync reads its end in chunks)
         size = Path(path).stat().st_size
         last_s = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
         notes["warnings"] = [*notes.get("warnings", []), f"{where}: the file ends inside a message at byte {cut_at} of "
@@ -171,7 +172,7 @@ class CutShortWatch(io.BufferedReader):
 
     pyulog reads each message as a 3-byte header (size, type) then ``size`` bytes, and stops without a word at a
     message the file ends inside (its comment: "File is most likely cut") -- a log whose writer lost power. A read
-    that returns some but fewer bytes than asked for, or no body after a whole header, is that place: ``cut_at``
+    that returns part of a header, or less body than the header before it announced, is that place: ``cut_at``
     [byte offset of the cut message]. A file cut exactly between two messages looks complete."""
 
     def __init__(self, path: str | Path):
@@ -183,11 +184,11 @@ class CutShortWatch(io.BufferedReader):
         start = self.tell()
         data = super().read(size)
         if size is not None and size > 0 and self.cut_at is None:
-            if 0 < len(data) < size:
+            if size == 3 and 0 < len(data) < 3:  # inside a message header
                 self.cut_at = start
-            elif not data and self._after_header:
+            elif self._after_header and len(data) < size:  # inside the body a whole header announced
                 self.cut_at = start - 3
-        self._after_header = size == 3 and len(data) == 3
+        self._after_header = size == 3 and len(data) == 3  # (pyulog's resync reads 512-byte chunks: never judged)
         return data
 
 

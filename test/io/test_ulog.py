@@ -52,6 +52,10 @@ def test_a_log_cut_inside_a_message_converts_what_it_holds_and_says_where_it_end
     warnings = load_flight(half).meta.notes["warnings"]
     assert len(warnings) == 1 and warnings[0].startswith(f"{half}: the file ends inside a message at byte 781570 of 781573 ")
     assert warnings[0].endswith("read up to there, 14.64 s into the log")
+    damaged = bytearray(whole)
+    damaged[1553475] = 0  # a whole file with one header byte zeroed: pyulog resyncs in 512-byte chunks, short at the end
+    (tmp_path / "damaged.ulg").write_bytes(bytes(damaged))
+    assert not any("ends inside a message" in w for w in load_flight(tmp_path / "damaged.ulg").meta.notes.get("warnings", []))
     for cut, said in ((781571, True), (781570, False)):  # one byte of the cut message's header; none of it
         part = tmp_path / f"cut{cut}.ulg"
         part.write_bytes(whole[:cut])

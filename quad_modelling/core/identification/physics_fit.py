@@ -80,7 +80,7 @@ from quad_modelling.core.identification.physics_terms import (
     VANISHING_AT_BOUND, TermDesign, cg_offset_columns, channel_columns, imbalance_columns, imbalance_separated,
     rate_columns, term_estimates, updated_gains, velocity_columns
 )
-from quad_modelling.core.physics.effects import BASE_SWITCHES, switched_off
+from quad_modelling.core.physics.effects import BASE_SWITCHES, EffectTerm, switched_off
 from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_momentum, rotor_wrench
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, interval_rotor_speeds, rotor_speeds
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -354,7 +354,8 @@ def _identify_with(flights: Sequence[FlightLog], vehicle: VehicleConfig, config:
                 and fit.terms[name][key]["identifiable"] and fit.terms[name][key]["value"] <= fit.terms[name][key]["bounds"][0]}
     if not vanished:
         return fit
-    refit = _fit_once(flights, vehicle, config, observer, [t for t in terms if t not in vanished], drag, dynamics, imbalance_axes)
+    off = replace(vehicle, effects={**vehicle.effects, **{name: EffectTerm(name, False, {}) for name in vanished}})  # not in the
+    refit = _fit_once(flights, off, config, observer, [t for t in terms if t not in vanished], drag, dynamics, imbalance_axes)  # known part
     for name, key in vanished.items():
         refit.terms[name] = {**fit.terms[name], key: {**fit.terms[name][key], "sigma": float("nan"), "held": VANISHED_HELD}}
     refit.diagnostics["vanished_terms"] = {name: f"{key} estimated beyond its bound {fit.terms[name][key]['bounds'][0]:g} "

@@ -338,8 +338,8 @@ def effects_section(estimates: dict[str, dict], source: str) -> dict:
     """The vehicle file's ``effects`` entries of the fitted terms: switched on when every parameter was identified,
     otherwise written off with status 'not identified' and the reason in the source."""
     section = {}
-    for name, parameters in estimates.items():
-        on = all(p["identifiable"] for p in parameters.values())
+    for name, parameters in estimates.items():  # a vanished term (VANISHED_HELD) is no term: written off
+        on = all(p["identifiable"] and p.get("held") != VANISHED_HELD for p in parameters.values())
         entry: dict = {"enabled": on}
         for key, p in parameters.items():
             status = "identified" if p["identifiable"] else "not identified"

@@ -20,7 +20,7 @@ term                  form (the module's symbols)                               
                       :math:`-c \times F` (:func:`~.rigid_body.cg_offset_moment`)
 ``gyroscopic``        the gyroscopic torques :math:`-\omega \times (k_b I\omega + k_p h_r)`,        body_scale k_b [1],
                       :math:`h_r = (0, 0, -I_p \sum_i s_i \Omega_i)` (:mod:`.rigid_body`). No       rotor_scale k_p [1]
-                      entry: the body's term alone (k_b = 1, k_p = 0), as rigid-body physics has
+                      entry or off: the body's term alone (k_b = 1, k_p = 0), as rigid-body physics has
 ``disturbance_observer``  how the model anchors (:class:`~quad_modelling.core.models.physics.Observer`):  linear_history [s],
                       constant disturbances held over a horizon, estimated over the histories;      angular_history [s],
                       ``angular_trim`` 1 removes the model's own mean angular acceleration (a       angular_trim [1]

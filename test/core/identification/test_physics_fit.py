@@ -12,6 +12,7 @@ from quad_modelling.core.diagnosis.physics_validation import assessing_vehicle
 from quad_modelling.core.identification.constants_report import add_physics_constants
 from quad_modelling.core.identification.identify import identified_vehicle_document, identify
 from quad_modelling.core.identification.physics_fit import FITTED, identify_physics
+from quad_modelling.core.identification.physics_terms import effects_section
 from quad_modelling.core.identification.uncertainty import subsample_delay
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 from quad_modelling.core.physics.effects import parse_effects
@@ -354,3 +355,13 @@ def test_a_ground_effect_the_bag_pushes_below_zero_vanishes_and_leaves_the_fit_w
     assert p_with.ground_effect[0] == 0.0 and p_without.ground_effect is None
     for name in (f.name for f in dataclasses.fields(p_with) if f.name != "ground_effect"):
         assert np.array_equal(np.asarray(getattr(p_with, name), dtype=object), np.asarray(getattr(p_without, name), dtype=object)), name
+    assert effects_section(with_term.terms, "test")["ground_effect"]["enabled"] is False  # written off: no term
+    # a vehicle that already has the term on: the refit is without it too, not with the file's coefficient
+    document = vehicle_document(CF, "with a ground effect")
+    document["effects"] = {"ground_effect": {"enabled": True, **{key: {"value": value, "unit": unit, "bounds": [0.0, 1.0],
+                                                                         "source": "test", "status": "identified"}
+                                                                   for key, value, unit in (("coefficient", 0.0021, "m2"),
+                                                                                            ("offset", 0.05, "m"))}}}
+    on = VehicleConfig.from_dict(document, "ge_on.yaml")
+    refitted = identify_physics([bag], on, SHORT, observer=observer, terms=("ground_effect",))
+    assert refitted.terms["ground_effect"]["coefficient"]["value"] == 0.0 and refitted.values == without.values
