@@ -241,7 +241,8 @@ class EvaluatorNode(Node):
         if verdict is Stamp.SUSPECT:
             return []
         self.faults.report(stream_fault("clock_jump", stream), f"{stream} jumped to stamp t = {ns / 1e9:.6f} s ({CONFIRM} consistent stamps): "
-                                                    "publisher restarted or clock reset; following it")
+                                                    "publisher restarted, clock reset, or samples lost (a reader that falls behind a keep-last writer loses the "
+                                                    "oldest: a replay at --rate > 0 on a busy machine; rate 0 is lossless); following it")
         if stream == MOTOR_INPUT:
             self._restart_clock(ns)
             return [(ns, payload)]  # the windows go on from here, on the predictors' window clock

@@ -163,3 +163,12 @@ def test_a_stream_too_short_to_tell_its_rate_is_described_so():
 
     coverage = StreamCoverage("motor_input", received=1, nominal=0.0, longest_gap_s=0.0, gap_at_s=0.0)
     assert coverage.describe() == "motor_input: 1 sample received, too few to tell its rate" and not coverage.ok
+
+
+@pytest.mark.parametrize("kept, coverage", [((0, 1), 0.4), ((0, 2, 3), 0.6), ((0, 1, 2, 3), 0.8)])
+def test_a_stream_that_loses_samples_between_regular_ones_is_judged_by_its_own_period(kept, coverage):
+    """A 250 Hz IMU keeping the samples ``kept`` of every 5 (steps of 4 ms and longer): the period is the short steps',
+    not the long ones' (2 of 5 read '160 % of 125 nominal samples' and was scored)."""
+    stamps = np.array([k for k in range(2500) if k % 5 in kept], dtype=np.int64) * 4 * MS
+    lossy = stream_coverage("imu", stamps, -2 * MS, 9998 * MS)
+    assert lossy.nominal == pytest.approx(2500.0) and lossy.coverage == pytest.approx(coverage) and not lossy.ok
