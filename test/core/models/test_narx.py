@@ -265,6 +265,9 @@ def test_other_sample_rate_and_short_windows_refused(trained):
     fast.t = fast.t / 2.5  # 250 Hz
     with pytest.raises(DataError, match="trained at 10.000 ms"):
         trained.predict_window(fast, warm_samples=20)
+    jittered = flight_from(u[:30], y[:30])  # stamps +-1 ms about 100 Hz, as a stack's clock gives them: accepted
+    jittered.t = jittered.t + np.random.default_rng(10).uniform(-0.001, 0.001, 30)  # median step 10.15 ms: refused at 1 %
+    assert np.isfinite(trained.predict_window(jittered, warm_samples=20)).any()
     with pytest.raises(DataError, match="shorter than the 20 warm-up samples"):
         trained.predict_window(flight_from(u[:15], y[:15]), warm_samples=20)
     with pytest.raises(ModelError, match="at least 2 measured samples"):
