@@ -78,10 +78,11 @@ class PhysicsFit:
             for name, params in self.terms.items() for key, q in params.items()]
 
     def _helps(self, key: str) -> str:
-        """What would determine constant ``key`` better: for a rotor lag or command delay on its lower bound 0, that
+        """What would determine constant ``key`` better: for a rotor lag or command delay on its lower bound (2 ms, 0), that
         the flights show none (simulated without it, or too slow to tell), so the switch belongs off; else excitation."""
         switch = {"rotor_time_constant": "motor_lag", "rotor_delay": "input_delay"}.get(key)
-        if switch and self.at_bound[key] and self.values[key] <= self.bounds[key][0]:
+        low, high = self.bounds[key]  # the lag's lower bound is 2 ms, flagged within 10 % in log of it (not 0 itself)
+        if switch and self.at_bound[key] and self.values[key] - low < high - self.values[key]:
             return f"none in the flights? switch {switch} off in the vehicle file (effects.{switch}: {{enabled: false}})"
         return ConstantEstimate.helps
 

@@ -277,6 +277,9 @@ def test_a_time_constant_the_search_leaves_at_its_lower_bound_is_flagged():
     config = EvaluationConfig.preset("short", train="0%:100%", eval="0%:100%")
     fit = identify_physics([log], vehicle, config, observer=Observer(0.0, 0.0), terms=["motor_lag"])
     assert fit.values["rotor_time_constant"] < 0.0022 and fit.at_bound["rotor_time_constant"]
+    # ... and the advice is the switch, as for a delay on 0 (it said "more excitation": the bound is 2 ms, not 0)
+    lag = next(e for e in fit.estimates() if e.name == "rotor_time_constant")
+    assert lag.helps.startswith("none in the flights? switch motor_lag off in the vehicle file")
 
 
 def test_a_later_pass_searches_the_lag_near_the_previous_one_and_the_whole_range_when_it_ends_at_that_edge(sim_flight, monkeypatch):
