@@ -379,6 +379,7 @@ class EvaluatorNode(Node):
 
     def on_odom(self, msg: Odometry) -> None:
         fields = topics.odometry_fields(msg)
+        messages.check_odometry_frames(self.faults, msg)
         if topics.all_finite(fields) and zero_quaternion(self.faults, fields):  # dropped as the predictors drop it
             return
         self._measurement(MOCAP_ODOM, topics.stamp_ns(msg.header.stamp), fields, "odom")

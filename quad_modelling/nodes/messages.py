@@ -119,3 +119,14 @@ def admitted_command(faults, vehicle, u):
         faults.report(stream_fault("range", MOTOR_INPUT), f"motor_input dropped: {why}")
         return None
     return np.clip(u, vehicle.input_min, vehicle.input_max)
+
+
+def check_odometry_frames(faults, msg) -> None:
+    """Report (not drop) an odometry message whose frames say it is not the contract's (pose in an ENU world frame,
+    twist in the FLU ``base_link``): a frame named NED or FRD, or the twist in the pose's own frame. Read as the
+    contract either way (a stack in NED/FRD needs a topic map); said once, then counted as fault ``odom_frames``.
+    ``map_ned`` / ``base_link_frd`` were read silently as ENU / FLU (review of session 33)."""
+    world, child = msg.header.frame_id, msg.child_frame_id
+    if any(tag in name.lower() for name in (world, child) for tag in ("ned", "frd")) or (child and child == world):
+        faults.report("odom_frames", f"odometry in frames {world!r} / {child!r}, read as the contract's ENU world and FLU "
+                                     f"{topics.BODY_FRAME} (a NED/FRD stack needs a topic map: parameter topic_map)")

@@ -314,9 +314,8 @@ class PredictorNode(Node):
 
     def on_odom(self, msg: Odometry) -> None:
         fields = topics.odometry_fields(msg)
-        if messages.dropped(self.faults, MOCAP_ODOM, fields, "motion-capture message"):
-            return
-        if zero_quaternion(self.faults, fields):
+        messages.check_odometry_frames(self.faults, msg)
+        if messages.dropped(self.faults, MOCAP_ODOM, fields, "motion-capture message") or zero_quaternion(self.faults, fields):
             return
         ns = topics.stamp_ns(msg.header.stamp)
         if self._gate(MOCAP_ODOM, ns, fields):

@@ -108,3 +108,27 @@ def test_one_conversion_gives_byte_identical_messages_in_rclpy_and_rosbags():
     np.testing.assert_allclose(back.euler, log.euler, rtol=0, atol=1e-12)
     np.testing.assert_allclose(back.vel_n, log.vel_n, rtol=0, atol=1e-12)
     np.testing.assert_allclose(back.vbat, log.vbat, rtol=1e-7)  # rclpy keeps BatteryState.voltage as a float32
+
+
+def test_odometry_in_ned_or_frd_frames_or_a_twist_in_the_pose_frame_is_reported_not_dropped():
+    """A stack's odometry in map_ned / base_link_frd was read as ENU / FLU without a word (review of session 33): one
+    fault, the message still read; the contract's frames (and ENU names other than world) say nothing."""
+    from nav_msgs.msg import Odometry
+
+    from quad_modelling.nodes.messages import check_odometry_frames
+
+    class Faults:
+        def __init__(self):
+            self.reports = []
+
+        def report(self, kind, text):
+            self.reports.append((kind, text))
+
+    for world, child, said in (("world", "base_link", False), ("map", "base_link", False), ("map_ned", "base_link_frd", True),
+                               ("world", "body_FRD", True), ("odom", "odom", True)):
+        msg, faults = Odometry(), Faults()
+        msg.header.frame_id, msg.child_frame_id = world, child
+        check_odometry_frames(faults, msg)
+        assert bool(faults.reports) is said, (world, child)
+        if said:
+            assert faults.reports[0][0] == "odom_frames" and f"frames {world!r} / {child!r}" in faults.reports[0][1]
