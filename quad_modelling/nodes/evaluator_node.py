@@ -88,7 +88,7 @@ from quad_modelling.nodes.recording import check_output_dir, close_recording, op
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, message_class
 from quad_modelling.nodes.scoring import (  # noqa: F401  (EVALUATOR_PARAMETERS re-exported)
     EVALUATOR_PARAMETERS, LiveScores, WindowBuffer, WindowRecord, diagnostics_message, late_reason, shared_models,
-    shared_reason, score_horizon, score_model, window_measurements,
+    shared_reason, score_horizon, score_model, unmatched_models, window_measurements,
 )
 
 PROGRESS_REPEAT_S = 0.2
@@ -449,7 +449,7 @@ class EvaluatorNode(Node):
         """Acknowledge progress: on change, and every :data:`PROGRESS_REPEAT_S` for late subscribers."""
         now = time.monotonic()
         if not self.ready:
-            missing = [m for m in self.models if any(self.count_publishers(f"{m}/{kind}") == 0 for kind in self.prediction_kinds)]
+            missing = unmatched_models(self, self.models, self.prediction_kinds)  # matched: none lost to a late match
             waited = now - self.started_wall
             if missing and waited < self.ready_timeout_s:
                 return

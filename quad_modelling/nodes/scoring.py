@@ -393,6 +393,15 @@ def shared_models(count_publishers, models: list[str], kinds: tuple[str, ...]) -
     return {model: n for model, n in counts.items() if n > 1}
 
 
+def unmatched_models(node, models: list[str], kinds: tuple[str, ...]) -> list[str]:
+    """The models one of whose prediction subscriptions ``<model>/<kind>`` of ``node`` has matched no publisher yet.
+    Matched, not merely in the graph (``count_publishers``): over a lossy link the evaluator acknowledged, the replay
+    started, and the first second of a model's predictions arrived before its reader had matched (two-host test)."""
+    topics_of = {node.resolve_topic_name(f"{model}/{kind}"): model for model in models for kind in kinds}
+    matched = {s.topic_name for s in node.subscriptions if s.topic_name in topics_of and s.get_publisher_count() > 0}
+    return [model for model in models if any(t not in matched for t, m in topics_of.items() if m == model)]
+
+
 def shared_reason(model: str, publishers: int) -> str:
     """Why a model's records are marked while :func:`shared_models` finds it published by several nodes."""
     return (f"{publishers} nodes publish {model}'s predictions: two predictors share the model name {model} (give each "

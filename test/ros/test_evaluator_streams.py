@@ -245,12 +245,28 @@ def test_a_replay_restarted_earlier_closes_the_open_window_and_starts_one_time_b
 
 def test_a_model_that_never_publishes_is_named(ros):
     """'not every model in ['greybox', 'narx'] publishes after 20 s' left the user to guess which one."""
+    import time
+
+    from nav_msgs.msg import Odometry
+    from geometry_msgs.msg import AccelStamped
+    from rclpy.node import Node
+
+    from quad_modelling.nodes.common import history_qos
+    from quad_modelling.nodes.scoring import unmatched_models
+
     node = make_node(models=["greybox", "narx"])
+    greybox = Node("greybox_predictor", namespace="/quad")  # publishes greybox's predictions; narx has no publisher
+    publishers = [greybox.create_publisher(kind, f"greybox/{topic}", history_qos()) for kind, topic in ((Odometry, "odom"),
+                                                                                                           (AccelStamped, "accel"))]
+    deadline = time.monotonic() + 10  # ready = the evaluator's own readers matched, not only publishers in the graph
+    while unmatched_models(node, node.models, node.prediction_kinds) != ["narx"] and time.monotonic() < deadline:
+        ros.spin_once(node, timeout_sec=0.05)
     warned = []
     node.faults.logger = type("Logger", (), {"warning": lambda self, text: warned.append(text)})()
-    node.count_publishers = lambda topic: 1 if topic.startswith("greybox/") else 0
     node.ready_timeout_s, node.started_wall = 0.0, 0.0
     node.on_progress_timer()
     assert node.faults.counts == {"model_missing": 1} and node.ready
     assert warned[0].startswith("no publisher of model(s) narx after ") and "(of ['greybox', 'narx'])" in warned[0]
+    assert publishers
+    greybox.destroy_node()
     node.destroy_node()
