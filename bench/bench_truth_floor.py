@@ -1,10 +1,10 @@
-"""The perfect-model floor (issue #25 item 7): the identified physics model against ``truth`` on simulated LinkQuad flights.
+"""The perfect-model floor (issue #25 item 7): the identified physics model against ``truth`` on simulated flights.
 
 For each trial seed S and each simulator effect set (``none``: effect-free; ``ground_effect,battery``), as a user
 runs it:
 
-1. ``quad-modelling simulate`` three 220 s LinkQuad flights, seeds S, S+1, S+2;
-2. ``quad-modelling identify`` the physics model on the first two (``--vehicle linkquad``, thesis spans);
+1. ``quad-modelling simulate`` three 220 s flights of ``--vehicle`` (``linkquad``, or ``crazyflie21``), seeds S, S+1, S+2;
+2. ``quad-modelling identify`` the physics model on the first two (``--vehicle`` the shipped file, thesis spans);
 3. ``quad-modelling evaluate`` the third, held out, with that vehicle file and the models :data:`MODELS`; the
    multi-step table (IDSIA, every start of the evaluation span 150-190 s, horizons 1..50) gives each model's SimErr
    ratio to naive on velocity and angular velocity.
@@ -17,7 +17,7 @@ part only: what the observer itself costs.
 ``physics@true`` (:func:`true_constant_physics`) is the physics model with the simulator's true constants: what its
 structure reaches when identification is perfect.
 
-Run: ``.venv/bin/python -m bench.bench_truth_floor [--seeds 4711,31337] [--effects none ground_effect,battery]``
+Run: ``.venv/bin/python -m bench.bench_truth_floor [--vehicle crazyflie21] [--seeds 4711,31337] [--effects none ground_effect,battery]``
 (seeds are trial seeds; the development seed was 5001: report others). Writes bench/results/truth_floor.json/.md.
 """
 
@@ -95,19 +95,20 @@ def true_constant_physics(flight: Path, identified: Path) -> dict:
     return multistep_evaluation([resample_uniform(log)], models, vehicle, EvaluationConfig())
 
 
-def trial(seed: int, effects: str, directory: Path, duration: float, terms: str = "") -> dict:
+def trial(seed: int, effects: str, directory: Path, duration: float, terms: str = "", vehicle_name: str = "linkquad") -> dict:
     """Simulate, identify on two flights, evaluate the third (module docstring): the multi-step ratios."""
     times = {}
     flights = []
     started = time.perf_counter()
     for k in range(3):
         path = directory / f"s{seed + k}_{effects.replace(',', '+')}.mat"
-        _run(["simulate", "-o", str(path), "--effects", effects, "--seed", str(seed + k), "--duration", str(duration), "--force"])
+        _run(["simulate", "-o", str(path), "--vehicle", vehicle_name, "--effects", effects, "--seed", str(seed + k),
+              "--duration", str(duration), "--force"])
         flights.append(path)
     times["simulate_s"] = time.perf_counter() - started
     vehicle = directory / f"identified_{seed}_{effects.replace(',', '+')}.yaml"
     started = time.perf_counter()
-    _run(["identify", str(flights[0]), str(flights[1]), "--vehicle", "linkquad", "-o", str(vehicle), "--force",
+    _run(["identify", str(flights[0]), str(flights[1]), "--vehicle", vehicle_name, "-o", str(vehicle), "--force",
           *(["--effects", terms] if terms else [])])
     times["identify_s"] = time.perf_counter() - started
     out = directory / f"eval_{seed}_{effects.replace(',', '+')}"
@@ -124,7 +125,7 @@ def trial(seed: int, effects: str, directory: Path, duration: float, terms: str 
         else:
             horizons["models"][name] = entry
     times["true_constants_s"] = time.perf_counter() - started
-    result = {"seed": seed, "effects": effects, "flights": [seed, seed + 1, seed + 2], "starts": horizons["starts"],
+    result = {"vehicle": vehicle_name, "seed": seed, "effects": effects, "flights": [seed, seed + 1, seed + 2], "starts": horizons["starts"],
               "times": times, "ratio": {}, "sim_err": {}, "noise_ratio": {}}
     for model, entry in horizons["models"].items():
         result["ratio"][model] = {g: entry[g]["ratio_sim_err"] for g in GROUPS}
@@ -136,10 +137,10 @@ def trial(seed: int, effects: str, directory: Path, duration: float, terms: str 
     return result
 
 
-def markdown(results: list[dict], duration: float) -> str:
-    lines = ["# The perfect-model floor: identified physics vs truth on simulated LinkQuad flights", "",
-             f"Per trial seed S: three {duration:g} s LinkQuad flights (seeds S, S+1, S+2) from `quad-modelling simulate`; "
-             "`identify --vehicle linkquad` on the first two; `evaluate` of the third (held out) with the identified "
+def markdown(results: list[dict], duration: float, vehicle_name: str = "linkquad") -> str:
+    lines = [f"# The perfect-model floor: identified physics vs truth on simulated {vehicle_name} flights", "",
+             f"Per trial seed S: three {duration:g} s {vehicle_name} flights (seeds S, S+1, S+2) from `quad-modelling simulate`; "
+             f"`identify --vehicle {vehicle_name}` on the first two; `evaluate` of the third (held out) with the identified "
              "vehicle: multi-step SimErr (h = 1..50, every start of the evaluation span 150-190 s) as a ratio to naive, "
              "velocity / angular velocity. `truth` = the simulator's own physics, effects and constants from the log's "
              "notes, anchored on the measured state without a disturbance observer; `truth:0.5,0.5` = the same with the "
@@ -174,6 +175,7 @@ def markdown(results: list[dict], duration: float) -> str:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--vehicle", default="linkquad", choices=("linkquad", "crazyflie21"), help="simulated and identified vehicle")
     parser.add_argument("--seeds", default="4711,31337", help="trial seeds, comma-separated (default 4711,31337)")
     parser.add_argument("--effects", nargs="+", default=["none", "ground_effect,battery"], help="simulator effect sets")
     parser.add_argument("--duration", type=float, default=220.0, help="flight duration [s] (default 220, the thesis's)")
@@ -188,11 +190,11 @@ def main(argv=None) -> int:
         terms = args.identify_effects or [""] * len(args.effects)
         for effects, fitted in zip(args.effects, terms):
             for seed in seeds:
-                results.append(trial(seed, effects, Path(tmp), args.duration, fitted))
+                results.append(trial(seed, effects, Path(tmp), args.duration, fitted, args.vehicle))
                 results[-1]["identify_effects"] = fitted
                 print(f"seed {seed} effects {effects}: {json.dumps(results[-1]['ratio'])}", file=sys.stderr, flush=True)
-    write_results(args.name, {"duration_s": args.duration, "models": list(MODELS), "target": TARGET, "trials": results},
-                  markdown(results, args.duration))
+    write_results(args.name, {"vehicle": args.vehicle, "duration_s": args.duration, "models": list(MODELS), "target": TARGET,
+                              "trials": results}, markdown(results, args.duration, args.vehicle))
     return 0
 
 

@@ -64,14 +64,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def warn_held_speed_map(flights, vehicle: VehicleConfig) -> None:
     """One warning line when a simulated flight's notes say its rotors answered another speed map than the vehicle
     file's (identify holds the map, :data:`~quad_modelling.core.vehicle.HELD_BY_IDENTIFY`): a scale the thrust
-    constant absorbs, an offset nothing does -- the shipped Crazyflie against its simulator (offset 381 rad/s vs 0)
-    gave k_f 1.64e-8 +- 3e-12 for 2.88e-8 and inertias 0.81x, sigmas far below the error (review)."""
-    from quad_modelling.core.vehicle import HELD_BY_IDENTIFY
-
+    constant absorbs, an offset nothing does -- a simulated Crazyflie with offset 0 against its file's 381 rad/s
+    gave k_f 1.64e-8 +- 3e-12 for 2.88e-8 and inertias 0.81x, sigmas far below the error (session 33's review;
+    the simulator now answers the file's map). The flight's map: its notes' ``esc`` (Ω_off = -k_u u_0)."""
     for log in flights:
-        used = {key: (log.meta.notes.get("adjustments") or {}).get(key, {}).get("used") for key in HELD_BY_IDENTIFY}
-        differs = {key: value for key, value in used.items() if value is not None
-                   and abs(value - vehicle.value(key)) > 0.01 * max(abs(vehicle.value(key)), 1e-9)}
+        esc = log.meta.notes.get("esc") or {}
+        try:
+            gain = float(esc["speed_gain"])
+            used = {"rotor_speed_gain": gain, "rotor_speed_offset": 0.0 - gain * float(esc["zero_speed_input"])}
+        except (KeyError, TypeError, ValueError):
+            continue  # not simulated, or notes without the map
+        differs = {key: value for key, value in used.items()
+                   if abs(value - vehicle.value(key)) > 0.01 * max(abs(vehicle.value(key)), 1e-9)}
         if differs:
             print(f"warning: {log.meta.source} was simulated with the speed map {', '.join(f'{k} {v:g}' for k, v in differs.items())}; "
                   f"{vehicle.path} holds {', '.join(f'{k} {vehicle.value(k):g}' for k in differs)}, which identify keeps "

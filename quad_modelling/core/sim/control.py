@@ -9,9 +9,15 @@ channel asks for a vertical acceleration:
 .. math::
 
     \\tau_\\phi = I_{xx} (k_p e_\\phi + k_i \\textstyle\\int e_\\phi - k_d p), \\ \\dots \\qquad
-    T = m (g + k_p e_h + k_i \\textstyle\\int e_h + k_d \\dot z) / (\\cos\\phi \\cos\\theta)
+    T = m (g + \\ddot h_{ref} + k_p e_h + k_i \\textstyle\\int e_h + k_d (\\dot z + \\dot h_{ref})) / (\\cos\\phi \\cos\\theta)
 
-(:math:`e_h` = height error, :math:`\\dot z` = NED down speed). The mixer inverts
+(:math:`e_h` = height error, :math:`\\dot z` = NED down speed). With ``ControlParams.height_feedforward`` (the
+Crazyflie's) :math:`\\dot h_{ref}, \\ddot h_{ref}` are the rate and acceleration of the pilot's smooth height
+references (:meth:`~quad_modelling.core.sim.pilot.PilotScript.height_feedforward`), else 0: with the damping on the
+measured speed alone, the integral of the error over a height change is zero, so a descent of A metres lags by about
+:math:`A k_d / k_p` metre-seconds and then undershoots by as much, about :math:`2 \\zeta f_i A` = 0.27 A at the
+bottom (the LinkQuad's low passes touch down on some seeds; the Crazyflie's did on every seed before session 34).
+The mixer inverts
 the allocation :math:`[T, \\tau_\\phi, \\tau_\\theta, \\tau_\\psi]^T = M [T_1 \\dots T_4]^T`
 whose columns are :math:`(1, -y_i, x_i, s_i d/a)` (motor positions and spin
 signs from the vehicle config), and maps each thrust to an engine command
@@ -124,10 +130,12 @@ class Stabiliser:
         right = -math.sin(yaw) * ax + math.cos(yaw) * ay
         return right / GRAVITY, -forward / GRAVITY
 
-    def flying(self, s, refs, gyro, airborne: bool) -> list[float]:
+    def flying(self, s, refs, gyro, airborne: bool, height_rate: float = 0.0, height_acceleration: float = 0.0) -> list[float]:
         """Engine commands [input unit] for state ``s`` (truth attitude, height and
         velocity), references (roll, pitch, yaw [rad], height [m]) and measured
-        body rates ``gyro`` [rad/s]; integrators run only when ``airborne``."""
+        body rates ``gyro`` [rad/s]; integrators run only when ``airborne``.
+        ``height_rate`` [m/s], ``height_acceleration`` [m/s²]: the smooth height references' (up), fed forward
+        (module docstring)."""
         roll, pitch, yaw = euler_from_quaternion(*s[6:10])
         lim = self.max_tilt
         roll_hold, pitch_hold = self.hold_position(s) if airborne else (0.0, 0.0)
@@ -146,7 +154,7 @@ class Stabiliser:
         tau_z = izz * (kp * errors[2] + ki * self.integrals[2] - kd * gyro[2])
         kp, kd, ki = self.altitude_gains
         tilt = max(0.5, math.cos(roll) * math.cos(pitch))
-        thrust = self.mass * (GRAVITY + kp * errors[3] + ki * self.integrals[3] + kd * s[5]) / tilt
+        thrust = self.mass * (GRAVITY + height_acceleration + kp * errors[3] + ki * self.integrals[3] + kd * (s[5] + height_rate)) / tilt
         thrust = max(0.0, min(self.max_thrust, thrust))
         wrench = (thrust, tau_x, tau_y, tau_z)
         commands = []

@@ -57,6 +57,11 @@ TURN_RAMP = 0.5
 """Time to enter (and leave) a turn's yaw rate, cosine-shaped [s]."""
 TURN_DURATION = (5.0, 10.0)
 """Range of a turn's length, ramps included [s]."""
+LOW_PASS_RAMP = 2.0
+"""Time a ``smooth_step`` low pass takes to go down to its height, and to come back up [s]: a cosine ramp whose rate
+and acceleration a stabiliser with ``height_feedforward`` feeds forward (:meth:`PilotScript.height_feedforward`):
+at most 0.36 m/s and 0.56 m/s² on the Crazyflie's deepest pass. Without it (the LinkQuad) a low pass is a ``step``
+whose 1 s linear ramps the loop follows as it can."""
 STICK_NOISE_TIME = 0.5
 """Correlation time of the pilot's small corrections [s]."""
 MIN_DURATION = 5.0
@@ -77,6 +82,15 @@ def _smooth_ramp(t: np.ndarray, start: float, length: float) -> np.ndarray:
     return 0.5 - 0.5 * np.cos(np.pi * _ramp(t, start, length))
 
 
+def _smooth_ramp_derivatives(t: np.ndarray, start: float, length: float) -> tuple[np.ndarray, np.ndarray]:
+    """First and second time derivatives of :func:`_smooth_ramp` [1/s, 1/s²]: (pi / 2L) sin(pi x / L) and
+    (pi² / 2L²) cos(pi x / L) on the ramp (x = t - start), 0 off it."""
+    x = np.asarray(t) - start
+    on = (x > 0.0) & (x < length)
+    phase = np.pi * np.clip(x, 0.0, length) / length
+    return np.where(on, 0.5 * np.pi / length * np.sin(phase), 0.0), np.where(on, 0.5 * (np.pi / length) ** 2 * np.cos(phase), 0.0)
+
+
 def _smooth_ramp_integral(t: np.ndarray, start: float, length: float) -> np.ndarray:
     """Integral from ``start`` to t of :func:`_smooth_ramp` [s]: 0 before, x/2 - L sin(pi x/L)/(2 pi)
     on the ramp (x = t - start), x - L/2 after it."""
@@ -90,7 +104,7 @@ class Manoeuvre:
     """One pilot input: ``amplitude`` [rad or m] on ``channel`` from ``start`` for ``duration`` [s]."""
 
     channel: str
-    shape: str  # step, doublet, sweep; ``turn`` (yaw only): ``amplitude`` is a yaw rate [rad/s]
+    shape: str  # step, doublet, sweep; ``turn`` (yaw only): ``amplitude`` is a yaw rate [rad/s]; ``smooth_step`` (low passes)
     start: float
     duration: float
     amplitude: float
@@ -100,6 +114,8 @@ class Manoeuvre:
     def value(self, t: np.ndarray) -> np.ndarray:
         """The reference offset at times ``t``."""
         t0, dur, amp = self.start, self.duration, self.amplitude
+        if self.shape == "smooth_step":  # a low pass down and back up along cosine ramps (fed forward: height_feedforward)
+            return amp * (_smooth_ramp(t, t0, LOW_PASS_RAMP) - _smooth_ramp(t, t0 + dur - LOW_PASS_RAMP, LOW_PASS_RAMP))
         ramp = 1.0 if self.channel == "low_hover" else STICK_RAMP
         if self.shape == "step":
             return amp * (_ramp(t, t0, ramp) - _ramp(t, t0 + dur - ramp, ramp))
@@ -140,10 +156,15 @@ class PilotScript:
         phase[(t >= self.t_cut) & (t < self.t_off)] = PHASE_IDLE
         return phase
 
+    @property
+    def touchdown_height(self) -> float:
+        """Where the descent's height reference ends [m]: below the ground, so the gear carries the weight."""
+        return self.rest_height - 0.1
+
     def references(self, t: np.ndarray) -> np.ndarray:
         """(N, 4) references: roll [rad], pitch [rad], yaw [rad], CG height above ground [m]."""
         refs = np.zeros((len(t), 4))
-        touchdown = self.rest_height - 0.1  # aim below the ground so the gear carries the weight
+        touchdown = self.touchdown_height
         climb = _smooth_ramp(t, self.t_lift, self.climb_time)
         descent = _smooth_ramp(t, self.land_start, self.descent_time)
         refs[:, 3] = self.rest_height + (self.hover_height - self.rest_height) * climb + (touchdown - self.hover_height) * descent
@@ -151,6 +172,23 @@ class PilotScript:
         for manoeuvre in self.manoeuvres:
             refs[:, column[manoeuvre.channel]] += manoeuvre.value(t)
         return refs
+
+    def height_feedforward(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """((N,) rate [m/s], (N,) acceleration [m/s²]), both up, of the smooth height references at times ``t``: the
+        climb, the descent and the ``smooth_step`` low passes (a stabiliser with ``height_feedforward`` feeds them
+        forward, :mod:`~quad_modelling.core.sim.control`);
+        not the throttle manoeuvres, stick steps a pilot flies without (their rate would kick the thrust)."""
+        rate, acceleration = np.zeros(len(t)), np.zeros(len(t))
+        ramps = [(self.hover_height - self.rest_height, self.t_lift, self.climb_time),
+                 (self.touchdown_height - self.hover_height, self.land_start, self.descent_time)]
+        for m in self.manoeuvres:
+            if m.shape == "smooth_step":
+                ramps += [(m.amplitude, m.start, LOW_PASS_RAMP), (-m.amplitude, m.start + m.duration - LOW_PASS_RAMP, LOW_PASS_RAMP)]
+        for size, start, length in ramps:
+            first, second = _smooth_ramp_derivatives(t, start, length)
+            rate += size * first
+            acceleration += size * second
+        return rate, acceleration
 
     def short_flight(self) -> str | None:
         """Why this flight is too short for its script, or None: the descent starts (``land_start``, the last
@@ -215,7 +253,10 @@ def _draw(params: SimParams, rng: np.random.Generator, start: float, channel: st
     pilot = params.pilot
     if channel == "turn":
         return _draw_turn(params, rng, start)
-    shape = "step" if channel == "low_hover" else str(rng.choice(SHAPES, p=SHAPE_WEIGHTS))
+    if channel == "low_hover":  # along the references a stabiliser feeding them forward follows (LOW_PASS_RAMP)
+        shape = "smooth_step" if params.control.height_feedforward else "step"
+    else:
+        shape = str(rng.choice(SHAPES, p=SHAPE_WEIGHTS))
     sign = 1.0 if rng.random() < 0.5 else -1.0
     f0 = f1 = 0.0
     if channel in ("roll", "pitch"):

@@ -175,6 +175,8 @@ def run_simulation(
     phases = script.phases(t_ticks)
     refs = script.references(t_ticks) + stick_noise(n_ticks, control.rate, params.pilot.stick_noise, pilot_rng) * (phases == PHASE_FLYING)[:, None]
     refs_list = refs.tolist()
+    fed_forward = (phases == PHASE_FLYING) * float(control.height_feedforward)
+    height_rates, height_accelerations = ((x * fed_forward).tolist() for x in script.height_feedforward(t_ticks))
     gyro_noise = (np.random.default_rng(control_seed).standard_normal((n_ticks, 3)) * params.sensors.gyro_noise).tolist()
     wind = wind_series(params, effects, seed, duration)
     wind_list = wind.tolist()
@@ -216,7 +218,7 @@ def run_simulation(
             if phase == PHASE_FLYING:
                 noise = gyro_noise[k]
                 gyro = (s[10] + noise[0], s[11] + noise[1], s[12] + noise[2])
-                u = stabiliser.flying(s, refs_list[k], gyro, -s[2] > airborne_height)
+                u = stabiliser.flying(s, refs_list[k], gyro, -s[2] > airborne_height, height_rates[k], height_accelerations[k])
             else:
                 stabiliser.reset()
                 u = [stabiliser.u_idle] * 4 if phase == PHASE_IDLE else [stabiliser.u_off] * 4

@@ -35,7 +35,7 @@ def _diagnosed(effect: str, delay_s: float, switched_off: bool = True):
     params = sim_params_for(CF)
     params = params.replace(control=dataclasses.replace(params.control, rate=100.0), input_delay=delay_s)
     train, test = (simulate("crazyflie21", (effect,), seed=seed, duration=30.0, params=params) for seed in (11, 12))
-    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": 0.0}, "simulator speed map")
+    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": params.esc.speed_offset}, "simulator speed map")
     vehicle = dataclasses.replace(start, effects=vehicle_effects)
     return diagnose_physics([train], [test], vehicle, EvaluationConfig.preset("short"), ("motor_lag", "input_delay")), params, vehicle
 
@@ -223,9 +223,10 @@ def test_a_lag_searched_to_its_bound_with_the_base_observer_is_refitted_with_the
 def test_the_reports_multistep_table_is_evaluates_and_the_verdicts_starts_apart():
     """The report's multi-step table scores every start, as `evaluate` does, and the verdict the starts whose 50 steps
     stay off the ground, every second one. On simulated Crazyflie flights (battery on, 60 s; the held-out flight,
-    seed 13, set down on a low pass from 21 to 27 s) the two differed far more than the note's "third digit":
+    seed 13, set down on a low pass from 21 to 27 s: here asked below where it stands, as the simulator's low passes
+    touched down before session 34) the two differed far more than the note's "third digit":
     the final's velocity 0.52 -> 0.66, angular velocity 0.12 -> 0.34 over 622 of 4930 starts that touch the ground (no
-    model here has ground contact). Leaving out the ground-touching starts gives the verdict's ratios but for its
+    model here has ground contact; velocity 0.52 -> 0.62 on this flight). Leaving out the ground-touching starts gives the verdict's ratios but for its
     sampling of every second start; the report gives both, with the count of starts of each."""
     from quad_modelling.commands.diagnose import PHYSICS_CONFIG as config
     from quad_modelling.core.evaluation.multistep import start_errors
@@ -234,7 +235,11 @@ def test_the_reports_multistep_table_is_evaluates_and_the_verdicts_starts_apart(
     from quad_modelling.io.reports.physics_diagnosis import report_markdown
     from test.conftest import simulated
 
-    train, test = (simulated("crazyflie21", ("battery",), seed, 60.0) for seed in (11, 13))
+    from quad_modelling.core.sim.simulate import simulate
+
+    params = sim_params_for(CF)
+    params = params.replace(pilot=dataclasses.replace(params.pilot, low_hover=(0.0, 0.01)))  # rests at 0.015 m
+    train, test = simulated("crazyflie21", ("battery",), 11, 60.0), simulate("crazyflie21", ("battery",), seed=13, duration=60.0, params=params)
     result = diagnose_physics([train], [test], CF, config, ("battery",))
     data, final = result.to_json(), result.final
     table, verdict = data["multistep"], data["held_out"]["final"]
@@ -252,7 +257,7 @@ def test_the_reports_multistep_table_is_evaluates_and_the_verdicts_starts_apart(
     every, off = ratios[False][1], ratios[True][1]
     for g, group in enumerate(groups):
         assert off[g] == pytest.approx(verdict["ratio_to_naive"][group], rel=0.03)  # the sampling alone
-        assert every[g] > 1.2 * off[g]  # the ground-touching starts
+        assert every[g] > 1.1 * off[g]  # the ground-touching starts (velocity 0.62 against 0.52)
     text = " ".join(report_markdown(data).split())
     assert (f"every second start whose 50 steps stay off the ground, {verdict['starts']} here. Every start: what "
             f"`evaluate --model physics` gives, {table['starts']} starts, {table['starts'] - table['airborne_starts']} "

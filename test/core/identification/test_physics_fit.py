@@ -58,7 +58,7 @@ def test_identification_recovers_the_simulator_constants(sim_flight):
     25 % (the simulator applies drag per rotor at its hub with each rotor's speed, the model the summed speed at
     one arm: a different form)."""
     log, params = sim_flight
-    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": 0.0}, "simulator speed map")
+    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": params.esc.speed_offset}, "simulator speed map")
     fit = identify_physics([log], start, EvaluationConfig.preset("short", train="0%:100%"), Observer(0.5, 0.5, angular_trim=False))
     truth = {
         "rotor_time_constant": params.motor_time_constant + 0.5 / params.log_rate, "rotor_thrust_constant": params.vehicle.value("rotor_thrust_constant"),
@@ -81,7 +81,7 @@ def test_a_switched_off_lag_is_held_at_zero_and_identify_effects_motor_lag_fits_
     the reason given), and the identified vehicle keeps them off; ``--effects motor_lag`` fits τ_m again (the
     simulator's + Δt/2, as above) and switches it on, δ still held."""
     log, params = sim_flight
-    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": 0.0}, "simulator speed map")
+    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": params.esc.speed_offset}, "simulator speed map")
     start = dataclasses.replace(start, effects=parse_effects({"motor_lag": {"enabled": False}, "input_delay": {"enabled": False}}, "t.yaml"))
     config, observer = EvaluationConfig.preset("short", train="0%:100%"), Observer(0.5, 0.5, angular_trim=False)
     held = identify_physics([log], start, config, observer)
@@ -290,7 +290,7 @@ def test_a_later_pass_searches_the_lag_near_the_previous_one_and_the_whole_range
     from quad_modelling.core.identification.physics_terms import TermDesign
 
     log, params = sim_flight
-    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": 0.0}, "simulator speed map")
+    start = CF.with_values({"rotor_speed_gain": params.esc.speed_gain, "rotor_speed_offset": params.esc.speed_offset}, "simulator speed map")
     config = EvaluationConfig.preset("short", train="0%:100%")
     observer = Observer(0.5, 0.5, angular_trim=False)
     segments = physics_fit.training_segments([log], config, observer)

@@ -66,14 +66,18 @@ def test_linkquad_physical_constants_give_a_realistic_hover_and_keep_the_thesis_
     assert u_hover[0] == pytest.approx(1.484e-3, abs=5e-6)
 
 
-def test_crazyflie_hovers_near_60_percent_pwm():
+def test_crazyflie_hovers_at_42_percent_pwm_on_the_files_speed_map():
     params = sim_params_for("crazyflie21")
     u_hover = QuadDynamics(params).hover_commands(params.battery.reference_voltage)
-    assert all(0.5 * 65535 < u < 0.7 * 65535 for u in u_hover)
+    # Landry's k_f on Foerster's map: sqrt(m g / 4 k_f) = 1516 rad/s at (1516 - 381) / 0.0408 = 27850 PWM
+    assert all(u == pytest.approx(27850, rel=2e-3) for u in u_hover)
     # the simulated world keeps Landry 2015's rotor constants, named against the vehicle file's (Foerster 2015)
     kf = params.adjustments["rotor_thrust_constant"]
     assert (kf["config"], kf["used"]) == (1.788e-8, 2.88e-8) and kf["reason"].startswith("Landry 2015")
-    assert params.vehicle.value("rotor_speed_gain") == params.esc.speed_gain == 0.038
+    # and the measured speed map the file gives (identify holds it): the ESC answers it exactly
+    assert set(params.adjustments) == {"rotor_thrust_constant", "rotor_torque_constant"}
+    assert params.esc.speed_gain == params.vehicle.value("rotor_speed_gain") == 0.04076521
+    assert params.esc.speed_offset == pytest.approx(params.vehicle.value("rotor_speed_offset"), rel=1e-12)
 
 
 def test_effect_names_parse():

@@ -139,3 +139,34 @@ def test_registry_specs(with_effects, vehicle, tmp_path):
     (tmp_path / "real.json").write_text("{}")
     with pytest.raises(DataError, match="real.json: not a simulated flight"):
         make_model(f"truth:{tmp_path / 'real.json'}", vehicle)
+
+
+def test_the_physics_model_with_the_simulated_crazyflies_constants_is_its_truth():
+    """The simulated Crazyflie shares its vehicle file's measured speed map (only k_f and k_m are the world's own) and
+    its low passes stay off the ground: effect-free, the physics model given the world's k_f and k_m, its lag, delay
+    and rotor drag switched off -- nothing else changed in crazyflie21.yaml -- predicts as the truth does over every
+    start (session 33's review measured 1.48x on angular velocity: the world's own speed map, and a low pass sitting
+    on its feet). 40 s, a low pass flown first."""
+    from quad_modelling.core.physics.effects import parse_effects
+    from quad_modelling.core.sim.params import sim_params_for
+    from quad_modelling.core.sim.simulate import simulate
+    from quad_modelling.core.windows import EvaluationConfig
+
+    params = sim_params_for("crazyflie21")
+    params = params.replace(pilot=dataclasses.replace(params.pilot, leading=("low_hover",)))
+    log = simulate("crazyflie21", (), seed=21, duration=40.0, params=params)
+    low = next(m for m in log.meta.notes["pilot"]["manoeuvres"] if m["channel"] == "low_hover")
+    assert low["shape"] == "smooth_step"
+    during = (log.t > low["start"]) & (log.t < low["start"] + low["duration"])
+    reference = params.pilot.hover_height + low["amplitude"]
+    assert np.all(-log.pos_n[during, 2] > reference - 0.01)  # holds its height within 1 cm: 2.5 cm over its feet or more
+    world = {k: params.adjustments[k]["used"] for k in ("rotor_thrust_constant", "rotor_torque_constant")}
+    off = parse_effects({name: {"enabled": False} for name in ("motor_lag", "input_delay", "rotor_drag")}, "effect-free")
+    vehicle = dataclasses.replace(load_vehicle("crazyflie21").with_values(world, "the simulator's world"), effects=off)
+    config = EvaluationConfig(drop_start=0.0, drop_end=0.0, train="0:6", eval="6:32", window_s=5.0, warm_s=0.2)
+    table = multistep_evaluation([resample_uniform(log)], [make_model("truth", vehicle), make_model("physics:0,0", vehicle)],
+                                 vehicle, config)
+    assert table["starts"] > 2000
+    for group in ("velocity", "angular_velocity"):
+        truth, physics = (table["models"][m][group]["sim_err"] for m in ("truth", "physics:0,0"))
+        assert physics == pytest.approx(truth, rel=0.03)
