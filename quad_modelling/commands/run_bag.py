@@ -23,7 +23,7 @@ from quad_modelling.core.models.registry import MODEL_FILE_KINDS, baseline_name_
 from quad_modelling.core.windows import EvaluationConfig, check_window_rate, seconds_spans, spans_without_a_window
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.topic_maps import add_topic_map_argument
-from quad_modelling.nodes.domains import DISCOVERY_MODES
+from quad_modelling.nodes.domains import DISCOVERY_MODES, ros_environment
 from quad_modelling.nodes.executors import EXECUTORS
 
 NAME = "run-bag"
@@ -125,26 +125,6 @@ def span_list(args: argparse.Namespace) -> list[str]:
     spans += [f"eval:{args.eval}"] if args.eval else []
     spans = spans or ["live:0:inf"]
     return [span.name + ":" + span.text() for span in seconds_spans(spans)]
-
-
-def ros_environment(discovery: str = "localhost", remote: tuple[str, ...] = ()) -> dict:
-    """The environment of the nodes: discovery per ``discovery``
-    (:func:`~quad_modelling.nodes.domains.discovery_environment`); the Fast DDS profile (ours, or the user's
-    with our writer heartbeat merged in: :func:`~quad_modelling.nodes.domains.use_dds_profile`); a domain no
-    other run holds unless set (:func:`~quad_modelling.nodes.domains.claim_domain`, held until this process
-    ends). With nodes on another host (``remote``) ROS_DOMAIN_ID must be set: ConfigError otherwise."""
-    from quad_modelling.nodes.domains import claim_domain, discovery_environment, use_dds_profile
-
-    env = discovery_environment(dict(os.environ), discovery)
-    if not env.get("ROS_DOMAIN_ID"):
-        if remote:
-            raise ConfigError(f"--nodes: {', '.join(remote)} run on another host; set ROS_DOMAIN_ID (the same number "
-                              "on every host) so the two halves of the graph meet")
-        env["ROS_DOMAIN_ID"] = str(claim_domain())
-    use_dds_profile(env)
-    env.setdefault("PYTHONUNBUFFERED", "1")
-    env.setdefault("MPLBACKEND", "Agg")
-    return env
 
 
 class RemoteNodes:
