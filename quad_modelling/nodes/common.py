@@ -363,6 +363,20 @@ class FaultLog:
         return ", ".join(f"{k} x{n}" for k, n in sorted(self.counts.items())) or "none"
 
 
+class StreamTally:
+    """Per stream, whether a sample of it was used (kept for scoring or prediction): the exit summary names the streams
+    a node waited for of which none was (:meth:`unused`). Not whether a message arrived: a stream whose stamps are all
+    zero, or off the flight's time, delivers messages that pass no window (the evaluator judged a stream by its stamp
+    gate, which the first message of valid numbers creates whatever its stamp: a zero-stamped IMU went unnamed)."""
+
+    def __init__(self):
+        self.used: set[str] = set()
+
+    def unused(self, streams: Iterable[str]) -> list[str]:
+        """Those of ``streams`` of which no sample was used, in their order."""
+        return [s for s in streams if s not in self.used]
+
+
 def zero_quaternion(faults: FaultLog, fields) -> bool:
     """True, with the fault ``zero_quaternion`` reported, for motion-capture ``fields`` whose attitude quaternion is
     zero (not a rotation): every node drops such a message (the predictors and the evaluator alike)."""
