@@ -48,6 +48,7 @@ from quad_modelling.node_entry import EXIT_INTERRUPTED
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError, reason
 from quad_modelling.io import topics
+from quad_modelling.io.reports.evaluation import received_text
 from quad_modelling.nodes.domains import DDS_PROFILE_ENV, use_dds_profile  # noqa: F401  (re-exported)
 from quad_modelling.nodes.executors import (  # noqa: F401  (re-exported for the nodes)
     MATH_THREADS, executor_kind, interrupt, limit_math_threads, make_executor, set_realtime_priority, spin, spin_once,
@@ -364,17 +365,35 @@ class FaultLog:
 
 
 class StreamTally:
-    """Per stream, whether a sample of it was used (kept for scoring or prediction): the exit summary names the streams
-    a node waited for of which none was (:meth:`unused`). Not whether a message arrived: a stream whose stamps are all
-    zero, or off the flight's time, delivers messages that pass no window (the evaluator judged a stream by its stamp
-    gate, which the first message of valid numbers creates whatever its stamp: a zero-stamped IMU went unnamed)."""
+    """Per stream, the messages its subscription delivered (:attr:`received`, counted on arrival, before any check:
+    ``run-bag`` compares them with the samples sent, docs/nodes.md "Sample loss") and whether a sample of it was used
+    (kept for scoring): the exit summary names the streams a node waited for of which none was (:meth:`unused`). A
+    message received is not a sample used: a stream whose stamps are all zero, or off the flight's time, delivers
+    messages that pass no window (the evaluator judged a stream by its stamp gate, which the first message of valid
+    numbers creates whatever its stamp: a zero-stamped IMU went unnamed)."""
 
     def __init__(self):
+        self.received: dict[str, int] = {}
         self.used: set[str] = set()
+
+    def counting(self, stream: str, callback: Callable) -> Callable:
+        """``callback`` of a subscription to ``stream`` that counts each message delivered, first."""
+        self.received.setdefault(stream, 0)
+
+        def counted(*args):
+            self.received[stream] += 1
+            return callback(*args)
+
+        return counted
 
     def unused(self, streams: Iterable[str]) -> list[str]:
         """Those of ``streams`` of which no sample was used, in their order."""
         return [s for s in streams if s not in self.used]
+
+    def received_text(self) -> str:
+        """The exit summary's ``received motor_input 4227, mocap_odom 4227, imu 4227``
+        (:func:`~quad_modelling.io.reports.evaluation.received_text`, which run-bag reads back)."""
+        return received_text(self.received)
 
 
 def zero_quaternion(faults: FaultLog, fields) -> bool:

@@ -114,9 +114,10 @@ class EvaluatorNode(Node):
                                        train=named.get("train", ""), eval=named.get("eval", ""), horizons=(1,))
         # The zero-predicting dummy (thesis Fig 5.2) is always reported, as offline; it needs no node.
         self.baselines = [] if "dummy" in self.models else ["dummy"]
-        self.scores = LiveScores(self.config, self.spans, self.models + self.baselines, horizon_s=self.horizon_s)
+        self.tally = StreamTally()  # per stream: messages received (results.json live.received), whether one was kept
+        self.scores = LiveScores(self.config, self.spans, self.models + self.baselines, horizon_s=self.horizon_s,
+                                 received=self.tally.received)
         self.faults = FaultLog(self.get_logger())
-        self.tally = StreamTally()  # which streams delivered a sample a window kept (the exit summary)
         self.clock_ = WindowClock(self.window_s, self.warm_s, p["sample_period_s"])
         self.open: dict[int, WindowBuffer] = {}
         self.previous: WindowBuffer | None = None  # the last closed window: its samples bracket the next one's first rows
@@ -188,7 +189,8 @@ class EvaluatorNode(Node):
         subscribe_recorded(self, self.recorder, kind, topic, callback, qos)
 
     def _guarded(self, stream: str, callback):
-        """``callback`` that survives a message it cannot use: reported (once per stream, counted) and dropped."""
+        """``callback`` that counts each message (:class:`StreamTally`) and survives one it cannot use: reported (once
+        per stream, counted) and dropped."""
 
         def guarded(msg):
             try:
@@ -196,7 +198,7 @@ class EvaluatorNode(Node):
             except (ValueError, TypeError, IndexError, AttributeError, OverflowError, QuadModellingError) as err:
                 self.faults.report(stream_fault("bad", stream), f"unusable {stream} message dropped ({type(err).__name__}: {err})")
 
-        return guarded
+        return self.tally.counting(stream, guarded)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -577,10 +579,11 @@ class EvaluatorNode(Node):
         say(self, self.exit_summary())
 
     def exit_summary(self) -> str:
-        """The closing line: windows closed, faults, and every stream waited for of which no sample was kept in a window
-        (nothing received, or nothing usable: every message dropped, or stamped outside the flight's windows)."""
+        """The closing line: windows closed, messages received per stream, faults, and every stream waited for of which
+        no sample was kept in a window (nothing received, or nothing usable: every message dropped, or stamped outside
+        the flight's windows)."""
         silent = self.tally.unused(self.stream_last_ns)
-        return (f"closed {self.windows_closed} windows; faults: {self.faults.summary()}"
+        return (f"closed {self.windows_closed} windows; {self.tally.received_text()}; faults: {self.faults.summary()}"
                 + (f"; nothing usable received on {', '.join(silent)}" if silent else ""))
 
 
