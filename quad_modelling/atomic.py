@@ -247,3 +247,16 @@ def _replace(tmp: Path, path: Path) -> None:
             backup.rename(path)  # the earlier output back where it was
             raise
         _remove(backup)
+
+
+def name_final_paths(files: list[Path], moves: dict[Path, Path]) -> None:
+    """Rewrite the staging paths written into ``files`` (``moves``: staging path -> where it ends up, the longest
+    first), so they name the output the user gets, not a hidden directory that is gone once the output is in place
+    (run-bag: the params file its nodes were given and the logs they wrote)."""
+    for path in files:
+        text = original = path.read_text(errors="replace")
+        for staged, final in moves.items():
+            for form in dict.fromkeys((str(staged.absolute()), str(staged))):
+                text = text.replace(form, str(final.absolute() if form == str(staged.absolute()) else final))
+        if text != original:
+            path.write_text(text)

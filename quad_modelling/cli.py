@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import os
+import re
 import signal
 import sys
 import warnings
@@ -117,10 +118,34 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGINT, previous_int)
 
 
+DASH_VALUE = re.compile(r"-\.?\d")
+"""A command-line word that starts like a negative number (``-5:0``, ``-.5``, ``-5%:10%``): the value of the option
+before it, not an option (:func:`attach_dash_values`)."""
+
+
+def attach_dash_values(parser: argparse.ArgumentParser, argv: list[str]) -> list[str]:
+    """``--drop -5:0`` -> ``--drop=-5:0``: a word starting like a negative number after an option of the verb that takes
+    one value is that option's value. argparse takes only a plain negative number (``-5``) so and read ``-5:0`` as an
+    unknown option ("argument --drop: expected one argument", naming neither the value nor what is wrong with it);
+    attached, the verb's own check says what is wrong (a negative span bound)."""
+    verb = next((word for word in argv if word in parser.verb_parsers), None)
+    if verb is None:
+        return list(argv)
+    takes_value = {o for a in parser.verb_parsers[verb]._actions if a.nargs is None for o in a.option_strings}
+    out: list[str] = []
+    for word in argv:
+        if out and out[-1] in takes_value and DASH_VALUE.match(word):
+            out[-1] = f"{out[-1]}={word}"
+        else:
+            out.append(word)
+    return out
+
+
 def _parse_and_run(argv: list[str] | None) -> int:
     """Parse ``argv`` and run the verb; the package's errors as one line and exit 2, signals as 130 / 143."""
     try:
         parser = build_parser()
+        argv = attach_dash_values(parser, sys.argv[1:] if argv is None else argv)
         args, unknown = parser.parse_known_args(argv)
     except KeyboardInterrupt as err:
         signum = getattr(err, "signum", signal.SIGINT)

@@ -17,13 +17,13 @@ from pathlib import Path
 
 import yaml
 
-from quad_modelling.atomic import atomic_output
+from quad_modelling.atomic import atomic_output, name_final_paths
 from quad_modelling.commands import check_command_output
 from quad_modelling.core.models.registry import MODEL_FILE_KINDS, baseline_name_clash, named_spec
 from quad_modelling.core.windows import EvaluationConfig, check_window_rate, seconds_spans, spans_without_a_window
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.topic_maps import add_topic_map_argument
-from quad_modelling.nodes.domains import DISCOVERY_MODES
+from quad_modelling.nodes.domains import DISCOVERY_MODES, ros_environment
 from quad_modelling.nodes.executors import EXECUTORS
 
 NAME = "run-bag"
@@ -52,9 +52,10 @@ OUTDIR receives (on the evaluator's host) results.json (as quad-modelling evalua
 or marked), tables.md, figures, params.yaml (the nodes' parameters) and logs/<node>.log; with --record also record/,
 one MCAP bag of everything the evaluator received and published.
 
-Every node subscribes reliable and transient-local (parameter qos: replay): the replay is paced on the evaluator's
-acknowledgements and loses nothing, not even to a late discovery. SIGINT/SIGTERM stop every node (each one's process
-group) and remove the staging directory.
+Every node subscribes reliable and transient-local (parameter qos: replay): at --rate 0 the replay is paced on the
+evaluator's acknowledgements and loses nothing, not even to a late discovery; a faster --rate can overrun the nodes' keep-last
+queues: samples received against replayed, per stream, in a warning line each and results.json live.samples, exit code 1.
+SIGINT/SIGTERM stop every node (each one's process group) and remove the staging directory.
 
 examples:
   quad-modelling run-bag bags/nanobench_B7_oval_medium_rep2 --models naive -o live
@@ -125,26 +126,6 @@ def span_list(args: argparse.Namespace) -> list[str]:
     spans += [f"eval:{args.eval}"] if args.eval else []
     spans = spans or ["live:0:inf"]
     return [span.name + ":" + span.text() for span in seconds_spans(spans)]
-
-
-def ros_environment(discovery: str = "localhost", remote: tuple[str, ...] = ()) -> dict:
-    """The environment of the nodes: discovery per ``discovery``
-    (:func:`~quad_modelling.nodes.domains.discovery_environment`); the Fast DDS profile (ours, or the user's
-    with our writer heartbeat merged in: :func:`~quad_modelling.nodes.domains.use_dds_profile`); a domain no
-    other run holds unless set (:func:`~quad_modelling.nodes.domains.claim_domain`, held until this process
-    ends). With nodes on another host (``remote``) ROS_DOMAIN_ID must be set: ConfigError otherwise."""
-    from quad_modelling.nodes.domains import claim_domain, discovery_environment, use_dds_profile
-
-    env = discovery_environment(dict(os.environ), discovery)
-    if not env.get("ROS_DOMAIN_ID"):
-        if remote:
-            raise ConfigError(f"--nodes: {', '.join(remote)} run on another host; set ROS_DOMAIN_ID (the same number "
-                              "on every host) so the two halves of the graph meet")
-        env["ROS_DOMAIN_ID"] = str(claim_domain())
-    use_dds_profile(env)
-    env.setdefault("PYTHONUNBUFFERED", "1")
-    env.setdefault("MPLBACKEND", "Agg")
-    return env
 
 
 class RemoteNodes:
@@ -312,7 +293,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--vehicle", metavar="NAME|FILE", help="vehicle config (default: the one the bag names)")
     add_topic_map_argument(parser)
     parser.add_argument("--rate", type=float, default=0.0, metavar="R",
-                        help="real-time factor of the replay; 0 = as fast as the graph keeps up without loss (default)")
+                        help="real-time factor of the replay; 0 = as fast as the graph keeps up without loss (default); "
+                             "> 0 can lose samples on a busy machine: each stream's loss one warning line, exit code 1")
     parser.add_argument("--window", type=float, default=EvaluationConfig.window_s, metavar="SECONDS",
                         help=f"window length (default {EvaluationConfig.window_s:g})")
     parser.add_argument("--warm", type=float, default=EvaluationConfig.warm_s, metavar="SECONDS",
@@ -463,23 +445,42 @@ def _run(args: argparse.Namespace, warned: bool = False) -> int:
                 raise _failure(graph, "evaluator", "the evaluator wrote no results")
             if record is not None and not (record / "metadata.yaml").is_file():
                 raise _failure(graph, "evaluator", "the evaluator wrote no recording")
-            complete_results(report_dir, flight, models, vehicle, args)
+        samples = sample_counts(args.bag, graph, report_dir / "results.json")
+        if "evaluator" in here:
+            complete_results(report_dir, flight, models, vehicle, args, samples)
             for item in report_dir.iterdir():
                 shutil.move(str(item), tmp / item.name)
             report_dir.rmdir()
         name_final_paths([params_file, *sorted((tmp / "logs").glob("*.log"))], {report_dir: output, tmp: output})
+    # samples lost (--rate > 0 on a busy machine): a line per stream; output written, exit 1 as --skip-bad (docs/cli.md)
+    lost = "".join(f"warning: sample loss: {line}\n" for line in samples["loss"])
     if "evaluator" not in here:
+        print(lost, end="", file=sys.stderr, flush=True)
         print(f"{', '.join(local_nodes)} done in {time.monotonic() - started:.1f} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}); "
               f"the evaluator on the other host writes the results; logs in {output}/logs/")
-        return 0
+        return 1 if lost else 0
     elapsed = time.monotonic() - started
     results = json.loads((output / "results.json").read_text())
     print(live_summary_table(results, [m.name for m in models]))
     for line in ["", *multistep_lines(results.get("horizons") or {}, align=True)]:
-        print(line)
+        print(line, flush=True)
+    print(lost, end="", file=sys.stderr, flush=True)
     print(f"\n{bag.duration_s:.1f} s of flight replayed in {elapsed:.1f} s (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}); "
-          f"results in {output}/ (results.json, tables.md, logs/)")
-    return 0
+          f"results in {output}/ (results.json, tables.md, logs/)"
+          + (f"; samples lost on {len(samples['loss'])} stream(s): the live scores rest on incomplete input" if lost else ""))
+    return 1 if lost else 0
+
+
+def sample_counts(bag: str, graph: Graph, results_file: Path) -> dict:
+    """results.json ``live.samples`` (:func:`~quad_modelling.io.reports.evaluation.sample_accounting`): what the replay
+    plays of ``bag`` and each local predictor published, against what the nodes started here received (the evaluator's
+    ``results_file``, when it ran here, and the predictors' exit summaries in their logs)."""
+    from quad_modelling.io.reports.evaluation import sample_accounting
+    from quad_modelling.nodes.replay_node import played_counts
+
+    evaluator = json.loads(results_file.read_text())["live"].get("received") if results_file.is_file() else None
+    logs = {name: log.read_text(errors="replace") for name, log in graph.logs.items() if name.endswith("_predictor")}
+    return sample_accounting(played_counts(bag), evaluator, logs)
 
 
 def _failure(graph: Graph, name: str, what: str) -> NodeFailedError:
@@ -542,24 +543,12 @@ def _wait_for_replay(graph: Graph, timeout: float, started: float) -> None:
         raise _failure(graph, "replay", f"replay exited with code {replay.returncode}")
 
 
-def name_final_paths(files: list[Path], moves: dict[Path, Path]) -> None:
-    """Rewrite the staging paths the nodes were given and logged (``moves``: staging path -> where it ends up, the
-    longest first) in ``files``, so the params file and the logs name the output directory the user gets, not a
-    hidden directory that is gone once the output is in place."""
-    for path in files:
-        text = original = path.read_text(errors="replace")
-        for staged, final in moves.items():
-            for form in dict.fromkeys((str(staged.absolute()), str(staged))):
-                text = text.replace(form, str(final.absolute() if form == str(staged.absolute()) else final))
-        if text != original:
-            path.write_text(text)
-
-
-def complete_results(report_dir: Path, flight, models: list[ModelEntry], vehicle, args: argparse.Namespace) -> None:
+def complete_results(report_dir: Path, flight, models: list[ModelEntry], vehicle, args: argparse.Namespace, samples: dict) -> None:
     """Add to the evaluator's results.json the flight (fingerprint: ``merge`` tells flights apart) and the spec of each
-    named model (as evaluate's) and, unless --no-multistep, the multi-step table of every model (its sums in
-    ``statistics``), each model's live form from every start of the --eval span (the whole bag without one); tables.md
-    written again. With --train and --eval it is the results.json ``evaluate BAG --drop 0:0`` writes, for ``merge``."""
+    named model (as evaluate's), the samples sent and received per stream (``live.samples``: :func:`sample_counts`)
+    and, unless --no-multistep, the multi-step table of every model (its sums in ``statistics``), each model's live
+    form from every start of the --eval span (the whole bag without one); tables.md written again. With --train and
+    --eval it is the results.json ``evaluate BAG --drop 0:0`` writes, for ``merge``."""
     from quad_modelling.core.evaluation.multistep import flight_multistep_sums, multistep_table
     from quad_modelling.core.models.base import DummyPredictor
     from quad_modelling.core.preprocess import resample_uniform
@@ -574,6 +563,7 @@ def complete_results(report_dir: Path, flight, models: list[ModelEntry], vehicle
                                      "sample_rate_hz": flight.sample_rate, "fingerprint": flight.fingerprint()}]
     if results.get("statistics") is not None and named:
         results["statistics"]["model_specs"] = named
+    results["live"]["samples"] = samples
     if not args.no_multistep:
         predictors = []
         for m in models:

@@ -152,6 +152,10 @@ def parse_drop(text: str) -> tuple[float, float]:
     parts = str(text).split(":")
     if len(parts) != 2:
         raise ConfigError(f"{what}: expected START:END seconds, e.g. 30:22")
+    for name, part in zip(("START", "END"), parts):
+        if part.strip().startswith("-"):
+            raise ConfigError(f"{what}: {name} {part.strip()} is negative; --drop START:END gives the seconds dropped at "
+                              "take-off and at landing, each >= 0, e.g. 30:22 (0:0 drops nothing)")
     bounds = [_bound(p, what) for p in parts]
     if any(pct or math.isinf(value) for value, pct in bounds):
         raise ConfigError(f"{what}: both bounds must be finite seconds (no % or inf)")

@@ -26,7 +26,6 @@ from __future__ import annotations
 import difflib
 import gc
 import math
-import os
 import signal
 import sys
 from collections.abc import Callable, Iterable
@@ -49,8 +48,11 @@ from quad_modelling.node_entry import EXIT_INTERRUPTED
 from quad_modelling.core.windows import seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError, reason
 from quad_modelling.io import topics
+from quad_modelling.io.reports.evaluation import received_text
 from quad_modelling.nodes.domains import DDS_PROFILE_ENV, use_dds_profile  # noqa: F401  (re-exported)
-from quad_modelling.nodes.executors import executor_kind, interrupt, make_executor, spin, spin_once  # noqa: F401  (re-exported for the nodes)
+from quad_modelling.nodes.executors import (  # noqa: F401  (re-exported for the nodes)
+    MATH_THREADS, executor_kind, interrupt, limit_math_threads, make_executor, set_realtime_priority, spin, spin_once,
+)
 
 DEFAULT_QOS_DEPTH = 1000
 """Depth of data topics [messages]: 10 s at 100 Hz, 2.5 s at 400 Hz."""
@@ -204,52 +206,6 @@ def niceness(value) -> str | None:
 
 def realtime_priority_range(value) -> str | None:
     return None if 0 <= value <= 99 else "must be 0 (normal scheduling) or a SCHED_FIFO priority from 1 to 99"
-
-
-def set_realtime_priority(priority: int) -> str | None:
-    """Put every thread of this process under SCHED_FIFO at ``priority`` (1-99), or back under normal
-    scheduling (SCHED_OTHER) for 0; None, or why not.
-
-    Every thread, not just the caller: Fast DDS delivers samples on its own
-    threads, which wake the executor; one of them preempted by an ordinary
-    process delays the answer as much as the executor itself being preempted.
-    Call it once the node and its executor exist (threads created later inherit
-    the policy). Needs CAP_SYS_NICE or an RLIMIT_RTPRIO of at least
-    ``priority`` (``ulimit -r``; ``rtprio`` in /etc/security/limits.conf).
-    """
-    policy, param = (os.SCHED_FIFO if priority else os.SCHED_OTHER), os.sched_param(priority)
-    try:
-        for tid in sorted(int(t) for t in os.listdir("/proc/self/task")):
-            os.sched_setscheduler(tid, policy, param)
-    except PermissionError:
-        return (f"SCHED_FIFO priority {priority} not permitted (needs CAP_SYS_NICE or rtprio >= {priority} in "
-                "/etc/security/limits.conf); running with normal scheduling")
-    except (ProcessLookupError, FileNotFoundError):  # a thread ended meanwhile / no /proc: best effort
-        return None
-    return None
-
-
-MATH_THREADS = 1
-"""Default threads of the math libraries' pools in a node process (parameter ``math_threads``)."""
-
-
-def limit_math_threads(threads: int) -> str:
-    """Run the thread pools of the math libraries this process has loaded (numpy's and scipy's OpenBLAS, an OpenMP
-    runtime, torch's intra-op pool when torch is loaded) on ``threads`` threads; 0 leaves them as the libraries
-    started them (one thread per core). Returns what it set, for the log.
-
-    Why one: a node's arrays are tiny (a batch of one state, a window of rows), where a pool's extra threads never
-    pay, and an idle OpenBLAS worker spins before it sleeps: under SCHED_FIFO (``realtime_priority``, which moves
-    every thread of the process) it holds the second core of a two-core flight computer against the flight stack."""
-    if threads <= 0:
-        return "math libraries' thread pools as they start (one thread per core)"
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(limits=threads)
-    torch = sys.modules.get("torch")
-    if torch is not None:
-        torch.set_num_threads(threads)
-    return f"math libraries' thread pools (BLAS, OpenMP{', torch' if torch is not None else ''}) on {threads} thread(s)"
 
 
 def non_negative_int(value) -> str | None:
@@ -406,6 +362,38 @@ class FaultLog:
 
     def summary(self) -> str:
         return ", ".join(f"{k} x{n}" for k, n in sorted(self.counts.items())) or "none"
+
+
+class StreamTally:
+    """Per stream, the messages its subscription delivered (:attr:`received`, counted on arrival, before any check:
+    ``run-bag`` compares them with the samples sent, docs/nodes.md "Sample loss") and whether a sample of it was used
+    (kept for scoring): the exit summary names the streams a node waited for of which none was (:meth:`unused`). A
+    message received is not a sample used: a stream whose stamps are all zero, or off the flight's time, delivers
+    messages that pass no window (the evaluator judged a stream by its stamp gate, which the first message of valid
+    numbers creates whatever its stamp: a zero-stamped IMU went unnamed)."""
+
+    def __init__(self):
+        self.received: dict[str, int] = {}
+        self.used: set[str] = set()
+
+    def counting(self, stream: str, callback: Callable) -> Callable:
+        """``callback`` of a subscription to ``stream`` that counts each message delivered, first."""
+        self.received.setdefault(stream, 0)
+
+        def counted(*args):
+            self.received[stream] += 1
+            return callback(*args)
+
+        return counted
+
+    def unused(self, streams: Iterable[str]) -> list[str]:
+        """Those of ``streams`` of which no sample was used, in their order."""
+        return [s for s in streams if s not in self.used]
+
+    def received_text(self) -> str:
+        """The exit summary's ``received motor_input 4227, mocap_odom 4227, imu 4227``
+        (:func:`~quad_modelling.io.reports.evaluation.received_text`, which run-bag reads back)."""
+        return received_text(self.received)
 
 
 def zero_quaternion(faults: FaultLog, fields) -> bool:

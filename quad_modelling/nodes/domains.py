@@ -1,5 +1,6 @@
 """The DDS environment of a graph: a ROS domain of its own for a test process or a ``run-bag`` run, the
-discovery settings (:func:`discovery_environment`) and the Fast DDS profile (:func:`use_dds_profile`).
+discovery settings (:func:`discovery_environment`) and the Fast DDS profile (:func:`use_dds_profile`); all three
+for ``run-bag``'s nodes: :func:`ros_environment`.
 No rclpy imported.
 
 DDS participants in one ``ROS_DOMAIN_ID`` discover each other; two test processes (or two
@@ -98,3 +99,20 @@ def use_dds_profile(environ: dict | None = None) -> str:
     given = environ.get(DDS_PROFILE_ENV, "").strip()
     environ[DDS_PROFILE_ENV] = str(ours if not given or Path(given) == ours else profile_with_defaults(given, ours))
     return environ[DDS_PROFILE_ENV]
+
+
+def ros_environment(discovery: str = "localhost", remote: tuple[str, ...] = ()) -> dict:
+    """The environment of ``run-bag``'s nodes: discovery per ``discovery`` (:func:`discovery_environment`); the Fast
+    DDS profile (ours, or the user's with our writer heartbeat merged in: :func:`use_dds_profile`); a domain no other
+    run holds unless set (:func:`claim_domain`, held until this process ends). With nodes on another host (``remote``,
+    the ``--nodes`` groups started elsewhere) ROS_DOMAIN_ID must be set: ConfigError otherwise."""
+    env = discovery_environment(dict(os.environ), discovery)
+    if not env.get("ROS_DOMAIN_ID"):
+        if remote:
+            raise ConfigError(f"--nodes: {', '.join(remote)} run on another host; set ROS_DOMAIN_ID (the same number "
+                              "on every host) so the two halves of the graph meet")
+        env["ROS_DOMAIN_ID"] = str(claim_domain())
+    use_dds_profile(env)
+    env.setdefault("PYTHONUNBUFFERED", "1")
+    env.setdefault("MPLBACKEND", "Agg")
+    return env

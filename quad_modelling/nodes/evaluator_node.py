@@ -64,25 +64,10 @@ from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.io.topics import HORIZON_TOPIC
 from quad_modelling.nodes import messages
-from quad_modelling.nodes.common import (
-    IMU, MOCAP_ODOM, MOTOR_INPUT,  # the one stream naming and fault vocabulary (stream_fault)
-    VEHICLE_TOPIC,
-    BadParameter,
-    FaultLog,
-    VehicleSource,
-    adopt_vehicle,
-    data_qos,
-    declare_parameters,
-    latched_qos,
-    limit_math_threads,
-    make_executor,
-    prediction_subscription_qos,
-    run_node,
-    say,
-    spin,
-    stream_fault,
-    subscription_qos,
-    zero_quaternion,
+from quad_modelling.nodes.common import (  # the one stream naming and fault vocabulary (stream_fault)
+    IMU, MOCAP_ODOM, MOTOR_INPUT, VEHICLE_TOPIC, BadParameter, FaultLog, StreamTally, VehicleSource, adopt_vehicle, data_qos,
+    declare_parameters, latched_qos, limit_math_threads, make_executor, prediction_subscription_qos, run_node, say, spin,
+    stream_fault, subscription_qos, zero_quaternion,
 )
 from quad_modelling.nodes.recording import check_output_dir, close_recording, open_recorder, subscribe_recorded
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, message_class
@@ -129,7 +114,9 @@ class EvaluatorNode(Node):
                                        train=named.get("train", ""), eval=named.get("eval", ""), horizons=(1,))
         # The zero-predicting dummy (thesis Fig 5.2) is always reported, as offline; it needs no node.
         self.baselines = [] if "dummy" in self.models else ["dummy"]
-        self.scores = LiveScores(self.config, self.spans, self.models + self.baselines, horizon_s=self.horizon_s)
+        self.tally = StreamTally()  # per stream: messages received (results.json live.received), whether one was kept
+        self.scores = LiveScores(self.config, self.spans, self.models + self.baselines, horizon_s=self.horizon_s,
+                                 received=self.tally.received)
         self.faults = FaultLog(self.get_logger())
         self.clock_ = WindowClock(self.window_s, self.warm_s, p["sample_period_s"])
         self.open: dict[int, WindowBuffer] = {}
@@ -202,7 +189,8 @@ class EvaluatorNode(Node):
         subscribe_recorded(self, self.recorder, kind, topic, callback, qos)
 
     def _guarded(self, stream: str, callback):
-        """``callback`` that survives a message it cannot use: reported (once per stream, counted) and dropped."""
+        """``callback`` that counts each message (:class:`StreamTally`) and survives one it cannot use: reported (once
+        per stream, counted) and dropped."""
 
         def guarded(msg):
             try:
@@ -210,7 +198,7 @@ class EvaluatorNode(Node):
             except (ValueError, TypeError, IndexError, AttributeError, OverflowError, QuadModellingError) as err:
                 self.faults.report(stream_fault("bad", stream), f"unusable {stream} message dropped ({type(err).__name__}: {err})")
 
-        return guarded
+        return self.tally.counting(stream, guarded)
 
     # --- inputs -------------------------------------------------------------------------------
 
@@ -329,6 +317,7 @@ class EvaluatorNode(Node):
     def _advance(self, stream: str, ns: int, k: int) -> None:
         """Stream ``stream`` delivered stamp ``ns`` [ns] of window ``k``: note its latest stamp; on entering a new window,
         stamp the wall time on the windows it passed first and try to close them."""
+        self.tally.used.add(stream)
         last = self.stream_last_ns[stream]
         if last is not None and ns <= last:
             return
@@ -587,9 +576,15 @@ class EvaluatorNode(Node):
             except (QuadModellingError, OSError) as err:
                 say(self, f"cannot write results: {err}", error=True)
         close_recording(lambda text, error=False: say(self, text, error=error), self.recorder, refused)  # after the last window
-        silent = [s for s in self.stream_last_ns if s not in self.stamp_gates]  # a stream's gate comes with its first sample
-        say(self, f"closed {self.windows_closed} windows; faults: {self.faults.summary()}"
-            + (f"; nothing usable received on {', '.join(silent)}" if silent else ""))
+        say(self, self.exit_summary())
+
+    def exit_summary(self) -> str:
+        """The closing line: windows closed, messages received per stream, faults, and every stream waited for of which
+        no sample was kept in a window (nothing received, or nothing usable: every message dropped, or stamped outside
+        the flight's windows)."""
+        silent = self.tally.unused(self.stream_last_ns)
+        return (f"closed {self.windows_closed} windows; {self.tally.received_text()}; faults: {self.faults.summary()}"
+                + (f"; nothing usable received on {', '.join(silent)}" if silent else ""))
 
 
 def main(args=None) -> int:

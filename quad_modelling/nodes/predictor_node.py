@@ -68,25 +68,10 @@ from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.nodes import messages
-from quad_modelling.nodes.common import (
-    BATTERY, IMU, MOCAP_ODOM, MOTOR_INPUT, STREAMS,  # the one stream naming and fault vocabulary (stream_fault)
-    VEHICLE_TOPIC,
-    BadParameter,
-    FaultLog,
-    VehicleSource,
-    adopt_vehicle,
-    declare_parameters,
-    latched_qos,
-    limit_math_threads,
-    make_executor,
-    history_qos,
-    run_node,
-    say,
-    set_realtime_priority,
-    spin,
-    stream_fault,
-    subscription_qos,
-    zero_quaternion,
+from quad_modelling.nodes.common import (  # the one stream naming and fault vocabulary (stream_fault)
+    BATTERY, IMU, MOCAP_ODOM, MOTOR_INPUT, STREAMS, VEHICLE_TOPIC, BadParameter, FaultLog, StreamTally, VehicleSource,
+    adopt_vehicle, declare_parameters, history_qos, latched_qos, limit_math_threads, make_executor, run_node, say,
+    set_realtime_priority, spin, stream_fault, subscription_qos, zero_quaternion,
 )
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams, live_topic_map, subscribe
 from quad_modelling.nodes.model_factory import (  # noqa: F401  (predictor_parameters re-exported)
@@ -150,6 +135,7 @@ class PredictorNode(Node):
         self.executor_kind = p["executor"]
         self.realtime_priority, self.math_threads = p["realtime_priority"], p["math_threads"]
         self.faults = FaultLog(self.get_logger())
+        self.tally = StreamTally()  # messages received per stream, in the exit summary (run-bag reads them)
         self.clock_ = WindowClock(p["window_s"], p["warm_s"], p["sample_period_s"])
         self.child_frame = f"{self.name_}/base_link"
         self.world_frame = p["world_frame"]
@@ -173,17 +159,18 @@ class PredictorNode(Node):
         self.track_of = {MOCAP_ODOM: self.odom, IMU: self.imu, BATTERY: self.battery}
         self.gates = {name: StampGate(step_ns) for name in STREAMS}
         topic_map, self.mapped = live_topic_map(p["topic_map"], node_name), None
-        if topic_map is None:  # the contract
-            self.create_subscription(JointState, p["motor_input_topic"], self.on_motor, qos)
+        if topic_map is None:  # the contract; each message counted as it arrives (self.tally)
+            count = self.tally.counting
+            self.create_subscription(JointState, p["motor_input_topic"], count(MOTOR_INPUT, self.on_motor), qos)
             # measurements arrive serialised and are decoded after the answer to the next command (_decode_pending)
-            self.create_subscription(Odometry, p["odom_topic"], lambda data: self._receive(self.on_odom, Odometry, MOCAP_ODOM, data), qos, raw=True)
-            self.create_subscription(Imu, p["imu_topic"], lambda data: self._receive(self.on_imu, Imu, IMU, data), qos, raw=True)
+            self.create_subscription(Odometry, p["odom_topic"], count(MOCAP_ODOM, lambda data: self._receive(self.on_odom, Odometry, MOCAP_ODOM, data)), qos, raw=True)
+            self.create_subscription(Imu, p["imu_topic"], count(IMU, lambda data: self._receive(self.on_imu, Imu, IMU, data)), qos, raw=True)
             if self.use_battery:
-                self.create_subscription(BatteryState, p["battery_topic"], self.on_battery, qos)
+                self.create_subscription(BatteryState, p["battery_topic"], count(BATTERY, self.on_battery), qos)
         else:  # a stack's own topics (nodes.mapping.streams): the offline reader's conversion
             fields = [*MEASURED_FIELDS, *(["battery"] if self.use_battery else [])]
             self.mapped = MappedStreams(topic_map, fields, gap_ns, TRACK_CAPACITY, f"{node_name}: topic_map {topic_map.name}")
-            subscribe(self, self.mapped, qos, self.on_mapped)
+            subscribe(self, self.mapped, qos, self.on_mapped, self.tally.counting)
             self.tracks = list(self.mapped.tracks.values())
             self.gates.update({topic: StampGate(step_ns) for topic in self.mapped.readers})
             self.get_logger().info(f"topic map {topic_map.name} ({topic_map.origin}): {self.mapped.describe()}")
@@ -588,7 +575,7 @@ class PredictorNode(Node):
 
     def finish(self) -> None:
         where = f"over {self.windows_started} windows" if self.horizon_s == 0 else f"{self.horizon_s:g} s ahead (receding horizon)"
-        say(self, f"published {self.published} predictions {where}; faults: {self.faults.summary()}")
+        say(self, f"published {self.published} predictions {where}; {self.tally.received_text()}; faults: {self.faults.summary()}")
 
 
 def main(args=None) -> int:

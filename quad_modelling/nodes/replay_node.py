@@ -93,6 +93,26 @@ REPLAY_PARAMETERS = [
 ]
 
 
+def played_messages(recorded: list, start_s: float = 0.0, end_s: float = -1.0) -> list:
+    """The messages of ``recorded`` (:func:`~quad_modelling.io.bag_io.read_recorded`, stamp order) one pass plays: those
+    stamped in [t0 + start_s, t0 + end_s), t0 = the first ``motor_input`` stamp (``end_s`` < 0: to the end). What
+    stamps before t0 (an IMU that started first) is not played."""
+    t0 = next((m.stamp_ns for m in recorded if m.topic == "motor_input"), None)
+    if t0 is None:
+        return []
+    start_ns = t0 + topics.stamps_ns(start_s).item()
+    end_ns = t0 + topics.stamps_ns(end_s).item() if end_s >= 0 else None
+    return [m for m in recorded if m.stamp_ns >= start_ns and (end_ns is None or m.stamp_ns < end_ns)]
+
+
+def played_counts(bag: str, namespace: str = topics.DEFAULT_NAMESPACE) -> dict[str, int]:
+    """Samples one pass of the whole ``bag`` plays per stream (``motor_input``, ``mocap_odom``, ``imu``, ``battery``,
+    :data:`~quad_modelling.nodes.common.STREAMS`): what ``run-bag``'s replay sends, to compare with what its nodes
+    received (docs/nodes.md, "Sample loss")."""
+    counts = collections.Counter(m.topic for m in played_messages(read_recorded(bag, namespace=namespace)))
+    return {key.replace("/", "_"): counts[key] for key in topics.MEASUREMENT_TOPICS if counts[key]}
+
+
 class ReplayNode(Node):
     """Publishes one bag (see module doc); :meth:`run` plays it and returns when done."""
 
@@ -110,14 +130,11 @@ class ReplayNode(Node):
         motor_stamps = np.array([m.stamp_ns for m in recorded if m.topic == "motor_input"], dtype=np.int64)
         if motor_stamps.size == 0:
             raise BadParameter(f"replay: parameter bag={p['bag']!r}: topic motor_input has no messages")
-        t0 = int(motor_stamps[0])
-        start_ns = t0 + topics.stamps_ns(p["start_s"]).item()
-        end_ns = t0 + topics.stamps_ns(p["end_s"]).item() if p["end_s"] >= 0 else None
-        played = motor_stamps[(motor_stamps >= start_ns) & ((motor_stamps < end_ns) if end_ns is not None else True)]
-        duration_s = (motor_stamps[-1] - t0) / 1e9
+        self.recorded = played_messages(recorded, p["start_s"], p["end_s"])
+        played = np.array([m.stamp_ns for m in self.recorded if m.topic == "motor_input"], dtype=np.int64)
+        duration_s = (motor_stamps[-1] - motor_stamps[0]) / 1e9
         if played.size < 2:
             raise BadParameter(f"replay: start_s={p['start_s']} / end_s={p['end_s']} leave {played.size} samples of a {duration_s:.2f} s bag")
-        self.recorded = [m for m in recorded if m.stamp_ns >= start_ns and (end_ns is None or m.stamp_ns < end_ns)]
         self.first_ns, self.last_ns = int(played[0]), max(m.stamp_ns for m in self.recorded)
         self.period_ns = int(np.median(np.diff(played)))
         self.stamp_count = len({m.stamp_ns for m in self.recorded})

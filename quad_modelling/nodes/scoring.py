@@ -120,6 +120,7 @@ class LiveScores:
     horizon_s: float = 0.0
     horizon: list[HorizonRecord] = field(default_factory=list)
     vehicle: str = ""  # the vehicle config's name, for the statistics (set once the node knows it)
+    received: dict[str, int] = field(default_factory=dict)  # messages delivered per stream (the node's StreamTally)
 
     def horizon_mae(self) -> dict:
         """MAE@h per model and group over every scored receding-horizon prediction (pooled over windows:
@@ -194,12 +195,14 @@ class LiveScores:
         return "\n".join(head + markdown_table(columns, rows or [["(none received)", "0", "0", *("-" for _ in GROUPS)]]))
 
     def to_json(self, source: str) -> dict:
-        """results.json: the core EvaluationResult JSON plus the live spans and every window (scored or marked)."""
+        """results.json: the core EvaluationResult JSON plus the live spans, every window (scored or marked) and the
+        messages received per stream (``live.received``: run-bag compares them with what was sent)."""
         data = self.result(source).to_json()
         data["live"] = {
             "spans": [{"name": s.name, "start_s": s.start, "end_s": s.end if np.isfinite(s.end) else None} for s in self.spans],
             "windows": [r.to_json() for r in self.records],
             "marked": [r.to_json() for r in self.records if not r.scored],
+            "received": dict(self.received),
         }
         if self.horizon_s > 0:
             data["live"]["horizon"] = self.horizon_mae()

@@ -168,6 +168,10 @@ LONG_NAME = "{d}/" + "n" * 300
 DEEP_PATH = "{d}/" + "/".join(["p" * 200] * 25)
 """An input path of 25 names of 200 bytes: longer than the 4096 bytes of PATH_MAX (ENAMETOOLONG)."""
 
+NEGATIVE_DROP = ("--drop '-5:0': START -5 is negative; --drop START:END gives the seconds dropped at take-off and at "
+                 "landing, each >= 0, e.g. 30:22 (0:0 drops nothing)")
+"""The one line of a negative --drop start, on every verb that takes --drop."""
+
 CORPUS = [
     # outputs: never an input, never '', . or .., never a name the file system cannot hold
     ("o-empty", ["convert", "{d}/flight.mat", "-o", ""], "-o '': the output must name a new file or directory, not ''"),
@@ -191,6 +195,14 @@ CORPUS = [
     # numbers
     ("window-nan", ["evaluate", "{d}/flight.mat", "--window", "nan", "-o", "{d}/work/out"], "--window nan: must be a finite number"),
     ("window-inf", ["evaluate", "{d}/flight.mat", "--window", "inf", "-o", "{d}/work/out"], "--window inf: must be a finite number"),
+    # a negative bound after its flag: argparse read '-5:0' as an option ("argument --drop: expected one argument")
+    *[(f"drop-negative-{verb}", [verb, *inputs, "--drop", "-5:0", "-o", out], NEGATIVE_DROP) for verb, inputs, out in [
+        ("evaluate", ["{d}/flight.mat"], "{d}/work/out"), ("train", ["{d}/flight.mat"], "{d}/work/m.npz"),
+        ("identify", ["{d}/flight.mat"], "{d}/work/v.yaml"),
+        ("diagnose", ["--train", "{d}/flight.mat", "--test", "{d}/bag"], "{d}/work/d")]],
+    ("drop-negative-end", ["evaluate", "{d}/flight.mat", "--drop", "5:-1", "-o", "{d}/work/out"], "--drop '5:-1': END -1 is negative"),
+    ("train-span-negative", ["evaluate", "{d}/flight.mat", "--train", "-5:10", "-o", "{d}/work/out"],
+     "span train '-5:10': bound '-5' is not a non-negative number of seconds"),
     ("warm-inf", ["identify", "{d}/flight.mat", "--warm", "inf", "-o", "{d}/work/v.yaml"], "--warm inf: must be a finite number"),
     ("train-seed-negative", ["train", "{d}/flight.mat", "--seed", "-1", "-o", "{d}/work/m.npz"], "--seed -1: must be a whole number in 0..4294967295"),
     ("train-seed-huge", ["train", "{d}/flight.mat", "--seed", "99999999999999999999", "-o", "{d}/work/m.npz"],

@@ -102,7 +102,9 @@ def test_drops_are_two_finite_seconds():
     assert parse_drop("30:22") == (30.0, 22.0)
     assert parse_drop("3.5:.5") == (3.5, 0.5)
     for bad, reason in (("30", "expected START:END"), ("5%:5%", "finite seconds"), ("0:inf", "finite seconds"),
-                        ("x:1", "not a non-negative number")):
+                        ("x:1", "not a non-negative number"),
+                        ("-5:0", "START -5 is negative; --drop START:END gives the seconds dropped at take-off and at landing, "
+                                 "each >= 0, e.g. 30:22 (0:0 drops nothing)"), (" 5:-0.5", "END -0.5 is negative")):
         with pytest.raises(ConfigError, match="--drop") as err:
             parse_drop(bad)
         assert reason in str(err.value)

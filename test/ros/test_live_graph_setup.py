@@ -156,3 +156,48 @@ def test_nodes_learn_the_replayed_vehicle_or_refuse_another_in_one_line(ros, tmp
                 proc.kill()
                 proc.wait()
         node.destroy_node()
+
+
+@pytest.mark.parametrize("kind", ["evaluator", "predictor"])
+def test_a_keep_last_subscription_that_overflows_counts_only_what_it_delivered(ros, tmp_path, kind):
+    """A reliable keep-last reader of depth 2 that takes nothing while 50 IMU messages arrive keeps the last 2: the
+    other 48 are lost, as a node that falls behind a replay at --rate > 0 loses them. The node counts the 2 it got
+    (its exit summary's ``received``, and the evaluator's results.json ``live.received``), what run-bag compares with
+    the 50 replayed."""
+    import json
+
+    from rclpy.duration import Duration
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.parameter import Parameter
+
+    from quad_modelling.nodes.evaluator_node import EvaluatorNode
+    from quad_modelling.nodes.predictor_node import PredictorNode
+
+    params = {"vehicle": "crazyflie21", "qos": "reliable", "qos_depth": 2}
+    if kind == "evaluator":
+        params.update(models=["m"], figures=False, output_dir=str(tmp_path / "out"))
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    node = EvaluatorNode(parameter_overrides=overrides) if kind == "evaluator" else PredictorNode(parameter_overrides=overrides)
+    source = Node("imu_source", namespace="/quad")
+    try:
+        pub = source.create_publisher(Imu, "imu", data_qos(100))  # reliable: every message sent is delivered or lost to depth
+        spin_until(source, lambda: pub.get_subscription_count() >= 1)
+        log = hover_log(50)
+        arrays = messages.measurement_messages(log)
+        for row, ns in enumerate(topics.stamps_ns(log.t).tolist()):
+            pub.publish(arrays.imu(row, ns))
+        assert pub.wait_for_all_acked(Duration(seconds=10))  # all 50 in the reader's 2-deep history, in turn
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        for _ in range(20):
+            executor.spin_once(timeout_sec=0.05)
+        executor.shutdown()
+        assert node.tally.received["imu"] == 2 and node.tally.received["motor_input"] == 0
+        if kind == "evaluator":
+            node.finish()
+            assert json.loads((tmp_path / "out" / "results.json").read_text())["live"]["received"] == \
+                {"motor_input": 0, "mocap_odom": 0, "imu": 2, "m/odom": 0, "m/accel": 0}
+            assert "; received motor_input 0, mocap_odom 0, imu 2, m/odom 0, m/accel 0; " in node.exit_summary()
+    finally:
+        source.destroy_node()
+        node.destroy_node()

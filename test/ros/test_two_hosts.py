@@ -98,4 +98,10 @@ def test_drone_and_ground_over_a_lossy_delayed_link_score_what_one_host_scores(t
     assert ground["windows"] == one_host["windows"] == {"naive": {"live": 8}, "dummy": {"live": 8}}
     assert ground["live"]["marked"] == one_host["live"]["marked"]
     assert ground["models"] == one_host["models"]  # every RMS and TIC of every variable, exactly
+    # Nothing lost over the impaired link: the ground's evaluator received every sample, as the single host's did (each
+    # host compares the nodes it started: the predictors' counts are the drone's, which exited 0 without a loss line).
+    samples = {name: result["live"].pop("samples") for name, result in (("ground", ground), ("single", one_host))}
+    assert samples["ground"]["loss"] == samples["single"]["loss"] == [] and "sample loss" not in outputs["drone"]
+    assert list(samples["ground"]["received"]) == ["evaluator"]
+    assert samples["ground"]["received"]["evaluator"] == samples["single"]["received"]["evaluator"]
     assert ground["live"] == one_host["live"]  # every window, scored or marked, with its numbers

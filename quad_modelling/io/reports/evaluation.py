@@ -6,6 +6,7 @@ results.json keeps SI units. Figures use matplotlib's Agg backend (no display ne
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from pathlib import Path
 
@@ -90,6 +91,60 @@ def marked_lines(marked: list[dict]) -> list[str]:
                 f"not in the tables below: {shown}{more} (each in results.json live.marked)."]
 
 
+def received_text(counts: dict[str, int]) -> str:
+    """A live node's exit-summary part ``received motor_input 4227, mocap_odom 4227, imu 4227``: the messages each of
+    its subscriptions delivered (read back by :func:`summary_counts`)."""
+    return "received " + (", ".join(f"{stream} {n}" for stream, n in counts.items()) or "nothing")
+
+
+def summary_counts(log: str) -> tuple[int | None, dict[str, int] | None]:
+    """(predictions published, messages received per stream) of the last exit summary in a node's ``log`` (a
+    predictor's ``published N predictions ...; received motor_input N, ...; faults: ...``); None for what it lacks."""
+    published = re.findall(r"\]: published (\d+) predictions ", log)
+    received = re.findall(r"; received ((?:\S+ \d+(?:, )?)+|nothing); ", log)
+    counts = None if not received else [item.rsplit(" ", 1) for item in received[-1].split(", ") if item != "nothing"]
+    return int(published[-1]) if published else None, None if counts is None else {s: int(n) for s, n in counts}
+
+
+def sample_accounting(played: dict[str, int], evaluator: dict[str, int] | None, predictor_logs: dict[str, str]) -> dict:
+    """results.json ``live.samples`` of a run-bag: per stream what was sent (``sent``: the replay's ``played`` samples
+    of each measurement stream; each predictor's predictions on ``<model>/odom`` and ``<model>/accel``, from its
+    ``predictor_logs``' summary) and what each node started here received (``received``: the ``evaluator``'s
+    ``live.received``, each predictor's summary), with one line per stream where they differ (``loss``,
+    :func:`sample_loss_lines`). A node's stream it does not subscribe to (the evaluator's battery) is not compared."""
+    sent = {stream: {"count": n, "by": "replay"} for stream, n in played.items()}
+    received = {} if evaluator is None else {"evaluator": evaluator}
+    for node, log in predictor_logs.items():
+        published, received[node] = summary_counts(log)
+        if published is not None:
+            sent.update({f"{node.removesuffix('_predictor')}/{kind}": {"count": published, "by": node} for kind in ("odom", "accel")})
+    return {"sent": sent, "received": received, "loss": sample_loss_lines(sent, received)}
+
+
+def sample_loss_lines(sent: dict, received: dict) -> list[str]:
+    """One line per stream some node received another number of samples of than were sent, e.g. ``imu: 4227 replayed,
+    received 4101 by evaluator (126 lost), 4227 by naive_predictor`` (:func:`sample_accounting`); none when every node
+    received every sample, as a rate-0 replay guarantees."""
+    lines = []
+    for stream, source in sent.items():
+        n = source["count"]
+        got = {node: counts[stream] for node, counts in received.items() if counts and stream in counts}
+        if all(count == n for count in got.values()):
+            continue
+        how = "replayed" if source["by"] == "replay" else f"published by {source['by']}"
+        parts = [f"{count} by {node}" + (f" ({n - count} lost)" if count < n else f" ({count - n} more)" if count > n else "")
+                 for node, count in got.items()]
+        lines.append(f"{stream}: {n} {how}, received {', '.join(parts)}")
+    return lines
+
+
+def sample_loss_section(samples: dict | None) -> list[str]:
+    """tables.md's lines on the samples the live nodes did not receive (results.json ``live.samples``); none without."""
+    loss = (samples or {}).get("loss") or []
+    return ["", "Samples lost between sender and node (the live scores rest on incomplete input; results.json live.samples):",
+            "", *(f"- {line}" for line in loss)] if loss else []
+
+
 def tables_text(data: dict, title: str = "Evaluation", specs: dict[str, str] | None = None) -> str:
     """tables.md from a results.json document: one table per metric (rows = variables, columns = model x span),
     then the multi-step table (:func:`multistep_lines`) when the document has one. ``specs``: the spec of each named
@@ -114,6 +169,7 @@ def tables_text(data: dict, title: str = "Evaluation", specs: dict[str, str] | N
     lines.append(f"{len(used)} flight(s) ({len(flights) - len(used)} skipped); {where}; {config['window_s']:g} s windows, "
                  f"{config['warm_s']:g} s warm start. Windows per span: {counts}.")
     lines += marked_lines((data.get("live") or {}).get("marked") or [])
+    lines += sample_loss_section((data.get("live") or {}).get("samples"))
     lines.append("")
     lines += model_notes(models, specs)
     columns = [(m, s) for s in spans for m in models]

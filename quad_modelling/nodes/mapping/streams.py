@@ -193,10 +193,14 @@ class MappedStreams:
                          meta=FlightMeta(vehicle=vehicle, source=source, notes={}))
 
 
-def subscribe(node, streams: MappedStreams, qos, handler) -> None:
+def subscribe(node, streams: MappedStreams, qos, handler, counting=None) -> None:
     """Subscribe ``node`` to every topic of ``streams`` with the map's message types, ``handler(topic, msg)`` per
-    message. Every class is resolved before the first subscription (a missing package: one line, nothing subscribed)."""
+    message (wrapped in ``counting(topic, callback)`` when given: the node's message count per topic). Every class is
+    resolved before the first subscription (a missing package: one line, nothing subscribed)."""
     classes = {t: message_class(streams.topic_map.topics[t].msgtype, f"{node.get_name()}: topic_map {streams.topic_map.name} topic {t}")
                for t in streams.readers}
     for topic, kind in classes.items():
-        node.create_subscription(kind, topic, lambda msg, topic=topic: handler(topic, msg), qos)
+        def callback(msg, topic=topic):
+            handler(topic, msg)
+
+        node.create_subscription(kind, topic, counting(topic, callback) if counting else callback, qos)

@@ -106,3 +106,36 @@ def test_the_models_line_lists_named_models_with_their_specs():
                 "config": {"flights": [], "train": "0%:50%", "eval": "50%:100%", "drop_start": 1.0, "drop_end": 1.0,
                            "window_s": 2.0, "warm_s": 0.2}, "live": {}}
     assert tables_text(document, "Evaluation", specs).splitlines()[4] == model_notes(names, specs)[0]
+
+
+def test_samples_sent_and_received_give_one_loss_line_per_stream_that_differs():
+    """run-bag's live.samples: what the replay played and each predictor published against what each node's summary
+    (or the evaluator's live.received) says it received; a line only for a stream some node is short of."""
+    from quad_modelling.io.reports.evaluation import received_text, sample_accounting, summary_counts, tables_text
+
+    predictor_log = ("[INFO] [1.0] [quad.naive_predictor]: predicting with 'naive' as 'naive' ...\n"
+                     "[INFO] [9.5] [quad.naive_predictor]: published 4180 predictions over 4 windows; "
+                     f"{received_text({'motor_input': 4227, 'mocap_odom': 4227, 'imu': 4200})}; faults: none\n")
+    assert summary_counts(predictor_log) == (4180, {"motor_input": 4227, "mocap_odom": 4227, "imu": 4200})
+    assert summary_counts("killed before its summary") == (None, None)
+    assert received_text({}) == "received nothing" and summary_counts("]: closed 0 windows; received nothing; faults: none") == (None, {})
+    played = {"motor_input": 4227, "mocap_odom": 4227, "imu": 4227, "battery": 4227}
+    evaluator = {"motor_input": 4227, "mocap_odom": 4227, "imu": 4101, "naive/odom": 4180, "naive/accel": 4179}
+    samples = sample_accounting(played, evaluator, {"naive_predictor": predictor_log})
+    assert samples["sent"]["imu"] == {"count": 4227, "by": "replay"}
+    assert samples["sent"]["naive/accel"] == {"count": 4180, "by": "naive_predictor"}
+    assert samples["received"]["naive_predictor"] == {"motor_input": 4227, "mocap_odom": 4227, "imu": 4200}
+    assert samples["loss"] == ["imu: 4227 replayed, received 4101 by evaluator (126 lost), 4200 by naive_predictor (27 lost)",
+                               "naive/accel: 4180 published by naive_predictor, received 4179 by evaluator (1 lost)"]
+    # every sample received (the battery, which no node here reads, is not compared): no line
+    whole = sample_accounting(played, {**evaluator, "imu": 4227, "naive/accel": 4180},
+                              {"naive_predictor": predictor_log.replace("imu 4200", "imu 4227")})
+    assert whole["loss"] == []
+    document = {"models": {"naive": {}}, "windows": {"naive": {}}, "live": {"marked": [], "samples": samples},
+                "config": {"flights": [], "train": "", "eval": "", "drop_start": 0.0, "drop_end": 0.0, "window_s": 5.0,
+                           "warm_s": 0.2}}
+    lines = tables_text(document, "Live evaluation").splitlines()
+    at = lines.index("Samples lost between sender and node (the live scores rest on incomplete input; results.json live.samples):")
+    assert lines[at + 2:at + 4] == [f"- {line}" for line in samples["loss"]]
+    document["live"]["samples"] = whole
+    assert "Samples lost" not in tables_text(document, "Live evaluation")
