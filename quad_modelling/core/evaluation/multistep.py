@@ -157,11 +157,14 @@ def flight_multistep_sums(log: FlightLog | None, models: Sequence[Predictor], ve
     naive = ConstantStatePredictor(vehicle, config.trim)
     evaluated = [naive] + [m for m in models if m.name != naive.name]
     sums = MultistepSums(span.name, max_h, [m.name for m in evaluated])
+    contact = np.concatenate([[0], np.cumsum(ground_contact(log))]) if log is not None else None  # on the whole flight
     for start, stop in span_segments(log, span, config) if log is not None else ():
         segment = log.slice(start, stop)
         warm = warm_samples_for(segment, config.warm_s)
         if stop - start <= max_h + warm - 1:
             continue
+        rows = start + np.arange(warm - 1, stop - start - max_h, start_stride)  # the starts multistep_mae scores
+        sums.ground_starts += int(np.count_nonzero(contact[rows + max_h + 1] > contact[rows]))
         for m in evaluated:
             form = multistep_form(m, warm)
             if form is None:
@@ -186,6 +189,8 @@ def multistep_table(sums: MultistepSums, config: EvaluationConfig, start_stride:
                  "units": GROUP_UNITS, "forms": {m: sums.forms[m] for m in sums.order if m in sums.forms}, "models": {}}
     if start_stride != 1:
         out["start_stride"] = start_stride
+    if sums.ground_starts:
+        out["ground_starts"] = sums.ground_starts
     mae = {name: sums.mae(name) for name in sums.order if name in sums.forms}
     for name, values in mae.items():
         entry = {}

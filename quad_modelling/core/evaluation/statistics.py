@@ -177,7 +177,9 @@ def count(value, where: str, least: int = 0) -> int:
 class MultistepSums:
     """Multi-step statistics of the span ``span``: S starts and, per model that has a multi-step form,
     the (4, H) sums of S_g MAE_h(g) over segments g (module docstring); how each model predicted
-    (``forms``) and the models left out with the reason (``not_multistep``)."""
+    (``forms``) and the models left out with the reason (``not_multistep``); ``ground_starts``: how many of the S
+    starts' rows s..s+H touch the ground (scored as the rest; no model here has ground contact; absent in statistics
+    files before session 34, read as 0)."""
 
     span: str
     max_horizon: int
@@ -186,6 +188,7 @@ class MultistepSums:
     error_sums: dict[str, ExactSum] = field(default_factory=dict)
     forms: dict[str, str] = field(default_factory=dict)
     not_multistep: dict[str, str] = field(default_factory=dict)
+    ground_starts: int = 0
 
     def empty_like(self) -> MultistepSums:
         """The statistics of no flight for the same span, horizon and models (the start of a merge)."""
@@ -204,6 +207,7 @@ class MultistepSums:
     def merge(self, other: MultistepSums) -> None:
         """Add ``other``'s starts (a later flight's)."""
         self.starts += other.starts
+        self.ground_starts += other.ground_starts
         for name in other.order:  # table order
             if name in other.error_sums:
                 self.error_sums.setdefault(name, ExactSum()).merge(other.error_sums[name])
@@ -213,7 +217,7 @@ class MultistepSums:
     def to_json(self) -> dict:
         return {"span": self.span, "max_horizon": self.max_horizon, "order": list(self.order), "starts": self.starts,
                 "error_sums": {m: s.to_json() for m, s in self.error_sums.items()},
-                "forms": dict(self.forms), "not_multistep": dict(self.not_multistep)}
+                "forms": dict(self.forms), "not_multistep": dict(self.not_multistep), "ground_starts": self.ground_starts}
 
     @classmethod
     def from_json(cls, data: dict, where: str) -> MultistepSums:
@@ -223,7 +227,7 @@ class MultistepSums:
             if s.shape != (4, max_horizon):
                 raise DataError(f"{where}.error_sums.{m}: shape {s.shape}, expected (4, {max_horizon})")
         return cls(str(data["span"]), max_horizon, [str(m) for m in data["order"]], count(data["starts"], f"{where}.starts"), sums,
-                   dict(data["forms"]), dict(data["not_multistep"]))
+                   dict(data["forms"]), dict(data["not_multistep"]), count(data.get("ground_starts", 0), f"{where}.ground_starts"))
 
 
 @dataclass

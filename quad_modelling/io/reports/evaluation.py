@@ -15,6 +15,7 @@ import numpy as np
 from quad_modelling.core.evaluation.metrics import SIM_ERR_HORIZON
 from quad_modelling.core.evaluation.multistep import GROUPS
 from quad_modelling.core.evaluation.windowed import EvaluationResult, ExampleWindow
+from quad_modelling.core.preprocess import GROUND_CONTACT_M
 from quad_modelling.core.variables import DISPLAY, EVAL_VARIABLES, INDEX
 from quad_modelling.io.reports.formatting import (
     display_number,
@@ -202,6 +203,10 @@ def multistep_lines(horizons: dict, align: bool = False) -> list[str]:
     lines = [f"## Multi-step prediction (IDSIA protocol, span {horizons['span']}, {horizons['starts']} start times)", "",
              f"MAE at horizon h steps and SimErr = sum of MAE_h for h = 1..{SIM_ERR_HORIZON}; ratio = model / naive constant-state prediction. "
              "Units: m, m/s, rad (geodesic angle), rad/s.", ""]
+    if horizons.get("ground_starts"):
+        lines[-1:-1] = [f"{horizons['ground_starts']} of the {horizons['starts']} starts' horizons touch the ground (within "
+                        f"{GROUND_CONTACT_M * 100:g} cm of where the flight stood): scored as the rest, though no model here has "
+                        "ground contact (the diagnosis leaves them out)."]
     longest = horizons.get("sim_err_horizon", SIM_ERR_HORIZON)
     if longest > SIM_ERR_HORIZON:  # every start needs the longest horizon's rows ahead: fewer starts than the default's
         lines[-1:-1] = [f"Every start has {longest} rows ahead (the longest horizon asked for), so the starts are fewer than "

@@ -196,3 +196,26 @@ def test_airborne_starts_leave_out_every_horizon_that_touches_the_ground():
     clear = starts[(starts + 50 < 600) | (starts > 699)]
     assert len(every) == len(starts) and len(kept) == len(clear) == len(blocks)
     assert len(starts) - len(clear) == 150  # starts 550..699
+
+
+def test_the_table_counts_the_starts_whose_horizon_touches_the_ground_and_merges_the_count():
+    """The same flight set down for 1 s: the table scores every start (as before) and says how many of them touch the
+    ground -- 150, starts 550..699 -- in results.json (``ground_starts``) and in one line of tables.md; two flights'
+    statistics merge to twice the count; a flight that never touches down has no such entry."""
+    from quad_modelling.core.evaluation.multistep import flight_multistep_sums, multistep_table
+    from quad_modelling.io.reports.evaluation import multistep_lines
+
+    vehicle = load_vehicle("crazyflie21")
+    log = straight_line_flight(velocity=(0.8, -0.6, 0.0))
+    log.pos_n[:10, 2] = 0.0
+    log.pos_n[600:700, 2] = -0.001
+    config = EvaluationConfig(drop_start=0, drop_end=0, train="0:1", eval="1:12", horizons=(1, 10, 50))
+    table = multistep_evaluation([log], [], vehicle, config)
+    assert table["starts"] == 1099 - 19 - 50 and table["ground_starts"] == 150
+    assert (f"150 of the {table['starts']} starts' horizons touch the ground (within 1 cm of where the flight stood): scored "
+            "as the rest") in " ".join(multistep_lines(table))
+    sums = flight_multistep_sums(log, [], vehicle, config)
+    sums.merge(flight_multistep_sums(log, [], vehicle, config))
+    assert multistep_table(sums, config)["ground_starts"] == 300
+    assert type(sums).from_json(sums.to_json(), "stats").ground_starts == 300
+    assert "ground_starts" not in multistep_evaluation([straight_line_flight()], [], vehicle, config)
