@@ -484,7 +484,7 @@ def _fit_once(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Eval
         "horizons_s": list(FIT_HORIZONS_S), "observer": {"linear_s": observer.linear_s, "angular_s": observer.angular_s, "angular_trim": observer.angular_trim}, "anchor_thinning": thin,
         "delay_profile": [{"delay_s": d, "time_constant_s": t, "objective": f} for f, t, d in profile],
         "held": {"rotor_speed_gain": p.speed_gain, "rotor_speed_offset": p.speed_offset, "izz": p.inertia[2]},
-        "rotor_drag": "fitted" if drag else "held at 0 (off)",
+        "rotor_drag": "fitted" if drag else "held at 0 (off)", "sample_rate_hz": rate,
         "seconds": time.perf_counter() - began,
     }
     terms_fitted = term_estimates(design, fit, (values["rotor_thrust_constant"], sigma["rotor_thrust_constant"]),

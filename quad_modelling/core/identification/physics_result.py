@@ -83,6 +83,14 @@ class PhysicsFit:
         switch = {"rotor_time_constant": "motor_lag", "rotor_delay": "input_delay"}.get(key)
         low, high = self.bounds[key]  # the lag's lower bound is 2 ms, flagged within 10 % in log of it (not 0 itself)
         if switch and self.at_bound[key] and self.values[key] - low < high - self.values[key]:
+            lag, period = "rotor_time_constant", 1.0 / self.diagnostics.get("sample_rate_hz", 100.0)
+            if (key == "rotor_delay" and not self.at_bound[lag] and not self.held.get(lag) and self.identifiable.get(lag, True)
+                    and self.values[lag] < TWIN_LAG_SAMPLES * period):
+                # a lag of about a sample and a delay answer alike at the log rate: a delay-only flight fits as a lag
+                # (simulated Crazyflie, 8 ms delay: lag 8.5 ms, delay 0 on its bound; review of session 34)
+                return (f"a lag and a delay look alike at this log rate: the rotor lag ({1000 * self.values[lag]:.1f} ms) "
+                        "may hold a command delay; with no rotor lag in the vehicle, switch motor_lag off "
+                        "(effects.motor_lag: {enabled: false}) and identify again to find it")
             return f"none in the flights? switch {switch} off in the vehicle file (effects.{switch}: {{enabled: false}})"
         return ConstantEstimate.helps
 
@@ -97,6 +105,12 @@ class PhysicsFit:
             f"  disturbance observer: {choice['chosen']} (error "
             + ", ".join(f"{name} {e:.3g}" for name, e in choice["errors"].items()) + ")"]
         return [lines[0], f"  multi-step error / the observer alone's: {ratios}", *observer, *lines[1:]]
+
+
+TWIN_LAG_SAMPLES = 2.0
+"""A rotor lag under this many sample periods beside a delay on its lower bound (0) may be a command delay: at the log
+rate the two answer alike (simulated Crazyflie, 8 ms delay, no lag: lag 8.5 ms and delay 0; a real 50-105 ms lag
+beside a delay of 0 is a lag). identify then says so instead of advising input_delay off."""
 
 
 CHOICE_STRIDE = 10

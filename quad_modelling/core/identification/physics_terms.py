@@ -309,9 +309,13 @@ def term_estimates(design: TermDesign, fit: dict, thrust: tuple[float, float], a
 CG_HELD = "held at 0: the flights do not separate the CG offset from the motor gains (motor_imbalance)"
 """Why a fit holds the CG offset at 0 (:func:`imbalance_separated`)."""
 
-FIXED_HELD = {"ground_effect": "the best of a grid, not fitted", "battery": "the flights' mean voltage, not fitted"}
+FIXED_HELD = {"ground_effect": "the best of a grid, not fitted",
+              "battery": "the flights' mean voltage, not fitted; k_f and k_m are the rotors' at this voltage"}
 """Why the ground effect's offset and the battery's reference voltage carry no sigma (reported as held, not as poorly
-determined: no amount of excitation would give them one)."""
+determined: no amount of excitation would give them one). With the battery term on, the rotor speed map answers
+f = 1 + kappa (V - V_ref), so the thrust and torque constants fitted are those at V_ref, not at another pack voltage (a
+simulated Crazyflie whose ESC reference is 3.8 V, flown at 3.71 V on average: k_f (3.71 / 3.8)^2 = 0.953 of the
+simulator's, review of session 34)."""
 
 
 def _combined(estimates: list[tuple[float, float]]) -> tuple[float, float]:

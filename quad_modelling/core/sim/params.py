@@ -556,7 +556,9 @@ def _crazyflie21(vehicle: VehicleConfig) -> SimParams:
             yaw_step=(np.deg2rad(15.0), np.deg2rad(60.0)),
             yaw_sweep=(np.deg2rad(5.0), np.deg2rad(15.0)),
             height_step=(0.08, 0.2),
-            low_hover=(0.04, 0.12),
+            # m: 3.5-7 R. Lower, a pass with the battery on touched down: the altitude integral follows the voltage
+            # sag, a ramp, 1.5-3.5 cm low (session 34's review: 4 cm asked, its feet 1.5 cm below the CG)
+            low_hover=(0.08, 0.16),
             turn_rate=(1.0, 2.0),  # rad/s
             stick_noise=(np.deg2rad(0.4), np.deg2rad(1.0), 0.005),
         ),

@@ -60,7 +60,7 @@ TURN_DURATION = (5.0, 10.0)
 LOW_PASS_RAMP = 2.0
 """Time a ``smooth_step`` low pass takes to go down to its height, and to come back up [s]: a cosine ramp whose rate
 and acceleration a stabiliser with ``height_feedforward`` feeds forward (:meth:`PilotScript.height_feedforward`):
-at most 0.36 m/s and 0.56 m/s² on the Crazyflie's deepest pass. Without it (the LinkQuad) a low pass is a ``step``
+at most 0.33 m/s and 0.52 m/s² on the Crazyflie's deepest pass (0.42 m). Without it (the LinkQuad) a low pass is a ``step``
 whose 1 s linear ramps the loop follows as it can."""
 STICK_NOISE_TIME = 0.5
 """Correlation time of the pilot's small corrections [s]."""

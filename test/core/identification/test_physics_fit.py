@@ -282,6 +282,23 @@ def test_a_time_constant_the_search_leaves_at_its_lower_bound_is_flagged():
     assert lag.helps.startswith("none in the flights? switch motor_lag off in the vehicle file")
 
 
+def test_a_delay_fitted_as_a_lag_of_about_a_sample_is_said_to_look_alike_not_to_be_absent():
+    """A simulated Crazyflie with its 8 ms command delay and no rotor lag, identified with the shipped file (both
+    searched): the lag takes the delay (8.5 ms) and the delay ends on 0. The advice said "none in the flights? switch
+    input_delay off" -- backwards (review); it now names the look-alike and the switch that finds the delay. A lag
+    of more than two samples beside a delay of 0 keeps the old advice (test_identify's LinkQuad, 105 ms)."""
+    log = simulate("crazyflie21", ("input_delay",), seed=4521, duration=40.0)
+    fit = identify_physics([log], CF, EvaluationConfig.preset("short", train="0%:100%"), observer=Observer(0.0, 0.0))
+    lag, delay = fit.values["rotor_time_constant"], fit.values["rotor_delay"]
+    assert 0.006 < lag < 0.011 and delay == 0.0 and fit.at_bound["rotor_delay"]
+    helps = next(e for e in fit.estimates() if e.name == "rotor_delay").helps
+    assert helps.startswith(f"a lag and a delay look alike at this log rate: the rotor lag ({1000 * lag:.1f} ms) may hold a "
+                            "command delay; with no rotor lag in the vehicle, switch motor_lag off")
+    off = dataclasses.replace(CF, effects=parse_effects({"motor_lag": {"enabled": False}}, "no lag"))
+    found = identify_physics([log], off, EvaluationConfig.preset("short", train="0%:100%"), observer=Observer(0.0, 0.0))
+    assert found.values["rotor_delay"] == pytest.approx(0.008, abs=0.003)  # the switch finds it
+
+
 def test_a_later_pass_searches_the_lag_near_the_previous_one_and_the_whole_range_when_it_ends_at_that_edge(sim_flight, monkeypatch):
     """The imbalance's later Gauss-Newton passes start the rotor-dynamics search at the previous pass's (τ, δ): the
     same τ and δ as the full search (τ within its 10 % tolerance) with fewer objective evaluations; started 4x off
