@@ -132,10 +132,10 @@ def _config(args: argparse.Namespace) -> EvaluationConfig:
     if not args.smooth > 0:
         raise ConfigError(f"--smooth {args.smooth:g}: the low-pass cutoff must be a positive frequency in Hz")
     if args.base == "physics":
-        config = PHYSICS_CONFIG.with_drop(args.drop) if args.drop else PHYSICS_CONFIG
+        config = PHYSICS_CONFIG.with_drop(args.drop) if args.drop is not None else PHYSICS_CONFIG
         config.validate()
         return config
-    drop = args.drop or f"{DIAGNOSIS_CONFIG.drop_start:g}:{DIAGNOSIS_CONFIG.drop_end:g}"
+    drop = args.drop if args.drop is not None else f"{DIAGNOSIS_CONFIG.drop_start:g}:{DIAGNOSIS_CONFIG.drop_end:g}"
     config = replace(DIAGNOSIS_CONFIG.with_drop(drop), window_s=args.window, smooth_cutoff_hz=args.smooth)
     config.validate()
     return config
@@ -431,13 +431,27 @@ def _physics_validation(args, config, say) -> dict:
 def _seeds(text: str | None) -> list[int]:
     """``--seeds``: comma-separated non-negative integers (ConfigError otherwise); not given, 0,1,2."""
     text = "0,1,2" if text is None else text
+    _list_items(text, "--seeds")
     try:
-        seeds = [int(s) for s in text.split(",") if s.strip()]
+        seeds = [int(s) for s in text.split(",")]
     except ValueError as err:
         raise ConfigError(f"--seeds {text!r}: expected comma-separated integers") from err
     if not seeds or min(seeds) < 0:
         raise ConfigError(f"--seeds {text!r}: expected comma-separated non-negative integers")
+    twice = sorted({s for s in seeds if seeds.count(s) > 1})
+    if twice:  # the same flights flown and diagnosed twice (review)
+        raise ConfigError(f"--seeds {text!r}: seed {', '.join(map(str, twice))} given more than once; give each seed once")
     return seeds
+
+
+def _list_items(text: str, flag: str) -> list[str]:
+    """The stripped items of a comma list ``text`` given to ``flag``; ConfigError in one line for a blank list or an empty
+    item between commas (which the list once dropped silently, or read as the default)."""
+    items = [item.strip() for item in text.split(",")]
+    if not all(items):
+        raise ConfigError(f"{flag} {text!r}: " + ("an empty list" if not any(items) else "an empty entry (a comma too many?)")
+                          + "; name each item once")
+    return items
 
 
 def validation_jobs(jobs: int | None) -> int | None:
@@ -455,7 +469,7 @@ def _pairs(text: str | None) -> list[tuple[str, ...]] | None:
         return None
     if text == "none":
         return []
-    return [tuple(part.strip() for part in item.split("+")) for item in text.split(",") if item.strip()]
+    return [tuple(part.strip() for part in item.split("+")) for item in _list_items(text, "--pairs")]
 
 
 def _disturbances(text: str | None) -> tuple[str, ...]:
@@ -466,7 +480,7 @@ def _disturbances(text: str | None) -> tuple[str, ...]:
         return DISTURBANCES
     if text == "none":
         return ()
-    names = tuple(part.strip() for part in text.split(",") if part.strip())
+    names = tuple(_list_items(text, "--disturbance"))
     unknown = [n for n in names if n not in DISTURBANCES]
     if unknown:
         raise ConfigError(f"--disturbance {', '.join(unknown)}: known disturbances are {', '.join(DISTURBANCES)} (or all, none)")

@@ -53,7 +53,7 @@ examples:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_span_arguments(parser)
-    parser.add_argument("--effects", metavar="LIST", default="",
+    parser.add_argument("--effects", metavar="LIST", default=None,
                         help="optional terms of the physics model to fit with its constants and switch on in the output: "
                              "a comma list of ground_effect, battery, gyroscopic, motor_imbalance, and rotor_drag, "
                              "motor_lag, input_delay where the vehicle file switches them off (docs/models.md)")
@@ -91,7 +91,9 @@ def run(args: argparse.Namespace) -> int:
     if output.suffix not in (".yaml", ".yml"):  # what --vehicle reads back as a file
         raise ConfigError(f"-o {output}: a vehicle file is YAML; name it VEHICLE.yaml")
     config = config_from_args(args)
-    terms = identify_term_names(args.effects.split(","))  # one line for an unknown, repeated or unfittable term
+    if args.effects is not None and not args.effects.strip():  # as simulate and diagnose refuse a blank list
+        raise ConfigError("--effects '': name the terms to fit (e.g. battery,motor_imbalance), or leave --effects out for none")
+    terms = identify_term_names(args.effects.split(",")) if args.effects is not None else ()  # one line per bad term
     flights, vehicle, skipped = load_evaluation_flights(args)
     warn_flight_span_overlap(config, flights)
     warn_held_speed_map(flights, vehicle)

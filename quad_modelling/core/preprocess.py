@@ -234,13 +234,20 @@ def check_same_clock(topic: str, source_t: np.ndarray, base: str, t: np.ndarray,
         )
 
 
+SMOOTH_NYQUIST_FRACTION = 0.8
+"""The highest low-pass cutoff :func:`smooth` designs, as a fraction of the Nyquist frequency (a 2nd-order Butterworth
+closer to it is ill-conditioned); a default cutoff above it (5 Hz on a 10 Hz log) is lowered to it."""
+
+
 def check_cutoff(cutoff_hz: float, log: FlightLog, flag: str = "--smooth") -> None:
-    """ConfigError unless the low-pass ``cutoff_hz`` lies below the Nyquist frequency of ``log``."""
+    """ConfigError unless the low-pass ``cutoff_hz`` the user gave lies below :data:`SMOOTH_NYQUIST_FRACTION` of the
+    Nyquist frequency of ``log`` (above it :func:`smooth` would use that limit instead: a cutoff given and not used)."""
     nyquist = log.sample_rate / 2.0
-    if not cutoff_hz < nyquist:
+    limit = SMOOTH_NYQUIST_FRACTION * nyquist
+    if not cutoff_hz < limit:
         raise ConfigError(
-            f"{flag} {cutoff_hz:g} Hz: must be below the Nyquist frequency {nyquist:g} Hz of {log.meta.source} "
-            f"({log.sample_rate:g} Hz samples)"
+            f"{flag} {cutoff_hz:g} Hz: must be below {limit:.4g} Hz, {SMOOTH_NYQUIST_FRACTION:g} x the Nyquist frequency "
+            f"{nyquist:.4g} Hz of {log.meta.source} ({log.sample_rate:.4g} Hz samples)"
         )
 
 
@@ -415,12 +422,12 @@ def trimmed_inputs(window: FlightLog, trim: TrimConfig | None = None) -> np.ndar
 def smooth(values: np.ndarray, sample_rate: float, cutoff_hz: float = SMOOTH_CUTOFF_HZ) -> np.ndarray:
     """Zero-phase Butterworth low-pass of (N, ...) ``values`` along rows.
 
-    The cutoff is limited to 0.8 x Nyquist; signals too short for filtfilt's
+    The cutoff is limited to :data:`SMOOTH_NYQUIST_FRACTION` x Nyquist; signals too short for filtfilt's
     padding are returned unchanged (nothing to smooth over).
     """
     values = np.asarray(values, dtype=float)
     nyquist = sample_rate / 2.0
-    b, a = signal.butter(SMOOTH_ORDER, min(cutoff_hz, 0.8 * nyquist) / nyquist)
+    b, a = signal.butter(SMOOTH_ORDER, min(cutoff_hz, SMOOTH_NYQUIST_FRACTION * nyquist) / nyquist)
     if values.shape[0] <= 3 * max(len(a), len(b)):
         return values.copy()
     return signal.filtfilt(b, a, values, axis=0)

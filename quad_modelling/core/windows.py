@@ -146,6 +146,11 @@ class SpanSpec:
         return start_s >= self.start - 1e-9 and end_s <= self.end + 1e-9
 
 
+MAX_SECONDS = 1.0e6
+"""The longest window, warm start or drop [s] (11.6 days, longer than any flight log): flight times are counted in
+int64 nanoseconds, which a 1e10 s window overflowed."""
+
+
 def parse_drop(text: str) -> tuple[float, float]:
     """``--drop START:END``: seconds dropped at take-off and landing (finite, >= 0); ConfigError otherwise."""
     what = f"--drop {text!r}"
@@ -229,7 +234,7 @@ class EvaluationConfig:
     @classmethod
     def from_options(cls, preset: str, drop: str | None = None, **overrides) -> EvaluationConfig:
         """The command-line form: a preset, ``--drop START:END`` text and overrides (None = the preset's); validated."""
-        start, end = parse_drop(drop) if drop else (None, None)
+        start, end = parse_drop(drop) if drop is not None else (None, None)  # '' is a malformed --drop, not none given
         config = cls.preset(preset, drop_start=start, drop_end=end, **overrides)
         config.validate()
         return config
@@ -275,16 +280,23 @@ class EvaluationConfig:
                             ("--drop end", self.drop_end), ("--smooth", self.smooth_cutoff_hz)):
             if not math.isfinite(value):
                 raise ConfigError(f"{flag} {value}: must be a finite number")
+        for flag, value in (("--window", self.window_s), ("--warm", self.warm_s), ("--drop start", self.drop_start),
+                            ("--drop end", self.drop_end)):
+            if value > MAX_SECONDS:  # times are counted in int64 nanoseconds: 1e10 s overflowed in a traceback (review)
+                raise ConfigError(f"{flag} {value:g} s: must be at most {MAX_SECONDS:g} s ({MAX_SECONDS / 86400:.1f} days)")
         if self.window_s <= 0 or self.warm_s <= 0 or self.warm_s >= self.window_s:  # the warm start anchors on measurements
             raise ConfigError(f"need window_s > warm_s > 0 (--window, --warm), got window {self.window_s} s, warm {self.warm_s} s")
         if self.drop_start < 0 or self.drop_end < 0:
             raise ConfigError("take-off/landing drops must be >= 0 s")
         if not self.horizons or min(self.horizons) < 1:
-            raise ConfigError(f"horizons must be positive step counts, got {self.horizons}")
+            raise ConfigError(f"--horizons {','.join(map(str, self.horizons))}: give positive step counts")
         if list(self.horizons) != sorted(set(self.horizons)):
             raise ConfigError(f"--horizons {','.join(map(str, self.horizons))}: give each step count once, in increasing order")
         if not self.smooth_cutoff_hz > 0:
             raise ConfigError(f"the smoothing cutoff must be a positive frequency in Hz, got {self.smooth_cutoff_hz:g}")
+        if self.smooth_cutoff_hz < 1.0 / self.window_s:  # 1e-6 Hz: a singular filter design in a traceback (review)
+            raise ConfigError(f"--smooth {self.smooth_cutoff_hz:g} Hz: must be at least 1 / --window = {1.0 / self.window_s:g} Hz "
+                              "(a window holds less than one period of a slower cutoff)")
         self.spans()
 
     def to_dict(self) -> dict:
