@@ -118,8 +118,8 @@ def main(argv: list[str] | None = None) -> int:
             signal.signal(signal.SIGINT, previous_int)
 
 
-DASH_VALUE = re.compile(r"-\.?\d")
-"""A command-line word that starts like a negative number (``-5:0``, ``-.5``, ``-5%:10%``): the value of the option
+DASH_VALUE = re.compile(r"-(?:\.?\d|inf|nan)", re.IGNORECASE)
+"""A command-line word that starts like a negative number (``-5:0``, ``-.5``, ``-5%:10%``, ``-inf``, ``-nan``): the value of the option
 before it, not an option (:func:`attach_dash_values`)."""
 
 
@@ -132,9 +132,13 @@ def attach_dash_values(parser: argparse.ArgumentParser, argv: list[str]) -> list
     if verb is None:
         return list(argv)
     takes_value = {o for a in parser.verb_parsers[verb]._actions if a.nargs is None for o in a.option_strings}
+
+    def option(word: str) -> bool:  # the option's name, or a prefix argparse resolves to exactly one (--dur: --duration)
+        return word in takes_value or (word.startswith("--") and len([o for o in takes_value if o.startswith(word)]) == 1)
+
     out: list[str] = []
     for word in argv:
-        if out and out[-1] in takes_value and DASH_VALUE.match(word):
+        if out and option(out[-1]) and DASH_VALUE.match(word):
             out[-1] = f"{out[-1]}={word}"
         else:
             out.append(word)

@@ -155,10 +155,8 @@ def training_configs(args: argparse.Namespace):
 
     epochs = args.epochs if args.epochs is not None else (25 if args.training == "thesis" else PRETRAIN_EPOCHS)
     check_seed(args.seed)
-    if not (0 <= epochs <= MAX_EPOCHS and 1 <= args.hidden <= MAX_HIDDEN and 1 <= args.delays <= MAX_DELAYS
-            and 1 <= args.input_delays <= MAX_DELAYS):
-        raise ConfigError(f"--epochs must lie in [0, {MAX_EPOCHS}], --hidden in [1, {MAX_HIDDEN}], "
-                          f"--delays and --input-delays in [1, {MAX_DELAYS}]")
+    check_ranges((("--epochs", epochs, 0, MAX_EPOCHS), ("--hidden", args.hidden, 1, MAX_HIDDEN),
+                  ("--delays", args.delays, 1, MAX_DELAYS), ("--input-delays", args.input_delays, 1, MAX_DELAYS)))
     shape = {"hidden": args.hidden, "output_delays": args.delays, "input_delays": tuple(range(args.input_delays)), "epochs": epochs}
     if args.training == "thesis" or args.hybrid:
         return NarxConfig(**shape), None
@@ -175,8 +173,16 @@ def rollout_defaults(args: argparse.Namespace, defaults) -> None:
         args.rollout_epochs = defaults.max_epochs
     if args.patience is None:
         args.patience = defaults.patience
-    if not (1 <= args.horizon <= MAX_DELAYS and 0 <= args.rollout_epochs <= MAX_EPOCHS and args.patience >= 1):
-        raise ConfigError(f"--horizon must lie in [1, {MAX_DELAYS}], --rollout-epochs in [0, {MAX_EPOCHS}], --patience >= 1")
+    check_ranges((("--horizon", args.horizon, 1, MAX_DELAYS), ("--rollout-epochs", args.rollout_epochs, 0, MAX_EPOCHS),
+                  ("--patience", args.patience, 1, MAX_EPOCHS)))
+
+
+def check_ranges(options) -> None:
+    """ConfigError naming the first of ``options`` ((flag, value, low, high), ...) whose value lies outside [low, high]
+    (the error listed every option's range without saying which was wrong, review)."""
+    for flag, value, low, high in options:
+        if not low <= value <= high:
+            raise ConfigError(f"{flag} {value}: must lie in [{low}, {high}]")
 
 
 def hybrid_config(args: argparse.Namespace):

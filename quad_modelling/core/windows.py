@@ -72,8 +72,8 @@ from quad_modelling.core.preprocess import (
 )
 from quad_modelling.errors import ConfigError, DataError
 
-_BOUND = re.compile(r"^\s*(?:(?P<inf>inf)|(?P<value>\d+(?:\.\d*)?|\.\d+)\s*(?P<percent>%?))\s*$", re.IGNORECASE)
-"""One bound: non-negative seconds, a percentage, or ``inf``."""
+_BOUND = re.compile(r"^\s*(?:(?P<inf>inf)|(?P<value>(?:\d+(?:\.\d*)?|\.\d+)(?:e[+-]?\d+)?)\s*(?P<percent>%?))\s*$", re.IGNORECASE)
+"""One bound: non-negative seconds (``1e1`` too), a percentage, or ``inf``."""
 
 SPAN_EXAMPLES = "e.g. 30:150, 0%:60% or 20:inf"
 
@@ -82,7 +82,8 @@ def _bound(text: str, what: str) -> tuple[float, bool]:
     """(value, is_percent) of one bound; ConfigError naming ``what`` when it is not a number, percentage or inf."""
     match = _BOUND.match(text)
     if not match:
-        raise ConfigError(f"{what}: bound {text.strip()!r} is not a non-negative number of seconds, a percentage or inf")
+        why = "negative" if text.strip().startswith("-") else "not a non-negative number of seconds, a percentage or inf"
+        raise ConfigError(f"{what}: bound {text.strip()!r} is {why}; {SPAN_EXAMPLES}")
     if match.group("inf"):
         return math.inf, False
     return float(match.group("value")), bool(match.group("percent"))

@@ -91,7 +91,9 @@ def test_train_refuses_to_overwrite_and_empty_spans(tmp_path, capsys):
     assert main(["train", BAG, "-o", str(tmp_path / "other.npz"), "--val-fraction", "1", *SMALL]) == 2
     assert "--val-fraction 1.0: must lie in [0, 1)" in capsys.readouterr().err
     assert main(["train", BAG, "-o", str(tmp_path / "other.npz"), "--horizon", "0", *SMALL]) == 2
-    assert "--horizon must lie in" in capsys.readouterr().err
+    assert "--horizon 0: must lie in [1, " in capsys.readouterr().err
+    assert main(["train", BAG, "-o", str(tmp_path / "other.npz"), *SMALL, "--delays", "-1"]) == 2
+    assert "--delays -1: must lie in [1, " in capsys.readouterr().err  # it listed every option's range, naming none
 
 
 def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys):
