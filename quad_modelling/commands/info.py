@@ -9,7 +9,7 @@ from pathlib import Path
 
 from quad_modelling.core.windows import check_window_rate
 from quad_modelling.errors import BagError, ConfigError, DataError
-from quad_modelling.io.bag_io import summarize_bag
+from quad_modelling.io.bag_io import read_bag_metadata, summarize_bag
 from quad_modelling.io.topic_maps import add_topic_map_argument, choose_topic_map
 from quad_modelling.core.preprocess import mark_time_base_holes
 from quad_modelling.io.loader import detect_format, load_flight
@@ -80,6 +80,14 @@ def run(args: argparse.Namespace) -> int:
             raise BagError(f"{args.bag}: topic map {chosen.name} reads {'; '.join(chosen.missing(topics))}: not in the bag")
         if chosen is not None and not chosen.is_contract:
             mapped = flight_document(load_flight(args.bag, vehicle=args.vehicle, topic_map=args.topic_map), str(args.bag))
+    if args.vehicle and mapped is None:  # a bag in the contract names its vehicle: --vehicle was ignored (review)
+        from quad_modelling.core.vehicle import load_vehicle
+
+        vehicle = load_vehicle(args.vehicle)  # an unknown name or file: its one line
+        recorded = read_bag_metadata(args.bag).vehicle
+        if recorded and recorded != vehicle.name:
+            raise ConfigError(f"--vehicle {args.vehicle}: {args.bag} was converted for vehicle {recorded}; info reports the "
+                              "bag as recorded (leave --vehicle out)")
     if args.json:
         document = json.loads(bag_json(summary))
         if mapped is not None:

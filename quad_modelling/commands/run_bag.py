@@ -20,7 +20,7 @@ import yaml
 from quad_modelling.atomic import atomic_output, name_final_paths
 from quad_modelling.commands import check_command_output
 from quad_modelling.core.models.registry import MODEL_FILE_KINDS, baseline_name_clash, named_spec
-from quad_modelling.core.windows import EvaluationConfig, check_window_rate, seconds_spans, spans_without_a_window
+from quad_modelling.core.windows import MAX_SECONDS, EvaluationConfig, check_window_rate, seconds_spans, spans_without_a_window
 from quad_modelling.errors import ConfigError, QuadModellingError
 from quad_modelling.io.topic_maps import add_topic_map_argument
 from quad_modelling.nodes.domains import DISCOVERY_MODES, ros_environment
@@ -95,6 +95,9 @@ class ModelEntry:
 
 
 RUN_BAG_MARKERS = ("results.json", "params.yaml")
+MAX_RATE = 1.0e6
+"""The fastest replay ``--rate`` (a million times real time: a 220 s flight in 0.2 ms of bag time per wall second is
+far beyond what any graph keeps up with; the replay node's clock arithmetic overflowed at 1e308)."""
 """What marks an earlier run-bag output (--force replaces it): its results, or the params.yaml every run writes (a run
 without the evaluator, ``--nodes replay,predictors``, writes no results)."""
 
@@ -369,10 +372,10 @@ def _run(args: argparse.Namespace, warned: bool = False) -> int:
                         ("--remote-timeout", args.remote_timeout)):
         if not math.isfinite(value):
             raise ConfigError(f"{flag} {value}: must be a finite number")
-    if args.rate < 0:
-        raise ConfigError(f"--rate {args.rate}: must be >= 0")
-    if not 0 < args.warm < args.window:
-        raise ConfigError(f"--window {args.window} / --warm {args.warm}: need 0 < warm < window")
+    if not 0 <= args.rate <= MAX_RATE:  # 1e308 failed inside the replay node, in five lines of its log (review)
+        raise ConfigError(f"--rate {args.rate:g}: must be >= 0 and at most {MAX_RATE:g} (times real time; 0 = paced, lossless)")
+    if not 0 < args.warm < args.window <= MAX_SECONDS:
+        raise ConfigError(f"--window {args.window:g} / --warm {args.warm:g}: need 0 < warm < window <= {MAX_SECONDS:g} s")
     for flag, value in (("--timeout", args.timeout), ("--remote-timeout", args.remote_timeout)):
         if not value > 0:
             raise ConfigError(f"{flag} {value}: must be a positive number of seconds")
