@@ -7,6 +7,7 @@ from pathlib import Path
 
 from quad_modelling.atomic import OUTPUT_MARKERS, OutputOverlapsInputError, check_output
 from quad_modelling.core.vehicle import config_dir
+from quad_modelling.errors import ConfigError
 
 
 def check_command_output(path: str | Path, force: bool, inputs: Iterable[str | Path | None] = (), flag: str = "-o",
@@ -24,3 +25,14 @@ def check_command_output(path: str | Path, force: bool, inputs: Iterable[str | P
                                            "files and topic maps read by name); write your own file elsewhere (refused even "
                                            "with --force)")
     check_output(Path(path), force, inputs, flag, directory, markers)
+
+
+MAX_SEED = 2**32 - 1
+"""Largest seed of every verb (``simulate --seed``, ``train --seed``, ``diagnose --validate --seeds``): numpy's seed
+range (torch takes 64 bits); a larger one ended in an OverflowError traceback in ``train``, and ``simulate`` took any."""
+
+
+def check_seed(seed: int, flag: str = "--seed") -> None:
+    """ConfigError unless 0 <= ``seed`` <= :data:`MAX_SEED`."""
+    if not 0 <= seed <= MAX_SEED:
+        raise ConfigError(f"{flag} {seed}: must be a whole number in 0..{MAX_SEED}")

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.atomic import atomic_output, check_distinct_inputs
-from quad_modelling.commands import check_command_output
+from quad_modelling.commands import check_command_output, check_seed
 from quad_modelling.commands.evaluate import check_one_vehicle, print_flight_warnings
 from quad_modelling.core.diagnosis.catalogue import parse_effect_list
 from quad_modelling.core.diagnosis.diagnose import (
@@ -436,8 +436,10 @@ def _seeds(text: str | None) -> list[int]:
         seeds = [int(s) for s in text.split(",")]
     except ValueError as err:
         raise ConfigError(f"--seeds {text!r}: expected comma-separated integers") from err
-    if not seeds or min(seeds) < 0:
+    if not seeds:
         raise ConfigError(f"--seeds {text!r}: expected comma-separated non-negative integers")
+    for seed in seeds:
+        check_seed(seed, "--seeds")
     twice = sorted({s for s in seeds if seeds.count(s) > 1})
     if twice:  # the same flights flown and diagnosed twice (review)
         raise ConfigError(f"--seeds {text!r}: seed {', '.join(map(str, twice))} given more than once; give each seed once")

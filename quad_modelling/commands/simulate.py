@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from quad_modelling.atomic import BAG_MARKERS, check_bag_name
-from quad_modelling.commands import check_command_output
+from quad_modelling.commands import check_command_output, check_seed
 from quad_modelling.core.effect_names import (
     DISTURBANCES,
     SIM_EFFECTS,
@@ -53,8 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     output = Path(args.output)
     effects = parse_effect_names(args.effects, SIMULATOR)
-    if args.seed < 0:
-        raise ConfigError(f"--seed must be a non-negative integer, got {args.seed}")
+    check_seed(args.seed)
     if not args.bag and output.suffix != ".mat":
         raise ConfigError(f"{output}: a thesis log needs a .mat name (or pass --bag for an MCAP bag directory)")
     if args.bag:

@@ -6,7 +6,7 @@ import argparse
 import sys
 import time
 
-from quad_modelling.commands import check_command_output
+from quad_modelling.commands import check_command_output, check_seed
 from quad_modelling.core.models.narx import MAX_DELAYS, MAX_HIDDEN
 from quad_modelling.core.models.narx import OUTPUTS as NARX_OUTPUTS
 from quad_modelling.core.training.hybrid import HYBRID_HIDDEN, HYBRID_ROLLOUT
@@ -21,9 +21,6 @@ TRAINING_METHODS = ("rollout", "thesis")
 MAX_EPOCHS = 10_000
 """Most training epochs (L-BFGS steps; the thesis used 25)."""
 
-
-MAX_SEED = 2**32 - 1
-"""Largest --seed: numpy's seed range (torch takes 64 bits); a larger one ended in an OverflowError traceback."""
 
 NAME = "train"
 HELP = "train the NARX blackbox model (or the hybrid or direct physics-based model) and write a model file"
@@ -117,12 +114,6 @@ def training_spans(logs, args) -> list[tuple[float, float]]:
             )
         spans.append((a, b))
     return spans
-
-
-def check_seed(seed: int) -> None:
-    """ConfigError unless 0 <= ``seed`` <= :data:`MAX_SEED`."""
-    if not 0 <= seed <= MAX_SEED:
-        raise ConfigError(f"--seed {seed}: must be a whole number in 0..{MAX_SEED}")
 
 
 ROLLOUT_OPTIONS = ("horizon", "rollout_epochs", "patience", "val_fraction", "val_flights", "seed")
