@@ -131,13 +131,22 @@ def attach_dash_values(parser: argparse.ArgumentParser, argv: list[str]) -> list
     verb = next((word for word in argv if word in parser.verb_parsers), None)
     if verb is None:
         return list(argv)
-    takes_value = {o for a in parser.verb_parsers[verb]._actions if a.nargs is None for o in a.option_strings}
+    actions = parser.verb_parsers[verb]._actions
+    takes_value = {o for a in actions if a.nargs is None for o in a.option_strings}
+    every = {o for a in actions for o in a.option_strings}
 
-    def option(word: str) -> bool:  # the option's name, or a prefix argparse resolves to exactly one (--dur: --duration)
-        return word in takes_value or (word.startswith("--") and len([o for o in takes_value if o.startswith(word)]) == 1)
+    def option(word: str) -> bool:
+        """Whether ``word`` names an option taking one value: exactly, or as the one option of all the verb's that it
+        abbreviates (``--dur``: ``--duration``), as argparse resolves it (``--hybrid`` is the flag, not ``--hybrid-hidden``)."""
+        if word in every:
+            return word in takes_value
+        matches = [o for o in every if o.startswith(word)] if word.startswith("--") and len(word) > 2 else []
+        return len(matches) == 1 and matches[0] in takes_value
 
     out: list[str] = []
-    for word in argv:
+    for k, word in enumerate(argv):
+        if word == "--":  # what follows is positional: as given
+            return out + list(argv[k:])
         if out and option(out[-1]) and DASH_VALUE.match(word):
             out[-1] = f"{out[-1]}={word}"
         else:

@@ -220,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
     for flag, flights in (("--train", train), ("--test", test)):  # one flight in both is in-sample: warned (in_sample)
         check_distinct_flights([(f.meta.source, f.fingerprint()) for f in flights], flag)
     for log in train + test:
-        check_cutoff(args.smooth, log)
+        check_cutoff(args.smooth, log, config.window_s)
     vehicle = given or load_vehicle(train[0].meta.vehicle)
     if physics:
         return _run_physics(args, train, test, vehicle, config, injection, output, skipped)
@@ -453,6 +453,9 @@ def _list_items(text: str, flag: str) -> list[str]:
     if not all(items):
         raise ConfigError(f"{flag} {text!r}: " + ("an empty list" if not any(items) else "an empty entry (a comma too many?)")
                           + "; name each item once")
+    twice = sorted({item for item in items if items.count(item) > 1})
+    if twice:
+        raise ConfigError(f"{flag} {text!r}: {', '.join(twice)} given more than once; name each item once")
     return items
 
 

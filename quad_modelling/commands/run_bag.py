@@ -95,11 +95,11 @@ class ModelEntry:
 
 
 RUN_BAG_MARKERS = ("results.json", "params.yaml")
-MAX_RATE = 1.0e6
-"""The fastest replay ``--rate`` (a million times real time: a 220 s flight in 0.2 ms of bag time per wall second is
-far beyond what any graph keeps up with; the replay node's clock arithmetic overflowed at 1e308)."""
 """What marks an earlier run-bag output (--force replaces it): its results, or the params.yaml every run writes (a run
 without the evaluator, ``--nodes replay,predictors``, writes no results)."""
+MAX_RATE = 1.0e6
+"""The fastest replay ``--rate``: a million times real time (a 220 s flight in 0.22 ms of wall time) is far beyond what
+any graph keeps up with; the replay node's clock arithmetic overflowed at 1e308."""
 
 
 def parse_models(text: str) -> list[ModelEntry]:
@@ -374,7 +374,7 @@ def _run(args: argparse.Namespace, warned: bool = False) -> int:
             raise ConfigError(f"{flag} {value}: must be a finite number")
     if not 0 <= args.rate <= MAX_RATE:  # 1e308 failed inside the replay node, in five lines of its log (review)
         raise ConfigError(f"--rate {args.rate:g}: must be >= 0 and at most {MAX_RATE:g} (times real time; 0 = paced, lossless)")
-    if not 0 < args.warm < args.window <= MAX_SECONDS:
+    if not 0 < args.warm < args.window <= MAX_SECONDS:  # checked before any node starts (the evaluator's config is later)
         raise ConfigError(f"--window {args.window:g} / --warm {args.warm:g}: need 0 < warm < window <= {MAX_SECONDS:g} s")
     for flag, value in (("--timeout", args.timeout), ("--remote-timeout", args.remote_timeout)):
         if not value > 0:

@@ -239,9 +239,14 @@ SMOOTH_NYQUIST_FRACTION = 0.8
 closer to it is ill-conditioned); a default cutoff above it (5 Hz on a 10 Hz log) is lowered to it."""
 
 
-def check_cutoff(cutoff_hz: float, log: FlightLog, flag: str = "--smooth") -> None:
+def check_cutoff(cutoff_hz: float, log: FlightLog, window_s: float, flag: str = "--smooth") -> None:
     """ConfigError unless the low-pass ``cutoff_hz`` the user gave lies below :data:`SMOOTH_NYQUIST_FRACTION` of the
-    Nyquist frequency of ``log`` (above it :func:`smooth` would use that limit instead: a cutoff given and not used)."""
+    Nyquist frequency of ``log`` (above it :func:`smooth` would use that limit instead: a cutoff given and not used)
+    and at or above 1 / ``window_s`` (a window holds less than one period of a slower one; 1e-6 Hz was a singular
+    filter design in a traceback, review)."""
+    if cutoff_hz < 1.0 / window_s:
+        raise ConfigError(f"{flag} {cutoff_hz:g} Hz: must be at least 1 / --window = {1.0 / window_s:g} Hz "
+                          "(a window holds less than one period of a slower cutoff)")
     nyquist = log.sample_rate / 2.0
     limit = SMOOTH_NYQUIST_FRACTION * nyquist
     if not cutoff_hz < limit:

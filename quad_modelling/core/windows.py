@@ -295,9 +295,6 @@ class EvaluationConfig:
             raise ConfigError(f"--horizons {','.join(map(str, self.horizons))}: give each step count once, in increasing order")
         if not self.smooth_cutoff_hz > 0:
             raise ConfigError(f"the smoothing cutoff must be a positive frequency in Hz, got {self.smooth_cutoff_hz:g}")
-        if self.smooth_cutoff_hz < 1.0 / self.window_s:  # 1e-6 Hz: a singular filter design in a traceback (review)
-            raise ConfigError(f"--smooth {self.smooth_cutoff_hz:g} Hz: must be at least 1 / --window = {1.0 / self.window_s:g} Hz "
-                              "(a window holds less than one period of a slower cutoff)")
         self.spans()
 
     def to_dict(self) -> dict:

@@ -233,7 +233,7 @@ CORPUS = [
      "--effects '': name the terms to fit (e.g. battery,motor_imbalance), or leave --effects out for none"),
     ("evaluate-drop-blank", ["evaluate", "{d}/flight.mat", "--drop", "", "-o", "{d}/work/e"], "--drop '': expected START:END seconds"),
     ("diagnose-validate-seeds-twice", ["diagnose", "--validate", "--seeds", "1,1", "-o", "{d}/work/v"],
-     "--seeds '1,1': seed 1 given more than once; give each seed once"),
+     "--seeds '1,1': 1 given more than once; name each item once"),
     ("diagnose-validate-seeds-empty-entry", ["diagnose", "--validate", "--seeds", "1,,2", "-o", "{d}/work/v"],
      "--seeds '1,,2': an empty entry (a comma too many?); name each item once"),
     ("diagnose-validate-pairs-blank", ["diagnose", "--validate", "--pairs", "", "-o", "{d}/work/v"],

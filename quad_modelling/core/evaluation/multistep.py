@@ -157,14 +157,14 @@ def flight_multistep_sums(log: FlightLog | None, models: Sequence[Predictor], ve
     naive = ConstantStatePredictor(vehicle, config.trim)
     evaluated = [naive] + [m for m in models if m.name != naive.name]
     sums = MultistepSums(span.name, max_h, [m.name for m in evaluated])
-    contact = np.concatenate([[0], np.cumsum(ground_contact(log))]) if log is not None else None  # on the whole flight
+    contact = contact_counts(log) if log is not None else None
     for start, stop in span_segments(log, span, config) if log is not None else ():
         segment = log.slice(start, stop)
         warm = warm_samples_for(segment, config.warm_s)
         if stop - start <= max_h + warm - 1:
             continue
         rows = start + np.arange(warm - 1, stop - start - max_h, start_stride)  # the starts multistep_mae scores
-        sums.ground_starts += int(np.count_nonzero(contact[rows + max_h + 1] > contact[rows]))
+        sums.ground_starts += int(np.count_nonzero(touching(contact, rows, max_h)))
         for m in evaluated:
             form = multistep_form(m, warm)
             if form is None:
@@ -266,14 +266,26 @@ def protocol_starts(flights: Sequence[FlightLog], config: EvaluationConfig, stri
     span = next(s for s in config.spans() if s.name == config.multistep_span)
     horizon = max(max(config.horizons), SIM_ERR_HORIZON)
     for log in flights:
-        contact = np.concatenate([[0], np.cumsum(ground_contact(log))]) if airborne else None
+        contact = contact_counts(log) if airborne else None
         for start, stop in span_segments(log, span, config):
             segment = log.slice(start, stop)
             starts = np.arange(warm_samples_for(segment, config.warm_s) - 1, len(segment) - horizon, stride)
             if contact is not None:  # rows start + s .. start + s + H free of contact
-                starts = starts[contact[start + starts + horizon + 1] == contact[start + starts]]
+                starts = starts[~touching(contact, start + starts, horizon)]
             if starts.size:
                 yield segment, starts
+
+
+def contact_counts(log: FlightLog) -> np.ndarray:
+    """(N + 1,) how many rows before each row of ``log`` touch the ground
+    (:func:`~quad_modelling.core.preprocess.ground_contact`, judged on the whole flight: where it stood)."""
+    return np.concatenate([[0], np.cumsum(ground_contact(log))])
+
+
+def touching(contact: np.ndarray, rows: np.ndarray, horizon: int) -> np.ndarray:
+    """(S,) whether rows s..s+H after each start row s (flight rows) touch the ground, from :func:`contact_counts`:
+    the one test of the starts the diagnosis leaves out and the table counts (``ground_starts``)."""
+    return contact[rows + horizon + 1] > contact[rows]
 
 
 BATCH_STARTS = 4096

@@ -171,13 +171,20 @@ class QuadDynamics:
 
     # ------------------------------------------------------------------ command path
 
+    @property
+    def stop_input(self) -> float:
+        """The command at or below which a rotor stands still [input unit]: u_0, or the input range's minimum where the
+        speed map's u_0 lies below it (the Crazyflie's map, a fit over the spinning range, reaches 381 rad/s at PWM 0:
+        its disarmed rotors spun at that, 6 % of the hover thrust, review of session 34)."""
+        return max(self.params.esc.zero_speed_input, self.params.vehicle.input_min)
+
     def omega_command(self, u, voltage: float) -> list[float]:
         """Steady rotor speeds the ESCs drive to [rad/s]:
-        :math:`\\Omega_{c,i} = g_i k_u \\max(u_i - u_0, 0) V / V_{ref}`."""
+        :math:`\\Omega_{c,i} = g_i k_u (u_i - u_0) V / V_{ref}` above :attr:`stop_input`, else 0."""
         esc = self.params.esc
         scale = esc.speed_gain * voltage / self.params.battery.reference_voltage
-        u0 = esc.zero_speed_input
-        return [g * scale * (ui - u0) if ui > u0 else 0.0 for g, ui in zip(self.motor_gains, u)]
+        u0, stop = esc.zero_speed_input, self.stop_input
+        return [g * scale * (ui - u0) if ui > stop else 0.0 for g, ui in zip(self.motor_gains, u)]
 
     def omega_commands(self, u: np.ndarray, voltage) -> np.ndarray:
         """:meth:`omega_command` of a batch: commands ``u`` (B, 4), battery voltage ``voltage`` scalar or (B,) [V]
@@ -190,7 +197,7 @@ class QuadDynamics:
             factor = gains[None, :] * scale[:, None]
         else:
             factor = gains * scale
-        return np.where(u > esc.zero_speed_input, factor * (u - esc.zero_speed_input), 0.0)
+        return np.where(u > self.stop_input, factor * (u - esc.zero_speed_input), 0.0)
 
     def allocation(self) -> np.ndarray:
         r"""The true allocation M (4x4): lift and torque per newton of each rotor's thrust,

@@ -66,7 +66,7 @@ ISA_SEA_LEVEL_AIR_DENSITY = 1.225
 class EscParams:
     """Speed controller: steady rotor speed :math:`\\Omega_{ss} = k_u (u - u_0) V/V_{ref}`."""
 
-    zero_speed_input: float  # u_0 [input unit]: command below which the rotor stops
+    zero_speed_input: float  # u_0 [input unit]: where the speed map reaches 0 (below the input range: its rotor stops at the range's minimum, QuadDynamics.stop_input)
     speed_gain: float  # k_u = -B_m / A_m [rad/s per input unit]
     idle_speed_fraction: float  # armed idle rotor speed / hover speed [1]
 

@@ -111,11 +111,18 @@ class Manoeuvre:
     f0: float = 0.0  # sweep start frequency [Hz]
     f1: float = 0.0  # sweep end frequency [Hz]
 
+    def smooth_ramps(self) -> list[tuple[float, float, float]]:
+        """(size, start, length) [m, s, s] of the cosine ramps a ``smooth_step`` is made of (down, then back up); none
+        for another shape. The one list its value and its fed-forward derivatives (:meth:`PilotScript.height_feedforward`) read."""
+        if self.shape != "smooth_step":
+            return []
+        return [(self.amplitude, self.start, LOW_PASS_RAMP), (-self.amplitude, self.start + self.duration - LOW_PASS_RAMP, LOW_PASS_RAMP)]
+
     def value(self, t: np.ndarray) -> np.ndarray:
         """The reference offset at times ``t``."""
         t0, dur, amp = self.start, self.duration, self.amplitude
         if self.shape == "smooth_step":  # a low pass down and back up along cosine ramps (fed forward: height_feedforward)
-            return amp * (_smooth_ramp(t, t0, LOW_PASS_RAMP) - _smooth_ramp(t, t0 + dur - LOW_PASS_RAMP, LOW_PASS_RAMP))
+            return sum(size * _smooth_ramp(t, start, length) for size, start, length in self.smooth_ramps())
         ramp = 1.0 if self.channel == "low_hover" else STICK_RAMP
         if self.shape == "step":
             return amp * (_ramp(t, t0, ramp) - _ramp(t, t0 + dur - ramp, ramp))
@@ -161,13 +168,18 @@ class PilotScript:
         """Where the descent's height reference ends [m]: below the ground, so the gear carries the weight."""
         return self.rest_height - 0.1
 
+    def phase_ramps(self) -> list[tuple[float, float, float]]:
+        """(size, start, length) [m, s, s] of the height reference's climb to the hover height and descent to the
+        touchdown height: cosine ramps (:meth:`references`, :meth:`height_feedforward`)."""
+        return [(self.hover_height - self.rest_height, self.t_lift, self.climb_time),
+                (self.touchdown_height - self.hover_height, self.land_start, self.descent_time)]
+
     def references(self, t: np.ndarray) -> np.ndarray:
         """(N, 4) references: roll [rad], pitch [rad], yaw [rad], CG height above ground [m]."""
         refs = np.zeros((len(t), 4))
-        touchdown = self.touchdown_height
-        climb = _smooth_ramp(t, self.t_lift, self.climb_time)
-        descent = _smooth_ramp(t, self.land_start, self.descent_time)
-        refs[:, 3] = self.rest_height + (self.hover_height - self.rest_height) * climb + (touchdown - self.hover_height) * descent
+        refs[:, 3] = self.rest_height
+        for size, start, length in self.phase_ramps():  # the climb, then the descent
+            refs[:, 3] += size * _smooth_ramp(t, start, length)
         column = {"roll": 0, "pitch": 1, "yaw": 2, "throttle": 3, "low_hover": 3}
         for manoeuvre in self.manoeuvres:
             refs[:, column[manoeuvre.channel]] += manoeuvre.value(t)
@@ -179,12 +191,7 @@ class PilotScript:
         forward, :mod:`~quad_modelling.core.sim.control`);
         not the throttle manoeuvres, stick steps a pilot flies without (their rate would kick the thrust)."""
         rate, acceleration = np.zeros(len(t)), np.zeros(len(t))
-        ramps = [(self.hover_height - self.rest_height, self.t_lift, self.climb_time),
-                 (self.touchdown_height - self.hover_height, self.land_start, self.descent_time)]
-        for m in self.manoeuvres:
-            if m.shape == "smooth_step":
-                ramps += [(m.amplitude, m.start, LOW_PASS_RAMP), (-m.amplitude, m.start + m.duration - LOW_PASS_RAMP, LOW_PASS_RAMP)]
-        for size, start, length in ramps:
+        for size, start, length in self.phase_ramps() + [r for m in self.manoeuvres for r in m.smooth_ramps()]:
             first, second = _smooth_ramp_derivatives(t, start, length)
             rate += size * first
             acceleration += size * second

@@ -219,3 +219,5 @@ def test_the_table_counts_the_starts_whose_horizon_touches_the_ground_and_merges
     assert multistep_table(sums, config)["ground_starts"] == 300
     assert type(sums).from_json(sums.to_json(), "stats").ground_starts == 300
     assert "ground_starts" not in multistep_evaluation([straight_line_flight()], [], vehicle, config)
+    strided = 100 + np.arange(19, 1099 - 50, 3)  # every 3rd start: those in 550..699 counted
+    assert multistep_evaluation([log], [], vehicle, config, start_stride=3)["ground_starts"] == np.count_nonzero((strided >= 550) & (strided <= 699))

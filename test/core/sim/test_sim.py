@@ -1,5 +1,6 @@
 """Physics of the truth simulator: hover, free fall, yaw, stability, each effect's direction, determinism."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -78,6 +79,38 @@ def test_crazyflie_hovers_at_42_percent_pwm_on_the_files_speed_map():
     assert set(params.adjustments) == {"rotor_thrust_constant", "rotor_torque_constant"}
     assert params.esc.speed_gain == params.vehicle.value("rotor_speed_gain") == 0.04076521
     assert params.esc.speed_offset == pytest.approx(params.vehicle.value("rotor_speed_offset"), rel=1e-12)
+
+
+def test_the_crazyflies_rotors_stand_still_until_armed_though_its_speed_map_reaches_381_rad_s_at_pwm_0():
+    """The vehicle file's speed map (a fit over the spinning range) gives 381 rad/s at PWM 0: the simulator's rotors stand
+    still at the input range's minimum (motors off), spin at the armed idle (0.3 x hover) and hover at 1516 rad/s."""
+    from quad_modelling.core.sim.simulate import run_simulation
+
+    run = run_simulation("crazyflie21", (), seed=3, duration=14.0)
+    t, omega = run.log.t, run.truth["omega"]
+    assert np.all(omega[t < 0.9] == 0.0)  # off until armed at 1 s (the log held 381 rad/s here)
+    idle = (t > 1.2) & (t < 1.9)
+    assert np.allclose(omega[idle], 0.3 * 1516.0, rtol=0.01)
+    assert QuadDynamics(sim_params_for("crazyflie21")).omega_command([0.0, 1.0, 27850.0, 65535.0], 3.8)[:2] == [0.0, pytest.approx(380.88, abs=0.1)]
+
+
+def test_the_fed_forward_height_rate_and_acceleration_are_the_derivatives_of_the_smooth_references():
+    """The Crazyflie's script (low passes as smooth steps): the stabiliser's fed-forward rate and acceleration equal the
+    numerical derivatives of the height reference without the throttle manoeuvres (its stick steps are not fed forward)."""
+    from quad_modelling.core.sim.pilot import make_pilot_script
+
+    params = sim_params_for("crazyflie21")
+    script = make_pilot_script(params, 90.0, np.random.default_rng(11))
+    assert any(m.shape == "smooth_step" for m in script.manoeuvres)
+    smooth = dataclasses.replace(script, manoeuvres=tuple(m for m in script.manoeuvres if m.channel != "throttle"))
+    t = np.arange(0.0, 90.0, 1e-3)
+    height = smooth.references(t)[:, 3]
+    rate, acceleration = script.height_feedforward(t)
+    inner = slice(1, -1)
+    assert np.max(np.abs(np.gradient(height, t)[inner] - rate[inner])) < 2e-3  # m/s; the ramps' kinks are 1 ms wide
+    # the acceleration steps where a cosine ramp starts or ends: off by up to half the step at those few samples only
+    assert np.percentile(np.abs(np.gradient(rate, t)[inner] - acceleration[inner]), 99.9) < 1e-3  # m/s²
+    assert np.max(rate) > 0.1 and np.min(rate) < -0.1
 
 
 def test_effect_names_parse():
