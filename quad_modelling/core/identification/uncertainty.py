@@ -40,10 +40,16 @@ def hac_covariance(jac: np.ndarray, residuals: np.ndarray, lags: int) -> np.ndar
 
     ``jac``: (W, n, v, p) Jacobian of the residuals (or regressors) per window, sample, variable;
     ``residuals``: (W, n, v); ``lags``: Bartlett bandwidth L in samples. Raises
-    :class:`numpy.linalg.LinAlgError` when :math:`J^T J` is singular.
+    :class:`numpy.linalg.LinAlgError` when :math:`J^T J` is singular: J's rank below p by numpy's SVD tolerance
+    (singular values under max(shape) eps of the largest). LU alone (``inv``) raised only when a pivot came out
+    exactly 0, which depends on the CPU's rounding: two collinear columns gave NaN sigmas on one machine and finite
+    ones of 5e-4 on another.
     """
     w, n, v, p = jac.shape
     flat = jac.reshape(-1, p)
+    rank = np.linalg.matrix_rank(flat)
+    if rank < p:
+        raise np.linalg.LinAlgError(f"J^T J is singular: its {p} columns have rank {rank}")
     bread = np.linalg.inv(flat.T @ flat)
     scores = np.einsum("wtvp,wtv->wtp", jac, residuals)  # (W, n, p)
     meat = np.einsum("wtp,wtq->pq", scores, scores)

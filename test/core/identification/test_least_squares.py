@@ -17,7 +17,7 @@ from quad_modelling.core.identification.least_squares import (
     fit_least_squares,
     poorly_determined,
 )
-from quad_modelling.core.identification.uncertainty import bandwidth_samples
+from quad_modelling.core.identification.uncertainty import bandwidth_samples, hac_covariance
 
 PERIOD_S = 0.1
 """Sample spacing of the synthetic residuals [s]: a HAC bandwidth of 10 samples."""
@@ -214,3 +214,20 @@ def test_a_value_nine_times_its_lower_bound_in_a_four_decade_range_is_not_at_it(
     assert bound_side(1.55e-11, 1.79e-12, 1.79e-8) is None
     assert bound_side(1.7905e-12, 1.79e-12, 1.79e-8) == "lower" and bound_side(1.7899e-8, 1.79e-12, 1.79e-8) == "upper"
     assert bound_side(0.0005, 0.0, 1.0) == "lower" and bound_side(0.5, 0.1, 1.0) is None  # narrow or from 0: linear
+
+
+def test_a_jacobian_whose_columns_differ_by_rounding_is_singular():
+    """Two columns equal but for the last bits (finite differences of two parameters the residual sees only as a sum)
+    are one direction: LinAlgError on every CPU, not a covariance from an inverse of rounding (finite sigmas of 5e-4
+    came out where LU's pivot was not exactly 0). Independent columns keep the sandwich's covariance (lag 0)."""
+    rng = np.random.default_rng(3)
+    column = rng.normal(size=(4, 50, 2, 1))
+    twins = np.concatenate([column, column * (1.0 + 4e-16), rng.normal(size=(4, 50, 2, 1))], axis=3)
+    residuals = rng.normal(size=(4, 50, 2))
+    with pytest.raises(np.linalg.LinAlgError, match="rank 2"):
+        hac_covariance(twins, residuals, 0)
+    independent = rng.normal(size=(4, 50, 2, 3))
+    flat = independent.reshape(-1, 3)
+    bread = np.linalg.inv(flat.T @ flat)
+    scores = (independent * residuals[..., None]).sum(axis=2).reshape(-1, 3)  # each sample's J^T r
+    assert hac_covariance(independent, residuals, 0) == pytest.approx(bread @ scores.T @ scores @ bread, rel=1e-9)
