@@ -60,7 +60,17 @@ class Maps(HorizonMaps):
         return self.anchor_size + self.per_row * (self.lead + horizon + 1)
 
 
-def layout(extra=(), history: int = 10, lead: int = 10, squares: bool = False):
+EXTRA_SIZES = {"gravity": 3, "acc": 3, "velocity_change": 3, "attitude_change": 2}
+"""Anchor inputs :func:`layout` can add, and their sizes: the gravity direction R_s^T e_D; the specific force averaged
+over 5 rows; the measured velocity's change over the last 5 rows (50 ms) in the anchor's body frame
+R_s^T (v_s - v_{s-5}) [m/s]; the roll and pitch change over the last 10 rows (100 ms) [rad]."""
+
+MIXER = np.array([[1, 1, 1, 1], [-1, -1, 1, 1], [1, -1, -1, 1], [1, -1, 1, -1]], dtype=float) / 4
+"""Commands in mixer form (``mixed``): their mean and the three differences of an X quadrotor's roll, pitch and yaw
+torques (a linear map of the four, which only changes what the ridge penalises)."""
+
+
+def layout(extra=(), history: int = 10, lead: int = 10, squares: bool = False, mixed: bool = False):
     """(features(log, anchors, horizon, disturbance) -> (S, D), anchor block size, lead, inputs per command row)."""
     def features(log, anchors, horizon, disturbance):
         anchors = np.asarray(anchors, dtype=int)
@@ -72,13 +82,20 @@ def layout(extra=(), history: int = 10, lead: int = 10, squares: bool = False):
             if name == "gravity":
                 down = np.tile([0.0, 0.0, 1.0], (len(anchors), 1))
                 blocks.append(frames.nav_to_body(down, log.euler[anchors]).reshape(len(anchors), 3))
-            else:  # "acc"
+            elif name == "acc":
                 blocks.append(log.acc_b[np.maximum(anchors[:, None] - np.arange(5)[None, :], 0)].mean(axis=1))
+            elif name == "velocity_change":
+                change = log.vel_n[anchors] - log.vel_n[np.maximum(anchors - 5, 0)]
+                blocks.append(frames.nav_to_body(change, log.euler[anchors]).reshape(len(anchors), 3))
+            else:  # "attitude_change"
+                blocks.append(log.euler[anchors, :2] - log.euler[np.maximum(anchors - 10, 0), :2])
         u = log.u[rows]
+        if mixed:
+            u = u @ MIXER.T
         if squares:
             u = np.concatenate([u, (u / COMMAND_SCALE) ** 2], axis=2)
         return np.concatenate([*blocks, u.reshape(len(anchors), -1)], axis=1)
-    return features, 3 * history + 6 + 3 * len(extra), lead, 8 if squares else 4
+    return features, 3 * history + 6 + sum(EXTRA_SIZES[name] for name in extra), lead, 8 if squares else 4
 
 
 def fit(train, disturbance_of, spec: dict):
