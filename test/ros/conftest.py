@@ -25,6 +25,18 @@ def ros():
     rclpy.try_shutdown()
 
 
+def in_process_evaluator(**values):
+    """An EvaluatorNode built in this test process with ``values`` as its parameters, at niceness increment 0 unless
+    given: the node raises its own process's niceness (parameter ``nice``, default 10) and in process that is the
+    pytest worker's, for every later test on it (one of the two workers ran at nice 19 and yielded the CPU to the
+    other's node subprocesses)."""
+    from rclpy.parameter import Parameter
+
+    from quad_modelling.nodes.evaluator_node import EvaluatorNode
+
+    return EvaluatorNode(parameter_overrides=[Parameter(k, value=v) for k, v in {"nice": 0, **values}.items()])
+
+
 class Capture:
     """Stands in for a publisher: keeps what a node publishes, by stamp.
 

@@ -5,19 +5,17 @@ import time
 
 import numpy as np
 import pytest
-from rclpy.parameter import Parameter
 
 from quad_modelling.core.preprocess import measured_variables
 from quad_modelling.core.variables import INDEX
 from quad_modelling.io import topics
 from quad_modelling.nodes import messages
-from quad_modelling.nodes.evaluator_node import EvaluatorNode
-from test.ros.conftest import Capture, feed, hover_log, interrupted_node
+from test.ros.conftest import Capture, feed, hover_log, in_process_evaluator, interrupted_node
 
 
 def make_node(**params):
     values = {"window_s": 5.0, "models": ["m"], "figures": False, "vehicle": "crazyflie21", **params}
-    node = EvaluatorNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+    node = in_process_evaluator(**values)
     node.diag_pub = Capture()
     return node
 
@@ -321,3 +319,13 @@ def test_a_stream_whose_stamps_are_all_zero_is_named_in_the_exit_summary(ros, ca
     logged = capfd.readouterr().err.strip().splitlines()[-1]  # the node's last log line
     assert logged.endswith(f"; faults: {faults}; nothing usable received on {', '.join(streams)}"), logged
     node.destroy_node()
+
+
+def test_an_in_process_evaluator_leaves_the_test_process_niceness_alone(ros):
+    """The tests' in-process evaluators run at increment 0 (conftest.in_process_evaluator): the node's default of 10
+    renices its own process, which here is the pytest worker's."""
+    import os
+
+    before = os.nice(0)
+    make_node().destroy_node()
+    assert os.nice(0) == before

@@ -5,7 +5,6 @@ stream; receding-horizon MAE@h equals the offline multi-step MAE_h; faulty stamp
 import re
 
 import numpy as np
-from rclpy.parameter import Parameter
 
 from quad_modelling.core.alignment import CONFIRM
 from quad_modelling.core.evaluation.multistep import multistep_form, multistep_mae
@@ -17,9 +16,8 @@ from quad_modelling.core.windows import warm_samples_for
 from quad_modelling.io import topics
 from quad_modelling.io.bag_io import read_bag
 from quad_modelling.nodes import messages
-from quad_modelling.nodes.evaluator_node import EvaluatorNode
 from test.conftest import REPO
-from test.ros.conftest import Capture, feed, hover_log
+from test.ros.conftest import Capture, feed, hover_log, in_process_evaluator
 from test.ros.flight_stack_emulator import events, log_at, schedule
 
 BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
@@ -27,7 +25,7 @@ BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
 
 def make_node(**params):
     values = {"window_s": 5.0, "models": ["m"], "figures": False, "vehicle": "crazyflie21", "spans": ["live:0:inf"], **params}
-    node = EvaluatorNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
+    node = in_process_evaluator(**values)
     node.diag_pub = Capture()
     return node
 

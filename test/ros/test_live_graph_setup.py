@@ -175,7 +175,7 @@ def test_a_keep_last_subscription_that_overflows_counts_only_what_it_delivered(r
 
     params = {"vehicle": "crazyflie21", "qos": "reliable", "qos_depth": 2}
     if kind == "evaluator":
-        params.update(models=["m"], figures=False, output_dir=str(tmp_path / "out"))
+        params.update(models=["m"], figures=False, output_dir=str(tmp_path / "out"), nice=0)  # in process: the worker's
     overrides = [Parameter(k, value=v) for k, v in params.items()]
     node = EvaluatorNode(parameter_overrides=overrides) if kind == "evaluator" else PredictorNode(parameter_overrides=overrides)
     source = Node("imu_source", namespace="/quad")

@@ -26,7 +26,7 @@ from quad_modelling.nodes.evaluator_node import EvaluatorNode
 from quad_modelling.nodes.mapping.streams import MEASURED_FIELDS, MappedStreams
 from quad_modelling.nodes.predictor_node import PredictorNode
 from test.conftest import synthetic_log
-from test.ros.conftest import Capture, feed, hover_log
+from test.ros.conftest import Capture, feed, hover_log, in_process_evaluator
 from test.ros.test_evaluator_node import offset_prediction
 from test.ros.test_predictor_topic_map_live import USER_MAP, user_messages
 from test.stack_bags import crazyswarm2_messages, px4_messages, write_stack_bag
@@ -112,8 +112,7 @@ def test_the_evaluator_through_a_user_map_scores_what_it_scores_from_the_contrac
     log = hover_log(1100)
     prediction = offset_prediction(log, "vel_x", 0.25)
     common = {"window_s": 5.0, "models": ["m"], "figures": False, "vehicle": "crazyflie21"}
-    contract, mapped = (EvaluatorNode(parameter_overrides=[Parameter(k, value=v) for k, v in values.items()])
-                        for values in (common, {**common, "topic_map": str(map_file)}))
+    contract, mapped = (in_process_evaluator(**values) for values in (common, {**common, "topic_map": str(map_file)}))
     for node in (contract, mapped):
         node.diag_pub = Capture()
     feed(contract, log, range(len(log)), predictions={"m": prediction})
