@@ -106,8 +106,6 @@ class EvaluatorNode(Node):
         self.figures = p["figures"]
         self.executor_kind, self.math_threads = p["executor"], p["math_threads"]
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]
-        if p["nice"]:
-            os.nice(int(p["nice"]))
         named = {span.name: span.text() for span in self.spans}
         # The one trim/smoothing configuration of every window this node scores (core defaults, as offline).
         self.config = EvaluationConfig(drop_start=0.0, drop_end=0.0, window_s=self.window_s, warm_s=self.warm_s,
@@ -174,6 +172,8 @@ class EvaluatorNode(Node):
         horizon = f", MAE@{self.horizon_s:g} s of <model>/{HORIZON_TOPIC}" if self.horizon_s > 0 else ""
         self.get_logger().info(f"scoring models {self.models} in spans {p['spans']} ({self.window_s:g} s windows{horizon}, "
                                f"{p['qos']} subscriptions{', recording to ' + p['record'] if p['record'] else ''})")
+        if p["nice"]:  # last: a node that refuses its parameters leaves its process's niceness as it was
+            os.nice(int(p["nice"]))
 
     @property
     def vehicle(self):

@@ -6,6 +6,7 @@ the evaluator reading a user map scores what it scores from the contract; a cust
 
 from __future__ import annotations
 
+import os
 import sys
 from functools import partial
 from types import SimpleNamespace
@@ -91,9 +92,11 @@ def test_a_custom_type_without_its_package_stops_the_node_in_one_line_naming_the
 
 def test_the_evaluator_leaves_recording_a_stacks_topics_to_ros2_bag_record(ros, tmp_path):
     overrides = [Parameter("topic_map", value="px4"), Parameter("record", value=str(tmp_path / "rec"))]
+    niceness = os.nice(0)
     with pytest.raises(BadParameter, match=r"^evaluator: parameter record with topic_map='px4': record a stack's own topics with ros2 bag record"):
         EvaluatorNode(parameter_overrides=overrides)
     assert not (tmp_path / "rec").exists()
+    assert os.nice(0) == niceness  # refused before its nice (10 by default) renices the process
 
 
 def test_a_map_with_a_robot_placeholder_needs_the_robot_named(ros):
