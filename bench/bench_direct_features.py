@@ -66,8 +66,9 @@ over 5 rows; the measured velocity's change over the last 5 rows (50 ms) in the 
 R_s^T (v_s - v_{s-5}) [m/s]; the roll and pitch change over the last 10 rows (100 ms) [rad]."""
 
 MIXER = np.array([[1, 1, 1, 1], [-1, -1, 1, 1], [1, -1, -1, 1], [1, -1, 1, -1]], dtype=float) / 4
-"""Commands in mixer form (``mixed``): their mean and the three differences of an X quadrotor's roll, pitch and yaw
-torques (a linear map of the four, which only changes what the ridge penalises)."""
+"""Commands in mixer form (``mixed``): their mean and three +-1 sign patterns, the shapes of an X quadrotor's roll,
+pitch and yaw torque differences (which pattern is which axis depends on the motor order; an invertible linear map of
+the four, so it changes only what the ridge penalises)."""
 
 
 def layout(extra=(), history: int = 10, lead: int = 10, squares: bool = False, mixed: bool = False):
