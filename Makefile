@@ -34,8 +34,9 @@ TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) -m "not slow" test
 
-# The slow scenario tests (marked `slow`: the greybox and physics --validate, the README tour, the two-host DDS test),
-# which CI runs after `make test`.
+# The slow scenario tests, which CI runs after `make test`: marked `slow`, every test that took over about 6 s of a
+# `make test` on a slow 2-core machine (the diagnosis scenarios, run-bag's live graphs, the Dask failure cases, the
+# --validate runs, the README tour, the two-host DDS test; see test/conftest.py).
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) -m slow test
 

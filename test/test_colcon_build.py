@@ -5,11 +5,14 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from test.conftest import REPO
 
 VENV_BIN = Path(sys.executable).parent
 
 
+@pytest.mark.slow
 def test_colcon_build_installs_runnable_executables(tmp_path):
     env = {**os.environ, "PATH": f"{VENV_BIN}:{os.environ['PATH']}"}
     build = subprocess.run(

@@ -215,6 +215,7 @@ def crash_first_refuse_second(value: int) -> int:
     raise DataError(f"flight{value}.csv: column px: not a number in row 3")
 
 
+@pytest.mark.slow
 def test_a_worker_that_dies_on_an_earlier_flight_is_named_after_that_flight():
     """The first bad flight in input order is named; when that earlier one killed its worker, the cluster error names
     it, not the later flight whose own error came first."""
@@ -222,6 +223,7 @@ def test_a_worker_that_dies_on_an_earlier_flight_is_named_after_that_flight():
         map_flights(crash_first_refuse_second, [1, 2], jobs=2)
 
 
+@pytest.mark.slow
 def test_a_scheduler_shut_down_mid_run_is_one_cluster_error_naming_it():
     address = f"tcp://127.0.0.1:{_free_port()}"
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}

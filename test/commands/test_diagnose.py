@@ -26,6 +26,7 @@ def mat_flights(tmp_path_factory):
     return paths
 
 
+@pytest.mark.slow
 def test_diagnose_writes_json_report_and_figures(mat_flights, tmp_path, capsys):
     out = tmp_path / "diag"
     code = main(["diagnose", "--base", "greybox", "--train", mat_flights[0], mat_flights[2], "--test", mat_flights[1], "--vehicle", "linkquad",

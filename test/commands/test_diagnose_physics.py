@@ -26,6 +26,7 @@ def injected(tmp_path_factory):
     return code, json.loads((out / "diagnosis.json").read_text()), (out / "report.md").read_text(), vehicle, folder
 
 
+@pytest.mark.slow
 def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     code, data, report, _, _ = injected
     assert code == 0 and data["injection"]["passed"]
@@ -57,6 +58,7 @@ def test_an_injected_motor_gain_is_found_with_its_factor(injected):
     assert "| nothing else newly found | nothing (motor_imbalance may: the injected change) | motor_imbalance | yes |  |" in report
 
 
+@pytest.mark.slow
 def test_a_gain_injection_says_the_gain_was_measured_and_why_the_imbalance_need_not_be_found(injected):
     """NanoBench B2/B3/B7 medium against B5 helix, gain:2:1.25: PASSED on the measured ratio while the effect list said
     the imbalance "shrinks +5.4 % ... the held-out flights do not confirm it", read as the injection not found. The
@@ -82,6 +84,7 @@ def test_a_gain_injection_says_the_gain_was_measured_and_why_the_imbalance_need_
     assert f"{measured}; {why}" in " ".join(" ".join(verdict_lines(missed, 200)).split())
 
 
+@pytest.mark.slow
 def test_a_motor_order_verdict_an_injection_did_not_make_is_not_called_the_injected_change(injected):
     """The order check naming a swap on flights injected with a delay or a gain is no injected change (the report
     called every such verdict one); only a swap injection makes it."""
@@ -112,6 +115,7 @@ def test_a_motor_order_verdict_an_injection_did_not_make_is_not_called_the_injec
 
 @pytest.mark.parametrize("spec, check", [("swap:3:4", "the motor-order check names the swap"),
                                          ("delay:15", "delay rises by the injected delay")])
+@pytest.mark.slow
 def test_a_swap_is_named_and_diagnosed_with_the_fix_and_a_delay_is_measured(spec, check, tmp_path, capsys):
     """The other inject kinds on the bundled real flight (rotor drag the candidate): motors 3 and 4 exchanged -- the
     check names the swap, the diagnosis runs with it undone (a wrong motor order leaves a base no effect mends) and
@@ -146,6 +150,7 @@ def test_a_swap_is_named_and_diagnosed_with_the_fix_and_a_delay_is_measured(spec
         assert data["summary"]["delay_s"]["value"] - data["un_injected"]["summary"]["delay_s"]["value"] == pytest.approx(0.015, abs=0.0025)
 
 
+@pytest.mark.slow
 def test_components_are_reported_each_with_its_own_verdict(injected):
     _, data, _, _, _ = injected
     drag = data["effects"]["rotor_drag"]
@@ -156,6 +161,7 @@ def test_components_are_reported_each_with_its_own_verdict(injected):
     assert data["dropped_shrink"]["rotor_drag"] > 0.02  # order-free: dropping it from the final set costs
 
 
+@pytest.mark.slow
 def test_the_written_vehicle_predicts_as_the_report_says(injected):
     """The vehicle --write-vehicle wrote (from the un-injected run) loads with rotor drag's constants and the observer,
     and evaluate --model physics on the held-out flight gives the report's 'final' SimErr ratios."""
@@ -224,6 +230,7 @@ def test_write_vehicle_onto_the_output_directory_is_refused_in_one_line(tmp_path
     assert len(err) == 1 and f"--write-vehicle {same}: the same path as -o" in err[0] and list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_a_swap_in_the_logged_data_is_carried_into_the_written_vehicle(tmp_path):
     """A flight whose logged commands of motors 3 and 4 are exchanged: the motor-order check names the swap, the
     diagnosis runs with it undone, and the vehicle --write-vehicle writes lists motors 3 and 4 exchanged, so that
@@ -281,6 +288,7 @@ def test_flights_of_two_vehicles_or_too_slow_for_a_window_are_one_line(flights, 
         assert len(err) == 1 and message in err[0] and not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_a_training_half_too_short_to_fit_alone_is_said_not_fatal(tmp_path):
     """The bundled flight and its first 12 s as training flights: the halves (one each) cannot both be fitted alone
     (2 s after the drops); the run ended with 'no usable training anchors' after the whole selection."""
@@ -309,6 +317,7 @@ def test_a_delay_injection_on_a_vehicle_that_holds_the_delay_is_refused(tmp_path
     assert len(err) == 1 and "so the delay is held at 0, not searched; add input_delay to --effects" in err[0]
 
 
+@pytest.mark.slow
 def test_an_effect_the_backward_step_drops_says_so(tmp_path, monkeypatch):
     """An effect that joined and left in the backward step read 'not supported: ... (5 % bound +26.4 %; found needs a
     5 % bound >= 1 %): the held-out flights do not confirm it' -- a bound that passes the rule it quotes."""
@@ -329,6 +338,7 @@ def test_an_effect_the_backward_step_drops_says_so(tmp_path, monkeypatch):
             "-0.2% < 1%): the others explain it") in data["effects"]["rotor_drag"]["text"]
 
 
+@pytest.mark.slow
 def test_held_constants_and_the_injected_runs_constants_are_said_as_such(injected):
     """A held constant printed sigma nan (the legend's 'cannot separate'); the constants of an --inject run were not
     said to be the injected run's while --write-vehicle writes the un-injected one's."""

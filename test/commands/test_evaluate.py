@@ -44,6 +44,7 @@ def test_flights_of_different_vehicles_are_refused(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_the_multistep_table_lists_every_model_evaluated(tmp_path):
     """naive, greybox and a NARX (each with its vectorised, causal predict_horizons) are all in the multi-step
     table of results.json and tables.md; only the dummy is left out, with the reason. (A model with only a live
@@ -67,6 +68,7 @@ def test_the_multistep_table_lists_every_model_evaluated(tmp_path):
     assert "greybox = linear greybox, the thesis reproduction" in tables
 
 
+@pytest.mark.slow
 def test_a_horizon_beyond_50_says_the_starts_differ_and_too_long_a_horizon_says_why_no_table(tmp_path):
     """SimErr sums h = 1..50 whatever the horizons; a longer horizon leaves fewer starts (each needs its rows ahead),
     which the table says; one longer than every segment gives the note instead of a table."""
@@ -120,6 +122,7 @@ def test_a_flight_with_no_window_in_either_span_is_said(flights, tmp_path, capsy
                         "the ground or a gap): not in the window scores"]
 
 
+@pytest.mark.slow
 def test_one_flight_in_two_formats_counts_once(tmp_path, capsys):
     """A bag and the .mat converted from it are one flight (the same recorded numbers, FlightLog.fingerprint):
     evaluate, identify and train refuse it given twice, one line, exit 2, nothing written (evaluate scored it twice
@@ -167,6 +170,7 @@ def test_the_physics_model_on_never_identified_constants_is_warned(tmp_path, cap
     assert "quad-modelling identify FLIGHTS --vehicle crazyflie21 -o FILE" in warned[0]
 
 
+@pytest.mark.slow
 def test_two_model_files_of_one_kind_are_compared_by_naming_them(tmp_path, capsys):
     """`--model direct:a.npz --model direct:b.npz` were two models named direct, refused with no way out; NAME=SPEC
     names them as run-bag's --models does. A direct model file is an input too (-o onto it is refused)."""

@@ -35,6 +35,7 @@ def serial(flights, tmp_path_factory):
     return evaluation(tmp_path_factory.mktemp("serial") / "out", flights)
 
 
+@pytest.mark.slow
 def test_evaluate_serial_jobs_scheduler_and_merge_give_identical_numbers(flights, serial, dask_scheduler, tmp_path):
     serial, serial_bytes = serial
     _, jobs_bytes = evaluation(tmp_path / "jobs", flights, "--jobs", "2")
@@ -101,6 +102,7 @@ def test_diagnose_validate_runs_its_cases_locally_and_refuses_a_scheduler(tmp_pa
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_identify_on_workers_identifies_the_serial_constants(flights, dask_scheduler, tmp_path):
     """On the running cluster: ``--jobs N`` differs only in starting a local one first (quad_modelling.fanout.dask_client),
     which the evaluate test above runs."""
@@ -115,6 +117,7 @@ def test_identify_on_workers_identifies_the_serial_constants(flights, dask_sched
     assert documents[1]["identification"]["spans"] == serial["identification"]["spans"]
 
 
+@pytest.mark.slow
 def test_diagnose_and_train_on_workers_equal_serial(flights, dask_scheduler, tmp_path):
     reports = []
     for name, extra in (("serial", []), ("running", ["--scheduler", dask_scheduler])):

@@ -21,6 +21,7 @@ def test_identify_writes_loadable_vehicle(flights, tmp_path, capsys):
     assert "motor order/spin check" in capsys.readouterr().out
 
 
+@pytest.mark.slow
 def test_identify_on_the_bundled_bag_reports_constants_and_no_false_alarm(tmp_path, capsys):
     """What `make demo` runs: every constant with unit, sigma, bounds and change; the motor check consistent."""
     from pathlib import Path
@@ -63,6 +64,7 @@ def test_identify_on_the_bundled_bag_reports_constants_and_no_false_alarm(tmp_pa
     assert (tmp_path / "cf_model" / "F.casadi").is_file()
 
 
+@pytest.mark.slow
 def test_identify_effects_fits_ground_effect_on_a_simulated_flight_and_switches_it_on(tmp_path, capsys):
     """The simulator's ground effect is Cheeseman-Bennett's 1/(1 - (R/4h)²) at each hub (its own, richer form); the
     model's 1 + c/(h + h_off)² fitted on one 45 s flight must give a thrust gain near the truth's where the flight has
@@ -98,6 +100,7 @@ def test_identify_effects_fits_ground_effect_on_a_simulated_flight_and_switches_
     assert PhysicsParameters.from_vehicle(load_vehicle(out)).ground_effect == term.values()
 
 
+@pytest.mark.slow
 def test_a_rotor_drag_switched_off_in_the_vehicle_file_stays_off_until_effects_names_it(tmp_path):
     """The vehicle file switches rotor drag off: identify holds its constants at 0 and writes the switch off (the
     file's values kept); ``--effects rotor_drag`` fits them and switches it on. The bundled real flight has drag."""
@@ -136,6 +139,7 @@ def test_flights_of_two_vehicles_are_refused_naming_one_of_each(tmp_path, capsys
     assert f"{crazyflie} of 'crazyflie21', {linkquad} of 'linkquad'" in err and len(err.splitlines()) == 1
 
 
+@pytest.mark.slow
 def test_skipped_input_and_overlapping_spans_are_said(flights, tmp_path, capsys):
     """--skip-bad: the vehicle is identified from the readable flights, and a line says how many were left out of
     identification.files; a training span that overlaps the evaluation span is one warning line."""

@@ -33,6 +33,7 @@ def merge_error(args, capsys) -> str:
     return err[0]
 
 
+@pytest.mark.slow
 def test_merge_writes_results_and_tables_and_refuses_to_overwrite(results, tmp_path, capsys):
     out = tmp_path / "merged"
     assert main(["merge", str(results["a"]), str(results["b"]), "-o", str(out)]) == 0
@@ -105,6 +106,7 @@ def test_merge_refuses_evaluations_run_with_different_vehicle_files_of_one_airfr
     assert main(["merge", str(results["a"]), str(older), "-o", str(tmp_path / "out")]) == 0
 
 
+@pytest.mark.slow
 def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, capsys):
     """Two NARX files are both the model `narx`: evaluations of each do not merge (by the files' contents); the same
     file under another path does."""
@@ -143,6 +145,7 @@ def test_merge_refuses_one_model_name_loaded_from_two_different_files(tmp_path, 
     assert "model m (greybox vs naive) is another model in each" in message, message
 
 
+@pytest.mark.slow
 def test_model_specs_whose_argument_is_an_option_are_evaluated_and_merge(flights, tmp_path):
     """greybox:euler and physics:L,A take options, not files: nothing is read as a model file (a traceback before)."""
     for name, flight in (("x", flights[0]), ("y", flights[1])):
@@ -163,6 +166,7 @@ def test_merge_refuses_one_flight_in_two_results(results, tmp_path, capsys):
     assert "its windows would count twice" in message and not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow
 def test_merge_tells_flights_by_their_numbers_not_their_paths(flights, tmp_path, capsys, monkeypatch):
     """The same flight evaluated by a relative and by an absolute path is one flight (it was merged, counted twice);
     two different flights both named flight.mat in their own directories are two (they were refused)."""

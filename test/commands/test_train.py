@@ -60,6 +60,7 @@ def test_training_without_validation_windows_or_on_few_rows_says_so(tmp_path, ca
     assert rows * 6 < weights and f"warning: {rows} training rows x 6 outputs for {weights} weights" in printed.err
 
 
+@pytest.mark.slow
 def test_train_val_flights_are_used_for_early_stopping_only(tmp_path, capsys):
     from quad_modelling.core.diagnosis.injection import Injection
     from quad_modelling.io.bag_io import write_bag
@@ -114,6 +115,7 @@ def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys)
     assert "--hybrid-hidden '0,x'" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_train_direct_fits_the_rate_regression_and_evaluate_scores_it(tmp_path, capsys):
     out = tmp_path / "direct.npz"
     assert main(["train", BAG, "-o", str(out), "--direct", "--preset", "short", "--quiet"]) == 0
@@ -196,6 +198,7 @@ def test_training_reads_rows_of_one_period_as_evaluate_scores_them(tmp_path, cap
     assert abs(whole_model.training["samples"] - holed_model.training["samples"] - 70) <= 2
 
 
+@pytest.mark.slow
 def test_a_seconds_training_span_overlapping_the_presets_percent_eval_span_is_warned(tmp_path, capsys):
     """--train 10:30 with --preset short's eval 60%:100% shares time on a 42 s flight: the kinds differ, so the spans
     alone could not tell, and nothing was said (review); judged on the flight, one warning naming it."""

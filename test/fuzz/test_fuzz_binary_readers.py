@@ -9,6 +9,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
 import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -55,12 +56,14 @@ def check_bag(mcap: bytes = MCAP, metadata: str = METADATA):
         return result
 
 
+@pytest.mark.slow
 @settings(max_examples=60)
 @given(byte_edits(len(MCAP)))
 def test_corrupt_mcap_gives_a_flight_or_one_line(edits):
     check_bag(mcap=mutated(MCAP, edits))
 
 
+@pytest.mark.slow
 @settings(max_examples=25)
 @given(st.one_of(st.text(max_size=40), st.builds(json.dumps, yaml_values)))
 def test_any_notes_give_a_flight_or_one_line(notes):

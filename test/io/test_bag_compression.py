@@ -1,6 +1,7 @@
 """Bags are written with zstd-compressed MCAP chunks: smaller, and read back exactly as written uncompressed."""
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
 from quad_modelling.io.bag_io import BagRecorder, read_bag, read_recorded, write_bag
@@ -13,6 +14,7 @@ def _size(bag) -> int:
     return sum(f.stat().st_size for f in bag.iterdir())
 
 
+@pytest.mark.slow
 def test_zstd_bag_is_a_fifth_of_the_size_and_reads_back_the_same_messages(tmp_path):
     flight = read_bag(BAG)  # the bundled 42 s flight, 16,908 messages
     plain = write_bag(flight, tmp_path / "plain", compress=False)

@@ -74,6 +74,7 @@ def _evaluate(path, out) -> dict:
     return _numbers(json.loads((out / "results.json").read_text()))
 
 
+@pytest.mark.slow
 def test_evaluate_numbers_equal_the_csv(bags, tmp_path):
     """Done-when of issue 27: the same evaluate numbers from the CSV, the PX4 bag and the crazyswarm2 bag."""
     reference = _evaluate(CSV, tmp_path / "csv")

@@ -60,6 +60,7 @@ def _stop(proc: subprocess.Popen) -> str:
     return out
 
 
+@pytest.mark.slow
 @pytest.mark.exclusive  # streams in real time, >= 99 % of the inputs answered: the machine to itself under xdist
 def test_predictor_and_evaluator_next_to_an_emulated_flight_stack(ros, tmp_path):
     from nav_msgs.msg import Odometry

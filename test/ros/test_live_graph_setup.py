@@ -54,6 +54,7 @@ def spin_until(node, condition, timeout: float = 30.0) -> None:
     assert condition(), "condition not met in time"
 
 
+@pytest.mark.slow
 @pytest.mark.exclusive  # 100 Hz in real time, >= 99 % must arrive: the machine to itself under xdist
 def test_a_sensor_data_publisher_feeds_a_default_predictor_and_not_a_reliable_one(ros, tmp_path):
     """MAVROS, the PX4 uXRCE-DDS bridge and crazyswarm2 publish best effort: the default qos receives it."""
@@ -128,6 +129,7 @@ def test_shipped_params_file_applies_in_another_namespace_and_sigterm_writes_res
     assert (out / "results.json").is_file() and "closed 0 windows" in text  # ... that wrote the results
 
 
+@pytest.mark.slow
 def test_nodes_learn_the_replayed_vehicle_or_refuse_another_in_one_line(ros, tmp_path):
     node = Node("replay_stand_in", namespace="/quad")
     announcer = node.create_publisher(String, "vehicle", latched_qos())

@@ -122,6 +122,7 @@ def direct_spec(tmp_path_factory) -> str:
     return f"direct:{path}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("model", ["greybox", "physics", "direct"])
 def test_predictions_for_99_percent_of_jittered_independent_streams_with_increasing_stamps_and_a_continuous_pose(ros, model, request):
     model = request.getfixturevalue("direct_spec") if model == "direct" else model

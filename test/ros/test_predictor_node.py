@@ -110,6 +110,7 @@ def run_node(args, timeout=60):
                           capture_output=True, text=True, timeout=timeout, env=env)
 
 
+@pytest.mark.slow
 def test_bad_parameters_exit_with_code_2_and_the_reason():
     # The five start-ups run side by side (each process exits on its own bad parameter): a fifth of the wall time.
     with ThreadPoolExecutor(max_workers=5) as pool:
@@ -427,6 +428,7 @@ def test_a_clock_jump_forward_resets_the_windows_and_prediction_resumes_in_the_w
     node.destroy_node()
 
 
+@pytest.mark.slow
 def test_parameters_ros_refuses_or_a_number_too_big_exit_2_in_one_line_without_a_traceback(tmp_path):
     """An unreadable params file and a malformed -p are rclpy's start-up errors (a traceback before); infinite or
     absurd numbers and names that cannot be topics are refused by their checks (an OverflowError, a 1.5 TiB

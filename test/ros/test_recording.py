@@ -23,6 +23,7 @@ def recorded_run(tmp_path_factory):
     return out
 
 
+@pytest.mark.slow
 def test_recording_holds_every_measurement_prediction_and_evaluation(recorded_run):
     record = recorded_run / "record"
     with open(next(record.glob("*.mcap")), "rb") as handle:  # the mcap library, as Foxglove reads it
@@ -71,6 +72,7 @@ def _field_type(msgtype: str, path: str) -> str:
     return msgtype
 
 
+@pytest.mark.slow
 def test_foxglove_layout_plots_recorded_topics_and_existing_fields(recorded_run):
     layout = json.loads((REPO / "config" / "foxglove_layout.json").read_text())
     types = {"/quad/motor_input": "sensor_msgs/msg/JointState", "/quad/mocap/odom": "nav_msgs/msg/Odometry",

@@ -19,6 +19,7 @@ from test.conftest import REPO
 BAG = REPO / "bags" / "nanobench_B7_oval_medium_rep2"
 
 
+@pytest.mark.slow
 def test_live_results_equal_offline_evaluation(tmp_path, capsys):
     """naive, greybox and a NARX trained on the training span, live and offline; the dummy rides along."""
     assert main(["train", str(BAG), "--drop", "0:0", "--train", "0:20", "--epochs", "5", "--training", "thesis", "--quiet", "-o", str(tmp_path / "narx.npz")]) == 0
@@ -66,6 +67,7 @@ def test_live_results_equal_offline_evaluation(tmp_path, capsys):
     assert "| narx    | angular_velocity |" in printed  # the aligned console table
 
 
+@pytest.mark.slow
 def test_live_equals_offline_on_a_flight_with_an_irregular_step(tmp_path, capsys):
     """A second, differently cut flight (the first 10 s of the NanoBench fixture, 4 s windows) with one sample
     missing (a 20 ms step at 7.19 s, as real NanoBench logs have): the window holding it is scored by both paths on
@@ -123,6 +125,7 @@ def test_live_equals_offline_on_a_flight_with_an_irregular_step(tmp_path, capsys
             assert merged["live"]["horizons"]["models"][model][group]["sim_err"] == pytest.approx(entry["sim_err"], rel=1e-9)
 
 
+@pytest.mark.slow
 def test_samples_the_nodes_did_not_receive_are_a_line_per_stream_in_the_summary_and_results_and_exit_1(tmp_path, capsys,
                                                                                                        monkeypatch):
     """A replay faster than real time (--rate > 0) on a busy machine loses samples on the nodes' keep-last queues (a
@@ -170,6 +173,7 @@ def _processes_mentioning(text: str) -> list[int]:
     return found
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("signum", ["SIGTERM", "SIGINT"])
 def test_sigterm_stops_every_node_and_removes_the_staging(tmp_path, signum):
     import os
@@ -236,6 +240,7 @@ def test_bad_nodes_and_discovery_flags_are_one_line_errors(tmp_path, capsys, mon
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_truth_model_live_equals_offline_on_a_simulated_bag_and_refuses_a_real_one(tmp_path, capsys):
     """``--models truth`` on a simulated bag (default effects: delay, motor lag, battery...): the predictor node gets the
     bag's simulator notes (truth_notes.json) and the battery topic, and scores as the offline evaluation; on a bag
@@ -265,6 +270,7 @@ def test_truth_model_live_equals_offline_on_a_simulated_bag_and_refuses_a_real_o
     assert len(err.splitlines()) == 1 and f"{BAG}: not a simulated flight" in err
 
 
+@pytest.mark.slow
 def test_a_contract_bag_under_another_namespace_is_replayed(tmp_path, capsys):
     """A bag written by convert --namespace is replayed in the contract (read, then rewritten under /quad), with the
     offline numbers of the same flight."""
@@ -292,6 +298,7 @@ def test_a_contract_bag_under_another_namespace_is_replayed(tmp_path, capsys):
     assert "is also in" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_a_mapped_bags_reader_warnings_are_printed_once_as_evaluate_prints_them(tmp_path, capsys):
     """A PX4 bag with a 0.3 s hole, read through a map whose commands range is in the wrong unit, with battery_status
     recorded without a message: run-bag printed none of the three warnings evaluate prints; now each once, evaluate's

@@ -82,6 +82,7 @@ def imbalance_flights():
     return [simulated("linkquad", ("motor_imbalance",), s, TRAIN_DURATION) for s in (11, 13, 12)]
 
 
+@pytest.mark.slow
 def test_withheld_effect_is_ranked_first_and_found(imbalance_flights, linkquad, base):
     *train, test = imbalance_flights
     effects = [CATALOGUE[n] for n in ("motor_imbalance", "battery", "motor_lag")]
@@ -242,6 +243,7 @@ def test_affected_variables_are_the_candidates_the_fitted_correction_moves(fligh
     assert affected_variables(batch, small, names, scales, gap)[0] == names
 
 
+@pytest.mark.slow
 def test_an_effect_is_scored_only_on_the_candidates_its_fit_moves(linkquad, base):
     """Known answer: the gyroscopic torques never touch acc_z and their yaw term (I_xx - I_yy)/I_zz p q is ~30x
     smaller than the roll/pitch ones on the LinkQuad (I_xx, I_yy 3 % apart). Offered acc_z as a candidate as

@@ -40,6 +40,7 @@ def _diagnosed(effect: str, delay_s: float, switched_off: bool = True):
     return diagnose_physics([train], [test], vehicle, EvaluationConfig.preset("short"), ("motor_lag", "input_delay")), params, vehicle
 
 
+@pytest.mark.slow
 def test_a_motor_lag_is_found_as_a_lag_and_a_delay_as_a_delay():
     """Truth τ_m 50 ms (found 55: the simulated gyro's Δt/2 period mean adds 5 ms, test_physics_fit) and a 40 ms
     delay (found 45). Each alone shrinks the held-out J by ~20 %; the other, tried on top, adds nothing."""
@@ -73,6 +74,7 @@ def _imbalance_diagnosed(effect: str):
     return diagnose_physics([train], [test], assessing_vehicle("linkquad"), PHYSICS_CONFIG, ("motor_imbalance",))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("effect, found", [("bent_arm", False), ("motor_imbalance", True)])
 def test_an_imbalance_whose_gains_shrink_the_error_only_by_their_yaw_pattern_is_not_found(effect, found):
     """A bent arm (rotor 1 tilted 3 degrees about its arm: a yaw torque in proportion to its thrust, what the gains'
@@ -101,6 +103,7 @@ def test_an_effect_resolved_but_not_supported_says_which_holds():
                     "confirm it")
 
 
+@pytest.mark.slow
 def test_without_the_switches_lag_and_delay_are_in_the_base_and_no_candidate():
     result, _, _ = _diagnosed("motor_lag", 0.0, switched_off=False)
     assert result.candidates == [] and result.found == []
@@ -143,6 +146,7 @@ def test_the_pair_step_tries_every_two_resolved_candidates_but_the_lag_and_the_d
     assert pair_candidates({"battery": (0.0, -0.01, resolved), "motor_lag": (0.01, 0.0, resolved)}) == []
 
 
+@pytest.mark.slow
 def test_lag_and_delay_are_said_apart_or_not_by_their_held_out_difference():
     """A 50 ms lag: the delay fitted in its place shrinks J by less, outside the bootstrap interval (told apart); an
     8 ms delay, under one 10 ms log period, shrinks J as a lag does (2.5 % each, session-12 note): not told apart,
@@ -196,6 +200,7 @@ def test_the_twin_check_reads_the_paired_bootstrap():
     assert "told from" not in found + other
 
 
+@pytest.mark.slow
 def test_a_lag_searched_to_its_bound_with_the_base_observer_is_refitted_with_the_others():
     """Simulated LinkQuad, all seven effects on, the validation's seed-142 flights as the pilot flew them before it
     led with a low pass (physics_validation.LEADING; session 21): the base is fitted with the
@@ -220,6 +225,7 @@ def test_a_lag_searched_to_its_bound_with_the_base_observer_is_refitted_with_the
     assert choice["chosen"] == "measured" and choice["errors"]["default"] > 1.3 * choice["errors"]["measured"]
 
 
+@pytest.mark.slow
 def test_the_reports_multistep_table_is_evaluates_and_the_verdicts_starts_apart():
     """The report's multi-step table scores every start, as `evaluate` does, and the verdict the starts whose 50 steps
     stay off the ground, every second one. On simulated Crazyflie flights (battery on, 60 s; the held-out flight,

@@ -57,6 +57,7 @@ def _differential_flight(vehicle, seed, duration=40.0, rate=100.0):
                      meta=FlightMeta(vehicle.name, f"diff{seed}"), vbat=np.full(n, 3.9))
 
 
+@pytest.mark.slow
 def test_identification_recovers_the_drag_constant_and_flags_reversed_spins():
     truth = load_vehicle("crazyflie21").with_greybox({"torque_constant": 7.45e-10}, "test truth")
     flights = [_differential_flight(truth, seed=s) for s in range(2)]
@@ -84,6 +85,7 @@ def test_identify_searches_the_motor_time_constants_of_the_diagnosis_base_fit():
     assert MOTOR_POLE_RANGE == (0.5, 500.0)  # -A_m [1/s] = 1 / tau_m
 
 
+@pytest.mark.slow
 def test_identify_and_the_diagnosis_base_give_the_same_constants_on_the_same_windows():
     """One identification: ``identify`` on a training span and the diagnosis base on the same windows."""
     from quad_modelling.core.diagnosis.catalogue import CATALOGUE
@@ -103,6 +105,7 @@ def test_identify_and_the_diagnosis_base_give_the_same_constants_on_the_same_win
     assert identified.fit["rotor_reaction_scale"] == base.values["rotor_reaction_scale"]
 
 
+@pytest.mark.slow
 def test_a_negligible_rotor_reaction_term_is_held_not_run_to_its_bound():
     """The Crazyflie's configured I_prop (3.4e-11 kg m²) moves yaw acceleration by far less than 1 %: k_R is held at 1
     and says so; with a 1e4 times heavier propeller the term matters and k_R is fitted (truth 1)."""

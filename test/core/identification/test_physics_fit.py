@@ -113,6 +113,7 @@ def test_identification_on_the_bundled_bag_has_finite_sigmas_and_flags_values_at
     assert flagged.values["rotor_thrust_constant"] == pytest.approx(fit.values["rotor_thrust_constant"], rel=1e-9)
 
 
+@pytest.mark.slow
 def test_identify_writes_the_physics_constants_into_a_loadable_vehicle(bag, tmp_path):
     result = identify([bag], CF, SHORT)
     assert result.physics is not None
@@ -239,6 +240,7 @@ def test_the_imbalance_fitted_on_its_yaw_pattern_alone_holds_the_rest():
     assert cg[("roll", "pitch", "yaw")] == pytest.approx(sim_params_for("linkquad").imbalance.cg_offset, abs=1e-3)
 
 
+@pytest.mark.slow
 def test_fitted_without_an_observer_the_hover_pins_the_thrust_constant():
     """Effect-free simulated LinkQuad flights: without an observer, gravity in the velocity channel's known part pins
     k_f to the hover (the regression had no g there until 2026-11-26, and k_f went to its lower bound, 1e-6); the

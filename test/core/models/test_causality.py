@@ -350,6 +350,7 @@ def simulated():
     return simulate("linkquad", seed=2, duration=14.0).slice(300, 700)
 
 
+@pytest.mark.slow
 def test_truth_model_reads_nothing_after_its_anchor(simulated):
     """The truth model (the simulator's physics from the log's notes) in its three forms, with the physics model's
     disturbance observer (its default has none: a subset); the battery voltage after the anchor is altered too."""

@@ -166,6 +166,7 @@ def test_rollout_training_beats_the_physics_base_on_held_out_rows(trained, fligh
         assert hybrid[g] < 0.8 * base[g], (group, hybrid[g], base[g])
 
 
+@pytest.mark.slow
 def test_training_is_deterministic(trained, flight, vehicle, span):
     again = train_hybrid_on_flights([flight], [span], vehicle, SMALL, seed=0)
     for a, b in zip(trained.net.arrays().values(), again.net.arrays().values()):

@@ -190,6 +190,7 @@ def test_pure_yaw_torque_spins_without_tilting(vehicle):
     assert later[2] == pytest.approx(state[2], abs=1e-9)
 
 
+@pytest.mark.slow
 def test_flight_stays_bounded_for_220_s_and_lands(default_flight):
     truth = default_flight.truth
     params = default_flight.params
