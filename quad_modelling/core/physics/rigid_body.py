@@ -206,8 +206,8 @@ def continued_yaw(yaw0: float, rot: np.ndarray) -> np.ndarray:
 
 def times_skew(rot, phi):
     """R [φ]× (B, 3, 3) of matrices R (B, 3, 3) and vectors φ (B, 3): row i is r_iᵀ[φ]× = (r_i × φ)ᵀ, one cross
-    product of R's rows with φ (no [φ]× built, no 3x3 product: a third fewer tensor operations in the hybrid's
-    training, which back-propagates through every step)."""
+    product of R's rows with φ: no [φ]× built and no 3x3 product, so fewer tensor operations in the hybrid's
+    training, which back-propagates through every step (bench/results/training_time.md)."""
     return arrays.cross(rot, phi[:, None, :])
 
 
