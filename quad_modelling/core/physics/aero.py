@@ -23,8 +23,8 @@ from quad_modelling.core.physics import arrays
 def rotor_drag(p, rotor, vel_b):
     """(F_d (B, 3) [N], τ_d (B, 3) [N m]) in B of rotor speeds ``rotor`` (B, 4) [rad/s] and body airspeed ``vel_b``
     (B, 3) [m/s] (module docstring; ``p.drag`` = (d_xy, d_xy, d_z), ``p.drag_arm`` = h_d)."""
-    force = -(rotor.sum(axis=1)[:, None] * p.drag) * vel_b
-    moment = arrays.columns([-p.drag_arm * force[:, 1], p.drag_arm * force[:, 0], arrays.zeros_like(force[:, 2])])
+    force = -(rotor.sum(axis=-1)[..., None] * p.drag) * vel_b
+    moment = arrays.columns([-p.drag_arm * force[..., 1], p.drag_arm * force[..., 0], arrays.zeros_like(force[..., 2])])
     return force, moment
 
 

@@ -88,17 +88,18 @@ def cross(a, b):
 
 
 def rotate(rot, v):
-    """R v (B, 3) of rotations (B, 3, 3) and vectors (B, 3) (on torch a batched matmul: 28 us against 48 us for a
-    broadcast sum ``(R * v[:, None, :]).sum(2)``, B = 256, float32, one thread, torch 2.13)."""
+    """R v (B, 3) of rotations (B, 3, 3) and vectors (B, 3). On torch one ``bmm`` (28 us against 48 us for a
+    broadcast sum ``(R * v[:, None, :]).sum(2)``, B = 256, float32, one thread, torch 2.13); ``bmm`` rather than
+    ``@``, whose batched form adds expand and reshape steps: 2 autograd nodes less per call in the hybrid's training."""
     if is_tensor(rot):
-        return (rot @ v[:, :, None])[:, :, 0]
+        return rot.bmm(v[..., None])[..., 0]
     return np.einsum("bij,bj->bi", rot, v)
 
 
 def rotate_back(rot, v):
-    """R^T v (B, 3)."""
+    """R^T v (B, 3) (on torch one ``bmm``, as :func:`rotate`)."""
     if is_tensor(rot):
-        return (rot.transpose(1, 2) @ v[:, :, None])[:, :, 0]
+        return rot.transpose(-1, -2).bmm(v[..., None])[..., 0]
     return np.einsum("bji,bj->bi", rot, v)
 
 

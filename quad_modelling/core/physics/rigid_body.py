@@ -109,9 +109,9 @@ def rotor_wrench(p, rotor, rotor_dot, vel_b, height=None):
     thrusts grow by :func:`~quad_modelling.core.physics.aero.ground_effect_factor` at ``height`` (B,) [m]."""
     thrust = rotor_thrusts(p.thrust_constant, rotor)
     if p.ground_effect is not None and height is not None:
-        thrust = thrust * ground_effect_factor(arrays.clamp_min(height, 0.0), *p.ground_effect)[:, None]
+        thrust = thrust * ground_effect_factor(arrays.clamp_min(height, 0.0), *p.ground_effect)[..., None]
     drag_force, drag_moment = rotor_drag(p, rotor, vel_b)
-    force = drag_force - arrays.unit_z_like(drag_force, 1.0) * thrust.sum(axis=1)[:, None]
+    force = drag_force - arrays.unit_z_like(drag_force, 1.0) * thrust.sum(axis=-1)[..., None]
     torque = arrays.columns([
         -thrust @ p.positions[:, 1],
         thrust @ p.positions[:, 0],
@@ -135,13 +135,13 @@ def cg_offset_moment(offset, force):
     nose down (-q). The truth simulator's rotor arms :math:`r_i - c` (``docs/simulator.md``) give the same. Not
     the rotor drag's vertical arm ``drag_arm`` (:mod:`~quad_modelling.core.physics.aero`), a separate constant."""
     c_x, c_y = offset
-    return arrays.columns([-c_y * force[:, 2], c_x * force[:, 2], c_y * force[:, 0] - c_x * force[:, 1]])
+    return arrays.columns([-c_y * force[..., 2], c_x * force[..., 2], c_y * force[..., 0] - c_x * force[..., 1]])
 
 
 def rotor_momentum(prop_inertia: float, spins, rotor):
     """h_r = (0, 0, -I_p Σ_i s_i Ω_i) [N m s] in B: the rotors' angular momentum (a counter-clockwise rotor's points
     up, -z in FRD), of rotor speeds ``rotor`` (B, 4) [rad/s]."""
-    return arrays.unit_z_like(rotor[:, :3], -1.0) * (prop_inertia * (rotor @ spins))[:, None]
+    return arrays.unit_z_like(rotor[..., :3], -1.0) * (prop_inertia * (rotor @ spins))[..., None]
 
 
 def gyroscopic_torque(rates, inertia, momentum=None, body_scale: float = 1.0):
@@ -157,7 +157,7 @@ def gyroscopic_torque(rates, inertia, momentum=None, body_scale: float = 1.0):
 def accelerations(p, vel_n, rot, rates, rotor, rotor_dot, pos_n=None):
     """(dv_N/dt (B, 3) [m/s², N], dω/dt (B, 3) [rad/s², B]) of a state (module docstring), ``rotor_dot`` dΩ/dt (B, 4);
     ``pos_n`` (B, 3) gives the height above the ground plane z_N = 0 the ground-effect term needs."""
-    height = None if pos_n is None else -pos_n[:, 2]
+    height = None if pos_n is None else -pos_n[..., 2]
     force_b, torque_b = rotor_wrench(p, rotor, rotor_dot, arrays.rotate_back(rot, vel_n), height)
     acc_n = arrays.rotate(rot, force_b) / p.mass + arrays.unit_z_like(force_b, GRAVITY)
     inertia = _inertia(p, rates)
@@ -189,7 +189,7 @@ def limit_norm(vectors, limit: float):
 
 def continue_yaw(previous, rot):
     """The yaw of ``rot`` [rad] unwrapped next to ``previous`` (the continuous yaw the Euler output follows)."""
-    psi = arrays.atan2(rot[:, 1, 0], rot[:, 0, 0])
+    psi = arrays.atan2(rot[..., 1, 0], rot[..., 0, 0])
     return previous + arrays.remainder(psi - previous + np.pi, 2.0 * np.pi) - np.pi
 
 
@@ -209,7 +209,7 @@ def times_skew(rot, phi):
     product of R's rows with φ: no [φ]× built and no 3x3 product. On torch that is 187 tensor operations per step of
     the hybrid's training rollout instead of 194, but cheaper ones (a 3x3 product as a (B, 3, 3, 3) broadcast sum cost
     128 us, B = 256): the training 0.84x (bench/results/training_time.md)."""
-    return arrays.cross(rot, phi[:, None, :])
+    return arrays.cross(rot, phi[..., None, :])
 
 
 def rotation_increment(rot, rates_b, dt):
@@ -222,14 +222,14 @@ def rotation_increment(rot, rates_b, dt):
 
     computed as R + a (R[φ]×) + b (R[φ]×)[φ]× (:func:`times_skew`).
     """
-    phi = rates_b * dt[:, None]
+    phi = rates_b * dt[..., None]
     angle = arrays.vector_norm(phi)
     small = arrays.less(angle, 1e-8)
     safe = arrays.where(small, angle * 0.0 + 1.0, angle)
     a = arrays.where(small, 1.0 - angle**2 / 6.0, arrays.sin(safe) / safe)
     b = arrays.where(small, 0.5 - angle**2 / 24.0, (1.0 - arrays.cos(safe)) / safe**2)
     turned = times_skew(rot, phi)
-    return rot + a[:, None, None] * turned + b[:, None, None] * times_skew(turned, phi)
+    return rot + a[..., None, None] * turned + b[..., None, None] * times_skew(turned, phi)
 
 
 def step(p, state, u, dt, linear_n, angular_b, rates_next=None, down_velocity_next=None):
@@ -242,13 +242,13 @@ def step(p, state, u, dt, linear_n, angular_b, rates_next=None, down_velocity_ne
     position integrates it. Returns a state of ``state``'s type."""
     rotor = rotor_step(p, state.rotor, u, dt)
     nonzero = arrays.where(arrays.greater(dt, 0.0), dt, dt * 0.0 + 1.0)  # dt = 0: the state unchanged, dΩ/dt 0 (not 0/0)
-    rotor_dot = (rotor - state.rotor) / nonzero[:, None]  # the step's mean dΩ/dt, exact
+    rotor_dot = (rotor - state.rotor) / nonzero[..., None]  # the step's mean dΩ/dt, exact
     acc_n, ang_acc = accelerations(p, state.vel_n, state.rot, state.rates, interval_rotor_speed(p, state.rotor, u, dt), rotor_dot,
                                    state.pos_n)
-    rates = limit_norm(state.rates + dt[:, None] * (ang_acc + angular_b) if rates_next is None else rates_next, GYRO_FULL_SCALE)
+    rates = limit_norm(state.rates + dt[..., None] * (ang_acc + angular_b) if rates_next is None else rates_next, GYRO_FULL_SCALE)
     rot = rotation_increment(state.rot, rates, dt)
-    vel = limit_norm(state.vel_n + dt[:, None] * (acc_n + linear_n), MAX_SPEED_MPS)
+    vel = limit_norm(state.vel_n + dt[..., None] * (acc_n + linear_n), MAX_SPEED_MPS)
     if down_velocity_next is not None:
-        vel = arrays.columns([vel[:, 0], vel[:, 1], down_velocity_next])
-    pos = state.pos_n + dt[:, None] * vel
+        vel = arrays.columns([vel[..., 0], vel[..., 1], down_velocity_next])
+    pos = state.pos_n + dt[..., None] * vel
     return type(state)(pos, vel, rot, rates, rotor, continue_yaw(state.yaw, rot))
