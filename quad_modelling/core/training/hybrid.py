@@ -69,8 +69,9 @@ HYBRID_ROLLOUT = RolloutConfig(horizon=50, stride=1, val_stride=5, batch_size=25
 """Default rollout settings of the hybrid: 8192 windows (32 Adam steps of 256) per epoch, at most 12 epochs, patience 3;
 the validation loss in batches of 2048 windows.
 
-The rollout is bound by the cost of each tensor operation (about 200 per step of the torch twin, on (B, 3) tensors),
-not by the batch: a batch of 512 windows costs 1.4x one of 256 on one thread. Measured by shape on the NanoBench
+The rollout is bound by the cost of each tensor operation (about 200 per step of the torch twin, on (B, 3) tensors,
+and 101 autograd nodes back), not by the batch: a batch of 512 windows costs 1.4x one of 256 on one thread (measured
+before the step ran as a TorchScript trace, :func:`~quad_modelling.core.training.rollout.traced_step`). Measured by shape on the NanoBench
 flights (bench/results/training_time_b512.md): 16 steps of 512 per epoch at step size 2.8e-3 trained in 0.63-0.75x the
 CPU time, with held-out SimErr ratios 0.668 / 0.346 (AV / Vel) against 0.664 / 0.344: a little accuracy lost, so not
 the default. 1024 windows at 4e-3 stopped at epoch 5 on two folds (the validation loss rose), and a cosine decay of
@@ -246,15 +247,39 @@ def _features(vel_n, rot, rates, u, rotor):
     return torch.cat([vel_b, rot[..., 2, :], rates, u[..., :4], rotor, u[..., 4:]], dim=-1)
 
 
-def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
-    """``loss_fn(module, batch)`` of :func:`train_rollout` (module docstring): observer, then K twin steps."""
+def _make_step(tp, net):
+    """The torch Module of one rollout step of the hybrid (the module docstring's loss): the net's correction at the
+    state, then the twin step, ``forward(pos_n, vel_n, rot, rates, rotor, yaw, u (B, 8), dt (B,), d (B, 6))`` -> the
+    next state's six tensors; ``net`` is its submodule (shared, not copied)."""
     import torch
 
     from quad_modelling.core.physics import arrays
     from quad_modelling.core.training import physics_torch as pt
 
+    class Step(torch.nn.Module):
+        def __init__(self) -> None:
+            super().__init__()
+            self.net = net
+
+        def forward(self, pos_n, vel_n, rot, rates, rotor, yaw, u, dt, d):
+            delta = self.net(_features(vel_n, rot, rates, u, rotor))
+            lin = d[..., :3] + arrays.rotate(rot, delta[..., :3])
+            return tuple(pt.step(tp, pt.TorchState(pos_n, vel_n, rot, rates, rotor, yaw), u[..., :4], dt, lin, d[..., 3:] + delta[..., 3:]))
+
+    return Step()
+
+
+def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
+    """``loss_fn(module, batch)`` of :func:`train_rollout` (module docstring): observer, then K twin steps, each the
+    :func:`_make_step` module run as a TorchScript trace (:func:`~quad_modelling.core.training.rollout.traced_step`,
+    made at the first batch for each net: the same losses and gradients bit for bit, in less time)."""
+    import torch
+
+    from quad_modelling.core.training.rollout import traced_step
+
     scale_v, scale_w = (float(s) for s in scales)
     eps_v, eps_w = 1e-3 * scale_v, 1e-3 * scale_w
+    traced = {}  # net -> its traced step
 
     def norm(e, eps):
         return torch.sqrt((e * e).sum(dim=-1) + eps * eps) - eps
@@ -273,17 +298,15 @@ def rollout_loss(tp, history: int, horizon: int, scales: tuple[float, float]):
             corrections.append((c_hist[..., cols] * weight[..., None]).sum(dim=1))
         d = batch["d"][:, a] - torch.cat(corrections, dim=1)
         b = len(d)
-        zeros = torch.zeros(b, 3, dtype=d.dtype)
-        state = pt.TorchState(batch["pos"][:, a], batch["vel"][:, a], rot[:, a], batch["rates"][:, a], batch["rotor"][:, a], zeros[:, 0])
+        state = (batch["pos"][:, a], batch["vel"][:, a], rot[:, a], batch["rates"][:, a], batch["rotor"][:, a], torch.zeros_like(d[:, 0]))
+        if net not in traced:
+            traced[net] = traced_step(_make_step(tp, net), (*state, batch["u"][:, a], batch["dt"][:, a, 0], d))
+        step = traced[net]
         velocities, rates = [], []
         for k in range(horizon):
-            r = a + k
-            u = batch["u"][:, r]
-            delta = net(_features(state.vel_n, state.rot, state.rates, u, state.rotor))
-            lin = d[:, :3] + arrays.rotate(state.rot, delta[:, :3])
-            state = pt.step(tp, state, u[:, :4], batch["dt"][:, r, 0], lin, d[:, 3:] + delta[:, 3:])
-            velocities.append(state.vel_n)
-            rates.append(state.rates)
+            state = step(*state, batch["u"][:, a + k], batch["dt"][:, a + k, 0], d)
+            velocities.append(state[1])
+            rates.append(state[3])
         # the error norms of every step at once (B, K): a few operations instead of a dozen per step
         loss = norm(torch.stack(velocities, dim=1) - batch["vel"][:, a + 1:a + horizon + 1], eps_v).sum() / scale_v \
             + norm(torch.stack(rates, dim=1) - batch["rates"][:, a + 1:a + horizon + 1], eps_w).sum() / scale_w

@@ -113,6 +113,42 @@ def test_torch_twin_equals_the_numpy_physics_step_in_float64(params):
     assert np.max(np.abs(state.rates)) > 1.0  # the states moved: not a trivial comparison
 
 
+def test_the_traced_rollout_step_gives_the_python_steps_losses_and_gradients_bit_for_bit(flight, params, span, monkeypatch):
+    """The training runs each rollout step as a TorchScript trace (rollout.traced_step): on real windows of the flight,
+    at batch sizes other than the one traced, with and without gradients, the losses and every gradient equal those of
+    the same step run by Python."""
+    import torch
+
+    from quad_modelling.core.training import hybrid, rollout
+    from quad_modelling.core.training import physics_torch as pt
+
+    segments = hybrid.flight_segments(params, [flight], [span], physics.Observer())
+    history = max(int(s["obs_n_lin"].max()) for s in segments)
+    windows = rollout.RolloutWindows(segments, history, 11, stride=7)
+    net = hybrid._make_module(*hybrid.feature_statistics(segments), np.full(6, 0.5), (16,))
+    torch.manual_seed(0)
+    torch.nn.init.normal_(net.last.weight, std=0.5)  # a net that corrects: the gradients flow through every step
+    tp = pt.TorchParameters.from_params(params, torch.float32)
+    scales = hybrid.naive_scales(segments, 10)
+    traced_loss = hybrid.rollout_loss(tp, history, 10, scales)
+    monkeypatch.setattr(rollout, "traced_step", lambda module, example: module)
+    python_loss = hybrid.rollout_loss(tp, history, 10, scales)
+
+    def loss_and_gradients(loss_fn, batch):
+        net.zero_grad()
+        loss = loss_fn(net, batch)
+        loss.backward()
+        return loss.item(), [p.grad.clone() for p in net.parameters()]
+
+    for size in (64, 23, 64, 101):
+        batch = windows[list(range(size))]
+        (traced, traced_grads), (python, python_grads) = loss_and_gradients(traced_loss, batch), loss_and_gradients(python_loss, batch)
+        assert traced == python and all(torch.equal(a, b) for a, b in zip(traced_grads, python_grads)), size
+        with torch.no_grad():
+            assert traced_loss(net, batch).item() == python_loss(net, batch).item()
+    assert max(float(g.abs().max()) for g in traced_grads) > 0.0
+
+
 # ---- observer and the zero net -------------------------------------------------------------------------
 def test_observer_rows_are_the_last_history_seconds_before_the_anchor():
     t = np.cumsum(np.random.default_rng(2).choice([0.01, 0.02, 0.03], size=300))

@@ -11,6 +11,7 @@ from quad_modelling.core.training.rollout import (
     RolloutWindows,
     hold_back_flights,
     rollout_loader,
+    traced_step,
     train_rollout,
 )
 from quad_modelling.errors import ConfigError
@@ -53,6 +54,42 @@ def test_hold_back_whole_flights():
     assert hold_back_flights(list("abc"), chosen=[2]) == (["a", "b"], ["c"])
     with pytest.raises(ConfigError, match="validation flights"):
         hold_back_flights(list("ab"), chosen=[0, 1])
+
+
+class _Clipped(torch.nn.Module):
+    """y = where(|W x| > 1, W x / |W x|, W x) row by row: a branch on values, written with where."""
+
+    def __init__(self):
+        super().__init__()
+        self.linear = torch.nn.Linear(3, 3)
+
+    def forward(self, x, scale):
+        y = self.linear(x) * scale[:, None]
+        norm = torch.linalg.vector_norm(y, dim=1, keepdim=True)
+        return torch.where(norm > 1.0, y / norm, y), norm[:, 0]
+
+
+def test_a_traced_step_serves_every_batch_size_and_trains_the_modules_parameters():
+    torch.manual_seed(0)
+    module = _Clipped()
+    traced = traced_step(module, (torch.randn(8, 3), torch.ones(8)))
+    x, scale = torch.randn(50, 3), torch.linspace(0.1, 5.0, 50)  # some rows clipped, some not
+    for rows in (slice(0, 50), slice(3, 4), slice(10, 27)):
+        with torch.no_grad():
+            for a, b in zip(traced(x[rows], scale[rows]), module(x[rows], scale[rows])):
+                assert torch.equal(a, b)
+    assert (module(x, scale)[1] > 1.0).any() and (module(x, scale)[1] < 1.0).any()
+    gradients = []
+    for step in (traced, module):  # the trace's gradients are autograd's own: equal bit for bit
+        module.zero_grad()
+        (step(x, scale)[0] ** 2).sum().backward()
+        gradients.append([p.grad.clone() for p in module.parameters()])
+    assert all(torch.equal(a, b) for a, b in zip(*gradients)) and gradients[0][0].abs().max() > 0
+    optimiser = torch.optim.SGD(module.parameters(), lr=0.1)  # the module's optimiser trains the trace
+    before = traced(x, scale)[0].detach()
+    optimiser.step()
+    with torch.no_grad():
+        assert torch.equal(traced(x, scale)[0], module(x, scale)[0]) and not torch.equal(traced(x, scale)[0], before)
 
 
 class _Scalar(torch.nn.Module):
