@@ -98,7 +98,10 @@ def test_predictor_and_evaluator_next_to_an_emulated_flight_stack(ros, tmp_path)
             assert time.monotonic() < deadline, "the predictor and evaluator never subscribed"
             assert all(p.poll() is None for p in procs.values()), {n: _stop(p) for n, p in procs.items()}
             time.sleep(0.2)
-        counts = run_emulator(log, plan, NS, rate=1.0, lead_s=1.0)
+        # The emulator's publishers are new: a best-effort reader drops samples until it has matched the writer, which
+        # can lag the writer's own match. With 1 s of lead the predictor once (CI, 1 run in 3) answered from 1.1 s into
+        # the flight on, its window 0 unscored: 3 s of lead, as a stack that runs before the nodes start.
+        counts = run_emulator(log, plan, NS, rate=1.0, lead_s=3.0)
         time.sleep(2.0)  # the last answers in flight
     finally:
         spinning.clear()
