@@ -71,10 +71,10 @@ the validation loss in batches of 2048 windows.
 
 The rollout is bound by the cost of each tensor operation (about 200 per step of the torch twin, on (B, 3) tensors,
 and 101 autograd nodes back), not by the batch: a batch of 512 windows costs 1.4x one of 256 on one thread (measured
-before the step ran as a TorchScript trace, :func:`~quad_modelling.core.training.rollout.traced_step`). Measured by shape on the NanoBench
-flights (bench/results/training_time_b512.md): 16 steps of 512 per epoch at step size 2.8e-3 trained in 0.63-0.75x the
-CPU time, with held-out SimErr ratios 0.668 / 0.346 (AV / Vel) against 0.664 / 0.344: a little accuracy lost, so not
-the default. 1024 windows at 4e-3 stopped at epoch 5 on two folds (the validation loss rose), and a cosine decay of
+before the step ran as a TorchScript trace, :func:`~quad_modelling.core.training.rollout.traced_step`). Measured by
+shape on the NanoBench flights (bench/results/training_time_b512.md): 16 steps of 512 per epoch at step size 2.8e-3
+trained in 0.63-0.75x the CPU time, with held-out SimErr ratios 0.668 / 0.346 (AV / Vel) against 0.664 / 0.344: a
+little accuracy lost, so not the default. 1024 windows at 4e-3 stopped at epoch 5 on two folds (the validation loss rose), and a cosine decay of
 the step size cost angular velocity (0.679): the training still improves at epoch 12."""
 
 
