@@ -33,7 +33,9 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
 * **greybox** (:class:`GreyboxForecast`): carried are the running sums of the commands and of the measured
   roll/pitch (the 1 s trailing means, :func:`~quad_modelling.core.preprocess.trailing_means`' own arithmetic), the
   motor filter's state (:func:`~quad_modelling.core.discretise.motor_thrusts`, its recursion) and the unwrapped
-  yaw; the rollout is :func:`~quad_modelling.core.models.greybox.linear_horizons`. The sample period is the
+  yaw; the rollout is :func:`~quad_modelling.core.models.greybox.linear_horizons` unrolled into two matrix products
+  (:func:`~quad_modelling.core.models.greybox.lifted_horizons`, built once per h) evaluated for the rows asked only:
+  the outputs to rounding, 2 products per row instead of 2 (h + 1) for every row. The sample period is the
   receding horizon's dt (the offline form takes the segment's median step: the same on a regular timer).
 * **NARX** (:class:`NarxForecast`): its memory is finite: the last max(max(D_u) + 1, n_y) rows of commands and
   measured outputs; the h closed-loop steps are the model's own step built as a CasADi Function and chained
@@ -67,7 +69,7 @@ from quad_modelling.core import frames
 from quad_modelling.core.export.casadi_model import casadi_functions, exported_predictor, output_row, state_vector
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
-from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, linear_horizons
+from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, lifted_horizons
 from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor
 from quad_modelling.core.models.narx import OUTPUTS, NarxPredictor, expand_horizons, lagged_inputs, sigmoid
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
@@ -371,6 +373,7 @@ class GreyboxForecast:
         self.model = predictor.model.discretise(period_s, predictor.discretisation)
         self.trim_rows = max(1, int(round(predictor.trim.trim_s * (1.0 / period_s))))
         self.pole, self.gain = float(self.model.ad[12, 12]), float(self.model.bd[12, 0])
+        self._lifts: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.reset()
 
     def reset(self) -> None:
@@ -411,8 +414,18 @@ class GreyboxForecast:
         x = np.concatenate([state, thrusts])
         x[6:8] -= attitude_trim
         u = np.concatenate([u_s[None, :], u_after]) - input_trim
-        out = linear_horizons(self.model, x[None, :], u[None], attitude_trim[None, :])[0]
-        return out if rows is None else out[rows]
+        g_x, g_u = self._lifted(len(u) - 1)
+        rows = range(len(u)) if rows is None else np.asarray(rows).tolist()
+        u_stacked = u.ravel()
+        out = np.array([g_x[r] @ x + g_u[r] @ u_stacked for r in rows])  # row by row: a row's numbers whatever is asked
+        out[:, 9:11] += attitude_trim
+        return out
+
+    def _lifted(self, steps: int) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`~quad_modelling.core.models.greybox.lifted_horizons` for ``steps``, built once per ``steps``."""
+        if steps not in self._lifts:
+            self._lifts[steps] = lifted_horizons(self.model, steps)
+        return self._lifts[steps]
 
 
 class NarxForecast:

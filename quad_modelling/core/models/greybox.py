@@ -503,3 +503,25 @@ def linear_horizons(model: DiscreteGreybox, x: np.ndarray, u: np.ndarray, attitu
         x = x @ ad_t + u_h @ bd_t
     out[:, :, 9:11] += attitude_trim[:, None, :]
     return out
+
+
+def lifted_horizons(model: DiscreteGreybox, horizon: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`linear_horizons` of one anchor as two matrix products (the carried forecast's form): with
+    :math:`x_{h+1} = A_d x_h + B_d u_h` unrolled,
+
+    .. math:: y_h = C_d A_d^h x_0 + \\sum_{j<h} C_d A_d^{h-1-j} B_d u_j + D_d u_h = G_x[h] x_0 + G_u[h] \\mathrm{vec}(u),
+
+    returned as ``G_x`` (H + 1, 18, 16) and ``G_u`` (H + 1, 18, 4 (H + 1)), u's rows 0..H stacked (blocks j > h zero).
+    The same outputs to rounding (the products summed in another order), without the 2 (H + 1) small products of
+    the recursion per anchor."""
+    powers = [np.eye(N_STATES)]
+    for _ in range(horizon):
+        powers.append(model.ad @ powers[-1])
+    g_x = np.array([model.cd @ a for a in powers])
+    responses = [model.cd @ a @ model.bd for a in powers[:horizon]]  # C A^k B, k = 0 .. H - 1
+    g_u = np.zeros((horizon + 1, len(VARIABLES), horizon + 1, model.bd.shape[1]))
+    for h in range(horizon + 1):
+        for j in range(h):
+            g_u[h, :, j] = responses[h - 1 - j]
+        g_u[h, :, h] = model.dd
+    return g_x, g_u.reshape(horizon + 1, len(VARIABLES), -1)

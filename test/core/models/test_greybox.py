@@ -7,6 +7,8 @@ from quad_modelling.core.models.greybox import (
     GreyboxParameters,
     GreyboxPredictor,
     continuous_matrices,
+    lifted_horizons,
+    linear_horizons,
 )
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.variables import INDEX
@@ -110,6 +112,22 @@ def test_streaming_step_equals_simulate_and_euler_close_to_zoh():
         x = x_next
     _, euler_out = model.discretise(0.001, "euler").simulate(x0, np.repeat(u, 10, axis=0))
     np.testing.assert_allclose(euler_out[::10][:, INDEX["vel_z"]], outputs[:, INDEX["vel_z"]], rtol=0.05, atol=1e-4)
+
+
+def test_lifted_horizons_give_the_recursion_s_outputs(vehicle):
+    """y_h = G_x[h] x_0 + G_u[h] vec(u) is linear_horizons' recursion unrolled: the same outputs for random anchors
+    and inputs (attitude trim zero), and the blocks of inputs after h do not enter y_h."""
+    model = GreyboxModel(vehicle).discretise(0.01, "zoh")
+    rng = np.random.default_rng(3)
+    horizon = 50
+    x0, u = rng.normal(0, 0.5, (4, 16)), rng.normal(0, 500.0, (4, horizon + 1, 4))
+    expected = linear_horizons(model, x0, u, np.zeros((4, 2)))
+    g_x, g_u = lifted_horizons(model, horizon)
+    assert g_x.shape == (horizon + 1, 18, 16) and g_u.shape == (horizon + 1, 18, 4 * (horizon + 1))
+    got = np.einsum("hvs,as->ahv", g_x, x0) + np.einsum("hvk,ak->ahv", g_u, u.reshape(4, -1))
+    np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-9 * np.abs(expected).max())
+    later_h, later_j = np.triu_indices(horizon + 1, 1)  # input rows j > h
+    assert not g_u.reshape(horizon + 1, 18, horizon + 1, 4)[later_h, :, later_j].any()  # causal
 
 
 def test_predictor_anchors_on_measurement_and_registry():
