@@ -105,6 +105,31 @@ def test_the_closed_form_quaternion_conversion_equals_scipys():
         frames.quat_enu_to_euler_ned(np.zeros(4))
 
 
+def test_a_few_odometry_rows_in_floats_equal_the_array_forms():
+    """from_odometry converts up to FLOAT_ODOMETRY_ROWS rows as floats (odometry_row_to_ned, the live forecast's 2 rows
+    per input): the same numbers as its array form (more rows) to rounding, unnormalised quaternions, attitudes over
+    the whole range and at θ = ±π/2 included; a zero or NaN quaternion is a ValueError in both."""
+    rng = np.random.default_rng(6)
+    quat = rng.normal(size=(400, 4)) * rng.uniform(0.5, 2.0, (400, 1))
+    quat[:4] = frames.euler_ned_to_quat_enu(np.array([[0.3, np.pi / 2, 1.0], [-0.2, -np.pi / 2, -2.0],
+                                                      [3.1, 0.1, 3.14159], [-3.1, -0.1, -3.14159]]))
+    position, twist = rng.normal(0.0, 5.0, (400, 3)), rng.normal(0.0, 3.0, (400, 3))
+    expected = frames.from_odometry(position, quat, twist)  # 400 rows: the array form
+    rows = frames.FLOAT_ODOMETRY_ROWS
+    for first in range(0, 400, rows):
+        got = frames.from_odometry(position[first:first + rows], quat[first:first + rows], twist[first:first + rows])
+        for name, value, reference in zip(("pos_n", "vel_n", "euler"), got, expected):
+            assert value.shape == (rows, 3), name
+            np.testing.assert_allclose(value, reference[first:first + rows], rtol=0, atol=1e-12, err_msg=name)
+    one = frames.from_odometry(position[:1], quat[:1], twist[:1])
+    assert all(isinstance(v, float) for part in frames.odometry_row_to_ned(position[0], quat[0], twist[0]) for v in part)
+    np.testing.assert_array_equal(one[2][0], frames.odometry_row_to_ned(position[0].tolist(), quat[0].tolist(), twist[0].tolist())[2])
+    for bad in (np.zeros((1, 4)), np.full((1, 4), np.nan)):
+        for count in (1, rows + 1):  # float and array forms
+            with pytest.raises(ValueError, match="zero norm"):
+                frames.from_odometry(np.zeros((count, 3)), np.repeat(bad, count, axis=0), np.zeros((count, 3)))
+
+
 def test_closed_form_geodesic_angle_equals_scipys_magnitude():
     """Random attitudes (pitch within ±1.43 rad), near pairs and far ones, any leading shape: scipy's relative
     rotation magnitude to 1e-12."""
