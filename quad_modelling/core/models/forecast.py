@@ -71,7 +71,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, lifted_horizons
 from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor
-from quad_modelling.core.models.narx import OUTPUTS, NarxPredictor, expand_horizons, lagged_inputs, sigmoid
+from quad_modelling.core.models.narx import OUTPUTS, NarxPredictor, expand_horizons, sigmoid
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState, continued_yaw
@@ -476,8 +476,7 @@ class NarxForecast:
         y = model.normalise_outputs(measured[:, columns(OUTPUTS)])
         padded = np.concatenate([np.repeat(y[:1], n_y - 1, axis=0), y])  # rows before the first repeat it (as offline)
         self._feedback[:] = padded[-n_y:].T  # y(s - n_y + 1 .. s), oldest first
-        lagged = lagged_inputs(model.normalise_inputs(u), model.config.input_delays)[s + 1:]
-        self._z_u[:] = np.einsum("nd,khd->nkh", lagged, model.w_u) + model.b_1
+        self._z_u[:] = model.input_part(u)[s + 1:]
         self._evaluate()
         v = np.concatenate([measured[-1:, columns(OUTPUTS)], model.denormalise_outputs(self._outputs)])
         out = expand_horizons(model, measured, np.array([s]), v[None])[0]

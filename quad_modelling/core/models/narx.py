@@ -148,12 +148,8 @@ def sigmoid(z: np.ndarray) -> np.ndarray:
 
 def lagged_inputs(u_norm: np.ndarray, input_delays: tuple[int, ...]) -> np.ndarray:
     """(N, len(D_u)·n_u) matrix of [ũ(t−d)]_{d∈D_u}; rows before a delay's reach repeat ũ(0)."""
-    n = len(u_norm)
-    blocks = []
-    for delay in input_delays:
-        rows = np.clip(np.arange(n) - delay, 0, None)
-        blocks.append(u_norm[rows])
-    return np.concatenate(blocks, axis=1)
+    rows = np.clip(np.arange(len(u_norm))[:, None] - np.asarray(input_delays, dtype=int)[None, :], 0, None)  # (N, |D_u|)
+    return u_norm[rows].reshape(len(u_norm), -1)  # one gather: the delays' blocks side by side, in D_u's order
 
 
 @dataclass
@@ -204,6 +200,14 @@ class NarxModel:
         """ỹ_k(t) = ρ ỹ_k(t−1) + s_k (w_{2,k}·h_k + b_{2,k}) from hidden activations (..., 6, H) and ỹ(t−1) (..., 6)."""
         return self.rho * previous + self.y_step * ((self.w_2 * hidden).sum(axis=-1) + self.b_2)
 
+    def input_part(self, u: np.ndarray) -> np.ndarray:
+        """(N, 6, H) the nets' pre-activations from the commands, :math:`W_u [ũ(t − d)]_{d ∈ D_u} + b_1`, of every row
+        of the raw commands ``u`` (N, n_u) (:func:`lagged_inputs`: rows before a delay's reach repeat u(0)), as one
+        matrix product."""
+        lagged = lagged_inputs(self.normalise_inputs(u), self.config.input_delays)
+        w_u = self.w_u
+        return (lagged @ w_u.reshape(-1, w_u.shape[2]).T).reshape(len(lagged), *w_u.shape[:2]) + self.b_1
+
     # ---- prediction ----------------------------------------------------
     def one_step(self, u: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Series-parallel (one-step-ahead) prediction from measured past outputs.
@@ -212,9 +216,9 @@ class NarxModel:
         y(t−n_y..t−1); the first n_y rows are the measurements themselves.
         """
         y = np.asarray(y, dtype=float)
-        u_norm, y_norm = self.normalise_inputs(u), self.normalise_outputs(y)
+        y_norm = self.normalise_outputs(y)
         n_y = self.config.output_delays
-        z = np.einsum("nd,khd->nkh", lagged_inputs(u_norm, self.config.input_delays), self.w_u) + self.b_1
+        z = self.input_part(u)
         windows = np.lib.stride_tricks.sliding_window_view(y_norm, n_y, axis=0)[:-1]  # (N−n_y, 6, n_y)
         z[n_y:] += np.einsum("nkd,khd->nkh", windows, self.w_y)
         previous = np.concatenate([y_norm[:1], y_norm[:-1]])
@@ -237,8 +241,7 @@ class NarxModel:
         if len(y_warm) > len(u):
             raise ModelError(f"NARX closed loop: {len(y_warm)} warm samples for a window of {len(u)}")
         n = len(u)
-        z_u = np.einsum("nd,khd->nkh", lagged_inputs(self.normalise_inputs(u), self.config.input_delays), self.w_u)
-        z_u += self.b_1
+        z_u = self.input_part(u)
         series = np.empty((len(OUTPUTS), n))  # normalised outputs, one row per net
         series[:, : len(y_warm)] = self.normalise_outputs(y_warm).T
         w_y = self.w_y
@@ -265,7 +268,7 @@ class NarxModel:
         n_y = self.config.output_delays
         if len(starts) and (starts.min() < 0 or starts.max() + horizon >= len(u) or len(y) != len(u)):
             raise ModelError(f"NARX horizons: starts {starts.min()}..{starts.max()} + {horizon} steps do not fit {len(u)} rows")
-        z_u = np.einsum("nd,khd->nkh", lagged_inputs(self.normalise_inputs(u), self.config.input_delays), self.w_u) + self.b_1
+        z_u = self.input_part(u)
         y_norm = self.normalise_outputs(y)
         padded = np.concatenate([np.repeat(y_norm[:1], n_y - 1, axis=0), y_norm])  # row s + n_y − 1 = y(s)
         feedback = np.lib.stride_tricks.sliding_window_view(padded, n_y, axis=0)[starts].copy()  # (S, 6, n_y): y(s−n_y+1..s)

@@ -20,6 +20,7 @@ from quad_modelling.core.models.narx import (
     NarxConfig,
     NarxModel,
     NarxPredictor,
+    lagged_inputs,
     load_narx,
 )
 from quad_modelling.core.models.streaming import prime
@@ -309,3 +310,15 @@ def test_a_live_node_primes_the_model_at_its_own_sample_period(trained):
     predictor.start_window = lambda warm: started.append(warm.sample_rate) or start_window(warm)
     prime(predictor, load_vehicle("linkquad"), 0.01 if trained.dt != 0.01 else 0.02, 20)
     assert predictor.sample_period_s == trained.dt and started == [pytest.approx(1.0 / trained.dt)]
+
+
+def test_lagged_inputs_are_each_delay_s_block_side_by_side():
+    """[ũ(t − d)]_{d ∈ D_u}: block j of row t is u[max(t − D_u[j], 0)], in D_u's order, rows before a delay's reach
+    repeating u(0)."""
+    u = np.arange(24, dtype=float).reshape(6, 4)
+    delays = (2, 0, 5)
+    lagged = lagged_inputs(u, delays)
+    assert lagged.shape == (6, 12)
+    for t in range(6):
+        for j, d in enumerate(delays):
+            np.testing.assert_array_equal(lagged[t, 4 * j:4 * j + 4], u[max(t - d, 0)])
