@@ -34,7 +34,6 @@ from quad_modelling.core.training.hybrid import train_hybrid_on_flights  # noqa:
 from quad_modelling.core.models.narx import (  # noqa: E402
     NarxConfig,
     NarxModel,
-    lagged_inputs,
     load_narx,
     measured_outputs,
 )
@@ -106,7 +105,7 @@ def _torch_closed_loop(model: NarxModel, u: np.ndarray, y_warm: np.ndarray) -> n
     import torch
 
     n_y = model.config.output_delays
-    z_u = torch.from_numpy(np.einsum("nd,khd->nkh", lagged_inputs(model.normalise_inputs(u), model.config.input_delays), model.w_u) + model.b_1)
+    z_u = torch.from_numpy(model.input_part(u))
     w_y, w_2, b_2 = (torch.from_numpy(a) for a in (model.w_y, model.w_2, model.b_2))
     series = torch.zeros((6, len(u)), dtype=torch.float64)
     series[:, : len(y_warm)] = torch.from_numpy(model.normalise_outputs(y_warm).T)
