@@ -21,7 +21,8 @@ Layout (:data:`STATE`, :func:`input_names`, :data:`DISTURBANCE`), SI units, N = 
 Functions (:func:`casadi_functions`): ``f(x, u) -> xdot`` (:func:`~quad_modelling.core.physics.rigid_body.derivative`,
 d = 0), ``F(x, u, dt) -> x_next`` (:func:`~quad_modelling.core.physics.rigid_body.step`, d = 0: semi-implicit Euler
 with the exact rotor lag over ``dt`` [s], rates and speed limited as the model's), ``f_disturbed(x, u, d)`` and
-``F_disturbed(x, u, dt, d)``.
+``F_disturbed(x, u, dt, d)``. NARX's closed-loop step (:func:`narx_step`), for its carried forecast, is built the
+same way from the model's own net code.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ import numpy as np
 
 from quad_modelling.core import frames
 from quad_modelling.core.models.hybrid import ConstantsChangedError, HybridModel, HybridPredictor, load_hybrid
+from quad_modelling.core.models.narx import OUTPUTS, sigmoid
 from quad_modelling.core.models.physics import Observer
 from quad_modelling.core.physics import rigid_body, rotors
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -295,3 +297,22 @@ def write_casadi_export(model: ExportedModel, directory: Path) -> dict:
     description = layout(model)
     (directory / "layout.yaml").write_text(yaml.safe_dump(description, sort_keys=False, allow_unicode=True))
     return description
+
+
+def narx_step(model):
+    """CasADi Function (feedback ỹ (6, n_y), input part z_u (6, H)) -> (feedback after the step, ỹ of the step): one
+    closed-loop step of :meth:`~quad_modelling.core.models.narx.NarxModel.simulate_from_starts`, built by the model's
+    ``net_output`` and ``sigmoid`` on symbolic arrays (NARX's carried forecast chains it h times,
+    :meth:`~quad_modelling.core.models.forecast.Step.chained`: its arguments and results are then, as C arrays,
+    feedback (6, n_y), z_u (h, 6, H), feedbacks (h, 6 n_y), outputs (h, 6))."""
+    import casadi
+
+    n_y, hidden, nets = model.config.output_delays, model.config.hidden, len(OUTPUTS)
+    feedback = casadi.SX.sym("feedback", nets * n_y)  # column-major (n_y, 6) = C (6, n_y): net k's lags at k n_y ..
+    z_u = casadi.SX.sym("z_u", nets * hidden)
+    lags = np.array([feedback[i] for i in range(nets * n_y)], dtype=object).reshape(nets, n_y)
+    inputs = np.array([z_u[i] for i in range(nets * hidden)], dtype=object).reshape(nets, hidden)
+    z = inputs + np.matmul(model.w_y, lags[..., None])[..., 0]
+    y = model.net_output(sigmoid(z), lags[:, -1])
+    shifted = np.concatenate([lags[:, 1:], y[:, None]], axis=1)
+    return casadi.Function("narx_step", [feedback, z_u], [casadi.vertcat(*shifted.ravel()), casadi.vertcat(*y)])

@@ -39,7 +39,7 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   receding horizon's dt (the offline form takes the segment's median step: the same on a regular timer).
 * **NARX** (:class:`NarxForecast`): its memory is finite: the last max(max(D_u) + 1, n_y) rows of commands and
   measured outputs; the h closed-loop steps are the model's own step built as a CasADi Function and chained
-  (:func:`narx_step`), the expansion to 18 variables :func:`~quad_modelling.core.models.narx.expand_horizons`.
+  (:func:`~quad_modelling.core.export.casadi_model.narx_step`), the expansion to 18 variables :func:`~quad_modelling.core.models.narx.expand_horizons`.
 
 Equality with the offline multi-step form on all the rows of the time base (test:
 ``test/core/models/test_forecast.py``): to rounding, 1e-9 and tighter. What differs is the order of float
@@ -66,12 +66,12 @@ from typing import Protocol
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.export.casadi_model import casadi_functions, exported_predictor, output_row, state_vector
+from quad_modelling.core.export.casadi_model import casadi_functions, exported_predictor, narx_step, output_row, state_vector
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, lifted_horizons
 from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor
-from quad_modelling.core.models.narx import OUTPUTS, NarxPredictor, expand_horizons, sigmoid
+from quad_modelling.core.models.narx import OUTPUTS, NarxPredictor, expand_horizons
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState, continued_yaw
@@ -146,7 +146,7 @@ _DERIVATIVES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 def model_step(model, vehicle: VehicleConfig) -> Step | None:
     """The one-step CasADi Function a model's carried forecast chains (physics, hybrid: the export's ``F_disturbed``;
-    NARX: :func:`narx_step`), compiled (:func:`compile_step`); None for a model whose forecast needs none."""
+    NARX: :func:`~quad_modelling.core.export.casadi_model.narx_step`), compiled (:func:`compile_step`); None for a model whose forecast needs none."""
     if model not in _STEPS:
         if isinstance(model, (PhysicsPredictor, HybridPredictor)):
             _STEPS[model] = compile_step(casadi_functions(exported_predictor(model, vehicle))["F_disturbed"])
@@ -481,24 +481,6 @@ class NarxForecast:
         v = np.concatenate([measured[-1:, columns(OUTPUTS)], model.denormalise_outputs(self._outputs)])
         out = expand_horizons(model, measured, np.array([s]), v[None])[0]
         return out if rows is None else out[rows]
-
-
-def narx_step(model):
-    """CasADi Function (feedback ỹ (6, n_y), input part z_u (6, H)) -> (feedback after the step, ỹ of the step): one
-    closed-loop step of :meth:`~quad_modelling.core.models.narx.NarxModel.simulate_from_starts`, built by the model's
-    ``net_output`` and ``sigmoid`` on symbolic arrays. Chained h times (:meth:`Step.chained`) its arguments and results
-    are, as C arrays: feedback (6, n_y), z_u (h, 6, H), feedbacks (h, 6 n_y), outputs (h, 6)."""
-    import casadi
-
-    n_y, hidden, nets = model.config.output_delays, model.config.hidden, len(OUTPUTS)
-    feedback = casadi.SX.sym("feedback", nets * n_y)  # column-major (n_y, 6) = C (6, n_y): net k's lags at k n_y ..
-    z_u = casadi.SX.sym("z_u", nets * hidden)
-    lags = np.array([feedback[i] for i in range(nets * n_y)], dtype=object).reshape(nets, n_y)
-    inputs = np.array([z_u[i] for i in range(nets * hidden)], dtype=object).reshape(nets, hidden)
-    z = inputs + np.matmul(model.w_y, lags[..., None])[..., 0]
-    y = model.net_output(sigmoid(z), lags[:, -1])
-    shifted = np.concatenate([lags[:, 1:], y[:, None]], axis=1)
-    return casadi.Function("narx_step", [feedback, z_u], [casadi.vertcat(*shifted.ravel()), casadi.vertcat(*y)])
 
 
 JIT_OPTIONS = {"flags": ["-O1"]}
