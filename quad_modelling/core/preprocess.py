@@ -331,7 +331,7 @@ def measured_variables(log: FlightLog, vehicle: VehicleConfig | None = None, cau
     if log.acc_b is not None:
         out[:, 6:9] = nav_acceleration(log)
     out[:, 9:12] = log.euler
-    out[:, 11] = np.unwrap(log.euler[:, 2])
+    out[:, 11] = frames.unwrap_angles(log.euler[:, 2])
     if log.gyro_b is not None:
         out[:, 12:15] = log.gyro_b
         out[:, 15:18] = differentiate(log.gyro_b, sample_period(log), causal=causal)
@@ -346,7 +346,7 @@ def attitude_rates(log: FlightLog, causal: bool = False) -> np.ndarray:
     (:func:`causal_derivative`).
     """
     euler = log.euler.copy()
-    euler[:, 2] = np.unwrap(euler[:, 2])
+    euler[:, 2] = frames.unwrap_angles(euler[:, 2])
     return frames.euler_rates_to_body_rates(euler, differentiate(euler, sample_period(log), causal=causal))
 
 
@@ -576,7 +576,7 @@ def resample_uniform(log: FlightLog, max_gap_s: float = MAX_FILL_GAP_S) -> Fligh
         return np.column_stack([np.interp(grid, log.t, values[:, i]) for i in range(values.shape[1])])
 
     euler = log.euler.copy()
-    euler[:, 2] = np.unwrap(euler[:, 2])
+    euler[:, 2] = frames.unwrap_angles(euler[:, 2])
     euler = interp(euler)
     euler[:, 2] = (euler[:, 2] + np.pi) % (2 * np.pi) - np.pi
     notes = dict(log.meta.notes)

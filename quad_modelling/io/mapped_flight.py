@@ -231,7 +231,7 @@ def convert_measurements(sources: dict[str, FieldSource], aligned: dict[str, np.
     from ``last_yaw``, the previous row's), then the others (a body-frame velocity rotated by it). Offline
     (:class:`FlightAssembler`) and live (:mod:`quad_modelling.nodes.mapping.streams`) alike."""
     euler = convert_field(sources["attitude"], aligned["attitude"])
-    yaw = np.unwrap(np.concatenate([[last_yaw if last_yaw is not None else euler[0, 2]], euler[:, 2]]))[1:]
+    yaw = frames.unwrap_angles(np.concatenate([[last_yaw if last_yaw is not None else euler[0, 2]], euler[:, 2]]))[1:]
     euler[:, 2] = yaw
     out = {"attitude": euler}
     for name, values in aligned.items():

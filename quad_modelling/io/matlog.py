@@ -281,7 +281,7 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
 
         quat = Rotation.from_euler("ZYX", fields["euler"][:, ::-1]).as_quat()
         fields["euler"] = frames.quat_enu_to_euler_ned(quat)
-        fields["euler"][:, 2] = np.unwrap(fields["euler"][:, 2])
+        fields["euler"][:, 2] = frames.unwrap_angles(fields["euler"][:, 2])
     notes = {}
     if "meta_json" in found:
         try:

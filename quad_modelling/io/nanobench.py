@@ -159,7 +159,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         row, norm = bad_quaternion
         raise DataError(f"{where}: quaternion qx..qw at data row {row + 1} has norm {norm:.3f}, not 1")
     euler = frames.quat_enu_to_euler_ned(quat)
-    euler[:, 2] = np.unwrap(euler[:, 2])
+    euler[:, 2] = frames.unwrap_angles(euler[:, 2])
     notes = {"format": "nanobench", "euler_from": "quaternion qx..qw"}
     if all(c in column for c in EULER_COLUMNS):
         # The columns are the same attitude as roll/pitch/yaw about the fixed ENU axes x, y, z

@@ -435,7 +435,7 @@ def measurement_log(
     imu = np.full((len(odometry), IMU_FIELDS), np.nan) if imu is None else np.asarray(imu, dtype=float).reshape(-1, IMU_FIELDS)
     acc, gyro = imu[:, 0:3], imu[:, 3:6]
     pos_n, vel_n, euler = frames.from_odometry(odometry[:, 0:3], odometry[:, 3:7], odometry[:, 7:10])
-    euler[:, 2] = np.unwrap(euler[:, 2])
+    euler[:, 2] = frames.unwrap_angles(euler[:, 2])
     return FlightLog(
         t=stamps_to_seconds(stamps),
         u=np.asarray(u, dtype=float).reshape(-1, 4),
@@ -482,7 +482,7 @@ def predictions_from_fields(odom: np.ndarray, accel: np.ndarray) -> np.ndarray:
     odom = np.asarray(odom, dtype=float).reshape(-1, PREDICTED_ODOM_FIELDS)
     accel = np.asarray(accel, dtype=float).reshape(-1, ACCEL_FIELDS)
     pos_n, vel_n, euler = frames.from_odometry(odom[:, 0:3], odom[:, 3:7], odom[:, 7:10])
-    euler[:, 2] = np.unwrap(euler[:, 2])
+    euler[:, 2] = frames.unwrap_angles(euler[:, 2])
     acc_n = frames.kinematic_acceleration(frames.flu_to_frd(accel[:, 0:3]), euler, GRAVITY)
     out = np.empty((len(odom), len(VARIABLES)))
     out[:, 0:3], out[:, 3:6], out[:, 6:9], out[:, 9:12] = pos_n, vel_n, acc_n, euler

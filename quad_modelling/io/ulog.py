@@ -416,7 +416,7 @@ def attitude(source_t: np.ndarray, quat_wxyz: np.ndarray, t: np.ndarray, where: 
     keep = np.append(np.diff(source_t) > 0, True)
     rotations = Rotation.from_quat(quat_wxyz[keep], scalar_first=True)
     euler = frames.rotation_to_euler_ned(Slerp(source_t[keep], rotations)(t))
-    euler[:, 2] = np.unwrap(euler[:, 2])
+    euler[:, 2] = frames.unwrap_angles(euler[:, 2])
     return euler
 
 

@@ -3,6 +3,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from quad_modelling.core import flight_log
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.errors import DataError
 from test.conftest import synthetic_log
@@ -79,3 +80,28 @@ def test_implausible_position_and_velocity_are_refused(flight):
     fields = _fields(flight)
     fields["pos_n"] = fields["pos_n"] + 9.0e4  # a PX4 local frame 90 km from its origin is still a flight
     assert len(FlightLog(**fields)) == 400
+
+
+@pytest.mark.parametrize("field, row, column, value", [
+    ("t", 1, None, np.nan), ("t", 0, None, 1e12), ("t", 1, None, -1.0), ("u", 0, 2, np.inf), ("acc_b", 1, 2, 300.0),
+    ("gyro_b", 0, 0, -40.0), ("pos_n", 1, 1, 1e30), ("vel_n", 0, 2, np.nan), ("euler", 1, 1, 4.0), ("vbat", 1, None, np.nan),
+    ("omega", 0, 3, -np.inf),
+])
+def test_a_short_log_is_screened_and_refused_as_the_full_checks_refuse_it(flight, field, row, column, value, monkeypatch):
+    """A log of up to SCREENED_ROWS rows passes one stacked check; a bad value there fails it and the per-field checks
+    name it: the same message as with the screen off. A valid short log passes (the yaw may exceed π)."""
+    fields = {name: (value_.copy() if isinstance(value_, np.ndarray) else value_) for name, value_ in _fields(flight.slice(10, 12)).items()}
+    fields["omega"] = np.full((2, 4), 2000.0)
+    fields["euler"][:, 2] += 40.0  # a continuous yaw after many turns
+    assert len(FlightLog(**fields)) == 2
+    if column is None:
+        fields[field][row] = value
+    else:
+        fields[field][row, column] = value
+    with pytest.raises(DataError) as screened:
+        FlightLog(**fields)
+    monkeypatch.setattr(flight_log, "SCREENED_ROWS", 0)
+    with pytest.raises(DataError) as checked:
+        FlightLog(**fields)
+    assert str(screened.value) == str(checked.value)
+    assert f"sample {row + 1} of 2" in str(screened.value) or "strictly increasing at sample 2" in str(screened.value)

@@ -130,6 +130,26 @@ def test_a_few_odometry_rows_in_floats_equal_the_array_forms():
                 frames.from_odometry(np.zeros((count, 3)), np.repeat(bad, count, axis=0), np.zeros((count, 3)))
 
 
+def test_a_few_angles_unwrap_to_numpys_numbers():
+    """unwrap_angles of up to FLOAT_UNWRAP_ROWS angles (floats) gives np.unwrap's numbers bit for bit: random jumps,
+    steps of exactly ±π and 2π, NaN and ±inf (carried to every later row, as numpy does); longer vectors and
+    (N, 3) arrays are np.unwrap's along axis 0."""
+    rng = np.random.default_rng(11)
+    for _ in range(20000):
+        angles = rng.normal(0.0, 4.0, rng.integers(1, frames.FLOAT_UNWRAP_ROWS + 1))
+        if len(angles) > 1 and rng.random() < 0.2:
+            angles[1] = angles[0] + rng.choice([np.pi, -np.pi, 2 * np.pi, -2 * np.pi])
+        if rng.random() < 0.1:
+            angles[rng.integers(len(angles))] = rng.choice([np.nan, np.inf, -np.inf])
+        with np.errstate(invalid="ignore"):
+            expected = np.unwrap(angles)
+        np.testing.assert_array_equal(frames.unwrap_angles(angles), expected)
+    long, wide = rng.normal(0.0, 4.0, 50), rng.normal(0.0, 4.0, (50, 3))
+    np.testing.assert_array_equal(frames.unwrap_angles(long), np.unwrap(long))
+    np.testing.assert_array_equal(frames.unwrap_angles(wide), np.unwrap(wide, axis=0))
+    assert np.abs(np.diff(frames.unwrap_angles(np.array([3.1, -3.1, 3.0])))).max() < np.pi
+
+
 def test_closed_form_geodesic_angle_equals_scipys_magnitude():
     """Random attitudes (pitch within ±1.43 rad), near pairs and far ones, any leading shape: scipy's relative
     rotation magnitude to 1e-12."""

@@ -212,7 +212,7 @@ class UnwrappedYaw:
     def add(self, rows: FlightLog, first: int) -> np.ndarray:
         """(n,) continuous yaw [rad] of rows ``first ..`` of ``rows`` (``first`` > 0 once a row was added: the row
         before them is the context)."""
-        yaw = np.unwrap(rows.euler[:, 2])
+        yaw = frames.unwrap_angles(rows.euler[:, 2])
         out = np.empty(len(rows) - first)
         for i in range(first, len(rows)):
             self.last = float(yaw[i]) if self.last is None else self.last + float(yaw[i] - yaw[i - 1])

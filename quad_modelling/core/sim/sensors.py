@@ -112,7 +112,7 @@ def motion_capture(
     noisy_pos = pos_n + rng.standard_normal(pos_n.shape) * sensors.mocap_position_noise
     perturb = Rotation.from_rotvec(rng.standard_normal(pos_n.shape) * sensors.mocap_attitude_noise)
     attitude = quaternion_rotations(quat_wxyz) * perturb
-    euler = np.unwrap(frames.rotation_to_euler_ned(attitude), axis=0)
+    euler = frames.unwrap_angles(frames.rotation_to_euler_ned(attitude))
     vel = savgol_filter(noisy_pos, sensors.mocap_velocity_window, 2, deriv=1, delta=1.0 / sensors.mocap_rate, axis=0, mode="interp")
 
     def resample(values: np.ndarray) -> np.ndarray:

@@ -338,7 +338,7 @@ def _assemble(params, effects, seed, script, record, commands, voltages, wind, p
         "t": t_log,
         "pos_n": true_states[:, 0:3],
         "vel_n": true_states[:, 3:6],
-        "euler": np.unwrap(frames.rotation_to_euler_ned(sim_sensors.quaternion_rotations(true_states[:, 6:10])), axis=0),
+        "euler": frames.unwrap_angles(frames.rotation_to_euler_ned(sim_sensors.quaternion_rotations(true_states[:, 6:10]))),
         "rates_b": imu.rates_b,
         "specific_force_b": imu.specific_force_b,
         "imu_noise_free_acc_b": imu.noise_free_acc_b,
