@@ -112,13 +112,17 @@ def ned_to_enu(v: np.ndarray) -> np.ndarray:
 
 
 def flu_to_frd(v: np.ndarray) -> np.ndarray:
-    """Body vector(s) FLU -> FRD (also angular rates); ``v`` is (3,) or (N, 3)."""
-    return np.asarray(v, dtype=float) @ FLU_TO_FRD.T
+    """Body vector(s) FLU -> FRD (also angular rates); ``v`` is (3,) or (N, 3): M_FB v, M_FB diagonal (the signs)."""
+    return np.asarray(v, dtype=float) * _FLU_TO_FRD_SIGNS
 
 
 def frd_to_flu(v: np.ndarray) -> np.ndarray:
     """Body vector(s) FRD -> FLU (also angular rates); ``v`` is (3,) or (N, 3)."""
-    return np.asarray(v, dtype=float) @ FLU_TO_FRD.T
+    return np.asarray(v, dtype=float) * _FLU_TO_FRD_SIGNS
+
+
+_FLU_TO_FRD_SIGNS = np.diag(FLU_TO_FRD).copy()
+"""M_FB's diagonal: a body vector converts by its signs (a 3x3 product costs ~5x more on one row)."""
 
 
 def euler_ned_to_rotation(euler: np.ndarray) -> Rotation:
@@ -255,6 +259,8 @@ def euler_ned_to_matrix(euler: np.ndarray) -> np.ndarray:
     ~100 µs per call and this ~10 µs (tests hold the two equal).
     """
     e = np.atleast_2d(np.asarray(euler, dtype=float))
+    if len(e) <= FLOAT_ROWS:  # floats (FLOAT_ROWS)
+        return np.array([_rotation_entries(*_cos_sin(angles)) for angles in e.tolist()]).reshape(len(e), 3, 3)
     entries = _rotation_entries(np.cos(e[:, 0]), np.sin(e[:, 0]), np.cos(e[:, 1]), np.sin(e[:, 1]), np.cos(e[:, 2]), np.sin(e[:, 2]))
     r = np.empty((len(e), 3, 3))
     for i in range(3):
@@ -335,16 +341,17 @@ def _cos_sin(angles) -> tuple[float, ...]:
     return tuple(f(a) for a in angles for f in (math.cos, math.sin))
 
 
-FLOAT_ODOMETRY_ROWS = 4
-""":func:`from_odometry` converts up to this many rows as floats (:func:`odometry_row_to_ned`): the live predictor's
-forecast converts 2 rows per input, where the array forms cost ~200 µs here and the floats ~30 µs."""
+FLOAT_ROWS = 4
+""":func:`from_odometry`, :func:`euler_ned_to_matrix` and :func:`matrix_to_euler_ned` convert up to this many rows as
+floats (the same entry formulas): the live predictor's forecast converts 1-2 rows at a time per input, where a numpy
+call costs 3-6 µs here (from_odometry's array form ~200 µs, its floats ~30 µs)."""
 
 
 def from_odometry(position_enu: np.ndarray, quat_xyzw: np.ndarray, twist_flu: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """nav_msgs/Odometry fields -> (pos_n, vel_n, euler), inverse of :func:`to_odometry`; (N, 3), (N, 4), (N, 3)
-    rows of up to :data:`FLOAT_ODOMETRY_ROWS` as floats (the same numbers to rounding)."""
+    rows of up to :data:`FLOAT_ROWS` as floats (the same numbers to rounding)."""
     quat = np.asarray(quat_xyzw, dtype=float)
-    if quat.ndim == 2 and len(quat) <= FLOAT_ODOMETRY_ROWS:
+    if quat.ndim == 2 and len(quat) <= FLOAT_ROWS:
         rows = [odometry_row_to_ned(*fields) for fields in zip(np.asarray(position_enu, dtype=float).tolist(), quat.tolist(),
                                                                np.asarray(twist_flu, dtype=float).tolist())]
         return tuple(np.array([row[k] for row in rows], dtype=float).reshape(len(rows), 3) for k in range(3))
@@ -379,11 +386,18 @@ def matrix_to_euler_ned(rotation: np.ndarray) -> np.ndarray:
     model converts every predicted row, where scipy's Rotation is ~10x slower.
     """
     r = np.asarray(rotation, dtype=float).reshape(-1, 3, 3)
+    if len(r) <= FLOAT_ROWS:  # floats (FLOAT_ROWS)
+        return np.array([_matrix_row_to_euler(m) for m in r.reshape(-1, 9).tolist()]).reshape(len(r), 3)
     return np.column_stack([
         np.arctan2(r[:, 2, 1], r[:, 2, 2]),
-        -np.arcsin(np.clip(r[:, 2, 0], -1.0, 1.0)),
+        -np.arcsin(np.minimum(np.maximum(r[:, 2, 0], -1.0), 1.0)),  # np.clip's numbers at a tenth of its cost here
         np.arctan2(r[:, 1, 0], r[:, 0, 0]),
     ])
+
+
+def _matrix_row_to_euler(m: list[float]) -> list[float]:
+    """:func:`matrix_to_euler_ned` of one matrix's 9 entries (row-major) on floats."""
+    return [math.atan2(m[7], m[8]), -math.asin(min(max(m[6], -1.0), 1.0)), math.atan2(m[3], m[0])]
 
 
 FLOAT_UNWRAP_ROWS = 8

@@ -106,7 +106,7 @@ def test_the_closed_form_quaternion_conversion_equals_scipys():
 
 
 def test_a_few_odometry_rows_in_floats_equal_the_array_forms():
-    """from_odometry converts up to FLOAT_ODOMETRY_ROWS rows as floats (odometry_row_to_ned, the live forecast's 2 rows
+    """from_odometry converts up to FLOAT_ROWS rows as floats (odometry_row_to_ned, the live forecast's 2 rows
     per input): the same numbers as its array form (more rows) to rounding, unnormalised quaternions, attitudes over
     the whole range and at θ = ±π/2 included; a zero or NaN quaternion is a ValueError in both."""
     rng = np.random.default_rng(6)
@@ -115,7 +115,7 @@ def test_a_few_odometry_rows_in_floats_equal_the_array_forms():
                                                       [3.1, 0.1, 3.14159], [-3.1, -0.1, -3.14159]]))
     position, twist = rng.normal(0.0, 5.0, (400, 3)), rng.normal(0.0, 3.0, (400, 3))
     expected = frames.from_odometry(position, quat, twist)  # 400 rows: the array form
-    rows = frames.FLOAT_ODOMETRY_ROWS
+    rows = frames.FLOAT_ROWS
     for first in range(0, 400, rows):
         got = frames.from_odometry(position[first:first + rows], quat[first:first + rows], twist[first:first + rows])
         for name, value, reference in zip(("pos_n", "vel_n", "euler"), got, expected):
@@ -128,6 +128,27 @@ def test_a_few_odometry_rows_in_floats_equal_the_array_forms():
         for count in (1, rows + 1):  # float and array forms
             with pytest.raises(ValueError, match="zero norm"):
                 frames.from_odometry(np.zeros((count, 3)), np.repeat(bad, count, axis=0), np.zeros((count, 3)))
+
+
+def test_a_few_matrices_and_euler_rows_in_floats_equal_the_array_forms():
+    """euler_ned_to_matrix and matrix_to_euler_ned convert up to FLOAT_ROWS rows as floats: the array forms' numbers
+    (more rows) to rounding, a single (3,) / (3, 3) argument too; θ = ±π/2 and a rounding-unnormalised matrix (|R_31|
+    just over 1) included; NaN stays NaN."""
+    rng = np.random.default_rng(12)
+    euler = np.column_stack([rng.uniform(-np.pi, np.pi, 400), rng.uniform(-np.pi / 2, np.pi / 2, 400), rng.uniform(-np.pi, np.pi, 400)])
+    euler[:2, 1] = np.pi / 2, -np.pi / 2
+    matrices = frames.euler_ned_to_matrix(euler)  # 400 rows: the array forms
+    matrices_off = matrices.copy()
+    matrices_off[2, 2, 0] = 1.0 + 1e-15
+    angles = frames.matrix_to_euler_ned(matrices_off)
+    rows = frames.FLOAT_ROWS
+    for first in range(0, 400, rows):
+        part = slice(first, first + rows)
+        np.testing.assert_allclose(frames.euler_ned_to_matrix(euler[part]), matrices[part], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(frames.matrix_to_euler_ned(matrices_off[part]), angles[part], rtol=0, atol=1e-12)
+    assert frames.euler_ned_to_matrix(euler[5]).shape == (1, 3, 3) and frames.matrix_to_euler_ned(matrices[5]).shape == (1, 3)
+    assert np.isnan(frames.matrix_to_euler_ned(np.full((3, 3), np.nan))).all()
+    assert np.isnan(frames.euler_ned_to_matrix(np.array([np.nan, 0.0, 0.0]))[0, 1:, 1:]).all()
 
 
 def test_a_few_angles_unwrap_to_numpys_numbers():

@@ -20,8 +20,9 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
 * **physics, hybrid** (:class:`PhysicsForecast`): carried are the logged commands of the last δ (the command delay),
   the rotor speeds (the exact lag stepped row by row: :func:`~quad_modelling.core.physics.rotors.rotor_step`), the
   unwrapped yaw and the observer's rows of the last ``max(linear_s, angular_s)`` (time, velocity, rates and the
-  model's acceleration, with the hybrid's net correction: its observer subtracts the net's mean, which is the mean
-  of the sum), whose means are :func:`~quad_modelling.core.models.physics.observed_disturbance` itself. The h-step
+  integral of the model's acceleration, with the hybrid's net correction: its observer subtracts the net's mean, which
+  is the mean of the sum; :func:`~quad_modelling.core.models.physics.modelled_integral` one term per row), whose means
+  are :func:`~quad_modelling.core.models.physics.disturbance_means` itself. The h-step
   rollout is the one physics step (:func:`~quad_modelling.core.physics.rigid_body.step`, with the hybrid's
   correction) built once as a CasADi Function by the export
   (:func:`~quad_modelling.core.export.casadi_model.casadi_functions`: ``F_disturbed``) and chained h times
@@ -245,6 +246,10 @@ class _Rows:
     def view(self) -> np.ndarray:
         return self.data[self.start:self.stop]
 
+    def last(self) -> np.ndarray | None:
+        """The last row appended (None before the first, or once every row was dropped)."""
+        return self.data[self.stop - 1] if self.stop > self.start else None
+
     def drop_before(self, count: int) -> None:
         self.start += count
 
@@ -270,8 +275,9 @@ class PhysicsForecast:
     def reset(self) -> None:
         """A new time base: forget every row."""
         self.times: list[float] = []  # logged commands of the last δ (and the one before): the delay's table
-        self.commands: list[np.ndarray] = []
-        self.observer_rows = _Rows(1 + 3 + 3 + 6)  # t, v_N, ω, modelled (dv_N/dt, dω/dt) incl. the net's correction
+        self.commands = _Rows(4)
+        self.observer_rows = _Rows(1 + 3 + 3 + 6)  # t, v_N, ω, the integral of the modelled (dv_N/dt, dω/dt) incl. the net's correction
+        self.modelled = None  # the modelled accelerations (6,) at the last row: the integral's next term
         self.yaw = UnwrappedYaw()
         self.rotor = None  # rotor speeds at the last row [rad/s]
         self.rotor_command = None  # the effective command the rotors answered at the last row
@@ -283,8 +289,10 @@ class PhysicsForecast:
         _require_gyro(rows, "the physics model")
         p, n = self.params, len(rows) - first
         self.times += rows.t[first:].tolist()
-        self.commands += list(rows.u[first:])
-        delayed = np.array([delayed_command_at(p, self.times, self.commands, t) for t in rows.t[first:].tolist()])
+        for u in rows.u[first:]:
+            self.commands.append(u)
+        commands = self.commands.view()
+        delayed = np.array([delayed_command_at(p, self.times, commands, t) for t in rows.t[first:].tolist()])
         voltage = physics.battery_voltage(p, rows)
         voltage = None if voltage is None else voltage[first:]
         effective = effective_commands(p, delayed, voltage)
@@ -305,7 +313,12 @@ class PhysicsForecast:
         for i in range(n):  # the modelled accelerations (the hybrid's with its correction): the compiled f at each row
             u = self._inputs(delayed[i], rows.u[first + i], None if voltage is None else voltage[i])
             xdot = self.derivative(state_vector(pos[i], vel[i], rot[i], rates[i], rotor[i]), u, no_disturbance)
-            self.observer_rows.append(np.concatenate([[rows.t[first + i]], vel[i], rates[i], xdot[3:6], xdot[15:18]]))
+            t_i = float(rows.t[first + i])
+            last = self.observer_rows.last()
+            # physics.modelled_integral's next term: I_k = I_{k-1} + a_{k-1} (t_k - t_{k-1})
+            integral = np.zeros(6) if last is None else last[7:13] + self.modelled * (t_i - last[0])
+            self.modelled = np.concatenate([xdot[3:6], xdot[15:18]])
+            self.observer_rows.append(np.concatenate([[t_i], vel[i], rates[i], integral]))
         t_last = float(rows.t[-1])
         self.anchor = (t_last, pos[-1].copy(), vel[-1].copy(), euler[-1], rot[-1], rates[-1].copy(), rotor[-1].copy(),
                        rows.u[-1].copy(), None if voltage is None else float(voltage[-1]))
@@ -320,17 +333,17 @@ class PhysicsForecast:
         while drop + 1 < len(self.times) and self.times[drop + 1] <= limit:
             drop += 1
         if drop:
-            del self.times[:drop], self.commands[:drop]
+            del self.times[:drop]
+            self.commands.drop_before(drop)
         t = self.observer_rows.view()[:, 0]
         self.observer_rows.drop_before(int(np.searchsorted(t, t_last - self.history_s - OBSERVER_MARGIN_S, side="left")))
 
     def disturbance(self) -> Disturbance:
-        """The observer's constant disturbance at the last row (:func:`~quad_modelling.core.models.physics.observed_disturbance`)."""
+        """The observer's constant disturbance at the last row (:func:`~quad_modelling.core.models.physics.disturbance_means`)."""
         if self._disturbance is None:  # every forecast from one row holds it (held inputs re-forecast without a row)
             rows = self.observer_rows.view()
-            measured = np.zeros((len(rows), len(VARIABLES)))
-            measured[:, 3:6], measured[:, 12:15] = rows[:, 1:4], rows[:, 4:7]
-            self._disturbance = physics.observed_disturbance(rows[:, 0], measured, rows[:, 7:13], np.array([len(rows) - 1]), self.observer)
+            self._disturbance = physics.disturbance_means(rows[:, 0], rows[:, 1:4], rows[:, 4:7], rows[:, 7:13],
+                                                          np.array([len(rows) - 1]), self.observer)
         return self._disturbance
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
@@ -340,7 +353,7 @@ class PhysicsForecast:
         t_s, pos, vel, euler, rot_s, rates, rotor, u_s, voltage = self.anchor
         t = np.concatenate([[t_s], t_after])
         logged = np.concatenate([u_s[None, :], u_after])
-        delayed = delayed_commands(p, np.vstack([*self.commands, u_after]), np.concatenate([self.times, t_after]))[-(h + 1):]
+        delayed = delayed_commands(p, np.concatenate([self.commands.view(), u_after]), np.concatenate([self.times, t_after]))[-(h + 1):]
         disturbance = self.disturbance()
         self._u[:, 0:4] = delayed[:h]  # the export's input layout: delayed commands, logged ones (hybrid), voltage
         if self.hybrid is not None:

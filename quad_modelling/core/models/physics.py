@@ -200,18 +200,31 @@ def observed_disturbance(t: np.ndarray, measured: np.ndarray, modelled: np.ndarr
     measured rows: ``modelled`` (N, 6) = (dv_N/dt [m/s², N], dω/dt [rad/s², B]) at each row of ``measured``
     (N, 18, raw rows, VARIABLES order) stamped ``t`` (N,) [s]. Any model's anchoring can call it (the ``truth``
     model does, :mod:`quad_modelling.core.sim.truth_model`). Uses rows <= each anchor only."""
-    anchors = np.asarray(anchors, dtype=int)
+    return disturbance_means(t, measured[:, 3:6], measured[:, 12:15], modelled_integral(t, modelled), anchors, observer)
+
+
+def modelled_integral(t: np.ndarray, modelled: np.ndarray) -> np.ndarray:
+    """(N, 6) the integral of the modelled accelerations ``modelled`` (N, 6) from t_0 to each row, left rectangles:
+    :math:`I_k = \sum_{j<k} a_j (t_{j+1} - t_j)` (a carried form adds one term per row)."""
     dt = np.diff(t)
-    modelled = modelled[:-1] * dt[:, None]
-    integral = np.concatenate([np.zeros((1, 6)), np.cumsum(modelled, axis=0)])  # ∫ modelled from t_0 to t_k
+    return np.concatenate([np.zeros((1, 6)), np.cumsum(modelled[:-1] * dt[:, None], axis=0)])
+
+
+def disturbance_means(t: np.ndarray, vel_n: np.ndarray, rates: np.ndarray, integral: np.ndarray, anchors: np.ndarray,
+                      observer: Observer = Observer()) -> Disturbance:
+    """The observer's means at ``anchors`` from the measured velocities ``vel_n`` (N, 3) [m/s, N] and body rates
+    ``rates`` (N, 3) [rad/s, B] and the modelled accelerations' integral ``integral`` (N, 6)
+    (:func:`modelled_integral`): over the rows j..a with t_a - t_j <= the history (linear and angular: their own),
+    d = (x_a - x_j) / (t_a - t_j) - (I_a - I_j) / (t_a - t_j), the mean measured minus the mean modelled
+    acceleration (0 without an earlier row or with a history of 0; the angular measured part 0 with ``angular_trim``)."""
+    anchors = np.asarray(anchors, dtype=int)
     parts = []
-    for history, cols in ((observer.linear_s, slice(0, 3)), (observer.angular_s, slice(3, 6))):
+    for history, measured, cols in ((observer.linear_s, vel_n, slice(0, 3)), (observer.angular_s, rates, slice(3, 6))):
         first = np.minimum(np.searchsorted(t, t[anchors] - history - 1e-9, side="left"), anchors)
         span = t[anchors] - t[first]
         ok = (span > 0) & (history > 0)
         safe = np.where(ok, span, 1.0)[:, None]
-        state_cols = slice(3, 6) if cols.start == 0 else slice(12, 15)
-        measured_mean = (measured[anchors, state_cols] - measured[first, state_cols]) / safe
+        measured_mean = (measured[anchors] - measured[first]) / safe
         if cols.start == 3 and observer.angular_trim:
             measured_mean = np.zeros_like(measured_mean)
         modelled_mean = (integral[anchors, cols] - integral[first, cols]) / safe

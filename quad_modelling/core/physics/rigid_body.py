@@ -195,13 +195,16 @@ def continue_yaw(previous, rot):
 
 def continued_yaw(yaw0: float, rot: np.ndarray) -> np.ndarray:
     """(K,) continuous yaw of attitudes ``rot`` (K, 3, 3) from ``yaw0`` at row 0, each row unwrapped next to the one
-    before: :func:`continue_yaw` applied row by row (its formula on floats)."""
-    psi = np.arctan2(rot[:, 1, 0], rot[:, 0, 0]).tolist()
-    out = [yaw0]
-    for value in psi[1:]:
-        previous = out[-1]
-        out.append(previous + (value - previous + np.pi) % (2.0 * np.pi) - np.pi)
-    return np.array(out)
+    before: :func:`continue_yaw` applied row by row, summed as its steps (ψ_k the yaw of rot_k, ψ̂_0 = ``yaw0``):
+
+    .. math:: ψ̂_k = ψ̂_0 + \sum_{j=1}^{k} \mathrm{wrap}(ψ_j - ψ_{j-1}),\quad ψ_0 := ψ̂_0,\quad \mathrm{wrap}(a) = ((a + π) \bmod 2π) - π
+
+    (each ψ̂_j differs from ψ_j by whole turns: the same numbers to rounding, ~1e-15 a row)."""
+    psi = np.arctan2(rot[:, 1, 0], rot[:, 0, 0])
+    out = np.empty(len(psi))
+    out[0] = yaw0
+    out[1:] = yaw0 + np.cumsum((psi[1:] - np.concatenate([[yaw0], psi[1:-1]]) + np.pi) % (2.0 * np.pi) - np.pi)
+    return out
 
 
 def times_skew(rot, phi):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from quad_modelling.core import frames
 from quad_modelling.core.physics import aero, rigid_body, rotors
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.sim.dynamics import QuadDynamics
@@ -255,3 +256,20 @@ def test_without_motor_lag_the_derivative_answers_the_commands_as_the_step_does(
     assert np.allclose(ang, (after.rates - state.rates) / dt, rtol=1e-6, atol=1e-6)
     assert acc[0, 2] < 0.0 and acc[1, 2] < acc[0, 2] - 1.0 and abs(ang[1]).max() > 1.0  # net thrust up; more of it; a torque
     assert np.array_equal(rotor_dot, np.zeros((2, 4)))
+
+
+def test_continued_yaw_is_continue_yaw_row_by_row():
+    """continued_yaw (the carried forecast's yaw over its rollout, summed as wrapped steps) equals continue_yaw applied
+    row by row to rounding, across ±π, several whole turns from yaw0 and fast yaw steps (up to 2.5 rad a row)."""
+    rng = np.random.default_rng(21)
+    for _ in range(200):
+        rows = int(rng.integers(1, 60))
+        euler = np.column_stack([rng.normal(0.0, 0.3, rows), rng.normal(0.0, 0.3, rows), np.cumsum(rng.uniform(-2.5, 2.5, rows))])
+        rot = frames.euler_ned_to_matrix(euler)
+        yaw0 = euler[0, 2] + 2.0 * np.pi * int(rng.integers(-5, 6))
+        expected = [yaw0]
+        for k in range(1, rows):
+            expected.append(float(rigid_body.continue_yaw(expected[-1], rot[k])))
+        got = rigid_body.continued_yaw(yaw0, rot)
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(got, euler[:, 2] - euler[0, 2] + yaw0, rtol=0, atol=1e-9)
