@@ -75,15 +75,16 @@ class PhysicalBounds:
         """The first bound (N, 18) ``predictions`` break, ``elapsed_s`` (N,) [s] from the anchor row ``anchor`` (18,),
         as one sentence; None when every row is inside (one vectorised test: it runs on every live input)."""
         y = np.atleast_2d(predictions)
-        elapsed = np.broadcast_to(np.asarray(elapsed_s, dtype=float), (len(y),))
-        tau = np.abs(elapsed) + SLACK_S
-        speed_a = float(np.linalg.norm(anchor[VELOCITY]))
-        if len(y) == 1:  # the live predictor's case, one row per input: the same test in floats (~10x faster)
-            row, base = y[0].tolist(), anchor.tolist()
+        base = anchor.tolist()
+        speed_a = math.hypot(*base[VELOCITY])
+        if len(y) == 1 and np.ndim(elapsed_s) == 0:  # the live predictor's case, one row per input: the same test in floats (~10x faster)
+            row = y[0].tolist()
             values = [math.hypot(*row[ACCELERATION]), math.hypot(*row[ANGULAR_ACCELERATION])] + [
                 math.hypot(*(a - b for a, b in zip(row[part], base[part]))) for part in (VELOCITY, POSITION, RATES)]
-            if all(v <= limit for v, limit in zip(values, self._limits(float(tau[0]), speed_a))):  # NaN counts as beyond
+            if all(v <= limit for v, limit in zip(values, self._limits(abs(float(elapsed_s)) + SLACK_S, speed_a))):  # NaN counts as beyond
                 return None
+        elapsed = np.broadcast_to(np.asarray(elapsed_s, dtype=float), (len(y),))
+        tau = np.abs(elapsed) + SLACK_S
         vectors = np.empty((len(y), len(CHECKS), 3))
         vectors[:, 0] = y[:, ACCELERATION]
         vectors[:, 1] = y[:, ANGULAR_ACCELERATION]

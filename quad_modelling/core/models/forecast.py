@@ -72,7 +72,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, lifted_horizons
 from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor
-from quad_modelling.core.models.narx import OUTPUTS, NarxPredictor, expand_horizons
+from quad_modelling.core.models.narx import OUTPUT_COLUMNS, OUTPUTS, NarxPredictor, expand_horizons
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState, continued_yaw
@@ -84,7 +84,7 @@ from quad_modelling.core.physics.rotors import (
     rotor_step,
     steady_rotor_speed,
 )
-from quad_modelling.core.variables import VARIABLES, columns
+from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import DataError
 
@@ -486,12 +486,12 @@ class NarxForecast:
         s = len(self.rows) - 1
         u = np.concatenate([np.array([row[0] for row in self.rows]), u_after])
         measured = np.array([row[1] for row in self.rows])
-        y = model.normalise_outputs(measured[:, columns(OUTPUTS)])
+        y = model.normalise_outputs(measured[:, OUTPUT_COLUMNS])
         padded = np.concatenate([np.repeat(y[:1], n_y - 1, axis=0), y])  # rows before the first repeat it (as offline)
         self._feedback[:] = padded[-n_y:].T  # y(s - n_y + 1 .. s), oldest first
         self._z_u[:] = model.input_part(u)[s + 1:]
         self._evaluate()
-        v = np.concatenate([measured[-1:, columns(OUTPUTS)], model.denormalise_outputs(self._outputs)])
+        v = np.concatenate([measured[-1:, OUTPUT_COLUMNS], model.denormalise_outputs(self._outputs)])
         out = expand_horizons(model, measured, np.array([s]), v[None])[0]
         return out if rows is None else out[rows]
 

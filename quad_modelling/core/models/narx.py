@@ -80,6 +80,9 @@ INTEGRATED: tuple[str, ...] = ("pos_x", "pos_y", "pos_z", "roll", "pitch", "yaw"
 DIFFERENTIATED: tuple[str, ...] = ("acc_x", "acc_y", "acc_z", "roll_acc", "pitch_acc", "yaw_acc")
 """Variables differentiated from :data:`OUTPUTS` (same order)."""
 
+OUTPUT_COLUMNS, INTEGRATED_COLUMNS, DIFFERENTIATED_COLUMNS = (np.array(columns(names)) for names in (OUTPUTS, INTEGRATED, DIFFERENTIATED))
+"""Their columns in an (N, 18) variables array, as index arrays (a list is converted at every indexing)."""
+
 
 THESIS_NOISE_SNR_DB: tuple[float | None, ...] = (None, None, None, 10.0, 10.0, 10.0)
 """Thesis section 6.2: 10 dB noise on the angle rates, velocities kept as they were."""
@@ -148,7 +151,7 @@ def sigmoid(z: np.ndarray) -> np.ndarray:
 
 def lagged_inputs(u_norm: np.ndarray, input_delays: tuple[int, ...]) -> np.ndarray:
     """(N, len(D_u)·n_u) matrix of [ũ(t−d)]_{d∈D_u}; rows before a delay's reach repeat ũ(0)."""
-    rows = np.clip(np.arange(len(u_norm))[:, None] - np.asarray(input_delays, dtype=int)[None, :], 0, None)  # (N, |D_u|)
+    rows = np.maximum(np.arange(len(u_norm))[:, None] - np.asarray(input_delays, dtype=int)[None, :], 0)  # (N, |D_u|)
     return u_norm[rows].reshape(len(u_norm), -1)  # one gather: the delays' blocks side by side, in D_u's order
 
 
@@ -303,7 +306,7 @@ class NarxModel:
             raise DataError(f"{window.meta.source}: window of {len(window)} samples is shorter than the {warm} warm-up samples")
         measured = np.zeros((len(window), len(VARIABLES)))
         measured[:warm] = measured_variables(window.slice(0, warm))  # only the warm rows are seen, as live
-        y = self.simulate(window.u, measured[:warm, columns(OUTPUTS)])
+        y = self.simulate(window.u, measured[:warm, OUTPUT_COLUMNS])
         return expand_outputs(measured, y, warm, self.dt)
 
     # ---- files -----------------------------------------------------------
@@ -391,12 +394,12 @@ def expand_outputs(measured: np.ndarray, y: np.ndarray, warm: int, dt: float) ->
     streaming form can give exactly the same numbers sample by sample.
     """
     out = np.array(measured, dtype=float, copy=True)
-    v = np.concatenate([measured[warm - 1 : warm, columns(OUTPUTS)], y[warm:]])
-    out[warm:, columns(OUTPUTS)] = y[warm:]
+    v = np.concatenate([measured[warm - 1 : warm, OUTPUT_COLUMNS], y[warm:]])
+    out[warm:, OUTPUT_COLUMNS] = y[warm:]
     steps = np.diff(v, axis=0)
-    out[warm:, columns(DIFFERENTIATED)] = steps / dt
-    start = measured[warm - 1, columns(INTEGRATED)]
-    out[warm:, columns(INTEGRATED)] = start + np.cumsum(0.5 * (v[1:] + v[:-1]) * dt, axis=0)
+    out[warm:, DIFFERENTIATED_COLUMNS] = steps / dt
+    start = measured[warm - 1, INTEGRATED_COLUMNS]
+    out[warm:, INTEGRATED_COLUMNS] = start + np.cumsum(0.5 * (v[1:] + v[:-1]) * dt, axis=0)
     return out
 
 
@@ -404,7 +407,7 @@ def horizons_from_measured(model: NarxModel, measured: np.ndarray, u: np.ndarray
     """(S, horizon + 1, 18) of :meth:`NarxPredictor.predict_horizons` from the measurement (N, 18, VARIABLES order; of
     each row only positions, velocities, angles and rates are read) and commands ``u`` (N, 4) of one series
     (the carried-state forecast, :mod:`quad_modelling.core.models.forecast`, calls it on its last rows)."""
-    return expand_horizons(model, measured, starts, model.simulate_from_starts(u, measured[:, columns(OUTPUTS)], starts, horizon))
+    return expand_horizons(model, measured, starts, model.simulate_from_starts(u, measured[:, OUTPUT_COLUMNS], starts, horizon))
 
 
 def expand_horizons(model: NarxModel, measured: np.ndarray, starts: np.ndarray, v: np.ndarray) -> np.ndarray:
@@ -412,16 +415,16 @@ def expand_horizons(model: NarxModel, measured: np.ndarray, starts: np.ndarray, 
     measured y(s)): positions/angles integrated (trapezoid) from the measured ones at s, accelerations as backward
     differences (row 0: of the measured outputs)."""
     dt, horizon = model.dt, v.shape[1] - 1
-    y = measured[:, columns(OUTPUTS)]
+    y = measured[:, OUTPUT_COLUMNS]
     out = np.empty((len(starts), horizon + 1, len(VARIABLES)))
     out[:, 0] = measured[starts]
     previous = y[np.maximum(starts - 1, 0)]
-    out[:, 0, columns(DIFFERENTIATED)] = (y[starts] - previous) / dt
-    out[:, :, columns(OUTPUTS)] = v
-    out[:, 1:, columns(DIFFERENTIATED)] = np.diff(v, axis=1) / dt
-    start = measured[starts][:, columns(INTEGRATED)]
-    out[:, 0, columns(INTEGRATED)] = start
-    out[:, 1:, columns(INTEGRATED)] = start[:, None, :] + np.cumsum(0.5 * (v[:, 1:] + v[:, :-1]) * dt, axis=1)
+    out[:, 0, DIFFERENTIATED_COLUMNS] = (y[starts] - previous) / dt
+    out[:, :, OUTPUT_COLUMNS] = v
+    out[:, 1:, DIFFERENTIATED_COLUMNS] = (v[:, 1:] - v[:, :-1]) / dt
+    start = measured[starts][:, INTEGRATED_COLUMNS]
+    out[:, 0, INTEGRATED_COLUMNS] = start
+    out[:, 1:, INTEGRATED_COLUMNS] = start[:, None, :] + np.cumsum(0.5 * (v[:, 1:] + v[:, :-1]) * dt, axis=1)
     return out
 
 
@@ -502,11 +505,11 @@ class _ExpandingStream:
     def push(self, command: np.ndarray) -> np.ndarray:
         """Command (4,) of the next sample -> its absolute prediction (18,), as :func:`expand_outputs`."""
         v = self.nets.push(command)
-        previous = self.last[columns(OUTPUTS)]
+        previous = self.last[OUTPUT_COLUMNS]
         out = self.last.copy()
-        out[columns(OUTPUTS)] = v
-        out[columns(DIFFERENTIATED)] = (v - previous) / self.dt
-        out[columns(INTEGRATED)] = self.last[columns(INTEGRATED)] + 0.5 * (v + previous) * self.dt
+        out[OUTPUT_COLUMNS] = v
+        out[DIFFERENTIATED_COLUMNS] = (v - previous) / self.dt
+        out[INTEGRATED_COLUMNS] = self.last[INTEGRATED_COLUMNS] + 0.5 * (v + previous) * self.dt
         self.last = out
         return out.copy()
 
@@ -560,5 +563,5 @@ class NarxPredictor:
         if len(warm) < self.model.config.output_delays:
             raise DataError(f"{warm.meta.source}: NARX needs {self.model.config.output_delays} warm-start samples, got {len(warm)}")
         measured = measured_variables(warm)
-        nets = self.model.stream(warm.u, measured[:, columns(OUTPUTS)])
+        nets = self.model.stream(warm.u, measured[:, OUTPUT_COLUMNS])
         return measured, _ExpandingStream(nets, measured[-1], self.model.dt)
