@@ -186,13 +186,13 @@ def quat_ned_to_euler_ned(quat_xyzw: np.ndarray) -> np.ndarray:
 def body_to_nav(vectors_b: np.ndarray, euler: np.ndarray) -> np.ndarray:
     """Rotate body FRD vectors (N, 3) into N (NED) with attitudes (N, 3) [rad]: v_N = R v_B."""
     v = np.atleast_2d(np.asarray(vectors_b, dtype=float))
-    return np.einsum("nij,nj->ni", euler_ned_to_matrix(euler), v).reshape(np.shape(vectors_b))
+    return (euler_ned_to_matrix(euler) @ v[:, :, None]).reshape(np.shape(vectors_b))
 
 
 def nav_to_body(vectors_n: np.ndarray, euler: np.ndarray) -> np.ndarray:
     """Rotate NED vectors (N, 3) into the body frame FRD with attitudes (N, 3): v_B = R^T v_N."""
     v = np.atleast_2d(np.asarray(vectors_n, dtype=float))
-    return np.einsum("nji,nj->ni", euler_ned_to_matrix(euler), v).reshape(np.shape(vectors_n))
+    return (v[:, None, :] @ euler_ned_to_matrix(euler)).reshape(np.shape(vectors_n))
 
 
 def specific_force(acc_n: np.ndarray, euler: np.ndarray, gravity: float) -> np.ndarray:

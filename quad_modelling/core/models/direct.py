@@ -189,6 +189,7 @@ class HorizonMaps:
         if not (np.isfinite(weights).all() and np.isfinite(bias).all()):
             raise ModelError(f"direct model: {what} weights or bias hold NaN or infinity")
         self.weights, self.bias, self.horizon = weights, bias, horizon
+        self._stacked: dict[int, np.ndarray] = {}  # given -> the maps side by side (changes_from)
 
     def feature_count(self, horizon: int) -> int:
         """D_h of this layout."""
@@ -201,6 +202,15 @@ class HorizonMaps:
             d = self.feature_count(h)
             out[:, h - 1] = z[:, :d] @ self.weights[h - 1, :d] + self.bias[h - 1]
         return out
+
+    def changes_from(self, z: np.ndarray, given: int) -> np.ndarray:
+        """(given, K) the changes for h = 1..given from one anchor's inputs ``z`` (D_given): the maps side by side in one
+        matrix product (horizon h's weights are zero past its own D_h), stacked once per ``given``."""
+        stacked = self._stacked.get(given)
+        if stacked is None:
+            d = self.feature_count(given)
+            stacked = self._stacked[given] = np.ascontiguousarray(self.weights[:given, :d].transpose(1, 0, 2).reshape(d, -1))
+        return (z @ stacked).reshape(given, -1) + self.bias[:given]
 
     def change_at(self, h: int, z: np.ndarray) -> np.ndarray:
         """(K,) the predicted change h rows after the anchor from one anchor's inputs ``z`` (at least D_h of them)."""
@@ -254,8 +264,13 @@ def vertical_features(log: FlightLog, anchors: np.ndarray, horizon: int, velocit
     euler = log.euler[anchors]
     averaged = np.maximum(anchors[:, None] - np.arange(acceleration_rows)[None, :], 0)
     down_acc = nav_acceleration(log, rows=averaged.ravel())[:, 2].reshape(averaged.shape).mean(axis=1)
-    tilt = np.cos(euler[:, 0]) * np.cos(euler[:, 1])
+    tilt = down_thrust_share(euler)
     return np.concatenate([log.vel_n[past, 2], down_acc[:, None], tilt[:, None], log.u[rows].reshape(len(anchors), -1)], axis=1)
+
+
+def down_thrust_share(euler: np.ndarray) -> np.ndarray:
+    """The tilt cos φ cos θ of Euler angles (..., 3) [rad]: the share of the thrust (along -z_B) that points down."""
+    return np.cos(euler[..., 0]) * np.cos(euler[..., 1])
 
 
 class VerticalRegression(HorizonMaps):
@@ -482,7 +497,7 @@ class DirectForecast(PhysicsForecast):
             self.vertical_on = rows.acc_b is not None  # without it the physics integrates v_D (DirectModel.uses_vertical)
             if self.vertical_on:
                 self.down_acceleration_rows.extend(nav_acceleration(rows, rows=np.arange(first, len(rows)))[:, 2])
-                self.tilt = float(vertical_features(rows, np.array([len(rows) - 1]), 0, 1, 0, 1)[0, 2])  # the last row's
+                self.tilt = float(down_thrust_share(rows.euler[-1]))  # the last row's
             else:  # rows without the accelerometer: the next mean starts afresh, not across the gap
                 self.down_acceleration_rows.clear()
 
@@ -498,8 +513,7 @@ class DirectForecast(PhysicsForecast):
             anchor["angular_disturbance"] = self.disturbance().angular_b[0]
         z = np.concatenate([np.ravel(rates), *(anchor[name] for name in r.anchor_inputs), np.ravel(commands[-(r.lead + 1):]),
                             np.ravel(u_after[:given])])
-        # one contraction for every map: horizon h's weights are zero past its own D_h
-        self._w[:given] = rates[0] + np.einsum("d,hdk->hk", z, r.weights[:given, :len(z)]) + r.bias[:given]
+        self._w[:given] = rates[0] + r.changes_from(z, given)
         self._gv[:] = 0.0
         if self.vertical_on:
             v = self.vertical
@@ -511,7 +525,7 @@ class DirectForecast(PhysicsForecast):
             accelerations = [accelerations[0]] * (v.acceleration_rows - len(accelerations)) + accelerations
             z_v = np.concatenate([down, [np.mean(accelerations), self.tilt], np.ravel(commands[-(v.lead + 1):]),
                                   np.ravel(u_after[:given_down])])
-            self._v[:given_down] = down[0] + z_v @ v.weights[:given_down, :len(z_v), 0].T + v.bias[:given_down, 0]
+            self._v[:given_down] = down[0] + v.changes_from(z_v, given_down)[:, 0]
         return super().predict(t_after, u_after, rows)
 
 

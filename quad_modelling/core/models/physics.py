@@ -219,6 +219,19 @@ def disturbance_means(t: np.ndarray, vel_n: np.ndarray, rates: np.ndarray, integ
     acceleration (0 without an earlier row or with a history of 0; the angular measured part 0 with ``angular_trim``)."""
     anchors = np.asarray(anchors, dtype=int)
     parts = []
+    if anchors.size == 1:  # the carried forecast's case, one anchor per input: the same operations on floats
+        a = int(anchors.reshape(-1)[0])
+        for history, measured, cols in ((observer.linear_s, vel_n, slice(0, 3)), (observer.angular_s, rates, slice(3, 6))):
+            first = min(int(np.searchsorted(t, t[a] - history - 1e-9, side="left")), a)
+            span = float(t[a] - t[first])
+            if not (span > 0 and history > 0):
+                parts.append(np.zeros((1, 3)))
+                continue
+            trimmed = cols.start == 3 and observer.angular_trim
+            measured_mean = [0.0] * 3 if trimmed else [(x - y) / span for x, y in zip(measured[a].tolist(), measured[first].tolist())]
+            modelled_mean = [(x - y) / span for x, y in zip(integral[a, cols].tolist(), integral[first, cols].tolist())]
+            parts.append(np.array([[m - d for m, d in zip(measured_mean, modelled_mean)]]))
+        return Disturbance(parts[0], parts[1])
     for history, measured, cols in ((observer.linear_s, vel_n, slice(0, 3)), (observer.angular_s, rates, slice(3, 6))):
         first = np.minimum(np.searchsorted(t, t[anchors] - history - 1e-9, side="left"), anchors)
         span = t[anchors] - t[first]

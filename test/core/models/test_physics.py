@@ -278,3 +278,21 @@ def test_starts_of_many_segments_in_one_batch_predict_as_each_segment_alone(real
         assert np.isnan(together[..., 6:9]).all() and np.isnan(together[..., 15:18]).all()
         assert np.isfinite(alone).all()
     assert model.predict_horizons_of([], 50) == []
+
+
+def test_one_anchors_disturbance_on_floats_is_the_batch_means():
+    """disturbance_means at a single anchor (the carried forecast's case, floats) gives the batch form's numbers bit for
+    bit: every anchor of a jittered time base, histories of 0, shorter and longer than the rows, the angular trim."""
+    from quad_modelling.core.models.physics import disturbance_means, modelled_integral
+
+    rng = np.random.default_rng(31)
+    t = np.cumsum(rng.uniform(0.002, 0.003, 300))
+    vel, rates, modelled = rng.normal(0, 1, (300, 3)), rng.normal(0, 1, (300, 3)), rng.normal(0, 5, (300, 6))
+    integral = modelled_integral(t, modelled)
+    for observer in (Observer(), Observer(linear_s=0.0, angular_s=0.05, angular_trim=False), Observer(linear_s=2.0, angular_s=0.2)):
+        for anchor in (0, 1, 17, 150, 299):
+            one = disturbance_means(t, vel, rates, integral, np.array([anchor]), observer)
+            batch = disturbance_means(t, vel, rates, integral, np.array([anchor, anchor]), observer)
+            np.testing.assert_array_equal(one.linear_n, batch.linear_n[:1])
+            np.testing.assert_array_equal(one.angular_b, batch.angular_b[:1])
+            assert one.linear_n.shape == one.angular_b.shape == (1, 3)
