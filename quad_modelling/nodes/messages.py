@@ -118,7 +118,7 @@ def admitted_command(faults, vehicle, u):
     if (why := command_beyond_range(vehicle, u)) is not None:
         faults.report(stream_fault("range", MOTOR_INPUT), f"motor_input dropped: {why}")
         return None
-    return np.clip(u, vehicle.input_min, vehicle.input_max)
+    return np.minimum(np.maximum(u, vehicle.input_min), vehicle.input_max)  # np.clip's numbers at a fraction of its cost
 
 
 def check_odometry_frames(faults, msg) -> None:

@@ -77,11 +77,11 @@ class PhysicalBounds:
         y = np.atleast_2d(predictions)
         base = anchor.tolist()
         speed_a = math.hypot(*base[VELOCITY])
-        if len(y) == 1 and np.ndim(elapsed_s) == 0:  # the live predictor's case, one row per input: the same test in floats (~10x faster)
-            row = y[0].tolist()
+        if len(y) == 1:  # the live predictor's case, one row per input: the same test in floats (~10x faster)
+            row, tau_s = y[0].tolist(), abs(float(elapsed_s if np.ndim(elapsed_s) == 0 else np.ravel(elapsed_s)[0])) + SLACK_S
             values = [math.hypot(*row[ACCELERATION]), math.hypot(*row[ANGULAR_ACCELERATION])] + [
                 math.hypot(*(a - b for a, b in zip(row[part], base[part]))) for part in (VELOCITY, POSITION, RATES)]
-            if all(v <= limit for v, limit in zip(values, self._limits(abs(float(elapsed_s)) + SLACK_S, speed_a))):  # NaN counts as beyond
+            if all(v <= limit for v, limit in zip(values, self._limits(tau_s, speed_a))):  # NaN counts as beyond
                 return None
         elapsed = np.broadcast_to(np.asarray(elapsed_s, dtype=float), (len(y),))
         tau = np.abs(elapsed) + SLACK_S

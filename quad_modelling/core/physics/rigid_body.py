@@ -58,6 +58,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from quad_modelling.core.flight_log import GYRO_FULL_SCALE
+from quad_modelling.core.frames import FLOAT_ROWS
 from quad_modelling.core.physics import arrays
 from quad_modelling.core.physics.aero import ground_effect_factor, rotor_drag
 from quad_modelling.core.physics.rotors import (
@@ -199,8 +200,14 @@ def continued_yaw(yaw0: float, rot: np.ndarray) -> np.ndarray:
 
     .. math:: ψ̂_k = ψ̂_0 + \sum_{j=1}^{k} \mathrm{wrap}(ψ_j - ψ_{j-1}),\quad ψ_0 := ψ̂_0,\quad \mathrm{wrap}(a) = ((a + π) \bmod 2π) - π
 
-    (each ψ̂_j differs from ψ_j by whole turns: the same numbers to rounding, ~1e-15 a row)."""
+    (each ψ̂_j differs from ψ_j by whole turns: the same numbers to rounding, ~1e-15 a row); up to
+    :data:`~quad_modelling.core.frames.FLOAT_ROWS` attitudes (the live window's step: 2) row by row on floats."""
     psi = np.arctan2(rot[:, 1, 0], rot[:, 0, 0])
+    if len(psi) <= FLOAT_ROWS:
+        out = [yaw0]
+        for value in psi[1:].tolist():
+            out.append(out[-1] + (value - out[-1] + np.pi) % (2.0 * np.pi) - np.pi)
+        return np.array(out)
     out = np.empty(len(psi))
     out[0] = yaw0
     out[1:] = yaw0 + np.cumsum((psi[1:] - np.concatenate([[yaw0], psi[1:-1]]) + np.pi) % (2.0 * np.pi) - np.pi)
