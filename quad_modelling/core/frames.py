@@ -210,6 +210,12 @@ def kinematic_acceleration(force_b: np.ndarray, euler: np.ndarray, gravity: floa
     return acc.reshape(np.shape(force_b))
 
 
+def tilt_cosine(euler: np.ndarray) -> np.ndarray:
+    """R_33 = cos φ cos θ of Euler angles (..., 3) [rad]: the body z axis's down component (the share of a thrust
+    along the body z axis that acts vertically)."""
+    return np.cos(euler[..., 0]) * np.cos(euler[..., 1])
+
+
 def euler_rates_to_body_rates(euler: np.ndarray, euler_dot: np.ndarray) -> np.ndarray:
     """Body rates (p, q, r) (N, 3) [rad/s, FRD] of ZYX Euler angles (φ, θ, ψ) (N, 3) [rad] changing at ``euler_dot``
     (N, 3) [rad/s]:

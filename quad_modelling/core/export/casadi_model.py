@@ -22,11 +22,14 @@ Functions (:func:`casadi_functions`): ``f(x, u) -> xdot`` (:func:`~quad_modellin
 d = 0), ``F(x, u, dt) -> x_next`` (:func:`~quad_modelling.core.physics.rigid_body.step`, d = 0: semi-implicit Euler
 with the exact rotor lag over ``dt`` [s], rates and speed limited as the model's), ``f_disturbed(x, u, d)`` and
 ``F_disturbed(x, u, dt, d)``. NARX's closed-loop step (:func:`narx_step`), for its carried forecast, is built the
-same way from the model's own net code.
+same way from the model's own net code. :func:`compile_step` compiles a Function to C for the live forms
+(:mod:`quad_modelling.core.models.forecast`).
 """
 
 from __future__ import annotations
 
+import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -303,7 +306,7 @@ def narx_step(model):
     """CasADi Function (feedback ỹ (6, n_y), input part z_u (6, H)) -> (feedback after the step, ỹ of the step): one
     closed-loop step of :meth:`~quad_modelling.core.models.narx.NarxModel.simulate_from_starts`, built by the model's
     ``net_output`` and ``sigmoid`` on symbolic arrays (NARX's carried forecast chains it h times,
-    :meth:`~quad_modelling.core.models.forecast.Step.chained`: its arguments and results are then, as C arrays,
+    :meth:`~Step.chained`: its arguments and results are then, as C arrays,
     feedback (6, n_y), z_u (h, 6, H), feedbacks (h, 6 n_y), outputs (h, 6))."""
     import casadi
 
@@ -316,3 +319,43 @@ def narx_step(model):
     y = model.net_output(sigmoid(z), lags[:, -1])
     shifted = np.concatenate([lags[:, 1:], y[:, None]], axis=1)
     return casadi.Function("narx_step", [feedback, z_u], [casadi.vertcat(*shifted.ravel()), casadi.vertcat(*y)])
+
+
+JIT_OPTIONS = {"flags": ["-O1"]}
+"""CasADi's shell compiler options of a compiled step: the system's C compiler, no fast-math (the same float
+operations as CasADi's virtual machine). Its files go to a temporary directory, removed once the step is loaded."""
+
+
+@dataclass(frozen=True)
+class Step:
+    """A model's one-step CasADi Function (first input and output: the state) and whether it is compiled to C."""
+
+    function: object
+    compiled: bool
+
+    def chained(self, steps: int):
+        """The step chained ``steps`` times (``mapaccum``: the state carried, the other inputs one column per step)."""
+        chained = self.function.mapaccum(f"{self.function.name()}_chained", steps)
+        return chained if self.compiled else chained.expand()
+
+
+def compile_step(step) -> Step:
+    """``step`` (a CasADi SX Function) compiled to C by the system's C compiler when there is one (CasADi's ``jit``:
+    about half a second once; the same numbers, measured 0 difference), else as it is, for CasADi's virtual machine:
+    the hybrid's 50 steps (6357 instructions each) take ~0.1 ms compiled against ~0.4 ms
+    (``bench/results/nodes_forecast.md``)."""
+    import casadi
+
+    symbols = [casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
+    here = os.getcwd()
+    with tempfile.TemporaryDirectory(prefix="quad_modelling_jit_") as directory:
+        os.chdir(directory)  # CasADi writes the C source into the working directory: a temporary one, removed after
+        try:
+            compiled = casadi.Function(f"{step.name()}_compiled", symbols, step.call(symbols),
+                                       {"jit": True, "compiler": "shell", "jit_cleanup": False,
+                                        "jit_options": {"directory": directory + os.sep, "cleanup": False, **JIT_OPTIONS}})
+        except RuntimeError:  # no C compiler (CasADi names the failed command): its virtual machine
+            return Step(step, False)
+        finally:
+            os.chdir(here)
+    return Step(compiled, True)  # loaded: its library file may go

@@ -1,10 +1,8 @@
 r"""Direct model (``direct:PATH``): the physics model whose body rates come from a direct multi-horizon regression.
 
-Why. On the real NanoBench flights the logged 100 Hz motor commands, read through the rigid body and the rotor map,
-explain the body rates poorly: the physics model's angular-velocity SimErr is 0.82 of naive's held out by shape,
-and no model reached half of naive (issue #28). A regression straight from what is known at the anchor to the
-rates h rows later needs no torque model. Linear, it beat every model on every held-out shape
-(``bench/results/command_limit.md``); a small MLP on the same inputs did worse (it does not carry to a new shape).
+Why. On the real NanoBench flights the logged motor commands, read through the rigid body and the rotor map, explain
+the body rates poorly (issue #28); a linear regression from what is known at the anchor to the rates h rows later
+needs no torque model and beat every model on every held-out shape (docs/narx.md, ``bench/results/command_limit.md``).
 
 For each horizon h = 1..H (H = the file's ``horizon``, :data:`HORIZON` rows by default) one linear map from the
 anchor s's inputs to the change of the body rates:
@@ -33,10 +31,8 @@ error (:mod:`quad_modelling.core.training.direct`).
 
 The vertical map (files since session 22; absent in older ones, and when a training flight had no accelerometer; on
 a flight without one the physics integrates v_D in every form, :meth:`DirectModel.uses_vertical`).
-The logged commands read through the rotor map predict the vertical velocity poorly: held out by shape, the physics
-model's down-velocity error at h = 50 was that of holding the velocity on the linear-ramp flights (0.093 m/s against
-0.094), and the map below cuts it by a third (0.065 m/s there, 0.038 -> 0.025 on the figure-8; ``bench/results/models.md``
-has the held-out SimErr). So the down velocity gets maps of its own, fitted as the rates':
+The logged commands read through the rotor map predict the vertical velocity poorly (held out by shape no better than
+holding it on the linear ramps; docs/narx.md), so the down velocity gets maps of its own, fitted as the rates':
 
 .. math::
 
@@ -77,10 +73,10 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.export.casadi_model import ExportedModel, casadi_functions, given_rates_step
+from quad_modelling.core.export.casadi_model import ExportedModel, Step, casadi_functions, compile_step, given_rates_step
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
-from quad_modelling.core.models.forecast import CompiledWindowStream, PhysicsForecast, Step, compile_step
+from quad_modelling.core.models.forecast import CompiledWindowStream, PhysicsForecast
 from quad_modelling.core.models.hybrid import physics_constants, trained_parameters
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
 from quad_modelling.core.models.physics import Disturbance, PhysicsPredictor, PhysicsStream
@@ -264,13 +260,8 @@ def vertical_features(log: FlightLog, anchors: np.ndarray, horizon: int, velocit
     euler = log.euler[anchors]
     averaged = np.maximum(anchors[:, None] - np.arange(acceleration_rows)[None, :], 0)
     down_acc = nav_acceleration(log, rows=averaged.ravel())[:, 2].reshape(averaged.shape).mean(axis=1)
-    tilt = down_thrust_share(euler)
+    tilt = frames.tilt_cosine(euler)
     return np.concatenate([log.vel_n[past, 2], down_acc[:, None], tilt[:, None], log.u[rows].reshape(len(anchors), -1)], axis=1)
-
-
-def down_thrust_share(euler: np.ndarray) -> np.ndarray:
-    """The tilt cos φ cos θ of Euler angles (..., 3) [rad]: the share of the thrust (along -z_B) that points down."""
-    return np.cos(euler[..., 0]) * np.cos(euler[..., 1])
 
 
 class VerticalRegression(HorizonMaps):
@@ -318,10 +309,6 @@ class DirectModel:
         map's input); else the physics integrates v_D, as in a model without the map."""
         return self.vertical is not None and log.acc_b is not None
 
-    def check_rate(self, log: FlightLog) -> None:
-        """DataError unless ``log``'s median sample period is the model's ``dt`` (:func:`check_period`)."""
-        check_period(log, self.dt)
-
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
         """(S, horizon + 1, 18) absolute open-loop predictions from each start row, causal (IDSIA multi-step)."""
         return self.predict_horizons_of([(segment, starts)], horizon, with_accelerations=True)[0]
@@ -342,7 +329,7 @@ class DirectModel:
         inputs, rates, down = [], [], []
         for segment, starts in parts:
             starts = np.asarray(starts, dtype=int)
-            self.check_rate(segment)
+            check_period(segment, self.dt)
             inputs.append(self.physics.horizon_inputs(segment, starts, horizon))
             rates.append(self.regression.rates(segment, starts, horizon, inputs[-1][1].angular_b))
             if self.uses_vertical(segment):
@@ -497,7 +484,7 @@ class DirectForecast(PhysicsForecast):
             self.vertical_on = rows.acc_b is not None  # without it the physics integrates v_D (DirectModel.uses_vertical)
             if self.vertical_on:
                 self.down_acceleration_rows.extend(nav_acceleration(rows, rows=np.arange(first, len(rows)))[:, 2])
-                self.tilt = float(down_thrust_share(rows.euler[-1]))  # the last row's
+                self.tilt = float(frames.tilt_cosine(rows.euler[-1]))  # the last row's
             else:  # rows without the accelerometer: the next mean starts afresh, not across the gap
                 self.down_acceleration_rows.clear()
 
@@ -590,7 +577,7 @@ class DirectPredictor(WindowByStream):
         if len(warm) < 2:
             raise DataError(f"{warm.meta.source}: the direct model needs at least 2 warm-start samples, got {len(warm)}")
         warm.require(("gyro_b",), "the direct model (body rates at the anchor)")
-        self.model.check_rate(warm)
+        check_period(warm, self.model.dt)
         measured = state_measurement(warm, self.model.physics.vehicle)
         state, disturbance, _ = physics.anchor_state(self.model.params, warm, np.array([len(warm) - 1]), self.model.physics.observer, measured)
         voltage = physics.battery_voltage(self.model.params, warm)

@@ -57,17 +57,22 @@ stream's own delay table and observer kept.
 
 from __future__ import annotations
 
-import os
-import tempfile
 import weakref
 from collections import deque
-from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.export.casadi_model import casadi_functions, exported_predictor, narx_step, output_row, state_vector
+from quad_modelling.core.export.casadi_model import (
+    Step,
+    casadi_functions,
+    compile_step,
+    exported_predictor,
+    narx_step,
+    output_row,
+    state_vector,
+)
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, lifted_horizons
@@ -494,46 +499,6 @@ class NarxForecast:
         v = np.concatenate([measured[-1:, OUTPUT_COLUMNS], model.denormalise_outputs(self._outputs)])
         out = expand_horizons(model, measured, np.array([s]), v[None])[0]
         return out if rows is None else out[rows]
-
-
-JIT_OPTIONS = {"flags": ["-O1"]}
-"""CasADi's shell compiler options of a compiled step: the system's C compiler, no fast-math (the same float
-operations as CasADi's virtual machine). Its files go to a temporary directory, removed once the step is loaded."""
-
-
-@dataclass(frozen=True)
-class Step:
-    """A model's one-step CasADi Function (first input and output: the state) and whether it is compiled to C."""
-
-    function: object
-    compiled: bool
-
-    def chained(self, steps: int):
-        """The step chained ``steps`` times (``mapaccum``: the state carried, the other inputs one column per step)."""
-        chained = self.function.mapaccum(f"{self.function.name()}_chained", steps)
-        return chained if self.compiled else chained.expand()
-
-
-def compile_step(step) -> Step:
-    """``step`` (a CasADi SX Function) compiled to C by the system's C compiler when there is one (CasADi's ``jit``:
-    about half a second once; the same numbers, measured 0 difference), else as it is, for CasADi's virtual machine:
-    the hybrid's 50 steps (6357 instructions each) take ~0.1 ms compiled against ~0.4 ms
-    (``bench/results/nodes_forecast.md``)."""
-    import casadi
-
-    symbols = [casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(step.n_in())]
-    here = os.getcwd()
-    with tempfile.TemporaryDirectory(prefix="quad_modelling_jit_") as directory:
-        os.chdir(directory)  # CasADi writes the C source into the working directory: a temporary one, removed after
-        try:
-            compiled = casadi.Function(f"{step.name()}_compiled", symbols, step.call(symbols),
-                                       {"jit": True, "compiler": "shell", "jit_cleanup": False,
-                                        "jit_options": {"directory": directory + os.sep, "cleanup": False, **JIT_OPTIONS}})
-        except RuntimeError:  # no C compiler (CasADi names the failed command): its virtual machine
-            return Step(step, False)
-        finally:
-            os.chdir(here)
-    return Step(compiled, True)  # loaded: its library file may go
 
 
 # --- the live window stream through the compiled step ---------------------------------------------------------------

@@ -181,6 +181,7 @@ def test_a_new_time_base_starts_the_carried_anchor_over(models, flight):
 
 def test_without_a_c_compiler_the_rollout_runs_in_casadis_virtual_machine_with_the_same_numbers(models, monkeypatch):
     """The compiled step and the virtual machine's give the same forecast (the compiler is an option, not a need)."""
+    from quad_modelling.core.export import casadi_model
     from quad_modelling.core.models import forecast
 
     model, vehicle = models["hybrid"]
@@ -189,7 +190,7 @@ def test_without_a_c_compiler_the_rollout_runs_in_casadis_virtual_machine_with_t
     t_after, u_after = log.t[99] + period * np.arange(1, 11), np.tile(log.u[99], (10, 1))
     compiled = carried_forecast(model, vehicle, period, 10)
     assert forecast.model_step(model, vehicle).compiled  # this machine has a C compiler
-    monkeypatch.setattr(forecast, "JIT_OPTIONS", {"compiler": "/nonexistent/cc", "flags": []})
+    monkeypatch.setattr(casadi_model, "JIT_OPTIONS", {"compiler": "/nonexistent/cc", "flags": []})
     monkeypatch.setattr(forecast, "_STEPS", forecast.weakref.WeakKeyDictionary())
     interpreted = carried_forecast(model, vehicle, period, 10)
     assert not forecast.model_step(model, vehicle).compiled
