@@ -1,0 +1,115 @@
+"""Per-input cost of the receding-horizon forecast at two revisions, in alternated pairs (issue #28 item 2).
+
+On a shared 2-core machine whose speed moves by up to 2x between runs, two figures taken minutes apart compare the
+machine as much as the code. This benchmark checks out two revisions of this repository (temporary ``git worktree``s),
+builds each model file once (this checkout's code: the file formats of both revisions must read it), then times
+``bench_nodes.forecast_cost`` (carried forms, h = 50 at 400 Hz, a predictor node in-process, 4 s of inputs) of every
+model at each revision in a fresh process, alternating which revision goes first, ``--pairs`` times. It reports each
+revision's median of the per-run medians and their ratio; the runs themselves are in the JSON.
+
+    python bench/bench_forecast_pairs.py BASE [HEAD] [--models greybox,physics] [--pairs 5] [--name forecast_pairs]
+
+HEAD defaults to this checkout's HEAD. Results: ``bench/results/<name>.{json,md}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+SECONDS = 4.0
+"""Inputs per run [s of the 400 Hz synthetic flight]: 1600 inputs, the first 100 left out as bench_nodes does."""
+
+
+def one_run(root: str, spec: str) -> None:
+    """In a fresh process: ``forecast_cost`` of ``spec`` with the code at ``root``; prints its JSON."""
+    sys.path.insert(0, root)
+    os.chdir(root)
+    import rclpy
+
+    from bench import bench_nodes
+
+    rclpy.init()
+    try:
+        result = bench_nodes.forecast_cost(spec, True, SECONDS)
+    finally:
+        rclpy.shutdown()
+    print(json.dumps({key: result[key] for key in ("median_ms", "forecast_median_ms", "p99_ms", "published")}))
+
+
+def timed(root: Path, spec: str, domain: int) -> dict:
+    env = {**os.environ, "PYTHONPATH": str(root), "ROS_DOMAIN_ID": str(domain), "ROS_AUTOMATIC_DISCOVERY_RANGE": "LOCALHOST"}
+    done = subprocess.run([sys.executable, __file__, "--one", str(root), spec], capture_output=True, text=True, env=env,
+                          cwd=root, timeout=600)
+    lines = [line for line in done.stdout.splitlines() if line.startswith("{")]
+    if done.returncode or not lines:
+        raise RuntimeError(f"{root} {spec}: exit {done.returncode}: {done.stderr.strip().splitlines()[-1:]}")
+    return json.loads(lines[-1])
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("base", nargs="?", help="the earlier revision (a commit)")
+    parser.add_argument("head", nargs="?", default="HEAD", help="the later revision (default HEAD)")
+    parser.add_argument("--models", default="greybox,narx,physics,hybrid,direct")
+    parser.add_argument("--pairs", type=int, default=5)
+    parser.add_argument("--name", default="forecast_pairs", help="results file name under bench/results")
+    parser.add_argument("--one", nargs=2, metavar=("ROOT", "SPEC"), help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.one:
+        one_run(*args.one)
+        return 0
+    if args.base is None:
+        parser.error("BASE (a commit) is needed")
+    sys.path.insert(0, str(ROOT))  # this checkout's bench (the --one runs import their revision's)
+    from bench import bench_nodes
+    from bench.common import write_results
+
+    revisions = {name: subprocess.run(["git", "rev-parse", "--short", rev], capture_output=True, text=True, check=True,
+                                      cwd=ROOT).stdout.strip() for name, rev in (("base", args.base), ("head", args.head))}
+    models = args.models.split(",")
+    runs: dict = {model: {"base": [], "head": []} for model in models}
+    with tempfile.TemporaryDirectory(prefix="forecast_pairs_") as tmp:
+        work = Path(tmp)
+        trees = {name: work / name for name in revisions}
+        for name, tree in trees.items():
+            subprocess.run(["git", "worktree", "add", "--detach", "-q", str(tree), revisions[name]], cwd=ROOT, check=True)
+        try:
+            specs = {m: m if bench_nodes.MODEL_FILES[m] is None else
+                     f"{m}:{bench_nodes.MODEL_FILES[m](bench_nodes.FORECAST_RATE_HZ, work)}" for m in models}
+            for pair in range(args.pairs):
+                for model in models:
+                    for name in ("base", "head") if pair % 2 == 0 else ("head", "base"):
+                        runs[model][name].append(timed(trees[name], specs[model], 40 + os.getpid() % 50))
+                        print(f"pair {pair + 1}/{args.pairs} {model} {name}: {runs[model][name][-1]['median_ms']:.3f} ms", flush=True)
+        finally:
+            for tree in trees.values():
+                subprocess.run(["git", "worktree", "remove", "--force", str(tree)], cwd=ROOT, check=False)
+    summary = {}
+    for model in models:
+        medians = {name: statistics.median(r["median_ms"] for r in runs[model][name]) for name in revisions}
+        summary[model] = {**{f"{name}_median_ms": value for name, value in medians.items()},
+                          "ratio": medians["head"] / medians["base"]}
+    md = [f"# Forecast cost per input at two revisions, alternated pairs ({args.name})", "",
+          f"`bench/bench_forecast_pairs.py {' '.join(sys.argv[1:])}`: base {revisions['base']}, head {revisions['head']}; "
+          f"{args.pairs} pairs, each run a fresh process timing `bench_nodes.forecast_cost` (carried forms, h = 50 at "
+          f"400 Hz, {SECONDS:g} s of inputs, in-process handler median), the first of each pair alternating.", "",
+          "| model | base [ms] | head [ms] | head / base | base runs [ms] | head runs [ms] |", "|---|---|---|---|---|---|"]
+    for model in models:
+        s = summary[model]
+        md.append(f"| {model} | {s['base_median_ms']:.3f} | {s['head_median_ms']:.3f} | {s['ratio']:.2f} | "
+                  + " | ".join(", ".join(f"{r['median_ms']:.2f}" for r in runs[model][name]) for name in ("base", "head")) + " |")
+    write_results(args.name, {"revisions": revisions, "pairs": args.pairs, "summary": summary, "runs": runs}, "\n".join(md))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
