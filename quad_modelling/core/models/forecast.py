@@ -26,7 +26,8 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   rollout is the one physics step (:func:`~quad_modelling.core.physics.rigid_body.step`, with the hybrid's
   correction) built once as a CasADi Function by the export
   (:func:`~quad_modelling.core.export.casadi_model.casadi_functions`: ``F_disturbed``) and chained h times
-  (:meth:`Step.chained`, compiled to C where a C compiler is found: :func:`compile_step`): one call instead of h numpy steps of a batch of
+  (:meth:`~quad_modelling.core.export.casadi_model.Step.chained`, compiled to C where a C compiler is found:
+  :func:`~quad_modelling.core.export.casadi_model.compile_step`): one call instead of h numpy steps of a batch of
   one (12 ms for h = 50 here). The accelerations of the states output (and of each row added to the observer) are
   the export's continuous dynamics ``f_disturbed`` compiled the same way (:func:`model_derivative`), the same
   equations as :func:`~quad_modelling.core.models.physics.outputs` and
