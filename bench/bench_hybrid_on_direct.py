@@ -1,4 +1,4 @@
-"""A hybrid built on the direct model: does a residual net on the linear acceleration improve its velocity? (#28 item 1)
+r"""A hybrid built on the direct model: does a residual net on the linear acceleration improve its velocity? (#28 item 1)
 
 #28 asks the hybrid to be no worse than the better of its parts on both angular velocity and velocity, per fold. The
 hybrid of ``train --hybrid`` is the physics model plus a residual net; held out by shape its AV is worse than NARX's in

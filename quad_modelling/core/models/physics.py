@@ -204,7 +204,7 @@ def observed_disturbance(t: np.ndarray, measured: np.ndarray, modelled: np.ndarr
 
 
 def modelled_integral(t: np.ndarray, modelled: np.ndarray) -> np.ndarray:
-    """(N, 6) the integral of the modelled accelerations ``modelled`` (N, 6) from t_0 to each row, left rectangles:
+    r"""(N, 6) the integral of the modelled accelerations ``modelled`` (N, 6) from t_0 to each row, left rectangles:
     :math:`I_k = \sum_{j<k} a_j (t_{j+1} - t_j)` (a carried form adds one term per row)."""
     dt = np.diff(t)
     return np.concatenate([np.zeros((1, 6)), np.cumsum(modelled[:-1] * dt[:, None], axis=0)])

@@ -195,7 +195,7 @@ def continue_yaw(previous, rot):
 
 
 def continued_yaw(yaw0: float, rot: np.ndarray) -> np.ndarray:
-    """(K,) continuous yaw of attitudes ``rot`` (K, 3, 3) from ``yaw0`` at row 0, each row unwrapped next to the one
+    r"""(K,) continuous yaw of attitudes ``rot`` (K, 3, 3) from ``yaw0`` at row 0, each row unwrapped next to the one
     before: :func:`continue_yaw` applied row by row, summed as its steps (ψ_k the yaw of rot_k, ψ̂_0 = ``yaw0``):
 
     .. math:: ψ̂_k = ψ̂_0 + \sum_{j=1}^{k} \mathrm{wrap}(ψ_j - ψ_{j-1}),\quad ψ_0 := ψ̂_0,\quad \mathrm{wrap}(a) = ((a + π) \bmod 2π) - π
