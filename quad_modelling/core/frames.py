@@ -210,6 +210,17 @@ def kinematic_acceleration(force_b: np.ndarray, euler: np.ndarray, gravity: floa
     return acc.reshape(np.shape(force_b))
 
 
+def body_to_down(vectors_b: np.ndarray, euler: np.ndarray) -> np.ndarray:
+    r"""(R v_B)_D (...,): the down component of body FRD vectors (..., 3) rotated into N (NED) with attitudes (..., 3)
+    [rad]: :func:`body_to_nav`'s D component alone, from R's third row, which holds no yaw:
+
+    .. math:: (R v)_D = -\sin\theta\, v_x + \sin\phi \cos\theta\, v_y + \cos\phi \cos\theta\, v_z
+    """
+    phi, theta = euler[..., 0], euler[..., 1]
+    cos_theta = np.cos(theta)
+    return -np.sin(theta) * vectors_b[..., 0] + np.sin(phi) * cos_theta * vectors_b[..., 1] + np.cos(phi) * cos_theta * vectors_b[..., 2]
+
+
 def tilt_cosine(euler: np.ndarray) -> np.ndarray:
     """R_33 = cos φ cos θ of Euler angles (..., 3) [rad]: the body z axis's down component (the share of a thrust
     along the body z axis that acts vertically)."""

@@ -151,6 +151,20 @@ def test_a_few_matrices_and_euler_rows_in_floats_equal_the_array_forms():
     assert np.isnan(frames.euler_ned_to_matrix(np.array([np.nan, 0.0, 0.0]))[0, 1:, 1:]).all()
 
 
+def test_the_down_component_alone_is_body_to_navs_and_needs_no_yaw():
+    """body_to_down is body_to_nav's D component for any yaw (R's third row holds none): rows and one (3,) vector;
+    level, it is the vector's own z."""
+    rng = np.random.default_rng(13)
+    euler = np.column_stack([rng.uniform(-np.pi, np.pi, 300), rng.uniform(-np.pi / 2, np.pi / 2, 300), rng.uniform(-np.pi, np.pi, 300)])
+    vectors = rng.normal(size=(300, 3)) * 9.81
+    down = frames.body_to_down(vectors, euler)
+    np.testing.assert_allclose(down, frames.body_to_nav(vectors, euler)[:, 2], rtol=0, atol=1e-13)
+    turned = euler + np.array([0.0, 0.0, 2.0])
+    np.testing.assert_array_equal(frames.body_to_down(vectors, turned), down)
+    assert np.isclose(frames.body_to_down(vectors[7], euler[7]), down[7], rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(frames.body_to_down(vectors, np.zeros((300, 3))), vectors[:, 2])
+
+
 def test_a_few_angles_unwrap_to_numpys_numbers():
     """unwrap_angles of up to FLOAT_UNWRAP_ROWS angles (floats) gives np.unwrap's numbers bit for bit: random jumps,
     steps of exactly ±π and 2π, NaN and ±inf (carried to every later row, as numpy does); longer vectors and

@@ -65,7 +65,6 @@ with; loading refuses another vehicle or changed constants, as the hybrid's. No 
 from __future__ import annotations
 
 import json
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import fields
 from pathlib import Path
@@ -76,16 +75,16 @@ from quad_modelling.core import frames
 from quad_modelling.core.export.casadi_model import ExportedModel, Step, casadi_functions, compile_step, given_rates_step
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
-from quad_modelling.core.models.forecast import CompiledWindowStream, PhysicsForecast
+from quad_modelling.core.models.forecast import CompiledWindowStream, PhysicsForecast, newest_first
 from quad_modelling.core.models.hybrid import physics_constants, trained_parameters
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
 from quad_modelling.core.models.physics import Disturbance, PhysicsPredictor, PhysicsStream
 from quad_modelling.core.models.streaming import WindowByStream
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
-from quad_modelling.core.preprocess import TrimConfig, nav_acceleration, state_measurement
+from quad_modelling.core.preprocess import TrimConfig, state_measurement
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import VehicleConfig
+from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
 from quad_modelling.errors import ConfigError, DataError, ModelError, reason
 
 KIND = "direct"
@@ -254,12 +253,11 @@ def vertical_features(log: FlightLog, anchors: np.ndarray, horizon: int, velocit
     tilt cos φ cos θ (the share of the thrust that points down), then the commands u_{s-L} .. u_{s+horizon}; rows
     before 0 are row 0."""
     anchors = np.asarray(anchors, dtype=int)
-    log.require(("acc_b",), "the direct model's vertical map (the accelerometer's down acceleration is an input)")
     past = np.maximum(anchors[:, None] - np.arange(velocity_history)[None, :], 0)
     rows = np.maximum(anchors[:, None] + np.arange(-lead, horizon + 1)[None, :], 0)
     euler = log.euler[anchors]
     averaged = np.maximum(anchors[:, None] - np.arange(acceleration_rows)[None, :], 0)
-    down_acc = nav_acceleration(log, rows=averaged.ravel())[:, 2].reshape(averaged.shape).mean(axis=1)
+    down_acc = down_acceleration(log, averaged.ravel()).reshape(averaged.shape).mean(axis=1)
     tilt = frames.tilt_cosine(euler)
     return np.concatenate([log.vel_n[past, 2], down_acc[:, None], tilt[:, None], log.u[rows].reshape(len(anchors), -1)], axis=1)
 
@@ -463,57 +461,60 @@ class DirectForecast(PhysicsForecast):
 
     def reset(self) -> None:
         super().reset()
-        self.rate_rows: deque = deque(maxlen=self.regression.rate_history)
-        lead = max(self.regression.lead, 0 if self.vertical is None else self.vertical.lead)
-        self.command_rows: deque = deque(maxlen=lead + 1)
+        # the last rows newest first (before the first row added, that row: anchor_features), None before any
+        self.rate_rows: np.ndarray | None = None  # (n_ω, 3) ω_s, ω_{s-1}, ... [rad/s]
+        self.command_rows: np.ndarray | None = None  # (max L + 1, 4) u_s, u_{s-1}, ...
         self.body_velocity = np.zeros(3)  # v^B at the last row [m/s]
         self.vertical_on = False  # the vertical map gives v_D from the last row (it has an accelerometer)
         if self.vertical is not None:
-            self.down_rows: deque = deque(maxlen=self.vertical.velocity_history)  # v_D of the last rows [m/s]
-            self.down_acceleration_rows: deque = deque(maxlen=self.vertical.acceleration_rows)  # a_D of the last rows [m/s²]
+            self.down_rows: np.ndarray | None = None  # (n_v,) v_D(s), v_D(s-1), ... [m/s]
+            self.down_acceleration_rows: np.ndarray | None = None  # (n_a,) a_D of the last rows [m/s²]
             self.tilt = 1.0  # cos φ cos θ at the last row
 
     def add(self, rows: FlightLog, first: int) -> None:
         super().add(rows, first)
-        self.rate_rows.extend(np.asarray(rows.gyro_b[first:], dtype=float))
-        self.command_rows.extend(np.asarray(rows.u[first:], dtype=float))
-        if first < len(rows):
-            self.body_velocity = frames.nav_to_body(rows.vel_n[-1], rows.euler[-1])
-        if self.vertical is not None and first < len(rows):
-            self.down_rows.extend(np.asarray(rows.vel_n[first:, 2], dtype=float))
+        if first >= len(rows):
+            return
+        r, lead = self.regression, max(self.regression.lead, 0 if self.vertical is None else self.vertical.lead)
+        self.rate_rows = newest_first(self.rate_rows, rows.gyro_b[first:], r.rate_history)
+        self.command_rows = newest_first(self.command_rows, rows.u[first:], lead + 1)
+        _, _, velocity, _, rotation = self.anchor[:5]  # the last row's (R with the continued yaw: the same R)
+        self.body_velocity = velocity @ rotation  # v^B = R^T v_N
+        if self.vertical is not None:
+            self.down_rows = newest_first(self.down_rows, rows.vel_n[first:, 2], self.vertical.velocity_history)
             self.vertical_on = rows.acc_b is not None  # without it the physics integrates v_D (DirectModel.uses_vertical)
             if self.vertical_on:
-                self.down_acceleration_rows.extend(nav_acceleration(rows, rows=np.arange(first, len(rows)))[:, 2])
-                self.tilt = float(frames.tilt_cosine(rows.euler[-1]))  # the last row's
+                added = down_acceleration(rows, np.arange(first, len(rows)))
+                self.down_acceleration_rows = newest_first(self.down_acceleration_rows, added, self.vertical.acceleration_rows)
+                self.tilt = float(rotation[2, 2])  # cos φ cos θ of the last row
             else:  # rows without the accelerometer: the next mean starts afresh, not across the gap
-                self.down_acceleration_rows.clear()
+                self.down_acceleration_rows = None
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         r = self.regression
         given = min(len(t_after), r.horizon)
-        rates = list(self.rate_rows)[::-1]  # ω_s, ω_{s-1}, ...; before the first row added, that row (anchor_features)
-        commands = list(self.command_rows)
-        rates += [rates[-1]] * (r.rate_history - len(rates))
-        commands = [commands[0]] * (self.command_rows.maxlen - len(commands)) + commands
         anchor = {"body_velocity": self.body_velocity}
         if "angular_disturbance" in r.anchor_inputs:
             anchor["angular_disturbance"] = self.disturbance().angular_b[0]
-        z = np.concatenate([np.ravel(rates), *(anchor[name] for name in r.anchor_inputs), np.ravel(commands[-(r.lead + 1):]),
-                            np.ravel(u_after[:given])])
-        self._w[:given] = rates[0] + r.changes_from(z, given)
+        z = np.concatenate([self.rate_rows.ravel(), *(anchor[name] for name in r.anchor_inputs),
+                            self.command_rows[r.lead::-1].ravel(), u_after[:given].ravel()])
+        self._w[:given] = self.rate_rows[0] + r.changes_from(z, given)
         self._gv[:] = 0.0
         if self.vertical_on:
             v = self.vertical
-            self._gv[:min(len(t_after), v.horizon)] = 1.0
-            down = list(self.down_rows)[::-1]  # v_D(s), v_D(s-1), ...; before the first row added, that row
-            down += [down[-1]] * (v.velocity_history - len(down))
             given_down = min(len(t_after), v.horizon)
-            accelerations = list(self.down_acceleration_rows)  # before the first row added, that row (vertical_features)
-            accelerations = [accelerations[0]] * (v.acceleration_rows - len(accelerations)) + accelerations
-            z_v = np.concatenate([down, [np.mean(accelerations), self.tilt], np.ravel(commands[-(v.lead + 1):]),
-                                  np.ravel(u_after[:given_down])])
-            self._v[:given_down] = down[0] + v.changes_from(z_v, given_down)[:, 0]
+            self._gv[:given_down] = 1.0
+            z_v = np.concatenate([self.down_rows, [self.down_acceleration_rows.mean(), self.tilt],
+                                  self.command_rows[v.lead::-1].ravel(), u_after[:given_down].ravel()])
+            self._v[:given_down] = self.down_rows[0] + v.changes_from(z_v, given_down)[:, 0]
         return super().predict(t_after, u_after, rows)
+
+
+def down_acceleration(log: FlightLog, rows: np.ndarray) -> np.ndarray:
+    """(len(rows),) a_D = (R f_B)_D + g [m/s²] at ``rows`` of ``log``: the down component of
+    :func:`~quad_modelling.core.preprocess.nav_acceleration` (:func:`~quad_modelling.core.frames.body_to_down`)."""
+    log.require(("acc_b",), "the direct model's vertical map (the accelerometer's down acceleration is an input)")
+    return frames.body_to_down(log.acc_b[rows], log.euler[rows]) + GRAVITY
 
 
 class CompiledDirectStream(CompiledWindowStream):
@@ -582,8 +583,6 @@ class DirectPredictor(WindowByStream):
         state, disturbance, _ = physics.anchor_state(self.model.params, warm, np.array([len(warm) - 1]), self.model.physics.observer, measured)
         voltage = physics.battery_voltage(self.model.params, warm)
         return measured, DirectStream(self.model, state, disturbance, warm, None if voltage is None else float(voltage[-1]))
-
-
 
     def predict_horizons(self, segment: FlightLog, starts: np.ndarray, horizon: int) -> np.ndarray:
         return self.model.predict_horizons(segment, starts, horizon)

@@ -260,6 +260,14 @@ class _Rows:
         self.start += count
 
 
+def newest_first(history: np.ndarray | None, added: np.ndarray, length: int) -> np.ndarray:
+    """The last ``length`` rows newest first: ``added`` (n, ...) in time order after ``history`` (newest first; None
+    before any row: the first added row stands for the rows before it, as row 0 does in the models' batch inputs)."""
+    if history is None:
+        history = np.repeat(added[:1], length, axis=0)
+    return np.concatenate([added[::-1], history])[:length]
+
+
 class PhysicsForecast:
     """Physics or hybrid model (``hybrid`` given), carried (module docstring)."""
 
