@@ -139,7 +139,7 @@ class PredictorNode(Node):
         self.clock_ = WindowClock(p["window_s"], p["warm_s"], p["sample_period_s"])
         self.child_frame = f"{self.name_}/base_link"
         self.world_frame = p["world_frame"]
-        self.out = messages.prediction_publisher_messages(self.child_frame, self.world_frame)
+        self.out = messages.SerializedPredictions(self.child_frame, self.world_frame)  # bytes rclpy publishes as they are
         out_qos, qos = history_qos(p["qos_depth"]), subscription_qos(p["qos"], p["qos_depth"])
         if self.horizon_s > 0:
             self.horizon_pub = self.create_publisher(Odometry, f"{self.name_}/horizon/odom", out_qos)

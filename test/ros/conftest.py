@@ -41,16 +41,21 @@ class Capture:
     """Stands in for a publisher: keeps what a node publishes, by stamp.
 
     Keeps a serialised round trip of each message, as a real publisher sends the
-    message's contents at ``publish`` (nodes may refill one message object).
+    message's contents at ``publish`` (nodes may refill one message object), and
+    reads serialized bytes, which a real publisher sends as they are, as
+    ``message_type`` (the replaced publisher's ``msg_type``).
     """
 
-    def __init__(self):
-        self.messages = []
+    def __init__(self, message_type: type | None = None):
+        self.messages, self.message_type = [], message_type
 
     def publish(self, msg) -> None:
         from rclpy.serialization import deserialize_message, serialize_message
 
-        self.messages.append(deserialize_message(serialize_message(msg), type(msg)))
+        if isinstance(msg, bytes):
+            self.messages.append(deserialize_message(msg, self.message_type))
+        else:
+            self.messages.append(deserialize_message(serialize_message(msg), type(msg)))
 
     def by_stamp(self) -> dict:
         from quad_modelling.io.topics import stamp_ns
