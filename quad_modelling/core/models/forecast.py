@@ -503,7 +503,7 @@ class NarxForecast:
         y = model.normalise_outputs(measured[:, OUTPUT_COLUMNS])
         padded = np.concatenate([np.repeat(y[:1], n_y - 1, axis=0), y])  # rows before the first repeat it (as offline)
         self._feedback[:] = padded[-n_y:].T  # y(s - n_y + 1 .. s), oldest first
-        self._z_u[:] = model.input_part(u)[s + 1:]
+        self._z_u[:] = model.input_part(u, s + 1)  # the h rows after the anchor
         self._evaluate()
         v = np.concatenate([measured[-1:, OUTPUT_COLUMNS], model.denormalise_outputs(self._outputs)])
         out = expand_horizons(model, measured, np.array([s]), v[None])[0]

@@ -149,10 +149,11 @@ def sigmoid(z: np.ndarray) -> np.ndarray:
     return 0.5 * (1.0 + np.tanh(0.5 * z))
 
 
-def lagged_inputs(u_norm: np.ndarray, input_delays: tuple[int, ...]) -> np.ndarray:
-    """(N, len(D_u)·n_u) matrix of [ũ(t−d)]_{d∈D_u}; rows before a delay's reach repeat ũ(0)."""
-    rows = np.maximum(np.arange(len(u_norm))[:, None] - np.asarray(input_delays, dtype=int)[None, :], 0)  # (N, |D_u|)
-    return u_norm[rows].reshape(len(u_norm), -1)  # one gather: the delays' blocks side by side, in D_u's order
+def lagged_inputs(u_norm: np.ndarray, input_delays: tuple[int, ...], first: int = 0) -> np.ndarray:
+    """(N - first, len(D_u)·n_u) matrix of [ũ(t−d)]_{d∈D_u} at rows t = first .. N - 1 of ``u_norm`` (N, n_u); rows
+    before a delay's reach repeat ũ(0)."""
+    rows = np.maximum(np.arange(first, len(u_norm))[:, None] - np.asarray(input_delays, dtype=int)[None, :], 0)
+    return u_norm[rows].reshape(len(rows), -1)  # one gather: the delays' blocks side by side, in D_u's order
 
 
 @dataclass
@@ -203,11 +204,11 @@ class NarxModel:
         """ỹ_k(t) = ρ ỹ_k(t−1) + s_k (w_{2,k}·h_k + b_{2,k}) from hidden activations (..., 6, H) and ỹ(t−1) (..., 6)."""
         return self.rho * previous + self.y_step * ((self.w_2 * hidden).sum(axis=-1) + self.b_2)
 
-    def input_part(self, u: np.ndarray) -> np.ndarray:
-        """(N, 6, H) the nets' pre-activations from the commands, :math:`W_u [ũ(t − d)]_{d ∈ D_u} + b_1`, of every row
-        of the raw commands ``u`` (N, n_u) (:func:`lagged_inputs`: rows before a delay's reach repeat u(0)), as one
-        matrix product."""
-        lagged = lagged_inputs(self.normalise_inputs(u), self.config.input_delays)
+    def input_part(self, u: np.ndarray, first: int = 0) -> np.ndarray:
+        """(N - first, 6, H) the nets' pre-activations from the commands, :math:`W_u [ũ(t − d)]_{d ∈ D_u} + b_1`, of
+        rows ``first`` .. N - 1 of the raw commands ``u`` (N, n_u) (:func:`lagged_inputs`: rows before a delay's reach
+        repeat u(0)), as one matrix product."""
+        lagged = lagged_inputs(self.normalise_inputs(u), self.config.input_delays, first)
         w_u = self.w_u
         return (lagged @ w_u.reshape(-1, w_u.shape[2]).T).reshape(len(lagged), *w_u.shape[:2]) + self.b_1
 
