@@ -92,6 +92,10 @@ class SerializedPredictions:
         sec, nanosec = divmod(int(ns), NANOSECONDS)
         return self._odom.fill([sec, nanosec, *odom.tolist()]), self._accel.fill([sec, nanosec, *accel.tolist()])
 
+    def odometry(self, ns: int, odom: np.ndarray) -> bytes:
+        """The Odometry of :meth:`fill` alone (the receding horizon publishes no AccelStamped)."""
+        return self._odom.fill([*divmod(int(ns), NANOSECONDS), *odom.tolist()])
+
 
 class _Template:
     """Serialized bytes and where each of its probed fields lies: contiguous fields written by one struct each."""

@@ -557,9 +557,8 @@ class PredictorNode(Node):
                 continue
             if not self._monotonic(ns):
                 continue
-            odom, accel = topics.prediction_fields(prediction[1])
-            o, _ = self.out.fill(ns, odom[0], accel[0])
-            self.horizon_pub.publish(o)
+            odom, _ = topics.prediction_fields(prediction[1])
+            self.horizon_pub.publish(self.out.odometry(ns, odom[0]))
             self.published += 1
 
     # --- lifecycle ----------------------------------------------------------------------------

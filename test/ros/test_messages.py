@@ -92,6 +92,7 @@ def test_serialized_predictions_deserialize_to_the_filled_messages():
             odom_bytes, accel_bytes = serialized.fill(ns, odom, accel)
             o, a = messages.prediction_messages(ns, odom, accel, child, world)
             assert deserialize_message(odom_bytes, Odometry) == o and deserialize_message(accel_bytes, AccelStamped) == a
+            assert serialized.odometry(ns, odom) == odom_bytes
             assert topics.stamp_ns(deserialize_message(odom_bytes, Odometry).header.stamp) == ns
             assert (len(odom_bytes), len(accel_bytes)) == (len(serialize_message(o)), len(serialize_message(a)))
 

@@ -25,7 +25,7 @@ from test.ros.conftest import Capture, feed, hover_log, interrupted_node
 def make_node(**params):
     overrides = [Parameter(k, value=v) for k, v in {"window_s": 5.0, "vehicle": "crazyflie21", **params}.items()]
     node = PredictorNode(parameter_overrides=overrides)
-    node.odom_pub, node.accel_pub = Capture(), Capture()
+    node.odom_pub, node.accel_pub = Capture(node.odom_pub.msg_type), Capture(node.accel_pub.msg_type)
     return node
 
 
