@@ -5,7 +5,9 @@ machine as much as the code. This benchmark checks out two revisions of this rep
 builds each model file once (this checkout's code: the file formats of both revisions must read it), then times
 ``bench_nodes.forecast_cost`` (carried forms, h = 50 at 400 Hz, a predictor node in-process, 4 s of inputs) of every
 model at each revision in a fresh process, alternating which revision goes first, ``--pairs`` times. It reports each
-revision's median of the per-run medians and their ratio; the runs themselves are in the JSON.
+revision's median of the per-run medians and their ratio, and the same of each run's median over a calibration
+workload's run before each input (``bench/common.py``: the machine's speed meanwhile; session 40); the runs
+themselves are in the JSON.
 
     python bench/bench_forecast_pairs.py BASE [HEAD] [--models greybox,physics] [--pairs 5] [--name forecast_pairs]
 
@@ -15,6 +17,7 @@ HEAD defaults to this checkout's HEAD. Results: ``bench/results/<name>.{json,md}
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import statistics
@@ -30,19 +33,40 @@ SECONDS = 4.0
 
 
 def one_run(root: str, spec: str) -> None:
-    """In a fresh process: ``forecast_cost`` of ``spec`` with the code at ``root``; prints its JSON."""
+    """In a fresh process: ``forecast_cost`` of ``spec`` with the code at ``root``; prints its JSON. A revision whose
+    ``forecast_cost`` does not run this checkout's ``calibration_ms`` before each input (before session 40's) gets it
+    run there, before each input's measurements, as ``forecast_cost`` does."""
+    loader = importlib.util.spec_from_file_location("this_checkouts_bench_common", Path(__file__).with_name("common.py"))
+    common = importlib.util.module_from_spec(loader)
+    loader.loader.exec_module(common)  # before the revision's code goes first on the path
     sys.path.insert(0, root)
     os.chdir(root)
     import rclpy
 
     from bench import bench_nodes
 
+    calibration: list[float] = []
+    if not hasattr(bench_nodes, "calibration_ms"):
+        from quad_modelling.nodes.predictor_node import PredictorNode
+
+        on_odom = PredictorNode.on_odom
+
+        def calibrated_on_odom(self, msg):
+            calibration.append(common.calibration_ms())
+            return on_odom(self, msg)
+
+        PredictorNode.on_odom = calibrated_on_odom
     rclpy.init()
     try:
         result = bench_nodes.forecast_cost(spec, True, SECONDS)
     finally:
         rclpy.shutdown()
-    print(json.dumps({key: result[key] for key in ("median_ms", "forecast_median_ms", "p99_ms", "published")}))
+    if calibration:
+        skipped = int(round(0.2 * bench_nodes.FORECAST_RATE_HZ)) + 20  # forecast_cost's first inputs left out
+        result["calibration_median_ms"] = statistics.median(calibration[skipped:])
+        result["relative_median"] = result["median_ms"] / result["calibration_median_ms"]
+    keys = ("median_ms", "forecast_median_ms", "p99_ms", "published", "calibration_median_ms", "relative_median")
+    print(json.dumps({key: result[key] for key in keys}))
 
 
 def timed(root: Path, spec: str, domain: int) -> dict:
@@ -96,16 +120,25 @@ def main() -> int:
     summary = {}
     for model in models:
         medians = {name: statistics.median(r["median_ms"] for r in runs[model][name]) for name in revisions}
+        relative = {name: statistics.median(r["relative_median"] for r in runs[model][name]) for name in revisions}
+        calibration = statistics.median(r["calibration_median_ms"] for name in revisions for r in runs[model][name])
         summary[model] = {**{f"{name}_median_ms": value for name, value in medians.items()},
-                          "ratio": medians["head"] / medians["base"]}
+                          "ratio": medians["head"] / medians["base"],
+                          **{f"{name}_relative": value for name, value in relative.items()},
+                          "relative_ratio": relative["head"] / relative["base"], "calibration_median_ms": calibration}
     md = [f"# Forecast cost per input at two revisions, alternated pairs ({args.name})", "",
           f"`bench/bench_forecast_pairs.py {' '.join(sys.argv[1:])}`: base {revisions['base']}, head {revisions['head']}; "
           f"{args.pairs} pairs, each run a fresh process timing `bench_nodes.forecast_cost` (carried forms, h = 50 at "
-          f"400 Hz, {SECONDS:g} s of inputs, in-process handler median), the first of each pair alternating.", "",
-          "| model | base [ms] | head [ms] | head / base | base runs [ms] | head runs [ms] |", "|---|---|---|---|---|---|"]
+          f"400 Hz, {SECONDS:g} s of inputs, in-process handler median), the first of each pair alternating. "
+          "`relative`: each run's handler median over the median of a fixed workload run before each of its inputs "
+          "(`bench/common.py` `calibration_ms`: the machine's speed meanwhile), the median over the runs; `head / base` "
+          "of the relatives is the comparison that the machine's changes of speed between runs leave alone.", "",
+          "| model | base relative | head relative | **head / base (relative)** | base [ms] | head [ms] | head / base [ms] | "
+          "calibration [ms] | base runs [ms] | head runs [ms] |", "|---|---|---|---|---|---|---|---|---|---|"]
     for model in models:
         s = summary[model]
-        md.append(f"| {model} | {s['base_median_ms']:.3f} | {s['head_median_ms']:.3f} | {s['ratio']:.2f} | "
+        md.append(f"| {model} | {s['base_relative']:.2f} | {s['head_relative']:.2f} | **{s['relative_ratio']:.2f}** | "
+                  f"{s['base_median_ms']:.3f} | {s['head_median_ms']:.3f} | {s['ratio']:.2f} | {s['calibration_median_ms']:.3f} | "
                   + " | ".join(", ".join(f"{r['median_ms']:.2f}" for r in runs[model][name]) for name in ("base", "head")) + " |")
     write_results(args.name, {"revisions": revisions, "pairs": args.pairs, "summary": summary, "runs": runs}, "\n".join(md))
     return 0

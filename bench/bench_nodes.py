@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from bench.common import write_results  # noqa: E402
+from bench.common import calibration_ms, write_results  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 os.environ.setdefault("ROS_DOMAIN_ID", str(os.getpid() % 90 + 10))
@@ -297,9 +297,10 @@ def forecast_cost(spec: str, carried: bool, seconds: float) -> dict:
         return iter(events)
 
     node.horizon.ready = timed_ready
-    forecasts = []
+    forecasts, calibration = [], []
     try:
         for row, ns in enumerate(stamps):
+            calibration.append(calibration_ms())  # the machine's speed now (bench.common.calibration_ms)
             node.on_odom(arrays.odometry(row, ns))
             node.on_imu(arrays.imu(row, ns))
             motor = arrays.motor(row, ns)
@@ -318,7 +319,9 @@ def forecast_cost(spec: str, carried: bool, seconds: float) -> dict:
     return {"model": spec.partition(":")[0], "form": form, "rate_hz": FORECAST_RATE_HZ, "horizon_s": FORECAST_HORIZON_S,
             "steps": node.horizon.steps, "inputs": len(stamps), "published": published, "faults": faults,
             "median_ms": float(np.median(cost)), "p99_ms": float(np.percentile(cost, 99)), "mean_ms": float(cost.mean()),
-            "forecast_median_ms": float(np.median(share)), "forecast_p99_ms": float(np.percentile(share, 99))}
+            "forecast_median_ms": float(np.median(share)), "forecast_p99_ms": float(np.percentile(share, 99)),
+            "calibration_median_ms": float(np.median(calibration[warm + 20:])),
+            "relative_median": float(np.median(cost) / np.median(calibration[warm + 20:]))}
 
 
 def forecast_markdown(costs: list[dict], keep_up: list[dict]) -> list[str]:
@@ -329,10 +332,14 @@ def forecast_markdown(costs: list[dict], keep_up: list[dict]) -> list[str]:
           "(`forecast`: `RecedingHorizon.ready`, the row's conversion included). Form: the model's carried-state forecast "
           "(`core/models/forecast.py`, its class named), or `history re-run`: the model's multi-step form over "
           "`horizon_history_s` (2.5 s) of rows at every input, as before it.", "",
-          "| model | form | inputs | forecasts | handler median [ms] | handler p99 [ms] | forecast median [ms] | forecast p99 [ms] |",
-          "|---|---|---|---|---|---|---|---|"]
+          "`calibration`: the median of a fixed workload run before each input (`bench/common.py` `calibration_ms`), the "
+          "machine's speed meanwhile; `relative` = handler median / calibration median, what compares runs at other "
+          "moments or on other machines.", "",
+          "| model | form | inputs | forecasts | handler median [ms] | handler p99 [ms] | forecast median [ms] | forecast p99 [ms] | calibration [ms] | relative |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {c['model']} | {c['form']} | {c['inputs']} | {c['published']} | {c['median_ms']:.3f} | {c['p99_ms']:.3f} | "
-           f"{c['forecast_median_ms']:.3f} | {c['forecast_p99_ms']:.3f} |" for c in costs]
+           f"{c['forecast_median_ms']:.3f} | {c['forecast_p99_ms']:.3f} | {c['calibration_median_ms']:.3f} | "
+           f"{c['relative_median']:.2f} |" for c in costs]
     md += ["", "## Receding-horizon forecasts at 400 Hz over DDS (predictor and evaluator processes, SCHED_FIFO)", "",
            "Held inputs, h = 50 (0.125 s): every input from the first anchor on must be answered by its forecast "
            "(stamped t_s + h dt); `dropped` = inputs without one. Latency as in the table above the input's publication "
