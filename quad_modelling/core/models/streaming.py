@@ -311,6 +311,7 @@ class RecedingHorizon:
         if not period_s:
             return None
         self.steps = max(1, int(round(self.horizon_s / period_s)))
+        self._ends = np.array([0, self.steps])  # the rows ends_only asks for: the anchor's and the last
         self.period_ns = int(round(period_s * 1e9))
         self.warm = max(1, int(round(self.warm_s / period_s)))
         self.keep = max(int(round(self.history_s / period_s)), self.warm)
@@ -358,6 +359,14 @@ class RecedingHorizon:
             return [self.rows[i] for i in range(s + 1, s + self.steps + 1)]
         ns, u, omega = self.rows[s]
         return [(ns + k * self.period_ns, u, omega) for k in range(1, self.steps + 1)]
+
+    def _after_arrays(self, s: int) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`_after` as (h,) stamps [ns] and (h, n_u) commands; held inputs built as arrays at once."""
+        if self.inputs == "flown":
+            after = self._after(s)
+            return np.array([r[0] for r in after], dtype=np.int64), np.array([r[1] for r in after])
+        ns, u, _ = self.rows[s]
+        return ns + self.period_ns * np.arange(1, self.steps + 1, dtype=np.int64), np.repeat(np.asarray(u)[None, :], self.steps, axis=0)
 
     def _predict(self, s: int, measurements: Callable) -> tuple:
         if self.carried is not None:
@@ -408,8 +417,7 @@ class RecedingHorizon:
         if len(rows) < 2:  # a log needs 2 rows: the time base's first anchor alone is re-run
             return self._predict_history(s, measurements)
         stamps = np.array([r[0] for r, _ in rows], dtype=np.int64)
-        after = self._after(s)
-        after_ns = np.array([r[0] for r in after], dtype=np.int64)
+        after_ns, u_after = self._after_arrays(s)
         try:
             log = self.make_log(stamps, [r for r, _ in rows], [m for _, m in rows])
             if log.gyro_b is None:  # the carried forms need the gyro: this time base is re-run over its history
@@ -417,8 +425,7 @@ class RecedingHorizon:
                 return self._predict_history(s, measurements)
             self.carried.add(log, 1 if self.context is not None else 0)
             self.context, self.fed = rows[-1], self.first + s + 1
-            prediction = self.carried.predict(after_ns / 1e9, np.array([r[1] for r in after]),
-                                              np.array([0, self.steps]) if self.ends_only else None)
+            prediction = self.carried.predict(after_ns / 1e9, u_after, self._ends if self.ends_only else None)
         except (QuadModellingError, ValueError) as err:
             self.carried = None  # its anchor may be half-added: the rest of this time base is re-run
             return "fault", "model_error", f"failed: {err}"
