@@ -53,9 +53,11 @@ def delayed_commands(p, u: np.ndarray, t: np.ndarray) -> np.ndarray:
     rows = np.searchsorted(t, target + STAMP_TOLERANCE_S, side="right") - 1  # <= N - 1
     j = np.maximum(rows, 0)  # np.minimum / np.maximum: np.clip's numbers at a tenth of its cost here
     nxt = np.minimum(j + 1, len(t) - 1)
-    span = t[nxt] - t[j]
-    f = np.where((rows >= 0) & (span > 0), (target - t[j]) / np.where(span > 0, span, 1.0), 0.0)
-    f = np.minimum(np.maximum(np.where(f * span <= STAMP_TOLERANCE_S, 0.0, f), 0.0), 1.0)[:, None]
+    t_j = t[j]
+    span = t[nxt] - t_j
+    f = np.divide(target - t_j, span, out=np.zeros(len(t)), where=(rows >= 0) & (span > 0))  # else 0: row 0 / equal stamps
+    f[f * span <= STAMP_TOLERANCE_S] = 0.0
+    f = np.minimum(np.maximum(f, 0.0), 1.0)[:, None]
     return (1.0 - f) * u[j] + f * u[nxt]
 
 

@@ -86,6 +86,22 @@ def test_delayed_commands_table_and_live_lookup_agree():
     assert np.array_equal(table[5], u[3])
 
 
+def test_delayed_commands_on_irregular_stamps_equal_the_live_lookup_row_by_row():
+    """Jittered stamps (some within STAMP_TOLERANCE_S of t - δ), repeated stamps and delays between, on and off the
+    samples: the table's rows are the live lookup's, bit for bit."""
+    rng = np.random.default_rng(40)
+    for trial in range(300):
+        n = int(rng.integers(2, 40))
+        t = np.sort(np.arange(n) * 0.01 + rng.choice([0.0, 3e-8, 2e-7], n) * rng.choice([-1.0, 1.0], n))
+        if trial % 3 == 0:
+            t[1:] = np.where(rng.random(n - 1) < 0.2, t[:-1], t[1:])  # repeated stamps
+        p = P.with_values(delay=float(rng.choice([0.01, 0.02, 0.015, 0.0123, 0.5])))
+        u = rng.normal(size=(n, 4))
+        table = rotors.delayed_commands(p, u, t)
+        live = [rotors.delayed_command_at(p, t[: k + 1].tolist(), list(u[: k + 1]), float(t[k])) for k in range(n)]
+        np.testing.assert_array_equal(table, np.array(live), err_msg=f"trial {trial}")
+
+
 def test_battery_factor_is_one_at_the_reference_voltage_and_linear_in_the_voltage():
     assert rotors.battery_speed_factor(3.9, 3.9, 0.2) == 1.0
     assert np.isclose(rotors.battery_speed_factor(3.7, 3.9, 0.2), 0.96)
