@@ -78,11 +78,10 @@ class SerializedPredictions:
     def __init__(self, child_frame: str, world_frame: str = WORLD_FRAME):
         from rclpy.serialization import serialize_message
 
-        self.messages, self._serialize = prediction_publisher_messages(child_frame, world_frame), serialize_message
         rng = np.random.default_rng(0)  # probe values: no two alike, none in the messages' other bytes
         ns = 1_234_567_890 * NANOSECONDS + 987_654_321
         odom, accel = rng.uniform(1e3, 2e3, 13), rng.uniform(2e3, 3e3, 6)
-        probes = self.messages.fill(ns, odom, accel)
+        probes = prediction_publisher_messages(child_frame, world_frame).fill(ns, odom, accel)
         stamp = [("i", ns // NANOSECONDS), ("I", ns % NANOSECONDS)]
         self._odom, self._accel = (_Template(serialize_message(message), stamp + [("d", v) for v in values.tolist()])
                                    for message, values in zip(probes, (odom, accel)))
