@@ -21,6 +21,15 @@ Gram matrix serves all of them. The score is a mean *absolute* error, so after t
 :math:`c_s = 1 / \max(r_s, \delta)`, :math:`r_s` its mean error norm over h = 1..H in the previous fit and δ =
 :data:`~quad_modelling.core.models.direct.ROBUST_FLOOR` times their median: a few violent anchors (a gust, a propeller
 strike) no longer pull every map.
+
+**The airframe's symmetries** (:mod:`quad_modelling.core.physics.symmetry`): the rate maps are fitted on the training
+anchors and their images under every symmetry g of the airframe (for the Crazyflie the mirror images across x and y
+and the turn by 180°), as if each training flight had also been flown mirrored. An image maps the inputs linearly,
+:math:`z' = T_g z` (the rates and the observer's disturbance by :math:`\det(M) M`, the body velocity by M, the commands
+permuted), and the rate changes by :math:`S_g = \det(M) M`, so the images' moments are those of the flights
+transformed, :math:`C'_{zz} = T_g C_{zz} T_g^T`, :math:`C'_{z\Delta y} = T_g C_{z\Delta y} S_g^T`, and no image is
+built. The symmetries form a group, so the fitted maps are equivariant and an image's error equals its original's:
+the reweighting needs no image either. Equal to fitting on mirrored copies of the flights (test).
 """
 
 from __future__ import annotations
@@ -53,6 +62,7 @@ from quad_modelling.core.models.direct import (
     vertical_features,
 )
 from quad_modelling.core.models.physics import PhysicsPredictor
+from quad_modelling.core.physics.symmetry import Symmetry, airframe_symmetries
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import gap_free_runs, rows_between
 from quad_modelling.errors import ConfigError, DataError
@@ -95,11 +105,16 @@ Targets = Callable[[Part], np.ndarray]
 """Δy (S, H, K) of a part's anchors."""
 
 
+Image = tuple[np.ndarray, np.ndarray]
+"""(T (D_H, D_H), S (K, K)): how one symmetry of the airframe maps the inputs z and the output changes Δy."""
+
+
 def ridge_maps(parts: Sequence[Part], weights: Sequence[np.ndarray], horizon: int, ridge: float, inputs: Inputs,
-               targets: Targets, count: Callable[[int], int]) -> tuple[np.ndarray, np.ndarray]:
+               targets: Targets, count: Callable[[int], int], images: Sequence[Image] = ()) -> tuple[np.ndarray, np.ndarray]:
     """(weights (H, D_H, K), bias (H, K)) minimising the c-weighted squared error plus the ridge (module docstring),
     from moments accumulated over ``parts`` with anchor weights ``weights`` (one array per part); ``count(h)`` = D_h.
-    DataError without a part."""
+    With ``images`` (a group of the airframe's symmetries, the identity among them), the moments of every anchor's
+    images too. DataError without a part."""
     if not parts:
         raise DataError("direct model: no gap-free part of the training spans holds an anchor with its history and horizon")
     n, sum_z, sum_zz, sum_y, sum_zy = 0.0, 0.0, 0.0, 0.0, 0.0
@@ -111,6 +126,10 @@ def ridge_maps(parts: Sequence[Part], weights: Sequence[np.ndarray], horizon: in
         sum_zz = sum_zz + cz.T @ z
         sum_y = sum_y + np.einsum("s,shk->hk", c, change)
         sum_zy = sum_zy + np.einsum("sd,shk->hdk", cz, change)
+    if images:
+        n, sum_z, sum_zz, sum_y, sum_zy = (
+            n * len(images), sum(t @ sum_z for t, _ in images), sum(t @ sum_zz @ t.T for t, _ in images),
+            sum(sum_y @ s.T for _, s in images), sum(np.einsum("ed,hdk,lk->hel", t, sum_zy, s) for t, s in images))
     mean_z, mean_y = sum_z / n, sum_y / n
     covariance = sum_zz / n - np.outer(mean_z, mean_z)
     variance = np.maximum(np.diag(covariance), 1e-12)
@@ -124,26 +143,50 @@ def ridge_maps(parts: Sequence[Part], weights: Sequence[np.ndarray], horizon: in
 
 
 def robust_maps(parts: Sequence[Part], horizon: int, ridge: float, robust_steps: int, inputs: Inputs, targets: Targets,
-                count: Callable[[int], int], make: Callable[[np.ndarray, np.ndarray], HorizonMaps]) -> HorizonMaps:
-    """``make(weights, bias)`` of the least-squares maps, then of ``robust_steps`` reweighted refits (module docstring)."""
+                count: Callable[[int], int], make: Callable[[np.ndarray, np.ndarray], HorizonMaps],
+                images: Sequence[Image] = ()) -> HorizonMaps:
+    """``make(weights, bias)`` of the least-squares maps, then of ``robust_steps`` reweighted refits (module docstring),
+    with the anchors' ``images`` under the airframe's symmetries."""
     weights = [np.ones(len(anchors)) for _, anchors, _ in parts]
-    maps = make(*ridge_maps(parts, weights, horizon, ridge, inputs, targets, count))
+    maps = make(*ridge_maps(parts, weights, horizon, ridge, inputs, targets, count, images))
     for _ in range(robust_steps):
         errors = [np.linalg.norm(targets(part) - maps.changes(inputs(part), horizon), axis=2).mean(axis=1) for part in parts]
         floor = ROBUST_FLOOR * float(np.median(np.concatenate(errors)))
         weights = [1.0 / np.maximum(r, max(floor, 1e-12)) for r in errors]
-        maps = make(*ridge_maps(parts, weights, horizon, ridge, inputs, targets, count))
+        maps = make(*ridge_maps(parts, weights, horizon, ridge, inputs, targets, count, images))
     return maps
+
+
+def rate_images(symmetries: Sequence[Symmetry], horizon: int, anchor_inputs: Sequence[str]) -> list[Image]:
+    """(T_g, S_g) of each symmetry for the rate maps' inputs z (:func:`~quad_modelling.core.models.direct.anchor_features`'
+    layout: n_ω rate rows, the ``anchor_inputs``, L + horizon + 1 command rows) and their rate changes."""
+    images = []
+    for symmetry in symmetries:
+        axial = symmetry.axial
+        anchor = {"body_velocity": symmetry.matrix, "angular_disturbance": axial}
+        permutation = np.eye(len(symmetry.source))[symmetry.source]  # (Π u)_j = u_source[j]
+        blocks = [np.kron(np.eye(RATE_HISTORY), axial), *[anchor[name] for name in anchor_inputs],
+                  np.kron(np.eye(COMMAND_LEAD + horizon + 1), permutation)]
+        size = sum(len(b) for b in blocks)
+        t, at = np.zeros((size, size)), 0
+        for block in blocks:
+            t[at:at + len(block), at:at + len(block)] = block
+            at += len(block)
+        images.append((t, axial))
+    return images
 
 
 def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], horizon: int = HORIZON,
                         ridge: float = RATE_RIDGE, robust_steps: int = ROBUST_STEPS,
                         angular_disturbance: Callable[[FlightLog, np.ndarray], np.ndarray] | None = None,
-                        anchor_inputs: Sequence[str] | None = None) -> tuple[RateRegression, int]:
+                        anchor_inputs: Sequence[str] | None = None,
+                        symmetries: Sequence[Symmetry] = ()) -> tuple[RateRegression, int]:
     """(the rate maps fitted on the ``spans`` [s from each flight's start; None: the whole flight] of ``logs``, number
     of anchors): ridge per horizon, then ``robust_steps`` reweighted refits (module docstring). The ``anchor_inputs``
     (default: the body velocity, and the observer's angular disturbance when ``angular_disturbance(flight, anchors)``
-    (S, 3) gives it, as :func:`train_direct` does with the physics model's observer). DataError when no gap-free part
+    (S, 3) gives it, as :func:`train_direct` does with the physics model's observer); with ``symmetries`` (a group, the
+    identity among them: :func:`~quad_modelling.core.physics.symmetry.airframe_symmetries`) fitted on the anchors'
+    images under them too (module docstring). DataError when no gap-free part
     of a span holds the lead and ``horizon`` rows after an anchor, or a flight lacks the gyro."""
     if horizon < 1:
         raise ConfigError(f"direct model: horizon {horizon} must be >= 1")
@@ -163,7 +206,8 @@ def fit_rate_regression(logs: Sequence[FlightLog], spans: Sequence[tuple[float, 
                              lambda part: anchor_features(part[0], part[1], horizon, part[2], anchor_inputs=inputs),
                              lambda part: rate_changes(part[0], part[1], horizon),
                              lambda h: feature_count(h, anchor_inputs=inputs),
-                             lambda weights, bias: RateRegression(weights, bias, anchor_inputs=inputs))
+                             lambda weights, bias: RateRegression(weights, bias, anchor_inputs=inputs),
+                             rate_images(symmetries, horizon, inputs))
     return regression, n
 
 

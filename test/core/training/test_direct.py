@@ -1,4 +1,5 @@
-"""Fitting the direct model's maps: the vertical map on a known vertical system, and what needs the accelerometer."""
+"""Fitting the direct model's maps: the vertical map on a known vertical system, what needs the accelerometer, and the
+rate maps fitted on the airframe's mirror images (equal to fitting on mirrored flights; equivariant)."""
 
 from __future__ import annotations
 
@@ -8,9 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.models.direct import ACCELERATION_ROWS, COMMAND_LEAD, VELOCITY_HISTORY, vertical_feature_count
-from quad_modelling.core.training.direct import fit_vertical_regression, train_direct
+from quad_modelling.core.physics.symmetry import Symmetry, airframe_symmetries
+from quad_modelling.core.training.direct import fit_rate_regression, fit_vertical_regression, train_direct
 from quad_modelling.core.vehicle import GRAVITY, load_vehicle
 from quad_modelling.errors import DataError
 from quad_modelling.io.loader import load_flight
@@ -96,3 +99,59 @@ def test_without_an_accelerometer_the_model_has_no_vertical_map_and_says_why():
         fit_vertical_regression([flight, no_imu], [None, None])
     assert "\n" not in str(err.value)
     assert train_direct([flight], [(5.0, 25.0)], vehicle).training["vertical_map"] == "fitted"
+
+
+def turning_flight(seed: int, rows: int = 3000) -> FlightLog:
+    """A 100 Hz flight with random commands, rates that follow them and the body velocity (an ARX system that is *not*
+    symmetric), a tilted, turning attitude and a wandering velocity: something to mirror."""
+    rng = np.random.default_rng(seed)
+    u = 40000.0 + rng.standard_normal((rows, 4)) * 800.0
+    vel_n = np.cumsum(rng.standard_normal((rows, 3)) * 0.02, axis=0)
+    euler = np.column_stack([0.2 * np.sin(np.arange(rows) / 70.0), 0.1 * np.cos(np.arange(rows) / 50.0),
+                             np.cumsum(rng.standard_normal(rows) * 0.01)])
+    vel_b = frames.nav_to_body(vel_n, euler)
+    gain = rng.standard_normal((3, 4)) * 2e-5
+    rates = np.zeros((rows, 3))
+    for k in range(rows - 1):
+        rates[k + 1] = 0.9 * rates[k] + gain @ (u[max(k - 3, 0)] - 40000.0) + 0.01 * vel_b[k] + 0.002 * rng.standard_normal(3)
+    return FlightLog(t=np.arange(rows) * DT, u=u, acc_b=np.zeros((rows, 3)) + [0.0, 0.0, -GRAVITY], gyro_b=rates,
+                     pos_n=np.cumsum(vel_n, axis=0) * DT, vel_n=vel_n, euler=euler, meta=FlightMeta("crazyflie21", f"turning {seed}"))
+
+
+def image_flight(log: FlightLog, symmetry: Symmetry) -> FlightLog:
+    """``log`` flown in the mirror: commands permuted, vectors M v, rates det(M) M ω, attitude M R M^T (the module
+    docstring of :mod:`quad_modelling.core.physics.symmetry`)."""
+    rotation = symmetry.matrix @ frames.euler_ned_to_matrix(log.euler) @ symmetry.matrix.T
+    return dataclasses.replace(log, u=log.u[:, symmetry.source], gyro_b=log.gyro_b @ symmetry.axial.T,
+                               acc_b=log.acc_b @ symmetry.matrix.T, pos_n=log.pos_n @ symmetry.matrix.T,
+                               vel_n=log.vel_n @ symmetry.matrix.T, euler=frames.matrix_to_euler_ned(rotation))
+
+
+def rate_step(log: FlightLog, anchors: np.ndarray) -> np.ndarray:
+    """A stand-in for the observer's angular disturbance that mirrors as one does: ω_s - ω_{s-1}."""
+    return log.gyro_b[anchors] - log.gyro_b[anchors - 1]
+
+
+def test_the_rate_maps_on_the_airframes_images_equal_the_maps_fitted_on_mirrored_flights_and_are_equivariant():
+    vehicle = load_vehicle("crazyflie21")
+    symmetries = airframe_symmetries(vehicle.motor_positions, vehicle.yaw_signs, vehicle.inertia)
+    assert len(symmetries) == 4
+    flights = [turning_flight(0), turning_flight(1, rows=2000)]
+    spans = [None, (2.0, 18.0)]
+    fitted = fit_rate_regression(flights, spans, horizon=12, angular_disturbance=rate_step, symmetries=symmetries)
+    mirrored = [image_flight(log, s) for s in symmetries for log in flights]
+    by_images = fit_rate_regression(mirrored, spans * len(symmetries), horizon=12, angular_disturbance=rate_step)
+    assert fitted[1] == by_images[1] // 4  # anchors: the flights' own
+    assert np.allclose(fitted[0].weights, by_images[0].weights, rtol=1e-9, atol=1e-9 * np.abs(by_images[0].weights).max())
+    # every rate axis changes sign under one of the four, so neither fit has a bias beyond rounding (u ~ 4e4 x w)
+    assert np.abs(fitted[0].bias).max() < 1e-9 and np.abs(by_images[0].bias).max() < 1e-9
+    plain = fit_rate_regression(flights, spans, horizon=12, angular_disturbance=rate_step)[0]
+    assert not np.allclose(plain.weights, fitted[0].weights, rtol=1e-3)  # the flights' system is not symmetric
+    # an image flight's predicted rates are the images of the flight's
+    held_out = turning_flight(2)
+    starts = np.arange(50, 2900, 13)
+    rates = fitted[0].rates(held_out, starts, 12, rate_step(held_out, starts))
+    for symmetry in symmetries:
+        image = image_flight(held_out, symmetry)
+        image_rates = fitted[0].rates(image, starts, 12, rate_step(image, starts))
+        assert np.allclose(image_rates, rates @ symmetry.axial.T, rtol=1e-9, atol=1e-12), symmetry.name
