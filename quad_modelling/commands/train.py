@@ -261,7 +261,9 @@ def run(args: argparse.Namespace) -> int:
     model.save(output, args.force)
     record = model.training  # the flights trained on, held-back validation flights not: the NARX's segments, else "flights"
     trained = len({seg["source"] for seg in record.get("segments", ())}) or len(record.get("flights") or args.flights)
-    print(f"trained {kind} model on {samples} samples of {trained} flight(s) in {elapsed:.1f} s -> {output}")
+    images = len(model.training.get("mirror_images") or ())
+    mirrored = f" and their {images} mirror images" if images else ""
+    print(f"trained {kind} model on {samples} samples of {trained} flight(s){mirrored} in {elapsed:.1f} s -> {output}")
     weights = model.training.get("weights") if kind == "narx" else None
     if weights and samples * len(NARX_OUTPUTS) < weights:  # fewer numbers to fit than weights: it can memorise them
         print(f"warning: {samples} training rows x {len(NARX_OUTPUTS)} outputs for {weights} weights: the NARX can learn these rows "

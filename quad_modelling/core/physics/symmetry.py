@@ -16,15 +16,21 @@ attitude as :math:`R' = M R M^T` (the navigation frame mirrored by the same M, s
 
 For the Crazyflie's "x" airframe (rotors at 45°, spins alternating) the symmetries are the identity, the mirror
 images across the x and the y axis, and the turn by 180°; a turn by 90° would carry a counter-clockwise rotor onto a
-clockwise one. The direct model's rate maps are fitted on the training flights and their images under these
-(:mod:`quad_modelling.core.training.direct`).
+clockwise one. The physics model with constants p keeps those of them its switched-on asymmetric terms keep
+(:func:`model_symmetries`: motor gains, a CG offset). The direct model's rate maps are fitted on the training flights
+and their images under these (:mod:`quad_modelling.core.training.direct`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
+
+from quad_modelling.core import frames
+from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.physics.parameters import PhysicsParameters
 
 POSITION_TOLERANCE = 0.02
 """A rotor's image must lie within this fraction of the largest rotor radius of a rotor (vehicle files give positions
@@ -60,6 +66,18 @@ class Symmetry:
         """(3, 3) det(M) M: how body rates, torques and angular accelerations map."""
         return float(np.linalg.det(self.matrix)) * self.matrix
 
+    def image(self, log: FlightLog) -> FlightLog:
+        """``log`` as flown in this symmetry's mirror (module docstring): commands and rotor speeds permuted, position,
+        velocity and specific force M v, body rates det(M) M ω, attitude M R M^T; time, battery and metadata kept."""
+        rotation = self.matrix @ frames.euler_ned_to_matrix(log.euler) @ self.matrix.T
+        euler = frames.matrix_to_euler_ned(rotation)
+        euler[:, 2] = np.unwrap(euler[:, 2])
+        return dataclasses.replace(
+            log, u=log.u[:, self.source], omega=None if log.omega is None else log.omega[:, self.source],
+            gyro_b=None if log.gyro_b is None else log.gyro_b @ self.axial.T,
+            acc_b=None if log.acc_b is None else log.acc_b @ self.matrix.T,
+            pos_n=log.pos_n @ self.matrix.T, vel_n=log.vel_n @ self.matrix.T, euler=euler)
+
 
 def airframe_symmetries(positions: np.ndarray, yaw_signs: np.ndarray, inertia: np.ndarray) -> tuple[Symmetry, ...]:
     """Every symmetry of an airframe with rotors at ``positions`` (R, 2) [m, FRD x, y], spins ``yaw_signs`` (R,)
@@ -86,3 +104,18 @@ def airframe_symmetries(positions: np.ndarray, yaw_signs: np.ndarray, inertia: n
         source[target] = np.arange(len(positions))
         found.append(Symmetry(name, matrix, source))
     return tuple(found)
+
+
+def model_symmetries(p: PhysicsParameters) -> tuple[Symmetry, ...]:
+    r"""The symmetries of the physics model with constants ``p``: the airframe's (:func:`airframe_symmetries` of its
+    rotor positions, spins and inertia) that also keep its switched-on asymmetric terms, the motor gains
+    (:math:`g_{\pi(i)} = g_i`) and the CG offset (:math:`m c = c`); rotor drag, ground effect, battery scaling and the
+    gyroscopic torques are symmetric under every one."""
+    found = airframe_symmetries(p.positions, p.spins, np.asarray(p.inertia, dtype=float))
+    if p.motor_gains is not None:
+        gains = np.asarray(p.motor_gains, dtype=float)
+        found = tuple(s for s in found if np.allclose(gains[s.source], gains, rtol=1e-9))
+    if p.cg_offset is not None:
+        offset = np.asarray(p.cg_offset, dtype=float)
+        found = tuple(s for s in found if np.allclose(s.matrix[:2, :2] @ offset, offset, rtol=1e-9, atol=1e-12))
+    return found

@@ -23,7 +23,8 @@ from quad_modelling.core.models.hybrid import (
     load_hybrid,
     observer_rows,
 )
-from quad_modelling.core.training.hybrid import HybridTrainingConfig, train_hybrid_on_flights
+from quad_modelling.core.physics.symmetry import model_symmetries
+from quad_modelling.core.training.hybrid import HybridTrainingConfig, flight_segments, segment_arrays, train_hybrid_on_flights
 from quad_modelling.core.models.physics import PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
@@ -200,6 +201,39 @@ def test_rollout_training_beats_the_physics_base_on_held_out_rows(trained, fligh
     for group in ("velocity", "angular_velocity"):
         g = groups.index(group)
         assert hybrid[g] < 0.8 * base[g], (group, hybrid[g], base[g])
+
+
+@pytest.mark.slow
+def test_the_physics_model_answers_a_flights_mirror_image_with_the_mirrored_motion(flight, params):
+    """What the hybrid's training reads of a flight's image under each symmetry of the physics model is the image of
+    what it reads of the flight: rotor speeds and commands permuted, velocity and the observer's linear disturbance
+    M v, rates and its angular disturbance det(M) M ω, attitude M R M^T."""
+    segment = flight.slice(500, 1500)
+    original = segment_arrays(params, segment, physics.Observer())
+    symmetries = model_symmetries(params)
+    assert len(symmetries) == 4
+    for s in symmetries:
+        image = segment_arrays(params, s.image(segment), physics.Observer())
+        m, axial = s.matrix, s.axial
+        assert np.allclose(image["rotor"], original["rotor"][:, s.source], rtol=1e-12)
+        assert np.array_equal(image["u"], original["u"][:, np.concatenate([s.source, 4 + s.source])])
+        assert np.allclose(image["vel"], original["vel"] @ m.T, atol=1e-12)
+        assert np.allclose(image["rates"], original["rates"] @ axial.T, atol=1e-12)
+        rot = original["rot"].reshape(-1, 3, 3)
+        assert np.allclose(image["rot"].reshape(-1, 3, 3), m @ rot @ m.T, atol=1e-12)
+        assert np.allclose(image["d"][:, :3], original["d"][:, :3] @ m.T, rtol=1e-9, atol=1e-9)
+        assert np.allclose(image["d"][:, 3:], original["d"][:, 3:] @ axial.T, rtol=1e-9, atol=1e-9)
+
+
+def test_the_training_flights_images_join_them_and_the_validation_stays_as_flown(trained, flight, params, span):
+    names = ["turn 180°", "mirror x -> -x", "mirror y -> -y"]
+    assert trained.training["mirror_images"] == names
+    from quad_modelling.core.training.rollout import RolloutWindows
+
+    history, horizon = trained.training["history_rows"], SMALL.rollout.horizon + 1
+    alone = len(RolloutWindows(flight_segments(params, [flight], [span], physics.Observer()), history, horizon))
+    assert trained.training["windows"] == 4 * alone
+    assert trained.training["flights"] == [flight.meta.source]
 
 
 @pytest.mark.slow

@@ -4,14 +4,17 @@ that the one physics' wrench of the permuted commands is the image of the wrench
 from __future__ import annotations
 
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from quad_modelling.core import frames
 from quad_modelling.core.physics import rigid_body
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.symmetry import airframe_symmetries
 from quad_modelling.core.vehicle import load_vehicle
+from quad_modelling.io.loader import load_flight
 
 
 def symmetries_of(name: str):
@@ -63,3 +66,40 @@ def test_the_wrench_of_the_permuted_rotors_is_the_image_of_the_wrench(name):
                                                             vel_b @ symmetry.matrix.T)
         assert np.allclose(image_force, force @ symmetry.matrix.T, rtol=1e-12, atol=1e-15), symmetry.name
         assert np.allclose(image_torque, torque @ symmetry.axial.T, rtol=1e-12, atol=1e-15), symmetry.name
+
+
+def test_a_flights_image_has_the_image_body_velocity_and_specific_force_and_a_mirror_image_twice_is_the_flight():
+    flight = load_flight(Path(__file__).resolve().parents[3] / "bags" / "nanobench_B7_oval_medium_rep2")
+    for symmetry in symmetries_of("crazyflie21"):
+        image = symmetry.image(flight)
+        assert np.array_equal(image.u, flight.u[:, symmetry.source]) and np.array_equal(image.t, flight.t)
+        assert np.allclose(frames.nav_to_body(image.vel_n, image.euler),
+                           frames.nav_to_body(flight.vel_n, flight.euler) @ symmetry.matrix.T, atol=1e-12)
+        assert np.allclose(frames.body_to_nav(image.acc_b, image.euler),
+                           frames.body_to_nav(flight.acc_b, flight.euler) @ symmetry.matrix.T, atol=1e-12)
+        assert np.allclose(image.gyro_b, flight.gyro_b @ symmetry.axial.T)
+        twice = symmetry.image(image)  # every symmetry of an "x" airframe is its own inverse
+        assert np.allclose(twice.gyro_b, flight.gyro_b) and np.array_equal(twice.u, flight.u)
+        assert np.allclose(frames.euler_ned_to_matrix(twice.euler), frames.euler_ned_to_matrix(flight.euler), atol=1e-12)
+
+
+def test_the_physics_model_keeps_only_the_symmetries_its_motor_gains_and_cg_offset_keep():
+    import dataclasses
+
+    from quad_modelling.core.physics.symmetry import model_symmetries
+
+    params = PhysicsParameters.from_vehicle(load_vehicle("crazyflie21"))
+    assert [s.name for s in model_symmetries(params)] == ["identity", "turn 180°", "mirror x -> -x", "mirror y -> -y"]
+    forward = dataclasses.replace(params, cg_offset=(0.001, 0.0))  # 1 mm forward: only right <-> left keeps it
+    assert [s.name for s in model_symmetries(forward)] == ["identity", "mirror y -> -y"]
+    right_weak = dataclasses.replace(params, motor_gains=(0.9, 0.9, 1.0, 1.0))  # M1, M2 (right) weaker: front <-> back
+    assert [s.name for s in model_symmetries(right_weak)] == ["identity", "mirror x -> -x"]
+    # and the wrench agrees: with the offset, the mirror across y is still one of the physics', the turn is not
+    rotor = np.random.default_rng(2).uniform(500.0, 2500.0, (4, 4))
+    zeros = np.zeros((4, 3))
+    force, torque = rigid_body.rotor_wrench(forward, rotor, np.zeros_like(rotor), zeros)
+    by_name = {s.name: s for s in symmetries_of("crazyflie21")}
+    for name, kept in (("mirror y -> -y", True), ("turn 180°", False)):
+        s = by_name[name]
+        image_torque = rigid_body.rotor_wrench(forward, rotor[:, s.source], np.zeros_like(rotor), zeros)[1]
+        assert np.allclose(image_torque, torque @ s.axial.T, rtol=1e-9, atol=1e-15) == kept, name

@@ -12,7 +12,7 @@ import pytest
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.models.direct import ACCELERATION_ROWS, COMMAND_LEAD, VELOCITY_HISTORY, vertical_feature_count
-from quad_modelling.core.physics.symmetry import Symmetry, airframe_symmetries
+from quad_modelling.core.physics.symmetry import airframe_symmetries
 from quad_modelling.core.training.direct import fit_rate_regression, fit_vertical_regression, train_direct
 from quad_modelling.core.vehicle import GRAVITY, load_vehicle
 from quad_modelling.errors import DataError
@@ -118,15 +118,6 @@ def turning_flight(seed: int, rows: int = 3000) -> FlightLog:
                      pos_n=np.cumsum(vel_n, axis=0) * DT, vel_n=vel_n, euler=euler, meta=FlightMeta("crazyflie21", f"turning {seed}"))
 
 
-def image_flight(log: FlightLog, symmetry: Symmetry) -> FlightLog:
-    """``log`` flown in the mirror: commands permuted, vectors M v, rates det(M) M ω, attitude M R M^T (the module
-    docstring of :mod:`quad_modelling.core.physics.symmetry`)."""
-    rotation = symmetry.matrix @ frames.euler_ned_to_matrix(log.euler) @ symmetry.matrix.T
-    return dataclasses.replace(log, u=log.u[:, symmetry.source], gyro_b=log.gyro_b @ symmetry.axial.T,
-                               acc_b=log.acc_b @ symmetry.matrix.T, pos_n=log.pos_n @ symmetry.matrix.T,
-                               vel_n=log.vel_n @ symmetry.matrix.T, euler=frames.matrix_to_euler_ned(rotation))
-
-
 def rate_step(log: FlightLog, anchors: np.ndarray) -> np.ndarray:
     """A stand-in for the observer's angular disturbance that mirrors as one does: ω_s - ω_{s-1}."""
     return log.gyro_b[anchors] - log.gyro_b[anchors - 1]
@@ -139,7 +130,7 @@ def test_the_rate_maps_on_the_airframes_images_equal_the_maps_fitted_on_mirrored
     flights = [turning_flight(0), turning_flight(1, rows=2000)]
     spans = [None, (2.0, 18.0)]
     fitted = fit_rate_regression(flights, spans, horizon=12, angular_disturbance=rate_step, symmetries=symmetries)
-    mirrored = [image_flight(log, s) for s in symmetries for log in flights]
+    mirrored = [s.image(log) for s in symmetries for log in flights]
     by_images = fit_rate_regression(mirrored, spans * len(symmetries), horizon=12, angular_disturbance=rate_step)
     assert fitted[1] == by_images[1] // 4  # anchors: the flights' own
     assert np.allclose(fitted[0].weights, by_images[0].weights, rtol=1e-9, atol=1e-9 * np.abs(by_images[0].weights).max())
@@ -152,6 +143,6 @@ def test_the_rate_maps_on_the_airframes_images_equal_the_maps_fitted_on_mirrored
     starts = np.arange(50, 2900, 13)
     rates = fitted[0].rates(held_out, starts, 12, rate_step(held_out, starts))
     for symmetry in symmetries:
-        image = image_flight(held_out, symmetry)
+        image = symmetry.image(held_out)
         image_rates = fitted[0].rates(image, starts, 12, rate_step(image, starts))
         assert np.allclose(image_rates, rates @ symmetry.axial.T, rtol=1e-9, atol=1e-12), symmetry.name
