@@ -13,6 +13,7 @@ thesis greybox's derived constants (:mod:`quad_modelling.core.models.greybox`).
 * :mod:`~quad_modelling.core.physics.aero`: rotor drag force and moment, ground-effect factor;
 * :mod:`~quad_modelling.core.physics.rigid_body`: wrench, gyroscopic torque, Newton-Euler derivative,
   integration step, mixer allocation;
+* :mod:`~quad_modelling.core.physics.symmetry`: the airframe's turns and mirror images, a flight's image under one;
 * :mod:`~quad_modelling.core.physics.arrays`: the few array operations, numpy or torch.
 
 The truth simulator (:mod:`quad_modelling.core.sim`) keeps its own, deliberately richer effect forms
