@@ -53,7 +53,7 @@ TARGET_S = 120.0
 SPANS = {"preset short (0%:60%)": ["--preset", "short"], "whole flying part (0%:100%)": ["--preset", "short", "--train", "0%:100%"]}
 """Training spans timed: the command's default with --preset short, and bench_models' (every fold's) span."""
 
-TRAINED = re.compile(r"trained hybrid model on (\d+) samples of (\d+) flight\(s\) in ([0-9.]+) s")
+TRAINED = re.compile(r"trained hybrid model on (\d+) samples of (\d+) flight\(s\)(?: and their \d+ mirror images)? in ([0-9.]+) s")
 
 
 def command(checkout: Path, argv: list[str]) -> tuple[list[str], dict]:
