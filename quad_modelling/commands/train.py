@@ -86,6 +86,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "velocity from direct multi-horizon ridge regressions (seconds; no torch)")
     parser.add_argument("--hybrid-hidden", metavar="W[,W...]", default=",".join(map(str, HYBRID_HIDDEN)),
                         help="hybrid: widths of the residual net's tanh hidden layers (default %(default)s)")
+    parser.add_argument("--no-mirror-images", action="store_true",
+                        help="hybrid: train on the flights alone, not also on their mirror images under the physics "
+                             "model's symmetries (docs/narx.md); for a vehicle less symmetric than its model")
     add_fanout_arguments(parser)
     parser.add_argument("--force", action="store_true", help="overwrite an existing model file")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -119,7 +122,7 @@ def training_spans(logs, args) -> list[tuple[float, float]]:
 ROLLOUT_OPTIONS = ("horizon", "rollout_epochs", "patience", "val_fraction", "val_flights", "seed")
 OPTIONS_READ = {
     "narx": ("hidden", "delays", "input_delays", "epochs", "training", *ROLLOUT_OPTIONS),
-    "hybrid": (*ROLLOUT_OPTIONS, "hybrid_hidden"),
+    "hybrid": (*ROLLOUT_OPTIONS, "hybrid_hidden", "no_mirror_images"),
     "direct": (),
 }
 """The model options each kind of model reads (argparse names); another one set away from its default is refused."""
@@ -134,9 +137,9 @@ def check_model_options(args: argparse.Namespace, kind: str) -> None:
     for name in every:
         value = getattr(args, name)
         if name not in OPTIONS_READ[kind] and value is not None and value != parser.get_default(name):
-            shown = " ".join(value) if isinstance(value, list) else value
+            shown = "" if value is True else " " + (" ".join(value) if isinstance(value, list) else str(value))  # a switch: its name
             reads = ", ".join("--" + n.replace("_", "-") for n in OPTIONS_READ[kind]) or "no model option (the fit is closed-form)"
-            raise ConfigError(f"--{name.replace('_', '-')} {shown}: the {kind} model does not read it (it reads {reads})")
+            raise ConfigError(f"--{name.replace('_', '-')}{shown}: the {kind} model does not read it (it reads {reads})")
 
 
 def training_configs(args: argparse.Namespace):
@@ -178,7 +181,7 @@ def check_ranges(options) -> None:
 
 def hybrid_config(args: argparse.Namespace):
     """The HybridTrainingConfig of the options (--horizon, --rollout-epochs, --patience, --val-fraction,
-    --hybrid-hidden), validated (ConfigError naming the flag)."""
+    --hybrid-hidden, --no-mirror-images), validated (ConfigError naming the flag)."""
     import dataclasses
 
     from quad_modelling.core.training.hybrid import HybridTrainingConfig
@@ -195,7 +198,8 @@ def hybrid_config(args: argparse.Namespace):
         raise ConfigError(f"--hybrid-hidden {args.hybrid_hidden!r}: one to four widths in [1, {MAX_HIDDEN}]")
     default = HybridTrainingConfig()
     rollout = dataclasses.replace(default.rollout, horizon=args.horizon, max_epochs=args.rollout_epochs, patience=args.patience)
-    return HybridTrainingConfig(hidden=hidden, rollout=rollout, val_fraction=args.val_fraction)
+    return HybridTrainingConfig(hidden=hidden, rollout=rollout, val_fraction=args.val_fraction,
+                                mirror_images=not args.no_mirror_images)
 
 
 def run(args: argparse.Namespace) -> int:

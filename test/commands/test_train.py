@@ -112,6 +112,13 @@ def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys)
     printed = capsys.readouterr().out
     assert "hybrid:" in printed
     assert "rollout fine-tuning: best epoch" in printed and "(one flight, none held back: in-sample)" in printed  # not 'validation'
+    assert model.training["mirror_images"] == ["turn 180°", "mirror x -> -x", "mirror y -> -y"]
+    alone = tmp_path / "alone.npz"
+    assert main([*args[:2], "-o", str(alone), *args[4:], "--no-mirror-images"]) == 0
+    record = load_hybrid(alone, load_vehicle("crazyflie21")).training
+    assert record["mirror_images"] == [] and record["config"]["mirror_images"] is False
+    assert record["samples"] == model.training["samples"] and record["windows"] * 4 == model.training["windows"]
+    assert "mirror images" not in capsys.readouterr().out
     assert main(["train", BAG, "-o", str(tmp_path / "bad.npz"), "--hybrid", "--preset", "short", "--hybrid-hidden", "0,x"]) == 2
     assert "--hybrid-hidden '0,x'" in capsys.readouterr().err
 
@@ -151,6 +158,7 @@ def test_train_direct_refuses_a_second_model_kind_and_validation_flights_in_one_
     (["--delays", "5"], "--hybrid", "--delays 5: the hybrid model does not read it (it reads --horizon, --rollout-epochs"),
     (["--training", "thesis"], "--hybrid", "--training thesis: the hybrid model does not read it"),
     (["--hybrid-hidden", "8"], None, "--hybrid-hidden 8: the narx model does not read it"),
+    (["--no-mirror-images"], "--direct", "--no-mirror-images: the direct model does not read it"),
 ])
 def test_train_refuses_an_option_the_chosen_model_does_not_read_in_one_line(option, kind, message, tmp_path, capsys):
     out = tmp_path / "model.npz"
