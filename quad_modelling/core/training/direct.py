@@ -39,6 +39,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 
 import numpy as np
+from scipy.linalg import block_diag
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
@@ -169,12 +170,7 @@ def rate_images(symmetries: Sequence[Symmetry], horizon: int, anchor_inputs: Seq
         permutation = np.eye(len(symmetry.source))[symmetry.source]  # (Π u)_j = u_source[j]
         blocks = [np.kron(np.eye(RATE_HISTORY), axial), *[anchor[name] for name in anchor_inputs],
                   np.kron(np.eye(COMMAND_LEAD + horizon + 1), permutation)]
-        size = sum(len(b) for b in blocks)
-        t, at = np.zeros((size, size)), 0
-        for block in blocks:
-            t[at:at + len(block), at:at + len(block)] = block
-            at += len(block)
-        images.append((t, axial))
+        images.append((block_diag(*blocks), axial))
     return images
 
 
