@@ -7,6 +7,7 @@ import sys
 import time
 
 from quad_modelling.commands import check_command_output, check_seed
+from quad_modelling.core.models.hybrid import COMMAND_FILTERS_S
 from quad_modelling.core.models.narx import MAX_DELAYS, MAX_HIDDEN
 from quad_modelling.core.models.narx import OUTPUTS as NARX_OUTPUTS
 from quad_modelling.core.training.hybrid import HYBRID_HIDDEN, HYBRID_ROLLOUT
@@ -86,6 +87,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         "velocity from direct multi-horizon ridge regressions (seconds; no torch)")
     parser.add_argument("--hybrid-hidden", metavar="W[,W...]", default=",".join(map(str, HYBRID_HIDDEN)),
                         help="hybrid: widths of the residual net's tanh hidden layers (default %(default)s)")
+    parser.add_argument("--command-filters", metavar="MS[,MS...]|none", default=",".join(f"{tau * 1000:g}" for tau in COMMAND_FILTERS_S),
+                        help="hybrid: time constants [ms] of the first-order lags of the logged commands the net reads "
+                             "(docs/narx.md); none: the net reads the commands of each sample only (default %(default)s)")
     parser.add_argument("--no-mirror-images", action="store_true",
                         help="hybrid: train on the flights alone, not also on their mirror images under the physics "
                              "model's symmetries (docs/narx.md); for a vehicle less symmetric than its model")
@@ -122,7 +126,7 @@ def training_spans(logs, args) -> list[tuple[float, float]]:
 ROLLOUT_OPTIONS = ("horizon", "rollout_epochs", "patience", "val_fraction", "val_flights", "seed")
 OPTIONS_READ = {
     "narx": ("hidden", "delays", "input_delays", "epochs", "training", *ROLLOUT_OPTIONS),
-    "hybrid": (*ROLLOUT_OPTIONS, "hybrid_hidden", "no_mirror_images"),
+    "hybrid": (*ROLLOUT_OPTIONS, "hybrid_hidden", "command_filters", "no_mirror_images"),
     "direct": (),
 }
 """The model options each kind of model reads (argparse names); another one set away from its default is refused."""
@@ -181,7 +185,7 @@ def check_ranges(options) -> None:
 
 def hybrid_config(args: argparse.Namespace):
     """The HybridTrainingConfig of the options (--horizon, --rollout-epochs, --patience, --val-fraction,
-    --hybrid-hidden, --no-mirror-images), validated (ConfigError naming the flag)."""
+    --hybrid-hidden, --command-filters, --no-mirror-images), validated (ConfigError naming the flag)."""
     import dataclasses
 
     from quad_modelling.core.training.hybrid import HybridTrainingConfig
@@ -199,7 +203,24 @@ def hybrid_config(args: argparse.Namespace):
     default = HybridTrainingConfig()
     rollout = dataclasses.replace(default.rollout, horizon=args.horizon, max_epochs=args.rollout_epochs, patience=args.patience)
     return HybridTrainingConfig(hidden=hidden, rollout=rollout, val_fraction=args.val_fraction,
-                                mirror_images=not args.no_mirror_images)
+                                mirror_images=not args.no_mirror_images, command_filters_s=command_filters(args.command_filters))
+
+
+MAX_COMMAND_FILTERS = 6
+"""Most command filters ``--command-filters`` takes (each adds four net inputs)."""
+
+
+def command_filters(text: str) -> tuple[float, ...]:
+    """``--command-filters`` MS[,MS...] (time constants in milliseconds) or ``none`` -> time constants [s]."""
+    if text.strip().lower() == "none":
+        return ()
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError as err:
+        raise ConfigError(f"--command-filters {text!r}: expected time constants in ms such as 30,100,300, or none") from err
+    if not 1 <= len(values) <= MAX_COMMAND_FILTERS or not all(0 < v <= 10000 for v in values) or len(set(values)) < len(values):
+        raise ConfigError(f"--command-filters {text!r}: one to {MAX_COMMAND_FILTERS} different time constants in (0, 10000] ms, or none")
+    return tuple(v / 1000.0 for v in values)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -63,13 +63,14 @@ def test_export_writes_functions_casadi_loads_and_their_layout(inputs, tmp_path,
     assert np.abs(after - hover).max() < 1e-6  # the loaded step holds the hover it was built around
 
 
-def test_export_of_a_hybrid_adds_the_logged_commands_to_the_input(inputs, tmp_path):
+def test_export_of_a_hybrid_adds_the_logged_commands_and_its_command_filters_to_the_input(inputs, tmp_path):
     out = tmp_path / "cf_hybrid"
     assert main(["export", str(inputs / "cf.yaml"), "--model", f"hybrid:{inputs / 'hybrid.npz'}", "--format", "casadi", "-o", str(out)]) == 0
     layout = yaml.safe_load((out / "layout.yaml").read_text())
-    assert layout["model"] == f"hybrid:{inputs / 'hybrid.npz'}"
-    assert [i["name"] for i in layout["input"]][4:] == ["u_logged_1", "u_logged_2", "u_logged_3", "u_logged_4", "battery_voltage"]
-    assert casadi.Function.load(str(out / "f_disturbed.casadi")).size1_in(1) == 9
+    assert layout["model"] == f"hybrid:{inputs / 'hybrid.npz'}" and layout["format_version"] == 2
+    filters = [f"u_filtered_{ms}ms_{i}" for ms in (30, 100, 300) for i in range(1, 5)]
+    assert [i["name"] for i in layout["input"]][4:] == ["u_logged_1", "u_logged_2", "u_logged_3", "u_logged_4", *filters, "battery_voltage"]
+    assert casadi.Function.load(str(out / "f_disturbed.casadi")).size1_in(1) == 9 + 12
 
 
 BAD = [

@@ -104,7 +104,8 @@ def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys)
             "--hybrid-hidden", "6,4", "--seed", "2", "--quiet"]
     assert main(args) == 0
     model = load_hybrid(out, load_vehicle("crazyflie21"))
-    assert model.net.hidden == (6, 4) and model.net.n_inputs == 21 and model.net.n_outputs == 6
+    assert model.net.hidden == (6, 4) and model.net.n_inputs == 21 + 12 and model.net.n_outputs == 6  # 3 command filters
+    assert model.filters == (0.03, 0.1, 0.3)
     assert model.training["seed"] == 2 and model.training["config"]["rollout"]["horizon"] == 5
     assert model.training["rollout"]["epochs_run"] == 1
     (span,) = model.training["spans"]  # preset short: drop 5 s, train on the first 60 % of the rest
@@ -121,6 +122,18 @@ def test_train_hybrid_writes_a_physics_plus_residual_net_model(tmp_path, capsys)
     assert "mirror images" not in capsys.readouterr().out
     assert main(["train", BAG, "-o", str(tmp_path / "bad.npz"), "--hybrid", "--preset", "short", "--hybrid-hidden", "0,x"]) == 2
     assert "--hybrid-hidden '0,x'" in capsys.readouterr().err
+    unfiltered = tmp_path / "unfiltered.npz"
+    assert main([*args[:2], "-o", str(unfiltered), *args[4:], "--command-filters", "none"]) == 0
+    plain = load_hybrid(unfiltered, load_vehicle("crazyflie21"))
+    assert plain.filters == () and plain.net.n_inputs == 21 and plain.training["config"]["command_filters_s"] == []
+    capsys.readouterr()
+    for text, message in (("30,x", "expected time constants in ms such as 30,100,300, or none"),
+                          ("0,100", "one to 6 different time constants in (0, 10000] ms, or none"),
+                          ("30,30", "one to 6 different time constants"), ("nan", "one to 6 different time constants")):
+        assert main(["train", BAG, "-o", str(tmp_path / "bad.npz"), "--hybrid", "--preset", "short", "--command-filters", text]) == 2
+        err = capsys.readouterr().err
+        assert f"--command-filters {text!r}: {message}" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "bad.npz").exists()
 
 
 @pytest.mark.slow
@@ -159,6 +172,7 @@ def test_train_direct_refuses_a_second_model_kind_and_validation_flights_in_one_
     (["--training", "thesis"], "--hybrid", "--training thesis: the hybrid model does not read it"),
     (["--hybrid-hidden", "8"], None, "--hybrid-hidden 8: the narx model does not read it"),
     (["--no-mirror-images"], "--direct", "--no-mirror-images: the direct model does not read it"),
+    (["--command-filters", "50"], None, "--command-filters 50: the narx model does not read it"),
 ])
 def test_train_refuses_an_option_the_chosen_model_does_not_read_in_one_line(option, kind, message, tmp_path, capsys):
     out = tmp_path / "model.npz"

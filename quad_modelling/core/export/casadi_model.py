@@ -12,8 +12,10 @@ Layout (:data:`STATE`, :func:`input_names`, :data:`DISTURBANCE`), SI units, N = 
   body rates ω = (p, q, r) [rad/s], rotor speeds Ω_1..4 [rad/s] (command order);
 * input u: the four commands the rotors answer now [input unit] -- the command logged δ = ``rotor_delay`` earlier
   (the model's command delay is not inside f: an MPC shifts its inputs by δ, docs/export.md) -- then, for a hybrid,
-  the four commands logged at this sample (the net's other input), then, with the ``battery`` term on, the battery
-  voltage V [V];
+  the four commands logged at this sample (the net's other input) and, for a hybrid with command filters, the
+  filters' inputs z_j - u (4 per filter, :func:`~quad_modelling.core.models.hybrid.filter_inputs`: the logged commands
+  through a first-order lag of τ_j, minus the logged ones; an MPC carries z as states, z_{k+1} = u_k + (z_k - u_k)
+  exp(-dt/τ_j), docs/export.md), then, with the ``battery`` term on, the battery voltage V [V];
 * disturbance d (6), of the ``*_disturbed`` Functions only: the disturbance observer's constant accelerations
   :math:`\hat d_v` [m/s², N] and :math:`\hat d_\omega` [rad/s², B] (:class:`~quad_modelling.core.models.physics.Observer`),
   added to the rigid body's as in the model's predictions.
@@ -47,8 +49,9 @@ from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY, PHYSICS_KEYS, VehicleConfig
 from quad_modelling.errors import ConfigError
 
-FORMAT_VERSION = 1
-"""Version of the export's layout (``layout.yaml``); bumped when the state or input layout changes."""
+FORMAT_VERSION = 2
+"""Version of the export's layout (``layout.yaml``); bumped when the state or input layout changes (2: a hybrid's command
+filters among its inputs)."""
 
 STATE: tuple[tuple[str, str, str], ...] = (
     *((f"pos_n_{a}", "m", f"position {a} in N (NED)") for a in "xyz"),
@@ -119,6 +122,8 @@ def input_names(model: ExportedModel) -> tuple[tuple[str, str, str], ...]:
     names = [(f"u_{i}", unit, f"command rotor {i} answers now: the logged commands at t - rotor_delay") for i in range(1, 5)]
     if model.hybrid is not None:
         names += [(f"u_logged_{i}", unit, f"command of rotor {i} logged at this sample (the net's input)") for i in range(1, 5)]
+        names += [(f"u_filtered_{tau * 1000:g}ms_{i}", unit, f"rotor {i}'s logged commands through a first-order lag of {tau:g} s, "
+                   "minus its command logged at this sample (the net's input)") for tau in model.hybrid.filters for i in range(1, 5)]
     if model.params.battery is not None:
         names.append(("battery_voltage", "V", "measured battery voltage (battery term)"))
     return tuple(names)
@@ -153,7 +158,7 @@ def _dynamics(model: ExportedModel, x, u, d, dt=None, rates_next=None, down_velo
     disturbance = _elements(d)[None, :]
     linear, angular = disturbance[:, 0:3], disturbance[:, 3:6]
     if model.hybrid is not None:
-        correction = model.hybrid.correction(state, np.concatenate([commands, inputs[None, 4:8]], axis=1))
+        correction = model.hybrid.correction(state, np.concatenate([commands, inputs[None, 4:8 + 4 * len(model.hybrid.filters)]], axis=1))
         linear, angular = linear + correction[:, 0:3], angular + correction[:, 3:6]
     if dt is None:
         return _column(rigid_body.derivative(model.params, state, commands, linear, angular))

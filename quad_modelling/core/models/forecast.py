@@ -22,7 +22,8 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   unwrapped yaw and the observer's rows of the last ``max(linear_s, angular_s)`` (time, velocity, rates and the
   integral of the model's acceleration, with the hybrid's net correction: its observer subtracts the net's mean, which
   is the mean of the sum; :func:`~quad_modelling.core.models.physics.modelled_integral` one term per row), whose means
-  are :func:`~quad_modelling.core.models.physics.disturbance_means` itself. The h-step
+  are :func:`~quad_modelling.core.models.physics.disturbance_means` itself, and the hybrid's command filters'
+  states (over the horizon :func:`~quad_modelling.core.models.hybrid.filtered_commands` from the anchor's). The h-step
   rollout is the one physics step (:func:`~quad_modelling.core.physics.rigid_body.step`, with the hybrid's
   correction) built once as a CasADi Function by the export
   (:func:`~quad_modelling.core.export.casadi_model.casadi_functions`: ``F_disturbed``) and chained h times
@@ -77,7 +78,7 @@ from quad_modelling.core.export.casadi_model import (
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, lifted_horizons
-from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor
+from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor, filter_inputs, filter_step, filtered_commands
 from quad_modelling.core.models.narx import OUTPUT_COLUMNS, OUTPUTS, NarxPredictor, expand_horizons
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -297,6 +298,7 @@ class PhysicsForecast:
         self.rotor_command = None  # the effective command the rotors answered at the last row
         self.last_t = None  # time of the last row [s]
         self.anchor = None  # (t, pos, vel, euler with continuous yaw, R, rates, rotor, logged u, voltage) of the last row
+        self.filtered = None  # the hybrid's command filters' states (M, 4) at the last row
         self._disturbance = None  # disturbance() of the last row, once asked
 
     def add(self, rows: FlightLog, first: int) -> None:
@@ -323,9 +325,10 @@ class PhysicsForecast:
         euler[:, 2] = yaw
         rot = frames.euler_ned_to_matrix(euler)
         pos, vel, rates = rows.pos_n[first:], rows.vel_n[first:], rows.gyro_b[first:]
+        filtered = self._filters_at(rows, first)
         no_disturbance = np.zeros(6)
         for i in range(n):  # the modelled accelerations (the hybrid's with its correction): the compiled f at each row
-            u = self._inputs(delayed[i], rows.u[first + i], None if voltage is None else voltage[i])
+            u = self._inputs(delayed[i], rows.u[first + i], None if voltage is None else voltage[i], None if filtered is None else filtered[i])
             xdot = self.derivative(state_vector(pos[i], vel[i], rot[i], rates[i], rotor[i]), u, no_disturbance)
             t_i = float(rows.t[first + i])
             last = self.observer_rows.last()
@@ -338,6 +341,16 @@ class PhysicsForecast:
                        rows.u[-1].copy(), None if voltage is None else float(voltage[-1]))
         self._forget(t_last)
         self._disturbance = None
+
+    def _filters_at(self, rows: FlightLog, first: int) -> np.ndarray | None:
+        """The hybrid's command filters' states (n, M, 4) at rows ``first ..`` of ``rows``, from the last row added (the
+        context row; a time base's first row: settled on its command); None without filters."""
+        if self.hybrid is None or not self.hybrid.filters:
+            return None
+        begin = first if self.filtered is None else first - 1
+        filtered = filtered_commands(rows.u[begin:], rows.t[begin:], self.hybrid.filters, self.filtered)[first - begin:]
+        self.filtered = filtered[-1]
+        return filtered
 
     def _forget(self, t_last: float) -> None:
         """Drop the commands no later delay can need (keep the last at or before t - δ) and the observer's rows no
@@ -369,9 +382,12 @@ class PhysicsForecast:
         logged = np.concatenate([u_s[None, :], u_after])
         delayed = delayed_commands(p, np.concatenate([self.commands.view(), u_after]), np.concatenate([self.times, t_after]))[-(h + 1):]
         disturbance = self.disturbance()
-        self._u[:, 0:4] = delayed[:h]  # the export's input layout: delayed commands, logged ones (hybrid), voltage
+        self._u[:, 0:4] = delayed[:h]  # the export's input layout: delayed commands, logged ones (hybrid), filters, voltage
+        filtered = None if self.filtered is None else filtered_commands(logged, t, self.hybrid.filters, self.filtered)  # (h + 1, M, 4)
         if self.hybrid is not None:
             self._u[:, 4:8] = logged[:h]
+            if filtered is not None:
+                self._u[:, 8:8 + 4 * len(self.hybrid.filters)] = filter_inputs(filtered[:h], logged[:h])
         if p.battery is not None:
             self._u[:, -1] = voltage
         x0 = self._x0
@@ -384,12 +400,14 @@ class PhysicsForecast:
         states = PhysicsState(x[:, 0:3], x[:, 3:6], rot, x[:, 15:18], x[:, 18:22], continued_yaw(float(euler[2]), rot))
         rows = np.arange(h + 1) if rows is None else np.asarray(rows)
         d = np.concatenate([disturbance.linear_n[0], disturbance.angular_b[0]])
-        return np.array([output_row(x[r], self.derivative(x[r], self._inputs(delayed[r], logged[r], voltage), d), states.yaw[r])
+        return np.array([output_row(x[r], self.derivative(x[r], self._inputs(delayed[r], logged[r], voltage,
+                                                                             None if filtered is None else filtered[r]), d), states.yaw[r])
                          for r in rows.tolist()])
 
-    def _inputs(self, delayed: np.ndarray, logged: np.ndarray, voltage: float | None) -> np.ndarray:
-        """The export's input layout of one sample: the delayed command, the logged one (hybrid), the voltage (battery)."""
-        parts = [delayed, logged] if self.hybrid is not None else [delayed]
+    def _inputs(self, delayed: np.ndarray, logged: np.ndarray, voltage: float | None, filtered: np.ndarray | None = None) -> np.ndarray:
+        """The export's input layout of one sample: the delayed command, the logged one (hybrid), the inputs of the
+        command filters at their states ``filtered`` (M, 4) (hybrid), the voltage (battery)."""
+        parts = [delayed] if self.hybrid is None else [delayed, logged] if filtered is None else [delayed, logged, filter_inputs(filtered, logged)]
         return np.concatenate([*parts, [voltage]] if self.params.battery is not None else parts)
 
 
@@ -547,6 +565,10 @@ class CompiledWindowStream:
         if self.hybrid is not None:
             self._u[4:8] = s.commands[-2][0]  # the command logged at the previous sample
             self._u_now[4:8] = command[0]
+            if s.filtered is not None:  # the filters' inputs before the step, then at the new sample
+                n, logged = 8 + 4 * len(self.hybrid.filters), s.commands[-2][0]
+                self._u[8:n], s.filtered = filter_inputs(s.filtered, logged), filter_step(s.filtered, logged, dt, self.hybrid.filters)
+                self._u_now[8:n] = filter_inputs(s.filtered, command[0])
         if p.battery is not None:
             self._u[-1] = self._u_now[-1] = s.voltage
         self._dt[0] = dt

@@ -7,7 +7,8 @@ corrects the linear and angular accelerations from the current model state and c
 
 .. math::
 
-    f_k = \big(R_k^T v_{N,k},\ R_k^T e_z,\ \omega_k,\ \tilde u_k,\ \Omega_k,\ u_k\big) \in \mathbb{R}^{21}, \qquad
+    f_k = \big(R_k^T v_{N,k},\ R_k^T e_z,\ \omega_k,\ \tilde u_k,\ \Omega_k,\ u_k,\ z_{1,k} - u_k, \dots,
+    z_{M,k} - u_k\big) \in \mathbb{R}^{21 + 4M}, \qquad
     (\Delta a_{B,k}, \Delta\alpha_k) = \mathrm{net}(f_k)
 
     \dot v_N = a_{phys} + \hat d_v + R_k \Delta a_{B,k}, \qquad
@@ -17,7 +18,16 @@ corrects the linear and angular accelerations from the current model state and c
 pitch, yaw-free), :math:`\omega` body rates [rad/s], :math:`\tilde u` the commands the rotors answer (the physics
 model's delayed commands, :func:`~quad_modelling.core.physics.rotors.delayed_commands`), :math:`\Omega` rotor speeds
 [rad/s], :math:`u_k` the command logged at sample k (the controller's newest, which the rotors answer only after
-the delay; a model input, like every command); :math:`\Delta a_B` [m/s², FRD], :math:`\Delta\alpha` [rad/s², FRD]). The corrected accelerations are
+the delay; a model input, like every command); :math:`z_j` the logged commands through a first-order lag of time
+constant :math:`\tau_j` (the *command filters*, :data:`COMMAND_FILTERS_S`; their memory of the commands of the last
+0.03-1 s, which the rotor speeds' one lag does not hold),
+
+.. math::
+
+    z_{j,0} = u_0, \qquad z_{j,k+1} = u_k + (z_{j,k} - u_k)\, e^{-(t_{k+1} - t_k)/\tau_j}
+
+(:func:`filtered_commands`: :math:`z_{j,k}` reads the commands of rows < k); :math:`\Delta a_B` [m/s², FRD],
+:math:`\Delta\alpha` [rad/s², FRD]). The corrected accelerations are
 handed to the physics step as its per-step disturbance, so the hybrid integrates exactly as the physics model
 does and reduces to it when the net's last layer is zero (a fresh net).
 
@@ -57,7 +67,7 @@ from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsStr
 from quad_modelling.core.physics.arrays import as_array, rotate, rotate_back
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
-from quad_modelling.core.physics.rotors import delayed_commands, effective_commands
+from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, first_order_scan
 from quad_modelling.core.models.residual_net import ResidualNet
 from quad_modelling.core.models.streaming import WindowByStream
 from quad_modelling.core.preprocess import TrimConfig, state_measurement
@@ -71,8 +81,15 @@ FEATURES: tuple[str, ...] = (
     "vel_b_x", "vel_b_y", "vel_b_z", "down_b_x", "down_b_y", "down_b_z", "roll_rate", "pitch_rate", "yaw_rate",
     "u1", "u2", "u3", "u4", "rotor1", "rotor2", "rotor3", "rotor4", "u_logged1", "u_logged2", "u_logged3", "u_logged4",
 )
-"""The net's inputs f_k (module docstring): body velocity [m/s], gravity direction R^T e_z in B, body rates
-[rad/s], delayed commands [input unit], rotor speeds [rad/s], logged commands [input unit]."""
+"""The net's inputs f_k without command filters (module docstring): body velocity [m/s], gravity direction R^T e_z in
+B, body rates [rad/s], delayed commands [input unit], rotor speeds [rad/s], logged commands [input unit]; with
+filters :func:`features` adds their differences to the logged commands."""
+
+COMMAND_FILTERS_S: tuple[float, ...] = (0.03, 0.1, 0.3)
+"""Time constants τ_j [s] of a trained hybrid's command filters (module docstring): one near the rotor lag, one near
+the attitude loop's response, one slower; chosen once, before any score, and not tuned. Held out by shape on the
+NanoBench flights they took the hybrid's angular-velocity SimErr ratio from 0.642 to 0.580 pooled (every fold lower,
+docs/narx.md). A model file without them (saved before) has none, and predicts as it did."""
 
 CORRECTIONS: tuple[str, ...] = ("acc_b_x", "acc_b_y", "acc_b_z", "roll_acc", "pitch_acc", "yaw_acc")
 """The net's outputs: linear acceleration correction Δa_B [m/s², FRD], angular acceleration correction Δα [rad/s², FRD]."""
@@ -81,20 +98,66 @@ TRAINED_ON: tuple[str, ...] = ("vel_x", "vel_y", "vel_z", "roll_rate", "pitch_ra
 """The variables the rollout loss compares (the header's ``outputs``)."""
 
 
+def features(filters: tuple[float, ...]) -> tuple[str, ...]:
+    """The net's input names with command filters of time constants ``filters`` [s]: :data:`FEATURES`, then per
+    filter j and rotor i ``u_filtered_<τ_j in ms>ms_<i>`` (:math:`z_{j} - u`, module docstring)."""
+    return FEATURES + tuple(f"u_filtered_{tau * 1000:g}ms_{i}" for tau in filters for i in range(1, 5))
+
+
+def filtered_commands(u: np.ndarray, t: np.ndarray, filters: tuple[float, ...], start: np.ndarray | None = None) -> np.ndarray:
+    r"""(N, M, 4) the command filters' states :math:`z_{j,k}` (module docstring) of the logged commands ``u`` (N, 4)
+    stamped ``t`` (N,) [s], time constants ``filters`` (M,) [s]; ``start`` (M, 4): :math:`z_{j,0}` (None: :math:`u_0`,
+    the filters settled on the first command). Row k reads the commands of rows < k only. The recursion over the
+    whole series at once, as the rotor lag's (:func:`~quad_modelling.core.physics.rotors.first_order_scan`); one
+    command held over the rows (a receding horizon's held inputs) in its closed form
+    :math:`z_{j,k} = u_0 + (z_{j,0} - u_0)\, e^{-(t_k - t_0)/\tau_j}` (a quarter of the scan's cost)."""
+    u, t = np.asarray(u, dtype=float), np.asarray(t, dtype=float)
+    z = np.empty((len(u), len(filters), 4))
+    if not len(u):
+        return z
+    z[0] = u[0] if start is None else start
+    if len(u) > 2 and (u[1:-1] == u[0]).all():  # held: row k reads u_0 .. u_{k-1}, all u_0 (the last row's is read by none)
+        z[1:] = u[0] + (z[0] - u[0]) * np.exp(-(t[1:] - t[0])[:, None, None] / np.asarray(filters, dtype=float)[None, :, None])
+        return z
+    decay = np.exp(-np.diff(t)[:, None, None] / np.asarray(filters, dtype=float)[None, :, None]) \
+        * np.ones((1, len(filters), 4))
+    gain, offset = first_order_scan(decay, (1.0 - decay) * u[:-1, None, :])
+    z[1:] = gain * z[0] + offset
+    return z
+
+
+def filter_step(z: np.ndarray, u: np.ndarray, dt: float, filters: tuple[float, ...]) -> np.ndarray:
+    """The filters' states (M, 4) one sample interval ``dt`` [s] after ``z`` (M, 4), the command ``u`` (4,) held over it
+    (:func:`filtered_commands`' recursion)."""
+    return u + (z - u) * np.exp(-dt / np.asarray(filters, dtype=float))[:, None]
+
+
+def filter_inputs(z: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The net's filter inputs :math:`z_{j,k} - u_k`: (..., M, 4) states ``z`` and (..., 4) logged commands ``u`` ->
+    (..., 4 M), filter by filter."""
+    z = np.asarray(z, dtype=float)
+    return (z - np.asarray(u, dtype=float)[..., None, :]).reshape(*z.shape[:-2], -1)
+
+
 def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
-    """(B, 21) inputs f_k (:data:`FEATURES`) of states ``state`` under commands ``u`` (B, 8): the delayed commands the
-    rotors answer, then the logged ones (:func:`hybrid_commands`)."""
+    """(B, 21 + 4M) inputs f_k (:func:`features`) of states ``state`` under commands ``u`` (B, 8 + 4M): the delayed
+    commands the rotors answer, the logged ones, the command filters' inputs (:func:`hybrid_commands`)."""
     rot = state.rot
     vel_b = rotate_back(rot, state.vel_n)
     u = as_array(u)
     return np.concatenate([vel_b, rot[:, 2, :], state.rates, u[:, :4], state.rotor, u[:, 4:]], axis=1)
 
 
-def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray, voltage=None) -> np.ndarray:
-    """(N, 8) commands of the hybrid per row: the commands the rotors answer (delayed, through the command path's
-    terms with ``voltage``: :func:`~quad_modelling.core.physics.rotors.effective_commands`) and the logged commands
-    ``u`` (N, 4) stamped ``t`` (N,) [s]."""
-    return np.concatenate([effective_commands(p, delayed_commands(p, u, t), voltage), np.asarray(u, dtype=float)], axis=-1)
+def hybrid_commands(p: PhysicsParameters, u: np.ndarray, t: np.ndarray, voltage=None, filters: tuple[float, ...] = ()) -> np.ndarray:
+    """(N, 8 + 4M) commands of the hybrid per row: the commands the rotors answer (delayed, through the command path's
+    terms with ``voltage``: :func:`~quad_modelling.core.physics.rotors.effective_commands`), the logged commands
+    ``u`` (N, 4) stamped ``t`` (N,) [s], and the inputs of the command filters of time constants ``filters`` [s]
+    (:func:`filter_inputs`, the filters started on row 0)."""
+    u = np.asarray(u, dtype=float)
+    parts = [effective_commands(p, delayed_commands(p, u, t), voltage), u]
+    if filters:
+        parts.append(filter_inputs(filtered_commands(u, t, filters), u))
+    return np.concatenate(parts, axis=-1)
 
 
 def physics_constants(p: PhysicsParameters) -> dict[str, float | list]:
@@ -141,10 +204,13 @@ class HybridModel:
     """Physics constants + residual net + observer history (module docstring); numpy inference."""
 
     def __init__(self, params: PhysicsParameters, net: ResidualNet, vehicle: str, observer: Observer = Observer(),
-                 training: dict | None = None) -> None:
-        if net.n_inputs != len(FEATURES) or net.n_outputs != len(CORRECTIONS):
+                 training: dict | None = None, filters: tuple[float, ...] = ()) -> None:
+        self.filters = tuple(float(tau) for tau in filters)  # the command filters' time constants [s]
+        if not all(tau > 0 for tau in self.filters):
+            raise ModelError(f"hybrid command filter time constants must be > 0 s, got {list(self.filters)}")
+        if net.n_inputs != len(features(self.filters)) or net.n_outputs != len(CORRECTIONS):
             raise ModelError(f"hybrid residual net takes {net.n_inputs} inputs and gives {net.n_outputs} outputs, "
-                             f"expected {len(FEATURES)} and {len(CORRECTIONS)}")
+                             f"expected {len(features(self.filters))} and {len(CORRECTIONS)} ({len(self.filters)} command filters)")
         self.params = params
         self.net = net
         self.vehicle = vehicle
@@ -153,7 +219,7 @@ class HybridModel:
 
     # ---- the corrected dynamics ------------------------------------------------
     def correction(self, state: PhysicsState, u: np.ndarray) -> np.ndarray:
-        """(B, 6) net correction as disturbance accelerations: (R Δa_B [m/s², N], Δα [rad/s², B]); ``u`` (B, 8) as
+        """(B, 6) net correction as disturbance accelerations: (R Δa_B [m/s², N], Δα [rad/s², B]); ``u`` (B, 8 + 4M) as
         :func:`hybrid_commands` (so are the ``u`` of :meth:`step`, :meth:`outputs` and :meth:`rollout`)."""
         delta = self.net.forward(net_features(state, u))
         return np.concatenate([rotate(state.rot, delta[:, :3]), delta[:, 3:]], axis=1)
@@ -182,7 +248,7 @@ class HybridModel:
         if self.net.is_zero() or last == 0:
             return state, base
         rows = np.arange(last)
-        commands = hybrid_commands(self.params, log.u, log.t, physics.battery_voltage(self.params, log))
+        commands = hybrid_commands(self.params, log.u, log.t, physics.battery_voltage(self.params, log), self.filters)
         c = self.correction(physics.measured_states(self.params, measured, rotor, rows), commands[rows])
         integral = np.concatenate([np.zeros((1, 6)), np.cumsum(c * np.diff(log.t[: last + 1])[:, None], axis=0)])
         corrected = []
@@ -213,7 +279,10 @@ class HybridModel:
         segment.require(("gyro_b",), "the hybrid model's multi-step form (body rates at each anchor)")
         state, disturbance = self.anchor(segment, starts)
         rows = starts[:, None] + np.arange(horizon + 1)[None, :]
-        commands = np.concatenate([physics.horizon_commands(self.params, segment, starts, rows), segment.u[rows]], axis=-1)
+        parts = [physics.horizon_commands(self.params, segment, starts, rows), segment.u[rows]]
+        if self.filters:
+            parts.append(filter_inputs(filtered_commands(segment.u, segment.t, self.filters), segment.u)[rows])
+        commands = np.concatenate(parts, axis=-1)
         return self.rollout(state, disturbance, commands, np.diff(segment.t)[rows[:, :-1]])
 
     # ---- files ------------------------------------------------------------------
@@ -221,8 +290,8 @@ class HybridModel:
         return {
             "format": FORMAT, "format_version": FORMAT_VERSION, "kind": KIND, "vehicle": self.vehicle,
             "variables": list(VARIABLES), "outputs": list(TRAINED_ON),
-            "config": {"hidden": list(self.net.hidden), "features": list(FEATURES), "corrections": list(CORRECTIONS),
-                       "observer": observer_dict(self.observer)},
+            "config": {"hidden": list(self.net.hidden), "features": list(features(self.filters)), "corrections": list(CORRECTIONS),
+                       "observer": observer_dict(self.observer), "command_filters_s": list(self.filters)},
             "dt": float(self.training.get("dt", 0.01)),
             "training": {**self.training, "physics": physics_constants(self.params)},
         }
@@ -249,16 +318,17 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
         observer = Observer(float(config["observer"]["linear_s"]), float(config["observer"]["angular_s"]),
                             bool(config["observer"]["angular_trim"]))
         stored = header["training"]["physics"]
-        features = list(config["features"])
+        inputs = list(config["features"])
+        filters = tuple(float(tau) for tau in config.get("command_filters_s", ()))  # none in a file saved before them
         if not isinstance(stored, dict):
             raise TypeError("training.physics is not a mapping")
     except (KeyError, TypeError, ValueError, AttributeError) as err:
         raise ModelError(f"{path}: hybrid model file lacks its settings ({reason(err)})") from err
-    if features != list(FEATURES):
-        raise ModelError(f"{path}: hybrid net inputs {features} differ from this program's {list(FEATURES)}; retrain the model")
+    if inputs != list(features(filters)):
+        raise ModelError(f"{path}: hybrid net inputs {inputs} differ from this program's {list(features(filters))}; retrain the model")
     params = trained_parameters(path, KIND, stored, header["training"].get("vehicle_file"), vehicle)
     try:
-        return HybridModel(params, net, vehicle.name, observer, dict(header.get("training", {})))
+        return HybridModel(params, net, vehicle.name, observer, dict(header.get("training", {})), filters)
     except (ModelError, ConfigError) as err:
         raise ModelError(f"{path}: {err}") from err
 
@@ -270,9 +340,18 @@ class HybridStream(PhysicsStream):
     sample, ``push(command)`` by the warm rows' median interval) with the hybrid's step and outputs."""
 
     def __init__(self, model: HybridModel, state: PhysicsState, disturbance: Disturbance, times: np.ndarray,
-                 commands: np.ndarray, period_s: float, voltage: float | None = None) -> None:
+                 commands: np.ndarray, period_s: float, voltage: float | None = None, filtered: np.ndarray | None = None) -> None:
         super().__init__(model.params, state, disturbance, times, commands, period_s, voltage)
         self.model = model
+        self.filtered = filtered  # the command filters' states (M, 4) at the last sample (None: no filters)
+
+    def net_commands(self, t_s: float, logged: np.ndarray) -> np.ndarray:
+        """(1, 8 + 4M) the hybrid's commands at sample ``t_s`` whose logged command is ``logged`` (1, 4), the filters at
+        their current states (:func:`hybrid_commands`' row)."""
+        parts = [self._command_at(t_s), logged]
+        if self.filtered is not None:
+            parts.append(filter_inputs(self.filtered, logged[0])[None, :])
+        return np.concatenate(parts, axis=1)
 
     def push_at(self, command: np.ndarray, t_s: float) -> np.ndarray:
         previous = self.times[-1]
@@ -280,11 +359,13 @@ class HybridStream(PhysicsStream):
         if not dt > 0:
             raise DataError(f"hybrid stream: sample time {t_s:.6f} s is not after the previous {previous:.6f} s")
         logged = self.commands[-1]  # the command logged at the previous sample
-        self.state = self.model.step(self.state, np.concatenate([self._command_at(previous), logged], axis=1), dt, self.disturbance)
+        self.state = self.model.step(self.state, self.net_commands(previous, logged), dt, self.disturbance)
+        if self.filtered is not None:
+            self.filtered = filter_step(self.filtered, logged[0], dt, self.model.filters)
         self.times.append(float(t_s))
         self.commands.append(np.asarray(command, dtype=float).reshape(1, 4))
         self._forget()
-        return self.model.outputs(self.state, np.concatenate([self._command_at(t_s), self.commands[-1]], axis=1), self.disturbance)[0]
+        return self.model.outputs(self.state, self.net_commands(t_s, self.commands[-1]), self.disturbance)[0]
 
 
 class HybridPredictor(WindowByStream):
@@ -304,8 +385,9 @@ class HybridPredictor(WindowByStream):
         state, disturbance = self.model.anchor(warm, np.array([len(warm) - 1]), measured)
         period = float(np.median(np.diff(warm.t)))
         voltage = physics.battery_voltage(self.model.params, warm)
+        filtered = filtered_commands(warm.u, warm.t, self.model.filters)[-1] if self.model.filters else None
         return measured, HybridStream(self.model, state, disturbance, warm.t, warm.u, period,
-                                      None if voltage is None else float(voltage[-1]))
+                                      None if voltage is None else float(voltage[-1]), filtered)
 
 
 

@@ -50,7 +50,7 @@ import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
-from quad_modelling.core.models.hybrid import HybridModel, hybrid_commands, observer_dict, observer_rows
+from quad_modelling.core.models.hybrid import COMMAND_FILTERS_S, HybridModel, hybrid_commands, observer_dict, observer_rows
 from quad_modelling.core.models.physics import Observer
 from quad_modelling.core.physics import arrays, rigid_body, rotors
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -71,7 +71,7 @@ from quad_modelling.errors import ConfigError, DataError
 
 
 HYBRID_HIDDEN = (32, 32)
-"""Default widths of the residual net's hidden layers (21 inputs, 6 outputs: about 1.9k weights)."""
+"""Default widths of the residual net's hidden layers (21 inputs and 12 of the command filters, 6 outputs: about 2.3k weights)."""
 
 
 HYBRID_ROLLOUT = RolloutConfig(horizon=50, stride=1, val_stride=5, batch_size=256, max_epochs=12, patience=3,
@@ -96,6 +96,8 @@ class HybridTrainingConfig:
     rollout: K, stride, batch, epochs, patience, learning rate (:class:`RolloutConfig`).
     val_fraction: fraction of the training flights held back (whole flights) for early stopping.
     mirror_images: train on the training flights' images under the physics model's symmetries too (module docstring).
+    command_filters_s: time constants [s] of the net's command filters
+        (:data:`~quad_modelling.core.models.hybrid.COMMAND_FILTERS_S`; empty: none, the 21 inputs of before).
     """
 
     hidden: tuple[int, ...] = HYBRID_HIDDEN
@@ -103,25 +105,30 @@ class HybridTrainingConfig:
     rollout: RolloutConfig = field(default_factory=lambda: HYBRID_ROLLOUT)
     val_fraction: float = VAL_FRACTION
     mirror_images: bool = True
+    command_filters_s: tuple[float, ...] = COMMAND_FILTERS_S
 
     def __post_init__(self) -> None:
         if not self.hidden or min(self.hidden) < 1:
             raise ConfigError(f"hybrid training: hidden layer widths must be >= 1, got {self.hidden}")
+        if not all(tau > 0 for tau in self.command_filters_s):
+            raise ConfigError(f"hybrid training: command filter time constants must be > 0 s, got {list(self.command_filters_s)}")
 
     def to_dict(self) -> dict:
         d = asdict(self)
         d["hidden"] = list(self.hidden)
+        d["command_filters_s"] = list(self.command_filters_s)
         d["observer"] = observer_dict(self.observer)
         return d
 
 
 # ---- data --------------------------------------------------------------------------------------------
-def segment_arrays(p: PhysicsParameters, segment: FlightLog, observer: Observer) -> dict[str, np.ndarray]:
-    """Row-aligned arrays of one gap-free segment for :class:`RolloutWindows` (module docstring); ``u`` (N, 8) holds the
-    delayed commands the rotors answer and the logged ones (:func:`~quad_modelling.core.models.hybrid.hybrid_commands`)."""
+def segment_arrays(p: PhysicsParameters, segment: FlightLog, observer: Observer, filters: tuple[float, ...] = ()) -> dict[str, np.ndarray]:
+    """Row-aligned arrays of one gap-free segment for :class:`RolloutWindows` (module docstring); ``u`` (N, 8 + 4M) holds
+    the delayed commands the rotors answer, the logged ones and the inputs of the command filters of time constants
+    ``filters`` (:func:`~quad_modelling.core.models.hybrid.hybrid_commands`)."""
     measured = state_measurement(segment)
     rows = np.arange(len(segment))
-    commands = hybrid_commands(p, segment.u, segment.t, physics.battery_voltage(p, segment))  # per-row voltage (training only)
+    commands = hybrid_commands(p, segment.u, segment.t, physics.battery_voltage(p, segment), filters)  # per-row voltage (training only)
     rotor = rotors.rotor_speeds(p, commands[:, :4], segment.t)
     disturbance = physics.disturbance_estimate(p, segment.t, commands[:, :4], measured, rotor, rows, observer)
     dt = np.diff(segment.t)
@@ -140,20 +147,21 @@ def segment_arrays(p: PhysicsParameters, segment: FlightLog, observer: Observer)
 
 
 def flight_segments(p: PhysicsParameters, logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None],
-                    observer: Observer) -> list[dict[str, np.ndarray]]:
-    """The arrays of every gap-free part (of two rows or more) of each flight's span (None: the whole flight)."""
+                    observer: Observer, filters: tuple[float, ...] = ()) -> list[dict[str, np.ndarray]]:
+    """The arrays of every gap-free part (of two rows or more) of each flight's span (None: the whole flight), with the
+    command filters of time constants ``filters`` [s] (:func:`segment_arrays`)."""
     segments = []
     for log, span in zip(logs, spans):
         log.require(("gyro_b",), "hybrid training (its loss compares gyro rates)")
         start, stop = (0, len(log)) if span is None else rows_between(log, *span)
         for a, b in gap_free_runs(log, start, stop):
             if b - a >= 2:
-                segments.append(segment_arrays(p, log.slice(a, b), observer))
+                segments.append(segment_arrays(p, log.slice(a, b), observer, filters))
     return segments
 
 
 def feature_statistics(segments: list[dict[str, np.ndarray]]) -> tuple[np.ndarray, np.ndarray]:
-    r"""(mean, standard deviation) (21,) of the net inputs at every measured row of ``segments`` (the net's
+    r"""(mean, standard deviation) (21 + 4M,) of the net inputs at every measured row of ``segments`` (the net's
     normalisation), one segment at a time: each segment's count :math:`n_i`, mean :math:`\bar f_i` and
     :math:`M_i = \sum (f - \bar f_i)^2` are merged by Chan's rule,
     :math:`M = M_a + M_b + δ^2 n_a n_b / (n_a + n_b)` with :math:`δ = \bar f_b − \bar f_a`, so no array of
@@ -354,8 +362,9 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
     images = model_symmetries(p)[1:] if config.mirror_images else ()  # [0] is the identity
     train_logs, train_spans = [logs[i] for i in train_idx], [spans[i] for i in train_idx]
     train_segments = flight_segments(p, [*train_logs, *(s.image(log) for s in images for log in train_logs)],
-                                     train_spans * (1 + len(images)), config.observer)
-    val_segments = flight_segments(p, [logs[i] for i in val_idx], [spans[i] for i in val_idx], config.observer)
+                                     train_spans * (1 + len(images)), config.observer, config.command_filters_s)
+    val_segments = flight_segments(p, [logs[i] for i in val_idx], [spans[i] for i in val_idx], config.observer,
+                                   config.command_filters_s)
     # history rows of a window: the most observer rows any anchor has (50 at 100 Hz and 0.5 s)
     history = max([int(s[f"obs_n_{part}"].max()) for s in train_segments + val_segments for part in ("lin", "ang")] + [1])
     if not any(len(s["u"]) > history + rc.horizon for s in train_segments):
@@ -384,7 +393,7 @@ def train_hybrid(p: PhysicsParameters, vehicle: str, logs: Sequence[FlightLog], 
         "samples": samples, "prepare_seconds": round(prepared, 3),
         "rollout": {**record.to_dict(), "val_windows": len(val_set) if val_set is not None else len(train_set)},
     }
-    return HybridModel(p, residual, vehicle, config.observer, training)
+    return HybridModel(p, residual, vehicle, config.observer, training, config.command_filters_s)
 
 
 def train_hybrid_on_flights(logs: Sequence[FlightLog], spans: Sequence[tuple[float, float] | None], vehicle: VehicleConfig,

@@ -8,6 +8,7 @@ import pytest
 
 from quad_modelling.core.export.casadi_model import DISTURBANCE, STATE, ExportedModel, casadi_functions, input_names, layout
 from quad_modelling.core.models import physics
+from quad_modelling.core.models.hybrid import filter_inputs, filtered_commands
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, rotor_acceleration
@@ -101,11 +102,14 @@ def test_exported_derivative_is_the_models_accelerations_on_measured_states(phys
 
 
 def test_exported_hybrid_step_equals_the_numpy_hybrid_step(vehicle, flight):
-    """A hybrid with a random (non-zero) net: F_disturbed (u = delayed commands, logged commands, voltage) over 50 steps
-    equals HybridModel.step, anchored by the hybrid's own observer, to 1e-9."""
+    """A hybrid with a random (non-zero) net and three command filters: F_disturbed (u = delayed commands, logged
+    commands, the filters' inputs, voltage) over 50 steps equals HybridModel.step, anchored by the hybrid's own
+    observer, to 1e-9."""
     hybrid = random_hybrid(vehicle)
     model = ExportedModel(vehicle, hybrid.params, hybrid.observer, "hybrid:test", hybrid)
-    assert len(input_names(model)) == 9
+    assert len(hybrid.filters) == 3 and len(input_names(model)) == 9 + 12
+    assert [name for name, _, _ in input_names(model)][8:10] == ["u_filtered_30ms_1", "u_filtered_30ms_2"]
+    filters = filter_inputs(filtered_commands(flight.u, flight.t, hybrid.filters), flight.u)  # (N, 12)
     step = casadi_functions(model)["F_disturbed"].map(len(ANCHORS))
     state, disturbance = hybrid.anchor(flight, ANCHORS, state_measurement(flight))
     d = np.concatenate([disturbance.linear_n, disturbance.angular_b], axis=1).T
@@ -117,9 +121,9 @@ def test_exported_hybrid_step_equals_the_numpy_hybrid_step(vehicle, flight):
         rows = ANCHORS + h
         dt = flight.t[rows + 1] - flight.t[rows]
         voltage = flight.vbat[ANCHORS]
-        u = np.concatenate([delayed[rows], flight.u[rows], voltage[:, None]], axis=1).T
+        u = np.concatenate([delayed[rows], flight.u[rows], filters[rows], voltage[:, None]], axis=1).T
         x = np.asarray(step(x, u, dt[None, :], d))
-        numpy_u = np.concatenate([effective_commands(p, delayed[rows], voltage), flight.u[rows]], axis=1)  # as hybrid_commands
+        numpy_u = np.concatenate([effective_commands(p, delayed[rows], voltage), flight.u[rows], filters[rows]], axis=1)  # as hybrid_commands
         corrections.append(np.abs(hybrid.correction(state, numpy_u)).max())
         state = hybrid.step(state, numpy_u, dt, disturbance)
         assert_close(x.T, as_vector(state), f"hybrid step {h + 1}")

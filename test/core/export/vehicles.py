@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from quad_modelling.core.models.hybrid import CORRECTIONS, FEATURES, HybridModel
+from quad_modelling.core.models.hybrid import COMMAND_FILTERS_S, CORRECTIONS, HybridModel, features
 from quad_modelling.core.models.residual_net import zero_net
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig, vehicle_dir
@@ -48,14 +48,15 @@ def vehicle_of(doc: dict) -> VehicleConfig:
     return VehicleConfig.from_dict(doc, "test vehicle")
 
 
-def random_hybrid(vehicle: VehicleConfig, seed: int = 0) -> HybridModel:
-    """A hybrid of ``vehicle``'s physics with a random (non-zero) residual net of 12 tanh units, scaled to corrections
-    of a few m/s² and rad/s² over the features' typical ranges."""
+def random_hybrid(vehicle: VehicleConfig, seed: int = 0, filters: tuple[float, ...] = COMMAND_FILTERS_S) -> HybridModel:
+    """A hybrid of ``vehicle``'s physics with the command filters ``filters`` (a trained one's by default) and a random
+    (non-zero) residual net of 12 tanh units, scaled to corrections of a few m/s² and rad/s² over the features'
+    typical ranges (a filter's input z - u: a few thousand units of command)."""
     rng = np.random.default_rng(seed)
-    mean = np.concatenate([np.zeros(9), np.full(4, 30000.0), np.full(4, 1500.0), np.full(4, 30000.0)])
-    std = np.concatenate([np.ones(9), np.full(4, 5000.0), np.full(4, 300.0), np.full(4, 5000.0)])
+    mean = np.concatenate([np.zeros(9), np.full(4, 30000.0), np.full(4, 1500.0), np.full(4, 30000.0), np.zeros(4 * len(filters))])
+    std = np.concatenate([np.ones(9), np.full(4, 5000.0), np.full(4, 300.0), np.full(4, 5000.0), np.full(4 * len(filters), 3000.0)])
     net = zero_net(mean, std, np.array([1.0, 1.0, 2.0, 5.0, 5.0, 2.0]), (12,), rng)
     net.weights[-1][:] = rng.normal(0.0, 0.5, net.weights[-1].shape)
     net.biases[-1][:] = rng.normal(0.0, 0.1, len(CORRECTIONS))
-    assert net.n_inputs == len(FEATURES)
-    return HybridModel(PhysicsParameters.from_vehicle(vehicle), net, vehicle.name)
+    assert net.n_inputs == len(features(filters))
+    return HybridModel(PhysicsParameters.from_vehicle(vehicle), net, vehicle.name, filters=filters)

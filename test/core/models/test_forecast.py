@@ -72,7 +72,7 @@ def models(tmp_path_factory, vehicle):
     doc["effects"] = copy.deepcopy(TERMS)
     with_terms = VehicleConfig.from_dict(doc, "cf_terms.yaml")
     hybrid = make_model(f"hybrid:{_train_hybrid(tmp_path_factory.mktemp('hybrid'), vehicle)}", vehicle)
-    assert not hybrid.model.net.is_zero()  # a trained net: its correction is in the forecast
+    assert not hybrid.model.net.is_zero() and hybrid.model.filters  # a trained net (its correction and command filters in the forecast)
     return {
         "greybox": (make_model("greybox", vehicle), vehicle),
         "greybox:euler": (make_model("greybox:euler", vehicle), vehicle),

@@ -16,10 +16,15 @@ from quad_modelling.core import frames
 from quad_modelling.core.evaluation.multistep import GROUPS, multistep_mae
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.hybrid import (
+    COMMAND_FILTERS_S,
     CORRECTIONS,
     FEATURES,
     HybridModel,
     HybridPredictor,
+    features,
+    filter_inputs,
+    filter_step,
+    filtered_commands,
     load_hybrid,
     observer_rows,
 )
@@ -89,6 +94,64 @@ def constant_net(angular: np.ndarray) -> ResidualNet:
     net = zero_net(np.zeros(len(FEATURES)), np.ones(len(FEATURES)), np.ones(len(CORRECTIONS)), (4,), np.random.default_rng(0))
     net.biases[-1][3:] = angular
     return net
+
+
+# ---- the command filters -------------------------------------------------------------------------------
+def test_the_command_filters_are_first_order_lags_of_the_commands_before_each_row():
+    # irregular stamps, two blocks of the closed form: z_{k+1} = u_k + (z_k - u_k) exp(-dt_k / tau), row by row
+    rng = np.random.default_rng(4)
+    t = np.cumsum(rng.uniform(0.004, 0.016, 150))
+    u = rng.uniform(20000.0, 60000.0, (150, 4))
+    start = rng.uniform(20000.0, 60000.0, (3, 4))
+    z = filtered_commands(u, t, COMMAND_FILTERS_S, start)
+    expected = [start]
+    for k in range(149):
+        expected.append(u[k] + (expected[-1] - u[k]) * np.exp(-(t[k + 1] - t[k]) / np.array(COMMAND_FILTERS_S))[:, None])
+    assert z.shape == (150, 3, 4) and np.allclose(z, expected, rtol=1e-13, atol=0)
+    assert np.array_equal(filter_step(start, u[0], t[1] - t[0], COMMAND_FILTERS_S), expected[1])
+    assert np.array_equal(filtered_commands(u, t, COMMAND_FILTERS_S)[0], np.repeat(u[:1], 3, axis=0))  # settled on u_0
+    # row k reads the commands before it only; a constant command is a fixed point
+    changed = u.copy()
+    changed[70:] += 1000.0
+    assert np.array_equal(filtered_commands(changed, t, COMMAND_FILTERS_S, start)[:71], z[:71])
+    assert np.allclose(filtered_commands(np.full((150, 4), 3e4), t, COMMAND_FILTERS_S), 3e4, rtol=1e-14, atol=0)
+    held = np.repeat(u[:1], 60, axis=0)  # one command held (a receding horizon's held inputs), the filters elsewhere
+    held[-1] += 500.0  # the last row's command is read by no row
+    expected = [start]
+    for k in range(59):
+        expected.append(filter_step(expected[-1], held[k], t[k + 1] - t[k], COMMAND_FILTERS_S))
+    assert np.allclose(filtered_commands(held, t[:60], COMMAND_FILTERS_S, start), expected, rtol=1e-13, atol=0)
+    # a step: after one time constant the fast filter holds 1/e of the old command's difference, the slow one more
+    steps = np.where(np.arange(150)[:, None] < 10, 0.0, 1.0) * np.ones(4)
+    uniform = np.arange(150) * 0.01
+    after = filtered_commands(steps, uniform, COMMAND_FILTERS_S)[10 + 3]  # 30 ms after the step (commands 10..12 held)
+    assert after[0, 0] == pytest.approx(1 - np.exp(-1.0), rel=1e-12) and after[1, 0] < after[0, 0]
+    inputs = filter_inputs(z, u)
+    assert inputs.shape == (150, 12) and np.array_equal(inputs[:, 4:8], z[:, 1] - u)
+    assert features(COMMAND_FILTERS_S)[21:25] == ("u_filtered_30ms_1", "u_filtered_30ms_2", "u_filtered_30ms_3", "u_filtered_30ms_4")
+
+
+def test_a_trained_hybrid_has_the_command_filters_and_a_file_saved_without_them_predicts_as_before(trained, flight, params,
+                                                                                                      vehicle, tmp_path):
+    assert trained.filters == COMMAND_FILTERS_S and trained.net.n_inputs == len(FEATURES) + 12
+    assert trained.training["config"]["command_filters_s"] == list(COMMAND_FILTERS_S)
+    # a hybrid without filters (every file saved before them), its header without the key: the 21 inputs of before
+    plain = HybridModel(params, zero_net(np.zeros(len(FEATURES)), np.ones(len(FEATURES)), np.ones(len(CORRECTIONS)), (4,),
+                                         np.random.default_rng(1)), vehicle.name)
+    plain.net.weights[-1][:] = np.random.default_rng(2).normal(0.0, 0.5, plain.net.weights[-1].shape)
+    path = plain.save(tmp_path / "plain.npz")
+    with np.load(path) as stored:
+        arrays = {k: stored[k] for k in stored.files}
+    header = json.loads(str(arrays.pop("header")))
+    del header["config"]["command_filters_s"]
+    with open(tmp_path / "before.npz", "wb") as stream:
+        np.savez(stream, header=np.array(json.dumps(header)), **arrays)
+    loaded = load_hybrid(tmp_path / "before.npz", vehicle)
+    segment, starts = flight.slice(1000, 1300), np.arange(0, 200, 13)
+    assert loaded.filters == () and np.array_equal(loaded.predict_horizons(segment, starts, HORIZON),
+                                                   plain.predict_horizons(segment, starts, HORIZON))
+    with pytest.raises(ModelError, match="hybrid residual net takes 21 inputs .* expected 33 and 6 \\(3 command filters\\)"):
+        HybridModel(params, plain.net, vehicle.name, filters=COMMAND_FILTERS_S)
 
 
 # ---- the torch twin ------------------------------------------------------------------------------------
@@ -256,7 +319,7 @@ def test_the_training_loss_is_the_mean_simerr_ratio_of_the_numpy_prediction(flig
     from quad_modelling.core.training.rollout import RolloutWindows
 
     segment, observer, horizon, scales = flight.slice(1000, 1300), physics.Observer(), 10, (0.05, 0.2)
-    arrays = training.segment_arrays(params, segment, observer)
+    arrays = training.segment_arrays(params, segment, observer, COMMAND_FILTERS_S)  # the net reads the filters too
     history = int(max(arrays["obs_n_lin"].max(), arrays["obs_n_ang"].max()))
     windows = RolloutWindows([arrays], history, horizon + 1, stride=7)
     mean, std = training.feature_statistics([arrays])
@@ -267,7 +330,7 @@ def test_the_training_loss_is_the_mean_simerr_ratio_of_the_numpy_prediction(flig
     with torch.no_grad():
         loss = float(loss_fn(net, windows[list(range(len(windows)))]))
     anchors = windows.starts(torch.arange(len(windows))).numpy() + history
-    predicted = HybridModel(params, net.to_numpy(), vehicle.name, observer).predict_horizons(segment, anchors, horizon)
+    predicted = HybridModel(params, net.to_numpy(), vehicle.name, observer, filters=COMMAND_FILTERS_S).predict_horizons(segment, anchors, horizon)
     measured = state_measurement(segment)[anchors[:, None] + np.arange(1, horizon + 1)]
 
     def ratio(cols, scale):
@@ -277,7 +340,7 @@ def test_the_training_loss_is_the_mean_simerr_ratio_of_the_numpy_prediction(flig
 
     expected = 0.5 * (ratio(slice(3, 6), scales[0]) + ratio(slice(12, 15), scales[1]))
     assert len(anchors) > 20 and loss == pytest.approx(expected, rel=1e-4)
-    zero = HybridModel(params, net.to_numpy(), vehicle.name, observer)
+    zero = HybridModel(params, net.to_numpy(), vehicle.name, observer, filters=COMMAND_FILTERS_S)
     zero.net.weights[-1][:] = 0.0
     zero.net.biases[-1][:] = 0.0
     assert not np.allclose(zero.predict_horizons(segment, anchors, horizon), predicted, rtol=0, atol=1e-3)  # the net acts
