@@ -127,9 +127,10 @@ def filtered_commands(u: np.ndarray, t: np.ndarray, filters: tuple[float, ...], 
 
 
 def filter_step(z: np.ndarray, u: np.ndarray, dt: float, filters: tuple[float, ...]) -> np.ndarray:
-    """The filters' states (M, 4) one sample interval ``dt`` [s] after ``z`` (M, 4), the command ``u`` (4,) held over it
-    (:func:`filtered_commands`' recursion)."""
-    return u + (z - u) * np.exp(-dt / np.asarray(filters, dtype=float))[:, None]
+    """The filters' states (M, 4) one sample interval ``dt`` [s] after ``z`` (M, 4), the command ``u`` (4,) held over it:
+    :func:`filtered_commands` of that one interval (the one recursion, for the live streams)."""
+    u = np.asarray(u, dtype=float)
+    return filtered_commands(np.stack([u, u]), np.array([0.0, float(dt)]), filters, z)[1]
 
 
 def filter_inputs(z: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -108,7 +108,7 @@ def test_the_command_filters_are_first_order_lags_of_the_commands_before_each_ro
     for k in range(149):
         expected.append(u[k] + (expected[-1] - u[k]) * np.exp(-(t[k + 1] - t[k]) / np.array(COMMAND_FILTERS_S))[:, None])
     assert z.shape == (150, 3, 4) and np.allclose(z, expected, rtol=1e-13, atol=0)
-    assert np.array_equal(filter_step(start, u[0], t[1] - t[0], COMMAND_FILTERS_S), expected[1])
+    assert np.allclose(filter_step(start, u[0], t[1] - t[0], COMMAND_FILTERS_S), expected[1], rtol=1e-14, atol=0)
     assert np.array_equal(filtered_commands(u, t, COMMAND_FILTERS_S)[0], np.repeat(u[:1], 3, axis=0))  # settled on u_0
     # row k reads the commands before it only; a constant command is a fixed point
     changed = u.copy()
