@@ -232,6 +232,35 @@ def given_rates_step(model: ExportedModel):
     return casadi.Function("F_given", [x, u, dt, d, w, g, v, gv], [after], ["x", "u", "dt", "d", "w", "g", "v", "gv"], ["x_next"])
 
 
+def filtered_step(model: ExportedModel):
+    r"""``F_filtered(xz, w, dt, d) -> xz_next``: ``F_disturbed``'s step of a hybrid with M command filters whose
+    states are carried as state, as an MPC carries them (docs/export.md): xz = (x, z), z (4 M) the filters' states
+    :math:`z_{j,k}` filter by filter; w the input without the filters' inputs (the delayed commands, the logged ones
+    u_k, the voltage with a battery term). The step reads the filters' inputs :math:`z_{j,k} - u_k` and
+    advances them over dt [s] with u_k held (:func:`~quad_modelling.core.models.hybrid.filtered_commands`' recursion):
+
+    .. math:: z_{j,k+1} = u_k + (z_{j,k} - u_k)\, e^{-dt/\tau_j}
+
+    The carried forecast's chained step (:mod:`~quad_modelling.core.models.forecast`): the filters inside the one
+    compiled call instead of numpy over the horizon. Not an export Function (z is the MPC's own state)."""
+    import casadi
+
+    filters = model.hybrid.filters
+    x = casadi.SX.sym("x", len(STATE))
+    z = casadi.SX.sym("z", 4 * len(filters))
+    width = len(input_names(model)) - 4 * len(filters)
+    w = casadi.SX.sym("w", width)
+    d = casadi.SX.sym("d", len(DISTURBANCE))
+    dt = casadi.SX.sym("dt")
+    logged = w[4:8]
+    inputs = casadi.vertcat(*(z[4 * j:4 * j + 4] - logged for j in range(len(filters))))
+    u = casadi.vertcat(w[0:8], inputs, w[8:width])
+    after = casadi.vertcat(*(logged + (z[4 * j:4 * j + 4] - logged) * casadi.exp(-dt / tau) for j, tau in enumerate(filters)))
+    xz = casadi.vertcat(x, z)
+    return casadi.Function("F_filtered", [xz, w, dt, d], [casadi.vertcat(_dynamics(model, x, u, d, dt), after)],
+                           ["xz", "w", "dt", "d"], ["xz_next"])
+
+
 def terms_on(model: ExportedModel) -> list[str]:
     """The physics-model terms the vehicle file switches on (:mod:`quad_modelling.core.physics.effects`; the
     disturbance observer is not a term of f: it gives ``d``)."""

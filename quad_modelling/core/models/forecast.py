@@ -22,11 +22,10 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   unwrapped yaw and the observer's rows of the last ``max(linear_s, angular_s)`` (time, velocity, rates and the
   integral of the model's acceleration, with the hybrid's net correction: its observer subtracts the net's mean, which
   is the mean of the sum; :func:`~quad_modelling.core.models.physics.modelled_integral` one term per row), whose means
-  are :func:`~quad_modelling.core.models.physics.disturbance_means` itself, and the hybrid's command filters'
-  states (over the horizon :func:`~quad_modelling.core.models.hybrid.filtered_commands` from the anchor's). The h-step
-  rollout is the one physics step (:func:`~quad_modelling.core.physics.rigid_body.step`, with the hybrid's
-  correction) built once as a CasADi Function by the export
-  (:func:`~quad_modelling.core.export.casadi_model.casadi_functions`: ``F_disturbed``) and chained h times
+  are :func:`~quad_modelling.core.models.physics.disturbance_means` itself, and the hybrid's command filters' states.
+  The h-step rollout is the one physics step (:func:`~quad_modelling.core.physics.rigid_body.step`, with the hybrid's
+  correction) built once as a CasADi Function by the export (:func:`~quad_modelling.core.export.casadi_model.casadi_functions`:
+  ``F_disturbed``; with command filters their states beside x, :func:`~quad_modelling.core.export.casadi_model.filtered_step`) and chained h times
   (:meth:`~quad_modelling.core.export.casadi_model.Step.chained`, compiled to C where a C compiler is found:
   :func:`~quad_modelling.core.export.casadi_model.compile_step`): one call instead of h numpy steps of a batch of
   one (12 ms for h = 50 here). The accelerations of the states output (and of each row added to the observer) are
@@ -71,6 +70,7 @@ from quad_modelling.core.export.casadi_model import (
     casadi_functions,
     compile_step,
     exported_predictor,
+    filtered_step,
     narx_step,
     output_row,
     state_vector,
@@ -153,11 +153,12 @@ _DERIVATIVES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def model_step(model, vehicle: VehicleConfig) -> Step | None:
-    """The one-step CasADi Function a model's carried forecast chains (physics, hybrid: the export's ``F_disturbed``;
-    NARX: :func:`~quad_modelling.core.export.casadi_model.narx_step`), compiled (:func:`compile_step`); None for a model whose forecast needs none."""
+    """The one-step CasADi Function a model's carried forecast chains (physics, hybrid: the export's ``F_disturbed``,
+    a hybrid with command filters its ``filtered_step``; NARX: :func:`~quad_modelling.core.export.casadi_model.narx_step`), compiled (:func:`compile_step`); None for a model whose forecast needs none."""
     if model not in _STEPS:
         if isinstance(model, (PhysicsPredictor, HybridPredictor)):
-            _STEPS[model] = compile_step(casadi_functions(exported_predictor(model, vehicle))["F_disturbed"])
+            exported = exported_predictor(model, vehicle)  # a hybrid's command filters chained in its step:
+            _STEPS[model] = compile_step(filtered_step(exported) if exported.hybrid and exported.hybrid.filters else casadi_functions(exported)["F_disturbed"])
         elif isinstance(model, NarxPredictor):
             _STEPS[model] = compile_step(narx_step(model.model))
         else:
@@ -277,10 +278,11 @@ class PhysicsForecast:
         self.params, self.observer, self.hybrid, self.steps = params, observer, hybrid, steps
         self.derivative = CompiledDerivative(derivative)
         self.history_s = max(observer.linear_s, observer.angular_s)
-        rollout = step.chained(steps)  # x_{k+1} = F(x_k, u_k, dt_k, d), k < h: (22, h)
+        rollout = step.chained(steps)  # x_{k+1} = F(x_k, u_k, dt_k, d), k < h: (22 [+ 4 M filters' states], h)
         # evaluated in place on these arrays (CasADi is column-major: an (n, h) argument is an (h, n) C array)
-        self._x0, self._u = np.zeros(22), np.zeros((steps, step.function.size1_in(1)))
-        self._dt, self._d, self._after = np.zeros(steps), np.zeros((steps, 6)), np.zeros((steps, 22))
+        width = step.function.size1_in(0)
+        self._x0, self._u = np.zeros(width), np.zeros((steps, step.function.size1_in(1)))
+        self._dt, self._d, self._after = np.zeros(steps), np.zeros((steps, 6)), np.zeros((steps, width))
         self._buffer, self._evaluate = rollout.buffer()
         for i, array in enumerate((self._x0, self._u, self._dt, self._d)):
             self._buffer.set_arg(i, memoryview(array))
@@ -345,7 +347,7 @@ class PhysicsForecast:
     def _filters_at(self, rows: FlightLog, first: int) -> np.ndarray | None:
         """The hybrid's command filters' states (n, M, 4) at rows ``first ..`` of ``rows``, from the last row added (the
         context row; a time base's first row: settled on its command); None without filters."""
-        if self.hybrid is None or not self.hybrid.filters:
+        if not (self.hybrid and self.hybrid.filters):
             return None
         begin = first if self.filtered is None else first - 1
         filtered = filtered_commands(rows.u[begin:], rows.t[begin:], self.hybrid.filters, self.filtered)[first - begin:]
@@ -382,26 +384,24 @@ class PhysicsForecast:
         logged = np.concatenate([u_s[None, :], u_after])
         delayed = delayed_commands(p, np.concatenate([self.commands.view(), u_after]), np.concatenate([self.times, t_after]))[-(h + 1):]
         disturbance = self.disturbance()
-        self._u[:, 0:4] = delayed[:h]  # the export's input layout: delayed commands, logged ones (hybrid), filters, voltage
-        filtered = None if self.filtered is None else filtered_commands(logged, t, self.hybrid.filters, self.filtered)  # (h + 1, M, 4)
+        self._u[:, 0:4] = delayed[:h]  # the step's input layout: delayed commands, logged ones (hybrid), voltage
         if self.hybrid is not None:
             self._u[:, 4:8] = logged[:h]
-            if filtered is not None:
-                self._u[:, 8:8 + 4 * len(self.hybrid.filters)] = filter_inputs(filtered[:h], logged[:h])
         if p.battery is not None:
             self._u[:, -1] = voltage
         x0 = self._x0
         x0[0:3], x0[3:6], x0[6:15], x0[15:18], x0[18:22] = pos, vel, rot_s.ravel(), rates, rotor
-        self._dt[:] = np.diff(t)
-        self._d[:, 0:3], self._d[:, 3:6] = disturbance.linear_n, disturbance.angular_b
+        if self.filtered is not None:  # the filters' states chained beside x (filtered_step)
+            x0[22:] = self.filtered.ravel()
+        self._dt[:], self._d[:, 0:3], self._d[:, 3:6] = np.diff(t), disturbance.linear_n, disturbance.angular_b
         self._evaluate()
-        x = np.concatenate([x0[None, :], self._after])  # (h + 1, 22)
-        rot = x[:, 6:15].reshape(-1, 3, 3)
-        states = PhysicsState(x[:, 0:3], x[:, 3:6], rot, x[:, 15:18], x[:, 18:22], continued_yaw(float(euler[2]), rot))
+        x = np.concatenate([x0[None, :], self._after])  # (h + 1, 22 [+ 4 M])
+        filtered = None if self.filtered is None else x[:, 22:].reshape(h + 1, -1, 4)
+        yaw = continued_yaw(float(euler[2]), x[:, 6:15].reshape(-1, 3, 3))
         rows = np.arange(h + 1) if rows is None else np.asarray(rows)
         d = np.concatenate([disturbance.linear_n[0], disturbance.angular_b[0]])
-        return np.array([output_row(x[r], self.derivative(x[r], self._inputs(delayed[r], logged[r], voltage,
-                                                                             None if filtered is None else filtered[r]), d), states.yaw[r])
+        return np.array([output_row(x[r], self.derivative(x[r, :22], self._inputs(delayed[r], logged[r], voltage,
+                                                                             None if filtered is None else filtered[r]), d), yaw[r])
                          for r in rows.tolist()])
 
     def _inputs(self, delayed: np.ndarray, logged: np.ndarray, voltage: float | None, filtered: np.ndarray | None = None) -> np.ndarray:

@@ -116,7 +116,7 @@ def filtered_commands(u: np.ndarray, t: np.ndarray, filters: tuple[float, ...], 
     if not len(u):
         return z
     z[0] = u[0] if start is None else start
-    if len(u) > 2 and (u[1:-1] == u[0]).all():  # held: row k reads u_0 .. u_{k-1}, all u_0 (the last row's is read by none)
+    if (u[1:-1] == u[0]).all():  # held (two rows always): row k reads u_0 .. u_{k-1}, all u_0 (the last row's by none)
         z[1:] = u[0] + (z[0] - u[0]) * np.exp(-(t[1:] - t[0])[:, None, None] / np.asarray(filters, dtype=float)[None, :, None])
         return z
     decay = np.exp(-np.diff(t)[:, None, None] / np.asarray(filters, dtype=float)[None, :, None]) \

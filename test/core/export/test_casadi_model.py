@@ -6,7 +6,15 @@ import casadi
 import numpy as np
 import pytest
 
-from quad_modelling.core.export.casadi_model import DISTURBANCE, STATE, ExportedModel, casadi_functions, input_names, layout
+from quad_modelling.core.export.casadi_model import (
+    DISTURBANCE,
+    STATE,
+    ExportedModel,
+    casadi_functions,
+    filtered_step,
+    input_names,
+    layout,
+)
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.hybrid import filter_inputs, filtered_commands
 from quad_modelling.core.models.physics import Observer, PhysicsPredictor
@@ -128,6 +136,29 @@ def test_exported_hybrid_step_equals_the_numpy_hybrid_step(vehicle, flight):
         state = hybrid.step(state, numpy_u, dt, disturbance)
         assert_close(x.T, as_vector(state), f"hybrid step {h + 1}")
     assert min(corrections) > 0.05  # the net acts: its corrections are part of what matched
+
+
+def test_the_filtered_step_carries_the_filters_states_and_steps_as_f_disturbed_with_their_inputs(vehicle, flight):
+    """F_filtered (the carried forecast's step: the filters' states z beside x) over 50 logged, changing commands
+    at the flight's irregular stamps: z equals filtered_commands' scan and x equals F_disturbed fed z - u, to 1e-9."""
+    hybrid = random_hybrid(vehicle)
+    model = ExportedModel(vehicle, hybrid.params, hybrid.observer, "hybrid:test", hybrid)
+    step, plain = filtered_step(model), casadi_functions(model)["F_disturbed"]
+    rows = np.arange(400, 400 + HORIZON + 1)
+    t = flight.t[400] + np.concatenate([[0.0], np.cumsum(0.01 + 0.004 * np.sin(np.arange(HORIZON)))])  # irregular: 6-14 ms
+    assert np.ptp(flight.u[rows], axis=0).min() > 0  # changing commands
+    z = filtered_commands(flight.u[rows], t, hybrid.filters, start=flight.u[rows[0]] * np.array([[0.9], [1.0], [1.1]]))
+    delayed = delayed_commands(hybrid.params, flight.u, flight.t)
+    state, disturbance = hybrid.anchor(flight, rows[:1], state_measurement(flight))
+    d = np.concatenate([disturbance.linear_n, disturbance.angular_b], axis=1)[0]
+    x, xz = as_vector(state)[0], np.concatenate([as_vector(state)[0], z[0].ravel()])
+    for k, row in enumerate(rows[:-1]):
+        dt, logged = t[k + 1] - t[k], flight.u[row]
+        w = np.concatenate([delayed[row], logged, [flight.vbat[row]]])
+        xz = np.asarray(step(xz, w, dt, d)).ravel()
+        x = np.asarray(plain(x, np.concatenate([w[:8], filter_inputs(z[k], logged), w[8:]]), dt, d)).ravel()
+        assert_close(xz[22:], z[k + 1].ravel(), f"filters' states, step {k + 1}")
+        assert_close(xz[:22], x, f"state, step {k + 1}")
 
 
 def test_the_exported_step_is_differentiable_at_rest_and_the_layouts_hover_is_an_equilibrium(physics_model):
