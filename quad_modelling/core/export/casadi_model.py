@@ -248,17 +248,22 @@ def filtered_step(model: ExportedModel):
     filters = model.hybrid.filters
     x = casadi.SX.sym("x", len(STATE))
     z = casadi.SX.sym("z", 4 * len(filters))
-    width = len(input_names(model)) - 4 * len(filters)
-    w = casadi.SX.sym("w", width)
+    w = casadi.SX.sym("w", len(input_names(model)) - 4 * len(filters))
     d = casadi.SX.sym("d", len(DISTURBANCE))
     dt = casadi.SX.sym("dt")
     logged = w[4:8]
-    inputs = casadi.vertcat(*(z[4 * j:4 * j + 4] - logged for j in range(len(filters))))
-    u = casadi.vertcat(w[0:8], inputs, w[8:width])
     after = casadi.vertcat(*(logged + (z[4 * j:4 * j + 4] - logged) * casadi.exp(-dt / tau) for j, tau in enumerate(filters)))
-    xz = casadi.vertcat(x, z)
-    return casadi.Function("F_filtered", [xz, w, dt, d], [casadi.vertcat(_dynamics(model, x, u, d, dt), after)],
+    return casadi.Function("F_filtered", [casadi.vertcat(x, z), w, dt, d], [casadi.vertcat(_dynamics(model, x, with_filter_inputs(z, w), d, dt), after)],
                            ["xz", "w", "dt", "d"], ["xz_next"])
+
+
+def with_filter_inputs(z, w):
+    """The export's input u (a CasADi column) of the filters' states ``z`` (4 M) and the input ``w`` without their
+    inputs (:func:`filtered_step`): w's delayed and logged commands, the filters' inputs z_j - u_logged, w's rest."""
+    import casadi
+
+    logged = w[4:8]
+    return casadi.vertcat(w[0:8], *(z[j:j + 4] - logged for j in range(0, z.shape[0], 4)), w[8:w.shape[0]])
 
 
 def terms_on(model: ExportedModel) -> list[str]:

@@ -74,11 +74,12 @@ from quad_modelling.core.export.casadi_model import (
     narx_step,
     output_row,
     state_vector,
+    with_filter_inputs,
 )
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, lifted_horizons
-from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor, filter_inputs, filter_step, filtered_commands
+from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor, filter_inputs, filtered_commands
 from quad_modelling.core.models.narx import OUTPUT_COLUMNS, OUTPUTS, NarxPredictor, expand_horizons
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -171,16 +172,19 @@ def window_step(model, vehicle: VehicleConfig) -> Step:
     window stream calls per sample (:class:`CompiledWindowStream`):
     ``(x, u, dt, d, u_now) -> (x_next = F_disturbed(x, u, dt, d), xdot = f_disturbed(x_next, u_now, d))``, the
     export's Functions (:mod:`~quad_modelling.core.export.casadi_model`): the state after the step and its
-    derivative under the command the rotors answer at the new sample (the accelerations the model outputs there)."""
+    derivative under the command the rotors answer at the new sample (the accelerations the model outputs there); a
+    hybrid with command filters steps their states beside x (x (22 + 4 M), u without the filters' inputs: ``filtered_step``)."""
     if model not in _WINDOW_STEPS:
         import casadi
 
-        functions = casadi_functions(exported_predictor(model, vehicle))
-        step, derivative = functions["F_disturbed"], functions["f_disturbed"]
+        exported = exported_predictor(model, vehicle)
+        functions, filters = casadi_functions(exported), exported.hybrid and exported.hybrid.filters  # beside x, as the forecast's
+        step = filtered_step(exported) if filters else functions["F_disturbed"]
         x, u, dt, d = (casadi.SX.sym(step.name_in(i), step.sparsity_in(i)) for i in range(4))
         u_now = casadi.SX.sym("u_now", step.sparsity_in(1))
         after = step(x, u, dt, d)
-        _WINDOW_STEPS[model] = compile_step(casadi.Function("W_disturbed", [x, u, dt, d, u_now], [after, derivative(after, u_now, d)],
+        xdot = functions["f_disturbed"](after[:22], with_filter_inputs(after[22:], u_now) if filters else u_now, d)
+        _WINDOW_STEPS[model] = compile_step(casadi.Function("W_disturbed", [x, u, dt, d, u_now], [after, xdot],
                                                             ["x", "u", "dt", "d", "u_now"], ["x_next", "xdot"]))
     return _WINDOW_STEPS[model]
 
@@ -276,8 +280,7 @@ class PhysicsForecast:
     def __init__(self, step: Step, derivative: Step, params: PhysicsParameters, observer: Observer, steps: int,
                  hybrid: HybridModel | None = None):
         self.params, self.observer, self.hybrid, self.steps = params, observer, hybrid, steps
-        self.derivative = CompiledDerivative(derivative)
-        self.history_s = max(observer.linear_s, observer.angular_s)
+        self.derivative, self.history_s = CompiledDerivative(derivative), max(observer.linear_s, observer.angular_s)
         rollout = step.chained(steps)  # x_{k+1} = F(x_k, u_k, dt_k, d), k < h: (22 [+ 4 M filters' states], h)
         # evaluated in place on these arrays (CasADi is column-major: an (n, h) argument is an (h, n) C array)
         width = step.function.size1_in(0)
@@ -539,9 +542,9 @@ class CompiledWindowStream:
 
     def __init__(self, stream, step: Step, hybrid: HybridModel | None):
         self.stream, self.hybrid = stream, hybrid
-        self._x, self._u = np.zeros(22), np.zeros(step.function.size1_in(1))
+        self._x, self._u = np.zeros(step.function.size1_in(0)), np.zeros(step.function.size1_in(1))
         self._dt, self._d, self._u_now = np.zeros(1), np.zeros(6), np.zeros(step.function.size1_in(1))
-        self._after, self._xdot = np.zeros(22), np.zeros(22)
+        self._after, self._xdot = np.zeros(step.function.size1_in(0)), np.zeros(22)
         self._buffer, self._evaluate = step.function.buffer()
         for i, array in enumerate((self._x, self._u, self._dt, self._d, self._u_now)):
             self._buffer.set_arg(i, memoryview(array))
@@ -562,19 +565,16 @@ class CompiledWindowStream:
         s.times.append(float(t_s))
         s.commands.append(command)
         self._u_now[0:4] = delayed_command_at(p, s.times, s.commands, float(t_s))[0]  # what the rotors answer at t_s
-        if self.hybrid is not None:
-            self._u[4:8] = s.commands[-2][0]  # the command logged at the previous sample
-            self._u_now[4:8] = command[0]
-            if s.filtered is not None:  # the filters' inputs before the step, then at the new sample
-                n, logged = 8 + 4 * len(self.hybrid.filters), s.commands[-2][0]
-                self._u[8:n], s.filtered = filter_inputs(s.filtered, logged), filter_step(s.filtered, logged, dt, self.hybrid.filters)
-                self._u_now[8:n] = filter_inputs(s.filtered, command[0])
+        if self.hybrid is not None:  # the commands logged at the previous sample and at this one; the filters' states beside x
+            self._u[4:8], self._u_now[4:8] = s.commands[-2][0], command[0]
+            self._x[22:] = () if s.filtered is None else s.filtered.ravel()
         if p.battery is not None:
             self._u[-1] = self._u_now[-1] = s.voltage
-        self._dt[0] = dt
-        self._d[0:3], self._d[3:6] = s.disturbance.linear_n[0], s.disturbance.angular_b[0]
+        self._dt[0], self._d[0:3], self._d[3:6] = dt, s.disturbance.linear_n[0], s.disturbance.angular_b[0]
         self._evaluate()
         x, xdot = self._after, self._xdot
+        if len(x) > 22:  # a hybrid's filters' states at the new sample
+            s.filtered = x[22:].reshape(-1, 4).copy()
         rot = x[6:15].reshape(1, 3, 3).copy()
         s.state = PhysicsState(x[None, 0:3].copy(), x[None, 3:6].copy(), rot, x[None, 15:18].copy(), x[None, 18:22].copy(),
                                continued_yaw(float(state.yaw[0]), np.concatenate([state.rot, rot]))[1:])
