@@ -60,8 +60,9 @@ from sensor_msgs.msg import BatteryState, Imu, JointState
 from std_msgs.msg import String
 
 from quad_modelling.core.evaluation.multistep import multistep_form
+from quad_modelling.core.export.compiled import compiled_window_stream, prepare_compiled_step
 from quad_modelling.core.models.bounds import PhysicalBounds
-from quad_modelling.core.models.forecast import carried_forecast, compiled_window_stream, prepare_compiled_step
+from quad_modelling.core.models.forecast import carried_forecast
 from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate, usable_voltage
 from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns

@@ -73,9 +73,10 @@ import numpy as np
 
 from quad_modelling.core import frames
 from quad_modelling.core.export.casadi_model import ExportedModel, Step, casadi_functions, compile_step, given_rates_step
+from quad_modelling.core.export.compiled import CompiledWindowStream
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
-from quad_modelling.core.models.forecast import CompiledWindowStream, PhysicsForecast, newest_first
+from quad_modelling.core.models.forecast import PhysicsForecast, newest_first
 from quad_modelling.core.models.hybrid import physics_constants, trained_parameters
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
 from quad_modelling.core.models.physics import Disturbance, PhysicsPredictor, PhysicsStream
@@ -519,7 +520,7 @@ def down_acceleration(log: FlightLog, rows: np.ndarray) -> np.ndarray:
 
 class CompiledDirectStream(CompiledWindowStream):
     """A :class:`DirectStream` stepped by a compiled step with given rates (:meth:`DirectPredictor.compiled_stream`),
-    as the physics model's window stream is by :class:`~quad_modelling.core.models.forecast.CompiledWindowStream`: the
+    as the physics model's window stream is by :class:`~quad_modelling.core.export.compiled.CompiledWindowStream`: the
     same numbers (test), without numpy's per-call cost on a batch of one."""
 
     def __init__(self, stream: DirectStream, step: Step):
@@ -549,7 +550,7 @@ class DirectPredictor(WindowByStream):
 
     def _compiled(self, vehicle: VehicleConfig) -> dict[str, Step]:
         """The compiled given-rates step (``F_given``), the continuous dynamics (``f_disturbed``) and the window
-        stream's step and outputs in one call (``W_given``: as :func:`~quad_modelling.core.models.forecast.window_step`)."""
+        stream's step and outputs in one call (``W_given``: as :func:`~quad_modelling.core.export.compiled.window_step`)."""
         if not self._steps:
             import casadi
 
