@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.models.hybrid import ConstantsChangedError, HybridModel, HybridPredictor, load_hybrid
+from quad_modelling.core.models.hybrid import ConstantsChangedError, HybridModel, HybridPredictor, filter_inputs, filter_step, load_hybrid
 from quad_modelling.core.models.narx import OUTPUTS, sigmoid
 from quad_modelling.core.models.physics import Observer
 from quad_modelling.core.physics import rigid_body, rotors
@@ -237,7 +237,7 @@ def filtered_step(model: ExportedModel):
     states are carried as state, as an MPC carries them (docs/export.md): xz = (x, z), z (4 M) the filters' states
     :math:`z_{j,k}` filter by filter; w the input without the filters' inputs (the delayed commands, the logged ones
     u_k, the voltage with a battery term). The step reads the filters' inputs :math:`z_{j,k} - u_k` and
-    advances them over dt [s] with u_k held (:func:`~quad_modelling.core.models.hybrid.filtered_commands`' recursion):
+    advances them over dt [s] with u_k held (:func:`~quad_modelling.core.models.hybrid.filter_step` on symbolic arrays):
 
     .. math:: z_{j,k+1} = u_k + (z_{j,k} - u_k)\, e^{-dt/\tau_j}
 
@@ -251,9 +251,8 @@ def filtered_step(model: ExportedModel):
     w = casadi.SX.sym("w", len(input_names(model)) - 4 * len(filters))
     d = casadi.SX.sym("d", len(DISTURBANCE))
     dt = casadi.SX.sym("dt")
-    logged = w[4:8]
-    after = casadi.vertcat(*(logged + (z[4 * j:4 * j + 4] - logged) * casadi.exp(-dt / tau) for j, tau in enumerate(filters)))
-    return casadi.Function("F_filtered", [casadi.vertcat(x, z), w, dt, d], [casadi.vertcat(_dynamics(model, x, with_filter_inputs(z, w), d, dt), after)],
+    after = filter_step(_elements(z).reshape(len(filters), 4), _elements(w)[4:8], _elements(dt), filters)  # the one lag, symbolic
+    return casadi.Function("F_filtered", [casadi.vertcat(x, z), w, dt, d], [casadi.vertcat(_dynamics(model, x, with_filter_inputs(z, w), d, dt), _column([after]))],
                            ["xz", "w", "dt", "d"], ["xz_next"])
 
 
@@ -262,8 +261,8 @@ def with_filter_inputs(z, w):
     inputs (:func:`filtered_step`): w's delayed and logged commands, the filters' inputs z_j - u_logged, w's rest."""
     import casadi
 
-    logged = w[4:8]
-    return casadi.vertcat(w[0:8], *(z[j:j + 4] - logged for j in range(0, z.shape[0], 4)), w[8:w.shape[0]])
+    inputs = filter_inputs(_elements(z).reshape(-1, 4), _elements(w)[4:8])  # hybrid.filter_inputs on symbolic arrays
+    return casadi.vertcat(w[0:8], _column([inputs]), w[8:w.shape[0]])
 
 
 def terms_on(model: ExportedModel) -> list[str]:

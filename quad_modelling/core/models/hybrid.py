@@ -64,7 +64,7 @@ from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsStream
-from quad_modelling.core.physics.arrays import as_array, rotate, rotate_back
+from quad_modelling.core.physics.arrays import as_array, exp, is_symbolic, rotate, rotate_back
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, first_order_scan
@@ -117,7 +117,7 @@ def filtered_commands(u: np.ndarray, t: np.ndarray, filters: tuple[float, ...], 
         return z
     z[0] = u[0] if start is None else start
     if (u[1:-1] == u[0]).all():  # held (two rows always): row k reads u_0 .. u_{k-1}, all u_0 (the last row's by none)
-        z[1:] = u[0] + (z[0] - u[0]) * np.exp(-(t[1:] - t[0])[:, None, None] / np.asarray(filters, dtype=float)[None, :, None])
+        z[1:] = filter_step(z[0], u[0], (t[1:] - t[0])[:, None], filters)
         return z
     decay = np.exp(-np.diff(t)[:, None, None] / np.asarray(filters, dtype=float)[None, :, None]) \
         * np.ones((1, len(filters), 4))
@@ -126,18 +126,21 @@ def filtered_commands(u: np.ndarray, t: np.ndarray, filters: tuple[float, ...], 
     return z
 
 
-def filter_step(z: np.ndarray, u: np.ndarray, dt: float, filters: tuple[float, ...]) -> np.ndarray:
-    """The filters' states (M, 4) one sample interval ``dt`` [s] after ``z`` (M, 4), the command ``u`` (4,) held over it:
-    :func:`filtered_commands` of that one interval (the one recursion, for the live streams)."""
-    u = np.asarray(u, dtype=float)
-    return filtered_commands(np.stack([u, u]), np.array([0.0, float(dt)]), filters, z)[1]
+def filter_step(z, u, dt, filters: tuple[float, ...]):
+    r"""The filters' states (..., M, 4) an interval ``dt`` [s] (scalar, or (..., 1)) after ``z`` (M, 4), the command
+    ``u`` (4,) held over it: :math:`z_j' = u + (z_j - u)\, e^{-dt/\tau_j}`, the lag written once: the live streams' step,
+    :func:`filtered_commands`' held closed form (dt = t_k - t_0) and, on symbolic arrays, the compiled steps'
+    (:func:`~quad_modelling.core.export.casadi_model.filtered_step`)."""
+    u, dt = as_array(u), np.asarray(dt, dtype=object if is_symbolic(u) else float)
+    decay = exp(-dt / np.asarray(filters, dtype=float))
+    return u + (as_array(z) - u) * decay[..., None]
 
 
 def filter_inputs(z: np.ndarray, u: np.ndarray) -> np.ndarray:
     """The net's filter inputs :math:`z_{j,k} - u_k`: (..., M, 4) states ``z`` and (..., 4) logged commands ``u`` ->
-    (..., 4 M), filter by filter."""
-    z = np.asarray(z, dtype=float)
-    return (z - np.asarray(u, dtype=float)[..., None, :]).reshape(*z.shape[:-2], -1)
+    (..., 4 M), filter by filter (numpy or symbolic arrays)."""
+    z = as_array(z)
+    return (z - as_array(u)[..., None, :]).reshape(*z.shape[:-2], -1)
 
 
 def net_features(state: PhysicsState, u: np.ndarray) -> np.ndarray:
