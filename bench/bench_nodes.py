@@ -171,6 +171,7 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
     log = synthetic_flight(rate, seconds)
     arrays = messages.measurement_messages(log)
     stamps = (stamps_ns(log.t) + time.time_ns()).tolist()
+    calibration = float(np.median([calibration_ms() for _ in range(CALIBRATION_RUNS)]))  # the machine's speed now
     use_dds_profile()  # as the nodes do
     rclpy.init()
     node = Node("latency_bench", namespace="/quad")
@@ -226,7 +227,7 @@ def latency(rate: float, seconds: float, workdir: Path, model: str = "greybox", 
     lat = np.array([received[ns] - sent[ns] for ns in streamed if ns in received]) * 1e3
     drops = sum(ns not in received for ns in expected)
     out = {"model": "echo (no-op node)" if echo else name, "realtime_priority": realtime, "rate_hz": rate, "seconds": seconds,
-           "math_threads": None if echo else math_threads,
+           "math_threads": None if echo else math_threads, "calibration_median_ms": calibration,
            "inputs": len(stamps), "p50_ms": float(np.percentile(lat, 50)),
            "p99_ms": float(np.percentile(lat, 99)), "max_ms": float(lat.max()), "drops": int(drops)}
     if horizon_s > 0:
@@ -344,10 +345,11 @@ def forecast_markdown(costs: list[dict], keep_up: list[dict]) -> list[str]:
            "Held inputs, h = 50 (0.125 s): every input from the first anchor on must be answered by its forecast "
            "(stamped t_s + h dt); `dropped` = inputs without one. Latency as in the table above the input's publication "
            f"to its forecast's reception. 400 Hz rows: the run of median p99 out of {LATENCY_RUNS}.", "",
-           "| model | inputs | forecasts expected | dropped | p50 [ms] | p99 [ms] | max [ms] | p99 of each run [ms] |",
-           "|---|---|---|---|---|---|---|---|"]
+           "| model | inputs | forecasts expected | dropped | p50 [ms] | p99 [ms] | max [ms] | p99 of each run [ms] | calibration [ms] |",
+           "|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {r['model']} | {r['inputs']} | {r['forecasts_expected']} | {r['drops']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | "
-           f"{r['max_ms']:.2f} | {', '.join(f'{x:.2f}' for x in r.get('runs_p99_ms', [r['p99_ms']]))} |" for r in keep_up]
+           f"{r['max_ms']:.2f} | {', '.join(f'{x:.2f}' for x in r.get('runs_p99_ms', [r['p99_ms']]))} | "
+           f"{'-' if r.get('calibration_median_ms') is None else format(r['calibration_median_ms'], '.3f')} |" for r in keep_up]
     return md + [""]
 
 
@@ -378,6 +380,10 @@ LATENCY_REALTIME_PRIORITY = 10
 
 LATENCY_RUNS = 5
 """Runs per 400 Hz latency case; the table shows the run of median p99 (the machine is noisy)."""
+
+CALIBRATION_RUNS = 200
+"""Runs of ``bench.common.calibration_ms`` before each latency run (its median: the machine's speed then, which moved
+the echo node's p99 from 4.6 ms in session 43 to 0.9 ms in session 44 on the same code)."""
 
 
 def rss_kib(pid: int) -> int:
@@ -427,16 +433,19 @@ def latency_markdown(lat: list[dict]) -> list[str]:
           f"out of {LATENCY_RUNS}; the last column lists every run's p99 - echo.", "",
           "`math threads`: the nodes' parameter `math_threads` (1: numpy's and scipy's OpenBLAS pools on one thread, "
           "the default; 0: the pools as the libraries start them, one thread per core, as before the parameter).", "",
+          "`calibration`: the median of a fixed workload (`bench/common.py` `calibration_ms`) run before that run, the "
+          "machine's speed then (0.14-0.26 ms in sessions 40-43, 0.05 ms in session 44).", "",
           "| model | scheduling | math threads | rate | inputs | p50 [ms] | p99 [ms] | echo p99, same run [ms] | "
-          "p99 - echo, median of runs [ms] | max [ms] | drops | p99 - echo of each run [ms] |",
-          "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+          "p99 - echo, median of runs [ms] | max [ms] | drops | p99 - echo of each run [ms] | calibration [ms] |",
+          "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     md += [f"| {r['model']} | {'SCHED_FIFO ' + str(r['realtime_priority']) if r['realtime_priority'] else 'normal'} | "
            f"{'-' if r.get('math_threads') is None else r['math_threads']} | {r['rate_hz']:g} Hz | "
            f"{r['inputs']} | {r['p50_ms']:.2f} | {r['p99_ms']:.2f} | "
            f"{'-' if r.get('echo_p99_ms') is None else format(r['echo_p99_ms'], '.2f')} | "
            f"{'-' if r.get('p99_minus_echo_ms') is None else format(r['p99_minus_echo_ms'], '+.2f')} | "
            f"{r['max_ms']:.2f} | {r['drops']} | "
-           f"{', '.join(f'{x:+.2f}' for x in r.get('runs_p99_minus_echo_ms', []))} |" for r in lat]
+           f"{', '.join(f'{x:+.2f}' for x in r.get('runs_p99_minus_echo_ms', []))} | "
+           f"{'-' if r.get('calibration_median_ms') is None else format(r['calibration_median_ms'], '.3f')} |" for r in lat]
     return md + ["", "Streamed rows only: a warm-start row's prediction exists only once the warm start is complete (then it is "
                  "queued behind the live ones), so it has no per-input latency.", ""]
 

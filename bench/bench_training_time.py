@@ -21,7 +21,7 @@ Target: the hybrid trains in under 120 s on all 18 NanoBench flights on the 2-co
 Writes bench/results/training_time.{json,md}.
 
 Run: ``.venv/bin/python -m bench.bench_training_time [--runs 3] [--baseline DIR --label main@abc1234]
-[--accuracy bench/results/models_hybrid_physics.json] [--accuracy-baseline FILE] [--render]``
+[--accuracy bench/results/models.json] [--accuracy-baseline FILE] [--render]``
 """
 
 from __future__ import annotations
@@ -192,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--runs", type=int, default=3, help="runs per span and checkout (median; default 3)")
     parser.add_argument("--baseline", type=Path, help="a checkout of the baseline commit (git worktree add DIR REV)")
     parser.add_argument("--label", default="baseline", help="what the baseline is (e.g. main@abc1234)")
-    parser.add_argument("--accuracy", type=Path, default=RESULTS / "models_hybrid_physics.json",
+    parser.add_argument("--accuracy", type=Path, default=RESULTS / "models.json",
                         help="bench_models JSON of this checkout (--models naive,physics,hybrid --output NAME)")
     parser.add_argument("--accuracy-baseline", type=Path, help="bench_models JSON of the baseline")
     parser.add_argument("--render", action="store_true",
