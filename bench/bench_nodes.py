@@ -331,7 +331,7 @@ def forecast_markdown(costs: list[dict], keep_up: list[dict]) -> list[str]:
           "wall time of the command's handler (`handler`: the anchor's row converted from the messages, the anchor "
           "advanced, the h-step forecast, the bounds check, the message and its publication) and of the forecast alone "
           "(`forecast`: `RecedingHorizon.ready`, the row's conversion included). Form: the model's carried-state forecast "
-          "(`core/models/forecast.py`, its class named), or `history re-run`: the model's multi-step form over "
+          "(`core/live/forecast.py`, its class named), or `history re-run`: the model's multi-step form over "
           "`horizon_history_s` (2.5 s) of rows at every input, as before it.", "",
           "`calibration`: the median of a fixed workload run before each input (`bench/common.py` `calibration_ms`), the "
           "machine's speed meanwhile; `relative` = handler median / calibration median, what compares runs at other "

@@ -33,7 +33,7 @@ beyond the vehicle's :class:`~quad_modelling.core.models.bounds.PhysicalBounds` 
 Receding-horizon mode (``horizon_s`` > 0, instead of windows): h = round(horizon_s / dt) steps; anchor s gets
 the model's multi-step form (:func:`~quad_modelling.core.evaluation.multistep.multistep_form`) over the rows up to
 s, h steps ahead, on ``<model>/horizon/odom`` (:class:`~quad_modelling.core.models.streaming.RecedingHorizon`):
-its anchor carried from input to input (:func:`~quad_modelling.core.models.forecast.carried_forecast`), or for a
+its anchor carried from input to input (:func:`~quad_modelling.core.live.forms.carried_forecast`), or for a
 model without a carried form re-run over the last ``horizon_history_s`` of rows. ``horizon_inputs``: ``hold`` (default, the
 forecast) flies u_s held, published at input s, stamped t_s + h dt; ``flown`` flies the recorded commands,
 published at input s+h, stamped t_{s+h}: equal to the offline multi-step prediction, too late to be a forecast.
@@ -59,11 +59,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import BatteryState, Imu, JointState
 from std_msgs.msg import String
 
-from quad_modelling.core.evaluation.multistep import multistep_form
-from quad_modelling.core.export.compiled import compiled_window_stream, prepare_compiled_step
-from quad_modelling.core.models.bounds import PhysicalBounds
-from quad_modelling.core.models.forecast import carried_forecast
 from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate, usable_voltage
+from quad_modelling.core.evaluation.multistep import multistep_form
+from quad_modelling.core.live.forms import carried_forecast, compiled_window_stream, prepare_compiled_step
+from quad_modelling.core.models.bounds import PhysicalBounds
 from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError

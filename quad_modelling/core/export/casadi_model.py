@@ -25,7 +25,7 @@ d = 0), ``F(x, u, dt) -> x_next`` (:func:`~quad_modelling.core.physics.rigid_bod
 with the exact rotor lag over ``dt`` [s], rates and speed limited as the model's), ``f_disturbed(x, u, d)`` and
 ``F_disturbed(x, u, dt, d)``. NARX's closed-loop step (:func:`narx_step`), for its carried forecast, is built the
 same way from the model's own net code. :func:`compile_step` compiles a Function to C for the live forms
-(:mod:`quad_modelling.core.models.forecast`).
+(:mod:`quad_modelling.core.live.forecast`).
 """
 
 from __future__ import annotations
@@ -169,7 +169,7 @@ def _dynamics(model: ExportedModel, x, u, d, dt=None, rates_next=None, down_velo
 
 
 def exported_predictor(model, vehicle: VehicleConfig) -> ExportedModel:
-    """The :class:`ExportedModel` of a physics or hybrid predictor (:mod:`~quad_modelling.core.models.forecast`'s
+    """The :class:`ExportedModel` of a physics or hybrid predictor (:mod:`~quad_modelling.core.live.forecast`'s
     compiled steps)."""
     hybrid = model.model if isinstance(model, HybridPredictor) else None
     params, observer = (hybrid.params, hybrid.observer) if hybrid else (model.params, model.observer)
@@ -241,7 +241,7 @@ def filtered_step(model: ExportedModel):
 
     .. math:: z_{j,k+1} = u_k + (z_{j,k} - u_k)\, e^{-dt/\tau_j}
 
-    The carried forecast's chained step (:mod:`~quad_modelling.core.models.forecast`): the filters inside the one
+    The carried forecast's chained step (:mod:`~quad_modelling.core.live.forecast`): the filters inside the one
     compiled call instead of numpy over the horizon. Not an export Function (z is the MPC's own state)."""
     import casadi
 

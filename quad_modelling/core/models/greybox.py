@@ -492,7 +492,7 @@ class GreyboxPredictor:
 
 def linear_horizons(model: DiscreteGreybox, x: np.ndarray, u: np.ndarray, attitude_trim: np.ndarray) -> np.ndarray:
     """(S, H + 1, 18) open-loop outputs of the multi-step form (:meth:`GreyboxPredictor.predict_horizons`; the
-    carried-state forecast, :mod:`quad_modelling.core.models.forecast`, calls it too): from anchor states ``x``
+    carried-state forecast, :mod:`quad_modelling.core.live.forecast`, calls it too): from anchor states ``x``
     (S, 16) under trimmed inputs ``u`` (S, H + 1, 4), :math:`y_h = C_d x_h + D_d u_h`,
     :math:`x_{h+1} = A_d x_h + B_d u_h`, with the roll/pitch offset ``attitude_trim`` (S, 2) [rad] added back."""
     out = np.empty((len(x), u.shape[1], len(VARIABLES)))

@@ -407,7 +407,7 @@ def expand_outputs(measured: np.ndarray, y: np.ndarray, warm: int, dt: float) ->
 def horizons_from_measured(model: NarxModel, measured: np.ndarray, u: np.ndarray, starts: np.ndarray, horizon: int) -> np.ndarray:
     """(S, horizon + 1, 18) of :meth:`NarxPredictor.predict_horizons` from the measurement (N, 18, VARIABLES order; of
     each row only positions, velocities, angles and rates are read) and commands ``u`` (N, 4) of one series
-    (the carried-state forecast, :mod:`quad_modelling.core.models.forecast`, calls it on its last rows)."""
+    (the carried-state forecast, :mod:`quad_modelling.core.live.forecast`, calls it on its last rows)."""
     return expand_horizons(model, measured, starts, model.simulate_from_starts(u, measured[:, OUTPUT_COLUMNS], starts, horizon))
 
 

@@ -33,7 +33,7 @@ anchor s, h = round(horizon_s / dt) steps ahead what the model's offline multi-s
 (``form_for(warm rows)``, the node passes :func:`~quad_modelling.core.evaluation.multistep.multistep_form`)
 predicts from s on the rows up to s (measurements read at the command stamps, ``make_log``: the node's
 message conversion) and h rows of commands after it. With the model's carried-state forecast
-(``carried_for(dt, h)``, the node passes :func:`~quad_modelling.core.models.forecast.carried_forecast`) the
+(``carried_for(dt, h)``, the node passes :func:`~quad_modelling.core.live.forms.carried_forecast`) the
 rows since the previous anchor are added to the anchor it carries (one per input) and it is rolled out h
 steps; without one (or for a flight without a gyro) the multi-step form is re-run over the last ``history_s``
 of rows up to s (the same numbers once the model's trims and filters settle within it). The
@@ -398,7 +398,7 @@ class RecedingHorizon:
         return "prediction", int(stamps[-1]), prediction, (stamps[-1] - stamps[s - first]) / 1e9
 
     def _predict_carried(self, s: int, measurements: Callable) -> tuple:
-        """Anchor ``s`` (index in rows) by the carried form (:mod:`~quad_modelling.core.models.forecast`): the rows since
+        """Anchor ``s`` (index in rows) by the carried form (:mod:`~quad_modelling.core.live.forecast`): the rows since
         the last one added (a row without a measurement takes its successor's, as in the history re-run) are added in
         one log behind the last added row, then the model is rolled out over the h rows after s."""
         row = self.rows[s]

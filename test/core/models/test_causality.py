@@ -9,7 +9,7 @@ Four forms are checked, each when the model has it: the multi-step form (``predi
 the live form (``start_window``/``push``), the offline window form (``predict_window``, compared
 as absolute values: the evaluation's trim over the window's first second is added back, since that
 trim belongs to the evaluation, not to the model) and the receding horizon's carried-state forecast
-(:mod:`quad_modelling.core.models.forecast`, the command held after the anchor).
+(:mod:`quad_modelling.core.live.forecast`, the command held after the anchor).
 
 To check another model, add one line to :data:`MODELS`; a model that needs a trained file gets a
 trainer in :data:`TRAINERS` and ``{kind}`` in its spec (as ``narx:{narx}``). The ``truth`` model predicts
@@ -206,10 +206,10 @@ def assert_window_causal(model, window: FlightLog, warm: int = WARM, reads_comma
 
 
 def carried_held_forecasts(model, vehicle, log: FlightLog, anchors: np.ndarray, horizon: int = HORIZON) -> np.ndarray:
-    """(A, horizon + 1, 18) carried-state forecasts (:func:`~quad_modelling.core.models.forecast.carried_forecast`) from
+    """(A, horizon + 1, 18) carried-state forecasts (:func:`~quad_modelling.core.live.forms.carried_forecast`) from
     each of the increasing ``anchors``, the anchor's command held at its period after it: the rows are added as the
     receding horizon adds them (the first anchor's rows from row 0 at once, then each later row behind the last)."""
-    from quad_modelling.core.models.forecast import carried_forecast
+    from quad_modelling.core.live.forms import carried_forecast
 
     period = float(np.median(np.diff(log.t)))
     carried = carried_forecast(model, vehicle, period, horizon)

@@ -15,7 +15,8 @@ since the previous anchor (one per input), then rolls the model out from it:
   the offline multi-step form gives it; ``rows``: only these rows of it (a forecast publishes row h, and checks it
   against row 0: the physics models then output 2 states instead of h + 1).
 
-Per model (:func:`carried_forecast` picks the form; a model without one is predicted by the history re-run):
+Per model (:func:`~quad_modelling.core.live.forms.carried_forecast` picks the form; a model without one is predicted
+by the history re-run; the direct model's: :mod:`~quad_modelling.core.live.direct`):
 
 * **physics, hybrid** (:class:`PhysicsForecast`): carried are the logged commands of the last δ (the command delay),
   the rotor speeds (the exact lag stepped row by row: :func:`~quad_modelling.core.physics.rotors.rotor_step`), the
@@ -29,7 +30,7 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   (:meth:`~quad_modelling.core.export.casadi_model.Step.chained`, compiled to C where a C compiler is found:
   :func:`~quad_modelling.core.export.casadi_model.compile_step`): one call instead of h numpy steps of a batch of
   one (12 ms for h = 50 here). The accelerations of the states output (and of each row added to the observer) are
-  the export's continuous dynamics ``f_disturbed`` compiled the same way (:func:`~quad_modelling.core.export.compiled.model_derivative`), the same
+  the export's continuous dynamics ``f_disturbed`` compiled the same way (:func:`~quad_modelling.core.live.compiled.model_derivative`), the same
   equations as :func:`~quad_modelling.core.models.physics.outputs` and
   :meth:`~quad_modelling.core.models.hybrid.HybridModel.outputs` (~10 us a state against ~150 us in numpy).
 * **greybox** (:class:`GreyboxForecast`): carried are the running sums of the commands and of the measured
@@ -44,14 +45,14 @@ Per model (:func:`carried_forecast` picks the form; a model without one is predi
   (:func:`~quad_modelling.core.export.casadi_model.narx_step`), the expansion to 18 variables :func:`~quad_modelling.core.models.narx.expand_horizons`.
 
 Equality with the offline multi-step form on all the rows of the time base (test:
-``test/core/models/test_forecast.py``): to rounding, 1e-9 and tighter. What differs is the order of float
+``test/core/live/test_forecast.py``): to rounding, 1e-9 and tighter. What differs is the order of float
 operations only: the rotor lag stepped row by row instead of the prefix scan, the observer's integral summed over
 its rows instead of the segment, the CasADi step instead of numpy's (3e-15 over 50 steps), the yaw unwrapped by
 differences. The physics forms need the gyro (as their multi-step forms); the greybox's carried form does too (a
 flight without one gets its rates from differentiated attitudes over past rows: the history re-run does that).
 
 The compiled steps themselves (built once per model, with the window mode's) are
-:mod:`~quad_modelling.core.export.compiled`'s.
+:mod:`~quad_modelling.core.live.compiled`'s.
 """
 
 from __future__ import annotations
@@ -63,13 +64,13 @@ import numpy as np
 
 from quad_modelling.core import frames
 from quad_modelling.core.export.casadi_model import Step, output_row, state_vector
-from quad_modelling.core.export.compiled import CompiledDerivative, model_derivative, model_step
 from quad_modelling.core.flight_log import FlightLog
+from quad_modelling.core.live.compiled import CompiledDerivative
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.greybox import MEASURED_STATE_COLUMNS, GreyboxPredictor, lifted_horizons
-from quad_modelling.core.models.hybrid import HybridModel, HybridPredictor, filter_inputs, filtered_commands
+from quad_modelling.core.models.hybrid import HybridModel, filter_inputs, filtered_commands
 from quad_modelling.core.models.narx import OUTPUT_COLUMNS, OUTPUTS, NarxPredictor, expand_horizons
-from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsPredictor
+from quad_modelling.core.models.physics import Disturbance, Observer
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import continued_yaw
 from quad_modelling.core.physics.rotors import (
@@ -81,7 +82,6 @@ from quad_modelling.core.physics.rotors import (
     steady_rotor_speed,
 )
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import DataError
 
 OBSERVER_MARGIN_S = 1e-9
@@ -96,25 +96,6 @@ class CarriedForecast(Protocol):
 
     def predict(self, t_after: np.ndarray, u_after: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         ...
-
-
-def carried_forecast(model, vehicle: VehicleConfig, period_s: float, steps: int) -> CarriedForecast | None:
-    """The carried form of ``model`` (a streaming predictor of the registry) for h = ``steps`` at the sample period
-    ``period_s`` [s], or None when it has none (module docstring); a model with a ``carried_forecast`` method of its
-    own (the direct model's) gives it."""
-    own = getattr(model, "carried_forecast", None)
-    if own is not None:
-        return own(vehicle, period_s, steps)
-    if isinstance(model, PhysicsPredictor):
-        return PhysicsForecast(model_step(model, vehicle), model_derivative(model, vehicle), model.params, model.observer, steps)
-    if isinstance(model, HybridPredictor):
-        return PhysicsForecast(model_step(model, vehicle), model_derivative(model, vehicle), model.model.params,
-                               model.model.observer, steps, model.model)
-    if isinstance(model, GreyboxPredictor):
-        return GreyboxForecast(model, period_s)
-    if isinstance(model, NarxPredictor):
-        return NarxForecast(model, period_s, steps, model_step(model, vehicle))
-    return None
 
 
 class UnwrappedYaw:

@@ -1,4 +1,4 @@
-"""Carried-state forecasts (core/models/forecast.py) through the receding horizon: every model kind's forecast from each
+"""Carried-state forecasts (core/live/forecast.py, the direct model's core/live/direct.py) through the receding horizon: every model kind's forecast from each
 anchor equals its offline multi-step form on all the rows up to the anchor (flown commands: the offline table's own
 numbers; held commands: the same form on a copy whose commands after s are u_s). That it reads nothing after its
 anchor is held by test_causality.py with every other form.
@@ -17,8 +17,9 @@ import pytest
 import yaml
 
 from quad_modelling.core.evaluation.multistep import multistep_form
-from quad_modelling.core.models.direct import DirectForecast
-from quad_modelling.core.models.forecast import GreyboxForecast, NarxForecast, PhysicsForecast, carried_forecast
+from quad_modelling.core.live.direct import DirectForecast
+from quad_modelling.core.live.forecast import GreyboxForecast, NarxForecast, PhysicsForecast
+from quad_modelling.core.live.forms import carried_forecast
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.models.streaming import RecedingHorizon, hold_inputs
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file

@@ -1,6 +1,7 @@
-"""The models' compiled steps (core/export/compiled.py): the window stream stepped by the compiled step equals the
-model's own stream; without a C compiler CasADi's virtual machine gives the carried forecast the same numbers. The
-models are test_forecast's (a trained hybrid with command filters, a direct model, physics with every term on)."""
+"""The models' compiled steps (core/live/compiled.py, picked by core/live/forms.py): the window stream stepped by the
+compiled step equals the model's own stream; without a C compiler CasADi's virtual machine gives the carried
+forecast the same numbers. The models are test_forecast's (a trained hybrid with command filters, a direct model,
+physics with every term on)."""
 
 from __future__ import annotations
 
@@ -10,12 +11,13 @@ import weakref
 import numpy as np
 import pytest
 
-from quad_modelling.core.export import casadi_model, compiled
-from quad_modelling.core.export.compiled import CompiledWindowStream, compiled_window_stream
-from quad_modelling.core.models.forecast import carried_forecast
+from quad_modelling.core.export import casadi_model
+from quad_modelling.core.live import compiled
+from quad_modelling.core.live.compiled import CompiledWindowStream
+from quad_modelling.core.live.forms import carried_forecast, compiled_window_stream
 from quad_modelling.core.models.streaming import push_sample
 from quad_modelling.io.loader import load_flight
-from test.core.models.test_forecast import FLIGHT, WARM, flight, models, vehicle  # noqa: F401 (fixtures)
+from test.core.live.test_forecast import FLIGHT, WARM, flight, models, vehicle  # noqa: F401 (fixtures)
 
 
 def test_without_a_c_compiler_the_rollout_runs_in_casadis_virtual_machine_with_the_same_numbers(models, monkeypatch):

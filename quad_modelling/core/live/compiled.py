@@ -1,6 +1,7 @@
 r"""The models' CasADi steps compiled for the live predictor, built once per model object: the carried forecast's one
-step (:func:`model_step`, chained h times by :mod:`~quad_modelling.core.models.forecast`) and continuous dynamics
-(:func:`model_derivative`), and the window mode's step (:func:`window_step`, :class:`CompiledWindowStream`).
+step (:func:`model_step`, chained h times by :mod:`~quad_modelling.core.live.forecast`) and continuous dynamics
+(:func:`model_derivative`), and the window mode's step (:func:`window_step`, :class:`CompiledWindowStream`); which
+model gets which: :mod:`~quad_modelling.core.live.forms`.
 
 Each is an export Function of the one physics (:mod:`~quad_modelling.core.export.casadi_model`: ``F_disturbed``,
 ``f_disturbed``; a hybrid with command filters ``filtered_step``, their states beside x) compiled to C by the system's
@@ -8,9 +9,9 @@ C compiler where one is found (:func:`~quad_modelling.core.export.casadi_model.c
 virtual machine: the same numbers.
 
 The window mode has its own compiled Function (:func:`window_step`: the step and the new state's derivative in one
-call; :func:`compiled_window_stream`): the physics and hybrid models' live streams step from sample to sample and
-output with it instead of numpy on a batch of one (the most of a physics predictor's answer to an input), the
-stream's own delay table and observer kept.
+call; :func:`~quad_modelling.core.live.forms.compiled_window_stream`): the physics and hybrid models' live streams
+step from sample to sample and output with it instead of numpy on a batch of one (the most of a physics predictor's
+answer to an input), the stream's own delay table and observer kept.
 """
 
 from __future__ import annotations
@@ -36,20 +37,6 @@ from quad_modelling.core.physics.rigid_body import PhysicsState, continued_yaw
 from quad_modelling.core.physics.rotors import delayed_command_at
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import DataError
-
-
-def prepare_compiled_step(model, vehicle: VehicleConfig, forecast: bool) -> None:
-    """Build (and compile) the model's step now, not at its first window or anchor: the predictor node calls it at
-    start-up with its model, as it primes the model (the compilation takes about half a second once): the carried
-    forecast's (``forecast``, :func:`model_step`) or the window stream's (:func:`window_step`)."""
-    if hasattr(model, "carried_forecast"):
-        model.carried_forecast(vehicle, 0.01, 1)  # builds and keeps its compiled steps (forecast and window)
-    elif forecast:
-        model_step(model, vehicle)
-        if isinstance(model, (PhysicsPredictor, HybridPredictor)):
-            model_derivative(model, vehicle)
-    elif isinstance(model, (PhysicsPredictor, HybridPredictor)):
-        window_step(model, vehicle)
 
 
 _STEPS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
@@ -176,18 +163,3 @@ class CompiledWindowStream:
 
     def push(self, command: np.ndarray) -> np.ndarray:
         return self.push_at(command, self.stream.times[-1] + self.stream.period_s)
-
-
-def compiled_window_stream(model, vehicle: VehicleConfig, stream):
-    """``stream`` (what ``model.start_window`` returned) stepped by the compiled step when the model is a physics or
-    hybrid model whose step compiled (:func:`window_step`), or has a ``compiled_stream`` of its own (the direct
-    model's); else ``stream`` itself."""
-    own = getattr(model, "compiled_stream", None)
-    if own is not None:
-        return own(vehicle, stream)
-    if not isinstance(model, (PhysicsPredictor, HybridPredictor)):
-        return stream
-    step = window_step(model, vehicle)
-    if not step.compiled:
-        return stream
-    return CompiledWindowStream(stream, step, model.model if isinstance(model, HybridPredictor) else None)
