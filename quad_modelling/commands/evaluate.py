@@ -217,8 +217,11 @@ def evaluate_flight_file(path: str, vehicle: VehicleConfig | None, specs: list[s
 def _evaluations(outcomes, skipped: list[str], vehicles: list[str], first_in_span: dict[str, str]):
     """The flights' evaluations of the outcomes, in order; skipped files and gap warnings printed on the way;
     ``first_in_span``: span name -> the first flight with a window in it (filled on the way). A flight given twice
-    (the same recorded numbers) is refused as soon as its second copy's result arrives, not after every flight."""
+    (the same recorded numbers) is refused as soon as its second copy's result arrives, not after every flight. The
+    flights without a window are said after the last one, and only when another flight has one (else the merge's
+    one-line error says it: ``no_window_error``)."""
     fingerprints: list[tuple[str, str]] = []
+    windowless: list[str] = []
     for outcome in outcomes:
         for message in outcome.warnings:
             print(f"warning: {message}", file=sys.stderr)
@@ -236,12 +239,14 @@ def _evaluations(outcomes, skipped: list[str], vehicles: list[str], first_in_spa
         for span, sums in windowed[next(iter(windowed))].items():
             if sums.windows:
                 first_in_span.setdefault(span, outcome.path)
-        if not outcome.evaluation.statistics.windows:  # counted among the flights, scored nowhere: said
-            print(f"warning: {outcome.path}: no window in either span (too short, or every window touches the ground or a "
-                  "gap): not in the window scores", file=sys.stderr)
+        if not outcome.evaluation.statistics.windows:  # counted among the flights, scored nowhere: said below
+            windowless.append(outcome.path)
         yield outcome.evaluation
     if not vehicles:
         raise ConfigError("no readable flight among the inputs")
+    for path in windowless if first_in_span else []:
+        print(f"warning: {path}: no window in either span (too short, or every window touches the ground or a gap): not in "
+              "the window scores", file=sys.stderr)
 
 
 def example_windows(result, first_in_span: dict[str, str], task: tuple, topic_map: str | None = None) -> list:

@@ -147,6 +147,9 @@ class SpanSpec:
         return start_s >= self.start - 1e-9 and end_s <= self.end + 1e-9
 
 
+MAX_HORIZON_STEPS = 1_000_000
+"""Longest multi-step horizon [samples] (2.8 h at 100 Hz; the sums are (4, H) per model)."""
+
 MAX_SECONDS = 1.0e6
 """The longest window, warm start or drop [s] (11.6 days, longer than any flight log): flight times are counted in
 int64 nanoseconds, which a 1e10 s window overflowed."""
@@ -293,6 +296,8 @@ class EvaluationConfig:
             raise ConfigError(f"--horizons {','.join(map(str, self.horizons))}: give positive step counts")
         if list(self.horizons) != sorted(set(self.horizons)):
             raise ConfigError(f"--horizons {','.join(map(str, self.horizons))}: give each step count once, in increasing order")
+        if self.horizons[-1] > MAX_HORIZON_STEPS:  # 1e20 steps was accepted and scored nothing, said in tables.md only
+            raise ConfigError(f"--horizons {','.join(map(str, self.horizons))}: at most {MAX_HORIZON_STEPS} steps")
         if not self.smooth_cutoff_hz > 0:
             raise ConfigError(f"the smoothing cutoff must be a positive frequency in Hz, got {self.smooth_cutoff_hz:g}")
         self.spans()

@@ -75,17 +75,29 @@ count as radians agreeing with it (recorded in ``meta.notes``; the attitude alwa
 quaternion)."""
 
 
+def _uneven_row(lines: list[str], columns: int) -> str | None:
+    """The first data line (after the header) whose cells are not the header's ``columns``, said as the reader says a
+    row; None when every non-blank line has them. A row with one cell more or less shifts the columns after it:
+    numpy's ``usecols`` read a longer row's first cells silently (a stray cell made Vbat 60 971 V for 100 rows)."""
+    row = 0
+    for number, line in enumerate(lines, start=2):  # the file's line number (the header is line 1)
+        if not line.strip():
+            continue  # blank lines are skipped by the parser too
+        row += 1
+        cells = line.count(",") + 1
+        if cells != columns:
+            what = "a short or truncated row" if cells < columns else "a cell more than the header: the columns after it shift"
+            return f"data row {row} (line {number} of the file) has {cells} values, the header {columns} columns: {what}"
+    return None
+
+
 def _unparsable(err: ValueError, columns: list[str]) -> str:
     """The message of numpy.loadtxt's ValueError in the reader's terms: the column by its ``columns`` (header) name and
-    the data row counted from 1 after the header (numpy counts the row from 0 and the file's column from 1)."""
+    the data row counted from 1 after the header (numpy counts the row from 0 and the file's column from 1); rows of
+    another length are refused before (:func:`_uneven_row`)."""
     import re
 
     text = reason(err)
-    short = re.search(r"invalid column index \d+ at row (\d+) with (\d+) columns", text)
-    if short:  # a row with fewer cells than the header: cut short (a truncated file's last line) or cells lost
-        row, cells = int(short.group(1)), int(short.group(2))  # numpy counts this row from 1 (a bad value's from 0)
-        return (f"data row {row} (line {row + 1} of the file) has {cells} values, the header {len(columns)} columns: "
-                f"a short or truncated row")
     found = re.search(r"could not convert string (.*) to \w+ at row (\d+), column (\d+)", text)
     if not found:
         return f"unparsable value ({text})"
@@ -127,9 +139,13 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
                 raise DataError(f"{where}: NanoBench column(s) {twice} appear more than once in the header")
             optional = [c for group in OPTIONAL.values() for c in group]
             index = {name: header.index(name) for name in (*REQUIRED, *optional, *EULER_COLUMNS) if name in header}
+            lines = stream.read().splitlines()
+            uneven = _uneven_row(lines, len(header))
+            if uneven:
+                raise DataError(f"{where}: {uneven}")
             with warnings.catch_warnings():  # a header-only file is refused below, not warned about
                 warnings.simplefilter("ignore", UserWarning)
-                rows = np.loadtxt(stream, delimiter=",", usecols=list(index.values()), ndmin=2)
+                rows = np.loadtxt(lines, delimiter=",", usecols=list(index.values()), ndmin=2)
     except DataError:
         raise  # a ValueError too, already naming the file
     except FileNotFoundError as err:

@@ -100,6 +100,11 @@ def inputs(tmp_path_factory) -> Path:
                                                  for r in [header, *rows]) + "\n")
     rows[20][header.index("t")] = "1e300"
     (d / "t1e300.csv").write_text("\n".join(",".join(r) for r in [header, *rows]) + "\n")
+    jumped = [line.split(",") for line in lines[1:50]]
+    for row in jumped[30:]:  # every stamp after row 30 1e9 s on: a 745 GiB uniform grid (session 44)
+        row[header.index("t")] = repr(float(row[header.index("t")]) + 1e9)
+    (d / "t_jump.csv").write_text("\n".join(",".join(r) for r in [header, *jumped]) + "\n")
+    (d / "extra_cell.csv").write_text("\n".join([lines[0], *lines[1:20], lines[20] + ",1.0", *lines[21:50]]) + "\n")
     os.mkfifo(d / "fifo.csv")
     os.mkfifo(d / "fifo.yaml")
     os.mkfifo(d / "fifo.npz")
@@ -351,6 +356,11 @@ CORPUS = [
     ("evaluate-warm-0", ["evaluate", "{d}/flight.mat", "--warm", "0", "-o", "{d}/work/e"], "need window_s > warm_s > 0 (--window, --warm)"),
     ("evaluate-horizons-repeated", ["evaluate", "{d}/flight.mat", "--horizons", "1,1,10", "-o", "{d}/work/e"],
      "--horizons 1,1,10: give each step count once, in increasing order"),
+    ("info-time-jump", ["info", "{d}/t_jump.csv"], "t_jump.csv: the time jumps by 1e+09 s after sample 30"),
+    ("convert-extra-cell", ["convert", "{d}/extra_cell.csv", "-o", "{d}/work/b"],
+     "extra_cell.csv: data row 20 (line 21 of the file) has 53 values, the header 52 columns: a cell more than the header"),
+    ("evaluate-horizons-huge", ["evaluate", "{d}/flight.mat", "--horizons", "1,99999999999999999999", "-o", "{d}/work/e"],
+     "--horizons 1,99999999999999999999: at most 1000000 steps"),
     ("bag-named-mat", ["simulate", "-o", "{d}/work/s.mat", "--bag", "--duration", "5"], "-o {d}/work/s.mat: an MCAP bag is a directory; a name ending in .mat"),
     ("bag-named-csv", ["convert", "{d}/flight.mat", "-o", "{d}/work/s.csv"], "-o {d}/work/s.csv: an MCAP bag is a directory; a name ending in .csv"),
     ("path-too-long-output-dir", ["simulate", "-o", DEEP_PATH + "/s.mat"], "bytes): output directory path cannot be looked up (File name too long)"),

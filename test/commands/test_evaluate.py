@@ -90,12 +90,14 @@ def test_a_flight_the_reader_cut_is_said_by_evaluate_as_by_convert(tmp_path, cap
     from test.conftest import FIXTURES
 
     quirk = FIXTURES / "nanobench" / "B9_trefoil_fast_rep2_rows1199-1399.csv.gz"
-    main(["evaluate", str(quirk), "--drop", "0:0", "--train", "0%:50%", "--eval", "50%:100%", "-o", str(tmp_path / "e")])
-    warnings = [line for line in capsys.readouterr().err.splitlines() if line.startswith("warning:")]
-    assert len(warnings) == 2 and warnings[0].startswith(f"warning: {quirk}: motor columns continue as one straight line")
+    assert main(["evaluate", str(quirk), "--drop", "0:0", "--train", "0%:50%", "--eval", "50%:100%", "-o", str(tmp_path / "e")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    warnings = [line for line in err if line.startswith("warning:")]
+    assert len(warnings) == 1 and warnings[0].startswith(f"warning: {quirk}: motor columns continue as one straight line")
     assert warnings[0].endswith("the flight is cut at t=0.53 s")
-    assert warnings[1] == (f"warning: {quirk}: no window in either span (too short, or every window touches the ground or "
-                           "a gap): not in the window scores")  # the 0.53 s left
+    # the 0.53 s left hold no window: the one error line says so (no warning line before it repeats it)
+    assert len(err) == 2 and "no 10 s window fits the spans" in err[1] and "flight durations 0.5 s" in err[1]
+    assert not (tmp_path / "e").exists()
 
 
 def test_a_span_that_holds_no_window_is_said_in_one_warning_line(tmp_path, capsys):

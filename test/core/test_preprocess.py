@@ -179,6 +179,23 @@ def test_stamp_jitter_of_receipt_times_passes_the_uniform_check_and_a_missing_sa
         uniform_time_check(make_log(t=dropped))
 
 
+def test_a_time_jump_no_uniform_grid_can_hold_is_refused_naming_it():
+    """A stamp 1e9 s off asked numpy for a 745 GiB grid (a traceback from info, convert, identify, evaluate; a review,
+    session 44); a jump the grid can hold (1e4 s, 1e6 rows) is a marked gap as before."""
+    from quad_modelling.core.preprocess import MAX_FILLED_ROWS, mark_time_base_holes, marked_gaps
+
+    t = np.arange(400) / 100.0
+    jumped = make_log(t=np.where(t >= 2.0, t + 1e9, t))
+    for form in (resample_uniform, mark_time_base_holes):
+        with pytest.raises(DataError) as info:
+            form(jumped)
+        assert str(info.value) == (f"test: the time jumps by {1e9 + 0.01:.6g} s after sample 200 (t = 1.99 s into the flight): a "
+                                   f"uniform time base would fill {int(round((1e9 + 3.99) * 100)) + 1 - 400} rows (at most "
+                                   f"{MAX_FILLED_ROWS}); a stamp is wrong")
+    held = resample_uniform(make_log(t=np.where(t >= 2.0, t + 1e4, t)))
+    assert len(held) == 1_000_400 and len(marked_gaps(held)) == 1
+
+
 def test_each_hole_is_said_once_by_the_rule_that_marked_it():
     """A reader's gap (0.5 s rule) was restated "longer than 0.05 s" once resampling marked a hole beside it, and a
     hole of the time base whose filled rows lie inside a reader's gap of a topic stamped 3 ms later was said twice,

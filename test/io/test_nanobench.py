@@ -166,6 +166,25 @@ def test_a_truncated_file_names_its_short_last_row(tmp_path):
     assert str(info.value).endswith(f"values, the header {len(lines[0].split(','))} columns: a short or truncated row")
 
 
+@pytest.mark.parametrize("damage, what", [
+    (lambda cells: cells[:30] + ["9.9"] + cells[30:], "a cell more than the header: the columns after it shift"),
+    (lambda cells: cells + ["1.0"], "a cell more than the header: the columns after it shift"),
+    (lambda cells: cells[:5] + cells[6:], "a short or truncated row"),
+])
+def test_a_row_with_a_cell_more_or_less_than_the_header_is_refused_by_its_row(tmp_path, damage, what):
+    """numpy's ``usecols`` read a longer row's first cells and dropped the rest: a stray cell in rows 1201-1300 shifted
+    Vbat to ~61 kV with no word (a review, session 44); a row missing a cell in the middle was read shifted too."""
+    lines = gzip.open(FLIGHT, "rt").read().splitlines()
+    width = len(lines[0].split(","))
+    lines[101] = ",".join(damage(lines[101].split(",")))  # data row 101
+    path = tmp_path / "uneven.csv"
+    path.write_text("\n".join(lines) + "\n\n")
+    with pytest.raises(DataError) as info:
+        read_nanobench(path)
+    cells = width + (1 if "more" in what else -1)
+    assert str(info.value) == f"{path}: data row 101 (line 102 of the file) has {cells} values, the header {width} columns: {what}"
+
+
 def test_a_gzipped_csv_is_read_whatever_its_name(tmp_path):
     renamed = tmp_path / "flight.txt"
     renamed.write_bytes(FLIGHT.read_bytes())

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from quad_modelling.core.variables import VARIABLES
 from quad_modelling.errors import DataError
 
 STATISTICS_VERSION = 1
@@ -161,8 +162,20 @@ class WindowSums:
 
     @classmethod
     def from_json(cls, data: dict, where: str) -> WindowSums:
-        return cls(count(data["windows"], f"{where}.windows"), ExactSum.from_json(data["rms_sum"], f"{where}.rms_sum"),
+        """The sums of a statistics document; DataError naming ``where`` when they contradict their count: sums of one
+        row of 18 variables exactly when windows were scored, mean RMS >= 0 and mean TIC in [0, 1] (NaN allowed: a
+        window without a signal). A window count edited to 0 with its sums kept merged into TIC 2 and RMS 3944 m/s."""
+        sums = cls(count(data["windows"], f"{where}.windows"), ExactSum.from_json(data["rms_sum"], f"{where}.rms_sum"),
                    ExactSum.from_json(data["tic_sum"], f"{where}.tic_sum"))
+        expected = (len(VARIABLES),) if sums.windows else None
+        for name, total in (("rms_sum", sums.rms_sum), ("tic_sum", sums.tic_sum)):
+            if total.shape != expected:
+                raise DataError(f"{where}.{name}: sums of shape {total.shape} for {sums.windows} windows (expected {expected})")
+        rms, tic = sums.means()
+        if sums.windows and (np.any(rms < 0) or np.any(tic < 0) or np.any(tic > 1)):  # NaN compares False
+            raise DataError(f"{where}: mean RMS {np.nanmin(rms):.6g} or mean TIC {np.nanmin(tic):.6g}..{np.nanmax(tic):.6g} over "
+                            f"{sums.windows} windows: the sums and the window count disagree (RMS >= 0, TIC in [0, 1])")
+        return sums
 
 
 def count(value, where: str, least: int = 0) -> int:
@@ -171,6 +184,13 @@ def count(value, where: str, least: int = 0) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not least <= value < 2**53:
         raise ValueError(f"{where} is {value!r}, not a whole number >= {least}")
     return value
+
+
+def duration(value, where: str) -> float:
+    """A flight's duration of a results document [s]: a finite JSON number >= 0; ValueError naming ``where`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
+        raise ValueError(f"{where} is {value!r}, not a duration >= 0 s")
+    return float(value)
 
 
 @dataclass
@@ -223,10 +243,15 @@ class MultistepSums:
     def from_json(cls, data: dict, where: str) -> MultistepSums:
         sums = {m: ExactSum.from_json(s, f"{where}.error_sums.{m}") for m, s in data["error_sums"].items()}
         max_horizon = count(data["max_horizon"], f"{where}.max_horizon", least=1)
+        starts = count(data["starts"], f"{where}.starts")
         for m, s in sums.items():
             if s.shape != (4, max_horizon):
                 raise DataError(f"{where}.error_sums.{m}: shape {s.shape}, expected (4, {max_horizon})")
-        return cls(str(data["span"]), max_horizon, [str(m) for m in data["order"]], count(data["starts"], f"{where}.starts"), sums,
+            mae = s.mean(max(starts, 1))
+            if np.any(mae < 0) or (not starts and np.any(mae != 0)):  # a sum of absolute errors: >= 0, 0 over no start
+                raise DataError(f"{where}.error_sums.{m}: sums of absolute errors below 0 or over {starts} starts: they and the "
+                                "start count disagree")
+        return cls(str(data["span"]), max_horizon, [str(m) for m in data["order"]], starts, sums,
                    dict(data["forms"]), dict(data["not_multistep"]), count(data.get("ground_starts", 0), f"{where}.ground_starts"))
 
 
@@ -346,7 +371,8 @@ class EvaluationStatistics:
                         for m, spans in data["windowed"].items()}
             multistep = None if data["multistep"] is None else MultistepSums.from_json(data["multistep"], f"{where}.multistep")
             numbers = data.get("vehicle_numbers")  # absent in results written before it was kept
-            stats = cls(str(data["vehicle"]), [str(m) for m in data["models"]], windowed, multistep, [float(d) for d in data["durations_s"]],
+            stats = cls(str(data["vehicle"]), [str(m) for m in data["models"]], windowed, multistep,
+                        [duration(d, f"{where}.durations_s[{i}]") for i, d in enumerate(data["durations_s"])],
                         None if numbers is None else {str(k): float(v) for k, v in numbers.items()})
             files = data.get("model_files")
             stats.model_files = None if files is None else {str(k): str(v) for k, v in files.items()}

@@ -107,3 +107,33 @@ def test_a_count_that_is_not_a_whole_number_of_windows_is_malformed_statistics(t
     data["windowed"]["greybox"]["eval"]["windows"] = windows
     with pytest.raises(DataError, match=r"^results.json: malformed statistics \(ValueError: .*windows is .*, not a whole number >= 0\)$"):
         EvaluationStatistics.from_json(data, "results.json")
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["windowed"]["greybox"]["eval"].update(windows=0),
+     r"statistics\.windowed\.greybox\.eval\.rms_sum: sums of shape \(18,\) for 0 windows \(expected None\)"),
+    (lambda d: d["windowed"]["greybox"]["eval"].update(windows=d["windowed"]["greybox"]["eval"]["windows"] * 10**6),
+     None),  # the means shrink: still a possible evaluation
+    (lambda d: d["windowed"]["greybox"]["train"].update(windows=1),
+     r"statistics\.windowed\.greybox\.train: mean RMS .* or mean TIC .* over 1 windows: the sums and the window count "
+     r"disagree \(RMS >= 0, TIC in \[0, 1\]\)"),
+    (lambda d: d.update(durations_s=[-1.0]), r"malformed statistics \(ValueError: statistics\.durations_s\[0\] is -1\.0, not a duration >= 0 s\)"),
+    (lambda d: d.update(durations_s=["inf"]), r"statistics\.durations_s\[0\] is 'inf', not a duration >= 0 s"),
+    (lambda d: d["multistep"].update(starts=0), r"statistics\.multistep\.error_sums\.naive: sums of absolute errors below 0 or over "
+                                                r"0 starts: they and the start count disagree"),
+])
+def test_sums_that_contradict_their_counts_are_refused_naming_the_field(two_flights, edit, message):
+    """A results file whose window count was set to 0 with its sums kept merged into TIC 2.0 and RMS 3944 m/s, a
+    negative duration merged silently (a review, session 44): the sums must be those of their count."""
+    vehicle, flights = two_flights
+    config = EvaluationConfig.preset("short")
+    stats = [evaluate_flight(f, [make_model("greybox", vehicle)], vehicle, config).statistics for f in flights]
+    stats[0].merge(stats[1])
+    data = json.loads(json.dumps(stats[0].to_json()))
+    assert data["windowed"]["greybox"]["eval"]["windows"] > 0 and data["windowed"]["greybox"]["train"]["windows"] > 1
+    edit(data)
+    if message is None:
+        EvaluationStatistics.from_json(data)
+        return
+    with pytest.raises(DataError, match=message):
+        EvaluationStatistics.from_json(data)
