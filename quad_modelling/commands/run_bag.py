@@ -392,6 +392,9 @@ def _run(args: argparse.Namespace, warned: bool = False) -> int:
     if not warned:  # a bag of another stack: run printed them as read through its map
         print_flight_warnings([flight])  # as evaluate prints them, once
     check_window_rate(flight)  # the evaluator would mark every window of a flight this slow
+    if args.rate > 0 and flight.duration / args.rate > args.timeout:  # 1e-300 was accepted, then timed out (review)
+        raise ConfigError(f"--rate {args.rate:g}: the {flight.duration:.1f} s flight would replay for {flight.duration / args.rate:.3g} s, "
+                          f"longer than --timeout {args.timeout:g} s (raise --timeout, or --rate 0: paced by the nodes)")
     for note in spans_without_a_window(spans, flight.duration, float(args.window)):
         print(f"warning: {args.bag}: {note}", file=sys.stderr)
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file

@@ -247,6 +247,8 @@ CORPUS = [
      "--disturbance ',': an empty list; name each item once"),
     ("info-bag-vehicle-unknown", ["info", "{d}/bag", "--vehicle", "nosuch"], "nosuch"),
     ("info-bag-vehicle-other", ["info", "{d}/bag", "--vehicle", "crazyflie21"], "was converted for vehicle linkquad; info reports"),
+    ("run-bag-rate-tiny", ["run-bag", "{d}/bag", "--rate", "1e-300", "-o", "{d}/work/r"],
+     "s, longer than --timeout 900 s (raise --timeout, or --rate 0: paced by the nodes)"),
     ("run-bag-rate-huge", ["run-bag", "{d}/bag", "--rate", "1e308", "-o", "{d}/work/r"],
      "--rate 1e+308: must be >= 0 and at most 1e+06"),
     ("evaluate-horizons-negative", ["evaluate", "{d}/flight.mat", "--horizons", "-1", "-o", "{d}/work/e"],
