@@ -240,7 +240,8 @@ def interpolate_at(stamps_ns: np.ndarray, values: np.ndarray, at_ns: np.ndarray,
     else NaN: a truth must be bracketed); a row in a step longer than ``max_gap_s`` or farther outside is NaN.
     """
     stamps = np.asarray(stamps_ns, dtype=np.int64)
-    values = np.asarray(values, dtype=float).reshape(len(stamps), -1)
+    values = np.asarray(values, dtype=float)
+    values = values if values.ndim == 2 else values.reshape(len(stamps), -1)  # (0, m): none of m numbers
     at = np.asarray(at_ns, dtype=np.int64)
     out = np.full((len(at), values.shape[1]), np.nan)
     if len(stamps) == 0 or len(at) == 0:

@@ -450,6 +450,10 @@ def gap_free_runs(log: FlightLog, start: int, stop: int) -> list[tuple[int, int]
     return [(start + int(a), start + int(b)) for a, b in zip(edges[::2], edges[1::2]) if b > a]
 
 
+MIN_SAMPLE_PERIOD_S = 1.0e-4
+"""Shortest nominal sample period [s] (10 kHz, beyond any flight stack's command rate): a window of shorter periods
+would be allocated with billions of rows, a receding horizon's h steps would be as many."""
+
 MIN_SAMPLE_RATE_HZ = 1.0 / MAX_GAP_S
 """Slowest flight that can be scored [Hz]: the coverage rule allows no step over
 :data:`~quad_modelling.core.alignment.MAX_GAP_S` (50 ms) in a window."""

@@ -45,7 +45,7 @@ from rclpy.qos import (
 
 from quad_modelling.core.alignment import CONFIRM, MAX_STAMP_STEP_S
 from quad_modelling.node_entry import EXIT_INTERRUPTED
-from quad_modelling.core.windows import seconds_spans
+from quad_modelling.core.windows import MIN_SAMPLE_PERIOD_S, seconds_spans
 from quad_modelling.errors import ConfigError, QuadModellingError, reason
 from quad_modelling.io import topics
 from quad_modelling.io.reports.evaluation import received_text
@@ -169,9 +169,13 @@ def non_negative(value) -> str | None:
     return _bounded(value) or (None if value >= 0 else "must be >= 0")
 
 
-MIN_SAMPLE_PERIOD_S = 1.0e-4
-"""Shortest nominal sample period [s] (10 kHz, beyond any flight stack's command rate): a window of shorter periods
-would be allocated with billions of rows."""
+MIN_TIME_SPAN_S = 1.0e-6
+"""Shortest window, warm start or stamp step a parameter sets [s]: stamps are whole nanoseconds, and 1e-12 s rounded to
+0 ns (a division by zero on the first message, or a gate that dropped every message)."""
+
+
+def time_span(value) -> str | None:
+    return _bounded(value) or (None if value >= MIN_TIME_SPAN_S else f"must be at least {MIN_TIME_SPAN_S:g} s")
 
 
 def sample_period(value) -> str | None:
@@ -469,7 +473,7 @@ def stamp_step_param() -> Param:
     """``max_stamp_step_s``: the one stamp rule of every node (:class:`~quad_modelling.core.alignment.StampGate`)."""
     return Param("max_stamp_step_s", MAX_STAMP_STEP_S, "longest regular step of a stream's stamps [s]; a stamp beyond it, back in time or "
                                           f"repeated is dropped as an outlier, {CONFIRM} consistent ones are a new time base "
-                                          "(restarted publisher, clock jump, end of a longer silence)", positive)
+                                          "(restarted publisher, clock jump, end of a longer silence)", time_span)
 
 
 def adopt_vehicle(node, vehicles: VehicleSource, announced: str, learned: Callable[[], None] = lambda: None) -> None:

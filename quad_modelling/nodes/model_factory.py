@@ -22,6 +22,7 @@ from quad_modelling.nodes.common import (
     non_empty,
     non_negative,
     positive,
+    time_span,
     qos_param,
     realtime_param,
     stamp_step_param,
@@ -66,8 +67,8 @@ def predictor_parameters(default_model: str) -> list[Param]:
               model_name_check),
         vehicle_param(),
         Param("window_s", EvaluationConfig.window_s, "window length W [s]; windows [t0 + kW, t0 + (k+1)W) from the first motor input",
-              positive),
-        Param("warm_s", EvaluationConfig.warm_s, "warm start at each window start [s] (thesis 0.2 s)", positive),
+              time_span),
+        Param("warm_s", EvaluationConfig.warm_s, "warm start at each window start [s] (thesis 0.2 s)", time_span),
         Param("sample_period_s", 0.0, "nominal sample period [s]; 0 = median of the first motor-input steps", sample_period),
         Param("measurement_tolerance_s", 0.02, "a command stamp with no measurement sample on both sides uses the nearest "
                                               "one within this [s], else the row has no measurement", non_negative),

@@ -373,8 +373,10 @@ class PredictorNode(Node):
             return
         if self.horizon is not None:
             fault = self.horizon.add(ns, u, omega)
-            if fault:
-                self.faults.report("no_multistep_form", f"model {self.name_} {fault}")
+            if fault and fault[0] == "no_multistep_form":
+                self.faults.report("no_multistep_form", f"model {self.name_} {fault[1]}")
+            elif fault:  # a period too short or an h too long (a burst of inputs): measured again
+                self.faults.report("horizon_period", fault[1])
             if self.horizon.inputs == "hold":
                 self._decode_pending()  # this input is the anchor: the measurements received before it are needed now
             self._publish_horizons()

@@ -52,6 +52,7 @@ from quad_modelling.nodes.common import (
     non_empty,
     non_negative,
     positive,
+    time_span,
     qos_param,
     spans_check,
     stamp_step_param,
@@ -274,13 +275,14 @@ class WindowBuffer:
         self.passed_at: float | None = None  # wall time [s, monotonic] the first stream moved past this window
 
 
-def samples(windows: list[WindowBuffer], get) -> tuple[np.ndarray, np.ndarray]:
-    """(stamps [ns] sorted, values) of one stream over consecutive windows (``get``: the window's dict)."""
+def samples(windows: list[WindowBuffer], get, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """(stamps [ns] sorted, values (n, ``width``)) of one stream over consecutive windows (``get``: the window's dict);
+    none: (0, ``width``) (a window closed with predictions but no measurement: a (0,) array made a traceback)."""
     merged: dict[int, list] = {}
     for w in windows:
         merged.update(get(w))
     stamps = np.array(sorted(merged), dtype=np.int64)
-    return stamps, np.array([merged[ns] for ns in stamps], dtype=float)
+    return stamps, np.array([merged[ns] for ns in stamps], dtype=float).reshape(len(stamps), width)
 
 
 def measurement_samples(neighbours: list[WindowBuffer], rows: np.ndarray, mapped=None, hold: bool = True) -> dict[str, np.ndarray]:
@@ -288,9 +290,10 @@ def measurement_samples(neighbours: list[WindowBuffer], rows: np.ndarray, mapped
     where it does not reach): the contract's ``odom`` (n, 10) and ``imu`` (n, 6) fields or, with a topic map
     (``mapped``: :class:`~quad_modelling.nodes.mapping.streams.MappedStreams`), each map field's numbers."""
     if mapped is None:
-        return {"odom": interpolate_at(*samples(neighbours, lambda w: w.odom), rows, quaternion=topics.ODOM_QUATERNION, hold=hold),
-                "imu": interpolate_at(*samples(neighbours, lambda w: w.imu), rows, hold=hold)}
-    return {f: interpolate_at(*samples(neighbours, lambda w, f=f: mapped.field_samples(w.mapped, f)), rows,
+        return {"odom": interpolate_at(*samples(neighbours, lambda w: w.odom, topics.ODOM_FIELDS), rows, quaternion=topics.ODOM_QUATERNION,
+                                       hold=hold),
+                "imu": interpolate_at(*samples(neighbours, lambda w: w.imu, topics.IMU_FIELDS), rows, hold=hold)}
+    return {f: interpolate_at(*samples(neighbours, lambda w, f=f: mapped.field_samples(w.mapped, f), mapped.tracks[f].width), rows,
                               quaternion=(0, 4) if f == "attitude" else None, hold=hold) for f in mapped.tracks}
 
 
@@ -367,8 +370,9 @@ def score_model(model: str, window: WindowBuffer, neighbours: list[WindowBuffer]
     if reason:
         return None, f"predictions: {reason} (predictor late, restarted or failed)"
     rows = np.array(sorted(window.motor), dtype=np.int64)
-    pred_odom = interpolate_at(*samples(neighbours, lambda w: w.pred_odom[model]), rows, quaternion=topics.ODOM_QUATERNION)
-    pred_accel = interpolate_at(*samples(neighbours, lambda w: w.pred_accel[model]), rows)
+    pred_odom = interpolate_at(*samples(neighbours, lambda w: w.pred_odom[model], topics.PREDICTED_ODOM_FIELDS), rows,
+                               quaternion=topics.ODOM_QUATERNION)
+    pred_accel = interpolate_at(*samples(neighbours, lambda w: w.pred_accel[model], topics.ACCEL_FIELDS), rows)
     if not (np.isfinite(pred_odom).all() and np.isfinite(pred_accel).all()):
         return None, "predictions do not reach every engine input of the window"
     absolute = topics.predictions_from_fields(pred_odom, pred_accel)
@@ -425,8 +429,8 @@ def _models_check(value) -> str | None:
 EVALUATOR_PARAMETERS = [
     Param("models", ["naive"], "names of the predictors to score (their topics <name>/odom, <name>/accel)", _models_check),
     vehicle_param(),
-    Param("window_s", EvaluationConfig.window_s, "window length W [s], as the predictors", positive),
-    Param("warm_s", EvaluationConfig.warm_s, "warm start [s], as the predictors", positive),
+    Param("window_s", EvaluationConfig.window_s, "window length W [s], as the predictors", time_span),
+    Param("warm_s", EvaluationConfig.warm_s, "warm start [s], as the predictors", time_span),
     Param("sample_period_s", 0.0, "nominal engine-input period [s] of the window clock's dt/2 shift; 0 = median of the first "
                                   "motor-input steps", sample_period),
     Param("horizon_s", 0.0, "receding-horizon scoring: MAE@h of <model>/horizon/odom (predicted horizon_s ahead, stamped at the "

@@ -268,3 +268,20 @@ def test_a_model_that_never_publishes_is_named(ros):
     assert publishers
     greybox.destroy_node()
     node.destroy_node()
+
+
+def test_a_window_with_horizon_predictions_but_no_measurement_counts_them_unreached():
+    """A restarted clock left a window holding receding-horizon predictions and no measurement: closing it raised
+    ``cannot reshape array of size 0`` at shutdown and the results were not written (a review, session 44). Its
+    predictions are unreached, none scored; the same with a window of measurements but no prediction odometry."""
+    from quad_modelling.nodes.scoring import WindowBuffer, measurement_samples, score_horizon
+
+    window = WindowBuffer(3, ["physics"])
+    odom, _ = topics.prediction_fields(np.zeros((1, 18)))
+    window.horizon["physics"] = {5_000_000_000 + k * 10_000_000: list(odom[0]) for k in range(4)}
+    (record,) = score_horizon(window, [window], ["physics"], load_vehicle("crazyflie21"))
+    assert (record.model, record.index, record.scored, record.unreached) == ("physics", 3, 0, 4)
+    np.testing.assert_array_equal(record.error_sums, 0.0)
+    measured = measurement_samples([window], np.array([1, 2], dtype=np.int64))
+    assert measured["odom"].shape == (2, topics.ODOM_FIELDS) and measured["imu"].shape == (2, topics.IMU_FIELDS)
+    assert np.isnan(measured["odom"]).all() and np.isnan(measured["imu"]).all()

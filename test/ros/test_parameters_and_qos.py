@@ -103,3 +103,15 @@ def test_our_data_keeps_its_history_for_a_late_reader_that_asks():
     # qos:=replay asks our replay's measurements for their history too; reliable stays volatile (matches any stack)
     assert subscription_qos("replay", 400) == offered
     assert subscription_qos("reliable", 400).durability == DurabilityPolicy.VOLATILE
+
+
+def test_time_parameters_shorter_than_a_microsecond_are_refused_at_start():
+    """``max_stamp_step_s:=1e-12`` passed ``> 0`` and rounded to 0 ns: a traceback at the predictor's start and an
+    evaluator that dropped every message; ``window_s:=1e-12`` divided by zero at the first message (a review,
+    session 44). Every node's window, warm start and stamp step is at least 1 us, said in its one line."""
+    for params in (predictor_parameters("naive"), EVALUATOR_PARAMETERS):
+        checks = {p.name: p.check for p in params}
+        for name in ("window_s", "warm_s", "max_stamp_step_s"):
+            assert checks[name](1e-12) == "must be at least 1e-06 s", name
+            assert checks[name](1e-6) is None and checks[name](0.2) is None
+            assert checks[name](float("inf")) == "must be finite and at most 1e+06"

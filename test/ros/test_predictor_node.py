@@ -121,7 +121,7 @@ def test_bad_parameters_exit_with_code_2_and_the_reason():
         bad_window, bad_executor, bad_priority, unknown = (run.result() for run in runs)
         narx = narx_run.result()
     assert bad_window.returncode == 2
-    assert "window_s" in bad_window.stderr and "must be > 0" in bad_window.stderr
+    assert "window_s" in bad_window.stderr and "must be at least 1e-06 s" in bad_window.stderr
     assert bad_executor.returncode == 2 and "executor" in bad_executor.stderr and "events, single" in bad_executor.stderr
     assert bad_priority.returncode == 2 and "realtime_priority" in bad_priority.stderr and "1 to 99" in bad_priority.stderr
     assert unknown.returncode == 2 and "unknown model" in unknown.stderr and "nosuchmodel" in unknown.stderr

@@ -71,6 +71,7 @@ from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.preprocess import trim_prediction
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.windows import MIN_SAMPLE_PERIOD_S
 from quad_modelling.errors import DataError, QuadModellingError
 
 
@@ -231,6 +232,10 @@ def prime(predictor: StreamingPredictor, vehicle: VehicleConfig, sample_period_s
 HORIZON_PERIOD_STEPS = 20
 """Command steps whose median gives dt (h = round(horizon_s / dt)) when ``sample_period_s`` is 0."""
 
+MAX_LIVE_HORIZON_STEPS = 10_000
+"""Most steps h of a live receding horizon (25 s at 400 Hz): each input rolls the model out h steps (a burst of
+inputs 1 us apart made dt 1 us, h 100 000, and a predictor that answered nothing and ignored SIGINT)."""
+
 
 HORIZON_INPUTS = ("hold", "flown")
 """Commands after a receding-horizon anchor (:class:`RecedingHorizon`): the last one held, or the flown ones."""
@@ -297,8 +302,10 @@ class RecedingHorizon:
         self.context = None  # the last row added to the carried form and its measurement (the next log's first row)
         self.fed = 0  # index (as ``next``) of the first row not added yet
 
-    def add(self, ns: int, u: np.ndarray, omega) -> str | None:
-        """Keep a command; learn h once dt is known. Returns a fault sentence when the model has no multi-step form."""
+    def add(self, ns: int, u: np.ndarray, omega) -> tuple[str, str] | None:
+        """Keep a command; learn h once dt is known. Returns a fault (kind, sentence) when the model has no multi-step
+        form, or when dt is shorter than :data:`~quad_modelling.core.windows.MIN_SAMPLE_PERIOD_S` or makes h more
+        than :data:`MAX_LIVE_HORIZON_STEPS` (a measured dt is then measured again over the next steps)."""
         if self.rows:
             self.steps_seen.append(ns - self.rows[-1][0])
             del self.steps_seen[:-HORIZON_PERIOD_STEPS]
@@ -310,6 +317,13 @@ class RecedingHorizon:
             period_s = float(np.median(self.steps_seen)) / 1e9
         if not period_s:
             return None
+        if period_s < MIN_SAMPLE_PERIOD_S or self.horizon_s / period_s > MAX_LIVE_HORIZON_STEPS:
+            self.steps_seen = []  # measured again over the next steps; the rows kept until then: the last
+            while len(self.rows) > 1:
+                self.rows.popleft()
+            given = "sample_period_s" if self.sample_period_s else f"the median of the last {HORIZON_PERIOD_STEPS} motor_input steps"
+            return "horizon_period", (f"receding horizon: {given} {period_s:.3g} s with horizon_s {self.horizon_s:g} (at least "
+                                      f"{MIN_SAMPLE_PERIOD_S:g} s, at most {MAX_LIVE_HORIZON_STEPS} steps): no horizon predictions yet")
         self.steps = max(1, int(round(self.horizon_s / period_s)))
         self._ends = np.array([0, self.steps])  # the rows ends_only asks for: the anchor's and the last
         self.period_ns = int(round(period_s * 1e9))
@@ -323,7 +337,7 @@ class RecedingHorizon:
             except (QuadModellingError, ValueError):
                 self.carried_form = None  # the history re-run reports the model's error at each anchor
             self._forget_carried()
-        return None if self.form is not None else "has no multi-step form: no horizon predictions"
+        return None if self.form is not None else ("no_multistep_form", "has no multi-step form: no horizon predictions")
 
     def waiting(self) -> bool:
         """True when an anchor's commands are in and it waits for its measurements (the node then decodes them at once)."""
