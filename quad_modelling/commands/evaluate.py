@@ -132,7 +132,7 @@ def check_one_vehicle(flights: list[FlightLog], verb: str) -> None:
 def warn_starting_values(vehicle, kind: str) -> None:
     """One warning line (stderr) when the physics base of a ``kind`` (physics, hybrid or direct) model holds constants
     no identification fitted: the model is built on them, and ``export`` refuses such a vehicle."""
-    from quad_modelling.core.vehicle import PHYSICS_KEYS
+    from quad_modelling.core.physics.parameters import PHYSICS_KEYS
 
     never = vehicle.never_identified(PHYSICS_KEYS)
     if never:

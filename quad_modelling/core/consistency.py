@@ -12,7 +12,7 @@ import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.preprocess import attitude_rates, nav_acceleration
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 
 GRAVITY_DISAGREEMENT = 0.3
 """Largest |mean a_N| / g of a flight whose attitude and accelerometer agree (:func:`frame_disagreements`): a flight

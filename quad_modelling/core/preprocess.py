@@ -47,7 +47,8 @@ from scipy import signal
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import SENSORS, FlightLog
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError, DataError
 
 SMOOTH_CUTOFF_HZ = 5.0
@@ -318,9 +319,8 @@ def causal_derivative(values: np.ndarray, dt: float, window_s: float = DERIVATIV
 def measured_variables(log: FlightLog, vehicle: VehicleConfig | None = None, causal: bool = False) -> np.ndarray:
     """(N, 18) best measurement of each variable in VARIABLES order (untrimmed, SI, N frame).
 
-    ``vehicle`` is accepted for symmetry with the models; gravity is the
-    models' :data:`quad_modelling.core.vehicle.GRAVITY`. Every column is the raw
-    row but the angular accelerations, differentiated gyros; ``causal`` differentiates
+    ``vehicle`` is accepted for symmetry with the models; gravity is the models' :data:`quad_modelling.core.physics.rigid_body.GRAVITY`.
+    Every column is the raw row but the angular accelerations, differentiated gyros; ``causal`` differentiates
     them from past rows only (:func:`causal_derivative`): what a model is given at
     an anchor (the causality rule, :func:`state_measurement`), while the truth it is
     scored against may be centred.

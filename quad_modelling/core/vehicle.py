@@ -45,11 +45,10 @@ import numpy as np
 
 from quad_modelling.core.input_files import read_yaml, yaml_number
 from quad_modelling.core.physics.effects import EffectTerm, effects_document, parse_effects
+from quad_modelling.core.physics.parameters import PHYSICS_KEYS
+from quad_modelling.core.physics.rigid_body import GRAVITY
 from quad_modelling.core.physics.rotors import hover_rotor_speed, linear_motor
 from quad_modelling.errors import ConfigError, VehicleKeyWarning
-
-GRAVITY = 9.81
-"""Local gravity used by the models [m/s²] (thesis value, Eq 3-10)."""
 
 
 def config_dir() -> Path:
@@ -90,21 +89,6 @@ CONSTANT_KEYS = (
 """Physical constants every vehicle file must give (docs/formats.md, vehicle configs): mass, arm, the airframe's
 inertias, rotor inertia, the command-to-rotor-speed map Ω_ss = k_u u + Ω_off, the rotor time constant τ_m and
 the thrust and yaw-torque constants k_f, k_m (T = k_f Ω², Q = k_m Ω²)."""
-
-PHYSICS_KEYS = (
-    "rotor_speed_gain",
-    "rotor_speed_offset",
-    "rotor_time_constant",
-    "rotor_delay",
-    "rotor_thrust_constant",
-    "rotor_torque_constant",
-    "rotor_drag_xy",
-    "rotor_drag_z",
-    "rotor_drag_arm",
-)
-"""Constants of the nonlinear physics model (:mod:`quad_modelling.core.physics.parameters`); those not in
-:data:`CONSTANT_KEYS` are optional in a vehicle file (validated when present; the ``physics`` model names the
-missing ones): the command delay δ, the linear rotor drag d_xy, d_z and its arm h_d (FRD z of where it acts)."""
 
 HELD_BY_IDENTIFY = ("rotor_speed_gain", "rotor_speed_offset")
 """Physics constants ``identify`` never fits (its ``identification.fit.held``): the speed map Ω_ss = k_u u + Ω_off,

@@ -54,7 +54,7 @@ import numpy as np
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 from quad_modelling.core.preprocess import (MeasurementGap, check_same_clock, interpolation_gaps, mark_measurement_gaps, marked_gaps,
                                            recorded_gap_rule)
 from quad_modelling.errors import BagError, ConfigError, DataError
@@ -459,7 +459,7 @@ def prediction_fields(prediction: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     the predicted body FLU, angular twist = rates FLU. Accel: the **specific force** of the
     predicted N acceleration in the predicted body FLU, as an IMU measures it,
     :math:`f_B = R^T (a_N - g e_z)` (:func:`~quad_modelling.core.frames.specific_force`, g =
-    :data:`~quad_modelling.core.vehicle.GRAVITY`; hovering level: (0, 0, +g) FLU), and the angular
+    :data:`~quad_modelling.core.physics.rigid_body.GRAVITY`; hovering level: (0, 0, +g) FLU), and the angular
     acceleration FLU. A subscriber compares ``<model>/accel`` with ``imu`` directly.
     """
     y = np.atleast_2d(np.asarray(prediction, dtype=float))

@@ -13,7 +13,8 @@ import yaml
 
 from quad_modelling.cli import main
 from quad_modelling.core.physics.parameters import PhysicsParameters
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle, vehicle_dir
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle, vehicle_dir
 from test.core.export.vehicles import crazyflie_document, random_hybrid, vehicle_of, write_vehicle
 
 

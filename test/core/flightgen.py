@@ -6,7 +6,7 @@ from scipy import signal
 from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.models.greybox import GreyboxModel
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 
 
 def linear_flight(vehicle, duration=60.0, rate=100.0, seed=0, amplitude=None, u0=None, source="linear"):

@@ -4,7 +4,7 @@ import numpy as np
 
 from quad_modelling.core.consistency import frame_disagreements
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 from test.core.test_preprocess import make_log
 
 

@@ -16,7 +16,7 @@ from quad_modelling.core.preprocess import (
     uniform_time_check,
 )
 from quad_modelling.core.variables import INDEX
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 from quad_modelling.errors import DataError
 
 

@@ -239,7 +239,8 @@ def test_the_speed_map_identify_holds_is_never_a_starting_value_left_behind():
     shipped PX4 vehicles) was refused by export after identify had run on it: "never identified: rotor_speed_gain"."""
     import yaml
 
-    from quad_modelling.core.vehicle import HELD_BY_IDENTIFY, PHYSICS_KEYS, VehicleConfig, vehicle_dir
+    from quad_modelling.core.physics.parameters import PHYSICS_KEYS
+    from quad_modelling.core.vehicle import HELD_BY_IDENTIFY, VehicleConfig, vehicle_dir
 
     doc = yaml.safe_load((vehicle_dir() / "crazyflie21.yaml").read_text())
     for key in HELD_BY_IDENTIFY:

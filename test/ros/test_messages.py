@@ -4,7 +4,7 @@ import numpy as np
 
 from quad_modelling.core.preprocess import measured_variables
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 from quad_modelling.io import topics
 from quad_modelling.io.topics import stamps_ns
 from quad_modelling.nodes import messages

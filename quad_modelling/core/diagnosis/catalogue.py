@@ -87,7 +87,7 @@ from quad_modelling.core.models.greybox import (
     N_STATES,
 )
 from quad_modelling.core.discretise import discrete_motor, motor_thrusts
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 
 THRUST_DRIVEN = ("acc_z", "roll_acc", "pitch_acc", "yaw_acc")
 """The variables the rotor thrusts drive without integration: every effect on the command path acts on

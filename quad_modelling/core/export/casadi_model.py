@@ -46,7 +46,9 @@ from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.physics.rotors import effective_commands
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import GRAVITY, PHYSICS_KEYS, VehicleConfig
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.physics.parameters import PHYSICS_KEYS
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError
 
 FORMAT_VERSION = 2

@@ -21,7 +21,8 @@ from quad_modelling.core.preprocess import (
     smooth,
 )
 from quad_modelling.core.variables import INDEX, VARIABLES
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig
 
 FORCING_STATES = np.array([3, 4, 5, 9, 10, 11])
 """States (velocities, rates) the extra accelerations e act on."""

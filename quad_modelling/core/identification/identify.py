@@ -49,7 +49,8 @@ from quad_modelling.core.identification.window_batch import WindowBatch, prepare
 from quad_modelling.core.discretise import discrete_motor, motor_thrusts
 from quad_modelling.core.preprocess import smooth
 from quad_modelling.core.variables import INDEX
-from quad_modelling.core.vehicle import AIRFRAME_OF, PHYSICS_KEYS, Constant, VehicleConfig
+from quad_modelling.core.physics.parameters import PHYSICS_KEYS
+from quad_modelling.core.vehicle import AIRFRAME_OF, Constant, VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, check_window_rate
 from quad_modelling.errors import ConfigError, DataError
 

@@ -85,7 +85,8 @@ from quad_modelling.core.physics.rigid_body import gyroscopic_torque, rotor_mome
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, interval_rotor_speeds, rotor_speeds
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.preprocess import ground_contact
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import EvaluationConfig, SpanSpec, span_segments
 from quad_modelling.errors import DataError
 

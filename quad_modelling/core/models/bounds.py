@@ -37,7 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from quad_modelling.core.physics.rotors import rotor_thrusts
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig
 
 MARGIN = 1000.0
 """Factor M over the vehicle's full-thrust figures. The bounds guard against a *diverged* model, not a poor

@@ -82,7 +82,8 @@ from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rigid_body import PhysicsState
 from quad_modelling.core.preprocess import TrimConfig, state_measurement
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError, DataError, ModelError, reason
 
 KIND = "direct"

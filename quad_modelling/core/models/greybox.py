@@ -78,7 +78,8 @@ from quad_modelling.core.preprocess import (
 from quad_modelling.core.variables import VARIABLES
 from quad_modelling.core.physics.rigid_body import allocation_matrix
 from quad_modelling.core.physics.rotors import hover_rotor_speed, thrust_slope
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError, DataError
 
 STATES: tuple[str, ...] = (

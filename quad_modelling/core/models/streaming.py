@@ -70,7 +70,8 @@ import numpy as np
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.preprocess import trim_prediction
 from quad_modelling.core.variables import VARIABLES
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import MIN_SAMPLE_PERIOD_S
 from quad_modelling.errors import DataError, QuadModellingError
 

@@ -1,7 +1,7 @@
 """Constants of the nonlinear physics model (:mod:`quad_modelling.core.physics`), read from a vehicle file.
 
-The physics constants are the vehicle file's :data:`~quad_modelling.core.vehicle.PHYSICS_KEYS` (optional in a
-vehicle file; the ``physics`` model needs them all and names the missing ones) plus its mass, yaw inertia
+The physics constants are the vehicle file's :data:`PHYSICS_KEYS` (optional in a vehicle file; the ``physics`` model
+needs them all and names the missing ones) plus its mass, yaw inertia
 ``izz``, rotor inertia ``prop_inertia``, motor positions and spins:
 
 ================================  ==========================  ===========================================
@@ -33,8 +33,23 @@ import numpy as np
 
 from quad_modelling.core.physics import rotors
 from quad_modelling.core.physics.effects import held_at_zero, switched_on
-from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig
 from quad_modelling.errors import ConfigError
+
+PHYSICS_KEYS = (
+    "rotor_speed_gain",
+    "rotor_speed_offset",
+    "rotor_time_constant",
+    "rotor_delay",
+    "rotor_thrust_constant",
+    "rotor_torque_constant",
+    "rotor_drag_xy",
+    "rotor_drag_z",
+    "rotor_drag_arm",
+)
+"""The vehicle-file keys of the nonlinear physics model's constants (:class:`PhysicsParameters`); those not in
+:data:`~quad_modelling.core.vehicle.CONSTANT_KEYS` are optional in a vehicle file (validated when present; the
+``physics`` model names the missing ones): the command delay δ, the linear rotor drag d_xy, d_z and its arm h_d (FRD z
+of where it acts). Here, beside their units (:data:`PHYSICS_UNITS`): the vehicle file (``core/vehicle.py``) reads them."""
 
 PHYSICS_UNITS: dict[str, str] = {
     "rotor_speed_gain": "rad/s per input unit",
@@ -92,8 +107,9 @@ class PhysicsParameters:
     gyroscopic: tuple[float, float] | None = (1.0, 0.0)
 
     @classmethod
-    def from_vehicle(cls, vehicle: VehicleConfig) -> PhysicsParameters:
-        """The physics constants of ``vehicle``; ConfigError naming the file and every missing key."""
+    def from_vehicle(cls, vehicle) -> PhysicsParameters:
+        """The physics constants of ``vehicle`` (a :class:`~quad_modelling.core.vehicle.VehicleConfig`, which sits above
+        this module: it reads the constants this one names); ConfigError naming the file and every missing key."""
         held = held_at_zero(vehicle.effects)  # base constants of a switched-off rotor_drag, motor_lag, input_delay
         missing = [key for key in vehicle.missing(PHYSICS_KEYS) if key not in held]
         if missing:
@@ -142,7 +158,7 @@ class PhysicsParameters:
         return replace(self, **changes)
 
     def vehicle_values(self) -> dict[str, float]:
-        """These parameters as vehicle-file constants (:data:`~quad_modelling.core.vehicle.PHYSICS_KEYS` and the
+        """These parameters as vehicle-file constants (:data:`PHYSICS_KEYS` and the
         effective roll/pitch inertias, :data:`~quad_modelling.core.vehicle.EFFECTIVE_KEYS`)."""
         return {
             "rotor_speed_gain": self.speed_gain, "rotor_speed_offset": self.speed_offset,

@@ -64,7 +64,9 @@ from quad_modelling.core.physics.aero import ground_effect_factor, rotor_drag
 from quad_modelling.core.physics.rotors import (
     interval_rotor_speed, rotor_acceleration, rotor_step, rotor_thrusts, rotor_yaw_torques, steady_rotor_speed,
 )
-from quad_modelling.core.vehicle import GRAVITY
+
+GRAVITY = 9.81
+"""Local gravity used by the models [m/s²] (thesis value, Eq 3-10)."""
 
 MAX_SPEED_MPS = 50.0
 """Largest speed the open-loop state may reach [m/s] (racing multirotors reach ~40 m/s): with the rates limited to

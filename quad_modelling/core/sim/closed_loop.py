@@ -23,7 +23,8 @@ from quad_modelling.core.sim.control import Stabiliser
 from quad_modelling.core.sim.dynamics import QuadDynamics
 from quad_modelling.core.sim.params import SimParams, sim_params_for
 from quad_modelling.core.sim.simulate import battery_tick, esc_targets, initial_voltage, integrate_tick
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import ConfigError
 
 NO_WIND = (0.0, 0.0, 0.0)

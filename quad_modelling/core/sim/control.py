@@ -41,7 +41,7 @@ import numpy as np
 from quad_modelling.core.physics.rigid_body import allocation_matrix
 from quad_modelling.core.physics.rotors import command_for_rotor_speed, rotor_speed_for_thrust, rotor_thrusts, steady_rotor_speed
 from quad_modelling.core.sim.params import SimParams
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 
 INTEGRAL_AUTHORITY = (30.0, 30.0, 30.0, 0.4 * GRAVITY)
 """Anti-windup: largest output of the roll, pitch, yaw [rad/s²] and altitude [m/s²]

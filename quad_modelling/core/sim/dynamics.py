@@ -92,7 +92,7 @@ import numpy as np
 from quad_modelling.core.effect_names import SIMULATOR, normalise_effect_names
 from quad_modelling.core.physics.rotors import command_for_rotor_speed, hover_rotor_speed, rotor_speed_for_thrust
 from quad_modelling.core.sim.params import SimParams
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 
 @dataclass(frozen=True)
 class Backend:

@@ -32,7 +32,7 @@ from scipy.spatial.transform import Rotation
 
 from quad_modelling.core import frames
 from quad_modelling.core.sim.params import SensorParams
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 
 
 def quaternion_rotations(quat_wxyz: np.ndarray) -> Rotation:

@@ -13,7 +13,8 @@ from quad_modelling.core.models.streaming import (
     predict_window_by_stream,
 )
 from quad_modelling.core.preprocess import measured_variables
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
 from quad_modelling.errors import DataError
 from test.conftest import synthetic_log

@@ -21,7 +21,7 @@ from quad_modelling.core.models.physics import Observer, PhysicsPredictor
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.physics.rotors import delayed_commands, effective_commands, rotor_acceleration
 from quad_modelling.core.preprocess import state_measurement
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 from quad_modelling.io.loader import load_flight
 from test.conftest import FIXTURES
 from test.core.export.vehicles import crazyflie_document, random_hybrid, vehicle_of

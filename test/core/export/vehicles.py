@@ -10,7 +10,8 @@ import yaml
 from quad_modelling.core.models.hybrid import COMMAND_FILTERS_S, CORRECTIONS, HybridModel, features
 from quad_modelling.core.models.residual_net import zero_net
 from quad_modelling.core.physics.parameters import PhysicsParameters
-from quad_modelling.core.vehicle import PHYSICS_KEYS, VehicleConfig, vehicle_dir
+from quad_modelling.core.physics.parameters import PHYSICS_KEYS
+from quad_modelling.core.vehicle import VehicleConfig, vehicle_dir
 
 TERM_VALUES = {
     "ground_effect": {"coefficient": (3e-5, "m2", 0.0, 0.01), "offset": (0.02, "m", 0.0, 0.5)},

@@ -43,7 +43,7 @@ def _differential_flight(vehicle, seed, duration=40.0, rate=100.0):
     from quad_modelling.core import frames
     from quad_modelling.core.flight_log import FlightLog, FlightMeta
     from quad_modelling.core.models.greybox import GreyboxModel
-    from quad_modelling.core.vehicle import GRAVITY
+    from quad_modelling.core.physics.rigid_body import GRAVITY
 
     rng = np.random.default_rng(seed)
     n, dt = int(duration * rate), 1.0 / rate

@@ -30,7 +30,8 @@ from quad_modelling.core.models.greybox import GreyboxPredictor
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.models.streaming import StreamingPredictor, predict_window_by_stream
 from quad_modelling.core.preprocess import TrimConfig, measured_variables, trim_values
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.io.loader import load_flight
 from test.conftest import FIXTURES
 

@@ -12,7 +12,8 @@ from quad_modelling.core.models.greybox import (
 )
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.variables import INDEX
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import ConfigError
 
 

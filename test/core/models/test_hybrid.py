@@ -38,7 +38,8 @@ from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.models.residual_net import ResidualNet, zero_net
 from quad_modelling.core.training.rollout import RolloutConfig
 from quad_modelling.core.models.streaming import predict_window_by_stream
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import SpanSpec
 from quad_modelling.errors import ModelError
 from quad_modelling.io.loader import load_flight

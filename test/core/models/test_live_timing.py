@@ -7,7 +7,8 @@ import numpy as np
 from quad_modelling.core.models.bounds import MARGIN, PhysicalBounds
 from quad_modelling.core.models.greybox import GreyboxModel, GreyboxPredictor, GreyboxStream
 from quad_modelling.core.models.streaming import predict_window_by_stream
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle
 from test.conftest import synthetic_log
 
 

@@ -16,7 +16,8 @@ from quad_modelling.core.physics.rotors import delayed_commands, first_order_sca
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.models.registry import make_model, streaming_predictor
 from quad_modelling.core.models.streaming import predict_window_by_stream, push_sample
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.loader import load_flight
 from test.conftest import FIXTURES

@@ -14,7 +14,8 @@ from quad_modelling.core.models.physics import PhysicsPredictor
 from quad_modelling.core.physics import rigid_body, rotors
 from quad_modelling.core.physics.effects import BASE_SWITCHES, effects_document, parse_effects, parse_term_names
 from quad_modelling.core.physics.parameters import PhysicsParameters
-from quad_modelling.core.vehicle import GRAVITY, VehicleConfig, load_vehicle, vehicle_file
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import VehicleConfig, load_vehicle, vehicle_file
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.loader import load_flight
 from test.conftest import FIXTURES

@@ -11,7 +11,8 @@ from quad_modelling.core.physics import aero, rigid_body, rotors
 from quad_modelling.core.physics.parameters import PhysicsParameters
 from quad_modelling.core.sim.dynamics import QuadDynamics
 from quad_modelling.core.sim.params import sim_params_for
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle
 
 CF = load_vehicle("crazyflie21")
 P = PhysicsParameters.from_vehicle(CF)

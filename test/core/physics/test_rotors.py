@@ -7,7 +7,8 @@ import numpy as np
 from quad_modelling.core.models.greybox import GreyboxParameters
 from quad_modelling.core.physics import rotors
 from quad_modelling.core.physics.parameters import PhysicsParameters
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle
 
 CF = load_vehicle("crazyflie21")
 P = PhysicsParameters.from_vehicle(CF)

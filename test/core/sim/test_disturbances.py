@@ -14,7 +14,7 @@ from quad_modelling.core.sim.dynamics import QuadDynamics
 from quad_modelling.core.sim.params import BentArmParams, ComOffsetParams, sim_params_for
 from quad_modelling.core.sim.pilot import PHASE_FLYING
 from quad_modelling.core.sim.simulate import run_simulation
-from quad_modelling.core.vehicle import GRAVITY
+from quad_modelling.core.physics.rigid_body import GRAVITY
 
 VEHICLES = ("linkquad", "crazyflie21")
 CALM = (0.0, 0.0, 0.0)

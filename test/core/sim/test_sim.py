@@ -16,7 +16,8 @@ from quad_modelling.core.sim.simulate import (
     run_simulation,
     simulate,
 )
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import ConfigError
 from quad_modelling.io.matlog import read_matlog, write_matlog
 

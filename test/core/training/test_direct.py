@@ -14,7 +14,8 @@ from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.models.direct import ACCELERATION_ROWS, COMMAND_LEAD, VELOCITY_HISTORY, vertical_feature_count
 from quad_modelling.core.physics.symmetry import airframe_symmetries
 from quad_modelling.core.training.direct import fit_rate_regression, fit_vertical_regression, train_direct
-from quad_modelling.core.vehicle import GRAVITY, load_vehicle
+from quad_modelling.core.physics.rigid_body import GRAVITY
+from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.errors import DataError
 from quad_modelling.io.loader import load_flight
 
