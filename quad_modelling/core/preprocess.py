@@ -507,17 +507,17 @@ def ground_contact(log: FlightLog) -> np.ndarray:
 
 
 MAX_FILLED_ROWS = 2_000_000
-"""Most rows a uniform grid may add to a log (5.6 h at 100 Hz, ~0.4 GB of columns): a stamp 1e9 s off asked 745 GiB."""
+"""Most rows a uniform grid may add to a log, or 10 times its rows if more (a stamp 1e9 s off asked 745 GiB)."""
 
 
 def _uniform_grid(log: FlightLog) -> np.ndarray:
     """t0 + k dt up to the last sample, dt the median step: :func:`resample_uniform`'s grid (:data:`MAX_FILLED_ROWS`)."""
     dt = float(np.median(np.diff(log.t)))
     n = int(np.floor((log.t[-1] - log.t[0]) / dt + 0.5)) + 1
-    if n - len(log) > MAX_FILLED_ROWS:
+    if n - len(log) > max(MAX_FILLED_ROWS, 10 * len(log)):
         i = int(np.argmax(np.diff(log.t)))
         raise DataError(f"{log.meta.source}: the time jumps by {log.t[i + 1] - log.t[i]:.6g} s after sample {i + 1} (t = {log.t[i] - log.t[0]:.6g} "
-                        f"s into the flight): a uniform time base would fill {n - len(log)} rows (at most {MAX_FILLED_ROWS}); a stamp is wrong")
+                        f"s into the flight): a uniform time base would fill {n - len(log)} rows (at most {max(MAX_FILLED_ROWS, 10 * len(log))}); a stamp is wrong")
     grid = log.t[0] + dt * np.arange(n)
     return grid[grid <= log.t[-1] + 1e-9]
 

@@ -75,19 +75,26 @@ count as radians agreeing with it (recorded in ``meta.notes``; the attitude alwa
 quaternion)."""
 
 
-def _uneven_row(lines: list[str], columns: int) -> str | None:
-    """The first data line (after the header) whose cells are not the header's ``columns``, said as the reader says a
-    row; None when every non-blank line has them. A row with one cell more or less shifts the columns after it:
-    numpy's ``usecols`` read a longer row's first cells silently (a stray cell made Vbat 60 971 V for 100 rows)."""
+def _uneven_row(lines: list[str], header: list[str]) -> str | None:
+    """The first data line (after the header) whose cells are not the header's, said as the reader says a row; None
+    when every line has them. As the parser reads them: a ``#`` starts a comment, blank lines are skipped, and empty
+    cells at the end of a line (a trailing comma) are no cells. A row with one cell more or less shifts the columns
+    after it: numpy's ``usecols`` read a longer row's first cells silently (a stray cell made Vbat 60 971 V)."""
+    width = len(header)
+    while width and not header[width - 1]:
+        width -= 1
     row = 0
     for number, line in enumerate(lines, start=2):  # the file's line number (the header is line 1)
-        if not line.strip():
-            continue  # blank lines are skipped by the parser too
+        content = line.split("#", 1)[0]
+        if not content.strip():
+            continue
         row += 1
-        cells = line.count(",") + 1
-        if cells != columns:
-            what = "a short or truncated row" if cells < columns else "a cell more than the header: the columns after it shift"
-            return f"data row {row} (line {number} of the file) has {cells} values, the header {columns} columns: {what}"
+        cells = content.split(",")
+        while len(cells) > width and not cells[-1].strip():
+            cells.pop()
+        if len(cells) != width:
+            what = "a short or truncated row" if len(cells) < width else "a cell more than the header: the columns after it shift"
+            return f"data row {row} (line {number} of the file) has {len(cells)} values, the header {width} columns: {what}"
     return None
 
 
@@ -140,7 +147,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
             optional = [c for group in OPTIONAL.values() for c in group]
             index = {name: header.index(name) for name in (*REQUIRED, *optional, *EULER_COLUMNS) if name in header}
             lines = stream.read().splitlines()
-            uneven = _uneven_row(lines, len(header))
+            uneven = _uneven_row(lines, header)
             if uneven:
                 raise DataError(f"{where}: {uneven}")
             with warnings.catch_warnings():  # a header-only file is refused below, not warned about

@@ -63,7 +63,7 @@ from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate, us
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.live.forms import carried_forecast, compiled_window_stream, prepare_compiled_step
 from quad_modelling.core.models.bounds import PhysicalBounds
-from quad_modelling.core.models.streaming import RecedingHorizon, prime, push_sample
+from quad_modelling.core.models.streaming import MAX_LIVE_HORIZON_STEPS, RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
 from quad_modelling.io import topics
@@ -114,6 +114,9 @@ class PredictorNode(Node):
         p = declare_parameters(self, predictor_parameters(default_model))
         if p["warm_s"] >= p["window_s"]:
             raise BadParameter(f"{node_name}: parameter warm_s={p['warm_s']} must be shorter than window_s={p['window_s']}")
+        if p["sample_period_s"] and p["horizon_s"] / p["sample_period_s"] > MAX_LIVE_HORIZON_STEPS:
+            raise BadParameter(f"{node_name}: parameters horizon_s={p['horizon_s']} and sample_period_s={p['sample_period_s']} "
+                               f"make {p['horizon_s'] / p['sample_period_s']:.0f} steps, more than {MAX_LIVE_HORIZON_STEPS}")
         spec = f"{p['model']}:{p['model_file']}" if p["model_file"] else p["model"]
         self.name_ = p["model_name"] or model_name(spec)
         self.spec = spec

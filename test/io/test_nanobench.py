@@ -185,6 +185,22 @@ def test_a_row_with_a_cell_more_or_less_than_the_header_is_refused_by_its_row(tm
     assert str(info.value) == f"{path}: data row 101 (line 102 of the file) has {cells} values, the header {width} columns: {what}"
 
 
+def test_comments_blank_lines_and_trailing_commas_are_no_cells(tmp_path):
+    """As numpy's parser reads them (they loaded before the row check): a ``#`` comment line or an inline comment
+    with a comma, blank lines, a trailing comma on the rows or on the header (a review, session 44)."""
+    lines = gzip.open(FLIGHT, "rt").read().splitlines()
+    reference = read_nanobench(FLIGHT)
+    variants = {
+        "comments": [lines[0], "# logger restarted, twice", *lines[1:50], "", lines[50] + "  # a note, with a comma", *lines[51:]],
+        "row_commas": [lines[0], *(line + "," for line in lines[1:])],
+        "header_comma": [lines[0] + ",", *lines[1:]],
+    }
+    for name, text in variants.items():
+        path = tmp_path / f"{name}.csv"
+        path.write_text("\n".join(text) + "\n")
+        np.testing.assert_array_equal(read_nanobench(path).pos_n, reference.pos_n)
+
+
 def test_a_gzipped_csv_is_read_whatever_its_name(tmp_path):
     renamed = tmp_path / "flight.txt"
     renamed.write_bytes(FLIGHT.read_bytes())

@@ -536,3 +536,15 @@ def test_a_late_node_adopts_the_earlier_latched_origin_even_when_its_own_reaches
     assert node.clock_.origin_ns == 1_000_000_000
     node.destroy_node()
     early.destroy_node()
+
+
+def test_a_horizon_of_more_steps_than_a_live_rollout_takes_is_refused_at_start(ros):
+    """horizon_s 30 at sample_period_s 2.5 ms is 12 000 steps: each parameter passed on its own and the predictor then
+    faulted at every input without a prediction (a review, session 44); refused at start, one line."""
+    from quad_modelling.nodes.common import BadParameter
+
+    overrides = [Parameter(k, value=v) for k, v in {"vehicle": "crazyflie21", "model": "physics", "horizon_s": 30.0,
+                                                     "sample_period_s": 0.0025}.items()]
+    with pytest.raises(BadParameter, match=r"^predictor: parameters horizon_s=30.0 and sample_period_s=0.0025 make 12000 steps, "
+                                           r"more than 10000$"):
+        PredictorNode(parameter_overrides=overrides)

@@ -283,6 +283,7 @@ class RecedingHorizon:
         self.steps_seen: list[int] = []
         self.steps = None  # h, once dt is known
         self.period_ns = None  # dt [ns], once known: the step of the held commands' stamps
+        self.too_long = False  # h over MAX_LIVE_HORIZON_STEPS at the measured dt: no horizon predictions (said once)
         self.form = None
         self.wait_since = None
 
@@ -291,6 +292,7 @@ class RecedingHorizon:
         self.rows.clear()
         self.steps_seen = []
         self.wait_since = None
+        self.too_long = False  # h is measured again on the new time base (while it is not known yet)
         if self.steps is not None:
             self.next, self.first = self.warm - 1, 0
         self._forget_carried()
@@ -305,8 +307,11 @@ class RecedingHorizon:
 
     def add(self, ns: int, u: np.ndarray, omega) -> tuple[str, str] | None:
         """Keep a command; learn h once dt is known. Returns a fault (kind, sentence) when the model has no multi-step
-        form, or when dt is shorter than :data:`~quad_modelling.core.windows.MIN_SAMPLE_PERIOD_S` or makes h more
-        than :data:`MAX_LIVE_HORIZON_STEPS` (a measured dt is then measured again over the next steps)."""
+        form, when a measured dt is shorter than :data:`~quad_modelling.core.windows.MIN_SAMPLE_PERIOD_S` (measured
+        again over the next steps), or once when dt makes h more than :data:`MAX_LIVE_HORIZON_STEPS` (then no horizon
+        predictions; a given ``sample_period_s`` the node checks at start)."""
+        if self.too_long:  # said once (add's fault): nothing kept
+            return None
         if self.rows:
             self.steps_seen.append(ns - self.rows[-1][0])
             del self.steps_seen[:-HORIZON_PERIOD_STEPS]
@@ -318,13 +323,17 @@ class RecedingHorizon:
             period_s = float(np.median(self.steps_seen)) / 1e9
         if not period_s:
             return None
-        if period_s < MIN_SAMPLE_PERIOD_S or self.horizon_s / period_s > MAX_LIVE_HORIZON_STEPS:
-            self.steps_seen = []  # measured again over the next steps; the rows kept until then: the last
-            while len(self.rows) > 1:
+        if period_s < MIN_SAMPLE_PERIOD_S:  # a burst of inputs: dt measured again over the next steps
+            self.steps_seen = []
+            while len(self.rows) > 1:  # the rows kept until then: the last
                 self.rows.popleft()
-            given = "sample_period_s" if self.sample_period_s else f"the median of the last {HORIZON_PERIOD_STEPS} motor_input steps"
-            return "horizon_period", (f"receding horizon: {given} {period_s:.3g} s with horizon_s {self.horizon_s:g} (at least "
-                                      f"{MIN_SAMPLE_PERIOD_S:g} s, at most {MAX_LIVE_HORIZON_STEPS} steps): no horizon predictions yet")
+            return "horizon_period", (f"receding horizon: the median of the last {HORIZON_PERIOD_STEPS} motor_input steps is "
+                                      f"{period_s:.3g} s, under {MIN_SAMPLE_PERIOD_S:g} s: measured again over the next ones")
+        if self.horizon_s / period_s > MAX_LIVE_HORIZON_STEPS:  # for good: no horizon predictions on this time base
+            self.steps_seen, self.too_long = [], True
+            self.rows.clear()
+            return "horizon_period", (f"receding horizon: horizon_s {self.horizon_s:g} s at dt {period_s:.3g} s is "
+                                      f"{self.horizon_s / period_s:.0f} steps, more than {MAX_LIVE_HORIZON_STEPS}: no horizon predictions")
         self.steps = max(1, int(round(self.horizon_s / period_s)))
         self._ends = np.array([0, self.steps])  # the rows ends_only asks for: the anchor's and the last
         self.period_ns = int(round(period_s * 1e9))

@@ -137,3 +137,15 @@ def test_sums_that_contradict_their_counts_are_refused_naming_the_field(two_flig
         return
     with pytest.raises(DataError, match=message):
         EvaluationStatistics.from_json(data)
+
+
+def test_a_tic_a_rounding_above_1_reads_back():
+    """TIC(y, -3.7 y) is 1.0000000000000002 in floats: evaluate writes it, merge must read it (a review, session 44)."""
+    from quad_modelling.core.evaluation.metrics import tic
+
+    y = np.linspace(0.1, 2.0, 50)
+    value = tic(y, -3.7 * y)
+    assert value > 1.0
+    sums = WindowSums()
+    sums.add_window(np.full(18, 0.5), np.full(18, value))
+    assert WindowSums.from_json(json.loads(json.dumps(sums.to_json())), "w").means()[1][0] == value
