@@ -98,10 +98,11 @@ def _uneven_row(lines: list[str], header: list[str]) -> str | None:
     return None
 
 
-def _unparsable(err: ValueError, columns: list[str]) -> str:
+def _unparsable(err: ValueError, columns: list[str], lines: list[str]) -> str:
     """The message of numpy.loadtxt's ValueError in the reader's terms: the column by its ``columns`` (header) name and
-    the data row counted from 1 after the header (numpy counts the row from 0 and the file's column from 1); rows of
-    another length are refused before (:func:`_uneven_row`)."""
+    the data row counted from 1 after the header (numpy counts the data rows from 0, blank and comment lines not
+    among them, and the file's column from 1) with its line in the file (``lines``: the file's after the header);
+    rows of another length are refused before (:func:`_uneven_row`)."""
     import re
 
     text = reason(err)
@@ -110,7 +111,9 @@ def _unparsable(err: ValueError, columns: list[str]) -> str:
         return f"unparsable value ({text})"
     value, row, col = found.group(1), int(found.group(2)), int(found.group(3))
     name = columns[col - 1] if 0 < col <= len(columns) else f"number {col}"
-    return f"unparsable value {value} in column {name} at data row {row + 1} (line {row + 2} of the file)"
+    data_lines = [number for number, line in enumerate(lines, start=2) if line.split("#", 1)[0].strip()]
+    line = data_lines[row] if row < len(data_lines) else row + 2
+    return f"unparsable value {value} in column {name} at data row {row + 1} (line {line} of the file)"
 
 
 GZIP_MAGIC = b"\x1f\x8b"
@@ -134,6 +137,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
     """
     path = Path(path)
     where = str(path)
+    lines: list[str] = []  # the file's lines after the header, once read
     try:
         with _open_text(path) as stream:
             header = [name.strip().strip('"').strip("'").strip() for name in stream.readline().strip().split(",")]  # "t" too
@@ -162,7 +166,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
     except UnicodeDecodeError as err:
         raise DataError(f"{where}: not UTF-8 text (byte {err.start} of a line: {err.object[err.start:err.start + 1]!r})") from err
     except ValueError as err:
-        raise DataError(f"{where}: {_unparsable(err, header)}") from err
+        raise DataError(f"{where}: {_unparsable(err, header, lines)}") from err
     if len(rows) == 0:
         raise DataError(f"{where}: no data rows after the header")
     column = {name: rows[:, i] for i, name in enumerate(index)}

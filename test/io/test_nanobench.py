@@ -201,6 +201,19 @@ def test_comments_blank_lines_and_trailing_commas_are_no_cells(tmp_path):
         np.testing.assert_array_equal(read_nanobench(path).pos_n, reference.pos_n)
 
 
+def test_an_unparsable_value_names_its_line_in_the_file_past_blank_and_comment_lines(tmp_path):
+    lines = gzip.open(FLIGHT, "rt").read().splitlines()
+    cells = lines[40].split(",")
+    cells[3] = "abc"
+    text = [lines[0], "", "# a comment", *lines[1:40], ",".join(cells), *lines[41:]]
+    path = tmp_path / "bad_value.csv"
+    path.write_text("\n".join(text) + "\n")
+    with pytest.raises(DataError) as info:
+        read_nanobench(path)
+    name = lines[0].split(",")[3]
+    assert str(info.value) == f"{path}: unparsable value 'abc' in column {name} at data row 40 (line 43 of the file)"
+
+
 def test_a_gzipped_csv_is_read_whatever_its_name(tmp_path):
     renamed = tmp_path / "flight.txt"
     renamed.write_bytes(FLIGHT.read_bytes())
