@@ -2,10 +2,11 @@
 repository's ``bags/`` linked in, as in a fresh clone), each command's output checked against the lines the README
 shows for it, so the README cannot drift from the CLI again.
 
-Shape check: the README shows real output trimmed to the telling lines (``...`` marks a cut, long lines are wrapped,
-tables are padded to their widths). Each shown line must appear in the command's output, after the line shown before
-it, with whitespace collapsed, every number a wildcard (timings, domain ids and the last digits of scores are not the
-README's to fix) and a table rule's dashes of any length: the words, names, units, columns and their order must match.
+Shape check: the README shows real output trimmed to the telling lines (not every cut marked: ``...`` marks one inside
+a line or of many lines, long lines are wrapped, tables are padded to their widths). Each shown line must appear in the
+command's output, after the line shown before it, with whitespace collapsed, every number a wildcard (timings, domain
+ids and the last digits of scores are not the README's to fix) and a table rule's dashes of any length: the words,
+names, units, columns and their order must match.
 
 Cost: the tour itself, nothing shortened for the test: 45 s of CPU (user + sys, the run-bag nodes and Dask workers
 included); wall 56 s here at a load average of 6 on 2 cores, 49 s inside a full-suite run, 105-125 s at a load average of
