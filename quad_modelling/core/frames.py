@@ -93,8 +93,9 @@ def quaternion_norm_off(quat) -> float | None:
 
 def non_unit_quaternion(quat: np.ndarray) -> tuple[int, float] | None:
     """(row, norm) of the row of an (N, 4) quaternion array whose norm is furthest from 1, when beyond
-    :data:`QUATERNION_NORM_TOLERANCE` (a zero quaternion has no rotation), else None."""
-    deviation = np.abs(np.linalg.norm(quat, axis=1) - 1.0)
+    :data:`QUATERNION_NORM_TOLERANCE` (a zero quaternion has no rotation), else None; a non-finite norm is the
+    furthest."""
+    deviation = np.nan_to_num(np.abs(np.linalg.norm(quat, axis=1) - 1.0), nan=np.inf)
     if not np.any(deviation > QUATERNION_NORM_TOLERANCE):
         return None
     row = int(np.argmax(deviation))

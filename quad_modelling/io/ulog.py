@@ -408,11 +408,15 @@ def linear(source_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarra
 
 
 def attitude(source_t: np.ndarray, quat_wxyz: np.ndarray, t: np.ndarray, where: str) -> np.ndarray:
-    """Euler (φ, θ, ψ) [rad] at ``t`` from PX4 quaternions (w, x, y, z) of R_NED←FRD by slerp; yaw unwrapped."""
-    bad_quaternion = frames.non_unit_quaternion(quat_wxyz)
+    """Euler (φ, θ, ψ) [rad] at ``t`` from PX4 quaternions (w, x, y, z) of R_NED←FRD by slerp; yaw unwrapped. Only
+    the samples the slerp at ``t`` reads are checked (PX4 logs NaN before its estimator is aligned, before arming)."""
+    first = max(int(np.searchsorted(source_t, t[0], side="right")) - 1, 0)
+    last = min(int(np.searchsorted(source_t, t[-1], side="left")), len(source_t) - 1)
+    bad_quaternion = frames.non_unit_quaternion(quat_wxyz[first:last + 1])
     if bad_quaternion:
         row, norm = bad_quaternion
-        raise DataError(f"{where}: topic vehicle_attitude q at sample {row} has norm {norm:.3f}, not 1")
+        raise DataError(f"{where}: topic vehicle_attitude q at sample {first + row} has norm {norm:.3f}, not 1")
+    source_t, quat_wxyz = source_t[first:last + 1], quat_wxyz[first:last + 1]
     keep = np.append(np.diff(source_t) > 0, True)
     rotations = Rotation.from_quat(quat_wxyz[keep], scalar_first=True)
     euler = frames.rotation_to_euler_ned(Slerp(source_t[keep], rotations)(t))

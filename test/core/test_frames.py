@@ -209,3 +209,14 @@ def test_euler_rates_give_the_body_rates_of_the_rotation_they_trace():
     skew = np.einsum("nji,njk->nik", rot[1:-1], (rot[2:] - rot[:-2]) / (2 * dt))
     from_matrices = np.column_stack([skew[:, 2, 1], skew[:, 0, 2], skew[:, 1, 0]])
     np.testing.assert_allclose(frames.euler_rates_to_body_rates(euler, euler_dot)[1:-1], from_matrices, atol=1e-3)  # O(dt²) difference error
+
+
+def test_a_non_finite_quaternion_is_the_furthest_from_unit_norm():
+    quat = np.tile([0.0, 0.0, 0.0, 1.0], (5, 1))
+    assert frames.non_unit_quaternion(quat) is None
+    quat[1] = [0.0, 0.0, 0.0, 1.5]
+    quat[3, 0] = np.nan
+    row, norm = frames.non_unit_quaternion(quat)
+    assert row == 3 and np.isnan(norm)
+    quat[3, 0] = np.inf
+    assert frames.non_unit_quaternion(quat)[0] == 3

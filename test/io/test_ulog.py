@@ -323,3 +323,20 @@ def test_body_frame_odometry_without_a_valid_attitude_is_no_traceback():
     else:
         finite = np.all(np.isfinite(log.vel_n), axis=1)
         assert np.abs(log.vel_n[finite] - vel_n).max() < 1e-9 and finite.sum() >= 190
+
+
+def test_a_nan_attitude_before_arming_is_dropped_with_it_and_one_in_flight_is_one_line():
+    """PX4 logs a NaN quaternion while its estimator is not aligned (before arming): the samples the kept span's slerp
+    does not read are not checked; a NaN one inside the flight is refused naming the topic and sample (it was scipy's
+    "zero norm quaternions" traceback: a NaN norm passed the unit check)."""
+    topics = synthetic_topics()
+    topics["vehicle_status"] = {"timestamp": topics["vehicle_attitude"]["timestamp"][[0, 20]], "arming_state": np.array([1, 2])}
+    for i in range(4):
+        topics["vehicle_attitude"][f"q[{i}]"][:10] = np.nan
+    log = flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "prearm.ulg")
+    assert len(log) == 180 and np.allclose(log.euler, 0.0)
+    for i in range(4):
+        topics["vehicle_attitude"][f"q[{i}]"][100] = np.nan
+    with pytest.raises(DataError) as err:
+        flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "midflight.ulg")
+    assert str(err.value) == "midflight.ulg: topic vehicle_attitude q at sample 100 has norm nan, not 1"
