@@ -495,6 +495,8 @@ def read_bag(path: str | Path, vehicle: str | None = None, namespace: str = DEFA
             notes = json.loads(custom.get(NOTES_KEY) or "{}")
         except json.JSONDecodeError as err:
             raise BagError(f"{path}: custom_data {NOTES_KEY} is not valid JSON ({err.msg} at character {err.pos})") from err
+        except RecursionError as err:
+            raise BagError(f"{path}: custom_data {NOTES_KEY} nests deeper than JSON can be read") from err
         if not isinstance(notes, dict):
             raise BagError(f"{path}: custom_data {NOTES_KEY} must hold a JSON object, got {type(notes).__name__}")
         return vehicle_name, notes

@@ -288,6 +288,8 @@ def read_matlog(path: str | Path, vehicle: str | None = None, mapping: dict[str,
             notes = json.loads(str(found["meta_json"]))
         except json.JSONDecodeError as err:
             raise DataError(f"{where}: variable meta_json is not valid JSON ({err.msg})") from err
+        except RecursionError as err:
+            raise DataError(f"{where}: variable meta_json nests deeper than JSON can be read") from err
         if not isinstance(notes, dict):
             raise DataError(f"{where}: variable meta_json must hold a JSON object, got {type(notes).__name__}")
     if "vehicle" in found and not vehicle and isinstance(found["vehicle"], np.ndarray) and found["vehicle"].size == 0:

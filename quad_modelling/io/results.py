@@ -51,6 +51,8 @@ def read_results(directory: str | Path) -> tuple[Path, dict, EvaluationStatistic
         document = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as err:
         raise DataError(f"{path}: not a JSON document ({type(err).__name__}: {err})") from err
+    except RecursionError as err:
+        raise DataError(f"{path}: nests deeper than JSON can be read") from err
     if not isinstance(document, dict) or not {"models", "config"} <= set(document):
         raise DataError(f"{path}: not the results.json of quad-modelling evaluate (no 'models' and 'config')")
     if "statistics" not in document:

@@ -59,6 +59,8 @@ def test_merge_refuses_missing_foreign_and_incompatible_results(results, tmp_pat
     assert "not the results.json of quad-modelling evaluate" in merge_error([str(results["a"]), str(foreign), "-o", out], capsys)
     (foreign / "results.json").write_text("{not json")
     assert "not a JSON document" in merge_error([str(foreign), "-o", out], capsys)
+    (foreign / "results.json").write_text("[" * 100_000 + "]" * 100_000)
+    assert f"{foreign / 'results.json'}: nests deeper than JSON can be read" in merge_error([str(foreign), "-o", out], capsys)
     averages_only = json.loads((results["a"] / "results.json").read_text())
     del averages_only["statistics"]
     (foreign / "results.json").write_text(json.dumps(averages_only))

@@ -99,6 +99,8 @@ def test_mat_meta_json_and_vehicle_of_the_wrong_type(tmp_path):
     contents = {k: v for k, v in scipy.io.loadmat(tmp_path / "good.mat").items() if not k.startswith("__")}
     scipy.io.savemat(tmp_path / "list.mat", {**contents, "meta_json": "[1, 2]"})
     assert refusal(DataError, load_flight, tmp_path / "list.mat") == f"{tmp_path / 'list.mat'}: variable meta_json must hold a JSON object, got list"
+    scipy.io.savemat(tmp_path / "deep.mat", {**contents, "meta_json": "[" * 100_000 + "]" * 100_000})
+    assert refusal(DataError, load_flight, tmp_path / "deep.mat") == f"{tmp_path / 'deep.mat'}: variable meta_json nests deeper than JSON can be read"
     scipy.io.savemat(tmp_path / "number.mat", {**contents, "vehicle": np.array([1.0, 2.0])})
     assert refusal(DataError, load_flight, tmp_path / "number.mat") == f"{tmp_path / 'number.mat'}: variable vehicle must be a vehicle config name (text), got a ndarray"
 
@@ -184,6 +186,9 @@ def test_bad_notes_json_and_bad_metadata_in_a_bag(tmp_path):
     metadata = (bag / "metadata.yaml").read_text()
     (bag / "metadata.yaml").write_text(metadata.replace("""quad_modelling.notes: '{"seed": 0}'""", "quad_modelling.notes: '{bad'"))
     assert refusal(BagError, load_flight, bag) == f"{bag}: custom_data {NOTES_KEY} is not valid JSON (Expecting property name enclosed in double quotes at character 1)"
+    deep = '{"a": ' + "[" * 50_000 + "]" * 50_000 + "}"
+    (bag / "metadata.yaml").write_text(metadata.replace("""quad_modelling.notes: '{"seed": 0}'""", f"quad_modelling.notes: '{deep}'"))
+    assert refusal(BagError, load_flight, bag) == f"{bag}: custom_data {NOTES_KEY} nests deeper than JSON can be read"
     (bag / "metadata.yaml").write_text("::: [\n")
     assert refusal(BagError, load_flight, bag) == (
         f"{bag}: not a readable rosbag2 bag: {bag / 'metadata.yaml'}: bag metadata is not valid YAML at line 2: "

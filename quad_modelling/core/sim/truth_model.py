@@ -370,6 +370,8 @@ def _make_truth(arg: str, vehicle) -> TruthPredictor:
         raise ConfigError(f"model spec truth:{arg}: cannot read the simulator notes file {path} ({err.strerror})") from err
     except ValueError as err:
         raise ConfigError(f"model spec truth:{arg}: the simulator notes file {path} is not JSON ({err})") from err
+    except RecursionError as err:
+        raise ConfigError(f"model spec truth:{arg}: the simulator notes file {path} nests deeper than JSON can be read") from err
     sim_params_from_notes(notes, str(path))  # refuse notes that are not a simulator's, here
     return TruthPredictor(notes, observer=observer, name=name, notes_source=str(path))
 

@@ -139,6 +139,9 @@ def test_registry_specs(with_effects, vehicle, tmp_path):
     (tmp_path / "real.json").write_text("{}")
     with pytest.raises(DataError, match="real.json: not a simulated flight"):
         make_model(f"truth:{tmp_path / 'real.json'}", vehicle)
+    (tmp_path / "deep.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(ConfigError, match="deep.json nests deeper than JSON can be read$"):
+        make_model(f"truth:{tmp_path / 'deep.json'}", vehicle)
 
 
 def test_the_physics_model_with_the_simulated_crazyflies_constants_is_its_truth():
