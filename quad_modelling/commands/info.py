@@ -12,7 +12,7 @@ from quad_modelling.errors import BagError, ConfigError, DataError
 from quad_modelling.io.bag_io import read_bag_metadata, summarize_bag
 from quad_modelling.io.topic_maps import add_topic_map_argument, choose_topic_map
 from quad_modelling.core.preprocess import mark_time_base_holes
-from quad_modelling.io.loader import detect_format, load_flight
+from quad_modelling.io.loader import bag_directory, detect_format, load_flight
 from quad_modelling.io.reports.info import (
     bag_json,
     bag_text,
@@ -64,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
             print(f"note: {err}", file=sys.stderr)
         return 0
     if Path(args.bag).suffix == ".mcap" and Path(args.bag).is_file():  # a bag named by its .mcap file, as evaluate takes it
-        args.bag = str(Path(args.bag).parent)
+        args.bag = str(bag_directory(Path(args.bag)))
     summary = summarize_bag(args.bag)
     topics = {t.name: t.msgtype for t in summary.topics}
     mapped = None

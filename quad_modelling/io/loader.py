@@ -7,9 +7,9 @@ from pathlib import Path
 from typing import NamedTuple
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.input_files import check_regular_file, input_path_mode
+from quad_modelling.core.input_files import check_regular_file, input_path_mode, read_yaml
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
-from quad_modelling.errors import ConfigError, DataError, QuadModellingError
+from quad_modelling.errors import BagError, ConfigError, DataError, QuadModellingError
 from quad_modelling.fanout import map_flights
 
 FORMATS = ("thesis-mat", "nanobench", "px4-ulog", "bag")
@@ -31,6 +31,28 @@ def detect_format(path: str | Path) -> str:
     if mode is None:
         raise DataError(f"{path}: no such file or directory")
     raise DataError(f"{path}: cannot tell the format from the name (expected .mat, .csv, .csv.gz, .ulg or a bag directory)")
+
+
+def bag_directory(path: Path) -> Path:
+    """The bag directory a bag input names: the directory itself, or the directory of the .mcap file named when the
+    bag's ``metadata.yaml`` lists that file among its ``relative_file_paths`` (the reader reads the files listed,
+    not the one named: another file there would be read in its place). BagError in one line otherwise."""
+    if path.is_dir():
+        return path
+    bag = path.parent
+    if not (bag / "metadata.yaml").is_file():
+        raise BagError(f"{path}: no metadata.yaml beside it: a rosbag2 bag is a directory of metadata.yaml and its .mcap file(s)")
+    try:
+        document = read_yaml(bag / "metadata.yaml", "bag metadata")
+    except ConfigError as err:
+        raise BagError(f"{bag}: not a readable rosbag2 bag: {err}") from err
+    information = document.get("rosbag2_bagfile_information") if isinstance(document, dict) else None
+    files = information.get("relative_file_paths") if isinstance(information, dict) else None
+    names = [Path(str(f)).name for f in files] if isinstance(files, list) else []
+    if path.name not in names:
+        raise BagError(f"{path}: not a file of the bag {bag} (its metadata.yaml lists {', '.join(names) or 'none'}); "
+                       "give the bag directory or the file it lists")
+    return bag
 
 
 def input_format(path: str | Path, given: str = "auto") -> str:
@@ -113,7 +135,7 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
 
         if not path.is_dir() and path.suffix != ".mcap":  # --format bag on a file: not the parent directory's fault
             raise DataError(f"{path}: --format bag reads a bag directory (or its .mcap file); this is a file")
-        bag = path if path.is_dir() else path.parent
+        bag = bag_directory(path)
         metadata = read_bag_metadata(bag)
         chosen = choose_topic_map(metadata.topics, str(bag), topic_map)
         if chosen.is_contract:

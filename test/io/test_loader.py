@@ -66,3 +66,25 @@ def test_evaluate_reads_the_given_vehicle_once_for_all_flights(yaml_loads):
     args.inputs = [str(NANOBENCH)] * 2  # one flight twice (the command's path check bypassed): its numbers tell
     with pytest.raises(ConfigError, match="the same flight as"):
         load_evaluation_flights(args)
+
+
+def test_a_bag_named_by_its_file_reads_that_file_or_is_refused(tmp_path):
+    """A bag may be named by its .mcap file; the reader reads the files its metadata.yaml lists, so another .mcap file
+    in the directory was read as the listed one (another flight, silently): it is refused, naming the listed file."""
+    import shutil
+
+    from quad_modelling.errors import BagError
+    from quad_modelling.io.bag_io import write_bag
+
+    bag = write_bag(synthetic_log(n=50, seed=1), tmp_path / "bag")
+    other = write_bag(synthetic_log(n=80, seed=2), tmp_path / "other")
+    (listed,) = bag.glob("*.mcap")
+    assert len(load_flight(listed)) == 50
+    shutil.copy(next(other.glob("*.mcap")), bag / "stray.mcap")
+    with pytest.raises(BagError) as err:
+        load_flight(bag / "stray.mcap")
+    assert str(err.value) == (f"{bag / 'stray.mcap'}: not a file of the bag {bag} (its metadata.yaml lists {listed.name}); "
+                              "give the bag directory or the file it lists")
+    (bag / "metadata.yaml").unlink()
+    with pytest.raises(BagError, match="stray.mcap: no metadata.yaml beside it"):
+        load_flight(bag / "stray.mcap")
