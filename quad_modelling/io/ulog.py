@@ -146,11 +146,17 @@ Topics = dict[str, dict[str, np.ndarray]]
 def read_ulog(path: str | Path, vehicle: str | VehicleConfig | None = None) -> FlightLog:
     """Read a PX4 .ulg file into a FlightLog (see module doc); DataError names file and topic."""
     where = str(path)
-    ulog, said, cut_at = open_ulog(path, TOPICS)
+    ulog, said, cut_at, read_to = open_ulog(path, TOPICS)
     topics, notes = topics_of(ulog.data_list)
+    size = Path(path).stat().st_size
+    if cut_at is None and read_to < size and not getattr(ulog, "file_corruption", False):
+        # pyulog takes a message it cannot unpack (a damaged size field: a 0-byte data message) for the file's end
+        last_s = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
+        notes["warnings"] = [*notes.get("warnings", []), f"{where}: pyulog stopped at a message it could not unpack near "
+                             f"byte {read_to} of {size} (the file is damaged there); the rest of the file is not read, "
+                             f"read up to {last_s:.2f} s into the log"]
     if cut_at is not None and not getattr(ulog, "file_corruption", False):  # power lost, a copy stopped early (a damaged
         # file is said below: pyulog's resync reads its end in chunks)
-        size = Path(path).stat().st_size
         last_s = (ulog.last_timestamp - ulog.start_timestamp) * 1e-6
         notes["warnings"] = [*notes.get("warnings", []), f"{where}: the file ends inside a message at byte {cut_at} of "
                              f"{size} (cut short: power lost, or an incomplete copy?); read up to there, {last_s:.2f} s "
@@ -173,11 +179,14 @@ class CutShortWatch(io.BufferedReader):
     pyulog reads each message as a 3-byte header (size, type) then ``size`` bytes, and stops without a word at a
     message the file ends inside (its comment: "File is most likely cut") -- a log whose writer lost power. A read
     that returns part of a header, or less body than the header before it announced, is that place: ``cut_at``
-    [byte offset of the cut message]. A file cut exactly between two messages looks complete."""
+    [byte offset of the cut message]. A file cut exactly between two messages looks complete. ``read_to`` is the
+    furthest byte read: short of the file's size when pyulog stopped early (it ends its reading at any
+    ``struct.error``, a message it could not unpack among them)."""
 
     def __init__(self, path: str | Path):
         super().__init__(io.FileIO(str(path), "rb"))
         self.cut_at: int | None = None
+        self.read_to = 0
         self._after_header = False
 
     def read(self, size: int | None = -1) -> bytes:
@@ -189,12 +198,13 @@ class CutShortWatch(io.BufferedReader):
             elif self._after_header and len(data) < size:  # inside the body a whole header announced
                 self.cut_at = start - 3
         self._after_header = size == 3 and len(data) == 3  # (pyulog's resync reads 512-byte chunks: never judged)
+        self.read_to = max(self.read_to, start + len(data))
         return data
 
 
 def open_ulog(path: str | Path, topics) -> tuple:
-    """(pyulog ULog holding ``topics``, what pyulog printed, the byte offset the file is cut at or None); DataError
-    naming the file when unreadable."""
+    """(pyulog ULog holding ``topics``, what pyulog printed, the byte offset the file is cut at or None, the furthest
+    byte read); DataError naming the file when unreadable."""
     from pyulog import ULog
 
     said = io.StringIO()  # pyulog prints its corruption notices: kept in the notes, off the user's terminal
@@ -202,7 +212,7 @@ def open_ulog(path: str | Path, topics) -> tuple:
     try:
         with contextlib.redirect_stdout(said):
             watch = CutShortWatch(path)
-            return ULog(watch, message_name_filter_list=list(topics)), said, watch.cut_at
+            return ULog(watch, message_name_filter_list=list(topics)), said, watch.cut_at, watch.read_to
     except FileNotFoundError as err:
         raise DataError(f"{path}: no such file") from err
     except Exception as err:  # pyulog raises bare Exception/struct.error/IndexError on bad files

@@ -140,7 +140,7 @@ def vehicle_from_ulog(path: str | Path, name: str) -> LogVehicle:
 
     Refused in one DataError line naming the file: a log that cannot be read, not a quadrotor, without
     motor commands, a PWM log without its range, rotors neither an x nor a plus frame."""
-    ulog, _, _ = open_ulog(path, MOTOR_UNITS)
+    ulog, _, _, _ = open_ulog(path, MOTOR_UNITS)
     return vehicle_document(topics_of(ulog.data_list)[0], ulog.initial_parameters, str(path), name)
 
 

@@ -63,6 +63,21 @@ def test_a_log_cut_inside_a_message_converts_what_it_holds_and_says_where_it_end
         assert any("ends inside a message at byte 781570 of" in w for w in notes.get("warnings", [])) is said, cut
 
 
+def test_a_message_pyulog_cannot_unpack_is_said_with_the_byte_it_stopped_at(tmp_path):
+    """pyulog takes a data message of size 0 (a damaged size field) for the end of the file and returned the first
+    6 of 152 samples without a word: the reader says where pyulog stopped."""
+    whole = bytearray(EVENTS.read_bytes())
+    offset = 16  # the ULog header; then messages of (uint16 size, uint8 type, body)
+    while not (offset > len(whole) // 2 and whole[offset + 2] == ord("D")):
+        offset += 3 + int.from_bytes(whole[offset:offset + 2], "little")
+    whole[offset:offset + 2] = b"\x00\x00"
+    (tmp_path / "zero.ulg").write_bytes(bytes(whole))
+    log = load_flight(tmp_path / "zero.ulg")
+    (warning,) = log.meta.notes["warnings"]
+    assert len(log) < 152 and warning.startswith(f"{tmp_path / 'zero.ulg'}: pyulog stopped at a message it could not "
+                                                 f"unpack near byte {offset + 3} of {len(whole)}")
+
+
 def test_time_base_is_the_motor_topic_and_disarmed_time_is_dropped(events):
     notes = events.meta.notes
     assert events.sample_rate == pytest.approx(10.0, rel=1e-3)  # actuator_motors is logged at 10 Hz
