@@ -120,6 +120,31 @@ GZIP_MAGIC = b"\x1f\x8b"
 """The first two bytes of a gzip file (RFC 1952): a compressed CSV is read as one whatever its name."""
 
 
+MAX_LINE_CHARS = 1 << 16
+"""Longest line read [characters]: a NanoBench row of 52 columns holds about 600. A longer one is damage, and a
+gzip of 1.5 MB inflated to one line of 1.5 GiB (3.3 GB of memory before any check)."""
+
+MAX_TEXT_CHARS = 1 << 30
+"""Most text read from one flight file [characters]: a 100 Hz NanoBench flight holds about 60 kB a second."""
+
+
+def _bounded_lines(stream, where: str) -> list[str]:
+    """The lines left in ``stream`` without their ends, each at most :data:`MAX_LINE_CHARS` and all at most
+    :data:`MAX_TEXT_CHARS`; DataError naming the line (the header is line 1) otherwise."""
+    lines: list[str] = []
+    total = 0
+    while line := stream.readline(MAX_LINE_CHARS + 1):
+        if len(line) > MAX_LINE_CHARS:
+            raise DataError(f"{where}: line {len(lines) + 2} is longer than {MAX_LINE_CHARS} characters (a NanoBench row "
+                            "holds about 600): not a NanoBench CSV")
+        total += len(line)
+        if total > MAX_TEXT_CHARS:
+            raise DataError(f"{where}: more than {MAX_TEXT_CHARS >> 20} MiB of text (line {len(lines) + 2}): too large "
+                            "for one NanoBench flight")
+        lines.append(line.rstrip("\n"))
+    return lines
+
+
 def _open_text(path: Path):
     with open(path, "rb") as head:
         compressed = head.read(2) == GZIP_MAGIC
@@ -140,7 +165,10 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
     lines: list[str] = []  # the file's lines after the header, once read
     try:
         with _open_text(path) as stream:
-            header = [name.strip().strip('"').strip("'").strip() for name in stream.readline().strip().split(",")]  # "t" too
+            first = stream.readline(MAX_LINE_CHARS + 1)
+            if len(first) > MAX_LINE_CHARS:
+                raise DataError(f"{where}: the header line is longer than {MAX_LINE_CHARS} characters: not a NanoBench CSV")
+            header = [name.strip().strip('"').strip("'").strip() for name in first.strip().split(",")]  # "t" too
             missing = [c for c in REQUIRED if c not in header]
             missing += [c for group in OPTIONAL.values() if any(c in header for c in group) for c in group if c not in header]
             if missing:
@@ -150,7 +178,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
                 raise DataError(f"{where}: NanoBench column(s) {twice} appear more than once in the header")
             optional = [c for group in OPTIONAL.values() for c in group]
             index = {name: header.index(name) for name in (*REQUIRED, *optional, *EULER_COLUMNS) if name in header}
-            lines = stream.read().splitlines()
+            lines = _bounded_lines(stream, where)
             uneven = _uneven_row(lines, header)
             if uneven:
                 raise DataError(f"{where}: {uneven}")

@@ -156,6 +156,25 @@ def test_truncated_gzip_is_a_data_error(tmp_path):
         read_nanobench(path)
 
 
+def test_a_line_no_csv_row_can_be_is_refused_before_it_is_held(tmp_path, monkeypatch):
+    """A gzip of 1.5 MB inflated to one 1.5 GiB line (3.3 GB of memory, then a MemoryError traceback under a limit):
+    lines are read at most MAX_LINE_CHARS at a time, a whole file at most MAX_TEXT_CHARS (both made small here)."""
+    from quad_modelling.io import nanobench
+
+    lines = gzip.open(FLIGHT, "rt").read().splitlines()
+    path = tmp_path / "bomb.csv.gz"
+    with gzip.open(path, "wt") as out:
+        out.write("\n".join([*lines[:5], "1" * (nanobench.MAX_LINE_CHARS + 1), *lines[5:10]]) + "\n")
+    with pytest.raises(DataError) as info:
+        read_nanobench(path)
+    assert str(info.value) == (f"{path}: line 6 is longer than {nanobench.MAX_LINE_CHARS} characters (a NanoBench row "
+                               "holds about 600): not a NanoBench CSV")
+    monkeypatch.setattr(nanobench, "MAX_TEXT_CHARS", 1 << 20)
+    (tmp_path / "long.csv").write_text("\n".join(lines[:1] + lines[1:] * 20) + "\n")
+    with pytest.raises(DataError, match=r"long.csv: more than 1 MiB of text \(line \d+\): too large for one NanoBench flight$"):
+        read_nanobench(tmp_path / "long.csv")
+
+
 def test_a_truncated_file_names_its_short_last_row(tmp_path):
     lines = gzip.open(FLIGHT, "rt").read().splitlines()
     path = tmp_path / "truncated.csv"
