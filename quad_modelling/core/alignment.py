@@ -194,7 +194,7 @@ def battery_on_rows(stamps_s: np.ndarray, volts: np.ndarray, t: np.ndarray) -> t
     stamps_s, volts = np.asarray(stamps_s, dtype=float), np.asarray(volts, dtype=float)
     usable = usable_voltages(volts)
     skipped = int(len(volts) - usable.sum())
-    said = f"{skipped} of {len(volts)} readings at 0 V or not finite skipped (a battery not connected)" if skipped else ""
+    said = f"{skipped} of {len(volts)} readings at or below 0 V or not finite skipped (a battery not connected)" if skipped else ""
     if not usable.any():
         return None, f"{said or 'no readings'}: no usable reading, the flight is read without a voltage"
     s, v = stamps_s[usable], volts[usable]

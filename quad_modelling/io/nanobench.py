@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core import frames
+from quad_modelling.core.alignment import battery_on_rows
 from quad_modelling.core.flight_log import FlightLog, FlightMeta, saturate_commands
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
 from quad_modelling.errors import DataError, reason
@@ -252,6 +253,11 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
     if counts:
         notes["saturated_commands"] = counts
     has = {field: all(c in column for c in columns) for field, columns in OPTIONAL.items()}
+    vbat = None
+    if has["vbat"]:  # readings at 0 V or below skipped, as the bag readers do (a monitor not logging)
+        vbat, battery_note = battery_on_rows(column["t"], column[VBAT], column["t"])
+        if battery_note:
+            notes["battery"] = f"{VBAT}: {battery_note}"
     log = FlightLog(
         t=column["t"],
         u=motors,
@@ -260,7 +266,7 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         pos_n=frames.enu_to_ned(stack(POSITION)),
         vel_n=frames.enu_to_ned(stack(VELOCITY)),
         euler=euler,
-        vbat=column[VBAT] if has["vbat"] else None,
+        vbat=vbat,
         meta=FlightMeta(vehicle=config.name, source=where, notes=notes),
     )
     for message in notes_warnings:

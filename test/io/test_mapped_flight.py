@@ -197,7 +197,7 @@ def test_battery_readings_at_zero_volts_or_not_finite_are_skipped_not_refused():
     log, _ = _assemble(values=values)
     t = log.t - 1.0
     np.testing.assert_allclose(log.vbat, 16.0 - 0.01 * np.clip(t, 0.04, 3.94), atol=1e-12)  # linear through the dropout
-    assert log.meta.notes["battery"] == f"{BATTERY}: 5 of 40 readings at 0 V or not finite skipped (a battery not connected)"
+    assert log.meta.notes["battery"] == f"{BATTERY}: 5 of 40 readings at or below 0 V or not finite skipped (a battery not connected)"
 
 
 def test_a_battery_instance_at_zero_volts_is_not_the_one_read():

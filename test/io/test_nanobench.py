@@ -88,6 +88,38 @@ def test_flight_without_imu_and_battery_columns_has_no_such_sensors(tmp_path):
     np.testing.assert_allclose(log.pos_n, read_nanobench(FLIGHT).pos_n)
 
 
+def _with_battery(lines, volts) -> str:
+    column = lines[0].split(",").index("pwr_pm_vbat")
+    rows = [line.split(",") for line in lines[1:]]
+    for row, value in zip(rows, volts):
+        row[column] = f"{value:g}"
+    return "\n".join([lines[0], *(",".join(row) for row in rows)]) + "\n"
+
+
+def test_battery_readings_at_or_below_0_v_are_skipped_as_the_bag_readers_do(tmp_path):
+    """A battery column of zeros (a monitor not logging) was read as 0 V: identify --effects battery then blamed the
+    shipped vehicle file (reference voltage 0 V). Readings at or below 0 V are skipped and said, as in bags and ULogs;
+    identify names the flight with the reason."""
+    from quad_modelling.core.identification.physics_fit import identify_physics
+    from quad_modelling.core.vehicle import load_vehicle
+    from quad_modelling.core.windows import EvaluationConfig
+
+    lines = gzip.open(FLIGHT, "rt").read().splitlines()
+    volts = np.full(len(lines) - 1, 3.9)
+    volts[100:110] = 0.0
+    (tmp_path / "some.csv").write_text(_with_battery(lines, volts))
+    log = read_nanobench(tmp_path / "some.csv")
+    assert np.all(log.vbat == 3.9) and log.meta.notes["battery"] == (
+        "pwr_pm_vbat: 10 of 1000 readings at or below 0 V or not finite skipped (a battery not connected)")
+    (tmp_path / "none.csv").write_text(_with_battery(lines, np.full(len(lines) - 1, -3.7)))
+    assert read_nanobench(tmp_path / "none.csv").vbat is None
+    with pytest.raises(DataError) as info:
+        identify_physics([log, read_nanobench(tmp_path / "none.csv")], load_vehicle("crazyflie21"), EvaluationConfig(),
+                         terms=("battery",))
+    assert str(info.value).startswith(f"{tmp_path / 'none.csv'}: identify --effects battery needs the battery voltage, "
+                                      "and this flight has none (pwr_pm_vbat: 1000 of 1000 readings at or below 0 V")
+
+
 def test_nan_row_is_named(tmp_path):
     t = read_nanobench(FLIGHT).t
     with pytest.raises(DataError, match=rf"edited.csv: column vx is not finite at data row 17 \(line 18 of the file, "

@@ -204,7 +204,7 @@ def test_battery_readings_not_connected_are_skipped_and_a_pause_is_noted():
     np.testing.assert_allclose(log.vbat[inside], 16.0 - 0.1 * (log.t[inside] - 10.0), atol=1e-9)  # across the skip and pause
     assert np.all(log.vbat[~inside] == pytest.approx(16.0 - 0.99))
     note = log.meta.notes["battery"]
-    assert note.startswith("5 of 70 readings at 0 V or not finite skipped (a battery not connected)")
+    assert note.startswith("5 of 70 readings at or below 0 V or not finite skipped (a battery not connected)")
     assert "1 pause(s) longer than 2 s interpolated (longest 3.1 s from 4.9 s into the flight)" in note
 
 
@@ -212,7 +212,7 @@ def test_a_battery_without_a_connected_reading_is_left_out_and_said():
     topics = {**synthetic_topics(), "battery_status": _battery(10, 0.0, 2.0, 0.0, connected=False)}
     log = flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "flight.ulg")
     assert log.vbat is None and "vbat" not in log.meta.notes["sources"]
-    assert log.meta.notes["battery"] == ("20 of 20 readings at 0 V or not finite skipped (a battery not connected): no usable "
+    assert log.meta.notes["battery"] == ("20 of 20 readings at or below 0 V or not finite skipped (a battery not connected): no usable "
                                          "reading, the flight is read without a voltage")
 
 

@@ -381,6 +381,11 @@ def _fit_once(flights: Sequence[FlightLog], vehicle: VehicleConfig, config: Eval
     predicting_observer = observer  # the fit's; the regression's is longer with the battery term
     if "battery" in terms and observer.linear_s > 0:
         observer = replace(observer, linear_s=max(observer.linear_s, BATTERY_FIT_LINEAR_S))
+    unmeasured = next((log for log in flights if "battery" in terms and log.vbat is None), None)
+    if unmeasured is not None:  # named here: a segment does not know its flight
+        why = unmeasured.meta.notes.get("battery")
+        raise DataError(f"{unmeasured.meta.source}: identify --effects battery needs the battery voltage, and this flight "
+                        f"has none{f' ({why})' if why else ''}")
     segments = training_segments(flights, config, observer, min_history_s=max(o.linear_s for o in OBSERVERS.values()))
     rate = float(np.median([1.0 / np.median(np.diff(s.t)) for s in segments]))
     off = [name for name in BASE_SWITCHES if switched_off(vehicle.effects, name) and name not in terms]
