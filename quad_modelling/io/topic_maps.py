@@ -49,6 +49,7 @@ messages, :mod:`quad_modelling.io.field_conversion` converts their numbers.
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -314,6 +315,8 @@ def _field_source(field: str, doc, topics: dict[str, TopicSpec], where: str) -> 
             low, high = (yaml_number(v) for v in span)
         except (TypeError, ValueError) as err:
             raise ConfigError(f"{here}: range must be [low, high], got {span!r}") from err
+        if not (math.isfinite(low) and math.isfinite(high) and math.isfinite(high - low)):
+            raise ConfigError(f"{here}: range [{low:g}, {high:g}] must be finite numbers")
         if not high > low:
             raise ConfigError(f"{here}: range [{low:g}, {high:g}] must have high > low")
         span = (low, high)

@@ -170,6 +170,9 @@ def test_a_bag_without_stored_definitions_is_refused(flight, tmp_path):
     (("frames: {1: NED, 3: FRD}", "frames: {1: NED, 2: ENU}"),
      "fields.velocity: frames ['ENU']: a message's frame must be the field's frame NED or a body frame rotated into it (known: NED, FLU, FRD)"),
     (("frame_field: velocity_frame, ", ""), "fields.velocity: missing key 'frame_field'"),
+    (("unit: normalised, range: [0, 1]}", "unit: normalised, range: [0, .inf]}"), "fields.commands: range [0, inf] must be finite numbers"),
+    (("unit: normalised, range: [0, 1]}", "unit: normalised, range: [-1e308, 1e308]}"),
+     "fields.commands: range [-1e+308, 1e+308] must be finite numbers"),
 ])
 def test_a_map_with_unknown_units_or_frames_is_refused(bags, tmp_path, capsys, change, message):
     text = open("config/topic_maps/px4.yaml").read()
