@@ -1,8 +1,7 @@
 """Preprocessing of flight logs for modelling and evaluation (thesis 2.1-2.2).
 
-Best measurement per variable (thesis 2.2: "the Vicon measurements were used
-for all entities but position accelerations, angle rotation rates and angle
-rotation accelerations"):
+Best measurement per variable (thesis 2.2: "the Vicon measurements were used for all entities but position
+accelerations, angle rotation rates and angle rotation accelerations"):
 
 ==============  ==============================================================
 variables       best measurement
@@ -496,7 +495,8 @@ CONTACT_MEDIAN_SAMPLES = 5
 def height_above_ground(log: FlightLog) -> np.ndarray:
     """(N,) height [m] above the flight's lowest point (where it stood before take-off; NED z down), through a
     :data:`CONTACT_MEDIAN_SAMPLES`-sample running median of the motion-capture height (:data:`GROUND_CONTACT_M`)."""
-    return signal.medfilt(float(np.max(log.pos_n[:, 2])) - log.pos_n[:, 2], CONTACT_MEDIAN_SAMPLES)
+    kernel = CONTACT_MEDIAN_SAMPLES if len(log) >= CONTACT_MEDIAN_SAMPLES else 1  # shorter: none (scipy warns, 2 lines)
+    return signal.medfilt(float(np.max(log.pos_n[:, 2])) - log.pos_n[:, 2], kernel)
 
 
 def ground_contact(log: FlightLog) -> np.ndarray:

@@ -203,8 +203,8 @@ def read_nanobench(path: str | Path, vehicle: str | VehicleConfig = "crazyflie21
         bad = ~np.isfinite(values)
         if bad.any():
             row = int(np.argmax(bad))
-            raise DataError(f"{where}: column {name} is not finite at data row {row + 1} (line {row + 2} of the file, "
-                            f"t={column['t'][row] - column['t'][0]:.2f} s into the flight)")
+            at = f", t={column['t'][row] - column['t'][0]:.2f} s into the flight" if np.isfinite(column["t"][[0, row]]).all() else ""
+            raise DataError(f"{where}: column {name} is not finite at data row {row + 1} (line {row + 2} of the file{at})")
 
     def stack(names: tuple[str, ...]) -> np.ndarray:
         return np.column_stack([column[n] for n in names])

@@ -225,3 +225,18 @@ def test_each_hole_is_said_once_by_the_rule_that_marked_it():
     assert "topic /quad/mocap/odom has no message for 0.55 s (t=3.003..3.553 s into the flight), longer than 0.5 s" \
         in gap_warnings(resampled)[0]
     assert np.flatnonzero(gap_rows(resampled)).tolist() == list(range(301, 356))  # the filled rows 3.01..3.30 among them
+
+
+def test_the_height_of_a_flight_shorter_than_its_median_kernel_is_read_without_a_warning():
+    """scipy warned (two lines on stderr before the one-line error of a 2-row flight) when the 5-row median kernel
+    exceeded the flight: such a flight has no median."""
+    import warnings
+
+    from quad_modelling.core.preprocess import CONTACT_MEDIAN_SAMPLES, height_above_ground
+
+    log = make_log(n=CONTACT_MEDIAN_SAMPLES - 2)
+    log.pos_n[:, 2] = [0.0, -1.0, -0.5]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(height_above_ground(log), [0.0, 1.0, 0.5])  # NED: z down
+    assert height_above_ground(make_log(n=CONTACT_MEDIAN_SAMPLES)).shape == (CONTACT_MEDIAN_SAMPLES,)

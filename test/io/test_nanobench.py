@@ -1,4 +1,5 @@
 import gzip
+import warnings
 
 import numpy as np
 import pytest
@@ -125,6 +126,10 @@ def test_nan_row_is_named(tmp_path):
     with pytest.raises(DataError, match=rf"edited.csv: column vx is not finite at data row 17 \(line 18 of the file, "
                                         rf"t={t[16] - t[0]:.2f} s into the flight\)"):
         read_nanobench(_edit(tmp_path, 17, "vx", "nan"))
+    with warnings.catch_warnings():  # a non-finite first stamp: no time into the flight (numpy warned: 3 lines)
+        warnings.simplefilter("error")
+        with pytest.raises(DataError, match=r"edited.csv: column t is not finite at data row 1 \(line 2 of the file\)$"):
+            read_nanobench(_edit(tmp_path, 1, "t", "inf"))
 
 
 def test_text_in_a_number_column_names_the_column_and_the_data_row_as_a_nan_does(tmp_path):
