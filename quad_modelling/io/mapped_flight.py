@@ -575,7 +575,11 @@ def read_mapped_bag(path: str | Path, topic_map, vehicle) -> FlightLog:
         read: dict[int, int] = {}
         for connection, _, raw in reader.messages(connections=used):
             read[connection.id] = read.get(connection.id, 0) + 1
-            msg = deserialize(raw, connection.msgtype)
+            try:
+                msg = deserialize(raw, connection.msgtype)
+            except READ_ERRORS as err:  # named as the contract reader names it
+                raise BagError(f"{path}: topic {connection.topic} message {read[connection.id] - 1}: cannot deserialise "
+                               f"({reason(err)})") from err
             topic_reader = readers[connection.topic]
             values = topic_reader.values(msg)
             if topic_reader.keep(msg, values):

@@ -610,3 +610,23 @@ def test_another_instances_odometry_frame_is_not_checked(flight, tmp_path):
     assert log.meta.notes["instances"] == {ODOMETRY: "2 instances seen, quality 0 used"}
     scale = np.max(np.abs(flight.vel_n))
     np.testing.assert_allclose(log.vel_n, flight.vel_n, rtol=0, atol=8 * scale * 2**-24)
+
+
+def test_an_undeserialisable_message_is_named_by_topic_and_index(flight, tmp_path):
+    """As the contract reader names it (it was "corrupt or truncated bag (SerdeError: ...)")."""
+    from quad_modelling.io.bag_io import ForeignBagWriter
+    from test.stack_bags import definitions
+
+    cf = load_vehicle("crazyflie21")
+    seen = {}
+    with ForeignBagWriter(tmp_path / "cut", definitions()) as writer:
+        for topic, ns, msg in crazyswarm2_messages(writer, flight):
+            seen[topic] = seen.get(topic, -1) + 1
+            if topic.endswith("/log_motors") and seen[topic] == 7:
+                raw = writer.store.serialize_cdr(msg, msg.__msgtype__)[:12]  # cut inside its header's frame id
+                writer._writer.write(writer.connection(topic, msg.__msgtype__), ns, raw)
+            else:
+                writer.write(topic, ns, msg)
+    with pytest.raises(BagError) as err:
+        load_flight(tmp_path / "cut", vehicle=cf)
+    assert str(err.value).startswith(f"{tmp_path / 'cut'}: topic /cf231/log_motors message 7: cannot deserialise (")
