@@ -77,6 +77,8 @@ from enum import Enum
 
 import numpy as np
 
+from quad_modelling.errors import DataError
+
 MIN_COVERAGE = 0.95
 """A stream must deliver at least this fraction of its nominal samples in a window for it to be scored."""
 
@@ -389,3 +391,23 @@ class StampGate:
 
     def reset(self) -> None:
         self.last, self.suspects, self.dropped, self.confirmed = None, [], [], []
+
+
+SAME_CLOCK_OVERLAP = 0.5
+"""Fraction of the shorter span two streams on one clock overlap at least (a late-discovered topic is fine)."""
+
+
+def check_one_clock(spans: dict[str, tuple[int, int]], base: str, where: str) -> None:
+    """DataError when a stream's stamps [ns] (``spans``: topic -> first, last) do not overlap the base stream's for at
+    least :data:`SAME_CLOCK_OVERLAP` of the shorter span: stamps from another clock (the topic-map reader's rule,
+    :mod:`quad_modelling.io.mapped_flight`)."""
+    if base not in spans:
+        return
+    b0, b1 = spans[base]
+    for topic, (s0, s1) in spans.items():
+        overlap = min(b1, s1) - max(b0, s0)
+        shorter = min(b1 - b0, s1 - s0)
+        if overlap < SAME_CLOCK_OVERLAP * shorter or (shorter == 0 and not b0 <= s0 <= b1 and not s0 <= b0 <= s1):
+            raise DataError(
+                f"{where}: topic {topic} stamps span {s0 / 1e9:.3f}..{s1 / 1e9:.3f} s, topic {base} {b0 / 1e9:.3f}..{b1 / 1e9:.3f} s: "
+                "stamps from another clock; stamp every topic of the map on one clock (e.g. header.stamp everywhere)")

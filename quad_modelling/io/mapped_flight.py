@@ -16,7 +16,7 @@ Offline assembly (:func:`flight_from_streams`), the rules of streams on their ow
   (linear per component, the attitude quaternion a normalised lerp of the sign-aligned pair; exact at equal
   stamps, so streams sharing the commands' stamps are taken as recorded);
 - rows outside the span every kinematic stream (position, attitude, velocity, IMU) covers are cut, no
-  extrapolation (the notes say how much);
+  extrapolation (the notes say how much; a cut over :data:`CUT_WARNING_S` is warned about);
 - a step longer than :data:`~quad_modelling.core.alignment.MAX_GAP_S` (the live coverage rule's longest gap)
   of a kinematic stream around kept rows is marked as a measurement gap: windows and training segments
   overlapping it are left out, as the live evaluator marks such windows;
@@ -37,8 +37,8 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core import frames
-from quad_modelling.core.alignment import (MAX_GAP_S, MAX_STAMP_STEP_S, Stamp, StampGate, battery_on_rows, interpolate_at,
-                                           usable_voltage)
+from quad_modelling.core.alignment import (MAX_GAP_S, MAX_STAMP_STEP_S, Stamp, StampGate, battery_on_rows, check_one_clock,
+                                           interpolate_at, usable_voltage)
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.core.consistency import frame_disagreements, unused_command_range
 from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
@@ -55,8 +55,9 @@ KINEMATIC_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
 GAP_FIELDS = {"position": ("pos_n",), "attitude": ("euler",), "velocity": ("vel_n",), "acc": ("acc_b",), "gyro": ("gyro_b",)}
 """FlightLog fields of each map field (a marked gap names them)."""
 
-SAME_CLOCK_OVERLAP = 0.5
-"""Fraction of the shorter span two streams on one clock overlap at least (a late-discovered topic is fine)."""
+CUT_WARNING_S = 1.0
+"""Commands [s] outside the span every kinematic stream covers beyond which the cut is warned about (topics
+discovered a moment apart cut a fraction of a second; a stream that stopped mid-flight cuts the rest of it)."""
 
 HOLD_S = 1e6
 """Hold/interpolation limit [s] passed to interpolate_at for values: gaps are marked (not NaN) by the gap rule."""
@@ -289,6 +290,7 @@ class FlightAssembler:
         self.out = {name: np.empty(capacity if name == "battery" else (capacity, 4 if name == "commands" else 3)) for name in sources}
         self.rows = 0
         self.stopped = 0
+        self.cut_warning = ""
         self._next_emit = EMIT_ROWS
         self.last_yaw: float | None = None
         self._column_index = {name: [self.streams[s.topic].paths.index(p) for p in s.paths] for name, s in sources.items()}
@@ -377,7 +379,7 @@ class FlightAssembler:
                 cut = int(np.searchsorted([p[0] for p in self.pending], horizon))
                 del self.pending[:cut]
                 continue
-            check_same_clock(self._spans(), self.base, self.where)
+            check_one_clock(self._spans(), self.base, self.where)
             stream.ended = True  # stopped: the rows after its last message are cut, as at the end
 
     def _spans(self) -> dict[str, tuple[int, int]]:
@@ -460,7 +462,7 @@ class FlightAssembler:
                                     f"step {step_s * 1e3:.0f} ms): every step is longer than the {MAX_GAP_S * 1e3:.0f} ms a "
                                     f"measurement may be interpolated over; record it at {1 / MAX_GAP_S:.0f} Hz or more "
                                     f"(or check the map's stamp_unit, {self.topic_map.topics[stream.topic].stamp_unit or 'Time'})")
-        check_same_clock(self._spans(), self.base, self.where)
+        check_one_clock(self._spans(), self.base, self.where)
         self._emit(final=True)
         unit = self.topic_map.topics[self.base].stamp_unit or "Time"
         if self.rows < 2:
@@ -474,7 +476,7 @@ class FlightAssembler:
             raise DataError(f"{self.where}: topic {self.base} read at {rate:.0f} Hz ({n} commands in {(t_ns[-1] - t_ns[0]) / 1e9:.3g} s): "
                             f"its stamps are in a unit 1000x coarser than the map's stamp_unit, {unit} (ms stamps under us, us under ns); "
                             "fix stamp_unit")
-        base = self.streams[self.base]
+        base, kinematic = self.streams[self.base], [self.streams[topic] for topic in self.kinematic]
         notes = {"format": f"bag (topic map {self.topic_map.name})", **(notes or {})}
         for stream in self.streams.values():  # suspects still held at the end: never confirmed by a following message
             stream.outliers += len(stream.gate.suspects)
@@ -490,6 +492,11 @@ class FlightAssembler:
             notes["motor_nan"] = f"{self.stopped} NaN commands (motor stopped) read as {self._stopped_value():g}"
         cut = (base.last - base.first - (int(t_ns[-1]) - int(t_ns[0]))) / 1e9
         notes["time_base"] = f"{self.base} stamps, {rate_hz(n, int(t_ns[0]), int(t_ns[-1])):.1f} Hz; {cut:.2f} s outside the span all kinematic streams cover cut"
+        if cut > CUT_WARNING_S:  # a stream that stopped (or started) far from the commands: said, not only noted
+            ends = [(f"{s.topic} starts {(s.first - base.first) / 1e9:.2f} s after", s.first - base.first) for s in kinematic]
+            ends += [(f"{s.topic} ends {(base.last - s.last) / 1e9:.2f} s before", base.last - s.last) for s in kinematic]
+            self.cut_warning = (f"{self.where}: {cut:.2f} s of the {(base.last - base.first) / 1e9:.2f} s of commands cut: "
+                                f"{max(ends, key=lambda e: e[1])[0]} them (rows outside the span every kinematic stream covers)")
         notes["sources"] = {name: f"{s.topic} {', '.join(s.paths)} ({s.unit or s.order}, {s.frame or '-'}), "
                                   f"{rate_hz(self.streams[s.topic].count, self.streams[s.topic].first, self.streams[s.topic].last):.1f} Hz"
                             for name, s in self.sources.items()}
@@ -523,22 +530,9 @@ class FlightAssembler:
         unused = unused_command_range(log, self.vehicle.input_min, self.vehicle.input_max)  # a range in the wrong unit
         for warning in [*frame_disagreements(log), *([unused] if unused else [])]:  # the map's order, frame, sign, unit
             log.warn(f"{warning}: topic map {self.topic_map.name}")
+        if self.cut_warning:
+            log.warn(self.cut_warning)
         return log
-
-
-def check_same_clock(spans: dict[str, tuple[int, int]], base: str, where: str) -> None:
-    """DataError when a stream's stamps [ns] (``spans``: topic -> first, last) do not overlap the base stream's for at
-    least :data:`SAME_CLOCK_OVERLAP` of the shorter span: stamps from another clock (module doc)."""
-    if base not in spans:
-        return
-    b0, b1 = spans[base]
-    for topic, (s0, s1) in spans.items():
-        overlap = min(b1, s1) - max(b0, s0)
-        shorter = min(b1 - b0, s1 - s0)
-        if overlap < SAME_CLOCK_OVERLAP * shorter or (shorter == 0 and not b0 <= s0 <= b1 and not s0 <= b0 <= s1):
-            raise DataError(
-                f"{where}: topic {topic} stamps span {s0 / 1e9:.3f}..{s1 / 1e9:.3f} s, topic {base} {b0 / 1e9:.3f}..{b1 / 1e9:.3f} s: "
-                "stamps from another clock; stamp every topic of the map on one clock (e.g. header.stamp everywhere)")
 
 
 # --- any recording through a topic map (users' own topics) ---------------------------------------------------

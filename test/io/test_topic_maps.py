@@ -630,3 +630,25 @@ def test_an_undeserialisable_message_is_named_by_topic_and_index(flight, tmp_pat
     with pytest.raises(BagError) as err:
         load_flight(tmp_path / "cut", vehicle=cf)
     assert str(err.value).startswith(f"{tmp_path / 'cut'}: topic /cf231/log_motors message 7: cannot deserialise (")
+
+
+def test_a_kinematic_stream_that_stops_mid_flight_cuts_the_rest_and_says_so(flight, tmp_path):
+    """The rows after the odometry's last message are cut (no extrapolation), and now said: it was a note only, a
+    42 s flight converted to 20 s at exit 0 without a word (topics discovered a moment apart cut under 1 s: silent)."""
+    cf = load_vehicle("crazyflie21")
+    stop_ns = None
+
+    def stopped(writer):
+        nonlocal stop_ns
+        for topic, ns, msg in px4_messages(writer, log=flight, input_range=(cf.input_min, cf.input_max)):
+            stop_ns = stop_ns or ns + 4 * 10**9
+            if not (topic == "/fmu/out/vehicle_odometry" and ns > stop_ns):
+                yield topic, ns, msg
+    log = load_flight(write_stack_bag(tmp_path / "stopped", stopped), vehicle=cf)
+    assert log.duration == pytest.approx(4.0, abs=0.02)
+    (warning,) = [w for w in log.meta.notes.get("warnings", []) if " cut: " in w]
+    assert re.fullmatch(rf"{tmp_path / 'stopped'}: 6\.0\d s of the 9\.9\d s of commands cut: /fmu/out/vehicle_odometry "
+                        r"ends 6\.0\d s before them \(rows outside the span every kinematic stream covers\)", warning)
+    whole = load_flight(write_stack_bag(tmp_path / "whole", partial(px4_messages, log=flight, input_range=(cf.input_min, cf.input_max))),
+                        vehicle=cf)
+    assert not any(" cut: " in w for w in whole.meta.notes.get("warnings", []))
