@@ -405,6 +405,15 @@ class VehicleConfig:
             raise ConfigError(f"{where}: motor positions lie at {np.round(radii, 4).tolist()} m from the centre, not arm_length {arm} m")
         if sum(m.yaw_sign for m in motors) != 0:
             raise ConfigError(f"{where}: two rotors must spin cw and two ccw")
+        xy = np.array([m.position for m in motors])  # thrust, roll (y F), pitch (-x F), yaw (sign): each one of its own
+        if np.linalg.matrix_rank(np.vstack([np.ones(4), xy[:, 1], -xy[:, 0], [m.yaw_sign for m in motors]]), tol=1e-6 * arm) < 4:
+            raise ConfigError(f"{where}: motor positions {xy.round(4).tolist()} with their spins cannot set thrust, roll, pitch "
+                              "and yaw apart (rotors coincide or pair up): give each rotor its own place")
+        off_axis = np.degrees(np.abs(np.arctan2(xy[:, 1], xy[:, 0]))) % 90.0
+        off_axis = np.minimum(off_axis, 90.0 - off_axis)  # each rotor's angle from the nearest body axis
+        if (geometry == "plus" and off_axis.max() > 10.0) or (geometry == "x" and off_axis.min() < 20.0):
+            raise ConfigError(f"{where}: geometry {geometry} but the rotors lie {off_axis.round(1).tolist()} deg off the body "
+                              "axes ('plus': on them, within 10 deg; 'x': between them, 20 deg or more)")
         names = [m.name for m in motors]
         if len(set(names)) != len(names):
             raise ConfigError(f"{where}: motors name {sorted({n for n in names if names.count(n) > 1})[0]!r} twice; name each rotor once")
@@ -443,12 +452,18 @@ def _refuse_unknown(mapping, known, context: str, what: str) -> None:
 
 
 def _fitted_constants(record, where: str) -> frozenset[str]:
-    """The constant names of a vehicle document's ``identification.constants`` record (None: none)."""
+    """The constant names of a vehicle document's ``identification.constants`` record (None: none); each entry must be
+    the fit's record identify writes (a mapping with a finite ``value``): a name alone does not make a value fitted."""
     if record is None:
         return frozenset()
     fitted = record.get("constants", {}) if isinstance(record, dict) else None
     if not isinstance(fitted, dict):
         raise ConfigError(f"{where}: identification.constants must be a mapping of constant names (as identify writes it)")
+    for name, entry in fitted.items():
+        value = entry.get("value") if isinstance(entry, dict) else None
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value):
+            raise ConfigError(f"{where}: identification.constants.{name} must be the fit's record with a finite value "
+                              f"(as identify writes it), got {str(entry)[:40]!r}")
     return frozenset(str(k) for k in fitted)
 
 

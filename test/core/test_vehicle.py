@@ -202,6 +202,18 @@ def test_a_constant_may_carry_its_sigma_and_a_bad_one_is_named():
     (lambda d: d["motors"][0].update(tilt_deg=3), "motors[0].tilt_deg is not a key of a motor (known: name, position, spin)"),
     (lambda d: d["inputs"].update(offset=100), "inputs.offset is not a key of inputs (known: min, max, unit)"),
     (lambda d: d["motors"][1].update(name=d["motors"][0]["name"]), "motors name 'm1_front_right' twice"),
+    # four rotors at one point passed the radius check: a traceback in identify and diagnose, a singular export
+    (lambda d: [m.update(position=d["motors"][0]["position"]) for m in d["motors"]],
+     "with their spins cannot set thrust, roll, pitch and yaw apart (rotors coincide or pair up)"),
+    (lambda d: d.update(geometry="plus"), "geometry plus but the rotors lie [45.0, 45.0, 45.0, 45.0] deg off the body axes"),
+    (lambda d: d.update(effects={"disturbance_observer": {"enabled": False, 1: "x", "foo": "y"}}),  # a TypeError sorting them
+     "effects.disturbance_observer.1: unknown parameter"),
+    (lambda d: d.update(effects={"disturbance_observer": {"enabled": True, "linear_history": {
+        "value": 0.5, "unit": "s", "bounds": [0.0, 10.0], "status": "identified", "source": "test", "sigma": float("inf")}}}),
+     "effects.disturbance_observer.linear_history.sigma inf: must be a finite number >= 0"),
+    # a name without the fit's record made a starting value "identified": exported as one
+    (lambda d: d.update(identification={"constants": {"rotor_time_constant": None}}),
+     "identification.constants.rotor_time_constant must be the fit's record with a finite value (as identify writes it), got 'None'"),
 ])
 def test_a_wrong_unit_or_a_mistyped_key_is_one_error_not_read_silently(edit, message, tmp_path):
     """A mass in g was read as 27 kg, and a typo'd key ignored: now one line naming the key."""

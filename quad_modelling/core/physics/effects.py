@@ -182,7 +182,7 @@ def parse_effects(doc, where: str) -> dict[str, EffectTerm]:
         if not isinstance(entry, dict) or not isinstance(entry.get("enabled"), bool):
             raise ConfigError(f"{where}: effects.{name}.enabled must be true or false")
         known = {p.name: p for p in TERMS[name]}
-        extra = sorted(set(entry) - set(known) - {"enabled"})
+        extra = sorted(map(str, set(entry) - set(known) - {"enabled"}))  # a YAML key may be a number
         if extra:
             has = (f"{name} has {', '.join(known)}" if known else
                    f"{name} is a switch: its values are the constants {', '.join(BASE_SWITCHES[name])}")
@@ -228,8 +228,8 @@ def _term_value(entry, spec: TermParameter, context: str, on: bool, name: str) -
     if not least <= value <= most or (spec.positive and value <= 0) or (spec.name == "angular_trim" and value not in (0.0, 1.0)):
         allowed = "0 or 1" if spec.name == "angular_trim" else "above 0" if spec.positive else f"in [{least:g}, {most:g}]"
         raise ConfigError(f"{context}.value {value:g} {spec.unit}: must be {allowed}, whatever the bounds")
-    if not (np.isnan(sigma) or sigma >= 0):
-        raise ConfigError(f"{context}.sigma {sigma:g}: must be >= 0 (or .nan: not determined)")
+    if not (np.isnan(sigma) or 0 <= sigma < np.inf):
+        raise ConfigError(f"{context}.sigma {sigma:g}: must be a finite number >= 0 (or .nan: not determined)")
     return TermValue(value, spec.unit, (low, high), str(entry["source"]), entry["status"], sigma)
 
 
