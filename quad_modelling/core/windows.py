@@ -318,7 +318,10 @@ class EvaluationConfig:
             config = cls(**values)
         except (KeyError, TypeError, ValueError) as err:
             raise ConfigError(f"{where}: not an evaluation configuration ({type(err).__name__}: {err})") from err
-        config.validate()
+        try:
+            config.validate()
+        except ConfigError as err:  # its words name the options that set the fields: here the file's fields are at fault
+            raise ConfigError(f"{where}: {err} (the evaluation's configuration as the file holds it)") from err
         return config
 
 

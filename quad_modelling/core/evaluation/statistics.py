@@ -42,6 +42,10 @@ STATISTICS_VERSION = 1
 SCALE_BITS = 1074
 """Every finite float64 is an integer multiple of 2^-1074 (the smallest subnormal), so x * 2^1074 is an integer."""
 
+MAX_SUM_BITS = 1024 + SCALE_BITS + 64
+"""Bits of the largest exact sum read back: 2^64 finite float64 values (each below 2^1024) at scale 2^1074. A file's
+sum beyond it is no sum of float64 values (an edited exponent asked for 2^5000: an OverflowError traceback)."""
+
 _HEX_SUM = re.compile(r"^(-?)0x([0-9a-f]+)p([+-]\d+)$")
 
 
@@ -111,7 +115,10 @@ class ExactSum:
     @classmethod
     def from_json(cls, data, where: str) -> ExactSum:
         try:
-            out = cls(None if data["shape"] is None else tuple(int(n) for n in data["shape"]))
+            shape = None if data["shape"] is None else tuple(int(n) for n in data["shape"])
+            if shape is not None and (min(shape, default=0) < 0 or math.prod(shape) != len(data["sums"])):
+                raise DataError(f"{where}: {len(data['sums'])} sums for shape {shape}")  # before [0] * prod is held
+            out = cls(shape)
             terms = []
             for item in data["sums"]:
                 if item is None or item in ("inf", "-inf"):
@@ -119,8 +126,8 @@ class ExactSum:
                     continue
                 sign, mantissa, exponent = _HEX_SUM.match(item).groups()
                 shift = int(exponent) + SCALE_BITS
-                if shift < 0:
-                    raise ValueError(f"exponent {exponent} below 2^-1074")
+                if shift < 0 or len(mantissa) * 4 + shift > MAX_SUM_BITS + 4:
+                    raise ValueError(f"{item[:40]}: no sum of float64 values")
                 terms.append((-1 if sign else 1) * (int(mantissa, 16) << shift))
         except (KeyError, TypeError, ValueError, AttributeError) as err:
             raise DataError(f"{where}: expected an exact sum {{shape, sums: ['0x..p..', ...]}}, got {str(data)[:60]}") from err
@@ -302,7 +309,7 @@ class EvaluationStatistics:
             return None
         for name in dict.fromkeys([*self.vehicle_numbers, *other.vehicle_numbers]):
             mine, theirs = self.vehicle_numbers.get(name), other.vehicle_numbers.get(name)
-            if mine != theirs:
+            if mine != theirs and not (mine is not None and theirs is not None and math.isnan(mine) and math.isnan(theirs)):
                 return f"{name} {'absent' if mine is None else f'{mine:.6g}'} vs {'absent' if theirs is None else f'{theirs:.6g}'}"
         return None
 

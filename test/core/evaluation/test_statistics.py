@@ -13,7 +13,7 @@ from quad_modelling.core.evaluation.windowed import evaluate, evaluate_flight, m
 from quad_modelling.core.models.registry import make_model
 from quad_modelling.core.vehicle import load_vehicle
 from quad_modelling.core.windows import EvaluationConfig
-from quad_modelling.errors import DataError
+from quad_modelling.errors import ConfigError, DataError
 from test.core.flightgen import linear_flight
 
 
@@ -96,6 +96,28 @@ def test_exact_sums_keep_nan_and_refuse_malformed_text():
     assert np.isnan(ExactSum.from_json(stored, "s").mean(1)[0])
     with pytest.raises(DataError, match="rms_sum"):
         ExactSum.from_json({"shape": [1], "sums": ["12.5"]}, "rms_sum")
+    # no sum of float64 values (an OverflowError at the mean), a shape held before its sums were counted (MemoryError)
+    for data in ({"shape": [1], "sums": ["0x1p+5000"]}, {"shape": [1], "sums": ["0x" + "f" * 200_000 + "p+0"]},
+                 {"shape": [10**12], "sums": ["0x1p+0"]}, {"shape": [-1], "sums": ["0x1p+0"]}):
+        with pytest.raises(DataError, match=r"^rms_sum: expected an exact sum"):
+            ExactSum.from_json(data, "rms_sum")
+    largest = ExactSum().add([np.finfo(float).max])
+    assert ExactSum.from_json(largest.to_json(), "s").mean(1)[0] == np.finfo(float).max
+
+
+def test_vehicles_that_agree_on_a_nan_number_do_not_differ_in_it():
+    """merge said "mass nan vs nan" and named the same file twice: NaN compares unequal to itself."""
+    one = EvaluationStatistics("v", [], {}, None, [], {"mass": float("nan"), "izz": 1.0})
+    assert one.vehicle_difference(EvaluationStatistics("v", [], {}, None, [], {"mass": float("nan"), "izz": 1.0})) is None
+    assert one.vehicle_difference(EvaluationStatistics("v", [], {}, None, [], {"mass": 0.027, "izz": 1.0})) == "mass nan vs 0.027"
+
+
+def test_a_bad_configuration_in_a_results_file_is_named_as_the_files_not_as_an_option():
+    data = EvaluationConfig.preset("short").to_dict()
+    data["window_s"] = float("nan")
+    with pytest.raises(ConfigError, match=r"^r.json: config: --window nan: must be a finite number \(the evaluation's "
+                                          r"configuration as the file holds it\)$"):
+        EvaluationConfig.from_dict(data, "r.json: config")
 
 
 @pytest.mark.parametrize("windows", [-5, 1.5, 2**60, True, "3"])
