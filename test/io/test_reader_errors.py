@@ -7,6 +7,7 @@ import io
 import json
 import os
 import time
+import warnings
 import zipfile
 
 import numpy as np
@@ -259,6 +260,42 @@ def test_wrong_types_in_a_model_header(tmp_path, key, value, message):
     path.write_bytes(model_bytes(header, MODEL.arrays()))
     assert refusal(ModelError, load_narx, path) == f"{path}: {message}"
     json.dumps(header)  # the header itself is valid JSON: the refusal is about the types
+
+
+@pytest.mark.parametrize("setting, value, message", [
+    ("incremental", "no", "'no' is not true or false"),  # a non-empty string was read as true
+    ("hidden", "10", "'10' is not a whole number"),
+    ("hidden", True, "'True' is not a whole number"),
+])
+def test_a_model_setting_of_another_json_type_is_refused_not_converted(tmp_path, setting, value, message):
+    header = MODEL.header()
+    header["config"] = {**header["config"], setting: value}
+    path = tmp_path / "model.npz"
+    path.write_bytes(model_bytes(header, MODEL.arrays()))
+    assert refusal(ModelError, load_narx, path) == f"{path}: incomplete model file (missing or invalid TypeError: {message})"
+
+
+def test_a_model_file_holding_a_member_or_a_header_key_twice_or_non_real_arrays_is_refused(tmp_path):
+    """numpy read one of two w_u members, json the last of two dt keys, a complex array with a ComplexWarning (two
+    lines) and a structured one as numbers: each changed the predictions at exit 0."""
+    good = model_bytes(MODEL.header(), MODEL.arrays())
+    path = tmp_path / "model.npz"
+    path.write_bytes(good)
+    with zipfile.ZipFile(path, "a") as archive, warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # zipfile's "Duplicate name"
+        stream = io.BytesIO()
+        np.save(stream, MODEL.arrays()["w_u"] * 2)
+        archive.writestr("w_u.npy", stream.getvalue())
+    assert refusal(ModelError, load_narx, path) == f"{path}: holds member w_u.npy twice; corrupt model file"
+    text = json.dumps(MODEL.header())
+    stream = io.BytesIO()
+    np.savez(stream, header=np.array(text[:-1] + ', "dt": 0.02}'), **MODEL.arrays())
+    path.write_bytes(stream.getvalue())
+    assert refusal(ModelError, load_narx, path) == f"{path}: corrupt model header (ValueError: key 'dt' appears twice)"
+    for array, dtype in ((MODEL.arrays()["w_u"].astype(complex), "complex128"),
+                         (np.zeros(MODEL.arrays()["b_2"].shape, dtype=[("a", "<f8")]), "[('a', '<f8')]")):
+        path.write_bytes(model_bytes(MODEL.header(), {**MODEL.arrays(), "w_u": array}))
+        assert refusal(ModelError, load_narx, path) == f"{path}: member w_u.npy holds dtype {dtype}, not real numbers"
 
 
 def test_a_vehicle_given_that_contradicts_the_one_a_flight_names_is_refused(tmp_path):

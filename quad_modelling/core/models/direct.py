@@ -75,7 +75,7 @@ from quad_modelling.core import frames
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
 from quad_modelling.core.models.hybrid import physics_constants, trained_parameters
-from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
+from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, header_int, read_model_file
 from quad_modelling.core.models.physics import Disturbance, PhysicsPredictor, PhysicsStream
 from quad_modelling.core.models.streaming import WindowByStream
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -387,17 +387,21 @@ def load_direct(path: str | Path, vehicle: VehicleConfig) -> DirectModel:
         stored = header["training"]["physics"]
         if not isinstance(stored, dict):
             raise TypeError("training.physics is not a mapping")
-        regression = RateRegression(contents["weights"], contents["bias"], int(config["rate_history"]), int(config["command_lead"]),
-                                    tuple(config.get("anchor_inputs", ())))  # session 19's files: none
+        regression = RateRegression(contents["weights"], contents["bias"], header_int(config["rate_history"]),
+                                    header_int(config["command_lead"]), tuple(config.get("anchor_inputs", ())))  # session 19's: none
+        if "horizon" in config and header_int(config["horizon"]) != len(contents["weights"]):
+            raise ModelError(f"config.horizon {config['horizon']} but weights for {len(contents['weights'])} horizons")
         layout = config.get("vertical")  # files before session 22: none
         if layout is not None and not isinstance(layout, dict):
             raise TypeError("config.vertical is not a mapping")
+        if layout is None and "vertical_weights" in contents:
+            raise ModelError("config.vertical is null but the file holds the vertical map's arrays: which is meant?")
         unread = sorted(set(layout or {}) - set(VERTICAL_SETTINGS))
         if unread:
             raise ModelError(f"direct model file holds vertical-map setting {unread[0]!r}, which this program's direct "
                              "model does not read (a file from a newer quad-modelling?)")
         vertical = None if layout is None else VerticalRegression(contents["vertical_weights"], contents["vertical_bias"],
-                                                                  int(layout["velocity_history"]), int(layout["command_lead"]),
+                                                                  header_int(layout["velocity_history"]), header_int(layout["command_lead"]),
                                                                   layout.get("acceleration_rows", 1))  # before session 24: 1
         dt = float(header["dt"])
     except ModelError as err:  # a setting out of range or not read: the message with the file's name

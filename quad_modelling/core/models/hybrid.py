@@ -62,7 +62,7 @@ import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.models import physics
-from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, read_model_file
+from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, header_flag, header_float, read_model_file
 from quad_modelling.core.models.physics import Disturbance, Observer, PhysicsStream
 from quad_modelling.core.physics.arrays import as_array, exp, is_symbolic, rotate, rotate_back
 from quad_modelling.core.physics.parameters import PhysicsParameters
@@ -319,11 +319,11 @@ def load_hybrid(path: str | Path, vehicle: VehicleConfig) -> HybridModel:
     net = ResidualNet.from_arrays(contents, str(path))
     try:
         config = header["config"]
-        observer = Observer(float(config["observer"]["linear_s"]), float(config["observer"]["angular_s"]),
-                            bool(config["observer"]["angular_trim"]))
+        observer = Observer(header_float(config["observer"]["linear_s"]), header_float(config["observer"]["angular_s"]),
+                            header_flag(config["observer"]["angular_trim"]))
         stored = header["training"]["physics"]
         inputs = list(config["features"])
-        filters = tuple(float(tau) for tau in config.get("command_filters_s", ()))  # none in a file saved before them
+        filters = tuple(header_float(tau) for tau in config.get("command_filters_s", ()))  # none in a file saved before them
         if not isinstance(stored, dict):
             raise TypeError("training.physics is not a mapping")
     except (KeyError, TypeError, ValueError, AttributeError) as err:

@@ -51,6 +51,10 @@ def _check_archive(path: Path) -> None:
             members = archive.infolist()
             if len(members) > MAX_MEMBERS:
                 raise ModelError(f"{path}: holds {len(members)} arrays, a model file has at most {MAX_MEMBERS}")
+            names = [member.filename for member in members]
+            twice = next((name for name in names if names.count(name) > 1), None)
+            if twice is not None:  # numpy reads one of them: which one is the model?
+                raise ModelError(f"{path}: holds member {twice} twice; corrupt model file")
             for member in members:
                 where = f"{path}: member {member.filename}"
                 if member.file_size > MAX_ARRAY_BYTES:
@@ -66,6 +70,8 @@ def _check_archive(path: Path) -> None:
                     header_bytes = stream.tell()
                 if dtype.hasobject:
                     raise ModelError(f"{where} holds Python objects (dtype {dtype}), not numbers or text")
+                if dtype.kind not in ("U" if member.filename == "header.npy" else "biuf") or dtype.names is not None:
+                    raise ModelError(f"{where} holds dtype {dtype}, not {'text' if member.filename == 'header.npy' else 'real numbers'}")
                 declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
                 if declared > member.file_size - header_bytes:
                     raise ModelError(f"{where} declares a {tuple(shape)} {dtype} array ({declared} bytes) but holds "
@@ -74,6 +80,36 @@ def _check_archive(path: Path) -> None:
         raise
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError, zlib.error) as err:
         raise ModelError(f"{path}: not a readable model file ({reason(err)})") from err
+
+
+def header_int(value) -> int:
+    """A whole-number setting of a model header; TypeError for anything else (JSON's "10" or true is no count)."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise TypeError(f"{str(value)[:40]!r} is not a whole number")
+    return value
+
+
+def header_float(value) -> float:
+    """A number setting of a model header; TypeError for a string or a boolean."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise TypeError(f"{str(value)[:40]!r} is not a number")
+    return float(value)
+
+
+def header_flag(value) -> bool:
+    """A true/false setting of a model header; TypeError for anything else ("no" was read as true)."""
+    if not isinstance(value, bool):
+        raise TypeError(f"{str(value)[:40]!r} is not true or false")
+    return value
+
+
+def _unique_keys(pairs: list) -> dict:
+    """A JSON object's pairs as a dict; ValueError for a key given twice (json keeps the last, silently)."""
+    keys = [key for key, _ in pairs]
+    twice = next((key for key in keys if keys.count(key) > 1), None)
+    if twice is not None:
+        raise ValueError(f"key {twice!r} appears twice")
+    return dict(pairs)
 
 
 def _check_header(path: Path, header: dict) -> None:
@@ -112,7 +148,7 @@ def read_model_file(path: str | Path, kind: str, outputs: Sequence[str], vehicle
     if "header" not in contents:
         raise ModelError(f"{path}: no header: not a quad_modelling model file")
     try:
-        header = json.loads(str(contents.pop("header")))
+        header = json.loads(str(contents.pop("header")), object_pairs_hook=_unique_keys)
     except (ValueError, RecursionError) as err:
         raise ModelError(f"{path}: corrupt model header ({reason(err)})") from err
     if not isinstance(header, dict) or header.get("format") != FORMAT:

@@ -61,11 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.models.model_files import (
-    FORMAT,
-    FORMAT_VERSION,
-    read_model_file,
-)
+from quad_modelling.core.models.model_files import FORMAT, FORMAT_VERSION, header_flag, header_float, header_int, read_model_file
 from quad_modelling.core.variables import VARIABLES, columns
 from quad_modelling.errors import DataError, ModelError, reason
 
@@ -451,11 +447,11 @@ def model_from_parts(path: Path, header: dict, contents: dict[str, np.ndarray]) 
     try:
         cfg = header["config"]
         config = NarxConfig(
-            hidden=int(cfg["hidden"]), output_delays=int(cfg["output_delays"]),
-            input_delays=tuple(int(d) for d in cfg["input_delays"]), epochs=int(cfg["epochs"]),
-            iterations_per_epoch=int(cfg["iterations_per_epoch"]),
-            noise_snr_db=tuple(None if s is None else float(s) for s in cfg["noise_snr_db"]),
-            incremental=bool(cfg["incremental"]),
+            hidden=header_int(cfg["hidden"]), output_delays=header_int(cfg["output_delays"]),
+            input_delays=tuple(header_int(d) for d in cfg["input_delays"]), epochs=header_int(cfg["epochs"]),
+            iterations_per_epoch=header_int(cfg["iterations_per_epoch"]),
+            noise_snr_db=tuple(None if s is None else header_float(s) for s in cfg["noise_snr_db"]),
+            incremental=header_flag(cfg["incremental"]),
         )
         arrays = {name: np.asarray(contents[name], dtype=float) for name in ARRAY_NAMES}
         dt = float(header["dt"])

@@ -395,3 +395,23 @@ def test_a_file_from_before_the_averaged_acceleration_reads_the_anchors_row_alon
                                          "program's direct model does not read") as err:
         load_direct(tmp_path / "newer.npz", vehicle)
     assert "\n" not in str(err.value)
+
+
+def test_a_file_whose_settings_contradict_its_arrays_is_refused(model, vehicle, tmp_path):
+    """``config.vertical: null`` next to the vertical map's arrays predicted without the map (velocity SimErr 2.28
+    against 2.46, exit 0); a ``config.horizon`` other than the weights' was not read at all."""
+    import json
+
+    path = model.save(tmp_path / "direct.npz")
+    with np.load(path) as contents:
+        header, arrays = json.loads(str(contents["header"])), {k: contents[k] for k in contents.files if k != "header"}
+    for edit, message in ((lambda c: c.update(vertical=None), "config.vertical is null but the file holds the vertical map's arrays"),
+                          (lambda c: c.update(horizon=c["horizon"] + 1), f"config.horizon {header['config']['horizon'] + 1} but "
+                                                                         f"weights for {header['config']['horizon']} horizons")):
+        changed = json.loads(json.dumps(header))
+        edit(changed["config"])
+        with open(tmp_path / "edited.npz", "wb") as stream:
+            np.savez(stream, header=np.array(json.dumps(changed)), **arrays)
+        with pytest.raises(ModelError) as err:
+            load_direct(tmp_path / "edited.npz", vehicle)
+        assert str(err.value).startswith(f"{tmp_path / 'edited.npz'}: {message}")
