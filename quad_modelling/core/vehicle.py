@@ -1,15 +1,14 @@
 """VehicleConfig: one airframe's constants, loaded from ``config/vehicles/*.yaml``.
 
-One value per physical constant (``constants:``): mass, geometry, the airframe's inertias, the rotor inertia
-and the rotor constants of the one physics (:mod:`quad_modelling.core.physics`). Every entry is a mapping
-``{value, unit, source, status}`` with an optional ``sigma`` (1-sigma, same unit); ``status`` is ``measured``
-(from the airframe or literature), ``identified`` (a starting value that ``quad-modelling identify`` refines
-from flight data) or ``effective`` (a value that makes one model fit, not the airframe's: it stands in for
-something that model lacks). A file that ``identify`` wrote records what it fitted in its ``identification``
-section; a constant marked ``identified`` that no such record names still holds its starting value
-(:meth:`VehicleConfig.never_identified`: the CasADi export refuses to hand those to a controller).
-There are no silent defaults: a missing key is a ConfigError naming the file
-and key.
+One value per physical constant (``constants:``): mass, geometry, the airframe's inertias, the rotor inertia and the
+rotor constants of the one physics (:mod:`quad_modelling.core.physics`). Every entry is a mapping ``{value, unit,
+source, status}`` with an optional ``sigma`` (1-sigma, same unit); ``status`` is ``measured`` (from the airframe or
+literature), ``identified`` (a starting value that ``quad-modelling identify`` refines from flight data) or
+``effective`` (a value that makes one model fit, not the airframe's: it stands in for something that model lacks). A
+file that ``identify`` wrote records what it fitted in its ``identification`` section; a constant marked
+``identified`` that no such record names still holds its starting value (:meth:`VehicleConfig.never_identified`: the
+CasADi export refuses to hand those to a controller). There are no silent defaults: a missing key is a ConfigError
+naming the file and key.
 
 Values named for what they are, both optional:
 
@@ -19,13 +18,12 @@ Values named for what they are, both optional:
   (e.g. thesis Table 3-1 for the LinkQuad, or what ``identify`` fits for the linear model); absent, the
   greybox derives them from the physical constants (:meth:`VehicleConfig.greybox_constants`).
 
-Old key names (before one value per constant) are read with one warning line naming the file and each
-old -> new key (:data:`RENAMED_KEYS`, :data:`MOVED_TO_GREYBOX`).
+Old key names (before one value per constant) are read with one warning line naming the file and each old -> new key
+(:data:`RENAMED_KEYS`, :data:`MOVED_TO_GREYBOX`).
 
-Motors are listed in command order (u1..u4); each has a position in the body
-frame FRD [m] and a spin direction seen from above. A rotor spinning
-counter-clockwise seen from above pushes the body clockwise, i.e. a positive
-yaw torque about the FRD z axis (down): ``yaw_sign = +1``; clockwise: ``-1``.
+Motors are listed in command order (u1..u4); each has a position in the body frame FRD [m] and a spin direction seen
+from above. A rotor spinning counter-clockwise seen from above pushes the body clockwise, i.e. a positive yaw torque
+about the FRD z axis (down): ``yaw_sign = +1``; clockwise: ``-1``.
 
 Thrust and yaw torque per rotor (thesis Eq 3-3, 3-13; :mod:`quad_modelling.core.physics.rotors`):
 
@@ -118,26 +116,15 @@ MOVED_TO_GREYBOX = {"motor_a_m": "motor_a_m", "motor_b_m": "motor_b_m", "thrust_
 STATUSES = ("measured", "identified", "effective")
 
 CONSTANT_RANGES: dict[str, tuple[float, float, str]] = {
-    "mass": (1e-5, 1000.0, "kg"),
-    "arm_length": (1e-3, 10.0, "m"),
-    "ixx": (1e-12, 1000.0, "kg m2"),
-    "iyy": (1e-12, 1000.0, "kg m2"),
-    "izz": (1e-12, 1000.0, "kg m2"),
-    "prop_inertia": (0.0, 10.0, "kg m2"),
-    "rotor_speed_gain": (0.0, np.inf, "rad/s per input unit"),
-    "rotor_speed_offset": (-1.0e5, 1.0e5, "rad/s"),
-    "rotor_time_constant": (0.0, 10.0, "s"),
-    "rotor_delay": (0.0, 1.0, "s"),
-    "rotor_thrust_constant": (0.0, 1.0, "N s2/rad2"),
-    "rotor_torque_constant": (0.0, 1.0, "N m s2/rad2"),
-    "rotor_drag_xy": (0.0, 1.0, "N s/(m rad)"),
-    "rotor_drag_z": (0.0, 1.0, "N s/(m rad)"),
-    "rotor_drag_arm": (-10.0, 10.0, "m"),
-    "effective_ixx": (1e-12, 1000.0, "kg m2"),
-    "effective_iyy": (1e-12, 1000.0, "kg m2"),
-    "motor_a_m": (-1.0e5, 0.0, "1/s"),
-    "motor_b_m": (0.0, np.inf, "rad/s2 per input unit"),
-    "thrust_constant": (0.0, 1.0, "N s2/rad2"),
+    "mass": (1e-5, 1000.0, "kg"), "arm_length": (1e-3, 10.0, "m"),
+    "ixx": (1e-12, 1000.0, "kg m2"), "iyy": (1e-12, 1000.0, "kg m2"), "izz": (1e-12, 1000.0, "kg m2"),
+    "prop_inertia": (0.0, 10.0, "kg m2"), "rotor_speed_gain": (0.0, np.inf, "rad/s per input unit"),
+    "rotor_speed_offset": (-1.0e5, 1.0e5, "rad/s"), "rotor_time_constant": (0.0, 10.0, "s"), "rotor_delay": (0.0, 1.0, "s"),
+    "rotor_thrust_constant": (0.0, 1.0, "N s2/rad2"), "rotor_torque_constant": (0.0, 1.0, "N m s2/rad2"),
+    "rotor_drag_xy": (0.0, 1.0, "N s/(m rad)"), "rotor_drag_z": (0.0, 1.0, "N s/(m rad)"),
+    "rotor_drag_arm": (-10.0, 10.0, "m"), "effective_ixx": (1e-12, 1000.0, "kg m2"),
+    "effective_iyy": (1e-12, 1000.0, "kg m2"), "motor_a_m": (-1.0e5, 0.0, "1/s"),
+    "motor_b_m": (0.0, np.inf, "rad/s2 per input unit"), "thrust_constant": (0.0, 1.0, "N s2/rad2"),
     "torque_constant": (0.0, 1.0, "N m s2/rad2"),
 }
 """Open interval (low, high) each constant must lie in, and its unit: positive masses, lengths, inertias and
@@ -158,6 +145,13 @@ CONSTANT_FIELDS = ("value", "unit", "source", "status", "sigma", "bounds", "at_b
 
 ANY_INPUT_UNIT = "input unit"
 """In :data:`CONSTANT_RANGES`: per unit of the vehicle's own command (``rad/s per PWM``, ``rad/s per us``)."""
+
+MAX_ROTOR_SPEED = 1.0e5
+"""Fastest rotor speed [rad/s] a vehicle file may imply at full command (a Crazyflie's tops out near 2500, an Iris's
+near 1000): a rotor_speed_gain of 1e300 overflowed every prediction into warnings and a NaN identification."""
+
+MIN_TIME_CONSTANT_S = 1.0e-6
+"""Shortest nonzero motor lag [s]: 1/τ_m of a 5e-324 s (denormal) lag overflows; any step is far longer."""
 
 ZERO_ALLOWED = ("prop_inertia", "rotor_time_constant", "rotor_delay", "rotor_drag_arm", "rotor_drag_xy", "rotor_drag_z")
 """Constants whose range includes its lower end 0 (the effect neglected)."""
@@ -428,6 +422,11 @@ class VehicleConfig:
             raise ConfigError(f"{where}: inputs.min and inputs.max must be finite, got [{input_min}, {input_max}]")
         if not input_max > input_min:
             raise ConfigError(f"{where}: inputs.max must exceed inputs.min")
+        if "rotor_speed_gain" in constants and "rotor_speed_offset" in constants:  # omega = k_u u + omega_0 at full command
+            fastest = constants["rotor_speed_gain"].value * input_max + constants["rotor_speed_offset"].value
+            if not fastest < MAX_ROTOR_SPEED:
+                raise ConfigError(f"{where}: constants.rotor_speed_gain.value {constants['rotor_speed_gain'].value:g} turns the rotors at "
+                                  f"{fastest:.3g} rad/s at inputs.max {input_max:g}, beyond {MAX_ROTOR_SPEED:g} rad/s")
         return cls(
             name=name,
             description=str(doc.get("description", "")),
@@ -530,9 +529,11 @@ def _read_old_keys(constants_doc: dict, greybox_doc: dict, where: str) -> tuple[
 
 def check_constant(key: str, value: float, where: str, section: str = "constants") -> None:
     """ConfigError naming ``where`` and ``<section>.<key>.value`` unless the value is finite and inside
-    :data:`CONSTANT_RANGES`."""
+    :data:`CONSTANT_RANGES` (a motor lag 0 or at least :data:`MIN_TIME_CONSTANT_S`)."""
     if not np.isfinite(value):
         raise ConfigError(f"{where}: {section}.{key}.value must be a finite number, got {value}")
+    if key == "rotor_time_constant" and 0 < value < MIN_TIME_CONSTANT_S:
+        raise ConfigError(f"{where}: {section}.{key}.value {value:g} s: 0 (no motor lag) or at least {MIN_TIME_CONSTANT_S:g} s")
     if key not in CONSTANT_RANGES:
         return
     low, high, unit = CONSTANT_RANGES[key]

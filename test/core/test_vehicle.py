@@ -211,6 +211,10 @@ def test_a_constant_may_carry_its_sigma_and_a_bad_one_is_named():
     (lambda d: d.update(effects={"disturbance_observer": {"enabled": True, "linear_history": {
         "value": 0.5, "unit": "s", "bounds": [0.0, 10.0], "status": "identified", "source": "test", "sigma": float("inf")}}}),
      "effects.disturbance_observer.linear_history.sigma inf: must be a finite number >= 0"),
+    # a gain of 1e300 overflowed every prediction (18 warning lines), a denormal lag its inverse
+    (lambda d: d["constants"]["rotor_speed_gain"].update(value=1e300), "constants.rotor_speed_gain.value 1e+300 turns the rotors at"),
+    (lambda d: d["constants"]["rotor_time_constant"].update(value=5e-324),
+     "constants.rotor_time_constant.value 4.94066e-324 s: 0 (no motor lag) or at least 1e-06 s"),
     # a name without the fit's record made a starting value "identified": exported as one
     (lambda d: d.update(identification={"constants": {"rotor_time_constant": None}}),
      "identification.constants.rotor_time_constant must be the fit's record with a finite value (as identify writes it), got 'None'"),
