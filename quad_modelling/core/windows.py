@@ -512,7 +512,9 @@ class Window:
 
 
 def span_windows(log: FlightLog, span: SpanSpec, config: EvaluationConfig, flight: int = 0) -> list[Window]:
-    """Consecutive full windows of ``config.window_s`` inside ``span`` of one flight (the clock from the span start)."""
+    """Consecutive full windows of ``config.window_s`` inside ``span`` of one flight (the clock from the span start);
+    ConfigError when the window or its warm start holds too few rows (:func:`check_window_rows`)."""
+    check_window_rows([log], config)
     a, b = span.interval(log, config.drop_start, config.drop_end)
     return [Window(flight, span.name, s, e) for s, e in windows_between(log, a, b, config.window_s)]
 
@@ -531,6 +533,26 @@ def span_segments(log: FlightLog, span: SpanSpec, config: EvaluationConfig) -> l
 def warm_samples_for(window: FlightLog, warm_s: float) -> int:
     """Number of warm-start rows (>= 1: the state at the anchor is always given)."""
     return int(np.clip(round(warm_s * window.sample_rate), 1, len(window) - 1))
+
+
+MIN_WARM_ROWS = 2
+"""Fewest rows a warm start may hold (the greybox anchors on two); a window holds at least one more."""
+
+
+def check_window_rows(flights: Sequence[FlightLog], config: EvaluationConfig) -> None:
+    """ConfigError naming ``--warm`` or ``--window`` when, at the slowest flight's rate, the warm start holds fewer
+    than :data:`MIN_WARM_ROWS` rows or the window no row after it (a model's own error named a 1-row warm start or
+    a flight of 1 sample, and "no window fits" a 32 s flight)."""
+    slowest = min(flights, key=lambda log: log.sample_rate, default=None)
+    if slowest is None or len(slowest) < 2:
+        return
+    rate = slowest.sample_rate
+    if round(config.warm_s * rate) < MIN_WARM_ROWS:
+        raise ConfigError(f"--warm {config.warm_s:g}: {round(config.warm_s * rate)} row(s) of {slowest.meta.source} at "
+                          f"{rate:.4g} Hz; a warm start holds at least {MIN_WARM_ROWS} rows ({MIN_WARM_ROWS / rate:.3g} s)")
+    if round(config.window_s * rate) <= round(config.warm_s * rate):
+        raise ConfigError(f"--window {config.window_s:g}: {round(config.window_s * rate)} row(s) of {slowest.meta.source} at "
+                          f"{rate:.4g} Hz; a window holds more rows than its --warm {config.warm_s:g} s")
 
 
 def plan_windows(flights: Sequence[FlightLog], config: EvaluationConfig) -> dict[str, list[Window]]:

@@ -59,7 +59,8 @@ from quad_modelling.core.preprocess import (
 )
 from quad_modelling.core.variables import EVAL_VARIABLES, INDEX, VARIABLES
 from quad_modelling.core.vehicle import VehicleConfig
-from quad_modelling.core.windows import EvaluationConfig, check_window_rate, no_window_error, span_windows, warm_samples_for
+from quad_modelling.core.windows import (EvaluationConfig, check_window_rate, check_window_rows, no_window_error, span_windows,
+                                         warm_samples_for)
 from quad_modelling.errors import ConfigError, DataError
 
 
@@ -200,6 +201,7 @@ def evaluate_flight(
         raise ConfigError(f"model names must be unique, got {names}: name them, --model NAME=SPEC (a=narx:a.npz)")
     config.validate()
     check_window_rate(log)  # before the multi-step table: a flight no window can score is refused for its rate
+    check_window_rows([log], config)  # and a window or warm start of too few rows at its rate
     for model in models:  # a model that predicts only some flights (the truth model: simulated ones) says so first
         check = getattr(model, "check_flight", None)
         if check is not None:

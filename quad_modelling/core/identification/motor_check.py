@@ -84,6 +84,8 @@ def regress_gains(batch: WindowBatch, thrusts: np.ndarray) -> tuple[np.ndarray, 
         xa, ya = x, y[:, :, a]
         if cutoff > 0:  # the same linear filter on both sides keeps the static relation
             sos = signal.butter(2, cutoff, btype="high", fs=1.0 / batch.dt, output="sos")
+            if x.shape[1] <= 3 * (2 * len(sos) + 1):  # fewer rows than filtfilt's padding: this axis stays undetermined
+                continue
             xa, ya = signal.sosfiltfilt(sos, xa, axis=1), signal.sosfiltfilt(sos, ya, axis=1)
         xa = xa - xa.mean(axis=1, keepdims=True)  # the per-window intercepts (Frisch-Waugh)
         ya = ya - ya.mean(axis=1, keepdims=True)

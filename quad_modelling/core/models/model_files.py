@@ -70,12 +70,12 @@ def _check_archive(path: Path) -> None:
                     header_bytes = stream.tell()
                 if dtype.hasobject:
                     raise ModelError(f"{where} holds Python objects (dtype {dtype}), not numbers or text")
-                if dtype.kind not in ("U" if member.filename == "header.npy" else "biuf") or dtype.names is not None:
-                    raise ModelError(f"{where} holds dtype {dtype}, not {'text' if member.filename == 'header.npy' else 'real numbers'}")
                 declared = int(np.prod(shape, dtype=object)) * dtype.itemsize
                 if declared > member.file_size - header_bytes:
                     raise ModelError(f"{where} declares a {tuple(shape)} {dtype} array ({declared} bytes) but holds "
                                      f"{member.file_size - header_bytes}; corrupt model file")
+                if dtype.kind not in ("U" if member.filename == "header.npy" else "biuf") or dtype.names is not None:
+                    raise ModelError(f"{where} holds dtype {dtype}, not {'text' if member.filename == 'header.npy' else 'real numbers'}")
     except ModelError:
         raise
     except (zipfile.BadZipFile, ValueError, OSError, EOFError, NotImplementedError, RuntimeError, zlib.error) as err:

@@ -25,7 +25,7 @@ from quad_modelling.core.training.rollout import (
     train_rollout,
 )
 from quad_modelling.core.windows import gap_free_runs, rows_between
-from quad_modelling.errors import DataError
+from quad_modelling.errors import ConfigError, DataError
 
 
 @dataclass
@@ -332,6 +332,9 @@ def validation_split(logs: list[FlightLog], spans: list[tuple[float, float] | No
         log, span = pairs[0]
         a, b = (0.0, log.duration) if span is None else span
         cut = b - fraction * (b - a)
+        if (cut - a) * log.sample_rate < 2 * NarxConfig().warm_samples:  # said as the option, not as a segment's length
+            raise ConfigError(f"--val-fraction {fraction:g} of the one flight {log.meta.source} leaves {cut - a:.2f} s to train "
+                              f"on; hold back less (or give validation flights, --val-flights)")
         return flight_segments([log], [(a, cut)]), flight_segments([log], [(cut, b)])
     return flight_segments(*map(list, zip(*train))), flight_segments(*map(list, zip(*val))) if val else []
 
