@@ -99,7 +99,11 @@ def check_output(path: Path, force: bool, inputs: Iterable[str | Path] = (), fla
     if len(os.fsencode(path.name)) > limit:
         raise OutputDirError(f"{path.name[:40]}...: output name is {len(os.fsencode(path.name))} bytes long; "
                              f"the file system allows {limit} here")
+    if not directory and given.endswith(os.sep) and path.suffix:  # train -o m.npz/ wrote the file m.npz
+        raise OutputDirError(f"{flag} {given!r}: ends in {os.sep!r} (a directory) but names a {path.suffix} file; drop the {os.sep!r}")
     check_not_input(path, inputs, flag)
+    if path.is_symlink() and not path.exists() and not force:  # exists() follows the link: a dangling one was replaced
+        raise OutputExistsError(f"{path}: exists (a symbolic link to {os.readlink(path)}, which does not); pass --force to overwrite")
     if path.exists() and not force:
         raise OutputExistsError(f"{path}: exists; pass --force to overwrite")
     if directory and path.exists() and not path.is_dir():

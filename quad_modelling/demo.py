@@ -62,5 +62,14 @@ def run() -> int:
     return 0
 
 
+def main(argv: list[str] | None = None) -> int:
+    """``python -m quad_modelling.demo``: no arguments (``--help`` says what it does, and touches nothing)."""
+    import argparse
+
+    argparse.ArgumentParser(prog="python -m quad_modelling.demo", description=__doc__.split("\n\n")[1].replace("\n", " "),
+                            epilog=f"Writes {OUTPUT} (replaced on every run).").parse_args(argv)
+    return run()
+
+
 if __name__ == "__main__":
-    sys.exit(run())
+    sys.exit(main())

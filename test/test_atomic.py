@@ -139,3 +139,18 @@ def test_an_earlier_output_is_judged_by_the_verbs_own_files(tmp_path):
     (onboard / "logs").mkdir(parents=True)
     (onboard / "params.yaml").write_text("{}")
     check_output(onboard, force=True, directory=True, markers=("results.json", "params.yaml"))
+
+
+def test_a_dangling_link_or_a_file_name_ending_in_a_slash_is_refused(tmp_path):
+    """``-o d.mat`` over a symbolic link to nothing replaced the link without --force (``exists()`` follows it);
+    ``train -o m.npz/`` wrote the file m.npz."""
+    from quad_modelling.atomic import check_output
+    from quad_modelling.atomic import OutputDirError
+
+    (tmp_path / "d.mat").symlink_to(tmp_path / "nowhere.mat")
+    with pytest.raises(OutputExistsError, match=rf"d.mat: exists \(a symbolic link to {tmp_path / 'nowhere.mat'}, which does not\)"):
+        check_output(tmp_path / "d.mat", False)
+    check_output(tmp_path / "d.mat", True)  # --force replaces it
+    with pytest.raises(OutputDirError, match=r"-o '.*m.npz/': ends in '/' \(a directory\) but names a .npz file"):
+        check_output(f"{tmp_path}/m.npz/", False)
+    check_output(f"{tmp_path}/bag/", False, directory=True)  # a directory output may end in one

@@ -474,7 +474,14 @@ def _pairs(text: str | None) -> list[tuple[str, ...]] | None:
         return None
     if text == "none":
         return []
-    return [tuple(part.strip() for part in item.split("+")) for item in _list_items(text, "--pairs")]
+    items = _list_items(text, "--pairs")
+    pairs = [tuple(part.strip() for part in item.split("+")) for item in items]
+    seen: dict[frozenset, str] = {}
+    for item, pair in zip(items, pairs):
+        if frozenset(pair) in seen:  # the same pair simulated and diagnosed twice
+            raise ConfigError(f"--pairs {text!r}: {item} is {seen[frozenset(pair)]} in another order; name each pair once")
+        seen[frozenset(pair)] = item
+    return pairs
 
 
 def _disturbances(text: str | None) -> tuple[str, ...]:

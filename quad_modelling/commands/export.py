@@ -36,7 +36,7 @@ examples:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("vehicle", metavar="VEHICLE.yaml", help="identified vehicle file (written by identify)")
-    parser.add_argument("--model", default="physics", metavar="SPEC",
+    parser.add_argument("--model", action="append", metavar="SPEC",
                         help="physics (default: the vehicle's physics model and terms) or hybrid:FILE (a train --hybrid model)")
     parser.add_argument("--format", required=True, metavar="FORMAT", help=f"export format: {', '.join(FORMATS)}")
     parser.add_argument("-o", "--output", required=True, metavar="OUT", help="directory to write (new; --force replaces it)")
@@ -56,7 +56,10 @@ def _hybrid_file(spec: str) -> str | None:
 def run(args: argparse.Namespace) -> int:
     if args.format not in FORMATS:
         raise ConfigError(f"--format {args.format}: unknown export format; known: {', '.join(FORMATS)}")
-    hybrid_file = _hybrid_file(args.model)
+    specs = args.model or ["physics"]
+    if len(specs) > 1:  # the last one was exported, the others dropped without a word
+        raise ConfigError(f"--model given {len(specs)} times ({', '.join(specs)}): export writes one model; run it once per model")
+    hybrid_file = _hybrid_file(specs[0])
     check_command_output(args.output, args.force, inputs=[vehicle_file(args.vehicle), hybrid_file], directory=True,
                          markers=("layout.yaml",))
     from quad_modelling.core.export.casadi_model import exportable_model, write_casadi_export

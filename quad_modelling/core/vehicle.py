@@ -71,19 +71,8 @@ def vehicle_dir() -> Path:
     return config_dir() / "vehicles"
 
 
-CONSTANT_KEYS = (
-    "mass",
-    "arm_length",
-    "ixx",
-    "iyy",
-    "izz",
-    "prop_inertia",
-    "rotor_speed_gain",
-    "rotor_speed_offset",
-    "rotor_time_constant",
-    "rotor_thrust_constant",
-    "rotor_torque_constant",
-)
+CONSTANT_KEYS = ("mass", "arm_length", "ixx", "iyy", "izz", "prop_inertia", "rotor_speed_gain", "rotor_speed_offset",
+                 "rotor_time_constant", "rotor_thrust_constant", "rotor_torque_constant")
 """Physical constants every vehicle file must give (docs/formats.md, vehicle configs): mass, arm, the airframe's
 inertias, rotor inertia, the command-to-rotor-speed map Ω_ss = k_u u + Ω_off, the rotor time constant τ_m and
 the thrust and yaw-torque constants k_f, k_m (T = k_f Ω², Q = k_m Ω²)."""
@@ -350,14 +339,14 @@ class VehicleConfig:
             return mapping[key]
 
         _refuse_unknown(doc, DOCUMENT_KEYS, f"{where}: ", "a key of a vehicle file")
-        name = str(need(doc, "name", ""))
+        name = _text(need(doc, "name", ""), "name", where)  # null was read as the vehicle "None"
         geometry = need(doc, "geometry", "")
         if geometry not in ("plus", "x"):
             raise ConfigError(f"{where}: geometry must be 'plus' or 'x', got {geometry!r}")
         constants_doc = need(doc, "constants", "")
         if not isinstance(constants_doc, dict):
             raise ConfigError(f"{where}: constants must be a mapping of constant name to {{value, unit, source, status}}")
-        greybox_doc = doc.get("greybox") or {}
+        greybox_doc = {} if doc.get("greybox") is None else doc["greybox"]  # 0 or false is no section
         if not isinstance(greybox_doc, dict):
             raise ConfigError(f"{where}: greybox must be a mapping of {', '.join(GREYBOX_KEYS)} to {{value, unit, source, status}}")
         constants_doc, greybox_doc, old = _read_old_keys(constants_doc, greybox_doc, where)
@@ -392,7 +381,7 @@ class VehicleConfig:
                 raise ConfigError(f"{where}: motors[{i}].position is not two numbers: {str(position)[:60]}") from err
             if not np.all(np.isfinite(xy)):
                 raise ConfigError(f"{where}: motors[{i}].position must be finite, got {list(xy)}")
-            motors.append(Motor(str(need(m, "name", f"motors[{i}].")), xy, 1 if spin == "ccw" else -1))
+            motors.append(Motor(_text(need(m, "name", f"motors[{i}]."), f"motors[{i}].name", where), xy, 1 if spin == "ccw" else -1))
         radii = np.hypot(*np.array([m.position for m in motors]).T)
         arm = constants["arm_length"].value
         if not np.allclose(radii, arm, rtol=0.02):
@@ -435,12 +424,19 @@ class VehicleConfig:
             constants=constants,
             input_min=input_min,
             input_max=input_max,
-            input_unit=str(need(inputs, "unit", "inputs.")),
+            input_unit=_text(need(inputs, "unit", "inputs."), "inputs.unit", where),
             path=where,
             effects=parse_effects(doc.get("effects"), where),
             fitted=_fitted_constants(doc.get("identification"), where),
             greybox=greybox,
         )
+
+
+def _text(value, key: str, where: str) -> str:
+    """A name or unit of a vehicle file: non-empty text (ConfigError naming ``key``; a list or null was read as text)."""
+    if not isinstance(value, str) or not value.strip():
+        raise ConfigError(f"{where}: {key} must be text, got {str(value)[:40]!r}")
+    return value
 
 
 def _refuse_unknown(mapping, known, context: str, what: str) -> None:
@@ -573,6 +569,8 @@ def load_vehicle(name_or_path: str | Path) -> VehicleConfig:
     candidate = Path(name_or_path)
     if candidate.suffix in (".yaml", ".yml"):
         return VehicleConfig.from_yaml(candidate)
+    if "/" in str(name_or_path):  # ./crazyflie21 read the shipped file
+        raise ConfigError(f"vehicle {name_or_path!r}: a path to a vehicle file ends in .yaml; a shipped vehicle is a bare name")
     directory = vehicle_dir()
     path = directory / f"{name_or_path}.yaml"
     if not path.exists():

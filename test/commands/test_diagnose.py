@@ -76,6 +76,7 @@ def test_diagnose_rejects_unknown_effects_and_missing_inputs(mat_flights, tmp_pa
 
 @pytest.mark.parametrize("flags, message", [
     (["--pairs", "rotor_drag+warp_drive"], "'warp_drive' is no effect the simulator switches"),
+    (["--pairs", "rotor_drag+battery,battery+rotor_drag"], "battery+rotor_drag is rotor_drag+battery in another order; name each pair once"),
     (["--effects", "rotor_drag,motor_lag", "--pairs", "rotor_drag+battery"], "'battery' is not among the searched --effects"),
     (["--disturbance", "gust"], "--disturbance gust: known disturbances are wind, com_offset, bent_arm"),
     (["--scheduler", "tcp://127.0.0.1:1"], "--scheduler: --validate runs its cases on a local cluster"),

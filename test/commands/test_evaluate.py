@@ -69,13 +69,18 @@ def test_the_multistep_table_lists_every_model_evaluated(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_horizon_beyond_50_says_the_starts_differ_and_too_long_a_horizon_says_why_no_table(tmp_path):
+def test_a_horizon_beyond_50_says_the_starts_differ_and_too_long_a_horizon_says_why_no_table(tmp_path, capsys):
     """SimErr sums h = 1..50 whatever the horizons; a longer horizon leaves fewer starts (each needs its rows ahead),
-    which the table says; one longer than every segment gives the note instead of a table."""
+    which the table says; one longer than every segment gives the note instead of a table, and a warning line (the
+    table was dropped with a word in tables.md only)."""
     from test.commands.test_train import BAG
 
     for horizons, name in (("1,10,50", "default"), ("1,100", "long"), ("1,100000", "too_long")):
+        capsys.readouterr()
         assert main(["evaluate", BAG, "--preset", "short", "--horizons", horizons, "-o", str(tmp_path / name)]) == 0
+        warned = [line for line in capsys.readouterr().err.splitlines() if "no multi-step table" in line]
+        assert warned == ([] if name != "too_long" else [
+            "warning: no multi-step table: no eval segment longer than 100000 samples plus the warm start (--horizons 1,100000)"])
     default, long = (json.loads((tmp_path / n / "results.json").read_text())["horizons"] for n in ("default", "long"))
     assert long["sim_err_horizon"] == 100 and long["starts"] == default["starts"] - 50
     assert "Every start has 100 rows ahead" in (tmp_path / "long" / "tables.md").read_text()

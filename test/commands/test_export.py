@@ -94,6 +94,9 @@ BAD = [
     ("output-is-the-model", ["{d}/cf.yaml", "--model", "hybrid:{d}/hybrid.npz", "--format", "casadi", "-o", "{d}/hybrid.npz", "--force"],
      "-o {d}/hybrid.npz: the output is the input {d}/hybrid.npz"),
     ("output-exists", ["{d}/cf.yaml", "--format", "casadi", "-o", "{d}/work/taken"], "{d}/work/taken: exists; pass --force to overwrite"),
+    # the last --model was exported, the hybrid before it dropped without a word
+    ("two-models", ["{d}/cf.yaml", "--model", "hybrid:{d}/hybrid.npz", "--model", "physics", "--format", "casadi", "-o", "{d}/work/out"],
+     "--model given 2 times (hybrid:{d}/hybrid.npz, physics): export writes one model; run it once per model"),
 ]
 
 

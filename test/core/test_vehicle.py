@@ -151,6 +151,11 @@ def test_unstable_motor_pole_is_rejected():
         VehicleConfig.from_dict(doc, "doc")
 
 
+def test_a_path_without_yaml_is_not_read_as_the_shipped_vehicle():
+    with pytest.raises(ConfigError, match=r"^vehicle './crazyflie21': a path to a vehicle file ends in .yaml"):
+        load_vehicle("./crazyflie21")
+
+
 def test_unknown_vehicle_lists_the_shipped_ones():
     with pytest.raises(ConfigError, match="crazyflie21, linkquad"):
         load_vehicle("hexacopter")
@@ -211,6 +216,11 @@ def test_a_constant_may_carry_its_sigma_and_a_bad_one_is_named():
     (lambda d: d.update(effects={"disturbance_observer": {"enabled": True, "linear_history": {
         "value": 0.5, "unit": "s", "bounds": [0.0, 10.0], "status": "identified", "source": "test", "sigma": float("inf")}}}),
      "effects.disturbance_observer.linear_history.sigma inf: must be a finite number >= 0"),
+    # read as text or as absent before: a vehicle named "None", a section of 0
+    (lambda d: d.update(name=None), "name must be text, got 'None'"),
+    (lambda d: d["motors"][2].update(name={"a": 1}), "motors[2].name must be text, got \"{'a': 1}\""),
+    (lambda d: d["inputs"].update(unit=None), "inputs.unit must be text, got 'None'"),
+    (lambda d: d.update(greybox=0), "greybox must be a mapping of motor_a_m"),
     # a gain of 1e300 overflowed every prediction (18 warning lines), a denormal lag its inverse
     (lambda d: d["constants"]["rotor_speed_gain"].update(value=1e300), "constants.rotor_speed_gain.value 1e+300 turns the rotors at"),
     (lambda d: d["constants"]["rotor_time_constant"].update(value=5e-324),

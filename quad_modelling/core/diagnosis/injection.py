@@ -116,7 +116,7 @@ def parse_injection(spec: str, motors: int = 4) -> Injection:
             raise ConfigError(f"--inject {text}: the gain factor K must be a positive number")
         if abs(1.0 / numbers[1] - 1.0) <= GAIN_TOLERANCE + 1e-9:  # a measured ratio of 1 (no change seen) would pass
             raise ConfigError(f"--inject {text}: the check tells a gain from none only beyond its {GAIN_TOLERANCE:.0%} tolerance "
-                              f"(K outside {1 / (1 + GAIN_TOLERANCE):.3f}..{1 / (1 - GAIN_TOLERANCE):.3f}); inject more "
+                              f"(K outside {1 / (1 + GAIN_TOLERANCE):.4f}..{1 / (1 - GAIN_TOLERANCE):.4f}); inject more "
                               "(e.g. 1.1-1.3, or 0.8)")
         if not GAIN_RANGE[0] < numbers[1] < GAIN_RANGE[1]:
             raise ConfigError(f"--inject {text}: the identification searches motor gains in {GAIN_RANGE[0]:g}..{GAIN_RANGE[1]:g}; "

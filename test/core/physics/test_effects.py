@@ -78,7 +78,7 @@ def test_a_gyroscopic_entry_switched_off_keeps_the_bodys_own_term_as_no_entry_do
     # values the file's own bounds allow but the physics does not (a -0.5 s observer history was a traceback)
     (lambda e: e["ground_effect"]["coefficient"].update(value=-1e-4, bounds=[-1.0, 1.0]),
      "effects.ground_effect.coefficient.value -0.0001 m2: must be in [0, inf], whatever the bounds"),
-    (lambda e: e["ground_effect"]["coefficient"].update(sigma=-1e-5), "effects.ground_effect.coefficient.sigma -1e-05: must be >= 0"),
+    (lambda e: e["ground_effect"]["coefficient"].update(sigma=-1e-5), "effects.ground_effect.coefficient.sigma -1e-05: must be a finite number >= 0"),
     (lambda e: e.update(disturbance_observer={"enabled": True, **{key: {"value": value, "unit": unit, "bounds": [-1.0, 1e9],
                                                                        "source": "test", "status": "identified"}
                                                                  for key, value, unit in (("linear_history", -0.5, "s"),
