@@ -1,9 +1,11 @@
 """Measurements checked against each other: what a topic map's order, frame, sign or unit mistake makes of them.
 
-A user's topic map (:mod:`quad_modelling.io.topic_maps`) reads without an error whatever frame it names, so every
-flight read through a map is checked against itself (:func:`frame_disagreements`): gravity from attitude and
-accelerometer, velocity against the position's derivative, the gyro against the attitude's rates. A disagreement is a
-warning; thresholds are set with margin against the 18 NanoBench flights (docs/formats.md quotes both).
+A user's topic map (:mod:`quad_modelling.io.topic_maps`) reads without an error whatever frame it names, and a CSV,
+ULog or mapped .mat log whatever unit its columns hold, so every flight of another tool's format is checked against
+itself (:func:`consistency_warnings`, from :func:`quad_modelling.io.loader.load_flight` and the topic-map reader):
+gravity from attitude and accelerometer, velocity against the position's derivative, the gyro against the attitude's
+rates, the commands against the input range, the battery against any pack's voltage. A disagreement is a warning;
+thresholds are set with margin against the 18 NanoBench flights (docs/formats.md quotes both).
 """
 
 from __future__ import annotations
@@ -50,16 +52,42 @@ through a map (:func:`unused_command_range`): a hover needs 30-70 % (NanoBench a
 read with a map range [0, 100] reaches under 1 %."""
 
 
+MAX_PACK_VOLTS = 100.0
+"""Highest battery voltage [V] :func:`consistency_warnings` takes for a multirotor's pack (24S is about 100 V; a
+Crazyflie's 1S 4.2 V read in mV is 4200)."""
+
+
 def unused_command_range(log: FlightLog, low: float, high: float) -> str | None:
-    """A warning when the commands stay within :data:`COMMAND_RANGE_USE` of the low end of the input range
-    [``low``, ``high``] (a map's commands ``range`` in the wrong unit: nothing is refused, the models see no thrust),
-    else None."""
-    top = float(np.nanpercentile(log.u, 99)) if np.isfinite(log.u).any() else low
-    use = (top - low) / (high - low)
-    if use >= COMMAND_RANGE_USE:
+    """A warning when the commands (or one motor's) stay within :data:`COMMAND_RANGE_USE` of the low end of the input
+    range [``low``, ``high``] (a map's commands ``range`` in the wrong unit, one CSV column in 0..1: nothing is refused,
+    the models see no thrust), else None."""
+    tops = [float(np.nanpercentile(u, 99)) if np.isfinite(u).any() else low for u in np.asarray(log.u, dtype=float).T]
+    uses = [(top - low) / (high - low) for top in tops]
+    if min(uses) >= COMMAND_RANGE_USE:
         return None
-    return (f"{log.meta.source}: the commands reach {use:.1%} of the input range [{low:g}, {high:g}] (99th percentile); "
-            f"a flying vehicle's commands reach {COMMAND_RANGE_USE:.0%} or more: check the commands' range")
+    if max(uses) < COMMAND_RANGE_USE:
+        return (f"{log.meta.source}: the commands reach {max(uses):.1%} of the input range [{low:g}, {high:g}] (99th "
+                f"percentile); a flying vehicle's commands reach {COMMAND_RANGE_USE:.0%} or more: check the commands' range")
+    motor = int(np.argmin(uses))  # one motor in another unit (a CSV column in 0..1 next to PWM ones)
+    return (f"{log.meta.source}: motor {motor + 1}'s commands reach {uses[motor]:.1%} of the input range [{low:g}, {high:g}] "
+            f"(99th percentile), the others' {min(u for i, u in enumerate(uses) if i != motor):.0%} or more: check that "
+            "motor's unit or column")
+
+
+def consistency_warnings(log: FlightLog, low: float, high: float) -> list[str]:
+    """:func:`frame_disagreements` and :func:`unused_command_range` (input range [``low``, ``high``]) of any flight
+    read, not only through a map: a CSV's motors in 0..1, a ULog's accelerometer in g or position in mm, a bag's IMU
+    in FRD under an FLU frame id all read without a word. The command range is not judged for a log that never armed
+    (its notes say so: a vehicle on the ground), nor anything for a flight with non-finite values or stamps that do
+    not increase."""
+    if len(log) < 3 or not np.all(np.diff(log.t) > 0) or not all(
+            np.isfinite(values).all() for values in (log.pos_n, log.vel_n, log.euler, log.acc_b, log.gyro_b) if values is not None):
+        return []
+    unused = None if str(log.meta.notes.get("disarmed", "")).startswith("never armed") else unused_command_range(log, low, high)
+    volts = float(np.nanmedian(log.vbat)) if log.vbat is not None and np.isfinite(log.vbat).any() else 0.0
+    battery = (f"{log.meta.source}: the battery reads {volts:.4g} V (median), above the {MAX_PACK_VOLTS:g} V of any "
+               "multirotor pack: check its unit (mV read as V?)") if volts > MAX_PACK_VOLTS else None
+    return [*frame_disagreements(log), *([unused] if unused else []), *([battery] if battery else [])]
 
 
 def frame_disagreements(log: FlightLog) -> list[str]:
@@ -70,8 +98,8 @@ def frame_disagreements(log: FlightLog) -> list[str]:
     :data:`MOVING_AXIS_MPS`), the correlation of the velocity with the position's derivative :math:`\dot p`
     (``numpy.gradient`` over t) is at least :data:`VELOCITY_AGREEMENT`; a flipped or swapped axis gives -1 or
     about 0; and per axis whose velocity or derivative moves, :math:`\dot p` over v (least squares) lies in
-    :data:`VELOCITY_GAIN_RANGE` (a unit mistake keeps the correlation). For readers of users' own maps
-    (:mod:`quad_modelling.io.mapped_flight`)."""
+    :data:`VELOCITY_GAIN_RANGE` (a unit mistake keeps the correlation). For every reader
+    (:func:`consistency_warnings`)."""
     out, where = [], log.meta.source
     if log.acc_b is not None and len(log) > 1:
         mean = nav_acceleration(log).mean(axis=0)

@@ -6,6 +6,7 @@ import stat
 from pathlib import Path
 from typing import NamedTuple
 
+from quad_modelling.core.consistency import consistency_warnings
 from quad_modelling.core.flight_log import FlightLog
 from quad_modelling.core.input_files import check_regular_file, input_path_mode, read_yaml
 from quad_modelling.core.vehicle import VehicleConfig, load_vehicle
@@ -156,6 +157,11 @@ def _load(path: Path, vehicle: str | VehicleConfig | None, fmt: str, mapping_fil
     log.meta.vehicle = config.name
     if fmt != "nanobench":  # the NanoBench reader saturates with its column names
         log.saturate_inputs(config.input_min, config.input_max, config.input_unit)
+    # Formats other tools write are checked for unit and frame mistakes (a map's bag as it is assembled, its warnings
+    # naming the map: io.mapped_flight); our own bags and .mat logs are what convert and simulate wrote.
+    if fmt in ("nanobench", "px4-ulog") or (fmt == "thesis-mat" and mapping_file):
+        for warning in consistency_warnings(log, config.input_min, config.input_max):
+            log.warn(warning)
     return log
 
 

@@ -40,7 +40,7 @@ from quad_modelling.core import frames
 from quad_modelling.core.alignment import (MAX_GAP_S, MAX_STAMP_STEP_S, Stamp, StampGate, battery_on_rows, check_one_clock,
                                            interpolate_at, usable_voltage)
 from quad_modelling.core.flight_log import FlightLog, FlightMeta
-from quad_modelling.core.consistency import frame_disagreements, unused_command_range
+from quad_modelling.core.consistency import consistency_warnings
 from quad_modelling.core.preprocess import MeasurementGap, mark_measurement_gaps
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.errors import BagError, ConfigError, DataError, reason
@@ -527,8 +527,7 @@ class FlightAssembler:
         )
         marked = [MeasurementGap(topic, a / 1e9, b / 1e9, fields) for (topic, a, b), fields in gaps.items()]
         mark_measurement_gaps(log, sorted(marked, key=lambda g: (g.start_s, g.topic)), MAX_GAP_S)
-        unused = unused_command_range(log, self.vehicle.input_min, self.vehicle.input_max)  # a range in the wrong unit
-        for warning in [*frame_disagreements(log), *([unused] if unused else [])]:  # the map's order, frame, sign, unit
+        for warning in consistency_warnings(log, self.vehicle.input_min, self.vehicle.input_max):  # order, frame, sign, unit
             log.warn(f"{warning}: topic map {self.topic_map.name}")
         if self.cut_warning:
             log.warn(self.cut_warning)

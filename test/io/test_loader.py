@@ -88,3 +88,20 @@ def test_a_bag_named_by_its_file_reads_that_file_or_is_refused(tmp_path):
     (bag / "metadata.yaml").unlink()
     with pytest.raises(BagError, match="stray.mcap: no metadata.yaml beside it"):
         load_flight(bag / "stray.mcap")
+
+
+def test_a_flight_of_any_reader_is_checked_for_unit_and_frame_mistakes(tmp_path):
+    """A NanoBench CSV whose motor 1 is logged in 0..1 next to PWM columns read without a word (only flights read
+    through a topic map were checked); the shipped flight reads without such a warning."""
+    import gzip
+
+    flight = FIXTURES / "nanobench" / "B7_oval_medium_rep2_first1000.csv.gz"
+    lines = gzip.open(flight, "rt").read().splitlines()
+    column = lines[0].split(",").index("motor_motor_m1")
+    rows = [line.split(",") for line in lines[1:]]
+    for row in rows:
+        row[column] = f"{float(row[column]) / 65535:.6f}"
+    (tmp_path / "fraction.csv").write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    warnings = load_flight(tmp_path / "fraction.csv").meta.notes.get("warnings", [])
+    assert [w for w in warnings if "motor 1's commands reach 0.0% of the input range [0, 65535]" in w]
+    assert not [w for w in load_flight(flight).meta.notes.get("warnings", []) if "reach" in w]
