@@ -309,5 +309,5 @@ def run(args: argparse.Namespace) -> int:
                   f"dropping {config.drop_start:g} s/{config.drop_end:g} s: nothing scored there", file=sys.stderr)
     horizons_note = (data.get("horizons") or {}).get("note") if not args.no_multistep else None
     if horizons_note:  # --horizons beyond every flight: the table is empty, said where it is read
-        print(f"warning: no multi-step table: {horizons_note} (--horizons {args.horizons})", file=sys.stderr)
+        print(f"warning: no multi-step table: {horizons_note} (the longest of the horizons {args.horizons})", file=sys.stderr)
     return 1 if skipped else 0  # --skip-bad left a flight out: done, with less (as convert)

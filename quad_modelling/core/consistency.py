@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from quad_modelling.core.flight_log import FlightLog
-from quad_modelling.core.preprocess import attitude_rates, nav_acceleration
+from quad_modelling.core.preprocess import attitude_rates, height_above_ground, nav_acceleration
 from quad_modelling.core.physics.rigid_body import GRAVITY
 
 GRAVITY_DISAGREEMENT = 0.3
@@ -52,6 +52,9 @@ through a map (:func:`unused_command_range`): a hover needs 30-70 % (NanoBench a
 read with a map range [0, 100] reaches under 1 %."""
 
 
+TAKE_OFF_M = 0.05
+"""Height [m] above its lowest point a flight must rise for its commands' range to be judged."""
+
 MAX_PACK_VOLTS = 100.0
 """Highest battery voltage [V] :func:`consistency_warnings` takes for a multirotor's pack (24S is about 100 V; a
 Crazyflie's 1S 4.2 V read in mV is 4200)."""
@@ -76,14 +79,14 @@ def unused_command_range(log: FlightLog, low: float, high: float) -> str | None:
 
 def consistency_warnings(log: FlightLog, low: float, high: float) -> list[str]:
     """:func:`frame_disagreements` and :func:`unused_command_range` (input range [``low``, ``high``]) of any flight
-    read, not only through a map: a CSV's motors in 0..1, a ULog's accelerometer in g or position in mm, a bag's IMU
-    in FRD under an FLU frame id all read without a word. The command range is not judged for a log that never armed
-    (its notes say so: a vehicle on the ground), nor anything for a flight with non-finite values or stamps that do
-    not increase."""
+    read, not only through a map: a CSV's motors in 0..1, a ULog's accelerometer in g or position in mm all read
+    without a word. The command range is judged only for a flight that rose :data:`TAKE_OFF_M` (a log on the ground
+    idles), nothing for a flight with non-finite values or stamps that do not increase."""
     if len(log) < 3 or not np.all(np.diff(log.t) > 0) or not all(
             np.isfinite(values).all() for values in (log.pos_n, log.vel_n, log.euler, log.acc_b, log.gyro_b) if values is not None):
         return []
-    unused = None if str(log.meta.notes.get("disarmed", "")).startswith("never armed") else unused_command_range(log, low, high)
+    flew = float(np.max(height_above_ground(log))) > TAKE_OFF_M  # idle commands on the ground are no mistake
+    unused = unused_command_range(log, low, high) if flew else None
     volts = float(np.nanmedian(log.vbat)) if log.vbat is not None and np.isfinite(log.vbat).any() else 0.0
     battery = (f"{log.meta.source}: the battery reads {volts:.4g} V (median), above the {MAX_PACK_VOLTS:g} V of any "
                "multirotor pack: check its unit (mV read as V?)") if volts > MAX_PACK_VOLTS else None

@@ -139,8 +139,10 @@ MAX_ROTOR_SPEED = 1.0e5
 """Fastest rotor speed [rad/s] a vehicle file may imply at full command (a Crazyflie's tops out near 2500, an Iris's
 near 1000): a rotor_speed_gain of 1e300 overflowed every prediction into warnings and a NaN identification."""
 
-MIN_TIME_CONSTANT_S = 1.0e-6
-"""Shortest nonzero motor lag [s]: 1/τ_m of a 5e-324 s (denormal) lag overflows; any step is far longer."""
+ON_AXIS = 0.02
+"""A rotor whose |x| or |y| is under this fraction of its radius sits on a body axis: a plus frame's all do, an x's none."""
+
+MIN_TIME_CONSTANT_S = 1.0e-6  # shortest nonzero motor lag [s]: 1/τ_m of a 5e-324 s (denormal) lag overflows
 
 ZERO_ALLOWED = ("prop_inertia", "rotor_time_constant", "rotor_delay", "rotor_drag_arm", "rotor_drag_xy", "rotor_drag_z")
 """Constants whose range includes its lower end 0 (the effect neglected)."""
@@ -392,11 +394,10 @@ class VehicleConfig:
         if np.linalg.matrix_rank(np.vstack([np.ones(4), xy[:, 1], -xy[:, 0], [m.yaw_sign for m in motors]]), tol=1e-6 * arm) < 4:
             raise ConfigError(f"{where}: motor positions {xy.round(4).tolist()} with their spins cannot set thrust, roll, pitch "
                               "and yaw apart (rotors coincide or pair up): give each rotor its own place")
-        off_axis = np.degrees(np.abs(np.arctan2(xy[:, 1], xy[:, 0]))) % 90.0
-        off_axis = np.minimum(off_axis, 90.0 - off_axis)  # each rotor's angle from the nearest body axis
-        if (geometry == "plus" and off_axis.max() > 10.0) or (geometry == "x" and off_axis.min() < 20.0):
-            raise ConfigError(f"{where}: geometry {geometry} but the rotors lie {off_axis.round(1).tolist()} deg off the body "
-                              "axes ('plus': on them, within 10 deg; 'x': between them, 20 deg or more)")
+        on_axis = np.abs(xy).min(axis=1) <= ON_AXIS * np.hypot(*xy.T)  # the label's one rule (io.ulog_vehicle's too)
+        if on_axis.any() if geometry == "x" else not on_axis.all():
+            raise ConfigError(f"{where}: geometry {geometry} but rotor(s) {(np.flatnonzero(on_axis != (geometry == 'plus')) + 1).tolist()} "
+                              f"lie {'on' if geometry == 'x' else 'off'} a body axis ('plus': every rotor on one, 'x': none)")
         names = [m.name for m in motors]
         if len(set(names)) != len(names):
             raise ConfigError(f"{where}: motors name {sorted({n for n in names if names.count(n) > 1})[0]!r} twice; name each rotor once")
@@ -433,10 +434,11 @@ class VehicleConfig:
 
 
 def _text(value, key: str, where: str) -> str:
-    """A name or unit of a vehicle file: non-empty text (ConfigError naming ``key``; a list or null was read as text)."""
-    if not isinstance(value, str) or not value.strip():
+    """A name or unit of a vehicle file: non-empty text or a number YAML read (``name: 2021``), as text; ConfigError
+    naming ``key`` for null, a boolean, a list or a mapping (read as the text "None" or "['a']")."""
+    if isinstance(value, bool) or not isinstance(value, (str, int, float)) or not str(value).strip():
         raise ConfigError(f"{where}: {key} must be text, got {str(value)[:40]!r}")
-    return value
+    return str(value)
 
 
 def _refuse_unknown(mapping, known, context: str, what: str) -> None:

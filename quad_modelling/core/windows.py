@@ -541,8 +541,8 @@ MIN_WARM_ROWS = 2
 
 def check_window_rows(flights: Sequence[FlightLog], config: EvaluationConfig) -> None:
     """ConfigError naming ``--warm`` or ``--window`` when, at the slowest flight's rate, the warm start holds fewer
-    than :data:`MIN_WARM_ROWS` rows or the window no row after it (a model's own error named a 1-row warm start or
-    a flight of 1 sample, and "no window fits" a 32 s flight)."""
+    than :data:`MIN_WARM_ROWS` rows or the window fewer than 2 rows after it (a stamp's jitter may cut one row less; a
+    model's own error named a 1-row warm start or a flight of 1 sample, and "no window fits" a 32 s flight)."""
     slowest = min(flights, key=lambda log: log.sample_rate, default=None)
     if slowest is None or len(slowest) < 2:
         return
@@ -550,9 +550,10 @@ def check_window_rows(flights: Sequence[FlightLog], config: EvaluationConfig) ->
     if round(config.warm_s * rate) < MIN_WARM_ROWS:
         raise ConfigError(f"--warm {config.warm_s:g}: {round(config.warm_s * rate)} row(s) of {slowest.meta.source} at "
                           f"{rate:.4g} Hz; a warm start holds at least {MIN_WARM_ROWS} rows ({MIN_WARM_ROWS / rate:.3g} s)")
-    if round(config.window_s * rate) <= round(config.warm_s * rate):
-        raise ConfigError(f"--window {config.window_s:g}: {round(config.window_s * rate)} row(s) of {slowest.meta.source} at "
-                          f"{rate:.4g} Hz; a window holds more rows than its --warm {config.warm_s:g} s")
+    window_rows = math.floor(config.window_s * rate * (1 - 1e-9))  # a window's clock cuts this many, one fewer with jitter
+    if window_rows < round(config.warm_s * rate) + 2:
+        raise ConfigError(f"--window {config.window_s:g}: {window_rows} row(s) of {slowest.meta.source} at {rate:.4g} Hz "
+                          f"or fewer; a window holds at least 2 rows more than its --warm {config.warm_s:g} s")
 
 
 def plan_windows(flights: Sequence[FlightLog], config: EvaluationConfig) -> dict[str, list[Window]]:

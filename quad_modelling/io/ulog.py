@@ -420,8 +420,8 @@ def linear(source_t: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarra
 def attitude(source_t: np.ndarray, quat_wxyz: np.ndarray, t: np.ndarray, where: str) -> np.ndarray:
     """Euler (φ, θ, ψ) [rad] at ``t`` from PX4 quaternions (w, x, y, z) of R_NED←FRD by slerp; yaw unwrapped. Only
     the samples the slerp at ``t`` reads are checked (PX4 logs NaN before its estimator is aligned, before arming)."""
-    first = max(int(np.searchsorted(source_t, t[0], side="right")) - 1, 0)
-    last = min(int(np.searchsorted(source_t, t[-1], side="left")), len(source_t) - 1)
+    first = max(int(np.searchsorted(source_t, t[0], side="right")) - 1, 0)  # the last sample at or before t[0] ...
+    last = min(int(np.searchsorted(source_t, t[-1], side="right")), len(source_t) - 1)  # ... the first after t[-1]
     bad_quaternion = frames.non_unit_quaternion(quat_wxyz[first:last + 1])
     if bad_quaternion:
         row, norm = bad_quaternion

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from quad_modelling.core.vehicle import CONSTANT_KEYS, VehicleConfig, load_vehicle
+from quad_modelling.core.vehicle import CONSTANT_KEYS, ON_AXIS, VehicleConfig, load_vehicle
 from quad_modelling.errors import ConfigError, DataError
 from quad_modelling.io.ulog import (
     DEFAULT_VEHICLES,
@@ -39,10 +39,6 @@ AXIS_TOLERANCE_DEG = 10.0
 """Largest tilt [deg] of a rotor's thrust axis ``CA_ROTORn_AX/AY/AZ`` from straight up (0, 0, -1) FRD
 read as a vertical rotor; a vehicle config holds vertical rotors only."""
 
-
-ON_AXIS = 0.02
-"""A rotor whose |PX| or |PY| is below this fraction of its distance from the centre sits on a body axis
-(a plus frame)."""
 
 
 @dataclass

@@ -361,7 +361,7 @@ CORPUS = [
      "--warm 0.001: 0 row(s) of {d}/flight.mat at 100 Hz; a warm start holds at least 2 rows (0.02 s)"),
     ("identify-window-of-the-warm-rows", ["identify", "{d}/flight.mat", "--preset", "short", "--window", "0.021", "--warm", "0.02",
                                           "-o", "{d}/work/v.yaml"],
-     "--window 0.021: 2 row(s) of {d}/flight.mat at 100 Hz; a window holds more rows than its --warm 0.02 s"),
+     "--window 0.021: 2 row(s) of {d}/flight.mat at 100 Hz or fewer; a window holds at least 2 rows more than its --warm 0.02 s"),
     ("train-val-fraction-all", ["train", "{d}/flight.mat", "--preset", "short", "--val-fraction", "0.999", "-o", "{d}/work/m.npz"],
      "--val-fraction 0.999 of the one flight {d}/flight.mat leaves "),
     ("evaluate-horizons-repeated", ["evaluate", "{d}/flight.mat", "--horizons", "1,1,10", "-o", "{d}/work/e"],

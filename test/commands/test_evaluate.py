@@ -80,7 +80,8 @@ def test_a_horizon_beyond_50_says_the_starts_differ_and_too_long_a_horizon_says_
         assert main(["evaluate", BAG, "--preset", "short", "--horizons", horizons, "-o", str(tmp_path / name)]) == 0
         warned = [line for line in capsys.readouterr().err.splitlines() if "no multi-step table" in line]
         assert warned == ([] if name != "too_long" else [
-            "warning: no multi-step table: no eval segment longer than 100000 samples plus the warm start (--horizons 1,100000)"])
+            "warning: no multi-step table: no eval segment longer than 100000 samples plus the warm start (the longest of the "
+            "horizons 1,100000)"])
     default, long = (json.loads((tmp_path / n / "results.json").read_text())["horizons"] for n in ("default", "long"))
     assert long["sim_err_horizon"] == 100 and long["starts"] == default["starts"] - 50
     assert "Every start has 100 rows ahead" in (tmp_path / "long" / "tables.md").read_text()

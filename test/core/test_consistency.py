@@ -28,11 +28,13 @@ def test_frame_disagreements_name_gravity_off_and_a_flipped_velocity_axis():
 
 def test_every_reader_is_checked_one_motor_in_another_unit_and_a_battery_in_millivolts_are_said():
     """consistency_warnings runs on every flight read (it ran on topic-map bags only: a CSV motor column in 0..1 next
-    to PWM ones, a battery in mV, a ULog's position in mm read without a word); a never-armed log's commands at their
-    idle value are no mistake; a flight with non-finite values is not judged."""
+    to PWM ones, a battery in mV, a ULog's position in mm read without a word); a log that never took off idles, its
+    commands are no mistake; a flight with non-finite values is not judged."""
     from quad_modelling.core.consistency import consistency_warnings
 
     log = make_log(u=np.tile([30000.0, 31000.0, 32000.0, 33000.0], (1000, 1)))
+    log.pos_n = np.zeros((len(log), 3))  # make_log's arrays share one zeros array
+    log.pos_n[500:, 2] = -1.0  # it takes off (NED: z down)
     assert consistency_warnings(log, 0.0, 65535.0) == []
     log.u[:, 0] = 0.5
     log.vbat = np.full(len(log), 3900.0)
@@ -40,7 +42,7 @@ def test_every_reader_is_checked_one_motor_in_another_unit_and_a_battery_in_mill
         "test: motor 1's commands reach 0.0% of the input range [0, 65535] (99th percentile), the others' 47% or more: "
         "check that motor's unit or column",
         "test: the battery reads 3900 V (median), above the 100 V of any multirotor pack: check its unit (mV read as V?)"]
-    log.meta.notes["disarmed"] = "never armed (vehicle_status): the whole log is kept, motors at their disarmed value"
+    log.pos_n[:, 2] = 0.0  # on the ground all along: its idle commands are no mistake
     log.vbat = None
     assert consistency_warnings(log, 0.0, 65535.0) == []
     flipped = make_log(acc_b=np.tile([0.0, 0.0, GRAVITY], (1000, 1)))  # gravity 2 g off

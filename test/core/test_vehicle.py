@@ -151,6 +151,20 @@ def test_unstable_motor_pole_is_rejected():
         VehicleConfig.from_dict(doc, "doc")
 
 
+def test_names_yaml_reads_as_numbers_are_text_and_any_off_axis_frame_is_an_x():
+    """``name: 2021`` and motors named 1..4 are what the user wrote (YAML reads them as numbers); a stretched x frame
+    (rotors 17 deg off the axes, as convert --vehicle-from-log labels it) is an x frame."""
+    document = yaml.safe_load((REPO_VEHICLES / "crazyflie21.yaml").read_text())
+    document["name"] = 2021
+    for i, motor in enumerate(document["motors"]):
+        motor["name"] = i + 1
+    arm = document["constants"]["arm_length"]["value"]
+    for motor, (x, y) in zip(document["motors"], ((1, 1), (-1, 1), (-1, -1), (1, -1))):  # 73 deg from x, 17 from y
+        motor["position"] = [x * arm * np.sin(np.radians(17)), y * arm * np.cos(np.radians(17))]
+    vehicle = VehicleConfig.from_dict(document, "doc")
+    assert vehicle.name == "2021" and [m.name for m in vehicle.motors] == ["1", "2", "3", "4"] and vehicle.geometry == "x"
+
+
 def test_a_path_without_yaml_is_not_read_as_the_shipped_vehicle():
     with pytest.raises(ConfigError, match=r"^vehicle './crazyflie21': a path to a vehicle file ends in .yaml"):
         load_vehicle("./crazyflie21")
@@ -210,7 +224,8 @@ def test_a_constant_may_carry_its_sigma_and_a_bad_one_is_named():
     # four rotors at one point passed the radius check: a traceback in identify and diagnose, a singular export
     (lambda d: [m.update(position=d["motors"][0]["position"]) for m in d["motors"]],
      "with their spins cannot set thrust, roll, pitch and yaw apart (rotors coincide or pair up)"),
-    (lambda d: d.update(geometry="plus"), "geometry plus but the rotors lie [45.0, 45.0, 45.0, 45.0] deg off the body axes"),
+    (lambda d: d.update(geometry="plus"), "geometry plus but rotor(s) [1, 2, 3, 4] lie off a body axis ('plus': every rotor on one"),
+    (lambda d: d["motors"][1].update(position=[0.0, 0.046]), "geometry x but rotor(s) [2] lie on a body axis"),
     (lambda d: d.update(effects={"disturbance_observer": {"enabled": False, 1: "x", "foo": "y"}}),  # a TypeError sorting them
      "effects.disturbance_observer.1: unknown parameter"),
     (lambda d: d.update(effects={"disturbance_observer": {"enabled": True, "linear_history": {

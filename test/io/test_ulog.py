@@ -355,3 +355,16 @@ def test_a_nan_attitude_before_arming_is_dropped_with_it_and_one_in_flight_is_on
     with pytest.raises(DataError) as err:
         flight_from_topics(topics, {"CA_ROTOR_COUNT": 4}, "midflight.ulg")
     assert str(err.value) == "midflight.ulg: topic vehicle_attitude q at sample 100 has norm nan, not 1"
+
+
+def test_repeated_attitude_stamps_keep_the_last_sample_at_the_span_end_too():
+    """Of two samples with one stamp the slerp reads the later (as the reader always has), also where the kept span
+    ends on them (slicing the samples the span reads first took the earlier: yaw 15 deg for 25)."""
+    from scipy.spatial.transform import Rotation
+
+    from quad_modelling.io.ulog import attitude
+
+    stamps = np.array([0.0, 1.0, 2.0, 2.0, 3.0])
+    quat = Rotation.from_euler("z", [[0], [10], [20], [40], [50]], degrees=True).as_quat(scalar_first=True)
+    yaw = np.degrees(attitude(stamps, quat, np.array([0.5, 1.5, 1.9, 2.0]), "x.ulg"))[:, 2]
+    np.testing.assert_allclose(yaw, [5.0, 25.0, 37.0, 40.0], atol=1e-9)
