@@ -104,7 +104,7 @@ def load_flight(path: str | Path, vehicle: str | VehicleConfig | None = None, fm
     try:
         return _load(path, vehicle, fmt, mapping_file, topic_map)
     except QuadModellingError as err:
-        if str(path) in str(err):
+        if " ".join(str(path).splitlines()) in str(err):  # the error's one line (QuadModellingError) names the file
             raise
         hint = ("; the flight (or its topic map's default_vehicle) names it: pass its vehicle file with --vehicle FILE.yaml (for a bag of a PX4 log, the one "
                 "`convert --vehicle-from-log` wrote)" if vehicle is None and str(err).startswith("unknown vehicle") else "")

@@ -105,3 +105,15 @@ def test_a_flight_of_any_reader_is_checked_for_unit_and_frame_mistakes(tmp_path)
     warnings = load_flight(tmp_path / "fraction.csv").meta.notes.get("warnings", [])
     assert [w for w in warnings if "motor 1's commands reach 0.0% of the input range [0, 65535]" in w]
     assert not [w for w in load_flight(flight).meta.notes.get("warnings", []) if "reach" in w]
+
+
+def test_a_file_named_with_a_line_break_is_named_once(tmp_path):
+    """The error's one line turns the name's line break into a space, so the loader did not find the name in it and
+    named the file a second time."""
+    from quad_modelling.errors import DataError
+
+    path = tmp_path / "bad\nname.mat"
+    path.write_text("not a MATLAB file")
+    with pytest.raises(DataError) as err:
+        load_flight(path)
+    assert str(err.value).count("bad name.mat") == 1
