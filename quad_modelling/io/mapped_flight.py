@@ -119,39 +119,40 @@ class TopicReader:
         self.where = where
         self.read = 0  # messages whose values were read (the index a fault names)
 
+    def _field(self, read, path: str, msg, index: int):
+        """``read(msg)``; DataError naming topic, field and message index when the message lacks it (a JointState with 3
+        efforts for ``effort[3]``, a map's stamp or instance path the type does not have: the predictor stopped)."""
+        try:
+            return read(msg)
+        except (IndexError, AttributeError, TypeError, ValueError, KeyError) as err:
+            raise DataError(f"{self.where}: topic {self.spec.name} message {index} has no usable field {path} "
+                            f"({type(err).__name__}: {err})") from err
+
     def stamp_ns(self, msg) -> int:
         """The message's stamp [ns] (a builtin_interfaces/Time, or an integer field times its unit)."""
-        value = self._stamp(msg)
         if self._factor is None:
-            return value.sec * NANOSECONDS + value.nanosec
-        return int(value) * self._factor
+            return self._field(lambda m: (v := self._stamp(m)).sec * NANOSECONDS + v.nanosec, self.spec.stamp, msg, self.read - 1)
+        return self._field(lambda m: int(self._stamp(m)) * self._factor, self.spec.stamp, msg, self.read - 1)
 
     def values(self, msg) -> list[float]:
-        """The numbers of every path, in :attr:`paths` order; DataError naming topic, field and message index when the
-        message lacks one (a JointState with 3 efforts for ``effort[3]``)."""
+        """The numbers of every path, in :attr:`paths` order (:meth:`_field`)."""
         index, self.read = self.read, self.read + 1
-        out = []
-        for path, get in zip(self.paths, self._values):
-            try:
-                out.append(float(get(msg)))
-            except (IndexError, AttributeError, TypeError, ValueError, KeyError) as err:
-                raise DataError(f"{self.where}: topic {self.spec.name} message {index} has no usable field {path} "
-                                f"({type(err).__name__}: {err})") from err
-        return out
+        return [self._field(lambda m, get=get: float(get(m)), path, msg, index) for path, get in zip(self.paths, self._values)]
 
     def keep(self, msg, values: list[float]) -> bool:
         """False for a message of another instance than the first one seen with usable ``values`` (its numbers,
         :meth:`values`; every instance counted in :attr:`instances`). A kept message's numbers are then read in the
         frames it names (:attr:`frames`, ``values`` changed in place): another instance's frame is never checked."""
         if self._instance is not None:
-            which = self._instance(msg)
+            which = self._field(self._instance, self.spec.instance, msg, self.read - 1)
             self.instances[which] = self.instances.get(which, 0) + 1
             if self.chosen is None and (self.usable is None or self.usable(values)):
                 self.chosen = which
             if which != self.chosen:
                 return False
         if self.frames is not None:
-            self.frames.apply([get(msg) for get in self._frame_codes], values, self.read - 1)
+            self.frames.apply([self._field(get, s.frame_field, msg, self.read - 1) for get, s in zip(self._frame_codes, self.frames.sources)],
+                              values, self.read - 1)
         return True
 
 

@@ -199,3 +199,23 @@ def test_a_message_the_map_cannot_read_is_a_fault_not_the_end_of_the_predictor(r
     node.on_mapped("/user/motors", arrays.motor(1, int(stamps_ns(log.t)[1])))  # the next one is read as before
     assert node.faults.counts == {"bad_/user/motors": 2}
     node.destroy_node()
+
+
+def test_a_map_stamp_path_the_type_lacks_is_a_fault_not_the_end_of_the_predictor(tmp_path):
+    """``stamp: header.nostamp`` in a user's map: the predictor stopped at the first message with an AttributeError
+    traceback (exit 1; the evaluator dropped it). Now a ``bad_<topic>`` fault naming the path, as a short JointState."""
+    import copy
+
+    from sensor_msgs.msg import JointState
+
+    from quad_modelling.nodes.common import FaultLog
+
+    user_map = copy.deepcopy(USER_MAP)
+    user_map["topics"]["/user/motors"]["stamp"] = "header.nostamp"
+    (tmp_path / "map.yaml").write_text(yaml.safe_dump(user_map))
+    streams = MappedStreams(load_topic_map(str(tmp_path / "map.yaml")), list(MEASURED_FIELDS), 100_000_000, 4096, "test")
+    warnings = []
+    faults = FaultLog(SimpleNamespace(warning=warnings.append))
+    motor = JointState(name=["m1", "m2", "m3", "m4"], effort=[1000.0] * 4)
+    assert streams.admit("/user/motors", motor, faults) is None and faults.counts == {"bad_/user/motors": 1}
+    assert "has no usable field header.nostamp (AttributeError" in warnings[0]
