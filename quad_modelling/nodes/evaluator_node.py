@@ -102,7 +102,8 @@ class EvaluatorNode(Node):
         self.horizon_s = p["horizon_s"]
         self.horizon_ns = seconds_to_ns(self.horizon_s)
         self.output_dir = Path(p["output_dir"]) if p["output_dir"] else None
-        check_output_dir("evaluator", self.output_dir, p["force"])
+        vehicle_file = [p["vehicle"]] if p["vehicle"].endswith((".yaml", ".yml")) else []  # an input, never replaced
+        check_output_dir("evaluator", self.output_dir, p["force"], vehicle_file)
         self.figures = p["figures"]
         self.executor_kind, self.math_threads = p["executor"], p["math_threads"]
         self.stale_s, self.grace_s, self.ready_timeout_s = p["stale_model_s"], p["close_grace_s"], p["ready_timeout_s"]

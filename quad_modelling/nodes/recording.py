@@ -84,9 +84,13 @@ def open_recorder(node_name: str, record: str, output_dir: Path | None, force: b
     return recorder
 
 
-def check_output_dir(node_name: str, output_dir: Path | None, force: bool) -> None:
-    """Refuse (:class:`BadParameter`) an ``output_dir`` that exists without ``force``, whose parent is missing, or in
-    which no directory can be made -- at start, not after the flight when the results are written."""
+def check_output_dir(node_name: str, output_dir: Path | None, force: bool, inputs=()) -> None:
+    """Refuse (:class:`BadParameter`) an ``output_dir`` that exists without ``force``, that ``force`` may not replace
+    (a regular file, a directory holding no earlier output, one holding an input: the CLI's rules,
+    :func:`~quad_modelling.atomic.check_output`), whose parent is missing, or in which no directory can be made -- at
+    start, not after the flight when the results are written (a session's results were lost there)."""
+    from quad_modelling.atomic import check_output
+
     if output_dir is None:
         return
     where = f"{node_name}: parameter output_dir={str(output_dir)!r}"
@@ -99,6 +103,10 @@ def check_output_dir(node_name: str, output_dir: Path | None, force: bool) -> No
         os.rmdir(tempfile.mkdtemp(prefix=".quad_write_check_", dir=parent))
     except OSError as err:
         raise BadParameter(f"{where}: cannot write in {str(parent)!r} ({err.strerror})") from err
+    try:
+        check_output(output_dir, force, inputs, flag="output_dir", directory=True)
+    except QuadModellingError as err:
+        raise BadParameter(f"{node_name}: parameter {err}") from err
 
 
 def subscribe_recorded(node, recorder: TopicRecorder | None, kind, topic: str, callback, qos) -> None:

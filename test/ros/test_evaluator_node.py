@@ -136,6 +136,23 @@ def test_record_bag_is_refused_when_it_exists_or_lies_in_output_dir(ros, tmp_pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old"]  # nothing staged
 
 
+def test_an_output_dir_force_may_not_replace_is_refused_at_start(ros, tmp_path):
+    """output_dir:= a directory of the user's files (or a regular file) with force:=true started, then refused to
+    write at the end (the session's results lost, exit 0) or replaced the file: refused at start as the CLI refuses."""
+    import pytest
+
+    from quad_modelling.nodes.common import BadParameter
+
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "precious.txt").write_text("mine")
+    (tmp_path / "file.txt").write_text("mine")
+    with pytest.raises(BadParameter, match="output_dir .*notes: an existing directory that is no earlier output"):
+        make_node(output_dir=str(tmp_path / "notes"), force=True)
+    with pytest.raises(BadParameter, match="output_dir .*file.txt: an existing file, not an output directory"):
+        make_node(output_dir=str(tmp_path / "file.txt"), force=True)
+    assert (tmp_path / "notes" / "precious.txt").read_text() == (tmp_path / "file.txt").read_text() == "mine"
+
+
 def test_without_a_vehicle_windows_are_marked_not_scored(ros):
     log = hover_log(1200)
     node = make_node(vehicle="")
