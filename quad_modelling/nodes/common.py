@@ -199,9 +199,12 @@ def topic_name(value) -> str | None:
 
 
 def model_name_check(value) -> str | None:
-    """Empty (the spec's kind) or one topic-name token: the predictions are <model_name>/odom."""
-    return None if not str(value) else topic_name(f"{value}/odom") and (
-        f"{value!r} cannot prefix a topic: use letters, digits and '_'")
+    """Empty (the spec's kind) or one topic-name token: the predictions are <model_name>/odom (``a/b`` or ``/x`` make
+    topics the evaluator's ``models`` cannot name)."""
+    if not str(value):
+        return None
+    bad = topic_name(f"{value}/odom") or "/" in str(value)
+    return f"{value!r} cannot prefix a topic: use letters, digits and '_'" if bad else None
 
 
 def niceness(value) -> str | None:
@@ -497,6 +500,8 @@ def refuse(node, error: BadParameter) -> None:
 
 def spans_check(value) -> str | None:
     """Parameter validator of named seconds spans (:func:`quad_modelling.core.windows.seconds_spans`)."""
+    if not value:  # spans:=[] arrives as None (a traceback in the list below)
+        return "give at least one span, e.g. spans:=[live:0:inf]"
     try:
         seconds_spans([str(v) for v in value])
     except ConfigError as err:

@@ -63,6 +63,7 @@ from quad_modelling.core.alignment import MeasurementTrack, Stamp, StampGate, us
 from quad_modelling.core.evaluation.multistep import multistep_form
 from quad_modelling.core.live.forms import carried_forecast, compiled_window_stream, prepare_compiled_step
 from quad_modelling.core.models.bounds import PhysicalBounds
+from quad_modelling.core.models.registry import baseline_name_clash
 from quad_modelling.core.models.streaming import MAX_LIVE_HORIZON_STEPS, RecedingHorizon, prime, push_sample
 from quad_modelling.core.windows import WindowClock, seconds_to_ns
 from quad_modelling.errors import QuadModellingError
@@ -119,6 +120,9 @@ class PredictorNode(Node):
                                f"make {p['horizon_s'] / p['sample_period_s']:.0f} steps, more than {MAX_LIVE_HORIZON_STEPS}")
         spec = f"{p['model']}:{p['model_file']}" if p["model_file"] else p["model"]
         self.name_ = p["model_name"] or model_name(spec)
+        clash = baseline_name_clash(self.name_, p["model"])  # a naive predictor named dummy filled the zero baseline's rows
+        if clash:
+            raise BadParameter(f"{node_name}: parameter model_name={self.name_!r}: {clash}")
         self.spec = spec
         self.sample_period_s, self.warm_s = p["sample_period_s"], p["warm_s"]
         self.horizon_s, self.horizon_history_s = p["horizon_s"], p["horizon_history_s"]

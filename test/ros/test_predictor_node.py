@@ -548,3 +548,16 @@ def test_a_horizon_of_more_steps_than_a_live_rollout_takes_is_refused_at_start(r
     with pytest.raises(BadParameter, match=r"^predictor: parameters horizon_s=30.0 and sample_period_s=0.0025 make 12000 steps, "
                                            r"more than 10000$"):
         PredictorNode(parameter_overrides=overrides)
+
+
+def test_a_baseline_s_name_on_another_model_and_names_no_evaluator_can_list_are_refused(ros):
+    """A naive predictor named dummy filled the evaluator's zero baseline with its own scores (TIC 0.88 for 1); a name
+    with a '/' makes topics the evaluator's ``models`` refuses; ``spans:=[]`` was a traceback."""
+    from quad_modelling.nodes.common import BadParameter, model_name_check, spans_check
+
+    with pytest.raises(BadParameter, match=r"parameter model_name='dummy': dummy is the name of a baseline every "
+                                           r"evaluation holds; name the naive model otherwise"):
+        make_node(model="naive", model_name="dummy")
+    assert model_name_check("a/b") == "'a/b' cannot prefix a topic: use letters, digits and '_'"
+    assert model_name_check("m_2") is None and model_name_check("") is None
+    assert spans_check(None) == spans_check([]) == "give at least one span, e.g. spans:=[live:0:inf]"
