@@ -11,7 +11,7 @@ from tqdm import tqdm
 from quad_modelling.atomic import BAG_MARKERS, atomic_output, check_bag_name, check_distinct_inputs
 from quad_modelling.commands import check_command_output
 from quad_modelling.core.preprocess import mark_time_base_holes
-from quad_modelling.core.vehicle import VehicleConfig, vehicle_file
+from quad_modelling.core.vehicle import VehicleConfig, vehicle_dir, vehicle_file
 from quad_modelling.errors import ConfigError, DataError, QuadModellingError
 from quad_modelling.io.loader import FORMATS, check_topic_map_applies, detect_format, input_format, load_flight
 from quad_modelling.io.topic_maps import add_topic_map_argument, topic_map_file
@@ -101,6 +101,9 @@ def _vehicle_from_log(args: argparse.Namespace, inputs: list[Path], output: Path
     if ours == bag or bag in ours.parents or ours in bag.parents:
         raise ConfigError(f"--vehicle-from-log {target} and -o {output} overlap; give the vehicle file and the output different places")
     check_command_output(target, args.force, inputs=[inputs[0]], flag="--vehicle-from-log")
+    if (vehicle_dir() / f"{target.stem}.yaml").exists():  # the bag names its vehicle: read later with the shipped file
+        raise ConfigError(f"--vehicle-from-log {target}: {target.stem} is a shipped vehicle's name, which the bag would "
+                          f"name (a later read without --vehicle takes the shipped {target.stem}); choose another file name")
     if not inputs[0].is_file():
         load_flight(inputs[0])  # the loader's one-line refusal of a missing or special file
     vehicle = vehicle_from_ulog(inputs[0], name=target.stem)

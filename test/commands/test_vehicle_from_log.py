@@ -72,6 +72,10 @@ def test_refusals_leave_nothing_behind(tmp_path, capsys, monkeypatch):
         ([str(EVENTS), "--vehicle-from-log", "v.txt", "-o", "bag"], "--vehicle-from-log 'v.txt': the vehicle file must end in .yaml or .yml"),
         ([str(EVENTS), "--vehicle-from-log", "bag/v.yaml", "-o", "bag"],
          "--vehicle-from-log bag/v.yaml and -o bag overlap; give the vehicle file and the output different places"),
+        # the bag names its vehicle crazyflie21: a later read without --vehicle took the shipped Crazyflie's file
+        ([str(EVENTS), "--vehicle-from-log", "crazyflie21.yaml", "-o", "bag"],
+         "--vehicle-from-log crazyflie21.yaml: crazyflie21 is a shipped vehicle's name, which the bag would name (a later "
+         "read without --vehicle takes the shipped crazyflie21); choose another file name"),
     ]
     for args, message in cases:
         capsys.readouterr()
