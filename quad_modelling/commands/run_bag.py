@@ -395,7 +395,11 @@ def _run(args: argparse.Namespace, warned: bool = False) -> int:
     if args.rate > 0 and flight.duration / args.rate > args.timeout:  # 1e-300 was accepted, then timed out (review)
         raise ConfigError(f"--rate {args.rate:g}: the {flight.duration:.1f} s flight would replay for {flight.duration / args.rate:.3g} s, "
                           f"longer than --timeout {args.timeout:g} s (raise --timeout, or --rate 0: paced by the nodes)")
-    for note in spans_without_a_window(spans, flight.duration, float(args.window)):
+    empty = spans_without_a_window(spans, flight.duration, float(args.window))
+    if len(empty) == len(seconds_spans(spans)):  # the graph would run and score nothing (evaluate refuses it so)
+        raise ConfigError(f"{args.bag}: no {float(args.window):g} s window fits any span ({empty[0]}"
+                          f"{f'; and {len(empty) - 1} more' if len(empty) > 1 else ''}): use a shorter --window or other spans")
+    for note in empty:
         print(f"warning: {args.bag}: {note}", file=sys.stderr)
     for m in models:  # fail fast, in this process, on an unknown model or a bad model file
         check = getattr(make_streaming_predictor(m.spec, vehicle), "check_flight", None)

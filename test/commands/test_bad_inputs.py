@@ -324,6 +324,8 @@ CORPUS = [
     ("bag-mocap-gap-to-mat", ["convert", "{d}/mocap_gap", "-o", "{d}/work/b.mat"],
      "{d}/mocap_gap has measurement gaps (/quad/mocap/odom 1.00..7.68 s): a .mat log has one time base; convert to a bag"),
     ("run-bag-damaged", ["run-bag", "{d}/damaged", "-o", "{d}/work/live"], "{d}/damaged: not a readable rosbag2 bag"),
+    # the graph ran, scored nothing and exited 0
+    ("run-bag-no-window", ["run-bag", "{d}/bag", "--window", "1000", "-o", "{d}/work/live"], "{d}/bag: no 1000 s window fits any span"),
     ("effects-unknown-term", ["evaluate", "{d}/flight.mat", "--vehicle", "{d}/effect_unknown.yaml", "-o", "{d}/work/e"],
      "{d}/effect_unknown.yaml: effects.wind: unknown physics-model term; known: ground_effect"),
     ("effects-wrong-unit", ["identify", "{d}/flight.mat", "--vehicle", "{d}/effect_unit.yaml", "-o", "{d}/work/v.yaml"],
