@@ -151,6 +151,9 @@ def dask_client(jobs: int | None = None, scheduler: str | None = None) -> Iterat
     except (OSError, TimeoutError) as err:
         raise ConfigError(f"--scheduler {scheduler}: cannot connect to a Dask scheduler there within {CONNECT_TIMEOUT_S:g} s "
                           f"({reason(err)})") from err
+    except MemoryError as err:  # another service's first bytes (an ssh banner) read as a frame length of exabytes
+        raise ConfigError(f"--scheduler {scheduler}: what answers there is no Dask scheduler (its first bytes are no Dask "
+                          "message)") from err
     try:
         try:
             client.wait_for_workers(1, timeout=WORKER_WAIT_S)

@@ -166,6 +166,25 @@ def test_a_scheduler_address_that_accepts_and_never_answers_is_one_config_error(
         assert time.monotonic() - started < 30
 
 
+def test_a_service_that_greets_first_is_no_scheduler_in_one_line():
+    """An ssh server's banner read as a Dask frame length asked numpy for 2.82 EiB: a 60-line traceback."""
+    import threading
+
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+
+        def greet():
+            connection, _ = server.accept()
+            connection.sendall(b"SSH-2.0-OpenSSH_9.6p1 Ubuntu-3ubuntu13\r\n")
+            time.sleep(5)
+            connection.close()
+        threading.Thread(target=greet, daemon=True).start()
+        address = f"tcp://127.0.0.1:{server.getsockname()[1]}"
+        with pytest.raises(ConfigError, match=rf"^--scheduler {address}: what answers there is no Dask scheduler"):
+            map_flights(square_or_refuse, [1], 0, scheduler=address)
+
+
 class Terminal(io.StringIO):
     def isatty(self) -> bool:
         return True
