@@ -219,3 +219,24 @@ def test_a_map_stamp_path_the_type_lacks_is_a_fault_not_the_end_of_the_predictor
     motor = JointState(name=["m1", "m2", "m3", "m4"], effort=[1000.0] * 4)
     assert streams.admit("/user/motors", motor, faults) is None and faults.counts == {"bad_/user/motors": 1}
     assert "has no usable field header.nostamp (AttributeError" in warnings[0]
+
+
+def test_a_map_path_the_message_type_lacks_stops_the_node_at_start_in_one_line(ros, tmp_path):
+    """``pose.pose.position.q`` (or a stamp path the type lacks) in a user's map: the nodes ran and dropped every
+    message (evaluate refuses the map in one line); the default message of each type is read at start."""
+    import copy
+
+    import pytest
+
+    from quad_modelling.nodes.common import BadParameter
+
+    user_map = copy.deepcopy(USER_MAP)
+    user_map["topics"]["/user/motors"]["stamp"] = "header.nostamp"
+    (tmp_path / "map.yaml").write_text(yaml.safe_dump(user_map))
+    with pytest.raises(BadParameter, match=r"topic /user/motors: sensor_msgs/msg/JointState has no field header.nostamp$"):
+        PredictorNode(parameter_overrides=[Parameter(k, value=v) for k, v in
+                                           {"vehicle": "crazyflie21", "model": "greybox", "topic_map": str(tmp_path / "map.yaml")}.items()])
+    from quad_modelling.nodes.mapping.streams import lacking_attribute
+
+    assert not lacking_attribute(SimpleNamespace(values=[]), [("attr", "values"), ("index", 3)])  # may be filled later
+    assert lacking_attribute(SimpleNamespace(values=[SimpleNamespace(x=1.0)]), [("attr", "values"), ("index", 0), ("attr", "y")])

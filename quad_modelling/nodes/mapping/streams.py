@@ -28,7 +28,7 @@ from quad_modelling.core.flight_log import FlightLog, FlightMeta
 from quad_modelling.errors import DataError, QuadModellingError
 from quad_modelling.io import topics
 from quad_modelling.io.mapped_flight import TopicReader, convert_measurements, map_commands, readers_for
-from quad_modelling.io.topic_maps import CONTRACT_MAP, TopicMap, load_topic_map
+from quad_modelling.io.topic_maps import CONTRACT_MAP, TopicMap, load_topic_map, parse_path
 from quad_modelling.nodes.common import BadParameter, Param, stream_fault
 
 MEASURED_FIELDS = ("position", "attitude", "velocity", "acc", "gyro")
@@ -193,12 +193,33 @@ class MappedStreams:
                          meta=FlightMeta(vehicle=vehicle, source=source, notes={}))
 
 
+def lacking_attribute(msg, steps) -> bool:
+    """Whether the path ``steps`` (:func:`~quad_modelling.io.topic_maps.parse_path`) names an attribute ``msg`` (a
+    default message of its type) lacks; an index into an empty sequence is not judged (a message may fill it)."""
+    for kind, step in steps:
+        if kind == "attr":
+            if not hasattr(msg, step):
+                return True
+            msg = getattr(msg, step)
+        elif isinstance(step, int) and hasattr(msg, "__len__") and -len(msg) <= step < len(msg):
+            msg = msg[step]
+        else:
+            return False
+    return False
+
+
 def subscribe(node, streams: MappedStreams, qos, handler, counting=None) -> None:
     """Subscribe ``node`` to every topic of ``streams`` with the map's message types, ``handler(topic, msg)`` per
     message (wrapped in ``counting(topic, callback)`` when given: the node's message count per topic). Every class is
     resolved before the first subscription (a missing package: one line, nothing subscribed)."""
     classes = {t: message_class(streams.topic_map.topics[t].msgtype, f"{node.get_name()}: topic_map {streams.topic_map.name} topic {t}")
                for t in streams.readers}
+    for topic, kind in classes.items():  # a path the type lacks read nothing, message after message, without a word
+        spec = streams.topic_map.topics[topic]
+        for path in (spec.stamp, *([spec.instance] if spec.instance else []), *streams.readers[topic].paths):
+            if lacking_attribute(kind(), parse_path(path, spec, streams.where)):
+                raise BadParameter(f"{node.get_name()}: topic_map {streams.topic_map.name} topic {topic}: {spec.msgtype} "
+                                   f"has no field {path}")
     for topic, kind in classes.items():
         def callback(msg, topic=topic):
             handler(topic, msg)
