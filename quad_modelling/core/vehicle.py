@@ -38,14 +38,15 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 
 from quad_modelling.core.input_files import read_yaml, yaml_number
 from quad_modelling.core.physics.effects import EffectTerm, effects_document, parse_effects
 from quad_modelling.core.physics.parameters import PHYSICS_KEYS
-from quad_modelling.core.physics.rigid_body import GRAVITY
-from quad_modelling.core.physics.rotors import hover_rotor_speed, linear_motor
+from quad_modelling.core.physics.rigid_body import GRAVITY, allocation_matrix
+from quad_modelling.core.physics.rotors import hover_rotor_speed, linear_motor, steady_rotor_speed
 from quad_modelling.errors import ConfigError, VehicleKeyWarning
 
 
@@ -390,8 +391,9 @@ class VehicleConfig:
             raise ConfigError(f"{where}: motor positions lie at {np.round(radii, 4).tolist()} m from the centre, not arm_length {arm} m")
         if sum(m.yaw_sign for m in motors) != 0:
             raise ConfigError(f"{where}: two rotors must spin cw and two ccw")
-        xy = np.array([m.position for m in motors])  # thrust, roll (y F), pitch (-x F), yaw (sign): each one of its own
-        if np.linalg.matrix_rank(np.vstack([np.ones(4), xy[:, 1], -xy[:, 0], [m.yaw_sign for m in motors]]), tol=1e-6 * arm) < 4:
+        xy = np.array([m.position for m in motors])  # the mixer sets thrust, roll, pitch and yaw each on its own
+        ratio = constants["rotor_torque_constant"].value / constants["rotor_thrust_constant"].value  # k_m/k_f [m]
+        if np.linalg.matrix_rank(allocation_matrix(xy, [m.yaw_sign for m in motors], ratio)) < 4:
             raise ConfigError(f"{where}: motor positions {xy.round(4).tolist()} with their spins cannot set thrust, roll, pitch "
                               "and yaw apart (rotors coincide or pair up): give each rotor its own place")
         on_axis = np.abs(xy).min(axis=1) <= ON_AXIS * np.hypot(*xy.T)  # the label's one rule (io.ulog_vehicle's too)
@@ -412,11 +414,11 @@ class VehicleConfig:
             raise ConfigError(f"{where}: inputs.min and inputs.max must be finite, got [{input_min}, {input_max}]")
         if not input_max > input_min:
             raise ConfigError(f"{where}: inputs.max must exceed inputs.min")
-        if "rotor_speed_gain" in constants and "rotor_speed_offset" in constants:  # omega = k_u u + omega_0 at full command
-            fastest = constants["rotor_speed_gain"].value * input_max + constants["rotor_speed_offset"].value
-            if not fastest < MAX_ROTOR_SPEED:
-                raise ConfigError(f"{where}: constants.rotor_speed_gain.value {constants['rotor_speed_gain'].value:g} turns the rotors at "
-                                  f"{fastest:.3g} rad/s at inputs.max {input_max:g}, beyond {MAX_ROTOR_SPEED:g} rad/s")
+        gain, offset = constants["rotor_speed_gain"].value, constants["rotor_speed_offset"].value  # both required
+        fastest = float(steady_rotor_speed(SimpleNamespace(speed_gain=gain, speed_offset=offset), input_max))  # full command
+        if not fastest < MAX_ROTOR_SPEED:
+            raise ConfigError(f"{where}: constants.rotor_speed_gain.value {gain:g} turns the rotors at {fastest:.3g} rad/s at "
+                              f"inputs.max {input_max:g}, beyond {MAX_ROTOR_SPEED:g} rad/s")
         return cls(
             name=name,
             description=str(doc.get("description", "")),
@@ -434,8 +436,7 @@ class VehicleConfig:
 
 
 def _text(value, key: str, where: str) -> str:
-    """A name or unit of a vehicle file: non-empty text or a number YAML read (``name: 2021``), as text; ConfigError
-    naming ``key`` for null, a boolean, a list or a mapping (read as the text "None" or "['a']")."""
+    """A name or unit of a vehicle file: text, or a number YAML read (``name: 2021``) as text; else ConfigError."""
     if isinstance(value, bool) or not isinstance(value, (str, int, float)) or not str(value).strip():
         raise ConfigError(f"{where}: {key} must be text, got {str(value)[:40]!r}")
     return str(value)
@@ -596,5 +597,4 @@ def vehicle_document(vehicle: VehicleConfig, description: str | None = None) -> 
 
 
 def _constant_document(c: Constant) -> dict:
-    entry = {"value": c.value, "unit": c.unit, "source": c.source, "status": c.status}
-    return entry if c.sigma is None else {**entry, "sigma": c.sigma}
+    return {"value": c.value, "unit": c.unit, "source": c.source, "status": c.status, **({} if c.sigma is None else {"sigma": c.sigma})}

@@ -25,7 +25,6 @@ from quad_modelling.core.preprocess import (
 from quad_modelling.core.vehicle import VehicleConfig
 from quad_modelling.core.windows import (
     EvaluationConfig,
-    check_window_rows,
     SpanSpec,
     span_windows,
     warm_samples_for,
@@ -124,7 +123,6 @@ def prepare_windows(
     DataError when no window fits.
     """
     span = span or flying_span()
-    check_window_rows(flights, config)
     windows: list[FlightLog] = []
     starts: list[float] = []
     grounds: list[float] = []
